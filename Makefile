@@ -1,0 +1,43 @@
+# The README's two commands: `make demo` and `make test`. Each sets up what it
+# needs (venv, Docker engine, Compose v2, base image) and is safe to re-run.
+SHELL := /bin/bash
+PYTHON ?= python3
+VENV := .venv
+PY := $(VENV)/bin/python
+ESPDOCK := $(VENV)/bin/espdock
+
+.PHONY: setup test unit demo demo-down bench clean
+
+$(VENV)/.installed: pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install -q --upgrade pip
+	$(PY) -m pip install -q -e '.[test]'
+	touch $@
+
+# Engine, compose plugin, base image; then the test-only system packages.
+setup: $(VENV)/.installed
+	$(ESPDOCK) setup
+	bash tests/install-system-deps.sh
+
+test: setup
+	$(PY) -m pytest
+	bash tests/firmware/run.sh build/host-tests
+
+# Fast unit tests only: no engine needed.
+unit: $(VENV)/.installed
+	$(PY) -m pytest tests/unit
+
+demo: setup
+	$(ESPDOCK) build
+	$(ESPDOCK) compose build demo
+	@echo "espdock demo: the camera UI is at http://127.0.0.1:8080 (Ctrl-C stops it)"
+	$(ESPDOCK) compose up demo
+
+demo-down:
+	$(ESPDOCK) compose down --remove-orphans
+
+bench: setup
+	$(PY) tests/bench/demo_bench.py
+
+clean:
+	rm -rf build ws/build ws/install ws/log

@@ -1,0 +1,3 @@
+from espdock.cli import main
+
+main()

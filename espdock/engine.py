@@ -1,0 +1,287 @@
+"""The one module that talks to the container engine.
+
+Containers are created, streamed and always removed here; engine exceptions are
+translated at this boundary, so nothing above it sees docker.errors.*.
+Image builds go through Compose v2, whose BuildKit client gives build secrets
+(the CA bundle) that the Docker SDK's legacy builder cannot.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+import warnings
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import IO
+
+import docker
+import docker.errors
+import requests.exceptions
+
+from espdock.errors import EngineUnavailable, EspdockError, ImageBuildError
+
+LineSink = Callable[[str], None]
+
+
+@dataclass(frozen=True)
+class ImageInfo:
+    id: str
+    tags: tuple[str, ...]
+    created: datetime
+    size: int
+    labels: Mapping[str, str] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class Mount:
+    source: Path
+    target: str
+    read_only: bool = False
+
+
+@dataclass(frozen=True)
+class RunSpec:
+    """What a container needs to run one command."""
+
+    image: str
+    argv: tuple[str, ...]
+    workdir: str
+    user: str | None = None
+    mounts: tuple[Mount, ...] = ()
+    env: tuple[tuple[str, str], ...] = ()
+    labels: tuple[tuple[str, str], ...] = ()
+    devices: tuple[str, ...] = ()
+    network: str | None = None
+    tty: bool = False
+    name: str | None = None
+
+
+class Engine:
+    """A connected Docker engine."""
+
+    def __init__(self, client: docker.DockerClient, env: Mapping[str, str]) -> None:
+        self._client = client
+        self._env = dict(env)
+
+    @classmethod
+    def connect(cls, env: Mapping[str, str], timeout: float = 60) -> Engine:
+        """Connect to the engine DOCKER_HOST (or the default socket) names; raise if none answers."""
+        try:
+            client = docker.from_env(environment=dict(env), timeout=timeout)
+            client.ping()
+        except (docker.errors.DockerException, requests.exceptions.RequestException) as exc:
+            raise EngineUnavailable(f"no Docker engine answers at {env.get('DOCKER_HOST') or 'the default socket'}: {exc}") from exc
+        return cls(client, env)
+
+    # Images
+
+    def image(self, ref: str) -> ImageInfo | None:
+        """The local image REF, or None when there is none."""
+        try:
+            image = self._client.images.get(ref)
+        except docker.errors.ImageNotFound:
+            return None
+        except docker.errors.APIError as exc:
+            raise EspdockError(f"the engine failed to look up image {ref}: {exc}") from exc
+        attrs = image.attrs
+        created = datetime.fromisoformat(attrs["Created"][:19]).replace(tzinfo=timezone.utc)
+        return ImageInfo(
+            id=image.id,
+            tags=tuple(image.tags),
+            created=created,
+            size=int(attrs.get("Size", 0)),
+            labels=dict((attrs.get("Config") or {}).get("Labels") or {}),
+        )
+
+    def pull(self, ref: str) -> bool:
+        """Pull REF from its registry; False when no registry could give it."""
+        repository, _, tag = ref.rpartition(":") if ":" in ref.split("/")[-1] else (ref, "", "latest")
+        try:
+            self._client.images.pull(repository, tag=tag)
+        except (docker.errors.APIError, requests.exceptions.RequestException):
+            return False
+        return True
+
+    def import_rootfs(self, tarball: Path, ref: str) -> None:
+        """Make image REF from a root filesystem tarball (docker import)."""
+        repository, _, tag = ref.rpartition(":")
+        try:
+            self._client.api.import_image_from_file(str(tarball), repository=repository, tag=tag)
+        except docker.errors.APIError as exc:
+            raise ImageBuildError(f"the engine refused to import {tarball} as {ref}: {exc}") from exc
+
+    def build_image(
+        self,
+        context: Path,
+        dockerfile: str,
+        target: str,
+        tag: str,
+        build_args: Mapping[str, str],
+        labels: Mapping[str, str],
+        ca_bundle: Path | None,
+        on_line: LineSink,
+    ) -> None:
+        """Build TARGET of DOCKERFILE in CONTEXT as TAG, streaming BuildKit's plain progress."""
+        spec = {
+            "name": "espdock-build",
+            "services": {
+                "image": {
+                    "image": tag,
+                    "build": {
+                        "context": str(context),
+                        "dockerfile": dockerfile,
+                        "target": target,
+                        "args": dict(build_args),
+                        "labels": dict(labels),
+                        "secrets": ["ca_bundle"],
+                    },
+                }
+            },
+            # An empty secret means "no extra CA"; the Dockerfile checks for that.
+            "secrets": {"ca_bundle": {"file": str(ca_bundle or "/dev/null")}},
+        }
+        argv = [*self.compose_command(), "-f", "-", "--progress", "plain", "build", "image"]
+        tail: list[str] = []
+        process = subprocess.Popen(
+            argv,
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            env=self._env,
+            text=True,
+            errors="replace",
+        )
+        try:
+            assert process.stdin is not None and process.stdout is not None
+            process.stdin.write(json.dumps(spec))
+            process.stdin.close()
+            for line in process.stdout:
+                line = line.rstrip("\n")
+                tail = (tail + [line])[-30:]
+                on_line(line)
+            code = process.wait()
+        except BaseException:
+            # Interrupted: BuildKit cancels the build when its client goes; nothing gets tagged.
+            process.terminate()
+            try:
+                process.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                process.kill()
+            raise
+        if code != 0:
+            raise ImageBuildError(
+                f"building {tag} from {dockerfile} (stage {target}) failed:\n" + "\n".join(tail[-15:]),
+                "Read the build output above; run with --verbose for all of it.",
+            )
+
+    def compose_command(self) -> list[str]:
+        """The argv prefix for Compose v2 as a docker CLI plugin."""
+        docker_cli = shutil.which("docker", path=self._env.get("PATH"))
+        if docker_cli is None:
+            raise EngineUnavailable("the docker CLI is not on PATH", "Install the docker client (Debian: docker.io).")
+        return [docker_cli, "compose"]
+
+    # Containers
+
+    def run(self, spec: RunSpec, on_line: LineSink, keep: bool = False) -> int:
+        """Run SPEC to completion, streaming its output by line; return its exit code.
+
+        The container is removed however this ends (Ctrl-C included) unless KEEP.
+        """
+        with self._container(spec, keep) as container:
+            container.start()
+            _stream_lines(container.logs(stream=True, follow=True), on_line)
+            return int(container.wait().get("StatusCode", 1))
+
+    def run_attached(self, spec: RunSpec, keep: bool = False) -> int:
+        """Run SPEC with the terminal attached (for interactive tools); return its exit code."""
+        with self._container(spec, keep) as container:
+            docker_cli = self.compose_command()[0]
+            # The CLI does what the SDK cannot: raw TTY, window size, stdin forwarding.
+            return subprocess.call([docker_cli, "start", "--attach", "--interactive", container.id], env=self._env)
+
+    @contextmanager
+    def _container(self, spec: RunSpec, keep: bool) -> Iterator[docker.models.containers.Container]:
+        try:
+            container = self._client.containers.create(
+                spec.image,
+                command=list(spec.argv),
+                working_dir=spec.workdir,
+                user=spec.user,
+                environment=dict(spec.env),
+                labels=dict(spec.labels),
+                volumes={
+                    str(m.source): {"bind": m.target, "mode": "ro" if m.read_only else "rw"} for m in spec.mounts
+                },
+                devices=[f"{d}:{d}:rwm" for d in spec.devices],
+                network_mode=spec.network,
+                tty=spec.tty,
+                stdin_open=spec.tty,
+                name=spec.name,
+                detach=True,
+            )
+        except docker.errors.ImageNotFound as exc:
+            raise EspdockError(f"image {spec.image} is not there: {exc}", "Run `espdock build` to build it.") from exc
+        except docker.errors.APIError as exc:
+            raise EspdockError(f"the engine could not create a container of {spec.image}: {exc.explanation or exc}") from exc
+        try:
+            yield container
+        except docker.errors.APIError as exc:
+            raise EspdockError(f"the container of {spec.image} failed: {exc.explanation or exc}") from exc
+        finally:
+            if not keep:
+                _remove(container)
+
+    def remove_containers(self, labels: Mapping[str, str]) -> int:
+        """Remove every container (running or not) carrying all LABELS; return how many."""
+        selector = [f"{k}={v}" for k, v in labels.items()]
+        removed = 0
+        try:
+            for container in self._client.containers.list(all=True, filters={"label": selector}):
+                _remove(container)
+                removed += 1
+        except docker.errors.APIError as exc:
+            warnings.warn(f"could not list old espdock containers: {exc}", stacklevel=2)
+        return removed
+
+    def containers(self, labels: Mapping[str, str]) -> list[str]:
+        """Names of containers (running or not) carrying all LABELS."""
+        selector = [f"{k}={v}" for k, v in labels.items()]
+        return [c.name for c in self._client.containers.list(all=True, filters={"label": selector})]
+
+
+def _remove(container: docker.models.containers.Container) -> None:
+    try:
+        # A short stop first lets the command inside clean up (colcon removes its lock files).
+        container.stop(timeout=3)
+    except docker.errors.APIError:
+        pass
+    try:
+        container.remove(force=True)
+    except docker.errors.NotFound:
+        pass
+    except docker.errors.APIError as exc:
+        warnings.warn(f"could not remove container {container.short_id}: {exc}", stacklevel=2)
+
+
+def _stream_lines(chunks: Iterator[bytes] | IO[bytes], on_line: LineSink) -> None:
+    pending = b""
+    for chunk in chunks:
+        pending += chunk
+        *lines, pending = pending.split(b"\n")
+        for line in lines:
+            on_line(line.decode("utf-8", "replace").rstrip("\r"))
+    if pending:
+        on_line(pending.decode("utf-8", "replace"))
+
+
+def format_argv(argv: Sequence[str]) -> str:
+    """ARGV as one shell-quoted line, for display only."""
+    import shlex
+
+    return shlex.join(argv)

@@ -1,0 +1,199 @@
+"""Carries out a plan step by step; reports what happens as events, never prints."""
+
+from __future__ import annotations
+
+import fcntl
+import os
+import re
+import time
+from collections.abc import Callable, Iterator, Mapping
+from contextlib import contextmanager
+from dataclasses import dataclass
+from datetime import datetime, timezone
+from enum import Enum
+from pathlib import Path
+
+from espdock import bootstrap
+from espdock.config import Config, invoking_user, resolve_ca_bundle
+from espdock.engine import Engine, Mount, RunSpec
+from espdock.errors import BuildFailed, EspdockError, WorkspaceError
+from espdock.plan import (
+    LABEL_KEY,
+    LABEL_WORKSPACE,
+    WORKSPACE_MOUNT,
+    ColconBuild,
+    EnsureBaseImage,
+    EnsureImage,
+    Plan,
+    Step,
+)
+from espdock.workspace import Workspace
+
+FAILED_PACKAGE = re.compile(r"^Failed\s+<<<\s+(\S+)")
+BUILDKIT_STEP = re.compile(r"^#\d+ \[.*\] (?P<what>.+)$")
+
+
+class Outcome(str, Enum):
+    BUILT = "built"
+    CACHED = "cached"
+    FAILED = "failed"
+
+
+@dataclass(frozen=True)
+class StepStarted:
+    step: str
+
+
+@dataclass(frozen=True)
+class StepOutput:
+    step: str
+    line: str
+    # Progress lines (image builds) are shown as status; the rest is streamed.
+    progress: bool = False
+
+
+@dataclass(frozen=True)
+class StepNote:
+    step: str
+    text: str
+
+
+@dataclass(frozen=True)
+class StepFinished:
+    step: str
+    outcome: Outcome
+    seconds: float
+    detail: str = ""
+
+
+Event = StepStarted | StepOutput | StepNote | StepFinished
+Emit = Callable[[Event], None]
+
+
+class Runner:
+    """Runs plan steps against one engine."""
+
+    def __init__(self, engine: Engine, config: Config, env: Mapping[str, str], emit: Emit) -> None:
+        self._engine = engine
+        self._config = config
+        self._env = env
+        self._emit = emit
+
+    def run(self, plan: Plan) -> list[StepFinished]:
+        """Run every step in order; stops at the first failure, raising its error."""
+        results = []
+        with workspace_lock(plan.workspace):
+            for step in plan.steps:
+                results.append(self._run_step(plan.workspace, step))
+        return results
+
+    def _run_step(self, workspace: Workspace, step: Step) -> StepFinished:
+        self._emit(StepStarted(step.name))
+        started = time.monotonic()
+        try:
+            outcome, detail = self._dispatch(workspace, step)
+        except BaseException as exc:
+            detail = exc.message.splitlines()[0] if isinstance(exc, EspdockError) else "interrupted"
+            self._emit(StepFinished(step.name, Outcome.FAILED, time.monotonic() - started, detail))
+            raise
+        finished = StepFinished(step.name, outcome, time.monotonic() - started, detail)
+        self._emit(finished)
+        return finished
+
+    def _dispatch(self, workspace: Workspace, step: Step) -> tuple[Outcome, str]:
+        if isinstance(step, EnsureBaseImage):
+            how = bootstrap.ensure_base_image(
+                self._engine, step.image, self._config, lambda text: self._emit(StepNote(step.name, text))
+            )
+            return (Outcome.CACHED, "present") if how == "present" else (Outcome.BUILT, how)
+        if isinstance(step, EnsureImage):
+            return self._ensure_image(workspace, step)
+        if isinstance(step, ColconBuild):
+            return self._colcon(workspace, step)
+        raise TypeError(f"unknown step {step!r}")
+
+    def _ensure_image(self, workspace: Workspace, step: EnsureImage) -> tuple[Outcome, str]:
+        spec = step.spec
+        existing = self._engine.image(spec.tag)
+        if existing is not None and existing.labels.get(LABEL_KEY) == spec.key:
+            age = datetime.now(timezone.utc) - existing.created
+            self._emit(StepNote(step.name, f"{spec.tag}: cache hit (key {spec.key[:16]}, built {_age(age.total_seconds())} ago)"))
+            return Outcome.CACHED, spec.tag
+        self._emit(StepNote(step.name, f"{spec.tag}: cache miss (key {spec.key[:16]}), building stage {spec.target}"))
+
+        def on_line(line: str) -> None:
+            match = BUILDKIT_STEP.match(line)
+            self._emit(StepOutput(step.name, match.group("what") if match else line, progress=True))
+
+        self._engine.build_image(
+            context=workspace.root,
+            dockerfile=spec.dockerfile,
+            target=spec.target,
+            tag=spec.tag,
+            build_args=dict(spec.build_args),
+            labels={LABEL_KEY: spec.key},
+            ca_bundle=resolve_ca_bundle(self._config, self._env),
+            on_line=on_line,
+        )
+        return Outcome.BUILT, spec.tag
+
+    def _colcon(self, workspace: Workspace, step: ColconBuild) -> tuple[Outcome, str]:
+        labels = {LABEL_WORKSPACE: str(workspace.root), "io.espdock.step": "colcon"}
+        # Left by an espdock that was killed outright; we hold the workspace lock, so none is live.
+        self._engine.remove_containers(labels)
+        uid, gid = invoking_user(self._env)
+        failed: list[str] = []
+
+        def on_line(line: str) -> None:
+            match = FAILED_PACKAGE.match(line)
+            if match:
+                failed.append(match.group(1))
+            self._emit(StepOutput(step.name, line))
+
+        code = self._engine.run(
+            RunSpec(
+                image=step.image,
+                argv=step.argv(),
+                workdir=step.workdir,
+                user=f"{uid}:{gid}",
+                mounts=(Mount(workspace.ws_dir, f"{WORKSPACE_MOUNT}/ws"),),
+                env=(("HOME", "/tmp"),),
+                labels=tuple(labels.items()),
+            ),
+            on_line,
+            keep=self._config.keep_containers,
+        )
+        if code != 0:
+            logs = workspace.ws_dir / "log" / "latest_build"
+            names = tuple(failed) or ("(unknown)",)
+            where = "\n".join(f"  {n}: {logs / n / 'stdout_stderr.log'}" for n in names)
+            raise BuildFailed(
+                f"colcon build failed (exit code {code}) in {', '.join(names)}; logs:\n{where}",
+                "Fix the package and run `espdock build` again; packages that built are kept.",
+                packages=tuple(failed),
+            )
+        return Outcome.BUILT, f"{len(step.up_to or step.packages)} package(s)"
+
+
+@contextmanager
+def workspace_lock(workspace: Workspace) -> Iterator[None]:
+    """Hold an exclusive lock on the workspace for the duration of a build."""
+    fd = os.open(workspace.root, os.O_RDONLY)
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            raise WorkspaceError(
+                f"another espdock build is running in {workspace.root}", "Wait for it to finish, then run again."
+            ) from None
+        yield
+    finally:
+        os.close(fd)
+
+
+def _age(seconds: float) -> str:
+    for unit, size in (("d", 86400), ("h", 3600), ("min", 60)):
+        if seconds >= size:
+            return f"{seconds / size:.0f} {unit}"
+    return f"{max(seconds, 0):.0f} s"
+

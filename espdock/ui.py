@@ -1,0 +1,85 @@
+"""Renders runner events on the terminal with rich: a live status per step, then a summary."""
+
+from __future__ import annotations
+
+from rich.console import Console
+from rich.status import Status
+from rich.table import Table
+from rich.text import Text
+
+from espdock.plan import ColconBuild, EnsureBaseImage, EnsureImage, Plan
+from espdock.runner import Event, Outcome, StepFinished, StepNote, StepOutput, StepStarted
+
+MARKS = {Outcome.BUILT: ("✓", "green"), Outcome.CACHED: ("•", "cyan"), Outcome.FAILED: ("✗", "red")}
+
+
+class Reporter:
+    """Turns events into terminal output; verbose shows image build logs too."""
+
+    def __init__(self, console: Console, verbose: bool = False) -> None:
+        self.console = console
+        self.verbose = verbose
+        self.finished: list[StepFinished] = []
+        self._status: Status | None = None
+
+    def __call__(self, event: Event) -> None:
+        if isinstance(event, StepStarted):
+            self._status = self.console.status(Text(event.step, style="bold"))
+            self._status.start()
+        elif isinstance(event, StepNote):
+            self.console.print(Text(f"  {event.text}", style="dim"))
+        elif isinstance(event, StepOutput):
+            if event.progress and not self.verbose:
+                if self._status is not None:
+                    self._status.update(Text.assemble((event.step, "bold"), "  ", (event.line[:100], "dim")))
+            else:
+                self.console.print(Text(event.line), soft_wrap=True)
+        elif isinstance(event, StepFinished):
+            if self._status is not None:
+                self._status.stop()
+                self._status = None
+            mark, colour = MARKS[event.outcome]
+            self.console.print(
+                Text.assemble((f"{mark} ", colour), (event.step, "bold"), f"  {event.outcome.value}",
+                              (f"  {event.seconds:.1f} s", "dim"), (f"  {event.detail}" if event.detail else "", "dim"))
+            )
+            self.finished.append(event)
+
+    def close(self) -> None:
+        if self._status is not None:
+            self._status.stop()
+            self._status = None
+
+    def summary(self) -> None:
+        if not self.finished:
+            return
+        table = Table(title="espdock build", title_justify="left")
+        table.add_column("step")
+        table.add_column("result")
+        table.add_column("time", justify="right")
+        table.add_column("detail", overflow="fold")
+        for event in self.finished:
+            _, colour = MARKS[event.outcome]
+            table.add_row(event.step, Text(event.outcome.value, style=colour), f"{event.seconds:.1f} s", event.detail)
+        self.console.print(table)
+
+
+def render_plan(console: Console, plan: Plan) -> None:
+    """Print the steps a plan would run, without running them (--dry-run)."""
+    from espdock.engine import format_argv
+
+    console.print(Text(f"workspace {plan.workspace.root}", style="bold"))
+    if not plan.steps:
+        console.print("nothing to build: no packages in ws/src")
+    for number, step in enumerate(plan.steps, 1):
+        console.print(Text(f"{number}. {step.name}", style="bold"))
+        if isinstance(step, EnsureBaseImage):
+            console.print(f"   use {step.image} if present, else pull it, else build it with debootstrap")
+        elif isinstance(step, EnsureImage):
+            spec = step.spec
+            console.print(f"   {spec.tag} from {spec.dockerfile} stage {spec.target} (key {spec.key})")
+            for name, sha in spec.inputs:
+                console.print(Text(f"     {name}  {sha[:12]}", style="dim"))
+        elif isinstance(step, ColconBuild):
+            console.print(f"   in {step.image}, {step.workdir}: {format_argv(step.argv())}")
+            console.print(Text(f"     packages: {', '.join(step.packages)}", style="dim"))

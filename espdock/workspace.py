@@ -1,0 +1,178 @@
+"""The workspace model: where it is, which packages it holds, and their order."""
+
+from __future__ import annotations
+
+import difflib
+import os
+from collections.abc import Iterable
+from dataclasses import dataclass
+from enum import Enum
+from pathlib import Path
+
+from catkin_pkg.package import InvalidPackage, parse_package
+
+from espdock.config import CONFIG_FILE
+from espdock.errors import WorkspaceError
+
+IGNORE_MARKERS = ("COLCON_IGNORE", "AMENT_IGNORE", "CATKIN_IGNORE")
+
+
+class PackageKind(str, Enum):
+    ROS = "ros"
+    FIRMWARE = "firmware"
+
+
+@dataclass(frozen=True)
+class Package:
+    """One package.xml: a ROS package under ws/src or a firmware package under firmware/."""
+
+    name: str
+    path: Path
+    kind: PackageKind
+    build_type: str
+    # Every dependency named in the manifest (build, buildtool, exec, test, group), workspace or not.
+    depends: frozenset[str]
+    is_interface: bool = False
+
+
+@dataclass(frozen=True)
+class Workspace:
+    """An espdock workspace: ROOT/espdock.toml, ROS packages in ws/src, firmware in firmware/."""
+
+    root: Path
+
+    @property
+    def ws_dir(self) -> Path:
+        return self.root / "ws"
+
+    @property
+    def src_dir(self) -> Path:
+        return self.ws_dir / "src"
+
+    @property
+    def firmware_dir(self) -> Path:
+        return self.root / "firmware"
+
+
+def find_workspace(start: Path) -> Workspace:
+    """The nearest directory at or above START that holds espdock.toml."""
+    start = start.resolve()
+    looked = []
+    for directory in (start, *start.parents):
+        looked.append(directory)
+        if (directory / CONFIG_FILE).is_file():
+            return Workspace(directory)
+    shown = ", ".join(str(d) for d in looked[:4]) + (", ..." if len(looked) > 4 else "")
+    raise WorkspaceError(
+        f"not inside an espdock workspace: no {CONFIG_FILE} in {start} or any parent ({shown})",
+        f"Run espdock from a workspace, or create {CONFIG_FILE} at its root.",
+    )
+
+
+def discover_packages(workspace: Workspace) -> tuple[Package, ...]:
+    """Every package in ws/src and firmware/, by name; names must be unique."""
+    found: dict[str, Package] = {}
+    for base, kind in ((workspace.src_dir, PackageKind.ROS), (workspace.firmware_dir, PackageKind.FIRMWARE)):
+        for manifest in _manifests(base):
+            package = _read_manifest(manifest, kind)
+            if package.name in found:
+                raise WorkspaceError(
+                    f"two packages are named '{package.name}': {found[package.name].path} and {package.path}",
+                    "Package names must be unique in a workspace.",
+                )
+            found[package.name] = package
+    return tuple(found[name] for name in sorted(found))
+
+
+def _manifests(base: Path) -> Iterable[Path]:
+    """package.xml files under BASE, not descending into packages, ignored or hidden dirs."""
+    if not base.is_dir():
+        return
+    for dirpath, dirnames, filenames in os.walk(base):
+        if any(marker in filenames for marker in IGNORE_MARKERS):
+            dirnames[:] = []
+            continue
+        if "package.xml" in filenames:
+            dirnames[:] = []
+            yield Path(dirpath) / "package.xml"
+            continue
+        dirnames[:] = sorted(d for d in dirnames if not d.startswith((".", "__")) and d not in ("build", "install", "log"))
+
+
+def _read_manifest(manifest: Path, kind: PackageKind) -> Package:
+    try:
+        pkg = parse_package(str(manifest))
+    except (InvalidPackage, ValueError, OSError) as exc:
+        raise WorkspaceError(f"{manifest} is not a valid package.xml: {exc}", "Fix the manifest and run again.") from exc
+    deps = {
+        d.name
+        for d in (
+            *pkg.build_depends, *pkg.buildtool_depends, *pkg.build_export_depends,
+            *pkg.exec_depends, *pkg.test_depends,
+        )
+        if d.evaluated_condition is not False
+    }
+    exports = {e.tagname: e.content for e in pkg.exports}
+    return Package(
+        name=pkg.name,
+        path=manifest.parent,
+        kind=kind,
+        build_type=exports.get("build_type") or "ament_cmake",
+        depends=frozenset(deps),
+        is_interface="rosidl_interface_packages" in {g.name for g in pkg.member_of_groups},
+    )
+
+
+def order_packages(packages: Iterable[Package]) -> tuple[Package, ...]:
+    """Packages so that each comes after the workspace packages it depends on (stable by name)."""
+    by_name = {p.name: p for p in packages}
+    ordered: list[Package] = []
+    state: dict[str, str] = {}
+
+    def visit(name: str, chain: tuple[str, ...]) -> None:
+        if state.get(name) == "done":
+            return
+        if state.get(name) == "active":
+            cycle = " -> ".join((*chain[chain.index(name):], name))
+            raise WorkspaceError(f"dependency cycle: {cycle}", "Remove one of these dependencies.")
+        state[name] = "active"
+        for dep in sorted(by_name[name].depends & by_name.keys()):
+            visit(dep, (*chain, name))
+        state[name] = "done"
+        ordered.append(by_name[name])
+
+    for name in sorted(by_name):
+        visit(name, ())
+    return tuple(ordered)
+
+
+def select_up_to(packages: tuple[Package, ...], names: Iterable[str]) -> tuple[Package, ...]:
+    """NAMES and every workspace package they depend on, transitively, in build order."""
+    by_name = {p.name: p for p in packages}
+    wanted: set[str] = set()
+    stack = []
+    for name in names:
+        if name not in by_name:
+            close = difflib.get_close_matches(name, by_name, n=1)
+            hint = f"Did you mean '{close[0]}'?" if close else f"Packages: {', '.join(sorted(by_name)) or 'none'}."
+            raise WorkspaceError(f"no package named '{name}' in this workspace", hint)
+        stack.append(name)
+    while stack:
+        name = stack.pop()
+        if name in wanted:
+            continue
+        wanted.add(name)
+        stack.extend(by_name[name].depends & by_name.keys())
+    return tuple(p for p in order_packages(packages) if p.name in wanted)
+
+
+def read_image_inputs(root: Path, directory: str) -> dict[str, bytes]:
+    """The files under ROOT/DIRECTORY that an image is built from, by relative path."""
+    base = root / directory
+    if not base.is_dir():
+        return {}
+    return {
+        str(path.relative_to(root)): path.read_bytes()
+        for path in sorted(base.rglob("*"))
+        if path.is_file() and "__pycache__" not in path.parts
+    }

@@ -1,0 +1,18 @@
+#!/usr/bin/env bash
+# System packages the tests use beyond the Docker engine (which `espdock setup`
+# provides): Debian's Chromium for the browser tests. Installed only when
+# missing, and only where we can (root on Debian); elsewhere the tests that
+# need them say what is missing.
+set -euo pipefail
+missing=()
+command -v chromium >/dev/null || missing+=(chromium)
+command -v cmake >/dev/null || missing+=(cmake)
+command -v g++ >/dev/null || missing+=(g++)
+if [ ${#missing[@]} -eq 0 ]; then exit 0; fi
+if [ "$(id -u)" -ne 0 ] || ! command -v apt-get >/dev/null; then
+  echo "missing system packages: ${missing[*]} (install them, or run as root on Debian)" >&2
+  exit 0
+fi
+export DEBIAN_FRONTEND=noninteractive
+apt-get update -q
+apt-get install -y -q --no-install-recommends "${missing[@]}"

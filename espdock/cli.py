@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+import functools
 import os
 import signal
 import subprocess
 import sys
+from collections.abc import Callable
 from pathlib import Path
-from typing import Annotated, NoReturn, Optional
+from typing import Annotated, NoReturn, ParamSpec
 
 import typer
 from rich.console import Console
@@ -17,10 +19,17 @@ from rich.text import Text
 from espdock import __version__, bootstrap
 from espdock.config import Config, load_config, resolve_ca_bundle
 from espdock.errors import EspdockError, Interrupted, WorkspaceError
-from espdock.plan import ROS_DOCKERFILE, IMAGE_INPUT_DIR, Plan, plan_build, ros_build_image
+from espdock.plan import IMAGE_INPUT_DIR, ROS_DOCKERFILE, Plan, plan_build, ros_build_image
 from espdock.runner import Runner
 from espdock.ui import Reporter, render_plan
-from espdock.workspace import Workspace, discover_packages, find_workspace, order_packages, select_up_to, read_image_inputs
+from espdock.workspace import (
+    Workspace,
+    discover_packages,
+    find_workspace,
+    order_packages,
+    read_image_inputs,
+    select_up_to,
+)
 
 app = typer.Typer(
     help="Build ESP-IDF firmware, micro-ROS and a ROS 2 workspace reproducibly, in containers.",
@@ -28,13 +37,32 @@ app = typer.Typer(
     add_completion=False,
     pretty_exceptions_enable=False,
 )
-console = Console()
-err_console = Console(stderr=True)
+console = Console(soft_wrap=True)
+err_console = Console(stderr=True, soft_wrap=True)
 _state = {"debug": False}
+P = ParamSpec("P")
 
 WorkspaceOption = Annotated[
-    Optional[Path], typer.Option("--workspace", "-w", help="Workspace root (default: search upward from here).")
+    Path | None, typer.Option("--workspace", "-w", help="Workspace root (default: search upward from here).")
 ]
+
+
+def _command(function: Callable[P, None]) -> Callable[P, None]:
+    """Make FUNCTION a command whose espdock errors and Ctrl-C end in a message and an exit code.
+
+    Handled here, inside the command, because Typer would turn Ctrl-C into a bare exit code.
+    """
+
+    @functools.wraps(function)
+    def wrapper(*args: P.args, **kwargs: P.kwargs) -> None:
+        try:
+            function(*args, **kwargs)
+        except EspdockError as exc:
+            _fail(exc)
+        except KeyboardInterrupt:
+            _fail(Interrupted("interrupted; containers started by this run were stopped and removed"))
+
+    return wrapper
 
 
 def _version(value: bool) -> None:
@@ -53,6 +81,10 @@ def _main(
     _state["debug"] = debug
 
 
+def _notify(text: str) -> None:
+    console.print(Text(text, style="dim"))
+
+
 def _load(workspace: Path | None, **overrides: object) -> tuple[Workspace, Config]:
     ws = find_workspace(workspace or Path.cwd())
     return ws, load_config(ws.root, os.environ, overrides)
@@ -69,13 +101,14 @@ def _build_plan(ws: Workspace, config: Config, names: list[str]) -> Plan:
 
 
 @app.command()
+@_command
 def build(
     packages: Annotated[
-        Optional[list[str]], typer.Argument(help="Build only these packages and what they depend on.")
+        list[str] | None, typer.Argument(help="Build only these packages and what they depend on.")
     ] = None,
     dry_run: Annotated[bool, typer.Option("--dry-run", help="Print the plan without running it.")] = False,
     verbose: Annotated[bool, typer.Option("--verbose", "-v", help="Show image build logs in full.")] = False,
-    target: Annotated[Optional[str], typer.Option(help="ESP32 chip target (overrides espdock.toml).")] = None,
+    target: Annotated[str | None, typer.Option(help="ESP32 chip target (overrides espdock.toml).")] = None,
     workspace: WorkspaceOption = None,
 ) -> None:
     """Build the images when their inputs changed, then every package of the workspace."""
@@ -85,7 +118,7 @@ def build(
         render_plan(console, plan)
         return
     reporter = Reporter(console, verbose=verbose)
-    engine = bootstrap.ensure_engine(os.environ, lambda text: console.print(Text(text, style="dim")))
+    engine = bootstrap.ensure_engine(os.environ, _notify)
     try:
         Runner(engine, config, os.environ, reporter).run(plan)
     finally:
@@ -94,9 +127,10 @@ def build(
 
 
 @app.command()
+@_command
 def setup() -> None:
     """Make this machine ready: a Docker engine (started or installed), Compose v2, the base image."""
-    notify = lambda text: console.print(Text(text, style="dim"))  # noqa: E731
+    notify = _notify
     engine = bootstrap.ensure_engine(os.environ, notify)
     bootstrap.ensure_compose(os.environ, notify)
     try:
@@ -113,13 +147,12 @@ def setup() -> None:
     console.print("ready")
 
 
-@app.command(
-    context_settings={"allow_extra_args": True, "ignore_unknown_options": True, "help_option_names": []}
-)
+@app.command(context_settings={"allow_extra_args": True, "ignore_unknown_options": True, "help_option_names": []})
+@_command
 def compose(ctx: typer.Context, workspace: WorkspaceOption = None) -> None:
     """Run `docker compose ARGS...` in the workspace with espdock's settings (CA bundle) in its environment."""
     ws, config = _load(workspace)
-    notify = lambda text: console.print(Text(text, style="dim"))  # noqa: E731
+    notify = _notify
     engine = bootstrap.ensure_engine(os.environ, notify)
     bootstrap.ensure_compose(os.environ, notify)
     env = dict(os.environ)
@@ -131,6 +164,7 @@ def compose(ctx: typer.Context, workspace: WorkspaceOption = None) -> None:
 
 
 @app.command("list")
+@_command
 def list_packages(workspace: WorkspaceOption = None) -> None:
     """List the workspace's packages in build order."""
     ws, _ = _load(workspace)
@@ -149,25 +183,9 @@ def _on_sigterm(signum: int, frame: object) -> NoReturn:
 
 
 def main() -> None:
-    """Entry point: run the app, turning espdock's errors into messages and exit codes."""
+    """Entry point: SIGTERM (CI timeouts, `docker stop`) cleans up like Ctrl-C."""
     signal.signal(signal.SIGTERM, _on_sigterm)
-    try:
-        app(standalone_mode=False)
-    except EspdockError as exc:
-        _fail(exc)
-    except KeyboardInterrupt:
-        _fail(Interrupted("interrupted; containers started by this run were stopped and removed"))
-    except typer.Exit as exc:
-        sys.exit(exc.exit_code)
-    except typer.Abort:
-        _fail(Interrupted("aborted"))
-    except Exception as exc:  # click's usage errors
-        import click
-
-        if isinstance(exc, click.ClickException):
-            exc.show()
-            sys.exit(exc.exit_code)
-        raise
+    app()
 
 
 def _fail(exc: EspdockError) -> NoReturn:

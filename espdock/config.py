@@ -16,7 +16,15 @@ from espdock.errors import ConfigError
 CONFIG_FILE = "espdock.toml"
 
 CHIP_TARGETS = (
-    "esp32", "esp32s2", "esp32s3", "esp32c2", "esp32c3", "esp32c5", "esp32c6", "esp32h2", "esp32p4",
+    "esp32",
+    "esp32s2",
+    "esp32s3",
+    "esp32c2",
+    "esp32c3",
+    "esp32c5",
+    "esp32c6",
+    "esp32h2",
+    "esp32p4",
 )
 ROS_DISTROS = ("jazzy",)
 
@@ -48,9 +56,7 @@ _ENV = {
 }
 
 
-def load_config(
-    root: Path, env: Mapping[str, str], overrides: Mapping[str, Any] | None = None
-) -> Config:
+def load_config(root: Path, env: Mapping[str, str], overrides: Mapping[str, Any] | None = None) -> Config:
     """Merge defaults, ROOT/espdock.toml, ESPDOCK_* variables and CLI overrides."""
     values: dict[str, Any] = {}
     path = root / CONFIG_FILE
@@ -70,9 +76,7 @@ def _read_toml(path: Path) -> dict[str, Any]:
         raise ConfigError(f"{path} is not valid TOML: {exc}") from exc
     unknown_tables = set(data) - {"espdock"}
     if unknown_tables:
-        raise ConfigError(
-            f"{path}: unknown table [{sorted(unknown_tables)[0]}]", "espdock.toml has one table, [espdock]."
-        )
+        raise ConfigError(f"{path}: unknown table [{min(unknown_tables)}]", "espdock.toml has one table, [espdock].")
     table = data.get("espdock", {})
     for key in table:
         if key not in _KEYS:
@@ -136,8 +140,16 @@ def resolve_ca_bundle(config: Config, env: Mapping[str, str]) -> Path | None:
     return cert if cert is not None and cert.is_file() else None
 
 
-def invoking_user(env: Mapping[str, str]) -> tuple[int, int]:
-    """The uid/gid that should own what builds write: the sudo caller's, else ours."""
-    if os.geteuid() == 0 and env.get("SUDO_UID") and env.get("SUDO_GID"):
+def invoking_user(env: Mapping[str, str], root: Path) -> tuple[int, int]:
+    """The uid/gid that should own what builds write into the workspace at ROOT.
+
+    A normal user is that user. Root stands in for someone: the sudo caller, or
+    else the workspace's owner, so a root build never leaves root-owned files
+    in somebody's tree.
+    """
+    if os.geteuid() != 0:
+        return os.getuid(), os.getgid()
+    if env.get("SUDO_UID") and env.get("SUDO_GID"):
         return int(env["SUDO_UID"]), int(env["SUDO_GID"])
-    return os.getuid(), os.getgid()
+    owner = root.stat()
+    return owner.st_uid, owner.st_gid

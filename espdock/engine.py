@@ -8,6 +8,7 @@ Image builds go through Compose v2, whose BuildKit client gives build secrets
 
 from __future__ import annotations
 
+import collections
 import json
 import shutil
 import subprocess
@@ -15,14 +16,14 @@ import warnings
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import IO
 
-import docker
 import docker.errors
 import requests.exceptions
 
+import docker
 from espdock.errors import EngineUnavailable, EspdockError, ImageBuildError
 
 LineSink = Callable[[str], None]
@@ -75,7 +76,8 @@ class Engine:
             client = docker.from_env(environment=dict(env), timeout=timeout)
             client.ping()
         except (docker.errors.DockerException, requests.exceptions.RequestException) as exc:
-            raise EngineUnavailable(f"no Docker engine answers at {env.get('DOCKER_HOST') or 'the default socket'}: {exc}") from exc
+            where = env.get("DOCKER_HOST") or "unix:///var/run/docker.sock"
+            raise EngineUnavailable(f"no Docker engine answers at {where}: {_connect_reason(exc)}") from exc
         return cls(client, env)
 
     # Images
@@ -89,7 +91,7 @@ class Engine:
         except docker.errors.APIError as exc:
             raise EspdockError(f"the engine failed to look up image {ref}: {exc}") from exc
         attrs = image.attrs
-        created = datetime.fromisoformat(attrs["Created"][:19]).replace(tzinfo=timezone.utc)
+        created = datetime.fromisoformat(attrs["Created"][:19]).replace(tzinfo=UTC)
         return ImageInfo(
             id=image.id,
             tags=tuple(image.tags),
@@ -146,7 +148,7 @@ class Engine:
             "secrets": {"ca_bundle": {"file": str(ca_bundle or "/dev/null")}},
         }
         argv = [*self.compose_command(), "-f", "-", "--progress", "plain", "build", "image"]
-        tail: list[str] = []
+        tail: collections.deque[str] = collections.deque(maxlen=15)
         process = subprocess.Popen(
             argv,
             stdin=subprocess.PIPE,
@@ -160,9 +162,9 @@ class Engine:
             assert process.stdin is not None and process.stdout is not None
             process.stdin.write(json.dumps(spec))
             process.stdin.close()
-            for line in process.stdout:
-                line = line.rstrip("\n")
-                tail = (tail + [line])[-30:]
+            for raw in process.stdout:
+                line = raw.rstrip("\n")
+                tail.append(line)
                 on_line(line)
             code = process.wait()
         except BaseException:
@@ -175,7 +177,7 @@ class Engine:
             raise
         if code != 0:
             raise ImageBuildError(
-                f"building {tag} from {dockerfile} (stage {target}) failed:\n" + "\n".join(tail[-15:]),
+                f"building {tag} from {dockerfile} (stage {target}) failed:\n" + "\n".join(tail),
                 "Read the build output above; run with --verbose for all of it.",
             )
 
@@ -215,9 +217,7 @@ class Engine:
                 user=spec.user,
                 environment=dict(spec.env),
                 labels=dict(spec.labels),
-                volumes={
-                    str(m.source): {"bind": m.target, "mode": "ro" if m.read_only else "rw"} for m in spec.mounts
-                },
+                volumes={str(m.source): {"bind": m.target, "mode": "ro" if m.read_only else "rw"} for m in spec.mounts},
                 devices=[f"{d}:{d}:rwm" for d in spec.devices],
                 network_mode=spec.network,
                 tty=spec.tty,
@@ -228,7 +228,9 @@ class Engine:
         except docker.errors.ImageNotFound as exc:
             raise EspdockError(f"image {spec.image} is not there: {exc}", "Run `espdock build` to build it.") from exc
         except docker.errors.APIError as exc:
-            raise EspdockError(f"the engine could not create a container of {spec.image}: {exc.explanation or exc}") from exc
+            raise EspdockError(
+                f"the engine could not create a container of {spec.image}: {exc.explanation or exc}"
+            ) from exc
         try:
             yield container
         except docker.errors.APIError as exc:
@@ -253,6 +255,15 @@ class Engine:
         """Names of containers (running or not) carrying all LABELS."""
         selector = [f"{k}={v}" for k, v in labels.items()]
         return [c.name for c in self._client.containers.list(all=True, filters={"label": selector})]
+
+
+def _connect_reason(exc: Exception) -> str:
+    text = str(exc)
+    if "Permission denied" in text:
+        return "permission denied on the engine's socket"
+    if "No such file or directory" in text or "Connection refused" in text:
+        return "nothing is listening there"
+    return text
 
 
 def _remove(container: docker.models.containers.Container) -> None:

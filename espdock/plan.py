@@ -6,7 +6,6 @@ import hashlib
 import re
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from pathlib import Path
 
 from espdock.config import Config
 from espdock.workspace import Package, PackageKind, Workspace
@@ -74,9 +73,15 @@ class ColconBuild:
 
     def argv(self) -> tuple[str, ...]:
         args = [
-            "colcon", "build", "--base-paths", "src",
+            "colcon",
+            "build",
+            "--base-paths",
+            "src",
             # Live output per line plus colcon's own start/finish lines.
-            "--event-handlers", "console_direct+", "console_start_end+", "summary+",
+            "--event-handlers",
+            "console_direct+",
+            "console_start_end+",
+            "summary+",
         ]
         if self.up_to:
             args += ["--packages-up-to", *self.up_to]

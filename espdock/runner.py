@@ -9,9 +9,8 @@ import time
 from collections.abc import Callable, Iterator, Mapping
 from contextlib import contextmanager
 from dataclasses import dataclass
-from datetime import datetime, timezone
-from enum import Enum
-from pathlib import Path
+from datetime import UTC, datetime
+from enum import StrEnum
 
 from espdock import bootstrap
 from espdock.config import Config, invoking_user, resolve_ca_bundle
@@ -33,7 +32,7 @@ FAILED_PACKAGE = re.compile(r"^Failed\s+<<<\s+(\S+)")
 BUILDKIT_STEP = re.compile(r"^#\d+ \[.*\] (?P<what>.+)$")
 
 
-class Outcome(str, Enum):
+class Outcome(StrEnum):
     BUILT = "built"
     CACHED = "cached"
     FAILED = "failed"
@@ -116,10 +115,15 @@ class Runner:
         spec = step.spec
         existing = self._engine.image(spec.tag)
         if existing is not None and existing.labels.get(LABEL_KEY) == spec.key:
-            age = datetime.now(timezone.utc) - existing.created
-            self._emit(StepNote(step.name, f"{spec.tag}: cache hit (key {spec.key[:16]}, built {_age(age.total_seconds())} ago)"))
+            age = datetime.now(UTC) - existing.created
+            self._emit(
+                StepNote(
+                    step.name, f"{spec.tag}: cache hit (key {spec.key[:16]}, built {_age(age.total_seconds())} ago)"
+                )
+            )
             return Outcome.CACHED, spec.tag
         self._emit(StepNote(step.name, f"{spec.tag}: cache miss (key {spec.key[:16]}), building stage {spec.target}"))
+        bootstrap.ensure_compose(self._env, lambda text: self._emit(StepNote(step.name, text)))
 
         def on_line(line: str) -> None:
             match = BUILDKIT_STEP.match(line)
@@ -141,7 +145,7 @@ class Runner:
         labels = {LABEL_WORKSPACE: str(workspace.root), "io.espdock.step": "colcon"}
         # Left by an espdock that was killed outright; we hold the workspace lock, so none is live.
         self._engine.remove_containers(labels)
-        uid, gid = invoking_user(self._env)
+        uid, gid = invoking_user(self._env, workspace.root)
         failed: list[str] = []
 
         def on_line(line: str) -> None:
@@ -196,4 +200,3 @@ def _age(seconds: float) -> str:
         if seconds >= size:
             return f"{seconds / size:.0f} {unit}"
     return f"{max(seconds, 0):.0f} s"
-

@@ -40,8 +40,13 @@ class Reporter:
                 self._status = None
             mark, colour = MARKS[event.outcome]
             self.console.print(
-                Text.assemble((f"{mark} ", colour), (event.step, "bold"), f"  {event.outcome.value}",
-                              (f"  {event.seconds:.1f} s", "dim"), (f"  {event.detail}" if event.detail else "", "dim"))
+                Text.assemble(
+                    (f"{mark} ", colour),
+                    (event.step, "bold"),
+                    f"  {event.outcome.value}",
+                    (f"  {event.seconds:.1f} s", "dim"),
+                    (f"  {event.detail}" if event.detail else "", "dim"),
+                )
             )
             self.finished.append(event)
 

@@ -6,7 +6,7 @@ import difflib
 import os
 from collections.abc import Iterable
 from dataclasses import dataclass
-from enum import Enum
+from enum import StrEnum
 from pathlib import Path
 
 from catkin_pkg.package import InvalidPackage, parse_package
@@ -17,7 +17,7 @@ from espdock.errors import WorkspaceError
 IGNORE_MARKERS = ("COLCON_IGNORE", "AMENT_IGNORE", "CATKIN_IGNORE")
 
 
-class PackageKind(str, Enum):
+class PackageKind(StrEnum):
     ROS = "ros"
     FIRMWARE = "firmware"
 
@@ -96,19 +96,26 @@ def _manifests(base: Path) -> Iterable[Path]:
             dirnames[:] = []
             yield Path(dirpath) / "package.xml"
             continue
-        dirnames[:] = sorted(d for d in dirnames if not d.startswith((".", "__")) and d not in ("build", "install", "log"))
+        dirnames[:] = sorted(
+            d for d in dirnames if not d.startswith((".", "__")) and d not in ("build", "install", "log")
+        )
 
 
 def _read_manifest(manifest: Path, kind: PackageKind) -> Package:
     try:
         pkg = parse_package(str(manifest))
     except (InvalidPackage, ValueError, OSError) as exc:
-        raise WorkspaceError(f"{manifest} is not a valid package.xml: {exc}", "Fix the manifest and run again.") from exc
+        raise WorkspaceError(
+            f"{manifest} is not a valid package.xml: {exc}", "Fix the manifest and run again."
+        ) from exc
     deps = {
         d.name
         for d in (
-            *pkg.build_depends, *pkg.buildtool_depends, *pkg.build_export_depends,
-            *pkg.exec_depends, *pkg.test_depends,
+            *pkg.build_depends,
+            *pkg.buildtool_depends,
+            *pkg.build_export_depends,
+            *pkg.exec_depends,
+            *pkg.test_depends,
         )
         if d.evaluated_condition is not False
     }
@@ -133,7 +140,7 @@ def order_packages(packages: Iterable[Package]) -> tuple[Package, ...]:
         if state.get(name) == "done":
             return
         if state.get(name) == "active":
-            cycle = " -> ".join((*chain[chain.index(name):], name))
+            cycle = " -> ".join((*chain[chain.index(name) :], name))
             raise WorkspaceError(f"dependency cycle: {cycle}", "Remove one of these dependencies.")
         state[name] = "active"
         for dep in sorted(by_name[name].depends & by_name.keys()):

@@ -1,0 +1,78 @@
+"""Shared fixtures: the real Docker engine and throwaway copies of this workspace."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+import sys
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parent.parent
+IN_CI = os.environ.get("CI", "").lower() == "true"
+
+
+@pytest.fixture(scope="session")
+def engine():
+    """The real engine, started if need be. In CI a missing engine fails; elsewhere it skips."""
+    from espdock import bootstrap
+    from espdock.errors import EspdockError
+
+    try:
+        engine = bootstrap.ensure_engine(os.environ, lambda text: None)
+        bootstrap.ensure_compose(os.environ, lambda text: None)
+    except EspdockError as exc:
+        if IN_CI:
+            pytest.fail(f"CI needs a Docker engine and none could be started: {exc.message}")
+        pytest.skip(f"no Docker engine: {exc.message}")
+    return engine
+
+
+def copy_workspace(dest: Path, packages: tuple[str, ...] = ("custom_interface",)) -> Path:
+    """A fresh workspace at DEST holding this repo's image inputs and the named ws/src packages."""
+    dest.mkdir(parents=True, exist_ok=True)
+    for name in ("espdock.toml", "Dockerfile.ros", ".dockerignore"):
+        shutil.copy2(REPO / name, dest / name)
+    shutil.copytree(REPO / "docker", dest / "docker")
+    (dest / "ws" / "src").mkdir(parents=True)
+    for package in packages:
+        shutil.copytree(REPO / "ws" / "src" / package, dest / "ws" / "src" / package)
+    return dest
+
+
+@pytest.fixture
+def workspace(tmp_path: Path) -> Path:
+    return copy_workspace(tmp_path / "ws-root")
+
+
+def espdock(
+    *args: str, cwd: Path, env: dict[str, str] | None = None, timeout: float = 900, prefix: tuple[str, ...] = ()
+) -> subprocess.CompletedProcess[str]:
+    """Run the espdock CLI as a user would (PREFIX: another command line for it), capturing its output."""
+    argv = [*(prefix or (sys.executable, "-m", "espdock")), *args]
+    return subprocess.run(
+        argv, cwd=cwd, env={**os.environ, **(env or {})}, capture_output=True, text=True, timeout=timeout, check=False
+    )
+
+
+def ros_build_tag(root: Path) -> str:
+    """The tag `espdock build` gives the ROS build image of the workspace at ROOT."""
+    from espdock.config import load_config
+    from espdock.plan import IMAGE_INPUT_DIR, ROS_DOCKERFILE, ros_build_image
+    from espdock.workspace import read_image_inputs
+
+    config = load_config(root, {})
+    return ros_build_image(config, (root / ROS_DOCKERFILE).read_text(), read_image_inputs(root, IMAGE_INPUT_DIR)).tag
+
+
+def leftover_containers(engine, root: Path) -> list[str]:
+    return engine.containers({"io.espdock.workspace": str(root)})
+
+
+@pytest.fixture
+def clean_containers(engine, workspace: Path) -> Iterator[None]:
+    yield
+    engine.remove_containers({"io.espdock.workspace": str(workspace)})

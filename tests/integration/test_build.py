@@ -1,0 +1,216 @@
+"""`espdock build` against the real engine: real image builds, real colcon, real uids."""
+
+from __future__ import annotations
+
+import grp
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import pytest
+
+from tests.conftest import REPO, copy_workspace, espdock, leftover_containers, ros_build_tag
+
+pytestmark = [pytest.mark.engine, pytest.mark.slow]
+
+USER_UID = 4242  # a plain user in the docker group, as most developers are
+NOBODY = 65534  # a user who may not use the engine at all
+
+
+@pytest.fixture(scope="module")
+def shared_dir():
+    """A directory every test user can traverse (pytest's own tmp dir is root-only)."""
+    path = Path(tempfile.mkdtemp(prefix="espdock-it-"))
+    path.chmod(0o755)
+    yield path
+    shutil.rmtree(path, ignore_errors=True)
+
+
+@pytest.fixture(scope="module")
+def user_espdock(shared_dir: Path) -> Path:
+    """espdock installed in a venv any user can run (the repo's venv lives under root's home)."""
+    venv = shared_dir / "venv"
+    subprocess.run(["/usr/bin/python3", "-m", "venv", str(venv)], check=True)
+    subprocess.run([str(venv / "bin/pip"), "install", "-q", str(REPO)], check=True, capture_output=True)
+    return venv / "bin" / "espdock"
+
+
+def as_user(uid: int, gid: int, groups: list[int], espdock_bin: Path) -> tuple[str, ...]:
+    group_arg = ",".join(map(str, groups)) if groups else None
+    prefix = ["setpriv", f"--reuid={uid}", f"--regid={gid}"]
+    prefix += [f"--groups={group_arg}"] if group_arg else ["--clear-groups"]
+    return (*prefix, str(espdock_bin))
+
+
+def user_env(home: Path) -> dict[str, str]:
+    home.mkdir(exist_ok=True)
+    return {"HOME": str(home), "PATH": os.environ["PATH"]}
+
+
+def owners(root: Path) -> set[int]:
+    found = set()
+    for dirpath, dirnames, filenames in os.walk(root):
+        for name in (*dirnames, *filenames):
+            found.add(os.lstat(os.path.join(dirpath, name)).st_uid)
+    return found
+
+
+@pytest.fixture(scope="module")
+def built(engine, shared_dir: Path, user_espdock: Path):
+    """A workspace owned by a normal user, built once by that user."""
+    root = copy_workspace(shared_dir / "user-ws")
+    home = shared_dir / "home"
+    subprocess.run(["chown", "-R", f"{USER_UID}:{USER_UID}", str(root)], check=True)
+    docker_gid = grp.getgrnam("docker").gr_gid
+    env = user_env(home)
+    subprocess.run(["chown", f"{USER_UID}:{USER_UID}", str(home)], check=True)
+    result = espdock("build", cwd=root, env=env, prefix=as_user(USER_UID, USER_UID, [docker_gid], user_espdock))
+    yield root, result
+    engine.remove_containers({"io.espdock.workspace": str(root)})
+
+
+def test_build_runs_colcon_as_the_invoking_user(built):
+    root, result = built
+    assert result.returncode == 0, result.stdout + result.stderr
+    assert "Finished <<< custom_interface" in result.stdout
+    for space in ("build", "install", "log"):
+        assert (root / "ws" / space).is_dir()
+        assert owners(root / "ws" / space) == {USER_UID}, f"ws/{space} has files not owned by the user"
+    assert (root / "ws/install/custom_interface/share/custom_interface/msg/CameraConfig.msg").is_file()
+
+
+def test_built_interfaces_work_in_the_ros_image(engine, built):
+    root, result = built
+    assert result.returncode == 0
+    image = ros_build_tag(root)
+    probe = subprocess.run(
+        [
+            "docker",
+            "run",
+            "--rm",
+            "-v",
+            f"{root / 'ws'}:/workspace/ws:ro",
+            "-e",
+            "ESPDOCK_WS_INSTALL=/workspace/ws/install",
+            image,
+            "python3",
+            "-c",
+            (
+                "from custom_interface.srv import SetCameraConfig as S; r = S.Response(); "
+                "r.config.framesize = 6; print(r.status, r.config.framesize, S.Request().config.aec_value)"
+            ),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=False,
+    )
+    assert probe.returncode == 0, probe.stderr
+    assert probe.stdout.split() == ["False", "6", "0"]
+
+
+def test_second_build_reuses_the_image_and_keeps_ownership(engine, built):
+    root, first = built
+    assert first.returncode == 0
+    # Root builds in the user's workspace must still leave files the user owns.
+    again = espdock("build", cwd=root)
+    assert again.returncode == 0, again.stdout + again.stderr
+    assert "cache hit" in again.stdout
+    assert "cache miss" not in again.stdout
+    assert owners(root / "ws") == {USER_UID}
+    assert leftover_containers(engine, root) == []
+
+
+def test_changed_image_input_rebuilds_under_a_new_tag(engine, built):
+    root, _ = built
+    dockerfile = root / "Dockerfile.ros"
+    original = dockerfile.read_text()
+    dockerfile.write_text(original + "\n# a change that must invalidate the cached image\n")
+    try:
+        new_tag = ros_build_tag(root)
+        assert new_tag in espdock("build", "--dry-run", cwd=root).stdout
+        assert engine.image(new_tag) is None
+        result = espdock("build", cwd=root)
+        assert result.returncode == 0, result.stdout + result.stderr
+        assert "cache miss" in result.stdout
+        info = engine.image(new_tag)
+        assert info is not None and info.labels["io.espdock.key"].startswith(new_tag.split(":")[1])
+    finally:
+        dockerfile.write_text(original)
+        subprocess.run(["docker", "rmi", "-f", new_tag], capture_output=True, check=False)
+
+
+def test_a_failing_package_is_named_with_its_log(engine, tmp_path):
+    root = copy_workspace(tmp_path / "ws-root")
+    broken = root / "ws/src/broken_pkg"
+    shutil.copytree(REPO / "ws/src/custom_interface", broken)
+    manifest = broken / "package.xml"
+    manifest.write_text(manifest.read_text().replace("<name>custom_interface</name>", "<name>broken_pkg</name>"))
+    (broken / "CMakeLists.txt").write_text(
+        'cmake_minimum_required(VERSION 3.16)\nproject(broken_pkg)\nmessage(FATAL_ERROR "deliberately broken")\n'
+    )
+    result = espdock("build", cwd=root)
+    assert result.returncode == 5, result.stdout + result.stderr
+    assert "broken_pkg" in result.stderr
+    log = root / "ws/log/latest_build/broken_pkg/stdout_stderr.log"
+    assert str(log) in result.stderr
+    assert "deliberately broken" in log.read_text()
+    assert leftover_containers(engine, root) == []
+
+
+def test_ctrl_c_stops_and_removes_the_container_and_the_next_build_works(engine, tmp_path):
+    root = copy_workspace(tmp_path / "ws-root")
+    slow = root / "ws/src/slow_pkg"
+    slow.mkdir()
+    (slow / "package.xml").write_text(
+        (REPO / "ws/src/custom_interface/package.xml")
+        .read_text()
+        .replace("<name>custom_interface</name>", "<name>slow_pkg</name>")
+        .replace("<member_of_group>rosidl_interface_packages</member_of_group>", "")
+    )
+    (slow / "CMakeLists.txt").write_text(
+        "cmake_minimum_required(VERSION 3.16)\nproject(slow_pkg NONE)\nexecute_process(COMMAND sleep 300)\n"
+    )
+    process = subprocess.Popen(
+        [sys.executable, "-m", "espdock", "build"], cwd=root, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+    )
+    try:
+        deadline = time.monotonic() + 300
+        while not leftover_containers(engine, root):
+            assert process.poll() is None, process.communicate()
+            assert time.monotonic() < deadline, "the build container never started"
+            time.sleep(0.2)
+        time.sleep(3)  # let colcon get into the slow package
+        process.send_signal(signal.SIGINT)
+        out, err = process.communicate(timeout=60)
+    finally:
+        if process.poll() is None:
+            process.kill()
+    assert process.returncode == 130, out + err
+    assert "interrupted" in err
+    assert leftover_containers(engine, root) == []
+
+    shutil.rmtree(slow)
+    result = espdock("build", cwd=root)
+    assert result.returncode == 0, result.stdout + result.stderr
+    assert (root / "ws/install/custom_interface/share/custom_interface/package.xml").is_file()
+
+
+def test_a_user_without_engine_access_gets_a_clear_message(engine, shared_dir, user_espdock):
+    root = copy_workspace(shared_dir / "nobody-ws")
+    result = espdock(
+        "build",
+        cwd=root,
+        env=user_env(shared_dir / "nobody-home"),
+        prefix=as_user(NOBODY, NOBODY, [], user_espdock),
+        timeout=120,
+    )
+    assert result.returncode == 3, result.stdout + result.stderr
+    assert "permission denied" in result.stderr
+    assert "docker group" in result.stderr
+    assert not (root / "ws/build").exists()

@@ -1,0 +1,72 @@
+from pathlib import Path
+
+import pytest
+
+from espdock.config import Config, load_config, pip_configured_cert, resolve_ca_bundle
+from espdock.errors import ConfigError
+
+
+def write(root: Path, text: str) -> Path:
+    (root / "espdock.toml").write_text(text)
+    return root
+
+
+def test_defaults_without_a_config_file(tmp_path):
+    assert load_config(tmp_path, {}) == Config()
+
+
+def test_file_then_environment_then_cli(tmp_path):
+    write(tmp_path, '[espdock]\ntarget = "esp32s3"\nbase_image = "debian:bookworm"\n')
+    assert load_config(tmp_path, {}).target == "esp32s3"
+    assert load_config(tmp_path, {"ESPDOCK_TARGET": "esp32c3"}).target == "esp32c3"
+    config = load_config(tmp_path, {"ESPDOCK_TARGET": "esp32c3"}, {"target": "esp32"})
+    assert config.target == "esp32"
+    assert config.base_image == "debian:bookworm"
+
+
+def test_unknown_key_suggests_the_close_one(tmp_path):
+    write(tmp_path, '[espdock]\ntraget = "esp32"\n')
+    with pytest.raises(ConfigError) as err:
+        load_config(tmp_path, {})
+    assert "traget" in err.value.message
+    assert "target" in err.value.hint
+
+
+def test_unknown_chip_target_is_refused_with_a_suggestion(tmp_path):
+    with pytest.raises(ConfigError) as err:
+        load_config(tmp_path, {}, {"target": "esp32s4"})
+    assert "esp32s4" in err.value.message
+    assert "esp32s3" in err.value.hint or "esp32s2" in err.value.hint
+
+
+def test_broken_toml_names_the_file(tmp_path):
+    write(tmp_path, "[espdock\n")
+    with pytest.raises(ConfigError) as err:
+        load_config(tmp_path, {})
+    assert str(tmp_path / "espdock.toml") in err.value.message
+
+
+def test_ca_bundle_relative_to_the_workspace_and_must_exist(tmp_path):
+    (tmp_path / "corp.pem").write_text("-----BEGIN CERTIFICATE-----\n")
+    write(tmp_path, '[espdock]\nca_bundle = "corp.pem"\n')
+    assert load_config(tmp_path, {}).ca_bundle == tmp_path / "corp.pem"
+    with pytest.raises(ConfigError, match="does not exist"):
+        load_config(tmp_path, {"ESPDOCK_CA_BUNDLE": str(tmp_path / "missing.pem")})
+
+
+def test_keep_containers_from_the_environment(tmp_path):
+    assert load_config(tmp_path, {"ESPDOCK_KEEP_CONTAINERS": "1"}).keep_containers is True
+    assert load_config(tmp_path, {"ESPDOCK_KEEP_CONTAINERS": "0"}).keep_containers is False
+
+
+def test_pip_cert_is_picked_up_from_pip_config_files(tmp_path):
+    cert = tmp_path / "proxy-ca.pem"
+    cert.write_text("pem")
+    conf = tmp_path / "pip.conf"
+    conf.write_text(f"[global]\ncert = {cert}\n")
+    env = {"HOME": str(tmp_path / "home"), "PIP_CONFIG_FILE": str(conf)}
+    assert pip_configured_cert(env) == cert
+    assert resolve_ca_bundle(Config(), env) == cert
+    # The environment variable wins over files, and an explicit setting over both.
+    assert pip_configured_cert({**env, "PIP_CERT": "/x.pem"}) == Path("/x.pem")
+    assert resolve_ca_bundle(Config(ca_bundle=tmp_path / "own.pem"), env) == tmp_path / "own.pem"

@@ -1,0 +1,61 @@
+from pathlib import Path
+
+from espdock.config import Config
+from espdock.plan import ColconBuild, EnsureBaseImage, EnsureImage, dockerfile_args, plan_build, ros_build_image
+from espdock.workspace import Package, PackageKind, Workspace
+
+DOCKERFILE = "ARG BASE_IMAGE=debian:bookworm-slim\nFROM ${BASE_IMAGE} AS build\n"
+FILES = {"docker/ros-runtime.txt": b"rclpy==1\n", "docker/ros-entrypoint.sh": b"#!/bin/sh\n"}
+
+
+def pkg(name: str, kind=PackageKind.ROS, depends=()) -> Package:
+    return Package(name, Path("/ws/src") / name, kind, "ament_cmake", frozenset(depends))
+
+
+def test_dockerfile_args_reads_defaults():
+    text = 'ARG BASE_IMAGE=debian:bookworm-slim\nARG NO_DEFAULT\n  ARG IDF="v5.3.5"\nFROM x\n'
+    assert dockerfile_args(text) == {"BASE_IMAGE": "debian:bookworm-slim", "IDF": "v5.3.5"}
+
+
+def test_image_key_is_stable_and_changes_with_each_input():
+    spec = ros_build_image(Config(), DOCKERFILE, FILES)
+    assert spec == ros_build_image(Config(), DOCKERFILE, dict(reversed(FILES.items())))
+    keys = {
+        spec.key,
+        ros_build_image(Config(), DOCKERFILE + "RUN true\n", FILES).key,
+        ros_build_image(Config(), DOCKERFILE, {**FILES, "docker/ros-runtime.txt": b"rclpy==2\n"}).key,
+        ros_build_image(Config(), DOCKERFILE, {**FILES, "docker/extra.xml": b"<x/>"}).key,
+        ros_build_image(Config(base_image="debian:trixie-slim"), DOCKERFILE, FILES).key,
+    }
+    assert len(keys) == 5
+
+
+def test_image_tag_carries_the_key_and_base_defaults_to_the_dockerfile():
+    spec = ros_build_image(Config(), DOCKERFILE, FILES)
+    assert spec.tag == f"espdock/ros-jazzy-build:{spec.key[:16]}"
+    assert dict(spec.build_args) == {"BASE_IMAGE": "debian:bookworm-slim"}
+    assert spec.target == "build"
+
+
+def test_build_plan_ensures_images_then_runs_colcon():
+    ws = Workspace(Path("/w"))
+    spec = ros_build_image(Config(), DOCKERFILE, FILES)
+    packages = (pkg("msgs"), pkg("app", depends=["msgs"]), pkg("cam", PackageKind.FIRMWARE))
+    plan = plan_build(ws, Config(), packages, spec)
+    assert [type(s) for s in plan.steps] == [EnsureBaseImage, EnsureImage, ColconBuild]
+    colcon = plan.steps[-1]
+    assert colcon.packages == ("msgs", "app")
+    assert colcon.image == spec.tag
+    assert "--packages-up-to" not in colcon.argv()
+
+
+def test_selected_packages_become_packages_up_to():
+    spec = ros_build_image(Config(), DOCKERFILE, FILES)
+    plan = plan_build(Workspace(Path("/w")), Config(), (pkg("msgs"), pkg("app")), spec, selected=("app",))
+    argv = plan.steps[-1].argv()
+    assert argv[argv.index("--packages-up-to") + 1 :] == ("app",)
+
+
+def test_no_ros_packages_means_no_ros_steps():
+    spec = ros_build_image(Config(), DOCKERFILE, FILES)
+    assert plan_build(Workspace(Path("/w")), Config(), (), spec).steps == ()

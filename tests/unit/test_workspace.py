@@ -1,0 +1,137 @@
+from pathlib import Path
+
+import pytest
+
+from espdock.errors import WorkspaceError
+from espdock.workspace import (
+    PackageKind,
+    Workspace,
+    discover_packages,
+    find_workspace,
+    order_packages,
+    select_up_to,
+)
+
+MANIFEST = """<?xml version="1.0"?>
+<package format="3">
+  <name>{name}</name>
+  <version>0.1.0</version>
+  <description>test package</description>
+  <maintainer email="dev@example.com">dev</maintainer>
+  <license>Apache-2.0</license>
+  {deps}
+  {groups}
+  <export><build_type>{build_type}</build_type></export>
+</package>
+"""
+
+
+def add_package(base: Path, name: str, depends=(), build_type="ament_cmake", interface=False) -> Path:
+    path = base / name
+    path.mkdir(parents=True)
+    deps = "\n  ".join(f"<depend>{d}</depend>" for d in depends)
+    groups = "<member_of_group>rosidl_interface_packages</member_of_group>" if interface else ""
+    (path / "package.xml").write_text(MANIFEST.format(name=name, deps=deps, groups=groups, build_type=build_type))
+    return path
+
+
+@pytest.fixture
+def ws(tmp_path: Path) -> Workspace:
+    (tmp_path / "espdock.toml").write_text("[espdock]\n")
+    return Workspace(tmp_path)
+
+
+def test_finds_the_workspace_from_a_subdirectory(ws):
+    deep = ws.root / "ws" / "src" / "a" / "b"
+    deep.mkdir(parents=True)
+    assert find_workspace(deep) == ws
+
+
+def test_outside_a_workspace_says_where_it_looked(tmp_path):
+    start = tmp_path / "x"
+    start.mkdir()
+    with pytest.raises(WorkspaceError) as err:
+        find_workspace(start)
+    assert str(start) in err.value.message
+    assert "espdock.toml" in err.value.message
+
+
+def test_discovers_ros_and_firmware_packages(ws):
+    add_package(ws.src_dir, "msgs", interface=True)
+    add_package(ws.src_dir / "nested", "nodes", depends=["msgs", "rclpy"], build_type="ament_python")
+    add_package(ws.firmware_dir, "cam", depends=["msgs", "std_msgs"], build_type="esp_idf")
+    found = {p.name: p for p in discover_packages(ws)}
+    assert set(found) == {"msgs", "nodes", "cam"}
+    assert found["cam"].kind is PackageKind.FIRMWARE
+    assert found["nodes"].kind is PackageKind.ROS
+    assert found["nodes"].build_type == "ament_python"
+    assert found["msgs"].is_interface and not found["nodes"].is_interface
+    assert found["nodes"].depends == {"msgs", "rclpy"}
+
+
+def test_ignored_and_build_directories_are_skipped(ws):
+    add_package(ws.src_dir, "kept")
+    skipped = add_package(ws.src_dir, "skipped")
+    (skipped / "COLCON_IGNORE").touch()
+    add_package(ws.src_dir / "build", "stale_copy")
+    assert [p.name for p in discover_packages(ws)] == ["kept"]
+
+
+def test_broken_manifest_names_the_file_and_the_error(ws):
+    path = add_package(ws.src_dir, "broken")
+    (path / "package.xml").write_text("<package format='3'><name>broken</name>")
+    with pytest.raises(WorkspaceError) as err:
+        discover_packages(ws)
+    assert str(path / "package.xml") in err.value.message
+
+
+def test_invalid_manifest_content_is_reported(ws):
+    path = add_package(ws.src_dir, "unlicensed")
+    manifest = path / "package.xml"
+    manifest.write_text(manifest.read_text().replace("<license>Apache-2.0</license>", ""))
+    with pytest.raises(WorkspaceError) as err:
+        discover_packages(ws)
+    assert str(manifest) in err.value.message
+    assert "license" in err.value.message
+
+
+def test_duplicate_names_are_refused(ws):
+    add_package(ws.src_dir, "twin")
+    add_package(ws.firmware_dir, "twin", build_type="esp_idf")
+    with pytest.raises(WorkspaceError, match="two packages are named 'twin'"):
+        discover_packages(ws)
+
+
+def test_order_puts_dependencies_first(ws):
+    add_package(ws.src_dir, "app", depends=["lib", "msgs"])
+    add_package(ws.src_dir, "lib", depends=["msgs"])
+    add_package(ws.src_dir, "msgs")
+    add_package(ws.src_dir, "alone")
+    order = [p.name for p in order_packages(discover_packages(ws))]
+    assert order.index("msgs") < order.index("lib") < order.index("app")
+    assert sorted(order) == ["alone", "app", "lib", "msgs"]
+
+
+def test_cycles_are_reported_with_their_path(ws):
+    add_package(ws.src_dir, "a", depends=["b"])
+    add_package(ws.src_dir, "b", depends=["a"])
+    with pytest.raises(WorkspaceError, match="cycle: a -> b -> a"):
+        order_packages(discover_packages(ws))
+
+
+def test_select_up_to_takes_dependencies_transitively(ws):
+    add_package(ws.src_dir, "app", depends=["lib"])
+    add_package(ws.src_dir, "lib", depends=["msgs"])
+    add_package(ws.src_dir, "msgs")
+    add_package(ws.src_dir, "other")
+    packages = order_packages(discover_packages(ws))
+    assert [p.name for p in select_up_to(packages, ["app"])] == ["msgs", "lib", "app"]
+    assert [p.name for p in select_up_to(packages, ["msgs"])] == ["msgs"]
+
+
+def test_select_unknown_package_suggests_a_name(ws):
+    add_package(ws.src_dir, "camera_ui")
+    with pytest.raises(WorkspaceError) as err:
+        select_up_to(discover_packages(ws), ["camera_iu"])
+    assert "camera_iu" in err.value.message
+    assert "camera_ui" in err.value.hint

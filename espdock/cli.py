@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import functools
+import json
 import os
 import signal
 import subprocess
@@ -18,16 +19,33 @@ from rich.text import Text
 
 from espdock import __version__, bootstrap
 from espdock.config import Config, load_config, resolve_ca_bundle
-from espdock.errors import EspdockError, Interrupted, WorkspaceError
-from espdock.plan import IMAGE_INPUT_DIR, ROS_DOCKERFILE, Plan, plan_build, ros_build_image
+from espdock.engine import format_argv
+from espdock.errors import ConfigError, EspdockError, Interrupted, WorkspaceError
+from espdock.flashing import PortError, check_port, esptool_major, flash_argv, parse_port, verify_argv
+from espdock.plan import (
+    IDF_DOCKERFILE,
+    ROS_DOCKERFILE,
+    WORKSPACE_MOUNT,
+    EnsureImage,
+    IdfBuild,
+    Plan,
+    derive_interface_packages,
+    micro_ros_image,
+    plan_build,
+    ros_build_image,
+)
 from espdock.runner import Runner
-from espdock.ui import Reporter, render_plan
+from espdock.scaffold import create_firmware_package
+from espdock.status import micro_ros_report
+from espdock.ui import Reporter, render_micro_ros_status, render_plan
 from espdock.workspace import (
+    Package,
+    PackageKind,
     Workspace,
     discover_packages,
     find_workspace,
     order_packages,
-    read_image_inputs,
+    read_build_inputs,
     select_up_to,
 )
 
@@ -90,14 +108,34 @@ def _load(workspace: Path | None, **overrides: object) -> tuple[Workspace, Confi
     return ws, load_config(ws.root, os.environ, overrides)
 
 
-def _build_plan(ws: Workspace, config: Config, names: list[str]) -> Plan:
-    packages = order_packages(discover_packages(ws))
+def _packages(ws: Workspace) -> tuple[Package, ...]:
+    return order_packages(discover_packages(ws))
+
+
+def _build_plan(ws: Workspace, config: Config, names: list[str], only: PackageKind | None = None) -> Plan:
+    packages = _packages(ws)
     selected = select_up_to(packages, names) if names else packages
-    dockerfile = ws.root / ROS_DOCKERFILE
-    if not dockerfile.is_file():
-        raise WorkspaceError(f"{dockerfile} is missing", "The workspace root needs the Dockerfile for the ROS image.")
-    ros_image = ros_build_image(config, dockerfile.read_text(), read_image_inputs(ws.root, IMAGE_INPUT_DIR))
-    return plan_build(ws, config, selected, ros_image, tuple(names))
+    if only is not None:
+        selected = tuple(p for p in selected if p.kind is only)
+    inputs = read_build_inputs(ws, packages)
+    if not inputs.ros_dockerfile:
+        raise WorkspaceError(f"{ws.root / ROS_DOCKERFILE} is missing", "The workspace root needs Dockerfile.ros.")
+    ros_image = ros_build_image(config, inputs.ros_dockerfile, inputs.ros_files)
+    has_firmware = any(p.kind is PackageKind.FIRMWARE for p in packages)
+    if has_firmware and not inputs.idf_dockerfile:
+        raise WorkspaceError(f"{ws.root / IDF_DOCKERFILE} is missing", "Firmware packages need Dockerfile.idf.")
+    idf_image = micro_ros_image(config, inputs, packages) if has_firmware else None
+    return plan_build(ws, config, selected, ros_image, tuple(names), idf_image=idf_image, all_packages=packages)
+
+
+def _firmware_step(ws: Workspace, config: Config, name: str) -> tuple[Plan, IdfBuild]:
+    """The plan that ensures the IDF image, and the build step of firmware package NAME."""
+    plan = _build_plan(ws, config, [name])
+    step = next((s for s in plan.steps if isinstance(s, IdfBuild) and s.package == name), None)
+    if step is None:
+        raise WorkspaceError(f"'{name}' is not a firmware package", f"Firmware packages live in {ws.firmware_dir}.")
+    assert plan.idf_image is not None
+    return Plan(ws, (EnsureImage(plan.idf_image),), plan.idf_image), step
 
 
 @app.command()
@@ -109,11 +147,12 @@ def build(
     dry_run: Annotated[bool, typer.Option("--dry-run", help="Print the plan without running it.")] = False,
     verbose: Annotated[bool, typer.Option("--verbose", "-v", help="Show image build logs in full.")] = False,
     target: Annotated[str | None, typer.Option(help="ESP32 chip target (overrides espdock.toml).")] = None,
+    only: Annotated[PackageKind | None, typer.Option(help="Build only the ROS packages or only the firmware.")] = None,
     workspace: WorkspaceOption = None,
 ) -> None:
     """Build the images when their inputs changed, then every package of the workspace."""
     ws, config = _load(workspace, target=target)
-    plan = _build_plan(ws, config, packages or [])
+    plan = _build_plan(ws, config, packages or [], only)
     if dry_run:
         render_plan(console, plan)
         return
@@ -124,6 +163,152 @@ def build(
     finally:
         reporter.close()
         reporter.summary()
+
+
+@app.command()
+@_command
+def new(
+    name: Annotated[str, typer.Argument(help="Package name (lower case, digits, underscores).")],
+    target: Annotated[str | None, typer.Option(help="Chip target to record in espdock.toml if none is set.")] = None,
+    depends: Annotated[
+        list[str] | None, typer.Option("--depends", "-d", help="Interface package the firmware uses (repeatable).")
+    ] = None,
+    workspace: WorkspaceOption = None,
+) -> None:
+    """Create firmware/NAME: an ESP-IDF project that is also a ROS 2 package, with a minimal micro-ROS app."""
+    ws, config = _load(workspace, target=target)
+    path = create_firmware_package(ws, name, tuple(depends or ()))
+    console.print(f"created {path.relative_to(ws.root)} (target {config.target}); build it with `espdock build {name}`")
+
+
+@app.command(context_settings={"allow_extra_args": True, "ignore_unknown_options": True})
+@_command
+def idf(
+    package: Annotated[str, typer.Argument(help="Firmware package.")],
+    args: Annotated[list[str] | None, typer.Argument(help="Arguments for idf.py (after --).")] = None,
+    workspace: WorkspaceOption = None,
+) -> None:
+    """Run idf.py ARGS for a firmware package in the IDF image (e.g. `espdock idf cam -- menuconfig`)."""
+    ws, config = _load(workspace)
+    plan, step = _firmware_step(ws, config, package)
+    runner = _runner(config, Reporter(console))
+    runner.run(plan)
+    raise typer.Exit(runner.run_idf(ws, step, step.argv(tuple(args or ()))))
+
+
+micro_ros = typer.Typer(help="The prebuilt micro-ROS library of this workspace.", no_args_is_help=True)
+app.add_typer(micro_ros, name="micro-ros")
+
+
+@micro_ros.command("status")
+@_command
+def micro_ros_status(
+    as_json: Annotated[bool, typer.Option("--json", help="Print machine-readable JSON.")] = False,
+    target: Annotated[str | None, typer.Option(help="Chip target (overrides espdock.toml).")] = None,
+    workspace: WorkspaceOption = None,
+) -> None:
+    """The micro-ROS image key, the inputs it is made of, and whether an image for it exists."""
+    ws, config = _load(workspace, target=target)
+    packages = _packages(ws)
+    spec = micro_ros_image(config, read_build_inputs(ws, packages), packages)
+    engine = bootstrap.ensure_engine(os.environ, _notify)
+    report = micro_ros_report(engine, spec, derive_interface_packages(packages))
+    if as_json:
+        print(json.dumps(report, indent=2, sort_keys=True))
+        return
+    render_micro_ros_status(console, report)
+
+
+@micro_ros.command("rebuild")
+@_command
+def micro_ros_rebuild(
+    target: Annotated[str | None, typer.Option(help="Chip target (overrides espdock.toml).")] = None,
+    workspace: WorkspaceOption = None,
+) -> None:
+    """Rebuild the micro-ROS image for the current inputs from scratch (no build cache)."""
+    ws, config = _load(workspace, target=target)
+    packages = _packages(ws)
+    spec = micro_ros_image(config, read_build_inputs(ws, packages), packages)
+    reporter = Reporter(console)
+    try:
+        _runner(config, reporter).run(Plan(ws, (EnsureImage(spec, force=True),), spec))
+    finally:
+        reporter.close()
+
+
+@app.command()
+@_command
+def flash(
+    package: Annotated[str, typer.Argument(help="Firmware package (built and installed).")],
+    port: Annotated[str, typer.Option("--port", "-p", help="/dev/ttyUSB0, socket://HOST:PORT or rfc2217://HOST:PORT.")],
+    baud: Annotated[int | None, typer.Option("--baud", "-b", help="Baud rate (serial devices only).")] = 460800,
+    verify: Annotated[bool, typer.Option("--verify", help="Read the flash back and compare afterwards.")] = False,
+    workspace: WorkspaceOption = None,
+) -> None:
+    """Flash a firmware package's installed artefacts with esptool, passing only that port into the container."""
+    ws, config = _load(workspace)
+    serial = parse_port(port)
+    plan, step = _firmware_step(ws, config, package)
+    firmware = ws.ws_dir / "install" / package / "share" / package / "firmware"
+    args_file = firmware / "flasher_args.json"
+    if not args_file.is_file():
+        raise WorkspaceError(f"{package} has no installed firmware ({args_file})", f"Run `espdock build {package}`.")
+    flasher_args = json.loads(args_file.read_text())
+    check_port(serial)
+    runner = _runner(config, Reporter(console))
+    runner.run(plan)
+    workdir = f"{WORKSPACE_MOUNT}/ws/install/{package}/share/{package}/firmware"
+    devices = (serial.device,) if serial.device else ()
+    network = "host" if serial.is_url else None
+    version: list[str] = []
+    runner.run_idf(ws, step, ("python", "-m", "esptool", "version"), on_line=version.append, workdir=workdir)
+    major = esptool_major(version)
+    commands = [flash_argv(flasher_args, serial, baud, major)]
+    if verify:
+        commands.append(verify_argv(flasher_args, serial, major))
+    for argv in commands:
+        console.print(Text(format_argv(argv), style="dim"))
+        code = runner.run_idf(
+            ws,
+            step,
+            argv,
+            on_line=lambda line: console.print(Text(line)),
+            devices=devices,
+            network=network,
+            workdir=workdir,
+        )
+        if code != 0:
+            raise PortError(f"esptool failed (exit code {code}) on {port}", "See its output above.")
+    console.print(f"flashed {package} through {port}" + (" and verified it" if verify else ""))
+
+
+@app.command()
+@_command
+def monitor(
+    package: Annotated[str, typer.Argument(help="Firmware package.")],
+    port: Annotated[str, typer.Option("--port", "-p", help="/dev/ttyUSB0, socket://HOST:PORT or rfc2217://HOST:PORT.")],
+    workspace: WorkspaceOption = None,
+) -> None:
+    """Open idf.py monitor on PORT for a firmware package (needs a terminal)."""
+    ws, config = _load(workspace)
+    serial = parse_port(port)
+    if not sys.stdin.isatty():
+        raise ConfigError("the monitor needs a terminal (stdin is not a TTY)", "Run it from an interactive shell.")
+    check_port(serial)
+    plan, step = _firmware_step(ws, config, package)
+    runner = _runner(config, Reporter(console))
+    runner.run(plan)
+    devices = (serial.device,) if serial.device else ()
+    raise typer.Exit(
+        runner.run_idf(
+            ws, step, step.argv(("-p", port, "monitor")), devices=devices, network="host" if serial.is_url else None
+        )
+    )
+
+
+def _runner(config: Config, reporter: Reporter) -> Runner:
+    engine = bootstrap.ensure_engine(os.environ, _notify)
+    return Runner(engine, config, os.environ, reporter)
 
 
 @app.command()

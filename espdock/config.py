@@ -43,6 +43,10 @@ class Config:
     keep_containers: bool = False
     # Debian mirror for building a base image with debootstrap; None: debootstrap's default.
     debian_mirror: str | None = None
+    # None for each: the default pinned by Dockerfile.idf's build args.
+    idf_image: str | None = None
+    micro_ros_repo: str | None = None
+    micro_ros_commit: str | None = None
 
 
 _KEYS = {f.name for f in fields(Config)}
@@ -53,6 +57,9 @@ _ENV = {
     "ESPDOCK_CA_BUNDLE": "ca_bundle",
     "ESPDOCK_KEEP_CONTAINERS": "keep_containers",
     "ESPDOCK_DEBIAN_MIRROR": "debian_mirror",
+    "ESPDOCK_IDF_IMAGE": "idf_image",
+    "ESPDOCK_MICRO_ROS_REPO": "micro_ros_repo",
+    "ESPDOCK_MICRO_ROS_COMMIT": "micro_ros_commit",
 }
 
 

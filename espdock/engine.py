@@ -57,6 +57,7 @@ class RunSpec:
     env: tuple[tuple[str, str], ...] = ()
     labels: tuple[tuple[str, str], ...] = ()
     devices: tuple[str, ...] = ()
+    group_add: tuple[int, ...] = ()
     network: str | None = None
     tty: bool = False
     name: str | None = None
@@ -100,6 +101,15 @@ class Engine:
             labels=dict((attrs.get("Config") or {}).get("Labels") or {}),
         )
 
+    def newest_image(self, repository: str) -> ImageInfo | None:
+        """The most recently built local image of REPOSITORY, if any."""
+        try:
+            images = self._client.images.list(name=repository)
+        except docker.errors.APIError as exc:
+            raise EspdockError(f"the engine failed to list images of {repository}: {exc}") from exc
+        infos = [self.image(image.id) for image in images]
+        return max((i for i in infos if i is not None), key=lambda i: i.created, default=None)
+
     def pull(self, ref: str) -> bool:
         """Pull REF from its registry; False when no registry could give it."""
         repository, _, tag = ref.rpartition(":") if ":" in ref.split("/")[-1] else (ref, "", "latest")
@@ -127,6 +137,7 @@ class Engine:
         labels: Mapping[str, str],
         ca_bundle: Path | None,
         on_line: LineSink,
+        no_cache: bool = False,
     ) -> None:
         """Build TARGET of DOCKERFILE in CONTEXT as TAG, streaming BuildKit's plain progress."""
         spec = {
@@ -147,7 +158,16 @@ class Engine:
             # An empty secret means "no extra CA"; the Dockerfile checks for that.
             "secrets": {"ca_bundle": {"file": str(ca_bundle or "/dev/null")}},
         }
-        argv = [*self.compose_command(), "-f", "-", "--progress", "plain", "build", "image"]
+        argv = [
+            *self.compose_command(),
+            "-f",
+            "-",
+            "--progress",
+            "plain",
+            "build",
+            *(["--no-cache"] if no_cache else []),
+            "image",
+        ]
         tail: collections.deque[str] = collections.deque(maxlen=15)
         process = subprocess.Popen(
             argv,
@@ -219,6 +239,7 @@ class Engine:
                 labels=dict(spec.labels),
                 volumes={str(m.source): {"bind": m.target, "mode": "ro" if m.read_only else "rw"} for m in spec.mounts},
                 devices=[f"{d}:{d}:rwm" for d in spec.devices],
+                group_add=[str(g) for g in spec.group_add] or None,
                 network_mode=spec.network,
                 tty=spec.tty,
                 stdin_open=spec.tty,

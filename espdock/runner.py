@@ -5,17 +5,22 @@ from __future__ import annotations
 import fcntl
 import os
 import re
+import shutil
+import sys
+import tempfile
 import time
 from collections.abc import Callable, Iterator, Mapping
 from contextlib import contextmanager
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from enum import StrEnum
+from pathlib import Path
 
 from espdock import bootstrap
 from espdock.config import Config, invoking_user, resolve_ca_bundle
 from espdock.engine import Engine, Mount, RunSpec
 from espdock.errors import BuildFailed, EspdockError, WorkspaceError
+from espdock.install import install_firmware
 from espdock.plan import (
     LABEL_KEY,
     LABEL_WORKSPACE,
@@ -23,11 +28,15 @@ from espdock.plan import (
     ColconBuild,
     EnsureBaseImage,
     EnsureImage,
+    IdfBuild,
+    ImageSpec,
+    InstallFirmware,
     Plan,
     Step,
 )
 from espdock.workspace import Workspace
 
+TARGET_MARKER = ".espdock-target"
 FAILED_PACKAGE = re.compile(r"^Failed\s+<<<\s+(\S+)")
 BUILDKIT_STEP = re.compile(r"^#\d+ \[.*\] (?P<what>.+)$")
 
@@ -109,12 +118,16 @@ class Runner:
             return self._ensure_image(workspace, step)
         if isinstance(step, ColconBuild):
             return self._colcon(workspace, step)
+        if isinstance(step, IdfBuild):
+            return self._idf_build(workspace, step)
+        if isinstance(step, InstallFirmware):
+            return self._install(workspace, step)
         raise TypeError(f"unknown step {step!r}")
 
     def _ensure_image(self, workspace: Workspace, step: EnsureImage) -> tuple[Outcome, str]:
         spec = step.spec
         existing = self._engine.image(spec.tag)
-        if existing is not None and existing.labels.get(LABEL_KEY) == spec.key:
+        if not step.force and existing is not None and existing.labels.get(LABEL_KEY) == spec.key:
             age = datetime.now(UTC) - existing.created
             self._emit(
                 StepNote(
@@ -122,23 +135,26 @@ class Runner:
                 )
             )
             return Outcome.CACHED, spec.tag
-        self._emit(StepNote(step.name, f"{spec.tag}: cache miss (key {spec.key[:16]}), building stage {spec.target}"))
+        why = "rebuild requested" if step.force else "cache miss"
+        self._emit(StepNote(step.name, f"{spec.tag}: {why} (key {spec.key[:16]}), building stage {spec.target}"))
         bootstrap.ensure_compose(self._env, lambda text: self._emit(StepNote(step.name, text)))
 
         def on_line(line: str) -> None:
             match = BUILDKIT_STEP.match(line)
             self._emit(StepOutput(step.name, match.group("what") if match else line, progress=True))
 
-        self._engine.build_image(
-            context=workspace.root,
-            dockerfile=spec.dockerfile,
-            target=spec.target,
-            tag=spec.tag,
-            build_args=dict(spec.build_args),
-            labels={LABEL_KEY: spec.key},
-            ca_bundle=resolve_ca_bundle(self._config, self._env),
-            on_line=on_line,
-        )
+        with _context_dir(workspace, spec) as context:
+            self._engine.build_image(
+                context=context,
+                dockerfile=spec.dockerfile,
+                target=spec.target,
+                tag=spec.tag,
+                build_args=dict(spec.build_args),
+                labels=spec.labels(),
+                ca_bundle=resolve_ca_bundle(self._config, self._env),
+                on_line=on_line,
+                no_cache=step.force,
+            )
         return Outcome.BUILT, spec.tag
 
     def _colcon(self, workspace: Workspace, step: ColconBuild) -> tuple[Outcome, str]:
@@ -178,6 +194,84 @@ class Runner:
             )
         return Outcome.BUILT, f"{len(step.up_to or step.packages)} package(s)"
 
+    def _idf_build(self, workspace: Workspace, step: IdfBuild) -> tuple[Outcome, str]:
+        build_dir = workspace.ws_dir / "build" / step.package
+        _reset_if_retargeted(build_dir, step.target)
+        code = self.run_idf(workspace, step, step.argv(), on_line=lambda line: self._emit(StepOutput(step.name, line)))
+        if code != 0:
+            raise BuildFailed(
+                f"idf.py build of {step.package} failed (exit code {code}); its output is above, "
+                f"build files in {build_dir}",
+                "Fix the firmware and run `espdock build` again; installed firmware was left as it was.",
+                packages=(step.package,),
+            )
+        (build_dir / TARGET_MARKER).write_text(f"{step.target}\n{step.image_key}\n")
+        _give_to(build_dir / TARGET_MARKER, invoking_user(self._env, workspace.root))
+        return Outcome.BUILT, step.target
+
+    def run_idf(
+        self,
+        workspace: Workspace,
+        step: IdfBuild,
+        argv: tuple[str, ...],
+        on_line: Callable[[str], None] | None = None,
+        devices: tuple[str, ...] = (),
+        network: str | None = None,
+        workdir: str | None = None,
+    ) -> int:
+        """Run ARGV (idf.py or another tool of the IDF image) for STEP's package.
+
+        With ON_LINE None the container is attached to the terminal (menuconfig, monitor).
+        """
+        uid, gid = invoking_user(self._env, workspace.root)
+        labels = {LABEL_WORKSPACE: str(workspace.root), "io.espdock.step": f"idf-{step.package}"}
+        self._engine.remove_containers(labels)
+        spec = RunSpec(
+            image=step.image,
+            argv=argv,
+            workdir=workdir or step.project_dir,
+            user=f"{uid}:{gid}",
+            mounts=(
+                Mount(workspace.firmware_dir, f"{WORKSPACE_MOUNT}/firmware"),
+                Mount(workspace.ws_dir, f"{WORKSPACE_MOUNT}/ws"),
+            ),
+            env=(("HOME", "/tmp"), ("IDF_TARGET", step.target)),
+            labels=tuple(labels.items()),
+            devices=devices,
+            group_add=tuple(_device_groups(devices)),
+            network=network,
+            tty=on_line is None and sys.stdin.isatty(),
+        )
+        if on_line is None:
+            return self._engine.run_attached(spec, keep=self._config.keep_containers)
+        return self._engine.run(spec, on_line, keep=self._config.keep_containers)
+
+    def _install(self, workspace: Workspace, step: InstallFirmware) -> tuple[Outcome, str]:
+        owner = invoking_user(self._env, workspace.root) if os.geteuid() == 0 else None
+        firmware = install_firmware(
+            package=step.package,
+            manifest=workspace.firmware_dir / step.project / "package.xml",
+            build_dir=workspace.ws_dir / "build" / step.package,
+            install_base=workspace.ws_dir / "install",
+            run_depends=step.run_depends,
+            owner=owner,
+        )
+        return Outcome.BUILT, str(firmware.relative_to(workspace.root))
+
+
+@contextmanager
+def _context_dir(workspace: Workspace, spec: ImageSpec) -> Iterator[Path]:
+    """The build context: the workspace root, or a temporary directory staged from the spec."""
+    if spec.context is None:
+        yield workspace.root
+        return
+    with tempfile.TemporaryDirectory(prefix="espdock-context-") as tmp:
+        for rel, data in spec.context:
+            path = Path(tmp, rel)
+            path.parent.mkdir(parents=True, exist_ok=True)
+            path.write_bytes(data)
+        yield Path(tmp)
+
 
 @contextmanager
 def workspace_lock(workspace: Workspace) -> Iterator[None]:
@@ -193,6 +287,23 @@ def workspace_lock(workspace: Workspace) -> Iterator[None]:
         yield
     finally:
         os.close(fd)
+
+
+def _reset_if_retargeted(build_dir: Path, target: str) -> None:
+    """A build dir configured for another chip can't be reused (IDF refuses); it is only a cache."""
+    marker = build_dir / TARGET_MARKER
+    if marker.is_file() and marker.read_text().split("\n", 1)[0] != target:
+        shutil.rmtree(build_dir)
+
+
+def _give_to(path: Path, owner: tuple[int, int]) -> None:
+    if os.geteuid() == 0:
+        os.chown(path, *owner)
+
+
+def _device_groups(devices: tuple[str, ...]) -> list[int]:
+    # Serial devices belong to a group (dialout); the container user needs it to open them.
+    return sorted({os.stat(d).st_gid for d in devices})
 
 
 def _age(seconds: float) -> str:

@@ -7,7 +7,7 @@ from rich.status import Status
 from rich.table import Table
 from rich.text import Text
 
-from espdock.plan import ColconBuild, EnsureBaseImage, EnsureImage, Plan
+from espdock.plan import ColconBuild, EnsureBaseImage, EnsureImage, IdfBuild, InstallFirmware, Plan
 from espdock.runner import Event, Outcome, StepFinished, StepNote, StepOutput, StepStarted
 
 MARKS = {Outcome.BUILT: ("✓", "green"), Outcome.CACHED: ("•", "cyan"), Outcome.FAILED: ("✗", "red")}
@@ -88,3 +88,30 @@ def render_plan(console: Console, plan: Plan) -> None:
         elif isinstance(step, ColconBuild):
             console.print(f"   in {step.image}, {step.workdir}: {format_argv(step.argv())}")
             console.print(Text(f"     packages: {', '.join(step.packages)}", style="dim"))
+        elif isinstance(step, IdfBuild):
+            console.print(f"   in {step.image} (target {step.target}): {format_argv(step.argv())}")
+        elif isinstance(step, InstallFirmware):
+            console.print(
+                f"   artefacts to ws/install/{step.package}/share/{step.package}/firmware, package.xml, ament index"
+            )
+
+
+def render_micro_ros_status(console: Console, report: dict) -> None:
+    """Print `espdock micro-ros status` for people."""
+    state = "present" if report["present"] else "not built"
+    console.print(Text.assemble(("micro-ROS image ", "bold"), report["image"], f"  ({state})"))
+    console.print(f"key     {report['key']}")
+    for name, value in report["build_args"].items():
+        console.print(f"{name:<18}{value}")
+    console.print(f"interface packages {', '.join(report['interface_packages']) or '(none)'}")
+    if report["present"]:
+        console.print(f"size    {report['size_bytes'] / 1e6:.0f} MB, built {report['created']}")
+        console.print(Text("the workspace matches this image", style="green"))
+    else:
+        console.print(Text("no image has this key: `espdock build` will build it", style="yellow"))
+        if "newest_image" in report:
+            console.print(f"newest image {report['newest_image']} differs in: {', '.join(report['changed_inputs'])}")
+    table = Table("input", "sha256", title="inputs", title_justify="left")
+    for name, sha in sorted(report["inputs"].items()):
+        table.add_row(name, sha[:16])
+    console.print(table)

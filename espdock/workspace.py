@@ -173,13 +173,60 @@ def select_up_to(packages: tuple[Package, ...], names: Iterable[str]) -> tuple[P
     return tuple(p for p in order_packages(packages) if p.name in wanted)
 
 
-def read_image_inputs(root: Path, directory: str) -> dict[str, bytes]:
-    """The files under ROOT/DIRECTORY that an image is built from, by relative path."""
-    base = root / directory
+def read_tree(base: Path, exclude: tuple[str, ...] = ()) -> dict[str, bytes]:
+    """Every file under BASE by path relative to it, skipping caches, hidden and EXCLUDEd paths."""
     if not base.is_dir():
         return {}
-    return {
-        str(path.relative_to(root)): path.read_bytes()
-        for path in sorted(base.rglob("*"))
-        if path.is_file() and "__pycache__" not in path.parts
-    }
+    files = {}
+    for path in sorted(base.rglob("*")):
+        rel = path.relative_to(base)
+        if not path.is_file() or any(part.startswith(".") or part == "__pycache__" for part in rel.parts):
+            continue
+        if any(rel.as_posix().startswith(prefix) for prefix in exclude):
+            continue
+        files[rel.as_posix()] = path.read_bytes()
+    return files
+
+
+def read_image_inputs(root: Path, directory: str, exclude: tuple[str, ...] = ()) -> dict[str, bytes]:
+    """The files under ROOT/DIRECTORY that an image is built from, keyed by path relative to ROOT."""
+    return {f"{directory}/{rel}": data for rel, data in read_tree(root / directory, exclude).items()}
+
+
+@dataclass(frozen=True)
+class BuildInputs:
+    """Everything read from disk that decides the images, so planning itself reads nothing."""
+
+    ros_dockerfile: str
+    ros_files: dict[str, bytes]
+    idf_dockerfile: str
+    idf_files: dict[str, bytes]
+    # Interface candidates' files by package name (ROS packages only), and each firmware's app-colcon.meta.
+    package_files: dict[str, dict[str, bytes]]
+    app_metas: dict[str, str]
+
+
+def read_build_inputs(workspace: Workspace, packages: Iterable[Package]) -> BuildInputs:
+    """Read the Dockerfiles, docker/ and the packages' files that image keys are made of."""
+    packages = tuple(packages)
+
+    def text(name: str) -> str:
+        path = workspace.root / name
+        return path.read_text() if path.is_file() else ""
+
+    return BuildInputs(
+        ros_dockerfile=text("Dockerfile.ros"),
+        ros_files=read_image_inputs(workspace.root, "docker", exclude=("idf/",)),
+        idf_dockerfile=text("Dockerfile.idf"),
+        idf_files=read_tree(workspace.root / "docker" / "idf"),
+        package_files={
+            p.name: read_tree(p.path, exclude=("build/", "install/", "log/"))
+            for p in packages
+            if p.kind is PackageKind.ROS and p.is_interface
+        },
+        app_metas={
+            p.name: (p.path / "app-colcon.meta").read_text()
+            for p in packages
+            if p.kind is PackageKind.FIRMWARE and (p.path / "app-colcon.meta").is_file()
+        },
+    )

@@ -61,11 +61,11 @@ def espdock(
 def ros_build_tag(root: Path) -> str:
     """The tag `espdock build` gives the ROS build image of the workspace at ROOT."""
     from espdock.config import load_config
-    from espdock.plan import IMAGE_INPUT_DIR, ROS_DOCKERFILE, ros_build_image
-    from espdock.workspace import read_image_inputs
+    from espdock.plan import ros_build_image
+    from espdock.workspace import Workspace, read_build_inputs
 
-    config = load_config(root, {})
-    return ros_build_image(config, (root / ROS_DOCKERFILE).read_text(), read_image_inputs(root, IMAGE_INPUT_DIR)).tag
+    inputs = read_build_inputs(Workspace(root), ())
+    return ros_build_image(load_config(root, {}), inputs.ros_dockerfile, inputs.ros_files).tag
 
 
 def leftover_containers(engine, root: Path) -> list[str]:

@@ -40,7 +40,7 @@ def test_image_tag_carries_the_key_and_base_defaults_to_the_dockerfile():
 def test_build_plan_ensures_images_then_runs_colcon():
     ws = Workspace(Path("/w"))
     spec = ros_build_image(Config(), DOCKERFILE, FILES)
-    packages = (pkg("msgs"), pkg("app", depends=["msgs"]), pkg("cam", PackageKind.FIRMWARE))
+    packages = (pkg("msgs"), pkg("app", depends=["msgs"]))
     plan = plan_build(ws, Config(), packages, spec)
     assert [type(s) for s in plan.steps] == [EnsureBaseImage, EnsureImage, ColconBuild]
     colcon = plan.steps[-1]

@@ -1,0 +1,137 @@
+"""Serial ports and the esptool / monitor command lines for `espdock flash` and `espdock monitor`."""
+
+from __future__ import annotations
+
+import errno
+import fcntl
+import os
+import re
+import socket
+import stat
+from dataclasses import dataclass
+from pathlib import Path
+from urllib.parse import urlsplit
+
+from espdock.errors import ConfigError, EspdockError
+
+URL_SCHEMES = ("socket", "rfc2217")
+
+
+class PortError(EspdockError):
+    """The serial port is missing, busy or unreachable."""
+
+    exit_code = 6
+
+
+@dataclass(frozen=True)
+class Port:
+    """A serial port: a device node passed into the container, or a network URL (host network)."""
+
+    spec: str
+    device: str | None = None
+
+    @property
+    def is_url(self) -> bool:
+        return self.device is None
+
+
+def parse_port(spec: str) -> Port:
+    """A device path (/dev/ttyUSB0) or a socket:// / rfc2217:// URL with host and port."""
+    if "://" in spec:
+        parts = urlsplit(spec)
+        if parts.scheme not in URL_SCHEMES or not parts.hostname or not parts.port:
+            raise ConfigError(
+                f"'{spec}' is not a port espdock can use",
+                "Use a device such as /dev/ttyUSB0, socket://HOST:PORT or rfc2217://HOST:PORT.",
+            )
+        return Port(spec)
+    if not spec.startswith("/"):
+        raise ConfigError(f"'{spec}' is not a device path", "Give the full path, e.g. /dev/ttyUSB0.")
+    return Port(spec, device=spec)
+
+
+def check_port(port: Port, timeout: float = 3.0) -> None:
+    """Fail with a clear message if PORT does not exist, is busy, or nothing listens at it."""
+    if port.is_url:
+        parts = urlsplit(port.spec)
+        try:
+            with socket.create_connection((parts.hostname, parts.port), timeout=timeout):
+                pass
+        except OSError as exc:
+            raise PortError(
+                f"nothing answers at {port.spec}: {exc.strerror or exc}",
+                "Start the serial server (esp_rfc2217_server, or the board's bridge) first.",
+            ) from exc
+        return
+    path = Path(port.device)
+    try:
+        mode = path.stat().st_mode
+    except FileNotFoundError:
+        raise PortError(f"serial port {path} does not exist", "Is the board plugged in? See `ls /dev/tty*`.") from None
+    if not stat.S_ISCHR(mode):
+        raise PortError(f"{path} is not a serial device")
+    try:
+        fd = os.open(path, os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK)
+    except PermissionError:
+        raise PortError(f"no permission to open {path}", "Add yourself to its group (usually dialout).") from None
+    except OSError as exc:
+        if exc.errno == errno.EBUSY:
+            raise PortError(f"serial port {path} is busy", "Close the program using it (a monitor?).") from None
+        raise PortError(f"cannot open {path}: {exc.strerror}") from exc
+    try:
+        # pyserial (esptool, monitors) takes this lock on open: holding it means someone has the port.
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        raise PortError(f"serial port {path} is busy", "Close the program using it (a monitor?).") from None
+    finally:
+        os.close(fd)
+
+
+def flash_argv(flasher_args: dict, port: Port, baud: int | None, esptool_major: int) -> tuple[str, ...]:
+    """`python -m esptool ... write_flash ...` for the artefacts flasher_args.json describes."""
+    spell, head, files = _esptool_parts(flasher_args, port, baud, esptool_major, after=None)
+    options = [spell(a) if a.startswith("--") else a for a in flasher_args.get("write_flash_args", [])]
+    return (*head, spell("write_flash"), *options, *files)
+
+
+def verify_argv(flasher_args: dict, port: Port, esptool_major: int) -> tuple[str, ...]:
+    """`python -m esptool ... verify_flash ...` for the same artefacts, leaving the chip in its bootloader."""
+    spell, head, files = _esptool_parts(flasher_args, port, None, esptool_major, after="no_reset")
+    return (*head, spell("verify_flash"), *files)
+
+
+def _esptool_parts(flasher_args: dict, port: Port, baud: int | None, esptool_major: int, after: str | None):
+    # esptool 5 renamed commands and options to hyphens and deprecates the old names;
+    # the IDF 5.x images ship esptool 4.x, which only knows the underscores.
+    def spell(word: str) -> str:
+        dashes = "--" if word.startswith("--") else ""
+        body = word[len(dashes):]
+        return dashes + (body.replace("_", "-") if esptool_major >= 5 else body.replace("-", "_"))
+
+    extra = flasher_args.get("extra_esptool_args", {})
+    chip = extra.get("chip")
+    if not chip:
+        raise ConfigError("flasher_args.json names no chip (extra_esptool_args.chip)")
+    files = flasher_args.get("flash_files", {})
+    if not files:
+        raise ConfigError("flasher_args.json lists no flash_files")
+    raw_socket = port.spec.startswith("socket://")
+    head = ["python", "-m", "esptool", "--chip", chip, "--port", port.spec]
+    # A raw socket can neither change the baud rate nor reset the chip (esptool's remote serial docs).
+    if baud and not raw_socket:
+        head += ["--baud", str(baud)]
+    head += ["--before", spell("no_reset" if raw_socket else extra.get("before", "default_reset"))]
+    head += ["--after", spell(after or extra.get("after", "hard_reset"))]
+    if extra.get("stub") is False:
+        head.append(spell("--no_stub"))
+    ordered = [item for offset in sorted(files, key=lambda o: int(o, 16)) for item in (offset, files[offset])]
+    return spell, head, ordered
+
+
+def esptool_major(version_output: list[str]) -> int:
+    """esptool's major version from what `python -m esptool version` printed (e.g. 'esptool v5.1.0')."""
+    for line in version_output:
+        match = re.search(r"esptool(?:\.py)? v(\d+)\.", line)
+        if match:
+            return int(match.group(1))
+    raise EspdockError("could not tell esptool's version from: " + " | ".join(version_output[-3:]))

@@ -1,0 +1,63 @@
+"""`espdock new`: a firmware package from the template, with a name that works on both sides."""
+
+from __future__ import annotations
+
+import re
+import shutil
+import tempfile
+from importlib import resources
+from pathlib import Path
+
+from espdock.errors import ConfigError, WorkspaceError
+from espdock.workspace import Workspace
+
+# REP 144: lower case letters, digits and underscores, starting with a letter, no "__".
+PACKAGE_NAME = re.compile(r"^[a-z][a-z0-9_]*$")
+TEMPLATE = "templates/firmware"
+
+
+def validate_package_name(name: str) -> None:
+    """Refuse NAME unless it is a valid ROS 2 package name (REP 144)."""
+    problem = None
+    if not PACKAGE_NAME.match(name):
+        problem = "use lower case letters, digits and underscores, starting with a letter"
+    elif "__" in name:
+        problem = "no two underscores in a row"
+    elif name.endswith("_"):
+        problem = "no trailing underscore"
+    if problem:
+        raise ConfigError(f"'{name}' is not a valid ROS package name: {problem}", "For example: camera_node.")
+
+
+def create_firmware_package(workspace: Workspace, name: str, depends: tuple[str, ...]) -> Path:
+    """Write firmware/NAME from the template; refuse an existing directory. Returns the new directory."""
+    validate_package_name(name)
+    for dep in depends:
+        validate_package_name(dep)
+    destination = workspace.firmware_dir / name
+    if destination.exists():
+        raise WorkspaceError(f"{destination} already exists", "Pick another name, or remove that directory.")
+    extra = "".join(f"  <depend>{d}</depend>\n" for d in dict.fromkeys(depends) if d != "std_msgs")
+    template = resources.files("espdock").joinpath(TEMPLATE)
+    workspace.firmware_dir.mkdir(parents=True, exist_ok=True)
+    # Written next to its final place and renamed, so a failure leaves no half package.
+    staging = Path(tempfile.mkdtemp(prefix=f".{name}-", dir=workspace.firmware_dir))
+    try:
+        _render(template, staging, {"@NAME@": name, "@DEPENDS@\n": extra})
+        staging.rename(destination)
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
+    return destination
+
+
+def _render(source, destination: Path, replacements: dict[str, str]) -> None:
+    for entry in source.iterdir():
+        target = destination / entry.name
+        if entry.is_dir():
+            target.mkdir()
+            _render(entry, target, replacements)
+            continue
+        text = entry.read_text()
+        for placeholder, value in replacements.items():
+            text = text.replace(placeholder, value)
+        target.write_text(text)

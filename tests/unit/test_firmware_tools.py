@@ -1,0 +1,176 @@
+"""espdock new, flashing command lines, port checks and the atomic firmware install."""
+
+import json
+import os
+import pty
+import socket
+from pathlib import Path
+
+import pytest
+
+from espdock.errors import ConfigError, WorkspaceError
+from espdock.flashing import PortError, check_port, esptool_major, flash_argv, parse_port, verify_argv
+from espdock.install import install_firmware
+from espdock.scaffold import create_firmware_package, validate_package_name
+from espdock.workspace import PackageKind, Workspace, discover_packages
+
+FLASHER_ARGS = {
+    "write_flash_args": ["--flash_mode", "dio", "--flash_size", "2MB", "--flash_freq", "40m"],
+    "flash_files": {"0x10000": "cam.bin", "0x1000": "bootloader/bootloader.bin",
+                    "0x8000": "partition_table/partition-table.bin"},
+    "extra_esptool_args": {"after": "hard_reset", "before": "default_reset", "stub": True, "chip": "esp32"},
+}
+
+
+@pytest.mark.parametrize("name", ["cam", "camera_node", "led2", "a1_b2"])
+def test_valid_package_names(name):
+    validate_package_name(name)
+
+
+@pytest.mark.parametrize("name", ["Camera", "2cam", "cam-node", "cam__node", "cam_", "", "cam node", "../x"])
+def test_invalid_package_names_are_refused(name):
+    with pytest.raises(ConfigError, match="not a valid ROS package name"):
+        validate_package_name(name)
+
+
+def test_new_creates_a_firmware_package_that_discovery_sees(tmp_path):
+    ws = Workspace(tmp_path)
+    (tmp_path / "espdock.toml").write_text("[espdock]\n")
+    path = create_firmware_package(ws, "blinky", ("custom_interface",))
+    assert (path / "main/main.c").is_file()
+    assert "project(blinky)" in (path / "CMakeLists.txt").read_text()
+    assert "$ENV{UROS_COMPONENT_DIR}" in (path / "CMakeLists.txt").read_text()
+    json.loads((path / "app-colcon.meta").read_text())
+    (package,) = discover_packages(ws)
+    assert package.name == "blinky" and package.kind is PackageKind.FIRMWARE
+    assert package.depends == {"std_msgs", "custom_interface"}
+    assert package.build_type == "esp_idf"
+    assert not [p for p in ws.firmware_dir.iterdir() if p.name.startswith(".")], "no staging leftovers"
+
+
+def test_new_refuses_an_existing_directory_and_keeps_it(tmp_path):
+    ws = Workspace(tmp_path)
+    existing = ws.firmware_dir / "blinky"
+    existing.mkdir(parents=True)
+    (existing / "mine.c").write_text("keep me")
+    with pytest.raises(WorkspaceError, match="already exists"):
+        create_firmware_package(ws, "blinky", ())
+    assert (existing / "mine.c").read_text() == "keep me"
+
+
+def test_flash_argv_for_esptool4_and_5():
+    port = parse_port("/dev/ttyUSB0")
+    v4 = flash_argv(FLASHER_ARGS, port, 460800, 4)
+    assert v4 == (
+        "python", "-m", "esptool", "--chip", "esp32", "--port", "/dev/ttyUSB0", "--baud", "460800",
+        "--before", "default_reset", "--after", "hard_reset", "write_flash",
+        "--flash_mode", "dio", "--flash_size", "2MB", "--flash_freq", "40m",
+        "0x1000", "bootloader/bootloader.bin", "0x8000", "partition_table/partition-table.bin", "0x10000", "cam.bin",
+    )  # fmt: skip
+    v5 = flash_argv(FLASHER_ARGS, port, 460800, 5)
+    assert "write-flash" in v5 and "--flash-mode" in v5 and "default-reset" in v5
+    assert not [a for a in v5 if a.startswith("--") and "_" in a]
+
+
+def test_raw_socket_ports_get_no_baud_and_no_reset():
+    argv = flash_argv(FLASHER_ARGS, parse_port("socket://127.0.0.1:9876"), 460800, 5)
+    assert "--baud" not in argv
+    assert argv[argv.index("--before") + 1] == "no-reset"
+
+
+def test_verify_reads_back_the_same_files_without_flash_options():
+    argv = verify_argv(FLASHER_ARGS, parse_port("rfc2217://host:4000"), 4)
+    assert argv[argv.index("verify_flash") + 1:] == (
+        "0x1000", "bootloader/bootloader.bin", "0x8000", "partition_table/partition-table.bin", "0x10000", "cam.bin",
+    )  # fmt: skip
+    assert argv[argv.index("--after") + 1] == "no_reset"
+
+
+def test_esptool_version_parsing():
+    assert esptool_major(["esptool.py v4.8.1", "4.8.1"]) == 4
+    assert esptool_major(["esptool v5.1.0"]) == 5
+
+
+@pytest.mark.parametrize("spec", ["ttyUSB0", "tcp://x:1", "socket://nohost", "rfc2217://:4000"])
+def test_bad_port_specs_are_refused(spec):
+    with pytest.raises(ConfigError):
+        parse_port(spec)
+
+
+def test_missing_device_is_a_clear_error(tmp_path):
+    with pytest.raises(PortError, match="does not exist"):
+        check_port(parse_port(str(tmp_path / "ttyUSB9")))
+
+
+def test_a_regular_file_is_not_a_serial_port(tmp_path):
+    (tmp_path / "ttyFAKE").write_text("")
+    with pytest.raises(PortError, match="not a serial device"):
+        check_port(parse_port(str(tmp_path / "ttyFAKE")))
+
+
+def test_busy_serial_port_is_reported():
+    import fcntl
+
+    controller, device = pty.openpty()
+    path = os.ttyname(device)
+    check_port(parse_port(path))  # free: passes
+    holder = os.open(path, os.O_RDWR | os.O_NOCTTY)
+    fcntl.flock(holder, fcntl.LOCK_EX | fcntl.LOCK_NB)  # as pyserial does for an open port
+    try:
+        with pytest.raises(PortError, match="busy"):
+            check_port(parse_port(path))
+    finally:
+        for fd in (holder, device, controller):
+            os.close(fd)
+
+
+def test_network_port_with_nothing_listening():
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        free_port = probe.getsockname()[1]
+    with pytest.raises(PortError, match="nothing answers"):
+        check_port(parse_port(f"socket://127.0.0.1:{free_port}"), timeout=1)
+
+
+def write_build(build: Path, app: bytes) -> None:
+    (build / "bootloader").mkdir(parents=True, exist_ok=True)
+    (build / "partition_table").mkdir(exist_ok=True)
+    (build / "bootloader/bootloader.bin").write_bytes(b"\xe9boot")
+    (build / "partition_table/partition-table.bin").write_bytes(b"pt")
+    (build / "cam.bin").write_bytes(app)
+    (build / "cam.elf").write_bytes(b"elf")
+    (build / "flasher_args.json").write_text(json.dumps({**FLASHER_ARGS, "app": {"offset": "0x10000",
+                                                                                  "file": "cam.bin"}}))
+
+
+def test_install_is_colcon_shaped_and_swaps_firmware_atomically(tmp_path):
+    build, install = tmp_path / "build/cam", tmp_path / "install"
+    manifest = tmp_path / "package.xml"
+    manifest.write_text("<package/>")
+    write_build(build, b"\xe9app-v1")
+    firmware = install_firmware("cam", manifest, build, install, ("custom_interface",), owner=None)
+    assert (firmware / "cam.bin").read_bytes() == b"\xe9app-v1"
+    assert (firmware / "cam.elf").is_file()
+    assert (install / "cam/share/ament_index/resource_index/packages/cam").is_file()
+    assert (install / "cam/share/colcon-core/packages/cam").read_text() == "custom_interface"
+    assert (install / "cam/share/cam/package.xml").read_text() == "<package/>"
+    first_target = os.readlink(firmware)
+
+    write_build(build, b"\xe9app-v2")
+    install_firmware("cam", manifest, build, install, (), owner=None)
+    assert firmware.is_symlink() and os.readlink(firmware) != first_target
+    assert (firmware / "cam.bin").read_bytes() == b"\xe9app-v2"
+    share = install / "cam/share/cam"
+    assert sorted(p.name for p in share.iterdir() if p.name.startswith(".firmware")) == [os.readlink(firmware)]
+
+
+def test_a_build_missing_artefacts_installs_nothing_and_keeps_the_old_firmware(tmp_path):
+    build, install = tmp_path / "build/cam", tmp_path / "install"
+    manifest = tmp_path / "package.xml"
+    manifest.write_text("<package/>")
+    write_build(build, b"\xe9good")
+    firmware = install_firmware("cam", manifest, build, install, (), owner=None)
+    (build / "partition_table/partition-table.bin").unlink()
+    with pytest.raises(Exception, match="partition-table.bin"):
+        install_firmware("cam", manifest, build, install, (), owner=None)
+    assert (firmware / "cam.bin").read_bytes() == b"\xe9good"

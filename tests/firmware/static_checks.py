@@ -1,0 +1,356 @@
+#!/usr/bin/env python3
+"""Static checks of the firmware packages that need no ESP-IDF toolchain.
+
+    static_checks.py kconfig FILE...        parse each Kconfig file (esp-idf-kconfig's parser)
+    static_checks.py package-xml FILE...    catkin_pkg validation, warnings count as errors
+    static_checks.py apps FIRMWARE_DIR MSG  espdock conventions, names, colcon.meta sizing,
+                                            CameraConfig ranges against the .msg
+
+Each prints one line per problem and exits 1 if there was any.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import sys
+from pathlib import Path
+
+# Names the apps must use by default (the issue's ROS graph).
+REQUIRED_DEFAULTS = {
+    "camera_node": {
+        "ESPDOCK_CAM_IMAGE_TOPIC": "/esp32/camera/image_jpeg",
+        "ESPDOCK_CAM_GET_CONFIG_SERVICE": "/esp32/camera/get_config",
+        "ESPDOCK_CAM_SET_CONFIG_SERVICE": "/esp32/camera/set_config",
+    },
+    "led_strip_node": {
+        "ESPDOCK_LED_COLOR_TOPIC": "/qr_message",
+        "ESPDOCK_LED_STATE_TOPIC": "/esp32/led_strip/color",
+    },
+}
+COMMON_OPTIONS = (
+    "ESPDOCK_WIFI_SSID",
+    "ESPDOCK_WIFI_PASSWORD",
+    "ESPDOCK_AGENT_IP",
+    "ESPDOCK_AGENT_PORT",
+    "ESPDOCK_NODE_NAME",
+)
+
+# esp32-camera 2.x framesize_t -> (width, height), up to the OV2640's UXGA.
+FRAMESIZES = [
+    (96, 96),
+    (160, 120),
+    (128, 128),
+    (176, 144),
+    (240, 176),
+    (240, 240),
+    (320, 240),
+    (320, 320),
+    (400, 296),
+    (480, 320),
+    (640, 480),
+    (800, 600),
+    (1024, 768),
+    (1280, 720),
+    (1280, 1024),
+    (1600, 1200),
+]
+
+# Micro XRCE-DDS framing: session header with client key, submessage header,
+# WRITE_DATA request/object ids. Defaults are the upstream libraries'.
+XRCE_SESSION_HEADER = 8
+XRCE_SUBHEADER = 4
+XRCE_WRITE_DATA_PAYLOAD = 4
+DEFAULT_UDP_MTU = 512
+DEFAULT_STREAM_HISTORY = 4
+# CDR encapsulation + stamp + string/sequence length fields and padding of a
+# CompressedImage, on top of frame_id and format text.
+COMPRESSED_IMAGE_OVERHEAD = 64
+
+ENTITY_CALLS = {
+    "RMW_UXRCE_MAX_PUBLISHERS": r"\brclc_publisher_init(?:_default|_best_effort)?\s*\(",
+    "RMW_UXRCE_MAX_SUBSCRIPTIONS": r"\brclc_subscription_init(?:_default|_best_effort)?\s*\(",
+    "RMW_UXRCE_MAX_SERVICES": r"\brclc_service_init(?:_default|_best_effort)?\s*\(",
+    "RMW_UXRCE_MAX_CLIENTS": r"\brclc_client_init(?:_default|_best_effort)?\s*\(",
+}
+
+
+class Problems:
+    """Collects problems so every check runs and all failures are reported."""
+
+    def __init__(self) -> None:
+        self.items: list[str] = []
+
+    def add(self, where: object, message: str) -> None:
+        self.items.append(f"{where}: {message}")
+
+    def finish(self, what: str) -> int:
+        for item in self.items:
+            print(f"ERROR {item}")
+        print(f"{what}: {'FAILED, ' + str(len(self.items)) + ' problem(s)' if self.items else 'OK'}")
+        return 1 if self.items else 0
+
+
+def load_kconfig(path: Path):
+    """Parses one Kconfig file with esp-idf-kconfig's kconfiglib."""
+    try:
+        import esp_kconfiglib as kconfiglib
+    except ImportError:  # esp-idf-kconfig before 3.x
+        import kconfiglib
+    return kconfiglib.Kconfig(str(path), warn=False)
+
+
+def is_literal(name: str) -> bool:
+    return re.fullmatch(r"-?(0x[0-9a-fA-F]+|[0-9]+)", name) is not None
+
+
+def check_kconfig_file(path: Path, problems: Problems) -> None:
+    try:
+        kconf = load_kconfig(path)
+    except Exception as exc:  # the parser raises KconfigError and OSError subclasses
+        problems.add(path, f"does not parse: {exc}")
+        return
+    for name, sym in kconf.syms.items():
+        if not sym.nodes and not is_literal(name):
+            problems.add(path, f"references undefined symbol {name}")
+            continue
+        check_default_in_range(path, sym, problems)
+    for sym in kconf.unique_defined_syms:
+        for node in sym.nodes:
+            if node.prompt and not node.help and sym.choice is None and not is_hidden_pin(sym.name):
+                problems.add(path, f"{sym.name} has a prompt but no help text")
+
+
+def is_hidden_pin(name: str) -> bool:
+    # Pin numbers are self-explanatory by their prompt ("D7 (Y9)").
+    return name.startswith("ESPDOCK_CAM_PIN_")
+
+
+def check_default_in_range(path: Path, sym, problems: Problems) -> None:
+    if not sym.ranges or not sym.defaults:
+        return
+    low, high = sym.ranges[0][0].name, sym.ranges[0][1].name
+    for default, _cond in sym.defaults:
+        if is_literal(default.name) and is_literal(low) and is_literal(high):
+            value, lo, hi = (int(x, 0) for x in (default.name, low, high))
+            if not lo <= value <= hi:
+                problems.add(path, f"{sym.name} default {value} outside range {lo}..{hi}")
+
+
+def cmd_kconfig(files: list[str]) -> int:
+    problems = Problems()
+    for name in files:
+        check_kconfig_file(Path(name), problems)
+    return problems.finish(f"Kconfig parse of {len(files)} file(s)")
+
+
+def cmd_package_xml(files: list[str]) -> int:
+    from catkin_pkg.package import InvalidPackage, parse_package
+
+    problems = Problems()
+    for name in files:
+        warnings: list[str] = []
+        try:
+            package = parse_package(name, warnings=warnings)
+            package.validate(warnings=warnings)
+        except InvalidPackage as exc:
+            problems.add(name, f"invalid: {exc}")
+            continue
+        for warning in warnings:
+            problems.add(name, f"warning: {warning}")
+        if package.package_format != 3:
+            problems.add(name, f"format {package.package_format}, expected 3")
+        if package.get_build_type() != "esp_idf":
+            problems.add(name, f"build_type {package.get_build_type()}, expected esp_idf")
+        if Path(name).parent.name != package.name:
+            problems.add(name, f"package name {package.name} differs from its directory")
+    return problems.finish(f"package.xml validation of {len(files)} file(s)")
+
+
+def meta_args(meta: dict) -> dict[str, dict[str, str]]:
+    """{ros package: {CMAKE_VAR: value}} from a colcon.meta document."""
+    result: dict[str, dict[str, str]] = {}
+    for package, settings in meta.get("names", {}).items():
+        variables = {}
+        for arg in settings.get("cmake-args", []):
+            match = re.fullmatch(r"-D([A-Z0-9_]+)=(.*)", arg)
+            if match:
+                variables[match.group(1)] = match.group(2)
+        result[package] = variables
+    return result
+
+
+def check_colcon_meta(app: Path, problems: Problems) -> dict[str, dict[str, str]]:
+    path = app / "app-colcon.meta"
+    try:
+        meta = json.loads(path.read_text())
+    except (OSError, ValueError) as exc:
+        problems.add(path, f"not readable JSON: {exc}")
+        return {}
+    if set(meta) != {"names"} or not isinstance(meta["names"], dict):
+        problems.add(path, 'top level must be {"names": {...}} (upstream colcon.meta format)')
+        return {}
+    for package, settings in meta["names"].items():
+        args = settings.get("cmake-args") if isinstance(settings, dict) else None
+        if not isinstance(args, list) or set(settings) != {"cmake-args"}:
+            problems.add(path, f"{package}: expected only a cmake-args list")
+            continue
+        for arg in args:
+            match = re.fullmatch(r"-D([A-Z0-9_]+)=(-?[0-9]+)", arg)
+            if not match:
+                problems.add(path, f"{package}: {arg!r} is not -DNAME=<integer>")
+            elif "HISTORY" in match.group(1) and "MAX_HISTORY" not in match.group(1):
+                value = int(match.group(2))
+                if value <= 0 or value & (value - 1):
+                    problems.add(path, f"{match.group(1)}={value} must be a power of two")
+    return meta_args(meta)
+
+
+def app_sources(app: Path) -> str:
+    return "\n".join(p.read_text() for p in sorted((app / "main").glob("*.c")))
+
+
+def check_entity_counts(app: Path, rmw: dict[str, str], problems: Problems) -> None:
+    sources = app_sources(app)
+    for var, pattern in ENTITY_CALLS.items():
+        used = len(re.findall(pattern, sources))
+        declared = int(rmw.get(var, "-1"))
+        if declared < 0:
+            problems.add(app / "app-colcon.meta", f"{var} not set (the app creates {used})")
+        elif declared < used:
+            problems.add(app / "app-colcon.meta", f"{var}={declared} but the app creates {used}")
+    if int(rmw.get("RMW_UXRCE_MAX_NODES", "0")) < 1:
+        problems.add(app / "app-colcon.meta", "RMW_UXRCE_MAX_NODES must be at least 1")
+
+
+def check_camera_stream(
+    app: Path, args: dict[str, dict[str, str]], defaults: dict[str, str], problems: Problems
+) -> None:
+    """The output stream must carry the largest JPEG the app allows in one window."""
+    rmw = args.get("rmw_microxrcedds", {})
+    client = args.get("microxrcedds_client", {})
+    mtu = int(client.get("UCLIENT_UDP_TRANSPORT_MTU", DEFAULT_UDP_MTU))
+    slots = int(rmw.get("RMW_UXRCE_STREAM_HISTORY_OUTPUT", rmw.get("RMW_UXRCE_STREAM_HISTORY", DEFAULT_STREAM_HISTORY)))
+    framesize = int(defaults.get("ESPDOCK_CAM_MAX_FRAMESIZE_VALUE", "-1"))
+    if not 0 <= framesize < len(FRAMESIZES):
+        problems.add(app, f"cannot read the default largest frame size ({framesize})")
+        return
+    width, height = FRAMESIZES[framesize]
+    largest_jpeg = width * height // 5  # esp32-camera's JPEG buffer for that size
+    text = len(defaults.get("ESPDOCK_CAM_FRAME_ID", "")) + len("jpeg")
+    needed = largest_jpeg + COMPRESSED_IMAGE_OVERHEAD + text + XRCE_SUBHEADER + XRCE_WRITE_DATA_PAYLOAD
+    window = slots * (mtu - XRCE_SESSION_HEADER - XRCE_SUBHEADER)
+    if window < needed:
+        problems.add(
+            app / "app-colcon.meta",
+            f"output stream {slots} x MTU {mtu} carries {window} B per burst, but a "
+            f"{width}x{height} JPEG frame needs up to {needed} B",
+        )
+    if mtu > 1472:
+        problems.add(app / "app-colcon.meta", f"MTU {mtu} exceeds one Ethernet/Wi-Fi UDP datagram")
+
+
+def kconfig_defaults(path: Path) -> dict[str, str]:
+    kconf = load_kconfig(path)
+    return {name: sym.str_value for name, sym in kconf.syms.items() if sym.nodes}
+
+
+def check_top_cmake(app: Path, problems: Problems) -> None:
+    path = app / "CMakeLists.txt"
+    text = path.read_text()
+    required = {
+        r"cmake_minimum_required\(VERSION 3\.16\)": "cmake_minimum_required(VERSION 3.16)",
+        r"message\(FATAL_ERROR[^)]*espdock build": "FATAL_ERROR pointing to `espdock build`",
+        r"list\(APPEND EXTRA_COMPONENT_DIRS\s+\$ENV\{UROS_COMPONENT_DIR\}": "the micro-ROS component dir",
+        r"\.\./components": "the shared components directory",
+        r"include\(\$ENV\{IDF_PATH\}/tools/cmake/project\.cmake\)": "include of project.cmake",
+        rf"project\({app.name}\)": f"project({app.name})",
+    }
+    for pattern, what in required.items():
+        if not re.search(pattern, text):
+            problems.add(path, f"missing {what}")
+
+
+def check_interface_depends(app: Path, problems: Problems) -> None:
+    from catkin_pkg.package import parse_package
+
+    package = parse_package(str(app / "package.xml"))
+    declared = {dep.name for dep in package.build_depends} & {dep.name for dep in package.exec_depends}
+    included = set(re.findall(r"#include\s*<(\w+)/(?:msg|srv|action)/", app_sources(app)))
+    for missing in sorted(included - declared):
+        problems.add(app / "package.xml", f"main/ uses {missing} but there is no <depend> on it")
+
+
+def check_camera_ranges(header: Path, msg: Path, problems: Problems) -> None:
+    """camera_config.h's table must match CameraConfig.msg field by field."""
+    c_rows = re.findall(
+        r"X\((\w+),\s*\w+,\s*(u?int\d+)_t,\s*(-?\d+),\s*(-?\d+),\s*(?:true|false)\)", header.read_text()
+    )
+    msg_rows = re.findall(r"^\s*(u?int\d+)\s+(\w+)\s*#\s*(-?\d+)\.\.(-?\d+)", msg.read_text(), re.M)
+    c_table = [(name, ctype, int(lo), int(hi)) for name, ctype, lo, hi in c_rows]
+    msg_table = [(name, mtype, int(lo), int(hi)) for mtype, name, lo, hi in msg_rows]
+    if not msg_table:
+        problems.add(msg, "no 'type name  # min..max' fields found")
+    if c_table != msg_table:
+        for c_row, m_row in zip(c_table, msg_table, strict=False):
+            if c_row != m_row:
+                problems.add(header, f"{c_row} does not match {msg.name} {m_row}")
+        if len(c_table) != len(msg_table):
+            problems.add(header, f"{len(c_table)} fields, {msg.name} has {len(msg_table)}")
+
+
+def cmd_apps(firmware: str, msg_file: str) -> int:
+    problems = Problems()
+    root = Path(firmware)
+    apps = sorted(p.parent for p in root.glob("*/package.xml"))
+    if {a.name for a in apps} != set(REQUIRED_DEFAULTS):
+        problems.add(root, f"expected apps {sorted(REQUIRED_DEFAULTS)}, found {[a.name for a in apps]}")
+    if (root / "components" / "package.xml").exists():
+        problems.add(root / "components", "is not a ROS package and must not have a package.xml")
+    for app in apps:
+        missing = [
+            rel
+            for rel in (
+                "CMakeLists.txt",
+                "main/CMakeLists.txt",
+                "main/Kconfig.projbuild",
+                "main/idf_component.yml",
+                "app-colcon.meta",
+                "sdkconfig.defaults",
+            )
+            if not (app / rel).is_file()
+        ]
+        for rel in missing:
+            problems.add(app, f"missing {rel}")
+        if missing:
+            continue
+        check_top_cmake(app, problems)
+        check_interface_depends(app, problems)
+        defaults = kconfig_defaults(app / "main" / "Kconfig.projbuild")
+        for option in COMMON_OPTIONS:
+            if option not in defaults:
+                problems.add(app, f"Kconfig lacks {option}")
+        for option, value in REQUIRED_DEFAULTS.get(app.name, {}).items():
+            if defaults.get(option) != value:
+                problems.add(app, f"{option} defaults to {defaults.get(option)!r}, expected {value!r}")
+        args = check_colcon_meta(app, problems)
+        check_entity_counts(app, args.get("rmw_microxrcedds", {}), problems)
+        if app.name == "camera_node":
+            check_camera_stream(app, args, defaults, problems)
+            check_camera_ranges(app / "main" / "camera_config.h", Path(msg_file), problems)
+    return problems.finish(f"firmware conventions of {len(apps)} app(s)")
+
+
+def main(argv: list[str]) -> int:
+    if len(argv) >= 2 and argv[0] == "kconfig":
+        return cmd_kconfig(argv[1:])
+    if len(argv) >= 2 and argv[0] == "package-xml":
+        return cmd_package_xml(argv[1:])
+    if len(argv) == 3 and argv[0] == "apps":
+        return cmd_apps(argv[1], argv[2])
+    print(__doc__, file=sys.stderr)
+    return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))

@@ -27,14 +27,16 @@ test: setup
 unit: $(VENV)/.installed
 	$(PY) -m pytest tests/unit
 
+# The demo needs no ESP32 (simulators stand in), so only the ROS side is built.
 demo: setup
-	$(ESPDOCK) build
+	$(ESPDOCK) build --only ros
 	$(ESPDOCK) compose build demo
 	@echo "espdock demo: the camera UI is at http://127.0.0.1:8080 (Ctrl-C stops it)"
-	$(ESPDOCK) compose up demo
+	# --attach demo: one console, and Ctrl-C stops every service, not only `demo`.
+	$(ESPDOCK) compose --profile sim up --attach demo
 
 demo-down:
-	$(ESPDOCK) compose down --remove-orphans
+	$(ESPDOCK) compose --profile '*' down --remove-orphans
 
 bench: setup
 	$(PY) tests/bench/demo_bench.py

@@ -345,7 +345,13 @@ def compose(ctx: typer.Context, workspace: WorkspaceOption = None) -> None:
     if ca_bundle is not None:
         env["ESPDOCK_CA_BUNDLE"] = str(ca_bundle)
     argv = [*engine.compose_command(), *ctx.args]
-    raise typer.Exit(subprocess.call(argv, cwd=ws.root, env=env))
+    process = subprocess.Popen(argv, cwd=ws.root, env=env)
+    try:
+        code = process.wait()
+    except KeyboardInterrupt:
+        # Compose got the same Ctrl-C and is stopping its services; let it finish.
+        code = process.wait()
+    raise typer.Exit(code)
 
 
 @app.command("list")

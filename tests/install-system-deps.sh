@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # System packages the tests use beyond the Docker engine (which `espdock setup`
-# provides): Debian's Chromium for the browser tests. Installed only when
+# provides): Debian's Chromium for the browser tests, cmake and g++ for the
+# firmware host tests, libzbar0 for pyzbar. Installed only when
 # missing, and only where we can (root on Debian); elsewhere the tests that
 # need them say what is missing.
 set -euo pipefail
@@ -8,6 +9,7 @@ missing=()
 command -v chromium >/dev/null || missing+=(chromium)
 command -v cmake >/dev/null || missing+=(cmake)
 command -v g++ >/dev/null || missing+=(g++)
+ldconfig -p | grep -q libzbar.so.0 || missing+=(libzbar0)  # pyzbar, for the demo's unit tests
 if [ ${#missing[@]} -eq 0 ]; then exit 0; fi
 if [ "$(id -u)" -ne 0 ] || ! command -v apt-get >/dev/null; then
   echo "missing system packages: ${missing[*]} (install them, or run as root on Debian)" >&2

@@ -1,0 +1,44 @@
+"""The demo's end-to-end tests: real compose, real DDS, real browser.
+
+Each test module brings its own stack up once (a `demo` fixture in the module)
+and tears it down however the module ends. Without Docker (or Chromium, for
+the browser tests) the tests skip with the reason, except when CI=true, where
+that is a failure.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import sys
+from pathlib import Path
+
+import pytest
+
+HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE))
+# The package's pure helpers (jpeg_size, ...) are stdlib-only and usable on the host.
+sys.path.insert(0, str(HERE.parents[1] / "ws" / "src" / "espdock_demo"))
+
+from demo_stack import build_image, docker_problem  # noqa: E402
+from demo_support import need  # noqa: E402
+
+
+@pytest.fixture(scope="session")
+def demo_image() -> None:
+    """The runtime image, built (or found up to date) once per session."""
+    need(docker_problem())
+    build_image()
+
+
+@pytest.fixture(scope="session")
+def chromium() -> str:
+    """Debian's Chromium (tests/install-system-deps.sh installs it); never a downloaded browser."""
+    path = "/usr/bin/chromium"
+    need(None if os.access(path, os.X_OK) else f"{path} is missing: apt-get install chromium "
+                                                 "(or run tests/install-system-deps.sh)")
+    try:
+        import websocket  # noqa: F401
+    except ImportError:
+        need("websocket-client is missing: pip install -e '.[test]'")
+    return shutil.which(path) or path

@@ -1,0 +1,170 @@
+"""The demo's compose stack for tests and the benchmark: a uniquely named project, always torn down.
+
+Each DemoStack is its own compose project (own network, so its DDS traffic
+never meets another demo's), with the UI on a free host port. The probe
+(`demo_probe` in the runtime image) runs with `docker compose run` on the
+stack's network to watch and poke the ROS graph.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import random
+import shutil
+import socket
+import subprocess
+import sys
+import time
+import urllib.error
+import urllib.request
+from collections.abc import Mapping
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[2]
+COMPOSE_FILE = ROOT / "compose.yaml"
+# The image every demo service runs; built from Dockerfile.ros's runtime stage.
+SERVICES = ("camera_sim", "led_strip_sim", "qr_detector", "camera_ui", "demo")
+
+
+class StackError(RuntimeError):
+    """A compose command or the probe failed; the message carries its output."""
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def docker_problem() -> str | None:
+    """Why the Docker engine or Compose v2 cannot be used here, or None when both answer."""
+    if shutil.which("docker") is None:
+        return "the docker CLI is not on PATH (run `make setup`)"
+    info = subprocess.run(["docker", "info", "--format", "{{.ServerVersion}}"], capture_output=True, text=True)
+    if info.returncode != 0:
+        return f"no Docker engine answers (run `make setup` or `espdock setup`): {info.stderr.strip()[:300]}"
+    compose = subprocess.run(["docker", "compose", "version"], capture_output=True, text=True)
+    if compose.returncode != 0:
+        return "`docker compose` (v2) is missing (run `espdock setup`)"
+    return None
+
+
+def build_image(env: Mapping[str, str] | None = None) -> None:
+    """Build the demo's runtime image through `espdock compose` (it supplies the CA bundle pip needs)."""
+    argv = [sys.executable, "-m", "espdock", "compose", "-f", str(COMPOSE_FILE), "build", "qr_detector"]
+    result = subprocess.run(argv, cwd=ROOT, env=dict(env or os.environ), capture_output=True, text=True)
+    if result.returncode != 0:
+        raise StackError(f"building the demo image failed:\n{(result.stdout + result.stderr)[-3000:]}")
+
+
+class DemoStack:
+    """One running demo: `up()`, then probes and HTTP calls, and always `down()`."""
+
+    def __init__(self, name: str | None = None, **settings: str) -> None:
+        self.project = name or f"espdock-test-{os.getpid()}-{random.randrange(16**6):06x}"
+        self.port = free_port()
+        self.env = {
+            **os.environ,
+            "ESPDOCK_DEMO_PORT": str(self.port),
+            "ESPDOCK_DEMO_BIND": "127.0.0.1",
+            # Not the default domain: proves ROS_DOMAIN_ID reaches every node (and the probe).
+            "ROS_DOMAIN_ID": str(random.randrange(1, 100)),
+            **settings,
+        }
+
+    @property
+    def url(self) -> str:
+        return f"http://127.0.0.1:{self.port}"
+
+    def compose(self, *args: str, timeout: float = 300, check: bool = True) -> subprocess.CompletedProcess:
+        argv = ["docker", "compose", "-p", self.project, "-f", str(COMPOSE_FILE), "--project-directory", str(ROOT),
+                *args]
+        try:
+            result = subprocess.run(argv, env=self.env, capture_output=True, text=True, timeout=timeout)
+        except subprocess.TimeoutExpired as exc:
+            raise StackError(f"`docker compose {' '.join(args)}` did not finish within {timeout:g} s") from exc
+        if check and result.returncode != 0:
+            raise StackError(f"`docker compose {' '.join(args)}` failed ({result.returncode}):\n"
+                             f"{(result.stdout + result.stderr)[-3000:]}")
+        return result
+
+    def up(self, timeout: float = 180) -> None:
+        """Start the demo and wait until every service is healthy."""
+        self.compose("up", "-d", "--wait", "--wait-timeout", str(int(timeout)), "demo", timeout=timeout + 30)
+
+    def down(self) -> None:
+        self.compose("--profile", "*", "down", "-v", "--remove-orphans", "-t", "3", check=False, timeout=120)
+
+    def logs(self, tail: int = 40) -> str:
+        return self.compose("--profile", "*", "logs", "--no-color", "--tail", str(tail), check=False).stdout
+
+    def probe(self, *args: str, timeout: float = 120) -> dict:
+        """Run `demo_probe ARGS` on the stack's network; its JSON answer."""
+        result = self.compose("run", "--rm", "--no-deps", "-T", "probe", *args, timeout=timeout + 60, check=False)
+        lines = result.stdout.strip().splitlines()
+        if result.returncode != 0 or not lines:
+            raise StackError(f"demo_probe {' '.join(args)} failed ({result.returncode}):\n"
+                             f"{result.stdout[-1500:]}\n{result.stderr[-2500:]}")
+        return json.loads(lines[-1])
+
+    # Containers
+
+    def container(self, service: str) -> str:
+        cid = self.compose("ps", "-a", "-q", service).stdout.strip()
+        if not cid:
+            raise StackError(f"no container for {service}")
+        return cid.splitlines()[0]
+
+    def inspect(self, service: str) -> dict:
+        out = subprocess.run(["docker", "inspect", self.container(service)], capture_output=True, text=True,
+                             check=True).stdout
+        return json.loads(out)[0]
+
+    def restart_count(self, service: str) -> int:
+        return int(self.inspect(service)["RestartCount"])
+
+    def health(self, service: str) -> str:
+        state = self.inspect(service)["State"]
+        return state.get("Health", {}).get("Status") or state["Status"]
+
+    def crash(self, service: str) -> None:
+        """Kill SERVICE's node with SIGKILL from inside, as a crash would (`docker kill` counts as a
+        deliberate stop, after which Docker does not restart a container)."""
+        # kill -1: every process of the node's user but PID 1 (tini), which then exits with the node's status.
+        subprocess.run(["docker", "exec", self.container(service), "sh", "-c", "kill -KILL -1"], capture_output=True)
+
+    def wait_until(self, condition, timeout: float, what: str, interval: float = 0.5):
+        deadline = time.monotonic() + timeout
+        while True:
+            value = condition()
+            if value:
+                return value
+            if time.monotonic() > deadline:
+                raise StackError(f"{what}: not within {timeout:g} s")
+            time.sleep(interval)
+
+    # The UI over HTTP, from the host
+
+    def http(self, path: str, data: bytes | None = None, headers: Mapping[str, str] | None = None,
+             timeout: float = 10) -> tuple[int, bytes, str]:
+        """(status, body, content type) of a request to the UI."""
+        request = urllib.request.Request(self.url + path, data=data, headers=dict(headers or {}))
+        try:
+            with urllib.request.urlopen(request, timeout=timeout) as response:
+                return response.status, response.read(), response.headers.get("Content-Type", "")
+        except urllib.error.HTTPError as exc:
+            return exc.code, exc.read(), exc.headers.get("Content-Type", "")
+
+    def state(self) -> dict:
+        status, body, _ = self.http("/api/state")
+        if status != 200:
+            raise StackError(f"/api/state answered {status}")
+        return json.loads(body)
+
+    def post_settings(self, **fields: int | str) -> tuple[int, dict]:
+        """POST the settings form as the page's script does; (status, JSON answer)."""
+        body = "&".join(f"{k}={v}" for k, v in fields.items()).encode()
+        status, data, _ = self.http("/config", body, {"Content-Type": "application/x-www-form-urlencoded",
+                                                       "Accept": "application/json"})
+        return status, json.loads(data)

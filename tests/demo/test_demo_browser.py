@@ -1,0 +1,86 @@
+"""The camera UI in headless Chromium: live frames, settings, the LED swatch."""
+
+from __future__ import annotations
+
+import time
+
+import pytest
+
+from cdp import Browser
+from demo_support import FRAME_HASH, start_stack
+
+pytestmark = [pytest.mark.engine, pytest.mark.slow]
+
+SWATCH = "getComputedStyle(document.getElementById('swatch')).backgroundColor"
+
+
+@pytest.fixture(scope="module")
+def demo(request, demo_image):
+    return start_stack(request, ESPDOCK_DEMO_PHASE_SECONDS="1.5")
+
+
+@pytest.fixture
+def page(demo, chromium):
+    with Browser(chromium) as browser:
+        browser.open(demo.url + "/")
+        yield browser
+
+
+def distinct_frames(browser: Browser, seconds: float) -> int:
+    """How many different pictures the stream showed in SECONDS."""
+    seen = set()
+    deadline = time.monotonic() + seconds
+    while time.monotonic() < deadline:
+        seen.add(browser.evaluate(FRAME_HASH))
+        time.sleep(0.05)
+    seen.discard(None)
+    return len(seen)
+
+
+def hex_to_rgb(hex_color: str) -> str:
+    r, g, b = (int(hex_color[i:i + 2], 16) for i in (1, 3, 5))
+    return f"rgb({r}, {g}, {b})"
+
+
+def test_the_page_shows_live_frames(page):
+    page.wait_for("document.getElementById('stream').naturalWidth === 320")
+    assert distinct_frames(page, 1.5) >= 10
+    assert page.evaluate("document.getElementById('nocam').hidden") is True
+    page.wait_for("document.getElementById('camera-info').textContent.startsWith('320x240 at')")
+
+
+def test_the_swatch_follows_the_led_colour(page):
+    colours = []
+    deadline = time.monotonic() + 15
+    while len(colours) < 3 and time.monotonic() < deadline:
+        hex_shown = page.evaluate("document.getElementById('led-hex').textContent")
+        swatch = page.evaluate(SWATCH)
+        if hex_shown.startswith("#") and swatch == hex_to_rgb(hex_shown) and hex_shown not in colours:
+            colours.append(hex_shown)
+        time.sleep(0.1)
+    assert len(colours) >= 3, f"the swatch showed only {colours}"
+    assert page.evaluate("document.getElementById('qr').textContent").startswith("#")
+
+
+def test_changing_a_setting_in_the_page_changes_the_stream(page):
+    page.wait_for("document.getElementById('stream').naturalWidth === 320")
+    # Pick VGA from the frame size menu and turn on the mirror toggle, then press Apply.
+    page.evaluate("""(() => { const menu = document.querySelector('select[name=framesize]');
+        menu.value = '10'; menu.dispatchEvent(new Event('change', {bubbles: true})); })()""")
+    page.click("input[type=checkbox][name=hmirror]")
+    assert page.evaluate("document.querySelector('input[type=checkbox][name=hmirror]').checked") is True
+    page.click("#apply")
+    message = page.wait_for("(() => { const r = document.getElementById('result');"
+                            " return r.className === 'ok' && r.textContent; })()", timeout=10)
+    assert "applied" in message and "framesize VGA" in message and "hmirror 1" in message
+    page.wait_for("document.getElementById('stream').naturalWidth === 640", timeout=10)
+    assert page.evaluate("document.getElementById('stream').naturalHeight") == 480
+    assert distinct_frames(page, 1.0) >= 5
+    assert '"framesize": 10' in page.evaluate("document.getElementById('config').textContent")
+
+    # Back to QVGA without the mirror, so the other tests see the default.
+    page.evaluate("document.querySelector('select[name=framesize]').value = '6'")
+    page.click("input[type=checkbox][name=hmirror]")
+    page.click("#apply")
+    page.wait_for("document.getElementById('stream').naturalWidth === 320", timeout=10)
+    assert page.console == [] or not any("exception" in line for line in page.console), page.console

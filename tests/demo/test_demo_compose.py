@@ -1,0 +1,80 @@
+"""compose.yaml as Compose resolves it (`docker compose config`: the CLI only, no engine, no images)."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+
+import pytest
+
+from demo_stack import COMPOSE_FILE, ROOT
+from demo_support import need
+
+ROS_SERVICES = ("camera_sim", "led_strip_sim", "qr_detector", "camera_ui", "demo")
+
+
+def config(*args: str, **env: str) -> dict:
+    need(None if shutil.which("docker") else "the docker CLI is not on PATH (run `make setup`)")
+    clean = {k: v for k, v in os.environ.items() if not k.startswith(("ESPDOCK_DEMO_", "ROS_DOMAIN_ID"))}
+    result = subprocess.run(
+        ["docker", "compose", "-f", str(COMPOSE_FILE), "--project-directory", str(ROOT), *args,
+         "config", "--format", "json"],
+        capture_output=True, text=True, env={**clean, **env},
+    )
+    if result.returncode != 0 and "is not a docker command" in result.stderr:
+        need("`docker compose` (v2) is missing (run `espdock setup`)")
+    assert result.returncode == 0, result.stderr
+    return json.loads(result.stdout)
+
+
+def test_up_demo_brings_every_node_and_waits_for_their_health():
+    services = config("--profile", "sim")["services"]
+    assert set(ROS_SERVICES) <= services.keys()
+    assert "micro_ros_agent" not in services
+    assert {name: dep["condition"] for name, dep in services["demo"]["depends_on"].items()} == {
+        "camera_sim": "service_healthy", "led_strip_sim": "service_healthy",
+        "qr_detector": "service_healthy", "camera_ui": "service_healthy",
+    }
+
+
+def test_the_hardware_profile_is_valid_and_leaves_the_simulators_out():
+    services = config("--profile", "hardware")["services"]
+    assert "camera_sim" not in services and "led_strip_sim" not in services
+    agent = services["micro_ros_agent"]
+    assert agent["image"] == "microros/micro-ros-agent:jazzy"
+    assert agent["command"] == ["udp4", "--port", "8888"]
+    assert agent["ports"][0]["target"] == 8888 and agent["ports"][0]["protocol"] == "udp"
+    assert {"qr_detector", "camera_ui", "demo-hardware"} <= services.keys()
+
+
+def test_every_node_restarts_after_a_crash_has_a_healthcheck_and_talks_udp_only():
+    services = config("--profile", "sim", ROS_DOMAIN_ID="42")["services"]
+    for name in ROS_SERVICES:
+        service = services[name]
+        assert service["restart"] == "unless-stopped", name
+        assert service["healthcheck"]["test"][:2] == ["CMD", "python"], name
+        assert service["environment"]["FASTDDS_BUILTIN_TRANSPORTS"] == "UDPv4", name
+        assert service["environment"]["ROS_DOMAIN_ID"] == "42", name
+        assert service["image"] == services["qr_detector"]["image"]
+
+
+def test_the_ui_is_published_on_localhost_8080_unless_told_otherwise():
+    (port,) = config()["services"]["camera_ui"]["ports"]
+    assert (port["host_ip"], port["published"], port["target"]) == ("127.0.0.1", "8080", 8080)
+    (port,) = config(ESPDOCK_DEMO_BIND="0.0.0.0", ESPDOCK_DEMO_PORT="9000")["services"]["camera_ui"]["ports"]
+    assert (port["host_ip"], port["published"]) == ("0.0.0.0", "9000")
+
+
+def test_images_get_the_ca_bundle_as_a_build_secret():
+    resolved = config(ESPDOCK_CA_BUNDLE="/etc/hostname")
+    build = resolved["services"]["qr_detector"]["build"]
+    assert build["target"] == "runtime" and build["secrets"] == [{"source": "ca_bundle"}]
+    assert resolved["secrets"]["ca_bundle"]["file"] == "/etc/hostname"
+    assert config()["secrets"]["ca_bundle"]["file"] == "/dev/null"
+
+
+@pytest.mark.parametrize("profile", ["sim", "hardware", "test"])
+def test_each_profile_resolves(profile):
+    assert config("--profile", profile)["services"]

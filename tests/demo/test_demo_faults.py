@@ -1,0 +1,88 @@
+"""Faults: a crashed node comes back by itself; a camera that goes away shows as such and comes back."""
+
+from __future__ import annotations
+
+import http.client
+import time
+
+import pytest
+
+from cdp import Browser
+from demo_stack import StackError
+from demo_support import FRAME_HASH, start_stack
+from espdock_demo.mjpeg import jpeg_size
+
+pytestmark = [pytest.mark.engine, pytest.mark.slow]
+
+
+@pytest.fixture(scope="module")
+def demo(request, demo_image):
+    return start_stack(request, ESPDOCK_DEMO_PHASE_SECONDS="1.5")
+
+
+def test_a_crashed_qr_detector_comes_back_and_the_led_follows_again(demo):
+    assert demo.probe("follow", "--changes", "1", "--timeout", "20")["ok"]
+    restarts = demo.restart_count("qr_detector")
+    demo.crash("qr_detector")
+    demo.wait_until(lambda: demo.restart_count("qr_detector") > restarts, 30, "qr_detector restarted")
+    demo.wait_until(lambda: demo.health("qr_detector") == "healthy", 60, "qr_detector healthy again")
+    report = demo.probe("follow", "--changes", "3", "--timeout", "30")
+    assert report["ok"] and len({c["hex"] for c in report["changes"]}) >= 3, report
+
+
+def first_stream_part(demo) -> bytes:
+    conn = http.client.HTTPConnection("127.0.0.1", demo.port, timeout=10)
+    conn.request("GET", "/stream.mjpg")
+    response = conn.getresponse()
+    while True:
+        line = response.fp.readline()
+        if line.startswith(b"Content-Length:"):
+            length = int(line.split(b":")[1])
+            response.fp.readline()
+            part = response.fp.read(length)
+            conn.close()
+            return part
+
+
+def test_the_ui_shows_no_camera_while_it_is_gone_and_recovers_by_itself(demo, chromium):
+    with Browser(chromium) as page:
+        page.open(demo.url + "/")
+        page.wait_for("document.getElementById('stream').naturalWidth === 320")
+        demo.compose("stop", "camera_sim")
+        try:
+            page.wait_for("!document.getElementById('nocam').hidden", timeout=10)
+            assert page.evaluate("document.getElementById('camera-info').textContent") == "no camera"
+            assert demo.state()["camera"]["online"] is False
+            assert demo.http("/snapshot.jpg")[0] == 503
+            # The stream itself says so too, for clients without the page's script.
+            assert jpeg_size(first_stream_part(demo)) == (320, 240)
+            # The UI node itself is fine.
+            assert demo.health("camera_ui") == "healthy"
+        finally:
+            demo.compose("start", "camera_sim")
+        page.wait_for("document.getElementById('nocam').hidden", timeout=30)
+        first = page.wait_for(FRAME_HASH, timeout=10)
+        page.wait_for(f"(() => {{ const h = {FRAME_HASH}; return h !== null && h !== {first}; }})()", timeout=10)
+    try:
+        demo.wait_until(lambda: demo.state()["camera"]["online"], 10, "camera online in /api/state")
+    except StackError:
+        pytest.fail(f"the UI did not see the camera come back: {demo.state()}")
+
+
+def test_settings_for_a_camera_that_does_not_answer_end_in_a_clear_error(demo):
+    demo.compose("pause", "camera_sim")  # there, but frozen: the service call times out
+    try:
+        started = time.monotonic()
+        status, answer = demo.post_settings(quality=20)
+        waited = time.monotonic() - started
+    finally:
+        demo.compose("unpause", "camera_sim")
+    assert status == 504 and "did not answer within 3 s" in answer["message"]
+    assert 2.5 < waited < 6
+    demo.compose("stop", "camera_sim")  # gone: no service at all
+    try:
+        demo.wait_until(lambda: demo.post_settings(quality=20)[0] == 503, 15, "set_config seen as unavailable")
+        assert "not available" in demo.post_settings(quality=20)[1]["message"]
+    finally:
+        demo.compose("start", "camera_sim")
+    demo.wait_until(lambda: demo.post_settings(quality=10)[0] == 200, 30, "the camera answering again")

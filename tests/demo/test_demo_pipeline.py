@@ -1,0 +1,101 @@
+"""End to end: QR codes in camera frames drive the LED strip; camera settings through the UI; bad input."""
+
+from __future__ import annotations
+
+import pytest
+
+from demo_support import start_stack
+from espdock_demo.mjpeg import jpeg_size
+
+pytestmark = [pytest.mark.engine, pytest.mark.slow]
+
+PHASE_SECONDS = 1.5
+
+
+@pytest.fixture(scope="module")
+def demo(request, demo_image):
+    return start_stack(request, ESPDOCK_DEMO_PHASE_SECONDS=str(PHASE_SECONDS))
+
+
+def test_the_led_follows_each_new_qr_colour_within_seconds(demo):
+    report = demo.probe("follow", "--changes", "4", "--timeout", "45")
+    changes = report["changes"]
+    assert report["ok"], f"only {len(changes)} LED changes followed the scene: {report}"
+    assert len({c["hex"] for c in changes}) >= 3
+    for change in changes:
+        # The strip shows exactly the QR code's colour, well within the phase it is shown in.
+        assert change["hex"] == change["text"].lower()
+        assert 0 < change["latency_ms"] < 1000, change
+    assert report["missed"] == []
+
+
+def test_the_leds_colour_is_there_for_a_late_subscriber(demo):
+    led = demo.probe("led", "--timeout", "10")["led"]
+    assert led is not None and led.startswith("#")
+
+
+def test_a_setting_sent_through_the_ui_changes_the_frames(demo):
+    assert demo.probe("frames", "--count", "3")["frames"][-1]["width"] == 320
+
+    status, answer = demo.post_settings(framesize=10)
+    assert status == 200 and answer["ok"], answer
+    # The UI shows what the camera answered: its whole config, with the new size.
+    assert answer["config"]["framesize"] == 10 and answer["config"]["quality"] == 10
+    frames = demo.probe("frames", "--count", "5")["frames"]
+    assert {(f["width"], f["height"]) for f in frames} == {(640, 480)}
+    assert all(f["format"] == "jpeg" for f in frames)
+    status, snapshot, content_type = demo.http("/snapshot.jpg")
+    assert status == 200 and content_type == "image/jpeg" and jpeg_size(snapshot) == (640, 480)
+    assert demo.state()["config"]["framesize"] == 10
+
+    status, answer = demo.post_settings(framesize=6, quality=40)
+    assert status == 200 and answer["config"]["framesize"] == 6
+    frames = demo.probe("frames", "--count", "5")["frames"]
+    assert {(f["width"], f["height"]) for f in frames} == {(320, 240)}
+    status, answer = demo.post_settings(quality=10)
+    assert status == 200
+
+
+def test_out_of_range_settings_are_refused_and_change_nothing(demo):
+    status, answer = demo.post_settings(framesize=16, quality=10)
+    assert status == 400 and "framesize must be in 0..15, got 16" in answer["message"]
+    status, answer = demo.post_settings(brightness="bright")
+    assert status == 400 and "brightness must be an integer" in answer["message"]
+    # The camera itself refuses too, when asked directly: status false and its config unchanged.
+    report = demo.probe("set-config", "quality=70", "framesize=3")
+    assert report["status"] is False and report["config"] == report["before"]
+    assert demo.probe("frames", "--count", "2")["frames"][-1]["width"] == 320
+
+
+def test_bad_input_on_the_topics_kills_no_node_and_leaves_the_led_alone(demo):
+    restarts = {s: demo.restart_count(s) for s in ("qr_detector", "led_strip_sim", "camera_ui")}
+    # Only the injected frames should reach the detector now.
+    demo.compose("stop", "camera_sim")
+    try:
+        report = demo.probe(
+            "inject", "--image", "garbage", "--image", "empty", "--image", "truncated",
+            "--qr", "#GGG", "--qr", "#12345", "--qr", "hello", "--text-size", "1000000",
+        )
+    finally:
+        demo.compose("start", "camera_sim")
+    assert report["ready"] == {"qr_detector": True, "led_strip_sim": True}, report["ready"]
+    assert report["led_before"] is not None
+    assert report["led_after"] == report["led_before"] and report["led_changes"] == []
+
+    # The detector read the bad codes and passed them on; the strip ignored each of them.
+    texts = [m["text"] for m in report["qr_messages"]]
+    assert texts[:3] == ["#GGG", "#12345", "hello"] and report["qr_messages"][3]["length"] == 1_000_000
+    before, after = report["diagnostics_before"], report["diagnostics_after"]
+
+    def grew(node, key):
+        return int(after[node][key]) - int(before[node][key])
+
+    assert grew("led_strip_sim", "ignored") == 4
+    assert grew("led_strip_sim", "changes") == 0
+    assert grew("qr_detector", "frames_corrupt") >= 2 and grew("qr_detector", "frames_empty") >= 1
+
+    for service, count in restarts.items():
+        assert demo.restart_count(service) == count, f"{service} restarted"
+        assert demo.health(service) == "healthy"
+    # And the pipeline still works.
+    assert demo.probe("follow", "--changes", "2", "--timeout", "30")["ok"]

@@ -1,0 +1,117 @@
+"""camera_ui (seed 7.3): the web page with the live camera, its settings, the QR text and the LED colour.
+
+ROS callbacks only hand data to the web side (a latest-frame slot, a state
+object) and return; HTTP threads do the sending. Settings go to the camera's
+set_config service and the page shows the configuration the camera answers
+with, or an error when it does not answer within `service_timeout` seconds.
+"""
+
+from __future__ import annotations
+
+import threading
+
+from custom_interface.msg import CameraConfig
+from custom_interface.srv import GetCameraConfig, SetCameraConfig
+from rclpy.node import Node
+from sensor_msgs.msg import CompressedImage
+from std_msgs.msg import ColorRGBA, String
+
+from espdock_demo import camera_config
+from espdock_demo.colors import Rgb
+from espdock_demo.mjpeg import FrameBroadcaster
+from espdock_demo.names import (
+    CAMERA_GET_CONFIG_SERVICE, CAMERA_IMAGE_TOPIC, CAMERA_SET_CONFIG_SERVICE, LED_COLOR_TOPIC, QR_MESSAGE_TOPIC,
+)
+from espdock_demo.ros_common import (
+    IMAGE_SUB_QOS, LATCHED_QOS, TEXT_QOS, config_to_dict, spin_node, start_diagnostics, start_heartbeat,
+)
+from espdock_demo.web import CameraUnavailable, LiveState, SetResult, UiApp, make_server
+
+
+class CameraUi(Node):
+    """The camera UI node; also the web server's Backend."""
+
+    def __init__(self) -> None:
+        super().__init__("camera_ui")
+        host = str(self.declare_parameter("host", "127.0.0.1").value)
+        port = int(self.declare_parameter("port", 8080).value)
+        service_timeout = float(self.declare_parameter("service_timeout", 3.0).value)
+        offline_after = float(self.declare_parameter("offline_after", 2.0).value)
+
+        self.frames = FrameBroadcaster()
+        self.state = LiveState()
+        settings = camera_config.settings_from_fields(CameraConfig.get_fields_and_field_types())
+        self.app = UiApp(settings, self.frames, self.state, self, service_timeout, offline_after)
+        self.get_client = self.create_client(GetCameraConfig, CAMERA_GET_CONFIG_SERVICE)
+        self.set_client = self.create_client(SetCameraConfig, CAMERA_SET_CONFIG_SERVICE)
+        self.set_lock = threading.Lock()
+        self.get_pending = None
+        self.was_online = False
+
+        self.create_subscription(CompressedImage, CAMERA_IMAGE_TOPIC, self.on_image, IMAGE_SUB_QOS)
+        self.create_subscription(String, QR_MESSAGE_TOPIC, lambda m: self.state.update(qr=m.data), TEXT_QOS)
+        self.create_subscription(ColorRGBA, LED_COLOR_TOPIC, self.on_color, LATCHED_QOS)
+        self.create_timer(0.5, self.watch_camera)
+        self.beat_age = start_heartbeat(self)
+        start_diagnostics(self, lambda: {"camera_online": self.app.camera_online(),
+                                         "fps_in": round(self.frames.rate(), 1)})
+
+        self.server = make_server(host, port, self.app)
+        threading.Thread(target=self.server.serve_forever, kwargs={"poll_interval": 0.5},
+                         name="http", daemon=True).start()
+        self.get_logger().info(f"camera UI at http://{host}:{port}/")
+
+    # ROS side: hand over and return at once.
+
+    def on_image(self, msg: CompressedImage) -> None:
+        self.frames.publish(bytes(msg.data))
+
+    def on_color(self, msg: ColorRGBA) -> None:
+        self.state.update(led=Rgb.from_floats(msg.r, msg.g, msg.b))
+
+    def watch_camera(self) -> None:
+        """Ask for the camera's config at start and whenever the camera comes back (it may have restarted)."""
+        online = self.app.camera_online()
+        came_back = online and not self.was_online
+        self.was_online = online
+        unknown = self.state.get("config") is None
+        if (came_back or unknown) and self.get_pending is None and self.get_client.service_is_ready():
+            self.get_pending = self.get_client.call_async(GetCameraConfig.Request())
+            self.get_pending.add_done_callback(self.on_config)
+
+    def on_config(self, future) -> None:
+        self.get_pending = None
+        if future.cancelled() or future.exception() is not None:
+            return
+        self.state.update(config=config_to_dict(future.result().config))
+
+    # Web side (HTTP threads).
+
+    def set_config(self, config, timeout: float) -> SetResult:
+        with self.set_lock:
+            if not self.set_client.service_is_ready():
+                raise CameraUnavailable(
+                    f"The camera's {CAMERA_SET_CONFIG_SERVICE} service is not available: is the camera running?", 503)
+            done = threading.Event()
+            future = self.set_client.call_async(SetCameraConfig.Request(config=CameraConfig(**config)))
+            future.add_done_callback(lambda _: done.set())
+            if not done.wait(timeout):
+                self.set_client.remove_pending_request(future)
+                future.cancel()
+                raise CameraUnavailable(f"The camera did not answer within {timeout:g} s; nothing is known to have "
+                                        "changed.", 504)
+            response = future.result()
+            return SetResult(bool(response.status), config_to_dict(response.config))
+
+    def healthy(self) -> bool:
+        return self.beat_age() < 5.0
+
+    def stop(self) -> None:
+        self.app.stopping.set()
+        self.frames.close()
+        self.server.shutdown()
+        self.server.server_close()
+
+
+def main() -> None:
+    spin_node(CameraUi, on_shutdown=lambda node: node.stop())

@@ -1,0 +1,96 @@
+"""What every demo node shares: QoS profiles, conversions, heartbeat, diagnostics, the main loop."""
+
+from __future__ import annotations
+
+import os
+import pathlib
+import time
+from collections.abc import Callable, Mapping
+
+import rclpy
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rclpy.executors import ExternalShutdownException, Executor, SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+from espdock_demo.names import DIAGNOSTICS_TOPIC
+
+# Image subscribers keep only the newest frame and never ask for resends: a
+# subscriber that falls behind skips to the latest frame instead of building a backlog.
+IMAGE_SUB_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.BEST_EFFORT,
+                           durability=DurabilityPolicy.VOLATILE)
+# As the firmware's rclc_publisher_init_default: reliable, volatile (matches best-effort readers too).
+IMAGE_PUB_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=2, reliability=ReliabilityPolicy.RELIABLE,
+                           durability=DurabilityPolicy.VOLATILE)
+TEXT_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10, reliability=ReliabilityPolicy.RELIABLE,
+                      durability=DurabilityPolicy.VOLATILE)
+# The LED colour is state: a late subscriber gets the colour the strip shows now.
+LATCHED_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
+
+HEARTBEAT_FILE = os.environ.get("ESPDOCK_HEARTBEAT", "/tmp/espdock-heartbeat")
+
+
+def config_to_dict(msg: object) -> dict[str, int]:
+    """A CameraConfig message as a field -> value dict."""
+    return {name: int(getattr(msg, name)) for name in msg.get_fields_and_field_types()}
+
+
+def start_heartbeat(node: Node, period: float = 1.0) -> Callable[[], float]:
+    """Touch HEARTBEAT_FILE from the executor every PERIOD s (the container healthcheck reads it).
+
+    Returns a function giving the seconds since the last beat.
+    """
+    path = pathlib.Path(HEARTBEAT_FILE)
+    last = [time.monotonic()]
+
+    def beat() -> None:
+        last[0] = time.monotonic()
+        try:
+            path.touch()
+        except OSError:
+            pass  # outside a container, e.g. a read-only /tmp: the healthcheck is not used there
+
+    beat()
+    node.create_timer(period, beat)
+    return lambda: time.monotonic() - last[0]
+
+
+def start_diagnostics(node: Node, values: Callable[[], Mapping[str, object]], period: float = 1.0) -> None:
+    """Publish VALUES() as this node's DiagnosticStatus on /diagnostics every PERIOD seconds."""
+    publisher = node.create_publisher(DiagnosticArray, DIAGNOSTICS_TOPIC, 10)
+    name = node.get_fully_qualified_name()
+
+    def publish() -> None:
+        array = DiagnosticArray()
+        array.header.stamp = node.get_clock().now().to_msg()
+        status = DiagnosticStatus(level=DiagnosticStatus.OK, name=name, hardware_id="espdock_demo", message="running")
+        status.values = [KeyValue(key=str(k), value=str(v)) for k, v in values().items()]
+        array.status = [status]
+        publisher.publish(array)
+
+    node.create_timer(period, publish)
+
+
+def spin_node(make_node: Callable[[], Node], executor: Executor | None = None,
+              on_shutdown: Callable[[Node], None] | None = None) -> None:
+    """Init rclpy, spin the node MAKE_NODE makes until Ctrl-C or SIGTERM, then clean up.
+
+    Anything else a node raises ends the process with an error, so the
+    container's restart policy brings it back.
+    """
+    rclpy.init()
+    node = None
+    try:
+        node = make_node()
+        executor = executor or SingleThreadedExecutor()
+        executor.add_node(node)
+        executor.spin()
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        if node is not None:
+            if on_shutdown is not None:
+                on_shutdown(node)
+            node.destroy_node()
+        rclpy.try_shutdown()

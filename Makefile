@@ -20,6 +20,7 @@ setup: $(VENV)/.installed
 	bash tests/install-system-deps.sh
 
 test: setup
+	$(PY) -m ruff check espdock
 	$(PY) -m pytest
 	bash tests/firmware/run.sh build/host-tests
 

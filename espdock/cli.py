@@ -18,7 +18,7 @@ from rich.table import Table
 from rich.text import Text
 
 from espdock import __version__, bootstrap
-from espdock.config import Config, load_config, resolve_ca_bundle
+from espdock.config import Config, invoking_user, load_config, resolve_ca_bundle
 from espdock.engine import format_argv
 from espdock.errors import ConfigError, EspdockError, Interrupted, WorkspaceError
 from espdock.flashing import PortError, check_port, esptool_major, flash_argv, parse_port, verify_argv
@@ -177,7 +177,8 @@ def new(
 ) -> None:
     """Create firmware/NAME: an ESP-IDF project that is also a ROS 2 package, with a minimal micro-ROS app."""
     ws, config = _load(workspace, target=target)
-    path = create_firmware_package(ws, name, tuple(depends or ()))
+    owner = invoking_user(os.environ, ws.root) if os.geteuid() == 0 else None
+    path = create_firmware_package(ws, name, tuple(depends or ()), owner)
     console.print(f"created {path.relative_to(ws.root)} (target {config.target}); build it with `espdock build {name}`")
 
 

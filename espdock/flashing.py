@@ -105,7 +105,7 @@ def _esptool_parts(flasher_args: dict, port: Port, baud: int | None, esptool_maj
     # the IDF 5.x images ship esptool 4.x, which only knows the underscores.
     def spell(word: str) -> str:
         dashes = "--" if word.startswith("--") else ""
-        body = word[len(dashes):]
+        body = word[len(dashes) :]
         return dashes + (body.replace("_", "-") if esptool_major >= 5 else body.replace("-", "_"))
 
     extra = flasher_args.get("extra_esptool_args", {})

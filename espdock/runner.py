@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import fcntl
+import hashlib
 import os
 import re
 import shutil
@@ -196,7 +197,8 @@ class Runner:
 
     def _idf_build(self, workspace: Workspace, step: IdfBuild) -> tuple[Outcome, str]:
         build_dir = workspace.ws_dir / "build" / step.package
-        _reset_if_retargeted(build_dir, step.target)
+        defaults = _defaults_digest(workspace.firmware_dir / step.project)
+        _prepare_build_dir(build_dir, step.target, defaults)
         code = self.run_idf(workspace, step, step.argv(), on_line=lambda line: self._emit(StepOutput(step.name, line)))
         if code != 0:
             raise BuildFailed(
@@ -205,7 +207,7 @@ class Runner:
                 "Fix the firmware and run `espdock build` again; installed firmware was left as it was.",
                 packages=(step.package,),
             )
-        (build_dir / TARGET_MARKER).write_text(f"{step.target}\n{step.image_key}\n")
+        (build_dir / TARGET_MARKER).write_text(f"{step.target}\n{defaults}\n{step.image_key}\n")
         _give_to(build_dir / TARGET_MARKER, invoking_user(self._env, workspace.root))
         return Outcome.BUILT, step.target
 
@@ -289,11 +291,24 @@ def workspace_lock(workspace: Workspace) -> Iterator[None]:
         os.close(fd)
 
 
-def _reset_if_retargeted(build_dir: Path, target: str) -> None:
-    """A build dir configured for another chip can't be reused (IDF refuses); it is only a cache."""
+def _prepare_build_dir(build_dir: Path, target: str, defaults: str) -> None:
+    """Make a build dir safe to reuse: IDF refuses one configured for another chip, and an
+    existing sdkconfig wins over sdkconfig.defaults, so edited defaults would go unseen."""
     marker = build_dir / TARGET_MARKER
-    if marker.is_file() and marker.read_text().split("\n", 1)[0] != target:
-        shutil.rmtree(build_dir)
+    if not marker.is_file():
+        return
+    built_target, built_defaults, *_ = [*marker.read_text().split("\n"), "", ""]
+    if built_target != target:
+        shutil.rmtree(build_dir)  # only a cache
+    elif built_defaults != defaults:
+        (build_dir / "sdkconfig").unlink(missing_ok=True)
+
+
+def _defaults_digest(project: Path) -> str:
+    digest = hashlib.sha256()
+    for path in sorted(project.glob("sdkconfig.defaults*")):
+        digest.update(path.name.encode() + b"\0" + path.read_bytes())
+    return digest.hexdigest()[:16]
 
 
 def _give_to(path: Path, owner: tuple[int, int]) -> None:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import re
 import shutil
 import tempfile
@@ -29,8 +30,13 @@ def validate_package_name(name: str) -> None:
         raise ConfigError(f"'{name}' is not a valid ROS package name: {problem}", "For example: camera_node.")
 
 
-def create_firmware_package(workspace: Workspace, name: str, depends: tuple[str, ...]) -> Path:
-    """Write firmware/NAME from the template; refuse an existing directory. Returns the new directory."""
+def create_firmware_package(
+    workspace: Workspace, name: str, depends: tuple[str, ...], owner: tuple[int, int] | None = None
+) -> Path:
+    """Write firmware/NAME from the template; refuse an existing directory. Returns the new directory.
+
+    OWNER (uid, gid), when given, gets the new files (root creating them for someone).
+    """
     validate_package_name(name)
     for dep in depends:
         validate_package_name(dep)
@@ -44,6 +50,13 @@ def create_firmware_package(workspace: Workspace, name: str, depends: tuple[str,
     staging = Path(tempfile.mkdtemp(prefix=f".{name}-", dir=workspace.firmware_dir))
     try:
         _render(template, staging, {"@NAME@": name, "@DEPENDS@\n": extra})
+        # mkdtemp made it private; the package gets the same mode as any new directory.
+        umask = os.umask(0)
+        os.umask(umask)
+        staging.chmod(0o777 & ~umask)
+        if owner is not None:
+            for path in (staging, *staging.rglob("*")):
+                os.lchown(path, *owner)
         staging.rename(destination)
     finally:
         shutil.rmtree(staging, ignore_errors=True)

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from espdock.errors import ConfigError, WorkspaceError
+from espdock.errors import BuildFailed, ConfigError, WorkspaceError
 from espdock.flashing import PortError, check_port, esptool_major, flash_argv, parse_port, verify_argv
 from espdock.install import install_firmware
 from espdock.scaffold import create_firmware_package, validate_package_name
@@ -46,6 +46,7 @@ def test_new_creates_a_firmware_package_that_discovery_sees(tmp_path):
     assert package.depends == {"std_msgs", "custom_interface"}
     assert package.build_type == "esp_idf"
     assert not [p for p in ws.firmware_dir.iterdir() if p.name.startswith(".")], "no staging leftovers"
+    assert path.stat().st_mode & 0o055 == 0o055, "readable by the build user, like any new directory"
 
 
 def test_new_refuses_an_existing_directory_and_keeps_it(tmp_path):
@@ -171,6 +172,6 @@ def test_a_build_missing_artefacts_installs_nothing_and_keeps_the_old_firmware(t
     write_build(build, b"\xe9good")
     firmware = install_firmware("cam", manifest, build, install, (), owner=None)
     (build / "partition_table/partition-table.bin").unlink()
-    with pytest.raises(Exception, match="partition-table.bin"):
+    with pytest.raises(BuildFailed, match=r"partition-table\.bin"):
         install_firmware("cam", manifest, build, install, (), owner=None)
     assert (firmware / "cam.bin").read_bytes() == b"\xe9good"

@@ -1,0 +1,72 @@
+"""contract double: builds the image that stands in for espressif/idf:v5.3.5 and the
+micro_ros_espidf_component repository, because neither can be fetched on espdock's test
+machines (see README.md).
+
+    tag, commit = build_double(engine, ca_bundle, on_line)
+
+then build Dockerfile.idf with IDF_IMAGE=tag, MICRO_ROS_REPO=MICRO_ROS_REPO and
+MICRO_ROS_COMMIT=commit.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import re
+from pathlib import Path
+
+from espdock.engine import Engine, LineSink, RunSpec
+from espdock.errors import ImageBuildError
+
+HERE = Path(__file__).resolve().parent
+IMAGE_TAG = "espdock-test/idf-contract-double:v5.3.5"
+INPUTS_LABEL = "io.espdock.idf-contract-double.inputs"
+MICRO_ROS_REPO = "file:///opt/espdock-double/micro_ros_espidf_component.git"
+COMMIT_FILE = "/opt/espdock-double/MICRO_ROS_COMMIT"
+# What goes into the image (the rest of this directory is excluded by .dockerignore).
+IMAGE_INPUTS = ("Dockerfile", ".dockerignore", "requirements.txt", "idf", "micro_ros_component")
+
+
+def inputs_hash(root: Path = HERE) -> str:
+    """A hash of the files the image is built from (path and content of each)."""
+    digest = hashlib.sha256()
+    for name in IMAGE_INPUTS:
+        top = root / name
+        files = [top] if top.is_file() else sorted(p for p in top.rglob("*") if p.is_file())
+        for path in files:
+            if "__pycache__" in path.parts or path.suffix == ".pyc":
+                continue
+            digest.update(path.relative_to(root).as_posix().encode() + b"\0")
+            digest.update(hashlib.sha256(path.read_bytes()).digest())
+    return digest.hexdigest()[:16]
+
+
+def build_double(engine: Engine, ca_bundle: Path | None, on_line: LineSink) -> tuple[str, str]:
+    """Build the double image unless one built from the same files exists; return (tag, micro-ROS commit)."""
+    wanted = inputs_hash()
+    existing = engine.image(IMAGE_TAG)
+    if existing is None or existing.labels.get(INPUTS_LABEL) != wanted:
+        engine.build_image(
+            context=HERE,
+            dockerfile="Dockerfile",
+            target="double",
+            tag=IMAGE_TAG,
+            build_args={},
+            labels={INPUTS_LABEL: wanted},
+            ca_bundle=ca_bundle,
+            on_line=on_line,
+        )
+    return IMAGE_TAG, micro_ros_commit(engine, IMAGE_TAG)
+
+
+def micro_ros_commit(engine: Engine, image: str) -> str:
+    """The commit of the double's micro_ros_espidf_component repository in IMAGE."""
+    lines: list[str] = []
+    code = engine.run(RunSpec(image=image, argv=("cat", COMMIT_FILE), workdir="/"), lines.append)
+    # The entrypoint sources export.sh, which prints its own lines first.
+    commits = [line.strip() for line in lines if re.fullmatch(r"[0-9a-f]{40}", line.strip())]
+    if code != 0 or len(commits) != 1:
+        raise ImageBuildError(
+            f"could not read the micro-ROS commit from {image} ({COMMIT_FILE}): exit {code}, output {lines[-5:]}",
+            f"Rebuild the double: docker rmi {image}",
+        )
+    return commits[0]

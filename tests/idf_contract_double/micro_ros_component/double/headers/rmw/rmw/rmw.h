@@ -1,0 +1,8 @@
+/* contract double: stands in for the micro-ROS (jazzy) header of the same path, because
+ * the micro-ROS sources cannot be fetched here. Only the names espdock firmware uses exist;
+ * nothing implements them (no firmware is linked by the double). */
+#ifndef RMW__RMW_H_
+#define RMW__RMW_H_
+#include "rmw/types.h"
+#include "rmw/qos_profiles.h"
+#endif

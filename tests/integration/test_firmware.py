@@ -1,0 +1,310 @@
+"""The ESP-IDF side end to end: micro-ROS image cache, firmware builds and installs, flashing.
+
+The Espressif image and the micro-ROS sources can't be fetched on these machines, so
+the IDF image here is the IDF contract double (tests/idf_contract_double/), which
+honours only what espdock relies on. Flashing is real esptool against
+esp32-mock-bootloader. Tests against the real espressif/idf image are at the end and
+skip where it is not present.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import socket
+import subprocess
+import sys
+import time
+import uuid
+from pathlib import Path
+
+import pytest
+
+from espdock.config import Config, resolve_ca_bundle
+from tests.conftest import REPO, copy_workspace, espdock, leftover_containers, ros_build_tag
+from tests.idf_contract_double.build import build_double
+
+pytestmark = [pytest.mark.engine, pytest.mark.slow]
+
+USER_UID = 4243
+REAL_IDF_IMAGE = "espressif/idf:v5.3.5"
+
+
+@pytest.fixture(scope="module")
+def double(engine):
+    """(image tag, micro-ROS commit) of the IDF contract double, built once."""
+    return build_double(engine, resolve_ca_bundle(Config(), os.environ), lambda line: None)
+
+
+@pytest.fixture(scope="module")
+def double_env(double) -> dict[str, str]:
+    tag, commit = double
+    return {
+        "ESPDOCK_IDF_IMAGE": tag,
+        "ESPDOCK_MICRO_ROS_REPO": "file:///opt/espdock-double/micro_ros_espidf_component.git",
+        "ESPDOCK_MICRO_ROS_COMMIT": commit,
+    }
+
+
+STRUCT_HEADER = (
+    "/opt/espdock/micro_ros_espidf_component/include/custom_interface/custom_interface/msg/detail/"
+    "camera_config__struct.h"
+)
+
+
+@pytest.fixture(scope="module")
+def fw_ws(tmp_path_factory, engine, double_env):
+    """A workspace with custom_interface and the repo's two firmware apps, owned by a normal user, built once."""
+    root = copy_workspace(tmp_path_factory.mktemp("fw") / "ws-root")
+    shutil.copy2(REPO / "Dockerfile.idf", root / "Dockerfile.idf")
+    shutil.copytree(REPO / "firmware", root / "firmware")
+    # A comment unique to this run: its micro-ROS images can't be left over from an earlier one.
+    msg = root / "ws/src/custom_interface/msg/CameraConfig.msg"
+    msg.write_text(msg.read_text() + f"# test run {uuid.uuid4().hex}\n")
+    subprocess.run(["chown", "-R", f"{USER_UID}:{USER_UID}", str(root)], check=True)
+    before = set(micro_ros_images())
+    first = espdock("build", cwd=root, env=double_env)
+    yield root, first
+    engine.remove_containers({"io.espdock.workspace": str(root)})
+    made = set(micro_ros_images()) - before
+    if made:
+        subprocess.run(["docker", "rmi", "-f", *made], capture_output=True, check=False)
+
+
+def micro_ros_images() -> list[str]:
+    listing = subprocess.run(
+        ["docker", "images", "--format", "{{.Repository}}:{{.Tag}}", "--filter", "reference=espdock/idf-micro-ros-*"],
+        capture_output=True, text=True, check=False,
+    )  # fmt: skip
+    return listing.stdout.split()
+
+
+def header(image: str) -> str:
+    result = subprocess.run(
+        ["docker", "run", "--rm", image, "cat", STRUCT_HEADER], capture_output=True, text=True, check=False
+    )
+    assert result.returncode == 0, result.stderr
+    return result.stdout
+
+
+def firmware_dir(root: Path, package: str) -> Path:
+    return root / "ws/install" / package / "share" / package / "firmware"
+
+
+def status(root: Path, env: dict[str, str]) -> dict:
+    result = espdock("micro-ros", "status", "--json", cwd=root, env=env)
+    assert result.returncode == 0, result.stderr
+    return json.loads(result.stdout)
+
+
+def test_first_build_makes_the_micro_ros_image_and_installs_both_apps(fw_ws):
+    root, first = fw_ws
+    assert first.returncode == 0, first.stdout[-3000:] + first.stderr
+    assert "cache miss" in first.stdout
+    for package in ("camera_node", "led_strip_node"):
+        installed = firmware_dir(root, package)
+        flasher_args = json.loads((installed / "flasher_args.json").read_text())
+        assert flasher_args["extra_esptool_args"]["chip"] == "esp32"
+        for rel in flasher_args["flash_files"].values():
+            # ESP app/bootloader images start with 0xE9; a partition table with its entry magic 0xAA50.
+            magic = b"\xaa\x50" if "partition" in rel else b"\xe9"
+            assert (installed / rel).read_bytes().startswith(magic), f"{package}: {rel} has the wrong header"
+        assert (root / "ws/build" / package / "flasher_args.json").is_file()
+
+
+def test_everything_written_belongs_to_the_workspace_owner(fw_ws):
+    root, first = fw_ws
+    assert first.returncode == 0
+    strangers = [
+        str(path) for space in ("build", "install", "log")
+        for path in (root / "ws" / space).rglob("*") if path.lstat().st_uid != USER_UID
+    ]  # fmt: skip
+    assert strangers == []
+
+
+def test_the_library_is_not_copied_into_any_project(fw_ws):
+    root, first = fw_ws
+    assert first.returncode == 0
+    assert not list(root.rglob("libmicroros.a")), "the seed's complaint: a micro-ROS copy per project"
+
+
+def test_the_custom_interface_went_into_the_library(fw_ws, double_env):
+    root, first = fw_ws
+    assert first.returncode == 0
+    report = status(root, double_env)
+    assert report["present"] and report["matches_workspace"]
+    assert report["interface_packages"] == ["custom_interface"]
+    struct = header(report["image"])
+    assert "framesize" in struct and "colorbar" in struct
+
+
+def test_ros_tools_find_the_firmware_through_the_ament_index(fw_ws):
+    root, first = fw_ws
+    assert first.returncode == 0
+    probe = subprocess.run(
+        ["docker", "run", "--rm", "-v", f"{root / 'ws'}:/workspace/ws:ro",
+         "-e", "ESPDOCK_WS_INSTALL=/workspace/ws/install", ros_build_tag(root), "python3", "-c",
+         ("from ament_index_python.packages import get_package_share_directory as d; import os; "
+          "p = d('camera_node'); print(p, os.path.isfile(os.path.join(p, 'firmware', 'flasher_args.json')))")],
+        capture_output=True, text=True, check=False,
+    )  # fmt: skip
+    assert probe.returncode == 0, probe.stderr
+    assert probe.stdout.split() == ["/workspace/ws/install/camera_node/share/camera_node", "True"]
+
+
+def test_a_firmware_source_change_rebuilds_the_app_but_reuses_the_library(fw_ws, double_env):
+    root, first = fw_ws
+    assert first.returncode == 0
+    key_before = status(root, double_env)["key"]
+    app = firmware_dir(root, "led_strip_node") / "led_strip_node.bin"
+    before = app.read_bytes()
+    source = root / "firmware/led_strip_node/main/led_strip_node_main.c"
+    source.write_text(source.read_text() + "\n/* a change */\n")
+    result = espdock("build", "led_strip_node", cwd=root, env=double_env)
+    assert result.returncode == 0, result.stdout[-2000:] + result.stderr
+    assert "cache hit" in result.stdout and "cache miss" not in result.stdout
+    assert status(root, double_env)["key"] == key_before
+    assert app.read_bytes() != before
+
+
+def test_a_msg_change_is_never_served_a_stale_library(fw_ws, double_env):
+    root, first = fw_ws
+    assert first.returncode == 0
+    old = status(root, double_env)
+    msg = root / "ws/src/custom_interface/msg/CameraConfig.msg"
+    field = f"espdock_field_{uuid.uuid4().hex[:8]}"
+    msg.write_text(msg.read_text() + f"uint8 {field}\n")
+    changed = status(root, double_env)
+    assert changed["key"] != old["key"] and not changed["present"]
+    assert "micro-ros/extra_packages/custom_interface/msg/CameraConfig.msg" in changed["changed_inputs"]
+
+    app = firmware_dir(root, "camera_node") / "camera_node.bin"
+    before = app.read_bytes()
+    result = espdock("build", "camera_node", cwd=root, env=double_env)
+    assert result.returncode == 0, result.stdout[-2000:] + result.stderr
+    assert "cache miss" in result.stdout
+    assert field in header(changed["image"])
+    assert app.read_bytes() != before, "the app must relink against the new library"
+
+
+def test_a_broken_firmware_build_keeps_the_installed_firmware(fw_ws, double_env, engine):
+    root, first = fw_ws
+    assert first.returncode == 0
+    installed = firmware_dir(root, "led_strip_node")
+    before = {p.name: p.read_bytes() for p in installed.iterdir() if p.is_file()}
+    source = root / "firmware/led_strip_node/main/color_parse.c"
+    original = source.read_text()
+    source.write_text(original + "\n#error deliberately broken\n")
+    try:
+        result = espdock("build", "led_strip_node", cwd=root, env=double_env)
+    finally:
+        source.write_text(original)
+    assert result.returncode == 5, result.stdout[-2000:] + result.stderr
+    assert "led_strip_node" in result.stderr
+    assert "deliberately broken" in result.stdout
+    assert {p.name: p.read_bytes() for p in installed.iterdir() if p.is_file()} == before
+    assert leftover_containers(engine, root) == []
+
+
+def test_a_broken_interface_fails_the_library_build_and_tags_nothing(fw_ws, double_env, engine):
+    root, first = fw_ws
+    assert first.returncode == 0
+    msg = root / "ws/src/custom_interface/msg/CameraConfig.msg"
+    original = msg.read_text()
+    msg.write_text(original + "no_such_type broken_field\n")
+    try:
+        broken = status(root, double_env)
+        # Firmware only: colcon would otherwise refuse the .msg first.
+        result = espdock("build", "camera_node", "--only", "firmware", cwd=root, env=double_env)
+    finally:
+        msg.write_text(original)
+    assert result.returncode == 4, result.stdout[-2000:] + result.stderr
+    assert engine.image(broken["image"]) is None
+    assert (firmware_dir(root, "camera_node") / "flasher_args.json").is_file()
+
+
+def test_switching_the_chip_target_builds_a_new_library_and_retargets(fw_ws, double_env):
+    root, first = fw_ws
+    assert first.returncode == 0
+    esp32 = status(root, double_env)
+    result = espdock("build", "led_strip_node", "--target", "esp32s3", cwd=root, env=double_env)
+    assert result.returncode == 0, result.stdout[-2000:] + result.stderr
+    assert "espdock/idf-micro-ros-jazzy-esp32s3:" in result.stdout
+    flasher_args = json.loads((firmware_dir(root, "led_strip_node") / "flasher_args.json").read_text())
+    assert flasher_args["extra_esptool_args"]["chip"] == "esp32s3"
+    assert "0x0" in flasher_args["flash_files"]
+    # And back: the esp32 image is still cached.
+    back = espdock("build", "led_strip_node", cwd=root, env=double_env)
+    assert back.returncode == 0
+    assert status(root, double_env)["key"] == esp32["key"]
+
+
+def test_new_makes_a_package_that_builds(fw_ws, double_env):
+    root, first = fw_ws
+    assert first.returncode == 0
+    created = espdock("new", "blinky", "--depends", "custom_interface", cwd=root, env=double_env)
+    assert created.returncode == 0, created.stderr
+    again = espdock("new", "blinky", cwd=root, env=double_env)
+    assert again.returncode == 2 and "already exists" in again.stderr
+    bad = espdock("new", "Blinky-2", cwd=root, env=double_env)
+    assert bad.returncode == 2 and "not a valid ROS package name" in bad.stderr
+    result = espdock("build", "blinky", cwd=root, env=double_env)
+    assert result.returncode == 0, result.stdout[-2000:] + result.stderr
+    assert (firmware_dir(root, "blinky") / "blinky.bin").is_file()
+    shutil.rmtree(root / "firmware/blinky")
+
+
+def test_idf_passthrough_runs_idf_py_in_the_image(fw_ws, double_env):
+    root, first = fw_ws
+    assert first.returncode == 0
+    result = espdock("idf", "led_strip_node", "--", "--version", cwd=root, env=double_env)
+    assert result.returncode == 0, result.stderr
+    assert "ESP-IDF v5.3.5" in result.stdout
+
+
+@pytest.fixture
+def mock_bootloader():
+    """esp32-mock-bootloader on a free loopback port: the ROM bootloader esptool talks to."""
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+    tool = Path(sys.executable).with_name("esp32-mock-bootloader")
+    subprocess.run([str(tool), "start", "--chip", "esp32", "--port", str(port)], check=True, capture_output=True)
+    yield f"socket://127.0.0.1:{port}"
+    subprocess.run([str(tool), "stop"], check=False, capture_output=True)
+
+
+def test_flash_writes_and_verifies_through_esptool(fw_ws, double_env, mock_bootloader, engine):
+    root, first = fw_ws
+    assert first.returncode == 0
+    result = espdock("flash", "led_strip_node", "--port", mock_bootloader, "--verify", cwd=root, env=double_env)
+    assert result.returncode == 0, result.stdout[-3000:] + result.stderr
+    assert "verified" in result.stdout
+    assert leftover_containers(engine, root) == []
+
+
+def test_flash_to_a_missing_or_silent_port_says_so(fw_ws, double_env):
+    root, first = fw_ws
+    assert first.returncode == 0
+    missing = espdock("flash", "led_strip_node", "--port", "/dev/ttyESPDOCK9", cwd=root, env=double_env)
+    assert missing.returncode == 6 and "/dev/ttyESPDOCK9 does not exist" in missing.stderr
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        silent = f"socket://127.0.0.1:{probe.getsockname()[1]}"
+    result = espdock("flash", "led_strip_node", "--port", silent, cwd=root, env=double_env)
+    assert result.returncode == 6 and "nothing answers" in result.stderr
+
+
+@pytest.mark.skipif(
+    subprocess.run(["docker", "image", "inspect", REAL_IDF_IMAGE], capture_output=True, check=False).returncode != 0,
+    reason=f"needs the real {REAL_IDF_IMAGE} image, which no registry here can provide",
+)
+def test_real_idf_builds_the_apps(tmp_path):
+    root = copy_workspace(tmp_path / "ws-root")
+    shutil.copy2(REPO / "Dockerfile.idf", root / "Dockerfile.idf")
+    shutil.copytree(REPO / "firmware", root / "firmware")
+    started = time.monotonic()
+    result = espdock("build", cwd=root, timeout=5400)
+    assert result.returncode == 0, result.stdout[-5000:] + result.stderr
+    print(f"real IDF build took {time.monotonic() - started:.0f} s")

@@ -54,7 +54,8 @@ def main() -> None:
         subprocess.run(["docker", "rm", "-f", name], capture_output=True, check=False)
 
     def row(label: str, values: list[float]) -> str:
-        return f"{label:<28} median {statistics.median(values):6.2f} s   min {min(values):6.2f} s   max {max(values):6.2f} s"
+        median = statistics.median(values)
+        return f"{label:<28} median {median:6.2f} s   min {min(values):6.2f} s   max {max(values):6.2f} s"
 
     overhead = statistics.median(espdock_times) - statistics.median(colcon_times)
     print(f"no-op build, {args.runs} runs each, workspace {REPO / 'ws'}")

@@ -56,7 +56,10 @@ INPUTS = BuildInputs(
 )
 
 
-def key(config=Config(), inputs=INPUTS, packages=PACKAGES):
+DEFAULT = Config()
+
+
+def key(config=DEFAULT, inputs=INPUTS, packages=PACKAGES):
     return micro_ros_image(config, inputs, packages).key
 
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import collections
 import json
+import re
 import shutil
 import subprocess
 import warnings
@@ -196,9 +197,15 @@ class Engine:
                 process.kill()
             raise
         if code != 0:
+            unpulled = re.search(r"load metadata for (\S+)", "\n".join(tail))
+            hint = (
+                f"{unpulled.group(1)} is not here and could not be pulled: is a registry reachable? "
+                "Or load the image locally (docker load) or point espdock.toml at one you have."
+                if unpulled and "ERROR" in "\n".join(tail)
+                else "Read the build output above; run with --verbose for all of it."
+            )
             raise ImageBuildError(
-                f"building {tag} from {dockerfile} (stage {target}) failed:\n" + "\n".join(tail),
-                "Read the build output above; run with --verbose for all of it.",
+                f"building {tag} from {dockerfile} (stage {target}) failed:\n" + "\n".join(tail), hint
             )
 
     def compose_command(self) -> list[str]:

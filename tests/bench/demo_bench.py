@@ -28,7 +28,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "demo"))
 
-from demo_stack import DemoStack, StackError, build_image, docker_problem  # noqa: E402
+from demo_stack import DemoStack, StackError, build_image, docker_problem
 
 TARGETS = {"p50_ms": 50.0, "p95_ms": 100.0, "decoded_pct": 99.0, "client_fps": 25.0}
 

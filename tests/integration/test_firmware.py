@@ -308,3 +308,17 @@ def test_real_idf_builds_the_apps(tmp_path):
     result = espdock("build", cwd=root, timeout=5400)
     assert result.returncode == 0, result.stdout[-5000:] + result.stderr
     print(f"real IDF build took {time.monotonic() - started:.0f} s")
+
+
+def test_micro_ros_rebuild_builds_the_current_image_afresh(fw_ws, double_env, engine):
+    root, first = fw_ws
+    assert first.returncode == 0
+    report = status(root, double_env)
+    assert report["present"]
+    before = engine.image(report["image"])
+    result = espdock("micro-ros", "rebuild", cwd=root, env=double_env)
+    assert result.returncode == 0, result.stdout[-2000:] + result.stderr
+    assert "rebuild requested" in result.stdout
+    after = engine.image(report["image"])
+    assert after is not None and after.id != before.id
+    assert status(root, double_env)["key"] == report["key"]

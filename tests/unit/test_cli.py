@@ -55,3 +55,17 @@ def test_list_shows_packages_in_build_order(tmp_path):
     result = espdock("list", cwd=Path(root, "ws/src"), env=NO_ENGINE)
     assert result.returncode == 0
     assert "custom_interface" in result.stdout
+
+
+def test_monitor_needs_a_terminal_and_says_so(tmp_path):
+    root = copy_workspace(tmp_path / "w")
+    result = espdock("monitor", "anything", "--port", "socket://127.0.0.1:1", cwd=root, env=NO_ENGINE)
+    assert result.returncode == 2
+    assert "needs a terminal" in result.stderr
+
+
+def test_flash_refuses_a_port_that_is_not_one(tmp_path):
+    root = copy_workspace(tmp_path / "w")
+    result = espdock("flash", "anything", "--port", "ttyUSB0", cwd=root, env=NO_ENGINE)
+    assert result.returncode == 2
+    assert "not a device path" in result.stderr

@@ -169,17 +169,35 @@ def image_key(parts: Mapping[str, bytes]) -> tuple[str, tuple[tuple[str, str], .
 def ros_build_image(config: Config, dockerfile_text: str, image_files: Mapping[str, bytes]) -> ImageSpec:
     """The image colcon runs in: Dockerfile.ros's `build` stage, keyed by its inputs."""
     base = config.base_image or dockerfile_args(dockerfile_text).get("BASE_IMAGE", "")
-    build_args = (("BASE_IMAGE", base),)
-    parts = {ROS_DOCKERFILE: dockerfile_text.encode(), **image_files}
-    parts.update({f"arg:{k}": v.encode() for k, v in build_args})
+    return _keyed_image(
+        f"espdock/ros-{config.ros_distro}-build",
+        ROS_DOCKERFILE,
+        "build",
+        (("BASE_IMAGE", base),),
+        {ROS_DOCKERFILE: dockerfile_text.encode(), **image_files},
+    )
+
+
+def _keyed_image(
+    repository: str,
+    dockerfile: str,
+    target: str,
+    build_args: tuple[tuple[str, str], ...],
+    files: Mapping[str, bytes],
+    context: Mapping[str, bytes] | None = None,
+    extra: Mapping[str, bytes] | None = None,
+) -> ImageSpec:
+    """An ImageSpec keyed by FILES, the build args and EXTRA (what else decides the image)."""
+    parts = {**files, **{f"arg:{k}": v.encode() for k, v in build_args}, **(extra or {})}
     key, inputs = image_key(parts)
     return ImageSpec(
-        repository=f"espdock/ros-{config.ros_distro}-build",
+        repository=repository,
         key=key,
-        dockerfile=ROS_DOCKERFILE,
-        target="build",
+        dockerfile=dockerfile,
+        target=target,
         build_args=build_args,
         inputs=inputs,
+        context=None if context is None else tuple(sorted(context.items())),
     )
 
 
@@ -262,16 +280,14 @@ def micro_ros_image(config: Config, inputs: BuildInputs, packages: tuple[Package
     for package in derive_interface_packages(packages):
         for rel, data in inputs.package_files[package.name].items():
             context[f"micro-ros/extra_packages/{package.name}/{rel}"] = data
-    parts = {**context, **{f"arg:{k}": v.encode() for k, v in build_args}, "ros_distro": config.ros_distro.encode()}
-    key, key_inputs = image_key(parts)
-    return ImageSpec(
-        repository=f"espdock/idf-micro-ros-{config.ros_distro}-{config.target}",
-        key=key,
-        dockerfile=IDF_DOCKERFILE,
-        target="final",
-        build_args=build_args,
-        inputs=key_inputs,
-        context=tuple(sorted(context.items())),
+    return _keyed_image(
+        f"espdock/idf-micro-ros-{config.ros_distro}-{config.target}",
+        IDF_DOCKERFILE,
+        "final",
+        build_args,
+        context,
+        context=context,
+        extra={"ros_distro": config.ros_distro.encode()},
     )
 
 

@@ -7,6 +7,7 @@
 #include <rcl/context.h>
 #include <rmw_microros/rmw_microros.h>
 
+#include "esp_log.h"
 #include "esp_timer.h"
 #include "espdock_wifi.h"
 #include "freertos/FreeRTOS.h"
@@ -128,4 +129,66 @@ void espdock_uros_run(agent_link_t *link, uint32_t step_delay_ms)
         /* Always yield at least one tick so the idle task (and its watchdog) runs. */
         vTaskDelay(delay > 0 ? delay : 1);
     }
+}
+
+/* agent_link has one context; serving needs both the session and the app. */
+typedef struct {
+    espdock_uros_t *uros;
+    espdock_uros_app_t app;
+} serve_ctx_t;
+
+static bool serve_ping(void *ctx, bool in_session)
+{
+    serve_ctx_t *serve = ctx;
+    return espdock_uros_ping(serve->uros, in_session);
+}
+
+static bool serve_create(void *ctx)
+{
+    serve_ctx_t *serve = ctx;
+    return serve->app.create_entities(serve->app.ctx);
+}
+
+static void serve_destroy(void *ctx)
+{
+    serve_ctx_t *serve = ctx;
+    serve->app.destroy_entities(serve->app.ctx);
+}
+
+static void serve_spin(void *ctx)
+{
+    serve_ctx_t *serve = ctx;
+    serve->app.spin(serve->app.ctx);
+}
+
+static void serve_log_change(void *ctx, agent_link_state_t from, agent_link_state_t to)
+{
+    (void)ctx;
+    ESP_LOGI(TAG, "agent link %s -> %s", agent_link_state_name(from), agent_link_state_name(to));
+}
+
+void espdock_uros_serve(espdock_uros_t *uros, const espdock_uros_config_t *config, espdock_uros_app_t app,
+                        uint32_t step_delay_ms)
+{
+    if (!espdock_uros_setup(uros, config)) {
+        ESP_LOGE(TAG, "invalid micro-ROS settings (agent address?); node not started");
+        vTaskDelete(NULL);
+        return;
+    }
+    /* Lives as long as the loop below, which never returns. */
+    serve_ctx_t serve = {.uros = uros, .app = app};
+    const agent_link_ops_t ops = {
+        .ping = serve_ping,
+        .create_entities = serve_create,
+        .destroy_entities = serve_destroy,
+        .spin = serve_spin,
+        .on_change = serve_log_change,
+        .ctx = &serve,
+        .waiting_ping_period_ms = ESPDOCK_UROS_WAITING_PING_MS,
+        .connected_ping_period_ms = ESPDOCK_UROS_CONNECTED_PING_MS,
+        .missed_pings_to_drop = ESPDOCK_UROS_MISSED_PINGS_TO_DROP,
+    };
+    agent_link_t link;
+    agent_link_init(&link, &ops, espdock_uros_now_ms());
+    espdock_uros_run(&link, step_delay_ms);
 }

@@ -12,7 +12,6 @@
 #include <std_msgs/msg/color_rgba.h>
 #include <std_msgs/msg/string.h>
 
-#include "agent_link.h"
 #include "color_parse.h"
 #include "esp_check.h"
 #include "esp_log.h"
@@ -136,12 +135,6 @@ static void on_color_text(const void *msgin)
     publish_shown(&s_node);
 }
 
-static bool ping(void *ctx, bool in_session)
-{
-    led_node_t *node = ctx;
-    return espdock_uros_ping(&node->uros, in_session);
-}
-
 static bool create_entities(void *ctx)
 {
     led_node_t *node = ctx;
@@ -189,12 +182,6 @@ static void spin(void *ctx)
     (void)rclc_executor_spin_some(&node->executor, RCL_MS_TO_NS(SPIN_TIMEOUT_MS));
 }
 
-static void log_change(void *ctx, agent_link_state_t from, agent_link_state_t to)
-{
-    (void)ctx;
-    ESP_LOGI(TAG, "agent link %s -> %s", agent_link_state_name(from), agent_link_state_name(to));
-}
-
 static void uros_task(void *arg)
 {
     (void)arg;
@@ -205,25 +192,13 @@ static void uros_task(void *arg)
         .node_name = CONFIG_ESPDOCK_NODE_NAME,
         .node_namespace = "",
     };
-    if (!espdock_uros_setup(&s_node.uros, &config)) {
-        ESP_LOGE(TAG, "invalid micro-ROS settings (agent address?); node not started");
-        vTaskDelete(NULL);
-        return;
-    }
-    const agent_link_ops_t ops = {
-        .ping = ping,
+    const espdock_uros_app_t app = {
         .create_entities = create_entities,
         .destroy_entities = destroy_entities,
         .spin = spin,
-        .on_change = log_change,
         .ctx = &s_node,
-        .waiting_ping_period_ms = ESPDOCK_UROS_WAITING_PING_MS,
-        .connected_ping_period_ms = ESPDOCK_UROS_CONNECTED_PING_MS,
-        .missed_pings_to_drop = ESPDOCK_UROS_MISSED_PINGS_TO_DROP,
     };
-    agent_link_t link;
-    agent_link_init(&link, &ops, espdock_uros_now_ms());
-    espdock_uros_run(&link, 10);
+    espdock_uros_serve(&s_node.uros, &config, app, 10);
 }
 
 void app_main(void)

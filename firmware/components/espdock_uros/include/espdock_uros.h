@@ -103,6 +103,21 @@ int64_t espdock_uros_now_ms(void);
 /** Steps the reconnection state machine forever, yielding step_delay_ms between steps. */
 void espdock_uros_run(agent_link_t *link, uint32_t step_delay_ms);
 
+/** An app's part of a micro-ROS node: its entities, and its work while connected. */
+typedef struct {
+    bool (*create_entities)(void *ctx);   /* on espdock_uros_t's node; false: tear down and retry */
+    void (*destroy_entities)(void *ctx);  /* must cope with a partial create */
+    void (*spin)(void *ctx);
+    void *ctx;
+} espdock_uros_app_t;
+
+/**
+ * Task body shared by the apps: sets micro-ROS up with config, then runs the agent
+ * reconnection loop for app forever. Deletes the calling task if config is invalid.
+ */
+void espdock_uros_serve(espdock_uros_t *uros, const espdock_uros_config_t *config, espdock_uros_app_t app,
+                        uint32_t step_delay_ms);
+
 #ifdef __cplusplus
 }
 #endif

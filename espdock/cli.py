@@ -28,6 +28,7 @@ from espdock.plan import (
     WORKSPACE_MOUNT,
     EnsureImage,
     IdfBuild,
+    ImageSpec,
     Plan,
     derive_interface_packages,
     micro_ros_image,
@@ -197,6 +198,14 @@ def idf(
     raise typer.Exit(runner.run_idf(ws, step, step.argv(tuple(args or ()))))
 
 
+def _micro_ros_spec(
+    workspace: Path | None, target: str | None
+) -> tuple[Workspace, Config, tuple[Package, ...], ImageSpec]:
+    ws, config = _load(workspace, target=target)
+    packages = _packages(ws)
+    return ws, config, packages, micro_ros_image(config, read_build_inputs(ws, packages), packages)
+
+
 micro_ros = typer.Typer(help="The prebuilt micro-ROS library of this workspace.", no_args_is_help=True)
 app.add_typer(micro_ros, name="micro-ros")
 
@@ -209,9 +218,7 @@ def micro_ros_status(
     workspace: WorkspaceOption = None,
 ) -> None:
     """The micro-ROS image key, the inputs it is made of, and whether an image for it exists."""
-    ws, config = _load(workspace, target=target)
-    packages = _packages(ws)
-    spec = micro_ros_image(config, read_build_inputs(ws, packages), packages)
+    _, _, packages, spec = _micro_ros_spec(workspace, target)
     engine = bootstrap.ensure_engine(os.environ, _notify)
     report = micro_ros_report(engine, spec, derive_interface_packages(packages))
     if as_json:
@@ -227,9 +234,7 @@ def micro_ros_rebuild(
     workspace: WorkspaceOption = None,
 ) -> None:
     """Rebuild the micro-ROS image for the current inputs from scratch (no build cache)."""
-    ws, config = _load(workspace, target=target)
-    packages = _packages(ws)
-    spec = micro_ros_image(config, read_build_inputs(ws, packages), packages)
+    ws, config, _, spec = _micro_ros_spec(workspace, target)
     reporter = Reporter(console)
     try:
         _runner(config, reporter).run(Plan(ws, (EnsureImage(spec, force=True),), spec))

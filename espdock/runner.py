@@ -193,7 +193,7 @@ class Runner:
                 "Fix the package and run `espdock build` again; packages that built are kept.",
                 packages=tuple(failed),
             )
-        return Outcome.BUILT, f"{len(step.up_to or step.packages)} package(s)"
+        return Outcome.BUILT, f"{len(step.packages)} package(s)"
 
     def _idf_build(self, workspace: Workspace, step: IdfBuild) -> tuple[Outcome, str]:
         build_dir = workspace.ws_dir / "build" / step.package

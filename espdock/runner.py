@@ -159,10 +159,7 @@ class Runner:
         return Outcome.BUILT, spec.tag
 
     def _colcon(self, workspace: Workspace, step: ColconBuild) -> tuple[Outcome, str]:
-        labels = {LABEL_WORKSPACE: str(workspace.root), "io.espdock.step": "colcon"}
-        # Left by an espdock that was killed outright; we hold the workspace lock, so none is live.
-        self._engine.remove_containers(labels)
-        uid, gid = invoking_user(self._env, workspace.root)
+        user, labels = self._container_identity(workspace, "colcon", sweep=True)
         failed: list[str] = []
 
         def on_line(line: str) -> None:
@@ -176,10 +173,10 @@ class Runner:
                 image=step.image,
                 argv=step.argv(),
                 workdir=step.workdir,
-                user=f"{uid}:{gid}",
+                user=user,
                 mounts=(Mount(workspace.ws_dir, f"{WORKSPACE_MOUNT}/ws"),),
                 env=(("HOME", "/tmp"),),
-                labels=tuple(labels.items()),
+                labels=labels,
             ),
             on_line,
             keep=self._config.keep_containers,
@@ -199,7 +196,9 @@ class Runner:
         build_dir = workspace.ws_dir / "build" / step.package
         defaults = _defaults_digest(workspace.firmware_dir / step.project)
         _prepare_build_dir(build_dir, step.target, defaults)
-        code = self.run_idf(workspace, step, step.argv(), on_line=lambda line: self._emit(StepOutput(step.name, line)))
+        code = self.run_idf(
+            workspace, step, step.argv(), on_line=lambda line: self._emit(StepOutput(step.name, line)), sweep=True
+        )
         if code != 0:
             raise BuildFailed(
                 f"idf.py build of {step.package} failed (exit code {code}); its output is above, "
@@ -220,25 +219,25 @@ class Runner:
         devices: tuple[str, ...] = (),
         network: str | None = None,
         workdir: str | None = None,
+        sweep: bool = False,
     ) -> int:
         """Run ARGV (idf.py or another tool of the IDF image) for STEP's package.
 
         With ON_LINE None the container is attached to the terminal (menuconfig, monitor).
+        SWEEP only from a build, which holds the workspace lock (see _container_identity).
         """
-        uid, gid = invoking_user(self._env, workspace.root)
-        labels = {LABEL_WORKSPACE: str(workspace.root), "io.espdock.step": f"idf-{step.package}"}
-        self._engine.remove_containers(labels)
+        user, labels = self._container_identity(workspace, f"idf-{step.package}", sweep)
         spec = RunSpec(
             image=step.image,
             argv=argv,
             workdir=workdir or step.project_dir,
-            user=f"{uid}:{gid}",
+            user=user,
             mounts=(
                 Mount(workspace.firmware_dir, f"{WORKSPACE_MOUNT}/firmware"),
                 Mount(workspace.ws_dir, f"{WORKSPACE_MOUNT}/ws"),
             ),
             env=(("HOME", "/tmp"), ("IDF_TARGET", step.target)),
-            labels=tuple(labels.items()),
+            labels=labels,
             devices=devices,
             group_add=tuple(_device_groups(devices)),
             network=network,
@@ -247,6 +246,21 @@ class Runner:
         if on_line is None:
             return self._engine.run_attached(spec, keep=self._config.keep_containers)
         return self._engine.run(spec, on_line, keep=self._config.keep_containers)
+
+    def _container_identity(
+        self, workspace: Workspace, step_label: str, sweep: bool
+    ) -> tuple[str, tuple[tuple[str, str], ...]]:
+        """The user a workspace container runs as, and its labels.
+
+        With SWEEP, containers with the same labels are removed first: left by an espdock
+        killed outright. Only a caller holding the workspace lock may sweep, since only
+        then can none of them be live.
+        """
+        labels = {LABEL_WORKSPACE: str(workspace.root), "io.espdock.step": step_label}
+        if sweep:
+            self._engine.remove_containers(labels)
+        uid, gid = invoking_user(self._env, workspace.root)
+        return f"{uid}:{gid}", tuple(labels.items())
 
     def _install(self, workspace: Workspace, step: InstallFirmware) -> tuple[Outcome, str]:
         owner = invoking_user(self._env, workspace.root) if os.geteuid() == 0 else None

@@ -294,14 +294,17 @@ def sdkconfig_value(path: Path, key: str) -> str | None:
 # ---------------------------------------------------------------- target
 
 
-def check_target_settings(ctx: Context, set_target: bool) -> None:
-    """idf.py's cross-check of sdkconfig, CMakeCache.txt and the environment, before CMake runs."""
-    cache = ctx.read_cache()
+def target_sources(ctx: Context, set_target: bool) -> tuple[Path, str | None, str | None, str | None, str | None]:
+    """Where a target can come from: (sdkconfig path, its target, environment, CMakeCache.txt, -D)."""
     sdkconfig = ctx.sdkconfig_path()
     from_sdkconfig = None if set_target else sdkconfig_value(sdkconfig, "CONFIG_IDF_TARGET")
     from_env = ctx.env.get("IDF_TARGET") or None
-    from_cache = cache.get("IDF_TARGET")
-    from_cmdl = ctx.defines.get("IDF_TARGET")
+    return sdkconfig, from_sdkconfig, from_env, ctx.read_cache().get("IDF_TARGET"), ctx.defines.get("IDF_TARGET")
+
+
+def check_target_settings(ctx: Context, set_target: bool) -> None:
+    """idf.py's cross-check of sdkconfig, CMakeCache.txt and the environment, before CMake runs."""
+    sdkconfig, from_sdkconfig, from_env, from_cache, from_cmdl = target_sources(ctx, set_target)
     if from_env:
         if from_sdkconfig and from_sdkconfig != from_env:
             raise FatalError(
@@ -336,12 +339,7 @@ def check_target_settings(ctx: Context, set_target: bool) -> None:
 
 def select_target(ctx: Context, set_target: bool) -> str:
     """project.cmake's __target_init: environment, then cache (-D wins over it), then a guess."""
-    cache = ctx.read_cache()
-    sdkconfig = ctx.sdkconfig_path()
-    from_sdkconfig = None if set_target else sdkconfig_value(sdkconfig, "CONFIG_IDF_TARGET")
-    from_env = ctx.env.get("IDF_TARGET") or None
-    from_cache = cache.get("IDF_TARGET")
-    from_cmdl = ctx.defines.get("IDF_TARGET")
+    sdkconfig, from_sdkconfig, from_env, from_cache, from_cmdl = target_sources(ctx, set_target)
     target = from_env or from_cmdl or from_cache
     if not target:
         defaults_env = ctx.defines.get("SDKCONFIG_DEFAULTS") or ctx.env.get("SDKCONFIG_DEFAULTS")

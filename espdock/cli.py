@@ -30,8 +30,7 @@ from espdock.plan import (
     IdfBuild,
     ImageSpec,
     Plan,
-    derive_interface_packages,
-    micro_ros_image,
+    micro_ros_images,
     plan_build,
     ros_build_image,
 )
@@ -125,18 +124,18 @@ def _build_plan(ws: Workspace, config: Config, names: list[str], only: PackageKi
     has_firmware = any(p.kind is PackageKind.FIRMWARE for p in packages)
     if has_firmware and not inputs.idf_dockerfile:
         raise WorkspaceError(f"{ws.root / IDF_DOCKERFILE} is missing", "Firmware packages need Dockerfile.idf.")
-    idf_image = micro_ros_image(config, inputs, packages) if has_firmware else None
-    return plan_build(ws, config, selected, ros_image, tuple(names), idf_image=idf_image, all_packages=packages)
+    idf_images = micro_ros_images(config, inputs, packages)
+    return plan_build(ws, config, selected, ros_image, tuple(names), idf_images=idf_images, all_packages=packages)
 
 
 def _firmware_step(ws: Workspace, config: Config, name: str) -> tuple[Plan, IdfBuild]:
-    """The plan that ensures the IDF image, and the build step of firmware package NAME."""
+    """The plan that ensures NAME's IDF image, and the build step of firmware package NAME."""
     plan = _build_plan(ws, config, [name])
     step = next((s for s in plan.steps if isinstance(s, IdfBuild) and s.package == name), None)
     if step is None:
         raise WorkspaceError(f"'{name}' is not a firmware package", f"Firmware packages live in {ws.firmware_dir}.")
-    assert plan.idf_image is not None
-    return Plan(ws, (EnsureImage(plan.idf_image),), plan.idf_image), step
+    spec = next(spec for spec in plan.idf_images if spec.key == step.image_key)
+    return Plan(ws, (EnsureImage(spec),), (spec,)), step
 
 
 @app.command()
@@ -198,12 +197,15 @@ def idf(
     raise typer.Exit(runner.run_idf(ws, step, step.argv(tuple(args or ()))))
 
 
-def _micro_ros_spec(
+def _micro_ros_specs(
     workspace: Path | None, target: str | None
-) -> tuple[Workspace, Config, tuple[Package, ...], ImageSpec]:
+) -> tuple[Workspace, Config, tuple[Package, ...], dict[str, ImageSpec]]:
     ws, config = _load(workspace, target=target)
     packages = _packages(ws)
-    return ws, config, packages, micro_ros_image(config, read_build_inputs(ws, packages), packages)
+    specs = micro_ros_images(config, read_build_inputs(ws, packages), packages)
+    if not specs:
+        raise WorkspaceError("this workspace has no firmware packages, so no micro-ROS library", "See `espdock new`.")
+    return ws, config, packages, specs
 
 
 micro_ros = typer.Typer(help="The prebuilt micro-ROS library of this workspace.", no_args_is_help=True)
@@ -217,10 +219,10 @@ def micro_ros_status(
     target: Annotated[str | None, typer.Option(help="Chip target (overrides espdock.toml).")] = None,
     workspace: WorkspaceOption = None,
 ) -> None:
-    """The micro-ROS image key, the inputs it is made of, and whether an image for it exists."""
-    _, _, packages, spec = _micro_ros_spec(workspace, target)
+    """Each micro-ROS image: its key, the inputs it is made of, its firmware, whether it exists."""
+    _, _, packages, specs = _micro_ros_specs(workspace, target)
     engine = bootstrap.ensure_engine(os.environ, _notify)
-    report = micro_ros_report(engine, spec, derive_interface_packages(packages))
+    report = micro_ros_report(engine, specs, packages)
     if as_json:
         print(json.dumps(report, indent=2, sort_keys=True))
         return
@@ -233,11 +235,12 @@ def micro_ros_rebuild(
     target: Annotated[str | None, typer.Option(help="Chip target (overrides espdock.toml).")] = None,
     workspace: WorkspaceOption = None,
 ) -> None:
-    """Rebuild the micro-ROS image for the current inputs from scratch (no build cache)."""
-    ws, config, _, spec = _micro_ros_spec(workspace, target)
+    """Rebuild the micro-ROS images for the current inputs from scratch (no build cache)."""
+    ws, config, _, specs = _micro_ros_specs(workspace, target)
+    unique = tuple({spec.key: spec for spec in specs.values()}.values())
     reporter = Reporter(console)
     try:
-        _runner(config, reporter).run(Plan(ws, (EnsureImage(spec, force=True),), spec))
+        _runner(config, reporter).run(Plan(ws, tuple(EnsureImage(s, force=True) for s in unique), unique))
     finally:
         reporter.close()
 

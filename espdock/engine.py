@@ -102,14 +102,13 @@ class Engine:
             labels=dict((attrs.get("Config") or {}).get("Labels") or {}),
         )
 
-    def newest_image(self, repository: str) -> ImageInfo | None:
-        """The most recently built local image of REPOSITORY, if any."""
+    def images(self, repository: str) -> list[ImageInfo]:
+        """The local images of REPOSITORY."""
         try:
             images = self._client.images.list(name=repository)
         except docker.errors.APIError as exc:
             raise EspdockError(f"the engine failed to list images of {repository}: {exc}") from exc
-        infos = [self.image(image.id) for image in images]
-        return max((i for i in infos if i is not None), key=lambda i: i.created, default=None)
+        return [info for info in (self.image(image.id) for image in images) if info is not None]
 
     def pull(self, ref: str) -> bool:
         """Pull REF from its registry; False when no registry could give it."""

@@ -9,7 +9,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 from espdock.config import Config
-from espdock.errors import ConfigError, WorkspaceError
+from espdock.errors import WorkspaceError
 from espdock.workspace import BuildInputs, Package, PackageKind, Workspace
 
 ROS_DOCKERFILE = "Dockerfile.ros"
@@ -146,7 +146,8 @@ Step = EnsureBaseImage | EnsureImage | ColconBuild | IdfBuild | InstallFirmware
 class Plan:
     workspace: Workspace
     steps: tuple[Step, ...] = field(default_factory=tuple)
-    idf_image: ImageSpec | None = None
+    # The distinct micro-ROS images the firmware steps use.
+    idf_images: tuple[ImageSpec, ...] = ()
 
 
 def dockerfile_args(text: str) -> dict[str, str]:
@@ -201,14 +202,16 @@ def _keyed_image(
     )
 
 
-def derive_interface_packages(packages: tuple[Package, ...]) -> tuple[Package, ...]:
-    """The workspace's interface packages firmware depends on, transitively, in dependency order.
+def derive_interface_packages(packages: tuple[Package, ...], firmware: Package | None = None) -> tuple[Package, ...]:
+    """The workspace's interface packages FIRMWARE (default: every firmware package) depends on,
+    transitively, in dependency order.
 
     Standard interfaces (std_msgs, sensor_msgs, ...) are not in the workspace: micro-ROS has them.
     """
     by_name = {p.name: p for p in packages}
+    roots = [firmware] if firmware is not None else [p for p in packages if p.kind is PackageKind.FIRMWARE]
     wanted: set[str] = set()
-    stack = [dep for p in packages if p.kind is PackageKind.FIRMWARE for dep in p.depends]
+    stack = [dep for p in roots for dep in p.depends]
     while stack:
         name = stack.pop()
         package = by_name.get(name)
@@ -219,48 +222,55 @@ def derive_interface_packages(packages: tuple[Package, ...]) -> tuple[Package, .
     return tuple(p for p in packages if p.name in wanted)
 
 
-def merge_colcon_meta(metas: Mapping[str, str]) -> str:
-    """One app-colcon.meta for the shared library from each firmware package's (package -> JSON text).
+# sdkconfig settings that change what libmicroros.a is: upstream compiles the library against
+# the app's sdkconfig.h (FreeRTOS tick rate, PSRAM cache workarounds, optimisation, lwIP
+# options) and picks the middleware and network interface from the micro-ROS options.
+LIBRARY_SDKCONFIG_PREFIXES = (
+    "CONFIG_MICRO_ROS_",
+    "CONFIG_FREERTOS_",
+    "CONFIG_SPIRAM",
+    "CONFIG_COMPILER_",
+    "CONFIG_LWIP_",
+    "CONFIG_ESP32_REV_MIN",
+    "CONFIG_ESP_REV_MIN",
+)
+_SDKCONFIG_LINE = re.compile(r"^(CONFIG_[A-Za-z0-9_]+)=(.*)$|^#\s*(CONFIG_[A-Za-z0-9_]+) is not set\s*$")
 
-    Every app must fit in the one libmicroros.a, so for each `-DNAME=VALUE` cmake arg the
-    largest number wins; differing non-numeric values (say two transports) are an error.
+
+def library_sdkconfig(defaults: Mapping[str, bytes], target: str) -> str:
+    """The micro-ROS-relevant lines of a firmware's sdkconfig.defaults (then .TARGET), later wins.
+
+    Returned sorted, so that apps whose library settings agree share one image.
     """
-    merged: dict[str, dict[str, tuple[str, str]]] = {}
-    for package in sorted(metas):
-        try:
-            data = json.loads(metas[package])
-            names = data.get("names", {})
-        except (json.JSONDecodeError, AttributeError) as exc:
-            raise WorkspaceError(f"{package}/app-colcon.meta is not colcon.meta JSON: {exc}") from exc
-        for colcon_package, settings in sorted(names.items()):
-            args = merged.setdefault(colcon_package, {})
-            for arg in settings.get("cmake-args", []):
-                name, sep, value = arg.partition("=")
-                if not sep:
-                    name, value = arg, ""
-                if name not in args:
-                    args[name] = (value, package)
-                    continue
-                old, owner = args[name]
-                if old == value:
-                    continue
-                if old.isdigit() and value.isdigit():
-                    args[name] = (str(max(int(old), int(value))), package if int(value) > int(old) else owner)
-                    continue
-                raise ConfigError(
-                    f"firmware packages {owner} and {package} need different {name} "
-                    f"({old!r} vs {value!r}) in the one micro-ROS library",
-                    "Make their app-colcon.meta agree on it.",
-                )
-    names = {
-        pkg: {"cmake-args": [f"{name}={value}" if value != "" else name for name, (value, _) in sorted(args.items())]}
-        for pkg, args in sorted(merged.items())
-    }
-    return json.dumps({"names": names}, indent=2, sort_keys=True) + "\n"
+    values: dict[str, str] = {}
+    for name in ("sdkconfig.defaults", f"sdkconfig.defaults.{target}"):
+        for line in defaults.get(name, b"").decode(errors="replace").splitlines():
+            match = _SDKCONFIG_LINE.match(line.strip())
+            if not match:
+                continue
+            key = match.group(1) or match.group(3)
+            if key.startswith(LIBRARY_SDKCONFIG_PREFIXES):
+                values[key] = match.group(2) if match.group(1) else "n"
+    return "".join(
+        f"# {key} is not set\n" if value == "n" else f"{key}={value}\n" for key, value in sorted(values.items())
+    )
 
 
-def micro_ros_image(config: Config, inputs: BuildInputs, packages: tuple[Package, ...]) -> ImageSpec:
-    """The IDF image with micro-ROS prebuilt for this workspace's firmware and target."""
+def _check_colcon_meta(package: str, text: str) -> None:
+    try:
+        names = json.loads(text).get("names", {})
+        if not isinstance(names, dict):
+            raise AttributeError("'names' is not an object")
+    except (json.JSONDecodeError, AttributeError) as exc:
+        raise WorkspaceError(f"{package}/app-colcon.meta is not colcon.meta JSON: {exc}") from exc
+
+
+def micro_ros_image(config: Config, inputs: BuildInputs, packages: tuple[Package, ...], firmware: Package) -> ImageSpec:
+    """The IDF image with micro-ROS prebuilt for FIRMWARE's library inputs and the target.
+
+    The key covers only what goes into the library, so firmware packages with the same
+    app-colcon.meta, library sdkconfig settings and interfaces get the same image.
+    """
     defaults = dockerfile_args(inputs.idf_dockerfile)
     build_args = (
         ("IDF_IMAGE", config.idf_image or defaults.get("IDF_IMAGE", "")),
@@ -268,16 +278,21 @@ def micro_ros_image(config: Config, inputs: BuildInputs, packages: tuple[Package
         ("MICRO_ROS_COMMIT", config.micro_ros_commit or defaults.get("MICRO_ROS_COMMIT", "")),
         ("MICRO_ROS_REPO", config.micro_ros_repo or defaults.get("MICRO_ROS_REPO", "")),
     )
-    firmware = [p for p in packages if p.kind is PackageKind.FIRMWARE]
-    metas = {p.name: inputs.app_metas[p.name] for p in firmware if p.name in inputs.app_metas}
+    meta = inputs.app_metas.get(firmware.name, "")
+    if meta:
+        _check_colcon_meta(firmware.name, meta)
     context: dict[str, bytes] = {
         IDF_DOCKERFILE: inputs.idf_dockerfile.encode(),
         **{f"{IDF_INPUT_DIR}/{rel}": data for rel, data in inputs.idf_files.items()},
-        "micro-ros/app-colcon.meta": merge_colcon_meta(metas).encode(),
+        # An empty meta is colcon's "no app meta"; the file must exist for COPY.
+        "micro-ros/app-colcon.meta": meta.encode() or b'{"names": {}}\n',
+        "micro-ros/sdkconfig.defaults": library_sdkconfig(
+            inputs.sdkconfig_defaults.get(firmware.name, {}), config.target
+        ).encode(),
         # COPY needs the directory even when no interface package goes in.
         "micro-ros/extra_packages/.espdock-keep": b"",
     }
-    for package in derive_interface_packages(packages):
+    for package in derive_interface_packages(packages, firmware):
         for rel, data in inputs.package_files[package.name].items():
             context[f"micro-ros/extra_packages/{package.name}/{rel}"] = data
     return _keyed_image(
@@ -291,16 +306,24 @@ def micro_ros_image(config: Config, inputs: BuildInputs, packages: tuple[Package
     )
 
 
+def micro_ros_images(config: Config, inputs: BuildInputs, packages: tuple[Package, ...]) -> dict[str, ImageSpec]:
+    """Each firmware package's micro-ROS image (package name -> spec); equal inputs, equal spec."""
+    return {p.name: micro_ros_image(config, inputs, packages, p) for p in packages if p.kind is PackageKind.FIRMWARE}
+
+
 def plan_build(
     workspace: Workspace,
     config: Config,
     packages: tuple[Package, ...],
     ros_image: ImageSpec,
     selected: tuple[str, ...] = (),
-    idf_image: ImageSpec | None = None,
+    idf_images: Mapping[str, ImageSpec] | None = None,
     all_packages: tuple[Package, ...] | None = None,
 ) -> Plan:
-    """The steps of `espdock build [SELECTED...]` over PACKAGES (already in build order)."""
+    """The steps of `espdock build [SELECTED...]` over PACKAGES (already in build order).
+
+    IDF_IMAGES: each firmware package's micro-ROS image (see micro_ros_images).
+    """
     ros = tuple(p.name for p in packages if p.kind is PackageKind.ROS)
     firmware = [p for p in packages if p.kind is PackageKind.FIRMWARE]
     steps: list[Step] = []
@@ -312,14 +335,17 @@ def plan_build(
             EnsureImage(ros_image),
             ColconBuild(image=ros_image.tag, packages=ros, up_to=up_to),
         ]
-    if firmware:
-        if idf_image is None:
-            raise WorkspaceError("firmware packages need Dockerfile.idf at the workspace root")
-        steps.append(EnsureImage(idf_image))
-        everything = {p.name for p in (all_packages or packages)}
-        for package in firmware:
-            project = package.path.relative_to(workspace.firmware_dir).as_posix()
-            steps.append(IdfBuild(package.name, project, idf_image.tag, config.target, idf_image.key))
-            run_depends = tuple(sorted(package.depends & everything))
-            steps.append(InstallFirmware(package.name, project, run_depends))
-    return Plan(workspace=workspace, steps=tuple(steps), idf_image=idf_image)
+    ensured: dict[str, ImageSpec] = {}
+    everything = {p.name for p in (all_packages or packages)}
+    for package in firmware:
+        spec = (idf_images or {}).get(package.name)
+        if spec is None:
+            raise WorkspaceError(f"firmware package {package.name} needs Dockerfile.idf at the workspace root")
+        if spec.key not in ensured:
+            ensured[spec.key] = spec
+            steps.append(EnsureImage(spec))
+        project = package.path.relative_to(workspace.firmware_dir).as_posix()
+        steps.append(IdfBuild(package.name, project, spec.tag, config.target, spec.key))
+        run_depends = tuple(sorted(package.depends & everything))
+        steps.append(InstallFirmware(package.name, project, run_depends))
+    return Plan(workspace=workspace, steps=tuple(steps), idf_images=tuple(ensured.values()))

@@ -38,6 +38,10 @@ from espdock.plan import (
 from espdock.workspace import Workspace
 
 TARGET_MARKER = ".espdock-target"
+# Under ws/build, beside the packages' build dirs (colcon skips dot dirs).
+COMPONENT_CACHE = ".idf-component-cache"
+EXTRA_CA_MOUNT = "/run/espdock/extra-ca.pem"
+WITH_CA = "/opt/espdock/with-ca.sh"
 FAILED_PACKAGE = re.compile(r"^Failed\s+<<<\s+(\S+)")
 BUILDKIT_STEP = re.compile(r"^#\d+ \[.*\] (?P<what>.+)$")
 
@@ -195,7 +199,7 @@ class Runner:
     def _idf_build(self, workspace: Workspace, step: IdfBuild) -> tuple[Outcome, str]:
         build_dir = workspace.ws_dir / "build" / step.package
         defaults = _defaults_digest(workspace.firmware_dir / step.project)
-        _prepare_build_dir(build_dir, step.target, defaults)
+        _prepare_build_dir(build_dir, step.target, defaults, step.image_key)
         code = self.run_idf(
             workspace, step, step.argv(), on_line=lambda line: self._emit(StepOutput(step.name, line)), sweep=True
         )
@@ -227,16 +231,29 @@ class Runner:
         SWEEP only from a build, which holds the workspace lock (see _container_identity).
         """
         user, labels = self._container_identity(workspace, f"idf-{step.package}", sweep)
+        mounts = [
+            Mount(workspace.firmware_dir, f"{WORKSPACE_MOUNT}/firmware"),
+            Mount(workspace.ws_dir, f"{WORKSPACE_MOUNT}/ws"),
+        ]
+        env = [
+            ("HOME", "/tmp"),
+            ("IDF_TARGET", step.target),
+            # The component manager's downloads outlive the container (it caches in HOME otherwise).
+            ("IDF_COMPONENT_CACHE_PATH", f"{WORKSPACE_MOUNT}/ws/build/{COMPONENT_CACHE}"),
+        ]
+        ca_bundle = resolve_ca_bundle(self._config, self._env)
+        if ca_bundle is not None:
+            # The component manager downloads over HTTPS at configure time; with-ca.sh (from
+            # Dockerfile.idf) hands it, and git, this bundle besides the system's.
+            mounts.append(Mount(ca_bundle, EXTRA_CA_MOUNT, read_only=True))
+            env.append(("ESPDOCK_EXTRA_CA", EXTRA_CA_MOUNT))
         spec = RunSpec(
             image=step.image,
-            argv=argv,
+            argv=("sh", WITH_CA, *argv),
             workdir=workdir or step.project_dir,
             user=user,
-            mounts=(
-                Mount(workspace.firmware_dir, f"{WORKSPACE_MOUNT}/firmware"),
-                Mount(workspace.ws_dir, f"{WORKSPACE_MOUNT}/ws"),
-            ),
-            env=(("HOME", "/tmp"), ("IDF_TARGET", step.target)),
+            mounts=tuple(mounts),
+            env=tuple(env),
             labels=labels,
             devices=devices,
             group_add=tuple(_device_groups(devices)),
@@ -305,16 +322,32 @@ def workspace_lock(workspace: Workspace) -> Iterator[None]:
         os.close(fd)
 
 
-def _prepare_build_dir(build_dir: Path, target: str, defaults: str) -> None:
-    """Make a build dir safe to reuse: IDF refuses one configured for another chip, and an
-    existing sdkconfig wins over sdkconfig.defaults, so edited defaults would go unseen."""
+def _prepare_build_dir(build_dir: Path, target: str, defaults: str, image_key: str) -> None:
+    """Make a build dir safe to reuse.
+
+    IDF refuses a build dir configured for another chip, and one configured in another image
+    keeps that image's toolchain paths and library in CMakeCache.txt and ninja's state, so a
+    new target or image key starts afresh. The sdkconfig (menuconfig's changes) survives an
+    image change; an existing sdkconfig wins over sdkconfig.defaults, so it goes when the
+    defaults changed, and with the target.
+    """
     marker = build_dir / TARGET_MARKER
     if not marker.is_file():
         return
-    built_target, built_defaults, *_ = [*marker.read_text().split("\n"), "", ""]
+    built_target, built_defaults, built_key, *_ = [*marker.read_text().split("\n"), "", "", ""]
     if built_target != target:
         shutil.rmtree(build_dir)  # only a cache
-    elif built_defaults != defaults:
+        return
+    keep = "sdkconfig" if built_defaults == defaults else None
+    if built_key != image_key:
+        for entry in build_dir.iterdir():
+            if entry.name == keep:
+                continue
+            if entry.is_dir() and not entry.is_symlink():
+                shutil.rmtree(entry)
+            else:
+                entry.unlink()
+    elif keep is None:
         (build_dir / "sdkconfig").unlink(missing_ok=True)
 
 

@@ -97,21 +97,24 @@ def render_plan(console: Console, plan: Plan) -> None:
 
 
 def render_micro_ros_status(console: Console, report: dict) -> None:
-    """Print `espdock micro-ros status` for people."""
-    state = "present" if report["present"] else "not built"
-    console.print(Text.assemble(("micro-ROS image ", "bold"), report["image"], f"  ({state})"))
-    console.print(f"key     {report['key']}")
-    for name, value in report["build_args"].items():
-        console.print(f"{name:<18}{value}")
-    console.print(f"interface packages {', '.join(report['interface_packages']) or '(none)'}")
-    if report["present"]:
-        console.print(f"size    {report['size_bytes'] / 1e6:.0f} MB, built {report['created']}")
-        console.print(Text("the workspace matches this image", style="green"))
-    else:
-        console.print(Text("no image has this key: `espdock build` will build it", style="yellow"))
-        if "newest_image" in report:
-            console.print(f"newest image {report['newest_image']} differs in: {', '.join(report['changed_inputs'])}")
-    table = Table("input", "sha256", title="inputs", title_justify="left")
-    for name, sha in sorted(report["inputs"].items()):
-        table.add_row(name, sha[:16])
-    console.print(table)
+    """Print `espdock micro-ros status` for people: one block per micro-ROS image."""
+    for image in report["images"]:
+        state = "present" if image["present"] else "not built"
+        console.print(Text.assemble(("micro-ROS image ", "bold"), image["image"], f"  ({state})"))
+        console.print(f"for     {', '.join(image['firmware_packages'])}")
+        console.print(f"key     {image['key']}")
+        for name, value in image["build_args"].items():
+            console.print(f"{name:<18}{value}")
+        console.print(f"interface packages {', '.join(image['interface_packages']) or '(none)'}")
+        if image["present"]:
+            console.print(f"size    {image['size_bytes'] / 1e6:.0f} MB, built {image['created']}")
+            console.print(Text("the workspace matches this image", style="green"))
+        else:
+            console.print(Text("no image has this key: `espdock build` will build it", style="yellow"))
+            if "closest_image" in image:
+                changed = ", ".join(image["changed_inputs"])
+                console.print(f"closest image {image['closest_image']} differs in: {changed}")
+        table = Table("input", "sha256", title="inputs", title_justify="left")
+        for name, sha in sorted(image["inputs"].items()):
+            table.add_row(name, sha[:16])
+        console.print(table)

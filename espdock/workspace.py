@@ -5,7 +5,7 @@ from __future__ import annotations
 import difflib
 import os
 from collections.abc import Iterable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from enum import StrEnum
 from pathlib import Path
 
@@ -204,6 +204,8 @@ class BuildInputs:
     # Interface candidates' files by package name (ROS packages only), and each firmware's app-colcon.meta.
     package_files: dict[str, dict[str, bytes]]
     app_metas: dict[str, str]
+    # Each firmware's sdkconfig.defaults files (name -> bytes), read for the library's settings.
+    sdkconfig_defaults: dict[str, dict[str, bytes]] = field(default_factory=dict)
 
 
 def read_build_inputs(workspace: Workspace, packages: Iterable[Package]) -> BuildInputs:
@@ -228,5 +230,10 @@ def read_build_inputs(workspace: Workspace, packages: Iterable[Package]) -> Buil
             p.name: (p.path / "app-colcon.meta").read_text()
             for p in packages
             if p.kind is PackageKind.FIRMWARE and (p.path / "app-colcon.meta").is_file()
+        },
+        sdkconfig_defaults={
+            p.name: {f.name: f.read_bytes() for f in sorted(p.path.glob("sdkconfig.defaults*")) if f.is_file()}
+            for p in packages
+            if p.kind is PackageKind.FIRMWARE
         },
     )

@@ -63,6 +63,8 @@ XRCE_SUBHEADER = 4
 XRCE_WRITE_DATA_PAYLOAD = 4
 DEFAULT_UDP_MTU = 512
 DEFAULT_STREAM_HISTORY = 4
+# Micro XRCE-DDS Agent's UAGENT_CONFIG_RELIABLE_STREAM_DEPTH (CMake default).
+AGENT_RELIABLE_STREAM_DEPTH = 16
 # CDR encapsulation + stamp + string/sequence length fields and padding of a
 # CompressedImage, on top of frame_id and format text.
 COMPRESSED_IMAGE_OVERHEAD = 64
@@ -91,13 +93,62 @@ class Problems:
         return 1 if self.items else 0
 
 
-def load_kconfig(path: Path):
-    """Parses one Kconfig file with esp-idf-kconfig's kconfiglib."""
+# Per target: (highest GPIO, highest output-capable GPIO), from ESP-IDF v5.3's soc_caps.h
+# (SOC_GPIO_PIN_COUNT, SOC_GPIO_VALID_OUTPUT_GPIO_MASK): ESP32 34..39 and ESP32-S2 46 are inputs only.
+GPIO_LIMITS = {
+    "esp32": (39, 33), "esp32s2": (46, 45), "esp32s3": (48, 48), "esp32c3": (21, 21),
+    "esp32c2": (20, 20), "esp32c6": (30, 30), "esp32h2": (27, 27), "esp32p4": (54, 54),
+}  # fmt: skip
+# Camera signals the ESP32 only reads: these may use input-only pins.
+INPUT_PINS = {f"ESPDOCK_CAM_PIN_{n}" for n in ("D0", "D1", "D2", "D3", "D4", "D5", "D6", "D7", "VSYNC", "HREF", "PCLK")}
+
+
+def kconfig_module():
     try:
         import esp_kconfiglib as kconfiglib
     except ImportError:  # esp-idf-kconfig before 3.x
         import kconfiglib
-    return kconfiglib.Kconfig(str(path), warn=False)
+    return kconfiglib
+
+
+def expr_value(expr) -> int:
+    """kconfiglib's value of a condition: 0 (n), 1 (m) or 2 (y)."""
+    module = kconfig_module()
+    return getattr(module, "expr_value", None)(expr) if hasattr(module, "expr_value") else module.core.expr_value(expr)
+
+
+def load_kconfig(path: Path, target: str = "esp32"):
+    """Parses one Kconfig file with esp-idf-kconfig's kconfiglib, under a root that defines
+    IDF's target symbols (IDF_TARGET, IDF_TARGET_<CHIP>) for TARGET, as IDF's root Kconfig does."""
+    import tempfile
+
+    kconfiglib = kconfig_module()
+
+    root = [f'config IDF_TARGET\n    string\n    default "{target}"\n']
+    root += [
+        f'config IDF_TARGET_{chip.upper()}\n    bool\n    default y if IDF_TARGET = "{chip}"\n' for chip in GPIO_LIMITS
+    ]
+    root.append(f'source "{path.resolve()}"\n')
+    with tempfile.NamedTemporaryFile("w", suffix=".Kconfig") as tmp:
+        tmp.write("\n".join(root))
+        tmp.flush()
+        return kconfiglib.Kconfig(tmp.name, warn=False)
+
+
+def check_gpio_ranges(path: Path, problems: Problems) -> None:
+    """Every GPIO option's range, for every target, ends at that chip's last usable pin."""
+    for target, (highest, highest_output) in GPIO_LIMITS.items():
+        kconf = load_kconfig(path, target)
+        if "ESPDOCK_CAM_BOARD_CUSTOM" in kconf.syms:
+            kconf.syms["ESPDOCK_CAM_BOARD_CUSTOM"].set_value(2)  # the pin options depend on it
+        for name, sym in kconf.syms.items():
+            if not ("_PIN_" in name or name.endswith("_GPIO")) or not sym.nodes:
+                continue
+            active = [(low, high) for low, high, cond in sym.ranges if expr_value(cond) == 2]
+            limit = highest if name in INPUT_PINS else highest_output
+            if not active or int(active[0][1].name) != limit:
+                got = active[0][1].name if active else "no range"
+                problems.add(path, f"{name} on {target}: range ends at {got}, the chip's last usable pin is {limit}")
 
 
 def is_literal(name: str) -> bool:
@@ -110,7 +161,10 @@ def check_kconfig_file(path: Path, problems: Problems) -> None:
     except Exception as exc:  # the parser raises KconfigError and OSError subclasses
         problems.add(path, f"does not parse: {exc}")
         return
+    check_gpio_ranges(path, problems)
     for name, sym in kconf.syms.items():
+        if name == "IDF_TARGET" or name.startswith("IDF_TARGET_"):
+            continue
         if not sym.nodes and not is_literal(name):
             problems.add(path, f"references undefined symbol {name}")
             continue
@@ -226,7 +280,11 @@ def check_entity_counts(app: Path, rmw: dict[str, str], problems: Problems) -> N
 def check_camera_stream(
     app: Path, args: dict[str, dict[str, str]], defaults: dict[str, str], problems: Problems
 ) -> None:
-    """The output stream must carry the largest JPEG the app allows in one window."""
+    """The reliable output stream must fit the agent's window; say how many windows a frame takes.
+
+    The agent accepts reliable messages only AGENT_RELIABLE_STREAM_DEPTH sequence numbers ahead
+    of what it acknowledged; a longer history only gets dropped and resent.
+    """
     rmw = args.get("rmw_microxrcedds", {})
     client = args.get("microxrcedds_client", {})
     mtu = int(client.get("UCLIENT_UDP_TRANSPORT_MTU", DEFAULT_UDP_MTU))
@@ -235,17 +293,22 @@ def check_camera_stream(
     if not 0 <= framesize < len(FRAMESIZES):
         problems.add(app, f"cannot read the default largest frame size ({framesize})")
         return
+    if slots > AGENT_RELIABLE_STREAM_DEPTH:
+        problems.add(
+            app / "app-colcon.meta",
+            f"RMW_UXRCE_STREAM_HISTORY_OUTPUT={slots}, but the agent accepts only "
+            f"{AGENT_RELIABLE_STREAM_DEPTH} reliable messages ahead of its acknowledgement",
+        )
     width, height = FRAMESIZES[framesize]
     largest_jpeg = width * height // 5  # esp32-camera's JPEG buffer for that size
     text = len(defaults.get("ESPDOCK_CAM_FRAME_ID", "")) + len("jpeg")
     needed = largest_jpeg + COMPRESSED_IMAGE_OVERHEAD + text + XRCE_SUBHEADER + XRCE_WRITE_DATA_PAYLOAD
-    window = slots * (mtu - XRCE_SESSION_HEADER - XRCE_SUBHEADER)
-    if window < needed:
-        problems.add(
-            app / "app-colcon.meta",
-            f"output stream {slots} x MTU {mtu} carries {window} B per burst, but a "
-            f"{width}x{height} JPEG frame needs up to {needed} B",
-        )
+    fragment = mtu - XRCE_SESSION_HEADER - XRCE_SUBHEADER
+    fragments = -(-needed // fragment)
+    print(
+        f"{app.name}: a {width}x{height} frame is up to {needed} B = {fragments} fragments of {fragment} B, "
+        f"{-(-fragments // slots)} acknowledged windows of {slots}"
+    )
     if mtu > 1472:
         problems.add(app / "app-colcon.meta", f"MTU {mtu} exceeds one Ethernet/Wi-Fi UDP datagram")
 

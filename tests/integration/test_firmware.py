@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import shutil
 import socket
 import subprocess
@@ -92,10 +93,14 @@ def firmware_dir(root: Path, package: str) -> Path:
     return root / "ws/install" / package / "share" / package / "firmware"
 
 
-def status(root: Path, env: dict[str, str]) -> dict:
+def status(root: Path, env: dict[str, str], package: str = "camera_node") -> dict:
+    """The `micro-ros status --json` entry of the image PACKAGE builds against."""
     result = espdock("micro-ros", "status", "--json", cwd=root, env=env)
     assert result.returncode == 0, result.stderr
-    return json.loads(result.stdout)
+    report = json.loads(result.stdout)
+    (image,) = [image for image in report["images"] if package in image["firmware_packages"]]
+    assert report["firmware"][package] == image["image"]
+    return image
 
 
 def test_first_build_makes_the_micro_ros_image_and_installs_both_apps(fw_ws):
@@ -133,10 +138,67 @@ def test_the_custom_interface_went_into_the_library(fw_ws, double_env):
     root, first = fw_ws
     assert first.returncode == 0
     report = status(root, double_env)
-    assert report["present"] and report["matches_workspace"]
+    assert report["present"]
     assert report["interface_packages"] == ["custom_interface"]
+    assert status(root, double_env, "led_strip_node")["interface_packages"] == []
     struct = header(report["image"])
     assert "framesize" in struct and "colorbar" in struct
+
+
+MANIFEST_HEADER = "/opt/espdock/micro_ros_espidf_component/include/espdock_double/manifest.h"
+RMW_CONFIG = "/opt/espdock/micro_ros_espidf_component/include/rmw_microxrcedds_c/rmw_microxrcedds_c/config.h"
+
+
+def image_file(image: str, path: str) -> str:
+    result = subprocess.run(["docker", "run", "--rm", image, "cat", path], capture_output=True, text=True, check=False)
+    assert result.returncode == 0, result.stderr
+    return result.stdout
+
+
+def define(text: str, name: str) -> str:
+    (value,) = re.findall(rf"^#define {name} (.*)$", text, re.MULTILINE)
+    return value
+
+
+def test_each_app_gets_a_library_built_for_its_own_meta_and_sdkconfig(fw_ws, double_env):
+    root, first = fw_ws
+    assert first.returncode == 0
+    camera, led = status(root, double_env, "camera_node"), status(root, double_env, "led_strip_node")
+    assert camera["key"] != led["key"] and camera["present"] and led["present"]
+    # The LED strip does not carry the camera's output stream in its RAM.
+    assert define(image_file(camera["image"], RMW_CONFIG), "RMW_UXRCE_STREAM_HISTORY_OUTPUT") == "16"
+    assert define(image_file(led["image"], RMW_CONFIG), "RMW_UXRCE_STREAM_HISTORY_OUTPUT") == "2"
+    # The firmware's sdkconfig.defaults reached the library build (CONFIG_FREERTOS_HZ, PSRAM).
+    camera_config, led_config = (
+        json.loads(json.loads(define(image_file(image["image"], MANIFEST_HEADER), "ESPDOCK_DOUBLE_SDKCONFIG")))
+        for image in (camera, led)
+    )
+    assert camera_config["CONFIG_FREERTOS_HZ"] == "1000" and camera_config["CONFIG_SPIRAM"] == "1"
+    assert led_config["CONFIG_FREERTOS_HZ"] == "100" and "CONFIG_SPIRAM" not in led_config
+    assert camera_config["CONFIG_MICRO_ROS_ESP_NETIF_WLAN"] == "1"
+
+
+def test_only_the_selected_network_interface_is_compiled(fw_ws, double_env):
+    root, first = fw_ws
+    assert first.returncode == 0
+    wlan = (root / "ws/build/led_strip_node/esp-idf").rglob("*.obj")
+    assert not [p for p in wlan if "ethernet" in p.name]
+    eth = root / "firmware/eth_node"
+    shutil.copytree(root / "firmware/led_strip_node", eth)
+    try:
+        (eth / "package.xml").write_text((eth / "package.xml").read_text().replace("led_strip_node", "eth_node"))
+        cmake = eth / "CMakeLists.txt"
+        cmake.write_text(cmake.read_text().replace("project(led_strip_node)", "project(eth_node)"))
+        defaults = eth / "sdkconfig.defaults"
+        defaults.write_text(defaults.read_text().replace("CONFIG_MICRO_ROS_ESP_NETIF_WLAN=y",
+                                                         "CONFIG_MICRO_ROS_ESP_NETIF_ENET=y"))
+        result = espdock("build", "eth_node", "--only", "firmware", cwd=root, env=double_env)
+        assert result.returncode == 0, result.stdout[-3000:] + result.stderr
+        assert "uros_ethernet_netif.c.obj" in result.stdout and "uros_wlan_netif.c.obj" not in result.stdout
+        assert status(root, double_env, "eth_node")["key"] != status(root, double_env, "led_strip_node")["key"]
+    finally:
+        for leftover in (eth, root / "ws/build/eth_node", root / "ws/install/eth_node"):
+            shutil.rmtree(leftover, ignore_errors=True)
 
 
 def test_ros_tools_find_the_firmware_through_the_ament_index(fw_ws):
@@ -156,7 +218,7 @@ def test_ros_tools_find_the_firmware_through_the_ament_index(fw_ws):
 def test_a_firmware_source_change_rebuilds_the_app_but_reuses_the_library(fw_ws, double_env):
     root, first = fw_ws
     assert first.returncode == 0
-    key_before = status(root, double_env)["key"]
+    key_before = status(root, double_env, "led_strip_node")["key"]
     app = firmware_dir(root, "led_strip_node") / "led_strip_node.bin"
     before = app.read_bytes()
     source = root / "firmware/led_strip_node/main/led_strip_node_main.c"
@@ -164,7 +226,7 @@ def test_a_firmware_source_change_rebuilds_the_app_but_reuses_the_library(fw_ws,
     result = espdock("build", "led_strip_node", cwd=root, env=double_env)
     assert result.returncode == 0, result.stdout[-2000:] + result.stderr
     assert "cache hit" in result.stdout and "cache miss" not in result.stdout
-    assert status(root, double_env)["key"] == key_before
+    assert status(root, double_env, "led_strip_node")["key"] == key_before
     assert app.read_bytes() != before
 
 
@@ -178,6 +240,7 @@ def test_a_msg_change_is_never_served_a_stale_library(fw_ws, double_env):
     changed = status(root, double_env)
     assert changed["key"] != old["key"] and not changed["present"]
     assert "micro-ros/extra_packages/custom_interface/msg/CameraConfig.msg" in changed["changed_inputs"]
+    assert status(root, double_env, "led_strip_node")["present"], "led_strip_node does not use the .msg"
 
     app = firmware_dir(root, "camera_node") / "camera_node.bin"
     before = app.read_bytes()
@@ -227,7 +290,7 @@ def test_a_broken_interface_fails_the_library_build_and_tags_nothing(fw_ws, doub
 def test_switching_the_chip_target_builds_a_new_library_and_retargets(fw_ws, double_env):
     root, first = fw_ws
     assert first.returncode == 0
-    esp32 = status(root, double_env)
+    esp32 = status(root, double_env, "led_strip_node")
     result = espdock("build", "led_strip_node", "--target", "esp32s3", cwd=root, env=double_env)
     assert result.returncode == 0, result.stdout[-2000:] + result.stderr
     assert "espdock/idf-micro-ros-jazzy-esp32s3:" in result.stdout
@@ -237,7 +300,7 @@ def test_switching_the_chip_target_builds_a_new_library_and_retargets(fw_ws, dou
     # And back: the esp32 image is still cached.
     back = espdock("build", "led_strip_node", cwd=root, env=double_env)
     assert back.returncode == 0
-    assert status(root, double_env)["key"] == esp32["key"]
+    assert status(root, double_env, "led_strip_node")["key"] == esp32["key"]
 
 
 def test_new_makes_a_package_that_builds(fw_ws, double_env):
@@ -322,3 +385,47 @@ def test_micro_ros_rebuild_builds_the_current_image_afresh(fw_ws, double_env, en
     after = engine.image(report["image"])
     assert after is not None and after.id != before.id
     assert status(root, double_env)["key"] == report["key"]
+
+
+def run_in_double(double, project: Path, *argv: str) -> subprocess.CompletedProcess:
+    tag, _ = double
+    return subprocess.run(
+        ["docker", "run", "--rm", "-u", f"{USER_UID}:{USER_UID}", "-e", "HOME=/tmp",
+         "-v", f"{project}:/project", tag, "idf.py", "-C", "/project", "-B", "/tmp/build", *argv],
+        capture_output=True, text=True, check=False,
+    )  # fmt: skip
+
+
+def test_the_double_refuses_headers_of_components_a_component_does_not_require(double, tmp_path):
+    """IDF compiles a component with the include dirs of what it requires (publicly, transitively);
+    the double must fail where IDF would, or it cannot catch glue that misses a requirement."""
+    project = tmp_path / "probe"
+    (project / "main").mkdir(parents=True)
+    (project / "components/netif").mkdir(parents=True)
+    (project / "CMakeLists.txt").write_text(
+        "cmake_minimum_required(VERSION 3.16)\ninclude($ENV{IDF_PATH}/tools/cmake/project.cmake)\nproject(probe)\n"
+    )
+    (project / "main/CMakeLists.txt").write_text('idf_component_register(SRCS "main.c")\n')
+    (project / "main/main.c").write_text("void app_main(void) {}\n")
+    (project / "components/netif/netif.c").write_text('#include "esp_eth.h"\n#include "driver/gpio.h"\n')
+    component = project / "components/netif/CMakeLists.txt"
+
+    def build(requirements: str) -> subprocess.CompletedProcess:
+        component.write_text(f'idf_component_register(SRCS "netif.c" {requirements})\n')
+        subprocess.run(["chown", "-R", f"{USER_UID}:{USER_UID}", str(tmp_path)], check=True)
+        return run_in_double(double, project, "build")
+
+    # esp_eth requires esp_driver_gpio only privately (ESP-IDF v5.3): its header does not reach us.
+    missing = build("REQUIRES esp_eth lwip")
+    assert missing.returncode == 2, missing.stdout[-2000:]
+    assert "driver/gpio.h: No such file or directory" in missing.stderr
+    assert build("REQUIRES esp_eth PRIV_REQUIRES esp_driver_gpio").returncode == 0
+    assert build("REQUIRES esp_eth PRIV_REQUIRES driver").returncode == 0  # the legacy umbrella exports it
+    # Requirements are read before Kconfig (IDF's early expansion): a Kconfig-conditional one never counts.
+    component.write_text(
+        'set(req "")\nif(CONFIG_IDF_TARGET_ESP32)\n  set(req esp_driver_gpio)\nendif()\n'
+        'idf_component_register(SRCS "netif.c" REQUIRES esp_eth ${req})\n'
+    )
+    subprocess.run(["chown", "-R", f"{USER_UID}:{USER_UID}", str(tmp_path)], check=True)
+    conditional = run_in_double(double, project, "build")
+    assert conditional.returncode == 2 and "driver/gpio.h: No such file or directory" in conditional.stderr

@@ -7,13 +7,15 @@ from pathlib import Path
 import pytest
 
 from espdock.config import Config
-from espdock.errors import ConfigError
+from espdock.errors import WorkspaceError
 from espdock.plan import (
+    EnsureImage,
     IdfBuild,
     InstallFirmware,
     derive_interface_packages,
-    merge_colcon_meta,
+    library_sdkconfig,
     micro_ros_image,
+    micro_ros_images,
     plan_build,
     ros_build_image,
 )
@@ -53,14 +55,18 @@ INPUTS = BuildInputs(
         "unused_msgs": {"package.xml": b"<package/>", "msg/Unused.msg": b"bool b\n"},
     },
     app_metas={"cam": META},
+    sdkconfig_defaults={
+        "cam": {"sdkconfig.defaults": b"CONFIG_SPIRAM=y\nCONFIG_FREERTOS_HZ=1000\nCONFIG_ESPDOCK_NODE_NAME=\"cam\"\n"},
+    },
 )
+CAM = PACKAGES[4]
 
 
 DEFAULT = Config()
 
 
 def key(config=DEFAULT, inputs=INPUTS, packages=PACKAGES):
-    return micro_ros_image(config, inputs, packages).key
+    return micro_ros_image(config, inputs, packages, CAM).key
 
 
 def test_interfaces_are_derived_transitively_from_firmware_dependencies():
@@ -72,8 +78,12 @@ def test_standard_and_non_interface_dependencies_are_not_extra_packages():
     assert derive_interface_packages(packages) == ()
 
 
-def test_key_is_stable_for_the_same_inputs():
-    assert key() == key()
+def test_each_firmware_gets_only_its_own_interfaces():
+    assert [p.name for p in derive_interface_packages(PACKAGES, CAM)] == ["base_msgs", "cam_msgs"]
+    assert derive_interface_packages(PACKAGES, PACKAGES[5]) == ()
+
+
+def test_key_does_not_depend_on_the_order_inputs_were_read_in():
     shuffled = replace(INPUTS, package_files=dict(reversed(INPUTS.package_files.items())))
     assert key(inputs=shuffled) == key()
 
@@ -87,6 +97,8 @@ def test_key_is_stable_for_the_same_inputs():
         lambda c, i: (c, replace(i, idf_dockerfile=i.idf_dockerfile + "RUN true\n")),
         lambda c, i: (c, replace(i, idf_files={**i.idf_files, "uros_builder/main/main.c": b"x"})),
         lambda c, i: (c, replace(i, app_metas={"cam": META.replace("=1", "=2")})),
+        lambda c, i: (c, replace(i, sdkconfig_defaults={"cam": {"sdkconfig.defaults": b"CONFIG_FREERTOS_HZ=100"}})),
+        lambda c, i: (c, replace(i, sdkconfig_defaults={"cam": {"sdkconfig.defaults": b"# CONFIG_SPIRAM is not set"}})),
         lambda c, i: (
             c,
             replace(i, package_files={**i.package_files, "cam_msgs": {"package.xml": b"<package/>",
@@ -98,7 +110,8 @@ def test_key_is_stable_for_the_same_inputs():
                                                                        "msg/New.msg": b"bool x\n"}}),
         ),
     ],
-    ids=["idf-image", "micro-ros-commit", "target", "dockerfile", "idf-inputs", "colcon-meta", "msg-edit",
+    ids=["idf-image", "micro-ros-commit", "target", "dockerfile", "idf-inputs", "colcon-meta", "freertos-hz",
+         "no-psram", "msg-edit",
          "dependency-msg-added"],
 )
 def test_key_changes_with_each_input(change):
@@ -111,10 +124,14 @@ def test_key_ignores_what_does_not_go_into_the_library():
     unused = replace(INPUTS, package_files={**INPUTS.package_files, "unused_msgs": {"msg/Unused.msg": b"int8 z\n"}})
     assert key(inputs=unused) == key()
     assert key(inputs=replace(INPUTS, ros_files={"docker/ros-runtime.txt": b"rclpy==2"})) == key()
+    # The app's own options do not reach the library.
+    app_only = {"cam": {"sdkconfig.defaults": INPUTS.sdkconfig_defaults["cam"]["sdkconfig.defaults"] +
+                        b"CONFIG_ESPDOCK_CAM_FPS=15\n"}}
+    assert key(inputs=replace(INPUTS, sdkconfig_defaults=app_only)) == key()
 
 
 def test_image_tag_names_distro_and_target_and_carries_the_key():
-    spec = micro_ros_image(Config(target="esp32c3"), INPUTS, PACKAGES)
+    spec = micro_ros_image(Config(target="esp32c3"), INPUTS, PACKAGES, CAM)
     assert spec.tag == f"espdock/idf-micro-ros-jazzy-esp32c3:{spec.key[:16]}"
     assert spec.labels()["io.espdock.key"] == spec.key
     assert dict(spec.build_args) == {
@@ -125,45 +142,55 @@ def test_image_tag_names_distro_and_target_and_carries_the_key():
     }
 
 
-def test_context_holds_only_the_derived_interface_packages_and_the_merged_meta():
-    context = dict(micro_ros_image(Config(), INPUTS, PACKAGES).context)
+def test_context_holds_the_app_s_interfaces_meta_and_library_settings():
+    context = dict(micro_ros_image(Config(), INPUTS, PACKAGES, CAM).context)
     packages = {name.split("/")[2] for name in context if name.startswith("micro-ros/extra_packages/") and
                 name.count("/") > 2}
     assert packages == {"base_msgs", "cam_msgs"}
     assert json.loads(context["micro-ros/app-colcon.meta"]) == json.loads(META)
+    assert context["micro-ros/sdkconfig.defaults"] == b"CONFIG_FREERTOS_HZ=1000\nCONFIG_SPIRAM=y\n"
     assert "Dockerfile.idf" in context and "docker/idf/uros_builder/CMakeLists.txt" in context
 
 
-def test_metas_merge_taking_the_largest_counts():
-    a = {"names": {"rmw_microxrcedds": {"cmake-args": ["-DRMW_UXRCE_MAX_PUBLISHERS=1", "-DRMW_UXRCE_MAX_SERVICES=2",
-                                                        "-DRMW_UXRCE_TRANSPORT=udp"]}}}
-    b = {"names": {"rmw_microxrcedds": {"cmake-args": ["-DRMW_UXRCE_MAX_PUBLISHERS=3",
-                                                        "-DRMW_UXRCE_MAX_SUBSCRIPTIONS=1"]},
-                   "microxrcedds_client": {"cmake-args": ["-DUCLIENT_UDP_TRANSPORT_MTU=4096"]}}}
-    merged = json.loads(merge_colcon_meta({"a": json.dumps(a), "b": json.dumps(b)}))
-    assert sorted(merged["names"]["rmw_microxrcedds"]["cmake-args"]) == [
-        "-DRMW_UXRCE_MAX_PUBLISHERS=3", "-DRMW_UXRCE_MAX_SERVICES=2", "-DRMW_UXRCE_MAX_SUBSCRIPTIONS=1",
-        "-DRMW_UXRCE_TRANSPORT=udp",
-    ]
-    assert merged["names"]["microxrcedds_client"]["cmake-args"] == ["-DUCLIENT_UDP_TRANSPORT_MTU=4096"]
-    # Order of packages does not matter.
-    assert merge_colcon_meta({"b": json.dumps(b), "a": json.dumps(a)}) == merge_colcon_meta(
-        {"a": json.dumps(a), "b": json.dumps(b)}
+def test_library_settings_take_the_target_file_last_and_only_relevant_keys():
+    defaults = {
+        "sdkconfig.defaults": (
+            b"CONFIG_FREERTOS_HZ=100\nCONFIG_MICRO_ROS_ESP_NETIF_WLAN=y\nCONFIG_LOG_DEFAULT_LEVEL=3\n"
+        ),
+        "sdkconfig.defaults.esp32s3": b"CONFIG_FREERTOS_HZ=1000\n# CONFIG_MICRO_ROS_ESP_NETIF_WLAN is not set\n",
+    }
+    assert library_sdkconfig(defaults, "esp32") == "CONFIG_FREERTOS_HZ=100\nCONFIG_MICRO_ROS_ESP_NETIF_WLAN=y\n"
+    assert library_sdkconfig(defaults, "esp32s3") == (
+        "CONFIG_FREERTOS_HZ=1000\n# CONFIG_MICRO_ROS_ESP_NETIF_WLAN is not set\n"
     )
 
 
-def test_conflicting_non_numeric_settings_name_both_packages():
-    a = {"names": {"rmw_microxrcedds": {"cmake-args": ["-DRMW_UXRCE_TRANSPORT=udp"]}}}
-    b = {"names": {"rmw_microxrcedds": {"cmake-args": ["-DRMW_UXRCE_TRANSPORT=custom"]}}}
-    with pytest.raises(ConfigError) as err:
-        merge_colcon_meta({"cam": json.dumps(a), "led": json.dumps(b)})
-    assert "cam" in err.value.message and "led" in err.value.message and "RMW_UXRCE_TRANSPORT" in err.value.message
+def test_apps_with_different_library_inputs_get_their_own_image_and_equal_ones_share():
+    led_meta = META.replace("=1", "=2")
+    packages = (*PACKAGES, firmware("led2", depends=["std_msgs"]))
+    inputs = replace(INPUTS, app_metas={"cam": META, "led": led_meta, "led2": led_meta})
+    specs = micro_ros_images(Config(), inputs, packages)
+    assert specs["led"].key == specs["led2"].key != specs["cam"].key
+    plan = plan_build(Workspace(ROOT), Config(), packages, ros_build_image(Config(), INPUTS.ros_dockerfile, {}),
+                      idf_images=specs)
+    ensured = [s.spec.key for s in plan.steps if isinstance(s, EnsureImage) and s.spec.dockerfile == "Dockerfile.idf"]
+    assert sorted(ensured) == sorted({specs["cam"].key, specs["led"].key})
+    builds = {s.package: s.image_key for s in plan.steps if isinstance(s, IdfBuild)}
+    assert builds == {name: spec.key for name, spec in specs.items()}
+
+
+def test_a_malformed_app_meta_names_the_package():
+    bad = replace(INPUTS, app_metas={"cam": "{not json"})
+    with pytest.raises(WorkspaceError) as err:
+        key(inputs=bad)
+    assert "cam/app-colcon.meta" in err.value.message
 
 
 def test_firmware_steps_build_then_install_each_package():
-    spec = micro_ros_image(Config(), INPUTS, PACKAGES)
+    specs = micro_ros_images(Config(), INPUTS, PACKAGES)
+    spec = specs["cam"]
     ros_spec = ros_build_image(Config(), INPUTS.ros_dockerfile, {})
-    plan = plan_build(Workspace(ROOT), Config(), PACKAGES, ros_spec, idf_image=spec)
+    plan = plan_build(Workspace(ROOT), Config(), PACKAGES, ros_spec, idf_images=specs)
     firmware_steps = [s for s in plan.steps if isinstance(s, IdfBuild | InstallFirmware)]
     assert [(type(s).__name__, s.package) for s in firmware_steps] == [
         ("IdfBuild", "cam"), ("InstallFirmware", "cam"), ("IdfBuild", "led"), ("InstallFirmware", "led"),

@@ -7,6 +7,13 @@
 
 static const char *TAG = "camera_hw";
 
+/* Kconfig's ESPDOCK_CAM_MAX_FRAMESIZE_VALUE, camera_config.h and CameraConfig.msg number frame
+ * sizes as esp32-camera does from 2.0.14 on; older releases number them differently (VGA was
+ * 8), which would silently select other sizes. */
+_Static_assert(FRAMESIZE_QVGA == CAM_FRAMESIZE_QVGA, "esp32-camera >= 2.0.14 framesize_t numbering");
+_Static_assert(FRAMESIZE_VGA == 10, "esp32-camera >= 2.0.14 framesize_t numbering");
+_Static_assert(FRAMESIZE_UXGA == CAM_FRAMESIZE_UXGA, "esp32-camera >= 2.0.14 framesize_t numbering");
+
 typedef struct {
     int pwdn, reset, xclk, siod, sioc;
     int d7, d6, d5, d4, d3, d2, d1, d0;

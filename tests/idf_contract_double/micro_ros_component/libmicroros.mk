@@ -47,7 +47,7 @@ $(UROS_DIR)/install: $(UROS_DIR)/src
 	$(PYTHON) $(EXTENSIONS_DIR)/double/generate.py --src $(UROS_DIR)/src \
 	  --headers $(EXTENSIONS_DIR)/double/headers --out $(UROS_DIR)/install.tmp --gen $(UROS_DIR)/gen \
 	  --colcon-meta $(EXTENSIONS_DIR)/colcon.meta --app-colcon-meta "$(APP_COLCON_META)" \
-	  --target $(IDF_TARGET) --middleware $(MIDDLEWARE) \
+	  --target $(IDF_TARGET) --middleware $(MIDDLEWARE) --sdkconfig-h "$(BUILD_DIR)/config/sdkconfig.h" \
 	  --path-map "$(UROS_DIR)/src/extra_packages=$(EXTRA_ROS_PACKAGES)" \
 	  --path-map "$(UROS_DIR)/src=$(EXTENSIONS_DIR)/double/interfaces"
 	set -e; inc="-I$(UROS_DIR)/install.tmp/include"; \

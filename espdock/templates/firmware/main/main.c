@@ -1,66 +1,113 @@
-/* @NAME@: a minimal micro-ROS app publishing a counter on /@NAME@/counter. */
-#include <stdio.h>
-
-#include "esp_log.h"
-#include "freertos/FreeRTOS.h"
-#include "freertos/task.h"
-
-#include <rcl/rcl.h>
+/* @NAME@: a micro-ROS app publishing a counter on /@NAME@/counter once a second.
+ *
+ * espdock_uros keeps Wi-Fi and the agent session alive: when the agent goes
+ * away the entities are destroyed, and created again when it comes back. */
 #include <rclc/executor.h>
-#include <rclc/rclc.h>
-#include <rmw_microros/rmw_microros.h>
 #include <std_msgs/msg/int32.h>
 
-#include "uros_network_interfaces.h"
+#include "esp_log.h"
+#include "espdock_uros.h"
+#include "espdock_wifi.h"
+#include "freertos/FreeRTOS.h"
+#include "freertos/task.h"
+#include "sdkconfig.h"
+
+/* espdock_uros talks to the agent over UDP on Wi-Fi, as upstream's examples do only under
+ * these options: any other middleware or transport needs another app. */
+#if !defined(CONFIG_MICRO_ROS_ESP_XRCE_DDS_MIDDLEWARE)
+#error "@NAME@ needs micro-ROS over Micro XRCE-DDS (micro-ROS Settings > middleware)"
+#endif
+#if !defined(CONFIG_MICRO_ROS_ESP_NETIF_WLAN)
+#error "@NAME@ reaches the agent over Wi-Fi: select micro-ROS Settings > WLAN interface"
+#endif
 
 static const char *TAG = "@NAME@";
 
-#define RCCHECK(fn)                                                              \
-  do {                                                                           \
-    rcl_ret_t rc_ = (fn);                                                        \
-    if (rc_ != RCL_RET_OK) {                                                     \
-      ESP_LOGE(TAG, "%s failed (%d) at line %d", #fn, (int)rc_, __LINE__);       \
-      vTaskDelete(NULL);                                                         \
-    }                                                                            \
-  } while (0)
+typedef struct {
+    espdock_uros_t uros;
+    rcl_publisher_t publisher;
+    rcl_timer_t timer;
+    rclc_executor_t executor;
+    std_msgs__msg__Int32 counter;
+} app_node_t;
 
-static rcl_publisher_t publisher;
-static std_msgs__msg__Int32 counter;
+/* rclc timer callbacks carry no user pointer, hence one static node. */
+static app_node_t s_node;
 
-static void timer_callback(rcl_timer_t *timer, int64_t last_call_time) {
-  (void)last_call_time;
-  if (timer != NULL && rcl_publish(&publisher, &counter, NULL) == RCL_RET_OK) {
-    counter.data++;
-  }
+static void on_timer(rcl_timer_t *timer, int64_t last_call_time)
+{
+    (void)last_call_time;
+    if (timer == NULL) {
+        return;
+    }
+    ESPDOCK_RC_SOFTCHECK(rcl_publish(&s_node.publisher, &s_node.counter, NULL));
+    s_node.counter.data++;
 }
 
-static void micro_ros_task(void *arg) {
-  (void)arg;
-  rcl_allocator_t allocator = rcl_get_default_allocator();
-  rcl_init_options_t init_options = rcl_get_zero_initialized_init_options();
-  RCCHECK(rcl_init_options_init(&init_options, allocator));
-  rmw_init_options_t *rmw_options = rcl_init_options_get_rmw_init_options(&init_options);
-  RCCHECK(rmw_uros_options_set_udp_address(CONFIG_MICRO_ROS_AGENT_IP, CONFIG_MICRO_ROS_AGENT_PORT, rmw_options));
-
-  rclc_support_t support;
-  RCCHECK(rclc_support_init_with_options(&support, 0, NULL, &init_options, &allocator));
-  rcl_node_t node;
-  RCCHECK(rclc_node_init_default(&node, "@NAME@", "", &support));
-  RCCHECK(rclc_publisher_init_default(&publisher, &node, ROSIDL_GET_MSG_TYPE_SUPPORT(std_msgs, msg, Int32),
-                                      "@NAME@/counter"));
-  rcl_timer_t timer;
-  RCCHECK(rclc_timer_init_default2(&timer, &support, RCL_MS_TO_NS(1000), timer_callback, true));
-  rclc_executor_t executor = rclc_executor_get_zero_initialized_executor();
-  RCCHECK(rclc_executor_init(&executor, &support.context, 1, &allocator));
-  RCCHECK(rclc_executor_add_timer(&executor, &timer));
-
-  for (;;) {
-    rclc_executor_spin_some(&executor, RCL_MS_TO_NS(100));
-    vTaskDelay(pdMS_TO_TICKS(10));
-  }
+static bool create_entities(void *ctx)
+{
+    app_node_t *node = ctx;
+    node->publisher = rcl_get_zero_initialized_publisher();
+    node->timer = rcl_get_zero_initialized_timer();
+    node->executor = rclc_executor_get_zero_initialized_executor();
+    if (!espdock_uros_open(&node->uros)) {
+        return false;
+    }
+    ESPDOCK_RC_CHECK(rclc_publisher_init_default(&node->publisher, &node->uros.node,
+                                                 ROSIDL_GET_MSG_TYPE_SUPPORT(std_msgs, msg, Int32),
+                                                 "@NAME@/counter"));
+    ESPDOCK_RC_CHECK(rclc_timer_init_default2(&node->timer, &node->uros.support, RCL_MS_TO_NS(1000),
+                                              on_timer, true));
+    ESPDOCK_RC_CHECK(rclc_executor_init(&node->executor, &node->uros.support.context, 1,
+                                        &node->uros.allocator));
+    ESPDOCK_RC_CHECK(rclc_executor_add_timer(&node->executor, &node->timer));
+    return true;
 }
 
-void app_main(void) {
-  ESP_ERROR_CHECK(uros_network_interface_initialize());
-  xTaskCreate(micro_ros_task, "micro_ros", 16000, NULL, 5, NULL);
+static void destroy_entities(void *ctx)
+{
+    app_node_t *node = ctx;
+    espdock_uros_begin_teardown(&node->uros);
+    /* Failures are expected for entities a failed creation never made. */
+    (void)rclc_executor_fini(&node->executor);
+    (void)rcl_timer_fini(&node->timer);
+    (void)rcl_publisher_fini(&node->publisher, &node->uros.node);
+    espdock_uros_close(&node->uros);
+}
+
+static void spin(void *ctx)
+{
+    app_node_t *node = ctx;
+    (void)rclc_executor_spin_some(&node->executor, RCL_MS_TO_NS(10));
+}
+
+static void uros_task(void *arg)
+{
+    (void)arg;
+    const espdock_uros_config_t config = {
+        .agent_ip = CONFIG_ESPDOCK_AGENT_IP,
+        .agent_port = CONFIG_ESPDOCK_AGENT_PORT,
+        .domain_id = CONFIG_ESPDOCK_ROS_DOMAIN_ID,
+        .node_name = "@NAME@",
+        .node_namespace = "",
+    };
+    const espdock_uros_app_t app = {
+        .create_entities = create_entities,
+        .destroy_entities = destroy_entities,
+        .spin = spin,
+        .ctx = &s_node,
+    };
+    espdock_uros_serve(&s_node.uros, &config, app, 10);
+}
+
+void app_main(void)
+{
+    esp_err_t err = espdock_wifi_start(CONFIG_ESPDOCK_WIFI_SSID, CONFIG_ESPDOCK_WIFI_PASSWORD, false);
+    if (err != ESP_OK) {
+        ESP_LOGE(TAG, "Wi-Fi start failed: %s; check the Wi-Fi settings", esp_err_to_name(err));
+        return;
+    }
+    if (xTaskCreate(uros_task, "uros", CONFIG_ESPDOCK_UROS_TASK_STACK, NULL, 5, NULL) != pdPASS) {
+        ESP_LOGE(TAG, "could not start the micro-ROS task (stack %d B)", CONFIG_ESPDOCK_UROS_TASK_STACK);
+    }
 }

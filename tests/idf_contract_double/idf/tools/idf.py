@@ -53,6 +53,36 @@ IDF_COMPONENTS = set(
     "protocomm pthread riscv sdmmc soc spi_flash spiffs tcp_transport touch_element ulp unity usb vfs "
     "wear_levelling wifi_provisioning wpa_supplicant xtensa".split()
 )
+# Headers of ESP-IDF v5.3.5 components that the double checks a source can see, and the public
+# REQUIRES of the IDF components through which they can reach it (from each component's
+# CMakeLists.txt in v5.3.5; private ones do not propagate). A source sees a component's headers
+# only when its component requires it, directly or through public REQUIRES, as in IDF; `main`
+# without REQUIRES sees every component. Other IDF headers are assumed visible.
+IDF_HEADER_OWNERS = {
+    "driver/gpio.h": "esp_driver_gpio",
+    "driver/spi_master.h": "esp_driver_spi",
+    "driver/spi_common.h": "esp_driver_spi",
+    "esp_wifi.h": "esp_wifi",
+    "esp_eth.h": "esp_eth",
+    "nvs_flash.h": "nvs_flash",
+    "esp_netif.h": "esp_netif",
+}
+IDF_PUBLIC_REQUIRES = {
+    "driver": ("esp_pm", "esp_ringbuf", "freertos", "soc", "hal", "esp_hw_support", "esp_driver_gpio",
+               "esp_driver_pcnt", "esp_driver_gptimer", "esp_driver_spi", "esp_driver_mcpwm", "esp_driver_ana_cmpr",
+               "esp_driver_i2s", "esp_driver_sdmmc", "esp_driver_sdspi", "esp_driver_sdio", "esp_driver_dac",
+               "esp_driver_rmt", "esp_driver_tsens", "esp_driver_sdm", "esp_driver_i2c", "esp_driver_uart",
+               "esp_driver_ledc", "esp_driver_parlio", "esp_driver_usb_serial_jtag"),
+    "esp_lcd": ("driver", "esp_driver_gpio", "esp_driver_i2c", "esp_driver_spi"),
+    "esp_driver_sdmmc": ("sdmmc", "esp_driver_gpio"),
+    "esp_driver_sdspi": ("sdmmc", "esp_driver_spi", "esp_driver_gpio"),
+    "esp_driver_spi": ("esp_pm",),
+    "esp_wifi": ("esp_event", "esp_phy", "esp_netif"),
+    "esp_eth": ("esp_event",),
+    "esp_netif": ("esp_event",),
+    "nvs_flash": ("esp_partition",),
+    "lwip": (),
+}
 # First path elements (prefixes) of headers that only the micro-ROS component provides.
 ROS_HEADER_PREFIXES = (
     "rcl",
@@ -605,6 +635,10 @@ def evaluate_component(ctx: Context, comp: Component, target: str, project: str,
         "IDF_VERSION_PATCH": "5",
         "IDF_VER": IDF_VER,
     }
+    # IDF's early expansion: requirements are read with no sdkconfig yet (no CONFIG_* variables),
+    # and those are the requirements the build uses; Kconfig may choose sources, never REQUIRES.
+    early = cmakelite.Interpreter(dict(variables), ctx.env, lambda text: None)
+    early.run_file(comp.path / "CMakeLists.txt")
     for key, value in config.items():
         variables[f"CONFIG_{key}"] = "y" if value is True else ("" if value is False else str(value))
     interp = cmakelite.Interpreter(variables, ctx.env, out)
@@ -613,6 +647,9 @@ def evaluate_component(ctx: Context, comp: Component, target: str, project: str,
         comp.reg = cmakelite.Registration()
         return
     reg = comp.reg = interp.registrations[-1]
+    if early.registrations:
+        reg.requires = early.registrations[-1].requires
+        reg.priv_requires = early.registrations[-1].priv_requires
     where = f"{comp.path}/CMakeLists.txt:{reg.line}"
 
     def resolve(items: list[str]) -> list[Path]:
@@ -892,7 +929,7 @@ class SourceChecker:
 
     def __init__(self, macros: dict[str, str]) -> None:
         self.base_macros = macros
-        self.scanned: dict[tuple[Path, tuple[Path, ...], tuple[Path, ...]], list[Diagnostic]] = {}
+        self.scanned: dict[tuple, list[Diagnostic]] = {}
         self.read: set[Path] = set()
 
     def check(
@@ -900,10 +937,11 @@ class SourceChecker:
         path: Path,
         local_dirs: list[Path],
         ros_dirs: list[Path],
+        idf_seen: frozenset[str] | None = None,
         chain: tuple[tuple[Path, int], ...] = (),
         stack: tuple[Path, ...] = (),
     ) -> list[Diagnostic]:
-        key = (path, tuple(local_dirs), tuple(ros_dirs))
+        key = (path, tuple(local_dirs), tuple(ros_dirs), idf_seen)
         if key in self.scanned:
             return [Diagnostic(d.path, d.line, d.column, d.message, chain + d.chain) for d in self.scanned[key]]
         if path in stack:
@@ -970,7 +1008,9 @@ class SourceChecker:
                     continue
                 quoted, include = im.group(1) == '"', im.group(2)
                 column = line.index(im.group(0)) + 1
-                found += self._include(path, number, column, include, quoted, local_dirs, ros_dirs, chain, stack)
+                found += self._include(
+                    path, number, column, include, quoted, local_dirs, ros_dirs, idf_seen, chain, stack
+                )
         self.scanned[key] = [Diagnostic(d.path, d.line, d.column, d.message, d.chain[len(chain) :]) for d in found]
         return found
 
@@ -983,38 +1023,51 @@ class SourceChecker:
         quoted: bool,
         local_dirs: list[Path],
         ros_dirs: list[Path],
+        idf_seen: frozenset[str] | None,
         chain: tuple[tuple[Path, int], ...],
         stack: tuple[Path, ...],
     ) -> list[Diagnostic]:
         here = (*chain, (path, number))
+        missing = [Diagnostic(path, number, column, f"fatal error: {include}: No such file or directory", chain)]
         candidates = ([path.parent] if quoted else []) + local_dirs
         if is_ros_header(include):
             for d in ([path.parent] if quoted else []) + ros_dirs:
                 hit = d / include
                 if hit.is_file():
-                    return self.check(hit, [], ros_dirs, here, (*stack, path))
-            return [Diagnostic(path, number, column, f"fatal error: {include}: No such file or directory", chain)]
+                    return self.check(hit, [], ros_dirs, idf_seen, here, (*stack, path))
+            return missing
         for d in candidates:
             hit = d / include
             if hit.is_file():
-                return self.check(hit, local_dirs, ros_dirs, here, (*stack, path))
+                return self.check(hit, local_dirs, ros_dirs, idf_seen, here, (*stack, path))
+        owner = IDF_HEADER_OWNERS.get(include)
+        if owner is not None and idf_seen is not None and owner not in idf_seen:
+            return missing  # the header's component is not among the requirements
         return []  # an ESP-IDF, toolchain or managed-component header: assumed to exist
 
 
-def visible_dirs(comp: Component, components: dict[str, Component]) -> tuple[list[Path], list[Path]]:
-    """(project include dirs, micro-ROS include dirs) a component's sources see, via REQUIRES as IDF does."""
+def visible_dirs(
+    comp: Component, components: dict[str, Component]
+) -> tuple[list[Path], list[Path], frozenset[str] | None]:
+    """(project include dirs, micro-ROS include dirs, IDF components whose headers it sees or None
+    for all) for a component's sources, via REQUIRES as IDF does."""
     reg = comp.reg or cmakelite.Registration()
+    idf_seen: set[str] | None = set()
     if comp.name == "main" and not (reg.requires or reg.priv_requires):
-        reachable = set(components)
+        reachable, idf_seen = set(components), None
     else:
         reachable, todo = {comp.name}, list(reg.requires + reg.priv_requires)
         while todo:
             name = todo.pop()
-            if name in reachable or name not in components:
-                continue
-            reachable.add(name)
-            dep = components[name].reg or cmakelite.Registration()
-            todo += dep.requires
+            if name in components:
+                if name in reachable:
+                    continue
+                reachable.add(name)
+                dep = components[name].reg or cmakelite.Registration()
+                todo += dep.requires
+            elif name not in idf_seen:
+                idf_seen.add(name)
+                todo += IDF_PUBLIC_REQUIRES.get(name, ())
     local = list(comp.include_dirs) + list(comp.priv_include_dirs)
     ros: list[Path] = []
     for name in sorted(reachable):
@@ -1024,7 +1077,7 @@ def visible_dirs(comp: Component, components: dict[str, Component]) -> tuple[lis
         if other.micro_ros:
             root = other.path / "include"
             ros += [root, *sorted(p for p in root.glob("*") if p.is_dir())] if root.is_dir() else []
-    return list(dict.fromkeys(local)), ros
+    return list(dict.fromkeys(local)), ros, None if idf_seen is None else frozenset(idf_seen)
 
 
 # ---------------------------------------------------------------- images
@@ -1302,8 +1355,8 @@ def run_build(ctx: Context, project: Project) -> None:
     for index, (comp, src) in enumerate(steps, start=1):
         obj = f"esp-idf/{comp.name}/CMakeFiles/__idf_{comp.name}.dir/{src.relative_to(comp.path)}.obj"
         out(f"[{index}/{total}] Building C object {obj}")
-        local, ros = visible_dirs(comp, project.components)
-        found = checker.check(src, local, ros)
+        local, ros, idf_seen = visible_dirs(comp, project.components)
+        found = checker.check(src, local, ros, idf_seen)
         if found:
             out(f"FAILED: {obj}")
         for d in found:

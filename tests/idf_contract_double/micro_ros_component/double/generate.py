@@ -577,6 +577,18 @@ def rmw_config_header(meta: dict) -> tuple[str, dict[str, str]]:
     return "\n".join([*lines, "", "#endif  // RMW_MICROXRCEDDS_C__CONFIG_H_", ""]), values
 
 
+LIBRARY_SDKCONFIG = ("CONFIG_FREERTOS_HZ", "CONFIG_SPIRAM", "CONFIG_MICRO_ROS_ESP_NETIF_WLAN",
+                     "CONFIG_MICRO_ROS_ESP_NETIF_ENET")
+
+
+def sdkconfig_values(path: Path | None) -> dict[str, str]:
+    """The #defines of sdkconfig.h that change what the library is (absent ones left out)."""
+    if path is None or not path.is_file():
+        return {}
+    found = dict(re.findall(r"^#define (CONFIG_\w+) (.*)$", path.read_text(), re.MULTILINE))
+    return {key: found[key] for key in LIBRARY_SDKCONFIG if key in found}
+
+
 def c_string(text: str) -> str:
     return '"' + text.replace("\\", "\\\\").replace('"', '\\"') + '"'
 
@@ -628,6 +640,9 @@ def generate(args: argparse.Namespace) -> None:
         "colcon_meta_sha256": hashlib.sha256(merged_bytes).hexdigest(),
         "colcon_metas": [str(p) for p in metas],
         "rmw_microxrcedds": rmw_values,
+        # Upstream compiles the library against the configuring app's sdkconfig.h (its
+        # toolchain file's BUILD_CONFIG_DIR); these are the values it was compiled with.
+        "sdkconfig": sdkconfig_values(args.sdkconfig_h),
         "packages": [p.name for p in packages],
         "types": types,
     }
@@ -644,6 +659,7 @@ def generate(args: argparse.Namespace) -> None:
         f"#define ESPDOCK_DOUBLE_IDF_TARGET {c_string(args.target)}\n"
         f"#define ESPDOCK_DOUBLE_COLCON_META_SHA256 {c_string(manifest['colcon_meta_sha256'])}\n"
         f"#define ESPDOCK_DOUBLE_TYPE_COUNT {len(types)}\n"
+        f"#define ESPDOCK_DOUBLE_SDKCONFIG {c_string(json.dumps(manifest['sdkconfig'], sort_keys=True))}\n"
         "extern const char espdock_double_manifest[];\n#endif\n"
     )
 
@@ -668,6 +684,7 @@ def main() -> int:
     parser.add_argument("--app-colcon-meta", type=lambda s: Path(s) if s else None, default=None)
     parser.add_argument("--target", required=True)
     parser.add_argument("--middleware", default="microxrcedds")
+    parser.add_argument("--sdkconfig-h", type=lambda s: Path(s) if s else None, default=None)
     parser.add_argument(
         "--path-map",
         action="append",

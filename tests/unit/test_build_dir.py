@@ -1,0 +1,45 @@
+"""Reusing ws/build/<pkg>: what a new target, image or sdkconfig.defaults leaves of it."""
+
+from pathlib import Path
+
+from espdock.runner import TARGET_MARKER, _prepare_build_dir
+
+
+def built(tmp_path: Path, target="esp32", defaults="d1", key="k1") -> Path:
+    build = tmp_path / "build"
+    (build / "esp-idf").mkdir(parents=True)
+    (build / "CMakeCache.txt").write_text("CMAKE_C_COMPILER:FILEPATH=/opt/old-image/xtensa-esp32-elf-gcc\n")
+    (build / "sdkconfig").write_text("CONFIG_ESPDOCK_NODE_NAME=\"from menuconfig\"\n")
+    (build / TARGET_MARKER).write_text(f"{target}\n{defaults}\n{key}\n")
+    return build
+
+
+def test_same_inputs_keep_everything(tmp_path):
+    build = built(tmp_path)
+    _prepare_build_dir(build, "esp32", "d1", "k1")
+    assert sorted(p.name for p in build.iterdir()) == [TARGET_MARKER, "CMakeCache.txt", "esp-idf", "sdkconfig"]
+
+
+def test_a_new_image_key_resets_the_build_but_keeps_menuconfig_changes(tmp_path):
+    build = built(tmp_path)
+    _prepare_build_dir(build, "esp32", "d1", "k2")
+    assert [p.name for p in build.iterdir()] == ["sdkconfig"]
+    assert "from menuconfig" in (build / "sdkconfig").read_text()
+
+
+def test_a_new_image_key_with_new_defaults_drops_the_sdkconfig_too(tmp_path):
+    build = built(tmp_path)
+    _prepare_build_dir(build, "esp32", "d2", "k2")
+    assert list(build.iterdir()) == []
+
+
+def test_new_defaults_drop_only_the_sdkconfig(tmp_path):
+    build = built(tmp_path)
+    _prepare_build_dir(build, "esp32", "d2", "k1")
+    assert sorted(p.name for p in build.iterdir()) == [TARGET_MARKER, "CMakeCache.txt", "esp-idf"]
+
+
+def test_a_new_target_removes_the_build_dir(tmp_path):
+    build = built(tmp_path)
+    _prepare_build_dir(build, "esp32s3", "d1", "k1")
+    assert not build.exists()

@@ -19,9 +19,10 @@ from rich.text import Text
 
 from espdock import __version__, bootstrap
 from espdock.config import Config, invoking_user, load_config, resolve_ca_bundle
-from espdock.engine import format_argv
+from espdock.engine import Engine, format_argv
 from espdock.errors import ConfigError, EspdockError, Interrupted, WorkspaceError
 from espdock.flashing import PortError, check_port, esptool_major, flash_argv, parse_port, verify_argv
+from espdock.pins import SOURCES_FILE, Source, pin_heads, pin_image_digest
 from espdock.plan import (
     IDF_DOCKERFILE,
     ROS_DOCKERFILE,
@@ -36,7 +37,7 @@ from espdock.plan import (
 )
 from espdock.runner import Runner
 from espdock.scaffold import create_firmware_package
-from espdock.status import micro_ros_report
+from espdock.status import built_from, micro_ros_report
 from espdock.ui import Reporter, render_micro_ros_status, render_plan
 from espdock.workspace import (
     Package,
@@ -47,6 +48,7 @@ from espdock.workspace import (
     order_packages,
     read_build_inputs,
     select_up_to,
+    write_atomically,
 )
 
 app = typer.Typer(
@@ -208,6 +210,13 @@ def _micro_ros_specs(
     return ws, config, packages, specs
 
 
+def _sources_text(ws: Workspace) -> str:
+    path = ws.root / SOURCES_FILE
+    if not path.is_file():
+        raise WorkspaceError(f"{path} is missing", "It pins every repository micro-ROS is built from.")
+    return path.read_text()
+
+
 micro_ros = typer.Typer(help="The prebuilt micro-ROS library of this workspace.", no_args_is_help=True)
 app.add_typer(micro_ros, name="micro-ros")
 
@@ -220,9 +229,9 @@ def micro_ros_status(
     workspace: WorkspaceOption = None,
 ) -> None:
     """Each micro-ROS image: its key, the inputs it is made of, its firmware, whether it exists."""
-    _, _, packages, specs = _micro_ros_specs(workspace, target)
+    ws, _, packages, specs = _micro_ros_specs(workspace, target)
     engine = bootstrap.ensure_engine(os.environ, _notify)
-    report = micro_ros_report(engine, specs, packages)
+    report = micro_ros_report(engine, specs, packages, _sources_text(ws))
     if as_json:
         print(json.dumps(report, indent=2, sort_keys=True))
         return
@@ -243,6 +252,57 @@ def micro_ros_rebuild(
         _runner(config, reporter).run(Plan(ws, tuple(EnsureImage(s, force=True) for s in unique), unique))
     finally:
         reporter.close()
+
+
+@micro_ros.command("pin")
+@_command
+def micro_ros_pin(
+    target: Annotated[str | None, typer.Option(help="Chip target (overrides espdock.toml).")] = None,
+    workspace: WorkspaceOption = None,
+) -> None:
+    """Pin the sources that follow a branch head ("-" in docker/idf/micro_ros_sources.txt) to the
+    commits the current micro-ROS images were built from, and IDF_IMAGE to its digest."""
+    ws, config, _, specs = _micro_ros_specs(workspace, target)
+    engine = bootstrap.ensure_engine(os.environ, _notify)
+    resolved: dict[str, Source] = {}
+    images = [spec.tag for spec in {s.key: s for s in specs.values()}.values() if engine.image(spec.tag)]
+    if not images:
+        raise WorkspaceError("no micro-ROS image of this workspace is built yet", "Run `espdock build` first.")
+    for image in images:
+        for key, source in built_from(engine, image).items():
+            if key in resolved and resolved[key].commit != source.commit:
+                raise WorkspaceError(
+                    f"the micro-ROS images disagree on {source.url}: {resolved[key].commit} and {source.commit}",
+                    "Pin it by hand in docker/idf/micro_ros_sources.txt.",
+                )
+            resolved[key] = source
+    path = ws.root / SOURCES_FILE
+    text, pinned = pin_heads(_sources_text(ws), resolved)
+    if pinned:
+        write_atomically(path, text)
+        for source in pinned:
+            console.print(f"pinned {source.url} ({source.branch}) at {source.commit}")
+        console.print(f"wrote {path.relative_to(ws.root)}; the next build makes images under new keys")
+    else:
+        console.print("every micro-ROS source the images were built from is pinned already")
+    _pin_idf_image(ws, config, engine, next(iter(specs.values())))
+
+
+def _pin_idf_image(ws: Workspace, config: Config, engine: Engine, spec: ImageSpec) -> None:
+    """Pin Dockerfile.idf's IDF_IMAGE to the digest of the image the engine pulled for it."""
+    reference = dict(spec.build_args)["IDF_IMAGE"]
+    if "@sha256:" in reference:
+        return
+    image = engine.image(reference)
+    dockerfile = ws.root / IDF_DOCKERFILE
+    pinned = pin_image_digest(dockerfile.read_text(), "IDF_IMAGE", reference, image.digests if image else ())
+    if pinned is None:
+        console.print(f"{reference} is pinned by tag only: this engine did not pull it from a registry")
+    elif config.idf_image:
+        console.print(f"{reference} comes from idf_image; pin it there: {reference}@{pinned.split('@')[-1].split()[0]}")
+    else:
+        write_atomically(dockerfile, pinned)
+        console.print(f"pinned IDF_IMAGE in {IDF_DOCKERFILE} to its digest")
 
 
 @app.command()

@@ -37,6 +37,8 @@ class ImageInfo:
     created: datetime
     size: int
     labels: Mapping[str, str] = field(default_factory=dict)
+    # repository@sha256:... for each registry the image was pulled from (none when built here).
+    digests: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -100,6 +102,7 @@ class Engine:
             created=created,
             size=int(attrs.get("Size", 0)),
             labels=dict((attrs.get("Config") or {}).get("Labels") or {}),
+            digests=tuple(attrs.get("RepoDigests") or ()),
         )
 
     def images(self, repository: str) -> list[ImageInfo]:

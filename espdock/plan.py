@@ -10,6 +10,7 @@ from dataclasses import dataclass, field
 
 from espdock.config import Config
 from espdock.errors import WorkspaceError
+from espdock.pins import SOURCES_FILE, parse_sources
 from espdock.workspace import BuildInputs, Package, PackageKind, Workspace
 
 ROS_DOCKERFILE = "Dockerfile.ros"
@@ -17,6 +18,7 @@ IDF_DOCKERFILE = "Dockerfile.idf"
 # What the images are built from besides their Dockerfiles; docker/idf belongs to the IDF image only.
 IMAGE_INPUT_DIR = "docker"
 IDF_INPUT_DIR = "docker/idf"
+SOURCES_NAME = SOURCES_FILE.removeprefix(f"{IDF_INPUT_DIR}/")
 WORKSPACE_MOUNT = "/workspace"
 LABEL_KEY = "io.espdock.key"
 LABEL_INPUTS = "io.espdock.inputs"
@@ -278,6 +280,10 @@ def micro_ros_image(config: Config, inputs: BuildInputs, packages: tuple[Package
         ("MICRO_ROS_COMMIT", config.micro_ros_commit or defaults.get("MICRO_ROS_COMMIT", "")),
         ("MICRO_ROS_REPO", config.micro_ros_repo or defaults.get("MICRO_ROS_REPO", "")),
     )
+    sources = inputs.idf_files.get(SOURCES_NAME)
+    if sources is None:
+        raise WorkspaceError(f"{SOURCES_FILE} is missing", "It pins every repository micro-ROS is built from.")
+    parse_sources(sources.decode(errors="replace"))  # a malformed pin fails here, not in the image build
     meta = inputs.app_metas.get(firmware.name, "")
     if meta:
         _check_colcon_meta(firmware.name, meta)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import fcntl
 import hashlib
 import os
@@ -40,6 +41,7 @@ from espdock.workspace import Workspace
 TARGET_MARKER = ".espdock-target"
 # Under ws/build, beside the packages' build dirs (colcon skips dot dirs).
 COMPONENT_CACHE = ".idf-component-cache"
+MANAGED_COMPONENTS = "managed_components"
 EXTRA_CA_MOUNT = "/run/espdock/extra-ca.pem"
 WITH_CA = "/opt/espdock/with-ca.sh"
 FAILED_PACKAGE = re.compile(r"^Failed\s+<<<\s+(\S+)")
@@ -231,9 +233,17 @@ class Runner:
         SWEEP only from a build, which holds the workspace lock (see _container_identity).
         """
         user, labels = self._container_identity(workspace, f"idf-{step.package}", sweep)
+        # The component manager extracts into <project>/managed_components, a place it does not
+        # let anyone move; a mount keeps that in ws/build, and the source tree clean.
+        managed = workspace.ws_dir / "build" / step.package / MANAGED_COMPONENTS
+        mountpoint = workspace.firmware_dir / step.project / MANAGED_COMPONENTS
+        owner = invoking_user(self._env, workspace.root)
+        for directory in (managed, mountpoint):
+            _make_dirs_for(directory, owner)
         mounts = [
             Mount(workspace.firmware_dir, f"{WORKSPACE_MOUNT}/firmware"),
             Mount(workspace.ws_dir, f"{WORKSPACE_MOUNT}/ws"),
+            Mount(managed, f"{step.project_dir}/{MANAGED_COMPONENTS}"),
         ]
         env = [
             ("HOME", "/tmp"),
@@ -260,9 +270,13 @@ class Runner:
             network=network,
             tty=on_line is None and sys.stdin.isatty(),
         )
-        if on_line is None:
-            return self._engine.run_attached(spec, keep=self._config.keep_containers)
-        return self._engine.run(spec, on_line, keep=self._config.keep_containers)
+        try:
+            if on_line is None:
+                return self._engine.run_attached(spec, keep=self._config.keep_containers)
+            return self._engine.run(spec, on_line, keep=self._config.keep_containers)
+        finally:
+            with contextlib.suppress(OSError):  # not empty: the user's own, left alone
+                mountpoint.rmdir()
 
     def _container_identity(
         self, workspace: Workspace, step_label: str, sweep: bool
@@ -356,6 +370,14 @@ def _defaults_digest(project: Path) -> str:
     for path in sorted(project.glob("sdkconfig.defaults*")):
         digest.update(path.name.encode() + b"\0" + path.read_bytes())
     return digest.hexdigest()[:16]
+
+
+def _make_dirs_for(directory: Path, owner: tuple[int, int]) -> None:
+    """mkdir -p DIRECTORY; as root, the directories it creates belong to OWNER."""
+    missing = [d for d in (directory, *directory.parents) if not d.exists()]
+    directory.mkdir(parents=True, exist_ok=True)
+    for created in missing:
+        _give_to(created, owner)
 
 
 def _give_to(path: Path, owner: tuple[int, int]) -> None:

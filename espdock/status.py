@@ -6,13 +6,30 @@ import json
 from collections.abc import Mapping
 from datetime import UTC, datetime
 
-from espdock.engine import Engine, ImageInfo
+from espdock.engine import Engine, ImageInfo, RunSpec
+from espdock.errors import EspdockError
+from espdock.pins import FOLLOW_HEAD, RESOLVED_FILE, Source, parse_resolved, parse_sources
 from espdock.plan import LABEL_INPUTS, ImageSpec, derive_interface_packages
 from espdock.workspace import Package
 
 
-def micro_ros_report(engine: Engine, specs: Mapping[str, ImageSpec], packages: tuple[Package, ...]) -> dict:
-    """A JSON-ready account of the micro-ROS images (SPECS: firmware package -> its image's spec)."""
+def built_from(engine: Engine, image: str) -> dict[str, Source]:
+    """The commits IMAGE's micro-ROS library was built from, by repository."""
+    lines: list[str] = []
+    code = engine.run(RunSpec(image=image, argv=("cat", RESOLVED_FILE), workdir="/"), lines.append)
+    if code != 0:
+        raise EspdockError(
+            f"{image} has no record of its micro-ROS sources ({RESOLVED_FILE})",
+            "Rebuild it with `espdock micro-ros rebuild`.",
+        )
+    return parse_resolved(lines)
+
+
+def micro_ros_report(
+    engine: Engine, specs: Mapping[str, ImageSpec], packages: tuple[Package, ...], sources_text: str
+) -> dict:
+    """A JSON-ready account of the micro-ROS images (SPECS: firmware package -> its image's spec)
+    and of the pinned sources (SOURCES_TEXT: docker/idf/micro_ros_sources.txt)."""
     by_name = {p.name: p for p in packages}
     grouped: dict[str, list[str]] = {}
     for firmware, spec in sorted(specs.items()):
@@ -21,8 +38,17 @@ def micro_ros_report(engine: Engine, specs: Mapping[str, ImageSpec], packages: t
     for firmwares in grouped.values():
         spec = specs[firmwares[0]]
         interfaces = derive_interface_packages(packages, by_name[firmwares[0]])
-        images.append(_image_report(engine, spec, firmwares, [p.name for p in interfaces]))
-    return {"images": images, "firmware": {name: spec.tag for name, spec in sorted(specs.items())}}
+        report = _image_report(engine, spec, firmwares, [p.name for p in interfaces])
+        if report["present"]:
+            report["built_from"] = {s.url: s.commit for s in built_from(engine, spec.tag).values()}
+        images.append(report)
+    sources = parse_sources(sources_text)
+    return {
+        "images": images,
+        "firmware": {name: spec.tag for name, spec in sorted(specs.items())},
+        "sources": [{"url": s.url, "branch": s.branch, "commit": s.commit} for s in sources],
+        "following_branch_head": [s.url for s in sources if s.commit == FOLLOW_HEAD],
+    }
 
 
 def _image_report(engine: Engine, spec: ImageSpec, firmware: list[str], interfaces: list[str]) -> dict:

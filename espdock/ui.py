@@ -108,6 +108,7 @@ def render_micro_ros_status(console: Console, report: dict) -> None:
         console.print(f"interface packages {', '.join(image['interface_packages']) or '(none)'}")
         if image["present"]:
             console.print(f"size    {image['size_bytes'] / 1e6:.0f} MB, built {image['created']}")
+            console.print(f"built from {len(image['built_from'])} pinned source repositories")
             console.print(Text("the workspace matches this image", style="green"))
         else:
             console.print(Text("no image has this key: `espdock build` will build it", style="yellow"))
@@ -118,3 +119,11 @@ def render_micro_ros_status(console: Console, report: dict) -> None:
         for name, sha in sorted(image["inputs"].items()):
             table.add_row(name, sha[:16])
         console.print(table)
+    if report["following_branch_head"]:
+        console.print(
+            Text(
+                f"{len(report['following_branch_head'])} micro-ROS sources follow a branch head, not a commit: "
+                "run `espdock micro-ros pin` after a build to pin them",
+                style="yellow",
+            )
+        )

@@ -237,3 +237,17 @@ def read_build_inputs(workspace: Workspace, packages: Iterable[Package]) -> Buil
             if p.kind is PackageKind.FIRMWARE
         },
     )
+
+
+def write_atomically(path: Path, text: str) -> None:
+    """Replace PATH's content with TEXT in one rename, keeping its mode and owner."""
+    stat = path.stat()
+    tmp = path.with_name(f".{path.name}.espdock-tmp")
+    try:
+        tmp.write_text(text)
+        os.chmod(tmp, stat.st_mode & 0o7777)
+        if os.geteuid() == 0:
+            os.chown(tmp, stat.st_uid, stat.st_gid)
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)

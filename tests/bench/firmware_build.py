@@ -26,7 +26,7 @@ sys.path.insert(0, str(REPO))
 from espdock.config import Config, resolve_ca_bundle  # noqa: E402
 from espdock.engine import Engine  # noqa: E402
 from tests.conftest import copy_workspace  # noqa: E402
-from tests.idf_contract_double.build import MICRO_ROS_REPO, build_double  # noqa: E402
+from tests.idf_contract_double.build import use_double  # noqa: E402
 
 
 def du(path: Path) -> int:
@@ -45,12 +45,10 @@ def main() -> None:
     parser.add_argument("--runs", type=int, default=5)
     args = parser.parse_args()
     engine = Engine.connect(os.environ)
-    tag, commit = build_double(engine, resolve_ca_bundle(Config(), os.environ), lambda line: None)
-    env = {**os.environ, "ESPDOCK_IDF_IMAGE": tag, "ESPDOCK_MICRO_ROS_REPO": MICRO_ROS_REPO,
-           "ESPDOCK_MICRO_ROS_COMMIT": commit}  # fmt: skip
 
     with tempfile.TemporaryDirectory(prefix="espdock-bench-") as tmp:
         root = copy_workspace(Path(tmp) / "ws-root")
+        env = {**os.environ, **use_double(engine, resolve_ca_bundle(Config(), os.environ), lambda line: None, root)}
         shutil.copy2(REPO / "Dockerfile.idf", root / "Dockerfile.idf")
         shutil.copytree(REPO / "firmware", root / "firmware")
         shutil.rmtree(root / "firmware/camera_node")

@@ -24,7 +24,7 @@ import pytest
 
 from espdock.config import Config, resolve_ca_bundle
 from tests.conftest import REPO, copy_workspace, espdock, leftover_containers, ros_build_tag
-from tests.idf_contract_double.build import build_double
+from tests.idf_contract_double.build import build_double, use_double
 
 pytestmark = [pytest.mark.engine, pytest.mark.slow]
 
@@ -38,16 +38,6 @@ def double(engine):
     return build_double(engine, resolve_ca_bundle(Config(), os.environ), lambda line: None)
 
 
-@pytest.fixture(scope="module")
-def double_env(double) -> dict[str, str]:
-    tag, commit = double
-    return {
-        "ESPDOCK_IDF_IMAGE": tag,
-        "ESPDOCK_MICRO_ROS_REPO": "file:///opt/espdock-double/micro_ros_espidf_component.git",
-        "ESPDOCK_MICRO_ROS_COMMIT": commit,
-    }
-
-
 STRUCT_HEADER = (
     "/opt/espdock/micro_ros_espidf_component/include/custom_interface/custom_interface/msg/detail/"
     "camera_config__struct.h"
@@ -55,22 +45,35 @@ STRUCT_HEADER = (
 
 
 @pytest.fixture(scope="module")
-def fw_ws(tmp_path_factory, engine, double_env):
-    """A workspace with custom_interface and the repo's two firmware apps, owned by a normal user, built once."""
+def fw_ws_and_env(tmp_path_factory, engine, double):
+    """A workspace with custom_interface and the repo's two firmware apps, owned by a normal user, built once,
+    and the settings that select the double."""
     root = copy_workspace(tmp_path_factory.mktemp("fw") / "ws-root")
     shutil.copy2(REPO / "Dockerfile.idf", root / "Dockerfile.idf")
     shutil.copytree(REPO / "firmware", root / "firmware")
+    double_env = use_double(engine, resolve_ca_bundle(Config(), os.environ), lambda line: None, root)
     # A comment unique to this run: its micro-ROS images can't be left over from an earlier one.
     msg = root / "ws/src/custom_interface/msg/CameraConfig.msg"
     msg.write_text(msg.read_text() + f"# test run {uuid.uuid4().hex}\n")
     subprocess.run(["chown", "-R", f"{USER_UID}:{USER_UID}", str(root)], check=True)
     before = set(micro_ros_images())
     first = espdock("build", cwd=root, env=double_env)
-    yield root, first
+    yield root, first, double_env
     engine.remove_containers({"io.espdock.workspace": str(root)})
     made = set(micro_ros_images()) - before
     if made:
         subprocess.run(["docker", "rmi", "-f", *made], capture_output=True, check=False)
+
+
+@pytest.fixture(scope="module")
+def fw_ws(fw_ws_and_env):
+    root, first, _ = fw_ws_and_env
+    return root, first
+
+
+@pytest.fixture(scope="module")
+def double_env(fw_ws_and_env) -> dict[str, str]:
+    return fw_ws_and_env[2]
 
 
 def micro_ros_images() -> list[str]:
@@ -199,6 +202,72 @@ def test_only_the_selected_network_interface_is_compiled(fw_ws, double_env):
     finally:
         for leftover in (eth, root / "ws/build/eth_node", root / "ws/install/eth_node"):
             shutil.rmtree(leftover, ignore_errors=True)
+
+
+COMPONENT_INCLUDE = "/opt/espdock/micro_ros_espidf_component/include"
+
+
+def image_has(image: str, path: str) -> bool:
+    return subprocess.run(["docker", "run", "--rm", image, "test", "-e", path], check=False).returncode == 0
+
+
+def test_the_library_comes_from_the_pinned_commits_not_the_branch_heads(fw_ws, double_env, double):
+    """The double's upstream repositories moved on after their pins (a MovedOn message on jazzy's head)."""
+    root, first = fw_ws
+    assert first.returncode == 0
+    sources = root / "docker/idf/micro_ros_sources.txt"
+    pinned = sources.read_text()
+    url = "file:///opt/espdock-double/repos/common_interfaces.git"
+    (pin,) = re.findall(rf"^{re.escape(url)} jazzy (\w+)$", pinned, re.MULTILINE)
+    report = status(root, double_env, "led_strip_node")
+    assert report["built_from"][url] == pin
+    assert image_has(report["image"], f"{COMPONENT_INCLUDE}/std_msgs/std_msgs/msg/string.h")
+    assert not image_has(report["image"], f"{COMPONENT_INCLUDE}/std_msgs/std_msgs/msg/moved_on.h")
+    head = subprocess.run(
+        ["docker", "run", "--rm", double[0], "git", f"--git-dir={url.removeprefix('file://')}", "rev-parse", "jazzy"],
+        capture_output=True, text=True, check=True,
+    ).stdout.split()[-1]  # fmt: skip
+    assert head != pin
+    try:
+        # Not listed: the build fails and names the repository, instead of taking today's head.
+        sources.write_text("\n".join(line for line in pinned.splitlines() if url not in line) + "\n")
+        unpinned = espdock("build", "led_strip_node", "--only", "firmware", "-v", cwd=root, env=double_env)
+        assert unpinned.returncode == 4, unpinned.stdout[-3000:] + unpinned.stderr
+        assert f"{url} is cloned by the micro-ROS build but not pinned" in unpinned.stdout
+        # "-": the head of the day, said out loud; `micro-ros pin` then pins what was built.
+        sources.write_text(pinned.replace(f"{url} jazzy {pin}", f"{url} jazzy -"))
+        moved = espdock("build", "led_strip_node", "--only", "firmware", "-v", cwd=root, env=double_env)
+        assert moved.returncode == 0, moved.stdout[-3000:] + moved.stderr
+        assert f"{url} is not pinned; took {head}" in moved.stdout
+        following = json.loads(espdock("micro-ros", "status", "--json", cwd=root, env=double_env).stdout)
+        assert following["following_branch_head"] == [url]
+        assert image_has(status(root, double_env, "led_strip_node")["image"],
+                         f"{COMPONENT_INCLUDE}/std_msgs/std_msgs/msg/moved_on.h")  # fmt: skip
+        pinning = espdock("micro-ros", "pin", cwd=root, env=double_env)
+        assert pinning.returncode == 0, pinning.stderr
+        assert f"pinned {url} (jazzy) at {head}" in pinning.stdout
+        # The double was built here, so there is no registry digest to pin it to.
+        assert "is pinned by tag only: this engine did not pull it from a registry" in pinning.stdout
+        assert sources.read_text() == pinned.replace(f"{url} jazzy {pin}", f"{url} jazzy {head}")
+        assert sources.stat().st_uid == USER_UID
+    finally:
+        sources.write_text(pinned)
+
+
+def test_managed_components_stay_out_of_the_source_tree_and_downloads_are_cached(fw_ws, double_env):
+    root, first = fw_ws
+    assert first.returncode == 0
+    project = root / "firmware/led_strip_node"
+    assert not (project / "managed_components").exists()
+    assert (root / "ws/build/led_strip_node/managed_components/espressif__led_strip").is_dir()
+    assert (root / "ws/build/.idf-component-cache/espressif__led_strip").is_dir()
+    source = project / "main/led_strip_node_main.c"
+    source.write_text(source.read_text() + "\n/* rebuild */\n")
+    again = espdock("build", "led_strip_node", "--only", "firmware", cwd=root, env=double_env)
+    assert again.returncode == 0, again.stdout[-2000:] + again.stderr
+    assert "Using espressif/led_strip from the component cache" in again.stdout
+    assert "Downloading" not in again.stdout
+    assert not (project / "managed_components").exists()
 
 
 def test_ros_tools_find_the_firmware_through_the_ament_index(fw_ws):

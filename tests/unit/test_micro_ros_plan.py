@@ -48,7 +48,10 @@ INPUTS = BuildInputs(
         "ARG IDF_IMAGE=espressif/idf:v5.3.5\nFROM ${IDF_IMAGE} AS idf\nARG MICRO_ROS_REPO=https://x/y\n"
         "ARG MICRO_ROS_COMMIT=abc123\n"
     ),
-    idf_files={"uros_builder/CMakeLists.txt": b"project(uros_builder)\n"},
+    idf_files={
+        "uros_builder/CMakeLists.txt": b"project(uros_builder)\n",
+        "micro_ros_sources.txt": b"https://github.com/ros2/rcl jazzy " + b"a" * 40 + b"\n",
+    },
     package_files={
         "base_msgs": {"package.xml": b"<package/>", "msg/Base.msg": b"int32 a\n"},
         "cam_msgs": {"package.xml": b"<package/>", "msg/Cam.msg": b"uint8 framesize\n"},
@@ -96,6 +99,7 @@ def test_key_does_not_depend_on_the_order_inputs_were_read_in():
         lambda c, i: (replace(c, target="esp32s3"), i),
         lambda c, i: (c, replace(i, idf_dockerfile=i.idf_dockerfile + "RUN true\n")),
         lambda c, i: (c, replace(i, idf_files={**i.idf_files, "uros_builder/main/main.c": b"x"})),
+        lambda c, i: (c, replace(i, idf_files={**i.idf_files, "micro_ros_sources.txt": b"https://x jazzy -\n"})),
         lambda c, i: (c, replace(i, app_metas={"cam": META.replace("=1", "=2")})),
         lambda c, i: (c, replace(i, sdkconfig_defaults={"cam": {"sdkconfig.defaults": b"CONFIG_FREERTOS_HZ=100"}})),
         lambda c, i: (c, replace(i, sdkconfig_defaults={"cam": {"sdkconfig.defaults": b"# CONFIG_SPIRAM is not set"}})),
@@ -110,7 +114,7 @@ def test_key_does_not_depend_on_the_order_inputs_were_read_in():
                                                                        "msg/New.msg": b"bool x\n"}}),
         ),
     ],
-    ids=["idf-image", "micro-ros-commit", "target", "dockerfile", "idf-inputs", "colcon-meta", "freertos-hz",
+    ids=["idf-image", "micro-ros-commit", "target", "dockerfile", "idf-inputs", "pins", "colcon-meta", "freertos-hz",
          "no-psram", "msg-edit",
          "dependency-msg-added"],
 )
@@ -177,6 +181,16 @@ def test_apps_with_different_library_inputs_get_their_own_image_and_equal_ones_s
     assert sorted(ensured) == sorted({specs["cam"].key, specs["led"].key})
     builds = {s.package: s.image_key for s in plan.steps if isinstance(s, IdfBuild)}
     assert builds == {name: spec.key for name, spec in specs.items()}
+
+
+def test_a_malformed_or_missing_pin_file_is_refused_before_any_build():
+    bad = replace(INPUTS, idf_files={**INPUTS.idf_files, "micro_ros_sources.txt": b"# ok\nhttps://x jazzy abc\n"})
+    with pytest.raises(WorkspaceError) as err:
+        key(inputs=bad)
+    assert "micro_ros_sources.txt:2:" in err.value.message
+    missing = replace(INPUTS, idf_files={"uros_builder/CMakeLists.txt": b""})
+    with pytest.raises(WorkspaceError, match=r"micro_ros_sources\.txt is missing"):
+        key(inputs=missing)
 
 
 def test_a_malformed_app_meta_names_the_package():

@@ -9,8 +9,9 @@
 # Like upstream every target is a plain file or directory, so once libmicroros.a exists
 # nothing is rebuilt (changed packages or metas need `make -f libmicroros.mk clean`).
 #
-# Instead of cloning and cross-compiling the micro-ROS stack, it generates rosidl-shaped C
-# headers and typesupport sources for the standard interfaces in double/interfaces and every
+# Instead of cross-compiling the micro-ROS stack, it clones two repositories of standard
+# interfaces (git on PATH may be espdock's pinned git), generates rosidl-shaped C
+# headers and typesupport sources for the standard interfaces it cloned and every
 # package under EXTRA_ROS_PACKAGES, compiles them with X_CC (the host gcc here) and merges the
 # objects as upstream does (`ar x` each package archive, prefix, `ar rc -s`).
 
@@ -30,11 +31,14 @@ PYTHON ?= python3
 
 all: $(EXTENSIONS_DIR)/libmicroros.a
 
-# The workspace sources: the double's standard interfaces plus the extra packages (upstream
-# copies EXTRA_ROS_PACKAGES to src/extra_packages the same way).
+# The workspace sources, cloned like upstream's at the head of branch jazzy (here from the
+# double's own repositories), plus the extra packages (upstream copies EXTRA_ROS_PACKAGES to
+# src/extra_packages the same way).
+DOUBLE_REPOS ?= file:///opt/espdock-double/repos
 $(UROS_DIR)/src:
 	rm -rf $(UROS_DIR); mkdir -p $(UROS_DIR)/src.tmp
-	cp -R $(EXTENSIONS_DIR)/double/interfaces/. $(UROS_DIR)/src.tmp/
+	git clone -b jazzy $(DOUBLE_REPOS)/common_interfaces.git $(UROS_DIR)/src.tmp/common_interfaces
+	git clone -b jazzy $(DOUBLE_REPOS)/rcl_interfaces.git $(UROS_DIR)/src.tmp/rcl_interfaces
 	if [ -d "$(EXTRA_ROS_PACKAGES)" ]; then cp -RL "$(EXTRA_ROS_PACKAGES)" $(UROS_DIR)/src.tmp/extra_packages; fi
 	mv $(UROS_DIR)/src.tmp $(UROS_DIR)/src
 
@@ -48,8 +52,7 @@ $(UROS_DIR)/install: $(UROS_DIR)/src
 	  --headers $(EXTENSIONS_DIR)/double/headers --out $(UROS_DIR)/install.tmp --gen $(UROS_DIR)/gen \
 	  --colcon-meta $(EXTENSIONS_DIR)/colcon.meta --app-colcon-meta "$(APP_COLCON_META)" \
 	  --target $(IDF_TARGET) --middleware $(MIDDLEWARE) --sdkconfig-h "$(BUILD_DIR)/config/sdkconfig.h" \
-	  --path-map "$(UROS_DIR)/src/extra_packages=$(EXTRA_ROS_PACKAGES)" \
-	  --path-map "$(UROS_DIR)/src=$(EXTENSIONS_DIR)/double/interfaces"
+	  --path-map "$(UROS_DIR)/src/extra_packages=$(EXTRA_ROS_PACKAGES)"
 	set -e; inc="-I$(UROS_DIR)/install.tmp/include"; \
 	for d in $(UROS_DIR)/install.tmp/include/*/; do inc="$$inc -I$$d"; done; \
 	$(X_CC) -std=c$(C_STANDARD) -Wall -fsyntax-only $$inc $(UROS_DIR)/gen/all_headers.c; \

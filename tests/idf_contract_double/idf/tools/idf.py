@@ -274,6 +274,8 @@ class Context:
         self.idf_path = Path(os.environ.get("IDF_PATH") or Path(__file__).resolve().parent.parent)
         self.defines = self._defines(args.define_cache_entry)
         self.env = dict(os.environ)
+        # namespace/name of every registry dependency in the components' idf_component.yml.
+        self.registry_dependencies: set[str] = set()
 
     @staticmethod
     def _defines(entries: list[str]) -> dict[str, str]:
@@ -460,6 +462,7 @@ def run_configure(ctx: Context, set_target: str | None = None) -> Project:
     name = top.project_name
 
     components, managed = discover_components(ctx, top)
+    prepare_dependencies(ctx)
     for component in components.values():
         if (component.path / "libmicroros.mk").is_file():
             component.micro_ros = "source"
@@ -541,7 +544,43 @@ def discover_components(ctx: Context, top: cmakelite.Interpreter) -> tuple[dict[
                     continue
                 managed.add(dep.split("/")[-1])
                 managed.add(dep.replace("/", "__"))
+                ctx.registry_dependencies.add(dep if "/" in dep else f"espressif/{dep}")
     return found, managed
+
+
+def prepare_dependencies(ctx: Context) -> None:
+    """Where the IDF component manager puts what it resolves, at configure time: the download
+    cache ($IDF_COMPONENT_CACHE_PATH, else ~/.cache/Espressif/ComponentManager), the extracted
+    components in <project>/managed_components/<namespace>__<name> (a fixed place in component
+    manager 2.x), and <project>/dependencies.lock when there is none. The double downloads
+    nothing: each component is a marker directory, and the lock carries no hashes."""
+    if not ctx.registry_dependencies:
+        return
+    cache = Path(
+        ctx.env.get("IDF_COMPONENT_CACHE_PATH")
+        or Path(ctx.env.get("HOME", "/tmp")) / ".cache" / "Espressif" / "ComponentManager"
+    )
+    managed = ctx.project_dir / "managed_components"
+    for dep in sorted(ctx.registry_dependencies):
+        cached = cache / dep.replace("/", "__")
+        if cached.is_dir():
+            out(f"NOTICE: Using {dep} from the component cache {cache}")
+        else:
+            out(f"NOTICE: Downloading {dep} into the component cache {cache}")
+            cached.mkdir(parents=True, exist_ok=True)
+            (cached / "idf_component.yml").write_text(f"# contract double: stands in for {dep}\n")
+        target = managed / dep.replace("/", "__")
+        if target.exists():
+            shutil.rmtree(target)
+        shutil.copytree(cached, target)
+    lock = ctx.project_dir / "dependencies.lock"
+    if not lock.exists():
+        lock.write_text(
+            "# contract double: shaped like a component manager 2.x lock, without hashes\n"
+            "dependencies:\n"
+            + "".join(f"  {dep}:\n    source:\n      type: service\n" for dep in sorted(ctx.registry_dependencies))
+            + "version: 2.0.0\n"
+        )
 
 
 def run_kconfgen(

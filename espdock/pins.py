@@ -1,0 +1,85 @@
+"""docker/idf/micro_ros_sources.txt: the commit of every repository libmicroros.a is built from.
+
+Pure text in, text out; the image build applies the pins (docker/idf/pinned_git.py) and
+records what it checked out, which `espdock micro-ros pin` writes back for "-" rows.
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass
+
+from espdock.errors import WorkspaceError
+
+SOURCES_FILE = "docker/idf/micro_ros_sources.txt"
+# Where Dockerfile.idf keeps the commits the image build checked out.
+RESOLVED_FILE = "/opt/espdock/micro_ros_espidf_component/micro_ros_sources.resolved"
+FOLLOW_HEAD = "-"
+_ROW = re.compile(r"^(?P<url>\S+)\s+(?P<branch>\S+)\s+(?P<commit>[0-9a-f]{40}|-)\s*$")
+
+
+@dataclass(frozen=True)
+class Source:
+    url: str
+    branch: str
+    commit: str  # 40 hex digits, or FOLLOW_HEAD
+
+    @property
+    def key(self) -> str:
+        return self.url.rstrip("/").removesuffix(".git").lower()
+
+
+def parse_sources(text: str, name: str = SOURCES_FILE) -> list[Source]:
+    """The rows of a sources file; a malformed row is an error naming its line."""
+    sources = []
+    for number, line in enumerate(text.splitlines(), 1):
+        row = line.split("#", 1)[0].strip()
+        if not row:
+            continue
+        match = _ROW.match(row)
+        if match is None:
+            raise WorkspaceError(
+                f"{name}:{number}: expected `URL BRANCH COMMIT` (a 40-hex commit or -), got {line.strip()!r}"
+            )
+        sources.append(Source(match["url"], match["branch"], match["commit"]))
+    return sources
+
+
+def parse_resolved(lines: Iterable[str]) -> dict[str, Source]:
+    """What an image build checked out, by repository; other lines (a shell's banner) are skipped."""
+    resolved = {}
+    for line in lines:
+        match = _ROW.match(line.strip())
+        if match and match["commit"] != FOLLOW_HEAD:
+            source = Source(match["url"], match["branch"], match["commit"])
+            resolved[source.key] = source
+    return resolved
+
+
+def pin_heads(text: str, resolved: Mapping[str, Source]) -> tuple[str, list[Source]]:
+    """TEXT with each "-" row that RESOLVED has a commit for pinned to it (comments and order
+    kept), and the rows pinned."""
+    out, pinned = [], []
+    for line in text.splitlines(keepends=True):
+        row = line.split("#", 1)[0].strip()
+        match = _ROW.match(row) if row else None
+        if match and match["commit"] == FOLLOW_HEAD:
+            got = resolved.get(Source(match["url"], match["branch"], FOLLOW_HEAD).key)
+            if got is not None and got.branch == match["branch"]:
+                out.append(line.replace(row, f"{match['url']} {match['branch']} {got.commit}", 1))
+                pinned.append(Source(match["url"], match["branch"], got.commit))
+                continue
+        out.append(line)
+    return "".join(out), pinned
+
+
+def pin_image_digest(dockerfile: str, arg: str, reference: str, digests: Iterable[str]) -> str | None:
+    """DOCKERFILE with `ARG ARG=REFERENCE` pinned to REFERENCE@sha256:... from DIGESTS (an
+    image's RepoDigests, `repository@sha256:...`); None when no digest is of that repository."""
+    repository = reference.rsplit(":", 1)[0] if ":" in reference.rsplit("/", 1)[-1] else reference
+    digest = next((d.split("@", 1)[1] for d in digests if d.split("@", 1)[0] == repository), None)
+    if digest is None:
+        return None
+    line = re.compile(rf"^(\s*ARG\s+{re.escape(arg)}=){re.escape(reference)}[ \t]*$", re.MULTILINE)
+    return line.sub(lambda m: f"{m.group(1)}{reference}@{digest}", dockerfile, count=1)

@@ -1,0 +1,69 @@
+"""The micro-ROS pins file: parsing, and pinning rows that follow a branch head."""
+
+import pytest
+
+from espdock.errors import WorkspaceError
+from espdock.pins import Source, parse_resolved, parse_sources, pin_heads, pin_image_digest
+from tests.conftest import REPO
+
+A, B = "a" * 40, "b" * 40
+TEXT = f"""# header comment
+https://github.com/ros2/rcl jazzy {A}  # pinned
+https://github.com/ros2/rclc jazzy -
+https://github.com/ros2/rmw jazzy -
+"""
+
+
+def test_rows_parse_and_comments_are_skipped():
+    assert parse_sources(TEXT) == [
+        Source("https://github.com/ros2/rcl", "jazzy", A),
+        Source("https://github.com/ros2/rclc", "jazzy", "-"),
+        Source("https://github.com/ros2/rmw", "jazzy", "-"),
+    ]
+
+
+def test_the_shipped_file_pins_every_repository_it_names():
+    sources = parse_sources((REPO / "docker/idf/micro_ros_sources.txt").read_text())
+    assert len({s.key for s in sources}) == len(sources) >= 29
+
+
+@pytest.mark.parametrize("row", ["https://x jazzy abc", "https://x jazzy", f"https://x jazzy {A} extra"])
+def test_a_bad_row_names_its_line(row):
+    with pytest.raises(WorkspaceError, match=r"micro_ros_sources.txt:2:"):
+        parse_sources(f"# c\n{row}\n")
+
+
+def test_heads_get_pinned_to_what_the_image_was_built_from_and_the_rest_is_kept():
+    banner = [
+        "Activating ESP-IDF 5.3",
+        f"https://github.com/ros2/rclc.git jazzy {B}",
+        f"https://github.com/ros2/rcl jazzy {B}",
+    ]
+    text, pinned = pin_heads(TEXT, parse_resolved(banner))
+    assert pinned == [Source("https://github.com/ros2/rclc", "jazzy", B)]
+    assert text == TEXT.replace("rclc jazzy -", f"rclc jazzy {B}")  # rcl keeps its pin; rmw was not built
+
+
+def test_a_head_of_another_branch_is_not_taken():
+    text, pinned = pin_heads(TEXT, parse_resolved([f"https://github.com/ros2/rclc rolling {B}"]))
+    assert pinned == [] and text == TEXT
+
+
+DOCKERFILE = "# c\nARG IDF_IMAGE=espressif/idf:v5.3.5\nFROM ${IDF_IMAGE} AS idf\n"
+DIGEST = "sha256:" + "c" * 64
+
+
+def test_the_idf_image_is_pinned_to_the_digest_of_its_own_repository():
+    digests = ["mirror.example/idf@sha256:" + "d" * 64, f"espressif/idf@{DIGEST}"]
+    pinned = pin_image_digest(DOCKERFILE, "IDF_IMAGE", "espressif/idf:v5.3.5", digests)
+    assert pinned == DOCKERFILE.replace("v5.3.5", f"v5.3.5@{DIGEST}")
+
+
+def test_an_image_built_or_imported_here_has_no_digest_to_pin():
+    assert pin_image_digest(DOCKERFILE, "IDF_IMAGE", "espressif/idf:v5.3.5", []) is None
+
+
+def test_a_registry_with_a_port_is_not_mistaken_for_a_tag():
+    text = "ARG IDF_IMAGE=127.0.0.1:5000/idf\n"
+    pinned = pin_image_digest(text, "IDF_IMAGE", "127.0.0.1:5000/idf", [f"127.0.0.1:5000/idf@{DIGEST}"])
+    assert pinned == f"ARG IDF_IMAGE=127.0.0.1:5000/idf@{DIGEST}\n"

@@ -20,7 +20,7 @@ from rich.text import Text
 from espdock import __version__, bootstrap
 from espdock.config import Config, invoking_user, load_config, resolve_ca_bundle
 from espdock.engine import Engine, format_argv
-from espdock.errors import ConfigError, EspdockError, Interrupted, WorkspaceError
+from espdock.errors import ConfigError, EspdockBug, EspdockError, Interrupted, WorkspaceError
 from espdock.flashing import PortError, check_port, esptool_major, flash_argv, parse_port, verify_argv
 from espdock.pins import SOURCES_FILE, Source, pin_heads, pin_image_digest
 from espdock.plan import (
@@ -81,8 +81,26 @@ def _command(function: Callable[P, None]) -> Callable[P, None]:
             _fail(exc)
         except KeyboardInterrupt:
             _fail(Interrupted("interrupted; containers started by this run were stopped and removed"))
+        except (typer.Exit, typer.Abort, SystemExit):
+            raise
+        except Exception as exc:  # anything else is espdock's own bug: say so, keep the traceback
+            _fail(_bug_report(exc))
 
     return wrapper
+
+
+def _bug_report(exc: Exception) -> EspdockBug:
+    """EXC as a short message, with its traceback written to a log file for the bug report."""
+    import tempfile
+    import traceback
+
+    text = "".join(traceback.format_exception(exc))
+    with tempfile.NamedTemporaryFile("w", prefix="espdock-bug-", suffix=".log", delete=False) as log:
+        log.write(f"espdock {__version__}, {' '.join(sys.argv)}\n{text}")
+    return EspdockBug(
+        f"espdock failed unexpectedly ({type(exc).__name__}: {exc}); this is a bug in espdock",
+        f"Please report it with the traceback in {log.name}.",
+    )
 
 
 def _version(value: bool) -> None:
@@ -114,7 +132,9 @@ def _packages(ws: Workspace) -> tuple[Package, ...]:
     return order_packages(discover_packages(ws))
 
 
-def _build_plan(ws: Workspace, config: Config, names: list[str], only: PackageKind | None = None) -> Plan:
+def _build_plan(
+    ws: Workspace, config: Config, names: list[str], only: PackageKind | None = None, force: bool = False
+) -> Plan:
     packages = _packages(ws)
     selected = select_up_to(packages, names) if names else packages
     if only is not None:
@@ -127,7 +147,9 @@ def _build_plan(ws: Workspace, config: Config, names: list[str], only: PackageKi
     if has_firmware and not inputs.idf_dockerfile:
         raise WorkspaceError(f"{ws.root / IDF_DOCKERFILE} is missing", "Firmware packages need Dockerfile.idf.")
     idf_images = micro_ros_images(config, inputs, packages)
-    return plan_build(ws, config, selected, ros_image, tuple(names), idf_images=idf_images, all_packages=packages)
+    return plan_build(
+        ws, config, selected, ros_image, tuple(names), idf_images=idf_images, all_packages=packages, force=force
+    )
 
 
 def _firmware_step(ws: Workspace, config: Config, name: str) -> tuple[Plan, IdfBuild]:
@@ -150,11 +172,12 @@ def build(
     verbose: Annotated[bool, typer.Option("--verbose", "-v", help="Show image build logs in full.")] = False,
     target: Annotated[str | None, typer.Option(help="ESP32 chip target (overrides espdock.toml).")] = None,
     only: Annotated[PackageKind | None, typer.Option(help="Build only the ROS packages or only the firmware.")] = None,
+    force: Annotated[bool, typer.Option("--force", help="Build the packages even when nothing changed.")] = False,
     workspace: WorkspaceOption = None,
 ) -> None:
-    """Build the images when their inputs changed, then every package of the workspace."""
+    """Build the images when their inputs changed, then every package whose sources changed."""
     ws, config = _load(workspace, target=target)
-    plan = _build_plan(ws, config, packages or [], only)
+    plan = _build_plan(ws, config, packages or [], only, force)
     if dry_run:
         render_plan(console, plan)
         return
@@ -193,10 +216,16 @@ def idf(
 ) -> None:
     """Run idf.py ARGS for a firmware package in the IDF image (e.g. `espdock idf cam -- menuconfig`)."""
     ws, config = _load(workspace)
+    if not args:
+        raise ConfigError(
+            "no idf.py arguments given", f"Put them after --, e.g. `espdock idf {package} -- menuconfig`."
+        )
     plan, step = _firmware_step(ws, config, package)
+    argv = step.argv(tuple(args))
+    console.print(Text(f"in {step.image}: {format_argv(argv)}", style="dim"))
     runner = _runner(config, Reporter(console))
     runner.run(plan)
-    raise typer.Exit(runner.run_idf(ws, step, step.argv(tuple(args or ()))))
+    raise typer.Exit(runner.run_idf(ws, step, argv))
 
 
 def _micro_ros_specs(
@@ -322,7 +351,15 @@ def flash(
     args_file = firmware / "flasher_args.json"
     if not args_file.is_file():
         raise WorkspaceError(f"{package} has no installed firmware ({args_file})", f"Run `espdock build {package}`.")
-    flasher_args = json.loads(args_file.read_text())
+    try:
+        flasher_args = json.loads(args_file.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise WorkspaceError(
+            f"{args_file} is not valid JSON ({exc}); the installed firmware is damaged",
+            f"Run `espdock build {package}` again.",
+        ) from None
+    if not isinstance(flasher_args, dict):
+        raise WorkspaceError(f"{args_file} is not a flasher_args.json object", f"Run `espdock build {package}` again.")
     check_port(serial)
     runner = _runner(config, Reporter(console))
     runner.run(plan)

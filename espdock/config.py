@@ -6,10 +6,12 @@ import configparser
 import difflib
 import os
 import tomllib
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, fields, replace
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from espdock.errors import ConfigError
 
@@ -49,31 +51,66 @@ class Config:
     micro_ros_commit: str | None = None
 
 
+class _Settings(BaseModel):
+    """The shape of every setting, checked once wherever settings come from."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    ros_distro: Literal["jazzy"] | None = None
+    target: Annotated[str, Field(min_length=1)] | None = None
+    base_image: Annotated[str, Field(min_length=1)] | None = None
+    ca_bundle: Annotated[str, Field(min_length=1)] | None = None
+    keep_containers: bool | None = None
+    debian_mirror: Annotated[str, Field(pattern=r"^(https?|file)://\S+$")] | None = None
+    idf_image: Annotated[str, Field(min_length=1)] | None = None
+    micro_ros_repo: Annotated[str, Field(min_length=1)] | None = None
+    micro_ros_commit: Annotated[str, Field(pattern=r"^[0-9a-f]{7,40}$")] | None = None
+
+
 _KEYS = {f.name for f in fields(Config)}
-_ENV = {
-    "ESPDOCK_ROS_DISTRO": "ros_distro",
-    "ESPDOCK_TARGET": "target",
-    "ESPDOCK_BASE_IMAGE": "base_image",
-    "ESPDOCK_CA_BUNDLE": "ca_bundle",
-    "ESPDOCK_KEEP_CONTAINERS": "keep_containers",
-    "ESPDOCK_DEBIAN_MIRROR": "debian_mirror",
-    "ESPDOCK_IDF_IMAGE": "idf_image",
-    "ESPDOCK_MICRO_ROS_REPO": "micro_ros_repo",
-    "ESPDOCK_MICRO_ROS_COMMIT": "micro_ros_commit",
+assert _KEYS == set(_Settings.model_fields), "Config and _Settings must name the same settings"
+_ENV = {f"ESPDOCK_{key.upper()}": key for key in sorted(_KEYS)}
+_EXPECTED = {
+    "ros_distro": "one of: " + ", ".join(ROS_DISTROS),
+    "target": 'a chip target string such as "esp32s3"',
+    "base_image": "an image reference string",
+    "ca_bundle": "a path string",
+    "keep_containers": "true or false",
+    "debian_mirror": "an http(s):// or file:// URL string",
+    "idf_image": "an image reference string",
+    "micro_ros_repo": "a git URL string",
+    "micro_ros_commit": "a commit hash string (7 to 40 hex digits)",
 }
 
 
 def load_config(root: Path, env: Mapping[str, str], overrides: Mapping[str, Any] | None = None) -> Config:
-    """Merge defaults, ROOT/espdock.toml, ESPDOCK_* variables and CLI overrides."""
+    """Merge defaults, ROOT/espdock.toml, ESPDOCK_* variables and CLI overrides, each checked
+    against _Settings where it comes from, so an error names the file key or the variable."""
     values: dict[str, Any] = {}
     path = root / CONFIG_FILE
     if path.is_file():
-        values.update(_read_toml(path))
-    for var, key in _ENV.items():
-        if env.get(var):
-            values[key] = env[var]
-    values.update({k: v for k, v in (overrides or {}).items() if v is not None})
+        table = _read_toml(path)
+        values.update(_checked(table, strict=True, where=lambda key: f"{path}: key '{key}' in [espdock]"))
+    from_env = {key: env[var] for var, key in _ENV.items() if env.get(var)}
+    values.update(_checked(from_env, strict=False, where=lambda key: f"environment variable ESPDOCK_{key.upper()}"))
+    cli = {k: v for k, v in (overrides or {}).items() if v is not None}
+    values.update(_checked(cli, strict=False, where=lambda key: f"option --{key.replace('_', '-')}"))
     return _validate(values, root)
+
+
+def _checked(raw: Mapping[str, Any], strict: bool, where: Callable[[str], str]) -> dict[str, Any]:
+    """RAW's settings, type-checked (STRICT: TOML's own types, no coercion from strings)."""
+    try:
+        settings = _Settings.model_validate(dict(raw), strict=strict)
+    except ValidationError as exc:
+        error = exc.errors()[0]
+        key = str(error["loc"][0]) if error["loc"] else "?"
+        value = raw.get(key)
+        shown = f"{type(value).__name__} {value!r}" if strict else repr(value)
+        raise ConfigError(
+            f"{where(key)} must be {_EXPECTED.get(key, 'valid')}, got {shown}", "Fix the value and run again."
+        ) from None
+    return settings.model_dump(exclude_unset=True)
 
 
 def _read_toml(path: Path) -> dict[str, Any]:
@@ -85,6 +122,8 @@ def _read_toml(path: Path) -> dict[str, Any]:
     if unknown_tables:
         raise ConfigError(f"{path}: unknown table [{min(unknown_tables)}]", "espdock.toml has one table, [espdock].")
     table = data.get("espdock", {})
+    if not isinstance(table, dict):
+        raise ConfigError(f"{path}: 'espdock' must be a table ([espdock]), got {type(table).__name__}")
     for key in table:
         if key not in _KEYS:
             close = difflib.get_close_matches(key, _KEYS, n=1)
@@ -101,10 +140,6 @@ def _validate(values: dict[str, Any], root: Path) -> Config:
             f"unknown chip target '{config.target}'",
             f"Did you mean '{close[0]}'?" if close else f"Targets: {', '.join(CHIP_TARGETS)}.",
         )
-    if config.ros_distro not in ROS_DISTROS:
-        raise ConfigError(f"unsupported ROS distro '{config.ros_distro}'", f"Supported: {', '.join(ROS_DISTROS)}.")
-    if isinstance(config.keep_containers, str):
-        config = replace(config, keep_containers=config.keep_containers.lower() in ("1", "true", "yes"))
     if config.ca_bundle is not None:
         ca = Path(config.ca_bundle).expanduser()
         ca = ca if ca.is_absolute() else root / ca

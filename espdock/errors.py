@@ -55,3 +55,9 @@ class Interrupted(EspdockError):
     """The user interrupted espdock (Ctrl-C or SIGTERM); work in flight was cleaned up."""
 
     exit_code = 130
+
+
+class EspdockBug(EspdockError):
+    """An exception espdock did not expect: its own bug, reported with a traceback log."""
+
+    exit_code = 70  # EX_SOFTWARE

@@ -39,7 +39,11 @@ def parse_port(spec: str) -> Port:
     """A device path (/dev/ttyUSB0) or a socket:// / rfc2217:// URL with host and port."""
     if "://" in spec:
         parts = urlsplit(spec)
-        if parts.scheme not in URL_SCHEMES or not parts.hostname or not parts.port:
+        try:
+            number = parts.port
+        except ValueError:  # out of 0..65535, or not a number
+            number = None
+        if parts.scheme not in URL_SCHEMES or not parts.hostname or not number:
             raise ConfigError(
                 f"'{spec}' is not a port espdock can use",
                 "Use a device such as /dev/ttyUSB0, socket://HOST:PORT or rfc2217://HOST:PORT.",
@@ -79,6 +83,8 @@ def check_port(port: Port, timeout: float = 3.0) -> None:
             raise PortError(f"serial port {path} is busy", "Close the program using it (a monitor?).") from None
         raise PortError(f"cannot open {path}: {exc.strerror}") from exc
     try:
+        if not os.isatty(fd):  # /dev/null, /dev/zero, ...: character devices, not serial ports
+            raise PortError(f"{path} is not a serial port", "Serial ports are /dev/ttyUSB*, /dev/ttyACM*, ....")
         # pyserial (esptool, monitors) takes this lock on open: holding it means someone has the port.
         fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
     except BlockingIOError:

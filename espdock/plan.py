@@ -73,12 +73,17 @@ class EnsureImage:
 
 @dataclass(frozen=True)
 class ColconBuild:
-    """colcon build of the ROS packages, in a container of IMAGE with ws/ mounted."""
+    """colcon build of PACKAGES (in build order), in a container of IMAGE with ws/ mounted."""
 
     image: str
     packages: tuple[str, ...]
-    # Empty: the whole workspace; else colcon's --packages-up-to these.
-    up_to: tuple[str, ...] = ()
+    # True: exactly PACKAGES (a selection, closed over its dependencies); False: the whole workspace.
+    select: bool = False
+    # Each package's directory relative to ws/, and its workspace dependencies: what the
+    # runner's stamps are made of (a no-change build starts no container).
+    sources: tuple[tuple[str, str], ...] = ()
+    depends: tuple[tuple[str, tuple[str, ...]], ...] = ()
+    force: bool = False
     name: str = "colcon build"
 
     @property
@@ -91,8 +96,8 @@ class ColconBuild:
             # Live output per line plus colcon's own start/finish lines.
             "--event-handlers", "console_direct+", "console_start_end+", "summary+",
         ]  # fmt: skip
-        if self.up_to:
-            args += ["--packages-up-to", *self.up_to]
+        if self.select:
+            args += ["--packages-select", *self.packages]
         return tuple(args)
 
 
@@ -106,6 +111,7 @@ class IdfBuild:
     image: str
     target: str
     image_key: str
+    force: bool = False
 
     @property
     def name(self) -> str:
@@ -325,21 +331,31 @@ def plan_build(
     selected: tuple[str, ...] = (),
     idf_images: Mapping[str, ImageSpec] | None = None,
     all_packages: tuple[Package, ...] | None = None,
+    force: bool = False,
 ) -> Plan:
-    """The steps of `espdock build [SELECTED...]` over PACKAGES (already in build order).
+    """The steps of `espdock build [SELECTED...]` over PACKAGES (already in build order: the
+    selection closed over its dependencies when SELECTED names any).
 
-    IDF_IMAGES: each firmware package's micro-ROS image (see micro_ros_images).
+    IDF_IMAGES: each firmware package's micro-ROS image (see micro_ros_images). FORCE: build
+    even what is up to date.
     """
-    ros = tuple(p.name for p in packages if p.kind is PackageKind.ROS)
+    ros = [p for p in packages if p.kind is PackageKind.ROS]
     firmware = [p for p in packages if p.kind is PackageKind.FIRMWARE]
+    names = {p.name for p in ros}
     steps: list[Step] = []
     if ros:
         base = dict(ros_image.build_args)["BASE_IMAGE"]
-        up_to = tuple(n for n in selected if n in ros)
         steps += [
             EnsureBaseImage(base),
             EnsureImage(ros_image),
-            ColconBuild(image=ros_image.tag, packages=ros, up_to=up_to),
+            ColconBuild(
+                image=ros_image.tag,
+                packages=tuple(p.name for p in ros),
+                select=bool(selected),
+                sources=tuple((p.name, p.path.relative_to(workspace.ws_dir).as_posix()) for p in ros),
+                depends=tuple((p.name, tuple(sorted(p.depends & names))) for p in ros),
+                force=force,
+            ),
         ]
     ensured: dict[str, ImageSpec] = {}
     everything = {p.name for p in (all_packages or packages)}
@@ -351,7 +367,7 @@ def plan_build(
             ensured[spec.key] = spec
             steps.append(EnsureImage(spec))
         project = package.path.relative_to(workspace.firmware_dir).as_posix()
-        steps.append(IdfBuild(package.name, project, spec.tag, config.target, spec.key))
+        steps.append(IdfBuild(package.name, project, spec.tag, config.target, spec.key, force))
         run_depends = tuple(sorted(package.depends & everything))
         steps.append(InstallFirmware(package.name, project, run_depends))
     return Plan(workspace=workspace, steps=tuple(steps), idf_images=tuple(ensured.values()))

@@ -36,12 +36,17 @@ from espdock.plan import (
     Plan,
     Step,
 )
+from espdock.stamps import StampFile, listing_digest, package_stamps, tree_digest
 from espdock.workspace import Workspace
 
 TARGET_MARKER = ".espdock-target"
 # Under ws/build, beside the packages' build dirs (colcon skips dot dirs).
 COMPONENT_CACHE = ".idf-component-cache"
 MANAGED_COMPONENTS = "managed_components"
+# Under ws/build: what the ROS packages and the firmware were last built from (espdock.stamps).
+ROS_STAMPS = ".espdock-colcon-stamps.json"
+FIRMWARE_STAMPS = ".espdock-firmware-stamps.json"
+INSTALL_STAMPS = ".espdock-install-stamps.json"
 EXTRA_CA_MOUNT = "/run/espdock/extra-ca.pem"
 WITH_CA = "/opt/espdock/with-ca.sh"
 FAILED_PACKAGE = re.compile(r"^Failed\s+<<<\s+(\S+)")
@@ -108,7 +113,12 @@ class Runner:
         try:
             outcome, detail = self._dispatch(workspace, step)
         except BaseException as exc:
-            detail = exc.message.splitlines()[0] if isinstance(exc, EspdockError) else "interrupted"
+            if isinstance(exc, EspdockError):
+                detail = exc.message.splitlines()[0]
+            elif isinstance(exc, KeyboardInterrupt):
+                detail = "interrupted"
+            else:
+                detail = f"espdock bug: {type(exc).__name__}"
             self._emit(StepFinished(step.name, Outcome.FAILED, time.monotonic() - started, detail))
             raise
         finished = StepFinished(step.name, outcome, time.monotonic() - started, detail)
@@ -165,6 +175,17 @@ class Runner:
         return Outcome.BUILT, spec.tag
 
     def _colcon(self, workspace: Workspace, step: ColconBuild) -> tuple[Outcome, str]:
+        stamp_file = StampFile(workspace.ws_dir / "build" / ROS_STAMPS)
+        sources = {name: tree_digest(workspace.ws_dir / rel) for name, rel in step.sources}
+        stamps = package_stamps(sources, dict(step.depends), step.image)
+
+        def installed() -> dict[str, str | None]:
+            return {name: listing_digest(workspace.ws_dir / "install" / name) for name in stamps}
+
+        if not step.force and stamp_file.up_to_date(stamps, installed()):
+            return Outcome.CACHED, f"up to date ({len(stamps)} package(s))"
+        # Until this build succeeds, none of them counts as built.
+        stamp_file.forget(stamps)
         user, labels = self._container_identity(workspace, "colcon", sweep=True)
         failed: list[str] = []
 
@@ -196,10 +217,17 @@ class Runner:
                 "Fix the package and run `espdock build` again; packages that built are kept.",
                 packages=tuple(failed),
             )
+        stamp_file.record(stamps, installed())
+        _give_to(stamp_file.path, invoking_user(self._env, workspace.root))
         return Outcome.BUILT, f"{len(step.packages)} package(s)"
 
     def _idf_build(self, workspace: Workspace, step: IdfBuild) -> tuple[Outcome, str]:
         build_dir = workspace.ws_dir / "build" / step.package
+        stamp_file = StampFile(workspace.ws_dir / "build" / FIRMWARE_STAMPS)
+        stamps = self._firmware_stamp(workspace, step)
+        if not step.force and stamp_file.up_to_date(stamps, {step.package: listing_digest(build_dir)}):
+            return Outcome.CACHED, f"up to date ({step.target})"
+        stamp_file.forget(stamps)
         defaults = _defaults_digest(workspace.firmware_dir / step.project)
         _prepare_build_dir(build_dir, step.target, defaults, step.image_key)
         code = self.run_idf(
@@ -214,7 +242,23 @@ class Runner:
             )
         (build_dir / TARGET_MARKER).write_text(f"{step.target}\n{defaults}\n{step.image_key}\n")
         _give_to(build_dir / TARGET_MARKER, invoking_user(self._env, workspace.root))
+        # After the build: IDF itself writes into the project (the component manager's lock).
+        stamp_file.record(self._firmware_stamp(workspace, step), {step.package: listing_digest(build_dir)})
+        _give_to(stamp_file.path, invoking_user(self._env, workspace.root))
         return Outcome.BUILT, step.target
+
+    @staticmethod
+    def _firmware_stamp(workspace: Workspace, step: IdfBuild) -> dict[str, str]:
+        """What decides a firmware build: the project, the shared components, the sdkconfig in
+        the build dir (menuconfig's changes), the image and the target."""
+        sdkconfig = workspace.ws_dir / "build" / step.package / "sdkconfig"
+        digest = hashlib.sha256(f"{step.image_key}\0{step.target}\n".encode())
+        digest.update(tree_digest(workspace.firmware_dir / step.project).encode())
+        if (workspace.firmware_dir / "components").is_dir():
+            digest.update(tree_digest(workspace.firmware_dir / "components").encode())
+        if sdkconfig.is_file():
+            digest.update(hashlib.sha256(sdkconfig.read_bytes()).digest())
+        return {step.package: digest.hexdigest()}
 
     def run_idf(
         self,
@@ -294,6 +338,17 @@ class Runner:
         return f"{uid}:{gid}", tuple(labels.items())
 
     def _install(self, workspace: Workspace, step: InstallFirmware) -> tuple[Outcome, str]:
+        build_dir = workspace.ws_dir / "build" / step.package
+        prefix = workspace.ws_dir / "install" / step.package
+        manifest = workspace.firmware_dir / step.project / "package.xml"
+        stamp_file = StampFile(workspace.ws_dir / "build" / INSTALL_STAMPS)
+        source = hashlib.sha256(
+            f"{listing_digest(build_dir)}\0{':'.join(step.run_depends)}\0".encode() + manifest.read_bytes()
+        )
+        stamps = {step.package: source.hexdigest()}
+        if stamp_file.up_to_date(stamps, {step.package: listing_digest(prefix)}):
+            return Outcome.CACHED, "up to date"
+        stamp_file.forget(stamps)
         owner = invoking_user(self._env, workspace.root) if os.geteuid() == 0 else None
         firmware = install_firmware(
             package=step.package,
@@ -303,6 +358,8 @@ class Runner:
             run_depends=step.run_depends,
             owner=owner,
         )
+        stamp_file.record(stamps, {step.package: listing_digest(prefix)})
+        _give_to(stamp_file.path, invoking_user(self._env, workspace.root))
         return Outcome.BUILT, str(firmware.relative_to(workspace.root))
 
 

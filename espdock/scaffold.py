@@ -15,6 +15,9 @@ from espdock.workspace import Workspace
 # REP 144: lower case letters, digits and underscores, starting with a letter, no "__".
 PACKAGE_NAME = re.compile(r"^[a-z][a-z0-9_]*$")
 TEMPLATE = "templates/firmware"
+# A directory, a CMake project and a C identifier prefix: long names break none of them
+# before the file system's 255 bytes do, but nobody types more than this.
+MAX_NAME = 64
 
 
 def validate_package_name(name: str) -> None:
@@ -22,6 +25,8 @@ def validate_package_name(name: str) -> None:
     problem = None
     if not PACKAGE_NAME.match(name):
         problem = "use lower case letters, digits and underscores, starting with a letter"
+    elif len(name) > MAX_NAME:
+        problem = f"at most {MAX_NAME} characters"
     elif "__" in name:
         problem = "no two underscores in a row"
     elif name.endswith("_"):
@@ -45,9 +50,15 @@ def create_firmware_package(
         raise WorkspaceError(f"{destination} already exists", "Pick another name, or remove that directory.")
     extra = "".join(f"  <depend>{d}</depend>\n" for d in dict.fromkeys(depends) if d != "std_msgs")
     template = resources.files("espdock").joinpath(TEMPLATE)
-    workspace.firmware_dir.mkdir(parents=True, exist_ok=True)
-    # Written next to its final place and renamed, so a failure leaves no half package.
-    staging = Path(tempfile.mkdtemp(prefix=f".{name}-", dir=workspace.firmware_dir))
+    try:
+        workspace.firmware_dir.mkdir(parents=True, exist_ok=True)
+        # Written next to its final place and renamed, so a failure leaves no half package.
+        staging = Path(tempfile.mkdtemp(prefix=f".{name}-", dir=workspace.firmware_dir))
+    except OSError as exc:
+        raise WorkspaceError(
+            f"cannot create {destination}: {exc.strerror or exc}",
+            f"{workspace.firmware_dir} must be a directory you can write to.",
+        ) from None
     try:
         _render(template, staging, {"@NAME@": name, "@DEPENDS@\n": extra})
         # mkdtemp made it private; the package gets the same mode as any new directory.

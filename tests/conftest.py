@@ -76,3 +76,13 @@ def leftover_containers(engine, root: Path) -> list[str]:
 def clean_containers(engine, workspace: Path) -> Iterator[None]:
     yield
     engine.remove_containers({"io.espdock.workspace": str(workspace)})
+
+
+def containers_created(root: Path, since: float, until: float) -> list[str]:
+    """IDs of the containers espdock created for workspace ROOT between SINCE and UNTIL (epoch seconds)."""
+    events = subprocess.run(
+        ["docker", "events", "--since", f"{since:.3f}", "--until", f"{until:.3f}", "--filter", "type=container",
+         "--filter", "event=create", "--filter", f"label=io.espdock.workspace={root}", "--format", "{{.ID}}"],
+        capture_output=True, text=True, check=True, timeout=60,
+    )  # fmt: skip
+    return events.stdout.split()

@@ -30,6 +30,38 @@ def test_a_crashed_qr_detector_comes_back_and_the_led_follows_again(demo):
     assert report["ok"] and len({c["hex"] for c in report["changes"]}) >= 3, report
 
 
+def node_pid(demo, service: str, program: str) -> int:
+    """The host PID of SERVICE's node process (not its demo_watchdog parent, whose argv names it too)."""
+    import subprocess
+
+    top = subprocess.run(["docker", "top", demo.container(service), "-eo", "pid,args"],
+                         capture_output=True, text=True, check=True).stdout.splitlines()[1:]  # fmt: skip
+    pids = [int(line.split()[0]) for line in top if program in line and "demo_watchdog" not in line]
+    assert len(pids) == 1, top
+    return pids[0]
+
+
+def test_a_stuck_qr_detector_is_restarted_and_the_ui_says_so_meanwhile(demo):
+    """SIGSTOP freezes the node (every thread of it): healthcheck-unhealthy alone would never recover."""
+    import os
+    import signal
+
+    assert demo.probe("follow", "--changes", "1", "--timeout", "20")["ok"]
+    restarts = demo.restart_count("qr_detector")
+    stopped_at = time.monotonic()
+    os.kill(node_pid(demo, "qr_detector", "qr_detector"), signal.SIGSTOP)
+    demo.wait_until(lambda: demo.state()["nodes"].get("/qr_detector", {}).get("state") == "stale", 15,
+                    "the UI reporting qr_detector as down or stuck")  # fmt: skip
+    reported = time.monotonic() - stopped_at
+    demo.wait_until(lambda: demo.restart_count("qr_detector") > restarts, 30, "qr_detector restarted")
+    report = demo.probe("follow", "--changes", "2", "--timeout", "60")
+    recovered = time.monotonic() - stopped_at
+    assert report["ok"] and len({c["hex"] for c in report["changes"]}) >= 2, report
+    assert demo.state()["nodes"]["/qr_detector"]["state"] == "ok"
+    print(f"stuck qr_detector: reported stale after {reported:.1f} s, LED following new colours again "
+          f"{recovered:.1f} s after the SIGSTOP (bound: 15 s to report, 30 s to restart, 60 s to follow)")
+
+
 def first_stream_part(demo) -> bytes:
     conn = http.client.HTTPConnection("127.0.0.1", demo.port, timeout=10)
     conn.request("GET", "/stream.mjpg")

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.conftest import REPO, copy_workspace, espdock, leftover_containers, ros_build_tag
+from tests.conftest import REPO, containers_created, copy_workspace, espdock, leftover_containers, ros_build_tag
 
 pytestmark = [pytest.mark.engine, pytest.mark.slow]
 
@@ -124,6 +124,44 @@ def test_second_build_reuses_the_image_and_keeps_ownership(engine, built):
     assert "cache miss" not in again.stdout
     assert owners(root / "ws") == {USER_UID}
     assert leftover_containers(engine, root) == []
+
+
+def test_a_build_builds_again_exactly_when_something_changed(engine, built):
+    root, first = built
+    assert first.returncode == 0
+    package = root / "ws/src/custom_interface"
+
+    def build(*args: str) -> tuple[bool, subprocess.CompletedProcess]:
+        started = time.time()
+        result = espdock("build", *args, cwd=root)
+        assert result.returncode == 0, result.stdout[-3000:] + result.stderr
+        ran_colcon = "Finished <<< custom_interface" in result.stdout
+        created = containers_created(root, started, time.time() + 0.5)
+        assert bool(created) == ran_colcon, (created, result.stdout[-2000:])
+        return ran_colcon, result
+
+    espdock("build", cwd=root)  # whatever earlier tests left: settle
+    ran, noop = build()
+    assert not ran and "up to date" in noop.stdout
+    assert len(noop.stdout.splitlines()) < 30, noop.stdout
+    extra = package / "NOTES.txt"
+    extra.write_text("an added file\n")
+    assert build()[0], "an added file must build"
+    assert not build()[0]
+    msg = package / "msg/CameraConfig.msg"
+    original = msg.read_text()
+    msg.write_text(original + "# an edit\n")
+    try:
+        assert build()[0], "an edited file must build"
+    finally:
+        msg.write_text(original)
+    extra.unlink()
+    assert build()[0], "a removed (and a restored) file must build"
+    shutil.rmtree(root / "ws/install/custom_interface")
+    assert build()[0], "a deleted install tree must build"
+    assert build("--force")[0], "--force must build"
+    assert not build()[0]
+    assert owners(root / "ws") == {USER_UID}
 
 
 def test_changed_image_input_rebuilds_under_a_new_tag(engine, built):

@@ -69,3 +69,87 @@ def test_flash_refuses_a_port_that_is_not_one(tmp_path):
     result = espdock("flash", "anything", "--port", "ttyUSB0", cwd=root, env=NO_ENGINE)
     assert result.returncode == 2
     assert "not a device path" in result.stderr
+
+
+def firmware_workspace(tmp_path: Path) -> Path:
+    """A workspace with the repo's led_strip_node firmware, its micro-ROS inputs, and no build."""
+    import shutil
+
+    from tests.conftest import REPO
+
+    root = copy_workspace(tmp_path / "w")
+    shutil.copy2(REPO / "Dockerfile.idf", root / "Dockerfile.idf")
+    shutil.copytree(REPO / "firmware/led_strip_node", root / "firmware/led_strip_node")
+    shutil.copytree(REPO / "firmware/components", root / "firmware/components")
+    return root
+
+
+def no_traceback(result) -> None:
+    assert "Traceback" not in result.stderr + result.stdout
+
+
+def test_flash_refuses_a_port_number_out_of_range(tmp_path):
+    root = copy_workspace(tmp_path / "w")
+    result = espdock("flash", "anything", "--port", "socket://127.0.0.1:99999", cwd=root, env=NO_ENGINE)
+    assert result.returncode == 2 and "is not a port espdock can use" in result.stderr
+    no_traceback(result)
+
+
+def test_flash_with_damaged_installed_firmware_says_rebuild(tmp_path):
+    root = firmware_workspace(tmp_path)
+    installed = root / "ws/install/led_strip_node/share/led_strip_node/firmware"
+    installed.mkdir(parents=True)
+    (installed / "flasher_args.json").write_text('{"flash_files": {"0x1000": ')
+    result = espdock("flash", "led_strip_node", "--port", "socket://127.0.0.1:1", cwd=root, env=NO_ENGINE)
+    assert result.returncode == 2, result.stderr
+    assert "flasher_args.json is not valid JSON" in result.stderr and "espdock build led_strip_node" in result.stderr
+    no_traceback(result)
+
+
+def test_flash_refuses_a_device_that_is_not_a_serial_port(tmp_path):
+    root = firmware_workspace(tmp_path)
+    installed = root / "ws/install/led_strip_node/share/led_strip_node/firmware"
+    installed.mkdir(parents=True)
+    (installed / "flasher_args.json").write_text('{"flash_files": {}}')
+    result = espdock("flash", "led_strip_node", "--port", "/dev/null", cwd=root, env=NO_ENGINE)
+    assert result.returncode == 6, result.stderr
+    assert "/dev/null is not a serial port" in result.stderr
+
+
+def test_idf_without_arguments_says_what_to_give_before_touching_anything(tmp_path):
+    root = firmware_workspace(tmp_path)
+    result = espdock("idf", "led_strip_node", cwd=root, env=NO_ENGINE)
+    assert result.returncode == 2 and "no idf.py arguments given" in result.stderr
+    assert "espdock idf led_strip_node -- menuconfig" in result.stderr
+
+
+def test_new_refuses_an_overlong_name_and_a_firmware_file(tmp_path):
+    root = copy_workspace(tmp_path / "w")
+    long = espdock("new", "a" * 300, cwd=root, env=NO_ENGINE)
+    assert long.returncode == 2 and "at most 64 characters" in long.stderr
+    no_traceback(long)
+    (root / "firmware").write_text("not a directory\n")
+    blocked = espdock("new", "foo", cwd=root, env=NO_ENGINE)
+    assert blocked.returncode == 2 and "cannot create" in blocked.stderr and "must be a directory" in blocked.stderr
+    no_traceback(blocked)
+    assert (root / "firmware").read_text() == "not a directory\n"
+
+
+def test_an_unexpected_error_is_reported_as_a_bug_with_a_traceback_log(capsys):
+    import pytest
+
+    from espdock.cli import _command
+
+    @_command
+    def broken() -> None:
+        raise RuntimeError("a thing espdock did not foresee")
+
+    with pytest.raises(SystemExit) as exit_info:
+        broken()
+    assert exit_info.value.code == 70
+    err = capsys.readouterr().err
+    assert "a thing espdock did not foresee" in err and "this is a bug in espdock" in err
+    assert "interrupted" not in err
+    log = Path(err.split("traceback in ")[1].split()[0].rstrip("."))
+    assert "Traceback" in log.read_text() and "RuntimeError" in log.read_text()
+    log.unlink()

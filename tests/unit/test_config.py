@@ -70,3 +70,37 @@ def test_pip_cert_is_picked_up_from_pip_config_files(tmp_path):
     # The environment variable wins over files, and an explicit setting over both.
     assert pip_configured_cert({**env, "PIP_CERT": "/x.pem"}) == Path("/x.pem")
     assert resolve_ca_bundle(Config(ca_bundle=tmp_path / "own.pem"), env) == tmp_path / "own.pem"
+
+
+@pytest.mark.parametrize(
+    ("line", "key", "expected"),
+    [
+        ("target = 5", "target", "got int 5"),
+        ("ca_bundle = 5", "ca_bundle", "got int 5"),
+        ("base_image = 5", "base_image", "got int 5"),
+        ('idf_image = ["a"]', "idf_image", "got list ['a']"),
+        ("micro_ros_commit = 12345", "micro_ros_commit", "got int 12345"),
+        ('keep_containers = "maybe"', "keep_containers", "got str 'maybe'"),
+        ("debian_mirror = true", "debian_mirror", "got bool True"),
+        ('debian_mirror = "deb.debian.org"', "debian_mirror", "got str 'deb.debian.org'"),
+        ('ros_distro = "humble"', "ros_distro", "got str 'humble'"),
+    ],
+)
+def test_a_wrongly_typed_value_names_the_file_the_key_and_what_it_must_be(tmp_path, line, key, expected):
+    (tmp_path / "espdock.toml").write_text(f"[espdock]\n{line}\n")
+    with pytest.raises(ConfigError) as err:
+        load_config(tmp_path, {})
+    message = err.value.message
+    assert f"{tmp_path / 'espdock.toml'}: key '{key}' in [espdock] must be" in message and expected in message
+
+
+def test_a_table_that_is_not_a_table_is_refused(tmp_path):
+    (tmp_path / "espdock.toml").write_text("espdock = 5\n")
+    with pytest.raises(ConfigError, match="'espdock' must be a table"):
+        load_config(tmp_path, {})
+
+
+def test_a_bad_environment_variable_is_named():
+    with pytest.raises(ConfigError) as err:
+        load_config(Path("/nonexistent"), {"ESPDOCK_KEEP_CONTAINERS": "maybe"})
+    assert err.value.message == "environment variable ESPDOCK_KEEP_CONTAINERS must be true or false, got 'maybe'"

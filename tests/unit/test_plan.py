@@ -9,7 +9,8 @@ FILES = {"docker/ros-runtime.txt": b"rclpy==1\n", "docker/ros-entrypoint.sh": b"
 
 
 def pkg(name: str, kind=PackageKind.ROS, depends=()) -> Package:
-    return Package(name, Path("/ws/src") / name, kind, "ament_cmake", frozenset(depends))
+    base = Path("/w/ws/src") if kind is PackageKind.ROS else Path("/w/firmware")
+    return Package(name, base / name, kind, "ament_cmake", frozenset(depends))
 
 
 def test_dockerfile_args_reads_defaults():
@@ -46,14 +47,32 @@ def test_build_plan_ensures_images_then_runs_colcon():
     colcon = plan.steps[-1]
     assert colcon.packages == ("msgs", "app")
     assert colcon.image == spec.tag
-    assert "--packages-up-to" not in colcon.argv()
+    assert "--packages-select" not in colcon.argv()
+    assert colcon.sources == (("msgs", "src/msgs"), ("app", "src/app"))
+    assert colcon.depends == (("msgs", ()), ("app", ("msgs",)))
 
 
-def test_selected_packages_become_packages_up_to():
+def test_a_selection_builds_exactly_the_selected_packages_and_their_dependencies():
     spec = ros_build_image(Config(), DOCKERFILE, FILES)
-    plan = plan_build(Workspace(Path("/w")), Config(), (pkg("msgs"), pkg("app")), spec, selected=("app",))
+    # What select_up_to gives for `espdock build app`: app and what it depends on.
+    plan = plan_build(Workspace(Path("/w")), Config(), (pkg("msgs"), pkg("app", depends=["msgs"])), spec,
+                      selected=("app",))  # fmt: skip
     argv = plan.steps[-1].argv()
-    assert argv[argv.index("--packages-up-to") + 1 :] == ("app",)
+    assert argv[argv.index("--packages-select") + 1 :] == ("msgs", "app")
+
+
+def test_selecting_a_firmware_package_builds_only_its_ros_dependencies():
+    from espdock.workspace import select_up_to
+
+    everything = (pkg("msgs"), pkg("demo", depends=["msgs"]), pkg("cam", PackageKind.FIRMWARE, depends=["msgs"]))
+    selected = select_up_to(everything, ["cam"])
+    spec = ros_build_image(Config(), DOCKERFILE, FILES)
+    plan = plan_build(Workspace(Path("/w")), Config(), selected, spec, selected=("cam",), idf_images={
+        "cam": ros_build_image(Config(), DOCKERFILE, FILES)})  # fmt: skip
+    colcon = next(s for s in plan.steps if isinstance(s, ColconBuild))
+    argv = colcon.argv()
+    assert argv[argv.index("--packages-select") + 1 :] == ("msgs",)
+    assert "demo" not in argv
 
 
 def test_no_ros_packages_means_no_ros_steps():

@@ -24,6 +24,7 @@ setup(
             f"camera_ui = {PACKAGE}.camera_ui:main",
             f"demo_monitor = {PACKAGE}.monitor:main",
             f"demo_probe = {PACKAGE}.probe:main",
+            f"demo_watchdog = {PACKAGE}.watchdog:main",
         ],
     },
 )

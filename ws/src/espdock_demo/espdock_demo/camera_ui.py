@@ -12,15 +12,18 @@ import threading
 
 from custom_interface.msg import CameraConfig
 from custom_interface.srv import GetCameraConfig, SetCameraConfig
+from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.node import Node
 from sensor_msgs.msg import CompressedImage
 from std_msgs.msg import ColorRGBA, String
 
 from espdock_demo import camera_config
 from espdock_demo.colors import Rgb
+from espdock_demo.health import SIM_NODES, NodeHealth
 from espdock_demo.mjpeg import FrameBroadcaster
 from espdock_demo.names import (
-    CAMERA_GET_CONFIG_SERVICE, CAMERA_IMAGE_TOPIC, CAMERA_SET_CONFIG_SERVICE, LED_COLOR_TOPIC, QR_MESSAGE_TOPIC,
+    CAMERA_GET_CONFIG_SERVICE, CAMERA_IMAGE_TOPIC, CAMERA_SET_CONFIG_SERVICE, DIAGNOSTICS_TOPIC, LED_COLOR_TOPIC,
+    QR_MESSAGE_TOPIC,
 )
 from espdock_demo.ros_common import (
     IMAGE_SUB_QOS, LATCHED_QOS, TEXT_QOS, config_to_dict, spin_node, start_diagnostics, start_heartbeat,
@@ -52,6 +55,10 @@ class CameraUi(Node):
         self.create_subscription(String, QR_MESSAGE_TOPIC, lambda m: self.state.update(qr=m.data), TEXT_QOS)
         self.create_subscription(ColorRGBA, LED_COLOR_TOPIC, self.on_color, LATCHED_QOS)
         self.create_timer(0.5, self.watch_camera)
+        watched = list(self.declare_parameter("watch_nodes", list(SIM_NODES)).value)
+        self.health = NodeHealth([n for n in watched if n != "/camera_ui"])
+        self.create_subscription(DiagnosticArray, DIAGNOSTICS_TOPIC, self.on_diagnostics, 10)
+        self.create_timer(1.0, lambda: self.state.update(nodes=self.health.report()))
         self.beat_age = start_heartbeat(self)
         start_diagnostics(self, lambda: {"camera_online": self.app.camera_online(),
                                          "fps_in": round(self.frames.rate(), 1)})
@@ -65,6 +72,11 @@ class CameraUi(Node):
 
     def on_image(self, msg: CompressedImage) -> None:
         self.frames.publish(bytes(msg.data))
+
+    def on_diagnostics(self, msg: DiagnosticArray) -> None:
+        for status in msg.status:
+            if status.name != self.get_fully_qualified_name():
+                self.health.seen(status.name)
 
     def on_color(self, msg: ColorRGBA) -> None:
         self.state.update(led=Rgb.from_floats(msg.r, msg.g, msg.b))

@@ -7,6 +7,7 @@ from rclpy.node import Node
 from std_msgs.msg import ColorRGBA, String
 
 from espdock_demo.colors import Rgb, shorten
+from espdock_demo.health import SIM_NODES, NodeHealth
 from espdock_demo.names import DIAGNOSTICS_TOPIC, LED_COLOR_TOPIC, QR_MESSAGE_TOPIC
 from espdock_demo.ros_common import LATCHED_QOS, TEXT_QOS, spin_node, start_heartbeat
 
@@ -18,11 +19,15 @@ class DemoMonitor(Node):
         super().__init__("demo_monitor")
         url = str(self.declare_parameter("ui_url", "http://127.0.0.1:8080").value)
         period = float(self.declare_parameter("summary_period", 15.0).value)
+        watched = list(self.declare_parameter("watch_nodes", list(SIM_NODES)).value)
         self.latest: dict[str, dict[str, str]] = {}
+        self.health = NodeHealth(watched)
+        self.states = self.health.report()
         self.create_subscription(String, QR_MESSAGE_TOPIC, self.on_qr, TEXT_QOS)
         self.create_subscription(ColorRGBA, LED_COLOR_TOPIC, self.on_color, LATCHED_QOS)
         self.create_subscription(DiagnosticArray, DIAGNOSTICS_TOPIC, self.on_diagnostics, 10)
         self.create_timer(period, self.summary)
+        self.create_timer(1.0, self.watch)
         start_heartbeat(self)
         self.get_logger().info(f"espdock demo running: open {url} (Ctrl-C stops the demo)")
 
@@ -35,11 +40,22 @@ class DemoMonitor(Node):
     def on_diagnostics(self, msg: DiagnosticArray) -> None:
         for status in msg.status:
             self.latest[status.name] = {kv.key: kv.value for kv in status.values}
+            self.health.seen(status.name)
+
+    def watch(self) -> None:
+        """Say at once when a node goes silent and when it is back."""
+        states = self.health.report()
+        for line in self.health.changes(self.states, states):
+            (self.get_logger().warning if "down" in line else self.get_logger().info)(line)
+        self.states = states
 
     def summary(self) -> None:
-        camera = self.latest.get("/camera_sim", {})
-        detector = self.latest.get("/qr_detector", {})
-        parts = []
+        # A silent node's last counters would read as if all were well.
+        fresh = {name for name, state in self.states.items() if state["state"] == "ok"}
+        camera = self.latest.get("/camera_sim", {}) if "/camera_sim" in fresh else {}
+        detector = self.latest.get("/qr_detector", {}) if "/qr_detector" in fresh else {}
+        down = sorted(name.lstrip("/") for name, state in self.states.items() if state["state"] == "stale")
+        parts = [f"DOWN: {', '.join(down)}"] if down else []
         if camera:
             parts.append(f"camera_sim {camera.get('resolution')} {camera.get('frames_published')} frames")
         if detector:

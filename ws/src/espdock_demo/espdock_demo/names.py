@@ -12,3 +12,7 @@ DIAGNOSTICS_TOPIC = "/diagnostics"
 
 IMAGE_FORMAT = "jpeg"
 CAMERA_FRAME_ID = "esp32_camera"
+
+# Each node touches this file (ESPDOCK_HEARTBEAT overrides it) from its executor every
+# second; its container's healthcheck and demo_watchdog read it.
+HEARTBEAT_FILE_DEFAULT = "/tmp/espdock-heartbeat"

@@ -13,7 +13,7 @@ from rclpy.executors import ExternalShutdownException, Executor, SingleThreadedE
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
-from espdock_demo.names import DIAGNOSTICS_TOPIC
+from espdock_demo.names import DIAGNOSTICS_TOPIC, HEARTBEAT_FILE_DEFAULT
 
 # Image subscribers keep only the newest frame and never ask for resends: a
 # subscriber that falls behind skips to the latest frame instead of building a backlog.
@@ -28,7 +28,7 @@ TEXT_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10, reliability=Rel
 LATCHED_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE,
                          durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
-HEARTBEAT_FILE = os.environ.get("ESPDOCK_HEARTBEAT", "/tmp/espdock-heartbeat")
+HEARTBEAT_FILE = os.environ.get("ESPDOCK_HEARTBEAT", HEARTBEAT_FILE_DEFAULT)
 
 
 def config_to_dict(msg: object) -> dict[str, int]:

@@ -132,6 +132,8 @@ def live_view(app: UiApp, values: Mapping[str, object] | None = None) -> dict[st
         "qr": None if qr is None else {"text": str(qr)[:_MAX_QR_SHOWN], "length": len(str(qr))},
         "led": None if not isinstance(led, Rgb) else {"hex": led.hex, "r": led.r, "g": led.g, "b": led.b},
         "config": values.get("config"),
+        # {node: {"state": "ok" | "stale" | "not seen", "silent_s": ...}} from the nodes' diagnostics.
+        "nodes": values.get("nodes") or {},
     }
 
 
@@ -224,6 +226,7 @@ label.slider, label.menu {{ display: flex; flex-direction: column; }}
   <h2>QR code</h2><p id="qr">{_e(qr["text"]) if qr else "(none yet)"}</p>
   <h2>LED strip</h2><div id="swatch" style="background-color: {swatch}"></div>
   <p id="led-hex">{_e(led["hex"]) if led else "(unknown)"}</p>
+  <h2>Nodes</h2><p id="nodes">(waiting for their diagnostics)</p>
 </section>
 </main>
 <h2>Camera settings</h2>
@@ -281,6 +284,13 @@ function render(state) {
     $('led-hex').textContent = state.led.hex;
   }
   if (state.config && !form.dataset.busy) applyConfig(state.config);
+  const nodes = Object.entries(state.nodes || {});
+  const down = nodes.filter(([, n]) => n.state !== 'ok');
+  $('nodes').textContent = nodes.length === 0 ? '(waiting for their diagnostics)'
+    : down.length === 0 ? `all ${nodes.length} running`
+    : down.map(([name, n]) => name.slice(1) + (n.state === 'stale'
+        ? ` down or stuck (silent for ${Math.round(n.silent_s)} s)` : ' not seen yet')).join('; ');
+  $('nodes').className = down.length ? 'warn' : '';
 }
 
 const events = new EventSource('/events');

@@ -1,0 +1,110 @@
+"""Build stamps: what a package was last built from, so a build where nothing changed starts nothing.
+
+A stamp is a digest of everything that decides a package's build output: its source tree
+(paths and bytes), the stamps of the workspace packages it depends on, and the image it is
+built in. Next to it lies a digest of what the build installed (paths, sizes, modification
+times), so a deleted or edited install tree is noticed too. Any difference, or no stamp, builds.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+from collections.abc import Iterable, Mapping
+from pathlib import Path
+
+# Not sources: colcon's and IDF's outputs, caches, VCS and editor state.
+SKIP_DIRS = {"build", "install", "log", "managed_components", "__pycache__"}
+
+
+def tree_digest(*roots: Path) -> str:
+    """sha256 over every file under ROOTS (relative path and content), hidden and output dirs skipped."""
+    digest = hashlib.sha256()
+    for root in roots:
+        digest.update(f"root\0{root.name}\n".encode())
+        for path in _files(root):
+            digest.update(path.relative_to(root).as_posix().encode() + b"\0")
+            digest.update(hashlib.sha256(path.read_bytes()).digest())
+    return digest.hexdigest()
+
+
+def listing_digest(root: Path) -> str | None:
+    """sha256 over paths, sizes and modification times under ROOT (symlinks as their targets'
+    names, not followed); None when ROOT does not exist. Cheap: reads no file contents."""
+    if not root.exists() and not root.is_symlink():
+        return None
+    digest = hashlib.sha256()
+    for dirpath, dirnames, filenames in os.walk(root):
+        dirnames.sort()
+        for name in sorted(filenames + [d for d in dirnames if (Path(dirpath) / d).is_symlink()]):
+            path = Path(dirpath) / name
+            info = path.lstat()
+            target = os.readlink(path) if path.is_symlink() else ""
+            digest.update(f"{path.relative_to(root)}\0{info.st_size}\0{info.st_mtime_ns}\0{target}\n".encode())
+    return digest.hexdigest()
+
+
+def package_stamps(sources: Mapping[str, str], depends: Mapping[str, Iterable[str]], image: str) -> dict[str, str]:
+    """Each package's stamp from its source digest, its workspace dependencies' stamps and IMAGE.
+
+    SOURCES must list the packages in dependency order (a package after what it depends on).
+    """
+    stamps: dict[str, str] = {}
+    for name, source in sources.items():
+        digest = hashlib.sha256(f"{image}\0{name}\0{source}\n".encode())
+        for dep in sorted(set(depends.get(name, ())) & stamps.keys()):
+            digest.update(f"{dep}\0{stamps[dep]}\n".encode())
+        stamps[name] = digest.hexdigest()
+    return stamps
+
+
+class StampFile:
+    """A JSON file of {package: {"stamp": ..., "installed": ...}} under ws/build."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+
+    def read(self) -> dict[str, dict[str, str | None]]:
+        try:
+            data = json.loads(self.path.read_text())
+        except (OSError, ValueError):
+            return {}
+        return data if isinstance(data, dict) else {}
+
+    def up_to_date(self, stamps: Mapping[str, str], installed: Mapping[str, str | None]) -> bool:
+        """True when every package's stamp and install listing are those recorded."""
+        recorded = self.read()
+        return all(
+            isinstance(recorded.get(name), dict)
+            and recorded[name].get("stamp") == stamp
+            and installed.get(name) is not None
+            and recorded[name].get("installed") == installed[name]
+            for name, stamp in stamps.items()
+        )
+
+    def record(self, stamps: Mapping[str, str], installed: Mapping[str, str | None]) -> None:
+        """Record STAMPS with what is installed now, keeping other packages' records."""
+        data = self.read()
+        for name, stamp in stamps.items():
+            data[name] = {"stamp": stamp, "installed": installed.get(name)}
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = self.path.with_name(f".{self.path.name}.tmp")
+        tmp.write_text(json.dumps(data, indent=1, sort_keys=True) + "\n")
+        os.replace(tmp, self.path)
+
+    def forget(self, names: Iterable[str]) -> None:
+        """Drop NAMES' records (their build failed or was interrupted: build them next time)."""
+        data = self.read()
+        if any(data.pop(name, None) is not None for name in list(names)):
+            tmp = self.path.with_name(f".{self.path.name}.tmp")
+            tmp.write_text(json.dumps(data, indent=1, sort_keys=True) + "\n")
+            os.replace(tmp, self.path)
+
+
+def _files(root: Path) -> list[Path]:
+    found = []
+    for dirpath, dirnames, filenames in os.walk(root):
+        dirnames[:] = sorted(d for d in dirnames if not d.startswith(".") and d not in SKIP_DIRS)
+        found += [Path(dirpath) / f for f in sorted(filenames) if not f.startswith(".") and not f.endswith(".pyc")]
+    return found

@@ -1,0 +1,69 @@
+"""demo_watchdog with real child processes: a node that stops beating is killed, the exit tells Docker."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+PACKAGE_DIR = Path(__file__).resolve().parents[3] / "ws" / "src" / "espdock_demo"
+
+NODE = textwrap.dedent("""
+    import os, pathlib, sys, time
+    beat = pathlib.Path(os.environ["ESPDOCK_HEARTBEAT"])
+    pathlib.Path(os.environ["NODE_PID_FILE"]).write_text(str(os.getpid()))
+    for _ in range(int(sys.argv[1])):
+        beat.touch()
+        time.sleep(0.2)
+    if sys.argv[2] == "hang":
+        time.sleep(600)
+    sys.exit(int(sys.argv[3]))
+""")
+
+
+def watchdog(tmp_path: Path, beats: int, then: str, code: int = 0) -> tuple[subprocess.Popen, Path]:
+    script = tmp_path / "node.py"
+    script.write_text(NODE)
+    env = {**os.environ, "ESPDOCK_HEARTBEAT": str(tmp_path / "beat"), "NODE_PID_FILE": str(tmp_path / "pid"),
+           "PYTHONPATH": str(PACKAGE_DIR)}  # fmt: skip
+    argv = [sys.executable, "-m", "espdock_demo.watchdog", "--stale-after", "1.5", "--first-beat", "5", "--",
+            sys.executable, str(script), str(beats), then, str(code)]  # fmt: skip
+    return subprocess.Popen(argv, env=env, stderr=subprocess.PIPE, text=True), tmp_path / "pid"
+
+
+def test_a_node_that_exits_passes_its_status_on(tmp_path):
+    process, _ = watchdog(tmp_path, beats=2, then="exit", code=3)
+    assert process.wait(timeout=20) == 3
+
+
+def test_a_node_that_stops_beating_is_killed_and_the_watchdog_fails(tmp_path):
+    process, pid_file = watchdog(tmp_path, beats=5, then="hang")
+    started = time.monotonic()
+    assert process.wait(timeout=30) == 1
+    assert time.monotonic() - started < 10
+    assert "has not beaten" in process.stderr.read()
+    node = int(pid_file.read_text())
+    assert not Path(f"/proc/{node}").exists() or "Z" in Path(f"/proc/{node}/stat").read_text().split()[2]
+
+
+def test_a_stopped_node_is_killed_too(tmp_path):
+    process, pid_file = watchdog(tmp_path, beats=1000, then="exit")
+    deadline = time.monotonic() + 10
+    while not pid_file.exists() and time.monotonic() < deadline:
+        time.sleep(0.1)
+    time.sleep(0.5)
+    os.kill(int(pid_file.read_text()), signal.SIGSTOP)
+    assert process.wait(timeout=30) == 1
+
+
+def test_sigterm_reaches_the_node(tmp_path):
+    process, pid_file = watchdog(tmp_path, beats=1000, then="exit")
+    deadline = time.monotonic() + 10
+    while not pid_file.exists() and time.monotonic() < deadline:
+        time.sleep(0.1)
+    process.send_signal(signal.SIGTERM)
+    assert process.wait(timeout=20) == 128 + signal.SIGTERM

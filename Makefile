@@ -20,7 +20,8 @@ setup: $(VENV)/.installed
 	bash tests/install-system-deps.sh
 
 test: setup
-	$(PY) -m ruff check espdock
+	$(PY) -m ruff check espdock tests ws/src
+	$(PY) -m ruff format --check espdock tests ws/src
 	$(PY) -m pytest
 	bash tests/firmware/run.sh build/host-tests
 

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import argparse
 import http.client
+import itertools
 import json
 import sys
 import threading
@@ -61,7 +62,7 @@ def _series(diagnostics: dict, node: str, *keys: str) -> list[tuple[int, ...]]:
 
 
 def _interpolate(series: list[tuple[int, float]], t: int) -> float:
-    for (t0, v0), (t1, v1) in zip(series, series[1:], strict=False):
+    for (t0, v0), (t1, v1) in itertools.pairwise(series):
         if t0 <= t <= t1:
             return v0 + (v1 - v0) * (t - t0) / (t1 - t0)
     raise ValueError("time outside the series")
@@ -206,28 +207,46 @@ def main() -> int:
         f"espdock demo benchmark: camera_sim at {camera['width']}x{camera['height']}, "
         f"{decoding['published_fps']:.1f} fps published",
         row("metric", "value", "target"),
-        row(f"QR -> LED latency p50 ({latency['changes']} changes)", f"{latency['p50_ms']:.1f} ms", "<= 50 ms",
-            latency["p50_ms"] <= TARGETS["p50_ms"]),
-        row("QR -> LED latency p95", f"{latency['p95_ms']:.1f} ms", "<= 100 ms",
-            latency["p95_ms"] <= TARGETS["p95_ms"]),
+        row(
+            f"QR -> LED latency p50 ({latency['changes']} changes)",
+            f"{latency['p50_ms']:.1f} ms",
+            "<= 50 ms",
+            latency["p50_ms"] <= TARGETS["p50_ms"],
+        ),
+        row(
+            "QR -> LED latency p95", f"{latency['p95_ms']:.1f} ms", "<= 100 ms", latency["p95_ms"] <= TARGETS["p95_ms"]
+        ),
         row("QR -> LED latency max", f"{latency['max_ms']:.1f} ms"),
         row("colour changes the LED missed", f"{latency['missed']}", "0", latency["missed"] == 0),
-        row(f"frames decoded / published ({decoding['seconds']:.0f} s)",
-            f"{decoding['decoded']:.0f} / {decoding['published']:.0f}"),
-        row("frames decoded", f"{decoding['decoded_pct']:.2f} %", ">= 99 %",
-            decoding["decoded_pct"] >= TARGETS["decoded_pct"]),
+        row(
+            f"frames decoded / published ({decoding['seconds']:.0f} s)",
+            f"{decoding['decoded']:.0f} / {decoding['published']:.0f}",
+        ),
+        row(
+            "frames decoded",
+            f"{decoding['decoded_pct']:.2f} %",
+            ">= 99 %",
+            decoding["decoded_pct"] >= TARGETS["decoded_pct"],
+        ),
         row("qr_detector CPU per decoded frame", f"{decoding['cpu_ms_per_frame']:.2f} ms"),
         row("  of which JPEG decode + pyzbar", f"{decoding['decode_ms_per_frame']:.2f} ms"),
     ]
     for i, f in enumerate(fps, 1):
         lines.append(row(f"MJPEG client {i} of {len(fps)}", f"{f:.1f} fps", ">= 25 fps", f >= TARGETS["client_fps"]))
     if "decoded_pct" in under:
-        lines.append(row(f"frames decoded while {len(fps)} clients stream", f"{under['decoded_pct']:.2f} %",
-                         ">= 99 %", under["decoded_pct"] >= TARGETS["decoded_pct"]))
+        lines.append(
+            row(
+                f"frames decoded while {len(fps)} clients stream",
+                f"{under['decoded_pct']:.2f} %",
+                ">= 99 %",
+                under["decoded_pct"] >= TARGETS["decoded_pct"],
+            )
+        )
     print("\n".join(lines))
     if args.json:
-        args.json.write_text(json.dumps({"latency": latency, "decoding": decoding, "mjpeg": mjpeg,
-                                         "camera": camera}, indent=1))
+        args.json.write_text(
+            json.dumps({"latency": latency, "decoding": decoding, "mjpeg": mjpeg, "camera": camera}, indent=1)
+        )
     return 0
 
 

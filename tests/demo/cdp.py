@@ -21,8 +21,15 @@ import websocket
 
 CHROMIUM = "/usr/bin/chromium"
 FLAGS = (
-    "--headless", "--no-sandbox", "--disable-gpu", "--no-first-run", "--disable-background-networking",
-    "--disable-component-update", "--disable-sync", "--disable-quic", "--disable-dev-shm-usage",
+    "--headless",
+    "--no-sandbox",
+    "--disable-gpu",
+    "--no-first-run",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+    "--disable-quic",
+    "--disable-dev-shm-usage",
     "--window-size=1280,1400",
 )
 
@@ -43,16 +50,17 @@ class Browser:
     def __enter__(self) -> Browser:
         self._profile = tempfile.mkdtemp(prefix="espdock-chromium-")
         self._process = subprocess.Popen(
-            [self.executable, *FLAGS, f"--user-data-dir={self._profile}", "--remote-debugging-port=0",
-             "about:blank"],
-            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+            [self.executable, *FLAGS, f"--user-data-dir={self._profile}", "--remote-debugging-port=0", "about:blank"],
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
         )
         try:
             port = self._wait_for_port()
             targets = json.load(urllib.request.urlopen(f"http://127.0.0.1:{port}/json/list", timeout=5))
             page = next(t for t in targets if t.get("type") == "page")
-            self._ws = websocket.create_connection(page["webSocketDebuggerUrl"], timeout=self.timeout,
-                                                   suppress_origin=True)
+            self._ws = websocket.create_connection(
+                page["webSocketDebuggerUrl"], timeout=self.timeout, suppress_origin=True
+            )
             self.call("Page.enable")
             self.call("Runtime.enable")
         except BaseException:

@@ -10,18 +10,13 @@ from __future__ import annotations
 
 import os
 import shutil
-import sys
-from pathlib import Path
 
 import pytest
 
-HERE = Path(__file__).resolve().parent
-sys.path.insert(0, str(HERE))
-# The package's pure helpers (jpeg_size, ...) are stdlib-only and usable on the host.
-sys.path.insert(0, str(HERE.parents[1] / "ws" / "src" / "espdock_demo"))
-
-from demo_stack import build_image, docker_problem  # noqa: E402
-from demo_support import need  # noqa: E402
+# tests/demo and ws/src/espdock_demo (its pure helpers: jpeg_size, ...) are on pytest's
+# pythonpath (pyproject.toml).
+from demo_stack import build_image, docker_problem
+from demo_support import need
 
 
 @pytest.fixture(scope="session")
@@ -35,8 +30,11 @@ def demo_image() -> None:
 def chromium() -> str:
     """Debian's Chromium (tests/install-system-deps.sh installs it); never a downloaded browser."""
     path = "/usr/bin/chromium"
-    need(None if os.access(path, os.X_OK) else f"{path} is missing: apt-get install chromium "
-                                                 "(or run tests/install-system-deps.sh)")
+    need(
+        None
+        if os.access(path, os.X_OK)
+        else f"{path} is missing: apt-get install chromium (or run tests/install-system-deps.sh)"
+    )
     try:
         import websocket  # noqa: F401
     except ImportError:

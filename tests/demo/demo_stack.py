@@ -41,10 +41,12 @@ def docker_problem() -> str | None:
     """Why the Docker engine or Compose v2 cannot be used here, or None when both answer."""
     if shutil.which("docker") is None:
         return "the docker CLI is not on PATH (run `make setup`)"
-    info = subprocess.run(["docker", "info", "--format", "{{.ServerVersion}}"], capture_output=True, text=True)
+    info = subprocess.run(
+        ["docker", "info", "--format", "{{.ServerVersion}}"], capture_output=True, text=True, check=False
+    )
     if info.returncode != 0:
         return f"no Docker engine answers (run `make setup` or `espdock setup`): {info.stderr.strip()[:300]}"
-    compose = subprocess.run(["docker", "compose", "version"], capture_output=True, text=True)
+    compose = subprocess.run(["docker", "compose", "version"], capture_output=True, text=True, check=False)
     if compose.returncode != 0:
         return "`docker compose` (v2) is missing (run `espdock setup`)"
     return None
@@ -53,7 +55,7 @@ def docker_problem() -> str | None:
 def build_image(env: Mapping[str, str] | None = None) -> None:
     """Build the demo's runtime image through `espdock compose` (it supplies the CA bundle pip needs)."""
     argv = [sys.executable, "-m", "espdock", "compose", "-f", str(COMPOSE_FILE), "build", "qr_detector"]
-    result = subprocess.run(argv, cwd=ROOT, env=dict(env or os.environ), capture_output=True, text=True)
+    result = subprocess.run(argv, cwd=ROOT, env=dict(env or os.environ), capture_output=True, text=True, check=False)
     if result.returncode != 0:
         raise StackError(f"building the demo image failed:\n{(result.stdout + result.stderr)[-3000:]}")
 
@@ -78,15 +80,26 @@ class DemoStack:
         return f"http://127.0.0.1:{self.port}"
 
     def compose(self, *args: str, timeout: float = 300, check: bool = True) -> subprocess.CompletedProcess:
-        argv = ["docker", "compose", "-p", self.project, "-f", str(COMPOSE_FILE), "--project-directory", str(ROOT),
-                *args]
+        argv = [
+            "docker",
+            "compose",
+            "-p",
+            self.project,
+            "-f",
+            str(COMPOSE_FILE),
+            "--project-directory",
+            str(ROOT),
+            *args,
+        ]
         try:
-            result = subprocess.run(argv, env=self.env, capture_output=True, text=True, timeout=timeout)
+            result = subprocess.run(argv, env=self.env, capture_output=True, text=True, timeout=timeout, check=False)
         except subprocess.TimeoutExpired as exc:
             raise StackError(f"`docker compose {' '.join(args)}` did not finish within {timeout:g} s") from exc
         if check and result.returncode != 0:
-            raise StackError(f"`docker compose {' '.join(args)}` failed ({result.returncode}):\n"
-                             f"{(result.stdout + result.stderr)[-3000:]}")
+            raise StackError(
+                f"`docker compose {' '.join(args)}` failed ({result.returncode}):\n"
+                f"{(result.stdout + result.stderr)[-3000:]}"
+            )
         return result
 
     def up(self, timeout: float = 180) -> None:
@@ -104,8 +117,10 @@ class DemoStack:
         result = self.compose("run", "--rm", "--no-deps", "-T", "probe", *args, timeout=timeout + 60, check=False)
         lines = result.stdout.strip().splitlines()
         if result.returncode != 0 or not lines:
-            raise StackError(f"demo_probe {' '.join(args)} failed ({result.returncode}):\n"
-                             f"{result.stdout[-1500:]}\n{result.stderr[-2500:]}")
+            raise StackError(
+                f"demo_probe {' '.join(args)} failed ({result.returncode}):\n"
+                f"{result.stdout[-1500:]}\n{result.stderr[-2500:]}"
+            )
         return json.loads(lines[-1])
 
     # Containers
@@ -117,8 +132,9 @@ class DemoStack:
         return cid.splitlines()[0]
 
     def inspect(self, service: str) -> dict:
-        out = subprocess.run(["docker", "inspect", self.container(service)], capture_output=True, text=True,
-                             check=True).stdout
+        out = subprocess.run(
+            ["docker", "inspect", self.container(service)], capture_output=True, text=True, check=True
+        ).stdout
         return json.loads(out)[0]
 
     def restart_count(self, service: str) -> int:
@@ -132,7 +148,9 @@ class DemoStack:
         """Kill SERVICE's node with SIGKILL from inside, as a crash would (`docker kill` counts as a
         deliberate stop, after which Docker does not restart a container)."""
         # kill -1: every process of the node's user but PID 1 (tini), which then exits with the node's status.
-        subprocess.run(["docker", "exec", self.container(service), "sh", "-c", "kill -KILL -1"], capture_output=True)
+        subprocess.run(
+            ["docker", "exec", self.container(service), "sh", "-c", "kill -KILL -1"], capture_output=True, check=False
+        )
 
     def wait_until(self, condition, timeout: float, what: str, interval: float = 0.5):
         deadline = time.monotonic() + timeout
@@ -146,8 +164,9 @@ class DemoStack:
 
     # The UI over HTTP, from the host
 
-    def http(self, path: str, data: bytes | None = None, headers: Mapping[str, str] | None = None,
-             timeout: float = 10) -> tuple[int, bytes, str]:
+    def http(
+        self, path: str, data: bytes | None = None, headers: Mapping[str, str] | None = None, timeout: float = 10
+    ) -> tuple[int, bytes, str]:
         """(status, body, content type) of a request to the UI."""
         request = urllib.request.Request(self.url + path, data=data, headers=dict(headers or {}))
         try:
@@ -165,6 +184,7 @@ class DemoStack:
     def post_settings(self, **fields: int | str) -> tuple[int, dict]:
         """POST the settings form as the page's script does; (status, JSON answer)."""
         body = "&".join(f"{k}={v}" for k, v in fields.items()).encode()
-        status, data, _ = self.http("/config", body, {"Content-Type": "application/x-www-form-urlencoded",
-                                                       "Accept": "application/json"})
+        status, data, _ = self.http(
+            "/config", body, {"Content-Type": "application/x-www-form-urlencoded", "Accept": "application/json"}
+        )
         return status, json.loads(data)

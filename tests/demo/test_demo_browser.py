@@ -38,7 +38,7 @@ def distinct_frames(browser: Browser, seconds: float) -> int:
 
 
 def hex_to_rgb(hex_color: str) -> str:
-    r, g, b = (int(hex_color[i:i + 2], 16) for i in (1, 3, 5))
+    r, g, b = (int(hex_color[i : i + 2], 16) for i in (1, 3, 5))
     return f"rgb({r}, {g}, {b})"
 
 
@@ -70,8 +70,10 @@ def test_changing_a_setting_in_the_page_changes_the_stream(page):
     page.click("input[type=checkbox][name=hmirror]")
     assert page.evaluate("document.querySelector('input[type=checkbox][name=hmirror]').checked") is True
     page.click("#apply")
-    message = page.wait_for("(() => { const r = document.getElementById('result');"
-                            " return r.className === 'ok' && r.textContent; })()", timeout=10)
+    message = page.wait_for(
+        "(() => { const r = document.getElementById('result'); return r.className === 'ok' && r.textContent; })()",
+        timeout=10,
+    )
     assert "applied" in message and "framesize VGA" in message and "hmirror 1" in message
     page.wait_for("document.getElementById('stream').naturalWidth === 640", timeout=10)
     assert page.evaluate("document.getElementById('stream').naturalHeight") == 480
@@ -83,4 +85,4 @@ def test_changing_a_setting_in_the_page_changes_the_stream(page):
     page.click("input[type=checkbox][name=hmirror]")
     page.click("#apply")
     page.wait_for("document.getElementById('stream').naturalWidth === 320", timeout=10)
-    assert page.console == [] or not any("exception" in line for line in page.console), page.console
+    assert not any("exception" in line.lower() for line in page.console), page.console

@@ -58,8 +58,10 @@ def test_a_stuck_qr_detector_is_restarted_and_the_ui_says_so_meanwhile(demo):
     recovered = time.monotonic() - stopped_at
     assert report["ok"] and len({c["hex"] for c in report["changes"]}) >= 2, report
     assert demo.state()["nodes"]["/qr_detector"]["state"] == "ok"
-    print(f"stuck qr_detector: reported stale after {reported:.1f} s, LED following new colours again "
-          f"{recovered:.1f} s after the SIGSTOP (bound: 15 s to report, 30 s to restart, 60 s to follow)")
+    print(
+        f"stuck qr_detector: reported stale after {reported:.1f} s, LED following new colours again "
+        f"{recovered:.1f} s after the SIGSTOP (bound: 15 s to report, 30 s to restart, 60 s to follow)"
+    )
 
 
 def first_stream_part(demo) -> bytes:

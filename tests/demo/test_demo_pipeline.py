@@ -73,8 +73,21 @@ def test_bad_input_on_the_topics_kills_no_node_and_leaves_the_led_alone(demo):
     demo.compose("stop", "camera_sim")
     try:
         report = demo.probe(
-            "inject", "--image", "garbage", "--image", "empty", "--image", "truncated",
-            "--qr", "#GGG", "--qr", "#12345", "--qr", "hello", "--text-size", "1000000",
+            "inject",
+            "--image",
+            "garbage",
+            "--image",
+            "empty",
+            "--image",
+            "truncated",
+            "--qr",
+            "#GGG",
+            "--qr",
+            "#12345",
+            "--qr",
+            "hello",
+            "--text-size",
+            "1000000",
         )
     finally:
         demo.compose("start", "camera_sim")

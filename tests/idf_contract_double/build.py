@@ -67,8 +67,9 @@ def micro_ros_commit(engine: Engine, image: str) -> str:
     lines = _read(engine, image, COMMIT_FILE)
     commits = [line.strip() for line in lines if re.fullmatch(r"[0-9a-f]{40}", line.strip())]
     if len(commits) != 1:
-        raise ImageBuildError(f"no micro-ROS commit in {image} ({COMMIT_FILE}): {lines[-5:]}",
-                              f"Rebuild the double: docker rmi {image}")
+        raise ImageBuildError(
+            f"no micro-ROS commit in {image} ({COMMIT_FILE}): {lines[-5:]}", f"Rebuild the double: docker rmi {image}"
+        )
     return commits[0]
 
 
@@ -85,7 +86,9 @@ def _read(engine: Engine, image: str, path: str) -> list[str]:
     lines: list[str] = []
     code = engine.run(RunSpec(image=image, argv=("cat", path), workdir="/"), lines.append)
     if code != 0:
-        raise ImageBuildError(f"could not read {path} from {image}: exit {code}, output {lines[-5:]}",
-                              f"Rebuild the double: docker rmi {image}")
+        raise ImageBuildError(
+            f"could not read {path} from {image}: exit {code}, output {lines[-5:]}",
+            f"Rebuild the double: docker rmi {image}",
+        )
     # The entrypoint sources export.sh, which prints its own lines first.
     return [line.rstrip("\n") for line in lines]

@@ -193,8 +193,9 @@ def test_only_the_selected_network_interface_is_compiled(fw_ws, double_env):
         cmake = eth / "CMakeLists.txt"
         cmake.write_text(cmake.read_text().replace("project(led_strip_node)", "project(eth_node)"))
         defaults = eth / "sdkconfig.defaults"
-        defaults.write_text(defaults.read_text().replace("CONFIG_MICRO_ROS_ESP_NETIF_WLAN=y",
-                                                         "CONFIG_MICRO_ROS_ESP_NETIF_ENET=y"))
+        defaults.write_text(
+            defaults.read_text().replace("CONFIG_MICRO_ROS_ESP_NETIF_WLAN=y", "CONFIG_MICRO_ROS_ESP_NETIF_ENET=y")
+        )
         result = espdock("build", "eth_node", "--only", "firmware", cwd=root, env=double_env)
         assert result.returncode == 0, result.stdout[-3000:] + result.stderr
         assert "uros_ethernet_netif.c.obj" in result.stdout and "uros_wlan_netif.c.obj" not in result.stdout
@@ -323,20 +324,24 @@ def test_a_msg_change_is_never_served_a_stale_library(fw_ws, double_env):
     assert first.returncode == 0
     old = status(root, double_env)
     msg = root / "ws/src/custom_interface/msg/CameraConfig.msg"
+    original = msg.read_text()
     field = f"espdock_field_{uuid.uuid4().hex[:8]}"
-    msg.write_text(msg.read_text() + f"uint8 {field}\n")
-    changed = status(root, double_env)
-    assert changed["key"] != old["key"] and not changed["present"]
-    assert "micro-ros/extra_packages/custom_interface/msg/CameraConfig.msg" in changed["changed_inputs"]
-    assert status(root, double_env, "led_strip_node")["present"], "led_strip_node does not use the .msg"
+    msg.write_text(original + f"uint8 {field}\n")
+    try:
+        changed = status(root, double_env)
+        assert changed["key"] != old["key"] and not changed["present"]
+        assert "micro-ros/extra_packages/custom_interface/msg/CameraConfig.msg" in changed["changed_inputs"]
+        assert status(root, double_env, "led_strip_node")["present"], "led_strip_node does not use the .msg"
 
-    app = firmware_dir(root, "camera_node") / "camera_node.bin"
-    before = app.read_bytes()
-    result = espdock("build", "camera_node", cwd=root, env=double_env)
-    assert result.returncode == 0, result.stdout[-2000:] + result.stderr
-    assert "cache miss" in result.stdout
-    assert field in header(changed["image"])
-    assert app.read_bytes() != before, "the app must relink against the new library"
+        app = firmware_dir(root, "camera_node") / "camera_node.bin"
+        before = app.read_bytes()
+        result = espdock("build", "camera_node", cwd=root, env=double_env)
+        assert result.returncode == 0, result.stdout[-2000:] + result.stderr
+        assert "cache miss" in result.stdout
+        assert field in header(changed["image"])
+        assert app.read_bytes() != before, "the app must relink against the new library"
+    finally:
+        msg.write_text(original)  # the other tests share this workspace
 
 
 def test_a_broken_firmware_build_keeps_the_installed_firmware(fw_ws, double_env, engine):

@@ -9,7 +9,7 @@ def built(tmp_path: Path, target="esp32", defaults="d1", key="k1") -> Path:
     build = tmp_path / "build"
     (build / "esp-idf").mkdir(parents=True)
     (build / "CMakeCache.txt").write_text("CMAKE_C_COMPILER:FILEPATH=/opt/old-image/xtensa-esp32-elf-gcc\n")
-    (build / "sdkconfig").write_text("CONFIG_ESPDOCK_NODE_NAME=\"from menuconfig\"\n")
+    (build / "sdkconfig").write_text('CONFIG_ESPDOCK_NODE_NAME="from menuconfig"\n')
     (build / TARGET_MARKER).write_text(f"{target}\n{defaults}\n{key}\n")
     return build
 

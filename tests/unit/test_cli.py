@@ -51,10 +51,16 @@ def test_no_engine_at_docker_host_is_a_clear_error(tmp_path):
 
 
 def test_list_shows_packages_in_build_order(tmp_path):
-    root = copy_workspace(tmp_path / "w")
+    # espdock_demo depends on custom_interface, and sorts after it by name too: rename the
+    # dependency so that only the dependency order puts it first.
+    root = copy_workspace(tmp_path / "w", packages=("custom_interface", "espdock_demo"))
+    for manifest in (root / "ws/src").glob("*/package.xml"):
+        manifest.write_text(manifest.read_text().replace("custom_interface", "zz_interface"))
+    (root / "ws/src/custom_interface").rename(root / "ws/src/zz_interface")
     result = espdock("list", cwd=Path(root, "ws/src"), env=NO_ENGINE)
-    assert result.returncode == 0
-    assert "custom_interface" in result.stdout
+    assert result.returncode == 0, result.stderr
+    names = [line.split("│")[1].strip() for line in result.stdout.splitlines() if "│" in line]
+    assert names.index("zz_interface") < names.index("espdock_demo"), result.stdout
 
 
 def test_monitor_needs_a_terminal_and_says_so(tmp_path):

@@ -16,8 +16,11 @@ from espdock.workspace import PackageKind, Workspace, discover_packages
 
 FLASHER_ARGS = {
     "write_flash_args": ["--flash_mode", "dio", "--flash_size", "2MB", "--flash_freq", "40m"],
-    "flash_files": {"0x10000": "cam.bin", "0x1000": "bootloader/bootloader.bin",
-                    "0x8000": "partition_table/partition-table.bin"},
+    "flash_files": {
+        "0x10000": "cam.bin",
+        "0x1000": "bootloader/bootloader.bin",
+        "0x8000": "partition_table/partition-table.bin",
+    },
     "extra_esptool_args": {"after": "hard_reset", "before": "default_reset", "stub": True, "chip": "esp32"},
 }
 
@@ -140,8 +143,9 @@ def write_build(build: Path, app: bytes) -> None:
     (build / "partition_table/partition-table.bin").write_bytes(b"pt")
     (build / "cam.bin").write_bytes(app)
     (build / "cam.elf").write_bytes(b"elf")
-    (build / "flasher_args.json").write_text(json.dumps({**FLASHER_ARGS, "app": {"offset": "0x10000",
-                                                                                  "file": "cam.bin"}}))
+    (build / "flasher_args.json").write_text(
+        json.dumps({**FLASHER_ARGS, "app": {"offset": "0x10000", "file": "cam.bin"}})
+    )
 
 
 def test_install_is_colcon_shaped_and_swaps_firmware_atomically(tmp_path):

@@ -59,7 +59,7 @@ INPUTS = BuildInputs(
     },
     app_metas={"cam": META},
     sdkconfig_defaults={
-        "cam": {"sdkconfig.defaults": b"CONFIG_SPIRAM=y\nCONFIG_FREERTOS_HZ=1000\nCONFIG_ESPDOCK_NODE_NAME=\"cam\"\n"},
+        "cam": {"sdkconfig.defaults": b'CONFIG_SPIRAM=y\nCONFIG_FREERTOS_HZ=1000\nCONFIG_ESPDOCK_NODE_NAME="cam"\n'},
     },
 )
 CAM = PACKAGES[4]
@@ -105,18 +105,38 @@ def test_key_does_not_depend_on_the_order_inputs_were_read_in():
         lambda c, i: (c, replace(i, sdkconfig_defaults={"cam": {"sdkconfig.defaults": b"# CONFIG_SPIRAM is not set"}})),
         lambda c, i: (
             c,
-            replace(i, package_files={**i.package_files, "cam_msgs": {"package.xml": b"<package/>",
-                                                                      "msg/Cam.msg": b"uint16 framesize\n"}}),
+            replace(
+                i,
+                package_files={
+                    **i.package_files,
+                    "cam_msgs": {"package.xml": b"<package/>", "msg/Cam.msg": b"uint16 framesize\n"},
+                },
+            ),
         ),
         lambda c, i: (
             c,
-            replace(i, package_files={**i.package_files, "base_msgs": {**i.package_files["base_msgs"],
-                                                                       "msg/New.msg": b"bool x\n"}}),
+            replace(
+                i,
+                package_files={
+                    **i.package_files,
+                    "base_msgs": {**i.package_files["base_msgs"], "msg/New.msg": b"bool x\n"},
+                },
+            ),
         ),
     ],
-    ids=["idf-image", "micro-ros-commit", "target", "dockerfile", "idf-inputs", "pins", "colcon-meta", "freertos-hz",
-         "no-psram", "msg-edit",
-         "dependency-msg-added"],
+    ids=[
+        "idf-image",
+        "micro-ros-commit",
+        "target",
+        "dockerfile",
+        "idf-inputs",
+        "pins",
+        "colcon-meta",
+        "freertos-hz",
+        "no-psram",
+        "msg-edit",
+        "dependency-msg-added",
+    ],
 )
 def test_key_changes_with_each_input(change):
     config, inputs = change(Config(), INPUTS)
@@ -129,8 +149,12 @@ def test_key_ignores_what_does_not_go_into_the_library():
     assert key(inputs=unused) == key()
     assert key(inputs=replace(INPUTS, ros_files={"docker/ros-runtime.txt": b"rclpy==2"})) == key()
     # The app's own options do not reach the library.
-    app_only = {"cam": {"sdkconfig.defaults": INPUTS.sdkconfig_defaults["cam"]["sdkconfig.defaults"] +
-                        b"CONFIG_ESPDOCK_CAM_FPS=15\n"}}
+    app_only = {
+        "cam": {
+            "sdkconfig.defaults": INPUTS.sdkconfig_defaults["cam"]["sdkconfig.defaults"]
+            + b"CONFIG_ESPDOCK_CAM_FPS=15\n"
+        }
+    }
     assert key(inputs=replace(INPUTS, sdkconfig_defaults=app_only)) == key()
 
 
@@ -148,8 +172,9 @@ def test_image_tag_names_distro_and_target_and_carries_the_key():
 
 def test_context_holds_the_app_s_interfaces_meta_and_library_settings():
     context = dict(micro_ros_image(Config(), INPUTS, PACKAGES, CAM).context)
-    packages = {name.split("/")[2] for name in context if name.startswith("micro-ros/extra_packages/") and
-                name.count("/") > 2}
+    packages = {
+        name.split("/")[2] for name in context if name.startswith("micro-ros/extra_packages/") and name.count("/") > 2
+    }
     assert packages == {"base_msgs", "cam_msgs"}
     assert json.loads(context["micro-ros/app-colcon.meta"]) == json.loads(META)
     assert context["micro-ros/sdkconfig.defaults"] == b"CONFIG_FREERTOS_HZ=1000\nCONFIG_SPIRAM=y\n"
@@ -175,8 +200,9 @@ def test_apps_with_different_library_inputs_get_their_own_image_and_equal_ones_s
     inputs = replace(INPUTS, app_metas={"cam": META, "led": led_meta, "led2": led_meta})
     specs = micro_ros_images(Config(), inputs, packages)
     assert specs["led"].key == specs["led2"].key != specs["cam"].key
-    plan = plan_build(Workspace(ROOT), Config(), packages, ros_build_image(Config(), INPUTS.ros_dockerfile, {}),
-                      idf_images=specs)
+    plan = plan_build(
+        Workspace(ROOT), Config(), packages, ros_build_image(Config(), INPUTS.ros_dockerfile, {}), idf_images=specs
+    )
     ensured = [s.spec.key for s in plan.steps if isinstance(s, EnsureImage) and s.spec.dockerfile == "Dockerfile.idf"]
     assert sorted(ensured) == sorted({specs["cam"].key, specs["led"].key})
     builds = {s.package: s.image_key for s in plan.steps if isinstance(s, IdfBuild)}
@@ -207,7 +233,10 @@ def test_firmware_steps_build_then_install_each_package():
     plan = plan_build(Workspace(ROOT), Config(), PACKAGES, ros_spec, idf_images=specs)
     firmware_steps = [s for s in plan.steps if isinstance(s, IdfBuild | InstallFirmware)]
     assert [(type(s).__name__, s.package) for s in firmware_steps] == [
-        ("IdfBuild", "cam"), ("InstallFirmware", "cam"), ("IdfBuild", "led"), ("InstallFirmware", "led"),
+        ("IdfBuild", "cam"),
+        ("InstallFirmware", "cam"),
+        ("IdfBuild", "led"),
+        ("InstallFirmware", "led"),
     ]
     build = firmware_steps[0]
     assert build.image == spec.tag

@@ -2,16 +2,13 @@
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 import pytest
 
+# ws/src/espdock_demo is on pytest's pythonpath (pyproject.toml).
 ROOT = Path(__file__).resolve().parents[3]
-PACKAGE_DIR = ROOT / "ws" / "src" / "espdock_demo"
 MSG_FILE = ROOT / "ws" / "src" / "custom_interface" / "msg" / "CameraConfig.msg"
-
-sys.path.insert(0, str(PACKAGE_DIR))
 
 
 @pytest.fixture(scope="session")

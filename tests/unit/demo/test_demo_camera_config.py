@@ -4,7 +4,14 @@ import pytest
 
 from espdock_demo import camera_config
 from espdock_demo.camera_config import (
-    DEFAULT_CONFIG, FRAME_SIZES, ConfigError, Setting, frame_size, parse_form, settings_from_fields, validate,
+    DEFAULT_CONFIG,
+    FRAME_SIZES,
+    ConfigError,
+    Setting,
+    frame_size,
+    parse_form,
+    settings_from_fields,
+    validate,
 )
 
 
@@ -30,7 +37,7 @@ def test_settings_follow_the_message_order_and_pick_their_controls(settings, msg
 
 
 def test_a_field_without_a_range_fails_at_start_up(msg_fields):
-    with pytest.raises(ConfigError, match="without a range.*new_field"):
+    with pytest.raises(ConfigError, match=r"without a range.*new_field"):
         settings_from_fields({**msg_fields, "new_field": "uint8"})
 
 
@@ -62,8 +69,9 @@ def test_validation_names_every_bad_field(settings):
 
 def test_a_form_applies_its_fields_onto_the_current_config(settings):
     current = {**DEFAULT_CONFIG, "quality": 20}
-    config = parse_form(settings, [("framesize", "10"), ("brightness", "-2"), ("hmirror", "0"), ("hmirror", "1")],
-                        current)
+    config = parse_form(
+        settings, [("framesize", "10"), ("brightness", "-2"), ("hmirror", "0"), ("hmirror", "1")], current
+    )
     assert config == {**current, "framesize": 10, "brightness": -2, "hmirror": 1}
 
 

@@ -20,8 +20,19 @@ def test_hex_codes_give_their_colour(text, expected):
 @pytest.mark.parametrize(
     "text",
     [
-        "#GGG", "#12345", "hello", "", "#", "#1234", "#1234567", "ff0000", " #fff", "#fff ", "#fff\n",
-        "#ff00gg", "#\u0661\u0662\u0663",  # Arabic-Indic digits are digits, not hex digits
+        "#GGG",
+        "#12345",
+        "hello",
+        "",
+        "#",
+        "#1234",
+        "#1234567",
+        "ff0000",
+        " #fff",
+        "#fff ",
+        "#fff\n",
+        "#ff00gg",
+        "#\u0661\u0662\u0663",  # Arabic-Indic digits are digits, not hex digits
         "#" + "f" * 999_999,
     ],
 )

@@ -59,7 +59,7 @@ def test_hmirror_and_vflip_flip_the_picture(renderer):
     mirrored = pixels(frame(renderer, "#ff0000", hmirror=1))
     flipped = pixels(frame(renderer, "#ff0000", vflip=1))
     # The picture's top-left module area moves to the top-right (mirror) or bottom-left (flip).
-    width, height = plain.size
+    width, _ = plain.size
     box = (width // 2 - 60, 20, width // 2 - 30, 50)
     mirror_box = (width - box[2], box[1], width - box[0], box[3])
     assert plain.crop(box).tobytes() != mirrored.crop(box).tobytes()
@@ -71,8 +71,8 @@ def test_brightness_and_colorbar_show(renderer):
     assert _mean(pixels(frame(renderer, brightness=2))) > _mean(pixels(frame(renderer))) + 20
     bars = pixels(frame(renderer, colorbar=1))
     width, height = bars.size
-    assert bars.getpixel((width // 16, height // 2))[0] > 200            # white bar first
-    assert max(bars.getpixel((width - width // 16, height // 2))) < 60    # black bar last
+    assert bars.getpixel((width // 16, height // 2))[0] > 200  # white bar first
+    assert max(bars.getpixel((width - width // 16, height // 2))) < 60  # black bar last
     assert decode_frame(frame(renderer, colorbar=1)).outcome is Outcome.NO_CODE
 
 
@@ -108,7 +108,7 @@ def test_a_huge_declared_picture_is_refused_before_decoding():
     Image.new("L", (8, 8)).save(header, "JPEG")
     data = bytearray(header.getvalue())
     sof = data.index(b"\xff\xc0")
-    data[sof + 5:sof + 9] = (60000).to_bytes(2, "big") * 2
+    data[sof + 5 : sof + 9] = (60000).to_bytes(2, "big") * 2
     assert decode_frame(bytes(data)).outcome is Outcome.CORRUPT
 
 
@@ -119,10 +119,17 @@ def test_a_code_that_is_not_utf8_is_reported():
 
 def test_the_filter_passes_only_changes_and_counts_everything():
     f = ChangeFilter()
-    seen = [f.feed(r) for r in (
-        FrameResult(Outcome.CODE, "#f00"), FrameResult(Outcome.CODE, "#f00"), FrameResult(Outcome.NO_CODE),
-        FrameResult(Outcome.CODE, "#f00"), FrameResult(Outcome.CORRUPT), FrameResult(Outcome.CODE, "#0f0"),
-    )]
+    seen = [
+        f.feed(r)
+        for r in (
+            FrameResult(Outcome.CODE, "#f00"),
+            FrameResult(Outcome.CODE, "#f00"),
+            FrameResult(Outcome.NO_CODE),
+            FrameResult(Outcome.CODE, "#f00"),
+            FrameResult(Outcome.CORRUPT),
+            FrameResult(Outcome.CODE, "#0f0"),
+        )
+    ]
     assert seen == ["#f00", None, None, None, None, "#0f0"]
     assert f.counts == {"code": 4, "no_code": 1, "empty": 0, "corrupt": 1, "not_utf8": 0}
 

@@ -66,8 +66,13 @@ def request(port, method, path, body=None, headers=None):
 
 def post_form(port, pairs, accept="application/json", **headers):
     body = urllib.parse.urlencode(pairs)
-    return request(port, "POST", "/config", body,
-                   {"Content-Type": "application/x-www-form-urlencoded", "Accept": accept, **headers})
+    return request(
+        port,
+        "POST",
+        "/config",
+        body,
+        {"Content-Type": "application/x-www-form-urlencoded", "Accept": accept, **headers},
+    )
 
 
 def test_the_page_has_a_control_per_setting_with_its_range(ui, settings):
@@ -92,6 +97,7 @@ def test_everything_shown_is_escaped(ui):
     assert "<script>alert" not in page
     assert "&lt;script&gt;alert(&quot;x&quot;)&lt;/script&gt;" in page
     status, _, body = request(port, "GET", "/api/state")
+    assert status == 200
     assert json.loads(body)["qr"]["text"] == '<script>alert("x")</script>'
     assert json.loads(body)["led"]["hex"] == "#010203"
 
@@ -136,10 +142,17 @@ def test_malformed_requests_are_refused(ui):
     _, camera, port = ui
     assert request(port, "POST", "/config", "{}", {"Content-Type": "application/json"})[0] == 415
     too_big = "quality=1&" * 3000
-    assert request(port, "POST", "/config", too_big,
-                   {"Content-Type": "application/x-www-form-urlencoded"})[0] == 413
-    assert request(port, "POST", "/config", b"quality=\xff",
-                   {"Content-Type": "application/x-www-form-urlencoded", "Accept": "application/json"})[0] == 400
+    assert request(port, "POST", "/config", too_big, {"Content-Type": "application/x-www-form-urlencoded"})[0] == 413
+    assert (
+        request(
+            port,
+            "POST",
+            "/config",
+            b"quality=\xff",
+            {"Content-Type": "application/x-www-form-urlencoded", "Accept": "application/json"},
+        )[0]
+        == 400
+    )
     assert post_form(port, [("quality", "1")], Origin="http://evil.example")[0] == 403
     assert request(port, "POST", "/elsewhere", "a=1")[0] == 404
     assert camera.requests == []
@@ -192,13 +205,14 @@ def test_the_stream_sends_the_frames_as_they_come(ui):
         parts = read_parts(port, 5)
     finally:
         stop.set()
-    numbers = [int(p[len(b"\xff\xd8frame"):]) for p in parts]
+    numbers = [int(p[len(b"\xff\xd8frame") :]) for p in parts]
     assert numbers == sorted(numbers) and len(set(numbers)) == 5
 
 
 def test_without_frames_the_stream_shows_no_camera_and_the_state_says_so(ui):
-    from PIL import Image
     import io
+
+    from PIL import Image
 
     app, _, port = ui
     (part,) = read_parts(port, 1)

@@ -577,8 +577,12 @@ def rmw_config_header(meta: dict) -> tuple[str, dict[str, str]]:
     return "\n".join([*lines, "", "#endif  // RMW_MICROXRCEDDS_C__CONFIG_H_", ""]), values
 
 
-LIBRARY_SDKCONFIG = ("CONFIG_FREERTOS_HZ", "CONFIG_SPIRAM", "CONFIG_MICRO_ROS_ESP_NETIF_WLAN",
-                     "CONFIG_MICRO_ROS_ESP_NETIF_ENET")
+LIBRARY_SDKCONFIG = (
+    "CONFIG_FREERTOS_HZ",
+    "CONFIG_SPIRAM",
+    "CONFIG_MICRO_ROS_ESP_NETIF_WLAN",
+    "CONFIG_MICRO_ROS_ESP_NETIF_ENET",
+)
 
 
 def sdkconfig_values(path: Path | None) -> dict[str, str]:

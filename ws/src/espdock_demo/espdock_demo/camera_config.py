@@ -102,17 +102,43 @@ LABELS: dict[str, str] = {
 
 # What the OV2640 reports after the firmware's init (seed 7.2.1: QVGA, quality 10).
 DEFAULT_CONFIG: dict[str, int] = {
-    "framesize": FRAMESIZE_QVGA, "quality": 10, "brightness": 0, "contrast": 0, "saturation": 0,
-    "sharpness": 0, "denoise": 0, "special_effect": 0, "wb_mode": 0, "awb": 1, "awb_gain": 1,
-    "aec": 1, "aec2": 0, "ae_level": 0, "aec_value": 168, "agc": 1, "agc_gain": 0,
-    "gainceiling": 0, "bpc": 0, "wpc": 1, "raw_gma": 1, "lenc": 1, "hmirror": 0, "vflip": 0,
-    "dcw": 1, "colorbar": 0, "pixformat": PIXFORMAT_JPEG,
+    "framesize": FRAMESIZE_QVGA,
+    "quality": 10,
+    "brightness": 0,
+    "contrast": 0,
+    "saturation": 0,
+    "sharpness": 0,
+    "denoise": 0,
+    "special_effect": 0,
+    "wb_mode": 0,
+    "awb": 1,
+    "awb_gain": 1,
+    "aec": 1,
+    "aec2": 0,
+    "ae_level": 0,
+    "aec_value": 168,
+    "agc": 1,
+    "agc_gain": 0,
+    "gainceiling": 0,
+    "bpc": 0,
+    "wpc": 1,
+    "raw_gma": 1,
+    "lenc": 1,
+    "hmirror": 0,
+    "vflip": 0,
+    "dcw": 1,
+    "colorbar": 0,
+    "pixformat": PIXFORMAT_JPEG,
 }
 
 # Bounds of the ROS integer types a field may have.
 _TYPE_BOUNDS: dict[str, tuple[int, int]] = {
-    "uint8": (0, 0xFF), "int8": (-0x80, 0x7F), "uint16": (0, 0xFFFF), "int16": (-0x8000, 0x7FFF),
-    "uint32": (0, 0xFFFFFFFF), "int32": (-0x80000000, 0x7FFFFFFF),
+    "uint8": (0, 0xFF),
+    "int8": (-0x80, 0x7F),
+    "uint16": (0, 0xFFFF),
+    "int16": (-0x8000, 0x7FFF),
+    "uint32": (0, 0xFFFFFFFF),
+    "int32": (-0x80000000, 0x7FFFFFFF),
 }
 # Generous: a form value longer than this is refused before int() sees it.
 _INTEGER = re.compile(r"[+-]?[0-9]{1,7}")
@@ -176,8 +202,8 @@ def settings_from_fields(fields: Mapping[str, str]) -> tuple[Setting, ...]:
 def parse_msg_fields(text: str) -> dict[str, str]:
     """Field name -> type of a .msg file's text (constants and comments skipped)."""
     fields = {}
-    for line in text.splitlines():
-        line = line.split("#", 1)[0].strip()
+    for raw_line in text.splitlines():
+        line = raw_line.split("#", 1)[0].strip()
         if not line or "=" in line:
             continue
         ros_type, name = line.split()[:2]
@@ -216,8 +242,8 @@ def parse_form(
             continue
         submitted[name] = value
     config = {name: current.get(name, DEFAULT_CONFIG.get(name, by_name[name].low)) for name in by_name}
-    for name, raw in submitted.items():
-        raw = raw.strip()
+    for name, submitted_value in submitted.items():
+        raw = submitted_value.strip()
         if raw == "on":  # a checkbox submitted without an explicit value
             raw = "1"
         if not _INTEGER.fullmatch(raw):

@@ -23,11 +23,20 @@ from std_msgs.msg import String
 from espdock_demo import camera_config
 from espdock_demo.colors import shorten
 from espdock_demo.names import (
-    CAMERA_FRAME_ID, CAMERA_GET_CONFIG_SERVICE, CAMERA_IMAGE_TOPIC, CAMERA_SET_CONFIG_SERVICE, IMAGE_FORMAT,
+    CAMERA_FRAME_ID,
+    CAMERA_GET_CONFIG_SERVICE,
+    CAMERA_IMAGE_TOPIC,
+    CAMERA_SET_CONFIG_SERVICE,
+    IMAGE_FORMAT,
     SCENE_TOPIC,
 )
 from espdock_demo.ros_common import (
-    IMAGE_PUB_QOS, LATCHED_QOS, config_to_dict, spin_node, start_diagnostics, start_heartbeat,
+    IMAGE_PUB_QOS,
+    LATCHED_QOS,
+    config_to_dict,
+    spin_node,
+    start_diagnostics,
+    start_heartbeat,
 )
 from espdock_demo.scene import SceneRenderer
 
@@ -40,14 +49,30 @@ class CameraSim(Node):
     def __init__(self) -> None:
         super().__init__("camera_sim")
         # dynamic_typing: `-p fps:=30` (an integer) is as good as 30.0.
-        self.fps = float(self.declare_parameter("fps", 30.0, ParameterDescriptor(
-            description="frames per second", dynamic_typing=True)).value)
-        colors = list(self.declare_parameter("colors", DEFAULT_COLORS, ParameterDescriptor(
-            description="QR texts the scene cycles through")).value)
-        self.phase_duration = float(self.declare_parameter("phase_duration", 3.0, ParameterDescriptor(
-            description="seconds each QR text (and the blank phase) stays in view", dynamic_typing=True)).value)
-        blank = bool(self.declare_parameter("blank_phase", True, ParameterDescriptor(
-            description="end each cycle with a phase showing no code")).value)
+        self.fps = float(
+            self.declare_parameter(
+                "fps", 30.0, ParameterDescriptor(description="frames per second", dynamic_typing=True)
+            ).value
+        )
+        colors = list(
+            self.declare_parameter(
+                "colors", DEFAULT_COLORS, ParameterDescriptor(description="QR texts the scene cycles through")
+            ).value
+        )
+        self.phase_duration = float(
+            self.declare_parameter(
+                "phase_duration",
+                3.0,
+                ParameterDescriptor(
+                    description="seconds each QR text (and the blank phase) stays in view", dynamic_typing=True
+                ),
+            ).value
+        )
+        blank = bool(
+            self.declare_parameter(
+                "blank_phase", True, ParameterDescriptor(description="end each cycle with a phase showing no code")
+            ).value
+        )
         framesize = int(self.declare_parameter("framesize", camera_config.FRAMESIZE_QVGA).value)
         quality = int(self.declare_parameter("quality", camera_config.DEFAULT_CONFIG["quality"]).value)
         if self.fps <= 0 or self.phase_duration <= 0:
@@ -64,7 +89,7 @@ class CameraSim(Node):
         self.frames_published = 0
         self.scene_changes = 0
         self.render_seconds = 0.0
-        self.current: str | None | bool = False  # False: nothing shown yet
+        self.current: str | bool | None = False  # False: nothing shown yet
 
         self.image_pub = self.create_publisher(CompressedImage, CAMERA_IMAGE_TOPIC, IMAGE_PUB_QOS)
         self.scene_pub = self.create_publisher(String, SCENE_TOPIC, LATCHED_QOS)
@@ -98,8 +123,9 @@ class CameraSim(Node):
             self.current = text
             self.scene_changes += 1
             stamp_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
-            self.scene_pub.publish(String(data=json.dumps({"text": text, "stamp_ns": stamp_ns,
-                                                            "frame": self.frames_published})))
+            self.scene_pub.publish(
+                String(data=json.dumps({"text": text, "stamp_ns": stamp_ns, "frame": self.frames_published}))
+            )
 
     def on_get_config(self, request: GetCameraConfig.Request, response: GetCameraConfig.Response):
         response.config = CameraConfig(**self.config)

@@ -22,11 +22,21 @@ from espdock_demo.colors import Rgb
 from espdock_demo.health import SIM_NODES, NodeHealth
 from espdock_demo.mjpeg import FrameBroadcaster
 from espdock_demo.names import (
-    CAMERA_GET_CONFIG_SERVICE, CAMERA_IMAGE_TOPIC, CAMERA_SET_CONFIG_SERVICE, DIAGNOSTICS_TOPIC, LED_COLOR_TOPIC,
+    CAMERA_GET_CONFIG_SERVICE,
+    CAMERA_IMAGE_TOPIC,
+    CAMERA_SET_CONFIG_SERVICE,
+    DIAGNOSTICS_TOPIC,
+    LED_COLOR_TOPIC,
     QR_MESSAGE_TOPIC,
 )
 from espdock_demo.ros_common import (
-    IMAGE_SUB_QOS, LATCHED_QOS, TEXT_QOS, config_to_dict, spin_node, start_diagnostics, start_heartbeat,
+    IMAGE_SUB_QOS,
+    LATCHED_QOS,
+    TEXT_QOS,
+    config_to_dict,
+    spin_node,
+    start_diagnostics,
+    start_heartbeat,
 )
 from espdock_demo.web import CameraUnavailable, LiveState, SetResult, UiApp, make_server
 
@@ -60,12 +70,14 @@ class CameraUi(Node):
         self.create_subscription(DiagnosticArray, DIAGNOSTICS_TOPIC, self.on_diagnostics, 10)
         self.create_timer(1.0, lambda: self.state.update(nodes=self.health.report()))
         self.beat_age = start_heartbeat(self)
-        start_diagnostics(self, lambda: {"camera_online": self.app.camera_online(),
-                                         "fps_in": round(self.frames.rate(), 1)})
+        start_diagnostics(
+            self, lambda: {"camera_online": self.app.camera_online(), "fps_in": round(self.frames.rate(), 1)}
+        )
 
         self.server = make_server(host, port, self.app)
-        threading.Thread(target=self.server.serve_forever, kwargs={"poll_interval": 0.5},
-                         name="http", daemon=True).start()
+        threading.Thread(
+            target=self.server.serve_forever, kwargs={"poll_interval": 0.5}, name="http", daemon=True
+        ).start()
         self.get_logger().info(f"camera UI at http://{host}:{port}/")
 
     # ROS side: hand over and return at once.
@@ -103,15 +115,17 @@ class CameraUi(Node):
         with self.set_lock:
             if not self.set_client.service_is_ready():
                 raise CameraUnavailable(
-                    f"The camera's {CAMERA_SET_CONFIG_SERVICE} service is not available: is the camera running?", 503)
+                    f"The camera's {CAMERA_SET_CONFIG_SERVICE} service is not available: is the camera running?", 503
+                )
             done = threading.Event()
             future = self.set_client.call_async(SetCameraConfig.Request(config=CameraConfig(**config)))
             future.add_done_callback(lambda _: done.set())
             if not done.wait(timeout):
                 self.set_client.remove_pending_request(future)
                 future.cancel()
-                raise CameraUnavailable(f"The camera did not answer within {timeout:g} s; nothing is known to have "
-                                        "changed.", 504)
+                raise CameraUnavailable(
+                    f"The camera did not answer within {timeout:g} s; nothing is known to have changed.", 504
+                )
             response = future.result()
             return SetResult(bool(response.status), config_to_dict(response.config))
 

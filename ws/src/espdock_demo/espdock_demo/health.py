@@ -13,8 +13,9 @@ HARDWARE_NODES = ("/qr_detector", "/camera_ui")
 class NodeHealth:
     """When each node last reported, and what that makes it: "ok", "stale" or "not seen"."""
 
-    def __init__(self, expected: Iterable[str], stale_after: float = 3.0,
-                 clock: Callable[[], float] = time.monotonic) -> None:
+    def __init__(
+        self, expected: Iterable[str], stale_after: float = 3.0, clock: Callable[[], float] = time.monotonic
+    ) -> None:
         self.expected = tuple(expected)
         self.stale_after = stale_after
         self.clock = clock

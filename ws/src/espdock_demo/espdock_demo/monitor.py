@@ -59,8 +59,9 @@ class DemoMonitor(Node):
         if camera:
             parts.append(f"camera_sim {camera.get('resolution')} {camera.get('frames_published')} frames")
         if detector:
-            parts.append(f"qr_detector {detector.get('frames_decoded')} decoded "
-                         f"({detector.get('decode_ms_avg')} ms each)")
+            parts.append(
+                f"qr_detector {detector.get('frames_decoded')} decoded ({detector.get('decode_ms_avg')} ms each)"
+            )
         if parts:
             self.get_logger().info("; ".join(parts))
 

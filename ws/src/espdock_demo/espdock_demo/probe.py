@@ -30,7 +30,12 @@ from espdock_demo.camera_config import DEFAULT_CONFIG
 from espdock_demo.colors import Rgb, parse_hex_color
 from espdock_demo.mjpeg import jpeg_size
 from espdock_demo.names import (
-    CAMERA_IMAGE_TOPIC, DIAGNOSTICS_TOPIC, IMAGE_FORMAT, LED_COLOR_TOPIC, QR_MESSAGE_TOPIC, SCENE_TOPIC,
+    CAMERA_IMAGE_TOPIC,
+    DIAGNOSTICS_TOPIC,
+    IMAGE_FORMAT,
+    LED_COLOR_TOPIC,
+    QR_MESSAGE_TOPIC,
+    SCENE_TOPIC,
 )
 from espdock_demo.ros_common import IMAGE_PUB_QOS, IMAGE_SUB_QOS, LATCHED_QOS, TEXT_QOS
 
@@ -53,6 +58,7 @@ class Probe(Node):
     def watch_led(self):
         def on_color(msg: ColorRGBA) -> None:
             self.leds.append({"hex": Rgb.from_floats(msg.r, msg.g, msg.b).hex, "recv_ns": time.time_ns()})
+
         return self.create_subscription(ColorRGBA, LED_COLOR_TOPIC, on_color, LATCHED_QOS)
 
     def watch_scene(self):
@@ -60,20 +66,30 @@ class Probe(Node):
             scene = json.loads(msg.data)
             scene["recv_ns"] = time.time_ns()
             self.scenes.append(scene)
+
         # Volatile: only changes from now on, not the scene shown before the probe came.
         return self.create_subscription(String, SCENE_TOPIC, on_scene, TEXT_QOS)
 
     def watch_qr(self) -> None:
         def on_qr(msg: String) -> None:
             self.qr_texts.append({"text": msg.data[:80], "length": len(msg.data), "recv_ns": time.time_ns()})
+
         self.create_subscription(String, QR_MESSAGE_TOPIC, on_qr, TEXT_QOS)
 
     def watch_frames(self) -> None:
         def on_frame(msg: CompressedImage) -> None:
             size = jpeg_size(bytes(msg.data))
-            self.frames.append({"width": size[0] if size else None, "height": size[1] if size else None,
-                                "bytes": len(msg.data), "stamp_ns": _stamp_ns(msg.header.stamp),
-                                "recv_ns": time.time_ns(), "format": msg.format})
+            self.frames.append(
+                {
+                    "width": size[0] if size else None,
+                    "height": size[1] if size else None,
+                    "bytes": len(msg.data),
+                    "stamp_ns": _stamp_ns(msg.header.stamp),
+                    "recv_ns": time.time_ns(),
+                    "format": msg.format,
+                }
+            )
+
         self.create_subscription(CompressedImage, CAMERA_IMAGE_TOPIC, on_frame, IMAGE_SUB_QOS)
 
     def watch_diagnostics(self) -> None:
@@ -82,6 +98,7 @@ class Probe(Node):
                 values = {kv.key: kv.value for kv in status.values}
                 values["stamp_ns"] = _stamp_ns(msg.header.stamp)
                 self.diagnostics.setdefault(status.name.lstrip("/"), []).append(values)
+
         self.create_subscription(DiagnosticArray, DIAGNOSTICS_TOPIC, on_diagnostics, 50)
 
     def spin_until(self, done: Callable[[], bool], timeout: float) -> bool:
@@ -99,18 +116,21 @@ class Probe(Node):
     def wait_for_subscriber(self, topic: str, node_name: str, timeout: float) -> bool:
         """Wait until NODE_NAME subscribes to TOPIC (as the graph shows it), plus time for the match."""
         found = self.spin_until(
-            lambda: any(i.node_name == node_name for i in self.get_subscriptions_info_by_topic(topic)), timeout)
+            lambda: any(i.node_name == node_name for i in self.get_subscriptions_info_by_topic(topic)), timeout
+        )
         self.spin_for(0.5)
         return found
 
     def wait_for_publisher(self, topic: str, node_name: str, timeout: float) -> bool:
         found = self.spin_until(
-            lambda: any(i.node_name == node_name for i in self.get_publishers_info_by_topic(topic)), timeout)
+            lambda: any(i.node_name == node_name for i in self.get_publishers_info_by_topic(topic)), timeout
+        )
         self.spin_for(0.5)
         return found
 
 
 # ---------------------------------------------------------------- commands
+
 
 def cmd_led(probe: Probe, args: argparse.Namespace) -> dict:
     probe.watch_led()
@@ -133,13 +153,28 @@ def follow_report(scenes: list[dict], leds: list[dict], since_ns: int = 0) -> di
             continue
         previous = color.hex
         until = scenes[i + 1]["stamp_ns"] if i + 1 < len(scenes) else None
-        led = next((led for led in leds if led["hex"] == color.hex and led["recv_ns"] >= scene["stamp_ns"]
-                    and (until is None or led["recv_ns"] < until + 2_000_000_000)), None)
+        led = next(
+            (
+                led
+                for led in leds
+                if led["hex"] == color.hex
+                and led["recv_ns"] >= scene["stamp_ns"]
+                and (until is None or led["recv_ns"] < until + 2_000_000_000)
+            ),
+            None,
+        )
         if led is None:
             missed.append({"text": text, "stamp_ns": scene["stamp_ns"]})
             continue
-        changes.append({"text": text, "hex": color.hex, "scene_stamp_ns": scene["stamp_ns"],
-                        "led_recv_ns": led["recv_ns"], "latency_ms": (led["recv_ns"] - scene["stamp_ns"]) / 1e6})
+        changes.append(
+            {
+                "text": text,
+                "hex": color.hex,
+                "scene_stamp_ns": scene["stamp_ns"],
+                "led_recv_ns": led["recv_ns"],
+                "latency_ms": (led["recv_ns"] - scene["stamp_ns"]) / 1e6,
+            }
+        )
     return {"changes": changes, "missed": missed}
 
 
@@ -149,8 +184,9 @@ def cmd_follow(probe: Probe, args: argparse.Namespace) -> dict:
     start = time.monotonic()
     # Count only scene changes after both subscriptions matched their publishers: an LED
     # change published before the match is never seen (only the latest is kept for late joiners).
-    matched = probe.spin_until(lambda: led_sub.get_publisher_count() > 0 and scene_sub.get_publisher_count() > 0,
-                               args.timeout)
+    matched = probe.spin_until(
+        lambda: led_sub.get_publisher_count() > 0 and scene_sub.get_publisher_count() > 0, args.timeout
+    )
     since_ns = time.time_ns()
 
     def enough() -> bool:
@@ -159,9 +195,12 @@ def cmd_follow(probe: Probe, args: argparse.Namespace) -> dict:
     ok = matched and probe.spin_until(enough, args.timeout)
     probe.spin_for(0.3)  # let the last LED change of the window arrive
     report = follow_report(probe.scenes, probe.leds, since_ns)
-    report.update(ok=ok, seconds=round(time.monotonic() - start, 2),
-                  scenes=[{"text": s.get("text"), "stamp_ns": s["stamp_ns"]} for s in probe.scenes],
-                  leds=probe.leds)
+    report.update(
+        ok=ok,
+        seconds=round(time.monotonic() - start, 2),
+        scenes=[{"text": s.get("text"), "stamp_ns": s["stamp_ns"]} for s in probe.scenes],
+        leds=probe.leds,
+    )
     return report
 
 
@@ -193,14 +232,17 @@ def cmd_set_config(probe: Probe, args: argparse.Namespace) -> dict:
             raise SystemExit(f"{client.srv_name} did not answer within {args.timeout:g} s")
         return future.result()
 
-    before = config_to_dict(call(probe.create_client(GetCameraConfig, CAMERA_GET_CONFIG_SERVICE),
-                                 GetCameraConfig.Request()).config)
+    before = config_to_dict(
+        call(probe.create_client(GetCameraConfig, CAMERA_GET_CONFIG_SERVICE), GetCameraConfig.Request()).config
+    )
     wanted = dict(before)
     for item in args.fields:
         name, _, value = item.partition("=")
         wanted[name] = int(value)
-    answer = call(probe.create_client(SetCameraConfig, CAMERA_SET_CONFIG_SERVICE),
-                  SetCameraConfig.Request(config=CameraConfig(**wanted)))
+    answer = call(
+        probe.create_client(SetCameraConfig, CAMERA_SET_CONFIG_SERVICE),
+        SetCameraConfig.Request(config=CameraConfig(**wanted)),
+    )
     return {"before": before, "status": bool(answer.status), "config": config_to_dict(answer.config)}
 
 
@@ -225,8 +267,9 @@ def cmd_inject(probe: Probe, args: argparse.Namespace) -> dict:
         "led_strip_sim": probe.wait_for_subscriber(QR_MESSAGE_TOPIC, "led_strip_sim", args.timeout),
     }
     probe.wait_for_publisher(QR_MESSAGE_TOPIC, "qr_detector", args.timeout)
-    probe.spin_until(lambda: bool(probe.leds) and {"qr_detector", "led_strip_sim"} <= probe.diagnostics.keys(),
-                     args.timeout)
+    probe.spin_until(
+        lambda: bool(probe.leds) and {"qr_detector", "led_strip_sim"} <= probe.diagnostics.keys(), args.timeout
+    )
     before = {name: series[-1] for name, series in probe.diagnostics.items()}
     led_before = probe.leds[-1]["hex"] if probe.leds else None
     renderer = SceneRenderer()
@@ -237,8 +280,11 @@ def cmd_inject(probe: Probe, args: argparse.Namespace) -> dict:
             sent.append({"topic": QR_MESSAGE_TOPIC, "length": len(value), "text": value[:40]})
         else:
             if kind == "image":
-                data = {"garbage": b"\xff\xd8\xff\xe0 this is not a JPEG" * 50, "empty": b"",
-                        "truncated": renderer.frame("#123456", DEFAULT_CONFIG, 0)[:300]}[value]
+                data = {
+                    "garbage": b"\xff\xd8\xff\xe0 this is not a JPEG" * 50,
+                    "empty": b"",
+                    "truncated": renderer.frame("#123456", DEFAULT_CONFIG, 0)[:300],
+                }[value]
             else:  # a QR code showing VALUE (qr: text; qr-bytes: hex of raw bytes)
                 payload = bytes.fromhex(value) if kind == "qr-bytes" else value
                 data = renderer.frame(payload, DEFAULT_CONFIG, 0)
@@ -250,8 +296,13 @@ def cmd_inject(probe: Probe, args: argparse.Namespace) -> dict:
         probe.spin_for(args.gap)
     done_ns = time.time_ns()
     # Wait for counters stamped after the last input was handled.
-    probe.spin_until(lambda: all(any(int(v["stamp_ns"]) > done_ns + 1_000_000_000 for v in probe.diagnostics.get(n, []))
-                                 for n in ("qr_detector", "led_strip_sim")), args.timeout)
+    probe.spin_until(
+        lambda: all(
+            any(int(v["stamp_ns"]) > done_ns + 1_000_000_000 for v in probe.diagnostics.get(n, []))
+            for n in ("qr_detector", "led_strip_sim")
+        ),
+        args.timeout,
+    )
     after = {name: series[-1] for name, series in probe.diagnostics.items()}
     return {
         "ready": ready,
@@ -278,8 +329,9 @@ class _Append(argparse.Action):
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="demo_probe", description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        prog="demo_probe", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     sub = parser.add_subparsers(dest="command", required=True)
     p = sub.add_parser("led", help="the LED strip's colour now")
     p.add_argument("--timeout", type=float, default=10.0)
@@ -299,16 +351,27 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--qr", metavar="TEXT", action=_Append, dest="actions", help="an image of a QR code of TEXT")
     p.add_argument("--qr-bytes", metavar="HEX", action=_Append, dest="actions", help="a QR code of raw bytes")
     p.add_argument("--text", metavar="TEXT", action=_Append, dest="actions", help="TEXT straight on /qr_message")
-    p.add_argument("--text-size", metavar="N", action=_Append, dest="actions",
-                   help="an N-character '#fff...' string on /qr_message")
+    p.add_argument(
+        "--text-size",
+        metavar="N",
+        action=_Append,
+        dest="actions",
+        help="an N-character '#fff...' string on /qr_message",
+    )
     p.add_argument("--repeat", type=int, default=3, help="times each image is sent (best effort)")
     p.add_argument("--gap", type=float, default=0.5, help="seconds between inputs")
     p.add_argument("--timeout", type=float, default=20.0)
     return parser
 
 
-COMMANDS = {"led": cmd_led, "follow": cmd_follow, "frames": cmd_frames, "stats": cmd_stats,
-            "set-config": cmd_set_config, "inject": cmd_inject}
+COMMANDS = {
+    "led": cmd_led,
+    "follow": cmd_follow,
+    "frames": cmd_frames,
+    "stats": cmd_stats,
+    "set-config": cmd_set_config,
+    "inject": cmd_inject,
+}
 
 
 def main(argv: list[str] | None = None) -> None:

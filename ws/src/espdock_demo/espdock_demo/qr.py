@@ -17,11 +17,11 @@ _MAX_PIXELS = 4096 * 4096
 class Outcome(enum.StrEnum):
     """What one frame gave."""
 
-    CODE = "code"            # a QR code with UTF-8 text
-    NO_CODE = "no_code"      # a good picture without a readable code
-    EMPTY = "empty"          # no bytes at all
-    CORRUPT = "corrupt"      # bytes that are not a decodable image
-    NOT_UTF8 = "not_utf8"    # a code whose bytes are not UTF-8 text
+    CODE = "code"  # a QR code with UTF-8 text
+    NO_CODE = "no_code"  # a good picture without a readable code
+    EMPTY = "empty"  # no bytes at all
+    CORRUPT = "corrupt"  # bytes that are not a decodable image
+    NOT_UTF8 = "not_utf8"  # a code whose bytes are not UTF-8 text
 
 
 @dataclass(frozen=True)

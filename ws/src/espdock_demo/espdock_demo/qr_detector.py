@@ -41,8 +41,10 @@ class QrDetector(Node):
         text = self.filter.feed(result)
         log = self.get_logger()
         if result.outcome is Outcome.CORRUPT:
-            log.warning(f"ignored a frame that is not an image ({len(msg.data)} bytes): {result.detail}",
-                        throttle_duration_sec=2.0)
+            log.warning(
+                f"ignored a frame that is not an image ({len(msg.data)} bytes): {result.detail}",
+                throttle_duration_sec=2.0,
+            )
         elif result.outcome is Outcome.EMPTY:
             log.warning("ignored an empty frame", throttle_duration_sec=2.0)
         elif result.outcome is Outcome.NOT_UTF8:

@@ -9,7 +9,7 @@ from collections.abc import Callable, Mapping
 
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from rclpy.executors import ExternalShutdownException, Executor, SingleThreadedExecutor
+from rclpy.executors import Executor, ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
@@ -17,16 +17,32 @@ from espdock_demo.names import DIAGNOSTICS_TOPIC, HEARTBEAT_FILE_DEFAULT
 
 # Image subscribers keep only the newest frame and never ask for resends: a
 # subscriber that falls behind skips to the latest frame instead of building a backlog.
-IMAGE_SUB_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.BEST_EFFORT,
-                           durability=DurabilityPolicy.VOLATILE)
+IMAGE_SUB_QOS = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST,
+    depth=1,
+    reliability=ReliabilityPolicy.BEST_EFFORT,
+    durability=DurabilityPolicy.VOLATILE,
+)
 # As the firmware's rclc_publisher_init_default: reliable, volatile (matches best-effort readers too).
-IMAGE_PUB_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=2, reliability=ReliabilityPolicy.RELIABLE,
-                           durability=DurabilityPolicy.VOLATILE)
-TEXT_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10, reliability=ReliabilityPolicy.RELIABLE,
-                      durability=DurabilityPolicy.VOLATILE)
+IMAGE_PUB_QOS = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST,
+    depth=2,
+    reliability=ReliabilityPolicy.RELIABLE,
+    durability=DurabilityPolicy.VOLATILE,
+)
+TEXT_QOS = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST,
+    depth=10,
+    reliability=ReliabilityPolicy.RELIABLE,
+    durability=DurabilityPolicy.VOLATILE,
+)
 # The LED colour is state: a late subscriber gets the colour the strip shows now.
-LATCHED_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE,
-                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
+LATCHED_QOS = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST,
+    depth=1,
+    reliability=ReliabilityPolicy.RELIABLE,
+    durability=DurabilityPolicy.TRANSIENT_LOCAL,
+)
 
 HEARTBEAT_FILE = os.environ.get("ESPDOCK_HEARTBEAT", HEARTBEAT_FILE_DEFAULT)
 
@@ -72,8 +88,9 @@ def start_diagnostics(node: Node, values: Callable[[], Mapping[str, object]], pe
     node.create_timer(period, publish)
 
 
-def spin_node(make_node: Callable[[], Node], executor: Executor | None = None,
-              on_shutdown: Callable[[Node], None] | None = None) -> None:
+def spin_node(
+    make_node: Callable[[], Node], executor: Executor | None = None, on_shutdown: Callable[[Node], None] | None = None
+) -> None:
     """Init rclpy, spin the node MAKE_NODE makes until Ctrl-C or SIGTERM, then clean up.
 
     Anything else a node raises ends the process with an error, so the

@@ -19,13 +19,30 @@ from espdock_demo.camera_config import DEFAULT_CONFIG, frame_size
 from espdock_demo.colors import parse_hex_color
 
 _BACKGROUND = (196, 190, 178)
-_COLORBARS = ((255, 255, 255), (255, 255, 0), (0, 255, 255), (0, 255, 0),
-              (255, 0, 255), (255, 0, 0), (0, 0, 255), (0, 0, 0))
+_COLORBARS = (
+    (255, 255, 255),
+    (255, 255, 0),
+    (0, 255, 255),
+    (0, 255, 0),
+    (255, 0, 255),
+    (255, 0, 0),
+    (0, 0, 255),
+    (0, 0, 0),
+)
 # special_effect: (dark, light) ends a grayscale picture is toned between.
 _TONES = {3: ("#300000", "#ffb4b4"), 4: ("#003000", "#b4ffb4"), 5: ("#000030", "#b4b4ff"), 6: ("#2e1d0b", "#f1e3c6")}
 # The settings that change the still picture (the rest only change the encoding).
-_PICTURE_KEYS = ("framesize", "brightness", "contrast", "saturation", "sharpness",
-                 "special_effect", "hmirror", "vflip", "colorbar")
+_PICTURE_KEYS = (
+    "framesize",
+    "brightness",
+    "contrast",
+    "saturation",
+    "sharpness",
+    "special_effect",
+    "hmirror",
+    "vflip",
+    "colorbar",
+)
 
 
 def jpeg_quality(esp_quality: int) -> int:
@@ -84,8 +101,12 @@ def draw_colorbars(width: int, height: int) -> Image.Image:
 
 def apply_sensor(image: Image.Image, config: Mapping[str, int]) -> Image.Image:
     """IMAGE as the sensor settings in CONFIG change it (everything but size and quality)."""
-    for key, enhancer, step in (("brightness", ImageEnhance.Brightness, 0.3), ("contrast", ImageEnhance.Contrast, 0.3),
-                                ("saturation", ImageEnhance.Color, 0.5), ("sharpness", ImageEnhance.Sharpness, 0.8)):
+    for key, enhancer, step in (
+        ("brightness", ImageEnhance.Brightness, 0.3),
+        ("contrast", ImageEnhance.Contrast, 0.3),
+        ("saturation", ImageEnhance.Color, 0.5),
+        ("sharpness", ImageEnhance.Sharpness, 0.8),
+    ):
         level = config.get(key, 0)
         if level:
             image = enhancer(image).enhance(max(0.0, 1.0 + step * level))

@@ -63,8 +63,12 @@ def main(argv: list[str] | None = None) -> int:
         limit = args.stale_after if beaten else args.first_beat
         if age > limit:
             name = os.path.basename(command[0])
-            print(f"demo_watchdog: {name} has not beaten for {age:.0f} s (limit {limit:g} s): stuck; "
-                  "killing it so the service restarts", file=sys.stderr, flush=True)
+            print(
+                f"demo_watchdog: {name} has not beaten for {age:.0f} s (limit {limit:g} s): stuck; "
+                "killing it so the service restarts",
+                file=sys.stderr,
+                flush=True,
+            )
             node.kill()  # SIGKILL also ends a stopped process
             node.wait()
             return 1

@@ -26,10 +26,16 @@ from typing import Protocol
 from urllib.parse import parse_qsl, urlsplit
 
 from espdock_demo.camera_config import (
-    DEFAULT_CONFIG, FRAME_SIZES, ConfigError, Setting, frame_size_name, parse_form,
+    DEFAULT_CONFIG,
+    FRAME_SIZES,
+    ConfigError,
+    Setting,
+    frame_size_name,
+    parse_form,
 )
 from espdock_demo.colors import Rgb
-from espdock_demo.mjpeg import CONTENT_TYPE as MJPEG_CONTENT_TYPE, FrameBroadcaster, jpeg_size, multipart_chunk
+from espdock_demo.mjpeg import CONTENT_TYPE as MJPEG_CONTENT_TYPE
+from espdock_demo.mjpeg import FrameBroadcaster, jpeg_size, multipart_chunk
 
 _MAX_FORM_BYTES = 16 * 1024
 _MAX_QR_SHOWN = 200
@@ -147,6 +153,7 @@ def make_server(host: str, port: int, app: UiApp) -> ThreadingHTTPServer:
 
 # ---------------------------------------------------------------- rendering
 
+
 def _e(value: object) -> str:
     return html.escape(str(value), quote=True)
 
@@ -156,24 +163,30 @@ def render_control(setting: Setting, value: int) -> str:
     name = _e(setting.name)
     label = _e(setting.label)
     disabled = " disabled" if setting.read_only else ""
-    note = ' <small>(the camera node always publishes JPEG)</small>' if setting.read_only else ""
+    note = " <small>(the camera node always publishes JPEG)</small>" if setting.read_only else ""
     if setting.kind == "menu":
         options = "".join(
             f'<option value="{i}"{" selected" if i == value else ""}>{_e(choice)}</option>'
             for i, choice in enumerate(setting.choices)
             if setting.low <= i <= setting.high
         )
-        return (f'<label class="menu">{label}{note}<select name="{name}" data-setting="{name}"{disabled}>'
-                f'{options}</select></label>')
+        return (
+            f'<label class="menu">{label}{note}<select name="{name}" data-setting="{name}"{disabled}>'
+            f"{options}</select></label>"
+        )
     if setting.kind == "toggle":
         checked = " checked" if value else ""
-        return (f'<label class="toggle"><input type="hidden" name="{name}" value="0">'
-                f'<input type="checkbox" name="{name}" value="1" data-setting="{name}"{checked}{disabled}> '
-                f'{label}</label>')
-    return (f'<label class="slider">{label} <output id="out-{name}">{_e(value)}</output>'
-            f'<input type="range" name="{name}" data-setting="{name}" min="{setting.low}" max="{setting.high}" '
-            f'step="1" value="{_e(value)}"{disabled}>'
-            f'<span class="range">{setting.low} .. {setting.high}</span></label>')
+        return (
+            f'<label class="toggle"><input type="hidden" name="{name}" value="0">'
+            f'<input type="checkbox" name="{name}" value="1" data-setting="{name}"{checked}{disabled}> '
+            f"{label}</label>"
+        )
+    return (
+        f'<label class="slider">{label} <output id="out-{name}">{_e(value)}</output>'
+        f'<input type="range" name="{name}" data-setting="{name}" min="{setting.low}" max="{setting.high}" '
+        f'step="1" value="{_e(value)}"{disabled}>'
+        f'<span class="range">{setting.low} .. {setting.high}</span></label>'
+    )
 
 
 def render_page(app: UiApp, message: str = "", ok: bool = True) -> str:
@@ -187,10 +200,14 @@ def render_page(app: UiApp, message: str = "", ok: bool = True) -> str:
     qr = view["qr"]
     led = view["led"]
     camera = view["camera"]
+    camera_info = _e(f"{camera['width']}x{camera['height']}") if camera["width"] else "no frames yet"
     swatch = _e(led["hex"]) if led else "#000000"
     known = "" if config else '<p class="warn" id="config-unknown">The camera has not reported its settings yet.</p>'
-    banner = (f'<div id="result" role="status" class="{"ok" if ok else "error"}">{_e(message)}</div>' if message
-              else '<div id="result" role="status"></div>')
+    banner = (
+        f'<div id="result" role="status" class="{"ok" if ok else "error"}">{_e(message)}</div>'
+        if message
+        else '<div id="result" role="status"></div>'
+    )
     return f"""<!doctype html>
 <html lang="en"><head><meta charset="utf-8">
 <meta name="viewport" content="width=device-width, initial-scale=1">
@@ -220,7 +237,7 @@ label.slider, label.menu {{ display: flex; flex-direction: column; }}
   <div class="stream"><img id="stream" src="/stream.mjpg" alt="camera stream">
     <div id="nocam"{"" if not camera["online"] else " hidden"}>No camera
       <small>no frames for {app.offline_after:g} s; the stream comes back by itself</small></div></div>
-  <p id="camera-info">{_e(f'{camera["width"]}x{camera["height"]}') if camera["width"] else "no frames yet"}</p>
+  <p id="camera-info">{camera_info}</p>
 </section>
 <section>
   <h2>QR code</h2><p id="qr">{_e(qr["text"]) if qr else "(none yet)"}</p>
@@ -245,11 +262,14 @@ label.slider, label.menu {{ display: flex; flex-direction: column; }}
 """
 
 
-APP_JS = r"""'use strict';
+APP_JS = (
+    r"""'use strict';
 // Live state over server-sent events; the settings form posted with fetch.
 const $ = (id) => document.getElementById(id);
 const form = $('settings');
-const sizeNames = """ + json.dumps([name for name, _, _ in FRAME_SIZES]) + r""";
+const sizeNames = """
+    + json.dumps([name for name, _, _ in FRAME_SIZES])
+    + r""";
 let online = null;
 
 function applyConfig(config) {
@@ -332,14 +352,17 @@ form.addEventListener('submit', async (event) => {
   }
 });
 """
+)
 
 
 # ---------------------------------------------------------------- HTTP
 
 _SECURITY_HEADERS = (
-    ("Content-Security-Policy",
-     "default-src 'none'; img-src 'self'; script-src 'self'; style-src 'unsafe-inline'; "
-     "connect-src 'self'; form-action 'self'; base-uri 'none'; frame-ancestors 'none'"),
+    (
+        "Content-Security-Policy",
+        "default-src 'none'; img-src 'self'; script-src 'self'; style-src 'unsafe-inline'; "
+        "connect-src 'self'; form-action 'self'; base-uri 'none'; frame-ancestors 'none'",
+    ),
     ("X-Content-Type-Options", "nosniff"),
     ("Referrer-Policy", "no-referrer"),
 )
@@ -354,7 +377,7 @@ class _Handler(BaseHTTPRequestHandler):
     def app(self) -> UiApp:
         return self.server.app  # type: ignore[attr-defined]
 
-    def log_message(self, format: str, *args: object) -> None:  # noqa: A002
+    def log_message(self, format: str, *args: object) -> None:
         pass  # the node logs what matters; per-request lines would drown it
 
     # -- responses
@@ -390,7 +413,7 @@ class _Handler(BaseHTTPRequestHandler):
 
     # -- routes
 
-    def do_GET(self) -> None:  # noqa: N802
+    def do_GET(self) -> None:
         path = urlsplit(self.path).path
         routes: dict[str, Callable[[], None]] = {
             "/": lambda: self._html(HTTPStatus.OK, render_page(self.app)),
@@ -410,10 +433,10 @@ class _Handler(BaseHTTPRequestHandler):
         except (BrokenPipeError, ConnectionResetError, ConnectionAbortedError, TimeoutError):
             pass  # the client went away
 
-    def do_HEAD(self) -> None:  # noqa: N802
+    def do_HEAD(self) -> None:
         self.do_GET()
 
-    def do_POST(self) -> None:  # noqa: N802
+    def do_POST(self) -> None:
         if urlsplit(self.path).path != "/config":
             self._text(HTTPStatus.NOT_FOUND, "POST only to /config\n")
             return
@@ -466,8 +489,16 @@ class _Handler(BaseHTTPRequestHandler):
         while not app.stopping.is_set():
             version, values = app.state.wait(version, timeout=0.5)
             view = live_view(app, values)
-            key = json.dumps([view["qr"], view["led"], view["config"], view["camera"]["online"],
-                              view["camera"]["width"], view["camera"]["height"]])
+            key = json.dumps(
+                [
+                    view["qr"],
+                    view["led"],
+                    view["config"],
+                    view["camera"]["online"],
+                    view["camera"]["width"],
+                    view["camera"]["height"],
+                ]
+            )
             now = time.monotonic()
             if key != last_key or now - last_sent >= 1.0:
                 self.wfile.write(f"event: state\ndata: {json.dumps(view)}\n\n".encode())
@@ -521,5 +552,8 @@ class _Handler(BaseHTTPRequestHandler):
             size = frame_size_name(result.config.get("framesize", 0))
             answer(HTTPStatus.OK, f"The camera applied the settings ({size}).", result.config, ok=True)
         else:
-            answer(HTTPStatus.UNPROCESSABLE_ENTITY, "The camera refused the settings and kept its configuration.",
-                   result.config)
+            answer(
+                HTTPStatus.UNPROCESSABLE_ENTITY,
+                "The camera refused the settings and kept its configuration.",
+                result.config,
+            )

@@ -22,6 +22,7 @@ from espdock.config import Config, invoking_user, load_config, resolve_ca_bundle
 from espdock.engine import Engine, format_argv
 from espdock.errors import ConfigError, EspdockBug, EspdockError, Interrupted, WorkspaceError
 from espdock.flashing import PortError, check_port, esptool_major, flash_argv, parse_port, verify_argv
+from espdock.install import firmware_install_dir
 from espdock.pins import SOURCES_FILE, Source, pin_heads, pin_image_digest
 from espdock.plan import (
     IDF_DOCKERFILE,
@@ -184,7 +185,7 @@ def build(
     reporter = Reporter(console, verbose=verbose)
     engine = bootstrap.ensure_engine(os.environ, _notify)
     try:
-        Runner(engine, config, os.environ, reporter).run(plan)
+        Runner(engine, config, os.environ, reporter, invoking_user(os.environ, ws.root)).run(plan)
     finally:
         reporter.close()
         reporter.summary()
@@ -223,7 +224,7 @@ def idf(
     plan, step = _firmware_step(ws, config, package)
     argv = step.argv(tuple(args))
     console.print(Text(f"in {step.image}: {format_argv(argv)}", style="dim"))
-    runner = _runner(config, Reporter(console))
+    runner = _runner(ws, config, Reporter(console))
     runner.run(plan)
     raise typer.Exit(runner.run_idf(ws, step, argv))
 
@@ -278,7 +279,7 @@ def micro_ros_rebuild(
     unique = tuple({spec.key: spec for spec in specs.values()}.values())
     reporter = Reporter(console)
     try:
-        _runner(config, reporter).run(Plan(ws, tuple(EnsureImage(s, force=True) for s in unique), unique))
+        _runner(ws, config, reporter).run(Plan(ws, tuple(EnsureImage(s, force=True) for s in unique), unique))
     finally:
         reporter.close()
 
@@ -347,7 +348,7 @@ def flash(
     ws, config = _load(workspace)
     serial = parse_port(port)
     plan, step = _firmware_step(ws, config, package)
-    firmware = ws.ws_dir / "install" / package / "share" / package / "firmware"
+    firmware = ws.ws_dir / firmware_install_dir(package)
     args_file = firmware / "flasher_args.json"
     if not args_file.is_file():
         raise WorkspaceError(f"{package} has no installed firmware ({args_file})", f"Run `espdock build {package}`.")
@@ -361,9 +362,9 @@ def flash(
     if not isinstance(flasher_args, dict):
         raise WorkspaceError(f"{args_file} is not a flasher_args.json object", f"Run `espdock build {package}` again.")
     check_port(serial)
-    runner = _runner(config, Reporter(console))
+    runner = _runner(ws, config, Reporter(console))
     runner.run(plan)
-    workdir = f"{WORKSPACE_MOUNT}/ws/install/{package}/share/{package}/firmware"
+    workdir = f"{WORKSPACE_MOUNT}/ws/{firmware_install_dir(package)}"
     devices = (serial.device,) if serial.device else ()
     network = "host" if serial.is_url else None
     version: list[str] = []
@@ -402,7 +403,7 @@ def monitor(
         raise ConfigError("the monitor needs a terminal (stdin is not a TTY)", "Run it from an interactive shell.")
     check_port(serial)
     plan, step = _firmware_step(ws, config, package)
-    runner = _runner(config, Reporter(console))
+    runner = _runner(ws, config, Reporter(console))
     runner.run(plan)
     devices = (serial.device,) if serial.device else ()
     raise typer.Exit(
@@ -412,9 +413,9 @@ def monitor(
     )
 
 
-def _runner(config: Config, reporter: Reporter) -> Runner:
+def _runner(ws: Workspace, config: Config, reporter: Reporter) -> Runner:
     engine = bootstrap.ensure_engine(os.environ, _notify)
-    return Runner(engine, config, os.environ, reporter)
+    return Runner(engine, config, os.environ, reporter, invoking_user(os.environ, ws.root))
 
 
 @app.command()

@@ -46,10 +46,6 @@ class BuildFailed(EspdockError):
 
     exit_code = 5
 
-    def __init__(self, message: str, hint: str | None = None, packages: tuple[str, ...] = ()) -> None:
-        super().__init__(message, hint)
-        self.packages = packages
-
 
 class Interrupted(EspdockError):
     """The user interrupted espdock (Ctrl-C or SIGTERM); work in flight was cleaned up."""

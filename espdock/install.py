@@ -20,6 +20,11 @@ from espdock.errors import BuildFailed
 FIRMWARE_DIR = "firmware"
 
 
+def firmware_install_dir(package: str) -> str:
+    """Where PACKAGE's flashable artefacts are installed, relative to ws/ (the one spelling of it)."""
+    return f"install/{package}/share/{package}/{FIRMWARE_DIR}"
+
+
 def firmware_files(build_dir: Path) -> list[str]:
     """The artefacts to install, relative to BUILD_DIR, as flasher_args.json names them."""
     flasher_args = build_dir / "flasher_args.json"

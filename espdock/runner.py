@@ -13,15 +13,15 @@ import tempfile
 import time
 from collections.abc import Callable, Iterator, Mapping
 from contextlib import contextmanager
-from dataclasses import dataclass
 from datetime import UTC, datetime
-from enum import StrEnum
 from pathlib import Path
+from typing import assert_never
 
 from espdock import bootstrap
-from espdock.config import Config, invoking_user, resolve_ca_bundle
+from espdock.config import Config, resolve_ca_bundle
 from espdock.engine import Engine, Mount, RunSpec
 from espdock.errors import BuildFailed, EspdockError, WorkspaceError
+from espdock.events import Emit, Outcome, StepFinished, StepNote, StepOutput, StepStarted
 from espdock.install import install_firmware
 from espdock.plan import (
     LABEL_KEY,
@@ -53,51 +53,18 @@ FAILED_PACKAGE = re.compile(r"^Failed\s+<<<\s+(\S+)")
 BUILDKIT_STEP = re.compile(r"^#\d+ \[.*\] (?P<what>.+)$")
 
 
-class Outcome(StrEnum):
-    BUILT = "built"
-    CACHED = "cached"
-    FAILED = "failed"
-
-
-@dataclass(frozen=True)
-class StepStarted:
-    step: str
-
-
-@dataclass(frozen=True)
-class StepOutput:
-    step: str
-    line: str
-    # Progress lines (image builds) are shown as status; the rest is streamed.
-    progress: bool = False
-
-
-@dataclass(frozen=True)
-class StepNote:
-    step: str
-    text: str
-
-
-@dataclass(frozen=True)
-class StepFinished:
-    step: str
-    outcome: Outcome
-    seconds: float
-    detail: str = ""
-
-
-Event = StepStarted | StepOutput | StepNote | StepFinished
-Emit = Callable[[Event], None]
-
-
 class Runner:
     """Runs plan steps against one engine."""
 
-    def __init__(self, engine: Engine, config: Config, env: Mapping[str, str], emit: Emit) -> None:
+    def __init__(
+        self, engine: Engine, config: Config, env: Mapping[str, str], emit: Emit, owner: tuple[int, int]
+    ) -> None:
+        """OWNER (uid, gid): who containers run as and who owns what a build writes (config.invoking_user)."""
         self._engine = engine
         self._config = config
         self._env = env
         self._emit = emit
+        self._owner = owner
 
     def run(self, plan: Plan) -> list[StepFinished]:
         """Run every step in order; stops at the first failure, raising its error."""
@@ -126,20 +93,22 @@ class Runner:
         return finished
 
     def _dispatch(self, workspace: Workspace, step: Step) -> tuple[Outcome, str]:
-        if isinstance(step, EnsureBaseImage):
-            how = bootstrap.ensure_base_image(
-                self._engine, step.image, self._config, lambda text: self._emit(StepNote(step.name, text))
-            )
-            return (Outcome.CACHED, "present") if how == "present" else (Outcome.BUILT, how)
-        if isinstance(step, EnsureImage):
-            return self._ensure_image(workspace, step)
-        if isinstance(step, ColconBuild):
-            return self._colcon(workspace, step)
-        if isinstance(step, IdfBuild):
-            return self._idf_build(workspace, step)
-        if isinstance(step, InstallFirmware):
-            return self._install(workspace, step)
-        raise TypeError(f"unknown step {step!r}")
+        match step:
+            case EnsureBaseImage():
+                how = bootstrap.ensure_base_image(
+                    self._engine, step.image, self._config, lambda text: self._emit(StepNote(step.name, text))
+                )
+                return (Outcome.CACHED, "present") if how == "present" else (Outcome.BUILT, how)
+            case EnsureImage():
+                return self._ensure_image(workspace, step)
+            case ColconBuild():
+                return self._colcon(workspace, step)
+            case IdfBuild():
+                return self._idf_build(workspace, step)
+            case InstallFirmware():
+                return self._install(workspace, step)
+            case _:
+                assert_never(step)
 
     def _ensure_image(self, workspace: Workspace, step: EnsureImage) -> tuple[Outcome, str]:
         spec = step.spec
@@ -215,10 +184,9 @@ class Runner:
             raise BuildFailed(
                 f"colcon build failed (exit code {code}) in {', '.join(names)}; logs:\n{where}",
                 "Fix the package and run `espdock build` again; packages that built are kept.",
-                packages=tuple(failed),
             )
         stamp_file.record(stamps, installed())
-        _give_to(stamp_file.path, invoking_user(self._env, workspace.root))
+        _give_to(stamp_file.path, self._owner)
         return Outcome.BUILT, f"{len(step.packages)} package(s)"
 
     def _idf_build(self, workspace: Workspace, step: IdfBuild) -> tuple[Outcome, str]:
@@ -238,13 +206,12 @@ class Runner:
                 f"idf.py build of {step.package} failed (exit code {code}); its output is above, "
                 f"build files in {build_dir}",
                 "Fix the firmware and run `espdock build` again; installed firmware was left as it was.",
-                packages=(step.package,),
             )
         (build_dir / TARGET_MARKER).write_text(f"{step.target}\n{defaults}\n{step.image_key}\n")
-        _give_to(build_dir / TARGET_MARKER, invoking_user(self._env, workspace.root))
+        _give_to(build_dir / TARGET_MARKER, self._owner)
         # After the build: IDF itself writes into the project (the component manager's lock).
         stamp_file.record(self._firmware_stamp(workspace, step), {step.package: listing_digest(build_dir)})
-        _give_to(stamp_file.path, invoking_user(self._env, workspace.root))
+        _give_to(stamp_file.path, self._owner)
         return Outcome.BUILT, step.target
 
     @staticmethod
@@ -281,7 +248,7 @@ class Runner:
         # let anyone move; a mount keeps that in ws/build, and the source tree clean.
         managed = workspace.ws_dir / "build" / step.package / MANAGED_COMPONENTS
         mountpoint = workspace.firmware_dir / step.project / MANAGED_COMPONENTS
-        owner = invoking_user(self._env, workspace.root)
+        owner = self._owner
         for directory in (managed, mountpoint):
             _make_dirs_for(directory, owner)
         mounts = [
@@ -334,7 +301,7 @@ class Runner:
         labels = {LABEL_WORKSPACE: str(workspace.root), "io.espdock.step": step_label}
         if sweep:
             self._engine.remove_containers(labels)
-        uid, gid = invoking_user(self._env, workspace.root)
+        uid, gid = self._owner
         return f"{uid}:{gid}", tuple(labels.items())
 
     def _install(self, workspace: Workspace, step: InstallFirmware) -> tuple[Outcome, str]:
@@ -349,7 +316,7 @@ class Runner:
         if stamp_file.up_to_date(stamps, {step.package: listing_digest(prefix)}):
             return Outcome.CACHED, "up to date"
         stamp_file.forget(stamps)
-        owner = invoking_user(self._env, workspace.root) if os.geteuid() == 0 else None
+        owner = self._owner if os.geteuid() == 0 else None
         firmware = install_firmware(
             package=step.package,
             manifest=workspace.firmware_dir / step.project / "package.xml",
@@ -359,7 +326,7 @@ class Runner:
             owner=owner,
         )
         stamp_file.record(stamps, {step.package: listing_digest(prefix)})
-        _give_to(stamp_file.path, invoking_user(self._env, workspace.root))
+        _give_to(stamp_file.path, self._owner)
         return Outcome.BUILT, str(firmware.relative_to(workspace.root))
 
 

@@ -2,13 +2,16 @@
 
 from __future__ import annotations
 
+from typing import assert_never
+
 from rich.console import Console
 from rich.status import Status
 from rich.table import Table
 from rich.text import Text
 
+from espdock.events import Event, Outcome, StepFinished, StepNote, StepOutput, StepStarted
+from espdock.install import firmware_install_dir
 from espdock.plan import ColconBuild, EnsureBaseImage, EnsureImage, IdfBuild, InstallFirmware, Plan
-from espdock.runner import Event, Outcome, StepFinished, StepNote, StepOutput, StepStarted
 
 MARKS = {Outcome.BUILT: ("✓", "green"), Outcome.CACHED: ("•", "cyan"), Outcome.FAILED: ("✗", "red")}
 
@@ -23,32 +26,34 @@ class Reporter:
         self._status: Status | None = None
 
     def __call__(self, event: Event) -> None:
-        if isinstance(event, StepStarted):
-            self._status = self.console.status(Text(event.step, style="bold"))
-            self._status.start()
-        elif isinstance(event, StepNote):
-            self.console.print(Text(f"  {event.text}", style="dim"))
-        elif isinstance(event, StepOutput):
-            if event.progress and not self.verbose:
+        match event:
+            case StepStarted():
+                self._status = self.console.status(Text(event.step, style="bold"))
+                self._status.start()
+            case StepNote():
+                self.console.print(Text(f"  {event.text}", style="dim"))
+            case StepOutput(progress=True) if not self.verbose:
                 if self._status is not None:
                     self._status.update(Text.assemble((event.step, "bold"), "  ", (event.line[:100], "dim")))
-            else:
+            case StepOutput():
                 self.console.print(Text(event.line), soft_wrap=True)
-        elif isinstance(event, StepFinished):
-            if self._status is not None:
-                self._status.stop()
-                self._status = None
-            mark, colour = MARKS[event.outcome]
-            self.console.print(
-                Text.assemble(
-                    (f"{mark} ", colour),
-                    (event.step, "bold"),
-                    f"  {event.outcome.value}",
-                    (f"  {event.seconds:.1f} s", "dim"),
-                    (f"  {event.detail}" if event.detail else "", "dim"),
+            case StepFinished():
+                if self._status is not None:
+                    self._status.stop()
+                    self._status = None
+                mark, colour = MARKS[event.outcome]
+                self.console.print(
+                    Text.assemble(
+                        (f"{mark} ", colour),
+                        (event.step, "bold"),
+                        f"  {event.outcome.value}",
+                        (f"  {event.seconds:.1f} s", "dim"),
+                        (f"  {event.detail}" if event.detail else "", "dim"),
+                    )
                 )
-            )
-            self.finished.append(event)
+                self.finished.append(event)
+            case _:
+                assert_never(event)
 
     def close(self) -> None:
         if self._status is not None:
@@ -78,22 +83,23 @@ def render_plan(console: Console, plan: Plan) -> None:
         console.print("nothing to build: no packages in ws/src")
     for number, step in enumerate(plan.steps, 1):
         console.print(Text(f"{number}. {step.name}", style="bold"))
-        if isinstance(step, EnsureBaseImage):
-            console.print(f"   use {step.image} if present, else pull it, else build it with debootstrap")
-        elif isinstance(step, EnsureImage):
-            spec = step.spec
-            console.print(f"   {spec.tag} from {spec.dockerfile} stage {spec.target} (key {spec.key})")
-            for name, sha in spec.inputs:
-                console.print(Text(f"     {name}  {sha[:12]}", style="dim"))
-        elif isinstance(step, ColconBuild):
-            console.print(f"   in {step.image}, {step.workdir}: {format_argv(step.argv())}")
-            console.print(Text(f"     packages: {', '.join(step.packages)}", style="dim"))
-        elif isinstance(step, IdfBuild):
-            console.print(f"   in {step.image} (target {step.target}): {format_argv(step.argv())}")
-        elif isinstance(step, InstallFirmware):
-            console.print(
-                f"   artefacts to ws/install/{step.package}/share/{step.package}/firmware, package.xml, ament index"
-            )
+        match step:
+            case EnsureBaseImage():
+                console.print(f"   use {step.image} if present, else pull it, else build it with debootstrap")
+            case EnsureImage():
+                spec = step.spec
+                console.print(f"   {spec.tag} from {spec.dockerfile} stage {spec.target} (key {spec.key})")
+                for name, sha in spec.inputs:
+                    console.print(Text(f"     {name}  {sha[:12]}", style="dim"))
+            case ColconBuild():
+                console.print(f"   in {step.image}, {step.workdir}: {format_argv(step.argv())}")
+                console.print(Text(f"     packages: {', '.join(step.packages)}", style="dim"))
+            case IdfBuild():
+                console.print(f"   in {step.image} (target {step.target}): {format_argv(step.argv())}")
+            case InstallFirmware():
+                console.print(f"   artefacts to {firmware_install_dir(step.package)}, package.xml, ament index")
+            case _:
+                assert_never(step)
 
 
 def render_micro_ros_status(console: Console, report: dict) -> None:

@@ -23,6 +23,7 @@ from pathlib import Path
 import pytest
 
 from espdock.config import Config, resolve_ca_bundle
+from espdock.install import firmware_install_dir
 from tests.conftest import REPO, containers_created, copy_workspace, espdock, leftover_containers, ros_build_tag
 from tests.idf_contract_double.build import build_double, use_double
 
@@ -93,7 +94,7 @@ def header(image: str) -> str:
 
 
 def firmware_dir(root: Path, package: str) -> Path:
-    return root / "ws/install" / package / "share" / package / "firmware"
+    return root / "ws" / firmware_install_dir(package)
 
 
 def status(root: Path, env: dict[str, str], package: str = "camera_node") -> dict:

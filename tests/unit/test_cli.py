@@ -2,6 +2,7 @@
 
 from pathlib import Path
 
+from espdock.install import firmware_install_dir
 from tests.conftest import copy_workspace, espdock
 
 # Any engine use would fail loudly against this address.
@@ -103,7 +104,7 @@ def test_flash_refuses_a_port_number_out_of_range(tmp_path):
 
 def test_flash_with_damaged_installed_firmware_says_rebuild(tmp_path):
     root = firmware_workspace(tmp_path)
-    installed = root / "ws/install/led_strip_node/share/led_strip_node/firmware"
+    installed = root / "ws" / firmware_install_dir("led_strip_node")
     installed.mkdir(parents=True)
     (installed / "flasher_args.json").write_text('{"flash_files": {"0x1000": ')
     result = espdock("flash", "led_strip_node", "--port", "socket://127.0.0.1:1", cwd=root, env=NO_ENGINE)
@@ -114,7 +115,7 @@ def test_flash_with_damaged_installed_firmware_says_rebuild(tmp_path):
 
 def test_flash_refuses_a_device_that_is_not_a_serial_port(tmp_path):
     root = firmware_workspace(tmp_path)
-    installed = root / "ws/install/led_strip_node/share/led_strip_node/firmware"
+    installed = root / "ws" / firmware_install_dir("led_strip_node")
     installed.mkdir(parents=True)
     (installed / "flasher_args.json").write_text('{"flash_files": {}}')
     result = espdock("flash", "led_strip_node", "--port", "/dev/null", cwd=root, env=NO_ENGINE)

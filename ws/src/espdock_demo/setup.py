@@ -6,6 +6,8 @@ setup(
     name=PACKAGE,
     version="0.1.0",
     packages=find_packages(exclude=["test"]),
+    # The camera UI's page, stylesheet and script.
+    package_data={PACKAGE: ["assets/*"]},
     data_files=[
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
         (f"share/{PACKAGE}", ["package.xml"]),
@@ -23,7 +25,6 @@ setup(
             f"led_strip_sim = {PACKAGE}.led_strip_sim:main",
             f"camera_ui = {PACKAGE}.camera_ui:main",
             f"demo_monitor = {PACKAGE}.monitor:main",
-            f"demo_probe = {PACKAGE}.probe:main",
             f"demo_watchdog = {PACKAGE}.watchdog:main",
         ],
     },

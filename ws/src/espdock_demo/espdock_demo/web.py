@@ -1,7 +1,8 @@
 """The camera UI's web server (seed 7.3), without rclpy: page, MJPEG stream, live state, settings.
 
 Routes:
-  GET  /             the page: stream, QR text, LED swatch, settings form
+  GET  /             the page (assets/page.html): stream, QR text, LED swatch, nodes, settings form
+  GET  /app.js, /style.css  its script and stylesheet (assets/)
   GET  /stream.mjpg  the camera as multipart/x-mixed-replace MJPEG (a "no camera" frame while none arrive)
   GET  /snapshot.jpg the newest frame
   GET  /events       server-sent events: one `state` event per change (and every second)
@@ -14,14 +15,17 @@ before the camera sees it, and bad input gets 400 with a message saying why.
 
 from __future__ import annotations
 
+import functools
 import html
 import json
+import string
 import threading
 import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from http import HTTPStatus
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+from importlib import resources
 from typing import Protocol
 from urllib.parse import parse_qsl, urlsplit
 
@@ -208,151 +212,32 @@ def render_page(app: UiApp, message: str = "", ok: bool = True) -> str:
         if message
         else '<div id="result" role="status"></div>'
     )
-    return f"""<!doctype html>
-<html lang="en"><head><meta charset="utf-8">
-<meta name="viewport" content="width=device-width, initial-scale=1">
-<title>espdock demo: ESP32 camera</title>
-<style>
-body {{ font-family: system-ui, sans-serif; margin: 1rem; background: #f4f4f2; color: #222; }}
-main {{ display: flex; flex-wrap: wrap; gap: 1.5rem; align-items: flex-start; }}
-.stream {{ position: relative; min-width: 320px; min-height: 240px; background: #111; }}
-.stream img {{ display: block; max-width: 80vw; }}
-#nocam {{ position: absolute; inset: 0; display: flex; flex-direction: column; align-items: center;
-  justify-content: center; gap: .4rem; padding: 1rem; text-align: center; background: #18181c; color: #f66;
-  font-size: 1.4rem; font-weight: bold; }}
-#nocam small {{ color: #bbb; font-size: .9rem; font-weight: normal; }}
-#nocam[hidden] {{ display: none; }}
-#swatch {{ width: 5rem; height: 5rem; border: 1px solid #555; border-radius: .5rem; }}
-#qr {{ font-family: monospace; word-break: break-all; }}
-form fieldset {{ display: grid; grid-template-columns: repeat(auto-fill, minmax(15rem, 1fr)); gap: .4rem 1rem; }}
-label.slider, label.menu {{ display: flex; flex-direction: column; }}
-.range {{ font-size: .75rem; color: #666; }}
-#result.ok {{ color: #174; }} #result.error {{ color: #b11; font-weight: bold; }}
-.warn {{ color: #a60; }}
-</style></head>
-<body>
-<h1>espdock demo: ESP32 camera</h1>
-<main>
-<section>
-  <div class="stream"><img id="stream" src="/stream.mjpg" alt="camera stream">
-    <div id="nocam"{"" if not camera["online"] else " hidden"}>No camera
-      <small>no frames for {app.offline_after:g} s; the stream comes back by itself</small></div></div>
-  <p id="camera-info">{camera_info}</p>
-</section>
-<section>
-  <h2>QR code</h2><p id="qr">{_e(qr["text"]) if qr else "(none yet)"}</p>
-  <h2>LED strip</h2><div id="swatch" style="background-color: {swatch}"></div>
-  <p id="led-hex">{_e(led["hex"]) if led else "(unknown)"}</p>
-  <h2>Nodes</h2><p id="nodes">(waiting for their diagnostics)</p>
-</section>
-</main>
-<h2>Camera settings</h2>
-{known}
-<form id="settings" method="post" action="/config">
-<fieldset><legend>Menus</legend>{"".join(groups["menu"])}</fieldset>
-<fieldset><legend>Sliders</legend>{"".join(groups["slider"])}</fieldset>
-<fieldset><legend>Toggles</legend>{"".join(groups["toggle"])}</fieldset>
-<p><button type="submit" id="apply">Apply</button></p>
-</form>
-{banner}
-<details><summary>Configuration the camera reported</summary>
-<pre id="config">{_e(json.dumps(config, indent=1)) if config else "(unknown)"}</pre></details>
-<script src="/app.js"></script>
-</body></html>
-"""
+    return _page().substitute(
+        nocam_hidden="" if not camera["online"] else " hidden",
+        offline_after=f"{app.offline_after:g}",
+        camera_info=camera_info,
+        qr_text=_e(qr["text"]) if qr else "(none yet)",
+        swatch=swatch,
+        led_hex=_e(led["hex"]) if led else "(unknown)",
+        known=known,
+        menus="".join(groups["menu"]),
+        sliders="".join(groups["slider"]),
+        toggles="".join(groups["toggle"]),
+        banner=banner,
+        config_json=_e(json.dumps(config, indent=1)) if config else "(unknown)",
+        # JSON inside <script type="application/json">: "</" must not end the element.
+        size_names=json.dumps([name for name, _, _ in FRAME_SIZES]).replace("</", "<\\/"),
+    )
 
 
-APP_JS = (
-    r"""'use strict';
-// Live state over server-sent events; the settings form posted with fetch.
-const $ = (id) => document.getElementById(id);
-const form = $('settings');
-const sizeNames = """
-    + json.dumps([name for name, _, _ in FRAME_SIZES])
-    + r""";
-let online = null;
+@functools.cache
+def _asset(name: str) -> bytes:
+    """A file of the page (assets/: page.html, style.css, app.js), read once."""
+    return (resources.files("espdock_demo") / "assets" / name).read_bytes()
 
-function applyConfig(config) {
-  for (const [name, value] of Object.entries(config)) {
-    const el = form.querySelector(`[data-setting="${CSS.escape(name)}"]`);
-    if (!el) continue;
-    if (el.type === 'checkbox') el.checked = Boolean(value);
-    else el.value = String(value);
-    const out = document.getElementById('out-' + name);
-    if (out) out.textContent = String(value);
-  }
-  $('config').textContent = JSON.stringify(config, null, 1);
-  const unknown = $('config-unknown');
-  if (unknown) unknown.remove();
-}
 
-function restartStream() {
-  $('stream').src = '/stream.mjpg?t=' + Date.now();
-}
-
-function render(state) {
-  const cam = state.camera;
-  $('nocam').hidden = cam.online;
-  $('camera-info').textContent = cam.online
-    ? `${cam.width}x${cam.height} at ${cam.fps.toFixed(1)} fps` : 'no camera';
-  if (online === false && cam.online) restartStream();
-  online = cam.online;
-  const cut = state.qr && state.qr.length > state.qr.text.length ? ` … (${state.qr.length} characters)` : '';
-  $('qr').textContent = state.qr ? state.qr.text + cut : '(none yet)';
-  if (state.led) {
-    $('swatch').style.backgroundColor = state.led.hex;
-    $('led-hex').textContent = state.led.hex;
-  }
-  if (state.config && !form.dataset.busy) applyConfig(state.config);
-  const nodes = Object.entries(state.nodes || {});
-  const down = nodes.filter(([, n]) => n.state !== 'ok');
-  $('nodes').textContent = nodes.length === 0 ? '(waiting for their diagnostics)'
-    : down.length === 0 ? `all ${nodes.length} running`
-    : down.map(([name, n]) => name.slice(1) + (n.state === 'stale'
-        ? ` down or stuck (silent for ${Math.round(n.silent_s)} s)` : ' not seen yet')).join('; ');
-  $('nodes').className = down.length ? 'warn' : '';
-}
-
-const events = new EventSource('/events');
-events.addEventListener('state', (e) => render(JSON.parse(e.data)));
-$('stream').addEventListener('error', () => setTimeout(restartStream, 1000));
-
-for (const slider of form.querySelectorAll('input[type=range]')) {
-  slider.addEventListener('input', () => { $('out-' + slider.name).textContent = slider.value; });
-}
-
-function describe(config) {
-  const size = sizeNames[config.framesize] || config.framesize;
-  return `framesize ${size}, quality ${config.quality}, brightness ${config.brightness}, ` +
-    `hmirror ${config.hmirror}, vflip ${config.vflip}, colorbar ${config.colorbar}`;
-}
-
-form.addEventListener('submit', async (event) => {
-  event.preventDefault();
-  const result = $('result');
-  form.dataset.busy = '1';
-  $('apply').disabled = true;
-  result.className = '';
-  result.textContent = 'Waiting for the camera…';
-  try {
-    const response = await fetch('/config', {
-      method: 'POST', body: new URLSearchParams(new FormData(form)),
-      headers: {'Accept': 'application/json'},
-    });
-    const answer = await response.json();
-    result.className = answer.ok ? 'ok' : 'error';
-    result.textContent = answer.message + (answer.config ? ' Camera now: ' + describe(answer.config) + '.' : '');
-    if (answer.config) applyConfig(answer.config);
-  } catch (err) {
-    result.className = 'error';
-    result.textContent = 'The UI server did not answer: ' + err;
-  } finally {
-    delete form.dataset.busy;
-    $('apply').disabled = false;
-  }
-});
-"""
-)
+def _page() -> string.Template:
+    return string.Template(_asset("page.html").decode())
 
 
 # ---------------------------------------------------------------- HTTP
@@ -360,7 +245,7 @@ form.addEventListener('submit', async (event) => {
 _SECURITY_HEADERS = (
     (
         "Content-Security-Policy",
-        "default-src 'none'; img-src 'self'; script-src 'self'; style-src 'unsafe-inline'; "
+        "default-src 'none'; img-src 'self'; script-src 'self'; style-src 'self' 'unsafe-inline'; "
         "connect-src 'self'; form-action 'self'; base-uri 'none'; frame-ancestors 'none'",
     ),
     ("X-Content-Type-Options", "nosniff"),
@@ -417,7 +302,8 @@ class _Handler(BaseHTTPRequestHandler):
         path = urlsplit(self.path).path
         routes: dict[str, Callable[[], None]] = {
             "/": lambda: self._html(HTTPStatus.OK, render_page(self.app)),
-            "/app.js": lambda: self._send(HTTPStatus.OK, APP_JS.encode(), "text/javascript; charset=utf-8"),
+            "/app.js": lambda: self._send(HTTPStatus.OK, _asset("app.js"), "text/javascript; charset=utf-8"),
+            "/style.css": lambda: self._send(HTTPStatus.OK, _asset("style.css"), "text/css; charset=utf-8"),
             "/stream.mjpg": self._stream,
             "/snapshot.jpg": self._snapshot,
             "/events": self._events,

@@ -27,7 +27,7 @@ from sensor_msgs.msg import CompressedImage
 from std_msgs.msg import ColorRGBA, String
 
 from espdock_demo.camera_config import DEFAULT_CONFIG
-from espdock_demo.colors import Rgb, parse_hex_color
+from espdock_demo.colors import Rgb
 from espdock_demo.mjpeg import jpeg_size
 from espdock_demo.names import (
     CAMERA_IMAGE_TOPIC,
@@ -38,6 +38,7 @@ from espdock_demo.names import (
     SCENE_TOPIC,
 )
 from espdock_demo.ros_common import IMAGE_PUB_QOS, IMAGE_SUB_QOS, LATCHED_QOS, TEXT_QOS
+from espdock_demo_testing.report import follow_report
 
 
 def _stamp_ns(stamp) -> int:
@@ -136,46 +137,6 @@ def cmd_led(probe: Probe, args: argparse.Namespace) -> dict:
     probe.watch_led()
     probe.spin_until(lambda: bool(probe.leds), args.timeout)
     return {"led": probe.leds[-1]["hex"] if probe.leds else None}
-
-
-def follow_report(scenes: list[dict], leds: list[dict], since_ns: int = 0) -> dict:
-    """Pair each scene change (stamped after SINCE_NS) that shows a new colour with the LED change that followed it."""
-    changes, missed = [], []
-    previous = None
-    for i, scene in enumerate(scenes):
-        if scene["stamp_ns"] < since_ns:
-            continue
-        text = scene.get("text")
-        color = parse_hex_color(text) if isinstance(text, str) else None
-        if color is None:
-            continue
-        if color.hex == previous:
-            continue
-        previous = color.hex
-        until = scenes[i + 1]["stamp_ns"] if i + 1 < len(scenes) else None
-        led = next(
-            (
-                led
-                for led in leds
-                if led["hex"] == color.hex
-                and led["recv_ns"] >= scene["stamp_ns"]
-                and (until is None or led["recv_ns"] < until + 2_000_000_000)
-            ),
-            None,
-        )
-        if led is None:
-            missed.append({"text": text, "stamp_ns": scene["stamp_ns"]})
-            continue
-        changes.append(
-            {
-                "text": text,
-                "hex": color.hex,
-                "scene_stamp_ns": scene["stamp_ns"],
-                "led_recv_ns": led["recv_ns"],
-                "latency_ms": (led["recv_ns"] - scene["stamp_ns"]) / 1e6,
-            }
-        )
-    return {"changes": changes, "missed": missed}
 
 
 def cmd_follow(probe: Probe, args: argparse.Namespace) -> dict:

@@ -1,0 +1,44 @@
+"""What running a plan reports, step by step: the runner emits these, the terminal UI renders them."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from enum import StrEnum
+
+
+class Outcome(StrEnum):
+    BUILT = "built"
+    CACHED = "cached"
+    FAILED = "failed"
+
+
+@dataclass(frozen=True)
+class StepStarted:
+    step: str
+
+
+@dataclass(frozen=True)
+class StepOutput:
+    step: str
+    line: str
+    # Progress lines (image builds) are shown as status; the rest is streamed.
+    progress: bool = False
+
+
+@dataclass(frozen=True)
+class StepNote:
+    step: str
+    text: str
+
+
+@dataclass(frozen=True)
+class StepFinished:
+    step: str
+    outcome: Outcome
+    seconds: float
+    detail: str = ""
+
+
+Event = StepStarted | StepOutput | StepNote | StepFinished
+Emit = Callable[[Event], None]

@@ -1,0 +1,48 @@
+"""FakeEngine: stands in for espdock.engine.Engine (the Docker engine) in unit tests of the runner.
+
+It records what it was asked to do and plays back scripted container runs, so the runner's
+cache decisions, failure parsing and reporting can be tested in milliseconds. The real
+engine is exercised by tests/integration and tests/demo.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from datetime import UTC, datetime
+from pathlib import Path
+
+from espdock.engine import ImageInfo, LineSink, RunSpec
+
+
+@dataclass
+class FakeEngine:
+    """Images by tag; RUN_SCRIPT(spec, on_line) -> exit code plays a container."""
+
+    images_by_tag: dict[str, ImageInfo] = field(default_factory=dict)
+    run_script: Callable[[RunSpec, LineSink], int] = lambda spec, on_line: 0
+    builds: list[dict] = field(default_factory=list)
+    runs: list[RunSpec] = field(default_factory=list)
+    removed: list[Mapping[str, str]] = field(default_factory=list)
+
+    def image(self, ref: str) -> ImageInfo | None:
+        return self.images_by_tag.get(ref)
+
+    def images(self, repository: str) -> list[ImageInfo]:
+        return [i for tag, i in self.images_by_tag.items() if tag.split(":")[0] == repository]
+
+    def build_image(self, *, context: Path, dockerfile: str, target: str, tag: str, build_args: Mapping[str, str],
+                    labels: Mapping[str, str], ca_bundle: Path | None, on_line: LineSink,
+                    no_cache: bool = False) -> None:  # fmt: skip
+        self.builds.append({"tag": tag, "target": target, "build_args": dict(build_args), "labels": dict(labels),
+                            "no_cache": no_cache})  # fmt: skip
+        on_line("#5 [build 2/3] RUN colcon build")
+        self.images_by_tag[tag] = ImageInfo(tag, (tag,), datetime.now(UTC), 1, dict(labels))
+
+    def run(self, spec: RunSpec, on_line: LineSink, keep: bool = False) -> int:
+        self.runs.append(spec)
+        return self.run_script(spec, on_line)
+
+    def remove_containers(self, labels: Mapping[str, str]) -> int:
+        self.removed.append(dict(labels))
+        return 0

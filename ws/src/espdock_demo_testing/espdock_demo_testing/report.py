@@ -1,0 +1,45 @@
+"""demo_probe's reports, without rclpy: pure functions of what the probe recorded."""
+
+from __future__ import annotations
+
+from espdock_demo.colors import parse_hex_color
+
+
+def follow_report(scenes: list[dict], leds: list[dict], since_ns: int = 0) -> dict:
+    """Pair each scene change (stamped after SINCE_NS) that shows a new colour with the LED change that followed it."""
+    changes, missed = [], []
+    previous = None
+    for i, scene in enumerate(scenes):
+        if scene["stamp_ns"] < since_ns:
+            continue
+        text = scene.get("text")
+        color = parse_hex_color(text) if isinstance(text, str) else None
+        if color is None:
+            continue
+        if color.hex == previous:
+            continue
+        previous = color.hex
+        until = scenes[i + 1]["stamp_ns"] if i + 1 < len(scenes) else None
+        led = next(
+            (
+                led
+                for led in leds
+                if led["hex"] == color.hex
+                and led["recv_ns"] >= scene["stamp_ns"]
+                and (until is None or led["recv_ns"] < until + 2_000_000_000)
+            ),
+            None,
+        )
+        if led is None:
+            missed.append({"text": text, "stamp_ns": scene["stamp_ns"]})
+            continue
+        changes.append(
+            {
+                "text": text,
+                "hex": color.hex,
+                "scene_stamp_ns": scene["stamp_ns"],
+                "led_recv_ns": led["recv_ns"],
+                "latency_ms": (led["recv_ns"] - scene["stamp_ns"]) / 1e6,
+            }
+        )
+    return {"changes": changes, "missed": missed}

@@ -16,7 +16,7 @@ from collections.abc import Callable, Mapping
 from pathlib import Path
 
 from espdock.config import Config
-from espdock.engine import Engine
+from espdock.engine import Engine, compose_available
 from espdock.errors import EngineUnavailable, ImageBuildError
 
 Notify = Callable[[str], None]
@@ -94,17 +94,11 @@ def ensure_compose(env: Mapping[str, str], notify: Notify) -> None:
     The plugin is a copy, never a link into a virtualenv: a system-wide plugin must outlive
     the venv that brought it and work for users who cannot read that venv.
     """
-    docker_cli = shutil.which("docker", path=env.get("PATH"))
-    if docker_cli is None:
-        raise EngineUnavailable("the docker CLI is not on PATH", "Install the docker client (Debian: docker.io).")
     root = os.geteuid() == 0
     if root and SYSTEM_PLUGIN.is_symlink():
         # Left by espdock <= 0.1, which linked into a venv: replace it with a copy.
         _install_plugin(_wheel_compose(), SYSTEM_PLUGIN, notify)
-    probe = subprocess.run(
-        [docker_cli, "compose", "version"], capture_output=True, text=True, env=dict(env), check=False
-    )
-    if probe.returncode == 0:
+    if compose_available(env):
         return
     if root:
         plugin = SYSTEM_PLUGIN  # every user of this machine gets it

@@ -6,7 +6,6 @@ import functools
 import json
 import os
 import signal
-import subprocess
 import sys
 from collections.abc import Callable
 from pathlib import Path
@@ -14,32 +13,30 @@ from typing import Annotated, NoReturn, ParamSpec
 
 import typer
 from rich.console import Console
-from rich.table import Table
 from rich.text import Text
 
 from espdock import __version__, bootstrap
 from espdock.config import Config, invoking_user, load_config, resolve_ca_bundle
 from espdock.engine import Engine, format_argv
 from espdock.errors import ConfigError, EspdockBug, EspdockError, Interrupted, WorkspaceError
-from espdock.flashing import PortError, check_port, esptool_major, flash_argv, parse_port, verify_argv
+from espdock.flashing import check_port, flash_package, parse_port, read_flasher_args
 from espdock.install import firmware_install_dir
-from espdock.pins import SOURCES_FILE, Source, pin_heads, pin_image_digest
+from espdock.layout import IDF_DOCKERFILE, ROS_DOCKERFILE, SOURCES_FILE
+from espdock.pins import Source, pin_heads, pin_image_digest
 from espdock.plan import (
-    IDF_DOCKERFILE,
-    ROS_DOCKERFILE,
-    WORKSPACE_MOUNT,
     EnsureImage,
     IdfBuild,
     ImageSpec,
     Plan,
+    base_image,
+    firmware_step,
     micro_ros_images,
-    plan_build,
-    ros_build_image,
+    plan_workspace,
 )
 from espdock.runner import Runner
 from espdock.scaffold import create_firmware_package
 from espdock.status import built_from, micro_ros_report
-from espdock.ui import Reporter, render_micro_ros_status, render_plan
+from espdock.ui import Reporter, render_micro_ros_status, render_packages, render_plan
 from espdock.workspace import (
     Package,
     PackageKind,
@@ -48,7 +45,6 @@ from espdock.workspace import (
     find_workspace,
     order_packages,
     read_build_inputs,
-    select_up_to,
     write_atomically,
 )
 
@@ -137,30 +133,11 @@ def _build_plan(
     ws: Workspace, config: Config, names: list[str], only: PackageKind | None = None, force: bool = False
 ) -> Plan:
     packages = _packages(ws)
-    selected = select_up_to(packages, names) if names else packages
-    if only is not None:
-        selected = tuple(p for p in selected if p.kind is only)
-    inputs = read_build_inputs(ws, packages)
-    if not inputs.ros_dockerfile:
-        raise WorkspaceError(f"{ws.root / ROS_DOCKERFILE} is missing", "The workspace root needs Dockerfile.ros.")
-    ros_image = ros_build_image(config, inputs.ros_dockerfile, inputs.ros_files)
-    has_firmware = any(p.kind is PackageKind.FIRMWARE for p in packages)
-    if has_firmware and not inputs.idf_dockerfile:
-        raise WorkspaceError(f"{ws.root / IDF_DOCKERFILE} is missing", "Firmware packages need Dockerfile.idf.")
-    idf_images = micro_ros_images(config, inputs, packages)
-    return plan_build(
-        ws, config, selected, ros_image, tuple(names), idf_images=idf_images, all_packages=packages, force=force
-    )
+    return plan_workspace(ws, config, packages, read_build_inputs(ws, packages), tuple(names), only, force)
 
 
 def _firmware_step(ws: Workspace, config: Config, name: str) -> tuple[Plan, IdfBuild]:
-    """The plan that ensures NAME's IDF image, and the build step of firmware package NAME."""
-    plan = _build_plan(ws, config, [name])
-    step = next((s for s in plan.steps if isinstance(s, IdfBuild) and s.package == name), None)
-    if step is None:
-        raise WorkspaceError(f"'{name}' is not a firmware package", f"Firmware packages live in {ws.firmware_dir}.")
-    spec = next(spec for spec in plan.idf_images if spec.key == step.image_key)
-    return Plan(ws, (EnsureImage(spec),), (spec,)), step
+    return firmware_step(_build_plan(ws, config, [name]), name)
 
 
 @app.command()
@@ -348,44 +325,11 @@ def flash(
     ws, config = _load(workspace)
     serial = parse_port(port)
     plan, step = _firmware_step(ws, config, package)
-    firmware = ws.ws_dir / firmware_install_dir(package)
-    args_file = firmware / "flasher_args.json"
-    if not args_file.is_file():
-        raise WorkspaceError(f"{package} has no installed firmware ({args_file})", f"Run `espdock build {package}`.")
-    try:
-        flasher_args = json.loads(args_file.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise WorkspaceError(
-            f"{args_file} is not valid JSON ({exc}); the installed firmware is damaged",
-            f"Run `espdock build {package}` again.",
-        ) from None
-    if not isinstance(flasher_args, dict):
-        raise WorkspaceError(f"{args_file} is not a flasher_args.json object", f"Run `espdock build {package}` again.")
+    flasher_args = read_flasher_args(ws.ws_dir / firmware_install_dir(package), package)
     check_port(serial)
     runner = _runner(ws, config, Reporter(console))
     runner.run(plan)
-    workdir = f"{WORKSPACE_MOUNT}/ws/{firmware_install_dir(package)}"
-    devices = (serial.device,) if serial.device else ()
-    network = "host" if serial.is_url else None
-    version: list[str] = []
-    runner.run_idf(ws, step, ("python", "-m", "esptool", "version"), on_line=version.append, workdir=workdir)
-    major = esptool_major(version)
-    commands = [flash_argv(flasher_args, serial, baud, major)]
-    if verify:
-        commands.append(verify_argv(flasher_args, serial, major))
-    for argv in commands:
-        console.print(Text(format_argv(argv), style="dim"))
-        code = runner.run_idf(
-            ws,
-            step,
-            argv,
-            on_line=lambda line: console.print(Text(line)),
-            devices=devices,
-            network=network,
-            workdir=workdir,
-        )
-        if code != 0:
-            raise PortError(f"esptool failed (exit code {code}) on {port}", "See its output above.")
+    flash_package(runner, ws, step, flasher_args, serial, baud, verify, say=lambda line: console.print(Text(line)))
     console.print(f"flashed {package} through {port}" + (" and verified it" if verify else ""))
 
 
@@ -430,9 +374,8 @@ def setup() -> None:
     except WorkspaceError:
         console.print("engine and compose ready (not in a workspace: no base image to prepare)")
         return
-    from espdock.plan import dockerfile_args
-
-    base = config.base_image or dockerfile_args((ws.root / ROS_DOCKERFILE).read_text()).get("BASE_IMAGE")
+    dockerfile = ws.root / ROS_DOCKERFILE
+    base = base_image(config, dockerfile.read_text() if dockerfile.is_file() else "")
     if base:
         how = bootstrap.ensure_base_image(engine, base, config, notify)
         console.print(f"base image {base}: {how}")
@@ -451,14 +394,7 @@ def compose(ctx: typer.Context, workspace: WorkspaceOption = None) -> None:
     ca_bundle = resolve_ca_bundle(config, os.environ)
     if ca_bundle is not None:
         env["ESPDOCK_CA_BUNDLE"] = str(ca_bundle)
-    argv = [*engine.compose_command(), *ctx.args]
-    process = subprocess.Popen(argv, cwd=ws.root, env=env)
-    try:
-        code = process.wait()
-    except KeyboardInterrupt:
-        # Compose got the same Ctrl-C and is stopping its services; let it finish.
-        code = process.wait()
-    raise typer.Exit(code)
+    raise typer.Exit(engine.run_compose(ctx.args, ws.root, env))
 
 
 @app.command("list")
@@ -466,14 +402,7 @@ def compose(ctx: typer.Context, workspace: WorkspaceOption = None) -> None:
 def list_packages(workspace: WorkspaceOption = None) -> None:
     """List the workspace's packages in build order."""
     ws, _ = _load(workspace)
-    table = Table(title=str(ws.root), title_justify="left")
-    for column in ("package", "kind", "build type", "depends on (in workspace)"):
-        table.add_column(column)
-    packages = order_packages(discover_packages(ws))
-    names = {p.name for p in packages}
-    for p in packages:
-        table.add_row(p.name, p.kind.value, p.build_type, ", ".join(sorted(p.depends & names)))
-    console.print(table)
+    render_packages(console, ws, _packages(ws))
 
 
 def _on_sigterm(signum: int, frame: object) -> NoReturn:

@@ -217,6 +217,15 @@ class Engine:
             raise EngineUnavailable("the docker CLI is not on PATH", "Install the docker client (Debian: docker.io).")
         return [docker_cli, "compose"]
 
+    def run_compose(self, args: Sequence[str], cwd: Path, env: Mapping[str, str]) -> int:
+        """`docker compose ARGS` in CWD with ENV, attached to this terminal; its exit code."""
+        process = subprocess.Popen([*self.compose_command(), *args], cwd=cwd, env=dict(env))
+        try:
+            return process.wait()
+        except KeyboardInterrupt:
+            # Compose got the same Ctrl-C and is stopping its services; let it finish.
+            return process.wait()
+
     # Containers
 
     def run(self, spec: RunSpec, on_line: LineSink, keep: bool = False) -> int:
@@ -319,6 +328,17 @@ def _stream_lines(chunks: Iterator[bytes] | IO[bytes], on_line: LineSink) -> Non
             on_line(line.decode("utf-8", "replace").rstrip("\r"))
     if pending:
         on_line(pending.decode("utf-8", "replace"))
+
+
+def compose_available(env: Mapping[str, str]) -> bool:
+    """Whether `docker compose` (v2) answers; an EngineUnavailable when there is no docker CLI at all."""
+    docker_cli = shutil.which("docker", path=env.get("PATH"))
+    if docker_cli is None:
+        raise EngineUnavailable("the docker CLI is not on PATH", "Install the docker client (Debian: docker.io).")
+    probe = subprocess.run(
+        [docker_cli, "compose", "version"], capture_output=True, text=True, env=dict(env), check=False
+    )
+    return probe.returncode == 0
 
 
 def format_argv(argv: Sequence[str]) -> str:

@@ -4,15 +4,26 @@ from __future__ import annotations
 
 import errno
 import fcntl
+import json
 import os
 import re
 import socket
 import stat
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 from urllib.parse import urlsplit
 
-from espdock.errors import ConfigError, EspdockError
+from espdock.engine import format_argv
+from espdock.errors import ConfigError, EspdockError, WorkspaceError
+from espdock.install import firmware_install_dir
+from espdock.layout import WORKSPACE_MOUNT
+from espdock.plan import IdfBuild
+from espdock.workspace import Workspace
+
+if TYPE_CHECKING:
+    from espdock.runner import Runner
 
 URL_SCHEMES = ("socket", "rfc2217")
 
@@ -141,3 +152,48 @@ def esptool_major(version_output: list[str]) -> int:
         if match:
             return int(match.group(1))
     raise EspdockError("could not tell esptool's version from: " + " | ".join(version_output[-3:]))
+
+
+def read_flasher_args(firmware_dir: Path, package: str) -> dict:
+    """The installed flasher_args.json of PACKAGE (in FIRMWARE_DIR), checked to be one."""
+    args_file = firmware_dir / "flasher_args.json"
+    if not args_file.is_file():
+        raise WorkspaceError(f"{package} has no installed firmware ({args_file})", f"Run `espdock build {package}`.")
+    try:
+        flasher_args = json.loads(args_file.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise WorkspaceError(
+            f"{args_file} is not valid JSON ({exc}); the installed firmware is damaged",
+            f"Run `espdock build {package}` again.",
+        ) from None
+    if not isinstance(flasher_args, dict):
+        raise WorkspaceError(f"{args_file} is not a flasher_args.json object", f"Run `espdock build {package}` again.")
+    return flasher_args
+
+
+def flash_package(
+    runner: Runner,
+    workspace: Workspace,
+    step: IdfBuild,
+    flasher_args: dict,
+    port: Port,
+    baud: int | None,
+    verify: bool,
+    say: Callable[[str], None],
+) -> None:
+    """esptool write_flash (then verify_flash, with VERIFY) of STEP's installed artefacts through PORT,
+    in STEP's IDF image, with only that port passed in (or the host network for a URL)."""
+    workdir = f"{WORKSPACE_MOUNT}/ws/{firmware_install_dir(step.package)}"
+    devices = (port.device,) if port.device else ()
+    network = "host" if port.is_url else None
+    version: list[str] = []
+    runner.run_idf(workspace, step, ("python", "-m", "esptool", "version"), on_line=version.append, workdir=workdir)
+    major = esptool_major(version)
+    commands = [flash_argv(flasher_args, port, baud, major)]
+    if verify:
+        commands.append(verify_argv(flasher_args, port, major))
+    for argv in commands:
+        say(format_argv(argv))
+        code = runner.run_idf(workspace, step, argv, on_line=say, devices=devices, network=network, workdir=workdir)
+        if code != 0:
+            raise PortError(f"esptool failed (exit code {code}) on {port.spec}", "See its output above.")

@@ -11,8 +11,8 @@ from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 
 from espdock.errors import WorkspaceError
+from espdock.layout import SOURCES_FILE
 
-SOURCES_FILE = "docker/idf/micro_ros_sources.txt"
 # Where Dockerfile.idf keeps the commits the image build checked out.
 RESOLVED_FILE = "/opt/espdock/micro_ros_espidf_component/micro_ros_sources.resolved"
 FOLLOW_HEAD = "-"

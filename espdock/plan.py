@@ -10,16 +10,10 @@ from dataclasses import dataclass, field
 
 from espdock.config import Config
 from espdock.errors import WorkspaceError
-from espdock.pins import SOURCES_FILE, parse_sources
-from espdock.workspace import BuildInputs, Package, PackageKind, Workspace
+from espdock.layout import IDF_DOCKERFILE, IDF_INPUT_DIR, ROS_DOCKERFILE, SOURCES_FILE, SOURCES_NAME, WORKSPACE_MOUNT
+from espdock.pins import parse_sources
+from espdock.workspace import BuildInputs, Package, PackageKind, Workspace, select_up_to
 
-ROS_DOCKERFILE = "Dockerfile.ros"
-IDF_DOCKERFILE = "Dockerfile.idf"
-# What the images are built from besides their Dockerfiles; docker/idf belongs to the IDF image only.
-IMAGE_INPUT_DIR = "docker"
-IDF_INPUT_DIR = "docker/idf"
-SOURCES_NAME = SOURCES_FILE.removeprefix(f"{IDF_INPUT_DIR}/")
-WORKSPACE_MOUNT = "/workspace"
 LABEL_KEY = "io.espdock.key"
 LABEL_INPUTS = "io.espdock.inputs"
 LABEL_WORKSPACE = "io.espdock.workspace"
@@ -175,9 +169,14 @@ def image_key(parts: Mapping[str, bytes]) -> tuple[str, tuple[tuple[str, str], .
     return digest.hexdigest(), inputs
 
 
+def base_image(config: Config, ros_dockerfile_text: str) -> str:
+    """The image Dockerfile.ros starts FROM: the configured one, else its BASE_IMAGE default."""
+    return config.base_image or dockerfile_args(ros_dockerfile_text).get("BASE_IMAGE", "")
+
+
 def ros_build_image(config: Config, dockerfile_text: str, image_files: Mapping[str, bytes]) -> ImageSpec:
     """The image colcon runs in: Dockerfile.ros's `build` stage, keyed by its inputs."""
-    base = config.base_image or dockerfile_args(dockerfile_text).get("BASE_IMAGE", "")
+    base = base_image(config, dockerfile_text)
     return _keyed_image(
         f"espdock/ros-{config.ros_distro}-build",
         ROS_DOCKERFILE,
@@ -371,3 +370,39 @@ def plan_build(
         run_depends = tuple(sorted(package.depends & everything))
         steps.append(InstallFirmware(package.name, project, run_depends))
     return Plan(workspace=workspace, steps=tuple(steps), idf_images=tuple(ensured.values()))
+
+
+def plan_workspace(
+    workspace: Workspace,
+    config: Config,
+    packages: tuple[Package, ...],
+    inputs: BuildInputs,
+    names: tuple[str, ...] = (),
+    only: PackageKind | None = None,
+    force: bool = False,
+) -> Plan:
+    """`espdock build [NAMES...] [--only KIND] [--force]` over the workspace's PACKAGES (in build order)."""
+    selected = select_up_to(packages, names) if names else packages
+    if only is not None:
+        selected = tuple(p for p in selected if p.kind is only)
+    if not inputs.ros_dockerfile:
+        raise WorkspaceError(
+            f"{workspace.root / ROS_DOCKERFILE} is missing", "The workspace root needs Dockerfile.ros."
+        )
+    ros_image = ros_build_image(config, inputs.ros_dockerfile, inputs.ros_files)
+    if any(p.kind is PackageKind.FIRMWARE for p in packages) and not inputs.idf_dockerfile:
+        raise WorkspaceError(f"{workspace.root / IDF_DOCKERFILE} is missing", "Firmware packages need Dockerfile.idf.")
+    idf_images = micro_ros_images(config, inputs, packages)
+    return plan_build(
+        workspace, config, selected, ros_image, names, idf_images=idf_images, all_packages=packages, force=force
+    )
+
+
+def firmware_step(plan: Plan, name: str) -> tuple[Plan, IdfBuild]:
+    """From a plan that builds firmware package NAME: the plan that only ensures its IDF image,
+    and its build step (what `espdock idf`, `flash` and `monitor` run in)."""
+    step = next((s for s in plan.steps if isinstance(s, IdfBuild) and s.package == name), None)
+    if step is None:
+        raise WorkspaceError(f"'{name}' is not a firmware package", "Firmware packages have build type esp_idf.")
+    spec = next(spec for spec in plan.idf_images if spec.key == step.image_key)
+    return Plan(plan.workspace, (EnsureImage(spec),), (spec,)), step

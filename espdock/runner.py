@@ -23,10 +23,10 @@ from espdock.engine import Engine, Mount, RunSpec
 from espdock.errors import BuildFailed, EspdockError, WorkspaceError
 from espdock.events import Emit, Outcome, StepFinished, StepNote, StepOutput, StepStarted
 from espdock.install import install_firmware
+from espdock.layout import WORKSPACE_MOUNT
 from espdock.plan import (
     LABEL_KEY,
     LABEL_WORKSPACE,
-    WORKSPACE_MOUNT,
     ColconBuild,
     EnsureBaseImage,
     EnsureImage,

@@ -12,6 +12,7 @@ from rich.text import Text
 from espdock.events import Event, Outcome, StepFinished, StepNote, StepOutput, StepStarted
 from espdock.install import firmware_install_dir
 from espdock.plan import ColconBuild, EnsureBaseImage, EnsureImage, IdfBuild, InstallFirmware, Plan
+from espdock.workspace import Package, Workspace
 
 MARKS = {Outcome.BUILT: ("✓", "green"), Outcome.CACHED: ("•", "cyan"), Outcome.FAILED: ("✗", "red")}
 
@@ -133,3 +134,14 @@ def render_micro_ros_status(console: Console, report: dict) -> None:
                 style="yellow",
             )
         )
+
+
+def render_packages(console: Console, workspace: Workspace, packages: tuple[Package, ...]) -> None:
+    """`espdock list`: PACKAGES (in build order) with kind, build type and workspace dependencies."""
+    table = Table(title=str(workspace.root), title_justify="left")
+    for column in ("package", "kind", "build type", "depends on (in workspace)"):
+        table.add_column(column)
+    names = {p.name for p in packages}
+    for p in packages:
+        table.add_row(p.name, p.kind.value, p.build_type, ", ".join(sorted(p.depends & names)))
+    console.print(table)

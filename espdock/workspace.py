@@ -13,6 +13,7 @@ from catkin_pkg.package import InvalidPackage, parse_package
 
 from espdock.config import CONFIG_FILE
 from espdock.errors import WorkspaceError
+from espdock.layout import IDF_DOCKERFILE, IDF_INPUT_DIR, IMAGE_INPUT_DIR, ROS_DOCKERFILE
 
 IGNORE_MARKERS = ("COLCON_IGNORE", "AMENT_IGNORE", "CATKIN_IGNORE")
 
@@ -217,10 +218,12 @@ def read_build_inputs(workspace: Workspace, packages: Iterable[Package]) -> Buil
         return path.read_text() if path.is_file() else ""
 
     return BuildInputs(
-        ros_dockerfile=text("Dockerfile.ros"),
-        ros_files=read_image_inputs(workspace.root, "docker", exclude=("idf/",)),
-        idf_dockerfile=text("Dockerfile.idf"),
-        idf_files=read_tree(workspace.root / "docker" / "idf"),
+        ros_dockerfile=text(ROS_DOCKERFILE),
+        ros_files=read_image_inputs(
+            workspace.root, IMAGE_INPUT_DIR, exclude=(IDF_INPUT_DIR.removeprefix(f"{IMAGE_INPUT_DIR}/") + "/",)
+        ),
+        idf_dockerfile=text(IDF_DOCKERFILE),
+        idf_files=read_tree(workspace.root / IDF_INPUT_DIR),
         package_files={
             p.name: read_tree(p.path, exclude=("build/", "install/", "log/"))
             for p in packages

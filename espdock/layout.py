@@ -1,0 +1,15 @@
+"""Where things are in a workspace and in espdock's containers: the one place each is spelled."""
+
+from __future__ import annotations
+
+# The images' recipes at the workspace root, and the directories they are built from besides
+# their Dockerfiles; docker/idf belongs to the IDF image only.
+ROS_DOCKERFILE = "Dockerfile.ros"
+IDF_DOCKERFILE = "Dockerfile.idf"
+IMAGE_INPUT_DIR = "docker"
+IDF_INPUT_DIR = "docker/idf"
+# The commit of every repository libmicroros.a is built from (espdock.pins).
+SOURCES_NAME = "micro_ros_sources.txt"
+SOURCES_FILE = f"{IDF_INPUT_DIR}/{SOURCES_NAME}"
+# Where the workspace is mounted in build containers.
+WORKSPACE_MOUNT = "/workspace"

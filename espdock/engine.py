@@ -283,7 +283,8 @@ class Engine:
         selector = [f"{k}={v}" for k, v in labels.items()]
         removed = 0
         try:
-            for container in self._client.containers.list(all=True, filters={"label": selector}):
+            # sparse: no inspect per container, which fails for one removed meanwhile.
+            for container in self._client.containers.list(all=True, filters={"label": selector}, sparse=True):
                 _remove(container)
                 removed += 1
         except docker.errors.APIError as exc:
@@ -293,7 +294,12 @@ class Engine:
     def containers(self, labels: Mapping[str, str]) -> list[str]:
         """Names of containers (running or not) carrying all LABELS."""
         selector = [f"{k}={v}" for k, v in labels.items()]
-        return [c.name for c in self._client.containers.list(all=True, filters={"label": selector})]
+        try:
+            # sparse: no inspect per container, which fails for one removed meanwhile.
+            listed = self._client.containers.list(all=True, filters={"label": selector}, sparse=True)
+        except docker.errors.APIError as exc:
+            raise EspdockError(f"the engine failed to list containers: {exc}") from exc
+        return [str(c.attrs.get("Names", [c.id])[0]).lstrip("/") for c in listed]
 
 
 def _connect_reason(exc: Exception) -> str:

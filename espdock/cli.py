@@ -16,12 +16,11 @@ from rich.console import Console
 from rich.text import Text
 
 from espdock import __version__, bootstrap
-from espdock.config import Config, invoking_user, load_config, resolve_ca_bundle
+from espdock.config import Config, invoking_user, load_config, record_target, resolve_ca_bundle
 from espdock.engine import Engine, format_argv
 from espdock.errors import ConfigError, EspdockBug, EspdockError, Interrupted, WorkspaceError
 from espdock.flashing import check_port, flash_package, parse_port, read_flasher_args
-from espdock.install import firmware_install_dir
-from espdock.layout import IDF_DOCKERFILE, ROS_DOCKERFILE, SOURCES_FILE
+from espdock.layout import IDF_DOCKERFILE, ROS_DOCKERFILE, SOURCES_FILE, firmware_install_dir
 from espdock.pins import Source, pin_heads, pin_image_digest
 from espdock.plan import (
     EnsureImage,
@@ -34,7 +33,7 @@ from espdock.plan import (
     plan_workspace,
 )
 from espdock.runner import Runner
-from espdock.scaffold import create_firmware_package
+from espdock.scaffold import check_new_package, create_firmware_package, init_workspace
 from espdock.status import built_from, micro_ros_report
 from espdock.ui import Reporter, render_micro_ros_status, render_packages, render_plan
 from espdock.workspace import (
@@ -122,7 +121,8 @@ def _notify(text: str) -> None:
 
 def _load(workspace: Path | None, **overrides: object) -> tuple[Workspace, Config]:
     ws = find_workspace(workspace or Path.cwd())
-    return ws, load_config(ws.root, os.environ, overrides)
+    config = load_config(ws.root, os.environ, overrides)
+    return ws.with_layout(config.package_paths, config.colcon_root), config
 
 
 def _packages(ws: Workspace) -> tuple[Package, ...]:
@@ -172,17 +172,58 @@ def build(
 @_command
 def new(
     name: Annotated[str, typer.Argument(help="Package name (lower case, digits, underscores).")],
-    target: Annotated[str | None, typer.Option(help="Chip target to record in espdock.toml if none is set.")] = None,
+    target: Annotated[
+        str | None,
+        typer.Option(help="Chip target: written to espdock.toml's `target` (where builds read it) unless set there."),
+    ] = None,
     depends: Annotated[
         list[str] | None, typer.Option("--depends", "-d", help="Interface package the firmware uses (repeatable).")
     ] = None,
     workspace: WorkspaceOption = None,
 ) -> None:
-    """Create firmware/NAME: an ESP-IDF project that is also a ROS 2 package, with a minimal micro-ROS app."""
+    """Create NAME beside the workspace's firmware: an ESP-IDF project that is also a ROS 2 package,
+    with a micro-ROS app on the shared espdock_uros component (added beside it if missing)."""
     ws, config = _load(workspace, target=target)
+    packages = _packages(ws)
+    check_new_package(name, tuple(depends or ()), packages)
+    recorded = record_target(ws.root, target) if target else False
     owner = invoking_user(os.environ, ws.root) if os.geteuid() == 0 else None
-    path = create_firmware_package(ws, name, tuple(depends or ()), owner)
-    console.print(f"created {path.relative_to(ws.root)} (target {config.target}); build it with `espdock build {name}`")
+    path = create_firmware_package(ws, name, tuple(depends or ()), packages, owner)
+    console.print(f"created {path.relative_to(ws.root)}; build it with `espdock build {name}`")
+    where = (
+        "recorded in espdock.toml" if recorded else "from espdock.toml" if target else "espdock.toml's or the default"
+    )
+    console.print(f"chip target {config.target} ({where})")
+
+
+@app.command()
+@_command
+def init(
+    directory: Annotated[
+        Path, typer.Argument(help="The workspace: empty, new, or an existing colcon workspace.")
+    ] = Path("."),
+) -> None:
+    """Make DIRECTORY an espdock workspace: writes a commented espdock.toml with the layout it finds
+    (and src/ if there is none). Only adds files; an existing espdock.toml is left alone."""
+    # As root for someone else: the new files belong to who owns the nearest existing directory.
+    existing = next(d for d in (directory.resolve(), *directory.resolve().parents) if d.exists())
+    owner = invoking_user(os.environ, existing) if os.geteuid() == 0 else None
+    ws, created = init_workspace(directory, owner)
+    if "espdock.toml" not in created:
+        console.print(f"{ws.root} is an espdock workspace already (espdock.toml exists); nothing changed")
+    else:
+        console.print(f"made {ws.root} an espdock workspace: created {', '.join(created)}")
+    packages = _packages(ws)
+    firmware = [p.name for p in packages if p.kind is PackageKind.FIRMWARE]
+    ros = [p.name for p in packages if p.kind is PackageKind.ROS]
+    console.print(f"layout: packages in {', '.join(ws.package_paths)}; colcon's build/install/log in {ws.colcon_root}")
+    console.print(f"found {len(ros)} ROS package(s){': ' + ', '.join(ros) if ros else ''}")
+    console.print(f"found {len(firmware)} firmware package(s){': ' + ', '.join(firmware) if firmware else ''}")
+    here = "" if directory.resolve() == Path.cwd() else f"cd {directory} && "
+    console.print("next:")
+    if not firmware:
+        console.print(f"  {here}espdock new my_board      # a firmware package (ESP-IDF project + ROS 2 package)")
+    console.print(f"  {here}espdock build             # images, then every package, each in its container")
 
 
 @app.command(context_settings={"allow_extra_args": True, "ignore_unknown_options": True})

@@ -49,6 +49,9 @@ class Config:
     idf_image: str | None = None
     micro_ros_repo: str | None = None
     micro_ros_commit: str | None = None
+    # The workspace layout, relative to espdock.toml's directory; None: detected (Workspace.with_layout).
+    package_paths: tuple[str, ...] | None = None
+    colcon_root: str | None = None
 
 
 class _Settings(BaseModel):
@@ -65,6 +68,8 @@ class _Settings(BaseModel):
     idf_image: Annotated[str, Field(min_length=1)] | None = None
     micro_ros_repo: Annotated[str, Field(min_length=1)] | None = None
     micro_ros_commit: Annotated[str, Field(pattern=r"^[0-9a-f]{7,40}$")] | None = None
+    package_paths: Annotated[list[Annotated[str, Field(min_length=1)]], Field(min_length=1)] | None = None
+    colcon_root: Annotated[str, Field(min_length=1)] | None = None
 
 
 _KEYS = {f.name for f in fields(Config)}
@@ -80,6 +85,8 @@ _EXPECTED = {
     "idf_image": "an image reference string",
     "micro_ros_repo": "a git URL string",
     "micro_ros_commit": "a commit hash string (7 to 40 hex digits)",
+    "package_paths": 'a non-empty list of directory strings, e.g. ["src"]',
+    "colcon_root": 'a directory string, e.g. "."',
 }
 
 
@@ -91,7 +98,9 @@ def load_config(root: Path, env: Mapping[str, str], overrides: Mapping[str, Any]
     if path.is_file():
         table = _read_toml(path)
         values.update(_checked(table, strict=True, where=lambda key: f"{path}: key '{key}' in [espdock]"))
-    from_env = {key: env[var] for var, key in _ENV.items() if env.get(var)}
+    from_env: dict[str, Any] = {key: env[var] for var, key in _ENV.items() if env.get(var)}
+    if "package_paths" in from_env:  # a list in one variable: PATH-style
+        from_env["package_paths"] = from_env["package_paths"].split(os.pathsep)
     values.update(_checked(from_env, strict=False, where=lambda key: f"environment variable ESPDOCK_{key.upper()}"))
     cli = {k: v for k, v in (overrides or {}).items() if v is not None}
     values.update(_checked(cli, strict=False, where=lambda key: f"option --{key.replace('_', '-')}"))
@@ -133,6 +142,8 @@ def _read_toml(path: Path) -> dict[str, Any]:
 
 
 def _validate(values: dict[str, Any], root: Path) -> Config:
+    if values.get("package_paths") is not None:
+        values["package_paths"] = tuple(values["package_paths"])
     config = replace(Config(), **values)
     if config.target not in CHIP_TARGETS:
         close = difflib.get_close_matches(config.target, CHIP_TARGETS, n=1)
@@ -195,3 +206,32 @@ def invoking_user(env: Mapping[str, str], root: Path) -> tuple[int, int]:
         return int(env["SUDO_UID"]), int(env["SUDO_GID"])
     owner = root.stat()
     return owner.st_uid, owner.st_gid
+
+
+def record_target(root: Path, target: str) -> bool:
+    """Write `target = TARGET` into ROOT/espdock.toml, where the build reads the chip target.
+
+    True when written; False when it was there already. A different target already set is an
+    error: a workspace builds its firmware for one chip at a time.
+    """
+    _validate({"target": target}, root)
+    path = root / CONFIG_FILE
+    current = _read_toml(path).get("target")
+    if current == target:
+        return False
+    if current is not None:
+        raise ConfigError(
+            f'{path} sets target = "{current}"; this workspace builds its firmware for that chip',
+            f"Change it there (or pass --target {target} to a build) to build for {target}.",
+        )
+    lines = path.read_text().splitlines(keepends=True)
+    at = next((i + 1 for i, line in enumerate(lines) if line.strip() == "[espdock]"), None)
+    entry = f'target = "{target}"  # recorded by `espdock new --target`\n'
+    if at is None:
+        lines += ["\n" if lines and not lines[-1].endswith("\n") else "", "[espdock]\n", entry]
+    else:
+        lines.insert(at, entry)
+    from espdock.workspace import write_atomically
+
+    write_atomically(path, "".join(lines))
+    return True

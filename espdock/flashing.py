@@ -17,8 +17,6 @@ from urllib.parse import urlsplit
 
 from espdock.engine import format_argv
 from espdock.errors import ConfigError, EspdockError, WorkspaceError
-from espdock.install import firmware_install_dir
-from espdock.layout import WORKSPACE_MOUNT
 from espdock.plan import IdfBuild
 from espdock.workspace import Workspace
 
@@ -183,7 +181,7 @@ def flash_package(
 ) -> None:
     """esptool write_flash (then verify_flash, with VERIFY) of STEP's installed artefacts through PORT,
     in STEP's IDF image, with only that port passed in (or the host network for a URL)."""
-    workdir = f"{WORKSPACE_MOUNT}/ws/{firmware_install_dir(step.package)}"
+    workdir = step.install_dir
     devices = (port.device,) if port.device else ()
     network = "host" if port.is_url else None
     version: list[str] = []

@@ -16,13 +16,7 @@ import uuid
 from pathlib import Path
 
 from espdock.errors import BuildFailed
-
-FIRMWARE_DIR = "firmware"
-
-
-def firmware_install_dir(package: str) -> str:
-    """Where PACKAGE's flashable artefacts are installed, relative to ws/ (the one spelling of it)."""
-    return f"install/{package}/share/{package}/{FIRMWARE_DIR}"
+from espdock.layout import FIRMWARE_DIR
 
 
 def firmware_files(build_dir: Path) -> list[str]:

@@ -13,3 +13,10 @@ SOURCES_NAME = "micro_ros_sources.txt"
 SOURCES_FILE = f"{IDF_INPUT_DIR}/{SOURCES_NAME}"
 # Where the workspace is mounted in build containers.
 WORKSPACE_MOUNT = "/workspace"
+# Under share/<package> of an installed firmware package: its flashable artefacts.
+FIRMWARE_DIR = "firmware"
+
+
+def firmware_install_dir(package: str) -> str:
+    """Where PACKAGE's flashable artefacts are installed, relative to the colcon root."""
+    return f"install/{package}/share/{package}/{FIRMWARE_DIR}"

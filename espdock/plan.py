@@ -4,20 +4,30 @@ from __future__ import annotations
 
 import hashlib
 import json
+import os
+import posixpath
 import re
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
+from pathlib import Path
 
 from espdock.config import Config
 from espdock.errors import WorkspaceError
-from espdock.layout import IDF_DOCKERFILE, IDF_INPUT_DIR, ROS_DOCKERFILE, SOURCES_FILE, SOURCES_NAME, WORKSPACE_MOUNT
+from espdock.layout import (
+    IDF_DOCKERFILE,
+    IDF_INPUT_DIR,
+    ROS_DOCKERFILE,
+    SOURCES_FILE,
+    SOURCES_NAME,
+    WORKSPACE_MOUNT,
+    firmware_install_dir,
+)
 from espdock.pins import parse_sources
 from espdock.workspace import BuildInputs, Package, PackageKind, Workspace, select_up_to
 
 LABEL_KEY = "io.espdock.key"
 LABEL_INPUTS = "io.espdock.inputs"
 LABEL_WORKSPACE = "io.espdock.workspace"
-FIRMWARE_BUILD_TYPE = "esp_idf"
 
 
 @dataclass(frozen=True)
@@ -33,6 +43,8 @@ class ImageSpec:
     inputs: tuple[tuple[str, str], ...] = ()
     # The build context, by relative path; None: the workspace root (filtered by .dockerignore).
     context: tuple[tuple[str, bytes], ...] | None = None
+    # Where the Dockerfile came from, and why (the workspace's own wins over espdock's default).
+    origin: str = ""
 
     @property
     def tag(self) -> str:
@@ -67,32 +79,32 @@ class EnsureImage:
 
 @dataclass(frozen=True)
 class ColconBuild:
-    """colcon build of PACKAGES (in build order), in a container of IMAGE with ws/ mounted."""
+    """colcon build of PACKAGES (in build order), in a container of IMAGE with the workspace mounted,
+    run in its colcon root."""
 
     image: str
     packages: tuple[str, ...]
-    # True: exactly PACKAGES (a selection, closed over its dependencies); False: the whole workspace.
-    select: bool = False
-    # Each package's directory relative to ws/, and its workspace dependencies: what the
-    # runner's stamps are made of (a no-change build starts no container).
+    # Each package's directory relative to the colcon root, and its workspace dependencies: what
+    # colcon is pointed at, and what the runner's stamps are made of (a no-change build starts
+    # no container).
     sources: tuple[tuple[str, str], ...] = ()
     depends: tuple[tuple[str, tuple[str, ...]], ...] = ()
+    colcon_root: str = "ws"
     force: bool = False
     name: str = "colcon build"
 
     @property
     def workdir(self) -> str:
-        return f"{WORKSPACE_MOUNT}/ws"
+        return _container_path(self.colcon_root)
 
     def argv(self) -> tuple[str, ...]:
-        args = [
-            "colcon", "build", "--base-paths", "src",
+        # Exactly these packages: colcon never sees the firmware packages (a build type it has
+        # no task for) nor, for a selection, the packages left out.
+        return (
+            "colcon", "build", "--base-paths", *(rel for _, rel in self.sources),
             # Live output per line plus colcon's own start/finish lines.
             "--event-handlers", "console_direct+", "console_start_end+", "summary+",
-        ]  # fmt: skip
-        if self.select:
-            args += ["--packages-select", *self.packages]
-        return tuple(args)
+        )  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -100,12 +112,13 @@ class IdfBuild:
     """`idf.py build` of one firmware package in a container of IMAGE, output in ws/build/<package>."""
 
     package: str
-    # The project dir relative to firmware/.
+    # The project dir relative to the workspace root.
     project: str
     image: str
     target: str
     image_key: str
     force: bool = False
+    colcon_root: str = "ws"
 
     @property
     def name(self) -> str:
@@ -113,11 +126,16 @@ class IdfBuild:
 
     @property
     def project_dir(self) -> str:
-        return f"{WORKSPACE_MOUNT}/firmware/{self.project}"
+        return _container_path(self.project)
 
     @property
     def build_dir(self) -> str:
-        return f"{WORKSPACE_MOUNT}/ws/build/{self.package}"
+        return _container_path(f"{self.colcon_root}/build/{self.package}")
+
+    @property
+    def install_dir(self) -> str:
+        """Where the installed artefacts are in the container (flashing runs there)."""
+        return _container_path(f"{self.colcon_root}/{firmware_install_dir(self.package)}")
 
     def argv(self, action: tuple[str, ...] = ("build",)) -> tuple[str, ...]:
         # sdkconfig lives in the build dir: the committed sdkconfig.defaults stays the source,
@@ -142,6 +160,11 @@ class InstallFirmware:
 
 
 Step = EnsureBaseImage | EnsureImage | ColconBuild | IdfBuild | InstallFirmware
+
+
+def _container_path(rel: str) -> str:
+    """Where REL (relative to the workspace root) is in a build container."""
+    return posixpath.normpath(f"{WORKSPACE_MOUNT}/{rel}")
 
 
 @dataclass(frozen=True)
@@ -174,16 +197,28 @@ def base_image(config: Config, ros_dockerfile_text: str) -> str:
     return config.base_image or dockerfile_args(ros_dockerfile_text).get("BASE_IMAGE", "")
 
 
-def ros_build_image(config: Config, dockerfile_text: str, image_files: Mapping[str, bytes]) -> ImageSpec:
-    """The image colcon runs in: Dockerfile.ros's `build` stage, keyed by its inputs."""
+def ros_build_image(
+    config: Config, dockerfile_text: str, image_files: Mapping[str, bytes], own_files: frozenset[str] = frozenset()
+) -> ImageSpec:
+    """The image colcon runs in: Dockerfile.ros's `build` stage, keyed by its inputs, built from
+    a context of just those (the `build` stage reads only docker/)."""
     base = base_image(config, dockerfile_text)
-    return _keyed_image(
-        f"espdock/ros-{config.ros_distro}-build",
-        ROS_DOCKERFILE,
-        "build",
-        (("BASE_IMAGE", base),),
-        {ROS_DOCKERFILE: dockerfile_text.encode(), **image_files},
+    files = {ROS_DOCKERFILE: dockerfile_text.encode(), **image_files}
+    spec = _keyed_image(
+        f"espdock/ros-{config.ros_distro}-build", ROS_DOCKERFILE, "build", (("BASE_IMAGE", base),), files, context=files
     )
+    return replace(spec, origin=_origin(ROS_DOCKERFILE, files, own_files))
+
+
+def _origin(dockerfile: str, files: Mapping[str, bytes], own_files: frozenset[str]) -> str:
+    """Which of an image's input files are the workspace's own, which espdock's defaults."""
+    own = sorted(n for n in files if n in own_files)
+    if dockerfile in own_files:
+        head = f"{dockerfile}: the workspace's own (a workspace file wins over espdock's default)"
+    else:
+        head = f"{dockerfile}: espdock's default (the workspace has none of its own)"
+    others = [n for n in own if n != dockerfile]
+    return head + (f"; the workspace's own {', '.join(others)}" if others else "")
 
 
 def _keyed_image(
@@ -306,7 +341,7 @@ def micro_ros_image(config: Config, inputs: BuildInputs, packages: tuple[Package
     for package in derive_interface_packages(packages, firmware):
         for rel, data in inputs.package_files[package.name].items():
             context[f"micro-ros/extra_packages/{package.name}/{rel}"] = data
-    return _keyed_image(
+    spec = _keyed_image(
         f"espdock/idf-micro-ros-{config.ros_distro}-{config.target}",
         IDF_DOCKERFILE,
         "final",
@@ -315,6 +350,7 @@ def micro_ros_image(config: Config, inputs: BuildInputs, packages: tuple[Package
         context=context,
         extra={"ros_distro": config.ros_distro.encode()},
     )
+    return replace(spec, origin=_origin(IDF_DOCKERFILE, context, inputs.own_files))
 
 
 def micro_ros_images(config: Config, inputs: BuildInputs, packages: tuple[Package, ...]) -> dict[str, ImageSpec]:
@@ -350,9 +386,9 @@ def plan_build(
             ColconBuild(
                 image=ros_image.tag,
                 packages=tuple(p.name for p in ros),
-                select=bool(selected),
-                sources=tuple((p.name, p.path.relative_to(workspace.ws_dir).as_posix()) for p in ros),
+                sources=tuple((p.name, Path(os.path.relpath(p.path, workspace.ws_dir)).as_posix()) for p in ros),
                 depends=tuple((p.name, tuple(sorted(p.depends & names))) for p in ros),
+                colcon_root=workspace.colcon_root,
                 force=force,
             ),
         ]
@@ -365,8 +401,8 @@ def plan_build(
         if spec.key not in ensured:
             ensured[spec.key] = spec
             steps.append(EnsureImage(spec))
-        project = package.path.relative_to(workspace.firmware_dir).as_posix()
-        steps.append(IdfBuild(package.name, project, spec.tag, config.target, spec.key, force))
+        project = package.path.relative_to(workspace.root).as_posix()
+        steps.append(IdfBuild(package.name, project, spec.tag, config.target, spec.key, force, workspace.colcon_root))
         run_depends = tuple(sorted(package.depends & everything))
         steps.append(InstallFirmware(package.name, project, run_depends))
     return Plan(workspace=workspace, steps=tuple(steps), idf_images=tuple(ensured.values()))
@@ -385,13 +421,7 @@ def plan_workspace(
     selected = select_up_to(packages, names) if names else packages
     if only is not None:
         selected = tuple(p for p in selected if p.kind is only)
-    if not inputs.ros_dockerfile:
-        raise WorkspaceError(
-            f"{workspace.root / ROS_DOCKERFILE} is missing", "The workspace root needs Dockerfile.ros."
-        )
-    ros_image = ros_build_image(config, inputs.ros_dockerfile, inputs.ros_files)
-    if any(p.kind is PackageKind.FIRMWARE for p in packages) and not inputs.idf_dockerfile:
-        raise WorkspaceError(f"{workspace.root / IDF_DOCKERFILE} is missing", "Firmware packages need Dockerfile.idf.")
+    ros_image = ros_build_image(config, inputs.ros_dockerfile, inputs.ros_files, inputs.own_files)
     idf_images = micro_ros_images(config, inputs, packages)
     return plan_build(
         workspace, config, selected, ros_image, names, idf_images=idf_images, all_packages=packages, force=force

@@ -6,6 +6,7 @@ import contextlib
 import fcntl
 import hashlib
 import os
+import posixpath
 import re
 import shutil
 import sys
@@ -170,7 +171,7 @@ class Runner:
                 argv=step.argv(),
                 workdir=step.workdir,
                 user=user,
-                mounts=(Mount(workspace.ws_dir, f"{WORKSPACE_MOUNT}/ws"),),
+                mounts=(Mount(workspace.root, WORKSPACE_MOUNT),),
                 env=(("HOME", "/tmp"),),
                 labels=labels,
             ),
@@ -196,7 +197,7 @@ class Runner:
         if not step.force and stamp_file.up_to_date(stamps, {step.package: listing_digest(build_dir)}):
             return Outcome.CACHED, f"up to date ({step.target})"
         stamp_file.forget(stamps)
-        defaults = _defaults_digest(workspace.firmware_dir / step.project)
+        defaults = _defaults_digest(workspace.root / step.project)
         _prepare_build_dir(build_dir, step.target, defaults, step.image_key)
         code = self.run_idf(
             workspace, step, step.argv(), on_line=lambda line: self._emit(StepOutput(step.name, line)), sweep=True
@@ -220,9 +221,11 @@ class Runner:
         the build dir (menuconfig's changes), the image and the target."""
         sdkconfig = workspace.ws_dir / "build" / step.package / "sdkconfig"
         digest = hashlib.sha256(f"{step.image_key}\0{step.target}\n".encode())
-        digest.update(tree_digest(workspace.firmware_dir / step.project).encode())
-        if (workspace.firmware_dir / "components").is_dir():
-            digest.update(tree_digest(workspace.firmware_dir / "components").encode())
+        digest.update(tree_digest(workspace.root / step.project).encode())
+        # Shared components beside the project (CMake's EXTRA_COMPONENT_DIRS ../components).
+        components = (workspace.root / step.project).parent / "components"
+        if components.is_dir():
+            digest.update(tree_digest(components).encode())
         if sdkconfig.is_file():
             digest.update(hashlib.sha256(sdkconfig.read_bytes()).digest())
         return {step.package: digest.hexdigest()}
@@ -247,20 +250,19 @@ class Runner:
         # The component manager extracts into <project>/managed_components, a place it does not
         # let anyone move; a mount keeps that in ws/build, and the source tree clean.
         managed = workspace.ws_dir / "build" / step.package / MANAGED_COMPONENTS
-        mountpoint = workspace.firmware_dir / step.project / MANAGED_COMPONENTS
+        mountpoint = workspace.root / step.project / MANAGED_COMPONENTS
         owner = self._owner
         for directory in (managed, mountpoint):
             _make_dirs_for(directory, owner)
         mounts = [
-            Mount(workspace.firmware_dir, f"{WORKSPACE_MOUNT}/firmware"),
-            Mount(workspace.ws_dir, f"{WORKSPACE_MOUNT}/ws"),
+            Mount(workspace.root, WORKSPACE_MOUNT),
             Mount(managed, f"{step.project_dir}/{MANAGED_COMPONENTS}"),
         ]
         env = [
             ("HOME", "/tmp"),
             ("IDF_TARGET", step.target),
             # The component manager's downloads outlive the container (it caches in HOME otherwise).
-            ("IDF_COMPONENT_CACHE_PATH", f"{WORKSPACE_MOUNT}/ws/build/{COMPONENT_CACHE}"),
+            ("IDF_COMPONENT_CACHE_PATH", f"{posixpath.dirname(step.build_dir)}/{COMPONENT_CACHE}"),
         ]
         ca_bundle = resolve_ca_bundle(self._config, self._env)
         if ca_bundle is not None:
@@ -307,7 +309,7 @@ class Runner:
     def _install(self, workspace: Workspace, step: InstallFirmware) -> tuple[Outcome, str]:
         build_dir = workspace.ws_dir / "build" / step.package
         prefix = workspace.ws_dir / "install" / step.package
-        manifest = workspace.firmware_dir / step.project / "package.xml"
+        manifest = workspace.root / step.project / "package.xml"
         stamp_file = StampFile(workspace.ws_dir / "build" / INSTALL_STAMPS)
         source = hashlib.sha256(
             f"{listing_digest(build_dir)}\0{':'.join(step.run_depends)}\0".encode() + manifest.read_bytes()
@@ -319,7 +321,7 @@ class Runner:
         owner = self._owner if os.geteuid() == 0 else None
         firmware = install_firmware(
             package=step.package,
-            manifest=workspace.firmware_dir / step.project / "package.xml",
+            manifest=workspace.root / step.project / "package.xml",
             build_dir=workspace.ws_dir / "build" / step.package,
             install_base=workspace.ws_dir / "install",
             run_depends=step.run_depends,

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import difflib
 import os
 import re
 import shutil
@@ -9,12 +10,15 @@ import tempfile
 from importlib import resources
 from pathlib import Path
 
+from espdock.defaults import default_file
 from espdock.errors import ConfigError, WorkspaceError
-from espdock.workspace import Workspace
+from espdock.workspace import Package, PackageKind, Workspace
 
 # REP 144: lower case letters, digits and underscores, starting with a letter, no "__".
 PACKAGE_NAME = re.compile(r"^[a-z][a-z0-9_]*$")
 TEMPLATE = "templates/firmware"
+# The shared firmware component every espdock app builds on (Wi-Fi, agent reconnection).
+COMPONENT = "espdock_uros"
 # A directory, a CMake project and a C identifier prefix: long names break none of them
 # before the file system's 255 bytes do, but nobody types more than this.
 MAX_NAME = 64
@@ -35,46 +39,105 @@ def validate_package_name(name: str) -> None:
         raise ConfigError(f"'{name}' is not a valid ROS package name: {problem}", "For example: camera_node.")
 
 
+# Standard interface packages micro-ROS (jazzy) builds into every library: a firmware package
+# may depend on these without the workspace holding them.
+STANDARD_INTERFACES = (
+    "action_msgs", "actionlib_msgs", "builtin_interfaces", "composition_interfaces", "diagnostic_msgs",
+    "example_interfaces", "geometry_msgs", "lifecycle_msgs", "micro_ros_msgs", "nav_msgs", "rcl_interfaces",
+    "rosgraph_msgs", "sensor_msgs", "shape_msgs", "statistics_msgs", "std_msgs", "std_srvs", "stereo_msgs",
+    "trajectory_msgs", "type_description_interfaces", "unique_identifier_msgs", "visualization_msgs",
+)  # fmt: skip
+# Names that would sit where colcon's outputs or the shared components live.
+RESERVED_NAMES = ("build", "install", "log", "components")
+
+
+def firmware_home(workspace: Workspace, packages: tuple[Package, ...]) -> Path:
+    """Where a new firmware package goes: beside the existing ones, else in a package path named
+    firmware, else in the first package path."""
+    existing = [p for p in packages if p.kind is PackageKind.FIRMWARE]
+    if existing:
+        return existing[0].path.parent
+    named = [rel for rel in workspace.package_paths if Path(rel).name == "firmware"]
+    return workspace.root / (named[0] if named else workspace.package_paths[0])
+
+
+def check_new_package(name: str, depends: tuple[str, ...], packages: tuple[Package, ...]) -> None:
+    """Refuse NAME if it is no ROS name, taken or reserved, and DEPENDS naming no interface package."""
+    validate_package_name(name)
+    by_name = {p.name: p for p in packages}
+    if name in by_name:
+        raise WorkspaceError(
+            f"a package named '{name}' already exists ({by_name[name].path})", "Package names are unique; pick another."
+        )
+    if name in RESERVED_NAMES:
+        raise ConfigError(f"'{name}' is reserved (colcon's outputs and shared components use it)", "Pick another name.")
+    interfaces = sorted({*STANDARD_INTERFACES, *(p.name for p in packages if p.is_interface)})
+    for dep in depends:
+        validate_package_name(dep)
+        if dep in interfaces:
+            continue
+        close = difflib.get_close_matches(dep, interfaces, n=3)
+        why = "is not an interface package" if dep in by_name else "is neither in this workspace nor in micro-ROS"
+        raise WorkspaceError(
+            f"--depends {dep}: '{dep}' {why}",
+            (f"Did you mean {', '.join(close)}? " if close else "")
+            + f"Interface packages: {', '.join(p for p in interfaces if p not in STANDARD_INTERFACES) or 'none'} "
+            f"in this workspace, and micro-ROS's standard ones ({', '.join(STANDARD_INTERFACES[:6])}, ...).",
+        )
+
+
 def create_firmware_package(
-    workspace: Workspace, name: str, depends: tuple[str, ...], owner: tuple[int, int] | None = None
+    workspace: Workspace,
+    name: str,
+    depends: tuple[str, ...],
+    packages: tuple[Package, ...],
+    owner: tuple[int, int] | None = None,
 ) -> Path:
-    """Write firmware/NAME from the template; refuse an existing directory. Returns the new directory.
+    """Write NAME from the template where the workspace's firmware goes (firmware_home), and the
+    shared espdock_uros component beside it if missing. Returns the new package's directory.
 
     OWNER (uid, gid), when given, gets the new files (root creating them for someone).
     """
-    validate_package_name(name)
-    for dep in depends:
-        validate_package_name(dep)
-    destination = workspace.firmware_dir / name
+    check_new_package(name, depends, packages)
+    home = firmware_home(workspace, packages)
+    destination = home / name
     if destination.exists():
         raise WorkspaceError(f"{destination} already exists", "Pick another name, or remove that directory.")
     extra = "".join(f"  <depend>{d}</depend>\n" for d in dict.fromkeys(depends) if d != "std_msgs")
     template = resources.files("espdock").joinpath(TEMPLATE)
+    component = home / "components" / COMPONENT
     try:
-        workspace.firmware_dir.mkdir(parents=True, exist_ok=True)
-        # Written next to its final place and renamed, so a failure leaves no half package.
-        staging = Path(tempfile.mkdtemp(prefix=f".{name}-", dir=workspace.firmware_dir))
+        home.mkdir(parents=True, exist_ok=True)
+        # Written next to their final places and renamed, so a failure leaves no half package.
+        staging = Path(tempfile.mkdtemp(prefix=f".{name}-", dir=home))
     except OSError as exc:
         raise WorkspaceError(
-            f"cannot create {destination}: {exc.strerror or exc}",
-            f"{workspace.firmware_dir} must be a directory you can write to.",
+            f"cannot create {destination}: {exc.strerror or exc}", f"{home} must be a directory you can write to."
         ) from None
     try:
-        _render(template, staging, {"@NAME@": name, "@DEPENDS@\n": extra})
-        # mkdtemp made it private; the package gets the same mode as any new directory.
+        _render(template, staging / "package", {"@NAME@": name, "@DEPENDS@\n": extra})
+        if not component.exists():
+            shutil.copytree(default_file(f"firmware/components/{COMPONENT}"), staging / COMPONENT)
         umask = os.umask(0)
         os.umask(umask)
-        staging.chmod(0o777 & ~umask)
-        if owner is not None:
-            for path in (staging, *staging.rglob("*")):
+        for path in (staging, *staging.rglob("*")):
+            # mkdtemp made it private; the files get the modes of any new file or directory.
+            path.chmod((0o777 if path.is_dir() else 0o666) & ~umask)
+            if owner is not None:
                 os.lchown(path, *owner)
-        staging.rename(destination)
+        if (staging / COMPONENT).exists():
+            component.parent.mkdir(exist_ok=True)
+            if owner is not None:
+                os.lchown(component.parent, *owner)
+            (staging / COMPONENT).rename(component)
+        (staging / "package").rename(destination)
     finally:
         shutil.rmtree(staging, ignore_errors=True)
     return destination
 
 
 def _render(source, destination: Path, replacements: dict[str, str]) -> None:
+    destination.mkdir(exist_ok=True)
     for entry in source.iterdir():
         target = destination / entry.name
         if entry.is_dir():
@@ -85,3 +148,52 @@ def _render(source, destination: Path, replacements: dict[str, str]) -> None:
         for placeholder, value in replacements.items():
             text = text.replace(placeholder, value)
         target.write_text(text)
+
+
+CONFIG_TEMPLATE = """\
+# espdock workspace settings (written by `espdock init`). Every key is optional;
+# ESPDOCK_<KEY> variables and command-line options override them.
+[espdock]
+# Where packages are looked for, relative to this file: ROS packages and ESP-IDF
+# firmware packages (<build_type>esp_idf</build_type>) alike, anywhere below.
+package_paths = [{paths}]
+# Where colcon's build/, install/ and log/ go.
+colcon_root = "{colcon_root}"
+# ESP32 chip target for firmware packages: esp32, esp32s3, esp32c3, ...
+# target = "esp32"
+# Behind a TLS-intercepting proxy: its CA bundle (default: the cert pip is configured with).
+# ca_bundle = "/path/to/corporate-ca.pem"
+"""
+
+
+def init_workspace(directory: Path, owner: tuple[int, int] | None = None) -> tuple[Workspace, list[str]]:
+    """Make DIRECTORY (empty, or an existing colcon workspace) an espdock workspace: a commented
+    espdock.toml with the detected layout, and src/ where there is no package path yet. Only adds
+    files: an existing espdock.toml is left as it is. Returns the workspace and what was created."""
+    from espdock.config import CONFIG_FILE
+    from espdock.workspace import CLASSIC_LAYOUT, COLCON_LAYOUT
+
+    root = directory.resolve()
+    created: list[str] = []
+    try:
+        if not root.exists():
+            root.mkdir(parents=True)
+            created.append(str(root))
+        paths, colcon_root = CLASSIC_LAYOUT if (root / "ws" / "src").is_dir() else COLCON_LAYOUT
+        config = root / CONFIG_FILE
+        if config.exists():
+            return Workspace(root).with_layout(None, None), created
+        for rel in paths:
+            if not (root / rel).exists():
+                (root / rel).mkdir(parents=True)
+                created.append(f"{rel}/")
+        with config.open("x") as out:  # never overwrites
+            out.write(CONFIG_TEMPLATE.format(paths=", ".join(f'"{p}"' for p in paths), colcon_root=colcon_root))
+        created.append(CONFIG_FILE)
+    except OSError as exc:
+        raise WorkspaceError(f"cannot make {root} a workspace: {exc.strerror or exc}") from None
+    if owner is not None:
+        for rel in created:
+            path = root / rel.rstrip("/") if not Path(rel).is_absolute() else Path(rel)
+            os.lchown(path, *owner)
+    return Workspace(root, paths, colcon_root), created

@@ -10,7 +10,7 @@ from rich.table import Table
 from rich.text import Text
 
 from espdock.events import Event, Outcome, StepFinished, StepNote, StepOutput, StepStarted
-from espdock.install import firmware_install_dir
+from espdock.layout import firmware_install_dir
 from espdock.plan import ColconBuild, EnsureBaseImage, EnsureImage, IdfBuild, InstallFirmware, Plan
 from espdock.workspace import Package, Workspace
 
@@ -90,6 +90,8 @@ def render_plan(console: Console, plan: Plan) -> None:
             case EnsureImage():
                 spec = step.spec
                 console.print(f"   {spec.tag} from {spec.dockerfile} stage {spec.target} (key {spec.key})")
+                if spec.origin:
+                    console.print(Text(f"     {spec.origin}", style="dim"))
                 for name, sha in spec.inputs:
                     console.print(Text(f"     {name}  {sha[:12]}", style="dim"))
             case ColconBuild():

@@ -12,10 +12,14 @@ from pathlib import Path
 from catkin_pkg.package import InvalidPackage, parse_package
 
 from espdock.config import CONFIG_FILE
+from espdock.defaults import defaults_root
 from espdock.errors import WorkspaceError
 from espdock.layout import IDF_DOCKERFILE, IDF_INPUT_DIR, IMAGE_INPUT_DIR, ROS_DOCKERFILE
 
 IGNORE_MARKERS = ("COLCON_IGNORE", "AMENT_IGNORE", "CATKIN_IGNORE")
+FIRMWARE_BUILD_TYPE = "esp_idf"
+# colcon's and IDF's outputs: never searched for packages.
+NOT_SOURCES = ("build", "install", "log", "managed_components")
 
 
 class PackageKind(StrEnum):
@@ -36,23 +40,40 @@ class Package:
     is_interface: bool = False
 
 
+# This repository's layout: ROS packages in ws/src, firmware in firmware/, colcon's build,
+# install and log in ws/. A plain colcon workspace: everything under src/, outputs at the root.
+CLASSIC_LAYOUT = (("ws/src", "firmware"), "ws")
+COLCON_LAYOUT = (("src",), ".")
+
+
 @dataclass(frozen=True)
 class Workspace:
-    """An espdock workspace: ROOT/espdock.toml, ROS packages in ws/src, firmware in firmware/."""
+    """An espdock workspace: ROOT/espdock.toml; packages (ROS and firmware, told apart by their
+    build type) anywhere under PACKAGE_PATHS; colcon's build/, install/ and log/ in COLCON_ROOT.
+    Both paths are relative to ROOT."""
 
     root: Path
+    package_paths: tuple[str, ...] = CLASSIC_LAYOUT[0]
+    colcon_root: str = CLASSIC_LAYOUT[1]
 
     @property
     def ws_dir(self) -> Path:
-        return self.root / "ws"
+        """The colcon workspace: where build/, install/ and log/ go."""
+        return (self.root / self.colcon_root).resolve() if self.colcon_root != "." else self.root
 
-    @property
-    def src_dir(self) -> Path:
-        return self.ws_dir / "src"
-
-    @property
-    def firmware_dir(self) -> Path:
-        return self.root / "firmware"
+    def with_layout(self, package_paths: tuple[str, ...] | None, colcon_root: str | None) -> Workspace:
+        """This workspace with the configured layout; what is not configured is detected:
+        ws/src present means this repository's layout, else a colcon workspace's."""
+        detected = CLASSIC_LAYOUT if (self.root / "ws" / "src").is_dir() else COLCON_LAYOUT
+        paths = tuple(package_paths) if package_paths else detected[0]
+        root = colcon_root if colcon_root is not None else detected[1]
+        for rel in (*paths, root):
+            if Path(rel).is_absolute() or ".." in Path(rel).parts:
+                raise WorkspaceError(
+                    f"layout path '{rel}' must be relative to the workspace and inside it",
+                    "Set package_paths and colcon_root in espdock.toml relative to its directory.",
+                )
+        return Workspace(self.root, paths, root)
 
 
 def find_workspace(start: Path) -> Workspace:
@@ -71,11 +92,19 @@ def find_workspace(start: Path) -> Workspace:
 
 
 def discover_packages(workspace: Workspace) -> tuple[Package, ...]:
-    """Every package in ws/src and firmware/, by name; names must be unique."""
+    """Every package under the workspace's package paths, by name; names must be unique.
+
+    A package is firmware when its build type is esp_idf (as colcon tells packages apart), ROS
+    otherwise, wherever it lives.
+    """
     found: dict[str, Package] = {}
-    for base, kind in ((workspace.src_dir, PackageKind.ROS), (workspace.firmware_dir, PackageKind.FIRMWARE)):
-        for manifest in _manifests(base):
-            package = _read_manifest(manifest, kind)
+    seen: set[Path] = set()
+    for rel in workspace.package_paths:
+        for manifest in _manifests(workspace.root / rel):
+            if manifest in seen:  # nested package paths
+                continue
+            seen.add(manifest)
+            package = _read_manifest(manifest)
             if package.name in found:
                 raise WorkspaceError(
                     f"two packages are named '{package.name}': {found[package.name].path} and {package.path}",
@@ -97,12 +126,10 @@ def _manifests(base: Path) -> Iterable[Path]:
             dirnames[:] = []
             yield Path(dirpath) / "package.xml"
             continue
-        dirnames[:] = sorted(
-            d for d in dirnames if not d.startswith((".", "__")) and d not in ("build", "install", "log")
-        )
+        dirnames[:] = sorted(d for d in dirnames if not d.startswith((".", "__")) and d not in NOT_SOURCES)
 
 
-def _read_manifest(manifest: Path, kind: PackageKind) -> Package:
+def _read_manifest(manifest: Path) -> Package:
     try:
         pkg = parse_package(str(manifest))
     except (InvalidPackage, ValueError, OSError) as exc:
@@ -121,11 +148,12 @@ def _read_manifest(manifest: Path, kind: PackageKind) -> Package:
         if d.evaluated_condition is not False
     }
     exports = {e.tagname: e.content for e in pkg.exports}
+    build_type = exports.get("build_type") or "ament_cmake"
     return Package(
         name=pkg.name,
         path=manifest.parent,
-        kind=kind,
-        build_type=exports.get("build_type") or "ament_cmake",
+        kind=PackageKind.FIRMWARE if build_type == FIRMWARE_BUILD_TYPE else PackageKind.ROS,
+        build_type=build_type,
         depends=frozenset(deps),
         is_interface="rosidl_interface_packages" in {g.name for g in pkg.member_of_groups},
     )
@@ -207,23 +235,30 @@ class BuildInputs:
     app_metas: dict[str, str]
     # Each firmware's sdkconfig.defaults files (name -> bytes), read for the library's settings.
     sdkconfig_defaults: dict[str, dict[str, bytes]] = field(default_factory=dict)
+    # Which image input files the workspace has of its own (they win over espdock's defaults).
+    own_files: frozenset[str] = frozenset()
 
 
 def read_build_inputs(workspace: Workspace, packages: Iterable[Package]) -> BuildInputs:
     """Read the Dockerfiles, docker/ and the packages' files that image keys are made of."""
     packages = tuple(packages)
+    # Each of Dockerfile.ros, Dockerfile.idf and the files under docker/: the workspace's own
+    # where it has one, else espdock's default (espdock.defaults), file by file.
+    defaults = defaults_root()
+    own = {n for n in (ROS_DOCKERFILE, IDF_DOCKERFILE) if (workspace.root / n).is_file()}
+    own |= set(read_image_inputs(workspace.root, IMAGE_INPUT_DIR))
+    files = {**read_image_inputs(defaults, IMAGE_INPUT_DIR), **read_image_inputs(workspace.root, IMAGE_INPUT_DIR)}
 
     def text(name: str) -> str:
-        path = workspace.root / name
-        return path.read_text() if path.is_file() else ""
+        return ((workspace.root if name in own else defaults) / name).read_text()
 
+    idf_prefix = f"{IDF_INPUT_DIR}/"
     return BuildInputs(
         ros_dockerfile=text(ROS_DOCKERFILE),
-        ros_files=read_image_inputs(
-            workspace.root, IMAGE_INPUT_DIR, exclude=(IDF_INPUT_DIR.removeprefix(f"{IMAGE_INPUT_DIR}/") + "/",)
-        ),
+        ros_files={rel: data for rel, data in files.items() if not rel.startswith(idf_prefix)},
         idf_dockerfile=text(IDF_DOCKERFILE),
-        idf_files=read_tree(workspace.root / IDF_INPUT_DIR),
+        idf_files={rel.removeprefix(idf_prefix): data for rel, data in files.items() if rel.startswith(idf_prefix)},
+        own_files=frozenset(own),
         package_files={
             p.name: read_tree(p.path, exclude=("build/", "install/", "log/"))
             for p in packages

@@ -86,3 +86,23 @@ def containers_created(root: Path, since: float, until: float) -> list[str]:
         capture_output=True, text=True, check=True, timeout=60,
     )  # fmt: skip
     return events.stdout.split()
+
+
+def as_user(uid: int, gid: int, groups: list[int], espdock_bin: Path) -> tuple[str, ...]:
+    group_arg = ",".join(map(str, groups)) if groups else None
+    prefix = ["setpriv", f"--reuid={uid}", f"--regid={gid}"]
+    prefix += [f"--groups={group_arg}"] if group_arg else ["--clear-groups"]
+    return (*prefix, str(espdock_bin))
+
+
+def user_env(home: Path) -> dict[str, str]:
+    home.mkdir(exist_ok=True)
+    return {"HOME": str(home), "PATH": os.environ["PATH"]}
+
+
+def owners(root: Path) -> set[int]:
+    found = set()
+    for dirpath, dirnames, filenames in os.walk(root):
+        for name in (*dirnames, *filenames):
+            found.add(os.lstat(os.path.join(dirpath, name)).st_uid)
+    return found

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import grp
-import os
 import shutil
 import signal
 import subprocess
@@ -14,7 +13,17 @@ from pathlib import Path
 
 import pytest
 
-from tests.conftest import REPO, containers_created, copy_workspace, espdock, leftover_containers, ros_build_tag
+from tests.conftest import (
+    REPO,
+    as_user,
+    containers_created,
+    copy_workspace,
+    espdock,
+    leftover_containers,
+    owners,
+    ros_build_tag,
+    user_env,
+)
 
 pytestmark = [pytest.mark.engine, pytest.mark.slow]
 
@@ -38,26 +47,6 @@ def user_espdock(shared_dir: Path) -> Path:
     subprocess.run(["/usr/bin/python3", "-m", "venv", str(venv)], check=True)
     subprocess.run([str(venv / "bin/pip"), "install", "-q", str(REPO)], check=True, capture_output=True)
     return venv / "bin" / "espdock"
-
-
-def as_user(uid: int, gid: int, groups: list[int], espdock_bin: Path) -> tuple[str, ...]:
-    group_arg = ",".join(map(str, groups)) if groups else None
-    prefix = ["setpriv", f"--reuid={uid}", f"--regid={gid}"]
-    prefix += [f"--groups={group_arg}"] if group_arg else ["--clear-groups"]
-    return (*prefix, str(espdock_bin))
-
-
-def user_env(home: Path) -> dict[str, str]:
-    home.mkdir(exist_ok=True)
-    return {"HOME": str(home), "PATH": os.environ["PATH"]}
-
-
-def owners(root: Path) -> set[int]:
-    found = set()
-    for dirpath, dirnames, filenames in os.walk(root):
-        for name in (*dirnames, *filenames):
-            found.add(os.lstat(os.path.join(dirpath, name)).st_uid)
-    return found
 
 
 @pytest.fixture(scope="module")

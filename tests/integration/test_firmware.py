@@ -23,7 +23,7 @@ from pathlib import Path
 import pytest
 
 from espdock.config import Config, resolve_ca_bundle
-from espdock.install import firmware_install_dir
+from espdock.layout import firmware_install_dir
 from tests.conftest import REPO, containers_created, copy_workspace, espdock, leftover_containers, ros_build_tag
 from tests.idf_contract_double.build import build_double, use_double
 

@@ -2,7 +2,7 @@
 
 from pathlib import Path
 
-from espdock.install import firmware_install_dir
+from espdock.layout import firmware_install_dir
 from tests.conftest import copy_workspace, espdock
 
 # Any engine use would fail loudly against this address.
@@ -160,3 +160,64 @@ def test_an_unexpected_error_is_reported_as_a_bug_with_a_traceback_log(capsys):
     log = Path(err.split("traceback in ")[1].split()[0].rstrip("."))
     assert "Traceback" in log.read_text() and "RuntimeError" in log.read_text()
     log.unlink()
+
+
+def test_new_refuses_taken_and_reserved_names_and_unknown_dependencies(tmp_path):
+    root = copy_workspace(tmp_path / "w")
+    taken = espdock("new", "custom_interface", cwd=root, env=NO_ENGINE)
+    assert taken.returncode == 2 and "a package named 'custom_interface' already exists" in taken.stderr
+    for reserved in ("build", "install", "log"):
+        result = espdock("new", reserved, cwd=root, env=NO_ENGINE)
+        assert result.returncode == 2 and f"'{reserved}' is reserved" in result.stderr
+    unknown = espdock("new", "blinky", "--depends", "custom_interfaces", cwd=root, env=NO_ENGINE)
+    assert unknown.returncode == 2
+    assert "--depends custom_interfaces" in unknown.stderr and "Did you mean custom_interface" in unknown.stderr
+    assert not (root / "firmware").exists(), "nothing written for refused input"
+
+
+def test_new_records_the_target_where_the_build_reads_it(tmp_path):
+    root = copy_workspace(tmp_path / "w")
+    (root / "espdock.toml").write_text('# mine\n[espdock]\nros_distro = "jazzy"\n')
+    created = espdock("new", "blinky", "--target", "esp32s3", cwd=root, env=NO_ENGINE)
+    assert created.returncode == 0, created.stderr
+    assert "chip target esp32s3 (recorded in espdock.toml)" in created.stdout
+    assert 'target = "esp32s3"' in (root / "espdock.toml").read_text()
+    assert (root / "espdock.toml").read_text().startswith("# mine\n[espdock]\n")
+    plan = espdock("build", "blinky", "--dry-run", cwd=root, env=NO_ENGINE)
+    assert "(target esp32s3)" in plan.stdout
+    other = espdock("new", "blinky2", "--target", "esp32c3", cwd=root, env=NO_ENGINE)
+    assert other.returncode == 2 and 'sets target = "esp32s3"' in other.stderr
+    assert not (root / "firmware/blinky2").exists()
+
+
+def test_a_workspace_dockerfile_wins_over_the_default_and_changes_the_key(tmp_path):
+    root = copy_workspace(tmp_path / "w")
+    (root / "Dockerfile.ros").unlink()
+    default = espdock("build", "--dry-run", cwd=root, env=NO_ENGINE)
+    assert "Dockerfile.ros: espdock's default (the workspace has none of its own)" in default.stdout
+    from tests.conftest import REPO
+
+    (root / "Dockerfile.ros").write_text((REPO / "Dockerfile.ros").read_text() + "\n# my own\n")
+    own = espdock("build", "--dry-run", cwd=root, env=NO_ENGINE)
+    assert "Dockerfile.ros: the workspace's own" in own.stdout
+
+    def tag(out: str) -> str:
+        return next(w for w in out.split() if w.startswith("espdock/ros-jazzy-build:"))
+
+    assert tag(own.stdout) != tag(default.stdout)
+
+
+def test_init_adopts_a_colcon_workspace_and_never_overwrites(tmp_path):
+    ws = tmp_path / "ros2_ws"
+    (ws / "src/pkg").mkdir(parents=True)
+    (ws / "src/pkg/package.xml").write_text(
+        (Path(__file__).resolve().parents[2] / "ws/src/custom_interface/package.xml").read_text()
+    )
+    result = espdock("init", cwd=ws, env=NO_ENGINE)
+    assert result.returncode == 0, result.stderr
+    assert "found 1 ROS package(s): custom_interface" in result.stdout
+    assert 'package_paths = ["src"]' in (ws / "espdock.toml").read_text()
+    (ws / "espdock.toml").write_text("[espdock]\n# mine\n")
+    again = espdock("init", str(ws), cwd=tmp_path, env=NO_ENGINE)
+    assert again.returncode == 0 and "nothing changed" in again.stdout
+    assert (ws / "espdock.toml").read_text() == "[espdock]\n# mine\n"

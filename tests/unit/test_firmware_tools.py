@@ -12,7 +12,7 @@ from espdock.errors import BuildFailed, ConfigError, WorkspaceError
 from espdock.flashing import PortError, check_port, esptool_major, flash_argv, parse_port, verify_argv
 from espdock.install import install_firmware
 from espdock.scaffold import create_firmware_package, validate_package_name
-from espdock.workspace import PackageKind, Workspace, discover_packages
+from espdock.workspace import Package, PackageKind, Workspace, discover_packages
 
 FLASHER_ARGS = {
     "write_flash_args": ["--flash_mode", "dio", "--flash_size", "2MB", "--flash_freq", "40m"],
@@ -39,7 +39,8 @@ def test_invalid_package_names_are_refused(name):
 def test_new_creates_a_firmware_package_that_discovery_sees(tmp_path):
     ws = Workspace(tmp_path)
     (tmp_path / "espdock.toml").write_text("[espdock]\n")
-    path = create_firmware_package(ws, "blinky", ("custom_interface",))
+    interface = Package("custom_interface", tmp_path / "ws/src/ci", PackageKind.ROS, "ament_cmake", frozenset(), True)
+    path = create_firmware_package(ws, "blinky", ("custom_interface",), (interface,))
     assert (path / "main/main.c").is_file()
     assert "project(blinky)" in (path / "CMakeLists.txt").read_text()
     assert "$ENV{UROS_COMPONENT_DIR}" in (path / "CMakeLists.txt").read_text()
@@ -48,17 +49,19 @@ def test_new_creates_a_firmware_package_that_discovery_sees(tmp_path):
     assert package.name == "blinky" and package.kind is PackageKind.FIRMWARE
     assert package.depends == {"std_msgs", "custom_interface"}
     assert package.build_type == "esp_idf"
-    assert not [p for p in ws.firmware_dir.iterdir() if p.name.startswith(".")], "no staging leftovers"
+    assert not [p for p in (ws.root / "firmware").iterdir() if p.name.startswith(".")], "no staging leftovers"
+    # The shared component the app builds on comes along, once.
+    assert (tmp_path / "firmware/components/espdock_uros/include/espdock_uros.h").is_file()
     assert path.stat().st_mode & 0o055 == 0o055, "readable by the build user, like any new directory"
 
 
 def test_new_refuses_an_existing_directory_and_keeps_it(tmp_path):
     ws = Workspace(tmp_path)
-    existing = ws.firmware_dir / "blinky"
+    existing = (ws.root / "firmware") / "blinky"
     existing.mkdir(parents=True)
     (existing / "mine.c").write_text("keep me")
     with pytest.raises(WorkspaceError, match="already exists"):
-        create_firmware_package(ws, "blinky", ())
+        create_firmware_package(ws, "blinky", (), ())
     assert (existing / "mine.c").read_text() == "keep me"
 
 

@@ -1,7 +1,15 @@
 from pathlib import Path
 
 from espdock.config import Config
-from espdock.plan import ColconBuild, EnsureBaseImage, EnsureImage, dockerfile_args, plan_build, ros_build_image
+from espdock.plan import (
+    ColconBuild,
+    EnsureBaseImage,
+    EnsureImage,
+    IdfBuild,
+    dockerfile_args,
+    plan_build,
+    ros_build_image,
+)
 from espdock.workspace import Package, PackageKind, Workspace
 
 DOCKERFILE = "ARG BASE_IMAGE=debian:bookworm-slim\nFROM ${BASE_IMAGE} AS build\n"
@@ -47,8 +55,10 @@ def test_build_plan_ensures_images_then_runs_colcon():
     colcon = plan.steps[-1]
     assert colcon.packages == ("msgs", "app")
     assert colcon.image == spec.tag
-    assert "--packages-select" not in colcon.argv()
+    argv = colcon.argv()
+    assert argv[argv.index("--base-paths") + 1 : argv.index("--event-handlers")] == ("src/msgs", "src/app")
     assert colcon.sources == (("msgs", "src/msgs"), ("app", "src/app"))
+    assert colcon.workdir == "/workspace/ws"
     assert colcon.depends == (("msgs", ()), ("app", ("msgs",)))
 
 
@@ -58,7 +68,21 @@ def test_a_selection_builds_exactly_the_selected_packages_and_their_dependencies
     plan = plan_build(Workspace(Path("/w")), Config(), (pkg("msgs"), pkg("app", depends=["msgs"])), spec,
                       selected=("app",))  # fmt: skip
     argv = plan.steps[-1].argv()
-    assert argv[argv.index("--packages-select") + 1 :] == ("msgs", "app")
+    assert argv[argv.index("--base-paths") + 1 : argv.index("--event-handlers")] == ("src/msgs", "src/app")
+
+
+def test_a_colcon_workspace_layout_builds_in_its_root_and_firmware_anywhere():
+    ws = Workspace(Path("/w"), ("src",), ".")
+    msgs = Package("msgs", Path("/w/src/msgs"), PackageKind.ROS, "ament_cmake", frozenset())
+    cam = Package("cam", Path("/w/src/boards/esp/cam"), PackageKind.FIRMWARE, "esp_idf", frozenset({"msgs"}))
+    spec = ros_build_image(Config(), DOCKERFILE, FILES)
+    plan = plan_build(ws, Config(), (msgs, cam), spec, idf_images={"cam": spec})
+    colcon = next(s for s in plan.steps if isinstance(s, ColconBuild))
+    assert colcon.workdir == "/workspace" and colcon.sources == (("msgs", "src/msgs"),)
+    build = next(s for s in plan.steps if isinstance(s, IdfBuild))
+    assert build.project_dir == "/workspace/src/boards/esp/cam"
+    assert build.build_dir == "/workspace/build/cam"
+    assert build.install_dir == "/workspace/install/cam/share/cam/firmware"
 
 
 def test_selecting_a_firmware_package_builds_only_its_ros_dependencies():
@@ -71,8 +95,8 @@ def test_selecting_a_firmware_package_builds_only_its_ros_dependencies():
         "cam": ros_build_image(Config(), DOCKERFILE, FILES)})  # fmt: skip
     colcon = next(s for s in plan.steps if isinstance(s, ColconBuild))
     argv = colcon.argv()
-    assert argv[argv.index("--packages-select") + 1 :] == ("msgs",)
-    assert "demo" not in argv
+    assert argv[argv.index("--base-paths") + 1 : argv.index("--event-handlers")] == ("src/msgs",)
+    assert "src/demo" not in argv
 
 
 def test_no_ros_packages_means_no_ros_steps():

@@ -93,7 +93,7 @@ def test_a_build_where_nothing_changed_runs_no_container(ws):
     assert len(engine.runs) == 1
     assert events[-1].outcome is Outcome.CACHED and "up to date" in events[-1].detail
     # A dependency's change rebuilds; so does a removed install tree; so does --force.
-    (ws.src_dir / "msgs/msg.txt").write_text("x")
+    ((ws.root / "ws/src") / "msgs/msg.txt").write_text("x")
     runner(engine, []).run(Plan(ws, (COLCON,)))
     assert len(engine.runs) == 2
     (ws.ws_dir / "install/app/marker").unlink()
@@ -105,10 +105,11 @@ def test_a_build_where_nothing_changed_runs_no_container(ws):
     assert len(engine.runs) == 4
 
 
-def test_the_colcon_container_runs_as_the_owner_with_only_ws_mounted(ws):
+def test_the_colcon_container_runs_as_the_owner_in_the_colcon_root(ws):
     engine = FakeEngine(run_script=colcon_installs(ws))
     runner(engine, []).run(Plan(ws, (COLCON,)))
     (spec,) = engine.runs
     assert spec.user == f"{os.getuid()}:{os.getgid()}"
-    assert [(m.source, m.target) for m in spec.mounts] == [(ws.ws_dir, "/workspace/ws")]
+    assert [(m.source, m.target) for m in spec.mounts] == [(ws.root, "/workspace")]
+    assert spec.workdir == "/workspace/ws"
     assert engine.removed == [{"io.espdock.workspace": str(Path(ws.root)), "io.espdock.step": "colcon"}]

@@ -57,9 +57,9 @@ def test_outside_a_workspace_says_where_it_looked(tmp_path):
 
 
 def test_discovers_ros_and_firmware_packages(ws):
-    add_package(ws.src_dir, "msgs", interface=True)
-    add_package(ws.src_dir / "nested", "nodes", depends=["msgs", "rclpy"], build_type="ament_python")
-    add_package(ws.firmware_dir, "cam", depends=["msgs", "std_msgs"], build_type="esp_idf")
+    add_package((ws.root / "ws/src"), "msgs", interface=True)
+    add_package((ws.root / "ws/src") / "nested", "nodes", depends=["msgs", "rclpy"], build_type="ament_python")
+    add_package((ws.root / "firmware"), "cam", depends=["msgs", "std_msgs"], build_type="esp_idf")
     found = {p.name: p for p in discover_packages(ws)}
     assert set(found) == {"msgs", "nodes", "cam"}
     assert found["cam"].kind is PackageKind.FIRMWARE
@@ -70,15 +70,15 @@ def test_discovers_ros_and_firmware_packages(ws):
 
 
 def test_ignored_and_build_directories_are_skipped(ws):
-    add_package(ws.src_dir, "kept")
-    skipped = add_package(ws.src_dir, "skipped")
+    add_package((ws.root / "ws/src"), "kept")
+    skipped = add_package((ws.root / "ws/src"), "skipped")
     (skipped / "COLCON_IGNORE").touch()
-    add_package(ws.src_dir / "build", "stale_copy")
+    add_package((ws.root / "ws/src") / "build", "stale_copy")
     assert [p.name for p in discover_packages(ws)] == ["kept"]
 
 
 def test_broken_manifest_names_the_file_and_the_error(ws):
-    path = add_package(ws.src_dir, "broken")
+    path = add_package((ws.root / "ws/src"), "broken")
     (path / "package.xml").write_text("<package format='3'><name>broken</name>")
     with pytest.raises(WorkspaceError) as err:
         discover_packages(ws)
@@ -86,7 +86,7 @@ def test_broken_manifest_names_the_file_and_the_error(ws):
 
 
 def test_invalid_manifest_content_is_reported(ws):
-    path = add_package(ws.src_dir, "unlicensed")
+    path = add_package((ws.root / "ws/src"), "unlicensed")
     manifest = path / "package.xml"
     manifest.write_text(manifest.read_text().replace("<license>Apache-2.0</license>", ""))
     with pytest.raises(WorkspaceError) as err:
@@ -96,41 +96,41 @@ def test_invalid_manifest_content_is_reported(ws):
 
 
 def test_duplicate_names_are_refused(ws):
-    add_package(ws.src_dir, "twin")
-    add_package(ws.firmware_dir, "twin", build_type="esp_idf")
+    add_package((ws.root / "ws/src"), "twin")
+    add_package((ws.root / "firmware"), "twin", build_type="esp_idf")
     with pytest.raises(WorkspaceError, match="two packages are named 'twin'"):
         discover_packages(ws)
 
 
 def test_order_puts_dependencies_first(ws):
-    add_package(ws.src_dir, "app", depends=["lib", "msgs"])
-    add_package(ws.src_dir, "lib", depends=["msgs"])
-    add_package(ws.src_dir, "msgs")
-    add_package(ws.src_dir, "alone")
+    add_package((ws.root / "ws/src"), "app", depends=["lib", "msgs"])
+    add_package((ws.root / "ws/src"), "lib", depends=["msgs"])
+    add_package((ws.root / "ws/src"), "msgs")
+    add_package((ws.root / "ws/src"), "alone")
     order = [p.name for p in order_packages(discover_packages(ws))]
     assert order.index("msgs") < order.index("lib") < order.index("app")
     assert sorted(order) == ["alone", "app", "lib", "msgs"]
 
 
 def test_cycles_are_reported_with_their_path(ws):
-    add_package(ws.src_dir, "a", depends=["b"])
-    add_package(ws.src_dir, "b", depends=["a"])
+    add_package((ws.root / "ws/src"), "a", depends=["b"])
+    add_package((ws.root / "ws/src"), "b", depends=["a"])
     with pytest.raises(WorkspaceError, match="cycle: a -> b -> a"):
         order_packages(discover_packages(ws))
 
 
 def test_select_up_to_takes_dependencies_transitively(ws):
-    add_package(ws.src_dir, "app", depends=["lib"])
-    add_package(ws.src_dir, "lib", depends=["msgs"])
-    add_package(ws.src_dir, "msgs")
-    add_package(ws.src_dir, "other")
+    add_package((ws.root / "ws/src"), "app", depends=["lib"])
+    add_package((ws.root / "ws/src"), "lib", depends=["msgs"])
+    add_package((ws.root / "ws/src"), "msgs")
+    add_package((ws.root / "ws/src"), "other")
     packages = order_packages(discover_packages(ws))
     assert [p.name for p in select_up_to(packages, ["app"])] == ["msgs", "lib", "app"]
     assert [p.name for p in select_up_to(packages, ["msgs"])] == ["msgs"]
 
 
 def test_select_unknown_package_suggests_a_name(ws):
-    add_package(ws.src_dir, "camera_ui")
+    add_package((ws.root / "ws/src"), "camera_ui")
     with pytest.raises(WorkspaceError) as err:
         select_up_to(discover_packages(ws), ["camera_iu"])
     assert "camera_iu" in err.value.message

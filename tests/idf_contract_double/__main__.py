@@ -1,0 +1,36 @@
+"""Point a workspace at the IDF contract double, for trying espdock where Espressif's image is missing:
+
+    eval "$(python -m tests.idf_contract_double use [WORKSPACE])"
+
+builds the double (if needed), pins WORKSPACE's micro-ROS sources to the double's repositories
+(WORKSPACE/docker/idf/micro_ros_sources.txt) and prints the ESPDOCK_* settings that select it,
+as `export` lines. What the tests do through use_double(); see README.md here.
+"""
+
+from __future__ import annotations
+
+import os
+import shlex
+import sys
+from pathlib import Path
+
+from espdock.config import Config, resolve_ca_bundle
+from espdock.engine import Engine
+from tests.idf_contract_double.build import use_double
+
+
+def main(argv: list[str]) -> int:
+    if not argv or argv[0] != "use" or len(argv) > 2:
+        print(__doc__, file=sys.stderr)
+        return 2
+    root = Path(argv[1] if len(argv) == 2 else ".").resolve()
+    (root / "docker/idf").mkdir(parents=True, exist_ok=True)
+    engine = Engine.connect(os.environ)
+    settings = use_double(engine, resolve_ca_bundle(Config(), os.environ), lambda line: None, root)
+    for name, value in settings.items():
+        print(f"export {name}={shlex.quote(value)}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))

@@ -1,0 +1,158 @@
+"""espdock installed from a wheel, in workspaces that are not this repository: a new one
+(`espdock init`, `espdock new`, `espdock build`) and an existing colcon workspace.
+
+Real engine and ROS side; the firmware builds against the IDF contract double (see
+tests/idf_contract_double), selected with the settings use_double returns.
+"""
+
+from __future__ import annotations
+
+import grp
+import json
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+import pytest
+
+from espdock.config import Config, resolve_ca_bundle
+from espdock.layout import firmware_install_dir
+from tests.conftest import REPO, as_user, espdock, owners, user_env
+from tests.idf_contract_double.build import use_double
+
+pytestmark = [pytest.mark.engine, pytest.mark.slow]
+
+USER_UID = 4244  # a plain user in the docker group
+
+
+@pytest.fixture(scope="module")
+def place():
+    """A directory outside the repository that every test user can traverse."""
+    path = Path(tempfile.mkdtemp(prefix="espdock-anyws-"))
+    path.chmod(0o755)
+    yield path
+    shutil.rmtree(path, ignore_errors=True)
+
+
+@pytest.fixture(scope="module")
+def wheel_espdock(place: Path) -> Path:
+    """espdock from a wheel built out of this checkout, in a fresh venv outside the repository."""
+    dist = place / "dist"
+    subprocess.run([sys.executable, "-m", "pip", "wheel", "-q", "--no-deps", "-w", str(dist), str(REPO)],
+                   check=True, capture_output=True)  # fmt: skip
+    (wheel,) = dist.glob("espdock-*.whl")
+    venv = place / "venv"
+    subprocess.run(["/usr/bin/python3", "-m", "venv", str(venv)], check=True)
+    subprocess.run([str(venv / "bin/pip"), "install", "-q", str(wheel)], check=True, capture_output=True)
+    return venv / "bin" / "espdock"
+
+
+@pytest.fixture(scope="module")
+def run_as_user(place: Path, wheel_espdock: Path):
+    docker_gid = grp.getgrnam("docker").gr_gid
+    home = place / "home"
+    env = user_env(home)
+    subprocess.run(["chown", f"{USER_UID}:{USER_UID}", str(home)], check=True)
+
+    def run(*args: str, cwd: Path, extra: dict[str, str] | None = None) -> subprocess.CompletedProcess:
+        return espdock(*args, cwd=cwd, env={**env, **(extra or {})},
+                       prefix=as_user(USER_UID, USER_UID, [docker_gid], wheel_espdock))  # fmt: skip
+
+    return run
+
+
+@pytest.fixture(scope="module")
+def double_for(engine):
+    def settings(root: Path) -> dict[str, str]:
+        (root / "docker/idf").mkdir(parents=True, exist_ok=True)
+        env = use_double(engine, resolve_ca_bundle(Config(), os.environ), lambda line: None, root)
+        subprocess.run(["chown", "-R", f"{USER_UID}:{USER_UID}", str(root / "docker")], check=True)
+        return env
+
+    return settings
+
+
+def test_the_wheel_carries_the_workspace_defaults(wheel_espdock: Path, place: Path):
+    # cwd outside the checkout, whose espdock/ would otherwise be imported instead.
+    listing = subprocess.run([str(wheel_espdock.with_name("python")), "-c",
+                              "from espdock.defaults import defaults_root; print(defaults_root())"],
+                             capture_output=True, text=True, check=True, cwd=place)  # fmt: skip
+    root = Path(listing.stdout.strip())
+    assert root.name == "workspace_defaults" and "site-packages" in str(root)
+    for rel in ("Dockerfile.ros", "Dockerfile.idf", "docker/ros-build.txt", "docker/idf/micro_ros_sources.txt",
+                "firmware/components/espdock_uros/espdock_uros.c"):  # fmt: skip
+        assert (root / rel).read_bytes() == (REPO / rel).read_bytes(), rel
+
+
+def test_a_new_workspace_from_init_to_installed_firmware(place, run_as_user, double_for, engine):
+    parent = place / "robots"
+    parent.mkdir()
+    subprocess.run(["chown", f"{USER_UID}:{USER_UID}", str(parent)], check=True)
+    init = run_as_user("init", "myrobot", cwd=parent)
+    assert init.returncode == 0, init.stdout + init.stderr
+    root = parent / "myrobot"
+    assert sorted(p.name for p in root.iterdir()) == ["espdock.toml", "src"]
+    shutil.copytree(REPO / "ws/src/custom_interface", root / "src/custom_interface")
+    subprocess.run(["chown", "-R", f"{USER_UID}:{USER_UID}", str(root / "src")], check=True)
+    new = run_as_user("new", "my_board", "--depends", "custom_interface", cwd=root)
+    assert new.returncode == 0, new.stdout + new.stderr
+    env = double_for(root)
+    try:
+        build = run_as_user("build", cwd=root, extra=env)
+        assert build.returncode == 0, build.stdout[-4000:] + build.stderr
+        assert "Dockerfile.ros: espdock's default" in run_as_user("build", "--dry-run", cwd=root, extra=env).stdout
+        installed = root / firmware_install_dir("my_board")
+        assert json.loads((installed / "flasher_args.json").read_text())["extra_esptool_args"]["chip"] == "esp32"
+        assert (root / "install/custom_interface/share/custom_interface/msg/CameraConfig.msg").is_file()
+        assert owners(root) == {USER_UID}
+    finally:
+        engine.remove_containers({"io.espdock.workspace": str(root)})
+
+
+def test_an_existing_colcon_workspace_with_firmware_deep_in_src(place, run_as_user, double_for, engine):
+    root = place / "ros2_ws"
+    (root / "src").mkdir(parents=True)
+    shutil.copytree(REPO / "ws/src/custom_interface", root / "src/interfaces/my_msgs")
+    for path in (root / "src/interfaces/my_msgs").rglob("*"):  # the same interfaces, renamed
+        if path.is_file():
+            path.write_text(path.read_text().replace("custom_interface", "my_msgs"))
+    py = root / "src/my_py"
+    (py / "resource").mkdir(parents=True)
+    (py / "my_py").mkdir()
+    (py / "my_py/__init__.py").write_text("")
+    (py / "resource/my_py").write_text("")
+    (py / "setup.py").write_text(
+        "from setuptools import setup\nsetup(name='my_py', version='0.1.0', packages=['my_py'], data_files=["
+        "('share/ament_index/resource_index/packages', ['resource/my_py']), ('share/my_py', ['package.xml'])])\n"
+    )
+    (py / "package.xml").write_text(
+        (REPO / "ws/src/espdock_demo_testing/package.xml").read_text().replace("espdock_demo_testing", "my_py")
+        .replace("<exec_depend>espdock_demo</exec_depend>", "").replace("custom_interface", "my_msgs")
+    )  # fmt: skip
+    subprocess.run(["chown", "-R", f"{USER_UID}:{USER_UID}", str(root)], check=True)
+    init = run_as_user("init", cwd=root)
+    assert init.returncode == 0, init.stdout + init.stderr
+    assert "found 2 ROS package(s): my_msgs, my_py" in init.stdout
+    new = run_as_user("new", "my_cam", "--depends", "my_msgs", cwd=root)
+    assert new.returncode == 0, new.stdout + new.stderr
+    # Two folders deep, with its shared component beside it.
+    (root / "src/boards/esp").mkdir(parents=True)
+    for name in ("my_cam", "components"):
+        (root / "src" / name).rename(root / "src/boards/esp" / name)
+    subprocess.run(["chown", "-R", f"{USER_UID}:{USER_UID}", str(root / "src/boards")], check=True)
+    env = double_for(root)
+    try:
+        listing = run_as_user("list", cwd=root / "src")
+        assert "my_cam" in listing.stdout and "esp_idf" in listing.stdout
+        build = run_as_user("build", "my_cam", cwd=root, extra=env)
+        assert build.returncode == 0, build.stdout[-4000:] + build.stderr
+        # Only what my_cam needs: my_msgs, not my_py; colcon's outputs in the workspace root.
+        assert (root / "install/my_msgs").is_dir() and not (root / "install/my_py").exists()
+        assert (root / firmware_install_dir("my_cam") / "flasher_args.json").is_file()
+        assert (root / "build/my_cam").is_dir() and (root / "log").is_dir()
+        assert owners(root) == {USER_UID}
+    finally:
+        engine.remove_containers({"io.espdock.workspace": str(root)})

@@ -6,6 +6,7 @@ import os
 import shutil
 import subprocess
 import sys
+import tempfile
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -106,3 +107,29 @@ def owners(root: Path) -> set[int]:
         for name in (*dirnames, *filenames):
             found.add(os.lstat(os.path.join(dirpath, name)).st_uid)
     return found
+
+
+@pytest.fixture(scope="module")
+def shared_dir():
+    """A directory every test user can traverse (pytest's own tmp dir is root-only)."""
+    path = Path(tempfile.mkdtemp(prefix="espdock-it-"))
+    path.chmod(0o755)
+    yield path
+    shutil.rmtree(path, ignore_errors=True)
+
+
+@pytest.fixture(scope="session")
+def wheel_espdock():
+    """espdock from a wheel built out of this checkout, in a fresh venv outside the repository
+    that any user can run (the repo's venv lives under root's home)."""
+    place = Path(tempfile.mkdtemp(prefix="espdock-wheel-"))
+    place.chmod(0o755)
+    dist = place / "dist"
+    subprocess.run([sys.executable, "-m", "pip", "wheel", "-q", "--no-deps", "-w", str(dist), str(REPO)],
+                   check=True, capture_output=True)  # fmt: skip
+    (wheel,) = dist.glob("espdock-*.whl")
+    venv = place / "venv"
+    subprocess.run(["/usr/bin/python3", "-m", "venv", str(venv)], check=True)
+    subprocess.run([str(venv / "bin/pip"), "install", "-q", str(wheel)], check=True, capture_output=True)
+    yield venv / "bin" / "espdock"
+    shutil.rmtree(place, ignore_errors=True)

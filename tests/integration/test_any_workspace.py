@@ -12,8 +12,6 @@ import json
 import os
 import shutil
 import subprocess
-import sys
-import tempfile
 from pathlib import Path
 
 import pytest
@@ -29,31 +27,9 @@ USER_UID = 4244  # a plain user in the docker group
 
 
 @pytest.fixture(scope="module")
-def place():
-    """A directory outside the repository that every test user can traverse."""
-    path = Path(tempfile.mkdtemp(prefix="espdock-anyws-"))
-    path.chmod(0o755)
-    yield path
-    shutil.rmtree(path, ignore_errors=True)
-
-
-@pytest.fixture(scope="module")
-def wheel_espdock(place: Path) -> Path:
-    """espdock from a wheel built out of this checkout, in a fresh venv outside the repository."""
-    dist = place / "dist"
-    subprocess.run([sys.executable, "-m", "pip", "wheel", "-q", "--no-deps", "-w", str(dist), str(REPO)],
-                   check=True, capture_output=True)  # fmt: skip
-    (wheel,) = dist.glob("espdock-*.whl")
-    venv = place / "venv"
-    subprocess.run(["/usr/bin/python3", "-m", "venv", str(venv)], check=True)
-    subprocess.run([str(venv / "bin/pip"), "install", "-q", str(wheel)], check=True, capture_output=True)
-    return venv / "bin" / "espdock"
-
-
-@pytest.fixture(scope="module")
-def run_as_user(place: Path, wheel_espdock: Path):
+def run_as_user(shared_dir: Path, wheel_espdock: Path):
     docker_gid = grp.getgrnam("docker").gr_gid
-    home = place / "home"
+    home = shared_dir / "home"
     env = user_env(home)
     subprocess.run(["chown", f"{USER_UID}:{USER_UID}", str(home)], check=True)
 
@@ -75,11 +51,11 @@ def double_for(engine):
     return settings
 
 
-def test_the_wheel_carries_the_workspace_defaults(wheel_espdock: Path, place: Path):
+def test_the_wheel_carries_the_workspace_defaults(wheel_espdock: Path, shared_dir: Path):
     # cwd outside the checkout, whose espdock/ would otherwise be imported instead.
     listing = subprocess.run([str(wheel_espdock.with_name("python")), "-c",
                               "from espdock.defaults import defaults_root; print(defaults_root())"],
-                             capture_output=True, text=True, check=True, cwd=place)  # fmt: skip
+                             capture_output=True, text=True, check=True, cwd=shared_dir)  # fmt: skip
     root = Path(listing.stdout.strip())
     assert root.name == "workspace_defaults" and "site-packages" in str(root)
     for rel in ("Dockerfile.ros", "Dockerfile.idf", "docker/ros-build.txt", "docker/idf/micro_ros_sources.txt",
@@ -87,8 +63,8 @@ def test_the_wheel_carries_the_workspace_defaults(wheel_espdock: Path, place: Pa
         assert (root / rel).read_bytes() == (REPO / rel).read_bytes(), rel
 
 
-def test_a_new_workspace_from_init_to_installed_firmware(place, run_as_user, double_for, engine):
-    parent = place / "robots"
+def test_a_new_workspace_from_init_to_installed_firmware(shared_dir, run_as_user, double_for, engine):
+    parent = shared_dir / "robots"
     parent.mkdir()
     subprocess.run(["chown", f"{USER_UID}:{USER_UID}", str(parent)], check=True)
     init = run_as_user("init", "myrobot", cwd=parent)
@@ -112,13 +88,13 @@ def test_a_new_workspace_from_init_to_installed_firmware(place, run_as_user, dou
         engine.remove_containers({"io.espdock.workspace": str(root)})
 
 
-def test_an_existing_colcon_workspace_with_firmware_deep_in_src(place, run_as_user, double_for, engine):
-    root = place / "ros2_ws"
+def test_an_existing_colcon_workspace_with_firmware_deep_in_src(shared_dir, run_as_user, double_for, engine):
+    root = shared_dir / "ros2_ws"
     (root / "src").mkdir(parents=True)
     shutil.copytree(REPO / "ws/src/custom_interface", root / "src/interfaces/my_msgs")
     for path in (root / "src/interfaces/my_msgs").rglob("*"):  # the same interfaces, renamed
         if path.is_file():
-            path.write_text(path.read_text().replace("custom_interface", "my_msgs"))
+            path.write_text(path.read_text().reshared_dir("custom_interface", "my_msgs"))
     py = root / "src/my_py"
     (py / "resource").mkdir(parents=True)
     (py / "my_py").mkdir()
@@ -129,8 +105,8 @@ def test_an_existing_colcon_workspace_with_firmware_deep_in_src(place, run_as_us
         "('share/ament_index/resource_index/packages', ['resource/my_py']), ('share/my_py', ['package.xml'])])\n"
     )
     (py / "package.xml").write_text(
-        (REPO / "ws/src/espdock_demo_testing/package.xml").read_text().replace("espdock_demo_testing", "my_py")
-        .replace("<exec_depend>espdock_demo</exec_depend>", "").replace("custom_interface", "my_msgs")
+        (REPO / "ws/src/espdock_demo_testing/package.xml").read_text().reshared_dir("espdock_demo_testing", "my_py")
+        .reshared_dir("<exec_depend>espdock_demo</exec_depend>", "").reshared_dir("custom_interface", "my_msgs")
     )  # fmt: skip
     subprocess.run(["chown", "-R", f"{USER_UID}:{USER_UID}", str(root)], check=True)
     init = run_as_user("init", cwd=root)

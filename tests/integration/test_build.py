@@ -7,7 +7,6 @@ import shutil
 import signal
 import subprocess
 import sys
-import tempfile
 import time
 from pathlib import Path
 
@@ -32,25 +31,7 @@ NOBODY = 65534  # a user who may not use the engine at all
 
 
 @pytest.fixture(scope="module")
-def shared_dir():
-    """A directory every test user can traverse (pytest's own tmp dir is root-only)."""
-    path = Path(tempfile.mkdtemp(prefix="espdock-it-"))
-    path.chmod(0o755)
-    yield path
-    shutil.rmtree(path, ignore_errors=True)
-
-
-@pytest.fixture(scope="module")
-def user_espdock(shared_dir: Path) -> Path:
-    """espdock installed in a venv any user can run (the repo's venv lives under root's home)."""
-    venv = shared_dir / "venv"
-    subprocess.run(["/usr/bin/python3", "-m", "venv", str(venv)], check=True)
-    subprocess.run([str(venv / "bin/pip"), "install", "-q", str(REPO)], check=True, capture_output=True)
-    return venv / "bin" / "espdock"
-
-
-@pytest.fixture(scope="module")
-def built(engine, shared_dir: Path, user_espdock: Path):
+def built(engine, shared_dir: Path, wheel_espdock: Path):
     """A workspace owned by a normal user, built once by that user."""
     root = copy_workspace(shared_dir / "user-ws")
     home = shared_dir / "home"
@@ -58,7 +39,7 @@ def built(engine, shared_dir: Path, user_espdock: Path):
     docker_gid = grp.getgrnam("docker").gr_gid
     env = user_env(home)
     subprocess.run(["chown", f"{USER_UID}:{USER_UID}", str(home)], check=True)
-    result = espdock("build", cwd=root, env=env, prefix=as_user(USER_UID, USER_UID, [docker_gid], user_espdock))
+    result = espdock("build", cwd=root, env=env, prefix=as_user(USER_UID, USER_UID, [docker_gid], wheel_espdock))
     yield root, result
     engine.remove_containers({"io.espdock.workspace": str(root)})
 
@@ -228,13 +209,13 @@ def test_ctrl_c_stops_and_removes_the_container_and_the_next_build_works(engine,
     assert (root / "ws/install/custom_interface/share/custom_interface/package.xml").is_file()
 
 
-def test_a_user_without_engine_access_gets_a_clear_message(engine, shared_dir, user_espdock):
+def test_a_user_without_engine_access_gets_a_clear_message(engine, shared_dir, wheel_espdock):
     root = copy_workspace(shared_dir / "nobody-ws")
     result = espdock(
         "build",
         cwd=root,
         env=user_env(shared_dir / "nobody-home"),
-        prefix=as_user(NOBODY, NOBODY, [], user_espdock),
+        prefix=as_user(NOBODY, NOBODY, [], wheel_espdock),
         timeout=120,
     )
     assert result.returncode == 3, result.stdout + result.stderr

@@ -102,11 +102,17 @@ def test_flash_refuses_a_port_number_out_of_range(tmp_path):
     no_traceback(result)
 
 
-def test_flash_with_damaged_installed_firmware_says_rebuild(tmp_path):
+def installed_firmware(tmp_path: Path, flasher_args: str) -> Path:
+    """firmware_workspace with led_strip_node 'installed': only its flasher_args.json, as given."""
     root = firmware_workspace(tmp_path)
     installed = root / "ws" / firmware_install_dir("led_strip_node")
     installed.mkdir(parents=True)
-    (installed / "flasher_args.json").write_text('{"flash_files": {"0x1000": ')
+    (installed / "flasher_args.json").write_text(flasher_args)
+    return root
+
+
+def test_flash_with_damaged_installed_firmware_says_rebuild(tmp_path):
+    root = installed_firmware(tmp_path, '{"flash_files": {"0x1000": ')
     result = espdock("flash", "led_strip_node", "--port", "socket://127.0.0.1:1", cwd=root, env=NO_ENGINE)
     assert result.returncode == 2, result.stderr
     assert "flasher_args.json is not valid JSON" in result.stderr and "espdock build led_strip_node" in result.stderr
@@ -114,10 +120,7 @@ def test_flash_with_damaged_installed_firmware_says_rebuild(tmp_path):
 
 
 def test_flash_refuses_a_device_that_is_not_a_serial_port(tmp_path):
-    root = firmware_workspace(tmp_path)
-    installed = root / "ws" / firmware_install_dir("led_strip_node")
-    installed.mkdir(parents=True)
-    (installed / "flasher_args.json").write_text('{"flash_files": {}}')
+    root = installed_firmware(tmp_path, '{"flash_files": {}}')
     result = espdock("flash", "led_strip_node", "--port", "/dev/null", cwd=root, env=NO_ENGINE)
     assert result.returncode == 6, result.stderr
     assert "/dev/null is not a serial port" in result.stderr

@@ -94,7 +94,7 @@ def test_an_existing_colcon_workspace_with_firmware_deep_in_src(shared_dir, run_
     shutil.copytree(REPO / "ws/src/custom_interface", root / "src/interfaces/my_msgs")
     for path in (root / "src/interfaces/my_msgs").rglob("*"):  # the same interfaces, renamed
         if path.is_file():
-            path.write_text(path.read_text().reshared_dir("custom_interface", "my_msgs"))
+            path.write_text(path.read_text().replace("custom_interface", "my_msgs"))
     py = root / "src/my_py"
     (py / "resource").mkdir(parents=True)
     (py / "my_py").mkdir()
@@ -105,8 +105,8 @@ def test_an_existing_colcon_workspace_with_firmware_deep_in_src(shared_dir, run_
         "('share/ament_index/resource_index/packages', ['resource/my_py']), ('share/my_py', ['package.xml'])])\n"
     )
     (py / "package.xml").write_text(
-        (REPO / "ws/src/espdock_demo_testing/package.xml").read_text().reshared_dir("espdock_demo_testing", "my_py")
-        .reshared_dir("<exec_depend>espdock_demo</exec_depend>", "").reshared_dir("custom_interface", "my_msgs")
+        (REPO / "ws/src/espdock_demo_testing/package.xml").read_text().replace("espdock_demo_testing", "my_py")
+        .replace("<exec_depend>espdock_demo</exec_depend>", "").replace("custom_interface", "my_msgs")
     )  # fmt: skip
     subprocess.run(["chown", "-R", f"{USER_UID}:{USER_UID}", str(root)], check=True)
     init = run_as_user("init", cwd=root)

@@ -7,6 +7,7 @@ import json
 import os
 import signal
 import sys
+import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Annotated, NoReturn, ParamSpec
@@ -19,8 +20,10 @@ from espdock import __version__, bootstrap
 from espdock.config import Config, invoking_user, load_config, record_target, resolve_ca_bundle
 from espdock.engine import Engine, format_argv
 from espdock.errors import ConfigError, EspdockBug, EspdockError, Interrupted, WorkspaceError
+from espdock.events import Outcome
 from espdock.flashing import check_port, flash_package, parse_port, read_flasher_args
 from espdock.layout import IDF_DOCKERFILE, ROS_DOCKERFILE, SOURCES_FILE, firmware_install_dir
+from espdock.manifest import MANIFEST_NAME, build_manifest, compare, file_hashes, read_manifest, write_manifest
 from espdock.pins import Source, pin_heads, pin_image_digest
 from espdock.plan import (
     EnsureImage,
@@ -151,9 +154,13 @@ def build(
     target: Annotated[str | None, typer.Option(help="ESP32 chip target (overrides espdock.toml).")] = None,
     only: Annotated[PackageKind | None, typer.Option(help="Build only the ROS packages or only the firmware.")] = None,
     force: Annotated[bool, typer.Option("--force", help="Build the packages even when nothing changed.")] = False,
+    report: Annotated[
+        Path | None, typer.Option("--report", help="Write a JSON summary (steps, outcome, keys, artefacts) here.")
+    ] = None,
     workspace: WorkspaceOption = None,
 ) -> None:
-    """Build the images when their inputs changed, then every package whose sources changed."""
+    """Build the images when their inputs changed, then every package whose sources changed; record what
+    the build produced in install/espdock-manifest.json."""
     ws, config = _load(workspace, target=target)
     plan = _build_plan(ws, config, packages or [], only, force)
     if dry_run:
@@ -161,11 +168,61 @@ def build(
         return
     reporter = Reporter(console, verbose=verbose)
     engine = bootstrap.ensure_engine(os.environ, _notify)
+    manifest: dict | None = None
+    started = time.monotonic()
     try:
-        Runner(engine, config, os.environ, reporter, invoking_user(os.environ, ws.root)).run(plan)
+        results = Runner(engine, config, os.environ, reporter, invoking_user(os.environ, ws.root)).run(plan)
+        install = ws.ws_dir / "install"
+        existing = install / MANIFEST_NAME
+        if existing.is_file() and all(r.outcome is Outcome.CACHED for r in results):
+            # Nothing was built, and every install tree was checked against its stamp: the
+            # manifest stands (re-hashing it would be most of a no-change build's time).
+            manifest = read_manifest(existing)
+        else:
+            manifest = build_manifest(plan, config.target, install)
+            written = write_manifest(manifest, install)
+            if os.geteuid() == 0:
+                os.chown(written, *invoking_user(os.environ, ws.root))
     finally:
         reporter.close()
         reporter.summary()
+        if report is not None:
+            write_report(report, reporter.finished, manifest, time.monotonic() - started)
+
+
+def write_report(path: Path, finished: list, manifest: dict | None, seconds: float) -> None:
+    """The --report JSON: every step's outcome, the build's, its duration, and the manifest (None on failure)."""
+    failed = any(step.outcome.value == "failed" for step in finished) or manifest is None
+    data = {
+        "outcome": "failed" if failed else "succeeded",
+        "seconds": round(seconds, 3),
+        "steps": [
+            {"step": s.step, "outcome": s.outcome.value, "seconds": round(s.seconds, 3), "detail": s.detail}
+            for s in finished
+        ],
+        "manifest": manifest,
+    }
+    path.write_text(json.dumps(data, indent=1, sort_keys=True) + "\n")
+
+
+@app.command()
+@_command
+def verify(
+    manifest: Annotated[Path, typer.Argument(help="An espdock-manifest.json (install/ of the build it describes).")],
+    install: Annotated[
+        Path | None, typer.Option("--install", help="The install tree to check (default: the manifest's directory).")
+    ] = None,
+) -> None:
+    """Compare an install tree with a build manifest: every missing, extra or changed file; exit 1 on any."""
+    data = read_manifest(manifest)
+    tree = install or manifest.parent
+    differences = compare(data["files"], file_hashes(tree))
+    for difference in differences:
+        console.print(f"{difference.what:<8} {difference.path}")
+    if differences:
+        err_console.print(f"{tree} differs from {manifest} in {len(differences)} file(s)")
+        raise typer.Exit(1)
+    console.print(f"{tree} matches {manifest}: {len(data['files'])} file(s)")
 
 
 @app.command()

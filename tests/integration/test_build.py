@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import grp
+import hashlib
+import json
 import shutil
 import signal
 import subprocess
@@ -132,6 +134,37 @@ def test_a_build_builds_again_exactly_when_something_changed(engine, built):
     assert build("--force")[0], "--force must build"
     assert not build()[0]
     assert owners(root / "ws") == {USER_UID}
+
+
+def test_the_build_records_what_it_produced_and_verify_checks_it(engine, built, tmp_path):
+    root, first = built
+    assert first.returncode == 0
+    manifest = root / "ws/install/espdock-manifest.json"
+    data = json.loads(manifest.read_text())
+    assert data["target"] == "esp32" and data["espdock"]
+    assert any(tag.startswith("espdock/ros-jazzy-build:") for tag in data["images"])
+    msg = "custom_interface/share/custom_interface/msg/CameraConfig.msg"
+    assert data["files"][msg] == hashlib.sha256((root / "ws/install" / msg).read_bytes()).hexdigest()
+    assert manifest.stat().st_uid == USER_UID
+
+    ok = espdock("verify", str(manifest), cwd=root)
+    assert ok.returncode == 0 and f"matches {manifest}" in ok.stdout
+    installed = root / "ws/install" / msg
+    original = installed.read_bytes()
+    installed.write_bytes(original + b"# tampered\n")
+    try:
+        bad = espdock("verify", str(manifest), cwd=root)
+    finally:
+        installed.write_bytes(original)
+    assert bad.returncode == 1 and f"changed  {msg}" in bad.stdout
+
+    report = tmp_path / "report.json"
+    again = espdock("build", "--report", str(report), cwd=root)
+    assert again.returncode == 0, again.stdout[-2000:] + again.stderr
+    summary = json.loads(report.read_text())
+    assert summary["outcome"] == "succeeded" and summary["manifest"]["files"][msg] == data["files"][msg]
+    assert [s["step"] for s in summary["steps"]] == ["base image debian:bookworm-slim", "image espdock/ros-jazzy-build",
+                                                     "colcon build"]  # fmt: skip
 
 
 def test_changed_image_input_rebuilds_under_a_new_tag(engine, built):

@@ -120,6 +120,11 @@ def test_first_build_makes_the_micro_ros_image_and_installs_both_apps(fw_ws):
             magic = b"\xaa\x50" if "partition" in rel else b"\xe9"
             assert (installed / rel).read_bytes().startswith(magic), f"{package}: {rel} has the wrong header"
         assert (root / "ws/build" / package / "flasher_args.json").is_file()
+        # The manifest holds the artefacts (in the versioned directory the firmware link names).
+        files = json.loads((root / "ws/install/espdock-manifest.json").read_text())["files"]
+        link = firmware_install_dir(package).removeprefix("install/")
+        assert files[link] == "symlink:" + os.readlink(installed)
+        assert f"{link.rsplit('/', 1)[0]}/{os.readlink(installed)}/flasher_args.json" in files
 
 
 def test_everything_written_belongs_to_the_workspace_owner(fw_ws):

@@ -1,0 +1,91 @@
+"""What a build produced: a manifest of its inputs and of every installed file, and checks against it.
+
+`espdock build` writes install/espdock-manifest.json in the colcon root after a successful
+build: the image keys and tags, the chip target, the pinned micro-ROS inputs, and the sha256
+of every file under install/. `espdock verify MANIFEST` compares an install tree with it.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass
+from pathlib import Path
+
+from espdock import __version__
+from espdock.errors import WorkspaceError
+from espdock.plan import EnsureImage, ImageSpec, Plan
+
+MANIFEST_NAME = "espdock-manifest.json"
+FORMAT = 1
+
+
+def file_hashes(install: Path) -> dict[str, str]:
+    """sha256 of every file under INSTALL (symlinks as 'symlink:' + target), by relative path."""
+    hashes: dict[str, str] = {}
+    for dirpath, dirnames, filenames in os.walk(install):
+        dirnames.sort()
+        for name in sorted(filenames + [d for d in dirnames if (Path(dirpath) / d).is_symlink()]):
+            path = Path(dirpath) / name
+            rel = path.relative_to(install).as_posix()
+            if rel == MANIFEST_NAME:
+                continue
+            if path.is_symlink():
+                hashes[rel] = "symlink:" + os.readlink(path)
+            else:
+                hashes[rel] = hashlib.sha256(path.read_bytes()).hexdigest()
+    return hashes
+
+
+def _image(spec: ImageSpec) -> dict[str, object]:
+    return {"tag": spec.tag, "key": spec.key, "build_args": dict(spec.build_args), "inputs": dict(spec.inputs)}
+
+
+def build_manifest(plan: Plan, target: str, install: Path) -> dict[str, object]:
+    """The manifest of PLAN's build: its images and inputs, and the install tree as it is now."""
+    images = {s.spec.tag: _image(s.spec) for s in plan.steps if isinstance(s, EnsureImage)}
+    return {
+        "format": FORMAT,
+        "espdock": __version__,
+        "target": target,
+        "images": dict(sorted(images.items())),
+        "files": file_hashes(install),
+    }
+
+
+def write_manifest(manifest: Mapping[str, object], install: Path) -> Path:
+    """Write MANIFEST to INSTALL/espdock-manifest.json in one rename."""
+    install.mkdir(parents=True, exist_ok=True)
+    path = install / MANIFEST_NAME
+    tmp = path.with_name(f".{MANIFEST_NAME}.tmp")
+    tmp.write_text(json.dumps(manifest, indent=1, sort_keys=True) + "\n")
+    os.replace(tmp, path)
+    return path
+
+
+@dataclass(frozen=True)
+class Difference:
+    path: str
+    what: str  # "missing", "extra" or "changed"
+
+
+def read_manifest(path: Path) -> dict:
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, ValueError) as exc:
+        raise WorkspaceError(f"{path} is not an espdock manifest: {exc}", "Give the install tree's one.") from None
+    if not isinstance(data, dict) or data.get("format") != FORMAT or not isinstance(data.get("files"), dict):
+        raise WorkspaceError(f"{path} is not an espdock manifest (format {FORMAT})", "Give the install tree's one.")
+    return data
+
+
+def compare(expected: Mapping[str, str], actual: Mapping[str, str]) -> list[Difference]:
+    """Every file that is missing, extra or changed in ACTUAL against EXPECTED (path -> hash)."""
+    differences: Iterable[Difference] = (
+        *(Difference(p, "missing") for p in expected if p not in actual),
+        *(Difference(p, "extra") for p in actual if p not in expected),
+        *(Difference(p, "changed") for p in expected if p in actual and expected[p] != actual[p]),
+    )
+    return sorted(differences, key=lambda d: (d.path, d.what))

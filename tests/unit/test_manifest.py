@@ -1,0 +1,57 @@
+"""Build manifests: hashing an install tree, and telling what differs from it."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from espdock.errors import WorkspaceError
+from espdock.manifest import MANIFEST_NAME, Difference, compare, file_hashes, read_manifest, write_manifest
+
+
+def tree(tmp_path):
+    install = tmp_path / "install"
+    (install / "pkg/share/pkg").mkdir(parents=True)
+    (install / "pkg/share/pkg/package.xml").write_text("<package/>")
+    (install / "pkg/share/pkg/.firmware-abc").mkdir()
+    (install / "pkg/share/pkg/.firmware-abc/app.bin").write_bytes(b"\xe9app")
+    (install / "pkg/share/pkg/firmware").symlink_to(".firmware-abc")
+    return install
+
+
+def test_every_file_and_link_is_hashed_and_the_manifest_itself_is_not(tmp_path):
+    install = tree(tmp_path)
+    write_manifest({"format": 1, "files": {}}, install)
+    hashes = file_hashes(install)
+    assert sorted(hashes) == [
+        "pkg/share/pkg/.firmware-abc/app.bin",
+        "pkg/share/pkg/firmware",
+        "pkg/share/pkg/package.xml",
+    ]
+    assert hashes["pkg/share/pkg/firmware"] == "symlink:.firmware-abc"
+    assert MANIFEST_NAME not in hashes
+
+
+def test_missing_extra_and_changed_files_are_each_named(tmp_path):
+    install = tree(tmp_path)
+    before = file_hashes(install)
+    (install / "pkg/share/pkg/package.xml").write_text("<package>changed</package>")
+    (install / "pkg/share/pkg/.firmware-abc/app.bin").unlink()
+    (install / "pkg/share/pkg/new.txt").write_text("new")
+    assert compare(before, file_hashes(install)) == [
+        Difference("pkg/share/pkg/.firmware-abc/app.bin", "missing"),
+        Difference("pkg/share/pkg/new.txt", "extra"),
+        Difference("pkg/share/pkg/package.xml", "changed"),
+    ]
+    assert compare(before, before) == []
+
+
+def test_something_that_is_no_manifest_is_refused(tmp_path):
+    bad = tmp_path / "m.json"
+    bad.write_text(json.dumps({"files": []}))
+    with pytest.raises(WorkspaceError, match="not an espdock manifest"):
+        read_manifest(bad)
+    bad.write_text("{")
+    with pytest.raises(WorkspaceError, match="not an espdock manifest"):
+        read_manifest(bad)

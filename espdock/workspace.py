@@ -3,13 +3,12 @@
 from __future__ import annotations
 
 import difflib
+import json
 import os
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 from enum import StrEnum
 from pathlib import Path
-
-from catkin_pkg.package import InvalidPackage, parse_package
 
 from espdock.config import CONFIG_FILE
 from espdock.defaults import defaults_root
@@ -99,18 +98,23 @@ def discover_packages(workspace: Workspace) -> tuple[Package, ...]:
     """
     found: dict[str, Package] = {}
     seen: set[Path] = set()
+    cache = _ManifestCache.load()
     for rel in workspace.package_paths:
         for manifest in _manifests(workspace.root / rel):
             if manifest in seen:  # nested package paths
                 continue
             seen.add(manifest)
-            package = _read_manifest(manifest)
+            package = cache.get(manifest)
+            if package is None:
+                package = _read_manifest(manifest)
+                cache.put(manifest, package)
             if package.name in found:
                 raise WorkspaceError(
                     f"two packages are named '{package.name}': {found[package.name].path} and {package.path}",
                     "Package names must be unique in a workspace.",
                 )
             found[package.name] = package
+    cache.save()
     return tuple(found[name] for name in sorted(found))
 
 
@@ -129,7 +133,76 @@ def _manifests(base: Path) -> Iterable[Path]:
         dirnames[:] = sorted(d for d in dirnames if not d.startswith((".", "__")) and d not in NOT_SOURCES)
 
 
+class _ManifestCache:
+    """Parsed package.xml files by path, valid while the file's size, mtime and inode are
+    unchanged; in the user's cache directory, best effort (any failure only means parsing)."""
+
+    FORMAT = 1
+
+    def __init__(self, path: Path, entries: dict) -> None:
+        self.path = path
+        self.entries = entries
+        self.changed = False
+
+    @classmethod
+    def load(cls) -> _ManifestCache:
+        base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+        path = Path(base) / "espdock" / "manifests.json"
+        try:
+            data = json.loads(path.read_text())
+            entries = data["entries"] if data.get("format") == cls.FORMAT else {}
+        except (OSError, ValueError, KeyError, TypeError, AttributeError):
+            entries = {}
+        return cls(path, entries if isinstance(entries, dict) else {})
+
+    @staticmethod
+    def _stamp(manifest: Path) -> list[int]:
+        info = manifest.stat()
+        return [info.st_size, info.st_mtime_ns, info.st_ino]
+
+    def get(self, manifest: Path) -> Package | None:
+        entry = self.entries.get(str(manifest))
+        try:
+            if not isinstance(entry, dict) or entry.get("stamp") != self._stamp(manifest):
+                return None
+            build_type = str(entry["build_type"])
+            return Package(
+                name=str(entry["name"]),
+                path=manifest.parent,
+                kind=PackageKind.FIRMWARE if build_type == FIRMWARE_BUILD_TYPE else PackageKind.ROS,
+                build_type=build_type,
+                depends=frozenset(str(d) for d in entry["depends"]),
+                is_interface=bool(entry["is_interface"]),
+            )
+        except (OSError, KeyError, TypeError):
+            return None
+
+    def put(self, manifest: Path, package: Package) -> None:
+        self.entries[str(manifest)] = {
+            "stamp": self._stamp(manifest),
+            "name": package.name,
+            "build_type": package.build_type,
+            "depends": sorted(package.depends),
+            "is_interface": package.is_interface,
+        }
+        self.changed = True
+
+    def save(self) -> None:
+        if not self.changed:
+            return
+        try:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            tmp = self.path.with_name(f".{self.path.name}.{os.getpid()}")
+            tmp.write_text(json.dumps({"format": self.FORMAT, "entries": self.entries}))
+            os.replace(tmp, self.path)
+        except OSError:
+            pass  # a cache: without it, manifests are parsed again
+
+
 def _read_manifest(manifest: Path) -> Package:
+    # Imported here: with every manifest unchanged (_ManifestCache), a build never needs it.
+    from catkin_pkg.package import InvalidPackage, parse_package
+
     try:
         pkg = parse_package(str(manifest))
     except (InvalidPackage, ValueError, OSError) as exc:

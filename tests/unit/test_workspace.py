@@ -135,3 +135,27 @@ def test_select_unknown_package_suggests_a_name(ws):
         select_up_to(discover_packages(ws), ["camera_iu"])
     assert "camera_iu" in err.value.message
     assert "camera_ui" in err.value.hint
+
+
+def test_a_changed_manifest_is_read_again_however_it_was_cached(ws, monkeypatch, tmp_path):
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
+    path = add_package(ws.root / "ws/src", "nodes", depends=["rclpy"])
+    (first,) = discover_packages(ws)
+    assert first.depends == {"rclpy"}
+    assert (tmp_path / "cache/espdock/manifests.json").is_file()
+    (again,) = discover_packages(ws)  # from the cache: the same answer
+    assert again == first
+    manifest = path / "package.xml"
+    manifest.write_text(
+        manifest.read_text().replace("<depend>rclpy</depend>", "<depend>rclpy</depend><depend>x</depend>")
+    )
+    (changed,) = discover_packages(ws)
+    assert changed.depends == {"rclpy", "x"}
+
+
+def test_an_unreadable_cache_only_means_parsing(ws, monkeypatch, tmp_path):
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
+    (tmp_path / "cache/espdock").mkdir(parents=True)
+    (tmp_path / "cache/espdock/manifests.json").write_text("{not json")
+    add_package(ws.root / "ws/src", "nodes")
+    assert [p.name for p in discover_packages(ws)] == ["nodes"]

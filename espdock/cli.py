@@ -35,6 +35,7 @@ from espdock.plan import (
     micro_ros_images,
     plan_workspace,
 )
+from espdock.provision import network_settings, nvs_image, nvs_partition, optional_network_settings
 from espdock.runner import Runner
 from espdock.scaffold import check_new_package, create_firmware_package, init_workspace
 from espdock.status import built_from, micro_ros_report
@@ -410,25 +411,103 @@ def _pin_idf_image(ws: Workspace, config: Config, engine: Engine, spec: ImageSpe
         console.print(f"pinned IDF_IMAGE in {IDF_DOCKERFILE} to its digest")
 
 
+PortOption = Annotated[
+    str, typer.Option("--port", "-p", help="/dev/ttyUSB0, socket://HOST:PORT or rfc2217://HOST:PORT.")
+]
+BaudOption = Annotated[int | None, typer.Option("--baud", "-b", help="Baud rate (serial devices only).")]
+SsidOption = Annotated[str | None, typer.Option("--wifi-ssid", help="Wi-Fi network the board joins (1..32 bytes).")]
+PasswordFileOption = Annotated[
+    str | None,
+    typer.Option(
+        "--wifi-password-file",
+        help="File holding the Wi-Fi password (- reads stdin; empty for an open network). Asked for when omitted.",
+    ),
+]
+AgentOption = Annotated[
+    str | None, typer.Option("--agent", help="micro-ROS agent as IPV4:PORT (the board resolves no host names).")
+]
+DomainOption = Annotated[int | None, typer.Option("--domain-id", help="ROS_DOMAIN_ID of the board (0..232).")]
+
+
+def _ask_password() -> str:
+    return typer.prompt(
+        "Wi-Fi password (empty for an open network)",
+        default="",
+        show_default=False,
+        hide_input=True,
+        confirmation_prompt=True,
+    )
+
+
 @app.command()
 @_command
 def flash(
     package: Annotated[str, typer.Argument(help="Firmware package (built and installed).")],
-    port: Annotated[str, typer.Option("--port", "-p", help="/dev/ttyUSB0, socket://HOST:PORT or rfc2217://HOST:PORT.")],
-    baud: Annotated[int | None, typer.Option("--baud", "-b", help="Baud rate (serial devices only).")] = 460800,
+    port: PortOption,
+    baud: BaudOption = 460800,
     verify: Annotated[bool, typer.Option("--verify", help="Read the flash back and compare afterwards.")] = False,
+    wifi_ssid: SsidOption = None,
+    wifi_password_file: PasswordFileOption = None,
+    agent: AgentOption = None,
+    domain_id: DomainOption = None,
     workspace: WorkspaceOption = None,
 ) -> None:
-    """Flash a firmware package's installed artefacts with esptool, passing only that port into the container."""
+    """Flash a firmware package's installed artefacts with esptool, passing only that port into the container;
+    with --wifi-ssid and --agent, provision its network settings in the same run (see `provision`)."""
     ws, config = _load(workspace)
     serial = parse_port(port)
     plan, step = _firmware_step(ws, config, package)
-    flasher_args = read_flasher_args(ws.ws_dir / firmware_install_dir(package), package)
+    firmware_dir = ws.ws_dir / firmware_install_dir(package)
+    flasher_args = read_flasher_args(firmware_dir, package)
+    settings = optional_network_settings(wifi_ssid, wifi_password_file, agent, domain_id, sys.stdin, _ask_password)
+    nvs = nvs_partition(firmware_dir, flasher_args, package) if settings else None
     check_port(serial)
     runner = _runner(ws, config, Reporter(console))
     runner.run(plan)
-    flash_package(runner, ws, step, flasher_args, serial, baud, verify, say=lambda line: console.print(Text(line)))
-    console.print(f"flashed {package} through {port}" + (" and verified it" if verify else ""))
+    say = lambda line: console.print(Text(line))  # noqa: E731
+    if settings is None or nvs is None:
+        flash_package(runner, ws, step, flasher_args, serial, baud, verify, say)
+    else:
+        with nvs_image(settings, nvs.size, runner.owner) as image:
+            flash_package(runner, ws, step, flasher_args, serial, baud, verify, say, nvs_image=(nvs.offset, image))
+    what = " with its network settings" if settings else ""
+    console.print(f"flashed {package}{what} through {port}" + (" and verified it" if verify else ""))
+
+
+@app.command()
+@_command
+def provision(
+    package: Annotated[str, typer.Argument(help="Firmware package (built and installed).")],
+    port: PortOption,
+    wifi_ssid: Annotated[str, typer.Option("--wifi-ssid", help="Wi-Fi network the board joins (1..32 bytes).")],
+    agent: Annotated[str, typer.Option("--agent", help="micro-ROS agent as IPV4:PORT (no host names).")],
+    wifi_password_file: PasswordFileOption = None,
+    domain_id: Annotated[int, typer.Option("--domain-id", help="ROS_DOMAIN_ID of the board (0..232).")] = 0,
+    baud: BaudOption = 460800,
+    workspace: WorkspaceOption = None,
+) -> None:
+    """Write the board's Wi-Fi and agent settings into its NVS partition, leaving the app as it is.
+
+    The password never appears on a command line (espdock's or esptool's), in the workspace or in an image."""
+    ws, config = _load(workspace)
+    serial = parse_port(port)
+    plan, step = _firmware_step(ws, config, package)
+    firmware_dir = ws.ws_dir / firmware_install_dir(package)
+    flasher_args = read_flasher_args(firmware_dir, package)
+    nvs = nvs_partition(firmware_dir, flasher_args, package)
+    settings = network_settings(wifi_ssid, wifi_password_file, agent, domain_id, sys.stdin, _ask_password)
+    check_port(serial)
+    runner = _runner(ws, config, Reporter(console))
+    runner.run(plan)
+    with nvs_image(settings, nvs.size, runner.owner) as image:
+        flash_package(
+            runner, ws, step, flasher_args, serial, baud, False, lambda line: console.print(Text(line)),
+            nvs_image=(nvs.offset, image), app=False,
+        )  # fmt: skip
+    console.print(
+        f"provisioned {package} through {port}: Wi-Fi {settings.ssid!r}, agent {settings.agent_host}:"
+        f"{settings.agent_port}, ROS domain {settings.domain_id} (NVS partition '{nvs.label}' at {nvs.offset:#x})"
+    )
 
 
 @app.command()

@@ -15,9 +15,10 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 from urllib.parse import urlsplit
 
-from espdock.engine import format_argv
+from espdock.engine import Mount, format_argv
 from espdock.errors import ConfigError, EspdockError, WorkspaceError
 from espdock.plan import IdfBuild
+from espdock.provision import IMAGE_MOUNT
 from espdock.workspace import Workspace
 
 if TYPE_CHECKING:
@@ -102,20 +103,34 @@ def check_port(port: Port, timeout: float = 3.0) -> None:
         os.close(fd)
 
 
-def flash_argv(flasher_args: dict, port: Port, baud: int | None, esptool_major: int) -> tuple[str, ...]:
-    """`python -m esptool ... write_flash ...` for the artefacts flasher_args.json describes."""
-    spell, head, files = _esptool_parts(flasher_args, port, baud, esptool_major, after=None)
+# An extra (offset, path in the container) to write beside, or instead of, the app's files.
+Extra = tuple[int, str]
+
+
+def flash_argv(
+    flasher_args: dict, port: Port, baud: int | None, esptool_major: int, extra: Extra | None = None
+) -> tuple[str, ...]:
+    """`python -m esptool ... write_flash ...` for the artefacts flasher_args.json describes (and EXTRA)."""
+    spell, head, files = _esptool_parts(flasher_args, port, baud, esptool_major, after=None, region=extra)
     options = [spell(a) if a.startswith("--") else a for a in flasher_args.get("write_flash_args", [])]
     return (*head, spell("write_flash"), *options, *files)
 
 
-def verify_argv(flasher_args: dict, port: Port, esptool_major: int) -> tuple[str, ...]:
+def verify_argv(flasher_args: dict, port: Port, esptool_major: int, extra: Extra | None = None) -> tuple[str, ...]:
     """`python -m esptool ... verify_flash ...` for the same artefacts, leaving the chip in its bootloader."""
-    spell, head, files = _esptool_parts(flasher_args, port, None, esptool_major, after="no_reset")
+    spell, head, files = _esptool_parts(flasher_args, port, None, esptool_major, after="no_reset", region=extra)
     return (*head, spell("verify_flash"), *files)
 
 
-def _esptool_parts(flasher_args: dict, port: Port, baud: int | None, esptool_major: int, after: str | None):
+def write_region_argv(flasher_args: dict, port: Port, baud: int | None, esptool_major: int, region: Extra):
+    """`python -m esptool ... write_flash OFFSET FILE`: REGION only, the app left as it is."""
+    spell, head, _ = _esptool_parts(flasher_args, port, baud, esptool_major, after=None)
+    return (*head, spell("write_flash"), hex(region[0]), region[1])
+
+
+def _esptool_parts(
+    flasher_args: dict, port: Port, baud: int | None, esptool_major: int, after: str | None, region: Extra | None = None
+):
     # esptool 5 renamed commands and options to hyphens and deprecates the old names;
     # the IDF 5.x images ship esptool 4.x, which only knows the underscores.
     def spell(word: str) -> str:
@@ -139,7 +154,10 @@ def _esptool_parts(flasher_args: dict, port: Port, baud: int | None, esptool_maj
     head += ["--after", spell(after or extra.get("after", "hard_reset"))]
     if extra.get("stub") is False:
         head.append(spell("--no_stub"))
-    ordered = [item for offset in sorted(files, key=lambda o: int(o, 16)) for item in (offset, files[offset])]
+    regions = {int(offset, 16): path for offset, path in files.items()}
+    if region is not None:
+        regions[region[0]] = region[1]
+    ordered = [item for offset in sorted(regions) for item in (hex(offset), regions[offset])]
     return spell, head, ordered
 
 
@@ -178,20 +196,37 @@ def flash_package(
     baud: int | None,
     verify: bool,
     say: Callable[[str], None],
+    nvs_image: tuple[int, Path] | None = None,
+    app: bool = True,
 ) -> None:
     """esptool write_flash (then verify_flash, with VERIFY) of STEP's installed artefacts through PORT,
-    in STEP's IDF image, with only that port passed in (or the host network for a URL)."""
+    in STEP's IDF image, with only that port passed in (or the host network for a URL).
+
+    NVS_IMAGE (offset, host file) is written in the same run; without APP, only it is."""
     workdir = step.install_dir
     devices = (port.device,) if port.device else ()
     network = "host" if port.is_url else None
+    mounts: tuple[Mount, ...] = ()
+    extra: Extra | None = None
+    if nvs_image is not None:
+        offset, image = nvs_image
+        mounts = (Mount(image.parent, IMAGE_MOUNT, read_only=True),)
+        extra = (offset, f"{IMAGE_MOUNT}/{image.name}")
     version: list[str] = []
     runner.run_idf(workspace, step, ("python", "-m", "esptool", "version"), on_line=version.append, workdir=workdir)
     major = esptool_major(version)
-    commands = [flash_argv(flasher_args, port, baud, major)]
-    if verify:
-        commands.append(verify_argv(flasher_args, port, major))
+    if app:
+        commands = [flash_argv(flasher_args, port, baud, major, extra)]
+        if verify:
+            commands.append(verify_argv(flasher_args, port, major, extra))
+    elif extra is not None:
+        commands = [write_region_argv(flasher_args, port, baud, major, extra)]
+    else:
+        commands = []
     for argv in commands:
         say(format_argv(argv))
-        code = runner.run_idf(workspace, step, argv, on_line=say, devices=devices, network=network, workdir=workdir)
+        code = runner.run_idf(
+            workspace, step, argv, on_line=say, devices=devices, network=network, workdir=workdir, extra_mounts=mounts
+        )
         if code != 0:
             raise PortError(f"esptool failed (exit code {code}) on {port.spec}", "See its output above.")

@@ -67,6 +67,11 @@ class Runner:
         self._emit = emit
         self._owner = owner
 
+    @property
+    def owner(self) -> tuple[int, int]:
+        """uid, gid that containers writing into the workspace run as."""
+        return self._owner
+
     def run(self, plan: Plan) -> list[StepFinished]:
         """Run every step in order; stops at the first failure, raising its error."""
         results = []
@@ -240,6 +245,7 @@ class Runner:
         network: str | None = None,
         workdir: str | None = None,
         sweep: bool = False,
+        extra_mounts: tuple[Mount, ...] = (),
     ) -> int:
         """Run ARGV (idf.py or another tool of the IDF image) for STEP's package.
 
@@ -257,6 +263,7 @@ class Runner:
         mounts = [
             Mount(workspace.root, WORKSPACE_MOUNT),
             Mount(managed, f"{step.project_dir}/{MANAGED_COMPONENTS}"),
+            *extra_mounts,
         ]
         env = [
             ("HOME", "/tmp"),

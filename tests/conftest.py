@@ -55,7 +55,14 @@ def espdock(
     """Run the espdock CLI as a user would (PREFIX: another command line for it), capturing its output."""
     argv = [*(prefix or (sys.executable, "-m", "espdock")), *args]
     return subprocess.run(
-        argv, cwd=cwd, env={**os.environ, **(env or {})}, capture_output=True, text=True, timeout=timeout, check=False
+        argv,
+        cwd=cwd,
+        env={**os.environ, **(env or {})},
+        stdin=subprocess.DEVNULL,  # never the terminal pytest may run in: nothing may wait for typing
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+        check=False,
     )
 
 

@@ -28,13 +28,18 @@ REQUIRED_DEFAULTS = {
         "ESPDOCK_LED_STATE_TOPIC": "/esp32/led_strip/color",
     },
 }
-COMMON_OPTIONS = (
-    "ESPDOCK_WIFI_SSID",
-    "ESPDOCK_WIFI_PASSWORD",
-    "ESPDOCK_AGENT_IP",
-    "ESPDOCK_AGENT_PORT",
-    "ESPDOCK_NODE_NAME",
-)
+COMMON_OPTIONS = ("ESPDOCK_NODE_NAME",)
+# The network fallbacks live once, in the shared component; provisioning (NVS) is the
+# usual source, so the string defaults stay empty: a default build carries no network secrets.
+NETWORK_FALLBACKS = {
+    "ESPDOCK_WIFI_SSID": "",
+    "ESPDOCK_WIFI_PASSWORD": "",
+    "ESPDOCK_AGENT_IP": "",
+    "ESPDOCK_AGENT_PORT": "8888",
+    "ESPDOCK_ROS_DOMAIN_ID": "0",
+}
+# ESP-IDF's built-in partition tables (all have "nvs" at 0x9000, 0x6000 bytes).
+BUILTIN_TABLES = ("SINGLE_APP", "SINGLE_APP_LARGE", "TWO_OTA", "TWO_OTA_LARGE", "SINGLE_APP_ENCRYPTED_NVS")
 
 # esp32-camera 2.x framesize_t -> (width, height), up to the OV2640's UXGA.
 FRAMESIZES = [
@@ -362,9 +367,34 @@ def check_camera_ranges(header: Path, msg: Path, problems: Problems) -> None:
             problems.add(header, f"{len(c_table)} fields, {msg.name} has {len(msg_table)}")
 
 
+def check_network_fallbacks(component: Path, problems: Problems) -> None:
+    kconfig = component / "Kconfig"
+    if not kconfig.is_file():
+        problems.add(component, "missing Kconfig (the network fallbacks)")
+        return
+    defaults = kconfig_defaults(kconfig)
+    for option, value in NETWORK_FALLBACKS.items():
+        if defaults.get(option) != value:
+            problems.add(kconfig, f"{option} defaults to {defaults.get(option)!r}, expected {value!r}")
+
+
+def check_nvs_partition(app: Path, problems: Problems) -> None:
+    """`espdock provision` writes the NVS partition the app's partition table names."""
+    text = (app / "sdkconfig.defaults").read_text()
+    chosen = re.findall(r"^CONFIG_PARTITION_TABLE_(\w+)=y$", text, re.M)
+    if any(name in BUILTIN_TABLES for name in chosen) or not chosen:
+        return  # IDF's default is SINGLE_APP
+    match = re.search(r'^CONFIG_PARTITION_TABLE_CUSTOM_FILENAME="([^"]+)"', text, re.M)
+    csv = app / (match.group(1) if match else "partitions.csv")
+    rows = [line.split(",") for line in csv.read_text().splitlines() if csv.is_file() and line.strip()]
+    if not any(len(r) > 2 and r[1].strip() == "data" and r[2].strip() == "nvs" for r in rows):
+        problems.add(app, f"partition table {csv.name} has no data/nvs partition to provision")
+
+
 def cmd_apps(firmware: str, msg_file: str) -> int:
     problems = Problems()
     root = Path(firmware)
+    check_network_fallbacks(root / "components" / "espdock_uros", problems)
     apps = sorted(p.parent for p in root.glob("*/package.xml"))
     if {a.name for a in apps} != set(REQUIRED_DEFAULTS):
         problems.add(root, f"expected apps {sorted(REQUIRED_DEFAULTS)}, found {[a.name for a in apps]}")
@@ -393,6 +423,9 @@ def cmd_apps(firmware: str, msg_file: str) -> int:
         for option in COMMON_OPTIONS:
             if option not in defaults:
                 problems.add(app, f"Kconfig lacks {option}")
+        for option in set(NETWORK_FALLBACKS) & set(defaults):
+            problems.add(app, f"{option} belongs to components/espdock_uros/Kconfig, not the app")
+        check_nvs_partition(app, problems)
         for option, value in REQUIRED_DEFAULTS.get(app.name, {}).items():
             if defaults.get(option) != value:
                 problems.add(app, f"{option} defaults to {defaults.get(option)!r}, expected {value!r}")

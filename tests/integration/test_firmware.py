@@ -9,6 +9,7 @@ skip where it is not present.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import re
@@ -16,6 +17,8 @@ import shutil
 import socket
 import subprocess
 import sys
+import tempfile
+import threading
 import time
 import uuid
 from pathlib import Path
@@ -26,6 +29,7 @@ from espdock.config import Config, resolve_ca_bundle
 from espdock.layout import firmware_install_dir
 from tests.conftest import REPO, containers_created, copy_workspace, espdock, leftover_containers, ros_build_tag
 from tests.idf_contract_double.build import build_double, use_double
+from tests.nvs_reader import read_nvs
 
 pytestmark = [pytest.mark.engine, pytest.mark.slow]
 
@@ -528,3 +532,177 @@ def test_the_double_refuses_headers_of_components_a_component_does_not_require(d
     subprocess.run(["chown", "-R", f"{USER_UID}:{USER_UID}", str(tmp_path)], check=True)
     conditional = run_in_double(double, project, "build")
     assert conditional.returncode == 2 and "driver/gpio.h: No such file or directory" in conditional.stderr
+
+
+def host_esptool(port: str, *args: str) -> None:
+    """esptool from the test venv, straight at the mock: the test's own view of the flash."""
+    tool = Path(sys.executable).with_name("esptool")
+    argv = [str(tool), "--chip", "esp32", "--port", port, "--before", "no-reset", "--after", "no-reset", "--no-stub"]
+    result = subprocess.run([*argv, *args], capture_output=True, text=True, check=False, timeout=120)
+    assert result.returncode == 0, result.stdout[-2000:] + result.stderr
+
+
+def read_flash(port: str, offset: int, size: int, tmp_path: Path) -> bytes:
+    out = tmp_path / f"read-{offset:x}-{uuid.uuid4().hex[:6]}.bin"
+    host_esptool(port, "read-flash", hex(offset), hex(size), str(out))
+    return out.read_bytes()
+
+
+class ArgvWatch:
+    """Every command line on the machine (containers' included) that contains NEEDLE while it runs."""
+
+    def __init__(self, needle: str) -> None:
+        self.needle = needle.encode()
+        self.seen: list[str] = []
+        self.scans = 0
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._watch, daemon=True)
+
+    def _watch(self) -> None:
+        while not self._stop.is_set():
+            for cmdline in Path("/proc").glob("[0-9]*/cmdline"):
+                try:
+                    argv = cmdline.read_bytes()
+                except OSError:
+                    continue
+                if self.needle in argv:
+                    self.seen.append(argv.replace(b"\0", b" ").decode(errors="replace"))
+            self.scans += 1
+            time.sleep(0.005)
+
+    def __enter__(self) -> ArgvWatch:
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._stop.set()
+        self._thread.join()
+
+
+def files_containing(root: Path, needle: bytes) -> list[Path]:
+    hits = []
+    for path in root.rglob("*"):
+        if path.is_file() and not path.is_symlink():
+            with contextlib.suppress(OSError):
+                if needle in path.read_bytes():
+                    hits.append(path)
+    return hits
+
+
+def image_layers_contain(image: str, needle: bytes) -> bool:
+    """Whether NEEDLE is anywhere in `docker save IMAGE` (every layer, config and history)."""
+    with subprocess.Popen(["docker", "image", "save", image], stdout=subprocess.PIPE) as save:
+        tail = b""
+        found = False
+        while chunk := save.stdout.read(1 << 20):
+            if needle in tail + chunk:
+                found = True
+            tail = chunk[-len(needle) :]
+    assert save.returncode == 0
+    return found
+
+
+NVS_OFFSET, NVS_SIZE, APP_OFFSET = 0x9000, 0x6000, 0x10000  # IDF's single-app tables
+
+
+def test_provision_writes_the_network_settings_and_leaves_the_app(fw_ws, double_env, mock_bootloader, tmp_path, engine):
+    root, first = fw_ws
+    assert first.returncode == 0
+    sentinel = f"sentinel-{uuid.uuid4().hex[:24]}"
+    password_file = tmp_path / "wifi-password"
+    password_file.write_text(sentinel + "\n")
+    app_marker = os.urandom(4096)
+    (tmp_path / "marker.bin").write_bytes(app_marker)
+    host_esptool(mock_bootloader, "write-flash", hex(APP_OFFSET), str(tmp_path / "marker.bin"))
+    temp_before = set(Path(tempfile.gettempdir()).glob("espdock-provision-*"))
+
+    with ArgvWatch(sentinel) as watch:
+        result = espdock(
+            "provision", "led_strip_node", "--port", mock_bootloader, "--wifi-ssid", "lab net",
+            "--wifi-password-file", str(password_file), "--agent", "10.0.0.2:9999", "--domain-id", "42",
+            cwd=root, env=double_env,
+        )  # fmt: skip
+    assert result.returncode == 0, result.stdout[-3000:] + result.stderr
+    assert "provisioned led_strip_node" in result.stdout
+    assert watch.scans > 10 and watch.seen == [], "the password was on a command line"
+    assert sentinel not in result.stdout + result.stderr
+    settings = read_nvs(read_flash(mock_bootloader, NVS_OFFSET, NVS_SIZE, tmp_path))["espdock"]
+    assert settings == {
+        "ssid": "lab net", "password": sentinel, "agent_host": "10.0.0.2", "agent_port": 9999, "domain_id": 42,
+    }  # fmt: skip
+
+    # Moving the board to another network and agent: a second provision, no rebuild, no reflash.
+    result = espdock(
+        "provision", "led_strip_node", "--port", mock_bootloader, "--wifi-ssid", "field",
+        "--wifi-password-file", "/dev/null", "--agent", "192.168.7.20:8888", cwd=root, env=double_env,
+    )  # fmt: skip
+    assert result.returncode == 0, result.stdout[-3000:] + result.stderr
+    settings = read_nvs(read_flash(mock_bootloader, NVS_OFFSET, NVS_SIZE, tmp_path))["espdock"]
+    assert settings == {
+        "ssid": "field",
+        "password": "",
+        "agent_host": "192.168.7.20",
+        "agent_port": 8888,
+        "domain_id": 0,
+    }
+    assert read_flash(mock_bootloader, APP_OFFSET, len(app_marker), tmp_path) == app_marker, "provision wrote the app"
+
+    assert files_containing(root, sentinel.encode()) == []
+    assert set(Path(tempfile.gettempdir()).glob("espdock-provision-*")) == temp_before, "temporary files left"
+    assert leftover_containers(engine, root) == []
+    idf_images = {line for line in subprocess.run(
+        ["docker", "images", "--format", "{{.Repository}}:{{.Tag}}", "--filter", "reference=espdock/idf*"],
+        capture_output=True, text=True, check=True,
+    ).stdout.split()}  # fmt: skip
+    assert idf_images
+    assert not [image for image in idf_images if image_layers_contain(image, sentinel.encode())]
+
+
+def test_flash_with_network_options_writes_app_and_settings_in_one_run(fw_ws, double_env, mock_bootloader, tmp_path):
+    root, first = fw_ws
+    assert first.returncode == 0
+    result = subprocess.run(
+        [sys.executable, "-m", "espdock", "flash", "led_strip_node", "--port", mock_bootloader, "--verify",
+         "--wifi-ssid", "lab", "--wifi-password-file", "-", "--agent", "10.0.0.3:8888", "--domain-id", "5"],
+        input="via-stdin-pass\n", cwd=root, env={**os.environ, **double_env}, capture_output=True, text=True,
+        check=False, timeout=600,
+    )  # fmt: skip
+    assert result.returncode == 0, result.stdout[-3000:] + result.stderr
+    assert "with its network settings" in result.stdout and "verified" in result.stdout
+    assert result.stdout.count("write") >= 1 and "0x9000" in result.stdout
+    settings = read_nvs(read_flash(mock_bootloader, NVS_OFFSET, NVS_SIZE, tmp_path))["espdock"]
+    assert settings["password"] == "via-stdin-pass" and settings["domain_id"] == 5
+    app = json.loads((firmware_dir(root, "led_strip_node") / "flasher_args.json").read_text())["app"]
+    installed = (firmware_dir(root, "led_strip_node") / app["file"]).read_bytes()
+    assert read_flash(mock_bootloader, int(app["offset"], 16), len(installed), tmp_path) == installed
+
+
+def test_bad_provisioning_input_is_refused_and_the_board_is_left_alone(fw_ws, double_env, mock_bootloader, tmp_path):
+    root, first = fw_ws
+    assert first.returncode == 0
+    before = read_flash(mock_bootloader, NVS_OFFSET, NVS_SIZE, tmp_path)
+    short = tmp_path / "short"
+    short.write_text("1234567\n")
+    good = ("--wifi-ssid", "lab", "--wifi-password-file", "/dev/null", "--agent", "10.0.0.2:8888")
+    cases = {
+        "SSID is 33 bytes": ("--wifi-ssid", "x" * 33, "--wifi-password-file", "/dev/null", "--agent", "10.0.0.2:8888"),
+        "password is 7 characters": ("--wifi-ssid", "lab", "--wifi-password-file", str(short), "--agent", "10.0.0.2:1"),
+        "not an IPv4 address": ("--wifi-ssid", "lab", "--wifi-password-file", "/dev/null", "--agent", "agent.lan:8888"),
+        "port '70000' is not 1..65535": ("--wifi-ssid", "lab", "--agent", "10.0.0.2:70000"),
+        "domain id 233": (*good, "--domain-id", "233"),
+        "no terminal to ask on": ("--wifi-ssid", "lab", "--agent", "10.0.0.2:8888"),
+    }
+    for message, options in cases.items():
+        result = espdock("provision", "led_strip_node", "--port", mock_bootloader, *options, cwd=root, env=double_env)
+        assert result.returncode == 2 and message in result.stderr, (message, result.stderr)
+        assert "Traceback" not in result.stderr
+
+    table = firmware_dir(root, "led_strip_node") / "partition_table/partition-table.bin"
+    original = table.read_bytes()
+    try:  # the same app with a table that has no NVS partition
+        table.write_bytes(original[32:])
+        result = espdock("provision", "led_strip_node", "--port", mock_bootloader, *good, cwd=root, env=double_env)
+        assert result.returncode == 2 and "no NVS partition to provision" in result.stderr, result.stderr
+    finally:
+        table.write_bytes(original)
+    assert read_flash(mock_bootloader, NVS_OFFSET, NVS_SIZE, tmp_path) == before, "the board was written to"

@@ -9,7 +9,15 @@ from pathlib import Path
 import pytest
 
 from espdock.errors import BuildFailed, ConfigError, WorkspaceError
-from espdock.flashing import PortError, check_port, esptool_major, flash_argv, parse_port, verify_argv
+from espdock.flashing import (
+    PortError,
+    check_port,
+    esptool_major,
+    flash_argv,
+    parse_port,
+    verify_argv,
+    write_region_argv,
+)
 from espdock.install import install_firmware
 from espdock.scaffold import create_firmware_package, validate_package_name
 from espdock.workspace import Package, PackageKind, Workspace, discover_packages
@@ -182,3 +190,15 @@ def test_a_build_missing_artefacts_installs_nothing_and_keeps_the_old_firmware(t
     with pytest.raises(BuildFailed, match=r"partition-table\.bin"):
         install_firmware("cam", manifest, build, install, (), owner=None)
     assert (firmware / "cam.bin").read_bytes() == b"\xe9good"
+
+
+def test_provisioning_writes_only_the_nvs_region_or_adds_it_in_flash_order():
+    port = parse_port("socket://127.0.0.1:9876")
+    nvs = (0x9000, "/run/espdock-provision/nvs.bin")
+    alone = write_region_argv(FLASHER_ARGS, port, 460800, 5, nvs)
+    assert alone[-3:] == ("write-flash", "0x9000", "/run/espdock-provision/nvs.bin")
+    assert "cam.bin" not in alone and "--flash-mode" not in alone
+    both = flash_argv(FLASHER_ARGS, port, 460800, 5, nvs)
+    start = both.index("write-flash") + 7  # after the flash options
+    assert both[start::2] == ("0x1000", "0x8000", "0x9000", "0x10000")
+    assert verify_argv(FLASHER_ARGS, port, 5, nvs)[-4:-2] == ("0x9000", "/run/espdock-provision/nvs.bin")

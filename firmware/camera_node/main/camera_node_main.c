@@ -18,6 +18,7 @@
 #include "esp_log.h"
 #include "esp_timer.h"
 #include "espdock_uros.h"
+#include "espdock_net.h"
 #include "espdock_wifi.h"
 #include "frame_pacer.h"
 #include "freertos/FreeRTOS.h"
@@ -54,6 +55,8 @@ typedef struct {
 
 /* rclc timer and service callbacks carry no user pointer, hence one static node. */
 static camera_node_t s_node;
+/* Read once at boot (NVS, else Kconfig); the micro-ROS task reads it afterwards. */
+static net_settings_t s_net;
 static char s_frame_id[] = CONFIG_ESPDOCK_CAM_FRAME_ID;
 static char s_format[] = "jpeg";
 
@@ -213,9 +216,9 @@ static void uros_task(void *arg)
 {
     (void)arg;
     const espdock_uros_config_t config = {
-        .agent_ip = CONFIG_ESPDOCK_AGENT_IP,
-        .agent_port = CONFIG_ESPDOCK_AGENT_PORT,
-        .domain_id = CONFIG_ESPDOCK_ROS_DOMAIN_ID,
+        .agent_ip = s_net.agent_host,
+        .agent_port = s_net.agent_port,
+        .domain_id = s_net.domain_id,
         .node_name = CONFIG_ESPDOCK_NODE_NAME,
         .node_namespace = "",
     };
@@ -237,7 +240,8 @@ void app_main(void)
         ESP_LOGE(TAG, "camera init failed; retrying in %d ms", CAMERA_RETRY_MS);
         vTaskDelay(pdMS_TO_TICKS(CAMERA_RETRY_MS));
     }
-    esp_err_t err = espdock_wifi_start(CONFIG_ESPDOCK_WIFI_SSID, CONFIG_ESPDOCK_WIFI_PASSWORD, false);
+    espdock_net_load(&s_net);
+    esp_err_t err = espdock_wifi_start(s_net.ssid, s_net.password, false);
     if (err != ESP_OK) {
         ESP_LOGE(TAG, "Wi-Fi start failed: %s; check the Wi-Fi settings", esp_err_to_name(err));
         return;

@@ -9,9 +9,9 @@
 #include "esp_netif.h"
 #include "esp_timer.h"
 #include "esp_wifi.h"
+#include "espdock_net.h"
 #include "freertos/FreeRTOS.h"
 #include "freertos/event_groups.h"
-#include "nvs_flash.h"
 
 #define CONNECTED_BIT BIT0
 #define RETRY_MIN_MS 500u
@@ -72,20 +72,9 @@ static void on_ip_event(void *arg, esp_event_base_t base, int32_t id, void *data
     }
 }
 
-static esp_err_t init_nvs(void)
-{
-    esp_err_t err = nvs_flash_init();
-    if (err == ESP_ERR_NVS_NO_FREE_PAGES || err == ESP_ERR_NVS_NEW_VERSION_FOUND) {
-        /* Only Wi-Fi calibration data lives here: erasing is safe. */
-        ESP_RETURN_ON_ERROR(nvs_flash_erase(), TAG, "NVS erase failed");
-        err = nvs_flash_init();
-    }
-    return err;
-}
-
 static esp_err_t init_stack(void)
 {
-    ESP_RETURN_ON_ERROR(init_nvs(), TAG, "NVS init failed");
+    ESP_RETURN_ON_ERROR(espdock_nvs_init(), TAG, "NVS init failed");
     ESP_RETURN_ON_ERROR(esp_netif_init(), TAG, "netif init failed");
     esp_err_t err = esp_event_loop_create_default();
     if (err != ESP_OK && err != ESP_ERR_INVALID_STATE) {    /* INVALID_STATE: already created */

@@ -16,6 +16,7 @@
 #include "esp_check.h"
 #include "esp_log.h"
 #include "espdock_uros.h"
+#include "espdock_net.h"
 #include "espdock_wifi.h"
 #include "freertos/FreeRTOS.h"
 #include "freertos/task.h"
@@ -64,6 +65,8 @@ typedef struct {
 
 /* rclc subscription callbacks carry no user pointer, hence one static node. */
 static led_node_t s_node;
+/* Read once at boot (NVS, else Kconfig); the micro-ROS task reads it afterwards. */
+static net_settings_t s_net;
 static char s_rx_buffer[RX_CAPACITY];
 
 static esp_err_t strip_init(led_strip_handle_t *strip)
@@ -186,9 +189,9 @@ static void uros_task(void *arg)
 {
     (void)arg;
     const espdock_uros_config_t config = {
-        .agent_ip = CONFIG_ESPDOCK_AGENT_IP,
-        .agent_port = CONFIG_ESPDOCK_AGENT_PORT,
-        .domain_id = CONFIG_ESPDOCK_ROS_DOMAIN_ID,
+        .agent_ip = s_net.agent_host,
+        .agent_port = s_net.agent_port,
+        .domain_id = s_net.domain_id,
         .node_name = CONFIG_ESPDOCK_NODE_NAME,
         .node_namespace = "",
     };
@@ -220,7 +223,8 @@ void app_main(void)
         s_node.shown = (rgb8_t){0, 0, 0};
         s_node.shown_known = true;
     }
-    err = espdock_wifi_start(CONFIG_ESPDOCK_WIFI_SSID, CONFIG_ESPDOCK_WIFI_PASSWORD, false);
+    espdock_net_load(&s_net);
+    err = espdock_wifi_start(s_net.ssid, s_net.password, false);
     if (err != ESP_OK) {
         ESP_LOGE(TAG, "Wi-Fi start failed: %s; check the Wi-Fi settings", esp_err_to_name(err));
         return;

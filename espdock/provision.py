@@ -1,0 +1,220 @@
+"""A board's network settings, written into its NVS partition at flash time.
+
+The firmware (components/espdock_uros, net_settings.h) reads the namespace and
+keys below at boot and falls back to its Kconfig options for what is absent, so
+one build serves every network and every agent address, and no build carries the
+Wi-Fi password.
+
+The password is held in memory, in a 0600 CSV and the NVS image generated from it,
+both in a private temporary directory outside the workspace that is removed on
+success, failure and Ctrl-C alike; it is never part of a command line.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import csv
+import io
+import ipaddress
+import os
+import shutil
+import struct
+import subprocess
+import sys
+import tempfile
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from espdock.errors import ConfigError, EspdockError, WorkspaceError
+
+# The firmware's side of the contract: firmware/components/espdock_uros/include/net_settings.h.
+NVS_NAMESPACE = "espdock"
+KEY_SSID, KEY_PASSWORD, KEY_AGENT_HOST, KEY_AGENT_PORT, KEY_DOMAIN_ID = (
+    "ssid", "password", "agent_host", "agent_port", "domain_id",
+)  # fmt: skip
+SSID_MAX_BYTES = 32
+PASSWORD_MIN, PASSWORD_MAX = 8, 63
+DOMAIN_ID_MAX = 232
+
+# ESP-IDF's partition table (components/partition_table/gen_esp32part.py): 32-byte entries.
+_ENTRY = struct.Struct("<2sBBII16sI")
+_ENTRY_MAGIC = b"\xaa\x50"
+_MD5_MAGIC = b"\xeb\xeb"
+_TYPE_DATA, _SUBTYPE_NVS = 0x01, 0x02
+_TABLE_MAX = 0xC00
+
+# Where the container sees the generated image.
+IMAGE_MOUNT = "/run/espdock-provision"
+IMAGE_NAME = "nvs.bin"
+
+
+@dataclass(frozen=True)
+class NetSettings:
+    ssid: str
+    password: str = field(repr=False)
+    agent_host: str
+    agent_port: int
+    domain_id: int = 0
+
+
+@dataclass(frozen=True)
+class Partition:
+    label: str
+    type: int
+    subtype: int
+    offset: int
+    size: int
+
+
+def parse_agent(text: str) -> tuple[str, int]:
+    """HOST:PORT with an IPv4 HOST (the board has no resolver for host names)."""
+    host, sep, port_text = text.rpartition(":")
+    if not sep or not host:
+        raise ConfigError(f"--agent '{text}' is not HOST:PORT", "e.g. --agent 192.168.1.10:8888")
+    try:
+        address = ipaddress.IPv4Address(host)
+    except ValueError:
+        raise ConfigError(
+            f"agent host '{host}' is not an IPv4 address",
+            "The board cannot resolve host names: give the agent host's address (e.g. from `ip -4 addr`).",
+        ) from None
+    if address.is_unspecified:
+        raise ConfigError(f"agent host {host} is not an address the board can send to")
+    if not port_text.isdigit() or not 1 <= int(port_text) <= 65535:
+        raise ConfigError(f"agent port '{port_text}' is not 1..65535", "micro_ros_agent's default is 8888.")
+    return str(address), int(port_text)
+
+
+def check_settings(ssid: str, password: str, agent: str, domain_id: int) -> NetSettings:
+    """The settings, or a ConfigError (exit 2) naming what the firmware would refuse."""
+    size = len(ssid.encode())
+    if not 1 <= size <= SSID_MAX_BYTES:
+        raise ConfigError(f"the Wi-Fi SSID is {size} bytes; it must be 1..{SSID_MAX_BYTES}")
+    if any(ord(c) < 0x20 or ord(c) == 0x7F for c in ssid):
+        raise ConfigError("the Wi-Fi SSID contains control characters")
+    if password and not PASSWORD_MIN <= len(password) <= PASSWORD_MAX:
+        raise ConfigError(
+            f"the Wi-Fi password is {len(password)} characters; WPA2 needs {PASSWORD_MIN}..{PASSWORD_MAX}",
+            "An empty password means an open network.",
+        )
+    if any(not " " <= c <= "~" for c in password):
+        raise ConfigError("the Wi-Fi password must be printable ASCII (a WPA2 passphrase)")
+    if not 0 <= domain_id <= DOMAIN_ID_MAX:
+        raise ConfigError(f"ROS domain id {domain_id} is not 0..{DOMAIN_ID_MAX}")
+    host, port = parse_agent(agent)
+    return NetSettings(ssid, password, host, port, domain_id)
+
+
+def network_settings(ssid: str, password_file: str | None, agent: str, domain_id: int, stdin, prompt) -> NetSettings:
+    """The settings the command line gives; the password is read last, once everything else
+    checked out, so a typo in the address costs no typing."""
+    check_settings(ssid, "", agent, domain_id)
+    return check_settings(ssid, read_password(password_file, stdin, prompt), agent, domain_id)
+
+
+def optional_network_settings(
+    ssid: str | None, password_file: str | None, agent: str | None, domain_id: int | None, stdin, prompt
+) -> NetSettings | None:
+    """As network_settings, or None when the command line asks for no provisioning at all."""
+    if ssid is None and agent is None and password_file is None and domain_id is None:
+        return None
+    if ssid is None or agent is None:
+        raise ConfigError("provisioning needs both --wifi-ssid and --agent HOST:PORT")
+    return network_settings(ssid, password_file, agent, domain_id or 0, stdin, prompt)
+
+
+def read_password(source: str | None, stdin: io.TextIOBase, prompt) -> str:
+    """From FILE, '-' (stdin), or PROMPT when stdin is a terminal; one trailing newline dropped."""
+    if source is None:
+        if not stdin.isatty():
+            raise ConfigError(
+                "no Wi-Fi password given and no terminal to ask on",
+                "Use --wifi-password-file FILE (- reads stdin; /dev/null for an open network).",
+            )
+        return prompt()
+    if source == "-":
+        text = stdin.read()
+    else:
+        try:
+            text = Path(source).read_text()
+        except (OSError, UnicodeDecodeError) as exc:
+            raise ConfigError(f"cannot read the password file {source}: {getattr(exc, 'strerror', exc)}") from None
+    return text.removesuffix("\n").removesuffix("\r")
+
+
+def nvs_csv(settings: NetSettings) -> str:
+    """The NVS partition generator's CSV for SETTINGS."""
+    out = io.StringIO()
+    writer = csv.writer(out, lineterminator="\n")
+    writer.writerow(["key", "type", "encoding", "value"])
+    writer.writerow([NVS_NAMESPACE, "namespace", "", ""])
+    writer.writerow([KEY_SSID, "data", "string", settings.ssid])
+    writer.writerow([KEY_PASSWORD, "data", "string", settings.password])
+    writer.writerow([KEY_AGENT_HOST, "data", "string", settings.agent_host])
+    writer.writerow([KEY_AGENT_PORT, "data", "u16", str(settings.agent_port)])
+    writer.writerow([KEY_DOMAIN_ID, "data", "u8", str(settings.domain_id)])
+    return out.getvalue()
+
+
+def parse_partition_table(data: bytes) -> list[Partition]:
+    """The entries of an ESP-IDF partition-table.bin, up to the MD5 entry or the erased end."""
+    entries = []
+    for start in range(0, min(len(data), _TABLE_MAX), _ENTRY.size):
+        chunk = data[start : start + _ENTRY.size]
+        if len(chunk) < _ENTRY.size or chunk[:2] in (_MD5_MAGIC, b"\xff\xff"):
+            break
+        magic, ptype, subtype, offset, size, label, _flags = _ENTRY.unpack(chunk)
+        if magic != _ENTRY_MAGIC:
+            raise ValueError(f"entry {len(entries)} has no partition magic")
+        entries.append(Partition(label.rstrip(b"\0").decode(errors="replace"), ptype, subtype, offset, size))
+    return entries
+
+
+def nvs_partition(firmware_dir: Path, flasher_args: dict, package: str) -> Partition:
+    """The NVS partition of PACKAGE's installed partition table (the one `nvs_flash_init` uses)."""
+    entry = flasher_args.get("partition-table") or {}
+    table = firmware_dir / entry.get("file", "partition_table/partition-table.bin")
+    rebuild = f"Run `espdock build {package}` again."
+    try:
+        partitions = parse_partition_table(table.read_bytes())
+    except FileNotFoundError:
+        raise WorkspaceError(f"{package} has no installed partition table ({table})", rebuild) from None
+    except ValueError as exc:
+        raise WorkspaceError(f"{table} is not an ESP-IDF partition table: {exc}", rebuild) from None
+    nvs = [p for p in partitions if (p.type, p.subtype) == (_TYPE_DATA, _SUBTYPE_NVS)]
+    # nvs_flash_init() opens the partition labelled "nvs"; the first NVS one is the fallback guess.
+    chosen = next((p for p in nvs if p.label == "nvs"), nvs[0] if nvs else None)
+    if chosen is None:
+        raise ConfigError(
+            f"{package}'s partition table has no NVS partition to provision",
+            "Use a built-in table (CONFIG_PARTITION_TABLE_SINGLE_APP*, *TWO_OTA*) or add an "
+            '"nvs, data, nvs" row to your partitions.csv.',
+        )
+    return chosen
+
+
+@contextlib.contextmanager
+def nvs_image(settings: NetSettings, size: int, owner: tuple[int, int] | None = None) -> Iterator[Path]:
+    """A private directory holding IMAGE_NAME, the NVS partition image for SETTINGS (SIZE bytes),
+    readable by OWNER (the container's user); removed on exit, however it is left."""
+    directory = Path(tempfile.mkdtemp(prefix="espdock-provision-"))  # 0700
+    try:
+        source = directory / "nvs.csv"
+        image = directory / IMAGE_NAME
+        descriptor = os.open(source, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
+        with os.fdopen(descriptor, "w", encoding="utf-8") as handle:
+            handle.write(nvs_csv(settings))
+        argv = [sys.executable, "-m", "esp_idf_nvs_partition_gen", "generate", str(source), str(image), hex(size)]
+        result = subprocess.run(argv, capture_output=True, text=True, check=False, stdin=subprocess.DEVNULL)
+        source.unlink()
+        if result.returncode != 0 or not image.is_file():
+            lines = (result.stdout + result.stderr).strip().splitlines()
+            raise EspdockError("the NVS partition generator failed: " + " | ".join(lines[-3:]))
+        image.chmod(0o600)
+        if owner is not None and os.geteuid() == 0:
+            for path in (directory, image):
+                os.chown(path, *owner)
+        yield image
+    finally:
+        shutil.rmtree(directory, ignore_errors=True)

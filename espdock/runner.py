@@ -9,6 +9,7 @@ import os
 import posixpath
 import re
 import shutil
+import subprocess
 import sys
 import tempfile
 import time
@@ -54,6 +55,17 @@ FAILED_PACKAGE = re.compile(r"^Failed\s+<<<\s+(\S+)")
 BUILDKIT_STEP = re.compile(r"^#\d+ \[.*\] (?P<what>.+)$")
 
 
+def workspace_commit_time(root: Path) -> str | None:
+    """The committer time (Unix seconds) of ROOT's git HEAD, or None outside a repository."""
+    if shutil.which("git") is None:
+        return None
+    # safe.directory: as root, reading a repository another user owns is what espdock does.
+    argv = ["git", "-c", "safe.directory=*", "-C", str(root), "log", "-1", "--format=%ct"]
+    result = subprocess.run(argv, capture_output=True, text=True, check=False, stdin=subprocess.DEVNULL)
+    value = result.stdout.strip()
+    return value if result.returncode == 0 and value.isdigit() else None
+
+
 class Runner:
     """Runs plan steps against one engine."""
 
@@ -71,6 +83,14 @@ class Runner:
     def owner(self) -> tuple[int, int]:
         """uid, gid that containers writing into the workspace run as."""
         return self._owner
+
+    def _source_date(self, workspace: Workspace) -> tuple[tuple[str, str], ...]:
+        """SOURCE_DATE_EPOCH for the build containers: the caller's, else the workspace's last commit.
+
+        Tools that stamp their output read it instead of the clock (Python's .pyc files switch
+        to source hashes, GCC's __DATE__/__TIME__, ...), so two builds of a commit match."""
+        epoch = self._env.get("SOURCE_DATE_EPOCH") or workspace_commit_time(workspace.root)
+        return (("SOURCE_DATE_EPOCH", epoch),) if epoch else ()
 
     def run(self, plan: Plan) -> list[StepFinished]:
         """Run every step in order; stops at the first failure, raising its error."""
@@ -177,7 +197,7 @@ class Runner:
                 workdir=step.workdir,
                 user=user,
                 mounts=(Mount(workspace.root, WORKSPACE_MOUNT),),
-                env=(("HOME", "/tmp"),),
+                env=(("HOME", "/tmp"), *self._source_date(workspace)),
                 labels=labels,
             ),
             on_line,
@@ -267,6 +287,7 @@ class Runner:
         ]
         env = [
             ("HOME", "/tmp"),
+            *self._source_date(workspace),
             ("IDF_TARGET", step.target),
             # The component manager's downloads outlive the container (it caches in HOME otherwise).
             ("IDF_COMPONENT_CACHE_PATH", f"{posixpath.dirname(step.build_dir)}/{COMPONENT_CACHE}"),

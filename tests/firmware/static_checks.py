@@ -426,6 +426,8 @@ def cmd_apps(firmware: str, msg_file: str) -> int:
         for option in set(NETWORK_FALLBACKS) & set(defaults):
             problems.add(app, f"{option} belongs to components/espdock_uros/Kconfig, not the app")
         check_nvs_partition(app, problems)
+        if not re.search(r"^CONFIG_APP_REPRODUCIBLE_BUILD=y$", (app / "sdkconfig.defaults").read_text(), re.M):
+            problems.add(app, "sdkconfig.defaults lacks CONFIG_APP_REPRODUCIBLE_BUILD=y (bit-identical builds)")
         for option, value in REQUIRED_DEFAULTS.get(app.name, {}).items():
             if defaults.get(option) != value:
                 problems.add(app, f"{option} defaults to {defaults.get(option)!r}, expected {value!r}")

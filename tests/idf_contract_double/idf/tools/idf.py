@@ -26,6 +26,7 @@ import struct
 import subprocess
 import sys
 import tempfile
+import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -1232,19 +1233,23 @@ def write_elf(path: Path, target: str, entry: int, sections: list[Section], note
     path.write_bytes(bytes(buf))
 
 
-def app_desc(name: str, version: str) -> bytes:
-    """esp_app_desc_t (256 bytes); elf2image fills app_elf_sha256 at image offset 0xb0."""
+def app_desc(name: str, version: str, stamped: bool) -> bytes:
+    """esp_app_desc_t (256 bytes); elf2image fills app_elf_sha256 at image offset 0xb0.
+
+    STAMPED (CONFIG_APP_COMPILE_TIME_DATE, on unless CONFIG_APP_REPRODUCIBLE_BUILD) puts in
+    __TIME__ and __DATE__ as the compiler expands them: the build's wall clock, or
+    SOURCE_DATE_EPOCH, which GCC honours."""
 
     def fixed(text: str, size: int) -> bytes:
         return text.encode()[: size - 1].ljust(size, b"\0")
 
-    # time and date stay empty (IDF's CONFIG_APP_COMPILE_TIME_DATE=n), so images are reproducible.
+    when = time.gmtime(int(os.environ["SOURCE_DATE_EPOCH"])) if "SOURCE_DATE_EPOCH" in os.environ else time.localtime()
     return (
         struct.pack("<II8x", 0xABCD5432, 0)
         + fixed(version, 32)
         + fixed(name, 32)
-        + fixed("", 16)
-        + fixed("", 16)
+        + fixed(time.strftime("%H:%M:%S", when) if stamped else "", 16)
+        + fixed(time.strftime("%b %e %Y", when) if stamped else "", 16)
         + fixed(IDF_VER, 32)
         + bytes(32)
         + struct.pack("<HH", 0, 99)
@@ -1441,6 +1446,33 @@ def run_build(ctx: Context, project: Project) -> None:
     print_flash_hint(ctx, project)
 
 
+def source_paths(ctx: Context, project: Project, checker: SourceChecker, debug: bool, reproducible: bool) -> bytes:
+    """The source paths the compiler puts into the app, as IDF v5.3's __generate_prefix_map maps them.
+
+    __FILE__ (assert and log strings, DEBUG False): CONFIG_COMPILER_HIDE_PATHS_MACROS, on by
+    default, maps the project to "." and IDF to /IDF. Debug information (DEBUG True, in the
+    ELF only): absolute paths unless CONFIG_APP_REPRODUCIBLE_BUILD maps IDF to /IDF, the project
+    to /IDF_PROJECT, the build dir to /IDF_BUILD and each component to /COMPONENT_<NAME>_DIR."""
+    idf_path = os.environ.get("IDF_PATH", "/opt/esp/idf")
+    if not debug:
+        prefixes = [(str(ctx.project_dir), "."), (idf_path, "/IDF")]
+    elif reproducible:
+        prefixes = [(idf_path, "/IDF"), (str(ctx.project_dir), "/IDF_PROJECT"), (str(ctx.build_dir), "/IDF_BUILD")]
+        prefixes += [(str(c.path), f"/COMPONENT_{c.name.upper()}_DIR") for c in project.components.values()]
+    else:
+        prefixes = []
+    names = []
+    for path in sorted(checker.read):
+        text = str(path)
+        # GCC tries the last map given first; IDF gives the component maps last.
+        for prefix, mapped in reversed(prefixes):
+            if text == prefix or text.startswith(prefix + "/"):
+                text = mapped + text[len(prefix) :]
+                break
+        names.append(text.encode() + b"\0")
+    return b"".join(names)
+
+
 def produce_artefacts(
     ctx: Context, project: Project, staging: Path, checker: SourceChecker, libraries: list[Path], done: int, total: int
 ) -> None:
@@ -1518,7 +1550,9 @@ def produce_artefacts(
         "contract double: synthesised ESP-IDF v5.3.5 app, no compiler ran\n" + "\n".join(manifest_lines) + "\n"
     ).encode()
     drom, irom = chip.DROM_MAP_START, chip.IROM_MAP_START
-    rodata = app_desc(name, project_version(ctx, config)) + note + stream(seed + b"r", 0x2000)
+    rodata = app_desc(name, project_version(ctx, config), bool(config.get("APP_COMPILE_TIME_DATE"))) + note
+    rodata += source_paths(ctx, project, checker, debug=False, reproducible=False)
+    rodata += stream(seed + b"r", 0x2000)
     rodata += bytes(-len(rodata) % 4)
     text_base = irom if irom > drom else drom
     pages = (0x20 + len(rodata) + 0xFFFF) // 0x10000
@@ -1536,7 +1570,7 @@ def produce_artefacts(
             Section(".iram0.text", entry, stream(seed + b"i", 0x100), 2 | 4),
             Section(".flash.text", text_addr, stream(seed + b"t", 0x6000 + (source_bytes & ~3)), 2 | 4),
         ],
-        note,
+        note + source_paths(ctx, project, checker, debug=True, reproducible=bool(config.get("APP_REPRODUCIBLE_BUILD"))),
     )
     progress(f"Generating binary image from built executable ({name}.bin)")
     app_bin = staging / f"{name}.bin"

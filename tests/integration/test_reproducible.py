@@ -1,0 +1,110 @@
+"""Two builds of one commit, in two clones at different paths, install bit-identical files.
+
+ROS packages (colcon in the real ROS image) and firmware (the IDF contract double standing
+in for ESP-IDF; see tests/idf_contract_double/README.md). The double models what decides
+reproducibility in a real IDF build: build date and time, and source paths in debug info.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+from pathlib import Path
+
+import pytest
+
+from espdock.config import Config, resolve_ca_bundle
+from espdock.manifest import MANIFEST_NAME, file_hashes, read_manifest
+from tests.conftest import REPO, copy_workspace, espdock
+from tests.idf_contract_double.build import build_double, use_double
+
+pytestmark = [pytest.mark.engine, pytest.mark.slow]
+
+USER_UID = 4244
+COMMIT_DATE = "2026-01-02T03:04:05+00:00"
+
+
+def git(*args: str, cwd: Path) -> str:
+    env = {
+        **os.environ,
+        "GIT_AUTHOR_NAME": "t", "GIT_AUTHOR_EMAIL": "t@example.invalid", "GIT_AUTHOR_DATE": COMMIT_DATE,
+        "GIT_COMMITTER_NAME": "t", "GIT_COMMITTER_EMAIL": "t@example.invalid", "GIT_COMMITTER_DATE": COMMIT_DATE,
+    }  # fmt: skip
+    result = subprocess.run(["git", *args], cwd=cwd, env=env, capture_output=True, text=True, check=True)
+    return result.stdout
+
+
+@pytest.fixture(scope="module")
+def commit(tmp_path_factory, engine) -> tuple[Path, dict[str, str]]:
+    """A git repository holding one commit of a workspace: interfaces, a Python package, firmware."""
+    origin = copy_workspace(tmp_path_factory.mktemp("origin") / "repo", ("custom_interface", "espdock_demo"))
+    shutil.copy2(REPO / "Dockerfile.idf", origin / "Dockerfile.idf")
+    shutil.copytree(REPO / "firmware", origin / "firmware")
+    double_env = use_double(engine, resolve_ca_bundle(Config(), os.environ), lambda line: None, origin)
+    git("init", "-q", cwd=origin)
+    git("add", "-A", cwd=origin)
+    git("commit", "-q", "-m", "one commit", cwd=origin)
+    return origin, double_env
+
+
+def clone_and_build(origin: Path, where: Path, env: dict[str, str]) -> Path:
+    where.parent.mkdir(parents=True)
+    git("clone", "-q", str(origin), str(where), cwd=where.parent)
+    subprocess.run(["chown", "-R", f"{USER_UID}:{USER_UID}", str(where)], check=True)
+    result = espdock("build", cwd=where, env=env)
+    assert result.returncode == 0, result.stdout[-4000:] + result.stderr
+    return where / "ws" / "install"
+
+
+def test_two_clones_of_a_commit_install_identical_files(commit, tmp_path):
+    origin, double_env = commit
+    first = clone_and_build(origin, tmp_path / "a" / "clone", double_env)
+    second = clone_and_build(origin, tmp_path / "b" / "somewhere" / "deeper" / "other-name", double_env)
+
+    one, two = file_hashes(first), file_hashes(second)
+    assert any(name.endswith(".pyc") for name in one), "the Python package's bytecode is part of the check"
+    assert any(name.endswith(".so") for name in one), "so are the interfaces' compiled libraries"
+    assert any(name.endswith("/led_strip_node.bin") for name in one), "and the firmware"
+    assert any(name.endswith("/led_strip_node.elf") for name in one)
+    differing = sorted(name for name in one.keys() | two.keys() if one.get(name) != two.get(name))
+    assert differing == [], f"{len(differing)} of {len(one)} installed files differ, e.g. {differing[:10]}"
+    assert read_manifest(first / MANIFEST_NAME) == read_manifest(second / MANIFEST_NAME)
+
+
+def project(where: Path, reproducible: bool) -> Path:
+    (where / "main").mkdir(parents=True)
+    (where / "CMakeLists.txt").write_text(
+        "cmake_minimum_required(VERSION 3.16)\ninclude($ENV{IDF_PATH}/tools/cmake/project.cmake)\nproject(probe)\n"
+    )
+    (where / "main/CMakeLists.txt").write_text('idf_component_register(SRCS "main.c")\n')
+    (where / "main/main.c").write_text("void app_main(void) {}\n")
+    if reproducible:
+        (where / "sdkconfig.defaults").write_text("CONFIG_APP_REPRODUCIBLE_BUILD=y\n")
+    return where
+
+
+def build_in_double(tag: str, host_dir: Path, container_dir: str) -> dict[str, bytes]:
+    """idf.py build of the project at HOST_DIR, seen in the container at CONTAINER_DIR, as a user
+    would run it outside espdock: no SOURCE_DATE_EPOCH, their own paths."""
+    result = subprocess.run(
+        ["docker", "run", "--rm", "-e", "HOME=/tmp", "-v", f"{host_dir}:{container_dir}", tag,
+         "idf.py", "-C", container_dir, "-B", f"{container_dir}/build", "build"],
+        capture_output=True, text=True, check=False,
+    )  # fmt: skip
+    assert result.returncode == 0, result.stdout[-2000:] + result.stderr
+    return {name: (host_dir / "build" / name).read_bytes() for name in ("probe.elf", "probe.bin")}
+
+
+def test_the_double_embeds_paths_and_build_time_unless_the_option_is_set(engine, tmp_path):
+    """Without CONFIG_APP_REPRODUCIBLE_BUILD the double's app carries its build time and, in the
+    ELF, the absolute source paths; so the test above passes because the option is set."""
+    tag, _ = build_double(engine, resolve_ca_bundle(Config(), os.environ), lambda line: None)
+    plain_a = build_in_double(tag, project(tmp_path / "plain-a", False), "/home/alice/probe")
+    plain_b = build_in_double(tag, project(tmp_path / "plain-b", False), "/srv/ci/job-7/probe")
+    assert plain_a["probe.elf"] != plain_b["probe.elf"]
+    assert b"/home/alice/probe/main/main.c" in plain_a["probe.elf"]
+    repro_a = build_in_double(tag, project(tmp_path / "repro-a", True), "/home/alice/probe")
+    repro_b = build_in_double(tag, project(tmp_path / "repro-b", True), "/srv/ci/job-7/probe")
+    assert repro_a == repro_b
+    assert b"/home/alice" not in repro_a["probe.elf"] and b"/COMPONENT_MAIN_DIR/main.c" in repro_a["probe.elf"]

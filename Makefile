@@ -5,13 +5,16 @@ PYTHON ?= python3
 VENV := .venv
 PY := $(VENV)/bin/python
 ESPDOCK := $(VENV)/bin/espdock
+LOCK := requirements/dev.txt
 
 .PHONY: setup test unit demo demo-down bench clean
 
-$(VENV)/.installed: pyproject.toml
+# Every dependency from the hashed lock (`espdock lock` makes it from pyproject.toml's
+# dependencies and `test` extra), then espdock itself, whose dependencies are all in it.
+$(VENV)/.installed: pyproject.toml $(LOCK)
 	$(PYTHON) -m venv $(VENV)
-	$(PY) -m pip install -q --upgrade pip
-	$(PY) -m pip install -q -e '.[test]'
+	$(PY) -m pip install -q --require-hashes -r $(LOCK)
+	$(PY) -m pip install -q --no-deps -e .
 	touch $@
 
 # Engine, compose plugin, base image; then the test-only system packages.

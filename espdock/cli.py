@@ -23,6 +23,7 @@ from espdock.errors import ConfigError, EspdockBug, EspdockError, Interrupted, W
 from espdock.events import Outcome
 from espdock.flashing import check_port, flash_package, parse_port, read_flasher_args
 from espdock.layout import IDF_DOCKERFILE, ROS_DOCKERFILE, SOURCES_FILE, firmware_install_dir
+from espdock.lock import check_locks, lock_workspace, plan_locks, uv_binary
 from espdock.manifest import MANIFEST_NAME, build_manifest, compare, file_hashes, read_manifest, write_manifest
 from espdock.pins import Source, pin_heads, pin_image_digest
 from espdock.plan import (
@@ -158,6 +159,14 @@ def build(
     report: Annotated[
         Path | None, typer.Option("--report", help="Write a JSON summary (steps, outcome, keys, artefacts) here.")
     ] = None,
+    locked: Annotated[
+        bool | None,
+        typer.Option(
+            "--locked/--no-locked",
+            help="Refuse to build when a lock the images use is missing or stale (default: on when CI=true).",
+            show_default=False,
+        ),
+    ] = None,
     workspace: WorkspaceOption = None,
 ) -> None:
     """Build the images when their inputs changed, then every package whose sources changed; record what
@@ -167,6 +176,8 @@ def build(
     if dry_run:
         render_plan(console, plan)
         return
+    if locked if locked is not None else os.environ.get("CI", "").lower() == "true":
+        check_locks(ws.root, plan_locks(plan))
     reporter = Reporter(console, verbose=verbose)
     engine = bootstrap.ensure_engine(os.environ, _notify)
     manifest: dict | None = None
@@ -204,6 +215,26 @@ def write_report(path: Path, finished: list, manifest: dict | None, seconds: flo
         "manifest": manifest,
     }
     path.write_text(json.dumps(data, indent=1, sort_keys=True) + "\n")
+
+
+@app.command()
+@_command
+def lock(
+    upgrade: Annotated[
+        bool, typer.Option("--upgrade", help="Move every pin to the newest version its source allows.")
+    ] = False,
+    workspace: WorkspaceOption = None,
+) -> None:
+    """Compile every dependency lock of the workspace from its source with uv (pinned, with hashes),
+    keeping the current pins the sources allow; say which locks changed."""
+    ws, _ = _load(workspace)
+    owner = invoking_user(os.environ, ws.root) if os.geteuid() == 0 else None
+    for result in lock_workspace(ws.root, uv_binary(), upgrade, owner):
+        spec = result.spec
+        if result.status == "default":
+            console.print(f"{spec.lock}: espdock's default (the workspace has no {spec.source} of its own)")
+        else:
+            console.print(f"{spec.lock}: {result.status} (from {', '.join(spec.inputs)})")
 
 
 @app.command()

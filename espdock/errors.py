@@ -29,6 +29,12 @@ class WorkspaceError(EspdockError):
     exit_code = 2
 
 
+class LockError(EspdockError):
+    """A dependency lock is missing or stale against its source, or cannot be made."""
+
+    exit_code = 2
+
+
 class EngineUnavailable(EspdockError):
     """No container engine answers and espdock cannot start one."""
 

@@ -1,0 +1,234 @@
+"""The hashed locks of the workspace's Python dependency sets, and whether each is up to date.
+
+Each lock is compiled from one source by uv (`uv pip compile --generate-hashes`), for the Python
+that installs it, and installed with `pip install --require-hashes`. Its header records the
+sha256 of every input it was made from (its source and the locks it is constrained by), so
+whether it is stale is decided offline, without uv. For pyproject.toml the digest covers only
+what decides the lock: [project]'s requires-python, dependencies and optional-dependencies.
+
+docker/idf/requirements.txt is not locked: it is installed into ESP-IDF's own venv on top of
+what IDF installed under its constraints, which only the real IDF image knows (see README).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import shlex
+import subprocess
+import tempfile
+import tomllib
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass
+from pathlib import Path
+
+from espdock.defaults import SHIPPED, defaults_root
+from espdock.errors import LockError
+from espdock.plan import EnsureImage, Plan
+from espdock.workspace import write_atomically
+
+# The ROS images' Python: Debian bookworm's 3.11 on x86_64 (glibc 2.36), whatever runs uv.
+ROS_IMAGE_PYTHON = ("--python-version", "3.11", "--python-platform", "x86_64-manylinux_2_36")
+INPUT_MARK = "# espdock-lock-input:"
+FIX = "run `espdock lock`"
+
+
+@dataclass(frozen=True)
+class LockSpec:
+    """LOCK compiled from SOURCE with uv ARGS, consistent with the CONSTRAINTS locks (paths
+    relative to the workspace root). PROJECT: only where pyproject.toml's project has that name."""
+
+    lock: str
+    source: str
+    args: tuple[str, ...]
+    constraints: tuple[str, ...] = ()
+    project: str | None = None
+
+    @property
+    def inputs(self) -> tuple[str, ...]:
+        return (self.source, *self.constraints)
+
+    def command(self, paths: Mapping[str, str] | None = None) -> list[str]:
+        """The uv arguments after `uv pip compile`, with the inputs at PATHS (default: their names)."""
+        where = paths or {}
+        constraints = [arg for c in self.constraints for arg in ("-c", where.get(c, c))]
+        return ["--generate-hashes", *self.args, where.get(self.source, self.source), *constraints]
+
+
+# Every lock, in the order they are made (a lock after the locks it is constrained by).
+LOCKS = (
+    LockSpec("docker/ros-runtime.txt", "docker/ros-runtime.in", ROS_IMAGE_PYTHON),
+    # Installed on top of the runtime venv in the build stage: what both need stays at the runtime's pins.
+    LockSpec("docker/ros-build.txt", "docker/ros-build.in", ROS_IMAGE_PYTHON, ("docker/ros-runtime.txt",)),
+    # espdock's own development and test environment (make test), for any Python it supports.
+    LockSpec(
+        "requirements/dev.txt",
+        "pyproject.toml",
+        ("--universal", "--python-version", "3.11", "--extra", "test"),
+        project="espdock",
+    ),
+)
+
+
+def digest(rel: str, data: bytes) -> str:
+    """The sha256 a lock records for its input REL holding DATA."""
+    if Path(rel).name == "pyproject.toml":
+        project = tomllib.loads(data.decode()).get("project", {})
+        wanted = {k: project.get(k) for k in ("requires-python", "dependencies", "optional-dependencies")}
+        data = json.dumps(wanted, sort_keys=True).encode()
+    return hashlib.sha256(data).hexdigest()
+
+
+def header(spec: LockSpec, digests: Mapping[str, str]) -> str:
+    """The comment a lock starts with: where it comes from, how it was made, what from."""
+    lines = [
+        f"# Made by `espdock lock` from {spec.source}: edit that, then {FIX}.",
+        f"# Install with `pip install --require-hashes -r {spec.lock}`. Compiled with:",
+        f"#   uv pip compile {shlex.join(spec.command())}",
+        *(f"{INPUT_MARK} {rel} sha256={digests[rel]}" for rel in spec.inputs),
+    ]
+    return "\n".join(lines) + "\n"
+
+
+def recorded_inputs(lock_text: str) -> dict[str, str]:
+    """The input digests a lock's header records, by path."""
+    found = {}
+    for line in lock_text.splitlines():
+        if line.startswith(INPUT_MARK):
+            rel, _, sha = line.removeprefix(INPUT_MARK).strip().partition(" sha256=")
+            found[rel] = sha
+    return found
+
+
+def stale_reason(spec: LockSpec, lock_text: str | None, digests: Mapping[str, str]) -> str | None:
+    """Why the lock (LOCK_TEXT, None when missing) does not match its inputs' DIGESTS; None when it does."""
+    if lock_text is None:
+        return f"{spec.lock} is missing"
+    recorded = recorded_inputs(lock_text)
+    if not recorded:
+        return f"{spec.lock} was not made by `espdock lock` (its header records no source)"
+    for rel in spec.inputs:
+        if recorded.get(rel) != digests[rel]:
+            return f"{spec.lock} is stale: {rel} changed since it was locked"
+    if header(spec, digests) not in lock_text:
+        return f"{spec.lock} is stale: it was compiled with other uv arguments"
+    return None
+
+
+def applies(spec: LockSpec, root: Path) -> bool:
+    """Whether the workspace at ROOT has SPEC's lock (its own, or espdock's packaged default)."""
+    if spec.project is None:
+        return locate(root, spec.source) is not None
+    pyproject = root / "pyproject.toml"
+    try:
+        return tomllib.loads(pyproject.read_text()).get("project", {}).get("name") == spec.project
+    except (OSError, tomllib.TOMLDecodeError):
+        return False
+
+
+def locate(root: Path, rel: str) -> Path | None:
+    """The workspace's own REL, else espdock's packaged default of it (as the image builds read
+    them, file by file), else None."""
+    own = root / rel
+    if own.is_file():
+        return own
+    if any(rel == s or rel.startswith(f"{s}/") for s in SHIPPED):
+        default = defaults_root() / rel
+        if default.is_file():
+            return default
+    return None
+
+
+def _state(spec: LockSpec, root: Path) -> tuple[str | None, dict[str, str]]:
+    """The lock's text (None when missing) and its inputs' current digests."""
+    digests = {}
+    for rel in spec.inputs:
+        path = locate(root, rel)
+        if path is None:
+            raise LockError(f"{rel} is missing, so {spec.lock} cannot be checked or made", f"Restore {rel}.")
+        digests[rel] = digest(rel, path.read_bytes())
+    lock = locate(root, spec.lock)
+    return (lock.read_text() if lock else None), digests
+
+
+def plan_locks(plan: Plan) -> tuple[LockSpec, ...]:
+    """The locks the images of PLAN are built from."""
+    names = {name for step in plan.steps if isinstance(step, EnsureImage) for name, _ in step.spec.inputs}
+    return tuple(spec for spec in LOCKS if spec.lock in names)
+
+
+def check_locks(root: Path, specs: Iterable[LockSpec]) -> None:
+    """Raise LockError naming every lock of SPECS that is missing or stale in the workspace at ROOT."""
+    problems = [reason for spec in specs if (reason := stale_reason(spec, *_state(spec, root)))]
+    if problems:
+        raise LockError(
+            "; ".join(problems),
+            f"In {root}: {FIX} and commit the locks it writes (or build with --no-locked).",
+        )
+
+
+@dataclass(frozen=True)
+class LockResult:
+    spec: LockSpec
+    # created, updated, unchanged, or default (espdock's packaged lock: none of its files is the workspace's).
+    status: str
+
+
+def uv_binary() -> str:
+    """The uv executable of the uv package, a dependency of espdock."""
+    try:
+        from uv import find_uv_bin
+
+        return find_uv_bin()
+    except (ImportError, FileNotFoundError) as exc:
+        raise LockError(f"uv is not available: {exc}", "Install espdock with its dependencies (uv is one).") from exc
+
+
+def lock_workspace(
+    root: Path, uv: str, upgrade: bool = False, owner: tuple[int, int] | None = None
+) -> list[LockResult]:
+    """Compile every lock of the workspace at ROOT from its source with the uv binary UV, writing
+    the ones that changed; OWNER (uid, gid) gets the files it creates."""
+    results = []
+    for spec in LOCKS:
+        if not applies(spec, root):
+            continue
+        if not any((root / rel).is_file() for rel in (*spec.inputs, spec.lock)):
+            results.append(LockResult(spec, "default"))
+            continue
+        old, digests = _state(spec, root)
+        text = header(spec, digests) + _compile(spec, root, uv, old, upgrade)
+        target = root / spec.lock
+        before = target.read_text() if target.is_file() else None
+        if text == before:
+            results.append(LockResult(spec, "unchanged"))
+            continue
+        if before is None:
+            target.parent.mkdir(parents=True, exist_ok=True)
+            target.write_text(text)
+            if owner is not None:
+                os.chown(target, *owner)
+        else:
+            write_atomically(target, text)
+        results.append(LockResult(spec, "created" if before is None else "updated"))
+    return results
+
+
+def _compile(spec: LockSpec, root: Path, uv: str, previous: str | None, upgrade: bool) -> str:
+    """uv's lock of SPEC, keeping PREVIOUS's pins where the source allows (unless UPGRADE)."""
+    # Inputs of the workspace's own by their relative paths (so uv's "# via" notes name them so),
+    # espdock's defaults by their absolute ones.
+    paths = {rel: rel if (root / rel).is_file() else str(locate(root, rel)) for rel in spec.inputs}
+    with tempfile.TemporaryDirectory(prefix="espdock-lock-") as tmp:
+        output = Path(tmp) / "lock.txt"
+        output.write_text(previous or "")
+        argv = [uv, "pip", "compile", "--quiet", "--no-header", *spec.command(paths), "-o", str(output)]
+        argv += ["--upgrade"] if upgrade else []
+        result = subprocess.run(argv, cwd=root, capture_output=True, text=True, check=False)
+        if result.returncode != 0:
+            raise LockError(
+                f"uv could not lock {spec.lock} from {spec.source}:\n{result.stderr.strip()}",
+                f"Fix {spec.source} (or the network), then {FIX} again.",
+            )
+        return output.read_text()

@@ -6,6 +6,7 @@ missing is installed or started.
 
 from __future__ import annotations
 
+import hashlib
 import os
 import re
 import shutil
@@ -182,10 +183,30 @@ def build_debian_rootfs_image(engine: Engine, ref: str, suite: str, mirror: str 
                 if path.is_file():
                     path.unlink()
         _slim(rootfs)
+        packages = package_set((rootfs / "var/lib/dpkg/status").read_text(errors="replace"))
         tarball = Path(tmp) / "rootfs.tar"
         _run_logged(["tar", "-C", str(rootfs), "--numeric-owner", "-cf", str(tarball), "."], notify)
-        engine.import_rootfs(tarball, ref)
-    notify(f"imported {ref}")
+        engine.import_rootfs(tarball, ref, labels=package_labels(packages))
+    notify(f"imported {ref} ({len(packages)} Debian packages, recorded in its labels)")
+
+
+PACKAGES_LABEL = "io.espdock.debian-packages"
+
+
+def package_set(dpkg_status: str) -> list[str]:
+    """NAME=VERSION of every installed package in a dpkg status file, sorted."""
+    installed = []
+    for stanza in dpkg_status.split("\n\n"):
+        fields = dict(line.split(": ", 1) for line in stanza.splitlines() if ": " in line and not line[0].isspace())
+        if fields.get("Status", "").endswith(" installed") and "Package" in fields:
+            installed.append(f"{fields['Package']}={fields.get('Version', '')}")
+    return sorted(installed)
+
+
+def package_labels(packages: list[str]) -> dict[str, str]:
+    """The base image's package set as labels, so a rebuilt base that drifted shows it."""
+    listing = " ".join(packages)
+    return {PACKAGES_LABEL: listing, f"{PACKAGES_LABEL}.sha256": hashlib.sha256(listing.encode()).hexdigest()}
 
 
 def _slim(rootfs: Path) -> None:

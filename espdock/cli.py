@@ -167,6 +167,12 @@ def build(
             show_default=False,
         ),
     ] = None,
+    push_cache: Annotated[
+        bool,
+        typer.Option(
+            "--push-cache", help="Push keyed images the cache registry lacks (cache_registry; CI on the main branch)."
+        ),
+    ] = False,
     workspace: WorkspaceOption = None,
 ) -> None:
     """Build the images when their inputs changed, then every package whose sources changed; record what
@@ -183,7 +189,10 @@ def build(
     manifest: dict | None = None
     started = time.monotonic()
     try:
-        results = Runner(engine, config, os.environ, reporter, invoking_user(os.environ, ws.root)).run(plan)
+        if push_cache and not config.cache_registry:
+            raise ConfigError("--push-cache needs a cache registry", "Set cache_registry or ESPDOCK_CACHE_REGISTRY.")
+        owner = invoking_user(os.environ, ws.root)
+        results = Runner(engine, config, os.environ, reporter, owner, push_cache=push_cache).run(plan)
         install = ws.ws_dir / "install"
         existing = install / MANIFEST_NAME
         if existing.is_file() and all(r.outcome is Outcome.CACHED for r in results):

@@ -54,6 +54,9 @@ class Config:
     # The workspace layout, relative to espdock.toml's directory; None: detected (Workspace.with_layout).
     package_paths: tuple[str, ...] | None = None
     colcon_root: str | None = None
+    # Registry (host[:port][/path]) that keyed images are pulled from before building, and
+    # pushed to with --push-cache. Credentials are the engine's own (docker login), never here.
+    cache_registry: str | None = None
 
 
 _Text = Annotated[str, Meta(min_length=1)]
@@ -74,6 +77,7 @@ class _Settings(Struct, forbid_unknown_fields=True):
     micro_ros_commit: Annotated[str, Meta(pattern=r"^[0-9a-f]{7,40}$")] | None = None
     package_paths: Annotated[list[_Text], Meta(min_length=1)] | None = None
     colcon_root: _Text | None = None
+    cache_registry: Annotated[str, Meta(pattern=r"^[A-Za-z0-9.-]+(:[0-9]+)?(/[a-z0-9._-]+)*$")] | None = None
 
 
 _KEYS = {f.name for f in fields(Config)}
@@ -91,6 +95,7 @@ _EXPECTED = {
     "micro_ros_commit": "a commit hash string (7 to 40 hex digits)",
     "package_paths": 'a non-empty list of directory strings, e.g. ["src"]',
     "colcon_root": 'a directory string, e.g. "."',
+    "cache_registry": 'a registry host[:port][/path] string, e.g. "registry.example.com/espdock" (no scheme)',
 }
 
 

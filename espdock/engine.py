@@ -18,6 +18,7 @@ from collections.abc import Callable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
+from enum import StrEnum
 from pathlib import Path
 from typing import IO
 
@@ -122,11 +123,56 @@ class Engine:
             return False
         return True
 
-    def import_rootfs(self, tarball: Path, ref: str) -> None:
-        """Make image REF from a root filesystem tarball (docker import)."""
-        repository, _, tag = ref.rpartition(":")
+    # A cache registry: keyed images shared between machines
+
+    def pull_cached(self, ref: str) -> RegistryAnswer:
+        """Pull REF from a cache registry, saying how it went (a miss is not an error)."""
+        repository, tag = _split_ref(ref)
         try:
-            self._client.api.import_image_from_file(str(tarball), repository=repository, tag=tag)
+            return _registry_stream(self._client.api.pull(repository, tag=tag, stream=True, decode=True))
+        except (docker.errors.APIError, requests.exceptions.RequestException) as exc:
+            return _registry_answer(str(exc))
+
+    def push_cached(self, ref: str) -> RegistryAnswer:
+        """Push the local image REF to its registry."""
+        repository, tag = _split_ref(ref)
+        try:
+            return _registry_stream(self._client.api.push(repository, tag=tag, stream=True, decode=True))
+        except (docker.errors.APIError, requests.exceptions.RequestException) as exc:
+            return _registry_answer(str(exc))
+
+    def registry_has(self, ref: str) -> RegistryAnswer:
+        """Whether REF's registry holds REF (a manifest lookup; nothing is downloaded)."""
+        try:
+            self._client.api.inspect_distribution(ref)
+        except (docker.errors.APIError, requests.exceptions.RequestException) as exc:
+            return _registry_answer(str(exc))
+        return RegistryAnswer(RegistryStatus.OK)
+
+    def tag(self, source: str, ref: str) -> None:
+        repository, tag = _split_ref(ref)
+        try:
+            self._client.api.tag(source, repository, tag)
+        except docker.errors.APIError as exc:
+            raise EspdockError(f"the engine could not tag {source} as {ref}: {exc}") from exc
+
+    def untag(self, ref: str) -> None:
+        """Remove the name REF; the image stays while other names hold it."""
+        try:
+            self._client.api.remove_image(ref, noprune=True)
+        except docker.errors.NotFound:
+            pass
+        except docker.errors.APIError as exc:
+            raise EspdockError(f"the engine could not remove the name {ref}: {exc}") from exc
+
+    def import_rootfs(self, tarball: Path, ref: str, labels: Mapping[str, str] | None = None) -> None:
+        """Make image REF from a root filesystem tarball (docker import), with LABELS."""
+        repository, _, tag = ref.rpartition(":")
+        changes = [f"LABEL {key}={json.dumps(value)}" for key, value in (labels or {}).items()]
+        try:
+            self._client.api.import_image_from_file(
+                str(tarball), repository=repository, tag=tag, changes=changes or None
+            )
         except docker.errors.APIError as exc:
             raise ImageBuildError(f"the engine refused to import {tarball} as {ref}: {exc}") from exc
 
@@ -300,6 +346,51 @@ class Engine:
         except docker.errors.APIError as exc:
             raise EspdockError(f"the engine failed to list containers: {exc}") from exc
         return [str(c.attrs.get("Names", [c.id])[0]).lstrip("/") for c in listed]
+
+
+class RegistryStatus(StrEnum):
+    OK = "ok"
+    MISSING = "missing"  # the registry answered: no such image
+    DENIED = "denied"  # the registry refused the engine's credentials
+    UNREACHABLE = "unreachable"  # nothing answered, or not as a registry
+
+
+@dataclass(frozen=True)
+class RegistryAnswer:
+    status: RegistryStatus
+    detail: str = ""
+
+
+# What the engine says, by cause (distribution registry and Docker daemon wording).
+_DENIED = ("no basic auth credentials", "unauthorized", "authentication required", "denied", "forbidden")
+_MISSING = ("manifest unknown", "not found", "name unknown", "no such manifest")
+
+
+def _registry_answer(text: str) -> RegistryAnswer:
+    lowered = text.lower()
+    if any(word in lowered for word in _DENIED):
+        return RegistryAnswer(RegistryStatus.DENIED, text)
+    if any(word in lowered for word in _MISSING):
+        return RegistryAnswer(RegistryStatus.MISSING, text)
+    return RegistryAnswer(RegistryStatus.UNREACHABLE, text)
+
+
+def _registry_stream(events: Iterator[dict]) -> RegistryAnswer:
+    """Pulls and pushes report most failures inside the progress stream, not as HTTP errors."""
+    for event in events:
+        error = event.get("error") or (event.get("errorDetail") or {}).get("message")
+        if error:
+            return _registry_answer(str(error))
+    return RegistryAnswer(RegistryStatus.OK)
+
+
+def _split_ref(ref: str) -> tuple[str, str]:
+    """REPOSITORY, TAG of REF (a registry's host:port is not a tag)."""
+    name = ref.rsplit("/", 1)[-1]
+    if ":" in name:
+        repository, _, tag = ref.rpartition(":")
+        return repository, tag
+    return ref, "latest"
 
 
 def _connect_reason(exc: Exception) -> str:

@@ -35,6 +35,12 @@ class LockError(EspdockError):
     exit_code = 2
 
 
+class RegistryError(EspdockError):
+    """The cache registry refused the engine's credentials."""
+
+    exit_code = 2
+
+
 class EngineUnavailable(EspdockError):
     """No container engine answers and espdock cannot start one."""
 

@@ -10,6 +10,7 @@ from enum import StrEnum
 class Outcome(StrEnum):
     BUILT = "built"
     CACHED = "cached"
+    PULLED = "pulled"  # from the cache registry, instead of building
     FAILED = "failed"
 
 

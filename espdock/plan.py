@@ -30,6 +30,11 @@ LABEL_INPUTS = "io.espdock.inputs"
 LABEL_WORKSPACE = "io.espdock.workspace"
 
 
+def cache_ref(registry: str, tag: str) -> str:
+    """Where a keyed image TAG lives in the cache REGISTRY: the same name and key, under it."""
+    return f"{registry.rstrip('/')}/{tag}"
+
+
 @dataclass(frozen=True)
 class ImageSpec:
     """An image espdock builds, tagged by a hash of everything that decides its content."""

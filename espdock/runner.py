@@ -21,8 +21,8 @@ from typing import assert_never
 
 from espdock import bootstrap
 from espdock.config import Config, resolve_ca_bundle
-from espdock.engine import Engine, Mount, RunSpec
-from espdock.errors import BuildFailed, EspdockError, WorkspaceError
+from espdock.engine import Engine, Mount, RegistryAnswer, RegistryStatus, RunSpec
+from espdock.errors import BuildFailed, EspdockError, RegistryError, WorkspaceError
 from espdock.events import Emit, Outcome, StepFinished, StepNote, StepOutput, StepStarted
 from espdock.install import install_firmware
 from espdock.layout import WORKSPACE_MOUNT
@@ -37,6 +37,7 @@ from espdock.plan import (
     InstallFirmware,
     Plan,
     Step,
+    cache_ref,
 )
 from espdock.stamps import StampFile, listing_digest, package_stamps, tree_digest
 from espdock.workspace import Workspace
@@ -55,6 +56,18 @@ FAILED_PACKAGE = re.compile(r"^Failed\s+<<<\s+(\S+)")
 BUILDKIT_STEP = re.compile(r"^#\d+ \[.*\] (?P<what>.+)$")
 
 
+def _first_line(text: str) -> str:
+    return (text.strip().splitlines() or ["no details"])[0][:200]
+
+
+def _denied(registry: str, what: str, answer: RegistryAnswer) -> RegistryError:
+    host = registry.split("/", 1)[0]
+    return RegistryError(
+        f"the cache registry {registry} refused the engine's credentials to {what}: {_first_line(answer.detail)}",
+        f"Log the engine in: `docker login {host}` (espdock uses the engine's login; it reads no credentials).",
+    )
+
+
 def workspace_commit_time(root: Path) -> str | None:
     """The committer time (Unix seconds) of ROOT's git HEAD, or None outside a repository."""
     if shutil.which("git") is None:
@@ -70,14 +83,22 @@ class Runner:
     """Runs plan steps against one engine."""
 
     def __init__(
-        self, engine: Engine, config: Config, env: Mapping[str, str], emit: Emit, owner: tuple[int, int]
+        self,
+        engine: Engine,
+        config: Config,
+        env: Mapping[str, str],
+        emit: Emit,
+        owner: tuple[int, int],
+        push_cache: bool = False,
     ) -> None:
-        """OWNER (uid, gid): who containers run as and who owns what a build writes (config.invoking_user)."""
+        """OWNER (uid, gid): who containers run as and who owns what a build writes (config.invoking_user).
+        PUSH_CACHE: make sure config.cache_registry holds every keyed image this run ensures."""
         self._engine = engine
         self._config = config
         self._env = env
         self._emit = emit
         self._owner = owner
+        self._push_cache = push_cache
 
     @property
     def owner(self) -> tuple[int, int]:
@@ -146,7 +167,10 @@ class Runner:
                     step.name, f"{spec.tag}: cache hit (key {spec.key[:16]}, built {_age(age.total_seconds())} ago)"
                 )
             )
+            self._publish(step)
             return Outcome.CACHED, spec.tag
+        if not step.force and self._pull_from_cache(step):
+            return Outcome.PULLED, f"{spec.tag} from {self._config.cache_registry}"
         why = "rebuild requested" if step.force else "cache miss"
         self._emit(StepNote(step.name, f"{spec.tag}: {why} (key {spec.key[:16]}), building stage {spec.target}"))
         bootstrap.ensure_compose(self._env, lambda text: self._emit(StepNote(step.name, text)))
@@ -167,7 +191,68 @@ class Runner:
                 on_line=on_line,
                 no_cache=step.force,
             )
+        self._publish(step)
         return Outcome.BUILT, spec.tag
+
+    def _pull_from_cache(self, step: EnsureImage) -> bool:
+        """Take STEP's image from the cache registry, if it has one with the right key label."""
+        registry = self._config.cache_registry
+        if not registry:
+            return False
+        spec = step.spec
+        remote = cache_ref(registry, spec.tag)
+        answer = self._engine.pull_cached(remote)
+        if answer.status is RegistryStatus.DENIED:
+            raise _denied(registry, "pull", answer)
+        if answer.status is RegistryStatus.UNREACHABLE:
+            why = _first_line(answer.detail)
+            self._emit(
+                StepNote(step.name, f"warning: cache registry {registry} did not answer ({why}); building locally")
+            )
+            return False
+        if answer.status is RegistryStatus.MISSING:
+            self._emit(StepNote(step.name, f"{remote}: not in the cache registry"))
+            return False
+        pulled = self._engine.image(remote)
+        label = pulled.labels.get(LABEL_KEY) if pulled else None
+        if label != spec.key:
+            # Someone pushed another image under this key: building is safer than trusting it.
+            self._engine.untag(remote)
+            found = (label or "missing")[:16]
+            self._emit(
+                StepNote(step.name, f"warning: rejected {remote}: its key label is {found}, expected {spec.key[:16]}")
+            )
+            return False
+        self._engine.tag(remote, spec.tag)
+        self._engine.untag(remote)
+        self._emit(StepNote(step.name, f"{spec.tag}: pulled from the cache registry {registry} (key {spec.key[:16]})"))
+        return True
+
+    def _publish(self, step: EnsureImage) -> None:
+        """With --push-cache, push STEP's image unless the cache registry holds it already."""
+        registry = self._config.cache_registry
+        if not (self._push_cache and registry):
+            return
+        remote = cache_ref(registry, step.spec.tag)
+        held = self._engine.registry_has(remote)
+        if held.status is RegistryStatus.OK:
+            self._emit(StepNote(step.name, f"{remote}: already in the cache registry"))
+            return
+        if held.status is RegistryStatus.DENIED:
+            raise _denied(registry, "push", held)
+        if held.status is RegistryStatus.MISSING:
+            self._engine.tag(step.spec.tag, remote)
+            try:
+                held = self._engine.push_cached(remote)
+            finally:
+                self._engine.untag(remote)
+            if held.status is RegistryStatus.OK:
+                self._emit(StepNote(step.name, f"pushed {remote}"))
+                return
+            if held.status is RegistryStatus.DENIED:
+                raise _denied(registry, "push", held)
+        why = _first_line(held.detail)
+        self._emit(StepNote(step.name, f"warning: could not push to the cache registry {registry} ({why})"))
 
     def _colcon(self, workspace: Workspace, step: ColconBuild) -> tuple[Outcome, str]:
         stamp_file = StampFile(workspace.ws_dir / "build" / ROS_STAMPS)

@@ -14,7 +14,12 @@ from espdock.layout import firmware_install_dir
 from espdock.plan import ColconBuild, EnsureBaseImage, EnsureImage, IdfBuild, InstallFirmware, Plan
 from espdock.workspace import Package, Workspace
 
-MARKS = {Outcome.BUILT: ("✓", "green"), Outcome.CACHED: ("•", "cyan"), Outcome.FAILED: ("✗", "red")}
+MARKS = {
+    Outcome.BUILT: ("✓", "green"),
+    Outcome.CACHED: ("•", "cyan"),
+    Outcome.PULLED: ("↓", "cyan"),
+    Outcome.FAILED: ("✗", "red"),
+}
 
 
 class Reporter:

@@ -1,8 +1,9 @@
 """FakeEngine: stands in for espdock.engine.Engine (the Docker engine) in unit tests of the runner.
 
 It records what it was asked to do and plays back scripted container runs, so the runner's
-cache decisions, failure parsing and reporting can be tested in milliseconds. The real
-engine is exercised by tests/integration and tests/demo.
+cache decisions, failure parsing and reporting can be tested in milliseconds. Its cache
+registry is a dict (or one forced answer). The real engine and a real registry are
+exercised by tests/integration and tests/demo.
 """
 
 from __future__ import annotations
@@ -12,7 +13,7 @@ from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
 
-from espdock.engine import ImageInfo, LineSink, RunSpec
+from espdock.engine import ImageInfo, LineSink, RegistryAnswer, RegistryStatus, RunSpec
 
 
 @dataclass
@@ -24,6 +25,38 @@ class FakeEngine:
     builds: list[dict] = field(default_factory=list)
     runs: list[RunSpec] = field(default_factory=list)
     removed: list[Mapping[str, str]] = field(default_factory=list)
+    registry: dict[str, ImageInfo] = field(default_factory=dict)
+    registry_answer: RegistryStatus | None = None  # every registry call answers this, when set
+    pushed: list[str] = field(default_factory=list)
+
+    def _forced(self) -> RegistryAnswer | None:
+        return RegistryAnswer(self.registry_answer, "forced") if self.registry_answer else None
+
+    def pull_cached(self, ref: str) -> RegistryAnswer:
+        if forced := self._forced():
+            return forced
+        if ref not in self.registry:
+            return RegistryAnswer(RegistryStatus.MISSING, "manifest unknown")
+        self.images_by_tag[ref] = self.registry[ref]
+        return RegistryAnswer(RegistryStatus.OK)
+
+    def push_cached(self, ref: str) -> RegistryAnswer:
+        if forced := self._forced():
+            return forced
+        self.registry[ref] = self.images_by_tag[ref]
+        self.pushed.append(ref)
+        return RegistryAnswer(RegistryStatus.OK)
+
+    def registry_has(self, ref: str) -> RegistryAnswer:
+        if forced := self._forced():
+            return forced
+        return RegistryAnswer(RegistryStatus.OK if ref in self.registry else RegistryStatus.MISSING)
+
+    def tag(self, source: str, ref: str) -> None:
+        self.images_by_tag[ref] = self.images_by_tag[source]
+
+    def untag(self, ref: str) -> None:
+        self.images_by_tag.pop(ref, None)
 
     def image(self, ref: str) -> ImageInfo | None:
         return self.images_by_tag.get(ref)

@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # System packages the tests use beyond the Docker engine (which `espdock setup`
 # provides): Debian's Chromium for the browser tests, cmake and g++ for the
-# firmware host tests, libzbar0 for pyzbar. Installed only when
+# firmware host tests, libzbar0 for pyzbar, the distribution registry and
+# htpasswd for the cache registry tests. Installed only when
 # missing, and only where we can (root on Debian); elsewhere the tests that
 # need them say what is missing.
 set -euo pipefail
@@ -10,6 +11,8 @@ command -v chromium >/dev/null || missing+=(chromium)
 command -v cmake >/dev/null || missing+=(cmake)
 command -v g++ >/dev/null || missing+=(g++)
 ldconfig -p | grep -q libzbar.so.0 || missing+=(libzbar0)  # pyzbar, for the demo's unit tests
+command -v docker-registry >/dev/null || missing+=(docker-registry)
+command -v htpasswd >/dev/null || missing+=(apache2-utils)
 if [ ${#missing[@]} -eq 0 ]; then exit 0; fi
 if [ "$(id -u)" -ne 0 ] || ! command -v apt-get >/dev/null; then
   echo "missing system packages: ${missing[*]} (install them, or run as root on Debian)" >&2

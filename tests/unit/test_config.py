@@ -104,3 +104,11 @@ def test_a_bad_environment_variable_is_named():
     with pytest.raises(ConfigError) as err:
         load_config(Path("/nonexistent"), {"ESPDOCK_KEEP_CONTAINERS": "maybe"})
     assert err.value.message == "environment variable ESPDOCK_KEEP_CONTAINERS must be true or false, got 'maybe'"
+
+
+def test_the_cache_registry_is_a_registry_name_never_a_url_or_credentials(tmp_path):
+    good = load_config(tmp_path, {"ESPDOCK_CACHE_REGISTRY": "127.0.0.1:5000/espdock"})
+    assert good.cache_registry == "127.0.0.1:5000/espdock"
+    for bad in ("https://registry.example.com", "user:pass@registry.example.com", "registry.example.com/Team"):
+        with pytest.raises(ConfigError, match="ESPDOCK_CACHE_REGISTRY must be a registry host"):
+            load_config(tmp_path, {"ESPDOCK_CACHE_REGISTRY": bad})

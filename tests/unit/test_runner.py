@@ -10,8 +10,8 @@ import pytest
 
 from espdock import bootstrap
 from espdock.config import Config
-from espdock.engine import ImageInfo
-from espdock.errors import BuildFailed
+from espdock.engine import ImageInfo, RegistryStatus, _registry_answer
+from espdock.errors import BuildFailed, RegistryError
 from espdock.events import Outcome, StepFinished, StepNote
 from espdock.plan import ColconBuild, EnsureImage, Plan, ros_build_image
 from espdock.runner import Runner
@@ -113,3 +113,70 @@ def test_the_colcon_container_runs_as_the_owner_in_the_colcon_root(ws):
     assert [(m.source, m.target) for m in spec.mounts] == [(ws.root, "/workspace")]
     assert spec.workdir == "/workspace/ws"
     assert engine.removed == [{"io.espdock.workspace": str(Path(ws.root)), "io.espdock.step": "colcon"}]
+
+
+REGISTRY = "registry.example.com/team"
+REMOTE = f"{REGISTRY}/{SPEC.tag}"
+
+
+def cache_runner(engine: FakeEngine, events: list, push: bool = False) -> Runner:
+    config = Config(cache_registry=REGISTRY)
+    return Runner(engine, config, {}, events.append, (os.getuid(), os.getgid()), push_cache=push)  # type: ignore[arg-type]
+
+
+def notes(events: list) -> str:
+    return "\n".join(e.text for e in events if isinstance(e, StepNote))
+
+
+def test_a_miss_pulls_the_keyed_image_from_the_cache_registry_instead_of_building(ws):
+    engine = FakeEngine(registry={REMOTE: ImageInfo("id", (REMOTE,), datetime.now(UTC), 1, SPEC.labels())})
+    events: list = []
+    (result,) = cache_runner(engine, events).run(Plan(ws, (EnsureImage(SPEC),)))
+    assert result.outcome is Outcome.PULLED
+    assert engine.builds == [] and SPEC.tag in engine.images_by_tag and REMOTE not in engine.images_by_tag
+    assert "pulled from the cache registry" in notes(events)
+
+
+def test_a_pulled_image_with_another_key_label_is_rejected_and_built_here(ws):
+    wrong = ImageInfo("id", (REMOTE,), datetime.now(UTC), 1, {"io.espdock.key": "0" * 64})
+    engine = FakeEngine(registry={REMOTE: wrong})
+    events: list = []
+    (result,) = cache_runner(engine, events).run(Plan(ws, (EnsureImage(SPEC),)))
+    assert result.outcome is Outcome.BUILT and len(engine.builds) == 1
+    assert "rejected" in notes(events) and engine.images_by_tag[SPEC.tag].labels["io.espdock.key"] == SPEC.key
+
+
+def test_a_silent_registry_is_a_warning_and_denied_credentials_an_error(ws):
+    engine = FakeEngine(registry_answer=RegistryStatus.UNREACHABLE)
+    events: list = []
+    (result,) = cache_runner(engine, events).run(Plan(ws, (EnsureImage(SPEC),)))
+    assert result.outcome is Outcome.BUILT and "did not answer" in notes(events)
+    engine = FakeEngine(registry_answer=RegistryStatus.DENIED)
+    with pytest.raises(RegistryError, match="refused the engine's credentials") as caught:
+        cache_runner(engine, []).run(Plan(ws, (EnsureImage(SPEC),)))
+    assert caught.value.exit_code == 2 and "docker login registry.example.com" in caught.value.hint
+    assert engine.builds == []
+
+
+def test_push_cache_pushes_what_the_registry_lacks_and_only_that(ws):
+    engine = FakeEngine()
+    cache_runner(engine, [], push=True).run(Plan(ws, (EnsureImage(SPEC),)))
+    assert engine.pushed == [REMOTE] and REMOTE not in engine.images_by_tag, "pushed, and the push name removed"
+    events: list = []
+    cache_runner(engine, events, push=True).run(Plan(ws, (EnsureImage(SPEC),)))  # a cache hit, already there
+    assert engine.pushed == [REMOTE] and "already in the cache registry" in notes(events)
+    cache_runner(engine, []).run(Plan(ws, (EnsureImage(SPEC),)))
+    assert engine.pushed == [REMOTE], "no --push-cache, no push"
+
+
+@pytest.mark.parametrize(
+    ("said", "status"),
+    [  # what the Docker engine said to a distribution registry, seen on this machine
+        ("manifest for 127.0.0.1:5055/espdock/x:1 not found: manifest unknown: manifest unknown", "missing"),
+        ('Head "http://127.0.0.1:5055/v2/espdock/x/manifests/1": no basic auth credentials', "denied"),
+        ("unauthorized: authentication required", "denied"),
+        ('Get "http://127.0.0.1:5999/v2/": dial tcp 127.0.0.1:5999: connect: connection refused', "unreachable"),
+    ],
+)
+def test_registry_answers_are_told_apart(said, status):
+    assert _registry_answer(said).status == status

@@ -1,0 +1,175 @@
+"""A cache registry shared by machines: keyed images built once, pulled everywhere else.
+
+Against a real OCI registry: Debian's docker-registry (the distribution registry) on a
+free loopback port with htpasswd auth, started here. A second machine is a second clone of
+the workspace on an engine that lost espdock's images.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import socket
+import subprocess
+import uuid
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from espdock.config import Config, resolve_ca_bundle
+from tests.conftest import REPO, copy_workspace, espdock
+from tests.idf_contract_double.build import use_double
+from tests.registry_server import PASSWORD, Registry, docker_config
+
+pytestmark = [pytest.mark.engine, pytest.mark.slow]
+
+
+@pytest.fixture(scope="module")
+def registry(tmp_path_factory) -> Iterator[Registry]:
+    assert shutil.which("docker-registry") and shutil.which("htpasswd"), "run tests/install-system-deps.sh"
+    server = Registry(tmp_path_factory.mktemp("registry"))
+    server.start()
+    yield server
+    server.stop()
+
+
+@pytest.fixture(scope="module")
+def origin(tmp_path_factory, engine) -> tuple[Path, dict[str, str]]:
+    """Workspace sources with an interface and firmware; a comment unique to this run gives it
+    micro-ROS images no other test has."""
+    root = copy_workspace(tmp_path_factory.mktemp("cache") / "origin")
+    shutil.copy2(REPO / "Dockerfile.idf", root / "Dockerfile.idf")
+    shutil.copytree(REPO / "firmware", root / "firmware")
+    shutil.rmtree(root / "firmware" / "camera_node")  # one app, one micro-ROS image: enough here
+    double_env = use_double(engine, resolve_ca_bundle(Config(), os.environ), lambda line: None, root)
+    msg = root / "ws/src/custom_interface/msg/CameraConfig.msg"
+    msg.write_text(msg.read_text() + f"# cache test {uuid.uuid4().hex}\n")
+    return root, double_env
+
+
+def machine(origin: Path, where: Path) -> Path:
+    """A fresh clone of the workspace: sources only, no build, install or log trees."""
+    shutil.copytree(origin, where)
+    return where
+
+
+def build(root: Path, env: dict[str, str], *options: str) -> tuple[subprocess.CompletedProcess, dict]:
+    report = root / "report.json"
+    result = espdock("build", "--report", str(report), *options, cwd=root, env=env)
+    return result, json.loads(report.read_text()) if report.is_file() else {}
+
+
+def image_outcomes(report: dict) -> dict[str, str]:
+    return {s["step"]: s["outcome"] for s in report.get("steps", []) if s["step"].startswith("image")}
+
+
+def keyed_tags(report: dict) -> list[str]:
+    return sorted(report["manifest"]["images"])
+
+
+def remove_images(tags: list[str]) -> None:
+    subprocess.run(["docker", "rmi", "-f", *tags], capture_output=True, check=False)
+
+
+def test_a_second_machine_pulls_every_keyed_image_and_builds_none(registry, origin, tmp_path):
+    source, double_env = origin
+    env = {**double_env, "ESPDOCK_CACHE_REGISTRY": registry.address}
+    env |= docker_config(tmp_path / "docker", registry.address, PASSWORD)
+
+    first, report = build(machine(source, tmp_path / "one"), env, "--push-cache")
+    assert first.returncode == 0, first.stdout[-4000:] + first.stderr
+    tags = keyed_tags(report)
+    assert len(tags) >= 2, tags  # the ROS build image and the firmware's micro-ROS image
+    for tag in tags:
+        repository, key = tag.rsplit(":", 1)
+        assert key in registry.tags(repository), f"{tag} was not pushed"
+
+    remove_images(tags)  # the second machine has none of them
+    second, report = build(machine(source, tmp_path / "two"), env)
+    assert second.returncode == 0, second.stdout[-4000:] + second.stderr
+    outcomes = image_outcomes(report)
+    assert outcomes and set(outcomes.values()) == {"pulled"}, outcomes
+    assert "pulled" in second.stdout
+    for tag in tags:
+        labels = subprocess.run(
+            ["docker", "image", "inspect", "-f", "{{json .Config.Labels}}", tag],
+            capture_output=True,
+            text=True,
+            check=False,
+        )
+        assert labels.returncode == 0, f"{tag} is not on the second machine"
+        assert json.loads(labels.stdout)["io.espdock.key"].startswith(tag.rsplit(":", 1)[1])
+
+
+def micro_ros_tag(report: dict) -> str:
+    (tag,) = [t for t in keyed_tags(report) if "micro-ros" in t]
+    return tag
+
+
+def test_a_silent_registry_is_a_warning_and_a_local_build(registry, origin, tmp_path):
+    source, double_env = origin
+    root = machine(source, tmp_path / "ws")
+    env = {**double_env, "ESPDOCK_CACHE_REGISTRY": f"127.0.0.1:{free_port()}"}
+    first, report = build(root, env)
+    assert first.returncode == 0, first.stdout[-4000:] + first.stderr
+    tag = micro_ros_tag(report)
+    remove_images([tag])
+    again, report = build(machine(source, tmp_path / "ws2"), env)
+    assert again.returncode == 0, again.stdout[-4000:] + again.stderr
+    assert "did not answer" in again.stdout and "building locally" in again.stdout
+    assert "built" in image_outcomes(report).values()
+
+
+def test_wrong_credentials_are_a_clear_error(registry, origin, tmp_path):
+    source, double_env = origin
+    good = {**double_env, "ESPDOCK_CACHE_REGISTRY": registry.address}
+    good |= docker_config(tmp_path / "good", registry.address, PASSWORD)
+    ok, report = build(machine(source, tmp_path / "ws"), good)
+    assert ok.returncode == 0, ok.stdout[-4000:] + ok.stderr
+    remove_images([micro_ros_tag(report)])
+    bad = {**good, **docker_config(tmp_path / "bad", registry.address, "not-the-password")}
+    denied, _ = build(machine(source, tmp_path / "ws2"), bad)
+    assert denied.returncode == 2, denied.stdout[-3000:] + denied.stderr
+    assert "refused the engine's credentials" in denied.stderr and f"docker login 127.0.0.1:{registry.port}" in (
+        denied.stderr
+    )
+    assert "Traceback" not in denied.stderr
+    assert "not-the-password" not in denied.stdout + denied.stderr
+
+
+def test_an_image_with_the_wrong_key_label_is_rejected(registry, origin, tmp_path):
+    source, double_env = origin
+    env = {**double_env, "ESPDOCK_CACHE_REGISTRY": registry.address}
+    env |= docker_config(tmp_path / "docker", registry.address, PASSWORD)
+    first, report = build(machine(source, tmp_path / "ws"), env)
+    assert first.returncode == 0, first.stdout[-4000:] + first.stderr
+    tag = micro_ros_tag(report)
+    # Someone pushes a different image under that name and key.
+    impostor = f"{registry.address}/{tag}"
+    context = tmp_path / "impostor"
+    context.mkdir()
+    (context / "Dockerfile").write_text("FROM debian:bookworm-slim\nLABEL io.espdock.key=0000not-this-key\n")
+    subprocess.run(["docker", "build", "-q", "-t", impostor, str(context)], check=True, capture_output=True)
+    pushed = subprocess.run(
+        ["docker", "--config", env["DOCKER_CONFIG"], "push", impostor], capture_output=True, text=True, check=False
+    )
+    assert pushed.returncode == 0, pushed.stderr
+    remove_images([tag, impostor])
+
+    again, report = build(machine(source, tmp_path / "ws2"), env)
+    assert again.returncode == 0, again.stdout[-4000:] + again.stderr
+    assert "rejected" in again.stdout
+    assert image_outcomes(report)[f"image {tag.split(':')[0]}"] == "built"
+    inspect = subprocess.run(
+        ["docker", "image", "inspect", "-f", "{{index .Config.Labels \"io.espdock.key\"}}", tag],
+        capture_output=True, text=True, check=True,
+    )  # fmt: skip
+    assert inspect.stdout.strip().startswith(tag.rsplit(":", 1)[1]), "the impostor took the key's name"
+
+
+def free_port() -> int:
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        return probe.getsockname()[1]

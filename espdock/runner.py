@@ -185,7 +185,8 @@ class Runner:
                 dockerfile=spec.dockerfile,
                 target=spec.target,
                 tag=spec.tag,
-                build_args=dict(spec.build_args),
+                # Not part of the key: BuildKit (0.11 and newer) stamps the image with it instead of now.
+                build_args=dict(spec.build_args) | dict(self._source_date(workspace)),
                 labels=spec.labels(),
                 ca_bundle=resolve_ca_bundle(self._config, self._env),
                 on_line=on_line,

@@ -180,3 +180,13 @@ def test_push_cache_pushes_what_the_registry_lacks_and_only_that(ws):
 )
 def test_registry_answers_are_told_apart(said, status):
     assert _registry_answer(said).status == status
+
+
+def test_image_builds_get_the_source_date_but_it_is_not_part_of_the_key(ws):
+    engine = FakeEngine()
+    Runner(engine, Config(), {"SOURCE_DATE_EPOCH": "1767323045"}, [].append, (os.getuid(), os.getgid())).run(
+        Plan(ws, (EnsureImage(SPEC),))
+    )
+    (build,) = engine.builds
+    assert build["build_args"]["SOURCE_DATE_EPOCH"] == "1767323045"
+    assert build["tag"] == SPEC.tag == ros_build_image(Config(), DOCKERFILE, {}).tag

@@ -36,7 +36,9 @@ def build_once(root: Path) -> dict:
 
 
 def main() -> None:
-    engine = subprocess.run(["docker", "version", "-f", "{{.Server.Version}}"], capture_output=True, text=True)
+    engine = subprocess.run(
+        ["docker", "version", "-f", "{{.Server.Version}}"], capture_output=True, text=True, check=True
+    )
     with tempfile.TemporaryDirectory(prefix="espdock-bench-digest-") as tmp:
         root = copy_workspace(Path(tmp) / "ws")
         first, second = build_once(root), build_once(root)

@@ -113,6 +113,11 @@ class Runner:
         epoch = self._env.get("SOURCE_DATE_EPOCH") or workspace_commit_time(workspace.root)
         return (("SOURCE_DATE_EPOCH", epoch),) if epoch else ()
 
+    def _reproducible_env(self, workspace: Workspace) -> tuple[tuple[str, str], ...]:
+        """SOURCE_DATE_EPOCH, and a fixed PYTHONHASHSEED: rosidl's generators write some lists in
+        set order (a service type description's includes), which the hash seed would shuffle."""
+        return (*self._source_date(workspace), ("PYTHONHASHSEED", "0"))
+
     def run(self, plan: Plan) -> list[StepFinished]:
         """Run every step in order; stops at the first failure, raising its error."""
         results = []
@@ -283,7 +288,7 @@ class Runner:
                 workdir=step.workdir,
                 user=user,
                 mounts=(Mount(workspace.root, WORKSPACE_MOUNT),),
-                env=(("HOME", "/tmp"), *self._source_date(workspace)),
+                env=(("HOME", "/tmp"), *self._reproducible_env(workspace)),
                 labels=labels,
             ),
             on_line,
@@ -373,7 +378,7 @@ class Runner:
         ]
         env = [
             ("HOME", "/tmp"),
-            *self._source_date(workspace),
+            *self._reproducible_env(workspace),
             ("IDF_TARGET", step.target),
             # The component manager's downloads outlive the container (it caches in HOME otherwise).
             ("IDF_COMPONENT_CACHE_PATH", f"{posixpath.dirname(step.build_dir)}/{COMPONENT_CACHE}"),

@@ -4,14 +4,21 @@ Containers are created, streamed and always removed here; engine exceptions are
 translated at this boundary, so nothing above it sees docker.errors.*.
 Image builds go through Compose v2, whose BuildKit client gives build secrets
 (the CA bundle) that the Docker SDK's legacy builder cannot.
+
+A no-change build only pings the engine and looks up image tags: on a local socket those
+two go over plain HTTP, and the Docker SDK (most of a no-op build's start-up time) is
+imported only when something else is asked for.
 """
 
 from __future__ import annotations
 
 import collections
+import http.client
+import importlib
 import json
 import re
 import shutil
+import socket
 import subprocess
 import warnings
 from collections.abc import Callable, Iterator, Mapping, Sequence
@@ -20,15 +27,47 @@ from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from enum import StrEnum
 from pathlib import Path
-from typing import IO
+from typing import IO, Any
+from urllib.parse import quote
 
-import docker.errors
-import requests.exceptions
-
-import docker
 from espdock.errors import EngineUnavailable, EspdockError, ImageBuildError
 
 LineSink = Callable[[str], None]
+DEFAULT_SOCKET = "/var/run/docker.sock"
+
+
+class _Lazy:
+    """A module imported on first use (docker, requests)."""
+
+    def __init__(self, *names: str) -> None:
+        self._names = names
+
+    def __getattr__(self, attribute: str) -> Any:
+        for name in self._names[1:]:
+            importlib.import_module(name)
+        return getattr(importlib.import_module(self._names[0]), attribute)
+
+
+docker = _Lazy("docker", "docker.errors")
+requests = _Lazy("requests", "requests.exceptions")
+
+
+class _UnixHTTP(http.client.HTTPConnection):
+    def __init__(self, path: str, timeout: float) -> None:
+        super().__init__("localhost", timeout=timeout)
+        self._path = path
+
+    def connect(self) -> None:
+        sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        sock.settimeout(self.timeout)
+        sock.connect(self._path)
+        self.sock = sock
+
+
+def _local_socket(env: Mapping[str, str]) -> str | None:
+    """The engine's unix socket path, or None when DOCKER_HOST names another kind of host."""
+    host = env.get("DOCKER_HOST") or f"unix://{DEFAULT_SOCKET}"
+    return host.removeprefix("unix://") if host.startswith("unix://") else None
 
 
 @dataclass(frozen=True)
@@ -70,36 +109,79 @@ class RunSpec:
 class Engine:
     """A connected Docker engine."""
 
-    def __init__(self, client: docker.DockerClient, env: Mapping[str, str]) -> None:
-        self._client = client
+    def __init__(self, env: Mapping[str, str], timeout: float = 60, client: Any = None) -> None:
         self._env = dict(env)
+        self._timeout = timeout
+        self._socket = _local_socket(env)
+        self._sdk = client
+
+    @property
+    def _client(self) -> Any:
+        """The Docker SDK's client, made on first use."""
+        if self._sdk is None:
+            try:
+                self._sdk = docker.from_env(environment=self._env, timeout=self._timeout)
+            except docker.errors.DockerException as exc:
+                raise EngineUnavailable(f"no Docker engine answers: {_connect_reason(exc)}") from exc
+        return self._sdk
 
     @classmethod
     def connect(cls, env: Mapping[str, str], timeout: float = 60) -> Engine:
         """Connect to the engine DOCKER_HOST (or the default socket) names; raise if none answers."""
+        engine = cls(env, timeout)
+        where = env.get("DOCKER_HOST") or f"unix://{DEFAULT_SOCKET}"
         try:
-            client = docker.from_env(environment=dict(env), timeout=timeout)
-            client.ping()
-        except (docker.errors.DockerException, requests.exceptions.RequestException) as exc:
-            where = env.get("DOCKER_HOST") or "unix:///var/run/docker.sock"
+            if engine._socket is not None:
+                status, _ = engine._get("/_ping")
+                if status != 200:
+                    raise EngineUnavailable(f"no Docker engine answers at {where}: /_ping gave HTTP {status}")
+            else:
+                engine._client.ping()
+        except OSError as exc:
             raise EngineUnavailable(f"no Docker engine answers at {where}: {_connect_reason(exc)}") from exc
-        return cls(client, env)
+        except (docker.errors.DockerException, requests.exceptions.RequestException) as exc:
+            raise EngineUnavailable(f"no Docker engine answers at {where}: {_connect_reason(exc)}") from exc
+        return engine
+
+    def _get(self, path: str) -> tuple[int, Any]:
+        """GET PATH of the engine API on its local socket: (HTTP status, decoded JSON body or None)."""
+        assert self._socket is not None
+        connection = _UnixHTTP(self._socket, self._timeout)
+        try:
+            connection.request("GET", path)
+            response = connection.getresponse()
+            body = response.read()
+        finally:
+            connection.close()
+        try:
+            return response.status, json.loads(body) if body else None
+        except json.JSONDecodeError:
+            return response.status, None
 
     # Images
 
     def image(self, ref: str) -> ImageInfo | None:
         """The local image REF, or None when there is none."""
-        try:
-            image = self._client.images.get(ref)
-        except docker.errors.ImageNotFound:
-            return None
-        except docker.errors.APIError as exc:
-            raise EspdockError(f"the engine failed to look up image {ref}: {exc}") from exc
-        attrs = image.attrs
+        if self._socket is not None:
+            try:
+                status, attrs = self._get(f"/images/{quote(ref, safe='')}/json")
+            except OSError as exc:
+                raise EspdockError(f"the engine failed to look up image {ref}: {exc}") from exc
+            if status == 404:
+                return None
+            if status != 200 or not isinstance(attrs, dict):
+                raise EspdockError(f"the engine failed to look up image {ref}: HTTP {status} {attrs}")
+        else:
+            try:
+                attrs = self._client.images.get(ref).attrs
+            except docker.errors.ImageNotFound:
+                return None
+            except docker.errors.APIError as exc:
+                raise EspdockError(f"the engine failed to look up image {ref}: {exc}") from exc
         created = datetime.fromisoformat(attrs["Created"][:19]).replace(tzinfo=UTC)
         return ImageInfo(
-            id=image.id,
-            tags=tuple(image.tags),
+            id=attrs["Id"],
+            tags=tuple(tag for tag in attrs.get("RepoTags") or () if tag != "<none>:<none>"),
             created=created,
             size=int(attrs.get("Size", 0)),
             labels=dict((attrs.get("Config") or {}).get("Labels") or {}),

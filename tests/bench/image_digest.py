@@ -2,9 +2,9 @@
 
 Run: .venv/bin/python tests/bench/image_digest.py
 
-Builds the image twice without BuildKit's cache (`espdock build --only ros --force`) in one
-workspace whose SOURCE_DATE_EPOCH comes from a fixed commit date, and prints whether the image
-IDs match and how many of the layers do. Not a test: whether they can match depends on the
+Builds the image twice from nothing (its tag removed and BuildKit's cache emptied before
+each build: this empties the engine's build cache) in one workspace with a fixed
+SOURCE_DATE_EPOCH, and prints whether the image IDs match and how many of the layers do. Not a test: whether they can match depends on the
 engine (BuildKit honours SOURCE_DATE_EPOCH from 0.11, Docker 23; file times inside layers only
 with its rewrite-timestamp option).
 """
@@ -25,8 +25,10 @@ from tests.conftest import copy_workspace, ros_build_tag  # noqa: E402
 
 
 def build_once(root: Path) -> dict:
+    subprocess.run(["docker", "rmi", "-f", ros_build_tag(root)], capture_output=True, check=False)
+    subprocess.run(["docker", "builder", "prune", "-af"], capture_output=True, check=True)
     subprocess.run(
-        [sys.executable, "-m", "espdock", "build", "--only", "ros", "--force"],
+        [sys.executable, "-m", "espdock", "build", "--only", "ros"],
         cwd=root, env={**os.environ, "SOURCE_DATE_EPOCH": "1767323045"}, check=True, stdout=subprocess.DEVNULL,
     )  # fmt: skip
     inspect = subprocess.run(

@@ -153,6 +153,9 @@ def build(
     ] = None,
     dry_run: Annotated[bool, typer.Option("--dry-run", help="Print the plan without running it.")] = False,
     verbose: Annotated[bool, typer.Option("--verbose", "-v", help="Show image build logs in full.")] = False,
+    timestamps: Annotated[
+        bool, typer.Option("--timestamps", help="Start every output line with the UTC time (for CI logs).")
+    ] = False,
     target: Annotated[str | None, typer.Option(help="ESP32 chip target (overrides espdock.toml).")] = None,
     only: Annotated[PackageKind | None, typer.Option(help="Build only the ROS packages or only the firmware.")] = None,
     force: Annotated[bool, typer.Option("--force", help="Build the packages even when nothing changed.")] = False,
@@ -184,7 +187,7 @@ def build(
         return
     if locked if locked is not None else os.environ.get("CI", "").lower() == "true":
         check_locks(ws.root, plan_locks(plan))
-    reporter = Reporter(console, verbose=verbose)
+    reporter = Reporter(console, verbose=verbose, timestamps=timestamps)
     engine = bootstrap.ensure_engine(os.environ, _notify)
     manifest: dict | None = None
     started = time.monotonic()

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import time
 from typing import assert_never
 
 from rich.console import Console
@@ -23,32 +24,44 @@ MARKS = {
 
 
 class Reporter:
-    """Turns events into terminal output; verbose shows image build logs too."""
+    """Turns events into terminal output; verbose shows image build logs too.
 
-    def __init__(self, console: Console, verbose: bool = False) -> None:
+    Without a terminal (CI logs) there is no live status line: every line is printed,
+    image build progress included, optionally after a UTC timestamp (TIMESTAMPS)."""
+
+    def __init__(self, console: Console, verbose: bool = False, timestamps: bool = False) -> None:
         self.console = console
-        self.verbose = verbose
+        self.verbose = verbose or not console.is_terminal
+        self.timestamps = timestamps
         self.finished: list[StepFinished] = []
         self._status: Status | None = None
+
+    def _print(self, text: Text, **options: object) -> None:
+        if self.timestamps:
+            text = Text.assemble((time.strftime("%H:%M:%S ", time.gmtime()), "dim"), text)
+        self.console.print(text, **options)
 
     def __call__(self, event: Event) -> None:
         match event:
             case StepStarted():
-                self._status = self.console.status(Text(event.step, style="bold"))
-                self._status.start()
+                if self.console.is_terminal:
+                    self._status = self.console.status(Text(event.step, style="bold"))
+                    self._status.start()
+                else:
+                    self._print(Text(event.step, style="bold"))
             case StepNote():
-                self.console.print(Text(f"  {event.text}", style="dim"))
+                self._print(Text(f"  {event.text}", style="dim"))
             case StepOutput(progress=True) if not self.verbose:
                 if self._status is not None:
                     self._status.update(Text.assemble((event.step, "bold"), "  ", (event.line[:100], "dim")))
             case StepOutput():
-                self.console.print(Text(event.line), soft_wrap=True)
+                self._print(Text(event.line), soft_wrap=True)
             case StepFinished():
                 if self._status is not None:
                     self._status.stop()
                     self._status = None
                 mark, colour = MARKS[event.outcome]
-                self.console.print(
+                self._print(
                     Text.assemble(
                         (f"{mark} ", colour),
                         (event.step, "bold"),

@@ -4,9 +4,9 @@ Run: .venv/bin/python tests/bench/image_digest.py
 
 Builds the image twice from nothing (its tag removed and BuildKit's cache emptied before
 each build: this empties the engine's build cache) in one workspace with a fixed
-SOURCE_DATE_EPOCH, and prints whether the image IDs match and how many of the layers do. Not a test: whether they can match depends on the
-engine (BuildKit honours SOURCE_DATE_EPOCH from 0.11, Docker 23; file times inside layers only
-with its rewrite-timestamp option).
+SOURCE_DATE_EPOCH, and prints whether the image IDs match and how many of the layers do.
+Not a test: whether they can match depends on the engine (BuildKit honours SOURCE_DATE_EPOCH
+from 0.11, Docker 23; file times inside layers only with its rewrite-timestamp option).
 """
 
 from __future__ import annotations

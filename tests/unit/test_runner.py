@@ -190,3 +190,25 @@ def test_image_builds_get_the_source_date_but_it_is_not_part_of_the_key(ws):
     (build,) = engine.builds
     assert build["build_args"]["SOURCE_DATE_EPOCH"] == "1767323045"
     assert build["tag"] == SPEC.tag == ros_build_image(Config(), DOCKERFILE, {}).tag
+
+
+def test_without_a_terminal_every_line_is_printed_and_timestamps_are_optional():
+    import io
+    import re
+
+    from rich.console import Console
+
+    from espdock.events import StepOutput, StepStarted
+    from espdock.ui import Reporter
+
+    out = io.StringIO()
+    reporter = Reporter(Console(file=out, force_terminal=False, width=200), timestamps=True)
+    for event in (
+        StepStarted("image x"),
+        StepOutput("image x", "#5 [build 2/3] RUN pip install", progress=True),
+        StepFinished("image x", Outcome.BUILT, 1.0, "x:1"),
+    ):
+        reporter(event)
+    lines = out.getvalue().splitlines()
+    assert any("RUN pip install" in line for line in lines), "image build progress reaches a CI log"
+    assert lines and all(re.match(r"\d\d:\d\d:\d\d ", line) for line in lines), lines

@@ -15,6 +15,7 @@ from __future__ import annotations
 import collections
 import http.client
 import importlib
+import io
 import json
 import re
 import shutil
@@ -246,6 +247,14 @@ class Engine:
             pass
         except docker.errors.APIError as exc:
             raise EspdockError(f"the engine could not remove the name {ref}: {exc}") from exc
+
+    def add_labels(self, ref: str, labels: Mapping[str, str]) -> None:
+        """Give image REF more LABELS: a metadata-only build on top of it (no new layer), tagged REF."""
+        dockerfile = f"FROM {ref}\nLABEL " + " ".join(f"{key}={json.dumps(value)}" for key, value in labels.items())
+        try:
+            self._client.images.build(fileobj=io.BytesIO(dockerfile.encode()), tag=ref, pull=False, rm=True)
+        except (docker.errors.BuildError, docker.errors.APIError) as exc:
+            raise ImageBuildError(f"could not add labels to {ref}: {exc}") from exc
 
     def import_rootfs(self, tarball: Path, ref: str, labels: Mapping[str, str] | None = None) -> None:
         """Make image REF from a root filesystem tarball (docker import), with LABELS."""

@@ -43,6 +43,7 @@ from espdock.stamps import StampFile, listing_digest, package_stamps, tree_diges
 from espdock.workspace import Workspace
 
 TARGET_MARKER = ".espdock-target"
+DPKG_LINE = re.compile(r"^[a-z0-9][a-z0-9+.-]*(:[a-z0-9]+)?=\S+$")
 # Under ws/build, beside the packages' build dirs (colcon skips dot dirs).
 COMPONENT_CACHE = ".idf-component-cache"
 MANAGED_COMPONENTS = "managed_components"
@@ -197,8 +198,21 @@ class Runner:
                 on_line=on_line,
                 no_cache=step.force,
             )
+        self._record_packages(step)
         self._publish(step)
         return Outcome.BUILT, spec.tag
+
+    def _record_packages(self, step: EnsureImage) -> None:
+        """The image's Debian package set (what its apt installs gave today) as labels, as the base has."""
+        listing: list[str] = []
+        query = ("dpkg-query", "-W", "-f", "${Package}=${Version}\n")
+        if self._engine.run(RunSpec(image=step.spec.tag, argv=query, workdir="/"), listing.append) != 0:
+            self._emit(StepNote(step.name, "warning: no dpkg in the image: its package set is not recorded"))
+            return
+        # An entrypoint (the IDF image's sources export.sh) may print before the command runs.
+        packages = sorted(line.strip() for line in listing if DPKG_LINE.match(line.strip()))
+        self._engine.add_labels(step.spec.tag, bootstrap.package_labels(packages))
+        self._emit(StepNote(step.name, f"{len(packages)} Debian packages recorded in the image's labels"))
 
     def _pull_from_cache(self, step: EnsureImage) -> bool:
         """Take STEP's image from the cache registry, if it has one with the right key label."""

@@ -52,6 +52,10 @@ class FakeEngine:
             return forced
         return RegistryAnswer(RegistryStatus.OK if ref in self.registry else RegistryStatus.MISSING)
 
+    def add_labels(self, ref: str, labels: Mapping[str, str]) -> None:
+        image = self.images_by_tag[ref]
+        self.images_by_tag[ref] = ImageInfo(image.id, image.tags, image.created, image.size, {**image.labels, **labels})
+
     def tag(self, source: str, ref: str) -> None:
         self.images_by_tag[ref] = self.images_by_tag[source]
 

@@ -86,6 +86,7 @@ def test_a_second_machine_pulls_every_keyed_image_and_builds_none(registry, orig
         repository, key = tag.rsplit(":", 1)
         assert key in registry.tags(repository), f"{tag} was not pushed"
 
+    built_labels = {tag: image_labels(tag) for tag in tags}
     remove_images(tags)  # the second machine has none of them
     second, report = build(machine(source, tmp_path / "two"), env)
     assert second.returncode == 0, second.stdout[-4000:] + second.stderr
@@ -100,7 +101,12 @@ def test_a_second_machine_pulls_every_keyed_image_and_builds_none(registry, orig
             check=False,
         )
         assert labels.returncode == 0, f"{tag} is not on the second machine"
-        assert json.loads(labels.stdout)["io.espdock.key"].startswith(tag.rsplit(":", 1)[1])
+        assert json.loads(labels.stdout) == built_labels[tag], "labels (key, inputs, package set) travel along"
+
+
+def image_labels(tag: str) -> dict[str, str]:
+    inspect = ["docker", "image", "inspect", "-f", "{{json .Config.Labels}}", tag]
+    return json.loads(subprocess.run(inspect, capture_output=True, text=True, check=True).stdout)
 
 
 def micro_ros_tag(report: dict) -> str:

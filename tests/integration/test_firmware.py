@@ -10,6 +10,7 @@ skip where it is not present.
 from __future__ import annotations
 
 import contextlib
+import hashlib
 import json
 import os
 import re
@@ -139,6 +140,17 @@ def test_everything_written_belongs_to_the_workspace_owner(fw_ws):
         for path in (root / "ws" / space).rglob("*") if path.lstat().st_uid != USER_UID
     ]  # fmt: skip
     assert strangers == []
+
+
+def test_a_built_micro_ros_image_records_its_debian_packages(fw_ws, double_env):
+    root, first = fw_ws
+    assert first.returncode == 0
+    tag = status(root, double_env)["image"]
+    inspect = ["docker", "image", "inspect", "-f", "{{json .Config.Labels}}", tag]
+    labels = json.loads(subprocess.run(inspect, capture_output=True, text=True, check=True).stdout)
+    packages = labels["io.espdock.debian-packages"].split()
+    assert any(p.startswith("git=") for p in packages) and all("=" in p for p in packages)
+    assert labels["io.espdock.debian-packages.sha256"] == hashlib.sha256(" ".join(packages).encode()).hexdigest()
 
 
 def test_the_library_is_not_copied_into_any_project(fw_ws):

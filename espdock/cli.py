@@ -187,13 +187,13 @@ def build(
         return
     if locked if locked is not None else os.environ.get("CI", "").lower() == "true":
         check_locks(ws.root, plan_locks(plan))
+    if push_cache and not config.cache_registry:
+        raise ConfigError("--push-cache needs a cache registry", "Set cache_registry or ESPDOCK_CACHE_REGISTRY.")
     reporter = Reporter(console, verbose=verbose, timestamps=timestamps)
     engine = bootstrap.ensure_engine(os.environ, _notify)
     manifest: dict | None = None
     started = time.monotonic()
     try:
-        if push_cache and not config.cache_registry:
-            raise ConfigError("--push-cache needs a cache registry", "Set cache_registry or ESPDOCK_CACHE_REGISTRY.")
         owner = invoking_user(os.environ, ws.root)
         results = Runner(engine, config, os.environ, reporter, owner, push_cache=push_cache).run(plan)
         install = ws.ws_dir / "install"

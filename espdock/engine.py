@@ -199,7 +199,7 @@ class Engine:
 
     def pull(self, ref: str) -> bool:
         """Pull REF from its registry; False when no registry could give it."""
-        repository, _, tag = ref.rpartition(":") if ":" in ref.split("/")[-1] else (ref, "", "latest")
+        repository, tag = _split_ref(ref)
         try:
             self._client.images.pull(repository, tag=tag)
         except (docker.errors.APIError, requests.exceptions.RequestException):
@@ -210,17 +210,16 @@ class Engine:
 
     def pull_cached(self, ref: str) -> RegistryAnswer:
         """Pull REF from a cache registry, saying how it went (a miss is not an error)."""
-        repository, tag = _split_ref(ref)
-        try:
-            return _registry_stream(self._client.api.pull(repository, tag=tag, stream=True, decode=True))
-        except (docker.errors.APIError, requests.exceptions.RequestException) as exc:
-            return _registry_answer(str(exc))
+        return self._transfer(self._client.api.pull, ref)
 
     def push_cached(self, ref: str) -> RegistryAnswer:
         """Push the local image REF to its registry."""
+        return self._transfer(self._client.api.push, ref)
+
+    def _transfer(self, call: Callable[..., Iterator[dict]], ref: str) -> RegistryAnswer:
         repository, tag = _split_ref(ref)
         try:
-            return _registry_stream(self._client.api.push(repository, tag=tag, stream=True, decode=True))
+            return _registry_stream(call(repository, tag=tag, stream=True, decode=True))
         except (docker.errors.APIError, requests.exceptions.RequestException) as exc:
             return _registry_answer(str(exc))
 

@@ -100,6 +100,7 @@ class Runner:
         self._emit = emit
         self._owner = owner
         self._push_cache = push_cache
+        self._commit_times: dict[Path, str | None] = {}
 
     @property
     def owner(self) -> tuple[int, int]:
@@ -111,7 +112,9 @@ class Runner:
 
         Tools that stamp their output read it instead of the clock (Python's .pyc files switch
         to source hashes, GCC's __DATE__/__TIME__, ...), so two builds of a commit match."""
-        epoch = self._env.get("SOURCE_DATE_EPOCH") or workspace_commit_time(workspace.root)
+        if workspace.root not in self._commit_times:  # one git call per run, not one per container
+            self._commit_times[workspace.root] = workspace_commit_time(workspace.root)
+        epoch = self._env.get("SOURCE_DATE_EPOCH") or self._commit_times[workspace.root]
         return (("SOURCE_DATE_EPOCH", epoch),) if epoch else ()
 
     def _reproducible_env(self, workspace: Workspace) -> tuple[tuple[str, str], ...]:

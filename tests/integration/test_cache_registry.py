@@ -55,6 +55,12 @@ def machine(origin: Path, where: Path) -> Path:
     return where
 
 
+def registry_env(double_env: dict[str, str], registry: Registry, login: Path, password: str = PASSWORD) -> dict:
+    """The double's settings, the cache registry, and an engine login for it with PASSWORD."""
+    env = {**double_env, "ESPDOCK_CACHE_REGISTRY": registry.address}
+    return env | docker_config(login, registry.address, password)
+
+
 def build(root: Path, env: dict[str, str], *options: str) -> tuple[subprocess.CompletedProcess, dict]:
     report = root / "report.json"
     result = espdock("build", "--report", str(report), *options, cwd=root, env=env)
@@ -75,8 +81,7 @@ def remove_images(tags: list[str]) -> None:
 
 def test_a_second_machine_pulls_every_keyed_image_and_builds_none(registry, origin, tmp_path):
     source, double_env = origin
-    env = {**double_env, "ESPDOCK_CACHE_REGISTRY": registry.address}
-    env |= docker_config(tmp_path / "docker", registry.address, PASSWORD)
+    env = registry_env(double_env, registry, tmp_path / "docker")
 
     first, report = build(machine(source, tmp_path / "one"), env, "--push-cache")
     assert first.returncode == 0, first.stdout[-4000:] + first.stderr
@@ -130,12 +135,11 @@ def test_a_silent_registry_is_a_warning_and_a_local_build(registry, origin, tmp_
 
 def test_wrong_credentials_are_a_clear_error(registry, origin, tmp_path):
     source, double_env = origin
-    good = {**double_env, "ESPDOCK_CACHE_REGISTRY": registry.address}
-    good |= docker_config(tmp_path / "good", registry.address, PASSWORD)
+    good = registry_env(double_env, registry, tmp_path / "good")
     ok, report = build(machine(source, tmp_path / "ws"), good)
     assert ok.returncode == 0, ok.stdout[-4000:] + ok.stderr
     remove_images([micro_ros_tag(report)])
-    bad = {**good, **docker_config(tmp_path / "bad", registry.address, "not-the-password")}
+    bad = registry_env(double_env, registry, tmp_path / "bad", "not-the-password")
     denied, _ = build(machine(source, tmp_path / "ws2"), bad)
     assert denied.returncode == 2, denied.stdout[-3000:] + denied.stderr
     assert "refused the engine's credentials" in denied.stderr and f"docker login 127.0.0.1:{registry.port}" in (
@@ -147,8 +151,7 @@ def test_wrong_credentials_are_a_clear_error(registry, origin, tmp_path):
 
 def test_an_image_with_the_wrong_key_label_is_rejected(registry, origin, tmp_path):
     source, double_env = origin
-    env = {**double_env, "ESPDOCK_CACHE_REGISTRY": registry.address}
-    env |= docker_config(tmp_path / "docker", registry.address, PASSWORD)
+    env = registry_env(double_env, registry, tmp_path / "docker")
     first, report = build(machine(source, tmp_path / "ws"), env)
     assert first.returncode == 0, first.stdout[-4000:] + first.stderr
     tag = micro_ros_tag(report)

@@ -16,6 +16,7 @@ from pathlib import Path
 
 from espdock import __version__
 from espdock.errors import WorkspaceError
+from espdock.events import Outcome, StepFinished
 from espdock.plan import EnsureImage, ImageSpec, Plan
 
 MANIFEST_NAME = "espdock-manifest.json"
@@ -63,6 +64,36 @@ def write_manifest(manifest: Mapping[str, object], install: Path) -> Path:
     tmp.write_text(json.dumps(manifest, indent=1, sort_keys=True) + "\n")
     os.replace(tmp, path)
     return path
+
+
+def record_build(plan: Plan, target: str, install: Path, built: bool, owner: tuple[int, int] | None) -> dict:
+    """The manifest of PLAN's finished build, written to INSTALL unless nothing was BUILT and one is
+    there (every install tree was checked against its stamp: re-hashing would be most of a no-change
+    build's time). OWNER: who the written file belongs to (running as root for someone else)."""
+    existing = install / MANIFEST_NAME
+    if existing.is_file() and not built:
+        return read_manifest(existing)
+    manifest = build_manifest(plan, target, install)
+    written = write_manifest(manifest, install)
+    if owner is not None:
+        os.chown(written, *owner)
+    return manifest
+
+
+def write_report(path: Path, finished: Iterable[StepFinished], manifest: dict | None, seconds: float) -> None:
+    """The --report JSON: every step's outcome, the build's, its duration, and the manifest (None on failure)."""
+    steps = list(finished)
+    failed = any(step.outcome is Outcome.FAILED for step in steps) or manifest is None
+    data = {
+        "outcome": "failed" if failed else "succeeded",
+        "seconds": round(seconds, 3),
+        "steps": [
+            {"step": s.step, "outcome": s.outcome.value, "seconds": round(s.seconds, 3), "detail": s.detail}
+            for s in steps
+        ],
+        "manifest": manifest,
+    }
+    path.write_text(json.dumps(data, indent=1, sort_keys=True) + "\n")
 
 
 @dataclass(frozen=True)

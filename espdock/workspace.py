@@ -10,10 +10,9 @@ from dataclasses import dataclass, field
 from enum import StrEnum
 from pathlib import Path
 
-from espdock.config import CONFIG_FILE
 from espdock.defaults import defaults_root
 from espdock.errors import WorkspaceError
-from espdock.layout import IDF_DOCKERFILE, IDF_INPUT_DIR, IMAGE_INPUT_DIR, ROS_DOCKERFILE
+from espdock.layout import CONFIG_FILE, IDF_DOCKERFILE, IDF_INPUT_DIR, IMAGE_INPUT_DIR, ROS_DOCKERFILE
 
 IGNORE_MARKERS = ("COLCON_IGNORE", "AMENT_IGNORE", "CATKIN_IGNORE")
 FIRMWARE_BUILD_TYPE = "esp_idf"

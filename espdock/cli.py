@@ -5,7 +5,6 @@ from __future__ import annotations
 import functools
 import json
 import os
-import signal
 import sys
 import time
 from collections.abc import Callable
@@ -16,7 +15,7 @@ import typer
 from rich.console import Console
 from rich.text import Text
 
-from espdock import __version__, bootstrap
+from espdock import __version__, bootstrap, interrupts
 from espdock.config import Config, invoking_user, load_config, record_target, resolve_ca_bundle
 from espdock.engine import format_argv
 from espdock.errors import ConfigError, EspdockBug, EspdockError, Interrupted, WorkspaceError
@@ -463,6 +462,8 @@ def provision(
 ) -> None:
     """Write the board's Wi-Fi and agent settings into its NVS partition, leaving the app as it is.
 
+    The whole NVS partition is replaced: every other namespace on the board is erased.
+
     The password never appears on a command line (espdock's or esptool's), in the workspace or in an image."""
     ws, config = _load(workspace)
     serial = parse_port(port)
@@ -557,13 +558,9 @@ def list_packages(workspace: WorkspaceOption = None) -> None:
     render_packages(console, ws, _packages(ws))
 
 
-def _on_sigterm(signum: int, frame: object) -> NoReturn:
-    raise KeyboardInterrupt
-
-
 def main() -> None:
-    """Entry point: SIGTERM (CI timeouts, `docker stop`) cleans up like Ctrl-C."""
-    signal.signal(signal.SIGTERM, _on_sigterm)
+    """Entry point: Ctrl-C and SIGTERM (CI timeouts, `docker stop`) end any command (espdock.interrupts)."""
+    interrupts.install()
     app()
 
 

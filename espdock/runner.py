@@ -126,6 +126,10 @@ class Runner:
         """Run every step in order; stops at the first failure, raising its error."""
         results = []
         with workspace_lock(plan.workspace):
+            # Before any step: a container an espdock killed earlier (kill -9, a lost terminal)
+            # may still hold the workspace's files open or write into them.
+            if any(isinstance(step, (ColconBuild, IdfBuild)) for step in plan.steps):
+                self._engine.sweep({LABEL_WORKSPACE: str(plan.workspace.root)})
             for step in plan.steps:
                 results.append(self._run_step(plan.workspace, step))
         return results
@@ -201,15 +205,16 @@ class Runner:
                 on_line=on_line,
                 no_cache=step.force,
             )
-        self._record_packages(step)
+        self._record_packages(workspace, step)
         self._publish(step)
         return Outcome.BUILT, spec.tag
 
-    def _record_packages(self, step: EnsureImage) -> None:
+    def _record_packages(self, workspace: Workspace, step: EnsureImage) -> None:
         """The image's Debian package set (what its apt installs gave today) as labels, as the base has."""
         listing: list[str] = []
         query = ("dpkg-query", "-W", "-f", "${Package}=${Version}\n")
-        if self._engine.run(RunSpec(image=step.spec.tag, argv=query, workdir="/"), listing.append) != 0:
+        labels = ((LABEL_WORKSPACE, str(workspace.root)), ("io.espdock.step", "dpkg"))
+        if self._engine.run(RunSpec(image=step.spec.tag, argv=query, workdir="/", labels=labels), listing.append) != 0:
             self._emit(StepNote(step.name, "warning: no dpkg in the image: its package set is not recorded"))
             return
         # An entrypoint (the IDF image's sources export.sh) may print before the command runs.

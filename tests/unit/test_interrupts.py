@@ -1,0 +1,97 @@
+"""Ctrl-C and SIGTERM end espdock: the first within its grace, a second at once, whatever the
+signal disposition espdock was started with (espdock.interrupts), in real processes."""
+
+from __future__ import annotations
+
+import signal
+import subprocess
+import sys
+import time
+
+import pytest
+
+# A command that blocks, then cleans up for CLEANUP seconds when interrupted.
+SCRIPT = """
+import sys, time
+from espdock import interrupts
+interrupts.GRACE = {grace}
+interrupts.install()
+try:
+    with interrupts.held():
+        print("holding", flush=True)
+        time.sleep({hold})
+    print("ready", flush=True)
+    time.sleep(60)
+except KeyboardInterrupt:
+    print("cleaning up", flush=True)
+    time.sleep({cleanup})
+    print("cleaned up", flush=True)
+    sys.exit(130)
+"""
+
+
+def start(grace: float = 8, hold: float = 0, cleanup: float = 0, ignore_sigint: bool = False) -> subprocess.Popen:
+    def ignore() -> None:
+        # What a shell without job control does to a command it starts in the background.
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+    return subprocess.Popen(
+        [sys.executable, "-c", SCRIPT.format(grace=grace, hold=hold, cleanup=cleanup)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        preexec_fn=ignore if ignore_sigint else None,  # noqa: PLW1509 (no threads in the test)
+    )
+
+
+def wait_for(process: subprocess.Popen, line: str) -> None:
+    assert process.stdout is not None
+    assert process.stdout.readline().strip() == line
+
+
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM])
+def test_a_signal_ends_a_command_started_with_sigint_ignored(signum):
+    process = start(ignore_sigint=True)
+    wait_for(process, "holding")
+    wait_for(process, "ready")
+    process.send_signal(signum)
+    out, _ = process.communicate(timeout=10)
+    assert process.returncode == 130
+    assert out.split() == ["cleaning", "up", "cleaned", "up"]
+
+
+def test_cleanup_that_hangs_is_abandoned_after_the_grace():
+    process = start(grace=1, cleanup=60)
+    wait_for(process, "holding")
+    wait_for(process, "ready")
+    sent = time.monotonic()
+    process.send_signal(signal.SIGINT)
+    out, err = process.communicate(timeout=10)
+    assert process.returncode == 130
+    assert time.monotonic() - sent < 5
+    assert "cleaned up" not in out
+    assert "longer than 1 s" in err
+
+
+def test_a_second_signal_ends_it_at_once():
+    process = start(cleanup=60)
+    wait_for(process, "holding")
+    wait_for(process, "ready")
+    process.send_signal(signal.SIGINT)
+    wait_for(process, "cleaning up")
+    sent = time.monotonic()
+    process.send_signal(signal.SIGINT)
+    _, err = process.communicate(timeout=10)
+    assert process.returncode == 130
+    assert time.monotonic() - sent < 2
+    assert "interrupted again" in err
+
+
+def test_a_signal_in_a_held_block_is_raised_when_the_block_ends():
+    process = start(hold=1.5)
+    wait_for(process, "holding")
+    process.send_signal(signal.SIGINT)
+    out, _ = process.communicate(timeout=10)
+    assert process.returncode == 130
+    # Raised after the block, so "ready" never printed: the interrupt was not lost.
+    assert out.split() == ["cleaning", "up", "cleaned", "up"]

@@ -36,7 +36,7 @@ from espdock.plan import (
     workspace_micro_ros_images,
 )
 from espdock.provision import network_settings, nvs_image, nvs_partition, optional_network_settings
-from espdock.runner import Runner
+from espdock.runner import Runner, stamp_files
 from espdock.scaffold import check_new_package, create_firmware_package, init_workspace
 from espdock.status import micro_ros_report, resolved_sources
 from espdock.ui import Reporter, render_micro_ros_status, render_packages, render_pins, render_plan
@@ -196,7 +196,7 @@ def build(
         results = Runner(engine, config, os.environ, reporter, owner, push_cache=push_cache).run(plan)
         built = any(r.outcome is not Outcome.CACHED for r in results)
         chown = owner if os.geteuid() == 0 else None
-        manifest = record_build(plan, config.target, ws.ws_dir / "install", built, chown)
+        manifest = record_build(plan, config.target, ws.ws_dir / "install", built, stamp_files(ws), chown)
     finally:
         reporter.close()
         reporter.summary()

@@ -57,6 +57,11 @@ FAILED_PACKAGE = re.compile(r"^Failed\s+<<<\s+(\S+)")
 BUILDKIT_STEP = re.compile(r"^#\d+ \[.*\] (?P<what>.+)$")
 
 
+def stamp_files(workspace: Workspace) -> tuple[Path, ...]:
+    """The files recording what the last build of each kind built (rewritten after each step)."""
+    return tuple(workspace.ws_dir / "build" / name for name in (ROS_STAMPS, FIRMWARE_STAMPS, INSTALL_STAMPS))
+
+
 def _first_line(text: str) -> str:
     return (text.strip().splitlines() or ["no details"])[0][:200]
 

@@ -51,9 +51,12 @@ class _Lazy:
         self._names = names
 
     def __getattr__(self, attribute: str) -> Any:
-        for name in self._names[1:]:
-            importlib.import_module(name)
-        return getattr(importlib.import_module(self._names[0]), attribute)
+        # Held: a Ctrl-C in the middle of importing the SDK leaves urllib3 half-initialised in
+        # sys.modules, and the cleanup that follows (which needs the SDK) then fails.
+        with interrupts.held():
+            for name in self._names[1:]:
+                importlib.import_module(name)
+            return getattr(importlib.import_module(self._names[0]), attribute)
 
 
 docker = _Lazy("docker", "docker.errors")
@@ -343,6 +346,13 @@ class Engine:
                 process.kill()
             raise
         if code != 0:
+            if any("no space left on device" in line.lower() for line in tail):
+                raise ImageBuildError(
+                    f"building {tag} failed: the engine's disk is full (its data root, {self._data_root()})",
+                    "Free space there (`docker system df` shows what uses it), then build again.",
+                )
+            if any("cannot connect to the docker daemon" in line.lower() for line in tail):
+                raise _engine_lost(self._env, f"building {tag}")
             unpulled = re.search(r"load metadata for (\S+)", "\n".join(tail))
             hint = (
                 f"{unpulled.group(1)} is not here and could not be pulled: is a registry reachable? "
@@ -353,6 +363,17 @@ class Engine:
             raise ImageBuildError(
                 f"building {tag} from {dockerfile} (stage {target}) failed:\n" + "\n".join(tail), hint
             )
+
+    def _data_root(self) -> str:
+        """Where the engine keeps images and containers (DockerRootDir), for messages."""
+        try:
+            if self._socket is not None:
+                _, info = self._get("/info")
+            else:
+                info = self._client.info()
+        except (OSError, docker.errors.DockerException, requests.exceptions.RequestException):
+            info = None
+        return str((info or {}).get("DockerRootDir") or "unknown")
 
     def compose_command(self) -> list[str]:
         """The argv prefix for Compose v2 as a docker CLI plugin."""

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from espdock import __version__
-from espdock.errors import WorkspaceError
+from espdock.errors import WorkspaceError, disk_full
 from espdock.events import Outcome, StepFinished
 from espdock.plan import EnsureImage, ImageSpec, Plan
 
@@ -87,7 +87,14 @@ def record_build(
     if existing.is_file() and not built and _newer_than_stamps(existing, stamps):
         return read_manifest(existing)
     manifest = build_manifest(plan, target, install)
-    written = write_manifest(manifest, install)
+    try:
+        written = write_manifest(manifest, install)
+    except OSError as exc:
+        full = disk_full(install)
+        if full is not None:
+            _temporary(install).unlink(missing_ok=True)
+            raise full from exc
+        raise
     if owner is not None:
         os.chown(written, *owner)
     return manifest

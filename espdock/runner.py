@@ -22,7 +22,7 @@ from typing import assert_never
 from espdock import bootstrap
 from espdock.config import Config, resolve_ca_bundle
 from espdock.engine import Engine, Mount, RegistryAnswer, RegistryStatus, RunSpec
-from espdock.errors import BuildFailed, EspdockError, RegistryError, WorkspaceError
+from espdock.errors import BuildFailed, EspdockError, RegistryError, WorkspaceError, disk_full
 from espdock.events import Emit, Outcome, StepFinished, StepNote, StepOutput, StepStarted
 from espdock.install import install_firmware
 from espdock.layout import WORKSPACE_MOUNT
@@ -143,7 +143,15 @@ class Runner:
         self._emit(StepStarted(step.name))
         started = time.monotonic()
         try:
-            outcome, detail = self._dispatch(workspace, step)
+            try:
+                outcome, detail = self._dispatch(workspace, step)
+            except (EspdockError, OSError) as exc:
+                # A build that failed for want of space says so (a compiler's "No space left"
+                # is easy to miss in its log); espdock's own writes fail with ENOSPC.
+                full = disk_full(workspace.ws_dir)
+                if full is not None:
+                    raise full from exc
+                raise
         except BaseException as exc:
             if isinstance(exc, EspdockError):
                 detail = exc.message.splitlines()[0]

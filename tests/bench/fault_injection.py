@@ -161,6 +161,16 @@ class Bootloader:
             time.sleep(0.1)
         self.url = f"socket://127.0.0.1:{port}"
 
+    def ready(self) -> str:
+        """The URL of a bootloader that answers: another test's `esp32-mock-bootloader stop` (which
+        picks "the only running instance") may have stopped this one."""
+        port = int(self.url.rsplit(":", 1)[1])
+        with socket.socket() as client:
+            if self.process is not None and self.process.poll() is None and client.connect_ex(("127.0.0.1", port)) == 0:
+                return self.url
+        self.restart()
+        return self.url
+
     def restart(self) -> None:
         self.stop()
         self.start()
@@ -210,7 +220,7 @@ def main() -> None:
             calibrated = run(root, env, "build", "--force", "--report", str(report))
             shutil.copy2(root / "ws/install/espdock-manifest.json", expected)
             started = time.monotonic()
-            provisioned = run(root, env, *espdock_argv(("provision",), bootloader.url)[3:])
+            provisioned = run(root, env, *espdock_argv(("provision",), bootloader.ready())[3:])
             if calibrated.returncode != 0 or provisioned.returncode != 0:
                 sys.exit(f"calibration failed:\n{calibrated.stderr}{provisioned.stdout[-2000:]}{provisioned.stderr}")
             durations = phase_durations(json.loads(report.read_text()), time.monotonic() - started)
@@ -241,7 +251,8 @@ def one_round(number: int, phase: str, name: str, root: Path, env: dict[str, str
     if phase == "image":
         subprocess.run(["docker", "rmi", micro_ros], capture_output=True, check=False)
     for attempt in range(4):
-        watched = Watched(espdock_argv(command, bootloader.url), root, env)
+        port = bootloader.ready() if phase == "provision" else ""
+        watched = Watched(espdock_argv(command, port), root, env)
         at = watched.wait_for(trigger) if trigger else watched.started
         delay = rng.uniform(0, durations[phase]) / (2**attempt)
         if at is not None:

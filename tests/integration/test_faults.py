@@ -50,7 +50,7 @@ def add_package(root: Path, name: str, cmake: str, depend: str | None = None) ->
     depends = f"  <depend>{depend}</depend>\n" if depend else ""
     package.joinpath("package.xml").write_text(
         f'<?xml version="1.0"?>\n<package format="3">\n  <name>{name}</name>\n  <version>0.0.0</version>\n'
-        f'  <description>{name}</description>\n  <maintainer email="a@b.c">a</maintainer>\n'
+        f'  <description>{name}</description>\n  <maintainer email="dev@example.com">dev</maintainer>\n'
         f"  <license>Apache-2.0</license>\n  <buildtool_depend>cmake</buildtool_depend>\n{depends}"
         "  <export><build_type>cmake</build_type></export>\n</package>\n"
     )

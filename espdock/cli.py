@@ -66,6 +66,9 @@ WorkspaceOption = Annotated[
 ]
 
 
+INTERRUPTED = Interrupted("interrupted; containers started by this run were stopped and removed")
+
+
 def _command(function: Callable[P, None]) -> Callable[P, None]:
     """Make FUNCTION a command whose espdock errors and Ctrl-C end in a message and an exit code.
 
@@ -79,7 +82,7 @@ def _command(function: Callable[P, None]) -> Callable[P, None]:
         except EspdockError as exc:
             _fail(exc)
         except KeyboardInterrupt:
-            _fail(Interrupted("interrupted; containers started by this run were stopped and removed"))
+            _fail(INTERRUPTED)
         except (typer.Exit, typer.Abort, SystemExit):
             raise
         except Exception as exc:  # anything else is espdock's own bug: say so, keep the traceback
@@ -561,7 +564,16 @@ def list_packages(workspace: WorkspaceOption = None) -> None:
 def main() -> None:
     """Entry point: Ctrl-C and SIGTERM (CI timeouts, `docker stop`) end any command (espdock.interrupts)."""
     interrupts.install()
-    app()
+    try:
+        app()
+    except KeyboardInterrupt:  # in Typer's own code, before or after the command
+        _fail(INTERRUPTED)
+    except SystemExit as exc:
+        # A Ctrl-C that Python swallowed (raised in a callback whose exceptions it only prints)
+        # still ends the command as interrupted.
+        if interrupts.interrupted() and exc.code != Interrupted.exit_code:
+            _fail(INTERRUPTED)
+        raise
 
 
 def _fail(exc: EspdockError) -> NoReturn:

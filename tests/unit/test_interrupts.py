@@ -95,3 +95,42 @@ def test_a_signal_in_a_held_block_is_raised_when_the_block_ends():
     assert process.returncode == 130
     # Raised after the block, so "ready" never printed: the interrupt was not lost.
     assert out.split() == ["cleaning", "up", "cleaned", "up"]
+
+
+@pytest.fixture
+def entry_point(monkeypatch):
+    """espdock.cli.main with its handlers put back afterwards (they are process-wide)."""
+    from espdock import cli, interrupts
+
+    handlers = {signum: signal.getsignal(signum) for signum in (signal.SIGINT, signal.SIGTERM)}
+    yield cli, interrupts
+    for signum, handler in handlers.items():
+        signal.signal(signum, handler)
+    interrupts.reset()
+
+
+def test_an_interrupt_outside_any_command_still_exits_130(entry_point, monkeypatch, capsys):
+    cli, _ = entry_point
+
+    def app() -> None:
+        raise KeyboardInterrupt  # as if Ctrl-C came while Typer parsed, or after the command returned
+
+    monkeypatch.setattr(cli, "app", app)
+    with pytest.raises(SystemExit) as exited:
+        cli.main()
+    assert exited.value.code == 130
+    assert "interrupted" in capsys.readouterr().err
+
+
+def test_an_interrupt_python_swallowed_still_exits_130(entry_point, monkeypatch, capsys):
+    cli, interrupts = entry_point
+
+    def app() -> None:
+        # Python only prints an exception raised in a weakref or GC callback: the command went on.
+        interrupts._state["first"] = time.monotonic()
+        raise SystemExit(0)
+
+    monkeypatch.setattr(cli, "app", app)
+    with pytest.raises(SystemExit) as exited:
+        cli.main()
+    assert exited.value.code == 130

@@ -574,6 +574,8 @@ def main() -> None:
         if interrupts.interrupted() and exc.code != Interrupted.exit_code:
             _fail(INTERRUPTED)
         raise
+    finally:
+        interrupts.finish()
 
 
 def _fail(exc: EspdockError) -> NoReturn:

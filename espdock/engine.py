@@ -349,7 +349,8 @@ class Engine:
             if any("no space left on device" in line.lower() for line in tail):
                 raise ImageBuildError(
                     f"building {tag} failed: the engine's disk is full (its data root, {self._data_root()})",
-                    "Free space there (`docker system df` shows what uses it), then build again.",
+                    "Free space there (`docker system df` shows what uses it; `docker builder prune` drops "
+                    "build cache, a failed build's included), then build again.",
                 )
             if any("cannot connect to the docker daemon" in line.lower() for line in tail):
                 raise _engine_lost(self._env, f"building {tag}")

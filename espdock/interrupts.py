@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import os
 import signal
+import sys
 import threading
 import time
 from collections.abc import Iterator
@@ -32,6 +33,22 @@ def install() -> None:
     """Handle SIGINT and SIGTERM as described above, whatever their disposition was at start-up."""
     signal.signal(signal.SIGINT, _on_signal)
     signal.signal(signal.SIGTERM, _on_signal)
+
+
+def finish() -> None:
+    """The command is over: flush what it printed, and let a signal from now on end the process
+    at once. Raised during Python's shutdown, a KeyboardInterrupt could only kill it by SIGINT."""
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (OSError, ValueError):
+            pass
+    signal.signal(signal.SIGINT, _exit_now)
+    signal.signal(signal.SIGTERM, _exit_now)
+
+
+def _exit_now(signum: int, frame: object) -> None:
+    os._exit(EXIT_CODE)
 
 
 def interrupted() -> bool:

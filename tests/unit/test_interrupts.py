@@ -134,3 +134,15 @@ def test_an_interrupt_python_swallowed_still_exits_130(entry_point, monkeypatch,
     with pytest.raises(SystemExit) as exited:
         cli.main()
     assert exited.value.code == 130
+
+
+def test_a_signal_after_the_command_finished_exits_130_not_by_the_signal():
+    script = (
+        "import time\nfrom espdock import interrupts\ninterrupts.install()\nprint('done', flush=True)\n"
+        "interrupts.finish()\ntime.sleep(60)\n"
+    )
+    process = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, text=True)
+    wait_for(process, "done")
+    process.send_signal(signal.SIGINT)
+    process.communicate(timeout=10)
+    assert process.returncode == 130

@@ -565,15 +565,18 @@ def main() -> None:
     """Entry point: Ctrl-C and SIGTERM (CI timeouts, `docker stop`) end any command (espdock.interrupts)."""
     interrupts.install()
     try:
-        app()
-    except KeyboardInterrupt:  # in Typer's own code, before or after the command
-        _fail(INTERRUPTED)
-    except SystemExit as exc:
-        # A Ctrl-C that Python swallowed (raised in a callback whose exceptions it only prints)
-        # still ends the command as interrupted.
-        if interrupts.interrupted() and exc.code != Interrupted.exit_code:
+        try:
+            app()
+        except KeyboardInterrupt:  # in Typer's own code, before or after the command
             _fail(INTERRUPTED)
-        raise
+        except SystemExit as exc:
+            # A Ctrl-C that Python swallowed (raised in a callback whose exceptions it only prints)
+            # still ends the command as interrupted.
+            if interrupts.interrupted() and exc.code != Interrupted.exit_code:
+                _fail(INTERRUPTED)
+            raise
+    except KeyboardInterrupt:  # while the outcome was being reported: it stands, the exit code says why
+        sys.exit(Interrupted.exit_code)
     finally:
         interrupts.finish()
 

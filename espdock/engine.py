@@ -429,9 +429,10 @@ class Engine:
     @contextmanager
     def _container(self, spec: RunSpec, keep: bool) -> Iterator[docker.models.containers.Container]:
         client = self._client
+        container = None
         try:
             # Held: a Ctrl-C between the engine creating it and its id coming back would leave a
-            # container nothing here knows to remove.
+            # container nothing here knows to remove. It is raised when the block ends: see below.
             with interrupts.held():
                 container = client.containers.create(
                     spec.image,
@@ -451,6 +452,10 @@ class Engine:
                     name=spec.name,
                     detach=True,
                 )
+        except KeyboardInterrupt:
+            if container is not None:
+                _remove(container, stop=False)
+            raise
         except requests.exceptions.ConnectionError as exc:
             raise _engine_lost(self._env, f"creating a container of {spec.image}") from exc
         except docker.errors.ImageNotFound as exc:

@@ -38,13 +38,13 @@ def install() -> None:
 def finish() -> None:
     """The command is over: flush what it printed, and let a signal from now on end the process
     at once. Raised during Python's shutdown, a KeyboardInterrupt could only kill it by SIGINT."""
+    signal.signal(signal.SIGINT, _exit_now)  # first: the flush below can wait on a full pipe
+    signal.signal(signal.SIGTERM, _exit_now)
     for stream in (sys.stdout, sys.stderr):
         try:
             stream.flush()
         except (OSError, ValueError):
             pass
-    signal.signal(signal.SIGINT, _exit_now)
-    signal.signal(signal.SIGTERM, _exit_now)
 
 
 def _exit_now(signum: int, frame: object) -> None:

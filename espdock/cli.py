@@ -561,7 +561,7 @@ def list_packages(workspace: WorkspaceOption = None) -> None:
     render_packages(console, ws, _packages(ws))
 
 
-def main() -> None:
+def main() -> NoReturn:
     """Entry point: Ctrl-C and SIGTERM (CI timeouts, `docker stop`) end any command (espdock.interrupts)."""
     interrupts.install()
     try:
@@ -575,10 +575,16 @@ def main() -> None:
             if interrupts.interrupted() and exc.code != Interrupted.exit_code:
                 _fail(INTERRUPTED)
             raise
+        code = 0
     except KeyboardInterrupt:  # while the outcome was being reported: it stands, the exit code says why
-        sys.exit(Interrupted.exit_code)
-    finally:
-        interrupts.finish()
+        code = Interrupted.exit_code
+    except SystemExit as exc:
+        if exc.code is None or isinstance(exc.code, int):
+            code = exc.code or 0
+        else:
+            print(exc.code, file=sys.stderr)
+            code = 1
+    interrupts.finish(code)
 
 
 def _fail(exc: EspdockError) -> NoReturn:

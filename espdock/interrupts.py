@@ -21,6 +21,7 @@ import threading
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
+from typing import NoReturn
 
 GRACE = 8.0  # seconds between the first signal and the exit, however cleanup goes
 EXIT_CODE = 130  # 128 + SIGINT, as shells report it
@@ -35,9 +36,10 @@ def install() -> None:
     signal.signal(signal.SIGTERM, _on_signal)
 
 
-def finish() -> None:
-    """The command is over: flush what it printed, and let a signal from now on end the process
-    at once. Raised during Python's shutdown, a KeyboardInterrupt could only kill it by SIGINT."""
+def finish(code: int) -> NoReturn:
+    """End the process with CODE once the command is over: flush what it printed, and leave
+    without Python's shutdown, which resets signal handlers to the default: a Ctrl-C then would
+    kill the process by SIGINT instead of ending it with EXIT_CODE."""
     signal.signal(signal.SIGINT, _exit_now)  # first: the flush below can wait on a full pipe
     signal.signal(signal.SIGTERM, _exit_now)
     for stream in (sys.stdout, sys.stderr):
@@ -45,6 +47,7 @@ def finish() -> None:
             stream.flush()
         except (OSError, ValueError):
             pass
+    os._exit(code)
 
 
 def _exit_now(signum: int, frame: object) -> None:

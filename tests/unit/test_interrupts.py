@@ -97,52 +97,25 @@ def test_a_signal_in_a_held_block_is_raised_when_the_block_ends():
     assert out.split() == ["cleaning", "up", "cleaned", "up"]
 
 
-@pytest.fixture
-def entry_point(monkeypatch):
-    """espdock.cli.main with its handlers put back afterwards (they are process-wide)."""
-    from espdock import cli, interrupts
-
-    handlers = {signum: signal.getsignal(signum) for signum in (signal.SIGINT, signal.SIGTERM)}
-    yield cli, interrupts
-    for signum, handler in handlers.items():
-        signal.signal(signum, handler)
-    interrupts.reset()
+def run_main(app: str) -> subprocess.CompletedProcess:
+    """espdock.cli.main in a process of its own (it ends the process), with APP as its Typer app."""
+    script = f"import sys, time\nfrom espdock import cli, interrupts\n{app}\ncli.app = app\ncli.main()\n"
+    return subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=30, check=False)
 
 
-def test_an_interrupt_outside_any_command_still_exits_130(entry_point, monkeypatch, capsys):
-    cli, _ = entry_point
-
-    def app() -> None:
-        raise KeyboardInterrupt  # as if Ctrl-C came while Typer parsed, or after the command returned
-
-    monkeypatch.setattr(cli, "app", app)
-    with pytest.raises(SystemExit) as exited:
-        cli.main()
-    assert exited.value.code == 130
-    assert "interrupted" in capsys.readouterr().err
+def test_an_interrupt_outside_any_command_still_exits_130():
+    # As if Ctrl-C came while Typer parsed, or after the command returned.
+    result = run_main("def app():\n    raise KeyboardInterrupt")
+    assert result.returncode == 130
+    assert "interrupted" in result.stderr
 
 
-def test_an_interrupt_python_swallowed_still_exits_130(entry_point, monkeypatch, capsys):
-    cli, interrupts = entry_point
-
-    def app() -> None:
-        # Python only prints an exception raised in a weakref or GC callback: the command went on.
-        interrupts._state["first"] = time.monotonic()
-        raise SystemExit(0)
-
-    monkeypatch.setattr(cli, "app", app)
-    with pytest.raises(SystemExit) as exited:
-        cli.main()
-    assert exited.value.code == 130
+def test_an_interrupt_python_swallowed_still_exits_130():
+    # Python only prints an exception raised in a weakref or GC callback: the command went on.
+    result = run_main('def app():\n    interrupts._state["first"] = time.monotonic()\n    sys.exit(0)')
+    assert result.returncode == 130
 
 
-def test_a_signal_after_the_command_finished_exits_130_not_by_the_signal():
-    script = (
-        "import time\nfrom espdock import interrupts\ninterrupts.install()\nprint('done', flush=True)\n"
-        "interrupts.finish()\ntime.sleep(60)\n"
-    )
-    process = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, text=True)
-    wait_for(process, "done")
-    process.send_signal(signal.SIGINT)
-    process.communicate(timeout=10)
-    assert process.returncode == 130
+def test_the_command_s_own_exit_code_is_kept():
+    assert run_main("def app():\n    sys.exit(5)").returncode == 5
+    assert run_main("def app():\n    sys.exit(0)").returncode == 0

@@ -199,9 +199,12 @@ def main() -> None:
         shutil.copy2(REPO / "Dockerfile.idf", root / "Dockerfile.idf")
         shutil.copytree(REPO / "firmware", root / "firmware")
         shutil.rmtree(root / "firmware/camera_node")
-        # A comment unique to this run: its micro-ROS image is this run's own, to remove at will.
-        msg = root / "ws/src/custom_interface/msg/CameraConfig.msg"
-        msg.write_text(msg.read_text() + f"# fault bench {uuid.uuid4().hex}\n")
+        # A comment unique to this run in an input of the micro-ROS image's key (led_strip_node uses
+        # no workspace interface, so a .msg would not do): the image is this run's own to remove.
+        recipe = root / "Dockerfile.idf"
+        recipe.write_text(recipe.read_text() + f"# fault bench {uuid.uuid4().hex}\n")
+        before = set(subprocess.run(["docker", "images", "-q", "--no-trunc"], capture_output=True, text=True,
+                                    check=True).stdout.split())  # fmt: skip
         double = use_double(engine, resolve_ca_bundle(Config(), os.environ), lambda _: None, root)
         # A fixed SOURCE_DATE_EPOCH (the copy is no git checkout): .pyc files then do not carry build times.
         env = {**os.environ, **double, "SOURCE_DATE_EPOCH": "1700000000"}
@@ -211,8 +214,10 @@ def main() -> None:
             first = run(root, env, "build", "--report", str(report))
             if first.returncode != 0:
                 sys.exit(f"the first build failed:\n{first.stdout[-3000:]}{first.stderr}")
-            made_images.update(t for t in json.loads(report.read_text())["manifest"]["images"] if "micro-ros" in t)
-            micro_ros = next(iter(made_images))
+            (micro_ros,) = [t for t in json.loads(report.read_text())["manifest"]["images"] if "micro-ros" in t]
+            if engine.image(micro_ros) is None or engine.image(micro_ros).id in before:
+                sys.exit(f"{micro_ros} existed before this run: refusing to remove an image it did not make")
+            made_images.add(micro_ros)
             # Calibration, uninterrupted: how long each phase lasts here, now, and the install tree
             # every later build must match. (A rebuild, not the first build: setuptools' egg-info
             # SOURCES.txt lists more files on a rebuild than on a build from nothing.)

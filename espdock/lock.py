@@ -264,11 +264,11 @@ def lock_rosdeps(
         rosdeps.update_database(env)
     from espdock.runner import age_text  # the slow path only: making the lock
 
+    text = rosdeps.lock_text(rosdeps.resolve_workspace(packages, image, root, env, uv_binary()))
     age = rosdeps.database_age(env)
     database = f"rosdep database in {rosdeps.cache_dir(env)}" + (
         f", updated {age_text(age)} ago" if age is not None else ""
     )
-    text = rosdeps.lock_text(rosdeps.resolve_workspace(packages, image, root, env, uv_binary()))
     before = target.read_text() if target.is_file() else None
     if text == before:
         return "unchanged", database

@@ -237,14 +237,13 @@ def rosdep_rules(keys: Iterable[str], os_spec: str, distro: str, env: Mapping[st
         try:
             definition = view.lookup(key)
         except KeyError:
-            rules[key] = Rule(None, why="no rosdep rule for this key (unknown to rosdep's database)")
+            rules[key] = Rule(None, why="no rosdep rule: the key is unknown to rosdep's database")
             continue
         try:
             installer, rule = definition.get_rule_for_platform(os_name, os_version, installer_keys, default)
             packages = tuple(str(p) for p in context.get_installer(installer).resolve(rule))
-        except (ResolutionError, KeyError) as exc:
-            detail = str(getattr(exc, "args", [""])[-1] or exc).splitlines()[0][:120]
-            rules[key] = Rule(None, why=f"no rosdep rule for {os_spec} ({detail})")
+        except (ResolutionError, KeyError):
+            rules[key] = Rule(None, why=f"no rosdep rule for {os_spec}")
             continue
         if installer not in ("apt", "pip"):
             rules[key] = Rule(None, why=f"rosdep installs it with {installer}, which the image lacks")

@@ -1,7 +1,7 @@
 """contract double: builds the image that stands in for the official ROS image
 ros:jazzy-ros-base, which cannot be pulled on espdock's test machines (see README.md).
 
-    tag = build_double(engine, ca_bundle, on_line)
+    tag = build_double(engine, ca_bundle, on_line)   # espdock-test/ros-official-double:jazzy-ros-base-<hash>
 
 then select it with ros_image = "official" and base_image = tag (ESPDOCK_ROS_IMAGE,
 ESPDOCK_BASE_IMAGE): Dockerfile.ros-official builds unchanged on top of it.
@@ -15,7 +15,9 @@ from pathlib import Path
 from espdock.engine import Engine, LineSink
 
 HERE = Path(__file__).resolve().parent
-IMAGE_TAG = "espdock-test/ros-official-double:jazzy-ros-base"
+# Tagged by the hash of its inputs: a changed double is another base image reference, so the
+# images espdock builds on it get new keys (as a new digest pin of the real image would).
+IMAGE_REPOSITORY = "espdock-test/ros-official-double"
 INPUTS_LABEL = "io.espdock.ros-official-double.inputs"
 # What goes into the image (.dockerignore lets in only these).
 IMAGE_INPUTS = (".dockerignore", "Dockerfile", "requirements.txt", "ros_entrypoint.sh", "setup.sh", "setup.bash")
@@ -32,21 +34,22 @@ def inputs_hash(root: Path = HERE) -> str:
 def build_double(engine: Engine, ca_bundle: Path | None, on_line: LineSink) -> str:
     """Build the double image unless one built from the same files exists; return its tag."""
     wanted = inputs_hash()
-    existing = engine.image(IMAGE_TAG)
+    tag = f"{IMAGE_REPOSITORY}:jazzy-ros-base-{wanted}"
+    existing = engine.image(tag)
     if existing is None or existing.labels.get(INPUTS_LABEL) != wanted:
         engine.build_image(
             context=HERE,
             dockerfile="Dockerfile",
             target="double",
-            tag=IMAGE_TAG,
+            tag=tag,
             build_args={},
             labels={INPUTS_LABEL: wanted},
             ca_bundle=ca_bundle,
             on_line=on_line,
         )
-    return IMAGE_TAG
+    return tag
 
 
-def settings(tag: str = IMAGE_TAG) -> dict[str, str]:
+def settings(tag: str) -> dict[str, str]:
     """The ESPDOCK_* settings that build a workspace against the double."""
     return {"ESPDOCK_ROS_IMAGE": "official", "ESPDOCK_BASE_IMAGE": tag}

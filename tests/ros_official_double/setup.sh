@@ -14,6 +14,12 @@ _espdock_double_add AMENT_PREFIX_PATH "$_espdock_double_prefix"
 _espdock_double_add CMAKE_PREFIX_PATH "$_espdock_double_prefix"
 _espdock_double_add PATH "$_espdock_double_prefix/bin"
 _espdock_double_add LD_LIBRARY_PATH "$_espdock_double_prefix/lib"
+# The wheels vendor their libraries into <wheel>.libs directories (auditwheel) and find them
+# through a .pth hook that a PYTHONPATH entry never runs; the real prefix has them in lib/.
+for _espdock_double_libs in "$_espdock_double_prefix"/lib/python3.11/site-packages/*.libs; do
+  _espdock_double_add LD_LIBRARY_PATH "$_espdock_double_libs"
+done
+unset _espdock_double_libs
 _espdock_double_add PYTHONPATH "$_espdock_double_prefix/lib/python3.11/site-packages"
 export ROS_VERSION=2 ROS_PYTHON_VERSION=3 ROS_DISTRO=jazzy ROS_AUTOMATIC_DISCOVERY_RANGE="${ROS_AUTOMATIC_DISCOVERY_RANGE:-SUBNET}"
 unset _espdock_double_prefix _espdock_double_value

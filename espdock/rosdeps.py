@@ -42,7 +42,9 @@ yaml https://raw.githubusercontent.com/ros/rosdistro/master/rosdep/python.yaml
 yaml https://raw.githubusercontent.com/ros/rosdistro/master/rosdep/ruby.yaml
 gbpdistro https://raw.githubusercontent.com/ros/rosdistro/master/releases/fuerte.yaml fuerte
 """
-_WHEEL = re.compile(r"^(ros-[a-z0-9-]+)==", re.MULTILINE)
+# Anchored on the newline, not ^ with MULTILINE: several times faster on a 100 kB lock, which
+# every build reads.
+_WHEEL = re.compile(r"\n(ros-[a-z0-9-]+)==")
 _DEB_NAME = re.compile(r"[a-z0-9][a-z0-9+.-]+")
 _NOT_FOUND = re.compile(r"Because (\S+) was not found in the package registry")
 
@@ -65,7 +67,7 @@ def wheel_packages(lock_texts: Iterable[str], distro: str) -> frozenset[str]:
     wheel puts one package, <name> with underscores, into the ament index."""
     found = set()
     for text in lock_texts:
-        for wheel in _WHEEL.findall(text):
+        for wheel in _WHEEL.findall("\n" + text):
             name = wheel.removeprefix("ros-").removeprefix(f"{distro}-")
             found.add(name.replace("-", "_"))
     return frozenset(found)

@@ -261,7 +261,7 @@ def lock_rosdeps(
     if not needed and not target.is_file():
         return "not needed (the image provides every dependency)", ""
     if needed and refresh:
-        rosdeps.update_database(env)
+        rosdeps.update_database(env, image.distro)
     from espdock.runner import age_text  # the slow path only: making the lock
 
     text = rosdeps.lock_text(rosdeps.resolve_workspace(packages, image, root, env, uv_binary()))

@@ -175,7 +175,7 @@ def database_age(env: Mapping[str, str]) -> float | None:
     return time.time() - index.stat().st_mtime if index.is_file() else None
 
 
-def update_database(env: Mapping[str, str]) -> Path:
+def update_database(env: Mapping[str, str], distro: str) -> Path:
     """`rosdep update` into espdock's cache: rosdep's sources (ROSDEP_SOURCE_PATH, else
     /etc/ros/rosdep/sources.list.d, else rosdep's default list) and the rosdistro index's
     distribution (ROSDISTRO_INDEX_URL), as rosdep itself reads them."""
@@ -193,7 +193,7 @@ def update_database(env: Mapping[str, str]) -> Path:
             sources_list_dir=str(sources),
             sources_cache_dir=str(cache / "sources.cache"),
             error_handler=lambda source, exc: failed.append(f"{source.url}: {exc}"),
-            ros_distro=env.get("ESPDOCK_ROS_DISTRO") or "jazzy",
+            ros_distro=distro,
             quiet=True,
         )
     except Exception as exc:  # rosdep raises many kinds (URLError, InvalidData, ValueError)
@@ -225,7 +225,7 @@ def rosdep_rules(keys: Iterable[str], os_spec: str, distro: str, env: Mapping[st
     os_name, os_version = os_spec.split(":", 1)
     cache = cache_dir(env) / "sources.cache"
     if not (cache / "index").is_file():
-        update_database(env)
+        update_database(env, distro)
     matcher = DataSourceMatcher([distro, os_name, os_version])
     loader = SourcesListLoader.create_default(matcher=matcher, sources_cache_dir=str(cache))
     lookup = RosdepLookup.create_from_rospkg(sources_loader=loader)

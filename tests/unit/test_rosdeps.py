@@ -10,7 +10,7 @@ import pytest
 from espdock import rosdeps
 from espdock.config import Config
 from espdock.errors import DependencyError, LockError
-from espdock.plan import ros_image
+from espdock.plan import ros_build_image, ros_image
 from espdock.workspace import Package, PackageKind, Workspace, discover_packages, order_packages, read_build_inputs
 from tests.conftest import REPO, espdock
 from tests.rosdep_db import environment
@@ -215,3 +215,37 @@ def test_locked_refuses_a_missing_or_stale_lock_and_lock_refreshes_it(tmp_path):
     again = espdock("lock", cwd=root, env={**NO_ENGINE, **environment(tmp_path)})
     assert "rosdep.lock.json: updated" in again.stdout
     assert json.loads((root / "rosdep.lock.json").read_text())["apt"] == ["acpitool"]
+
+
+def test_the_lock_decides_the_image_key_and_the_flavour_its_dockerfile_and_name(tmp_path):
+    root = make_workspace(tmp_path / "w", "rosdeps_xml_count")
+    workspace = Workspace(root).with_layout(None, None)
+    inputs = read_build_inputs(workspace, order_packages(discover_packages(workspace)))
+    lock = {"apt": ["libtinyxml2-dev"], "pip": []}
+    wheels = ros_build_image(Config(), inputs.ros_dockerfile, inputs.ros_files, rosdep_lock=lock)
+    assert wheels.repository == "espdock/ros-jazzy-build"
+    context = dict(wheels.context)
+    assert context["docker/rosdep/apt.txt"].decode().splitlines()[1:] == ["libtinyxml2-dev"]
+    assert "docker/rosdep-install.sh" in context
+    other = ros_build_image(
+        Config(), inputs.ros_dockerfile, inputs.ros_files, rosdep_lock={**lock, "apt": ["acpitool"]}
+    )
+    assert other.key != wheels.key
+    # No lock: the repository's empty lists, so a workspace without keys keeps one image.
+    assert (
+        ros_build_image(Config(), inputs.ros_dockerfile, inputs.ros_files).key
+        == ros_build_image(Config(), inputs.ros_dockerfile, inputs.ros_files, rosdep_lock={}).key
+    )
+    official = ros_build_image(
+        Config(ros_image="official", base_image="ros:jazzy-ros-base@sha256:" + "0" * 64),
+        inputs.ros_official_dockerfile,
+        {k: v for k, v in inputs.ros_files.items() if "rosdep" in k},
+        rosdep_lock=lock,
+        dockerfile="Dockerfile.ros-official",
+    )
+    assert official.repository == "espdock/ros-jazzy-official-build"
+    assert official.dockerfile == "Dockerfile.ros-official" and official.target == "build"
+    assert dict(official.build_args)["BASE_IMAGE"].startswith("ros:jazzy-ros-base@sha256:")
+    assert sorted(dict(official.context)) == [
+        "Dockerfile.ros-official", "docker/rosdep-install.sh", "docker/rosdep/apt.txt", "docker/rosdep/pip.txt",
+    ]  # fmt: skip

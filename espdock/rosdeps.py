@@ -213,6 +213,20 @@ class Rule:
     installer: str | None  # apt, pip; None: nothing installs it
     packages: tuple[str, ...] = ()
     why: str = ""
+    # The PyPI names the key's rules give for other platforms (e.g. osx: pip: [PyYAML]).
+    pip_elsewhere: tuple[str, ...] = ()
+
+
+def _pip_packages(data: object) -> tuple[str, ...]:
+    """Every package a pip rule anywhere in a key's rosdep DATA names, in order."""
+    found: list[str] = []
+    if isinstance(data, dict):
+        for name, value in data.items():
+            if name == "pip" and isinstance(value, dict):
+                found += [str(p) for p in value.get("packages") or () if str(p) not in found]
+            else:
+                found += [p for p in _pip_packages(value) if p not in found]
+    return tuple(found)
 
 
 def rosdep_rules(keys: Iterable[str], os_spec: str, distro: str, env: Mapping[str, str]) -> dict[str, Rule]:
@@ -252,15 +266,16 @@ def rosdep_rules(keys: Iterable[str], os_spec: str, distro: str, env: Mapping[st
         elif not packages:
             rules[key] = Rule(None, why=f"rosdep's rule for {os_spec} installs nothing")
         else:
-            rules[key] = Rule(installer, packages)
+            rules[key] = Rule(installer, packages, pip_elsewhere=_pip_packages(definition.data))
     return rules
 
 
 def for_image(rules: Mapping[str, Rule], image: RosImage, pip_rules: Mapping[str, Rule]) -> dict[str, Rule]:
     """RULES as the image installs them. The wheels venv sees no apt Python package nor any apt
-    ROS package: an apt `python3-X` rule becomes pip (the key's own -pip rule in PIP_RULES, else
-    PyPI's X, the name Debian's Python policy derives from), and an apt `ros-<distro>-X` one the
-    wheel of that name."""
+    ROS package: an apt `python3-X` rule becomes pip (the key's pip rule for another platform,
+    else its -pip sibling in PIP_RULES, else PyPI's X, the name Debian's Python policy derives
+    the package's from; the lock says which), and an apt `ros-<distro>-X` one the wheel of
+    that name."""
     if image.flavour != "wheels":
         return dict(rules)
     ros_prefix = f"ros-{image.distro}-"
@@ -270,7 +285,10 @@ def for_image(rules: Mapping[str, Rule], image: RosImage, pip_rules: Mapping[str
             mapped[key] = Rule("pip", rule.packages, f"the wheel(s) {', '.join(rule.packages)}")
         elif rule.installer == "apt" and all(p.startswith("python3-") for p in rule.packages):
             pip = pip_rules.get(key)
-            if pip is not None and pip.installer == "pip":
+            if rule.pip_elsewhere:
+                names = rule.pip_elsewhere
+                mapped[key] = Rule("pip", names, "its pip rule for another platform (the venv sees no apt Python)")
+            elif pip is not None and pip.installer == "pip":
                 mapped[key] = Rule("pip", pip.packages, "its -pip rule (the venv does not see apt's Python)")
             else:
                 names = tuple(p.removeprefix("python3-") for p in rule.packages)

@@ -2,13 +2,18 @@
 imports (Typer, rich) take a while, and a signal in that time would otherwise be lost or kill
 espdock by SIGINT."""
 
+import sys
+
 from espdock import interrupts
 
 
 def run() -> None:
     interrupts.install()
-    from espdock.cli import main
-
+    try:
+        from espdock.cli import main
+    except KeyboardInterrupt:  # nothing started yet: nothing to clean up
+        print("error: interrupted", file=sys.stderr)
+        interrupts.finish(interrupts.EXIT_CODE)
     main()
 
 

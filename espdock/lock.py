@@ -237,7 +237,10 @@ def _compile(spec: LockSpec, root: Path, uv: str, previous: str | None, upgrade:
         return output.read_text()
 
 
-def _rosdep_state(config: Config, packages: tuple[Package, ...], inputs: BuildInputs):
+def _rosdep_state(
+    config: Config, packages: tuple[Package, ...], inputs: BuildInputs
+) -> tuple[rosdeps.RosImage, dict[str, tuple[str, ...]], str | None]:
+    """The chosen image, the keys it lacks per package, and why the rosdep lock is stale (None: current)."""
     _, _, image = ros_image(config, inputs)
     needed = rosdeps.needed_keys(packages, image)
     lock = rosdeps.read_lock(inputs.rosdep_lock, ROSDEP_LOCK)

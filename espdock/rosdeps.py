@@ -122,8 +122,9 @@ def stale_reason(lock: dict | None, needed: Mapping[str, tuple[str, ...]], image
     return None
 
 
-def check_dependencies(selected: Iterable[Package], needed: Mapping[str, tuple[str, ...]], lock: dict | None,
-                       image: RosImage) -> None:  # fmt: skip
+def check_dependencies(
+    selected: Iterable[Package], needed: Mapping[str, tuple[str, ...]], lock: dict | None, image: RosImage
+) -> None:
     """Raise DependencyError listing, per selected package, each key neither the image nor the
     lock provides, with the ways out; nothing is built then."""
     keys = (lock or {}).get("keys", {})

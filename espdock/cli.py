@@ -17,7 +17,7 @@ from rich.console import Console
 from rich.text import Text
 
 from espdock import __version__, bootstrap
-from espdock.config import Config, invoking_user, load_config, record_target, resolve_ca_bundle
+from espdock.config import Config, check_target, invoking_user, load_config, resolve_ca_bundle
 from espdock.engine import Engine, format_argv
 from espdock.errors import ConfigError, EspdockBug, EspdockError, Interrupted, WorkspaceError
 from espdock.events import Outcome
@@ -135,10 +135,16 @@ def _packages(ws: Workspace) -> tuple[Package, ...]:
 
 
 def _build_plan(
-    ws: Workspace, config: Config, names: list[str], only: PackageKind | None = None, force: bool = False
+    ws: Workspace,
+    config: Config,
+    names: list[str],
+    only: PackageKind | None = None,
+    force: bool = False,
+    target: str | None = None,
 ) -> Plan:
     packages = _packages(ws)
-    return plan_workspace(ws, config, packages, read_build_inputs(ws, packages), tuple(names), only, force)
+    inputs = read_build_inputs(ws, packages)
+    return plan_workspace(ws, config, packages, inputs, tuple(names), only, force, target)
 
 
 def _firmware_step(ws: Workspace, config: Config, name: str) -> tuple[Plan, IdfBuild]:
@@ -156,7 +162,9 @@ def build(
     timestamps: Annotated[
         bool, typer.Option("--timestamps", help="Start every output line with the UTC time (for CI logs).")
     ] = False,
-    target: Annotated[str | None, typer.Option(help="ESP32 chip target (overrides espdock.toml).")] = None,
+    target: Annotated[
+        str | None, typer.Option(help="Chip for the firmware packages built (overrides each one's own).")
+    ] = None,
     only: Annotated[PackageKind | None, typer.Option(help="Build only the ROS packages or only the firmware.")] = None,
     force: Annotated[bool, typer.Option("--force", help="Build the packages even when nothing changed.")] = False,
     report: Annotated[
@@ -180,8 +188,8 @@ def build(
 ) -> None:
     """Build the images when their inputs changed, then every package whose sources changed; record what
     the build produced in install/espdock-manifest.json."""
-    ws, config = _load(workspace, target=target)
-    plan = _build_plan(ws, config, packages or [], only, force)
+    ws, config = _load(workspace)
+    plan = _build_plan(ws, config, packages or [], only, force, target and check_target(target, "--target"))
     if dry_run:
         render_plan(console, plan)
         return
@@ -275,7 +283,7 @@ def new(
     name: Annotated[str, typer.Argument(help="Package name (lower case, digits, underscores).")],
     target: Annotated[
         str | None,
-        typer.Option(help="Chip target: written to espdock.toml's `target` (where builds read it) unless set there."),
+        typer.Option(help="The package's chip: written to its sdkconfig.defaults (CONFIG_IDF_TARGET)."),
     ] = None,
     depends: Annotated[
         list[str] | None, typer.Option("--depends", "-d", help="Interface package the firmware uses (repeatable).")
@@ -284,17 +292,15 @@ def new(
 ) -> None:
     """Create NAME beside the workspace's firmware: an ESP-IDF project that is also a ROS 2 package,
     with a micro-ROS app on the shared espdock_uros component (added beside it if missing)."""
-    ws, config = _load(workspace, target=target)
+    ws, config = _load(workspace)
     packages = _packages(ws)
     check_new_package(name, tuple(depends or ()), packages)
-    recorded = record_target(ws.root, target) if target else False
+    chip = target and check_target(target, "--target")
     owner = invoking_user(os.environ, ws.root) if os.geteuid() == 0 else None
-    path = create_firmware_package(ws, name, tuple(depends or ()), packages, owner)
+    path = create_firmware_package(ws, name, tuple(depends or ()), packages, owner, chip)
     console.print(f"created {path.relative_to(ws.root)}; build it with `espdock build {name}`")
-    where = (
-        "recorded in espdock.toml" if recorded else "from espdock.toml" if target else "espdock.toml's or the default"
-    )
-    console.print(f"chip target {config.target} ({where})")
+    where = f"CONFIG_IDF_TARGET in {name}/sdkconfig.defaults" if chip else "the workspace's `target`"
+    console.print(f"chip target {chip or config.target} ({where})")
 
 
 @app.command()
@@ -351,9 +357,9 @@ def idf(
 def _micro_ros_specs(
     workspace: Path | None, target: str | None
 ) -> tuple[Workspace, Config, tuple[Package, ...], dict[str, ImageSpec]]:
-    ws, config = _load(workspace, target=target)
+    ws, config = _load(workspace)
     packages = _packages(ws)
-    specs = micro_ros_images(config, read_build_inputs(ws, packages), packages)
+    specs = micro_ros_images(config, read_build_inputs(ws, packages), packages, target and check_target(target))
     if not specs:
         raise WorkspaceError("this workspace has no firmware packages, so no micro-ROS library", "See `espdock new`.")
     return ws, config, packages, specs
@@ -374,7 +380,9 @@ app.add_typer(micro_ros, name="micro-ros")
 @_command
 def micro_ros_status(
     as_json: Annotated[bool, typer.Option("--json", help="Print machine-readable JSON.")] = False,
-    target: Annotated[str | None, typer.Option(help="Chip target (overrides espdock.toml).")] = None,
+    target: Annotated[
+        str | None, typer.Option(help="Chip for every firmware package (overrides each one's own).")
+    ] = None,
     workspace: WorkspaceOption = None,
 ) -> None:
     """Each micro-ROS image: its key, the inputs it is made of, its firmware, whether it exists."""
@@ -390,7 +398,9 @@ def micro_ros_status(
 @micro_ros.command("rebuild")
 @_command
 def micro_ros_rebuild(
-    target: Annotated[str | None, typer.Option(help="Chip target (overrides espdock.toml).")] = None,
+    target: Annotated[
+        str | None, typer.Option(help="Chip for every firmware package (overrides each one's own).")
+    ] = None,
     workspace: WorkspaceOption = None,
 ) -> None:
     """Rebuild the micro-ROS images for the current inputs from scratch (no build cache)."""
@@ -406,7 +416,9 @@ def micro_ros_rebuild(
 @micro_ros.command("pin")
 @_command
 def micro_ros_pin(
-    target: Annotated[str | None, typer.Option(help="Chip target (overrides espdock.toml).")] = None,
+    target: Annotated[
+        str | None, typer.Option(help="Chip for every firmware package (overrides each one's own).")
+    ] = None,
     workspace: WorkspaceOption = None,
 ) -> None:
     """Pin the sources that follow a branch head ("-" in docker/idf/micro_ros_sources.txt) to the

@@ -11,7 +11,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
-from espdock.config import Config
+from espdock.config import Config, check_target
 from espdock.errors import WorkspaceError
 from espdock.layout import (
     IDF_DOCKERFILE,
@@ -303,6 +303,41 @@ def library_sdkconfig(defaults: Mapping[str, bytes], target: str) -> str:
     )
 
 
+# Chips whose compiler rejects what upstream's toolchain template (esp32_toolchain.cmake.in)
+# gives every chip but esp32c3: `-mlongcalls`, an Xtensa option, so libmicroros.a cannot build.
+LONGCALLS_RISCV = ("esp32c2", "esp32c5", "esp32c6", "esp32h2", "esp32p4")
+_IDF_TARGET_LINE = re.compile(r'^CONFIG_IDF_TARGET="?([A-Za-z0-9_]+)"?\s*$', re.MULTILINE)
+
+
+def declared_target(defaults: Mapping[str, bytes]) -> str | None:
+    """The chip a firmware's sdkconfig.defaults names (CONFIG_IDF_TARGET, as IDF reads it), if any."""
+    match = _IDF_TARGET_LINE.search(defaults.get("sdkconfig.defaults", b"").decode(errors="replace"))
+    return match.group(1) if match else None
+
+
+def package_target(config: Config, inputs: BuildInputs, firmware: Package, override: str | None = None) -> str:
+    """The chip FIRMWARE builds for: OVERRIDE (--target), else CONFIG_IDF_TARGET in its
+    sdkconfig.defaults, else the workspace's `target`. Refused (before anything builds) when the
+    package does not list it among its chips, or when micro-ROS cannot be built for it."""
+    declared = declared_target(inputs.sdkconfig_defaults.get(firmware.name, {}))
+    if declared is not None:
+        check_target(declared, f"CONFIG_IDF_TARGET in {firmware.name}/sdkconfig.defaults")
+    target = override or declared or config.target
+    supported = inputs.supported_targets.get(firmware.name)
+    if supported and target not in supported:
+        raise WorkspaceError(
+            f"{firmware.name} does not support {target}: it supports {', '.join(supported)}",
+            f"Its main/idf_component.yml lists them under `targets`; build it for one (--target {supported[0]}).",
+        )
+    if target in LONGCALLS_RISCV:
+        raise WorkspaceError(
+            f"{firmware.name}: micro-ROS cannot be built for {target}: the pinned micro_ros_espidf_component "
+            "gives every chip but esp32c3 the Xtensa option -mlongcalls, which the RISC-V compiler rejects",
+            "Build it for esp32, esp32s2, esp32s3 or esp32c3.",
+        )
+    return target
+
+
 def _check_colcon_meta(package: str, text: str) -> None:
     try:
         names = json.loads(text).get("names", {})
@@ -312,8 +347,10 @@ def _check_colcon_meta(package: str, text: str) -> None:
         raise WorkspaceError(f"{package}/app-colcon.meta is not colcon.meta JSON: {exc}") from exc
 
 
-def micro_ros_image(config: Config, inputs: BuildInputs, packages: tuple[Package, ...], firmware: Package) -> ImageSpec:
-    """The IDF image with micro-ROS prebuilt for FIRMWARE's library inputs and the target.
+def micro_ros_image(
+    config: Config, inputs: BuildInputs, packages: tuple[Package, ...], firmware: Package, target: str
+) -> ImageSpec:
+    """The IDF image with micro-ROS prebuilt for FIRMWARE's library inputs and its chip TARGET.
 
     The key covers only what goes into the library, so firmware packages with the same
     app-colcon.meta, library sdkconfig settings and interfaces get the same image.
@@ -321,7 +358,7 @@ def micro_ros_image(config: Config, inputs: BuildInputs, packages: tuple[Package
     defaults = dockerfile_args(inputs.idf_dockerfile)
     build_args = (
         ("IDF_IMAGE", config.idf_image or defaults.get("IDF_IMAGE", "")),
-        ("IDF_TARGET", config.target),
+        ("IDF_TARGET", target),
         ("MICRO_ROS_COMMIT", config.micro_ros_commit or defaults.get("MICRO_ROS_COMMIT", "")),
         ("MICRO_ROS_REPO", config.micro_ros_repo or defaults.get("MICRO_ROS_REPO", "")),
     )
@@ -338,7 +375,7 @@ def micro_ros_image(config: Config, inputs: BuildInputs, packages: tuple[Package
         # An empty meta is colcon's "no app meta"; the file must exist for COPY.
         "micro-ros/app-colcon.meta": meta.encode() or b'{"names": {}}\n',
         "micro-ros/sdkconfig.defaults": library_sdkconfig(
-            inputs.sdkconfig_defaults.get(firmware.name, {}), config.target
+            inputs.sdkconfig_defaults.get(firmware.name, {}), target
         ).encode(),
         # COPY needs the directory even when no interface package goes in.
         "micro-ros/extra_packages/.espdock-keep": b"",
@@ -347,7 +384,7 @@ def micro_ros_image(config: Config, inputs: BuildInputs, packages: tuple[Package
         for rel, data in inputs.package_files[package.name].items():
             context[f"micro-ros/extra_packages/{package.name}/{rel}"] = data
     spec = _keyed_image(
-        f"espdock/idf-micro-ros-{config.ros_distro}-{config.target}",
+        f"espdock/idf-micro-ros-{config.ros_distro}-{target}",
         IDF_DOCKERFILE,
         "final",
         build_args,
@@ -358,9 +395,31 @@ def micro_ros_image(config: Config, inputs: BuildInputs, packages: tuple[Package
     return replace(spec, origin=_origin(IDF_DOCKERFILE, context, inputs.own_files))
 
 
-def micro_ros_images(config: Config, inputs: BuildInputs, packages: tuple[Package, ...]) -> dict[str, ImageSpec]:
-    """Each firmware package's micro-ROS image (package name -> spec); equal inputs, equal spec."""
-    return {p.name: micro_ros_image(config, inputs, packages, p) for p in packages if p.kind is PackageKind.FIRMWARE}
+def micro_ros_images(
+    config: Config,
+    inputs: BuildInputs,
+    packages: tuple[Package, ...],
+    override: str | None = None,
+    selected: frozenset[str] | None = None,
+) -> dict[str, ImageSpec]:
+    """Each firmware package's micro-ROS image (package name -> spec) for its own chip; equal
+    inputs, equal spec. OVERRIDE (--target) applies to the SELECTED packages (None: all)."""
+    return {
+        p.name: micro_ros_image(
+            config,
+            inputs,
+            packages,
+            p,
+            package_target(config, inputs, p, override if selected is None or p.name in selected else None),
+        )
+        for p in packages
+        if p.kind is PackageKind.FIRMWARE
+    }
+
+
+def spec_target(spec: ImageSpec) -> str:
+    """The chip a micro-ROS image (and every firmware built in it) is for."""
+    return dict(spec.build_args)["IDF_TARGET"]
 
 
 def plan_build(
@@ -407,7 +466,8 @@ def plan_build(
             ensured[spec.key] = spec
             steps.append(EnsureImage(spec))
         project = package.path.relative_to(workspace.root).as_posix()
-        steps.append(IdfBuild(package.name, project, spec.tag, config.target, spec.key, force, workspace.colcon_root))
+        target = spec_target(spec)
+        steps.append(IdfBuild(package.name, project, spec.tag, target, spec.key, force, workspace.colcon_root))
         run_depends = tuple(sorted(package.depends & everything))
         steps.append(InstallFirmware(package.name, project, run_depends))
     return Plan(workspace=workspace, steps=tuple(steps), idf_images=tuple(ensured.values()))
@@ -421,13 +481,19 @@ def plan_workspace(
     names: tuple[str, ...] = (),
     only: PackageKind | None = None,
     force: bool = False,
+    target: str | None = None,
 ) -> Plan:
-    """`espdock build [NAMES...] [--only KIND] [--force]` over the workspace's PACKAGES (in build order)."""
+    """`espdock build [NAMES...] [--only KIND] [--force] [--target CHIP]` over the workspace's
+    PACKAGES (in build order). Each firmware package builds for its own chip (package_target);
+    TARGET overrides it for the packages built."""
     selected = select_up_to(packages, names) if names else packages
     if only is not None:
         selected = tuple(p for p in selected if p.kind is only)
     ros_image = ros_build_image(config, inputs.ros_dockerfile, inputs.ros_files, inputs.own_files)
-    idf_images = micro_ros_images(config, inputs, packages)
+    chosen = frozenset(p.name for p in selected)
+    # Only the packages built must be buildable for their chip; the others keep their own.
+    firmware = tuple(p for p in packages if p.kind is not PackageKind.FIRMWARE or p.name in chosen)
+    idf_images = micro_ros_images(config, inputs, firmware, target, chosen)
     return plan_build(
         workspace, config, selected, ros_image, names, idf_images=idf_images, all_packages=packages, force=force
     )

@@ -417,9 +417,9 @@ def micro_ros_images(
     }
 
 
-def spec_target(spec: ImageSpec) -> str:
+def spec_target(spec: ImageSpec, default: str = "esp32") -> str:
     """The chip a micro-ROS image (and every firmware built in it) is for."""
-    return dict(spec.build_args)["IDF_TARGET"]
+    return dict(spec.build_args).get("IDF_TARGET", default)
 
 
 def plan_build(
@@ -466,7 +466,7 @@ def plan_build(
             ensured[spec.key] = spec
             steps.append(EnsureImage(spec))
         project = package.path.relative_to(workspace.root).as_posix()
-        target = spec_target(spec)
+        target = spec_target(spec, config.target)
         steps.append(IdfBuild(package.name, project, spec.tag, target, spec.key, force, workspace.colcon_root))
         run_depends = tuple(sorted(package.depends & everything))
         steps.append(InstallFirmware(package.name, project, run_depends))

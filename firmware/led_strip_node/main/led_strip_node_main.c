@@ -224,11 +224,8 @@ void app_main(void)
         s_node.shown_known = true;
     }
     espdock_net_load(&s_net);
-    err = espdock_wifi_start(s_net.ssid, s_net.password, false);
-    if (err != ESP_OK) {
-        ESP_LOGE(TAG, "Wi-Fi start failed: %s; check the Wi-Fi settings", esp_err_to_name(err));
-        return;
-    }
+    /* Like the agent link, Wi-Fi that fails to start (NVS, memory) is retried, not given up. */
+    espdock_wifi_start_retrying(s_net.ssid, s_net.password, false);
     if (xTaskCreatePinnedToCore(uros_task, "uros", CONFIG_ESPDOCK_UROS_TASK_STACK, NULL,
                                 CONFIG_ESPDOCK_UROS_TASK_PRIORITY, NULL, UROS_TASK_CORE) != pdPASS) {
         ESP_LOGE(TAG, "could not start the micro-ROS task (stack %d B)", CONFIG_ESPDOCK_UROS_TASK_STACK);

@@ -338,6 +338,24 @@ def package_target(config: Config, inputs: BuildInputs, firmware: Package, overr
     return target
 
 
+# The prebuilt micro-ROS component requires esp_driver_gpio and esp_driver_spi, which ESP-IDF
+# has only from v5.3 on (v5.2 has neither directory under components/).
+MIN_IDF = (5, 3)
+_IDF_TAG_VERSION = re.compile(r":(?:release-)?v(\d+)\.(\d+)")
+
+
+def check_idf_image(reference: str) -> None:
+    """Refuse an Espressif image whose tag names an ESP-IDF older than MIN_IDF (a tag without a
+    version, a digest, is left to the component manager's `idf: ">=5.3"`)."""
+    match = _IDF_TAG_VERSION.search(reference)
+    if match and (int(match.group(1)), int(match.group(2))) < MIN_IDF:
+        raise WorkspaceError(
+            f"idf_image {reference} is ESP-IDF {match.group(1)}.{match.group(2)}; espdock's micro-ROS component "
+            "needs ESP-IDF 5.3 or newer (esp_driver_gpio, esp_driver_spi)",
+            "Set idf_image to espressif/idf:v5.3.5 (the pinned default) or a later v5.x.",
+        )
+
+
 def _check_colcon_meta(package: str, text: str) -> None:
     try:
         names = json.loads(text).get("names", {})
@@ -356,8 +374,10 @@ def micro_ros_image(
     app-colcon.meta, library sdkconfig settings and interfaces get the same image.
     """
     defaults = dockerfile_args(inputs.idf_dockerfile)
+    idf_image = config.idf_image or defaults.get("IDF_IMAGE", "")
+    check_idf_image(idf_image)
     build_args = (
-        ("IDF_IMAGE", config.idf_image or defaults.get("IDF_IMAGE", "")),
+        ("IDF_IMAGE", idf_image),
         ("IDF_TARGET", target),
         ("MICRO_ROS_COMMIT", config.micro_ros_commit or defaults.get("MICRO_ROS_COMMIT", "")),
         ("MICRO_ROS_REPO", config.micro_ros_repo or defaults.get("MICRO_ROS_REPO", "")),

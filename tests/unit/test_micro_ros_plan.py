@@ -298,3 +298,15 @@ def test_an_unknown_chip_in_sdkconfig_defaults_names_the_file():
 
     with pytest.raises(ConfigError, match=r"CONFIG_IDF_TARGET in led/sdkconfig\.defaults"):
         package_target(Config(), _chips(led_chip=b'CONFIG_IDF_TARGET="esp32c33"\n'), PACKAGES[5])
+
+
+@pytest.mark.parametrize("image", ["espressif/idf:v5.1.4", "espressif/idf:release-v5.2", "espressif/idf:v4.4"])
+def test_an_idf_image_older_than_5_3_is_refused_before_anything_builds(image):
+    with pytest.raises(WorkspaceError) as err:
+        key(config=Config(idf_image=image))
+    assert f"idf_image {image}" in err.value.message and "5.3 or newer" in err.value.message
+
+
+@pytest.mark.parametrize("image", ["espressif/idf:v5.3.5", "espressif/idf:v5.4", "espressif/idf@sha256:" + "a" * 64])
+def test_idf_5_3_and_later_or_a_digest_are_accepted(image):
+    assert key(config=Config(idf_image=image))

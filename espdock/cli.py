@@ -37,7 +37,7 @@ from espdock.plan import (
     plan_workspace,
 )
 from espdock.provision import network_settings, nvs_image, nvs_partition, optional_network_settings
-from espdock.runner import Runner
+from espdock.runner import Runner, reset_build_dir
 from espdock.scaffold import check_new_package, create_firmware_package, init_workspace
 from espdock.status import built_from, micro_ros_report
 from espdock.ui import Reporter, render_micro_ros_status, render_packages, render_plan
@@ -347,6 +347,12 @@ def idf(
             "no idf.py arguments given", f"Put them after --, e.g. `espdock idf {package} -- menuconfig`."
         )
     plan, step = _firmware_step(ws, config, package)
+    if "fullclean" in args:
+        cleaned = reset_build_dir(ws, step)
+        console.print(f"fullclean: emptied {cleaned.relative_to(ws.root)} but its sdkconfig (espdock's reset)")
+        args = [a for a in args if a != "fullclean"]
+        if not args:
+            return
     argv = step.argv(tuple(args))
     console.print(Text(f"in {step.image}: {format_argv(argv)}", style="dim"))
     runner = _runner(ws, config, Reporter(console))

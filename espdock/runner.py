@@ -527,6 +527,24 @@ def _prepare_build_dir(build_dir: Path, target: str, defaults: str, image_key: s
         (build_dir / "sdkconfig").unlink(missing_ok=True)
 
 
+def reset_build_dir(workspace: Workspace, step: IdfBuild) -> Path:
+    """espdock's `idf.py fullclean`: empty STEP's build dir but for its sdkconfig (menuconfig's
+    changes, which IDF's fullclean leaves in the project dir). IDF's own would delete the source
+    of the managed_components mount, and the component manager would fail (EBUSY) removing the
+    mountpoint; here the next build extracts it again from the download cache."""
+    build_dir = workspace.ws_dir / "build" / step.package
+    with workspace_lock(workspace):
+        if build_dir.is_dir():
+            for entry in build_dir.iterdir():
+                if entry.name == "sdkconfig":
+                    continue
+                if entry.is_dir() and not entry.is_symlink():
+                    shutil.rmtree(entry)
+                else:
+                    entry.unlink()
+    return build_dir
+
+
 def _defaults_digest(project: Path) -> str:
     digest = hashlib.sha256()
     for path in sorted(project.glob("sdkconfig.defaults*")):

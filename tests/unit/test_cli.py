@@ -252,3 +252,20 @@ def test_init_adopts_a_colcon_workspace_and_never_overwrites(tmp_path):
     again = espdock("init", str(ws), cwd=tmp_path, env=NO_ENGINE)
     assert again.returncode == 0 and "nothing changed" in again.stdout
     assert (ws / "espdock.toml").read_text() == "[espdock]\n# mine\n"
+
+
+def test_idf_fullclean_is_espdock_s_reset_that_keeps_the_sdkconfig(tmp_path):
+    from tests.conftest import REPO
+
+    root = copy_workspace(tmp_path / "w")
+    shutil.copytree(REPO / "firmware", root / "firmware")
+    shutil.copy2(REPO / "Dockerfile.idf", root / "Dockerfile.idf")
+    build = root / "ws/build/led_strip_node"
+    (build / "managed_components/espressif__led_strip").mkdir(parents=True)
+    (build / "CMakeCache.txt").write_text("IDF_TARGET:STRING=esp32c3\n")
+    (build / "sdkconfig").write_text("CONFIG_FREERTOS_HZ=1000\n")
+    result = espdock("idf", "led_strip_node", "--", "fullclean", cwd=root, env=NO_ENGINE)
+    assert result.returncode == 0, result.stderr
+    assert "espdock's reset" in result.stdout
+    assert sorted(p.name for p in build.iterdir()) == ["sdkconfig"]
+    assert (build / "sdkconfig").read_text() == "CONFIG_FREERTOS_HZ=1000\n"

@@ -281,7 +281,7 @@ LIBRARY_SDKCONFIG_PREFIXES = (
     "CONFIG_ESP32_REV_MIN",
     "CONFIG_ESP_REV_MIN",
 )
-_SDKCONFIG_LINE = re.compile(r"^(CONFIG_[A-Za-z0-9_]+)=(.*)$|^#\s*(CONFIG_[A-Za-z0-9_]+) is not set\s*$")
+SDKCONFIG_LINE = re.compile(r"^(CONFIG_[A-Za-z0-9_]+)=(.*)$|^#\s*(CONFIG_[A-Za-z0-9_]+) is not set\s*$")
 
 
 def library_sdkconfig(defaults: Mapping[str, bytes], target: str) -> str:
@@ -292,7 +292,7 @@ def library_sdkconfig(defaults: Mapping[str, bytes], target: str) -> str:
     values: dict[str, str] = {}
     for name in ("sdkconfig.defaults", f"sdkconfig.defaults.{target}"):
         for line in defaults.get(name, b"").decode(errors="replace").splitlines():
-            match = _SDKCONFIG_LINE.match(line.strip())
+            match = SDKCONFIG_LINE.match(line.strip())
             if not match:
                 continue
             key = match.group(1) or match.group(3)

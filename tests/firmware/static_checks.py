@@ -454,6 +454,10 @@ def cmd_apps(firmware: str, msg_file: str) -> int:
                 problems.add(app, f"{option} defaults to {defaults.get(option)!r}, expected {value!r}")
         args = check_colcon_meta(app, problems)
         check_entity_counts(app, args.get("rmw_microxrcedds", {}), problems)
+        if app.name == "led_strip_node" and "rclc_subscription_init_best_effort(" not in app_sources(app):
+            # A reliable input stream holds HISTORY_INPUT x MTU bytes; a longer /qr_message can never be
+            # reassembled and jams it: the colour subscription must be best effort (firmware/README.md).
+            problems.add(app, "the /qr_message subscription must be best effort (a long message jams a reliable one)")
         if app.name == "camera_node":
             check_camera_stream(app, args, defaults, problems)
             check_camera_ranges(app / "main" / "camera_config.h", Path(msg_file), problems)

@@ -147,7 +147,11 @@ static bool create_entities(void *ctx)
     if (!espdock_uros_open(&node->uros)) {
         return false;
     }
-    ESPDOCK_RC_CHECK(rclc_subscription_init_default(
+    /* Best effort: a /qr_message longer than one datagram (512 B MTU) is dropped by the agent.
+     * On the reliable input stream (2 slots of 512 B) a message over its 1024 B could never be
+     * reassembled and would jam the stream for good while pings kept the session "connected";
+     * see firmware/README.md. Colours are 4 or 7 characters. */
+    ESPDOCK_RC_CHECK(rclc_subscription_init_best_effort(
         &node->color_sub, &node->uros.node, ROSIDL_GET_MSG_TYPE_SUPPORT(std_msgs, msg, String),
         CONFIG_ESPDOCK_LED_COLOR_TOPIC));
     /* Transient local, depth 1: a subscriber that starts later still gets the

@@ -16,7 +16,7 @@ from rich.console import Console
 from rich.text import Text
 
 from espdock import __version__, bootstrap, interrupts
-from espdock.config import Config, invoking_user, load_config, record_target, resolve_ca_bundle
+from espdock.config import Config, check_target, invoking_user, load_config, resolve_ca_bundle
 from espdock.engine import format_argv
 from espdock.errors import ConfigError, EspdockBug, EspdockError, Interrupted, WorkspaceError
 from espdock.events import Outcome
@@ -36,7 +36,7 @@ from espdock.plan import (
     workspace_micro_ros_images,
 )
 from espdock.provision import network_settings, nvs_image, nvs_partition, optional_network_settings
-from espdock.runner import Runner, stamp_files
+from espdock.runner import Runner, reset_build_dir, stamp_files
 from espdock.scaffold import check_new_package, create_firmware_package, init_workspace
 from espdock.status import micro_ros_report, resolved_sources
 from espdock.ui import Reporter, render_micro_ros_status, render_packages, render_pins, render_plan
@@ -142,6 +142,7 @@ def _build_plan(
     only: PackageKind | None = None,
     force: bool = False,
     locked: bool | None = None,
+    target: str | None = None,
 ) -> Plan:
     """The build's plan; LOCKED not None: first a rosdep lock that answers for the packages
     (refusing a stale one when LOCKED)."""
@@ -152,7 +153,7 @@ def _build_plan(
         inputs, note = current_rosdep_inputs(ws.root, config, packages, inputs, locked, os.environ, owner)
         if note:
             _notify(note)
-    return plan_workspace(ws, config, packages, inputs, tuple(names), only, force)
+    return plan_workspace(ws, config, packages, inputs, tuple(names), only, force, target)
 
 
 def _firmware_step(ws: Workspace, config: Config, name: str) -> tuple[Plan, IdfBuild]:
@@ -170,7 +171,9 @@ def build(
     timestamps: Annotated[
         bool, typer.Option("--timestamps", help="Start every output line with the UTC time (for CI logs).")
     ] = False,
-    target: Annotated[str | None, typer.Option(help="ESP32 chip target (overrides espdock.toml).")] = None,
+    target: Annotated[
+        str | None, typer.Option(help="Chip for the firmware packages built (overrides each one's own).")
+    ] = None,
     only: Annotated[PackageKind | None, typer.Option(help="Build only the ROS packages or only the firmware.")] = None,
     force: Annotated[bool, typer.Option("--force", help="Build the packages even when nothing changed.")] = False,
     report: Annotated[
@@ -194,9 +197,9 @@ def build(
 ) -> None:
     """Build the images when their inputs changed, then every package whose sources changed; record what
     the build produced in install/espdock-manifest.json."""
-    ws, config = _load(workspace, target=target)
+    ws, config = _load(workspace)
     locked = locked if locked is not None else os.environ.get("CI", "").lower() == "true"
-    plan = _build_plan(ws, config, packages or [], only, force, locked)
+    plan = _build_plan(ws, config, packages or [], only, force, locked, target and check_target(target, "--target"))
     if dry_run:
         render_plan(console, plan)
         return
@@ -271,7 +274,7 @@ def new(
     name: Annotated[str, typer.Argument(help="Package name (lower case, digits, underscores).")],
     target: Annotated[
         str | None,
-        typer.Option(help="Chip target: written to espdock.toml's `target` (where builds read it) unless set there."),
+        typer.Option(help="The package's chip: written to its sdkconfig.defaults (CONFIG_IDF_TARGET)."),
     ] = None,
     depends: Annotated[
         list[str] | None, typer.Option("--depends", "-d", help="Interface package the firmware uses (repeatable).")
@@ -280,17 +283,15 @@ def new(
 ) -> None:
     """Create NAME beside the workspace's firmware: an ESP-IDF project that is also a ROS 2 package,
     with a micro-ROS app on the shared espdock_uros component (added beside it if missing)."""
-    ws, config = _load(workspace, target=target)
+    ws, config = _load(workspace)
     packages = _packages(ws)
     check_new_package(name, tuple(depends or ()), packages)
-    recorded = record_target(ws.root, target) if target else False
+    chip = target and check_target(target, "--target")
     owner = invoking_user(os.environ, ws.root) if os.geteuid() == 0 else None
-    path = create_firmware_package(ws, name, tuple(depends or ()), packages, owner)
+    path = create_firmware_package(ws, name, tuple(depends or ()), packages, owner, chip)
     console.print(f"created {path.relative_to(ws.root)}; build it with `espdock build {name}`")
-    where = (
-        "recorded in espdock.toml" if recorded else "from espdock.toml" if target else "espdock.toml's or the default"
-    )
-    console.print(f"chip target {config.target} ({where})")
+    where = f"CONFIG_IDF_TARGET in {name}/sdkconfig.defaults" if chip else "the workspace's `target`"
+    console.print(f"chip target {chip or config.target} ({where})")
 
 
 @app.command()
@@ -337,6 +338,12 @@ def idf(
             "no idf.py arguments given", f"Put them after --, e.g. `espdock idf {package} -- menuconfig`."
         )
     plan, step = _firmware_step(ws, config, package)
+    if "fullclean" in args:
+        cleaned = reset_build_dir(ws, step)
+        console.print(f"fullclean: emptied {cleaned.relative_to(ws.root)} but its sdkconfig (espdock's reset)")
+        args = [a for a in args if a != "fullclean"]
+        if not args:
+            return
     argv = step.argv(tuple(args))
     console.print(Text(f"in {step.image}: {format_argv(argv)}", style="dim"))
     runner = _runner(ws, config, Reporter(console))
@@ -347,9 +354,14 @@ def idf(
 def _micro_ros_specs(
     workspace: Path | None, target: str | None
 ) -> tuple[Workspace, Config, tuple[Package, ...], dict[str, ImageSpec]]:
-    ws, config = _load(workspace, target=target)
+    ws, config = _load(workspace)
     packages = _packages(ws)
-    return ws, config, packages, workspace_micro_ros_images(config, read_build_inputs(ws, packages), packages)
+    return (
+        ws,
+        config,
+        packages,
+        workspace_micro_ros_images(config, read_build_inputs(ws, packages), packages, target and check_target(target)),
+    )
 
 
 micro_ros = typer.Typer(help="The prebuilt micro-ROS library of this workspace.", no_args_is_help=True)
@@ -360,7 +372,9 @@ app.add_typer(micro_ros, name="micro-ros")
 @_command
 def micro_ros_status(
     as_json: Annotated[bool, typer.Option("--json", help="Print machine-readable JSON.")] = False,
-    target: Annotated[str | None, typer.Option(help="Chip target (overrides espdock.toml).")] = None,
+    target: Annotated[
+        str | None, typer.Option(help="Chip for every firmware package (overrides each one's own).")
+    ] = None,
     workspace: WorkspaceOption = None,
 ) -> None:
     """Each micro-ROS image: its key, the inputs it is made of, its firmware, whether it exists."""
@@ -376,7 +390,9 @@ def micro_ros_status(
 @micro_ros.command("rebuild")
 @_command
 def micro_ros_rebuild(
-    target: Annotated[str | None, typer.Option(help="Chip target (overrides espdock.toml).")] = None,
+    target: Annotated[
+        str | None, typer.Option(help="Chip for every firmware package (overrides each one's own).")
+    ] = None,
     workspace: WorkspaceOption = None,
 ) -> None:
     """Rebuild the micro-ROS images for the current inputs from scratch (no build cache)."""
@@ -392,7 +408,9 @@ def micro_ros_rebuild(
 @micro_ros.command("pin")
 @_command
 def micro_ros_pin(
-    target: Annotated[str | None, typer.Option(help="Chip target (overrides espdock.toml).")] = None,
+    target: Annotated[
+        str | None, typer.Option(help="Chip for every firmware package (overrides each one's own).")
+    ] = None,
     workspace: WorkspaceOption = None,
 ) -> None:
     """Pin the sources that follow a branch head ("-" in docker/idf/micro_ros_sources.txt) to the

@@ -17,7 +17,6 @@ from msgspec import Meta, Struct
 
 from espdock.errors import ConfigError
 from espdock.layout import CONFIG_FILE
-from espdock.workspace import write_atomically
 
 CHIP_TARGETS = (
     "esp32",
@@ -157,16 +156,22 @@ def _read_toml(path: Path) -> dict[str, Any]:
     return dict(table)
 
 
+def check_target(target: str, where: str = "chip target") -> str:
+    """TARGET, when it is a chip ESP-IDF 5.3 knows; a ConfigError naming WHERE otherwise."""
+    if target not in CHIP_TARGETS:
+        close = difflib.get_close_matches(target, CHIP_TARGETS, n=1)
+        raise ConfigError(
+            f"unknown {where} '{target}'",
+            f"Did you mean '{close[0]}'?" if close else f"Targets: {', '.join(CHIP_TARGETS)}.",
+        )
+    return target
+
+
 def _validate(values: dict[str, Any], root: Path) -> Config:
     if values.get("package_paths") is not None:
         values["package_paths"] = tuple(values["package_paths"])
     config = replace(Config(), **values)
-    if config.target not in CHIP_TARGETS:
-        close = difflib.get_close_matches(config.target, CHIP_TARGETS, n=1)
-        raise ConfigError(
-            f"unknown chip target '{config.target}'",
-            f"Did you mean '{close[0]}'?" if close else f"Targets: {', '.join(CHIP_TARGETS)}.",
-        )
+    check_target(config.target)
     if config.ca_bundle is not None:
         ca = Path(config.ca_bundle).expanduser()
         ca = ca if ca.is_absolute() else root / ca
@@ -222,30 +227,3 @@ def invoking_user(env: Mapping[str, str], root: Path) -> tuple[int, int]:
         return int(env["SUDO_UID"]), int(env["SUDO_GID"])
     owner = root.stat()
     return owner.st_uid, owner.st_gid
-
-
-def record_target(root: Path, target: str) -> bool:
-    """Write `target = TARGET` into ROOT/espdock.toml, where the build reads the chip target.
-
-    True when written; False when it was there already. A different target already set is an
-    error: a workspace builds its firmware for one chip at a time.
-    """
-    _validate({"target": target}, root)
-    path = root / CONFIG_FILE
-    current = _read_toml(path).get("target")
-    if current == target:
-        return False
-    if current is not None:
-        raise ConfigError(
-            f'{path} sets target = "{current}"; this workspace builds its firmware for that chip',
-            f"Change it there (or pass --target {target} to a build) to build for {target}.",
-        )
-    lines = path.read_text().splitlines(keepends=True)
-    at = next((i + 1 for i, line in enumerate(lines) if line.strip() == "[espdock]"), None)
-    entry = f'target = "{target}"  # recorded by `espdock new --target`\n'
-    if at is None:
-        lines += ["\n" if lines and not lines[-1].endswith("\n") else "", "[espdock]\n", entry]
-    else:
-        lines.insert(at, entry)
-    write_atomically(path, "".join(lines))
-    return True

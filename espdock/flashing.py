@@ -161,6 +161,40 @@ def _esptool_parts(
     return spell, head, ordered
 
 
+def chip_id_argv(port: Port, esptool_major: int) -> tuple[str, ...]:
+    """`python -m esptool ... chip_id` with no --chip: esptool detects the connected chip and
+    leaves it in its bootloader for the write that follows."""
+    raw_socket = port.spec.startswith("socket://")
+    reset = "no-reset" if raw_socket else "default-reset"
+    words = ("--before", reset, "--after", "no-reset", "chip-id")
+    if esptool_major < 5:
+        words = tuple(w if w.startswith("--") else w.replace("-", "_") for w in words)
+    return ("python", "-m", "esptool", "--port", port.spec, *words)
+
+
+def detected_chip(output: list[str]) -> str | None:
+    """The chip esptool detected ('Detecting chip type... ESP32-C3', esptool 4 and 5), as an IDF
+    target name (esp32c3), if it said."""
+    for line in output:
+        match = re.search(r"Detecting chip type\.*\s*(ESP[0-9A-Z-]+)", line)
+        if match:
+            return match.group(1).lower().replace("-", "")
+    return None
+
+
+def check_chip(package: str, expected: str, output: list[str], port: Port) -> None:
+    """Refuse (before anything is written) a board whose chip is not the one PACKAGE was built for."""
+    found = detected_chip(output)
+    if found is None:
+        tail = " | ".join(line.strip() for line in output[-3:] if line.strip())
+        raise PortError(f"esptool could not tell which chip is at {port.spec}", tail or "Is a board connected?")
+    if found != expected:
+        raise ConfigError(
+            f"the board at {port.spec} is an {found}, but {package} is built for {expected}; nothing was written",
+            f"Connect an {expected} board, or build {package} for it: `espdock build {package} --target {found}`.",
+        )
+
+
 def esptool_major(version_output: list[str]) -> int:
     """esptool's major version from what `python -m esptool version` printed (e.g. 'esptool v5.1.0')."""
     for line in version_output:
@@ -215,6 +249,20 @@ def flash_package(
     version: list[str] = []
     runner.run_idf(workspace, step, ("python", "-m", "esptool", "version"), on_line=version.append, workdir=workdir)
     major = esptool_major(version)
+    chip = flasher_args.get("extra_esptool_args", {}).get("chip")
+    if not chip:
+        raise ConfigError("flasher_args.json names no chip (extra_esptool_args.chip)")
+    probe: list[str] = []
+    runner.run_idf(
+        workspace,
+        step,
+        chip_id_argv(port, major),
+        on_line=probe.append,
+        devices=devices,
+        network=network,
+        workdir=workdir,
+    )
+    check_chip(step.package, chip, probe, port)
     if app:
         commands = [flash_argv(flasher_args, port, baud, major, extra)]
         if verify:

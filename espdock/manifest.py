@@ -17,7 +17,7 @@ from pathlib import Path
 from espdock import __version__
 from espdock.errors import WorkspaceError, disk_full
 from espdock.events import Outcome, StepFinished
-from espdock.plan import EnsureImage, ImageSpec, Plan
+from espdock.plan import EnsureImage, IdfBuild, ImageSpec, Plan
 
 MANIFEST_NAME = "espdock-manifest.json"
 FORMAT = 1
@@ -51,6 +51,9 @@ def build_manifest(plan: Plan, target: str, install: Path) -> dict[str, object]:
         "format": FORMAT,
         "espdock": __version__,
         "target": target,
+        # Each firmware package built, with the chip it was built for (the workspace's `target`
+        # above is only the default).
+        "firmware": {s.package: {"target": s.target, "image": s.image} for s in plan.steps if isinstance(s, IdfBuild)},
         "images": dict(sorted(images.items())),
         "files": file_hashes(install),
     }

@@ -12,7 +12,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from espdock import rosdeps
-from espdock.config import Config
+from espdock.config import Config, check_target
 from espdock.errors import WorkspaceError
 from espdock.layout import (
     IDF_DOCKERFILE,
@@ -319,7 +319,7 @@ LIBRARY_SDKCONFIG_PREFIXES = (
     "CONFIG_ESP32_REV_MIN",
     "CONFIG_ESP_REV_MIN",
 )
-_SDKCONFIG_LINE = re.compile(r"^(CONFIG_[A-Za-z0-9_]+)=(.*)$|^#\s*(CONFIG_[A-Za-z0-9_]+) is not set\s*$")
+SDKCONFIG_LINE = re.compile(r"^(CONFIG_[A-Za-z0-9_]+)=(.*)$|^#\s*(CONFIG_[A-Za-z0-9_]+) is not set\s*$")
 
 
 def library_sdkconfig(defaults: Mapping[str, bytes], target: str) -> str:
@@ -330,7 +330,7 @@ def library_sdkconfig(defaults: Mapping[str, bytes], target: str) -> str:
     values: dict[str, str] = {}
     for name in ("sdkconfig.defaults", f"sdkconfig.defaults.{target}"):
         for line in defaults.get(name, b"").decode(errors="replace").splitlines():
-            match = _SDKCONFIG_LINE.match(line.strip())
+            match = SDKCONFIG_LINE.match(line.strip())
             if not match:
                 continue
             key = match.group(1) or match.group(3)
@@ -339,6 +339,59 @@ def library_sdkconfig(defaults: Mapping[str, bytes], target: str) -> str:
     return "".join(
         f"# {key} is not set\n" if value == "n" else f"{key}={value}\n" for key, value in sorted(values.items())
     )
+
+
+# Chips whose compiler rejects what upstream's toolchain template (esp32_toolchain.cmake.in)
+# gives every chip but esp32c3: `-mlongcalls`, an Xtensa option, so libmicroros.a cannot build.
+LONGCALLS_RISCV = ("esp32c2", "esp32c5", "esp32c6", "esp32h2", "esp32p4")
+_IDF_TARGET_LINE = re.compile(r'^CONFIG_IDF_TARGET="?([A-Za-z0-9_]+)"?\s*$', re.MULTILINE)
+
+
+def declared_target(defaults: Mapping[str, bytes]) -> str | None:
+    """The chip a firmware's sdkconfig.defaults names (CONFIG_IDF_TARGET, as IDF reads it), if any."""
+    match = _IDF_TARGET_LINE.search(defaults.get("sdkconfig.defaults", b"").decode(errors="replace"))
+    return match.group(1) if match else None
+
+
+def package_target(config: Config, inputs: BuildInputs, firmware: Package, override: str | None = None) -> str:
+    """The chip FIRMWARE builds for: OVERRIDE (--target), else CONFIG_IDF_TARGET in its
+    sdkconfig.defaults, else the workspace's `target`. Refused (before anything builds) when the
+    package does not list it among its chips, or when micro-ROS cannot be built for it."""
+    declared = declared_target(inputs.sdkconfig_defaults.get(firmware.name, {}))
+    if declared is not None:
+        check_target(declared, f"CONFIG_IDF_TARGET in {firmware.name}/sdkconfig.defaults")
+    target = override or declared or config.target
+    supported = inputs.supported_targets.get(firmware.name)
+    if supported and target not in supported:
+        raise WorkspaceError(
+            f"{firmware.name} does not support {target}: it supports {', '.join(supported)}",
+            f"Its main/idf_component.yml lists them under `targets`; build it for one (--target {supported[0]}).",
+        )
+    if target in LONGCALLS_RISCV:
+        raise WorkspaceError(
+            f"{firmware.name}: micro-ROS cannot be built for {target}: the pinned micro_ros_espidf_component "
+            "gives every chip but esp32c3 the Xtensa option -mlongcalls, which the RISC-V compiler rejects",
+            "Build it for esp32, esp32s2, esp32s3 or esp32c3.",
+        )
+    return target
+
+
+# The prebuilt micro-ROS component requires esp_driver_gpio and esp_driver_spi, which ESP-IDF
+# has only from v5.3 on (v5.2 has neither directory under components/).
+MIN_IDF = (5, 3)
+_IDF_TAG_VERSION = re.compile(r":(?:release-)?v(\d+)\.(\d+)")
+
+
+def check_idf_image(reference: str) -> None:
+    """Refuse an Espressif image whose tag names an ESP-IDF older than MIN_IDF (a tag without a
+    version, a digest, is left to the component manager's `idf: ">=5.3"`)."""
+    match = _IDF_TAG_VERSION.search(reference)
+    if match and (int(match.group(1)), int(match.group(2))) < MIN_IDF:
+        raise WorkspaceError(
+            f"idf_image {reference} is ESP-IDF {match.group(1)}.{match.group(2)}; espdock's micro-ROS component "
+            "needs ESP-IDF 5.3 or newer (esp_driver_gpio, esp_driver_spi)",
+            "Set idf_image to espressif/idf:v5.3.5 (the pinned default) or a later v5.x.",
+        )
 
 
 def _check_colcon_meta(package: str, text: str) -> None:
@@ -350,16 +403,20 @@ def _check_colcon_meta(package: str, text: str) -> None:
         raise WorkspaceError(f"{package}/app-colcon.meta is not colcon.meta JSON: {exc}") from exc
 
 
-def micro_ros_image(config: Config, inputs: BuildInputs, packages: tuple[Package, ...], firmware: Package) -> ImageSpec:
-    """The IDF image with micro-ROS prebuilt for FIRMWARE's library inputs and the target.
+def micro_ros_image(
+    config: Config, inputs: BuildInputs, packages: tuple[Package, ...], firmware: Package, target: str
+) -> ImageSpec:
+    """The IDF image with micro-ROS prebuilt for FIRMWARE's library inputs and its chip TARGET.
 
     The key covers only what goes into the library, so firmware packages with the same
     app-colcon.meta, library sdkconfig settings and interfaces get the same image.
     """
     defaults = dockerfile_args(inputs.idf_dockerfile)
+    idf_image = config.idf_image or defaults.get("IDF_IMAGE", "")
+    check_idf_image(idf_image)
     build_args = (
-        ("IDF_IMAGE", config.idf_image or defaults.get("IDF_IMAGE", "")),
-        ("IDF_TARGET", config.target),
+        ("IDF_IMAGE", idf_image),
+        ("IDF_TARGET", target),
         ("MICRO_ROS_COMMIT", config.micro_ros_commit or defaults.get("MICRO_ROS_COMMIT", "")),
         ("MICRO_ROS_REPO", config.micro_ros_repo or defaults.get("MICRO_ROS_REPO", "")),
     )
@@ -376,7 +433,7 @@ def micro_ros_image(config: Config, inputs: BuildInputs, packages: tuple[Package
         # An empty meta is colcon's "no app meta"; the file must exist for COPY.
         "micro-ros/app-colcon.meta": meta.encode() or b'{"names": {}}\n',
         "micro-ros/sdkconfig.defaults": library_sdkconfig(
-            inputs.sdkconfig_defaults.get(firmware.name, {}), config.target
+            inputs.sdkconfig_defaults.get(firmware.name, {}), target
         ).encode(),
         # COPY needs the directory even when no interface package goes in.
         "micro-ros/extra_packages/.espdock-keep": b"",
@@ -385,7 +442,7 @@ def micro_ros_image(config: Config, inputs: BuildInputs, packages: tuple[Package
         for rel, data in inputs.package_files[package.name].items():
             context[f"micro-ros/extra_packages/{package.name}/{rel}"] = data
     spec = _keyed_image(
-        f"espdock/idf-micro-ros-{config.ros_distro}-{config.target}",
+        f"espdock/idf-micro-ros-{config.ros_distro}-{target}",
         IDF_DOCKERFILE,
         "final",
         build_args,
@@ -396,16 +453,38 @@ def micro_ros_image(config: Config, inputs: BuildInputs, packages: tuple[Package
     return replace(spec, origin=_origin(IDF_DOCKERFILE, context, inputs.own_files))
 
 
-def micro_ros_images(config: Config, inputs: BuildInputs, packages: tuple[Package, ...]) -> dict[str, ImageSpec]:
-    """Each firmware package's micro-ROS image (package name -> spec); equal inputs, equal spec."""
-    return {p.name: micro_ros_image(config, inputs, packages, p) for p in packages if p.kind is PackageKind.FIRMWARE}
+def micro_ros_images(
+    config: Config,
+    inputs: BuildInputs,
+    packages: tuple[Package, ...],
+    override: str | None = None,
+    selected: frozenset[str] | None = None,
+) -> dict[str, ImageSpec]:
+    """Each firmware package's micro-ROS image (package name -> spec) for its own chip; equal
+    inputs, equal spec. OVERRIDE (--target) applies to the SELECTED packages (None: all)."""
+    return {
+        p.name: micro_ros_image(
+            config,
+            inputs,
+            packages,
+            p,
+            package_target(config, inputs, p, override if selected is None or p.name in selected else None),
+        )
+        for p in packages
+        if p.kind is PackageKind.FIRMWARE
+    }
+
+
+def spec_target(spec: ImageSpec, default: str = "esp32") -> str:
+    """The chip a micro-ROS image (and every firmware built in it) is for."""
+    return dict(spec.build_args).get("IDF_TARGET", default)
 
 
 def workspace_micro_ros_images(
-    config: Config, inputs: BuildInputs, packages: tuple[Package, ...]
+    config: Config, inputs: BuildInputs, packages: tuple[Package, ...], override: str | None = None
 ) -> dict[str, ImageSpec]:
     """micro_ros_images for the `micro-ros` commands: a workspace without firmware has none to act on."""
-    specs = micro_ros_images(config, inputs, packages)
+    specs = micro_ros_images(config, inputs, packages, override)
     if not specs:
         raise WorkspaceError("this workspace has no firmware packages, so no micro-ROS library", "See `espdock new`.")
     return specs
@@ -455,7 +534,8 @@ def plan_build(
             ensured[spec.key] = spec
             steps.append(EnsureImage(spec))
         project = package.path.relative_to(workspace.root).as_posix()
-        steps.append(IdfBuild(package.name, project, spec.tag, config.target, spec.key, force, workspace.colcon_root))
+        target = spec_target(spec, config.target)
+        steps.append(IdfBuild(package.name, project, spec.tag, target, spec.key, force, workspace.colcon_root))
         run_depends = tuple(sorted(package.depends & everything))
         steps.append(InstallFirmware(package.name, project, run_depends))
     return Plan(workspace=workspace, steps=tuple(steps), idf_images=tuple(ensured.values()))
@@ -469,8 +549,11 @@ def plan_workspace(
     names: tuple[str, ...] = (),
     only: PackageKind | None = None,
     force: bool = False,
+    target: str | None = None,
 ) -> Plan:
-    """`espdock build [NAMES...] [--only KIND] [--force]` over the workspace's PACKAGES (in build order)."""
+    """`espdock build [NAMES...] [--only KIND] [--force] [--target CHIP]` over the workspace's
+    PACKAGES (in build order). Each firmware package builds for its own chip (package_target);
+    TARGET overrides it for the packages built."""
     selected = select_up_to(packages, names) if names else packages
     if only is not None:
         selected = tuple(p for p in selected if p.kind is only)
@@ -482,7 +565,10 @@ def plan_workspace(
     # The official image's build reads only the rosdep installer of docker/.
     files = inputs.ros_files if name == ROS_DOCKERFILE else {k: v for k, v in inputs.ros_files.items() if "rosdep" in k}
     ros_spec = ros_build_image(config, text, files, inputs.own_files, lock if needed else None, name)
-    idf_images = micro_ros_images(config, inputs, packages)
+    chosen = frozenset(p.name for p in selected)
+    # Only the packages built must be buildable for their chip; the others keep their own.
+    firmware = tuple(p for p in packages if p.kind is not PackageKind.FIRMWARE or p.name in chosen)
+    idf_images = micro_ros_images(config, inputs, firmware, target, chosen)
     return plan_build(
         workspace, config, selected, ros_spec, names, idf_images=idf_images, all_packages=packages, force=force
     )

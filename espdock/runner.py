@@ -5,6 +5,7 @@ from __future__ import annotations
 import contextlib
 import fcntl
 import hashlib
+import json
 import os
 import posixpath
 import re
@@ -29,6 +30,8 @@ from espdock.layout import WORKSPACE_MOUNT
 from espdock.plan import (
     LABEL_KEY,
     LABEL_WORKSPACE,
+    LIBRARY_SDKCONFIG_PREFIXES,
+    SDKCONFIG_LINE,
     ColconBuild,
     EnsureBaseImage,
     EnsureImage,
@@ -350,6 +353,7 @@ class Runner:
         stamp_file.forget(stamps)
         defaults = _defaults_digest(workspace.root / step.project)
         _prepare_build_dir(build_dir, step.target, defaults, step.image_key)
+        fresh = not (build_dir / "sdkconfig").is_file()
         code = self.run_idf(
             workspace, step, step.argv(), on_line=lambda line: self._emit(StepOutput(step.name, line)), sweep=True
         )
@@ -361,6 +365,19 @@ class Runner:
             )
         (build_dir / TARGET_MARKER).write_text(f"{step.target}\n{defaults}\n{step.image_key}\n")
         _give_to(build_dir / TARGET_MARKER, self._owner)
+        changed = _library_settings_changed(build_dir, fresh)
+        if changed:
+            shown = ", ".join(changed[:4]) + (", ..." if len(changed) > 4 else "")
+            self._emit(
+                StepNote(
+                    step.name,
+                    f"warning: {shown} changed in {build_dir.relative_to(workspace.root)}/sdkconfig (menuconfig) "
+                    "reach the app but not libmicroros.a, built from sdkconfig.defaults: put the line in "
+                    f"{step.project}/sdkconfig.defaults (`espdock idf {step.package} -- save-defconfig`) and "
+                    "build again, so a library with it is built (`espdock micro-ros rebuild` rebuilds it from "
+                    "scratch)",
+                )
+            )
         # After the build: IDF itself writes into the project (the component manager's lock).
         stamp_file.record(self._firmware_stamp(workspace, step), {step.package: listing_digest(build_dir)})
         _give_to(stamp_file.path, self._owner)
@@ -535,7 +552,7 @@ def _prepare_build_dir(build_dir: Path, target: str, defaults: str, image_key: s
     keep = "sdkconfig" if built_defaults == defaults else None
     if built_key != image_key:
         for entry in build_dir.iterdir():
-            if entry.name == keep:
+            if keep is not None and entry.name in (keep, LIBRARY_BASELINE):
                 continue
             if entry.is_dir() and not entry.is_symlink():
                 shutil.rmtree(entry)
@@ -543,6 +560,56 @@ def _prepare_build_dir(build_dir: Path, target: str, defaults: str, image_key: s
                 entry.unlink()
     elif keep is None:
         (build_dir / "sdkconfig").unlink(missing_ok=True)
+
+
+LIBRARY_BASELINE = ".espdock-library-sdkconfig"
+
+
+def _library_lines(sdkconfig: Path) -> dict[str, str]:
+    values = {}
+    for line in sdkconfig.read_text(errors="replace").splitlines() if sdkconfig.is_file() else ():
+        match = SDKCONFIG_LINE.match(line.strip())
+        if match and (key := match.group(1) or match.group(3)).startswith(LIBRARY_SDKCONFIG_PREFIXES):
+            values[key] = match.group(2) if match.group(1) else "n"
+    return values
+
+
+def _library_settings_changed(build_dir: Path, fresh: bool) -> list[str]:
+    """The library-relevant options (FreeRTOS, lwIP, PSRAM, CONFIG_MICRO_ROS_*, ...) of the build
+    dir's sdkconfig that differ from what it held when configured afresh from sdkconfig.defaults,
+    which is what libmicroros.a was built with: menuconfig's changes that the library lacks."""
+    baseline = build_dir / LIBRARY_BASELINE
+    current = _library_lines(build_dir / "sdkconfig")
+    if fresh or not baseline.is_file():
+        baseline.write_text(json.dumps(current, sort_keys=True))
+        return []
+    try:
+        before = json.loads(baseline.read_text())
+    except ValueError:
+        before = {}
+    return [
+        f"{key}={current.get(key, 'n')} (was {before.get(key, 'n')})"
+        for key in sorted(set(before) | set(current))
+        if before.get(key, "n") != current.get(key, "n")
+    ]
+
+
+def reset_build_dir(workspace: Workspace, step: IdfBuild) -> Path:
+    """espdock's `idf.py fullclean`: empty STEP's build dir but for its sdkconfig (menuconfig's
+    changes, which IDF's fullclean leaves in the project dir). IDF's own would delete the source
+    of the managed_components mount, and the component manager would fail (EBUSY) removing the
+    mountpoint; here the next build extracts it again from the download cache."""
+    build_dir = workspace.ws_dir / "build" / step.package
+    with workspace_lock(workspace):
+        if build_dir.is_dir():
+            for entry in build_dir.iterdir():
+                if entry.name in ("sdkconfig", LIBRARY_BASELINE):
+                    continue
+                if entry.is_dir() and not entry.is_symlink():
+                    shutil.rmtree(entry)
+                else:
+                    entry.unlink()
+    return build_dir
 
 
 def _defaults_digest(project: Path) -> str:

@@ -93,9 +93,13 @@ def create_firmware_package(
     depends: tuple[str, ...],
     packages: tuple[Package, ...],
     owner: tuple[int, int] | None = None,
+    target: str | None = None,
 ) -> Path:
     """Write NAME from the template where the workspace's firmware goes (firmware_home), and the
     shared espdock_uros component beside it if missing. Returns the new package's directory.
+
+    TARGET, when given, is the package's chip: CONFIG_IDF_TARGET in its sdkconfig.defaults, where
+    IDF and espdock read it (other packages keep theirs).
 
     OWNER (uid, gid), when given, gets the new files (root creating them for someone).
     """
@@ -117,6 +121,10 @@ def create_firmware_package(
         ) from None
     try:
         _render(template, staging / "package", {"@NAME@": name, "@DEPENDS@\n": extra})
+        if target:
+            defaults = staging / "package" / "sdkconfig.defaults"
+            chip = f'# The chip this package builds for (`espdock new --target`).\nCONFIG_IDF_TARGET="{target}"\n\n'
+            defaults.write_text(chip + defaults.read_text())
         if not component.exists():
             shutil.copytree(default_file(f"firmware/components/{COMPONENT}"), staging / COMPONENT)
         umask = os.umask(0)

@@ -9,7 +9,7 @@ from datetime import UTC, datetime
 from espdock.engine import Engine, ImageInfo, RunSpec
 from espdock.errors import EspdockError, WorkspaceError
 from espdock.pins import FOLLOW_HEAD, RESOLVED_FILE, Source, parse_resolved, parse_sources
-from espdock.plan import LABEL_INPUTS, ImageSpec, derive_interface_packages
+from espdock.plan import LABEL_INPUTS, ImageSpec, derive_interface_packages, spec_target
 from espdock.workspace import Package
 
 
@@ -64,6 +64,7 @@ def micro_ros_report(
     return {
         "images": images,
         "firmware": {name: spec.tag for name, spec in sorted(specs.items())},
+        "targets": {name: spec_target(spec) for name, spec in sorted(specs.items())},
         "sources": [{"url": s.url, "branch": s.branch, "commit": s.commit} for s in sources],
         "following_branch_head": [s.url for s in sources if s.commit == FOLLOW_HEAD],
     }
@@ -74,6 +75,7 @@ def _image_report(engine: Engine, spec: ImageSpec, firmware: list[str], interfac
     report: dict = {
         "key": spec.key,
         "image": spec.tag,
+        "target": spec_target(spec),
         "firmware_packages": firmware,
         "build_args": dict(spec.build_args),
         "interface_packages": interfaces,

@@ -129,7 +129,7 @@ def render_micro_ros_status(console: Console, report: dict) -> None:
     for image in report["images"]:
         state = "present" if image["present"] else "not built"
         console.print(Text.assemble(("micro-ROS image ", "bold"), image["image"], f"  ({state})"))
-        console.print(f"for     {', '.join(image['firmware_packages'])}")
+        console.print(f"for     {', '.join(image['firmware_packages'])} (chip {image['target']})")
         console.print(f"key     {image['key']}")
         for name, value in image["build_args"].items():
             console.print(f"{name:<18}{value}")

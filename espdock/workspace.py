@@ -5,6 +5,7 @@ from __future__ import annotations
 import difflib
 import json
 import os
+import re
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 from enum import StrEnum
@@ -320,6 +321,8 @@ class BuildInputs:
     # The official-image flavour's Dockerfile, and the workspace's rosdep lock (None: none yet).
     ros_official_dockerfile: str = ""
     rosdep_lock: bytes | None = None
+    # Each firmware's chips, as its main/idf_component.yml lists them (`targets`); absent: any.
+    supported_targets: dict[str, tuple[str, ...]] = field(default_factory=dict)
 
 
 def read_build_inputs(workspace: Workspace, packages: Iterable[Package]) -> BuildInputs:
@@ -359,7 +362,41 @@ def read_build_inputs(workspace: Workspace, packages: Iterable[Package]) -> Buil
             for p in packages
             if p.kind is PackageKind.FIRMWARE
         },
+        supported_targets={
+            p.name: targets
+            for p in packages
+            if p.kind is PackageKind.FIRMWARE and (targets := component_targets(p.path / "main" / "idf_component.yml"))
+        },
     )
+
+
+_TARGETS_KEY = re.compile(r"^targets\s*:\s*(\[[^\]]*\])?\s*(#.*)?$")
+_LIST_ITEM = re.compile(r"^\s+-\s*[\"']?([A-Za-z0-9_]+)[\"']?\s*(#.*)?$")
+
+
+def component_targets(manifest: Path) -> tuple[str, ...]:
+    """The chips an IDF component manifest (idf_component.yml) lists under its top-level
+    `targets` (a block or flow list of names, the component manager's field for the targets a
+    component supports); () when it lists none."""
+    if not manifest.is_file():
+        return ()
+    lines = manifest.read_text(errors="replace").splitlines()
+    for index, line in enumerate(lines):
+        match = _TARGETS_KEY.match(line)
+        if not match:
+            continue
+        if match.group(1):
+            return tuple(t.strip().strip("\"'") for t in match.group(1)[1:-1].split(",") if t.strip())
+        found = []
+        for item in lines[index + 1 :]:
+            if not item.strip() or item.lstrip().startswith("#"):
+                continue
+            entry = _LIST_ITEM.match(item)
+            if not entry:
+                break
+            found.append(entry.group(1))
+        return tuple(found)
+    return ()
 
 
 def write_atomically(path: Path, text: str) -> None:

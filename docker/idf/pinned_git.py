@@ -43,26 +43,68 @@ def read_pins(path: Path) -> dict[str, tuple[str, str]]:
     return pins
 
 
+# What a pinned clone honours; every other option is refused, not guessed at: an option that
+# takes a value (--template, -j, --reference-if-able, --shallow-since ...) read as a flag would
+# make its value the URL, and --recursive or --no-checkout asked for something a one-commit
+# checkout does not give.
+CLONE_VALUE_OPTIONS = ("-b", "--branch", "--depth")
+CLONE_FLAGS = ("-q", "--quiet", "--single-branch", "--no-single-branch", "--no-tags", "--progress", "-v", "--verbose")
+
+
+class Refused(Exception):
+    """A git command line the pinned git cannot honour."""
+
+
 def parse_clone(args: list[str]) -> tuple[str | None, str, str]:
-    """(branch, url, destination) of `git clone [-b BRANCH] [options] URL [DEST]`."""
+    """(branch, url, destination) of `git clone [-b BRANCH] [--depth N] [-q] URL [DEST]`."""
     branch, positional, i = None, [], 0
     while i < len(args):
         arg = args[i]
-        if arg in ("-b", "--branch"):
-            branch, i = args[i + 1], i + 2
+        if arg == "--":
+            positional += args[i + 1 :]
+            break
+        if arg in CLONE_VALUE_OPTIONS:
+            if i + 1 >= len(args):
+                raise Refused(f"`git clone {arg}` without its value")
+            if arg in ("-b", "--branch"):
+                branch = args[i + 1]
+            i += 2
             continue
-        if arg.startswith("--branch="):
-            branch = arg.split("=", 1)[1]
-        elif arg in ("--depth", "-o", "--origin", "-c", "--config", "--reference"):
-            i += 1
-        elif not arg.startswith("-"):
+        if arg.startswith(("--branch=", "--depth=")):
+            if arg.startswith("--branch="):
+                branch = arg.split("=", 1)[1]
+        elif arg in CLONE_FLAGS:
+            pass
+        elif arg.startswith("-"):
+            raise Refused(
+                f"`git clone {arg}`: the pinned checkout gives one commit, without submodules, tags or other "
+                "checkout modes, so it honours only -b/--branch, --depth, -q and --[no-]single-branch"
+            )
+        else:
             positional.append(arg)
         i += 1
-    if not positional:
-        sys.exit("pinned git: clone without a repository")
+    if not positional or len(positional) > 2:
+        raise Refused(f"`git clone {' '.join(args)}`: expected a repository and at most a directory")
     url = positional[0]
     dest = positional[1] if len(positional) > 1 else normalise(url).rsplit("/", 1)[-1]
     return branch, url, dest
+
+
+def split_global(argv: list[str]) -> tuple[str | None, list[str]]:
+    """(directory of -C, or None; the command and its arguments) of `git [-C DIR] COMMAND ...`.
+
+    -C is honoured for a clone (the destination is relative to it); `-c`, `--git-dir` and every
+    other global option would change what a clone does and are refused for one."""
+    directory, i = None, 0
+    while i < len(argv) and argv[i].startswith("-"):
+        if argv[i] == "-C" and i + 1 < len(argv):
+            directory = os.path.join(directory or "", argv[i + 1])
+            i += 2
+            continue
+        if "clone" in argv[i:]:
+            raise Refused(f"`git {argv[i]} ... clone`: a global option the pinned clone cannot honour")
+        return None, argv  # not a clone: the real git gets it as it is
+    return directory, argv[i:]
 
 
 def fail(message: str) -> int:
@@ -74,28 +116,49 @@ def fail(message: str) -> int:
 
 def main(argv: list[str]) -> int:
     git = os.environ["ESPDOCK_REAL_GIT"]
-    if not argv or argv[0] != "clone":
-        os.execv(git, [git, *argv])
+    try:
+        directory, command = split_global(argv)
+        if not command or command[0] != "clone":
+            os.execv(git, [git, *argv])
+        branch, url, dest = parse_clone(command[1:])
+    except Refused as refused:
+        return fail(f"{refused} (git {' '.join(argv)})")
+    if directory is not None:
+        dest = os.path.join(directory, dest)
     sources = Path(os.environ["ESPDOCK_MICRO_ROS_SOURCES"])
-    branch, url, dest = parse_clone(argv[1:])
     pin = read_pins(sources).get(normalise(url))
     if pin is None:
-        return fail(f"{url} is cloned by the micro-ROS build but not pinned in {sources.name}; add `{url} BRANCH COMMIT`")
+        return fail(
+            f"{url} is cloned by the micro-ROS build but not pinned in {sources.name}; add `{url} BRANCH COMMIT`"
+        )
     pinned_branch, commit = pin
     if branch is not None and branch != pinned_branch:
-        return fail(f"{url} is cloned at branch {branch}, but {sources.name} pins it on {pinned_branch}; update the pin")
+        return fail(
+            f"{url} is cloned at branch {branch}, but {sources.name} pins it on {pinned_branch}; update the pin"
+        )
     if commit == FOLLOW_HEAD:
-        fetch = [git, "-C", dest, "fetch", "-q", "--depth", "1", url, f"refs/heads/{pinned_branch}"]
+        fetch = [git, "-C", dest, "fetch", "-q", "--depth", "1", "origin", f"refs/heads/{pinned_branch}"]
     else:
-        fetch = [git, "-C", dest, "fetch", "-q", "--depth", "1", url, commit]
-    for command in ([git, "init", "-q", dest], fetch, [git, "-C", dest, "checkout", "-q", "FETCH_HEAD"]):
-        if subprocess.run(command, check=False).returncode != 0:
+        fetch = [git, "-C", dest, "fetch", "-q", "--depth", "1", "origin", commit]
+    # origin is the URL, as after a clone; the branch points at the checkout. No tags: a later
+    # `git checkout TAG` fails, naming the tag.
+    steps = (
+        [git, "init", "-q", dest],
+        [git, "-C", dest, "remote", "add", "origin", url],
+        fetch,
+        [git, "-C", dest, "checkout", "-q", "-B", pinned_branch, "FETCH_HEAD"],
+    )
+    for step in steps:
+        if subprocess.run(step, check=False).returncode != 0:
             return fail(f"could not fetch {url} at {commit} (branch {pinned_branch})")
     got = subprocess.run([git, "-C", dest, "rev-parse", "HEAD"], capture_output=True, text=True, check=True)
     got_commit = got.stdout.strip()
     if commit == FOLLOW_HEAD:
-        print(f"pinned git: warning: {url} is not pinned; took {got_commit} from the head of {pinned_branch}",
-              file=sys.stderr, flush=True)
+        print(
+            f"pinned git: warning: {url} is not pinned; took {got_commit} from the head of {pinned_branch}",
+            file=sys.stderr,
+            flush=True,
+        )
     else:
         print(f"pinned git: {url} at {commit[:12]} ({pinned_branch})", flush=True)
     resolved = os.environ.get("ESPDOCK_MICRO_ROS_RESOLVED")

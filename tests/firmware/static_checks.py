@@ -391,10 +391,29 @@ def check_nvs_partition(app: Path, problems: Problems) -> None:
         problems.add(app, f"partition table {csv.name} has no data/nvs partition to provision")
 
 
+def check_wifi_lifecycle(component: Path, apps: list[Path], problems: Problems) -> None:
+    """Credentials only in espdock's NVS namespace (the driver keeps its copy in RAM), Wi-Fi that
+    fails to start retried by every app, and the agent-port check compiled in."""
+    wifi = (component / "espdock_wifi.c").read_text()
+    storage = wifi.find("esp_wifi_set_storage(WIFI_STORAGE_RAM)")
+    config = wifi.find("esp_wifi_set_config(")
+    if storage < 0 or storage > config:
+        problems.add(component, "espdock_wifi.c must call esp_wifi_set_storage(WIFI_STORAGE_RAM) before set_config")
+    if '#include "agent_port_check.h"' not in (component / "espdock_uros.c").read_text():
+        problems.add(component, "espdock_uros.c must include agent_port_check.h (agent ports of 10000 and up)")
+    for app in apps:
+        sources = app_sources(app)
+        if "espdock_wifi_start(" in sources or "espdock_wifi_start_retrying(" not in sources:
+            problems.add(app, "must start Wi-Fi with espdock_wifi_start_retrying (a failed start is retried)")
+
+
 def cmd_apps(firmware: str, msg_file: str) -> int:
     problems = Problems()
     root = Path(firmware)
     check_network_fallbacks(root / "components" / "espdock_uros", problems)
+    check_wifi_lifecycle(
+        root / "components" / "espdock_uros", sorted(p.parent for p in root.glob("*/package.xml")), problems
+    )
     apps = sorted(p.parent for p in root.glob("*/package.xml"))
     if {a.name for a in apps} != set(REQUIRED_DEFAULTS):
         problems.add(root, f"expected apps {sorted(REQUIRED_DEFAULTS)}, found {[a.name for a in apps]}")
@@ -418,6 +437,8 @@ def cmd_apps(firmware: str, msg_file: str) -> int:
         if missing:
             continue
         check_top_cmake(app, problems)
+        if not re.search(r'^\s+idf: ">=5\.3"', (app / "main" / "idf_component.yml").read_text(), re.M):
+            problems.add(app, 'main/idf_component.yml must require idf: ">=5.3" (esp_driver_gpio/esp_driver_spi)')
         check_interface_depends(app, problems)
         defaults = kconfig_defaults(app / "main" / "Kconfig.projbuild")
         for option in COMMON_OPTIONS:
@@ -433,6 +454,10 @@ def cmd_apps(firmware: str, msg_file: str) -> int:
                 problems.add(app, f"{option} defaults to {defaults.get(option)!r}, expected {value!r}")
         args = check_colcon_meta(app, problems)
         check_entity_counts(app, args.get("rmw_microxrcedds", {}), problems)
+        if app.name == "led_strip_node" and "rclc_subscription_init_best_effort(" not in app_sources(app):
+            # A reliable input stream holds HISTORY_INPUT x MTU bytes; a longer /qr_message can never be
+            # reassembled and jams it: the colour subscription must be best effort (firmware/README.md).
+            problems.add(app, "the /qr_message subscription must be best effort (a long message jams a reliable one)")
         if app.name == "camera_node":
             check_camera_stream(app, args, defaults, problems)
             check_camera_ranges(app / "main" / "camera_config.h", Path(msg_file), problems)

@@ -368,8 +368,31 @@ static void test_diff_continues_after_a_refused_field(void)
     TK_CHECK_EQ_INT(s.state.sharpness, 0, "refused sharpness unchanged");
 }
 
+/* Buffers hold width*height/5 bytes of the largest frame: a frame that fills them may not ask for
+ * the lowest qualities (its JPEG would overflow), a smaller frame may in proportion. */
+static void test_quality_is_bounded_by_the_frame_s_share_of_the_buffer(void)
+{
+    TK_CHECK_EQ_INT(cam_cfg_quality_min(CAM_FRAMESIZE_UXGA, CAM_FRAMESIZE_UXGA), CAM_QUALITY_FLOOR, "full frame");
+    TK_CHECK_EQ_INT(cam_cfg_quality_min(CAM_FRAMESIZE_QVGA, CAM_FRAMESIZE_UXGA), 0, "QVGA is 4 %% of UXGA");
+    TK_CHECK_EQ_INT(cam_cfg_quality_min(10, 12), 3, "VGA in XGA buffers: 39 %% of the pixels");
+    TK_CHECK_EQ_INT(cam_cfg_quality_min(CAM_FRAMESIZE_QVGA, CAM_FRAMESIZE_QVGA), CAM_QUALITY_FLOOR, "QVGA alone");
+    cam_cfg_t c = mid_config();
+    c.framesize = CAM_FRAMESIZE_UXGA;
+    c.quality = CAM_QUALITY_FLOOR - 1;
+    cam_field_t bad = CAM_FIELD_COUNT;
+    TK_CHECK(!cam_cfg_validate(&c, CAM_FRAMESIZE_UXGA, &bad), "quality 9 at the full buffer accepted");
+    TK_CHECK(bad == CAM_FIELD_QUALITY, "blamed field %d, not quality", (int)bad);
+    c.quality = CAM_QUALITY_FLOOR;
+    TK_CHECK(cam_cfg_validate(&c, CAM_FRAMESIZE_UXGA, NULL), "quality 10 at the full buffer rejected");
+    c.framesize = CAM_FRAMESIZE_QVGA;
+    c.quality = 0;
+    TK_CHECK(cam_cfg_validate(&c, CAM_FRAMESIZE_UXGA, NULL), "quality 0 for QVGA in UXGA buffers rejected");
+    TK_CHECK(!cam_cfg_validate(&c, CAM_FRAMESIZE_QVGA, NULL), "quality 0 at the full QVGA buffer accepted");
+}
+
 int main(void)
 {
+    test_quality_is_bounded_by_the_frame_s_share_of_the_buffer();
     test_table_matches_message();
     test_every_field_at_and_past_bounds();
     test_unrepresentable_bounds_are_the_type_limits();

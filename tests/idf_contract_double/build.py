@@ -20,7 +20,9 @@ from espdock.engine import Engine, LineSink, RunSpec
 from espdock.errors import ImageBuildError
 
 HERE = Path(__file__).resolve().parent
-IMAGE_TAG = "espdock-test/idf-contract-double:v5.3.5"
+# One tag per version of the double's files: branches that change the double share an engine
+# without rebuilding one tag from under each other's builds.
+IMAGE_REPOSITORY = "espdock-test/idf-contract-double"
 INPUTS_LABEL = "io.espdock.idf-contract-double.inputs"
 MICRO_ROS_REPO = "file:///opt/espdock-double/micro_ros_espidf_component.git"
 COMMIT_FILE = "/opt/espdock-double/MICRO_ROS_COMMIT"
@@ -47,19 +49,20 @@ def inputs_hash(root: Path = HERE) -> str:
 def build_double(engine: Engine, ca_bundle: Path | None, on_line: LineSink) -> tuple[str, str]:
     """Build the double image unless one built from the same files exists; return (tag, micro-ROS commit)."""
     wanted = inputs_hash()
-    existing = engine.image(IMAGE_TAG)
+    tag = f"{IMAGE_REPOSITORY}:v5.3.5-{wanted}"
+    existing = engine.image(tag)
     if existing is None or existing.labels.get(INPUTS_LABEL) != wanted:
         engine.build_image(
             context=HERE,
             dockerfile="Dockerfile",
             target="double",
-            tag=IMAGE_TAG,
+            tag=tag,
             build_args={},
             labels={INPUTS_LABEL: wanted},
             ca_bundle=ca_bundle,
             on_line=on_line,
         )
-    return IMAGE_TAG, micro_ros_commit(engine, IMAGE_TAG)
+    return tag, micro_ros_commit(engine, tag)
 
 
 def micro_ros_commit(engine: Engine, image: str) -> str:

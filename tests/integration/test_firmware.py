@@ -112,14 +112,20 @@ def status(root: Path, env: dict[str, str], package: str = "camera_node") -> dic
     return image
 
 
-def test_first_build_makes_the_micro_ros_image_and_installs_both_apps(fw_ws):
+def test_first_build_makes_the_micro_ros_image_and_installs_both_apps(fw_ws, double_env):
     root, first = fw_ws
     assert first.returncode == 0, first.stdout[-3000:] + first.stderr
     assert "cache miss" in first.stdout
-    for package in ("camera_node", "led_strip_node"):
+    manifest = json.loads((root / "ws/install/espdock-manifest.json").read_text())
+    # One build, each package for its own chip: camera_node the workspace's esp32, led_strip_node
+    # the esp32c3 its sdkconfig.defaults names, each against a micro-ROS image for that chip.
+    for package, chip in (("camera_node", "esp32"), ("led_strip_node", "esp32c3")):
+        assert manifest["firmware"][package]["target"] == chip
+        assert manifest["firmware"][package]["image"].startswith(f"espdock/idf-micro-ros-jazzy-{chip}:")
+        assert status(root, double_env, package)["target"] == chip
         installed = firmware_dir(root, package)
         flasher_args = json.loads((installed / "flasher_args.json").read_text())
-        assert flasher_args["extra_esptool_args"]["chip"] == "esp32"
+        assert flasher_args["extra_esptool_args"]["chip"] == chip
         for rel in flasher_args["flash_files"].values():
             # ESP app/bootloader images start with 0xE9; a partition table with its entry magic 0xAA50.
             magic = b"\xaa\x50" if "partition" in rel else b"\xe9"
@@ -405,17 +411,23 @@ def test_a_broken_interface_fails_the_library_build_and_tags_nothing(fw_ws, doub
 def test_switching_the_chip_target_builds_a_new_library_and_retargets(fw_ws, double_env):
     root, first = fw_ws
     assert first.returncode == 0
-    esp32 = status(root, double_env, "led_strip_node")
-    result = espdock("build", "led_strip_node", "--target", "esp32s3", cwd=root, env=double_env)
+    esp32 = status(root, double_env, "camera_node")
+    result = espdock("build", "camera_node", "--target", "esp32s3", cwd=root, env=double_env)
     assert result.returncode == 0, result.stdout[-2000:] + result.stderr
     assert "espdock/idf-micro-ros-jazzy-esp32s3:" in result.stdout
-    flasher_args = json.loads((firmware_dir(root, "led_strip_node") / "flasher_args.json").read_text())
+    flasher_args = json.loads((firmware_dir(root, "camera_node") / "flasher_args.json").read_text())
     assert flasher_args["extra_esptool_args"]["chip"] == "esp32s3"
     assert "0x0" in flasher_args["flash_files"]
+    # On the S3 the board defaults to an S3 board (its pins exist there) with octal PSRAM.
+    sdkconfig = (root / "ws/build/camera_node/sdkconfig").read_text()
+    assert "CONFIG_ESPDOCK_CAM_BOARD_XIAO_ESP32S3=y" in sdkconfig and "CONFIG_SPIRAM_MODE_OCT=y" in sdkconfig
+    assert "CONFIG_ESPDOCK_CAM_BOARD_AI_THINKER=y" not in sdkconfig
     # And back: the esp32 image is still cached.
-    back = espdock("build", "led_strip_node", cwd=root, env=double_env)
+    back = espdock("build", "camera_node", cwd=root, env=double_env)
     assert back.returncode == 0
-    assert status(root, double_env, "led_strip_node")["key"] == esp32["key"]
+    assert status(root, double_env, "camera_node")["key"] == esp32["key"]
+    sdkconfig = (root / "ws/build/camera_node/sdkconfig").read_text()
+    assert "CONFIG_ESPDOCK_CAM_BOARD_AI_THINKER=y" in sdkconfig and "SPIRAM_MODE_OCT" not in sdkconfig
 
 
 def test_new_makes_a_package_that_builds(fw_ws, double_env):
@@ -441,16 +453,25 @@ def test_idf_passthrough_runs_idf_py_in_the_image(fw_ws, double_env):
     assert "ESP-IDF v5.3.5" in result.stdout
 
 
-@pytest.fixture
-def mock_bootloader():
-    """esp32-mock-bootloader on a free loopback port: the ROM bootloader esptool talks to."""
+@contextlib.contextmanager
+def emulated_board(chip: str):
+    """esp32-mock-bootloader emulating CHIP on a free loopback port: the ROM bootloader esptool talks to."""
     with socket.socket() as probe:
         probe.bind(("127.0.0.1", 0))
         port = probe.getsockname()[1]
     tool = Path(sys.executable).with_name("esp32-mock-bootloader")
-    subprocess.run([str(tool), "start", "--chip", "esp32", "--port", str(port)], check=True, capture_output=True)
-    yield f"socket://127.0.0.1:{port}"
-    subprocess.run([str(tool), "stop"], check=False, capture_output=True)
+    subprocess.run([str(tool), "start", "--chip", chip, "--port", str(port)], check=True, capture_output=True)
+    try:
+        yield f"socket://127.0.0.1:{port}"
+    finally:
+        subprocess.run([str(tool), "stop", "--port", str(port)], check=False, capture_output=True)
+
+
+@pytest.fixture
+def mock_bootloader():
+    """A board of led_strip_node's chip (esp32c3)."""
+    with emulated_board("esp32c3") as port:
+        yield port
 
 
 def test_flash_writes_and_verifies_through_esptool(fw_ws, double_env, mock_bootloader, engine):
@@ -460,6 +481,22 @@ def test_flash_writes_and_verifies_through_esptool(fw_ws, double_env, mock_bootl
     assert result.returncode == 0, result.stdout[-3000:] + result.stderr
     assert "verified" in result.stdout
     assert leftover_containers(engine, root) == []
+
+
+def test_flash_and_provision_refuse_a_board_of_another_chip_before_writing(fw_ws, double_env, tmp_path):
+    root, first = fw_ws
+    assert first.returncode == 0
+    with emulated_board("esp32") as esp32:
+        before = read_flash(esp32, 0x0, 0x20000, tmp_path)
+        flashed = espdock("flash", "led_strip_node", "--port", esp32, cwd=root, env=double_env)
+        assert flashed.returncode == 2, flashed.stdout[-2000:] + flashed.stderr
+        assert f"the board at {esp32} is an esp32, but led_strip_node is built for esp32c3" in flashed.stderr
+        provisioned = espdock(
+            "provision", "led_strip_node", "--port", esp32, "--wifi-ssid", "lab",
+            "--wifi-password-file", "/dev/null", "--agent", "10.0.0.2:8888", cwd=root, env=double_env,
+        )  # fmt: skip
+        assert provisioned.returncode == 2 and "is an esp32" in provisioned.stderr
+        assert read_flash(esp32, 0x0, 0x20000, tmp_path) == before, "a board of another chip was written to"
 
 
 def test_flash_to_a_missing_or_silent_port_says_so(fw_ws, double_env):
@@ -546,10 +583,29 @@ def test_the_double_refuses_headers_of_components_a_component_does_not_require(d
     assert conditional.returncode == 2 and "driver/gpio.h: No such file or directory" in conditional.stderr
 
 
+def test_the_double_links_esp32_camera_s_driver_only_where_upstream_builds_it(double, tmp_path):
+    """esp32-camera compiles its driver only for esp32, esp32s2 and esp32s3: on an esp32c3 an app
+    calling esp_camera_init fails at the link, so camera_node lists the chips it supports."""
+    project = tmp_path / "cam"
+    (project / "main").mkdir(parents=True)
+    (project / "CMakeLists.txt").write_text(
+        "cmake_minimum_required(VERSION 3.16)\ninclude($ENV{IDF_PATH}/tools/cmake/project.cmake)\nproject(cam)\n"
+    )
+    (project / "main/CMakeLists.txt").write_text('idf_component_register(SRCS "main.c")\n')
+    (project / "main/idf_component.yml").write_text('dependencies:\n  espressif/esp32-camera: "^2.0.14"\n')
+    (project / "main/main.c").write_text(
+        "int esp_camera_init(const void *config);\nvoid app_main(void) { esp_camera_init(0); }\n"
+    )
+    subprocess.run(["chown", "-R", f"{USER_UID}:{USER_UID}", str(tmp_path)], check=True)
+    c3 = run_in_double(double, project, "-DIDF_TARGET=esp32c3", "build")
+    assert c3.returncode == 2 and "undefined reference to `esp_camera_init'" in c3.stderr, c3.stdout[-2000:]
+    assert run_in_double(double, project, "-DIDF_TARGET=esp32s3", "build").returncode == 0
+
+
 def host_esptool(port: str, *args: str) -> None:
     """esptool from the test venv, straight at the mock: the test's own view of the flash."""
     tool = Path(sys.executable).with_name("esptool")
-    argv = [str(tool), "--chip", "esp32", "--port", port, "--before", "no-reset", "--after", "no-reset", "--no-stub"]
+    argv = [str(tool), "--port", port, "--before", "no-reset", "--after", "no-reset", "--no-stub"]
     result = subprocess.run([*argv, *args], capture_output=True, text=True, check=False, timeout=120)
     assert result.returncode == 0, result.stdout[-2000:] + result.stderr
 

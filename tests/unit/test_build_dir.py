@@ -43,3 +43,26 @@ def test_a_new_target_removes_the_build_dir(tmp_path):
     build = built(tmp_path)
     _prepare_build_dir(build, "esp32s3", "d1", "k1")
     assert not build.exists()
+
+
+def test_a_menuconfig_change_of_a_library_option_is_reported_and_others_are_not(tmp_path):
+    from espdock.runner import LIBRARY_BASELINE, _library_settings_changed
+
+    build = tmp_path / "build"
+    build.mkdir()
+    sdkconfig = build / "sdkconfig"
+    sdkconfig.write_text('CONFIG_FREERTOS_HZ=1000\nCONFIG_SPIRAM=y\nCONFIG_ESPDOCK_NODE_NAME="a"\n')
+    assert _library_settings_changed(build, fresh=True) == []  # configured from sdkconfig.defaults
+    sdkconfig.write_text('CONFIG_FREERTOS_HZ=1000\nCONFIG_SPIRAM=y\nCONFIG_ESPDOCK_NODE_NAME="b"\n')
+    assert _library_settings_changed(build, fresh=False) == []  # an app option: the library has none
+    sdkconfig.write_text("CONFIG_FREERTOS_HZ=100\n# CONFIG_SPIRAM is not set\nCONFIG_LWIP_IPV6=y\n")
+    assert _library_settings_changed(build, fresh=False) == [
+        "CONFIG_FREERTOS_HZ=100 (was 1000)",
+        "CONFIG_LWIP_IPV6=y (was n)",
+        "CONFIG_SPIRAM=n (was y)",
+    ]
+    # The baseline survives an image change with the sdkconfig (the library is still without them).
+    (build / TARGET_MARKER).write_text("esp32\nd1\nk1\n")
+    _prepare_build_dir(build, "esp32", "d1", "k2")
+    assert sorted(p.name for p in build.iterdir()) == [LIBRARY_BASELINE, "sdkconfig"]
+    assert _library_settings_changed(build, fresh=False)

@@ -1,5 +1,7 @@
 """The CLI's answers to bad input; none of these may need (or touch) a container engine."""
 
+import re
+import shutil
 from pathlib import Path
 
 from espdock.layout import firmware_install_dir
@@ -178,19 +180,45 @@ def test_new_refuses_taken_and_reserved_names_and_unknown_dependencies(tmp_path)
     assert not (root / "firmware").exists(), "nothing written for refused input"
 
 
-def test_new_records_the_target_where_the_build_reads_it(tmp_path):
+def test_new_gives_each_package_its_own_chip(tmp_path):
     root = copy_workspace(tmp_path / "w")
-    (root / "espdock.toml").write_text('# mine\n[espdock]\nros_distro = "jazzy"\n')
+    toml = '# mine\n[espdock]\nros_distro = "jazzy"\n'
+    (root / "espdock.toml").write_text(toml)
     created = espdock("new", "blinky", "--target", "esp32s3", cwd=root, env=NO_ENGINE)
     assert created.returncode == 0, created.stderr
-    assert "chip target esp32s3 (recorded in espdock.toml)" in created.stdout
-    assert 'target = "esp32s3"' in (root / "espdock.toml").read_text()
-    assert (root / "espdock.toml").read_text().startswith("# mine\n[espdock]\n")
-    plan = espdock("build", "blinky", "--dry-run", cwd=root, env=NO_ENGINE)
-    assert "(target esp32s3)" in plan.stdout
+    assert "chip target esp32s3 (CONFIG_IDF_TARGET in blinky/sdkconfig.defaults)" in created.stdout
+    assert 'CONFIG_IDF_TARGET="esp32s3"' in (root / "firmware/blinky/sdkconfig.defaults").read_text()
     other = espdock("new", "blinky2", "--target", "esp32c3", cwd=root, env=NO_ENGINE)
-    assert other.returncode == 2 and 'sets target = "esp32s3"' in other.stderr
-    assert not (root / "firmware/blinky2").exists()
+    assert other.returncode == 0, other.stderr
+    assert (root / "espdock.toml").read_text() == toml
+    plan = espdock("build", "--dry-run", cwd=root, env=NO_ENGINE)
+    assert "(target esp32s3)" in plan.stdout and "(target esp32c3)" in plan.stdout
+    assert "espdock/idf-micro-ros-jazzy-esp32s3:" in plan.stdout
+    assert "espdock/idf-micro-ros-jazzy-esp32c3:" in plan.stdout
+    bad = espdock("new", "blinky3", "--target", "esp32c9", cwd=root, env=NO_ENGINE)
+    assert bad.returncode == 2 and "unknown --target 'esp32c9'" in bad.stderr
+    assert not (root / "firmware/blinky3").exists()
+
+
+def test_the_repository_builds_the_camera_for_esp32_and_the_strip_for_esp32c3(tmp_path):
+    from tests.conftest import REPO
+
+    root = copy_workspace(tmp_path / "w")
+    shutil.copytree(REPO / "firmware", root / "firmware")
+    shutil.copy2(REPO / "Dockerfile.idf", root / "Dockerfile.idf")
+    plan = espdock("build", "--dry-run", cwd=root, env=NO_ENGINE)
+    assert plan.returncode == 0, plan.stderr
+    steps = " ".join(plan.stdout.split())
+    assert re.search(r"idf\.py build camera_node\S* in espdock/idf-micro-ros-jazzy-esp32:\S+ \(target esp32\)", steps)
+    assert re.search(r"led_strip_node\S* in espdock/idf-micro-ros-jazzy-esp32c3:\S+ \(target esp32c3\)", steps)
+    # camera_node lists esp32 and esp32s3: another chip is refused before anything builds.
+    refused = espdock("build", "camera_node", "--target", "esp32c3", cwd=root, env=NO_ENGINE)
+    assert refused.returncode == 2
+    assert "camera_node does not support esp32c3: it supports esp32, esp32s3" in refused.stderr
+    s3 = espdock("build", "camera_node", "--target", "esp32s3", "--dry-run", cwd=root, env=NO_ENGINE)
+    assert s3.returncode == 0 and "(target esp32s3)" in s3.stdout
+    c6 = espdock("build", "led_strip_node", "--target", "esp32c6", cwd=root, env=NO_ENGINE)
+    assert c6.returncode == 2 and "-mlongcalls" in c6.stderr
 
 
 def test_a_workspace_dockerfile_wins_over_the_default_and_changes_the_key(tmp_path):
@@ -224,3 +252,20 @@ def test_init_adopts_a_colcon_workspace_and_never_overwrites(tmp_path):
     again = espdock("init", str(ws), cwd=tmp_path, env=NO_ENGINE)
     assert again.returncode == 0 and "nothing changed" in again.stdout
     assert (ws / "espdock.toml").read_text() == "[espdock]\n# mine\n"
+
+
+def test_idf_fullclean_is_espdock_s_reset_that_keeps_the_sdkconfig(tmp_path):
+    from tests.conftest import REPO
+
+    root = copy_workspace(tmp_path / "w")
+    shutil.copytree(REPO / "firmware", root / "firmware")
+    shutil.copy2(REPO / "Dockerfile.idf", root / "Dockerfile.idf")
+    build = root / "ws/build/led_strip_node"
+    (build / "managed_components/espressif__led_strip").mkdir(parents=True)
+    (build / "CMakeCache.txt").write_text("IDF_TARGET:STRING=esp32c3\n")
+    (build / "sdkconfig").write_text("CONFIG_FREERTOS_HZ=1000\n")
+    result = espdock("idf", "led_strip_node", "--", "fullclean", cwd=root, env=NO_ENGINE)
+    assert result.returncode == 0, result.stderr
+    assert "espdock's reset" in result.stdout
+    assert sorted(p.name for p in build.iterdir()) == ["sdkconfig"]
+    assert (build / "sdkconfig").read_text() == "CONFIG_FREERTOS_HZ=1000\n"

@@ -16,7 +16,9 @@ from espdock.plan import (
     library_sdkconfig,
     micro_ros_image,
     micro_ros_images,
+    package_target,
     plan_build,
+    plan_workspace,
     ros_build_image,
 )
 from espdock.workspace import BuildInputs, Package, PackageKind, Workspace
@@ -42,8 +44,9 @@ PACKAGES = (
     firmware("led", depends=["std_msgs"]),
 )
 INPUTS = BuildInputs(
-    ros_dockerfile="ARG BASE_IMAGE=debian:bookworm-slim\nFROM ${BASE_IMAGE} AS build\n",
-    ros_files={},
+    ros_dockerfile="ARG BASE_IMAGE=debian:bookworm-slim\nARG ROSDEP_OS=debian:bookworm\nFROM ${BASE_IMAGE} AS build\n",
+    # The wheels image's lock: what it provides (std_msgs, rclpy) is not a rosdep key.
+    ros_files={"docker/ros-runtime.txt": (Path(__file__).parents[2] / "docker/ros-runtime.txt").read_bytes()},
     idf_dockerfile=(
         "ARG IDF_IMAGE=espressif/idf:v5.3.5\nFROM ${IDF_IMAGE} AS idf\nARG MICRO_ROS_REPO=https://x/y\n"
         "ARG MICRO_ROS_COMMIT=abc123\n"
@@ -69,7 +72,7 @@ DEFAULT = Config()
 
 
 def key(config=DEFAULT, inputs=INPUTS, packages=PACKAGES):
-    return micro_ros_image(config, inputs, packages, CAM).key
+    return micro_ros_image(config, inputs, packages, CAM, config.target).key
 
 
 def test_interfaces_are_derived_transitively_from_firmware_dependencies():
@@ -159,7 +162,7 @@ def test_key_ignores_what_does_not_go_into_the_library():
 
 
 def test_image_tag_names_distro_and_target_and_carries_the_key():
-    spec = micro_ros_image(Config(target="esp32c3"), INPUTS, PACKAGES, CAM)
+    spec = micro_ros_image(Config(), INPUTS, PACKAGES, CAM, "esp32c3")
     assert spec.tag == f"espdock/idf-micro-ros-jazzy-esp32c3:{spec.key[:16]}"
     assert spec.labels()["io.espdock.key"] == spec.key
     assert dict(spec.build_args) == {
@@ -171,7 +174,7 @@ def test_image_tag_names_distro_and_target_and_carries_the_key():
 
 
 def test_context_holds_the_app_s_interfaces_meta_and_library_settings():
-    context = dict(micro_ros_image(Config(), INPUTS, PACKAGES, CAM).context)
+    context = dict(micro_ros_image(Config(), INPUTS, PACKAGES, CAM, "esp32").context)
     packages = {
         name.split("/")[2] for name in context if name.startswith("micro-ros/extra_packages/") and name.count("/") > 2
     }
@@ -244,3 +247,67 @@ def test_firmware_steps_build_then_install_each_package():
     assert argv[:5] == ("idf.py", "-C", "/workspace/firmware/cam", "-B", "/workspace/ws/build/cam")
     assert argv[-1] == "build"
     assert firmware_steps[1].run_depends == ("cam_msgs",)
+
+
+def _chips(cam_targets=("esp32", "esp32s3"), led_chip=b'CONFIG_IDF_TARGET="esp32c3"\n'):
+    return replace(
+        INPUTS,
+        sdkconfig_defaults={**INPUTS.sdkconfig_defaults, "led": {"sdkconfig.defaults": led_chip}},
+        supported_targets={"cam": cam_targets},
+    )
+
+
+def test_each_firmware_builds_for_its_own_chip_with_its_own_image():
+    inputs = _chips()
+    plan = plan_workspace(Workspace(ROOT), Config(target="esp32"), PACKAGES, inputs)
+    builds = {s.package: s for s in plan.steps if isinstance(s, IdfBuild)}
+    assert {name: step.target for name, step in builds.items()} == {"cam": "esp32", "led": "esp32c3"}
+    assert builds["led"].image.startswith("espdock/idf-micro-ros-jazzy-esp32c3:")
+    assert builds["cam"].image.startswith("espdock/idf-micro-ros-jazzy-esp32:")
+    assert {dict(s.build_args)["IDF_TARGET"] for s in plan.idf_images} == {"esp32", "esp32c3"}
+
+
+def test_target_overrides_the_chip_of_the_selected_packages_only():
+    inputs = _chips()
+    plan = plan_workspace(Workspace(ROOT), Config(), PACKAGES, inputs, ("cam",), target="esp32s3")
+    assert {s.package: s.target for s in plan.steps if isinstance(s, IdfBuild)} == {"cam": "esp32s3"}
+    everything = plan_workspace(Workspace(ROOT), Config(), PACKAGES, inputs, target="esp32s3")
+    with_led = replace(inputs, supported_targets={})
+    both = plan_workspace(Workspace(ROOT), Config(), PACKAGES, with_led, target="esp32s3")
+    assert {s.package: s.target for s in both.steps if isinstance(s, IdfBuild)} == {"cam": "esp32s3", "led": "esp32s3"}
+    assert {s.package for s in everything.steps if isinstance(s, IdfBuild)} == {"cam", "led"}
+
+
+def test_a_chip_the_package_does_not_list_is_refused_before_planning_any_step():
+    with pytest.raises(WorkspaceError) as err:
+        plan_workspace(Workspace(ROOT), Config(), PACKAGES, _chips(), ("cam",), target="esp32c3")
+    assert "cam does not support esp32c3: it supports esp32, esp32s3" in err.value.message
+    # The package not built is not held to the override.
+    plan = plan_workspace(Workspace(ROOT), Config(), PACKAGES, _chips(), ("led",), target="esp32c3")
+    assert [s.package for s in plan.steps if isinstance(s, IdfBuild)] == ["led"]
+
+
+@pytest.mark.parametrize("chip", ["esp32c2", "esp32c5", "esp32c6", "esp32h2", "esp32p4"])
+def test_risc_v_chips_but_the_c3_are_refused_with_the_longcalls_reason(chip):
+    with pytest.raises(WorkspaceError, match="-mlongcalls"):
+        package_target(Config(), _chips(), PACKAGES[5], chip)
+    assert package_target(Config(), _chips(), PACKAGES[5], "esp32c3") == "esp32c3"
+
+
+def test_an_unknown_chip_in_sdkconfig_defaults_names_the_file():
+    from espdock.errors import ConfigError
+
+    with pytest.raises(ConfigError, match=r"CONFIG_IDF_TARGET in led/sdkconfig\.defaults"):
+        package_target(Config(), _chips(led_chip=b'CONFIG_IDF_TARGET="esp32c33"\n'), PACKAGES[5])
+
+
+@pytest.mark.parametrize("image", ["espressif/idf:v5.1.4", "espressif/idf:release-v5.2", "espressif/idf:v4.4"])
+def test_an_idf_image_older_than_5_3_is_refused_before_anything_builds(image):
+    with pytest.raises(WorkspaceError) as err:
+        key(config=Config(idf_image=image))
+    assert f"idf_image {image}" in err.value.message and "5.3 or newer" in err.value.message
+
+
+@pytest.mark.parametrize("image", ["espressif/idf:v5.3.5", "espressif/idf:v5.4", "espressif/idf@sha256:" + "a" * 64])
+def test_idf_5_3_and_later_or_a_digest_are_accepted(image):
+    assert key(config=Config(idf_image=image))

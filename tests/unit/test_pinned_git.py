@@ -96,3 +96,46 @@ def test_other_git_commands_go_to_the_real_git(tmp_path):
 def test_the_shipped_pins_parse():
     result = clone(Path("/tmp"), (REPO / "docker/idf/micro_ros_sources.txt").read_text(), "clone", "file:///x")
     assert "not pinned" in result.stderr, result.stderr
+
+
+def test_a_clone_under_git_dash_c_dir_is_pinned_there_and_has_its_remote(tmp_path, upstream):
+    url, pinned, _ = upstream
+    (tmp_path / "src").mkdir()
+    result = clone(tmp_path, f"{url} jazzy {pinned}\n", "-C", "src", "clone", "-b", "jazzy", url, "up")
+    assert result.returncode == 0, result.stderr
+    assert git("rev-parse", "HEAD", cwd=tmp_path / "src/up") == pinned
+    assert git("remote", "get-url", "origin", cwd=tmp_path / "src/up") == url
+    assert git("rev-parse", "--abbrev-ref", "HEAD", cwd=tmp_path / "src/up") == "jazzy"
+
+
+@pytest.mark.parametrize(
+    "args",
+    [
+        ("-c", "core.autocrlf=true", "clone", "-b", "jazzy", "URL", "up"),
+        ("clone", "--template", "/tmp/t", "-b", "jazzy", "URL", "up"),
+        ("clone", "-j", "4", "URL", "up"),
+        ("clone", "--reference-if-able", "/tmp/r", "URL", "up"),
+        ("clone", "--shallow-since", "2024-01-01", "URL", "up"),
+        ("clone", "--recursive", "-b", "jazzy", "URL", "up"),
+        ("clone", "--no-checkout", "URL", "up"),
+    ],
+)
+def test_what_a_pinned_clone_cannot_honour_is_refused_loudly(tmp_path, upstream, args):
+    url, pinned, _ = upstream
+    argv = [url if a == "URL" else a for a in args]
+    result = clone(tmp_path, f"{url} jazzy {pinned}\n", *argv)
+    assert result.returncode == 1
+    assert "pinned git: error:" in result.stderr
+    assert "cannot honour" in result.stderr or "honours only" in result.stderr
+    assert (tmp_path / "failures").read_text(), "the Dockerfile's check would miss it"
+    assert not (tmp_path / "up").exists()
+
+
+def test_a_tag_checkout_after_a_pinned_clone_fails_naming_the_tag(tmp_path, upstream):
+    """What the Micro-XRCE-DDS-Client superbuild would do with micro-CDR: no tags come along."""
+    url, pinned, _ = upstream
+    assert clone(tmp_path, f"{url} jazzy {pinned}\n", "clone", url, "up").returncode == 0
+    checkout = subprocess.run(
+        [GIT, "-C", str(tmp_path / "up"), "checkout", "v2.0.1"], capture_output=True, text=True, check=False
+    )
+    assert checkout.returncode != 0 and "v2.0.1" in checkout.stderr

@@ -90,6 +90,25 @@ int32_t cam_cfg_framesize_limit(uint8_t max_framesize)
     return max_framesize < msg_max ? (int32_t)max_framesize : msg_max;
 }
 
+/* Pixels of each framesize_t 0..15, esp32-camera's driver/sensor.c resolution[] table. */
+static const uint32_t FRAME_PIXELS[] = {
+    96u * 96u, 160u * 120u, 128u * 128u, 176u * 144u, 240u * 176u, 240u * 240u,
+    320u * 240u, 320u * 320u, 400u * 296u, 480u * 320u, 640u * 480u, 800u * 600u,
+    1024u * 768u, 1280u * 720u, 1280u * 1024u, 1600u * 1200u,
+};
+
+int32_t cam_cfg_quality_min(uint8_t framesize, uint8_t max_framesize)
+{
+    uint8_t limit = (uint8_t)cam_cfg_framesize_limit(max_framesize);
+    if (framesize > limit) {
+        return CAM_QUALITY_FLOOR;
+    }
+    /* JPEG size grows about as 1/quality and with the pixel count; the buffer holds
+     * max-frame pixels / 5 bytes (cam_hal.c), which a full-size frame fills at the floor. */
+    uint64_t scaled = (uint64_t)CAM_QUALITY_FLOOR * FRAME_PIXELS[framesize];
+    return (int32_t)(scaled / FRAME_PIXELS[limit]);
+}
+
 static int32_t field_max(cam_field_t field, uint8_t max_framesize)
 {
     if (field == CAM_FIELD_FRAMESIZE) {
@@ -109,6 +128,12 @@ bool cam_cfg_validate(const cam_cfg_t *cfg, uint8_t max_framesize, cam_field_t *
             }
             return false;
         }
+    }
+    if (cfg->quality < cam_cfg_quality_min(cfg->framesize, max_framesize)) {
+        if (bad_field != NULL) {
+            *bad_field = CAM_FIELD_QUALITY;
+        }
+        return false;
     }
     return true;
 }

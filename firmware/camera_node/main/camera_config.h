@@ -69,6 +69,16 @@ typedef enum {
 #define CAM_FRAMESIZE_QVGA 6u
 #define CAM_FRAMESIZE_UXGA 15u
 
+/* The lowest JPEG quality value (the best quality, the largest frame) a frame filling the whole
+ * buffer may use: esp32-camera's JPEG buffers hold width*height/5 bytes of the largest frame size,
+ * and a frame that overflows them is dropped after a capture timeout of up to 4 s. */
+#define CAM_QUALITY_FLOOR 10
+
+/* The lowest quality value FRAMESIZE may use with buffers sized for MAX_FRAMESIZE: the floor
+ * scaled by the frame's share of the buffer's pixels, rounded down (a frame of a quarter of the
+ * pixels may go down to 2; QVGA in UXGA buffers to 0). */
+int32_t cam_cfg_quality_min(uint8_t framesize, uint8_t max_framesize);
+
 /* pixformat_t value of JPEG (esp32-camera 2.x), the only format the node publishes. */
 #define CAM_PIXFORMAT_JPEG 4u
 

@@ -20,7 +20,14 @@ typedef struct {
     int vsync, href, pclk;
 } cam_pins_t;
 
-/* Pin maps as in esp32-camera's own examples for these boards. */
+/* Pin maps as in esp32-camera's own examples for these boards. An ESP32 board's map on another
+ * chip names pins that do not exist there or are its flash/PSRAM pins. */
+#if (CONFIG_ESPDOCK_CAM_BOARD_AI_THINKER || CONFIG_ESPDOCK_CAM_BOARD_WROVER_KIT) && !CONFIG_IDF_TARGET_ESP32
+#error "the AI-Thinker and WROVER-KIT pin maps are for the ESP32 only"
+#endif
+#if CONFIG_ESPDOCK_CAM_BOARD_XIAO_ESP32S3 && !CONFIG_IDF_TARGET_ESP32S3
+#error "the XIAO ESP32S3 Sense pin map is for the ESP32-S3 only"
+#endif
 #if CONFIG_ESPDOCK_CAM_BOARD_AI_THINKER
 static const cam_pins_t PINS = {
     .pwdn = 32, .reset = -1, .xclk = 0, .siod = 26, .sioc = 27,
@@ -32,6 +39,13 @@ static const cam_pins_t PINS = {
     .pwdn = -1, .reset = -1, .xclk = 21, .siod = 26, .sioc = 27,
     .d7 = 35, .d6 = 34, .d5 = 39, .d4 = 36, .d3 = 19, .d2 = 18, .d1 = 5, .d0 = 4,
     .vsync = 25, .href = 23, .pclk = 22,
+};
+#elif CONFIG_ESPDOCK_CAM_BOARD_XIAO_ESP32S3
+/* esp32-camera's examples/camera_example/main/camera_pinout.h, BOARD_ESP32S3_XIAO. */
+static const cam_pins_t PINS = {
+    .pwdn = -1, .reset = -1, .xclk = 10, .siod = 40, .sioc = 39,
+    .d7 = 48, .d6 = 11, .d5 = 12, .d4 = 14, .d3 = 16, .d2 = 18, .d1 = 17, .d0 = 15,
+    .vsync = 38, .href = 47, .pclk = 13,
 };
 #else
 static const cam_pins_t PINS = {

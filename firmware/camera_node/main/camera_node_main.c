@@ -241,11 +241,8 @@ void app_main(void)
         vTaskDelay(pdMS_TO_TICKS(CAMERA_RETRY_MS));
     }
     espdock_net_load(&s_net);
-    esp_err_t err = espdock_wifi_start(s_net.ssid, s_net.password, false);
-    if (err != ESP_OK) {
-        ESP_LOGE(TAG, "Wi-Fi start failed: %s; check the Wi-Fi settings", esp_err_to_name(err));
-        return;
-    }
+    /* Like the agent link, Wi-Fi that fails to start (NVS, memory) is retried, not given up. */
+    espdock_wifi_start_retrying(s_net.ssid, s_net.password, false);
     use_static_string(&s_node.image.header.frame_id, s_frame_id);
     use_static_string(&s_node.image.format, s_format);
     if (xTaskCreatePinnedToCore(uros_task, "uros", CONFIG_ESPDOCK_UROS_TASK_STACK, NULL,

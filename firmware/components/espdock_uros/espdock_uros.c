@@ -1,5 +1,6 @@
 /* micro-ROS session glue; see espdock_uros.h. */
 #include "espdock_uros.h"
+#include "agent_port_check.h"
 
 #include <stdio.h>
 #include <string.h>

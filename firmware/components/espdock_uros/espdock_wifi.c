@@ -12,6 +12,7 @@
 #include "espdock_net.h"
 #include "freertos/FreeRTOS.h"
 #include "freertos/event_groups.h"
+#include "freertos/task.h"
 
 #define CONNECTED_BIT BIT0
 #define RETRY_MIN_MS 500u
@@ -72,28 +73,47 @@ static void on_ip_event(void *arg, esp_event_base_t base, int32_t id, void *data
     }
 }
 
+/* How far init_stack got: a retry after a failure resumes at the step that failed, since
+ * creating the STA netif or the timer twice would abort. */
+static int s_stage;
+
 static esp_err_t init_stack(void)
 {
-    ESP_RETURN_ON_ERROR(espdock_nvs_init(), TAG, "NVS init failed");
-    ESP_RETURN_ON_ERROR(esp_netif_init(), TAG, "netif init failed");
-    esp_err_t err = esp_event_loop_create_default();
-    if (err != ESP_OK && err != ESP_ERR_INVALID_STATE) {    /* INVALID_STATE: already created */
-        return err;
+    if (s_stage < 1) {
+        ESP_RETURN_ON_ERROR(espdock_nvs_init(), TAG, "NVS init failed");
+        ESP_RETURN_ON_ERROR(esp_netif_init(), TAG, "netif init failed");
+        esp_err_t err = esp_event_loop_create_default();
+        if (err != ESP_OK && err != ESP_ERR_INVALID_STATE) {    /* INVALID_STATE: already created */
+            return err;
+        }
+        s_stage = 1;
     }
-    ESP_RETURN_ON_FALSE(esp_netif_create_default_wifi_sta() != NULL, ESP_FAIL, TAG, "no STA netif");
-    wifi_init_config_t init = WIFI_INIT_CONFIG_DEFAULT();
-    ESP_RETURN_ON_ERROR(esp_wifi_init(&init), TAG, "Wi-Fi init failed");
-    const esp_timer_create_args_t timer_args = {
-        .callback = connect_now,
-        .name = "wifi_retry",
-    };
-    ESP_RETURN_ON_ERROR(esp_timer_create(&timer_args, &s_retry_timer), TAG, "retry timer");
-    ESP_RETURN_ON_ERROR(esp_event_handler_instance_register(WIFI_EVENT, ESP_EVENT_ANY_ID,
-                                                            on_wifi_event, NULL, NULL),
-                        TAG, "Wi-Fi handler");
-    ESP_RETURN_ON_ERROR(esp_event_handler_instance_register(IP_EVENT, ESP_EVENT_ANY_ID,
-                                                            on_ip_event, NULL, NULL),
-                        TAG, "IP handler");
+    if (s_stage < 2) {
+        ESP_RETURN_ON_FALSE(esp_netif_create_default_wifi_sta() != NULL, ESP_FAIL, TAG, "no STA netif");
+        s_stage = 2;
+    }
+    if (s_stage < 3) {
+        wifi_init_config_t init = WIFI_INIT_CONFIG_DEFAULT();
+        ESP_RETURN_ON_ERROR(esp_wifi_init(&init), TAG, "Wi-Fi init failed");
+        /* The credentials live in the espdock NVS namespace only (espdock provision writes
+         * them there); the driver's own NVS copy would outlive a re-provisioning. */
+        ESP_RETURN_ON_ERROR(esp_wifi_set_storage(WIFI_STORAGE_RAM), TAG, "Wi-Fi storage");
+        s_stage = 3;
+    }
+    if (s_stage < 4) {
+        const esp_timer_create_args_t timer_args = {
+            .callback = connect_now,
+            .name = "wifi_retry",
+        };
+        ESP_RETURN_ON_ERROR(esp_timer_create(&timer_args, &s_retry_timer), TAG, "retry timer");
+        ESP_RETURN_ON_ERROR(esp_event_handler_instance_register(WIFI_EVENT, ESP_EVENT_ANY_ID,
+                                                                on_wifi_event, NULL, NULL),
+                            TAG, "Wi-Fi handler");
+        ESP_RETURN_ON_ERROR(esp_event_handler_instance_register(IP_EVENT, ESP_EVENT_ANY_ID,
+                                                                on_ip_event, NULL, NULL),
+                            TAG, "IP handler");
+        s_stage = 4;
+    }
     return ESP_OK;
 }
 
@@ -113,7 +133,9 @@ esp_err_t espdock_wifi_start(const char *ssid, const char *password, bool power_
     /* With a password set, refuse open or WEP networks that merely share the SSID. */
     config.sta.threshold.authmode = password_len > 0 ? WIFI_AUTH_WPA2_PSK : WIFI_AUTH_OPEN;
 
-    s_events = xEventGroupCreate();
+    if (s_events == NULL) {
+        s_events = xEventGroupCreate();
+    }
     ESP_RETURN_ON_FALSE(s_events != NULL, ESP_ERR_NO_MEM, TAG, "event group");
     ESP_RETURN_ON_ERROR(init_stack(), TAG, "network stack");
     ESP_RETURN_ON_ERROR(esp_wifi_set_mode(WIFI_MODE_STA), TAG, "station mode");
@@ -125,6 +147,17 @@ esp_err_t espdock_wifi_start(const char *ssid, const char *password, bool power_
                         "power save");
     ESP_LOGI(TAG, "connecting to \"%s\"", ssid);
     return ESP_OK;
+}
+
+void espdock_wifi_start_retrying(const char *ssid, const char *password, bool power_save)
+{
+    uint32_t delay_ms = RETRY_MIN_MS;
+    esp_err_t err;
+    while ((err = espdock_wifi_start(ssid, password, power_save)) != ESP_OK) {
+        ESP_LOGE(TAG, "Wi-Fi start failed: %s; retrying in %u ms", esp_err_to_name(err), (unsigned)delay_ms);
+        vTaskDelay(pdMS_TO_TICKS(delay_ms));
+        delay_ms = delay_ms * 2u > RETRY_MAX_MS ? RETRY_MAX_MS : delay_ms * 2u;
+    }
 }
 
 bool espdock_wifi_is_connected(void)

@@ -147,7 +147,11 @@ static bool create_entities(void *ctx)
     if (!espdock_uros_open(&node->uros)) {
         return false;
     }
-    ESPDOCK_RC_CHECK(rclc_subscription_init_default(
+    /* Best effort: a /qr_message longer than one datagram (512 B MTU) is dropped by the agent.
+     * On the reliable input stream (2 slots of 512 B) a message over its 1024 B could never be
+     * reassembled and would jam the stream for good while pings kept the session "connected";
+     * see firmware/README.md. Colours are 4 or 7 characters. */
+    ESPDOCK_RC_CHECK(rclc_subscription_init_best_effort(
         &node->color_sub, &node->uros.node, ROSIDL_GET_MSG_TYPE_SUPPORT(std_msgs, msg, String),
         CONFIG_ESPDOCK_LED_COLOR_TOPIC));
     /* Transient local, depth 1: a subscriber that starts later still gets the
@@ -224,11 +228,8 @@ void app_main(void)
         s_node.shown_known = true;
     }
     espdock_net_load(&s_net);
-    err = espdock_wifi_start(s_net.ssid, s_net.password, false);
-    if (err != ESP_OK) {
-        ESP_LOGE(TAG, "Wi-Fi start failed: %s; check the Wi-Fi settings", esp_err_to_name(err));
-        return;
-    }
+    /* Like the agent link, Wi-Fi that fails to start (NVS, memory) is retried, not given up. */
+    espdock_wifi_start_retrying(s_net.ssid, s_net.password, false);
     if (xTaskCreatePinnedToCore(uros_task, "uros", CONFIG_ESPDOCK_UROS_TASK_STACK, NULL,
                                 CONFIG_ESPDOCK_UROS_TASK_PRIORITY, NULL, UROS_TASK_CORE) != pdPASS) {
         ESP_LOGE(TAG, "could not start the micro-ROS task (stack %d B)", CONFIG_ESPDOCK_UROS_TASK_STACK);

@@ -20,6 +20,10 @@ extern "C" {
 /** Initialises NVS, netif and the Wi-Fi driver and starts connecting; returns without waiting. */
 esp_err_t espdock_wifi_start(const char *ssid, const char *password, bool power_save);
 
+/** espdock_wifi_start until it succeeds, backing off from 0.5 s to 30 s between attempts: a board
+ *  whose Wi-Fi failed to start (NVS, memory) keeps trying instead of sitting idle. */
+void espdock_wifi_start_retrying(const char *ssid, const char *password, bool power_save);
+
 /** True while the station has an IP address. */
 bool espdock_wifi_is_connected(void);
 

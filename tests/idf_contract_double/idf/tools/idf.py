@@ -39,6 +39,11 @@ PROG = "idf.py"
 SUPPORTED_TARGETS = ["esp32", "esp32s2", "esp32c3", "esp32s3", "esp32c2", "esp32c6", "esp32h2", "esp32p4"]
 PREVIEW_TARGETS = ["linux", "esp32c5", "esp32c61"]
 XTENSA_TARGETS = {"esp32", "esp32s2", "esp32s3"}
+# espressif/esp32-camera's CMakeLists.txt adds its driver sources (driver/esp_camera.c, sensors/,
+# target/<chip>/) only for these targets; elsewhere the component holds only the JPEG/BMP
+# conversions, so an app calling the driver does not link.
+CAMERA_DRIVER_TARGETS = {"esp32", "esp32s2", "esp32s3"}
+CAMERA_DRIVER_SYMBOLS = re.compile(r"\b(esp_camera_(?:init|deinit|fb_get|fb_return|sensor_get|return_all))\s*\(")
 # ESP-IDF v5.3.5's own components, so REQUIRES naming one of them resolves.
 IDF_COMPONENTS = set(
     "app_trace app_update bootloader bootloader_support bt cmock console cxx driver efuse esp-tls esp_adc "
@@ -1433,6 +1438,7 @@ def run_build(ctx: Context, project: Project) -> None:
     if diagnostics:
         out("ninja: build stopped: subcommand failed.")
         raise FatalError("ninja failed with exit code 1")
+    check_camera_driver_link(ctx, project, steps, len(steps), total)
 
     staging = Path(tempfile.mkdtemp(prefix=".double-staging-", dir=ctx.build_dir))
     try:
@@ -1444,6 +1450,28 @@ def run_build(ctx: Context, project: Project) -> None:
     finally:
         shutil.rmtree(staging, ignore_errors=True)
     print_flash_hint(ctx, project)
+
+
+def check_camera_driver_link(ctx: Context, project: Project, steps: list, done: int, total: int) -> None:
+    """The link step's failure for an app calling esp32-camera's driver on a target the
+    component builds no driver for (as ld reports the first undefined reference)."""
+    if "espressif/esp32-camera" not in ctx.registry_dependencies or project.target in CAMERA_DRIVER_TARGETS:
+        return
+    for comp, src in steps:
+        match = CAMERA_DRIVER_SYMBOLS.search(src.read_text(errors="replace"))
+        if match:
+            name = project.name
+            out(f"[{done + 1}/{total}] Linking CXX executable {name}.elf")
+            out(f"FAILED: {name}.elf")
+            print(
+                f"/opt/esp/tools/riscv32-esp-elf/bin/ld: esp-idf/{comp.name}/libmain.a({src.name}.obj): in function "
+                f"`{src.stem}':\n{src.name}: undefined reference to `{match.group(1)}'\n"
+                "collect2: error: ld returned 1 exit status",
+                file=sys.stderr,
+                flush=True,
+            )
+            out("ninja: build stopped: subcommand failed.")
+            raise FatalError("ninja failed with exit code 1")
 
 
 def source_paths(ctx: Context, project: Project, checker: SourceChecker, debug: bool, reproducible: bool) -> bytes:

@@ -7,4 +7,6 @@
 #include "rosidl_runtime_c/message_type_support_struct.h"
 rcl_ret_t rclc_subscription_init_default(rcl_subscription_t * subscription, const rcl_node_t * node,
   const rosidl_message_type_support_t * type_support, const char * topic_name);
+rcl_ret_t rclc_subscription_init_best_effort(rcl_subscription_t * subscription, const rcl_node_t * node,
+  const rosidl_message_type_support_t * type_support, const char * topic_name);
 #endif

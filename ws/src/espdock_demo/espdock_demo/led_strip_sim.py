@@ -8,6 +8,7 @@ subscriber gets it at once.
 
 from __future__ import annotations
 
+from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
 from std_msgs.msg import ColorRGBA, String
 
@@ -54,4 +55,4 @@ class LedStripSim(Node):
 
 
 def main() -> None:
-    spin_node(LedStripSim)
+    spin_node(LedStripSim, executor=EventsExecutor)

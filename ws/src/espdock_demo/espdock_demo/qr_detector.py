@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import time
 
+from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
 from sensor_msgs.msg import CompressedImage
 from std_msgs.msg import String
@@ -52,8 +53,8 @@ class QrDetector(Node):
         elif result.outcome is Outcome.NO_CODE:
             log.debug("no QR code in frame", throttle_duration_sec=5.0)
         if text is not None:
+            self.publisher.publish(String(data=text))  # before the log line: it is on the LED's clock
             log.info(f"new QR code {shorten(text)}")
-            self.publisher.publish(String(data=text))
 
     def diagnostics(self) -> dict[str, object]:
         counts = self.filter.counts
@@ -69,4 +70,4 @@ class QrDetector(Node):
 
 
 def main() -> None:
-    spin_node(QrDetector)
+    spin_node(QrDetector, executor=EventsExecutor)

@@ -8,7 +8,6 @@ subscriber gets it at once.
 
 from __future__ import annotations
 
-from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
 from std_msgs.msg import ColorRGBA, String
 
@@ -55,4 +54,4 @@ class LedStripSim(Node):
 
 
 def main() -> None:
-    spin_node(LedStripSim, executor=EventsExecutor)
+    spin_node(LedStripSim)

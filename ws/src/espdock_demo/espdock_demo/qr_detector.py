@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import time
 
-from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
 from sensor_msgs.msg import CompressedImage
 from std_msgs.msg import String
@@ -70,4 +69,4 @@ class QrDetector(Node):
 
 
 def main() -> None:
-    spin_node(QrDetector, executor=EventsExecutor)
+    spin_node(QrDetector)

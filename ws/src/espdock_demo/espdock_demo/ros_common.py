@@ -89,25 +89,20 @@ def start_diagnostics(node: Node, values: Callable[[], Mapping[str, object]], pe
 
 
 def spin_node(
-    make_node: Callable[[], Node],
-    executor: Callable[[], Executor] = SingleThreadedExecutor,
-    on_shutdown: Callable[[Node], None] | None = None,
+    make_node: Callable[[], Node], executor: Executor | None = None, on_shutdown: Callable[[Node], None] | None = None
 ) -> None:
-    """Init rclpy, spin the node MAKE_NODE makes on an EXECUTOR until Ctrl-C or SIGTERM, then clean up.
+    """Init rclpy, spin the node MAKE_NODE makes until Ctrl-C or SIGTERM, then clean up.
 
-    The nodes on the QR -> LED path take rclpy's EventsExecutor: its C++ event
-    queue dispatches a message in microseconds where SingleThreadedExecutor
-    rebuilds a wait set in Python for every callback. Anything else a node
-    raises ends the process with an error, so the container's restart policy
-    brings it back.
+    Anything else a node raises ends the process with an error, so the
+    container's restart policy brings it back.
     """
     rclpy.init()
     node = None
     try:
         node = make_node()
-        spinner = executor()
-        spinner.add_node(node)
-        spinner.spin()
+        executor = executor or SingleThreadedExecutor()
+        executor.add_node(node)
+        executor.spin()
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:

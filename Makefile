@@ -22,11 +22,17 @@ setup: $(VENV)/.installed
 	$(ESPDOCK) setup
 	bash tests/install-system-deps.sh
 
+# The firmware host tests (host gcc, no engine) run beside pytest, which mostly waits on
+# the engine; their output follows pytest's, and either failing fails the target.
 test: setup
 	$(PY) -m ruff check espdock tests ws/src
 	$(PY) -m ruff format --check espdock tests ws/src
-	$(PY) -m pytest
-	bash tests/firmware/run.sh build/host-tests
+	mkdir -p build
+	bash tests/firmware/run.sh build/host-tests > build/host-tests.log 2>&1 & firmware=$$!; \
+	$(PY) -m pytest; status=$$?; \
+	wait $$firmware; firmware_status=$$?; \
+	cat build/host-tests.log; \
+	exit $$(( status || firmware_status ))
 
 # Fast unit tests only: no engine needed.
 unit: $(VENV)/.installed

@@ -54,9 +54,12 @@ def decode_frame(jpeg: bytes, decoder: Decoder = pyzbar_decoder) -> FrameResult:
         image = Image.open(io.BytesIO(jpeg))
         if image.width * image.height > _MAX_PIXELS:
             return FrameResult(Outcome.CORRUPT, detail=f"{image.width}x{image.height} is larger than any camera frame")
+        # zbar reads 8-bit grayscale: a JPEG is decoded straight to it (its luma plane
+        # only, no chroma upsampling or colour conversion); anything else is converted.
+        image.draft("L", image.size)
         image.load()
-        # zbar reads 8-bit grayscale; converting here is cheaper than pyzbar's own conversion.
-        image = image.convert("L")
+        if image.mode != "L":
+            image = image.convert("L")
     except (UnidentifiedImageError, OSError, ValueError, SyntaxError, Image.DecompressionBombError) as exc:
         return FrameResult(Outcome.CORRUPT, detail=f"{type(exc).__name__}: {exc}"[:200])
     symbols = decoder(image)

@@ -52,8 +52,8 @@ class QrDetector(Node):
         elif result.outcome is Outcome.NO_CODE:
             log.debug("no QR code in frame", throttle_duration_sec=5.0)
         if text is not None:
+            self.publisher.publish(String(data=text))  # before the log line: it is on the LED's clock
             log.info(f"new QR code {shorten(text)}")
-            self.publisher.publish(String(data=text))
 
     def diagnostics(self) -> dict[str, object]:
         counts = self.filter.counts

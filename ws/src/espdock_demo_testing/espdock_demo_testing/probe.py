@@ -2,6 +2,7 @@
 
     demo_probe led                      the colour the LED strip shows now
     demo_probe follow --changes 3       scene changes and the LED colours that follow them, with latencies
+                                        (--hops: and when the frame and the QR text of each reached the probe)
     demo_probe frames --count 5         size and stamp of the next camera frames
     demo_probe stats --seconds 10       the nodes' /diagnostics counters over a window
     demo_probe set-config quality=70    call the camera's set_config directly (no validation here)
@@ -142,6 +143,16 @@ def cmd_led(probe: Probe, args: argparse.Namespace) -> dict:
 def cmd_follow(probe: Probe, args: argparse.Namespace) -> dict:
     led_sub = probe.watch_led()
     scene_sub = probe.watch_scene()
+    frames: dict[int, int] | None = None
+    if args.hops:
+        # Only what the hops need: a frame's stamp and when it came, no JPEG parsing.
+        frames = {}
+
+        def on_frame(msg: CompressedImage) -> None:
+            frames[_stamp_ns(msg.header.stamp)] = time.time_ns()
+
+        probe.create_subscription(CompressedImage, CAMERA_IMAGE_TOPIC, on_frame, IMAGE_SUB_QOS)
+        probe.watch_qr()
     start = time.monotonic()
     # Count only scene changes after both subscriptions matched their publishers: an LED
     # change published before the match is never seen (only the latest is kept for late joiners).
@@ -155,7 +166,7 @@ def cmd_follow(probe: Probe, args: argparse.Namespace) -> dict:
 
     ok = matched and probe.spin_until(enough, args.timeout)
     probe.spin_for(0.3)  # let the last LED change of the window arrive
-    report = follow_report(probe.scenes, probe.leds, since_ns)
+    report = follow_report(probe.scenes, probe.leds, since_ns, frames, probe.qr_texts if args.hops else None)
     report.update(
         ok=ok,
         seconds=round(time.monotonic() - start, 2),
@@ -299,6 +310,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("follow", help="scene changes and the LED changes that follow them")
     p.add_argument("--changes", type=int, default=3)
     p.add_argument("--timeout", type=float, default=60.0)
+    p.add_argument("--hops", action="store_true", help="also time the frame and the QR text of each change")
     p = sub.add_parser("frames", help="size and stamp of the next camera frames")
     p.add_argument("--count", type=int, default=5)
     p.add_argument("--timeout", type=float, default=10.0)

@@ -13,10 +13,12 @@ from pathlib import Path
 from typing import Annotated, NoReturn, ParamSpec
 
 import typer
+import typer.core
 from rich.console import Console
 from rich.text import Text
 
 from espdock import __version__, bootstrap
+from espdock.colcon import read_colcon_settings
 from espdock.config import Config, invoking_user, load_config, record_target, resolve_ca_bundle
 from espdock.engine import Engine, format_argv
 from espdock.errors import ConfigError, EspdockBug, EspdockError, Interrupted, WorkspaceError
@@ -135,19 +137,41 @@ def _packages(ws: Workspace) -> tuple[Package, ...]:
 
 
 def _build_plan(
-    ws: Workspace, config: Config, names: list[str], only: PackageKind | None = None, force: bool = False
+    ws: Workspace,
+    config: Config,
+    names: list[str],
+    only: PackageKind | None = None,
+    force: bool = False,
+    colcon_args: tuple[str, ...] | None = None,
 ) -> Plan:
     packages = _packages(ws)
-    return plan_workspace(ws, config, packages, read_build_inputs(ws, packages), tuple(names), only, force)
+    ros = {p.name: p.path for p in packages if p.kind is PackageKind.ROS}
+    colcon = read_colcon_settings(ws.ws_dir, ros, colcon_args, os.environ)
+    return plan_workspace(ws, config, packages, read_build_inputs(ws, packages), tuple(names), only, force, colcon)
+
+
+class _PassThrough(typer.core.TyperCommand):
+    """A command whose arguments after the first `--` are not its own: they go as they are to
+    the tool it runs (ctx.meta[PASSED], absent when there is no `--`)."""
+
+    def parse_args(self, ctx: typer.Context, args: list[str]) -> list[str]:
+        if "--" in args:
+            ctx.meta[PASSED] = tuple(args[args.index("--") + 1 :])
+            args = args[: args.index("--")]
+        return super().parse_args(ctx, args)
+
+
+PASSED = "espdock.passed_args"
 
 
 def _firmware_step(ws: Workspace, config: Config, name: str) -> tuple[Plan, IdfBuild]:
     return firmware_step(_build_plan(ws, config, [name]), name)
 
 
-@app.command()
+@app.command(cls=_PassThrough)
 @_command
 def build(
+    ctx: typer.Context,
     packages: Annotated[
         list[str] | None, typer.Argument(help="Build only these packages and what they depend on.")
     ] = None,
@@ -178,10 +202,12 @@ def build(
     ] = False,
     workspace: WorkspaceOption = None,
 ) -> None:
-    """Build the images when their inputs changed, then every package whose sources changed; record what
-    the build produced in install/espdock-manifest.json."""
+    """Build the images when their inputs changed, then every package whose sources changed and what
+    depends on it; record what the build produced in install/espdock-manifest.json.
+
+    Options after `--` go to `colcon build` (e.g. `espdock build -- --cmake-args -DBUILD_TESTING=OFF`)."""
     ws, config = _load(workspace, target=target)
-    plan = _build_plan(ws, config, packages or [], only, force)
+    plan = _build_plan(ws, config, packages or [], only, force, ctx.meta.get(PASSED))
     if dry_run:
         render_plan(console, plan)
         return

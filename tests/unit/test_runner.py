@@ -39,14 +39,52 @@ COLCON = ColconBuild(image=SPEC.tag, packages=("msgs", "app"), sources=(("msgs",
                      depends=(("msgs", ()), ("app", ("msgs",))))  # fmt: skip
 
 
-def colcon_installs(ws: Workspace, code: int = 0, lines: tuple[str, ...] = ()):
+def colcon_installs(ws: Workspace, code: int = 0, lines: tuple[str, ...] = (), rcs: dict | None = None):
+    """Plays `colcon build` of msgs and app: what it installs and the log/latest_build/events.log
+    colcon-output writes ('[time] (job) EventClass: {members}'), honouring --packages-select.
+    RCS: a package's return code (colcon-core's 'SIGINT' when aborted, None when skipped);
+    the others get CODE."""
+
     def play(spec, on_line):
         for line in lines:
             on_line(line)
-        if code == 0:
-            for name in ("msgs", "app"):
+        argv = list(spec.argv)
+        selected = ("msgs", "app")
+        if "--packages-select" in argv:
+            rest = argv[argv.index("--packages-select") + 1 :]
+            selected = tuple(
+                n
+                for n in selected
+                if n in rest[: next((i for i, a in enumerate(rest) if a.startswith("-")), len(rest))]
+            )
+        log = (
+            ws.ws_dir
+            / "log"
+            / f"build_{len(list((ws.ws_dir / 'log').glob('build_*'))) if (ws.ws_dir / 'log').is_dir() else 0}"
+        )
+        log.mkdir(parents=True)
+        events = [
+            f"[0.000100] (-) JobUnselected: {{'identifier': '{n}'}}" for n in ("msgs", "app") if n not in selected
+        ]
+        for name in selected:
+            events.append(f"[0.000200] ({name}) JobQueued: {{'identifier': '{name}', 'dependencies': OrderedDict()}}")
+        for name in selected:
+            rc = (rcs or {}).get(name, code)
+            if rc is None:
+                events.append(f"[0.900000] ({name}) JobSkipped: {{'identifier': '{name}'}}")
+                continue
+            events.append(f"[0.300000] ({name}) JobStarted: {{'identifier': '{name}'}}")
+            if rc == 0:
                 (ws.ws_dir / "install" / name).mkdir(parents=True, exist_ok=True)
-                (ws.ws_dir / "install" / name / "marker").write_text(name)
+                (ws.ws_dir / "install" / name / "marker").write_text(f"{name} {log.name}")
+            else:
+                (log / name).mkdir()
+                (log / name / "stdout_stderr.log").write_text(f"{name} failed\n")
+            events.append(f"[0.800000] ({name}) JobEnded: {{'identifier': '{name}', 'rc': {rc!r}}}")
+        (log / "events.log").write_text("\n".join(events) + "\n")
+        latest = ws.ws_dir / "log" / "latest_build"
+        latest.unlink(missing_ok=True)
+        latest.symlink_to(log.name)
         return code
 
     return play

@@ -266,3 +266,59 @@ def test_a_built_image_records_its_debian_packages_in_labels(ws):
     assert labels["io.espdock.debian-packages"] == "libc6=2.36-9 python3=3.11.2-1+b1"
     assert labels["io.espdock.key"] == SPEC.key, "the key label stays"
     assert "2 Debian packages recorded" in notes(events)
+
+
+def test_after_an_edit_colcon_gets_the_changed_package_and_its_dependents_only(ws):
+    engine = FakeEngine(run_script=colcon_installs(ws))
+    runner(engine, []).run(Plan(ws, (COLCON,)))
+    assert "--packages-select" not in engine.runs[-1].argv
+    (ws.root / "ws/src/app/node.py").write_text("print(1)\n")
+    events: list = []
+    runner(engine, events).run(Plan(ws, (COLCON,)))
+    argv = engine.runs[-1].argv
+    assert argv[argv.index("--packages-select") :] == ("--packages-select", "app")
+    assert events[-1].detail == "1 package(s) built, 1 up to date"
+    (ws.root / "ws/src/msgs/msg.txt").write_text("x")
+    runner(engine, []).run(Plan(ws, (COLCON,)))
+    assert "--packages-select" not in engine.runs[-1].argv, "msgs changed: app depends on it, both rebuild"
+
+
+def test_with_continue_on_error_what_built_is_kept_and_what_failed_is_not(ws):
+    from dataclasses import replace
+
+    step = replace(COLCON, depends=(("msgs", ()), ("app", ())), colcon_args=("--continue-on-error",))
+    engine = FakeEngine(run_script=colcon_installs(ws, code=1, rcs={"msgs": 0, "app": 1}))
+    with pytest.raises(BuildFailed) as err:
+        runner(engine, []).run(Plan(ws, (step,)))
+    assert "failed (exit code 1) in app" in err.value.message
+    assert "that built are kept" in (err.value.hint or "")
+    engine.run_script = colcon_installs(ws)
+    runner(engine, []).run(Plan(ws, (step,)))
+    argv = engine.runs[-1].argv
+    assert argv[argv.index("--packages-select") :] == ("--packages-select", "app", "--continue-on-error")
+
+
+def test_colcon_stopping_before_any_package_is_a_user_error_and_stamps_nothing(ws):
+    from espdock.errors import ConfigError
+
+    def refuses(spec, on_line):
+        on_line("colcon build: error: unrecognized arguments: --no-such-option")
+        return 2
+
+    engine = FakeEngine(run_script=refuses)
+    with pytest.raises(ConfigError, match="unrecognized arguments: --no-such-option") as err:
+        runner(engine, []).run(Plan(ws, (COLCON,)))
+    assert err.value.exit_code == 2
+    assert not (ws.ws_dir / "build/.espdock-colcon-stamps.json").exists()
+
+
+def test_the_users_colcon_defaults_file_is_mounted_where_colcon_reads_it(ws, tmp_path):
+    from dataclasses import replace
+
+    defaults = tmp_path / "defaults.yaml"
+    defaults.write_text("build: {symlink-install: true}\n")
+    engine = FakeEngine(run_script=colcon_installs(ws))
+    runner(engine, []).run(Plan(ws, (replace(COLCON, defaults_file=str(defaults)),)))
+    spec = engine.runs[-1]
+    assert ("COLCON_DEFAULTS_FILE", "/run/espdock/colcon-defaults.yaml") in spec.env
+    assert any(m.source == defaults and m.read_only for m in spec.mounts)

@@ -112,7 +112,8 @@ class StampFile:
     def forget(self, names: Iterable[str]) -> None:
         """Drop NAMES' records (their build failed or was interrupted: build them next time)."""
         data = self.read()
-        if any(data.pop(name, None) is not None for name in list(names)):
+        dropped = [data.pop(name) for name in names if name in data]  # every one: no short-circuit
+        if dropped:
             tmp = self.path.with_name(f".{self.path.name}.tmp")
             tmp.write_text(json.dumps(data, indent=1, sort_keys=True) + "\n")
             os.replace(tmp, self.path)

@@ -83,36 +83,31 @@ def test_a_changed_interface_package_rebuilds_its_dependents(robot):
     assert "battery_voltage" in generated.read_text()
 
 
-def test_a_changed_colcon_meta_rebuilds_the_package_it_names(robot):
-    everything = {p.name for p in (robot / "ws/src").iterdir()}
+def test_colcon_meta_and_options_after_the_double_dash_reach_colcon_and_decide_the_stamps(robot):
     meta = robot / "ws/colcon.meta"
     meta.write_text('{"names": {"behaviour_0": {"cmake-args": []}}}\n')
     try:
         build(robot)
-        assert colcon_ran(robot) == {"behaviour_0": "built"}
+        assert colcon_ran(robot) == {"behaviour_0": "built"}, "what colcon.meta says about one package rebuilds it"
         meta.write_text('{"names": {"robot_msgs": {"cmake-args": ["-DESPDOCK_TEST_MARK=from_meta"]}}}\n')
-        build(robot)
-        assert set(colcon_ran(robot)) == everything, "robot_msgs and what depends on it"
-        cache = (robot / "ws/build/robot_msgs/CMakeCache.txt").read_text()
-        assert "ESPDOCK_TEST_MARK:UNINITIALIZED=from_meta" in cache, "colcon itself read the colcon.meta"
+        build(robot, "robot_msgs")
+        assert colcon_ran(robot) == {"robot_msgs": "built"}
+        cache = robot / "ws/build/robot_msgs/CMakeCache.txt"
+        assert "ESPDOCK_TEST_MARK:UNINITIALIZED=from_meta" in cache.read_text(), "colcon itself read colcon.meta"
     finally:
         meta.unlink()
-    build(robot)
-    assert set(colcon_ran(robot)) == everything
-
-
-def test_options_after_the_double_dash_reach_colcon(robot):
+    build(robot, "robot_msgs", "--", "--cmake-args", "-DESPDOCK_TEST_MARK=from_args")
+    assert colcon_ran(robot) == {"robot_msgs": "built"}, "a changed colcon.meta and changed options rebuild"
+    assert "ESPDOCK_TEST_MARK:UNINITIALIZED=from_args" in cache.read_text()
+    build(robot, "robot_msgs")  # back to the settings its dependents were built against
+    assert colcon_ran(robot) == {"robot_msgs": "built"}
     edit(robot / "ws/src/behaviour_0")
     edit(robot / "ws/src/behaviour_2")
-    result = build(robot, "--", "--packages-skip", "behaviour_2", "--parallel-workers", "1")
+    result = build(robot, "behaviour_0", "behaviour_2", "--", "--packages-skip", "behaviour_2")
     assert colcon_ran(robot) == {"behaviour_0": "built"}, "--packages-skip really skipped behaviour_2"
     assert "1 not built (behaviour_2)" in result.stdout
-    build(robot)
+    build(robot, "behaviour_0", "behaviour_2", "--", "--parallel-workers", "1")
     assert colcon_ran(robot) == {"behaviour_2": "built"}, "a skipped package is not stamped as built"
-    build(robot, "robot_msgs", "--", "--cmake-args", "-DESPDOCK_TEST_MARK=from_args")
-    assert colcon_ran(robot) == {"robot_msgs": "built"}, "changed options rebuild"
-    assert "ESPDOCK_TEST_MARK:UNINITIALIZED=from_args" in (robot / "ws/build/robot_msgs/CMakeCache.txt").read_text()
-    build(robot)  # back to no options: robot_msgs and everything on it again
 
 
 def test_a_failing_package_is_named_and_continue_on_error_builds_the_others(engine, robot):

@@ -128,6 +128,8 @@ def test_only_changed_packages_and_their_dependents_are_stale(tmp_path):
     assert stamp_file.stale(package_stamps({**sources, "msgs": "m2"}, depends, "img"), installed) == ("msgs", "app")
     assert stamp_file.stale(package_stamps(sources, depends, "img", {"tool": "meta"}), installed) == ("tool",)
     assert stamp_file.stale(stamps, {**installed, "tool": None}) == ("tool",)
+    stamp_file.forget(("msgs", "app"))
+    assert stamp_file.stale(stamps, installed) == ("msgs", "app"), "a failed build's packages all build again"
 
 
 def test_colcon_gets_exactly_the_packages_to_rebuild_then_the_users_options():

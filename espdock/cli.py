@@ -12,10 +12,12 @@ from pathlib import Path
 from typing import Annotated, NoReturn, ParamSpec
 
 import typer
+import typer.core
 from rich.console import Console
 from rich.text import Text
 
 from espdock import __version__, bootstrap, interrupts
+from espdock.colcon import read_colcon_settings
 from espdock.config import Config, check_target, invoking_user, load_config, resolve_ca_bundle
 from espdock.engine import format_argv
 from espdock.errors import ConfigError, EspdockBug, EspdockError, Interrupted, WorkspaceError
@@ -141,6 +143,7 @@ def _build_plan(
     names: list[str],
     only: PackageKind | None = None,
     force: bool = False,
+    colcon_args: tuple[str, ...] | None = None,
     locked: bool | None = None,
     target: str | None = None,
 ) -> Plan:
@@ -153,16 +156,33 @@ def _build_plan(
         inputs, note = current_rosdep_inputs(ws.root, config, packages, inputs, locked, os.environ, owner)
         if note:
             _notify(note)
-    return plan_workspace(ws, config, packages, inputs, tuple(names), only, force, target)
+    ros = {p.name: p.path for p in packages if p.kind is PackageKind.ROS}
+    colcon = read_colcon_settings(ws.ws_dir, ros, colcon_args, os.environ)
+    return plan_workspace(ws, config, packages, inputs, tuple(names), only, force, target, colcon)
+
+
+class _PassThrough(typer.core.TyperCommand):
+    """A command whose arguments after the first `--` are not its own: they go as they are to
+    the tool it runs (ctx.meta[PASSED], absent when there is no `--`)."""
+
+    def parse_args(self, ctx: typer.Context, args: list[str]) -> list[str]:
+        if "--" in args:
+            ctx.meta[PASSED] = tuple(args[args.index("--") + 1 :])
+            args = args[: args.index("--")]
+        return super().parse_args(ctx, args)
+
+
+PASSED = "espdock.passed_args"
 
 
 def _firmware_step(ws: Workspace, config: Config, name: str) -> tuple[Plan, IdfBuild]:
     return firmware_step(_build_plan(ws, config, [name]), name)
 
 
-@app.command()
+@app.command(cls=_PassThrough)
 @_command
 def build(
+    ctx: typer.Context,
     packages: Annotated[
         list[str] | None, typer.Argument(help="Build only these packages and what they depend on.")
     ] = None,
@@ -195,11 +215,22 @@ def build(
     ] = False,
     workspace: WorkspaceOption = None,
 ) -> None:
-    """Build the images when their inputs changed, then every package whose sources changed; record what
-    the build produced in install/espdock-manifest.json."""
+    """Build the images when their inputs changed, then every package whose sources changed and what
+    depends on it; record what the build produced in install/espdock-manifest.json.
+
+    Options after `--` go to `colcon build` (e.g. `espdock build -- --cmake-args -DBUILD_TESTING=OFF`)."""
     ws, config = _load(workspace)
     locked = locked if locked is not None else os.environ.get("CI", "").lower() == "true"
-    plan = _build_plan(ws, config, packages or [], only, force, locked, target and check_target(target, "--target"))
+    plan = _build_plan(
+        ws,
+        config,
+        packages or [],
+        only,
+        force,
+        ctx.meta.get(PASSED),
+        locked,
+        target and check_target(target, "--target"),
+    )
     if dry_run:
         render_plan(console, plan)
         return

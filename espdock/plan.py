@@ -12,6 +12,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from espdock import rosdeps
+from espdock.colcon import ColconSettings
 from espdock.config import Config, check_target
 from espdock.errors import WorkspaceError
 from espdock.layout import (
@@ -101,18 +102,27 @@ class ColconBuild:
     colcon_root: str = "ws"
     force: bool = False
     name: str = "colcon build"
+    # The options given after `--` (checked: espdock.colcon), each package's colcon settings
+    # digest, and the user's colcon defaults file on the host (mounted), if any.
+    colcon_args: tuple[str, ...] = ()
+    settings: tuple[tuple[str, str], ...] = ()
+    defaults_file: str | None = None
 
     @property
     def workdir(self) -> str:
         return _container_path(self.colcon_root)
 
-    def argv(self) -> tuple[str, ...]:
+    def argv(self, rebuild: tuple[str, ...] = ()) -> tuple[str, ...]:
+        """colcon's command line; REBUILD: only these packages (the changed ones and their
+        dependents), the others being up to date in install/, where colcon finds them."""
         # Exactly these packages: colcon never sees the firmware packages (a build type it has
         # no task for) nor, for a selection, the packages left out.
+        select = ("--packages-select", *rebuild) if rebuild and len(rebuild) < len(self.packages) else ()
         return (
             "colcon", "build", "--base-paths", *(rel for _, rel in self.sources),
             # Live output per line plus colcon's own start/finish lines.
             "--event-handlers", "console_direct+", "console_start_end+", "summary+",
+            *select, *self.colcon_args,
         )  # fmt: skip
 
 
@@ -499,13 +509,15 @@ def plan_build(
     idf_images: Mapping[str, ImageSpec] | None = None,
     all_packages: tuple[Package, ...] | None = None,
     force: bool = False,
+    colcon: ColconSettings | None = None,
 ) -> Plan:
     """The steps of `espdock build [SELECTED...]` over PACKAGES (already in build order: the
     selection closed over its dependencies when SELECTED names any).
 
     IDF_IMAGES: each firmware package's micro-ROS image (see micro_ros_images). FORCE: build
-    even what is up to date.
+    even what is up to date. COLCON: the options after `--` and colcon's settings files.
     """
+    colcon = colcon or ColconSettings()
     ros = [p for p in packages if p.kind is PackageKind.ROS]
     firmware = [p for p in packages if p.kind is PackageKind.FIRMWARE]
     names = {p.name for p in ros}
@@ -522,6 +534,9 @@ def plan_build(
                 depends=tuple((p.name, tuple(sorted(p.depends & names))) for p in ros),
                 colcon_root=workspace.colcon_root,
                 force=force,
+                colcon_args=colcon.args,
+                settings=tuple(item for item in colcon.digests if item[0] in names),
+                defaults_file=colcon.defaults_file,
             ),
         ]
     ensured: dict[str, ImageSpec] = {}
@@ -550,10 +565,11 @@ def plan_workspace(
     only: PackageKind | None = None,
     force: bool = False,
     target: str | None = None,
+    colcon: ColconSettings | None = None,
 ) -> Plan:
-    """`espdock build [NAMES...] [--only KIND] [--force] [--target CHIP]` over the workspace's
-    PACKAGES (in build order). Each firmware package builds for its own chip (package_target);
-    TARGET overrides it for the packages built."""
+    """`espdock build [NAMES...] [--only KIND] [--force] [--target CHIP] [-- COLCON_ARGS...]` over
+    the workspace's PACKAGES (in build order). Each firmware package builds for its own chip
+    (package_target); TARGET overrides it for the packages built."""
     selected = select_up_to(packages, names) if names else packages
     if only is not None:
         selected = tuple(p for p in selected if p.kind is only)
@@ -570,7 +586,15 @@ def plan_workspace(
     firmware = tuple(p for p in packages if p.kind is not PackageKind.FIRMWARE or p.name in chosen)
     idf_images = micro_ros_images(config, inputs, firmware, target, chosen)
     return plan_build(
-        workspace, config, selected, ros_spec, names, idf_images=idf_images, all_packages=packages, force=force
+        workspace,
+        config,
+        selected,
+        ros_spec,
+        names,
+        idf_images=idf_images,
+        all_packages=packages,
+        force=force,
+        colcon=colcon,
     )
 
 

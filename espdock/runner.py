@@ -21,9 +21,10 @@ from pathlib import Path
 from typing import assert_never
 
 from espdock import bootstrap
+from espdock.colcon import DEFAULTS_MOUNT, ColconLog, PackageState, explain_failure
 from espdock.config import Config, resolve_ca_bundle
 from espdock.engine import Engine, Mount, RegistryAnswer, RegistryStatus, RunSpec
-from espdock.errors import BuildFailed, EspdockError, RegistryError, WorkspaceError, disk_full
+from espdock.errors import BuildFailed, ConfigError, EspdockError, RegistryError, WorkspaceError, disk_full
 from espdock.events import Emit, Outcome, StepFinished, StepNote, StepOutput, StepStarted
 from espdock.install import install_firmware
 from espdock.layout import WORKSPACE_MOUNT
@@ -56,7 +57,6 @@ FIRMWARE_STAMPS = ".espdock-firmware-stamps.json"
 INSTALL_STAMPS = ".espdock-install-stamps.json"
 EXTRA_CA_MOUNT = "/run/espdock/extra-ca.pem"
 WITH_CA = "/opt/espdock/with-ca.sh"
-FAILED_PACKAGE = re.compile(r"^Failed\s+<<<\s+(\S+)")
 BUILDKIT_STEP = re.compile(r"^#\d+ \[.*\] (?P<what>.+)$")
 
 
@@ -301,48 +301,67 @@ class Runner:
     def _colcon(self, workspace: Workspace, step: ColconBuild) -> tuple[Outcome, str]:
         stamp_file = StampFile(workspace.ws_dir / "build" / ROS_STAMPS)
         sources = {name: tree_digest(workspace.ws_dir / rel) for name, rel in step.sources}
-        stamps = package_stamps(sources, dict(step.depends), step.image)
+        stamps = package_stamps(sources, dict(step.depends), step.image, dict(step.settings))
 
         def installed() -> dict[str, str | None]:
             return {name: listing_digest(workspace.ws_dir / "install" / name) for name in stamps}
 
-        if not step.force and stamp_file.up_to_date(stamps, installed()):
+        # The changed packages and, their stamps being chained, what depends on them; the rest
+        # are up to date in install/, where colcon finds them.
+        rebuild = tuple(stamps) if step.force else stamp_file.stale(stamps, installed())
+        if not rebuild:
             return Outcome.CACHED, f"up to date ({len(stamps)} package(s))"
         # Until this build succeeds, none of them counts as built.
-        stamp_file.forget(stamps)
+        stamp_file.forget(rebuild)
         user, labels = self._container_identity(workspace, "colcon", sweep=True)
-        failed: list[str] = []
+        mounts = [Mount(workspace.root, WORKSPACE_MOUNT)]
+        env = [("HOME", "/tmp"), *self._reproducible_env(workspace)]
+        if step.defaults_file is not None:
+            # colcon reads the user's defaults from their home, which the container does not have.
+            mounts.append(Mount(Path(step.defaults_file), DEFAULTS_MOUNT, read_only=True))
+            env.append(("COLCON_DEFAULTS_FILE", DEFAULTS_MOUNT))
+        log = ColconLog(workspace.ws_dir / "log")
+        output: list[str] = []
 
         def on_line(line: str) -> None:
-            match = FAILED_PACKAGE.match(line)
-            if match:
-                failed.append(match.group(1))
+            output.append(line)
             self._emit(StepOutput(step.name, line))
 
         code = self._engine.run(
             RunSpec(
                 image=step.image,
-                argv=step.argv(),
+                argv=step.argv(rebuild),
                 workdir=step.workdir,
                 user=user,
-                mounts=(Mount(workspace.root, WORKSPACE_MOUNT),),
-                env=(("HOME", "/tmp"), *self._reproducible_env(workspace)),
+                mounts=tuple(mounts),
+                env=tuple(env),
                 labels=labels,
             ),
             on_line,
             keep=self._config.keep_containers,
         )
-        if code != 0:
-            logs = workspace.ws_dir / "log" / "latest_build"
-            names = tuple(failed) or ("(unknown)",)
-            where = "\n".join(f"  {n}: {logs / n / 'stdout_stderr.log'}" for n in names)
-            raise BuildFailed(
-                f"colcon build failed (exit code {code}) in {', '.join(names)}; logs:\n{where}",
-                "Fix the package and run `espdock build` again; packages that built are kept.",
+        states = log.states()
+        built = [name for name, state in (states or {}).items() if state is PackageState.BUILT and name in stamps]
+        if built:
+            stamp_file.record({name: stamps[name] for name in built}, installed())
+            _give_to(stamp_file.path, self._owner)
+        if states is None and code != 0:
+            last = next((line for line in reversed(output) if line.strip()), "no output")
+            raise ConfigError(
+                f"colcon stopped before building any package (exit code {code}): {last.strip()}",
+                "Check the colcon options after `--` and colcon's defaults files; nothing was built.",
             )
-        stamp_file.record(stamps, installed())
-        _give_to(stamp_file.path, self._owner)
-        return Outcome.BUILT, f"{len(step.packages)} package(s)"
+        if code != 0:
+            logs = {
+                name: (log.package_log(name), _read_text(log.package_log(name)))
+                for name, state in (states or {}).items()
+                if state is PackageState.FAILED
+            }
+            failure = explain_failure(code, states or {}, logs, step.colcon_args)
+            raise BuildFailed(failure.message, failure.hint)
+        others = [n for n in rebuild if n not in built]
+        detail = f"{len(built)} package(s) built, {len(stamps) - len(rebuild)} up to date"
+        return Outcome.BUILT, detail + (f", {len(others)} not built ({' '.join(others)})" if others else "")
 
     def _idf_build(self, workspace: Workspace, step: IdfBuild) -> tuple[Outcome, str]:
         build_dir = workspace.ws_dir / "build" / step.package
@@ -617,6 +636,13 @@ def _defaults_digest(project: Path) -> str:
     for path in sorted(project.glob("sdkconfig.defaults*")):
         digest.update(path.name.encode() + b"\0" + path.read_bytes())
     return digest.hexdigest()[:16]
+
+
+def _read_text(path: Path) -> str:
+    try:
+        return path.read_text(errors="replace")
+    except OSError:
+        return ""
 
 
 def _make_dirs_for(directory: Path, owner: tuple[int, int]) -> None:

@@ -1,8 +1,8 @@
 """Build stamps: what a package was last built from, so a build where nothing changed starts nothing.
 
 A stamp is a digest of everything that decides a package's build output: its source tree
-(paths and bytes), the stamps of the workspace packages it depends on, and the image it is
-built in. Next to it lies a digest of what the build installed (paths, sizes, modification
+(paths and bytes), the stamps of the workspace packages it depends on, the image it is
+built in and colcon's settings for it. Next to it lies a digest of what the build installed (paths, sizes, modification
 times), so a deleted or edited install tree is noticed too. Any difference, or no stamp, builds.
 """
 
@@ -45,14 +45,22 @@ def listing_digest(root: Path) -> str | None:
     return digest.hexdigest()
 
 
-def package_stamps(sources: Mapping[str, str], depends: Mapping[str, Iterable[str]], image: str) -> dict[str, str]:
-    """Each package's stamp from its source digest, its workspace dependencies' stamps and IMAGE.
+def package_stamps(
+    sources: Mapping[str, str],
+    depends: Mapping[str, Iterable[str]],
+    image: str,
+    settings: Mapping[str, str] | None = None,
+) -> dict[str, str]:
+    """Each package's stamp from its source digest, its workspace dependencies' stamps, IMAGE and
+    its colcon SETTINGS digest (options, colcon.meta, defaults files: espdock.colcon).
 
     SOURCES must list the packages in dependency order (a package after what it depends on).
+    A dependency's stamp is part of its dependents', so a change rebuilds what depends on it.
     """
     stamps: dict[str, str] = {}
     for name, source in sources.items():
-        digest = hashlib.sha256(f"{image}\0{name}\0{source}\n".encode())
+        setting = (settings or {}).get(name, "")
+        digest = hashlib.sha256(f"{image}\0{name}\0{source}\0{setting}\n".encode())
         for dep in sorted(set(depends.get(name, ())) & stamps.keys()):
             digest.update(f"{dep}\0{stamps[dep]}\n".encode())
         stamps[name] = digest.hexdigest()
@@ -74,13 +82,21 @@ class StampFile:
 
     def up_to_date(self, stamps: Mapping[str, str], installed: Mapping[str, str | None]) -> bool:
         """True when every package's stamp and install listing are those recorded."""
+        return not self.stale(stamps, installed)
+
+    def stale(self, stamps: Mapping[str, str], installed: Mapping[str, str | None]) -> tuple[str, ...]:
+        """The packages of STAMPS (in their order) whose stamp or install listing is not the one
+        recorded: what changed, and through the chained stamps, what depends on it."""
         recorded = self.read()
-        return all(
-            isinstance(recorded.get(name), dict)
-            and recorded[name].get("stamp") == stamp
-            and installed.get(name) is not None
-            and recorded[name].get("installed") == installed[name]
+        return tuple(
+            name
             for name, stamp in stamps.items()
+            if not (
+                isinstance(recorded.get(name), dict)
+                and recorded[name].get("stamp") == stamp
+                and installed.get(name) is not None
+                and recorded[name].get("installed") == installed[name]
+            )
         )
 
     def record(self, stamps: Mapping[str, str], installed: Mapping[str, str | None]) -> None:
@@ -96,7 +112,8 @@ class StampFile:
     def forget(self, names: Iterable[str]) -> None:
         """Drop NAMES' records (their build failed or was interrupted: build them next time)."""
         data = self.read()
-        if any(data.pop(name, None) is not None for name in list(names)):
+        dropped = [data.pop(name) for name in names if name in data]  # every one: no short-circuit
+        if dropped:
             tmp = self.path.with_name(f".{self.path.name}.tmp")
             tmp.write_text(json.dumps(data, indent=1, sort_keys=True) + "\n")
             os.replace(tmp, self.path)

@@ -116,6 +116,9 @@ def render_plan(console: Console, plan: Plan) -> None:
             case ColconBuild():
                 console.print(f"   in {step.image}, {step.workdir}: {format_argv(step.argv())}")
                 console.print(Text(f"     packages: {', '.join(step.packages)}", style="dim"))
+                console.print(
+                    Text("     colcon gets only the changed ones and their dependents (--packages-select)", style="dim")
+                )
             case IdfBuild():
                 console.print(f"   in {step.image} (target {step.target}): {format_argv(step.argv())}")
             case InstallFirmware():

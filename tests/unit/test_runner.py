@@ -39,14 +39,52 @@ COLCON = ColconBuild(image=SPEC.tag, packages=("msgs", "app"), sources=(("msgs",
                      depends=(("msgs", ()), ("app", ("msgs",))))  # fmt: skip
 
 
-def colcon_installs(ws: Workspace, code: int = 0, lines: tuple[str, ...] = ()):
+def colcon_installs(ws: Workspace, code: int = 0, lines: tuple[str, ...] = (), rcs: dict | None = None):
+    """Plays `colcon build` of msgs and app: what it installs and the log/latest_build/events.log
+    colcon-output writes ('[time] (job) EventClass: {members}'), honouring --packages-select.
+    RCS: a package's return code (colcon-core's 'SIGINT' when aborted, None when skipped);
+    the others get CODE."""
+
     def play(spec, on_line):
         for line in lines:
             on_line(line)
-        if code == 0:
-            for name in ("msgs", "app"):
+        argv = list(spec.argv)
+        selected = ("msgs", "app")
+        if "--packages-select" in argv:
+            rest = argv[argv.index("--packages-select") + 1 :]
+            selected = tuple(
+                n
+                for n in selected
+                if n in rest[: next((i for i, a in enumerate(rest) if a.startswith("-")), len(rest))]
+            )
+        log = (
+            ws.ws_dir
+            / "log"
+            / f"build_{len(list((ws.ws_dir / 'log').glob('build_*'))) if (ws.ws_dir / 'log').is_dir() else 0}"
+        )
+        log.mkdir(parents=True)
+        events = [
+            f"[0.000100] (-) JobUnselected: {{'identifier': '{n}'}}" for n in ("msgs", "app") if n not in selected
+        ]
+        for name in selected:
+            events.append(f"[0.000200] ({name}) JobQueued: {{'identifier': '{name}', 'dependencies': OrderedDict()}}")
+        for name in selected:
+            rc = (rcs or {}).get(name, code)
+            if rc is None:
+                events.append(f"[0.900000] ({name}) JobSkipped: {{'identifier': '{name}'}}")
+                continue
+            events.append(f"[0.300000] ({name}) JobStarted: {{'identifier': '{name}'}}")
+            if rc == 0:
                 (ws.ws_dir / "install" / name).mkdir(parents=True, exist_ok=True)
-                (ws.ws_dir / "install" / name / "marker").write_text(name)
+                (ws.ws_dir / "install" / name / "marker").write_text(f"{name} {log.name}")
+            else:
+                (log / name).mkdir()
+                (log / name / "stdout_stderr.log").write_text(f"{name} failed\n")
+            events.append(f"[0.800000] ({name}) JobEnded: {{'identifier': '{name}', 'rc': {rc!r}}}")
+        (log / "events.log").write_text("\n".join(events) + "\n")
+        latest = ws.ws_dir / "log" / "latest_build"
+        latest.unlink(missing_ok=True)
+        latest.symlink_to(log.name)
         return code
 
     return play
@@ -228,3 +266,59 @@ def test_a_built_image_records_its_debian_packages_in_labels(ws):
     assert labels["io.espdock.debian-packages"] == "libc6=2.36-9 python3=3.11.2-1+b1"
     assert labels["io.espdock.key"] == SPEC.key, "the key label stays"
     assert "2 Debian packages recorded" in notes(events)
+
+
+def test_after_an_edit_colcon_gets_the_changed_package_and_its_dependents_only(ws):
+    engine = FakeEngine(run_script=colcon_installs(ws))
+    runner(engine, []).run(Plan(ws, (COLCON,)))
+    assert "--packages-select" not in engine.runs[-1].argv
+    (ws.root / "ws/src/app/node.py").write_text("print(1)\n")
+    events: list = []
+    runner(engine, events).run(Plan(ws, (COLCON,)))
+    argv = engine.runs[-1].argv
+    assert argv[argv.index("--packages-select") :] == ("--packages-select", "app")
+    assert events[-1].detail == "1 package(s) built, 1 up to date"
+    (ws.root / "ws/src/msgs/msg.txt").write_text("x")
+    runner(engine, []).run(Plan(ws, (COLCON,)))
+    assert "--packages-select" not in engine.runs[-1].argv, "msgs changed: app depends on it, both rebuild"
+
+
+def test_with_continue_on_error_what_built_is_kept_and_what_failed_is_not(ws):
+    from dataclasses import replace
+
+    step = replace(COLCON, depends=(("msgs", ()), ("app", ())), colcon_args=("--continue-on-error",))
+    engine = FakeEngine(run_script=colcon_installs(ws, code=1, rcs={"msgs": 0, "app": 1}))
+    with pytest.raises(BuildFailed) as err:
+        runner(engine, []).run(Plan(ws, (step,)))
+    assert "failed (exit code 1) in app" in err.value.message
+    assert "that built are kept" in (err.value.hint or "")
+    engine.run_script = colcon_installs(ws)
+    runner(engine, []).run(Plan(ws, (step,)))
+    argv = engine.runs[-1].argv
+    assert argv[argv.index("--packages-select") :] == ("--packages-select", "app", "--continue-on-error")
+
+
+def test_colcon_stopping_before_any_package_is_a_user_error_and_stamps_nothing(ws):
+    from espdock.errors import ConfigError
+
+    def refuses(spec, on_line):
+        on_line("colcon build: error: unrecognized arguments: --no-such-option")
+        return 2
+
+    engine = FakeEngine(run_script=refuses)
+    with pytest.raises(ConfigError, match="unrecognized arguments: --no-such-option") as err:
+        runner(engine, []).run(Plan(ws, (COLCON,)))
+    assert err.value.exit_code == 2
+    assert not (ws.ws_dir / "build/.espdock-colcon-stamps.json").exists()
+
+
+def test_the_users_colcon_defaults_file_is_mounted_where_colcon_reads_it(ws, tmp_path):
+    from dataclasses import replace
+
+    defaults = tmp_path / "defaults.yaml"
+    defaults.write_text("build: {symlink-install: true}\n")
+    engine = FakeEngine(run_script=colcon_installs(ws))
+    runner(engine, []).run(Plan(ws, (replace(COLCON, defaults_file=str(defaults)),)))
+    spec = engine.runs[-1]
+    assert ("COLCON_DEFAULTS_FILE", "/run/espdock/colcon-defaults.yaml") in spec.env
+    assert any(m.source == defaults and m.read_only for m in spec.mounts)

@@ -1,0 +1,390 @@
+"""colcon's side of a ROS build: the options passed through after `--`, the settings files colcon
+reads (colcon.meta, its defaults files), and what its event log says each package did.
+
+Where colcon (colcon-core, colcon-defaults, colcon-metadata) looks, as the build container sees it
+(colcon runs in the colcon root with HOME=/tmp):
+- `./colcon.meta` in the colcon root (or the files `--metas` names): read there, by colcon itself;
+- `./colcon_defaults.yaml` in the colcon root: read there, by colcon itself;
+- the user's defaults file, COLCON_DEFAULTS_FILE, else $COLCON_HOME/defaults.yaml, else
+  ~/.colcon/defaults.yaml: on the host, so espdock mounts it and points COLCON_DEFAULTS_FILE at it;
+- a package's own `colcon.pkg` (and `colcon.meta`, which colcon reads only through `--metas`):
+  part of the package's sources, so its stamp covers them.
+User metadata ($COLCON_HOME/metadata/*.meta) is not forwarded: the container does not see it.
+"""
+
+from __future__ import annotations
+
+import ast
+import hashlib
+import json
+import os
+import posixpath
+import re
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass
+from enum import StrEnum
+from pathlib import Path
+
+from espdock.errors import ConfigError, WorkspaceError
+
+WORKSPACE_META = "colcon.meta"
+WORKSPACE_DEFAULTS = "colcon_defaults.yaml"
+# Where the user's defaults file is mounted in the build container.
+DEFAULTS_MOUNT = "/run/espdock/colcon-defaults.yaml"
+
+_OWN = "espdock decides it"
+# Options espdock itself sets or relies on, with why; colcon accepts unique prefixes of options.
+REFUSED = {
+    "--base-paths": "espdock points colcon at the selected packages",
+    "--paths": "espdock points colcon at the selected packages",
+    "--build-base": "espdock keeps colcon's build/ in the colcon root, where its stamps are",
+    "--install-base": "espdock installs into install/ of the colcon root, where its stamps and manifest look",
+    "--merge-install": "espdock reads each package's install/<package> (stamps, manifest, runtime image)",
+    "--event-handlers": "espdock reads colcon's console output and its event log",
+    "--log-base": "espdock reads colcon's event log in log/",
+}
+SELECTING = (
+    "--packages-select", "--packages-select-regex", "--packages-select-by-dep", "--packages-select-build-failed",
+    "--packages-select-test-failures", "--packages-up-to", "--packages-up-to-regex", "--packages-above",
+    "--packages-above-and-dependencies", "--packages-above-depth", "--packages-start", "--packages-end",
+)  # fmt: skip
+for _option in SELECTING:
+    REFUSED[_option] = "espdock selects the packages: name them as `espdock build PKG...`"
+# Options that change which packages run or how they are scheduled, not what a build produces:
+# left out of the stamps, so adding --parallel-workers does not rebuild everything. The value is
+# whether the option takes values.
+SCHEDULING = {
+    "--parallel-workers": True,
+    "--executor": True,
+    "--continue-on-error": False,
+    "--packages-skip": True,
+    "--packages-skip-regex": True,
+    "--packages-skip-by-dep": True,
+    "--packages-skip-up-to": True,
+    "--packages-skip-build-finished": False,
+    "--packages-skip-test-passed": False,
+    "--packages-ignore": True,
+    "--packages-ignore-regex": True,
+}
+
+
+def check_colcon_args(args: Iterable[str] | None) -> tuple[str, ...]:
+    """ARGS for `colcon build` (None: no `--` was given), refusing an empty `--` and what
+    conflicts with what espdock controls."""
+    if args is None:
+        return ()
+    args = tuple(args)
+    if not args:
+        raise ConfigError(
+            "nothing after `--`: it passes the options that follow it to `colcon build`",
+            "Add them, e.g. `espdock build -- --cmake-args -DBUILD_TESTING=OFF`, or leave out the `--`.",
+        )
+    for arg in args:
+        option = _option_name(arg)
+        if option is None:
+            continue
+        for refused, why in REFUSED.items():
+            if refused == option or (len(option) > 3 and refused.startswith(option)):
+                shown = option if refused == option else f"{option} ({refused})"
+                raise ConfigError(
+                    f"colcon option {shown} is not allowed after `--`: {why}",
+                    "Pass colcon only options about how packages are built, e.g. `--cmake-args ...`, "
+                    "`--packages-skip X`, `--continue-on-error`, `--parallel-workers N`.",
+                )
+    return args
+
+
+def _option_name(arg: str) -> str | None:
+    return arg.split("=", 1)[0] if arg.startswith("--") and len(arg) > 2 else None
+
+
+def output_args(args: Iterable[str]) -> tuple[str, ...]:
+    """ARGS without the scheduling options (SCHEDULING): what decides what colcon produces."""
+    kept: list[str] = []
+    skipping = False
+    for arg in args:
+        option = _option_name(arg)
+        if option is not None or arg.startswith("-"):
+            takes_values = _scheduling(option)
+            skipping = bool(takes_values) and "=" not in arg
+            if takes_values is None:
+                kept.append(arg)
+            continue
+        if not skipping:
+            kept.append(arg)
+    return tuple(kept)
+
+
+def _scheduling(option: str | None) -> bool | None:
+    """Whether OPTION (or the option it uniquely abbreviates) is a scheduling one that takes
+    values; None when it is not a scheduling option."""
+    if option is None:
+        return None
+    if option in SCHEDULING:
+        return SCHEDULING[option]
+    matches = [name for name in SCHEDULING if name.startswith(option)]
+    return SCHEDULING[matches[0]] if len(matches) == 1 and len(option) > 3 else None
+
+
+def meta_paths(args: Iterable[str]) -> tuple[str, ...]:
+    """The colcon.meta files or dirs colcon reads for ARGS (relative to the colcon root):
+    `--metas` replaces the default ./colcon.meta."""
+    paths: list[str] = []
+    given = False
+    collecting = False
+    for arg in args:
+        if arg.startswith("-"):
+            option = _option_name(arg)
+            collecting = option is not None and "--metas".startswith(option) and len(option) > 3
+            if collecting:
+                given = True
+                if "=" in arg:
+                    paths.append(arg.split("=", 1)[1])
+            continue
+        if collecting:
+            paths.append(arg)
+    return tuple(paths) if given else (f"./{WORKSPACE_META}",)
+
+
+def parse_meta(where: str, text: str) -> dict:
+    """A colcon.meta file's content; exit 2 naming WHERE when it is not colcon.meta JSON."""
+    try:
+        data = json.loads(text) if text.strip() else {}
+        if not isinstance(data, dict):
+            raise ValueError("the top level is not an object")
+        for section in ("names", "paths"):
+            if not isinstance(data.get(section, {}), dict):
+                raise ValueError(f"'{section}' is not an object")
+    except ValueError as exc:
+        raise WorkspaceError(
+            f"{where} is not a valid colcon.meta: {exc}",
+            'colcon.meta is JSON: {"names": {"<package>": {"cmake-args": [...]}}}. Fix it and run again.',
+        ) from exc
+    return data
+
+
+def package_meta(metas: Mapping[str, dict], package: str, package_dir: str) -> dict:
+    """What the colcon.meta files METAS (path relative to the colcon root -> content) say about
+    PACKAGE, found by name or by its directory PACKAGE_DIR (relative to the colcon root)."""
+    said: dict[str, object] = {}
+    for where, data in metas.items():
+        if package in data.get("names", {}):
+            said[f"{where}:names"] = data["names"][package]
+        for rel, value in data.get("paths", {}).items():
+            if posixpath.normpath(posixpath.join(posixpath.dirname(where), rel)) == posixpath.normpath(package_dir):
+                said[f"{where}:paths:{rel}"] = value
+    return said
+
+
+# Keys of a defaults file (per verb; colcon's option names without dashes) that move what
+# espdock relies on. Checked by name in the text: espdock reads no YAML of its own.
+_DEFAULTS_KEY = re.compile(r"^[\s{,]*['\"]?([a-z][a-z0-9-]*)['\"]?\s*:", re.MULTILINE)
+
+
+def check_defaults(where: str, text: str) -> None:
+    """Refuse a colcon defaults file that sets what espdock controls (exit 2 naming the file)."""
+    refused = {name.removeprefix("--") for name in REFUSED}
+    for match in _DEFAULTS_KEY.finditer(text):
+        if match.group(1) in refused:
+            raise ConfigError(
+                f"{where} sets {match.group(1)}, which espdock controls: {REFUSED['--' + match.group(1)]}",
+                "Remove it from that file (or build with COLCON_DEFAULTS_FILE pointing at another).",
+            )
+
+
+def user_defaults_file(env: Mapping[str, str]) -> Path:
+    """Where colcon reads the user's defaults: COLCON_DEFAULTS_FILE, else $COLCON_HOME/defaults.yaml,
+    else ~/.colcon/defaults.yaml (colcon-defaults and colcon-core's command.py)."""
+    if env.get("COLCON_DEFAULTS_FILE"):
+        return Path(env["COLCON_DEFAULTS_FILE"])
+    home = env.get("COLCON_HOME") or os.path.join(env.get("HOME") or os.path.expanduser("~"), ".colcon")
+    return Path(home) / "defaults.yaml"
+
+
+@dataclass(frozen=True)
+class ColconSettings:
+    """The colcon options and settings files of a build, as they decide each package's stamp."""
+
+    args: tuple[str, ...] = ()
+    # Per package: a digest of the output-deciding options, the defaults files and what the
+    # colcon.meta files say about it.
+    digests: tuple[tuple[str, str], ...] = ()
+    # The user's defaults file on the host, mounted into the build container; None: there is none.
+    defaults_file: str | None = None
+    # The settings files that were read (for --dry-run).
+    files: tuple[str, ...] = ()
+
+
+def read_colcon_settings(
+    colcon_root: Path, package_dirs: Mapping[str, Path], args: Iterable[str] | None, env: Mapping[str, str]
+) -> ColconSettings:
+    """Read and check the settings colcon will use for PACKAGE_DIRS (name -> directory), run in
+    COLCON_ROOT with ARGS (None: no `--`); a malformed file or a refused option is exit 2 before
+    anything runs."""
+    args = check_colcon_args(args)
+    files: list[str] = []
+    common = hashlib.sha256(json.dumps(output_args(args)).encode())
+    defaults: str | None = None
+    user = user_defaults_file(env)
+    for path, shown in ((user, str(user)), (colcon_root / WORKSPACE_DEFAULTS, WORKSPACE_DEFAULTS)):
+        if not path.is_file():
+            continue
+        text = path.read_text(errors="replace")
+        check_defaults(shown, text)
+        common.update(f"{shown}\0".encode() + hashlib.sha256(text.encode()).digest())
+        files.append(shown)
+        if path == user:
+            defaults = str(path.resolve())
+    metas: dict[str, dict] = {}
+    for given in meta_paths(args):
+        rel = posixpath.join(given, WORKSPACE_META) if (colcon_root / given).is_dir() else given
+        path = colcon_root / rel
+        if path.is_file():
+            metas[posixpath.normpath(rel)] = parse_meta(rel, path.read_text(errors="replace"))
+            files.append(posixpath.normpath(rel))
+    for directory in package_dirs.values():
+        own = directory / WORKSPACE_META
+        if own.is_file():
+            parse_meta(str(own), own.read_text(errors="replace"))
+    digests = []
+    for name, directory in package_dirs.items():
+        said = package_meta(metas, name, os.path.relpath(directory, colcon_root))
+        digest = common.copy()
+        digest.update(json.dumps(said, sort_keys=True).encode())
+        digests.append((name, digest.hexdigest()))
+    return ColconSettings(args, tuple(digests), defaults, tuple(files))
+
+
+class PackageState(StrEnum):
+    """What colcon did with a package in one run (its summary's words)."""
+
+    BUILT = "built"
+    FAILED = "failed"
+    ABORTED = "aborted"  # stopped because another package failed
+    NOT_PROCESSED = "not processed"  # never started: colcon stopped, or a dependency failed
+
+
+_EVENT = re.compile(r"^\[[0-9.]+\] \((?P<job>[^)]*)\) (?P<event>\w+): (?P<data>.*)$")
+
+
+def parse_events(lines: Iterable[str]) -> dict[str, PackageState]:
+    """Each package's state from colcon's log/<run>/events.log (colcon-output's event_log handler).
+
+    Packages colcon was not asked to build (JobUnselected) are left out.
+    """
+    states: dict[str, PackageState] = {}
+    for line in lines:
+        match = _EVENT.match(line.rstrip("\n"))
+        if not match or match.group("job") == "-":
+            continue
+        job, event = match.group("job"), match.group("event")
+        if event == "JobQueued":
+            states.setdefault(job, PackageState.NOT_PROCESSED)
+        elif event == "JobEnded":
+            try:
+                rc = ast.literal_eval(match.group("data")).get("rc")
+            except (ValueError, SyntaxError, AttributeError):
+                rc = None
+            if rc == 0:
+                states[job] = PackageState.BUILT
+            elif rc == "SIGINT":  # colcon-core's SIGINT_RESULT: aborted, not failed
+                states[job] = PackageState.ABORTED
+            else:
+                states[job] = PackageState.FAILED
+        elif event == "JobSkipped":
+            states[job] = PackageState.NOT_PROCESSED
+    return states
+
+
+class ColconLog:
+    """colcon's log of the run about to start, told apart from earlier runs' by latest_build."""
+
+    def __init__(self, log_base: Path) -> None:
+        self.latest = log_base / "latest_build"
+        self._before = self._target()
+
+    def _target(self) -> str | None:
+        return os.path.realpath(self.latest) if self.latest.exists() else None
+
+    def states(self) -> dict[str, PackageState] | None:
+        """Each package's state in this run; None when colcon wrote no log (it stopped before
+        building anything, e.g. on an option it does not know)."""
+        target = self._target()
+        if target is None or target == self._before:
+            return None
+        try:
+            return parse_events((self.latest / "events.log").read_text(errors="replace").splitlines())
+        except OSError:
+            return None
+
+    def package_log(self, package: str) -> Path:
+        return self.latest / package / "stdout_stderr.log"
+
+
+# Output of a package's build that says a dependency is missing, not that the package is wrong.
+_MISSING = (
+    re.compile(r'Could not find a package configuration file provided by\s+"(?P<dep>[\w.-]+)"'),
+    re.compile(r"By not providing \"Find(?P<dep>[\w.-]+)\.cmake\""),
+    re.compile(r"No module named '(?P<dep>[\w.]+)'"),
+    re.compile(r"Check that the following packages have been built:\s*\n- (?P<dep>[\w.-]+)"),
+)
+
+
+def missing_dependencies(output: str) -> tuple[str, ...]:
+    """What a failed package's OUTPUT says it could not find, in order, without repeats."""
+    found: dict[str, None] = {}
+    for pattern in _MISSING:
+        for match in pattern.finditer(output):
+            found.setdefault(match.group("dep"), None)
+    return tuple(found)
+
+
+@dataclass(frozen=True)
+class ColconFailure:
+    """A failed colcon run, as a message and a hint that say what failed and what to do."""
+
+    message: str
+    hint: str
+
+
+def explain_failure(
+    code: int, states: Mapping[str, PackageState], logs: Mapping[str, tuple[Path, str]], args: tuple[str, ...]
+) -> ColconFailure:
+    """Why colcon exited with CODE: STATES from its event log, LOGS (failed package -> its log
+    file and output), ARGS the options given after `--`."""
+    by_state: dict[PackageState, list[str]] = {}
+    for name, state in sorted(states.items()):
+        by_state.setdefault(state, []).append(name)
+    failed = by_state.get(PackageState.FAILED, [])
+    counts = ", ".join(f"{len(names)} {state.value} ({' '.join(names)})" for state, names in sorted(by_state.items()))
+    lines = [f"colcon build failed (exit code {code}) in {', '.join(failed) or 'no package'}: {counts or 'none ran'}"]
+    hints = []
+    own = []
+    for name in failed:
+        log, output = logs.get(name, (Path("?"), ""))
+        missing = missing_dependencies(output)
+        if missing:
+            lines.append(f"  {name}: could not find {', '.join(missing)}; log: {log}")
+            hints.append(
+                f"{name} needs {', '.join(missing)}, which the build image does not provide: declare it in "
+                f"{name}'s package.xml, use an image that has it, or leave {name} out "
+                f"(COLCON_IGNORE, `-- --packages-skip {name}`, or select other packages)."
+            )
+        else:
+            lines.append(f"  {name}: its own build failed; log: {log}")
+            own.append(name)
+    if own:
+        hints.insert(0, f"Fix {' and '.join(own)} (the error is in the log above) and run `espdock build` again.")
+    stopped = by_state.get(PackageState.ABORTED, []) + by_state.get(PackageState.NOT_PROCESSED, [])
+    if stopped and "--continue-on-error" not in args:
+        hints.append(
+            f"{len(stopped)} package(s) were not built because colcon stopped at the failure; "
+            "`espdock build -- --continue-on-error` builds every package that does not depend on a failed one."
+        )
+    built = by_state.get(PackageState.BUILT, [])
+    hints.append(
+        f"The {len(built)} package(s) that built are kept: the next build starts from them."
+        if built
+        else "No package was built by this run."
+    )
+    return ColconFailure("\n".join(lines), " ".join(hints))

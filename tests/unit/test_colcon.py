@@ -1,0 +1,213 @@
+"""colcon's side of a build without colcon: options after `--`, settings files, the changed set,
+colcon's event log and the failure hints made from it."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import pytest
+
+from espdock.colcon import (
+    PackageState,
+    check_colcon_args,
+    explain_failure,
+    meta_paths,
+    missing_dependencies,
+    output_args,
+    parse_events,
+    read_colcon_settings,
+    user_defaults_file,
+)
+from espdock.errors import ConfigError, WorkspaceError
+from espdock.plan import ColconBuild
+from espdock.stamps import StampFile, package_stamps
+from tests.conftest import copy_workspace, espdock
+
+NO_ENGINE = {"DOCKER_HOST": "unix:///nonexistent/docker.sock"}
+
+
+def test_build_options_pass_and_what_espdock_controls_is_refused():
+    allowed = ("--cmake-args", "-DBUILD_TESTING=OFF", "--packages-skip", "x", "--continue-on-error")
+    assert check_colcon_args(allowed) == allowed
+    assert check_colcon_args(None) == ()
+    for refused in ("--build-base", "--install-base=/x", "--merge-install", "--base-paths", "--packages-select",
+                    "--packages-up-to", "--packages-above", "--event-handlers", "--install-b"):  # fmt: skip
+        with pytest.raises(ConfigError) as err:
+            check_colcon_args(("--symlink-install", refused, "a"))
+        assert refused.split("=")[0] in err.value.message
+    with pytest.raises(ConfigError, match="name them as `espdock build PKG"):
+        check_colcon_args(("--packages-select", "a"))
+
+
+def test_an_empty_double_dash_is_an_error():
+    with pytest.raises(ConfigError, match="nothing after `--`"):
+        check_colcon_args(())
+
+
+def test_scheduling_options_do_not_decide_the_output_but_build_options_do():
+    args = ("--parallel-workers", "4", "--cmake-args", "-DX=1", "--continue-on-error", "--packages-skip", "a", "b")
+    assert output_args(args) == ("--cmake-args", "-DX=1")
+    assert output_args(("--parallel-w=2", "--symlink-install")) == ("--symlink-install",)
+
+
+def test_metas_replaces_the_default_colcon_meta():
+    assert meta_paths(()) == ("./colcon.meta",)
+    assert meta_paths(("--metas", "a.meta", "dir", "--symlink-install")) == ("a.meta", "dir")
+    assert meta_paths(("--metas=a.meta",)) == ("a.meta",)
+
+
+def test_colcon_reads_the_users_defaults_where_colcon_looks():
+    assert user_defaults_file({"COLCON_DEFAULTS_FILE": "/d.yaml", "HOME": "/h"}) == Path("/d.yaml")
+    assert user_defaults_file({"COLCON_HOME": "/c", "HOME": "/h"}) == Path("/c/defaults.yaml")
+    assert user_defaults_file({"HOME": "/h"}) == Path("/h/.colcon/defaults.yaml")
+
+
+def _workspace(tmp_path: Path) -> tuple[Path, dict[str, Path]]:
+    dirs = {name: tmp_path / "src" / name for name in ("msgs", "app")}
+    for directory in dirs.values():
+        directory.mkdir(parents=True)
+    return tmp_path, dirs
+
+
+def test_settings_decide_each_package_stamp(tmp_path):
+    root, dirs = _workspace(tmp_path)
+    env = {"HOME": str(tmp_path / "home")}
+
+    def digests(args=None) -> dict[str, str]:
+        return dict(read_colcon_settings(root, dirs, args, env).digests)
+
+    base = digests()
+    (root / "colcon.meta").write_text('{"names": {"app": {"cmake-args": ["-DX=1"]}}}')
+    meta = digests()
+    assert meta["msgs"] == base["msgs"] and meta["app"] != base["app"], "colcon.meta about app changes only app"
+    (root / "colcon.meta").write_text('{"paths": {"src/msgs": {"cmake-args": ["-DX=1"]}}}')
+    assert digests()["msgs"] != base["msgs"], "an entry by path counts too"
+    (root / "colcon.meta").unlink()
+    assert digests(("--parallel-workers", "2")) == base
+    assert digests(("--cmake-args", "-DBUILD_TESTING=OFF"))["msgs"] != base["msgs"]
+    (root / "colcon_defaults.yaml").write_text("build:\n  symlink-install: true\n")
+    workspace_defaults = digests()
+    assert workspace_defaults["msgs"] != base["msgs"]
+    user = tmp_path / "home/.colcon/defaults.yaml"
+    user.parent.mkdir(parents=True)
+    user.write_text("build:\n  cmake-args: [-DA=1]\n")
+    settings = read_colcon_settings(root, dirs, None, env)
+    assert dict(settings.digests)["msgs"] != workspace_defaults["msgs"]
+    assert settings.defaults_file == str(user)
+
+
+def test_malformed_or_conflicting_settings_files_are_named(tmp_path):
+    root, dirs = _workspace(tmp_path)
+    (root / "colcon.meta").write_text('{"names": {"app": ')
+    with pytest.raises(WorkspaceError, match=r"colcon\.meta is not a valid colcon\.meta"):
+        read_colcon_settings(root, dirs, None, {})
+    (root / "colcon.meta").write_text('{"names": ["app"]}')
+    with pytest.raises(WorkspaceError, match="'names' is not an object"):
+        read_colcon_settings(root, dirs, None, {})
+    (root / "colcon.meta").unlink()
+    (dirs["app"] / "colcon.meta").write_text("not json")
+    with pytest.raises(WorkspaceError, match=re.escape(str(dirs["app"] / "colcon.meta"))):
+        read_colcon_settings(root, dirs, None, {})
+    (dirs["app"] / "colcon.meta").unlink()
+    (root / "colcon_defaults.yaml").write_text("build:\n  merge-install: true\n")
+    with pytest.raises(ConfigError, match=r"colcon_defaults\.yaml sets merge-install"):
+        read_colcon_settings(root, dirs, None, {})
+
+
+def test_only_changed_packages_and_their_dependents_are_stale(tmp_path):
+    depends = {"msgs": (), "app": ("msgs",), "tool": ()}
+    sources = {"msgs": "m", "app": "a", "tool": "t"}
+    stamps = package_stamps(sources, depends, "img")
+    installed = dict.fromkeys(stamps, "listing")
+    stamp_file = StampFile(tmp_path / "stamps.json")
+    assert stamp_file.stale(stamps, installed) == ("msgs", "app", "tool")
+    stamp_file.record(stamps, installed)
+    assert stamp_file.stale(stamps, installed) == ()
+    assert stamp_file.stale(package_stamps({**sources, "app": "a2"}, depends, "img"), installed) == ("app",)
+    assert stamp_file.stale(package_stamps({**sources, "msgs": "m2"}, depends, "img"), installed) == ("msgs", "app")
+    assert stamp_file.stale(package_stamps(sources, depends, "img", {"tool": "meta"}), installed) == ("tool",)
+    assert stamp_file.stale(stamps, {**installed, "tool": None}) == ("tool",)
+    stamp_file.forget(("msgs", "app"))
+    assert stamp_file.stale(stamps, installed) == ("msgs", "app"), "a failed build's packages all build again"
+
+
+def test_colcon_gets_exactly_the_packages_to_rebuild_then_the_users_options():
+    step = ColconBuild(image="i", packages=("msgs", "app", "tool"),
+                       sources=(("msgs", "src/msgs"), ("app", "src/app"), ("tool", "src/tool")),
+                       colcon_args=("--packages-skip", "tool"))  # fmt: skip
+    argv = step.argv(("msgs", "app"))
+    assert argv[argv.index("--packages-select") :] == ("--packages-select", "msgs", "app", "--packages-skip", "tool")
+    assert "--packages-select" not in step.argv(("msgs", "app", "tool")), "all of them: no selection needed"
+    assert argv[argv.index("--base-paths") + 1 : argv.index("--base-paths") + 4] == ("src/msgs", "src/app", "src/tool")
+
+
+EVENTS = """\
+[0.000010] (-) TimerEvent: {}
+[0.000100] (-) JobUnselected: {'identifier': 'other'}
+[0.000200] (msgs) JobQueued: {'identifier': 'msgs', 'dependencies': OrderedDict()}
+[0.000200] (app) JobQueued: {'identifier': 'app', 'dependencies': OrderedDict([('msgs', '/w/install/msgs')])}
+[0.000200] (slow) JobQueued: {'identifier': 'slow', 'dependencies': OrderedDict()}
+[0.000200] (last) JobQueued: {'identifier': 'last', 'dependencies': OrderedDict()}
+[0.000300] (msgs) JobStarted: {'identifier': 'msgs'}
+[0.500000] (msgs) JobEnded: {'identifier': 'msgs', 'rc': 0}
+[0.600000] (app) JobEnded: {'identifier': 'app', 'rc': 1}
+[0.700000] (slow) JobEnded: {'identifier': 'slow', 'rc': 'SIGINT'}
+[0.800000] (last) JobSkipped: {'identifier': 'last'}
+"""
+
+
+def test_the_event_log_tells_built_failed_aborted_and_not_processed_apart():
+    assert parse_events(EVENTS.splitlines()) == {
+        "msgs": PackageState.BUILT,
+        "app": PackageState.FAILED,
+        "slow": PackageState.ABORTED,
+        "last": PackageState.NOT_PROCESSED,
+    }
+
+
+def test_a_failure_of_the_package_itself_says_fix_it_and_what_was_kept():
+    states = parse_events(EVENTS.splitlines())
+    failure = explain_failure(1, states, {"app": (Path("/l/app.log"), "SyntaxError: invalid syntax")}, ())
+    assert failure.message.splitlines()[0].startswith("colcon build failed (exit code 1) in app:")
+    assert "1 built (msgs)" in failure.message and "1 aborted (slow)" in failure.message
+    assert "app: its own build failed; log: /l/app.log" in failure.message
+    assert failure.hint.startswith("Fix app")
+    assert "--continue-on-error" in failure.hint
+    assert "The 1 package(s) that built are kept" in failure.hint
+
+
+def test_a_missing_dependency_is_not_the_packages_fault_and_nothing_kept_is_claimed():
+    output = (
+        'CMake Error at CMakeLists.txt:9 (find_package):\n  By not providing "Findrclcpp.cmake" in CMAKE_MODULE_PATH\n'
+        '  Could not find a package configuration file provided by "rclcpp" with any\n'
+    )
+    assert missing_dependencies(output) == ("rclcpp",)
+    states = {"cpp_node": PackageState.FAILED, "py_node": PackageState.NOT_PROCESSED}
+    failure = explain_failure(1, states, {"cpp_node": (Path("/l/c.log"), output)}, ())
+    assert "cpp_node: could not find rclcpp" in failure.message
+    assert "Fix" not in failure.hint
+    assert "cpp_node needs rclcpp, which the build image does not provide" in failure.hint
+    assert "No package was built" in failure.hint and "kept" not in failure.hint
+    kept_going = explain_failure(1, states, {"cpp_node": (Path("/l/c.log"), output)}, ("--continue-on-error",))
+    assert "--continue-on-error` builds" not in kept_going.hint
+
+
+def test_cli_refuses_an_empty_double_dash_and_refused_options_before_any_engine(tmp_path):
+    root = copy_workspace(tmp_path / "w")
+    empty = espdock("build", "--", cwd=root, env=NO_ENGINE)
+    assert empty.returncode == 2, empty.stderr
+    assert "nothing after `--`" in empty.stderr
+    refused = espdock("build", "custom_interface", "--", "--install-base", "/tmp/x", cwd=root, env=NO_ENGINE)
+    assert refused.returncode == 2 and "--install-base is not allowed" in refused.stderr
+    (root / "ws/colcon.meta").write_text("{")
+    malformed = espdock("build", cwd=root, env=NO_ENGINE)
+    assert malformed.returncode == 2 and "colcon.meta is not a valid colcon.meta" in malformed.stderr
+    assert not (root / "ws/build").exists()
+
+
+def test_dry_run_shows_the_options_after_the_double_dash(tmp_path):
+    root = copy_workspace(tmp_path / "w")
+    result = espdock("build", "--dry-run", "--", "--cmake-args", "-DBUILD_TESTING=OFF", cwd=root, env=NO_ENGINE)
+    assert result.returncode == 0, result.stderr
+    assert "summary+ --cmake-args -DBUILD_TESTING=OFF" in result.stdout

@@ -8,12 +8,14 @@ set -eu
 dir=$1
 python=$2
 shift 2
-if [ -s /run/secrets/ca_bundle ]; then
-  cat /etc/ssl/certs/ca-certificates.crt /run/secrets/ca_bundle > /tmp/ca.pem
-  export PIP_CERT=/tmp/ca.pem
-fi
 apt_packages=$(grep -v '^#' "$dir/apt.txt" || true)
 pip_wanted=$(grep -v '^#' "$dir/pip.txt" || true)
+# Only pip speaks TLS here (apt uses Debian's signed http archive). The runtime image has no
+# system CA bundle: it never runs pip.
+if [ -n "$pip_wanted" ] && [ -s /run/secrets/ca_bundle ]; then
+  { cat /etc/ssl/certs/ca-certificates.crt 2>/dev/null || true; cat /run/secrets/ca_bundle; } > /tmp/ca.pem
+  export PIP_CERT=/tmp/ca.pem
+fi
 if [ -n "$pip_wanted" ] && ! "$python" -m pip --version > /dev/null 2>&1; then
   apt_packages="$apt_packages python3-pip"
 fi

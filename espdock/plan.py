@@ -164,7 +164,28 @@ class InstallFirmware:
         return f"install {self.package}"
 
 
-Step = EnsureBaseImage | EnsureImage | ColconBuild | IdfBuild | InstallFirmware
+@dataclass(frozen=True)
+class RuntimeImage:
+    """The workspace's runtime image: BASE (no compilers) plus the install trees of PACKAGES, tagged
+    REPOSITORY:<key> (the key hashes BASE's key and every installed file) and REPOSITORY:latest."""
+
+    base: ImageSpec
+    repository: str
+    packages: tuple[str, ...]
+    colcon_root: str = "ws"
+    name: str = "runtime image"
+
+    @property
+    def stable_tag(self) -> str:
+        return f"{self.repository}:latest"
+
+
+Step = EnsureBaseImage | EnsureImage | ColconBuild | IdfBuild | InstallFirmware | RuntimeImage
+
+# Where a runtime image holds the workspace's install tree (the entrypoint sources it).
+RUNTIME_INSTALL = "/opt/espdock/ws/install"
+# The stage of the ROS image's Dockerfile that runtime images start from.
+RUNTIME_STAGE = "runtime"
 
 
 def _container_path(rel: str) -> str:
@@ -213,6 +234,45 @@ def ros_build_image(
         f"espdock/ros-{config.ros_distro}-build", ROS_DOCKERFILE, "build", (("BASE_IMAGE", base),), files, context=files
     )
     return replace(spec, origin=_origin(ROS_DOCKERFILE, files, own_files))
+
+
+def runtime_base_image(build: ImageSpec) -> ImageSpec:
+    """The runtime base that goes with the ROS build image BUILD: the `runtime` stage of the same
+    Dockerfile, from the same inputs. Whichever ROS image the build uses (its Dockerfile is chosen
+    in one place), its runtime images start from this stage of it."""
+    files = dict(build.context or ())
+    spec = _keyed_image(
+        build.repository.removesuffix("-build") + "-runtime",
+        build.dockerfile,
+        RUNTIME_STAGE,
+        build.build_args,
+        files,
+        context=files,
+        extra={"target": RUNTIME_STAGE.encode()},
+    )
+    return replace(spec, origin=build.origin)
+
+
+def runtime_repository(config: Config, workspace: Workspace) -> str:
+    """espdock/<name>: the workspace's runtime images (name: the setting, else the directory's name)."""
+    name = config.name or re.sub(r"[^a-z0-9._-]+", "-", workspace.root.name.lower()).strip("._-")
+    return f"espdock/{name or 'workspace'}"
+
+
+def runtime_image_spec(step: RuntimeImage, install_digest: str) -> ImageSpec:
+    """The runtime image of STEP for an install tree with INSTALL_DIGEST: one layer over the base."""
+    dockerfile = f"FROM {step.base.tag} AS workspace\nCOPY install {RUNTIME_INSTALL}\n"
+    key, inputs = image_key({"base": step.base.key.encode(), "install": install_digest.encode()})
+    return ImageSpec(
+        repository=step.repository,
+        key=key,
+        dockerfile="Dockerfile",
+        target="workspace",
+        build_args=(),
+        inputs=inputs,
+        context=(("Dockerfile", dockerfile.encode()),),
+        origin=f"generated: {step.base.tag} plus the install trees of {', '.join(step.packages)}",
+    )
 
 
 def _origin(dockerfile: str, files: Mapping[str, bytes], own_files: frozenset[str]) -> str:
@@ -395,6 +455,14 @@ def plan_build(
                 depends=tuple((p.name, tuple(sorted(p.depends & names))) for p in ros),
                 colcon_root=workspace.colcon_root,
                 force=force,
+            ),
+        ]
+        built = {p.name for p in (all_packages or packages) if p.kind is PackageKind.ROS}
+        base_runtime = runtime_base_image(ros_image)
+        steps += [
+            EnsureImage(base_runtime),
+            RuntimeImage(
+                base_runtime, runtime_repository(config, workspace), tuple(sorted(built)), workspace.colcon_root
             ),
         ]
     ensured: dict[str, ImageSpec] = {}

@@ -12,7 +12,7 @@ from rich.text import Text
 
 from espdock.events import Event, Outcome, StepFinished, StepNote, StepOutput, StepStarted
 from espdock.layout import firmware_install_dir
-from espdock.plan import ColconBuild, EnsureBaseImage, EnsureImage, IdfBuild, InstallFirmware, Plan
+from espdock.plan import ColconBuild, EnsureBaseImage, EnsureImage, IdfBuild, InstallFirmware, Plan, RuntimeImage
 from espdock.workspace import Package, Workspace
 
 MARKS = {
@@ -119,6 +119,9 @@ def render_plan(console: Console, plan: Plan) -> None:
                 console.print(f"   in {step.image} (target {step.target}): {format_argv(step.argv())}")
             case InstallFirmware():
                 console.print(f"   artefacts to {firmware_install_dir(step.package)}, package.xml, ament index")
+            case RuntimeImage():
+                console.print(f"   {step.repository}:<key> and {step.stable_tag}: {step.base.tag} plus install/")
+                console.print(Text(f"     packages: {', '.join(step.packages)}", style="dim"))
             case _:
                 assert_never(step)
 

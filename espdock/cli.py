@@ -16,7 +16,7 @@ import typer
 from rich.console import Console
 from rich.text import Text
 
-from espdock import __version__, bootstrap
+from espdock import __version__, bootstrap, nodes
 from espdock.config import Config, invoking_user, load_config, record_target, resolve_ca_bundle
 from espdock.engine import Engine, format_argv
 from espdock.errors import ConfigError, EspdockBug, EspdockError, Interrupted, WorkspaceError
@@ -40,7 +40,7 @@ from espdock.provision import network_settings, nvs_image, nvs_partition, option
 from espdock.runner import Runner
 from espdock.scaffold import check_new_package, create_firmware_package, init_workspace
 from espdock.status import built_from, micro_ros_report
-from espdock.ui import Reporter, render_micro_ros_status, render_packages, render_plan
+from espdock.ui import QuietReporter, Reporter, render_micro_ros_status, render_packages, render_plan
 from espdock.workspace import (
     Package,
     PackageKind,
@@ -577,7 +577,7 @@ def monitor(
     )
 
 
-def _runner(ws: Workspace, config: Config, reporter: Reporter) -> Runner:
+def _runner(ws: Workspace, config: Config, reporter: Reporter | QuietReporter) -> Runner:
     engine = bootstrap.ensure_engine(os.environ, _notify)
     return Runner(engine, config, os.environ, reporter, invoking_user(os.environ, ws.root))
 
@@ -615,6 +615,54 @@ def compose(ctx: typer.Context, workspace: WorkspaceOption = None) -> None:
     if ca_bundle is not None:
         env["ESPDOCK_CA_BUNDLE"] = str(ca_bundle)
     raise typer.Exit(engine.run_compose(ctx.args, ws.root, env))
+
+
+@app.command(context_settings={"allow_interspersed_args": False, "ignore_unknown_options": True})
+@_command
+def run(
+    package: Annotated[str, typer.Argument(help="A ROS package of the workspace (built).")],
+    executable: Annotated[str, typer.Argument(help="One of its executables (install/PKG/lib/PKG/).")],
+    args: Annotated[list[str] | None, typer.Argument(help="Arguments for the node (--ros-args ...).")] = None,
+    network: Annotated[
+        str, typer.Option(help="Docker network: host (the host's DDS traffic), or a compose project's network.")
+    ] = nodes.DEFAULT_NETWORK,
+    workspace: WorkspaceOption = None,
+) -> None:
+    """Run EXECUTABLE of a built PACKAGE in the workspace's runtime image, like `ros2 run`
+    (espdock's options go before PACKAGE; everything after EXECUTABLE goes to the node)."""
+    ws, config = _load(workspace)
+    packages = _packages(ws)
+    path = nodes.find_executable(ws, packages, package, executable)
+    plan, step = nodes.runtime_plan(_build_plan(ws, config, [], PackageKind.ROS))
+    runner = _ensure(ws, config, plan)
+    image = runner.runtime_spec(ws, step).tag
+    tty = sys.stdin.isatty() and sys.stdout.isatty()
+    spec = nodes.node_spec(ws, image, path, tuple(args or ()), runner.owner, os.environ, network, tty)
+    code, stopped_by = runner.engine.run_foreground(spec)
+    raise typer.Exit(128 + stopped_by if stopped_by else code)
+
+
+@app.command()
+@_command
+def shell(workspace: WorkspaceOption = None) -> None:
+    """Open a shell in the ROS build image with the workspace mounted and its install tree sourced."""
+    ws, config = _load(workspace)
+    plan, image = nodes.build_image_plan(_build_plan(ws, config, [], PackageKind.ROS))
+    runner = _ensure(ws, config, plan)
+    spec = nodes.shell_spec(ws, image, runner.owner, os.environ, sys.stdin.isatty() and sys.stdout.isatty())
+    code, stopped_by = runner.engine.run_foreground(spec)
+    raise typer.Exit(128 + stopped_by if stopped_by else code)
+
+
+def _ensure(ws: Workspace, config: Config, plan: Plan) -> Runner:
+    """A runner that has made sure PLAN's images exist (saying so only when it builds one)."""
+    reporter = QuietReporter(Reporter(err_console))
+    runner = _runner(ws, config, reporter)
+    try:
+        runner.run(plan, lock=False)
+    finally:
+        reporter.close()
+    return runner
 
 
 @app.command("list")

@@ -105,6 +105,10 @@ class Runner:
         self._commit_times: dict[Path, str | None] = {}
 
     @property
+    def engine(self) -> Engine:
+        return self._engine
+
+    @property
     def owner(self) -> tuple[int, int]:
         """uid, gid that containers writing into the workspace run as."""
         return self._owner

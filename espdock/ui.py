@@ -93,6 +93,32 @@ class Reporter:
         self.console.print(table)
 
 
+class QuietReporter:
+    """For commands that ensure images before they run something (`run`, `shell`): silent while
+    every step is a cache hit; a step that builds is shown as Reporter shows it."""
+
+    def __init__(self, reporter: Reporter) -> None:
+        self._reporter = reporter
+        self._held: list[Event] = []
+        self._live = False
+
+    def __call__(self, event: Event) -> None:
+        if self._live:
+            self._reporter(event)
+            return
+        self._held.append(event)
+        if isinstance(event, StepOutput) or (isinstance(event, StepFinished) and event.outcome is not Outcome.CACHED):
+            self._live = True
+            for held in self._held:
+                self._reporter(held)
+            self._held.clear()
+        elif isinstance(event, StepFinished):
+            self._held.clear()
+
+    def close(self) -> None:
+        self._reporter.close()
+
+
 def render_plan(console: Console, plan: Plan) -> None:
     """Print the steps a plan would run, without running them (--dry-run)."""
     from espdock.engine import format_argv

@@ -35,10 +35,11 @@ from espdock.plan import (
     firmware_step,
     micro_ros_images,
     plan_workspace,
+    runtime_repository,
 )
 from espdock.provision import network_settings, nvs_image, nvs_partition, optional_network_settings
 from espdock.runner import Runner
-from espdock.scaffold import check_new_package, create_firmware_package, init_workspace
+from espdock.scaffold import check_new_package, create_firmware_package, init_compose, init_workspace
 from espdock.status import built_from, micro_ros_report
 from espdock.ui import QuietReporter, Reporter, render_micro_ros_status, render_packages, render_plan
 from espdock.workspace import (
@@ -305,7 +306,7 @@ def init(
     ] = Path("."),
 ) -> None:
     """Make DIRECTORY an espdock workspace: writes a commented espdock.toml with the layout it finds
-    (and src/ if there is none). Only adds files; an existing espdock.toml is left alone."""
+    (and src/ if there is none) and a starter compose.yaml of its nodes. Only adds files."""
     # As root for someone else: the new files belong to who owns the nearest existing directory.
     existing = next(d for d in (directory.resolve(), *directory.resolve().parents) if d.exists())
     owner = invoking_user(os.environ, existing) if os.geteuid() == 0 else None
@@ -314,7 +315,10 @@ def init(
         console.print(f"{ws.root} is an espdock workspace already (espdock.toml exists); nothing changed")
     else:
         console.print(f"made {ws.root} an espdock workspace: created {', '.join(created)}")
+    ws, config = _load(ws.root)
     packages = _packages(ws)
+    if init_compose(ws, runtime_repository(config, ws), packages, owner):
+        console.print("wrote compose.yaml: the workspace's nodes as services (`espdock compose up`)")
     firmware = [p.name for p in packages if p.kind is PackageKind.FIRMWARE]
     ros = [p.name for p in packages if p.kind is PackageKind.ROS]
     console.print(f"layout: packages in {', '.join(ws.package_paths)}; colcon's build/install/log in {ws.colcon_root}")

@@ -3,6 +3,7 @@ Python nodes written for these tests (tests/ros_packages/beacon_nodes)."""
 
 from __future__ import annotations
 
+import json
 import os
 import random
 import shutil
@@ -135,3 +136,34 @@ def test_the_node_exit_code_passes_through(node_workspace):
     # A parameter of the wrong type makes rclpy raise at start-up: the node fails, so does run.
     result = espdock("run", "beacon_nodes", "beacon", "--ros-args", "-p", "period:=fast", cwd=node_workspace)
     assert result.returncode not in (0, 130), result.stdout + result.stderr
+
+
+def test_init_writes_a_starter_compose_file_whose_services_start_and_talk(engine, node_workspace):
+    written = espdock("init", cwd=node_workspace)
+    assert written.returncode == 0 and "wrote compose.yaml" in written.stdout, written.stdout + written.stderr
+    again = espdock("init", cwd=node_workspace)
+    assert again.returncode == 0 and "wrote compose.yaml" not in again.stdout  # never overwritten
+    project = f"espdock-test-run-{os.getpid()}-{random.randrange(16**6):06x}"
+    env = {**os.environ, "ROS_DOMAIN_ID": str(random.randrange(100, 200))}
+
+    def compose(*args: str) -> subprocess.CompletedProcess[str]:
+        argv = ["docker", "compose", "-p", project, *args]
+        return subprocess.run(
+            argv, cwd=node_workspace, env=env, capture_output=True, text=True, timeout=300, check=False
+        )
+
+    config = compose("config", "--format", "json")
+    assert config.returncode == 0, config.stderr
+    assert {"beacon", "beacon_log"} <= set(json.loads(config.stdout)["services"])
+    assert compose("--profile", "hardware", "config", "-q").returncode == 0
+    try:
+        up = compose("up", "-d", "beacon", "beacon_log")
+        assert up.returncode == 0, up.stderr
+        deadline = time.monotonic() + 90
+        logs = ""
+        while "heard: beacon" not in logs and time.monotonic() < deadline:
+            time.sleep(1)
+            logs = compose("logs", "--no-color", "beacon_log").stdout
+        assert "heard: beacon" in logs, compose("logs", "--no-color").stdout[-3000:]
+    finally:
+        compose("--profile", "*", "down", "-v", "--remove-orphans", "-t", "3")

@@ -22,8 +22,8 @@ from espdock.engine import Engine, format_argv
 from espdock.errors import ConfigError, EspdockBug, EspdockError, Interrupted, WorkspaceError
 from espdock.events import Outcome
 from espdock.flashing import check_port, flash_package, parse_port, read_flasher_args
-from espdock.layout import IDF_DOCKERFILE, ROS_DOCKERFILE, SOURCES_FILE, firmware_install_dir
-from espdock.lock import check_locks, lock_workspace, plan_locks, uv_binary
+from espdock.layout import IDF_DOCKERFILE, ROS_DOCKERFILE, ROSDEP_LOCK, SOURCES_FILE, firmware_install_dir
+from espdock.lock import check_locks, current_rosdep_inputs, lock_rosdeps, lock_workspace, plan_locks, uv_binary
 from espdock.manifest import MANIFEST_NAME, build_manifest, compare, file_hashes, read_manifest, write_manifest
 from espdock.pins import Source, pin_heads, pin_image_digest
 from espdock.plan import (
@@ -136,10 +136,23 @@ def _packages(ws: Workspace) -> tuple[Package, ...]:
 
 
 def _build_plan(
-    ws: Workspace, config: Config, names: list[str], only: PackageKind | None = None, force: bool = False
+    ws: Workspace,
+    config: Config,
+    names: list[str],
+    only: PackageKind | None = None,
+    force: bool = False,
+    locked: bool | None = None,
 ) -> Plan:
+    """The build's plan; LOCKED not None: first a rosdep lock that answers for the packages
+    (refusing a stale one when LOCKED)."""
     packages = _packages(ws)
-    return plan_workspace(ws, config, packages, read_build_inputs(ws, packages), tuple(names), only, force)
+    inputs = read_build_inputs(ws, packages)
+    if locked is not None:
+        owner = invoking_user(os.environ, ws.root) if os.geteuid() == 0 else None
+        inputs, note = current_rosdep_inputs(ws.root, config, packages, inputs, locked, os.environ, owner)
+        if note:
+            _notify(note)
+    return plan_workspace(ws, config, packages, inputs, tuple(names), only, force)
 
 
 def _firmware_step(ws: Workspace, config: Config, name: str) -> tuple[Plan, IdfBuild]:
@@ -182,11 +195,12 @@ def build(
     """Build the images when their inputs changed, then every package whose sources changed; record what
     the build produced in install/espdock-manifest.json."""
     ws, config = _load(workspace, target=target)
-    plan = _build_plan(ws, config, packages or [], only, force)
+    locked = locked if locked is not None else os.environ.get("CI", "").lower() == "true"
+    plan = _build_plan(ws, config, packages or [], only, force, locked)
     if dry_run:
         render_plan(console, plan)
         return
-    if locked if locked is not None else os.environ.get("CI", "").lower() == "true":
+    if locked:
         check_locks(ws.root, plan_locks(plan))
     if push_cache and not config.cache_registry:
         raise ConfigError("--push-cache needs a cache registry", "Set cache_registry or ESPDOCK_CACHE_REGISTRY.")
@@ -240,8 +254,12 @@ def lock(
 ) -> None:
     """Compile every dependency lock of the workspace from its source with uv (pinned, with hashes),
     keeping the current pins the sources allow; say which locks changed."""
-    ws, _ = _load(workspace)
+    ws, config = _load(workspace)
     owner = invoking_user(os.environ, ws.root) if os.geteuid() == 0 else None
+    packages = _packages(ws)
+    status, database = lock_rosdeps(ws.root, config, packages, read_build_inputs(ws, packages), os.environ, owner)
+    if database:  # else: none needed, none there
+        console.print(f"{ROSDEP_LOCK}: {status} ({database})")
     for result in lock_workspace(ws.root, uv_binary(), upgrade, owner):
         spec = result.spec
         if result.status == "default":

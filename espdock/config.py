@@ -31,6 +31,9 @@ CHIP_TARGETS = (
     "esp32p4",
 )
 ROS_DISTROS = ("jazzy",)
+# How ROS gets into the build and runtime images: the PyPI wheels (Dockerfile.ros) or the
+# official ros:<distro>-ros-base image (Dockerfile.ros-official).
+ROS_IMAGES = ("wheels", "official")
 
 
 @dataclass(frozen=True)
@@ -38,6 +41,7 @@ class Config:
     """What decides a build, besides the workspace's own files."""
 
     ros_distro: str = "jazzy"
+    ros_image: str = "wheels"
     target: str = "esp32"
     # None: the default named by the Dockerfile's BASE_IMAGE build arg.
     base_image: str | None = None
@@ -69,6 +73,7 @@ class _Settings(Struct, forbid_unknown_fields=True):
     model that imports in a few milliseconds, which a no-change build notices)."""
 
     ros_distro: Literal["jazzy"] | None = None
+    ros_image: Literal["wheels", "official"] | None = None
     target: _Text | None = None
     base_image: _Text | None = None
     ca_bundle: _Text | None = None
@@ -88,6 +93,7 @@ assert set(_Settings.__struct_fields__) == _KEYS, "Config and _Settings must nam
 _ENV = {f"ESPDOCK_{key.upper()}": key for key in sorted(_KEYS)}
 _EXPECTED = {
     "ros_distro": "one of: " + ", ".join(ROS_DISTROS),
+    "ros_image": "one of: " + ", ".join(ROS_IMAGES),
     "target": 'a chip target string such as "esp32s3"',
     "base_image": "an image reference string",
     "ca_bundle": "a path string",

@@ -11,10 +11,10 @@ from __future__ import annotations
 from importlib import resources
 from pathlib import Path
 
-from espdock.layout import IDF_DOCKERFILE, IMAGE_INPUT_DIR, ROS_DOCKERFILE
+from espdock.layout import IDF_DOCKERFILE, IMAGE_INPUT_DIR, ROS_DOCKERFILE, ROS_OFFICIAL_DOCKERFILE
 
 # What setup.py copies into the wheel, relative to the repository root.
-SHIPPED = (ROS_DOCKERFILE, IDF_DOCKERFILE, IMAGE_INPUT_DIR, "firmware/components/espdock_uros")
+SHIPPED = (ROS_DOCKERFILE, ROS_OFFICIAL_DOCKERFILE, IDF_DOCKERFILE, IMAGE_INPUT_DIR, "firmware/components/espdock_uros")
 PACKAGED = "workspace_defaults"
 
 

@@ -35,6 +35,12 @@ class LockError(EspdockError):
     exit_code = 2
 
 
+class DependencyError(EspdockError):
+    """A package depends on something the ROS image does not provide and rosdep cannot install."""
+
+    exit_code = 2
+
+
 class RegistryError(EspdockError):
     """The cache registry refused the engine's credentials."""
 

@@ -5,12 +5,18 @@ from __future__ import annotations
 # The images' recipes at the workspace root, and the directories they are built from besides
 # their Dockerfiles; docker/idf belongs to the IDF image only.
 ROS_DOCKERFILE = "Dockerfile.ros"
+# The same images from the official ros:<distro>-ros-base image (setting ros_image = "official").
+ROS_OFFICIAL_DOCKERFILE = "Dockerfile.ros-official"
 IDF_DOCKERFILE = "Dockerfile.idf"
 IMAGE_INPUT_DIR = "docker"
 IDF_INPUT_DIR = "docker/idf"
 # The commit of every repository libmicroros.a is built from (espdock.pins).
 SOURCES_NAME = "micro_ros_sources.txt"
 SOURCES_FILE = f"{IDF_INPUT_DIR}/{SOURCES_NAME}"
+# The rosdep resolution of the workspace's dependencies (espdock.rosdeps), beside espdock.toml.
+ROSDEP_LOCK = "rosdep.lock.json"
+# Where the image builds find what that lock installs, in their build context.
+ROSDEP_CONTEXT_DIR = "docker/rosdep"
 # Where the workspace is mounted in build containers.
 WORKSPACE_MOUNT = "/workspace"
 # Under share/<package> of an installed firmware package: its flashable artefacts.

@@ -20,13 +20,16 @@ import subprocess
 import tempfile
 import tomllib
 from collections.abc import Iterable, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
+from espdock import rosdeps
+from espdock.config import Config
 from espdock.defaults import SHIPPED, defaults_root
 from espdock.errors import LockError
-from espdock.plan import EnsureImage, Plan
-from espdock.workspace import write_atomically
+from espdock.layout import ROSDEP_LOCK
+from espdock.plan import EnsureImage, Plan, ros_image
+from espdock.workspace import BuildInputs, Package, write_atomically
 
 # The ROS images' Python: Debian bookworm's 3.11 on x86_64 (glibc 2.36), whatever runs uv.
 ROS_IMAGE_PYTHON = ("--python-version", "3.11", "--python-platform", "x86_64-manylinux_2_36")
@@ -232,3 +235,68 @@ def _compile(spec: LockSpec, root: Path, uv: str, previous: str | None, upgrade:
                 f"Fix {spec.source} (or the network), then {FIX} again.",
             )
         return output.read_text()
+
+
+def _rosdep_state(config: Config, packages: tuple[Package, ...], inputs: BuildInputs):
+    _, _, image = ros_image(config, inputs)
+    needed = rosdeps.needed_keys(packages, image)
+    lock = rosdeps.read_lock(inputs.rosdep_lock, ROSDEP_LOCK)
+    return image, needed, rosdeps.stale_reason(lock, needed, image, ROSDEP_LOCK)
+
+
+def lock_rosdeps(
+    root: Path,
+    config: Config,
+    packages: tuple[Package, ...],
+    inputs: BuildInputs,
+    env: Mapping[str, str],
+    owner: tuple[int, int] | None = None,
+    refresh: bool = True,
+) -> tuple[str, str]:
+    """Write ROOT/rosdep.lock.json: rosdep's resolution of the packages' dependencies for the
+    chosen ROS image (REFRESH: `rosdep update` first). Returns its status (created, updated,
+    unchanged, not needed) and where rosdep's database came from, with its age."""
+    image, needed, _ = _rosdep_state(config, packages, inputs)
+    target = root / ROSDEP_LOCK
+    if not needed and not target.is_file():
+        return "not needed (the image provides every dependency)", ""
+    if needed and refresh:
+        rosdeps.update_database(env, image.distro)
+    from espdock.runner import age_text  # the slow path only: making the lock
+
+    text = rosdeps.lock_text(rosdeps.resolve_workspace(packages, image, root, env, uv_binary()))
+    age = rosdeps.database_age(env)
+    database = f"rosdep database in {rosdeps.cache_dir(env)}" + (
+        f", updated {age_text(age)} ago" if age is not None else ""
+    )
+    before = target.read_text() if target.is_file() else None
+    if text == before:
+        return "unchanged", database
+    if before is None:
+        target.write_text(text)
+        if owner is not None:
+            os.chown(target, *owner)
+        return "created", database
+    write_atomically(target, text)
+    return "updated", database
+
+
+def current_rosdep_inputs(
+    root: Path,
+    config: Config,
+    packages: tuple[Package, ...],
+    inputs: BuildInputs,
+    locked: bool,
+    env: Mapping[str, str],
+    owner: tuple[int, int] | None = None,
+) -> tuple[BuildInputs, str | None]:
+    """INPUTS with a rosdep lock that answers for the packages: the current one; else, unless
+    LOCKED (which refuses a stale lock), one made now. The second value says what was done."""
+    _, _, reason = _rosdep_state(config, packages, inputs)
+    if reason is None:
+        return inputs, None
+    if locked:
+        raise LockError(reason, f"In {root}: {FIX} and commit {ROSDEP_LOCK} (or build with --no-locked).")
+    status, database = lock_rosdeps(root, config, packages, inputs, env, owner, refresh=False)
+    data = (root / ROSDEP_LOCK).read_bytes() if (root / ROSDEP_LOCK).is_file() else None
+    return replace(inputs, rosdep_lock=data), f"{ROSDEP_LOCK} {status} ({reason}; {database})"

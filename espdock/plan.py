@@ -11,12 +11,16 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
+from espdock import rosdeps
 from espdock.config import Config
 from espdock.errors import WorkspaceError
 from espdock.layout import (
     IDF_DOCKERFILE,
     IDF_INPUT_DIR,
     ROS_DOCKERFILE,
+    ROS_OFFICIAL_DOCKERFILE,
+    ROSDEP_CONTEXT_DIR,
+    ROSDEP_LOCK,
     SOURCES_FILE,
     SOURCES_NAME,
     WORKSPACE_MOUNT,
@@ -219,21 +223,55 @@ def image_key(parts: Mapping[str, bytes]) -> tuple[str, tuple[tuple[str, str], .
 
 
 def base_image(config: Config, ros_dockerfile_text: str) -> str:
-    """The image Dockerfile.ros starts FROM: the configured one, else its BASE_IMAGE default."""
+    """The image a ROS Dockerfile starts FROM: the configured one, else its BASE_IMAGE default."""
     return config.base_image or dockerfile_args(ros_dockerfile_text).get("BASE_IMAGE", "")
 
 
 def ros_build_image(
-    config: Config, dockerfile_text: str, image_files: Mapping[str, bytes], own_files: frozenset[str] = frozenset()
+    config: Config,
+    dockerfile_text: str,
+    image_files: Mapping[str, bytes],
+    own_files: frozenset[str] = frozenset(),
+    rosdep_lock: dict | None = None,
+    dockerfile: str = ROS_DOCKERFILE,
 ) -> ImageSpec:
-    """The image colcon runs in: Dockerfile.ros's `build` stage, keyed by its inputs, built from
-    a context of just those (the `build` stage reads only docker/)."""
+    """The image colcon runs in: DOCKERFILE's `build` stage, keyed by its inputs, built from a
+    context of just those (docker/ for the wheels, and what the rosdep lock installs)."""
     base = base_image(config, dockerfile_text)
-    files = {ROS_DOCKERFILE: dockerfile_text.encode(), **image_files}
-    spec = _keyed_image(
-        f"espdock/ros-{config.ros_distro}-build", ROS_DOCKERFILE, "build", (("BASE_IMAGE", base),), files, context=files
-    )
-    return replace(spec, origin=_origin(ROS_DOCKERFILE, files, own_files))
+    files = {
+        dockerfile: dockerfile_text.encode(),
+        **image_files,
+        **{f"{ROSDEP_CONTEXT_DIR}/{n}": data for n, data in rosdeps.image_files(rosdep_lock).items()},
+    }
+    flavour = "" if dockerfile == ROS_DOCKERFILE else "-official"
+    repository = f"espdock/ros-{config.ros_distro}{flavour}-build"
+    spec = _keyed_image(repository, dockerfile, "build", (("BASE_IMAGE", base),), files, context=files)
+    return replace(spec, origin=_origin(dockerfile, files, own_files))
+
+
+def ros_image(config: Config, inputs: BuildInputs) -> tuple[str, str, rosdeps.RosImage]:
+    """The chosen ROS image (setting ros_image): its Dockerfile's name and text, and what it provides."""
+    if config.ros_image == "official":
+        text = inputs.ros_official_dockerfile
+        # The official image's ament index is not known before it is pulled: every dependency
+        # goes through rosdep, whose ROS package rules (ros-<distro>-*) apt finds installed.
+        image = rosdeps.RosImage("official", config.ros_distro, _rosdep_os(text), frozenset())
+        return ROS_OFFICIAL_DOCKERFILE, text, image
+    text = inputs.ros_dockerfile
+    locks = {rel: d for rel, d in sorted(inputs.ros_files.items()) if re.fullmatch(r"docker/ros-[a-z]+\.txt", rel)}
+    provided = rosdeps.wheel_packages((data.decode(errors="replace") for data in locks.values()), config.ros_distro)
+    constraints = tuple((rel, hashlib.sha256(data).hexdigest()) for rel, data in locks.items())
+    return ROS_DOCKERFILE, text, rosdeps.RosImage("wheels", config.ros_distro, _rosdep_os(text), provided, constraints)
+
+
+def _rosdep_os(dockerfile_text: str) -> str:
+    os_spec = dockerfile_args(dockerfile_text).get("ROSDEP_OS", "")
+    if not re.fullmatch(r"[a-z]+:[a-z0-9.]+", os_spec):
+        raise WorkspaceError(
+            f"the ROS image's Dockerfile declares no ARG ROSDEP_OS=<os>:<version> (got {os_spec!r})",
+            "It names the OS rosdep resolves the packages' dependencies for, e.g. ARG ROSDEP_OS=debian:bookworm.",
+        )
+    return os_spec
 
 
 def runtime_base_image(build: ImageSpec) -> ImageSpec:
@@ -494,10 +532,17 @@ def plan_workspace(
     selected = select_up_to(packages, names) if names else packages
     if only is not None:
         selected = tuple(p for p in selected if p.kind is only)
-    ros_image = ros_build_image(config, inputs.ros_dockerfile, inputs.ros_files, inputs.own_files)
+    name, text, image = ros_image(config, inputs)
+    lock = rosdeps.read_lock(inputs.rosdep_lock, ROSDEP_LOCK)
+    needed = rosdeps.needed_keys(packages, image)
+    # The lock is current here (the caller made it so, or refused a stale one under --locked).
+    rosdeps.check_dependencies(selected, needed, lock, image)
+    # The official image's build reads only the rosdep installer of docker/.
+    files = inputs.ros_files if name == ROS_DOCKERFILE else {k: v for k, v in inputs.ros_files.items() if "rosdep" in k}
+    ros_spec = ros_build_image(config, text, files, inputs.own_files, lock if needed else None, name)
     idf_images = micro_ros_images(config, inputs, packages)
     return plan_build(
-        workspace, config, selected, ros_image, names, idf_images=idf_images, all_packages=packages, force=force
+        workspace, config, selected, ros_spec, names, idf_images=idf_images, all_packages=packages, force=force
     )
 
 

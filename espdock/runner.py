@@ -187,7 +187,7 @@ class Runner:
             age = datetime.now(UTC) - existing.created
             self._emit(
                 StepNote(
-                    step.name, f"{spec.tag}: cache hit (key {spec.key[:16]}, built {_age(age.total_seconds())} ago)"
+                    step.name, f"{spec.tag}: cache hit (key {spec.key[:16]}, built {age_text(age.total_seconds())} ago)"
                 )
             )
             self._publish(step)
@@ -621,7 +621,8 @@ def _device_groups(devices: tuple[str, ...]) -> list[int]:
     return sorted({os.stat(d).st_gid for d in devices})
 
 
-def _age(seconds: float) -> str:
+def age_text(seconds: float) -> str:
+    """SECONDS as a short age: 3 min, 2 h, 5 d."""
     for unit, size in (("d", 86400), ("h", 3600), ("min", 60)):
         if seconds >= size:
             return f"{seconds / size:.0f} {unit}"

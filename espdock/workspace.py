@@ -13,7 +13,14 @@ from pathlib import Path
 from espdock.config import CONFIG_FILE
 from espdock.defaults import defaults_root
 from espdock.errors import WorkspaceError
-from espdock.layout import IDF_DOCKERFILE, IDF_INPUT_DIR, IMAGE_INPUT_DIR, ROS_DOCKERFILE
+from espdock.layout import (
+    IDF_DOCKERFILE,
+    IDF_INPUT_DIR,
+    IMAGE_INPUT_DIR,
+    ROS_DOCKERFILE,
+    ROS_OFFICIAL_DOCKERFILE,
+    ROSDEP_LOCK,
+)
 
 IGNORE_MARKERS = ("COLCON_IGNORE", "AMENT_IGNORE", "CATKIN_IGNORE")
 FIRMWARE_BUILD_TYPE = "esp_idf"
@@ -37,6 +44,8 @@ class Package:
     # Every dependency named in the manifest (build, buildtool, exec, test, group), workspace or not.
     depends: frozenset[str]
     is_interface: bool = False
+    # The dependencies named only as test_depend: not needed to build or run.
+    test_only_depends: frozenset[str] = frozenset()
 
 
 # This repository's layout: ROS packages in ws/src, firmware in firmware/, colcon's build,
@@ -137,7 +146,7 @@ class _ManifestCache:
     """Parsed package.xml files by path, valid while the file's size, mtime and inode are
     unchanged; in the user's cache directory, best effort (any failure only means parsing)."""
 
-    FORMAT = 1
+    FORMAT = 2
 
     def __init__(self, path: Path, entries: dict) -> None:
         self.path = path
@@ -173,6 +182,7 @@ class _ManifestCache:
                 build_type=build_type,
                 depends=frozenset(str(d) for d in entry["depends"]),
                 is_interface=bool(entry["is_interface"]),
+                test_only_depends=frozenset(str(d) for d in entry["test_only_depends"]),
             )
         except (OSError, KeyError, TypeError):
             return None
@@ -184,6 +194,7 @@ class _ManifestCache:
             "build_type": package.build_type,
             "depends": sorted(package.depends),
             "is_interface": package.is_interface,
+            "test_only_depends": sorted(package.test_only_depends),
         }
         self.changed = True
 
@@ -214,17 +225,12 @@ def _read_manifest(manifest: Path) -> Package:
         raise WorkspaceError(
             f"{manifest} is not a valid package.xml: {exc}", "Fix the manifest and run again."
         ) from exc
-    deps = {
-        d.name
-        for d in (
-            *pkg.build_depends,
-            *pkg.buildtool_depends,
-            *pkg.build_export_depends,
-            *pkg.exec_depends,
-            *pkg.test_depends,
-        )
-        if d.evaluated_condition is not False
-    }
+
+    def names(*groups: list) -> set[str]:
+        return {d.name for group in groups for d in group if d.evaluated_condition is not False}
+
+    deps = names(pkg.build_depends, pkg.buildtool_depends, pkg.build_export_depends, pkg.exec_depends)
+    tests = names(pkg.test_depends)
     exports = {e.tagname: e.content for e in pkg.exports}
     build_type = exports.get("build_type") or "ament_cmake"
     return Package(
@@ -232,8 +238,9 @@ def _read_manifest(manifest: Path) -> Package:
         path=manifest.parent,
         kind=PackageKind.FIRMWARE if build_type == FIRMWARE_BUILD_TYPE else PackageKind.ROS,
         build_type=build_type,
-        depends=frozenset(deps),
+        depends=frozenset(deps | tests),
         is_interface="rosidl_interface_packages" in {g.name for g in pkg.member_of_groups},
+        test_only_depends=frozenset(tests - deps),
     )
 
 
@@ -315,6 +322,9 @@ class BuildInputs:
     sdkconfig_defaults: dict[str, dict[str, bytes]] = field(default_factory=dict)
     # Which image input files the workspace has of its own (they win over espdock's defaults).
     own_files: frozenset[str] = frozenset()
+    # The official-image flavour's Dockerfile, and the workspace's rosdep lock (None: none yet).
+    ros_official_dockerfile: str = ""
+    rosdep_lock: bytes | None = None
 
 
 def read_build_inputs(workspace: Workspace, packages: Iterable[Package]) -> BuildInputs:
@@ -323,7 +333,7 @@ def read_build_inputs(workspace: Workspace, packages: Iterable[Package]) -> Buil
     # Each of Dockerfile.ros, Dockerfile.idf and the files under docker/: the workspace's own
     # where it has one, else espdock's default (espdock.defaults), file by file.
     defaults = defaults_root()
-    own = {n for n in (ROS_DOCKERFILE, IDF_DOCKERFILE) if (workspace.root / n).is_file()}
+    own = {n for n in (ROS_DOCKERFILE, ROS_OFFICIAL_DOCKERFILE, IDF_DOCKERFILE) if (workspace.root / n).is_file()}
     own |= set(read_image_inputs(workspace.root, IMAGE_INPUT_DIR))
     files = {**read_image_inputs(defaults, IMAGE_INPUT_DIR), **read_image_inputs(workspace.root, IMAGE_INPUT_DIR)}
 
@@ -333,6 +343,8 @@ def read_build_inputs(workspace: Workspace, packages: Iterable[Package]) -> Buil
     idf_prefix = f"{IDF_INPUT_DIR}/"
     return BuildInputs(
         ros_dockerfile=text(ROS_DOCKERFILE),
+        ros_official_dockerfile=text(ROS_OFFICIAL_DOCKERFILE),
+        rosdep_lock=lock.read_bytes() if (lock := workspace.root / ROSDEP_LOCK).is_file() else None,
         ros_files={rel: data for rel, data in files.items() if not rel.startswith(idf_prefix)},
         idf_dockerfile=text(IDF_DOCKERFILE),
         idf_files={rel.removeprefix(idf_prefix): data for rel, data in files.items() if rel.startswith(idf_prefix)},

@@ -1,0 +1,30 @@
+#!/bin/sh
+# Installs what the workspace's rosdep lock (rosdep.lock.json) names, as espdock stages it in
+# DIR: apt.txt (Debian/Ubuntu packages, one a line) and pip.txt (pinned, with hashes). Both
+# are empty when the workspace needs nothing beyond the image.
+#   rosdep-install.sh DIR PYTHON [PIP_OPTION...]
+# The extra CA bundle (BuildKit secret ca_bundle) reaches pip; it never lands in a layer.
+set -eu
+dir=$1
+python=$2
+shift 2
+if [ -s /run/secrets/ca_bundle ]; then
+  cat /etc/ssl/certs/ca-certificates.crt /run/secrets/ca_bundle > /tmp/ca.pem
+  export PIP_CERT=/tmp/ca.pem
+fi
+apt_packages=$(grep -v '^#' "$dir/apt.txt" || true)
+pip_wanted=$(grep -v '^#' "$dir/pip.txt" || true)
+if [ -n "$pip_wanted" ] && ! "$python" -m pip --version > /dev/null 2>&1; then
+  apt_packages="$apt_packages python3-pip"
+fi
+if [ -n "$apt_packages" ]; then
+  apt-get update
+  # Word splitting is wanted: one package name per word (espdock checks the names).
+  # shellcheck disable=SC2086
+  apt-get install -y --no-install-recommends $apt_packages
+  rm -rf /var/lib/apt/lists/*
+fi
+if [ -n "$pip_wanted" ]; then
+  "$python" -m pip install --no-cache-dir --require-hashes "$@" -r "$dir/pip.txt"
+fi
+rm -f /tmp/ca.pem

@@ -1,0 +1,391 @@
+"""The workspace's dependencies from package.xml: which the ROS image provides, which rosdep
+installs, and the lock that records rosdep's answer (rosdep.lock.json).
+
+Every dependency of a ROS package that is no workspace package is a rosdep key. The image's
+own ament index (known from its inputs: the wheels its locks install) provides some; the
+rest go to the real rosdep, resolved for the OS the image runs (pinned beside the image as
+Dockerfile ARG ROSDEP_OS). Its answer is written to the lock by `espdock lock` (or by a build
+whose lock is stale, unless --locked), and the build and runtime images install exactly what
+the lock names: apt packages in one layer, pip packages from the lock's hashed lines.
+
+Pure functions (what is needed, whether the lock is current, what is missing) are used by
+the plan; resolve_workspace and write_lock talk to rosdep and uv and are used only when the
+lock must be made.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import re
+import subprocess
+import tempfile
+import time
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass
+from pathlib import Path
+
+from espdock.errors import DependencyError, LockError
+from espdock.workspace import Package, PackageKind
+
+FORMAT = 1
+FIX = "run `espdock lock`"
+# Where rosdep's database (what `rosdep update` downloads) is cached, under the user's cache dir.
+CACHE_SUBDIR = "espdock/rosdep"
+# rosdep's own default sources list (rosdistro's rosdep/sources.list.d/20-default.list), used
+# when neither ROSDEP_SOURCE_PATH nor /etc/ros/rosdep/sources.list.d gives one.
+DEFAULT_SOURCES = """\
+yaml https://raw.githubusercontent.com/ros/rosdistro/master/rosdep/osx-homebrew.yaml osx
+yaml https://raw.githubusercontent.com/ros/rosdistro/master/rosdep/base.yaml
+yaml https://raw.githubusercontent.com/ros/rosdistro/master/rosdep/python.yaml
+yaml https://raw.githubusercontent.com/ros/rosdistro/master/rosdep/ruby.yaml
+gbpdistro https://raw.githubusercontent.com/ros/rosdistro/master/releases/fuerte.yaml fuerte
+"""
+# Anchored on the newline, not ^ with MULTILINE: several times faster on a 100 kB lock, which
+# every build reads.
+_WHEEL = re.compile(r"\n(ros-[a-z0-9-]+)==")
+_DEB_NAME = re.compile(r"[a-z0-9][a-z0-9+.-]+")
+_NOT_FOUND = re.compile(r"Because (\S+) was not found in the package registry")
+
+
+@dataclass(frozen=True)
+class RosImage:
+    """What the plan knows of the chosen ROS image before any of it is built."""
+
+    flavour: str  # "wheels" or "official"
+    distro: str
+    os: str  # what rosdep resolves for, e.g. "debian:bookworm"
+    # ROS packages (ament index names) the image has before rosdep adds anything.
+    provided: frozenset[str]
+    # Locks whose change makes the rosdep lock stale (the wheels' pins constrain its pip part).
+    constraints: tuple[tuple[str, str], ...] = ()
+
+
+def wheel_packages(lock_texts: Iterable[str], distro: str) -> frozenset[str]:
+    """The ROS packages a set of wheel locks installs: each `ros-<name>` or `ros-<distro>-<name>`
+    wheel puts one package, <name> with underscores, into the ament index."""
+    found = set()
+    for text in lock_texts:
+        for wheel in _WHEEL.findall("\n" + text):
+            name = wheel.removeprefix("ros-").removeprefix(f"{distro}-")
+            found.add(name.replace("-", "_"))
+    return frozenset(found)
+
+
+def needed_keys(packages: Iterable[Package], image: RosImage) -> dict[str, tuple[str, ...]]:
+    """Per ROS package: its dependencies that are neither workspace packages nor provided by the
+    image (test-only ones aside: espdock builds, it does not run `colcon test`)."""
+    packages = tuple(packages)
+    names = {p.name for p in packages}
+    needed = {}
+    for package in packages:
+        if package.kind is not PackageKind.ROS:
+            continue
+        keys = package.depends - package.test_only_depends - names - image.provided
+        if keys:
+            needed[package.name] = tuple(sorted(keys))
+    return needed
+
+
+def lock_input(needed: Mapping[str, tuple[str, ...]], image: RosImage) -> str:
+    """What a lock answers for: the keys, the image flavour and OS, the constraining locks."""
+    data = {
+        "keys": {k: list(v) for k, v in sorted(needed.items())},
+        "ros_image": image.flavour,
+        "os": image.os,
+        "distro": image.distro,
+        "constraints": dict(image.constraints),
+    }
+    return hashlib.sha256(json.dumps(data, sort_keys=True).encode()).hexdigest()
+
+
+def read_lock(data: bytes | None, name: str) -> dict | None:
+    """The lock's content, None when there is none; malformed is an error naming the file."""
+    if data is None:
+        return None
+    try:
+        lock = json.loads(data)
+        if not isinstance(lock, dict) or lock.get("format") != FORMAT:
+            raise ValueError(f"not format {FORMAT}")
+    except ValueError as exc:
+        raise LockError(f"{name} is not an espdock rosdep lock: {exc}", f"Delete it and {FIX}.") from None
+    return lock
+
+
+def stale_reason(lock: dict | None, needed: Mapping[str, tuple[str, ...]], image: RosImage, name: str) -> str | None:
+    """Why LOCK does not answer for NEEDED on IMAGE; None when it does (or nothing is needed)."""
+    if lock is None:
+        return f"{name} is missing" if needed else None
+    if lock.get("input") != lock_input(needed, image):
+        return f"{name} is stale: the packages' dependencies, ros_image or its locks changed since it was made"
+    return None
+
+
+def check_dependencies(selected: Iterable[Package], needed: Mapping[str, tuple[str, ...]], lock: dict | None,
+                       image: RosImage) -> None:  # fmt: skip
+    """Raise DependencyError listing, per selected package, each key neither the image nor the
+    lock provides, with the ways out; nothing is built then."""
+    keys = (lock or {}).get("keys", {})
+    lines = []
+    for package in selected:
+        missing = [k for k in needed.get(package.name, ()) if not keys.get(k, {}).get("installer")]
+        if missing:
+            why = "; ".join(f"{k}: {keys.get(k, {}).get('why', 'not resolved')}" for k in missing)
+            lines.append(f"  {package.name} ({package.path}): {why}")
+    if not lines:
+        return
+    ways = [
+        "add a rosdep rule for the key (a sources.list.d entry; ROSDEP_SOURCE_PATH) and run `espdock lock`",
+        "put COLCON_IGNORE in the package's directory",
+        "build another selection (`espdock build PKG...`)",
+    ]
+    if image.flavour == "wheels":
+        ways.insert(1, 'use the official ROS image (ros_image = "official" in espdock.toml), which has rclcpp')
+    raise DependencyError(
+        f"{len(lines)} package(s) depend on what the {image.flavour} ROS image ({image.os}) does not provide "
+        "and rosdep cannot install:\n" + "\n".join(lines),
+        "Ways out: " + "; or ".join(ways) + ".",
+    )
+
+
+def image_files(lock: dict | None) -> dict[str, bytes]:
+    """What the image build installs from LOCK: apt.txt (one package a line) and pip.txt (hashed)."""
+    lock = lock or {}
+    apt = [str(p) for p in lock.get("apt", [])]
+    bad = [p for p in apt if not _DEB_NAME.fullmatch(p)]
+    if bad:
+        raise LockError(f"rosdep.lock.json names apt packages that are no Debian package names: {bad}", FIX)
+    head = "# Staged by espdock from rosdep.lock.json.\n"
+    pip = "".join(f"{line}\n" for line in lock.get("pip", []))
+    return {"apt.txt": (head + "".join(f"{p}\n" for p in apt)).encode(), "pip.txt": (head + pip).encode()}
+
+
+# --- making the lock: rosdep and uv ---------------------------------------------------------
+
+
+def cache_dir(env: Mapping[str, str]) -> Path:
+    base = env.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+    return Path(base) / CACHE_SUBDIR
+
+
+def database_age(env: Mapping[str, str]) -> float | None:
+    """Seconds since rosdep's database was last updated, None when there is none."""
+    index = cache_dir(env) / "sources.cache" / "index"
+    return time.time() - index.stat().st_mtime if index.is_file() else None
+
+
+def update_database(env: Mapping[str, str], distro: str) -> Path:
+    """`rosdep update` into espdock's cache: rosdep's sources (ROSDEP_SOURCE_PATH, else
+    /etc/ros/rosdep/sources.list.d, else rosdep's default list) and the rosdistro index's
+    distribution (ROSDISTRO_INDEX_URL), as rosdep itself reads them."""
+    from rosdep2.sources_list import get_sources_list_dir, update_sources_list
+
+    cache = cache_dir(env)
+    sources = Path(get_sources_list_dir())
+    if not sources.is_dir() or not any(sources.glob("*.list")):
+        sources = cache / "sources.list.d"
+        sources.mkdir(parents=True, exist_ok=True)
+        (sources / "20-default.list").write_text(DEFAULT_SOURCES)
+    failed: list[str] = []
+    try:
+        update_sources_list(
+            sources_list_dir=str(sources),
+            sources_cache_dir=str(cache / "sources.cache"),
+            error_handler=lambda source, exc: failed.append(f"{source.url}: {exc}"),
+            ros_distro=distro,
+            quiet=True,
+        )
+    except Exception as exc:  # rosdep raises many kinds (URLError, InvalidData, ValueError)
+        raise LockError(
+            f"`rosdep update` failed: {exc}",
+            "rosdep's database comes from GitHub (or ROSDEP_SOURCE_PATH / ROSDISTRO_INDEX_URL): reach it, then "
+            + FIX
+            + ".",
+        ) from exc
+    if failed:
+        raise LockError("`rosdep update` could not read: " + "; ".join(failed), f"Fix the sources, then {FIX}.")
+    return cache
+
+
+@dataclass(frozen=True)
+class Rule:
+    installer: str | None  # apt, pip; None: nothing installs it
+    packages: tuple[str, ...] = ()
+    why: str = ""
+    # The PyPI names the key's rules give for other platforms (e.g. osx: pip: [PyYAML]).
+    pip_elsewhere: tuple[str, ...] = ()
+
+
+def _pip_packages(data: object) -> tuple[str, ...]:
+    """Every package a pip rule anywhere in a key's rosdep DATA names, in order."""
+    found: list[str] = []
+    if isinstance(data, dict):
+        for name, value in data.items():
+            if name == "pip" and isinstance(value, dict):
+                found += [str(p) for p in value.get("packages") or () if str(p) not in found]
+            else:
+                found += [p for p in _pip_packages(value) if p not in found]
+    return tuple(found)
+
+
+def rosdep_rules(keys: Iterable[str], os_spec: str, distro: str, env: Mapping[str, str]) -> dict[str, Rule]:
+    """rosdep's answer for each key on OS_SPEC ("debian:bookworm"), as `rosdep resolve` gives it."""
+    from rosdep2 import create_default_installer_context
+    from rosdep2.lookup import ResolutionError, RosdepLookup
+    from rosdep2.rospkg_loader import DEFAULT_VIEW_KEY
+    from rosdep2.sources_list import DataSourceMatcher, SourcesListLoader
+
+    os_name, os_version = os_spec.split(":", 1)
+    cache = cache_dir(env) / "sources.cache"
+    if not (cache / "index").is_file():
+        update_database(env, distro)
+    matcher = DataSourceMatcher([distro, os_name, os_version])
+    loader = SourcesListLoader.create_default(matcher=matcher, sources_cache_dir=str(cache))
+    lookup = RosdepLookup.create_from_rospkg(sources_loader=loader)
+    view = lookup.get_rosdep_view(DEFAULT_VIEW_KEY)
+    context = create_default_installer_context()
+    context.set_os_override(os_name, os_version)
+    installer_keys = context.get_os_installer_keys(os_name)
+    default = context.get_default_os_installer_key(os_name)
+    rules = {}
+    for key in sorted(set(keys)):
+        try:
+            definition = view.lookup(key)
+        except KeyError:
+            rules[key] = Rule(None, why="no rosdep rule: the key is unknown to rosdep's database")
+            continue
+        try:
+            installer, rule = definition.get_rule_for_platform(os_name, os_version, installer_keys, default)
+            packages = tuple(str(p) for p in context.get_installer(installer).resolve(rule))
+        except (ResolutionError, KeyError):
+            rules[key] = Rule(None, why=f"no rosdep rule for {os_spec}")
+            continue
+        if installer not in ("apt", "pip"):
+            rules[key] = Rule(None, why=f"rosdep installs it with {installer}, which the image lacks")
+        elif not packages:
+            rules[key] = Rule(None, why=f"rosdep's rule for {os_spec} installs nothing")
+        else:
+            rules[key] = Rule(installer, packages, pip_elsewhere=_pip_packages(definition.data))
+    return rules
+
+
+def for_image(rules: Mapping[str, Rule], image: RosImage, pip_rules: Mapping[str, Rule]) -> dict[str, Rule]:
+    """RULES as the image installs them. The wheels venv sees no apt Python package nor any apt
+    ROS package: an apt `python3-X` rule becomes pip (the key's pip rule for another platform,
+    else its -pip sibling in PIP_RULES, else PyPI's X, the name Debian's Python policy derives
+    the package's from; the lock says which), and an apt `ros-<distro>-X` one the wheel of
+    that name."""
+    if image.flavour != "wheels":
+        return dict(rules)
+    ros_prefix = f"ros-{image.distro}-"
+    mapped = {}
+    for key, rule in rules.items():
+        if rule.installer == "apt" and all(p.startswith(ros_prefix) for p in rule.packages):
+            mapped[key] = Rule("pip", rule.packages, f"the wheel(s) {', '.join(rule.packages)}")
+        elif rule.installer == "apt" and all(p.startswith("python3-") for p in rule.packages):
+            pip = pip_rules.get(key)
+            if rule.pip_elsewhere:
+                names = rule.pip_elsewhere
+                mapped[key] = Rule("pip", names, "its pip rule for another platform (the venv sees no apt Python)")
+            elif pip is not None and pip.installer == "pip":
+                mapped[key] = Rule("pip", pip.packages, "its -pip rule (the venv does not see apt's Python)")
+            else:
+                names = tuple(p.removeprefix("python3-") for p in rule.packages)
+                mapped[key] = Rule("pip", names, f"PyPI's {', '.join(names)} for apt's {', '.join(rule.packages)}")
+        else:
+            mapped[key] = rule
+    return mapped
+
+
+def pip_alternatives(keys: Iterable[str]) -> list[str]:
+    """The -pip keys rosdistro spells for Python keys (python3-foo: python3-foo-pip, python-foo-pip)."""
+    out = []
+    for key in keys:
+        if key.startswith("python3-"):
+            stem = key.removeprefix("python3-")
+            out += [f"python3-{stem}-pip", f"python-{stem}-pip"]
+    return out
+
+
+def pip_lock_lines(requirements: Iterable[str], image: RosImage, root: Path, uv: str) -> tuple[list[str], set[str]]:
+    """uv's hashed lock of REQUIREMENTS for the image's Python (one line per package, hashes
+    inline), and the requirements PyPI does not have (dropped)."""
+    from espdock.lock import ROS_IMAGE_PYTHON, locate
+
+    wanted = sorted(set(requirements))
+    absent: set[str] = set()
+    while wanted:
+        with tempfile.TemporaryDirectory(prefix="espdock-rosdep-") as tmp:
+            source = Path(tmp) / "rosdep.in"
+            source.write_text("".join(f"{r}\n" for r in wanted))
+            out = Path(tmp) / "rosdep.txt"
+            if image.flavour == "wheels":
+                args = [*ROS_IMAGE_PYTHON]
+                for rel, _ in image.constraints:
+                    args += ["-c", str(locate(root, rel))]
+            else:  # the official image's system Python (noble: 3.12; the test double: 3.11)
+                args = ["--universal", "--python-version", "3.11"]
+            argv = [uv, "pip", "compile", "--quiet", "--no-header", "--no-annotate", "--generate-hashes"]
+            argv += [*args, str(source), "-o", str(out)]
+            result = subprocess.run(argv, check=False, capture_output=True, text=True)
+            if result.returncode == 0:
+                return _one_line_each(out.read_text()), absent
+        gone = set(_NOT_FOUND.findall(result.stderr)) & set(wanted)
+        if not gone:
+            raise LockError(f"uv could not lock the rosdep pip packages {wanted}:\n{result.stderr.strip()}", FIX)
+        absent |= gone
+        wanted = [r for r in wanted if r not in gone]
+    return [], absent
+
+
+def _one_line_each(text: str) -> list[str]:
+    lines, current = [], ""
+    for raw in text.splitlines():
+        line = raw.strip()
+        if not line or line.startswith("#"):
+            continue
+        current = f"{current} {line.removesuffix(chr(92)).strip()}".strip()
+        if not raw.rstrip().endswith("\\"):
+            lines.append(current)
+            current = ""
+    return lines
+
+
+def resolve_workspace(
+    packages: Iterable[Package], image: RosImage, root: Path, env: Mapping[str, str], uv: str
+) -> dict:
+    """The lock for PACKAGES on IMAGE: rosdep's rules for every needed key, as the image installs them."""
+    needed = needed_keys(packages, image)
+    keys = sorted({k for ks in needed.values() for k in ks})
+    rules = rosdep_rules([*keys, *pip_alternatives(keys)], image.os, image.distro, env) if keys else {}
+    pip_rules = {k: rules[alt] for k in keys for alt in pip_alternatives([k]) if rules.get(alt, Rule(None)).installer}
+    mapped = for_image({k: rules[k] for k in keys}, image, pip_rules)
+    pip_wanted = [p for rule in mapped.values() if rule.installer == "pip" for p in rule.packages]
+    pip_lines, absent = pip_lock_lines(pip_wanted, image, root, uv) if pip_wanted else ([], set())
+    entries = {}
+    for key, rule in sorted(mapped.items()):
+        if rule.installer == "pip" and absent & set(rule.packages):
+            entries[key] = {"installer": None, "why": f"PyPI has no {', '.join(sorted(absent & set(rule.packages)))}"}
+        elif rule.installer is None:
+            entries[key] = {"installer": None, "why": rule.why}
+        else:
+            entries[key] = {"installer": rule.installer, "packages": list(rule.packages)}
+            if rule.why:
+                entries[key]["via"] = rule.why
+    return {
+        "format": FORMAT,
+        "made_by": f"`espdock lock` with rosdep for {image.os}; edit package.xml files, then {FIX}",
+        "input": lock_input(needed, image),
+        "ros_image": image.flavour,
+        "os": image.os,
+        "ros_distro": image.distro,
+        "packages": {k: list(v) for k, v in sorted(needed.items())},
+        "keys": entries,
+        "apt": sorted({p for e in entries.values() if e["installer"] == "apt" for p in e["packages"]}),
+        "pip": pip_lines,
+    }
+
+
+def lock_text(lock: Mapping) -> str:
+    return json.dumps(lock, indent=1, sort_keys=True) + "\n"

@@ -1,0 +1,258 @@
+"""package.xml dependencies: what the ROS image provides, rosdep's resolution (the real rosdep,
+on the tests' database of real rules), rosdep.lock.json, and the check before colcon."""
+
+import json
+import shutil
+from pathlib import Path
+
+import pytest
+
+from espdock import rosdeps
+from espdock.config import Config
+from espdock.errors import DependencyError, LockError
+from espdock.plan import ros_build_image, ros_image
+from espdock.workspace import Package, PackageKind, Workspace, discover_packages, order_packages, read_build_inputs
+from tests.conftest import REPO, espdock
+from tests.rosdep_db import environment
+
+PACKAGES = REPO / "tests" / "ros_packages"
+NO_ENGINE = {"DOCKER_HOST": "unix:///nonexistent/docker.sock"}
+WHEELS = rosdeps.RosImage("wheels", "jazzy", "debian:bookworm", frozenset({"rclpy", "std_msgs"}))
+
+
+def package(name: str, depends: set[str], test_only: set[str] = frozenset()) -> Package:
+    return Package(
+        name, Path(f"/ws/src/{name}"), PackageKind.ROS, "ament_python", frozenset(depends | test_only),
+        test_only_depends=frozenset(test_only),
+    )  # fmt: skip
+
+
+def make_workspace(root: Path, *names: str, toml: str = "") -> Path:
+    (root / "src").mkdir(parents=True)
+    for name in names:
+        shutil.copytree(PACKAGES / name, root / "src" / name)
+    (root / "espdock.toml").write_text(f"[espdock]\n{toml}")
+    return root
+
+
+def test_the_wheels_image_provides_the_ros_packages_its_locks_install():
+    texts = [(REPO / "docker" / name).read_text() for name in ("ros-runtime.txt", "ros-build.txt")]
+    provided = rosdeps.wheel_packages(texts, "jazzy")
+    # ros-jazzy-rclpy and the unversioned ros-std-msgs wheels alike; no PyPI family has rclcpp.
+    assert {"rclpy", "std_msgs", "sensor_msgs", "ament_cmake", "rosidl_default_generators"} <= provided
+    assert not {"rclcpp", "launch", "sensor_msgs_py", "numpy"} & provided
+
+
+def test_needed_keys_leave_out_workspace_packages_what_the_image_has_and_test_only_ones():
+    packages = (
+        package("msgs", {"rosidl_default_generators"}),
+        package("node", {"msgs", "rclpy", "python3-numpy", "tinyxml2"}, test_only={"python3-pytest"}),
+        package("quiet", {"rclpy"}),
+    )
+    image = rosdeps.RosImage("wheels", "jazzy", "debian:bookworm", frozenset({"rclpy", "rosidl_default_generators"}))
+    assert rosdeps.needed_keys(packages, image) == {"node": ("python3-numpy", "tinyxml2")}
+
+
+def test_a_lock_is_stale_when_a_key_the_image_or_its_locks_change():
+    needed = {"node": ("tinyxml2",)}
+    lock = {"format": 1, "input": rosdeps.lock_input(needed, WHEELS)}
+    assert rosdeps.stale_reason(lock, needed, WHEELS, "rosdep.lock.json") is None
+    assert rosdeps.stale_reason(None, {}, WHEELS, "rosdep.lock.json") is None  # nothing needed: no lock needed
+    assert rosdeps.stale_reason(None, needed, WHEELS, "rosdep.lock.json") == "rosdep.lock.json is missing"
+    official = rosdeps.RosImage("official", "jazzy", "ubuntu:noble", frozenset())
+    newer = rosdeps.RosImage("wheels", "jazzy", "debian:bookworm", WHEELS.provided, (("docker/ros-runtime.txt", "x"),))
+    for changed_needed, image in (({"node": ("tinyxml2", "acpitool")}, WHEELS), (needed, official), (needed, newer)):
+        assert "is stale" in rosdeps.stale_reason(lock, changed_needed, image, "rosdep.lock.json")
+
+
+def test_the_check_lists_each_package_with_its_missing_keys_and_the_ways_out():
+    packages = (package("a", {"rclcpp"}), package("b", {"tinyxml2"}), package("c", {"rclcpp", "nope"}))
+    needed = {"a": ("rclcpp",), "b": ("tinyxml2",), "c": ("nope", "rclcpp")}
+    lock = {
+        "keys": {
+            "rclcpp": {"installer": None, "why": "PyPI has no ros-jazzy-rclcpp"},
+            "tinyxml2": {"installer": "apt", "packages": ["libtinyxml2-dev"]},
+            "nope": {"installer": None, "why": "no rosdep rule for this key"},
+        }
+    }
+    with pytest.raises(DependencyError) as caught:
+        rosdeps.check_dependencies(packages, needed, lock, WHEELS)
+    lines = caught.value.message.splitlines()
+    assert lines[1:] == [
+        "  a (/ws/src/a): rclcpp: PyPI has no ros-jazzy-rclcpp",
+        "  c (/ws/src/c): nope: no rosdep rule for this key; rclcpp: PyPI has no ros-jazzy-rclcpp",
+    ]
+    assert "debian:bookworm" in lines[0]
+    for way in ("rosdep rule", 'ros_image = "official"', "COLCON_IGNORE", "another selection"):
+        assert way in caught.value.hint
+    rosdeps.check_dependencies(packages[1:2], needed, lock, WHEELS)  # b alone is fine
+
+
+def test_python_keys_become_pip_in_the_wheels_venv_and_ros_keys_their_wheels():
+    rules = {
+        "python3-numpy": rosdeps.Rule("apt", ("python3-numpy",)),
+        "python3-tabulate": rosdeps.Rule("apt", ("python3-tabulate",)),
+        "rclcpp": rosdeps.Rule("apt", ("ros-jazzy-rclcpp",)),
+        "tinyxml2": rosdeps.Rule("apt", ("libtinyxml2-dev",)),
+        # rosdistro's python3-yaml: apt everywhere but osx, where pip installs pyyaml.
+        "python3-yaml": rosdeps.Rule("apt", ("python3-yaml",), pip_elsewhere=("pyyaml",)),
+    }
+    pip_rules = {"python3-tabulate": rosdeps.Rule("pip", ("tabulate",))}
+    mapped = rosdeps.for_image(rules, WHEELS, pip_rules)
+    assert {k: (r.installer, r.packages) for k, r in mapped.items()} == {
+        "python3-numpy": ("pip", ("numpy",)),
+        "python3-tabulate": ("pip", ("tabulate",)),
+        "rclcpp": ("pip", ("ros-jazzy-rclcpp",)),
+        "tinyxml2": ("apt", ("libtinyxml2-dev",)),
+        "python3-yaml": ("pip", ("pyyaml",)),
+    }
+    official = rosdeps.RosImage("official", "jazzy", "ubuntu:noble", frozenset())
+    assert rosdeps.for_image(rules, official, pip_rules) == rules  # system Python sees apt's packages
+
+
+def test_the_image_installs_only_debian_package_names_from_the_lock():
+    files = rosdeps.image_files({"apt": ["libtinyxml2-dev"], "pip": ["tabulate==0.10.0 --hash=sha256:ab"]})
+    assert files["apt.txt"].decode().splitlines()[1:] == ["libtinyxml2-dev"]
+    assert files["pip.txt"].decode().splitlines()[1:] == ["tabulate==0.10.0 --hash=sha256:ab"]
+    with pytest.raises(LockError, match="no Debian package names"):
+        rosdeps.image_files({"apt": ["-o=APT::Get::AllowUnauthenticated=1"]})
+
+
+def test_the_real_rosdep_resolves_the_rules_for_each_image_os(tmp_path, monkeypatch):
+    env = environment(tmp_path)
+    for name, value in env.items():
+        monkeypatch.setenv(name, value)
+    keys = ["tinyxml2", "python-tabulate-pip", "acpitool", "fswebcam", "rclcpp", "no_such_key"]
+    debian = rosdeps.rosdep_rules(keys, "debian:bookworm", "jazzy", env)
+    ubuntu = rosdeps.rosdep_rules(keys, "ubuntu:noble", "jazzy", env)
+
+    def answer(rule: rosdeps.Rule) -> tuple:
+        return rule.installer, rule.packages
+
+    assert answer(debian["tinyxml2"]) == answer(ubuntu["tinyxml2"]) == ("apt", ("libtinyxml2-dev",))
+    assert answer(debian["python-tabulate-pip"]) == ("pip", ("tabulate",))
+    # ROS packages come from the rosdistro distribution file, as ros-<distro>-<name>.
+    assert answer(ubuntu["rclcpp"]) == ("apt", ("ros-jazzy-rclcpp",))
+    # acpitool has a Debian rule only, fswebcam an Ubuntu one only.
+    assert debian["acpitool"].installer == "apt" and ubuntu["acpitool"].installer is None
+    assert "ubuntu:noble" in ubuntu["acpitool"].why
+    assert ubuntu["fswebcam"].installer == "apt" and debian["fswebcam"].installer is None
+    assert "unknown" in debian["no_such_key"].why
+    assert rosdeps.database_age(env) is not None
+
+
+def test_official_flavour_builds_from_its_own_dockerfile_and_resolves_for_ubuntu(tmp_path):
+    root = make_workspace(tmp_path / "w", "rosdeps_py_table")
+    workspace = Workspace(root).with_layout(None, None)
+    packages = order_packages(discover_packages(workspace))
+    inputs = read_build_inputs(workspace, packages)
+    name, text, image = ros_image(Config(ros_image="official"), inputs)
+    assert (name, image.os, image.provided) == ("Dockerfile.ros-official", "ubuntu:noble", frozenset())
+    assert "ARG BASE_IMAGE=ros:jazzy-ros-base" in text
+    # The official image has every ROS package rosdep names; the wheels one only what its locks install.
+    assert rosdeps.needed_keys(packages, image)["rosdeps_py_table"] == (
+        "python-tabulate-pip", "python3-numpy", "rclpy", "std_msgs",
+    )  # fmt: skip
+    _, _, wheels = ros_image(Config(), inputs)
+    assert rosdeps.needed_keys(packages, wheels) == {"rosdeps_py_table": ("python-tabulate-pip", "python3-numpy")}
+
+
+def test_the_setting_is_checked_where_it_is_read(tmp_path):
+    root = make_workspace(tmp_path / "w", toml='ros_image = "docker"\n')
+    result = espdock("build", "--dry-run", cwd=root, env=NO_ENGINE)
+    assert result.returncode == 2
+    assert "ros_image" in result.stderr and "wheels, official" in result.stderr
+    (root / "espdock.toml").write_text("[espdock]\n")
+    result = espdock("build", "--dry-run", cwd=root, env={**NO_ENGINE, "ESPDOCK_ROS_IMAGE": "ros2"})
+    assert result.returncode == 2 and "ESPDOCK_ROS_IMAGE" in result.stderr
+
+
+def run_build(root: Path, tmp_path: Path, *args: str, **extra: str):
+    return espdock("build", *args, cwd=root, env={**NO_ENGINE, **environment(tmp_path), **extra})
+
+
+def test_an_rclcpp_package_on_the_wheels_image_is_refused_before_anything_builds(tmp_path):
+    root = make_workspace(tmp_path / "w", "rosdeps_cpp_talker", "rosdeps_xml_count")
+    result = run_build(root, tmp_path)
+    # Refused before the engine is asked for (there is none at DOCKER_HOST): exit 2, not 3.
+    assert result.returncode == 2, result.stderr
+    lines = [line for line in result.stderr.splitlines() if line.startswith("  ")]
+    assert lines == [f"  rosdeps_cpp_talker ({root}/src/rosdeps_cpp_talker): rclcpp: PyPI has no ros-jazzy-rclcpp"]
+    assert 'ros_image = "official"' in result.stderr and "COLCON_IGNORE" in result.stderr
+    assert not (root / "build").exists() and not (root / "install").exists()
+    lock = json.loads((root / "rosdep.lock.json").read_text())
+    assert lock["keys"]["tinyxml2"] == {"installer": "apt", "packages": ["libtinyxml2-dev"]}
+    # Another selection, without the C++ node, passes the check (and then needs the engine).
+    assert run_build(root, tmp_path, "rosdeps_xml_count").returncode == 3
+
+
+@pytest.mark.parametrize(
+    ("key", "flavour", "os_name", "why"),
+    [
+        ("no_such_key", "wheels", "debian:bookworm", "no rosdep rule: the key is unknown to rosdep's database"),
+        ("fswebcam", "wheels", "debian:bookworm", "no rosdep rule for debian:bookworm"),
+        ("acpitool", "official", "ubuntu:noble", "no rosdep rule for ubuntu:noble"),
+    ],
+)
+def test_a_key_with_no_rule_for_the_image_os_names_package_key_and_os(tmp_path, key, flavour, os_name, why):
+    root = make_workspace(tmp_path / "w", "rosdeps_xml_count")
+    manifest = root / "src/rosdeps_xml_count/package.xml"
+    manifest.write_text(manifest.read_text().replace("<depend>tinyxml2</depend>", f"<depend>{key}</depend>"))
+    result = run_build(root, tmp_path, ESPDOCK_ROS_IMAGE=flavour)
+    assert result.returncode == 2, result.stderr
+    assert f"rosdeps_xml_count ({manifest.parent}): {key}: {why}" in result.stderr
+    assert os_name in result.stderr
+    assert not (root / "build").exists()
+
+
+def test_locked_refuses_a_missing_or_stale_lock_and_lock_refreshes_it(tmp_path):
+    root = make_workspace(tmp_path / "w", "rosdeps_xml_count")
+    result = run_build(root, tmp_path, "--locked")
+    assert result.returncode == 2 and "rosdep.lock.json is missing" in result.stderr
+    assert not (root / "rosdep.lock.json").exists()
+    made = espdock("lock", cwd=root, env={**NO_ENGINE, **environment(tmp_path)})
+    assert made.returncode == 0, made.stderr
+    assert "rosdep.lock.json: created (rosdep database in" in made.stdout and "ago)" in made.stdout
+    assert run_build(root, tmp_path, "--locked").returncode == 3  # current: on to the engine
+    manifest = root / "src/rosdeps_xml_count/package.xml"
+    manifest.write_text(manifest.read_text().replace("<depend>tinyxml2</depend>", "<depend>acpitool</depend>"))
+    result = run_build(root, tmp_path, "--locked")
+    assert result.returncode == 2 and "rosdep.lock.json is stale" in result.stderr, result.stderr
+    assert "acpitool" not in (root / "rosdep.lock.json").read_text()
+    again = espdock("lock", cwd=root, env={**NO_ENGINE, **environment(tmp_path)})
+    assert "rosdep.lock.json: updated" in again.stdout
+    assert json.loads((root / "rosdep.lock.json").read_text())["apt"] == ["acpitool"]
+
+
+def test_the_lock_decides_the_image_key_and_the_flavour_its_dockerfile_and_name(tmp_path):
+    root = make_workspace(tmp_path / "w", "rosdeps_xml_count")
+    workspace = Workspace(root).with_layout(None, None)
+    inputs = read_build_inputs(workspace, order_packages(discover_packages(workspace)))
+    lock = {"apt": ["libtinyxml2-dev"], "pip": []}
+    wheels = ros_build_image(Config(), inputs.ros_dockerfile, inputs.ros_files, rosdep_lock=lock)
+    assert wheels.repository == "espdock/ros-jazzy-build"
+    context = dict(wheels.context)
+    assert context["docker/rosdep/apt.txt"].decode().splitlines()[1:] == ["libtinyxml2-dev"]
+    assert "docker/rosdep-install.sh" in context
+    other = ros_build_image(
+        Config(), inputs.ros_dockerfile, inputs.ros_files, rosdep_lock={**lock, "apt": ["acpitool"]}
+    )
+    assert other.key != wheels.key
+    # No lock: the repository's empty lists, so a workspace without keys keeps one image.
+    assert (
+        ros_build_image(Config(), inputs.ros_dockerfile, inputs.ros_files).key
+        == ros_build_image(Config(), inputs.ros_dockerfile, inputs.ros_files, rosdep_lock={}).key
+    )
+    official = ros_build_image(
+        Config(ros_image="official", base_image="ros:jazzy-ros-base@sha256:" + "0" * 64),
+        inputs.ros_official_dockerfile,
+        {k: v for k, v in inputs.ros_files.items() if "rosdep" in k},
+        rosdep_lock=lock,
+        dockerfile="Dockerfile.ros-official",
+    )
+    assert official.repository == "espdock/ros-jazzy-official-build"
+    assert official.dockerfile == "Dockerfile.ros-official" and official.target == "build"
+    assert dict(official.build_args)["BASE_IMAGE"].startswith("ros:jazzy-ros-base@sha256:")
+    assert sorted(dict(official.context)) == [
+        "Dockerfile.ros-official", "docker/rosdep-install.sh", "docker/rosdep/apt.txt", "docker/rosdep/pip.txt",
+    ]  # fmt: skip

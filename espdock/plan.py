@@ -188,6 +188,8 @@ Step = EnsureBaseImage | EnsureImage | ColconBuild | IdfBuild | InstallFirmware 
 
 # Where a runtime image holds the workspace's install tree (the entrypoint sources it).
 RUNTIME_INSTALL = "/opt/espdock/ws/install"
+# What Dockerfile.ros-official's runtime stage adds from docker/.
+OFFICIAL_ENTRYPOINT = "docker/ros-entrypoint.sh"
 # The stage of the ROS image's Dockerfile that runtime images start from.
 RUNTIME_STAGE = "runtime"
 
@@ -537,8 +539,9 @@ def plan_workspace(
     needed = rosdeps.needed_keys(packages, image)
     # The lock is current here (the caller made it so, or refused a stale one under --locked).
     rosdeps.check_dependencies(selected, needed, lock, image)
-    # The official image's build reads only the rosdep installer of docker/.
-    files = inputs.ros_files if name == ROS_DOCKERFILE else {k: v for k, v in inputs.ros_files.items() if "rosdep" in k}
+    # The official image reads only the rosdep installer of docker/, and the entry point (runtime).
+    official = {k: v for k, v in inputs.ros_files.items() if "rosdep" in k or k == OFFICIAL_ENTRYPOINT}
+    files = inputs.ros_files if name == ROS_DOCKERFILE else official
     ros_spec = ros_build_image(config, text, files, inputs.own_files, lock if needed else None, name)
     idf_images = micro_ros_images(config, inputs, packages)
     return plan_build(

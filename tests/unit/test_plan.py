@@ -118,3 +118,17 @@ def test_the_runtime_image_is_the_build_images_runtime_stage_plus_every_ros_pack
     assert runtime.stable_tag == "espdock/my-robot:latest"
     named = plan_build(Workspace(Path("/w/x")), Config(name="bot"), packages[:1], spec).steps[-1]
     assert named.stable_tag == "espdock/bot:latest"
+
+
+def test_the_official_ros_image_gives_runtime_images_its_own_runtime_stage():
+    root = Path(__file__).resolve().parents[2]
+    text = (root / "Dockerfile.ros-official").read_text()
+    entrypoint = {"docker/ros-entrypoint.sh": (root / "docker" / "ros-entrypoint.sh").read_bytes()}
+    spec = ros_build_image(Config(ros_image="official"), text, entrypoint, dockerfile="Dockerfile.ros-official")
+    plan = plan_build(Workspace(Path("/w/bot")), Config(), (pkg("app"),), spec)
+    base, runtime = plan.steps[-2:]
+    assert (base.spec.dockerfile, base.spec.target) == ("Dockerfile.ros-official", "runtime")
+    assert base.spec.repository == "espdock/ros-jazzy-official-runtime"
+    assert "docker/ros-entrypoint.sh" in dict(base.spec.context)
+    assert "FROM build AS runtime" in text and '"/ros_entrypoint.sh", "/opt/espdock/entrypoint.sh"' in text
+    assert runtime.base == base.spec and runtime.stable_tag == "espdock/bot:latest"

@@ -5,7 +5,6 @@ from __future__ import annotations
 import functools
 import json
 import os
-import signal
 import sys
 import time
 from collections.abc import Callable
@@ -16,16 +15,16 @@ import typer
 from rich.console import Console
 from rich.text import Text
 
-from espdock import __version__, bootstrap, nodes
+from espdock import __version__, bootstrap, interrupts, nodes
 from espdock.config import Config, invoking_user, load_config, record_target, resolve_ca_bundle
-from espdock.engine import Engine, format_argv
+from espdock.engine import format_argv
 from espdock.errors import ConfigError, EspdockBug, EspdockError, Interrupted, WorkspaceError
 from espdock.events import Outcome
 from espdock.flashing import check_port, flash_package, parse_port, read_flasher_args
-from espdock.layout import IDF_DOCKERFILE, ROS_DOCKERFILE, ROSDEP_LOCK, SOURCES_FILE, firmware_install_dir
+from espdock.layout import ROS_DOCKERFILE, ROSDEP_LOCK, firmware_install_dir
 from espdock.lock import check_locks, current_rosdep_inputs, lock_rosdeps, lock_workspace, plan_locks, uv_binary
-from espdock.manifest import MANIFEST_NAME, build_manifest, compare, file_hashes, read_manifest, write_manifest
-from espdock.pins import Source, pin_heads, pin_image_digest
+from espdock.manifest import compare, file_hashes, read_manifest, record_build, write_report
+from espdock.pins import pin_idf_image, read_sources, write_pins
 from espdock.plan import (
     EnsureImage,
     IdfBuild,
@@ -33,15 +32,15 @@ from espdock.plan import (
     Plan,
     base_image,
     firmware_step,
-    micro_ros_images,
     plan_workspace,
     runtime_repository,
+    workspace_micro_ros_images,
 )
 from espdock.provision import network_settings, nvs_image, nvs_partition, optional_network_settings
-from espdock.runner import Runner
+from espdock.runner import Runner, stamp_files
 from espdock.scaffold import check_new_package, create_firmware_package, init_compose, init_workspace
-from espdock.status import built_from, micro_ros_report
-from espdock.ui import QuietReporter, Reporter, render_micro_ros_status, render_packages, render_plan
+from espdock.status import micro_ros_report, resolved_sources
+from espdock.ui import QuietReporter, Reporter, render_micro_ros_status, render_packages, render_pins, render_plan
 from espdock.workspace import (
     Package,
     PackageKind,
@@ -50,7 +49,6 @@ from espdock.workspace import (
     find_workspace,
     order_packages,
     read_build_inputs,
-    write_atomically,
 )
 
 app = typer.Typer(
@@ -69,6 +67,9 @@ WorkspaceOption = Annotated[
 ]
 
 
+INTERRUPTED = Interrupted("interrupted; containers started by this run were stopped and removed")
+
+
 def _command(function: Callable[P, None]) -> Callable[P, None]:
     """Make FUNCTION a command whose espdock errors and Ctrl-C end in a message and an exit code.
 
@@ -82,7 +83,7 @@ def _command(function: Callable[P, None]) -> Callable[P, None]:
         except EspdockError as exc:
             _fail(exc)
         except KeyboardInterrupt:
-            _fail(Interrupted("interrupted; containers started by this run were stopped and removed"))
+            _fail(INTERRUPTED)
         except (typer.Exit, typer.Abort, SystemExit):
             raise
         except Exception as exc:  # anything else is espdock's own bug: say so, keep the traceback
@@ -211,37 +212,14 @@ def build(
     try:
         owner = invoking_user(os.environ, ws.root)
         results = Runner(engine, config, os.environ, reporter, owner, push_cache=push_cache).run(plan)
-        install = ws.ws_dir / "install"
-        existing = install / MANIFEST_NAME
-        if existing.is_file() and all(r.outcome is Outcome.CACHED for r in results):
-            # Nothing was built, and every install tree was checked against its stamp: the
-            # manifest stands (re-hashing it would be most of a no-change build's time).
-            manifest = read_manifest(existing)
-        else:
-            manifest = build_manifest(plan, config.target, install)
-            written = write_manifest(manifest, install)
-            if os.geteuid() == 0:
-                os.chown(written, *invoking_user(os.environ, ws.root))
+        built = any(r.outcome is not Outcome.CACHED for r in results)
+        chown = owner if os.geteuid() == 0 else None
+        manifest = record_build(plan, config.target, ws.ws_dir / "install", built, stamp_files(ws), chown)
     finally:
         reporter.close()
         reporter.summary()
         if report is not None:
             write_report(report, reporter.finished, manifest, time.monotonic() - started)
-
-
-def write_report(path: Path, finished: list, manifest: dict | None, seconds: float) -> None:
-    """The --report JSON: every step's outcome, the build's, its duration, and the manifest (None on failure)."""
-    failed = any(step.outcome.value == "failed" for step in finished) or manifest is None
-    data = {
-        "outcome": "failed" if failed else "succeeded",
-        "seconds": round(seconds, 3),
-        "steps": [
-            {"step": s.step, "outcome": s.outcome.value, "seconds": round(s.seconds, 3), "detail": s.detail}
-            for s in finished
-        ],
-        "manifest": manifest,
-    }
-    path.write_text(json.dumps(data, indent=1, sort_keys=True) + "\n")
 
 
 @app.command()
@@ -375,17 +353,7 @@ def _micro_ros_specs(
 ) -> tuple[Workspace, Config, tuple[Package, ...], dict[str, ImageSpec]]:
     ws, config = _load(workspace, target=target)
     packages = _packages(ws)
-    specs = micro_ros_images(config, read_build_inputs(ws, packages), packages)
-    if not specs:
-        raise WorkspaceError("this workspace has no firmware packages, so no micro-ROS library", "See `espdock new`.")
-    return ws, config, packages, specs
-
-
-def _sources_text(ws: Workspace) -> str:
-    path = ws.root / SOURCES_FILE
-    if not path.is_file():
-        raise WorkspaceError(f"{path} is missing", "It pins every repository micro-ROS is built from.")
-    return path.read_text()
+    return ws, config, packages, workspace_micro_ros_images(config, read_build_inputs(ws, packages), packages)
 
 
 micro_ros = typer.Typer(help="The prebuilt micro-ROS library of this workspace.", no_args_is_help=True)
@@ -402,7 +370,7 @@ def micro_ros_status(
     """Each micro-ROS image: its key, the inputs it is made of, its firmware, whether it exists."""
     ws, _, packages, specs = _micro_ros_specs(workspace, target)
     engine = bootstrap.ensure_engine(os.environ, _notify)
-    report = micro_ros_report(engine, specs, packages, _sources_text(ws))
+    report = micro_ros_report(engine, specs, packages, read_sources(ws.root))
     if as_json:
         print(json.dumps(report, indent=2, sort_keys=True))
         return
@@ -435,45 +403,11 @@ def micro_ros_pin(
     commits the current micro-ROS images were built from, and IDF_IMAGE to its digest."""
     ws, config, _, specs = _micro_ros_specs(workspace, target)
     engine = bootstrap.ensure_engine(os.environ, _notify)
-    resolved: dict[str, Source] = {}
-    images = [spec.tag for spec in {s.key: s for s in specs.values()}.values() if engine.image(spec.tag)]
-    if not images:
-        raise WorkspaceError("no micro-ROS image of this workspace is built yet", "Run `espdock build` first.")
-    for image in images:
-        for key, source in built_from(engine, image).items():
-            if key in resolved and resolved[key].commit != source.commit:
-                raise WorkspaceError(
-                    f"the micro-ROS images disagree on {source.url}: {resolved[key].commit} and {source.commit}",
-                    "Pin it by hand in docker/idf/micro_ros_sources.txt.",
-                )
-            resolved[key] = source
-    path = ws.root / SOURCES_FILE
-    text, pinned = pin_heads(_sources_text(ws), resolved)
-    if pinned:
-        write_atomically(path, text)
-        for source in pinned:
-            console.print(f"pinned {source.url} ({source.branch}) at {source.commit}")
-        console.print(f"wrote {path.relative_to(ws.root)}; the next build makes images under new keys")
-    else:
-        console.print("every micro-ROS source the images were built from is pinned already")
-    _pin_idf_image(ws, config, engine, next(iter(specs.values())))
-
-
-def _pin_idf_image(ws: Workspace, config: Config, engine: Engine, spec: ImageSpec) -> None:
-    """Pin Dockerfile.idf's IDF_IMAGE to the digest of the image the engine pulled for it."""
-    reference = dict(spec.build_args)["IDF_IMAGE"]
-    if "@sha256:" in reference:
-        return
+    pinned = write_pins(ws.root, resolved_sources(engine, specs))
+    reference = dict(next(iter(specs.values())).build_args)["IDF_IMAGE"]
     image = engine.image(reference)
-    dockerfile = ws.root / IDF_DOCKERFILE
-    pinned = pin_image_digest(dockerfile.read_text(), "IDF_IMAGE", reference, image.digests if image else ())
-    if pinned is None:
-        console.print(f"{reference} is pinned by tag only: this engine did not pull it from a registry")
-    elif config.idf_image:
-        console.print(f"{reference} comes from idf_image; pin it there: {reference}@{pinned.split('@')[-1].split()[0]}")
-    else:
-        write_atomically(dockerfile, pinned)
-        console.print(f"pinned IDF_IMAGE in {IDF_DOCKERFILE} to its digest")
+    idf = pin_idf_image(ws.root, reference, image.digests if image else (), bool(config.idf_image))
+    render_pins(console, pinned, idf)
 
 
 PortOption = Annotated[
@@ -552,6 +486,8 @@ def provision(
     workspace: WorkspaceOption = None,
 ) -> None:
     """Write the board's Wi-Fi and agent settings into its NVS partition, leaving the app as it is.
+
+    The whole NVS partition is replaced: every other namespace on the board is erased.
 
     The password never appears on a command line (espdock's or esptool's), in the workspace or in an image."""
     ws, config = _load(workspace)
@@ -695,14 +631,30 @@ def list_packages(workspace: WorkspaceOption = None) -> None:
     render_packages(console, ws, _packages(ws))
 
 
-def _on_sigterm(signum: int, frame: object) -> NoReturn:
-    raise KeyboardInterrupt
-
-
-def main() -> None:
-    """Entry point: SIGTERM (CI timeouts, `docker stop`) cleans up like Ctrl-C."""
-    signal.signal(signal.SIGTERM, _on_sigterm)
-    app()
+def main() -> NoReturn:
+    """Entry point: Ctrl-C and SIGTERM (CI timeouts, `docker stop`) end any command (espdock.interrupts)."""
+    interrupts.install()
+    try:
+        try:
+            app()
+        except KeyboardInterrupt:  # in Typer's own code, before or after the command
+            _fail(INTERRUPTED)
+        except SystemExit as exc:
+            # A Ctrl-C that Python swallowed (raised in a callback whose exceptions it only prints)
+            # still ends the command as interrupted.
+            if interrupts.interrupted() and exc.code != Interrupted.exit_code:
+                _fail(INTERRUPTED)
+            raise
+        code = 0
+    except KeyboardInterrupt:  # while the outcome was being reported: it stands, the exit code says why
+        code = Interrupted.exit_code
+    except SystemExit as exc:
+        if exc.code is None or isinstance(exc.code, int):
+            code = exc.code or 0
+        else:
+            print(exc.code, file=sys.stderr)
+            code = 1
+    interrupts.finish(code)
 
 
 def _fail(exc: EspdockError) -> NoReturn:

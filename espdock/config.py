@@ -16,8 +16,8 @@ import msgspec
 from msgspec import Meta, Struct
 
 from espdock.errors import ConfigError
-
-CONFIG_FILE = "espdock.toml"
+from espdock.layout import CONFIG_FILE
+from espdock.workspace import write_atomically
 
 CHIP_TARGETS = (
     "esp32",
@@ -251,7 +251,5 @@ def record_target(root: Path, target: str) -> bool:
         lines += ["\n" if lines and not lines[-1].endswith("\n") else "", "[espdock]\n", entry]
     else:
         lines.insert(at, entry)
-    from espdock.workspace import write_atomically
-
     write_atomically(path, "".join(lines))
     return True

@@ -24,6 +24,7 @@ import shutil
 import signal
 import socket
 import subprocess
+import sys
 import warnings
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
@@ -34,10 +35,14 @@ from pathlib import Path
 from typing import IO, Any
 from urllib.parse import quote
 
+from espdock import interrupts
 from espdock.errors import EngineUnavailable, EspdockError, ImageBuildError
 
 LineSink = Callable[[str], None]
 DEFAULT_SOCKET = "/var/run/docker.sock"
+# Every container espdock creates names the process that made it (boot id, pid, start time),
+# so a later command can tell a container whose espdock was killed from one still in use.
+LABEL_OWNER = "io.espdock.owner"
 
 
 class _Lazy:
@@ -47,9 +52,12 @@ class _Lazy:
         self._names = names
 
     def __getattr__(self, attribute: str) -> Any:
-        for name in self._names[1:]:
-            importlib.import_module(name)
-        return getattr(importlib.import_module(self._names[0]), attribute)
+        # Held: a Ctrl-C in the middle of importing the SDK leaves urllib3 half-initialised in
+        # sys.modules, and the cleanup that follows (which needs the SDK) then fails.
+        with interrupts.held():
+            for name in self._names[1:]:
+                importlib.import_module(name)
+            return getattr(importlib.import_module(self._names[0]), attribute)
 
 
 docker = _Lazy("docker", "docker.errors")
@@ -319,6 +327,7 @@ class Engine:
             env=self._env,
             text=True,
             errors="replace",
+            preexec_fn=_die_with_parent(),  # noqa: PLW1509 (see _die_with_parent)
         )
         try:
             assert process.stdin is not None and process.stdout is not None
@@ -338,6 +347,14 @@ class Engine:
                 process.kill()
             raise
         if code != 0:
+            if any("no space left on device" in line.lower() for line in tail):
+                raise ImageBuildError(
+                    f"building {tag} failed: the engine's disk is full (its data root, {self._data_root()})",
+                    "Free space there (`docker system df` shows what uses it; `docker builder prune` drops "
+                    "build cache, a failed build's included), then build again.",
+                )
+            if any("cannot connect to the docker daemon" in line.lower() for line in tail):
+                raise _engine_lost(self._env, f"building {tag}")
             unpulled = re.search(r"load metadata for (\S+)", "\n".join(tail))
             hint = (
                 f"{unpulled.group(1)} is not here and could not be pulled: is a registry reachable? "
@@ -349,6 +366,17 @@ class Engine:
                 f"building {tag} from {dockerfile} (stage {target}) failed:\n" + "\n".join(tail), hint
             )
 
+    def _data_root(self) -> str:
+        """Where the engine keeps images and containers (DockerRootDir), for messages."""
+        try:
+            if self._socket is not None:
+                _, info = self._get("/info")
+            else:
+                info = self._client.info()
+        except (OSError, docker.errors.DockerException, requests.exceptions.RequestException):
+            info = None
+        return str((info or {}).get("DockerRootDir") or "unknown")
+
     def compose_command(self) -> list[str]:
         """The argv prefix for Compose v2 as a docker CLI plugin."""
         docker_cli = shutil.which("docker", path=self._env.get("PATH"))
@@ -358,12 +386,23 @@ class Engine:
 
     def run_compose(self, args: Sequence[str], cwd: Path, env: Mapping[str, str]) -> int:
         """`docker compose ARGS` in CWD with ENV, attached to this terminal; its exit code."""
-        process = subprocess.Popen([*self.compose_command(), *args], cwd=cwd, env=dict(env))
+        process = subprocess.Popen(
+            [*self.compose_command(), *args],
+            cwd=cwd,
+            env=dict(env),
+            preexec_fn=_die_with_parent(),  # noqa: PLW1509 (see _die_with_parent)
+        )
         try:
             return process.wait()
         except KeyboardInterrupt:
-            # Compose got the same Ctrl-C and is stopping its services; let it finish.
-            return process.wait()
+            # A terminal's Ctrl-C reached Compose too (one process group): it is stopping its
+            # services, and a second signal would make it kill them. Without a terminal the
+            # signal was meant for espdock alone (`kill -INT`, CI): pass it on. (The docker CLI
+            # decides the same way for its plugins.) The wait is bounded by interrupts.GRACE.
+            if not sys.stdin.isatty():
+                process.send_signal(signal.SIGINT)
+            process.wait()
+            raise
 
     # Containers
 
@@ -382,7 +421,11 @@ class Engine:
         with self._container(spec, keep) as container:
             docker_cli = self.compose_command()[0]
             # The CLI does what the SDK cannot: raw TTY, window size, stdin forwarding.
-            return subprocess.call([docker_cli, "start", "--attach", "--interactive", container.id], env=self._env)
+            return subprocess.call(
+                [docker_cli, "start", "--attach", "--interactive", container.id],
+                env=self._env,
+                preexec_fn=_die_with_parent(),
+            )
 
     def run_foreground(self, spec: RunSpec) -> tuple[int, int | None]:
         """`docker run` SPEC in the foreground, as a shell runs a command: attached to this
@@ -442,23 +485,36 @@ class Engine:
 
     @contextmanager
     def _container(self, spec: RunSpec, keep: bool) -> Iterator[docker.models.containers.Container]:
+        client = self._client
+        container = None
         try:
-            container = self._client.containers.create(
-                spec.image,
-                command=list(spec.argv),
-                working_dir=spec.workdir,
-                user=spec.user,
-                environment=dict(spec.env),
-                labels=dict(spec.labels),
-                volumes={str(m.source): {"bind": m.target, "mode": "ro" if m.read_only else "rw"} for m in spec.mounts},
-                devices=[f"{d}:{d}:rwm" for d in spec.devices],
-                group_add=[str(g) for g in spec.group_add] or None,
-                network_mode=spec.network,
-                tty=spec.tty,
-                stdin_open=spec.tty,
-                name=spec.name,
-                detach=True,
-            )
+            # Held: a Ctrl-C between the engine creating it and its id coming back would leave a
+            # container nothing here knows to remove. It is raised when the block ends: see below.
+            with interrupts.held():
+                container = client.containers.create(
+                    spec.image,
+                    command=list(spec.argv),
+                    working_dir=spec.workdir,
+                    user=spec.user,
+                    environment=dict(spec.env),
+                    labels={**dict(spec.labels), LABEL_OWNER: owner_identity()},
+                    volumes={
+                        str(m.source): {"bind": m.target, "mode": "ro" if m.read_only else "rw"} for m in spec.mounts
+                    },
+                    devices=[f"{d}:{d}:rwm" for d in spec.devices],
+                    group_add=[str(g) for g in spec.group_add] or None,
+                    network_mode=spec.network,
+                    tty=spec.tty,
+                    stdin_open=spec.tty,
+                    name=spec.name,
+                    detach=True,
+                )
+        except KeyboardInterrupt:
+            if container is not None:
+                _remove(container, stop=False)
+            raise
+        except requests.exceptions.ConnectionError as exc:
+            raise _engine_lost(self._env, f"creating a container of {spec.image}") from exc
         except docker.errors.ImageNotFound as exc:
             raise EspdockError(f"image {spec.image} is not there: {exc}", "Run `espdock build` to build it.") from exc
         except docker.errors.APIError as exc:
@@ -467,6 +523,8 @@ class Engine:
             ) from exc
         try:
             yield container
+        except requests.exceptions.ConnectionError as exc:
+            raise _engine_lost(self._env, f"running a container of {spec.image}") from exc
         except docker.errors.APIError as exc:
             raise EspdockError(f"the container of {spec.image} failed: {exc.explanation or exc}") from exc
         finally:
@@ -485,6 +543,28 @@ class Engine:
         except docker.errors.APIError as exc:
             warnings.warn(f"could not list old espdock containers: {exc}", stacklevel=2)
         return removed
+
+    def sweep(self, labels: Mapping[str, str]) -> int:
+        """Remove the containers carrying all LABELS whose espdock process is gone (killed, or
+        past its Ctrl-C grace); containers of live espdock processes are left alone."""
+        selector = [f"{k}={v}" for k, v in labels.items()]
+        filters = {"label": [*selector, LABEL_OWNER]}
+        try:
+            if self._socket is not None:  # plain HTTP: a no-change build does not load the SDK for this
+                status, listed = self._get(f"/containers/json?all=1&filters={quote(json.dumps(filters))}")
+                if status != 200 or not isinstance(listed, list):
+                    raise EspdockError(f"the engine failed to list containers: HTTP {status} {listed}")
+            else:
+                listed = self._client.api.containers(all=True, filters=filters)
+        except (OSError, requests.exceptions.ConnectionError) as exc:
+            raise _engine_lost(self._env, "listing containers") from exc
+        dead = [c["Id"] for c in listed if not owner_alive((c.get("Labels") or {}).get(LABEL_OWNER, ""))]
+        for container_id in dead:
+            try:
+                _remove(self._client.containers.get(container_id), stop=False)
+            except docker.errors.NotFound:
+                pass  # gone meanwhile
+        return len(dead)
 
     def containers(self, labels: Mapping[str, str]) -> list[str]:
         """Names of containers (running or not) carrying all LABELS."""
@@ -551,18 +631,75 @@ def _connect_reason(exc: Exception) -> str:
     return text
 
 
-def _remove(container: docker.models.containers.Container) -> None:
+def _remove(container: docker.models.containers.Container, stop: bool = True) -> None:
     try:
-        # A short stop first lets the command inside clean up (colcon removes its lock files).
-        container.stop(timeout=3)
-    except docker.errors.APIError:
+        if stop:
+            # A short stop first lets the command inside clean up (colcon removes its lock files).
+            container.stop(timeout=3)
+    except (docker.errors.APIError, requests.exceptions.RequestException):
         pass
     try:
         container.remove(force=True)
     except docker.errors.NotFound:
         pass
-    except docker.errors.APIError as exc:
+    except (docker.errors.APIError, requests.exceptions.RequestException) as exc:
         warnings.warn(f"could not remove container {container.short_id}: {exc}", stacklevel=2)
+
+
+def _engine_lost(env: Mapping[str, str], doing: str) -> EngineUnavailable:
+    where = env.get("DOCKER_HOST") or f"unix://{DEFAULT_SOCKET}"
+    return EngineUnavailable(
+        f"the Docker engine at {where} went away while {doing}",
+        "Start it again (`sudo systemctl start docker`), then rerun: the next command removes what was left.",
+    )
+
+
+def _boot_id() -> str:
+    try:
+        return Path("/proc/sys/kernel/random/boot_id").read_text().strip()
+    except OSError:
+        return "unknown-boot"
+
+
+def _start_time(pid: int) -> str | None:
+    """PID's start time in clock ticks since boot (/proc/PID/stat field 22), None when it is gone."""
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:
+        return None
+    return stat.rsplit(")", 1)[1].split()[19]
+
+
+def owner_identity() -> str:
+    """This process as LABEL_OWNER names it: a pid is reused, a pid with its start time is not."""
+    return f"{_boot_id()}:{os.getpid()}:{_start_time(os.getpid())}"
+
+
+def owner_alive(owner: str) -> bool:
+    """Whether the process OWNER (an owner_identity) still runs on this machine. One of another
+    machine's (an engine over TCP) is not found here, so it counts as gone: only sweep what a
+    workspace path of this machine labels."""
+    boot, _, rest = owner.partition(":")
+    pid, _, started = rest.partition(":")
+    return boot == _boot_id() and pid.isdigit() and _start_time(int(pid)) == started
+
+
+_PR_SET_PDEATHSIG = 1
+
+
+def _die_with_parent() -> Callable[[], None] | None:
+    """A preexec_fn: the child gets SIGTERM when espdock dies (SIGKILL included), so a killed
+    espdock leaves no `docker compose build` running on (BuildKit cancels the build when its
+    client goes).
+
+    prctl is looked up here, before the fork: in the child only a foreign function call runs,
+    taking no lock another thread (the Ctrl-C watchdog, rich's status line) could hold."""
+    if sys.platform != "linux":
+        return None
+    import ctypes
+
+    prctl = ctypes.CDLL(None, use_errno=True).prctl
+    return lambda: prctl(_PR_SET_PDEATHSIG, signal.SIGTERM)
 
 
 def _stream_lines(chunks: Iterator[bytes] | IO[bytes], on_line: LineSink) -> None:

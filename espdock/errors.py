@@ -5,6 +5,9 @@ Only the CLI entry point turns these into exit codes; nothing below it exits.
 
 from __future__ import annotations
 
+import os
+import shutil
+
 
 class EspdockError(Exception):
     """Base of every error espdock expects and explains."""
@@ -63,6 +66,33 @@ class BuildFailed(EspdockError):
     """A package failed to build; names the packages and where their logs are."""
 
     exit_code = 5
+
+
+class DiskFull(EspdockError):
+    """A disk a build writes to (the workspace's, or the engine's) has no space left."""
+
+    exit_code = 7
+
+
+def disk_full(path: str | os.PathLike[str], low: int = 64 << 20) -> DiskFull | None:
+    """A DiskFull naming the filesystem that holds PATH when it has less than LOW bytes free, else None."""
+    where = os.path.abspath(path)
+    while not os.path.exists(where):
+        where = os.path.dirname(where)
+    try:
+        usage = shutil.disk_usage(where)
+    except OSError:
+        return None
+    if usage.free >= low:
+        return None
+    mount = where
+    while not os.path.ismount(mount):
+        mount = os.path.dirname(mount)
+    return DiskFull(
+        f"the disk holding {path} (the filesystem mounted at {mount}) is full: "
+        f"{usage.free >> 20} MiB free of {usage.total >> 20} MiB",
+        "Free space there, then build again: what was installed before is unchanged, and the build resumes.",
+    )
 
 
 class Interrupted(EspdockError):

@@ -74,6 +74,8 @@ def install_firmware(
     for stale in share.glob(f".{FIRMWARE_DIR}-*"):
         if stale != version_dir:
             shutil.rmtree(stale, ignore_errors=True)
+    for link in share.glob(f".{FIRMWARE_DIR}.*"):  # an unfinished _swap_symlink (espdock killed)
+        link.unlink(missing_ok=True)
     _write_colcon_metadata(package, manifest, prefix, run_depends)
     if owner is not None:
         _chown_tree(prefix, *owner)

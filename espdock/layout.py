@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+# The workspace marker and its settings, at the workspace root.
+CONFIG_FILE = "espdock.toml"
 # The images' recipes at the workspace root, and the directories they are built from besides
 # their Dockerfiles; docker/idf belongs to the IDF image only.
 ROS_DOCKERFILE = "Dockerfile.ros"

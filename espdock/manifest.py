@@ -15,7 +15,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from espdock import __version__
-from espdock.errors import WorkspaceError
+from espdock.errors import WorkspaceError, disk_full
+from espdock.events import Outcome, StepFinished
 from espdock.plan import EnsureImage, ImageSpec, Plan
 
 MANIFEST_NAME = "espdock-manifest.json"
@@ -55,14 +56,64 @@ def build_manifest(plan: Plan, target: str, install: Path) -> dict[str, object]:
     }
 
 
+def _temporary(install: Path) -> Path:
+    return install / f".{MANIFEST_NAME}.tmp"
+
+
+def _newer_than_stamps(manifest: Path, stamps: Iterable[Path]) -> bool:
+    written = manifest.stat().st_mtime_ns
+    return all(not stamp.is_file() or stamp.stat().st_mtime_ns <= written for stamp in stamps)
+
+
 def write_manifest(manifest: Mapping[str, object], install: Path) -> Path:
     """Write MANIFEST to INSTALL/espdock-manifest.json in one rename."""
     install.mkdir(parents=True, exist_ok=True)
     path = install / MANIFEST_NAME
-    tmp = path.with_name(f".{MANIFEST_NAME}.tmp")
+    tmp = _temporary(install)
     tmp.write_text(json.dumps(manifest, indent=1, sort_keys=True) + "\n")
     os.replace(tmp, path)
     return path
+
+
+def record_build(
+    plan: Plan, target: str, install: Path, built: bool, stamps: Iterable[Path], owner: tuple[int, int] | None
+) -> dict:
+    """The manifest of PLAN's finished build, written to INSTALL unless nothing was BUILT and the one
+    there is newer than every stamp file in STAMPS (every install tree was checked against its stamp:
+    re-hashing would be most of a no-change build's time; a stamp newer than the manifest is a build
+    killed before its manifest was written). OWNER: who the written file belongs to (as root)."""
+    existing = install / MANIFEST_NAME
+    _temporary(install).unlink(missing_ok=True)  # left by an espdock killed while writing
+    if existing.is_file() and not built and _newer_than_stamps(existing, stamps):
+        return read_manifest(existing)
+    manifest = build_manifest(plan, target, install)
+    try:
+        written = write_manifest(manifest, install)
+    except OSError as exc:
+        full = disk_full(install)
+        if full is not None:
+            _temporary(install).unlink(missing_ok=True)
+            raise full from exc
+        raise
+    if owner is not None:
+        os.chown(written, *owner)
+    return manifest
+
+
+def write_report(path: Path, finished: Iterable[StepFinished], manifest: dict | None, seconds: float) -> None:
+    """The --report JSON: every step's outcome, the build's, its duration, and the manifest (None on failure)."""
+    steps = list(finished)
+    failed = any(step.outcome is Outcome.FAILED for step in steps) or manifest is None
+    data = {
+        "outcome": "failed" if failed else "succeeded",
+        "seconds": round(seconds, 3),
+        "steps": [
+            {"step": s.step, "outcome": s.outcome.value, "seconds": round(s.seconds, 3), "detail": s.detail}
+            for s in steps
+        ],
+        "manifest": manifest,
+    }
+    path.write_text(json.dumps(data, indent=1, sort_keys=True) + "\n")
 
 
 @dataclass(frozen=True)

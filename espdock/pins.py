@@ -1,7 +1,8 @@
 """docker/idf/micro_ros_sources.txt: the commit of every repository libmicroros.a is built from.
 
-Pure text in, text out; the image build applies the pins (docker/idf/pinned_git.py) and
-records what it checked out, which `espdock micro-ros pin` writes back for "-" rows.
+Parsing and pinning are pure text in, text out; the image build applies the pins
+(docker/idf/pinned_git.py) and records what it checked out, which `espdock micro-ros pin`
+writes back for "-" rows (write_pins, pin_idf_image: the only functions here that touch files).
 """
 
 from __future__ import annotations
@@ -9,9 +10,11 @@ from __future__ import annotations
 import re
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
+from pathlib import Path
 
 from espdock.errors import WorkspaceError
-from espdock.layout import SOURCES_FILE
+from espdock.layout import IDF_DOCKERFILE, SOURCES_FILE
+from espdock.workspace import write_atomically
 
 # Where Dockerfile.idf keeps the commits the image build checked out.
 RESOLVED_FILE = "/opt/espdock/micro_ros_espidf_component/micro_ros_sources.resolved"
@@ -83,3 +86,44 @@ def pin_image_digest(dockerfile: str, arg: str, reference: str, digests: Iterabl
         return None
     line = re.compile(rf"^(\s*ARG\s+{re.escape(arg)}=){re.escape(reference)}[ \t]*$", re.MULTILINE)
     return line.sub(lambda m: f"{m.group(1)}{reference}@{digest}", dockerfile, count=1)
+
+
+def read_sources(root: Path) -> str:
+    """The text of ROOT's sources file; its absence is an error (it pins what micro-ROS is built from)."""
+    path = root / SOURCES_FILE
+    if not path.is_file():
+        raise WorkspaceError(f"{path} is missing", "It pins every repository micro-ROS is built from.")
+    return path.read_text()
+
+
+def write_pins(root: Path, resolved: Mapping[str, Source]) -> list[Source]:
+    """Pin ROOT's "-" rows to the commits in RESOLVED, in one rename; the rows pinned."""
+    text, pinned = pin_heads(read_sources(root), resolved)
+    if pinned:
+        write_atomically(root / SOURCES_FILE, text)
+    return pinned
+
+
+@dataclass(frozen=True)
+class IdfPin:
+    """What pin_idf_image did with the IDF image's reference."""
+
+    reference: str
+    digest: str | None  # None: the engine has no registry digest for it (built or loaded locally)
+    written: bool  # False with a digest: the reference comes from espdock.toml, pinned there by hand
+
+
+def pin_idf_image(root: Path, reference: str, digests: Iterable[str], from_config: bool) -> IdfPin | None:
+    """Pin ROOT's Dockerfile.idf `ARG IDF_IMAGE=REFERENCE` to the digest among DIGESTS (the pulled
+    image's RepoDigests); None when REFERENCE is pinned already. FROM_CONFIG: espdock.toml's
+    idf_image names it, so the Dockerfile is left alone."""
+    if "@sha256:" in reference:
+        return None
+    dockerfile = root / IDF_DOCKERFILE
+    pinned = pin_image_digest(dockerfile.read_text(), "IDF_IMAGE", reference, digests)
+    if pinned is None:
+        return IdfPin(reference, None, False)
+    digest = pinned.split(f"{reference}@", 1)[1].split()[0]
+    if not from_config:
+        write_atomically(dockerfile, pinned)
+    return IdfPin(reference, digest, not from_config)

@@ -463,6 +463,16 @@ def micro_ros_images(config: Config, inputs: BuildInputs, packages: tuple[Packag
     return {p.name: micro_ros_image(config, inputs, packages, p) for p in packages if p.kind is PackageKind.FIRMWARE}
 
 
+def workspace_micro_ros_images(
+    config: Config, inputs: BuildInputs, packages: tuple[Package, ...]
+) -> dict[str, ImageSpec]:
+    """micro_ros_images for the `micro-ros` commands: a workspace without firmware has none to act on."""
+    specs = micro_ros_images(config, inputs, packages)
+    if not specs:
+        raise WorkspaceError("this workspace has no firmware packages, so no micro-ROS library", "See `espdock new`.")
+    return specs
+
+
 def plan_build(
     workspace: Workspace,
     config: Config,

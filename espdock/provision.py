@@ -5,9 +5,12 @@ keys below at boot and falls back to its Kconfig options for what is absent, so
 one build serves every network and every agent address, and no build carries the
 Wi-Fi password.
 
-The password is held in memory, in a 0600 CSV and the NVS image generated from it,
-both in a private temporary directory outside the workspace that is removed on
-success, failure and Ctrl-C alike; it is never part of a command line.
+The image replaces the whole NVS partition: whatever else the board kept there (other
+namespaces, Wi-Fi calibration the app stored) is erased.
+
+The password is held in memory, in a CSV and the NVS image generated from it (both 0600
+from their creation), both in a private temporary directory outside the workspace that is
+removed on success, failure and Ctrl-C alike; it is never part of a command line.
 """
 
 from __future__ import annotations
@@ -17,6 +20,7 @@ import csv
 import io
 import ipaddress
 import os
+import re
 import shutil
 import struct
 import subprocess
@@ -43,6 +47,12 @@ _ENTRY_MAGIC = b"\xaa\x50"
 _MD5_MAGIC = b"\xeb\xeb"
 _TYPE_DATA, _SUBTYPE_NVS = 0x01, 0x02
 _TABLE_MAX = 0xC00
+
+_PORT = re.compile(r"[0-9]{1,5}")
+_BROADCAST = ipaddress.IPv4Address("255.255.255.255")
+_THIS_NETWORK = ipaddress.IPv4Network("0.0.0.0/8")  # "this host on this network": no destination
+# A password file is read no further than the longest valid password and its line end.
+_PASSWORD_READ_MAX = PASSWORD_MAX + len("\r\n")
 
 # Where the container sees the generated image.
 IMAGE_MOUNT = "/run/espdock-provision"
@@ -79,9 +89,17 @@ def parse_agent(text: str) -> tuple[str, int]:
             f"agent host '{host}' is not an IPv4 address",
             "The board cannot resolve host names: give the agent host's address (e.g. from `ip -4 addr`).",
         ) from None
-    if address.is_unspecified:
+    if address.is_unspecified or address in _THIS_NETWORK:
         raise ConfigError(f"agent host {host} is not an address the board can send to")
-    if not port_text.isdigit() or not 1 <= int(port_text) <= 65535:
+    if address.is_multicast or address == _BROADCAST or address.is_reserved:
+        raise ConfigError(
+            f"agent host {host} is not one host's address (broadcast, multicast or reserved)",
+            "The board sends to one agent: give the address of the host running micro_ros_agent.",
+        )
+    if address.is_loopback:
+        raise ConfigError(f"agent host {host} is the board itself (loopback)", "Give the agent host's LAN address.")
+    # ASCII digits only: str.isdigit() takes "²" (int() then fails) and other scripts' digits.
+    if not _PORT.fullmatch(port_text) or not 1 <= int(port_text) <= 65535:
         raise ConfigError(f"agent port '{port_text}' is not 1..65535", "micro_ros_agent's default is 8888.")
     return str(address), int(port_text)
 
@@ -133,13 +151,22 @@ def read_password(source: str | None, stdin: io.TextIOBase, prompt) -> str:
                 "Use --wifi-password-file FILE (- reads stdin; /dev/null for an open network).",
             )
         return prompt()
+    # One character more than a valid password can take tells a too-long one, so a file without
+    # an end (/dev/zero, a pipe that keeps writing) is refused instead of read into memory.
     if source == "-":
-        text = stdin.read()
+        text = stdin.read(_PASSWORD_READ_MAX + 1)
     else:
         try:
-            text = Path(source).read_text()
+            with open(source, encoding="utf-8") as handle:
+                text = handle.read(_PASSWORD_READ_MAX + 1)
         except (OSError, UnicodeDecodeError) as exc:
             raise ConfigError(f"cannot read the password file {source}: {getattr(exc, 'strerror', exc)}") from None
+    if len(text) > _PASSWORD_READ_MAX:
+        where = "stdin" if source == "-" else source
+        raise ConfigError(
+            f"{where} holds more than a Wi-Fi password: WPA2 passwords are {PASSWORD_MIN}..{PASSWORD_MAX} characters",
+            "Give a file with the password alone (one trailing newline allowed).",
+        )
     return text.removesuffix("\n").removesuffix("\r")
 
 
@@ -206,12 +233,14 @@ def nvs_image(settings: NetSettings, size: int, owner: tuple[int, int] | None = 
         with os.fdopen(descriptor, "w", encoding="utf-8") as handle:
             handle.write(nvs_csv(settings))
         argv = [sys.executable, "-m", "esp_idf_nvs_partition_gen", "generate", str(source), str(image), hex(size)]
-        result = subprocess.run(argv, capture_output=True, text=True, check=False, stdin=subprocess.DEVNULL)
+        # umask 077: the generator creates the image; it must never exist readable by others.
+        result = subprocess.run(
+            argv, capture_output=True, text=True, check=False, stdin=subprocess.DEVNULL, umask=0o077
+        )
         source.unlink()
         if result.returncode != 0 or not image.is_file():
             lines = (result.stdout + result.stderr).strip().splitlines()
             raise EspdockError("the NVS partition generator failed: " + " | ".join(lines[-3:]))
-        image.chmod(0o600)
         if owner is not None and os.geteuid() == 0:
             for path in (directory, image):
                 os.chown(path, *owner)

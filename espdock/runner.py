@@ -22,7 +22,7 @@ from typing import assert_never
 from espdock import bootstrap
 from espdock.config import Config, resolve_ca_bundle
 from espdock.engine import Engine, Mount, RegistryAnswer, RegistryStatus, RunSpec
-from espdock.errors import BuildFailed, EspdockError, RegistryError, WorkspaceError
+from espdock.errors import BuildFailed, EspdockError, RegistryError, WorkspaceError, disk_full
 from espdock.events import Emit, Outcome, StepFinished, StepNote, StepOutput, StepStarted
 from espdock.install import install_firmware
 from espdock.layout import WORKSPACE_MOUNT
@@ -57,6 +57,11 @@ EXTRA_CA_MOUNT = "/run/espdock/extra-ca.pem"
 WITH_CA = "/opt/espdock/with-ca.sh"
 FAILED_PACKAGE = re.compile(r"^Failed\s+<<<\s+(\S+)")
 BUILDKIT_STEP = re.compile(r"^#\d+ \[.*\] (?P<what>.+)$")
+
+
+def stamp_files(workspace: Workspace) -> tuple[Path, ...]:
+    """The files recording what the last build of each kind built (rewritten after each step)."""
+    return tuple(workspace.ws_dir / "build" / name for name in (ROS_STAMPS, FIRMWARE_STAMPS, INSTALL_STAMPS))
 
 
 def _first_line(text: str) -> str:
@@ -135,6 +140,10 @@ class Runner:
         them start at once."""
         results = []
         with workspace_lock(plan.workspace) if lock else contextlib.nullcontext():
+            # Before any step: a container an espdock killed earlier (kill -9, a lost terminal)
+            # may still hold the workspace's files open or write into them.
+            if any(isinstance(step, (ColconBuild, IdfBuild)) for step in plan.steps):
+                self._engine.sweep({LABEL_WORKSPACE: str(plan.workspace.root)})
             for step in plan.steps:
                 results.append(self._run_step(plan.workspace, step))
         return results
@@ -143,7 +152,15 @@ class Runner:
         self._emit(StepStarted(step.name))
         started = time.monotonic()
         try:
-            outcome, detail = self._dispatch(workspace, step)
+            try:
+                outcome, detail = self._dispatch(workspace, step)
+            except (EspdockError, OSError) as exc:
+                # A build that failed for want of space says so (a compiler's "No space left"
+                # is easy to miss in its log); espdock's own writes fail with ENOSPC.
+                full = disk_full(workspace.ws_dir)
+                if full is not None:
+                    raise full from exc
+                raise
         except BaseException as exc:
             if isinstance(exc, EspdockError):
                 detail = exc.message.splitlines()[0]
@@ -215,7 +232,7 @@ class Runner:
                 on_line=on_line,
                 no_cache=step.force,
             )
-        self._record_packages(step)
+        self._record_packages(workspace, step)
         self._publish(step)
         return Outcome.BUILT, spec.tag
 
@@ -240,11 +257,12 @@ class Runner:
             self._emit(StepNote(step.name, f"{step.stable_tag} is now {spec.tag}"))
         return outcome, f"{spec.tag}, {step.stable_tag}"
 
-    def _record_packages(self, step: EnsureImage) -> None:
+    def _record_packages(self, workspace: Workspace, step: EnsureImage) -> None:
         """The image's Debian package set (what its apt installs gave today) as labels, as the base has."""
         listing: list[str] = []
         query = ("dpkg-query", "-W", "-f", "${Package}=${Version}\n")
-        if self._engine.run(RunSpec(image=step.spec.tag, argv=query, workdir="/"), listing.append) != 0:
+        labels = ((LABEL_WORKSPACE, str(workspace.root)), ("io.espdock.step", "dpkg"))
+        if self._engine.run(RunSpec(image=step.spec.tag, argv=query, workdir="/", labels=labels), listing.append) != 0:
             self._emit(StepNote(step.name, "warning: no dpkg in the image: its package set is not recorded"))
             return
         # An entrypoint (the IDF image's sources export.sh) may print before the command runs.

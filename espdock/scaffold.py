@@ -12,6 +12,7 @@ from pathlib import Path
 
 from espdock.defaults import default_file
 from espdock.errors import ConfigError, WorkspaceError
+from espdock.layout import CONFIG_FILE
 from espdock.workspace import Package, PackageKind, Workspace
 
 # REP 144: lower case letters, digits and underscores, starting with a letter, no "__".
@@ -176,7 +177,6 @@ def init_workspace(directory: Path, owner: tuple[int, int] | None = None) -> tup
     """Make DIRECTORY (empty, or an existing colcon workspace) an espdock workspace: a commented
     espdock.toml with the detected layout, and src/ where there is no package path yet. Only adds
     files: an existing espdock.toml is left as it is. Returns the workspace and what was created."""
-    from espdock.config import CONFIG_FILE
     from espdock.workspace import CLASSIC_LAYOUT, COLCON_LAYOUT
 
     root = directory.resolve()

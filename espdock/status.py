@@ -7,7 +7,7 @@ from collections.abc import Mapping
 from datetime import UTC, datetime
 
 from espdock.engine import Engine, ImageInfo, RunSpec
-from espdock.errors import EspdockError
+from espdock.errors import EspdockError, WorkspaceError
 from espdock.pins import FOLLOW_HEAD, RESOLVED_FILE, Source, parse_resolved, parse_sources
 from espdock.plan import LABEL_INPUTS, ImageSpec, derive_interface_packages
 from espdock.workspace import Package
@@ -23,6 +23,24 @@ def built_from(engine: Engine, image: str) -> dict[str, Source]:
             "Rebuild it with `espdock micro-ros rebuild`.",
         )
     return parse_resolved(lines)
+
+
+def resolved_sources(engine: Engine, specs: Mapping[str, ImageSpec]) -> dict[str, Source]:
+    """The commits the built micro-ROS images of SPECS were built from, by repository; images that
+    disagree on one are an error (no single pin fits both)."""
+    images = [spec.tag for spec in {s.key: s for s in specs.values()}.values() if engine.image(spec.tag)]
+    if not images:
+        raise WorkspaceError("no micro-ROS image of this workspace is built yet", "Run `espdock build` first.")
+    resolved: dict[str, Source] = {}
+    for image in images:
+        for key, source in built_from(engine, image).items():
+            if key in resolved and resolved[key].commit != source.commit:
+                raise WorkspaceError(
+                    f"the micro-ROS images disagree on {source.url}: {resolved[key].commit} and {source.commit}",
+                    "Pin it by hand in docker/idf/micro_ros_sources.txt.",
+                )
+            resolved[key] = source
+    return resolved
 
 
 def micro_ros_report(

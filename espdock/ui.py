@@ -11,7 +11,8 @@ from rich.table import Table
 from rich.text import Text
 
 from espdock.events import Event, Outcome, StepFinished, StepNote, StepOutput, StepStarted
-from espdock.layout import firmware_install_dir
+from espdock.layout import IDF_DOCKERFILE, SOURCES_FILE, firmware_install_dir
+from espdock.pins import IdfPin, Source
 from espdock.plan import ColconBuild, EnsureBaseImage, EnsureImage, IdfBuild, InstallFirmware, Plan, RuntimeImage
 from espdock.workspace import Package, Workspace
 
@@ -183,6 +184,24 @@ def render_micro_ros_status(console: Console, report: dict) -> None:
                 style="yellow",
             )
         )
+
+
+def render_pins(console: Console, pinned: list[Source], idf: IdfPin | None) -> None:
+    """`espdock micro-ros pin`: the sources it pinned, and what became of the IDF image's reference."""
+    for source in pinned:
+        console.print(f"pinned {source.url} ({source.branch}) at {source.commit}")
+    if pinned:
+        console.print(f"wrote {SOURCES_FILE}; the next build makes images under new keys")
+    else:
+        console.print("every micro-ROS source the images were built from is pinned already")
+    if idf is None:
+        return
+    if idf.digest is None:
+        console.print(f"{idf.reference} is pinned by tag only: this engine did not pull it from a registry")
+    elif not idf.written:
+        console.print(f"{idf.reference} comes from idf_image; pin it there: {idf.reference}@{idf.digest}")
+    else:
+        console.print(f"pinned IDF_IMAGE in {IDF_DOCKERFILE} to its digest")
 
 
 def render_packages(console: Console, workspace: Workspace, packages: tuple[Package, ...]) -> None:

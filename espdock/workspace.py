@@ -10,10 +10,10 @@ from dataclasses import dataclass, field
 from enum import StrEnum
 from pathlib import Path
 
-from espdock.config import CONFIG_FILE
 from espdock.defaults import defaults_root
 from espdock.errors import WorkspaceError
 from espdock.layout import (
+    CONFIG_FILE,
     IDF_DOCKERFILE,
     IDF_INPUT_DIR,
     IMAGE_INPUT_DIR,

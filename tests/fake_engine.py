@@ -25,6 +25,7 @@ class FakeEngine:
     builds: list[dict] = field(default_factory=list)
     runs: list[RunSpec] = field(default_factory=list)
     removed: list[Mapping[str, str]] = field(default_factory=list)
+    swept: list[Mapping[str, str]] = field(default_factory=list)
     registry: dict[str, ImageInfo] = field(default_factory=dict)
     registry_answer: RegistryStatus | None = None  # every registry call answers this, when set
     pushed: list[str] = field(default_factory=list)
@@ -82,4 +83,8 @@ class FakeEngine:
 
     def remove_containers(self, labels: Mapping[str, str]) -> int:
         self.removed.append(dict(labels))
+        return 0
+
+    def sweep(self, labels: Mapping[str, str]) -> int:
+        self.swept.append(dict(labels))
         return 0

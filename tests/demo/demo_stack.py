@@ -140,6 +140,12 @@ class DemoStack:
     def restart_count(self, service: str) -> int:
         return int(self.inspect(service)["RestartCount"])
 
+    def restart_counts(self) -> dict[str, int]:
+        """How often Docker restarted each service's container (its restart policy, not a `compose start`)."""
+        ids = self.compose("ps", "-a", "-q").stdout.split()
+        out = subprocess.run(["docker", "inspect", *ids], capture_output=True, text=True, check=True).stdout
+        return {c["Config"]["Labels"]["com.docker.compose.service"]: int(c["RestartCount"]) for c in json.loads(out)}
+
     def health(self, service: str) -> str:
         state = self.inspect(service)["State"]
         return state.get("Health", {}).get("Status") or state["Status"]

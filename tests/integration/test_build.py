@@ -204,7 +204,8 @@ def test_a_failing_package_is_named_with_its_log(engine, tmp_path):
     assert leftover_containers(engine, root) == []
 
 
-def test_ctrl_c_stops_and_removes_the_container_and_the_next_build_works(engine, tmp_path):
+def _slow_workspace(tmp_path: Path) -> Path:
+    """A workspace whose slow_pkg keeps colcon busy for five minutes."""
     root = copy_workspace(tmp_path / "ws-root")
     slow = root / "ws/src/slow_pkg"
     slow.mkdir()
@@ -217,29 +218,63 @@ def test_ctrl_c_stops_and_removes_the_container_and_the_next_build_works(engine,
     (slow / "CMakeLists.txt").write_text(
         "cmake_minimum_required(VERSION 3.16)\nproject(slow_pkg NONE)\nexecute_process(COMMAND sleep 300)\n"
     )
+    return root
+
+
+def _start_build_until_colcon_runs(engine, root: Path) -> subprocess.Popen:
+    """`espdock build` in ROOT, started as a shell without job control starts a background
+    command: with SIGINT ignored (Python then never raises KeyboardInterrupt by itself)."""
     process = subprocess.Popen(
-        [sys.executable, "-m", "espdock", "build"], cwd=root, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+        [sys.executable, "-m", "espdock", "build"],
+        cwd=root,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_IGN),  # noqa: PLW1509 (no threads here)
     )
+    deadline = time.monotonic() + 300
+    while not leftover_containers(engine, root):
+        assert process.poll() is None, process.communicate()
+        assert time.monotonic() < deadline, "the build container never started"
+        time.sleep(0.2)
+    time.sleep(3)  # let colcon get into the slow package
+    return process
+
+
+def test_ctrl_c_stops_and_removes_the_container_and_the_next_build_works(engine, tmp_path):
+    root = _slow_workspace(tmp_path)
+    process = _start_build_until_colcon_runs(engine, root)
     try:
-        deadline = time.monotonic() + 300
-        while not leftover_containers(engine, root):
-            assert process.poll() is None, process.communicate()
-            assert time.monotonic() < deadline, "the build container never started"
-            time.sleep(0.2)
-        time.sleep(3)  # let colcon get into the slow package
+        sent = time.monotonic()
         process.send_signal(signal.SIGINT)
         out, err = process.communicate(timeout=60)
+        took = time.monotonic() - sent
     finally:
         if process.poll() is None:
             process.kill()
     assert process.returncode == 130, out + err
+    assert took < 10, f"Ctrl-C took {took:.1f} s"
     assert "interrupted" in err
     assert leftover_containers(engine, root) == []
 
-    shutil.rmtree(slow)
+    shutil.rmtree(root / "ws/src/slow_pkg")
     result = espdock("build", cwd=root)
     assert result.returncode == 0, result.stdout + result.stderr
     assert (root / "ws/install/custom_interface/share/custom_interface/package.xml").is_file()
+
+
+def test_a_killed_build_leaves_a_container_the_next_build_removes(engine, tmp_path):
+    root = _slow_workspace(tmp_path)
+    process = _start_build_until_colcon_runs(engine, root)
+    process.kill()
+    process.communicate()
+    (left,) = leftover_containers(engine, root)
+
+    shutil.rmtree(root / "ws/src/slow_pkg")
+    result = espdock("build", cwd=root)
+    assert result.returncode == 0, result.stdout + result.stderr
+    assert left not in leftover_containers(engine, root)
+    assert leftover_containers(engine, root) == []
 
 
 def test_a_user_without_engine_access_gets_a_clear_message(engine, shared_dir, wheel_espdock):

@@ -3,11 +3,22 @@
 from __future__ import annotations
 
 import json
+import os
 
 import pytest
 
 from espdock.errors import WorkspaceError
-from espdock.manifest import MANIFEST_NAME, Difference, compare, file_hashes, read_manifest, write_manifest
+from espdock.manifest import (
+    MANIFEST_NAME,
+    Difference,
+    compare,
+    file_hashes,
+    read_manifest,
+    record_build,
+    write_manifest,
+)
+from espdock.plan import Plan
+from espdock.workspace import Workspace
 
 
 def tree(tmp_path):
@@ -55,3 +66,22 @@ def test_something_that_is_no_manifest_is_refused(tmp_path):
     bad.write_text("{")
     with pytest.raises(WorkspaceError, match="not an espdock manifest"):
         read_manifest(bad)
+
+
+def test_a_build_killed_before_its_manifest_was_written_gets_a_new_one(tmp_path):
+    install = tree(tmp_path)
+    stamp = tmp_path / "build/.espdock-colcon-stamps.json"
+    stamp.parent.mkdir()
+    plan = Plan(Workspace(tmp_path))
+    first = record_build(plan, "esp32", install, True, [stamp], None)
+    # Nothing built, nothing newer than the manifest: the manifest stands as it is.
+    (install / "pkg/share/pkg/package.xml").write_text("<package>changed by hand</package>")
+    assert record_build(plan, "esp32", install, False, [stamp], None) == first
+    # A step that finished (its stamp written) after the manifest: a build killed before its manifest.
+    (install / f".{MANIFEST_NAME}.tmp").write_text("{half")
+    stamp.write_text("{}")
+    os.utime(stamp, ns=((install / MANIFEST_NAME).stat().st_mtime_ns + 1,) * 2)
+    again = record_build(plan, "esp32", install, False, [stamp], None)
+    assert again["files"] == file_hashes(install) != first["files"]
+    assert read_manifest(install / MANIFEST_NAME) == again
+    assert not (install / f".{MANIFEST_NAME}.tmp").exists()

@@ -3,7 +3,17 @@
 import pytest
 
 from espdock.errors import WorkspaceError
-from espdock.pins import Source, parse_resolved, parse_sources, pin_heads, pin_image_digest
+from espdock.pins import (
+    IdfPin,
+    Source,
+    parse_resolved,
+    parse_sources,
+    pin_heads,
+    pin_idf_image,
+    pin_image_digest,
+    read_sources,
+    write_pins,
+)
 from tests.conftest import REPO
 
 A, B = "a" * 40, "b" * 40
@@ -67,3 +77,38 @@ def test_a_registry_with_a_port_is_not_mistaken_for_a_tag():
     text = "ARG IDF_IMAGE=127.0.0.1:5000/idf\n"
     pinned = pin_image_digest(text, "IDF_IMAGE", "127.0.0.1:5000/idf", [f"127.0.0.1:5000/idf@{DIGEST}"])
     assert pinned == f"ARG IDF_IMAGE=127.0.0.1:5000/idf@{DIGEST}\n"
+
+
+def _workspace(tmp_path, sources: str = TEXT):
+    (tmp_path / "docker/idf").mkdir(parents=True)
+    (tmp_path / "docker/idf/micro_ros_sources.txt").write_text(sources)
+    (tmp_path / "Dockerfile.idf").write_text(DOCKERFILE)
+    return tmp_path
+
+
+def test_pinning_writes_the_heads_back_and_a_second_run_finds_nothing_to_pin(tmp_path):
+    root = _workspace(tmp_path)
+    resolved = {s.key: s for s in [Source("https://github.com/ros2/rclc", "jazzy", B)]}
+    assert write_pins(root, resolved) == [Source("https://github.com/ros2/rclc", "jazzy", B)]
+    assert f"https://github.com/ros2/rclc jazzy {B}\n" in read_sources(root)
+    assert write_pins(root, resolved) == []
+
+
+def test_the_idf_image_digest_goes_into_the_dockerfile_unless_espdock_toml_names_the_image(tmp_path):
+    root = _workspace(tmp_path)
+    digests = [f"espressif/idf@{DIGEST}"]
+    assert pin_idf_image(root, "espressif/idf:v5.3.5", digests, from_config=True) == IdfPin(
+        "espressif/idf:v5.3.5", DIGEST, False
+    )
+    assert (root / "Dockerfile.idf").read_text() == DOCKERFILE
+    assert pin_idf_image(root, "espressif/idf:v5.3.5", digests, from_config=False).written
+    assert f"espressif/idf:v5.3.5@{DIGEST}" in (root / "Dockerfile.idf").read_text()
+    assert pin_idf_image(root, f"espressif/idf:v5.3.5@{DIGEST}", digests, from_config=False) is None
+    assert pin_idf_image(root, "espressif/idf:v5.3.5", [], from_config=False) == IdfPin(
+        "espressif/idf:v5.3.5", None, False
+    )
+
+
+def test_a_workspace_without_its_sources_file_is_told_what_it_is_for(tmp_path):
+    with pytest.raises(WorkspaceError, match=r"micro_ros_sources\.txt is missing"):
+        read_sources(tmp_path)

@@ -72,6 +72,15 @@ def test_good_settings_pass():
         ("lab", "", "10.0.0.2:0", 0, "port '0' is not 1..65535"),
         ("lab", "", "10.0.0.2:65536", 0, "port '65536' is not 1..65535"),
         ("lab", "", "10.0.0.2:http", 0, "port 'http' is not 1..65535"),
+        ("lab", "", "10.0.0.2:²", 0, "port '²' is not 1..65535"),
+        ("lab", "", "10.0.0.2:\u0668\u0668\u0668\u0668", 0, "is not 1..65535"),  # Arabic-Indic 8888
+        ("lab", "", "10.0.0.2:+8888", 0, "is not 1..65535"),
+        ("lab", "", "255.255.255.255:8888", 0, "not one host's address"),
+        ("lab", "", "224.0.0.1:8888", 0, "not one host's address"),
+        ("lab", "", "239.255.0.1:8888", 0, "not one host's address"),
+        ("lab", "", "240.0.0.1:8888", 0, "not one host's address"),
+        ("lab", "", "0.1.2.3:8888", 0, "not an address the board can send to"),
+        ("lab", "", "127.0.0.1:8888", 0, "the board itself"),
         ("lab", "", "10.0.0.2:8888", 233, "domain id 233 is not 0..232"),
         ("lab", "", "10.0.0.2:8888", -1, "domain id -1 is not 0..232"),
     ],
@@ -113,14 +122,36 @@ def test_password_sources(tmp_path):
         read_password(str(tmp_path / "missing"), Stdin(), lambda: "x")
 
 
+def test_a_password_source_without_end_is_read_no_further_than_a_password(tmp_path):
+    with pytest.raises(ConfigError, match="holds more than a Wi-Fi password") as caught:
+        read_password("/dev/zero", Stdin(), lambda: "x")
+    assert caught.value.exit_code == 2
+
+    class Endless(Stdin):
+        def read(self, size: int = -1) -> str:
+            assert 0 < size < 100, "stdin read without a limit"
+            return "p" * size
+
+    with pytest.raises(ConfigError, match="stdin holds more than"):
+        read_password("-", Endless(), lambda: "x")
+    longest = tmp_path / "pw"
+    longest.write_text("x" * 63 + "\r\n")
+    assert read_password(str(longest), Stdin(), lambda: "x") == "x" * 63
+
+
 def test_the_nvs_image_holds_the_settings_in_the_firmwares_namespace():
     settings = NetSettings('#lab, "net"', "p@ss,word #1", "10.0.0.2", 9999, 42)
-    with nvs_image(settings, 0x6000) as image:
-        data = image.read_bytes()
-        assert len(data) == 0x6000
-        assert stat.S_IMODE(image.stat().st_mode) == 0o600
-        assert stat.S_IMODE(image.parent.stat().st_mode) == 0o700
-        assert [p.name for p in image.parent.iterdir()] == [image.name], "the CSV is gone once the image exists"
+    previous = os.umask(0o022)  # a usual umask: a file created without care would be 0644
+    try:
+        with nvs_image(settings, 0x6000) as image:
+            data = image.read_bytes()
+            assert len(data) == 0x6000
+            # Nothing changes its mode after the generator wrote it: this is how it was created.
+            assert stat.S_IMODE(image.stat().st_mode) == 0o600
+            assert stat.S_IMODE(image.parent.stat().st_mode) == 0o700
+            assert [p.name for p in image.parent.iterdir()] == [image.name], "the CSV is gone once the image exists"
+    finally:
+        os.umask(previous)
     assert read_nvs(data) == {
         "espdock": {
             "ssid": '#lab, "net"',

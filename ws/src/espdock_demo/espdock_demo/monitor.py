@@ -45,8 +45,14 @@ class DemoMonitor(Node):
     def watch(self) -> None:
         """Say at once when a node goes silent and when it is back."""
         states = self.health.report()
+        logger = self.get_logger()
         for line in self.health.changes(self.states, states):
-            (self.get_logger().warning if "down" in line else self.get_logger().info)(line)
+            # One call site per severity: rclpy refuses a call site whose severity changes
+            # ("Logger severity cannot be changed between calls"), which killed the monitor.
+            if "down" in line:
+                logger.warning(line)
+            else:
+                logger.info(line)
         self.states = states
 
     def summary(self) -> None:

@@ -1,0 +1,108 @@
+"""Ctrl-C and SIGTERM: the first ends any command within GRACE seconds, cleaning up; a second at once.
+
+espdock installs its own handler because Python turns SIGINT into KeyboardInterrupt only
+when SIGINT was at its default at start-up: a process started in the background by a shell
+without job control (`make test &` in a script, many CI runners) inherits SIGINT ignored,
+and such an espdock then never answered Ctrl-C or `kill -INT` at all.
+
+The first signal raises KeyboardInterrupt in the main thread, so `finally` blocks stop and
+remove containers; a watchdog ends the process if that cleanup is not done within GRACE
+seconds (an engine that does not answer a stop), and a second signal ends it at once.
+Whatever is left then carries this process's identity in a label, which the next command
+sees is dead (engine.Engine.sweep).
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import sys
+import threading
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+from typing import NoReturn
+
+GRACE = 8.0  # seconds between the first signal and the exit, however cleanup goes
+EXIT_CODE = 130  # 128 + SIGINT, as shells report it
+
+# Only the main thread reads and writes this (Python runs signal handlers there).
+_state: dict[str, float | int | bool | None] = {"first": None, "held": 0, "pending": False}
+
+
+def install() -> None:
+    """Handle SIGINT and SIGTERM as described above, whatever their disposition was at start-up."""
+    signal.signal(signal.SIGINT, _on_signal)
+    signal.signal(signal.SIGTERM, _on_signal)
+
+
+def finish(code: int) -> NoReturn:
+    """End the process with CODE once the command is over: flush what it printed, and leave
+    without Python's shutdown, which resets signal handlers to the default: a Ctrl-C then would
+    kill the process by SIGINT instead of ending it with EXIT_CODE."""
+    signal.signal(signal.SIGINT, _exit_now)  # first: the flush below can wait on a full pipe
+    signal.signal(signal.SIGTERM, _exit_now)
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (OSError, ValueError):
+            pass
+    os._exit(code)
+
+
+def _exit_now(signum: int, frame: object) -> None:
+    os._exit(EXIT_CODE)
+
+
+def interrupted() -> bool:
+    """Whether a first signal arrived."""
+    return _state["first"] is not None
+
+
+def _say(text: str) -> None:
+    # os.write: the main thread may be inside a buffered write to stderr at this moment.
+    try:
+        os.write(2, f"\nerror: {text}\n".encode())
+    except OSError:
+        pass
+
+
+def _give_up() -> None:
+    _say(
+        f"interrupted; cleaning up took longer than {GRACE:.0f} s, so espdock stopped waiting "
+        "(the next espdock command removes any container left behind)"
+    )
+    os._exit(EXIT_CODE)
+
+
+def _on_signal(signum: int, frame: object) -> None:
+    if _state["first"] is not None:
+        _say("interrupted again: exiting now (the next espdock command removes any container left behind)")
+        os._exit(EXIT_CODE)
+    _state["first"] = time.monotonic()
+    watchdog = threading.Timer(GRACE, _give_up)
+    watchdog.daemon = True
+    watchdog.start()
+    if _state["held"]:
+        _state["pending"] = True
+        return
+    raise KeyboardInterrupt
+
+
+@contextmanager
+def held() -> Iterator[None]:
+    """Hold a first signal until the block ends, then raise it: for an engine call whose answer
+    cleanup needs (the id of a container being created). A second signal still exits at once."""
+    _state["held"] = int(_state["held"] or 0) + 1
+    try:
+        yield
+    finally:
+        _state["held"] = int(_state["held"] or 0) - 1
+        if _state["pending"] and not _state["held"]:
+            _state["pending"] = False
+            raise KeyboardInterrupt
+
+
+def reset() -> None:
+    """Forget a first signal (tests run several commands in one process)."""
+    _state.update(first=None, held=0, pending=False)

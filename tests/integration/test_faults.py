@@ -1,0 +1,262 @@
+"""What the machine does to a build: the engine going away, a full disk. Nothing may leave the
+workspace or the engine in a state the next command cannot handle.
+
+The shared engine is never stopped or filled: the engine tests start a private dockerd of
+their own (own socket, data root, exec root, pid file, no iptables), load the images they
+need into it with `docker save`/`load`, and point espdock at it with DOCKER_HOST.
+
+That dockerd runs in a network namespace of its own (`unshare --net`): its bridge, veths
+and sysctls are not the machine's. Not `--bridge=none` on the machine's network: Docker
+20.10 then deletes the machine's docker0 (daemon_unix.go, removeDefaultBridgeInterface),
+which is the shared engine's.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from espdock.manifest import file_hashes
+from tests.conftest import copy_workspace, espdock, ros_build_tag
+
+pytestmark = [pytest.mark.engine, pytest.mark.slow]
+
+
+def mount_tmpfs(where: Path, size: str) -> None:
+    where.mkdir(parents=True, exist_ok=True)
+    mounted = subprocess.run(["mount", "-t", "tmpfs", "-o", f"size={size}", "tmpfs", str(where)],
+                             capture_output=True, text=True, check=False)  # fmt: skip
+    if mounted.returncode != 0:
+        pytest.skip(f"cannot mount a tmpfs here (needs root): {mounted.stderr.strip()}")
+
+
+@pytest.fixture
+def small_disk(tmp_path: Path) -> Iterator[Path]:
+    """A 300 MB filesystem of this test's own."""
+    disk = tmp_path / "disk"
+    mount_tmpfs(disk, "300m")
+    yield disk
+    subprocess.run(["umount", "--lazy", str(disk)], check=False)
+
+
+def add_package(root: Path, name: str, cmake: str, depend: str | None = None) -> Path:
+    """A plain CMake package NAME whose configure step runs CMAKE."""
+    package = root / "ws/src" / name
+    package.mkdir()
+    depends = f"  <depend>{depend}</depend>\n" if depend else ""
+    package.joinpath("package.xml").write_text(
+        f'<?xml version="1.0"?>\n<package format="3">\n  <name>{name}</name>\n  <version>0.0.0</version>\n'
+        f'  <description>{name}</description>\n  <maintainer email="dev@example.com">dev</maintainer>\n'
+        f"  <license>Apache-2.0</license>\n  <buildtool_depend>cmake</buildtool_depend>\n{depends}"
+        "  <export><build_type>cmake</build_type></export>\n</package>\n"
+    )
+    package.joinpath("CMakeLists.txt").write_text(
+        f"cmake_minimum_required(VERSION 3.16)\nproject({name} NONE)\n{cmake}"
+    )
+    return package
+
+
+# Writes into its build directory until the disk is full, failing as a compiler would.
+FILL_DISK = """execute_process(COMMAND dd if=/dev/zero of=${CMAKE_BINARY_DIR}/fill bs=1M count=100000
+                RESULT_VARIABLE written ERROR_QUIET)
+if(written)
+  message(FATAL_ERROR "could not write ${CMAKE_BINARY_DIR}/fill: ${written}")
+endif()
+"""
+
+
+def unchanged(installed: dict[str, str], now: dict[str, str]) -> bool:
+    """Whether every file of INSTALLED is there as it was (colcon may add a failed package's metadata)."""
+    return {path: now.get(path) for path in installed} == installed
+
+
+def test_a_full_workspace_disk_is_named_and_the_install_survives(engine, small_disk):
+    root = copy_workspace(small_disk / "ws-root")
+    for _ in range(2):  # twice: setuptools' egg-info lists more files on a rebuild than on a first build
+        first = espdock("build", "--force", cwd=root)
+        assert first.returncode == 0, first.stdout + first.stderr
+    installed = file_hashes(root / "ws/install")
+
+    hog = add_package(root, "disk_hog", FILL_DISK, depend="custom_interface")
+    full = espdock("build", cwd=root)
+    assert full.returncode == 7, full.stdout + full.stderr
+    assert f"the disk holding {root / 'ws'}" in full.stderr
+    assert f"mounted at {small_disk}" in full.stderr
+    assert "is full" in full.stderr
+    assert unchanged(installed, file_hashes(root / "ws/install"))
+
+    shutil.rmtree(hog)
+    shutil.rmtree(root / "ws/build/disk_hog")  # the user frees the space
+    again = espdock("build", cwd=root)
+    assert again.returncode == 0, again.stdout + again.stderr
+    assert unchanged(installed, file_hashes(root / "ws/install"))
+
+
+class PrivateEngine:
+    """A dockerd of this test's own: nothing it does touches the shared engine."""
+
+    def __init__(self, home: Path) -> None:
+        self.home = home
+        self.socket = home / "docker.sock"
+        self.env = {**os.environ, "DOCKER_HOST": f"unix://{self.socket}"}
+        self.process: subprocess.Popen | None = None
+        self.containerd: subprocess.Popen | None = None
+
+    def start_containerd(self) -> None:
+        """containerd as a service of its own, as Debian runs it: it outlives a killed dockerd."""
+        (self.home / "containerd.toml").write_text(
+            f'version = 2\nroot = "{self.home}/containerd/root"\nstate = "{self.home}/containerd/state"\n'
+            f'disabled_plugins = ["io.containerd.grpc.v1.cri"]\n[grpc]\n  address = "{self.home}/containerd.sock"\n'
+        )
+        with open(self.home / "containerd.log", "ab") as log:
+            argv = ["containerd", "--config", str(self.home / "containerd.toml")]
+            self.containerd = subprocess.Popen(argv, stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
+        deadline = time.monotonic() + 60
+        while not (self.home / "containerd.sock").exists():
+            if self.containerd.poll() is not None or time.monotonic() > deadline:
+                pytest.skip(f"containerd did not start here: {(self.home / 'containerd.log').read_text()[-1500:]}")
+            time.sleep(0.2)
+
+    def start(self) -> None:
+        if self.containerd is None:
+            self.start_containerd()
+        (self.home / "daemon.json").write_text("{}")  # not the machine's /etc/docker/daemon.json
+        argv = ["unshare", "--net", "--", "dockerd", "--host", f"unix://{self.socket}",
+                "--data-root", str(self.home / "data"), "--exec-root", str(self.home / "exec"),
+                "--pidfile", str(self.home / "docker.pid"), "--config-file", str(self.home / "daemon.json"),
+                "--containerd", str(self.home / "containerd.sock"),
+                "--iptables=false", "--ip-masq=false", "--ip-forward=false",
+                "--cgroup-parent", f"/espdock-test-{self.home.name}"]  # fmt: skip
+        with open(self.home / "dockerd.log", "ab") as log:
+            self.process = subprocess.Popen(argv, stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
+        deadline = time.monotonic() + 60
+        while self.docker("version", check=False).returncode != 0:
+            if self.process.poll() is not None or time.monotonic() > deadline:
+                pytest.skip(f"a private dockerd did not start here: {(self.home / 'dockerd.log').read_text()[-1500:]}")
+            time.sleep(0.5)
+
+    def kill(self) -> None:
+        """What the engine going away looks like to its clients: SIGKILL, no shutdown."""
+        assert self.process is not None
+        self.process.send_signal(signal.SIGKILL)
+        self.process.wait()
+
+    def stop(self) -> None:
+        for process in (self.process, self.containerd):
+            if process is not None and process.poll() is None:
+                process.terminate()
+                try:
+                    process.wait(timeout=30)
+                except subprocess.TimeoutExpired:
+                    process.kill()
+                    process.wait()
+
+    def docker(self, *args: str, check: bool = True, **options) -> subprocess.CompletedProcess:
+        return subprocess.run(["docker", *args], env=self.env, capture_output=True, text=True, check=check,
+                              **options)  # fmt: skip
+
+    def load(self, *images: str) -> None:
+        """IMAGES from the shared engine, copied in with docker save | docker load."""
+        with subprocess.Popen(["docker", "save", *images], stdout=subprocess.PIPE) as save:
+            loaded = subprocess.run(["docker", "load"], stdin=save.stdout, env=self.env, capture_output=True,
+                                    check=False)  # fmt: skip
+        assert save.returncode == 0 and loaded.returncode == 0, loaded.stderr
+
+    def containers(self, root: Path) -> list[str]:
+        listed = self.docker("ps", "-aq", "--filter", f"label=io.espdock.workspace={root}")
+        return listed.stdout.split()
+
+
+@pytest.fixture
+def private_engine() -> Iterator[PrivateEngine]:
+    if shutil.which("dockerd") is None or shutil.which("unshare") is None:
+        pytest.skip("no dockerd or unshare here")
+    home = Path(tempfile.mkdtemp(prefix="ed-", dir="/tmp"))  # short: socket paths have a length limit
+    engine = PrivateEngine(home)
+    try:
+        yield engine
+    finally:
+        engine.stop()
+        subprocess.run(["umount", "--lazy", str(home / "data")], capture_output=True, check=False)
+        shutil.rmtree(home, ignore_errors=True)
+
+
+def slow_package(root: Path) -> Path:
+    return add_package(root, "slow_pkg", "execute_process(COMMAND sleep 300)\n")
+
+
+def test_the_engine_going_away_mid_build_is_exit_3_and_the_next_build_just_works(engine, private_engine, tmp_path):
+    root = copy_workspace(tmp_path / "ws-root")
+    private_engine.start()
+    private_engine.load("debian:bookworm-slim", ros_build_tag(root))
+    slow = slow_package(root)
+    build = subprocess.Popen([sys.executable, "-m", "espdock", "build"], cwd=root, env=private_engine.env,
+                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)  # fmt: skip
+    try:
+        deadline = time.monotonic() + 300
+        while not private_engine.containers(root):
+            assert build.poll() is None, build.communicate()
+            assert time.monotonic() < deadline, "the build container never started"
+            time.sleep(0.2)
+        time.sleep(3)
+        private_engine.kill()
+        out, err = build.communicate(timeout=60)
+    finally:
+        if build.poll() is None:
+            build.kill()
+    assert build.returncode == 3, out + err
+    assert "went away" in err and str(private_engine.socket) in err
+    assert "Traceback" not in err
+
+    private_engine.start()
+    shutil.rmtree(slow)
+    again = espdock("build", cwd=root, env=private_engine.env)
+    assert again.returncode == 0, again.stdout + again.stderr
+    assert private_engine.containers(root) == []
+    assert (root / "ws/install/custom_interface/share/custom_interface/package.xml").is_file()
+
+
+def test_an_image_build_on_a_full_engine_disk_says_so(engine, private_engine, tmp_path):
+    mount_tmpfs(private_engine.home / "data", "2g")
+    root = copy_workspace(tmp_path / "ws-root")
+    base = ros_build_tag(root)
+    private_engine.start()
+    private_engine.load(base)
+    # The workspace's ROS image: the usual one plus a file of its own (COPY: there is no network).
+    big = root / "docker/payload.bin"
+    big.parent.mkdir(exist_ok=True)
+    big.write_bytes(b"small")
+    (root / "Dockerfile.ros").write_text(
+        f"ARG BASE_IMAGE={base}\nFROM ${{BASE_IMAGE}} AS build\nCOPY docker/ /opt/payload/\n"
+    )
+    first = espdock("build", cwd=root, env=private_engine.env)
+    assert first.returncode == 0, first.stdout + first.stderr
+    installed = file_hashes(root / "ws/install")
+
+    # A payload bigger than what is left of the engine's disk.
+    free = shutil.disk_usage(private_engine.home / "data").free
+    with open(big, "wb") as out:
+        for _ in range(free // (1 << 20) + 64):
+            out.write(os.urandom(1 << 20))
+    full = espdock("build", cwd=root, env=private_engine.env)
+    assert full.returncode == 4, full.stdout + full.stderr
+    assert "the engine's disk is full" in full.stderr
+    assert str(private_engine.home / "data") in full.stderr
+    assert unchanged(installed, file_hashes(root / "ws/install"))
+
+    # Space is freed (even `docker builder prune` needs some: it writes BuildKit's database).
+    big.write_bytes(b"small again")
+    grown = subprocess.run(["mount", "-o", "remount,size=3g", str(private_engine.home / "data")], check=False)
+    assert grown.returncode == 0
+    again = espdock("build", cwd=root, env=private_engine.env)
+    assert again.returncode == 0, again.stdout + again.stderr
+    assert private_engine.containers(root) == []

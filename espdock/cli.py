@@ -16,7 +16,7 @@ import typer.core
 from rich.console import Console
 from rich.text import Text
 
-from espdock import __version__, bootstrap, interrupts
+from espdock import __version__, bootstrap, interrupts, nodes
 from espdock.colcon import read_colcon_settings
 from espdock.config import Config, check_target, invoking_user, load_config, resolve_ca_bundle
 from espdock.engine import format_argv
@@ -35,13 +35,14 @@ from espdock.plan import (
     base_image,
     firmware_step,
     plan_workspace,
+    runtime_repository,
     workspace_micro_ros_images,
 )
 from espdock.provision import network_settings, nvs_image, nvs_partition, optional_network_settings
 from espdock.runner import Runner, reset_build_dir, stamp_files
-from espdock.scaffold import check_new_package, create_firmware_package, init_workspace
+from espdock.scaffold import check_new_package, create_firmware_package, init_compose, init_workspace
 from espdock.status import micro_ros_report, resolved_sources
-from espdock.ui import Reporter, render_micro_ros_status, render_packages, render_pins, render_plan
+from espdock.ui import QuietReporter, Reporter, render_micro_ros_status, render_packages, render_pins, render_plan
 from espdock.workspace import (
     Package,
     PackageKind,
@@ -333,7 +334,7 @@ def init(
     ] = Path("."),
 ) -> None:
     """Make DIRECTORY an espdock workspace: writes a commented espdock.toml with the layout it finds
-    (and src/ if there is none). Only adds files; an existing espdock.toml is left alone."""
+    (and src/ if there is none) and a starter compose.yaml of its nodes. Only adds files."""
     # As root for someone else: the new files belong to who owns the nearest existing directory.
     existing = next(d for d in (directory.resolve(), *directory.resolve().parents) if d.exists())
     owner = invoking_user(os.environ, existing) if os.geteuid() == 0 else None
@@ -342,7 +343,10 @@ def init(
         console.print(f"{ws.root} is an espdock workspace already (espdock.toml exists); nothing changed")
     else:
         console.print(f"made {ws.root} an espdock workspace: created {', '.join(created)}")
+    ws, config = _load(ws.root)
     packages = _packages(ws)
+    if init_compose(ws, runtime_repository(config, ws), packages, owner):
+        console.print("wrote compose.yaml: the workspace's nodes as services (`espdock compose up`)")
     firmware = [p.name for p in packages if p.kind is PackageKind.FIRMWARE]
     ros = [p.name for p in packages if p.kind is PackageKind.ROS]
     console.print(f"layout: packages in {', '.join(ws.package_paths)}; colcon's build/install/log in {ws.colcon_root}")
@@ -580,7 +584,7 @@ def monitor(
     )
 
 
-def _runner(ws: Workspace, config: Config, reporter: Reporter) -> Runner:
+def _runner(ws: Workspace, config: Config, reporter: Reporter | QuietReporter) -> Runner:
     engine = bootstrap.ensure_engine(os.environ, _notify)
     return Runner(engine, config, os.environ, reporter, invoking_user(os.environ, ws.root))
 
@@ -618,6 +622,54 @@ def compose(ctx: typer.Context, workspace: WorkspaceOption = None) -> None:
     if ca_bundle is not None:
         env["ESPDOCK_CA_BUNDLE"] = str(ca_bundle)
     raise typer.Exit(engine.run_compose(ctx.args, ws.root, env))
+
+
+@app.command(context_settings={"allow_interspersed_args": False, "ignore_unknown_options": True})
+@_command
+def run(
+    package: Annotated[str, typer.Argument(help="A ROS package of the workspace (built).")],
+    executable: Annotated[str, typer.Argument(help="One of its executables (install/PKG/lib/PKG/).")],
+    args: Annotated[list[str] | None, typer.Argument(help="Arguments for the node (--ros-args ...).")] = None,
+    network: Annotated[
+        str, typer.Option(help="Docker network: host (the host's DDS traffic), or a compose project's network.")
+    ] = nodes.DEFAULT_NETWORK,
+    workspace: WorkspaceOption = None,
+) -> None:
+    """Run EXECUTABLE of a built PACKAGE in the workspace's runtime image, like `ros2 run`
+    (espdock's options go before PACKAGE; everything after EXECUTABLE goes to the node)."""
+    ws, config = _load(workspace)
+    packages = _packages(ws)
+    path = nodes.find_executable(ws, packages, package, executable)
+    plan, step = nodes.runtime_plan(_build_plan(ws, config, [], PackageKind.ROS))
+    runner = _ensure(ws, config, plan)
+    image = runner.runtime_spec(ws, step).tag
+    tty = sys.stdin.isatty() and sys.stdout.isatty()
+    spec = nodes.node_spec(ws, image, path, tuple(args or ()), runner.owner, os.environ, network, tty)
+    code, stopped_by = runner.engine.run_foreground(spec)
+    raise typer.Exit(128 + stopped_by if stopped_by else code)
+
+
+@app.command()
+@_command
+def shell(workspace: WorkspaceOption = None) -> None:
+    """Open a shell in the ROS build image with the workspace mounted and its install tree sourced."""
+    ws, config = _load(workspace)
+    plan, image = nodes.build_image_plan(_build_plan(ws, config, [], PackageKind.ROS))
+    runner = _ensure(ws, config, plan)
+    spec = nodes.shell_spec(ws, image, runner.owner, os.environ, sys.stdin.isatty() and sys.stdout.isatty())
+    code, stopped_by = runner.engine.run_foreground(spec)
+    raise typer.Exit(128 + stopped_by if stopped_by else code)
+
+
+def _ensure(ws: Workspace, config: Config, plan: Plan) -> Runner:
+    """A runner that has made sure PLAN's images exist (saying so only when it builds one)."""
+    reporter = QuietReporter(Reporter(err_console))
+    runner = _runner(ws, config, reporter)
+    try:
+        runner.run(plan, lock=False)
+    finally:
+        reporter.close()
+    return runner
 
 
 @app.command("list")

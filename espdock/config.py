@@ -60,6 +60,8 @@ class Config:
     # Registry (host[:port][/path]) that keyed images are pulled from before building, and
     # pushed to with --push-cache. Credentials are the engine's own (docker login), never here.
     cache_registry: str | None = None
+    # The workspace's name: its runtime image is espdock/<name>; None: the directory's name.
+    name: str | None = None
 
 
 _Text = Annotated[str, Meta(min_length=1)]
@@ -82,6 +84,7 @@ class _Settings(Struct, forbid_unknown_fields=True):
     package_paths: Annotated[list[_Text], Meta(min_length=1)] | None = None
     colcon_root: _Text | None = None
     cache_registry: Annotated[str, Meta(pattern=r"^[A-Za-z0-9.-]+(:[0-9]+)?(/[a-z0-9._-]+)*$")] | None = None
+    name: Annotated[str, Meta(pattern=r"^[a-z0-9][a-z0-9._-]*$")] | None = None
 
 
 _KEYS = {f.name for f in fields(Config)}
@@ -100,6 +103,7 @@ _EXPECTED = {
     "micro_ros_commit": "a commit hash string (7 to 40 hex digits)",
     "package_paths": 'a non-empty list of directory strings, e.g. ["src"]',
     "colcon_root": 'a directory string, e.g. "."',
+    "name": 'a lower-case image name string, e.g. "myrobot"',
     "cache_registry": 'a registry host[:port][/path] string, e.g. "registry.example.com/espdock" (no scheme)',
 }
 

@@ -19,6 +19,7 @@ import io
 import json
 import os
 import re
+import secrets
 import shutil
 import signal
 import socket
@@ -425,6 +426,62 @@ class Engine:
                 env=self._env,
                 preexec_fn=_die_with_parent(),
             )
+
+    def run_foreground(self, spec: RunSpec) -> tuple[int, int | None]:
+        """`docker run` SPEC in the foreground, as a shell runs a command: attached to this
+        terminal when SPEC.tty, stdin forwarded, and SIGINT, SIGTERM and SIGHUP that espdock gets
+        passed to the container's process (a third SIGINT kills it). The container is removed
+        however this ends. Returns its exit code and the first signal passed on, or None."""
+        docker_cli = self.compose_command()[0]
+        name = spec.name or f"espdock-run-{os.getpid()}-{secrets.token_hex(4)}"
+        argv = [docker_cli, "run", "--rm", "--name", name, "--sig-proxy=false", "--interactive"]
+        argv += ["--tty"] if spec.tty else []
+        argv += ["--workdir", spec.workdir] + (["--user", spec.user] if spec.user else [])
+        argv += [arg for key, value in spec.env for arg in ("--env", f"{key}={value}")]
+        argv += [arg for key, value in spec.labels for arg in ("--label", f"{key}={value}")]
+        for mount in spec.mounts:
+            option = f"type=bind,source={mount.source},target={mount.target}" + (",readonly" if mount.read_only else "")
+            argv += ["--mount", option]
+        argv += ["--network", spec.network] if spec.network else []
+        argv += [spec.image, *spec.argv]
+        received: list[int] = []
+        sent = 0
+
+        def on_signal(signum: int, frame: object) -> None:
+            received.append(signum)
+
+        handled = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+        previous = {signum: signal.signal(signum, on_signal) for signum in handled}
+        process: subprocess.Popen | None = None
+        try:
+            # At a terminal the CLI needs it (raw mode: Ctrl-C reaches the node through it);
+            # otherwise its own session keeps a Ctrl-C from reaching it besides espdock.
+            process = subprocess.Popen(argv, env=self._env, start_new_session=not spec.tty)
+            while True:
+                try:
+                    code = process.wait(timeout=0.1)
+                    break
+                except subprocess.TimeoutExpired:
+                    pass
+                if sent < len(received) and self._signal_container(name, received[sent], sent >= 2):
+                    sent += 1
+        finally:
+            for signum, handler in previous.items():
+                signal.signal(signum, handler)
+            if process is not None and process.poll() is None:
+                process.kill()
+                process.wait()
+            subprocess.run([docker_cli, "rm", "--force", name], env=self._env, capture_output=True, check=False)
+        return code, (received[0] if received else None)
+
+    def _signal_container(self, name: str, signum: int, kill: bool) -> bool:
+        """Send SIGNUM (or, with KILL, SIGKILL) to container NAME's process; False while it does not exist yet."""
+        docker_cli = self.compose_command()[0]
+        which = "KILL" if kill else signal.Signals(signum).name
+        result = subprocess.run(
+            [docker_cli, "kill", "--signal", which, name], env=self._env, capture_output=True, check=False
+        )
+        return result.returncode == 0
 
     @contextmanager
     def _container(self, spec: RunSpec, keep: bool) -> Iterator[docker.models.containers.Container]:

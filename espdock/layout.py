@@ -28,3 +28,9 @@ FIRMWARE_DIR = "firmware"
 def firmware_install_dir(package: str) -> str:
     """Where PACKAGE's flashable artefacts are installed, relative to the colcon root."""
     return f"install/{package}/share/{package}/{FIRMWARE_DIR}"
+
+
+# The micro-ROS agent the starter compose file's `hardware` profile runs (espdock init).
+MICRO_ROS_AGENT_IMAGE = "microros/micro-ros-agent:jazzy"
+# The compose file names Compose looks for; espdock init writes the first, beside none of them.
+COMPOSE_FILES = ("compose.yaml", "compose.yml", "docker-compose.yaml", "docker-compose.yml")

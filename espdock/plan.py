@@ -178,7 +178,30 @@ class InstallFirmware:
         return f"install {self.package}"
 
 
-Step = EnsureBaseImage | EnsureImage | ColconBuild | IdfBuild | InstallFirmware
+@dataclass(frozen=True)
+class RuntimeImage:
+    """The workspace's runtime image: BASE (no compilers) plus the install trees of PACKAGES, tagged
+    REPOSITORY:<key> (the key hashes BASE's key and every installed file) and REPOSITORY:latest."""
+
+    base: ImageSpec
+    repository: str
+    packages: tuple[str, ...]
+    colcon_root: str = "ws"
+    name: str = "runtime image"
+
+    @property
+    def stable_tag(self) -> str:
+        return f"{self.repository}:latest"
+
+
+Step = EnsureBaseImage | EnsureImage | ColconBuild | IdfBuild | InstallFirmware | RuntimeImage
+
+# Where a runtime image holds the workspace's install tree (the entrypoint sources it).
+RUNTIME_INSTALL = "/opt/espdock/ws/install"
+# What Dockerfile.ros-official's runtime stage adds from docker/.
+OFFICIAL_ENTRYPOINT = "docker/ros-entrypoint.sh"
+# The stage of the ROS image's Dockerfile that runtime images start from.
+RUNTIME_STAGE = "runtime"
 
 
 def _container_path(rel: str) -> str:
@@ -261,6 +284,45 @@ def _rosdep_os(dockerfile_text: str) -> str:
             "It names the OS rosdep resolves the packages' dependencies for, e.g. ARG ROSDEP_OS=debian:bookworm.",
         )
     return os_spec
+
+
+def runtime_base_image(build: ImageSpec) -> ImageSpec:
+    """The runtime base that goes with the ROS build image BUILD: the `runtime` stage of the same
+    Dockerfile, from the same inputs. Whichever ROS image the build uses (its Dockerfile is chosen
+    in one place), its runtime images start from this stage of it."""
+    files = dict(build.context or ())
+    spec = _keyed_image(
+        build.repository.removesuffix("-build") + "-runtime",
+        build.dockerfile,
+        RUNTIME_STAGE,
+        build.build_args,
+        files,
+        context=files,
+        extra={"target": RUNTIME_STAGE.encode()},
+    )
+    return replace(spec, origin=build.origin)
+
+
+def runtime_repository(config: Config, workspace: Workspace) -> str:
+    """espdock/<name>: the workspace's runtime images (name: the setting, else the directory's name)."""
+    name = config.name or re.sub(r"[^a-z0-9._-]+", "-", workspace.root.name.lower()).strip("._-")
+    return f"espdock/{name or 'workspace'}"
+
+
+def runtime_image_spec(step: RuntimeImage, install_digest: str) -> ImageSpec:
+    """The runtime image of STEP for an install tree with INSTALL_DIGEST: one layer over the base."""
+    dockerfile = f"FROM {step.base.tag} AS workspace\nCOPY install {RUNTIME_INSTALL}\n"
+    key, inputs = image_key({"base": step.base.key.encode(), "install": install_digest.encode()})
+    return ImageSpec(
+        repository=step.repository,
+        key=key,
+        dockerfile="Dockerfile",
+        target="workspace",
+        build_args=(),
+        inputs=inputs,
+        context=(("Dockerfile", dockerfile.encode()),),
+        origin=f"generated: {step.base.tag} plus the install trees of {', '.join(step.packages)}",
+    )
 
 
 def _origin(dockerfile: str, files: Mapping[str, bytes], own_files: frozenset[str]) -> str:
@@ -539,6 +601,14 @@ def plan_build(
                 defaults_file=colcon.defaults_file,
             ),
         ]
+        built = {p.name for p in (all_packages or packages) if p.kind is PackageKind.ROS}
+        base_runtime = runtime_base_image(ros_image)
+        steps += [
+            EnsureImage(base_runtime),
+            RuntimeImage(
+                base_runtime, runtime_repository(config, workspace), tuple(sorted(built)), workspace.colcon_root
+            ),
+        ]
     ensured: dict[str, ImageSpec] = {}
     everything = {p.name for p in (all_packages or packages)}
     for package in firmware:
@@ -578,8 +648,9 @@ def plan_workspace(
     needed = rosdeps.needed_keys(packages, image)
     # The lock is current here (the caller made it so, or refused a stale one under --locked).
     rosdeps.check_dependencies(selected, needed, lock, image)
-    # The official image's build reads only the rosdep installer of docker/.
-    files = inputs.ros_files if name == ROS_DOCKERFILE else {k: v for k, v in inputs.ros_files.items() if "rosdep" in k}
+    # The official image reads only the rosdep installer of docker/, and the entry point (runtime).
+    official = {k: v for k, v in inputs.ros_files.items() if "rosdep" in k or k == OFFICIAL_ENTRYPOINT}
+    files = inputs.ros_files if name == ROS_DOCKERFILE else official
     ros_spec = ros_build_image(config, text, files, inputs.own_files, lock if needed else None, name)
     chosen = frozenset(p.name for p in selected)
     # Only the packages built must be buildable for their chip; the others keep their own.

@@ -40,8 +40,10 @@ from espdock.plan import (
     ImageSpec,
     InstallFirmware,
     Plan,
+    RuntimeImage,
     Step,
     cache_ref,
+    runtime_image_spec,
 )
 from espdock.stamps import StampFile, listing_digest, package_stamps, tree_digest
 from espdock.workspace import Workspace
@@ -111,6 +113,10 @@ class Runner:
         self._commit_times: dict[Path, str | None] = {}
 
     @property
+    def engine(self) -> Engine:
+        return self._engine
+
+    @property
     def owner(self) -> tuple[int, int]:
         """uid, gid that containers writing into the workspace run as."""
         return self._owner
@@ -130,10 +136,13 @@ class Runner:
         set order (a service type description's includes), which the hash seed would shuffle."""
         return (*self._source_date(workspace), ("PYTHONHASHSEED", "0"))
 
-    def run(self, plan: Plan) -> list[StepFinished]:
-        """Run every step in order; stops at the first failure, raising its error."""
+    def run(self, plan: Plan, lock: bool = True) -> list[StepFinished]:
+        """Run every step in order; stops at the first failure, raising its error.
+
+        LOCK: hold the workspace lock (builds); `espdock run` only ensures images, and two of
+        them start at once."""
         results = []
-        with workspace_lock(plan.workspace):
+        with workspace_lock(plan.workspace) if lock else contextlib.nullcontext():
             # Before any step: a container an espdock killed earlier (kill -9, a lost terminal)
             # may still hold the workspace's files open or write into them.
             if any(isinstance(step, (ColconBuild, IdfBuild)) for step in plan.steps):
@@ -183,10 +192,15 @@ class Runner:
                 return self._idf_build(workspace, step)
             case InstallFirmware():
                 return self._install(workspace, step)
+            case RuntimeImage():
+                return self._runtime_image(workspace, step)
             case _:
                 assert_never(step)
 
-    def _ensure_image(self, workspace: Workspace, step: EnsureImage) -> tuple[Outcome, str]:
+    def _ensure_image(
+        self, workspace: Workspace, step: EnsureImage, extra_context: Mapping[str, Path] | None = None
+    ) -> tuple[Outcome, str]:
+        """EXTRA_CONTEXT: files copied into the build context (relative path -> source)."""
         spec = step.spec
         existing = self._engine.image(spec.tag)
         if not step.force and existing is not None and existing.labels.get(LABEL_KEY) == spec.key:
@@ -208,7 +222,7 @@ class Runner:
             match = BUILDKIT_STEP.match(line)
             self._emit(StepOutput(step.name, match.group("what") if match else line, progress=True))
 
-        with _context_dir(workspace, spec) as context:
+        with _context_dir(workspace, spec, extra_context or {}) as context:
             self._engine.build_image(
                 context=context,
                 dockerfile=spec.dockerfile,
@@ -224,6 +238,27 @@ class Runner:
         self._record_packages(workspace, step)
         self._publish(step)
         return Outcome.BUILT, spec.tag
+
+    def runtime_spec(self, workspace: Workspace, step: RuntimeImage) -> ImageSpec:
+        """The keyed runtime image for STEP's install trees as they are now."""
+        install = workspace.ws_dir / "install"
+        missing = [name for name in step.packages if not (install / name).is_dir()]
+        if missing:
+            raise WorkspaceError(
+                f"no install tree for {', '.join(missing)} in {install}", "Run `espdock build` to build them."
+            )
+        return runtime_image_spec(step, runtime_install_digest(install, step.packages))
+
+    def _runtime_image(self, workspace: Workspace, step: RuntimeImage) -> tuple[Outcome, str]:
+        spec = self.runtime_spec(workspace, step)
+        install = workspace.ws_dir / "install"
+        outcome, _ = self._ensure_image(workspace, EnsureImage(spec), extra_context=runtime_context(install, step))
+        keyed = self._engine.image(spec.tag)
+        stable = self._engine.image(step.stable_tag)
+        if keyed is not None and (stable is None or stable.id != keyed.id):
+            self._engine.tag(spec.tag, step.stable_tag)
+            self._emit(StepNote(step.name, f"{step.stable_tag} is now {spec.tag}"))
+        return outcome, f"{spec.tag}, {step.stable_tag}"
 
     def _record_packages(self, workspace: Workspace, step: EnsureImage) -> None:
         """The image's Debian package set (what its apt installs gave today) as labels, as the base has."""
@@ -523,8 +558,9 @@ class Runner:
 
 
 @contextmanager
-def _context_dir(workspace: Workspace, spec: ImageSpec) -> Iterator[Path]:
-    """The build context: the workspace root, or a temporary directory staged from the spec."""
+def _context_dir(workspace: Workspace, spec: ImageSpec, files: Mapping[str, Path]) -> Iterator[Path]:
+    """The build context: the workspace root, or a temporary directory staged from the spec
+    and FILES (relative path -> a file copied there with its mode; symlinks stay links)."""
     if spec.context is None:
         yield workspace.root
         return
@@ -533,7 +569,40 @@ def _context_dir(workspace: Workspace, spec: ImageSpec) -> Iterator[Path]:
             path = Path(tmp, rel)
             path.parent.mkdir(parents=True, exist_ok=True)
             path.write_bytes(data)
+        for rel, source in files.items():
+            path = Path(tmp, rel)
+            path.parent.mkdir(parents=True, exist_ok=True)
+            shutil.copy2(source, path, follow_symlinks=False)
         yield Path(tmp)
+
+
+def _runtime_files(install: Path, packages: tuple[str, ...]) -> list[Path]:
+    """What a runtime image takes from INSTALL: colcon's top-level setup files and PACKAGES' trees
+    (not the firmware packages', nor espdock's manifest)."""
+    # colcon's own files at the top (setup scripts, COLCON_IGNORE); espdock's manifest is not.
+    found = [p for p in sorted(install.iterdir()) if p.is_file() and not p.name.startswith("espdock-")]
+    for name in packages:
+        for dirpath, dirnames, filenames in os.walk(install / name):
+            dirnames[:] = sorted(d for d in dirnames if d != "__pycache__")
+            found += [Path(dirpath) / f for f in sorted(filenames) if not f.endswith(".pyc")]
+    return found
+
+
+def runtime_install_digest(install: Path, packages: tuple[str, ...]) -> str:
+    """sha256 over the paths, modes and contents of what a runtime image takes from INSTALL."""
+    digest = hashlib.sha256()
+    for path in _runtime_files(install, packages):
+        info = path.lstat()
+        data = os.readlink(path).encode() if path.is_symlink() else path.read_bytes()
+        digest.update(f"{path.relative_to(install)}\0{info.st_mode & 0o777:o}\0".encode())
+        digest.update(hashlib.sha256(data).digest())
+    return digest.hexdigest()
+
+
+def runtime_context(install: Path, step: RuntimeImage) -> dict[str, Path]:
+    """The runtime image's build context besides its Dockerfile: exactly the files
+    runtime_install_digest hashed, under install/."""
+    return {f"install/{p.relative_to(install).as_posix()}": p for p in _runtime_files(install, step.packages)}
 
 
 @contextmanager

@@ -20,6 +20,8 @@ PACKAGE_NAME = re.compile(r"^[a-z][a-z0-9_]*$")
 TEMPLATE = "templates/firmware"
 # The shared firmware component every espdock app builds on (Wi-Fi, agent reconnection).
 COMPONENT = "espdock_uros"
+# In the shared components' directory: colcon does not look inside.
+COLCON_IGNORE = "COLCON_IGNORE"
 # A directory, a CMake project and a C identifier prefix: long names break none of them
 # before the file system's 255 bytes do, but nobody types more than this.
 MAX_NAME = 64
@@ -136,8 +138,12 @@ def create_firmware_package(
                 os.lchown(path, *owner)
         if (staging / COMPONENT).exists():
             component.parent.mkdir(exist_ok=True)
-            if owner is not None:
-                os.lchown(component.parent, *owner)
+            # colcon takes any directory with a CMakeLists.txt for a CMake package: a plain
+            # `colcon build` would try the component with the host's CMake and fail.
+            ignore = component.parent / COLCON_IGNORE
+            ignore.touch()
+            for path in (component.parent, ignore) if owner is not None else ():
+                os.lchown(path, *owner)
             (staging / COMPONENT).rename(component)
         (staging / "package").rename(destination)
     finally:
@@ -205,3 +211,96 @@ def init_workspace(directory: Path, owner: tuple[int, int] | None = None) -> tup
             path = root / rel.rstrip("/") if not Path(rel).is_absolute() else Path(rel)
             os.lchown(path, *owner)
     return Workspace(root, paths, colcon_root), created
+
+
+COMPOSE_TEMPLATE = """\
+# Starter compose file written by `espdock init`: the workspace's nodes as services.
+# espdock init never overwrites it; edit it freely.
+#
+#   espdock build                            builds the packages and the image below
+#   espdock compose up                       starts the nodes (plain `docker compose up` too)
+#   espdock compose --profile hardware up    also the micro-ROS agent, for ESP32 boards
+#   espdock compose --profile '*' down       stops and removes everything
+#
+# Settings (environment or .env): ROS_DOMAIN_ID (default 0), MICROROS_AGENT_PORT (default 8888).
+name: {project}
+
+x-ros-node: &ros-node
+  # The runtime image `espdock build` makes of install/ (no compilers), retagged
+  # :latest on every build; espdock/{name}:<key> names one build for good.
+  image: {image}
+  environment: &ros-env
+    ROS_DOMAIN_ID: ${{ROS_DOMAIN_ID:-0}}
+    # Fast DDS's default shared-memory transport loses topics between containers, each
+    # having its own /dev/shm: UDP only, discovery by multicast on the compose network.
+    FASTDDS_BUILTIN_TRANSPORTS: UDPv4
+    PYTHONUNBUFFERED: "1"
+  restart: unless-stopped
+
+services:
+{services}
+  # Real boards reach ROS 2 through the micro-ROS agent on UDP port 8888 (the
+  # address `espdock provision --agent` gives them is this host's).
+  micro_ros_agent:
+    image: {agent}
+    profiles: [hardware]
+    command: [udp4, --port, "8888"]
+    environment:
+      <<: *ros-env
+    ports:
+      - "${{MICROROS_AGENT_PORT:-8888}}:8888/udp"
+    restart: unless-stopped
+"""
+
+
+def starter_compose(project: str, image: str, executables: dict[str, list[str]]) -> str:
+    """The commented compose file `espdock init` writes: one service per executable (package ->
+    its executables, as installed), on IMAGE."""
+    from espdock.layout import MICRO_ROS_AGENT_IMAGE
+    from espdock.plan import RUNTIME_INSTALL
+
+    taken = [exe for found in executables.values() for exe in found]
+    blocks = []
+    for package, found in sorted(executables.items()):
+        for exe in found:
+            service = exe if taken.count(exe) == 1 else f"{package}-{exe}"
+            path = f"{RUNTIME_INSTALL}/{package}/lib/{package}/{exe}"
+            blocks.append(f"  {service}:\n    <<: *ros-node\n    command: [{path}]\n")
+    services = "\n".join(blocks) or (
+        "  # No node is built yet: run `espdock build`, then add one service per node, e.g.\n"
+        f"  # talker:\n  #   <<: *ros-node\n  #   command: [{RUNTIME_INSTALL}/<package>/lib/<package>/<executable>]\n"
+    )
+    name = image.split("/", 1)[-1].rsplit(":", 1)[0]
+    return COMPOSE_TEMPLATE.format(
+        project=project, image=image, name=name, services=services, agent=MICRO_ROS_AGENT_IMAGE
+    )
+
+
+def write_starter_compose(root: Path, text: str, owner: tuple[int, int] | None = None) -> bool:
+    """Write TEXT to ROOT/compose.yaml unless a compose file is there; whether it was written."""
+    from espdock.layout import COMPOSE_FILES
+
+    if any((root / name).exists() for name in COMPOSE_FILES):
+        return False
+    path = root / COMPOSE_FILES[0]
+    try:
+        with path.open("x") as out:  # never overwrites
+            out.write(text)
+    except FileExistsError:
+        return False
+    except OSError as exc:
+        raise WorkspaceError(f"cannot write {path}: {exc.strerror or exc}") from None
+    if owner is not None:
+        os.lchown(path, *owner)
+    return True
+
+
+def init_compose(workspace: Workspace, repository: str, packages: tuple[Package, ...], owner=None) -> bool:
+    """`espdock init`'s compose.yaml for WORKSPACE, whose runtime images are REPOSITORY: the
+    executables its ROS PACKAGES have installed; False when a compose file exists already."""
+    from espdock.nodes import executables
+
+    install = workspace.ws_dir / "install"
+    found = {p.name: exes for p in packages if p.kind is PackageKind.ROS and (exes := executables(install, p.name))}
+    project = repository.split("/", 1)[-1]
+    return write_starter_compose(workspace.root, starter_compose(project, f"{repository}:latest", found), owner)

@@ -13,7 +13,7 @@ from rich.text import Text
 from espdock.events import Event, Outcome, StepFinished, StepNote, StepOutput, StepStarted
 from espdock.layout import IDF_DOCKERFILE, SOURCES_FILE, firmware_install_dir
 from espdock.pins import IdfPin, Source
-from espdock.plan import ColconBuild, EnsureBaseImage, EnsureImage, IdfBuild, InstallFirmware, Plan
+from espdock.plan import ColconBuild, EnsureBaseImage, EnsureImage, IdfBuild, InstallFirmware, Plan, RuntimeImage
 from espdock.workspace import Package, Workspace
 
 MARKS = {
@@ -94,6 +94,32 @@ class Reporter:
         self.console.print(table)
 
 
+class QuietReporter:
+    """For commands that ensure images before they run something (`run`, `shell`): silent while
+    every step is a cache hit; a step that builds is shown as Reporter shows it."""
+
+    def __init__(self, reporter: Reporter) -> None:
+        self._reporter = reporter
+        self._held: list[Event] = []
+        self._live = False
+
+    def __call__(self, event: Event) -> None:
+        if self._live:
+            self._reporter(event)
+            return
+        self._held.append(event)
+        if isinstance(event, StepOutput) or (isinstance(event, StepFinished) and event.outcome is not Outcome.CACHED):
+            self._live = True
+            for held in self._held:
+                self._reporter(held)
+            self._held.clear()
+        elif isinstance(event, StepFinished):
+            self._held.clear()
+
+    def close(self) -> None:
+        self._reporter.close()
+
+
 def render_plan(console: Console, plan: Plan) -> None:
     """Print the steps a plan would run, without running them (--dry-run)."""
     from espdock.engine import format_argv
@@ -123,6 +149,9 @@ def render_plan(console: Console, plan: Plan) -> None:
                 console.print(f"   in {step.image} (target {step.target}): {format_argv(step.argv())}")
             case InstallFirmware():
                 console.print(f"   artefacts to {firmware_install_dir(step.package)}, package.xml, ament index")
+            case RuntimeImage():
+                console.print(f"   {step.repository}:<key> and {step.stable_tag}: {step.base.tag} plus install/")
+                console.print(Text(f"     packages: {', '.join(step.packages)}", style="dim"))
             case _:
                 assert_never(step)
 

@@ -211,6 +211,11 @@ class _ManifestCache:
             pass  # a cache: without it, manifests are parsed again
 
 
+def read_package(manifest: Path) -> Package:
+    """The package a package.xml describes (a WorkspaceError when it is not valid)."""
+    return _read_manifest(manifest)
+
+
 def _read_manifest(manifest: Path) -> Package:
     # Imported here: with every manifest unchanged (_ManifestCache), a build never needs it.
     from catkin_pkg.package import InvalidPackage, parse_package

@@ -37,6 +37,9 @@ def copy_workspace(dest: Path, packages: tuple[str, ...] = ("custom_interface",)
     dest.mkdir(parents=True, exist_ok=True)
     for name in ("espdock.toml", "Dockerfile.ros", ".dockerignore"):
         shutil.copy2(REPO / name, dest / name)
+    # Not the demo's name: a test's runtime image must never replace espdock/demo:latest.
+    config = dest / "espdock.toml"
+    config.write_text("".join(line for line in config.read_text().splitlines(True) if not line.startswith("name =")))
     shutil.copytree(REPO / "docker", dest / "docker")
     (dest / "ws" / "src").mkdir(parents=True)
     for package in packages:

@@ -23,7 +23,6 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]
 COMPOSE_FILE = ROOT / "compose.yaml"
-# The image every demo service runs; built from Dockerfile.ros's runtime stage.
 SERVICES = ("camera_sim", "led_strip_sim", "qr_detector", "camera_ui", "demo")
 
 
@@ -53,8 +52,9 @@ def docker_problem() -> str | None:
 
 
 def build_image(env: Mapping[str, str] | None = None) -> None:
-    """Build the demo's runtime image through `espdock compose` (it supplies the CA bundle pip needs)."""
-    argv = [sys.executable, "-m", "espdock", "compose", "-f", str(COMPOSE_FILE), "build", "qr_detector"]
+    """Build the demo's runtime image (espdock/demo:latest) as `make demo` does: `espdock build`
+    makes it from ws/install, by key, with every other workspace's runtime image."""
+    argv = [sys.executable, "-m", "espdock", "build", "--only", "ros"]
     result = subprocess.run(argv, cwd=ROOT, env=dict(env or os.environ), capture_output=True, text=True, check=False)
     if result.returncode != 0:
         raise StackError(f"building the demo image failed:\n{(result.stdout + result.stderr)[-3000:]}")

@@ -82,12 +82,12 @@ def test_the_ui_is_published_on_localhost_8080_unless_told_otherwise():
     assert (port["host_ip"], port["published"]) == ("0.0.0.0", "9000")
 
 
-def test_images_get_the_ca_bundle_as_a_build_secret():
-    resolved = config(ESPDOCK_CA_BUNDLE="/etc/hostname")
-    build = resolved["services"]["qr_detector"]["build"]
-    assert build["target"] == "runtime" and build["secrets"] == [{"source": "ca_bundle"}]
-    assert resolved["secrets"]["ca_bundle"]["file"] == "/etc/hostname"
-    assert config()["secrets"]["ca_bundle"]["file"] == "/dev/null"
+def test_every_node_runs_the_runtime_image_espdock_build_makes_and_compose_builds_none():
+    services = config("--profile", "*")["services"]
+    for name, service in services.items():
+        if name != "micro_ros_agent":
+            assert service["image"] == "espdock/demo:latest", name
+            assert "build" not in service, name
 
 
 @pytest.mark.parametrize("profile", ["sim", "hardware", "test"])

@@ -164,7 +164,8 @@ def test_the_build_records_what_it_produced_and_verify_checks_it(engine, built, 
     summary = json.loads(report.read_text())
     assert summary["outcome"] == "succeeded" and summary["manifest"]["files"][msg] == data["files"][msg]
     assert [s["step"] for s in summary["steps"]] == ["base image debian:bookworm-slim", "image espdock/ros-jazzy-build",
-                                                     "colcon build"]  # fmt: skip
+                                                     "colcon build", "image espdock/ros-jazzy-runtime",
+                                                     "runtime image"]  # fmt: skip
 
 
 def test_changed_image_input_rebuilds_under_a_new_tag(engine, built):

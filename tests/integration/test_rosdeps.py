@@ -50,7 +50,7 @@ def build_and_check(root: Path, tmp_path: Path, extra: dict[str, str]) -> tuple[
     assert build.returncode == 0, build.stdout[-3000:] + build.stderr
     lock = json.loads((root / "rosdep.lock.json").read_text())
     manifest = json.loads((tmp_path / "report.json").read_text())["manifest"]
-    (tag,) = manifest["images"]
+    (tag,) = [image for image in manifest["images"] if "-build:" in image]
     stat = root.stat()
     run = subprocess.run(
         ["docker", "run", "--rm", "-u", f"{stat.st_uid}:{stat.st_gid}", "-e", "HOME=/tmp",
@@ -58,6 +58,14 @@ def build_and_check(root: Path, tmp_path: Path, extra: dict[str, str]) -> tuple[
         capture_output=True, text=True, check=False, timeout=120,
     )  # fmt: skip
     assert run.returncode == 0, run.stdout + run.stderr
+    # The runtime image of the workspace (espdock/w:latest), of either flavour: the node's
+    # package, its rosdep keys and rclpy import there, with no workspace mounted.
+    imports = "import rclpy, numpy, tabulate, rosdeps_py_table.table; print('runtime ok')"
+    runtime = subprocess.run(
+        ["docker", "run", "--rm", "espdock/w:latest", "python3", "-c", imports],
+        capture_output=True, text=True, check=False, timeout=120,
+    )  # fmt: skip
+    assert runtime.stdout.strip().endswith("runtime ok"), runtime.stdout + runtime.stderr
     again = espdock("build", cwd=root, env=env)
     assert again.returncode == 0 and "up to date" in again.stdout, again.stdout[-2000:]
     return lock, run.stdout.splitlines()

@@ -6,6 +6,7 @@ from espdock.plan import (
     EnsureBaseImage,
     EnsureImage,
     IdfBuild,
+    RuntimeImage,
     dockerfile_args,
     plan_build,
     ros_build_image,
@@ -51,8 +52,8 @@ def test_build_plan_ensures_images_then_runs_colcon():
     spec = ros_build_image(Config(), DOCKERFILE, FILES)
     packages = (pkg("msgs"), pkg("app", depends=["msgs"]))
     plan = plan_build(ws, Config(), packages, spec)
-    assert [type(s) for s in plan.steps] == [EnsureBaseImage, EnsureImage, ColconBuild]
-    colcon = plan.steps[-1]
+    assert [type(s) for s in plan.steps] == [EnsureBaseImage, EnsureImage, ColconBuild, EnsureImage, RuntimeImage]
+    colcon = plan.steps[2]
     assert colcon.packages == ("msgs", "app")
     assert colcon.image == spec.tag
     argv = colcon.argv()
@@ -67,7 +68,7 @@ def test_a_selection_builds_exactly_the_selected_packages_and_their_dependencies
     # What select_up_to gives for `espdock build app`: app and what it depends on.
     plan = plan_build(Workspace(Path("/w")), Config(), (pkg("msgs"), pkg("app", depends=["msgs"])), spec,
                       selected=("app",))  # fmt: skip
-    argv = plan.steps[-1].argv()
+    argv = next(s for s in plan.steps if isinstance(s, ColconBuild)).argv()
     assert argv[argv.index("--base-paths") + 1 : argv.index("--event-handlers")] == ("src/msgs", "src/app")
 
 
@@ -102,3 +103,32 @@ def test_selecting_a_firmware_package_builds_only_its_ros_dependencies():
 def test_no_ros_packages_means_no_ros_steps():
     spec = ros_build_image(Config(), DOCKERFILE, FILES)
     assert plan_build(Workspace(Path("/w")), Config(), (), spec).steps == ()
+
+
+def test_the_runtime_image_is_the_build_images_runtime_stage_plus_every_ros_package_installed():
+    spec = ros_build_image(Config(), DOCKERFILE, FILES)
+    packages = (pkg("msgs"), pkg("app", depends=["msgs"]), pkg("cam", PackageKind.FIRMWARE))
+    plan = plan_build(Workspace(Path("/w/My Robot")), Config(), packages[:1], spec, all_packages=packages)
+    base, runtime = plan.steps[-2:]
+    assert isinstance(runtime, RuntimeImage) and base.spec == runtime.base
+    assert (base.spec.dockerfile, base.spec.target, base.spec.context) == (spec.dockerfile, "runtime", spec.context)
+    assert base.spec.key != spec.key and base.spec.tag.startswith("espdock/ros-jazzy-runtime:")
+    # Every ROS package of the workspace, not only the selection; no firmware.
+    assert runtime.packages == ("app", "msgs")
+    assert runtime.stable_tag == "espdock/my-robot:latest"
+    named = plan_build(Workspace(Path("/w/x")), Config(name="bot"), packages[:1], spec).steps[-1]
+    assert named.stable_tag == "espdock/bot:latest"
+
+
+def test_the_official_ros_image_gives_runtime_images_its_own_runtime_stage():
+    root = Path(__file__).resolve().parents[2]
+    text = (root / "Dockerfile.ros-official").read_text()
+    entrypoint = {"docker/ros-entrypoint.sh": (root / "docker" / "ros-entrypoint.sh").read_bytes()}
+    spec = ros_build_image(Config(ros_image="official"), text, entrypoint, dockerfile="Dockerfile.ros-official")
+    plan = plan_build(Workspace(Path("/w/bot")), Config(), (pkg("app"),), spec)
+    base, runtime = plan.steps[-2:]
+    assert (base.spec.dockerfile, base.spec.target) == ("Dockerfile.ros-official", "runtime")
+    assert base.spec.repository == "espdock/ros-jazzy-official-runtime"
+    assert "docker/ros-entrypoint.sh" in dict(base.spec.context)
+    assert "FROM build AS runtime" in text and '"/ros_entrypoint.sh", "/opt/espdock/entrypoint.sh"' in text
+    assert runtime.base == base.spec and runtime.stable_tag == "espdock/bot:latest"

@@ -1,0 +1,71 @@
+"""colcon extensions: plain `colcon build` builds ESP-IDF firmware packages through espdock.
+
+Registered as entry points of espdock's distribution, so `pip install espdock` beside colcon
+is all it takes. A package.xml with <build_type>esp_idf</build_type> is a package of type
+`ros.esp_idf` (the type colcon-ros would give it, so its augmentation adds the dependencies
+too), and its build task runs `espdock build --only firmware PKG` (IDF container, micro-ROS
+image, install where `espdock build` installs), with the output in colcon's log and event
+handlers. Only colcon imports this module; espdock never does, so it costs espdock nothing.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import sys
+from pathlib import Path
+
+from colcon_core.package_identification import IgnoreLocationException, PackageIdentificationExtensionPoint
+from colcon_core.plugin_system import satisfies_version
+from colcon_core.task import TaskExtensionPoint, run
+
+PACKAGE_TYPE = "ros.esp_idf"
+# espdock builds hold the workspace lock: colcon's parallel jobs take turns (one process).
+_one_at_a_time = asyncio.Lock()
+
+
+class EspIdfPackageIdentification(PackageIdentificationExtensionPoint):
+    """Identify ESP-IDF firmware packages: a package.xml whose build type is esp_idf."""
+
+    # Before colcon-ros (150) and colcon-cmake (which would take the IDF project's
+    # CMakeLists.txt for a plain CMake package).
+    PRIORITY = 200
+
+    def __init__(self) -> None:
+        super().__init__()
+        satisfies_version(PackageIdentificationExtensionPoint.EXTENSION_POINT_VERSION, "^1.0")
+
+    def identify(self, desc) -> None:
+        if desc.type is not None or not (desc.path / "package.xml").is_file():
+            return
+        from espdock.errors import WorkspaceError
+        from espdock.workspace import FIRMWARE_BUILD_TYPE, IGNORE_MARKERS, read_package
+
+        if any((desc.path / marker).exists() for marker in IGNORE_MARKERS):
+            raise IgnoreLocationException()
+        try:
+            package = read_package(desc.path / "package.xml")
+        except WorkspaceError:
+            return  # not ours to judge: colcon-ros reports invalid manifests
+        if package.build_type != FIRMWARE_BUILD_TYPE:
+            return
+        desc.type = PACKAGE_TYPE
+        desc.name = desc.name or package.name
+        for category in ("build", "run"):
+            desc.dependencies[category] |= set(package.depends)
+
+
+class EspIdfBuildTask(TaskExtensionPoint):
+    """Build a firmware package with `espdock build --only firmware PKG`."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        satisfies_version(TaskExtensionPoint.EXTENSION_POINT_VERSION, "^1.0")
+
+    async def build(self, *, additional_hooks=None) -> int:
+        pkg = self.context.pkg
+        # espdock's own workspace settings decide the image and where firmware is installed.
+        argv = [sys.executable, "-m", "espdock", "build", "--only", "firmware", str(pkg.name)]
+        async with _one_at_a_time:
+            self.progress("espdock build")
+            completed = await run(self.context, argv, cwd=str(Path(pkg.path).resolve()))
+        return completed.returncode

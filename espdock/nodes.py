@@ -1,0 +1,127 @@
+"""`espdock run` and `espdock shell`: a workspace's nodes in its runtime image, a shell in its build image."""
+
+from __future__ import annotations
+
+import os
+import posixpath
+from collections.abc import Mapping
+from pathlib import Path
+
+from espdock.engine import Mount, RunSpec
+from espdock.errors import WorkspaceError
+from espdock.layout import WORKSPACE_MOUNT
+from espdock.plan import LABEL_WORKSPACE, RUNTIME_INSTALL, EnsureBaseImage, EnsureImage, Plan, RuntimeImage
+from espdock.workspace import Package, PackageKind, Workspace
+
+# What reaches a node from the caller's environment, as `ros2 run` would see it.
+PASSED_ENV = (
+    "ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE", "ROS_STATIC_PEERS", "ROS_LOCALHOST_ONLY",
+    "RMW_IMPLEMENTATION", "FASTDDS_BUILTIN_TRANSPORTS", "FASTRTPS_DEFAULT_PROFILES_FILE",
+    "RCUTILS_COLORIZED_OUTPUT", "RCUTILS_CONSOLE_OUTPUT_FORMAT", "RCUTILS_LOGGING_BUFFERED_STREAM",
+    "PYTHONUNBUFFERED",
+)  # fmt: skip
+# Containers have their own /dev/shm, so Fast DDS's shared-memory transport loses topics
+# between them (micro-ROS/docker#85): UDP only, unless the caller says otherwise.
+DDS_DEFAULTS = (("FASTDDS_BUILTIN_TRANSPORTS", "UDPv4"),)
+# The host network: nodes reach the host's and each other's DDS traffic. A compose network's
+# name instead joins that project's services.
+DEFAULT_NETWORK = "host"
+
+
+def executables(install: Path, package: str) -> list[str]:
+    """The executables `ros2 run` would find for PACKAGE in the install tree INSTALL."""
+    directory = install / package / "lib" / package
+    if not directory.is_dir():
+        return []
+    return sorted(p.name for p in directory.iterdir() if p.is_file() and os.access(p, os.X_OK))
+
+
+def find_executable(workspace: Workspace, packages: tuple[Package, ...], package: str, executable: str) -> str:
+    """Where EXECUTABLE of PACKAGE is in the runtime image; a WorkspaceError listing what exists otherwise."""
+    install = workspace.ws_dir / "install"
+    ros = [p.name for p in packages if p.kind is PackageKind.ROS]
+    runnable = {name: found for name in ros if (found := executables(install, name))}
+    listing = "; ".join(f"{name}: {', '.join(found)}" for name, found in sorted(runnable.items())) or "none"
+    if package not in ros:
+        raise WorkspaceError(
+            f"no ROS package '{package}' in this workspace",
+            f"Packages with executables (after `espdock build`): {listing}.",
+        )
+    if not (install / package).is_dir():
+        raise WorkspaceError(f"package '{package}' is not built yet", f"Run `espdock build {package}` first.")
+    if executable not in runnable.get(package, []):
+        found = ", ".join(runnable.get(package, [])) or "none (it installs nothing into lib/" + package + ")"
+        raise WorkspaceError(
+            f"package '{package}' has no executable '{executable}'",
+            f"Its executables: {found}. All packages with executables: {listing}.",
+        )
+    return posixpath.join(RUNTIME_INSTALL, package, "lib", package, executable)
+
+
+def node_env(env: Mapping[str, str]) -> tuple[tuple[str, str], ...]:
+    """The node's environment: DDS_DEFAULTS, then what PASSED_ENV names from ENV."""
+    values = dict(DDS_DEFAULTS) | {name: env[name] for name in PASSED_ENV if name in env}
+    return tuple(sorted(values.items()))
+
+
+def runtime_plan(plan: Plan) -> tuple[Plan, RuntimeImage]:
+    """From a ROS build plan: the plan that only ensures the runtime image, and its step."""
+    step = next((s for s in plan.steps if isinstance(s, RuntimeImage)), None)
+    if step is None:
+        raise WorkspaceError("this workspace has no ROS packages to run", "Add one under its package paths.")
+    steps = [s for s in plan.steps if isinstance(s, EnsureBaseImage)]
+    steps += [s for s in plan.steps if isinstance(s, EnsureImage) and s.spec.key == step.base.key]
+    return Plan(plan.workspace, (*steps, step)), step
+
+
+def build_image_plan(plan: Plan) -> tuple[Plan, str]:
+    """From a ROS build plan: the plan that only ensures the build image, and its tag."""
+    steps = [s for s in plan.steps if isinstance(s, EnsureBaseImage)]
+    images = [s for s in plan.steps if isinstance(s, EnsureImage) and s.spec.target == "build"]
+    if not images:
+        raise WorkspaceError("this workspace has no ROS packages, so no ROS build image", "Add one first.")
+    return Plan(plan.workspace, (*steps, images[0])), images[0].spec.tag
+
+
+def _labels(workspace: Workspace, what: str) -> tuple[tuple[str, str], ...]:
+    return ((LABEL_WORKSPACE, str(workspace.root)), ("io.espdock.step", what))
+
+
+def node_spec(
+    workspace: Workspace,
+    image: str,
+    path: str,
+    args: tuple[str, ...],
+    owner: tuple[int, int],
+    env: Mapping[str, str],
+    network: str,
+    tty: bool,
+) -> RunSpec:
+    """A container of IMAGE running the node at PATH with ARGS, as OWNER."""
+    return RunSpec(
+        image=image,
+        argv=(path, *args),
+        workdir="/tmp",
+        user=f"{owner[0]}:{owner[1]}",
+        env=(("HOME", "/tmp"), *node_env(env)),
+        labels=_labels(workspace, "run"),
+        network=network,
+        tty=tty,
+    )
+
+
+def shell_spec(workspace: Workspace, image: str, owner: tuple[int, int], env: Mapping[str, str], tty: bool) -> RunSpec:
+    """A shell in the build IMAGE with the workspace mounted and its install tree sourced."""
+    root = posixpath.normpath(f"{WORKSPACE_MOUNT}/{workspace.colcon_root}")
+    return RunSpec(
+        image=image,
+        argv=("bash",),
+        workdir=root,
+        user=f"{owner[0]}:{owner[1]}",
+        mounts=(Mount(workspace.root, WORKSPACE_MOUNT),),
+        # The entrypoint sources this install tree when it exists (docker/ros-entrypoint.sh).
+        env=(("HOME", "/tmp"), ("ESPDOCK_WS_INSTALL", f"{root}/install"), *node_env(env)),
+        labels=_labels(workspace, "shell"),
+        network=DEFAULT_NETWORK,
+        tty=tty,
+    )

@@ -1,0 +1,100 @@
+"""`espdock run`'s and `init`'s pure parts: finding executables, the node's environment, what a
+runtime image is keyed by and made of, the starter compose file."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+import yaml
+
+from espdock.config import Config
+from espdock.errors import WorkspaceError
+from espdock.nodes import find_executable, node_env
+from espdock.plan import RuntimeImage, ros_build_image, runtime_base_image, runtime_image_spec
+from espdock.runner import runtime_context, runtime_install_digest
+from espdock.scaffold import starter_compose
+from espdock.workspace import Package, PackageKind, Workspace
+
+
+def installed(root: Path, package: str, *executables: str) -> None:
+    lib = root / "install" / package / "lib" / package
+    lib.mkdir(parents=True)
+    for name in executables:
+        (lib / name).write_text("#!/bin/sh\n")
+        (lib / name).chmod(0o755)
+    (lib / "not_executable.txt").write_text("data")
+
+
+@pytest.fixture
+def ws(tmp_path) -> tuple[Workspace, tuple[Package, ...]]:
+    workspace = Workspace(tmp_path, ("src",), ".")
+    packages = tuple(
+        Package(name, tmp_path / "src" / name, kind, "ament_python", frozenset())
+        for name, kind in (("talk", PackageKind.ROS), ("quiet", PackageKind.ROS), ("board", PackageKind.FIRMWARE))
+    )
+    installed(tmp_path, "talk", "talker", "listener")
+    return workspace, packages
+
+
+def test_an_executable_is_found_where_the_runtime_image_holds_it(ws):
+    workspace, packages = ws
+    assert find_executable(workspace, packages, "talk", "talker") == "/opt/espdock/ws/install/talk/lib/talk/talker"
+
+
+@pytest.mark.parametrize(
+    ("package", "executable", "said"),
+    [
+        ("talks", "talker", "no ROS package 'talks'"),
+        ("board", "x", "no ROS package 'board'"),
+        ("quiet", "x", "'quiet' is not built yet"),
+        ("talk", "not_executable.txt", "no executable 'not_executable.txt'"),
+    ],
+)
+def test_unknown_names_are_user_errors_that_list_what_exists(ws, package, executable, said):
+    workspace, packages = ws
+    with pytest.raises(WorkspaceError) as caught:
+        find_executable(workspace, packages, package, executable)
+    assert caught.value.exit_code == 2 and said in caught.value.message
+    if "not built" not in said:
+        assert "talk: listener, talker" in caught.value.hint
+
+
+def test_the_node_gets_the_ros_settings_and_udp_only_dds_unless_told_otherwise():
+    env = dict(node_env({"ROS_DOMAIN_ID": "7", "HOME": "/root", "PATH": "/bin"}))
+    assert env == {"ROS_DOMAIN_ID": "7", "FASTDDS_BUILTIN_TRANSPORTS": "UDPv4"}
+    assert dict(node_env({"FASTDDS_BUILTIN_TRANSPORTS": "SHM"}))["FASTDDS_BUILTIN_TRANSPORTS"] == "SHM"
+
+
+def test_the_runtime_image_key_follows_the_ros_install_trees_only(tmp_path):
+    install = tmp_path / "install"
+    installed(tmp_path, "talk", "talker")
+    (install / "board" / "share" / "board" / "firmware").mkdir(parents=True)
+    (install / "local_setup.sh").write_text("# colcon\n")
+    (install / "espdock-manifest.json").write_text("{}")
+    spec = ros_build_image(Config(), "FROM x AS build\nFROM x AS runtime\n", {})
+    step = RuntimeImage(runtime_base_image(spec), "espdock/w", ("talk",))
+    digest = runtime_install_digest(install, ("talk",))
+    assert set(runtime_context(install, step)) == {
+        "install/local_setup.sh", "install/talk/lib/talk/talker", "install/talk/lib/talk/not_executable.txt",
+    }  # fmt: skip
+    (install / "espdock-manifest.json").write_text('{"changed": 1}')
+    (install / "board" / "share" / "board" / "firmware" / "app.bin").write_bytes(b"\0")
+    assert runtime_install_digest(install, ("talk",)) == digest
+    (install / "talk" / "lib" / "talk" / "talker").chmod(0o644)
+    assert runtime_install_digest(install, ("talk",)) != digest
+    one, two = runtime_image_spec(step, "a"), runtime_image_spec(step, "b")
+    assert one.tag.startswith("espdock/w:") and one.key != two.key
+    assert dict(one.context)["Dockerfile"].decode().startswith(f"FROM {step.base.tag} ")
+
+
+def test_the_starter_compose_file_has_a_service_per_node_and_the_agent_under_hardware():
+    text = starter_compose("robot", "espdock/robot:latest", {"talk": ["talker", "listener"], "other": ["talker"]})
+    data = yaml.safe_load(text)
+    services = data["services"]
+    assert set(services) == {"listener", "talk-talker", "other-talker", "micro_ros_agent"}
+    assert services["listener"]["command"] == ["/opt/espdock/ws/install/talk/lib/talk/listener"]
+    assert services["listener"]["image"] == "espdock/robot:latest"
+    assert services["listener"]["environment"]["FASTDDS_BUILTIN_TRANSPORTS"] == "UDPv4"
+    assert services["micro_ros_agent"]["profiles"] == ["hardware"]
+    assert services["micro_ros_agent"]["image"] == "microros/micro-ros-agent:jazzy"

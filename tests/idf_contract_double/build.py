@@ -12,12 +12,12 @@ for a workspace and returns the ESPDOCK_* settings.
 
 from __future__ import annotations
 
-import hashlib
 import re
 from pathlib import Path
 
 from espdock.engine import Engine, LineSink, RunSpec
 from espdock.errors import ImageBuildError
+from tests.double_image import ensure_double
 
 HERE = Path(__file__).resolve().parent
 # One tag per version of the double's files: branches that change the double share an engine
@@ -32,36 +32,9 @@ IMAGE_INPUTS = ("Dockerfile", ".dockerignore", "requirements.txt", "idf", "micro
 SOURCES_FILE = "/opt/espdock-double/micro_ros_sources.txt"
 
 
-def inputs_hash(root: Path = HERE) -> str:
-    """A hash of the files the image is built from (path and content of each)."""
-    digest = hashlib.sha256()
-    for name in IMAGE_INPUTS:
-        top = root / name
-        files = [top] if top.is_file() else sorted(p for p in top.rglob("*") if p.is_file())
-        for path in files:
-            if "__pycache__" in path.parts or path.suffix == ".pyc":
-                continue
-            digest.update(path.relative_to(root).as_posix().encode() + b"\0")
-            digest.update(hashlib.sha256(path.read_bytes()).digest())
-    return digest.hexdigest()[:16]
-
-
 def build_double(engine: Engine, ca_bundle: Path | None, on_line: LineSink) -> tuple[str, str]:
     """Build the double image unless one built from the same files exists; return (tag, micro-ROS commit)."""
-    wanted = inputs_hash()
-    tag = f"{IMAGE_REPOSITORY}:v5.3.5-{wanted}"
-    existing = engine.image(tag)
-    if existing is None or existing.labels.get(INPUTS_LABEL) != wanted:
-        engine.build_image(
-            context=HERE,
-            dockerfile="Dockerfile",
-            target="double",
-            tag=tag,
-            build_args={},
-            labels={INPUTS_LABEL: wanted},
-            ca_bundle=ca_bundle,
-            on_line=on_line,
-        )
+    tag = ensure_double(engine, HERE, IMAGE_INPUTS, f"{IMAGE_REPOSITORY}:v5.3.5", INPUTS_LABEL, ca_bundle, on_line)
     return tag, micro_ros_commit(engine, tag)
 
 

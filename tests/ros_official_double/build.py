@@ -9,10 +9,10 @@ ESPDOCK_BASE_IMAGE): Dockerfile.ros-official builds unchanged on top of it.
 
 from __future__ import annotations
 
-import hashlib
 from pathlib import Path
 
 from espdock.engine import Engine, LineSink
+from tests.double_image import ensure_double
 
 HERE = Path(__file__).resolve().parent
 # Tagged by the hash of its inputs: a changed double is another base image reference, so the
@@ -23,31 +23,11 @@ INPUTS_LABEL = "io.espdock.ros-official-double.inputs"
 IMAGE_INPUTS = (".dockerignore", "Dockerfile", "requirements.txt", "ros_entrypoint.sh", "setup.sh", "setup.bash")
 
 
-def inputs_hash(root: Path = HERE) -> str:
-    """A hash of the files the image is built from (name and content of each)."""
-    digest = hashlib.sha256()
-    for name in IMAGE_INPUTS:
-        digest.update(name.encode() + b"\0" + hashlib.sha256((root / name).read_bytes()).digest())
-    return digest.hexdigest()[:16]
-
-
 def build_double(engine: Engine, ca_bundle: Path | None, on_line: LineSink) -> str:
     """Build the double image unless one built from the same files exists; return its tag."""
-    wanted = inputs_hash()
-    tag = f"{IMAGE_REPOSITORY}:jazzy-ros-base-{wanted}"
-    existing = engine.image(tag)
-    if existing is None or existing.labels.get(INPUTS_LABEL) != wanted:
-        engine.build_image(
-            context=HERE,
-            dockerfile="Dockerfile",
-            target="double",
-            tag=tag,
-            build_args={},
-            labels={INPUTS_LABEL: wanted},
-            ca_bundle=ca_bundle,
-            on_line=on_line,
-        )
-    return tag
+    return ensure_double(
+        engine, HERE, IMAGE_INPUTS, f"{IMAGE_REPOSITORY}:jazzy-ros-base", INPUTS_LABEL, ca_bundle, on_line
+    )
 
 
 def settings(tag: str) -> dict[str, str]:

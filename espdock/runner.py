@@ -420,6 +420,7 @@ class Runner:
         (build_dir / TARGET_MARKER).write_text(f"{step.target}\n{defaults}\n{step.image_key}\n")
         _give_to(build_dir / TARGET_MARKER, self._owner)
         changed = _library_settings_changed(build_dir, fresh)
+        _give_to(build_dir / LIBRARY_BASELINE, self._owner)
         if changed:
             shown = ", ".join(changed[:4]) + (", ..." if len(changed) > 4 else "")
             self._emit(

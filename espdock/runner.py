@@ -16,6 +16,7 @@ import tempfile
 import time
 from collections.abc import Callable, Iterator, Mapping
 from contextlib import contextmanager
+from dataclasses import replace
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import assert_never
@@ -241,15 +242,16 @@ class Runner:
 
     def runtime_spec(self, workspace: Workspace, step: RuntimeImage) -> ImageSpec:
         """The keyed runtime image for STEP's install trees as they are now."""
-        install = workspace.ws_dir / "install"
-        missing = [name for name in step.packages if not (install / name).is_dir()]
-        if missing:
-            raise WorkspaceError(
-                f"no install tree for {', '.join(missing)} in {install}", "Run `espdock build` to build them."
-            )
-        return runtime_image_spec(step, runtime_install_digest(install, step.packages))
+        step = _installed(workspace, step)
+        return runtime_image_spec(step, runtime_install_digest(workspace.ws_dir / "install", step.packages))
 
     def _runtime_image(self, workspace: Workspace, step: RuntimeImage) -> tuple[Outcome, str]:
+        installed = _installed(workspace, step)
+        if missing := sorted(set(step.packages) - set(installed.packages)):
+            # A build of a selection (`espdock build PKG`) leaves the others unbuilt: the image
+            # holds what is installed, and says what it lacks.
+            self._emit(StepNote(step.name, f"not in the image (not built yet): {', '.join(missing)}"))
+        step = installed
         spec = self.runtime_spec(workspace, step)
         install = workspace.ws_dir / "install"
         outcome, _ = self._ensure_image(workspace, EnsureImage(spec), extra_context=runtime_context(install, step))
@@ -739,3 +741,12 @@ def age_text(seconds: float) -> str:
         if seconds >= size:
             return f"{seconds / size:.0f} {unit}"
     return f"{max(seconds, 0):.0f} s"
+
+
+def _installed(workspace: Workspace, step: RuntimeImage) -> RuntimeImage:
+    """STEP for the packages among its own that have an install tree; none at all is an error."""
+    install = workspace.ws_dir / "install"
+    present = tuple(name for name in step.packages if (install / name).is_dir())
+    if step.packages and not present:
+        raise WorkspaceError(f"no ROS package is installed in {install}", "Run `espdock build` to build them.")
+    return replace(step, packages=present)

@@ -68,7 +68,12 @@ def runtime_plan(plan: Plan) -> tuple[Plan, RuntimeImage]:
     """From a ROS build plan: the plan that only ensures the runtime image, and its step."""
     step = next((s for s in plan.steps if isinstance(s, RuntimeImage)), None)
     if step is None:
-        raise WorkspaceError("this workspace has no ROS packages to run", "Add one under its package paths.")
+        if not any(isinstance(s, EnsureImage) for s in plan.steps):
+            raise WorkspaceError("this workspace has no ROS packages to run", "Add one under its package paths.")
+        raise WorkspaceError(
+            "the workspace's ROS Dockerfile has no `runtime` stage, so there is no runtime image to run in",
+            "Add a stage `FROM ... AS runtime` (espdock's default Dockerfile.ros has one).",
+        )
     steps = [s for s in plan.steps if isinstance(s, EnsureBaseImage)]
     steps += [s for s in plan.steps if isinstance(s, EnsureImage) and s.spec.key == step.base.key]
     return Plan(plan.workspace, (*steps, step)), step

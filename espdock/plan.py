@@ -286,6 +286,12 @@ def _rosdep_os(dockerfile_text: str) -> str:
     return os_spec
 
 
+def has_stage(dockerfile: bytes, stage: str) -> bool:
+    """Whether DOCKERFILE declares a build stage named STAGE (`FROM ... AS STAGE`)."""
+    pattern = rb"(?im)^\s*FROM\s+(--\S+\s+)*\S+\s+AS\s+" + re.escape(stage.encode()) + rb"\s*$"
+    return re.search(pattern, dockerfile) is not None
+
+
 def runtime_base_image(build: ImageSpec) -> ImageSpec:
     """The runtime base that goes with the ROS build image BUILD: the `runtime` stage of the same
     Dockerfile, from the same inputs. Whichever ROS image the build uses (its Dockerfile is chosen
@@ -602,13 +608,15 @@ def plan_build(
             ),
         ]
         built = {p.name for p in (all_packages or packages) if p.kind is PackageKind.ROS}
-        base_runtime = runtime_base_image(ros_image)
-        steps += [
-            EnsureImage(base_runtime),
-            RuntimeImage(
-                base_runtime, runtime_repository(config, workspace), tuple(sorted(built)), workspace.colcon_root
-            ),
-        ]
+        # A workspace's own ROS Dockerfile without a runtime stage builds, but makes no runtime image.
+        if has_stage(dict(ros_image.context or ()).get(ros_image.dockerfile, b""), RUNTIME_STAGE):
+            base_runtime = runtime_base_image(ros_image)
+            steps += [
+                EnsureImage(base_runtime),
+                RuntimeImage(
+                    base_runtime, runtime_repository(config, workspace), tuple(sorted(built)), workspace.colcon_root
+                ),
+            ]
     ensured: dict[str, ImageSpec] = {}
     everything = {p.name for p in (all_packages or packages)}
     for package in firmware:

@@ -79,6 +79,16 @@ def ros_build_tag(root: Path) -> str:
     return ros_build_image(load_config(root, {}), inputs.ros_dockerfile, inputs.ros_files).tag
 
 
+def ros_runtime_tag(root: Path) -> str:
+    """The tag of the runtime base image that goes with ros_build_tag(ROOT)."""
+    from espdock.config import load_config
+    from espdock.plan import ros_build_image, runtime_base_image
+    from espdock.workspace import Workspace, read_build_inputs
+
+    inputs = read_build_inputs(Workspace(root), ())
+    return runtime_base_image(ros_build_image(load_config(root, {}), inputs.ros_dockerfile, inputs.ros_files)).tag
+
+
 def leftover_containers(engine, root: Path) -> list[str]:
     return engine.containers({"io.espdock.workspace": str(root)})
 

@@ -13,7 +13,7 @@ from espdock.plan import (
 )
 from espdock.workspace import Package, PackageKind, Workspace
 
-DOCKERFILE = "ARG BASE_IMAGE=debian:bookworm-slim\nFROM ${BASE_IMAGE} AS build\n"
+DOCKERFILE = "ARG BASE_IMAGE=debian:bookworm-slim\nFROM ${BASE_IMAGE} AS build\nFROM ${BASE_IMAGE} AS runtime\n"
 FILES = {"docker/ros-runtime.txt": b"rclpy==1\n", "docker/ros-entrypoint.sh": b"#!/bin/sh\n"}
 
 
@@ -61,6 +61,12 @@ def test_build_plan_ensures_images_then_runs_colcon():
     assert colcon.sources == (("msgs", "src/msgs"), ("app", "src/app"))
     assert colcon.workdir == "/workspace/ws"
     assert colcon.depends == (("msgs", ()), ("app", ("msgs",)))
+
+
+def test_a_ros_dockerfile_without_a_runtime_stage_builds_and_makes_no_runtime_image():
+    spec = ros_build_image(Config(), "ARG BASE_IMAGE=debian:bookworm-slim\nFROM ${BASE_IMAGE} AS build\n", FILES)
+    plan = plan_build(Workspace(Path("/w")), Config(), (pkg("msgs"),), spec)
+    assert [type(s) for s in plan.steps] == [EnsureBaseImage, EnsureImage, ColconBuild]
 
 
 def test_a_selection_builds_exactly_the_selected_packages_and_their_dependencies():

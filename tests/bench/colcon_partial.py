@@ -20,12 +20,12 @@ import statistics
 import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(REPO))
 
+from tests.bench.build_noop import timed  # noqa: E402
 from tests.conftest import copy_workspace, ros_build_tag  # noqa: E402
 from tests.robot_packages import write_robot  # noqa: E402
 
@@ -37,12 +37,6 @@ def edit(root: Path, count: int) -> None:
     node = root / "ws/src" / LEAF / LEAF / f"{LEAF}_node.py"
     node.write_text(re.sub(r"declare_parameter\('rate_hz', [0-9.]+\)", f"declare_parameter('rate_hz', {count + 1}.0)",
                            node.read_text()))  # fmt: skip
-
-
-def timed(argv: list[str], cwd: Path) -> float:
-    started = time.perf_counter()
-    subprocess.run(argv, cwd=cwd, check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    return time.perf_counter() - started
 
 
 def main() -> None:

@@ -150,7 +150,7 @@ def test_new_refuses_an_overlong_name_and_a_firmware_file(tmp_path):
 def test_an_unexpected_error_is_reported_as_a_bug_with_a_traceback_log(capsys):
     import pytest
 
-    from espdock.cli import _command
+    from espdock.cli import command as _command
 
     @_command
     def broken() -> None:

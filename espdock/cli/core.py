@@ -1,0 +1,187 @@
+"""What every espdock command shares: the Typer app, loading the workspace and its plan, and turning
+espdock's errors and Ctrl-C into a message and an exit code."""
+
+from __future__ import annotations
+
+import functools
+import os
+import sys
+from collections.abc import Callable
+from pathlib import Path
+from typing import Annotated, NoReturn, ParamSpec
+
+import typer
+import typer.core
+from rich.console import Console
+from rich.text import Text
+
+from espdock import __version__, bootstrap
+from espdock.colcon import read_colcon_settings
+from espdock.config import Config, invoking_user, load_config
+from espdock.errors import EspdockBug, EspdockError, Interrupted
+from espdock.lock import current_rosdep_inputs
+from espdock.plan import IdfBuild, Plan, firmware_step, plan_workspace
+from espdock.runner import Runner
+from espdock.ui import QuietReporter, Reporter
+from espdock.workspace import (
+    Package,
+    PackageKind,
+    Workspace,
+    discover_packages,
+    find_workspace,
+    order_packages,
+    read_build_inputs,
+)
+
+app = typer.Typer(
+    help="Build ESP-IDF firmware, micro-ROS and a ROS 2 workspace reproducibly, in containers.",
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_enable=False,
+)
+console = Console(soft_wrap=True)
+err_console = Console(stderr=True, soft_wrap=True)
+_state = {"debug": False}
+P = ParamSpec("P")
+
+WorkspaceOption = Annotated[
+    Path | None, typer.Option("--workspace", "-w", help="Workspace root (default: search upward from here).")
+]
+
+
+INTERRUPTED = Interrupted("interrupted; containers started by this run were stopped and removed")
+
+
+def command(function: Callable[P, None]) -> Callable[P, None]:
+    """Make FUNCTION a command whose espdock errors and Ctrl-C end in a message and an exit code.
+
+    Handled here, inside the command, because Typer would turn Ctrl-C into a bare exit code.
+    """
+
+    @functools.wraps(function)
+    def wrapper(*args: P.args, **kwargs: P.kwargs) -> None:
+        try:
+            function(*args, **kwargs)
+        except EspdockError as exc:
+            fail(exc)
+        except KeyboardInterrupt:
+            fail(INTERRUPTED)
+        except (typer.Exit, typer.Abort, SystemExit):
+            raise
+        except Exception as exc:  # anything else is espdock's own bug: say so, keep the traceback
+            fail(_bug_report(exc))
+
+    return wrapper
+
+
+def _bug_report(exc: Exception) -> EspdockBug:
+    """EXC as a short message, with its traceback written to a log file for the bug report."""
+    import tempfile
+    import traceback
+
+    text = "".join(traceback.format_exception(exc))
+    with tempfile.NamedTemporaryFile("w", prefix="espdock-bug-", suffix=".log", delete=False) as log:
+        log.write(f"espdock {__version__}, {' '.join(sys.argv)}\n{text}")
+    return EspdockBug(
+        f"espdock failed unexpectedly ({type(exc).__name__}: {exc}); this is a bug in espdock",
+        f"Please report it with the traceback in {log.name}.",
+    )
+
+
+def _version(value: bool) -> None:
+    if value:
+        console.print(f"espdock {__version__}")
+        raise typer.Exit()
+
+
+@app.callback()
+def _main(
+    debug: Annotated[bool, typer.Option("--debug", help="Show tracebacks for errors.")] = False,
+    version: Annotated[
+        bool, typer.Option("--version", callback=_version, is_eager=True, help="Print the version and exit.")
+    ] = False,
+) -> None:
+    _state["debug"] = debug
+
+
+def notify(text: str) -> None:
+    console.print(Text(text, style="dim"))
+
+
+def load(workspace: Path | None, **overrides: object) -> tuple[Workspace, Config]:
+    ws = find_workspace(workspace or Path.cwd())
+    config = load_config(ws.root, os.environ, overrides)
+    return ws.with_layout(config.package_paths, config.colcon_root), config
+
+
+def workspace_packages(ws: Workspace) -> tuple[Package, ...]:
+    return order_packages(discover_packages(ws))
+
+
+def build_plan(
+    ws: Workspace,
+    config: Config,
+    names: list[str],
+    only: PackageKind | None = None,
+    force: bool = False,
+    colcon_args: tuple[str, ...] | None = None,
+    locked: bool | None = None,
+    target: str | None = None,
+) -> Plan:
+    """The build's plan; LOCKED not None: first a rosdep lock that answers for the packages
+    (refusing a stale one when LOCKED)."""
+    packages = workspace_packages(ws)
+    inputs = read_build_inputs(ws, packages)
+    if locked is not None:
+        owner = invoking_user(os.environ, ws.root) if os.geteuid() == 0 else None
+        inputs, note = current_rosdep_inputs(ws.root, config, packages, inputs, locked, os.environ, owner)
+        if note:
+            notify(note)
+    ros = {p.name: p.path for p in packages if p.kind is PackageKind.ROS}
+    colcon = read_colcon_settings(ws.ws_dir, ros, colcon_args, os.environ)
+    return plan_workspace(ws, config, packages, inputs, tuple(names), only, force, target, colcon)
+
+
+class PassThrough(typer.core.TyperCommand):
+    """A command whose arguments after the first `--` are not its own: they go as they are to
+    the tool it runs (ctx.meta[PASSED], absent when there is no `--`)."""
+
+    def parse_args(self, ctx: typer.Context, args: list[str]) -> list[str]:
+        if "--" in args:
+            ctx.meta[PASSED] = tuple(args[args.index("--") + 1 :])
+            args = args[: args.index("--")]
+        return super().parse_args(ctx, args)
+
+
+PASSED = "espdock.passed_args"
+
+
+def firmware_plan(ws: Workspace, config: Config, name: str) -> tuple[Plan, IdfBuild]:
+    return firmware_step(build_plan(ws, config, [name]), name)
+
+
+def runner_for(ws: Workspace, config: Config, reporter: Reporter | QuietReporter) -> Runner:
+    engine = bootstrap.ensure_engine(os.environ, notify)
+    return Runner(engine, config, os.environ, reporter, invoking_user(os.environ, ws.root))
+
+
+def ensure_images(ws: Workspace, config: Config, plan: Plan) -> Runner:
+    """A runner that has made sure PLAN's images exist (saying so only when it builds one)."""
+    reporter = QuietReporter(Reporter(err_console))
+    runner = runner_for(ws, config, reporter)
+    try:
+        runner.run(plan, lock=False)
+    finally:
+        reporter.close()
+    return runner
+
+
+def fail(exc: EspdockError) -> NoReturn:
+    if _state["debug"]:
+        import traceback
+
+        traceback.print_exception(exc)
+    err_console.print(Text.assemble(("error: ", "bold red"), exc.message))
+    if exc.hint:
+        err_console.print(Text.assemble(("hint: ", "yellow"), exc.hint))
+    sys.exit(exc.exit_code)

@@ -1,0 +1,262 @@
+"""The firmware commands: idf, micro-ros, flash, provision, monitor."""
+
+from __future__ import annotations
+
+import json
+import os
+import sys
+from pathlib import Path
+from typing import Annotated
+
+import typer
+from rich.text import Text
+
+from espdock import bootstrap
+from espdock.cli.core import (
+    WorkspaceOption,
+    app,
+    command,
+    console,
+    firmware_plan,
+    load,
+    notify,
+    runner_for,
+    workspace_packages,
+)
+from espdock.config import Config, check_target
+from espdock.engine import format_argv
+from espdock.errors import ConfigError
+from espdock.flashing import check_port, flash_package, parse_port, read_flasher_args
+from espdock.layout import firmware_install_dir
+from espdock.pins import pin_idf_image, read_sources, write_pins
+from espdock.plan import EnsureImage, ImageSpec, Plan, workspace_micro_ros_images
+from espdock.provision import network_settings, nvs_image, nvs_partition, optional_network_settings
+from espdock.runner import reset_build_dir
+from espdock.status import micro_ros_report, resolved_sources
+from espdock.ui import Reporter, render_micro_ros_status, render_pins
+from espdock.workspace import Package, Workspace, read_build_inputs
+
+
+@app.command(context_settings={"allow_extra_args": True, "ignore_unknown_options": True})
+@command
+def idf(
+    package: Annotated[str, typer.Argument(help="Firmware package.")],
+    args: Annotated[list[str] | None, typer.Argument(help="Arguments for idf.py (after --).")] = None,
+    workspace: WorkspaceOption = None,
+) -> None:
+    """Run idf.py ARGS for a firmware package in the IDF image (e.g. `espdock idf cam -- menuconfig`)."""
+    ws, config = load(workspace)
+    if not args:
+        raise ConfigError(
+            "no idf.py arguments given", f"Put them after --, e.g. `espdock idf {package} -- menuconfig`."
+        )
+    plan, step = firmware_plan(ws, config, package)
+    if "fullclean" in args:
+        cleaned = reset_build_dir(ws, step)
+        console.print(f"fullclean: emptied {cleaned.relative_to(ws.root)} but its sdkconfig (espdock's reset)")
+        args = [a for a in args if a != "fullclean"]
+        if not args:
+            return
+    argv = step.argv(tuple(args))
+    console.print(Text(f"in {step.image}: {format_argv(argv)}", style="dim"))
+    runner = runner_for(ws, config, Reporter(console))
+    runner.run(plan)
+    raise typer.Exit(runner.run_idf(ws, step, argv))
+
+
+def _micro_ros_specs(
+    workspace: Path | None, target: str | None
+) -> tuple[Workspace, Config, tuple[Package, ...], dict[str, ImageSpec]]:
+    ws, config = load(workspace)
+    packages = workspace_packages(ws)
+    return (
+        ws,
+        config,
+        packages,
+        workspace_micro_ros_images(config, read_build_inputs(ws, packages), packages, target and check_target(target)),
+    )
+
+
+micro_ros = typer.Typer(help="The prebuilt micro-ROS library of this workspace.", no_args_is_help=True)
+app.add_typer(micro_ros, name="micro-ros")
+
+
+@micro_ros.command("status")
+@command
+def micro_ros_status(
+    as_json: Annotated[bool, typer.Option("--json", help="Print machine-readable JSON.")] = False,
+    target: Annotated[
+        str | None, typer.Option(help="Chip for every firmware package (overrides each one's own).")
+    ] = None,
+    workspace: WorkspaceOption = None,
+) -> None:
+    """Each micro-ROS image: its key, the inputs it is made of, its firmware, whether it exists."""
+    ws, _, packages, specs = _micro_ros_specs(workspace, target)
+    engine = bootstrap.ensure_engine(os.environ, notify)
+    report = micro_ros_report(engine, specs, packages, read_sources(ws.root))
+    if as_json:
+        print(json.dumps(report, indent=2, sort_keys=True))
+        return
+    render_micro_ros_status(console, report)
+
+
+@micro_ros.command("rebuild")
+@command
+def micro_ros_rebuild(
+    target: Annotated[
+        str | None, typer.Option(help="Chip for every firmware package (overrides each one's own).")
+    ] = None,
+    workspace: WorkspaceOption = None,
+) -> None:
+    """Rebuild the micro-ROS images for the current inputs from scratch (no build cache)."""
+    ws, config, _, specs = _micro_ros_specs(workspace, target)
+    unique = tuple({spec.key: spec for spec in specs.values()}.values())
+    reporter = Reporter(console)
+    try:
+        runner_for(ws, config, reporter).run(Plan(ws, tuple(EnsureImage(s, force=True) for s in unique), unique))
+    finally:
+        reporter.close()
+
+
+@micro_ros.command("pin")
+@command
+def micro_ros_pin(
+    target: Annotated[
+        str | None, typer.Option(help="Chip for every firmware package (overrides each one's own).")
+    ] = None,
+    workspace: WorkspaceOption = None,
+) -> None:
+    """Pin the sources that follow a branch head ("-" in docker/idf/micro_ros_sources.txt) to the
+    commits the current micro-ROS images were built from, and IDF_IMAGE to its digest."""
+    ws, config, _, specs = _micro_ros_specs(workspace, target)
+    engine = bootstrap.ensure_engine(os.environ, notify)
+    pinned = write_pins(ws.root, resolved_sources(engine, specs))
+    reference = dict(next(iter(specs.values())).build_args)["IDF_IMAGE"]
+    image = engine.image(reference)
+    idf = pin_idf_image(ws.root, reference, image.digests if image else (), bool(config.idf_image))
+    render_pins(console, pinned, idf)
+
+
+PortOption = Annotated[
+    str, typer.Option("--port", "-p", help="/dev/ttyUSB0, socket://HOST:PORT or rfc2217://HOST:PORT.")
+]
+BaudOption = Annotated[int | None, typer.Option("--baud", "-b", help="Baud rate (serial devices only).")]
+SsidOption = Annotated[str | None, typer.Option("--wifi-ssid", help="Wi-Fi network the board joins (1..32 bytes).")]
+PasswordFileOption = Annotated[
+    str | None,
+    typer.Option(
+        "--wifi-password-file",
+        help="File holding the Wi-Fi password (- reads stdin; empty for an open network). Asked for when omitted.",
+    ),
+]
+AgentOption = Annotated[
+    str | None, typer.Option("--agent", help="micro-ROS agent as IPV4:PORT (the board resolves no host names).")
+]
+DomainOption = Annotated[int | None, typer.Option("--domain-id", help="ROS_DOMAIN_ID of the board (0..232).")]
+
+
+def _ask_password() -> str:
+    return typer.prompt(
+        "Wi-Fi password (empty for an open network)",
+        default="",
+        show_default=False,
+        hide_input=True,
+        confirmation_prompt=True,
+    )
+
+
+@app.command()
+@command
+def flash(
+    package: Annotated[str, typer.Argument(help="Firmware package (built and installed).")],
+    port: PortOption,
+    baud: BaudOption = 460800,
+    verify: Annotated[bool, typer.Option("--verify", help="Read the flash back and compare afterwards.")] = False,
+    wifi_ssid: SsidOption = None,
+    wifi_password_file: PasswordFileOption = None,
+    agent: AgentOption = None,
+    domain_id: DomainOption = None,
+    workspace: WorkspaceOption = None,
+) -> None:
+    """Flash a firmware package's installed artefacts with esptool, passing only that port into the container;
+    with --wifi-ssid and --agent, provision its network settings in the same run (see `provision`)."""
+    ws, config = load(workspace)
+    serial = parse_port(port)
+    plan, step = firmware_plan(ws, config, package)
+    firmware_dir = ws.ws_dir / firmware_install_dir(package)
+    flasher_args = read_flasher_args(firmware_dir, package)
+    settings = optional_network_settings(wifi_ssid, wifi_password_file, agent, domain_id, sys.stdin, _ask_password)
+    nvs = nvs_partition(firmware_dir, flasher_args, package) if settings else None
+    check_port(serial)
+    runner = runner_for(ws, config, Reporter(console))
+    runner.run(plan)
+    say = lambda line: console.print(Text(line))  # noqa: E731
+    if settings is None or nvs is None:
+        flash_package(runner, ws, step, flasher_args, serial, baud, verify, say)
+    else:
+        with nvs_image(settings, nvs.size, runner.owner) as image:
+            flash_package(runner, ws, step, flasher_args, serial, baud, verify, say, nvs_image=(nvs.offset, image))
+    what = " with its network settings" if settings else ""
+    console.print(f"flashed {package}{what} through {port}" + (" and verified it" if verify else ""))
+
+
+@app.command()
+@command
+def provision(
+    package: Annotated[str, typer.Argument(help="Firmware package (built and installed).")],
+    port: PortOption,
+    wifi_ssid: Annotated[str, typer.Option("--wifi-ssid", help="Wi-Fi network the board joins (1..32 bytes).")],
+    agent: Annotated[str, typer.Option("--agent", help="micro-ROS agent as IPV4:PORT (no host names).")],
+    wifi_password_file: PasswordFileOption = None,
+    domain_id: Annotated[int, typer.Option("--domain-id", help="ROS_DOMAIN_ID of the board (0..232).")] = 0,
+    baud: BaudOption = 460800,
+    workspace: WorkspaceOption = None,
+) -> None:
+    """Write the board's Wi-Fi and agent settings into its NVS partition, leaving the app as it is.
+
+    The whole NVS partition is replaced: every other namespace on the board is erased.
+
+    The password never appears on a command line (espdock's or esptool's), in the workspace or in an image."""
+    ws, config = load(workspace)
+    serial = parse_port(port)
+    plan, step = firmware_plan(ws, config, package)
+    firmware_dir = ws.ws_dir / firmware_install_dir(package)
+    flasher_args = read_flasher_args(firmware_dir, package)
+    nvs = nvs_partition(firmware_dir, flasher_args, package)
+    settings = network_settings(wifi_ssid, wifi_password_file, agent, domain_id, sys.stdin, _ask_password)
+    check_port(serial)
+    runner = runner_for(ws, config, Reporter(console))
+    runner.run(plan)
+    with nvs_image(settings, nvs.size, runner.owner) as image:
+        flash_package(
+            runner, ws, step, flasher_args, serial, baud, False, lambda line: console.print(Text(line)),
+            nvs_image=(nvs.offset, image), app=False,
+        )  # fmt: skip
+    console.print(
+        f"provisioned {package} through {port}: Wi-Fi {settings.ssid!r}, agent {settings.agent_host}:"
+        f"{settings.agent_port}, ROS domain {settings.domain_id} (NVS partition '{nvs.label}' at {nvs.offset:#x})"
+    )
+
+
+@app.command()
+@command
+def monitor(
+    package: Annotated[str, typer.Argument(help="Firmware package.")],
+    port: Annotated[str, typer.Option("--port", "-p", help="/dev/ttyUSB0, socket://HOST:PORT or rfc2217://HOST:PORT.")],
+    workspace: WorkspaceOption = None,
+) -> None:
+    """Open idf.py monitor on PORT for a firmware package (needs a terminal)."""
+    ws, config = load(workspace)
+    serial = parse_port(port)
+    if not sys.stdin.isatty():
+        raise ConfigError("the monitor needs a terminal (stdin is not a TTY)", "Run it from an interactive shell.")
+    check_port(serial)
+    plan, step = firmware_plan(ws, config, package)
+    runner = runner_for(ws, config, Reporter(console))
+    runner.run(plan)
+    devices = (serial.device,) if serial.device else ()
+    raise typer.Exit(
+        runner.run_idf(
+            ws, step, step.argv(("-p", port, "monitor")), devices=devices, network="host" if serial.is_url else None
+        )
+    )

@@ -1,0 +1,242 @@
+"""The workspace commands: build, lock, verify, new, init, setup, list."""
+
+from __future__ import annotations
+
+import os
+import time
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from espdock import bootstrap
+from espdock.cli.core import (
+    PASSED,
+    PassThrough,
+    WorkspaceOption,
+    app,
+    build_plan,
+    command,
+    console,
+    err_console,
+    load,
+    notify,
+    workspace_packages,
+)
+from espdock.config import check_target, invoking_user
+from espdock.errors import ConfigError, WorkspaceError
+from espdock.events import Outcome
+from espdock.layout import ROS_DOCKERFILE, ROSDEP_LOCK
+from espdock.lock import check_locks, lock_rosdeps, lock_workspace, plan_locks, uv_binary
+from espdock.manifest import compare, file_hashes, read_manifest, record_build, write_report
+from espdock.plan import base_image, runtime_repository
+from espdock.runner import Runner, stamp_files
+from espdock.scaffold import check_new_package, create_firmware_package, init_compose, init_workspace
+from espdock.ui import Reporter, render_packages, render_plan
+from espdock.workspace import PackageKind, read_build_inputs
+
+
+@app.command(cls=PassThrough)
+@command
+def build(
+    ctx: typer.Context,
+    packages: Annotated[
+        list[str] | None, typer.Argument(help="Build only these packages and what they depend on.")
+    ] = None,
+    dry_run: Annotated[bool, typer.Option("--dry-run", help="Print the plan without running it.")] = False,
+    verbose: Annotated[bool, typer.Option("--verbose", "-v", help="Show image build logs in full.")] = False,
+    timestamps: Annotated[
+        bool, typer.Option("--timestamps", help="Start every output line with the UTC time (for CI logs).")
+    ] = False,
+    target: Annotated[
+        str | None, typer.Option(help="Chip for the firmware packages built (overrides each one's own).")
+    ] = None,
+    only: Annotated[PackageKind | None, typer.Option(help="Build only the ROS packages or only the firmware.")] = None,
+    force: Annotated[bool, typer.Option("--force", help="Build the packages even when nothing changed.")] = False,
+    report: Annotated[
+        Path | None, typer.Option("--report", help="Write a JSON summary (steps, outcome, keys, artefacts) here.")
+    ] = None,
+    locked: Annotated[
+        bool | None,
+        typer.Option(
+            "--locked/--no-locked",
+            help="Refuse to build when a lock the images use is missing or stale (default: on when CI=true).",
+            show_default=False,
+        ),
+    ] = None,
+    push_cache: Annotated[
+        bool,
+        typer.Option(
+            "--push-cache", help="Push keyed images the cache registry lacks (cache_registry; CI on the main branch)."
+        ),
+    ] = False,
+    workspace: WorkspaceOption = None,
+) -> None:
+    """Build the images when their inputs changed, then every package whose sources changed and what
+    depends on it; record what the build produced in install/espdock-manifest.json.
+
+    Options after `--` go to `colcon build` (e.g. `espdock build -- --cmake-args -DBUILD_TESTING=OFF`)."""
+    ws, config = load(workspace)
+    locked = locked if locked is not None else os.environ.get("CI", "").lower() == "true"
+    plan = build_plan(
+        ws,
+        config,
+        packages or [],
+        only,
+        force,
+        ctx.meta.get(PASSED),
+        locked,
+        target and check_target(target, "--target"),
+    )
+    if dry_run:
+        render_plan(console, plan)
+        return
+    if locked:
+        check_locks(ws.root, plan_locks(plan))
+    if push_cache and not config.cache_registry:
+        raise ConfigError("--push-cache needs a cache registry", "Set cache_registry or ESPDOCK_CACHE_REGISTRY.")
+    reporter = Reporter(console, verbose=verbose, timestamps=timestamps)
+    engine = bootstrap.ensure_engine(os.environ, notify)
+    manifest: dict | None = None
+    started = time.monotonic()
+    try:
+        owner = invoking_user(os.environ, ws.root)
+        results = Runner(engine, config, os.environ, reporter, owner, push_cache=push_cache).run(plan)
+        built = any(r.outcome is not Outcome.CACHED for r in results)
+        chown = owner if os.geteuid() == 0 else None
+        manifest = record_build(plan, config.target, ws.ws_dir / "install", built, stamp_files(ws), chown)
+    finally:
+        reporter.close()
+        reporter.summary()
+        if report is not None:
+            write_report(report, reporter.finished, manifest, time.monotonic() - started)
+
+
+@app.command()
+@command
+def lock(
+    upgrade: Annotated[
+        bool, typer.Option("--upgrade", help="Move every pin to the newest version its source allows.")
+    ] = False,
+    workspace: WorkspaceOption = None,
+) -> None:
+    """Compile every dependency lock of the workspace from its source with uv (pinned, with hashes),
+    keeping the current pins the sources allow; say which locks changed."""
+    ws, config = load(workspace)
+    owner = invoking_user(os.environ, ws.root) if os.geteuid() == 0 else None
+    packages = workspace_packages(ws)
+    status, database = lock_rosdeps(ws.root, config, packages, read_build_inputs(ws, packages), os.environ, owner)
+    if database:  # else: none needed, none there
+        console.print(f"{ROSDEP_LOCK}: {status} ({database})")
+    for result in lock_workspace(ws.root, uv_binary(), upgrade, owner):
+        spec = result.spec
+        if result.status == "default":
+            console.print(f"{spec.lock}: espdock's default (the workspace has no {spec.source} of its own)")
+        else:
+            console.print(f"{spec.lock}: {result.status} (from {', '.join(spec.inputs)})")
+
+
+@app.command()
+@command
+def verify(
+    manifest: Annotated[Path, typer.Argument(help="An espdock-manifest.json (install/ of the build it describes).")],
+    install: Annotated[
+        Path | None, typer.Option("--install", help="The install tree to check (default: the manifest's directory).")
+    ] = None,
+) -> None:
+    """Compare an install tree with a build manifest: every missing, extra or changed file; exit 1 on any."""
+    data = read_manifest(manifest)
+    tree = install or manifest.parent
+    differences = compare(data["files"], file_hashes(tree))
+    for difference in differences:
+        console.print(f"{difference.what:<8} {difference.path}")
+    if differences:
+        err_console.print(f"{tree} differs from {manifest} in {len(differences)} file(s)")
+        raise typer.Exit(1)
+    console.print(f"{tree} matches {manifest}: {len(data['files'])} file(s)")
+
+
+@app.command()
+@command
+def new(
+    name: Annotated[str, typer.Argument(help="Package name (lower case, digits, underscores).")],
+    target: Annotated[
+        str | None,
+        typer.Option(help="The package's chip: written to its sdkconfig.defaults (CONFIG_IDF_TARGET)."),
+    ] = None,
+    depends: Annotated[
+        list[str] | None, typer.Option("--depends", "-d", help="Interface package the firmware uses (repeatable).")
+    ] = None,
+    workspace: WorkspaceOption = None,
+) -> None:
+    """Create NAME beside the workspace's firmware: an ESP-IDF project that is also a ROS 2 package,
+    with a micro-ROS app on the shared espdock_uros component (added beside it if missing)."""
+    ws, config = load(workspace)
+    packages = workspace_packages(ws)
+    check_new_package(name, tuple(depends or ()), packages)
+    chip = target and check_target(target, "--target")
+    owner = invoking_user(os.environ, ws.root) if os.geteuid() == 0 else None
+    path = create_firmware_package(ws, name, tuple(depends or ()), packages, owner, chip)
+    console.print(f"created {path.relative_to(ws.root)}; build it with `espdock build {name}`")
+    where = f"CONFIG_IDF_TARGET in {name}/sdkconfig.defaults" if chip else "the workspace's `target`"
+    console.print(f"chip target {chip or config.target} ({where})")
+
+
+@app.command()
+@command
+def init(
+    directory: Annotated[
+        Path, typer.Argument(help="The workspace: empty, new, or an existing colcon workspace.")
+    ] = Path("."),
+) -> None:
+    """Make DIRECTORY an espdock workspace: writes a commented espdock.toml with the layout it finds
+    (and src/ if there is none) and a starter compose.yaml of its nodes. Only adds files."""
+    # As root for someone else: the new files belong to who owns the nearest existing directory.
+    existing = next(d for d in (directory.resolve(), *directory.resolve().parents) if d.exists())
+    owner = invoking_user(os.environ, existing) if os.geteuid() == 0 else None
+    ws, created = init_workspace(directory, owner)
+    if "espdock.toml" not in created:
+        console.print(f"{ws.root} is an espdock workspace already (espdock.toml exists); nothing changed")
+    else:
+        console.print(f"made {ws.root} an espdock workspace: created {', '.join(created)}")
+    ws, config = load(ws.root)
+    packages = workspace_packages(ws)
+    if init_compose(ws, runtime_repository(config, ws), packages, owner):
+        console.print("wrote compose.yaml: the workspace's nodes as services (`espdock compose up`)")
+    firmware = [p.name for p in packages if p.kind is PackageKind.FIRMWARE]
+    ros = [p.name for p in packages if p.kind is PackageKind.ROS]
+    console.print(f"layout: packages in {', '.join(ws.package_paths)}; colcon's build/install/log in {ws.colcon_root}")
+    console.print(f"found {len(ros)} ROS package(s){': ' + ', '.join(ros) if ros else ''}")
+    console.print(f"found {len(firmware)} firmware package(s){': ' + ', '.join(firmware) if firmware else ''}")
+    here = "" if directory.resolve() == Path.cwd() else f"cd {directory} && "
+    console.print("next:")
+    if not firmware:
+        console.print(f"  {here}espdock new my_board      # a firmware package (ESP-IDF project + ROS 2 package)")
+    console.print(f"  {here}espdock build             # images, then every package, each in its container")
+
+
+@app.command()
+@command
+def setup() -> None:
+    """Make this machine ready: a Docker engine (started or installed), Compose v2, the base image."""
+    engine = bootstrap.ensure_engine(os.environ, notify)
+    bootstrap.ensure_compose(os.environ, notify)
+    try:
+        ws, config = load(None)
+    except WorkspaceError:
+        console.print("engine and compose ready (not in a workspace: no base image to prepare)")
+        return
+    dockerfile = ws.root / ROS_DOCKERFILE
+    base = base_image(config, dockerfile.read_text() if dockerfile.is_file() else "")
+    if base:
+        how = bootstrap.ensure_base_image(engine, base, config, notify)
+        console.print(f"base image {base}: {how}")
+    console.print("ready")
+
+
+@app.command("list")
+@command
+def list_packages(workspace: WorkspaceOption = None) -> None:
+    """List the workspace's packages in build order."""
+    ws, _ = load(workspace)
+    render_packages(console, ws, workspace_packages(ws))

@@ -396,12 +396,22 @@ class Engine:
             return process.wait()
         except KeyboardInterrupt:
             # A terminal's Ctrl-C reached Compose too (one process group): it is stopping its
-            # services, and a second signal would make it kill them. Without a terminal the
-            # signal was meant for espdock alone (`kill -INT`, CI): pass it on. (The docker CLI
-            # decides the same way for its plugins.) The wait is bounded by interrupts.GRACE.
+            # services. Without a terminal the signal was meant for espdock alone (`kill -INT`,
+            # CI): pass it on. (The docker CLI decides the same way for its plugins.)
             if not sys.stdin.isatty():
                 process.send_signal(signal.SIGINT)
-            process.wait()
+            try:
+                process.wait(timeout=max(0.5, interrupts.remaining() - 1.0))
+            except subprocess.TimeoutExpired:
+                # A service that ignores SIGTERM holds Compose for its stop_grace_period, and a
+                # second SIGINT does not hurry it without a terminal. Compose (which ignores the
+                # SIGTERM espdock's exit sends it) goes on, and kills such a service at the end.
+                print(
+                    "espdock: Compose is still stopping the services; one that ignores SIGTERM is killed at "
+                    "the end of its stop_grace_period (`espdock compose down -t 0` stops them at once)",
+                    file=sys.stderr,
+                    flush=True,
+                )
             raise
 
     # Containers

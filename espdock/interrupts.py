@@ -59,6 +59,12 @@ def interrupted() -> bool:
     return _state["first"] is not None
 
 
+def remaining() -> float:
+    """Seconds left before the watchdog ends the process (GRACE when no signal came yet)."""
+    first = _state["first"]
+    return GRACE if first is None else max(0.0, GRACE - (time.monotonic() - float(first)))
+
+
 def _say(text: str) -> None:
     # os.write: the main thread may be inside a buffered write to stderr at this moment.
     try:

@@ -4,9 +4,12 @@ from __future__ import annotations
 
 import os
 import shutil
+import signal
 import subprocess
 import sys
 import tempfile
+import threading
+import time
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -87,6 +90,68 @@ def ros_runtime_tag(root: Path) -> str:
 
     inputs = read_build_inputs(Workspace(root), ())
     return runtime_base_image(ros_build_image(load_config(root, {}), inputs.ros_dockerfile, inputs.ros_files)).tag
+
+
+class Started:
+    """`espdock ARGS` in the background as a user would start it (no terminal), its output
+    (stdout and stderr) collected by line as it comes."""
+
+    def __init__(self, root: Path, *args: str, env: dict[str, str] | None = None) -> None:
+        self.process = subprocess.Popen(
+            [sys.executable, "-m", "espdock", *args],
+            cwd=root,
+            env={**os.environ, **(env or {})},
+            stdin=subprocess.DEVNULL,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            text=True,
+        )
+        self.lines: list[str] = []
+        self._reader = threading.Thread(target=self._read, daemon=True)
+        self._reader.start()
+
+    def _read(self) -> None:
+        assert self.process.stdout is not None
+        for line in self.process.stdout:
+            self.lines.append(line.rstrip("\n"))
+
+    def wait_for(self, text: str, timeout: float = 90) -> str:
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            found = next((line for line in self.lines if text in line), None)
+            if found:
+                return found
+            if self.process.poll() is not None and not self._reader.is_alive():
+                break
+            time.sleep(0.05)
+        raise AssertionError(f"no line with {text!r} within {timeout:g} s; output:\n" + "\n".join(self.lines[-30:]))
+
+    def interrupt(self, timeout: float = 30) -> int:
+        self.process.send_signal(signal.SIGINT)
+        code = self.process.wait(timeout=timeout)
+        self._reader.join(timeout=5)
+        return code
+
+    def interrupt_timed(self) -> tuple[int, float]:
+        """Send SIGINT, as `kill -INT` or a CI runner would; the exit code and how long the
+        process took to end (it is killed after 60 s)."""
+        sent = time.monotonic()
+        self.process.send_signal(signal.SIGINT)
+        try:
+            code = self.process.wait(timeout=60)
+        finally:
+            took = time.monotonic() - sent
+            self.stop()
+        self._reader.join(timeout=5)
+        return code, took
+
+    def output(self) -> str:
+        return "\n".join(self.lines[-30:])
+
+    def stop(self) -> None:
+        if self.process.poll() is None:
+            self.process.kill()
+            self.process.wait()
 
 
 def leftover_containers(engine, root: Path) -> list[str]:

@@ -13,8 +13,11 @@ import contextlib
 import hashlib
 import json
 import os
+import pty
 import re
+import select
 import shutil
+import signal
 import socket
 import subprocess
 import sys
@@ -28,7 +31,15 @@ import pytest
 
 from espdock.config import Config, resolve_ca_bundle
 from espdock.layout import firmware_install_dir
-from tests.conftest import REPO, containers_created, copy_workspace, espdock, leftover_containers, ros_build_tag
+from tests.conftest import (
+    REPO,
+    Started,
+    containers_created,
+    copy_workspace,
+    espdock,
+    leftover_containers,
+    ros_build_tag,
+)
 from tests.idf_contract_double.build import build_double, use_double
 from tests.nvs_reader import read_nvs
 
@@ -482,6 +493,76 @@ def test_flash_writes_and_verifies_through_esptool(fw_ws, double_env, mock_bootl
     result = espdock("flash", "camera_node", "--port", mock_bootloader, "--verify", cwd=root, env=double_env)
     assert result.returncode == 0, result.stdout[-3000:] + result.stderr
     assert "verified" in result.stdout
+    assert leftover_containers(engine, root) == []
+
+
+def test_ctrl_c_during_flash_ends_with_130_leaving_no_container_and_the_next_flash_works(fw_ws, double_env, engine):
+    root, first = fw_ws
+    assert first.returncode == 0
+    with emulated_board("esp32") as port:
+        flashing = Started(root, "flash", "camera_node", "--port", port, "--verify", env=double_env)
+        try:
+            flashing.wait_for("Writing at", timeout=300)
+            code, took = flashing.interrupt_timed()
+        finally:
+            flashing.stop()
+        assert code == 130, flashing.output()
+        assert took < 10, f"espdock flash took {took:.1f} s to end after Ctrl-C"
+        assert leftover_containers(engine, root) == []
+    with emulated_board("esp32") as port:  # the user resets the board, which esptool left mid-write
+        again = espdock("flash", "camera_node", "--port", port, "--verify", cwd=root, env=double_env)
+        assert again.returncode == 0, again.stdout[-2000:] + again.stderr
+
+
+def test_ctrl_c_during_idf_passthrough_ends_with_130_leaving_no_container(fw_ws, double_env, engine):
+    """`espdock idf PKG -- ARGS` runs idf.py attached to espdock's streams: here `flash` through
+    esptool, interrupted while it writes."""
+    root, first = fw_ws
+    assert first.returncode == 0
+    with emulated_board("esp32") as port:
+        flashing = Started(root, "idf", "camera_node", "--", "-p", port, "flash", env=double_env)
+        try:
+            flashing.wait_for("Writing at", timeout=300)
+            code, took = flashing.interrupt_timed()
+        finally:
+            flashing.stop()
+    assert code == 130, flashing.output()
+    assert took < 10, f"espdock idf took {took:.1f} s to end after Ctrl-C"
+    assert leftover_containers(engine, root) == []
+
+
+def test_ctrl_c_ends_the_monitor_with_130_leaving_no_container(fw_ws, double_env, engine):
+    """`espdock monitor` needs a terminal: it runs on a pseudo-terminal here, and gets SIGINT as
+    from `kill -INT` (at the terminal itself, Ctrl-C goes to the board and Ctrl-] ends the monitor,
+    as in idf.py monitor)."""
+    root, first = fw_ws
+    assert first.returncode == 0
+    with emulated_board("esp32") as port:
+        controller, terminal = pty.openpty()
+        monitor = subprocess.Popen(
+            [sys.executable, "-m", "espdock", "monitor", "camera_node", "--port", port],
+            cwd=root, env={**os.environ, **double_env}, stdin=terminal, stdout=terminal, stderr=terminal,
+        )  # fmt: skip
+        os.close(terminal)
+        seen = b""
+        try:
+            deadline = time.monotonic() + 300
+            while b"esp-idf-monitor" not in seen and time.monotonic() < deadline and monitor.poll() is None:
+                if select.select([controller], [], [], 0.5)[0]:
+                    with contextlib.suppress(OSError):
+                        seen += os.read(controller, 65536)
+            assert b"esp-idf-monitor" in seen, seen.decode(errors="replace")[-2000:]
+            sent = time.monotonic()
+            monitor.send_signal(signal.SIGINT)
+            code = monitor.wait(timeout=60)
+            took = time.monotonic() - sent
+        finally:
+            if monitor.poll() is None:
+                monitor.kill()
+                monitor.wait()
+            os.close(controller)
+    assert code == 130, seen.decode(errors="replace")[-2000:]
+    assert took < 10, f"espdock monitor took {took:.1f} s to end after Ctrl-C"
     assert leftover_containers(engine, root) == []
 
 

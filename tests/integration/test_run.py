@@ -7,16 +7,13 @@ import json
 import os
 import random
 import shutil
-import signal
 import subprocess
-import sys
-import threading
 import time
 from pathlib import Path
 
 import pytest
 
-from tests.conftest import REPO, copy_workspace, espdock, leftover_containers
+from tests.conftest import REPO, Started, copy_workspace, espdock, leftover_containers
 
 pytestmark = pytest.mark.engine
 
@@ -30,50 +27,9 @@ def node_workspace(engine, tmp_path_factory) -> Path:
     return root
 
 
-class Node:
-    """`espdock run ARGS` in the background, its output (stdout and stderr) collected by line."""
-
-    def __init__(self, root: Path, *args: str, domain: int) -> None:
-        env = {**os.environ, "ROS_DOMAIN_ID": str(domain)}
-        self.process = subprocess.Popen(
-            [sys.executable, "-m", "espdock", "run", *args],
-            cwd=root,
-            env=env,
-            stdin=subprocess.DEVNULL,
-            stdout=subprocess.PIPE,
-            stderr=subprocess.STDOUT,
-            text=True,
-        )
-        self.lines: list[str] = []
-        self._reader = threading.Thread(target=self._read, daemon=True)
-        self._reader.start()
-
-    def _read(self) -> None:
-        assert self.process.stdout is not None
-        for line in self.process.stdout:
-            self.lines.append(line.rstrip("\n"))
-
-    def wait_for(self, text: str, timeout: float = 90) -> str:
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
-            found = next((line for line in self.lines if text in line), None)
-            if found:
-                return found
-            if self.process.poll() is not None and not self._reader.is_alive():
-                break
-            time.sleep(0.1)
-        raise AssertionError(f"no line with {text!r} within {timeout:g} s; output:\n" + "\n".join(self.lines[-30:]))
-
-    def interrupt(self, timeout: float = 30) -> int:
-        self.process.send_signal(signal.SIGINT)
-        code = self.process.wait(timeout=timeout)
-        self._reader.join(timeout=5)
-        return code
-
-    def stop(self) -> None:
-        if self.process.poll() is None:
-            self.process.kill()
-            self.process.wait()
+def Node(root: Path, *args: str, domain: int) -> Started:
+    """`espdock run ARGS` in the background in ROS domain DOMAIN."""
+    return Started(root, "run", *args, env={"ROS_DOMAIN_ID": str(domain)})
 
 
 def no_containers_left(engine, root: Path) -> list[str]:
@@ -167,3 +123,60 @@ def test_init_writes_a_starter_compose_file_whose_services_start_and_talk(engine
         assert "heard: beacon" in logs, compose("logs", "--no-color").stdout[-3000:]
     finally:
         compose("--profile", "*", "down", "-v", "--remove-orphans", "-t", "3")
+
+
+COMPOSE_PROJECT = """\
+# A service that stops on SIGTERM and one that ignores it, which Compose kills at the end of its
+# stop_grace_period (longer than espdock's Ctrl-C budget).
+services:
+  polite:
+    image: {base}
+    command: ["sh", "-c", "trap 'exit 0' TERM; echo polite up; while :; do sleep 0.1; done"]
+  stubborn:
+    image: {base}
+    command: ["sh", "-c", "trap '' TERM; echo stubborn up; while :; do sleep 0.1; done"]
+    stop_grace_period: 14s
+"""
+
+
+def base_image() -> str:
+    from espdock.config import Config
+    from espdock.plan import base_image
+
+    return base_image(Config(), (REPO / "Dockerfile.ros").read_text())
+
+
+def test_ctrl_c_ends_compose_up_with_130_within_10_s_and_compose_stops_every_service(engine, tmp_path):
+    """Without a terminal (CI, `kill -INT`) the signal reaches espdock alone: espdock passes it to
+    Compose and waits for the services to stop, but not past its 10 s budget; Compose then goes
+    on, and stops a service that ignores SIGTERM at the end of its grace period."""
+    root = tmp_path / "compose-ws"
+    root.mkdir()
+    (root / "espdock.toml").write_text("")
+    (root / "compose.yaml").write_text(COMPOSE_PROJECT.format(base=base_image()))
+    project = f"espdock-ctrl-c-{os.getpid()}"
+
+    def running() -> list[str]:
+        return subprocess.run(
+            ["docker", "ps", "--format", "{{.Label \"com.docker.compose.service\"}}",
+             "--filter", f"label=com.docker.compose.project={project}"],
+            capture_output=True, text=True, check=True,
+        ).stdout.split()  # fmt: skip
+
+    up = Started(root, "compose", "-p", project, "up")
+    try:
+        up.wait_for("polite up", timeout=120)
+        up.wait_for("stubborn up", timeout=30)
+        signalled = time.monotonic()
+        code, took = up.interrupt_timed()
+        assert code == 130, up.output()
+        assert took < 10, f"espdock compose took {took:.1f} s to end after Ctrl-C"
+        assert "Compose is still stopping the services" in up.output()
+        assert running() == ["stubborn"], "the service that stops on SIGTERM was not stopped"
+        while running() and time.monotonic() < signalled + 14 + 10:
+            time.sleep(0.5)
+        assert running() == [], "Compose left a service running after its stop_grace_period"
+    finally:
+        up.stop()
+        subprocess.run(["docker", "compose", "-p", project, "down", "--timeout", "0"], cwd=root,
+                       capture_output=True, check=False)  # fmt: skip

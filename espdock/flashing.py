@@ -9,7 +9,7 @@ import os
 import re
 import socket
 import stat
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -62,6 +62,19 @@ def parse_port(spec: str) -> Port:
     if not spec.startswith("/"):
         raise ConfigError(f"'{spec}' is not a device path", "Give the full path, e.g. /dev/ttyUSB0.")
     return Port(spec, device=spec)
+
+
+def idf_port(args: Sequence[str]) -> str | None:
+    """The serial port in idf.py ARGS (`-p PORT`, `-pPORT`, `--port PORT`, `--port=PORT`), or None.
+    idf.py takes it before or after its actions, as click parses them."""
+    for index, arg in enumerate(args):
+        if arg in ("-p", "--port"):
+            return args[index + 1] if index + 1 < len(args) else None
+        if arg.startswith("--port="):
+            return arg.removeprefix("--port=")
+        if arg.startswith("-p") and not arg.startswith("--") and len(arg) > 2:
+            return arg[2:]
+    return None
 
 
 def check_port(port: Port, timeout: float = 3.0) -> None:

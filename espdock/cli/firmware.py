@@ -26,7 +26,7 @@ from espdock.cli.core import (
 from espdock.config import Config, check_target
 from espdock.engine import format_argv
 from espdock.errors import ConfigError
-from espdock.flashing import check_port, flash_package, parse_port, read_flasher_args
+from espdock.flashing import check_port, flash_package, idf_port, parse_port, read_flasher_args
 from espdock.layout import firmware_install_dir
 from espdock.pins import pin_idf_image, read_sources, write_pins
 from espdock.plan import EnsureImage, ImageSpec, Plan, workspace_micro_ros_images
@@ -57,11 +57,18 @@ def idf(
         args = [a for a in args if a != "fullclean"]
         if not args:
             return
+    # `flash` and `monitor` through idf.py: only the port they name goes into the container.
+    port = idf_port(args)
+    serial = parse_port(port) if port is not None else None
+    if serial is not None:
+        check_port(serial)
     argv = step.argv(tuple(args))
     console.print(Text(f"in {step.image}: {format_argv(argv)}", style="dim"))
     runner = runner_for(ws, config, Reporter(console))
     runner.run(plan)
-    raise typer.Exit(runner.run_idf(ws, step, argv))
+    devices = (serial.device,) if serial is not None and serial.device else ()
+    network = "host" if serial is not None and serial.is_url else None
+    raise typer.Exit(runner.run_idf(ws, step, argv, devices=devices, network=network))
 
 
 def _micro_ros_specs(

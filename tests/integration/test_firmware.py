@@ -516,7 +516,7 @@ def test_ctrl_c_during_flash_ends_with_130_leaving_no_container_and_the_next_fla
 
 def test_ctrl_c_during_idf_passthrough_ends_with_130_leaving_no_container(fw_ws, double_env, engine):
     """`espdock idf PKG -- ARGS` runs idf.py attached to espdock's streams: here `flash` through
-    esptool, interrupted while it writes."""
+    esptool, to the port given to idf.py (passed into the container), interrupted while it writes."""
     root, first = fw_ws
     assert first.returncode == 0
     with emulated_board("esp32") as port:

@@ -14,6 +14,7 @@ from espdock.flashing import (
     check_port,
     esptool_major,
     flash_argv,
+    idf_port,
     parse_port,
     verify_argv,
     write_region_argv,
@@ -110,6 +111,21 @@ def test_esptool_version_parsing():
 def test_bad_port_specs_are_refused(spec):
     with pytest.raises(ConfigError):
         parse_port(spec)
+
+
+@pytest.mark.parametrize(
+    ("args", "port"),
+    [
+        (["-p", "/dev/ttyUSB0", "flash"], "/dev/ttyUSB0"),
+        (["flash", "monitor", "--port", "socket://h:1"], "socket://h:1"),
+        (["--port=/dev/ttyACM1", "flash"], "/dev/ttyACM1"),
+        (["-p/dev/ttyUSB1", "monitor"], "/dev/ttyUSB1"),
+        (["build", "--preview"], None),
+        (["flash"], None),
+    ],
+)
+def test_the_idf_passthrough_finds_the_port_idf_py_is_given(args, port):
+    assert idf_port(args) == port
 
 
 def test_missing_device_is_a_clear_error(tmp_path):

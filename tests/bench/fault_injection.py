@@ -9,7 +9,8 @@ and over. Each round picks a phase and a signal, starts the command that runs th
 waits for the phase to start (its step's line in espdock's output), then sends the signal
 after a random delay within the phase's duration (measured in the uninterrupted round):
 
-  image      the micro-ROS image build (its image, unique to this run, removed first)
+  image      the micro-ROS image build (its image, unique to this run, removed first, and
+             BuildKit's cache emptied: the library is built again)
   colcon     `build --force --only ros`, during colcon
   firmware   `build --force --only firmware`, during idf.py build
   install    the same, during the atomic install of the firmware
@@ -24,7 +25,8 @@ After a SIGKILL: the next `espdock build` removes what was left.
 After either: the next `espdock build` succeeds and `espdock verify` finds its install tree
 identical to the uninterrupted build's manifest.
 
-Only this run's workspaces' containers are looked at (by the io.espdock.workspace label).
+Empties the engine's BuildKit cache before each image round. Only this run's workspaces'
+containers are looked at (by the io.espdock.workspace label).
 Prints the counts per phase and signal, the slowest exit, and every failure.
 """
 
@@ -56,6 +58,7 @@ from tests.conftest import copy_workspace  # noqa: E402
 from tests.idf_contract_double.build import use_double  # noqa: E402
 
 FIRMWARE = "led_strip_node"
+CHIP = "esp32c3"  # led_strip_node's own (CONFIG_IDF_TARGET in its sdkconfig.defaults): the board emulated
 EXIT_BUDGET = 10.0
 ONLY_FIRMWARE = ("build", "--force", "--only", "firmware")
 # phase: (command, the output line that starts it)
@@ -130,7 +133,14 @@ class Watched:
         return "\n".join(line for _, line in self.lines[-15:])
 
 
-def phase_durations(report: dict, provision_seconds: float) -> dict[str, float]:
+def fresh_image_build(micro_ros: str) -> None:
+    """Make the next build of MICRO_ROS a real one: the image removed, and BuildKit's cache with
+    it (else the cache answers every step in a second and there is no build to interrupt)."""
+    subprocess.run(["docker", "rmi", micro_ros], capture_output=True, check=False)
+    subprocess.run(["docker", "builder", "prune", "-af"], capture_output=True, check=False)
+
+
+def phase_durations(report: dict, provision_seconds: float, manifest_seconds: float) -> dict[str, float]:
     steps = {s["step"]: s["seconds"] for s in report["steps"]}
 
     def step(prefix: str) -> float:
@@ -141,7 +151,7 @@ def phase_durations(report: dict, provision_seconds: float) -> dict[str, float]:
         "colcon": step("colcon build"),
         "firmware": step(f"idf.py build {FIRMWARE}"),
         "install": step(f"install {FIRMWARE}") + 0.05,
-        "manifest": 0.3,
+        "manifest": manifest_seconds,
         "provision": provision_seconds,
     }
 
@@ -159,7 +169,7 @@ class Bootloader:
             probe.bind(("127.0.0.1", 0))
             port = probe.getsockname()[1]
         tool = Path(sys.executable).with_name("esp32-mock-bootloader")
-        self.process = subprocess.Popen([str(tool), "run", "--chip", "esp32", "--port", str(port)],
+        self.process = subprocess.Popen([str(tool), "run", "--chip", CHIP, "--port", str(port)],
                                         stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)  # fmt: skip
         deadline = time.monotonic() + 30
         while time.monotonic() < deadline:
@@ -229,14 +239,18 @@ def main() -> None:
             # Calibration, uninterrupted: how long each phase lasts here, now, and the install tree
             # every later build must match. (A rebuild, not the first build: setuptools' egg-info
             # SOURCES.txt lists more files on a rebuild than on a build from nothing.)
-            subprocess.run(["docker", "rmi", micro_ros], capture_output=True, check=False)
-            calibrated = run(root, env, "build", "--force", "--report", str(report))
+            fresh_image_build(micro_ros)
+            calibrated = Watched(espdock_argv(("build", "--force", "--report", str(report)), ""), root, env)
+            installed = calibrated.wait_for(PHASES["manifest"][1])
+            calibrated.process.wait()
+            manifest_seconds = time.monotonic() - (installed or 0.0)
             shutil.copy2(root / "ws/install/espdock-manifest.json", expected)
             started = time.monotonic()
             provisioned = run(root, env, *espdock_argv(("provision",), bootloader.ready())[3:])
-            if calibrated.returncode != 0 or provisioned.returncode != 0:
-                sys.exit(f"calibration failed:\n{calibrated.stderr}{provisioned.stdout[-2000:]}{provisioned.stderr}")
-            durations = phase_durations(json.loads(report.read_text()), time.monotonic() - started)
+            if calibrated.process.returncode != 0 or installed is None or provisioned.returncode != 0:
+                failed = f"{calibrated.output()}\n{provisioned.stdout[-2000:]}\n{provisioned.stderr}"
+                sys.exit(f"calibration failed:\n{failed}")
+            durations = phase_durations(json.loads(report.read_text()), time.monotonic() - started, manifest_seconds)
             print(f"seed {seed}; phase durations (s): " + ", ".join(f"{k} {v:.2f}" for k, v in durations.items()))
 
             signals = ["SIGINT"] * args.interrupts + ["SIGKILL"] * args.kills
@@ -262,19 +276,20 @@ def one_round(number: int, phase: str, name: str, root: Path, env: dict[str, str
     failed_before = len(tally.failures)
     command, trigger = PHASES[phase]
     if phase == "image":
-        subprocess.run(["docker", "rmi", micro_ros], capture_output=True, check=False)
+        fresh_image_build(micro_ros)
     for attempt in range(4):
         port = bootloader.ready() if phase == "provision" else ""
         watched = Watched(espdock_argv(command, port), root, env)
         at = watched.wait_for(trigger) if trigger else watched.started
-        delay = rng.uniform(0, durations[phase]) / (2**attempt)
+        # Each retry aims earlier; the last one signals as soon as the phase starts.
+        delay = rng.uniform(0, durations[phase]) / (2**attempt) if attempt < 3 else 0.0
         if at is not None:
             time.sleep(max(0.0, at + delay - time.monotonic()))
         if at is None or watched.process.poll() is not None:
             tally.missed += 1  # it ended before the moment came: try again, earlier
             watched.process.wait()
             if phase == "image":
-                subprocess.run(["docker", "rmi", micro_ros], capture_output=True, check=False)
+                fresh_image_build(micro_ros)
             continue
         sent = time.monotonic()
         watched.process.send_signal(signal.SIGINT if name == "SIGINT" else signal.SIGKILL)

@@ -28,7 +28,6 @@ sys.path.insert(0, str(REPO))
 
 from tests.conftest import copy_workspace  # noqa: E402
 
-STEP = re.compile(r"^#(\d+) \[([^\]]+)\] (.*)$")
 DONE = re.compile(r"^#(\d+) DONE (\d+(?:\.\d+)?)s$")
 
 
@@ -51,13 +50,22 @@ def build(root: Path) -> tuple[float, list[tuple[float, str]]]:
     seconds = time.perf_counter() - started
     if result.returncode != 0:
         sys.exit(f"build failed:\n{result.stdout[-3000:]}{result.stderr[-2000:]}")
+    # espdock shows a step's "#N [stage i/n] RUN ..." line as "RUN ..." (runner.BUILDKIT_STEP):
+    # the next "#N" line that has no name yet names it.
     names: dict[str, str] = {}
     steps: list[tuple[float, str]] = []
+    pending = ""
     for line in map(str.strip, result.stdout.splitlines()):
-        if match := STEP.match(line):
-            names[match[1]] = f"[{match[2]}] {match[3][:90]}"
+        if not line.startswith("#"):
+            pending = line if line.split(" ", 1)[0] in ("RUN", "COPY", "FROM", "ADD") else pending
         elif (match := DONE.match(line)) and match[1] in names:
             steps.append((float(match[2]), names[match[1]]))
+        elif (number := line[1:].split(" ", 1)[0]).isdigit() and number not in names:
+            rest = line.split(" ", 1)[1] if " " in line else ""
+            if pending:
+                names[number], pending = " ".join(re.sub(r"--mount=\S+", "", pending).split())[:100], ""
+            elif rest and not rest[0].isdigit() and not rest.startswith(("DONE", "CACHED")):
+                names[number] = rest[:100]  # a step of BuildKit's own, e.g. "exporting to image"
     return seconds, sorted(steps, reverse=True)
 
 
@@ -66,7 +74,7 @@ def prune(*options: str) -> None:
 
 
 def main() -> None:
-    before = set(images())
+    before = images()
     with tempfile.TemporaryDirectory(prefix="espdock-bench-ros-image-") as tmp:
         root = copy_workspace(Path(tmp) / "ws")
         try:

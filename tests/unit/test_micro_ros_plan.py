@@ -1,6 +1,7 @@
 """The micro-ROS image key and the firmware part of the plan, without an engine."""
 
 import json
+import subprocess
 from dataclasses import replace
 from pathlib import Path
 
@@ -311,3 +312,54 @@ def test_an_idf_image_older_than_5_3_is_refused_before_anything_builds(image):
 @pytest.mark.parametrize("image", ["espressif/idf:v5.3.5", "espressif/idf:v5.4", "espressif/idf@sha256:" + "a" * 64])
 def test_idf_5_3_and_later_or_a_digest_are_accepted(image):
     assert key(config=Config(idf_image=image))
+
+
+# The library's build tools (colcon, catkin_pkg, lark, empy) exist only in IDF's venv, so CMake's
+# FindPython3 must find that venv's interpreter when micro-ROS is built in Dockerfile.idf. The
+# real build cannot run here (no espressif/idf image); the recipe and its guard can.
+IDF_RECIPE = Path(__file__).resolve().parents[2] / "Dockerfile.idf"
+IDF_VENV = "/opt/esp/python_env/idf5.3_py3.10_env"  # the espressif/idf:v5.3.5 image's
+
+
+def library_build_run() -> str:
+    """The RUN instruction of Dockerfile.idf that builds libmicroros.a, as one line."""
+    joined = IDF_RECIPE.read_text().replace("\\\n", " ")
+    (run,) = [line for line in joined.splitlines() if line.startswith("RUN") and "reconfigure" in line]
+    return run
+
+
+def test_the_library_build_points_cmake_at_idf_s_venv_python():
+    run = library_build_run()
+    rest = run.split('. "$IDF_PATH/export.sh"', 1)[1]
+    assert "venv=\"$(python -c 'import sys; print(sys.prefix)')\"" in rest, "the venv is not read after export.sh"
+    reconfigure = next(part for part in rest.split("&&") if "reconfigure" in part)
+    assert 'VIRTUAL_ENV="$venv"' in reconfigure and 'Python3_ROOT_DIR="$venv"' in reconfigure
+
+
+def run_guard(tmp_path: Path, caches: dict[str, str]) -> subprocess.CompletedProcess:
+    """Dockerfile.idf's check of the CMake caches, run on CACHES (package -> recorded Python3_EXECUTABLE)."""
+    guard = library_build_run().split("&& stray=", 1)[1].split("&& test -f", 1)[0]
+    component = tmp_path / "component"
+    for package, python in caches.items():
+        build = component / "micro_ros_src" / "build" / package
+        build.mkdir(parents=True)
+        (build / "CMakeCache.txt").write_text(
+            f"CMAKE_BUILD_TYPE:STRING=Release\nPython3_EXECUTABLE:FILEPATH={python}\n"
+        )
+    script = "stray=" + guard.replace("/opt/micro_ros_espidf_component", str(component))
+    return subprocess.run(["sh", "-c", f"venv={IDF_VENV}; {script}"], check=False, capture_output=True, text=True)
+
+
+def test_a_library_built_with_idf_s_venv_python_passes_the_guard(tmp_path):
+    python = f"{IDF_VENV}/bin/python3"
+    assert run_guard(tmp_path, {"rcl": python, "rclc": python}).returncode == 0
+
+
+def test_a_library_built_with_another_python_fails_the_image_build_naming_it(tmp_path):
+    result = run_guard(
+        tmp_path, {"rcl": "/opt/esp/python_env/idf5.3_py3.10_env/bin/python3", "rclc": "/usr/bin/python3"}
+    )
+    assert result.returncode == 1
+    assert "micro-ROS was built with a Python outside IDF's venv" in result.stderr
+    assert "rclc/CMakeCache.txt:Python3_EXECUTABLE:FILEPATH=/usr/bin/python3" in result.stderr
+    assert "rcl/CMakeCache.txt" not in result.stderr

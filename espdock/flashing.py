@@ -44,6 +44,16 @@ class Port:
     def is_url(self) -> bool:
         return self.device is None
 
+    @property
+    def devices(self) -> tuple[str, ...]:
+        """The devices a container needs for this port: the port's own, or none for a URL."""
+        return (self.device,) if self.device else ()
+
+    @property
+    def network(self) -> str | None:
+        """The network a container needs for this port: the host's for a URL (it may be on loopback)."""
+        return "host" if self.is_url else None
+
 
 def parse_port(spec: str) -> Port:
     """A device path (/dev/ttyUSB0) or a socket:// / rfc2217:// URL with host and port."""
@@ -251,8 +261,6 @@ def flash_package(
 
     NVS_IMAGE (offset, host file) is written in the same run; without APP, only it is."""
     workdir = step.install_dir
-    devices = (port.device,) if port.device else ()
-    network = "host" if port.is_url else None
     mounts: tuple[Mount, ...] = ()
     extra: Extra | None = None
     if nvs_image is not None:
@@ -271,8 +279,8 @@ def flash_package(
         step,
         chip_id_argv(port, major),
         on_line=probe.append,
-        devices=devices,
-        network=network,
+        devices=port.devices,
+        network=port.network,
         workdir=workdir,
     )
     check_chip(step.package, chip, probe, port)
@@ -287,7 +295,14 @@ def flash_package(
     for argv in commands:
         say(format_argv(argv))
         code = runner.run_idf(
-            workspace, step, argv, on_line=say, devices=devices, network=network, workdir=workdir, extra_mounts=mounts
+            workspace,
+            step,
+            argv,
+            on_line=say,
+            devices=port.devices,
+            network=port.network,
+            workdir=workdir,
+            extra_mounts=mounts,
         )
         if code != 0:
             raise PortError(f"esptool failed (exit code {code}) on {port.spec}", "See its output above.")

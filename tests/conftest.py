@@ -145,6 +145,14 @@ class Started:
         self._reader.join(timeout=5)
         return code, took
 
+    def interrupt_on(self, text: str, timeout: float = 300) -> tuple[int, float]:
+        """Once a line with TEXT came, interrupt_timed(); the process is stopped however this ends."""
+        try:
+            self.wait_for(text, timeout=timeout)
+            return self.interrupt_timed()
+        finally:
+            self.stop()
+
     def output(self) -> str:
         return "\n".join(self.lines[-30:])
 

@@ -66,9 +66,9 @@ def idf(
     console.print(Text(f"in {step.image}: {format_argv(argv)}", style="dim"))
     runner = runner_for(ws, config, Reporter(console))
     runner.run(plan)
-    devices = (serial.device,) if serial is not None and serial.device else ()
-    network = "host" if serial is not None and serial.is_url else None
-    raise typer.Exit(runner.run_idf(ws, step, argv, devices=devices, network=network))
+    if serial is None:
+        raise typer.Exit(runner.run_idf(ws, step, argv))
+    raise typer.Exit(runner.run_idf(ws, step, argv, devices=serial.devices, network=serial.network))
 
 
 def _micro_ros_specs(
@@ -261,9 +261,5 @@ def monitor(
     plan, step = firmware_plan(ws, config, package)
     runner = runner_for(ws, config, Reporter(console))
     runner.run(plan)
-    devices = (serial.device,) if serial.device else ()
-    raise typer.Exit(
-        runner.run_idf(
-            ws, step, step.argv(("-p", port, "monitor")), devices=devices, network="host" if serial.is_url else None
-        )
-    )
+    argv = step.argv(("-p", port, "monitor"))
+    raise typer.Exit(runner.run_idf(ws, step, argv, devices=serial.devices, network=serial.network))

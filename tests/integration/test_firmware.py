@@ -501,11 +501,7 @@ def test_ctrl_c_during_flash_ends_with_130_leaving_no_container_and_the_next_fla
     assert first.returncode == 0
     with emulated_board("esp32") as port:
         flashing = Started(root, "flash", "camera_node", "--port", port, "--verify", env=double_env)
-        try:
-            flashing.wait_for("Writing at", timeout=300)
-            code, took = flashing.interrupt_timed()
-        finally:
-            flashing.stop()
+        code, took = flashing.interrupt_on("Writing at")
         assert code == 130, flashing.output()
         assert took < 10, f"espdock flash took {took:.1f} s to end after Ctrl-C"
         assert leftover_containers(engine, root) == []
@@ -521,11 +517,7 @@ def test_ctrl_c_during_idf_passthrough_ends_with_130_leaving_no_container(fw_ws,
     assert first.returncode == 0
     with emulated_board("esp32") as port:
         flashing = Started(root, "idf", "camera_node", "--", "-p", port, "flash", env=double_env)
-        try:
-            flashing.wait_for("Writing at", timeout=300)
-            code, took = flashing.interrupt_timed()
-        finally:
-            flashing.stop()
+        code, took = flashing.interrupt_on("Writing at")
     assert code == 130, flashing.output()
     assert took < 10, f"espdock idf took {took:.1f} s to end after Ctrl-C"
     assert leftover_containers(engine, root) == []

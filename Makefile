@@ -24,12 +24,14 @@ setup: $(VENV)/.installed
 
 # The firmware host tests (host gcc, no engine) run beside pytest, which mostly waits on
 # the engine; their output follows pytest's, and either failing fails the target.
+# Two pytest workers, each taking whole modules (their module fixtures build once):
+# one worker's image builds and colcon runs overlap the other's waits on containers.
 test: setup
 	$(PY) -m ruff check espdock tests ws/src
 	$(PY) -m ruff format --check espdock tests ws/src
 	mkdir -p build
 	bash tests/firmware/run.sh build/host-tests > build/host-tests.log 2>&1 & firmware=$$!; \
-	$(PY) -m pytest; status=$$?; \
+	$(PY) -m pytest -n 2 --dist loadfile; status=$$?; \
 	wait $$firmware; firmware_status=$$?; \
 	cat build/host-tests.log; \
 	exit $$(( status || firmware_status ))

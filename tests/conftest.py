@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import fcntl
 import os
 import shutil
 import signal
@@ -218,8 +219,11 @@ def wheel_espdock():
     place = Path(tempfile.mkdtemp(prefix="espdock-wheel-"))
     place.chmod(0o755)
     dist = place / "dist"
-    subprocess.run([sys.executable, "-m", "pip", "wheel", "-q", "--no-deps", "-w", str(dist), str(REPO)],
-                   check=True, capture_output=True)  # fmt: skip
+    # setuptools builds in the checkout (build/, *.egg-info): one pytest worker at a time.
+    with open(Path(tempfile.gettempdir()) / "espdock-wheel-build.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        subprocess.run([sys.executable, "-m", "pip", "wheel", "-q", "--no-deps", "-w", str(dist), str(REPO)],
+                       check=True, capture_output=True)  # fmt: skip
     (wheel,) = dist.glob("espdock-*.whl")
     venv = place / "venv"
     subprocess.run(["/usr/bin/python3", "-m", "venv", str(venv)], check=True)

@@ -37,15 +37,19 @@ def registry(tmp_path_factory) -> Iterator[Registry]:
 
 @pytest.fixture(scope="module")
 def origin(tmp_path_factory, engine) -> tuple[Path, dict[str, str]]:
-    """Workspace sources with an interface and firmware; a comment unique to this run gives it
-    micro-ROS images no other test has."""
+    """Workspace sources with an interface and firmware; comments unique to this run give it
+    ROS and micro-ROS images no other test has (these tests remove them while other pytest
+    workers build)."""
     root = copy_workspace(tmp_path_factory.mktemp("cache") / "origin")
     shutil.copy2(REPO / "Dockerfile.idf", root / "Dockerfile.idf")
     shutil.copytree(REPO / "firmware", root / "firmware")
     shutil.rmtree(root / "firmware" / "camera_node")  # one app, one micro-ROS image: enough here
     double_env = use_double(engine, resolve_ca_bundle(Config(), os.environ), lambda line: None, root)
     msg = root / "ws/src/custom_interface/msg/CameraConfig.msg"
-    msg.write_text(msg.read_text() + f"# cache test {uuid.uuid4().hex}\n")
+    run = uuid.uuid4().hex
+    msg.write_text(msg.read_text() + f"# cache test {run}\n")
+    dockerfile = root / "Dockerfile.ros"
+    dockerfile.write_text(dockerfile.read_text() + f"# cache test {run}\n")
     return root, double_env
 
 

@@ -48,8 +48,9 @@ def origin(tmp_path_factory, engine) -> tuple[Path, dict[str, str]]:
     msg = root / "ws/src/custom_interface/msg/CameraConfig.msg"
     run = uuid.uuid4().hex
     msg.write_text(msg.read_text() + f"# cache test {run}\n")
-    dockerfile = root / "Dockerfile.ros"
-    dockerfile.write_text(dockerfile.read_text() + f"# cache test {run}\n")
+    # led_strip_node's library does not use the message: its key changes with Dockerfile.idf.
+    for dockerfile in (root / "Dockerfile.ros", root / "Dockerfile.idf"):
+        dockerfile.write_text(dockerfile.read_text() + f"# cache test {run}\n")
     return root, double_env
 
 

@@ -69,17 +69,30 @@ def fw_ws_and_env(tmp_path_factory, engine, double):
     shutil.copy2(REPO / "Dockerfile.idf", root / "Dockerfile.idf")
     shutil.copytree(REPO / "firmware", root / "firmware")
     double_env = use_double(engine, resolve_ca_bundle(Config(), os.environ), lambda line: None, root)
-    # A comment unique to this run: its micro-ROS images can't be left over from an earlier one.
-    msg = root / "ws/src/custom_interface/msg/CameraConfig.msg"
-    msg.write_text(msg.read_text() + f"# test run {uuid.uuid4().hex}\n")
+    # Comments unique to this run: its micro-ROS images can't be left over from an earlier one,
+    # nor be another pytest worker's (led_strip_node's library does not use the message).
+    run = uuid.uuid4().hex
+    for source in (root / "ws/src/custom_interface/msg/CameraConfig.msg", root / "Dockerfile.idf"):
+        source.write_text(source.read_text() + f"# test run {run}\n")
+    ours = hashlib.sha256((root / "Dockerfile.idf").read_bytes()).hexdigest()
     subprocess.run(["chown", "-R", f"{USER_UID}:{USER_UID}", str(root)], check=True)
     before = set(micro_ros_images())
     first = espdock("build", cwd=root, env=double_env)
     yield root, first, double_env
     engine.remove_containers({"io.espdock.workspace": str(root)})
-    made = set(micro_ros_images()) - before
+    made = [tag for tag in set(micro_ros_images()) - before if built_from_dockerfile(tag) == ours]
     if made:
         subprocess.run(["docker", "rmi", "-f", *made], capture_output=True, check=False)
+
+
+def built_from_dockerfile(tag: str) -> str | None:
+    """The sha256 of the Dockerfile.idf micro-ROS image TAG was built from (its inputs label)."""
+    inspect = ["docker", "image", "inspect", "-f", '{{index .Config.Labels "io.espdock.inputs"}}', tag]
+    result = subprocess.run(inspect, capture_output=True, text=True, check=False)
+    try:
+        return json.loads(result.stdout).get("Dockerfile.idf")
+    except ValueError:
+        return None
 
 
 @pytest.fixture(scope="module")

@@ -9,12 +9,12 @@ LOCK := requirements/dev.txt
 
 .PHONY: setup test unit demo demo-down bench clean
 
-# A pinned pip (requirements/pip.txt says why), then every dependency from the hashed lock
+# The pinned pip (docker/pip-installer.txt says why), then every dependency from the hashed lock
 # (`espdock lock` makes it from pyproject.toml's dependencies and `test` extra), then
 # espdock itself, whose dependencies are all in it.
-$(VENV)/.installed: pyproject.toml $(LOCK) requirements/pip.txt
+$(VENV)/.installed: pyproject.toml $(LOCK) docker/pip-installer.txt
 	$(PYTHON) -m venv $(VENV)
-	$(PY) -m pip install -q --require-hashes -r requirements/pip.txt
+	$(PY) -m pip install -q --require-hashes -r docker/pip-installer.txt
 	$(PY) -m pip install -q --require-hashes -r $(LOCK)
 	$(PY) -m pip install -q --no-deps -e .
 	touch $@

@@ -62,7 +62,9 @@ def test_each_example_installs_espdock_from_its_lock_at_a_pinned_commit(path):
     assert re.search(r"ESPDOCK_COMMIT: [0-9a-f]{40}\n", text), "a full commit id, not a branch"
     assert 'checkout --quiet --detach "$ESPDOCK_COMMIT"' in text
     # The Makefile's recipe: the commit's own hashed lock, then espdock alone.
-    assert re.search(r'install --require-hashes -r "\$\w+/src/requirements/dev.txt"', text)
+    pip = re.search(r'install --require-hashes -r "\$\w+/src/docker/pip-installer.txt"', text)
+    dev = re.search(r'install --require-hashes -r "\$\w+/src/requirements/dev.txt"', text)
+    assert pip and dev and pip.start() < dev.start(), "the pinned pip installs the lock"
     assert re.search(r'install --no-deps "\$\w+/src"', text)
 
 

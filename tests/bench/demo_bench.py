@@ -6,8 +6,9 @@
 
 Measured with real ROS timestamps, all containers sharing the host's clock:
   latency   camera_sim stamps the first frame of each new QR colour (and announces
-            it on /camera_sim/scene); the probe takes the time it receives the LED
-            colour on /esp32/led_strip/color minus that stamp
+            it on /camera_sim/scene); the probe takes the time its DDS reader received
+            the LED colour on /esp32/led_strip/color minus that stamp (and, beside it,
+            the time its callback ran: that adds the probe's own executor)
   decoding  frames qr_detector decoded vs frames camera_sim published over a window,
             from their /diagnostics counters (published count interpolated at the
             detector's sample times); CPU per decoded frame from the detector
@@ -45,30 +46,33 @@ def percentile(values: list[float], q: float) -> float:
 
 
 def hops_from(changes: list[dict]) -> dict[str, list[float]]:
-    """Each change's latency cut into hops (ms), from the probe's receive times of the same
-    change's frame and QR text. The probe subscribes beside the detector and the LED strip,
-    so its copy of a message arrives when theirs does:
-      camera -> detector      the frame, from the camera's stamp to a subscriber
-      detector                that frame in, its QR text out (JPEG decode + zbar + publishing)
-      detector -> LED -> probe  the text to led_strip_sim, its colour out, that colour to the probe
-    Changes whose frame or text the probe missed (best-effort images) are left out of the hops."""
-    whole = [c for c in changes if c.get("frame_ms") is not None and c.get("qr_ms") is not None]
+    """Each change's latency cut into hops (ms), from the DDS source timestamps of the same
+    change's QR text and LED colour (when qr_detector and led_strip_sim published them; every
+    container reads the host's clock):
+      camera -> detector's text out   the frame's trip, the detector's executor, decoding, publishing
+      detector -> LED's colour out    the text's trip, led_strip_sim's executor and callback
+      LED -> observer's reader        the colour's trip
+    Changes whose QR text the observer missed are left out of the hops."""
+    whole = [c for c in changes if c.get("qr_sent_ms") is not None and c.get("led_sent_ms") is not None]
     return {
-        "camera -> detector": [c["frame_ms"] for c in whole],
-        "detector (frame in -> QR text out)": [c["qr_ms"] - c["frame_ms"] for c in whole],
-        "detector -> LED -> observer": [c["latency_ms"] - c["qr_ms"] for c in whole],
+        "camera -> detector's text out": [c["qr_sent_ms"] for c in whole],
+        "detector -> LED's colour out": [c["led_sent_ms"] - c["qr_sent_ms"] for c in whole],
+        "LED -> observer's reader": [c["latency_ms"] - c["led_sent_ms"] for c in whole],
     }
 
 
 def measure_latency(stack: DemoStack, changes: int, timeout: float) -> dict:
     report = stack.probe("follow", "--changes", str(changes), "--timeout", str(timeout), "--hops", timeout=timeout + 30)
     latencies = [c["latency_ms"] for c in report["changes"]]
+    callbacks = [c["callback_ms"] for c in report["changes"]]
     return {
         "changes": len(latencies),
         "missed": len(report["missed"]),
         "p50_ms": percentile(latencies, 50),
         "p95_ms": percentile(latencies, 95),
         "max_ms": max(latencies, default=float("nan")),
+        "callback_p50_ms": percentile(callbacks, 50),
+        "callback_p95_ms": percentile(callbacks, 95),
         "seconds": report["seconds"],
         "hops": {
             name: (percentile(v, 50), percentile(v, 95), len(v)) for name, v in hops_from(report["changes"]).items()
@@ -240,6 +244,10 @@ def main() -> int:
         ),
         row("  floor: qr_detector's decode per frame", f"{decoding['decode_ms_per_frame']:.2f} ms"),
         row("QR -> LED latency max", f"{latency['max_ms']:.1f} ms"),
+        row(
+            "  to the observer's callback p50 / p95",
+            f"{latency['callback_p50_ms']:.2f} / {latency['callback_p95_ms']:.2f} ms",
+        ),
         *(
             row(f"  hop {name} p50 / p95 ({n})", f"{p50:.2f} / {p95:.2f} ms")
             for name, (p50, p95, n) in latency["hops"].items()

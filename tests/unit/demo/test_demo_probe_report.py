@@ -36,17 +36,26 @@ def test_scenes_before_since_are_left_out():
     assert [c["hex"] for c in report["changes"]] == ["#00ff00"]
 
 
-def test_each_change_gets_its_hops_and_none_where_the_observer_missed_a_message():
+def test_latency_runs_to_the_observers_reader_and_the_callback_time_is_kept_beside_it():
+    leds = [{"hex": "#ff0000", "recv_ns": 9 * MS, "dds_ns": 6 * MS, "sent_ns": 5 * MS}]
+    (change,) = follow_report([scene(0, "#ff0000")], leds)["changes"]
+    assert (change["latency_ms"], change["callback_ms"], change["led_sent_ms"]) == (6.0, 9.0, 5.0)
+
+
+def test_each_change_gets_when_the_detector_sent_its_text_and_none_where_the_observer_missed_it():
     scenes = [scene(0, "#ff0000"), scene(1000, "#00ff00")]
-    leds = [led(5, "#ff0000"), led(1006, "#00ff00")]
-    frames = {0: 1 * MS}  # the second change's frame never reached the observer (best effort)
-    qr_texts = [{"text": "#ff0000", "recv_ns": 4 * MS}, {"text": "#00ff00", "recv_ns": 1004 * MS}]
-    changes = follow_report(scenes, leds, frames=frames, qr_texts=qr_texts)["changes"]
-    assert [(c["frame_ms"], c["qr_ms"], c["latency_ms"]) for c in changes] == [(1.0, 4.0, 5.0), (None, 4.0, 6.0)]
+    leds = [
+        {"hex": "#ff0000", "recv_ns": 7 * MS, "dds_ns": 6 * MS, "sent_ns": 5 * MS},
+        {"hex": "#00ff00", "recv_ns": 1008 * MS, "dds_ns": 1007 * MS, "sent_ns": 1006 * MS},
+    ]
+    qr_texts = [{"text": "#ff0000", "recv_ns": 4 * MS, "sent_ns": 3 * MS}]  # the second text never came
+    changes = follow_report(scenes, leds, qr_texts=qr_texts)["changes"]
+    hops = [(c["qr_sent_ms"], c["led_sent_ms"], c["latency_ms"]) for c in changes]
+    assert hops == [(3.0, 5.0, 6.0), (None, 6.0, 7.0)]
 
 
 def test_a_qr_text_after_its_led_change_is_no_hop_of_it():
     changes = follow_report(
-        [scene(0, "#ff0000")], [led(5, "#ff0000")], frames={}, qr_texts=[{"text": "#ff0000", "recv_ns": 7 * MS}]
+        [scene(0, "#ff0000")], [led(5, "#ff0000")], qr_texts=[{"text": "#ff0000", "recv_ns": 7 * MS, "sent_ns": 6 * MS}]
     )["changes"]
-    assert changes[0]["qr_ms"] is None
+    assert changes[0]["qr_sent_ms"] is None

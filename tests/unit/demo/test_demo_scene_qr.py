@@ -14,8 +14,8 @@ from PIL import Image  # noqa: E402
 
 from espdock_demo.camera_config import DEFAULT_CONFIG, FRAMESIZE_QVGA  # noqa: E402
 from espdock_demo.mjpeg import jpeg_size  # noqa: E402
-from espdock_demo.qr import ChangeFilter, FrameResult, Outcome, decode_frame  # noqa: E402
-from espdock_demo.scene import SceneRenderer, jpeg_quality, placeholder_jpeg  # noqa: E402
+from espdock_demo.qr import ChangeFilter, FrameResult, Outcome, ZbarQrDecoder, decode_frame  # noqa: E402
+from espdock_demo.scene import SceneRenderer, jpeg_quality, placeholder_jpeg, qr_image  # noqa: E402
 
 
 @pytest.fixture
@@ -35,6 +35,24 @@ def pixels(jpeg):
 def test_the_detector_reads_the_code_the_camera_shows_at_every_common_size(renderer, framesize):
     result = decode_frame(frame(renderer, "#00ff7f", framesize=framesize))
     assert result == FrameResult(Outcome.CODE, text="#00ff7f")
+
+
+def grey(jpeg):
+    return Image.open(io.BytesIO(jpeg)).convert("L")
+
+
+def test_the_cameras_frames_are_read_by_the_coarse_scan_alone(renderer):
+    decoder = ZbarQrDecoder()
+    for text in ("#00ff7f", "#1af", "#123456"):
+        assert decoder.scan(decoder.coarse, grey(frame(renderer, text))) == [("QRCODE", text.encode())]
+
+
+def test_a_code_too_small_for_the_coarse_scan_is_read_by_the_full_one():
+    decoder = ZbarQrDecoder()
+    picture = Image.new("L", (320, 240), 128)
+    picture.paste(qr_image("#00ff7f", scale=2).convert("L"), (40, 30))  # 2-pixel modules
+    assert decoder.scan(decoder.coarse, picture) == []
+    assert decoder(picture) == [("QRCODE", b"#00ff7f")]
 
 
 def test_short_texts_are_full_qr_codes_not_micro_qr(renderer):

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import ctypes
 import enum
+import functools
 import io
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -35,15 +37,78 @@ class FrameResult:
 
 
 Symbol = tuple[str, bytes]
-# (symbol type, data) pairs found in a picture; pyzbar's decode by default.
+# (symbol type, data) pairs found in a picture; zbar's, through pyzbar, by default.
 Decoder = Callable[[Image.Image], Sequence[Symbol]]
 
 
-def pyzbar_decoder(image: Image.Image) -> list[Symbol]:
-    """QR codes pyzbar finds in IMAGE."""
-    from pyzbar.pyzbar import ZBarSymbol, decode
+class ZbarQrDecoder:
+    """QR codes zbar finds in an 8-bit grayscale picture: first on every second row and column,
+    then, only where that found none, on every one.
 
-    return [(result.type, result.data) for result in decode(image, symbols=[ZBarSymbol.QRCODE])]
+    zbar spends nearly all of a frame's decoding scanning lines (1.3 ms of 1.4 ms for a QVGA
+    frame here), and a QR code's finder patterns are 7 modules wide: a code whose modules are
+    two pixels or more is found on half the lines in half the time. The full scan after an
+    empty coarse one keeps smaller codes readable, at 1.5 times the cost for frames without
+    a code. pyzbar's decode() offers no scan density, so this drives zbar through pyzbar's
+    ctypes wrapper of zbar's API, with two scanners kept for the detector's life.
+    """
+
+    def __init__(self) -> None:
+        from pyzbar import wrapper as zbar
+
+        self._zbar = zbar
+        self.coarse = self._scanner(2)
+        self.full = self._scanner(1)
+
+    def _scanner(self, density: int):
+        zbar = self._zbar
+        scanner = zbar.zbar_image_scanner_create()
+        zbar.zbar_image_scanner_set_config(scanner, zbar.ZBarSymbol.NONE, zbar.ZBarConfig.CFG_ENABLE, 0)
+        zbar.zbar_image_scanner_set_config(scanner, zbar.ZBarSymbol.QRCODE, zbar.ZBarConfig.CFG_ENABLE, 1)
+        for axis in (zbar.ZBarConfig.CFG_X_DENSITY, zbar.ZBarConfig.CFG_Y_DENSITY):
+            zbar.zbar_image_scanner_set_config(scanner, zbar.ZBarSymbol.NONE, axis, density)
+        return scanner
+
+    def __call__(self, image: Image.Image) -> list[Symbol]:
+        if image.mode != "L":
+            raise ValueError(f"zbar reads 8-bit grayscale pictures, not {image.mode}")
+        return self.scan(self.coarse, image) or self.scan(self.full, image)
+
+    def scan(self, scanner, image: Image.Image) -> list[Symbol]:
+        """The QR codes SCANNER finds in IMAGE."""
+        zbar = self._zbar
+        pixels = image.tobytes()
+        picture = zbar.zbar_image_create()
+        try:
+            zbar.zbar_image_set_format(picture, _GREY)
+            zbar.zbar_image_set_size(picture, image.width, image.height)
+            # zbar reads PIXELS during the scan only; the bytes object outlives it.
+            zbar.zbar_image_set_data(picture, ctypes.cast(pixels, ctypes.c_void_p), len(pixels), None)
+            if zbar.zbar_scan_image(scanner, picture) < 0:
+                raise RuntimeError("zbar refused the picture")
+            found = []
+            symbol = zbar.zbar_image_first_symbol(picture)
+            while symbol:
+                data = ctypes.string_at(zbar.zbar_symbol_get_data(symbol), zbar.zbar_symbol_get_data_length(symbol))
+                found.append(("QRCODE", data))
+                symbol = zbar.zbar_symbol_next(symbol)
+            return found
+        finally:
+            zbar.zbar_image_destroy(picture)
+
+
+# zbar's name for 8-bit grayscale, the fourcc "Y800" (pyzbar's decode uses the same).
+_GREY = int.from_bytes(b"Y800", "little")
+
+
+@functools.cache
+def _shared_decoder() -> ZbarQrDecoder:
+    return ZbarQrDecoder()
+
+
+def pyzbar_decoder(image: Image.Image) -> list[Symbol]:
+    """QR codes zbar finds in IMAGE (one ZbarQrDecoder, made on first use)."""
+    return _shared_decoder()(image)
 
 
 def decode_frame(jpeg: bytes, decoder: Decoder = pyzbar_decoder) -> FrameResult:

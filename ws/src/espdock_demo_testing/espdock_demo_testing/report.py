@@ -5,20 +5,24 @@ from __future__ import annotations
 from espdock_demo.colors import parse_hex_color
 
 
+def _ms(ns: int | None, since: int) -> float | None:
+    return None if ns is None else (ns - since) / 1e6
+
+
 def follow_report(
     scenes: list[dict],
     leds: list[dict],
     since_ns: int = 0,
-    frames: dict[int, int] | None = None,
     qr_texts: list[dict] | None = None,
 ) -> dict:
     """Pair each scene change (stamped after SINCE_NS) that shows a new colour with the LED change that followed it.
 
-    With FRAMES (frame stamp -> when the observer got that frame) and QR_TEXTS (what it
-    saw on /qr_message, with receive times), each change also gets its hops, in ms from
-    the camera's stamp: `frame_ms` (the frame reaching a subscriber, as it reaches the
-    detector) and `qr_ms` (the detector's text reaching a subscriber); None where the
-    observer missed that message (the image topic is best effort).
+    Each change's `latency_ms` runs from the camera's stamp to the LED colour reaching the
+    observer's DDS reader (`dds_ns`; its callback time `recv_ns` where that is missing),
+    `callback_ms` to the observer's callback, and `led_sent_ms` to led_strip_sim
+    publishing the colour (`sent_ns`). With QR_TEXTS (what the observer saw on /qr_message),
+    `qr_sent_ms` is when qr_detector published that text: the frame's trip to the detector
+    and its decoding. None where the observer did not see it.
     """
     changes, missed = [], []
     previous = None
@@ -32,34 +36,33 @@ def follow_report(
         if color.hex == previous:
             continue
         previous = color.hex
+        stamp = scene["stamp_ns"]
         until = scenes[i + 1]["stamp_ns"] if i + 1 < len(scenes) else None
         led = next(
             (
                 led
                 for led in leds
                 if led["hex"] == color.hex
-                and led["recv_ns"] >= scene["stamp_ns"]
+                and led["recv_ns"] >= stamp
                 and (until is None or led["recv_ns"] < until + 2_000_000_000)
             ),
             None,
         )
         if led is None:
-            missed.append({"text": text, "stamp_ns": scene["stamp_ns"]})
+            missed.append({"text": text, "stamp_ns": stamp})
             continue
+
         change = {
             "text": text,
             "hex": color.hex,
-            "scene_stamp_ns": scene["stamp_ns"],
+            "scene_stamp_ns": stamp,
             "led_recv_ns": led["recv_ns"],
-            "latency_ms": (led["recv_ns"] - scene["stamp_ns"]) / 1e6,
+            "latency_ms": _ms(led.get("dds_ns", led["recv_ns"]), stamp),
+            "callback_ms": _ms(led["recv_ns"], stamp),
+            "led_sent_ms": _ms(led.get("sent_ns"), stamp),
         }
-        if frames is not None:
-            frame_ns = frames.get(scene["stamp_ns"])
-            change["frame_ms"] = None if frame_ns is None else (frame_ns - scene["stamp_ns"]) / 1e6
         if qr_texts is not None:
-            qr = next(
-                (q for q in qr_texts if q["text"] == text and scene["stamp_ns"] <= q["recv_ns"] <= led["recv_ns"]), None
-            )
-            change["qr_ms"] = None if qr is None else (qr["recv_ns"] - scene["stamp_ns"]) / 1e6
+            qr = next((q for q in qr_texts if q["text"] == text and stamp <= q["recv_ns"] <= led["recv_ns"]), None)
+            change["qr_sent_ms"] = None if qr is None else _ms(qr.get("sent_ns"), stamp)
         changes.append(change)
     return {"changes": changes, "missed": missed}

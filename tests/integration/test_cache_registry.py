@@ -66,6 +66,10 @@ def registry_env(double_env: dict[str, str], registry: Registry, login: Path, pa
     return env | docker_config(login, registry.address, password)
 
 
+# The tests after the first are about the micro-ROS image alone: colcon has nothing to say there.
+FIRMWARE = ("--only", "firmware")
+
+
 def build(root: Path, env: dict[str, str], *options: str) -> tuple[subprocess.CompletedProcess, dict]:
     report = root / "report.json"
     result = espdock("build", "--report", str(report), *options, cwd=root, env=env)
@@ -128,11 +132,11 @@ def test_a_silent_registry_is_a_warning_and_a_local_build(registry, origin, tmp_
     source, double_env = origin
     root = machine(source, tmp_path / "ws")
     env = {**double_env, "ESPDOCK_CACHE_REGISTRY": f"127.0.0.1:{free_port()}"}
-    first, report = build(root, env)
+    first, report = build(root, env, *FIRMWARE)
     assert first.returncode == 0, first.stdout[-4000:] + first.stderr
     tag = micro_ros_tag(report)
     remove_images([tag])
-    again, report = build(machine(source, tmp_path / "ws2"), env)
+    again, report = build(machine(source, tmp_path / "ws2"), env, *FIRMWARE)
     assert again.returncode == 0, again.stdout[-4000:] + again.stderr
     assert "did not answer" in again.stdout and "building locally" in again.stdout
     assert "built" in image_outcomes(report).values()
@@ -141,11 +145,11 @@ def test_a_silent_registry_is_a_warning_and_a_local_build(registry, origin, tmp_
 def test_wrong_credentials_are_a_clear_error(registry, origin, tmp_path):
     source, double_env = origin
     good = registry_env(double_env, registry, tmp_path / "good")
-    ok, report = build(machine(source, tmp_path / "ws"), good)
+    ok, report = build(machine(source, tmp_path / "ws"), good, *FIRMWARE)
     assert ok.returncode == 0, ok.stdout[-4000:] + ok.stderr
     remove_images([micro_ros_tag(report)])
     bad = registry_env(double_env, registry, tmp_path / "bad", "not-the-password")
-    denied, _ = build(machine(source, tmp_path / "ws2"), bad)
+    denied, _ = build(machine(source, tmp_path / "ws2"), bad, *FIRMWARE)
     assert denied.returncode == 2, denied.stdout[-3000:] + denied.stderr
     assert "refused the engine's credentials" in denied.stderr and f"docker login 127.0.0.1:{registry.port}" in (
         denied.stderr
@@ -157,7 +161,7 @@ def test_wrong_credentials_are_a_clear_error(registry, origin, tmp_path):
 def test_an_image_with_the_wrong_key_label_is_rejected(registry, origin, tmp_path):
     source, double_env = origin
     env = registry_env(double_env, registry, tmp_path / "docker")
-    first, report = build(machine(source, tmp_path / "ws"), env)
+    first, report = build(machine(source, tmp_path / "ws"), env, *FIRMWARE)
     assert first.returncode == 0, first.stdout[-4000:] + first.stderr
     tag = micro_ros_tag(report)
     # Someone pushes a different image under that name and key.
@@ -172,7 +176,7 @@ def test_an_image_with_the_wrong_key_label_is_rejected(registry, origin, tmp_pat
     assert pushed.returncode == 0, pushed.stderr
     remove_images([tag, impostor])
 
-    again, report = build(machine(source, tmp_path / "ws2"), env)
+    again, report = build(machine(source, tmp_path / "ws2"), env, *FIRMWARE)
     assert again.returncode == 0, again.stdout[-4000:] + again.stderr
     assert "rejected" in again.stdout
     assert image_outcomes(report)[f"image {tag.split(':')[0]}"] == "built"

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import fcntl
+import hashlib
 import os
 import shutil
 import signal
@@ -212,21 +213,48 @@ def shared_dir():
     shutil.rmtree(path, ignore_errors=True)
 
 
+# What goes into espdock's wheel (setup.py copies the workspace defaults in).
+WHEEL_INPUTS = ("pyproject.toml", "setup.py", "MANIFEST.in", "espdock", "Dockerfile.ros", "Dockerfile.ros-official",
+                "Dockerfile.idf", "docker", "firmware/components/espdock_uros")  # fmt: skip
+
+
+def wheel_inputs_digest() -> str:
+    """A digest of every file the wheel is made from."""
+    digest = hashlib.sha256()
+    for top in WHEEL_INPUTS:
+        base = REPO / top
+        files = [base] if base.is_file() else sorted(base.rglob("*"))
+        for path in files:
+            if path.is_file() and "__pycache__" not in path.parts:
+                digest.update(f"{path.relative_to(REPO)}\0".encode() + path.read_bytes() + b"\0")
+    return digest.hexdigest()[:16]
+
+
 @pytest.fixture(scope="session")
 def wheel_espdock():
     """espdock from a wheel built out of this checkout, in a fresh venv outside the repository
-    that any user can run (the repo's venv lives under root's home)."""
-    place = Path(tempfile.mkdtemp(prefix="espdock-wheel-"))
-    place.chmod(0o755)
-    dist = place / "dist"
+    that any user can run (the repo's venv lives under root's home).
+
+    Made once for each content of the wheel's inputs and kept in the temp dir, so the other
+    pytest worker and the next run use the same one (building it and installing its
+    dependencies takes about 20 s); an older one is removed when a new one is made."""
+    tmp = Path(tempfile.gettempdir())
+    place = tmp / f"espdock-wheel-{wheel_inputs_digest()}"
     # setuptools builds in the checkout (build/, *.egg-info): one pytest worker at a time.
-    with open(Path(tempfile.gettempdir()) / "espdock-wheel-build.lock", "w") as lock:
+    with open(tmp / "espdock-wheel-build.lock", "w") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)
-        subprocess.run([sys.executable, "-m", "pip", "wheel", "-q", "--no-deps", "-w", str(dist), str(REPO)],
-                       check=True, capture_output=True)  # fmt: skip
-    (wheel,) = dist.glob("espdock-*.whl")
-    venv = place / "venv"
-    subprocess.run(["/usr/bin/python3", "-m", "venv", str(venv)], check=True)
-    subprocess.run([str(venv / "bin/pip"), "install", "-q", str(wheel)], check=True, capture_output=True)
-    yield venv / "bin" / "espdock"
-    shutil.rmtree(place, ignore_errors=True)
+        if not (place / "complete").is_file():
+            for old in tmp.glob("espdock-wheel-*"):
+                if old.is_dir():
+                    shutil.rmtree(old, ignore_errors=True)
+            place.mkdir()
+            place.chmod(0o755)
+            dist = place / "dist"
+            subprocess.run([sys.executable, "-m", "pip", "wheel", "-q", "--no-deps", "-w", str(dist), str(REPO)],
+                           check=True, capture_output=True)  # fmt: skip
+            (wheel,) = dist.glob("espdock-*.whl")
+            venv = place / "venv"
+            subprocess.run(["/usr/bin/python3", "-m", "venv", str(venv)], check=True)
+            subprocess.run([str(venv / "bin/pip"), "install", "-q", str(wheel)], check=True, capture_output=True)
+            (place / "complete").touch()
+    return place / "venv" / "bin" / "espdock"

@@ -19,10 +19,14 @@ $(VENV)/.installed: pyproject.toml $(LOCK) docker/pip-installer.txt
 	$(PY) -m pip install -q --no-deps -e .
 	touch $@
 
-# Engine, compose plugin, base image; then the test-only system packages.
-setup: $(VENV)/.installed
+# The test-only system packages (apt) install while the venv does (pip): they share no lock.
+# Then the engine, compose plugin and base image (apt again, so after both).
+setup:
+	bash tests/install-system-deps.sh & deps=$$!; \
+	$(MAKE) --no-print-directory $(VENV)/.installed; venv_status=$$?; \
+	wait $$deps; deps_status=$$?; \
+	exit $$(( venv_status || deps_status ))
 	$(ESPDOCK) setup
-	bash tests/install-system-deps.sh
 
 # The firmware host tests (host gcc, no engine) run beside pytest, which mostly waits on
 # the engine; their output follows pytest's, and either failing fails the target.

@@ -17,6 +17,8 @@ from pathlib import Path
 
 import pytest
 
+from espdock.defaults import SHIPPED
+
 REPO = Path(__file__).resolve().parent.parent
 IN_CI = os.environ.get("CI", "").lower() == "true"
 
@@ -213,9 +215,9 @@ def shared_dir():
     shutil.rmtree(path, ignore_errors=True)
 
 
-# What goes into espdock's wheel (setup.py copies the workspace defaults in).
-WHEEL_INPUTS = ("pyproject.toml", "setup.py", "MANIFEST.in", "espdock", "Dockerfile.ros", "Dockerfile.ros-official",
-                "Dockerfile.idf", "docker", "firmware/components/espdock_uros")  # fmt: skip
+# What goes into espdock's wheel: the package and its build files, and the workspace
+# defaults setup.py copies in.
+WHEEL_INPUTS = ("pyproject.toml", "setup.py", "MANIFEST.in", "espdock", *SHIPPED)
 
 
 def wheel_inputs_digest() -> str:

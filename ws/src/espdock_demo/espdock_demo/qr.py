@@ -90,7 +90,7 @@ class ZbarQrDecoder:
             symbol = zbar.zbar_image_first_symbol(picture)
             while symbol:
                 data = ctypes.string_at(zbar.zbar_symbol_get_data(symbol), zbar.zbar_symbol_get_data_length(symbol))
-                found.append(("QRCODE", data))
+                found.append((zbar.ZBarSymbol(symbol.contents.type).name, data))
                 symbol = zbar.zbar_symbol_next(symbol)
             return found
         finally:

@@ -51,7 +51,6 @@ def follow_report(
         if led is None:
             missed.append({"text": text, "stamp_ns": stamp})
             continue
-
         change = {
             "text": text,
             "hex": color.hex,

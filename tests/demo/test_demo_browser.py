@@ -62,6 +62,23 @@ def test_the_swatch_follows_the_led_colour(page):
     assert page.evaluate("document.getElementById('qr').textContent").startswith("#")
 
 
+def test_a_setting_not_yet_applied_stays_as_the_user_set_it(page):
+    """The page gets the camera's settings with every live update; that must not undo an edit."""
+    page.wait_for("document.getElementById('config').textContent.includes('framesize')")
+    page.click("input[type=checkbox][name=hmirror]")
+    page.evaluate("document.querySelector('input[name=brightness]').value = '2'")
+    page.evaluate("document.querySelector('input[name=brightness]').dispatchEvent(new Event('input', {bubbles: true}))")
+    seen = {page.evaluate("document.getElementById('qr').textContent")}
+    deadline = time.monotonic() + 15
+    while len(seen) < 3 and time.monotonic() < deadline:  # two more QR codes: two more live updates
+        seen.add(page.evaluate("document.getElementById('qr').textContent"))
+        time.sleep(0.05)
+    assert len(seen) >= 3, f"the page showed only {seen}"
+    assert page.evaluate("document.querySelector('input[type=checkbox][name=hmirror]').checked") is True
+    assert page.evaluate("document.querySelector('input[name=brightness]').value") == "2"
+    assert '"hmirror": 0' in page.evaluate("document.getElementById('config').textContent"), "nothing was applied"
+
+
 def test_changing_a_setting_in_the_page_changes_the_stream(page):
     page.wait_for("document.getElementById('stream').naturalWidth === 320")
     # Pick VGA from the frame size menu and turn on the mirror toggle, then press Apply.

@@ -5,6 +5,12 @@ const form = $('settings');
 const sizeNames = JSON.parse($('size-names').textContent);
 let online = null;
 
+function showConfig(config) {
+  $('config').textContent = JSON.stringify(config, null, 1);
+  const unknown = $('config-unknown');
+  if (unknown) unknown.remove();
+}
+
 function applyConfig(config) {
   for (const [name, value] of Object.entries(config)) {
     const el = form.querySelector(`[data-setting="${CSS.escape(name)}"]`);
@@ -14,9 +20,13 @@ function applyConfig(config) {
     const out = document.getElementById('out-' + name);
     if (out) out.textContent = String(value);
   }
-  $('config').textContent = JSON.stringify(config, null, 1);
-  const unknown = $('config-unknown');
-  if (unknown) unknown.remove();
+  showConfig(config);
+}
+
+// What the user set and has not applied yet stays in the form: the live state then only
+// updates the read-out. (Assigning .value or .checked fires neither event.)
+for (const kind of ['input', 'change']) {
+  form.addEventListener(kind, () => { form.dataset.edited = '1'; });
 }
 
 function restartStream() {
@@ -36,7 +46,10 @@ function render(state) {
     $('swatch').style.backgroundColor = state.led.hex;
     $('led-hex').textContent = state.led.hex;
   }
-  if (state.config && !form.dataset.busy) applyConfig(state.config);
+  if (state.config) {
+    if (form.dataset.busy || form.dataset.edited) showConfig(state.config);
+    else applyConfig(state.config);
+  }
   const nodes = Object.entries(state.nodes || {});
   const down = nodes.filter(([, n]) => n.state !== 'ok');
   $('nodes').textContent = nodes.length === 0 ? '(waiting for their diagnostics)'
@@ -75,7 +88,12 @@ form.addEventListener('submit', async (event) => {
     const answer = await response.json();
     result.className = answer.ok ? 'ok' : 'error';
     result.textContent = answer.message + (answer.config ? ' Camera now: ' + describe(answer.config) + '.' : '');
-    if (answer.config) applyConfig(answer.config);
+    if (answer.ok) {
+      delete form.dataset.edited;
+      if (answer.config) applyConfig(answer.config);
+    } else if (answer.config) {
+      showConfig(answer.config);  // refused: the user's values stay in the form, to be mended
+    }
   } catch (err) {
     result.className = 'error';
     result.textContent = 'The UI server did not answer: ' + err;

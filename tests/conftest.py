@@ -39,8 +39,11 @@ def engine():
     return engine
 
 
-def copy_workspace(dest: Path, packages: tuple[str, ...] = ("custom_interface",)) -> Path:
-    """A fresh workspace at DEST holding this repo's image inputs and the named ws/src packages."""
+def copy_workspace(
+    dest: Path, packages: tuple[str, ...] = ("custom_interface",), test_packages: tuple[str, ...] = ()
+) -> Path:
+    """A fresh workspace at DEST holding this repo's image inputs, the named ws/src PACKAGES and the
+    named tests/ros_packages TEST_PACKAGES."""
     dest.mkdir(parents=True, exist_ok=True)
     for name in ("espdock.toml", "Dockerfile.ros", ".dockerignore"):
         shutil.copy2(REPO / name, dest / name)
@@ -51,7 +54,18 @@ def copy_workspace(dest: Path, packages: tuple[str, ...] = ("custom_interface",)
     (dest / "ws" / "src").mkdir(parents=True)
     for package in packages:
         shutil.copytree(REPO / "ws" / "src" / package, dest / "ws" / "src" / package)
+    for package in test_packages:
+        shutil.copytree(REPO / "tests" / "ros_packages" / package, dest / "ws" / "src" / package)
     return dest
+
+
+def python_workspace(dest: Path) -> Path:
+    """A workspace at DEST whose only ROS package is beacon_nodes (ament_python).
+
+    For tests about what happens around colcon (signals, faults, caches), not about what it
+    compiles: it builds in a few seconds of CPU where the interface package's C and C++
+    typesupport takes 15, and the suite is CPU-bound on two cores."""
+    return copy_workspace(dest, packages=(), test_packages=("beacon_nodes",))
 
 
 @pytest.fixture

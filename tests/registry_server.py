@@ -16,19 +16,37 @@ from pathlib import Path
 USER, PASSWORD = "ci", "cache-" + uuid.uuid4().hex[:12]
 
 
+def port_is_free(port: int) -> bool:
+    with socket.socket() as probe:
+        # As the registry binds it: a last run's connections in TIME_WAIT do not hold the port.
+        probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        try:
+            probe.bind(("127.0.0.1", port))
+        except OSError:
+            return False
+    return True
+
+
 class Registry:
-    def __init__(self, root: Path) -> None:
+    """The registry's config, password file and log in ROOT; its blobs in STORAGE (default
+    ROOT/data), on PORT (default: a free one)."""
+
+    def __init__(self, root: Path, port: int | None = None, storage: Path | None = None) -> None:
         self.root = root
-        with socket.socket() as probe:
-            probe.bind(("127.0.0.1", 0))
-            self.port = probe.getsockname()[1]
+        if port is None:
+            with socket.socket() as probe:
+                probe.bind(("127.0.0.1", 0))
+                port = probe.getsockname()[1]
+        self.port = port
         self.address = f"127.0.0.1:{self.port}"
-        (root / "data").mkdir(parents=True)
+        self.storage = storage or root / "data"
+        root.mkdir(parents=True, exist_ok=True)
+        self.storage.mkdir(parents=True, exist_ok=True)
         hashed = subprocess.run(["htpasswd", "-Bbn", USER, PASSWORD], capture_output=True, text=True, check=True)
         (root / "htpasswd").write_text(hashed.stdout)
         (root / "config.yml").write_text(
             "version: 0.1\nlog:\n  level: warn\n"
-            f"storage:\n  filesystem:\n    rootdirectory: {root / 'data'}\n"
+            f"storage:\n  filesystem:\n    rootdirectory: {self.storage}\n"
             f"http:\n  addr: {self.address}\n  secret: espdock-test\n"
             f"auth:\n  htpasswd:\n    realm: espdock-test\n    path: {root / 'htpasswd'}\n"
         )

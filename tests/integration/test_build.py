@@ -22,6 +22,7 @@ from tests.conftest import (
     espdock,
     leftover_containers,
     owners,
+    python_workspace,
     ros_build_tag,
     user_env,
 )
@@ -207,7 +208,7 @@ def test_a_failing_package_is_named_with_its_log(engine, tmp_path):
 
 def _slow_workspace(tmp_path: Path) -> Path:
     """A workspace whose slow_pkg keeps colcon busy for five minutes."""
-    root = copy_workspace(tmp_path / "ws-root")
+    root = python_workspace(tmp_path / "ws-root")
     slow = root / "ws/src/slow_pkg"
     slow.mkdir()
     (slow / "package.xml").write_text(
@@ -261,7 +262,7 @@ def test_ctrl_c_stops_and_removes_the_container_and_the_next_build_works(engine,
     shutil.rmtree(root / "ws/src/slow_pkg")
     result = espdock("build", cwd=root)
     assert result.returncode == 0, result.stdout + result.stderr
-    assert (root / "ws/install/custom_interface/share/custom_interface/package.xml").is_file()
+    assert (root / "ws/install/beacon_nodes/share/beacon_nodes/package.xml").is_file()
 
 
 def test_a_killed_build_leaves_a_container_the_next_build_removes(engine, tmp_path):

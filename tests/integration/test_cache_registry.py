@@ -1,8 +1,8 @@
 """A cache registry shared by machines: keyed images built once, pulled everywhere else.
 
 Against a real OCI registry: Debian's docker-registry (the distribution registry) on a
-free loopback port with htpasswd auth, started here. A second machine is a second clone of
-the workspace on an engine that lost espdock's images.
+loopback port with htpasswd auth, started here, whose blobs outlive the run (see `registry`).
+A second machine is a second clone of the workspace on an engine that lost espdock's images.
 """
 
 from __future__ import annotations
@@ -12,6 +12,7 @@ import os
 import shutil
 import socket
 import subprocess
+import tempfile
 import uuid
 from collections.abc import Iterator
 from pathlib import Path
@@ -19,17 +20,32 @@ from pathlib import Path
 import pytest
 
 from espdock.config import Config, resolve_ca_bundle
-from tests.conftest import REPO, copy_workspace, espdock
+from tests.conftest import REPO, espdock, python_workspace
 from tests.idf_contract_double.build import use_double
-from tests.registry_server import PASSWORD, Registry, docker_config
+from tests.registry_server import PASSWORD, Registry, docker_config, port_is_free
 
 pytestmark = [pytest.mark.engine, pytest.mark.slow]
+
+
+# The engine remembers which layers it pushed to which registry (by host and port) and skips
+# those the registry still has, as with a CI cache registry that outlives its jobs. So the
+# registry keeps its port and its blobs between runs: a re-run pushes these tests' new
+# manifests, not 1.4 GB of unchanged layers again. If the port is taken: a fresh one.
+KEPT_PORT = 45123
+KEPT_STORAGE_LIMIT = 4 << 30
 
 
 @pytest.fixture(scope="module")
 def registry(tmp_path_factory) -> Iterator[Registry]:
     assert shutil.which("docker-registry") and shutil.which("htpasswd"), "run tests/install-system-deps.sh"
-    server = Registry(tmp_path_factory.mktemp("registry"))
+    here = tmp_path_factory.mktemp("registry")
+    if port_is_free(KEPT_PORT):
+        storage = Path(tempfile.gettempdir()) / "espdock-test-registry"
+        if tree_size(storage) > KEPT_STORAGE_LIMIT:  # images edited many times over: start again
+            shutil.rmtree(storage)
+        server = Registry(here, KEPT_PORT, storage)
+    else:
+        server = Registry(here)
     server.start()
     yield server
     server.stop()
@@ -37,18 +53,15 @@ def registry(tmp_path_factory) -> Iterator[Registry]:
 
 @pytest.fixture(scope="module")
 def origin(tmp_path_factory, engine) -> tuple[Path, dict[str, str]]:
-    """Workspace sources with an interface and firmware; comments unique to this run give it
+    """Workspace sources with a Python package and firmware; comments unique to this run give it
     ROS and micro-ROS images no other test has (these tests remove them while other pytest
     workers build)."""
-    root = copy_workspace(tmp_path_factory.mktemp("cache") / "origin")
+    root = python_workspace(tmp_path_factory.mktemp("cache") / "origin")
     shutil.copy2(REPO / "Dockerfile.idf", root / "Dockerfile.idf")
     shutil.copytree(REPO / "firmware", root / "firmware")
     shutil.rmtree(root / "firmware" / "camera_node")  # one app, one micro-ROS image: enough here
     double_env = use_double(engine, resolve_ca_bundle(Config(), os.environ), lambda line: None, root)
-    msg = root / "ws/src/custom_interface/msg/CameraConfig.msg"
     run = uuid.uuid4().hex
-    msg.write_text(msg.read_text() + f"# cache test {run}\n")
-    # led_strip_node's library does not use the message: its key changes with Dockerfile.idf.
     for dockerfile in (root / "Dockerfile.ros", root / "Dockerfile.idf"):
         dockerfile.write_text(dockerfile.read_text() + f"# cache test {run}\n")
     return root, double_env
@@ -185,6 +198,10 @@ def test_an_image_with_the_wrong_key_label_is_rejected(registry, origin, tmp_pat
         capture_output=True, text=True, check=True,
     )  # fmt: skip
     assert inspect.stdout.strip().startswith(tag.rsplit(":", 1)[1]), "the impostor took the key's name"
+
+
+def tree_size(top: Path) -> int:
+    return sum(path.stat().st_size for path in top.rglob("*") if path.is_file())
 
 
 def free_port() -> int:

@@ -26,8 +26,7 @@ def colcon_ws(tmp_path_factory, engine) -> tuple[Path, dict[str, str]]:
     """This repository's layout with a Python ROS package and the two firmware apps; the double selected."""
     if not COLCON.exists():
         pytest.fail(f"{COLCON} is missing: colcon-common-extensions belongs in requirements/dev.txt")
-    root = copy_workspace(tmp_path_factory.mktemp("colcon") / "ws-root", packages=("custom_interface",))
-    shutil.copytree(REPO / "tests" / "ros_packages" / "beacon_nodes", root / "ws" / "src" / "beacon_nodes")
+    root = copy_workspace(tmp_path_factory.mktemp("colcon") / "ws-root", test_packages=("beacon_nodes",))
     shutil.copy2(REPO / "Dockerfile.idf", root / "Dockerfile.idf")
     shutil.copytree(REPO / "firmware", root / "firmware")
     env = {**os.environ, **use_double(engine, resolve_ca_bundle(Config(), os.environ), lambda line: None, root)}

@@ -2,8 +2,9 @@
 workspace or the engine in a state the next command cannot handle.
 
 The shared engine is never stopped or filled: the engine tests start a private dockerd of
-their own (own socket, data root, exec root, pid file, no iptables), load the images they
-need into it with `docker save`/`load`, and point espdock at it with DOCKER_HOST.
+their own (own socket, data root, exec root, pid file, no iptables), on a copy of a data root
+that holds the images they need (copied in once with `docker save`/`load`), and point espdock
+at it with DOCKER_HOST.
 
 That dockerd runs in a network namespace of its own (`unshare --net`): its bridge, veths
 and sysctls are not the machine's. Not `--bridge=none` on the machine's network: Docker
@@ -13,6 +14,8 @@ which is the shared engine's.
 
 from __future__ import annotations
 
+import fcntl
+import hashlib
 import os
 import shutil
 import signal
@@ -26,7 +29,7 @@ from pathlib import Path
 import pytest
 
 from espdock.manifest import file_hashes
-from tests.conftest import copy_workspace, espdock, ros_build_tag, ros_runtime_tag
+from tests.conftest import copy_workspace, espdock, python_workspace, ros_build_tag, ros_runtime_tag
 
 pytestmark = [pytest.mark.engine, pytest.mark.slow]
 
@@ -81,13 +84,13 @@ def unchanged(installed: dict[str, str], now: dict[str, str]) -> bool:
 
 
 def test_a_full_workspace_disk_is_named_and_the_install_survives(engine, small_disk):
-    root = copy_workspace(small_disk / "ws-root")
+    root = python_workspace(small_disk / "ws-root")
     for _ in range(2):  # twice: setuptools' egg-info lists more files on a rebuild than on a first build
         first = espdock("build", "--force", cwd=root)
         assert first.returncode == 0, first.stdout + first.stderr
     installed = file_hashes(root / "ws/install")
 
-    hog = add_package(root, "disk_hog", FILL_DISK, depend="custom_interface")
+    hog = add_package(root, "disk_hog", FILL_DISK, depend="beacon_nodes")
     full = espdock("build", cwd=root)
     assert full.returncode == 7, full.stdout + full.stderr
     assert f"the disk holding {root / 'ws'}" in full.stderr
@@ -172,37 +175,81 @@ class PrivateEngine:
                                     check=False)  # fmt: skip
         assert save.returncode == 0 and loaded.returncode == 0, loaded.stderr
 
+    def seed(self, data_root: Path) -> None:
+        """Start from a copy of DATA_ROOT, a stopped engine's data root (before start())."""
+        (self.home / "data").mkdir(exist_ok=True)
+        subprocess.run(["cp", "-a", f"{data_root}/.", str(self.home / "data")], check=True)
+
     def containers(self, root: Path) -> list[str]:
         listed = self.docker("ps", "-aq", "--filter", f"label=io.espdock.workspace={root}")
         return listed.stdout.split()
+
+
+def private_home() -> Path:
+    return Path(tempfile.mkdtemp(prefix="ed-", dir="/tmp"))  # short: socket paths have a length limit
+
+
+def drop_private_engine(engine: PrivateEngine) -> None:
+    engine.stop()
+    subprocess.run(["umount", "--lazy", str(engine.home / "data")], capture_output=True, check=False)
+    shutil.rmtree(engine.home, ignore_errors=True)
 
 
 @pytest.fixture
 def private_engine() -> Iterator[PrivateEngine]:
     if shutil.which("dockerd") is None or shutil.which("unshare") is None:
         pytest.skip("no dockerd or unshare here")
-    home = Path(tempfile.mkdtemp(prefix="ed-", dir="/tmp"))  # short: socket paths have a length limit
-    engine = PrivateEngine(home)
+    engine = PrivateEngine(private_home())
     try:
         yield engine
     finally:
-        engine.stop()
-        subprocess.run(["umount", "--lazy", str(home / "data")], capture_output=True, check=False)
-        shutil.rmtree(home, ignore_errors=True)
+        drop_private_engine(engine)
+
+
+@pytest.fixture(scope="module")
+def seeded_data_root(engine, tmp_path_factory) -> Path:
+    """A stopped private engine's data root holding Debian's base image and the workspace's ROS
+    build and runtime images, for the private engines to start from a copy of.
+
+    Loading them takes about 17 s and 20 s of CPU, a copy 2 s; so it is made once for each set
+    of image IDs and kept in the temp dir for the next run (an older one is removed then)."""
+    root = copy_workspace(tmp_path_factory.mktemp("seed") / "ws-root")
+    images = ("debian:bookworm-slim", ros_build_tag(root), ros_runtime_tag(root))
+    if any(engine.image(tag) is None for tag in images):  # the shared engine makes them (it has a network)
+        warm = espdock("build", "--only", "ros", cwd=root)
+        assert warm.returncode == 0, warm.stdout + warm.stderr
+    ids = "\0".join(f"{tag}={engine.image(tag).id}" for tag in images)
+    tmp = Path(tempfile.gettempdir())
+    place = tmp / f"espdock-test-engine-{hashlib.sha256(ids.encode()).hexdigest()[:16]}"
+    with open(tmp / "espdock-test-engine.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        if not (place / "complete").is_file():
+            for old in tmp.glob("espdock-test-engine-*"):
+                if old.is_dir():
+                    shutil.rmtree(old, ignore_errors=True)
+            loader = PrivateEngine(private_home())
+            try:
+                loader.start()
+                loader.load(*images)
+                loader.stop()
+                place.mkdir()
+                (loader.home / "data").rename(place / "data")
+            finally:
+                drop_private_engine(loader)
+            (place / "complete").touch()
+    return place / "data"
 
 
 def slow_package(root: Path) -> Path:
     return add_package(root, "slow_pkg", "execute_process(COMMAND sleep 300)\n")
 
 
-def test_the_engine_going_away_mid_build_is_exit_3_and_the_next_build_just_works(engine, private_engine, tmp_path):
-    root = copy_workspace(tmp_path / "ws-root")
+def test_the_engine_going_away_mid_build_is_exit_3_and_the_next_build_just_works(
+    private_engine, seeded_data_root, tmp_path
+):
+    root = python_workspace(tmp_path / "ws-root")
+    private_engine.seed(seeded_data_root)
     private_engine.start()
-    images = ("debian:bookworm-slim", ros_build_tag(root), ros_runtime_tag(root))
-    if any(engine.image(tag) is None for tag in images):  # the shared engine makes them (it has a network)
-        warm = espdock("build", "--only", "ros", cwd=copy_workspace(tmp_path / "warm"))
-        assert warm.returncode == 0, warm.stdout + warm.stderr
-    private_engine.load(*images)
     slow = slow_package(root)
     build = subprocess.Popen([sys.executable, "-m", "espdock", "build"], cwd=root, env=private_engine.env,
                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)  # fmt: skip
@@ -227,15 +274,19 @@ def test_the_engine_going_away_mid_build_is_exit_3_and_the_next_build_just_works
     again = espdock("build", cwd=root, env=private_engine.env)
     assert again.returncode == 0, again.stdout + again.stderr
     assert private_engine.containers(root) == []
-    assert (root / "ws/install/custom_interface/share/custom_interface/package.xml").is_file()
+    assert (root / "ws/install/beacon_nodes/share/beacon_nodes/package.xml").is_file()
 
 
-def test_an_image_build_on_a_full_engine_disk_says_so(engine, private_engine, tmp_path):
-    mount_tmpfs(private_engine.home / "data", "2g")
-    root = copy_workspace(tmp_path / "ws-root")
+def test_an_image_build_on_a_full_engine_disk_says_so(private_engine, seeded_data_root, tmp_path):
+    data = private_engine.home / "data"
+    mount_tmpfs(data, "2g")
+    private_engine.seed(seeded_data_root)
+    # Room for the first build and not much more: the payload that fills it is written below.
+    used = shutil.disk_usage(data).used
+    assert subprocess.run(["mount", "-o", f"remount,size={used + (512 << 20)}", str(data)], check=False).returncode == 0
+    root = python_workspace(tmp_path / "ws-root")
     base = ros_build_tag(root)
     private_engine.start()
-    private_engine.load(base)
     # The workspace's ROS image: the usual one plus a file of its own (COPY: there is no network).
     big = root / "docker/payload.bin"
     big.parent.mkdir(exist_ok=True)
@@ -249,19 +300,19 @@ def test_an_image_build_on_a_full_engine_disk_says_so(engine, private_engine, tm
     installed = file_hashes(root / "ws/install")
 
     # A payload bigger than what is left of the engine's disk.
-    free = shutil.disk_usage(private_engine.home / "data").free
+    free = shutil.disk_usage(data).free
     with open(big, "wb") as out:
         for _ in range(free // (1 << 20) + 64):
             out.write(os.urandom(1 << 20))
     full = espdock("build", cwd=root, env=private_engine.env)
     assert full.returncode == 4, full.stdout + full.stderr
     assert "the engine's disk is full" in full.stderr
-    assert str(private_engine.home / "data") in full.stderr
+    assert str(data) in full.stderr
     assert unchanged(installed, file_hashes(root / "ws/install"))
 
     # Space is freed (even `docker builder prune` needs some: it writes BuildKit's database).
     big.write_bytes(b"small again")
-    grown = subprocess.run(["mount", "-o", "remount,size=3g", str(private_engine.home / "data")], check=False)
+    grown = subprocess.run(["mount", "-o", "remount,size=3g", str(data)], check=False)
     assert grown.returncode == 0
     again = espdock("build", cwd=root, env=private_engine.env)
     assert again.returncode == 0, again.stdout + again.stderr

@@ -6,22 +6,20 @@ from __future__ import annotations
 import json
 import os
 import random
-import shutil
 import subprocess
 import time
 from pathlib import Path
 
 import pytest
 
-from tests.conftest import REPO, Started, copy_workspace, espdock, leftover_containers
+from tests.conftest import REPO, Started, espdock, leftover_containers, python_workspace
 
 pytestmark = pytest.mark.engine
 
 
 @pytest.fixture(scope="module")
 def node_workspace(engine, tmp_path_factory) -> Path:
-    root = copy_workspace(tmp_path_factory.mktemp("run") / "nodes", packages=())
-    shutil.copytree(REPO / "tests" / "ros_packages" / "beacon_nodes", root / "ws" / "src" / "beacon_nodes")
+    root = python_workspace(tmp_path_factory.mktemp("run") / "nodes")
     built = espdock("build", "--only", "ros", cwd=root)
     assert built.returncode == 0, built.stdout + built.stderr
     return root

@@ -12,7 +12,7 @@ import sys
 import tempfile
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
@@ -246,31 +246,41 @@ def wheel_inputs_digest() -> str:
     return digest.hexdigest()[:16]
 
 
+def kept_in_temp(name: str, key: str, make: Callable[[Path], None]) -> Path:
+    """TMPDIR/NAME-KEY, a directory that outlives the run: made by MAKE (given the empty
+    directory) unless a complete one is there, after removing any NAME-* of another KEY.
+    Made under a lock, so pytest workers and concurrent runs wait for one another."""
+    tmp = Path(tempfile.gettempdir())
+    place = tmp / f"{name}-{key}"
+    with open(tmp / f"{name}.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        if not (place / "complete").is_file():
+            for old in tmp.glob(f"{name}-*"):
+                if old.is_dir():
+                    shutil.rmtree(old, ignore_errors=True)
+            place.mkdir()
+            make(place)
+            (place / "complete").touch()
+    return place
+
+
 @pytest.fixture(scope="session")
 def wheel_espdock():
     """espdock from a wheel built out of this checkout, in a fresh venv outside the repository
     that any user can run (the repo's venv lives under root's home).
 
     Made once for each content of the wheel's inputs and kept in the temp dir, so the other
-    pytest worker and the next run use the same one (building it and installing its
-    dependencies takes about 20 s); an older one is removed when a new one is made."""
-    tmp = Path(tempfile.gettempdir())
-    place = tmp / f"espdock-wheel-{wheel_inputs_digest()}"
-    # setuptools builds in the checkout (build/, *.egg-info): one pytest worker at a time.
-    with open(tmp / "espdock-wheel-build.lock", "w") as lock:
-        fcntl.flock(lock, fcntl.LOCK_EX)
-        if not (place / "complete").is_file():
-            for old in tmp.glob("espdock-wheel-*"):
-                if old.is_dir():
-                    shutil.rmtree(old, ignore_errors=True)
-            place.mkdir()
-            place.chmod(0o755)
-            dist = place / "dist"
-            subprocess.run([sys.executable, "-m", "pip", "wheel", "-q", "--no-deps", "-w", str(dist), str(REPO)],
-                           check=True, capture_output=True)  # fmt: skip
-            (wheel,) = dist.glob("espdock-*.whl")
-            venv = place / "venv"
-            subprocess.run(["/usr/bin/python3", "-m", "venv", str(venv)], check=True)
-            subprocess.run([str(venv / "bin/pip"), "install", "-q", str(wheel)], check=True, capture_output=True)
-            (place / "complete").touch()
-    return place / "venv" / "bin" / "espdock"
+    pytest workers and the next run use the same one (building it and installing its
+    dependencies takes about 20 s). The lock also keeps setuptools, which builds in the
+    checkout (build/, *.egg-info), to one worker at a time."""
+
+    def make(place: Path) -> None:
+        place.chmod(0o755)
+        dist = place / "dist"
+        subprocess.run([sys.executable, "-m", "pip", "wheel", "-q", "--no-deps", "-w", str(dist), str(REPO)],
+                       check=True, capture_output=True)  # fmt: skip
+        (wheel,) = dist.glob("espdock-*.whl")
+        subprocess.run(["/usr/bin/python3", "-m", "venv", str(place / "venv")], check=True)
+        subprocess.run([str(place / "venv/bin/pip"), "install", "-q", str(wheel)], check=True, capture_output=True)
+
+    return kept_in_temp("espdock-wheel", wheel_inputs_digest(), make) / "venv" / "bin" / "espdock"

@@ -14,7 +14,6 @@ which is the shared engine's.
 
 from __future__ import annotations
 
-import fcntl
 import hashlib
 import os
 import shutil
@@ -29,7 +28,7 @@ from pathlib import Path
 import pytest
 
 from espdock.manifest import file_hashes
-from tests.conftest import copy_workspace, espdock, python_workspace, ros_build_tag, ros_runtime_tag
+from tests.conftest import copy_workspace, espdock, kept_in_temp, python_workspace, ros_build_tag, ros_runtime_tag
 
 pytestmark = [pytest.mark.engine, pytest.mark.slow]
 
@@ -219,25 +218,18 @@ def seeded_data_root(engine, tmp_path_factory) -> Path:
         warm = espdock("build", "--only", "ros", cwd=root)
         assert warm.returncode == 0, warm.stdout + warm.stderr
     ids = "\0".join(f"{tag}={engine.image(tag).id}" for tag in images)
-    tmp = Path(tempfile.gettempdir())
-    place = tmp / f"espdock-test-engine-{hashlib.sha256(ids.encode()).hexdigest()[:16]}"
-    with open(tmp / "espdock-test-engine.lock", "w") as lock:
-        fcntl.flock(lock, fcntl.LOCK_EX)
-        if not (place / "complete").is_file():
-            for old in tmp.glob("espdock-test-engine-*"):
-                if old.is_dir():
-                    shutil.rmtree(old, ignore_errors=True)
-            loader = PrivateEngine(private_home())
-            try:
-                loader.start()
-                loader.load(*images)
-                loader.stop()
-                place.mkdir()
-                (loader.home / "data").rename(place / "data")
-            finally:
-                drop_private_engine(loader)
-            (place / "complete").touch()
-    return place / "data"
+
+    def make(place: Path) -> None:
+        loader = PrivateEngine(private_home())
+        try:
+            loader.start()
+            loader.load(*images)
+            loader.stop()
+            (loader.home / "data").rename(place / "data")
+        finally:
+            drop_private_engine(loader)
+
+    return kept_in_temp("espdock-test-engine", hashlib.sha256(ids.encode()).hexdigest()[:16], make) / "data"
 
 
 def slow_package(root: Path) -> Path:

@@ -16,6 +16,13 @@ from pathlib import Path
 USER, PASSWORD = "ci", "cache-" + uuid.uuid4().hex[:12]
 
 
+def free_port() -> int:
+    """A loopback port nothing listens on now."""
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        return probe.getsockname()[1]
+
+
 def port_is_free(port: int) -> bool:
     with socket.socket() as probe:
         # As the registry binds it: a last run's connections in TIME_WAIT do not hold the port.
@@ -33,11 +40,7 @@ class Registry:
 
     def __init__(self, root: Path, port: int | None = None, storage: Path | None = None) -> None:
         self.root = root
-        if port is None:
-            with socket.socket() as probe:
-                probe.bind(("127.0.0.1", 0))
-                port = probe.getsockname()[1]
-        self.port = port
+        self.port = free_port() if port is None else port
         self.address = f"127.0.0.1:{self.port}"
         self.storage = storage or root / "data"
         root.mkdir(parents=True, exist_ok=True)

@@ -10,7 +10,6 @@ from __future__ import annotations
 import json
 import os
 import shutil
-import socket
 import subprocess
 import tempfile
 import uuid
@@ -22,7 +21,7 @@ import pytest
 from espdock.config import Config, resolve_ca_bundle
 from tests.conftest import REPO, espdock, python_workspace
 from tests.idf_contract_double.build import use_double
-from tests.registry_server import PASSWORD, Registry, docker_config, port_is_free
+from tests.registry_server import PASSWORD, Registry, docker_config, free_port, port_is_free
 
 pytestmark = [pytest.mark.engine, pytest.mark.slow]
 
@@ -202,9 +201,3 @@ def test_an_image_with_the_wrong_key_label_is_rejected(registry, origin, tmp_pat
 
 def tree_size(top: Path) -> int:
     return sum(path.stat().st_size for path in top.rglob("*") if path.is_file())
-
-
-def free_port() -> int:
-    with socket.socket() as probe:
-        probe.bind(("127.0.0.1", 0))
-        return probe.getsockname()[1]

@@ -98,7 +98,10 @@ def test_changing_a_setting_in_the_page_changes_the_stream(page):
     assert '"framesize": 10' in page.evaluate("document.getElementById('config').textContent")
 
     # Back to QVGA without the mirror, so the other tests see the default.
-    page.evaluate("document.querySelector('select[name=framesize]').value = '6'")
+    # With its change event, as a user's pick fires: without it the form does not count as
+    # edited, and a live update in between puts the camera's VGA back before Apply.
+    page.evaluate("""(() => { const menu = document.querySelector('select[name=framesize]');
+        menu.value = '6'; menu.dispatchEvent(new Event('change', {bubbles: true})); })()""")
     page.click("input[type=checkbox][name=hmirror]")
     page.click("#apply")
     page.wait_for("document.getElementById('stream').naturalWidth === 320", timeout=10)

@@ -151,5 +151,17 @@ class Browser:
         for kind in ("mousePressed", "mouseReleased"):
             self.call("Input.dispatchMouseEvent", type=kind, x=box["x"], y=box["y"], button="left", clickCount=1)
 
+    def set_value(self, selector: str, value: str) -> None:
+        """Set the form field SELECTOR matches to VALUE and fire the input and change events a
+        user's edit fires (assigning .value alone fires none, so the page would not know)."""
+        done = self.evaluate(
+            f"(() => {{ const el = document.querySelector({json.dumps(selector)}); if (!el) return false;"
+            f" el.value = {json.dumps(value)};"
+            " for (const kind of ['input', 'change']) el.dispatchEvent(new Event(kind, {bubbles: true}));"
+            " return true; })()"
+        )
+        if not done:
+            raise BrowserError(f"nothing on the page matches {selector}")
+
     def screenshot(self, path: Path) -> None:
         path.write_bytes(base64.b64decode(self.call("Page.captureScreenshot", format="png")["data"]))

@@ -29,6 +29,15 @@ def test_the_led_follows_each_new_qr_colour_within_seconds(demo):
     assert report["missed"] == []
 
 
+def test_the_console_gives_the_uis_address_once_the_ui_is_up_then_the_colours(demo):
+    """Compose starts the console beside the nodes; it waits for the UI itself before giving its address."""
+    lines = demo.compose("logs", "--no-color", "--no-log-prefix", "demo").stdout.splitlines()
+    said = [i for i, line in enumerate(lines) if f"open http://127.0.0.1:{demo.port}" in line]
+    ui_up = [i for i, line in enumerate(lines) if "camera_ui is up" in line]
+    assert len(said) == 1 and ui_up and ui_up[0] < said[0], lines[:20]
+    assert any("LED strip shows #" in line for line in lines[said[0] :]), lines[-20:]
+
+
 def test_the_leds_colour_is_there_for_a_late_subscriber(demo):
     led = demo.probe("led", "--timeout", "10")["led"]
     assert led is not None and led.startswith("#")

@@ -1,4 +1,5 @@
-"""demo_monitor: the `demo` service's console: the UI's address, then QR codes and LED colours as they happen."""
+"""demo_monitor: the `demo` service's console: the nodes as they come up, the UI's address once it is up,
+then QR codes and LED colours as they happen."""
 
 from __future__ import annotations
 
@@ -17,7 +18,7 @@ class DemoMonitor(Node):
 
     def __init__(self) -> None:
         super().__init__("demo_monitor")
-        url = str(self.declare_parameter("ui_url", "http://127.0.0.1:8080").value)
+        self.url = str(self.declare_parameter("ui_url", "http://127.0.0.1:8080").value)
         period = float(self.declare_parameter("summary_period", 15.0).value)
         watched = list(self.declare_parameter("watch_nodes", list(SIM_NODES)).value)
         self.latest: dict[str, dict[str, str]] = {}
@@ -28,8 +29,11 @@ class DemoMonitor(Node):
         self.create_subscription(DiagnosticArray, DIAGNOSTICS_TOPIC, self.on_diagnostics, 10)
         self.create_timer(period, self.summary)
         self.create_timer(1.0, self.watch)
+        self.ui_announced = False
         start_heartbeat(self)
-        self.get_logger().info(f"espdock demo running: open {url} (Ctrl-C stops the demo)")
+        # Compose starts this console beside the nodes, not after them: the address comes once
+        # the UI node reports (it serves before it spins, so it reports only when it serves).
+        self.get_logger().info(f"espdock demo starting: waiting for {', '.join(n.lstrip('/') for n in watched)}")
 
     def on_qr(self, msg: String) -> None:
         self.get_logger().info(f"QR code {shorten(msg.data)}")
@@ -54,6 +58,9 @@ class DemoMonitor(Node):
             else:
                 logger.info(line)
         self.states = states
+        if not self.ui_announced and states.get("/camera_ui", {}).get("state") == "ok":
+            self.ui_announced = True
+            logger.info(f"espdock demo running: open {self.url} (Ctrl-C stops the demo)")
 
     def summary(self) -> None:
         # A silent node's last counters would read as if all were well.

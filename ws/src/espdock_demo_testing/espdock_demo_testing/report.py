@@ -9,6 +9,12 @@ def _ms(ns: int | None, since: int) -> float | None:
     return None if ns is None else (ns - since) / 1e6
 
 
+def _arrived(message: dict) -> int:
+    """When the observer's DDS reader got MESSAGE; its callback time where that is not known.
+    (The probe reads its readers only now and then, so callback times say little.)"""
+    return message.get("dds_ns", message["recv_ns"])
+
+
 def follow_report(
     scenes: list[dict],
     leds: list[dict],
@@ -19,10 +25,9 @@ def follow_report(
 
     Each change's `latency_ms` runs from the camera's stamp to the LED colour reaching the
     observer's DDS reader (`dds_ns`; its callback time `recv_ns` where that is missing),
-    `callback_ms` to the observer's callback, and `led_sent_ms` to led_strip_sim
-    publishing the colour (`sent_ns`). With QR_TEXTS (what the observer saw on /qr_message),
-    `qr_sent_ms` is when qr_detector published that text: the frame's trip to the detector
-    and its decoding. None where the observer did not see it.
+    and `led_sent_ms` to led_strip_sim publishing the colour (`sent_ns`). With QR_TEXTS (what
+    the observer saw on /qr_message), `qr_sent_ms` is when qr_detector published that text:
+    the frame's trip to the detector and its decoding. None where the observer did not see it.
     """
     changes, missed = [], []
     previous = None
@@ -43,8 +48,8 @@ def follow_report(
                 led
                 for led in leds
                 if led["hex"] == color.hex
-                and led["recv_ns"] >= stamp
-                and (until is None or led["recv_ns"] < until + 2_000_000_000)
+                and _arrived(led) >= stamp
+                and (until is None or _arrived(led) < until + 2_000_000_000)
             ),
             None,
         )
@@ -55,13 +60,12 @@ def follow_report(
             "text": text,
             "hex": color.hex,
             "scene_stamp_ns": stamp,
-            "led_recv_ns": led["recv_ns"],
-            "latency_ms": _ms(led.get("dds_ns", led["recv_ns"]), stamp),
-            "callback_ms": _ms(led["recv_ns"], stamp),
+            "led_arrived_ns": _arrived(led),
+            "latency_ms": _ms(_arrived(led), stamp),
             "led_sent_ms": _ms(led.get("sent_ns"), stamp),
         }
         if qr_texts is not None:
-            qr = next((q for q in qr_texts if q["text"] == text and stamp <= q["recv_ns"] <= led["recv_ns"]), None)
+            qr = next((q for q in qr_texts if q["text"] == text and stamp <= _arrived(q) <= _arrived(led)), None)
             change["qr_sent_ms"] = None if qr is None else _ms(qr.get("sent_ns"), stamp)
         changes.append(change)
     return {"changes": changes, "missed": missed}

@@ -8,8 +8,11 @@ that is a failure.
 
 from __future__ import annotations
 
+import fcntl
 import os
 import shutil
+import tempfile
+from pathlib import Path
 
 import pytest
 
@@ -21,9 +24,14 @@ from demo_support import need
 
 @pytest.fixture(scope="session")
 def demo_image() -> None:
-    """The runtime image, built (or found up to date) once per session."""
+    """The runtime image, built (or found up to date) once per session.
+
+    One worker at a time: `espdock build` refuses to start while another holds the
+    workspace, and the demo modules' workers start theirs at the same moment."""
     need(docker_problem())
-    build_image()
+    with open(Path(tempfile.gettempdir()) / "espdock-demo-image.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        build_image()
 
 
 @pytest.fixture(scope="session")

@@ -43,6 +43,15 @@ from espdock_demo.names import (
 from espdock_demo.ros_common import IMAGE_PUB_QOS, IMAGE_SUB_QOS, LATCHED_QOS, TEXT_QOS
 from espdock_demo_testing.report import follow_report
 
+# The LED strip's latched colour, with room for every change that comes while `follow`
+# sleeps between reads (Probe.poll_until); a late joiner still gets only the current one.
+LED_READER_QOS = QoSProfile(
+    history=LATCHED_QOS.history,
+    depth=10,
+    reliability=LATCHED_QOS.reliability,
+    durability=LATCHED_QOS.durability,
+)
+
 
 def _stamp_ns(stamp) -> int:
     return stamp.sec * 1_000_000_000 + stamp.nanosec
@@ -74,20 +83,12 @@ class Probe(Node):
         self.frames: list[dict] = []
         self.diagnostics: dict[str, list[dict]] = {}
 
-    def watch_led(self, depth: int = 1):
-        """DEPTH: how many colour changes the reader keeps until the probe takes them."""
-
+    def watch_led(self):
         def on_color(msg: ColorRGBA, info: dict) -> None:
             recv_ns = time.time_ns()
             self.leds.append({"hex": Rgb.from_floats(msg.r, msg.g, msg.b).hex, "recv_ns": recv_ns, **_dds_times(info)})
 
-        qos = QoSProfile(
-            history=LATCHED_QOS.history,
-            depth=depth,
-            reliability=LATCHED_QOS.reliability,
-            durability=LATCHED_QOS.durability,
-        )
-        return self.create_subscription(ColorRGBA, LED_COLOR_TOPIC, on_color, qos)
+        return self.create_subscription(ColorRGBA, LED_COLOR_TOPIC, on_color, LED_READER_QOS)
 
     def watch_scene(self):
         def on_scene(msg: String) -> None:
@@ -197,8 +198,7 @@ def cmd_led(probe: Probe, args: argparse.Namespace) -> dict:
 
 
 def cmd_follow(probe: Probe, args: argparse.Namespace) -> dict:
-    # The probe reads only every poll period (poll_until): the readers keep what came meanwhile.
-    led_sub = probe.watch_led(depth=10)
+    led_sub = probe.watch_led()
     scene_sub = probe.watch_scene()
     if args.hops:
         probe.watch_qr()  # its sent_ns is when the detector published the text

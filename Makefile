@@ -33,12 +33,13 @@ setup:
 # Three pytest workers, each taking whole modules (their module fixtures build once):
 # one worker's image builds and colcon runs fill the others' waits on containers. On two
 # cores, three left 8 % idle where two left more and four gained nothing (README, Tests).
+# Modules go out longest first (tests/longest_first.py sets the order xdist keeps).
 test: setup
 	$(PY) -m ruff check espdock tests ws/src
 	$(PY) -m ruff format --check espdock tests ws/src
 	mkdir -p build
 	bash tests/firmware/run.sh build/host-tests > build/host-tests.log 2>&1 & firmware=$$!; \
-	$(PY) -m pytest -n 3 --dist loadfile; status=$$?; \
+	$(PY) -m pytest -n 3 --dist loadfile --no-loadscope-reorder; status=$$?; \
 	wait $$firmware; firmware_status=$$?; \
 	cat build/host-tests.log; \
 	exit $$(( status || firmware_status ))

@@ -19,6 +19,8 @@ import pytest
 
 from espdock.defaults import SHIPPED
 
+pytest_plugins = ["tests.longest_first"]
+
 REPO = Path(__file__).resolve().parent.parent
 IN_CI = os.environ.get("CI", "").lower() == "true"
 

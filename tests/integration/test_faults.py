@@ -14,6 +14,7 @@ which is the shared engine's.
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import os
 import shutil
@@ -192,6 +193,17 @@ def drop_private_engine(engine: PrivateEngine) -> None:
     engine.stop()
     subprocess.run(["umount", "--lazy", str(engine.home / "data")], capture_output=True, check=False)
     shutil.rmtree(engine.home, ignore_errors=True)
+    drop_cgroups(f"espdock-test-{engine.home.name}")
+
+
+def drop_cgroups(name: str) -> None:
+    """The cgroup parent NAME the private dockerd made in each hierarchy: the kernel keeps empty
+    cgroups until someone removes them, so every run would leave its own behind."""
+    top = Path("/sys/fs/cgroup")
+    for parent in (top / name, *top.glob(f"*/{name}")):
+        for directory, _, _ in sorted(os.walk(parent), reverse=True):  # children before their parent
+            with contextlib.suppress(OSError):
+                os.rmdir(directory)
 
 
 @pytest.fixture

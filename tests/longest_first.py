@@ -4,7 +4,7 @@
 collection order, which this plugin sets: the modules that took longest in the last run
 first, so that no worker starts a minute of image builds while the others have nothing left.
 xdist's own order (most tests first) put the integration modules with two or three long
-tests last: one worker ran 70 s after the other two had finished.
+tests last: one worker ran 72 s after another had finished.
 
 The times come from pytest's cache (.pytest_cache), written at the end of every run for the
 modules it ran. A module the cache does not know (a fresh clone, a new module) goes before

@@ -9,6 +9,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 from tests.conftest import REPO
 
 SUITE = {
@@ -18,6 +20,13 @@ SUITE = {
     "test_slow.py": "import pytest\n\npytestmark = pytest.mark.slow\n\ndef test_one():\n    pass\n",
     "test_sleeps.py": "import time\n\ndef test_one():\n    time.sleep(0.5)\n",
 }
+
+
+@pytest.fixture
+def suite(tmp_path: Path) -> Path:
+    for name, text in SUITE.items():
+        (tmp_path / name).write_text(text)
+    return tmp_path
 
 
 def run_order(suite: Path, *args: str) -> list[str]:
@@ -34,25 +43,20 @@ def run_order(suite: Path, *args: str) -> list[str]:
     return modules
 
 
-def test_unknown_modules_go_by_markers_then_the_longest_measured_goes_first(tmp_path: Path):
-    for name, text in SUITE.items():
-        (tmp_path / name).write_text(text)
-
+def test_unknown_modules_go_by_markers_then_the_longest_measured_goes_first(suite: Path):
     # A fresh clone: nothing measured, so slow, then engine, then the most tests.
-    assert run_order(tmp_path) == ["test_slow", "test_engine", "test_many", "test_sleeps"]
+    assert run_order(suite) == ["test_slow", "test_engine", "test_many", "test_sleeps"]
     # Next run: the one that took 0.5 s first.
-    assert run_order(tmp_path)[0] == "test_sleeps"
+    assert run_order(suite)[0] == "test_sleeps"
 
     # A module added since is not known: it goes before every measured one.
-    (tmp_path / "test_new.py").write_text("def test_one():\n    pass\n")
-    assert run_order(tmp_path)[0] == "test_new"
+    (suite / "test_new.py").write_text("def test_one():\n    pass\n")
+    assert run_order(suite)[0] == "test_new"
 
 
-def test_a_selection_does_not_record_a_module_as_short(tmp_path: Path):
-    for name, text in SUITE.items():
-        (tmp_path / name).write_text(text)
-    run_order(tmp_path)
-    (tmp_path / "test_sleeps.py").write_text(SUITE["test_sleeps.py"] + "\n\ndef test_two():\n    pass\n")
+def test_a_selection_does_not_record_a_module_as_short(suite: Path):
+    run_order(suite)
+    (suite / "test_sleeps.py").write_text(SUITE["test_sleeps.py"] + "\n\ndef test_two():\n    pass\n")
 
-    run_order(tmp_path, "-k", "test_two")
-    assert run_order(tmp_path)[0] == "test_sleeps"
+    run_order(suite, "-k", "test_two")
+    assert run_order(suite)[0] == "test_sleeps"

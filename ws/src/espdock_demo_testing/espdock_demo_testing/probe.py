@@ -53,6 +53,16 @@ LED_READER_QOS = QoSProfile(
 )
 
 
+def _until(done: Callable[[], bool], timeout: float, step: Callable[[], None]) -> bool:
+    """Run STEP until DONE() or TIMEOUT seconds; whether DONE() came true."""
+    deadline = time.monotonic() + timeout
+    while not done():
+        if time.monotonic() > deadline:
+            return False
+        step()
+    return True
+
+
 def _stamp_ns(stamp) -> int:
     return stamp.sec * 1_000_000_000 + stamp.nanosec
 
@@ -134,12 +144,7 @@ class Probe(Node):
 
     def spin_until(self, done: Callable[[], bool], timeout: float) -> bool:
         """Spin until DONE() or TIMEOUT seconds; whether DONE() came true."""
-        deadline = time.monotonic() + timeout
-        while not done():
-            if time.monotonic() > deadline:
-                return False
-            self._spinner.spin_once(timeout_sec=0.05)
-        return True
+        return _until(done, timeout, lambda: self._spinner.spin_once(timeout_sec=0.05))
 
     def poll_until(self, done: Callable[[], bool], timeout: float, period: float = 0.1) -> bool:
         """Like spin_until, but asleep between reads every PERIOD seconds: for timing the demo.
@@ -150,13 +155,12 @@ class Probe(Node):
         reader thread still stamps each message as it arrives (`dds_ns`), which is what the
         latency is measured to.
         """
-        deadline = time.monotonic() + timeout
-        while not done():
-            if time.monotonic() > deadline:
-                return False
+
+        def read() -> None:
             time.sleep(period)
             self._take_ready()
-        return True
+
+        return _until(done, timeout, read)
 
     def _take_ready(self) -> None:
         """Run every callback whose message has already arrived, without waiting for more."""

@@ -168,7 +168,7 @@ def measure_mjpeg(stack: DemoStack, clients: int, seconds: float) -> dict:
 
 def row(name: str, value: str, target: str = "", ok: bool | None = None) -> str:
     verdict = "" if ok is None else ("ok" if ok else "MISSED")
-    return f"{name:<44} {value:>16}  {target:<10} {verdict}"
+    return f"{name:<52} {value:>16}  {target:<10} {verdict}"
 
 
 def main() -> int:

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import time
+
 import pytest
 
 from demo_support import start_stack
@@ -121,3 +123,18 @@ def test_bad_input_on_the_topics_kills_no_node_and_leaves_the_led_alone(demo):
         assert demo.health(service) == "healthy"
     # And the pipeline still works.
     assert demo.probe("follow", "--changes", "2", "--timeout", "30")["ok"]
+
+
+def test_the_console_stops_at_once_and_cleanly(demo):
+    """`docker compose stop` (SIGTERM) ends the console between its rounds of reading, exit 0.
+
+    Last in the module: the console stays stopped.
+    """
+    begin = time.monotonic()
+    demo.compose("stop", "demo")
+    seconds = time.monotonic() - begin
+    state = demo.inspect("demo")["State"]
+    logs = demo.compose("logs", "--no-color", "--no-log-prefix", "demo").stdout
+    assert state["ExitCode"] == 0 and "Traceback" not in logs, logs[-2000:]
+    # Compose's grace period is 5 s; a console that missed the signal is killed then (exit 137).
+    assert seconds < 4, seconds

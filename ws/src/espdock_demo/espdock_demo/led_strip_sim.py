@@ -47,7 +47,8 @@ class LedStripSim(Node):
             return
         self.changes += 1
         self.show(color)
-        self.get_logger().info(f"LED strip shows {color.hex}")
+        # Debug, as qr_detector's line for a new code: the console says each colour.
+        self.get_logger().debug(f"LED strip shows {color.hex}")
 
     def diagnostics(self) -> dict[str, object]:
         return {"color": self.color.hex, "changes": self.changes, "ignored": self.ignored}

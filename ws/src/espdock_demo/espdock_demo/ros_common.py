@@ -9,7 +9,7 @@ from collections.abc import Callable, Mapping
 
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from rclpy.executors import Executor, ExternalShutdownException, SingleThreadedExecutor
+from rclpy.executors import Executor, ExternalShutdownException, SingleThreadedExecutor, TimeoutException
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
@@ -88,10 +88,30 @@ def start_diagnostics(node: Node, values: Callable[[], Mapping[str, object]], pe
     node.create_timer(period, publish)
 
 
+def run_ready(executor: Executor) -> None:
+    """Run every callback whose message, timer or response has already come, without waiting for more."""
+    while True:
+        try:
+            handler, _, _ = executor.wait_for_ready_callbacks(timeout_sec=0)
+        except TimeoutException:
+            return
+        handler()
+        if handler.exception() is not None:
+            raise handler.exception()
+
+
 def spin_node(
-    make_node: Callable[[], Node], executor: Executor | None = None, on_shutdown: Callable[[Node], None] | None = None
+    make_node: Callable[[], Node],
+    executor: Executor | None = None,
+    on_shutdown: Callable[[Node], None] | None = None,
+    poll_period: float | None = None,
 ) -> None:
     """Init rclpy, spin the node MAKE_NODE makes until Ctrl-C or SIGTERM, then clean up.
+
+    With POLL_PERIOD the node sleeps between rounds of its callbacks, every POLL_PERIOD
+    seconds, instead of waking on each message: for nodes that only watch the control
+    path, whose Python would otherwise run at the very moments the QR text and the LED
+    colour go by (its DDS threads still receive each message as it comes).
 
     Anything else a node raises ends the process with an error, so the
     container's restart policy brings it back.
@@ -102,7 +122,15 @@ def spin_node(
         node = make_node()
         executor = executor or SingleThreadedExecutor()
         executor.add_node(node)
-        executor.spin()
+        if poll_period is None:
+            executor.spin()
+        else:
+            while executor.context.ok():
+                time.sleep(poll_period)
+                # SIGTERM shuts the context down from rclpy's signal thread, maybe in the sleep:
+                # a wait set on a shut-down context is an error, not a way out.
+                if executor.context.ok():
+                    run_ready(executor)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:

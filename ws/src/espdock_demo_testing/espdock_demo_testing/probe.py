@@ -23,7 +23,7 @@ from collections.abc import Callable
 
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
-from rclpy.executors import SingleThreadedExecutor, TimeoutException
+from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import QoSProfile
 from sensor_msgs.msg import CompressedImage
@@ -40,7 +40,7 @@ from espdock_demo.names import (
     QR_MESSAGE_TOPIC,
     SCENE_TOPIC,
 )
-from espdock_demo.ros_common import IMAGE_PUB_QOS, IMAGE_SUB_QOS, LATCHED_QOS, TEXT_QOS
+from espdock_demo.ros_common import IMAGE_PUB_QOS, IMAGE_SUB_QOS, LATCHED_QOS, TEXT_QOS, run_ready
 from espdock_demo_testing.report import follow_report
 
 # The LED strip's latched colour, with room for every change that comes while `follow`
@@ -158,20 +158,9 @@ class Probe(Node):
 
         def read() -> None:
             time.sleep(period)
-            self._take_ready()
+            run_ready(self._spinner)
 
         return _until(done, timeout, read)
-
-    def _take_ready(self) -> None:
-        """Run every callback whose message has already arrived, without waiting for more."""
-        while True:
-            try:
-                handler, _, _ = self._spinner.wait_for_ready_callbacks(timeout_sec=0)
-            except TimeoutException:
-                return
-            handler()
-            if handler.exception() is not None:
-                raise handler.exception()
 
     def spin_for(self, seconds: float) -> None:
         self.spin_until(lambda: False, seconds)

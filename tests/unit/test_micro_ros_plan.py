@@ -1,7 +1,10 @@
 """The micro-ROS image key and the firmware part of the plan, without an engine."""
 
 import json
+import os
+import shutil
 import subprocess
+import sys
 from dataclasses import replace
 from pathlib import Path
 
@@ -318,7 +321,6 @@ def test_idf_5_3_and_later_or_a_digest_are_accepted(image):
 # FindPython3 must find that venv's interpreter when micro-ROS is built in Dockerfile.idf. The
 # real build cannot run here (no espressif/idf image); the recipe and its guard can.
 IDF_RECIPE = Path(__file__).resolve().parents[2] / "Dockerfile.idf"
-IDF_VENV = "/opt/esp/python_env/idf5.3_py3.10_env"  # the espressif/idf:v5.3.5 image's
 
 
 def library_build_run() -> str:
@@ -336,30 +338,50 @@ def test_the_library_build_points_cmake_at_idf_s_venv_python():
     assert 'VIRTUAL_ENV="$venv"' in reconfigure and 'Python3_ROOT_DIR="$venv"' in reconfigure
 
 
-def run_guard(tmp_path: Path, caches: dict[str, str]) -> subprocess.CompletedProcess:
-    """Dockerfile.idf's check of the CMake caches, run on CACHES (package -> recorded Python3_EXECUTABLE)."""
+FIND_PYTHON_PROJECT = (
+    "cmake_minimum_required(VERSION 3.16)\nproject(probe NONE)\nfind_package(Python3 REQUIRED COMPONENTS Interpreter)\n"
+)
+
+
+@pytest.fixture(scope="module")
+def pythons(tmp_path_factory) -> dict[str, Path]:
+    """Two interpreter prefixes: "idf" stands in for IDF's venv, "other" for any Python outside it."""
+    if shutil.which("cmake") is None:
+        pytest.skip("cmake is not installed: the guard is tested against caches written by a real CMake run")
+    root = tmp_path_factory.mktemp("pythons")
+    made = {}
+    for name in ("idf", "other"):
+        subprocess.run([sys.executable, "-m", "venv", "--without-pip", str(root / name)], check=True)
+        made[name] = root / name
+    return made
+
+
+def run_guard(tmp_path: Path, venv: Path, caches: dict[str, Path]) -> subprocess.CompletedProcess:
+    """Dockerfile.idf's check of the CMake caches, run on caches that a real CMake's FindPython wrote for
+    each package of CACHES, pointed at the interpreter under its prefix the way the RUN points it."""
     guard = library_build_run().split("&& stray=", 1)[1].split("&& test -f", 1)[0]
     component = tmp_path / "component"
-    for package, python in caches.items():
+    source = tmp_path / "probe"
+    source.mkdir()
+    (source / "CMakeLists.txt").write_text(FIND_PYTHON_PROJECT)
+    for package, prefix in caches.items():
+        env = {k: v for k, v in os.environ.items() if k not in ("VIRTUAL_ENV", "Python3_ROOT_DIR")}
+        env |= {"VIRTUAL_ENV": str(prefix), "Python3_ROOT_DIR": str(prefix)}
         build = component / "micro_ros_src" / "build" / package
-        build.mkdir(parents=True)
-        (build / "CMakeCache.txt").write_text(
-            f"CMAKE_BUILD_TYPE:STRING=Release\nPython3_EXECUTABLE:FILEPATH={python}\n"
-        )
+        subprocess.run(["cmake", "-S", str(source), "-B", str(build)], env=env, check=True, capture_output=True)
     script = "stray=" + guard.replace("/opt/micro_ros_espidf_component", str(component))
-    return subprocess.run(["sh", "-c", f"venv={IDF_VENV}; {script}"], check=False, capture_output=True, text=True)
+    return subprocess.run(["sh", "-c", f"venv={venv}; {script}"], check=False, capture_output=True, text=True)
 
 
-def test_a_library_built_with_idf_s_venv_python_passes_the_guard(tmp_path):
-    python = f"{IDF_VENV}/bin/python3"
-    assert run_guard(tmp_path, {"rcl": python, "rclc": python}).returncode == 0
+def test_a_library_built_with_idf_s_venv_python_passes_the_guard(tmp_path, pythons):
+    result = run_guard(tmp_path, pythons["idf"], {"rcl": pythons["idf"], "rclc": pythons["idf"]})
+    assert result.returncode == 0, result.stderr
 
 
-def test_a_library_built_with_another_python_fails_the_image_build_naming_it(tmp_path):
-    result = run_guard(
-        tmp_path, {"rcl": "/opt/esp/python_env/idf5.3_py3.10_env/bin/python3", "rclc": "/usr/bin/python3"}
-    )
+def test_a_library_built_with_another_python_fails_the_image_build_naming_it(tmp_path, pythons):
+    result = run_guard(tmp_path, pythons["idf"], {"rcl": pythons["idf"], "rclc": pythons["other"]})
     assert result.returncode == 1
     assert "micro-ROS was built with a Python outside IDF's venv" in result.stderr
-    assert "rclc/CMakeCache.txt:Python3_EXECUTABLE:FILEPATH=/usr/bin/python3" in result.stderr
+    # What FindPython writes: the interpreter as an internal cache entry, not Python3_EXECUTABLE:FILEPATH.
+    assert f"rclc/CMakeCache.txt:_Python3_EXECUTABLE:INTERNAL={pythons['other']}/bin/python3" in result.stderr
     assert "rcl/CMakeCache.txt" not in result.stderr

@@ -455,20 +455,32 @@ def package_target(config: Config, inputs: BuildInputs, firmware: Package, overr
 
 
 # The prebuilt micro-ROS component requires esp_driver_gpio and esp_driver_spi, which ESP-IDF
-# has only from v5.3 on (v5.2 has neither directory under components/).
-MIN_IDF = (5, 3)
+# has only from v5.3 on (v5.2 has neither directory under components/). ESP-IDF 6 changed the
+# default libc to picolibc, and micro-ROS needed upstream work for it (micro_ros_espidf_component
+# #334): below 6 until a pin of micro-ROS is verified with it.
+MIN_IDF, BELOW_IDF = (5, 3), (6, 0)
 _IDF_TAG_VERSION = re.compile(r":(?:release-)?v(\d+)\.(\d+)")
 
 
 def check_idf_image(reference: str) -> None:
-    """Refuse an Espressif image whose tag names an ESP-IDF older than MIN_IDF (a tag without a
-    version, a digest, is left to the component manager's `idf: ">=5.3"`)."""
+    """Refuse an Espressif image whose tag names an ESP-IDF outside MIN_IDF..BELOW_IDF (a tag without
+    a version, a digest, is left to the component manager's `idf: ">=5.3,<6"`)."""
     match = _IDF_TAG_VERSION.search(reference)
-    if match and (int(match.group(1)), int(match.group(2))) < MIN_IDF:
+    if match is None:
+        return
+    version = (int(match.group(1)), int(match.group(2)))
+    if version < MIN_IDF:
         raise WorkspaceError(
             f"idf_image {reference} is ESP-IDF {match.group(1)}.{match.group(2)}; espdock's micro-ROS component "
             "needs ESP-IDF 5.3 or newer (esp_driver_gpio, esp_driver_spi)",
             "Set idf_image to espressif/idf:v5.3.5 (the pinned default) or a later v5.x.",
+        )
+    if version >= BELOW_IDF:
+        raise WorkspaceError(
+            f"idf_image {reference} is ESP-IDF {match.group(1)}.{match.group(2)}; espdock supports ESP-IDF 5.3 up "
+            "to, not including, 6: ESP-IDF 6 builds with picolibc instead of newlib, and no micro-ROS pin of "
+            "espdock's is verified with it yet (micro_ros_espidf_component #334)",
+            "Set idf_image to espressif/idf:v5.3.5 (the pinned default) or another v5.x.",
         )
 
 

@@ -437,8 +437,12 @@ def cmd_apps(firmware: str, msg_file: str) -> int:
         if missing:
             continue
         check_top_cmake(app, problems)
-        if not re.search(r'^\s+idf: ">=5\.3"', (app / "main" / "idf_component.yml").read_text(), re.M):
-            problems.add(app, 'main/idf_component.yml must require idf: ">=5.3" (esp_driver_gpio/esp_driver_spi)')
+        if not re.search(r'^\s+idf: ">=5\.3,<6"$', (app / "main" / "idf_component.yml").read_text(), re.M):
+            problems.add(
+                app,
+                'main/idf_component.yml must require idf: ">=5.3,<6" (esp_driver_gpio/esp_driver_spi from 5.3; '
+                "IDF 6's picolibc not verified with micro-ROS)",
+            )
         check_interface_depends(app, problems)
         defaults = kconfig_defaults(app / "main" / "Kconfig.projbuild")
         for option in COMMON_OPTIONS:

@@ -312,8 +312,19 @@ def test_an_idf_image_older_than_5_3_is_refused_before_anything_builds(image):
     assert f"idf_image {image}" in err.value.message and "5.3 or newer" in err.value.message
 
 
-@pytest.mark.parametrize("image", ["espressif/idf:v5.3.5", "espressif/idf:v5.4", "espressif/idf@sha256:" + "a" * 64])
-def test_idf_5_3_and_later_or_a_digest_are_accepted(image):
+@pytest.mark.parametrize("image", ["espressif/idf:v6.0", "espressif/idf:release-v6.1", "espressif/idf:v7.0.1"])
+def test_an_idf_image_of_6_or_later_is_refused_saying_why(image):
+    with pytest.raises(WorkspaceError) as err:
+        key(config=Config(idf_image=image))
+    assert f"idf_image {image}" in err.value.message
+    assert "up to, not including, 6" in err.value.message and "picolibc" in err.value.message
+    assert "v5.3.5" in err.value.hint
+
+
+@pytest.mark.parametrize(
+    "image", ["espressif/idf:v5.3.5", "espressif/idf:v5.4", "espressif/idf:v5.5.5", "espressif/idf@sha256:" + "a" * 64]
+)
+def test_idf_5_3_up_to_6_or_a_digest_are_accepted(image):
     assert key(config=Config(idf_image=image))
 
 

@@ -399,8 +399,12 @@ def check_wifi_lifecycle(component: Path, apps: list[Path], problems: Problems) 
     config = wifi.find("esp_wifi_set_config(")
     if storage < 0 or storage > config:
         problems.add(component, "espdock_wifi.c must call esp_wifi_set_storage(WIFI_STORAGE_RAM) before set_config")
-    if '#include "agent_port_check.h"' not in (component / "espdock_uros.c").read_text():
-        problems.add(component, "espdock_uros.c must include agent_port_check.h (agent ports of 10000 and up)")
+    uros = (component / "espdock_uros.c").read_text()
+    if "agent_port_check.h" in uros or "_Static_assert" in uros:
+        problems.add(component, "espdock_uros.c must not fail every build for one port: refuse the port at run time")
+    check = uros.find("net_agent_port_fits(config->agent_port, MAX_PORT_LEN)")
+    if check < 0 or check > uros.find("rmw_uros_options_set_udp_address("):
+        problems.add(component, "espdock_uros_setup must refuse a port the library cuts (net_agent_port_fits) first")
     for app in apps:
         sources = app_sources(app)
         if "espdock_wifi_start(" in sources or "espdock_wifi_start_retrying(" not in sources:
@@ -411,9 +415,18 @@ def cmd_apps(firmware: str, msg_file: str) -> int:
     problems = Problems()
     root = Path(firmware)
     check_network_fallbacks(root / "components" / "espdock_uros", problems)
+    # `espdock new`'s template starts Wi-Fi like the apps (its sources carry @NAME@ placeholders).
+    template = root.parent / "espdock" / "templates" / "firmware"
     check_wifi_lifecycle(
-        root / "components" / "espdock_uros", sorted(p.parent for p in root.glob("*/package.xml")), problems
+        root / "components" / "espdock_uros", [*sorted(p.parent for p in root.glob("*/package.xml")), template], problems
     )
+    client = meta_args(json.loads((template / "app-colcon.meta").read_text())).get("microxrcedds_client", {})
+    if "UCLIENT_MAX_SESSION_CONNECTION_ATTEMPTS" not in client:
+        problems.add(
+            template / "app-colcon.meta",
+            "microxrcedds_client must set UCLIENT_MAX_SESSION_CONNECTION_ATTEMPTS (the default 10 tries hold up "
+            "each reconnection)",
+        )
     apps = sorted(p.parent for p in root.glob("*/package.xml"))
     if {a.name for a in apps} != set(REQUIRED_DEFAULTS):
         problems.add(root, f"expected apps {sorted(REQUIRED_DEFAULTS)}, found {[a.name for a in apps]}")

@@ -146,8 +146,90 @@ static void test_description_fits_a_small_buffer(void)
     TK_CHECK(strcmp(text, "no Wi-Fi SSID") == 0, "whole items only, got '%s'", text);
 }
 
+/* rmw_microxrcedds keeps MAX_PORT_LEN - 1 digits: 5 before micro-ROS/rmw_microxrcedds#315, 6 after. */
+static void test_agent_ports_the_library_would_cut_are_refused_alone(void)
+{
+    TK_CHECK(net_agent_port_fits(8888, 5), "8888 fits a library before #315");
+    TK_CHECK(net_agent_port_fits(9999, 5), "9999 fits a library before #315");
+    TK_CHECK(!net_agent_port_fits(10000, 5), "10000 would become 1000");
+    TK_CHECK(!net_agent_port_fits(65535, 5), "65535 would become 6553");
+    TK_CHECK(net_agent_port_fits(10000, 6) && net_agent_port_fits(65535, 6), "five digits fit after #315");
+    TK_CHECK(net_agent_port_fits(1, 2) && !net_agent_port_fits(10, 2), "one digit in char[2]");
+    TK_CHECK(!net_agent_port_fits(1, 0) && !net_agent_port_fits(1, 1), "no room for any digit");
+}
+
+/* A scripted nvs_flash_init/nvs_flash_erase: each call takes the next result. */
+enum { NVS_OK = 0, NVS_NO_FREE_PAGES = 0x110d, NVS_NOT_INITIALIZED = 0x1101 };
+static int s_init_results[8];
+static unsigned s_init_calls, s_erase_calls, s_erase_logs;
+
+static int scripted_init(void)
+{
+    return s_init_results[s_init_calls++];
+}
+
+static int scripted_erase(void)
+{
+    s_erase_calls++;
+    return NVS_OK;
+}
+
+static bool scripted_repairs(int err)
+{
+    return err == NVS_NO_FREE_PAGES;
+}
+
+static void scripted_on_erase(int err)
+{
+    (void)err;
+    s_erase_logs++;
+}
+
+static const net_nvs_ops_t SCRIPTED = {
+    .init = scripted_init, .erase = scripted_erase, .erase_repairs = scripted_repairs, .on_erase = scripted_on_erase,
+};
+
+static void script(int first, int second, int third)
+{
+    s_init_calls = s_erase_calls = s_erase_logs = 0;
+    s_init_results[0] = first;
+    s_init_results[1] = second;
+    s_init_results[2] = third;
+}
+
+static void test_a_failed_nvs_init_is_tried_again_on_the_next_call(void)
+{
+    bool ready = false;
+    script(NVS_NOT_INITIALIZED, NVS_OK, NVS_NOT_INITIALIZED);
+    TK_CHECK_EQ_INT(net_nvs_ready(&SCRIPTED, &ready), NVS_NOT_INITIALIZED, "first attempt fails");
+    TK_CHECK(!ready, "not ready after a failure");
+    /* Wi-Fi's start retry calls again: NVS must be retried, not the first failure returned. */
+    TK_CHECK_EQ_INT(net_nvs_ready(&SCRIPTED, &ready), NVS_OK, "second attempt succeeds");
+    TK_CHECK_EQ_INT(s_init_calls, 2, "nvs_flash_init called again");
+    TK_CHECK(ready, "ready after a success");
+    TK_CHECK_EQ_INT(net_nvs_ready(&SCRIPTED, &ready), NVS_OK, "once ready, stays ready");
+    TK_CHECK_EQ_INT(s_init_calls, 2, "no init once ready");
+}
+
+static void test_an_unusable_partition_is_erased_once_per_attempt(void)
+{
+    bool ready = false;
+    script(NVS_NO_FREE_PAGES, NVS_OK, NVS_OK);
+    TK_CHECK_EQ_INT(net_nvs_ready(&SCRIPTED, &ready), NVS_OK, "erase and init again");
+    TK_CHECK(s_erase_calls == 1 && s_erase_logs == 1, "erased once, and said so");
+    TK_CHECK(ready, "ready");
+    ready = false;
+    script(NVS_NO_FREE_PAGES, NVS_NO_FREE_PAGES, NVS_OK);
+    TK_CHECK_EQ_INT(net_nvs_ready(&SCRIPTED, &ready), NVS_NO_FREE_PAGES, "still unusable after the erase");
+    TK_CHECK(!ready && s_erase_calls == 1, "one erase per attempt");
+    TK_CHECK_EQ_INT(net_nvs_ready(&SCRIPTED, &ready), NVS_OK, "the next attempt succeeds");
+}
+
 int main(void)
 {
+    test_agent_ports_the_library_would_cut_are_refused_alone();
+    test_a_failed_nvs_init_is_tried_again_on_the_next_call();
+    test_an_unusable_partition_is_erased_once_per_attempt();
     test_nvs_values_win();
     test_unprovisioned_default_build_says_what_is_missing();
     test_each_key_falls_back_to_kconfig();

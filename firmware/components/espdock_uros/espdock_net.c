@@ -21,6 +21,20 @@ typedef struct {
     char agent_host[NET_HOST_MAX + 2];
 } nvs_strings_t;
 
+/* A key of another type (ESP_ERR_NVS_TYPE_MISMATCH: written by hand, not by espdock provision)
+ * is ignored like a missing one, but said: otherwise the build's fallback wins in silence. */
+static void log_unreadable(const char *key, const char *type, esp_err_t err)
+{
+    if (err == ESP_OK || err == ESP_ERR_NVS_NOT_FOUND) {
+        return;
+    }
+    if (err == ESP_ERR_NVS_TYPE_MISMATCH) {
+        ESP_LOGW(TAG, "NVS key %s is not %s (as espdock provision writes it): ignored", key, type);
+    } else {
+        ESP_LOGW(TAG, "NVS key %s unreadable: %s", key, esp_err_to_name(err));
+    }
+}
+
 static const char *read_str(nvs_handle_t handle, const char *key, char *buf, size_t size)
 {
     size_t len = size;
@@ -34,9 +48,7 @@ static const char *read_str(nvs_handle_t handle, const char *key, char *buf, siz
         buf[size - 1] = '\0';
         return buf;
     }
-    if (err != ESP_ERR_NVS_NOT_FOUND) {
-        ESP_LOGW(TAG, "NVS key %s unreadable: %s", key, esp_err_to_name(err));
-    }
+    log_unreadable(key, "a string", err);
     return NULL;
 }
 
@@ -56,15 +68,19 @@ static void read_nvs(net_candidate_t *nvs, nvs_strings_t *strings)
     nvs->password = read_str(handle, NET_KEY_PASSWORD, strings->password, sizeof strings->password);
     nvs->agent_host = read_str(handle, NET_KEY_AGENT_HOST, strings->agent_host, sizeof strings->agent_host);
     uint16_t port;
-    if (nvs_get_u16(handle, NET_KEY_AGENT_PORT, &port) == ESP_OK) {
+    err = nvs_get_u16(handle, NET_KEY_AGENT_PORT, &port);
+    if (err == ESP_OK) {
         nvs->has_agent_port = true;
         nvs->agent_port = port;
     }
+    log_unreadable(NET_KEY_AGENT_PORT, "a u16", err);
     uint8_t domain;
-    if (nvs_get_u8(handle, NET_KEY_DOMAIN_ID, &domain) == ESP_OK) {
+    err = nvs_get_u8(handle, NET_KEY_DOMAIN_ID, &domain);
+    if (err == ESP_OK) {
         nvs->has_domain_id = true;
         nvs->domain_id = domain;
     }
+    log_unreadable(NET_KEY_DOMAIN_ID, "a u8", err);
     nvs_close(handle);
 }
 
@@ -78,27 +94,28 @@ static const net_candidate_t KCONFIG = {
     .domain_id = CONFIG_ESPDOCK_ROS_DOMAIN_ID,
 };
 
+static bool erase_repairs(int err)
+{
+    return err == ESP_ERR_NVS_NO_FREE_PAGES || err == ESP_ERR_NVS_NEW_VERSION_FOUND;
+}
+
+static void on_erase(int err)
+{
+    /* The partition is unusable as it is; erasing it also drops any provisioning,
+     * which the log says, rather than leaving the board without Wi-Fi calibration. */
+    ESP_LOGE(TAG, "NVS partition unusable (%s): erasing it; provision the board again", esp_err_to_name(err));
+}
+
 esp_err_t espdock_nvs_init(void)
 {
-    static bool done;
-    static esp_err_t result;
-    if (done) {
-        return result;
-    }
-    done = true;
-    esp_err_t err = nvs_flash_init();
-    if (err == ESP_ERR_NVS_NO_FREE_PAGES || err == ESP_ERR_NVS_NEW_VERSION_FOUND) {
-        /* The partition is unusable as it is; erasing it also drops any provisioning,
-         * which the log says, rather than leaving the board without Wi-Fi calibration. */
-        ESP_LOGE(TAG, "NVS partition unusable (%s): erasing it; provision the board again",
-                 esp_err_to_name(err));
-        err = nvs_flash_erase();
-        if (err == ESP_OK) {
-            err = nvs_flash_init();
-        }
-    }
-    result = err;
-    return err;
+    static const net_nvs_ops_t ops = {
+        .init = nvs_flash_init,
+        .erase = nvs_flash_erase,
+        .erase_repairs = erase_repairs,
+        .on_erase = on_erase,
+    };
+    static bool ready;
+    return net_nvs_ready(&ops, &ready);
 }
 
 void espdock_net_load(net_settings_t *out)

@@ -1,6 +1,5 @@
 /* micro-ROS session glue; see espdock_uros.h. */
 #include "espdock_uros.h"
-#include "agent_port_check.h"
 
 #include <stdio.h>
 #include <string.h>
@@ -11,6 +10,7 @@
 #include "esp_log.h"
 #include "esp_timer.h"
 #include "espdock_wifi.h"
+#include "net_settings.h"
 #include "freertos/FreeRTOS.h"
 #include "freertos/task.h"
 
@@ -35,6 +35,17 @@ bool espdock_uros_setup(espdock_uros_t *uros, const espdock_uros_config_t *confi
     uros->node_name = config->node_name;
     uros->node_namespace = config->node_namespace != NULL ? config->node_namespace : "";
 
+#ifdef MAX_PORT_LEN
+    /* Only this port is refused, not the build: the library would cut it to port/10 and the
+     * board would talk to another port while pings to the right agent never arrive. */
+    if (!net_agent_port_fits(config->agent_port, MAX_PORT_LEN)) {
+        ESP_LOGE(TAG, "agent port %u: this micro-ROS library keeps only %u digits of a port (rmw_microxrcedds "
+                      "MAX_PORT_LEN %u, before micro-ROS/rmw_microxrcedds#315); use an agent port below 10000 "
+                      "or rebuild micro-ROS with #315",
+                 (unsigned)config->agent_port, (unsigned)(MAX_PORT_LEN - 1), (unsigned)MAX_PORT_LEN);
+        return false;
+    }
+#endif
     char port[8];
     snprintf(port, sizeof port, "%u", (unsigned)config->agent_port);
     ESPDOCK_RC_CHECK(rcl_init_options_init(&uros->init_options, uros->allocator));
@@ -172,7 +183,9 @@ void espdock_uros_serve(espdock_uros_t *uros, const espdock_uros_config_t *confi
                         uint32_t step_delay_ms)
 {
     if (!espdock_uros_setup(uros, config)) {
-        ESP_LOGE(TAG, "invalid micro-ROS settings (agent address?); node not started");
+        ESP_LOGE(TAG, "micro-ROS setup failed for agent %s:%u, node %s (see above): node not started, "
+                      "its task ends; fix the settings (espdock provision) and reset the board",
+                 config->agent_ip, (unsigned)config->agent_port, config->node_name);
         vTaskDelete(NULL);
         return;
     }

@@ -173,3 +173,29 @@ const char *net_source_name(net_source_t source)
         return "nowhere";
     }
 }
+
+bool net_agent_port_fits(uint32_t port, uint32_t max_port_len)
+{
+    uint32_t digits = 1;
+    for (uint32_t rest = port / 10u; rest != 0u; rest /= 10u) {
+        digits++;
+    }
+    return max_port_len >= 1u && digits <= max_port_len - 1u;
+}
+
+int net_nvs_ready(const net_nvs_ops_t *ops, bool *ready)
+{
+    if (*ready) {
+        return 0;
+    }
+    int err = ops->init();
+    if (err != 0 && ops->erase_repairs(err)) {
+        ops->on_erase(err);
+        err = ops->erase();
+        if (err == 0) {
+            err = ops->init();
+        }
+    }
+    *ready = err == 0;
+    return err;
+}

@@ -106,11 +106,8 @@ static void uros_task(void *arg)
 void app_main(void)
 {
     espdock_net_load(&s_net);
-    esp_err_t err = espdock_wifi_start(s_net.ssid, s_net.password, false);
-    if (err != ESP_OK) {
-        ESP_LOGE(TAG, "Wi-Fi start failed: %s; check the Wi-Fi settings", esp_err_to_name(err));
-        return;
-    }
+    /* Like the agent link, Wi-Fi that fails to start (NVS, memory) is retried, not given up. */
+    espdock_wifi_start_retrying(s_net.ssid, s_net.password, false);
     if (xTaskCreate(uros_task, "uros", CONFIG_ESPDOCK_UROS_TASK_STACK, NULL, 5, NULL) != pdPASS) {
         ESP_LOGE(TAG, "could not start the micro-ROS task (stack %d B)", CONFIG_ESPDOCK_UROS_TASK_STACK);
     }

@@ -21,7 +21,8 @@ extern "C" {
  */
 void espdock_net_load(net_settings_t *out);
 
-/** nvs_flash_init once (Wi-Fi keeps its calibration there too); later calls return the first result. */
+/** nvs_flash_init until it succeeds once (Wi-Fi keeps its calibration there too); a failure is tried again
+ * on the next call, so Wi-Fi's start retries retry NVS. */
 esp_err_t espdock_nvs_init(void);
 
 #ifdef __cplusplus

@@ -92,6 +92,29 @@ const char *net_describe_problems(uint32_t problems, char *buf, size_t size);
 
 const char *net_source_name(net_source_t source);
 
+/*
+ * True when the micro-ROS library keeps every digit of agent port PORT. rmw_microxrcedds copies
+ * the port into char[MAX_PORT_LEN] with snprintf(.., MAX_PORT_LEN, ..), so it keeps
+ * MAX_PORT_LEN - 1 digits: 4 before micro-ROS/rmw_microxrcedds#315 (MAX_PORT_LEN 5, ports of
+ * 10000 and up cut to port/10) and 5 after it (MAX_PORT_LEN 6). Pass the library's MAX_PORT_LEN.
+ */
+bool net_agent_port_fits(uint32_t port, uint32_t max_port_len);
+
+/* nvs_flash_init and what repairs it, as espdock_net.c passes them (host-tested without IDF). */
+typedef struct {
+    int (*init)(void);               /* nvs_flash_init (esp_err_t is int) */
+    int (*erase)(void);              /* nvs_flash_erase */
+    bool (*erase_repairs)(int err);  /* no free pages, new version found */
+    void (*on_erase)(int err);       /* logs that provisioning is lost */
+} net_nvs_ops_t;
+
+/*
+ * Initialises NVS (erasing an unusable partition once per attempt) until an attempt succeeds:
+ * then *READY is set and later calls return 0 at once. A failed attempt is made again on the
+ * next call, so a caller that retries (Wi-Fi start) retries NVS too. Returns 0 or the error.
+ */
+int net_nvs_ready(const net_nvs_ops_t *ops, bool *ready);
+
 #ifdef __cplusplus
 }
 #endif

@@ -417,9 +417,8 @@ def cmd_apps(firmware: str, msg_file: str) -> int:
     check_network_fallbacks(root / "components" / "espdock_uros", problems)
     # `espdock new`'s template starts Wi-Fi like the apps (its sources carry @NAME@ placeholders).
     template = root.parent / "espdock" / "templates" / "firmware"
-    check_wifi_lifecycle(
-        root / "components" / "espdock_uros", [*sorted(p.parent for p in root.glob("*/package.xml")), template], problems
-    )
+    apps_and_template = [*sorted(p.parent for p in root.glob("*/package.xml")), template]
+    check_wifi_lifecycle(root / "components" / "espdock_uros", apps_and_template, problems)
     client = meta_args(json.loads((template / "app-colcon.meta").read_text())).get("microxrcedds_client", {})
     if "UCLIENT_MAX_SESSION_CONNECTION_ATTEMPTS" not in client:
         problems.add(

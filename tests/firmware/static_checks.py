@@ -104,6 +104,14 @@ GPIO_LIMITS = {
     "esp32": (39, 33), "esp32s2": (46, 45), "esp32s3": (48, 48), "esp32c3": (21, 21),
     "esp32c2": (20, 20), "esp32c6": (30, 30), "esp32h2": (27, 27), "esp32p4": (54, 54),
 }  # fmt: skip
+# Strapping pins (sampled at reset for the boot mode), per the chips' datasheets: a default output
+# there could make a board boot into download mode or the wrong flash voltage.
+STRAPPING_PINS = {
+    "esp32": {0, 2, 5, 12, 15}, "esp32s2": {0, 45, 46}, "esp32s3": {0, 3, 45, 46}, "esp32c3": {2, 8, 9},
+}  # fmt: skip
+# Pins wired to the module's SPI flash and PSRAM: ESP32 6-11 (16-17 PSRAM on WROVER); ESP32-S3
+# 26-32 (flash/PSRAM) and 33-37 (octal flash/PSRAM).
+FLASH_PSRAM_PINS = {"esp32": {*range(6, 12), 16, 17}, "esp32s3": set(range(26, 38))}
 # Camera signals the ESP32 only reads: these may use input-only pins.
 INPUT_PINS = {f"ESPDOCK_CAM_PIN_{n}" for n in ("D0", "D1", "D2", "D3", "D4", "D5", "D6", "D7", "VSYNC", "HREF", "PCLK")}
 
@@ -154,6 +162,44 @@ def check_gpio_ranges(path: Path, problems: Problems) -> None:
             if not active or int(active[0][1].name) != limit:
                 got = active[0][1].name if active else "no range"
                 problems.add(path, f"{name} on {target}: range ends at {got}, the chip's last usable pin is {limit}")
+
+
+def component_targets(manifest: Path) -> list[str]:
+    """The `targets:` list of an idf_component.yml (block style, as the apps write it)."""
+    block = re.search(r"^targets:\n((?:[ \t]+-[ \t]*\S+[ \t]*\n)+)", manifest.read_text(), re.M)
+    return re.findall(r"-[ \t]*(\S+)", block.group(1)) if block else []
+
+
+def pin_defaults(path: Path, target: str, enable: str | None = None) -> dict[str, int]:
+    """Each GPIO option's default value on TARGET (with the bool option ENABLE set first)."""
+    kconf = load_kconfig(path, target)
+    if enable:
+        kconf.syms[enable].set_value(2)
+    return {
+        name: int(sym.str_value)
+        for name, sym in kconf.syms.items()
+        if ("_PIN_" in name or name.endswith("_GPIO")) and sym.nodes and sym.str_value not in ("", "-1")
+    }
+
+
+def check_pin_defaults(app: Path, problems: Problems) -> None:
+    """Per chip the app builds for, its default pins stay off flash/PSRAM pins (camera) and strapping
+    pins (LED data), and the chips ESP-IDF enforces (REQUIRED_IDF_TARGETS) are the manifest's."""
+    kconfig = app / "main" / "Kconfig.projbuild"
+    targets = component_targets(app / "main" / "idf_component.yml")
+    required = re.search(r"^\s+REQUIRED_IDF_TARGETS\s([^)]*)\)", (app / "main" / "CMakeLists.txt").read_text(), re.M)
+    if targets and (required is None or required.group(1).split() != targets):
+        problems.add(app, f"main/CMakeLists.txt must register REQUIRED_IDF_TARGETS {' '.join(targets)}, as targets")
+    if app.name == "camera_node":
+        for target in targets:
+            for name, pin in pin_defaults(kconfig, target, "ESPDOCK_CAM_BOARD_CUSTOM").items():
+                if pin in FLASH_PSRAM_PINS.get(target, ()):
+                    problems.add(kconfig, f"{name} defaults to GPIO {pin} on {target}, a flash/PSRAM pin")
+    if app.name == "led_strip_node":
+        for target in ("esp32", "esp32s2", "esp32s3", "esp32c3"):  # the chips micro-ROS builds for
+            pin = pin_defaults(kconfig, target)["ESPDOCK_LED_STRIP_GPIO"]
+            if pin in STRAPPING_PINS[target]:
+                problems.add(kconfig, f"ESPDOCK_LED_STRIP_GPIO defaults to GPIO {pin} on {target}, a strapping pin")
 
 
 def is_literal(name: str) -> bool:
@@ -456,6 +502,7 @@ def cmd_apps(firmware: str, msg_file: str) -> int:
                 "IDF 6's picolibc not verified with micro-ROS)",
             )
         check_interface_depends(app, problems)
+        check_pin_defaults(app, problems)
         defaults = kconfig_defaults(app / "main" / "Kconfig.projbuild")
         for option in COMMON_OPTIONS:
             if option not in defaults:

@@ -650,7 +650,6 @@ class Interpreter:
         }
         others = {
             "LDFRAGMENTS",
-            "REQUIRED_IDF_TARGETS",
             "EMBED_FILES",
             "EMBED_TXTFILES",
             "KCONFIG",
@@ -659,11 +658,24 @@ class Interpreter:
         }
         reg = Registration(line=cmd.line)
         current = None
+        targets: list[str] = []
         for word in v:
             if word in keys:
                 current = keys[word]
+            elif word == "REQUIRED_IDF_TARGETS":
+                current = "required_idf_targets"
             elif word in others:
                 current = None
+            elif current == "required_idf_targets":
+                targets.append(word)
             elif current:
                 getattr(reg, current).append(word)
+        # ESP-IDF's tools/cmake/component.cmake, __component_check_target: a component that names its
+        # targets stops the configure for any other, before anything compiles.
+        target = self.vars.get("IDF_TARGET", "")
+        if targets and target and target not in targets:
+            raise CMakeError(
+                f"CMake Error at {self.vars.get('IDF_PATH', '')}/tools/cmake/component.cmake:331 (message):\n"
+                f"  Component {Path(self.file).parent.name} only supports targets: {';'.join(targets)}"
+            )
         self.registrations.append(reg)

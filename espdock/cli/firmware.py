@@ -12,6 +12,7 @@ import typer
 from rich.text import Text
 
 from espdock import bootstrap
+from espdock.agent_port import LIBRARY_HEADERS, check_agent_port
 from espdock.cli.core import (
     WorkspaceOption,
     app,
@@ -162,6 +163,15 @@ AgentOption = Annotated[
 DomainOption = Annotated[int | None, typer.Option("--domain-id", help="ROS_DOMAIN_ID of the board (0..232).")]
 
 
+def _check_library_port(runner, ws: Workspace, step, settings) -> None:
+    """Refuse an agent port the package's micro-ROS library would cut, reading the library's header
+    in its image (a header that does not state MAX_PORT_LEN leaves it to the board)."""
+    lines: list[str] = []
+    # One of the two places holds it; cat's complaint about the other is of no interest.
+    runner.run_idf(ws, step, ("cat", *LIBRARY_HEADERS), on_line=lines.append, workdir="/")
+    check_agent_port(settings.agent_port, "\n".join(lines), step.package)
+
+
 def _ask_password() -> str:
     return typer.prompt(
         "Wi-Fi password (empty for an open network)",
@@ -197,6 +207,8 @@ def flash(
     check_port(serial)
     runner = runner_for(ws, config, Reporter(console))
     runner.run(plan)
+    if settings is not None:
+        _check_library_port(runner, ws, step, settings)
     say = lambda line: console.print(Text(line))  # noqa: E731
     if settings is None or nvs is None:
         flash_package(runner, ws, step, flasher_args, serial, baud, verify, say)
@@ -234,6 +246,7 @@ def provision(
     check_port(serial)
     runner = runner_for(ws, config, Reporter(console))
     runner.run(plan)
+    _check_library_port(runner, ws, step, settings)
     with nvs_image(settings, nvs.size, runner.owner) as image:
         flash_package(
             runner, ws, step, flasher_args, serial, baud, False, lambda line: console.print(Text(line)),

@@ -511,6 +511,65 @@ def test_flash_writes_and_verifies_through_esptool(fw_ws, double_env, mock_bootl
     assert leftover_containers(engine, root) == []
 
 
+def ros2_run(package: str, executable: str, *args: str, env: dict[str, str], cwd: Path) -> subprocess.CompletedProcess:
+    """`ros2 run PACKAGE EXECUTABLE ARGS` the way ros2run finds and starts it (ros2cli is not installable
+    here): the package's prefix from the ament index on AMENT_PREFIX_PATH, then the executable file
+    <prefix>/lib/<package>/EXECUTABLE, run with ARGS."""
+    prefixes = [Path(p) for p in env["AMENT_PREFIX_PATH"].split(os.pathsep)]
+    (prefix,) = [p for p in prefixes if (p / "share/ament_index/resource_index/packages" / package).is_file()][:1]
+    path = prefix / "lib" / package / executable
+    assert path.is_file() and os.access(path, os.X_OK), f"no executable {executable} in {path.parent}"
+    return subprocess.run(
+        [str(path), *args],
+        cwd=cwd,
+        env=env,
+        stdin=subprocess.DEVNULL,
+        capture_output=True,
+        text=True,
+        timeout=900,
+        check=False,
+    )
+
+
+def sourced_env(root: Path, double_env: dict[str, str]) -> dict[str, str]:
+    """What sourcing the workspace's install/setup.sh gives the two apps, with espdock on PATH (pip-installed)."""
+    install = root / "ws" / "install"
+    path = f"{Path(sys.executable).parent}{os.pathsep}{os.environ['PATH']}"
+    prefixes = os.pathsep.join(str(install / p) for p in ("camera_node", "led_strip_node"))
+    return {**os.environ, **double_env, "PATH": path, "AMENT_PREFIX_PATH": prefixes}
+
+
+def test_ros2_run_flash_flashes_the_package_from_outside_the_workspace(fw_ws, double_env, mock_bootloader, tmp_path):
+    root, first = fw_ws
+    assert first.returncode == 0
+    env = sourced_env(root, double_env)
+    result = ros2_run("camera_node", "flash", "--port", mock_bootloader, "--verify", env=env, cwd=tmp_path)
+    assert result.returncode == 0, result.stdout[-3000:] + result.stderr
+    assert f"flashed camera_node through {mock_bootloader} and verified it" in result.stdout
+
+
+def test_ros2_run_idf_and_monitor_reach_espdock_for_their_package(fw_ws, double_env, mock_bootloader, tmp_path):
+    root, first = fw_ws
+    assert first.returncode == 0
+    env = sourced_env(root, double_env)
+    idf = ros2_run("led_strip_node", "idf", "--version", env=env, cwd=tmp_path)
+    assert idf.returncode == 0, idf.stderr
+    assert "ESP-IDF v5.3.5" in idf.stdout
+    # No terminal here: `espdock monitor` refuses with its usage error, which shows the script reached it.
+    monitor = ros2_run("camera_node", "monitor", "--port", mock_bootloader, env=env, cwd=tmp_path)
+    assert monitor.returncode == 2, monitor.stdout + monitor.stderr
+    assert "the monitor needs a terminal" in monitor.stdout + monitor.stderr
+
+
+def test_ros2_run_without_espdock_on_path_says_so(fw_ws, double_env, tmp_path):
+    root, first = fw_ws
+    assert first.returncode == 0
+    env = {**sourced_env(root, double_env), "PATH": "/usr/bin:/bin"}
+    result = ros2_run("camera_node", "flash", "--port", "/dev/ttyUSB0", env=env, cwd=tmp_path)
+    assert result.returncode == 127
+    assert "espdock is not on PATH" in result.stderr
+
+
 def test_ctrl_c_during_flash_ends_with_130_leaving_no_container_and_the_next_flash_works(fw_ws, double_env, engine):
     root, first = fw_ws
     assert first.returncode == 0
@@ -691,6 +750,27 @@ def test_the_double_links_esp32_camera_s_driver_only_where_upstream_builds_it(do
     assert c3.returncode == 2 and "undefined reference to `esp_camera_init'" in c3.stderr, c3.stdout[-2000:]
     # Another target needs a fresh sdkconfig, as IDF itself says (the build directory went with its container).
     (project / "sdkconfig").unlink()
+    s3 = run_in_double(double, project, "-DIDF_TARGET=esp32s3", "build")
+    assert s3.returncode == 0, s3.stdout[-2000:] + s3.stderr
+
+
+def test_the_double_stops_a_component_for_a_chip_outside_its_required_idf_targets(double, tmp_path):
+    """ESP-IDF's component.cmake (__component_check_target) ends the configure of a component whose
+    REQUIRED_IDF_TARGETS leaves out the chip, which camera_node's registration relies on."""
+    project = tmp_path / "cam"
+    (project / "main").mkdir(parents=True)
+    (project / "CMakeLists.txt").write_text(
+        "cmake_minimum_required(VERSION 3.16)\ninclude($ENV{IDF_PATH}/tools/cmake/project.cmake)\nproject(cam)\n"
+    )
+    (project / "main/CMakeLists.txt").write_text(
+        'idf_component_register(SRCS "main.c"\n    REQUIRED_IDF_TARGETS esp32 esp32s3)\n'
+    )
+    (project / "main/main.c").write_text("void app_main(void) {}\n")
+    subprocess.run(["chown", "-R", f"{USER_UID}:{USER_UID}", str(tmp_path)], check=True)
+    c3 = run_in_double(double, project, "-DIDF_TARGET=esp32c3", "build")
+    assert c3.returncode != 0, c3.stdout[-2000:]
+    assert "Component main only supports targets: esp32;esp32s3" in c3.stdout + c3.stderr
+    (project / "sdkconfig").unlink(missing_ok=True)
     s3 = run_in_double(double, project, "-DIDF_TARGET=esp32s3", "build")
     assert s3.returncode == 0, s3.stdout[-2000:] + s3.stderr
 

@@ -196,6 +196,28 @@ def test_install_is_colcon_shaped_and_swaps_firmware_atomically(tmp_path):
     assert sorted(p.name for p in share.iterdir() if p.name.startswith(".firmware")) == [os.readlink(firmware)]
 
 
+def test_install_gives_each_package_idf_flash_and_monitor_for_ros2_run_alike_in_every_clone(tmp_path):
+    installed = {}
+    for clone in ("one", "elsewhere/two"):
+        build, install = tmp_path / clone / "ws/build/cam", tmp_path / clone / "ws/install"
+        manifest = tmp_path / clone / "package.xml"
+        manifest.parent.mkdir(parents=True, exist_ok=True)
+        manifest.write_text("<package/>")
+        write_build(build, b"\xe9app")
+        install_firmware("cam", manifest, build, install, (), owner=None)
+        lib = install / "cam/lib/cam"
+        assert sorted(p.name for p in lib.iterdir()) == ["flash", "idf", "monitor"]
+        assert all(os.access(p, os.X_OK) for p in lib.iterdir())
+        installed[clone] = {p.name: p.read_bytes() for p in lib.iterdir()}
+        assert str(tmp_path).encode() not in b"".join(installed[clone].values())
+    # The reproducibility check compares install trees of clones at different paths byte for byte.
+    assert installed["one"] == installed["elsewhere/two"]
+    scripts = installed["one"]
+    assert b'exec espdock flash cam --workspace "$here/../../../.." "$@"' in scripts["flash"]
+    assert b'exec espdock idf cam --workspace "$here/../../../.." -- "$@"' in scripts["idf"]
+    assert b'exec espdock monitor cam --workspace "$here/../../../.." "$@"' in scripts["monitor"]
+
+
 def test_a_build_missing_artefacts_installs_nothing_and_keeps_the_old_firmware(tmp_path):
     build, install = tmp_path / "build/cam", tmp_path / "install"
     manifest = tmp_path / "package.xml"

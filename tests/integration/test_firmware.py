@@ -857,6 +857,22 @@ def image_layers_contain(image: str, needle: bytes) -> bool:
 NVS_OFFSET, NVS_SIZE, APP_OFFSET = 0x9000, 0x6000, 0x10000  # IDF's single-app tables
 
 
+def test_provision_and_flash_refuse_an_agent_port_the_library_would_cut(fw_ws, double_env, mock_bootloader):
+    """The double's library is shaped as rmw_microxrcedds before #315 (MAX_PORT_LEN 5): port 10000 would
+    reach the board as 1000, so it is refused from the library's header, and 9999 is not."""
+    root, first = fw_ws
+    assert first.returncode == 0
+    for command in ("provision", "flash"):
+        result = espdock(
+            command, "camera_node", "--port", mock_bootloader, "--wifi-ssid", "lab",
+            "--wifi-password-file", "/dev/null", "--agent", "10.0.0.2:10000", cwd=root, env=double_env,
+        )  # fmt: skip
+        assert result.returncode == 2, result.stdout[-3000:] + result.stderr
+        assert "agent port 10000 does not fit camera_node's micro-ROS library" in result.stderr
+        assert "would talk to port 1000" in result.stderr
+        assert "esptool" not in result.stdout and "flashed" not in result.stdout
+
+
 def test_provision_writes_the_network_settings_and_leaves_the_app(fw_ws, double_env, mock_bootloader, tmp_path, engine):
     root, first = fw_ws
     assert first.returncode == 0

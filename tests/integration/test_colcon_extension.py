@@ -61,6 +61,10 @@ def test_packages_select_builds_the_firmware_and_installs_it_where_espdock_build
     firmware = root / "ws" / firmware_install_dir("led_strip_node")
     assert {name for name in ARTEFACTS if (firmware / name).is_file()} == set(ARTEFACTS)
     assert not (root / "ws" / firmware_install_dir("camera_node")).exists()  # not selected
+    # What `ros2 run led_strip_node flash|idf|monitor` finds, as after `espdock build`.
+    lib = root / "ws" / "install" / "led_strip_node" / "lib" / "led_strip_node"
+    assert sorted(p.name for p in lib.iterdir() if os.access(p, os.X_OK)) == ["flash", "idf", "monitor"]
+    assert b"exec espdock flash led_strip_node " in (lib / "flash").read_bytes()
     # espdock build agrees: the same artefacts, byte for byte, where it installs them.
     before = {name: (firmware / name).read_bytes() for name in ARTEFACTS}
     again = espdock("build", "--only", "firmware", "--force", "led_strip_node", cwd=root, env=env)

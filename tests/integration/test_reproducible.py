@@ -67,6 +67,8 @@ def test_two_clones_of_a_commit_install_identical_files(commit, tmp_path):
     assert any(name.endswith(".so") for name in one), "so are the interfaces' compiled libraries"
     assert any(name.endswith("/led_strip_node.bin") for name in one), "and the firmware"
     assert any(name.endswith("/led_strip_node.elf") for name in one)
+    # `ros2 run` commands find the workspace from their own place, so they hold no clone's path.
+    assert any(name.endswith("led_strip_node/lib/led_strip_node/flash") for name in one)
     differing = sorted(name for name in one.keys() | two.keys() if one.get(name) != two.get(name))
     assert differing == [], f"{len(differing)} of {len(one)} installed files differ, e.g. {differing[:10]}"
     assert read_manifest(first / MANIFEST_NAME) == read_manifest(second / MANIFEST_NAME)

@@ -100,6 +100,10 @@ exec espdock {argv} --workspace "$here/../../../.." {separator}"$@"
 """
 
 
+# What decides the commands' files, for the install stamp.
+COMMANDS_SOURCE = (_COMMAND_SCRIPT + repr(sorted(PACKAGE_COMMANDS.items()))).encode()
+
+
 def write_package_commands(package: str, prefix: Path) -> None:
     """PREFIX/lib/PACKAGE/{idf,flash,monitor}: where `ros2 run` looks for a package's executables."""
     lib = prefix / "lib" / package

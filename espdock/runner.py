@@ -27,7 +27,7 @@ from espdock.config import Config, resolve_ca_bundle
 from espdock.engine import Engine, Mount, RegistryAnswer, RegistryStatus, RunSpec
 from espdock.errors import BuildFailed, ConfigError, EspdockError, RegistryError, WorkspaceError, disk_full
 from espdock.events import Emit, Outcome, StepFinished, StepNote, StepOutput, StepStarted
-from espdock.install import install_firmware
+from espdock.install import COMMANDS_SOURCE, install_firmware
 from espdock.layout import WORKSPACE_MOUNT
 from espdock.plan import (
     LABEL_KEY,
@@ -539,8 +539,11 @@ class Runner:
         prefix = workspace.ws_dir / "install" / step.package
         manifest = workspace.root / step.project / "package.xml"
         stamp_file = StampFile(workspace.ws_dir / "build" / INSTALL_STAMPS)
+        # The ros2 run commands' text too: an install made before them (or another version) is redone.
         source = hashlib.sha256(
-            f"{listing_digest(build_dir)}\0{':'.join(step.run_depends)}\0".encode() + manifest.read_bytes()
+            f"{listing_digest(build_dir)}\0{':'.join(step.run_depends)}\0".encode()
+            + manifest.read_bytes()
+            + COMMANDS_SOURCE
         )
         stamps = {step.package: source.hexdigest()}
         if stamp_file.up_to_date(stamps, {step.package: listing_digest(prefix)}):

@@ -247,6 +247,11 @@ def _rosdep_state(
     return image, needed, rosdeps.stale_reason(lock, needed, image, ROSDEP_LOCK)
 
 
+def rosdep_lock_stale(config: Config, packages: tuple[Package, ...], inputs: BuildInputs) -> str | None:
+    """Why the workspace's rosdep lock does not answer for PACKAGES; None when it does."""
+    return _rosdep_state(config, packages, inputs)[2]
+
+
 def lock_rosdeps(
     root: Path,
     config: Config,
@@ -264,12 +269,15 @@ def lock_rosdeps(
     if not needed and not target.is_file():
         return "not needed (the image provides every dependency)", ""
     if needed and refresh:
-        rosdeps.update_database(env, image.distro)
+        rosdeps.update_database(env, image.distro, root)
     from espdock.runner import age_text  # the slow path only: making the lock
 
-    text = rosdeps.lock_text(rosdeps.resolve_workspace(packages, image, root, env, uv_binary()))
-    age = rosdeps.database_age(env)
-    database = f"rosdep database in {rosdeps.cache_dir(env)}" + (
+    lock = rosdeps.resolve_workspace(packages, image, root, env, uv_binary())
+    if needed:
+        lock["sources"] = rosdeps.database_sources(env, root)
+    text = rosdeps.lock_text(lock)
+    age = rosdeps.database_age(env, root)
+    database = f"rosdep database in {rosdeps.cache_dir(env, root)}" + (
         f", updated {age_text(age)} ago" if age is not None else ""
     )
     before = target.read_text() if target.is_file() else None
@@ -292,14 +300,72 @@ def current_rosdep_inputs(
     locked: bool,
     env: Mapping[str, str],
     owner: tuple[int, int] | None = None,
+    built: tuple[Package, ...] | None = None,
 ) -> tuple[BuildInputs, str | None]:
     """INPUTS with a rosdep lock that answers for the packages: the current one; else, unless
-    LOCKED (which refuses a stale lock), one made now. The second value says what was done."""
+    LOCKED (which refuses a stale one), one made now. Where rosdep's database cannot be fetched,
+    the lock as it is, when it answers for the packages BUILT (default: all). The second value
+    says what was done."""
     _, _, reason = _rosdep_state(config, packages, inputs)
     if reason is None:
         return inputs, None
     if locked:
         raise LockError(reason, f"In {root}: {FIX} and commit {ROSDEP_LOCK} (or build with --no-locked).")
-    status, database = lock_rosdeps(root, config, packages, inputs, env, owner, refresh=False)
+    try:
+        status, database = lock_rosdeps(root, config, packages, inputs, env, owner, refresh=False)
+    except rosdeps.DatabaseUnreachable as exc:
+        return inputs, offline_note(config, packages, inputs, packages if built is None else built, reason, exc)
     data = (root / ROSDEP_LOCK).read_bytes() if (root / ROSDEP_LOCK).is_file() else None
     return replace(inputs, rosdep_lock=data), f"{ROSDEP_LOCK} {status} ({reason}; {database})"
+
+
+def offline_note(
+    config: Config,
+    packages: tuple[Package, ...],
+    inputs: BuildInputs,
+    built: tuple[Package, ...],
+    reason: str,
+    unreachable: rosdeps.DatabaseUnreachable,
+) -> str:
+    """What a build does without rosdep's database: it goes on with the lock as it is when that
+    answers for every key of the packages BUILT the image lacks (else LockError naming the
+    packages that need the database, and those that could build)."""
+    image, needed, _ = _rosdep_state(config, packages, inputs)
+    answered = (rosdeps.read_lock(inputs.rosdep_lock, ROSDEP_LOCK) or {}).get("keys", {})
+
+    def unanswered(package: Package) -> list[str]:
+        return [k for k in needed.get(package.name, ()) if not answered.get(k, {}).get("installer")]
+
+    blocked = {p.name: keys for p in built if (keys := unanswered(p))}
+    if not blocked:
+        return (
+            f"{reason}, and {unreachable.message}; the packages built need nothing more from rosdep, "
+            f"so they build without it ({ROSDEP_LOCK} is left as it is)"
+        )
+    by_name = {p.name: p for p in packages}
+    others = [
+        p.name
+        for p in built
+        if p.name not in blocked and not any(unanswered(by_name[d]) for d in _workspace_closure(p, by_name))
+    ]
+    lines = "\n".join(f"  {name}: {', '.join(keys)}" for name, keys in blocked.items())
+    hint = f"Reach rosdep's sources (or point ROSDEP_SOURCE_PATH at a local copy), then {FIX}."
+    if others:
+        hint += f" Meanwhile the others build: `espdock build {' '.join(others)}`."
+    raise LockError(
+        f"{reason}, and {unreachable.message}; {len(blocked)} package(s) built need rosdep for keys the "
+        f"{image.flavour} ROS image lacks and {ROSDEP_LOCK} does not answer:\n{lines}",
+        hint,
+    )
+
+
+def _workspace_closure(package: Package, by_name: Mapping[str, Package]) -> set[str]:
+    """The workspace packages PACKAGE depends on, transitively."""
+    found: set[str] = set()
+    stack = [package.name]
+    while stack:
+        for dep in by_name[stack.pop()].depends & by_name.keys():
+            if dep not in found:
+                found.add(dep)
+                stack.append(dep)
+    return found

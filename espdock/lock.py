@@ -19,7 +19,7 @@ import shlex
 import subprocess
 import tempfile
 import tomllib
-from collections.abc import Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -28,7 +28,8 @@ from espdock.config import Config
 from espdock.defaults import SHIPPED, defaults_root
 from espdock.errors import LockError
 from espdock.layout import ROSDEP_LOCK
-from espdock.plan import EnsureImage, Plan, ros_image
+from espdock.plan import EnsureImage, Plan, base_image, ros_image
+from espdock.system_python import SystemPython, probe_image
 from espdock.workspace import BuildInputs, Package, write_atomically
 
 # The ROS images' Python: Debian bookworm's 3.11 on x86_64 (glibc 2.36), whatever runs uv.
@@ -272,7 +273,8 @@ def lock_rosdeps(
         rosdeps.update_database(env, image.distro, root)
     from espdock.runner import age_text  # the slow path only: making the lock
 
-    lock = rosdeps.resolve_workspace(packages, image, root, env, uv_binary())
+    system = official_python(config, inputs, env) if image.flavour == "official" else None
+    lock = rosdeps.resolve_workspace(packages, image, root, env, uv_binary(), system)
     if needed:
         lock["sources"] = rosdeps.database_sources(env, root)
     text = rosdeps.lock_text(lock)
@@ -290,6 +292,23 @@ def lock_rosdeps(
         return "created", database
     write_atomically(target, text)
     return "updated", database
+
+
+def official_python(config: Config, inputs: BuildInputs, env: Mapping[str, str]) -> Callable[[], SystemPython]:
+    """How to read the official ROS image's system Python (a container of the image, pulled
+    if needed): called only when the lock has pip packages to resolve beside apt's."""
+    ref = base_image(config, inputs.ros_official_dockerfile)
+
+    def run(argv: tuple[str, ...]) -> tuple[int, list[str]]:
+        from espdock import bootstrap
+        from espdock.engine import RunSpec
+
+        engine = bootstrap.ensure_engine(env, lambda text: None)
+        bootstrap.ensure_base_image(engine, ref, config, lambda text: None)
+        lines: list[str] = []
+        return engine.run(RunSpec(image=ref, argv=argv, workdir="/", env=(("HOME", "/tmp"),)), lines.append), lines
+
+    return lambda: probe_image(ref, run)
 
 
 def current_rosdep_inputs(

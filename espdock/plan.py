@@ -267,7 +267,9 @@ def ros_image(config: Config, inputs: BuildInputs) -> tuple[str, str, rosdeps.Ro
         text = inputs.ros_official_dockerfile
         # The official image's ament index is not known before it is pulled: every dependency
         # goes through rosdep, whose ROS package rules (ros-<distro>-*) apt finds installed.
-        image = rosdeps.RosImage("official", config.ros_distro, _rosdep_os(text), frozenset())
+        # Its apt's Python packages constrain the lock's pip part: another image, another lock.
+        constraints = (("BASE_IMAGE", base_image(config, text)),)
+        image = rosdeps.RosImage("official", config.ros_distro, _rosdep_os(text), frozenset(), constraints)
         return ROS_OFFICIAL_DOCKERFILE, text, image
     text = inputs.ros_dockerfile
     locks = {rel: d for rel, d in sorted(inputs.ros_files.items()) if re.fullmatch(r"docker/ros-[a-z]+\.txt", rel)}

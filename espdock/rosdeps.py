@@ -23,12 +23,13 @@ import subprocess
 import tempfile
 import time
 import warnings
-from collections.abc import Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
 from espdock import pypi_names
 from espdock.errors import DependencyError, LockError
+from espdock.system_python import SystemPython, normalise
 from espdock.workspace import Package, PackageKind
 
 FORMAT = 1
@@ -352,9 +353,12 @@ def pip_alternatives(keys: Iterable[str]) -> list[str]:
     return out
 
 
-def pip_lock_lines(requirements: Iterable[str], image: RosImage, root: Path, uv: str) -> tuple[list[str], set[str]]:
+def pip_lock_lines(
+    requirements: Iterable[str], image: RosImage, root: Path, uv: str, system: SystemPython | None = None
+) -> tuple[list[str], set[str]]:
     """uv's hashed lock of REQUIREMENTS for the image's Python (one line per package, hashes
-    inline), and the requirements PyPI does not have (dropped)."""
+    inline), and the requirements PyPI does not have (dropped). SYSTEM: the official image's
+    Python, whose installed distributions the lock keeps at their versions."""
     from espdock.lock import ROS_IMAGE_PYTHON, locate
 
     wanted = sorted(set(requirements))
@@ -369,13 +373,24 @@ def pip_lock_lines(requirements: Iterable[str], image: RosImage, root: Path, uv:
                 for rel, _ in image.constraints:
                     args += ["-c", str(locate(root, rel))]
             else:  # the official image's system Python (noble: 3.12; the test double: 3.11)
-                args = ["--universal", "--python-version", "3.11"]
+                args = ["--universal", "--python-version", system.version if system else "3.11"]
+                if system is not None:
+                    installed = Path(tmp) / "installed.txt"
+                    installed.write_text(system.constraints())
+                    args += ["-c", str(installed)]
             argv = [uv, "pip", "compile", "--quiet", "--no-header", "--no-annotate", "--generate-hashes"]
             argv += [*args, str(source), "-o", str(out)]
             result = subprocess.run(argv, check=False, capture_output=True, text=True)
             if result.returncode == 0:
                 return _one_line_each(out.read_text()), absent
         gone = set(_NOT_FOUND.findall(result.stderr)) & set(wanted)
+        if not gone and system is not None:
+            raise LockError(
+                f"uv could not lock the rosdep pip packages {wanted} beside what the official ROS image's apt "
+                f"installed (its Python packages stay at their versions):\n{result.stderr.strip()}",
+                "Use a rosdep key whose rule is apt (the image's own Python packages), or another version of the "
+                f"package; then {FIX}.",
+            )
         if not gone:
             raise LockError(f"uv could not lock the rosdep pip packages {wanted}:\n{result.stderr.strip()}", FIX)
         absent |= gone
@@ -397,7 +412,12 @@ def _one_line_each(text: str) -> list[str]:
 
 
 def resolve_workspace(
-    packages: Iterable[Package], image: RosImage, root: Path, env: Mapping[str, str], uv: str
+    packages: Iterable[Package],
+    image: RosImage,
+    root: Path,
+    env: Mapping[str, str],
+    uv: str,
+    system: Callable[[], SystemPython] | None = None,
 ) -> dict:
     """The lock for PACKAGES on IMAGE: rosdep's rules for every needed key, as the image installs them."""
     needed = needed_keys(packages, image)
@@ -406,7 +426,9 @@ def resolve_workspace(
     pip_rules = {k: rules[alt] for k in keys for alt in pip_alternatives([k]) if rules.get(alt, Rule(None)).installer}
     mapped = for_image({k: rules[k] for k in keys}, image, pip_rules)
     pip_wanted = [p for rule in mapped.values() if rule.installer == "pip" for p in rule.packages]
-    pip_lines, absent = pip_lock_lines(pip_wanted, image, root, uv) if pip_wanted else ([], set())
+    # The official image's Python is read (a container run) only when there is pip to lock.
+    installed = system() if pip_wanted and system is not None else None
+    pip_lines, absent = pip_lock_lines(pip_wanted, image, root, uv, installed) if pip_wanted else ([], set())
     entries = {}
     for key, rule in sorted(mapped.items()):
         if rule.installer == "pip" and absent & set(rule.packages):
@@ -428,7 +450,23 @@ def resolve_workspace(
         "keys": entries,
         "apt": sorted({p for e in entries.values() if e["installer"] == "apt" for p in e["packages"]}),
         "pip": pip_lines,
+        **held_by_image(pip_lines, installed),
     }
+
+
+def held_by_image(pip_lines: Iterable[str], system: SystemPython | None) -> dict:
+    """The lock's record of the official image's Python: its version, and the pinned packages
+    that stay at what the image installed (pip finds them installed and leaves them)."""
+    if system is None:
+        return {}
+    pins = system.pins()
+    held = {}
+    for line in pip_lines:
+        name, _, rest = line.partition("==")
+        version = rest.split()[0] if rest.split() else ""
+        if pins.get(normalise(name)) == version:
+            held[name] = version
+    return {"system_python": {"version": system.version, "kept_as_installed": held}}
 
 
 def lock_text(lock: Mapping) -> str:

@@ -30,7 +30,7 @@ from espdock.errors import LockError
 from espdock.layout import ROSDEP_LOCK
 from espdock.plan import EnsureImage, Plan, base_image, ros_image
 from espdock.system_python import SystemPython, probe_image
-from espdock.workspace import BuildInputs, Package, write_atomically
+from espdock.workspace import BuildInputs, Package, select_up_to, write_atomically
 
 # The ROS images' Python: Debian bookworm's 3.11 on x86_64 (glibc 2.36), whatever runs uv.
 ROS_IMAGE_PYTHON = ("--python-version", "3.11", "--python-platform", "x86_64-manylinux_2_36")
@@ -361,12 +361,8 @@ def offline_note(
             f"{reason}, and {unreachable.message}; the packages built need nothing more from rosdep, "
             f"so they build without it ({ROSDEP_LOCK} is left as it is)"
         )
-    by_name = {p.name: p for p in packages}
-    others = [
-        p.name
-        for p in built
-        if p.name not in blocked and not any(unanswered(by_name[d]) for d in _workspace_closure(p, by_name))
-    ]
+    # Those that need nothing from rosdep, nor does any workspace package they depend on.
+    others = [p.name for p in built if not any(unanswered(d) for d in select_up_to(packages, [p.name]))]
     lines = "\n".join(f"  {name}: {', '.join(keys)}" for name, keys in blocked.items())
     hint = f"Reach rosdep's sources (or point ROSDEP_SOURCE_PATH at a local copy), then {FIX}."
     if others:
@@ -376,15 +372,3 @@ def offline_note(
         f"{image.flavour} ROS image lacks and {ROSDEP_LOCK} does not answer:\n{lines}",
         hint,
     )
-
-
-def _workspace_closure(package: Package, by_name: Mapping[str, Package]) -> set[str]:
-    """The workspace packages PACKAGE depends on, transitively."""
-    found: set[str] = set()
-    stack = [package.name]
-    while stack:
-        for dep in by_name[stack.pop()].depends & by_name.keys():
-            if dep not in found:
-                found.add(dep)
-                stack.append(dep)
-    return found

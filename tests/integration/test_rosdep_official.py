@@ -39,7 +39,8 @@ def test_the_pip_lock_keeps_what_the_official_images_apt_installed(tmp_path, eng
     pins = dict(line.split(" ")[0].split("==") for line in lock["pip"])
     # ahrs needs numpy: the image's (1.26.4, as noble's apt has it), not PyPI's newest.
     assert pins["numpy"] == "1.26.4" and "ahrs" in pins
-    assert lock["system_python"] == {"version": "3.11", "kept_as_installed": {"numpy": "1.26.4"}}
+    # And ahrs's docutils is the one apt installed with colcon (Debian's python3-docutils 0.19).
+    assert lock["system_python"] == {"version": "3.11", "kept_as_installed": {"docutils": "0.19", "numpy": "1.26.4"}}
     images = json.loads((tmp_path / "report.json").read_text())["manifest"]["images"]
     (image,) = [name for name in images if "-build:" in name]
     check = "import ahrs, numpy; from rosdeps_imu_filter.imu_filter import OrientationFilter; print(numpy.__version__)"

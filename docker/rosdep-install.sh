@@ -22,8 +22,10 @@ fi
 if [ -n "$apt_packages" ]; then
   apt-get update
   # Word splitting is wanted: one package name per word (espdock checks the names).
+  # --no-upgrade: what the image has already (the official image's ros-<distro>-* packages)
+  # stays at its version, as the image was released; only what is missing is installed.
   # shellcheck disable=SC2086
-  apt-get install -y --no-install-recommends $apt_packages
+  apt-get install -y --no-install-recommends --no-upgrade $apt_packages
   rm -rf /var/lib/apt/lists/*
 fi
 if [ -n "$pip_wanted" ]; then

@@ -149,6 +149,13 @@ def ensure_base_image(engine: Engine, ref: str, config: Config, notify: Notify) 
     if engine.pull(ref):
         return "pulled"
     match = DEBIAN_IMAGE.match(ref)
+    if config.ros_image == "official":
+        # A Debian image has no ros-<distro>-* packages: the official flavour needs the real one.
+        raise ImageBuildError(
+            f"the official ROS image {ref} is not here and cannot be pulled",
+            f"Pull it where a registry answers and bring it here (`docker save {ref}` there, `docker load` here), "
+            'or set ros_image = "wheels" in espdock.toml for the ROS 2 wheels image espdock builds itself.',
+        )
     if match is None:
         raise ImageBuildError(
             f"base image {ref} is not here and cannot be pulled",

@@ -126,6 +126,67 @@ def _scheduling(option: str | None) -> bool | None:
     return SCHEDULING[matches[0]] if len(matches) == 1 and len(option) > 3 else None
 
 
+# colcon's options that leave packages out of a build (colcon-package-selection).
+LEAVING_OUT = (
+    "--packages-skip", "--packages-skip-regex", "--packages-skip-up-to", "--packages-skip-by-dep",
+    "--packages-ignore", "--packages-ignore-regex",
+)  # fmt: skip
+
+
+def _option_values(args: Iterable[str]) -> dict[str, list[str]]:
+    """The values ARGS give each option of LEAVING_OUT, by its full name (colcon accepts unique
+    prefixes of SCHEDULING's options and `--option=value`)."""
+    values: dict[str, list[str]] = {}
+    current: str | None = None
+    for arg in args:
+        option = _option_name(arg)
+        if option is not None or arg.startswith("-"):
+            matches = [name for name in SCHEDULING if name == option or (option and name.startswith(option))]
+            exact = option if option in SCHEDULING else None
+            full = exact or (matches[0] if len(matches) == 1 and option and len(option) > 3 else None)
+            current = full if full in LEAVING_OUT else None
+            if current is not None:
+                values.setdefault(current, [])
+                if "=" in arg:
+                    values[current].append(arg.split("=", 1)[1])
+            continue
+        if current is not None:
+            values[current].append(arg)
+    return values
+
+
+def left_out(args: Iterable[str], depends: Mapping[str, Iterable[str]]) -> frozenset[str]:
+    """The packages of DEPENDS (name -> its workspace dependencies) that `colcon build ARGS`
+    does not build: skipped or ignored by name or pattern (re.match, as colcon), skipped up to
+    (with their dependencies) or by dependency (the packages depending on them)."""
+    values = _option_values(args)
+
+    def closure(names: set[str], edges: Mapping[str, Iterable[str]]) -> set[str]:
+        found, stack = set(), list(names)
+        while stack:
+            name = stack.pop()
+            for dep in edges.get(name, ()):
+                if dep not in found:
+                    found.add(dep)
+                    stack.append(dep)
+        return found
+
+    out = set(values.get("--packages-skip", [])) | set(values.get("--packages-ignore", []))
+    patterns = values.get("--packages-skip-regex", []) + values.get("--packages-ignore-regex", [])
+    try:
+        out |= {name for name in depends if any(re.match(pattern, name) for pattern in patterns)}
+    except re.error as exc:
+        raise ConfigError(
+            f"colcon option after `--` has a pattern that is no regular expression: {exc}",
+            "Fix the pattern (colcon matches it with Python's re.match against package names).",
+        ) from exc
+    up_to = set(values.get("--packages-skip-up-to", []))
+    out |= up_to | closure(up_to, depends)
+    by_dep = set(values.get("--packages-skip-by-dep", []))
+    out |= {name for name in depends if closure({name}, depends) & by_dep}
+    return frozenset(out & set(depends))
+
+
 def meta_paths(args: Iterable[str]) -> tuple[str, ...]:
     """The colcon.meta files or dirs colcon reads for ARGS (relative to the colcon root):
     `--metas` replaces the default ./colcon.meta."""
@@ -147,9 +208,15 @@ def meta_paths(args: Iterable[str]) -> tuple[str, ...]:
 
 
 def parse_meta(where: str, text: str) -> dict:
-    """A colcon.meta file's content; exit 2 naming WHERE when it is not colcon.meta JSON."""
+    """A colcon.meta file's content, read as colcon-metadata reads it (YAML, of which JSON is a
+    part); exit 2 naming WHERE when it is not a colcon.meta."""
+    import yaml  # rosdep's dependency; only workspaces with a colcon.meta need it
+
     try:
-        data = json.loads(text) if text.strip() else {}
+        try:
+            data = yaml.safe_load(text) if text.strip() else {}
+        except yaml.YAMLError as exc:
+            raise ValueError(str(exc).replace("\n", " ")) from exc
         if not isinstance(data, dict):
             raise ValueError("the top level is not an object")
         for section in ("names", "paths"):
@@ -158,7 +225,7 @@ def parse_meta(where: str, text: str) -> dict:
     except ValueError as exc:
         raise WorkspaceError(
             f"{where} is not a valid colcon.meta: {exc}",
-            'colcon.meta is JSON: {"names": {"<package>": {"cmake-args": [...]}}}. Fix it and run again.',
+            'colcon.meta is YAML (or JSON): {"names": {"<package>": {"cmake-args": [...]}}}. Fix it and run again.',
         ) from exc
     return data
 
@@ -181,9 +248,13 @@ def package_meta(metas: Mapping[str, dict], package: str, package_dir: str) -> d
 _DEFAULTS_KEY = re.compile(r"^[\s{,]*['\"]?([a-z][a-z0-9-]*)['\"]?\s*:", re.MULTILINE)
 
 
+# What espdock always gives on colcon's command line, which wins over any defaults file.
+SET_ON_COMMAND_LINE = ("--base-paths", "--event-handlers")
+
+
 def check_defaults(where: str, text: str) -> None:
     """Refuse a colcon defaults file that sets what espdock controls (exit 2 naming the file)."""
-    refused = {name.removeprefix("--") for name in REFUSED}
+    refused = {name.removeprefix("--") for name in REFUSED if name not in SET_ON_COMMAND_LINE}
     for match in _DEFAULTS_KEY.finditer(text):
         if match.group(1) in refused:
             raise ConfigError(
@@ -253,6 +324,24 @@ def read_colcon_settings(
         digest.update(json.dumps(said, sort_keys=True).encode())
         digests.append((name, digest.hexdigest()))
     return ColconSettings(args, tuple(digests), defaults, tuple(files))
+
+
+_QUOTED = re.compile(r"'(-[^']*)'|: (--?[\w-]+)")
+
+
+def usage_error(output: Iterable[str], args: Iterable[str]) -> str | None:
+    """What colcon's usage error in OUTPUT (`colcon build: error: ...`) says of the options ARGS
+    given after `--`: argparse blames the option before an unknown one (espdock's own
+    --event-handlers); None when OUTPUT has no usage error."""
+    line = next((line for line in output if "colcon build: error:" in line), None)
+    if line is None:
+        return None
+    said = line.split("colcon build: error:", 1)[1].strip()
+    given = {a.split("=", 1)[0] for a in args if a.startswith("-")}
+    unknown = [m.group(1) or m.group(2) for m in _QUOTED.finditer(said) if (m.group(1) or m.group(2)) in given]
+    if unknown:
+        return f"colcon build does not accept {unknown[0]} (given after `--`)"
+    return f"colcon build refused its options: {said[:300]}"
 
 
 class PackageState(StrEnum):

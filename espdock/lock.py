@@ -19,7 +19,7 @@ import shlex
 import subprocess
 import tempfile
 import tomllib
-from collections.abc import Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -28,8 +28,9 @@ from espdock.config import Config
 from espdock.defaults import SHIPPED, defaults_root
 from espdock.errors import LockError
 from espdock.layout import ROSDEP_LOCK
-from espdock.plan import EnsureImage, Plan, ros_image
-from espdock.workspace import BuildInputs, Package, write_atomically
+from espdock.plan import EnsureImage, Plan, base_image, ros_image
+from espdock.system_python import SystemPython, probe_image
+from espdock.workspace import BuildInputs, Package, select_up_to, write_atomically
 
 # The ROS images' Python: Debian bookworm's 3.11 on x86_64 (glibc 2.36), whatever runs uv.
 ROS_IMAGE_PYTHON = ("--python-version", "3.11", "--python-platform", "x86_64-manylinux_2_36")
@@ -247,6 +248,11 @@ def _rosdep_state(
     return image, needed, rosdeps.stale_reason(lock, needed, image, ROSDEP_LOCK)
 
 
+def rosdep_lock_stale(config: Config, packages: tuple[Package, ...], inputs: BuildInputs) -> str | None:
+    """Why the workspace's rosdep lock does not answer for PACKAGES; None when it does."""
+    return _rosdep_state(config, packages, inputs)[2]
+
+
 def lock_rosdeps(
     root: Path,
     config: Config,
@@ -264,12 +270,16 @@ def lock_rosdeps(
     if not needed and not target.is_file():
         return "not needed (the image provides every dependency)", ""
     if needed and refresh:
-        rosdeps.update_database(env, image.distro)
+        rosdeps.update_database(env, image.distro, root)
     from espdock.runner import age_text  # the slow path only: making the lock
 
-    text = rosdeps.lock_text(rosdeps.resolve_workspace(packages, image, root, env, uv_binary()))
-    age = rosdeps.database_age(env)
-    database = f"rosdep database in {rosdeps.cache_dir(env)}" + (
+    system = official_python(config, inputs, env) if image.flavour == "official" else None
+    lock = rosdeps.resolve_workspace(packages, image, root, env, uv_binary(), system)
+    if needed:
+        lock["sources"] = rosdeps.database_sources(env, root)
+    text = rosdeps.lock_text(lock)
+    age = rosdeps.database_age(env, root)
+    database = f"rosdep database in {rosdeps.cache_dir(env, root)}" + (
         f", updated {age_text(age)} ago" if age is not None else ""
     )
     before = target.read_text() if target.is_file() else None
@@ -284,6 +294,23 @@ def lock_rosdeps(
     return "updated", database
 
 
+def official_python(config: Config, inputs: BuildInputs, env: Mapping[str, str]) -> Callable[[], SystemPython]:
+    """How to read the official ROS image's system Python (a container of the image, pulled
+    if needed): called only when the lock has pip packages to resolve beside apt's."""
+    ref = base_image(config, inputs.ros_official_dockerfile)
+
+    def run(argv: tuple[str, ...]) -> tuple[int, list[str]]:
+        from espdock import bootstrap
+        from espdock.engine import RunSpec
+
+        engine = bootstrap.ensure_engine(env, lambda text: None)
+        bootstrap.ensure_base_image(engine, ref, config, lambda text: None)
+        lines: list[str] = []
+        return engine.run(RunSpec(image=ref, argv=argv, workdir="/", env=(("HOME", "/tmp"),)), lines.append), lines
+
+    return lambda: probe_image(ref, run)
+
+
 def current_rosdep_inputs(
     root: Path,
     config: Config,
@@ -292,14 +319,56 @@ def current_rosdep_inputs(
     locked: bool,
     env: Mapping[str, str],
     owner: tuple[int, int] | None = None,
+    built: tuple[Package, ...] | None = None,
 ) -> tuple[BuildInputs, str | None]:
     """INPUTS with a rosdep lock that answers for the packages: the current one; else, unless
-    LOCKED (which refuses a stale lock), one made now. The second value says what was done."""
+    LOCKED (which refuses a stale one), one made now. Where rosdep's database cannot be fetched,
+    the lock as it is, when it answers for the packages BUILT (default: all). The second value
+    says what was done."""
     _, _, reason = _rosdep_state(config, packages, inputs)
     if reason is None:
         return inputs, None
     if locked:
         raise LockError(reason, f"In {root}: {FIX} and commit {ROSDEP_LOCK} (or build with --no-locked).")
-    status, database = lock_rosdeps(root, config, packages, inputs, env, owner, refresh=False)
+    try:
+        status, database = lock_rosdeps(root, config, packages, inputs, env, owner, refresh=False)
+    except rosdeps.DatabaseUnreachable as exc:
+        return inputs, offline_note(config, packages, inputs, packages if built is None else built, reason, exc)
     data = (root / ROSDEP_LOCK).read_bytes() if (root / ROSDEP_LOCK).is_file() else None
     return replace(inputs, rosdep_lock=data), f"{ROSDEP_LOCK} {status} ({reason}; {database})"
+
+
+def offline_note(
+    config: Config,
+    packages: tuple[Package, ...],
+    inputs: BuildInputs,
+    built: tuple[Package, ...],
+    reason: str,
+    unreachable: rosdeps.DatabaseUnreachable,
+) -> str:
+    """What a build does without rosdep's database: it goes on with the lock as it is when that
+    answers for every key of the packages BUILT the image lacks (else LockError naming the
+    packages that need the database, and those that could build)."""
+    image, needed, _ = _rosdep_state(config, packages, inputs)
+    answered = (rosdeps.read_lock(inputs.rosdep_lock, ROSDEP_LOCK) or {}).get("keys", {})
+
+    def unanswered(package: Package) -> list[str]:
+        return [k for k in needed.get(package.name, ()) if not answered.get(k, {}).get("installer")]
+
+    blocked = {p.name: keys for p in built if (keys := unanswered(p))}
+    if not blocked:
+        return (
+            f"{reason}, and {unreachable.message}; the packages built need nothing more from rosdep, "
+            f"so they build without it ({ROSDEP_LOCK} is left as it is)"
+        )
+    # Those that need nothing from rosdep, nor does any workspace package they depend on.
+    others = [p.name for p in built if not any(unanswered(d) for d in select_up_to(packages, [p.name]))]
+    lines = "\n".join(f"  {name}: {', '.join(keys)}" for name, keys in blocked.items())
+    hint = f"Reach rosdep's sources (or point ROSDEP_SOURCE_PATH at a local copy), then {FIX}."
+    if others:
+        hint += f" Meanwhile the others build: `espdock build {' '.join(others)}`."
+    raise LockError(
+        f"{reason}, and {unreachable.message}; {len(blocked)} package(s) built need rosdep for keys the "
+        f"{image.flavour} ROS image lacks and {ROSDEP_LOCK} does not answer:\n{lines}",
+        hint,
+    )

@@ -12,7 +12,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from espdock import rosdeps
-from espdock.colcon import ColconSettings
+from espdock.colcon import ColconSettings, left_out
 from espdock.config import Config, check_target
 from espdock.errors import WorkspaceError
 from espdock.layout import (
@@ -267,7 +267,9 @@ def ros_image(config: Config, inputs: BuildInputs) -> tuple[str, str, rosdeps.Ro
         text = inputs.ros_official_dockerfile
         # The official image's ament index is not known before it is pulled: every dependency
         # goes through rosdep, whose ROS package rules (ros-<distro>-*) apt finds installed.
-        image = rosdeps.RosImage("official", config.ros_distro, _rosdep_os(text), frozenset())
+        # Its apt's Python packages constrain the lock's pip part: another image, another lock.
+        constraints = (("BASE_IMAGE", base_image(config, text)),)
+        image = rosdeps.RosImage("official", config.ros_distro, _rosdep_os(text), frozenset(), constraints)
         return ROS_OFFICIAL_DOCKERFILE, text, image
     text = inputs.ros_dockerfile
     locks = {rel: d for rel, d in sorted(inputs.ros_files.items()) if re.fullmatch(r"docker/ros-[a-z]+\.txt", rel)}
@@ -656,10 +658,11 @@ def plan_workspace(
     force: bool = False,
     target: str | None = None,
     colcon: ColconSettings | None = None,
+    checked: tuple[str, ...] | None = None,
 ) -> Plan:
     """`espdock build [NAMES...] [--only KIND] [--force] [--target CHIP] [-- COLCON_ARGS...]` over
     the workspace's PACKAGES (in build order). Each firmware package builds for its own chip
-    (package_target); TARGET overrides it for the packages built."""
+    (package_target); TARGET overrides it for the packages built. CHECKED: see checked_packages."""
     selected = select_up_to(packages, names) if names else packages
     if only is not None:
         selected = tuple(p for p in selected if p.kind is only)
@@ -667,7 +670,8 @@ def plan_workspace(
     lock = rosdeps.read_lock(inputs.rosdep_lock, ROSDEP_LOCK)
     needed = rosdeps.needed_keys(packages, image)
     # The lock is current here (the caller made it so, or refused a stale one under --locked).
-    rosdeps.check_dependencies(selected, needed, lock, image)
+    to_check = checked_packages(packages, selected, colcon.args if colcon else (), checked)
+    rosdeps.check_dependencies(to_check, needed, lock, image, building=checked is None)
     # The official image reads only the rosdep installer of docker/, and the entry point (runtime).
     official = {k: v for k, v in inputs.ros_files.items() if "rosdep" in k or k == OFFICIAL_ENTRYPOINT}
     files = inputs.ros_files if name == ROS_DOCKERFILE else official
@@ -687,6 +691,22 @@ def plan_workspace(
         force=force,
         colcon=colcon,
     )
+
+
+def checked_packages(
+    packages: tuple[Package, ...],
+    selected: tuple[Package, ...],
+    colcon_args: tuple[str, ...] = (),
+    checked: tuple[str, ...] | None = None,
+) -> tuple[Package, ...]:
+    """The packages whose dependencies the image must serve: what colcon builds of SELECTED (its
+    --packages-skip and --packages-ignore options honoured), or, for `run` and `shell`, CHECKED
+    and the workspace packages they depend on (none for a shell)."""
+    if checked is not None:
+        return select_up_to(packages, checked) if checked else ()
+    depends = {p.name: p.depends for p in packages}
+    skipped = left_out(colcon_args, depends)
+    return tuple(p for p in selected if p.name not in skipped)
 
 
 def firmware_step(plan: Plan, name: str) -> tuple[Plan, IdfBuild]:

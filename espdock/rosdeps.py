@@ -22,11 +22,14 @@ import re
 import subprocess
 import tempfile
 import time
-from collections.abc import Iterable, Mapping
+import warnings
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
+from espdock import pypi_names
 from espdock.errors import DependencyError, LockError
+from espdock.system_python import SystemPython, normalise
 from espdock.workspace import Package, PackageKind
 
 FORMAT = 1
@@ -123,10 +126,15 @@ def stale_reason(lock: dict | None, needed: Mapping[str, tuple[str, ...]], image
 
 
 def check_dependencies(
-    selected: Iterable[Package], needed: Mapping[str, tuple[str, ...]], lock: dict | None, image: RosImage
+    selected: Iterable[Package],
+    needed: Mapping[str, tuple[str, ...]],
+    lock: dict | None,
+    image: RosImage,
+    building: bool = True,
 ) -> None:
     """Raise DependencyError listing, per selected package, each key neither the image nor the
-    lock provides, with the ways out; nothing is built then."""
+    lock provides, with the ways out (BUILDING: a build, which another selection can avoid);
+    nothing is built or run then."""
     keys = (lock or {}).get("keys", {})
     lines = []
     for package in selected:
@@ -139,8 +147,9 @@ def check_dependencies(
     ways = [
         "add a rosdep rule for the key (a sources.list.d entry; ROSDEP_SOURCE_PATH) and run `espdock lock`",
         "put COLCON_IGNORE in the package's directory",
-        "build another selection (`espdock build PKG...`)",
     ]
+    if building:
+        ways.append("build another selection (`espdock build PKG...`, or `-- --packages-skip PKG`)")
     if image.flavour == "wheels":
         ways.insert(1, 'use the official ROS image (ros_image = "official" in espdock.toml), which has rclcpp')
     raise DependencyError(
@@ -165,24 +174,44 @@ def image_files(lock: dict | None) -> dict[str, bytes]:
 # --- making the lock: rosdep and uv ---------------------------------------------------------
 
 
-def cache_dir(env: Mapping[str, str]) -> Path:
-    base = env.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
-    return Path(base) / CACHE_SUBDIR
+class DatabaseUnreachable(LockError):
+    """rosdep's database could not be fetched (no network, a source down)."""
 
 
-def database_age(env: Mapping[str, str]) -> float | None:
+def cache_dir(env: Mapping[str, str], root: Path | None = None) -> Path:
+    """Where rosdep's database is kept for the workspace at ROOT: one per workspace, so the
+    sources one workspace's rosdep was pointed at (a private rule) never serve another."""
+    base = Path(env.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")) / CACHE_SUBDIR
+    if root is None:
+        return base
+    return base / hashlib.sha256(str(Path(root).resolve()).encode()).hexdigest()[:16]
+
+
+def database_age(env: Mapping[str, str], root: Path | None = None) -> float | None:
     """Seconds since rosdep's database was last updated, None when there is none."""
-    index = cache_dir(env) / "sources.cache" / "index"
+    index = cache_dir(env, root) / "sources.cache" / "index"
     return time.time() - index.stat().st_mtime if index.is_file() else None
 
 
-def update_database(env: Mapping[str, str], distro: str) -> Path:
+def database_sources(env: Mapping[str, str], root: Path | None = None) -> list[str]:
+    """What the workspace's rosdep database was made from: each source of its index (type, URL,
+    tags) and the rosdistro index it read."""
+    from rosdistro import get_index_url
+
+    index = cache_dir(env, root) / "sources.cache" / "index"
+    lines = index.read_text().splitlines() if index.is_file() else []
+    found = [line.strip() for line in lines if line.strip() and not line.lstrip().startswith("#")]
+    return [*found, f"rosdistro index {env.get('ROSDISTRO_INDEX_URL') or get_index_url()}"]
+
+
+def update_database(env: Mapping[str, str], distro: str, root: Path | None = None) -> Path:
     """`rosdep update` into espdock's cache: rosdep's sources (ROSDEP_SOURCE_PATH, else
     /etc/ros/rosdep/sources.list.d, else rosdep's default list) and the rosdistro index's
     distribution (ROSDISTRO_INDEX_URL), as rosdep itself reads them."""
+    from rosdep2.rosdistrohelper import PreRep137Warning
     from rosdep2.sources_list import get_sources_list_dir, update_sources_list
 
-    cache = cache_dir(env)
+    cache = cache_dir(env, root)
     sources = Path(get_sources_list_dir())
     if not sources.is_dir() or not any(sources.glob("*.list")):
         sources = cache / "sources.list.d"
@@ -190,22 +219,27 @@ def update_database(env: Mapping[str, str], distro: str) -> Path:
         (sources / "20-default.list").write_text(DEFAULT_SOURCES)
     failed: list[str] = []
     try:
-        update_sources_list(
-            sources_list_dir=str(sources),
-            sources_cache_dir=str(cache / "sources.cache"),
-            error_handler=lambda source, exc: failed.append(f"{source.url}: {exc}"),
-            ros_distro=distro,
-            quiet=True,
-        )
+        with warnings.catch_warnings():
+            # The default list's gbpdistro source warns on every update, as `rosdep update` itself silences.
+            warnings.filterwarnings("ignore", category=PreRep137Warning)
+            update_sources_list(
+                sources_list_dir=str(sources),
+                sources_cache_dir=str(cache / "sources.cache"),
+                error_handler=lambda source, exc: failed.append(f"{source.url}: {exc}"),
+                ros_distro=distro,
+                quiet=True,
+            )
     except Exception as exc:  # rosdep raises many kinds (URLError, InvalidData, ValueError)
-        raise LockError(
+        raise DatabaseUnreachable(
             f"`rosdep update` failed: {exc}",
             "rosdep's database comes from GitHub (or ROSDEP_SOURCE_PATH / ROSDISTRO_INDEX_URL): reach it, then "
             + FIX
             + ".",
         ) from exc
     if failed:
-        raise LockError("`rosdep update` could not read: " + "; ".join(failed), f"Fix the sources, then {FIX}.")
+        raise DatabaseUnreachable(
+            "`rosdep update` could not read: " + "; ".join(failed), f"Fix the sources, then {FIX}."
+        )
     return cache
 
 
@@ -219,18 +253,23 @@ class Rule:
 
 
 def _pip_packages(data: object) -> tuple[str, ...]:
-    """Every package a pip rule anywhere in a key's rosdep DATA names, in order."""
+    """Every package a pip rule anywhere in a key's rosdep DATA names, in order (rosdep's
+    `pip: {packages: [...]}` and its short form `pip: [...]`)."""
     found: list[str] = []
     if isinstance(data, dict):
         for name, value in data.items():
             if name == "pip" and isinstance(value, dict):
                 found += [str(p) for p in value.get("packages") or () if str(p) not in found]
+            elif name == "pip" and isinstance(value, list):
+                found += [str(p) for p in value if str(p) not in found]
             else:
                 found += [p for p in _pip_packages(value) if p not in found]
     return tuple(found)
 
 
-def rosdep_rules(keys: Iterable[str], os_spec: str, distro: str, env: Mapping[str, str]) -> dict[str, Rule]:
+def rosdep_rules(
+    keys: Iterable[str], os_spec: str, distro: str, env: Mapping[str, str], root: Path | None = None
+) -> dict[str, Rule]:
     """rosdep's answer for each key on OS_SPEC ("debian:bookworm"), as `rosdep resolve` gives it."""
     from rosdep2 import create_default_installer_context
     from rosdep2.lookup import ResolutionError, RosdepLookup
@@ -238,9 +277,9 @@ def rosdep_rules(keys: Iterable[str], os_spec: str, distro: str, env: Mapping[st
     from rosdep2.sources_list import DataSourceMatcher, SourcesListLoader
 
     os_name, os_version = os_spec.split(":", 1)
-    cache = cache_dir(env) / "sources.cache"
+    cache = cache_dir(env, root) / "sources.cache"
     if not (cache / "index").is_file():
-        update_database(env, distro)
+        update_database(env, distro, root)
     matcher = DataSourceMatcher([distro, os_name, os_version])
     loader = SourcesListLoader.create_default(matcher=matcher, sources_cache_dir=str(cache))
     lookup = RosdepLookup.create_from_rospkg(sources_loader=loader)
@@ -273,30 +312,35 @@ def rosdep_rules(keys: Iterable[str], os_spec: str, distro: str, env: Mapping[st
 
 def for_image(rules: Mapping[str, Rule], image: RosImage, pip_rules: Mapping[str, Rule]) -> dict[str, Rule]:
     """RULES as the image installs them. The wheels venv sees no apt Python package nor any apt
-    ROS package: an apt `python3-X` rule becomes pip (the key's pip rule for another platform,
-    else its -pip sibling in PIP_RULES, else PyPI's X, the name Debian's Python policy derives
-    the package's from; the lock says which), and an apt `ros-<distro>-X` one the wheel of
-    that name."""
+    ROS package: an apt `ros-<distro>-X` rule becomes the wheel of that name, and an apt rule
+    naming `python3-*` packages the PyPI project python_rule finds, or a refusal."""
     if image.flavour != "wheels":
         return dict(rules)
     ros_prefix = f"ros-{image.distro}-"
     mapped = {}
     for key, rule in rules.items():
+        python = [p for p in rule.packages if p.startswith("python3-") and p not in pypi_names.APT_KEPT]
         if rule.installer == "apt" and all(p.startswith(ros_prefix) for p in rule.packages):
             mapped[key] = Rule("pip", rule.packages, f"the wheel(s) {', '.join(rule.packages)}")
-        elif rule.installer == "apt" and all(p.startswith("python3-") for p in rule.packages):
-            pip = pip_rules.get(key)
-            if rule.pip_elsewhere:
-                names = rule.pip_elsewhere
-                mapped[key] = Rule("pip", names, "its pip rule for another platform (the venv sees no apt Python)")
-            elif pip is not None and pip.installer == "pip":
-                mapped[key] = Rule("pip", pip.packages, "its -pip rule (the venv does not see apt's Python)")
-            else:
-                names = tuple(p.removeprefix("python3-") for p in rule.packages)
-                mapped[key] = Rule("pip", names, f"PyPI's {', '.join(names)} for apt's {', '.join(rule.packages)}")
+        elif rule.installer == "apt" and python:
+            mapped[key] = python_rule(key, rule, pip_rules.get(key))
         else:
             mapped[key] = rule
     return mapped
+
+
+def python_rule(key: str, rule: Rule, sibling: Rule | None) -> Rule:
+    """What serves KEY (whose apt RULE installs Python packages) in the wheels venv: the key's
+    pip rule for another platform, else its -pip SIBLING key's rule, else the reviewed PyPI
+    project (espdock.pypi_names), else nothing, with the reason: never a guessed name."""
+    if rule.pip_elsewhere:
+        return Rule("pip", rule.pip_elsewhere, "its pip rule for another platform (the venv sees no apt Python)")
+    if sibling is not None and sibling.installer == "pip":
+        return Rule("pip", sibling.packages, "its -pip rule (the venv does not see apt's Python)")
+    project = pypi_names.PYPI_PROJECT.get(key)
+    if project is not None and len(rule.packages) == 1:
+        return Rule("pip", (project,), f"PyPI's {project} for apt's {rule.packages[0]} (espdock's reviewed table)")
+    return Rule(None, why=pypi_names.refusal(key))
 
 
 def pip_alternatives(keys: Iterable[str]) -> list[str]:
@@ -309,9 +353,12 @@ def pip_alternatives(keys: Iterable[str]) -> list[str]:
     return out
 
 
-def pip_lock_lines(requirements: Iterable[str], image: RosImage, root: Path, uv: str) -> tuple[list[str], set[str]]:
+def pip_lock_lines(
+    requirements: Iterable[str], image: RosImage, root: Path, uv: str, system: SystemPython | None = None
+) -> tuple[list[str], set[str]]:
     """uv's hashed lock of REQUIREMENTS for the image's Python (one line per package, hashes
-    inline), and the requirements PyPI does not have (dropped)."""
+    inline), and the requirements PyPI does not have (dropped). SYSTEM: the official image's
+    Python, whose installed distributions the lock keeps at their versions."""
     from espdock.lock import ROS_IMAGE_PYTHON, locate
 
     wanted = sorted(set(requirements))
@@ -326,13 +373,24 @@ def pip_lock_lines(requirements: Iterable[str], image: RosImage, root: Path, uv:
                 for rel, _ in image.constraints:
                     args += ["-c", str(locate(root, rel))]
             else:  # the official image's system Python (noble: 3.12; the test double: 3.11)
-                args = ["--universal", "--python-version", "3.11"]
+                args = ["--universal", "--python-version", system.version if system else "3.11"]
+                if system is not None:
+                    installed = Path(tmp) / "installed.txt"
+                    installed.write_text(system.constraints())
+                    args += ["-c", str(installed)]
             argv = [uv, "pip", "compile", "--quiet", "--no-header", "--no-annotate", "--generate-hashes"]
             argv += [*args, str(source), "-o", str(out)]
             result = subprocess.run(argv, check=False, capture_output=True, text=True)
             if result.returncode == 0:
                 return _one_line_each(out.read_text()), absent
         gone = set(_NOT_FOUND.findall(result.stderr)) & set(wanted)
+        if not gone and system is not None:
+            raise LockError(
+                f"uv could not lock the rosdep pip packages {wanted} beside what the official ROS image's apt "
+                f"installed (its Python packages stay at their versions):\n{result.stderr.strip()}",
+                "Use a rosdep key whose rule is apt (the image's own Python packages), or another version of the "
+                f"package; then {FIX}.",
+            )
         if not gone:
             raise LockError(f"uv could not lock the rosdep pip packages {wanted}:\n{result.stderr.strip()}", FIX)
         absent |= gone
@@ -354,16 +412,23 @@ def _one_line_each(text: str) -> list[str]:
 
 
 def resolve_workspace(
-    packages: Iterable[Package], image: RosImage, root: Path, env: Mapping[str, str], uv: str
+    packages: Iterable[Package],
+    image: RosImage,
+    root: Path,
+    env: Mapping[str, str],
+    uv: str,
+    system: Callable[[], SystemPython] | None = None,
 ) -> dict:
     """The lock for PACKAGES on IMAGE: rosdep's rules for every needed key, as the image installs them."""
     needed = needed_keys(packages, image)
     keys = sorted({k for ks in needed.values() for k in ks})
-    rules = rosdep_rules([*keys, *pip_alternatives(keys)], image.os, image.distro, env) if keys else {}
+    rules = rosdep_rules([*keys, *pip_alternatives(keys)], image.os, image.distro, env, root) if keys else {}
     pip_rules = {k: rules[alt] for k in keys for alt in pip_alternatives([k]) if rules.get(alt, Rule(None)).installer}
     mapped = for_image({k: rules[k] for k in keys}, image, pip_rules)
     pip_wanted = [p for rule in mapped.values() if rule.installer == "pip" for p in rule.packages]
-    pip_lines, absent = pip_lock_lines(pip_wanted, image, root, uv) if pip_wanted else ([], set())
+    # The official image's Python is read (a container run) only when there is pip to lock.
+    installed = system() if pip_wanted and system is not None else None
+    pip_lines, absent = pip_lock_lines(pip_wanted, image, root, uv, installed) if pip_wanted else ([], set())
     entries = {}
     for key, rule in sorted(mapped.items()):
         if rule.installer == "pip" and absent & set(rule.packages):
@@ -385,7 +450,23 @@ def resolve_workspace(
         "keys": entries,
         "apt": sorted({p for e in entries.values() if e["installer"] == "apt" for p in e["packages"]}),
         "pip": pip_lines,
+        **held_by_image(pip_lines, installed),
     }
+
+
+def held_by_image(pip_lines: Iterable[str], system: SystemPython | None) -> dict:
+    """The lock's record of the official image's Python: its version, and the pinned packages
+    that stay at what the image installed (pip finds them installed and leaves them)."""
+    if system is None:
+        return {}
+    pins = system.pins()
+    held = {}
+    for line in pip_lines:
+        name, _, rest = line.partition("==")
+        version = rest.split()[0] if rest.split() else ""
+        if pins.get(normalise(name)) == version:
+            held[name] = version
+    return {"system_python": {"version": system.version, "kept_as_installed": held}}
 
 
 def lock_text(lock: Mapping) -> str:

@@ -22,7 +22,7 @@ from pathlib import Path
 from typing import assert_never
 
 from espdock import bootstrap
-from espdock.colcon import DEFAULTS_MOUNT, ColconLog, PackageState, explain_failure
+from espdock.colcon import DEFAULTS_MOUNT, ColconLog, PackageState, explain_failure, usage_error
 from espdock.config import Config, resolve_ca_bundle
 from espdock.engine import Engine, Mount, RegistryAnswer, RegistryStatus, RunSpec
 from espdock.errors import BuildFailed, ConfigError, EspdockError, RegistryError, WorkspaceError, disk_full
@@ -349,6 +349,7 @@ class Runner:
         if not rebuild:
             return Outcome.CACHED, f"up to date ({len(stamps)} package(s))"
         # Until this build succeeds, none of them counts as built.
+        recorded = stamp_file.read()
         stamp_file.forget(rebuild)
         user, labels = self._container_identity(workspace, "colcon", sweep=True)
         mounts = [Mount(workspace.root, WORKSPACE_MOUNT)]
@@ -383,10 +384,15 @@ class Runner:
             stamp_file.record({name: stamps[name] for name in built}, installed())
             _give_to(stamp_file.path, self._owner)
         if states is None and code != 0:
+            # Nothing in build/ or install/ changed: the packages keep their records, and the
+            # next build with other options rebuilds only what those change.
+            stamp_file.restore({name: recorded[name] for name in rebuild if name in recorded})
             last = next((line for line in reversed(output) if line.strip()), "no output")
+            said = usage_error(output, step.colcon_args)
             raise ConfigError(
-                f"colcon stopped before building any package (exit code {code}): {last.strip()}",
-                "Check the colcon options after `--` and colcon's defaults files; nothing was built.",
+                said or f"colcon stopped before building any package (exit code {code}): {last.strip()}",
+                "Check the colcon options after `--` (`colcon build --help` in `espdock shell` lists them) "
+                "and colcon's defaults files; nothing was built.",
             )
         if code != 0:
             logs = {

@@ -118,6 +118,16 @@ class StampFile:
             tmp.write_text(json.dumps(data, indent=1, sort_keys=True) + "\n")
             os.replace(tmp, self.path)
 
+    def restore(self, records: Mapping[str, dict[str, str | None]]) -> None:
+        """Put back RECORDS that forget dropped: the run that was to rebuild them changed nothing."""
+        if not records:
+            return
+        data = self.read()
+        data.update(records)
+        tmp = self.path.with_name(f".{self.path.name}.tmp")
+        tmp.write_text(json.dumps(data, indent=1, sort_keys=True) + "\n")
+        os.replace(tmp, self.path)
+
 
 def _files(root: Path) -> list[Path]:
     found = []

@@ -215,4 +215,6 @@ def render_packages(console: Console, workspace: Workspace, packages: tuple[Pack
     names = {p.name for p in packages}
     for p in packages:
         table.add_row(p.name, p.kind.value, p.build_type, ", ".join(sorted(p.depends & names)))
-    console.print(table)
+    # Into a pipe or a file, at the table's own width: a name cut at 80 columns is another name.
+    wide = console if console.is_terminal else Console(file=console.file, width=10_000, no_color=console.no_color)
+    wide.print(table)

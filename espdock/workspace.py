@@ -24,6 +24,8 @@ from espdock.layout import (
 )
 
 IGNORE_MARKERS = ("COLCON_IGNORE", "AMENT_IGNORE", "CATKIN_IGNORE")
+# The ROS distribution package.xml conditions are evaluated for (espdock.toml's ros_distro).
+DEFAULT_ROS_DISTRO = "jazzy"
 FIRMWARE_BUILD_TYPE = "esp_idf"
 # colcon's and IDF's outputs: never searched for packages.
 NOT_SOURCES = ("build", "install", "log", "managed_components")
@@ -100,15 +102,15 @@ def find_workspace(start: Path) -> Workspace:
     )
 
 
-def discover_packages(workspace: Workspace) -> tuple[Package, ...]:
+def discover_packages(workspace: Workspace, ros_distro: str = DEFAULT_ROS_DISTRO) -> tuple[Package, ...]:
     """Every package under the workspace's package paths, by name; names must be unique.
 
     A package is firmware when its build type is esp_idf (as colcon tells packages apart), ROS
-    otherwise, wherever it lives.
+    otherwise, wherever it lives. Conditions in package.xml are evaluated for ROS 2 ROS_DISTRO.
     """
     found: dict[str, Package] = {}
     seen: set[Path] = set()
-    cache = _ManifestCache.load()
+    cache = _ManifestCache.load(ros_distro)
     for rel in workspace.package_paths:
         for manifest in _manifests(workspace.root / rel):
             if manifest in seen:  # nested package paths
@@ -116,7 +118,7 @@ def discover_packages(workspace: Workspace) -> tuple[Package, ...]:
             seen.add(manifest)
             package = cache.get(manifest)
             if package is None:
-                package = _read_manifest(manifest)
+                package = _read_manifest(manifest, ros_distro)
                 cache.put(manifest, package)
             if package.name in found:
                 raise WorkspaceError(
@@ -147,15 +149,17 @@ class _ManifestCache:
     """Parsed package.xml files by path, valid while the file's size, mtime and inode are
     unchanged; in the user's cache directory, best effort (any failure only means parsing)."""
 
-    FORMAT = 2
+    FORMAT = 3
 
-    def __init__(self, path: Path, entries: dict) -> None:
+    def __init__(self, path: Path, entries: dict, ros_distro: str = DEFAULT_ROS_DISTRO) -> None:
         self.path = path
         self.entries = entries
         self.changed = False
+        # The conditions evaluated depend on it.
+        self.ros_distro = ros_distro
 
     @classmethod
-    def load(cls) -> _ManifestCache:
+    def load(cls, ros_distro: str = DEFAULT_ROS_DISTRO) -> _ManifestCache:
         base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
         path = Path(base) / "espdock" / "manifests.json"
         try:
@@ -163,7 +167,7 @@ class _ManifestCache:
             entries = data["entries"] if data.get("format") == cls.FORMAT else {}
         except (OSError, ValueError, KeyError, TypeError, AttributeError):
             entries = {}
-        return cls(path, entries if isinstance(entries, dict) else {})
+        return cls(path, entries if isinstance(entries, dict) else {}, ros_distro)
 
     @staticmethod
     def _stamp(manifest: Path) -> list[int]:
@@ -173,7 +177,7 @@ class _ManifestCache:
     def get(self, manifest: Path) -> Package | None:
         entry = self.entries.get(str(manifest))
         try:
-            if not isinstance(entry, dict) or entry.get("stamp") != self._stamp(manifest):
+            if not isinstance(entry, dict) or entry.get("stamp") != [*self._stamp(manifest), self.ros_distro]:
                 return None
             build_type = str(entry["build_type"])
             return Package(
@@ -190,7 +194,7 @@ class _ManifestCache:
 
     def put(self, manifest: Path, package: Package) -> None:
         self.entries[str(manifest)] = {
-            "stamp": self._stamp(manifest),
+            "stamp": [*self._stamp(manifest), self.ros_distro],
             "name": package.name,
             "build_type": package.build_type,
             "depends": sorted(package.depends),
@@ -211,29 +215,43 @@ class _ManifestCache:
             pass  # a cache: without it, manifests are parsed again
 
 
-def read_package(manifest: Path) -> Package:
+def read_package(manifest: Path, ros_distro: str = DEFAULT_ROS_DISTRO) -> Package:
     """The package a package.xml describes (a WorkspaceError when it is not valid)."""
-    return _read_manifest(manifest)
+    return _read_manifest(manifest, ros_distro)
 
 
-def _read_manifest(manifest: Path) -> Package:
+def condition_context(ros_distro: str) -> dict[str, str]:
+    """The variables package.xml conditions are evaluated with, as colcon-ros and rosdep see
+    them in a ROS 2 environment (the ROS images set the same)."""
+    return {"ROS_VERSION": "2", "ROS_DISTRO": ros_distro, "ROS_PYTHON_VERSION": "3"}
+
+
+def _read_manifest(manifest: Path, ros_distro: str = DEFAULT_ROS_DISTRO) -> Package:
     # Imported here: with every manifest unchanged (_ManifestCache), a build never needs it.
     from catkin_pkg.package import InvalidPackage, parse_package
 
     try:
         pkg = parse_package(str(manifest))
+        # catkin_pkg leaves every condition unevaluated (None) until asked; a dual ROS 1/ROS 2
+        # package's `$ROS_VERSION == 1` dependencies and build type are not ROS 2's.
+        pkg.evaluate_conditions(condition_context(ros_distro))
+        build_type = pkg.get_build_type()
     except (InvalidPackage, ValueError, OSError) as exc:
         raise WorkspaceError(
             f"{manifest} is not a valid package.xml: {exc}", "Fix the manifest and run again."
         ) from exc
 
     def names(*groups: list) -> set[str]:
-        return {d.name for group in groups for d in group if d.evaluated_condition is not False}
+        return {d.name for group in groups for d in group if d.evaluated_condition}
 
-    deps = names(pkg.build_depends, pkg.buildtool_depends, pkg.build_export_depends, pkg.exec_depends)
+    deps = names(
+        pkg.build_depends, pkg.buildtool_depends, pkg.build_export_depends, pkg.buildtool_export_depends,
+        pkg.exec_depends,
+    )  # fmt: skip
     tests = names(pkg.test_depends)
-    exports = {e.tagname: e.content for e in pkg.exports}
-    build_type = exports.get("build_type") or "ament_cmake"
+    # catkin_pkg's default build type is catkin; espdock's has been ament_cmake (a package.xml
+    # without <export><build_type>), which colcon-ros would call ros.catkin.
+    build_type = build_type if any(e.tagname == "build_type" for e in pkg.exports) else "ament_cmake"
     return Package(
         name=pkg.name,
         path=manifest.parent,

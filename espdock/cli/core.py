@@ -19,11 +19,12 @@ from espdock import __version__, bootstrap
 from espdock.colcon import read_colcon_settings
 from espdock.config import Config, invoking_user, load_config
 from espdock.errors import EspdockBug, EspdockError, Interrupted
-from espdock.lock import current_rosdep_inputs
-from espdock.plan import IdfBuild, Plan, firmware_step, plan_workspace
+from espdock.lock import current_rosdep_inputs, rosdep_lock_stale
+from espdock.plan import IdfBuild, Plan, checked_packages, firmware_step, plan_workspace
 from espdock.runner import Runner
 from espdock.ui import QuietReporter, Reporter
 from espdock.workspace import (
+    DEFAULT_ROS_DISTRO,
     Package,
     PackageKind,
     Workspace,
@@ -31,6 +32,7 @@ from espdock.workspace import (
     find_workspace,
     order_packages,
     read_build_inputs,
+    select_up_to,
 )
 
 app = typer.Typer(
@@ -114,8 +116,8 @@ def load(workspace: Path | None, **overrides: object) -> tuple[Workspace, Config
     return ws.with_layout(config.package_paths, config.colcon_root), config
 
 
-def workspace_packages(ws: Workspace) -> tuple[Package, ...]:
-    return order_packages(discover_packages(ws))
+def workspace_packages(ws: Workspace, ros_distro: str = DEFAULT_ROS_DISTRO) -> tuple[Package, ...]:
+    return order_packages(discover_packages(ws, ros_distro))
 
 
 def build_plan(
@@ -127,19 +129,29 @@ def build_plan(
     colcon_args: tuple[str, ...] | None = None,
     locked: bool | None = None,
     target: str | None = None,
+    checked: tuple[str, ...] | None = None,
+    dry_run: bool = False,
 ) -> Plan:
     """The build's plan; LOCKED not None: first a rosdep lock that answers for the packages
-    (refusing a stale one when LOCKED)."""
-    packages = workspace_packages(ws)
+    (refusing a stale one when LOCKED). CHECKED: the packages whose dependencies must be served
+    (None: those built). DRY_RUN: the lock is neither made nor refreshed, only reported."""
+    packages = workspace_packages(ws, config.ros_distro)
     inputs = read_build_inputs(ws, packages)
-    if locked is not None:
-        owner = invoking_user(os.environ, ws.root) if os.geteuid() == 0 else None
-        inputs, note = current_rosdep_inputs(ws.root, config, packages, inputs, locked, os.environ, owner)
-        if note:
-            notify(note)
     ros = {p.name: p.path for p in packages if p.kind is PackageKind.ROS}
     colcon = read_colcon_settings(ws.ws_dir, ros, colcon_args, os.environ)
-    return plan_workspace(ws, config, packages, inputs, tuple(names), only, force, target, colcon)
+    if dry_run:
+        reason = rosdep_lock_stale(config, packages, inputs)
+        if reason:
+            notify(f"{reason}: a build would make it first; the plan below uses it as it is, unchecked")
+            checked = ()
+    elif locked is not None:
+        owner = invoking_user(os.environ, ws.root) if os.geteuid() == 0 else None
+        selected = select_up_to(packages, names) if names else packages
+        built = checked_packages(packages, tuple(p for p in selected if only in (None, p.kind)), colcon.args)
+        inputs, note = current_rosdep_inputs(ws.root, config, packages, inputs, locked, os.environ, owner, built)
+        if note:
+            notify(note)
+    return plan_workspace(ws, config, packages, inputs, tuple(names), only, force, target, colcon, checked)
 
 
 class PassThrough(typer.core.TyperCommand):

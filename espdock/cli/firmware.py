@@ -76,7 +76,7 @@ def _micro_ros_specs(
     workspace: Path | None, target: str | None
 ) -> tuple[Workspace, Config, tuple[Package, ...], dict[str, ImageSpec]]:
     ws, config = load(workspace)
-    packages = workspace_packages(ws)
+    packages = workspace_packages(ws, config.ros_distro)
     return (
         ws,
         config,

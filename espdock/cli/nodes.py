@@ -42,9 +42,10 @@ def run(
     """Run EXECUTABLE of a built PACKAGE in the workspace's runtime image, like `ros2 run`
     (espdock's options go before PACKAGE; everything after EXECUTABLE goes to the node)."""
     ws, config = load(workspace)
-    packages = workspace_packages(ws)
+    packages = workspace_packages(ws, config.ros_distro)
     path = nodes.find_executable(ws, packages, package, executable)
-    plan, step = nodes.runtime_plan(build_plan(ws, config, [], PackageKind.ROS))
+    # Only what runs must be served: another package's missing key does not stop this node.
+    plan, step = nodes.runtime_plan(build_plan(ws, config, [], PackageKind.ROS, checked=(package,)))
     runner = ensure_images(ws, config, plan)
     image = runner.runtime_spec(ws, step).tag
     tty = sys.stdin.isatty() and sys.stdout.isatty()
@@ -58,7 +59,7 @@ def run(
 def shell(workspace: WorkspaceOption = None) -> None:
     """Open a shell in the ROS build image with the workspace mounted and its install tree sourced."""
     ws, config = load(workspace)
-    plan, image = nodes.build_image_plan(build_plan(ws, config, [], PackageKind.ROS))
+    plan, image = nodes.build_image_plan(build_plan(ws, config, [], PackageKind.ROS, checked=()))
     runner = ensure_images(ws, config, plan)
     spec = nodes.shell_spec(ws, image, runner.owner, os.environ, sys.stdin.isatty() and sys.stdout.isatty())
     code, stopped_by = runner.engine.run_foreground(spec)

@@ -87,6 +87,7 @@ def build(
         ctx.meta.get(PASSED),
         locked,
         target and check_target(target, "--target"),
+        dry_run=dry_run,
     )
     if dry_run:
         render_plan(console, plan)
@@ -124,7 +125,7 @@ def lock(
     keeping the current pins the sources allow; say which locks changed."""
     ws, config = load(workspace)
     owner = invoking_user(os.environ, ws.root) if os.geteuid() == 0 else None
-    packages = workspace_packages(ws)
+    packages = workspace_packages(ws, config.ros_distro)
     status, database = lock_rosdeps(ws.root, config, packages, read_build_inputs(ws, packages), os.environ, owner)
     if database:  # else: none needed, none there
         console.print(f"{ROSDEP_LOCK}: {status} ({database})")
@@ -172,7 +173,7 @@ def new(
     """Create NAME beside the workspace's firmware: an ESP-IDF project that is also a ROS 2 package,
     with a micro-ROS app on the shared espdock_uros component (added beside it if missing)."""
     ws, config = load(workspace)
-    packages = workspace_packages(ws)
+    packages = workspace_packages(ws, config.ros_distro)
     check_new_package(name, tuple(depends or ()), packages)
     chip = target and check_target(target, "--target")
     owner = invoking_user(os.environ, ws.root) if os.geteuid() == 0 else None
@@ -200,7 +201,7 @@ def init(
     else:
         console.print(f"made {ws.root} an espdock workspace: created {', '.join(created)}")
     ws, config = load(ws.root)
-    packages = workspace_packages(ws)
+    packages = workspace_packages(ws, config.ros_distro)
     if init_compose(ws, runtime_repository(config, ws), packages, owner):
         console.print("wrote compose.yaml: the workspace's nodes as services (`espdock compose up`)")
     firmware = [p.name for p in packages if p.kind is PackageKind.FIRMWARE]

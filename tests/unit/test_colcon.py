@@ -4,6 +4,8 @@ colcon's event log and the failure hints made from it."""
 from __future__ import annotations
 
 import re
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -17,6 +19,7 @@ from espdock.colcon import (
     output_args,
     parse_events,
     read_colcon_settings,
+    usage_error,
     user_defaults_file,
 )
 from espdock.errors import ConfigError, WorkspaceError
@@ -211,3 +214,28 @@ def test_dry_run_shows_the_options_after_the_double_dash(tmp_path):
     result = espdock("build", "--dry-run", "--", "--cmake-args", "-DBUILD_TESTING=OFF", cwd=root, env=NO_ENGINE)
     assert result.returncode == 0, result.stderr
     assert "summary+ --cmake-args -DBUILD_TESTING=OFF" in result.stdout
+
+
+def test_colcon_meta_is_yaml_and_what_espdock_passes_itself_may_be_in_the_defaults(tmp_path):
+    root, dirs = _workspace(tmp_path)
+    base = dict(read_colcon_settings(root, dirs, None, {}).digests)
+    # As colcon-metadata reads it: YAML, not only JSON.
+    (root / "colcon.meta").write_text("names:\n  app:\n    cmake-args:\n      - -DX=1\n")
+    meta = dict(read_colcon_settings(root, dirs, None, {}).digests)
+    assert meta["msgs"] == base["msgs"] and meta["app"] != base["app"]
+    # espdock gives --event-handlers and --base-paths on the command line, which beats a defaults file.
+    user = tmp_path / "defaults.yaml"
+    user.write_text("build:\n  event-handlers: [console_cohesion+]\n  base-paths: [elsewhere]\n")
+    assert read_colcon_settings(root, dirs, None, {"COLCON_DEFAULTS_FILE": str(user)}).defaults_file == str(user)
+
+
+def test_an_option_colcon_does_not_know_is_named_not_blamed_on_espdocks_own(tmp_path):
+    # The real colcon, given espdock's command line and an option it does not know.
+    (tmp_path / "src").mkdir()
+    argv = ColconBuild("x", ("a",), (("a", "src"),), colcon_args=("--frobnicate",)).argv()
+    colcon = Path(sys.executable).with_name("colcon")
+    said = subprocess.run([str(colcon), *argv[1:]], cwd=tmp_path, capture_output=True, text=True, check=False)
+    assert said.returncode != 0 and "--event-handlers: invalid choice" in said.stderr
+    assert usage_error(said.stderr.splitlines(), ("--frobnicate",)) == (
+        "colcon build does not accept --frobnicate (given after `--`)"
+    )

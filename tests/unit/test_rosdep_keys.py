@@ -1,0 +1,239 @@
+"""Which packages serve a package.xml's rosdep keys, and which packages' keys are checked: the
+reviewed PyPI projects of the wheels image, conditions evaluated for ROS 2, the check of
+`run`, `shell`, `--dry-run` and colcon's skip options, one rosdep database per workspace, and
+builds with no route to rosdep's sources. The real rosdep on the tests' database of real rules
+(tests/rosdep_db); packages written as upstream drivers write theirs (tests/ros_packages)."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from espdock import rosdeps
+from espdock.workspace import Workspace, discover_packages
+from tests.conftest import REPO, espdock
+from tests.rosdep_db import environment
+
+PACKAGES = REPO / "tests" / "ros_packages"
+NO_ENGINE = {"DOCKER_HOST": "unix:///nonexistent/docker.sock"}
+WHEELS = rosdeps.RosImage("wheels", "jazzy", "debian:bookworm", frozenset({"rclpy", "std_msgs"}))
+
+
+def make_workspace(root: Path, *names: str) -> Path:
+    (root / "src").mkdir(parents=True)
+    for name in names:
+        shutil.copytree(PACKAGES / name, root / "src" / name)
+    (root / "espdock.toml").write_text("[espdock]\n")
+    return root
+
+
+def run(root: Path, tmp_path: Path, *args: str, **extra: str) -> subprocess.CompletedProcess[str]:
+    return espdock(*args, cwd=root, env={**NO_ENGINE, **environment(tmp_path), **extra})
+
+
+def add_depends(manifest: Path, *lines: str) -> None:
+    text = manifest.read_text()
+    manifest.write_text(
+        text.replace("  <test_depend>", "".join(f"  {line}\n" for line in lines) + "  <test_depend>", 1)
+    )
+
+
+def test_python_keys_are_served_by_their_reviewed_pypi_project_or_refused():
+    rules = {
+        # rosdistro's rules on Debian: apt everywhere, no pip rule for any platform.
+        "python3-serial": rosdeps.Rule("apt", ("python3-serial",)),
+        "python3-usb": rosdeps.Rule("apt", ("python3-usb",)),
+        "python3-websocket": rosdeps.Rule("apt", ("python3-websocket",)),
+        "python3-jwt": rosdeps.Rule("apt", ("python3-jwt",)),
+        "python3-opencv": rosdeps.Rule("apt", ("python3-opencv",)),
+        "python3-gi": rosdeps.Rule("apt", ("python3-gi",)),
+        "python3-smbus": rosdeps.Rule("apt", ("python3-smbus",)),
+        "python3-dev": rosdeps.Rule("apt", ("python3-dev",)),
+        # rosdistro's python3-yaml has a pip rule (osx), python3-pydantic one in short form (buster).
+        "python3-yaml": rosdeps.Rule("apt", ("python3-yaml",), pip_elsewhere=("pyyaml",)),
+    }
+    mapped = rosdeps.for_image(rules, WHEELS, {})
+    served = {key: (rule.installer, rule.packages) for key, rule in mapped.items()}
+    assert served == {
+        "python3-serial": ("pip", ("pyserial",)),  # PyPI's `serial` is a serialization framework
+        "python3-usb": ("pip", ("pyusb",)),
+        "python3-websocket": ("pip", ("websocket-client",)),
+        "python3-jwt": ("pip", ("PyJWT",)),
+        "python3-opencv": ("pip", ("opencv-python-headless",)),
+        "python3-gi": (None, ()),
+        "python3-smbus": (None, ()),
+        "python3-dev": ("apt", ("python3-dev",)),  # headers for the venv's own (Debian's) Python
+        "python3-yaml": ("pip", ("pyyaml",)),
+    }
+    assert "PyGObject" in mapped["python3-gi"].why and "pip rule" in mapped["python3-smbus"].why
+    assert rosdeps._pip_packages({"debian": {"*": ["python3-pydantic"], "buster": {"pip": ["pydantic"]}}}) == (
+        "pydantic",
+    )
+
+
+def test_a_serial_driver_gets_pyserial_and_python3_gi_is_refused_by_name(tmp_path):
+    root = make_workspace(tmp_path / "w", "rosdeps_serial_gps")
+    manifest = root / "src/rosdeps_serial_gps/package.xml"
+    add_depends(manifest, "<depend>python3-opencv</depend>", "<build_depend>python3-dev</build_depend>")
+    made = run(root, tmp_path, "lock")
+    assert made.returncode == 0, made.stderr
+    lock = json.loads((root / "rosdep.lock.json").read_text())
+    keys = {key: (entry["installer"], entry.get("packages")) for key, entry in lock["keys"].items()}
+    assert keys == {
+        "python3-serial": ("pip", ["pyserial"]),
+        "python3-opencv": ("pip", ["opencv-python-headless"]),
+        "python3-dev": ("apt", ["python3-dev"]),
+    }
+    pinned = {line.split("==")[0] for line in lock["pip"]}
+    assert {"pyserial", "opencv-python-headless", "numpy"} <= pinned and "serial" not in pinned
+    assert lock["apt"] == ["python3-dev"]
+    assert run(root, tmp_path, "build").returncode == 3  # the check passes: on to the engine
+    add_depends(manifest, "<exec_depend>python3-gi</exec_depend>")
+    refused = run(root, tmp_path, "build")
+    assert refused.returncode == 2, refused.stderr
+    assert f"rosdeps_serial_gps ({manifest.parent}): python3-gi: PyGObject" in refused.stderr
+    assert "No solution found" not in refused.stderr and "uv could not" not in refused.stderr
+
+
+def test_a_dual_ros1_ros2_package_is_read_as_ros2_jazzy_sees_it(tmp_path):
+    root = make_workspace(tmp_path / "w", "rosdeps_dual_driver", "rosdeps_serial_gps")
+    (dual,) = [p for p in discover_packages(Workspace(root).with_layout(None, None)) if p.name.endswith("driver")]
+    assert dual.build_type == "ament_cmake"
+    assert dual.depends - dual.test_only_depends == {"ament_cmake", "ament_cmake_python", "rclpy", "sensor_msgs"}
+    assert dual.test_only_depends == {"ament_cmake_pytest"}
+    made = run(root, tmp_path, "lock")
+    assert made.returncode == 0, made.stderr
+    lock = json.loads((root / "rosdep.lock.json").read_text())
+    # catkin and rospy are ROS 1's, python3-usb noetic's: none is asked of rosdep nor refused.
+    assert lock["packages"] == {"rosdeps_serial_gps": ["python3-serial"]}
+    result = run(root, tmp_path, "build")
+    assert result.returncode == 3, result.stderr
+
+
+def fake_install(root: Path, package: str, executable: str) -> None:
+    """What a build left in install/: the executable `espdock run` looks for."""
+    path = root / "install" / package / "lib" / package / executable
+    path.parent.mkdir(parents=True)
+    path.write_text("#!/bin/sh\n")
+    path.chmod(0o755)
+
+
+def test_run_and_shell_check_only_what_they_run(tmp_path):
+    root = make_workspace(tmp_path / "w", "rosdeps_cpp_talker", "rosdeps_xml_count")
+    assert run(root, tmp_path, "lock").returncode == 0
+    fake_install(root, "rosdeps_xml_count", "xml_count")
+    fake_install(root, "rosdeps_cpp_talker", "talker")
+    # rosdeps_cpp_talker's rclcpp is none of xml_count's business, nor of a shell's.
+    for args in (("run", "rosdeps_xml_count", "xml_count"), ("shell",)):
+        result = run(root, tmp_path, *args)
+        assert result.returncode == 3, (args, result.stderr)
+    refused = run(root, tmp_path, "run", "rosdeps_cpp_talker", "talker")
+    assert refused.returncode == 2 and "rclcpp: PyPI has no ros-jazzy-rclcpp" in refused.stderr
+    assert "another selection" not in refused.stderr
+
+
+def test_dry_run_neither_updates_rosdep_nor_writes_the_lock(tmp_path):
+    root = make_workspace(tmp_path / "w", "rosdeps_xml_count")
+    result = run(root, tmp_path, "build", "--dry-run")
+    assert result.returncode == 0, result.stderr
+    assert "rosdep.lock.json is missing: a build would make it first" in result.stdout
+    assert not (root / "rosdep.lock.json").exists()
+    assert not (tmp_path / "cache/espdock/rosdep").exists()  # no `rosdep update`
+
+
+@pytest.mark.parametrize(
+    "skip",
+    [
+        ("--packages-skip", "rosdeps_cpp_talker"),
+        ("--packages-skip-regex", "rosdeps_cpp"),
+        ("--packages-ignore=rosdeps_cpp_talker",),
+        ("--packages-skip-up-to", "rosdeps_cpp_talker"),
+    ],
+)
+def test_colcons_skip_options_leave_packages_out_of_the_check(tmp_path, skip):
+    root = make_workspace(tmp_path / "w", "rosdeps_cpp_talker", "rosdeps_xml_count")
+    result = run(root, tmp_path, "build", "--", *skip)
+    assert result.returncode == 3, result.stderr  # the check passes: on to the engine
+    assert run(root, tmp_path, "build").returncode == 2  # without the option: refused
+
+
+def test_each_workspace_has_its_own_rosdep_database_and_the_lock_names_its_sources(tmp_path):
+    # A's rosdep is pointed at a private rule as well; B's is not, and must not see it.
+    private = tmp_path / "private.yaml"
+    private.write_text("acme_lidar_sdk:\n  debian: [libacme-lidar-dev]\n")
+    env = environment(tmp_path)
+    sources = Path(env["ROSDEP_SOURCE_PATH"])
+    with_private = tmp_path / "with-private.list.d"
+    shutil.copytree(sources, with_private)
+    (with_private / "60-acme.list").write_text(f"yaml {private.as_uri()}\n")
+    for name in ("a", "b"):
+        root = make_workspace(tmp_path / name, "rosdeps_xml_count")
+        manifest = root / "src/rosdeps_xml_count/package.xml"
+        manifest.write_text(
+            manifest.read_text().replace("<depend>tinyxml2</depend>", "<depend>acme_lidar_sdk</depend>")
+        )
+    locked = run(tmp_path / "a", tmp_path, "lock", ROSDEP_SOURCE_PATH=str(with_private))
+    assert locked.returncode == 0, locked.stderr
+    lock = json.loads((tmp_path / "a/rosdep.lock.json").read_text())
+    assert lock["apt"] == ["libacme-lidar-dev"]
+    assert any(private.as_uri() in source for source in lock["sources"])
+    assert any("index-v4.yaml" in source for source in lock["sources"])
+    other = run(tmp_path / "b", tmp_path, "build")
+    assert other.returncode == 2, other.stderr
+    assert "acme_lidar_sdk: no rosdep rule: the key is unknown" in other.stderr
+
+
+def offline(root: Path, tmp_path: Path, *args: str) -> subprocess.CompletedProcess[str]:
+    """espdock with no route to anything (a network namespace of its own): rosdep's default
+    sources on GitHub, an empty cache."""
+    if subprocess.run(["unshare", "-rn", "true"], capture_output=True, check=False).returncode != 0:
+        pytest.skip("unshare cannot make a network namespace here")
+    env = {**NO_ENGINE, "XDG_CACHE_HOME": str(tmp_path / "offline-cache"), "CI": ""}
+    return espdock(*args, cwd=root, env=env, prefix=("unshare", "-rn", sys.executable, "-m", "espdock"))
+
+
+def test_offline_what_needs_nothing_from_rosdep_builds_and_the_rest_is_named(tmp_path):
+    root = make_workspace(tmp_path / "w", "rosdeps_cpp_talker", "rosdeps_dual_driver")
+    served = offline(root, tmp_path, "build", "rosdeps_dual_driver")
+    assert served.returncode == 3, served.stdout + served.stderr  # past rosdep, on to the engine
+    assert "the packages built need nothing more from rosdep" in served.stdout
+    assert not (root / "rosdep.lock.json").exists()
+    refused = offline(root, tmp_path, "build")
+    assert refused.returncode == 2, refused.stderr
+    assert "`rosdep update` failed" in refused.stderr
+    assert "  rosdeps_cpp_talker: rclcpp" in refused.stderr
+    assert "`espdock build rosdeps_dual_driver`" in refused.stderr
+    # With a current lock (made where rosdep's sources answer), nothing is fetched at all.
+    assert run(root, tmp_path, "lock").returncode == 0
+    assert offline(root, tmp_path, "build", "--", "--packages-skip", "rosdeps_cpp_talker").returncode == 3
+
+
+def test_rosdeps_pre_rep137_warning_is_not_shown(tmp_path):
+    root = make_workspace(tmp_path / "w", "rosdeps_xml_count")
+    env = environment(tmp_path)
+    listing = Path(env["ROSDEP_SOURCE_PATH"]) / "50-espdock-tests.list"
+    # As rosdep's default list has it: fuerte's gbpdistro file (rosdistro's releases/fuerte.yaml).
+    listing.write_text(
+        listing.read_text()
+        + "gbpdistro https://raw.githubusercontent.com/ros/rosdistro/master/releases/fuerte.yaml fuerte\n"
+    )
+    result = espdock(
+        "lock", cwd=root, env={**NO_ENGINE, **env}, prefix=("unshare", "-rn", sys.executable, "-m", "espdock")
+    )
+    assert "could not read" in result.stderr  # offline: that source fails, and says so
+    assert "PreRep137Warning" not in result.stderr and "deprecated" not in result.stderr
+
+
+def test_list_does_not_cut_names_without_a_terminal(tmp_path):
+    root = make_workspace(tmp_path / "w", "rosdeps_dual_driver")
+    long_name = "rosdeps_dual_driver_for_the_time_of_flight_range_sensor_array"
+    manifest = root / "src/rosdeps_dual_driver/package.xml"
+    manifest.write_text(manifest.read_text().replace("<name>rosdeps_dual_driver</name>", f"<name>{long_name}</name>"))
+    result = espdock("list", cwd=root, env=NO_ENGINE)
+    assert result.returncode == 0, result.stderr
+    assert long_name in result.stdout and "…" not in result.stdout

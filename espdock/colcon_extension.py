@@ -1,11 +1,14 @@
 """colcon extensions: plain `colcon build` builds ESP-IDF firmware packages through espdock.
 
 Registered as entry points of espdock's distribution, so `pip install espdock` beside colcon
-is all it takes. A package.xml with <build_type>esp_idf</build_type> is a package of type
-`ros.esp_idf` (the type colcon-ros would give it, so its augmentation adds the dependencies
-too), and its build task runs `espdock build --only firmware PKG` (IDF container, micro-ROS
-image, install where `espdock build` installs), with the output in colcon's log and event
-handlers. Only colcon imports this module; espdock never does, so it costs espdock nothing.
+is all it takes; where colcon runs in another Python (apt's colcon, espdock from pipx),
+`espdock colcon-extension install` registers them there (espdock.colcon_register).
+A package.xml with <build_type>esp_idf</build_type> is a package of type `ros.esp_idf` (the
+type colcon-ros would give it, so its augmentation adds the dependencies too), and its build
+task runs `espdock build --only firmware PKG` (IDF container, micro-ROS image), then installs
+the firmware where colcon's --install-base and --merge-install say (espdock.colcon_install),
+with the output in colcon's log and event handlers. Only colcon imports this module; espdock
+never does, so it costs espdock nothing.
 """
 
 from __future__ import annotations
@@ -19,6 +22,9 @@ from colcon_core.plugin_system import satisfies_version
 from colcon_core.task import TaskExtensionPoint, run
 
 PACKAGE_TYPE = "ros.esp_idf"
+# The Python espdock runs with: this one, or espdock's own when colcon runs in another Python
+# (set by the shim `espdock colcon-extension install` writes).
+ESPDOCK_PYTHON = sys.executable
 # espdock builds hold the workspace lock: colcon's parallel jobs take turns (one process).
 _one_at_a_time = asyncio.Lock()
 
@@ -63,9 +69,19 @@ class EspIdfBuildTask(TaskExtensionPoint):
 
     async def build(self, *, additional_hooks=None) -> int:
         pkg = self.context.pkg
-        # espdock's own workspace settings decide the image and where firmware is installed.
-        argv = [sys.executable, "-m", "espdock", "build", "--only", "firmware", str(pkg.name)]
+        args = self.context.args
+        # espdock's own workspace settings decide the image and the IDF build dir.
+        argv = [ESPDOCK_PYTHON, "-m", "espdock", "build", "--only", "firmware", str(pkg.name)]
         async with _one_at_a_time:
             self.progress("espdock build")
+            completed = await run(self.context, argv, cwd=str(Path(pkg.path).resolve()))
+            if completed.returncode:
+                return completed.returncode
+            # colcon's --install-base and --merge-install decide where the firmware goes, its
+            # --build-base where the IDF build dir is shown.
+            self.progress("install")
+            argv = [ESPDOCK_PYTHON, "-m", "espdock.colcon_install", str(Path(pkg.path).resolve()), str(pkg.name)]
+            argv += [str(Path(args.install_base).absolute()), str(Path(args.build_base).absolute())]
+            argv += ["--merged"] if getattr(args, "merge_install", False) else []
             completed = await run(self.context, argv, cwd=str(Path(pkg.path).resolve()))
         return completed.returncode

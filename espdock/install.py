@@ -47,9 +47,11 @@ def install_firmware(
     install_base: Path,
     run_depends: tuple[str, ...],
     owner: tuple[int, int] | None,
+    prefix: Path | None = None,
 ) -> Path:
-    """Install PACKAGE's artefacts from BUILD_DIR under INSTALL_BASE/<package>; return the firmware dir."""
-    prefix = install_base / package
+    """Install PACKAGE's artefacts from BUILD_DIR under INSTALL_BASE/<package> (or PREFIX: colcon's
+    merged layout installs every package into the install base itself); return the firmware dir."""
+    prefix = prefix if prefix is not None else install_base / package
     share = prefix / "share" / package
     if not install_base.is_dir():
         install_base.mkdir(parents=True)

@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import posixpath
+from pathlib import Path
+
 # The workspace marker and its settings, at the workspace root.
 CONFIG_FILE = "espdock.toml"
 # The images' recipes at the workspace root, and the directories they are built from besides
@@ -19,8 +22,35 @@ SOURCES_FILE = f"{IDF_INPUT_DIR}/{SOURCES_NAME}"
 ROSDEP_LOCK = "rosdep.lock.json"
 # Where the image builds find what that lock installs, in their build context.
 ROSDEP_CONTEXT_DIR = "docker/rosdep"
-# Where the workspace is mounted in build containers.
+# Where the workspace is mounted in build containers: one fixed path, whatever the host path,
+# so what colcon and CMake record (install/ setup files, .pyc, CMake caches) is the same in every
+# clone and the installed files are bit-identical.
 WORKSPACE_MOUNT = "/workspace"
+
+
+def container_path(root: Path, path: Path) -> str:
+    """Where PATH, under the workspace ROOT on the host, is in the build containers."""
+    rel = path.relative_to(root).as_posix()
+    return WORKSPACE_MOUNT if rel == "." else posixpath.join(WORKSPACE_MOUNT, rel)
+
+
+def host_path(path: str, root: Path) -> Path | None:
+    """Where PATH, as the build containers see it, is on the host (workspace ROOT); None when it
+    is not under the workspace mount."""
+    normal = posixpath.normpath(path)
+    if normal == WORKSPACE_MOUNT:
+        return root
+    if not normal.startswith(WORKSPACE_MOUNT + "/"):
+        return None
+    return root / normal[len(WORKSPACE_MOUNT) + 1 :]
+
+
+# colcon's build base for the ROS packages espdock builds, relative to the colcon root. Not
+# colcon's default build/: a CMake build dir records the paths it was configured at (the mount
+# above in espdock's containers, the host path in a native `colcon build`), and CMake refuses a
+# cache made at another path, so espdock's and native builds each keep their own. Under build/
+# (so `rm -rf build` clears it); the hyphen keeps it apart from any package's build dir.
+ROS_BUILD_BASE = "build/espdock-ros"
 # Under share/<package> of an installed firmware package: its flashable artefacts.
 FIRMWARE_DIR = "firmware"
 

@@ -11,6 +11,8 @@ from espdock.engine import Mount, RunSpec
 from espdock.errors import WorkspaceError
 from espdock.layout import WORKSPACE_MOUNT
 from espdock.plan import LABEL_WORKSPACE, RUNTIME_INSTALL, EnsureBaseImage, EnsureImage, Plan, RuntimeImage
+from espdock.runtime_tree import resolve_installed
+from espdock.stamps import StampFile, listing_digest
 from espdock.workspace import Package, PackageKind, Workspace
 
 # What reaches a node from the caller's environment, as `ros2 run` would see it.
@@ -28,19 +30,25 @@ DDS_DEFAULTS = (("FASTDDS_BUILTIN_TRANSPORTS", "UDPv4"),)
 DEFAULT_NETWORK = "host"
 
 
-def executables(install: Path, package: str) -> list[str]:
-    """The executables `ros2 run` would find for PACKAGE in the install tree INSTALL."""
+def executables(install: Path, package: str, root: Path | None = None) -> list[str]:
+    """The executables `ros2 run` would find for PACKAGE in the install tree INSTALL (ROOT: the
+    workspace root, where the links of a symlink install lead)."""
     directory = install / package / "lib" / package
     if not directory.is_dir():
         return []
-    return sorted(p.name for p in directory.iterdir() if p.is_file() and os.access(p, os.X_OK))
+    found = []
+    for entry in directory.iterdir():
+        path = resolve_installed(entry, root if root is not None else install.parent)
+        if path is not None and path.is_file() and os.access(path, os.X_OK):
+            found.append(entry.name)
+    return sorted(found)
 
 
 def find_executable(workspace: Workspace, packages: tuple[Package, ...], package: str, executable: str) -> str:
     """Where EXECUTABLE of PACKAGE is in the runtime image; a WorkspaceError listing what exists otherwise."""
     install = workspace.ws_dir / "install"
     ros = [p.name for p in packages if p.kind is PackageKind.ROS]
-    runnable = {name: found for name in ros if (found := executables(install, name))}
+    runnable = {name: found for name in ros if (found := executables(install, name, workspace.root))}
     listing = "; ".join(f"{name}: {', '.join(found)}" for name, found in sorted(runnable.items())) or "none"
     if package not in ros:
         raise WorkspaceError(
@@ -55,7 +63,26 @@ def find_executable(workspace: Workspace, packages: tuple[Package, ...], package
             f"package '{package}' has no executable '{executable}'",
             f"Its executables: {found}. All packages with executables: {listing}.",
         )
+    check_built_by_espdock(workspace, package)
     return posixpath.join(RUNTIME_INSTALL, package, "lib", package, executable)
+
+
+def check_built_by_espdock(workspace: Workspace, package: str) -> None:
+    """Refuse PACKAGE's install tree when espdock's last build did not leave it so: a native
+    `colcon build` rewrites it with the host's paths and interpreters, which the runtime image
+    lacks (the node would die with exit 127). `espdock build` rebuilds exactly such packages."""
+    from espdock.runner import ROS_STAMPS
+
+    recorded = StampFile(workspace.ws_dir / "build" / ROS_STAMPS).read().get(package)
+    listing = listing_digest(workspace.ws_dir / "install" / package)
+    if isinstance(recorded, dict) and recorded.get("installed") == listing:
+        return
+    raise WorkspaceError(
+        f"install/{package} was not built by espdock, or changed since its last `espdock build` "
+        "(a native `colcon build`?): its executables may name the host's paths and Python, "
+        "which the runtime image does not have",
+        f"Run `espdock build {package}` (it rebuilds what changed in install/), then run again.",
+    )
 
 
 def node_env(env: Mapping[str, str]) -> tuple[tuple[str, str], ...]:

@@ -18,6 +18,7 @@ from espdock.errors import WorkspaceError
 from espdock.layout import (
     IDF_DOCKERFILE,
     IDF_INPUT_DIR,
+    ROS_BUILD_BASE,
     ROS_DOCKERFILE,
     ROS_OFFICIAL_DOCKERFILE,
     ROSDEP_CONTEXT_DIR,
@@ -119,7 +120,7 @@ class ColconBuild:
         # no task for) nor, for a selection, the packages left out.
         select = ("--packages-select", *rebuild) if rebuild and len(rebuild) < len(self.packages) else ()
         return (
-            "colcon", "build", "--base-paths", *(rel for _, rel in self.sources),
+            "colcon", "build", "--base-paths", *(rel for _, rel in self.sources), "--build-base", ROS_BUILD_BASE,
             # Live output per line plus colcon's own start/finish lines.
             "--event-handlers", "console_direct+", "console_start_end+", "summary+",
             *select, *self.colcon_args,

@@ -46,6 +46,7 @@ from espdock.plan import (
     cache_ref,
     runtime_image_spec,
 )
+from espdock.runtime_tree import runtime_files
 from espdock.stamps import StampFile, listing_digest, package_stamps, tree_digest
 from espdock.workspace import Workspace
 
@@ -243,7 +244,8 @@ class Runner:
     def runtime_spec(self, workspace: Workspace, step: RuntimeImage) -> ImageSpec:
         """The keyed runtime image for STEP's install trees as they are now."""
         step = _installed(workspace, step)
-        return runtime_image_spec(step, runtime_install_digest(workspace.ws_dir / "install", step.packages))
+        digest = runtime_install_digest(workspace.ws_dir / "install", step.packages, workspace.root)
+        return runtime_image_spec(step, digest)
 
     def _runtime_image(self, workspace: Workspace, step: RuntimeImage) -> tuple[Outcome, str]:
         installed = _installed(workspace, step)
@@ -254,7 +256,9 @@ class Runner:
         step = installed
         spec = self.runtime_spec(workspace, step)
         install = workspace.ws_dir / "install"
-        outcome, _ = self._ensure_image(workspace, EnsureImage(spec), extra_context=runtime_context(install, step))
+        outcome, _ = self._ensure_image(
+            workspace, EnsureImage(spec), extra_context=runtime_context(install, step, workspace.root)
+        )
         keyed = self._engine.image(spec.tag)
         stable = self._engine.image(step.stable_tag)
         if keyed is not None and (stable is None or stable.id != keyed.id):
@@ -588,33 +592,22 @@ def _context_dir(workspace: Workspace, spec: ImageSpec, files: Mapping[str, Path
         yield Path(tmp)
 
 
-def _runtime_files(install: Path, packages: tuple[str, ...]) -> list[Path]:
-    """What a runtime image takes from INSTALL: colcon's top-level setup files and PACKAGES' trees
-    (not the firmware packages', nor espdock's manifest)."""
-    # colcon's own files at the top (setup scripts, COLCON_IGNORE); espdock's manifest is not.
-    found = [p for p in sorted(install.iterdir()) if p.is_file() and not p.name.startswith("espdock-")]
-    for name in packages:
-        for dirpath, dirnames, filenames in os.walk(install / name):
-            dirnames[:] = sorted(d for d in dirnames if d != "__pycache__")
-            found += [Path(dirpath) / f for f in sorted(filenames) if not f.endswith(".pyc")]
-    return found
-
-
-def runtime_install_digest(install: Path, packages: tuple[str, ...]) -> str:
-    """sha256 over the paths, modes and contents of what a runtime image takes from INSTALL."""
+def runtime_install_digest(install: Path, packages: tuple[str, ...], root: Path | None = None) -> str:
+    """sha256 over the paths, modes and contents of what a runtime image takes from INSTALL
+    (ROOT: the workspace root, where links of a symlink install lead)."""
     digest = hashlib.sha256()
-    for path in _runtime_files(install, packages):
+    for rel, path in runtime_files(install, packages, root).items():
         info = path.lstat()
         data = os.readlink(path).encode() if path.is_symlink() else path.read_bytes()
-        digest.update(f"{path.relative_to(install)}\0{info.st_mode & 0o777:o}\0".encode())
+        digest.update(f"{rel}\0{info.st_mode & 0o777:o}\0".encode())
         digest.update(hashlib.sha256(data).digest())
     return digest.hexdigest()
 
 
-def runtime_context(install: Path, step: RuntimeImage) -> dict[str, Path]:
+def runtime_context(install: Path, step: RuntimeImage, root: Path | None = None) -> dict[str, Path]:
     """The runtime image's build context besides its Dockerfile: exactly the files
     runtime_install_digest hashed, under install/."""
-    return {f"install/{p.relative_to(install).as_posix()}": p for p in _runtime_files(install, step.packages)}
+    return {f"install/{rel}": path for rel, path in runtime_files(install, step.packages, root).items()}
 
 
 @contextmanager

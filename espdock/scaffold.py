@@ -301,6 +301,10 @@ def init_compose(workspace: Workspace, repository: str, packages: tuple[Package,
     from espdock.nodes import executables
 
     install = workspace.ws_dir / "install"
-    found = {p.name: exes for p in packages if p.kind is PackageKind.ROS and (exes := executables(install, p.name))}
+    found = {
+        p.name: exes
+        for p in packages
+        if p.kind is PackageKind.ROS and (exes := executables(install, p.name, workspace.root))
+    }
     project = repository.split("/", 1)[-1]
     return write_starter_compose(workspace.root, starter_compose(project, f"{repository}:latest", found), owner)

@@ -9,7 +9,7 @@ from typing import Annotated
 
 import typer
 
-from espdock import bootstrap
+from espdock import bootstrap, colcon_register
 from espdock.cli.core import (
     PASSED,
     PassThrough,
@@ -241,3 +241,35 @@ def list_packages(workspace: WorkspaceOption = None) -> None:
     """List the workspace's packages in build order."""
     ws, _ = load(workspace)
     render_packages(console, ws, workspace_packages(ws))
+
+
+colcon_extension = typer.Typer(
+    help="espdock's colcon extension for a colcon that runs in another Python (apt's colcon, espdock from pipx).",
+    no_args_is_help=True,
+)
+app.add_typer(colcon_extension, name="colcon-extension")
+ColconOption = Annotated[
+    str | None, typer.Option("--colcon", help="The colcon executable (default: `colcon` on PATH).")
+]
+
+
+@colcon_extension.command("install")
+@command
+def colcon_extension_install(colcon: ColconOption = None) -> None:
+    """Register espdock's colcon extension with colcon's Python, so plain `colcon build` builds the
+    firmware packages (colcon loads extensions only from its own Python)."""
+    target = colcon_register.colcon_python(colcon, dict(os.environ))
+    if target.found:
+        console.print(f"colcon's Python {target.python} loads espdock's extension already ({target.found[0]})")
+        return
+    written = colcon_register.install_shim(target, colcon_register.espdock_site(), colcon_register.espdock_python())
+    console.print(f"colcon ({target.python}) now loads espdock's extension: {', '.join(map(str, written))}")
+
+
+@colcon_extension.command("uninstall")
+@command
+def colcon_extension_uninstall(colcon: ColconOption = None) -> None:
+    """Remove what `espdock colcon-extension install` registered with colcon's Python."""
+    target = colcon_register.colcon_python(colcon, dict(os.environ))
+    removed = colcon_register.uninstall_shim(target.site_dir)
+    console.print(f"removed {', '.join(map(str, removed))}" if removed else "nothing to remove")

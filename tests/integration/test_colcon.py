@@ -92,7 +92,7 @@ def test_colcon_meta_and_options_after_the_double_dash_reach_colcon_and_decide_t
         meta.write_text('{"names": {"robot_msgs": {"cmake-args": ["-DESPDOCK_TEST_MARK=from_meta"]}}}\n')
         build(robot, "robot_msgs")
         assert colcon_ran(robot) == {"robot_msgs": "built"}
-        cache = robot / "ws/build/robot_msgs/CMakeCache.txt"
+        cache = robot / "ws/build/espdock-ros/robot_msgs/CMakeCache.txt"
         assert "ESPDOCK_TEST_MARK:UNINITIALIZED=from_meta" in cache.read_text(), "colcon itself read colcon.meta"
     finally:
         meta.unlink()

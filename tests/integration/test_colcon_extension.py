@@ -92,3 +92,86 @@ def test_without_an_engine_colcon_reports_the_package_failed_with_espdocks_messa
     assert built.returncode != 0
     assert "Failed   <<< led_strip_node" in log and "Finished <<< beacon_nodes" in log
     assert "no Docker engine answers" in log
+
+
+def test_merge_install_and_other_bases_put_the_firmware_where_the_ament_index_sees_it(colcon_ws):
+    root, env = colcon_ws
+    ws = root / "ws"
+    built = colcon(
+        root, env, "build", "--packages-select", "led_strip_node", "--merge-install",
+        "--install-base", "install-merged", "--build-base", "build-other",
+    )  # fmt: skip
+    assert built.returncode == 0, built.stdout[-3000:] + built.stderr[-3000:]
+    merged = ws / "install-merged"
+    assert (merged / "share" / "ament_index" / "resource_index" / "packages" / "led_strip_node").is_file()
+    firmware = merged / "share" / "led_strip_node" / "firmware"
+    assert {name for name in ARTEFACTS if (firmware / name).is_file()} == set(ARTEFACTS)
+    # What colcon's merged setup files and ament_index_python see: the package, its share dir.
+    probe = subprocess.run(
+        ["bash", "-c", ". install-merged/local_setup.bash && python3 -c "
+         "'import ament_index_python as a; print(a.get_package_share_directory(\"led_strip_node\"))'"],
+        cwd=ws, capture_output=True, text=True, check=False,
+    )  # fmt: skip
+    if "No module named 'ament_index_python'" not in probe.stderr:
+        assert probe.stdout.strip() == str(merged / "share" / "led_strip_node"), probe.stderr
+    assert ":" + str(merged) in ":" + subprocess.run(
+        ["bash", "-c", ". install-merged/local_setup.bash && echo $AMENT_PREFIX_PATH"],
+        cwd=ws, capture_output=True, text=True, check=True,
+    ).stdout.strip()  # fmt: skip
+    assert (ws / "build-other" / "led_strip_node" / "flasher_args.json").is_file()
+
+
+@pytest.fixture(scope="module")
+def separate_colcon() -> Path:
+    """colcon in a venv of its own, without espdock: apt's colcon beside a pipx espdock, in small."""
+    from importlib.metadata import version
+
+    pins = [f"{name}=={version(name)}" for name in ("colcon-common-extensions", "colcon-core", "colcon-ros")]
+
+    def make(place: Path) -> None:
+        subprocess.run([sys.executable, "-m", "venv", str(place / "venv")], check=True)
+        subprocess.run([str(place / "venv/bin/pip"), "install", "-q", *pins], check=True, capture_output=True)
+
+    from tests.conftest import kept_in_temp
+
+    colcon = kept_in_temp("espdock-colcon-venv", "-".join(pins).replace("==", "_"), make) / "venv" / "bin" / "colcon"
+    found = subprocess.run([str(colcon.parent / "python"), "-c", "import espdock"], capture_output=True, check=False)
+    assert found.returncode != 0, "the separate colcon must not see espdock"
+    return colcon
+
+
+def test_a_colcon_in_another_python_builds_firmware_once_the_extension_is_installed_there(
+    colcon_ws, separate_colcon, wheel_espdock, tmp_path
+):
+    root, env = colcon_ws
+    ws = root / "ws"
+    firmware = ws / firmware_install_dir("camera_node")
+    shutil.rmtree(ws / "install" / "camera_node", ignore_errors=True)
+    argv = [str(separate_colcon), "build", "--base-paths", "src", "../firmware", "--packages-select", "camera_node"]
+    # espdock on PATH as pipx puts it; the extension must run espdock's own Python, not colcon's.
+    path = f"{wheel_espdock.parent}:{separate_colcon.parent}:{env['PATH']}"
+    user = {**env, "PATH": path}
+    skipped = subprocess.run(argv, cwd=ws, env=user, capture_output=True, text=True, check=False)
+    assert "No task extension to 'build' a 'ros.esp_idf' package" in skipped.stderr + skipped.stdout
+    assert not firmware.exists()
+
+    installed = subprocess.run(
+        [str(wheel_espdock), "colcon-extension", "install"], env=user, capture_output=True, text=True, check=False
+    )
+    assert installed.returncode == 0, installed.stdout + installed.stderr
+    try:
+        built = subprocess.run(argv, cwd=ws, env=user, capture_output=True, text=True, timeout=1800, check=False)
+        assert built.returncode == 0, built.stdout[-3000:] + built.stderr[-3000:]
+        assert "No task extension" not in built.stdout + built.stderr
+        assert (firmware / "flasher_args.json").is_file()
+        again = subprocess.run(
+            [str(wheel_espdock), "colcon-extension", "install"], env=user, capture_output=True, text=True, check=False
+        )
+        assert again.returncode == 0 and "now loads" in again.stdout
+    finally:
+        removed = subprocess.run(
+            [str(wheel_espdock), "colcon-extension", "uninstall"], env=user, capture_output=True, text=True, check=False
+        )
+    assert removed.returncode == 0 and "removed" in removed.stdout
+    after = subprocess.run(argv, cwd=ws, env=user, capture_output=True, text=True, check=False)
+    assert "No task extension to 'build' a 'ros.esp_idf' package" in after.stderr + after.stdout

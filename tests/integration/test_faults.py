@@ -99,7 +99,7 @@ def test_a_full_workspace_disk_is_named_and_the_install_survives(engine, small_d
     assert unchanged(installed, file_hashes(root / "ws/install"))
 
     shutil.rmtree(hog)
-    shutil.rmtree(root / "ws/build/disk_hog")  # the user frees the space
+    shutil.rmtree(root / "ws/build/espdock-ros/disk_hog")  # the user frees the space
     again = espdock("build", cwd=root)
     assert again.returncode == 0, again.stdout + again.stderr
     assert unchanged(installed, file_hashes(root / "ws/install"))

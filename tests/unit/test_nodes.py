@@ -12,8 +12,9 @@ from espdock.config import Config
 from espdock.errors import WorkspaceError
 from espdock.nodes import find_executable, node_env
 from espdock.plan import RuntimeImage, ros_build_image, runtime_base_image, runtime_image_spec
-from espdock.runner import runtime_context, runtime_install_digest
+from espdock.runner import ROS_STAMPS, runtime_context, runtime_install_digest
 from espdock.scaffold import starter_compose
+from espdock.stamps import StampFile, listing_digest
 from espdock.workspace import Package, PackageKind, Workspace
 
 
@@ -34,12 +35,31 @@ def ws(tmp_path) -> tuple[Workspace, tuple[Package, ...]]:
         for name, kind in (("talk", PackageKind.ROS), ("quiet", PackageKind.ROS), ("board", PackageKind.FIRMWARE))
     )
     installed(tmp_path, "talk", "talker", "listener")
+    record_build(workspace, "talk")
     return workspace, packages
+
+
+def record_build(workspace: Workspace, package: str) -> None:
+    """What `espdock build` records after colcon built PACKAGE: its install tree's listing."""
+    listing = listing_digest(workspace.ws_dir / "install" / package)
+    StampFile(workspace.ws_dir / "build" / ROS_STAMPS).record({package: "stamp"}, {package: listing})
 
 
 def test_an_executable_is_found_where_the_runtime_image_holds_it(ws):
     workspace, packages = ws
     assert find_executable(workspace, packages, "talk", "talker") == "/opt/espdock/ws/install/talk/lib/talk/talker"
+
+
+def test_an_install_tree_a_native_colcon_build_rewrote_is_refused_with_what_to_do(ws):
+    workspace, packages = ws
+    talker = workspace.root / "install" / "talk" / "lib" / "talk" / "talker"
+    talker.write_text("#!/home/alice/venv/bin/python3\n")  # a native build: the host's Python
+    with pytest.raises(WorkspaceError) as caught:
+        find_executable(workspace, packages, "talk", "talker")
+    assert caught.value.exit_code == 2 and "install/talk was not built by espdock" in caught.value.message
+    assert "espdock build talk" in caught.value.hint
+    record_build(workspace, "talk")  # espdock build rebuilt it
+    assert find_executable(workspace, packages, "talk", "talker").endswith("/talk/lib/talk/talker")
 
 
 @pytest.mark.parametrize(

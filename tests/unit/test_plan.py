@@ -57,7 +57,9 @@ def test_build_plan_ensures_images_then_runs_colcon():
     assert colcon.packages == ("msgs", "app")
     assert colcon.image == spec.tag
     argv = colcon.argv()
-    assert argv[argv.index("--base-paths") + 1 : argv.index("--event-handlers")] == ("src/msgs", "src/app")
+    assert argv[argv.index("--base-paths") + 1 : argv.index("--build-base")] == ("src/msgs", "src/app")
+    # Its own build base: CMake caches made at the container's paths never meet native ones.
+    assert argv[argv.index("--build-base") + 1] == "build/espdock-ros"
     assert colcon.sources == (("msgs", "src/msgs"), ("app", "src/app"))
     assert colcon.workdir == "/workspace/ws"
     assert colcon.depends == (("msgs", ()), ("app", ("msgs",)))
@@ -75,7 +77,7 @@ def test_a_selection_builds_exactly_the_selected_packages_and_their_dependencies
     plan = plan_build(Workspace(Path("/w")), Config(), (pkg("msgs"), pkg("app", depends=["msgs"])), spec,
                       selected=("app",))  # fmt: skip
     argv = next(s for s in plan.steps if isinstance(s, ColconBuild)).argv()
-    assert argv[argv.index("--base-paths") + 1 : argv.index("--event-handlers")] == ("src/msgs", "src/app")
+    assert argv[argv.index("--base-paths") + 1 : argv.index("--build-base")] == ("src/msgs", "src/app")
 
 
 def test_a_colcon_workspace_layout_builds_in_its_root_and_firmware_anywhere():
@@ -102,7 +104,7 @@ def test_selecting_a_firmware_package_builds_only_its_ros_dependencies():
         "cam": ros_build_image(Config(), DOCKERFILE, FILES)})  # fmt: skip
     colcon = next(s for s in plan.steps if isinstance(s, ColconBuild))
     argv = colcon.argv()
-    assert argv[argv.index("--base-paths") + 1 : argv.index("--event-handlers")] == ("src/msgs",)
+    assert argv[argv.index("--base-paths") + 1 : argv.index("--build-base")] == ("src/msgs",)
     assert "src/demo" not in argv
 
 

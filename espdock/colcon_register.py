@@ -1,0 +1,149 @@
+"""`espdock colcon-extension install`: make espdock's colcon extension loadable by a colcon that
+runs in another Python (apt's colcon with espdock from pipx, or a colcon venv of its own).
+
+colcon-core finds extensions only as entry points of distributions in its own Python
+(colcon_core.extension_point: importlib.metadata's entry_points(); COLCON_EXTENSION_BLOCKLIST can
+only remove some). Without espdock's there, colcon-ros takes an esp_idf package.xml for a
+`ros.esp_idf` package no task builds: `colcon build` warns and skips it, and exits 0. So this
+writes, where that Python looks (its user site, or the venv's site-packages), a tiny distribution
+whose entry points name a shim module; the shim puts espdock's own site-packages at the end of
+sys.path (colcon's packages keep precedence) and has the extension run espdock with its own Python.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+from espdock import __version__
+from espdock.errors import ConfigError
+
+SHIM = "espdock_colcon_shim"
+DISTRIBUTION = "espdock_colcon_shim"
+# The entry points of pyproject.toml's, pointing at the shim.
+ENTRY_POINTS = (
+    ("colcon_core.package_identification", "esp_idf", "EspIdfPackageIdentification"),
+    ("colcon_core.task.build", "ros.esp_idf", "EspIdfBuildTask"),
+)
+# Asked of colcon's Python: where it reads distributions from, and whether espdock's extension is
+# among them already (espdock installed beside colcon).
+_PROBE = """
+import json, site, sys, sysconfig
+from importlib.metadata import entry_points
+venv = sys.prefix != sys.base_prefix
+where = sysconfig.get_paths()["purelib"] if venv else site.getusersitepackages()
+eps = entry_points()
+group = eps.select(group="colcon_core.task.build") if hasattr(eps, "select") else eps.get("colcon_core.task.build", [])
+found = [e.value for e in group if e.name == "ros.esp_idf"]
+print(json.dumps({"where": where, "found": found, "user_site": bool(site.ENABLE_USER_SITE), "venv": venv}))
+"""
+
+
+@dataclass(frozen=True)
+class ColconPython:
+    """The Python a colcon executable runs in, and where it reads distributions from."""
+
+    python: str
+    site_dir: Path
+    # Entry point values of espdock's build task it already sees (from a distribution not the shim's).
+    found: tuple[str, ...]
+
+
+def colcon_python(colcon: str | None, env: dict[str, str]) -> ColconPython:
+    """The Python of the colcon executable COLCON (default: `colcon` on PATH), read from its #! line."""
+    path = shutil.which(colcon or "colcon", path=env.get("PATH"))
+    if path is None:
+        raise ConfigError(
+            f"no colcon executable {colcon or 'colcon'!r} found on PATH",
+            "Install colcon (e.g. `apt install python3-colcon-common-extensions`) or name it with --colcon PATH.",
+        )
+    with open(path, "rb") as handle:
+        first = handle.readline().decode(errors="replace").strip()
+    if not first.startswith("#!"):
+        raise ConfigError(f"{path} does not start with a #! line naming its Python", "Name colcon's Python instead.")
+    argv = first[2:].split()
+    python = argv[1] if os.path.basename(argv[0]) == "env" and len(argv) > 1 else argv[0]
+    result = subprocess.run([python, "-c", _PROBE], capture_output=True, text=True, check=False, env=env)
+    if result.returncode != 0:
+        raise ConfigError(f"colcon's Python {python} did not answer: {result.stderr.strip()[-500:]}")
+    answer = json.loads(result.stdout)
+    if not answer["venv"] and not answer["user_site"]:
+        raise ConfigError(
+            f"colcon's Python {python} reads no user site-packages (PYTHONNOUSERSITE?), so nothing can be added to it",
+            "Install espdock into colcon's Python instead (`pip install` beside colcon).",
+        )
+    found = tuple(value for value in answer["found"] if not value.startswith(f"{SHIM}:"))
+    return ColconPython(python, Path(answer["where"]), found)
+
+
+def _shim_text(espdock_site: str, espdock_python: str) -> str:
+    return (
+        f'"""Written by `espdock colcon-extension install` (espdock {__version__}): espdock\'s colcon\n'
+        "extension, loaded from the Python espdock is installed in. Remove with\n"
+        '`espdock colcon-extension uninstall`."""\n\n'
+        "import sys\n\n"
+        f"ESPDOCK_SITE = {espdock_site!r}\n"
+        "if ESPDOCK_SITE not in sys.path:\n"
+        "    sys.path.append(ESPDOCK_SITE)  # last: colcon's own packages keep precedence\n\n"
+        "from espdock import colcon_extension as _extension  # noqa: E402\n\n"
+        f"_extension.ESPDOCK_PYTHON = {espdock_python!r}\n"
+        "EspIdfPackageIdentification = _extension.EspIdfPackageIdentification\n"
+        "EspIdfBuildTask = _extension.EspIdfBuildTask\n"
+    )
+
+
+def _dist_info(site_dir: Path) -> Path:
+    return site_dir / f"{DISTRIBUTION}-{__version__}.dist-info"
+
+
+def install_shim(target: ColconPython, espdock_site: Path, espdock_python: str) -> list[Path]:
+    """Write the shim and its distribution into TARGET's site dir; return what was written."""
+    uninstall_shim(target.site_dir)
+    target.site_dir.mkdir(parents=True, exist_ok=True)
+    module = target.site_dir / f"{SHIM}.py"
+    module.write_text(_shim_text(str(espdock_site), espdock_python))
+    info = _dist_info(target.site_dir)
+    info.mkdir()
+    (info / "METADATA").write_text(
+        f"Metadata-Version: 2.1\nName: {DISTRIBUTION}\nVersion: {__version__}\n"
+        "Summary: espdock's colcon extension, loaded from espdock's own Python\n"
+    )
+    groups: dict[str, list[str]] = {}
+    for group, name, attribute in ENTRY_POINTS:
+        groups.setdefault(group, []).append(f"{name} = {SHIM}:{attribute}")
+    sections = (f"[{group}]\n" + "\n".join(lines) + "\n\n" for group, lines in groups.items())
+    (info / "entry_points.txt").write_text("".join(sections))
+    (info / "INSTALLER").write_text("espdock\n")
+    written = [module, info / "METADATA", info / "entry_points.txt", info / "INSTALLER"]
+    record = "".join(f"{p.relative_to(target.site_dir).as_posix()},,\n" for p in written)
+    (info / "RECORD").write_text(record + f"{(info / 'RECORD').relative_to(target.site_dir).as_posix()},,\n")
+    return [module, info]
+
+
+def uninstall_shim(site_dir: Path) -> list[Path]:
+    """Remove what install_shim wrote into SITE_DIR (any version); return what was removed."""
+    removed = []
+    for info in sorted(site_dir.glob(f"{DISTRIBUTION}-*.dist-info")):
+        shutil.rmtree(info)
+        removed.append(info)
+    module = site_dir / f"{SHIM}.py"
+    if module.exists():
+        module.unlink()
+        removed.append(module)
+    return removed
+
+
+def espdock_site() -> Path:
+    """The site-packages directory espdock itself is imported from."""
+    import espdock
+
+    return Path(espdock.__file__).resolve().parent.parent
+
+
+def espdock_python() -> str:
+    return sys.executable

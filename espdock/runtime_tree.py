@@ -1,0 +1,122 @@
+"""What a runtime image takes from the install tree, standing alone.
+
+colcon's `--symlink-install` leaves install/ pointing elsewhere: ament_cmake installs symlinks
+into build/ (compiled executables) and the sources (scripts, package.xml), and ament_python
+installs in develop mode (an .egg-link and a PYTHONPATH hook naming build/PKG, whose modules are
+symlinks into the sources). The build containers see those targets under the workspace mount;
+the runtime image has neither build/ nor the sources. So every link that leaves the install
+tree is copied in as what it points at, and a develop-mode package's modules and metadata land
+in its site-packages, where Python and its console scripts find them. An edit to a linked source
+file changes what is taken, so the next runtime image holds it, as a symlink install would.
+"""
+
+from __future__ import annotations
+
+import os
+import posixpath
+from pathlib import Path
+
+from espdock.layout import host_path
+
+# Links are followed this many times before one is taken for a loop.
+_MAX_HOPS = 40
+
+
+def _target(link: Path, root: Path) -> Path | None:
+    """Where the symlink LINK ends on the host, its container paths under the workspace mount
+    read under ROOT; None for a dangling link or a loop."""
+    path = link
+    for _ in range(_MAX_HOPS):
+        if not path.is_symlink():
+            return path if path.exists() else None
+        text = os.readlink(path)
+        if posixpath.isabs(text):
+            mapped = host_path(text, root)
+            path = mapped if mapped is not None else Path(text)
+        else:
+            path = path.parent / text
+        path = Path(os.path.normpath(path))
+        # A directory on the way may itself be a link (build/PKG/module -> src/...).
+        path = _through_parents(path, root)
+    return None
+
+
+def _through_parents(path: Path, root: Path) -> Path:
+    for parent in reversed(path.parents):
+        if parent.is_symlink():
+            resolved = _target(parent, root)
+            if resolved is not None:
+                return resolved / path.relative_to(parent)
+    return path
+
+
+def _inside(path: Path, tree: Path) -> bool:
+    return path == tree or tree in path.parents
+
+
+def _walk(directory: Path, dest: str, root: Path, tree: Path, found: dict[str, Path]) -> None:
+    """Add what DIRECTORY holds to FOUND under DEST, links that leave TREE resolved."""
+    for entry in sorted(directory.iterdir()):
+        if entry.name == "__pycache__" or entry.name.endswith(".pyc"):
+            continue
+        rel = f"{dest}/{entry.name}"
+        if entry.is_symlink():
+            text = os.readlink(entry)
+            if not posixpath.isabs(text) and _inside(Path(os.path.normpath(entry.parent / text)), tree):
+                found[rel] = entry  # a link within the tree (a library's soname alias) stays a link
+                continue
+            resolved = _target(entry, root)
+            if resolved is None:
+                continue  # dangling where it was built too: nothing to take
+            if resolved.is_dir():
+                _walk(resolved, rel, root, resolved, found)
+            else:
+                found[rel] = resolved
+        elif entry.is_dir():
+            _walk(entry, rel, root, tree, found)
+        elif entry.suffix == ".egg-link":
+            _develop_package(entry, dest, root, found)
+        else:
+            found[rel] = entry
+
+
+def _develop_package(egg_link: Path, site_packages: str, root: Path, found: dict[str, Path]) -> None:
+    """A package `setup.py develop` installed: its top-level modules and metadata from the
+    directory the .egg-link names, into SITE_PACKAGES."""
+    lines = egg_link.read_text(errors="replace").splitlines()
+    named = lines[0].strip() if lines else ""
+    directory = host_path(named, root) if posixpath.isabs(named) else None
+    if directory is None or not directory.is_dir():
+        return
+    for info in sorted(directory.glob("*.egg-info")):
+        _walk(info, f"{site_packages}/{info.name}", root, info, found)
+        top_level = info / "top_level.txt"
+        names = top_level.read_text().split() if top_level.is_file() else []
+        for name in names:
+            for candidate in (directory / name, directory / f"{name}.py"):
+                resolved = _target(candidate, root) if candidate.is_symlink() else candidate
+                if resolved is None or not resolved.exists():
+                    continue
+                if resolved.is_dir():
+                    _walk(resolved, f"{site_packages}/{candidate.name}", root, resolved, found)
+                else:
+                    found[f"{site_packages}/{candidate.name}"] = resolved
+
+
+def runtime_files(install: Path, packages: tuple[str, ...], root: Path | None = None) -> dict[str, Path]:
+    """What a runtime image takes from INSTALL (relative path -> the host file holding it): colcon's
+    top-level setup files and PACKAGES' trees (not the firmware packages', nor espdock's manifest),
+    with links out of the tree resolved. ROOT: the workspace root the build containers mount."""
+    root = root if root is not None else install.parent
+    # colcon's own files at the top (setup scripts, COLCON_IGNORE); espdock's manifest is not.
+    found = {p.name: p for p in sorted(install.iterdir()) if p.is_file() and not p.name.startswith("espdock-")}
+    for name in packages:
+        if (install / name).is_dir():
+            _walk(install / name, name, root, install / name, found)
+    return found
+
+
+def resolve_installed(path: Path, root: Path) -> Path | None:
+    """PATH in an install tree as the runtime image will hold it: a link out of the tree followed
+    (container paths read under ROOT); None when it points at nothing."""
+    return _target(path, root) if path.is_symlink() else path

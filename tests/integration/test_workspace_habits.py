@@ -1,0 +1,90 @@
+"""A ROS developer's habits with the real colcon in the real ROS image: `--symlink-install`, and a
+workspace also built with colcon outside espdock (a "native" build: colcon in the same image, but
+with the workspace at its host path, as colcon on the host records it).
+
+Packages: beacon_nodes (ament_python) and uptime_tools (ament_cmake: a compiled executable and
+an installed script), both under tests/ros_packages.
+"""
+
+from __future__ import annotations
+
+import os
+import random
+import subprocess
+from pathlib import Path
+
+import pytest
+
+from tests.conftest import Started, copy_workspace, espdock, ros_build_tag
+
+pytestmark = [pytest.mark.engine, pytest.mark.slow]
+
+PACKAGES = ("beacon_nodes", "uptime_tools")
+
+
+def built(root: Path, *args: str) -> None:
+    result = espdock("build", "--only", "ros", *args, cwd=root)
+    assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
+
+
+def run_once(root: Path, package: str, executable: str) -> subprocess.CompletedProcess[str]:
+    return espdock("run", package, executable, cwd=root, timeout=300)
+
+
+def beacon_says(root: Path, text: str) -> None:
+    node = Started(root, "run", "beacon_nodes", "beacon", env={"ROS_DOMAIN_ID": str(random.randrange(100, 200))})
+    try:
+        node.wait_for(text)
+        assert node.interrupt() == 130
+    finally:
+        node.stop()
+
+
+def native_colcon(root: Path, *args: str) -> subprocess.CompletedProcess[str]:
+    """`colcon build` with the workspace at its own path, as on the developer's machine."""
+    ws = str(root / "ws")
+    return subprocess.run(
+        ["docker", "run", "--rm", "-u", f"{os.getuid()}:{os.getgid()}", "-e", "HOME=/tmp",
+         "-v", f"{ws}:{ws}", "-w", ws, ros_build_tag(root), "colcon", "build", *args],
+        capture_output=True, text=True, timeout=900, check=False,
+    )  # fmt: skip
+
+
+def test_symlink_install_builds_runs_and_shows_a_source_edit_without_a_rebuild(engine, tmp_path):
+    root = copy_workspace(tmp_path / "symlinks", packages=(), test_packages=PACKAGES)
+    built(root, "--", "--symlink-install")
+    install = root / "ws" / "install"
+    # colcon really installed links: into build/ for the compiled tool, into src/ for the script.
+    assert (install / "uptime_tools" / "lib" / "uptime_tools" / "uptime_report").is_symlink()
+    assert (install / "uptime_tools" / "lib" / "uptime_tools" / "tools_banner").is_symlink()
+    assert list((install / "beacon_nodes").rglob("*.egg-link")), "ament_python in develop mode"
+
+    report = run_once(root, "uptime_tools", "uptime_report")
+    assert report.returncode == 0 and "uptime_report: up" in report.stdout, report.stdout + report.stderr
+    banner = run_once(root, "uptime_tools", "tools_banner")
+    assert banner.returncode == 0 and "tools_banner: uptime_tools 0.1.0" in banner.stdout, banner.stderr
+    beacon_says(root, "beacon up")
+
+    # What a symlink install gives: an edited Python source runs without `colcon build`.
+    source = root / "ws" / "src" / "beacon_nodes" / "beacon_nodes" / "beacon.py"
+    source.write_text(source.read_text().replace('"beacon up"', '"beacon up, edited"'))
+    beacon_says(root, "beacon up, edited")
+
+
+def test_native_and_espdock_builds_take_turns_in_one_workspace(engine, tmp_path):
+    root = copy_workspace(tmp_path / "native", packages=(), test_packages=PACKAGES)
+    built(root)  # the images; then the developer builds natively and with espdock, in turns
+    first = native_colcon(root)
+    assert first.returncode == 0, first.stdout[-3000:] + first.stderr[-3000:]
+
+    refused = run_once(root, "uptime_tools", "uptime_report")
+    assert refused.returncode == 2, refused.stdout + refused.stderr
+    assert "install/uptime_tools was not built by espdock" in refused.stderr
+    assert "espdock build uptime_tools" in refused.stderr
+
+    built(root)  # CMake caches of the native build stay where they are, and stay valid
+    again = native_colcon(root)
+    assert again.returncode == 0, again.stdout[-3000:] + again.stderr[-3000:]
+    built(root)
+    report = run_once(root, "uptime_tools", "uptime_report")
+    assert report.returncode == 0 and "uptime_report: up" in report.stdout, report.stdout + report.stderr

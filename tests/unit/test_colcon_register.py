@@ -1,0 +1,40 @@
+"""`espdock colcon-extension install`'s files: what colcon's extension discovery (importlib.metadata
+entry points of its Python's distributions) finds in the site dir they are written to."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+from espdock.colcon_register import ColconPython, espdock_site, install_shim, uninstall_shim
+
+FIND = """
+import json, sys
+from importlib.metadata import entry_points
+sys.path[:0] = [sys.argv[1]]
+found = {}
+for group in ("colcon_core.package_identification", "colcon_core.task.build"):
+    for ep in entry_points(group=group):
+        if ep.value.startswith("espdock_colcon_shim"):
+            found[ep.name] = ep.load().__module__
+print(json.dumps(found))
+"""
+
+
+def discovered(site: Path) -> dict[str, str]:
+    """The shim's entry points a Python with SITE on its path finds, loaded (colcon's own way)."""
+    result = subprocess.run([sys.executable, "-c", FIND, str(site)], capture_output=True, text=True, check=True)
+    return json.loads(result.stdout)
+
+
+def test_the_shim_registers_both_extensions_and_uninstall_removes_them(tmp_path):
+    site = tmp_path / "site-packages"
+    target = ColconPython(sys.executable, site, ())
+    install_shim(target, espdock_site(), sys.executable)
+    assert discovered(site) == {"esp_idf": "espdock.colcon_extension", "ros.esp_idf": "espdock.colcon_extension"}
+    install_shim(target, espdock_site(), sys.executable)  # again: one copy, not two
+    assert len(list(site.glob("espdock_colcon_shim-*.dist-info"))) == 1
+    assert uninstall_shim(site)
+    assert discovered(site) == {}

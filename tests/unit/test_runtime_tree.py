@@ -1,0 +1,66 @@
+"""What a runtime image takes from an install tree that colcon's --symlink-install made: links
+into build/ and the sources, as the build containers wrote them (under /workspace), resolved."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+from espdock.nodes import executables
+from espdock.runner import runtime_install_digest
+from espdock.runtime_tree import runtime_files
+
+
+def symlink_installed(root: Path) -> Path:
+    """ROOT/ws as colcon --symlink-install leaves it for an ament_cmake and an ament_python package."""
+    ws = root / "ws"
+    (ws / "src/tools/scripts").mkdir(parents=True)
+    (ws / "src/tools/scripts/banner").write_text("#!/bin/sh\necho banner\n")
+    (ws / "src/tools/scripts/banner").chmod(0o755)
+    (ws / "build/tools").mkdir(parents=True)
+    (ws / "build/tools/report").write_bytes(b"\x7fELF compiled")
+    (ws / "build/tools/report").chmod(0o755)
+    lib = ws / "install/tools/lib/tools"
+    lib.mkdir(parents=True)
+    (lib / "report").symlink_to("/workspace/ws/build/tools/report")
+    (lib / "banner").symlink_to("/workspace/ws/src/tools/scripts/banner")
+    (lib / "libx.so").symlink_to("libx.so.1")  # an alias within the tree stays a link
+    (lib / "libx.so.1").write_bytes(b"lib")
+    # ament_python in develop mode: an egg-link to build/PKG, whose module is a link into src/.
+    (ws / "src/talk/talk").mkdir(parents=True)
+    (ws / "src/talk/talk/__init__.py").write_text("")
+    (ws / "src/talk/talk/node.py").write_text("print('hello')\n")
+    (ws / "build/talk/talk.egg-info").mkdir(parents=True)
+    (ws / "build/talk/talk.egg-info/top_level.txt").write_text("talk\n")
+    (ws / "build/talk/talk.egg-info/entry_points.txt").write_text("[console_scripts]\nnode = talk.node:main\n")
+    (ws / "build/talk/talk").symlink_to("/workspace/ws/src/talk/talk")
+    site = ws / "install/talk/lib/python3.11/site-packages"
+    site.mkdir(parents=True)
+    (site / "talk.egg-link").write_text("/workspace/ws/build/talk\n.")
+    (ws / "install/talk/lib/talk").mkdir(parents=True)
+    (ws / "install/talk/lib/talk/node").write_text("#!/opt/espdock/venv/bin/python3\n")
+    (ws / "install/talk/lib/talk/node").chmod(0o755)
+    (ws / "install/local_setup.sh").write_text("# colcon\n")
+    return ws
+
+
+def test_links_out_of_the_install_tree_are_taken_as_what_they_point_at(tmp_path):
+    ws = symlink_installed(tmp_path)
+    files = runtime_files(ws / "install", ("tools", "talk"), tmp_path)
+    assert files["tools/lib/tools/report"] == ws / "build/tools/report"
+    assert files["tools/lib/tools/banner"] == ws / "src/tools/scripts/banner"
+    assert files["tools/lib/tools/libx.so"].is_symlink()
+    site = "talk/lib/python3.11/site-packages"
+    assert files[f"{site}/talk/node.py"] == ws / "src/talk/talk/node.py"
+    assert files[f"{site}/talk.egg-info/entry_points.txt"] == ws / "build/talk/talk.egg-info/entry_points.txt"
+    assert f"{site}/talk.egg-link" not in files
+    assert not [rel for rel, path in files.items() if path.is_symlink() and os.readlink(path).startswith("/")]
+    # `espdock run` finds the linked executables, as `ros2 run` does in the build container.
+    assert executables(ws / "install", "tools", tmp_path) == ["banner", "report"]
+
+
+def test_an_edited_linked_source_changes_the_runtime_image_key(tmp_path):
+    ws = symlink_installed(tmp_path)
+    before = runtime_install_digest(ws / "install", ("tools", "talk"), tmp_path)
+    (ws / "src/talk/talk/node.py").write_text("print('hello, edited')\n")
+    assert runtime_install_digest(ws / "install", ("tools", "talk"), tmp_path) != before

@@ -28,12 +28,6 @@ ROSDEP_CONTEXT_DIR = "docker/rosdep"
 WORKSPACE_MOUNT = "/workspace"
 
 
-def container_path(root: Path, path: Path) -> str:
-    """Where PATH, under the workspace ROOT on the host, is in the build containers."""
-    rel = path.relative_to(root).as_posix()
-    return WORKSPACE_MOUNT if rel == "." else posixpath.join(WORKSPACE_MOUNT, rel)
-
-
 def host_path(path: str, root: Path) -> Path | None:
     """Where PATH, as the build containers see it, is on the host (workspace ROOT); None when it
     is not under the workspace mount."""

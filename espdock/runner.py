@@ -200,7 +200,7 @@ class Runner:
                 assert_never(step)
 
     def _ensure_image(
-        self, workspace: Workspace, step: EnsureImage, extra_context: Mapping[str, Path] | None = None
+        self, workspace: Workspace, step: EnsureImage, extra_context: Mapping[str, Path | bytes] | None = None
     ) -> tuple[Outcome, str]:
         """EXTRA_CONTEXT: files copied into the build context (relative path -> source)."""
         spec = step.spec
@@ -574,9 +574,10 @@ class Runner:
 
 
 @contextmanager
-def _context_dir(workspace: Workspace, spec: ImageSpec, files: Mapping[str, Path]) -> Iterator[Path]:
+def _context_dir(workspace: Workspace, spec: ImageSpec, files: Mapping[str, Path | bytes]) -> Iterator[Path]:
     """The build context: the workspace root, or a temporary directory staged from the spec
-    and FILES (relative path -> a file copied there with its mode; symlinks stay links)."""
+    and FILES (relative path -> a file copied there with its mode, symlinks staying links, or
+    the content itself)."""
     if spec.context is None:
         yield workspace.root
         return
@@ -588,7 +589,11 @@ def _context_dir(workspace: Workspace, spec: ImageSpec, files: Mapping[str, Path
         for rel, source in files.items():
             path = Path(tmp, rel)
             path.parent.mkdir(parents=True, exist_ok=True)
-            shutil.copy2(source, path, follow_symlinks=False)
+            if isinstance(source, bytes):
+                path.write_bytes(source)
+                path.chmod(0o644)
+            else:
+                shutil.copy2(source, path, follow_symlinks=False)
         yield Path(tmp)
 
 
@@ -597,14 +602,17 @@ def runtime_install_digest(install: Path, packages: tuple[str, ...], root: Path 
     (ROOT: the workspace root, where links of a symlink install lead)."""
     digest = hashlib.sha256()
     for rel, path in runtime_files(install, packages, root).items():
-        info = path.lstat()
-        data = os.readlink(path).encode() if path.is_symlink() else path.read_bytes()
-        digest.update(f"{rel}\0{info.st_mode & 0o777:o}\0".encode())
+        if isinstance(path, bytes):
+            mode, data = 0o644, path
+        else:
+            mode = path.lstat().st_mode & 0o777
+            data = os.readlink(path).encode() if path.is_symlink() else path.read_bytes()
+        digest.update(f"{rel}\0{mode:o}\0".encode())
         digest.update(hashlib.sha256(data).digest())
     return digest.hexdigest()
 
 
-def runtime_context(install: Path, step: RuntimeImage, root: Path | None = None) -> dict[str, Path]:
+def runtime_context(install: Path, step: RuntimeImage, root: Path | None = None) -> dict[str, Path | bytes]:
     """The runtime image's build context besides its Dockerfile: exactly the files
     runtime_install_digest hashed, under install/."""
     return {f"install/{rel}": path for rel, path in runtime_files(install, step.packages, root).items()}

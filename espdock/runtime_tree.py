@@ -54,7 +54,7 @@ def _inside(path: Path, tree: Path) -> bool:
     return path == tree or tree in path.parents
 
 
-def _walk(directory: Path, dest: str, root: Path, tree: Path, found: dict[str, Path]) -> None:
+def _walk(directory: Path, dest: str, root: Path, tree: Path, found: dict[str, Path | bytes]) -> None:
     """Add what DIRECTORY holds to FOUND under DEST, links that leave TREE resolved."""
     for entry in sorted(directory.iterdir()):
         if entry.name == "__pycache__" or entry.name.endswith(".pyc"):
@@ -76,11 +76,22 @@ def _walk(directory: Path, dest: str, root: Path, tree: Path, found: dict[str, P
             _walk(entry, rel, root, tree, found)
         elif entry.suffix == ".egg-link":
             _develop_package(entry, dest, root, found)
+        elif entry.name == "package.dsv" and (kept := _own_hooks(entry)) is not None:
+            found[rel] = kept
         else:
             found[rel] = entry
 
 
-def _develop_package(egg_link: Path, site_packages: str, root: Path, found: dict[str, Path]) -> None:
+def _own_hooks(package_dsv: Path) -> bytes | None:
+    """PACKAGE_DSV without the hooks it sources from outside the package's prefix (a develop
+    install's pythonpath_develop hook in build/, whose path the image does not have); None when
+    it has none."""
+    lines = package_dsv.read_text(errors="replace").splitlines(keepends=True)
+    kept = [line for line in lines if not line.startswith("source;../")]
+    return None if len(kept) == len(lines) else "".join(kept).encode()
+
+
+def _develop_package(egg_link: Path, site_packages: str, root: Path, found: dict[str, Path | bytes]) -> None:
     """A package `setup.py develop` installed: its top-level modules and metadata from the
     directory the .egg-link names, into SITE_PACKAGES."""
     lines = egg_link.read_text(errors="replace").splitlines()
@@ -103,13 +114,16 @@ def _develop_package(egg_link: Path, site_packages: str, root: Path, found: dict
                     found[f"{site_packages}/{candidate.name}"] = resolved
 
 
-def runtime_files(install: Path, packages: tuple[str, ...], root: Path | None = None) -> dict[str, Path]:
-    """What a runtime image takes from INSTALL (relative path -> the host file holding it): colcon's
+def runtime_files(install: Path, packages: tuple[str, ...], root: Path | None = None) -> dict[str, Path | bytes]:
+    """What a runtime image takes from INSTALL (relative path -> the host file holding it, or the
+    content itself where it is rewritten): colcon's
     top-level setup files and PACKAGES' trees (not the firmware packages', nor espdock's manifest),
     with links out of the tree resolved. ROOT: the workspace root the build containers mount."""
     root = root if root is not None else install.parent
     # colcon's own files at the top (setup scripts, COLCON_IGNORE); espdock's manifest is not.
-    found = {p.name: p for p in sorted(install.iterdir()) if p.is_file() and not p.name.startswith("espdock-")}
+    found: dict[str, Path | bytes] = {
+        p.name: p for p in sorted(install.iterdir()) if p.is_file() and not p.name.startswith("espdock-")
+    }
     for name in packages:
         if (install / name).is_dir():
             _walk(install / name, name, root, install / name, found)

@@ -40,6 +40,10 @@ def symlink_installed(root: Path) -> Path:
     (ws / "install/talk/lib/talk").mkdir(parents=True)
     (ws / "install/talk/lib/talk/node").write_text("#!/opt/espdock/venv/bin/python3\n")
     (ws / "install/talk/lib/talk/node").chmod(0o755)
+    (ws / "install/talk/share/talk").mkdir(parents=True)
+    (ws / "install/talk/share/talk/package.dsv").write_text(
+        "source;share/talk/hook/pythonpath.dsv\nsource;../../build/talk/share/talk/hook/pythonpath_develop.dsv\n"
+    )
     (ws / "install/local_setup.sh").write_text("# colcon\n")
     return ws
 
@@ -54,7 +58,10 @@ def test_links_out_of_the_install_tree_are_taken_as_what_they_point_at(tmp_path)
     assert files[f"{site}/talk/node.py"] == ws / "src/talk/talk/node.py"
     assert files[f"{site}/talk.egg-info/entry_points.txt"] == ws / "build/talk/talk.egg-info/entry_points.txt"
     assert f"{site}/talk.egg-link" not in files
-    assert not [rel for rel, path in files.items() if path.is_symlink() and os.readlink(path).startswith("/")]
+    # The develop hook names build/, which the image lacks (sourcing it fails with "not found").
+    assert files["talk/share/talk/package.dsv"] == b"source;share/talk/hook/pythonpath.dsv\n"
+    links = [path for path in files.values() if isinstance(path, Path) and path.is_symlink()]
+    assert not [link for link in links if os.readlink(link).startswith("/")]
     # `espdock run` finds the linked executables, as `ros2 run` does in the build container.
     assert executables(ws / "install", "tools", tmp_path) == ["banner", "report"]
 

@@ -121,6 +121,11 @@ def test_merge_install_and_other_bases_put_the_firmware_where_the_ament_index_se
     assert (ws / "build-other" / "led_strip_node" / "flasher_args.json").is_file()
 
 
+def without_pythonpath(env) -> dict[str, str]:
+    """ENV for a process of another Python: the separate colcon sees its own packages only."""
+    return {name: value for name, value in env.items() if name != "PYTHONPATH"}
+
+
 @pytest.fixture(scope="module")
 def separate_colcon() -> Path:
     """colcon in a venv of its own, without espdock: apt's colcon beside a pipx espdock, in small."""
@@ -135,7 +140,8 @@ def separate_colcon() -> Path:
     from tests.conftest import kept_in_temp
 
     colcon = kept_in_temp("espdock-colcon-venv", "-".join(pins).replace("==", "_"), make) / "venv" / "bin" / "colcon"
-    found = subprocess.run([str(colcon.parent / "python"), "-c", "import espdock"], capture_output=True, check=False)
+    probe = [str(colcon.parent / "python"), "-c", "import espdock"]
+    found = subprocess.run(probe, env=without_pythonpath(os.environ), capture_output=True, check=False)
     assert found.returncode != 0, "the separate colcon must not see espdock"
     return colcon
 
@@ -150,7 +156,7 @@ def test_a_colcon_in_another_python_builds_firmware_once_the_extension_is_instal
     argv = [str(separate_colcon), "build", "--base-paths", "src", "../firmware", "--packages-select", "camera_node"]
     # espdock on PATH as pipx puts it; the extension must run espdock's own Python, not colcon's.
     path = f"{wheel_espdock.parent}:{separate_colcon.parent}:{env['PATH']}"
-    user = {**env, "PATH": path}
+    user = {**without_pythonpath(env), "PATH": path}
     skipped = subprocess.run(argv, cwd=ws, env=user, capture_output=True, text=True, check=False)
     assert "No task extension to 'build' a 'ros.esp_idf' package" in skipped.stderr + skipped.stdout
     assert not firmware.exists()

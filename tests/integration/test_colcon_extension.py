@@ -141,7 +141,9 @@ def separate_colcon() -> Path:
 
     colcon = kept_in_temp("espdock-colcon-venv", "-".join(pins).replace("==", "_"), make) / "venv" / "bin" / "colcon"
     probe = [str(colcon.parent / "python"), "-c", "import espdock"]
-    found = subprocess.run(probe, env=without_pythonpath(os.environ), capture_output=True, check=False)
+    # Not from the checkout: a Python started there imports its espdock/ from the current directory.
+    clean = without_pythonpath(os.environ)
+    found = subprocess.run(probe, cwd=colcon.parent, env=clean, capture_output=True, check=False)
     assert found.returncode != 0, "the separate colcon must not see espdock"
     return colcon
 

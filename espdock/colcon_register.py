@@ -68,7 +68,9 @@ def colcon_python(colcon: str | None, env: dict[str, str]) -> ColconPython:
         raise ConfigError(f"{path} does not start with a #! line naming its Python", "Name colcon's Python instead.")
     argv = first[2:].split()
     python = argv[1] if os.path.basename(argv[0]) == "env" and len(argv) > 1 else argv[0]
-    result = subprocess.run([python, "-c", _PROBE], capture_output=True, text=True, check=False, env=env)
+    # From /: Python puts the current directory first on its path, and a checkout's *.egg-info
+    # there would pass for an installed distribution.
+    result = subprocess.run([python, "-c", _PROBE], capture_output=True, text=True, check=False, env=env, cwd="/")
     if result.returncode != 0:
         raise ConfigError(f"colcon's Python {python} did not answer: {result.stderr.strip()[-500:]}")
     answer = json.loads(result.stdout)

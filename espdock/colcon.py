@@ -37,7 +37,7 @@ _OWN = "espdock decides it"
 REFUSED = {
     "--base-paths": "espdock points colcon at the selected packages",
     "--paths": "espdock points colcon at the selected packages",
-    "--build-base": "espdock keeps colcon's build/ in the colcon root, where its stamps are",
+    "--build-base": "espdock keeps its own build base, build/espdock-ros (apart from a native build's CMake caches)",
     "--install-base": "espdock installs into install/ of the colcon root, where its stamps and manifest look",
     "--merge-install": "espdock reads each package's install/<package> (stamps, manifest, runtime image)",
     "--event-handlers": "espdock reads colcon's console output and its event log",

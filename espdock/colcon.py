@@ -20,6 +20,7 @@ import json
 import os
 import posixpath
 import re
+import shutil
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from enum import StrEnum
@@ -342,6 +343,24 @@ def usage_error(output: Iterable[str], args: Iterable[str]) -> str | None:
     if unknown:
         return f"colcon build does not accept {unknown[0]} (given after `--`)"
     return f"colcon build refused its options: {said[:300]}"
+
+
+def retire_container_caches(build: Path, packages: Iterable[str], mounted_build: str) -> list[str]:
+    """Remove PACKAGES' build dirs under BUILD (colcon's default build base) whose CMake cache
+    was configured at MOUNTED_BUILD, the build containers' path of BUILD: what espdock built
+    there before it had a build base of its own. A native `colcon build` refuses them
+    ("CMakeCache.txt directory ... is different"); they are only caches. Returns the names."""
+    retired = []
+    for name in packages:
+        cache = build / name / "CMakeCache.txt"
+        try:
+            text = cache.read_text(errors="replace")
+        except OSError:
+            continue
+        if f"CMAKE_CACHEFILE_DIR:INTERNAL={mounted_build}/{name}\n" in text:
+            shutil.rmtree(build / name)
+            retired.append(name)
+    return retired
 
 
 class PackageState(StrEnum):

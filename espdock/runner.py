@@ -22,13 +22,20 @@ from pathlib import Path
 from typing import assert_never
 
 from espdock import bootstrap
-from espdock.colcon import DEFAULTS_MOUNT, ColconLog, PackageState, explain_failure, usage_error
+from espdock.colcon import (
+    DEFAULTS_MOUNT,
+    ColconLog,
+    PackageState,
+    explain_failure,
+    retire_container_caches,
+    usage_error,
+)
 from espdock.config import Config, resolve_ca_bundle
 from espdock.engine import Engine, Mount, RegistryAnswer, RegistryStatus, RunSpec
 from espdock.errors import BuildFailed, ConfigError, EspdockError, RegistryError, WorkspaceError, disk_full
 from espdock.events import Emit, Outcome, StepFinished, StepNote, StepOutput, StepStarted
 from espdock.install import COMMANDS_SOURCE, install_firmware
-from espdock.layout import WORKSPACE_MOUNT
+from espdock.layout import ROS_BUILD_BASE, WORKSPACE_MOUNT
 from espdock.plan import (
     LABEL_KEY,
     LABEL_WORKSPACE,
@@ -355,6 +362,10 @@ class Runner:
         # Until this build succeeds, none of them counts as built.
         recorded = stamp_file.read()
         stamp_file.forget(rebuild)
+        mounted_build = posixpath.join(step.workdir, "build")
+        if retired := retire_container_caches(workspace.ws_dir / "build", stamps, mounted_build):
+            why = f"espdock's CMake caches from before {ROS_BUILD_BASE}, which a native colcon build refuses"
+            self._emit(StepNote(step.name, f"removed {', '.join(f'build/{name}' for name in retired)}: {why}"))
         user, labels = self._container_identity(workspace, "colcon", sweep=True)
         mounts = [Mount(workspace.root, WORKSPACE_MOUNT)]
         env = [("HOME", "/tmp"), *self._reproducible_env(workspace)]

@@ -40,12 +40,14 @@ def beacon_says(root: Path, text: str) -> None:
         node.stop()
 
 
-def native_colcon(root: Path, *args: str) -> subprocess.CompletedProcess[str]:
-    """`colcon build` with the workspace at its own path, as on the developer's machine."""
+def native_colcon(root: Path, *args: str, at: str | None = None) -> subprocess.CompletedProcess[str]:
+    """`colcon build` with the workspace at its own path, as on the developer's machine (AT: at
+    another path in the container)."""
     ws = str(root / "ws")
+    inside = at or ws
     return subprocess.run(
         ["docker", "run", "--rm", "-u", f"{os.getuid()}:{os.getgid()}", "-e", "HOME=/tmp",
-         "-v", f"{ws}:{ws}", "-w", ws, ros_build_tag(root), "colcon", "build", *args],
+         "-v", f"{ws}:{inside}", "-w", inside, ros_build_tag(root), "colcon", "build", *args],
         capture_output=True, text=True, timeout=900, check=False,
     )  # fmt: skip
 
@@ -74,6 +76,12 @@ def test_symlink_install_builds_runs_and_shows_a_source_edit_without_a_rebuild(e
 def test_native_and_espdock_builds_take_turns_in_one_workspace(engine, tmp_path):
     root = copy_workspace(tmp_path / "native", packages=(), test_packages=PACKAGES)
     built(root)  # the images; then the developer builds natively and with espdock, in turns
+    # What espdock itself left in build/ before it had a build base of its own: caches made at
+    # /workspace. The next espdock build retires them, so the native build can configure afresh.
+    old = native_colcon(root, at="/workspace/ws")
+    assert old.returncode == 0, old.stdout[-3000:] + old.stderr[-3000:]
+    retiring = espdock("build", "--only", "ros", cwd=root)
+    assert retiring.returncode == 0 and "removed build/uptime_tools" in retiring.stdout + retiring.stderr
     first = native_colcon(root)
     assert first.returncode == 0, first.stdout[-3000:] + first.stderr[-3000:]
 

@@ -19,6 +19,7 @@ from espdock.colcon import (
     output_args,
     parse_events,
     read_colcon_settings,
+    retire_container_caches,
     usage_error,
     user_defaults_file,
 )
@@ -239,3 +240,16 @@ def test_an_option_colcon_does_not_know_is_named_not_blamed_on_espdocks_own(tmp_
     assert usage_error(said.stderr.splitlines(), ("--frobnicate",)) == (
         "colcon build does not accept --frobnicate (given after `--`)"
     )
+
+
+def test_only_build_dirs_espdock_configured_in_its_container_are_retired(tmp_path):
+    """espdock's CMake caches from before its own build base (configured at /workspace) go, so a
+    native `colcon build` can configure build/PKG afresh; a native cache and the firmware's stay."""
+    build = tmp_path / "build"
+    mounted = "/workspace/ws/build"
+    for name, where in (("old_msgs", mounted), ("native_msgs", str(build)), ("board", mounted)):
+        (build / name).mkdir(parents=True)
+        (build / name / "CMakeCache.txt").write_text(f"CMAKE_CACHEFILE_DIR:INTERNAL={where}/{name}\n")
+    (build / "py_pkg").mkdir()
+    assert retire_container_caches(build, ["old_msgs", "native_msgs", "py_pkg", "gone"], mounted) == ["old_msgs"]
+    assert sorted(p.name for p in build.iterdir()) == ["board", "native_msgs", "py_pkg"]

@@ -15,24 +15,30 @@ from pathlib import Path
 
 import pytest
 
+from espdock.config import Config, resolve_ca_bundle
 from tests.conftest import Started, copy_workspace, espdock, ros_build_tag
+from tests.ros_official_double.build import build_double, settings
+from tests.rosdep_db import environment
 
 pytestmark = [pytest.mark.engine, pytest.mark.slow]
 
 PACKAGES = ("beacon_nodes", "uptime_tools")
 
 
-def built(root: Path, *args: str) -> None:
-    result = espdock("build", "--only", "ros", *args, cwd=root)
+def built(root: Path, *args: str, env: dict[str, str] | None = None) -> None:
+    result = espdock("build", "--only", "ros", *args, cwd=root, env=env)
     assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
 
 
-def run_once(root: Path, package: str, executable: str) -> subprocess.CompletedProcess[str]:
-    return espdock("run", package, executable, cwd=root, timeout=300)
+def run_once(
+    root: Path, package: str, executable: str, env: dict[str, str] | None = None
+) -> subprocess.CompletedProcess[str]:
+    return espdock("run", package, executable, cwd=root, timeout=300, env=env)
 
 
-def beacon_says(root: Path, text: str) -> None:
-    node = Started(root, "run", "beacon_nodes", "beacon", env={"ROS_DOMAIN_ID": str(random.randrange(100, 200))})
+def beacon_says(root: Path, text: str, env: dict[str, str] | None = None) -> None:
+    domain = {"ROS_DOMAIN_ID": str(random.randrange(100, 200))}
+    node = Started(root, "run", "beacon_nodes", "beacon", env={**(env or {}), **domain})
     try:
         node.wait_for(text)
         assert node.interrupt() == 130
@@ -71,6 +77,18 @@ def test_symlink_install_builds_runs_and_shows_a_source_edit_without_a_rebuild(e
     source = root / "ws" / "src" / "beacon_nodes" / "beacon_nodes" / "beacon.py"
     source.write_text(source.read_text().replace('"beacon up"', '"beacon up, edited"'))
     beacon_says(root, "beacon up, edited")
+
+
+def test_symlink_install_on_the_official_flavour_runs_from_a_runtime_image_without_build(engine, tmp_path):
+    """The official image (through its double: apt's setuptools, which still has develop --editable)."""
+    tag = build_double(engine, resolve_ca_bundle(Config(), os.environ), lambda line: None)
+    env = {**environment(tmp_path), **settings(tag)}
+    root = copy_workspace(tmp_path / "official", packages=(), test_packages=PACKAGES)
+    built(root, "--", "--symlink-install", env=env)
+    assert (root / "ws/install/uptime_tools/lib/uptime_tools/uptime_report").is_symlink()
+    report = run_once(root, "uptime_tools", "uptime_report", env=env)
+    assert report.returncode == 0 and "uptime_report: up" in report.stdout, report.stdout + report.stderr
+    beacon_says(root, "beacon up", env=env)
 
 
 def test_native_and_espdock_builds_take_turns_in_one_workspace(engine, tmp_path):

@@ -15,6 +15,8 @@ from pathlib import Path
 import pytest
 
 from espdock import rosdeps
+from espdock.runner import ROS_STAMPS
+from espdock.stamps import StampFile, listing_digest
 from espdock.workspace import Workspace, discover_packages
 from tests.conftest import REPO, espdock
 from tests.rosdep_db import environment
@@ -116,11 +118,16 @@ def test_a_dual_ros1_ros2_package_is_read_as_ros2_jazzy_sees_it(tmp_path):
 
 
 def fake_install(root: Path, package: str, executable: str) -> None:
-    """What a build left in install/: the executable `espdock run` looks for."""
+    """What an espdock build left: the executable `espdock run` looks for, and the build's record
+    of the install tree (`run` refuses one it did not make)."""
     path = root / "install" / package / "lib" / package / executable
     path.parent.mkdir(parents=True)
     path.write_text("#!/bin/sh\n")
     path.chmod(0o755)
+    (root / "build").mkdir(exist_ok=True)
+    StampFile(root / "build" / ROS_STAMPS).record(
+        {package: "built"}, {package: listing_digest(root / "install" / package)}
+    )
 
 
 def test_run_and_shell_check_only_what_they_run(tmp_path):

@@ -398,7 +398,7 @@ class Engine:
             # A terminal's Ctrl-C reached Compose too (one process group): it is stopping its
             # services. Without a terminal the signal was meant for espdock alone (`kill -INT`,
             # CI): pass it on. (The docker CLI decides the same way for its plugins.)
-            if not sys.stdin.isatty():
+            if not (sys.stdin and sys.stdin.isatty()):
                 process.send_signal(signal.SIGINT)
             try:
                 process.wait(timeout=max(0.5, interrupts.remaining() - 1.0))

@@ -15,11 +15,12 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 from urllib.parse import urlsplit
 
+from espdock.config import CHIP_TARGETS
 from espdock.engine import Mount, format_argv
 from espdock.errors import ConfigError, EspdockError, WorkspaceError
-from espdock.plan import IdfBuild
+from espdock.plan import LONGCALLS_RISCV, IdfBuild
 from espdock.provision import IMAGE_MOUNT
-from espdock.workspace import Workspace
+from espdock.workspace import Workspace, component_targets
 
 if TYPE_CHECKING:
     from espdock.runner import Runner
@@ -205,16 +206,29 @@ def detected_chip(output: list[str]) -> str | None:
     return None
 
 
-def check_chip(package: str, expected: str, output: list[str], port: Port) -> None:
-    """Refuse (before anything is written) a board whose chip is not the one PACKAGE was built for."""
+def buildable_chip(chip: str, supported: Sequence[str]) -> bool:
+    """Whether `espdock build --target CHIP` would build a package that lists SUPPORTED chips
+    (none: any) in its idf_component.yml: the checks of plan.package_target."""
+    return chip in CHIP_TARGETS and chip not in LONGCALLS_RISCV and (not supported or chip in supported)
+
+
+def check_chip(package: str, expected: str, output: list[str], port: Port, supported: Sequence[str] = ()) -> None:
+    """Refuse (before anything is written) a board whose chip is not the one PACKAGE was built for;
+    suggest building for the board's chip only where espdock can (SUPPORTED: the package's chips)."""
     found = detected_chip(output)
     if found is None:
         tail = " | ".join(line.strip() for line in output[-3:] if line.strip())
         raise PortError(f"esptool could not tell which chip is at {port.spec}", tail or "Is a board connected?")
     if found != expected:
+        if buildable_chip(found, supported):
+            hint = (
+                f"Connect an {expected} board, or build {package} for it: `espdock build {package} --target {found}`."
+            )
+        else:
+            hint = f"Connect an {expected} board: espdock cannot build {package} for an {found}"
+            hint += f" (it supports {', '.join(supported)})." if supported else "."
         raise ConfigError(
-            f"the board at {port.spec} is an {found}, but {package} is built for {expected}; nothing was written",
-            f"Connect an {expected} board, or build {package} for it: `espdock build {package} --target {found}`.",
+            f"the board at {port.spec} is an {found}, but {package} is built for {expected}; nothing was written", hint
         )
 
 
@@ -283,7 +297,8 @@ def flash_package(
         network=port.network,
         workdir=workdir,
     )
-    check_chip(step.package, chip, probe, port)
+    supported = component_targets(workspace.root / step.project / "main" / "idf_component.yml")
+    check_chip(step.package, chip, probe, port, supported)
     if app:
         commands = [flash_argv(flasher_args, port, baud, major, extra)]
         if verify:

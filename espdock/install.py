@@ -15,6 +15,7 @@ import shutil
 import uuid
 from pathlib import Path
 
+from espdock import durable
 from espdock.errors import BuildFailed
 from espdock.layout import FIRMWARE_DIR
 
@@ -69,7 +70,10 @@ def install_firmware(
             for rel in files:
                 (staging / rel).parent.mkdir(parents=True, exist_ok=True)
                 shutil.copy2(build_dir / rel, staging / rel)
+            # The swapped-in firmware must be whole after a power cut: its files, then the names.
+            durable.sync_tree(staging)
             staging.rename(version_dir)
+            durable.sync_dir(share)
         finally:
             shutil.rmtree(staging, ignore_errors=True)
     _swap_symlink(share / FIRMWARE_DIR, version_dir.name)
@@ -125,7 +129,7 @@ def _swap_symlink(link: Path, target: str) -> None:
         shutil.rmtree(link)  # a plain directory left by something else
     temporary = link.with_name(f".{link.name}.{uuid.uuid4().hex[:8]}")
     temporary.symlink_to(target)
-    os.replace(temporary, link)
+    durable.replace(temporary, link)
 
 
 def _write_colcon_metadata(package: str, manifest: Path, prefix: Path, run_depends: tuple[str, ...]) -> None:

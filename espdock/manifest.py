@@ -14,7 +14,7 @@ from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
-from espdock import __version__
+from espdock import __version__, durable
 from espdock.errors import WorkspaceError, disk_full
 from espdock.events import Outcome, StepFinished
 from espdock.plan import EnsureImage, IdfBuild, ImageSpec, Plan
@@ -69,12 +69,12 @@ def _newer_than_stamps(manifest: Path, stamps: Iterable[Path]) -> bool:
 
 
 def write_manifest(manifest: Mapping[str, object], install: Path) -> Path:
-    """Write MANIFEST to INSTALL/espdock-manifest.json in one rename."""
+    """Write MANIFEST to INSTALL/espdock-manifest.json in one rename, flushed (file and directory)."""
     install.mkdir(parents=True, exist_ok=True)
     path = install / MANIFEST_NAME
     tmp = _temporary(install)
     tmp.write_text(json.dumps(manifest, indent=1, sort_keys=True) + "\n")
-    os.replace(tmp, path)
+    durable.replace(tmp, path)
     return path
 
 

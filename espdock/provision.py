@@ -49,6 +49,7 @@ _TYPE_DATA, _SUBTYPE_NVS = 0x01, 0x02
 _TABLE_MAX = 0xC00
 
 _PORT = re.compile(r"[0-9]{1,5}")
+_DOMAIN_ID = re.compile(r"[0-9]{1,3}")
 _BROADCAST = ipaddress.IPv4Address("255.255.255.255")
 _THIS_NETWORK = ipaddress.IPv4Network("0.0.0.0/8")  # "this host on this network": no destination
 # A password file is read no further than the longest valid password and its line end.
@@ -104,12 +105,28 @@ def parse_agent(text: str) -> tuple[str, int]:
     return str(address), int(port_text)
 
 
+def parse_domain_id(text: str) -> int:
+    """--domain-id: ASCII digits only (int() takes other scripts' digits, '4_2', ' 42 ' and '+42')."""
+    if not _DOMAIN_ID.fullmatch(text) or int(text) > DOMAIN_ID_MAX:
+        raise ConfigError(f"ROS domain id {text!r} is not 0..{DOMAIN_ID_MAX}", "Give it in ASCII digits, e.g. 42.")
+    return int(text)
+
+
 def check_settings(ssid: str, password: str, agent: str, domain_id: int) -> NetSettings:
     """The settings, or a ConfigError (exit 2) naming what the firmware would refuse."""
-    size = len(ssid.encode())
+    try:
+        size = len(ssid.encode())
+    except UnicodeEncodeError:
+        # Python hands over command-line bytes that are not UTF-8 as lone surrogates; the NVS
+        # string and the firmware's log lines are UTF-8.
+        raw = ssid.encode(errors="surrogateescape").decode("ascii", errors="backslashreplace")
+        raise ConfigError(
+            f"the Wi-Fi SSID is not UTF-8 text ({raw})", "Give the SSID as UTF-8 (what `nmcli dev wifi` shows)."
+        ) from None
     if not 1 <= size <= SSID_MAX_BYTES:
         raise ConfigError(f"the Wi-Fi SSID is {size} bytes; it must be 1..{SSID_MAX_BYTES}")
-    if any(ord(c) < 0x20 or ord(c) == 0x7F for c in ssid):
+    # C0, DEL and C1 (U+0080..U+009F): the firmware prints the SSID, a terminal would obey them.
+    if any(ord(c) < 0x20 or 0x7F <= ord(c) <= 0x9F for c in ssid):
         raise ConfigError("the Wi-Fi SSID contains control characters")
     if password and not PASSWORD_MIN <= len(password) <= PASSWORD_MAX:
         raise ConfigError(
@@ -142,10 +159,11 @@ def optional_network_settings(
     return network_settings(ssid, password_file, agent, domain_id or 0, stdin, prompt)
 
 
-def read_password(source: str | None, stdin: io.TextIOBase, prompt) -> str:
-    """From FILE, '-' (stdin), or PROMPT when stdin is a terminal; one trailing newline dropped."""
+def read_password(source: str | None, stdin: io.TextIOBase | None, prompt) -> str:
+    """From FILE, '-' (stdin), or PROMPT when stdin is a terminal; one trailing newline dropped.
+    STDIN is None when the standard input is closed (`<&-`)."""
     if source is None:
-        if not stdin.isatty():
+        if stdin is None or not stdin.isatty():
             raise ConfigError(
                 "no Wi-Fi password given and no terminal to ask on",
                 "Use --wifi-password-file FILE (- reads stdin; /dev/null for an open network).",
@@ -154,7 +172,14 @@ def read_password(source: str | None, stdin: io.TextIOBase, prompt) -> str:
     # One character more than a valid password can take tells a too-long one, so a file without
     # an end (/dev/zero, a pipe that keeps writing) is refused instead of read into memory.
     if source == "-":
-        text = stdin.read(_PASSWORD_READ_MAX + 1)
+        if stdin is None:
+            raise ConfigError(
+                "--wifi-password-file - reads stdin, which is closed", "Pipe the password in, or give a file."
+            )
+        try:
+            text = stdin.read(_PASSWORD_READ_MAX + 1)
+        except (OSError, UnicodeDecodeError) as exc:
+            raise ConfigError(f"cannot read the password from stdin: {getattr(exc, 'strerror', exc)}") from None
     else:
         try:
             with open(source, encoding="utf-8") as handle:

@@ -530,7 +530,7 @@ class Runner:
             devices=devices,
             group_add=tuple(_device_groups(devices)),
             network=network,
-            tty=on_line is None and sys.stdin.isatty(),
+            tty=on_line is None and bool(sys.stdin and sys.stdin.isatty()),
         )
         try:
             if on_line is None:
@@ -631,18 +631,46 @@ def runtime_context(install: Path, step: RuntimeImage, root: Path | None = None)
 
 @contextmanager
 def workspace_lock(workspace: Workspace) -> Iterator[None]:
-    """Hold an exclusive lock on the workspace for the duration of a build."""
+    """Hold an exclusive lock on the workspace for the duration of a build; a second build in the
+    same workspace is refused naming the holder's pid and command."""
     fd = os.open(workspace.root, os.O_RDONLY)
+    # Who holds it, for the error a second build gets: outside the workspace, so that espdock
+    # run as root creates nothing there that the user's colcon could not write into.
+    name = hashlib.sha256(str(workspace.root).encode()).hexdigest()[:16]
+    holder = Path(tempfile.gettempdir()) / f"espdock-build-{name}.holder"
     try:
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
             raise WorkspaceError(
-                f"another espdock build is running in {workspace.root}", "Wait for it to finish, then run again."
+                f"another espdock build is running in {workspace.root}{_holder_text(holder)}",
+                "Wait for it to finish, then run again.",
             ) from None
-        yield
+        _write_holder(holder)
+        try:
+            yield
+        finally:
+            holder.unlink(missing_ok=True)
     finally:
         os.close(fd)
+
+
+def _write_holder(holder: Path) -> None:
+    try:
+        command = " ".join([Path(sys.argv[0]).name, *sys.argv[1:]]).encode(errors="backslashreplace")
+        temporary = holder.with_name(f".{holder.name}.{os.getpid()}")
+        temporary.write_bytes(f"{os.getpid()}\n".encode() + command + b"\n")
+        os.replace(temporary, holder)
+    except OSError:
+        pass  # only the error message a second build would give loses its detail
+
+
+def _holder_text(holder: Path) -> str:
+    try:
+        pid, _, command = holder.read_text(errors="replace").partition("\n")
+    except OSError:
+        return ""  # the holder has not written it yet, or has just finished
+    return f" (pid {pid.strip()}: {command.strip()})" if pid.strip().isdigit() else ""
 
 
 def _prepare_build_dir(build_dir: Path, target: str, defaults: str, image_key: str) -> None:

@@ -14,6 +14,8 @@ import os
 from collections.abc import Iterable, Mapping
 from pathlib import Path
 
+from espdock import durable
+
 # Not sources: colcon's and IDF's outputs, caches, VCS and editor state.
 SKIP_DIRS = {"build", "install", "log", "managed_components", "__pycache__"}
 
@@ -105,18 +107,14 @@ class StampFile:
         for name, stamp in stamps.items():
             data[name] = {"stamp": stamp, "installed": installed.get(name)}
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = self.path.with_name(f".{self.path.name}.tmp")
-        tmp.write_text(json.dumps(data, indent=1, sort_keys=True) + "\n")
-        os.replace(tmp, self.path)
+        durable.write_text(self.path, json.dumps(data, indent=1, sort_keys=True) + "\n")
 
     def forget(self, names: Iterable[str]) -> None:
         """Drop NAMES' records (their build failed or was interrupted: build them next time)."""
         data = self.read()
         dropped = [data.pop(name) for name in names if name in data]  # every one: no short-circuit
         if dropped:
-            tmp = self.path.with_name(f".{self.path.name}.tmp")
-            tmp.write_text(json.dumps(data, indent=1, sort_keys=True) + "\n")
-            os.replace(tmp, self.path)
+            durable.write_text(self.path, json.dumps(data, indent=1, sort_keys=True) + "\n")
 
     def restore(self, records: Mapping[str, dict[str, str | None]]) -> None:
         """Put back RECORDS that forget dropped: the run that was to rebuild them changed nothing."""

@@ -82,7 +82,10 @@ def _bug_report(exc: Exception) -> EspdockBug:
     import traceback
 
     text = "".join(traceback.format_exception(exc))
-    with tempfile.NamedTemporaryFile("w", prefix="espdock-bug-", suffix=".log", delete=False) as log:
+    # Whatever bytes the command line held (not UTF-8: lone surrogates) go into the report as escapes.
+    with tempfile.NamedTemporaryFile(
+        "w", prefix="espdock-bug-", suffix=".log", delete=False, encoding="utf-8", errors="backslashreplace"
+    ) as log:
         log.write(f"espdock {__version__}, {' '.join(sys.argv)}\n{text}")
     return EspdockBug(
         f"espdock failed unexpectedly ({type(exc).__name__}: {exc}); this is a bug in espdock",

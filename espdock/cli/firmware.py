@@ -31,7 +31,14 @@ from espdock.flashing import check_port, flash_package, idf_port, parse_port, re
 from espdock.layout import firmware_install_dir
 from espdock.pins import pin_idf_image, read_sources, write_pins
 from espdock.plan import EnsureImage, ImageSpec, Plan, workspace_micro_ros_images
-from espdock.provision import network_settings, nvs_image, nvs_partition, optional_network_settings
+from espdock.provision import (
+    check_settings,
+    network_settings,
+    nvs_image,
+    nvs_partition,
+    optional_network_settings,
+    parse_domain_id,
+)
 from espdock.runner import reset_build_dir
 from espdock.status import micro_ros_report, resolved_sources
 from espdock.ui import Reporter, render_micro_ros_status, render_pins
@@ -160,7 +167,8 @@ PasswordFileOption = Annotated[
 AgentOption = Annotated[
     str | None, typer.Option("--agent", help="micro-ROS agent as IPV4:PORT (the board resolves no host names).")
 ]
-DomainOption = Annotated[int | None, typer.Option("--domain-id", help="ROS_DOMAIN_ID of the board (0..232).")]
+# Text, parsed by espdock: Click's int takes other scripts' digits, '4_2', ' 42 ' and '+42' as 42.
+DomainOption = Annotated[str | None, typer.Option("--domain-id", help="ROS_DOMAIN_ID of the board (0..232).")]
 
 
 def _check_library_port(runner, ws: Workspace, step, settings) -> None:
@@ -197,12 +205,15 @@ def flash(
 ) -> None:
     """Flash a firmware package's installed artefacts with esptool, passing only that port into the container;
     with --wifi-ssid and --agent, provision its network settings in the same run (see `provision`)."""
+    domain = None if domain_id is None else parse_domain_id(domain_id)
+    if wifi_ssid is not None and agent is not None:
+        check_settings(wifi_ssid, "", agent, domain or 0)  # before anything else: no typo costs a wait
     ws, config = load(workspace)
     serial = parse_port(port)
     plan, step = firmware_plan(ws, config, package)
     firmware_dir = ws.ws_dir / firmware_install_dir(package)
     flasher_args = read_flasher_args(firmware_dir, package)
-    settings = optional_network_settings(wifi_ssid, wifi_password_file, agent, domain_id, sys.stdin, _ask_password)
+    settings = optional_network_settings(wifi_ssid, wifi_password_file, agent, domain, sys.stdin, _ask_password)
     nvs = nvs_partition(firmware_dir, flasher_args, package) if settings else None
     check_port(serial)
     runner = runner_for(ws, config, Reporter(console))
@@ -227,7 +238,7 @@ def provision(
     wifi_ssid: Annotated[str, typer.Option("--wifi-ssid", help="Wi-Fi network the board joins (1..32 bytes).")],
     agent: Annotated[str, typer.Option("--agent", help="micro-ROS agent as IPV4:PORT (no host names).")],
     wifi_password_file: PasswordFileOption = None,
-    domain_id: Annotated[int, typer.Option("--domain-id", help="ROS_DOMAIN_ID of the board (0..232).")] = 0,
+    domain_id: Annotated[str, typer.Option("--domain-id", help="ROS_DOMAIN_ID of the board (0..232).")] = "0",
     baud: BaudOption = 460800,
     workspace: WorkspaceOption = None,
 ) -> None:
@@ -236,13 +247,15 @@ def provision(
     The whole NVS partition is replaced: every other namespace on the board is erased.
 
     The password never appears on a command line (espdock's or esptool's), in the workspace or in an image."""
+    domain = parse_domain_id(domain_id)
+    check_settings(wifi_ssid, "", agent, domain)  # before anything else: no typo costs a wait
     ws, config = load(workspace)
     serial = parse_port(port)
     plan, step = firmware_plan(ws, config, package)
     firmware_dir = ws.ws_dir / firmware_install_dir(package)
     flasher_args = read_flasher_args(firmware_dir, package)
     nvs = nvs_partition(firmware_dir, flasher_args, package)
-    settings = network_settings(wifi_ssid, wifi_password_file, agent, domain_id, sys.stdin, _ask_password)
+    settings = network_settings(wifi_ssid, wifi_password_file, agent, domain, sys.stdin, _ask_password)
     check_port(serial)
     runner = runner_for(ws, config, Reporter(console))
     runner.run(plan)
@@ -268,7 +281,7 @@ def monitor(
     """Open idf.py monitor on PORT for a firmware package (needs a terminal)."""
     ws, config = load(workspace)
     serial = parse_port(port)
-    if not sys.stdin.isatty():
+    if not (sys.stdin and sys.stdin.isatty()):
         raise ConfigError("the monitor needs a terminal (stdin is not a TTY)", "Run it from an interactive shell.")
     check_port(serial)
     plan, step = firmware_plan(ws, config, package)

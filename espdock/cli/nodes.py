@@ -48,7 +48,7 @@ def run(
     plan, step = nodes.runtime_plan(build_plan(ws, config, [], PackageKind.ROS, checked=(package,)))
     runner = ensure_images(ws, config, plan)
     image = runner.runtime_spec(ws, step).tag
-    tty = sys.stdin.isatty() and sys.stdout.isatty()
+    tty = bool(sys.stdin and sys.stdin.isatty()) and sys.stdout.isatty()
     spec = nodes.node_spec(ws, image, path, tuple(args or ()), runner.owner, os.environ, network, tty)
     code, stopped_by = runner.engine.run_foreground(spec)
     raise typer.Exit(128 + stopped_by if stopped_by else code)
@@ -61,6 +61,8 @@ def shell(workspace: WorkspaceOption = None) -> None:
     ws, config = load(workspace)
     plan, image = nodes.build_image_plan(build_plan(ws, config, [], PackageKind.ROS, checked=()))
     runner = ensure_images(ws, config, plan)
-    spec = nodes.shell_spec(ws, image, runner.owner, os.environ, sys.stdin.isatty() and sys.stdout.isatty())
+    spec = nodes.shell_spec(
+        ws, image, runner.owner, os.environ, bool(sys.stdin and sys.stdin.isatty()) and sys.stdout.isatty()
+    )
     code, stopped_by = runner.engine.run_foreground(spec)
     raise typer.Exit(128 + stopped_by if stopped_by else code)

@@ -11,6 +11,7 @@ import pytest
 from espdock.errors import BuildFailed, ConfigError, WorkspaceError
 from espdock.flashing import (
     PortError,
+    check_chip,
     check_port,
     esptool_major,
     flash_argv,
@@ -240,3 +241,24 @@ def test_provisioning_writes_only_the_nvs_region_or_adds_it_in_flash_order():
     start = both.index("write-flash") + 7  # after the flash options
     assert both[start::2] == ("0x1000", "0x8000", "0x9000", "0x10000")
     assert verify_argv(FLASHER_ARGS, port, 5, nvs)[-4:-2] == ("0x9000", "/run/espdock-provision/nvs.bin")
+
+
+@pytest.mark.parametrize(
+    ("found", "supported", "hint"),
+    [
+        ("esp32s3", ("esp32", "esp32s3"), "`espdock build camera_node --target esp32s3`"),
+        (
+            "esp32c3",
+            ("esp32", "esp32s3"),
+            "espdock cannot build camera_node for an esp32c3 (it supports esp32, esp32s3)",
+        ),
+        ("esp32c6", (), "espdock cannot build camera_node for an esp32c6."),  # micro-ROS: -mlongcalls
+        ("esp32c3", (), "`espdock build camera_node --target esp32c3`"),
+    ],
+)
+def test_the_chip_mismatch_hint_suggests_only_a_chip_espdock_builds_the_package_for(found, supported, hint):
+    probe = ["esptool v5.1.0", f"Detecting chip type... {found.upper().replace('ESP32', 'ESP32-')}"]
+    with pytest.raises(ConfigError) as error:
+        check_chip("camera_node", "esp32", probe, parse_port("socket://127.0.0.1:1"), supported)
+    assert f"is an {found}, but camera_node is built for esp32" in error.value.message
+    assert hint in error.value.hint

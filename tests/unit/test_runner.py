@@ -322,3 +322,30 @@ def test_the_users_colcon_defaults_file_is_mounted_where_colcon_reads_it(ws, tmp
     spec = engine.runs[-1]
     assert ("COLCON_DEFAULTS_FILE", "/run/espdock/colcon-defaults.yaml") in spec.env
     assert any(m.source == defaults and m.read_only for m in spec.mounts)
+
+
+def test_a_second_build_in_the_same_workspace_is_told_who_holds_it(ws):
+    """A build waiting on another one's lock names that build's pid and command."""
+    import subprocess
+    import sys
+
+    holder = (
+        "import sys, time; from pathlib import Path; from espdock.runner import workspace_lock; "
+        "from espdock.workspace import Workspace; sys.argv = ['espdock', 'build', 'talker_py'];\n"
+        f"with workspace_lock(Workspace(Path({str(ws.root)!r}))):\n"
+        "    print('locked', flush=True); time.sleep(30)"
+    )
+    process = subprocess.Popen([sys.executable, "-c", holder], stdout=subprocess.PIPE, text=True)
+    try:
+        assert process.stdout.readline().strip() == "locked"
+        from espdock.errors import WorkspaceError
+        from espdock.runner import workspace_lock
+
+        with pytest.raises(WorkspaceError) as error, workspace_lock(ws):
+            pass
+        assert f"(pid {process.pid}: espdock build talker_py)" in error.value.message
+    finally:
+        process.kill()
+        process.wait()
+    with workspace_lock(ws):  # the holder's end frees it
+        pass

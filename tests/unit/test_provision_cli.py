@@ -1,0 +1,103 @@
+"""`espdock provision` and `flash` against hostile command lines, in a workspace with installed
+firmware (a flasher_args.json and partition table as IDF writes them): every refusal comes
+before the port and the engine are touched, with exit 2 and no traceback."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from tests.unit.test_provision import SINGLE_APP_LARGE
+
+REPO = Path(__file__).resolve().parents[2]
+AGENT = ("--agent", "10.0.0.2:8888")
+NOWHERE = "socket://127.0.0.1:1"  # never reached: every case fails before the port
+
+
+@pytest.fixture(scope="module")
+def installed(tmp_path_factory) -> Path:
+    root = tmp_path_factory.mktemp("ws")
+    for name in ("Dockerfile.idf", "Dockerfile.ros", "docker"):
+        copy = shutil.copytree if (REPO / name).is_dir() else shutil.copy2
+        copy(REPO / name, root / name)
+    shutil.copytree(REPO / "firmware", root / "firmware")
+    (root / "espdock.toml").write_text('[espdock]\npackage_paths = ["firmware"]\ncolcon_root = "ws"\n')
+    firmware = root / "ws/install/camera_node/share/camera_node/firmware"
+    (firmware / "partition_table").mkdir(parents=True)
+    (firmware / "partition_table/partition-table.bin").write_bytes(SINGLE_APP_LARGE)
+    args = {"partition-table": {"offset": "0x8000", "file": "partition_table/partition-table.bin"}}
+    (firmware / "flasher_args.json").write_text(json.dumps({**args, "extra_esptool_args": {"chip": "esp32"}}))
+    return root
+
+
+def run(root: Path, *args: bytes | str, stdin_closed: bool = False) -> subprocess.CompletedProcess[bytes]:
+    argv = [sys.executable, "-m", "espdock", *args]
+    return subprocess.run(
+        argv,
+        cwd=root,
+        stdin=subprocess.DEVNULL,
+        capture_output=True,
+        timeout=60,
+        check=False,
+        # `<&-`: the child starts with file descriptor 0 closed, so Python's sys.stdin is None.
+        preexec_fn=(lambda: __import__("os").close(0)) if stdin_closed else None,
+    )
+
+
+@pytest.mark.parametrize("command", ["provision", "flash"])
+def test_an_ssid_whose_bytes_are_not_utf8_is_refused(installed, command, tmp_path, monkeypatch):
+    monkeypatch.setenv("TMPDIR", str(tmp_path))  # where a bug report would go
+    result = run(installed, command, "camera_node", "-p", NOWHERE, "--wifi-ssid", b"caf\xe9", *AGENT,
+                 "--wifi-password-file", "/dev/null")  # fmt: skip
+    assert result.returncode == 2, result.stderr
+    assert b"the Wi-Fi SSID is not UTF-8 text (caf\\xe9)" in result.stderr
+    assert b"Traceback" not in result.stderr and not list(tmp_path.glob("espdock-bug-*"))
+
+
+@pytest.mark.parametrize("command", ["provision", "flash"])
+@pytest.mark.parametrize("password", [("--wifi-password-file", "-"), ()], ids=["dash", "prompt"])
+def test_a_closed_stdin_is_bad_input_not_a_bug(installed, command, password):
+    result = run(installed, command, "camera_node", "-p", NOWHERE, "--wifi-ssid", "lab", *AGENT, *password,
+                 stdin_closed=True)  # fmt: skip
+    assert result.returncode == 2, result.stderr
+    expected = b"reads stdin, which is closed" if password else b"no terminal to ask on"
+    assert expected in result.stderr and b"Traceback" not in result.stderr
+
+
+@pytest.mark.parametrize(
+    ("command", "domain"),
+    [("flash", "\u0664\u0662")]
+    + [("provision", d) for d in ("\u0664\u0662", "\uff14\uff12", "4_2", " 42 ", "+42", "042x", "233", "-1", "")],
+)
+def test_the_domain_id_is_ascii_digits_only(installed, command, domain):
+    result = run(installed, command, "camera_node", "-p", NOWHERE, "--wifi-ssid", "lab", *AGENT,
+                 "--wifi-password-file", "/dev/null", "--domain-id", domain)  # fmt: skip
+    assert result.returncode == 2, result.stderr
+    assert b"ROS domain id" in result.stderr and b"is not 0..232" in result.stderr
+
+
+@pytest.mark.parametrize("command", ["provision", "flash"])
+def test_an_ssid_with_c1_control_characters_is_refused(installed, command):
+    result = run(installed, command, "camera_node", "-p", NOWHERE, "--wifi-ssid", "lab\u009bnet", *AGENT,
+                 "--wifi-password-file", "/dev/null")  # fmt: skip
+    assert result.returncode == 2 and b"the Wi-Fi SSID contains control characters" in result.stderr, result.stderr
+
+
+def test_a_bug_report_keeps_a_command_line_that_is_not_utf8(tmp_path, monkeypatch):
+    from espdock.cli import core
+
+    monkeypatch.setattr(sys, "argv", ["espdock", "provision", "--wifi-ssid", "caf\udce9"])
+    monkeypatch.setattr("tempfile.tempdir", str(tmp_path))
+    try:
+        raise ValueError("caf\udce9")
+    except ValueError as exc:
+        bug = core._bug_report(exc)
+    (log,) = tmp_path.glob("espdock-bug-*.log")
+    assert log.name in bug.hint
+    text = log.read_text()
+    assert "--wifi-ssid caf\\udce9" in text and "ValueError" in text and "Traceback" in text

@@ -62,6 +62,13 @@ class Config:
     cache_registry: str | None = None
     # The workspace's name: its runtime image is espdock/<name>; None: the directory's name.
     name: str | None = None
+    # `espdock prune`: generations of each kind of keyed image kept besides the ones in use, and
+    # whether every successful build prunes so (its BuildKit cache trimmed to build_cache_max_gb).
+    prune_keep: int = 1
+    prune_auto: bool = False
+    build_cache_max_gb: float = 10.0
+    # A build says so, once, when espdock's images on the engine take more than this.
+    images_warn_gb: float = 30.0
 
 
 _Text = Annotated[str, Meta(min_length=1)]
@@ -85,6 +92,10 @@ class _Settings(Struct, forbid_unknown_fields=True):
     colcon_root: _Text | None = None
     cache_registry: Annotated[str, Meta(pattern=r"^[A-Za-z0-9.-]+(:[0-9]+)?(/[a-z0-9._-]+)*$")] | None = None
     name: Annotated[str, Meta(pattern=r"^[a-z0-9][a-z0-9._-]*$")] | None = None
+    prune_keep: Annotated[int, Meta(ge=0, le=1000)] | None = None
+    prune_auto: bool | None = None
+    build_cache_max_gb: Annotated[float, Meta(ge=0)] | None = None
+    images_warn_gb: Annotated[float, Meta(ge=0)] | None = None
 
 
 _KEYS = {f.name for f in fields(Config)}
@@ -104,6 +115,10 @@ _EXPECTED = {
     "package_paths": 'a non-empty list of directory strings, e.g. ["src"]',
     "colcon_root": 'a directory string, e.g. "."',
     "name": 'a lower-case image name string, e.g. "myrobot"',
+    "prune_keep": "a whole number of generations, 0 or more",
+    "prune_auto": "true or false",
+    "build_cache_max_gb": "a number of gigabytes, 0 or more",
+    "images_warn_gb": "a number of gigabytes, 0 or more",
     "cache_registry": 'a registry host[:port][/path] string, e.g. "registry.example.com/espdock" (no scheme)',
 }
 

@@ -208,6 +208,59 @@ class Engine:
             raise EspdockError(f"the engine failed to list images of {repository}: {exc}") from exc
         return [info for info in (self.image(image.id) for image in images) if info is not None]
 
+    def labelled_images(self, label: str) -> list[tuple[str, tuple[str, ...], int, int]]:
+        """(id, tags, bytes no other image shares, size with shared layers) of every image carrying
+        LABEL: one call to the engine's disk-usage report, which knows what layers images share."""
+        try:
+            report = self._client.api.df()
+        except (docker.errors.APIError, requests.exceptions.RequestException) as exc:
+            raise EspdockError(f"the engine failed to report its disk usage: {exc}") from exc
+        found = []
+        for image in report.get("Images") or ():
+            if label not in (image.get("Labels") or {}):
+                continue
+            shared = image.get("SharedSize", -1)
+            unique = int(image.get("Size", 0)) - (int(shared) if shared and shared > 0 else 0)
+            tags = tuple(t for t in image.get("RepoTags") or () if t != "<none>:<none>")
+            found.append((image["Id"], tags, unique, int(image.get("Size", 0))))
+        return found
+
+    def running_images(self) -> set[str]:
+        """The image ids of the running containers."""
+        try:
+            return {c["ImageID"] for c in self._client.api.containers(filters={"status": "running"})}
+        except (docker.errors.APIError, requests.exceptions.RequestException) as exc:
+            raise EspdockError(f"the engine failed to list its containers: {exc}") from exc
+
+    def remove_tag(self, ref: str) -> bool:
+        """Remove the name REF, and the image when it was its last name; False when a container
+        (even a stopped one) still uses the image: it is left as it is."""
+        try:
+            self._client.api.remove_image(ref)
+        except docker.errors.NotFound:
+            return True
+        except docker.errors.APIError as exc:
+            if exc.status_code == 409:
+                return False
+            raise EspdockError(f"the engine could not remove {ref}: {exc}") from exc
+        return True
+
+    def build_cache_size(self) -> int:
+        """Bytes BuildKit's cache holds."""
+        try:
+            report = self._client.api.df()
+        except (docker.errors.APIError, requests.exceptions.RequestException) as exc:
+            raise EspdockError(f"the engine failed to report its disk usage: {exc}") from exc
+        return sum(int(entry.get("Size", 0)) for entry in report.get("BuildCache") or ())
+
+    def trim_build_cache(self, keep: int) -> int:
+        """Trim BuildKit's cache to KEEP bytes (the least recently used goes first); bytes freed."""
+        try:
+            answer = self._client.api.prune_builds(keep_storage=keep)
+        except (docker.errors.APIError, requests.exceptions.RequestException) as exc:
+            raise EspdockError(f"the engine could not trim its build cache: {exc}") from exc
+        return int((answer or {}).get("SpaceReclaimed") or 0)
+
     def pull(self, ref: str) -> bool:
         """Pull REF from its registry; False when no registry could give it."""
         repository, tag = _split_ref(ref)

@@ -120,6 +120,8 @@ class Runner:
         self._owner = owner
         self._push_cache = push_cache
         self._commit_times: dict[Path, str | None] = {}
+        # The keyed images this runner's steps used (tag, repository), for espdock.prune's record.
+        self.used_images: list[tuple[str, str]] = []
 
     @property
     def engine(self) -> Engine:
@@ -211,6 +213,7 @@ class Runner:
     ) -> tuple[Outcome, str]:
         """EXTRA_CONTEXT: files copied into the build context (relative path -> source)."""
         spec = step.spec
+        self.used_images.append((spec.tag, spec.repository))
         existing = self._engine.image(spec.tag)
         if not step.force and existing is not None and existing.labels.get(LABEL_KEY) == spec.key:
             age = datetime.now(UTC) - existing.created

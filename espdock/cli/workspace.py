@@ -23,6 +23,7 @@ from espdock.cli.core import (
     notify,
     workspace_packages,
 )
+from espdock.cli.prune import after_build
 from espdock.config import check_target, invoking_user
 from espdock.errors import ConfigError, WorkspaceError
 from espdock.events import Outcome
@@ -102,7 +103,8 @@ def build(
     started = time.monotonic()
     try:
         owner = invoking_user(os.environ, ws.root)
-        results = Runner(engine, config, os.environ, reporter, owner, push_cache=push_cache).run(plan)
+        runner = Runner(engine, config, os.environ, reporter, owner, push_cache=push_cache)
+        results = runner.run(plan)
         built = any(r.outcome is not Outcome.CACHED for r in results)
         chown = owner if os.geteuid() == 0 else None
         manifest = record_build(plan, config.target, ws.ws_dir / "install", built, stamp_files(ws), chown)
@@ -111,6 +113,7 @@ def build(
         reporter.summary()
         if report is not None:
             write_report(report, reporter.finished, manifest, time.monotonic() - started)
+    after_build(engine, ws, config, runner)
 
 
 @app.command()

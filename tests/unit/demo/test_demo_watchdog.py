@@ -10,6 +10,8 @@ import textwrap
 import time
 from pathlib import Path
 
+import pytest
+
 PACKAGE_DIR = Path(__file__).resolve().parents[3] / "ws" / "src" / "espdock_demo"
 
 NODE = textwrap.dedent("""
@@ -66,4 +68,20 @@ def test_sigterm_reaches_the_node(tmp_path):
     while not pid_file.exists() and time.monotonic() < deadline:
         time.sleep(0.1)
     process.send_signal(signal.SIGTERM)
-    assert process.wait(timeout=20) == 128 + signal.SIGTERM
+    # The node (a plain child here, ended by the signal's default action) stopped as asked: exit 0.
+    assert process.wait(timeout=20) == 0
+    node = int(pid_file.read_text())
+    with pytest.raises(ProcessLookupError):
+        os.kill(node, 0)
+
+
+def test_sigint_stops_the_node_as_sigterm_does_with_no_traceback(tmp_path):
+    """A Ctrl-C for the service reaches the node as SIGTERM: a node still starting (here: no
+    handler at all) ends quietly instead of printing a KeyboardInterrupt traceback."""
+    process, pid_file = watchdog(tmp_path, beats=1000, then="exit")
+    deadline = time.monotonic() + 10
+    while not pid_file.exists() and time.monotonic() < deadline:
+        time.sleep(0.1)
+    process.send_signal(signal.SIGINT)
+    assert process.wait(timeout=20) == 0
+    assert "Traceback" not in process.stderr.read()

@@ -10,6 +10,11 @@ first frame that shows it, for benchmarks.
 
 from __future__ import annotations
 
+# First, before the slow imports: a stop while they run ends the node quietly.
+import espdock_demo.stop_early  # noqa: F401
+
+# isort: split
+
 import json
 import time
 

@@ -8,6 +8,11 @@ with, or an error when it does not answer within `service_timeout` seconds.
 
 from __future__ import annotations
 
+# First, before the slow imports: a stop while they run ends the node quietly.
+import espdock_demo.stop_early  # noqa: F401
+
+# isort: split
+
 import threading
 
 from custom_interface.msg import CameraConfig

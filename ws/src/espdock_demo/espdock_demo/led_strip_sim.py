@@ -8,6 +8,11 @@ subscriber gets it at once.
 
 from __future__ import annotations
 
+# First, before the slow imports: a stop while they run ends the node quietly.
+import espdock_demo.stop_early  # noqa: F401
+
+# isort: split
+
 from rclpy.node import Node
 from std_msgs.msg import ColorRGBA, String
 

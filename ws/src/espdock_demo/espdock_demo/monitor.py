@@ -3,6 +3,11 @@ then QR codes and LED colours as they happen."""
 
 from __future__ import annotations
 
+# First, before the slow imports: a stop while they run ends the node quietly.
+import espdock_demo.stop_early  # noqa: F401
+
+# isort: split
+
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.node import Node
 from std_msgs.msg import ColorRGBA, String

@@ -7,6 +7,11 @@ UTF-8) is logged and counted, never fatal.
 
 from __future__ import annotations
 
+# First, before the slow imports: a stop while they run ends the node quietly.
+import espdock_demo.stop_early  # noqa: F401
+
+# isort: split
+
 import time
 
 from rclpy.node import Node

@@ -4,14 +4,25 @@ from __future__ import annotations
 
 import os
 import pathlib
+import signal
 import time
 from collections.abc import Callable, Mapping
 
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from rclpy.executors import Executor, ExternalShutdownException, SingleThreadedExecutor, TimeoutException
+from rclpy.context import Context
+from rclpy.exceptions import InvalidHandle
+from rclpy.executors import (
+    Executor,
+    ExternalShutdownException,
+    ShutdownException,
+    SingleThreadedExecutor,
+    TimeoutException,
+)
+from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.utilities import get_default_context
 
 from espdock_demo.names import DIAGNOSTICS_TOPIC, HEARTBEAT_FILE_DEFAULT
 
@@ -100,6 +111,37 @@ def run_ready(executor: Executor) -> None:
             raise handler.exception()
 
 
+def _stopped_by_signal(exc: BaseException, context: Context) -> bool:
+    """Whether EXC is how a stop request surfaced rather than a fault.
+
+    rclpy's signal handler shuts the context down from its own thread, at any moment: between
+    a check of context.ok() and the wait set that follows (RCLError: "the given context is not
+    valid"), in a timer's publish, while a node is still being made (InvalidHandle, RCLError),
+    or as ExternalShutdownException. Once the context is down, an rclpy error is that stop; no
+    check before a call can close the gap, since the signal may come right after the check.
+    """
+    if isinstance(exc, (KeyboardInterrupt, ExternalShutdownException, ShutdownException)):
+        return True
+    return isinstance(exc, (_rclpy.RCLError, InvalidHandle)) and not context.ok()
+
+
+_stop_requested: list[int] = []
+
+
+def _request_stop(signum: int, _frame: object) -> None:
+    # Remembered as well as raised: raised where the handler happens to run (a weakref callback,
+    # a __del__), the KeyboardInterrupt is printed and dropped, and the stop must not be.
+    _stop_requested.append(signum)
+    _ignore_signals()
+    raise KeyboardInterrupt
+
+
+def _ignore_signals() -> None:
+    """The stop is under way: a second SIGTERM or Ctrl-C must not cut its clean-up short."""
+    for signum in (signal.SIGTERM, signal.SIGINT):
+        signal.signal(signum, signal.SIG_IGN)
+
+
 def spin_node(
     make_node: Callable[[], Node],
     executor: Executor | None = None,
@@ -113,29 +155,41 @@ def spin_node(
     path, whose Python would otherwise run at the very moments the QR text and the LED
     colour go by (its DDS threads still receive each message as it comes).
 
-    Anything else a node raises ends the process with an error, so the
-    container's restart policy brings it back.
+    A stop (SIGTERM, SIGINT) ends the process with exit 0 whatever it interrupts. Anything
+    else a node raises ends the process with an error, so the container's restart policy
+    brings it back.
     """
-    rclpy.init()
+    # SIGTERM too raises KeyboardInterrupt until rclpy's handlers (installed by init) take over:
+    # a stop while the node is being made.
+    for signum in (signal.SIGTERM, signal.SIGINT):
+        signal.signal(signum, _request_stop)
+    context = get_default_context()
     node = None
     try:
+        rclpy.init()
         node = make_node()
         executor = executor or SingleThreadedExecutor()
         executor.add_node(node)
+        if _stop_requested:
+            return  # a stop that came while the node was being made, and was not raised
         if poll_period is None:
             executor.spin()
         else:
-            while executor.context.ok():
+            while context.ok():
                 time.sleep(poll_period)
-                # SIGTERM shuts the context down from rclpy's signal thread, maybe in the sleep:
-                # a wait set on a shut-down context is an error, not a way out.
-                if executor.context.ok():
-                    run_ready(executor)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
+                run_ready(executor)
+    except BaseException as exc:
+        if not _stopped_by_signal(exc, context):
+            raise
     finally:
-        if node is not None:
-            if on_shutdown is not None:
-                on_shutdown(node)
-            node.destroy_node()
-        rclpy.try_shutdown()
+        _ignore_signals()
+        try:
+            if node is not None:
+                if on_shutdown is not None:
+                    on_shutdown(node)
+                node.destroy_node()
+        except BaseException as exc:
+            if not _stopped_by_signal(exc, context):
+                raise
+        finally:
+            rclpy.try_shutdown()

@@ -8,7 +8,8 @@ an unhealthy container, so a stuck node (a deadlock, a blocked callback, a SIGST
 stuck. A watchdog inside the node cannot help there: a stopped or deadlocked process stops its
 watchdog thread too. So this runs as the node's parent, in another process: when the
 heartbeat is older than --stale-after seconds it kills the node and exits non-zero, and the
-service's `restart: unless-stopped` starts a fresh one. SIGTERM and SIGINT go to the node.
+service's `restart: unless-stopped` starts a fresh one. SIGTERM and SIGINT stop the node
+(as SIGTERM); a node ended by that signal before it could handle it exits 0, as a stop.
 """
 
 from __future__ import annotations
@@ -44,19 +45,30 @@ def main(argv: list[str] | None = None) -> int:
         parser.error("give the node's command after --")
     heartbeat = Path(os.environ.get("ESPDOCK_HEARTBEAT", HEARTBEAT_FILE_DEFAULT))
     started = time.time()
-    node = subprocess.Popen(command)
+    stops: list[int] = []
+    node: subprocess.Popen | None = None
 
-    def forward(signum: int, _frame: object) -> None:
-        node.send_signal(signum)
+    def forward(_signum: int, _frame: object) -> None:
+        # Either is a stop, and the node handles both alike; a SIGINT that comes while the node's
+        # Python is still starting would print a KeyboardInterrupt traceback, SIGTERM ends it quietly.
+        stops.append(signal.SIGTERM)
+        if node is not None:
+            node.send_signal(signal.SIGTERM)
 
+    # Before the node starts: a stop at any moment reaches it, none leaves it running without us.
     for signum in (signal.SIGTERM, signal.SIGINT):
         signal.signal(signum, forward)
+    node = subprocess.Popen(command)
+    if stops:  # came while it was being started
+        node.send_signal(signal.SIGTERM)
     while True:
         try:
             code = node.wait(timeout=0.5)
         except subprocess.TimeoutExpired:
             pass
         else:
+            if code < 0 and -code in stops:
+                return 0  # the stop asked for ended a node still too young to handle it: a stop
             return code if code >= 0 else 128 - code  # killed by signal N: 128 + N, as a shell says
         age = beat_age(heartbeat, started)
         beaten = heartbeat.exists() and heartbeat.stat().st_mtime > started

@@ -1,0 +1,147 @@
+"""`espdock prune`: remove the keyed images no workspace's inputs use any more, trim BuildKit's cache."""
+
+from __future__ import annotations
+
+import os
+import time
+from typing import Annotated
+
+import typer
+from rich.text import Text
+
+from espdock import bootstrap
+from espdock.cli.core import WorkspaceOption, app, build_plan, command, console, load, notify
+from espdock.config import Config, invoking_user
+from espdock.engine import Engine
+from espdock.errors import EspdockError
+from espdock.plan import LABEL_KEY, EnsureImage, RuntimeImage
+from espdock.prune import (
+    PrunePlan,
+    forget_images,
+    images_total,
+    plan_prune,
+    present_images,
+    read_records,
+    record_use,
+    size_text,
+    state_dir,
+)
+from espdock.runner import Runner
+from espdock.ui import QuietReporter, Reporter
+from espdock.workspace import Workspace
+
+GB = 1000**3
+
+
+def current_tags(ws: Workspace, config: Config, engine: Engine) -> set[str]:
+    """The keyed images the workspace's inputs use now: its plan's images and its runtime image
+    for the install tree as it is."""
+    plan = build_plan(ws, config, [])
+    runner = Runner(engine, config, os.environ, QuietReporter(Reporter(console)), invoking_user(os.environ, ws.root))
+    tags = {step.spec.tag for step in plan.steps if isinstance(step, EnsureImage)}
+    for step in plan.steps:
+        if isinstance(step, RuntimeImage):
+            tags.add(step.base.tag)
+            try:
+                tags.add(runner.runtime_spec(ws, step).tag)
+            except EspdockError:
+                pass  # nothing installed yet: no runtime image is current
+    return tags
+
+
+def prune_images(
+    engine: Engine, ws: Workspace, config: Config, keep: int, all_workspaces: bool, dry_run: bool
+) -> tuple[PrunePlan, list[str]]:
+    """Plan (and unless DRY_RUN, carry out) the removal; return the plan and the tags a stopped
+    container kept."""
+    state = state_dir(os.environ)
+    records = read_records(state)
+    root = str(ws.root)
+    targets = {r.root for r in records} if all_workspaces else {root}
+    current = {root: current_tags(ws, config, engine)}
+    listing = engine.labelled_images(LABEL_KEY)
+    plan = plan_prune(records, targets, current, present_images(listing), engine.running_images(), keep)
+    busy: list[str] = []
+    if not dry_run:
+        gone: dict[str, list[str]] = {}
+        for decision in plan.remove:
+            if engine.remove_tag(decision.tag):
+                gone.setdefault(decision.workspace, []).append(decision.tag)
+            else:
+                busy.append(decision.tag)
+        for workspace, tags in gone.items():
+            forget_images(state, workspace, tags)
+    return plan, busy
+
+
+def trim_cache(engine: Engine, bound_gb: float, dry_run: bool) -> tuple[int, int]:
+    """BuildKit's cache size, and what trimming it to BOUND_GB freed (0 on a dry run)."""
+    size = engine.build_cache_size()
+    if dry_run or size <= bound_gb * GB:
+        return size, 0
+    return size, engine.trim_build_cache(int(bound_gb * GB))
+
+
+@app.command()
+@command
+def prune(
+    keep: Annotated[
+        int | None,
+        typer.Option("--keep", min=0, help="Generations of each kind kept besides those in use (prune_keep)."),
+    ] = None,
+    all_workspaces: Annotated[
+        bool, typer.Option("--all-workspaces", help="Prune every workspace built on this machine, not just this one.")
+    ] = False,
+    dry_run: Annotated[bool, typer.Option("--dry-run", help="Say what would go and how much, remove nothing.")] = False,
+    cache_max_gb: Annotated[
+        float | None,
+        typer.Option("--cache-max-gb", min=0, help="Trim BuildKit's cache to this many GB (build_cache_max_gb)."),
+    ] = None,
+    workspace: WorkspaceOption = None,
+) -> None:
+    """Remove this workspace's keyed images its current inputs no longer use, keeping the last few of
+    each kind; never an image another workspace's last build used or a running container needs."""
+    ws, config = load(workspace)
+    engine = bootstrap.ensure_engine(os.environ, notify)
+    keep = config.prune_keep if keep is None else keep
+    plan, busy = prune_images(engine, ws, config, keep, all_workspaces, dry_run)
+    verb = "would remove" if dry_run else "removed"
+    for decision in plan.remove:
+        if decision.tag in busy:
+            console.print(Text(f"kept {decision.tag}: a stopped container uses it (docker container prune)"))
+        else:
+            console.print(Text(f"{verb} {decision.tag} ({size_text(decision.size)}; {decision.reason})"))
+    for decision in plan.keep:
+        console.print(Text(f"kept {decision.tag} ({decision.reason})", style="dim"))
+    freed = sum(d.size for d in plan.remove if d.tag not in busy)
+    cache, trimmed = trim_cache(engine, config.build_cache_max_gb if cache_max_gb is None else cache_max_gb, dry_run)
+    console.print(
+        f"{verb} {len(plan.remove) - len(busy)} images, {size_text(freed)}; "
+        f"BuildKit cache {size_text(cache)}" + (f", {size_text(trimmed)} trimmed" if trimmed else "")
+    )
+
+
+def after_build(engine: Engine, ws: Workspace, config: Config, runner: Runner) -> None:
+    """Record the images the build used; prune when prune_auto; warn once when espdock's images
+    take more than images_warn_gb."""
+    state = state_dir(os.environ)
+    try:
+        record_use(state, ws.root, runner.used_images, time.time())
+    except OSError as exc:
+        notify(f"warning: could not record the images this build used in {state}: {exc.strerror}")
+    if config.prune_auto:
+        plan, busy = prune_images(engine, ws, config, config.prune_keep, False, False)
+        if plan.remove:
+            freed = sum(d.size for d in plan.remove if d.tag not in busy)
+            notify(f"prune_auto: removed {len(plan.remove) - len(busy)} images no longer used ({size_text(freed)})")
+        trim_cache(engine, config.build_cache_max_gb, False)
+    total = images_total(engine.labelled_images(LABEL_KEY))
+    if total > config.images_warn_gb * GB:
+        console.print(
+            Text(
+                f"note: espdock's images on this engine take up to {size_text(total)} (more than "
+                f"images_warn_gb = {config.images_warn_gb:g}); `espdock prune --dry-run` shows what "
+                "`espdock prune` would remove (prune_auto = true in espdock.toml does it after each build)",
+                style="yellow",
+            )
+        )

@@ -1,0 +1,201 @@
+"""Keeping the engine's disk bounded: which keyed images each workspace used, and which may go.
+
+Every build records, per workspace, the keyed images it used (tag, kind, when) in espdock's state
+directory ($ESPDOCK_STATE_DIR, else $XDG_STATE_HOME/espdock, else ~/.local/state/espdock), one
+file per workspace root. `espdock prune` removes a workspace's images its current inputs no longer
+use, keeping the last few generations of each kind; an image another recorded workspace's last
+build used, or a running container's, stays. Images no record names (another user's, a test's,
+a pulled base) are never candidates.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass
+from pathlib import Path
+
+from espdock import durable
+
+
+def state_dir(env: Mapping[str, str]) -> Path:
+    """Where espdock keeps what outlives a workspace's build tree (the image records)."""
+    if env.get("ESPDOCK_STATE_DIR"):
+        return Path(env["ESPDOCK_STATE_DIR"])
+    if env.get("XDG_STATE_HOME"):
+        return Path(env["XDG_STATE_HOME"]) / "espdock"
+    return Path(env.get("HOME") or Path.home()) / ".local" / "state" / "espdock"
+
+
+@dataclass(frozen=True)
+class UsedImage:
+    tag: str
+    repository: str
+    used: float  # when a build last used it (seconds since the epoch)
+
+
+@dataclass(frozen=True)
+class Record:
+    """What one workspace's builds used: every keyed image (latest use), and its last build's set."""
+
+    root: str
+    images: tuple[UsedImage, ...]
+    current: frozenset[str]
+
+
+def _record_path(state: Path, root: Path | str) -> Path:
+    return state / "workspaces" / f"{hashlib.sha256(str(root).encode()).hexdigest()[:16]}.json"
+
+
+def read_records(state: Path) -> list[Record]:
+    """Every workspace's record (unreadable files skipped: a record only protects or offers images)."""
+    records = []
+    for path in sorted((state / "workspaces").glob("*.json")):
+        try:
+            data = json.loads(path.read_text())
+            images = tuple(
+                UsedImage(tag, str(item["repository"]), float(item["used"])) for tag, item in data["images"].items()
+            )
+            records.append(Record(str(data["root"]), images, frozenset(data.get("current", ()))))
+        except (OSError, ValueError, KeyError, TypeError, AttributeError):
+            continue
+    return records
+
+
+def record_use(state: Path, root: Path, used: Iterable[tuple[str, str]], now: float) -> None:
+    """Record that ROOT's build used USED (tag, repository) at NOW: those become its current image of
+    each kind; kinds the build did not touch (a --only build) keep their current one."""
+    used = dict(used)
+    if not used:
+        return
+    path = _record_path(state, root)
+    previous = next((r for r in read_records(state) if r.root == str(root)), None)
+    images = {i.tag: {"repository": i.repository, "used": i.used} for i in (previous.images if previous else ())}
+    for tag, repository in used.items():
+        images[tag] = {"repository": repository, "used": now}
+    kinds = set(used.values())
+    kept = {t for t in (previous.current if previous else ()) if images.get(t, {}).get("repository") not in kinds}
+    data = {"root": str(root), "images": images, "current": sorted(kept | set(used))}
+    path.parent.mkdir(parents=True, mode=0o700, exist_ok=True)
+    durable.write_text(path, json.dumps(data, indent=1, sort_keys=True) + "\n")
+
+
+def forget_images(state: Path, root: str, tags: Iterable[str]) -> None:
+    """Drop TAGS (removed from the engine) from ROOT's record."""
+    path = _record_path(state, root)
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return
+    for tag in tags:
+        data.get("images", {}).pop(tag, None)
+    durable.write_text(path, json.dumps(data, indent=1, sort_keys=True) + "\n")
+
+
+@dataclass(frozen=True)
+class Present:
+    """A keyed image on the engine, by one of its tags."""
+
+    tag: str
+    image_id: str
+    size: int  # bytes no other image shares (what removing it frees when its last tag goes)
+
+
+@dataclass(frozen=True)
+class Decision:
+    tag: str
+    workspace: str
+    size: int
+    reason: str  # why it goes, or why it stays
+
+
+@dataclass(frozen=True)
+class PrunePlan:
+    remove: tuple[Decision, ...]
+    keep: tuple[Decision, ...]
+
+    @property
+    def freed(self) -> int:
+        """Bytes the removals free (an image two removed tags name counted once)."""
+        return sum(d.size for d in self.remove)
+
+
+def plan_prune(
+    records: Iterable[Record],
+    targets: Iterable[str],
+    current: Mapping[str, Iterable[str]],
+    present: Iterable[Present],
+    running: Iterable[str],
+    keep: int,
+) -> PrunePlan:
+    """Which of TARGETS' (workspace roots) recorded images to remove.
+
+    Each target keeps what CURRENT (root -> tags its inputs use now) names and, of each kind
+    (repository), the KEEP most recently used others. An image stays, too, when another record's
+    last build used it, when a running container runs it (RUNNING: image ids), or when it is no
+    longer on the engine (PRESENT)."""
+    records = list(records)
+    targets = set(targets)
+    on_engine = {p.tag: p for p in present}
+    running = set(running)
+    remove: list[Decision] = []
+    kept: list[Decision] = []
+    seen_ids: set[str] = set()
+    for record in records:
+        if record.root not in targets:
+            continue
+        now_used = set(current.get(record.root, ())) | set(record.current)
+        others = {tag for other in records if other.root != record.root for tag in other.current}
+        by_kind: dict[str, list[UsedImage]] = {}
+        for image in record.images:
+            by_kind.setdefault(image.repository, []).append(image)
+        for images in by_kind.values():
+            older = sorted((i for i in images if i.tag not in now_used), key=lambda i: i.used, reverse=True)
+            for index, image in enumerate(older):
+                there = on_engine.get(image.tag)
+                if there is None:
+                    continue
+                decision = _decide(image, there, index, keep, others, running)
+                if decision is None:
+                    size = 0 if there.image_id in seen_ids else there.size
+                    seen_ids.add(there.image_id)
+                    remove.append(Decision(image.tag, record.root, size, "no longer used by its inputs"))
+                else:
+                    kept.append(Decision(image.tag, record.root, there.size, decision))
+        for tag in sorted(now_used):
+            if tag in on_engine:
+                kept.append(Decision(tag, record.root, on_engine[tag].size, "used by the current inputs"))
+    # A tag two targets recorded: kept by either keeps it.
+    kept_tags = {d.tag for d in kept}
+    return PrunePlan(tuple(d for d in remove if d.tag not in kept_tags), tuple(kept))
+
+
+def _decide(image: UsedImage, there: Present, index: int, keep: int, others: set[str], running: set[str]) -> str | None:
+    if index < keep:
+        return f"one of the last {keep} of its kind"
+    if image.tag in others:
+        return "another workspace's last build used it"
+    if there.image_id in running:
+        return "a running container uses it"
+    return None
+
+
+def size_text(size: int) -> str:
+    """SIZE in bytes as docker prints it (1000-based)."""
+    value = float(size)
+    for unit in ("B", "kB", "MB", "GB"):
+        if value < 1000 or unit == "GB":
+            return f"{value:.0f} {unit}" if unit == "B" else f"{value:.2f} {unit}"
+        value /= 1000
+    return f"{value:.2f} TB"
+
+
+def present_images(listing: Iterable[tuple[str, tuple[str, ...], int, int]]) -> list[Present]:
+    """Each tag of the engine's keyed images (Engine.labelled_images) as a Present."""
+    return [Present(tag, image_id, unique) for image_id, tags, unique, _ in listing for tag in tags]
+
+
+def images_total(listing: Iterable[tuple[str, tuple[str, ...], int, int]]) -> int:
+    """What the keyed images take at most: each image's size, shared layers counted with each."""
+    return sum(size for _, _, _, size in listing)

@@ -1,0 +1,102 @@
+"""`espdock prune` on the real engine: a workspace with three generations of images and a second
+workspace sharing one of them. Every image here is this run's own (a comment unique to the run in
+Dockerfile.ros gives each image a key nobody else has) and the records live in this run's state
+dir, so nothing another test or user built is ever a candidate."""
+
+from __future__ import annotations
+
+import shutil
+import subprocess
+import uuid
+from pathlib import Path
+
+import pytest
+
+from espdock.engine import Engine
+from espdock.plan import LABEL_KEY
+from espdock.prune import Record, read_records
+from tests.conftest import espdock, python_workspace
+
+pytestmark = [pytest.mark.engine, pytest.mark.slow]
+
+
+def generation(root: Path, run: str, number: int) -> None:
+    """Make ROOT's inputs those of generation NUMBER: a new Dockerfile.ros, so new keys for every image."""
+    dockerfile = root / "Dockerfile.ros"
+    base = dockerfile.read_text().split("# prune test ")[0]
+    dockerfile.write_text(f"{base}# prune test {run} generation {number}\n")
+
+
+def on_engine(engine: Engine) -> set[str]:
+    return {tag for _, tags, _, _ in engine.labelled_images(LABEL_KEY) for tag in tags}
+
+
+def disk(engine: Engine, tags: set[str]) -> tuple[int, int]:
+    """What the images TAGS name take: (bytes no other image shares, sizes with shared layers)."""
+    listing = [entry for entry in engine.labelled_images(LABEL_KEY) if set(entry[1]) & tags]
+    return sum(unique for _, _, unique, _ in listing), sum(size for _, _, _, size in listing)
+
+
+def recorded(state: Path) -> dict[str, Record]:
+    return {record.root: record for record in read_records(state)}
+
+
+def test_prune_keeps_what_is_used_and_removes_the_rest(engine, tmp_path):
+    run = uuid.uuid4().hex[:12]
+    state = tmp_path / "state"
+    env = {"ESPDOCK_STATE_DIR": str(state)}
+    first, second = tmp_path / "first", tmp_path / "second"
+    python_workspace(first)
+    (first / "espdock.toml").write_text(f'[espdock]\nname = "prune-a-{run}"\n')
+    try:
+        for number in (1, 2, 3):
+            generation(first, run, number)
+            if number == 2:  # the second workspace shares the second generation's ROS images
+                shutil.copytree(first, second, ignore=shutil.ignore_patterns("build", "install", "log"))
+                (second / "espdock.toml").write_text(f'[espdock]\nname = "prune-b-{run}"\n')
+                built = espdock("build", cwd=second, env=env)
+                assert built.returncode == 0, built.stdout[-3000:] + built.stderr
+            built = espdock("build", cwd=first, env=env)
+            assert built.returncode == 0, built.stdout[-3000:] + built.stderr
+        records = recorded(state)
+        ours, theirs = records[str(first)], records[str(second)]
+        everything = {i.tag for i in ours.images} | {i.tag for i in theirs.images}
+        present = on_engine(engine) & everything
+        assert len({i.tag for i in ours.images}) == 9 and len(ours.current) == 3  # 3 kinds x 3 generations
+        shared = theirs.current & {i.tag for i in ours.images}
+        assert len(shared) == 2  # the ROS build image and the runtime base of generation 2
+        gone = {i.tag for i in ours.images} - ours.current - shared  # generation 1, generation 2's runtime
+
+        dry = espdock("prune", "--keep", "0", "--dry-run", cwd=first, env=env)
+        assert dry.returncode == 0, dry.stdout + dry.stderr
+        assert on_engine(engine) & everything == present, "a dry run removed images"
+        for tag in gone:
+            assert f"would remove {tag} (" in dry.stdout, dry.stdout
+        for tag in shared:
+            assert f"kept {tag} (another workspace's last build used it)" in dry.stdout, dry.stdout
+        assert f"would remove {len(gone)} images, " in dry.stdout
+
+        kept_one = espdock("prune", "--keep", "1", "--dry-run", cwd=first, env=env)
+        assert kept_one.stdout.count("would remove espdock/") == len(gone) - 1, kept_one.stdout  # gen 2's runtime stays
+
+        disk_before = disk(engine, everything)
+        pruned = espdock("prune", "--keep", "0", cwd=first, env=env)
+        assert pruned.returncode == 0, pruned.stdout + pruned.stderr
+        after = on_engine(engine)
+        disk_after = disk(engine, everything)
+        print(f"\n{pruned.stdout.splitlines()[-1]}\nthis run's images: unique {disk_before[0]} -> {disk_after[0]} B, "
+              f"with shared layers {disk_before[1]} -> {disk_after[1]} B")  # fmt: skip
+        assert not gone & after, gone & after
+        assert ours.current | theirs.current <= after
+
+        # The second workspace still builds with nothing rebuilt, and so does the first.
+        for root in (second, first):
+            again = espdock("build", cwd=root, env=env)
+            assert again.returncode == 0, again.stdout[-3000:] + again.stderr
+            assert "cache miss" not in again.stdout, again.stdout[-3000:]
+    finally:
+        records = recorded(state)
+        tags = {i.tag for record in records.values() for i in record.images}
+        tags |= {f"espdock/prune-{side}-{run}:latest" for side in "ab"}
+        left = tags & on_engine(engine) | {t for t in tags if t.endswith(":latest")}
+        subprocess.run(["docker", "rmi", *sorted(left)], capture_output=True, check=False)

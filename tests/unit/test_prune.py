@@ -1,0 +1,53 @@
+"""espdock.prune's pure parts: the per-workspace records and which images a prune removes."""
+
+from __future__ import annotations
+
+from espdock.prune import Present, Record, UsedImage, plan_prune, read_records, record_use
+
+
+def test_a_build_records_its_images_as_current_per_kind(tmp_path):
+    record_use(tmp_path, tmp_path / "ws", [("espdock/ros:a1", "espdock/ros"), ("espdock/w:b1", "espdock/w")], 10)
+    record_use(tmp_path, tmp_path / "ws", [("espdock/ros:a2", "espdock/ros")], 20)  # a build of one kind
+    (record,) = read_records(tmp_path)
+    assert record.root == str(tmp_path / "ws")
+    assert record.current == {"espdock/ros:a2", "espdock/w:b1"}
+    assert {(i.tag, i.used) for i in record.images} == {("espdock/ros:a1", 10), ("espdock/ros:a2", 20),
+                                                         ("espdock/w:b1", 10)}  # fmt: skip
+
+
+def generations(root: str, kind: str, count: int) -> tuple[UsedImage, ...]:
+    return tuple(UsedImage(f"{kind}:{n}", kind, float(n)) for n in range(1, count + 1))
+
+
+def present(*tags: str) -> list[Present]:
+    return [Present(tag, f"id-{tag}", 100) for tag in tags]
+
+
+def test_the_old_generations_go_the_last_n_and_what_others_or_containers_use_stay():
+    ours = Record("/a", generations("/a", "ros", 5), frozenset({"ros:5"}))
+    theirs = Record("/b", (UsedImage("ros:2", "ros", 2.0),), frozenset({"ros:2"}))
+    tags = [f"ros:{n}" for n in range(1, 6)]
+    plan = plan_prune([ours, theirs], {"/a"}, {"/a": {"ros:5"}}, present(*tags), {"id-ros:1"}, keep=1)
+    assert [d.tag for d in plan.remove] == ["ros:3"]
+    assert {d.tag: d.reason for d in plan.keep} == {
+        "ros:4": "one of the last 1 of its kind",
+        "ros:2": "another workspace's last build used it",
+        "ros:1": "a running container uses it",
+        "ros:5": "used by the current inputs",
+    }
+    assert plan.freed == 100
+
+
+def test_what_the_inputs_use_now_stays_though_no_build_recorded_it_and_gone_images_are_skipped():
+    ours = Record("/a", generations("/a", "ros", 3), frozenset({"ros:3"}))
+    plan = plan_prune([ours], {"/a"}, {"/a": {"ros:1"}}, present("ros:1", "ros:3"), set(), keep=0)
+    assert plan.remove == ()  # ros:2 is no longer on the engine, ros:1 is what the inputs use now
+
+
+def test_only_the_targets_are_pruned_and_unrecorded_images_never():
+    ours = Record("/a", generations("/a", "ros", 2), frozenset({"ros:2"}))
+    theirs = Record("/b", generations("/b", "w", 2), frozenset({"w:2"}))
+    everything = present("ros:1", "ros:2", "w:1", "w:2", "debian:bookworm-slim", "someone/else:1")
+    assert [d.tag for d in plan_prune([ours, theirs], {"/a"}, {}, everything, set(), 0).remove] == ["ros:1"]
+    both = plan_prune([ours, theirs], {"/a", "/b"}, {}, everything, set(), 0)
+    assert sorted(d.tag for d in both.remove) == ["ros:1", "w:1"]

@@ -208,21 +208,28 @@ class Engine:
             raise EspdockError(f"the engine failed to list images of {repository}: {exc}") from exc
         return [info for info in (self.image(image.id) for image in images) if info is not None]
 
-    def labelled_images(self, label: str) -> list[tuple[str, tuple[str, ...], int, int]]:
+    def labelled_images(self, label: str, shared: bool = False) -> list[tuple[str, tuple[str, ...], int, int]]:
         """(id, tags, bytes no other image shares, size with shared layers) of every image carrying
-        LABEL: one call to the engine's disk-usage report, which knows what layers images share."""
-        try:
-            report = self._client.api.df()
-        except (docker.errors.APIError, requests.exceptions.RequestException) as exc:
-            raise EspdockError(f"the engine failed to report its disk usage: {exc}") from exc
+        LABEL. SHARED: tell the shared layers apart, from the engine's disk-usage report (slow, and
+        one at a time per engine: while another runs, each image's whole size stands in)."""
+        report = None
+        if shared:
+            try:
+                report = self._client.api.df().get("Images") or []
+            except (docker.errors.APIError, requests.exceptions.RequestException):
+                report = None
+        if report is None:
+            try:
+                report = self._client.api.images(filters={"label": label})
+            except (docker.errors.APIError, requests.exceptions.RequestException) as exc:
+                raise EspdockError(f"the engine failed to list its images: {exc}") from exc
         found = []
-        for image in report.get("Images") or ():
+        for image in report:
             if label not in (image.get("Labels") or {}):
                 continue
-            shared = image.get("SharedSize", -1)
-            unique = int(image.get("Size", 0)) - (int(shared) if shared and shared > 0 else 0)
+            size, common = int(image.get("Size", 0)), int(image.get("SharedSize", -1) or 0)
             tags = tuple(t for t in image.get("RepoTags") or () if t != "<none>:<none>")
-            found.append((image["Id"], tags, unique, int(image.get("Size", 0))))
+            found.append((image["Id"], tags, size - max(common, 0), size))
         return found
 
     def running_images(self) -> set[str]:
@@ -245,12 +252,12 @@ class Engine:
             raise EspdockError(f"the engine could not remove {ref}: {exc}") from exc
         return True
 
-    def build_cache_size(self) -> int:
-        """Bytes BuildKit's cache holds."""
+    def build_cache_size(self) -> int | None:
+        """Bytes BuildKit's cache holds; None while the engine reports another caller's disk usage."""
         try:
             report = self._client.api.df()
-        except (docker.errors.APIError, requests.exceptions.RequestException) as exc:
-            raise EspdockError(f"the engine failed to report its disk usage: {exc}") from exc
+        except (docker.errors.APIError, requests.exceptions.RequestException):
+            return None
         return sum(int(entry.get("Size", 0)) for entry in report.get("BuildCache") or ())
 
     def trim_build_cache(self, keep: int) -> int:

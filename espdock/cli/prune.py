@@ -59,7 +59,7 @@ def prune_images(
     root = str(ws.root)
     targets = {r.root for r in records} if all_workspaces else {root}
     current = {root: current_tags(ws, config, engine)}
-    listing = engine.labelled_images(LABEL_KEY)
+    listing = engine.labelled_images(LABEL_KEY, shared=True)
     plan = plan_prune(records, targets, current, present_images(listing), engine.running_images(), keep)
     busy: list[str] = []
     if not dry_run:
@@ -74,10 +74,11 @@ def prune_images(
     return plan, busy
 
 
-def trim_cache(engine: Engine, bound_gb: float, dry_run: bool) -> tuple[int, int]:
-    """BuildKit's cache size, and what trimming it to BOUND_GB freed (0 on a dry run)."""
+def trim_cache(engine: Engine, bound_gb: float, dry_run: bool) -> tuple[int | None, int]:
+    """BuildKit's cache size (None: unknown just now), and what trimming it to BOUND_GB freed
+    (0 on a dry run)."""
     size = engine.build_cache_size()
-    if dry_run or size <= bound_gb * GB:
+    if dry_run or (size is not None and size <= bound_gb * GB):
         return size, 0
     return size, engine.trim_build_cache(int(bound_gb * GB))
 
@@ -115,9 +116,10 @@ def prune(
         console.print(Text(f"kept {decision.tag} ({decision.reason})", style="dim"))
     freed = sum(d.size for d in plan.remove if d.tag not in busy)
     cache, trimmed = trim_cache(engine, config.build_cache_max_gb if cache_max_gb is None else cache_max_gb, dry_run)
+    cache_text = "size unknown (the engine was busy reporting it)" if cache is None else size_text(cache)
     console.print(
         f"{verb} {len(plan.remove) - len(busy)} images, {size_text(freed)}; "
-        f"BuildKit cache {size_text(cache)}" + (f", {size_text(trimmed)} trimmed" if trimmed else "")
+        f"BuildKit cache {cache_text}" + (f", {size_text(trimmed)} trimmed" if trimmed else "")
     )
 
 
@@ -129,6 +131,13 @@ def after_build(engine: Engine, ws: Workspace, config: Config, runner: Runner) -
         record_use(state, ws.root, runner.used_images, time.time())
     except OSError as exc:
         notify(f"warning: could not record the images this build used in {state}: {exc.strerror}")
+    try:
+        _prune_or_warn(engine, ws, config)
+    except EspdockError as exc:  # the build succeeded: what is only housekeeping must not fail it
+        notify(f"warning: {exc.message}")
+
+
+def _prune_or_warn(engine: Engine, ws: Workspace, config: Config) -> None:
     if config.prune_auto:
         plan, busy = prune_images(engine, ws, config, config.prune_keep, False, False)
         if plan.remove:

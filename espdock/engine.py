@@ -252,6 +252,14 @@ class Engine:
             raise EspdockError(f"the engine could not remove {ref}: {exc}") from exc
         return True
 
+    def layers_size(self) -> int | None:
+        """Bytes every image's layers take on the engine's disk; None while the engine reports another
+        caller's disk usage."""
+        try:
+            return int(self._client.api.df().get("LayersSize") or 0)
+        except (docker.errors.APIError, requests.exceptions.RequestException):
+            return None
+
     def build_cache_size(self) -> int | None:
         """Bytes BuildKit's cache holds; None while the engine reports another caller's disk usage."""
         try:

@@ -105,7 +105,9 @@ def prune(
     ws, config = load(workspace)
     engine = bootstrap.ensure_engine(os.environ, notify)
     keep = config.prune_keep if keep is None else keep
+    layers_before = None if dry_run else engine.layers_size()
     plan, busy = prune_images(engine, ws, config, keep, all_workspaces, dry_run)
+    layers_after = None if dry_run else engine.layers_size()
     verb = "would remove" if dry_run else "removed"
     for decision in plan.remove:
         if decision.tag in busy:
@@ -117,8 +119,13 @@ def prune(
     freed = sum(d.size for d in plan.remove if d.tag not in busy)
     cache, trimmed = trim_cache(engine, config.build_cache_max_gb if cache_max_gb is None else cache_max_gb, dry_run)
     cache_text = "size unknown (the engine was busy reporting it)" if cache is None else size_text(cache)
+    # Each image's own bytes: layers the removed images share only among themselves come on top,
+    # which the engine's whole layer store, before and after, shows.
+    disk = ""
+    if layers_before is not None and layers_after is not None:
+        disk = f" (the engine's image layers: {size_text(layers_before)} -> {size_text(layers_after)})"
     console.print(
-        f"{verb} {len(plan.remove) - len(busy)} images, {size_text(freed)}; "
+        f"{verb} {len(plan.remove) - len(busy)} images, at least {size_text(freed)}{disk}; "
         f"BuildKit cache {cache_text}" + (f", {size_text(trimmed)} trimmed" if trimmed else "")
     )
 

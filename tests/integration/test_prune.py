@@ -96,6 +96,19 @@ def test_prune_keeps_what_is_used_and_removes_the_rest(engine, tmp_path):
             assert again.returncode == 0, again.stdout[-3000:] + again.stderr
             assert "cache miss" not in again.stdout, again.stdout[-3000:]
             assert again.stdout.count("note: espdock's images on this engine take up to") == 1, again.stdout[-3000:]
+
+        # Every recorded workspace: the first's images the second uses stay.
+        every = espdock("prune", "--all-workspaces", "--keep", "0", "--dry-run", cwd=second, env=env)
+        assert every.returncode == 0, every.stdout + every.stderr
+        for tag in shared:
+            assert f"kept {tag} (another workspace's last build used it)" in every.stdout, every.stdout
+
+        # prune_auto: a build of new inputs removes what the ones before used.
+        generation(first, run, 4)
+        auto = espdock("build", cwd=first, env={**env, "ESPDOCK_PRUNE_AUTO": "true", "ESPDOCK_PRUNE_KEEP": "0"})
+        assert auto.returncode == 0, auto.stdout[-3000:] + auto.stderr
+        assert "prune_auto: removed 3 images no longer used" in auto.stdout, auto.stdout[-3000:]
+        assert not ours.current & on_engine(engine) and theirs.current <= on_engine(engine)
     finally:
         records = recorded(state)
         tags = {i.tag for record in records.values() for i in record.images}

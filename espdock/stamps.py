@@ -122,9 +122,7 @@ class StampFile:
             return
         data = self.read()
         data.update(records)
-        tmp = self.path.with_name(f".{self.path.name}.tmp")
-        tmp.write_text(json.dumps(data, indent=1, sort_keys=True) + "\n")
-        os.replace(tmp, self.path)
+        durable.write_text(self.path, json.dumps(data, indent=1, sort_keys=True) + "\n")
 
 
 def _files(root: Path) -> list[Path]:

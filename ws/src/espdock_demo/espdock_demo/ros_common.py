@@ -111,6 +111,10 @@ def run_ready(executor: Executor) -> None:
             raise handler.exception()
 
 
+# The signals _request_stop took: a stop, however its KeyboardInterrupt surfaced (or was dropped).
+_stop_requested: list[int] = []
+
+
 def _stopped_by_signal(exc: BaseException, context: Context) -> bool:
     """Whether EXC is how a stop request surfaced rather than a fault.
 
@@ -119,13 +123,12 @@ def _stopped_by_signal(exc: BaseException, context: Context) -> bool:
     valid"), in a timer's publish, while a node is still being made (InvalidHandle, RCLError),
     or as ExternalShutdownException. Once the context is down, an rclpy error is that stop; no
     check before a call can close the gap, since the signal may come right after the check.
+    The KeyboardInterrupt _request_stop raises may surface as something else: raised while
+    pybind11 converts an argument (rclpy's take_message), it comes out as a RuntimeError.
     """
-    if isinstance(exc, (KeyboardInterrupt, ExternalShutdownException, ShutdownException)):
+    if isinstance(exc, (KeyboardInterrupt, ExternalShutdownException, ShutdownException)) or _stop_requested:
         return True
-    return isinstance(exc, (_rclpy.RCLError, InvalidHandle)) and not context.ok()
-
-
-_stop_requested: list[int] = []
+    return isinstance(exc, (_rclpy.RCLError, InvalidHandle, RuntimeError)) and not context.ok()
 
 
 def _request_stop(signum: int, _frame: object) -> None:

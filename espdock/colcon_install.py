@@ -46,6 +46,7 @@ def install_where_colcon_says(
         run_depends=tuple(sorted(read_package(manifest).depends)),
         owner=None,
         prefix=prefix,
+        workspace_root=ws.root,
     )
 
 

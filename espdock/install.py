@@ -49,9 +49,11 @@ def install_firmware(
     run_depends: tuple[str, ...],
     owner: tuple[int, int] | None,
     prefix: Path | None = None,
+    workspace_root: Path | None = None,
 ) -> Path:
     """Install PACKAGE's artefacts from BUILD_DIR under INSTALL_BASE/<package> (or PREFIX: colcon's
-    merged layout installs every package into the install base itself); return the firmware dir."""
+    merged layout installs every package into the install base itself); return the firmware dir.
+    WORKSPACE_ROOT (default: the install base's parent) is the workspace its `ros2 run` commands name."""
     prefix = prefix if prefix is not None else install_base / package
     share = prefix / "share" / package
     if not install_base.is_dir():
@@ -83,7 +85,7 @@ def install_firmware(
     for link in share.glob(f".{FIRMWARE_DIR}.*"):  # an unfinished _swap_symlink (espdock killed)
         link.unlink(missing_ok=True)
     _write_colcon_metadata(package, manifest, prefix, run_depends)
-    write_package_commands(package, prefix)
+    write_package_commands(package, prefix, workspace_root or install_base.parent)
     if owner is not None:
         _chown_tree(prefix, *owner)
     return share / FIRMWARE_DIR
@@ -102,7 +104,7 @@ if ! command -v espdock >/dev/null 2>&1; then
     echo "{name}: espdock is not on PATH; install it (pip install espdock) or activate its venv" >&2
     exit 127
 fi
-exec espdock {argv} --workspace "$here/../../../.." {separator}"$@"
+exec espdock {argv} --workspace "$here/{workspace}" {separator}"$@"
 """
 
 
@@ -110,14 +112,20 @@ exec espdock {argv} --workspace "$here/../../../.." {separator}"$@"
 COMMANDS_SOURCE = (_COMMAND_SCRIPT + repr(sorted(PACKAGE_COMMANDS.items()))).encode()
 
 
-def write_package_commands(package: str, prefix: Path) -> None:
-    """PREFIX/lib/PACKAGE/{idf,flash,monitor}: where `ros2 run` looks for a package's executables."""
+def write_package_commands(package: str, prefix: Path, workspace_root: Path) -> None:
+    """PREFIX/lib/PACKAGE/{idf,flash,monitor}: where `ros2 run` looks for a package's executables.
+    They name WORKSPACE_ROOT relative to themselves (the same in every clone of one layout)."""
     lib = prefix / "lib" / package
     lib.mkdir(parents=True, exist_ok=True)
+    workspace = Path(os.path.relpath(workspace_root.resolve(), lib.resolve())).as_posix()
     for name, (command, *separator) in PACKAGE_COMMANDS.items():
         script = lib / name
         text = _COMMAND_SCRIPT.format(
-            package=package, name=name, argv=f"{command} {package}", separator="".join(f"{s} " for s in separator)
+            package=package,
+            name=name,
+            argv=f"{command} {package}",
+            workspace=workspace,
+            separator="".join(f"{s} " for s in separator),
         )
         if not script.is_file() or script.read_text() != text:
             script.write_text(text)

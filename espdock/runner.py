@@ -581,6 +581,7 @@ class Runner:
             install_base=workspace.ws_dir / "install",
             run_depends=step.run_depends,
             owner=owner,
+            workspace_root=workspace.root,
         )
         stamp_file.record(stamps, {step.package: listing_digest(prefix)})
         _give_to(stamp_file.path, self._owner)

@@ -119,6 +119,14 @@ def test_merge_install_and_other_bases_put_the_firmware_where_the_ament_index_se
         cwd=ws, capture_output=True, text=True, check=True,
     ).stdout.strip()  # fmt: skip
     assert (ws / "build-other" / "led_strip_node" / "flasher_args.json").is_file()
+    # `ros2 run led_strip_node monitor` in the merged layout reaches espdock for this workspace (which,
+    # without a terminal, refuses with its own message; a wrong workspace would be "not inside").
+    path = f"{Path(sys.executable).parent}{os.pathsep}{env['PATH']}"
+    monitor = subprocess.run(
+        [str(merged / "lib" / "led_strip_node" / "monitor"), "--port", "socket://127.0.0.1:1"],
+        cwd="/", env={**env, "PATH": path}, stdin=subprocess.DEVNULL, capture_output=True, text=True, check=False,
+    )  # fmt: skip
+    assert monitor.returncode == 2 and "the monitor needs a terminal" in monitor.stderr, monitor.stderr
 
 
 def without_pythonpath(env) -> dict[str, str]:

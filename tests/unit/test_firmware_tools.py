@@ -4,6 +4,7 @@ import json
 import os
 import pty
 import socket
+import subprocess
 from pathlib import Path
 
 import pytest
@@ -217,6 +218,30 @@ def test_install_gives_each_package_idf_flash_and_monitor_for_ros2_run_alike_in_
     assert b'exec espdock flash cam --workspace "$here/../../../.." "$@"' in scripts["flash"]
     assert b'exec espdock idf cam --workspace "$here/../../../.." -- "$@"' in scripts["idf"]
     assert b'exec espdock monitor cam --workspace "$here/../../../.." "$@"' in scripts["monitor"]
+
+
+@pytest.mark.parametrize("merged", [False, True])
+def test_the_installed_commands_name_the_workspace_in_colcon_s_merged_layout_too(tmp_path, merged):
+    """Run as `ros2 run` runs them, with a stand-in `espdock` on PATH that prints what it is given."""
+    root = tmp_path / "ws-root"
+    build, install = root / "build/cam", root / "install"
+    manifest = root / "package.xml"
+    manifest.parent.mkdir(parents=True)
+    manifest.write_text("<package/>")
+    write_build(build, b"\xe9app")
+    prefix = install if merged else install / "cam"
+    install_firmware("cam", manifest, build, install, (), owner=None, prefix=prefix, workspace_root=root)
+    fake = tmp_path / "bin" / "espdock"
+    fake.parent.mkdir()
+    fake.write_text('#!/bin/sh\nprintf "%s\\n" "$@"\n')
+    fake.chmod(0o755)
+    env = {**os.environ, "PATH": f"{fake.parent}{os.pathsep}{os.environ['PATH']}"}
+    ran = subprocess.run(
+        [str(prefix / "lib/cam/idf"), "menuconfig"], cwd="/", env=env, capture_output=True, text=True, check=True
+    )
+    command, package, option, workspace, separator, argument = ran.stdout.splitlines()
+    assert (command, package, option, separator, argument) == ("idf", "cam", "--workspace", "--", "menuconfig")
+    assert Path(workspace).resolve() == root.resolve()
 
 
 def test_a_build_missing_artefacts_installs_nothing_and_keeps_the_old_firmware(tmp_path):

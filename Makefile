@@ -50,7 +50,7 @@ unit: $(VENV)/.installed
 
 # The demo needs no ESP32 (simulators stand in), so only the ROS side is built.
 demo: setup
-	# Builds ws/ and the runtime image compose.yaml names (espdock/demo:latest).
+	# Builds ws/ and the runtime image compose.yaml names (espdock/demo:latest: espdock.toml asks for it).
 	$(ESPDOCK) build --only ros
 	@echo "espdock demo: the camera UI is at http://127.0.0.1:8080 (Ctrl-C stops it)"
 	# --attach demo: one console, and Ctrl-C stops every service, not only `demo`.

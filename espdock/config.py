@@ -69,6 +69,9 @@ class Config:
     build_cache_max_gb: float = 10.0
     # A build says so, once, when espdock's images on the engine take more than this.
     images_warn_gb: float = 30.0
+    # Make the workspace's runtime image (espdock/<name>) with every build; otherwise it is made
+    # when `espdock run` or `espdock compose` needs it (2 s a build, and a new tag each time).
+    runtime_image: bool = False
 
 
 _Text = Annotated[str, Meta(min_length=1)]
@@ -96,6 +99,7 @@ class _Settings(Struct, forbid_unknown_fields=True):
     prune_auto: bool | None = None
     build_cache_max_gb: Annotated[float, Meta(ge=0)] | None = None
     images_warn_gb: Annotated[float, Meta(ge=0)] | None = None
+    runtime_image: bool | None = None
 
 
 _KEYS = {f.name for f in fields(Config)}
@@ -119,6 +123,7 @@ _EXPECTED = {
     "prune_auto": "true or false",
     "build_cache_max_gb": "a number of gigabytes, 0 or more",
     "images_warn_gb": "a number of gigabytes, 0 or more",
+    "runtime_image": "true or false",
     "cache_registry": 'a registry host[:port][/path] string, e.g. "registry.example.com/espdock" (no scheme)',
 }
 

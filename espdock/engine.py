@@ -13,6 +13,7 @@ imported only when something else is asked for.
 from __future__ import annotations
 
 import collections
+import csv
 import http.client
 import importlib
 import io
@@ -111,6 +112,7 @@ class RunSpec:
     mounts: tuple[Mount, ...] = ()
     env: tuple[tuple[str, str], ...] = ()
     labels: tuple[tuple[str, str], ...] = ()
+    # Device files: HOST, or HOST:CONTAINER (run_foreground only).
     devices: tuple[str, ...] = ()
     group_add: tuple[int, ...] = ()
     network: str | None = None
@@ -518,8 +520,10 @@ class Engine:
         argv += [arg for key, value in spec.env for arg in ("--env", f"{key}={value}")]
         argv += [arg for key, value in spec.labels for arg in ("--label", f"{key}={value}")]
         for mount in spec.mounts:
-            option = f"type=bind,source={mount.source},target={mount.target}" + (",readonly" if mount.read_only else "")
-            argv += ["--mount", option]
+            fields = ["type=bind", f"source={mount.source}", f"target={mount.target}"]
+            argv += ["--mount", _csv_line([*fields, "readonly"] if mount.read_only else fields)]
+        argv += [arg for device in spec.devices for arg in ("--device", device)]
+        argv += [arg for group in spec.group_add for arg in ("--group-add", str(group))]
         argv += ["--network", spec.network] if spec.network else []
         argv += [spec.image, *spec.argv]
         received: list[int] = []
@@ -807,3 +811,10 @@ def format_argv(argv: Sequence[str]) -> str:
     import shlex
 
     return shlex.join(argv)
+
+
+def _csv_line(fields: list[str]) -> str:
+    """FIELDS as one CSV line, as `docker run --mount` parses it (a path with a comma is quoted)."""
+    out = io.StringIO()
+    csv.writer(out, lineterminator="").writerow(fields)
+    return out.getvalue()

@@ -8,8 +8,8 @@ from collections.abc import Mapping
 from pathlib import Path
 
 from espdock.engine import Mount, RunSpec
-from espdock.errors import WorkspaceError
-from espdock.layout import WORKSPACE_MOUNT
+from espdock.errors import ConfigError, WorkspaceError
+from espdock.layout import ROS_OFFICIAL_DOCKERFILE, WORKSPACE_MOUNT
 from espdock.plan import LABEL_WORKSPACE, RUNTIME_INSTALL, EnsureBaseImage, EnsureImage, Plan, RuntimeImage
 from espdock.runtime_tree import resolve_installed
 from espdock.stamps import StampFile, listing_digest
@@ -106,13 +106,73 @@ def runtime_plan(plan: Plan) -> tuple[Plan, RuntimeImage]:
     return Plan(plan.workspace, (*steps, step)), step
 
 
-def build_image_plan(plan: Plan) -> tuple[Plan, str]:
-    """From a ROS build plan: the plan that only ensures the build image, and its tag."""
+def build_image_plan(plan: Plan) -> tuple[Plan, str, str]:
+    """From a ROS build plan: the plan that only ensures the build image, its tag and its Dockerfile."""
     steps = [s for s in plan.steps if isinstance(s, EnsureBaseImage)]
     images = [s for s in plan.steps if isinstance(s, EnsureImage) and s.spec.target == "build"]
     if not images:
         raise WorkspaceError("this workspace has no ROS packages, so no ROS build image", "Add one first.")
-    return Plan(plan.workspace, (*steps, images[0])), images[0].spec.tag
+    return Plan(plan.workspace, (*steps, images[0])), images[0].spec.tag, images[0].spec.dockerfile
+
+
+def installed_ros_packages(workspace: Workspace, packages: tuple[Package, ...]) -> list[str]:
+    """The workspace's ROS packages that have an install tree (what a runtime image would hold)."""
+    install = workspace.ws_dir / "install"
+    return [p.name for p in packages if p.kind is PackageKind.ROS and (install / p.name).is_dir()]
+
+
+# Compose's global options that take a value (`docker compose --help`), so that the subcommand
+# is found after them.
+COMPOSE_VALUED_OPTIONS = frozenset(
+    {"-f", "--file", "-p", "--project-name", "--profile", "--env-file", "--project-directory", "--ansi",
+     "--progress", "--parallel"}
+)  # fmt: skip
+# The subcommands that make containers of the images: the runtime image must be current first.
+COMPOSE_CREATING = frozenset({"up", "run", "create"})
+
+
+def compose_subcommand(args: list[str] | tuple[str, ...]) -> str | None:
+    """The Compose subcommand in ARGS (`up` in `-p x --profile sim up -d`), or None."""
+    skip = False
+    for arg in args:
+        if skip:
+            skip = False
+        elif arg in COMPOSE_VALUED_OPTIONS:
+            skip = True
+        elif not arg.startswith("-"):
+            return arg
+    return None
+
+
+def volume(text: str, cwd: Path) -> Mount:
+    """`--volume HOST:CONTAINER[:ro]` as a bind mount: HOST (relative to CWD) must exist, CONTAINER
+    be absolute; a ConfigError (exit 2) naming the option otherwise."""
+    parts = text.split(":")
+    if len(parts) not in (2, 3) or not all(parts[:2]) or parts[2:] not in ([], ["ro"], ["rw"]):
+        raise ConfigError(
+            f"--volume {text}: expected HOST:CONTAINER or HOST:CONTAINER:ro",
+            "For example: --volume ./joy.yaml:/params/joy.yaml:ro (a ':' in a path cannot be mounted this way).",
+        )
+    host = (cwd / Path(parts[0]).expanduser()).resolve()
+    if not host.exists():
+        raise ConfigError(f"--volume {text}: {host} does not exist", "Give a file or directory on this machine.")
+    if not posixpath.isabs(parts[1]):
+        raise ConfigError(f"--volume {text}: the container path must be absolute", "For example: /params/joy.yaml.")
+    return Mount(host, posixpath.normpath(parts[1]), read_only=parts[2:] == ["ro"])
+
+
+def device(text: str) -> tuple[str, str]:
+    """`--device HOST[:CONTAINER]`: HOST must be a device file, CONTAINER (default: the same path)
+    absolute; a ConfigError (exit 2) naming the option otherwise."""
+    host, _, inside = text.partition(":")
+    inside = inside or host
+    if not host.startswith("/") or not inside.startswith("/") or ":" in inside:
+        raise ConfigError(f"--device {text}: expected HOST[:CONTAINER], absolute paths", "For example: /dev/ttyUSB0.")
+    if not os.path.exists(host):
+        raise ConfigError(f"--device {text}: {host} does not exist", "Is the board plugged in? See `ls /dev/tty*`.")
+    if not (Path(host).is_char_device() or Path(host).is_block_device()):
+        raise ConfigError(f"--device {text}: {host} is not a device", "Files and directories go with --volume.")
+    return os.path.realpath(host), posixpath.normpath(inside)
 
 
 def _labels(workspace: Workspace, what: str) -> tuple[tuple[str, str], ...]:
@@ -128,26 +188,41 @@ def node_spec(
     env: Mapping[str, str],
     network: str,
     tty: bool,
+    mounts: tuple[Mount, ...] = (),
+    devices: tuple[tuple[str, str], ...] = (),
 ) -> RunSpec:
-    """A container of IMAGE running the node at PATH with ARGS, as OWNER."""
+    """A container of IMAGE running the node at PATH with ARGS, as OWNER, with MOUNTS and DEVICES
+    (host, container) passed in; OWNER also gets the devices' groups (a serial port's dialout)."""
     return RunSpec(
         image=image,
         argv=(path, *args),
         workdir="/tmp",
         user=f"{owner[0]}:{owner[1]}",
+        mounts=mounts,
         env=(("HOME", "/tmp"), *node_env(env)),
         labels=_labels(workspace, "run"),
+        devices=tuple(f"{host}:{inside}" for host, inside in devices),
+        group_add=tuple(sorted({os.stat(host).st_gid for host, _ in devices})),
         network=network,
         tty=tty,
     )
 
 
-def shell_spec(workspace: Workspace, image: str, owner: tuple[int, int], env: Mapping[str, str], tty: bool) -> RunSpec:
-    """A shell in the build IMAGE with the workspace mounted and its install tree sourced."""
+# The official image's build stage keeps its own entrypoint (/ros_entrypoint.sh, ROS only): the
+# shell sources the install tree itself, which it names as an argument, not in the script.
+SOURCE_AND_SHELL = 'if [ -f "$1/local_setup.bash" ]; then . "$1/local_setup.bash"; fi; exec bash'
+
+
+def shell_spec(
+    workspace: Workspace, image: str, owner: tuple[int, int], env: Mapping[str, str], tty: bool, dockerfile: str = ""
+) -> RunSpec:
+    """A shell in the build IMAGE (made from DOCKERFILE) with the workspace mounted and its
+    install tree sourced."""
     root = posixpath.normpath(f"{WORKSPACE_MOUNT}/{workspace.colcon_root}")
+    official = dockerfile == ROS_OFFICIAL_DOCKERFILE
     return RunSpec(
         image=image,
-        argv=("bash",),
+        argv=("bash", "-c", SOURCE_AND_SHELL, "bash", f"{root}/install") if official else ("bash",),
         workdir=root,
         user=f"{owner[0]}:{owner[1]}",
         mounts=(Mount(workspace.root, WORKSPACE_MOUNT),),

@@ -623,8 +623,11 @@ def plan_build(
             ),
         ]
         built = {p.name for p in (all_packages or packages) if p.kind is PackageKind.ROS}
-        # A workspace's own ROS Dockerfile without a runtime stage builds, but makes no runtime image.
-        if has_stage(dict(ros_image.context or ()).get(ros_image.dockerfile, b""), RUNTIME_STAGE):
+        # Only when asked (setting runtime_image): `espdock run` and `espdock compose` make it
+        # when they need it, so an edit-build loop does not pay for it. A workspace's own ROS
+        # Dockerfile without a runtime stage builds, but makes no runtime image.
+        dockerfile = dict(ros_image.context or ()).get(ros_image.dockerfile, b"")
+        if config.runtime_image and has_stage(dockerfile, RUNTIME_STAGE):
             base_runtime = runtime_base_image(ros_image)
             steps += [
                 EnsureImage(base_runtime),

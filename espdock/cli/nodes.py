@@ -4,28 +4,64 @@ from __future__ import annotations
 
 import os
 import sys
+from pathlib import Path
 from typing import Annotated
 
 import typer
 
 from espdock import bootstrap, nodes
 from espdock.cli.core import WorkspaceOption, app, build_plan, command, ensure_images, load, notify, workspace_packages
-from espdock.config import resolve_ca_bundle
-from espdock.workspace import PackageKind
+from espdock.config import Config, resolve_ca_bundle
+from espdock.errors import Interrupted
+from espdock.plan import Plan, RuntimeImage
+from espdock.runner import Runner
+from espdock.workspace import PackageKind, Workspace
+
+
+def runtime_image(ws: Workspace, config: Config, plan: Plan | None = None) -> tuple[Runner, str]:
+    """Make sure the runtime image holds what install/ holds now (made again when a build changed
+    it since); the runner that did, and the image's keyed tag (`:latest` names it too)."""
+    plan, step = nodes.runtime_plan(plan or build_plan(ws, config, [], PackageKind.ROS))
+    runner = ensure_images(ws, config, plan)
+    return runner, runner.runtime_spec(ws, step).tag
 
 
 @app.command(context_settings={"allow_extra_args": True, "ignore_unknown_options": True, "help_option_names": []})
 @command
 def compose(ctx: typer.Context, workspace: WorkspaceOption = None) -> None:
-    """Run `docker compose ARGS...` in the workspace with espdock's settings (CA bundle) in its environment."""
-    ws, config = load(workspace)
+    """Run `docker compose ARGS...` in the workspace with espdock's settings (CA bundle) in its
+    environment; `up`, `run` and `create` first make the runtime image of what install/ holds."""
+    ws, config = load(workspace, runtime_image=True)
     engine = bootstrap.ensure_engine(os.environ, notify)
     bootstrap.ensure_compose(os.environ, notify)
+    subcommand = nodes.compose_subcommand(ctx.args)
+    installed = nodes.installed_ros_packages(ws, workspace_packages(ws, config.ros_distro))
+    if subcommand in nodes.COMPOSE_CREATING and installed:
+        # What the services run must be served, as for `espdock run`.
+        plan = build_plan(ws, config, [], PackageKind.ROS, checked=tuple(installed))
+        # A workspace's own ROS Dockerfile may have no runtime stage: its compose file names others.
+        if any(isinstance(step, RuntimeImage) for step in plan.steps):
+            runtime_image(ws, config, plan)
     env = dict(os.environ)
     ca_bundle = resolve_ca_bundle(config, os.environ)
     if ca_bundle is not None:
         env["ESPDOCK_CA_BUNDLE"] = str(ca_bundle)
-    raise typer.Exit(engine.run_compose(ctx.args, ws.root, env))
+    try:
+        code = engine.run_compose(ctx.args, ws.root, env)
+    except KeyboardInterrupt:
+        if subcommand != "up":
+            raise Interrupted("interrupted") from None
+        if {"-d", "--detach"} & set(ctx.args):
+            raise Interrupted(
+                "interrupted; services Compose had started may be running",
+                "`espdock compose ps -a` lists them, `espdock compose down` stops and removes them.",
+            ) from None
+        # Compose stops what `up` started on Ctrl-C, and keeps the containers (and networks).
+        raise Interrupted(
+            "interrupted; Compose stopped the services, their containers remain (stopped)",
+            "`espdock compose down` removes them (with the same -p/--profile options as `up`).",
+        ) from None
+    raise typer.Exit(code)
 
 
 @app.command(context_settings={"allow_interspersed_args": False, "ignore_unknown_options": True})
@@ -37,19 +73,33 @@ def run(
     network: Annotated[
         str, typer.Option(help="Docker network: host (the host's DDS traffic), or a compose project's network.")
     ] = nodes.DEFAULT_NETWORK,
+    volume: Annotated[
+        list[str] | None,
+        typer.Option(
+            "--volume",
+            "-v",
+            help="HOST:CONTAINER[:ro]: a file or directory the node reads or writes, e.g. a --params-file "
+            "(repeatable; HOST relative to here).",
+        ),
+    ] = None,
+    device: Annotated[
+        list[str] | None,
+        typer.Option("--device", help="HOST[:CONTAINER]: a device the node opens, e.g. /dev/ttyUSB0 (repeatable)."),
+    ] = None,
     workspace: WorkspaceOption = None,
 ) -> None:
     """Run EXECUTABLE of a built PACKAGE in the workspace's runtime image, like `ros2 run`
-    (espdock's options go before PACKAGE; everything after EXECUTABLE goes to the node)."""
-    ws, config = load(workspace)
+    (espdock's options go before PACKAGE; everything after EXECUTABLE goes to the node).
+    The runtime image is made of install/ first when a build changed it."""
+    mounts = tuple(nodes.volume(text, Path.cwd()) for text in volume or ())
+    devices = tuple(nodes.device(text) for text in device or ())
+    ws, config = load(workspace, runtime_image=True)
     packages = workspace_packages(ws, config.ros_distro)
     path = nodes.find_executable(ws, packages, package, executable)
     # Only what runs must be served: another package's missing key does not stop this node.
-    plan, step = nodes.runtime_plan(build_plan(ws, config, [], PackageKind.ROS, checked=(package,)))
-    runner = ensure_images(ws, config, plan)
-    image = runner.runtime_spec(ws, step).tag
+    runner, image = runtime_image(ws, config, build_plan(ws, config, [], PackageKind.ROS, checked=(package,)))
     tty = bool(sys.stdin and sys.stdin.isatty()) and sys.stdout.isatty()
-    spec = nodes.node_spec(ws, image, path, tuple(args or ()), runner.owner, os.environ, network, tty)
+    spec = nodes.node_spec(ws, image, path, tuple(args or ()), runner.owner, os.environ, network, tty, mounts, devices)
     code, stopped_by = runner.engine.run_foreground(spec)
     raise typer.Exit(128 + stopped_by if stopped_by else code)
 
@@ -59,10 +109,9 @@ def run(
 def shell(workspace: WorkspaceOption = None) -> None:
     """Open a shell in the ROS build image with the workspace mounted and its install tree sourced."""
     ws, config = load(workspace)
-    plan, image = nodes.build_image_plan(build_plan(ws, config, [], PackageKind.ROS, checked=()))
+    plan, image, dockerfile = nodes.build_image_plan(build_plan(ws, config, [], PackageKind.ROS, checked=()))
     runner = ensure_images(ws, config, plan)
-    spec = nodes.shell_spec(
-        ws, image, runner.owner, os.environ, bool(sys.stdin and sys.stdin.isatty()) and sys.stdout.isatty()
-    )
+    tty = bool(sys.stdin and sys.stdin.isatty()) and sys.stdout.isatty()
+    spec = nodes.shell_spec(ws, image, runner.owner, os.environ, tty, dockerfile)
     code, stopped_by = runner.engine.run_foreground(spec)
     raise typer.Exit(128 + stopped_by if stopped_by else code)

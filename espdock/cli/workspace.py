@@ -71,13 +71,22 @@ def build(
             "--push-cache", help="Push keyed images the cache registry lacks (cache_registry; CI on the main branch)."
         ),
     ] = False,
+    runtime_image: Annotated[
+        bool | None,
+        typer.Option(
+            "--runtime-image/--no-runtime-image",
+            help="Also make the runtime image of install/, espdock/<name>:latest (default: the setting "
+            "runtime_image, off: `espdock run` and `espdock compose` make it when they need it).",
+            show_default=False,
+        ),
+    ] = None,
     workspace: WorkspaceOption = None,
 ) -> None:
     """Build the images when their inputs changed, then every package whose sources changed and what
     depends on it; record what the build produced in install/espdock-manifest.json.
 
     Options after `--` go to `colcon build` (e.g. `espdock build -- --cmake-args -DBUILD_TESTING=OFF`)."""
-    ws, config = load(workspace)
+    ws, config = load(workspace, runtime_image=runtime_image)
     locked = locked if locked is not None else os.environ.get("CI", "").lower() == "true"
     plan = build_plan(
         ws,
@@ -192,9 +201,19 @@ def init(
     directory: Annotated[
         Path, typer.Argument(help="The workspace: empty, new, or an existing colcon workspace.")
     ] = Path("."),
+    compose: Annotated[
+        bool,
+        typer.Option(
+            "--compose", help="Write compose.yaml again from the executables install/ holds now (after a build)."
+        ),
+    ] = False,
+    force: Annotated[
+        bool, typer.Option("--force", help="With --compose: replace an edited compose file (kept as <name>.orig).")
+    ] = False,
 ) -> None:
     """Make DIRECTORY an espdock workspace: writes a commented espdock.toml with the layout it finds
-    (and src/ if there is none) and a starter compose.yaml of its nodes. Only adds files."""
+    (and src/ if there is none) and a compose.yaml of its nodes. Only adds files, but
+    `--compose` writes compose.yaml again, unless it was edited since."""
     # As root for someone else: the new files belong to who owns the nearest existing directory.
     existing = next(d for d in (directory.resolve(), *directory.resolve().parents) if d.exists())
     owner = invoking_user(os.environ, existing) if os.geteuid() == 0 else None
@@ -205,8 +224,14 @@ def init(
         console.print(f"made {ws.root} an espdock workspace: created {', '.join(created)}")
     ws, config = load(ws.root)
     packages = workspace_packages(ws, config.ros_distro)
-    if init_compose(ws, runtime_repository(config, ws), packages, owner):
-        console.print("wrote compose.yaml: the workspace's nodes as services (`espdock compose up`)")
+    if force and not compose:
+        raise ConfigError("--force goes with --compose", "`espdock init --compose --force`.")
+    outcome = init_compose(ws, runtime_repository(config, ws), packages, owner, refresh=compose, force=force)
+    if outcome == "unchanged":
+        console.print("compose.yaml is up to date with install/")
+    elif outcome is not None:
+        kept = " (yours is kept as its .orig)" if outcome == "replaced" else ""
+        console.print(f"{outcome} compose.yaml: the built executables as services (`espdock compose up`){kept}")
     firmware = [p.name for p in packages if p.kind is PackageKind.FIRMWARE]
     ros = [p.name for p in packages if p.kind is PackageKind.ROS]
     console.print(f"layout: packages in {', '.join(ws.package_paths)}; colcon's build/install/log in {ws.colcon_root}")

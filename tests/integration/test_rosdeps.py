@@ -46,7 +46,7 @@ def make_workspace(root: Path) -> Path:
 def build_and_check(root: Path, tmp_path: Path, extra: dict[str, str]) -> tuple[dict, list[str]]:
     """espdock build of ROOT with EXTRA settings; the lock it made, and CHECK's output in its image."""
     env = {**environment(tmp_path), **extra}
-    build = espdock("build", "--report", str(tmp_path / "report.json"), cwd=root, env=env)
+    build = espdock("build", "--runtime-image", "--report", str(tmp_path / "report.json"), cwd=root, env=env)
     assert build.returncode == 0, build.stdout[-3000:] + build.stderr
     lock = json.loads((root / "rosdep.lock.json").read_text())
     manifest = json.loads((tmp_path / "report.json").read_text())["manifest"]

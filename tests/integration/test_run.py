@@ -7,12 +7,17 @@ import json
 import os
 import random
 import subprocess
+import sys
 import time
 from pathlib import Path
 
 import pytest
+import yaml
 
+from espdock.config import Config, resolve_ca_bundle
 from tests.conftest import REPO, Started, espdock, leftover_containers, python_workspace
+from tests.ros_official_double.build import build_double, settings
+from tests.rosdep_db import environment
 
 pytestmark = pytest.mark.engine
 
@@ -170,11 +175,105 @@ def test_ctrl_c_ends_compose_up_with_130_within_10_s_and_compose_stops_every_ser
         assert code == 130, up.output()
         assert took < 10, f"espdock compose took {took:.1f} s to end after Ctrl-C"
         assert "Compose is still stopping the services" in up.output()
+        # What is said is true: the containers are stopped, not removed, until `compose down`.
+        assert "stopped and removed" not in up.output()
+        assert "their containers remain" in up.output() and "espdock compose down" in up.output()
         assert running() == ["stubborn"], "the service that stops on SIGTERM was not stopped"
         while running() and time.monotonic() < signalled + 14 + 10:
             time.sleep(0.5)
         assert running() == [], "Compose left a service running after its stop_grace_period"
+        remaining = subprocess.run(
+            ["docker", "ps", "-a", "-q", "--filter", f"label=com.docker.compose.project={project}"],
+            capture_output=True, text=True, check=True,
+        ).stdout.split()  # fmt: skip
+        assert len(remaining) == 2, "the message says the containers remain"
     finally:
         up.stop()
         subprocess.run(["docker", "compose", "-p", project, "down", "--timeout", "0"], cwd=root,
                        capture_output=True, check=False)  # fmt: skip
+
+
+def test_run_passes_a_params_file_with_volume_and_a_device_and_refuses_missing_ones(engine, node_workspace, tmp_path):
+    params = tmp_path / "beacon.yaml"
+    params.write_text("beacon:\n  ros__parameters:\n    prefix: fromfile\n    period: 0.1\n")
+    node = Started(
+        tmp_path, "run", "--workspace", str(node_workspace), "--volume", "beacon.yaml:/params/beacon.yaml:ro",
+        "--device", "/dev/null:/dev/ttyUSB0", "beacon_nodes", "beacon", "--ros-args", "--params-file",
+        "/params/beacon.yaml", env={"ROS_DOMAIN_ID": str(random.randrange(100, 200))},
+    )  # fmt: skip
+    try:
+        node.wait_for("sent: fromfile 1")
+        (container,) = engine.containers({"io.espdock.workspace": str(node_workspace), "io.espdock.step": "run"})
+        inside = subprocess.run(["docker", "exec", container, "sh", "-c", "test -c /dev/ttyUSB0 && ls /params"],
+                                capture_output=True, text=True, check=False)  # fmt: skip
+        assert inside.returncode == 0 and inside.stdout.split() == ["beacon.yaml"], inside.stdout + inside.stderr
+        assert node.interrupt() == 130
+    finally:
+        node.stop()
+    for option, said in (("--volume", "does not exist"), ("--device", "does not exist")):
+        missing = espdock("run", option, "/nope/ttyUSB9:/dev/ttyUSB0", "beacon_nodes", "beacon", cwd=node_workspace)
+        assert missing.returncode == 2 and f"{option} /nope/ttyUSB9:/dev/ttyUSB0" in missing.stderr, missing.stderr
+        assert said in missing.stderr and "Traceback" not in missing.stderr
+
+
+def test_build_makes_no_runtime_image_run_and_compose_make_it_from_the_last_build(engine, tmp_path):
+    """The runtime image is made when a command needs it, of what install/ holds then."""
+    root = python_workspace(tmp_path / "ondemand")
+    name = f"ondemand-{os.getpid()}-{random.randrange(16**6):06x}"
+    config = root / "espdock.toml"
+    lines = [line for line in config.read_text().splitlines(True) if not line.startswith("runtime_image")]
+    config.write_text("".join(lines).replace("[espdock]\n", f'[espdock]\nname = "{name}"\n', 1))
+    domain = str(random.randrange(100, 200))
+    project = f"espdock-test-ondemand-{os.getpid()}"
+    try:
+        built = espdock("build", cwd=root)
+        assert built.returncode == 0, built.stdout[-3000:] + built.stderr
+        assert "runtime image" not in built.stdout and engine.image(f"espdock/{name}:latest") is None
+        assert espdock("init", "--compose", cwd=root).returncode == 0
+        services = yaml.safe_load((root / "compose.yaml").read_text())["services"]
+        assert services["beacon"]["restart"] == "no"  # merged from the node template in Compose
+        env = {"ROS_DOMAIN_ID": domain}
+        up = espdock("compose", "-p", project, "up", "-d", "beacon", "beacon_log", cwd=root, env=env)
+        assert up.returncode == 0, up.stdout + up.stderr
+        first = engine.image(f"espdock/{name}:latest")
+        assert first is not None
+        logs = ""
+        deadline = time.monotonic() + 90
+        while "heard: beacon" not in logs and time.monotonic() < deadline:
+            time.sleep(1)
+            logs = espdock("compose", "-p", project, "logs", "--no-color", "beacon_log", cwd=root).stdout
+        assert "heard: beacon" in logs
+        # An edit and a build: the next run notices install/ changed and makes the image again.
+        node = root / "ws/src/beacon_nodes/beacon_nodes/beacon.py"
+        node.write_text(node.read_text().replace('info("beacon up")', 'info("beacon up, edited")'))
+        rebuilt = espdock("build", cwd=root)
+        assert rebuilt.returncode == 0 and engine.image(f"espdock/{name}:latest").id == first.id
+        started = Node(root, "beacon_nodes", "beacon", domain=int(domain))
+        try:
+            started.wait_for("beacon up, edited", timeout=180)
+            assert started.interrupt() == 130
+        finally:
+            started.stop()
+        assert engine.image(f"espdock/{name}:latest").id != first.id
+    finally:
+        espdock("compose", "-p", project, "down", "-t", "1", cwd=root)
+        listed = ["docker", "images", "-q", f"espdock/{name}"]
+        tags = subprocess.run(listed, capture_output=True, text=True, check=False).stdout
+        for image in set(tags.split()):
+            subprocess.run(["docker", "rmi", "-f", image], capture_output=True, check=False)
+
+
+@pytest.mark.slow
+def test_shell_on_the_official_image_has_the_workspace_sourced(engine, tmp_path):
+    """The official image's build stage keeps its own entrypoint, which sources ROS only."""
+    tag = build_double(engine, resolve_ca_bundle(Config(), os.environ), lambda line: None)
+    root = python_workspace(tmp_path / "official")
+    env = {**os.environ, **environment(tmp_path), **settings(tag)}
+    built = espdock("build", cwd=root, env=env)
+    assert built.returncode == 0, built.stdout[-3000:] + built.stderr
+    commands = 'python3 -c "import beacon_nodes; print(beacon_nodes.__file__)"\necho "ament: $AMENT_PREFIX_PATH"\n'
+    shell = subprocess.run([sys.executable, "-m", "espdock", "shell"], cwd=root, env=env, input=commands,
+                           capture_output=True, text=True, timeout=600, check=False)  # fmt: skip
+    assert shell.returncode == 0, shell.stdout + shell.stderr
+    assert "/workspace/ws/install/beacon_nodes/" in shell.stdout
+    assert "ament: /workspace/ws/install/beacon_nodes" in shell.stdout and "/opt/ros/jazzy" in shell.stdout

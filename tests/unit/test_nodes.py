@@ -9,11 +9,11 @@ import pytest
 import yaml
 
 from espdock.config import Config
-from espdock.errors import WorkspaceError
-from espdock.nodes import find_executable, node_env
+from espdock.errors import ConfigError, WorkspaceError
+from espdock.nodes import compose_subcommand, device, find_executable, node_env, node_spec, shell_spec, volume
 from espdock.plan import RuntimeImage, ros_build_image, runtime_base_image, runtime_image_spec
 from espdock.runner import ROS_STAMPS, runtime_context, runtime_install_digest
-from espdock.scaffold import starter_compose
+from espdock.scaffold import init_compose, starter_compose
 from espdock.stamps import StampFile, listing_digest
 from espdock.workspace import Package, PackageKind, Workspace
 
@@ -118,3 +118,80 @@ def test_the_starter_compose_file_has_a_service_per_node_and_the_agent_under_har
     assert services["listener"]["environment"]["FASTDDS_BUILTIN_TRANSPORTS"] == "UDPv4"
     assert services["micro_ros_agent"]["profiles"] == ["hardware"]
     assert services["micro_ros_agent"]["image"] == "microros/micro-ros-agent:jazzy"
+    # One-shot clients and tools would start again forever under a restart policy.
+    assert services["listener"]["restart"] == "no"
+
+
+def test_a_refresh_rewrites_espdocks_own_compose_file_but_not_an_edited_one(ws):
+    workspace, packages = ws
+    repository = "espdock/robot"
+    assert init_compose(workspace, repository, packages) == "wrote"
+    assert init_compose(workspace, repository, packages) is None  # plain init never overwrites
+    installed(workspace.root, "quiet", "once")
+    assert init_compose(workspace, repository, packages, refresh=True) == "refreshed"
+    compose = workspace.root / "compose.yaml"
+    assert set(yaml.safe_load(compose.read_text())["services"]) == {"talker", "listener", "once", "micro_ros_agent"}
+    assert init_compose(workspace, repository, packages, refresh=True) == "unchanged"
+    edited = compose.read_text().replace("UDPv4", "SHM")
+    compose.write_text(edited)
+    (workspace.root / "install/quiet/lib/quiet/twice").write_text("#!/bin/sh\n")
+    (workspace.root / "install/quiet/lib/quiet/twice").chmod(0o755)
+    with pytest.raises(WorkspaceError) as caught:
+        init_compose(workspace, repository, packages, refresh=True)
+    assert caught.value.exit_code == 2 and "--force" in caught.value.hint
+    assert compose.read_text() == edited
+    assert init_compose(workspace, repository, packages, refresh=True, force=True) == "replaced"
+    assert (workspace.root / "compose.yaml.orig").read_text() == edited
+    assert "twice" in yaml.safe_load(compose.read_text())["services"]
+
+
+def test_volumes_and_devices_are_checked_and_reach_the_nodes_container(ws, tmp_path):
+    workspace, _ = ws
+    params = tmp_path / "joy.yaml"
+    params.write_text("joy: {}\n")
+    mount = volume("joy.yaml:/params/joy.yaml:ro", tmp_path)
+    assert (mount.source, mount.target, mount.read_only) == (params, "/params/joy.yaml", True)
+    assert not volume(f"{tmp_path}:/data", Path("/")).read_only
+    for bad, said in (
+        ("missing.yaml:/p.yaml", "does not exist"),
+        ("joy.yaml:params.yaml", "must be absolute"),
+        ("joy.yaml", "expected HOST:CONTAINER"),
+        ("joy.yaml:/p:rw:x", "expected HOST:CONTAINER"),
+        ("joy.yaml:/p:ro;rm", "expected HOST:CONTAINER"),
+    ):
+        with pytest.raises(ConfigError) as caught:
+            volume(bad, tmp_path)
+        assert caught.value.exit_code == 2 and said in caught.value.message, bad
+    assert device("/dev/null:/dev/ttyUSB0") == ("/dev/null", "/dev/ttyUSB0")
+    assert device("/dev/null") == ("/dev/null", "/dev/null")
+    for bad, said in (("/dev/ttyNOPE9", "does not exist"), (str(params), "is not a device"), ("ttyUSB0", "absolute")):
+        with pytest.raises(ConfigError) as caught:
+            device(bad)
+        assert caught.value.exit_code == 2 and said in caught.value.message, bad
+    spec = node_spec(workspace, "img", "/n", (), (1000, 1000), {}, "host", False, (mount,), (("/dev/null", "/dev/x"),))
+    assert spec.mounts == (mount,) and spec.devices == ("/dev/null:/dev/x",)
+    assert spec.group_add == (Path("/dev/null").stat().st_gid,)
+
+
+def test_the_shell_sources_the_install_tree_itself_on_the_official_image(ws):
+    workspace, _ = ws
+    wheels = shell_spec(workspace, "img", (1, 1), {}, False, "Dockerfile.ros")
+    assert wheels.argv == ("bash",) and ("ESPDOCK_WS_INSTALL", "/workspace/install") in wheels.env
+    official = shell_spec(workspace, "img", (1, 1), {}, False, "Dockerfile.ros-official")
+    assert official.argv[:2] == ("bash", "-c") and official.argv[-1] == "/workspace/install"
+    assert "local_setup.bash" in official.argv[2] and "/workspace" not in official.argv[2]
+
+
+@pytest.mark.parametrize(
+    ("args", "subcommand"),
+    [
+        (["up"], "up"),
+        (["-p", "x", "--profile", "sim", "up", "-d"], "up"),
+        (["--file=c.yaml", "-f", "d.yaml", "run", "--rm", "probe"], "run"),
+        (["--profile", "*", "down"], "down"),
+        (["--dry-run", "create"], "create"),
+        (["--help"], None),
+    ],
+)
+def test_the_compose_subcommand_is_found_after_composes_own_options(args, subcommand):
+    assert compose_subcommand(args) == subcommand

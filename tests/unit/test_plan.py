@@ -52,7 +52,10 @@ def test_build_plan_ensures_images_then_runs_colcon():
     spec = ros_build_image(Config(), DOCKERFILE, FILES)
     packages = (pkg("msgs"), pkg("app", depends=["msgs"]))
     plan = plan_build(ws, Config(), packages, spec)
-    assert [type(s) for s in plan.steps] == [EnsureBaseImage, EnsureImage, ColconBuild, EnsureImage, RuntimeImage]
+    # The runtime image only when asked: `espdock run` and `espdock compose` ask.
+    assert [type(s) for s in plan.steps] == [EnsureBaseImage, EnsureImage, ColconBuild]
+    asked = plan_build(ws, Config(runtime_image=True), packages, spec)
+    assert [type(s) for s in asked.steps] == [EnsureBaseImage, EnsureImage, ColconBuild, EnsureImage, RuntimeImage]
     colcon = plan.steps[2]
     assert colcon.packages == ("msgs", "app")
     assert colcon.image == spec.tag
@@ -67,7 +70,7 @@ def test_build_plan_ensures_images_then_runs_colcon():
 
 def test_a_ros_dockerfile_without_a_runtime_stage_builds_and_makes_no_runtime_image():
     spec = ros_build_image(Config(), "ARG BASE_IMAGE=debian:bookworm-slim\nFROM ${BASE_IMAGE} AS build\n", FILES)
-    plan = plan_build(Workspace(Path("/w")), Config(), (pkg("msgs"),), spec)
+    plan = plan_build(Workspace(Path("/w")), Config(runtime_image=True), (pkg("msgs"),), spec)
     assert [type(s) for s in plan.steps] == [EnsureBaseImage, EnsureImage, ColconBuild]
 
 
@@ -116,7 +119,8 @@ def test_no_ros_packages_means_no_ros_steps():
 def test_the_runtime_image_is_the_build_images_runtime_stage_plus_every_ros_package_installed():
     spec = ros_build_image(Config(), DOCKERFILE, FILES)
     packages = (pkg("msgs"), pkg("app", depends=["msgs"]), pkg("cam", PackageKind.FIRMWARE))
-    plan = plan_build(Workspace(Path("/w/My Robot")), Config(), packages[:1], spec, all_packages=packages)
+    config = Config(runtime_image=True)
+    plan = plan_build(Workspace(Path("/w/My Robot")), config, packages[:1], spec, all_packages=packages)
     base, runtime = plan.steps[-2:]
     assert isinstance(runtime, RuntimeImage) and base.spec == runtime.base
     assert (base.spec.dockerfile, base.spec.target, base.spec.context) == (spec.dockerfile, "runtime", spec.context)
@@ -124,7 +128,7 @@ def test_the_runtime_image_is_the_build_images_runtime_stage_plus_every_ros_pack
     # Every ROS package of the workspace, not only the selection; no firmware.
     assert runtime.packages == ("app", "msgs")
     assert runtime.stable_tag == "espdock/my-robot:latest"
-    named = plan_build(Workspace(Path("/w/x")), Config(name="bot"), packages[:1], spec).steps[-1]
+    named = plan_build(Workspace(Path("/w/x")), Config(name="bot", runtime_image=True), packages[:1], spec).steps[-1]
     assert named.stable_tag == "espdock/bot:latest"
 
 
@@ -133,7 +137,7 @@ def test_the_official_ros_image_gives_runtime_images_its_own_runtime_stage():
     text = (root / "Dockerfile.ros-official").read_text()
     entrypoint = {"docker/ros-entrypoint.sh": (root / "docker" / "ros-entrypoint.sh").read_bytes()}
     spec = ros_build_image(Config(ros_image="official"), text, entrypoint, dockerfile="Dockerfile.ros-official")
-    plan = plan_build(Workspace(Path("/w/bot")), Config(), (pkg("app"),), spec)
+    plan = plan_build(Workspace(Path("/w/bot")), Config(runtime_image=True), (pkg("app"),), spec)
     base, runtime = plan.steps[-2:]
     assert (base.spec.dockerfile, base.spec.target) == ("Dockerfile.ros-official", "runtime")
     assert base.spec.repository == "espdock/ros-jazzy-official-runtime"

@@ -54,6 +54,14 @@ def test_ca_bundle_relative_to_the_workspace_and_must_exist(tmp_path):
         load_config(tmp_path, {"ESPDOCK_CA_BUNDLE": str(tmp_path / "missing.pem")})
 
 
+def test_the_runtime_image_with_every_build_only_when_asked(tmp_path):
+    assert load_config(tmp_path, {}).runtime_image is False
+    write(tmp_path, "[espdock]\nruntime_image = true\n")
+    assert load_config(tmp_path, {}).runtime_image is True
+    assert load_config(tmp_path, {"ESPDOCK_RUNTIME_IMAGE": "false"}).runtime_image is False
+    assert load_config(tmp_path, {}, {"runtime_image": False}).runtime_image is False
+
+
 def test_keep_containers_from_the_environment(tmp_path):
     assert load_config(tmp_path, {"ESPDOCK_KEEP_CONTAINERS": "1"}).keep_containers is True
     assert load_config(tmp_path, {"ESPDOCK_KEEP_CONTAINERS": "0"}).keep_containers is False

@@ -47,7 +47,8 @@ def main() -> None:
     args = parser.parse_args()
     with tempfile.TemporaryDirectory(prefix="espdock-bench-") as tmp:
         roots = []
-        for name in ("a", "b"):
+        # Names of their own: runtime images are espdock/<name> on an engine others share.
+        for name in (f"edit-a-{os.getpid()}", f"edit-b-{os.getpid()}"):
             root = copy_workspace(Path(tmp) / name, packages=())
             # espdock's default: no runtime image with each build (the repository's own asks for one).
             config = root / "espdock.toml"

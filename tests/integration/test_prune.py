@@ -47,13 +47,13 @@ def test_prune_keeps_what_is_used_and_removes_the_rest(engine, tmp_path):
     env = {"ESPDOCK_STATE_DIR": str(state)}
     first, second = tmp_path / "first", tmp_path / "second"
     python_workspace(first)
-    (first / "espdock.toml").write_text(f'[espdock]\nname = "prune-a-{run}"\n')
+    (first / "espdock.toml").write_text(f'[espdock]\nname = "prune-a-{run}"\nruntime_image = true\n')
     try:
         for number in (1, 2, 3):
             generation(first, run, number)
             if number == 2:  # the second workspace shares the second generation's ROS images
                 shutil.copytree(first, second, ignore=shutil.ignore_patterns("build", "install", "log"))
-                (second / "espdock.toml").write_text(f'[espdock]\nname = "prune-b-{run}"\n')
+                (second / "espdock.toml").write_text(f'[espdock]\nname = "prune-b-{run}"\nruntime_image = true\n')
                 built = espdock("build", cwd=second, env=env)
                 assert built.returncode == 0, built.stdout[-3000:] + built.stderr
             built = espdock("build", cwd=first, env=env)

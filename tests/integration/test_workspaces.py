@@ -42,7 +42,7 @@ def test_two_workspaces_sharing_images_build_at_once(engine, tmp_path):
     dockerfile.write_text(dockerfile.read_text() + f"# workspaces test {run}\n")
     shutil.copytree(first, second)
     for root, side in ((first, "a"), (second, "b")):
-        (root / "espdock.toml").write_text(f'[espdock]\nname = "shared-{side}-{run}"\n')
+        (root / "espdock.toml").write_text(f'[espdock]\nname = "shared-{side}-{run}"\nruntime_image = true\n')
     holder = (
         Path(tempfile.gettempdir()) / f"espdock-build-{hashlib.sha256(str(first).encode()).hexdigest()[:16]}.holder"
     )

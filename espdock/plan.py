@@ -11,7 +11,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
-from espdock import rosdeps
+from espdock import rosdeps, transport
 from espdock.colcon import ColconSettings, left_out
 from espdock.config import Config, check_target
 from espdock.errors import WorkspaceError
@@ -520,6 +520,9 @@ def micro_ros_image(
     meta = inputs.app_metas.get(firmware.name, "")
     if meta:
         _check_colcon_meta(firmware.name, meta)
+    link = transport.firmware_transport(inputs.sdkconfig_defaults.get(firmware.name, {}), target)
+    transport.check_transport(firmware.name, link, target)
+    meta = transport.library_colcon_meta(firmware.name, meta, link)
     context: dict[str, bytes] = {
         IDF_DOCKERFILE: inputs.idf_dockerfile.encode(),
         **{f"{IDF_INPUT_DIR}/{rel}": data for rel, data in inputs.idf_files.items()},

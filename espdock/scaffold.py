@@ -11,6 +11,7 @@ import tempfile
 from importlib import resources
 from pathlib import Path
 
+from espdock import transport
 from espdock.defaults import default_file
 from espdock.errors import ConfigError, WorkspaceError
 from espdock.layout import CONFIG_FILE
@@ -97,6 +98,7 @@ def create_firmware_package(
     packages: tuple[Package, ...],
     owner: tuple[int, int] | None = None,
     target: str | None = None,
+    link: str = transport.UDP,
 ) -> Path:
     """Write NAME from the template where the workspace's firmware goes (firmware_home), and the
     shared espdock_uros component beside it if missing. Returns the new package's directory.
@@ -104,9 +106,14 @@ def create_firmware_package(
     TARGET, when given, is the package's chip: CONFIG_IDF_TARGET in its sdkconfig.defaults, where
     IDF and espdock read it (other packages keep theirs).
 
+    LINK is how the board reaches the agent (espdock.transport): a serial one is written into
+    sdkconfig.defaults and app-colcon.meta (so that a plain `idf.py build` matches too).
+
     OWNER (uid, gid), when given, gets the new files (root creating them for someone).
     """
     check_new_package(name, depends, packages)
+    if target:
+        transport.check_transport(name, link, target)
     home = firmware_home(workspace, packages)
     destination = home / name
     if destination.exists():
@@ -128,6 +135,8 @@ def create_firmware_package(
             defaults = staging / "package" / "sdkconfig.defaults"
             chip = f'# The chip this package builds for (`espdock new --target`).\nCONFIG_IDF_TARGET="{target}"\n\n'
             defaults.write_text(chip + defaults.read_text())
+        if link != transport.UDP:
+            _write_serial_transport(staging / "package", name, link)
         if not component.exists():
             shutil.copytree(default_file(f"firmware/components/{COMPONENT}"), staging / COMPONENT)
         umask = os.umask(0)
@@ -150,6 +159,40 @@ def create_firmware_package(
     finally:
         shutil.rmtree(staging, ignore_errors=True)
     return destination
+
+
+SERIAL_DEFAULTS = {
+    transport.UART: (
+        "# micro-ROS over a serial line: UART0, the board's USB-to-UART bridge, at 115200 baud\n"
+        "# (`espdock agent --port /dev/ttyUSB0`). No Wi-Fi and nothing to provision.\n"
+        "CONFIG_ESPDOCK_TRANSPORT_UART=y\nCONFIG_ESPDOCK_UART_PORT=0\nCONFIG_ESPDOCK_UART_BAUD=115200\n"
+    ),
+    transport.USB_SERIAL_JTAG: (
+        "# micro-ROS over the chip's own USB port (USB-Serial-JTAG; esp32c3, esp32s3), seen by the\n"
+        "# host as /dev/ttyACM<n> (`espdock agent --port /dev/ttyACM0`). No Wi-Fi, nothing to provision.\n"
+        "CONFIG_ESPDOCK_TRANSPORT_USB_SERIAL_JTAG=y\n"
+        "# The console stays on UART0: log lines on the link would cost XRCE frames.\n"
+        "CONFIG_ESP_CONSOLE_SECONDARY_NONE=y\n"
+    ),
+}
+
+
+def _write_serial_transport(package: Path, name: str, link: str) -> None:
+    """Turn the UDP template into a serial one: its Kconfig choice, upstream's UART choice for the
+    micro-ROS component, and a library with the custom transport."""
+    defaults = package / "sdkconfig.defaults"
+    lines = defaults.read_text().splitlines(keepends=True)
+    # The template's opening comment is about Wi-Fi provisioning; the serial block replaces it.
+    start = next((i for i, line in enumerate(lines) if line.startswith("# micro-ROS over Micro XRCE-DDS on Wi-Fi")), 0)
+    end = start
+    while end < len(lines) and lines[end].startswith("#"):
+        end += 1
+    text = "".join(lines[:start] + lines[end:]).replace(
+        "CONFIG_MICRO_ROS_ESP_NETIF_WLAN=y\n", SERIAL_DEFAULTS[link] + "CONFIG_MICRO_ROS_ESP_UART_TRANSPORT=y\n"
+    )
+    defaults.write_text(text)
+    meta = package / "app-colcon.meta"
+    meta.write_text(transport.library_colcon_meta(name, meta.read_text(), link))
 
 
 def _render(source, destination: Path, replacements: dict[str, str]) -> None:

@@ -11,7 +11,7 @@ from typing import Annotated
 import typer
 from rich.text import Text
 
-from espdock import bootstrap
+from espdock import bootstrap, transport
 from espdock.agent_port import LIBRARY_HEADERS, check_agent_port
 from espdock.cli.core import (
     WorkspaceOption,
@@ -211,6 +211,8 @@ def flash(
     ws, config = load(workspace)
     serial = parse_port(port)
     plan, step = firmware_plan(ws, config, package)
+    if wifi_ssid is not None or agent is not None:
+        transport.check_provisionable(package, transport.project_transport(ws.root / step.project, step.target))
     firmware_dir = ws.ws_dir / firmware_install_dir(package)
     flasher_args = read_flasher_args(firmware_dir, package)
     settings = optional_network_settings(wifi_ssid, wifi_password_file, agent, domain, sys.stdin, _ask_password)
@@ -235,8 +237,12 @@ def flash(
 def provision(
     package: Annotated[str, typer.Argument(help="Firmware package (built and installed).")],
     port: PortOption,
-    wifi_ssid: Annotated[str, typer.Option("--wifi-ssid", help="Wi-Fi network the board joins (1..32 bytes).")],
-    agent: Annotated[str, typer.Option("--agent", help="micro-ROS agent as IPV4:PORT (no host names).")],
+    wifi_ssid: Annotated[
+        str | None, typer.Option("--wifi-ssid", help="Wi-Fi network the board joins (1..32 bytes); required.")
+    ] = None,
+    agent: Annotated[
+        str | None, typer.Option("--agent", help="micro-ROS agent as IPV4:PORT (no host names); required.")
+    ] = None,
     wifi_password_file: PasswordFileOption = None,
     domain_id: Annotated[str, typer.Option("--domain-id", help="ROS_DOMAIN_ID of the board (0..232).")] = "0",
     baud: BaudOption = 460800,
@@ -252,6 +258,9 @@ def provision(
     ws, config = load(workspace)
     serial = parse_port(port)
     plan, step = firmware_plan(ws, config, package)
+    transport.check_provisionable(package, transport.project_transport(ws.root / step.project, step.target))
+    if wifi_ssid is None or agent is None:
+        raise ConfigError(f"provisioning {package} needs --wifi-ssid and --agent", "See `espdock provision --help`.")
     firmware_dir = ws.ws_dir / firmware_install_dir(package)
     flasher_args = read_flasher_args(firmware_dir, package)
     nvs = nvs_partition(firmware_dir, flasher_args, package)

@@ -9,7 +9,7 @@ from typing import Annotated
 
 import typer
 
-from espdock import bootstrap, colcon_register
+from espdock import bootstrap, colcon_register, transport
 from espdock.cli.core import (
     PASSED,
     PassThrough,
@@ -180,6 +180,14 @@ def new(
     depends: Annotated[
         list[str] | None, typer.Option("--depends", "-d", help="Interface package the firmware uses (repeatable).")
     ] = None,
+    link: Annotated[
+        str,
+        typer.Option(
+            "--transport",
+            help="How the board reaches the micro-ROS agent: udp (Wi-Fi), serial or uart (UART0, the board's "
+            "USB-to-UART bridge), usb-serial-jtag (the chip's own USB: esp32c3, esp32s3).",
+        ),
+    ] = "udp",
     workspace: WorkspaceOption = None,
 ) -> None:
     """Create NAME beside the workspace's firmware: an ESP-IDF project that is also a ROS 2 package,
@@ -188,9 +196,12 @@ def new(
     packages = workspace_packages(ws, config.ros_distro)
     check_new_package(name, tuple(depends or ()), packages)
     chip = target and check_target(target, "--target")
+    chosen = transport.parse_transport(link)
     owner = invoking_user(os.environ, ws.root) if os.geteuid() == 0 else None
-    path = create_firmware_package(ws, name, tuple(depends or ()), packages, owner, chip)
+    path = create_firmware_package(ws, name, tuple(depends or ()), packages, owner, chip, chosen)
     console.print(f"created {path.relative_to(ws.root)}; build it with `espdock build {name}`")
+    if chosen != transport.UDP:
+        console.print(f"micro-ROS over {chosen}: no provisioning; start the agent with `espdock agent --port <device>`")
     where = f"CONFIG_IDF_TARGET in {name}/sdkconfig.defaults" if chip else "the workspace's `target`"
     console.print(f"chip target {chip or config.target} ({where})")
 

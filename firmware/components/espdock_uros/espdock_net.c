@@ -1,5 +1,6 @@
 /* Reading the provisioned network settings from NVS; see espdock_net.h. */
 #include "espdock_net.h"
+#include "espdock_transport.h"
 
 #include <string.h>
 
@@ -120,6 +121,10 @@ esp_err_t espdock_nvs_init(void)
 
 void espdock_net_load(net_settings_t *out)
 {
+#if CONFIG_ESPDOCK_TRANSPORT_SERIAL
+    espdock_transport_serial_settings(out);
+    return;
+#endif
     esp_err_t err = espdock_nvs_init();
     if (err != ESP_OK) {
         ESP_LOGE(TAG, "NVS unavailable (%s): using the build's settings only", esp_err_to_name(err));

@@ -9,7 +9,7 @@
 
 #include "esp_log.h"
 #include "esp_timer.h"
-#include "espdock_wifi.h"
+#include "espdock_transport.h"
 #include "net_settings.h"
 #include "freertos/FreeRTOS.h"
 #include "freertos/task.h"
@@ -46,19 +46,19 @@ bool espdock_uros_setup(espdock_uros_t *uros, const espdock_uros_config_t *confi
         return false;
     }
 #endif
-    char port[8];
-    snprintf(port, sizeof port, "%u", (unsigned)config->agent_port);
     ESPDOCK_RC_CHECK(rcl_init_options_init(&uros->init_options, uros->allocator));
     ESPDOCK_RC_CHECK(rcl_init_options_set_domain_id(&uros->init_options, config->domain_id));
     rmw_init_options_t *rmw_options = rcl_init_options_get_rmw_init_options(&uros->init_options);
-    ESPDOCK_RC_CHECK(rmw_uros_options_set_udp_address(config->agent_ip, port, rmw_options));
-    ESP_LOGI(TAG, "agent at %s:%s, node %s", config->agent_ip, port, config->node_name);
+    if (!espdock_transport_configure(rmw_options, config->agent_ip, config->agent_port)) {
+        return false;
+    }
+    ESP_LOGI(TAG, "agent over %s, node %s", espdock_transport_name(), config->node_name);
     return true;
 }
 
 bool espdock_uros_ping(espdock_uros_t *uros, bool in_session)
 {
-    if (!espdock_wifi_is_connected()) {
+    if (!espdock_transport_is_up()) {
         return false;
     }
     if (in_session) {

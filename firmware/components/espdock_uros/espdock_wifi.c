@@ -119,6 +119,11 @@ static esp_err_t init_stack(void)
 
 esp_err_t espdock_wifi_start(const char *ssid, const char *password, bool power_save)
 {
+#if CONFIG_ESPDOCK_TRANSPORT_SERIAL
+    /* The agent is on the serial line: the radio stays off (espdock_transport.h). */
+    (void)ssid, (void)password, (void)power_save;
+    return ESP_OK;
+#endif
     wifi_config_t config;
     memset(&config, 0, sizeof config);
     size_t ssid_len = strlen(ssid);

@@ -1,0 +1,120 @@
+"""How a firmware package reaches the micro-ROS agent, and what that asks of its library.
+
+The transport is chosen in the package's sdkconfig.defaults (the espdock_uros component's
+ESPDOCK_TRANSPORT choice). UDP is micro-ROS's default library (RMW_UXRCE_TRANSPORT=udp);
+both serial transports need a library built with RMW_UXRCE_TRANSPORT=custom, which the
+component's espdock_transport.c fills with its UART or USB-Serial-JTAG callbacks.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+from collections.abc import Mapping
+from pathlib import Path
+
+from espdock.errors import ConfigError, WorkspaceError
+
+UDP = "udp"
+UART = "uart"
+USB_SERIAL_JTAG = "usb-serial-jtag"
+TRANSPORTS = (UDP, UART, USB_SERIAL_JTAG)
+SERIAL_TRANSPORTS = (UART, USB_SERIAL_JTAG)
+
+# The Kconfig choice's symbols (firmware/components/espdock_uros/Kconfig.projbuild).
+SYMBOLS = {
+    "CONFIG_ESPDOCK_TRANSPORT_UDP": UDP,
+    "CONFIG_ESPDOCK_TRANSPORT_UART": UART,
+    "CONFIG_ESPDOCK_TRANSPORT_USB_SERIAL_JTAG": USB_SERIAL_JTAG,
+}
+# Chips with SOC_USB_SERIAL_JTAG_SUPPORTED in ESP-IDF v5.3 among those micro-ROS builds for
+# (esp32 and esp32s2 have none; the esp32s2's USB is OTG only).
+USB_SERIAL_JTAG_CHIPS = ("esp32c3", "esp32s3")
+
+_CHOICE_LINE = re.compile(r"^(CONFIG_ESPDOCK_TRANSPORT_[A-Z_]+)=y\s*$")
+_TRANSPORT_ARG = "-DRMW_UXRCE_TRANSPORT="
+
+
+ALIASES = {"serial": UART}
+
+
+def parse_transport(text: str) -> str:
+    """A transport name as the user gives it (`espdock new --transport`)."""
+    name = ALIASES.get(text.strip().lower(), text.strip().lower())
+    if name not in TRANSPORTS:
+        raise ConfigError(
+            f"unknown transport '{text}'",
+            f"Choose one of {', '.join(TRANSPORTS)} (serial means uart: UART0, the board's USB-to-UART bridge).",
+        )
+    return name
+
+
+def firmware_transport(defaults: Mapping[str, bytes], target: str) -> str:
+    """The transport a package's sdkconfig.defaults (then .TARGET, which wins) selects; UDP if none."""
+    chosen = UDP
+    for name in ("sdkconfig.defaults", f"sdkconfig.defaults.{target}"):
+        for line in defaults.get(name, b"").decode(errors="replace").splitlines():
+            match = _CHOICE_LINE.match(line.strip())
+            if match and match.group(1) in SYMBOLS:
+                chosen = SYMBOLS[match.group(1)]
+    return chosen
+
+
+def check_transport(package: str, transport: str, target: str) -> None:
+    """Refuse a transport the chip has no hardware for, before anything builds."""
+    if transport == USB_SERIAL_JTAG and target not in USB_SERIAL_JTAG_CHIPS:
+        raise WorkspaceError(
+            f"{package}: {target} has no USB-Serial-JTAG port, but its sdkconfig.defaults selects "
+            "CONFIG_ESPDOCK_TRANSPORT_USB_SERIAL_JTAG",
+            f"Use it on {' or '.join(USB_SERIAL_JTAG_CHIPS)}, or set CONFIG_ESPDOCK_TRANSPORT_UART=y "
+            "(the board's USB-to-UART bridge on UART0).",
+        )
+
+
+def rmw_transport(transport: str) -> str:
+    """rmw_microxrcedds's RMW_UXRCE_TRANSPORT for a firmware transport."""
+    return UDP if transport == UDP else "custom"
+
+
+def library_colcon_meta(package: str, meta: str, transport: str) -> str:
+    """The app-colcon.meta the micro-ROS library is built with for TRANSPORT.
+
+    A UDP package's meta is returned unchanged (UDP is the library's default, so its image key
+    stays what it was); a serial one gets RMW_UXRCE_TRANSPORT=custom. A meta that sets another
+    RMW_UXRCE_TRANSPORT than the Kconfig choice is refused: the firmware would not compile.
+    """
+    wanted = rmw_transport(transport)
+    data = json.loads(meta) if meta.strip() else {"names": {}}
+    names = data.setdefault("names", {})
+    entry = names.setdefault("rmw_microxrcedds", {})
+    args = entry.setdefault("cmake-args", [])
+    if not isinstance(entry, dict) or not isinstance(args, list):
+        raise WorkspaceError(f"{package}/app-colcon.meta: names.rmw_microxrcedds.cmake-args is not a list")
+    given = [a[len(_TRANSPORT_ARG) :] for a in args if isinstance(a, str) and a.startswith(_TRANSPORT_ARG)]
+    if any(value != wanted for value in given):
+        raise WorkspaceError(
+            f"{package}/app-colcon.meta sets {_TRANSPORT_ARG}{given[-1]}, but its sdkconfig.defaults selects "
+            f"the {transport} transport, which needs {_TRANSPORT_ARG}{wanted}",
+            f"Remove that argument (espdock adds the right one) or set it to {wanted}.",
+        )
+    if transport == UDP or given:
+        return meta
+    args.append(f"{_TRANSPORT_ARG}{wanted}")
+    return json.dumps(data, indent=2, sort_keys=True) + "\n"
+
+
+def project_transport(project: Path, target: str) -> str:
+    """The transport of the firmware project at PROJECT, built for TARGET."""
+    names = ("sdkconfig.defaults", f"sdkconfig.defaults.{target}")
+    return firmware_transport({n: (project / n).read_bytes() for n in names if (project / n).is_file()}, target)
+
+
+def check_provisionable(package: str, link: str) -> None:
+    """Provisioning writes Wi-Fi and agent settings: a serial board has neither to write."""
+    if link != UDP:
+        raise ConfigError(
+            f"{package} reaches the micro-ROS agent over {link} (CONFIG_ESPDOCK_TRANSPORT in its "
+            "sdkconfig.defaults): nothing to provision, it uses no Wi-Fi and no agent address",
+            "Flash it (espdock flash without --wifi-ssid/--agent) and start the agent on "
+            "its port, e.g. `espdock agent --port /dev/ttyACM0`.",
+        )

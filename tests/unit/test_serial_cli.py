@@ -1,0 +1,72 @@
+"""`espdock new --transport` and what provisioning says of a serial board, through the CLI."""
+
+import json
+import re
+
+from tests.conftest import copy_workspace, espdock
+
+NO_ENGINE = {"DOCKER_HOST": "unix:///nonexistent/docker.sock"}
+
+
+def library_keys(plan: str) -> dict[str, str]:
+    steps = " ".join(plan.split())
+    return dict(re.findall(r"idf\.py build (\w+) in espdock/idf-micro-ros-jazzy-\w+:(\S+)", steps))
+
+
+def test_new_serial_packages_need_no_wifi_and_get_a_custom_transport_library(tmp_path):
+    root = copy_workspace(tmp_path / "w")
+    for name, args in {
+        "wifi_board": (),
+        "uart_board": ("--transport", "serial"),
+        "usb_board": ("--transport", "usb-serial-jtag"),
+    }.items():
+        created = espdock("new", name, *args, "--target", "esp32c3", cwd=root, env=NO_ENGINE)
+        assert created.returncode == 0, created.stderr
+    uart = (root / "firmware/uart_board/sdkconfig.defaults").read_text()
+    assert "CONFIG_ESPDOCK_TRANSPORT_UART=y" in uart and "CONFIG_MICRO_ROS_ESP_UART_TRANSPORT=y" in uart
+    assert "NETIF_WLAN" not in uart and "espdock provision" not in uart
+    usb = (root / "firmware/usb_board/sdkconfig.defaults").read_text()
+    assert "CONFIG_ESPDOCK_TRANSPORT_USB_SERIAL_JTAG=y" in usb and 'CONFIG_IDF_TARGET="esp32c3"' in usb
+    meta = json.loads((root / "firmware/uart_board/app-colcon.meta").read_text())
+    assert "-DRMW_UXRCE_TRANSPORT=custom" in meta["names"]["rmw_microxrcedds"]["cmake-args"]
+    wifi = (root / "firmware/wifi_board/sdkconfig.defaults").read_text()
+    assert "CONFIG_MICRO_ROS_ESP_NETIF_WLAN=y" in wifi and "ESPDOCK_TRANSPORT" not in wifi
+
+    plan = espdock("build", "--dry-run", cwd=root, env=NO_ENGINE)
+    assert plan.returncode == 0, plan.stderr
+    keys = library_keys(plan.stdout)
+    assert keys.keys() == {"wifi_board", "uart_board", "usb_board"}, plan.stdout
+    # Two libraries for three boards: UDP, and one custom-transport library both serial boards share.
+    assert keys["uart_board"] == keys["usb_board"] != keys["wifi_board"]
+
+
+def test_new_refuses_an_unknown_transport_and_usb_on_a_chip_without_it(tmp_path):
+    root = copy_workspace(tmp_path / "w")
+    unknown = espdock("new", "board", "--transport", "bluetooth", cwd=root, env=NO_ENGINE)
+    assert unknown.returncode == 2 and "unknown transport 'bluetooth'" in unknown.stderr
+    no_usb = espdock("new", "board", "--transport", "usb-serial-jtag", "--target", "esp32", cwd=root, env=NO_ENGINE)
+    assert no_usb.returncode == 2 and "esp32 has no USB-Serial-JTAG port" in no_usb.stderr
+    assert "Traceback" not in unknown.stderr + no_usb.stderr
+    assert not (root / "firmware/board").exists()
+
+
+def test_provisioning_a_serial_board_says_there_is_nothing_to_provision(tmp_path):
+    root = copy_workspace(tmp_path / "w")
+    assert espdock("new", "board", "--transport", "uart", cwd=root, env=NO_ENGINE).returncode == 0
+    for argv in (
+        ("provision", "board", "--port", "/dev/ttyUSB0"),
+        ("provision", "board", "--port", "/dev/ttyUSB0", "--wifi-ssid", "lab", "--agent", "10.0.0.2:8888"),
+        ("flash", "board", "--port", "/dev/ttyUSB0", "--wifi-ssid", "lab", "--agent", "10.0.0.2:8888"),
+    ):
+        result = espdock(*argv, cwd=root, env=NO_ENGINE)
+        assert result.returncode == 2, (argv, result.stderr)
+        text = " ".join(result.stderr.split())
+        assert "board reaches the micro-ROS agent over uart" in text and "nothing to provision" in text.lower()
+        assert "espdock agent --port" in text
+
+
+def test_provision_of_a_wifi_board_still_asks_for_its_settings(tmp_path):
+    root = copy_workspace(tmp_path / "w")
+    assert espdock("new", "board", cwd=root, env=NO_ENGINE).returncode == 0
+    result = espdock("provision", "board", "--port", "/dev/ttyUSB0", cwd=root, env=NO_ENGINE)
+    assert result.returncode == 2 and "needs --wifi-ssid and --agent" in result.stderr

@@ -265,6 +265,7 @@ COMPOSE_TEMPLATE = """\
 #   espdock compose up                       makes the image below of install/, starts the nodes
 #   espdock compose up talker                only some of them
 #   espdock compose --profile hardware up    also the micro-ROS agent, for ESP32 boards
+#   espdock compose --profile serial up      the agent for a board on USB/UART (MICROROS_SERIAL_DEVICE)
 #   espdock compose --profile '*' down       stops and removes everything
 #
 # Settings (environment or .env): ROS_DOMAIN_ID (default 0), MICROROS_AGENT_PORT (default 8888).
@@ -296,6 +297,18 @@ services:
       <<: *ros-env
     ports:
       - "${{MICROROS_AGENT_PORT:-8888}}:8888/udp"
+    restart: unless-stopped
+
+  # A board on a serial line (espdock new --transport serial): only its device goes in, as
+  # /dev/microros. MICROROS_SERIAL_DEVICE (default /dev/ttyACM0) must exist when it starts.
+  micro_ros_agent_serial:
+    image: {agent}
+    profiles: [serial]
+    command: [serial, --dev, /dev/microros, -b, "${{MICROROS_SERIAL_BAUD:-115200}}"]
+    devices:
+      - "${{MICROROS_SERIAL_DEVICE:-/dev/ttyACM0}}:/dev/microros"
+    environment:
+      <<: *ros-env
     restart: unless-stopped
 """
 # The first line of a compose file espdock wrote: the hash of the rest, so that a refresh

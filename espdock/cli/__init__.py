@@ -2,8 +2,8 @@
 
 Each command lives with its kind: workspace.py (build, lock, verify, new, init, setup, list),
 firmware.py (idf, micro-ros, flash, provision, monitor), nodes.py (compose, run, shell) and
-prune.py (prune, imported by workspace.py: a build records and prunes). Importing them registers
-them on the app, in the order `espdock --help` lists them."""
+prune.py (prune, imported by workspace.py: a build records and prunes), agent.py (the micro-ROS
+agent). Importing them registers them on the app, in the order `espdock --help` lists them."""
 
 from __future__ import annotations
 
@@ -22,6 +22,9 @@ from espdock.cli import firmware  # noqa: F401
 
 # isort: split
 from espdock.cli import nodes  # noqa: F401
+
+# isort: split
+from espdock.cli import agent  # noqa: F401
 
 __all__ = ["app", "command", "main"]
 

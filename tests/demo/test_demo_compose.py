@@ -87,7 +87,7 @@ def test_the_ui_is_published_on_localhost_8080_unless_told_otherwise():
 def test_every_node_runs_the_runtime_image_espdock_build_makes_and_compose_builds_none():
     services = config("--profile", "*")["services"]
     for name, service in services.items():
-        if name != "micro_ros_agent":
+        if not name.startswith("micro_ros_agent"):
             assert service["image"] == "espdock/demo:latest", name
             assert "build" not in service, name
 
@@ -104,7 +104,22 @@ def test_the_control_path_runs_first_when_the_cpu_is_contended_and_nothing_is_st
     streamed 4 fps instead of 30 beside four busy containers."""
     services = config("--profile", "*")["services"]
     weight = {name: service.get("cpu_shares", 1024) for name, service in services.items()}
-    control = {"qr_detector", "led_strip_sim", "micro_ros_agent"}
+    control = {"qr_detector", "led_strip_sim", "micro_ros_agent", "micro_ros_agent_serial"}
     others = services.keys() - control
     assert min(weight[name] for name in control) >= 32 * max(weight[name] for name in others), weight
     assert min(weight.values()) >= 1024, weight
+
+
+def test_the_serial_agent_gets_only_the_board_s_device_and_no_privileges():
+    """A board on USB (espdock new --transport serial): `--profile hardware --profile serial`."""
+    services = config("--profile", "hardware", "--profile", "serial", MICROROS_SERIAL_DEVICE="/dev/ttyUSB3")["services"]
+    agent = services["micro_ros_agent_serial"]
+    assert agent["image"] == "microros/micro-ros-agent:jazzy"
+    assert agent["command"] == ["serial", "--dev", "/dev/microros", "-b", "115200"]
+    (device,) = agent["devices"]
+    assert (device["source"], device["target"]) == ("/dev/ttyUSB3", "/dev/microros")
+    assert not agent.get("privileged") and not agent.get("cap_add") and "volumes" not in agent
+    assert {"micro_ros_agent", "qr_detector", "demo-hardware"} <= services.keys()
+    assert "micro_ros_agent_serial" not in config("--profile", "hardware")["services"]
+    baud = config("--profile", "serial", MICROROS_SERIAL_BAUD="921600")["services"]["micro_ros_agent_serial"]
+    assert baud["command"][-1] == "921600"

@@ -112,7 +112,7 @@ def test_the_starter_compose_file_has_a_service_per_node_and_the_agent_under_har
     text = starter_compose("robot", "espdock/robot:latest", {"talk": ["talker", "listener"], "other": ["talker"]})
     data = yaml.safe_load(text)
     services = data["services"]
-    assert set(services) == {"listener", "talk-talker", "other-talker", "micro_ros_agent"}
+    assert set(services) == {"listener", "talk-talker", "other-talker", "micro_ros_agent", "micro_ros_agent_serial"}
     assert services["listener"]["command"] == ["/opt/espdock/ws/install/talk/lib/talk/listener"]
     assert services["listener"]["image"] == "espdock/robot:latest"
     assert services["listener"]["environment"]["FASTDDS_BUILTIN_TRANSPORTS"] == "UDPv4"

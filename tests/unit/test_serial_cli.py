@@ -70,3 +70,60 @@ def test_provision_of_a_wifi_board_still_asks_for_its_settings(tmp_path):
     assert espdock("new", "board", cwd=root, env=NO_ENGINE).returncode == 0
     result = espdock("provision", "board", "--port", "/dev/ttyUSB0", cwd=root, env=NO_ENGINE)
     assert result.returncode == 2 and "needs --wifi-ssid and --agent" in result.stderr
+
+
+def test_the_starter_compose_runs_a_serial_agent_with_only_the_board_s_device(tmp_path):
+    """`espdock init`'s compose.yaml as real Compose resolves it (`docker compose config`: no engine)."""
+    import os
+    import shutil
+    import subprocess
+
+    import pytest
+
+    from espdock.scaffold import starter_compose
+
+    if not shutil.which("docker"):
+        pytest.skip("the docker CLI is not on PATH")
+    (tmp_path / "compose.yaml").write_text(starter_compose("robot", "espdock/robot:latest", {"talk": ["talker"]}))
+    env = {k: v for k, v in os.environ.items() if not k.startswith(("MICROROS_", "ROS_DOMAIN_ID"))}
+
+    def config(*args: str, **extra: str) -> dict:
+        result = subprocess.run(
+            ["docker", "compose", "--project-directory", str(tmp_path), *args, "config", "--format", "json"],
+            capture_output=True, text=True, env={**env, **extra}, check=False,
+        )  # fmt: skip
+        if "is not a docker command" in result.stderr:
+            pytest.skip("`docker compose` (v2) is missing")
+        assert result.returncode == 0, result.stderr
+        return json.loads(result.stdout)["services"]
+
+    agent = config("--profile", "serial", MICROROS_SERIAL_DEVICE="/dev/ttyACM1", ROS_DOMAIN_ID="5")[
+        "micro_ros_agent_serial"
+    ]
+    assert agent["command"] == ["serial", "--dev", "/dev/microros", "-b", "115200"]
+    assert [(d["source"], d["target"]) for d in agent["devices"]] == [("/dev/ttyACM1", "/dev/microros")]
+    assert not agent.get("privileged") and not agent.get("cap_add")
+    assert agent["environment"]["ROS_DOMAIN_ID"] == "5"
+    assert "micro_ros_agent_serial" not in config() and "micro_ros_agent_serial" not in config("--profile", "hardware")
+
+
+def test_the_agent_command_refuses_what_the_agent_cannot_open_before_touching_the_engine(tmp_path):
+    url = espdock("agent", "--port", "socket://127.0.0.1:4000", cwd=tmp_path, env=NO_ENGINE)
+    assert url.returncode == 2 and "opens serial devices only" in url.stderr
+    missing = espdock("agent", "--port", str(tmp_path / "ttyACM7"), cwd=tmp_path, env=NO_ENGINE)
+    assert missing.returncode == 6 and "does not exist" in missing.stderr
+    baud = espdock("agent", "--port", "/dev/ttyACM0", "--baud", "0", cwd=tmp_path, env=NO_ENGINE)
+    assert baud.returncode == 2 and "--baud 0 is not a baud rate" in baud.stderr
+    assert "Traceback" not in url.stderr + missing.stderr + baud.stderr
+
+
+def test_the_agent_s_arguments_are_micro_ros_agent_s_own():
+    from espdock.agent import agent_spec
+    from espdock.flashing import parse_port
+
+    spec = agent_spec("img", parse_port("/dev/ttyACM0"), {"ROS_DOMAIN_ID": "3", "HOME": "/root"}, baud=921600)
+    assert spec.argv == ("serial", "--dev", "/dev/ttyACM0", "-b", "921600")
+    assert spec.devices == ("/dev/ttyACM0",) and spec.network == "host" and spec.user is None
+    assert dict(spec.env) == {"ROS_DOMAIN_ID": "3", "FASTDDS_BUILTIN_TRANSPORTS": "UDPv4"}
+    udp = agent_spec("img", None, {}, domain_id=9)
+    assert udp.argv == ("udp4", "--port", "8888") and udp.devices == () and dict(udp.env)["ROS_DOMAIN_ID"] == "9"

@@ -1,0 +1,69 @@
+"""The micro-ROS agent for a board: what `espdock agent` runs, as data (no engine here).
+
+The agent image (microros/micro-ros-agent) runs `ros2 run micro_ros_agent micro_ros_agent "$@"`
+from its entrypoint, so the container's command is the agent's own: `serial --dev DEV -b BAUD`
+for a board on a serial line, `udp4 --port PORT` for one on Wi-Fi.
+"""
+
+from __future__ import annotations
+
+import os
+import secrets
+from collections.abc import Mapping
+
+from espdock.engine import RunSpec
+from espdock.errors import ConfigError
+from espdock.flashing import Port
+
+# micro_ros_agent's default and the firmware's (CONFIG_ESPDOCK_UART_BAUD).
+DEFAULT_BAUD = 115200
+DEFAULT_UDP_PORT = 8888
+# The environment the compose files give the agent: Fast DDS over UDP only (shared memory does
+# not cross containers), the ROS domain of the rest of the graph.
+PASSED_ENV = ("ROS_DOMAIN_ID", "RMW_IMPLEMENTATION", "FASTDDS_BUILTIN_TRANSPORTS")
+
+
+def agent_argv(port: Port | None, baud: int = DEFAULT_BAUD, udp_port: int = DEFAULT_UDP_PORT) -> tuple[str, ...]:
+    """micro_ros_agent's arguments for a board on PORT (None: boards on Wi-Fi, over UDP)."""
+    if port is None:
+        if not 1 <= udp_port <= 65535:
+            raise ConfigError(f"--udp-port {udp_port} is not 1..65535")
+        return ("udp4", "--port", str(udp_port))
+    if port.is_url:
+        raise ConfigError(
+            f"the micro-ROS agent cannot use {port.spec}: it opens serial devices only",
+            "Give the board's device, e.g. --port /dev/ttyACM0 (USB-Serial-JTAG) or /dev/ttyUSB0 (a USB-UART bridge).",
+        )
+    if baud <= 0:
+        raise ConfigError(f"--baud {baud} is not a baud rate", f"The firmware's default is {DEFAULT_BAUD}.")
+    return ("serial", "--dev", str(port.device), "-b", str(baud))
+
+
+def agent_spec(
+    image: str,
+    port: Port | None,
+    env: Mapping[str, str],
+    baud: int = DEFAULT_BAUD,
+    udp_port: int = DEFAULT_UDP_PORT,
+    domain_id: int | None = None,
+    tty: bool = False,
+) -> RunSpec:
+    """The agent's container: only PORT's device passed in (no privileges), on the host's network
+    so that its DDS side meets the host's ROS graph (and a UDP agent is reachable by the boards)."""
+    settings = {name: env[name] for name in PASSED_ENV if name in env}
+    settings.setdefault("FASTDDS_BUILTIN_TRANSPORTS", "UDPv4")
+    if domain_id is not None:
+        if not 0 <= domain_id <= 232:
+            raise ConfigError(f"--domain-id {domain_id} is not 0..232")
+        settings["ROS_DOMAIN_ID"] = str(domain_id)
+    return RunSpec(
+        image=image,
+        argv=agent_argv(port, baud, udp_port),
+        workdir="/",
+        env=tuple(sorted(settings.items())),
+        labels=(("io.espdock.role", "micro-ros-agent"),),
+        devices=port.devices if port is not None else (),
+        network="host",
+        tty=tty,
+        name=f"espdock-agent-{os.getpid()}-{secrets.token_hex(4)}",
+    )

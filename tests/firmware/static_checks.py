@@ -302,6 +302,8 @@ def check_colcon_meta(app: Path, problems: Problems) -> dict[str, dict[str, str]
             continue
         for arg in args:
             match = re.fullmatch(r"-D([A-Z0-9_]+)=(-?[0-9]+)", arg)
+            if package == "rmw_microxrcedds" and re.fullmatch(r"-DRMW_UXRCE_TRANSPORT=(udp|custom)", arg):
+                continue
             if not match:
                 problems.add(path, f"{package}: {arg!r} is not -DNAME=<integer>")
             elif "HISTORY" in match.group(1) and "MAX_HISTORY" not in match.group(1):
@@ -309,6 +311,32 @@ def check_colcon_meta(app: Path, problems: Problems) -> dict[str, dict[str, str]
                 if value <= 0 or value & (value - 1):
                     problems.add(path, f"{match.group(1)}={value} must be a power of two")
     return meta_args(meta)
+
+
+# espdock_uros's Kconfig choice (Kconfig.projbuild) -> rmw_microxrcedds's RMW_UXRCE_TRANSPORT.
+TRANSPORT_LIBRARY = {"UDP": "udp", "UART": "custom", "USB_SERIAL_JTAG": "custom"}
+
+
+def check_transport(component: Path, app: Path, rmw: dict[str, str], problems: Problems) -> None:
+    """The app's transport choice exists in the component, and its app-colcon.meta builds the library
+    that matches it (a plain idf.py build reads only the meta)."""
+    choices = set(
+        re.findall(r"^\s*config ESPDOCK_TRANSPORT_(\w+)\s*$", (component / "Kconfig.projbuild").read_text(), re.M)
+    )
+    if choices - {"SERIAL"} != set(TRANSPORT_LIBRARY):
+        problems.add(
+            component / "Kconfig.projbuild", f"transport choices {sorted(choices)} != {sorted(TRANSPORT_LIBRARY)}"
+        )
+    chosen = re.findall(r"^CONFIG_ESPDOCK_TRANSPORT_(\w+)=y$", (app / "sdkconfig.defaults").read_text(), re.M)
+    transport = chosen[-1] if chosen else "UDP"
+    if transport not in TRANSPORT_LIBRARY:
+        problems.add(app / "sdkconfig.defaults", f"unknown transport CONFIG_ESPDOCK_TRANSPORT_{transport}")
+        return
+    wanted, given = TRANSPORT_LIBRARY[transport], rmw.get("RMW_UXRCE_TRANSPORT", "udp")
+    if given != wanted:
+        problems.add(
+            app / "app-colcon.meta", f"RMW_UXRCE_TRANSPORT={given}, but the {transport} transport needs {wanted}"
+        )
 
 
 def app_sources(app: Path) -> str:
@@ -517,6 +545,7 @@ def cmd_apps(firmware: str, msg_file: str) -> int:
                 problems.add(app, f"{option} defaults to {defaults.get(option)!r}, expected {value!r}")
         args = check_colcon_meta(app, problems)
         check_entity_counts(app, args.get("rmw_microxrcedds", {}), problems)
+        check_transport(root / "components" / "espdock_uros", app, args.get("rmw_microxrcedds", {}), problems)
         if app.name == "led_strip_node" and "rclc_subscription_init_best_effort(" not in app_sources(app):
             # A reliable input stream holds HISTORY_INPUT x MTU bytes; a longer /qr_message can never be
             # reassembled and jams it: the colour subscription must be best effort (firmware/README.md).

@@ -997,6 +997,8 @@ class SourceChecker:
     def __init__(self, macros: dict[str, str]) -> None:
         self.base_macros = macros
         self.scanned: dict[tuple, list[Diagnostic]] = {}
+        # What each scanned file leaves #defined (as the C preprocessor, an includer sees it).
+        self.exports: dict[Path, dict[str, str]] = {}
         self.read: set[Path] = set()
 
     def check(
@@ -1078,8 +1080,19 @@ class SourceChecker:
                 found += self._include(
                     path, number, column, include, quoted, local_dirs, ros_dirs, idf_seen, chain, stack
                 )
+                if active() is True:
+                    for header in self._resolved(path, include, quoted, local_dirs, ros_dirs):
+                        macros.update(self.exports.get(header, {}))
         self.scanned[key] = [Diagnostic(d.path, d.line, d.column, d.message, d.chain[len(chain) :]) for d in found]
+        self.exports[path] = {k: v for k, v in macros.items() if self.base_macros.get(k) != v}
         return found
+
+    def _resolved(
+        self, path: Path, include: str, quoted: bool, local_dirs: list[Path], ros_dirs: list[Path]
+    ) -> list[Path]:
+        """The file an #include names, if the double reads it (for a header scanned before)."""
+        dirs = ([path.parent] if quoted else []) + (ros_dirs if is_ros_header(include) else local_dirs)
+        return next(([d / include] for d in dirs if (d / include).is_file()), [])
 
     def _include(
         self,

@@ -57,7 +57,7 @@ void espdock_transport_serial_settings(net_settings_t *out)
 
 /* The driver's buffers: one XRCE frame (MTU 512 by default) with room for escaping. */
 #define SERIAL_BUFFER_BYTES 1024
-/* Past this, a write counts as failed: the host is not reading (cable out, agent stopped). */
+/* Past this, a write counts as failed: on USB the host is not reading (cable out, port closed). */
 #define SERIAL_WRITE_TIMEOUT_MS 100
 
 static serial_link_t s_link;

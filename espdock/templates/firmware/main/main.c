@@ -14,11 +14,12 @@
 #include "sdkconfig.h"
 
 /* espdock_uros talks to the agent over UDP on Wi-Fi, as upstream's examples do only under
- * these options: any other middleware or transport needs another app. */
+ * these options, or over a serial line (espdock micro-ROS transport): any other middleware
+ * or network interface needs another app. */
 #if !defined(CONFIG_MICRO_ROS_ESP_XRCE_DDS_MIDDLEWARE)
 #error "@NAME@ needs micro-ROS over Micro XRCE-DDS (micro-ROS Settings > middleware)"
 #endif
-#if !defined(CONFIG_MICRO_ROS_ESP_NETIF_WLAN)
+#if !defined(CONFIG_MICRO_ROS_ESP_NETIF_WLAN) && !defined(CONFIG_ESPDOCK_TRANSPORT_SERIAL)
 #error "@NAME@ reaches the agent over Wi-Fi: select micro-ROS Settings > WLAN interface"
 #endif
 

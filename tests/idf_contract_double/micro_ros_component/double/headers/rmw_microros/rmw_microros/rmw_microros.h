@@ -7,6 +7,7 @@
 #include "rmw_microros/ping.h"
 #include "rmw_microros/time_sync.h"
 #include "rmw_microros/timing.h"
+#include "rmw_microros/custom_transport.h"
 /* The agent port's buffer length, as rmw_microxrcedds before micro-ROS/rmw_microxrcedds#315 has it
  * (the jazzy head espdock follows unless #315 reached it: its backports were asked for iron and
  * humble): the library keeps MAX_PORT_LEN - 1 = 4 digits of a port. */

@@ -87,8 +87,8 @@ def library_colcon_meta(package: str, meta: str, transport: str) -> str:
     data = json.loads(meta) if meta.strip() else {"names": {}}
     names = data.setdefault("names", {})
     entry = names.setdefault("rmw_microxrcedds", {})
-    args = entry.setdefault("cmake-args", [])
-    if not isinstance(entry, dict) or not isinstance(args, list):
+    args = entry.setdefault("cmake-args", []) if isinstance(entry, dict) else None
+    if not isinstance(args, list):
         raise WorkspaceError(f"{package}/app-colcon.meta: names.rmw_microxrcedds.cmake-args is not a list")
     given = [a[len(_TRANSPORT_ARG) :] for a in args if isinstance(a, str) and a.startswith(_TRANSPORT_ARG)]
     if any(value != wanted for value in given):

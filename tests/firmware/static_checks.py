@@ -477,7 +477,8 @@ def check_wifi_lifecycle(component: Path, apps: list[Path], problems: Problems) 
     if "agent_port_check.h" in uros or "_Static_assert" in uros:
         problems.add(component, "espdock_uros.c must not fail every build for one port: refuse the port at run time")
     check = uros.find("net_agent_port_fits(config->agent_port, MAX_PORT_LEN)")
-    if check < 0 or check > uros.find("rmw_uros_options_set_udp_address("):
+    # The UDP address is set by espdock_transport_configure (espdock_transport.c).
+    if check < 0 or check > uros.find("espdock_transport_configure("):
         problems.add(component, "espdock_uros_setup must refuse a port the library cuts (net_agent_port_fits) first")
     for app in apps:
         sources = app_sources(app)

@@ -254,7 +254,8 @@ def provision(
 
     The password never appears on a command line (espdock's or esptool's), in the workspace or in an image."""
     domain = parse_domain_id(domain_id)
-    check_settings(wifi_ssid, "", agent, domain)  # before anything else: no typo costs a wait
+    if wifi_ssid is not None and agent is not None:
+        check_settings(wifi_ssid, "", agent, domain)  # before anything else: no typo costs a wait
     ws, config = load(workspace)
     serial = parse_port(port)
     plan, step = firmware_plan(ws, config, package)

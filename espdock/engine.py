@@ -525,7 +525,6 @@ class Engine:
         argv += [arg for device in spec.devices for arg in ("--device", device)]
         argv += [arg for group in spec.group_add for arg in ("--group-add", str(group))]
         argv += ["--network", spec.network] if spec.network else []
-        argv += [arg for device in spec.devices for arg in ("--device", device)]
         argv += [spec.image, *spec.argv]
         received: list[int] = []
         sent = 0

@@ -130,7 +130,13 @@ def test_a_refresh_rewrites_espdocks_own_compose_file_but_not_an_edited_one(ws):
     installed(workspace.root, "quiet", "once")
     assert init_compose(workspace, repository, packages, refresh=True) == "refreshed"
     compose = workspace.root / "compose.yaml"
-    assert set(yaml.safe_load(compose.read_text())["services"]) == {"talker", "listener", "once", "micro_ros_agent"}
+    assert set(yaml.safe_load(compose.read_text())["services"]) == {
+        "talker",
+        "listener",
+        "once",
+        "micro_ros_agent",
+        "micro_ros_agent_serial",
+    }
     assert init_compose(workspace, repository, packages, refresh=True) == "unchanged"
     edited = compose.read_text().replace("UDPv4", "SHM")
     compose.write_text(edited)

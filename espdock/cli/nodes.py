@@ -49,7 +49,7 @@ def run(
     runner = ensure_images(ws, config, plan)
     image = runner.runtime_spec(ws, step).tag
     tty = bool(sys.stdin and sys.stdin.isatty()) and sys.stdout.isatty()
-    spec = nodes.node_spec(ws, image, path, tuple(args or ()), runner.owner, os.environ, network, tty)
+    spec = nodes.node_spec(ws, image, path, tuple(args or ()), runner.container_owner(), os.environ, network, tty)
     code, stopped_by = runner.engine.run_foreground(spec)
     raise typer.Exit(128 + stopped_by if stopped_by else code)
 
@@ -62,7 +62,7 @@ def shell(workspace: WorkspaceOption = None) -> None:
     plan, image = nodes.build_image_plan(build_plan(ws, config, [], PackageKind.ROS, checked=()))
     runner = ensure_images(ws, config, plan)
     spec = nodes.shell_spec(
-        ws, image, runner.owner, os.environ, bool(sys.stdin and sys.stdin.isatty()) and sys.stdout.isatty()
+        ws, image, runner.container_owner(), os.environ, bool(sys.stdin and sys.stdin.isatty()) and sys.stdout.isatty()
     )
     code, stopped_by = runner.engine.run_foreground(spec)
     raise typer.Exit(128 + stopped_by if stopped_by else code)

@@ -43,6 +43,7 @@ from espdock.errors import ContainerError, EngineUnavailable, EspdockError, Imag
 
 LineSink = Callable[[str], None]
 DEFAULT_SOCKET = "/var/run/docker.sock"
+OPERATION_TIMEOUT = 120
 # Every container espdock creates names the process that made it (boot id, pid, start time),
 # so a later command can tell a container whose espdock was killed from one still in use.
 LABEL_OWNER = "io.espdock.owner"
@@ -155,7 +156,9 @@ class Engine:
         """The Docker SDK's client, made on first use."""
         if self._sdk is None:
             try:
-                self._sdk = docker.from_env(environment=self._env, timeout=self._timeout)
+                # TIMEOUT is for the first answer; a busy engine (Podman starting a container of a
+                # large image on a loaded machine) may take longer over an operation.
+                self._sdk = docker.from_env(environment=self._env, timeout=max(self._timeout, OPERATION_TIMEOUT))
             except docker.errors.DockerException as exc:
                 raise EngineUnavailable(f"no Docker engine answers: {_connect_reason(exc)}") from exc
         return self._sdk
@@ -168,10 +171,11 @@ class Engine:
         try:
             if engine._socket is not None:
                 status, _ = engine._get("/_ping")
-                if status != 200:
-                    raise EngineUnavailable(f"no Docker engine answers at {where}: /_ping gave HTTP {status}")
             else:
-                engine._client.ping()
+                api = engine._client.api
+                status = api.get(f"{api.base_url}/_ping", timeout=timeout).status_code
+            if status != 200:
+                raise EngineUnavailable(f"no Docker engine answers at {where}: /_ping gave HTTP {status}")
         except OSError as exc:
             raise EngineUnavailable(f"no Docker engine answers at {where}: {_connect_reason(exc)}") from exc
         except (docker.errors.DockerException, requests.exceptions.RequestException) as exc:
@@ -741,6 +745,12 @@ class Engine:
             yield container
         except requests.exceptions.ConnectionError as exc:
             raise _engine_lost(self._env, f"running a container of {spec.image}") from exc
+        except requests.exceptions.Timeout as exc:
+            raise EngineUnavailable(
+                f"the {self.info().name} did not answer within {OPERATION_TIMEOUT} s while running a container of "
+                f"{spec.image}",
+                "Look at the engine (is it overloaded or hung?), then build again.",
+            ) from exc
         except docker.errors.APIError as exc:
             raise ContainerError(
                 f"the {self.info().name} could not run a container of {spec.image}: {exc.explanation or exc}"

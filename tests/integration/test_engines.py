@@ -198,12 +198,11 @@ def test_a_package_colcon_does_not_find_is_a_failure_and_the_old_install_is_not_
     root = once_workspace(tmp_path / "ws-root")
     first = espdock("build", cwd=root)
     assert first.returncode == 0, first.stdout + first.stderr
-    # The package now lives outside the workspace, linked in: espdock reads it on the host, but the
-    # build container, which sees only the workspace, does not.
-    outside = tmp_path / "elsewhere" / "beacon_nodes"
-    outside.parent.mkdir()
-    shutil.move(root / "ws/src/beacon_nodes", outside)
-    (root / "ws/src/beacon_nodes").symlink_to(outside)
+    # The packages now live outside the workspace, src/ a link to them: espdock reads them on the
+    # host, but the build container, which sees only the workspace, does not.
+    outside = tmp_path / "elsewhere-src"
+    shutil.move(root / "ws/src", outside)
+    (root / "ws/src").symlink_to(outside)
     edit_word(root, "four")
 
     result = espdock("build", cwd=root)
@@ -214,3 +213,12 @@ def test_a_package_colcon_does_not_find_is_a_failure_and_the_old_install_is_not_
     assert "✓ colcon build" not in result.stdout
     assert "word: one" in installed_word(root)
     engine.remove_containers({"io.espdock.workspace": str(root)})
+
+
+def test_setup_prepares_the_base_image_of_a_workspace_made_by_init(engine, tmp_path):
+    """A workspace of `espdock init` has no Dockerfile.ros: its builds use espdock's, and so does setup."""
+    made = espdock("init", str(tmp_path / "robot"), cwd=tmp_path)
+    assert made.returncode == 0, made.stdout + made.stderr
+    ready = espdock("setup", cwd=tmp_path / "robot")
+    assert ready.returncode == 0, ready.stdout + ready.stderr
+    assert "base image debian:bookworm-slim: present" in ready.stdout

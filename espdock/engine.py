@@ -191,9 +191,17 @@ class Engine:
                     _, version = self._get("/version")
                 else:
                     info, version = self._client.info(), self._client.version()
-            except (OSError, docker.errors.DockerException, requests.exceptions.RequestException) as exc:
+                libpod = None
+                if _is_podman(version or {}):
+                    # Podman 4's Docker API /info does not say rootless; its own API does.
+                    if self._socket is not None:
+                        _, libpod = self._get(LIBPOD_INFO)
+                    else:
+                        api = self._client.api
+                        libpod = api.get(f"{api.base_url}{LIBPOD_INFO}").json()
+            except (OSError, ValueError, docker.errors.DockerException, requests.exceptions.RequestException) as exc:
                 raise _engine_lost(self._env, "asking what it is") from exc
-            self._info = describe(self._env, info or {}, version or {})
+            self._info = describe(self._env, info or {}, version or {}, libpod)
         return self._info
 
     def _get(self, path: str) -> tuple[int, Any]:
@@ -805,13 +813,23 @@ class Engine:
         return [str(c.attrs.get("Names", [c.id])[0]).lstrip("/") for c in listed]
 
 
-def describe(env: Mapping[str, str], info: Mapping[str, Any], version: Mapping[str, Any]) -> EngineInfo:
-    """EngineInfo from the engine's /info and /version answers."""
+LIBPOD_INFO = "/v4.0.0/libpod/info"
+
+
+def _is_podman(version: Mapping[str, Any]) -> bool:
     components = [str(c.get("Name", "")) for c in version.get("Components") or () if isinstance(c, dict)]
-    podman = any("podman" in name.lower() for name in components)
+    return any("podman" in name.lower() for name in components)
+
+
+def describe(
+    env: Mapping[str, str], info: Mapping[str, Any], version: Mapping[str, Any], libpod: Any = None
+) -> EngineInfo:
+    """EngineInfo from the engine's /info and /version answers (and Podman's own /libpod/info)."""
+    podman = _is_podman(version)
     options = [str(o) for o in info.get("SecurityOptions") or ()]
-    # Docker says name=rootless in its security options; Podman's Docker API says the same.
-    rootless = any("name=rootless" in o for o in options)
+    # Docker says name=rootless in its security options; Podman says rootless in its own API.
+    security = ((libpod or {}).get("host") or {}).get("security") or {} if isinstance(libpod, dict) else {}
+    rootless = any("name=rootless" in o for o in options) or security.get("rootless") is True
     where = env.get("DOCKER_HOST") or f"unix://{DEFAULT_SOCKET}"
     # Podman's compat /info makes up a new ID on every call: its host name and storage say which it is.
     stable = [str(info.get(k, "")) for k in ("Name", "DockerRootDir")] + ([] if podman else [str(info.get("ID", ""))])

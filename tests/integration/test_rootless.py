@@ -1,5 +1,6 @@
-"""A rootless Docker engine (Debian's dockerd-rootless.sh under rootlesskit), run by a test user:
-what espdock's build containers write into that user's workspace belongs to the user.
+"""Rootless engines run by a test user: Docker (Debian's dockerd-rootless.sh under rootlesskit)
+and Podman (`podman system service` as the user). What espdock's build containers write into the
+user's workspace belongs to the user.
 
 Inside a rootless engine uid 0 is the user who started it; any other uid is one of the user's
 subordinate ids, which the user cannot delete. /dev/net/tun is 0600 on machines of this kind and
@@ -48,19 +49,25 @@ def ensure_test_user() -> pwd.struct_passwd:
 class RootlessDocker:
     """The test user's rootless dockerd; DOCKER_HOST for it in self.env."""
 
+    socket_name = "docker.sock"
+
     def __init__(self, user: pwd.struct_passwd) -> None:
         self.user = user
         self.runtime = Path(f"/run/user/{user.pw_uid}")
-        self.socket = self.runtime / "docker.sock"
+        self.socket = self.runtime / self.socket_name
         self.home = Path(user.pw_dir)
         self.env = {"HOME": str(self.home), "PATH": os.environ["PATH"], "DOCKER_HOST": f"unix://{self.socket}"}
         self.process: subprocess.Popen | None = None
 
-    def start(self) -> None:
+    def command(self) -> list[str]:
         missing = [tool for tool in ("rootlesskit", "newuidmap", "slirp4netns") if shutil.which(tool) is None]
         if missing or not ROOTLESS_SCRIPT.is_file():
             pytest.skip(f"rootless Docker is not installed here ({', '.join(missing) or ROOTLESS_SCRIPT}): "
                         "tests/install-system-deps.sh installs it")  # fmt: skip
+        return [str(ROOTLESS_SCRIPT), "--iptables=false"]
+
+    def start(self) -> None:
+        command = self.command()
         self.runtime.mkdir(parents=True, exist_ok=True)
         os.chown(self.runtime, self.user.pw_uid, self.user.pw_gid)
         self.runtime.chmod(0o700)
@@ -73,15 +80,15 @@ class RootlessDocker:
                 "sh", "-c", 'mount --bind "$0" /dev/net/tun && exec "$@"', str(tun),
                 "setpriv", f"--reuid={uid}", f"--regid={self.user.pw_gid}", "--init-groups",
                 "env", "-i", f"HOME={self.home}", f"USER={TEST_USER}", f"XDG_RUNTIME_DIR={self.runtime}",
-                "PATH=/usr/bin:/bin:/usr/sbin:/sbin", str(ROOTLESS_SCRIPT), "--iptables=false"]  # fmt: skip
-        log = self.home / ".espdock-test-dockerd.log"
+                "PATH=/usr/bin:/bin:/usr/sbin:/sbin", *command]  # fmt: skip
+        log = self.home / f".espdock-test-{self.socket_name}.log"
         with open(log, "ab") as out:
             self.process = subprocess.Popen(argv, stdout=out, stderr=subprocess.STDOUT, start_new_session=True)
         deadline = time.monotonic() + 90
         while self.docker("version", check=False).returncode != 0:
             if self.process.poll() is not None or time.monotonic() > deadline:
                 self.stop()
-                pytest.skip(f"rootless dockerd did not start here: {log.read_text()[-1500:]}")
+                pytest.skip(f"the rootless engine did not start here: {log.read_text()[-1500:]}")
             time.sleep(0.5)
 
     def docker(self, *args: str, check: bool = True, **options) -> subprocess.CompletedProcess:
@@ -114,10 +121,21 @@ class RootlessDocker:
                 self.process.wait()
 
 
-@pytest.fixture(scope="module")
-def rootless_docker(engine, tmp_path_factory) -> Iterator[RootlessDocker]:
+class RootlessPodman(RootlessDocker):
+    """The test user's `podman system service` (rootless: its storage in the user's home)."""
+
+    socket_name = "podman.sock"
+
+    def command(self) -> list[str]:
+        if shutil.which("podman") is None or shutil.which("newuidmap") is None:
+            pytest.skip("podman or newuidmap is not installed here: tests/install-system-deps.sh installs them")
+        return ["podman", "system", "service", "--time=0", f"unix://{self.socket}"]
+
+
+@pytest.fixture(scope="module", params=[RootlessDocker, RootlessPodman], ids=["docker", "podman"])
+def rootless_engine(request, engine, tmp_path_factory) -> Iterator[RootlessDocker]:
     user = ensure_test_user()
-    daemon = RootlessDocker(user)
+    daemon = request.param(user)
     daemon.start()
     try:
         # The images a copied workspace builds with, made by the shared engine (it has a network).
@@ -132,23 +150,22 @@ def rootless_docker(engine, tmp_path_factory) -> Iterator[RootlessDocker]:
         daemon.stop()
 
 
-def test_rootless_docker_builds_runs_and_everything_written_is_the_users(rootless_docker, wheel_espdock):
-    user = rootless_docker.user
+def test_a_rootless_engine_builds_runs_and_everything_written_is_the_users(rootless_engine, wheel_espdock):
+    user = rootless_engine.user
     parent = Path(user.pw_dir) / "espdock-test-ws"
     shutil.rmtree(parent, ignore_errors=True)
     root = once_workspace(parent / "ws-root")
     subprocess.run(["chown", "-R", f"{user.pw_uid}:{user.pw_gid}", str(parent)], check=True)
     prefix = as_user(user.pw_uid, user.pw_gid, [], wheel_espdock)
 
-    first = espdock("build", cwd=root, env=rootless_docker.env, prefix=prefix)
+    first = espdock("build", cwd=root, env=rootless_engine.env, prefix=prefix)
     assert first.returncode == 0, first.stdout + first.stderr
-    assert "rootless" not in first.stderr
     edit_word(root, "rootless")
-    again = espdock("build", cwd=root, env=rootless_docker.env, prefix=prefix)
+    again = espdock("build", cwd=root, env=rootless_engine.env, prefix=prefix)
     assert again.returncode == 0, again.stdout + again.stderr
     assert owners(root) == {user.pw_uid}, "a file in the workspace belongs to another uid"
 
-    run = espdock("run", "beacon_nodes", "once", cwd=root, env=rootless_docker.env, prefix=prefix)
+    run = espdock("run", "beacon_nodes", "once", cwd=root, env=rootless_engine.env, prefix=prefix)
     assert run.returncode == 0, run.stdout + run.stderr
     assert "word: rootless" in run.stdout
     shutil.rmtree(parent)  # root may; the user could too, every file being theirs

@@ -103,6 +103,10 @@ def test_what_info_and_version_say_about_the_engine():
     assert (first.kind, first.rootless) == ("podman", False)
     assert first.identity == again.identity  # Podman makes up a new ID on every /info
     assert first.name == "Podman engine at unix:///run/podman/podman.sock"
+    # Podman 4's Docker API /info does not say rootless: its own /libpod/info does.
+    libpod = {"host": {"security": {"rootless": True}}}
+    user_podman = describe(env, {"SecurityOptions": ["name=seccomp"]}, podman, libpod)
+    assert (user_podman.kind, user_podman.rootless) == ("podman", True)
     rootless = describe({}, {"ID": "x", "SecurityOptions": ["name=seccomp,profile=default", "name=rootless"]}, {})
     assert (rootless.kind, rootless.rootless) == ("docker", True)
     assert rootless.name == "rootless Docker engine at unix:///var/run/docker.sock"

@@ -44,6 +44,8 @@ from espdock.errors import ContainerError, EngineUnavailable, EspdockError, Imag
 LineSink = Callable[[str], None]
 DEFAULT_SOCKET = "/var/run/docker.sock"
 OPERATION_TIMEOUT = 120
+# `docker run`'s own exit code when the engine could not create or start the container.
+DOCKER_RUN_FAILED = 125
 # Every container espdock creates names the process that made it (boot id, pid, start time),
 # so a later command can tell a container whose espdock was killed from one still in use.
 LABEL_OWNER = "io.espdock.owner"
@@ -700,6 +702,11 @@ class Engine:
                 process.kill()
                 process.wait()
             subprocess.run([docker_cli, "rm", "--force", name], env=self._env, capture_output=True, check=False)
+        if code == DOCKER_RUN_FAILED and not received:
+            raise ContainerError(
+                f"the {self.info().name} could not start a container of {spec.image} (its message is above)",
+                "Fix what the engine says, then run again.",
+            )
         return code, (received[0] if received else None)
 
     def _signal_container(self, name: str, signum: int, kill: bool) -> bool:

@@ -15,6 +15,7 @@ import shutil
 import signal
 import subprocess
 import tarfile
+import tempfile
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -32,15 +33,16 @@ ULIMITS = '[containers]\ndefault_ulimits = ["nofile=20000:20000", "nproc=32768:3
 
 
 class PodmanService:
-    def __init__(self, home: Path, conf: str = ULIMITS) -> None:
+    def __init__(self, home: Path, runroot: Path, conf: str = ULIMITS) -> None:
         self.home = home
+        self.runroot = runroot  # Podman refuses one longer than 50 characters
         self.socket = home / "podman.sock"
         self.env = {**os.environ, "DOCKER_HOST": f"unix://{self.socket}"}
         (home / "containers.conf").write_text(conf)
         self.process: subprocess.Popen | None = None
 
     def start(self, root: Path) -> None:
-        argv = ["podman", "--root", str(root / "storage"), "--runroot", str(self.home / "run"),
+        argv = ["podman", "--root", str(root / "storage"), "--runroot", str(self.runroot),
                 "system", "service", "--time=0", f"unix://{self.socket}"]  # fmt: skip
         env = {**os.environ, "CONTAINERS_CONF": str(self.home / "containers.conf")}
         with open(self.home / "service.log", "ab") as log:
@@ -67,7 +69,8 @@ def podman(engine, tmp_path_factory) -> Iterator[PodmanService]:
     if shutil.which("podman") is None:
         pytest.skip("podman is not installed (tests/install-system-deps.sh installs it)")
     home = tmp_path_factory.mktemp("podman")
-    service = PodmanService(home)
+    runroot = Path(tempfile.mkdtemp(prefix="pm-", dir="/tmp"))
+    service = PodmanService(home, runroot)
     service.start(home)
     try:
         seed = python_workspace(home / "seed")
@@ -82,8 +85,9 @@ def podman(engine, tmp_path_factory) -> Iterator[PodmanService]:
         yield service
     finally:
         service.stop()
-        subprocess.run(["podman", "--root", str(home / "storage"), "--runroot", str(home / "run"), "system",
+        subprocess.run(["podman", "--root", str(home / "storage"), "--runroot", str(runroot), "system",
                         "reset", "--force"], capture_output=True, check=False)  # fmt: skip
+        shutil.rmtree(runroot, ignore_errors=True)
 
 
 def small_ros_image(root: Path, seed: Path) -> None:
@@ -141,7 +145,7 @@ def test_podman_imports_a_root_filesystem_under_its_own_tag(podman, tmp_path):
 
 def test_a_container_podman_refuses_to_start_is_exit_9_naming_podman(podman, tmp_path):
     """Without the containers.conf override, rootful Podman asks for rlimits this machine refuses."""
-    strict = PodmanService(tmp_path, conf="[containers]\n")
+    strict = PodmanService(tmp_path, podman.runroot, conf="[containers]\n")
     strict.start(podman.home)  # the same storage: the images are there
     try:
         root = once_workspace(tmp_path / "ws-root")

@@ -383,7 +383,8 @@ class Engine:
         try:
             self._client.images.build(fileobj=io.BytesIO(dockerfile.encode()), tag=ref, pull=False, rm=True)
         except (docker.errors.BuildError, docker.errors.APIError) as exc:
-            raise ImageBuildError(f"could not add labels to {ref}: {exc}") from exc
+            raise ImageBuildError(f"the {self.info().name} could not add labels to {ref}: {exc}") from exc
+        self.check_image(ref, labels, f"adding labels to {ref}")
 
     def import_rootfs(self, tarball: Path, ref: str, labels: Mapping[str, str] | None = None) -> None:
         """Make image REF from a root filesystem tarball (docker import), with LABELS."""

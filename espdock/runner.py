@@ -440,8 +440,9 @@ class Runner:
                 f"colcon did not find {len(lost)} of the {len(rebuild)} package(s) it was to build: "
                 + ", ".join(f"{n} ({posixpath.join(step.colcon_root, rels.get(n, '?'))})" for n in lost),
                 "The build container sees the workspace at "
-                f"{workspace_mount(workspace).target}: a package directory that is a link out of the workspace "
-                "is not there. Move it into the workspace, then build again; nothing of it was installed.",
+                f"{workspace_mount(workspace).target} and nothing outside it: a package directory, or one above it, "
+                "that links out of the workspace leads nowhere there. Move the package into the workspace, then "
+                "build again; nothing of it was installed.",
             )
         detail = f"{len(built)} package(s) built, {len(stamps) - len(rebuild)} up to date"
         return Outcome.BUILT, detail + (f", {len(others)} not built ({' '.join(others)})" if others else "")

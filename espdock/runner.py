@@ -417,6 +417,11 @@ class Runner:
             # next build with other options rebuilds only what those change.
             stamp_file.restore({name: recorded[name] for name in rebuild if name in recorded})
             last = next((line for line in reversed(output) if line.strip()), "no output")
+            if "PermissionError" in last or "Permission denied" in last:
+                # colcon may not write its log or build dirs: they belong to someone else.
+                where = next((d for d in (workspace.ws_dir / n for n in ("log", "build", "install")) if d.exists()
+                              and d.stat().st_uid != self._owner[0]), workspace.ws_dir)  # fmt: skip
+                raise _permission_error(PermissionError(13, last.strip(), str(where)))
             said = usage_error(output, step.colcon_args)
             raise ConfigError(
                 said or f"colcon stopped before building any package (exit code {code}): {last.strip()}",

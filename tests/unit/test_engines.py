@@ -110,3 +110,19 @@ def test_what_info_and_version_say_about_the_engine():
     rootless = describe({}, {"ID": "x", "SecurityOptions": ["name=seccomp,profile=default", "name=rootless"]}, {})
     assert (rootless.kind, rootless.rootless) == ("docker", True)
     assert rootless.name == "rootless Docker engine at unix:///var/run/docker.sock"
+
+
+def test_colcon_denied_its_log_dir_names_the_dir_and_its_owner(ws):
+    """What a rootless engine's subordinate uid left behind: colcon may not write ws/log."""
+    if os.geteuid() != 0:
+        pytest.skip("giving a directory to another uid needs root")
+    (ws.ws_dir / "log").mkdir()
+    os.chown(ws.ws_dir / "log", 100999, 100999)
+
+    def denied(spec, on_line):
+        on_line("PermissionError: [Errno 13] Permission denied: 'log'")
+        return 1
+
+    with pytest.raises(WorkspaceError) as err:
+        runner(FakeEngine(run_script=denied)).run(Plan(ws, (COLCON,)))
+    assert f"permission denied on {ws.ws_dir / 'log'} (owner uid 100999" in err.value.message

@@ -29,6 +29,7 @@ pytestmark = [pytest.mark.engine, pytest.mark.slow]
 
 TEST_USER = "espdock-rootless"
 ROOTLESS_SCRIPT = Path("/usr/share/docker.io/contrib/dockerd-rootless.sh")
+STORAGE_CONF = '[storage]\ndriver = "overlay"\n'
 
 
 def ensure_test_user() -> pwd.struct_passwd:
@@ -129,6 +130,19 @@ class RootlessPodman(RootlessDocker):
     def command(self) -> list[str]:
         if shutil.which("podman") is None or shutil.which("newuidmap") is None:
             pytest.skip("podman or newuidmap is not installed here: tests/install-system-deps.sh installs them")
+        # Podman 4.3 may settle on vfs for a rootless store, which copies the whole image for each
+        # container (a minute each for the ROS image here); the kernel's own overlay works rootless.
+        conf = self.home / ".config/containers/storage.conf"
+        if not conf.is_file() or conf.read_text() != STORAGE_CONF:
+            conf.parent.mkdir(parents=True, exist_ok=True)
+            conf.write_text(STORAGE_CONF)
+            for path in (conf.parent.parent, conf.parent, conf):
+                os.chown(path, self.user.pw_uid, self.user.pw_gid)
+            # A store made with another driver is not readable by this one.
+            subprocess.run(["setpriv", f"--reuid={self.user.pw_uid}", f"--regid={self.user.pw_gid}", "--init-groups",
+                            "env", "-i", f"HOME={self.home}", f"XDG_RUNTIME_DIR={self.runtime}",
+                            "PATH=/usr/bin:/bin:/usr/sbin:/sbin", "podman", "system", "reset", "--force"],
+                           capture_output=True, check=False)  # fmt: skip
         return ["podman", "system", "service", "--time=0", f"unix://{self.socket}"]
 
 

@@ -36,14 +36,16 @@ class PodmanService:
     def __init__(self, home: Path, runroot: Path, conf: str = ULIMITS) -> None:
         self.home = home
         self.runroot = runroot  # Podman refuses one longer than 50 characters
+        self.tmpdir = runroot / "libpod"
         self.socket = home / "podman.sock"
         self.env = {**os.environ, "DOCKER_HOST": f"unix://{self.socket}"}
         (home / "containers.conf").write_text(conf)
         self.process: subprocess.Popen | None = None
 
     def start(self, root: Path) -> None:
+        # Run root and libpod's tmp dir of this module's own: not the machine's /run/libpod.
         argv = ["podman", "--root", str(root / "storage"), "--runroot", str(self.runroot),
-                "system", "service", "--time=0", f"unix://{self.socket}"]  # fmt: skip
+                "--tmpdir", str(self.tmpdir), "system", "service", "--time=0", f"unix://{self.socket}"]  # fmt: skip
         env = {**os.environ, "CONTAINERS_CONF": str(self.home / "containers.conf")}
         with open(self.home / "service.log", "ab") as log:
             self.process = subprocess.Popen(argv, env=env, stdout=log, stderr=subprocess.STDOUT,
@@ -85,8 +87,9 @@ def podman(engine, tmp_path_factory) -> Iterator[PodmanService]:
         yield service
     finally:
         service.stop()
-        subprocess.run(["podman", "--root", str(home / "storage"), "--runroot", str(runroot), "system",
-                        "reset", "--force"], capture_output=True, check=False)  # fmt: skip
+        reset = ["system", "reset", "--force"]
+        subprocess.run(["podman", "--root", str(home / "storage"), "--runroot", str(runroot), "--tmpdir",
+                        str(service.tmpdir), *reset], capture_output=True, check=False)  # fmt: skip
         shutil.rmtree(runroot, ignore_errors=True)
 
 

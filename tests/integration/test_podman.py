@@ -90,6 +90,8 @@ def podman(engine, tmp_path_factory) -> Iterator[PodmanService]:
         reset = ["system", "reset", "--force"]
         subprocess.run(["podman", "--root", str(home / "storage"), "--runroot", str(runroot), "--tmpdir",
                         str(service.tmpdir), *reset], capture_output=True, check=False)  # fmt: skip
+        # Podman's overlay driver mounts its layer directory on itself: gone with it, pytest can remove it.
+        subprocess.run(["umount", "--lazy", str(home / "storage/overlay")], capture_output=True, check=False)
         shutil.rmtree(runroot, ignore_errors=True)
 
 

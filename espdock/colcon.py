@@ -404,6 +404,19 @@ def parse_events(lines: Iterable[str]) -> dict[str, PackageState]:
     return states
 
 
+def unselected(lines: Iterable[str]) -> set[str]:
+    """The packages colcon found and left out as told (JobUnselected: `--packages-skip` and the like)."""
+    found = set()
+    for line in lines:
+        match = _EVENT.match(line.rstrip("\n"))
+        if match and match.group("event") == "JobUnselected":
+            try:
+                found.add(str(ast.literal_eval(match.group("data")).get("identifier")))
+            except (ValueError, SyntaxError, AttributeError):
+                continue
+    return found
+
+
 class ColconLog:
     """colcon's log of the run about to start, told apart from earlier runs' by latest_build."""
 
@@ -424,6 +437,15 @@ class ColconLog:
             return parse_events((self.latest / "events.log").read_text(errors="replace").splitlines())
         except OSError:
             return None
+
+    def unselected(self) -> set[str]:
+        """The packages this run found but was told to leave out (none when it wrote no log)."""
+        if self._target() in (None, self._before):
+            return set()
+        try:
+            return unselected((self.latest / "events.log").read_text(errors="replace").splitlines())
+        except OSError:
+            return set()
 
     def package_log(self, package: str) -> Path:
         return self.latest / package / "stdout_stderr.log"

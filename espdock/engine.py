@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import collections
 import csv
+import hashlib
 import http.client
 import importlib
 import io
@@ -26,6 +27,8 @@ import signal
 import socket
 import subprocess
 import sys
+import tarfile
+import tempfile
 import warnings
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
@@ -37,10 +40,13 @@ from typing import IO, Any
 from urllib.parse import quote
 
 from espdock import interrupts
-from espdock.errors import EngineUnavailable, EspdockError, ImageBuildError
+from espdock.errors import ContainerError, EngineUnavailable, EspdockError, ImageBuildError
 
 LineSink = Callable[[str], None]
 DEFAULT_SOCKET = "/var/run/docker.sock"
+OPERATION_TIMEOUT = 120
+# `docker run`'s own exit code when the engine could not create or start the container.
+DOCKER_RUN_FAILED = 125
 # Every container espdock creates names the process that made it (boot id, pid, start time),
 # so a later command can tell a container whose espdock was killed from one still in use.
 LABEL_OWNER = "io.espdock.owner"
@@ -120,6 +126,25 @@ class RunSpec:
     name: str | None = None
 
 
+@dataclass(frozen=True)
+class EngineInfo:
+    """What kind of engine answers, as far as espdock's containers care."""
+
+    # "docker" or "podman" (Podman's Docker API names itself in /version's components).
+    kind: str
+    # Containers run in a user namespace: uid 0 inside is the user who started the engine.
+    rootless: bool
+    # Stable for one engine and its data root: what a cached answer about the engine is keyed by.
+    identity: str
+    where: str
+
+    @property
+    def name(self) -> str:
+        """The engine as messages name it."""
+        kind = "Podman" if self.kind == "podman" else "Docker"
+        return f"{'rootless ' if self.rootless else ''}{kind} engine at {self.where}"
+
+
 class Engine:
     """A connected Docker engine."""
 
@@ -128,13 +153,16 @@ class Engine:
         self._timeout = timeout
         self._socket = _local_socket(env)
         self._sdk = client
+        self._info: EngineInfo | None = None
 
     @property
     def _client(self) -> Any:
         """The Docker SDK's client, made on first use."""
         if self._sdk is None:
             try:
-                self._sdk = docker.from_env(environment=self._env, timeout=self._timeout)
+                # TIMEOUT is for the first answer; a busy engine (Podman starting a container of a
+                # large image on a loaded machine) may take longer over an operation.
+                self._sdk = docker.from_env(environment=self._env, timeout=max(self._timeout, OPERATION_TIMEOUT))
             except docker.errors.DockerException as exc:
                 raise EngineUnavailable(f"no Docker engine answers: {_connect_reason(exc)}") from exc
         return self._sdk
@@ -147,15 +175,38 @@ class Engine:
         try:
             if engine._socket is not None:
                 status, _ = engine._get("/_ping")
-                if status != 200:
-                    raise EngineUnavailable(f"no Docker engine answers at {where}: /_ping gave HTTP {status}")
             else:
-                engine._client.ping()
+                api = engine._client.api
+                status = api.get(f"{api.base_url}/_ping", timeout=timeout).status_code
+            if status != 200:
+                raise EngineUnavailable(f"no Docker engine answers at {where}: /_ping gave HTTP {status}")
         except OSError as exc:
             raise EngineUnavailable(f"no Docker engine answers at {where}: {_connect_reason(exc)}") from exc
         except (docker.errors.DockerException, requests.exceptions.RequestException) as exc:
             raise EngineUnavailable(f"no Docker engine answers at {where}: {_connect_reason(exc)}") from exc
         return engine
+
+    def info(self) -> EngineInfo:
+        """The engine's kind, rootless or not, and identity (asked once per Engine)."""
+        if self._info is None:
+            try:
+                if self._socket is not None:
+                    _, info = self._get("/info")
+                    _, version = self._get("/version")
+                else:
+                    info, version = self._client.info(), self._client.version()
+                libpod = None
+                if _is_podman(version or {}):
+                    # Podman 4's Docker API /info does not say rootless; its own API does.
+                    if self._socket is not None:
+                        _, libpod = self._get(LIBPOD_INFO)
+                    else:
+                        api = self._client.api
+                        libpod = api.get(f"{api.base_url}{LIBPOD_INFO}").json()
+            except (OSError, ValueError, docker.errors.DockerException, requests.exceptions.RequestException) as exc:
+                raise _engine_lost(self._env, "asking what it is") from exc
+            self._info = describe(self._env, info or {}, version or {}, libpod)
+        return self._info
 
     def _get(self, path: str) -> tuple[int, Any]:
         """GET PATH of the engine API on its local socket: (HTTP status, decoded JSON body or None)."""
@@ -334,18 +385,19 @@ class Engine:
         try:
             self._client.images.build(fileobj=io.BytesIO(dockerfile.encode()), tag=ref, pull=False, rm=True)
         except (docker.errors.BuildError, docker.errors.APIError) as exc:
-            raise ImageBuildError(f"could not add labels to {ref}: {exc}") from exc
+            raise ImageBuildError(f"the {self.info().name} could not add labels to {ref}: {exc}") from exc
+        self.check_image(ref, labels, f"adding labels to {ref}")
 
     def import_rootfs(self, tarball: Path, ref: str, labels: Mapping[str, str] | None = None) -> None:
         """Make image REF from a root filesystem tarball (docker import), with LABELS."""
-        repository, _, tag = ref.rpartition(":")
         changes = [f"LABEL {key}={json.dumps(value)}" for key, value in (labels or {}).items()]
         try:
-            self._client.api.import_image_from_file(
-                str(tarball), repository=repository, tag=tag, changes=changes or None
-            )
+            # The whole name:tag as the repository: Podman 4's Docker API ignores a separate tag
+            # (and stores name:latest); Docker takes either.
+            self._client.api.import_image_from_file(str(tarball), repository=ref, changes=changes or None)
         except docker.errors.APIError as exc:
-            raise ImageBuildError(f"the engine refused to import {tarball} as {ref}: {exc}") from exc
+            raise ImageBuildError(f"the {self.info().name} refused to import {tarball} as {ref}: {exc}") from exc
+        self.check_image(ref, labels or {}, f"importing {tarball} as {ref}")
 
     def build_image(
         self,
@@ -359,7 +411,108 @@ class Engine:
         on_line: LineSink,
         no_cache: bool = False,
     ) -> None:
-        """Build TARGET of DOCKERFILE in CONTEXT as TAG, streaming BuildKit's plain progress."""
+        """Build TARGET of DOCKERFILE in CONTEXT as TAG, streaming the builder's progress; the image is
+        inspected afterwards (a build that says it worked and left no image is a failure)."""
+        if self.info().kind == "podman":
+            self._build_classic(context, dockerfile, target, tag, build_args, labels, ca_bundle, on_line, no_cache)
+        else:
+            self._build_buildkit(context, dockerfile, target, tag, build_args, labels, ca_bundle, on_line, no_cache)
+        self.check_image(tag, labels, f"building {tag} from {dockerfile}")
+
+    def check_image(self, ref: str, labels: Mapping[str, str], doing: str) -> None:
+        """Raise unless image REF is there with LABELS: what an engine says it built or imported is
+        checked, since Podman's Docker API has answered success and stored another name."""
+        found = self.image(ref)
+        if found is None:
+            raise ImageBuildError(
+                f"{doing} reported success, yet the {self.info().name} has no image {ref}",
+                "Look at the engine's images (`docker images`); report this with the engine's version.",
+            )
+        wrong = sorted(key for key, value in labels.items() if found.labels.get(key) != value)
+        if wrong:
+            raise ImageBuildError(
+                f"{doing}: the {self.info().name} stored {ref} without the labels it was given ({', '.join(wrong)})",
+                "Report this with the engine's version (`docker version`).",
+            )
+
+    def _build_classic(
+        self,
+        context: Path,
+        dockerfile: str,
+        target: str,
+        tag: str,
+        build_args: Mapping[str, str],
+        labels: Mapping[str, str],
+        ca_bundle: Path | None,
+        on_line: LineSink,
+        no_cache: bool,
+    ) -> None:
+        """The engine API's own builder (Podman's Buildah: it has no BuildKit endpoint for Compose).
+
+        Buildah reads `RUN --mount=type=secret` as BuildKit does; the secret's file travels in the
+        context (the API has no other way), under a name no COPY of espdock's Dockerfiles takes."""
+
+        api = self._client.api
+        secret = f".espdock-secret-ca_bundle-{secrets.token_hex(4)}"
+        with tempfile.TemporaryFile() as archive:
+            _context_tar(context, dockerfile, archive, {secret: ca_bundle.read_bytes() if ca_bundle else b""})
+            archive.seek(0)
+            params = {
+                "t": tag,
+                "dockerfile": dockerfile,
+                "target": target,
+                "buildargs": json.dumps(dict(build_args)),
+                "labels": json.dumps(dict(labels)),
+                "secrets": json.dumps([f"id=ca_bundle,src={secret}"]),
+                "nocache": no_cache,
+                "rm": True,
+                "forcerm": True,
+            }
+            tail: collections.deque[str] = collections.deque(maxlen=15)
+            try:
+                response = api.post(
+                    f"{api.base_url}/v{api.api_version}/build",
+                    params=params,
+                    data=archive,
+                    headers={"Content-Type": "application/x-tar"},
+                    stream=True,
+                    timeout=None,  # a step may print nothing for minutes (pip)
+                )
+                error = None
+                for chunk in response.iter_lines():
+                    try:
+                        event = json.loads(chunk) if chunk else {}
+                    except ValueError:
+                        continue
+                    for line in str(event.get("stream", "")).splitlines():
+                        tail.append(line)
+                        on_line(line)
+                    error = error or event.get("error") or (event.get("errorDetail") or {}).get("message")
+                if response.status_code != 200 and error is None:
+                    error = f"HTTP {response.status_code}: {response.text[:300]}"
+            except requests.exceptions.ConnectionError as exc:
+                raise _engine_lost(self._env, f"building {tag}") from exc
+        if error:
+            tail.append(str(error))
+            raise ImageBuildError(
+                f"building {tag} from {dockerfile} (stage {target}) on the {self.info().name} failed:\n"
+                + "\n".join(tail),
+                "Read the build output above; run with --verbose for all of it.",
+            )
+
+    def _build_buildkit(
+        self,
+        context: Path,
+        dockerfile: str,
+        target: str,
+        tag: str,
+        build_args: Mapping[str, str],
+        labels: Mapping[str, str],
+        ca_bundle: Path | None,
+        on_line: LineSink,
+        no_cache: bool,
+    ) -> None:
+        """Compose v2's build, whose BuildKit client passes the CA bundle as a secret."""
         spec = {
             "name": "espdock-build",
             "services": {
@@ -554,6 +707,11 @@ class Engine:
                 process.kill()
                 process.wait()
             subprocess.run([docker_cli, "rm", "--force", name], env=self._env, capture_output=True, check=False)
+        if code == DOCKER_RUN_FAILED and not received:
+            raise ContainerError(
+                f"the {self.info().name} could not start a container of {spec.image} (its message is above)",
+                "Fix what the engine says, then run again.",
+            )
         return code, (received[0] if received else None)
 
     def _signal_container(self, name: str, signum: int, kill: bool) -> bool:
@@ -598,17 +756,25 @@ class Engine:
         except requests.exceptions.ConnectionError as exc:
             raise _engine_lost(self._env, f"creating a container of {spec.image}") from exc
         except docker.errors.ImageNotFound as exc:
-            raise EspdockError(f"image {spec.image} is not there: {exc}", "Run `espdock build` to build it.") from exc
+            raise ContainerError(f"image {spec.image} is not there: {exc}", "Run `espdock build` to build it.") from exc
         except docker.errors.APIError as exc:
-            raise EspdockError(
-                f"the engine could not create a container of {spec.image}: {exc.explanation or exc}"
+            raise ContainerError(
+                f"the {self.info().name} could not create a container of {spec.image}: {exc.explanation or exc}"
             ) from exc
         try:
             yield container
         except requests.exceptions.ConnectionError as exc:
             raise _engine_lost(self._env, f"running a container of {spec.image}") from exc
+        except requests.exceptions.Timeout as exc:
+            raise EngineUnavailable(
+                f"the {self.info().name} did not answer within {OPERATION_TIMEOUT} s while running a container of "
+                f"{spec.image}",
+                "Look at the engine (is it overloaded or hung?), then build again.",
+            ) from exc
         except docker.errors.APIError as exc:
-            raise EspdockError(f"the container of {spec.image} failed: {exc.explanation or exc}") from exc
+            raise ContainerError(
+                f"the {self.info().name} could not run a container of {spec.image}: {exc.explanation or exc}"
+            ) from exc
         finally:
             if not keep:
                 _remove(container)
@@ -657,6 +823,30 @@ class Engine:
         except docker.errors.APIError as exc:
             raise EspdockError(f"the engine failed to list containers: {exc}") from exc
         return [str(c.attrs.get("Names", [c.id])[0]).lstrip("/") for c in listed]
+
+
+LIBPOD_INFO = "/v4.0.0/libpod/info"
+
+
+def _is_podman(version: Mapping[str, Any]) -> bool:
+    components = [str(c.get("Name", "")) for c in version.get("Components") or () if isinstance(c, dict)]
+    return any("podman" in name.lower() for name in components)
+
+
+def describe(
+    env: Mapping[str, str], info: Mapping[str, Any], version: Mapping[str, Any], libpod: Any = None
+) -> EngineInfo:
+    """EngineInfo from the engine's /info and /version answers (and Podman's own /libpod/info)."""
+    podman = _is_podman(version)
+    options = [str(o) for o in info.get("SecurityOptions") or ()]
+    # Docker says name=rootless in its security options; Podman says rootless in its own API.
+    security = ((libpod or {}).get("host") or {}).get("security") or {} if isinstance(libpod, dict) else {}
+    rootless = any("name=rootless" in o for o in options) or security.get("rootless") is True
+    where = env.get("DOCKER_HOST") or f"unix://{DEFAULT_SOCKET}"
+    # Podman's compat /info makes up a new ID on every call: its host name and storage say which it is.
+    stable = [str(info.get(k, "")) for k in ("Name", "DockerRootDir")] + ([] if podman else [str(info.get("ID", ""))])
+    identity = hashlib.sha256("\0".join([where, *stable]).encode()).hexdigest()[:16]
+    return EngineInfo(kind="podman" if podman else "docker", rootless=rootless, identity=identity, where=where)
 
 
 class RegistryStatus(StrEnum):
@@ -793,6 +983,27 @@ def _stream_lines(chunks: Iterator[bytes] | IO[bytes], on_line: LineSink) -> Non
             on_line(line.decode("utf-8", "replace").rstrip("\r"))
     if pending:
         on_line(pending.decode("utf-8", "replace"))
+
+
+def _context_tar(context: Path, dockerfile: str, out: IO[bytes], extra: Mapping[str, bytes]) -> None:
+    """CONTEXT as the builder gets it (its .dockerignore applied, as the Docker CLI does), and the
+    EXTRA files (name -> bytes) at its top, into OUT."""
+    from docker.utils.build import exclude_paths
+
+    ignore = context / ".dockerignore"
+    patterns = [
+        line.strip()
+        for line in (ignore.read_text().splitlines() if ignore.is_file() else ())
+        if line.strip() and not line.startswith("#")
+    ]
+    with tarfile.open(fileobj=out, mode="w") as archive:
+        for rel in sorted(exclude_paths(str(context), patterns, dockerfile=dockerfile)):
+            archive.add(context / rel, arcname=rel, recursive=False)
+        for name, data in extra.items():
+            member = tarfile.TarInfo(name)
+            member.size = len(data)
+            member.mode = 0o600
+            archive.addfile(member, io.BytesIO(data))
 
 
 def compose_available(env: Mapping[str, str]) -> bool:

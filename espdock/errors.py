@@ -68,6 +68,19 @@ class BuildFailed(EspdockError):
     exit_code = 5
 
 
+class WorkspaceNotVisible(EspdockError):
+    """The engine's containers do not see the workspace at its mount path: the engine is on another
+    machine (DOCKER_HOST=tcp://..., ssh://..., a docker:dind service) that does not share it."""
+
+    exit_code = 8
+
+
+class ContainerError(EspdockError):
+    """The engine refused to create or start a container (the message names the engine)."""
+
+    exit_code = 9
+
+
 class DiskFull(EspdockError):
     """A disk a build writes to (the workspace's, or the engine's) has no space left."""
 

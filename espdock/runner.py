@@ -35,7 +35,7 @@ from espdock.engine import Engine, Mount, RegistryAnswer, RegistryStatus, RunSpe
 from espdock.errors import BuildFailed, ConfigError, EspdockError, RegistryError, WorkspaceError, disk_full
 from espdock.events import Emit, Outcome, StepFinished, StepNote, StepOutput, StepStarted
 from espdock.install import COMMANDS_SOURCE, install_firmware
-from espdock.layout import ROS_BUILD_BASE, WORKSPACE_MOUNT
+from espdock.layout import ROS_BUILD_BASE
 from espdock.plan import (
     LABEL_KEY,
     LABEL_WORKSPACE,
@@ -55,6 +55,7 @@ from espdock.plan import (
 )
 from espdock.runtime_tree import runtime_files
 from espdock.stamps import StampFile, listing_digest, package_stamps, tree_digest
+from espdock.visibility import CHECKED, ensure_engine_sees, workspace_mount
 from espdock.workspace import Workspace
 
 TARGET_MARKER = ".espdock-target"
@@ -122,6 +123,9 @@ class Runner:
         self._commit_times: dict[Path, str | None] = {}
         # The keyed images this runner's steps used (tag, repository), for espdock.prune's record.
         self.used_images: list[tuple[str, str]] = []
+        # Packages this run was to build and did not: their install trees are old, so no runtime
+        # image is made from them.
+        self._unbuilt: set[str] = set()
 
     @property
     def engine(self) -> Engine:
@@ -174,6 +178,8 @@ class Runner:
                 full = disk_full(workspace.ws_dir)
                 if full is not None:
                     raise full from exc
+                if isinstance(exc, PermissionError):
+                    raise _permission_error(exc) from exc
                 raise
         except BaseException as exc:
             if isinstance(exc, EspdockError):
@@ -258,7 +264,10 @@ class Runner:
         return runtime_image_spec(step, digest)
 
     def _runtime_image(self, workspace: Workspace, step: RuntimeImage) -> tuple[Outcome, str]:
-        installed = _installed(workspace, step)
+        # Only what is installed and, of what this run was to build, what it built.
+        installed = _installed(
+            workspace, replace(step, packages=tuple(p for p in step.packages if p not in self._unbuilt))
+        )
         if missing := sorted(set(step.packages) - set(installed.packages)):
             # A build of a selection (`espdock build PKG`) leaves the others unbuilt: the image
             # holds what is installed, and says what it lacks.
@@ -370,7 +379,8 @@ class Runner:
             why = f"espdock's CMake caches from before {ROS_BUILD_BASE}, which a native colcon build refuses"
             self._emit(StepNote(step.name, f"removed {', '.join(f'build/{name}' for name in retired)}: {why}"))
         user, labels = self._container_identity(workspace, "colcon", sweep=True)
-        mounts = [Mount(workspace.root, WORKSPACE_MOUNT)]
+        self._check_mount(workspace, step.image, user, labels)
+        mounts = [workspace_mount(workspace)]
         env = [("HOME", "/tmp"), *self._reproducible_env(workspace)]
         if step.defaults_file is not None:
             # colcon reads the user's defaults from their home, which the container does not have.
@@ -401,11 +411,17 @@ class Runner:
         if built:
             stamp_file.record({name: stamps[name] for name in built}, installed())
             _give_to(stamp_file.path, self._owner)
+        self._unbuilt |= set(rebuild) - set(built)
         if states is None and code != 0:
             # Nothing in build/ or install/ changed: the packages keep their records, and the
             # next build with other options rebuilds only what those change.
             stamp_file.restore({name: recorded[name] for name in rebuild if name in recorded})
             last = next((line for line in reversed(output) if line.strip()), "no output")
+            if "PermissionError" in last or "Permission denied" in last:
+                # colcon may not write its log or build dirs: they belong to someone else.
+                where = next((d for d in (workspace.ws_dir / n for n in ("log", "build", "install")) if d.exists()
+                              and d.stat().st_uid != self._owner[0]), workspace.ws_dir)  # fmt: skip
+                raise _permission_error(PermissionError(13, last.strip(), str(where)))
             said = usage_error(output, step.colcon_args)
             raise ConfigError(
                 said or f"colcon stopped before building any package (exit code {code}): {last.strip()}",
@@ -421,6 +437,18 @@ class Runner:
             failure = explain_failure(code, states or {}, logs, step.colcon_args)
             raise BuildFailed(failure.message, failure.hint)
         others = [n for n in rebuild if n not in built]
+        # Asked for and neither built nor left out as told (`-- --packages-skip`): colcon did not
+        # find it where espdock did (a package linked from outside the workspace, say).
+        if lost := [n for n in others if n not in (states or {}) and n not in log.unselected()]:
+            rels = dict(step.sources)
+            raise BuildFailed(
+                f"colcon did not find {len(lost)} of the {len(rebuild)} package(s) it was to build: "
+                + ", ".join(f"{n} ({posixpath.join(step.colcon_root, rels.get(n, '?'))})" for n in lost),
+                "The build container sees the workspace at "
+                f"{workspace_mount(workspace).target} and nothing outside it: a package directory, or one above it, "
+                "that links out of the workspace leads nowhere there. Move the package into the workspace, then "
+                "build again; nothing of it was installed.",
+            )
         detail = f"{len(built)} package(s) built, {len(stamps) - len(rebuild)} up to date"
         return Outcome.BUILT, detail + (f", {len(others)} not built ({' '.join(others)})" if others else "")
 
@@ -504,8 +532,9 @@ class Runner:
         owner = self._owner
         for directory in (managed, mountpoint):
             _make_dirs_for(directory, owner)
+        self._check_mount(workspace, step.image, user, labels)
         mounts = [
-            Mount(workspace.root, WORKSPACE_MOUNT),
+            workspace_mount(workspace),
             Mount(managed, f"{step.project_dir}/{MANAGED_COMPONENTS}"),
             *extra_mounts,
         ]
@@ -543,6 +572,13 @@ class Runner:
             with contextlib.suppress(OSError):  # not empty: the user's own, left alone
                 mountpoint.rmdir()
 
+    def _check_mount(self, workspace: Workspace, image: str, user: str, labels: tuple[tuple[str, str], ...]) -> None:
+        """Make sure the engine's containers see the workspace (espdock.visibility), once per engine and path."""
+        _make_dirs_for(workspace.ws_dir / "build", self._owner)
+        ensure_engine_sees(self._engine, workspace, image, user, labels)
+        if (workspace.ws_dir / "build" / CHECKED).exists():
+            _give_to(workspace.ws_dir / "build" / CHECKED, self._owner)
+
     def _container_identity(
         self, workspace: Workspace, step_label: str, sweep: bool
     ) -> tuple[str, tuple[tuple[str, str], ...]]:
@@ -555,8 +591,16 @@ class Runner:
         labels = {LABEL_WORKSPACE: str(workspace.root), "io.espdock.step": step_label}
         if sweep:
             self._engine.remove_containers(labels)
-        uid, gid = self._owner
-        return f"{uid}:{gid}", tuple(labels.items())
+        return self.container_user(), tuple(labels.items())
+
+    def container_user(self) -> str:
+        uid, gid = self.container_owner()
+        return f"{uid}:{gid}"
+
+    def container_owner(self) -> tuple[int, int]:
+        """Who a container writing into the workspace runs as, so its files are the invoking user's:
+        that user's uid, gid, or in a rootless engine 0, 0, which is the engine's own user outside."""
+        return (0, 0) if self._engine.info().rootless else self._owner
 
     def _install(self, workspace: Workspace, step: InstallFirmware) -> tuple[Outcome, str]:
         build_dir = workspace.ws_dir / "build" / step.package
@@ -781,6 +825,24 @@ def _make_dirs_for(directory: Path, owner: tuple[int, int]) -> None:
 def _give_to(path: Path, owner: tuple[int, int]) -> None:
     if os.geteuid() == 0:
         os.chown(path, *owner)
+
+
+def _permission_error(exc: PermissionError) -> WorkspaceError:
+    """A path espdock may not write or read, named with its owner (a rootless engine's files, say)."""
+    path = Path(exc.filename) if exc.filename else None
+    owner = ""
+    if path is not None:
+        try:
+            info = path.lstat() if path.exists() or path.is_symlink() else path.parent.lstat()
+            where = "" if path.exists() else ", its directory"
+            owner = f" (owner uid {info.st_uid}, mode {info.st_mode & 0o7777:04o}{where})"
+        except OSError:
+            pass
+    return WorkspaceError(
+        f"permission denied on {path or 'a workspace file'}{owner}; espdock runs as uid {os.geteuid()}",
+        "Give that path back to you (e.g. `sudo chown -R $(id -u):$(id -g) PATH`); files a container wrote as "
+        "another user are the engine's doing: see README, Engines (rootless engines).",
+    )
 
 
 def _device_groups(devices: tuple[str, ...]) -> list[int]:

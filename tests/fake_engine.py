@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
 
-from espdock.engine import ImageInfo, LineSink, RegistryAnswer, RegistryStatus, RunSpec
+from espdock.engine import EngineInfo, ImageInfo, LineSink, RegistryAnswer, RegistryStatus, RunSpec
 
 
 @dataclass
@@ -29,6 +29,13 @@ class FakeEngine:
     registry: dict[str, ImageInfo] = field(default_factory=dict)
     registry_answer: RegistryStatus | None = None  # every registry call answers this, when set
     pushed: list[str] = field(default_factory=list)
+    # Whether its containers see the host's files (a local engine) or not (one on another machine).
+    sees_host: bool = True
+    rootless: bool = False
+    mount_checks: int = 0
+
+    def info(self) -> EngineInfo:
+        return EngineInfo(kind="docker", rootless=self.rootless, identity="fake", where="fake://engine")
 
     def _forced(self) -> RegistryAnswer | None:
         return RegistryAnswer(self.registry_answer, "forced") if self.registry_answer else None
@@ -78,6 +85,12 @@ class FakeEngine:
         self.images_by_tag[tag] = ImageInfo(tag, (tag,), datetime.now(UTC), 1, dict(labels))
 
     def run(self, spec: RunSpec, on_line: LineSink, keep: bool = False) -> int:
+        if ("io.espdock.step", "mount-check") in spec.labels:
+            # The probe's `test "$(cat FILE)" = NONCE`, against the host's files when it sees them.
+            self.mount_checks += 1
+            mount = spec.mounts[0]
+            path = mount.source / spec.argv[3].removeprefix(mount.target + "/")
+            return 0 if self.sees_host and path.is_file() and path.read_text() == spec.argv[4] else 1
         self.runs.append(spec)
         return self.run_script(spec, on_line)
 

@@ -2,7 +2,8 @@
 # System packages the tests use beyond the Docker engine (which `espdock setup`
 # provides): Debian's Chromium for the browser tests, cmake and g++ for the
 # firmware host tests, libzbar0 for pyzbar, the distribution registry and
-# htpasswd for the cache registry tests. Installed only when
+# htpasswd for the cache registry tests, and the other engines the engine tests
+# run (Podman; rootless Docker: rootlesskit, newuidmap, slirp4netns). Installed only when
 # missing, and only where we can (root on Debian); elsewhere the tests that
 # need them say what is missing.
 set -euo pipefail
@@ -13,6 +14,10 @@ command -v g++ >/dev/null || missing+=(g++)
 ldconfig -p | grep -q libzbar.so.0 || missing+=(libzbar0)  # pyzbar, for the demo's unit tests
 command -v docker-registry >/dev/null || missing+=(docker-registry)
 command -v htpasswd >/dev/null || missing+=(apache2-utils)
+command -v podman >/dev/null || missing+=(podman)
+command -v rootlesskit >/dev/null || missing+=(rootlesskit)
+command -v newuidmap >/dev/null || missing+=(uidmap)
+command -v slirp4netns >/dev/null || missing+=(slirp4netns)
 if [ ${#missing[@]} -eq 0 ]; then exit 0; fi
 if [ "$(id -u)" -ne 0 ] || ! command -v apt-get >/dev/null; then
   echo "missing system packages: ${missing[*]} (install them, or run as root on Debian)" >&2

@@ -99,7 +99,9 @@ def run(
     # Only what runs must be served: another package's missing key does not stop this node.
     runner, image = runtime_image(ws, config, build_plan(ws, config, [], PackageKind.ROS, checked=(package,)))
     tty = bool(sys.stdin and sys.stdin.isatty()) and sys.stdout.isatty()
-    spec = nodes.node_spec(ws, image, path, tuple(args or ()), runner.owner, os.environ, network, tty, mounts, devices)
+    spec = nodes.node_spec(
+        ws, image, path, tuple(args or ()), runner.container_owner(), os.environ, network, tty, mounts, devices
+    )
     code, stopped_by = runner.engine.run_foreground(spec)
     raise typer.Exit(128 + stopped_by if stopped_by else code)
 
@@ -112,6 +114,6 @@ def shell(workspace: WorkspaceOption = None) -> None:
     plan, image, dockerfile = nodes.build_image_plan(build_plan(ws, config, [], PackageKind.ROS, checked=()))
     runner = ensure_images(ws, config, plan)
     tty = bool(sys.stdin and sys.stdin.isatty()) and sys.stdout.isatty()
-    spec = nodes.shell_spec(ws, image, runner.owner, os.environ, tty, dockerfile)
+    spec = nodes.shell_spec(ws, image, runner.container_owner(), os.environ, tty, dockerfile)
     code, stopped_by = runner.engine.run_foreground(spec)
     raise typer.Exit(128 + stopped_by if stopped_by else code)

@@ -27,7 +27,7 @@ from espdock.cli.prune import after_build
 from espdock.config import check_target, invoking_user
 from espdock.errors import ConfigError, WorkspaceError
 from espdock.events import Outcome
-from espdock.layout import ROS_DOCKERFILE, ROSDEP_LOCK
+from espdock.layout import ROSDEP_LOCK
 from espdock.lock import check_locks, lock_rosdeps, lock_workspace, plan_locks, uv_binary
 from espdock.manifest import compare, file_hashes, read_manifest, record_build, write_report
 from espdock.plan import base_image, runtime_repository
@@ -266,8 +266,11 @@ def setup() -> None:
     except WorkspaceError:
         console.print("engine and compose ready (not in a workspace: no base image to prepare)")
         return
-    dockerfile = ws.root / ROS_DOCKERFILE
-    base = base_image(config, dockerfile.read_text() if dockerfile.is_file() else "")
+    # The Dockerfile a build would use: the workspace's own, else espdock's default.
+    inputs = read_build_inputs(ws, ())
+    base = base_image(
+        config, inputs.ros_official_dockerfile if config.ros_image == "official" else inputs.ros_dockerfile
+    )
     if base:
         how = bootstrap.ensure_base_image(engine, base, config, notify)
         console.print(f"base image {base}: {how}")

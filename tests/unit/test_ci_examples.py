@@ -15,9 +15,14 @@ from tests.conftest import REPO
 EXAMPLES = REPO / "examples" / "ci"
 GITHUB = EXAMPLES / "github-actions.yml"
 GITLAB = EXAMPLES / "gitlab-ci.yml"
+GITLAB_DIND = EXAMPLES / "gitlab-ci-dind.yml"
 BIN = Path(sys.executable).parent
 # What a main-branch check looks like in each file: GitHub's ref, GitLab's default branch.
-MAIN = {GITHUB: '"$GITHUB_REF" = refs/heads/main', GITLAB: '"$CI_COMMIT_BRANCH" = "$CI_DEFAULT_BRANCH"'}
+MAIN = {
+    GITHUB: '"$GITHUB_REF" = refs/heads/main',
+    GITLAB: '"$CI_COMMIT_BRANCH" = "$CI_DEFAULT_BRANCH"',
+    GITLAB_DIND: '"$CI_COMMIT_BRANCH" = "$CI_DEFAULT_BRANCH"',
+}
 
 
 def check_schema(schema: str, path: Path) -> subprocess.CompletedProcess:
@@ -36,7 +41,9 @@ def code_lines(path: Path) -> list[str]:
     return [line.strip() for line in path.read_text().splitlines() if not line.strip().startswith("#")]
 
 
-@pytest.mark.parametrize(("schema", "path"), [("github-workflows", GITHUB), ("gitlab-ci", GITLAB)])
+@pytest.mark.parametrize(
+    ("schema", "path"), [("github-workflows", GITHUB), ("gitlab-ci", GITLAB), ("gitlab-ci", GITLAB_DIND)]
+)
 def test_each_example_matches_its_published_schema_and_a_broken_copy_does_not(schema, path, tmp_path):
     result = check_schema(schema, path)
     assert result.returncode == 0, result.stdout + result.stderr
@@ -56,7 +63,7 @@ def test_the_workflow_passes_actionlint_and_a_broken_copy_does_not(tmp_path):
     assert actionlint(broken).returncode != 0
 
 
-@pytest.mark.parametrize("path", [GITHUB, GITLAB])
+@pytest.mark.parametrize("path", [GITHUB, GITLAB, GITLAB_DIND])
 def test_each_example_installs_espdock_from_its_lock_at_a_pinned_commit(path):
     text = path.read_text()
     assert re.search(r"ESPDOCK_COMMIT: [0-9a-f]{40}\n", text), "a full commit id, not a branch"
@@ -68,7 +75,7 @@ def test_each_example_installs_espdock_from_its_lock_at_a_pinned_commit(path):
     assert re.search(r'install --no-deps "\$\w+/src"', text)
 
 
-@pytest.mark.parametrize("path", [GITHUB, GITLAB])
+@pytest.mark.parametrize("path", [GITHUB, GITLAB, GITLAB_DIND])
 def test_each_example_builds_locked_reports_and_pushes_only_from_the_main_branch(path):
     lines = code_lines(path)
     builds = [line for line in lines if line.startswith("espdock build")]
@@ -84,7 +91,7 @@ def test_each_example_builds_locked_reports_and_pushes_only_from_the_main_branch
         assert MAIN[path] in guard, guard
 
 
-@pytest.mark.parametrize("path", [GITHUB, GITLAB])
+@pytest.mark.parametrize("path", [GITHUB, GITLAB, GITLAB_DIND])
 def test_each_example_uploads_what_espdock_installs_in_the_default_layout(path):
     """Paths from espdock's own layout: a renamed manifest or firmware directory fails here."""
     install = f"{CLASSIC_LAYOUT[1]}/install"
@@ -104,3 +111,13 @@ def test_actions_are_pinned_by_commit():
         line.split("uses:", 1)[1].split("#")[0].strip() for line in GITHUB.read_text().splitlines() if "uses:" in line
     ]
     assert uses and all(re.fullmatch(r"[\w-]+/[\w-]+@[0-9a-f]{40}", ref) for ref in uses), uses
+
+
+def test_the_dind_example_builds_in_the_checkout_the_runner_shares_with_the_service():
+    """The workspace must be where the dind engine sees it: the builds directory, which the
+    runner mounts into the job and its services at the same path (not, say, a copy in /tmp)."""
+    text = GITLAB_DIND.read_text()
+    assert "docker:27-dind" in text and "DOCKER_HOST: tcp://docker:2376" in text
+    lines = code_lines(GITLAB_DIND)
+    assert not any(line.startswith(("- cd ", "cd ")) for line in lines), "the job builds in $CI_PROJECT_DIR"
+    assert not any("--workspace" in line or " -w " in line for line in lines)

@@ -1,0 +1,88 @@
+"""Whether the engine's containers see the workspace where espdock mounts it.
+
+An engine on another machine (DOCKER_HOST=tcp://... or ssh://..., a docker:dind service) makes
+an empty directory of its own in place of a bind mount's missing source: colcon would find no
+package there. Before the first build container, a container reads a nonce file espdock wrote
+into the workspace; the answer is kept under the colcon root's build/ for that engine and path.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import secrets
+import stat
+from pathlib import Path
+
+from espdock.engine import Engine, Mount, RunSpec
+from espdock.errors import WorkspaceError, WorkspaceNotVisible
+from espdock.layout import WORKSPACE_MOUNT
+from espdock.workspace import Workspace
+
+CHECKED = ".espdock-engine-sees.json"
+PROBE_PREFIX = ".espdock-probe-"
+
+
+def workspace_mount(workspace: Workspace) -> Mount:
+    """The workspace as every build container mounts it (the one place that is decided)."""
+    return Mount(workspace.root, WORKSPACE_MOUNT)
+
+
+def ensure_engine_sees(
+    engine: Engine, workspace: Workspace, image: str, user: str, labels: tuple[tuple[str, str], ...]
+) -> None:
+    """Raise unless a container of IMAGE, run as USER, reads the workspace at its mount path."""
+    mount = workspace_mount(workspace)
+    record = {"engine": engine.info().identity, "root": str(mount.source), "mount": mount.target}
+    cache = workspace.ws_dir / "build" / CHECKED
+    try:
+        if json.loads(cache.read_text()) == record:
+            return
+    except (OSError, ValueError):
+        pass
+    nonce = secrets.token_hex(16)
+    probe = mount.source / f"{PROBE_PREFIX}{os.getpid()}-{nonce[:8]}"
+    output: list[str] = []
+    try:
+        probe.write_text(nonce)
+        probe.chmod(0o644)
+        spec = RunSpec(
+            image=image,
+            # Judged by the exit code: a short container's output can come back empty.
+            argv=("sh", "-c", 'test "$(cat "$0")" = "$1"', f"{mount.target}/{probe.name}", nonce),
+            workdir="/",
+            user=user,
+            mounts=(mount,),
+            labels=(*labels, ("io.espdock.step", "mount-check")),
+        )
+        code = engine.run(spec, output.append)
+    finally:
+        probe.unlink(missing_ok=True)
+    if code != 0:
+        if any("permission denied" in line.lower() for line in output):
+            raise WorkspaceError(
+                f"the build containers (user {user} on the {engine.info().name}) may not read the workspace: "
+                f"{_described(mount.source)}",
+                "Let that user read and enter it and its parent directories (e.g. `chmod o+rx` on them), "
+                "or move the workspace somewhere it can.",
+            )
+        raise WorkspaceNotVisible(
+            f"the {engine.info().name} does not see the workspace {mount.source}: a container does not find "
+            f"the file espdock wrote into it (at {mount.target}), so the engine mounts a directory of its own "
+            "machine, not this one",
+            "Build on an engine that shares this machine's files at the same path: a local engine (unset "
+            "DOCKER_HOST), or share the path with the engine's machine. On GitLab with the docker:dind service, "
+            "keep the workspace under the project's builds dir ($CI_PROJECT_DIR), which the runner mounts into "
+            "the service at the same path (README, Engines).",
+        )
+    cache.parent.mkdir(parents=True, exist_ok=True)
+    cache.write_text(json.dumps(record) + "\n")
+
+
+def _described(path: Path) -> str:
+    """PATH with its owner and mode, e.g. `/home/ann/ws (owner uid 1000, mode 0700)`."""
+    try:
+        info = path.stat()
+    except OSError:
+        return str(path)
+    return f"{path} (owner uid {info.st_uid}, mode {stat.S_IMODE(info.st_mode):04o})"

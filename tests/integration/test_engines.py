@@ -1,0 +1,224 @@
+"""Engines other than the local one: an engine reached over TCP that does not share the host's
+files (what DOCKER_HOST=tcp://..., ssh://... and a docker:dind service are), and the same engine
+where it sees the workspace at the same path (what GitLab's shared builds directory gives).
+
+The engine is a private dockerd (tests/integration/test_faults.py's) in network and mount
+namespaces of its own: a tmpfs over one directory hides the workspaces under it from the engine,
+as another machine's disk would; workspaces elsewhere it sees at their own paths. espdock reaches
+it only over TCP, through a forwarder to its socket.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import socket
+import subprocess
+import threading
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from tests.conftest import espdock, python_workspace
+from tests.integration.test_faults import (  # noqa: F401 (seeded_data_root: a fixture)
+    PrivateEngine,
+    drop_private_engine,
+    private_home,
+    seeded_data_root,
+)
+
+pytestmark = [pytest.mark.engine, pytest.mark.slow]
+
+
+class TcpForwarder:
+    """127.0.0.1:PORT, each connection passed byte for byte to a unix socket."""
+
+    def __init__(self, target: Path) -> None:
+        self._target = str(target)
+        self._server = socket.create_server(("127.0.0.1", 0))
+        self.port = self._server.getsockname()[1]
+        threading.Thread(target=self._accept, daemon=True).start()
+
+    def _accept(self) -> None:
+        while True:
+            try:
+                client, _ = self._server.accept()
+            except OSError:
+                return
+            upstream = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+            try:
+                upstream.connect(self._target)
+            except OSError:
+                client.close()
+                continue
+            for source, sink in ((client, upstream), (upstream, client)):
+                threading.Thread(target=self._pump, args=(source, sink), daemon=True).start()
+
+    @staticmethod
+    def _pump(source: socket.socket, sink: socket.socket) -> None:
+        try:
+            while data := source.recv(65536):
+                sink.sendall(data)
+            sink.shutdown(socket.SHUT_WR)
+        except OSError:
+            for end in (source, sink):
+                end.close()
+
+    def close(self) -> None:
+        self._server.close()
+
+
+class RemoteEngine(PrivateEngine):
+    """A private dockerd that does not see HIDDEN (a tmpfs of its own mount namespace lies over it),
+    reached over TCP."""
+
+    def __init__(self, home: Path, hidden: Path) -> None:
+        super().__init__(home)
+        self.hidden = hidden
+        self.forwarder: TcpForwarder | None = None
+
+    def start(self) -> None:
+        (self.home / "daemon.json").write_text("{}")
+        # dockerd's own containerd, in the same namespaces: runc resolves bind mounts there.
+        argv = ["unshare", "--net", "--mount", "--propagation", "private", "--",
+                "sh", "-c", 'mount -t tmpfs -o size=16m espdock-hidden "$0" && exec "$@"', str(self.hidden),
+                "dockerd", "--host", f"unix://{self.socket}",
+                "--data-root", str(self.home / "data"), "--exec-root", str(self.home / "exec"),
+                "--pidfile", str(self.home / "docker.pid"), "--config-file", str(self.home / "daemon.json"),
+                "--iptables=false", "--ip-masq=false", "--ip-forward=false",
+                "--cgroup-parent", f"/espdock-test-{self.home.name}"]  # fmt: skip
+        with open(self.home / "dockerd.log", "ab") as log:
+            self.process = subprocess.Popen(argv, stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
+        deadline = time.monotonic() + 60
+        while self.docker("version", check=False).returncode != 0:
+            if self.process.poll() is not None or time.monotonic() > deadline:
+                pytest.skip(f"a private dockerd did not start here: {(self.home / 'dockerd.log').read_text()[-1500:]}")
+            time.sleep(0.5)
+        self.forwarder = TcpForwarder(self.socket)
+        self.env = {**os.environ, "DOCKER_HOST": f"tcp://127.0.0.1:{self.forwarder.port}"}
+
+    def stop(self) -> None:
+        if self.forwarder is not None:
+            self.forwarder.close()
+        super().stop()
+
+    def created(self, since: float, label: str) -> list[str]:
+        """Containers created since SINCE (epoch seconds) that carry LABEL."""
+        events = self.docker("events", "--since", f"{since:.3f}", "--until", f"{time.time():.3f}", "--filter",
+                             "event=create", "--filter", f"label={label}", "--format", "{{.ID}}")  # fmt: skip
+        return events.stdout.split()
+
+
+@pytest.fixture(scope="module")
+def tcp_engine(seeded_data_root, tmp_path_factory) -> Iterator[RemoteEngine]:  # noqa: F811
+    if shutil.which("dockerd") is None or shutil.which("unshare") is None:
+        pytest.skip("no dockerd or unshare here")
+    hidden = tmp_path_factory.mktemp("hidden")
+    engine = RemoteEngine(private_home(), hidden)
+    try:
+        engine.seed(seeded_data_root)
+        engine.start()
+        yield engine
+    finally:
+        drop_private_engine(engine)
+
+
+ONCE = '''"""Prints its word once and exits."""
+
+
+def main() -> None:
+    print("word: one")
+'''
+
+
+def once_workspace(dest: Path) -> Path:
+    """python_workspace with an executable `once` that prints a word and exits."""
+    root = python_workspace(dest)
+    package = root / "ws/src/beacon_nodes"
+    (package / "beacon_nodes/once.py").write_text(ONCE)
+    setup = package / "setup.py"
+    entry = '"once = beacon_nodes.once:main",\n            "beacon = '
+    setup.write_text(setup.read_text().replace('"beacon = ', entry))
+    return root
+
+
+def edit_word(root: Path, word: str) -> None:
+    once = root / "ws/src/beacon_nodes/beacon_nodes/once.py"
+    once.write_text(once.read_text().replace('print("word: one")', f'print("word: {word}")'))
+
+
+def installed_word(root: Path) -> str:
+    found = list((root / "ws/install/beacon_nodes").rglob("once.py"))
+    assert found, "once.py is not installed"
+    return found[0].read_text()
+
+
+def test_a_workspace_the_engine_cannot_see_is_exit_8_and_never_ships_the_old_install(tcp_engine, engine):
+    root = once_workspace(tcp_engine.hidden / "ws-root")
+    local = espdock("build", cwd=root)  # the shared engine sees it: an install of the old code
+    assert local.returncode == 0, local.stdout + local.stderr
+    edit_word(root, "two")
+
+    remote = espdock("build", cwd=root, env=tcp_engine.env)
+    assert remote.returncode == 8, remote.stdout + remote.stderr
+    assert f"Docker engine at {tcp_engine.env['DOCKER_HOST']} does not see the workspace {root}" in remote.stderr
+    assert "CI_PROJECT_DIR" in remote.stderr
+    assert "Traceback" not in remote.stderr
+    assert "word: one" in installed_word(root)  # the old install is left, and nothing was made from it
+    assert tcp_engine.containers(root) == []
+    runtime = tcp_engine.docker("images", "-q", "--filter", "reference=espdock/ws-root").stdout.split()
+    assert runtime == [], "a runtime image was made on the engine that never built the code"
+    engine.remove_containers({"io.espdock.workspace": str(root)})
+
+
+def test_the_same_engine_seeing_the_workspace_builds_rebuilds_an_edit_and_runs_it(tcp_engine, tmp_path):
+    root = once_workspace(tmp_path / "ws-root")  # not under the hidden directory: the engine sees it
+    first = espdock("build", cwd=root, env=tcp_engine.env)
+    assert first.returncode == 0, first.stdout + first.stderr
+    assert "1 package(s) built" in first.stdout, first.stdout
+
+    edit_word(root, "three")
+    since = time.time()
+    again = espdock("build", cwd=root, env=tcp_engine.env)
+    assert again.returncode == 0, again.stdout + again.stderr
+    assert "word: three" in installed_word(root)
+    # The engine was asked once whether it sees the workspace, not once per build.
+    assert tcp_engine.created(since, "io.espdock.step=mount-check") == []
+    assert tcp_engine.created(since, "io.espdock.step=colcon")
+
+    run = espdock("run", "beacon_nodes", "once", cwd=root, env=tcp_engine.env)
+    assert run.returncode == 0, run.stdout + run.stderr
+    assert "word: three" in run.stdout
+    assert tcp_engine.containers(root) == []
+
+
+def test_a_package_colcon_does_not_find_is_a_failure_and_the_old_install_is_not_shipped(engine, tmp_path):
+    root = once_workspace(tmp_path / "ws-root")
+    first = espdock("build", cwd=root)
+    assert first.returncode == 0, first.stdout + first.stderr
+    # The packages now live outside the workspace, src/ a link to them: espdock reads them on the
+    # host, but the build container, which sees only the workspace, does not.
+    outside = tmp_path / "elsewhere-src"
+    shutil.move(root / "ws/src", outside)
+    (root / "ws/src").symlink_to(outside)
+    edit_word(root, "four")
+
+    result = espdock("build", cwd=root)
+    assert result.returncode == 5, result.stdout + result.stderr
+    assert "colcon did not find 1 of the 1 package(s) it was to build: beacon_nodes (ws/src/beacon_nodes)" in (
+        result.stderr
+    )
+    assert "✓ colcon build" not in result.stdout
+    assert "word: one" in installed_word(root)
+    engine.remove_containers({"io.espdock.workspace": str(root)})
+
+
+def test_setup_prepares_the_base_image_of_a_workspace_made_by_init(engine, tmp_path):
+    """A workspace of `espdock init` has no Dockerfile.ros: its builds use espdock's, and so does setup."""
+    made = espdock("init", str(tmp_path / "robot"), cwd=tmp_path)
+    assert made.returncode == 0, made.stdout + made.stderr
+    ready = espdock("setup", cwd=tmp_path / "robot")
+    assert ready.returncode == 0, ready.stdout + ready.stderr
+    assert "base image debian:bookworm-slim: present" in ready.stdout

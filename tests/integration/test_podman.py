@@ -1,0 +1,167 @@
+"""Podman (Debian's 4.3), rootful, through its Docker API socket (`podman system service`).
+
+Podman has no BuildKit endpoint, so espdock builds with the API's own builder (Buildah), passing
+the CA bundle as a build secret; its compat import takes the tag only inside `repo`. The service
+runs on a socket, storage root and run root of this module's own, with a containers.conf that
+lowers the default rlimits (rootful Podman raises RLIMIT_NOFILE/NPROC by default, which machines
+of this kind refuse). The workspace's ROS image is a small Dockerfile.ros over the shared engine's
+ROS images (loaded with docker save | docker load): the wheels image would take minutes to build.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import signal
+import subprocess
+import tarfile
+import tempfile
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from espdock.engine import Engine
+from espdock.errors import ContainerError
+from tests.conftest import espdock, owners, python_workspace, ros_build_tag, ros_runtime_tag
+from tests.integration.test_engines import edit_word, installed_word, once_workspace
+
+pytestmark = [pytest.mark.engine, pytest.mark.slow]
+
+ULIMITS = '[containers]\ndefault_ulimits = ["nofile=20000:20000", "nproc=32768:32768"]\n'
+
+
+class PodmanService:
+    def __init__(self, home: Path, runroot: Path, conf: str = ULIMITS) -> None:
+        self.home = home
+        self.runroot = runroot  # Podman refuses one longer than 50 characters
+        self.tmpdir = runroot / "libpod"
+        self.socket = home / "podman.sock"
+        self.env = {**os.environ, "DOCKER_HOST": f"unix://{self.socket}"}
+        (home / "containers.conf").write_text(conf)
+        self.process: subprocess.Popen | None = None
+
+    def start(self, root: Path) -> None:
+        # Run root and libpod's tmp dir of this module's own: not the machine's /run/libpod.
+        argv = ["podman", "--root", str(root / "storage"), "--runroot", str(self.runroot),
+                "--tmpdir", str(self.tmpdir), "system", "service", "--time=0", f"unix://{self.socket}"]  # fmt: skip
+        env = {**os.environ, "CONTAINERS_CONF": str(self.home / "containers.conf")}
+        with open(self.home / "service.log", "ab") as log:
+            self.process = subprocess.Popen(argv, env=env, stdout=log, stderr=subprocess.STDOUT,
+                                            start_new_session=True)  # fmt: skip
+        deadline = time.monotonic() + 60
+        while self.docker("version", check=False).returncode != 0:
+            if self.process.poll() is not None or time.monotonic() > deadline:
+                pytest.skip(f"podman system service did not start here: {(self.home / 'service.log').read_text()}")
+            time.sleep(0.3)
+
+    def docker(self, *args: str, check: bool = True, **options) -> subprocess.CompletedProcess:
+        return subprocess.run(["docker", *args], env=self.env, capture_output=True, text=True, check=check,
+                              **options)  # fmt: skip
+
+    def stop(self) -> None:
+        if self.process is not None and self.process.poll() is None:
+            os.killpg(self.process.pid, signal.SIGTERM)
+            self.process.wait(timeout=30)
+
+
+@pytest.fixture(scope="module")
+def podman(engine, tmp_path_factory) -> Iterator[PodmanService]:
+    if shutil.which("podman") is None:
+        pytest.skip("podman is not installed (tests/install-system-deps.sh installs it)")
+    home = tmp_path_factory.mktemp("podman")
+    runroot = Path(tempfile.mkdtemp(prefix="pm-", dir="/tmp"))
+    service = PodmanService(home, runroot)
+    service.start(home)
+    try:
+        seed = python_workspace(home / "seed")
+        images = (ros_build_tag(seed), ros_runtime_tag(seed))
+        if any(engine.image(tag) is None for tag in images):
+            warm = espdock("build", "--only", "ros", cwd=seed)
+            assert warm.returncode == 0, warm.stdout + warm.stderr
+        with subprocess.Popen(["docker", "save", *images], stdout=subprocess.PIPE) as save:
+            loaded = subprocess.run(["docker", "load"], stdin=save.stdout, env=service.env, capture_output=True,
+                                    check=False)  # fmt: skip
+        assert save.returncode == 0 and loaded.returncode == 0, loaded.stderr
+        yield service
+    finally:
+        service.stop()
+        reset = ["system", "reset", "--force"]
+        subprocess.run(["podman", "--root", str(home / "storage"), "--runroot", str(runroot), "--tmpdir",
+                        str(service.tmpdir), *reset], capture_output=True, check=False)  # fmt: skip
+        # Podman's overlay driver mounts its layer directory on itself: gone with it, pytest can remove it.
+        subprocess.run(["umount", "--lazy", str(home / "storage/overlay")], capture_output=True, check=False)
+        shutil.rmtree(runroot, ignore_errors=True)
+
+
+def small_ros_image(root: Path, seed: Path) -> None:
+    """Dockerfile.ros: the build and runtime stages over the shared engine's ROS images, the build
+    stage proving that the CA bundle reached it as a secret."""
+    (root / "Dockerfile.ros").write_text(
+        f"ARG BASE_IMAGE={ros_build_tag(seed)}\nARG ROSDEP_OS=debian:bookworm\n"
+        "FROM ${BASE_IMAGE} AS build\n"
+        "RUN --mount=type=secret,id=ca_bundle grep -q espdock-test-ca /run/secrets/ca_bundle && touch /opt/ca-seen\n"
+        f"FROM {ros_runtime_tag(seed)} AS runtime\n"
+    )
+
+
+def test_podman_builds_the_images_with_the_ca_as_a_secret_and_builds_edits_and_runs(podman, tmp_path):
+    seed = python_workspace(tmp_path / "seed")
+    root = once_workspace(tmp_path / "ws-root")
+    small_ros_image(root, seed)
+    ca = tmp_path / "ca.pem"
+    ca.write_text("# espdock-test-ca\n")
+    env = {**podman.env, "ESPDOCK_CA_BUNDLE": str(ca)}
+
+    first = espdock("build", cwd=root, env=env)
+    assert first.returncode == 0, first.stdout + first.stderr
+    build_image = ros_build_tag(root)
+    listing = "test -f /opt/ca-seen && { ls -a / /opt; ls -a /run/secrets 2>/dev/null; true; }"
+    seen = podman.docker("run", "--rm", "--entrypoint", "sh", build_image, "-c", listing, check=False)
+    assert seen.returncode == 0, seen.stdout + seen.stderr
+    assert ".espdock-secret" not in seen.stdout, "the CA bundle's file was left in the image"
+    assert "ca_bundle" not in seen.stdout
+    assert owners(root) == {os.getuid()}
+
+    edit_word(root, "podman")
+    again = espdock("build", cwd=root, env=env)
+    assert again.returncode == 0, again.stdout + again.stderr
+    assert "word: podman" in installed_word(root)
+    run = espdock("run", "beacon_nodes", "once", cwd=root, env=env)
+    assert run.returncode == 0, run.stdout + run.stderr
+    assert "word: podman" in run.stdout
+
+
+def test_podman_imports_a_root_filesystem_under_its_own_tag(podman, tmp_path):
+    rootfs = tmp_path / "rootfs"
+    (rootfs / "etc").mkdir(parents=True)
+    (rootfs / "etc/os-release").write_text("ID=espdock-test\n")
+    tarball = tmp_path / "rootfs.tar"
+    with tarfile.open(tarball, "w") as archive:
+        archive.add(rootfs, arcname=".")
+    engine = Engine.connect(podman.env)
+    assert engine.info().kind == "podman"
+    engine.import_rootfs(tarball, "espdock-test/imported:v1", {"io.espdock.test": "yes"})
+    imported = engine.image("espdock-test/imported:v1")
+    assert imported is not None and imported.labels["io.espdock.test"] == "yes"
+    assert engine.image("espdock-test/imported:latest") is None
+
+
+def test_a_container_podman_refuses_to_start_is_exit_9_naming_podman(podman, tmp_path):
+    """Without the containers.conf override, rootful Podman asks for rlimits this machine refuses."""
+    strict = PodmanService(tmp_path, podman.runroot, conf="[containers]\n")
+    strict.start(podman.home)  # the same storage: the images are there
+    try:
+        root = once_workspace(tmp_path / "ws-root")
+        small_ros_image(root, python_workspace(tmp_path / "seed"))
+        started = subprocess.run(["docker", "run", "--rm", ros_build_tag(root), "true"], env=strict.env,
+                                 capture_output=True, text=True, check=False)  # fmt: skip
+        if started.returncode == 0:
+            pytest.skip("this machine lets rootful Podman raise its rlimits: no container is refused")
+        result = espdock("build", cwd=root, env=strict.env)
+        assert result.returncode == ContainerError.exit_code, result.stdout + result.stderr
+        assert f"the Podman engine at unix://{strict.socket}" in result.stderr
+        assert "Traceback" not in result.stderr and "bug in espdock" not in result.stderr
+    finally:
+        strict.stop()

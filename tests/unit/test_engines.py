@@ -1,0 +1,128 @@
+"""Engines other than a local rootful Docker, as the runner sees them (FakeEngine): one that does
+not see the workspace, a rootless one, and what /info and /version say about an engine."""
+
+from __future__ import annotations
+
+import os
+
+import pytest
+
+from espdock import bootstrap
+from espdock.colcon import unselected
+from espdock.config import Config
+from espdock.engine import describe
+from espdock.errors import BuildFailed, WorkspaceError, WorkspaceNotVisible
+from espdock.plan import ColconBuild, Plan
+from espdock.runner import Runner
+from espdock.workspace import Workspace
+from tests.fake_engine import FakeEngine
+from tests.unit.test_runner import COLCON, colcon_installs
+
+
+@pytest.fixture
+def ws(tmp_path, monkeypatch) -> Workspace:
+    monkeypatch.setattr(bootstrap, "ensure_compose", lambda env, notify: None)
+    for name in ("msgs", "app"):
+        (tmp_path / "ws/src" / name).mkdir(parents=True)
+        (tmp_path / "ws/src" / name / "package.xml").write_text(f"<package><name>{name}</name></package>\n")
+    return Workspace(tmp_path)
+
+
+def runner(engine: FakeEngine) -> Runner:
+    return Runner(engine, Config(), {}, lambda event: None, (os.getuid(), os.getgid()))  # type: ignore[arg-type]
+
+
+def test_an_engine_that_does_not_see_the_workspace_stops_the_build_before_colcon(ws):
+    engine = FakeEngine(run_script=colcon_installs(ws), sees_host=False)
+    with pytest.raises(WorkspaceNotVisible) as err:
+        runner(engine).run(Plan(ws, (COLCON,)))
+    assert err.value.exit_code == 8
+    assert f"the Docker engine at fake://engine does not see the workspace {ws.root}" in err.value.message
+    assert "CI_PROJECT_DIR" in (err.value.hint or "")
+    assert engine.runs == []  # colcon never ran
+    assert not list(ws.root.glob(".espdock-probe-*"))  # the nonce file is gone
+
+
+def test_the_engine_is_asked_once_per_workspace_path_not_per_build(ws):
+    engine = FakeEngine(run_script=colcon_installs(ws))
+    runner(engine).run(Plan(ws, (COLCON,)))
+    (ws.ws_dir / "src/app/new.txt").write_text("an edit")
+    runner(engine).run(Plan(ws, (COLCON,)))
+    assert len(engine.runs) == 2
+    assert engine.mount_checks == 1
+
+
+def test_a_rootless_engine_runs_build_containers_as_its_root_which_is_the_user(ws):
+    engine = FakeEngine(run_script=colcon_installs(ws), rootless=True)
+    runner(engine).run(Plan(ws, (COLCON,)))
+    assert [spec.user for spec in engine.runs] == ["0:0"]
+    local = FakeEngine(run_script=colcon_installs(ws))
+    runner(local).run(Plan(ws, (ColconBuild(**{**COLCON.__dict__, "force": True}),)))
+    assert [spec.user for spec in local.runs] == [f"{os.getuid()}:{os.getgid()}"]
+
+
+def test_a_package_colcon_did_not_find_fails_and_one_left_out_as_told_does_not(ws):
+    engine = FakeEngine(run_script=lambda spec, on_line: lost_app(ws, spec, on_line))
+    with pytest.raises(BuildFailed) as err:
+        runner(engine).run(Plan(ws, (COLCON,)))
+    assert err.value.exit_code == 5
+    assert "colcon did not find 1 of the 2 package(s) it was to build: app (ws/src/app)" in err.value.message
+    assert unselected(["[0.1] (-) JobUnselected: {'identifier': 'app'}", "[0.2] (msgs) JobQueued: {}"]) == {"app"}
+
+
+def lost_app(ws: Workspace, spec, on_line) -> int:
+    """colcon that found only msgs (app's directory is not there in its container)."""
+    log = ws.ws_dir / "log/build_0"
+    log.mkdir(parents=True)
+    (ws.ws_dir / "install/msgs").mkdir(parents=True)
+    (log / "events.log").write_text(
+        "[0.1] (msgs) JobQueued: {'identifier': 'msgs'}\n[0.8] (msgs) JobEnded: {'identifier': 'msgs', 'rc': 0}\n"
+    )
+    (ws.ws_dir / "log/latest_build").symlink_to("build_0")
+    return 0
+
+
+def test_a_permission_error_on_a_workspace_path_names_it_and_its_owner(ws, monkeypatch):
+    engine = FakeEngine(run_script=colcon_installs(ws))
+
+    def denied(*args, **kwargs):
+        raise PermissionError(13, "Permission denied", str(ws.ws_dir / "build"))
+
+    monkeypatch.setattr("espdock.runner.package_stamps", denied)
+    with pytest.raises(WorkspaceError) as err:
+        runner(engine).run(Plan(ws, (COLCON,)))
+    assert err.value.exit_code == 2
+    assert f"permission denied on {ws.ws_dir / 'build'} (owner uid {os.getuid()}" in err.value.message
+
+
+def test_what_info_and_version_say_about_the_engine():
+    env = {"DOCKER_HOST": "unix:///run/podman/podman.sock"}
+    podman = {"Components": [{"Name": "Podman Engine", "Version": "4.3.1"}]}
+    first = describe(env, {"ID": "a", "Name": "vm", "SecurityOptions": ["name=seccomp"]}, podman)
+    again = describe(env, {"ID": "b", "Name": "vm", "SecurityOptions": ["name=seccomp"]}, podman)
+    assert (first.kind, first.rootless) == ("podman", False)
+    assert first.identity == again.identity  # Podman makes up a new ID on every /info
+    assert first.name == "Podman engine at unix:///run/podman/podman.sock"
+    # Podman 4's Docker API /info does not say rootless: its own /libpod/info does.
+    libpod = {"host": {"security": {"rootless": True}}}
+    user_podman = describe(env, {"SecurityOptions": ["name=seccomp"]}, podman, libpod)
+    assert (user_podman.kind, user_podman.rootless) == ("podman", True)
+    rootless = describe({}, {"ID": "x", "SecurityOptions": ["name=seccomp,profile=default", "name=rootless"]}, {})
+    assert (rootless.kind, rootless.rootless) == ("docker", True)
+    assert rootless.name == "rootless Docker engine at unix:///var/run/docker.sock"
+
+
+def test_colcon_denied_its_log_dir_names_the_dir_and_its_owner(ws):
+    """What a rootless engine's subordinate uid left behind: colcon may not write ws/log."""
+    if os.geteuid() != 0:
+        pytest.skip("giving a directory to another uid needs root")
+    (ws.ws_dir / "log").mkdir()
+    os.chown(ws.ws_dir / "log", 100999, 100999)
+
+    def denied(spec, on_line):
+        on_line("PermissionError: [Errno 13] Permission denied: 'log'")
+        return 1
+
+    with pytest.raises(WorkspaceError) as err:
+        runner(FakeEngine(run_script=denied)).run(Plan(ws, (COLCON,)))
+    assert f"permission denied on {ws.ws_dir / 'log'} (owner uid 100999" in err.value.message

@@ -186,6 +186,23 @@ def left_out(args: Iterable[str], depends: Mapping[str, Iterable[str]]) -> froze
     by_dep = set(values.get("--packages-skip-by-dep", []))
     out |= {name for name in depends if closure({name}, depends) & by_dep}
     return frozenset(out & set(depends))
+_BUILD_TESTING = re.compile(r"^-DBUILD_TESTING(:BOOL)?=", re.IGNORECASE)
+
+
+def sets_build_testing(args: Iterable[str]) -> bool:
+    """Whether ARGS (colcon options) set BUILD_TESTING themselves (`--cmake-args -DBUILD_TESTING=ON`)."""
+    return any(_BUILD_TESTING.match(arg.strip()) for arg in args)
+
+
+def with_build_testing_off(args: tuple[str, ...]) -> tuple[str, ...]:
+    """ARGS with CMake packages configured without their tests (BUILD_TESTING=OFF), unless ARGS
+    set it. colcon keeps the last `--cmake-args` only, so the value joins the user's own."""
+    if sets_build_testing(args):
+        return args
+    for index, arg in enumerate(args):
+        if arg == "--cmake-args":
+            return (*args[: index + 1], "-DBUILD_TESTING=OFF", *args[index + 1 :])
+    return (*args, "--cmake-args", "-DBUILD_TESTING=OFF")
 
 
 def meta_paths(args: Iterable[str]) -> tuple[str, ...]:
@@ -478,10 +495,15 @@ class ColconFailure:
 
 
 def explain_failure(
-    code: int, states: Mapping[str, PackageState], logs: Mapping[str, tuple[Path, str]], args: tuple[str, ...]
+    code: int,
+    states: Mapping[str, PackageState],
+    logs: Mapping[str, tuple[Path, str]],
+    args: tuple[str, ...],
+    declared: Mapping[str, tuple[frozenset[str], frozenset[str]]] | None = None,
 ) -> ColconFailure:
     """Why colcon exited with CODE: STATES from its event log, LOGS (failed package -> its log
-    file and output), ARGS the options given after `--`."""
+    file and output), ARGS the options given after `--`, DECLARED (package -> what its package.xml
+    names, and which of those only as test_depend)."""
     by_state: dict[PackageState, list[str]] = {}
     for name, state in sorted(states.items()):
         by_state.setdefault(state, []).append(name)
@@ -495,11 +517,7 @@ def explain_failure(
         missing = missing_dependencies(output)
         if missing:
             lines.append(f"  {name}: could not find {', '.join(missing)}; log: {log}")
-            hints.append(
-                f"{name} needs {', '.join(missing)}, which the build image does not provide: declare it in "
-                f"{name}'s package.xml, use an image that has it, or leave {name} out "
-                f"(COLCON_IGNORE, `-- --packages-skip {name}`, or select other packages)."
-            )
+            hints.append(_missing_hint(name, missing, *(declared or {}).get(name, (frozenset(), frozenset()))))
         else:
             lines.append(f"  {name}: its own build failed; log: {log}")
             own.append(name)
@@ -518,3 +536,24 @@ def explain_failure(
         else "No package was built by this run."
     )
     return ColconFailure("\n".join(lines), " ".join(hints))
+
+
+def _missing_hint(name: str, missing: tuple[str, ...], declared: frozenset[str], test_only: frozenset[str]) -> str:
+    """What to do about a package that could not find MISSING, given what its package.xml names."""
+    shown = ", ".join(missing)
+    leave_out = f"leave {name} out (COLCON_IGNORE, `-- --packages-skip {name}`, or select other packages)"
+    if all(dep in test_only for dep in missing):
+        return (
+            f"{name} needs {shown} only for its tests (test_depend in its package.xml), which this build "
+            "configured: build without them (`-- --cmake-args -DBUILD_TESTING=OFF`), or test on an image that "
+            'has them (ros_image = "official").'
+        )
+    if all(dep in declared for dep in missing):
+        return (
+            f"{name}'s package.xml declares {shown}, but the build image does not provide it: use an image that "
+            f'has it (ros_image = "official"), or {leave_out}.'
+        )
+    return (
+        f"{name} needs {shown}, which the build image does not provide: declare it in "
+        f"{name}'s package.xml, use an image that has it, or {leave_out}."
+    )

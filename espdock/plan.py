@@ -12,7 +12,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from espdock import rosdeps, transport
-from espdock.colcon import ColconSettings, left_out
+from espdock.colcon import ColconSettings, left_out, sets_build_testing, with_build_testing_off
 from espdock.config import Config, check_target
 from espdock.errors import WorkspaceError
 from espdock.layout import (
@@ -108,10 +108,35 @@ class ColconBuild:
     colcon_args: tuple[str, ...] = ()
     settings: tuple[tuple[str, str], ...] = ()
     defaults_file: str | None = None
+    # TESTING: a build for `espdock test` (tests configured, in the image with the test
+    # dependencies); TESTS_OFF: CMake packages configured with BUILD_TESTING=OFF (the wheels
+    # image lacks ament's lint packages), unless the options after `--` set it.
+    testing: bool = False
+    tests_off: bool = False
+    # Each package's package.xml dependencies, and which of them are test_depend only: what a
+    # failure's hint says about a dependency colcon could not find.
+    declared: tuple[tuple[str, frozenset[str], frozenset[str]], ...] = ()
 
     @property
     def workdir(self) -> str:
         return _container_path(self.colcon_root)
+
+    @property
+    def options(self) -> tuple[str, ...]:
+        """The options after `--`, with BUILD_TESTING=OFF where TESTS_OFF asks for it."""
+        return with_build_testing_off(self.colcon_args) if self.tests_off else self.colcon_args
+
+    @property
+    def says_tests_off(self) -> bool:
+        """Whether this build turns the CMake packages' tests off itself (the user did not set it)."""
+        return self.tests_off and not sets_build_testing(self.colcon_args)
+
+    @property
+    def stamp_image(self) -> str:
+        """What the packages' stamps hold of the image and how tests are configured: a test build
+        and a plain one never pass for each other."""
+        configured = "tests" if self.testing else "no-tests" if self.says_tests_off else ""
+        return f"{self.image}\0{configured}" if configured else self.image
 
     def argv(self, rebuild: tuple[str, ...] = ()) -> tuple[str, ...]:
         """colcon's command line; REBUILD: only these packages (the changed ones and their
@@ -123,7 +148,7 @@ class ColconBuild:
             "colcon", "build", "--base-paths", *(rel for _, rel in self.sources), "--build-base", ROS_BUILD_BASE,
             # Live output per line plus colcon's own start/finish lines.
             "--event-handlers", "console_direct+", "console_start_end+", "summary+",
-            *select, *self.colcon_args,
+            *select, *self.options,
         )  # fmt: skip
 
 
@@ -596,12 +621,15 @@ def plan_build(
     all_packages: tuple[Package, ...] | None = None,
     force: bool = False,
     colcon: ColconSettings | None = None,
+    testing: bool = False,
+    tests_off: bool = False,
 ) -> Plan:
     """The steps of `espdock build [SELECTED...]` over PACKAGES (already in build order: the
     selection closed over its dependencies when SELECTED names any).
 
     IDF_IMAGES: each firmware package's micro-ROS image (see micro_ros_images). FORCE: build
     even what is up to date. COLCON: the options after `--` and colcon's settings files.
+    TESTING: build for `espdock test`; TESTS_OFF: configure CMake packages without tests.
     """
     colcon = colcon or ColconSettings()
     ros = [p for p in packages if p.kind is PackageKind.ROS]
@@ -623,6 +651,9 @@ def plan_build(
                 colcon_args=colcon.args,
                 settings=tuple(item for item in colcon.digests if item[0] in names),
                 defaults_file=colcon.defaults_file,
+                testing=testing,
+                tests_off=tests_off and not testing,
+                declared=tuple((p.name, p.depends, p.test_only_depends) for p in ros),
             ),
         ]
         built = {p.name for p in (all_packages or packages) if p.kind is PackageKind.ROS}
@@ -666,10 +697,14 @@ def plan_workspace(
     target: str | None = None,
     colcon: ColconSettings | None = None,
     checked: tuple[str, ...] | None = None,
+    testing: bool = False,
 ) -> Plan:
     """`espdock build [NAMES...] [--only KIND] [--force] [--target CHIP] [-- COLCON_ARGS...]` over
     the workspace's PACKAGES (in build order). Each firmware package builds for its own chip
-    (package_target); TARGET overrides it for the packages built. CHECKED: see checked_packages."""
+    (package_target); TARGET overrides it for the packages built. CHECKED: see checked_packages.
+    TESTING: the build `espdock test` runs first (tests configured on every image flavour; on the
+    wheels image a plain build configures CMake packages without them, since it lacks ament's lint
+    packages)."""
     selected = select_up_to(packages, names) if names else packages
     if only is not None:
         selected = tuple(p for p in selected if p.kind is only)
@@ -697,6 +732,8 @@ def plan_workspace(
         all_packages=packages,
         force=force,
         colcon=colcon,
+        testing=testing,
+        tests_off=image.flavour == "wheels",
     )
 
 

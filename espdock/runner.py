@@ -361,7 +361,7 @@ class Runner:
     def _colcon(self, workspace: Workspace, step: ColconBuild) -> tuple[Outcome, str]:
         stamp_file = StampFile(workspace.ws_dir / "build" / ROS_STAMPS)
         sources = {name: tree_digest(workspace.ws_dir / rel) for name, rel in step.sources}
-        stamps = package_stamps(sources, dict(step.depends), step.image, dict(step.settings))
+        stamps = package_stamps(sources, dict(step.depends), step.stamp_image, dict(step.settings))
 
         def installed() -> dict[str, str | None]:
             return {name: listing_digest(workspace.ws_dir / "install" / name) for name in stamps}
@@ -378,6 +378,14 @@ class Runner:
         if retired := retire_container_caches(workspace.ws_dir / "build", stamps, mounted_build):
             why = f"espdock's CMake caches from before {ROS_BUILD_BASE}, which a native colcon build refuses"
             self._emit(StepNote(step.name, f"removed {', '.join(f'build/{name}' for name in retired)}: {why}"))
+        if step.says_tests_off:
+            self._emit(
+                StepNote(
+                    step.name,
+                    "CMake packages are configured with BUILD_TESTING=OFF: the wheels image lacks ament's lint "
+                    "packages (ament_lint_auto, ...); `espdock test` builds them with their tests",
+                )
+            )
         user, labels = self._container_identity(workspace, "colcon", sweep=True)
         self._check_mount(workspace, step.image, user, labels)
         mounts = [workspace_mount(workspace)]
@@ -434,7 +442,8 @@ class Runner:
                 for name, state in (states or {}).items()
                 if state is PackageState.FAILED
             }
-            failure = explain_failure(code, states or {}, logs, step.colcon_args)
+            declared = {name: (depends, tests) for name, depends, tests in step.declared}
+            failure = explain_failure(code, states or {}, logs, step.colcon_args, declared)
             raise BuildFailed(failure.message, failure.hint)
         others = [n for n in rebuild if n not in built]
         # Asked for and neither built nor left out as told (`-- --packages-skip`): colcon did not

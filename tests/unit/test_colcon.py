@@ -253,3 +253,32 @@ def test_only_build_dirs_espdock_configured_in_its_container_are_retired(tmp_pat
     (build / "py_pkg").mkdir()
     assert retire_container_caches(build, ["old_msgs", "native_msgs", "py_pkg", "gone"], mounted) == ["old_msgs"]
     assert sorted(p.name for p in build.iterdir()) == ["board", "native_msgs", "py_pkg"]
+
+def test_a_plain_build_on_the_wheels_image_configures_cmake_packages_without_tests():
+    plain = ColconBuild(image="i", packages=("a",), sources=(("a", "src/a"),), tests_off=True)
+    assert plain.argv()[-2:] == ("--cmake-args", "-DBUILD_TESTING=OFF")
+    own = ColconBuild(image="i", packages=("a",), tests_off=True, colcon_args=("--cmake-args", "-DX=1", "--foo"))
+    # colcon keeps only the last --cmake-args: the value joins the user's own.
+    assert own.argv()[-4:] == ("--cmake-args", "-DBUILD_TESTING=OFF", "-DX=1", "--foo")
+    asked = ColconBuild(image="i", packages=("a",), tests_off=True, colcon_args=("--cmake-args", "-DBUILD_TESTING=ON"))
+    assert asked.argv().count("-DBUILD_TESTING=OFF") == 0 and not asked.says_tests_off
+    official = ColconBuild(image="i", packages=("a",))
+    assert "--cmake-args" not in official.argv(), "the official image builds as colcon does"
+    testing = ColconBuild(image="i", packages=("a",), testing=True)
+    stamps = {step.stamp_image for step in (plain, official, testing)}
+    assert len(stamps) == 3, "a test build, a build without tests and colcon's default never pass for each other"
+    assert official.stamp_image == "i", "builds of before keep their stamps"
+
+
+def test_a_test_only_dependency_colcon_missed_is_not_declare_it_in_package_xml():
+    output = 'Could not find a package configuration file provided by "ament_lint_auto" with any\n'
+    states = {"cpp_pkg": PackageState.FAILED}
+    logs = {"cpp_pkg": (Path("/l/c.log"), output)}
+    declared = {"cpp_pkg": (frozenset({"ament_cmake", "ament_lint_auto"}), frozenset({"ament_lint_auto"}))}
+    failure = explain_failure(1, states, logs, (), declared)
+    assert "declare it" not in failure.hint
+    assert "only for its tests" in failure.hint and "-DBUILD_TESTING=OFF" in failure.hint
+    build_dep = {"cpp_pkg": (frozenset({"ament_cmake", "ament_lint_auto"}), frozenset())}
+    failure = explain_failure(1, states, logs, (), build_dep)
+    assert "declare it" not in failure.hint and "package.xml declares ament_lint_auto" in failure.hint
+    assert "declare it in cpp_pkg's package.xml" in explain_failure(1, states, logs, ()).hint

@@ -7,8 +7,8 @@ A package.xml with <build_type>esp_idf</build_type> is a package of type `ros.es
 type colcon-ros would give it, so its augmentation adds the dependencies too), and its build
 task runs `espdock build --only firmware PKG` (IDF container, micro-ROS image), then installs
 the firmware where colcon's --install-base and --merge-install say (espdock.colcon_install),
-with the output in colcon's log and event handlers. Only colcon imports this module; espdock
-never does, so it costs espdock nothing.
+with the output in colcon's log and event handlers. Its test task runs the host tests a firmware package declares (`colcon test` neither fails nor
+warns on one). Only colcon imports this module; espdock never does, so it costs espdock nothing.
 """
 
 from __future__ import annotations
@@ -17,6 +17,8 @@ import asyncio
 import sys
 from pathlib import Path
 
+from colcon_core.event.output import StdoutLine
+from colcon_core.event.test import TestFailure
 from colcon_core.package_identification import IgnoreLocationException, PackageIdentificationExtensionPoint
 from colcon_core.plugin_system import satisfies_version
 from colcon_core.task import TaskExtensionPoint, run
@@ -85,3 +87,52 @@ class EspIdfBuildTask(TaskExtensionPoint):
             argv += ["--merged"] if getattr(args, "merge_install", False) else []
             completed = await run(self.context, argv, cwd=str(Path(pkg.path).resolve()))
         return completed.returncode
+
+
+# <export><espdock_host_tests>DIR</espdock_host_tests></export>: a CMake project of host tests
+# (firmware logic compiled with the host's compiler), relative to the package.
+HOST_TESTS_TAG = "espdock_host_tests"
+
+
+def host_tests_dir(package_dir: Path) -> Path | None:
+    """The host tests a firmware package's package.xml declares, None when it declares none."""
+    from catkin_pkg.package import parse_package
+
+    exports = {e.tagname: (e.content or "").strip() for e in parse_package(str(package_dir / "package.xml")).exports}
+    return package_dir / exports[HOST_TESTS_TAG] if exports.get(HOST_TESTS_TAG) else None
+
+
+class EspIdfTestTask(TaskExtensionPoint):
+    """`colcon test` of a firmware package: its host tests (CMake and CTest, JUnit results where
+    `colcon test-result` finds them) when it declares them; else nothing to run, and no warning."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        satisfies_version(TaskExtensionPoint.EXTENSION_POINT_VERSION, "^1.0")
+
+    async def test(self, *, additional_hooks=None) -> int:
+        pkg = self.context.pkg
+        source = host_tests_dir(Path(pkg.path).resolve())
+        if source is None:
+            self.context.put_event_into_queue(
+                StdoutLine(f"{pkg.name}: firmware package without host tests ({HOST_TESTS_TAG}): nothing to run\n")
+            )
+            return 0
+        build = Path(self.context.args.build_base) / "host_tests"
+        junit = Path(self.context.args.build_base) / "test_results" / pkg.name / "host_tests.xml"
+        junit.parent.mkdir(parents=True, exist_ok=True)
+        steps = (
+            ("cmake", "-S", str(source), "-B", str(build)),
+            ("cmake", "--build", str(build)),
+            ("ctest", "--test-dir", str(build), "--output-on-failure", "--output-junit", str(junit)),
+        )
+        for argv in steps:
+            self.progress(argv[0])
+            completed = await run(self.context, list(argv), cwd=str(source))
+            if completed.returncode:
+                # A test that fails is a result (in the JUnit file), as colcon's ctest step has it.
+                if argv[0] == "ctest" and junit.is_file():
+                    self.context.put_event_into_queue(TestFailure(pkg.name))
+                    return 0
+                return completed.returncode
+        return 0

@@ -29,6 +29,7 @@ DISTRIBUTION = "espdock_colcon_shim"
 ENTRY_POINTS = (
     ("colcon_core.package_identification", "esp_idf", "EspIdfPackageIdentification"),
     ("colcon_core.task.build", "ros.esp_idf", "EspIdfBuildTask"),
+    ("colcon_core.task.test", "ros.esp_idf", "EspIdfTestTask"),
 )
 # Asked of colcon's Python: where it reads distributions from, and whether espdock's extension is
 # among them already (espdock installed beside colcon).
@@ -96,6 +97,7 @@ def _shim_text(espdock_site: str, espdock_python: str) -> str:
         f"_extension.ESPDOCK_PYTHON = {espdock_python!r}\n"
         "EspIdfPackageIdentification = _extension.EspIdfPackageIdentification\n"
         "EspIdfBuildTask = _extension.EspIdfBuildTask\n"
+        "EspIdfTestTask = _extension.EspIdfTestTask\n"
     )
 
 

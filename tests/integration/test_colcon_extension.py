@@ -191,3 +191,22 @@ def test_a_colcon_in_another_python_builds_firmware_once_the_extension_is_instal
     assert removed.returncode == 0 and "removed" in removed.stdout
     after = subprocess.run(argv, cwd=ws, env=user, capture_output=True, text=True, check=False)
     assert "No task extension to 'build' a 'ros.esp_idf' package" in after.stderr + after.stdout
+
+
+def test_colcon_test_runs_declared_host_tests_and_passes_over_firmware_without_any(tmp_path):
+    """Plain `colcon test` on firmware packages, as a ROS developer runs it over a mixed workspace:
+    no warning, no failure; the host tests a package declares run and count in test-result."""
+    for package in (REPO / "tests/firmware_packages/blink_fw", REPO / "firmware/led_strip_node"):
+        shutil.copytree(package, tmp_path / "src" / package.name)
+    tested = subprocess.run(
+        [str(COLCON), "test", "--event-handlers", "console_direct+"],
+        cwd=tmp_path, capture_output=True, text=True, timeout=600, check=False,
+    )  # fmt: skip
+    log = tested.stdout + tested.stderr
+    assert tested.returncode == 0, log[-3000:]
+    assert "WARNING" not in log, log[-3000:]
+    assert "led_strip_node: firmware package without host tests (espdock_host_tests): nothing to run" in log
+    result = subprocess.run(
+        [str(COLCON), "test-result", "--all"], cwd=tmp_path, capture_output=True, text=True, timeout=120, check=False
+    )
+    assert "build/blink_fw/test_results/blink_fw/host_tests.xml: 2 tests, 0 errors, 0 failures" in result.stdout

@@ -121,3 +121,18 @@ def test_the_dind_example_builds_in_the_checkout_the_runner_shares_with_the_serv
     lines = code_lines(GITLAB_DIND)
     assert not any(line.startswith(("- cd ", "cd ")) for line in lines), "the job builds in $CI_PROJECT_DIR"
     assert not any("--workspace" in line or " -w " in line for line in lines)
+
+
+@pytest.mark.parametrize("path", [GITHUB, GITLAB])
+def test_each_example_tests_after_the_build_and_publishes_the_junit_results(path):
+    lines = [line.removeprefix("- ").removeprefix("run: ") for line in code_lines(path)]
+    build = next(i for i, line in enumerate(lines) if line.startswith("espdock build"))
+    tests = [i for i, line in enumerate(lines) if line.startswith("espdock test")]
+    assert len(tests) == 1 and tests[0] > build, "tested once, after the build"
+    assert lines[tests[0]] == "espdock test --locked --results test-results"
+    text = path.read_text()
+    if path == GITLAB:
+        assert "    reports:\n      junit: test-results/**/*.xml\n" in text
+    else:
+        upload = text[text.index("name: espdock-test-results") - 300 :]
+        assert "uses: actions/upload-artifact@" in upload and "path: test-results/" in upload

@@ -186,6 +186,8 @@ def left_out(args: Iterable[str], depends: Mapping[str, Iterable[str]]) -> froze
     by_dep = set(values.get("--packages-skip-by-dep", []))
     out |= {name for name in depends if closure({name}, depends) & by_dep}
     return frozenset(out & set(depends))
+
+
 _BUILD_TESTING = re.compile(r"^-DBUILD_TESTING(:BOOL)?=", re.IGNORECASE)
 
 
@@ -194,15 +196,16 @@ def sets_build_testing(args: Iterable[str]) -> bool:
     return any(_BUILD_TESTING.match(arg.strip()) for arg in args)
 
 
-def with_build_testing_off(args: tuple[str, ...]) -> tuple[str, ...]:
-    """ARGS with CMake packages configured without their tests (BUILD_TESTING=OFF), unless ARGS
-    set it. colcon keeps the last `--cmake-args` only, so the value joins the user's own."""
+def with_build_testing(args: tuple[str, ...], value: str) -> tuple[str, ...]:
+    """ARGS with CMake packages configured with BUILD_TESTING=VALUE, unless ARGS set it. Given each
+    time: CMake keeps a cached value. colcon keeps the last `--cmake-args` only, so the value joins
+    the user's own."""
     if sets_build_testing(args):
         return args
     for index, arg in enumerate(args):
         if arg == "--cmake-args":
-            return (*args[: index + 1], "-DBUILD_TESTING=OFF", *args[index + 1 :])
-    return (*args, "--cmake-args", "-DBUILD_TESTING=OFF")
+            return (*args[: index + 1], f"-DBUILD_TESTING={value}", *args[index + 1 :])
+    return (*args, "--cmake-args", f"-DBUILD_TESTING={value}")
 
 
 def meta_paths(args: Iterable[str]) -> tuple[str, ...]:

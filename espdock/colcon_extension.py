@@ -7,8 +7,9 @@ A package.xml with <build_type>esp_idf</build_type> is a package of type `ros.es
 type colcon-ros would give it, so its augmentation adds the dependencies too), and its build
 task runs `espdock build --only firmware PKG` (IDF container, micro-ROS image), then installs
 the firmware where colcon's --install-base and --merge-install say (espdock.colcon_install),
-with the output in colcon's log and event handlers. Its test task runs the host tests a firmware package declares (`colcon test` neither fails nor
-warns on one). Only colcon imports this module; espdock never does, so it costs espdock nothing.
+with the output in colcon's log and event handlers. Its test task runs the host tests a firmware
+package declares (`colcon test` neither fails nor warns on one). Only colcon imports this
+module; espdock never does, so it costs espdock nothing.
 """
 
 from __future__ import annotations

@@ -81,6 +81,12 @@ class ContainerError(EspdockError):
     exit_code = 9
 
 
+class TestsFailed(EspdockError):
+    """`espdock test`: a test failed or errored (or colcon test itself failed); the summary names them."""
+
+    exit_code = 10
+
+
 class DiskFull(EspdockError):
     """A disk a build writes to (the workspace's, or the engine's) has no space left."""
 

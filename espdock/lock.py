@@ -23,7 +23,7 @@ from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, replace
 from pathlib import Path
 
-from espdock import rosdeps
+from espdock import rosdeps, testdeps
 from espdock.config import Config
 from espdock.defaults import SHIPPED, defaults_root
 from espdock.errors import LockError
@@ -266,16 +266,19 @@ def lock_rosdeps(
     chosen ROS image (REFRESH: `rosdep update` first). Returns its status (created, updated,
     unchanged, not needed) and where rosdep's database came from, with its age."""
     image, needed, _ = _rosdep_state(config, packages, inputs)
+    tests = testdeps.keys_for_tests(packages, image)
     target = root / ROSDEP_LOCK
-    if not needed and not target.is_file():
+    if not needed and not tests and not target.is_file():
         return "not needed (the image provides every dependency)", ""
-    if needed and refresh:
+    if (needed or tests) and refresh:
         rosdeps.update_database(env, image.distro, root)
     from espdock.runner import age_text  # the slow path only: making the lock
 
     system = official_python(config, inputs, env) if image.flavour == "official" else None
     lock = rosdeps.resolve_workspace(packages, image, root, env, uv_binary(), system)
-    if needed:
+    if tests:  # apart from the build's: only `espdock test` installs them
+        lock[testdeps.SECTION] = testdeps.resolve(packages, image, root, env, uv_binary(), system)
+    if needed or tests:
         lock["sources"] = rosdeps.database_sources(env, root)
     text = rosdeps.lock_text(lock)
     age = rosdeps.database_age(env, root)
@@ -309,6 +312,28 @@ def official_python(config: Config, inputs: BuildInputs, env: Mapping[str, str])
         return engine.run(RunSpec(image=ref, argv=argv, workdir="/", env=(("HOME", "/tmp"),)), lines.append), lines
 
     return lambda: probe_image(ref, run)
+
+
+def current_test_inputs(
+    root: Path,
+    config: Config,
+    packages: tuple[Package, ...],
+    inputs: BuildInputs,
+    locked: bool,
+    env: Mapping[str, str],
+    owner: tuple[int, int] | None = None,
+) -> tuple[BuildInputs, str | None]:
+    """current_rosdep_inputs for `espdock test`: a lock whose test part answers too."""
+    image, _, reason = _rosdep_state(config, packages, inputs)
+    lock = rosdeps.read_lock(inputs.rosdep_lock, ROSDEP_LOCK)
+    reason = reason or testdeps.stale_reason(lock, packages, image, ROSDEP_LOCK)
+    if reason is None:
+        return inputs, None
+    if locked:
+        raise LockError(reason, f"In {root}: {FIX} and commit {ROSDEP_LOCK} (or test with --no-locked).")
+    status, database = lock_rosdeps(root, config, packages, inputs, env, owner, refresh=False)
+    data = (root / ROSDEP_LOCK).read_bytes() if (root / ROSDEP_LOCK).is_file() else None
+    return replace(inputs, rosdep_lock=data), f"{ROSDEP_LOCK} {status} ({reason}; {database})"
 
 
 def current_rosdep_inputs(

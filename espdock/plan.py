@@ -12,7 +12,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from espdock import rosdeps, transport
-from espdock.colcon import ColconSettings, left_out, sets_build_testing, with_build_testing_off
+from espdock.colcon import ColconSettings, left_out, sets_build_testing, with_build_testing
 from espdock.config import Config, check_target
 from espdock.errors import WorkspaceError
 from espdock.layout import (
@@ -123,8 +123,11 @@ class ColconBuild:
 
     @property
     def options(self) -> tuple[str, ...]:
-        """The options after `--`, with BUILD_TESTING=OFF where TESTS_OFF asks for it."""
-        return with_build_testing_off(self.colcon_args) if self.tests_off else self.colcon_args
+        """The options after `--`, with BUILD_TESTING=OFF where TESTS_OFF asks for it, and ON for
+        a test build (CMake would keep the OFF an earlier build cached)."""
+        if self.testing:
+            return with_build_testing(self.colcon_args, "ON")
+        return with_build_testing(self.colcon_args, "OFF") if self.tests_off else self.colcon_args
 
     @property
     def says_tests_off(self) -> bool:

@@ -55,6 +55,7 @@ from espdock.plan import (
 )
 from espdock.runtime_tree import runtime_files
 from espdock.stamps import StampFile, listing_digest, package_stamps, tree_digest
+from espdock.testing import ColconTest
 from espdock.visibility import CHECKED, ensure_engine_sees, workspace_mount
 from espdock.workspace import Workspace
 
@@ -460,6 +461,26 @@ class Runner:
             )
         detail = f"{len(built)} package(s) built, {len(stamps) - len(rebuild)} up to date"
         return Outcome.BUILT, detail + (f", {len(others)} not built ({' '.join(others)})" if others else "")
+
+    def colcon_test(self, workspace: Workspace, step: ColconTest, on_line: Callable[[str], None]) -> int:
+        """Run STEP (colcon test) as the invoking user, its output to ON_LINE; colcon's exit code."""
+        user, labels = self._container_identity(workspace, "colcon-test", sweep=False)
+        mounts = [workspace_mount(workspace)]
+        env = [("HOME", "/tmp"), *self._reproducible_env(workspace)]
+        if step.defaults_file is not None:
+            mounts.append(Mount(Path(step.defaults_file), DEFAULTS_MOUNT, read_only=True))
+            env.append(("COLCON_DEFAULTS_FILE", DEFAULTS_MOUNT))
+        spec = RunSpec(
+            image=step.image,
+            argv=step.argv(),
+            workdir=_container_path(workspace, workspace.ws_dir),
+            user=user,
+            mounts=tuple(mounts),
+            env=tuple(env),
+            labels=labels,
+        )
+        with workspace_lock(workspace):
+            return self._engine.run(spec, on_line, keep=self._config.keep_containers)
 
     def _idf_build(self, workspace: Workspace, step: IdfBuild) -> tuple[Outcome, str]:
         build_dir = workspace.ws_dir / "build" / step.package
@@ -874,3 +895,8 @@ def _installed(workspace: Workspace, step: RuntimeImage) -> RuntimeImage:
     if step.packages and not present:
         raise WorkspaceError(f"no ROS package is installed in {install}", "Run `espdock build` to build them.")
     return replace(step, packages=present)
+
+
+def _container_path(workspace: Workspace, path: Path) -> str:
+    """Where PATH (inside the workspace) is in a container with the workspace mounted."""
+    return posixpath.join(workspace_mount(workspace).target, path.relative_to(workspace.root).as_posix())

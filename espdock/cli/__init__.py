@@ -1,9 +1,10 @@
 """The espdock command line: parses, calls the library, maps known errors to exit codes.
 
 Each command lives with its kind: workspace.py (build, lock, verify, new, init, setup, list),
-firmware.py (idf, micro-ros, flash, provision, monitor), nodes.py (compose, run, shell),
-prune.py (prune, imported by workspace.py: a build records and prunes) and agent.py (the micro-ROS
-agent). Importing them registers them on the app, in the order `espdock --help` lists them."""
+testing.py (test), firmware.py (idf, micro-ros, flash, provision, monitor), nodes.py (compose,
+run, shell), prune.py (prune, imported by workspace.py: a build records and prunes) and agent.py
+(the micro-ROS agent). Importing them registers them on the app, in the order `espdock --help`
+lists them."""
 
 from __future__ import annotations
 
@@ -16,6 +17,9 @@ from espdock.errors import Interrupted
 
 # isort: split
 from espdock.cli import workspace  # noqa: F401
+
+# isort: split
+from espdock.cli import testing  # noqa: F401
 
 # isort: split
 from espdock.cli import firmware  # noqa: F401

@@ -134,6 +134,7 @@ def build_plan(
     target: str | None = None,
     checked: tuple[str, ...] | None = None,
     dry_run: bool = False,
+    testing: bool = False,
 ) -> Plan:
     """The build's plan; LOCKED not None: first a rosdep lock that answers for the packages
     (refusing a stale one when LOCKED). CHECKED: the packages whose dependencies must be served
@@ -154,7 +155,9 @@ def build_plan(
         inputs, note = current_rosdep_inputs(ws.root, config, packages, inputs, locked, os.environ, owner, built)
         if note:
             notify(note)
-    return plan_workspace(ws, config, packages, inputs, tuple(names), only, force, target, colcon, checked)
+    return plan_workspace(
+        ws, config, packages, inputs, tuple(names), only, force, target, colcon, checked, testing=testing
+    )
 
 
 class PassThrough(typer.core.TyperCommand):

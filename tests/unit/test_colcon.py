@@ -254,6 +254,7 @@ def test_only_build_dirs_espdock_configured_in_its_container_are_retired(tmp_pat
     assert retire_container_caches(build, ["old_msgs", "native_msgs", "py_pkg", "gone"], mounted) == ["old_msgs"]
     assert sorted(p.name for p in build.iterdir()) == ["board", "native_msgs", "py_pkg"]
 
+
 def test_a_plain_build_on_the_wheels_image_configures_cmake_packages_without_tests():
     plain = ColconBuild(image="i", packages=("a",), sources=(("a", "src/a"),), tests_off=True)
     assert plain.argv()[-2:] == ("--cmake-args", "-DBUILD_TESTING=OFF")
@@ -265,6 +266,8 @@ def test_a_plain_build_on_the_wheels_image_configures_cmake_packages_without_tes
     official = ColconBuild(image="i", packages=("a",))
     assert "--cmake-args" not in official.argv(), "the official image builds as colcon does"
     testing = ColconBuild(image="i", packages=("a",), testing=True)
+    # Said each time: CMake would keep the OFF an earlier build left in its cache.
+    assert testing.argv()[-2:] == ("--cmake-args", "-DBUILD_TESTING=ON")
     stamps = {step.stamp_image for step in (plain, official, testing)}
     assert len(stamps) == 3, "a test build, a build without tests and colcon's default never pass for each other"
     assert official.stamp_image == "i", "builds of before keep their stamps"

@@ -1,0 +1,176 @@
+"""The test command: build with tests, colcon test, a summary per package, results for CI."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Annotated
+
+import typer
+from rich.text import Text
+
+from espdock import rosdeps, testdeps
+from espdock.cli.core import PASSED, PassThrough, WorkspaceOption, app, build_plan, command, console, load, notify
+from espdock.cli.core import workspace_packages as discover
+from espdock.config import invoking_user
+from espdock.errors import ConfigError, TestsFailed, WorkspaceError
+from espdock.layout import ROSDEP_LOCK
+from espdock.lock import current_test_inputs
+from espdock.plan import ColconBuild, Plan, ros_image
+from espdock.runner import Runner
+from espdock.testing import (
+    ColconTest,
+    PackageResults,
+    check_test_args,
+    check_testable,
+    clear_results,
+    collect_results,
+    read_results,
+)
+from espdock.ui import Reporter
+from espdock.workspace import PackageKind, read_build_inputs
+
+
+@app.command(cls=PassThrough)
+@command
+def test(
+    ctx: typer.Context,
+    packages: Annotated[
+        list[str] | None, typer.Argument(help="Test only these packages (what they depend on is built too).")
+    ] = None,
+    results: Annotated[
+        Path | None,
+        typer.Option("--results", help="Copy every JUnit XML file the tests wrote here, as DIR/<package>/<file>."),
+    ] = None,
+    verbose: Annotated[bool, typer.Option("--verbose", "-v", help="Show image build logs in full.")] = False,
+    timestamps: Annotated[
+        bool, typer.Option("--timestamps", help="Start every output line with the UTC time (for CI logs).")
+    ] = False,
+    locked: Annotated[
+        bool | None,
+        typer.Option(
+            "--locked/--no-locked",
+            help="Refuse to test when the rosdep lock is missing or stale (default: on when CI=true).",
+            show_default=False,
+        ),
+    ] = None,
+    workspace: WorkspaceOption = None,
+) -> None:
+    """Build what needs building with the packages' tests, run `colcon test` in the build image, and
+    summarise the results per package. Exit code 8 when a test fails or errors.
+
+    Options after `--` go to `colcon test` (e.g. `espdock test -- --pytest-args -k fast`)."""
+    from espdock import bootstrap
+
+    ws, config = load(workspace)
+    colcon_args = check_test_args(ctx.meta.get(PASSED))
+    locked = locked if locked is not None else os.environ.get("CI", "").lower() == "true"
+    every = discover(ws, config.ros_distro)
+    by_name = {p.name: p for p in every}
+    if unknown := [n for n in packages or () if n not in by_name]:
+        raise WorkspaceError(f"no package named {', '.join(unknown)} in the workspace", "See `espdock list`.")
+    chosen = [by_name[n] for n in packages] if packages else list(every)
+    ros = [p for p in chosen if p.kind is PackageKind.ROS]
+    firmware = [p.name for p in chosen if p.kind is PackageKind.FIRMWARE]
+    official = config.ros_image == "official"
+    check_testable({p.name: p.depends for p in ros}, "official" if official else "wheels")
+    if not ros:
+        _say_firmware(firmware)
+        return
+    # The rosdep lock, its test part included, answers for the packages before anything is built.
+    owner = invoking_user(os.environ, ws.root) if os.geteuid() == 0 else None
+    inputs, note = current_test_inputs(ws.root, config, every, read_build_inputs(ws, every), locked, os.environ, owner)
+    if note:
+        notify(note)
+    lock = rosdeps.read_lock(inputs.rosdep_lock, ROSDEP_LOCK)
+    testdeps.check_tests(ros, lock, ros_image(config, inputs)[2])
+    plan = build_plan(ws, config, [p.name for p in ros], PackageKind.ROS, locked=locked, testing=True)
+    plan = testdeps.with_test_image(_test_build(plan), lock, official)
+    build = next(step for step in plan.steps if isinstance(step, ColconBuild))
+    names = tuple(p.name for p in ros)
+    step = ColconTest(
+        image=build.image,
+        packages=names,
+        sources=build.sources,
+        colcon_args=colcon_args,
+        defaults_file=build.defaults_file,
+    )
+    reporter = Reporter(console, verbose=verbose, timestamps=timestamps)
+    engine = bootstrap.ensure_engine(os.environ, notify)
+    runner = Runner(engine, config, os.environ, reporter, invoking_user(os.environ, ws.root))
+    try:
+        runner.run(plan)
+    finally:
+        reporter.close()
+    build_base = ws.ws_dir / "build"
+    clear_results(build_base, names)
+    output: list[str] = []
+
+    def on_line(line: str) -> None:
+        output.append(line)
+        reporter.console.print(Text(line), soft_wrap=True)
+
+    console.print(Text(f"colcon test: {' '.join(names)}", style="bold"))
+    code = runner.colcon_test(ws, step, on_line)
+    found = read_results(build_base, names)
+    if code != 0 and not any(r.files for r in found.values()):
+        last = next((line for line in reversed(output) if line.strip()), "no output")
+        raise ConfigError(
+            f"colcon test stopped before testing (exit code {code}): {last.strip()}",
+            "Check the colcon options after `--`; nothing was tested.",
+        )
+    _render(found, ws.root, ws.ws_dir)
+    _say_firmware(firmware)
+    if results is not None:
+        written = collect_results(found, build_base, results)
+        console.print(f"{len(written)} result file(s) copied to {results}")
+    failing = [r for r in found.values() if not r.ok]
+    if failing:
+        raise TestsFailed(
+            f"tests failed in {', '.join(r.package for r in failing)}: "
+            + "; ".join(", ".join(r.failing[:5]) + (" ..." if len(r.failing) > 5 else "") for r in failing),
+            "Each package's output and result files are listed above; fix the tests and run `espdock test` again.",
+        )
+    if code != 0:
+        raise TestsFailed(f"colcon test failed (exit code {code})", "Its output is above.")
+
+
+def _test_build(plan: Plan) -> Plan:
+    """The plan up to its colcon build: testing needs no runtime image."""
+    end = next(i for i, step in enumerate(plan.steps) if isinstance(step, ColconBuild))
+    return Plan(plan.workspace, plan.steps[: end + 1], plan.idf_images)
+
+
+def _render(found: dict[str, PackageResults], root: Path, ws_dir: Path) -> None:
+    total = PackageResults("")
+    console.print(Text("test results", style="bold"))
+    for result in found.values():
+        colour = "green" if result.ok and result.tests else "red" if not result.ok else "yellow"
+        counts = (
+            f"{result.tests} tests: {result.passed} passed, {result.failed} failed, "
+            f"{result.errored} errored, {result.skipped} skipped"
+        )
+        console.print(Text.assemble((f"  {result.package}", "bold"), "  ", (counts, colour)))
+        for name in result.failing:
+            console.print(Text(f"    failed: {name}", style="red"))
+        log = ws_dir / "log" / "latest_test" / result.package
+        console.print(Text(f"    log: {log.relative_to(root)}", style="dim"))
+        for path in result.files:
+            console.print(Text(f"    result: {path.relative_to(root)}", style="dim"))
+        if not result.files:
+            console.print(Text("    no result files: the package has no tests colcon could find", style="dim"))
+        total.tests += result.tests
+        total.failed += result.failed
+        total.errored += result.errored
+        total.skipped += result.skipped
+    console.print(
+        f"Summary: {total.tests} tests, {total.passed} passed, {total.failed} failed, "
+        f"{total.errored} errored, {total.skipped} skipped"
+    )
+
+
+def _say_firmware(names: list[str]) -> None:
+    for name in names:
+        console.print(
+            Text(f"  {name}: firmware package, nothing to run in the ROS image (its host tests: plain colcon test)")
+        )

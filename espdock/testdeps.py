@@ -1,0 +1,134 @@
+"""Test dependencies: the packages' test_depend keys, through rosdep and the lock like the others,
+but apart from the build's, and installed only into the image `espdock test` runs in.
+
+rosdep.lock.json keeps them under "test" (same shape as the build's part: keys, apt, pip, its
+own input digest), so a build never installs them and a change to them never makes the build
+image stale. The test image is one layer over the build image: what that part names.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable, Iterable, Mapping
+from pathlib import Path
+
+from espdock import rosdeps
+from espdock.plan import ColconBuild, EnsureImage, ImageSpec, Plan, image_key
+from espdock.system_python import SystemPython
+from espdock.workspace import Package
+
+SECTION = "test"
+# Where the test image keeps what it installs (beside the build image's /opt/espdock/rosdep).
+TEST_DIR = "/opt/espdock/rosdep-test"
+
+
+# The rosdep keys ament's linters name as exec_depend in the package.xml their PyPI wheels carry
+# (0.17.3), which the wheels do not install: on the wheels image they are the linters' own test
+# keys too (the official image's apt packages bring them).
+_FLAKE8 = (
+    "python3-flake8", "python3-flake8-builtins", "python3-flake8-comprehensions", "python3-flake8-docstrings",
+    "python3-flake8-import-order", "python3-flake8-quotes",
+)  # fmt: skip
+WHEELS_OMIT = {
+    "ament_flake8": _FLAKE8,
+    "ament_cmake_flake8": _FLAKE8,
+    "ament_cppcheck": ("cppcheck",),
+    "ament_cmake_cppcheck": ("cppcheck",),
+}
+
+
+def _as_tests(packages: Iterable[Package], image: rosdeps.RosImage | None = None) -> tuple[Package, ...]:
+    """PACKAGES with their test-only dependencies as their dependencies (rosdeps' functions then
+    answer for the tests' keys), with what the wheels of those omit (WHEELS_OMIT)."""
+    wheels = image is not None and image.flavour == "wheels"
+    tested = []
+    for p in packages:
+        keys = set(p.test_only_depends)
+        if wheels:
+            keys.update(k for dep in p.test_only_depends for k in WHEELS_OMIT.get(dep, ()))
+        tested.append(dataclasses.replace(p, depends=frozenset(keys), test_only_depends=frozenset()))
+    return tuple(tested)
+
+
+def keys_for_tests(packages: Iterable[Package], image: rosdeps.RosImage) -> dict[str, tuple[str, ...]]:
+    """Per ROS package: its test_depend keys that are neither workspace packages nor in the image."""
+    return rosdeps.needed_keys(_as_tests(packages, image), image)
+
+
+def lock_test_part(lock: Mapping | None) -> dict | None:
+    """The lock's test part, None when it has none."""
+    part = (lock or {}).get(SECTION)
+    return part if isinstance(part, dict) else None
+
+
+def stale_reason(lock: Mapping | None, packages: Iterable[Package], image: rosdeps.RosImage, name: str) -> str | None:
+    """Why LOCK's test part does not answer for the packages' test keys; None when it does."""
+    needed = keys_for_tests(packages, image)
+    part = lock_test_part(lock)
+    if part is None:
+        return f"{name} has no test dependencies recorded" if needed else None
+    return rosdeps.stale_reason(part, needed, image, f"{name} (its test part)")
+
+
+def resolve(
+    packages: Iterable[Package],
+    image: rosdeps.RosImage,
+    root: Path,
+    env: Mapping[str, str],
+    uv: str,
+    system: Callable[[], SystemPython] | None = None,
+) -> dict:
+    """The lock's test part: rosdep's rules for the test keys, as the image installs them."""
+    part = rosdeps.resolve_workspace(_as_tests(packages, image), image, root, env, uv, system)
+    part.pop("format", None)
+    part["made_by"] = "`espdock lock`: the packages' test_depend keys, installed only by `espdock test`"
+    return part
+
+
+def check_tests(selected: Iterable[Package], lock: Mapping | None, image: rosdeps.RosImage) -> None:
+    """Refuse (exit 2, before anything runs) packages whose test keys neither the image nor the
+    lock's test part provides; on the wheels image the way out names the official one."""
+    selected = tuple(selected)
+    rosdeps.check_dependencies(_as_tests(selected, image), keys_for_tests(selected, image), lock_test_part(lock), image)
+
+
+def image_for_tests(build: ImageSpec, lock: Mapping | None, official: bool) -> ImageSpec | None:
+    """The image `espdock test` builds and runs in: BUILD plus the lock's test part; None when
+    the part installs nothing (the build image then serves)."""
+    files = rosdeps.image_files(lock_test_part(lock))
+    if not any(not line.startswith("#") for data in files.values() for line in data.decode().splitlines()):
+        return None
+    pip_option = " --break-system-packages" if official else ""
+    dockerfile = (
+        f"FROM {build.tag} AS test\n"
+        f"COPY rosdep-test/ {TEST_DIR}/\n"
+        f"RUN --mount=type=secret,id=ca_bundle sh /opt/espdock/rosdep-install.sh {TEST_DIR} python3{pip_option}\n"
+    )
+    context = {"Dockerfile": dockerfile.encode(), **{f"rosdep-test/{n}": d for n, d in files.items()}}
+    key, inputs = image_key({**context, "build": build.key.encode()})
+    return ImageSpec(
+        repository=build.repository.removesuffix("-build") + "-test",
+        key=key,
+        dockerfile="Dockerfile",
+        target="test",
+        build_args=(),
+        inputs=inputs,
+        context=tuple(sorted(context.items())),
+        origin=f"generated: {build.tag} plus the rosdep lock's test dependencies",
+    )
+
+
+def with_test_image(plan: Plan, lock: Mapping | None, official: bool) -> Plan:
+    """PLAN (ending in its colcon build) building in the test image, made right before it."""
+    build = next(step for step in plan.steps if isinstance(step, ColconBuild))
+    base = next(s.spec for s in plan.steps if isinstance(s, EnsureImage) and s.spec.tag == build.image)
+    spec = image_for_tests(base, lock, official)
+    if spec is None:
+        return plan
+    steps = []
+    for step in plan.steps:
+        if step is build:
+            steps += [EnsureImage(spec), dataclasses.replace(build, image=spec.tag)]
+        else:
+            steps.append(step)
+    return Plan(plan.workspace, tuple(steps), plan.idf_images)

@@ -1,0 +1,187 @@
+"""`espdock test`: colcon test of the built packages, and what its test tasks wrote.
+
+colcon's test tasks (pytest for ament_python, CTest with ament_cmake_gtest/pytest and the ament
+linters for ament_cmake) write xUnit (JUnit) XML files under each package's build dir; `colcon
+test-result` counts them by each file's testsuite attributes. Read here the same way, so the
+summary, the collected files (--results) and colcon's own count agree.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from xml.etree.ElementTree import Element, ElementTree, ParseError
+
+from espdock.colcon import check_colcon_args
+from espdock.errors import ConfigError, DependencyError
+
+# Where espdock reads the results: colcon's default (the package's build dir).
+REFUSED_FOR_TEST = {"--test-result-base": "espdock reads the results in build/ of the colcon root"}
+# ROS packages the wheels image cannot give a package's tests: ament's lint packages PyPI lacks
+# (PyPI has ament_flake8, ament_pep257, ament_cppcheck, ament_cpplint, ament_uncrustify,
+# ament_cmake_pytest and ament_cmake_gtest, and their ament_cmake_* wrappers).
+NOT_ON_PYPI = frozenset(
+    {
+        "ament_lint_auto",
+        "ament_lint_common",
+        "ament_copyright",
+        "ament_cmake_copyright",
+        "ament_xmllint",
+        "ament_cmake_xmllint",
+        "ament_lint_cmake",
+        "ament_cmake_lint_cmake",
+    }
+)
+
+
+def check_test_args(args: Iterable[str] | None) -> tuple[str, ...]:
+    """ARGS for `colcon test`, by the rules of `espdock build -- ...` (espdock.colcon), plus what
+    decides where the results go."""
+    checked = check_colcon_args(args)
+    for arg in checked:
+        option = arg.split("=", 1)[0]
+        for refused, why in REFUSED_FOR_TEST.items():
+            if arg.startswith("--") and len(option) > 3 and refused.startswith(option):
+                raise ConfigError(f"colcon option {option} is not allowed after `--`: {why}", "Leave it out.")
+    return checked
+
+
+def check_testable(packages: Mapping[str, frozenset[str]], flavour: str) -> None:
+    """Refuse, before anything runs, packages whose tests need what the FLAVOUR image cannot have
+    (PACKAGES: name -> every dependency its package.xml names)."""
+    if flavour != "wheels":
+        return
+    lines = [
+        f"  {name}: {', '.join(sorted(depends & NOT_ON_PYPI))}"
+        for name, depends in packages.items()
+        if depends & NOT_ON_PYPI
+    ]
+    if lines:
+        raise DependencyError(
+            f"{len(lines)} package(s) have tests that need ament packages PyPI does not carry, so the wheels ROS "
+            "image cannot run them:\n" + "\n".join(lines),
+            'Test them on the official ROS image (ros_image = "official" in espdock.toml), which has ament\'s '
+            "linters; or test other packages (`espdock test PKG...`).",
+        )
+
+
+@dataclass(frozen=True)
+class ColconTest:
+    """colcon test of PACKAGES in IMAGE (the test build's), with the workspace sourced, in the
+    colcon root."""
+
+    image: str
+    packages: tuple[str, ...]
+    sources: tuple[tuple[str, str], ...] = ()
+    colcon_args: tuple[str, ...] = ()
+    defaults_file: str | None = None
+    name: str = "colcon test"
+
+    def argv(self) -> tuple[str, ...]:
+        """The container's command: the options are sh's positional parameters, never shell text."""
+        # Sourced as colcon's own setup script is from sh, which cannot find its own path.
+        script = (
+            'if [ -f install/local_setup.sh ]; then COLCON_CURRENT_PREFIX="$PWD/install"; '
+            "export COLCON_CURRENT_PREFIX; . install/local_setup.sh; unset COLCON_CURRENT_PREFIX; fi; "
+            'exec colcon test "$@"'
+        )
+        return (
+            "sh", "-c", script, "colcon-test",
+            "--base-paths", *(rel for _, rel in self.sources),
+            "--event-handlers", "console_direct+", "console_start_end+", "summary+",
+            "--packages-select", *self.packages, *self.colcon_args,
+        )  # fmt: skip
+
+
+@dataclass
+class PackageResults:
+    """What one package's tests did, as its result files say."""
+
+    package: str
+    tests: int = 0
+    failed: int = 0
+    errored: int = 0
+    skipped: int = 0
+    files: list[Path] = field(default_factory=list)
+    # The failing and erroring test cases, as classname.name.
+    failing: list[str] = field(default_factory=list)
+
+    @property
+    def passed(self) -> int:
+        return self.tests - self.failed - self.errored - self.skipped
+
+    @property
+    def ok(self) -> bool:
+        return not (self.failed or self.errored)
+
+
+def _count(suite: Element, results: PackageResults) -> None:
+    # As colcon-test-result's xunit parser: the suite's attributes, `tests` and `failures` required.
+    counts = {}
+    for attribute in ("tests", "failures", "errors", "skip", "skipped", "disabled"):
+        value = suite.attrib.get(attribute)
+        if value is None and attribute in ("tests", "failures"):
+            raise ValueError(f"no {attribute} attribute")
+        counts[attribute] = int(value or 0)
+    results.tests += counts["tests"]
+    results.failed += counts["failures"]
+    results.errored += counts["errors"]
+    results.skipped += counts["skip"] + counts["skipped"] + counts["disabled"]
+    for case in suite.iter("testcase"):
+        if any(child.tag in ("failure", "error") for child in case):
+            name = ".".join(part for part in (case.attrib.get("classname"), case.attrib.get("name")) if part)
+            results.failing.append(name)
+
+
+def read_results(build_base: Path, packages: Iterable[str]) -> dict[str, PackageResults]:
+    """Each package's results from the xUnit files under BUILD_BASE/<package> (dot dirs skipped)."""
+    found = {}
+    for package in packages:
+        results = PackageResults(package)
+        root = build_base / package
+        for dirpath, dirnames, filenames in os.walk(root):
+            dirnames[:] = sorted(d for d in dirnames if not d.startswith("."))
+            for filename in sorted(f for f in filenames if f.endswith(".xml")):
+                path = Path(dirpath) / filename
+                try:
+                    tree = ElementTree().parse(path)
+                    suites = [tree] if tree.tag == "testsuite" else [s for s in tree if s.tag == "testsuite"]
+                    if tree.tag not in ("testsuite", "testsuites"):
+                        continue
+                    partial = PackageResults(package)
+                    for suite in suites:
+                        _count(suite, partial)
+                except (ParseError, ValueError, OSError):
+                    continue  # not an xUnit file (colcon-test-result skips these too)
+                results.tests += partial.tests
+                results.failed += partial.failed
+                results.errored += partial.errored
+                results.skipped += partial.skipped
+                results.failing += partial.failing
+                results.files.append(path)
+        found[package] = results
+    return found
+
+
+def clear_results(build_base: Path, packages: Iterable[str]) -> None:
+    """Remove the result files an earlier run left for PACKAGES: a test that no longer exists
+    must not be counted again (colcon's pytest step rewrites its file, CTest's tests theirs)."""
+    for package in packages:
+        for path in read_results(build_base, [package])[package].files:
+            path.unlink(missing_ok=True)
+
+
+def collect_results(results: Mapping[str, PackageResults], build_base: Path, destination: Path) -> list[Path]:
+    """Copy every result file into DESTINATION/<package>/, named after its place in the build dir."""
+    written = []
+    for package, result in results.items():
+        for path in result.files:
+            rel = path.relative_to(build_base / package).as_posix().replace("/", "-")
+            target = destination / package / rel
+            target.parent.mkdir(parents=True, exist_ok=True)
+            shutil.copyfile(path, target)
+            written.append(target)
+    return written

@@ -1,0 +1,150 @@
+"""`espdock test` with the real colcon in the real wheels image (and the official image's double):
+packages written as `ros2 pkg create` writes them, with pytest, gtest and lint tests, test
+dependencies through the tests' rosdep database (tests/rosdep_db).
+
+- tested_py (ament_python): `tests_require=['pytest']`, 4 tests that pass or are skipped, one
+  that fails, and ament_flake8's check (test_depend ament_flake8 and python3-pytest, resolved by
+  rosdep into the lock's test part);
+- tested_cpp (ament_cmake): an ament_cmake_gtest test of a header-only ring buffer, no rclcpp;
+- lint_auto_cpp (ament_cmake): the template's `if(BUILD_TESTING) find_package(ament_lint_auto)`.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import shutil
+import subprocess
+import time
+from pathlib import Path
+from xml.etree import ElementTree
+
+import pytest
+
+from espdock.config import Config, resolve_ca_bundle
+from tests.conftest import REPO, Started, containers_created, espdock, leftover_containers
+from tests.ros_official_double.build import build_double, settings
+from tests.rosdep_db import environment
+
+pytestmark = [pytest.mark.engine, pytest.mark.slow]
+
+SUMMARY = re.compile(r"Summary: (\d+) tests, (\d+) errors, (\d+) failures, (\d+) skipped")
+
+
+def make_workspace(root: Path, packages: tuple[str, ...]) -> Path:
+    (root / "src").mkdir(parents=True)
+    for name in packages:
+        shutil.copytree(REPO / "tests/ros_packages" / name, root / "src" / name)
+    (root / "espdock.toml").write_text("[espdock]\n")
+    return root
+
+
+def junit_counts(directory: Path) -> tuple[int, int, int, int]:
+    """tests, failures, errors, skipped over every JUnit file under DIRECTORY, by its suites."""
+    totals = [0, 0, 0, 0]
+    for path in sorted(directory.rglob("*.xml")):
+        root = ElementTree.parse(path).getroot()
+        for suite in [root] if root.tag == "testsuite" else root.findall("testsuite"):
+            skipped = sum(int(suite.get(a, 0)) for a in ("skip", "skipped", "disabled"))
+            for i, value in enumerate((suite.get("tests"), suite.get("failures"), suite.get("errors"), skipped)):
+                totals[i] += int(value)
+    return tuple(totals)
+
+
+def colcon_test_result(root: Path, image: str) -> tuple[int, int, int, int]:
+    """What `colcon test-result` itself counts in ROOT's build/: tests, failures, errors, skipped."""
+    stat = root.stat()
+    run = subprocess.run(
+        ["docker", "run", "--rm", "-u", f"{stat.st_uid}:{stat.st_gid}", "-e", "HOME=/tmp",
+         "-v", f"{root}:/workspace", "-w", "/workspace", image, "colcon", "test-result", "--all"],
+        capture_output=True, text=True, check=False, timeout=120,
+    )  # fmt: skip
+    match = SUMMARY.search(run.stdout)
+    assert match, run.stdout + run.stderr
+    tests, errors, failures, skipped = (int(g) for g in match.groups())
+    return tests, failures, errors, skipped
+
+
+def image_tested_in(output: str) -> str:
+    """The test image `espdock test` named in OUTPUT (the build image plus the test dependencies)."""
+    return re.search(r"espdock/ros-jazzy(?:-official)?-test:[0-9a-f]{16}", output).group(0)
+
+
+def test_build_skips_test_needs_then_test_builds_runs_and_reports_them(tmp_path, engine):
+    root = make_workspace(tmp_path / "w", ("tested_py", "tested_cpp", "lint_auto_cpp"))
+    env = environment(tmp_path)
+
+    # A plain build on the wheels image: the template's ament_lint_auto is not needed (issue 31.4).
+    build = espdock("build", cwd=root, env=env)
+    assert build.returncode == 0, build.stdout[-3000:] + build.stderr
+    assert build.stdout.count("BUILD_TESTING=OFF") == 1, "said once"
+
+    # Its tests need what PyPI lacks: refused before anything runs, the official image named.
+    started = time.time()
+    refused = espdock("test", cwd=root, env=env)
+    assert refused.returncode == 2, refused.stdout[-2000:] + refused.stderr
+    assert "lint_auto_cpp: ament_lint_auto, ament_lint_common" in refused.stderr
+    assert 'ros_image = "official"' in refused.stderr
+    assert containers_created(root, started, time.time()) == []
+
+    # The others: built again with their tests, tested; a failing pytest test is exit code 8.
+    results = tmp_path / "results"
+    tested = espdock("test", "tested_py", "tested_cpp", "--results", str(results), cwd=root, env=env)
+    out = tested.stdout
+    assert tested.returncode == 8, out[-4000:] + tested.stderr
+    assert "test_limits.test_nan_is_clamped_to_zero" in tested.stderr
+    assert "failed: tested_py.test.test_limits.test_nan_is_clamped_to_zero" in out
+    assert "tested_py  6 tests: 4 passed, 1 failed, 0 errored, 1 skipped" in out, out[-3000:]
+    assert "tested_cpp  2 tests: 2 passed, 0 failed, 0 errored, 0 skipped" in out, out[-3000:]
+    assert "Summary: 8 tests, 6 passed, 1 failed, 0 errored, 1 skipped" in out
+    # The test dependencies went through rosdep into the lock's own part, not the build's.
+    lock = json.loads((root / "rosdep.lock.json").read_text())
+    assert lock["test"]["keys"]["ament_flake8"]["packages"] == ["ros-jazzy-ament-flake8"]
+    assert lock["test"]["keys"]["python3-pytest"]["installer"] == "pip"
+    assert "ament_flake8" not in lock["keys"] and not any("flake8" in line for line in lock["pip"])
+    # The JUnit files: one per test task, named by package; they count what colcon counts.
+    files = sorted(p.relative_to(results).as_posix() for p in results.rglob("*.xml"))
+    assert files == ["tested_cpp/test_results-tested_cpp-test_ring_buffer.gtest.xml", "tested_py/pytest.xml"]
+    assert junit_counts(results) == (8, 1, 0, 1)
+    assert colcon_test_result(root, image_tested_in(out)) == (8, 1, 0, 1)
+
+    # Options after `--` reach colcon test; no failure is exit code 0 and no rebuild.
+    again = espdock("test", "tested_py", "--", "--pytest-args", "-k", "not nan", cwd=root, env=env)
+    assert again.returncode == 0, again.stdout[-3000:] + again.stderr
+    assert "tested_py  5 tests: 4 passed, 0 failed, 0 errored, 1 skipped" in again.stdout
+    assert "up to date" in again.stdout
+    assert leftover_containers(engine, root) == []
+
+
+def test_ctrl_c_during_the_tests_exits_130_and_leaves_no_container(tmp_path, engine):
+    root = make_workspace(tmp_path / "w", ("tested_py",))
+    env = environment(tmp_path)
+    assert espdock("test", "--", "--pytest-args", "-k", "not nan", cwd=root, env=env).returncode == 0
+    # Rerun until a failure that never comes: the tests keep running until interrupted.
+    run = Started(root, "test", "--", "--pytest-args", "-k", "not nan", "--retest-until-fail", "500", env=env)
+    code, took = run.interrupt_on("colcon test: tested_py", timeout=300)
+    assert code == 130, run.output()
+    assert took < 15, took
+    assert leftover_containers(engine, root) == []
+
+
+@pytest.fixture(scope="module")
+def official_double(engine) -> dict[str, str]:
+    config = Config()
+    tag = build_double(engine, resolve_ca_bundle(config, os.environ), lambda line: None)
+    return settings(tag)
+
+
+def test_the_official_image_runs_the_lint_and_pytest_tests_as_colcon_does(tmp_path, engine, official_double):
+    root = make_workspace(tmp_path / "w", ("tested_py", "tested_cpp"))
+    env = {**environment(tmp_path), **official_double}
+    build = espdock("build", cwd=root, env=env)
+    assert build.returncode == 0, build.stdout[-3000:] + build.stderr
+    assert "BUILD_TESTING=OFF" not in build.stdout, "the official image builds as colcon does"
+    tested = espdock("test", "--", "--pytest-args", "-k", "not nan", cwd=root, env=env)
+    assert tested.returncode == 0, tested.stdout[-4000:] + tested.stderr
+    assert "tested_py  5 tests: 4 passed, 0 failed, 0 errored, 1 skipped" in tested.stdout
+    assert "tested_cpp  2 tests: 2 passed" in tested.stdout
+    lock = json.loads((root / "rosdep.lock.json").read_text())
+    assert lock["test"]["keys"]["ament_flake8"] == {"installer": "apt", "packages": ["ros-jazzy-ament-flake8"]}

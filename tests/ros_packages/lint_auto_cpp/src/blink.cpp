@@ -1,0 +1,7 @@
+#include <cstdio>
+
+int main()
+{
+  std::printf("blink\n");
+  return 0;
+}

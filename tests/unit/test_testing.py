@@ -1,0 +1,109 @@
+"""`espdock test` without colcon: its options, the refusals before anything runs, reading and
+collecting result files, and the test image made from the lock's test part."""
+
+from __future__ import annotations
+
+import pytest
+
+from espdock.errors import ConfigError, DependencyError
+from espdock.plan import ColconBuild, EnsureImage, ImageSpec, Plan
+from espdock.testdeps import image_for_tests, with_test_image
+from espdock.testing import ColconTest, check_test_args, check_testable, collect_results, read_results
+from espdock.workspace import Workspace
+
+PYTEST_XML = """<?xml version="1.0" encoding="utf-8"?><testsuites><testsuite name="pytest" errors="0" failures="1"
+skipped="1" tests="4" time="0.1"><testcase classname="p.test.test_a" name="test_ok" time="0.001"/><testcase
+classname="p.test.test_a" name="test_bad" time="0.001"><failure message="assert 1 == 0">x</failure></testcase>
+<testcase classname="p.test.test_a" name="test_later"><skipped message="later"/></testcase><testcase
+classname="p.test.test_a" name="test_two"/></testsuite></testsuites>"""
+GTEST_XML = """<?xml version="1.0" encoding="UTF-8"?><testsuites tests="2" failures="0" disabled="0" errors="0"
+name="AllTests"><testsuite name="Ring" tests="2" failures="0" disabled="0" skipped="0" errors="0"><testcase
+name="a" status="run" classname="Ring"/><testcase name="b" status="run" classname="Ring"/></testsuite></testsuites>"""
+
+
+def test_colcon_test_options_follow_builds_rules_and_results_stay_where_espdock_reads_them():
+    assert check_test_args(("--pytest-args", "-k", "fast", "--retest-until-fail", "3")) == (
+        "--pytest-args", "-k", "fast", "--retest-until-fail", "3",
+    )  # fmt: skip
+    for refused in ("--test-result-base", "--test-result-b=x", "--build-base", "--packages-select", "--event-handlers"):
+        with pytest.raises(ConfigError):
+            check_test_args((refused, "x"))
+    with pytest.raises(ConfigError, match="nothing after"):
+        check_test_args(())
+
+
+def test_tests_that_need_what_pypi_lacks_are_refused_on_the_wheels_image_only():
+    needs = {"cpp": frozenset({"ament_cmake", "ament_lint_auto", "ament_lint_common"}), "py": frozenset({"pytest"})}
+    with pytest.raises(DependencyError) as err:
+        check_testable(needs, "wheels")
+    assert "cpp: ament_lint_auto, ament_lint_common" in err.value.message and "py" not in err.value.message
+    assert 'ros_image = "official"' in err.value.hint
+    check_testable(needs, "official")
+    check_testable({"py": frozenset({"ament_flake8", "ament_cmake_gtest"})}, "wheels")
+
+
+def test_colcon_test_gets_the_options_as_arguments_not_shell_text():
+    step = ColconTest(image="i", packages=("a", "b"), sources=(("a", "src/a"), ("b", "src/b")),
+                      colcon_args=("--pytest-args", "-k", "x; rm -rf /"))  # fmt: skip
+    argv = step.argv()
+    assert argv[:2] == ("sh", "-c") and "x; rm" not in argv[2]
+    assert argv[argv.index("--packages-select") :] == (
+        "--packages-select",
+        "a",
+        "b",
+        "--pytest-args",
+        "-k",
+        "x; rm -rf /",
+    )
+
+
+def test_results_are_counted_as_colcon_test_result_counts_and_collected_by_package(tmp_path):
+    build = tmp_path / "build"
+    (build / "p").mkdir(parents=True)
+    (build / "p" / "pytest.xml").write_text(PYTEST_XML)
+    gtests = build / "c" / "test_results" / "c"
+    gtests.mkdir(parents=True)
+    (gtests / "test_ring.gtest.xml").write_text(GTEST_XML)
+    (build / "c" / "CMakeFiles").mkdir()
+    (build / "c" / "CMakeFiles" / "other.xml").write_text("<project/>")  # not xUnit: left out
+    (build / "c" / ".hidden").mkdir()
+    (build / "c" / ".hidden" / "old.xml").write_text(GTEST_XML)  # dot dirs: skipped, as colcon does
+    found = read_results(build, ("p", "c", "none"))
+    p, c = found["p"], found["c"]
+    assert (p.tests, p.passed, p.failed, p.errored, p.skipped) == (4, 2, 1, 0, 1)
+    assert p.failing == ["p.test.test_a.test_bad"] and not p.ok
+    assert (c.tests, c.passed, c.ok) == (2, 2, True) and [f.name for f in c.files] == ["test_ring.gtest.xml"]
+    assert found["none"].files == [] and found["none"].tests == 0
+    written = collect_results(found, build, tmp_path / "results")
+    assert sorted(w.relative_to(tmp_path / "results").as_posix() for w in written) == [
+        "c/test_results-c-test_ring.gtest.xml",
+        "p/pytest.xml",
+    ]
+
+
+def spec(repository: str, key: str) -> ImageSpec:
+    return ImageSpec(repository=repository, key=key, dockerfile="Dockerfile.ros", target="build", build_args=())
+
+
+def test_the_test_dependencies_go_into_an_image_of_their_own_over_the_build_image(tmp_path):
+    build = spec("espdock/ros-jazzy-build", "b" * 64)
+    lock = {"test": {"apt": [], "pip": ["ros-jazzy-ament-flake8==0.17.3 --hash=sha256:00"], "keys": {}}}
+    image = image_for_tests(build, lock, official=False)
+    assert image.repository == "espdock/ros-jazzy-test"
+    dockerfile = dict(image.context)["Dockerfile"].decode()
+    assert dockerfile.startswith(f"FROM {build.tag} AS test") and "--break-system-packages" not in dockerfile
+    assert b"ros-jazzy-ament-flake8" in dict(image.context)["rosdep-test/pip.txt"]
+    assert image_for_tests(spec("espdock/ros-jazzy-build", "c" * 64), lock, False).key != image.key, "keyed by the base"
+    assert image_for_tests(build, {"test": {"apt": [], "pip": []}}, False) is None, "nothing to add: the build image"
+    assert image_for_tests(build, None, False) is None
+    official = image_for_tests(build, {"test": {"apt": ["python3-pytest"], "pip": []}}, official=True)
+    assert (
+        "apt.txt" in str(official.context)
+        and "--break-system-packages" in dict(official.context)["Dockerfile"].decode()
+    )
+    colcon = ColconBuild(image=build.tag, packages=("p",))
+    plan = Plan(Workspace(tmp_path), (EnsureImage(build), colcon))
+    tested = with_test_image(plan, lock, official=False)
+    assert [type(s).__name__ for s in tested.steps] == ["EnsureImage", "EnsureImage", "ColconBuild"]
+    assert tested.steps[-1].image == image.tag and tested.steps[1].spec == image
+    assert with_test_image(plan, None, official=False) == plan

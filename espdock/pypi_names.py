@@ -18,6 +18,8 @@ PYPI_PROJECT = {
     "python3-click": "click",
     "python3-defusedxml": "defusedxml",
     "python3-docker": "docker",
+    # ament_flake8's docstring checks (its package.xml's exec_depend).
+    "python3-flake8-docstrings": "flake8-docstrings",
     "python3-flask": "Flask",
     "python3-gnupg": "python-gnupg",
     "python3-jinja2": "Jinja2",

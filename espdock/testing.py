@@ -2,8 +2,11 @@
 
 colcon's test tasks (pytest for ament_python, CTest with ament_cmake_gtest/pytest and the ament
 linters for ament_cmake) write xUnit (JUnit) XML files under each package's build dir; `colcon
-test-result` counts them by each file's testsuite attributes. Read here the same way, so the
-summary, the collected files (--results) and colcon's own count agree.
+test-result` counts them by each file's testsuite attributes (colcon-test-result's xunit
+parser), plus each CMake package's latest CTest Test.xml (colcon-cmake's ctest parser: one test
+per CTest test, which for ament_cmake wraps a gtest executable or a linter). Read here the same
+way, so the summary is colcon's count; --results collects the JUnit files only, so they count
+colcon's count less the CTest entries.
 """
 
 from __future__ import annotations
@@ -108,6 +111,9 @@ class PackageResults:
     files: list[Path] = field(default_factory=list)
     # The failing and erroring test cases, as classname.name.
     failing: list[str] = field(default_factory=list)
+    # The CTest results file counted besides (not JUnit), and how many tests it counted.
+    ctest_file: Path | None = None
+    ctest_tests: int = 0
 
     @property
     def passed(self) -> int:
@@ -162,8 +168,34 @@ def read_results(build_base: Path, packages: Iterable[str]) -> dict[str, Package
                 results.skipped += partial.skipped
                 results.failing += partial.failing
                 results.files.append(path)
+        _count_ctest(root, results)
         found[package] = results
     return found
+
+
+def _count_ctest(root: Path, results: PackageResults) -> None:
+    """Add the latest CTest Test.xml under ROOT (Testing/TAG names it), as colcon-cmake counts it."""
+    tag = root / "Testing" / "TAG"
+    try:
+        latest = root / "Testing" / tag.read_text().splitlines()[0] / "Test.xml"
+        site = ElementTree().parse(latest)
+    except (OSError, IndexError, ParseError):
+        return
+    children = list(site)
+    if site.tag != "Site" or len(children) != 1 or children[0].tag != "Testing":
+        return
+    tests = [child for child in children[0] if child.tag == "Test"]
+    for test in tests:
+        status = test.attrib.get("Status")
+        if status == "failed":
+            results.failed += 1
+            results.failing.append(f"ctest {test.findtext('Name')}")
+        elif status == "notrun":
+            results.skipped += 1
+        elif status != "passed":
+            results.errored += 1
+    results.tests += len(tests)
+    results.ctest_file, results.ctest_tests = latest, len(tests)
 
 
 def clear_results(build_base: Path, packages: Iterable[str]) -> None:

@@ -157,7 +157,10 @@ def _render(found: dict[str, PackageResults], root: Path, ws_dir: Path) -> None:
         console.print(Text(f"    log: {log.relative_to(root)}", style="dim"))
         for path in result.files:
             console.print(Text(f"    result: {path.relative_to(root)}", style="dim"))
-        if not result.files:
+        if result.ctest_file is not None:
+            where = result.ctest_file.relative_to(root)
+            console.print(Text(f"    ctest: {where} ({result.ctest_tests} of the tests)", style="dim"))
+        if not result.files and result.ctest_file is None:
             console.print(Text("    no result files: the package has no tests colcon could find", style="dim"))
         total.tests += result.tests
         total.failed += result.failed

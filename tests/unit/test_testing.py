@@ -107,3 +107,21 @@ def test_the_test_dependencies_go_into_an_image_of_their_own_over_the_build_imag
     assert [type(s).__name__ for s in tested.steps] == ["EnsureImage", "EnsureImage", "ColconBuild"]
     assert tested.steps[-1].image == image.tag and tested.steps[1].spec == image
     assert with_test_image(plan, None, official=False) == plan
+
+
+CTEST_XML = """<?xml version="1.0" encoding="UTF-8"?><Site Name="x"><Testing><TestList/><Test Status="passed">
+<Name>test_ring</Name></Test><Test Status="failed"><Name>cppcheck</Name></Test></Testing></Site>"""
+
+
+def test_the_latest_ctest_file_counts_as_colcon_cmake_counts_it_but_is_not_collected(tmp_path):
+    build = tmp_path / "build"
+    testing = build / "c" / "Testing"
+    (testing / "20260101-0000").mkdir(parents=True)
+    (testing / "20260101-0000" / "Test.xml").write_text(CTEST_XML)
+    (testing / "19990101-0000").mkdir()
+    (testing / "19990101-0000" / "Test.xml").write_text(CTEST_XML.replace('"failed"', '"passed"'))
+    (testing / "TAG").write_text("20260101-0000\nExperimental\n")
+    c = read_results(build, ("c",))["c"]
+    assert (c.tests, c.passed, c.failed, c.ctest_tests) == (2, 1, 1, 2)
+    assert c.failing == ["ctest cppcheck"] and c.files == [], "the latest only, and not a JUnit file"
+    assert collect_results({"c": c}, build, tmp_path / "results") == []

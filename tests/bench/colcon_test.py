@@ -77,7 +77,7 @@ def main() -> None:
                 a_times.append(a)
                 b_times.append(b)
         last = subprocess.run(espdock, cwd=root, env=env, capture_output=True, text=True, check=False)
-        summary = re.search(r"Summary: .*", last.stdout).group(0)
+        summary = re.search(r"Summary: \d+ tests.*", last.stdout).group(0)
         tests, failures, errors, skipped = junit_counts(Path(tmp) / "results")
     a, b = statistics.median(a_times), statistics.median(b_times)
     print(f"colcon test of 5 built packages (1 ament_cmake, 4 ament_python), {args.runs} runs each, alternating")

@@ -125,3 +125,19 @@ def test_the_latest_ctest_file_counts_as_colcon_cmake_counts_it_but_is_not_colle
     assert (c.tests, c.passed, c.failed, c.ctest_tests) == (2, 1, 1, 2)
     assert c.failing == ["ctest cppcheck"] and c.files == [], "the latest only, and not a JUnit file"
     assert collect_results({"c": c}, build, tmp_path / "results") == []
+
+
+def test_cli_refuses_bad_input_before_any_engine(tmp_path):
+    from tests.conftest import copy_workspace, espdock
+
+    root = copy_workspace(tmp_path / "w", packages=(), test_packages=("tested_py", "lint_auto_cpp"))
+    no_engine = {"DOCKER_HOST": "unix:///nonexistent/docker.sock"}
+    for args, said in (
+        (("test", "nosuch"), "no package named nosuch"),
+        (("test", "tested_py", "--", "--test-result-base", "x"), "--test-result-base"),
+        (("test", "tested_py", "--"), "nothing after `--`"),
+        (("test",), "lint_auto_cpp: ament_lint_auto, ament_lint_common"),
+    ):
+        result = espdock(*args, cwd=root, env=no_engine)
+        assert result.returncode == 2, (args, result.stdout, result.stderr)
+        assert said in result.stderr and "Traceback" not in result.stderr

@@ -90,19 +90,6 @@ class EspIdfBuildTask(TaskExtensionPoint):
         return completed.returncode
 
 
-# <export><espdock_host_tests>DIR</espdock_host_tests></export>: a CMake project of host tests
-# (firmware logic compiled with the host's compiler), relative to the package.
-HOST_TESTS_TAG = "espdock_host_tests"
-
-
-def host_tests_dir(package_dir: Path) -> Path | None:
-    """The host tests a firmware package's package.xml declares, None when it declares none."""
-    from catkin_pkg.package import parse_package
-
-    exports = {e.tagname: (e.content or "").strip() for e in parse_package(str(package_dir / "package.xml")).exports}
-    return package_dir / exports[HOST_TESTS_TAG] if exports.get(HOST_TESTS_TAG) else None
-
-
 class EspIdfTestTask(TaskExtensionPoint):
     """`colcon test` of a firmware package: its host tests (CMake and CTest, JUnit results where
     `colcon test-result` finds them) when it declares them; else nothing to run, and no warning."""
@@ -112,6 +99,8 @@ class EspIdfTestTask(TaskExtensionPoint):
         satisfies_version(TaskExtensionPoint.EXTENSION_POINT_VERSION, "^1.0")
 
     async def test(self, *, additional_hooks=None) -> int:
+        from espdock.testing import HOST_TESTS_TAG, host_tests_dir
+
         pkg = self.context.pkg
         source = host_tests_dir(Path(pkg.path).resolve())
         if source is None:

@@ -40,6 +40,19 @@ NOT_ON_PYPI = frozenset(
 )
 
 
+# <export><espdock_host_tests>DIR</espdock_host_tests></export> in a firmware package: a CMake
+# project of host tests (its logic built with the host's compiler), relative to the package.
+HOST_TESTS_TAG = "espdock_host_tests"
+
+
+def host_tests_dir(package_dir: Path) -> Path | None:
+    """The host tests a firmware package's package.xml declares, None when it declares none."""
+    from catkin_pkg.package import parse_package
+
+    exports = {e.tagname: (e.content or "").strip() for e in parse_package(str(package_dir / "package.xml")).exports}
+    return package_dir / exports[HOST_TESTS_TAG] if exports.get(HOST_TESTS_TAG) else None
+
+
 def check_test_args(args: Iterable[str] | None) -> tuple[str, ...]:
     """ARGS for `colcon test`, by the rules of `espdock build -- ...` (espdock.colcon), plus what
     decides where the results go."""

@@ -19,16 +19,18 @@ from espdock.lock import current_test_inputs
 from espdock.plan import ColconBuild, Plan, ros_image
 from espdock.runner import Runner
 from espdock.testing import (
+    HOST_TESTS_TAG,
     ColconTest,
     PackageResults,
     check_test_args,
     check_testable,
     clear_results,
     collect_results,
+    host_tests_dir,
     read_results,
 )
 from espdock.ui import Reporter
-from espdock.workspace import PackageKind, read_build_inputs
+from espdock.workspace import Package, PackageKind, read_build_inputs
 
 
 @app.command(cls=PassThrough)
@@ -71,7 +73,7 @@ def test(
         raise WorkspaceError(f"no package named {', '.join(unknown)} in the workspace", "See `espdock list`.")
     chosen = [by_name[n] for n in packages] if packages else list(every)
     ros = [p for p in chosen if p.kind is PackageKind.ROS]
-    firmware = [p.name for p in chosen if p.kind is PackageKind.FIRMWARE]
+    firmware = [p for p in chosen if p.kind is PackageKind.FIRMWARE]
     official = config.ros_image == "official"
     check_testable({p.name: p.depends for p in ros}, "official" if official else "wheels")
     if not ros:
@@ -172,8 +174,12 @@ def _render(found: dict[str, PackageResults], root: Path, ws_dir: Path) -> None:
     )
 
 
-def _say_firmware(names: list[str]) -> None:
-    for name in names:
-        console.print(
-            Text(f"  {name}: firmware package, nothing to run in the ROS image (its host tests: plain colcon test)")
+def _say_firmware(packages: list[Package]) -> None:
+    for package in packages:
+        host = host_tests_dir(package.path)
+        said = (
+            f"its host tests ({host.relative_to(package.path)}) run under plain `colcon test`"
+            if host is not None
+            else f"it declares no host tests ({HOST_TESTS_TAG})"
         )
+        console.print(Text(f"  {package.name}: firmware package, nothing to run in the ROS image; {said}"))

@@ -141,3 +141,19 @@ def test_cli_refuses_bad_input_before_any_engine(tmp_path):
         result = espdock(*args, cwd=root, env=no_engine)
         assert result.returncode == 2, (args, result.stdout, result.stderr)
         assert said in result.stderr and "Traceback" not in result.stderr
+
+
+def test_a_firmware_package_has_nothing_to_run_in_the_ros_image_and_its_host_tests_are_named(tmp_path):
+    import shutil
+
+    from tests.conftest import REPO, copy_workspace, espdock
+
+    root = copy_workspace(tmp_path / "w", packages=())
+    for package in (REPO / "tests/firmware_packages/blink_fw", REPO / "firmware/led_strip_node"):
+        shutil.copytree(package, root / "firmware" / package.name)
+    result = espdock("test", "blink_fw", "led_strip_node", cwd=root, env={"DOCKER_HOST": "unix:///nonexistent"})
+    assert result.returncode == 0, result.stdout + result.stderr
+    assert "blink_fw: firmware package, nothing to run in the ROS image; its host tests (test/host)" in result.stdout
+    assert "led_strip_node: firmware package, nothing to run in the ROS image; it declares no host tests" in (
+        result.stdout
+    )

@@ -20,9 +20,10 @@ from xml.etree.ElementTree import Element, ElementTree, ParseError
 
 from espdock.colcon import check_colcon_args
 from espdock.errors import ConfigError, DependencyError
+from espdock.layout import ROS_BUILD_BASE
 
 # Where espdock reads the results: colcon's default (the package's build dir).
-REFUSED_FOR_TEST = {"--test-result-base": "espdock reads the results in build/ of the colcon root"}
+REFUSED_FOR_TEST = {"--test-result-base": f"espdock reads the results in {ROS_BUILD_BASE}/ of the colcon root"}
 # ROS packages the wheels image cannot give a package's tests: ament's lint packages PyPI lacks
 # (PyPI has ament_flake8, ament_pep257, ament_cppcheck, ament_cpplint, ament_uncrustify,
 # ament_cmake_pytest and ament_cmake_gtest, and their ament_cmake_* wrappers).
@@ -106,7 +107,7 @@ class ColconTest:
         )
         return (
             "sh", "-c", script, "colcon-test",
-            "--base-paths", *(rel for _, rel in self.sources),
+            "--base-paths", *(rel for _, rel in self.sources), "--build-base", ROS_BUILD_BASE,
             "--event-handlers", "console_direct+", "console_start_end+", "summary+",
             "--packages-select", *self.packages, *self.colcon_args,
         )  # fmt: skip

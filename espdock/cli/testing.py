@@ -14,7 +14,7 @@ from espdock.cli.core import PASSED, PassThrough, WorkspaceOption, app, build_pl
 from espdock.cli.core import workspace_packages as discover
 from espdock.config import invoking_user
 from espdock.errors import ConfigError, TestsFailed, WorkspaceError
-from espdock.layout import ROSDEP_LOCK
+from espdock.layout import ROS_BUILD_BASE, ROSDEP_LOCK
 from espdock.lock import current_test_inputs
 from espdock.plan import ColconBuild, Plan, ros_image
 from espdock.runner import Runner
@@ -104,7 +104,7 @@ def test(
         runner.run(plan)
     finally:
         reporter.close()
-    build_base = ws.ws_dir / "build"
+    build_base = ws.ws_dir / ROS_BUILD_BASE
     clear_results(build_base, names)
     output: list[str] = []
 

@@ -27,6 +27,7 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(REPO))
 
+from espdock.layout import ROS_BUILD_BASE  # noqa: E402
 from tests.integration.test_testing import junit_counts  # noqa: E402
 from tests.rosdep_db import environment  # noqa: E402
 
@@ -69,7 +70,7 @@ def main() -> None:
         image = re.search(r"espdock/ros-jazzy-test:[0-9a-f]{16}", first.stdout).group(0)
         bare = ["docker", "run", "--rm", "-v", f"{root}:/workspace", "-w", "/workspace",
                 "--user", f"{os.getuid()}:{os.getgid()}", "-e", "HOME=/tmp", image,
-                "colcon", "test", "--base-paths", "src"]  # fmt: skip
+                "colcon", "test", "--base-paths", "src", "--build-base", ROS_BUILD_BASE]  # fmt: skip
         a_times, b_times = [], []
         for run in range(args.runs + 1):
             a, b = timed(espdock, root, env=env), timed(bare, root)

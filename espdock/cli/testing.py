@@ -59,7 +59,7 @@ def test(
     workspace: WorkspaceOption = None,
 ) -> None:
     """Build what needs building with the packages' tests, run `colcon test` in the build image, and
-    summarise the results per package. Exit code 8 when a test fails or errors.
+    summarise the results per package. Exit code 10 when a test fails or errors.
 
     Options after `--` go to `colcon test` (e.g. `espdock test -- --pytest-args -k fast`)."""
     from espdock import bootstrap

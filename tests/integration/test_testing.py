@@ -88,11 +88,11 @@ def test_build_skips_test_needs_then_test_builds_runs_and_reports_them(tmp_path,
     assert 'ros_image = "official"' in refused.stderr
     assert containers_created(root, started, time.time()) == []
 
-    # The others: built again with their tests, tested; a failing pytest test is exit code 8.
+    # The others: built again with their tests, tested; a failing pytest test is exit code 10.
     results = tmp_path / "results"
     tested = espdock("test", "tested_py", "tested_cpp", "--results", str(results), cwd=root, env=env)
     out = tested.stdout
-    assert tested.returncode == 8, out[-4000:] + tested.stderr
+    assert tested.returncode == 10, out[-4000:] + tested.stderr
     assert "test_limits.test_nan_is_clamped_to_zero" in tested.stderr
     assert "failed: tested_py.test.test_limits.test_nan_is_clamped_to_zero" in out
     assert "tested_py  6 tests: 4 passed, 1 failed, 0 errored, 1 skipped" in out, out[-3000:]

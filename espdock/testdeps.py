@@ -15,6 +15,7 @@ from pathlib import Path
 from espdock import rosdeps
 from espdock.plan import ColconBuild, EnsureImage, ImageSpec, Plan, image_key
 from espdock.system_python import SystemPython
+from espdock.testing import NOT_ON_PYPI
 from espdock.workspace import Package
 
 SECTION = "test"
@@ -46,6 +47,9 @@ def _as_tests(packages: Iterable[Package], image: rosdeps.RosImage | None = None
         keys = set(p.test_only_depends)
         if wheels:
             keys.update(k for dep in p.test_only_depends for k in WHEELS_OMIT.get(dep, ()))
+            # No wheel exists for these: `espdock test` refuses their packages before anything
+            # runs (testing.check_testable), so they must not fail the lock of everyone else.
+            keys -= NOT_ON_PYPI
         tested.append(dataclasses.replace(p, depends=frozenset(keys), test_only_depends=frozenset()))
     return tuple(tested)
 

@@ -956,7 +956,7 @@ def test_bad_provisioning_input_is_refused_and_the_board_is_left_alone(fw_ws, do
         "password is 7 characters": ("--wifi-ssid", "lab", "--wifi-password-file", str(short), "--agent", "10.0.0.2:1"),
         "not an IPv4 address": ("--wifi-ssid", "lab", "--wifi-password-file", "/dev/null", "--agent", "agent.lan:8888"),
         "port '70000' is not 1..65535": ("--wifi-ssid", "lab", "--agent", "10.0.0.2:70000"),
-        "domain id 233": (*good, "--domain-id", "233"),
+        "domain id '233' is not 0..232": (*good, "--domain-id", "233"),
         "no terminal to ask on": ("--wifi-ssid", "lab", "--agent", "10.0.0.2:8888"),
     }
     for message, options in cases.items():

@@ -89,6 +89,8 @@ def test(
             continue
         console.print(Text(f"host tests: {package.name}", style="bold"))
         failed = run_host_tests(package.name, package.path, host_base, lambda line: console.print(Text(line)))
+        if os.geteuid() == 0:
+            _give_back(host_base, invoking_user(os.environ, ws.root))
         if failed:
             raise TestsFailed(
                 f"the host tests of {package.name} did not build or run (exit code {failed}); their output is above",
@@ -164,6 +166,12 @@ def _test_ros(ws, config, every, ros, colcon_args, locked, official, verbose, ti
             "Check the colcon options after `--`; nothing was tested.",
         )
     return found, code
+
+
+def _give_back(base: Path, owner: tuple[int, int]) -> None:
+    """Hand what the host tests wrote (run as root, e.g. under sudo) to the workspace's user."""
+    for path in (base.parent, base, *base.rglob("*")):
+        os.chown(path, *owner, follow_symlinks=False)
 
 
 def _test_build(plan: Plan) -> Plan:

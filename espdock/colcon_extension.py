@@ -99,7 +99,7 @@ class EspIdfTestTask(TaskExtensionPoint):
         satisfies_version(TaskExtensionPoint.EXTENSION_POINT_VERSION, "^1.0")
 
     async def test(self, *, additional_hooks=None) -> int:
-        from espdock.testing import HOST_TESTS_TAG, host_tests_dir
+        from espdock.testing import HOST_TESTS_TAG, host_test_steps, host_tests_dir, host_tests_failed
 
         pkg = self.context.pkg
         source = host_tests_dir(Path(pkg.path).resolve())
@@ -111,18 +111,12 @@ class EspIdfTestTask(TaskExtensionPoint):
         build = Path(self.context.args.build_base) / "host_tests"
         junit = Path(self.context.args.build_base) / "test_results" / pkg.name / "host_tests.xml"
         junit.parent.mkdir(parents=True, exist_ok=True)
-        steps = (
-            ("cmake", "-S", str(source), "-B", str(build)),
-            ("cmake", "--build", str(build)),
-            ("ctest", "--test-dir", str(build), "--output-on-failure", "--output-junit", str(junit)),
-        )
-        for argv in steps:
+        for argv in host_test_steps(source, build, junit):
             self.progress(argv[0])
             completed = await run(self.context, list(argv), cwd=str(source))
-            if completed.returncode:
-                # A test that fails is a result (in the JUnit file), as colcon's ctest step has it.
-                if argv[0] == "ctest" and junit.is_file():
+            failed = host_tests_failed(argv, completed.returncode, junit)
+            if failed is not None:
+                if not failed:
                     self.context.put_event_into_queue(TestFailure(pkg.name))
-                    return 0
-                return completed.returncode
+                return completed.returncode if failed else 0
         return 0

@@ -13,7 +13,8 @@ from __future__ import annotations
 
 import os
 import shutil
-from collections.abc import Iterable, Mapping
+import subprocess
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from xml.etree.ElementTree import Element, ElementTree, ParseError
@@ -52,6 +53,59 @@ def host_tests_dir(package_dir: Path) -> Path | None:
 
     exports = {e.tagname: (e.content or "").strip() for e in parse_package(str(package_dir / "package.xml")).exports}
     return package_dir / exports[HOST_TESTS_TAG] if exports.get(HOST_TESTS_TAG) else None
+
+
+# Where `espdock test` builds a firmware package's host tests and writes their results, per package
+# (as colcon's build base has it: <package>/host_tests, <package>/test_results/<package>/).
+HOST_TESTS_BASE = "build/espdock-host-tests"
+
+
+def host_test_steps(source: Path, build: Path, junit: Path) -> tuple[tuple[str, ...], ...]:
+    """The commands that build SOURCE's host tests in BUILD and run them, JUnit results in JUNIT:
+    the same for `espdock test` and the colcon extension's test task."""
+    return (
+        ("cmake", "-S", str(source), "-B", str(build)),
+        ("cmake", "--build", str(build)),
+        ("ctest", "--test-dir", str(build), "--output-on-failure", "--output-junit", str(junit)),
+    )
+
+
+def host_tests_failed(argv: tuple[str, ...], code: int, junit: Path) -> bool | None:
+    """After a step of host_test_steps: None to go on, False when a test failed (a result, in the
+    JUnit file, as colcon's ctest step has it), True when the tests could not run."""
+    if code == 0:
+        return None
+    return not (argv[0] == "ctest" and junit.is_file())
+
+
+def run_host_tests(name: str, package_dir: Path, base: Path, on_line: Callable[[str], None]) -> int | None:
+    """Build and run package NAME's (in PACKAGE_DIR) declared host tests under BASE/<package> with the host's CMake and
+    compiler, as plain `colcon test` does; None when it declares none, else the failing step's exit
+    code when they could not run (0 when they ran, passing or not: the JUnit file says)."""
+    source = host_tests_dir(package_dir)
+    if source is None:
+        return None
+    build, junit = base / name / "host_tests", base / name / "test_results" / name / "host_tests.xml"
+    junit.unlink(missing_ok=True)
+    junit.parent.mkdir(parents=True, exist_ok=True)
+    for argv in host_test_steps(source, build, junit):
+        try:
+            process = subprocess.Popen(
+                argv, cwd=source, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, errors="replace"
+            )
+        except FileNotFoundError:
+            raise DependencyError(
+                f"{argv[0]} is not installed: the host tests of {name} ({source}) need CMake and a C/C++ compiler",
+                "Install cmake and g++ (apt install cmake g++), or test other packages (`espdock test PKG...`).",
+            ) from None
+        assert process.stdout is not None
+        for line in process.stdout:
+            on_line(line.rstrip("\n"))
+        code = process.wait()
+        failed = host_tests_failed(argv, code, junit)
+        if failed is not None:
+            return code if failed else 0
+    return 0
 
 
 def check_test_args(args: Iterable[str] | None) -> tuple[str, ...]:

@@ -19,6 +19,7 @@ from espdock.lock import current_test_inputs
 from espdock.plan import ColconBuild, Plan, ros_image
 from espdock.runner import Runner
 from espdock.testing import (
+    HOST_TESTS_BASE,
     HOST_TESTS_TAG,
     ColconTest,
     PackageResults,
@@ -28,6 +29,7 @@ from espdock.testing import (
     collect_results,
     host_tests_dir,
     read_results,
+    run_host_tests,
 )
 from espdock.ui import Reporter
 from espdock.workspace import Package, PackageKind, read_build_inputs
@@ -58,12 +60,11 @@ def test(
     ] = None,
     workspace: WorkspaceOption = None,
 ) -> None:
-    """Build what needs building with the packages' tests, run `colcon test` in the build image, and
-    summarise the results per package. Exit code 10 when a test fails or errors.
+    """Build what needs building with the packages' tests, run `colcon test` in the build image and
+    the host tests firmware packages declare, and summarise the results per package. Exit code 10
+    when a test fails or errors.
 
     Options after `--` go to `colcon test` (e.g. `espdock test -- --pytest-args -k fast`)."""
-    from espdock import bootstrap
-
     ws, config = load(workspace)
     colcon_args = check_test_args(ctx.meta.get(PASSED))
     locked = locked if locked is not None else os.environ.get("CI", "").lower() == "true"
@@ -76,9 +77,52 @@ def test(
     firmware = [p for p in chosen if p.kind is PackageKind.FIRMWARE]
     official = config.ros_image == "official"
     check_testable({p.name: p.depends for p in ros}, "official" if official else "wheels")
-    if not ros:
-        _say_firmware(firmware)
-        return
+    found: dict[str, PackageResults] = {}
+    logs: dict[str, Path] = {}
+    code = 0
+    if ros:
+        found, code = _test_ros(ws, config, every, ros, colcon_args, locked, official, verbose, timestamps)
+        logs = {name: ws.ws_dir / "log" / "latest_test" / name for name in found}
+    host_base = ws.ws_dir / HOST_TESTS_BASE
+    for package in firmware:
+        if host_tests_dir(package.path) is None:
+            continue
+        console.print(Text(f"host tests: {package.name}", style="bold"))
+        failed = run_host_tests(package.name, package.path, host_base, lambda line: console.print(Text(line)))
+        if os.geteuid() == 0:
+            _give_back(host_base, invoking_user(os.environ, ws.root))
+        if failed:
+            raise TestsFailed(
+                f"the host tests of {package.name} did not build or run (exit code {failed}); their output is above",
+                f"Fix {host_tests_dir(package.path).relative_to(package.path)} and run `espdock test` again.",
+            )
+        found |= read_results(host_base, [package.name])
+        logs[package.name] = host_base / package.name / "host_tests" / "Testing" / "Temporary" / "LastTest.log"
+    if found:
+        _render(found, ws.root, logs)
+    _say_firmware(firmware)
+    if results is not None:
+        on_host = {p.name for p in firmware}
+        written = collect_results(
+            {n: r for n, r in found.items() if n not in on_host}, ws.ws_dir / ROS_BUILD_BASE, results
+        )
+        written += collect_results({n: r for n, r in found.items() if n in on_host}, host_base, results)
+        console.print(f"{len(written)} result file(s) copied to {results}")
+    failing = [r for r in found.values() if not r.ok]
+    if failing:
+        raise TestsFailed(
+            f"tests failed in {', '.join(r.package for r in failing)}: "
+            + "; ".join(", ".join(r.failing[:5]) + (" ..." if len(r.failing) > 5 else "") for r in failing),
+            "Each package's output and result files are listed above; fix the tests and run `espdock test` again.",
+        )
+    if code != 0:
+        raise TestsFailed(f"colcon test failed (exit code {code})", "Its output is above.")
+
+
+def _test_ros(ws, config, every, ros, colcon_args, locked, official, verbose, timestamps):
+    """Build ROS packages with their tests and run colcon test: their results and colcon's exit code."""
+    from espdock import bootstrap
+
     # The rosdep lock, its test part included, answers for the packages before anything is built.
     owner = invoking_user(os.environ, ws.root) if os.geteuid() == 0 else None
     inputs, note = current_test_inputs(ws.root, config, every, read_build_inputs(ws, every), locked, os.environ, owner)
@@ -121,20 +165,13 @@ def test(
             f"colcon test stopped before testing (exit code {code}): {last.strip()}",
             "Check the colcon options after `--`; nothing was tested.",
         )
-    _render(found, ws.root, ws.ws_dir)
-    _say_firmware(firmware)
-    if results is not None:
-        written = collect_results(found, build_base, results)
-        console.print(f"{len(written)} result file(s) copied to {results}")
-    failing = [r for r in found.values() if not r.ok]
-    if failing:
-        raise TestsFailed(
-            f"tests failed in {', '.join(r.package for r in failing)}: "
-            + "; ".join(", ".join(r.failing[:5]) + (" ..." if len(r.failing) > 5 else "") for r in failing),
-            "Each package's output and result files are listed above; fix the tests and run `espdock test` again.",
-        )
-    if code != 0:
-        raise TestsFailed(f"colcon test failed (exit code {code})", "Its output is above.")
+    return found, code
+
+
+def _give_back(base: Path, owner: tuple[int, int]) -> None:
+    """Hand what the host tests wrote (run as root, e.g. under sudo) to the workspace's user."""
+    for path in (base.parent, base, *base.rglob("*")):
+        os.chown(path, *owner, follow_symlinks=False)
 
 
 def _test_build(plan: Plan) -> Plan:
@@ -143,7 +180,7 @@ def _test_build(plan: Plan) -> Plan:
     return Plan(plan.workspace, plan.steps[: end + 1], plan.idf_images)
 
 
-def _render(found: dict[str, PackageResults], root: Path, ws_dir: Path) -> None:
+def _render(found: dict[str, PackageResults], root: Path, logs: dict[str, Path]) -> None:
     total = PackageResults("")
     console.print(Text("test results", style="bold"))
     for result in found.values():
@@ -155,8 +192,7 @@ def _render(found: dict[str, PackageResults], root: Path, ws_dir: Path) -> None:
         console.print(Text.assemble((f"  {result.package}", "bold"), "  ", (counts, colour)))
         for name in result.failing:
             console.print(Text(f"    failed: {name}", style="red"))
-        log = ws_dir / "log" / "latest_test" / result.package
-        console.print(Text(f"    log: {log.relative_to(root)}", style="dim"))
+        console.print(Text(f"    log: {logs[result.package].relative_to(root)}", style="dim"))
         for path in result.files:
             console.print(Text(f"    result: {path.relative_to(root)}", style="dim"))
         if result.ctest_file is not None:
@@ -178,7 +214,8 @@ def _say_firmware(packages: list[Package]) -> None:
     for package in packages:
         host = host_tests_dir(package.path)
         said = (
-            f"its host tests ({host.relative_to(package.path)}) run under plain `colcon test`"
+            f"its host tests ({host.relative_to(package.path)}) ran with the host's CMake and compiler, as "
+            "plain `colcon test` runs them"
             if host is not None
             else f"it declares no host tests ({HOST_TESTS_TAG})"
         )

@@ -150,3 +150,35 @@ def test_the_official_image_runs_the_lint_and_pytest_tests_as_colcon_does(tmp_pa
     assert "tested_cpp  3 tests: 3 passed" in tested.stdout
     lock = json.loads((root / "rosdep.lock.json").read_text())
     assert lock["test"]["keys"]["ament_flake8"] == {"installer": "apt", "packages": ["ros-jazzy-ament-flake8"]}
+
+
+def test_firmware_host_tests_run_and_count_in_the_summary_exit_code_and_results(tmp_path):
+    """A firmware package's declared host tests run under `espdock test` as under plain `colcon
+    test`; one without host tests has nothing to run. Firmware only: no ROS package is needed."""
+    root = tmp_path / "w"
+    for package in (REPO / "tests/firmware_packages/blink_fw", REPO / "firmware/led_strip_node"):
+        shutil.copytree(package, root / "src" / package.name)
+    (root / "espdock.toml").write_text("[espdock]\n")
+    host = root / "src/blink_fw/test/host/CMakeLists.txt"
+    passing = host.read_text()
+    # A test the program does not know: it exits 2, a failing CTest test.
+    host.write_text(passing + "add_test(NAME blinks_forever COMMAND test_blink_pattern blinks_forever)\n")
+    results = tmp_path / "results"
+
+    tested = espdock("test", "--results", str(results), cwd=root)
+    out = tested.stdout
+    assert tested.returncode == 10, out[-3000:] + tested.stderr
+    assert "blink_fw  3 tests: 2 passed, 1 failed, 0 errored, 0 skipped" in out, out[-3000:]
+    assert "failed: blinks_forever" in out
+    assert "Summary: 3 tests, 2 passed, 1 failed, 0 errored, 0 skipped" in out
+    assert "blinks_forever" in tested.stderr
+    assert "led_strip_node: firmware package" in out and "declares no host tests (espdock_host_tests)" in out
+    files = sorted(p.relative_to(results).as_posix() for p in results.rglob("*.xml"))
+    assert files == ["blink_fw/test_results-blink_fw-host_tests.xml"]
+    suite = ElementTree.parse(results / files[0]).getroot()
+    assert (suite.tag, suite.get("tests"), suite.get("failures")) == ("testsuite", "3", "1")
+
+    host.write_text(passing)
+    again = espdock("test", "blink_fw", cwd=root)
+    assert again.returncode == 0, again.stdout[-3000:] + again.stderr
+    assert "Summary: 2 tests, 2 passed, 0 failed, 0 errored, 0 skipped" in again.stdout

@@ -8,7 +8,15 @@ import pytest
 from espdock.errors import ConfigError, DependencyError
 from espdock.plan import ColconBuild, EnsureImage, ImageSpec, Plan
 from espdock.testdeps import image_for_tests, with_test_image
-from espdock.testing import ColconTest, check_test_args, check_testable, collect_results, read_results
+from espdock.testing import (
+    ColconTest,
+    check_test_args,
+    check_testable,
+    collect_results,
+    host_test_steps,
+    host_tests_failed,
+    read_results,
+)
 from espdock.workspace import Workspace
 
 PYTEST_XML = """<?xml version="1.0" encoding="utf-8"?><testsuites><testsuite name="pytest" errors="0" failures="1"
@@ -143,17 +151,28 @@ def test_cli_refuses_bad_input_before_any_engine(tmp_path):
         assert said in result.stderr and "Traceback" not in result.stderr
 
 
-def test_a_firmware_package_has_nothing_to_run_in_the_ros_image_and_its_host_tests_are_named(tmp_path):
+def test_a_firmware_package_without_host_tests_has_nothing_to_run_and_needs_no_engine(tmp_path):
     import shutil
 
     from tests.conftest import REPO, copy_workspace, espdock
 
     root = copy_workspace(tmp_path / "w", packages=())
-    for package in (REPO / "tests/firmware_packages/blink_fw", REPO / "firmware/led_strip_node"):
-        shutil.copytree(package, root / "firmware" / package.name)
-    result = espdock("test", "blink_fw", "led_strip_node", cwd=root, env={"DOCKER_HOST": "unix:///nonexistent"})
+    shutil.copytree(REPO / "firmware/led_strip_node", root / "firmware/led_strip_node")
+    result = espdock("test", "led_strip_node", cwd=root, env={"DOCKER_HOST": "unix:///nonexistent"})
     assert result.returncode == 0, result.stdout + result.stderr
-    assert "blink_fw: firmware package, nothing to run in the ROS image; its host tests (test/host)" in result.stdout
     assert "led_strip_node: firmware package, nothing to run in the ROS image; it declares no host tests" in (
         result.stdout
     )
+
+
+def test_host_test_steps_are_cmake_then_ctest_and_only_a_failing_ctest_with_results_is_a_result(tmp_path):
+    source, build, junit = tmp_path / "host", tmp_path / "b", tmp_path / "r" / "host_tests.xml"
+    steps = host_test_steps(source, build, junit)
+    assert [argv[:2] for argv in steps] == [("cmake", "-S"), ("cmake", "--build"), ("ctest", "--test-dir")]
+    assert steps[2][-2:] == ("--output-junit", str(junit))
+    assert host_tests_failed(steps[0], 0, junit) is None
+    assert host_tests_failed(steps[0], 1, junit) is True
+    assert host_tests_failed(steps[2], 8, junit) is True, "ctest wrote no results: the tests did not run"
+    junit.parent.mkdir()
+    junit.write_text("<testsuite tests='1' failures='1'/>")
+    assert host_tests_failed(steps[2], 8, junit) is False, "a failing test is a result"

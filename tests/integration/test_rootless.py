@@ -84,7 +84,11 @@ class RootlessDocker:
                 "PATH=/usr/bin:/bin:/usr/sbin:/sbin", *command]  # fmt: skip
         log = self.home / f".espdock-test-{self.socket_name}.log"
         with open(log, "ab") as out:
-            self.process = subprocess.Popen(argv, stdout=out, stderr=subprocess.STDOUT, start_new_session=True)
+            # From the user's home: the checkout may sit in a 0700 directory (a CI clone made with
+            # mktemp -d), where rootless Podman's re-exec as the user cannot chdir.
+            self.process = subprocess.Popen(
+                argv, cwd=self.home, stdout=out, stderr=subprocess.STDOUT, start_new_session=True
+            )
         deadline = time.monotonic() + 90
         while self.docker("version", check=False).returncode != 0:
             if self.process.poll() is not None or time.monotonic() > deadline:
@@ -142,7 +146,7 @@ class RootlessPodman(RootlessDocker):
             subprocess.run(["setpriv", f"--reuid={self.user.pw_uid}", f"--regid={self.user.pw_gid}", "--init-groups",
                             "env", "-i", f"HOME={self.home}", f"XDG_RUNTIME_DIR={self.runtime}",
                             "PATH=/usr/bin:/bin:/usr/sbin:/sbin", "podman", "system", "reset", "--force"],
-                           capture_output=True, check=False)  # fmt: skip
+                           cwd=self.home, capture_output=True, check=False)  # fmt: skip
         return ["podman", "system", "service", "--time=0", f"unix://{self.socket}"]
 
 

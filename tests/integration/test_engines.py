@@ -13,7 +13,6 @@ from __future__ import annotations
 import os
 import shutil
 import socket
-import subprocess
 import threading
 import time
 from collections.abc import Iterator
@@ -80,22 +79,10 @@ class RemoteEngine(PrivateEngine):
         self.forwarder: TcpForwarder | None = None
 
     def start(self) -> None:
-        (self.home / "daemon.json").write_text("{}")
         # dockerd's own containerd, in the same namespaces: runc resolves bind mounts there.
-        argv = ["unshare", "--net", "--mount", "--propagation", "private", "--",
-                "sh", "-c", 'mount -t tmpfs -o size=16m espdock-hidden "$0" && exec "$@"', str(self.hidden),
-                "dockerd", "--host", f"unix://{self.socket}",
-                "--data-root", str(self.home / "data"), "--exec-root", str(self.home / "exec"),
-                "--pidfile", str(self.home / "docker.pid"), "--config-file", str(self.home / "daemon.json"),
-                "--iptables=false", "--ip-masq=false", "--ip-forward=false",
-                "--cgroup-parent", f"/espdock-test-{self.home.name}"]  # fmt: skip
-        with open(self.home / "dockerd.log", "ab") as log:
-            self.process = subprocess.Popen(argv, stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
-        deadline = time.monotonic() + 60
-        while self.docker("version", check=False).returncode != 0:
-            if self.process.poll() is not None or time.monotonic() > deadline:
-                pytest.skip(f"a private dockerd did not start here: {(self.home / 'dockerd.log').read_text()[-1500:]}")
-            time.sleep(0.5)
+        self.launch(["unshare", "--net", "--mount", "--propagation", "private", "--",
+                     "sh", "-c", 'mount -t tmpfs -o size=16m espdock-hidden "$0" && exec "$@"', str(self.hidden),
+                     *self.dockerd()])  # fmt: skip
         self.forwarder = TcpForwarder(self.socket)
         self.env = {**os.environ, "DOCKER_HOST": f"tcp://127.0.0.1:{self.forwarder.port}"}
 

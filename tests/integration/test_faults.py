@@ -133,13 +133,19 @@ class PrivateEngine:
     def start(self) -> None:
         if self.containerd is None:
             self.start_containerd()
+        self.launch(["unshare", "--net", "--", *self.dockerd(), "--containerd", str(self.home / "containerd.sock")])
+
+    def dockerd(self) -> list[str]:
+        """dockerd with this engine's own socket, roots, config and cgroup: nothing of the machine's."""
         (self.home / "daemon.json").write_text("{}")  # not the machine's /etc/docker/daemon.json
-        argv = ["unshare", "--net", "--", "dockerd", "--host", f"unix://{self.socket}",
+        return ["dockerd", "--host", f"unix://{self.socket}",
                 "--data-root", str(self.home / "data"), "--exec-root", str(self.home / "exec"),
                 "--pidfile", str(self.home / "docker.pid"), "--config-file", str(self.home / "daemon.json"),
-                "--containerd", str(self.home / "containerd.sock"),
                 "--iptables=false", "--ip-masq=false", "--ip-forward=false",
                 "--cgroup-parent", f"/espdock-test-{self.home.name}"]  # fmt: skip
+
+    def launch(self, argv: list[str]) -> None:
+        """Start ARGV (a dockerd, maybe behind unshare) and wait until it answers; skip if it cannot."""
         with open(self.home / "dockerd.log", "ab") as log:
             self.process = subprocess.Popen(argv, stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
         deadline = time.monotonic() + 60

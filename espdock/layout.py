@@ -15,10 +15,10 @@ ROS_OFFICIAL_DOCKERFILE = "Dockerfile.ros-official"
 IDF_DOCKERFILE = "Dockerfile.idf"
 IMAGE_INPUT_DIR = "docker"
 IDF_INPUT_DIR = "docker/idf"
-# The commit of every repository libmicroros.a is built from (espdock.pins).
+# The commit of every repository libmicroros.a is built from (espdock.firmware.pins).
 SOURCES_NAME = "micro_ros_sources.txt"
 SOURCES_FILE = f"{IDF_INPUT_DIR}/{SOURCES_NAME}"
-# The rosdep resolution of the workspace's dependencies (espdock.rosdeps), beside espdock.toml.
+# The rosdep resolution of the workspace's dependencies (espdock.ros.rosdeps), beside espdock.toml.
 ROSDEP_LOCK = "rosdep.lock.json"
 # Where the image builds find what that lock installs, in their build context.
 ROSDEP_CONTEXT_DIR = "docker/rosdep"

@@ -31,8 +31,8 @@ IN_CI = os.environ.get("CI", "").lower() == "true"
 @pytest.fixture(scope="session")
 def engine():
     """The real engine, started if need be. In CI a missing engine fails; elsewhere it skips."""
-    from espdock import bootstrap
     from espdock.errors import EspdockError
+    from espdock.images import bootstrap
 
     try:
         engine = bootstrap.ensure_engine(os.environ, lambda text: None)
@@ -97,8 +97,8 @@ def espdock(
 
 def ros_build_tag(root: Path) -> str:
     """The tag `espdock build` gives the ROS build image of the workspace at ROOT."""
+    from espdock.build.plan import ros_build_image
     from espdock.config import load_config
-    from espdock.plan import ros_build_image
     from espdock.workspace import Workspace, read_build_inputs
 
     inputs = read_build_inputs(Workspace(root), ())
@@ -107,8 +107,8 @@ def ros_build_tag(root: Path) -> str:
 
 def ros_runtime_tag(root: Path) -> str:
     """The tag of the runtime base image that goes with ros_build_tag(ROOT)."""
+    from espdock.build.plan import ros_build_image, runtime_base_image
     from espdock.config import load_config
-    from espdock.plan import ros_build_image, runtime_base_image
     from espdock.workspace import Workspace, read_build_inputs
 
     inputs = read_build_inputs(Workspace(root), ())

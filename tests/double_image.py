@@ -6,7 +6,7 @@ import hashlib
 from collections.abc import Iterable
 from pathlib import Path
 
-from espdock.engine import Engine, LineSink
+from espdock.images.engine import Engine, LineSink
 
 
 def inputs_hash(root: Path, names: Iterable[str]) -> str:

@@ -1,4 +1,4 @@
-"""FakeEngine: stands in for espdock.engine.Engine (the Docker engine) in unit tests of the runner.
+"""FakeEngine: stands in for espdock.images.engine.Engine (the Docker engine) in unit tests of the runner.
 
 It records what it was asked to do and plays back scripted container runs, so the runner's
 cache decisions, failure parsing and reporting can be tested in milliseconds. Its cache
@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
 
-from espdock.engine import EngineInfo, ImageInfo, LineSink, RegistryAnswer, RegistryStatus, RunSpec
+from espdock.images.engine import EngineInfo, ImageInfo, LineSink, RegistryAnswer, RegistryStatus, RunSpec
 
 
 @dataclass

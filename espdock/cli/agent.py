@@ -8,11 +8,11 @@ from typing import Annotated
 
 import typer
 
-from espdock import bootstrap
-from espdock.agent import DEFAULT_BAUD, DEFAULT_UDP_PORT, agent_spec
 from espdock.cli.core import app, command, notify
 from espdock.errors import EspdockError
-from espdock.flashing import check_port, parse_port
+from espdock.firmware.agent import DEFAULT_BAUD, DEFAULT_UDP_PORT, agent_spec
+from espdock.firmware.flashing import check_port, parse_port
+from espdock.images import bootstrap
 from espdock.layout import MICRO_ROS_AGENT_IMAGE
 
 

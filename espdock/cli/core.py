@@ -15,14 +15,15 @@ import typer.core
 from rich.console import Console
 from rich.text import Text
 
-from espdock import __version__, bootstrap
-from espdock.colcon import read_colcon_settings
+from espdock import __version__
+from espdock.build.lock import current_rosdep_inputs, rosdep_lock_stale
+from espdock.build.plan import IdfBuild, Plan, checked_packages, firmware_step, plan_workspace
+from espdock.build.runner import Runner
+from espdock.cli.ui import QuietReporter, Reporter
 from espdock.config import Config, invoking_user, load_config
 from espdock.errors import EspdockBug, EspdockError, Interrupted
-from espdock.lock import current_rosdep_inputs, rosdep_lock_stale
-from espdock.plan import IdfBuild, Plan, checked_packages, firmware_step, plan_workspace
-from espdock.runner import Runner
-from espdock.ui import QuietReporter, Reporter
+from espdock.images import bootstrap
+from espdock.ros.colcon import read_colcon_settings
 from espdock.workspace import (
     DEFAULT_ROS_DISTRO,
     Package,

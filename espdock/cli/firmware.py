@@ -11,8 +11,8 @@ from typing import Annotated
 import typer
 from rich.text import Text
 
-from espdock import bootstrap, transport
-from espdock.agent_port import LIBRARY_HEADERS, check_agent_port
+from espdock.build.plan import EnsureImage, ImageSpec, Plan, workspace_micro_ros_images
+from espdock.build.runner import reset_build_dir
 from espdock.cli.core import (
     WorkspaceOption,
     app,
@@ -24,14 +24,14 @@ from espdock.cli.core import (
     runner_for,
     workspace_packages,
 )
+from espdock.cli.ui import Reporter, render_micro_ros_status, render_pins
 from espdock.config import Config, check_target
-from espdock.engine import format_argv
 from espdock.errors import ConfigError
-from espdock.flashing import check_port, flash_package, idf_port, parse_port, read_flasher_args
-from espdock.layout import firmware_install_dir
-from espdock.pins import pin_idf_image, read_sources, write_pins
-from espdock.plan import EnsureImage, ImageSpec, Plan, workspace_micro_ros_images
-from espdock.provision import (
+from espdock.firmware import transport
+from espdock.firmware.agent_port import LIBRARY_HEADERS, check_agent_port
+from espdock.firmware.flashing import check_port, flash_package, idf_port, parse_port, read_flasher_args
+from espdock.firmware.pins import pin_idf_image, read_sources, write_pins
+from espdock.firmware.provision import (
     check_settings,
     network_settings,
     nvs_image,
@@ -39,9 +39,10 @@ from espdock.provision import (
     optional_network_settings,
     parse_domain_id,
 )
-from espdock.runner import reset_build_dir
-from espdock.status import micro_ros_report, resolved_sources
-from espdock.ui import Reporter, render_micro_ros_status, render_pins
+from espdock.firmware.status import micro_ros_report, resolved_sources
+from espdock.images import bootstrap
+from espdock.images.engine import format_argv
+from espdock.layout import firmware_install_dir
 from espdock.workspace import Package, Workspace, read_build_inputs
 
 

@@ -9,12 +9,13 @@ from typing import Annotated
 
 import typer
 
-from espdock import bootstrap, nodes
+from espdock.build.plan import Plan, RuntimeImage
+from espdock.build.runner import Runner
 from espdock.cli.core import WorkspaceOption, app, build_plan, command, ensure_images, load, notify, workspace_packages
 from espdock.config import Config, resolve_ca_bundle
 from espdock.errors import Interrupted
-from espdock.plan import Plan, RuntimeImage
-from espdock.runner import Runner
+from espdock.images import bootstrap
+from espdock.ros import nodes
 from espdock.workspace import PackageKind, Workspace
 
 

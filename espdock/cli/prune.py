@@ -9,13 +9,15 @@ from typing import Annotated
 import typer
 from rich.text import Text
 
-from espdock import bootstrap
+from espdock.build.plan import LABEL_KEY, EnsureImage, RuntimeImage
+from espdock.build.runner import Runner
 from espdock.cli.core import WorkspaceOption, app, build_plan, command, console, load, notify
+from espdock.cli.ui import QuietReporter, Reporter
 from espdock.config import Config, invoking_user
-from espdock.engine import Engine
 from espdock.errors import EspdockError
-from espdock.plan import LABEL_KEY, EnsureImage, RuntimeImage
-from espdock.prune import (
+from espdock.images import bootstrap
+from espdock.images.engine import Engine
+from espdock.images.prune import (
     PrunePlan,
     forget_images,
     images_total,
@@ -26,8 +28,6 @@ from espdock.prune import (
     size_text,
     state_dir,
 )
-from espdock.runner import Runner
-from espdock.ui import QuietReporter, Reporter
 from espdock.workspace import Workspace
 
 GB = 1000**3

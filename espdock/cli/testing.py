@@ -9,16 +9,17 @@ from typing import Annotated
 import typer
 from rich.text import Text
 
-from espdock import rosdeps, testdeps
+from espdock.build.lock import current_test_inputs
+from espdock.build.plan import ColconBuild, Plan, ros_image
+from espdock.build.runner import Runner
 from espdock.cli.core import PASSED, PassThrough, WorkspaceOption, app, build_plan, command, console, load, notify
 from espdock.cli.core import workspace_packages as discover
+from espdock.cli.ui import Reporter
 from espdock.config import invoking_user
 from espdock.errors import ConfigError, TestsFailed, WorkspaceError
 from espdock.layout import ROS_BUILD_BASE, ROSDEP_LOCK
-from espdock.lock import current_test_inputs
-from espdock.plan import ColconBuild, Plan, ros_image
-from espdock.runner import Runner
-from espdock.testing import (
+from espdock.ros import rosdeps, testdeps
+from espdock.ros.testing import (
     HOST_TESTS_BASE,
     HOST_TESTS_TAG,
     ColconTest,
@@ -31,7 +32,6 @@ from espdock.testing import (
     read_results,
     run_host_tests,
 )
-from espdock.ui import Reporter
 from espdock.workspace import Package, PackageKind, read_build_inputs
 
 
@@ -121,7 +121,7 @@ def test(
 
 def _test_ros(ws, config, every, ros, colcon_args, locked, official, verbose, timestamps):
     """Build ROS packages with their tests and run colcon test: their results and colcon's exit code."""
-    from espdock import bootstrap
+    from espdock.images import bootstrap
 
     # The rosdep lock, its test part included, answers for the packages before anything is built.
     owner = invoking_user(os.environ, ws.root) if os.geteuid() == 0 else None

@@ -9,7 +9,10 @@ from typing import Annotated
 
 import typer
 
-from espdock import bootstrap, colcon_register, transport
+from espdock.build.lock import check_locks, lock_rosdeps, lock_workspace, plan_locks, uv_binary
+from espdock.build.manifest import compare, file_hashes, read_manifest, record_build, write_report
+from espdock.build.plan import base_image, runtime_repository
+from espdock.build.runner import Runner, stamp_files
 from espdock.cli.core import (
     PASSED,
     PassThrough,
@@ -24,16 +27,15 @@ from espdock.cli.core import (
     workspace_packages,
 )
 from espdock.cli.prune import after_build
+from espdock.cli.ui import Reporter, render_packages, render_plan
 from espdock.config import check_target, invoking_user
 from espdock.errors import ConfigError, WorkspaceError
 from espdock.events import Outcome
+from espdock.firmware import transport
+from espdock.firmware.scaffold import check_new_package, create_firmware_package, init_compose, init_workspace
+from espdock.images import bootstrap
 from espdock.layout import ROSDEP_LOCK
-from espdock.lock import check_locks, lock_rosdeps, lock_workspace, plan_locks, uv_binary
-from espdock.manifest import compare, file_hashes, read_manifest, record_build, write_report
-from espdock.plan import base_image, runtime_repository
-from espdock.runner import Runner, stamp_files
-from espdock.scaffold import check_new_package, create_firmware_package, init_compose, init_workspace
-from espdock.ui import Reporter, render_packages, render_plan
+from espdock.ros import colcon_register
 from espdock.workspace import PackageKind, read_build_inputs
 
 

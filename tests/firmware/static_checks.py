@@ -491,7 +491,7 @@ def cmd_apps(firmware: str, msg_file: str) -> int:
     root = Path(firmware)
     check_network_fallbacks(root / "components" / "espdock_uros", problems)
     # `espdock new`'s template starts Wi-Fi like the apps (its sources carry @NAME@ placeholders).
-    template = root.parent / "espdock" / "templates" / "firmware"
+    template = root.parent / "espdock" / "firmware" / "templates" / "firmware"
     apps_and_template = [*sorted(p.parent for p in root.glob("*/package.xml")), template]
     check_wifi_lifecycle(root / "components" / "espdock_uros", apps_and_template, problems)
     client = meta_args(json.loads((template / "app-colcon.meta").read_text())).get("microxrcedds_client", {})

@@ -15,7 +15,7 @@ import sys
 from pathlib import Path
 
 from espdock.config import Config, resolve_ca_bundle
-from espdock.engine import Engine
+from espdock.images.engine import Engine
 from tests.idf_contract_double.build import use_double
 
 

@@ -15,8 +15,8 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
-from espdock.engine import Engine, LineSink, RunSpec
 from espdock.errors import ImageBuildError
+from espdock.images.engine import Engine, LineSink, RunSpec
 from tests.double_image import ensure_double
 
 HERE = Path(__file__).resolve().parent

@@ -28,7 +28,7 @@ from pathlib import Path
 
 import pytest
 
-from espdock.manifest import file_hashes
+from espdock.build.manifest import file_hashes
 from tests.conftest import copy_workspace, espdock, kept_in_temp, python_workspace, ros_build_tag, ros_runtime_tag
 
 pytestmark = [pytest.mark.engine, pytest.mark.slow]

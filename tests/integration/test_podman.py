@@ -22,8 +22,8 @@ from pathlib import Path
 
 import pytest
 
-from espdock.engine import Engine
 from espdock.errors import ContainerError
+from espdock.images.engine import Engine
 from tests.conftest import espdock, owners, python_workspace, ros_build_tag, ros_runtime_tag
 from tests.integration.test_engines import edit_word, installed_word, once_workspace
 

@@ -12,9 +12,9 @@ from pathlib import Path
 
 import pytest
 
-from espdock.engine import Engine
-from espdock.plan import LABEL_KEY
-from espdock.prune import Record, read_records
+from espdock.build.plan import LABEL_KEY
+from espdock.images.engine import Engine
+from espdock.images.prune import Record, read_records
 from tests.conftest import espdock, python_workspace
 
 pytestmark = [pytest.mark.engine, pytest.mark.slow]

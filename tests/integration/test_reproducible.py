@@ -14,8 +14,8 @@ from pathlib import Path
 
 import pytest
 
+from espdock.build.manifest import MANIFEST_NAME, file_hashes, read_manifest
 from espdock.config import Config, resolve_ca_bundle
-from espdock.manifest import MANIFEST_NAME, file_hashes, read_manifest
 from tests.conftest import REPO, copy_workspace, espdock
 from tests.idf_contract_double.build import build_double, use_double
 

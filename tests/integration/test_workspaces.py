@@ -15,7 +15,7 @@ from pathlib import Path
 
 import pytest
 
-from espdock.prune import read_records
+from espdock.images.prune import read_records
 from tests.conftest import espdock, python_workspace
 
 pytestmark = [pytest.mark.engine, pytest.mark.slow]

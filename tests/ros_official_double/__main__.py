@@ -13,7 +13,7 @@ import shlex
 import sys
 
 from espdock.config import Config, resolve_ca_bundle
-from espdock.engine import Engine
+from espdock.images.engine import Engine
 from tests.ros_official_double.build import build_double, settings
 
 

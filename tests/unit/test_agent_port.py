@@ -1,9 +1,9 @@
-"""The agent-port check against the micro-ROS library's own header (espdock.agent_port)."""
+"""The agent-port check against the micro-ROS library's own header (espdock.firmware.agent_port)."""
 
 import pytest
 
-from espdock.agent_port import check_agent_port, port_digits_kept
 from espdock.errors import ConfigError
+from espdock.firmware.agent_port import check_agent_port, port_digits_kept
 
 # rmw_microxrcedds_c/include/rmw_microros/rmw_microros.h as upstream writes it: before #315 (rolling and
 # humble at 6833232 / 3144202, the last trees readable here) and with #315's MAX_PORT_LEN.

@@ -1,6 +1,6 @@
 """The debootstrapped base image records its Debian package set, so drift shows."""
 
-from espdock.bootstrap import PACKAGES_LABEL, package_labels, package_set
+from espdock.images.bootstrap import PACKAGES_LABEL, package_labels, package_set
 
 STATUS = """Package: libc6
 Status: install ok installed

@@ -7,8 +7,8 @@ from pathlib import Path
 
 import pytest
 
+from espdock.build.manifest import MANIFEST_NAME
 from espdock.layout import FIRMWARE_DIR
-from espdock.manifest import MANIFEST_NAME
 from espdock.workspace import CLASSIC_LAYOUT
 from tests.conftest import REPO
 

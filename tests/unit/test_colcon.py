@@ -10,7 +10,10 @@ from pathlib import Path
 
 import pytest
 
-from espdock.colcon import (
+from espdock.build.plan import ColconBuild
+from espdock.build.stamps import StampFile, package_stamps
+from espdock.errors import ConfigError, WorkspaceError
+from espdock.ros.colcon import (
     PackageState,
     check_colcon_args,
     explain_failure,
@@ -23,9 +26,6 @@ from espdock.colcon import (
     usage_error,
     user_defaults_file,
 )
-from espdock.errors import ConfigError, WorkspaceError
-from espdock.plan import ColconBuild
-from espdock.stamps import StampFile, package_stamps
 from tests.conftest import copy_workspace, espdock
 
 NO_ENGINE = {"DOCKER_HOST": "unix:///nonexistent/docker.sock"}

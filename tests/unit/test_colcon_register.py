@@ -8,7 +8,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from espdock.colcon_register import ColconPython, espdock_site, install_shim, uninstall_shim
+from espdock.ros.colcon_register import ColconPython, espdock_site, install_shim, uninstall_shim
 
 FIND = """
 import json, sys
@@ -33,7 +33,10 @@ def test_the_shim_registers_both_extensions_and_uninstall_removes_them(tmp_path)
     site = tmp_path / "site-packages"
     target = ColconPython(sys.executable, site, ())
     install_shim(target, espdock_site(), sys.executable)
-    assert discovered(site) == {"esp_idf": "espdock.colcon_extension", "ros.esp_idf": "espdock.colcon_extension"}
+    assert discovered(site) == {
+        "esp_idf": "espdock.ros.colcon_extension",
+        "ros.esp_idf": "espdock.ros.colcon_extension",
+    }
     install_shim(target, espdock_site(), sys.executable)  # again: one copy, not two
     assert len(list(site.glob("espdock_colcon_shim-*.dist-info"))) == 1
     assert uninstall_shim(site)

@@ -4,8 +4,8 @@ import os
 
 import pytest
 
-from espdock.bootstrap import _install_plugin
 from espdock.errors import EngineUnavailable
+from espdock.images.bootstrap import _install_plugin
 
 
 def test_the_plugin_is_an_executable_copy_that_outlives_its_source(tmp_path):

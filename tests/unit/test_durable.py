@@ -8,9 +8,9 @@ from pathlib import Path
 
 import pytest
 
-from espdock.install import install_firmware
-from espdock.manifest import write_manifest
-from espdock.stamps import StampFile
+from espdock.build.manifest import write_manifest
+from espdock.build.stamps import StampFile
+from espdock.firmware.install import install_firmware
 from tests.unit.test_firmware_tools import write_build
 
 

@@ -7,13 +7,13 @@ import os
 
 import pytest
 
-from espdock import bootstrap
-from espdock.colcon import unselected
+from espdock.build.plan import ColconBuild, Plan
+from espdock.build.runner import Runner
 from espdock.config import Config
-from espdock.engine import describe
 from espdock.errors import BuildFailed, WorkspaceError, WorkspaceNotVisible
-from espdock.plan import ColconBuild, Plan
-from espdock.runner import Runner
+from espdock.images import bootstrap
+from espdock.images.engine import describe
+from espdock.ros.colcon import unselected
 from espdock.workspace import Workspace
 from tests.fake_engine import FakeEngine
 from tests.unit.test_runner import COLCON, colcon_installs
@@ -88,7 +88,7 @@ def test_a_permission_error_on_a_workspace_path_names_it_and_its_owner(ws, monke
     def denied(*args, **kwargs):
         raise PermissionError(13, "Permission denied", str(ws.ws_dir / "build"))
 
-    monkeypatch.setattr("espdock.runner.package_stamps", denied)
+    monkeypatch.setattr("espdock.build.runner.package_stamps", denied)
     with pytest.raises(WorkspaceError) as err:
         runner(engine).run(Plan(ws, (COLCON,)))
     assert err.value.exit_code == 2

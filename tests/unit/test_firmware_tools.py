@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 from espdock.errors import BuildFailed, ConfigError, WorkspaceError
-from espdock.flashing import (
+from espdock.firmware.flashing import (
     PortError,
     check_chip,
     check_port,
@@ -21,8 +21,8 @@ from espdock.flashing import (
     verify_argv,
     write_region_argv,
 )
-from espdock.install import install_firmware
-from espdock.scaffold import create_firmware_package, validate_package_name
+from espdock.firmware.install import install_firmware
+from espdock.firmware.scaffold import create_firmware_package, validate_package_name
 from espdock.workspace import Package, PackageKind, Workspace, discover_packages
 
 FLASHER_ARGS = {

@@ -5,9 +5,9 @@ from pathlib import Path
 
 import pytest
 
-from espdock import lock
+from espdock.build import lock
+from espdock.build.lock import LOCKS, check_locks, digest, stale_reason
 from espdock.errors import LockError
-from espdock.lock import LOCKS, check_locks, digest, stale_reason
 from tests.conftest import REPO, copy_workspace, espdock
 
 NO_ENGINE = {"DOCKER_HOST": "unix:///nonexistent/docker.sock"}

@@ -7,8 +7,7 @@ import os
 
 import pytest
 
-from espdock.errors import WorkspaceError
-from espdock.manifest import (
+from espdock.build.manifest import (
     MANIFEST_NAME,
     Difference,
     compare,
@@ -17,7 +16,8 @@ from espdock.manifest import (
     record_build,
     write_manifest,
 )
-from espdock.plan import Plan
+from espdock.build.plan import Plan
+from espdock.errors import WorkspaceError
 from espdock.workspace import Workspace
 
 

@@ -10,9 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from espdock.config import Config
-from espdock.errors import WorkspaceError
-from espdock.plan import (
+from espdock.build.plan import (
     EnsureImage,
     IdfBuild,
     InstallFirmware,
@@ -25,6 +23,8 @@ from espdock.plan import (
     plan_workspace,
     ros_build_image,
 )
+from espdock.config import Config
+from espdock.errors import WorkspaceError
 from espdock.workspace import BuildInputs, Package, PackageKind, Workspace
 
 ROOT = Path("/w")

@@ -3,7 +3,7 @@
 import pytest
 
 from espdock.errors import WorkspaceError
-from espdock.pins import (
+from espdock.firmware.pins import (
     IdfPin,
     Source,
     parse_resolved,

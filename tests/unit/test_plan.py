@@ -1,7 +1,6 @@
 from pathlib import Path
 
-from espdock.config import Config
-from espdock.plan import (
+from espdock.build.plan import (
     ColconBuild,
     EnsureBaseImage,
     EnsureImage,
@@ -11,6 +10,7 @@ from espdock.plan import (
     plan_build,
     ros_build_image,
 )
+from espdock.config import Config
 from espdock.workspace import Package, PackageKind, Workspace
 
 DOCKERFILE = "ARG BASE_IMAGE=debian:bookworm-slim\nFROM ${BASE_IMAGE} AS build\nFROM ${BASE_IMAGE} AS runtime\n"

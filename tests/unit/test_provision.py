@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 from espdock.errors import ConfigError, WorkspaceError
-from espdock.provision import (
+from espdock.firmware.provision import (
     NetSettings,
     check_settings,
     nvs_image,

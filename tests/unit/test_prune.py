@@ -1,8 +1,8 @@
-"""espdock.prune's pure parts: the per-workspace records and which images a prune removes."""
+"""espdock.images.prune's pure parts: the per-workspace records and which images a prune removes."""
 
 from __future__ import annotations
 
-from espdock.prune import Present, Record, UsedImage, plan_prune, read_records, record_use
+from espdock.images.prune import Present, Record, UsedImage, plan_prune, read_records, record_use
 
 
 def test_a_build_records_its_images_as_current_per_kind(tmp_path):

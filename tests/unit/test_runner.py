@@ -8,13 +8,13 @@ from pathlib import Path
 
 import pytest
 
-from espdock import bootstrap
+from espdock.build.plan import ColconBuild, EnsureImage, Plan, ros_build_image
+from espdock.build.runner import Runner
 from espdock.config import Config
-from espdock.engine import ImageInfo, RegistryStatus, _registry_answer
 from espdock.errors import BuildFailed, RegistryError
 from espdock.events import Outcome, StepFinished, StepNote
-from espdock.plan import ColconBuild, EnsureImage, Plan, ros_build_image
-from espdock.runner import Runner
+from espdock.images import bootstrap
+from espdock.images.engine import ImageInfo, RegistryStatus, _registry_answer
 from espdock.workspace import Workspace
 from tests.fake_engine import FakeEngine
 
@@ -236,8 +236,8 @@ def test_without_a_terminal_every_line_is_printed_and_timestamps_are_optional():
 
     from rich.console import Console
 
+    from espdock.cli.ui import Reporter
     from espdock.events import StepOutput, StepStarted
-    from espdock.ui import Reporter
 
     out = io.StringIO()
     reporter = Reporter(Console(file=out, force_terminal=False, width=200), timestamps=True)
@@ -330,7 +330,7 @@ def test_a_second_build_in_the_same_workspace_is_told_who_holds_it(ws):
     import sys
 
     holder = (
-        "import sys, time; from pathlib import Path; from espdock.runner import workspace_lock; "
+        "import sys, time; from pathlib import Path; from espdock.build.runner import workspace_lock; "
         "from espdock.workspace import Workspace; sys.argv = ['espdock', 'build', 'talker_py'];\n"
         f"with workspace_lock(Workspace(Path({str(ws.root)!r}))):\n"
         "    print('locked', flush=True); time.sleep(30)"
@@ -338,8 +338,8 @@ def test_a_second_build_in_the_same_workspace_is_told_who_holds_it(ws):
     process = subprocess.Popen([sys.executable, "-c", holder], stdout=subprocess.PIPE, text=True)
     try:
         assert process.stdout.readline().strip() == "locked"
+        from espdock.build.runner import workspace_lock
         from espdock.errors import WorkspaceError
-        from espdock.runner import workspace_lock
 
         with pytest.raises(WorkspaceError) as error, workspace_lock(ws):
             pass

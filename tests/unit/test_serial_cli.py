@@ -80,7 +80,7 @@ def test_the_starter_compose_runs_a_serial_agent_with_only_the_board_s_device(tm
 
     import pytest
 
-    from espdock.scaffold import starter_compose
+    from espdock.firmware.scaffold import starter_compose
 
     if not shutil.which("docker"):
         pytest.skip("the docker CLI is not on PATH")
@@ -118,8 +118,8 @@ def test_the_agent_command_refuses_what_the_agent_cannot_open_before_touching_th
 
 
 def test_the_agent_s_arguments_are_micro_ros_agent_s_own():
-    from espdock.agent import agent_spec
-    from espdock.flashing import parse_port
+    from espdock.firmware.agent import agent_spec
+    from espdock.firmware.flashing import parse_port
 
     spec = agent_spec("img", parse_port("/dev/ttyACM0"), {"ROS_DOMAIN_ID": "3", "HOME": "/root"}, baud=921600)
     assert spec.argv == ("serial", "--dev", "/dev/ttyACM0", "-b", "921600")

@@ -5,10 +5,10 @@ from __future__ import annotations
 
 import pytest
 
+from espdock.build.plan import ColconBuild, EnsureImage, ImageSpec, Plan
 from espdock.errors import ConfigError, DependencyError
-from espdock.plan import ColconBuild, EnsureImage, ImageSpec, Plan
-from espdock.testdeps import image_for_tests, with_test_image
-from espdock.testing import (
+from espdock.ros.testdeps import image_for_tests, with_test_image
+from espdock.ros.testing import (
     ColconTest,
     check_test_args,
     check_testable,

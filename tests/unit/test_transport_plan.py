@@ -5,9 +5,9 @@ from dataclasses import replace
 
 import pytest
 
+from espdock.build.plan import micro_ros_image
 from espdock.errors import WorkspaceError
-from espdock.plan import micro_ros_image
-from espdock.transport import firmware_transport, library_colcon_meta
+from espdock.firmware.transport import firmware_transport, library_colcon_meta
 from tests.unit.test_micro_ros_plan import CAM, DEFAULT, INPUTS, META, PACKAGES
 
 UART = b"CONFIG_ESPDOCK_TRANSPORT_UART=y\nCONFIG_ESPDOCK_UART_BAUD=115200\n"

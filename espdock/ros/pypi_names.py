@@ -2,7 +2,7 @@
 the wheels image's venv (which cannot import apt's Python packages).
 
 A key's own pip rules (rosdistro's pip rule for another platform, or its `-pip` sibling key)
-come first (espdock.rosdeps); this table is for the common keys that have none. Each entry was
+come first (espdock.ros.rosdeps); this table is for the common keys that have none. Each entry was
 checked against rosdistro's rosdep/python.yaml (the key and its Debian package) and PyPI (the
 project, its import name and wheels). A key in neither is refused, naming it: a same-named
 PyPI project is too often a stranger (PyPI's `serial` is a serialization framework, its `jwt`

@@ -11,9 +11,9 @@ import os
 import secrets
 from collections.abc import Mapping
 
-from espdock.engine import RunSpec
 from espdock.errors import ConfigError
-from espdock.flashing import Port
+from espdock.firmware.flashing import Port
+from espdock.images.engine import RunSpec
 
 # micro_ros_agent's default and the firmware's (CONFIG_ESPDOCK_UART_BAUD).
 DEFAULT_BAUD = 115200

@@ -1,7 +1,7 @@
 """Installing a firmware package espdock built where colcon's options say (its colcon extension).
 
-`python -m espdock.colcon_install PKG_DIR PKG PREFIX BUILD_DIR [--merged]`: run by the build task
-of espdock.colcon_extension with espdock's own Python, which is not colcon's where espdock came
+`python -m espdock.firmware.colcon_install PKG_DIR PKG PREFIX BUILD_DIR [--merged]`: run by the build task
+of espdock.ros.colcon_extension with espdock's own Python, which is not colcon's where espdock came
 from pipx. PREFIX is colcon's install prefix for PKG (install/PKG, or the install base itself
 with --merge-install, where the ament index and colcon's setup files then find it); BUILD_DIR
 colcon's build dir for it, which becomes a link to the IDF build dir when it is elsewhere (the IDF
@@ -16,7 +16,7 @@ from pathlib import Path
 
 from espdock.config import load_config
 from espdock.errors import EspdockError
-from espdock.install import install_firmware
+from espdock.firmware.install import install_firmware
 from espdock.workspace import find_workspace, read_package
 
 

@@ -7,12 +7,12 @@ import posixpath
 from collections.abc import Mapping
 from pathlib import Path
 
-from espdock.engine import Mount, RunSpec
+from espdock.build.plan import LABEL_WORKSPACE, RUNTIME_INSTALL, EnsureBaseImage, EnsureImage, Plan, RuntimeImage
+from espdock.build.stamps import StampFile, listing_digest
 from espdock.errors import ConfigError, WorkspaceError
+from espdock.images.engine import Mount, RunSpec
 from espdock.layout import ROS_OFFICIAL_DOCKERFILE, WORKSPACE_MOUNT
-from espdock.plan import LABEL_WORKSPACE, RUNTIME_INSTALL, EnsureBaseImage, EnsureImage, Plan, RuntimeImage
-from espdock.runtime_tree import resolve_installed
-from espdock.stamps import StampFile, listing_digest
+from espdock.ros.runtime_tree import resolve_installed
 from espdock.workspace import Package, PackageKind, Workspace
 
 # What reaches a node from the caller's environment, as `ros2 run` would see it.
@@ -71,7 +71,7 @@ def check_built_by_espdock(workspace: Workspace, package: str) -> None:
     """Refuse PACKAGE's install tree when espdock's last build did not leave it so: a native
     `colcon build` rewrites it with the host's paths and interpreters, which the runtime image
     lacks (the node would die with exit 127). `espdock build` rebuilds exactly such packages."""
-    from espdock.runner import ROS_STAMPS
+    from espdock.build.runner import ROS_STAMPS
 
     recorded = StampFile(workspace.ws_dir / "build" / ROS_STAMPS).read().get(package)
     listing = listing_digest(workspace.ws_dir / "install" / package)

@@ -12,10 +12,10 @@ import dataclasses
 from collections.abc import Callable, Iterable, Mapping
 from pathlib import Path
 
-from espdock import rosdeps
-from espdock.plan import ColconBuild, EnsureImage, ImageSpec, Plan, image_key
-from espdock.system_python import SystemPython
-from espdock.testing import NOT_ON_PYPI
+from espdock.build.plan import ColconBuild, EnsureImage, ImageSpec, Plan, image_key
+from espdock.ros import rosdeps
+from espdock.ros.system_python import SystemPython
+from espdock.ros.testing import NOT_ON_PYPI
 from espdock.workspace import Package
 
 SECTION = "test"

@@ -2,11 +2,11 @@
 
 Registered as entry points of espdock's distribution, so `pip install espdock` beside colcon
 is all it takes; where colcon runs in another Python (apt's colcon, espdock from pipx),
-`espdock colcon-extension install` registers them there (espdock.colcon_register).
+`espdock colcon-extension install` registers them there (espdock.ros.colcon_register).
 A package.xml with <build_type>esp_idf</build_type> is a package of type `ros.esp_idf` (the
 type colcon-ros would give it, so its augmentation adds the dependencies too), and its build
 task runs `espdock build --only firmware PKG` (IDF container, micro-ROS image), then installs
-the firmware where colcon's --install-base and --merge-install say (espdock.colcon_install),
+the firmware where colcon's --install-base and --merge-install say (espdock.firmware.colcon_install),
 with the output in colcon's log and event handlers. Its test task runs the host tests a firmware
 package declares (`colcon test` neither fails nor warns on one). Only colcon imports this
 module; espdock never does, so it costs espdock nothing.
@@ -83,7 +83,13 @@ class EspIdfBuildTask(TaskExtensionPoint):
             # colcon's --install-base and --merge-install decide where the firmware goes, its
             # --build-base where the IDF build dir is shown.
             self.progress("install")
-            argv = [ESPDOCK_PYTHON, "-m", "espdock.colcon_install", str(Path(pkg.path).resolve()), str(pkg.name)]
+            argv = [
+                ESPDOCK_PYTHON,
+                "-m",
+                "espdock.firmware.colcon_install",
+                str(Path(pkg.path).resolve()),
+                str(pkg.name),
+            ]
             argv += [str(Path(args.install_base).absolute()), str(Path(args.build_base).absolute())]
             argv += ["--merged"] if getattr(args, "merge_install", False) else []
             completed = await run(self.context, argv, cwd=str(Path(pkg.path).resolve()))
@@ -99,7 +105,7 @@ class EspIdfTestTask(TaskExtensionPoint):
         satisfies_version(TaskExtensionPoint.EXTENSION_POINT_VERSION, "^1.0")
 
     async def test(self, *, additional_hooks=None) -> int:
-        from espdock.testing import HOST_TESTS_TAG, host_test_steps, host_tests_dir, host_tests_failed
+        from espdock.ros.testing import HOST_TESTS_TAG, host_test_steps, host_tests_dir, host_tests_failed
 
         pkg = self.context.pkg
         source = host_tests_dir(Path(pkg.path).resolve())

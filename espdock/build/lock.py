@@ -23,13 +23,13 @@ from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, replace
 from pathlib import Path
 
-from espdock import rosdeps, testdeps
+from espdock.build.plan import EnsureImage, Plan, base_image, ros_image
 from espdock.config import Config
 from espdock.defaults import SHIPPED, defaults_root
 from espdock.errors import LockError
 from espdock.layout import ROSDEP_LOCK
-from espdock.plan import EnsureImage, Plan, base_image, ros_image
-from espdock.system_python import SystemPython, probe_image
+from espdock.ros import rosdeps, testdeps
+from espdock.ros.system_python import SystemPython, probe_image
 from espdock.workspace import BuildInputs, Package, select_up_to, write_atomically
 
 # The ROS images' Python: Debian bookworm's 3.11 on x86_64 (glibc 2.36), whatever runs uv.
@@ -272,7 +272,7 @@ def lock_rosdeps(
         return "not needed (the image provides every dependency)", ""
     if (needed or tests) and refresh:
         rosdeps.update_database(env, image.distro, root)
-    from espdock.runner import age_text  # the slow path only: making the lock
+    from espdock.build.runner import age_text  # the slow path only: making the lock
 
     system = official_python(config, inputs, env) if image.flavour == "official" else None
     lock = rosdeps.resolve_workspace(packages, image, root, env, uv_binary(), system)
@@ -303,8 +303,8 @@ def official_python(config: Config, inputs: BuildInputs, env: Mapping[str, str])
     ref = base_image(config, inputs.ros_official_dockerfile)
 
     def run(argv: tuple[str, ...]) -> tuple[int, list[str]]:
-        from espdock import bootstrap
-        from espdock.engine import RunSpec
+        from espdock.images import bootstrap
+        from espdock.images.engine import RunSpec
 
         engine = bootstrap.ensure_engine(env, lambda text: None)
         bootstrap.ensure_base_image(engine, ref, config, lambda text: None)

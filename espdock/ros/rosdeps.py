@@ -27,9 +27,9 @@ from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
-from espdock import pypi_names
 from espdock.errors import DependencyError, LockError
-from espdock.system_python import SystemPython, normalise
+from espdock.ros import pypi_names
+from espdock.ros.system_python import SystemPython, normalise
 from espdock.workspace import Package, PackageKind
 
 FORMAT = 1
@@ -332,7 +332,7 @@ def for_image(rules: Mapping[str, Rule], image: RosImage, pip_rules: Mapping[str
 def python_rule(key: str, rule: Rule, sibling: Rule | None) -> Rule:
     """What serves KEY (whose apt RULE installs Python packages) in the wheels venv: the key's
     pip rule for another platform, else its -pip SIBLING key's rule, else the reviewed PyPI
-    project (espdock.pypi_names), else nothing, with the reason: never a guessed name."""
+    project (espdock.ros.pypi_names), else nothing, with the reason: never a guessed name."""
     if rule.pip_elsewhere:
         return Rule("pip", rule.pip_elsewhere, "its pip rule for another platform (the venv sees no apt Python)")
     if sibling is not None and sibling.installer == "pip":
@@ -359,7 +359,7 @@ def pip_lock_lines(
     """uv's hashed lock of REQUIREMENTS for the image's Python (one line per package, hashes
     inline), and the requirements PyPI does not have (dropped). SYSTEM: the official image's
     Python, whose installed distributions the lock keeps at their versions."""
-    from espdock.lock import ROS_IMAGE_PYTHON, locate
+    from espdock.build.lock import ROS_IMAGE_PYTHON, locate
 
     wanted = sorted(set(requirements))
     absent: set[str] = set()

@@ -11,9 +11,9 @@ import tempfile
 from importlib import resources
 from pathlib import Path
 
-from espdock import transport
 from espdock.defaults import default_file
 from espdock.errors import ConfigError, WorkspaceError
+from espdock.firmware import transport
 from espdock.layout import CONFIG_FILE
 from espdock.workspace import Package, PackageKind, Workspace
 
@@ -106,7 +106,7 @@ def create_firmware_package(
     TARGET, when given, is the package's chip: CONFIG_IDF_TARGET in its sdkconfig.defaults, where
     IDF and espdock read it (other packages keep theirs).
 
-    LINK is how the board reaches the agent (espdock.transport): a serial one is written into
+    LINK is how the board reaches the agent (espdock.firmware.transport): a serial one is written into
     sdkconfig.defaults and app-colcon.meta (so that a plain `idf.py build` matches too).
 
     OWNER (uid, gid), when given, gets the new files (root creating them for someone).
@@ -119,7 +119,7 @@ def create_firmware_package(
     if destination.exists():
         raise WorkspaceError(f"{destination} already exists", "Pick another name, or remove that directory.")
     extra = "".join(f"  <depend>{d}</depend>\n" for d in dict.fromkeys(depends) if d != "std_msgs")
-    template = resources.files("espdock").joinpath(TEMPLATE)
+    template = resources.files("espdock.firmware").joinpath(TEMPLATE)
     component = home / "components" / COMPONENT
     try:
         home.mkdir(parents=True, exist_ok=True)
@@ -319,8 +319,8 @@ COMPOSE_MARK = "# espdock-generated sha256:"
 def starter_compose(project: str, image: str, executables: dict[str, list[str]]) -> str:
     """The commented compose file `espdock init` writes: one service per executable (package ->
     its executables, as installed), on IMAGE, under a first line that marks it as espdock's."""
+    from espdock.build.plan import RUNTIME_INSTALL
     from espdock.layout import MICRO_ROS_AGENT_IMAGE
-    from espdock.plan import RUNTIME_INSTALL
 
     taken = [exe for found in executables.values() for exe in found]
     blocks = []
@@ -397,7 +397,7 @@ def init_compose(
     """`espdock init`'s compose.yaml for WORKSPACE, whose runtime images are REPOSITORY: the
     executables its ROS PACKAGES have installed (see write_starter_compose for REFRESH, FORCE
     and what it returns)."""
-    from espdock.nodes import executables
+    from espdock.ros.nodes import executables
 
     install = workspace.ws_dir / "install"
     found = {

@@ -11,10 +11,10 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
-from espdock import rosdeps, transport
-from espdock.colcon import ColconSettings, left_out, sets_build_testing, with_build_testing
 from espdock.config import Config, check_target
 from espdock.errors import WorkspaceError
+from espdock.firmware import transport
+from espdock.firmware.pins import parse_sources
 from espdock.layout import (
     IDF_DOCKERFILE,
     IDF_INPUT_DIR,
@@ -28,7 +28,8 @@ from espdock.layout import (
     WORKSPACE_MOUNT,
     firmware_install_dir,
 )
-from espdock.pins import parse_sources
+from espdock.ros import rosdeps
+from espdock.ros.colcon import ColconSettings, left_out, sets_build_testing, with_build_testing
 from espdock.workspace import BuildInputs, Package, PackageKind, Workspace, select_up_to
 
 LABEL_KEY = "io.espdock.key"
@@ -103,7 +104,7 @@ class ColconBuild:
     colcon_root: str = "ws"
     force: bool = False
     name: str = "colcon build"
-    # The options given after `--` (checked: espdock.colcon), each package's colcon settings
+    # The options given after `--` (checked: espdock.ros.colcon), each package's colcon settings
     # digest, and the user's colcon defaults file on the host (mounted), if any.
     colcon_args: tuple[str, ...] = ()
     settings: tuple[tuple[str, str], ...] = ()

@@ -19,9 +19,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from xml.etree.ElementTree import Element, ElementTree, ParseError
 
-from espdock.colcon import check_colcon_args
 from espdock.errors import ConfigError, DependencyError
 from espdock.layout import ROS_BUILD_BASE
+from espdock.ros.colcon import check_colcon_args
 
 # Where espdock reads the results: colcon's default (the package's build dir).
 REFUSED_FOR_TEST = {"--test-result-base": f"espdock reads the results in {ROS_BUILD_BASE}/ of the colcon root"}
@@ -109,7 +109,7 @@ def run_host_tests(name: str, package_dir: Path, base: Path, on_line: Callable[[
 
 
 def check_test_args(args: Iterable[str] | None) -> tuple[str, ...]:
-    """ARGS for `colcon test`, by the rules of `espdock build -- ...` (espdock.colcon), plus what
+    """ARGS for `colcon test`, by the rules of `espdock build -- ...` (espdock.ros.colcon), plus what
     decides where the results go."""
     checked = check_colcon_args(args)
     for arg in checked:

@@ -6,10 +6,10 @@ import json
 from collections.abc import Mapping
 from datetime import UTC, datetime
 
-from espdock.engine import Engine, ImageInfo, RunSpec
+from espdock.build.plan import LABEL_INPUTS, ImageSpec, derive_interface_packages, spec_target
 from espdock.errors import EspdockError, WorkspaceError
-from espdock.pins import FOLLOW_HEAD, RESOLVED_FILE, Source, parse_resolved, parse_sources
-from espdock.plan import LABEL_INPUTS, ImageSpec, derive_interface_packages, spec_target
+from espdock.firmware.pins import FOLLOW_HEAD, RESOLVED_FILE, Source, parse_resolved, parse_sources
+from espdock.images.engine import Engine, ImageInfo, RunSpec
 from espdock.workspace import Package
 
 

@@ -93,7 +93,7 @@ def _shim_text(espdock_site: str, espdock_python: str) -> str:
         f"ESPDOCK_SITE = {espdock_site!r}\n"
         "if ESPDOCK_SITE not in sys.path:\n"
         "    sys.path.append(ESPDOCK_SITE)  # last: colcon's own packages keep precedence\n\n"
-        "from espdock import colcon_extension as _extension  # noqa: E402\n\n"
+        "from espdock.ros import colcon_extension as _extension  # noqa: E402\n\n"
         f"_extension.ESPDOCK_PYTHON = {espdock_python!r}\n"
         "EspIdfPackageIdentification = _extension.EspIdfPackageIdentification\n"
         "EspIdfBuildTask = _extension.EspIdfBuildTask\n"

@@ -15,15 +15,15 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 from urllib.parse import urlsplit
 
+from espdock.build.plan import LONGCALLS_RISCV, IdfBuild
 from espdock.config import CHIP_TARGETS
-from espdock.engine import Mount, format_argv
 from espdock.errors import ConfigError, EspdockError, WorkspaceError
-from espdock.plan import LONGCALLS_RISCV, IdfBuild
-from espdock.provision import IMAGE_MOUNT
+from espdock.firmware.provision import IMAGE_MOUNT
+from espdock.images.engine import Mount, format_argv
 from espdock.workspace import Workspace, component_targets
 
 if TYPE_CHECKING:
-    from espdock.runner import Runner
+    from espdock.build.runner import Runner
 
 URL_SCHEMES = ("socket", "rfc2217")
 

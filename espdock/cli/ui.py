@@ -10,10 +10,10 @@ from rich.status import Status
 from rich.table import Table
 from rich.text import Text
 
+from espdock.build.plan import ColconBuild, EnsureBaseImage, EnsureImage, IdfBuild, InstallFirmware, Plan, RuntimeImage
 from espdock.events import Event, Outcome, StepFinished, StepNote, StepOutput, StepStarted
+from espdock.firmware.pins import IdfPin, Source
 from espdock.layout import IDF_DOCKERFILE, SOURCES_FILE, firmware_install_dir
-from espdock.pins import IdfPin, Source
-from espdock.plan import ColconBuild, EnsureBaseImage, EnsureImage, IdfBuild, InstallFirmware, Plan, RuntimeImage
 from espdock.workspace import Package, Workspace
 
 MARKS = {
@@ -122,7 +122,7 @@ class QuietReporter:
 
 def render_plan(console: Console, plan: Plan) -> None:
     """Print the steps a plan would run, without running them (--dry-run)."""
-    from espdock.engine import format_argv
+    from espdock.images.engine import format_argv
 
     console.print(Text(f"workspace {plan.workspace.root}", style="bold"))
     if not plan.steps:

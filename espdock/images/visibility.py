@@ -14,8 +14,8 @@ import secrets
 import stat
 from pathlib import Path
 
-from espdock.engine import Engine, Mount, RunSpec
 from espdock.errors import WorkspaceError, WorkspaceNotVisible
+from espdock.images.engine import Engine, Mount, RunSpec
 from espdock.layout import WORKSPACE_MOUNT
 from espdock.workspace import Workspace
 

@@ -54,7 +54,7 @@ def package_stamps(
     settings: Mapping[str, str] | None = None,
 ) -> dict[str, str]:
     """Each package's stamp from its source digest, its workspace dependencies' stamps, IMAGE and
-    its colcon SETTINGS digest (options, colcon.meta, defaults files: espdock.colcon).
+    its colcon SETTINGS digest (options, colcon.meta, defaults files: espdock.ros.colcon).
 
     SOURCES must list the packages in dependency order (a package after what it depends on).
     A dependency's stamp is part of its dependents', so a change rebuilds what depends on it.

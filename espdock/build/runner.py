@@ -21,22 +21,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import assert_never
 
-from espdock import bootstrap
-from espdock.colcon import (
-    DEFAULTS_MOUNT,
-    ColconLog,
-    PackageState,
-    explain_failure,
-    retire_container_caches,
-    usage_error,
-)
-from espdock.config import Config, resolve_ca_bundle
-from espdock.engine import Engine, Mount, RegistryAnswer, RegistryStatus, RunSpec
-from espdock.errors import BuildFailed, ConfigError, EspdockError, RegistryError, WorkspaceError, disk_full
-from espdock.events import Emit, Outcome, StepFinished, StepNote, StepOutput, StepStarted
-from espdock.install import COMMANDS_SOURCE, install_firmware
-from espdock.layout import ROS_BUILD_BASE
-from espdock.plan import (
+from espdock.build.plan import (
     LABEL_KEY,
     LABEL_WORKSPACE,
     LIBRARY_SDKCONFIG_PREFIXES,
@@ -53,10 +38,25 @@ from espdock.plan import (
     cache_ref,
     runtime_image_spec,
 )
-from espdock.runtime_tree import runtime_files
-from espdock.stamps import StampFile, listing_digest, package_stamps, tree_digest
-from espdock.testing import ColconTest
-from espdock.visibility import CHECKED, ensure_engine_sees, workspace_mount
+from espdock.build.stamps import StampFile, listing_digest, package_stamps, tree_digest
+from espdock.config import Config, resolve_ca_bundle
+from espdock.errors import BuildFailed, ConfigError, EspdockError, RegistryError, WorkspaceError, disk_full
+from espdock.events import Emit, Outcome, StepFinished, StepNote, StepOutput, StepStarted
+from espdock.firmware.install import COMMANDS_SOURCE, install_firmware
+from espdock.images import bootstrap
+from espdock.images.engine import Engine, Mount, RegistryAnswer, RegistryStatus, RunSpec
+from espdock.images.visibility import CHECKED, ensure_engine_sees, workspace_mount
+from espdock.layout import ROS_BUILD_BASE
+from espdock.ros.colcon import (
+    DEFAULTS_MOUNT,
+    ColconLog,
+    PackageState,
+    explain_failure,
+    retire_container_caches,
+    usage_error,
+)
+from espdock.ros.runtime_tree import runtime_files
+from espdock.ros.testing import ColconTest
 from espdock.workspace import Workspace
 
 TARGET_MARKER = ".espdock-target"
@@ -64,7 +64,7 @@ DPKG_LINE = re.compile(r"^[a-z0-9][a-z0-9+.-]*(:[a-z0-9]+)?=\S+$")
 # Under ws/build, beside the packages' build dirs (colcon skips dot dirs).
 COMPONENT_CACHE = ".idf-component-cache"
 MANAGED_COMPONENTS = "managed_components"
-# Under ws/build: what the ROS packages and the firmware were last built from (espdock.stamps).
+# Under ws/build: what the ROS packages and the firmware were last built from (espdock.build.stamps).
 ROS_STAMPS = ".espdock-colcon-stamps.json"
 FIRMWARE_STAMPS = ".espdock-firmware-stamps.json"
 INSTALL_STAMPS = ".espdock-install-stamps.json"
@@ -122,7 +122,7 @@ class Runner:
         self._owner = owner
         self._push_cache = push_cache
         self._commit_times: dict[Path, str | None] = {}
-        # The keyed images this runner's steps used (tag, repository), for espdock.prune's record.
+        # The keyed images this runner's steps used (tag, repository), for espdock.images.prune's record.
         self.used_images: list[tuple[str, str]] = []
         # Packages this run was to build and did not: their install trees are old, so no runtime
         # image is made from them.
@@ -603,7 +603,7 @@ class Runner:
                 mountpoint.rmdir()
 
     def _check_mount(self, workspace: Workspace, image: str, user: str, labels: tuple[tuple[str, str], ...]) -> None:
-        """Make sure the engine's containers see the workspace (espdock.visibility), once per engine and path."""
+        """Make sure the engine's containers see the workspace (espdock.images.visibility), once per engine and path."""
         _make_dirs_for(workspace.ws_dir / "build", self._owner)
         ensure_engine_sees(self._engine, workspace, image, user, labels)
         if (workspace.ws_dir / "build" / CHECKED).exists():

@@ -17,8 +17,8 @@ from collections.abc import Callable, Mapping
 from pathlib import Path
 
 from espdock.config import Config
-from espdock.engine import Engine, compose_available
 from espdock.errors import EngineUnavailable, ImageBuildError
+from espdock.images.engine import Engine, compose_available
 
 Notify = Callable[[str], None]
 

@@ -1,0 +1,1 @@
+"""Docker/Podman engine access and the images espdock keys, caches, bootstraps and prunes."""

@@ -32,7 +32,7 @@ setup:
 # the engine; their output follows pytest's, and either failing fails the target.
 # Three pytest workers, each taking whole modules (their module fixtures build once):
 # one worker's image builds and colcon runs fill the others' waits on containers. On two
-# cores, three left 8 % idle where two left more and four gained nothing (README, Tests).
+# cores, three left 8 % idle where two left more and four gained nothing (docs/testing.md).
 # Modules go out longest first (tests/longest_first.py sets the order xdist keeps).
 test: setup
 	$(PY) -m ruff check espdock tests ws/src

@@ -7,7 +7,7 @@ whether it is stale is decided offline, without uv. For pyproject.toml the diges
 what decides the lock: [project]'s requires-python, dependencies and optional-dependencies.
 
 docker/idf/requirements.txt is not locked: it is installed into ESP-IDF's own venv on top of
-what IDF installed under its constraints, which only the real IDF image knows (see README).
+what IDF installed under its constraints, which only the real IDF image knows (docs/reproducibility.md, Locks).
 """
 
 from __future__ import annotations

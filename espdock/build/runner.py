@@ -871,7 +871,7 @@ def _permission_error(exc: PermissionError) -> WorkspaceError:
     return WorkspaceError(
         f"permission denied on {path or 'a workspace file'}{owner}; espdock runs as uid {os.geteuid()}",
         "Give that path back to you (e.g. `sudo chown -R $(id -u):$(id -g) PATH`); files a container wrote as "
-        "another user are the engine's doing: see README, Engines (rootless engines).",
+        "another user are the engine's doing: see the Engines page of espdock's docs (rootless engines).",
     )
 
 

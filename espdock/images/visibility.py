@@ -73,7 +73,7 @@ def ensure_engine_sees(
             "Build on an engine that shares this machine's files at the same path: a local engine (unset "
             "DOCKER_HOST), or share the path with the engine's machine. On GitLab with the docker:dind service, "
             "keep the workspace under the project's builds dir ($CI_PROJECT_DIR), which the runner mounts into "
-            "the service at the same path (README, Engines).",
+            "the service at the same path (the Engines page of espdock's docs).",
         )
     cache.parent.mkdir(parents=True, exist_ok=True)
     cache.write_text(json.dumps(record) + "\n")

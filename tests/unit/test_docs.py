@@ -95,7 +95,7 @@ def test_every_command_has_a_section_in_the_pages() -> None:
 
 
 def test_every_exit_code_is_explained() -> None:
-    import espdock.flashing  # noqa: F401  (its serial port error)
+    import espdock.firmware.flashing  # noqa: F401  (its serial port error)
     from espdock.errors import EspdockError
 
     codes, todo = set(), [EspdockError]

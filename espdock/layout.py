@@ -49,9 +49,35 @@ ROS_BUILD_BASE = "build/espdock-ros"
 FIRMWARE_DIR = "firmware"
 
 
+# colcon's record of an install base's layout ("isolated" or "merged"): colcon-core writes it
+# and refuses to build into an install base of the other layout; espdock's colcon extension
+# writes it where an older colcon (Debian's 0.12) did not.
+INSTALL_LAYOUT_FILE = ".colcon_install_layout"
+
+
 def firmware_install_dir(package: str) -> str:
-    """Where PACKAGE's flashable artefacts are installed, relative to the colcon root."""
+    """Where PACKAGE's flashable artefacts are installed, relative to the colcon root (colcon's
+    default, isolated layout; installed_firmware_dir knows the merged one too)."""
     return f"install/{package}/share/{package}/{FIRMWARE_DIR}"
+
+
+def merged_install(install_base: Path) -> bool:
+    """Whether colcon made INSTALL_BASE a merged one (--merge-install): every package's files in
+    the install base itself, where colcon's setup files and the ament index look for them."""
+    try:
+        return (install_base / INSTALL_LAYOUT_FILE).read_text().strip() == "merged"
+    except OSError:
+        return False
+
+
+def install_prefix(install_base: Path, package: str) -> Path:
+    """PACKAGE's prefix in INSTALL_BASE, in the layout colcon gave it."""
+    return install_base if merged_install(install_base) else install_base / package
+
+
+def installed_firmware_dir(ws_dir: Path, package: str) -> Path:
+    """Where PACKAGE's flashable artefacts are installed in the colcon root WS_DIR."""
+    return install_prefix(ws_dir / "install", package) / "share" / package / FIRMWARE_DIR
 
 
 # The micro-ROS agent the starter compose file's `hardware` profile runs (espdock init).

@@ -46,7 +46,7 @@ from espdock.firmware.install import COMMANDS_SOURCE, install_firmware
 from espdock.images import bootstrap
 from espdock.images.engine import Engine, Mount, RegistryAnswer, RegistryStatus, RunSpec
 from espdock.images.visibility import CHECKED, ensure_engine_sees, workspace_mount
-from espdock.layout import ROS_BUILD_BASE
+from espdock.layout import ROS_BUILD_BASE, install_prefix
 from espdock.ros.colcon import (
     DEFAULTS_MOUNT,
     ColconLog,
@@ -634,7 +634,11 @@ class Runner:
 
     def _install(self, workspace: Workspace, step: InstallFirmware) -> tuple[Outcome, str]:
         build_dir = workspace.ws_dir / "build" / step.package
-        prefix = workspace.ws_dir / "install" / step.package
+        # A merged install/ (colcon --merge-install, which refuses an install/<package> there):
+        # the firmware goes where that layout's setup files and ament index see it.
+        prefix = install_prefix(workspace.ws_dir / "install", step.package)
+        # What the stamp lists: the package's own files, not a merged prefix's other packages.
+        installed = prefix / "share" / step.package if prefix == workspace.ws_dir / "install" else prefix
         manifest = workspace.root / step.project / "package.xml"
         stamp_file = StampFile(workspace.ws_dir / "build" / INSTALL_STAMPS)
         # The ros2 run commands' text too: an install made before them (or another version) is redone.
@@ -644,7 +648,7 @@ class Runner:
             + COMMANDS_SOURCE
         )
         stamps = {step.package: source.hexdigest()}
-        if stamp_file.up_to_date(stamps, {step.package: listing_digest(prefix)}):
+        if stamp_file.up_to_date(stamps, {step.package: listing_digest(installed)}):
             return Outcome.CACHED, "up to date"
         stamp_file.forget(stamps)
         owner = self._owner if os.geteuid() == 0 else None
@@ -655,9 +659,10 @@ class Runner:
             install_base=workspace.ws_dir / "install",
             run_depends=step.run_depends,
             owner=owner,
+            prefix=prefix,
             workspace_root=workspace.root,
         )
-        stamp_file.record(stamps, {step.package: listing_digest(prefix)})
+        stamp_file.record(stamps, {step.package: listing_digest(installed)})
         _give_to(stamp_file.path, self._owner)
         return Outcome.BUILT, str(firmware.relative_to(workspace.root))
 

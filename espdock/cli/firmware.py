@@ -42,7 +42,7 @@ from espdock.firmware.provision import (
 from espdock.firmware.status import micro_ros_report, resolved_sources
 from espdock.images import bootstrap
 from espdock.images.engine import format_argv
-from espdock.layout import firmware_install_dir
+from espdock.layout import installed_firmware_dir
 from espdock.workspace import Package, Workspace, read_build_inputs
 
 
@@ -214,7 +214,7 @@ def flash(
     plan, step = firmware_plan(ws, config, package)
     if wifi_ssid is not None or agent is not None:
         transport.check_provisionable(package, transport.project_transport(ws.root / step.project, step.target))
-    firmware_dir = ws.ws_dir / firmware_install_dir(package)
+    firmware_dir = installed_firmware_dir(ws.ws_dir, package)
     flasher_args = read_flasher_args(firmware_dir, package)
     settings = optional_network_settings(wifi_ssid, wifi_password_file, agent, domain, sys.stdin, _ask_password)
     nvs = nvs_partition(firmware_dir, flasher_args, package) if settings else None
@@ -263,7 +263,7 @@ def provision(
     transport.check_provisionable(package, transport.project_transport(ws.root / step.project, step.target))
     if wifi_ssid is None or agent is None:
         raise ConfigError(f"provisioning {package} needs --wifi-ssid and --agent", "See `espdock provision --help`.")
-    firmware_dir = ws.ws_dir / firmware_install_dir(package)
+    firmware_dir = installed_firmware_dir(ws.ws_dir, package)
     flasher_args = read_flasher_args(firmware_dir, package)
     nvs = nvs_partition(firmware_dir, flasher_args, package)
     settings = network_settings(wifi_ssid, wifi_password_file, agent, domain, sys.stdin, _ask_password)

@@ -250,6 +250,8 @@ def init(
     console.print(f"layout: packages in {', '.join(ws.package_paths)}; colcon's build/install/log in {ws.colcon_root}")
     console.print(f"found {len(ros)} ROS package(s){': ' + ', '.join(ros) if ros else ''}")
     console.print(f"found {len(firmware)} firmware package(s){': ' + ', '.join(firmware) if firmware else ''}")
+    if firmware and (skips := colcon_register.colcon_skips_firmware(dict(os.environ))):
+        console.print(f"note: {skips}")
     here = "" if directory.resolve() == Path.cwd() else f"cd {directory} && "
     console.print("next:")
     if not firmware:
@@ -308,6 +310,16 @@ def colcon_extension_install(colcon: ColconOption = None) -> None:
         return
     written = colcon_register.install_shim(target, colcon_register.espdock_site(), colcon_register.espdock_python())
     console.print(f"colcon ({target.python}) now loads espdock's extension: {', '.join(map(str, written))}")
+
+
+@colcon_extension.command("check")
+@command
+def colcon_extension_check() -> None:
+    """Fail when the `colcon` on PATH would skip firmware packages (it does not load espdock's extension)."""
+    skips = colcon_register.colcon_skips_firmware(dict(os.environ))
+    if skips is not None:
+        raise ConfigError(skips)
+    console.print("colcon on PATH builds firmware packages through espdock (or there is no colcon on PATH)")
 
 
 @colcon_extension.command("uninstall")

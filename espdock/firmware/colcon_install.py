@@ -11,12 +11,14 @@ container sees only the workspace, so the build itself stays in espdock's build/
 from __future__ import annotations
 
 import os
+import shutil
 import sys
 from pathlib import Path
 
 from espdock.config import load_config
 from espdock.errors import EspdockError
 from espdock.firmware.install import install_firmware
+from espdock.layout import FIRMWARE_DIR, INSTALL_LAYOUT_FILE, install_prefix, merged_install
 from espdock.workspace import find_workspace, read_package
 
 
@@ -35,19 +37,32 @@ def install_where_colcon_says(
             build_dir.parent.mkdir(parents=True, exist_ok=True)
             build_dir.unlink(missing_ok=True)
             build_dir.symlink_to(own_build, target_is_directory=True)
-    if not merged and os.path.realpath(prefix) == os.path.realpath(ws.ws_dir / "install" / package):
-        return None
-    manifest = package_dir / "package.xml"
-    return install_firmware(
-        package=package,
-        manifest=manifest,
-        build_dir=own_build,
-        install_base=prefix if merged else prefix.parent,
-        run_depends=tuple(sorted(read_package(manifest).depends)),
-        owner=None,
-        prefix=prefix,
-        workspace_root=ws.root,
-    )
+    own_base = ws.ws_dir / "install"
+    own_isolated = own_base / package
+    own_prefix = install_prefix(own_base, package)  # where espdock build just installed it
+    if merged and os.path.realpath(prefix) == os.path.realpath(own_base) and not merged_install(own_base):
+        # An older colcon (Debian's 0.12) does not record the layout: recorded here, espdock's
+        # own installs (espdock build and flash) use it from now on.
+        (own_base / INSTALL_LAYOUT_FILE).write_text("merged\n")
+    if os.path.realpath(prefix) == os.path.realpath(own_prefix):
+        installed = None
+    else:
+        manifest = package_dir / "package.xml"
+        installed = install_firmware(
+            package=package,
+            manifest=manifest,
+            build_dir=own_build,
+            install_base=prefix if merged else prefix.parent,
+            run_depends=tuple(sorted(read_package(manifest).depends)),
+            owner=None,
+            prefix=prefix,
+            workspace_root=ws.root,
+        )
+    if merged_install(own_base) and (own_isolated / "share" / package / FIRMWARE_DIR).is_symlink():
+        # espdock build's isolated copy, made before the layout was recorded: in a merged install
+        # base nothing sources it, and a second copy is not what colcon was asked for.
+        shutil.rmtree(own_isolated)
+    return installed
 
 
 def main(argv: list[str]) -> int:

@@ -6,6 +6,7 @@ import errno
 import fcntl
 import json
 import os
+import posixpath
 import re
 import socket
 import stat
@@ -20,6 +21,8 @@ from espdock.config import CHIP_TARGETS
 from espdock.errors import ConfigError, EspdockError, WorkspaceError
 from espdock.firmware.provision import IMAGE_MOUNT
 from espdock.images.engine import Mount, format_argv
+from espdock.images.visibility import workspace_mount
+from espdock.layout import firmware_install_dir, installed_firmware_dir
 from espdock.workspace import Workspace, component_targets
 
 if TYPE_CHECKING:
@@ -275,6 +278,9 @@ def flash_package(
 
     NVS_IMAGE (offset, host file) is written in the same run; without APP, only it is."""
     workdir = step.install_dir
+    installed = installed_firmware_dir(workspace.ws_dir, step.package)
+    if installed != workspace.ws_dir / firmware_install_dir(step.package):  # a merged install/
+        workdir = posixpath.join(workspace_mount(workspace).target, installed.relative_to(workspace.root).as_posix())
     mounts: tuple[Mount, ...] = ()
     extra: Extra | None = None
     if nvs_image is not None:

@@ -53,6 +53,8 @@ class ColconPython:
     site_dir: Path
     # Entry point values of espdock's build task it already sees (from a distribution not the shim's).
     found: tuple[str, ...]
+    # Whether it loads espdock's extension at all (installed beside it, or through the shim).
+    loads: bool = False
 
 
 def colcon_python(colcon: str | None, env: dict[str, str]) -> ColconPython:
@@ -81,7 +83,27 @@ def colcon_python(colcon: str | None, env: dict[str, str]) -> ColconPython:
             "Install espdock into colcon's Python instead (`pip install` beside colcon).",
         )
     found = tuple(value for value in answer["found"] if not value.startswith(f"{SHIM}:"))
-    return ColconPython(python, Path(answer["where"]), found)
+    return ColconPython(python, Path(answer["where"]), found, loads=bool(answer["found"]))
+
+
+def colcon_skips_firmware(env: dict[str, str]) -> str | None:
+    """What to tell a user whose `colcon` (on PATH) does not load espdock's extension: there
+    `colcon build` skips every firmware package with only a warning, and exits 0. None when it
+    loads it, or there is no colcon (or none this can ask)."""
+    colcon = shutil.which("colcon", path=env.get("PATH"))
+    if colcon is None:
+        return None
+    try:
+        target = colcon_python(colcon, env)
+    except ConfigError:
+        return None
+    if target.loads:
+        return None
+    return (
+        f"`colcon build` with {colcon} skips firmware packages (a warning, exit code 0): colcon loads "
+        f"extensions only from its own Python ({target.python}), and espdock's is not there; "
+        "`espdock colcon-extension install` registers it"
+    )
 
 
 def _shim_text(espdock_site: str, espdock_python: str) -> str:

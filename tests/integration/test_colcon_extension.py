@@ -15,27 +15,32 @@ from espdock.config import Config, resolve_ca_bundle
 from espdock.layout import firmware_install_dir
 from tests.conftest import REPO, copy_workspace, espdock
 from tests.idf_contract_double.build import use_double
+from tests.integration.test_firmware import emulated_board
 
 pytestmark = [pytest.mark.engine, pytest.mark.slow]
 COLCON = Path(sys.executable).parent / "colcon"
 ARTEFACTS = ("led_strip_node.bin", "led_strip_node.elf", "flasher_args.json", "bootloader/bootloader.bin")
 
 
-@pytest.fixture(scope="module")
-def colcon_ws(tmp_path_factory, engine) -> tuple[Path, dict[str, str]]:
+def firmware_workspace(place: Path, engine) -> tuple[Path, dict[str, str]]:
     """This repository's layout with a Python ROS package and the two firmware apps; the double selected."""
     if not COLCON.exists():
         pytest.fail(f"{COLCON} is missing: colcon-common-extensions belongs in requirements/dev.txt")
-    root = copy_workspace(tmp_path_factory.mktemp("colcon") / "ws-root", test_packages=("beacon_nodes",))
+    root = copy_workspace(place / "ws-root", test_packages=("beacon_nodes",))
     shutil.copy2(REPO / "Dockerfile.idf", root / "Dockerfile.idf")
     shutil.copytree(REPO / "firmware", root / "firmware")
     env = {**os.environ, **use_double(engine, resolve_ca_bundle(Config(), os.environ), lambda line: None, root)}
     return root, env
 
 
-def colcon(root: Path, env: dict[str, str], *args: str) -> subprocess.CompletedProcess[str]:
+@pytest.fixture(scope="module")
+def colcon_ws(tmp_path_factory, engine) -> tuple[Path, dict[str, str]]:
+    return firmware_workspace(tmp_path_factory.mktemp("colcon"), engine)
+
+
+def colcon(root: Path, env: dict[str, str], *args: str, executable: Path = COLCON) -> subprocess.CompletedProcess[str]:
     """`colcon ARGS` in the colcon root (ws/), over both package paths, as a ROS developer types it."""
-    argv = [str(COLCON), *args[:1], "--base-paths", "src", "../firmware", *args[1:]]
+    argv = [str(executable), *args[:1], "--base-paths", "src", "../firmware", *args[1:]]
     if args[0] == "build":
         argv += ["--event-handlers", "console_direct+"]
     return subprocess.run(
@@ -129,14 +134,51 @@ def test_merge_install_and_other_bases_put_the_firmware_where_the_ament_index_se
     assert monitor.returncode == 2 and "the monitor needs a terminal" in monitor.stderr, monitor.stderr
 
 
+@pytest.mark.parametrize("which", ["venv-colcon", "debian-colcon"])
+def test_merge_install_into_the_default_install_base_leaves_one_copy_which_espdock_flashes(
+    which, tmp_path, engine, request
+):
+    """colcon-core 0.21 records the install layout before any package builds; Debian's 0.12 does not."""
+    root, env = firmware_workspace(tmp_path, engine)
+    ws = root / "ws"
+    executable = COLCON
+    if which == "debian-colcon":
+        executable, pipx_espdock = debian_colcon(), request.getfixturevalue("wheel_espdock")
+        env = pipx_user(env, pipx_espdock, executable, tmp_path)
+        registered = subprocess.run([str(pipx_espdock), "colcon-extension", "install"], env=env,
+                                    capture_output=True, text=True, check=False)  # fmt: skip
+        assert registered.returncode == 0, registered.stdout + registered.stderr
+    built = colcon(root, env, "build", "--packages-select", "camera_node", "--merge-install", executable=executable)
+    assert built.returncode == 0, built.stdout[-3000:] + built.stderr[-3000:]
+    merged = ws / "install" / "share" / "camera_node" / "firmware"
+    assert (merged / "flasher_args.json").is_file()
+    # Only the merged layout colcon was asked for: no isolated install/camera_node beside it.
+    assert not (ws / "install" / "camera_node").exists()
+    # espdock's own build afterwards keeps to that layout (colcon refuses to mix them).
+    again = espdock("build", "--only", "firmware", "--force", "camera_node", cwd=root, env=env)
+    assert again.returncode == 0, again.stdout + again.stderr
+    assert not (ws / "install" / "camera_node").exists()
+    # `ros2 run camera_node flash` in that layout: espdock flash writes the merged install's firmware.
+    with emulated_board("esp32") as port:
+        flashed = espdock("flash", "camera_node", "--port", port, "--verify", cwd=root, env=env)
+    assert flashed.returncode == 0, flashed.stdout[-3000:] + flashed.stderr
+    assert f"flashed camera_node through {port} and verified it" in flashed.stdout
+
+
 def without_pythonpath(env) -> dict[str, str]:
     """ENV for a process of another Python: the separate colcon sees its own packages only."""
     return {name: value for name, value in env.items() if name != "PYTHONPATH"}
 
 
-@pytest.fixture(scope="module")
-def separate_colcon() -> Path:
-    """colcon in a venv of its own, without espdock: apt's colcon beside a pipx espdock, in small."""
+def pipx_user(env: dict[str, str], pipx_espdock: Path, colcon: Path, home: Path) -> dict[str, str]:
+    """ENV as a user of COLCON and a pipx espdock has it: espdock on PATH, as pipx puts it, then
+    colcon; the user site a system colcon reads (~/.local) one of HOME's own."""
+    path = f"{pipx_espdock.parent}:{colcon.parent}:{env['PATH']}"
+    return {**without_pythonpath(env), "PATH": path, "PYTHONUSERBASE": str(home / "user-base")}
+
+
+def venv_colcon() -> Path:
+    """colcon in a venv of its own, without espdock: a colcon venv beside a pipx espdock."""
     from importlib.metadata import version
 
     pins = [f"{name}=={version(name)}" for name in ("colcon-common-extensions", "colcon-core", "colcon-ros")]
@@ -147,11 +189,28 @@ def separate_colcon() -> Path:
 
     from tests.conftest import kept_in_temp
 
-    colcon = kept_in_temp("espdock-colcon-venv", "-".join(pins).replace("==", "_"), make) / "venv" / "bin" / "colcon"
-    probe = [str(colcon.parent / "python"), "-c", "import espdock"]
+    return kept_in_temp("espdock-colcon-venv", "-".join(pins).replace("==", "_"), make) / "venv" / "bin" / "colcon"
+
+
+def debian_colcon() -> Path:
+    """Debian's colcon (apt's python3-colcon-* in /usr/lib/python3/dist-packages, run by the system
+    Python): the README's apt colcon beside a pipx espdock, as a user has it."""
+    colcon = Path("/usr/bin/colcon")
+    if not colcon.exists():
+        pytest.skip("Debian's colcon is not installed (tests/install-system-deps.sh installs it)")
+    return colcon
+
+
+@pytest.fixture(scope="module", params=[venv_colcon, debian_colcon], ids=["venv-colcon", "debian-colcon"])
+def separate_colcon(request) -> Path:
+    """A colcon in a Python without espdock."""
+    colcon = request.param()
+    probe = [str(colcon.parent / "python3"), "-c", "import espdock"]
+    if colcon.parent == Path("/usr/bin"):
+        probe[0] = "/usr/bin/python3"
     # Not from the checkout: a Python started there imports its espdock/ from the current directory.
     clean = without_pythonpath(os.environ)
-    found = subprocess.run(probe, cwd=colcon.parent, env=clean, capture_output=True, check=False)
+    found = subprocess.run(probe, cwd="/", env=clean, capture_output=True, check=False)
     assert found.returncode != 0, "the separate colcon must not see espdock"
     return colcon
 
@@ -164,16 +223,25 @@ def test_a_colcon_in_another_python_builds_firmware_once_the_extension_is_instal
     firmware = ws / firmware_install_dir("camera_node")
     shutil.rmtree(ws / "install" / "camera_node", ignore_errors=True)
     argv = [str(separate_colcon), "build", "--base-paths", "src", "../firmware", "--packages-select", "camera_node"]
-    # espdock on PATH as pipx puts it; the extension must run espdock's own Python, not colcon's.
-    path = f"{wheel_espdock.parent}:{separate_colcon.parent}:{env['PATH']}"
-    user = {**without_pythonpath(env), "PATH": path}
+    # The extension must run espdock's own Python, not colcon's.
+    user = pipx_user(env, wheel_espdock, separate_colcon, tmp_path)
     skipped = subprocess.run(argv, cwd=ws, env=user, capture_output=True, text=True, check=False)
     assert "No task extension to 'build' a 'ros.esp_idf' package" in skipped.stderr + skipped.stdout
-    assert not firmware.exists()
+    assert skipped.returncode == 0 and not firmware.exists()  # colcon's own way: a warning, success
+    # What espdock says about it: `colcon-extension check` fails, `init` notes it.
+    check = [str(wheel_espdock), "colcon-extension", "check"]
+    checked = subprocess.run(check, env=user, capture_output=True, text=True, check=False)
+    assert checked.returncode == 2, checked.stdout + checked.stderr
+    assert f"`colcon build` with {separate_colcon} skips firmware packages" in " ".join(checked.stderr.split())
+    init = subprocess.run(
+        [str(wheel_espdock), "init", str(root)], env=user, capture_output=True, text=True, check=False
+    )
+    assert "`espdock colcon-extension install` registers it" in " ".join(init.stdout.split()), init.stdout + init.stderr
 
     installed = subprocess.run(
-        [str(wheel_espdock), "colcon-extension", "install"], env=user, capture_output=True, text=True, check=False
-    )
+        [str(wheel_espdock), "colcon-extension", "install"],
+        env=user, capture_output=True, text=True, check=False,
+    )  # fmt: skip
     assert installed.returncode == 0, installed.stdout + installed.stderr
     try:
         built = subprocess.run(argv, cwd=ws, env=user, capture_output=True, text=True, timeout=1800, check=False)
@@ -181,13 +249,21 @@ def test_a_colcon_in_another_python_builds_firmware_once_the_extension_is_instal
         assert "No task extension" not in built.stdout + built.stderr
         assert (firmware / "flasher_args.json").is_file()
         again = subprocess.run(
-            [str(wheel_espdock), "colcon-extension", "install"], env=user, capture_output=True, text=True, check=False
-        )
+            [str(wheel_espdock), "colcon-extension", "install"],
+            env=user, capture_output=True, text=True, check=False,
+        )  # fmt: skip
         assert again.returncode == 0 and "now loads" in again.stdout
+        checked = subprocess.run(check, env=user, capture_output=True, text=True, check=False)
+        assert checked.returncode == 0, checked.stdout + checked.stderr
+        init = subprocess.run(
+            [str(wheel_espdock), "init", str(root)], env=user, capture_output=True, text=True, check=False
+        )
+        assert "colcon-extension" not in init.stdout
     finally:
         removed = subprocess.run(
-            [str(wheel_espdock), "colcon-extension", "uninstall"], env=user, capture_output=True, text=True, check=False
-        )
+            [str(wheel_espdock), "colcon-extension", "uninstall"],
+            env=user, capture_output=True, text=True, check=False,
+        )  # fmt: skip
     assert removed.returncode == 0 and "removed" in removed.stdout
     after = subprocess.run(argv, cwd=ws, env=user, capture_output=True, text=True, check=False)
     assert "No task extension to 'build' a 'ros.esp_idf' package" in after.stderr + after.stdout

@@ -185,6 +185,17 @@ class Started:
             self.process.wait()
 
 
+def in_workspace_image(image: str, root: Path, *argv: str) -> subprocess.CompletedProcess[str]:
+    """ARGV in IMAGE with the workspace ROOT at /workspace, as ROOT's owner: what a colcon build
+    there left, seen as the build saw it."""
+    stat = root.stat()
+    return subprocess.run(
+        ["docker", "run", "--rm", "-u", f"{stat.st_uid}:{stat.st_gid}", "-e", "HOME=/tmp",
+         "-v", f"{root}:/workspace", "-w", "/workspace", image, *argv],
+        capture_output=True, text=True, check=False, timeout=120,
+    )  # fmt: skip
+
+
 def leftover_containers(engine, root: Path) -> list[str]:
     return engine.containers({"io.espdock.workspace": str(root)})
 

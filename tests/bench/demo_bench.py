@@ -29,6 +29,8 @@ import threading
 import time
 from pathlib import Path
 
+# demo_stack by its own name, as the demo tests import it; it imports tests.ports from the checkout.
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "demo"))
 
 from demo_stack import DemoStack, StackError, build_image, docker_problem

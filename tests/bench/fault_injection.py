@@ -56,6 +56,7 @@ from espdock.config import Config, resolve_ca_bundle  # noqa: E402
 from espdock.images.engine import Engine  # noqa: E402
 from tests.conftest import copy_workspace  # noqa: E402
 from tests.idf_contract_double.build import use_double  # noqa: E402
+from tests.ports import free_port  # noqa: E402
 
 FIRMWARE = "led_strip_node"
 CHIP = "esp32c3"  # led_strip_node's own (CONFIG_IDF_TARGET in its sdkconfig.defaults): the board emulated
@@ -165,9 +166,7 @@ class Bootloader:
         self.start()
 
     def start(self) -> None:
-        with socket.socket() as probe:
-            probe.bind(("127.0.0.1", 0))
-            port = probe.getsockname()[1]
+        port = free_port()
         tool = Path(sys.executable).with_name("esp32-mock-bootloader")
         self.process = subprocess.Popen([str(tool), "run", "--chip", CHIP, "--port", str(port)],
                                         stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)  # fmt: skip

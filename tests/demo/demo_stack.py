@@ -12,7 +12,6 @@ import json
 import os
 import random
 import shutil
-import socket
 import subprocess
 import sys
 import time
@@ -21,6 +20,8 @@ import urllib.request
 from collections.abc import Mapping
 from pathlib import Path
 
+from tests.ports import free_port
+
 ROOT = Path(__file__).resolve().parents[2]
 COMPOSE_FILE = ROOT / "compose.yaml"
 SERVICES = ("camera_sim", "led_strip_sim", "qr_detector", "camera_ui", "demo")
@@ -28,12 +29,6 @@ SERVICES = ("camera_sim", "led_strip_sim", "qr_detector", "camera_ui", "demo")
 
 class StackError(RuntimeError):
     """A compose command or the probe failed; the message carries its output."""
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def docker_problem() -> str | None:

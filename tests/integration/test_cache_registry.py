@@ -21,7 +21,8 @@ import pytest
 from espdock.config import Config, resolve_ca_bundle
 from tests.conftest import REPO, espdock, python_workspace
 from tests.idf_contract_double.build import use_double
-from tests.registry_server import PASSWORD, Registry, docker_config, free_port, port_is_free
+from tests.ports import free_port, port_is_free
+from tests.registry_server import PASSWORD, Registry, docker_config
 
 pytestmark = [pytest.mark.engine, pytest.mark.slow]
 

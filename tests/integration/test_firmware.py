@@ -18,7 +18,6 @@ import re
 import select
 import shutil
 import signal
-import socket
 import subprocess
 import sys
 import tempfile
@@ -42,6 +41,7 @@ from tests.conftest import (
 )
 from tests.idf_contract_double.build import build_double, use_double
 from tests.nvs_reader import read_nvs
+from tests.ports import free_port
 
 pytestmark = [pytest.mark.engine, pytest.mark.slow]
 
@@ -482,9 +482,7 @@ def test_idf_passthrough_runs_idf_py_in_the_image(fw_ws, double_env):
 @contextlib.contextmanager
 def emulated_board(chip: str):
     """esp32-mock-bootloader emulating CHIP on a free loopback port: the ROM bootloader esptool talks to."""
-    with socket.socket() as probe:
-        probe.bind(("127.0.0.1", 0))
-        port = probe.getsockname()[1]
+    port = free_port()
     tool = Path(sys.executable).with_name("esp32-mock-bootloader")
     subprocess.run([str(tool), "start", "--chip", chip, "--port", str(port)], check=True, capture_output=True)
     try:
@@ -653,9 +651,7 @@ def test_flash_to_a_missing_or_silent_port_says_so(fw_ws, double_env):
     assert first.returncode == 0
     missing = espdock("flash", "led_strip_node", "--port", "/dev/ttyESPDOCK9", cwd=root, env=double_env)
     assert missing.returncode == 6 and "/dev/ttyESPDOCK9 does not exist" in missing.stderr
-    with socket.socket() as probe:
-        probe.bind(("127.0.0.1", 0))
-        silent = f"socket://127.0.0.1:{probe.getsockname()[1]}"
+    silent = f"socket://127.0.0.1:{free_port()}"
     result = espdock("flash", "led_strip_node", "--port", silent, cwd=root, env=double_env)
     assert result.returncode == 6 and "nothing answers" in result.stderr
 

@@ -6,11 +6,10 @@ from __future__ import annotations
 
 import json
 import shutil
-import subprocess
 
 import pytest
 
-from tests.conftest import REPO, espdock
+from tests.conftest import REPO, espdock, in_workspace_image
 from tests.rosdep_db import environment
 
 pytestmark = [pytest.mark.engine, pytest.mark.slow]
@@ -38,12 +37,7 @@ def test_a_dual_ros1_ros2_driver_and_a_serial_driver_build_and_run_in_the_wheels
     assert build.returncode == 0, build.stdout[-3000:] + build.stderr
     images = json.loads((tmp_path / "report.json").read_text())["manifest"]["images"]
     (tag,) = [image for image in images if "-build:" in image]
-    stat = root.stat()
-    run = subprocess.run(
-        ["docker", "run", "--rm", "-u", f"{stat.st_uid}:{stat.st_gid}", "-e", "HOME=/tmp",
-         "-v", f"{root}:/workspace", "-w", "/workspace", tag, "sh", "-c", CHECK],
-        capture_output=True, text=True, check=False, timeout=120,
-    )  # fmt: skip
+    run = in_workspace_image(tag, root, "sh", "-c", CHECK)
     assert run.returncode == 0, run.stdout + run.stderr
     lines = run.stdout.splitlines()
     # colcon-ros evaluates the conditions with the image's ROS_VERSION: ament_cmake, not catkin.

@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 
 from espdock.config import Config, resolve_ca_bundle
-from tests.conftest import REPO, espdock
+from tests.conftest import REPO, espdock, in_workspace_image
 from tests.ros_official_double.build import build_double, settings
 from tests.rosdep_db import environment
 
@@ -44,11 +44,7 @@ def test_the_pip_lock_keeps_what_the_official_images_apt_installed(tmp_path, eng
     images = json.loads((tmp_path / "report.json").read_text())["manifest"]["images"]
     (image,) = [name for name in images if "-build:" in name]
     check = "import ahrs, numpy; from rosdeps_imu_filter.imu_filter import OrientationFilter; print(numpy.__version__)"
-    run = subprocess.run(
-        ["docker", "run", "--rm", "-v", f"{root}:/workspace", "-w", "/workspace", image,
-         "bash", "-c", f". install/setup.bash && python3 -c '{check}'"],
-        capture_output=True, text=True, check=False, timeout=120,
-    )  # fmt: skip
+    run = in_workspace_image(image, root, "bash", "-c", f". install/setup.bash && python3 -c '{check}'")
     assert run.returncode == 0 and run.stdout.splitlines()[-1] == "1.26.4", run.stdout + run.stderr
 
 

@@ -17,7 +17,7 @@ from pathlib import Path
 import pytest
 
 from espdock.config import Config, resolve_ca_bundle
-from tests.conftest import REPO, espdock
+from tests.conftest import REPO, espdock, in_workspace_image
 from tests.ros_official_double.build import build_double, settings
 from tests.rosdep_db import environment
 
@@ -51,12 +51,7 @@ def build_and_check(root: Path, tmp_path: Path, extra: dict[str, str]) -> tuple[
     lock = json.loads((root / "rosdep.lock.json").read_text())
     manifest = json.loads((tmp_path / "report.json").read_text())["manifest"]
     (tag,) = [image for image in manifest["images"] if "-build:" in image]
-    stat = root.stat()
-    run = subprocess.run(
-        ["docker", "run", "--rm", "-u", f"{stat.st_uid}:{stat.st_gid}", "-e", "HOME=/tmp",
-         "-v", f"{root}:/workspace", "-w", "/workspace", tag, "sh", "-c", CHECK],
-        capture_output=True, text=True, check=False, timeout=120,
-    )  # fmt: skip
+    run = in_workspace_image(tag, root, "sh", "-c", CHECK)
     assert run.returncode == 0, run.stdout + run.stderr
     # The runtime image of the workspace (espdock/w:latest), of either flavour: the node's
     # package, its rosdep keys and rclpy import there, with no workspace mounted.

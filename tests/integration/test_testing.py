@@ -15,7 +15,6 @@ import json
 import os
 import re
 import shutil
-import subprocess
 import time
 from pathlib import Path
 from xml.etree import ElementTree
@@ -23,7 +22,7 @@ from xml.etree import ElementTree
 import pytest
 
 from espdock.config import Config, resolve_ca_bundle
-from tests.conftest import REPO, Started, containers_created, espdock, leftover_containers
+from tests.conftest import REPO, Started, containers_created, espdock, in_workspace_image, leftover_containers
 from tests.ros_official_double.build import build_double, settings
 from tests.rosdep_db import environment
 
@@ -54,12 +53,7 @@ def junit_counts(directory: Path) -> tuple[int, int, int, int]:
 
 def colcon_test_result(root: Path, image: str) -> tuple[int, int, int, int]:
     """What `colcon test-result` itself counts in ROOT's build/: tests, failures, errors, skipped."""
-    stat = root.stat()
-    run = subprocess.run(
-        ["docker", "run", "--rm", "-u", f"{stat.st_uid}:{stat.st_gid}", "-e", "HOME=/tmp",
-         "-v", f"{root}:/workspace", "-w", "/workspace", image, "colcon", "test-result", "--all"],
-        capture_output=True, text=True, check=False, timeout=120,
-    )  # fmt: skip
+    run = in_workspace_image(image, root, "colcon", "test-result", "--all")
     match = SUMMARY.search(run.stdout)
     assert match, run.stdout + run.stderr
     tests, errors, failures, skipped = (int(g) for g in match.groups())

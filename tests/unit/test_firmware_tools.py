@@ -3,7 +3,6 @@
 import json
 import os
 import pty
-import socket
 import subprocess
 from pathlib import Path
 
@@ -24,6 +23,7 @@ from espdock.firmware.flashing import (
 from espdock.firmware.install import install_firmware
 from espdock.firmware.scaffold import create_firmware_package, validate_package_name
 from espdock.workspace import Package, PackageKind, Workspace, discover_packages
+from tests.ports import free_port
 
 FLASHER_ARGS = {
     "write_flash_args": ["--flash_mode", "dio", "--flash_size", "2MB", "--flash_freq", "40m"],
@@ -158,11 +158,8 @@ def test_busy_serial_port_is_reported():
 
 
 def test_network_port_with_nothing_listening():
-    with socket.socket() as probe:
-        probe.bind(("127.0.0.1", 0))
-        free_port = probe.getsockname()[1]
     with pytest.raises(PortError, match="nothing answers"):
-        check_port(parse_port(f"socket://127.0.0.1:{free_port}"), timeout=1)
+        check_port(parse_port(f"socket://127.0.0.1:{free_port()}"), timeout=1)
 
 
 def write_build(build: Path, app: bytes) -> None:

@@ -12,6 +12,7 @@ import typer
 from espdock.build.plan import Plan, RuntimeImage
 from espdock.build.runner import Runner
 from espdock.cli.core import WorkspaceOption, app, build_plan, command, ensure_images, load, notify, workspace_packages
+from espdock.cli.prune import record_images
 from espdock.config import Config, resolve_ca_bundle
 from espdock.errors import Interrupted
 from espdock.images import bootstrap
@@ -24,6 +25,8 @@ def runtime_image(ws: Workspace, config: Config, plan: Plan | None = None) -> tu
     it since); the runner that did, and the image's keyed tag (`:latest` names it too)."""
     plan, step = nodes.runtime_plan(plan or build_plan(ws, config, [], PackageKind.ROS))
     runner = ensure_images(ws, config, plan)
+    # A runtime image `run` or `compose` made is the workspace's as much as a build's: prune may take it.
+    record_images(ws, runner)
     return runner, runner.runtime_spec(ws, step).tag
 
 

@@ -130,14 +130,19 @@ def prune(
     )
 
 
-def after_build(engine: Engine, ws: Workspace, config: Config, runner: Runner) -> None:
-    """Record the images the build used; prune when prune_auto; warn once when espdock's images
-    take more than images_warn_gb."""
+def record_images(ws: Workspace, runner: Runner) -> None:
+    """Record the keyed images RUNNER used for WS: what `espdock prune` may remove later."""
     state = state_dir(os.environ)
     try:
         record_use(state, ws.root, runner.used_images, time.time())
     except OSError as exc:
-        notify(f"warning: could not record the images this build used in {state}: {exc.strerror}")
+        notify(f"warning: could not record the images this command used in {state}: {exc.strerror}")
+
+
+def after_build(engine: Engine, ws: Workspace, config: Config, runner: Runner) -> None:
+    """Record the images the build used; prune when prune_auto; warn once when espdock's images
+    take more than images_warn_gb."""
+    record_images(ws, runner)
     try:
         _prune_or_warn(engine, ws, config)
     except EspdockError as exc:  # the build succeeded: what is only housekeeping must not fail it

@@ -15,6 +15,7 @@ import pytest
 import yaml
 
 from espdock.config import Config, resolve_ca_bundle
+from espdock.images.prune import read_records, state_dir
 from tests.conftest import REPO, Started, espdock, leftover_containers, python_workspace
 from tests.ros_official_double.build import build_double, settings
 from tests.rosdep_db import environment
@@ -237,6 +238,9 @@ def test_build_makes_no_runtime_image_run_and_compose_make_it_from_the_last_buil
         assert up.returncode == 0, up.stdout + up.stderr
         first = engine.image(f"espdock/{name}:latest")
         assert first is not None
+        # Recorded as a build's images are: `espdock prune` knows it, and the test run removes it.
+        (record,) = [r for r in read_records(state_dir(os.environ)) if r.root == str(root)]
+        assert any(tag.startswith(f"espdock/{name}:") for tag in record.current), record
         logs = ""
         deadline = time.monotonic() + 90
         while "heard: beacon" not in logs and time.monotonic() < deadline:

@@ -19,7 +19,7 @@ import pytest
 
 from espdock.defaults import SHIPPED
 
-pytest_plugins = ["tests.longest_first"]
+pytest_plugins = ["tests.longest_first", "tests.engine_sweep"]
 # The ROS packages the tests build carry tests of their own, which colcon runs in the images
 # (`espdock test`), not this suite.
 collect_ignore_glob = ["ros_packages/*"]

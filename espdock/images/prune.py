@@ -1,11 +1,11 @@
 """Keeping the engine's disk bounded: which keyed images each workspace used, and which may go.
 
-Every build records, per workspace, the keyed images it used (tag, kind, when) in espdock's state
-directory ($ESPDOCK_STATE_DIR, else $XDG_STATE_HOME/espdock, else ~/.local/state/espdock), one
-file per workspace root. `espdock prune` removes a workspace's images its current inputs no longer
-use, keeping the last few generations of each kind; an image another recorded workspace's last
-build used, or a running container's, stays. Images no record names (another user's, a test's,
-a pulled base) are never candidates.
+Every build (and every `run` or `compose` that makes the runtime image) records, per workspace,
+the keyed images it used (tag, kind, when) in espdock's state directory ($ESPDOCK_STATE_DIR, else
+$XDG_STATE_HOME/espdock, else ~/.local/state/espdock), one file per workspace root. `espdock prune`
+removes a workspace's images its current inputs no longer use, keeping the last few generations of
+each kind; an image another recorded workspace's last build used, or a running container's, stays.
+Images no record names (another user's, a test's, a pulled base) are never candidates.
 """
 
 from __future__ import annotations

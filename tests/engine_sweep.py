@@ -99,8 +99,8 @@ def pytest_sessionfinish(session: pytest.Session) -> None:
     removed = subprocess.run(["docker", "rmi", *tags], capture_output=True, text=True, check=False, timeout=300)
     reporter = session.config.pluginmanager.get_plugin("terminalreporter")
     if reporter is not None:
-        reporter.ensure_newline()
-        reporter.write_line(f"removed the {len(tags)} runtime image tags this run's builds made: {' '.join(tags)}")
+        # On a line of its own: xdist's progress line does not end in a newline the reporter knows of.
+        reporter.write_line(f"\nremoved the {len(tags)} runtime image tags this run's builds made: {' '.join(tags)}")
         if removed.returncode != 0:
             reporter.write_line(f"some stay: {removed.stderr.strip()}")
 

@@ -17,7 +17,7 @@ import pytest
 from espdock.build.manifest import MANIFEST_NAME, file_hashes, read_manifest
 from espdock.config import Config, resolve_ca_bundle
 from tests.conftest import REPO, copy_workspace, espdock
-from tests.idf_contract_double.build import build_double, use_double
+from tests.idf_contract_double.build import use_double
 
 pytestmark = [pytest.mark.engine, pytest.mark.slow]
 
@@ -72,41 +72,3 @@ def test_two_clones_of_a_commit_install_identical_files(commit, tmp_path):
     differing = sorted(name for name in one.keys() | two.keys() if one.get(name) != two.get(name))
     assert differing == [], f"{len(differing)} of {len(one)} installed files differ, e.g. {differing[:10]}"
     assert read_manifest(first / MANIFEST_NAME) == read_manifest(second / MANIFEST_NAME)
-
-
-def project(where: Path, reproducible: bool) -> Path:
-    (where / "main").mkdir(parents=True)
-    (where / "CMakeLists.txt").write_text(
-        "cmake_minimum_required(VERSION 3.16)\ninclude($ENV{IDF_PATH}/tools/cmake/project.cmake)\nproject(probe)\n"
-    )
-    (where / "main/CMakeLists.txt").write_text('idf_component_register(SRCS "main.c")\n')
-    (where / "main/main.c").write_text("void app_main(void) {}\n")
-    if reproducible:
-        (where / "sdkconfig.defaults").write_text("CONFIG_APP_REPRODUCIBLE_BUILD=y\n")
-    return where
-
-
-def build_in_double(tag: str, host_dir: Path, container_dir: str) -> dict[str, bytes]:
-    """idf.py build of the project at HOST_DIR, seen in the container at CONTAINER_DIR, as a user
-    would run it outside espdock: no SOURCE_DATE_EPOCH, their own paths."""
-    result = subprocess.run(
-        ["docker", "run", "--rm", "-e", "HOME=/tmp", "-v", f"{host_dir}:{container_dir}", tag,
-         "idf.py", "-C", container_dir, "-B", f"{container_dir}/build", "build"],
-        capture_output=True, text=True, check=False,
-    )  # fmt: skip
-    assert result.returncode == 0, result.stdout[-2000:] + result.stderr
-    return {name: (host_dir / "build" / name).read_bytes() for name in ("probe.elf", "probe.bin")}
-
-
-def test_the_double_embeds_paths_and_build_time_unless_the_option_is_set(engine, tmp_path):
-    """Without CONFIG_APP_REPRODUCIBLE_BUILD the double's app carries its build time and, in the
-    ELF, the absolute source paths; so the test above passes because the option is set."""
-    tag, _ = build_double(engine, resolve_ca_bundle(Config(), os.environ), lambda line: None)
-    plain_a = build_in_double(tag, project(tmp_path / "plain-a", False), "/home/alice/probe")
-    plain_b = build_in_double(tag, project(tmp_path / "plain-b", False), "/srv/ci/job-7/probe")
-    assert plain_a["probe.elf"] != plain_b["probe.elf"]
-    assert b"/home/alice/probe/main/main.c" in plain_a["probe.elf"]
-    repro_a = build_in_double(tag, project(tmp_path / "repro-a", True), "/home/alice/probe")
-    repro_b = build_in_double(tag, project(tmp_path / "repro-b", True), "/srv/ci/job-7/probe")
-    assert repro_a == repro_b
-    assert b"/home/alice" not in repro_a["probe.elf"] and b"/COMPONENT_MAIN_DIR/main.c" in repro_a["probe.elf"]

@@ -1,0 +1,153 @@
+"""The IDF contract double's own fidelity: it must fail where ESP-IDF fails and embed what
+ESP-IDF embeds, or the firmware tests that build against it could pass where the real IDF would
+not (see tests/idf_contract_double/README.md).
+
+These need the double's image only, not a built workspace: in a module of their own, a pytest
+worker runs them while another builds test_firmware's workspace (`--dist loadfile`)."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+from pathlib import Path
+
+import pytest
+
+from espdock.config import Config, resolve_ca_bundle
+from tests.idf_contract_double.build import build_double
+
+pytestmark = [pytest.mark.engine, pytest.mark.slow]
+
+USER_UID = 4243
+
+
+@pytest.fixture(scope="module")
+def double(engine):
+    """(image tag, micro-ROS commit) of the IDF contract double, built once."""
+    return build_double(engine, resolve_ca_bundle(Config(), os.environ), lambda line: None)
+
+
+def run_in_double(double, project: Path, *argv: str) -> subprocess.CompletedProcess:
+    tag, _ = double
+    return subprocess.run(
+        ["docker", "run", "--rm", "-u", f"{USER_UID}:{USER_UID}", "-e", "HOME=/tmp",
+         "-v", f"{project}:/project", tag, "idf.py", "-C", "/project", "-B", "/tmp/build", *argv],
+        capture_output=True, text=True, check=False,
+    )  # fmt: skip
+
+
+def test_the_double_refuses_headers_of_components_a_component_does_not_require(double, tmp_path):
+    """IDF compiles a component with the include dirs of what it requires (publicly, transitively);
+    the double must fail where IDF would, or it cannot catch glue that misses a requirement."""
+    project = tmp_path / "probe"
+    (project / "main").mkdir(parents=True)
+    (project / "components/netif").mkdir(parents=True)
+    (project / "CMakeLists.txt").write_text(
+        "cmake_minimum_required(VERSION 3.16)\ninclude($ENV{IDF_PATH}/tools/cmake/project.cmake)\nproject(probe)\n"
+    )
+    (project / "main/CMakeLists.txt").write_text('idf_component_register(SRCS "main.c")\n')
+    (project / "main/main.c").write_text("void app_main(void) {}\n")
+    (project / "components/netif/netif.c").write_text('#include "esp_eth.h"\n#include "driver/gpio.h"\n')
+    component = project / "components/netif/CMakeLists.txt"
+
+    def build(requirements: str) -> subprocess.CompletedProcess:
+        component.write_text(f'idf_component_register(SRCS "netif.c" {requirements})\n')
+        subprocess.run(["chown", "-R", f"{USER_UID}:{USER_UID}", str(tmp_path)], check=True)
+        return run_in_double(double, project, "build")
+
+    # esp_eth requires esp_driver_gpio only privately (ESP-IDF v5.3): its header does not reach us.
+    missing = build("REQUIRES esp_eth lwip")
+    assert missing.returncode == 2, missing.stdout[-2000:]
+    assert "driver/gpio.h: No such file or directory" in missing.stderr
+    assert build("REQUIRES esp_eth PRIV_REQUIRES esp_driver_gpio").returncode == 0
+    assert build("REQUIRES esp_eth PRIV_REQUIRES driver").returncode == 0  # the legacy umbrella exports it
+    # Requirements are read before Kconfig (IDF's early expansion): a Kconfig-conditional one never counts.
+    component.write_text(
+        'set(req "")\nif(CONFIG_IDF_TARGET_ESP32)\n  set(req esp_driver_gpio)\nendif()\n'
+        'idf_component_register(SRCS "netif.c" REQUIRES esp_eth ${req})\n'
+    )
+    subprocess.run(["chown", "-R", f"{USER_UID}:{USER_UID}", str(tmp_path)], check=True)
+    conditional = run_in_double(double, project, "build")
+    assert conditional.returncode == 2 and "driver/gpio.h: No such file or directory" in conditional.stderr
+
+
+def test_the_double_links_esp32_camera_s_driver_only_where_upstream_builds_it(double, tmp_path):
+    """esp32-camera compiles its driver only for esp32, esp32s2 and esp32s3: on an esp32c3 an app
+    calling esp_camera_init fails at the link, so camera_node lists the chips it supports."""
+    project = tmp_path / "cam"
+    (project / "main").mkdir(parents=True)
+    (project / "CMakeLists.txt").write_text(
+        "cmake_minimum_required(VERSION 3.16)\ninclude($ENV{IDF_PATH}/tools/cmake/project.cmake)\nproject(cam)\n"
+    )
+    (project / "main/CMakeLists.txt").write_text('idf_component_register(SRCS "main.c")\n')
+    (project / "main/idf_component.yml").write_text('dependencies:\n  espressif/esp32-camera: "^2.0.14"\n')
+    (project / "main/main.c").write_text(
+        "int esp_camera_init(const void *config);\nvoid app_main(void) { esp_camera_init(0); }\n"
+    )
+    subprocess.run(["chown", "-R", f"{USER_UID}:{USER_UID}", str(tmp_path)], check=True)
+    c3 = run_in_double(double, project, "-DIDF_TARGET=esp32c3", "build")
+    assert c3.returncode == 2 and "undefined reference to `esp_camera_init'" in c3.stderr, c3.stdout[-2000:]
+    # Another target needs a fresh sdkconfig, as IDF itself says (the build directory went with its container).
+    (project / "sdkconfig").unlink()
+    s3 = run_in_double(double, project, "-DIDF_TARGET=esp32s3", "build")
+    assert s3.returncode == 0, s3.stdout[-2000:] + s3.stderr
+
+
+def test_the_double_stops_a_component_for_a_chip_outside_its_required_idf_targets(double, tmp_path):
+    """ESP-IDF's component.cmake (__component_check_target) ends the configure of a component whose
+    REQUIRED_IDF_TARGETS leaves out the chip, which camera_node's registration relies on."""
+    project = tmp_path / "cam"
+    (project / "main").mkdir(parents=True)
+    (project / "CMakeLists.txt").write_text(
+        "cmake_minimum_required(VERSION 3.16)\ninclude($ENV{IDF_PATH}/tools/cmake/project.cmake)\nproject(cam)\n"
+    )
+    (project / "main/CMakeLists.txt").write_text(
+        'idf_component_register(SRCS "main.c"\n    REQUIRED_IDF_TARGETS esp32 esp32s3)\n'
+    )
+    (project / "main/main.c").write_text("void app_main(void) {}\n")
+    subprocess.run(["chown", "-R", f"{USER_UID}:{USER_UID}", str(tmp_path)], check=True)
+    c3 = run_in_double(double, project, "-DIDF_TARGET=esp32c3", "build")
+    assert c3.returncode != 0, c3.stdout[-2000:]
+    assert "Component main only supports targets: esp32;esp32s3" in c3.stdout + c3.stderr
+    (project / "sdkconfig").unlink(missing_ok=True)
+    s3 = run_in_double(double, project, "-DIDF_TARGET=esp32s3", "build")
+    assert s3.returncode == 0, s3.stdout[-2000:] + s3.stderr
+
+
+def project(where: Path, reproducible: bool) -> Path:
+    (where / "main").mkdir(parents=True)
+    (where / "CMakeLists.txt").write_text(
+        "cmake_minimum_required(VERSION 3.16)\ninclude($ENV{IDF_PATH}/tools/cmake/project.cmake)\nproject(probe)\n"
+    )
+    (where / "main/CMakeLists.txt").write_text('idf_component_register(SRCS "main.c")\n')
+    (where / "main/main.c").write_text("void app_main(void) {}\n")
+    if reproducible:
+        (where / "sdkconfig.defaults").write_text("CONFIG_APP_REPRODUCIBLE_BUILD=y\n")
+    return where
+
+
+def build_in_double(tag: str, host_dir: Path, container_dir: str) -> dict[str, bytes]:
+    """idf.py build of the project at HOST_DIR, seen in the container at CONTAINER_DIR, as a user
+    would run it outside espdock: no SOURCE_DATE_EPOCH, their own paths."""
+    result = subprocess.run(
+        ["docker", "run", "--rm", "-e", "HOME=/tmp", "-v", f"{host_dir}:{container_dir}", tag,
+         "idf.py", "-C", container_dir, "-B", f"{container_dir}/build", "build"],
+        capture_output=True, text=True, check=False,
+    )  # fmt: skip
+    assert result.returncode == 0, result.stdout[-2000:] + result.stderr
+    return {name: (host_dir / "build" / name).read_bytes() for name in ("probe.elf", "probe.bin")}
+
+
+def test_the_double_embeds_paths_and_build_time_unless_the_option_is_set(double, tmp_path):
+    """Without CONFIG_APP_REPRODUCIBLE_BUILD the double's app carries its build time and, in the
+    ELF, the absolute source paths; so test_reproducible's clones install identical files because
+    the option is set."""
+    tag, _ = double
+    plain_a = build_in_double(tag, project(tmp_path / "plain-a", False), "/home/alice/probe")
+    plain_b = build_in_double(tag, project(tmp_path / "plain-b", False), "/srv/ci/job-7/probe")
+    assert plain_a["probe.elf"] != plain_b["probe.elf"]
+    assert b"/home/alice/probe/main/main.c" in plain_a["probe.elf"]
+    repro_a = build_in_double(tag, project(tmp_path / "repro-a", True), "/home/alice/probe")
+    repro_b = build_in_double(tag, project(tmp_path / "repro-b", True), "/srv/ci/job-7/probe")
+    assert repro_a == repro_b
+    assert b"/home/alice" not in repro_a["probe.elf"] and b"/COMPONENT_MAIN_DIR/main.c" in repro_a["probe.elf"]

@@ -206,6 +206,16 @@ def clean_containers(engine, workspace: Path) -> Iterator[None]:
     engine.remove_containers({"io.espdock.workspace": str(workspace)})
 
 
+@pytest.fixture(scope="module")
+def double(engine):
+    """(image tag, micro-ROS commit) of the IDF contract double (tests/idf_contract_double), built
+    once for each version of its files."""
+    from espdock.config import Config, resolve_ca_bundle
+    from tests.idf_contract_double.build import build_double
+
+    return build_double(engine, resolve_ca_bundle(Config(), os.environ), lambda line: None)
+
+
 def containers_created(root: Path, since: float, until: float) -> list[str]:
     """IDs of the containers espdock created for workspace ROOT between SINCE and UNTIL (epoch seconds)."""
     events = subprocess.run(

@@ -39,7 +39,7 @@ from tests.conftest import (
     leftover_containers,
     ros_build_tag,
 )
-from tests.idf_contract_double.build import build_double, use_double
+from tests.idf_contract_double.build import use_double
 from tests.nvs_reader import read_nvs
 from tests.ports import free_port
 
@@ -47,12 +47,6 @@ pytestmark = [pytest.mark.engine, pytest.mark.slow]
 
 USER_UID = 4243
 REAL_IDF_IMAGE = "espressif/idf:v5.3.5"
-
-
-@pytest.fixture(scope="module")
-def double(engine):
-    """(image tag, micro-ROS commit) of the IDF contract double, built once."""
-    return build_double(engine, resolve_ca_bundle(Config(), os.environ), lambda line: None)
 
 
 STRUCT_HEADER = (

@@ -7,24 +7,14 @@ worker runs them while another builds test_firmware's workspace (`--dist loadfil
 
 from __future__ import annotations
 
-import os
 import subprocess
 from pathlib import Path
 
 import pytest
 
-from espdock.config import Config, resolve_ca_bundle
-from tests.idf_contract_double.build import build_double
-
 pytestmark = [pytest.mark.engine, pytest.mark.slow]
 
 USER_UID = 4243
-
-
-@pytest.fixture(scope="module")
-def double(engine):
-    """(image tag, micro-ROS commit) of the IDF contract double, built once."""
-    return build_double(engine, resolve_ca_bundle(Config(), os.environ), lambda line: None)
 
 
 def run_in_double(double, project: Path, *argv: str) -> subprocess.CompletedProcess:

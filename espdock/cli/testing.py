@@ -14,6 +14,7 @@ from espdock.build.plan import ColconBuild, Plan, ros_image
 from espdock.build.runner import Runner
 from espdock.cli.core import PASSED, PassThrough, WorkspaceOption, app, build_plan, command, console, load, notify
 from espdock.cli.core import workspace_packages as discover
+from espdock.cli.prune import record_images
 from espdock.cli.ui import Reporter
 from espdock.config import invoking_user
 from espdock.errors import ConfigError, TestsFailed, WorkspaceError
@@ -149,6 +150,7 @@ def _test_ros(ws, config, every, ros, colcon_args, locked, official, verbose, ti
         runner.run(plan)
     finally:
         reporter.close()
+    record_images(ws, runner)
     build_base = ws.ws_dir / ROS_BUILD_BASE
     clear_results(build_base, names)
     output: list[str] = []

@@ -474,6 +474,8 @@ class Runner:
         with workspace_lock(workspace):
             key = sourced.key()
             recorded = sourced.recorded(key)
+            if key is not None and recorded is None:
+                sourced.forget()
             spec = RunSpec(
                 image=step.image,
                 argv=step.argv(source=key is not None and recorded is None),

@@ -212,11 +212,16 @@ class SourcedEnv:
             return None
         return tuple((name, value) for name, value in data["env"])
 
+    def forget(self) -> None:
+        """Before a run that sources: neither the record for other inputs nor a dump an earlier
+        run left (killed before it read it) may be taken for this run's."""
+        for rel in (SOURCED_ENV, SOURCED_DUMP):
+            (self.root / rel).unlink(missing_ok=True)
+
     def record(self, key: str) -> Path | None:
         """Record what the container that sourced wrote, for KEY; the file written, None when it
-        wrote nothing usable (a record for other inputs is dropped all the same)."""
+        wrote nothing usable."""
         dump = self.root / SOURCED_DUMP
-        (self.root / SOURCED_ENV).unlink(missing_ok=True)
         try:
             text = dump.read_bytes().decode()
         except (OSError, UnicodeDecodeError):

@@ -96,7 +96,11 @@ def test_the_sourced_environment_is_reused_only_for_the_install_tree_image_and_s
     # A package installed or changed since: sourced again.
     (install / "pkg" / "package.dsv").write_text("prepend-non-duplicate;AMENT_PREFIX_PATH;\n")
     assert sourced.recorded(sourced.key()) is None
-    # A dump cut short records nothing, and the old record goes; nothing to source, no key.
+    # Before a run that sources, the record and an earlier run's dump go; a dump cut short
+    # records nothing; nothing to source, no key.
+    (tmp_path / SOURCED_DUMP).write_bytes(dump)
+    sourced.forget()
+    assert sourced.recorded(key) is None and sourced.record(key) is None
     (tmp_path / SOURCED_DUMP).write_bytes(b"HOME=/tmp\0")
     assert sourced.record(key) is None and sourced.recorded(key) is None
     (install / "local_setup.sh").unlink()

@@ -56,7 +56,7 @@ from espdock.ros.colcon import (
     usage_error,
 )
 from espdock.ros.runtime_tree import runtime_files
-from espdock.ros.testing import ColconTest
+from espdock.ros.testing import ColconTest, SourcedEnv
 from espdock.workspace import Workspace
 
 TARGET_MARKER = ".espdock-target"
@@ -470,17 +470,25 @@ class Runner:
         if step.defaults_file is not None:
             mounts.append(Mount(Path(step.defaults_file), DEFAULTS_MOUNT, read_only=True))
             env.append(("COLCON_DEFAULTS_FILE", DEFAULTS_MOUNT))
-        spec = RunSpec(
-            image=step.image,
-            argv=step.argv(),
-            workdir=_container_path(workspace, workspace.ws_dir),
-            user=user,
-            mounts=tuple(mounts),
-            env=tuple(env),
-            labels=labels,
-        )
+        sourced = SourcedEnv(workspace.ws_dir, step.image, tuple(env))
         with workspace_lock(workspace):
-            return self._engine.run(spec, on_line, keep=self._config.keep_containers)
+            key = sourced.key()
+            recorded = sourced.recorded(key)
+            if key is not None and recorded is None:
+                sourced.forget()
+            spec = RunSpec(
+                image=step.image,
+                argv=step.argv(source=key is not None and recorded is None),
+                workdir=_container_path(workspace, workspace.ws_dir),
+                user=user,
+                mounts=tuple(mounts),
+                env=recorded or tuple(env),
+                labels=labels,
+            )
+            code = self._engine.run(spec, on_line, keep=self._config.keep_containers)
+            if key is not None and recorded is None and (written := sourced.record(key)) is not None:
+                _give_to(written, self._owner)
+            return code
 
     def _idf_build(self, workspace: Workspace, step: IdfBuild) -> tuple[Outcome, str]:
         build_dir = workspace.ws_dir / "build" / step.package

@@ -26,6 +26,7 @@ from espdock.images import bootstrap
 from espdock.ros.colcon import read_colcon_settings
 from espdock.workspace import (
     DEFAULT_ROS_DISTRO,
+    BuildInputs,
     Package,
     PackageKind,
     Workspace,
@@ -136,12 +137,14 @@ def build_plan(
     checked: tuple[str, ...] | None = None,
     dry_run: bool = False,
     testing: bool = False,
+    known: tuple[tuple[Package, ...], BuildInputs] | None = None,
 ) -> Plan:
     """The build's plan; LOCKED not None: first a rosdep lock that answers for the packages
     (refusing a stale one when LOCKED). CHECKED: the packages whose dependencies must be served
-    (None: those built). DRY_RUN: the lock is neither made nor refreshed, only reported."""
-    packages = workspace_packages(ws, config.ros_distro)
-    inputs = read_build_inputs(ws, packages)
+    (None: those built). DRY_RUN: the lock is neither made nor refreshed, only reported. KNOWN:
+    the workspace's packages and build inputs as the caller read them (and checked the lock)."""
+    packages, inputs = known or (workspace_packages(ws, config.ros_distro), None)
+    inputs = inputs or read_build_inputs(ws, packages)
     ros = {p.name: p.path for p in packages if p.kind is PackageKind.ROS}
     colcon = read_colcon_settings(ws.ws_dir, ros, colcon_args, os.environ)
     if dry_run:

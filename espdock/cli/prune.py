@@ -9,7 +9,7 @@ from typing import Annotated
 import typer
 from rich.text import Text
 
-from espdock.build.plan import LABEL_KEY, EnsureImage, RuntimeImage
+from espdock.build.plan import LABEL_KEY, ColconBuild, EnsureImage, RuntimeImage
 from espdock.build.runner import Runner
 from espdock.cli.core import WorkspaceOption, app, build_plan, command, console, load, notify
 from espdock.cli.ui import QuietReporter, Reporter
@@ -28,6 +28,8 @@ from espdock.images.prune import (
     size_text,
     state_dir,
 )
+from espdock.layout import ROSDEP_LOCK
+from espdock.ros import rosdeps, testdeps
 from espdock.workspace import Workspace
 
 GB = 1000**3
@@ -39,6 +41,12 @@ def current_tags(ws: Workspace, config: Config, engine: Engine) -> set[str]:
     plan = build_plan(ws, config, [])
     runner = Runner(engine, config, os.environ, QuietReporter(Reporter(console)), invoking_user(os.environ, ws.root))
     tags = {step.spec.tag for step in plan.steps if isinstance(step, EnsureImage)}
+    if any(isinstance(step, ColconBuild) for step in plan.steps):
+        # `espdock test`'s: the build image plus the lock's test part.
+        path = ws.root / ROSDEP_LOCK
+        lock = rosdeps.read_lock(path.read_bytes() if path.is_file() else None, ROSDEP_LOCK)
+        tested = testdeps.with_test_image(plan, lock, config.ros_image == "official")
+        tags |= {step.spec.tag for step in tested.steps if isinstance(step, EnsureImage)}
     for step in plan.steps:
         if isinstance(step, RuntimeImage):
             tags.add(step.base.tag)
@@ -131,7 +139,8 @@ def prune(
 
 
 def record_images(ws: Workspace, runner: Runner) -> None:
-    """Record the keyed images RUNNER used for WS: what `espdock prune` may remove later."""
+    """Record the keyed images RUNNER used for WS (a build's, `run`'s, `espdock test`'s): what
+    `espdock prune` may remove later."""
     state = state_dir(os.environ)
     try:
         record_use(state, ws.root, runner.used_images, time.time())

@@ -14,6 +14,7 @@ from espdock.build.plan import ColconBuild, Plan, ros_image
 from espdock.build.runner import Runner
 from espdock.cli.core import PASSED, PassThrough, WorkspaceOption, app, build_plan, command, console, load, notify
 from espdock.cli.core import workspace_packages as discover
+from espdock.cli.prune import record_images
 from espdock.cli.ui import Reporter
 from espdock.config import invoking_user
 from espdock.errors import ConfigError, TestsFailed, WorkspaceError
@@ -123,14 +124,15 @@ def _test_ros(ws, config, every, ros, colcon_args, locked, official, verbose, ti
     """Build ROS packages with their tests and run colcon test: their results and colcon's exit code."""
     from espdock.images import bootstrap
 
-    # The rosdep lock, its test part included, answers for the packages before anything is built.
+    # The rosdep lock, its test part included, answers for the packages before anything is built
+    # (checked here once: the plan takes the packages and inputs as they are).
     owner = invoking_user(os.environ, ws.root) if os.geteuid() == 0 else None
     inputs, note = current_test_inputs(ws.root, config, every, read_build_inputs(ws, every), locked, os.environ, owner)
     if note:
         notify(note)
     lock = rosdeps.read_lock(inputs.rosdep_lock, ROSDEP_LOCK)
     testdeps.check_tests(ros, lock, ros_image(config, inputs)[2])
-    plan = build_plan(ws, config, [p.name for p in ros], PackageKind.ROS, locked=locked, testing=True)
+    plan = build_plan(ws, config, [p.name for p in ros], PackageKind.ROS, testing=True, known=(every, inputs))
     plan = testdeps.with_test_image(_test_build(plan), lock, official)
     build = next(step for step in plan.steps if isinstance(step, ColconBuild))
     names = tuple(p.name for p in ros)
@@ -148,6 +150,7 @@ def _test_ros(ws, config, every, ros, colcon_args, locked, official, verbose, ti
         runner.run(plan)
     finally:
         reporter.close()
+    record_images(ws, runner)
     build_base = ws.ws_dir / ROS_BUILD_BASE
     clear_results(build_base, names)
     output: list[str] = []

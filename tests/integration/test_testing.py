@@ -67,7 +67,7 @@ def image_tested_in(output: str) -> str:
 
 def test_build_skips_test_needs_then_test_builds_runs_and_reports_them(tmp_path, engine):
     root = make_workspace(tmp_path / "w", ("tested_py", "tested_cpp", "lint_auto_cpp"))
-    env = environment(tmp_path)
+    env = {**environment(tmp_path), "ESPDOCK_STATE_DIR": str(tmp_path / "state")}
 
     # A plain build on the wheels image: the template's ament_lint_auto is not needed (issue 31.4).
     build = espdock("build", cwd=root, env=env)
@@ -104,6 +104,9 @@ def test_build_skips_test_needs_then_test_builds_runs_and_reports_them(tmp_path,
     # colcon test-result's own count is the summary's; the JUnit files count it less CTest's entry.
     assert colcon_test_result(root, image_tested_in(out)) == (9, 1, 0, 1)
     assert junit_counts(results) == (8, 1, 0, 1)
+    # The test image is recorded as the workspace's and prune keeps it while the inputs use it.
+    pruned = espdock("prune", "--keep", "0", "--dry-run", cwd=root, env=env)
+    assert f"kept {image_tested_in(out)} (used by the current inputs)" in pruned.stdout, pruned.stdout
 
     # Options after `--` reach colcon test; no failure is exit code 0 and no rebuild.
     again = espdock("test", "tested_py", "--", "--pytest-args", "-k", "not nan", cwd=root, env=env)

@@ -9,7 +9,10 @@ from espdock.build.plan import ColconBuild, EnsureImage, ImageSpec, Plan
 from espdock.errors import ConfigError, DependencyError
 from espdock.ros.testdeps import image_for_tests, with_test_image
 from espdock.ros.testing import (
+    SOURCED_DUMP,
+    SOURCED_ENV,
     ColconTest,
+    SourcedEnv,
     check_test_args,
     check_testable,
     collect_results,
@@ -63,6 +66,45 @@ def test_colcon_test_gets_the_options_as_arguments_not_shell_text():
         "-k",
         "x; rm -rf /",
     )
+
+    # With the sourced environment given: colcon itself, no shell.
+    assert step.argv(source=False)[:2] == ("colcon", "test")
+    assert step.argv(source=False)[2:] == argv[4:]
+
+
+def test_the_sourced_environment_is_reused_only_for_the_install_tree_image_and_settings_it_came_from(tmp_path):
+    install = tmp_path / "install"
+    (install / "pkg").mkdir(parents=True)
+    (install / "local_setup.sh").write_text("# colcon's\n")
+    (tmp_path / "build").mkdir()
+    sourced = SourcedEnv(tmp_path, "espdock/ros-jazzy-test:1", (("HOME", "/tmp"),))
+    key = sourced.key()
+    assert sourced.recorded(key) is None, "nothing recorded yet: the container sources"
+    dump = b"HOME=/tmp\0HOSTNAME=c0ffee\0COLCON_PREFIX_PATH=/workspace/install\0NOTE=a\nb=c\0PWD=/workspace\0"
+    (tmp_path / SOURCED_DUMP).write_bytes(dump)
+    assert sourced.record(key) == tmp_path / SOURCED_ENV
+    assert not (tmp_path / SOURCED_DUMP).exists()
+    assert sourced.recorded(key) == (
+        ("HOME", "/tmp"), ("COLCON_PREFIX_PATH", "/workspace/install"), ("NOTE", "a\nb=c"),
+    )  # fmt: skip
+    # Another image or other settings: sourced again.
+    for other in (
+        SourcedEnv(tmp_path, "espdock/ros-jazzy-test:2", (("HOME", "/tmp"),)),
+        SourcedEnv(tmp_path, "espdock/ros-jazzy-test:1", (("HOME", "/tmp"), ("COLCON_DEFAULTS_FILE", "/d"))),
+    ):
+        assert other.recorded(other.key()) is None
+    # A package installed or changed since: sourced again.
+    (install / "pkg" / "package.dsv").write_text("prepend-non-duplicate;AMENT_PREFIX_PATH;\n")
+    assert sourced.recorded(sourced.key()) is None
+    # Before a run that sources, the record and an earlier run's dump go; a dump cut short
+    # records nothing; nothing to source, no key.
+    (tmp_path / SOURCED_DUMP).write_bytes(dump)
+    sourced.forget()
+    assert sourced.recorded(key) is None and sourced.record(key) is None
+    (tmp_path / SOURCED_DUMP).write_bytes(b"HOME=/tmp\0")
+    assert sourced.record(key) is None and sourced.recorded(key) is None
+    (install / "local_setup.sh").unlink()
+    assert sourced.key() is None
 
 
 def test_results_are_counted_as_colcon_test_result_counts_and_collected_by_package(tmp_path):

@@ -33,6 +33,7 @@ ROS_DISTROS = ("jazzy",)
 # How ROS gets into the build and runtime images: the PyPI wheels (Dockerfile.ros) or the
 # official ros:<distro>-ros-base image (Dockerfile.ros-official).
 ROS_IMAGES = ("wheels", "official")
+WORKSPACE_MODES = ("auto", "mount", "volume")
 
 
 @dataclass(frozen=True)
@@ -72,6 +73,10 @@ class Config:
     # Make the workspace's runtime image (espdock/<name>) with every build; otherwise it is made
     # when `espdock run` or `espdock compose` needs it (2 s a build, and a new tag each time).
     runtime_image: bool = False
+    # Where build containers find the workspace: "mount" (bind mount: the engine sees this
+    # machine's files), "volume" (a volume on the engine that espdock syncs: espdock.volume) or
+    # "auto" (the volume only where a container does not see the mounted workspace).
+    workspace_mode: str = "auto"
 
 
 _Text = Annotated[str, Meta(min_length=1)]
@@ -100,6 +105,7 @@ class _Settings(Struct, forbid_unknown_fields=True):
     build_cache_max_gb: Annotated[float, Meta(ge=0)] | None = None
     images_warn_gb: Annotated[float, Meta(ge=0)] | None = None
     runtime_image: bool | None = None
+    workspace_mode: Literal["auto", "mount", "volume"] | None = None
 
 
 _KEYS = {f.name for f in fields(Config)}
@@ -124,6 +130,7 @@ _EXPECTED = {
     "build_cache_max_gb": "a number of gigabytes, 0 or more",
     "images_warn_gb": "a number of gigabytes, 0 or more",
     "runtime_image": "true or false",
+    "workspace_mode": "one of: " + ", ".join(WORKSPACE_MODES),
     "cache_registry": 'a registry host[:port][/path] string, e.g. "registry.example.com/espdock" (no scheme)',
 }
 

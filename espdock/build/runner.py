@@ -21,6 +21,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import assert_never
 
+from espdock.build import volume
 from espdock.build.plan import (
     LABEL_KEY,
     LABEL_WORKSPACE,
@@ -40,12 +41,20 @@ from espdock.build.plan import (
 )
 from espdock.build.stamps import StampFile, listing_digest, package_stamps, tree_digest
 from espdock.config import Config, resolve_ca_bundle
-from espdock.errors import BuildFailed, ConfigError, EspdockError, RegistryError, WorkspaceError, disk_full
+from espdock.errors import (
+    BuildFailed,
+    ConfigError,
+    EspdockError,
+    RegistryError,
+    WorkspaceError,
+    WorkspaceNotVisible,
+    disk_full,
+)
 from espdock.events import Emit, Outcome, StepFinished, StepNote, StepOutput, StepStarted
 from espdock.firmware.install import COMMANDS_SOURCE, install_firmware
 from espdock.images import bootstrap
 from espdock.images.engine import Engine, Mount, RegistryAnswer, RegistryStatus, RunSpec
-from espdock.images.visibility import CHECKED, ensure_engine_sees, workspace_mount
+from espdock.images.visibility import CHECKED, engine_sees, ensure_engine_sees, workspace_mount
 from espdock.layout import ROS_BUILD_BASE, install_prefix
 from espdock.ros.colcon import (
     DEFAULTS_MOUNT,
@@ -127,6 +136,8 @@ class Runner:
         # Packages this run was to build and did not: their install trees are old, so no runtime
         # image is made from them.
         self._unbuilt: set[str] = set()
+        # Per workspace root: whether its build containers use its volume (espdock.volume).
+        self._volume: dict[Path, bool] = {}
 
     @property
     def engine(self) -> Engine:
@@ -372,6 +383,11 @@ class Runner:
         rebuild = tuple(stamps) if step.force else stamp_file.stale(stamps, installed())
         if not rebuild:
             return Outcome.CACHED, f"up to date ({len(stamps)} package(s))"
+        user, labels = self._container_identity(workspace, "colcon", sweep=True)
+        sync = self._sync(workspace, step.name, step.image, user, labels)
+        if sync is not None and (sync.fresh or sync.installed != listing_digest(workspace.ws_dir / "install")):
+            # install/ is swapped for the volume's whole: every package must be built there.
+            rebuild = tuple(stamps)
         # Until this build succeeds, none of them counts as built.
         recorded = stamp_file.read()
         stamp_file.forget(rebuild)
@@ -387,13 +403,14 @@ class Runner:
                     "packages (ament_lint_auto, ...); `espdock test` builds them with their tests",
                 )
             )
-        user, labels = self._container_identity(workspace, "colcon", sweep=True)
-        self._check_mount(workspace, step.image, user, labels)
-        mounts = [workspace_mount(workspace)]
+        mounts, archives = self._workspace_in(workspace, sync)
         env = [("HOME", "/tmp"), *self._reproducible_env(workspace)]
         if step.defaults_file is not None:
             # colcon reads the user's defaults from their home, which the container does not have.
-            mounts.append(Mount(Path(step.defaults_file), DEFAULTS_MOUNT, read_only=True))
+            if sync is None:
+                mounts.append(Mount(Path(step.defaults_file), DEFAULTS_MOUNT, read_only=True))
+            else:
+                archives.append(volume.file_archive(DEFAULTS_MOUNT, Path(step.defaults_file).read_bytes()))
             env.append(("COLCON_DEFAULTS_FILE", DEFAULTS_MOUNT))
         log = ColconLog(workspace.ws_dir / "log")
         output: list[str] = []
@@ -402,19 +419,28 @@ class Runner:
             output.append(line)
             self._emit(StepOutput(step.name, line))
 
-        code = self._engine.run(
-            RunSpec(
-                image=step.image,
-                argv=step.argv(rebuild),
-                workdir=step.workdir,
-                user=user,
-                mounts=tuple(mounts),
-                env=tuple(env),
-                labels=labels,
-            ),
-            on_line,
-            keep=self._config.keep_containers,
+        spec = RunSpec(
+            image=step.image,
+            argv=step.argv(rebuild),
+            workdir=step.workdir,
+            user=user,
+            mounts=tuple(mounts),
+            env=tuple(env),
+            labels=labels,
+            archives=tuple(archives),
         )
+        if sync is None:
+            code = self._engine.run(spec, on_line, keep=self._config.keep_containers)
+        else:
+            with volume.fetched("install", "log") as fetched:
+                install, logs = workspace.ws_dir / "install", workspace.ws_dir / "log"
+                paths = {volume.container_path(workspace, install): fetched["install"],
+                         volume.container_path(workspace, logs): fetched["log"]}  # fmt: skip
+                code = self._engine.run(spec, on_line, keep=self._config.keep_containers, fetch=paths)
+                volume.merge_logs(fetched["log"], logs, self._owner)
+                volume.replace_tree(fetched["install"], install, self._owner)
+                volume.record(workspace, self._engine, sync, listing_digest(install))
+                _give_to(workspace.ws_dir / "build" / volume.SYNCED, self._owner)
         states = log.states()
         built = [name for name, state in (states or {}).items() if state is PackageState.BUILT and name in stamps]
         if built:
@@ -465,6 +491,8 @@ class Runner:
     def colcon_test(self, workspace: Workspace, step: ColconTest, on_line: Callable[[str], None]) -> int:
         """Run STEP (colcon test) as the invoking user, its output to ON_LINE; colcon's exit code."""
         user, labels = self._container_identity(workspace, "colcon-test", sweep=False)
+        if self.uses_volume(workspace, step.image, user, labels):
+            raise volume_mode_refused("the test results `espdock test` reads")
         mounts = [workspace_mount(workspace)]
         env = [("HOME", "/tmp"), *self._reproducible_env(workspace)]
         if step.defaults_file is not None:
@@ -498,10 +526,15 @@ class Runner:
             return Outcome.CACHED, f"up to date ({step.target})"
         stamp_file.forget(stamps)
         defaults = _defaults_digest(workspace.root / step.project)
-        _prepare_build_dir(build_dir, step.target, defaults, step.image_key)
+        reset = _prepare_build_dir(build_dir, step.target, defaults, step.image_key)
         fresh = not (build_dir / "sdkconfig").is_file()
         code = self.run_idf(
-            workspace, step, step.argv(), on_line=lambda line: self._emit(StepOutput(step.name, line)), sweep=True
+            workspace,
+            step,
+            step.argv(),
+            on_line=lambda line: self._emit(StepOutput(step.name, line)),
+            sweep=True,
+            reset=reset,
         )
         if code != 0:
             raise BuildFailed(
@@ -556,26 +589,38 @@ class Runner:
         workdir: str | None = None,
         sweep: bool = False,
         extra_mounts: tuple[Mount, ...] = (),
+        reset: bool = False,
     ) -> int:
         """Run ARGV (idf.py or another tool of the IDF image) for STEP's package.
 
         With ON_LINE None the container is attached to the terminal (menuconfig, monitor).
         SWEEP only from a build, which holds the workspace lock (see _container_identity).
+        RESET: the host's build dir was emptied for a new target or image (_prepare_build_dir);
+        in volume mode the volume's is emptied the same way.
         """
         user, labels = self._container_identity(workspace, f"idf-{step.package}", sweep)
+        build_dir = workspace.ws_dir / "build" / step.package
         # The component manager extracts into <project>/managed_components, a place it does not
-        # let anyone move; a mount keeps that in ws/build, and the source tree clean.
-        managed = workspace.ws_dir / "build" / step.package / MANAGED_COMPONENTS
+        # let anyone move; a mount keeps that in ws/build, and the source tree clean. On the
+        # volume it stays in the project: the volume's copy of the sources is espdock's own.
+        managed = build_dir / MANAGED_COMPONENTS
         mountpoint = workspace.root / step.project / MANAGED_COMPONENTS
-        owner = self._owner
-        for directory in (managed, mountpoint):
-            _make_dirs_for(directory, owner)
-        self._check_mount(workspace, step.image, user, labels)
-        mounts = [
-            workspace_mount(workspace),
-            Mount(managed, f"{step.project_dir}/{MANAGED_COMPONENTS}"),
-            *extra_mounts,
-        ]
+        sync = None
+        if self.uses_volume(workspace, step.image, user, labels):
+            if devices or extra_mounts:
+                raise volume_mode_refused(f"a serial port for {step.package}")
+            sync = self._sync(workspace, step.name, step.image, user, labels, (build_dir,) if reset else ())
+        else:
+            for directory in (managed, mountpoint):
+                _make_dirs_for(directory, self._owner)
+        mounts, archives = self._workspace_in(workspace, sync)
+        if sync is not None:
+            # espdock's records of the build dir live on the host (the volume's come back without
+            # them), and a new volume gets menuconfig's sdkconfig, which outlives a reset.
+            kept = (TARGET_MARKER, LIBRARY_BASELINE, *(("sdkconfig",) if reset or sync.fresh else ()))
+            archives.append(volume.files_archive(workspace, build_dir, kept, self.container_owner()))
+        if sync is None:
+            mounts += [Mount(managed, f"{step.project_dir}/{MANAGED_COMPONENTS}"), *extra_mounts]
         env = [
             ("HOME", "/tmp"),
             *self._reproducible_env(workspace),
@@ -587,7 +632,10 @@ class Runner:
         if ca_bundle is not None:
             # The component manager downloads over HTTPS at configure time; with-ca.sh (from
             # Dockerfile.idf) hands it, and git, this bundle besides the system's.
-            mounts.append(Mount(ca_bundle, EXTRA_CA_MOUNT, read_only=True))
+            if sync is None:
+                mounts.append(Mount(ca_bundle, EXTRA_CA_MOUNT, read_only=True))
+            else:
+                archives.append(volume.file_archive(EXTRA_CA_MOUNT, ca_bundle.read_bytes()))
             env.append(("ESPDOCK_EXTRA_CA", EXTRA_CA_MOUNT))
         spec = RunSpec(
             image=step.image,
@@ -601,11 +649,25 @@ class Runner:
             group_add=tuple(_device_groups(devices)),
             network=network,
             tty=on_line is None and bool(sys.stdin and sys.stdin.isatty()),
+            archives=tuple(archives),
         )
+        keep = self._config.keep_containers
+        if sync is not None:
+            # The build dir comes back whole: the firmware's artefacts, and menuconfig's sdkconfig.
+            with volume.fetched("build") as fetched:
+                fetch = {volume.container_path(workspace, build_dir): fetched["build"]}
+                if on_line is None:
+                    code = self._engine.run_attached(spec, keep=keep, fetch=fetch)
+                else:
+                    code = self._engine.run(spec, on_line, keep=keep, fetch=fetch)
+                volume.replace_tree(fetched["build"], build_dir, self._owner)
+                volume.record(workspace, self._engine, sync, sync.installed)
+                _give_to(workspace.ws_dir / "build" / volume.SYNCED, self._owner)
+            return code
         try:
             if on_line is None:
-                return self._engine.run_attached(spec, keep=self._config.keep_containers)
-            return self._engine.run(spec, on_line, keep=self._config.keep_containers)
+                return self._engine.run_attached(spec, keep=keep)
+            return self._engine.run(spec, on_line, keep=keep)
         finally:
             with contextlib.suppress(OSError):  # not empty: the user's own, left alone
                 mountpoint.rmdir()
@@ -616,6 +678,91 @@ class Runner:
         ensure_engine_sees(self._engine, workspace, image, user, labels)
         if (workspace.ws_dir / "build" / CHECKED).exists():
             _give_to(workspace.ws_dir / "build" / CHECKED, self._owner)
+
+    def uses_volume(self, workspace: Workspace, image: str, user: str, labels: tuple[tuple[str, str], ...]) -> bool:
+        """Whether WORKSPACE's build containers mount its volume (espdock.volume), not the workspace:
+        workspace_mode volume, or auto on an engine whose containers do not see the workspace."""
+        if workspace.root not in self._volume:
+            mode = self._config.workspace_mode
+            if mode == "auto":
+                _make_dirs_for(workspace.ws_dir / "build", self._owner)
+                self._volume[workspace.root] = not engine_sees(self._engine, workspace, image, user, labels)
+                _give_to(workspace.ws_dir / "build" / CHECKED, self._owner)
+            else:
+                if mode == "mount":
+                    self._check_mount(workspace, image, user, labels)
+                self._volume[workspace.root] = mode == "volume"
+        return self._volume[workspace.root]
+
+    def _sync(
+        self,
+        workspace: Workspace,
+        step_name: str,
+        image: str,
+        user: str,
+        labels: tuple[tuple[str, str], ...],
+        emptied: tuple[Path, ...] = (),
+    ) -> volume.Sync | None:
+        """In volume mode, the sources the volume lacks (for the build container's archives), with
+        the ones deleted since the last sync, and EMPTIED (host paths), removed from it; None in
+        mount mode."""
+        if not self.uses_volume(workspace, image, user, labels):
+            return None
+        _make_dirs_for(workspace.ws_dir / "build", self._owner)
+        sync = volume.prepare(self._engine, workspace, self.container_owner())
+        sync = replace(sync, deleted=(*sync.deleted, *(volume.container_path(workspace, p) for p in emptied)))
+        new = " (new)" if sync.fresh else ""
+        sent = f"{sync.sent} file(s) sent, {len(sync.deleted)} removed"
+        self._emit(StepNote(step_name, f"workspace volume {sync.volume}{new}: {sent}"))
+        if sync.deleted:
+            spec = RunSpec(
+                image=image,
+                argv=("rm", "-rf", "--", *sync.deleted),
+                workdir="/",
+                user=user,
+                mounts=(volume.volume_mount(workspace),),
+                labels=(*labels, ("io.espdock.step", "volume-sync")),
+            )
+            output: list[str] = []
+            if self._engine.run(spec, output.append) != 0:
+                raise EspdockError(
+                    f"could not remove deleted sources from volume {sync.volume}: {_first_line(chr(10).join(output))}",
+                    "Remove the volume (`espdock prune --volume`) and build again: it is made afresh.",
+                )
+        return sync
+
+    def needs_this_machine(self, workspace: Workspace, image: str, what: str) -> None:
+        """Refuse WHAT (a command that needs this machine's files or devices) in volume mode."""
+        user, labels = self._container_identity(workspace, "mount-check", sweep=False)
+        if self.uses_volume(workspace, image, user, labels):
+            raise volume_mode_refused(what)
+
+    def workspace_for(self, workspace: Workspace, image: str, step_label: str) -> Mount:
+        """The workspace for an interactive container of IMAGE (espdock shell): the bind mount, or in
+        volume mode the volume, with the sources synced first."""
+        user, labels = self._container_identity(workspace, step_label, sweep=False)
+        sync = self._sync(workspace, step_label, image, user, labels)
+        if sync is None:
+            return workspace_mount(workspace)
+        mounts, archives = self._workspace_in(workspace, sync)
+        spec = RunSpec(image=image, argv=("true",), workdir="/", user=user, mounts=tuple(mounts),
+                       labels=(*labels, ("io.espdock.step", "volume-sync")), archives=tuple(archives))  # fmt: skip
+        output: list[str] = []
+        if self._engine.run(spec, output.append) != 0:
+            said = _first_line(chr(10).join(output))
+            raise EspdockError(f"could not send the sources to volume {sync.volume}: {said}")
+        volume.record(workspace, self._engine, sync, sync.installed)
+        _give_to(workspace.ws_dir / "build" / volume.SYNCED, self._owner)
+        return mounts[0]
+
+    def _workspace_in(
+        self, workspace: Workspace, sync: volume.Sync | None
+    ) -> tuple[list[Mount], list[tuple[str, bytes]]]:
+        """The mounts and archives that give a build container the workspace: the bind mount, or
+        the volume and SYNC's changed sources."""
+        if sync is None:
+            return [workspace_mount(workspace)], []
+        return [volume.volume_mount(workspace)], [(volume.WORKSPACE_MOUNT, sync.archive)]
 
     def _container_identity(
         self, workspace: Workspace, step_label: str, sweep: bool
@@ -764,22 +911,22 @@ def _holder_text(holder: Path) -> str:
     return f" (pid {pid.strip()}: {command.strip()})" if pid.strip().isdigit() else ""
 
 
-def _prepare_build_dir(build_dir: Path, target: str, defaults: str, image_key: str) -> None:
+def _prepare_build_dir(build_dir: Path, target: str, defaults: str, image_key: str) -> bool:
     """Make a build dir safe to reuse.
 
     IDF refuses a build dir configured for another chip, and one configured in another image
     keeps that image's toolchain paths and library in CMakeCache.txt and ninja's state, so a
     new target or image key starts afresh. The sdkconfig (menuconfig's changes) survives an
     image change; an existing sdkconfig wins over sdkconfig.defaults, so it goes when the
-    defaults changed, and with the target.
+    defaults changed, and with the target. True when it removed anything.
     """
     marker = build_dir / TARGET_MARKER
     if not marker.is_file():
-        return
+        return False
     built_target, built_defaults, built_key, *_ = [*marker.read_text().split("\n"), "", "", ""]
     if built_target != target:
         shutil.rmtree(build_dir)  # only a cache
-        return
+        return True
     keep = "sdkconfig" if built_defaults == defaults else None
     if built_key != image_key:
         for entry in build_dir.iterdir():
@@ -791,6 +938,7 @@ def _prepare_build_dir(build_dir: Path, target: str, defaults: str, image_key: s
                 entry.unlink()
     elif keep is None:
         (build_dir / "sdkconfig").unlink(missing_ok=True)
+    return built_key != image_key or keep is None
 
 
 LIBRARY_BASELINE = ".espdock-library-sdkconfig"
@@ -885,6 +1033,17 @@ def _permission_error(exc: PermissionError) -> WorkspaceError:
         f"permission denied on {path or 'a workspace file'}{owner}; espdock runs as uid {os.geteuid()}",
         "Give that path back to you (e.g. `sudo chown -R $(id -u):$(id -g) PATH`); files a container wrote as "
         "another user are the engine's doing: see the Engines page of espdock's docs (rootless engines).",
+    )
+
+
+def volume_mode_refused(what: str) -> WorkspaceNotVisible:
+    """The error of a command that needs this machine's files or devices in volume mode."""
+    return WorkspaceNotVisible(
+        f"the build containers use the workspace's volume on an engine that does not see this machine "
+        f"(workspace_mode), and {what} is on this machine",
+        "Use an engine that sees this machine's files and devices for it (a local engine: unset DOCKER_HOST, "
+        "or ESPDOCK_WORKSPACE_MODE=mount with an engine sharing the path); the firmware `espdock build` "
+        "installed is in install/<package>/share/<package>/firmware for any flasher.",
     )
 
 

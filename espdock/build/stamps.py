@@ -25,7 +25,7 @@ def tree_digest(*roots: Path) -> str:
     digest = hashlib.sha256()
     for root in roots:
         digest.update(f"root\0{root.name}\n".encode())
-        for path in _files(root):
+        for path in source_files(root):
             digest.update(path.relative_to(root).as_posix().encode() + b"\0")
             digest.update(hashlib.sha256(path.read_bytes()).digest())
     return digest.hexdigest()
@@ -125,7 +125,8 @@ class StampFile:
         durable.write_text(self.path, json.dumps(data, indent=1, sort_keys=True) + "\n")
 
 
-def _files(root: Path) -> list[Path]:
+def source_files(root: Path) -> list[Path]:
+    """The files under ROOT a build reads: hidden and output dirs, hidden files and .pyc left out."""
     found = []
     for dirpath, dirnames, filenames in os.walk(root):
         dirnames[:] = sorted(d for d in dirnames if not d.startswith(".") and d not in SKIP_DIRS)

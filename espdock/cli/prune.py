@@ -9,8 +9,9 @@ from typing import Annotated
 import typer
 from rich.text import Text
 
+from espdock.build import volume as workspace_volume
 from espdock.build.plan import LABEL_KEY, ColconBuild, EnsureImage, RuntimeImage
-from espdock.build.runner import Runner
+from espdock.build.runner import Runner, workspace_lock
 from espdock.cli.core import WorkspaceOption, app, build_plan, command, console, load, notify
 from espdock.cli.ui import QuietReporter, Reporter
 from espdock.config import Config, invoking_user
@@ -82,6 +83,21 @@ def prune_images(
     return plan, busy
 
 
+def remove_volumes(engine: Engine, ws: Workspace, dry_run: bool) -> None:
+    """`espdock prune --volume`: the workspace's volumes on the engine (espdock.volume)."""
+    names = engine.volumes(workspace_volume.volume_labels(ws))
+    verb = "would remove" if dry_run else "removed"
+    with workspace_lock(ws):
+        for name in names:
+            if not dry_run:
+                engine.remove_volume(name)
+            console.print(Text(f"{verb} volume {name}"))
+        if not dry_run:
+            workspace_volume.forget(ws)
+    if not names:
+        console.print(Text(f"no volume of {ws.root} on this engine"))
+
+
 def trim_cache(engine: Engine, bound_gb: float, dry_run: bool) -> tuple[int | None, int]:
     """BuildKit's cache size (None: unknown just now), and what trimming it to BOUND_GB freed
     (0 on a dry run)."""
@@ -106,12 +122,23 @@ def prune(
         float | None,
         typer.Option("--cache-max-gb", min=0, help="Trim BuildKit's cache to this many GB (build_cache_max_gb)."),
     ] = None,
+    volume: Annotated[
+        bool,
+        typer.Option(
+            "--volume",
+            help="Remove only the workspace's volume on the engine (workspace_mode volume): its build dirs go, "
+            "the next build sends every source and builds everything.",
+        ),
+    ] = False,
     workspace: WorkspaceOption = None,
 ) -> None:
     """Remove this workspace's keyed images its current inputs no longer use, keeping the last few of
     each kind; never an image another workspace's last build used or a running container needs."""
     ws, config = load(workspace)
     engine = bootstrap.ensure_engine(os.environ, notify)
+    if volume:
+        remove_volumes(engine, ws, dry_run)
+        return
     keep = config.prune_keep if keep is None else keep
     layers_before = None if dry_run else engine.layers_size()
     plan, busy = prune_images(engine, ws, config, keep, all_workspaces, dry_run)

@@ -82,13 +82,22 @@ def build(
             show_default=False,
         ),
     ] = None,
+    workspace_mode: Annotated[
+        str | None,
+        typer.Option(
+            "--workspace-mode",
+            help="auto, mount or volume: how build containers get the workspace; volume keeps it in a volume on "
+            "an engine that does not see this machine's files (setting workspace_mode, default auto).",
+            show_default=False,
+        ),
+    ] = None,
     workspace: WorkspaceOption = None,
 ) -> None:
     """Build the images when their inputs changed, then every package whose sources changed and what
     depends on it; record what the build produced in install/espdock-manifest.json.
 
     Options after `--` go to `colcon build` (e.g. `espdock build -- --cmake-args -DBUILD_TESTING=OFF`)."""
-    ws, config = load(workspace, runtime_image=runtime_image)
+    ws, config = load(workspace, runtime_image=runtime_image, workspace_mode=workspace_mode)
     locked = locked if locked is not None else os.environ.get("CI", "").lower() == "true"
     plan = build_plan(
         ws,

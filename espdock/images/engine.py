@@ -102,9 +102,11 @@ class ImageInfo:
 
 @dataclass(frozen=True)
 class Mount:
-    source: Path
+    # A host path, or with VOLUME the name of a volume on the engine.
+    source: Path | str
     target: str
     read_only: bool = False
+    volume: bool = False
 
 
 @dataclass(frozen=True)
@@ -124,6 +126,9 @@ class RunSpec:
     network: str | None = None
     tty: bool = False
     name: str | None = None
+    # Tar streams put into the container before it starts (container directory, tar bytes): how
+    # files reach an engine that does not see this machine's (espdock.volume).
+    archives: tuple[tuple[str, bytes], ...] = ()
 
 
 @dataclass(frozen=True)
@@ -639,26 +644,32 @@ class Engine:
 
     # Containers
 
-    def run(self, spec: RunSpec, on_line: LineSink, keep: bool = False) -> int:
+    def run(self, spec: RunSpec, on_line: LineSink, keep: bool = False, fetch: Mapping[str, Path] | None = None) -> int:
         """Run SPEC to completion, streaming its output by line; return its exit code.
 
+        FETCH: container path -> host file that receives the path's tar stream once the container
+        has exited (no file when the container has no such path).
         The container is removed however this ends (Ctrl-C included) unless KEEP.
         """
         with self._container(spec, keep) as container:
             container.start()
             _stream_lines(container.logs(stream=True, follow=True), on_line)
-            return int(container.wait().get("StatusCode", 1))
+            code = int(container.wait().get("StatusCode", 1))
+            _fetch(container, fetch or {})
+            return code
 
-    def run_attached(self, spec: RunSpec, keep: bool = False) -> int:
-        """Run SPEC with the terminal attached (for interactive tools); return its exit code."""
+    def run_attached(self, spec: RunSpec, keep: bool = False, fetch: Mapping[str, Path] | None = None) -> int:
+        """Run SPEC with the terminal attached (for interactive tools); return its exit code (FETCH: as run's)."""
         with self._container(spec, keep) as container:
             docker_cli = self.compose_command()[0]
             # The CLI does what the SDK cannot: raw TTY, window size, stdin forwarding.
-            return subprocess.call(
+            code = subprocess.call(
                 [docker_cli, "start", "--attach", "--interactive", container.id],
                 env=self._env,
                 preexec_fn=_die_with_parent(),
             )
+            _fetch(container, fetch or {})
+            return code
 
     def run_foreground(self, spec: RunSpec) -> tuple[int, int | None]:
         """`docker run` SPEC in the foreground, as a shell runs a command: attached to this
@@ -673,7 +684,8 @@ class Engine:
         argv += [arg for key, value in spec.env for arg in ("--env", f"{key}={value}")]
         argv += [arg for key, value in spec.labels for arg in ("--label", f"{key}={value}")]
         for mount in spec.mounts:
-            fields = ["type=bind", f"source={mount.source}", f"target={mount.target}"]
+            kind = "volume" if mount.volume else "bind"
+            fields = [f"type={kind}", f"source={mount.source}", f"target={mount.target}"]
             argv += ["--mount", _csv_line([*fields, "readonly"] if mount.read_only else fields)]
         argv += [arg for device in spec.devices for arg in ("--device", device)]
         argv += [arg for group in spec.group_add for arg in ("--group-add", str(group))]
@@ -738,6 +750,7 @@ class Engine:
                     user=spec.user,
                     environment=dict(spec.env),
                     labels={**dict(spec.labels), LABEL_OWNER: owner_identity()},
+                    # A bind's source, or a volume's name: the engine tells them apart by the slash.
                     volumes={
                         str(m.source): {"bind": m.target, "mode": "ro" if m.read_only else "rw"} for m in spec.mounts
                     },
@@ -749,6 +762,13 @@ class Engine:
                     name=spec.name,
                     detach=True,
                 )
+            try:
+                for where, data in spec.archives:
+                    if not container.put_archive(where, data):
+                        raise ContainerError(f"the {self.info().name} refused the files for {where} of a container")
+            except BaseException:
+                _remove(container, stop=False)
+                raise
         except KeyboardInterrupt:
             if container is not None:
                 _remove(container, stop=False)
@@ -823,6 +843,46 @@ class Engine:
         except docker.errors.APIError as exc:
             raise EspdockError(f"the engine failed to list containers: {exc}") from exc
         return [str(c.attrs.get("Names", [c.id])[0]).lstrip("/") for c in listed]
+
+    # Volumes
+
+    def ensure_volume(self, name: str, labels: Mapping[str, str]) -> bool:
+        """Make volume NAME with LABELS unless the engine has it; True when it was made now."""
+        try:
+            try:
+                self._client.volumes.get(name)
+                return False
+            except docker.errors.NotFound:
+                self._client.volumes.create(name, labels=dict(labels))
+                return True
+        except requests.exceptions.ConnectionError as exc:
+            raise _engine_lost(self._env, f"making volume {name}") from exc
+        except docker.errors.APIError as exc:
+            raise ContainerError(
+                f"the {self.info().name} could not make volume {name}: {exc.explanation or exc}"
+            ) from exc
+
+    def volumes(self, labels: Mapping[str, str]) -> list[str]:
+        """Names of the volumes carrying all LABELS."""
+        selector = [f"{k}={v}" for k, v in labels.items()]
+        try:
+            return sorted(v.name for v in self._client.volumes.list(filters={"label": selector}))
+        except (docker.errors.APIError, requests.exceptions.ConnectionError) as exc:
+            raise _engine_lost(self._env, "listing volumes") from exc
+
+    def remove_volume(self, name: str) -> None:
+        """Remove volume NAME (gone already is fine); a container still using it is an error."""
+        try:
+            self._client.volumes.get(name).remove()
+        except docker.errors.NotFound:
+            pass
+        except requests.exceptions.ConnectionError as exc:
+            raise _engine_lost(self._env, f"removing volume {name}") from exc
+        except docker.errors.APIError as exc:
+            raise ContainerError(
+                f"the {self.info().name} did not remove volume {name}: {exc.explanation or exc}",
+                "Stop the espdock command or container using it (`docker ps -a --filter volume=NAME`), then again.",
+            ) from exc
 
 
 LIBPOD_INFO = "/v4.0.0/libpod/info"
@@ -901,6 +961,18 @@ def _connect_reason(exc: Exception) -> str:
     if "No such file or directory" in text or "Connection refused" in text:
         return "nothing is listening there"
     return text
+
+
+def _fetch(container: docker.models.containers.Container, fetch: Mapping[str, Path]) -> None:
+    """Each container path's tar stream into its host file (none for a path the container lacks)."""
+    for path, dest in fetch.items():
+        try:
+            chunks, _ = container.get_archive(path)
+        except docker.errors.NotFound:
+            continue
+        with dest.open("wb") as out:
+            for chunk in chunks:
+                out.write(chunk)
 
 
 def _remove(container: docker.models.containers.Container, stop: bool = True) -> None:

@@ -32,13 +32,23 @@ def ensure_engine_sees(
     engine: Engine, workspace: Workspace, image: str, user: str, labels: tuple[tuple[str, str], ...]
 ) -> None:
     """Raise unless a container of IMAGE, run as USER, reads the workspace at its mount path."""
+    if not engine_sees(engine, workspace, image, user, labels):
+        raise not_visible(engine, workspace)
+
+
+def engine_sees(
+    engine: Engine, workspace: Workspace, image: str, user: str, labels: tuple[tuple[str, str], ...]
+) -> bool:
+    """Whether a container of IMAGE, run as USER, reads the workspace at its mount path; the
+    answer, either way, is kept for the engine and path (workspace_mode auto asks it each build)."""
     mount = workspace_mount(workspace)
     record = {"engine": engine.info().identity, "root": str(mount.source), "mount": mount.target}
     cache = workspace.ws_dir / "build" / CHECKED
     try:
-        if json.loads(cache.read_text()) == record:
-            return
-    except (OSError, ValueError):
+        cached = json.loads(cache.read_text())
+        if {k: cached.get(k) for k in record} == record:
+            return cached.get("sees", True) is True
+    except (OSError, ValueError, AttributeError):
         pass
     nonce = secrets.token_hex(16)
     probe = mount.source / f"{PROBE_PREFIX}{os.getpid()}-{nonce[:8]}"
@@ -58,25 +68,32 @@ def ensure_engine_sees(
         code = engine.run(spec, output.append)
     finally:
         probe.unlink(missing_ok=True)
-    if code != 0:
-        if any("permission denied" in line.lower() for line in output):
-            raise WorkspaceError(
-                f"the build containers (user {user} on the {engine.info().name}) may not read the workspace: "
-                f"{_described(mount.source)}",
-                "Let that user read and enter it and its parent directories (e.g. `chmod o+rx` on them), "
-                "or move the workspace somewhere it can.",
-            )
-        raise WorkspaceNotVisible(
-            f"the {engine.info().name} does not see the workspace {mount.source}: a container does not find "
-            f"the file espdock wrote into it (at {mount.target}), so the engine mounts a directory of its own "
-            "machine, not this one",
-            "Build on an engine that shares this machine's files at the same path: a local engine (unset "
-            "DOCKER_HOST), or share the path with the engine's machine. On GitLab with the docker:dind service, "
-            "keep the workspace under the project's builds dir ($CI_PROJECT_DIR), which the runner mounts into "
-            "the service at the same path (the Engines page of espdock's docs).",
+    if code != 0 and any("permission denied" in line.lower() for line in output):
+        raise WorkspaceError(
+            f"the build containers (user {user} on the {engine.info().name}) may not read the workspace: "
+            f"{_described(mount.source)}",
+            "Let that user read and enter it and its parent directories (e.g. `chmod o+rx` on them), "
+            "or move the workspace somewhere it can.",
         )
     cache.parent.mkdir(parents=True, exist_ok=True)
-    cache.write_text(json.dumps(record) + "\n")
+    cache.write_text(json.dumps({**record, "sees": code == 0}) + "\n")
+    return code == 0
+
+
+def not_visible(engine: Engine, workspace: Workspace) -> WorkspaceNotVisible:
+    """The error of workspace_mode mount on an engine that does not see the workspace."""
+    mount = workspace_mount(workspace)
+    return WorkspaceNotVisible(
+        f"the {engine.info().name} does not see the workspace {mount.source}: a container does not find "
+        f"the file espdock wrote into it (at {mount.target}), so the engine mounts a directory of its own "
+        "machine, not this one",
+        'Let espdock keep the workspace in a volume on that engine (workspace_mode = "auto" or "volume" in '
+        "espdock.toml, or `espdock build --workspace-mode volume`), or build on an engine that shares this "
+        "machine's files at the same path: a local engine (unset DOCKER_HOST), or share the path with the "
+        "engine's machine. On GitLab with the docker:dind service, keep the workspace under the project's "
+        "builds dir ($CI_PROJECT_DIR), which the runner mounts into the service at the same path (the Engines "
+        "page of espdock's docs).",
+    )
 
 
 def _described(path: Path) -> str:

@@ -214,10 +214,16 @@ SOURCE_AND_SHELL = 'if [ -f "$1/local_setup.bash" ]; then . "$1/local_setup.bash
 
 
 def shell_spec(
-    workspace: Workspace, image: str, owner: tuple[int, int], env: Mapping[str, str], tty: bool, dockerfile: str = ""
+    workspace: Workspace,
+    image: str,
+    owner: tuple[int, int],
+    env: Mapping[str, str],
+    tty: bool,
+    dockerfile: str = "",
+    mount: Mount | None = None,
 ) -> RunSpec:
-    """A shell in the build IMAGE (made from DOCKERFILE) with the workspace mounted and its
-    install tree sourced."""
+    """A shell in the build IMAGE (made from DOCKERFILE) with the workspace mounted (MOUNT: its
+    volume instead, espdock.volume) and its install tree sourced."""
     root = posixpath.normpath(f"{WORKSPACE_MOUNT}/{workspace.colcon_root}")
     official = dockerfile == ROS_OFFICIAL_DOCKERFILE
     return RunSpec(
@@ -225,7 +231,7 @@ def shell_spec(
         argv=("bash", "-c", SOURCE_AND_SHELL, "bash", f"{root}/install") if official else ("bash",),
         workdir=root,
         user=f"{owner[0]}:{owner[1]}",
-        mounts=(Mount(workspace.root, WORKSPACE_MOUNT),),
+        mounts=(mount or Mount(workspace.root, WORKSPACE_MOUNT),),
         # The entrypoint sources this install tree when it exists (docker/ros-entrypoint.sh).
         env=(("HOME", "/tmp"), ("ESPDOCK_WS_INSTALL", f"{root}/install"), *node_env(env)),
         labels=_labels(workspace, "shell"),

@@ -3,16 +3,19 @@ not see the workspace, a rootless one, and what /info and /version say about an 
 
 from __future__ import annotations
 
+import io
 import os
+import tarfile
 
 import pytest
 
+from espdock.build import volume
 from espdock.build.plan import ColconBuild, Plan
 from espdock.build.runner import Runner
 from espdock.config import Config
 from espdock.errors import BuildFailed, WorkspaceError, WorkspaceNotVisible
 from espdock.images import bootstrap
-from espdock.images.engine import describe
+from espdock.images.engine import EngineInfo, describe
 from espdock.ros.colcon import unselected
 from espdock.workspace import Workspace
 from tests.fake_engine import FakeEngine
@@ -28,14 +31,15 @@ def ws(tmp_path, monkeypatch) -> Workspace:
     return Workspace(tmp_path)
 
 
-def runner(engine: FakeEngine) -> Runner:
-    return Runner(engine, Config(), {}, lambda event: None, (os.getuid(), os.getgid()))  # type: ignore[arg-type]
+def runner(engine: FakeEngine, config: Config | None = None) -> Runner:
+    owner = (os.getuid(), os.getgid())
+    return Runner(engine, config or Config(), {}, lambda event: None, owner)  # type: ignore[arg-type]
 
 
-def test_an_engine_that_does_not_see_the_workspace_stops_the_build_before_colcon(ws):
+def test_an_engine_that_does_not_see_the_workspace_stops_a_mount_mode_build_before_colcon(ws):
     engine = FakeEngine(run_script=colcon_installs(ws), sees_host=False)
     with pytest.raises(WorkspaceNotVisible) as err:
-        runner(engine).run(Plan(ws, (COLCON,)))
+        runner(engine, Config(workspace_mode="mount")).run(Plan(ws, (COLCON,)))
     assert err.value.exit_code == 8
     assert f"the Docker engine at fake://engine does not see the workspace {ws.root}" in err.value.message
     assert "CI_PROJECT_DIR" in (err.value.hint or "")
@@ -126,3 +130,65 @@ def test_colcon_denied_its_log_dir_names_the_dir_and_its_owner(ws):
     with pytest.raises(WorkspaceError) as err:
         runner(FakeEngine(run_script=denied)).run(Plan(ws, (COLCON,)))
     assert f"permission denied on {ws.ws_dir / 'log'} (owner uid 100999" in err.value.message
+
+
+class VolumeEngine:
+    """The part of an engine espdock.volume's sync asks: whether the volume is new, and who the engine is."""
+
+    def __init__(self) -> None:
+        self.made: list[str] = []
+
+    def ensure_volume(self, name: str, labels: dict[str, str]) -> bool:
+        if name in self.made:
+            return False
+        self.made.append(name)
+        return True
+
+    def info(self) -> EngineInfo:
+        return EngineInfo(kind="docker", rootless=False, identity="remote-1", where="tcp://remote:2375")
+
+
+def sent_names(sync: volume.Sync) -> list[str]:
+    with tarfile.open(fileobj=io.BytesIO(sync.archive)) as tar:
+        return [m.name for m in tar.getmembers() if m.isfile()]
+
+
+def test_a_sync_sends_what_changed_since_the_last_one_and_removes_what_was_deleted(ws):
+    engine = VolumeEngine()
+    (ws.ws_dir / "src/app/keep.py").write_text("x = 1\n")
+    (ws.ws_dir / "src/app/gone.py").write_text("y = 2\n")
+    (ws.ws_dir / "build/app").mkdir(parents=True)
+    (ws.ws_dir / "build/app/out.o").write_text("object")  # colcon's output: never sent
+    first = volume.prepare(engine, ws, (1000, 1000))  # type: ignore[arg-type]
+    assert first.fresh
+    assert sorted(sent_names(first)) == [
+        "ws/src/app/gone.py", "ws/src/app/keep.py", "ws/src/app/package.xml", "ws/src/msgs/package.xml"
+    ]  # fmt: skip
+    with tarfile.open(fileobj=io.BytesIO(first.archive)) as tar:
+        assert {(m.uid, m.gid) for m in tar.getmembers()} == {(1000, 1000)}
+    volume.record(ws, engine, first, None)  # type: ignore[arg-type]
+
+    (ws.ws_dir / "src/app/keep.py").write_text("x = 10\n")
+    (ws.ws_dir / "src/app/gone.py").unlink()
+    second = volume.prepare(engine, ws, (1000, 1000))  # type: ignore[arg-type]
+    assert not second.fresh
+    assert sent_names(second) == ["ws/src/app/keep.py"]
+    assert second.deleted == ("/workspace/ws/src/app/gone.py",)
+    volume.record(ws, engine, second, None)  # type: ignore[arg-type]
+    assert sent_names(volume.prepare(engine, ws, (1000, 1000))) == []  # type: ignore[arg-type]
+
+
+def test_a_copy_back_swaps_the_whole_tree_in_and_a_missing_one_leaves_the_old(ws, tmp_path):
+    install = ws.ws_dir / "install"
+    (install / "app").mkdir(parents=True)
+    (install / "app/old.txt").write_text("old")
+    assert not volume.replace_tree(tmp_path / "absent.tar", install, (os.getuid(), os.getgid()))
+    assert (install / "app/old.txt").read_text() == "old"
+    made = tmp_path / "made/install/app"
+    made.mkdir(parents=True)
+    (made / "new.txt").write_text("new")
+    with tarfile.open(tmp_path / "install.tar", "w") as tar:
+        tar.add(tmp_path / "made/install", arcname="install")
+    assert volume.replace_tree(tmp_path / "install.tar", install, (os.getuid(), os.getgid()))
+    assert sorted(p.name for p in (install / "app").iterdir()) == ["new.txt"]
+    assert [p.name for p in ws.ws_dir.iterdir() if p.name.startswith(".")] == []  # no staging left

@@ -1,0 +1,257 @@
+"""The workspace in a volume on the engine, for an engine that does not see this machine's files
+(DOCKER_HOST=tcp://... or ssh://..., a docker:dind service without a shared path).
+
+The build containers mount the volume where they would mount the workspace, so colcon's and
+IDF's build dirs stay on the engine and rebuilds are incremental. Before a build, the sources
+that changed since the last sync go into the build container as a tar stream (the engine API's
+archive upload: no shared path) and the ones deleted since are removed; a manifest of what was
+sent (paths, sizes, modification times, modes) lies under the colcon root's build/ on the host.
+After it, what the host needs comes back the same way and is swapped in whole: install/ and
+colcon's log, or a firmware package's build dir.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import io
+import json
+import os
+import posixpath
+import re
+import shutil
+import tarfile
+import tempfile
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+from espdock import durable, interrupts
+from espdock.build.plan import LABEL_WORKSPACE
+from espdock.build.stamps import source_files
+from espdock.images.engine import Engine, Mount
+from espdock.layout import WORKSPACE_MOUNT
+from espdock.workspace import Workspace
+
+LABEL_VOLUME = "io.espdock.volume"
+# Under the colcon root's build/ on the host: what the volume holds of the sources.
+SYNCED = ".espdock-volume-sync.json"
+# What colcon writes, relative to the colcon root: never sent, and made writable for the build's user.
+OUTPUT_DIRS = ("build", "install", "log")
+
+
+def volume_name(workspace: Workspace) -> str:
+    """The workspace's volume: its directory's name (for people) and a digest of its path (unique)."""
+    digest = hashlib.sha256(str(workspace.root).encode()).hexdigest()[:12]
+    readable = re.sub(r"[^a-z0-9_.-]+", "-", workspace.root.name.lower()).strip("-.")[:40] or "workspace"
+    return f"espdock-ws-{readable}-{digest}"
+
+
+def volume_labels(workspace: Workspace) -> dict[str, str]:
+    return {LABEL_WORKSPACE: str(workspace.root), LABEL_VOLUME: "workspace"}
+
+
+def volume_mount(workspace: Workspace) -> Mount:
+    """The volume where build containers mount the workspace (espdock.visibility.workspace_mount)."""
+    return Mount(volume_name(workspace), WORKSPACE_MOUNT, volume=True)
+
+
+def container_path(workspace: Workspace, path: Path) -> str:
+    """Where PATH (inside the workspace) is in a container with the workspace or its volume mounted."""
+    return posixpath.join(WORKSPACE_MOUNT, path.relative_to(workspace.root).as_posix())
+
+
+@dataclass(frozen=True)
+class Sync:
+    """What a build container gets before it starts: the changed sources and the deleted ones."""
+
+    volume: str
+    # True when the volume was made for this sync: it holds nothing yet (no build dirs either).
+    fresh: bool
+    archive: bytes
+    sent: int
+    deleted: tuple[str, ...]  # container paths
+    files: dict[str, list[int]]  # the manifest once the build container has them
+    # The host's install/ (espdock.stamps.listing_digest) as the last copy back left it: when it
+    # is another, install/ holds what the volume did not build, and the volume builds everything.
+    installed: str | None
+
+
+def prepare(engine: Engine, workspace: Workspace, owner: tuple[int, int]) -> Sync:
+    """Make the workspace's volume if the engine lacks it, and the tar of what it lacks; OWNER
+    (uid, gid): who owns what the tar makes, the build containers' user."""
+    name = volume_name(workspace)
+    fresh = engine.ensure_volume(name, volume_labels(workspace))
+    manifest = workspace.ws_dir / "build" / SYNCED
+    record = {"volume": name, "engine": engine.info().identity}
+    before: dict[str, list[int]] = {}
+    installed = None
+    if not fresh:
+        try:
+            data = json.loads(manifest.read_text())
+            if {k: data.get(k) for k in record} == record and isinstance(data.get("files"), dict):
+                before, installed = data["files"], data.get("installed")
+        except (OSError, ValueError, AttributeError):
+            pass
+    now: dict[str, Path] = {}
+    for path in source_files(workspace.root):
+        if not _output(workspace, path):
+            now[path.relative_to(workspace.root).as_posix()] = path
+    files: dict[str, list[int]] = {}
+    buffer = io.BytesIO()
+    sent = 0
+    with tarfile.open(fileobj=buffer, mode="w", format=tarfile.PAX_FORMAT) as tar:
+        dirs = {workspace.ws_dir.relative_to(workspace.root) / d for d in OUTPUT_DIRS}
+        for directory in sorted({p for d in dirs for p in (d, *d.parents)} - {Path(".")}):
+            tar.addfile(_owned(tarfile.TarInfo(directory.as_posix()), tarfile.DIRTYPE, 0o755, owner))
+        made: set[str] = set()
+        for rel, path in sorted(now.items()):
+            info = path.lstat()
+            files[rel] = [info.st_size, info.st_mtime_ns, info.st_mode]
+            if before.get(rel) == files[rel]:
+                continue
+            for parent in reversed(Path(rel).parents[:-1]):
+                if parent.as_posix() not in made:
+                    made.add(parent.as_posix())
+                    tar.addfile(_owned(tarfile.TarInfo(parent.as_posix()), tarfile.DIRTYPE, 0o755, owner))
+            entry = tar.gettarinfo(str(path), arcname=rel)
+            entry.uid, entry.gid, entry.uname, entry.gname = *owner, "", ""
+            if entry.isreg():
+                with path.open("rb") as handle:
+                    tar.addfile(entry, handle)
+            else:
+                tar.addfile(entry)
+            sent += 1
+    deleted = tuple(posixpath.join(WORKSPACE_MOUNT, rel) for rel in sorted(set(before) - set(now)))
+    return Sync(name, fresh, buffer.getvalue(), sent, deleted, files, installed)
+
+
+def record(workspace: Workspace, engine: Engine, sync: Sync, installed: str | None) -> None:
+    """The volume holds SYNC's files now, and INSTALLED is the host's install/ as copied back from
+    it: the next sync sends only what changes after this."""
+    manifest = workspace.ws_dir / "build" / SYNCED
+    data = {"volume": sync.volume, "engine": engine.info().identity, "files": sync.files, "installed": installed}
+    durable.write_text(manifest, json.dumps(data, sort_keys=True) + "\n")
+
+
+def file_archive(path: str, data: bytes) -> tuple[str, bytes]:
+    """An archive for RunSpec.archives that makes the file PATH (absolute, in the container) of DATA:
+    what a read-only bind mount of a host file is on an engine that cannot see the host."""
+    buffer = io.BytesIO()
+    with tarfile.open(fileobj=buffer, mode="w") as tar:
+        directory = ""
+        for part in posixpath.dirname(path).strip("/").split("/"):
+            directory = posixpath.join(directory, part)
+            tar.addfile(_owned(tarfile.TarInfo(directory), tarfile.DIRTYPE, 0o755, (0, 0)))
+        entry = tarfile.TarInfo(path.lstrip("/"))
+        entry.size, entry.mode = len(data), 0o644
+        tar.addfile(entry, io.BytesIO(data))
+    return "/", buffer.getvalue()
+
+
+def files_archive(
+    workspace: Workspace, directory: Path, names: tuple[str, ...], owner: tuple[int, int]
+) -> tuple[str, bytes]:
+    """An archive for RunSpec.archives of the files NAMES in DIRECTORY (a host dir of the
+    workspace) that exist, owned by OWNER, where the workspace's volume is mounted."""
+    buffer = io.BytesIO()
+    with tarfile.open(fileobj=buffer, mode="w", format=tarfile.PAX_FORMAT) as tar:
+        rel = directory.relative_to(workspace.root)
+        for parent in (*reversed(rel.parents[:-1]), rel):
+            tar.addfile(_owned(tarfile.TarInfo(parent.as_posix()), tarfile.DIRTYPE, 0o755, owner))
+        for path in (directory / name for name in names):
+            if path.is_file() and not path.is_symlink():
+                entry = tar.gettarinfo(str(path), arcname=(rel / path.name).as_posix())
+                entry.uid, entry.gid, entry.uname, entry.gname = *owner, "", ""
+                with path.open("rb") as handle:
+                    tar.addfile(entry, handle)
+    return WORKSPACE_MOUNT, buffer.getvalue()
+
+
+def forget(workspace: Workspace) -> None:
+    """The volume is gone: the next sync sends everything."""
+    (workspace.ws_dir / "build" / SYNCED).unlink(missing_ok=True)
+
+
+def _output(workspace: Workspace, path: Path) -> bool:
+    """Whether PATH lies in what colcon writes (the colcon root's build/, install/, log/)."""
+    return any(path.is_relative_to(workspace.ws_dir / d) for d in OUTPUT_DIRS)
+
+
+def _owned(info: tarfile.TarInfo, kind: bytes, mode: int, owner: tuple[int, int]) -> tarfile.TarInfo:
+    info.type, info.mode, (info.uid, info.gid) = kind, mode, owner
+    return info
+
+
+@contextlib.contextmanager
+def fetched(*names: str) -> Iterator[dict[str, Path]]:
+    """Temporary files (NAME -> path) for the tar streams a build container hands back."""
+    with tempfile.TemporaryDirectory(prefix="espdock-volume-") as tmp:
+        yield {name: Path(tmp, f"{name}.tar") for name in names}
+
+
+def replace_tree(archive: Path, dest: Path, owner: tuple[int, int]) -> bool:
+    """Swap DEST for the directory ARCHIVE holds (a container path's tar stream: one top-level
+    directory), owned by OWNER when espdock runs as root; False (DEST left alone) when the
+    container had no such path. DEST is never half-written: the tree is unpacked beside it first."""
+    if not archive.is_file():
+        return False
+    staging = _unpacked(archive, dest.parent, owner)
+    old = dest.with_name(f".{dest.name}.old-{os.getpid()}")
+    try:
+        with interrupts.held():  # the two renames as one: DEST is the old tree or the new one
+            if dest.exists() or dest.is_symlink():
+                dest.rename(old)
+            (staging / _top(archive)).rename(dest)
+        durable.sync_dir(dest.parent)
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
+        shutil.rmtree(old, ignore_errors=True)
+    return True
+
+
+def merge_logs(archive: Path, dest: Path, owner: tuple[int, int]) -> None:
+    """Add the colcon runs ARCHIVE (the volume's log/) holds that DEST lacks; its latest* links win."""
+    if not archive.is_file():
+        return
+    staging = _unpacked(archive, dest.parent, owner)
+    try:
+        dest.mkdir(exist_ok=True)
+        _give(dest, owner)
+        for entry in sorted((staging / _top(archive)).iterdir()):
+            target = dest / entry.name
+            if entry.is_symlink():
+                os.replace(entry, target)
+            elif not target.exists():
+                entry.rename(target)
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
+
+
+def _top(archive: Path) -> str:
+    with tarfile.open(archive) as tar:
+        first = tar.next()
+    if first is None:
+        raise ValueError(f"{archive} is empty")
+    return first.name.split("/", 1)[0]
+
+
+def _unpacked(archive: Path, beside: Path, owner: tuple[int, int]) -> Path:
+    staging = Path(tempfile.mkdtemp(prefix=".espdock-fetched-", dir=beside))
+    try:
+        with tarfile.open(archive) as tar:
+            # "tar": no absolute names or ones leading out; links may lead anywhere (a symlink
+            # install's point at the build dirs), as colcon made them.
+            tar.extractall(staging, filter="tar")
+        for dirpath, dirnames, filenames in os.walk(staging):
+            for name in (*dirnames, *filenames):
+                _give(Path(dirpath, name), owner)
+    except BaseException:
+        shutil.rmtree(staging, ignore_errors=True)
+        raise
+    return staging
+
+
+def _give(path: Path, owner: tuple[int, int]) -> None:
+    if os.geteuid() == 0:
+        os.lchown(path, *owner)

@@ -32,3 +32,16 @@ def defaults_root() -> Path:
 def default_file(rel: str) -> Path:
     """The default of the workspace file REL (e.g. Dockerfile.ros, docker/ros-build.txt)."""
     return defaults_root() / rel
+
+
+def locate(root: Path, rel: str) -> Path | None:
+    """The workspace's own REL, else espdock's packaged default of it (as the image builds read
+    them, file by file), else None."""
+    own = root / rel
+    if own.is_file():
+        return own
+    if any(rel == s or rel.startswith(f"{s}/") for s in SHIPPED):
+        default = defaults_root() / rel
+        if default.is_file():
+            return default
+    return None

@@ -25,15 +25,14 @@ from pathlib import Path
 
 from espdock.build.plan import EnsureImage, Plan, base_image, ros_image
 from espdock.config import Config
-from espdock.defaults import SHIPPED, defaults_root
+from espdock.defaults import locate
 from espdock.errors import LockError
 from espdock.layout import ROSDEP_LOCK
 from espdock.ros import rosdeps, testdeps
+from espdock.ros.rosdeps import ROS_IMAGE_PYTHON
 from espdock.ros.system_python import SystemPython, probe_image
 from espdock.workspace import BuildInputs, Package, select_up_to, write_atomically
 
-# The ROS images' Python: Debian bookworm's 3.11 on x86_64 (glibc 2.36), whatever runs uv.
-ROS_IMAGE_PYTHON = ("--python-version", "3.11", "--python-platform", "x86_64-manylinux_2_36")
 INPUT_MARK = "# espdock-lock-input:"
 FIX = "run `espdock lock`"
 
@@ -129,19 +128,6 @@ def applies(spec: LockSpec, root: Path) -> bool:
         return tomllib.loads(pyproject.read_text()).get("project", {}).get("name") == spec.project
     except (OSError, tomllib.TOMLDecodeError):
         return False
-
-
-def locate(root: Path, rel: str) -> Path | None:
-    """The workspace's own REL, else espdock's packaged default of it (as the image builds read
-    them, file by file), else None."""
-    own = root / rel
-    if own.is_file():
-        return own
-    if any(rel == s or rel.startswith(f"{s}/") for s in SHIPPED):
-        default = defaults_root() / rel
-        if default.is_file():
-            return default
-    return None
 
 
 def _state(spec: LockSpec, root: Path) -> tuple[str | None, dict[str, str]]:

@@ -27,10 +27,14 @@ from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
+from espdock.defaults import locate
 from espdock.errors import DependencyError, LockError
 from espdock.ros import pypi_names
 from espdock.ros.system_python import SystemPython, normalise
 from espdock.workspace import Package, PackageKind
+
+# The ROS images' Python: Debian bookworm's 3.11 on x86_64 (glibc 2.36), whatever runs uv.
+ROS_IMAGE_PYTHON = ("--python-version", "3.11", "--python-platform", "x86_64-manylinux_2_36")
 
 FORMAT = 1
 FIX = "run `espdock lock`"
@@ -359,8 +363,6 @@ def pip_lock_lines(
     """uv's hashed lock of REQUIREMENTS for the image's Python (one line per package, hashes
     inline), and the requirements PyPI does not have (dropped). SYSTEM: the official image's
     Python, whose installed distributions the lock keeps at their versions."""
-    from espdock.build.lock import ROS_IMAGE_PYTHON, locate
-
     wanted = sorted(set(requirements))
     absent: set[str] = set()
     while wanted:

@@ -5,6 +5,7 @@ from pathlib import Path
 
 import pytest
 
+from espdock import defaults
 from espdock.build import lock
 from espdock.build.lock import LOCKS, check_locks, digest, stale_reason
 from espdock.errors import LockError
@@ -92,7 +93,7 @@ def test_only_the_dependencies_of_pyproject_decide_the_dev_lock():
 def test_a_lock_missing_in_the_workspace_and_in_the_defaults_is_named(tmp_path, monkeypatch):
     root = copy_workspace(tmp_path / "w")
     (root / BUILD.lock).unlink()
-    monkeypatch.setattr(lock, "defaults_root", lambda: tmp_path / "no-defaults")
+    monkeypatch.setattr(defaults, "defaults_root", lambda: tmp_path / "no-defaults")
     with pytest.raises(LockError) as error:
         check_locks(root, LOCKS[:2])
     assert error.value.message == "docker/ros-build.txt is missing"

@@ -97,8 +97,8 @@ def espdock(
 
 def ros_build_tag(root: Path) -> str:
     """The tag `espdock build` gives the ROS build image of the workspace at ROOT."""
-    from espdock.build.plan import ros_build_image
     from espdock.config import load_config
+    from espdock.ros.plan import ros_build_image
     from espdock.workspace import Workspace, read_build_inputs
 
     inputs = read_build_inputs(Workspace(root), ())
@@ -107,8 +107,8 @@ def ros_build_tag(root: Path) -> str:
 
 def ros_runtime_tag(root: Path) -> str:
     """The tag of the runtime base image that goes with ros_build_tag(ROOT)."""
-    from espdock.build.plan import ros_build_image, runtime_base_image
     from espdock.config import load_config
+    from espdock.ros.plan import ros_build_image, runtime_base_image
     from espdock.workspace import Workspace, read_build_inputs
 
     inputs = read_build_inputs(Workspace(root), ())

@@ -23,12 +23,13 @@ from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, replace
 from pathlib import Path
 
-from espdock.build.plan import EnsureImage, Plan, base_image, ros_image
+from espdock.build.steps import EnsureImage, Plan
 from espdock.config import Config
 from espdock.defaults import locate
 from espdock.errors import LockError
 from espdock.layout import ROSDEP_LOCK
 from espdock.ros import rosdeps, testdeps
+from espdock.ros.plan import base_image, ros_image
 from espdock.ros.rosdeps import ROS_IMAGE_PYTHON
 from espdock.ros.system_python import SystemPython, probe_image
 from espdock.workspace import BuildInputs, Package, select_up_to, write_atomically

@@ -15,9 +15,10 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from espdock import __version__, durable
-from espdock.build.plan import EnsureImage, IdfBuild, ImageSpec, Plan
+from espdock.build.steps import EnsureImage, ImageSpec, Plan
 from espdock.errors import WorkspaceError, disk_full
 from espdock.events import Outcome, StepFinished
+from espdock.firmware.plan import IdfBuild
 
 MANIFEST_NAME = "espdock-manifest.json"
 FORMAT = 1

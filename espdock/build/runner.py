@@ -21,25 +21,9 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import assert_never
 
-from espdock.build import volume
-from espdock.build.plan import (
-    LABEL_KEY,
-    LABEL_WORKSPACE,
-    LIBRARY_SDKCONFIG_PREFIXES,
-    SDKCONFIG_LINE,
-    ColconBuild,
-    EnsureBaseImage,
-    EnsureImage,
-    IdfBuild,
-    ImageSpec,
-    InstallFirmware,
-    Plan,
-    RuntimeImage,
-    Step,
-    cache_ref,
-    runtime_image_spec,
-)
+from espdock.build.plan import Step
 from espdock.build.stamps import StampFile, listing_digest, package_stamps, tree_digest
+from espdock.build.steps import LABEL_KEY, LABEL_WORKSPACE, EnsureBaseImage, EnsureImage, ImageSpec, Plan, cache_ref
 from espdock.config import Config, resolve_ca_bundle
 from espdock.errors import (
     BuildFailed,
@@ -52,6 +36,7 @@ from espdock.errors import (
 )
 from espdock.events import Emit, Outcome, StepFinished, StepNote, StepOutput, StepStarted
 from espdock.firmware.install import COMMANDS_SOURCE, install_firmware
+from espdock.firmware.plan import LIBRARY_SDKCONFIG_PREFIXES, SDKCONFIG_LINE, IdfBuild, InstallFirmware
 from espdock.images import bootstrap
 from espdock.images.engine import Engine, Mount, RegistryAnswer, RegistryStatus, RunSpec
 from espdock.images.visibility import CHECKED, engine_sees, ensure_engine_sees, workspace_mount
@@ -64,6 +49,7 @@ from espdock.ros.colcon import (
     retire_container_caches,
     usage_error,
 )
+from espdock.ros.plan import ColconBuild, RuntimeImage, runtime_image_spec
 from espdock.ros.runtime_tree import runtime_files
 from espdock.ros.testing import ColconTest, SourcedEnv
 from espdock.workspace import Workspace

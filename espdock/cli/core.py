@@ -17,13 +17,16 @@ from rich.text import Text
 
 from espdock import __version__
 from espdock.build.lock import current_rosdep_inputs, rosdep_lock_stale
-from espdock.build.plan import IdfBuild, Plan, checked_packages, firmware_step, plan_workspace
+from espdock.build.plan import plan_workspace
 from espdock.build.runner import Runner
+from espdock.build.steps import Plan
 from espdock.cli.ui import QuietReporter, Reporter
 from espdock.config import Config, invoking_user, load_config
 from espdock.errors import EspdockBug, EspdockError, Interrupted
+from espdock.firmware.plan import IdfBuild, firmware_step
 from espdock.images import bootstrap
 from espdock.ros.colcon import read_colcon_settings
+from espdock.ros.plan import checked_packages
 from espdock.workspace import (
     DEFAULT_ROS_DISTRO,
     BuildInputs,

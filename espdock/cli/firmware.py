@@ -11,8 +11,8 @@ from typing import Annotated
 import typer
 from rich.text import Text
 
-from espdock.build.plan import EnsureImage, ImageSpec, Plan, workspace_micro_ros_images
 from espdock.build.runner import reset_build_dir
+from espdock.build.steps import EnsureImage, ImageSpec, Plan
 from espdock.cli.core import (
     WorkspaceOption,
     app,
@@ -31,6 +31,7 @@ from espdock.firmware import transport
 from espdock.firmware.agent_port import LIBRARY_HEADERS, check_agent_port
 from espdock.firmware.flashing import check_port, flash_package, idf_port, parse_port, read_flasher_args
 from espdock.firmware.pins import pin_idf_image, read_sources, write_pins
+from espdock.firmware.plan import workspace_micro_ros_images
 from espdock.firmware.provision import (
     check_settings,
     network_settings,

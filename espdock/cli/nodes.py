@@ -9,14 +9,15 @@ from typing import Annotated
 
 import typer
 
-from espdock.build.plan import Plan, RuntimeImage
 from espdock.build.runner import Runner
+from espdock.build.steps import Plan
 from espdock.cli.core import WorkspaceOption, app, build_plan, command, ensure_images, load, notify, workspace_packages
 from espdock.cli.prune import record_images
 from espdock.config import Config, resolve_ca_bundle
 from espdock.errors import Interrupted
 from espdock.images import bootstrap
 from espdock.ros import nodes
+from espdock.ros.plan import RuntimeImage
 from espdock.workspace import PackageKind, Workspace
 
 

@@ -9,9 +9,8 @@ from typing import Annotated
 import typer
 from rich.text import Text
 
-from espdock.build import volume as workspace_volume
-from espdock.build.plan import LABEL_KEY, ColconBuild, EnsureImage, RuntimeImage
-from espdock.build.runner import Runner, workspace_lock
+from espdock.build.runner import Runner
+from espdock.build.steps import LABEL_KEY, EnsureImage
 from espdock.cli.core import WorkspaceOption, app, build_plan, command, console, load, notify
 from espdock.cli.ui import QuietReporter, Reporter
 from espdock.config import Config, invoking_user
@@ -29,8 +28,7 @@ from espdock.images.prune import (
     size_text,
     state_dir,
 )
-from espdock.layout import ROSDEP_LOCK
-from espdock.ros import rosdeps, testdeps
+from espdock.ros.plan import RuntimeImage
 from espdock.workspace import Workspace
 
 GB = 1000**3

@@ -10,8 +10,8 @@ import typer
 from rich.text import Text
 
 from espdock.build.lock import current_test_inputs
-from espdock.build.plan import ColconBuild, Plan, ros_image
 from espdock.build.runner import Runner
+from espdock.build.steps import Plan
 from espdock.cli.core import PASSED, PassThrough, WorkspaceOption, app, build_plan, command, console, load, notify
 from espdock.cli.core import workspace_packages as discover
 from espdock.cli.prune import record_images
@@ -20,6 +20,7 @@ from espdock.config import invoking_user
 from espdock.errors import ConfigError, TestsFailed, WorkspaceError
 from espdock.layout import ROS_BUILD_BASE, ROSDEP_LOCK
 from espdock.ros import rosdeps, testdeps
+from espdock.ros.plan import ColconBuild, ros_image
 from espdock.ros.testing import (
     HOST_TESTS_BASE,
     HOST_TESTS_TAG,

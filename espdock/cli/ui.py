@@ -10,10 +10,12 @@ from rich.status import Status
 from rich.table import Table
 from rich.text import Text
 
-from espdock.build.plan import ColconBuild, EnsureBaseImage, EnsureImage, IdfBuild, InstallFirmware, Plan, RuntimeImage
+from espdock.build.steps import EnsureBaseImage, EnsureImage, Plan
 from espdock.events import Event, Outcome, StepFinished, StepNote, StepOutput, StepStarted
 from espdock.firmware.pins import IdfPin, Source
+from espdock.firmware.plan import IdfBuild, InstallFirmware
 from espdock.layout import IDF_DOCKERFILE, SOURCES_FILE, firmware_install_dir
+from espdock.ros.plan import ColconBuild, RuntimeImage
 from espdock.workspace import Package, Workspace
 
 MARKS = {

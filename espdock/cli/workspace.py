@@ -11,7 +11,6 @@ import typer
 
 from espdock.build.lock import check_locks, lock_rosdeps, lock_workspace, plan_locks, uv_binary
 from espdock.build.manifest import compare, file_hashes, read_manifest, record_build, write_report
-from espdock.build.plan import base_image, runtime_repository
 from espdock.build.runner import Runner, stamp_files
 from espdock.cli.core import (
     PASSED,
@@ -36,6 +35,7 @@ from espdock.firmware.scaffold import check_new_package, create_firmware_package
 from espdock.images import bootstrap
 from espdock.layout import ROSDEP_LOCK
 from espdock.ros import colcon_register
+from espdock.ros.plan import base_image, runtime_repository
 from espdock.workspace import PackageKind, read_build_inputs
 
 

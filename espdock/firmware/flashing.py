@@ -16,9 +16,9 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 from urllib.parse import urlsplit
 
-from espdock.build.plan import LONGCALLS_RISCV, IdfBuild
 from espdock.config import CHIP_TARGETS
 from espdock.errors import ConfigError, EspdockError, WorkspaceError
+from espdock.firmware.plan import LONGCALLS_RISCV, IdfBuild
 from espdock.firmware.provision import IMAGE_MOUNT
 from espdock.images.engine import Mount, format_argv
 from espdock.images.visibility import workspace_mount

@@ -319,8 +319,8 @@ COMPOSE_MARK = "# espdock-generated sha256:"
 def starter_compose(project: str, image: str, executables: dict[str, list[str]]) -> str:
     """The commented compose file `espdock init` writes: one service per executable (package ->
     its executables, as installed), on IMAGE, under a first line that marks it as espdock's."""
-    from espdock.build.plan import RUNTIME_INSTALL
     from espdock.layout import MICRO_ROS_AGENT_IMAGE
+    from espdock.ros.plan import RUNTIME_INSTALL
 
     taken = [exe for found in executables.values() for exe in found]
     blocks = []

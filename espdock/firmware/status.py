@@ -6,9 +6,10 @@ import json
 from collections.abc import Mapping
 from datetime import UTC, datetime
 
-from espdock.build.plan import LABEL_INPUTS, ImageSpec, derive_interface_packages, spec_target
+from espdock.build.steps import LABEL_INPUTS, ImageSpec
 from espdock.errors import EspdockError, WorkspaceError
 from espdock.firmware.pins import FOLLOW_HEAD, RESOLVED_FILE, Source, parse_resolved, parse_sources
+from espdock.firmware.plan import derive_interface_packages, spec_target
 from espdock.images.engine import Engine, ImageInfo, RunSpec
 from espdock.workspace import Package
 

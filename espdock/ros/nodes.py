@@ -7,11 +7,12 @@ import posixpath
 from collections.abc import Mapping
 from pathlib import Path
 
-from espdock.build.plan import LABEL_WORKSPACE, RUNTIME_INSTALL, EnsureBaseImage, EnsureImage, Plan, RuntimeImage
 from espdock.build.stamps import StampFile, listing_digest
+from espdock.build.steps import LABEL_WORKSPACE, EnsureBaseImage, EnsureImage, Plan
 from espdock.errors import ConfigError, WorkspaceError
 from espdock.images.engine import Mount, RunSpec
 from espdock.layout import ROS_OFFICIAL_DOCKERFILE, WORKSPACE_MOUNT
+from espdock.ros.plan import RUNTIME_INSTALL, RuntimeImage
 from espdock.ros.runtime_tree import resolve_installed
 from espdock.workspace import Package, PackageKind, Workspace
 

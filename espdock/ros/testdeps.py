@@ -12,8 +12,9 @@ import dataclasses
 from collections.abc import Callable, Iterable, Mapping
 from pathlib import Path
 
-from espdock.build.plan import ColconBuild, EnsureImage, ImageSpec, Plan, image_key
+from espdock.build.steps import EnsureImage, ImageSpec, Plan, image_key
 from espdock.ros import rosdeps
+from espdock.ros.plan import ColconBuild
 from espdock.ros.system_python import SystemPython
 from espdock.ros.testing import NOT_ON_PYPI
 from espdock.workspace import Package

@@ -51,7 +51,7 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(REPO))
 
-from espdock.build.plan import LABEL_WORKSPACE  # noqa: E402
+from espdock.build.steps import LABEL_WORKSPACE  # noqa: E402
 from espdock.config import Config, resolve_ca_bundle  # noqa: E402
 from espdock.images.engine import Engine  # noqa: E402
 from tests.conftest import copy_workspace  # noqa: E402

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from espdock.build.plan import LABEL_KEY
+from espdock.build.steps import LABEL_KEY
 from espdock.images.engine import Engine
 from espdock.images.prune import Record, read_records
 from tests.conftest import espdock, python_workspace

@@ -144,8 +144,8 @@ services:
 
 
 def base_image() -> str:
-    from espdock.build.plan import base_image
     from espdock.config import Config
+    from espdock.ros.plan import base_image
 
     return base_image(Config(), (REPO / "Dockerfile.ros").read_text())
 

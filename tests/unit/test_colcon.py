@@ -10,7 +10,6 @@ from pathlib import Path
 
 import pytest
 
-from espdock.build.plan import ColconBuild
 from espdock.build.stamps import StampFile, package_stamps
 from espdock.errors import ConfigError, WorkspaceError
 from espdock.ros.colcon import (
@@ -26,6 +25,7 @@ from espdock.ros.colcon import (
     usage_error,
     user_defaults_file,
 )
+from espdock.ros.plan import ColconBuild
 from tests.conftest import copy_workspace, espdock
 
 NO_ENGINE = {"DOCKER_HOST": "unix:///nonexistent/docker.sock"}

@@ -9,14 +9,14 @@ import tarfile
 
 import pytest
 
-from espdock.build import volume
-from espdock.build.plan import ColconBuild, Plan
 from espdock.build.runner import Runner
+from espdock.build.steps import Plan
 from espdock.config import Config
 from espdock.errors import BuildFailed, WorkspaceError, WorkspaceNotVisible
 from espdock.images import bootstrap
 from espdock.images.engine import EngineInfo, describe
 from espdock.ros.colcon import unselected
+from espdock.ros.plan import ColconBuild
 from espdock.workspace import Workspace
 from tests.fake_engine import FakeEngine
 from tests.unit.test_runner import COLCON, colcon_installs

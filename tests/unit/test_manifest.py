@@ -16,7 +16,7 @@ from espdock.build.manifest import (
     record_build,
     write_manifest,
 )
-from espdock.build.plan import Plan
+from espdock.build.steps import Plan
 from espdock.errors import WorkspaceError
 from espdock.workspace import Workspace
 

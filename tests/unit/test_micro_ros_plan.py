@@ -10,8 +10,11 @@ from pathlib import Path
 
 import pytest
 
-from espdock.build.plan import (
-    EnsureImage,
+from espdock.build.plan import plan_build, plan_workspace
+from espdock.build.steps import EnsureImage
+from espdock.config import Config
+from espdock.errors import WorkspaceError
+from espdock.firmware.plan import (
     IdfBuild,
     InstallFirmware,
     derive_interface_packages,
@@ -19,12 +22,8 @@ from espdock.build.plan import (
     micro_ros_image,
     micro_ros_images,
     package_target,
-    plan_build,
-    plan_workspace,
-    ros_build_image,
 )
-from espdock.config import Config
-from espdock.errors import WorkspaceError
+from espdock.ros.plan import ros_build_image
 from espdock.workspace import BuildInputs, Package, PackageKind, Workspace
 
 ROOT = Path("/w")

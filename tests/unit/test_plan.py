@@ -1,16 +1,10 @@
 from pathlib import Path
 
-from espdock.build.plan import (
-    ColconBuild,
-    EnsureBaseImage,
-    EnsureImage,
-    IdfBuild,
-    RuntimeImage,
-    dockerfile_args,
-    plan_build,
-    ros_build_image,
-)
+from espdock.build.plan import plan_build
+from espdock.build.steps import EnsureBaseImage, EnsureImage, dockerfile_args
 from espdock.config import Config
+from espdock.firmware.plan import IdfBuild
+from espdock.ros.plan import ColconBuild, RuntimeImage, ros_build_image
 from espdock.workspace import Package, PackageKind, Workspace
 
 DOCKERFILE = "ARG BASE_IMAGE=debian:bookworm-slim\nFROM ${BASE_IMAGE} AS build\nFROM ${BASE_IMAGE} AS runtime\n"

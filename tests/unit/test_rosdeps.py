@@ -7,10 +7,10 @@ from pathlib import Path
 
 import pytest
 
-from espdock.build.plan import ros_build_image, ros_image
 from espdock.config import Config
 from espdock.errors import DependencyError, LockError
 from espdock.ros import rosdeps
+from espdock.ros.plan import ros_build_image, ros_image
 from espdock.workspace import Package, PackageKind, Workspace, discover_packages, order_packages, read_build_inputs
 from tests.conftest import REPO, espdock
 from tests.rosdep_db import environment

@@ -8,13 +8,14 @@ from pathlib import Path
 
 import pytest
 
-from espdock.build.plan import ColconBuild, EnsureImage, Plan, ros_build_image
 from espdock.build.runner import Runner
+from espdock.build.steps import EnsureImage, Plan
 from espdock.config import Config
 from espdock.errors import BuildFailed, RegistryError
 from espdock.events import Outcome, StepFinished, StepNote
 from espdock.images import bootstrap
 from espdock.images.engine import ImageInfo, RegistryStatus, _registry_answer
+from espdock.ros.plan import ColconBuild, ros_build_image
 from espdock.workspace import Workspace
 from tests.fake_engine import FakeEngine
 

@@ -5,8 +5,9 @@ from __future__ import annotations
 
 import pytest
 
-from espdock.build.plan import ColconBuild, EnsureImage, ImageSpec, Plan
+from espdock.build.steps import EnsureImage, ImageSpec, Plan
 from espdock.errors import ConfigError, DependencyError
+from espdock.ros.plan import ColconBuild
 from espdock.ros.testdeps import image_for_tests, with_test_image
 from espdock.ros.testing import (
     SOURCED_DUMP,

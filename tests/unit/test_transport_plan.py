@@ -5,8 +5,8 @@ from dataclasses import replace
 
 import pytest
 
-from espdock.build.plan import micro_ros_image
 from espdock.errors import WorkspaceError
+from espdock.firmware.plan import micro_ros_image
 from espdock.firmware.transport import firmware_transport, library_colcon_meta
 from tests.unit.test_micro_ros_plan import CAM, DEFAULT, INPUTS, META, PACKAGES
 

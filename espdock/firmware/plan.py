@@ -1,0 +1,345 @@
+"""Planning the firmware side: each package's chip, its micro-ROS (IDF) image, its build and install steps."""
+
+from __future__ import annotations
+
+import json
+import re
+from collections.abc import Mapping
+from dataclasses import dataclass, replace
+
+from espdock.build.steps import (
+    EnsureImage,
+    ImageSpec,
+    Plan,
+    container_path,
+    dockerfile_args,
+    image_origin,
+    keyed_image,
+)
+from espdock.config import Config, check_target
+from espdock.errors import WorkspaceError
+from espdock.firmware import transport
+from espdock.firmware.pins import parse_sources
+from espdock.layout import (
+    IDF_DOCKERFILE,
+    IDF_INPUT_DIR,
+    SOURCES_FILE,
+    SOURCES_NAME,
+    firmware_install_dir,
+)
+from espdock.workspace import BuildInputs, Package, PackageKind, Workspace
+
+
+@dataclass(frozen=True)
+class IdfBuild:
+    """`idf.py build` of one firmware package in a container of IMAGE, output in ws/build/<package>."""
+
+    package: str
+    # The project dir relative to the workspace root.
+    project: str
+    image: str
+    target: str
+    image_key: str
+    force: bool = False
+    colcon_root: str = "ws"
+
+    @property
+    def name(self) -> str:
+        return f"idf.py build {self.package}"
+
+    @property
+    def project_dir(self) -> str:
+        return container_path(self.project)
+
+    @property
+    def build_dir(self) -> str:
+        return container_path(f"{self.colcon_root}/build/{self.package}")
+
+    @property
+    def install_dir(self) -> str:
+        """Where the installed artefacts are in the container (flashing runs there)."""
+        return container_path(f"{self.colcon_root}/{firmware_install_dir(self.package)}")
+
+    def argv(self, action: tuple[str, ...] = ("build",)) -> tuple[str, ...]:
+        # sdkconfig lives in the build dir: the committed sdkconfig.defaults stays the source,
+        # and switching targets never trips over a project-level sdkconfig of another chip.
+        return (
+            "idf.py", "-C", self.project_dir, "-B", self.build_dir,
+            f"-DSDKCONFIG={self.build_dir}/sdkconfig", *action,
+        )  # fmt: skip
+
+
+@dataclass(frozen=True)
+class InstallFirmware:
+    """Install a built firmware package into ws/install as colcon would, its artefacts atomically."""
+
+    package: str
+    project: str
+    run_depends: tuple[str, ...] = ()
+
+    @property
+    def name(self) -> str:
+        return f"install {self.package}"
+
+
+def derive_interface_packages(packages: tuple[Package, ...], firmware: Package | None = None) -> tuple[Package, ...]:
+    """The workspace's interface packages FIRMWARE (default: every firmware package) depends on,
+    transitively, in dependency order.
+
+    Standard interfaces (std_msgs, sensor_msgs, ...) are not in the workspace: micro-ROS has them.
+    """
+    by_name = {p.name: p for p in packages}
+    roots = [firmware] if firmware is not None else [p for p in packages if p.kind is PackageKind.FIRMWARE]
+    wanted: set[str] = set()
+    stack = [dep for p in roots for dep in p.depends]
+    while stack:
+        name = stack.pop()
+        package = by_name.get(name)
+        if name in wanted or package is None or package.kind is not PackageKind.ROS or not package.is_interface:
+            continue
+        wanted.add(name)
+        stack.extend(package.depends)
+    return tuple(p for p in packages if p.name in wanted)
+
+
+# sdkconfig settings that change what libmicroros.a is: upstream compiles the library against
+# the app's sdkconfig.h (FreeRTOS tick rate, PSRAM cache workarounds, optimisation, lwIP
+# options) and picks the middleware and network interface from the micro-ROS options.
+LIBRARY_SDKCONFIG_PREFIXES = (
+    "CONFIG_MICRO_ROS_",
+    "CONFIG_FREERTOS_",
+    "CONFIG_SPIRAM",
+    "CONFIG_COMPILER_",
+    "CONFIG_LWIP_",
+    "CONFIG_ESP32_REV_MIN",
+    "CONFIG_ESP_REV_MIN",
+)
+
+
+SDKCONFIG_LINE = re.compile(r"^(CONFIG_[A-Za-z0-9_]+)=(.*)$|^#\s*(CONFIG_[A-Za-z0-9_]+) is not set\s*$")
+
+
+def library_sdkconfig(defaults: Mapping[str, bytes], target: str) -> str:
+    """The micro-ROS-relevant lines of a firmware's sdkconfig.defaults (then .TARGET), later wins.
+
+    Returned sorted, so that apps whose library settings agree share one image.
+    """
+    values: dict[str, str] = {}
+    for name in ("sdkconfig.defaults", f"sdkconfig.defaults.{target}"):
+        for line in defaults.get(name, b"").decode(errors="replace").splitlines():
+            match = SDKCONFIG_LINE.match(line.strip())
+            if not match:
+                continue
+            key = match.group(1) or match.group(3)
+            if key.startswith(LIBRARY_SDKCONFIG_PREFIXES):
+                values[key] = match.group(2) if match.group(1) else "n"
+    return "".join(
+        f"# {key} is not set\n" if value == "n" else f"{key}={value}\n" for key, value in sorted(values.items())
+    )
+
+
+# Chips whose compiler rejects what upstream's toolchain template (esp32_toolchain.cmake.in)
+# gives every chip but esp32c3: `-mlongcalls`, an Xtensa option, so libmicroros.a cannot build.
+LONGCALLS_RISCV = ("esp32c2", "esp32c5", "esp32c6", "esp32h2", "esp32p4")
+
+
+_IDF_TARGET_LINE = re.compile(r'^CONFIG_IDF_TARGET="?([A-Za-z0-9_]+)"?\s*$', re.MULTILINE)
+
+
+def declared_target(defaults: Mapping[str, bytes]) -> str | None:
+    """The chip a firmware's sdkconfig.defaults names (CONFIG_IDF_TARGET, as IDF reads it), if any."""
+    match = _IDF_TARGET_LINE.search(defaults.get("sdkconfig.defaults", b"").decode(errors="replace"))
+    return match.group(1) if match else None
+
+
+def package_target(config: Config, inputs: BuildInputs, firmware: Package, override: str | None = None) -> str:
+    """The chip FIRMWARE builds for: OVERRIDE (--target), else CONFIG_IDF_TARGET in its
+    sdkconfig.defaults, else the workspace's `target`. Refused (before anything builds) when the
+    package does not list it among its chips, or when micro-ROS cannot be built for it."""
+    declared = declared_target(inputs.sdkconfig_defaults.get(firmware.name, {}))
+    if declared is not None:
+        check_target(declared, f"CONFIG_IDF_TARGET in {firmware.name}/sdkconfig.defaults")
+    target = override or declared or config.target
+    supported = inputs.supported_targets.get(firmware.name)
+    if supported and target not in supported:
+        raise WorkspaceError(
+            f"{firmware.name} does not support {target}: it supports {', '.join(supported)}",
+            f"Its main/idf_component.yml lists them under `targets`; build it for one (--target {supported[0]}).",
+        )
+    if target in LONGCALLS_RISCV:
+        raise WorkspaceError(
+            f"{firmware.name}: micro-ROS cannot be built for {target}: the pinned micro_ros_espidf_component "
+            "gives every chip but esp32c3 the Xtensa option -mlongcalls, which the RISC-V compiler rejects",
+            "Build it for esp32, esp32s2, esp32s3 or esp32c3.",
+        )
+    return target
+
+
+# The prebuilt micro-ROS component requires esp_driver_gpio and esp_driver_spi, which ESP-IDF
+# has only from v5.3 on (v5.2 has neither directory under components/). ESP-IDF 6 changed the
+# default libc to picolibc, and micro-ROS needed upstream work for it (micro_ros_espidf_component
+# #334): below 6 until a pin of micro-ROS is verified with it.
+MIN_IDF, BELOW_IDF = (5, 3), (6, 0)
+
+
+_IDF_TAG_VERSION = re.compile(r":(?:release-)?v(\d+)\.(\d+)")
+
+
+def check_idf_image(reference: str) -> None:
+    """Refuse an Espressif image whose tag names an ESP-IDF outside MIN_IDF..BELOW_IDF (a tag without
+    a version, a digest, is left to the component manager's `idf: ">=5.3,<6"`)."""
+    match = _IDF_TAG_VERSION.search(reference)
+    if match is None:
+        return
+    version = (int(match.group(1)), int(match.group(2)))
+    if version < MIN_IDF:
+        raise WorkspaceError(
+            f"idf_image {reference} is ESP-IDF {match.group(1)}.{match.group(2)}; espdock's micro-ROS component "
+            "needs ESP-IDF 5.3 or newer (esp_driver_gpio, esp_driver_spi)",
+            "Set idf_image to espressif/idf:v5.3.5 (the pinned default) or a later v5.x.",
+        )
+    if version >= BELOW_IDF:
+        raise WorkspaceError(
+            f"idf_image {reference} is ESP-IDF {match.group(1)}.{match.group(2)}; espdock supports ESP-IDF 5.3 up "
+            "to, not including, 6: ESP-IDF 6 builds with picolibc instead of newlib, and no micro-ROS pin of "
+            "espdock's is verified with it yet (micro_ros_espidf_component #334)",
+            "Set idf_image to espressif/idf:v5.3.5 (the pinned default) or another v5.x.",
+        )
+
+
+def _check_colcon_meta(package: str, text: str) -> None:
+    try:
+        names = json.loads(text).get("names", {})
+        if not isinstance(names, dict):
+            raise AttributeError("'names' is not an object")
+    except (json.JSONDecodeError, AttributeError) as exc:
+        raise WorkspaceError(f"{package}/app-colcon.meta is not colcon.meta JSON: {exc}") from exc
+
+
+def micro_ros_image(
+    config: Config, inputs: BuildInputs, packages: tuple[Package, ...], firmware: Package, target: str
+) -> ImageSpec:
+    """The IDF image with micro-ROS prebuilt for FIRMWARE's library inputs and its chip TARGET.
+
+    The key covers only what goes into the library, so firmware packages with the same
+    app-colcon.meta, library sdkconfig settings and interfaces get the same image.
+    """
+    defaults = dockerfile_args(inputs.idf_dockerfile)
+    idf_image = config.idf_image or defaults.get("IDF_IMAGE", "")
+    check_idf_image(idf_image)
+    build_args = (
+        ("IDF_IMAGE", idf_image),
+        ("IDF_TARGET", target),
+        ("MICRO_ROS_COMMIT", config.micro_ros_commit or defaults.get("MICRO_ROS_COMMIT", "")),
+        ("MICRO_ROS_REPO", config.micro_ros_repo or defaults.get("MICRO_ROS_REPO", "")),
+    )
+    sources = inputs.idf_files.get(SOURCES_NAME)
+    if sources is None:
+        raise WorkspaceError(f"{SOURCES_FILE} is missing", "It pins every repository micro-ROS is built from.")
+    parse_sources(sources.decode(errors="replace"))  # a malformed pin fails here, not in the image build
+    meta = inputs.app_metas.get(firmware.name, "")
+    if meta:
+        _check_colcon_meta(firmware.name, meta)
+    link = transport.firmware_transport(inputs.sdkconfig_defaults.get(firmware.name, {}), target)
+    transport.check_transport(firmware.name, link, target)
+    meta = transport.library_colcon_meta(firmware.name, meta, link)
+    context: dict[str, bytes] = {
+        IDF_DOCKERFILE: inputs.idf_dockerfile.encode(),
+        **{f"{IDF_INPUT_DIR}/{rel}": data for rel, data in inputs.idf_files.items()},
+        # An empty meta is colcon's "no app meta"; the file must exist for COPY.
+        "micro-ros/app-colcon.meta": meta.encode() or b'{"names": {}}\n',
+        "micro-ros/sdkconfig.defaults": library_sdkconfig(
+            inputs.sdkconfig_defaults.get(firmware.name, {}), target
+        ).encode(),
+        # COPY needs the directory even when no interface package goes in.
+        "micro-ros/extra_packages/.espdock-keep": b"",
+    }
+    for package in derive_interface_packages(packages, firmware):
+        for rel, data in inputs.package_files[package.name].items():
+            context[f"micro-ros/extra_packages/{package.name}/{rel}"] = data
+    spec = keyed_image(
+        f"espdock/idf-micro-ros-{config.ros_distro}-{target}",
+        IDF_DOCKERFILE,
+        "final",
+        build_args,
+        context,
+        context=context,
+        extra={"ros_distro": config.ros_distro.encode()},
+    )
+    return replace(spec, origin=image_origin(IDF_DOCKERFILE, context, inputs.own_files))
+
+
+def micro_ros_images(
+    config: Config,
+    inputs: BuildInputs,
+    packages: tuple[Package, ...],
+    override: str | None = None,
+    selected: frozenset[str] | None = None,
+) -> dict[str, ImageSpec]:
+    """Each firmware package's micro-ROS image (package name -> spec) for its own chip; equal
+    inputs, equal spec. OVERRIDE (--target) applies to the SELECTED packages (None: all)."""
+    return {
+        p.name: micro_ros_image(
+            config,
+            inputs,
+            packages,
+            p,
+            package_target(config, inputs, p, override if selected is None or p.name in selected else None),
+        )
+        for p in packages
+        if p.kind is PackageKind.FIRMWARE
+    }
+
+
+def spec_target(spec: ImageSpec, default: str = "esp32") -> str:
+    """The chip a micro-ROS image (and every firmware built in it) is for."""
+    return dict(spec.build_args).get("IDF_TARGET", default)
+
+
+def workspace_micro_ros_images(
+    config: Config, inputs: BuildInputs, packages: tuple[Package, ...], override: str | None = None
+) -> dict[str, ImageSpec]:
+    """micro_ros_images for the `micro-ros` commands: a workspace without firmware has none to act on."""
+    specs = micro_ros_images(config, inputs, packages, override)
+    if not specs:
+        raise WorkspaceError("this workspace has no firmware packages, so no micro-ROS library", "See `espdock new`.")
+    return specs
+
+
+def firmware_step(plan: Plan, name: str) -> tuple[Plan, IdfBuild]:
+    """From a plan that builds firmware package NAME: the plan that only ensures its IDF image,
+    and its build step (what `espdock idf`, `flash` and `monitor` run in)."""
+    step = next((s for s in plan.steps if isinstance(s, IdfBuild) and s.package == name), None)
+    if step is None:
+        raise WorkspaceError(f"'{name}' is not a firmware package", "Firmware packages have build type esp_idf.")
+    spec = next(spec for spec in plan.idf_images if spec.key == step.image_key)
+    return Plan(plan.workspace, (EnsureImage(spec),), (spec,)), step
+
+
+def firmware_steps(
+    workspace: Workspace,
+    config: Config,
+    firmware: tuple[Package, ...],
+    idf_images: Mapping[str, ImageSpec],
+    all_packages: tuple[Package, ...],
+    force: bool = False,
+) -> tuple[list[EnsureImage | IdfBuild | InstallFirmware], tuple[ImageSpec, ...]]:
+    """The firmware side of a build of FIRMWARE: each distinct micro-ROS image once, then each
+    package's IDF build and install; and those images (IDF_IMAGES: each package's, see
+    micro_ros_images)."""
+    steps: list[EnsureImage | IdfBuild | InstallFirmware] = []
+    ensured: dict[str, ImageSpec] = {}
+    everything = {p.name for p in all_packages}
+    for package in firmware:
+        spec = idf_images.get(package.name)
+        if spec is None:
+            raise WorkspaceError(f"firmware package {package.name} needs Dockerfile.idf at the workspace root")
+        if spec.key not in ensured:
+            ensured[spec.key] = spec
+            steps.append(EnsureImage(spec))
+        project = package.path.relative_to(workspace.root).as_posix()
+        target = spec_target(spec, config.target)
+        steps.append(IdfBuild(package.name, project, spec.tag, target, spec.key, force, workspace.colcon_root))
+        run_depends = tuple(sorted(package.depends & everything))
+        steps.append(InstallFirmware(package.name, project, run_depends))
+    return steps, tuple(ensured.values())

@@ -1,0 +1,292 @@
+"""Planning the ROS side: the ROS build image, its runtime images and the colcon build step."""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import re
+from collections.abc import Mapping
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+from espdock.build.steps import (
+    EnsureBaseImage,
+    EnsureImage,
+    ImageSpec,
+    container_path,
+    dockerfile_args,
+    image_key,
+    image_origin,
+    keyed_image,
+)
+from espdock.config import Config
+from espdock.errors import WorkspaceError
+from espdock.layout import (
+    ROS_BUILD_BASE,
+    ROS_DOCKERFILE,
+    ROS_OFFICIAL_DOCKERFILE,
+    ROSDEP_CONTEXT_DIR,
+)
+from espdock.ros import rosdeps
+from espdock.ros.colcon import ColconSettings, left_out, sets_build_testing, with_build_testing
+from espdock.workspace import BuildInputs, Package, PackageKind, Workspace, select_up_to
+
+
+@dataclass(frozen=True)
+class ColconBuild:
+    """colcon build of PACKAGES (in build order), in a container of IMAGE with the workspace mounted,
+    run in its colcon root."""
+
+    image: str
+    packages: tuple[str, ...]
+    # Each package's directory relative to the colcon root, and its workspace dependencies: what
+    # colcon is pointed at, and what the runner's stamps are made of (a no-change build starts
+    # no container).
+    sources: tuple[tuple[str, str], ...] = ()
+    depends: tuple[tuple[str, tuple[str, ...]], ...] = ()
+    colcon_root: str = "ws"
+    force: bool = False
+    name: str = "colcon build"
+    # The options given after `--` (checked: espdock.ros.colcon), each package's colcon settings
+    # digest, and the user's colcon defaults file on the host (mounted), if any.
+    colcon_args: tuple[str, ...] = ()
+    settings: tuple[tuple[str, str], ...] = ()
+    defaults_file: str | None = None
+    # TESTING: a build for `espdock test` (tests configured, in the image with the test
+    # dependencies); TESTS_OFF: CMake packages configured with BUILD_TESTING=OFF (the wheels
+    # image lacks ament's lint packages), unless the options after `--` set it.
+    testing: bool = False
+    tests_off: bool = False
+    # Each package's package.xml dependencies, and which of them are test_depend only: what a
+    # failure's hint says about a dependency colcon could not find.
+    declared: tuple[tuple[str, frozenset[str], frozenset[str]], ...] = ()
+
+    @property
+    def workdir(self) -> str:
+        return container_path(self.colcon_root)
+
+    @property
+    def options(self) -> tuple[str, ...]:
+        """The options after `--`, with BUILD_TESTING=OFF where TESTS_OFF asks for it, and ON for
+        a test build (CMake would keep the OFF an earlier build cached)."""
+        if self.testing:
+            return with_build_testing(self.colcon_args, "ON")
+        return with_build_testing(self.colcon_args, "OFF") if self.tests_off else self.colcon_args
+
+    @property
+    def says_tests_off(self) -> bool:
+        """Whether this build turns the CMake packages' tests off itself (the user did not set it)."""
+        return self.tests_off and not sets_build_testing(self.colcon_args)
+
+    @property
+    def stamp_image(self) -> str:
+        """What the packages' stamps hold of the image and how tests are configured: a test build
+        and a plain one never pass for each other."""
+        configured = "tests" if self.testing else "no-tests" if self.says_tests_off else ""
+        return f"{self.image}\0{configured}" if configured else self.image
+
+    def argv(self, rebuild: tuple[str, ...] = ()) -> tuple[str, ...]:
+        """colcon's command line; REBUILD: only these packages (the changed ones and their
+        dependents), the others being up to date in install/, where colcon finds them."""
+        # Exactly these packages: colcon never sees the firmware packages (a build type it has
+        # no task for) nor, for a selection, the packages left out.
+        select = ("--packages-select", *rebuild) if rebuild and len(rebuild) < len(self.packages) else ()
+        return (
+            "colcon", "build", "--base-paths", *(rel for _, rel in self.sources), "--build-base", ROS_BUILD_BASE,
+            # Live output per line plus colcon's own start/finish lines.
+            "--event-handlers", "console_direct+", "console_start_end+", "summary+",
+            *select, *self.options,
+        )  # fmt: skip
+
+
+@dataclass(frozen=True)
+class RuntimeImage:
+    """The workspace's runtime image: BASE (no compilers) plus the install trees of PACKAGES, tagged
+    REPOSITORY:<key> (the key hashes BASE's key and every installed file) and REPOSITORY:latest."""
+
+    base: ImageSpec
+    repository: str
+    packages: tuple[str, ...]
+    colcon_root: str = "ws"
+    name: str = "runtime image"
+
+    @property
+    def stable_tag(self) -> str:
+        return f"{self.repository}:latest"
+
+
+# Where a runtime image holds the workspace's install tree (the entrypoint sources it).
+RUNTIME_INSTALL = "/opt/espdock/ws/install"
+
+
+# What Dockerfile.ros-official's runtime stage adds from docker/.
+OFFICIAL_ENTRYPOINT = "docker/ros-entrypoint.sh"
+
+
+# The stage of the ROS image's Dockerfile that runtime images start from.
+RUNTIME_STAGE = "runtime"
+
+
+def base_image(config: Config, ros_dockerfile_text: str) -> str:
+    """The image a ROS Dockerfile starts FROM: the configured one, else its BASE_IMAGE default."""
+    return config.base_image or dockerfile_args(ros_dockerfile_text).get("BASE_IMAGE", "")
+
+
+def ros_build_image(
+    config: Config,
+    dockerfile_text: str,
+    image_files: Mapping[str, bytes],
+    own_files: frozenset[str] = frozenset(),
+    rosdep_lock: dict | None = None,
+    dockerfile: str = ROS_DOCKERFILE,
+) -> ImageSpec:
+    """The image colcon runs in: DOCKERFILE's `build` stage, keyed by its inputs, built from a
+    context of just those (docker/ for the wheels, and what the rosdep lock installs)."""
+    base = base_image(config, dockerfile_text)
+    files = {
+        dockerfile: dockerfile_text.encode(),
+        **image_files,
+        **{f"{ROSDEP_CONTEXT_DIR}/{n}": data for n, data in rosdeps.image_files(rosdep_lock).items()},
+    }
+    flavour = "" if dockerfile == ROS_DOCKERFILE else "-official"
+    repository = f"espdock/ros-{config.ros_distro}{flavour}-build"
+    spec = keyed_image(repository, dockerfile, "build", (("BASE_IMAGE", base),), files, context=files)
+    return replace(spec, origin=image_origin(dockerfile, files, own_files))
+
+
+def ros_image(config: Config, inputs: BuildInputs) -> tuple[str, str, rosdeps.RosImage]:
+    """The chosen ROS image (setting ros_image): its Dockerfile's name and text, and what it provides."""
+    if config.ros_image == "official":
+        text = inputs.ros_official_dockerfile
+        # The official image's ament index is not known before it is pulled: every dependency
+        # goes through rosdep, whose ROS package rules (ros-<distro>-*) apt finds installed.
+        # Its apt's Python packages constrain the lock's pip part: another image, another lock.
+        constraints = (("BASE_IMAGE", base_image(config, text)),)
+        image = rosdeps.RosImage("official", config.ros_distro, _rosdep_os(text), frozenset(), constraints)
+        return ROS_OFFICIAL_DOCKERFILE, text, image
+    text = inputs.ros_dockerfile
+    locks = {rel: d for rel, d in sorted(inputs.ros_files.items()) if re.fullmatch(r"docker/ros-[a-z]+\.txt", rel)}
+    provided = rosdeps.wheel_packages((data.decode(errors="replace") for data in locks.values()), config.ros_distro)
+    constraints = tuple((rel, hashlib.sha256(data).hexdigest()) for rel, data in locks.items())
+    return ROS_DOCKERFILE, text, rosdeps.RosImage("wheels", config.ros_distro, _rosdep_os(text), provided, constraints)
+
+
+def _rosdep_os(dockerfile_text: str) -> str:
+    os_spec = dockerfile_args(dockerfile_text).get("ROSDEP_OS", "")
+    if not re.fullmatch(r"[a-z]+:[a-z0-9.]+", os_spec):
+        raise WorkspaceError(
+            f"the ROS image's Dockerfile declares no ARG ROSDEP_OS=<os>:<version> (got {os_spec!r})",
+            "It names the OS rosdep resolves the packages' dependencies for, e.g. ARG ROSDEP_OS=debian:bookworm.",
+        )
+    return os_spec
+
+
+def has_stage(dockerfile: bytes, stage: str) -> bool:
+    """Whether DOCKERFILE declares a build stage named STAGE (`FROM ... AS STAGE`)."""
+    pattern = rb"(?im)^\s*FROM\s+(--\S+\s+)*\S+\s+AS\s+" + re.escape(stage.encode()) + rb"\s*$"
+    return re.search(pattern, dockerfile) is not None
+
+
+def runtime_base_image(build: ImageSpec) -> ImageSpec:
+    """The runtime base that goes with the ROS build image BUILD: the `runtime` stage of the same
+    Dockerfile, from the same inputs. Whichever ROS image the build uses (its Dockerfile is chosen
+    in one place), its runtime images start from this stage of it."""
+    files = dict(build.context or ())
+    spec = keyed_image(
+        build.repository.removesuffix("-build") + "-runtime",
+        build.dockerfile,
+        RUNTIME_STAGE,
+        build.build_args,
+        files,
+        context=files,
+        extra={"target": RUNTIME_STAGE.encode()},
+    )
+    return replace(spec, origin=build.origin)
+
+
+def runtime_repository(config: Config, workspace: Workspace) -> str:
+    """espdock/<name>: the workspace's runtime images (name: the setting, else the directory's name)."""
+    name = config.name or re.sub(r"[^a-z0-9._-]+", "-", workspace.root.name.lower()).strip("._-")
+    return f"espdock/{name or 'workspace'}"
+
+
+def runtime_image_spec(step: RuntimeImage, install_digest: str) -> ImageSpec:
+    """The runtime image of STEP for an install tree with INSTALL_DIGEST: one layer over the base."""
+    dockerfile = f"FROM {step.base.tag} AS workspace\nCOPY install {RUNTIME_INSTALL}\n"
+    key, inputs = image_key({"base": step.base.key.encode(), "install": install_digest.encode()})
+    return ImageSpec(
+        repository=step.repository,
+        key=key,
+        dockerfile="Dockerfile",
+        target="workspace",
+        build_args=(),
+        inputs=inputs,
+        context=(("Dockerfile", dockerfile.encode()),),
+        origin=f"generated: {step.base.tag} plus the install trees of {', '.join(step.packages)}",
+    )
+
+
+def checked_packages(
+    packages: tuple[Package, ...],
+    selected: tuple[Package, ...],
+    colcon_args: tuple[str, ...] = (),
+    checked: tuple[str, ...] | None = None,
+) -> tuple[Package, ...]:
+    """The packages whose dependencies the image must serve: what colcon builds of SELECTED (its
+    --packages-skip and --packages-ignore options honoured), or, for `run` and `shell`, CHECKED
+    and the workspace packages they depend on (none for a shell)."""
+    if checked is not None:
+        return select_up_to(packages, checked) if checked else ()
+    depends = {p.name: p.depends for p in packages}
+    skipped = left_out(colcon_args, depends)
+    return tuple(p for p in selected if p.name not in skipped)
+
+
+def ros_steps(
+    workspace: Workspace,
+    config: Config,
+    ros: tuple[Package, ...],
+    ros_image: ImageSpec,
+    all_packages: tuple[Package, ...],
+    force: bool = False,
+    colcon: ColconSettings | None = None,
+    testing: bool = False,
+    tests_off: bool = False,
+) -> list[EnsureBaseImage | EnsureImage | ColconBuild | RuntimeImage]:
+    """The ROS side of a build of ROS (packages in build order): the ROS image and its base, the
+    colcon build and, when the setting asks for it, the runtime image (see build.plan.plan_build)."""
+    colcon = colcon or ColconSettings()
+    names = {p.name for p in ros}
+    base = dict(ros_image.build_args)["BASE_IMAGE"]
+    steps: list[EnsureBaseImage | EnsureImage | ColconBuild | RuntimeImage] = [
+        EnsureBaseImage(base),
+        EnsureImage(ros_image),
+        ColconBuild(
+            image=ros_image.tag,
+            packages=tuple(p.name for p in ros),
+            sources=tuple((p.name, Path(os.path.relpath(p.path, workspace.ws_dir)).as_posix()) for p in ros),
+            depends=tuple((p.name, tuple(sorted(p.depends & names))) for p in ros),
+            colcon_root=workspace.colcon_root,
+            force=force,
+            colcon_args=colcon.args,
+            settings=tuple(item for item in colcon.digests if item[0] in names),
+            defaults_file=colcon.defaults_file,
+            testing=testing,
+            tests_off=tests_off and not testing,
+            declared=tuple((p.name, p.depends, p.test_only_depends) for p in ros),
+        ),
+    ]
+    built = {p.name for p in all_packages if p.kind is PackageKind.ROS}
+    # Only when asked (setting runtime_image): `espdock run` and `espdock compose` make it
+    # when they need it, so an edit-build loop does not pay for it. A workspace's own ROS
+    # Dockerfile without a runtime stage builds, but makes no runtime image.
+    dockerfile = dict(ros_image.context or ()).get(ros_image.dockerfile, b"")
+    if config.runtime_image and has_stage(dockerfile, RUNTIME_STAGE):
+        base_runtime = runtime_base_image(ros_image)
+        steps += [
+            EnsureImage(base_runtime),
+            RuntimeImage(
+                base_runtime, runtime_repository(config, workspace), tuple(sorted(built)), workspace.colcon_root
+            ),
+        ]
+    return steps

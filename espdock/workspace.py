@@ -3,10 +3,15 @@
 from __future__ import annotations
 
 import difflib
+import fcntl
+import hashlib
 import json
 import os
 import re
-from collections.abc import Iterable
+import sys
+import tempfile
+from collections.abc import Iterable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from enum import StrEnum
 from pathlib import Path
@@ -434,3 +439,47 @@ def write_atomically(path: Path, text: str) -> None:
         os.replace(tmp, path)
     finally:
         tmp.unlink(missing_ok=True)
+
+
+@contextmanager
+def workspace_lock(workspace: Workspace) -> Iterator[None]:
+    """Hold an exclusive lock on the workspace for the duration of a build; a second build in the
+    same workspace is refused naming the holder's pid and command."""
+    fd = os.open(workspace.root, os.O_RDONLY)
+    # Who holds it, for the error a second build gets: outside the workspace, so that espdock
+    # run as root creates nothing there that the user's colcon could not write into.
+    name = hashlib.sha256(str(workspace.root).encode()).hexdigest()[:16]
+    holder = Path(tempfile.gettempdir()) / f"espdock-build-{name}.holder"
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            raise WorkspaceError(
+                f"another espdock build is running in {workspace.root}{_holder_text(holder)}",
+                "Wait for it to finish, then run again.",
+            ) from None
+        _write_holder(holder)
+        try:
+            yield
+        finally:
+            holder.unlink(missing_ok=True)
+    finally:
+        os.close(fd)
+
+
+def _write_holder(holder: Path) -> None:
+    try:
+        command = " ".join([Path(sys.argv[0]).name, *sys.argv[1:]]).encode(errors="backslashreplace")
+        temporary = holder.with_name(f".{holder.name}.{os.getpid()}")
+        temporary.write_bytes(f"{os.getpid()}\n".encode() + command + b"\n")
+        os.replace(temporary, holder)
+    except OSError:
+        pass  # only the error message a second build would give loses its detail
+
+
+def _holder_text(holder: Path) -> str:
+    try:
+        pid, _, command = holder.read_text(errors="replace").partition("\n")
+    except OSError:
+        return ""  # the holder has not written it yet, or has just finished
+    return f" (pid {pid.strip()}: {command.strip()})" if pid.strip().isdigit() else ""

@@ -16,10 +16,13 @@ from pathlib import Path
 PACKAGE = Path(__file__).resolve().parents[1] / "espdock"
 
 # Lowest first. A module may import its own layer or a lower one, never a higher one.
-# The build core's vocabulary (the step types of a plan, stamps) sits below the two worlds that
-# plan and run those steps; the runner that dispatches to them, the whole-workspace plan and
-# the locks sit above them. ros and firmware share a layer and may not import each other:
-# a firmware package meets ROS only through what the build core hands both.
+# The build core is a plan's vocabulary (image specs, the steps, the plan; the stamps): pure
+# data, below everything that plans or runs it. images/ runs keyed images and containers on the
+# engine; ros/ and firmware/ plan and run their own steps on top of that; build/'s runner
+# dispatches a plan's steps to them and its plan puts both worlds' steps together; the CLI
+# parses and calls. ros and firmware share a layer and may not import each other: where a
+# firmware package meets ROS (its install into ws/install, the micro-ROS image's interface
+# packages) the build core's data carries it.
 LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
     (
         "shared",
@@ -35,8 +38,8 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
             "espdock.interrupts",
         ),
     ),
-    ("images", ("espdock.images", "espdock.images.*")),
     ("build core", ("espdock.build", "espdock.build.steps", "espdock.build.stamps")),
+    ("images", ("espdock.images", "espdock.images.*")),
     ("ros", ("espdock.ros", "espdock.ros.*")),
     ("firmware", ("espdock.firmware", "espdock.firmware.*")),
     ("build", ("espdock.build.*",)),

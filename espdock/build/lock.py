@@ -259,7 +259,7 @@ def lock_rosdeps(
         return "not needed (the image provides every dependency)", ""
     if (needed or tests) and refresh:
         rosdeps.update_database(env, image.distro, root)
-    from espdock.build.runner import age_text  # the slow path only: making the lock
+    from espdock.images.keyed import age_text
 
     system = official_python(config, inputs, env) if image.flavour == "official" else None
     lock = rosdeps.resolve_workspace(packages, image, root, env, uv_binary(), system)

@@ -11,7 +11,6 @@ from typing import Annotated
 import typer
 from rich.text import Text
 
-from espdock.build.runner import reset_build_dir
 from espdock.build.steps import EnsureImage, ImageSpec, Plan
 from espdock.cli.core import (
     WorkspaceOption,
@@ -41,6 +40,7 @@ from espdock.firmware.provision import (
     parse_domain_id,
 )
 from espdock.firmware.status import micro_ros_report, resolved_sources
+from espdock.firmware.steps import reset_build_dir
 from espdock.images import bootstrap
 from espdock.images.engine import format_argv
 from espdock.layout import installed_firmware_dir
@@ -77,8 +77,8 @@ def idf(
     runner = runner_for(ws, config, Reporter(console))
     runner.run(plan)
     if serial is None:
-        raise typer.Exit(runner.run_idf(ws, step, argv))
-    raise typer.Exit(runner.run_idf(ws, step, argv, devices=serial.devices, network=serial.network))
+        raise typer.Exit(runner.firmware.run_idf(ws, step, argv))
+    raise typer.Exit(runner.firmware.run_idf(ws, step, argv, devices=serial.devices, network=serial.network))
 
 
 def _micro_ros_specs(
@@ -178,7 +178,7 @@ def _check_library_port(runner, ws: Workspace, step, settings) -> None:
     in its image (a header that does not state MAX_PORT_LEN leaves it to the board)."""
     lines: list[str] = []
     # One of the two places holds it; cat's complaint about the other is of no interest.
-    runner.run_idf(ws, step, ("cat", *LIBRARY_HEADERS), on_line=lines.append, workdir="/")
+    runner.firmware.run_idf(ws, step, ("cat", *LIBRARY_HEADERS), on_line=lines.append, workdir="/")
     check_agent_port(settings.agent_port, "\n".join(lines), step.package)
 
 
@@ -226,10 +226,12 @@ def flash(
         _check_library_port(runner, ws, step, settings)
     say = lambda line: console.print(Text(line))  # noqa: E731
     if settings is None or nvs is None:
-        flash_package(runner, ws, step, flasher_args, serial, baud, verify, say)
+        flash_package(runner.firmware, ws, step, flasher_args, serial, baud, verify, say)
     else:
         with nvs_image(settings, nvs.size, runner.owner) as image:
-            flash_package(runner, ws, step, flasher_args, serial, baud, verify, say, nvs_image=(nvs.offset, image))
+            flash_package(
+                runner.firmware, ws, step, flasher_args, serial, baud, verify, say, nvs_image=(nvs.offset, image)
+            )
     what = " with its network settings" if settings else ""
     console.print(f"flashed {package}{what} through {port}" + (" and verified it" if verify else ""))
 
@@ -274,7 +276,7 @@ def provision(
     _check_library_port(runner, ws, step, settings)
     with nvs_image(settings, nvs.size, runner.owner) as image:
         flash_package(
-            runner, ws, step, flasher_args, serial, baud, False, lambda line: console.print(Text(line)),
+            runner.firmware, ws, step, flasher_args, serial, baud, False, lambda line: console.print(Text(line)),
             nvs_image=(nvs.offset, image), app=False,
         )  # fmt: skip
     console.print(
@@ -300,4 +302,4 @@ def monitor(
     runner = runner_for(ws, config, Reporter(console))
     runner.run(plan)
     argv = step.argv(("-p", port, "monitor"))
-    raise typer.Exit(runner.run_idf(ws, step, argv, devices=serial.devices, network=serial.network))
+    raise typer.Exit(runner.firmware.run_idf(ws, step, argv, devices=serial.devices, network=serial.network))

@@ -28,7 +28,7 @@ def runtime_image(ws: Workspace, config: Config, plan: Plan | None = None) -> tu
     runner = ensure_images(ws, config, plan)
     # A runtime image `run` or `compose` made is the workspace's as much as a build's: prune may take it.
     record_images(ws, runner)
-    return runner, runner.runtime_spec(ws, step).tag
+    return runner, runner.ros.runtime_spec(ws, step).tag
 
 
 @app.command(context_settings={"allow_extra_args": True, "ignore_unknown_options": True, "help_option_names": []})
@@ -105,7 +105,16 @@ def run(
     runner, image = runtime_image(ws, config, build_plan(ws, config, [], PackageKind.ROS, checked=(package,)))
     tty = bool(sys.stdin and sys.stdin.isatty()) and sys.stdout.isatty()
     spec = nodes.node_spec(
-        ws, image, path, tuple(args or ()), runner.container_owner(), os.environ, network, tty, mounts, devices
+        ws,
+        image,
+        path,
+        tuple(args or ()),
+        runner.containers.container_owner(),
+        os.environ,
+        network,
+        tty,
+        mounts,
+        devices,
     )
     code, stopped_by = runner.engine.run_foreground(spec)
     raise typer.Exit(128 + stopped_by if stopped_by else code)
@@ -119,7 +128,6 @@ def shell(workspace: WorkspaceOption = None) -> None:
     plan, image, dockerfile = nodes.build_image_plan(build_plan(ws, config, [], PackageKind.ROS, checked=()))
     runner = ensure_images(ws, config, plan)
     tty = bool(sys.stdin and sys.stdin.isatty()) and sys.stdout.isatty()
-    mount = runner.workspace_for(ws, image, "shell")
-    spec = nodes.shell_spec(ws, image, runner.container_owner(), os.environ, tty, dockerfile, mount)
+    spec = nodes.shell_spec(ws, image, runner.containers.container_owner(), os.environ, tty, dockerfile)
     code, stopped_by = runner.engine.run_foreground(spec)
     raise typer.Exit(128 + stopped_by if stopped_by else code)

@@ -50,7 +50,7 @@ def current_tags(ws: Workspace, config: Config, engine: Engine) -> set[str]:
         if isinstance(step, RuntimeImage):
             tags.add(step.base.tag)
             try:
-                tags.add(runner.runtime_spec(ws, step).tag)
+                tags.add(runner.ros.runtime_spec(ws, step).tag)
             except EspdockError:
                 pass  # nothing installed yet: no runtime image is current
     return tags

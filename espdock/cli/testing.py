@@ -161,7 +161,7 @@ def _test_ros(ws, config, every, ros, colcon_args, locked, official, verbose, ti
         reporter.console.print(Text(line), soft_wrap=True)
 
     console.print(Text(f"colcon test: {' '.join(names)}", style="bold"))
-    code = runner.colcon_test(ws, step, on_line)
+    code = runner.ros.colcon_test(ws, step, on_line)
     found = read_results(build_base, names)
     if code != 0 and not any(r.files for r in found.values()):
         last = next((line for line in reversed(output) if line.strip()), "no output")

@@ -31,10 +31,11 @@ from espdock.config import check_target, invoking_user
 from espdock.errors import ConfigError, WorkspaceError
 from espdock.events import Outcome
 from espdock.firmware import transport
-from espdock.firmware.scaffold import check_new_package, create_firmware_package, init_compose, init_workspace
+from espdock.firmware.scaffold import check_new_package, create_firmware_package, init_workspace
 from espdock.images import bootstrap
 from espdock.layout import ROSDEP_LOCK
 from espdock.ros import colcon_register
+from espdock.ros.compose import init_compose
 from espdock.ros.plan import base_image, runtime_repository
 from espdock.workspace import PackageKind, read_build_inputs
 

@@ -13,20 +13,17 @@ import stat
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
 from urllib.parse import urlsplit
 
 from espdock.config import CHIP_TARGETS
 from espdock.errors import ConfigError, EspdockError, WorkspaceError
 from espdock.firmware.plan import LONGCALLS_RISCV, IdfBuild
 from espdock.firmware.provision import IMAGE_MOUNT
+from espdock.firmware.steps import FirmwareSteps
 from espdock.images.engine import Mount, format_argv
 from espdock.images.visibility import workspace_mount
 from espdock.layout import firmware_install_dir, installed_firmware_dir
 from espdock.workspace import Workspace, component_targets
-
-if TYPE_CHECKING:
-    from espdock.build.runner import Runner
 
 URL_SCHEMES = ("socket", "rfc2217")
 
@@ -262,7 +259,7 @@ def read_flasher_args(firmware_dir: Path, package: str) -> dict:
 
 
 def flash_package(
-    runner: Runner,
+    steps: FirmwareSteps,
     workspace: Workspace,
     step: IdfBuild,
     flasher_args: dict,
@@ -290,13 +287,13 @@ def flash_package(
         mounts = (Mount(image.parent, IMAGE_MOUNT, read_only=True),)
         extra = (offset, f"{IMAGE_MOUNT}/{image.name}")
     version: list[str] = []
-    runner.run_idf(workspace, step, ("python", "-m", "esptool", "version"), on_line=version.append, workdir=workdir)
+    steps.run_idf(workspace, step, ("python", "-m", "esptool", "version"), on_line=version.append, workdir=workdir)
     major = esptool_major(version)
     chip = flasher_args.get("extra_esptool_args", {}).get("chip")
     if not chip:
         raise ConfigError("flasher_args.json names no chip (extra_esptool_args.chip)")
     probe: list[str] = []
-    runner.run_idf(
+    steps.run_idf(
         workspace,
         step,
         chip_id_argv(port, major),
@@ -317,7 +314,7 @@ def flash_package(
         commands = []
     for argv in commands:
         say(format_argv(argv))
-        code = runner.run_idf(
+        code = steps.run_idf(
             workspace,
             step,
             argv,

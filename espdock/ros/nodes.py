@@ -72,7 +72,7 @@ def check_built_by_espdock(workspace: Workspace, package: str) -> None:
     """Refuse PACKAGE's install tree when espdock's last build did not leave it so: a native
     `colcon build` rewrites it with the host's paths and interpreters, which the runtime image
     lacks (the node would die with exit 127). `espdock build` rebuilds exactly such packages."""
-    from espdock.build.runner import ROS_STAMPS
+    from espdock.ros.steps import ROS_STAMPS
 
     recorded = StampFile(workspace.ws_dir / "build" / ROS_STAMPS).read().get(package)
     listing = listing_digest(workspace.ws_dir / "install" / package)

@@ -50,7 +50,7 @@ def build(root: Path) -> tuple[float, list[tuple[float, str]]]:
     seconds = time.perf_counter() - started
     if result.returncode != 0:
         sys.exit(f"build failed:\n{result.stdout[-3000:]}{result.stderr[-2000:]}")
-    # espdock shows a step's "#N [stage i/n] RUN ..." line as "RUN ..." (runner.BUILDKIT_STEP):
+    # espdock shows a step's "#N [stage i/n] RUN ..." line as "RUN ..." (espdock.images.keyed.BUILDKIT_STEP):
     # the next "#N" line that has no name yet names it.
     names: dict[str, str] = {}
     steps: list[tuple[float, str]] = []

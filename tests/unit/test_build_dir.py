@@ -2,7 +2,7 @@
 
 from pathlib import Path
 
-from espdock.build.runner import TARGET_MARKER, _prepare_build_dir
+from espdock.firmware.steps import TARGET_MARKER, _prepare_build_dir
 
 
 def built(tmp_path: Path, target="esp32", defaults="d1", key="k1") -> Path:
@@ -46,7 +46,7 @@ def test_a_new_target_removes_the_build_dir(tmp_path):
 
 
 def test_a_menuconfig_change_of_a_library_option_is_reported_and_others_are_not(tmp_path):
-    from espdock.build.runner import LIBRARY_BASELINE, _library_settings_changed
+    from espdock.firmware.steps import LIBRARY_BASELINE, _library_settings_changed
 
     build = tmp_path / "build"
     build.mkdir()

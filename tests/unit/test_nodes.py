@@ -8,13 +8,13 @@ from pathlib import Path
 import pytest
 import yaml
 
-from espdock.build.runner import ROS_STAMPS, runtime_context, runtime_install_digest
 from espdock.build.stamps import StampFile, listing_digest
 from espdock.config import Config
 from espdock.errors import ConfigError, WorkspaceError
-from espdock.firmware.scaffold import init_compose, starter_compose
+from espdock.ros.compose import init_compose, starter_compose
 from espdock.ros.nodes import compose_subcommand, device, find_executable, node_env, node_spec, shell_spec, volume
 from espdock.ros.plan import RuntimeImage, ros_build_image, runtime_base_image, runtime_image_spec
+from espdock.ros.steps import ROS_STAMPS, runtime_context, runtime_install_digest
 from espdock.workspace import Package, PackageKind, Workspace
 
 

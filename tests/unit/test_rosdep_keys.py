@@ -14,9 +14,9 @@ from pathlib import Path
 
 import pytest
 
-from espdock.build.runner import ROS_STAMPS
 from espdock.build.stamps import StampFile, listing_digest
 from espdock.ros import rosdeps
+from espdock.ros.steps import ROS_STAMPS
 from espdock.workspace import Workspace, discover_packages
 from tests.conftest import REPO, espdock
 from tests.rosdep_db import environment

@@ -339,8 +339,8 @@ def test_a_second_build_in_the_same_workspace_is_told_who_holds_it(ws):
     process = subprocess.Popen([sys.executable, "-c", holder], stdout=subprocess.PIPE, text=True)
     try:
         assert process.stdout.readline().strip() == "locked"
-        from espdock.build.runner import workspace_lock
         from espdock.errors import WorkspaceError
+        from espdock.workspace import workspace_lock
 
         with pytest.raises(WorkspaceError) as error, workspace_lock(ws):
             pass

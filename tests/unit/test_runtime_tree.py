@@ -6,9 +6,9 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-from espdock.build.runner import runtime_install_digest
 from espdock.ros.nodes import executables
 from espdock.ros.runtime_tree import runtime_files
+from espdock.ros.steps import runtime_install_digest
 
 
 def symlink_installed(root: Path) -> Path:

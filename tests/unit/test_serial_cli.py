@@ -80,7 +80,7 @@ def test_the_starter_compose_runs_a_serial_agent_with_only_the_board_s_device(tm
 
     import pytest
 
-    from espdock.firmware.scaffold import starter_compose
+    from espdock.ros.compose import starter_compose
 
     if not shutil.which("docker"):
         pytest.skip("the docker CLI is not on PATH")

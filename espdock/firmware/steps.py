@@ -1,0 +1,297 @@
+"""The firmware side's steps: idf.py in the micro-ROS image (build, and the tools `idf`, `flash`
+and `monitor` run), the build dir kept safe to reuse, and the install into ws/install."""
+
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import json
+import os
+import posixpath
+import shutil
+import sys
+from collections.abc import Callable
+from pathlib import Path
+
+from espdock.build.stamps import StampFile, listing_digest, tree_digest
+from espdock.config import resolve_ca_bundle
+from espdock.errors import BuildFailed
+from espdock.events import Outcome, StepNote, StepOutput
+from espdock.firmware.install import COMMANDS_SOURCE, install_firmware
+from espdock.firmware.plan import LIBRARY_SDKCONFIG_PREFIXES, SDKCONFIG_LINE, IdfBuild, InstallFirmware
+from espdock.images.containers import Containers, give_to, make_dirs_for
+from espdock.images.engine import Mount, RunSpec
+from espdock.images.visibility import workspace_mount
+from espdock.layout import install_prefix
+from espdock.workspace import Workspace, workspace_lock
+
+TARGET_MARKER = ".espdock-target"
+
+# Under ws/build, beside the packages' build dirs (colcon skips dot dirs).
+COMPONENT_CACHE = ".idf-component-cache"
+
+MANAGED_COMPONENTS = "managed_components"
+
+FIRMWARE_STAMPS = ".espdock-firmware-stamps.json"
+
+INSTALL_STAMPS = ".espdock-install-stamps.json"
+
+EXTRA_CA_MOUNT = "/run/espdock/extra-ca.pem"
+
+WITH_CA = "/opt/espdock/with-ca.sh"
+
+
+class FirmwareSteps:
+    """Runs the firmware side's steps in containers of CONTAINERS."""
+
+    def __init__(self, containers: Containers) -> None:
+        self.containers = containers
+
+    def idf_build(self, workspace: Workspace, step: IdfBuild) -> tuple[Outcome, str]:
+        build_dir = workspace.ws_dir / "build" / step.package
+        stamp_file = StampFile(workspace.ws_dir / "build" / FIRMWARE_STAMPS)
+        stamps = self._firmware_stamp(workspace, step)
+        if not step.force and stamp_file.up_to_date(stamps, {step.package: listing_digest(build_dir)}):
+            return Outcome.CACHED, f"up to date ({step.target})"
+        stamp_file.forget(stamps)
+        defaults = _defaults_digest(workspace.root / step.project)
+        _prepare_build_dir(build_dir, step.target, defaults, step.image_key)
+        fresh = not (build_dir / "sdkconfig").is_file()
+        code = self.run_idf(
+            workspace,
+            step,
+            step.argv(),
+            on_line=lambda line: self.containers.emit(StepOutput(step.name, line)),
+            sweep=True,
+        )
+        if code != 0:
+            raise BuildFailed(
+                f"idf.py build of {step.package} failed (exit code {code}); its output is above, "
+                f"build files in {build_dir}",
+                "Fix the firmware and run `espdock build` again; installed firmware was left as it was.",
+            )
+        (build_dir / TARGET_MARKER).write_text(f"{step.target}\n{defaults}\n{step.image_key}\n")
+        give_to(build_dir / TARGET_MARKER, self.containers.owner)
+        changed = _library_settings_changed(build_dir, fresh)
+        give_to(build_dir / LIBRARY_BASELINE, self.containers.owner)
+        if changed:
+            shown = ", ".join(changed[:4]) + (", ..." if len(changed) > 4 else "")
+            self.containers.emit(
+                StepNote(
+                    step.name,
+                    f"warning: {shown} changed in {build_dir.relative_to(workspace.root)}/sdkconfig (menuconfig) "
+                    "reach the app but not libmicroros.a, built from sdkconfig.defaults: put the line in "
+                    f"{step.project}/sdkconfig.defaults (`espdock idf {step.package} -- save-defconfig`) and "
+                    "build again, so a library with it is built (`espdock micro-ros rebuild` rebuilds it from "
+                    "scratch)",
+                )
+            )
+        # After the build: IDF itself writes into the project (the component manager's lock).
+        stamp_file.record(self._firmware_stamp(workspace, step), {step.package: listing_digest(build_dir)})
+        give_to(stamp_file.path, self.containers.owner)
+        return Outcome.BUILT, step.target
+
+    @staticmethod
+    def _firmware_stamp(workspace: Workspace, step: IdfBuild) -> dict[str, str]:
+        """What decides a firmware build: the project, the shared components, the sdkconfig in
+        the build dir (menuconfig's changes), the image and the target."""
+        sdkconfig = workspace.ws_dir / "build" / step.package / "sdkconfig"
+        digest = hashlib.sha256(f"{step.image_key}\0{step.target}\n".encode())
+        digest.update(tree_digest(workspace.root / step.project).encode())
+        # Shared components beside the project (CMake's EXTRA_COMPONENT_DIRS ../components).
+        components = (workspace.root / step.project).parent / "components"
+        if components.is_dir():
+            digest.update(tree_digest(components).encode())
+        if sdkconfig.is_file():
+            digest.update(hashlib.sha256(sdkconfig.read_bytes()).digest())
+        return {step.package: digest.hexdigest()}
+
+    def run_idf(
+        self,
+        workspace: Workspace,
+        step: IdfBuild,
+        argv: tuple[str, ...],
+        on_line: Callable[[str], None] | None = None,
+        devices: tuple[str, ...] = (),
+        network: str | None = None,
+        workdir: str | None = None,
+        sweep: bool = False,
+        extra_mounts: tuple[Mount, ...] = (),
+    ) -> int:
+        """Run ARGV (idf.py or another tool of the IDF image) for STEP's package.
+
+        With ON_LINE None the container is attached to the terminal (menuconfig, monitor).
+        SWEEP only from a build, which holds the workspace lock (see _container_identity).
+        """
+        user, labels = self.containers.container_identity(workspace, f"idf-{step.package}", sweep)
+        # The component manager extracts into <project>/managed_components, a place it does not
+        # let anyone move; a mount keeps that in ws/build, and the source tree clean.
+        managed = workspace.ws_dir / "build" / step.package / MANAGED_COMPONENTS
+        mountpoint = workspace.root / step.project / MANAGED_COMPONENTS
+        owner = self.containers.owner
+        for directory in (managed, mountpoint):
+            make_dirs_for(directory, owner)
+        self.containers.check_mount(workspace, step.image, user, labels)
+        mounts = [
+            workspace_mount(workspace),
+            Mount(managed, f"{step.project_dir}/{MANAGED_COMPONENTS}"),
+            *extra_mounts,
+        ]
+        env = [
+            ("HOME", "/tmp"),
+            *self.containers.reproducible_env(workspace),
+            ("IDF_TARGET", step.target),
+            # The component manager's downloads outlive the container (it caches in HOME otherwise).
+            ("IDF_COMPONENT_CACHE_PATH", f"{posixpath.dirname(step.build_dir)}/{COMPONENT_CACHE}"),
+        ]
+        ca_bundle = resolve_ca_bundle(self.containers.config, self.containers.env)
+        if ca_bundle is not None:
+            # The component manager downloads over HTTPS at configure time; with-ca.sh (from
+            # Dockerfile.idf) hands it, and git, this bundle besides the system's.
+            mounts.append(Mount(ca_bundle, EXTRA_CA_MOUNT, read_only=True))
+            env.append(("ESPDOCK_EXTRA_CA", EXTRA_CA_MOUNT))
+        spec = RunSpec(
+            image=step.image,
+            argv=("sh", WITH_CA, *argv),
+            workdir=workdir or step.project_dir,
+            user=user,
+            mounts=tuple(mounts),
+            env=tuple(env),
+            labels=labels,
+            devices=devices,
+            group_add=tuple(_device_groups(devices)),
+            network=network,
+            tty=on_line is None and bool(sys.stdin and sys.stdin.isatty()),
+        )
+        try:
+            if on_line is None:
+                return self.containers.engine.run_attached(spec, keep=self.containers.config.keep_containers)
+            return self.containers.engine.run(spec, on_line, keep=self.containers.config.keep_containers)
+        finally:
+            with contextlib.suppress(OSError):  # not empty: the user's own, left alone
+                mountpoint.rmdir()
+
+    def install(self, workspace: Workspace, step: InstallFirmware) -> tuple[Outcome, str]:
+        build_dir = workspace.ws_dir / "build" / step.package
+        # A merged install/ (colcon --merge-install, which refuses an install/<package> there):
+        # the firmware goes where that layout's setup files and ament index see it.
+        prefix = install_prefix(workspace.ws_dir / "install", step.package)
+        # What the stamp lists: the package's own files, not a merged prefix's other packages.
+        installed = prefix / "share" / step.package if prefix == workspace.ws_dir / "install" else prefix
+        manifest = workspace.root / step.project / "package.xml"
+        stamp_file = StampFile(workspace.ws_dir / "build" / INSTALL_STAMPS)
+        # The ros2 run commands' text too: an install made before them (or another version) is redone.
+        source = hashlib.sha256(
+            f"{listing_digest(build_dir)}\0{':'.join(step.run_depends)}\0".encode()
+            + manifest.read_bytes()
+            + COMMANDS_SOURCE
+        )
+        stamps = {step.package: source.hexdigest()}
+        if stamp_file.up_to_date(stamps, {step.package: listing_digest(installed)}):
+            return Outcome.CACHED, "up to date"
+        stamp_file.forget(stamps)
+        owner = self.containers.owner if os.geteuid() == 0 else None
+        firmware = install_firmware(
+            package=step.package,
+            manifest=workspace.root / step.project / "package.xml",
+            build_dir=workspace.ws_dir / "build" / step.package,
+            install_base=workspace.ws_dir / "install",
+            run_depends=step.run_depends,
+            owner=owner,
+            prefix=prefix,
+            workspace_root=workspace.root,
+        )
+        stamp_file.record(stamps, {step.package: listing_digest(installed)})
+        give_to(stamp_file.path, self.containers.owner)
+        return Outcome.BUILT, str(firmware.relative_to(workspace.root))
+
+
+def _prepare_build_dir(build_dir: Path, target: str, defaults: str, image_key: str) -> None:
+    """Make a build dir safe to reuse.
+
+    IDF refuses a build dir configured for another chip, and one configured in another image
+    keeps that image's toolchain paths and library in CMakeCache.txt and ninja's state, so a
+    new target or image key starts afresh. The sdkconfig (menuconfig's changes) survives an
+    image change; an existing sdkconfig wins over sdkconfig.defaults, so it goes when the
+    defaults changed, and with the target.
+    """
+    marker = build_dir / TARGET_MARKER
+    if not marker.is_file():
+        return
+    built_target, built_defaults, built_key, *_ = [*marker.read_text().split("\n"), "", "", ""]
+    if built_target != target:
+        shutil.rmtree(build_dir)  # only a cache
+        return
+    keep = "sdkconfig" if built_defaults == defaults else None
+    if built_key != image_key:
+        for entry in build_dir.iterdir():
+            if keep is not None and entry.name in (keep, LIBRARY_BASELINE):
+                continue
+            if entry.is_dir() and not entry.is_symlink():
+                shutil.rmtree(entry)
+            else:
+                entry.unlink()
+    elif keep is None:
+        (build_dir / "sdkconfig").unlink(missing_ok=True)
+
+
+LIBRARY_BASELINE = ".espdock-library-sdkconfig"
+
+
+def _library_lines(sdkconfig: Path) -> dict[str, str]:
+    values = {}
+    for line in sdkconfig.read_text(errors="replace").splitlines() if sdkconfig.is_file() else ():
+        match = SDKCONFIG_LINE.match(line.strip())
+        if match and (key := match.group(1) or match.group(3)).startswith(LIBRARY_SDKCONFIG_PREFIXES):
+            values[key] = match.group(2) if match.group(1) else "n"
+    return values
+
+
+def _library_settings_changed(build_dir: Path, fresh: bool) -> list[str]:
+    """The library-relevant options (FreeRTOS, lwIP, PSRAM, CONFIG_MICRO_ROS_*, ...) of the build
+    dir's sdkconfig that differ from what it held when configured afresh from sdkconfig.defaults,
+    which is what libmicroros.a was built with: menuconfig's changes that the library lacks."""
+    baseline = build_dir / LIBRARY_BASELINE
+    current = _library_lines(build_dir / "sdkconfig")
+    if fresh or not baseline.is_file():
+        baseline.write_text(json.dumps(current, sort_keys=True))
+        return []
+    try:
+        before = json.loads(baseline.read_text())
+    except ValueError:
+        before = {}
+    return [
+        f"{key}={current.get(key, 'n')} (was {before.get(key, 'n')})"
+        for key in sorted(set(before) | set(current))
+        if before.get(key, "n") != current.get(key, "n")
+    ]
+
+
+def reset_build_dir(workspace: Workspace, step: IdfBuild) -> Path:
+    """espdock's `idf.py fullclean`: empty STEP's build dir but for its sdkconfig (menuconfig's
+    changes, which IDF's fullclean leaves in the project dir). IDF's own would delete the source
+    of the managed_components mount, and the component manager would fail (EBUSY) removing the
+    mountpoint; here the next build extracts it again from the download cache."""
+    build_dir = workspace.ws_dir / "build" / step.package
+    with workspace_lock(workspace):
+        if build_dir.is_dir():
+            for entry in build_dir.iterdir():
+                if entry.name in ("sdkconfig", LIBRARY_BASELINE):
+                    continue
+                if entry.is_dir() and not entry.is_symlink():
+                    shutil.rmtree(entry)
+                else:
+                    entry.unlink()
+    return build_dir
+
+
+def _defaults_digest(project: Path) -> str:
+    digest = hashlib.sha256()
+    for path in sorted(project.glob("sdkconfig.defaults*")):
+        digest.update(path.name.encode() + b"\0" + path.read_bytes())
+    return digest.hexdigest()[:16]
+
+
+def _device_groups(devices: tuple[str, ...]) -> list[int]:
+    # Serial devices belong to a group (dialout); the container user needs it to open them.
+    return sorted({os.stat(d).st_gid for d in devices})

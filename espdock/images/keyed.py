@@ -1,0 +1,214 @@
+"""Keyed images: reused when the engine holds the key, else pulled from the cache registry,
+else built (and pushed there with --push-cache); each one's Debian package set recorded."""
+
+from __future__ import annotations
+
+import re
+import shutil
+import tempfile
+from collections.abc import Iterator, Mapping
+from contextlib import contextmanager
+from datetime import UTC, datetime
+from pathlib import Path
+
+from espdock.build.steps import LABEL_KEY, LABEL_WORKSPACE, EnsureBaseImage, EnsureImage, ImageSpec, cache_ref
+from espdock.config import resolve_ca_bundle
+from espdock.errors import RegistryError
+from espdock.events import Outcome, StepNote, StepOutput
+from espdock.images import bootstrap
+from espdock.images.containers import Containers
+from espdock.images.engine import RegistryAnswer, RegistryStatus, RunSpec
+from espdock.workspace import Workspace
+
+DPKG_LINE = re.compile(r"^[a-z0-9][a-z0-9+.-]*(:[a-z0-9]+)?=\S+$")
+
+BUILDKIT_STEP = re.compile(r"^#\d+ \[.*\] (?P<what>.+)$")
+
+
+def _first_line(text: str) -> str:
+    return (text.strip().splitlines() or ["no details"])[0][:200]
+
+
+def _denied(registry: str, what: str, answer: RegistryAnswer) -> RegistryError:
+    host = registry.split("/", 1)[0]
+    return RegistryError(
+        f"the cache registry {registry} refused the engine's credentials to {what}: {_first_line(answer.detail)}",
+        f"Log the engine in: `docker login {host}` (espdock uses the engine's login; it reads no credentials).",
+    )
+
+
+class KeyedImages:
+    """Ensures the keyed images of one run's steps, on the engine of CONTAINERS."""
+
+    def __init__(self, containers: Containers, push_cache: bool = False) -> None:
+        """PUSH_CACHE: make sure config.cache_registry holds every keyed image this run ensures."""
+        self.containers = containers
+        self._push_cache = push_cache
+        # The keyed images this run used (tag, repository), for espdock.images.prune's record.
+        self.used: list[tuple[str, str]] = []
+
+    def ensure_base(self, step: EnsureBaseImage) -> tuple[Outcome, str]:
+        how = bootstrap.ensure_base_image(
+            self.containers.engine,
+            step.image,
+            self.containers.config,
+            lambda text: self.containers.emit(StepNote(step.name, text)),
+        )
+        return (Outcome.CACHED, "present") if how == "present" else (Outcome.BUILT, how)
+
+    def ensure(
+        self, workspace: Workspace, step: EnsureImage, extra_context: Mapping[str, Path | bytes] | None = None
+    ) -> tuple[Outcome, str]:
+        """EXTRA_CONTEXT: files copied into the build context (relative path -> source)."""
+        spec = step.spec
+        self.used.append((spec.tag, spec.repository))
+        existing = self.containers.engine.image(spec.tag)
+        if not step.force and existing is not None and existing.labels.get(LABEL_KEY) == spec.key:
+            age = datetime.now(UTC) - existing.created
+            self.containers.emit(
+                StepNote(
+                    step.name, f"{spec.tag}: cache hit (key {spec.key[:16]}, built {age_text(age.total_seconds())} ago)"
+                )
+            )
+            self._publish(step)
+            return Outcome.CACHED, spec.tag
+        if not step.force and self._pull_from_cache(step):
+            return Outcome.PULLED, f"{spec.tag} from {self.containers.config.cache_registry}"
+        why = "rebuild requested" if step.force else "cache miss"
+        self.containers.emit(
+            StepNote(step.name, f"{spec.tag}: {why} (key {spec.key[:16]}), building stage {spec.target}")
+        )
+        bootstrap.ensure_compose(self.containers.env, lambda text: self.containers.emit(StepNote(step.name, text)))
+
+        def on_line(line: str) -> None:
+            match = BUILDKIT_STEP.match(line)
+            self.containers.emit(StepOutput(step.name, match.group("what") if match else line, progress=True))
+
+        with _context_dir(workspace, spec, extra_context or {}) as context:
+            self.containers.engine.build_image(
+                context=context,
+                dockerfile=spec.dockerfile,
+                target=spec.target,
+                tag=spec.tag,
+                # Not part of the key: BuildKit (0.11 and newer) stamps the image with it instead of now.
+                build_args=dict(spec.build_args) | dict(self.containers.source_date(workspace)),
+                labels=spec.labels(),
+                ca_bundle=resolve_ca_bundle(self.containers.config, self.containers.env),
+                on_line=on_line,
+                no_cache=step.force,
+            )
+        self._record_packages(workspace, step)
+        self._publish(step)
+        return Outcome.BUILT, spec.tag
+
+    def _record_packages(self, workspace: Workspace, step: EnsureImage) -> None:
+        """The image's Debian package set (what its apt installs gave today) as labels, as the base has."""
+        listing: list[str] = []
+        query = ("dpkg-query", "-W", "-f", "${Package}=${Version}\n")
+        labels = ((LABEL_WORKSPACE, str(workspace.root)), ("io.espdock.step", "dpkg"))
+        if (
+            self.containers.engine.run(
+                RunSpec(image=step.spec.tag, argv=query, workdir="/", labels=labels), listing.append
+            )
+            != 0
+        ):
+            self.containers.emit(StepNote(step.name, "warning: no dpkg in the image: its package set is not recorded"))
+            return
+        # An entrypoint (the IDF image's sources export.sh) may print before the command runs.
+        packages = sorted(line.strip() for line in listing if DPKG_LINE.match(line.strip()))
+        self.containers.engine.add_labels(step.spec.tag, bootstrap.package_labels(packages))
+        self.containers.emit(StepNote(step.name, f"{len(packages)} Debian packages recorded in the image's labels"))
+
+    def _pull_from_cache(self, step: EnsureImage) -> bool:
+        """Take STEP's image from the cache registry, if it has one with the right key label."""
+        registry = self.containers.config.cache_registry
+        if not registry:
+            return False
+        spec = step.spec
+        remote = cache_ref(registry, spec.tag)
+        answer = self.containers.engine.pull_cached(remote)
+        if answer.status is RegistryStatus.DENIED:
+            raise _denied(registry, "pull", answer)
+        if answer.status is RegistryStatus.UNREACHABLE:
+            why = _first_line(answer.detail)
+            self.containers.emit(
+                StepNote(step.name, f"warning: cache registry {registry} did not answer ({why}); building locally")
+            )
+            return False
+        if answer.status is RegistryStatus.MISSING:
+            self.containers.emit(StepNote(step.name, f"{remote}: not in the cache registry"))
+            return False
+        pulled = self.containers.engine.image(remote)
+        label = pulled.labels.get(LABEL_KEY) if pulled else None
+        if label != spec.key:
+            # Someone pushed another image under this key: building is safer than trusting it.
+            self.containers.engine.untag(remote)
+            found = (label or "missing")[:16]
+            self.containers.emit(
+                StepNote(step.name, f"warning: rejected {remote}: its key label is {found}, expected {spec.key[:16]}")
+            )
+            return False
+        self.containers.engine.tag(remote, spec.tag)
+        self.containers.engine.untag(remote)
+        self.containers.emit(
+            StepNote(step.name, f"{spec.tag}: pulled from the cache registry {registry} (key {spec.key[:16]})")
+        )
+        return True
+
+    def _publish(self, step: EnsureImage) -> None:
+        """With --push-cache, push STEP's image unless the cache registry holds it already."""
+        registry = self.containers.config.cache_registry
+        if not (self._push_cache and registry):
+            return
+        remote = cache_ref(registry, step.spec.tag)
+        held = self.containers.engine.registry_has(remote)
+        if held.status is RegistryStatus.OK:
+            self.containers.emit(StepNote(step.name, f"{remote}: already in the cache registry"))
+            return
+        if held.status is RegistryStatus.DENIED:
+            raise _denied(registry, "push", held)
+        if held.status is RegistryStatus.MISSING:
+            self.containers.engine.tag(step.spec.tag, remote)
+            try:
+                held = self.containers.engine.push_cached(remote)
+            finally:
+                self.containers.engine.untag(remote)
+            if held.status is RegistryStatus.OK:
+                self.containers.emit(StepNote(step.name, f"pushed {remote}"))
+                return
+            if held.status is RegistryStatus.DENIED:
+                raise _denied(registry, "push", held)
+        why = _first_line(held.detail)
+        self.containers.emit(StepNote(step.name, f"warning: could not push to the cache registry {registry} ({why})"))
+
+
+@contextmanager
+def _context_dir(workspace: Workspace, spec: ImageSpec, files: Mapping[str, Path | bytes]) -> Iterator[Path]:
+    """The build context: the workspace root, or a temporary directory staged from the spec
+    and FILES (relative path -> a file copied there with its mode, symlinks staying links, or
+    the content itself)."""
+    if spec.context is None:
+        yield workspace.root
+        return
+    with tempfile.TemporaryDirectory(prefix="espdock-context-") as tmp:
+        for rel, data in spec.context:
+            path = Path(tmp, rel)
+            path.parent.mkdir(parents=True, exist_ok=True)
+            path.write_bytes(data)
+        for rel, source in files.items():
+            path = Path(tmp, rel)
+            path.parent.mkdir(parents=True, exist_ok=True)
+            if isinstance(source, bytes):
+                path.write_bytes(source)
+                path.chmod(0o644)
+            else:
+                shutil.copy2(source, path, follow_symlinks=False)
+        yield Path(tmp)
+
+
+def age_text(seconds: float) -> str:
+    """SECONDS as a short age: 3 min, 2 h, 5 d."""
+    for unit, size in (("d", 86400), ("h", 3600), ("min", 60)):
+        if seconds >= size:
+            return f"{seconds / size:.0f} {unit}"
+    return f"{max(seconds, 0):.0f} s"

@@ -1,0 +1,163 @@
+"""`espdock init --compose`: the starter compose file of a workspace's nodes and the micro-ROS agent."""
+
+from __future__ import annotations
+
+import hashlib
+import os
+from pathlib import Path
+
+from espdock.errors import WorkspaceError
+from espdock.workspace import Package, PackageKind, Workspace
+
+# REP 144: lower case letters, digits and underscores, starting with a letter, no "__".
+COMPOSE_TEMPLATE = """\
+# The workspace's nodes as services, written by `espdock init` from what install/ holds;
+# `espdock init --compose` writes it again after a build (not once you have edited it).
+#
+#   espdock build                            builds the packages
+#   espdock compose up                       makes the image below of install/, starts the nodes
+#   espdock compose up talker                only some of them
+#   espdock compose --profile hardware up    also the micro-ROS agent, for ESP32 boards
+#   espdock compose --profile serial up      the agent for a board on USB/UART (MICROROS_SERIAL_DEVICE)
+#   espdock compose --profile '*' down       stops and removes everything
+#
+# Settings (environment or .env): ROS_DOMAIN_ID (default 0), MICROROS_AGENT_PORT (default 8888).
+name: {project}
+
+x-ros-node: &ros-node
+  # The runtime image of install/ (no compilers) that `espdock compose up` and `espdock run`
+  # make when a build changed install/; espdock/{name}:<key> names one of them for good.
+  image: {image}
+  environment: &ros-env
+    ROS_DOMAIN_ID: ${{ROS_DOMAIN_ID:-0}}
+    # Fast DDS's default shared-memory transport loses topics between containers, each
+    # having its own /dev/shm: UDP only, discovery by multicast on the compose network.
+    FASTDDS_BUILTIN_TRANSPORTS: UDPv4
+    PYTHONUNBUFFERED: "1"
+  # Not restarted: an executable may be a one-shot client or tool, which a restart policy would
+  # start again forever. Give the long-running nodes `restart: unless-stopped`.
+  restart: "no"
+
+services:
+{services}
+  # Real boards reach ROS 2 through the micro-ROS agent on UDP port 8888 (the
+  # address `espdock provision --agent` gives them is this host's).
+  micro_ros_agent:
+    image: {agent}
+    profiles: [hardware]
+    command: [udp4, --port, "8888"]
+    environment:
+      <<: *ros-env
+    ports:
+      - "${{MICROROS_AGENT_PORT:-8888}}:8888/udp"
+    restart: unless-stopped
+
+  # A board on a serial line (espdock new --transport serial): only its device goes in, as
+  # /dev/microros. MICROROS_SERIAL_DEVICE (default /dev/ttyACM0) must exist when it starts.
+  micro_ros_agent_serial:
+    image: {agent}
+    profiles: [serial]
+    command: [serial, --dev, /dev/microros, -b, "${{MICROROS_SERIAL_BAUD:-115200}}"]
+    devices:
+      - "${{MICROROS_SERIAL_DEVICE:-/dev/ttyACM0}}:/dev/microros"
+    environment:
+      <<: *ros-env
+    restart: unless-stopped
+"""
+# The first line of a compose file espdock wrote: the hash of the rest, so that a refresh
+# (`espdock init --compose`) can tell an untouched file from one a user edited.
+COMPOSE_MARK = "# espdock-generated sha256:"
+
+
+def starter_compose(project: str, image: str, executables: dict[str, list[str]]) -> str:
+    """The commented compose file `espdock init` writes: one service per executable (package ->
+    its executables, as installed), on IMAGE, under a first line that marks it as espdock's."""
+    from espdock.layout import MICRO_ROS_AGENT_IMAGE
+    from espdock.ros.plan import RUNTIME_INSTALL
+
+    taken = [exe for found in executables.values() for exe in found]
+    blocks = []
+    for package, found in sorted(executables.items()):
+        for exe in found:
+            service = exe if taken.count(exe) == 1 else f"{package}-{exe}"
+            path = f"{RUNTIME_INSTALL}/{package}/lib/{package}/{exe}"
+            blocks.append(f"  {service}:\n    <<: *ros-node\n    command: [{path}]\n")
+    services = "\n".join(blocks) or (
+        "  # No node was built yet: run `espdock build`, then `espdock init --compose`, or add one\n"
+        f"  # service per node, e.g.\n  # talker:\n  #   <<: *ros-node\n"
+        f"  #   command: [{RUNTIME_INSTALL}/<package>/lib/<package>/<executable>]\n"
+    )
+    name = image.split("/", 1)[-1].rsplit(":", 1)[0]
+    body = COMPOSE_TEMPLATE.format(
+        project=project, image=image, name=name, services=services, agent=MICRO_ROS_AGENT_IMAGE
+    )
+    return f"{COMPOSE_MARK}{hashlib.sha256(body.encode()).hexdigest()}\n{body}"
+
+
+def generated_unchanged(text: str) -> bool:
+    """Whether TEXT is a compose file as espdock wrote it (its mark matches the rest)."""
+    first, _, body = text.partition("\n")
+    return first == COMPOSE_MARK + hashlib.sha256(body.encode()).hexdigest()
+
+
+def write_starter_compose(
+    root: Path, text: str, owner: tuple[int, int] | None = None, refresh: bool = False, force: bool = False
+) -> str | None:
+    """Write TEXT as ROOT's compose file: where there is none ("wrote"); with REFRESH over one espdock
+    wrote and nobody changed since ("refreshed"), or with FORCE over any, keeping the old one
+    as <name>.orig ("replaced"). None when one is there and REFRESH is off; a WorkspaceError
+    (exit 2) when a refresh meets an edited file without FORCE."""
+    from espdock.layout import COMPOSE_FILES
+
+    existing = next((root / name for name in COMPOSE_FILES if (root / name).exists()), None)
+    path = existing or root / COMPOSE_FILES[0]
+    try:
+        if existing is None:
+            with path.open("x") as out:  # never overwrites
+                out.write(text)
+            outcome = "wrote"
+        elif not refresh:
+            return None
+        else:
+            old = existing.read_text(errors="replace")
+            if old == text:
+                return "unchanged"
+            if generated_unchanged(old):
+                outcome = "refreshed"
+            elif force:
+                existing.replace(existing.with_name(existing.name + ".orig"))
+                outcome = "replaced"
+            else:
+                raise WorkspaceError(
+                    f"{existing.name} was edited since espdock wrote it (or espdock did not write it): left as it is",
+                    f"`espdock init --compose --force` replaces it, keeping yours as {existing.name}.orig.",
+                )
+            staged = path.with_name(f".{path.name}.espdock-new")
+            staged.write_text(text)
+            staged.replace(path)  # whole or not at all
+    except FileExistsError:
+        return None
+    except OSError as exc:
+        raise WorkspaceError(f"cannot write {path}: {exc.strerror or exc}") from None
+    if owner is not None:
+        os.lchown(path, *owner)
+    return outcome
+
+
+def init_compose(
+    workspace: Workspace, repository: str, packages: tuple[Package, ...], owner=None, refresh=False, force=False
+) -> str | None:
+    """`espdock init`'s compose.yaml for WORKSPACE, whose runtime images are REPOSITORY: the
+    executables its ROS PACKAGES have installed (see write_starter_compose for REFRESH, FORCE
+    and what it returns)."""
+    from espdock.ros.nodes import executables
+
+    install = workspace.ws_dir / "install"
+    found = {
+        p.name: exes
+        for p in packages
+        if p.kind is PackageKind.ROS and (exes := executables(install, p.name, workspace.root))
+    }
+    project = repository.split("/", 1)[-1]
+    text = starter_compose(project, f"{repository}:latest", found)
+    return write_starter_compose(workspace.root, text, owner, refresh, force)

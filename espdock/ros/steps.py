@@ -1,0 +1,242 @@
+"""The ROS side's steps: colcon build (only what changed, by the packages' stamps), colcon test,
+and the runtime image made of the install trees."""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import posixpath
+from collections.abc import Callable
+from dataclasses import replace
+from pathlib import Path
+
+from espdock.build.stamps import StampFile, listing_digest, package_stamps, tree_digest
+from espdock.build.steps import EnsureImage, ImageSpec
+from espdock.errors import BuildFailed, ConfigError, WorkspaceError
+from espdock.events import Outcome, StepNote, StepOutput
+from espdock.images.containers import Containers, give_to, permission_error
+from espdock.images.engine import Mount, RunSpec
+from espdock.images.keyed import KeyedImages
+from espdock.images.visibility import workspace_mount
+from espdock.layout import ROS_BUILD_BASE
+from espdock.ros.colcon import (
+    DEFAULTS_MOUNT,
+    ColconLog,
+    PackageState,
+    explain_failure,
+    retire_container_caches,
+    usage_error,
+)
+from espdock.ros.plan import ColconBuild, RuntimeImage, runtime_image_spec
+from espdock.ros.runtime_tree import runtime_files
+from espdock.ros.testing import ColconTest
+from espdock.workspace import Workspace, workspace_lock
+
+# Under ws/build: what the ROS packages and the firmware were last built from (espdock.build.stamps).
+ROS_STAMPS = ".espdock-colcon-stamps.json"
+
+
+class RosSteps:
+    """Runs the ROS side's steps in containers of CONTAINERS, its images through IMAGES."""
+
+    def __init__(self, containers: Containers, images: KeyedImages) -> None:
+        self.containers = containers
+        self.images = images
+        # Packages this run was to build and did not: their install trees are old, so no runtime
+        # image is made from them.
+        self.unbuilt: set[str] = set()
+
+    def colcon_build(self, workspace: Workspace, step: ColconBuild) -> tuple[Outcome, str]:
+        stamp_file = StampFile(workspace.ws_dir / "build" / ROS_STAMPS)
+        sources = {name: tree_digest(workspace.ws_dir / rel) for name, rel in step.sources}
+        stamps = package_stamps(sources, dict(step.depends), step.stamp_image, dict(step.settings))
+
+        def installed() -> dict[str, str | None]:
+            return {name: listing_digest(workspace.ws_dir / "install" / name) for name in stamps}
+
+        # The changed packages and, their stamps being chained, what depends on them; the rest
+        # are up to date in install/, where colcon finds them.
+        rebuild = tuple(stamps) if step.force else stamp_file.stale(stamps, installed())
+        if not rebuild:
+            return Outcome.CACHED, f"up to date ({len(stamps)} package(s))"
+        # Until this build succeeds, none of them counts as built.
+        recorded = stamp_file.read()
+        stamp_file.forget(rebuild)
+        mounted_build = posixpath.join(step.workdir, "build")
+        if retired := retire_container_caches(workspace.ws_dir / "build", stamps, mounted_build):
+            why = f"espdock's CMake caches from before {ROS_BUILD_BASE}, which a native colcon build refuses"
+            self.containers.emit(
+                StepNote(step.name, f"removed {', '.join(f'build/{name}' for name in retired)}: {why}")
+            )
+        if step.says_tests_off:
+            self.containers.emit(
+                StepNote(
+                    step.name,
+                    "CMake packages are configured with BUILD_TESTING=OFF: the wheels image lacks ament's lint "
+                    "packages (ament_lint_auto, ...); `espdock test` builds them with their tests",
+                )
+            )
+        user, labels = self.containers.container_identity(workspace, "colcon", sweep=True)
+        self.containers.check_mount(workspace, step.image, user, labels)
+        mounts = [workspace_mount(workspace)]
+        env = [("HOME", "/tmp"), *self.containers.reproducible_env(workspace)]
+        if step.defaults_file is not None:
+            # colcon reads the user's defaults from their home, which the container does not have.
+            mounts.append(Mount(Path(step.defaults_file), DEFAULTS_MOUNT, read_only=True))
+            env.append(("COLCON_DEFAULTS_FILE", DEFAULTS_MOUNT))
+        log = ColconLog(workspace.ws_dir / "log")
+        output: list[str] = []
+
+        def on_line(line: str) -> None:
+            output.append(line)
+            self.containers.emit(StepOutput(step.name, line))
+
+        code = self.containers.engine.run(
+            RunSpec(
+                image=step.image,
+                argv=step.argv(rebuild),
+                workdir=step.workdir,
+                user=user,
+                mounts=tuple(mounts),
+                env=tuple(env),
+                labels=labels,
+            ),
+            on_line,
+            keep=self.containers.config.keep_containers,
+        )
+        states = log.states()
+        built = [name for name, state in (states or {}).items() if state is PackageState.BUILT and name in stamps]
+        if built:
+            stamp_file.record({name: stamps[name] for name in built}, installed())
+            give_to(stamp_file.path, self.containers.owner)
+        self.unbuilt |= set(rebuild) - set(built)
+        if states is None and code != 0:
+            # Nothing in build/ or install/ changed: the packages keep their records, and the
+            # next build with other options rebuilds only what those change.
+            stamp_file.restore({name: recorded[name] for name in rebuild if name in recorded})
+            last = next((line for line in reversed(output) if line.strip()), "no output")
+            if "PermissionError" in last or "Permission denied" in last:
+                # colcon may not write its log or build dirs: they belong to someone else.
+                where = next((d for d in (workspace.ws_dir / n for n in ("log", "build", "install")) if d.exists()
+                              and d.stat().st_uid != self.containers.owner[0]), workspace.ws_dir)  # fmt: skip
+                raise permission_error(PermissionError(13, last.strip(), str(where)))
+            said = usage_error(output, step.colcon_args)
+            raise ConfigError(
+                said or f"colcon stopped before building any package (exit code {code}): {last.strip()}",
+                "Check the colcon options after `--` (`colcon build --help` in `espdock shell` lists them) "
+                "and colcon's defaults files; nothing was built.",
+            )
+        if code != 0:
+            logs = {
+                name: (log.package_log(name), _read_text(log.package_log(name)))
+                for name, state in (states or {}).items()
+                if state is PackageState.FAILED
+            }
+            declared = {name: (depends, tests) for name, depends, tests in step.declared}
+            failure = explain_failure(code, states or {}, logs, step.colcon_args, declared)
+            raise BuildFailed(failure.message, failure.hint)
+        others = [n for n in rebuild if n not in built]
+        # Asked for and neither built nor left out as told (`-- --packages-skip`): colcon did not
+        # find it where espdock did (a package linked from outside the workspace, say).
+        if lost := [n for n in others if n not in (states or {}) and n not in log.unselected()]:
+            rels = dict(step.sources)
+            raise BuildFailed(
+                f"colcon did not find {len(lost)} of the {len(rebuild)} package(s) it was to build: "
+                + ", ".join(f"{n} ({posixpath.join(step.colcon_root, rels.get(n, '?'))})" for n in lost),
+                "The build container sees the workspace at "
+                f"{workspace_mount(workspace).target} and nothing outside it: a package directory, or one above it, "
+                "that links out of the workspace leads nowhere there. Move the package into the workspace, then "
+                "build again; nothing of it was installed.",
+            )
+        detail = f"{len(built)} package(s) built, {len(stamps) - len(rebuild)} up to date"
+        return Outcome.BUILT, detail + (f", {len(others)} not built ({' '.join(others)})" if others else "")
+
+    def colcon_test(self, workspace: Workspace, step: ColconTest, on_line: Callable[[str], None]) -> int:
+        """Run STEP (colcon test) as the invoking user, its output to ON_LINE; colcon's exit code."""
+        user, labels = self.containers.container_identity(workspace, "colcon-test", sweep=False)
+        mounts = [workspace_mount(workspace)]
+        env = [("HOME", "/tmp"), *self.containers.reproducible_env(workspace)]
+        if step.defaults_file is not None:
+            mounts.append(Mount(Path(step.defaults_file), DEFAULTS_MOUNT, read_only=True))
+            env.append(("COLCON_DEFAULTS_FILE", DEFAULTS_MOUNT))
+        spec = RunSpec(
+            image=step.image,
+            argv=step.argv(),
+            workdir=_container_path(workspace, workspace.ws_dir),
+            user=user,
+            mounts=tuple(mounts),
+            env=tuple(env),
+            labels=labels,
+        )
+        with workspace_lock(workspace):
+            return self.containers.engine.run(spec, on_line, keep=self.containers.config.keep_containers)
+
+    def runtime_spec(self, workspace: Workspace, step: RuntimeImage) -> ImageSpec:
+        """The keyed runtime image for STEP's install trees as they are now."""
+        step = _installed(workspace, step)
+        digest = runtime_install_digest(workspace.ws_dir / "install", step.packages, workspace.root)
+        return runtime_image_spec(step, digest)
+
+    def runtime_image(self, workspace: Workspace, step: RuntimeImage) -> tuple[Outcome, str]:
+        # Only what is installed and, of what this run was to build, what it built.
+        installed = _installed(
+            workspace, replace(step, packages=tuple(p for p in step.packages if p not in self.unbuilt))
+        )
+        if missing := sorted(set(step.packages) - set(installed.packages)):
+            # A build of a selection (`espdock build PKG`) leaves the others unbuilt: the image
+            # holds what is installed, and says what it lacks.
+            self.containers.emit(StepNote(step.name, f"not in the image (not built yet): {', '.join(missing)}"))
+        step = installed
+        spec = self.runtime_spec(workspace, step)
+        install = workspace.ws_dir / "install"
+        outcome, _ = self.images.ensure(
+            workspace, EnsureImage(spec), extra_context=runtime_context(install, step, workspace.root)
+        )
+        keyed = self.containers.engine.image(spec.tag)
+        stable = self.containers.engine.image(step.stable_tag)
+        if keyed is not None and (stable is None or stable.id != keyed.id):
+            self.containers.engine.tag(spec.tag, step.stable_tag)
+            self.containers.emit(StepNote(step.name, f"{step.stable_tag} is now {spec.tag}"))
+        return outcome, f"{spec.tag}, {step.stable_tag}"
+
+
+def runtime_install_digest(install: Path, packages: tuple[str, ...], root: Path | None = None) -> str:
+    """sha256 over the paths, modes and contents of what a runtime image takes from INSTALL
+    (ROOT: the workspace root, where links of a symlink install lead)."""
+    digest = hashlib.sha256()
+    for rel, path in runtime_files(install, packages, root).items():
+        if isinstance(path, bytes):
+            mode, data = 0o644, path
+        else:
+            mode = path.lstat().st_mode & 0o777
+            data = os.readlink(path).encode() if path.is_symlink() else path.read_bytes()
+        digest.update(f"{rel}\0{mode:o}\0".encode())
+        digest.update(hashlib.sha256(data).digest())
+    return digest.hexdigest()
+
+
+def runtime_context(install: Path, step: RuntimeImage, root: Path | None = None) -> dict[str, Path | bytes]:
+    """The runtime image's build context besides its Dockerfile: exactly the files
+    runtime_install_digest hashed, under install/."""
+    return {f"install/{rel}": path for rel, path in runtime_files(install, step.packages, root).items()}
+
+
+def _installed(workspace: Workspace, step: RuntimeImage) -> RuntimeImage:
+    """STEP for the packages among its own that have an install tree; none at all is an error."""
+    install = workspace.ws_dir / "install"
+    present = tuple(name for name in step.packages if (install / name).is_dir())
+    if step.packages and not present:
+        raise WorkspaceError(f"no ROS package is installed in {install}", "Run `espdock build` to build them.")
+    return replace(step, packages=present)
+
+
+def _read_text(path: Path) -> str:
+    try:
+        return path.read_text(errors="replace")
+    except OSError:
+        return ""
+
+
+def _container_path(workspace: Workspace, path: Path) -> str:
+    """Where PATH (inside the workspace) is in a container with the workspace mounted."""
+    return posixpath.join(workspace_mount(workspace).target, path.relative_to(workspace.root).as_posix())

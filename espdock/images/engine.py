@@ -132,6 +132,21 @@ class RunSpec:
 
 
 @dataclass(frozen=True)
+class ImageBuild:
+    """One image build as Engine.build_image was asked for it, for whichever builder runs it."""
+
+    context: Path
+    dockerfile: str
+    target: str
+    tag: str
+    build_args: Mapping[str, str]
+    labels: Mapping[str, str]
+    ca_bundle: Path | None
+    on_line: LineSink
+    no_cache: bool
+
+
+@dataclass(frozen=True)
 class EngineInfo:
     """What kind of engine answers, as far as espdock's containers care."""
 
@@ -418,10 +433,11 @@ class Engine:
     ) -> None:
         """Build TARGET of DOCKERFILE in CONTEXT as TAG, streaming the builder's progress; the image is
         inspected afterwards (a build that says it worked and left no image is a failure)."""
+        build = ImageBuild(context, dockerfile, target, tag, build_args, labels, ca_bundle, on_line, no_cache)
         if self.info().kind == "podman":
-            self._build_classic(context, dockerfile, target, tag, build_args, labels, ca_bundle, on_line, no_cache)
+            self._build_classic(build)
         else:
-            self._build_buildkit(context, dockerfile, target, tag, build_args, labels, ca_bundle, on_line, no_cache)
+            self._build_buildkit(build)
         self.check_image(tag, labels, f"building {tag} from {dockerfile}")
 
     def check_image(self, ref: str, labels: Mapping[str, str], doing: str) -> None:
@@ -440,18 +456,7 @@ class Engine:
                 "Report this with the engine's version (`docker version`).",
             )
 
-    def _build_classic(
-        self,
-        context: Path,
-        dockerfile: str,
-        target: str,
-        tag: str,
-        build_args: Mapping[str, str],
-        labels: Mapping[str, str],
-        ca_bundle: Path | None,
-        on_line: LineSink,
-        no_cache: bool,
-    ) -> None:
+    def _build_classic(self, build: ImageBuild) -> None:
         """The engine API's own builder (Podman's Buildah: it has no BuildKit endpoint for Compose).
 
         Buildah reads `RUN --mount=type=secret` as BuildKit does; the secret's file travels in the
@@ -460,16 +465,21 @@ class Engine:
         api = self._client.api
         secret = f".espdock-secret-ca_bundle-{secrets.token_hex(4)}"
         with tempfile.TemporaryFile() as archive:
-            _context_tar(context, dockerfile, archive, {secret: ca_bundle.read_bytes() if ca_bundle else b""})
+            _context_tar(
+                build.context,
+                build.dockerfile,
+                archive,
+                {secret: build.ca_bundle.read_bytes() if build.ca_bundle else b""},
+            )
             archive.seek(0)
             params = {
-                "t": tag,
-                "dockerfile": dockerfile,
-                "target": target,
-                "buildargs": json.dumps(dict(build_args)),
-                "labels": json.dumps(dict(labels)),
+                "t": build.tag,
+                "dockerfile": build.dockerfile,
+                "target": build.target,
+                "buildargs": json.dumps(dict(build.build_args)),
+                "labels": json.dumps(dict(build.labels)),
                 "secrets": json.dumps([f"id=ca_bundle,src={secret}"]),
-                "nocache": no_cache,
+                "nocache": build.no_cache,
                 "rm": True,
                 "forcerm": True,
             }
@@ -491,50 +501,39 @@ class Engine:
                         continue
                     for line in str(event.get("stream", "")).splitlines():
                         tail.append(line)
-                        on_line(line)
+                        build.on_line(line)
                     error = error or event.get("error") or (event.get("errorDetail") or {}).get("message")
                 if response.status_code != 200 and error is None:
                     error = f"HTTP {response.status_code}: {response.text[:300]}"
             except requests.exceptions.ConnectionError as exc:
-                raise _engine_lost(self._env, f"building {tag}") from exc
+                raise _engine_lost(self._env, f"building {build.tag}") from exc
         if error:
             tail.append(str(error))
             raise ImageBuildError(
-                f"building {tag} from {dockerfile} (stage {target}) on the {self.info().name} failed:\n"
-                + "\n".join(tail),
+                f"building {build.tag} from {build.dockerfile} (stage {build.target}) "
+                f"on the {self.info().name} failed:\n" + "\n".join(tail),
                 "Read the build output above; run with --verbose for all of it.",
             )
 
-    def _build_buildkit(
-        self,
-        context: Path,
-        dockerfile: str,
-        target: str,
-        tag: str,
-        build_args: Mapping[str, str],
-        labels: Mapping[str, str],
-        ca_bundle: Path | None,
-        on_line: LineSink,
-        no_cache: bool,
-    ) -> None:
+    def _build_buildkit(self, build: ImageBuild) -> None:
         """Compose v2's build, whose BuildKit client passes the CA bundle as a secret."""
         spec = {
             "name": "espdock-build",
             "services": {
                 "image": {
-                    "image": tag,
+                    "image": build.tag,
                     "build": {
-                        "context": str(context),
-                        "dockerfile": dockerfile,
-                        "target": target,
-                        "args": dict(build_args),
-                        "labels": dict(labels),
+                        "context": str(build.context),
+                        "dockerfile": build.dockerfile,
+                        "target": build.target,
+                        "args": dict(build.build_args),
+                        "labels": dict(build.labels),
                         "secrets": ["ca_bundle"],
                     },
                 }
             },
             # An empty secret means "no extra CA"; the Dockerfile checks for that.
-            "secrets": {"ca_bundle": {"file": str(ca_bundle or "/dev/null")}},
+            "secrets": {"ca_bundle": {"file": str(build.ca_bundle or "/dev/null")}},
         }
         argv = [
             *self.compose_command(),
@@ -543,7 +542,7 @@ class Engine:
             "--progress",
             "plain",
             "build",
-            *(["--no-cache"] if no_cache else []),
+            *(["--no-cache"] if build.no_cache else []),
             "image",
         ]
         tail: collections.deque[str] = collections.deque(maxlen=15)
@@ -564,7 +563,7 @@ class Engine:
             for raw in process.stdout:
                 line = raw.rstrip("\n")
                 tail.append(line)
-                on_line(line)
+                build.on_line(line)
             code = process.wait()
         except BaseException:
             # Interrupted: BuildKit cancels the build when its client goes; nothing gets tagged.
@@ -577,12 +576,12 @@ class Engine:
         if code != 0:
             if any("no space left on device" in line.lower() for line in tail):
                 raise ImageBuildError(
-                    f"building {tag} failed: the engine's disk is full (its data root, {self._data_root()})",
+                    f"building {build.tag} failed: the engine's disk is full (its data root, {self._data_root()})",
                     "Free space there (`docker system df` shows what uses it; `docker builder prune` drops "
                     "build cache, a failed build's included), then build again.",
                 )
             if any("cannot connect to the docker daemon" in line.lower() for line in tail):
-                raise _engine_lost(self._env, f"building {tag}")
+                raise _engine_lost(self._env, f"building {build.tag}")
             unpulled = re.search(r"load metadata for (\S+)", "\n".join(tail))
             hint = (
                 f"{unpulled.group(1)} is not here and could not be pulled: is a registry reachable? "
@@ -591,7 +590,7 @@ class Engine:
                 else "Read the build output above; run with --verbose for all of it."
             )
             raise ImageBuildError(
-                f"building {tag} from {dockerfile} (stage {target}) failed:\n" + "\n".join(tail), hint
+                f"building {build.tag} from {build.dockerfile} (stage {build.target}) failed:\n" + "\n".join(tail), hint
             )
 
     def _data_root(self) -> str:

@@ -16,28 +16,17 @@ from rich.console import Console
 from rich.text import Text
 
 from espdock import __version__
-from espdock.build.lock import current_rosdep_inputs, rosdep_lock_stale
-from espdock.build.plan import plan_workspace
+from espdock.build import prepare
 from espdock.build.runner import Runner
 from espdock.build.steps import Plan
 from espdock.cli.ui import QuietReporter, Reporter
 from espdock.config import Config, invoking_user, load_config
 from espdock.errors import EspdockBug, EspdockError, Interrupted
-from espdock.firmware.plan import IdfBuild, firmware_step
+from espdock.firmware.plan import IdfBuild
 from espdock.images import bootstrap
-from espdock.ros.colcon import read_colcon_settings
-from espdock.ros.plan import checked_packages
 from espdock.workspace import (
-    DEFAULT_ROS_DISTRO,
-    BuildInputs,
-    Package,
-    PackageKind,
     Workspace,
-    discover_packages,
     find_workspace,
-    order_packages,
-    read_build_inputs,
-    select_up_to,
 )
 
 app = typer.Typer(
@@ -124,47 +113,9 @@ def load(workspace: Path | None, **overrides: object) -> tuple[Workspace, Config
     return ws.with_layout(config.package_paths, config.colcon_root), config
 
 
-def workspace_packages(ws: Workspace, ros_distro: str = DEFAULT_ROS_DISTRO) -> tuple[Package, ...]:
-    return order_packages(discover_packages(ws, ros_distro))
-
-
-def build_plan(
-    ws: Workspace,
-    config: Config,
-    names: list[str],
-    only: PackageKind | None = None,
-    force: bool = False,
-    colcon_args: tuple[str, ...] | None = None,
-    locked: bool | None = None,
-    target: str | None = None,
-    checked: tuple[str, ...] | None = None,
-    dry_run: bool = False,
-    testing: bool = False,
-    known: tuple[tuple[Package, ...], BuildInputs] | None = None,
-) -> Plan:
-    """The build's plan; LOCKED not None: first a rosdep lock that answers for the packages
-    (refusing a stale one when LOCKED). CHECKED: the packages whose dependencies must be served
-    (None: those built). DRY_RUN: the lock is neither made nor refreshed, only reported. KNOWN:
-    the workspace's packages and build inputs as the caller read them (and checked the lock)."""
-    packages, inputs = known or (workspace_packages(ws, config.ros_distro), None)
-    inputs = inputs or read_build_inputs(ws, packages)
-    ros = {p.name: p.path for p in packages if p.kind is PackageKind.ROS}
-    colcon = read_colcon_settings(ws.ws_dir, ros, colcon_args, os.environ)
-    if dry_run:
-        reason = rosdep_lock_stale(config, packages, inputs)
-        if reason:
-            notify(f"{reason}: a build would make it first; the plan below uses it as it is, unchecked")
-            checked = ()
-    elif locked is not None:
-        owner = invoking_user(os.environ, ws.root) if os.geteuid() == 0 else None
-        selected = select_up_to(packages, names) if names else packages
-        built = checked_packages(packages, tuple(p for p in selected if only in (None, p.kind)), colcon.args)
-        inputs, note = current_rosdep_inputs(ws.root, config, packages, inputs, locked, os.environ, owner, built)
-        if note:
-            notify(note)
-    return plan_workspace(
-        ws, config, packages, inputs, tuple(names), only, force, target, colcon, checked, testing=testing
-    )
+def build_plan(ws: Workspace, config: Config, names: list[str], *args, **options) -> Plan:
+    """prepare.build_plan, saying what happened to the rosdep lock on stderr."""
+    return prepare.build_plan(ws, config, names, *args, env=os.environ, notify=notify, **options)
 
 
 class PassThrough(typer.core.TyperCommand):
@@ -182,7 +133,7 @@ PASSED = "espdock.passed_args"
 
 
 def firmware_plan(ws: Workspace, config: Config, name: str) -> tuple[Plan, IdfBuild]:
-    return firmware_step(build_plan(ws, config, [name]), name)
+    return prepare.firmware_plan(ws, config, name, os.environ, notify)
 
 
 def runner_for(ws: Workspace, config: Config, reporter: Reporter | QuietReporter) -> Runner:

@@ -11,6 +11,7 @@ from typing import Annotated
 import typer
 from rich.text import Text
 
+from espdock.build.prepare import workspace_packages
 from espdock.build.steps import EnsureImage, ImageSpec, Plan
 from espdock.cli.core import (
     WorkspaceOption,
@@ -21,7 +22,6 @@ from espdock.cli.core import (
     load,
     notify,
     runner_for,
-    workspace_packages,
 )
 from espdock.cli.ui import Reporter, render_micro_ros_status, render_pins
 from espdock.config import Config, check_target

@@ -9,15 +9,17 @@ from typing import Annotated
 
 import typer
 
+from espdock.build.prepare import workspace_packages
 from espdock.build.runner import Runner
 from espdock.build.steps import Plan
-from espdock.cli.core import WorkspaceOption, app, build_plan, command, ensure_images, load, notify, workspace_packages
+from espdock.cli.core import WorkspaceOption, app, build_plan, command, ensure_images, load, notify
 from espdock.cli.prune import record_images
 from espdock.config import Config, resolve_ca_bundle
 from espdock.errors import Interrupted
 from espdock.images import bootstrap
 from espdock.ros import nodes
 from espdock.ros.plan import RuntimeImage
+from espdock.ros.steps import runtime_spec
 from espdock.workspace import PackageKind, Workspace
 
 
@@ -28,7 +30,7 @@ def runtime_image(ws: Workspace, config: Config, plan: Plan | None = None) -> tu
     runner = ensure_images(ws, config, plan)
     # A runtime image `run` or `compose` made is the workspace's as much as a build's: prune may take it.
     record_images(ws, runner)
-    return runner, runner.ros.runtime_spec(ws, step).tag
+    return runner, runtime_spec(ws, step).tag
 
 
 @app.command(context_settings={"allow_extra_args": True, "ignore_unknown_options": True, "help_option_names": []})

@@ -12,8 +12,7 @@ from rich.text import Text
 from espdock.build.runner import Runner
 from espdock.build.steps import LABEL_KEY, EnsureImage
 from espdock.cli.core import WorkspaceOption, app, build_plan, command, console, load, notify
-from espdock.cli.ui import QuietReporter, Reporter
-from espdock.config import Config, invoking_user
+from espdock.config import Config
 from espdock.errors import EspdockError
 from espdock.images import bootstrap
 from espdock.images.engine import Engine
@@ -29,16 +28,16 @@ from espdock.images.prune import (
     state_dir,
 )
 from espdock.ros.plan import RuntimeImage
+from espdock.ros.steps import runtime_spec
 from espdock.workspace import Workspace
 
 GB = 1000**3
 
 
-def current_tags(ws: Workspace, config: Config, engine: Engine) -> set[str]:
+def current_tags(ws: Workspace, config: Config) -> set[str]:
     """The keyed images the workspace's inputs use now: its plan's images and its runtime image
     for the install tree as it is."""
     plan = build_plan(ws, config, [])
-    runner = Runner(engine, config, os.environ, QuietReporter(Reporter(console)), invoking_user(os.environ, ws.root))
     tags = {step.spec.tag for step in plan.steps if isinstance(step, EnsureImage)}
     if any(isinstance(step, ColconBuild) for step in plan.steps):
         # `espdock test`'s: the build image plus the lock's test part.
@@ -50,7 +49,7 @@ def current_tags(ws: Workspace, config: Config, engine: Engine) -> set[str]:
         if isinstance(step, RuntimeImage):
             tags.add(step.base.tag)
             try:
-                tags.add(runner.ros.runtime_spec(ws, step).tag)
+                tags.add(runtime_spec(ws, step).tag)
             except EspdockError:
                 pass  # nothing installed yet: no runtime image is current
     return tags
@@ -65,7 +64,7 @@ def prune_images(
     records = read_records(state)
     root = str(ws.root)
     targets = {r.root for r in records} if all_workspaces else {root}
-    current = {root: current_tags(ws, config, engine)}
+    current = {root: current_tags(ws, config)}
     listing = engine.labelled_images(LABEL_KEY, shared=True)
     plan = plan_prune(records, targets, current, present_images(listing), engine.running_images(), keep)
     busy: list[str] = []

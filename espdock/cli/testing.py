@@ -10,11 +10,10 @@ import typer
 from rich.text import Text
 
 from espdock.build.lock import current_test_inputs
+from espdock.build.prepare import workspace_packages as discover
 from espdock.build.runner import Runner
 from espdock.build.steps import Plan
 from espdock.cli.core import PASSED, PassThrough, WorkspaceOption, app, build_plan, command, console, load, notify
-from espdock.cli.core import workspace_packages as discover
-from espdock.cli.prune import record_images
 from espdock.cli.ui import Reporter
 from espdock.config import invoking_user
 from espdock.errors import ConfigError, TestsFailed, WorkspaceError

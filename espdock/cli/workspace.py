@@ -11,6 +11,7 @@ import typer
 
 from espdock.build.lock import check_locks, lock_rosdeps, lock_workspace, plan_locks, uv_binary
 from espdock.build.manifest import compare, file_hashes, read_manifest, record_build, write_report
+from espdock.build.prepare import workspace_packages
 from espdock.build.runner import Runner, stamp_files
 from espdock.cli.core import (
     PASSED,
@@ -23,7 +24,6 @@ from espdock.cli.core import (
     err_console,
     load,
     notify,
-    workspace_packages,
 )
 from espdock.cli.prune import after_build
 from espdock.cli.ui import Reporter, render_packages, render_plan

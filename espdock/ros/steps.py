@@ -171,12 +171,6 @@ class RosSteps:
         with workspace_lock(workspace):
             return self.containers.engine.run(spec, on_line, keep=self.containers.config.keep_containers)
 
-    def runtime_spec(self, workspace: Workspace, step: RuntimeImage) -> ImageSpec:
-        """The keyed runtime image for STEP's install trees as they are now."""
-        step = _installed(workspace, step)
-        digest = runtime_install_digest(workspace.ws_dir / "install", step.packages, workspace.root)
-        return runtime_image_spec(step, digest)
-
     def runtime_image(self, workspace: Workspace, step: RuntimeImage) -> tuple[Outcome, str]:
         # Only what is installed and, of what this run was to build, what it built.
         installed = _installed(
@@ -187,7 +181,7 @@ class RosSteps:
             # holds what is installed, and says what it lacks.
             self.containers.emit(StepNote(step.name, f"not in the image (not built yet): {', '.join(missing)}"))
         step = installed
-        spec = self.runtime_spec(workspace, step)
+        spec = runtime_spec(workspace, step)
         install = workspace.ws_dir / "install"
         outcome, _ = self.images.ensure(
             workspace, EnsureImage(spec), extra_context=runtime_context(install, step, workspace.root)
@@ -198,6 +192,13 @@ class RosSteps:
             self.containers.engine.tag(spec.tag, step.stable_tag)
             self.containers.emit(StepNote(step.name, f"{step.stable_tag} is now {spec.tag}"))
         return outcome, f"{spec.tag}, {step.stable_tag}"
+
+
+def runtime_spec(workspace: Workspace, step: RuntimeImage) -> ImageSpec:
+    """The keyed runtime image for STEP's install trees as they are now."""
+    step = _installed(workspace, step)
+    digest = runtime_install_digest(workspace.ws_dir / "install", step.packages, workspace.root)
+    return runtime_image_spec(step, digest)
 
 
 def runtime_install_digest(install: Path, packages: tuple[str, ...], root: Path | None = None) -> str:

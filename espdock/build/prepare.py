@@ -1,0 +1,77 @@
+"""What a command needs before any step runs: the workspace's packages in build order, the
+inputs and colcon settings they are planned from, a rosdep lock that answers for them, and the plan."""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable, Mapping
+
+from espdock.build.lock import current_rosdep_inputs, rosdep_lock_stale
+from espdock.build.plan import plan_workspace
+from espdock.build.steps import Plan
+from espdock.config import Config, invoking_user
+from espdock.firmware.plan import IdfBuild, firmware_step
+from espdock.ros.colcon import read_colcon_settings
+from espdock.ros.plan import checked_packages
+from espdock.workspace import (
+    DEFAULT_ROS_DISTRO,
+    Package,
+    PackageKind,
+    Workspace,
+    discover_packages,
+    order_packages,
+    read_build_inputs,
+    select_up_to,
+)
+
+
+def workspace_packages(ws: Workspace, ros_distro: str = DEFAULT_ROS_DISTRO) -> tuple[Package, ...]:
+    return order_packages(discover_packages(ws, ros_distro))
+
+
+def build_plan(
+    ws: Workspace,
+    config: Config,
+    names: list[str],
+    only: PackageKind | None = None,
+    force: bool = False,
+    colcon_args: tuple[str, ...] | None = None,
+    locked: bool | None = None,
+    target: str | None = None,
+    checked: tuple[str, ...] | None = None,
+    dry_run: bool = False,
+    testing: bool = False,
+    *,
+    env: Mapping[str, str],
+    notify: Callable[[str], None],
+) -> Plan:
+    """The build's plan; LOCKED not None: first a rosdep lock that answers for the packages
+    (refusing a stale one when LOCKED). CHECKED: the packages whose dependencies must be served
+    (None: those built). DRY_RUN: the lock is neither made nor refreshed, only reported. NOTIFY
+    says what happened to the lock."""
+    packages = workspace_packages(ws, config.ros_distro)
+    inputs = read_build_inputs(ws, packages)
+    ros = {p.name: p.path for p in packages if p.kind is PackageKind.ROS}
+    colcon = read_colcon_settings(ws.ws_dir, ros, colcon_args, env)
+    if dry_run:
+        reason = rosdep_lock_stale(config, packages, inputs)
+        if reason:
+            notify(f"{reason}: a build would make it first; the plan below uses it as it is, unchecked")
+            checked = ()
+    elif locked is not None:
+        owner = invoking_user(env, ws.root) if os.geteuid() == 0 else None
+        selected = select_up_to(packages, names) if names else packages
+        built = checked_packages(packages, tuple(p for p in selected if only in (None, p.kind)), colcon.args)
+        inputs, note = current_rosdep_inputs(ws.root, config, packages, inputs, locked, env, owner, built)
+        if note:
+            notify(note)
+    return plan_workspace(
+        ws, config, packages, inputs, tuple(names), only, force, target, colcon, checked, testing=testing
+    )
+
+
+def firmware_plan(
+    ws: Workspace, config: Config, name: str, env: Mapping[str, str], notify: Callable[[str], None]
+) -> tuple[Plan, IdfBuild]:
+    """The plan that ensures firmware package NAME's IDF image, and its build step."""
+    return firmware_step(build_plan(ws, config, [name], env=env, notify=notify), name)

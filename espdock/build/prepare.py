@@ -8,11 +8,13 @@ from collections.abc import Callable, Mapping
 
 from espdock.build.lock import current_rosdep_inputs, rosdep_lock_stale
 from espdock.build.plan import plan_workspace
-from espdock.build.steps import Plan
+from espdock.build.steps import EnsureImage, Plan
 from espdock.config import Config, invoking_user
+from espdock.errors import EspdockError
 from espdock.firmware.plan import IdfBuild, firmware_step
 from espdock.ros.colcon import read_colcon_settings
-from espdock.ros.plan import checked_packages
+from espdock.ros.plan import RuntimeImage, checked_packages
+from espdock.ros.steps import runtime_spec
 from espdock.workspace import (
     DEFAULT_ROS_DISTRO,
     Package,
@@ -75,3 +77,18 @@ def firmware_plan(
 ) -> tuple[Plan, IdfBuild]:
     """The plan that ensures firmware package NAME's IDF image, and its build step."""
     return firmware_step(build_plan(ws, config, [name], env=env, notify=notify), name)
+
+
+def current_tags(ws: Workspace, config: Config, *, env: Mapping[str, str], notify: Callable[[str], None]) -> set[str]:
+    """The keyed images the workspace's inputs use now: its plan's images and its runtime image
+    for the install tree as it is."""
+    plan = build_plan(ws, config, [], env=env, notify=notify)
+    tags = {step.spec.tag for step in plan.steps if isinstance(step, EnsureImage)}
+    for step in plan.steps:
+        if isinstance(step, RuntimeImage):
+            tags.add(step.base.tag)
+            try:
+                tags.add(runtime_spec(ws, step).tag)
+            except EspdockError:
+                pass  # nothing installed yet: no runtime image is current
+    return tags

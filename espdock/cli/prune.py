@@ -9,99 +9,24 @@ from typing import Annotated
 import typer
 from rich.text import Text
 
+from espdock.build.prepare import current_tags
 from espdock.build.runner import Runner
-from espdock.build.steps import LABEL_KEY, EnsureImage
-from espdock.cli.core import WorkspaceOption, app, build_plan, command, console, load, notify
+from espdock.build.steps import LABEL_KEY
+from espdock.cli.core import WorkspaceOption, app, command, console, load, notify
 from espdock.config import Config
 from espdock.errors import EspdockError
 from espdock.images import bootstrap
 from espdock.images.engine import Engine
 from espdock.images.prune import (
-    PrunePlan,
-    forget_images,
+    GB,
     images_total,
-    plan_prune,
-    present_images,
-    read_records,
+    prune_images,
     record_use,
     size_text,
     state_dir,
+    trim_cache,
 )
-from espdock.ros.plan import RuntimeImage
-from espdock.ros.steps import runtime_spec
 from espdock.workspace import Workspace
-
-GB = 1000**3
-
-
-def current_tags(ws: Workspace, config: Config) -> set[str]:
-    """The keyed images the workspace's inputs use now: its plan's images and its runtime image
-    for the install tree as it is."""
-    plan = build_plan(ws, config, [])
-    tags = {step.spec.tag for step in plan.steps if isinstance(step, EnsureImage)}
-    if any(isinstance(step, ColconBuild) for step in plan.steps):
-        # `espdock test`'s: the build image plus the lock's test part.
-        path = ws.root / ROSDEP_LOCK
-        lock = rosdeps.read_lock(path.read_bytes() if path.is_file() else None, ROSDEP_LOCK)
-        tested = testdeps.with_test_image(plan, lock, config.ros_image == "official")
-        tags |= {step.spec.tag for step in tested.steps if isinstance(step, EnsureImage)}
-    for step in plan.steps:
-        if isinstance(step, RuntimeImage):
-            tags.add(step.base.tag)
-            try:
-                tags.add(runtime_spec(ws, step).tag)
-            except EspdockError:
-                pass  # nothing installed yet: no runtime image is current
-    return tags
-
-
-def prune_images(
-    engine: Engine, ws: Workspace, config: Config, keep: int, all_workspaces: bool, dry_run: bool
-) -> tuple[PrunePlan, list[str]]:
-    """Plan (and unless DRY_RUN, carry out) the removal; return the plan and the tags a stopped
-    container kept."""
-    state = state_dir(os.environ)
-    records = read_records(state)
-    root = str(ws.root)
-    targets = {r.root for r in records} if all_workspaces else {root}
-    current = {root: current_tags(ws, config)}
-    listing = engine.labelled_images(LABEL_KEY, shared=True)
-    plan = plan_prune(records, targets, current, present_images(listing), engine.running_images(), keep)
-    busy: list[str] = []
-    if not dry_run:
-        gone: dict[str, list[str]] = {}
-        for decision in plan.remove:
-            if engine.remove_tag(decision.tag):
-                gone.setdefault(decision.workspace, []).append(decision.tag)
-            else:
-                busy.append(decision.tag)
-        for workspace, tags in gone.items():
-            forget_images(state, workspace, tags)
-    return plan, busy
-
-
-def remove_volumes(engine: Engine, ws: Workspace, dry_run: bool) -> None:
-    """`espdock prune --volume`: the workspace's volumes on the engine (espdock.volume)."""
-    names = engine.volumes(workspace_volume.volume_labels(ws))
-    verb = "would remove" if dry_run else "removed"
-    with workspace_lock(ws):
-        for name in names:
-            if not dry_run:
-                engine.remove_volume(name)
-            console.print(Text(f"{verb} volume {name}"))
-        if not dry_run:
-            workspace_volume.forget(ws)
-    if not names:
-        console.print(Text(f"no volume of {ws.root} on this engine"))
-
-
-def trim_cache(engine: Engine, bound_gb: float, dry_run: bool) -> tuple[int | None, int]:
-    """BuildKit's cache size (None: unknown just now), and what trimming it to BOUND_GB freed
-    (0 on a dry run)."""
-    size = engine.build_cache_size()
-    if dry_run or (size is not None and size <= bound_gb * GB):
-        return size, 0
-    return size, engine.trim_build_cache(int(bound_gb * GB))
 
 
 @app.command()
@@ -138,7 +63,8 @@ def prune(
         return
     keep = config.prune_keep if keep is None else keep
     layers_before = None if dry_run else engine.layers_size()
-    plan, busy = prune_images(engine, ws, config, keep, all_workspaces, dry_run)
+    current = current_tags(ws, config, env=os.environ, notify=notify)
+    plan, busy = prune_images(engine, state_dir(os.environ), str(ws.root), current, keep, all_workspaces, dry_run)
     layers_after = None if dry_run else engine.layers_size()
     verb = "would remove" if dry_run else "removed"
     for decision in plan.remove:
@@ -184,7 +110,8 @@ def after_build(engine: Engine, ws: Workspace, config: Config, runner: Runner) -
 
 def _prune_or_warn(engine: Engine, ws: Workspace, config: Config) -> None:
     if config.prune_auto:
-        plan, busy = prune_images(engine, ws, config, config.prune_keep, False, False)
+        current = current_tags(ws, config, env=os.environ, notify=notify)
+        plan, busy = prune_images(engine, state_dir(os.environ), str(ws.root), current, config.prune_keep, False, False)
         if plan.remove:
             freed = sum(d.size for d in plan.remove if d.tag not in busy)
             notify(f"prune_auto: removed {len(plan.remove) - len(busy)} images no longer used ({size_text(freed)})")

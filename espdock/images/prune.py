@@ -17,6 +17,10 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from espdock import durable
+from espdock.build.steps import LABEL_KEY
+from espdock.images.engine import Engine
+
+GB = 1000**3
 
 
 def state_dir(env: Mapping[str, str]) -> Path:
@@ -199,3 +203,36 @@ def present_images(listing: Iterable[tuple[str, tuple[str, ...], int, int]]) -> 
 def images_total(listing: Iterable[tuple[str, tuple[str, ...], int, int]]) -> int:
     """What the keyed images take at most: each image's size, shared layers counted with each."""
     return sum(size for _, _, _, size in listing)
+
+
+def prune_images(
+    engine: Engine, state: Path, root: str, current: set[str], keep: int, all_workspaces: bool, dry_run: bool
+) -> tuple[PrunePlan, list[str]]:
+    """Plan (and unless DRY_RUN, carry out) the removal for the workspace at ROOT, whose inputs use
+    the CURRENT tags now (or for every workspace recorded in STATE); return the plan and the tags
+    a stopped container kept."""
+    records = read_records(state)
+    targets = {r.root for r in records} if all_workspaces else {root}
+    current_tags = {root: current}
+    listing = engine.labelled_images(LABEL_KEY, shared=True)
+    plan = plan_prune(records, targets, current_tags, present_images(listing), engine.running_images(), keep)
+    busy: list[str] = []
+    if not dry_run:
+        gone: dict[str, list[str]] = {}
+        for decision in plan.remove:
+            if engine.remove_tag(decision.tag):
+                gone.setdefault(decision.workspace, []).append(decision.tag)
+            else:
+                busy.append(decision.tag)
+        for workspace, tags in gone.items():
+            forget_images(state, workspace, tags)
+    return plan, busy
+
+
+def trim_cache(engine: Engine, bound_gb: float, dry_run: bool) -> tuple[int | None, int]:
+    """BuildKit's cache size (None: unknown just now), and what trimming it to BOUND_GB freed
+    (0 on a dry run)."""
+    size = engine.build_cache_size()
+    if dry_run or (size is not None and size <= bound_gb * GB):
+        return size, 0
+    return size, engine.trim_build_cache(int(bound_gb * GB))

@@ -6,15 +6,18 @@ from __future__ import annotations
 import os
 from collections.abc import Callable, Mapping
 
-from espdock.build.lock import current_rosdep_inputs, rosdep_lock_stale
+from espdock.build.lock import current_rosdep_inputs, current_test_inputs, rosdep_lock_stale
 from espdock.build.plan import plan_workspace
 from espdock.build.steps import EnsureImage, Plan
 from espdock.config import Config, invoking_user
 from espdock.errors import EspdockError
 from espdock.firmware.plan import IdfBuild, firmware_step
+from espdock.layout import ROSDEP_LOCK
+from espdock.ros import rosdeps, testdeps
 from espdock.ros.colcon import read_colcon_settings
-from espdock.ros.plan import RuntimeImage, checked_packages
+from espdock.ros.plan import ColconBuild, RuntimeImage, checked_packages, ros_image
 from espdock.ros.steps import runtime_spec
+from espdock.ros.testing import ColconTest
 from espdock.workspace import (
     DEFAULT_ROS_DISTRO,
     Package,
@@ -92,3 +95,46 @@ def current_tags(ws: Workspace, config: Config, *, env: Mapping[str, str], notif
             except EspdockError:
                 pass  # nothing installed yet: no runtime image is current
     return tags
+
+
+def plan_tests(
+    ws: Workspace,
+    config: Config,
+    every: tuple[Package, ...],
+    ros: tuple[Package, ...],
+    colcon_args: tuple[str, ...],
+    locked: bool | None,
+    official: bool,
+    *,
+    env: Mapping[str, str],
+    notify: Callable[[str], None],
+) -> tuple[Plan, ColconTest]:
+    """`espdock test`'s plan for the ROS packages ROS (of EVERY package): their build with tests in
+    the test image, after a rosdep lock whose test part answers for them; and the colcon test to
+    run after it."""
+    # The rosdep lock, its test part included, answers for the packages before anything is built.
+    owner = invoking_user(env, ws.root) if os.geteuid() == 0 else None
+    inputs, note = current_test_inputs(ws.root, config, every, read_build_inputs(ws, every), locked, env, owner)
+    if note:
+        notify(note)
+    lock = rosdeps.read_lock(inputs.rosdep_lock, ROSDEP_LOCK)
+    testdeps.check_tests(ros, lock, ros_image(config, inputs)[2])
+    plan = build_plan(
+        ws, config, [p.name for p in ros], PackageKind.ROS, locked=locked, testing=True, env=env, notify=notify
+    )
+    plan = testdeps.with_test_image(_test_build(plan), lock, official)
+    build = next(step for step in plan.steps if isinstance(step, ColconBuild))
+    step = ColconTest(
+        image=build.image,
+        packages=tuple(p.name for p in ros),
+        sources=build.sources,
+        colcon_args=colcon_args,
+        defaults_file=build.defaults_file,
+    )
+    return plan, step
+
+
+def _test_build(plan: Plan) -> Plan:
+    """The plan up to its colcon build: testing needs no runtime image."""
+    end = next(i for i, step in enumerate(plan.steps) if isinstance(step, ColconBuild))
+    return Plan(plan.workspace, plan.steps[: end + 1], plan.idf_images)

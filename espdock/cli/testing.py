@@ -9,31 +9,26 @@ from typing import Annotated
 import typer
 from rich.text import Text
 
-from espdock.build.lock import current_test_inputs
+from espdock.build.prepare import plan_tests
 from espdock.build.prepare import workspace_packages as discover
 from espdock.build.runner import Runner
-from espdock.build.steps import Plan
-from espdock.cli.core import PASSED, PassThrough, WorkspaceOption, app, build_plan, command, console, load, notify
+from espdock.cli.core import PASSED, PassThrough, WorkspaceOption, app, command, console, load, notify
 from espdock.cli.ui import Reporter
 from espdock.config import invoking_user
-from espdock.errors import ConfigError, TestsFailed, WorkspaceError
-from espdock.layout import ROS_BUILD_BASE, ROSDEP_LOCK
-from espdock.ros import rosdeps, testdeps
-from espdock.ros.plan import ColconBuild, ros_image
+from espdock.errors import TestsFailed, WorkspaceError
+from espdock.layout import ROS_BUILD_BASE
 from espdock.ros.testing import (
     HOST_TESTS_BASE,
     HOST_TESTS_TAG,
-    ColconTest,
     PackageResults,
     check_test_args,
     check_testable,
-    clear_results,
     collect_results,
     host_tests_dir,
     read_results,
     run_host_tests,
 )
-from espdock.workspace import Package, PackageKind, read_build_inputs
+from espdock.workspace import Package, PackageKind
 
 
 @app.command(cls=PassThrough)
@@ -124,25 +119,7 @@ def _test_ros(ws, config, every, ros, colcon_args, locked, official, verbose, ti
     """Build ROS packages with their tests and run colcon test: their results and colcon's exit code."""
     from espdock.images import bootstrap
 
-    # The rosdep lock, its test part included, answers for the packages before anything is built
-    # (checked here once: the plan takes the packages and inputs as they are).
-    owner = invoking_user(os.environ, ws.root) if os.geteuid() == 0 else None
-    inputs, note = current_test_inputs(ws.root, config, every, read_build_inputs(ws, every), locked, os.environ, owner)
-    if note:
-        notify(note)
-    lock = rosdeps.read_lock(inputs.rosdep_lock, ROSDEP_LOCK)
-    testdeps.check_tests(ros, lock, ros_image(config, inputs)[2])
-    plan = build_plan(ws, config, [p.name for p in ros], PackageKind.ROS, testing=True, known=(every, inputs))
-    plan = testdeps.with_test_image(_test_build(plan), lock, official)
-    build = next(step for step in plan.steps if isinstance(step, ColconBuild))
-    names = tuple(p.name for p in ros)
-    step = ColconTest(
-        image=build.image,
-        packages=names,
-        sources=build.sources,
-        colcon_args=colcon_args,
-        defaults_file=build.defaults_file,
-    )
+    plan, step = plan_tests(ws, config, every, ros, colcon_args, locked, official, env=os.environ, notify=notify)
     reporter = Reporter(console, verbose=verbose, timestamps=timestamps)
     engine = bootstrap.ensure_engine(os.environ, notify)
     runner = Runner(engine, config, os.environ, reporter, invoking_user(os.environ, ws.root))
@@ -150,37 +127,14 @@ def _test_ros(ws, config, every, ros, colcon_args, locked, official, verbose, ti
         runner.run(plan)
     finally:
         reporter.close()
-    record_images(ws, runner)
-    build_base = ws.ws_dir / ROS_BUILD_BASE
-    clear_results(build_base, names)
-    output: list[str] = []
-
-    def on_line(line: str) -> None:
-        output.append(line)
-        reporter.console.print(Text(line), soft_wrap=True)
-
-    console.print(Text(f"colcon test: {' '.join(names)}", style="bold"))
-    code = runner.ros.colcon_test(ws, step, on_line)
-    found = read_results(build_base, names)
-    if code != 0 and not any(r.files for r in found.values()):
-        last = next((line for line in reversed(output) if line.strip()), "no output")
-        raise ConfigError(
-            f"colcon test stopped before testing (exit code {code}): {last.strip()}",
-            "Check the colcon options after `--`; nothing was tested.",
-        )
-    return found, code
+    console.print(Text(f"colcon test: {' '.join(step.packages)}", style="bold"))
+    return runner.ros.test_packages(ws, step, lambda line: reporter.console.print(Text(line), soft_wrap=True))
 
 
 def _give_back(base: Path, owner: tuple[int, int]) -> None:
     """Hand what the host tests wrote (run as root, e.g. under sudo) to the workspace's user."""
     for path in (base.parent, base, *base.rglob("*")):
         os.chown(path, *owner, follow_symlinks=False)
-
-
-def _test_build(plan: Plan) -> Plan:
-    """The plan up to its colcon build: testing needs no runtime image."""
-    end = next(i for i, step in enumerate(plan.steps) if isinstance(step, ColconBuild))
-    return Plan(plan.workspace, plan.steps[: end + 1], plan.idf_images)
 
 
 def _render(found: dict[str, PackageResults], root: Path, logs: dict[str, Path]) -> None:

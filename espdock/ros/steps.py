@@ -29,7 +29,7 @@ from espdock.ros.colcon import (
 )
 from espdock.ros.plan import ColconBuild, RuntimeImage, runtime_image_spec
 from espdock.ros.runtime_tree import runtime_files
-from espdock.ros.testing import ColconTest
+from espdock.ros.testing import ColconTest, PackageResults, clear_results, read_results
 from espdock.workspace import Workspace, workspace_lock
 
 # Under ws/build: what the ROS packages and the firmware were last built from (espdock.build.stamps).
@@ -170,6 +170,29 @@ class RosSteps:
         )
         with workspace_lock(workspace):
             return self.containers.engine.run(spec, on_line, keep=self.containers.config.keep_containers)
+
+    def test_packages(
+        self, workspace: Workspace, step: ColconTest, on_line: Callable[[str], None]
+    ) -> tuple[dict[str, PackageResults], int]:
+        """Run STEP (colcon test) after a build with tests: each package's results, from this run
+        only, and colcon's exit code; colcon stopping before it tested anything is an error."""
+        build_base = workspace.ws_dir / ROS_BUILD_BASE
+        clear_results(build_base, step.packages)
+        output: list[str] = []
+
+        def collect(line: str) -> None:
+            output.append(line)
+            on_line(line)
+
+        code = self.colcon_test(workspace, step, collect)
+        found = read_results(build_base, step.packages)
+        if code != 0 and not any(r.files for r in found.values()):
+            last = next((line for line in reversed(output) if line.strip()), "no output")
+            raise ConfigError(
+                f"colcon test stopped before testing (exit code {code}): {last.strip()}",
+                "Check the colcon options after `--`; nothing was tested.",
+            )
+        return found, code
 
     def runtime_image(self, workspace: Workspace, step: RuntimeImage) -> tuple[Outcome, str]:
         # Only what is installed and, of what this run was to build, what it built.

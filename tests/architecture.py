@@ -163,9 +163,10 @@ def largest_class(path: Path) -> tuple[str, int]:
 def report(root: Path = PACKAGE) -> str:
     known = modules(root)
     graph = import_graph(root)
-    folders = Counter(name.rpartition(".")[0] if path.name != "__init__.py" else name for name, path in known.items())
-    lines = [f"modules: {len(known)}"]
-    lines += [f"  {folder or '.'}: {count}" for folder, count in sorted(folders.items())]
+    # Per folder, its modules without the package's own __init__.
+    folders = Counter(name.rpartition(".")[0] for name, path in known.items() if path.name != "__init__.py")
+    lines = [f"modules (without __init__): {sum(folders.values())}"]
+    lines += [f"  {folder.replace('.', '/')}/: {count}" for folder, count in sorted(folders.items())]
     sizes = {name: len(path.read_text().splitlines()) for name, path in known.items()}
     biggest = max(sizes, key=sizes.__getitem__)
     lines.append(f"largest module: {biggest} {sizes[biggest]} lines")

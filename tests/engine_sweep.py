@@ -26,7 +26,7 @@ from pathlib import Path
 
 import pytest
 
-from espdock.build.plan import LABEL_INPUTS
+from espdock.build.steps import LABEL_INPUTS
 from espdock.images.prune import read_records
 
 STATE_KEY = pytest.StashKey[Path]()

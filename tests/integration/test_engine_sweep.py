@@ -11,7 +11,7 @@ import uuid
 
 import pytest
 
-from espdock.build.plan import LABEL_INPUTS
+from espdock.build.steps import LABEL_INPUTS
 from espdock.images.prune import record_use
 from tests.engine_sweep import runtime_tags, tagged_images
 

@@ -331,7 +331,7 @@ def test_a_second_build_in_the_same_workspace_is_told_who_holds_it(ws):
     import sys
 
     holder = (
-        "import sys, time; from pathlib import Path; from espdock.build.runner import workspace_lock; "
+        "import sys, time; from pathlib import Path; from espdock.workspace import workspace_lock; "
         "from espdock.workspace import Workspace; sys.argv = ['espdock', 'build', 'talker_py'];\n"
         f"with workspace_lock(Workspace(Path({str(ws.root)!r}))):\n"
         "    print('locked', flush=True); time.sleep(30)"

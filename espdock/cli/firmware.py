@@ -27,7 +27,6 @@ from espdock.cli.ui import Reporter, render_micro_ros_status, render_pins
 from espdock.config import Config, check_target
 from espdock.errors import ConfigError
 from espdock.firmware import transport
-from espdock.firmware.agent_port import LIBRARY_HEADERS, check_agent_port
 from espdock.firmware.flashing import check_port, flash_package, idf_port, parse_port, read_flasher_args
 from espdock.firmware.pins import pin_idf_image, read_sources, write_pins
 from espdock.firmware.plan import workspace_micro_ros_images
@@ -173,15 +172,6 @@ AgentOption = Annotated[
 DomainOption = Annotated[str | None, typer.Option("--domain-id", help="ROS_DOMAIN_ID of the board (0..232).")]
 
 
-def _check_library_port(runner, ws: Workspace, step, settings) -> None:
-    """Refuse an agent port the package's micro-ROS library would cut, reading the library's header
-    in its image (a header that does not state MAX_PORT_LEN leaves it to the board)."""
-    lines: list[str] = []
-    # One of the two places holds it; cat's complaint about the other is of no interest.
-    runner.firmware.run_idf(ws, step, ("cat", *LIBRARY_HEADERS), on_line=lines.append, workdir="/")
-    check_agent_port(settings.agent_port, "\n".join(lines), step.package)
-
-
 def _ask_password() -> str:
     return typer.prompt(
         "Wi-Fi password (empty for an open network)",
@@ -223,7 +213,7 @@ def flash(
     runner = runner_for(ws, config, Reporter(console))
     runner.run(plan)
     if settings is not None:
-        _check_library_port(runner, ws, step, settings)
+        runner.firmware.check_library_port(ws, step, settings.agent_port)
     say = lambda line: console.print(Text(line))  # noqa: E731
     if settings is None or nvs is None:
         flash_package(runner.firmware, ws, step, flasher_args, serial, baud, verify, say)
@@ -273,7 +263,7 @@ def provision(
     check_port(serial)
     runner = runner_for(ws, config, Reporter(console))
     runner.run(plan)
-    _check_library_port(runner, ws, step, settings)
+    runner.firmware.check_library_port(ws, step, settings.agent_port)
     with nvs_image(settings, nvs.size, runner.owner) as image:
         flash_package(
             runner.firmware, ws, step, flasher_args, serial, baud, False, lambda line: console.print(Text(line)),

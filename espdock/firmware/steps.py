@@ -17,6 +17,7 @@ from espdock.build.stamps import StampFile, listing_digest, tree_digest
 from espdock.config import resolve_ca_bundle
 from espdock.errors import BuildFailed
 from espdock.events import Outcome, StepNote, StepOutput
+from espdock.firmware.agent_port import LIBRARY_HEADERS, check_agent_port
 from espdock.firmware.install import COMMANDS_SOURCE, install_firmware
 from espdock.firmware.plan import LIBRARY_SDKCONFIG_PREFIXES, SDKCONFIG_LINE, IdfBuild, InstallFirmware
 from espdock.images.containers import Containers, give_to, make_dirs_for
@@ -170,6 +171,14 @@ class FirmwareSteps:
         finally:
             with contextlib.suppress(OSError):  # not empty: the user's own, left alone
                 mountpoint.rmdir()
+
+    def check_library_port(self, workspace: Workspace, step: IdfBuild, port: int) -> None:
+        """Refuse an agent PORT the package's micro-ROS library would cut, reading the library's header
+        in its image (a header that does not state MAX_PORT_LEN leaves it to the board)."""
+        lines: list[str] = []
+        # One of the two places holds it; cat's complaint about the other is of no interest.
+        self.run_idf(workspace, step, ("cat", *LIBRARY_HEADERS), on_line=lines.append, workdir="/")
+        check_agent_port(port, "\n".join(lines), step.package)
 
     def install(self, workspace: Workspace, step: InstallFirmware) -> tuple[Outcome, str]:
         build_dir = workspace.ws_dir / "build" / step.package

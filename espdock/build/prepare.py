@@ -20,6 +20,7 @@ from espdock.ros.steps import runtime_spec
 from espdock.ros.testing import ColconTest
 from espdock.workspace import (
     DEFAULT_ROS_DISTRO,
+    BuildInputs,
     Package,
     PackageKind,
     Workspace,
@@ -46,16 +47,18 @@ def build_plan(
     checked: tuple[str, ...] | None = None,
     dry_run: bool = False,
     testing: bool = False,
+    known: tuple[tuple[Package, ...], BuildInputs] | None = None,
     *,
     env: Mapping[str, str],
     notify: Callable[[str], None],
 ) -> Plan:
     """The build's plan; LOCKED not None: first a rosdep lock that answers for the packages
     (refusing a stale one when LOCKED). CHECKED: the packages whose dependencies must be served
-    (None: those built). DRY_RUN: the lock is neither made nor refreshed, only reported. NOTIFY
+    (None: those built). DRY_RUN: the lock is neither made nor refreshed, only reported. KNOWN:
+    the workspace's packages and build inputs as the caller read them (and checked the lock). NOTIFY
     says what happened to the lock."""
-    packages = workspace_packages(ws, config.ros_distro)
-    inputs = read_build_inputs(ws, packages)
+    packages, known_inputs = known or (workspace_packages(ws, config.ros_distro), None)
+    inputs = known_inputs or read_build_inputs(ws, packages)
     ros = {p.name: p.path for p in packages if p.kind is PackageKind.ROS}
     colcon = read_colcon_settings(ws.ws_dir, ros, colcon_args, env)
     if dry_run:
@@ -87,6 +90,12 @@ def current_tags(ws: Workspace, config: Config, *, env: Mapping[str, str], notif
     for the install tree as it is."""
     plan = build_plan(ws, config, [], env=env, notify=notify)
     tags = {step.spec.tag for step in plan.steps if isinstance(step, EnsureImage)}
+    if any(isinstance(step, ColconBuild) for step in plan.steps):
+        # `espdock test`'s: the build image plus the lock's test part.
+        path = ws.root / ROSDEP_LOCK
+        lock = rosdeps.read_lock(path.read_bytes() if path.is_file() else None, ROSDEP_LOCK)
+        tested = testdeps.with_test_image(plan, lock, config.ros_image == "official")
+        tags |= {step.spec.tag for step in tested.steps if isinstance(step, EnsureImage)}
     for step in plan.steps:
         if isinstance(step, RuntimeImage):
             tags.add(step.base.tag)
@@ -112,7 +121,8 @@ def plan_tests(
     """`espdock test`'s plan for the ROS packages ROS (of EVERY package): their build with tests in
     the test image, after a rosdep lock whose test part answers for them; and the colcon test to
     run after it."""
-    # The rosdep lock, its test part included, answers for the packages before anything is built.
+    # The rosdep lock, its test part included, answers for the packages before anything is built
+    # (checked here once: the plan takes the packages and inputs as they are).
     owner = invoking_user(env, ws.root) if os.geteuid() == 0 else None
     inputs, note = current_test_inputs(ws.root, config, every, read_build_inputs(ws, every), locked, env, owner)
     if note:
@@ -120,7 +130,7 @@ def plan_tests(
     lock = rosdeps.read_lock(inputs.rosdep_lock, ROSDEP_LOCK)
     testdeps.check_tests(ros, lock, ros_image(config, inputs)[2])
     plan = build_plan(
-        ws, config, [p.name for p in ros], PackageKind.ROS, locked=locked, testing=True, env=env, notify=notify
+        ws, config, [p.name for p in ros], PackageKind.ROS, testing=True, known=(every, inputs), env=env, notify=notify
     )
     plan = testdeps.with_test_image(_test_build(plan), lock, official)
     build = next(step for step in plan.steps if isinstance(step, ColconBuild))

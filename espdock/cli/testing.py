@@ -13,6 +13,7 @@ from espdock.build.prepare import plan_tests
 from espdock.build.prepare import workspace_packages as discover
 from espdock.build.runner import Runner
 from espdock.cli.core import PASSED, PassThrough, WorkspaceOption, app, command, console, load, notify
+from espdock.cli.prune import record_images
 from espdock.cli.ui import Reporter
 from espdock.config import invoking_user
 from espdock.errors import TestsFailed, WorkspaceError
@@ -127,6 +128,7 @@ def _test_ros(ws, config, every, ros, colcon_args, locked, official, verbose, ti
         runner.run(plan)
     finally:
         reporter.close()
+    record_images(ws, runner)
     console.print(Text(f"colcon test: {' '.join(step.packages)}", style="bold"))
     return runner.ros.test_packages(ws, step, lambda line: reporter.console.print(Text(line), soft_wrap=True))
 

@@ -29,7 +29,7 @@ from espdock.ros.colcon import (
 )
 from espdock.ros.plan import ColconBuild, RuntimeImage, runtime_image_spec
 from espdock.ros.runtime_tree import runtime_files
-from espdock.ros.testing import ColconTest, PackageResults, clear_results, read_results
+from espdock.ros.testing import ColconTest, PackageResults, SourcedEnv, clear_results, read_results
 from espdock.workspace import Workspace, workspace_lock
 
 # Under ws/build: what the ROS packages and the firmware were last built from (espdock.build.stamps).
@@ -159,17 +159,25 @@ class RosSteps:
         if step.defaults_file is not None:
             mounts.append(Mount(Path(step.defaults_file), DEFAULTS_MOUNT, read_only=True))
             env.append(("COLCON_DEFAULTS_FILE", DEFAULTS_MOUNT))
-        spec = RunSpec(
-            image=step.image,
-            argv=step.argv(),
-            workdir=_container_path(workspace, workspace.ws_dir),
-            user=user,
-            mounts=tuple(mounts),
-            env=tuple(env),
-            labels=labels,
-        )
+        sourced = SourcedEnv(workspace.ws_dir, step.image, tuple(env))
         with workspace_lock(workspace):
-            return self.containers.engine.run(spec, on_line, keep=self.containers.config.keep_containers)
+            key = sourced.key()
+            recorded = sourced.recorded(key)
+            if key is not None and recorded is None:
+                sourced.forget()
+            spec = RunSpec(
+                image=step.image,
+                argv=step.argv(source=key is not None and recorded is None),
+                workdir=_container_path(workspace, workspace.ws_dir),
+                user=user,
+                mounts=tuple(mounts),
+                env=recorded or tuple(env),
+                labels=labels,
+            )
+            code = self.containers.engine.run(spec, on_line, keep=self.containers.config.keep_containers)
+            if key is not None and recorded is None and (written := sourced.record(key)) is not None:
+                give_to(written, self.containers.owner)
+            return code
 
     def test_packages(
         self, workspace: Workspace, step: ColconTest, on_line: Callable[[str], None]

@@ -130,6 +130,7 @@ def shell(workspace: WorkspaceOption = None) -> None:
     plan, image, dockerfile = nodes.build_image_plan(build_plan(ws, config, [], PackageKind.ROS, checked=()))
     runner = ensure_images(ws, config, plan)
     tty = bool(sys.stdin and sys.stdin.isatty()) and sys.stdout.isatty()
-    spec = nodes.shell_spec(ws, image, runner.containers.container_owner(), os.environ, tty, dockerfile)
+    mount = runner.containers.workspace_for(ws, image, "shell")
+    spec = nodes.shell_spec(ws, image, runner.containers.container_owner(), os.environ, tty, dockerfile, mount)
     code, stopped_by = runner.engine.run_foreground(spec)
     raise typer.Exit(128 + stopped_by if stopped_by else code)

@@ -16,6 +16,7 @@ from espdock.cli.core import WorkspaceOption, app, command, console, load, notif
 from espdock.config import Config
 from espdock.errors import EspdockError
 from espdock.images import bootstrap
+from espdock.images import volume as workspace_volume
 from espdock.images.engine import Engine
 from espdock.images.prune import (
     GB,
@@ -26,7 +27,22 @@ from espdock.images.prune import (
     state_dir,
     trim_cache,
 )
-from espdock.workspace import Workspace
+from espdock.workspace import Workspace, workspace_lock
+
+
+def remove_volumes(engine: Engine, ws: Workspace, dry_run: bool) -> None:
+    """`espdock prune --volume`: the workspace's volumes on the engine (espdock.volume)."""
+    names = engine.volumes(workspace_volume.volume_labels(ws))
+    verb = "would remove" if dry_run else "removed"
+    with workspace_lock(ws):
+        for name in names:
+            if not dry_run:
+                engine.remove_volume(name)
+            console.print(Text(f"{verb} volume {name}"))
+        if not dry_run:
+            workspace_volume.forget(ws)
+    if not names:
+        console.print(Text(f"no volume of {ws.root} on this engine"))
 
 
 @app.command()

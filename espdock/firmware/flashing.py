@@ -275,7 +275,7 @@ def flash_package(
 
     NVS_IMAGE (offset, host file) is written in the same run; without APP, only it is."""
     # The firmware is installed on this machine, not on a workspace volume.
-    runner.needs_this_machine(workspace, step.image, "the installed firmware `espdock flash` writes")
+    steps.containers.needs_this_machine(workspace, step.image, "the installed firmware `espdock flash` writes")
     workdir = step.install_dir
     installed = installed_firmware_dir(workspace.ws_dir, step.package)
     if installed != workspace.ws_dir / firmware_install_dir(step.package):  # a merged install/

@@ -20,9 +20,9 @@ from espdock.events import Outcome, StepNote, StepOutput
 from espdock.firmware.agent_port import LIBRARY_HEADERS, check_agent_port
 from espdock.firmware.install import COMMANDS_SOURCE, install_firmware
 from espdock.firmware.plan import LIBRARY_SDKCONFIG_PREFIXES, SDKCONFIG_LINE, IdfBuild, InstallFirmware
-from espdock.images.containers import Containers, give_to, make_dirs_for
+from espdock.images import volume
+from espdock.images.containers import Containers, give_to, make_dirs_for, volume_mode_refused
 from espdock.images.engine import Mount, RunSpec
-from espdock.images.visibility import workspace_mount
 from espdock.layout import install_prefix
 from espdock.workspace import Workspace, workspace_lock
 
@@ -56,7 +56,7 @@ class FirmwareSteps:
             return Outcome.CACHED, f"up to date ({step.target})"
         stamp_file.forget(stamps)
         defaults = _defaults_digest(workspace.root / step.project)
-        _prepare_build_dir(build_dir, step.target, defaults, step.image_key)
+        reset = _prepare_build_dir(build_dir, step.target, defaults, step.image_key)
         fresh = not (build_dir / "sdkconfig").is_file()
         code = self.run_idf(
             workspace,
@@ -64,6 +64,7 @@ class FirmwareSteps:
             step.argv(),
             on_line=lambda line: self.containers.emit(StepOutput(step.name, line)),
             sweep=True,
+            reset=reset,
         )
         if code != 0:
             raise BuildFailed(
@@ -118,26 +119,38 @@ class FirmwareSteps:
         workdir: str | None = None,
         sweep: bool = False,
         extra_mounts: tuple[Mount, ...] = (),
+        reset: bool = False,
     ) -> int:
         """Run ARGV (idf.py or another tool of the IDF image) for STEP's package.
 
         With ON_LINE None the container is attached to the terminal (menuconfig, monitor).
-        SWEEP only from a build, which holds the workspace lock (see _container_identity).
+        SWEEP only from a build, which holds the workspace lock (see Containers.container_identity).
+        RESET: the host's build dir was emptied for a new target or image (_prepare_build_dir);
+        in volume mode the volume's is emptied the same way.
         """
         user, labels = self.containers.container_identity(workspace, f"idf-{step.package}", sweep)
+        build_dir = workspace.ws_dir / "build" / step.package
         # The component manager extracts into <project>/managed_components, a place it does not
-        # let anyone move; a mount keeps that in ws/build, and the source tree clean.
-        managed = workspace.ws_dir / "build" / step.package / MANAGED_COMPONENTS
+        # let anyone move; a mount keeps that in ws/build, and the source tree clean. On the
+        # volume it stays in the project: the volume's copy of the sources is espdock's own.
+        managed = build_dir / MANAGED_COMPONENTS
         mountpoint = workspace.root / step.project / MANAGED_COMPONENTS
-        owner = self.containers.owner
-        for directory in (managed, mountpoint):
-            make_dirs_for(directory, owner)
-        self.containers.check_mount(workspace, step.image, user, labels)
-        mounts = [
-            workspace_mount(workspace),
-            Mount(managed, f"{step.project_dir}/{MANAGED_COMPONENTS}"),
-            *extra_mounts,
-        ]
+        sync = None
+        if self.containers.uses_volume(workspace, step.image, user, labels):
+            if devices or extra_mounts:
+                raise volume_mode_refused(f"a serial port for {step.package}")
+            sync = self.containers.sync(workspace, step.name, step.image, user, labels, (build_dir,) if reset else ())
+        else:
+            for directory in (managed, mountpoint):
+                make_dirs_for(directory, self.containers.owner)
+        mounts, archives = self.containers.workspace_in(workspace, sync)
+        if sync is not None:
+            # espdock's records of the build dir live on the host (the volume's come back without
+            # them), and a new volume gets menuconfig's sdkconfig, which outlives a reset.
+            kept = (TARGET_MARKER, LIBRARY_BASELINE, *(("sdkconfig",) if reset or sync.fresh else ()))
+            archives.append(volume.files_archive(workspace, build_dir, kept, self.containers.container_owner()))
+        if sync is None:
+            mounts += [Mount(managed, f"{step.project_dir}/{MANAGED_COMPONENTS}"), *extra_mounts]
         env = [
             ("HOME", "/tmp"),
             *self.containers.reproducible_env(workspace),
@@ -149,7 +162,10 @@ class FirmwareSteps:
         if ca_bundle is not None:
             # The component manager downloads over HTTPS at configure time; with-ca.sh (from
             # Dockerfile.idf) hands it, and git, this bundle besides the system's.
-            mounts.append(Mount(ca_bundle, EXTRA_CA_MOUNT, read_only=True))
+            if sync is None:
+                mounts.append(Mount(ca_bundle, EXTRA_CA_MOUNT, read_only=True))
+            else:
+                archives.append(volume.file_archive(EXTRA_CA_MOUNT, ca_bundle.read_bytes()))
             env.append(("ESPDOCK_EXTRA_CA", EXTRA_CA_MOUNT))
         spec = RunSpec(
             image=step.image,
@@ -163,11 +179,25 @@ class FirmwareSteps:
             group_add=tuple(_device_groups(devices)),
             network=network,
             tty=on_line is None and bool(sys.stdin and sys.stdin.isatty()),
+            archives=tuple(archives),
         )
+        keep = self.containers.config.keep_containers
+        if sync is not None:
+            # The build dir comes back whole: the firmware's artefacts, and menuconfig's sdkconfig.
+            with volume.fetched("build") as fetched:
+                fetch = {volume.container_path(workspace, build_dir): fetched["build"]}
+                if on_line is None:
+                    code = self.containers.engine.run_attached(spec, keep=keep, fetch=fetch)
+                else:
+                    code = self.containers.engine.run(spec, on_line, keep=keep, fetch=fetch)
+                volume.replace_tree(fetched["build"], build_dir, self.containers.owner)
+                volume.record(workspace, self.containers.engine, sync, sync.installed)
+                give_to(workspace.ws_dir / "build" / volume.SYNCED, self.containers.owner)
+            return code
         try:
             if on_line is None:
-                return self.containers.engine.run_attached(spec, keep=self.containers.config.keep_containers)
-            return self.containers.engine.run(spec, on_line, keep=self.containers.config.keep_containers)
+                return self.containers.engine.run_attached(spec, keep=keep)
+            return self.containers.engine.run(spec, on_line, keep=keep)
         finally:
             with contextlib.suppress(OSError):  # not empty: the user's own, left alone
                 mountpoint.rmdir()
@@ -215,22 +245,22 @@ class FirmwareSteps:
         return Outcome.BUILT, str(firmware.relative_to(workspace.root))
 
 
-def _prepare_build_dir(build_dir: Path, target: str, defaults: str, image_key: str) -> None:
+def _prepare_build_dir(build_dir: Path, target: str, defaults: str, image_key: str) -> bool:
     """Make a build dir safe to reuse.
 
     IDF refuses a build dir configured for another chip, and one configured in another image
     keeps that image's toolchain paths and library in CMakeCache.txt and ninja's state, so a
     new target or image key starts afresh. The sdkconfig (menuconfig's changes) survives an
     image change; an existing sdkconfig wins over sdkconfig.defaults, so it goes when the
-    defaults changed, and with the target.
+    defaults changed, and with the target. True when it removed anything.
     """
     marker = build_dir / TARGET_MARKER
     if not marker.is_file():
-        return
+        return False
     built_target, built_defaults, built_key, *_ = [*marker.read_text().split("\n"), "", "", ""]
     if built_target != target:
         shutil.rmtree(build_dir)  # only a cache
-        return
+        return True
     keep = "sdkconfig" if built_defaults == defaults else None
     if built_key != image_key:
         for entry in build_dir.iterdir():
@@ -242,6 +272,7 @@ def _prepare_build_dir(build_dir: Path, target: str, defaults: str, image_key: s
                 entry.unlink()
     elif keep is None:
         (build_dir / "sdkconfig").unlink(missing_ok=True)
+    return built_key != image_key or keep is None
 
 
 LIBRARY_BASELINE = ".espdock-library-sdkconfig"

@@ -7,14 +7,16 @@ import os
 import shutil
 import subprocess
 from collections.abc import Mapping
+from dataclasses import replace
 from pathlib import Path
 
 from espdock.build.steps import LABEL_WORKSPACE
 from espdock.config import Config
-from espdock.errors import WorkspaceError
-from espdock.events import Emit
-from espdock.images.engine import Engine
-from espdock.images.visibility import CHECKED, ensure_engine_sees
+from espdock.errors import EspdockError, WorkspaceError, WorkspaceNotVisible
+from espdock.events import Emit, StepNote
+from espdock.images import volume
+from espdock.images.engine import Engine, Mount, RunSpec
+from espdock.images.visibility import CHECKED, engine_sees, ensure_engine_sees, workspace_mount
 from espdock.workspace import Workspace
 
 
@@ -43,6 +45,8 @@ class Containers:
         self.emit = emit
         self.owner = owner
         self._commit_times: dict[Path, str | None] = {}
+        # Per workspace root: whether its build containers use its volume (espdock.images.volume).
+        self._volume: dict[Path, bool] = {}
 
     def source_date(self, workspace: Workspace) -> tuple[tuple[str, str], ...]:
         """SOURCE_DATE_EPOCH for the build containers: the caller's, else the workspace's last commit.
@@ -65,6 +69,91 @@ class Containers:
         ensure_engine_sees(self.engine, workspace, image, user, labels)
         if (workspace.ws_dir / "build" / CHECKED).exists():
             give_to(workspace.ws_dir / "build" / CHECKED, self.owner)
+
+    def uses_volume(self, workspace: Workspace, image: str, user: str, labels: tuple[tuple[str, str], ...]) -> bool:
+        """Whether WORKSPACE's build containers mount its volume (espdock.images.volume), not the workspace:
+        workspace_mode volume, or auto on an engine whose containers do not see the workspace."""
+        if workspace.root not in self._volume:
+            mode = self.config.workspace_mode
+            if mode == "auto":
+                make_dirs_for(workspace.ws_dir / "build", self.owner)
+                self._volume[workspace.root] = not engine_sees(self.engine, workspace, image, user, labels)
+                give_to(workspace.ws_dir / "build" / CHECKED, self.owner)
+            else:
+                if mode == "mount":
+                    self.check_mount(workspace, image, user, labels)
+                self._volume[workspace.root] = mode == "volume"
+        return self._volume[workspace.root]
+
+    def sync(
+        self,
+        workspace: Workspace,
+        step_name: str,
+        image: str,
+        user: str,
+        labels: tuple[tuple[str, str], ...],
+        emptied: tuple[Path, ...] = (),
+    ) -> volume.Sync | None:
+        """In volume mode, the sources the volume lacks (for the build container's archives), with
+        the ones deleted since the last sync, and EMPTIED (host paths), removed from it; None in
+        mount mode."""
+        if not self.uses_volume(workspace, image, user, labels):
+            return None
+        make_dirs_for(workspace.ws_dir / "build", self.owner)
+        sync = volume.prepare(self.engine, workspace, self.container_owner())
+        sync = replace(sync, deleted=(*sync.deleted, *(volume.container_path(workspace, p) for p in emptied)))
+        new = " (new)" if sync.fresh else ""
+        sent = f"{sync.sent} file(s) sent, {len(sync.deleted)} removed"
+        self.emit(StepNote(step_name, f"workspace volume {sync.volume}{new}: {sent}"))
+        if sync.deleted:
+            spec = RunSpec(
+                image=image,
+                argv=("rm", "-rf", "--", *sync.deleted),
+                workdir="/",
+                user=user,
+                mounts=(volume.volume_mount(workspace),),
+                labels=(*labels, ("io.espdock.step", "volume-sync")),
+            )
+            output: list[str] = []
+            if self.engine.run(spec, output.append) != 0:
+                raise EspdockError(
+                    f"could not remove deleted sources from volume {sync.volume}: {first_line(chr(10).join(output))}",
+                    "Remove the volume (`espdock prune --volume`) and build again: it is made afresh.",
+                )
+        return sync
+
+    def needs_this_machine(self, workspace: Workspace, image: str, what: str) -> None:
+        """Refuse WHAT (a command that needs this machine's files or devices) in volume mode."""
+        user, labels = self.container_identity(workspace, "mount-check", sweep=False)
+        if self.uses_volume(workspace, image, user, labels):
+            raise volume_mode_refused(what)
+
+    def workspace_for(self, workspace: Workspace, image: str, step_label: str) -> Mount:
+        """The workspace for an interactive container of IMAGE (espdock shell): the bind mount, or in
+        volume mode the volume, with the sources synced first."""
+        user, labels = self.container_identity(workspace, step_label, sweep=False)
+        sync = self.sync(workspace, step_label, image, user, labels)
+        if sync is None:
+            return workspace_mount(workspace)
+        mounts, archives = self.workspace_in(workspace, sync)
+        spec = RunSpec(image=image, argv=("true",), workdir="/", user=user, mounts=tuple(mounts),
+                       labels=(*labels, ("io.espdock.step", "volume-sync")), archives=tuple(archives))  # fmt: skip
+        output: list[str] = []
+        if self.engine.run(spec, output.append) != 0:
+            said = first_line(chr(10).join(output))
+            raise EspdockError(f"could not send the sources to volume {sync.volume}: {said}")
+        volume.record(workspace, self.engine, sync, sync.installed)
+        give_to(workspace.ws_dir / "build" / volume.SYNCED, self.owner)
+        return mounts[0]
+
+    def workspace_in(
+        self, workspace: Workspace, sync: volume.Sync | None
+    ) -> tuple[list[Mount], list[tuple[str, bytes]]]:
+        """The mounts and archives that give a build container the workspace: the bind mount, or
+        the volume and SYNC's changed sources."""
+        if sync is None:
+            return [workspace_mount(workspace)], []
+        return [volume.volume_mount(workspace)], [(volume.WORKSPACE_MOUNT, sync.archive)]
 
     def container_identity(
         self, workspace: Workspace, step_label: str, sweep: bool
@@ -119,3 +208,18 @@ def permission_error(exc: PermissionError) -> WorkspaceError:
         "Give that path back to you (e.g. `sudo chown -R $(id -u):$(id -g) PATH`); files a container wrote as "
         "another user are the engine's doing: see the Engines page of espdock's docs (rootless engines).",
     )
+
+
+def volume_mode_refused(what: str) -> WorkspaceNotVisible:
+    """The error of a command that needs this machine's files or devices in volume mode."""
+    return WorkspaceNotVisible(
+        f"the build containers use the workspace's volume on an engine that does not see this machine "
+        f"(workspace_mode), and {what} is on this machine",
+        "Use an engine that sees this machine's files and devices for it (a local engine: unset DOCKER_HOST, "
+        "or ESPDOCK_WORKSPACE_MODE=mount with an engine sharing the path); the firmware `espdock build` "
+        "installed is in install/<package>/share/<package>/firmware for any flasher.",
+    )
+
+
+def first_line(text: str) -> str:
+    return (text.strip().splitlines() or ["no details"])[0][:200]

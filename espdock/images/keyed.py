@@ -16,7 +16,7 @@ from espdock.config import resolve_ca_bundle
 from espdock.errors import RegistryError
 from espdock.events import Outcome, StepNote, StepOutput
 from espdock.images import bootstrap
-from espdock.images.containers import Containers
+from espdock.images.containers import Containers, first_line
 from espdock.images.engine import RegistryAnswer, RegistryStatus, RunSpec
 from espdock.workspace import Workspace
 
@@ -25,14 +25,10 @@ DPKG_LINE = re.compile(r"^[a-z0-9][a-z0-9+.-]*(:[a-z0-9]+)?=\S+$")
 BUILDKIT_STEP = re.compile(r"^#\d+ \[.*\] (?P<what>.+)$")
 
 
-def _first_line(text: str) -> str:
-    return (text.strip().splitlines() or ["no details"])[0][:200]
-
-
 def _denied(registry: str, what: str, answer: RegistryAnswer) -> RegistryError:
     host = registry.split("/", 1)[0]
     return RegistryError(
-        f"the cache registry {registry} refused the engine's credentials to {what}: {_first_line(answer.detail)}",
+        f"the cache registry {registry} refused the engine's credentials to {what}: {first_line(answer.detail)}",
         f"Log the engine in: `docker login {host}` (espdock uses the engine's login; it reads no credentials).",
     )
 
@@ -130,7 +126,7 @@ class KeyedImages:
         if answer.status is RegistryStatus.DENIED:
             raise _denied(registry, "pull", answer)
         if answer.status is RegistryStatus.UNREACHABLE:
-            why = _first_line(answer.detail)
+            why = first_line(answer.detail)
             self.containers.emit(
                 StepNote(step.name, f"warning: cache registry {registry} did not answer ({why}); building locally")
             )
@@ -178,7 +174,7 @@ class KeyedImages:
                 return
             if held.status is RegistryStatus.DENIED:
                 raise _denied(registry, "push", held)
-        why = _first_line(held.detail)
+        why = first_line(held.detail)
         self.containers.emit(StepNote(step.name, f"warning: could not push to the cache registry {registry} ({why})"))
 
 

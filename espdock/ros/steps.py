@@ -14,7 +14,8 @@ from espdock.build.stamps import StampFile, listing_digest, package_stamps, tree
 from espdock.build.steps import EnsureImage, ImageSpec
 from espdock.errors import BuildFailed, ConfigError, WorkspaceError
 from espdock.events import Outcome, StepNote, StepOutput
-from espdock.images.containers import Containers, give_to, permission_error
+from espdock.images import volume
+from espdock.images.containers import Containers, give_to, permission_error, volume_mode_refused
 from espdock.images.engine import Mount, RunSpec
 from espdock.images.keyed import KeyedImages
 from espdock.images.visibility import workspace_mount
@@ -59,6 +60,11 @@ class RosSteps:
         rebuild = tuple(stamps) if step.force else stamp_file.stale(stamps, installed())
         if not rebuild:
             return Outcome.CACHED, f"up to date ({len(stamps)} package(s))"
+        user, labels = self.containers.container_identity(workspace, "colcon", sweep=True)
+        sync = self.containers.sync(workspace, step.name, step.image, user, labels)
+        if sync is not None and (sync.fresh or sync.installed != listing_digest(workspace.ws_dir / "install")):
+            # install/ is swapped for the volume's whole: every package must be built there.
+            rebuild = tuple(stamps)
         # Until this build succeeds, none of them counts as built.
         recorded = stamp_file.read()
         stamp_file.forget(rebuild)
@@ -76,13 +82,14 @@ class RosSteps:
                     "packages (ament_lint_auto, ...); `espdock test` builds them with their tests",
                 )
             )
-        user, labels = self.containers.container_identity(workspace, "colcon", sweep=True)
-        self.containers.check_mount(workspace, step.image, user, labels)
-        mounts = [workspace_mount(workspace)]
+        mounts, archives = self.containers.workspace_in(workspace, sync)
         env = [("HOME", "/tmp"), *self.containers.reproducible_env(workspace)]
         if step.defaults_file is not None:
             # colcon reads the user's defaults from their home, which the container does not have.
-            mounts.append(Mount(Path(step.defaults_file), DEFAULTS_MOUNT, read_only=True))
+            if sync is None:
+                mounts.append(Mount(Path(step.defaults_file), DEFAULTS_MOUNT, read_only=True))
+            else:
+                archives.append(volume.file_archive(DEFAULTS_MOUNT, Path(step.defaults_file).read_bytes()))
             env.append(("COLCON_DEFAULTS_FILE", DEFAULTS_MOUNT))
         log = ColconLog(workspace.ws_dir / "log")
         output: list[str] = []
@@ -91,19 +98,30 @@ class RosSteps:
             output.append(line)
             self.containers.emit(StepOutput(step.name, line))
 
-        code = self.containers.engine.run(
-            RunSpec(
-                image=step.image,
-                argv=step.argv(rebuild),
-                workdir=step.workdir,
-                user=user,
-                mounts=tuple(mounts),
-                env=tuple(env),
-                labels=labels,
-            ),
-            on_line,
-            keep=self.containers.config.keep_containers,
+        spec = RunSpec(
+            image=step.image,
+            argv=step.argv(rebuild),
+            workdir=step.workdir,
+            user=user,
+            mounts=tuple(mounts),
+            env=tuple(env),
+            labels=labels,
+            archives=tuple(archives),
         )
+        if sync is None:
+            code = self.containers.engine.run(spec, on_line, keep=self.containers.config.keep_containers)
+        else:
+            with volume.fetched("install", "log") as fetched:
+                install, logs = workspace.ws_dir / "install", workspace.ws_dir / "log"
+                paths = {volume.container_path(workspace, install): fetched["install"],
+                         volume.container_path(workspace, logs): fetched["log"]}  # fmt: skip
+                code = self.containers.engine.run(
+                    spec, on_line, keep=self.containers.config.keep_containers, fetch=paths
+                )
+                volume.merge_logs(fetched["log"], logs, self.containers.owner)
+                volume.replace_tree(fetched["install"], install, self.containers.owner)
+                volume.record(workspace, self.containers.engine, sync, listing_digest(install))
+                give_to(workspace.ws_dir / "build" / volume.SYNCED, self.containers.owner)
         states = log.states()
         built = [name for name, state in (states or {}).items() if state is PackageState.BUILT and name in stamps]
         if built:
@@ -154,6 +172,8 @@ class RosSteps:
     def colcon_test(self, workspace: Workspace, step: ColconTest, on_line: Callable[[str], None]) -> int:
         """Run STEP (colcon test) as the invoking user, its output to ON_LINE; colcon's exit code."""
         user, labels = self.containers.container_identity(workspace, "colcon-test", sweep=False)
+        if self.containers.uses_volume(workspace, step.image, user, labels):
+            raise volume_mode_refused("the test results `espdock test` reads")
         mounts = [workspace_mount(workspace)]
         env = [("HOME", "/tmp"), *self.containers.reproducible_env(workspace)]
         if step.defaults_file is not None:

@@ -13,7 +13,7 @@ from espdock.build.runner import Runner
 from espdock.build.steps import Plan
 from espdock.config import Config
 from espdock.errors import BuildFailed, WorkspaceError, WorkspaceNotVisible
-from espdock.images import bootstrap
+from espdock.images import bootstrap, volume
 from espdock.images.engine import EngineInfo, describe
 from espdock.ros.colcon import unselected
 from espdock.ros.plan import ColconBuild

@@ -27,8 +27,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from espdock import durable, interrupts
-from espdock.build.plan import LABEL_WORKSPACE
 from espdock.build.stamps import source_files
+from espdock.build.steps import LABEL_WORKSPACE
 from espdock.images.engine import Engine, Mount
 from espdock.layout import WORKSPACE_MOUNT
 from espdock.workspace import Workspace

@@ -45,6 +45,22 @@ def host_path(path: str, root: Path) -> Path | None:
 # cache made at another path, so espdock's and native builds each keep their own. Under build/
 # (so `rm -rf build` clears it); the hyphen keeps it apart from any package's build dir.
 ROS_BUILD_BASE = "build/espdock-ros"
+
+
+def firmware_build_dir(ws_dir: Path, package: str) -> Path:
+    """PACKAGE's IDF build dir as espdock names it, ws/build/PKG: the directory itself, or a link to
+    where `colcon build --build-base` put it (espdock.firmware.colcon_install). A link whose target
+    is gone (`colcon clean`, `rm -rf` of that base) is dropped here, so the next build starts afresh
+    in ws/build instead of failing on it."""
+    path = ws_dir / "build" / package
+    if path.is_symlink() and not path.exists():
+        path.unlink()
+    return path
+
+
+# What colcon writes into a package's build dir after a verb (colcon-package-selection's record
+# for --packages-select-build-failed and the like): in a firmware build dir, not the IDF build's.
+COLCON_RESULT_FILES = ("colcon_build.rc", "colcon_test.rc")
 # Under share/<package> of an installed firmware package: its flashable artefacts.
 FIRMWARE_DIR = "firmware"
 

@@ -11,7 +11,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
-from collections.abc import Iterable, Mapping
+from collections.abc import Collection, Iterable, Mapping
 from pathlib import Path
 
 from espdock import durable
@@ -31,9 +31,10 @@ def tree_digest(*roots: Path) -> str:
     return digest.hexdigest()
 
 
-def listing_digest(root: Path) -> str | None:
+def listing_digest(root: Path, ignore: Collection[str] = ()) -> str | None:
     """sha256 over paths, sizes and modification times under ROOT (symlinks as their targets'
-    names, not followed); None when ROOT does not exist. Cheap: reads no file contents."""
+    names, not followed) but for the files IGNORE names directly in ROOT; None when ROOT does not
+    exist. Cheap: reads no file contents."""
     if not root.exists() and not root.is_symlink():
         return None
     digest = hashlib.sha256()
@@ -41,6 +42,8 @@ def listing_digest(root: Path) -> str | None:
         dirnames.sort()
         for name in sorted(filenames + [d for d in dirnames if (Path(dirpath) / d).is_symlink()]):
             path = Path(dirpath) / name
+            if name in ignore and dirpath == str(root):
+                continue
             info = path.lstat()
             target = os.readlink(path) if path.is_symlink() else ""
             digest.update(f"{path.relative_to(root)}\0{info.st_size}\0{info.st_mtime_ns}\0{target}\n".encode())

@@ -1,11 +1,12 @@
 """Installing a firmware package espdock built where colcon's options say (its colcon extension).
 
-`python -m espdock.firmware.colcon_install PKG_DIR PKG PREFIX BUILD_DIR [--merged]`: run by the build task
-of espdock.ros.colcon_extension with espdock's own Python, which is not colcon's where espdock came
-from pipx. PREFIX is colcon's install prefix for PKG (install/PKG, or the install base itself
-with --merge-install, where the ament index and colcon's setup files then find it); BUILD_DIR
-colcon's build dir for it, which becomes a link to the IDF build dir when it is elsewhere (the IDF
-container sees only the workspace, so the build itself stays in espdock's build/PKG).
+`python -m espdock.firmware.colcon_install --build-dir PKG_DIR PKG BUILD_DIR` before the build and
+`python -m espdock.firmware.colcon_install PKG_DIR PKG PREFIX [--merged]` after it: run by the build
+task of espdock.ros.colcon_extension with espdock's own Python, which is not colcon's where espdock
+came from pipx. BUILD_DIR is colcon's build dir for PKG (BUILD_BASE/PKG): the IDF build happens
+there, so `colcon clean` and `rm -rf BUILD_BASE` clean it. PREFIX is colcon's install prefix for
+PKG (install/PKG, or the install base itself with --merge-install, where the ament index and
+colcon's setup files then find it).
 """
 
 from __future__ import annotations
@@ -18,25 +19,59 @@ from pathlib import Path
 from espdock.config import load_config
 from espdock.errors import EspdockError
 from espdock.firmware.install import install_firmware
-from espdock.layout import FIRMWARE_DIR, INSTALL_LAYOUT_FILE, install_prefix, merged_install
-from espdock.workspace import find_workspace, read_package
+from espdock.firmware.steps import LIBRARY_BASELINE, TARGET_MARKER
+from espdock.layout import FIRMWARE_DIR, INSTALL_LAYOUT_FILE, firmware_build_dir, install_prefix, merged_install
+from espdock.workspace import Workspace, find_workspace, read_package, workspace_lock
+
+# What a build dir keeps when it moves: the sdkconfig (menuconfig's changes) and what tells espdock
+# what it was configured with. The rest is a cache, and CMake's records the path it was made at.
+KEPT_ON_MOVE = ("sdkconfig", TARGET_MARKER, LIBRARY_BASELINE)
 
 
-def install_where_colcon_says(
-    package_dir: Path, package: str, prefix: Path, merged: bool, build_dir: Path | None = None
-) -> Path | None:
-    """Install PACKAGE's firmware, built by espdock, under colcon's install PREFIX for it (the
-    install base itself when MERGED); None when that is where espdock installed it already.
-    BUILD_DIR: colcon's build dir for PACKAGE, linked to espdock's when it is elsewhere."""
+def _workspace(package_dir: Path) -> Workspace:
     ws = find_workspace(package_dir)
     config = load_config(ws.root, os.environ)
-    ws = ws.with_layout(config.package_paths, config.colcon_root)
-    own_build = ws.ws_dir / "build" / package
-    if build_dir is not None and os.path.realpath(build_dir) != os.path.realpath(own_build):
-        if build_dir.is_symlink() or not build_dir.exists():
-            build_dir.parent.mkdir(parents=True, exist_ok=True)
-            build_dir.unlink(missing_ok=True)
-            build_dir.symlink_to(own_build, target_is_directory=True)
+    return ws.with_layout(config.package_paths, config.colcon_root)
+
+
+def place_build_dir(package_dir: Path, package: str, build_dir: Path) -> None:
+    """Make colcon's BUILD_DIR for PACKAGE the real IDF build dir, and espdock's ws/build/PKG a
+    link to it (relative inside the workspace, which build containers mount; absolute outside,
+    where espdock mounts the target at that path), so espdock's commands find the one build dir
+    and the one sdkconfig. A build dir elsewhere before hands over its sdkconfig."""
+    ws = _workspace(package_dir)
+    with workspace_lock(ws):
+        own = firmware_build_dir(ws.ws_dir, package)
+        before = own.resolve() if own.exists() else None
+        if build_dir.is_symlink():  # ws/build/PKG itself, or the link an older espdock made to it
+            build_dir.unlink()
+        if before is not None and build_dir.exists() and before.samefile(build_dir):
+            return
+        if before is not None and build_dir.is_dir():
+            shutil.rmtree(build_dir)  # a tree of another configuration: the one carried over wins
+        build_dir.mkdir(parents=True, exist_ok=True)
+        for name in KEPT_ON_MOVE if before is not None else ():
+            if (before / name).is_file():
+                shutil.copy2(before / name, build_dir / name)
+        if own.absolute() == build_dir.absolute():
+            return
+        if own.is_symlink():
+            own.unlink()  # the old target is another build base's: colcon's, left as it is
+        elif own.exists():
+            shutil.rmtree(own)
+        own.parent.mkdir(parents=True, exist_ok=True)
+        target = build_dir.resolve()
+        if target.is_relative_to(ws.root.resolve()):
+            own.symlink_to(os.path.relpath(target, own.parent.resolve()), target_is_directory=True)
+        else:
+            own.symlink_to(target, target_is_directory=True)
+
+
+def install_where_colcon_says(package_dir: Path, package: str, prefix: Path, merged: bool) -> Path | None:
+    """Install PACKAGE's firmware, built by espdock, under colcon's install PREFIX for it (the
+    install base itself when MERGED); None when that is where espdock installed it already."""
+    ws = _workspace(package_dir)
+    own_build = firmware_build_dir(ws.ws_dir, package)
     own_base = ws.ws_dir / "install"
     own_isolated = own_base / package
     own_prefix = install_prefix(own_base, package)  # where espdock build just installed it
@@ -66,10 +101,14 @@ def install_where_colcon_says(
 
 
 def main(argv: list[str]) -> int:
-    merged = "--merged" in argv
-    package_dir, package, prefix, build_dir = [arg for arg in argv if arg != "--merged"]
     try:
-        firmware = install_where_colcon_says(Path(package_dir), package, Path(prefix), merged, Path(build_dir))
+        if argv[:1] == ["--build-dir"]:
+            package_dir, package, build_dir = argv[1:]
+            place_build_dir(Path(package_dir), package, Path(build_dir))
+            return 0
+        merged = "--merged" in argv
+        package_dir, package, prefix = [arg for arg in argv if arg != "--merged"]
+        firmware = install_where_colcon_says(Path(package_dir), package, Path(prefix), merged)
     except EspdockError as exc:
         print(f"espdock: {exc.message}", file=sys.stderr)
         return exc.exit_code

@@ -23,7 +23,7 @@ from espdock.firmware.plan import LIBRARY_SDKCONFIG_PREFIXES, SDKCONFIG_LINE, Id
 from espdock.images import volume
 from espdock.images.containers import Containers, give_to, make_dirs_for, volume_mode_refused
 from espdock.images.engine import Mount, RunSpec
-from espdock.layout import install_prefix
+from espdock.layout import COLCON_RESULT_FILES, firmware_build_dir, install_prefix
 from espdock.workspace import Workspace, workspace_lock
 
 TARGET_MARKER = ".espdock-target"
@@ -49,10 +49,11 @@ class FirmwareSteps:
         self.containers = containers
 
     def idf_build(self, workspace: Workspace, step: IdfBuild) -> tuple[Outcome, str]:
-        build_dir = workspace.ws_dir / "build" / step.package
+        build_dir = firmware_build_dir(workspace.ws_dir, step.package)
         stamp_file = StampFile(workspace.ws_dir / "build" / FIRMWARE_STAMPS)
         stamps = self._firmware_stamp(workspace, step)
-        if not step.force and stamp_file.up_to_date(stamps, {step.package: listing_digest(build_dir)}):
+        listing = {step.package: listing_digest(build_dir, COLCON_RESULT_FILES)}
+        if not step.force and stamp_file.up_to_date(stamps, listing):
             return Outcome.CACHED, f"up to date ({step.target})"
         stamp_file.forget(stamps)
         defaults = _defaults_digest(workspace.root / step.project)
@@ -89,7 +90,9 @@ class FirmwareSteps:
                 )
             )
         # After the build: IDF itself writes into the project (the component manager's lock).
-        stamp_file.record(self._firmware_stamp(workspace, step), {step.package: listing_digest(build_dir)})
+        stamp_file.record(
+            self._firmware_stamp(workspace, step), {step.package: listing_digest(build_dir, COLCON_RESULT_FILES)}
+        )
         give_to(stamp_file.path, self.containers.owner)
         return Outcome.BUILT, step.target
 
@@ -129,7 +132,7 @@ class FirmwareSteps:
         in volume mode the volume's is emptied the same way.
         """
         user, labels = self.containers.container_identity(workspace, f"idf-{step.package}", sweep)
-        build_dir = workspace.ws_dir / "build" / step.package
+        build_dir = firmware_build_dir(workspace.ws_dir, step.package)
         # The component manager extracts into <project>/managed_components, a place it does not
         # let anyone move; a mount keeps that in ws/build, and the source tree clean. On the
         # volume it stays in the project: the volume's copy of the sources is espdock's own.
@@ -150,7 +153,11 @@ class FirmwareSteps:
             kept = (TARGET_MARKER, LIBRARY_BASELINE, *(("sdkconfig",) if reset or sync.fresh else ()))
             archives.append(volume.files_archive(workspace, build_dir, kept, self.containers.container_owner()))
         if sync is None:
-            mounts += [Mount(managed, f"{step.project_dir}/{MANAGED_COMPONENTS}"), *extra_mounts]
+            mounts += [
+                Mount(managed, f"{step.project_dir}/{MANAGED_COMPONENTS}"),
+                *_outside_build_dir(workspace, build_dir),
+                *extra_mounts,
+            ]
         env = [
             ("HOME", "/tmp"),
             *self.containers.reproducible_env(workspace),
@@ -211,7 +218,7 @@ class FirmwareSteps:
         check_agent_port(port, "\n".join(lines), step.package)
 
     def install(self, workspace: Workspace, step: InstallFirmware) -> tuple[Outcome, str]:
-        build_dir = workspace.ws_dir / "build" / step.package
+        build_dir = firmware_build_dir(workspace.ws_dir, step.package)
         # A merged install/ (colcon --merge-install, which refuses an install/<package> there):
         # the firmware goes where that layout's setup files and ament index see it.
         prefix = install_prefix(workspace.ws_dir / "install", step.package)
@@ -221,7 +228,7 @@ class FirmwareSteps:
         stamp_file = StampFile(workspace.ws_dir / "build" / INSTALL_STAMPS)
         # The ros2 run commands' text too: an install made before them (or another version) is redone.
         source = hashlib.sha256(
-            f"{listing_digest(build_dir)}\0{':'.join(step.run_depends)}\0".encode()
+            f"{listing_digest(build_dir, COLCON_RESULT_FILES)}\0{':'.join(step.run_depends)}\0".encode()
             + manifest.read_bytes()
             + COMMANDS_SOURCE
         )
@@ -243,6 +250,18 @@ class FirmwareSteps:
         stamp_file.record(stamps, {step.package: listing_digest(installed)})
         give_to(stamp_file.path, self.containers.owner)
         return Outcome.BUILT, str(firmware.relative_to(workspace.root))
+
+
+def _outside_build_dir(workspace: Workspace, build_dir: Path) -> tuple[Mount, ...]:
+    """The mount of BUILD_DIR's target when it links out of the workspace (colcon's --build-base
+    elsewhere): at its own host path, where the link's absolute target points in the container too,
+    so idf.py's -B (the link) and the paths CMake records are the same in every build."""
+    if not build_dir.is_symlink():
+        return ()
+    real = build_dir.resolve()
+    if real.is_relative_to(workspace.root.resolve()):
+        return ()  # the workspace mount has it, and the link is relative
+    return (Mount(real, str(real)),)
 
 
 def _prepare_build_dir(build_dir: Path, target: str, defaults: str, image_key: str) -> bool:

@@ -5,7 +5,8 @@ is all it takes; where colcon runs in another Python (apt's colcon, espdock from
 `espdock colcon-extension install` registers them there (espdock.ros.colcon_register).
 A package.xml with <build_type>esp_idf</build_type> is a package of type `ros.esp_idf` (the
 type colcon-ros would give it, so its augmentation adds the dependencies too), and its build
-task runs `espdock build --only firmware PKG` (IDF container, micro-ROS image), then installs
+task runs `espdock build --only firmware PKG` (IDF container, micro-ROS image) in colcon's build
+dir for it (--build-base), then installs
 the firmware where colcon's --install-base and --merge-install say (espdock.firmware.colcon_install),
 with the output in colcon's log and event handlers. Its test task runs the host tests a firmware
 package declares (`colcon test` neither fails nor warns on one). Only colcon imports this
@@ -74,26 +75,23 @@ class EspIdfBuildTask(TaskExtensionPoint):
         pkg = self.context.pkg
         args = self.context.args
         # espdock's own workspace settings decide the image and the IDF build dir.
-        argv = [ESPDOCK_PYTHON, "-m", "espdock", "build", "--only", "firmware", str(pkg.name)]
+        package_dir = str(Path(pkg.path).resolve())
+        install = [ESPDOCK_PYTHON, "-m", "espdock.firmware.colcon_install"]
+        # colcon's --build-base decides where the IDF build dir is (args.build_base is this
+        # package's, BUILD_BASE/PKG), its --install-base and --merge-install where the firmware goes.
+        steps = (
+            ("build dir", [*install, "--build-dir", package_dir, pkg.name, str(Path(args.build_base).absolute())]),
+            ("espdock build", [ESPDOCK_PYTHON, "-m", "espdock", "build", "--only", "firmware", pkg.name]),
+            ("install", [*install, package_dir, pkg.name, str(Path(args.install_base).absolute())]
+             + (["--merged"] if getattr(args, "merge_install", False) else [])),
+        )  # fmt: skip
         async with _one_at_a_time:
-            self.progress("espdock build")
-            completed = await run(self.context, argv, cwd=str(Path(pkg.path).resolve()))
-            if completed.returncode:
-                return completed.returncode
-            # colcon's --install-base and --merge-install decide where the firmware goes, its
-            # --build-base where the IDF build dir is shown.
-            self.progress("install")
-            argv = [
-                ESPDOCK_PYTHON,
-                "-m",
-                "espdock.firmware.colcon_install",
-                str(Path(pkg.path).resolve()),
-                str(pkg.name),
-            ]
-            argv += [str(Path(args.install_base).absolute()), str(Path(args.build_base).absolute())]
-            argv += ["--merged"] if getattr(args, "merge_install", False) else []
-            completed = await run(self.context, argv, cwd=str(Path(pkg.path).resolve()))
-        return completed.returncode
+            for name, argv in steps:
+                self.progress(name)
+                completed = await run(self.context, argv, cwd=package_dir)
+                if completed.returncode:
+                    return completed.returncode
+        return 0
 
 
 class EspIdfTestTask(TaskExtensionPoint):

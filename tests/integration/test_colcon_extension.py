@@ -3,6 +3,7 @@ colcon extension, building firmware packages through the IDF contract double."""
 
 from __future__ import annotations
 
+import importlib.util
 import os
 import shutil
 import subprocess
@@ -132,6 +133,54 @@ def test_merge_install_and_other_bases_put_the_firmware_where_the_ament_index_se
         cwd="/", env={**env, "PATH": path}, stdin=subprocess.DEVNULL, capture_output=True, text=True, check=False,
     )  # fmt: skip
     assert monitor.returncode == 2 and "the monitor needs a terminal" in monitor.stderr, monitor.stderr
+
+
+def clean_build_base(root: Path, env: dict[str, str], base: Path, package: str) -> None:
+    """`colcon clean packages` where colcon-clean is installed; else what it does, `rm -rf`."""
+    if (COLCON.parent / "colcon-clean").exists() or importlib.util.find_spec("colcon_clean") is not None:
+        cleaned = subprocess.run(
+            [str(COLCON), "clean", "packages", "--build-base", str(base), "--packages-select", package, "-y"],
+            cwd=root / "ws", env=env, capture_output=True, text=True, check=False,
+        )  # fmt: skip
+        assert cleaned.returncode == 0, cleaned.stdout + cleaned.stderr
+    else:
+        shutil.rmtree(base)
+
+
+def test_a_build_base_outside_the_workspace_holds_the_firmware_build_that_cleaning_it_removes(tmp_path, engine):
+    root, env = firmware_workspace(tmp_path, engine)
+    ws = root / "ws"
+    base = tmp_path / "elsewhere" / "build"
+    built = colcon(root, env, "build", "--packages-select", "camera_node", "--build-base", str(base))
+    assert built.returncode == 0, built.stdout[-3000:] + built.stderr[-3000:]
+    tree = base / "camera_node"
+    # The real build tree is where colcon says, not a link into the workspace.
+    assert not tree.is_symlink() and (tree / "flasher_args.json").is_file() and (tree / "sdkconfig").is_file()
+    # espdock's own build finds that tree (up to date: no second build in ws/build) and flashes it.
+    again = espdock("build", "--only", "firmware", "camera_node", cwd=root, env=env)
+    assert again.returncode == 0, again.stdout + again.stderr
+    assert "up to date" in again.stdout, again.stdout
+    assert (ws / "build" / "camera_node").resolve() == tree.resolve()
+    with emulated_board("esp32") as port:
+        flashed = espdock("flash", "camera_node", "--port", port, "--verify", cwd=root, env=env)
+    assert flashed.returncode == 0, flashed.stdout[-3000:] + flashed.stderr
+
+    clean_build_base(root, env, base, "camera_node")
+    assert not tree.exists()
+    rebuilt = espdock("build", "--only", "firmware", "camera_node", cwd=root, env=env)
+    assert rebuilt.returncode == 0, rebuilt.stdout + rebuilt.stderr
+    assert "up to date" not in rebuilt.stdout
+    assert (ws / "build" / "camera_node" / "flasher_args.json").is_file()
+    assert not (ws / "build" / "camera_node").is_symlink()
+
+    # Back to that build base: the tree moves there again with its sdkconfig (menuconfig's changes).
+    sdkconfig = ws / "build" / "camera_node" / "sdkconfig"
+    sdkconfig.write_text(sdkconfig.read_text().replace('NODE_NAME="esp32_camera_node"', 'NODE_NAME="x31b_cam"'))
+    built = colcon(root, env, "build", "--packages-select", "camera_node", "--build-base", str(base))
+    assert built.returncode == 0, built.stdout[-3000:] + built.stderr[-3000:]
+    assert (tree / "flasher_args.json").is_file() and not tree.is_symlink()
+    assert 'CONFIG_ESPDOCK_NODE_NAME="x31b_cam"' in (tree / "sdkconfig").read_text()
+    assert (ws / "build" / "camera_node").resolve() == tree.resolve()
 
 
 @pytest.mark.parametrize("which", ["venv-colcon", "debian-colcon"])

@@ -272,22 +272,44 @@ def wheel_inputs_digest() -> str:
     return digest.hexdigest()[:16]
 
 
+# Directories kept_in_temp handed to this process, each with a shared lock held until it exits.
+_IN_USE: dict[Path, int] = {}
+
+
 def kept_in_temp(name: str, key: str, make: Callable[[Path], None]) -> Path:
     """TMPDIR/NAME-KEY, a directory that outlives the run: made by MAKE (given the empty
-    directory) unless a complete one is there, after removing any NAME-* of another KEY.
-    Made under a lock, so pytest workers and concurrent runs wait for one another."""
+    directory) unless a complete one is there, after removing any NAME-* of another KEY that no
+    process uses. Made under a lock, so pytest workers and concurrent runs wait for one another;
+    a directory handed out stays locked (shared) until the process exits, so another checkout's
+    run with other inputs does not remove it mid-test."""
     tmp = Path(tempfile.gettempdir())
     place = tmp / f"{name}-{key}"
     with open(tmp / f"{name}.lock", "w") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)
         if not (place / "complete").is_file():
             for old in tmp.glob(f"{name}-*"):
-                if old.is_dir():
+                if old.is_dir() and old != place and not _in_use_elsewhere(old):
                     shutil.rmtree(old, ignore_errors=True)
+            shutil.rmtree(place, ignore_errors=True)  # an unfinished one: MAKE gets it empty
             place.mkdir()
             make(place)
             (place / "complete").touch()
+        if place not in _IN_USE:
+            _IN_USE[place] = os.open(place, os.O_RDONLY)
+            fcntl.flock(_IN_USE[place], fcntl.LOCK_SH)
     return place
+
+
+def _in_use_elsewhere(directory: Path) -> bool:
+    """Whether a process (this one included, through another lock) holds DIRECTORY's shared lock."""
+    fd = os.open(directory, os.O_RDONLY)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        return True
+    finally:
+        os.close(fd)  # releases the probe's own lock
+    return False
 
 
 @pytest.fixture(scope="session")

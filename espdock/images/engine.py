@@ -512,7 +512,7 @@ class Engine:
             raise ImageBuildError(
                 f"building {build.tag} from {build.dockerfile} (stage {build.target}) "
                 f"on the {self.info().name} failed:\n" + "\n".join(tail),
-                "Read the build output above; run with --verbose for all of it.",
+                _runtime_hint(str(error)) or "Read the build output above; run with --verbose for all of it.",
             )
 
     def _build_buildkit(self, build: ImageBuild) -> None:
@@ -791,8 +791,10 @@ class Engine:
                 "Look at the engine (is it overloaded or hung?), then build again.",
             ) from exc
         except docker.errors.APIError as exc:
+            explanation = str(exc.explanation or exc)
             raise ContainerError(
-                f"the {self.info().name} could not run a container of {spec.image}: {exc.explanation or exc}"
+                f"the {self.info().name} could not run a container of {spec.image}: {explanation}",
+                _runtime_hint(explanation),
             ) from exc
         finally:
             if not keep:
@@ -972,6 +974,18 @@ def _fetch(container: docker.models.containers.Container, fetch: Mapping[str, Pa
         with dest.open("wb") as out:
             for chunk in chunks:
                 out.write(chunk)
+
+
+def _runtime_hint(error: str) -> str | None:
+    """What to do when the engine's OCI runtime, not the build or the command, refused the container."""
+    if "cgroups in hybrid mode" in error:
+        # crun (Podman's default) refuses hosts that mount cgroup v1 controllers beside a cgroup2
+        # tree holding one; runc runs there, as it does under Docker.
+        return (
+            'crun cannot run containers on this host\'s hybrid cgroups: set runtime = "runc" in the [engine] '
+            "table of containers.conf (install runc if it is missing), restart the Podman service, then try again."
+        )
+    return None
 
 
 def _remove(container: docker.models.containers.Container, stop: bool = True) -> None:

@@ -29,7 +29,19 @@ from tests.integration.test_engines import edit_word, installed_word, once_works
 
 pytestmark = [pytest.mark.engine, pytest.mark.slow]
 
-ULIMITS = '[containers]\ndefault_ulimits = ["nofile=20000:20000", "nproc=32768:32768"]\n'
+
+def runtime_conf() -> str:
+    """containers.conf's [engine] table for this host's cgroups. With hybrid cgroups (v1
+    controllers, and a cgroup2 tree at /sys/fs/cgroup/unified holding one: hugetlb on some of
+    these machines), Podman's default runtime crun refuses every container ("cgroups in hybrid
+    mode not supported"); runc, which Debian's docker.io brings, runs them, as for Docker."""
+    unified = Path("/sys/fs/cgroup/unified/cgroup.controllers")
+    if unified.is_file() and unified.read_text().strip() and shutil.which("runc"):
+        return '[engine]\nruntime = "runc"\n'
+    return ""
+
+
+ULIMITS = '[containers]\ndefault_ulimits = ["nofile=20000:20000", "nproc=32768:32768"]\n' + runtime_conf()
 
 
 class PodmanService:
@@ -150,7 +162,7 @@ def test_podman_imports_a_root_filesystem_under_its_own_tag(podman, tmp_path):
 
 def test_a_container_podman_refuses_to_start_is_exit_9_naming_podman(podman, tmp_path):
     """Without the containers.conf override, rootful Podman asks for rlimits this machine refuses."""
-    strict = PodmanService(tmp_path, podman.runroot, conf="[containers]\n")
+    strict = PodmanService(tmp_path, podman.runroot, conf="[containers]\n" + runtime_conf())
     strict.start(podman.home)  # the same storage: the images are there
     try:
         root = once_workspace(tmp_path / "ws-root")
@@ -165,3 +177,22 @@ def test_a_container_podman_refuses_to_start_is_exit_9_naming_podman(podman, tmp
         assert "Traceback" not in result.stderr and "bug in espdock" not in result.stderr
     finally:
         strict.stop()
+
+
+def test_crun_refusing_hybrid_cgroups_is_a_clear_error_that_names_runc(podman, tmp_path):
+    """On a host whose cgroups crun refuses, a build on Podman's default runtime tells the user what
+    to set instead of a bare OCI error."""
+    if not runtime_conf():
+        pytest.skip("this host's cgroups are not hybrid: crun runs Podman's containers here")
+    crun = PodmanService(tmp_path, podman.runroot, conf=ULIMITS.replace(runtime_conf(), ""))
+    crun.start(podman.home)  # the same storage: the images are there
+    try:
+        root = once_workspace(tmp_path / "ws-root")
+        small_ros_image(root, python_workspace(tmp_path / "seed"))
+        result = espdock("build", cwd=root, env=crun.env)
+        assert result.returncode != 0, result.stdout + result.stderr
+        assert "cgroups in hybrid mode" in result.stderr, result.stderr
+        assert 'set runtime = "runc"' in " ".join(result.stderr.split()), result.stderr
+        assert "Traceback" not in result.stderr and "bug in espdock" not in result.stderr
+    finally:
+        crun.stop()

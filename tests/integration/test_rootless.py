@@ -24,6 +24,7 @@ import pytest
 
 from tests.conftest import as_user, espdock, owners, python_workspace, ros_build_tag, ros_runtime_tag
 from tests.integration.test_engines import edit_word, once_workspace
+from tests.integration.test_podman import runtime_conf
 
 pytestmark = [pytest.mark.engine, pytest.mark.slow]
 
@@ -136,6 +137,11 @@ class RootlessPodman(RootlessDocker):
             pytest.skip("podman or newuidmap is not installed here: tests/install-system-deps.sh installs them")
         # Podman 4.3 may settle on vfs for a rootless store, which copies the whole image for each
         # container (a minute each for the ROS image here); the kernel's own overlay works rootless.
+        engine_conf = self.home / ".config/containers/containers.conf"
+        engine_conf.parent.mkdir(parents=True, exist_ok=True)
+        engine_conf.write_text(runtime_conf())
+        for path in (engine_conf.parent.parent, engine_conf.parent, engine_conf):
+            os.chown(path, self.user.pw_uid, self.user.pw_gid)
         conf = self.home / ".config/containers/storage.conf"
         if not conf.is_file() or conf.read_text() != STORAGE_CONF:
             conf.parent.mkdir(parents=True, exist_ok=True)

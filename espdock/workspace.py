@@ -441,6 +441,14 @@ def write_atomically(path: Path, text: str) -> None:
         tmp.unlink(missing_ok=True)
 
 
+def give_tree(root: Path, owner: tuple[int, int]) -> None:
+    """Hand ROOT and everything under it to OWNER (links themselves, never what they point at)."""
+    for dirpath, dirnames, filenames in os.walk(root):
+        for name in (*dirnames, *filenames):
+            os.lchown(os.path.join(dirpath, name), *owner)
+    os.lchown(root, *owner)
+
+
 @contextmanager
 def workspace_lock(workspace: Workspace) -> Iterator[None]:
     """Hold an exclusive lock on the workspace for the duration of a build; a second build in the

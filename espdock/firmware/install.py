@@ -18,6 +18,7 @@ from pathlib import Path
 from espdock import durable
 from espdock.errors import BuildFailed
 from espdock.layout import FIRMWARE_DIR
+from espdock.workspace import give_tree
 
 
 def firmware_files(build_dir: Path) -> list[str]:
@@ -87,7 +88,7 @@ def install_firmware(
     _write_colcon_metadata(package, manifest, prefix, run_depends)
     write_package_commands(package, prefix, workspace_root or install_base.parent)
     if owner is not None:
-        _chown_tree(prefix, *owner)
+        give_tree(prefix, owner)
     return share / FIRMWARE_DIR
 
 
@@ -159,10 +160,3 @@ def _write_colcon_metadata(package: str, manifest: Path, prefix: Path, run_depen
     (share / "package.dsv").write_text(
         f"source;share/{package}/hook/ament_prefix_path.dsv\nsource;share/{package}/hook/ament_prefix_path.sh\n"
     )
-
-
-def _chown_tree(root: Path, uid: int, gid: int) -> None:
-    for dirpath, dirnames, filenames in os.walk(root):
-        for name in (*dirnames, *filenames):
-            os.lchown(os.path.join(dirpath, name), uid, gid)
-    os.lchown(root, uid, gid)

@@ -31,7 +31,7 @@ from espdock.build.stamps import source_files
 from espdock.build.steps import LABEL_WORKSPACE
 from espdock.images.engine import Engine, Mount
 from espdock.layout import WORKSPACE_MOUNT
-from espdock.workspace import Workspace
+from espdock.workspace import Workspace, give_tree
 
 LABEL_VOLUME = "io.espdock.volume"
 # Under the colcon root's build/ on the host: what the volume holds of the sources.
@@ -243,9 +243,8 @@ def _unpacked(archive: Path, beside: Path, owner: tuple[int, int]) -> Path:
             # "tar": no absolute names or ones leading out; links may lead anywhere (a symlink
             # install's point at the build dirs), as colcon made them.
             tar.extractall(staging, filter="tar")
-        for dirpath, dirnames, filenames in os.walk(staging):
-            for name in (*dirnames, *filenames):
-                _give(Path(dirpath, name), owner)
+        if os.geteuid() == 0:
+            give_tree(staging, owner)
     except BaseException:
         shutil.rmtree(staging, ignore_errors=True)
         raise

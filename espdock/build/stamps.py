@@ -34,19 +34,36 @@ def tree_digest(*roots: Path) -> str:
 def listing_digest(root: Path, ignore: Collection[str] = ()) -> str | None:
     """sha256 over paths, sizes and modification times under ROOT (symlinks as their targets'
     names, not followed) but for the files IGNORE names directly in ROOT; None when ROOT does not
-    exist. Cheap: reads no file contents."""
+    exist. Cheap: reads no file contents, and stats each entry once (every build and test checks
+    the whole install tree this way)."""
     if not root.exists() and not root.is_symlink():
         return None
     digest = hashlib.sha256()
-    for dirpath, dirnames, filenames in os.walk(root):
-        dirnames.sort()
-        for name in sorted(filenames + [d for d in dirnames if (Path(dirpath) / d).is_symlink()]):
-            path = Path(dirpath) / name
-            if name in ignore and dirpath == str(root):
+    # Depth first, each directory's entries by name, as os.walk with sorted names gives them:
+    # the digests recorded by earlier espdock versions stay valid.
+    pending = [("", os.fspath(root))]
+    while pending:
+        prefix, directory = pending.pop()
+        try:
+            with os.scandir(directory) as scan:
+                entries = sorted(scan, key=lambda entry: entry.name)
+        except OSError:
+            continue
+        subdirs = []
+        for entry in entries:
+            try:
+                linked = entry.is_symlink()
+                if not linked and entry.is_dir():
+                    subdirs.append((prefix + entry.name + "/", entry.path))
+                    continue
+                if not prefix and entry.name in ignore:
+                    continue
+                info = entry.stat(follow_symlinks=False)
+                target = os.readlink(entry.path) if linked else ""
+            except OSError:
                 continue
-            info = path.lstat()
-            target = os.readlink(path) if path.is_symlink() else ""
-            digest.update(f"{path.relative_to(root)}\0{info.st_size}\0{info.st_mtime_ns}\0{target}\n".encode())
+            digest.update(f"{prefix}{entry.name}\0{info.st_size}\0{info.st_mtime_ns}\0{target}\n".encode())
+        pending.extend(reversed(subdirs))
     return digest.hexdigest()
 
 

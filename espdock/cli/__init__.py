@@ -1,36 +1,51 @@
 """The espdock command line: parses, calls the library, maps known errors to exit codes.
 
-Each command lives with its kind: workspace.py (build, lock, verify, new, init, setup, list),
-testing.py (test), firmware.py (idf, micro-ros, flash, provision, monitor), nodes.py (compose,
-run, shell), prune.py (prune, imported by workspace.py: a build records and prunes) and agent.py
-(the micro-ROS agent). Importing them registers them on the app, in the order `espdock --help`
-lists them."""
+Each command lives with its kind: workspace.py (build, lock, verify, new, init, setup, list,
+colcon-extension), testing.py (test), firmware.py (idf, micro-ros, flash, provision, monitor),
+nodes.py (compose, run, shell), prune.py (prune, imported by workspace.py: a build records and
+prunes) and agent.py (the micro-ROS agent). Importing one registers its commands on the app.
+
+`espdock CMD` imports only CMD's module: Typer makes a click command of every registered
+command at each start, and the modules import the firmware, lock and image code the others
+need; together a fifth of a second before anything runs, which a command as quick as a
+re-run of `espdock test` feels. Anything else (`--help`, a name espdock does not know, the
+docs' reference) registers them all, in the order `espdock --help` lists them."""
 
 from __future__ import annotations
 
+import importlib
 import sys
+from collections.abc import Sequence
 from typing import NoReturn
+
+import typer
 
 from espdock import interrupts
 from espdock.cli.core import INTERRUPTED, app, command, fail
 from espdock.errors import Interrupted
 
-# isort: split
-from espdock.cli import workspace  # noqa: F401
+MODULES = ("workspace", "testing", "firmware", "nodes", "agent")
+# Which module registers each top-level command (tests/unit/test_cli.py checks it against them).
+COMMANDS = {
+    **dict.fromkeys(("build", "lock", "verify", "new", "init", "setup", "list", "colcon-extension"), "workspace"),
+    "prune": "prune",
+    "test": "testing",
+    **dict.fromkeys(("idf", "micro-ros", "flash", "provision", "monitor"), "firmware"),
+    **dict.fromkeys(("compose", "run", "shell"), "nodes"),
+    "agent": "agent",
+}
 
-# isort: split
-from espdock.cli import testing  # noqa: F401
+__all__ = ["app", "command", "main", "register"]
 
-# isort: split
-from espdock.cli import firmware  # noqa: F401
 
-# isort: split
-from espdock.cli import nodes  # noqa: F401
-
-# isort: split
-from espdock.cli import agent  # noqa: F401
-
-__all__ = ["app", "command", "main"]
+def register(argv: Sequence[str] | None = None) -> typer.Typer:
+    """The app with the command ARGV names registered, or, ARGV None or naming none espdock
+    knows, every command."""
+    # The first word that is not an option is the command: the app's own options are all flags.
+    name = next((arg for arg in argv or () if not arg.startswith("-")), None)
+    for module in (COMMANDS[name],) if name in COMMANDS and "--help" not in argv[: argv.index(name)] else MODULES:
+        importlib.import_module(f"espdock.cli.{module}")
+    return app
 
 
 def main() -> NoReturn:
@@ -38,6 +53,7 @@ def main() -> NoReturn:
     interrupts.install()
     try:
         try:
+            register(sys.argv[1:])
             app()
         except KeyboardInterrupt:  # in Typer's own code, before or after the command
             fail(INTERRUPTED)

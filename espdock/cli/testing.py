@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+from collections.abc import Callable
 from pathlib import Path
 from typing import Annotated
 
@@ -77,15 +78,17 @@ def test(
     found: dict[str, PackageResults] = {}
     logs: dict[str, Path] = {}
     code = 0
+    reporter = Reporter(console, verbose=verbose, timestamps=timestamps)
+    say = reporter.line
     if ros:
-        found, code = _test_ros(ws, config, every, ros, colcon_args, locked, official, verbose, timestamps)
+        found, code = _test_ros(ws, config, every, ros, colcon_args, locked, official, reporter)
         logs = {name: ws.ws_dir / "log" / "latest_test" / name for name in found}
     host_base = ws.ws_dir / HOST_TESTS_BASE
     for package in firmware:
         if host_tests_dir(package.path) is None:
             continue
-        console.print(Text(f"host tests: {package.name}", style="bold"))
-        failed = run_host_tests(package.name, package.path, host_base, lambda line: console.print(Text(line)))
+        say(Text(f"host tests: {package.name}", style="bold"))
+        failed = run_host_tests(package.name, package.path, host_base, say)
         if os.geteuid() == 0:
             _give_back(host_base, invoking_user(os.environ, ws.root))
         if failed:
@@ -96,15 +99,15 @@ def test(
         found |= read_results(host_base, [package.name])
         logs[package.name] = host_base / package.name / "host_tests" / "Testing" / "Temporary" / "LastTest.log"
     if found:
-        _render(found, ws.root, logs)
-    _say_firmware(firmware)
+        _render(found, ws.root, logs, say)
+    _say_firmware(firmware, say)
     if results is not None:
         on_host = {p.name for p in firmware}
         written = collect_results(
             {n: r for n, r in found.items() if n not in on_host}, ws.ws_dir / ROS_BUILD_BASE, results
         )
         written += collect_results({n: r for n, r in found.items() if n in on_host}, host_base, results)
-        console.print(f"{len(written)} result file(s) copied to {results}")
+        say(f"{len(written)} result file(s) copied to {results}")
     failing = [r for r in found.values() if not r.ok]
     if failing:
         raise TestsFailed(
@@ -116,12 +119,11 @@ def test(
         raise TestsFailed(f"colcon test failed (exit code {code})", "Its output is above.")
 
 
-def _test_ros(ws, config, every, ros, colcon_args, locked, official, verbose, timestamps):
+def _test_ros(ws, config, every, ros, colcon_args, locked, official, reporter: Reporter):
     """Build ROS packages with their tests and run colcon test: their results and colcon's exit code."""
     from espdock.images import bootstrap
 
     plan, step = plan_tests(ws, config, every, ros, colcon_args, locked, official, env=os.environ, notify=notify)
-    reporter = Reporter(console, verbose=verbose, timestamps=timestamps)
     engine = bootstrap.ensure_engine(os.environ, notify)
     runner = Runner(engine, config, os.environ, reporter, invoking_user(os.environ, ws.root))
     try:
@@ -129,8 +131,8 @@ def _test_ros(ws, config, every, ros, colcon_args, locked, official, verbose, ti
     finally:
         reporter.close()
     record_images(ws, runner)
-    console.print(Text(f"colcon test: {' '.join(step.packages)}", style="bold"))
-    return runner.ros.test_packages(ws, step, lambda line: reporter.console.print(Text(line), soft_wrap=True))
+    reporter.line(Text(f"colcon test: {' '.join(step.packages)}", style="bold"))
+    return runner.ros.test_packages(ws, step, reporter.line)
 
 
 def _give_back(base: Path, owner: tuple[int, int]) -> None:
@@ -139,37 +141,39 @@ def _give_back(base: Path, owner: tuple[int, int]) -> None:
         os.chown(path, *owner, follow_symlinks=False)
 
 
-def _render(found: dict[str, PackageResults], root: Path, logs: dict[str, Path]) -> None:
+def _render(
+    found: dict[str, PackageResults], root: Path, logs: dict[str, Path], say: Callable[[str | Text], None]
+) -> None:
     total = PackageResults("")
-    console.print(Text("test results", style="bold"))
+    say(Text("test results", style="bold"))
     for result in found.values():
         colour = "green" if result.ok and result.tests else "red" if not result.ok else "yellow"
         counts = (
             f"{result.tests} tests: {result.passed} passed, {result.failed} failed, "
             f"{result.errored} errored, {result.skipped} skipped"
         )
-        console.print(Text.assemble((f"  {result.package}", "bold"), "  ", (counts, colour)))
+        say(Text.assemble((f"  {result.package}", "bold"), "  ", (counts, colour)))
         for name in result.failing:
-            console.print(Text(f"    failed: {name}", style="red"))
-        console.print(Text(f"    log: {logs[result.package].relative_to(root)}", style="dim"))
+            say(Text(f"    failed: {name}", style="red"))
+        say(Text(f"    log: {logs[result.package].relative_to(root)}", style="dim"))
         for path in result.files:
-            console.print(Text(f"    result: {path.relative_to(root)}", style="dim"))
+            say(Text(f"    result: {path.relative_to(root)}", style="dim"))
         if result.ctest_file is not None:
             where = result.ctest_file.relative_to(root)
-            console.print(Text(f"    ctest: {where} ({result.ctest_tests} of the tests)", style="dim"))
+            say(Text(f"    ctest: {where} ({result.ctest_tests} of the tests)", style="dim"))
         if not result.files and result.ctest_file is None:
-            console.print(Text("    no result files: the package has no tests colcon could find", style="dim"))
+            say(Text("    no result files: the package has no tests colcon could find", style="dim"))
         total.tests += result.tests
         total.failed += result.failed
         total.errored += result.errored
         total.skipped += result.skipped
-    console.print(
+    say(
         f"Summary: {total.tests} tests, {total.passed} passed, {total.failed} failed, "
         f"{total.errored} errored, {total.skipped} skipped"
     )
 
 
-def _say_firmware(packages: list[Package]) -> None:
+def _say_firmware(packages: list[Package], say: Callable[[str | Text], None]) -> None:
     for package in packages:
         host = host_tests_dir(package.path)
         said = (
@@ -178,4 +182,4 @@ def _say_firmware(packages: list[Package]) -> None:
             if host is not None
             else f"it declares no host tests ({HOST_TESTS_TAG})"
         )
-        console.print(Text(f"  {package.name}: firmware package, nothing to run in the ROS image; {said}"))
+        say(Text(f"  {package.name}: firmware package, nothing to run in the ROS image; {said}"))

@@ -44,6 +44,10 @@ class Reporter:
             text = Text.assemble((time.strftime("%H:%M:%S ", time.gmtime()), "dim"), text)
         self.console.print(text, **options)
 
+    def line(self, text: str | Text) -> None:
+        """Print TEXT (a tool's output line as it is, or espdock's own), timestamped when asked."""
+        self._print(Text(text) if isinstance(text, str) else text, soft_wrap=True)
+
     def __call__(self, event: Event) -> None:
         match event:
             case StepStarted():
@@ -58,7 +62,7 @@ class Reporter:
                 if self._status is not None:
                     self._status.update(Text.assemble((event.step, "bold"), "  ", (event.line[:100], "dim")))
             case StepOutput():
-                self._print(Text(event.line), soft_wrap=True)
+                self.line(event.line)
             case StepFinished():
                 if self._status is not None:
                     self._status.stop()

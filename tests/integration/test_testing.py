@@ -176,6 +176,9 @@ def test_firmware_host_tests_run_and_count_in_the_summary_exit_code_and_results(
     assert (suite.tag, suite.get("tests"), suite.get("failures")) == ("testsuite", "3", "1")
 
     host.write_text(passing)
-    again = espdock("test", "blink_fw", cwd=root)
+    again = espdock("test", "blink_fw", "--timestamps", cwd=root)
     assert again.returncode == 0, again.stdout[-3000:] + again.stderr
     assert "Summary: 2 tests, 2 passed, 0 failed, 0 errored, 0 skipped" in again.stdout
+    # For CI logs every line is timed: the tests' own output and the summary too.
+    untimed = [line for line in again.stdout.splitlines() if not re.match(r"\d\d:\d\d:\d\d ", line)]
+    assert not untimed, untimed[:5]

@@ -269,3 +269,37 @@ def test_idf_fullclean_is_espdock_s_reset_that_keeps_the_sdkconfig(tmp_path):
     assert "espdock's reset" in result.stdout
     assert sorted(p.name for p in build.iterdir()) == ["sdkconfig"]
     assert (build / "sdkconfig").read_text() == "CONFIG_FREERTOS_HZ=1000\n"
+
+
+def test_each_command_is_registered_by_the_module_espdock_imports_for_it():
+    # `espdock CMD` imports only COMMANDS[CMD]: a command missing there, or registered by
+    # another module, would be "No such command" for the user.
+    from espdock import cli
+
+    app = cli.register()
+    registered = {c.name or c.callback.__name__: c.callback.__module__ for c in app.registered_commands}
+    for group in app.registered_groups:
+        (module,) = {c.callback.__module__ for c in group.typer_instance.registered_commands}
+        registered[group.name] = module
+    assert {name: module.rsplit(".", 1)[1] for name, module in registered.items()} == cli.COMMANDS
+
+
+def test_a_command_starts_without_the_other_commands_modules(tmp_path):
+    import subprocess
+    import sys
+
+    script = (
+        "import sys\nfrom espdock import cli\ncli.register(sys.argv[1:])\n"
+        "print(' '.join(sorted(m for m in sys.modules if m.startswith('espdock.cli.'))))"
+    )
+    loaded = subprocess.run(
+        [sys.executable, "-c", script, "test", "--help"], capture_output=True, text=True, check=True
+    )
+    assert loaded.stdout.split() == ["espdock.cli.core", "espdock.cli.prune", "espdock.cli.testing", "espdock.cli.ui"]
+    everything = subprocess.run(
+        [sys.executable, "-c", script, "--help", "test"], capture_output=True, text=True, check=True
+    )
+    assert "espdock.cli.firmware" in everything.stdout.split()
+    # And the command itself works from its own module alone.
+    result = espdock("flash", "--help", cwd=tmp_path, env=NO_ENGINE)
+    assert result.returncode == 0 and "--port" in result.stdout, result.stderr

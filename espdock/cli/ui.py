@@ -6,6 +6,7 @@ import time
 from typing import assert_never
 
 from rich.console import Console
+from rich.control import strip_control_codes
 from rich.status import Status
 from rich.table import Table
 from rich.text import Text
@@ -46,6 +47,14 @@ class Reporter:
 
     def line(self, text: str | Text) -> None:
         """Print TEXT (a tool's output line as it is, or espdock's own), timestamped when asked."""
+        if isinstance(text, str) and self._status is None and not self.console.is_terminal:
+            # A tool's output into a log or pipe, where rich has nothing to style: written as
+            # rich would (control codes stripped, tabs expanded, no wrapping) at a twentieth of
+            # its cost per line, which a test suite's thousands of lines add up to seconds of.
+            stamp = time.strftime("%H:%M:%S ", time.gmtime()) if self.timestamps else ""
+            self.console.file.write(f"{stamp}{strip_control_codes(text).expandtabs(self.console.tab_size)}\n")
+            self.console.file.flush()
+            return
         self._print(Text(text) if isinstance(text, str) else text, soft_wrap=True)
 
     def __call__(self, event: Event) -> None:

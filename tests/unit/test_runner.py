@@ -253,6 +253,23 @@ def test_without_a_terminal_every_line_is_printed_and_timestamps_are_optional():
     assert lines and all(re.match(r"\d\d:\d\d:\d\d ", line) for line in lines), lines
 
 
+def test_a_tool_s_output_reaches_a_log_exactly_as_rich_prints_it():
+    import io
+
+    from rich.console import Console
+    from rich.text import Text
+
+    from espdock.cli.ui import Reporter
+
+    lines = ["plain", "a\rcarriage return", "x" * 300, "[bold]not markup[/bold]", "tab\there", "bell\x07", "ünï ✓"]
+    fast, ref = io.StringIO(), io.StringIO()
+    reporter, console = Reporter(Console(file=fast, width=80)), Console(file=ref, width=80)
+    for line in lines:
+        reporter.line(line)
+        console.print(Text(line), soft_wrap=True)
+    assert fast.getvalue() == ref.getvalue()
+
+
 def test_a_built_image_records_its_debian_packages_in_labels(ws):
     def dpkg(spec, on_line):
         if spec.argv[0] == "dpkg-query":

@@ -45,22 +45,41 @@ def engine():
 
 
 def copy_workspace(
-    dest: Path, packages: tuple[str, ...] = ("custom_interface",), test_packages: tuple[str, ...] = ()
+    dest: Path,
+    packages: tuple[str, ...] = ("custom_interface",),
+    test_packages: tuple[str, ...] = (),
+    runtime_image: bool = True,
 ) -> Path:
     """A fresh workspace at DEST holding this repo's image inputs, the named ws/src PACKAGES and the
-    named tests/ros_packages TEST_PACKAGES."""
+    named tests/ros_packages TEST_PACKAGES. RUNTIME_IMAGE: keep the repo's setting that every
+    build makes the runtime image (off, builds skip it: 3 s each where a test builds a dozen
+    times and never runs it)."""
     dest.mkdir(parents=True, exist_ok=True)
     for name in ("espdock.toml", "Dockerfile.ros", ".dockerignore"):
         shutil.copy2(REPO / name, dest / name)
     # Not the demo's name: a test's runtime image must never replace espdock/demo:latest.
+    dropped = ("name =",) if runtime_image else ("name =", "runtime_image =")
     config = dest / "espdock.toml"
-    config.write_text("".join(line for line in config.read_text().splitlines(True) if not line.startswith("name =")))
+    config.write_text("".join(line for line in config.read_text().splitlines(True) if not line.startswith(dropped)))
     shutil.copytree(REPO / "docker", dest / "docker")
     (dest / "ws" / "src").mkdir(parents=True)
     for package in packages:
         shutil.copytree(REPO / "ws" / "src" / package, dest / "ws" / "src" / package)
     for package in test_packages:
         shutil.copytree(REPO / "tests" / "ros_packages" / package, dest / "ws" / "src" / package)
+    return dest
+
+
+def message_package(dest: Path, name: str = "custom_interface") -> Path:
+    """This repository's custom_interface at DEST, named NAME, with its message and without its
+    two services: for tests of where a workspace's interfaces get built, installed and used,
+    not of rosidl, which makes six more messages of the services (request, response and event
+    each) and takes about twice as long with them."""
+    shutil.copytree(REPO / "ws/src/custom_interface", dest, ignore=shutil.ignore_patterns("srv"))
+    cmake = dest / "CMakeLists.txt"
+    cmake.write_text("".join(line for line in cmake.read_text().splitlines(True) if '"srv/' not in line))
+    for path in (dest / "package.xml", cmake):
+        path.write_text(path.read_text().replace("custom_interface", name))
     return dest
 
 

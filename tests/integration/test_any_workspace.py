@@ -10,7 +10,6 @@ from __future__ import annotations
 import grp
 import json
 import os
-import shutil
 import subprocess
 from pathlib import Path
 
@@ -18,7 +17,7 @@ import pytest
 
 from espdock.config import Config, resolve_ca_bundle
 from espdock.layout import firmware_install_dir
-from tests.conftest import REPO, as_user, espdock, owners, user_env
+from tests.conftest import REPO, as_user, espdock, message_package, owners, user_env
 from tests.idf_contract_double.build import use_double
 
 pytestmark = [pytest.mark.engine, pytest.mark.slow]
@@ -71,7 +70,7 @@ def test_a_new_workspace_from_init_to_installed_firmware(shared_dir, run_as_user
     assert init.returncode == 0, init.stdout + init.stderr
     root = parent / "myrobot"
     assert sorted(p.name for p in root.iterdir()) == ["compose.yaml", "espdock.toml", "src"]
-    shutil.copytree(REPO / "ws/src/custom_interface", root / "src/custom_interface")
+    message_package(root / "src/custom_interface")
     subprocess.run(["chown", "-R", f"{USER_UID}:{USER_UID}", str(root / "src")], check=True)
     new = run_as_user("new", "my_board", "--depends", "custom_interface", cwd=root)
     assert new.returncode == 0, new.stdout + new.stderr
@@ -91,10 +90,7 @@ def test_a_new_workspace_from_init_to_installed_firmware(shared_dir, run_as_user
 def test_an_existing_colcon_workspace_with_firmware_deep_in_src(shared_dir, run_as_user, double_for, engine):
     root = shared_dir / "ros2_ws"
     (root / "src").mkdir(parents=True)
-    shutil.copytree(REPO / "ws/src/custom_interface", root / "src/interfaces/my_msgs")
-    for path in (root / "src/interfaces/my_msgs").rglob("*"):  # the same interfaces, renamed
-        if path.is_file():
-            path.write_text(path.read_text().replace("custom_interface", "my_msgs"))
+    message_package(root / "src/interfaces/my_msgs", "my_msgs")
     py = root / "src/my_py"
     (py / "resource").mkdir(parents=True)
     (py / "my_py").mkdir()

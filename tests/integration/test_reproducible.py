@@ -36,15 +36,18 @@ def git(*args: str, cwd: Path) -> str:
 
 
 def write_interface_package(src: Path) -> None:
-    """An interface package of one message: rosidl's generators and the C and C++ compilers make
-    its libraries as they do a bigger one's, in a fraction of the CPU time (the suite is CPU-bound)."""
+    """An interface package of one message and a service that answers with it (the includes of
+    such a service's type description rosidl writes in set order): its libraries come from the
+    same generators and compilers as a bigger one's, in a fraction of the CPU time."""
     package = src / "beacon_interface"
     (package / "msg").mkdir(parents=True)
+    (package / "srv").mkdir()
     (package / "msg/Beacon.msg").write_text("string text\nuint32 count\n")
+    (package / "srv/Ping.srv").write_text("string text\n---\nBeacon beacon\n")
     (package / "CMakeLists.txt").write_text(
         "cmake_minimum_required(VERSION 3.16)\nproject(beacon_interface)\n"
         "find_package(ament_cmake REQUIRED)\nfind_package(rosidl_default_generators REQUIRED)\n"
-        'rosidl_generate_interfaces(${PROJECT_NAME} "msg/Beacon.msg")\n'
+        'rosidl_generate_interfaces(${PROJECT_NAME} "msg/Beacon.msg" "srv/Ping.srv")\n'
         "ament_export_dependencies(rosidl_default_runtime)\nament_package()\n"
     )
     (package / "package.xml").write_text(
@@ -63,7 +66,7 @@ def commit(tmp_path_factory, engine) -> tuple[Path, dict[str, str]]:
     """A git repository holding one commit of a workspace: interfaces, a Python package, firmware.
 
     One of each kind, each small: the LED strip firmware (the camera's needs a library with
-    the demo's interfaces compiled in), a one-message interface package, beacon_nodes."""
+    the demo's interfaces compiled in), an interface package of a message and a service, beacon_nodes."""
     origin = copy_workspace(tmp_path_factory.mktemp("origin") / "repo", (), ("beacon_nodes",))
     write_interface_package(origin / "ws/src")
     shutil.copy2(REPO / "Dockerfile.idf", origin / "Dockerfile.idf")

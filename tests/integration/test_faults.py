@@ -182,9 +182,16 @@ class PrivateEngine:
         assert save.returncode == 0 and loaded.returncode == 0, loaded.stderr
 
     def seed(self, data_root: Path) -> None:
-        """Start from a copy of DATA_ROOT, a stopped engine's data root (before start())."""
-        (self.home / "data").mkdir(exist_ok=True)
-        subprocess.run(["cp", "-a", f"{data_root}/.", str(self.home / "data")], check=True)
+        """Start from a copy of DATA_ROOT, a stopped engine's data root (before start()).
+
+        The copy goes to a tmpfs unless the test mounted a filesystem there itself: a gigabyte and
+        some 40 000 files, which on the shared disk took 25 s to copy and as long to remove again
+        when other tests kept it busy; in memory both take a second or two (dropped by umount)."""
+        data = self.home / "data"
+        data.mkdir(exist_ok=True)
+        if not os.path.ismount(data):
+            mount_tmpfs(data, "8g")  # an upper bound: a tmpfs takes only what is written to it
+        subprocess.run(["cp", "-a", f"{data_root}/.", str(data)], check=True)
 
     def containers(self, root: Path) -> list[str]:
         listed = self.docker("ps", "-aq", "--filter", f"label=io.espdock.workspace={root}")

@@ -15,7 +15,8 @@ import pytest
 from espdock.build.steps import LABEL_KEY
 from espdock.images.engine import Engine
 from espdock.images.prune import Record, read_records
-from tests.conftest import espdock, python_workspace
+from tests.conftest import copy_workspace, espdock
+from tests.integration.test_faults import add_package
 
 pytestmark = [pytest.mark.engine, pytest.mark.slow]
 
@@ -46,7 +47,10 @@ def test_prune_keeps_what_is_used_and_removes_the_rest(engine, tmp_path):
     state = tmp_path / "state"
     env = {"ESPDOCK_STATE_DIR": str(state)}
     first, second = tmp_path / "first", tmp_path / "second"
-    python_workspace(first)
+    # One plain CMake package, no Python and no compiler: prune is about the images, and each of
+    # the test's five colcon builds then takes a second, not beacon_nodes' several.
+    copy_workspace(first, packages=())
+    add_package(first, "prune_pkg", "install(FILES package.xml DESTINATION share/${PROJECT_NAME})\n")
     (first / "espdock.toml").write_text(f'[espdock]\nname = "prune-a-{run}"\nruntime_image = true\n')
     try:
         for number in (1, 2, 3):

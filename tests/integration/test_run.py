@@ -3,11 +3,14 @@ Python nodes written for these tests (tests/ros_packages/beacon_nodes)."""
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import random
+import signal
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -41,6 +44,27 @@ def no_containers_left(engine, root: Path) -> list[str]:
     while (left := leftover_containers(engine, root)) and time.monotonic() < deadline:
         time.sleep(0.2)
     return left
+
+
+def logs_show(argv: list[str], cwd: Path, text: str, timeout: float = 90) -> bool:
+    """Whether ARGV (a `compose logs -f`) prints a line with TEXT within TIMEOUT: one follower
+    that sees the line as it comes, not a `compose logs` started every second."""
+    with subprocess.Popen(argv, cwd=cwd, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
+                          stderr=subprocess.STDOUT, text=True, start_new_session=True) as follower:  # fmt: skip
+        # Its whole process group: espdock's Compose holds the pipe open as long as it lives.
+        timer = threading.Timer(timeout, os.killpg, (follower.pid, signal.SIGKILL))
+        timer.start()
+        try:
+            assert follower.stdout is not None
+            return any(text in line for line in follower.stdout)
+        finally:
+            timer.cancel()
+            with contextlib.suppress(ProcessLookupError):
+                os.killpg(follower.pid, signal.SIGINT)  # Ctrl-C, as a user ends it
+                try:
+                    follower.wait(timeout=30)
+                except subprocess.TimeoutExpired:
+                    os.killpg(follower.pid, signal.SIGKILL)
 
 
 def test_run_prints_the_nodes_output_and_ctrl_c_ends_it_with_130_leaving_no_container(engine, node_workspace):
@@ -119,12 +143,9 @@ def test_init_writes_a_starter_compose_file_whose_services_start_and_talk(engine
     try:
         up = compose("up", "-d", "beacon", "beacon_log")
         assert up.returncode == 0, up.stderr
-        deadline = time.monotonic() + 90
-        logs = ""
-        while "heard: beacon" not in logs and time.monotonic() < deadline:
-            time.sleep(1)
-            logs = compose("logs", "--no-color", "beacon_log").stdout
-        assert "heard: beacon" in logs, compose("logs", "--no-color").stdout[-3000:]
+        heard = logs_show(["docker", "compose", "-p", project, "logs", "-f", "--no-color", "beacon_log"],
+                          node_workspace, "heard: beacon")  # fmt: skip
+        assert heard, compose("logs", "--no-color").stdout[-3000:]
     finally:
         compose("--profile", "*", "down", "-v", "--remove-orphans", "-t", "3")
 
@@ -241,12 +262,8 @@ def test_build_makes_no_runtime_image_run_and_compose_make_it_from_the_last_buil
         # Recorded as a build's images are: `espdock prune` knows it, and the test run removes it.
         (record,) = [r for r in read_records(state_dir(os.environ)) if r.root == str(root)]
         assert any(tag.startswith(f"espdock/{name}:") for tag in record.current), record
-        logs = ""
-        deadline = time.monotonic() + 90
-        while "heard: beacon" not in logs and time.monotonic() < deadline:
-            time.sleep(1)
-            logs = espdock("compose", "-p", project, "logs", "--no-color", "beacon_log", cwd=root).stdout
-        assert "heard: beacon" in logs
+        follow = [sys.executable, "-m", "espdock", "compose", "-p", project, "logs", "-f", "--no-color", "beacon_log"]
+        assert logs_show(follow, root, "heard: beacon"), "the compose services did not talk"
         # An edit and a build: the next run notices install/ changed and makes the image again.
         node = root / "ws/src/beacon_nodes/beacon_nodes/beacon.py"
         node.write_text(node.read_text().replace('info("beacon up")', 'info("beacon up, edited")'))

@@ -29,7 +29,7 @@ from espdock.errors import ConfigError
 from espdock.firmware import transport
 from espdock.firmware.flashing import check_port, flash_package, idf_port, parse_port, read_flasher_args
 from espdock.firmware.pins import pin_idf_image, read_sources, write_pins
-from espdock.firmware.plan import workspace_micro_ros_images
+from espdock.firmware.plan import images_to_rebuild, workspace_micro_ros_images
 from espdock.firmware.provision import (
     check_settings,
     network_settings,
@@ -119,6 +119,9 @@ def micro_ros_status(
 @micro_ros.command("rebuild")
 @command
 def micro_ros_rebuild(
+    packages: Annotated[
+        list[str] | None, typer.Argument(help="Firmware packages whose images to rebuild (default: all).")
+    ] = None,
     target: Annotated[
         str | None, typer.Option(help="Chip for every firmware package (overrides each one's own).")
     ] = None,
@@ -126,10 +129,10 @@ def micro_ros_rebuild(
 ) -> None:
     """Rebuild the micro-ROS images for the current inputs from scratch (no build cache)."""
     ws, config, _, specs = _micro_ros_specs(workspace, target)
-    unique = tuple({spec.key: spec for spec in specs.values()}.values())
+    chosen = images_to_rebuild(specs, packages or ())
     reporter = Reporter(console)
     try:
-        runner_for(ws, config, reporter).run(Plan(ws, tuple(EnsureImage(s, force=True) for s in unique), unique))
+        runner_for(ws, config, reporter).run(Plan(ws, tuple(EnsureImage(s, force=True) for s in chosen), chosen))
     finally:
         reporter.close()
 

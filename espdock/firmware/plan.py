@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import json
 import re
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
 
 from espdock.build.steps import (
@@ -306,12 +306,26 @@ def workspace_micro_ros_images(
     return specs
 
 
+def not_a_firmware_package(name: str) -> WorkspaceError:
+    return WorkspaceError(f"'{name}' is not a firmware package", "Firmware packages have build type esp_idf.")
+
+
+def images_to_rebuild(specs: Mapping[str, ImageSpec], names: Sequence[str]) -> tuple[ImageSpec, ...]:
+    """The distinct micro-ROS images of the firmware packages NAMES (every one's when none is
+    named), from SPECS (workspace_micro_ros_images)."""
+    for name in names:
+        if name not in specs:
+            raise not_a_firmware_package(name)
+    chosen = [specs[name] for name in names] if names else list(specs.values())
+    return tuple({spec.key: spec for spec in chosen}.values())
+
+
 def firmware_step(plan: Plan, name: str) -> tuple[Plan, IdfBuild]:
     """From a plan that builds firmware package NAME: the plan that only ensures its IDF image,
     and its build step (what `espdock idf`, `flash` and `monitor` run in)."""
     step = next((s for s in plan.steps if isinstance(s, IdfBuild) and s.package == name), None)
     if step is None:
-        raise WorkspaceError(f"'{name}' is not a firmware package", "Firmware packages have build type esp_idf.")
+        raise not_a_firmware_package(name)
     spec = next(spec for spec in plan.idf_images if spec.key == step.image_key)
     return Plan(plan.workspace, (EnsureImage(spec),), (spec,)), step
 

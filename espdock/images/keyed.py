@@ -17,7 +17,7 @@ from espdock.errors import RegistryError
 from espdock.events import Outcome, StepNote, StepOutput
 from espdock.images import bootstrap
 from espdock.images.containers import Containers, first_line
-from espdock.images.engine import RegistryAnswer, RegistryStatus, RunSpec
+from espdock.images.engine import ImageInfo, RegistryAnswer, RegistryStatus, RunSpec
 from espdock.workspace import Workspace
 
 DPKG_LINE = re.compile(r"^[a-z0-9][a-z0-9+.-]*(:[a-z0-9]+)?=\S+$")
@@ -94,8 +94,25 @@ class KeyedImages:
                 no_cache=step.force,
             )
         self._record_packages(workspace, step)
+        if existing is not None:
+            self._drop_replaced(step, existing)
         self._publish(step)
         return Outcome.BUILT, spec.tag
+
+    def _drop_replaced(self, step: EnsureImage, replaced: ImageInfo) -> None:
+        """Remove REPLACED, the image STEP's tag named before this build, unless it still has a
+        name, a container or a child image: untagged, nothing would ever reuse or prune it, and
+        a micro-ROS image is half a gigabyte."""
+        engine = self.containers.engine
+        current, left = engine.image(step.spec.tag), engine.image(replaced.id)
+        if current is None or left is None or current.id == left.id:
+            return
+        short = left.id.removeprefix("sha256:")[:12]
+        # By id the engine removes an image with one name too: one named elsewhere stays.
+        if not left.tags and engine.remove_tag(left.id):
+            self.containers.emit(StepNote(step.name, f"removed the image it replaced ({short})"))
+        else:
+            self.containers.emit(StepNote(step.name, f"kept the image it replaced ({short}): something still uses it"))
 
     def _record_packages(self, workspace: Workspace, step: EnsureImage) -> None:
         """The image's Debian package set (what its apt installs gave today) as labels, as the base has."""

@@ -27,6 +27,7 @@ import uuid
 from pathlib import Path
 
 import pytest
+from esptool.cmds import detect_chip
 
 from espdock.config import Config, resolve_ca_bundle
 from espdock.layout import firmware_install_dir
@@ -475,14 +476,26 @@ def test_idf_passthrough_runs_idf_py_in_the_image(fw_ws, double_env):
 
 @contextlib.contextmanager
 def emulated_board(chip: str):
-    """esp32-mock-bootloader emulating CHIP on a free loopback port: the ROM bootloader esptool talks to."""
-    port = free_port()
+    """esp32-mock-bootloader emulating CHIP on a loopback port it picks: the ROM bootloader esptool
+    talks to. Run in the foreground as this process's child, it ends the moment it is told to (the
+    tool's `stop` waits 2 s for its daemon) and no other test's `stop` can take it."""
     tool = Path(sys.executable).with_name("esp32-mock-bootloader")
-    subprocess.run([str(tool), "start", "--chip", chip, "--port", str(port)], check=True, capture_output=True)
-    try:
-        yield f"socket://127.0.0.1:{port}"
-    finally:
-        subprocess.run([str(tool), "stop", "--port", str(port)], check=False, capture_output=True)
+    with tempfile.TemporaryDirectory(prefix="espdock-board-") as tmp:
+        port_file = Path(tmp, "port")
+        server = subprocess.Popen(
+            [str(tool), "run", "--chip", chip, "--port", "0", "--port-file", str(port_file)],
+            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+        )  # fmt: skip
+        try:
+            deadline = time.monotonic() + 60
+            # The server listens before it writes the file.
+            while not (port_file.is_file() and port_file.read_text().strip()):
+                assert server.poll() is None and time.monotonic() < deadline, "the emulated board did not start"
+                time.sleep(0.02)
+            yield f"socket://127.0.0.1:{port_file.read_text().strip()}"
+        finally:
+            server.terminate()
+            server.wait(timeout=30)
 
 
 @pytest.fixture
@@ -628,7 +641,7 @@ def test_flash_and_provision_refuse_a_board_of_another_chip_before_writing(fw_ws
     root, first = fw_ws
     assert first.returncode == 0
     with emulated_board("esp32c3") as esp32c3:
-        before = read_flash(esp32c3, 0x0, 0x20000, tmp_path)
+        before = flash_md5(esp32c3, 0x0, 0x20000)
         flashed = espdock("flash", "camera_node", "--port", esp32c3, cwd=root, env=double_env)
         assert flashed.returncode == 2, flashed.stdout[-2000:] + flashed.stderr
         assert f"the board at {esp32c3} is an esp32c3, but camera_node is built for esp32" in flashed.stderr
@@ -637,7 +650,7 @@ def test_flash_and_provision_refuse_a_board_of_another_chip_before_writing(fw_ws
             "--wifi-password-file", "/dev/null", "--agent", "10.0.0.2:8888", cwd=root, env=double_env,
         )  # fmt: skip
         assert provisioned.returncode == 2 and "is an esp32c3" in provisioned.stderr
-        assert read_flash(esp32c3, 0x0, 0x20000, tmp_path) == before, "a board of another chip was written to"
+        assert flash_md5(esp32c3, 0x0, 0x20000) == before, "a board of another chip was written to"
 
 
 def test_flash_to_a_missing_or_silent_port_says_so(fw_ws, double_env):
@@ -664,18 +677,24 @@ def test_real_idf_builds_the_apps(tmp_path):
     print(f"real IDF build took {time.monotonic() - started:.0f} s")
 
 
-def test_micro_ros_rebuild_builds_the_current_image_afresh(fw_ws, double_env, engine):
+def test_micro_ros_rebuild_builds_the_named_package_s_image_afresh_and_removes_the_one_it_replaced(
+    fw_ws, double_env, engine
+):
     root, first = fw_ws
     assert first.returncode == 0
-    report = status(root, double_env)
+    report, other = status(root, double_env, "led_strip_node"), status(root, double_env, "camera_node")
     assert report["present"]
-    before = engine.image(report["image"])
-    result = espdock("micro-ros", "rebuild", cwd=root, env=double_env)
+    before, untouched = engine.image(report["image"]), engine.image(other["image"])
+    # One package's image: what the command names is what it rebuilds (each rebuild takes
+    # ~25 s of CPU here).
+    result = espdock("micro-ros", "rebuild", "led_strip_node", cwd=root, env=double_env)
     assert result.returncode == 0, result.stdout[-2000:] + result.stderr
     assert "rebuild requested" in result.stdout
     after = engine.image(report["image"])
     assert after is not None and after.id != before.id
-    assert status(root, double_env)["key"] == report["key"]
+    assert status(root, double_env, "led_strip_node")["key"] == report["key"]
+    assert engine.image(before.id) is None, "the image the rebuild replaced was left on the engine, untagged"
+    assert engine.image(other["image"]).id == untouched.id, "camera_node's image was rebuilt, though not named"
 
 
 def host_esptool(port: str, *args: str) -> None:
@@ -684,6 +703,13 @@ def host_esptool(port: str, *args: str) -> None:
     argv = [str(tool), "--port", port, "--before", "no-reset", "--after", "no-reset", "--no-stub"]
     result = subprocess.run([*argv, *args], capture_output=True, text=True, check=False, timeout=120)
     assert result.returncode == 0, result.stdout[-2000:] + result.stderr
+
+
+def flash_md5(port: str, offset: int, size: int) -> str:
+    """The MD5 the board computes over SIZE bytes of its flash at OFFSET (the ROM's SPI_FLASH_MD5, as
+    esptool's verify uses): what a region holds, without the ROM's 64-byte reads (5 s for 128 KiB)."""
+    with detect_chip(port, connect_mode="no-reset") as esp:
+        return esp.flash_md5sum(offset, size)
 
 
 def read_flash(port: str, offset: int, size: int, tmp_path: Path) -> bytes:
@@ -817,7 +843,9 @@ def test_provision_writes_the_network_settings_and_leaves_the_app(fw_ws, double_
         "agent_port": 8888,
         "domain_id": 0,
     }
-    assert read_flash(mock_bootloader, APP_OFFSET, len(app_marker), tmp_path) == app_marker, "provision wrote the app"
+    assert flash_md5(mock_bootloader, APP_OFFSET, len(app_marker)) == hashlib.md5(app_marker).hexdigest(), (
+        "provision wrote the app"
+    )
 
     assert files_containing(root, sentinel.encode()) == []
     assert set(Path(tempfile.gettempdir()).glob("espdock-provision-*")) == temp_before, "temporary files left"
@@ -844,13 +872,13 @@ def test_flash_with_network_options_writes_app_and_settings_in_one_run(fw_ws, do
     assert settings["password"] == "via-stdin-pass" and settings["domain_id"] == 5
     app = json.loads((firmware_dir(root, "camera_node") / "flasher_args.json").read_text())["app"]
     installed = (firmware_dir(root, "camera_node") / app["file"]).read_bytes()
-    assert read_flash(mock_bootloader, int(app["offset"], 16), len(installed), tmp_path) == installed
+    assert flash_md5(mock_bootloader, int(app["offset"], 16), len(installed)) == hashlib.md5(installed).hexdigest()
 
 
 def test_bad_provisioning_input_is_refused_and_the_board_is_left_alone(fw_ws, double_env, mock_bootloader, tmp_path):
     root, first = fw_ws
     assert first.returncode == 0
-    before = read_flash(mock_bootloader, NVS_OFFSET, NVS_SIZE, tmp_path)
+    before = flash_md5(mock_bootloader, NVS_OFFSET, NVS_SIZE)
     short = tmp_path / "short"
     short.write_text("1234567\n")
     good = ("--wifi-ssid", "lab", "--wifi-password-file", "/dev/null", "--agent", "10.0.0.2:8888")
@@ -875,4 +903,4 @@ def test_bad_provisioning_input_is_refused_and_the_board_is_left_alone(fw_ws, do
         assert result.returncode == 2 and "no NVS partition to provision" in result.stderr, result.stderr
     finally:
         table.write_bytes(original)
-    assert read_flash(mock_bootloader, NVS_OFFSET, NVS_SIZE, tmp_path) == before, "the board was written to"
+    assert flash_md5(mock_bootloader, NVS_OFFSET, NVS_SIZE) == before, "the board was written to"

@@ -18,6 +18,7 @@ from espdock.firmware.plan import (
     IdfBuild,
     InstallFirmware,
     derive_interface_packages,
+    images_to_rebuild,
     library_sdkconfig,
     micro_ros_image,
     micro_ros_images,
@@ -213,6 +214,18 @@ def test_apps_with_different_library_inputs_get_their_own_image_and_equal_ones_s
     assert sorted(ensured) == sorted({specs["cam"].key, specs["led"].key})
     builds = {s.package: s.image_key for s in plan.steps if isinstance(s, IdfBuild)}
     assert builds == {name: spec.key for name, spec in specs.items()}
+
+
+def test_micro_ros_rebuild_takes_the_images_of_the_named_packages_each_once():
+    led_meta = META.replace("=1", "=2")
+    packages = (*PACKAGES, firmware("led2", depends=["std_msgs"]))
+    specs = micro_ros_images(
+        Config(), replace(INPUTS, app_metas={"cam": META, "led": led_meta, "led2": led_meta}), packages
+    )
+    assert images_to_rebuild(specs, ()) == (specs["cam"], specs["led"]), "no name: every image, each once"
+    assert images_to_rebuild(specs, ("led", "led2")) == (specs["led"],)
+    with pytest.raises(WorkspaceError, match="'nodes' is not a firmware package"):
+        images_to_rebuild(specs, ("led", "nodes"))
 
 
 def test_a_malformed_or_missing_pin_file_is_refused_before_any_build():

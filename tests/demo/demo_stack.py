@@ -98,8 +98,21 @@ class DemoStack:
         return result
 
     def up(self, timeout: float = 180) -> None:
-        """Start the demo and wait until every service is healthy."""
-        self.compose("up", "-d", "--wait", "--wait-timeout", str(int(timeout)), "demo", timeout=timeout + 30)
+        """Start the demo and wait until the UI reports every node up and the camera online.
+
+        The nodes' own word, not `up --wait`: Docker runs a container's first healthcheck only
+        one interval (10 s) after its start, seconds after the nodes are up. Tests of Docker's
+        verdict wait for it with `checked_health`."""
+        self.compose("up", "-d", "demo", timeout=timeout + 30)
+        self.wait_until(self.ready, timeout, "every node up and the camera online in the UI's /api/state")
+
+    def ready(self) -> bool:
+        try:
+            state = self.state()
+        except (OSError, StackError, ValueError):  # the UI not listening yet, or starting to
+            return False
+        nodes = state.get("nodes") or {}
+        return bool(nodes) and all(node["state"] == "ok" for node in nodes.values()) and state["camera"]["online"]
 
     def down(self) -> None:
         self.compose("--profile", "*", "down", "-v", "--remove-orphans", "-t", "3", check=False, timeout=120)
@@ -144,6 +157,13 @@ class DemoStack:
     def health(self, service: str) -> str:
         state = self.inspect(service)["State"]
         return state.get("Health", {}).get("Status") or state["Status"]
+
+    def checked_health(self, service: str, timeout: float = 30) -> str:
+        """Docker's verdict on SERVICE once its healthcheck has run (it says "starting" until the
+        first check, one interval after the container started)."""
+        return self.wait_until(
+            lambda: (status := self.health(service)) != "starting" and status, timeout, f"{service}'s first healthcheck"
+        )
 
     def crash(self, service: str) -> None:
         """Kill SERVICE's node with SIGKILL from inside, as a crash would (`docker kill` counts as a

@@ -19,11 +19,20 @@ def demo(request, demo_image):
     return start_stack(request, ESPDOCK_DEMO_PHASE_SECONDS="1.5")
 
 
-@pytest.fixture
-def page(demo, chromium):
+@pytest.fixture(scope="module")
+def browser(chromium):
+    """One Chromium for the module (its start and stop are 2 s each time)."""
     with Browser(chromium) as browser:
-        browser.open(demo.url + "/")
         yield browser
+
+
+@pytest.fixture
+def page(demo, browser):
+    """The UI freshly loaded: by way of a blank page, so no test sees another's document or edits."""
+    browser.open("about:blank")
+    browser.console.clear()
+    browser.open(demo.url + "/")
+    return browser
 
 
 def distinct_frames(browser: Browser, seconds: float) -> int:

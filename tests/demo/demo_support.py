@@ -45,4 +45,5 @@ def start_stack(request: pytest.FixtureRequest, **settings: str) -> DemoStack:
 
     request.addfinalizer(finish)
     stack.up()
+    stack.keep_a_prober()
     return stack

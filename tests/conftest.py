@@ -70,15 +70,22 @@ def copy_workspace(
     return dest
 
 
-def message_package(dest: Path, name: str = "custom_interface") -> Path:
-    """This repository's custom_interface at DEST, named NAME, with its message and without its
-    two services: for tests of where a workspace's interfaces get built, installed and used,
-    not of rosidl, which makes six more messages of the services (request, response and event
-    each) and takes about twice as long with them."""
-    shutil.copytree(REPO / "ws/src/custom_interface", dest, ignore=shutil.ignore_patterns("srv"))
+def message_package(dest: Path, name: str = "custom_interface", services: tuple[str, ...] = ()) -> Path:
+    """This repository's custom_interface at DEST, named NAME, with its message and only the
+    SERVICES named of its two: for tests of where a workspace's interfaces get built, installed
+    and used, not of rosidl, which makes three more messages of each service (request, response
+    and event) and takes about twice as long with both."""
+    dropped = [f"srv/{srv}.srv" for srv in ("GetCameraConfig", "SetCameraConfig") if srv not in services]
+    shutil.copytree(REPO / "ws/src/custom_interface", dest)
+    for rel in dropped:
+        (dest / rel).unlink()
+    if not services:
+        (dest / "srv").rmdir()
     cmake = dest / "CMakeLists.txt"
-    cmake.write_text("".join(line for line in cmake.read_text().splitlines(True) if '"srv/' not in line))
-    for path in (dest / "package.xml", cmake):
+    cmake.write_text(
+        "".join(line for line in cmake.read_text().splitlines(True) if line.strip().strip('"') not in dropped)
+    )
+    for path in (p for p in dest.rglob("*") if p.is_file()):
         path.write_text(path.read_text().replace("custom_interface", name))
     return dest
 

@@ -16,7 +16,7 @@ import pytest
 
 from espdock.build.manifest import MANIFEST_NAME, file_hashes, read_manifest
 from espdock.config import Config, resolve_ca_bundle
-from tests.conftest import REPO, copy_workspace, espdock
+from tests.conftest import REPO, copy_workspace, espdock, message_package
 from tests.idf_contract_double.build import use_double
 
 pytestmark = [pytest.mark.engine, pytest.mark.slow]
@@ -35,32 +35,6 @@ def git(*args: str, cwd: Path) -> str:
     return result.stdout
 
 
-def write_interface_package(src: Path) -> None:
-    """An interface package of one message and a service that answers with it (the includes of
-    such a service's type description rosidl writes in set order): its libraries come from the
-    same generators and compilers as a bigger one's, in a fraction of the CPU time."""
-    package = src / "beacon_interface"
-    (package / "msg").mkdir(parents=True)
-    (package / "srv").mkdir()
-    (package / "msg/Beacon.msg").write_text("string text\nuint32 count\n")
-    (package / "srv/Ping.srv").write_text("string text\n---\nBeacon beacon\n")
-    (package / "CMakeLists.txt").write_text(
-        "cmake_minimum_required(VERSION 3.16)\nproject(beacon_interface)\n"
-        "find_package(ament_cmake REQUIRED)\nfind_package(rosidl_default_generators REQUIRED)\n"
-        'rosidl_generate_interfaces(${PROJECT_NAME} "msg/Beacon.msg" "srv/Ping.srv")\n'
-        "ament_export_dependencies(rosidl_default_runtime)\nament_package()\n"
-    )
-    (package / "package.xml").write_text(
-        '<?xml version="1.0"?>\n<package format="3">\n  <name>beacon_interface</name>\n  <version>0.0.0</version>\n'
-        '  <description>beacon_interface</description>\n  <maintainer email="dev@example.com">dev</maintainer>\n'
-        "  <license>Apache-2.0</license>\n  <buildtool_depend>ament_cmake</buildtool_depend>\n"
-        "  <buildtool_depend>rosidl_default_generators</buildtool_depend>\n"
-        "  <exec_depend>rosidl_default_runtime</exec_depend>\n"
-        "  <member_of_group>rosidl_interface_packages</member_of_group>\n"
-        "  <export><build_type>ament_cmake</build_type></export>\n</package>\n"
-    )
-
-
 @pytest.fixture(scope="module")
 def commit(tmp_path_factory, engine) -> tuple[Path, dict[str, str]]:
     """A git repository holding one commit of a workspace: interfaces, a Python package, firmware.
@@ -68,7 +42,9 @@ def commit(tmp_path_factory, engine) -> tuple[Path, dict[str, str]]:
     One of each kind, each small: the LED strip firmware (the camera's needs a library with
     the demo's interfaces compiled in), an interface package of a message and a service, beacon_nodes."""
     origin = copy_workspace(tmp_path_factory.mktemp("origin") / "repo", (), ("beacon_nodes",))
-    write_interface_package(origin / "ws/src")
+    # A service answering with the package's own message: rosidl writes the includes of its type
+    # description in set order, so a hash seed left to chance shows in its __description.c.
+    message_package(origin / "ws/src/custom_interface", services=("GetCameraConfig",))
     shutil.copy2(REPO / "Dockerfile.idf", origin / "Dockerfile.idf")
     shutil.copytree(REPO / "firmware", origin / "firmware", ignore=shutil.ignore_patterns("camera_node"))
     double_env = use_double(engine, resolve_ca_bundle(Config(), os.environ), lambda line: None, origin)

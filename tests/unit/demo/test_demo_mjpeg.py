@@ -28,9 +28,11 @@ def test_a_waiting_client_wakes_on_the_next_frame():
 
 
 def test_publishing_never_waits_for_slow_clients():
-    """Clients that hold a frame for a long time (a slow socket) cost the producer nothing."""
+    """Clients that hold a frame (a stuck socket) cost the producer nothing: it publishes every
+    frame while they still hold their first one. (How fast a publish is, is the demo benchmark's:
+    a wall-clock bound here failed on a loaded machine, 20.5 ms against 20.)"""
     frames = FrameBroadcaster()
-    stop = threading.Event()
+    stop, release = threading.Event(), threading.Event()
     received = {i: 0 for i in range(8)}
 
     def client(i):
@@ -40,24 +42,33 @@ def test_publishing_never_waits_for_slow_clients():
             if frame:
                 seq = frame.seq
                 received[i] += 1
-                time.sleep(0.05 if i < 4 else 0.001)  # half of them are slow
+                if i < 4:
+                    release.wait()  # half of them are stuck until the producer is done
+                else:
+                    time.sleep(0.001)
 
     threads = [threading.Thread(target=client, args=(i,)) for i in range(8)]
     for t in threads:
         t.start()
-    worst = 0.0
-    for i in range(300):
-        begin = time.perf_counter()
-        frames.publish(b"%d" % i)
-        worst = max(worst, time.perf_counter() - begin)
-        time.sleep(0.002)
+
+    def produce():
+        for i in range(300):
+            frames.publish(b"%d" % i)
+            time.sleep(0.002)
+
+    producer = threading.Thread(target=produce)
+    producer.start()
+    producer.join(30)
+    done = not producer.is_alive()
+    held = [received[i] for i in range(4)]
+    release.set()
     stop.set()
     frames.close()
-    for t in threads:
+    for t in [*threads, producer]:
         t.join(2)
-    assert worst < 0.02, f"publish took {worst * 1000:.1f} ms"
-    assert all(received[i] > 0 for i in received)
-    assert min(received[i] for i in range(4, 8)) > 2 * max(received[i] for i in range(4))
+    assert done, "publish waited for the clients that hold a frame"
+    assert held == [1, 1, 1, 1], held
+    assert all(received[i] > 2 * max(held) for i in range(4, 8)), received
 
 
 def test_close_wakes_every_client():

@@ -200,6 +200,22 @@ class DemoStack:
             ["docker", "exec", self.container(service), "sh", "-c", "kill -KILL -1"], capture_output=True, check=False
         )
 
+    def freeze(self, service: str) -> None:
+        """Stop SERVICE's processes where they stand (SIGSTOP), leaving the container running: a
+        node that is there but does not answer. Not `docker pause`: the cgroup freezer gives up
+        with "unable to freeze" when the machine is busy, which signals never do."""
+        self._signal_all(service, "STOP")
+
+    def thaw(self, service: str) -> None:
+        self._signal_all(service, "CONT")
+
+    def _signal_all(self, service: str, signal: str) -> None:
+        subprocess.run(
+            ["docker", "exec", self.container(service), "sh", "-c", f"kill -{signal} -1"],
+            capture_output=True,
+            check=True,
+        )
+
     def wait_until(self, condition, timeout: float, what: str, interval: float = 0.5):
         deadline = time.monotonic() + timeout
         while True:

@@ -131,13 +131,13 @@ def test_the_ui_shows_no_camera_while_it_is_gone_and_recovers_by_itself(demo, ch
 
 @breaks("camera_sim")
 def test_settings_for_a_camera_that_does_not_answer_end_in_a_clear_error(demo):
-    demo.compose("pause", "camera_sim")  # there, but frozen: the service call times out
+    demo.freeze("camera_sim")  # there, but stopped: the service call times out
     try:
         started = time.monotonic()
         status, answer = demo.post_settings(quality=20)
         waited = time.monotonic() - started
     finally:
-        demo.compose("unpause", "camera_sim")
+        demo.thaw("camera_sim")
     assert status == 504 and "did not answer within 3 s" in answer["message"]
     assert 2.5 < waited < 6
     demo.compose("stop", "camera_sim")  # gone: no service at all

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import fcntl
 import hashlib
+import json
 import os
 import shutil
 import signal
@@ -17,6 +18,7 @@ from pathlib import Path
 
 import pytest
 
+from espdock.build.steps import LABEL_INPUTS
 from espdock.defaults import SHIPPED
 
 pytest_plugins = ["tests.longest_first", "tests.engine_sweep"]
@@ -224,6 +226,34 @@ def in_workspace_image(image: str, root: Path, *argv: str) -> subprocess.Complet
 
 def leftover_containers(engine, root: Path) -> list[str]:
     return engine.containers({"io.espdock.workspace": str(root)})
+
+
+def remove_images_built_from(*dockerfiles: Path) -> list[str]:
+    """Remove every espdock image built from one of DOCKERFILES as they are now (the file's
+    sha256 in the image's recorded inputs), and say which. For tests that give their workspace a
+    Dockerfile no other run has: its keyed images can never be reused, so they go with the test
+    (the run's sweep keeps keyed images, which the next run would find)."""
+    wanted = {(path.name, hashlib.sha256(path.read_bytes()).hexdigest()) for path in dockerfiles}
+    listing = subprocess.run(
+        ["docker", "image", "ls", "--format", "{{.Repository}}:{{.Tag}}", "--filter", "reference=espdock/*"],
+        capture_output=True, text=True, check=True,
+    )  # fmt: skip
+    tags = [tag for tag in listing.stdout.split() if not tag.endswith(":<none>")]
+    if not tags:
+        return []
+    # A tag removed meanwhile (another worker) is left out of the answer, which lists the others.
+    inspect = subprocess.run(["docker", "image", "inspect", *tags], capture_output=True, text=True, check=False)
+    made = []
+    for image in json.loads(inspect.stdout or "[]"):
+        try:
+            inputs = json.loads(((image.get("Config") or {}).get("Labels") or {}).get(LABEL_INPUTS, "{}"))
+        except ValueError:
+            continue
+        if wanted & set(inputs.items()):
+            made += [tag for tag in image.get("RepoTags") or () if tag in tags]
+    if made:
+        subprocess.run(["docker", "rmi", "-f", *made], capture_output=True, check=False)
+    return made
 
 
 @pytest.fixture

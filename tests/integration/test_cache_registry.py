@@ -19,7 +19,7 @@ from pathlib import Path
 import pytest
 
 from espdock.config import Config, resolve_ca_bundle
-from tests.conftest import REPO, espdock, python_workspace
+from tests.conftest import REPO, espdock, python_workspace, remove_images_built_from
 from tests.idf_contract_double.build import use_double
 from tests.ports import free_port, port_is_free
 from tests.registry_server import PASSWORD, Registry, docker_config
@@ -52,7 +52,7 @@ def registry(tmp_path_factory) -> Iterator[Registry]:
 
 
 @pytest.fixture(scope="module")
-def origin(tmp_path_factory, engine) -> tuple[Path, dict[str, str]]:
+def origin(tmp_path_factory, engine) -> Iterator[tuple[Path, dict[str, str]]]:
     """Workspace sources with a Python package and firmware; comments unique to this run give it
     ROS and micro-ROS images no other test has (these tests remove them while other pytest
     workers build)."""
@@ -64,7 +64,8 @@ def origin(tmp_path_factory, engine) -> tuple[Path, dict[str, str]]:
     run = uuid.uuid4().hex
     for dockerfile in (root / "Dockerfile.ros", root / "Dockerfile.idf"):
         dockerfile.write_text(dockerfile.read_text() + f"# cache test {run}\n")
-    return root, double_env
+    yield root, double_env
+    remove_images_built_from(root / "Dockerfile.ros", root / "Dockerfile.idf")
 
 
 def machine(origin: Path, where: Path) -> Path:

@@ -38,6 +38,7 @@ from tests.conftest import (
     copy_workspace,
     espdock,
     leftover_containers,
+    remove_images_built_from,
     ros_build_tag,
 )
 from tests.idf_contract_double.build import use_double
@@ -69,25 +70,11 @@ def fw_ws_and_env(tmp_path_factory, engine, double):
     run = uuid.uuid4().hex
     for source in (root / "ws/src/custom_interface/msg/CameraConfig.msg", root / "Dockerfile.idf"):
         source.write_text(source.read_text() + f"# test run {run}\n")
-    ours = hashlib.sha256((root / "Dockerfile.idf").read_bytes()).hexdigest()
     subprocess.run(["chown", "-R", f"{USER_UID}:{USER_UID}", str(root)], check=True)
-    before = set(micro_ros_images())
     first = espdock("build", cwd=root, env=double_env)
     yield root, first, double_env
     engine.remove_containers({"io.espdock.workspace": str(root)})
-    made = [tag for tag in set(micro_ros_images()) - before if built_from_dockerfile(tag) == ours]
-    if made:
-        subprocess.run(["docker", "rmi", "-f", *made], capture_output=True, check=False)
-
-
-def built_from_dockerfile(tag: str) -> str | None:
-    """The sha256 of the Dockerfile.idf micro-ROS image TAG was built from (its inputs label)."""
-    inspect = ["docker", "image", "inspect", "-f", '{{index .Config.Labels "io.espdock.inputs"}}', tag]
-    result = subprocess.run(inspect, capture_output=True, text=True, check=False)
-    try:
-        return json.loads(result.stdout).get("Dockerfile.idf")
-    except ValueError:
-        return None
+    remove_images_built_from(root / "Dockerfile.idf")
 
 
 @pytest.fixture(scope="module")
@@ -99,14 +86,6 @@ def fw_ws(fw_ws_and_env):
 @pytest.fixture(scope="module")
 def double_env(fw_ws_and_env) -> dict[str, str]:
     return fw_ws_and_env[2]
-
-
-def micro_ros_images() -> list[str]:
-    listing = subprocess.run(
-        ["docker", "images", "--format", "{{.Repository}}:{{.Tag}}", "--filter", "reference=espdock/idf-micro-ros-*"],
-        capture_output=True, text=True, check=False,
-    )  # fmt: skip
-    return listing.stdout.split()
 
 
 def header(image: str) -> str:

@@ -5,9 +5,10 @@ translated at this boundary, so nothing above it sees docker.errors.*.
 Image builds go through Compose v2, whose BuildKit client gives build secrets
 (the CA bundle) that the Docker SDK's legacy builder cannot.
 
-A no-change build only pings the engine and looks up image tags: on a local socket those
-two go over plain HTTP, and the Docker SDK (most of a no-op build's start-up time) is
-imported only when something else is asked for.
+On a local socket the calls every command makes go over plain HTTP: the ping, image
+lookups, and the containers of steps (create, files in and out, start, logs, wait, remove).
+The Docker SDK, with requests and urllib3 a third of `espdock test`'s time around colcon, is
+imported only for anything else, and for every call to an engine over TCP or SSH.
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ import hashlib
 import http.client
 import importlib
 import io
+import itertools
 import json
 import os
 import re
@@ -31,7 +33,7 @@ import tarfile
 import tempfile
 import warnings
 from collections.abc import Callable, Iterator, Mapping, Sequence
-from contextlib import contextmanager
+from contextlib import AbstractContextManager, contextmanager
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from enum import StrEnum
@@ -81,6 +83,161 @@ class _UnixHTTP(http.client.HTTPConnection):
         sock.settimeout(self.timeout)
         sock.connect(self._path)
         self.sock = sock
+
+
+class _LocalContainer:
+    """A container on the engine's local socket, driven over plain HTTP: what Engine.run needs of
+    the Docker SDK's Container (files in and out, start, logs, wait, stop, remove) without
+    importing the SDK and requests, a third of what `espdock test` spent around colcon. Failures
+    come out as the SDK's exception types (imported then), so one set of handlers serves both."""
+
+    def __init__(self, socket_path: str, timeout: float, container_id: str, tty: bool) -> None:
+        self._socket = socket_path
+        self._timeout = timeout
+        self.id = container_id
+        self.short_id = container_id[:12]
+        self._tty = tty
+
+    @classmethod
+    def create(cls, socket_path: str, timeout: float, spec: RunSpec, labels: Mapping[str, str]) -> _LocalContainer:
+        query = f"?name={quote(spec.name, safe='')}" if spec.name else ""
+        config = _create_config(spec, labels)
+        answer = _local_call(socket_path, timeout, "POST", f"/containers/create{query}", json.dumps(config).encode())
+        return cls(socket_path, timeout, json.loads(answer)["Id"], spec.tty)
+
+    def _call(self, method: str, path: str, body: bytes | None = None, timeout: float = 0) -> bytes:
+        return _local_call(self._socket, self._timeout + timeout, method, f"/containers/{self.id}{path}", body)
+
+    def _stream(self, method: str, path: str) -> AbstractContextManager[http.client.HTTPResponse]:
+        return _local_stream(self._socket, self._timeout, method, f"/containers/{self.id}{path}")
+
+    def put_archive(self, path: str, data: bytes) -> bool:
+        self._call("PUT", f"/archive?path={quote(path, safe='')}", data)
+        return True
+
+    def start(self) -> None:
+        self._call("POST", "/start")
+
+    def logs(self, stream: bool = True, follow: bool = True) -> Iterator[bytes]:
+        """The output as it comes, stdout and stderr in order (demultiplexed unless on a TTY)."""
+        with self._stream("GET", "/logs?follow=1&stdout=1&stderr=1") as response:
+            try:
+                if self._tty:
+                    while chunk := response.read1(65536):
+                        yield chunk
+                    return
+                # Each frame: stream number, 3 bytes of padding, payload size (big-endian), payload.
+                while len(header := response.read(8)) == 8:
+                    yield response.read(int.from_bytes(header[4:], "big"))
+            except (http.client.HTTPException, OSError):
+                return  # the engine went away: the wait that follows says so
+
+    def wait(self) -> dict:
+        with self._stream("POST", "/wait") as response:
+            try:
+                return json.loads(response.read())
+            except (http.client.HTTPException, OSError) as exc:
+                raise requests.exceptions.ConnectionError(f"waiting for container {self.short_id}: {exc}") from exc
+
+    def get_archive(self, path: str) -> tuple[Iterator[bytes], None]:
+        def chunks() -> Iterator[bytes]:
+            with self._stream("GET", f"/archive?path={quote(path, safe='')}") as response:
+                while chunk := response.read1(65536):
+                    yield chunk
+
+        # The SDK raises NotFound for a path the container lacks when asked, not when read.
+        chunk_iterator = chunks()
+        first = next(chunk_iterator, b"")
+        return itertools.chain((first,), chunk_iterator), None
+
+    def stop(self, timeout: int) -> None:
+        self._call("POST", f"/stop?t={timeout}", timeout=timeout)
+
+    def remove(self, force: bool = False) -> None:
+        self._call("DELETE", f"?force={int(force)}")
+
+
+def _create_config(spec: RunSpec, labels: Mapping[str, str]) -> dict[str, Any]:
+    """The engine API's configuration of a container for SPEC with LABELS (POST /containers/create),
+    detached: nothing attaches at creation, Engine.run_attached's `docker start --attach` later."""
+    host: dict[str, Any] = {
+        # A bind's source, or a volume's name: the engine tells them apart by the slash.
+        "Binds": [f"{m.source}:{m.target}:{'ro' if m.read_only else 'rw'}" for m in spec.mounts],
+        "Devices": [{"PathOnHost": d, "PathInContainer": d, "CgroupPermissions": "rwm"} for d in spec.devices],
+        "NetworkMode": spec.network or "default",
+    }
+    if spec.group_add:
+        host["GroupAdd"] = [str(g) for g in spec.group_add]
+    config: dict[str, Any] = {
+        "Image": spec.image,
+        "Cmd": list(spec.argv),
+        "WorkingDir": spec.workdir,
+        "Env": [f"{key}={value}" for key, value in spec.env],
+        "Labels": dict(labels),
+        "Volumes": {m.target: {} for m in spec.mounts},
+        "Tty": spec.tty,
+        "OpenStdin": spec.tty,
+        "HostConfig": host,
+    }
+    if spec.user:
+        config["User"] = spec.user
+    return config
+
+
+@contextmanager
+def _local_stream(socket_path: str, timeout: float, method: str, path: str) -> Iterator[http.client.HTTPResponse]:
+    """METHOD PATH on the engine's local socket, for an answer that may take as long as the
+    container runs: no timeout once the engine has answered, as the SDK has it for logs and wait.
+    Raises as _local_call does."""
+    connection = _UnixHTTP(socket_path, timeout)
+    try:
+        try:
+            connection.request(method, path)
+            response = connection.getresponse()
+        except (OSError, http.client.HTTPException) as exc:
+            raise requests.exceptions.ConnectionError(f"{method} {path}: {exc}") from exc
+        if response.status >= 400:
+            _raise_api_error(response.status, response.read(), path)
+        connection.sock.settimeout(None)
+        yield response
+    finally:
+        connection.close()
+
+
+def _local_call(socket_path: str, timeout: float, method: str, path: str, body: bytes | None = None) -> bytes:
+    """METHOD PATH on the engine's local socket; the answer's body. A failed connection is
+    requests' ConnectionError, a slow answer its ReadTimeout, an error status docker.errors'
+    NotFound, ImageNotFound or APIError: as the SDK raises them."""
+    connection = _UnixHTTP(socket_path, timeout)
+    headers = {"Content-Type": "application/x-tar" if method == "PUT" else "application/json"} if body else {}
+    try:
+        connection.request(method, path, body=body, headers=headers)
+        response = connection.getresponse()
+        answer = response.read()
+    except TimeoutError as exc:
+        raise requests.exceptions.ReadTimeout(f"{method} {path}: no answer within {timeout:g} s") from exc
+    except (OSError, http.client.HTTPException) as exc:
+        raise requests.exceptions.ConnectionError(f"{method} {path}: {exc}") from exc
+    finally:
+        connection.close()
+    if response.status >= 400:
+        _raise_api_error(response.status, answer, path)
+    return answer
+
+
+def _raise_api_error(status: int, body: bytes, path: str) -> None:
+    try:
+        explanation = str(json.loads(body).get("message", ""))
+    except (ValueError, AttributeError):
+        explanation = body.decode("utf-8", "replace").strip()
+    message = f"{status} error from the engine for {path}"
+    if status == 404:
+        # Told apart as the SDK does (docker.errors.create_api_error_from_http_exception).
+        missing = r"no such image|not found: does not exist or no pull access|repository does not exist"
+        if path.startswith("/containers/create") and re.search(missing, explanation, re.IGNORECASE):
+            raise docker.errors.ImageNotFound(message, explanation=explanation)
+        raise docker.errors.NotFound(message, explanation=explanation)
+    raise docker.errors.APIError(message, explanation=explanation)
 
 
 def _local_socket(env: Mapping[str, str]) -> str | None:
@@ -736,31 +893,19 @@ class Engine:
 
     @contextmanager
     def _container(self, spec: RunSpec, keep: bool) -> Iterator[docker.models.containers.Container]:
-        client = self._client
         container = None
+        labels = {**dict(spec.labels), LABEL_OWNER: owner_identity()}
         try:
             # Held: a Ctrl-C between the engine creating it and its id coming back would leave a
             # container nothing here knows to remove. It is raised when the block ends: see below.
             with interrupts.held():
-                container = client.containers.create(
-                    spec.image,
-                    command=list(spec.argv),
-                    working_dir=spec.workdir,
-                    user=spec.user,
-                    environment=dict(spec.env),
-                    labels={**dict(spec.labels), LABEL_OWNER: owner_identity()},
-                    # A bind's source, or a volume's name: the engine tells them apart by the slash.
-                    volumes={
-                        str(m.source): {"bind": m.target, "mode": "ro" if m.read_only else "rw"} for m in spec.mounts
-                    },
-                    devices=[f"{d}:{d}:rwm" for d in spec.devices],
-                    group_add=[str(g) for g in spec.group_add] or None,
-                    network_mode=spec.network,
-                    tty=spec.tty,
-                    stdin_open=spec.tty,
-                    name=spec.name,
-                    detach=True,
-                )
+                if self._socket is not None:
+                    timeout = max(self._timeout, OPERATION_TIMEOUT)
+                    container = _LocalContainer.create(self._socket, timeout, spec, labels)
+                else:
+                    client = self._client
+                    created = client.api.create_container_from_config(_create_config(spec, labels), spec.name)
+                    container = client.containers.prepare_model({"Id": created["Id"]})
             try:
                 for where, data in spec.archives:
                     if not container.put_archive(where, data):

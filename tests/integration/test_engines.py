@@ -303,8 +303,10 @@ def test_volume_mode_builds_where_the_engine_cannot_see_rebuilds_edits_and_never
 
 
 def test_volume_mode_builds_firmware_in_the_idf_image_and_installs_it_for_the_user(tcp_engine, engine):
-    """The IDF contract double stands in for espressif/idf (not pullable here); the TCP engine gets
-    the images the shared engine built from it, and builds the firmware on the volume."""
+    """The IDF contract double stands in for espressif/idf (not pullable here); the private engine
+    gets the images the shared engine built from it, and builds the firmware on the volume. Reached
+    through its unix socket, as a dind sidecar's mounted socket is: espdock then talks plain HTTP
+    to it (files in and out of the container included), where over TCP it uses the Docker SDK."""
     root = tcp_engine.hidden / "ws-firmware"
     shutil.copytree(REPO / "tests/firmware_packages/blink_fw", root / "src/blink_fw")
     (root / "espdock.toml").write_text("[espdock]\n")
@@ -322,7 +324,7 @@ def test_volume_mode_builds_firmware_in_the_idf_image_and_installs_it_for_the_us
     main.write_text(main.read_text() + "/* built on the volume */\n")
 
     since = time.time()
-    remote = espdock("build", cwd=root, env={**env, "DOCKER_HOST": tcp_engine.env["DOCKER_HOST"]})
+    remote = espdock("build", cwd=root, env={**env, "DOCKER_HOST": f"unix://{tcp_engine.socket}"})
     assert remote.returncode == 0, remote.stdout[-3000:] + remote.stderr
     assert tcp_engine.created(since, "io.espdock.step=idf-blink_fw")
     assert len(volumes_of(tcp_engine, root)) == 1

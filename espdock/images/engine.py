@@ -1,7 +1,7 @@
 """The one module that talks to the container engine.
 
 Containers are created, streamed and always removed here; engine exceptions are
-translated at this boundary, so nothing above it sees docker.errors.*.
+translated at this boundary (Engine._engine_call), so nothing above it sees docker.errors.*.
 Image builds go through Compose v2, whose BuildKit client gives build secrets
 (the CA bundle) that the Docker SDK's legacy builder cannot.
 
@@ -33,7 +33,7 @@ import tarfile
 import tempfile
 import warnings
 from collections.abc import Callable, Iterator, Mapping, Sequence
-from contextlib import AbstractContextManager, contextmanager
+from contextlib import AbstractContextManager, contextmanager, suppress
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from enum import StrEnum
@@ -99,11 +99,11 @@ class _LocalContainer:
         self._tty = tty
 
     @classmethod
-    def create(cls, socket_path: str, timeout: float, spec: RunSpec, labels: Mapping[str, str]) -> _LocalContainer:
-        query = f"?name={quote(spec.name, safe='')}" if spec.name else ""
-        config = _create_config(spec, labels)
+    def create(cls, socket_path: str, timeout: float, name: str | None, config: Mapping[str, Any]) -> _LocalContainer:
+        """A container of CONFIG (as _create_config makes it), named NAME unless None."""
+        query = f"?name={quote(name, safe='')}" if name else ""
         answer = _local_call(socket_path, timeout, "POST", f"/containers/create{query}", json.dumps(config).encode())
-        return cls(socket_path, timeout, json.loads(answer)["Id"], spec.tty)
+        return cls(socket_path, timeout, json.loads(answer)["Id"], bool(config["Tty"]))
 
     def _call(self, method: str, path: str, body: bytes | None = None, timeout: float = 0) -> bytes:
         return _local_call(self._socket, self._timeout + timeout, method, f"/containers/{self.id}{path}", body)
@@ -330,6 +330,8 @@ class Engine:
         self._timeout = timeout
         self._socket = _local_socket(env)
         self._sdk = client
+        # Containers over plain HTTP: on a local socket, unless a client was handed in.
+        self._plain = self._socket is not None and client is None
         self._info: EngineInfo | None = None
 
     @property
@@ -400,110 +402,124 @@ class Engine:
         except json.JSONDecodeError:
             return response.status, None
 
+    @contextmanager
+    def _engine_call(
+        self,
+        doing: str | None,
+        refused: str | None = None,
+        error: type[EspdockError] = ContainerError,
+        hint: str | Callable[[str], str | None] | None = None,
+        *,
+        also: tuple[type[Exception], ...] = (),
+        named: bool = True,
+        explained: bool = True,
+    ) -> Iterator[None]:
+        """The engine's exceptions raised in the block, as users read them.
+
+        DOING ("making volume v"): a connection that breaks means the engine went away
+        (EngineUnavailable, exit 3). REFUSED ("could not make volume v"): an error the engine
+        answers (docker.errors.APIError, or one of ALSO) is ERROR "the <engine> REFUSED: <detail>"
+        with HINT (or what HINT makes of the detail). Either one None leaves those to the caller.
+        NAMED: the engine by its EngineInfo.name, else "the engine"; EXPLAINED: the detail is the
+        engine's own explanation, else the exception's whole text (status, URL, explanation).
+        """
+        try:
+            yield
+        except EspdockError:
+            raise
+        except Exception as exc:
+            if doing is not None and isinstance(exc, requests.exceptions.ConnectionError):
+                raise _engine_lost(self._env, doing) from exc
+            # ALSO first: an OSError over the plain socket is told apart without importing the SDK.
+            if refused is None or not (isinstance(exc, also) or isinstance(exc, docker.errors.APIError)):
+                raise
+            detail = str((getattr(exc, "explanation", None) if explained else None) or exc)
+            engine = self.info().name if named else "engine"
+            raise error(f"the {engine} {refused}: {detail}", hint(detail) if callable(hint) else hint) from exc
+
+    def _plain_call(self, refused: str, also: tuple[type[Exception], ...] = ()) -> AbstractContextManager[None]:
+        """_engine_call as the image, tag and listing calls say a refusal: "the engine REFUSED: <the
+        whole exception>" (exit 1). A connection that breaks is not translated here unless ALSO names it."""
+        return self._engine_call(None, refused, EspdockError, also=also, named=False, explained=False)
+
     # Images
 
     def image(self, ref: str) -> ImageInfo | None:
         """The local image REF, or None when there is none."""
-        if self._socket is not None:
-            try:
+        # Over the socket (no SDK) a connection that breaks is an OSError, said as a refusal is.
+        broken = (OSError,) if self._socket is not None else ()
+        with self._plain_call(f"failed to look up image {ref}", also=broken):
+            if self._socket is not None:
                 status, attrs = self._get(f"/images/{quote(ref, safe='')}/json")
-            except OSError as exc:
-                raise EspdockError(f"the engine failed to look up image {ref}: {exc}") from exc
-            if status == 404:
-                return None
-            if status != 200 or not isinstance(attrs, dict):
-                raise EspdockError(f"the engine failed to look up image {ref}: HTTP {status} {attrs}")
-        else:
-            try:
-                attrs = self._client.images.get(ref).attrs
-            except docker.errors.ImageNotFound:
-                return None
-            except docker.errors.APIError as exc:
-                raise EspdockError(f"the engine failed to look up image {ref}: {exc}") from exc
-        created = datetime.fromisoformat(attrs["Created"][:19]).replace(tzinfo=UTC)
-        return ImageInfo(
-            id=attrs["Id"],
-            tags=tuple(tag for tag in attrs.get("RepoTags") or () if tag != "<none>:<none>"),
-            created=created,
-            size=int(attrs.get("Size", 0)),
-            labels=dict((attrs.get("Config") or {}).get("Labels") or {}),
-            digests=tuple(attrs.get("RepoDigests") or ()),
-        )
+                if status == 404:
+                    return None
+                if status != 200 or not isinstance(attrs, dict):
+                    raise EspdockError(f"the engine failed to look up image {ref}: HTTP {status} {attrs}")
+            else:
+                try:
+                    attrs = self._client.images.get(ref).attrs
+                except docker.errors.ImageNotFound:
+                    return None
+        return _image_info(attrs)
 
     def images(self, repository: str) -> list[ImageInfo]:
         """The local images of REPOSITORY."""
-        try:
+        with self._plain_call(f"failed to list images of {repository}"):
             images = self._client.images.list(name=repository)
-        except docker.errors.APIError as exc:
-            raise EspdockError(f"the engine failed to list images of {repository}: {exc}") from exc
         return [info for info in (self.image(image.id) for image in images) if info is not None]
 
     def labelled_images(self, label: str, shared: bool = False) -> list[tuple[str, tuple[str, ...], int, int]]:
         """(id, tags, bytes no other image shares, size with shared layers) of every image carrying
         LABEL. SHARED: tell the shared layers apart, from the engine's disk-usage report (slow, and
         one at a time per engine: while another runs, each image's whole size stands in)."""
-        report = None
-        if shared:
-            try:
-                report = self._client.api.df().get("Images") or []
-            except (docker.errors.APIError, requests.exceptions.RequestException):
-                report = None
+        usage = self._disk_usage() if shared else None
+        report = None if usage is None else usage.get("Images") or []
         if report is None:
-            try:
+            with self._plain_call("failed to list its images", also=(requests.exceptions.RequestException,)):
                 report = self._client.api.images(filters={"label": label})
-            except (docker.errors.APIError, requests.exceptions.RequestException) as exc:
-                raise EspdockError(f"the engine failed to list its images: {exc}") from exc
-        found = []
-        for image in report:
-            if label not in (image.get("Labels") or {}):
-                continue
-            size, common = int(image.get("Size", 0)), int(image.get("SharedSize", -1) or 0)
-            tags = tuple(t for t in image.get("RepoTags") or () if t != "<none>:<none>")
-            found.append((image["Id"], tags, size - max(common, 0), size))
-        return found
+        return _labelled(report, label)
 
     def running_images(self) -> set[str]:
         """The image ids of the running containers."""
-        try:
+        with self._plain_call("failed to list its containers", also=(requests.exceptions.RequestException,)):
             return {c["ImageID"] for c in self._client.api.containers(filters={"status": "running"})}
-        except (docker.errors.APIError, requests.exceptions.RequestException) as exc:
-            raise EspdockError(f"the engine failed to list its containers: {exc}") from exc
 
     def remove_tag(self, ref: str) -> bool:
         """Remove the name REF, and the image when it was its last name; False when a container
         (even a stopped one) still uses the image: it is left as it is."""
-        try:
-            self._client.api.remove_image(ref)
-        except docker.errors.NotFound:
-            return True
-        except docker.errors.APIError as exc:
-            if exc.status_code == 409:
-                return False
-            raise EspdockError(f"the engine could not remove {ref}: {exc}") from exc
+        with self._plain_call(f"could not remove {ref}"):
+            try:
+                self._client.api.remove_image(ref)
+            except docker.errors.NotFound:
+                return True
+            except docker.errors.APIError as exc:
+                if exc.status_code == 409:
+                    return False
+                raise
         return True
 
     def layers_size(self) -> int | None:
         """Bytes every image's layers take on the engine's disk; None while the engine reports another
         caller's disk usage."""
-        try:
-            return int(self._client.api.df().get("LayersSize") or 0)
-        except (docker.errors.APIError, requests.exceptions.RequestException):
-            return None
+        usage = self._disk_usage()
+        return None if usage is None else int(usage.get("LayersSize") or 0)
 
     def build_cache_size(self) -> int | None:
         """Bytes BuildKit's cache holds; None while the engine reports another caller's disk usage."""
+        usage = self._disk_usage()
+        return None if usage is None else sum(int(entry.get("Size", 0)) for entry in usage.get("BuildCache") or ())
+
+    def _disk_usage(self) -> dict[str, Any] | None:
+        """The engine's disk-usage report; None while it reports another caller's (one at a time per engine)."""
         try:
-            report = self._client.api.df()
-        except (docker.errors.APIError, requests.exceptions.RequestException):
+            return self._client.api.df()
+        except _refusals():
             return None
-        return sum(int(entry.get("Size", 0)) for entry in report.get("BuildCache") or ())
 
     def trim_build_cache(self, keep: int) -> int:
         """Trim BuildKit's cache to KEEP bytes (the least recently used goes first); bytes freed."""
-        try:
+        with self._plain_call("could not trim its build cache", also=(requests.exceptions.RequestException,)):
             answer = self._client.api.prune_builds(keep_storage=keep)
-        except (docker.errors.APIError, requests.exceptions.RequestException) as exc:
-            raise EspdockError(f"the engine could not trim its build cache: {exc}") from exc
         return int((answer or {}).get("SpaceReclaimed") or 0)
 
     def pull(self, ref: str) -> bool:
@@ -511,7 +527,7 @@ class Engine:
         repository, tag = _split_ref(ref)
         try:
             self._client.images.pull(repository, tag=tag)
-        except (docker.errors.APIError, requests.exceptions.RequestException):
+        except _refusals():
             return False
         return True
 
@@ -529,51 +545,43 @@ class Engine:
         repository, tag = _split_ref(ref)
         try:
             return _registry_stream(call(repository, tag=tag, stream=True, decode=True))
-        except (docker.errors.APIError, requests.exceptions.RequestException) as exc:
+        except _refusals() as exc:
             return _registry_answer(str(exc))
 
     def registry_has(self, ref: str) -> RegistryAnswer:
         """Whether REF's registry holds REF (a manifest lookup; nothing is downloaded)."""
         try:
             self._client.api.inspect_distribution(ref)
-        except (docker.errors.APIError, requests.exceptions.RequestException) as exc:
+        except _refusals() as exc:
             return _registry_answer(str(exc))
         return RegistryAnswer(RegistryStatus.OK)
 
     def tag(self, source: str, ref: str) -> None:
         repository, tag = _split_ref(ref)
-        try:
+        with self._plain_call(f"could not tag {source} as {ref}"):
             self._client.api.tag(source, repository, tag)
-        except docker.errors.APIError as exc:
-            raise EspdockError(f"the engine could not tag {source} as {ref}: {exc}") from exc
 
     def untag(self, ref: str) -> None:
         """Remove the name REF; the image stays while other names hold it."""
-        try:
+        refused = f"could not remove the name {ref}"
+        with self._plain_call(refused), suppress(docker.errors.NotFound):
             self._client.api.remove_image(ref, noprune=True)
-        except docker.errors.NotFound:
-            pass
-        except docker.errors.APIError as exc:
-            raise EspdockError(f"the engine could not remove the name {ref}: {exc}") from exc
 
     def add_labels(self, ref: str, labels: Mapping[str, str]) -> None:
         """Give image REF more LABELS: a metadata-only build on top of it (no new layer), tagged REF."""
-        dockerfile = f"FROM {ref}\nLABEL " + " ".join(f"{key}={json.dumps(value)}" for key, value in labels.items())
-        try:
+        dockerfile = f"FROM {ref}\nLABEL " + " ".join(_label_args(labels))
+        refused = f"could not add labels to {ref}"
+        with self._engine_call(None, refused, ImageBuildError, also=(docker.errors.BuildError,), explained=False):
             self._client.images.build(fileobj=io.BytesIO(dockerfile.encode()), tag=ref, pull=False, rm=True)
-        except (docker.errors.BuildError, docker.errors.APIError) as exc:
-            raise ImageBuildError(f"the {self.info().name} could not add labels to {ref}: {exc}") from exc
         self.check_image(ref, labels, f"adding labels to {ref}")
 
     def import_rootfs(self, tarball: Path, ref: str, labels: Mapping[str, str] | None = None) -> None:
         """Make image REF from a root filesystem tarball (docker import), with LABELS."""
-        changes = [f"LABEL {key}={json.dumps(value)}" for key, value in (labels or {}).items()]
-        try:
+        changes = [f"LABEL {arg}" for arg in _label_args(labels or {})]
+        with self._engine_call(None, f"refused to import {tarball} as {ref}", ImageBuildError, explained=False):
             # The whole name:tag as the repository: Podman 4's Docker API ignores a separate tag
             # (and stores name:latest); Docker takes either.
             self._client.api.import_image_from_file(str(tarball), repository=ref, changes=changes or None)
-        except docker.errors.APIError as exc:
-            raise ImageBuildError(f"the {self.info().name} refused to import {tarball} as {ref}: {exc}") from exc
         self.check_image(ref, labels or {}, f"importing {tarball} as {ref}")
 
     def build_image(
@@ -629,41 +637,19 @@ class Engine:
                 {secret: build.ca_bundle.read_bytes() if build.ca_bundle else b""},
             )
             archive.seek(0)
-            params = {
-                "t": build.tag,
-                "dockerfile": build.dockerfile,
-                "target": build.target,
-                "buildargs": json.dumps(dict(build.build_args)),
-                "labels": json.dumps(dict(build.labels)),
-                "secrets": json.dumps([f"id=ca_bundle,src={secret}"]),
-                "nocache": build.no_cache,
-                "rm": True,
-                "forcerm": True,
-            }
             tail: collections.deque[str] = collections.deque(maxlen=15)
-            try:
+            with self._engine_call(f"building {build.tag}"):
                 response = api.post(
                     f"{api.base_url}/v{api.api_version}/build",
-                    params=params,
+                    params=_classic_params(build, secret),
                     data=archive,
                     headers={"Content-Type": "application/x-tar"},
                     stream=True,
                     timeout=None,  # a step may print nothing for minutes (pip)
                 )
-                error = None
-                for chunk in response.iter_lines():
-                    try:
-                        event = json.loads(chunk) if chunk else {}
-                    except ValueError:
-                        continue
-                    for line in str(event.get("stream", "")).splitlines():
-                        tail.append(line)
-                        build.on_line(line)
-                    error = error or event.get("error") or (event.get("errorDetail") or {}).get("message")
+                error = _classic_events(response.iter_lines(), tail, build.on_line)
                 if response.status_code != 200 and error is None:
                     error = f"HTTP {response.status_code}: {response.text[:300]}"
-            except requests.exceptions.ConnectionError as exc:
-                raise _engine_lost(self._env, f"building {build.tag}") from exc
         if error:
             tail.append(str(error))
             raise ImageBuildError(
@@ -674,24 +660,6 @@ class Engine:
 
     def _build_buildkit(self, build: ImageBuild) -> None:
         """Compose v2's build, whose BuildKit client passes the CA bundle as a secret."""
-        spec = {
-            "name": "espdock-build",
-            "services": {
-                "image": {
-                    "image": build.tag,
-                    "build": {
-                        "context": str(build.context),
-                        "dockerfile": build.dockerfile,
-                        "target": build.target,
-                        "args": dict(build.build_args),
-                        "labels": dict(build.labels),
-                        "secrets": ["ca_bundle"],
-                    },
-                }
-            },
-            # An empty secret means "no extra CA"; the Dockerfile checks for that.
-            "secrets": {"ca_bundle": {"file": str(build.ca_bundle or "/dev/null")}},
-        }
         argv = [
             *self.compose_command(),
             "-f",
@@ -715,7 +683,7 @@ class Engine:
         )
         try:
             assert process.stdin is not None and process.stdout is not None
-            process.stdin.write(json.dumps(spec))
+            process.stdin.write(json.dumps(_compose_build(build)))
             process.stdin.close()
             for raw in process.stdout:
                 line = raw.rstrip("\n")
@@ -739,15 +707,9 @@ class Engine:
                 )
             if any("cannot connect to the docker daemon" in line.lower() for line in tail):
                 raise _engine_lost(self._env, f"building {build.tag}")
-            unpulled = re.search(r"load metadata for (\S+)", "\n".join(tail))
-            hint = (
-                f"{unpulled.group(1)} is not here and could not be pulled: is a registry reachable? "
-                "Or load the image locally (docker load) or point espdock.toml at one you have."
-                if unpulled and "ERROR" in "\n".join(tail)
-                else "Read the build output above; run with --verbose for all of it."
-            )
             raise ImageBuildError(
-                f"building {build.tag} from {build.dockerfile} (stage {build.target}) failed:\n" + "\n".join(tail), hint
+                f"building {build.tag} from {build.dockerfile} (stage {build.target}) failed:\n" + "\n".join(tail),
+                _buildkit_hint(tail),
             )
 
     def _data_root(self) -> str:
@@ -763,10 +725,7 @@ class Engine:
 
     def compose_command(self) -> list[str]:
         """The argv prefix for Compose v2 as a docker CLI plugin."""
-        docker_cli = shutil.which("docker", path=self._env.get("PATH"))
-        if docker_cli is None:
-            raise EngineUnavailable("the docker CLI is not on PATH", "Install the docker client (Debian: docker.io).")
-        return [docker_cli, "compose"]
+        return [_docker_cli(self._env), "compose"]
 
     def run_compose(self, args: Sequence[str], cwd: Path, env: Mapping[str, str]) -> int:
         """`docker compose ARGS` in CWD with ENV, attached to this terminal; its exit code."""
@@ -834,19 +793,7 @@ class Engine:
         however this ends. Returns its exit code and the first signal passed on, or None."""
         docker_cli = self.compose_command()[0]
         name = spec.name or f"espdock-run-{os.getpid()}-{secrets.token_hex(4)}"
-        argv = [docker_cli, "run", "--rm", "--name", name, "--sig-proxy=false", "--interactive"]
-        argv += ["--tty"] if spec.tty else []
-        argv += ["--workdir", spec.workdir] + (["--user", spec.user] if spec.user else [])
-        argv += [arg for key, value in spec.env for arg in ("--env", f"{key}={value}")]
-        argv += [arg for key, value in spec.labels for arg in ("--label", f"{key}={value}")]
-        for mount in spec.mounts:
-            kind = "volume" if mount.volume else "bind"
-            fields = [f"type={kind}", f"source={mount.source}", f"target={mount.target}"]
-            argv += ["--mount", _csv_line([*fields, "readonly"] if mount.read_only else fields)]
-        argv += [arg for device in spec.devices for arg in ("--device", device)]
-        argv += [arg for group in spec.group_add for arg in ("--group-add", str(group))]
-        argv += ["--network", spec.network] if spec.network else []
-        argv += [spec.image, *spec.argv]
+        argv = _run_argv(docker_cli, name, spec)
         received: list[int] = []
         sent = 0
 
@@ -891,55 +838,48 @@ class Engine:
         )
         return result.returncode == 0
 
+    def _create(self, spec: RunSpec, labels: Mapping[str, str]) -> Any:
+        """A container for SPEC with LABELS: over plain HTTP on a local socket, else through the SDK."""
+        config = _create_config(spec, labels)
+        if self._plain:
+            return _LocalContainer.create(self._socket, max(self._timeout, OPERATION_TIMEOUT), spec.name, config)
+        created = self._client.api.create_container_from_config(config, spec.name)
+        return self._client.containers.prepare_model({"Id": created["Id"]})
+
     @contextmanager
     def _container(self, spec: RunSpec, keep: bool) -> Iterator[docker.models.containers.Container]:
         container = None
         labels = {**dict(spec.labels), LABEL_OWNER: owner_identity()}
         try:
-            # Held: a Ctrl-C between the engine creating it and its id coming back would leave a
-            # container nothing here knows to remove. It is raised when the block ends: see below.
-            with interrupts.held():
-                if self._socket is not None:
-                    timeout = max(self._timeout, OPERATION_TIMEOUT)
-                    container = _LocalContainer.create(self._socket, timeout, spec, labels)
-                else:
-                    client = self._client
-                    created = client.api.create_container_from_config(_create_config(spec, labels), spec.name)
-                    container = client.containers.prepare_model({"Id": created["Id"]})
-            try:
-                for where, data in spec.archives:
-                    if not container.put_archive(where, data):
-                        raise ContainerError(f"the {self.info().name} refused the files for {where} of a container")
-            except BaseException:
-                _remove(container, stop=False)
-                raise
-        except KeyboardInterrupt:
+            with self._engine_call(
+                f"creating a container of {spec.image}", f"could not create a container of {spec.image}"
+            ):
+                try:
+                    # Held: a Ctrl-C between the engine creating it and its id coming back would leave a
+                    # container nothing here knows to remove. It is raised when the block ends: see below.
+                    with interrupts.held():
+                        container = self._create(spec, labels)
+                    for where, data in spec.archives:
+                        if not container.put_archive(where, data):
+                            raise ContainerError(f"the {self.info().name} refused the files for {where} of a container")
+                except docker.errors.ImageNotFound as exc:
+                    raise ContainerError(
+                        f"image {spec.image} is not there: {exc}", "Run `espdock build` to build it."
+                    ) from exc
+        except BaseException:
             if container is not None:
                 _remove(container, stop=False)
             raise
-        except requests.exceptions.ConnectionError as exc:
-            raise _engine_lost(self._env, f"creating a container of {spec.image}") from exc
-        except docker.errors.ImageNotFound as exc:
-            raise ContainerError(f"image {spec.image} is not there: {exc}", "Run `espdock build` to build it.") from exc
-        except docker.errors.APIError as exc:
-            raise ContainerError(
-                f"the {self.info().name} could not create a container of {spec.image}: {exc.explanation or exc}"
-            ) from exc
         try:
-            yield container
-        except requests.exceptions.ConnectionError as exc:
-            raise _engine_lost(self._env, f"running a container of {spec.image}") from exc
-        except requests.exceptions.Timeout as exc:
+            with self._engine_call(
+                f"running a container of {spec.image}", f"could not run a container of {spec.image}", hint=_runtime_hint
+            ):
+                yield container
+        except requests.exceptions.Timeout as exc:  # ConnectTimeout is a ConnectionError: the engine went away
             raise EngineUnavailable(
                 f"the {self.info().name} did not answer within {OPERATION_TIMEOUT} s while running a container of "
                 f"{spec.image}",
                 "Look at the engine (is it overloaded or hung?), then build again.",
-            ) from exc
-        except docker.errors.APIError as exc:
-            explanation = str(exc.explanation or exc)
-            raise ContainerError(
-                f"the {self.info().name} could not run a container of {spec.image}: {explanation}",
-                _runtime_hint(explanation),
             ) from exc
         finally:
             if not keep:
@@ -947,11 +887,9 @@ class Engine:
 
     def remove_containers(self, labels: Mapping[str, str]) -> int:
         """Remove every container (running or not) carrying all LABELS; return how many."""
-        selector = [f"{k}={v}" for k, v in labels.items()]
         removed = 0
         try:
-            # sparse: no inspect per container, which fails for one removed meanwhile.
-            for container in self._client.containers.list(all=True, filters={"label": selector}, sparse=True):
+            for container in self._labelled_containers(labels):
                 _remove(container)
                 removed += 1
         except docker.errors.APIError as exc:
@@ -961,8 +899,7 @@ class Engine:
     def sweep(self, labels: Mapping[str, str]) -> int:
         """Remove the containers carrying all LABELS whose espdock process is gone (killed, or
         past its Ctrl-C grace); containers of live espdock processes are left alone."""
-        selector = [f"{k}={v}" for k, v in labels.items()]
-        filters = {"label": [*selector, LABEL_OWNER]}
+        filters = {"label": [*_label_selector(labels), LABEL_OWNER]}
         try:
             if self._socket is not None:  # plain HTTP: a no-change build does not load the SDK for this
                 status, listed = self._get(f"/containers/json?all=1&filters={quote(json.dumps(filters))}")
@@ -974,61 +911,45 @@ class Engine:
             raise _engine_lost(self._env, "listing containers") from exc
         dead = [c["Id"] for c in listed if not owner_alive((c.get("Labels") or {}).get(LABEL_OWNER, ""))]
         for container_id in dead:
-            try:
+            with suppress(docker.errors.NotFound):  # gone meanwhile
                 _remove(self._client.containers.get(container_id), stop=False)
-            except docker.errors.NotFound:
-                pass  # gone meanwhile
         return len(dead)
 
     def containers(self, labels: Mapping[str, str]) -> list[str]:
         """Names of containers (running or not) carrying all LABELS."""
-        selector = [f"{k}={v}" for k, v in labels.items()]
-        try:
-            # sparse: no inspect per container, which fails for one removed meanwhile.
-            listed = self._client.containers.list(all=True, filters={"label": selector}, sparse=True)
-        except docker.errors.APIError as exc:
-            raise EspdockError(f"the engine failed to list containers: {exc}") from exc
+        with self._plain_call("failed to list containers"):
+            listed = self._labelled_containers(labels)
         return [str(c.attrs.get("Names", [c.id])[0]).lstrip("/") for c in listed]
+
+    def _labelled_containers(self, labels: Mapping[str, str]) -> list[docker.models.containers.Container]:
+        # sparse: no inspect per container, which fails for one removed meanwhile.
+        return self._client.containers.list(all=True, filters={"label": _label_selector(labels)}, sparse=True)
 
     # Volumes
 
     def ensure_volume(self, name: str, labels: Mapping[str, str]) -> bool:
         """Make volume NAME with LABELS unless the engine has it; True when it was made now."""
-        try:
+        with self._engine_call(f"making volume {name}", f"could not make volume {name}"):
             try:
                 self._client.volumes.get(name)
                 return False
             except docker.errors.NotFound:
                 self._client.volumes.create(name, labels=dict(labels))
                 return True
-        except requests.exceptions.ConnectionError as exc:
-            raise _engine_lost(self._env, f"making volume {name}") from exc
-        except docker.errors.APIError as exc:
-            raise ContainerError(
-                f"the {self.info().name} could not make volume {name}: {exc.explanation or exc}"
-            ) from exc
 
     def volumes(self, labels: Mapping[str, str]) -> list[str]:
         """Names of the volumes carrying all LABELS."""
-        selector = [f"{k}={v}" for k, v in labels.items()]
         try:
-            return sorted(v.name for v in self._client.volumes.list(filters={"label": selector}))
+            return sorted(v.name for v in self._client.volumes.list(filters={"label": _label_selector(labels)}))
         except (docker.errors.APIError, requests.exceptions.ConnectionError) as exc:
             raise _engine_lost(self._env, "listing volumes") from exc
 
     def remove_volume(self, name: str) -> None:
         """Remove volume NAME (gone already is fine); a container still using it is an error."""
-        try:
+        in_use = "Stop the espdock command or container using it (`docker ps -a --filter volume=NAME`), then again."
+        removing = self._engine_call(f"removing volume {name}", f"did not remove volume {name}", hint=in_use)
+        with removing, suppress(docker.errors.NotFound):
             self._client.volumes.get(name).remove()
-        except docker.errors.NotFound:
-            pass
-        except requests.exceptions.ConnectionError as exc:
-            raise _engine_lost(self._env, f"removing volume {name}") from exc
-        except docker.errors.APIError as exc:
-            raise ContainerError(
-                f"the {self.info().name} did not remove volume {name}: {exc.explanation or exc}",
-                "Stop the espdock command or container using it (`docker ps -a --filter volume=NAME`), then again.",
-            ) from exc
 
 
 LIBPOD_INFO = "/v4.0.0/libpod/info"
@@ -1089,6 +1010,127 @@ def _registry_stream(events: Iterator[dict]) -> RegistryAnswer:
         if error:
             return _registry_answer(str(error))
     return RegistryAnswer(RegistryStatus.OK)
+
+
+def _refusals() -> tuple[type[Exception], ...]:
+    """What an SDK call raises when the engine refuses it or nothing answers (for `except`, which
+    evaluates this only when something was raised: the SDK stays unimported until then)."""
+    return (docker.errors.APIError, requests.exceptions.RequestException)
+
+
+def _image_info(attrs: Mapping[str, Any]) -> ImageInfo:
+    """ImageInfo from the engine's image inspect answer."""
+    return ImageInfo(
+        id=attrs["Id"],
+        tags=tuple(tag for tag in attrs.get("RepoTags") or () if tag != "<none>:<none>"),
+        created=datetime.fromisoformat(attrs["Created"][:19]).replace(tzinfo=UTC),
+        size=int(attrs.get("Size", 0)),
+        labels=dict((attrs.get("Config") or {}).get("Labels") or {}),
+        digests=tuple(attrs.get("RepoDigests") or ()),
+    )
+
+
+def _labelled(report: Sequence[Mapping[str, Any]], label: str) -> list[tuple[str, tuple[str, ...], int, int]]:
+    """(id, tags, bytes no other image shares, size) of each image in the engine's REPORT carrying LABEL."""
+    found = []
+    for image in report:
+        if label not in (image.get("Labels") or {}):
+            continue
+        size, common = int(image.get("Size", 0)), int(image.get("SharedSize", -1) or 0)
+        tags = tuple(t for t in image.get("RepoTags") or () if t != "<none>:<none>")
+        found.append((image["Id"], tags, size - max(common, 0), size))
+    return found
+
+
+def _label_args(labels: Mapping[str, str]) -> list[str]:
+    """LABELS as a Dockerfile's LABEL instruction takes them (KEY="VALUE")."""
+    return [f"{key}={json.dumps(value)}" for key, value in labels.items()]
+
+
+def _label_selector(labels: Mapping[str, str]) -> list[str]:
+    """LABELS as the engine's label filter takes them (KEY=VALUE, all of them must match)."""
+    return [f"{key}={value}" for key, value in labels.items()]
+
+
+def _run_argv(docker_cli: str, name: str, spec: RunSpec) -> list[str]:
+    """`docker run` of SPEC as container NAME, removed when it ends, signals left to espdock to pass on."""
+    argv = [docker_cli, "run", "--rm", "--name", name, "--sig-proxy=false", "--interactive"]
+    argv += ["--tty"] if spec.tty else []
+    argv += ["--workdir", spec.workdir] + (["--user", spec.user] if spec.user else [])
+    argv += [arg for key, value in spec.env for arg in ("--env", f"{key}={value}")]
+    argv += [arg for key, value in spec.labels for arg in ("--label", f"{key}={value}")]
+    for mount in spec.mounts:
+        kind = "volume" if mount.volume else "bind"
+        fields = [f"type={kind}", f"source={mount.source}", f"target={mount.target}"]
+        argv += ["--mount", _csv_line([*fields, "readonly"] if mount.read_only else fields)]
+    argv += [arg for device in spec.devices for arg in ("--device", device)]
+    argv += [arg for group in spec.group_add for arg in ("--group-add", str(group))]
+    argv += ["--network", spec.network] if spec.network else []
+    return [*argv, spec.image, *spec.argv]
+
+
+def _classic_params(build: ImageBuild, secret: str) -> dict[str, Any]:
+    """The engine API's /build parameters for BUILD, its CA bundle in the context file SECRET."""
+    return {
+        "t": build.tag,
+        "dockerfile": build.dockerfile,
+        "target": build.target,
+        "buildargs": json.dumps(dict(build.build_args)),
+        "labels": json.dumps(dict(build.labels)),
+        "secrets": json.dumps([f"id=ca_bundle,src={secret}"]),
+        "nocache": build.no_cache,
+        "rm": True,
+        "forcerm": True,
+    }
+
+
+def _classic_events(chunks: Iterator[bytes], tail: collections.deque[str], on_line: LineSink) -> str | None:
+    """The /build answer's JSON lines: each output line to ON_LINE and TAIL; the first error, if any."""
+    error = None
+    for chunk in chunks:
+        try:
+            event = json.loads(chunk) if chunk else {}
+        except ValueError:
+            continue
+        for line in str(event.get("stream", "")).splitlines():
+            tail.append(line)
+            on_line(line)
+        error = error or event.get("error") or (event.get("errorDetail") or {}).get("message")
+    return error
+
+
+def _compose_build(build: ImageBuild) -> dict[str, Any]:
+    """A Compose file (as JSON, on stdin) whose one service builds BUILD."""
+    return {
+        "name": "espdock-build",
+        "services": {
+            "image": {
+                "image": build.tag,
+                "build": {
+                    "context": str(build.context),
+                    "dockerfile": build.dockerfile,
+                    "target": build.target,
+                    "args": dict(build.build_args),
+                    "labels": dict(build.labels),
+                    "secrets": ["ca_bundle"],
+                },
+            }
+        },
+        # An empty secret means "no extra CA"; the Dockerfile checks for that.
+        "secrets": {"ca_bundle": {"file": str(build.ca_bundle or "/dev/null")}},
+    }
+
+
+def _buildkit_hint(tail: Sequence[str]) -> str:
+    """What to do about a failed BuildKit build, from the last lines it printed."""
+    output = "\n".join(tail)
+    unpulled = re.search(r"load metadata for (\S+)", output)
+    if unpulled and "ERROR" in output:
+        return (
+            f"{unpulled.group(1)} is not here and could not be pulled: is a registry reachable? "
+            "Or load the image locally (docker load) or point espdock.toml at one you have."
+        )
+    return "Read the build output above; run with --verbose for all of it."
 
 
 def _split_ref(ref: str) -> tuple[str, str]:
@@ -1238,13 +1280,18 @@ def _context_tar(context: Path, dockerfile: str, out: IO[bytes], extra: Mapping[
 
 def compose_available(env: Mapping[str, str]) -> bool:
     """Whether `docker compose` (v2) answers; an EngineUnavailable when there is no docker CLI at all."""
+    probe = subprocess.run(
+        [_docker_cli(env), "compose", "version"], capture_output=True, text=True, env=dict(env), check=False
+    )
+    return probe.returncode == 0
+
+
+def _docker_cli(env: Mapping[str, str]) -> str:
+    """The docker CLI on ENV's PATH; an EngineUnavailable when there is none."""
     docker_cli = shutil.which("docker", path=env.get("PATH"))
     if docker_cli is None:
         raise EngineUnavailable("the docker CLI is not on PATH", "Install the docker client (Debian: docker.io).")
-    probe = subprocess.run(
-        [docker_cli, "compose", "version"], capture_output=True, text=True, env=dict(env), check=False
-    )
-    return probe.returncode == 0
+    return docker_cli
 
 
 def format_argv(argv: Sequence[str]) -> str:

@@ -1,0 +1,308 @@
+"""What the engine's failures read like to users: espdock.images.engine turns the Docker SDK's
+exceptions into EspdockErrors (exit code, message, hint) at its boundary.
+
+An engine that is gone is the real SDK on a socket nothing listens on. An engine that refuses one
+call is EngineDouble below, which raises the SDK's own exceptions, made as the SDK makes them from
+an HTTP answer (a real engine refuses these calls only when its disk is full, a volume is in use,
+a runtime is broken...).
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import docker.errors
+import pytest
+import requests
+
+from espdock.errors import ContainerError, EngineUnavailable, EspdockError, ImageBuildError
+from espdock.images.engine import Engine, RegistryAnswer, RegistryStatus, RunSpec
+
+TCP = "tcp://engine.invalid:2375"
+NAMED = f"the Docker engine at {TCP}"
+LOST_HINT = "Start it again (`sudo systemctl start docker`), then rerun: the next command removes what was left."
+URL = "http+docker://localhost/v1.44/volumes/create"
+SPEC = RunSpec("espdock/img:1", ("true",), "/")
+
+
+def refusal(status: int, message: str) -> docker.errors.APIError:
+    """The exception the SDK raises when the engine answers STATUS with MESSAGE."""
+    response = requests.Response()
+    response.status_code, response.url = status, URL
+    response.reason = {404: "Not Found", 409: "Conflict"}.get(status, "Internal Server Error")
+    response._content = json.dumps({"message": message}).encode()
+    try:
+        docker.errors.create_api_error_from_http_exception(requests.HTTPError(response=response))
+    except docker.errors.APIError as exc:
+        return exc
+    raise AssertionError("the SDK made no exception")
+
+
+class EngineDouble:
+    """Stands in for the Docker SDK client of an engine that answers /info and /version and every
+    call but those named in FAILS (a dotted path, `()` after a call's result: "containers.prepare_model().start"),
+    which raise their exception. CALLED records every call's path."""
+
+    def __init__(self, fails: dict[str, Exception], path: str = "", called: list[str] | None = None) -> None:
+        self._fails, self._path = fails, path
+        self.called = [] if called is None else called
+
+    def __getattr__(self, name: str) -> EngineDouble:
+        return EngineDouble(self._fails, f"{self._path}.{name}".lstrip("."), self.called)
+
+    def __call__(self, *args: object, **kwargs: object) -> object:
+        self.called.append(self._path)
+        if self._path in self._fails:
+            raise self._fails[self._path]
+        if self._path in ("info", "version"):
+            return {"Name": "host", "ID": "1"} if self._path == "info" else {}
+        return EngineDouble(self._fails, f"{self._path}()", self.called)
+
+    def __iter__(self):
+        return iter(())
+
+    def __getitem__(self, key: str) -> EngineDouble:
+        return EngineDouble(self._fails, f"{self._path}[{key}]", self.called)
+
+
+def refusing(fails: dict[str, Exception]) -> Engine:
+    return Engine({"DOCKER_HOST": TCP}, client=EngineDouble(fails))
+
+
+@pytest.fixture
+def gone(tmp_path) -> tuple[Engine, str]:
+    """The real SDK on a socket nothing listens on: every call's connection fails."""
+    where = f"unix://{tmp_path / 'gone.sock'}"
+    return Engine({"DOCKER_HOST": where}, client=docker.DockerClient(base_url=where, version="1.44")), where
+
+
+@pytest.mark.parametrize(
+    ("call", "doing"),
+    [
+        (lambda e: e.ensure_volume("v", {}), "making volume v"),
+        (lambda e: e.remove_volume("v"), "removing volume v"),
+        (lambda e: e.volumes({"a": "b"}), "listing volumes"),
+        (lambda e: e.sweep({"a": "b"}), "listing containers"),
+        (lambda e: e.run(SPEC, print), "creating a container of espdock/img:1"),
+        (lambda e: e.info(), "asking what it is"),
+    ],
+    ids=["ensure_volume", "remove_volume", "volumes", "sweep", "run", "info"],
+)
+def test_an_engine_that_is_gone_is_exit_3_naming_it_and_what_espdock_was_doing(gone, call, doing):
+    engine, where = gone
+    with pytest.raises(EngineUnavailable) as err:
+        call(engine)
+    assert (err.value.exit_code, err.value.message) == (3, f"the Docker engine at {where} went away while {doing}")
+    assert err.value.hint == LOST_HINT
+
+
+def test_a_container_on_a_gone_local_socket_is_exit_3_over_plain_http_too(tmp_path):
+    where = f"unix://{tmp_path / 'gone.sock'}"
+    with pytest.raises(EngineUnavailable) as err:
+        Engine({"DOCKER_HOST": where}).run(SPEC, print)
+    assert err.value.message == f"the Docker engine at {where} went away while creating a container of espdock/img:1"
+    assert err.value.hint == LOST_HINT
+
+
+def test_a_failed_image_lookup_on_a_gone_socket_says_so_exit_1(gone):
+    engine, _ = gone
+    with pytest.raises(EspdockError) as err:
+        engine.image("espdock/img:1")
+    assert err.value.exit_code == 1
+    assert err.value.message == "the engine failed to look up image espdock/img:1: [Errno 2] No such file or directory"
+
+
+REFUSED = refusal(500, "no space left on device")
+SAID = f'500 Server Error for {URL}: Internal Server Error ("no space left on device")'
+HYBRID = "crun: cgroups in hybrid mode are not supported"
+IN_USE = "remove v: volume is in use - [4f1c]"
+
+
+@pytest.mark.parametrize(
+    ("call", "fails", "kind", "message", "hint"),
+    [
+        (
+            lambda e: e.ensure_volume("v", {}),
+            {"volumes.get": refusal(404, "get v: no such volume"), "volumes.create": REFUSED},
+            ContainerError,
+            f"{NAMED} could not make volume v: no space left on device",
+            None,
+        ),
+        (
+            lambda e: e.remove_volume("v"),
+            {"volumes.get().remove": refusal(409, IN_USE)},
+            ContainerError,
+            f"{NAMED} did not remove volume v: {IN_USE}",
+            "Stop the espdock command or container using it (`docker ps -a --filter volume=NAME`), then again.",
+        ),
+        (
+            lambda e: e.run(SPEC, print),
+            {"api.create_container_from_config": REFUSED},
+            ContainerError,
+            f"{NAMED} could not create a container of espdock/img:1: no space left on device",
+            None,
+        ),
+        (
+            lambda e: e.run(SPEC, print),
+            {"api.create_container_from_config": refusal(404, "No such image: espdock/img:1")},
+            ContainerError,
+            f'image espdock/img:1 is not there: 404 Client Error for {URL}: Not Found ("No such image: espdock/img:1")',
+            "Run `espdock build` to build it.",
+        ),
+        (
+            lambda e: e.run(SPEC, print),
+            {"containers.prepare_model().start": refusal(500, HYBRID)},
+            ContainerError,
+            f"{NAMED} could not run a container of espdock/img:1: {HYBRID}",
+            'crun cannot run containers on this host\'s hybrid cgroups: set runtime = "runc" in the [engine] '
+            "table of containers.conf (install runc if it is missing), restart the Podman service, then try again.",
+        ),
+        (
+            lambda e: e.run(SPEC, print),
+            {"containers.prepare_model().start": requests.exceptions.ConnectionError("Connection aborted.")},
+            EngineUnavailable,
+            f"{NAMED} went away while running a container of espdock/img:1",
+            LOST_HINT,
+        ),
+        (
+            lambda e: e.run(SPEC, print),
+            {"containers.prepare_model().logs": requests.exceptions.ReadTimeout("Read timed out.")},
+            EngineUnavailable,
+            f"{NAMED} did not answer within 120 s while running a container of espdock/img:1",
+            "Look at the engine (is it overloaded or hung?), then build again.",
+        ),
+        (
+            lambda e: e.add_labels("espdock/img:1", {"a": "b"}),
+            {"images.build": REFUSED},
+            ImageBuildError,
+            f"{NAMED} could not add labels to espdock/img:1: {SAID}",
+            None,
+        ),
+        (
+            lambda e: e.add_labels("espdock/img:1", {"a": "b"}),
+            {"images.build": docker.errors.BuildError("step 2 failed", [])},
+            ImageBuildError,
+            f"{NAMED} could not add labels to espdock/img:1: step 2 failed",
+            None,
+        ),
+        (
+            lambda e: e.import_rootfs(Path("/t/rootfs.tar"), "espdock/img:1"),
+            {"api.import_image_from_file": REFUSED},
+            ImageBuildError,
+            f"{NAMED} refused to import /t/rootfs.tar as espdock/img:1: {SAID}",
+            None,
+        ),
+        (
+            lambda e: e.tag("abc", "espdock/img:1"),
+            {"api.tag": REFUSED},
+            EspdockError,
+            f"the engine could not tag abc as espdock/img:1: {SAID}",
+            None,
+        ),
+        (
+            lambda e: e.untag("espdock/img:1"),
+            {"api.remove_image": REFUSED},
+            EspdockError,
+            f"the engine could not remove the name espdock/img:1: {SAID}",
+            None,
+        ),
+        (
+            lambda e: e.remove_tag("espdock/img:1"),
+            {"api.remove_image": REFUSED},
+            EspdockError,
+            f"the engine could not remove espdock/img:1: {SAID}",
+            None,
+        ),
+        (
+            lambda e: e.image("espdock/img:1"),
+            {"images.get": REFUSED},
+            EspdockError,
+            f"the engine failed to look up image espdock/img:1: {SAID}",
+            None,
+        ),
+        (
+            lambda e: e.images("espdock/img"),
+            {"images.list": REFUSED},
+            EspdockError,
+            f"the engine failed to list images of espdock/img: {SAID}",
+            None,
+        ),
+        (
+            lambda e: e.containers({"a": "b"}),
+            {"containers.list": REFUSED},
+            EspdockError,
+            f"the engine failed to list containers: {SAID}",
+            None,
+        ),
+        (
+            lambda e: e.running_images(),
+            {"api.containers": requests.exceptions.ConnectionError("Connection aborted.")},
+            EspdockError,
+            "the engine failed to list its containers: Connection aborted.",
+            None,
+        ),
+        (
+            lambda e: e.labelled_images("io.espdock"),
+            {"api.images": REFUSED},
+            EspdockError,
+            f"the engine failed to list its images: {SAID}",
+            None,
+        ),
+        (
+            lambda e: e.trim_build_cache(1),
+            {"api.prune_builds": REFUSED},
+            EspdockError,
+            f"the engine could not trim its build cache: {SAID}",
+            None,
+        ),
+    ],
+    ids=[
+        "ensure_volume",
+        "remove_volume-in-use",
+        "run-create",
+        "run-no-image",
+        "run-start-runtime",
+        "run-start-lost",
+        "run-timeout",
+        "add_labels",
+        "add_labels-build-error",
+        "import_rootfs",
+        "tag",
+        "untag",
+        "remove_tag",
+        "image",
+        "images",
+        "containers",
+        "running_images-unanswered",
+        "labelled_images",
+        "trim_build_cache",
+    ],
+)
+def test_an_engine_that_refuses_a_call_is_an_error_with_its_explanation(call, fails, kind, message, hint):
+    with pytest.raises(EspdockError) as err:
+        call(refusing(fails))
+    assert (type(err.value), err.value.message, err.value.hint) == (kind, message, hint)
+
+
+def test_a_container_whose_run_fails_is_removed():
+    client = EngineDouble({"containers.prepare_model().start": refusal(500, HYBRID)})
+    with pytest.raises(ContainerError):
+        Engine({"DOCKER_HOST": TCP}, client=client).run(SPEC, print)
+    assert client.called[-1] == "containers.prepare_model().remove"
+
+
+def test_what_is_gone_already_or_missing_is_an_answer_not_an_error():
+    missing = refusal(404, "No such image: espdock/img:1")
+    assert refusing({"volumes.get": refusal(404, "get v: no such volume")}).remove_volume("v") is None
+    assert refusing({"api.remove_image": missing}).untag("espdock/img:1") is None
+    assert refusing({"api.remove_image": missing}).remove_tag("espdock/img:1") is True
+    assert refusing({"api.remove_image": refusal(409, "image is being used")}).remove_tag("espdock/img:1") is False
+    assert refusing({"images.get": missing}).image("espdock/img:1") is None
+    assert refusing({"volumes.get": refusal(404, "no such volume")}).ensure_volume("v", {}) is True
+    assert refusing({"images.pull": REFUSED}).pull("espdock/img:1") is False
+    assert refusing({"api.df": REFUSED}).layers_size() is None
+    assert refusing({"api.df": REFUSED}).build_cache_size() is None
+    denied = refusal(500, "unauthorized: authentication required")
+    answer = refusing({"api.inspect_distribution": denied}).registry_has("espdock/img:1")
+    assert answer == RegistryAnswer(RegistryStatus.DENIED, str(denied))

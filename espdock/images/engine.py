@@ -437,10 +437,13 @@ class Engine:
             engine = self.info().name if named else "engine"
             raise error(f"the {engine} {refused}: {detail}", hint(detail) if callable(hint) else hint) from exc
 
-    def _plain_call(self, refused: str, also: tuple[type[Exception], ...] = ()) -> AbstractContextManager[None]:
+    def _plain_call(
+        self, refused: str, also: tuple[type[Exception], ...] = (), doing: str | None = None
+    ) -> AbstractContextManager[None]:
         """_engine_call as the image, tag and listing calls say a refusal: "the engine REFUSED: <the
-        whole exception>" (exit 1). A connection that breaks is not translated here unless ALSO names it."""
-        return self._engine_call(None, refused, EspdockError, also=also, named=False, explained=False)
+        whole exception>" (exit 1). A connection that breaks is the engine gone while DOING (exit
+        3), or with no DOING left as it is unless ALSO names it."""
+        return self._engine_call(doing, refused, EspdockError, also=also, named=False, explained=False)
 
     # Images
 
@@ -464,7 +467,7 @@ class Engine:
 
     def images(self, repository: str) -> list[ImageInfo]:
         """The local images of REPOSITORY."""
-        with self._plain_call(f"failed to list images of {repository}"):
+        with self._plain_call(f"failed to list images of {repository}", doing=f"listing images of {repository}"):
             images = self._client.images.list(name=repository)
         return [info for info in (self.image(image.id) for image in images) if info is not None]
 
@@ -487,7 +490,7 @@ class Engine:
     def remove_tag(self, ref: str) -> bool:
         """Remove the name REF, and the image when it was its last name; False when a container
         (even a stopped one) still uses the image: it is left as it is."""
-        with self._plain_call(f"could not remove {ref}"):
+        with self._plain_call(f"could not remove {ref}", doing=f"removing {ref}"):
             try:
                 self._client.api.remove_image(ref)
             except docker.errors.NotFound:
@@ -558,13 +561,13 @@ class Engine:
 
     def tag(self, source: str, ref: str) -> None:
         repository, tag = _split_ref(ref)
-        with self._plain_call(f"could not tag {source} as {ref}"):
+        with self._plain_call(f"could not tag {source} as {ref}", doing=f"tagging {source} as {ref}"):
             self._client.api.tag(source, repository, tag)
 
     def untag(self, ref: str) -> None:
         """Remove the name REF; the image stays while other names hold it."""
         refused = f"could not remove the name {ref}"
-        with self._plain_call(refused), suppress(docker.errors.NotFound):
+        with self._plain_call(refused, doing=f"removing the name {ref}"), suppress(docker.errors.NotFound):
             self._client.api.remove_image(ref, noprune=True)
 
     def add_labels(self, ref: str, labels: Mapping[str, str]) -> None:
@@ -917,7 +920,7 @@ class Engine:
 
     def containers(self, labels: Mapping[str, str]) -> list[str]:
         """Names of containers (running or not) carrying all LABELS."""
-        with self._plain_call("failed to list containers"):
+        with self._plain_call("failed to list containers", doing="listing containers"):
             listed = self._labelled_containers(labels)
         return [str(c.attrs.get("Names", [c.id])[0]).lstrip("/") for c in listed]
 

@@ -86,8 +86,25 @@ def gone(tmp_path) -> tuple[Engine, str]:
         (lambda e: e.sweep({"a": "b"}), "listing containers"),
         (lambda e: e.run(SPEC, print), "creating a container of espdock/img:1"),
         (lambda e: e.info(), "asking what it is"),
+        (lambda e: e.images("espdock/img"), "listing images of espdock/img"),
+        (lambda e: e.remove_tag("espdock/img:1"), "removing espdock/img:1"),
+        (lambda e: e.tag("espdock/img:1", "espdock/img:2"), "tagging espdock/img:1 as espdock/img:2"),
+        (lambda e: e.untag("espdock/img:1"), "removing the name espdock/img:1"),
+        (lambda e: e.containers({"a": "b"}), "listing containers"),
     ],
-    ids=["ensure_volume", "remove_volume", "volumes", "sweep", "run", "info"],
+    ids=[
+        "ensure_volume",
+        "remove_volume",
+        "volumes",
+        "sweep",
+        "run",
+        "info",
+        "images",
+        "remove_tag",
+        "tag",
+        "untag",
+        "containers",
+    ],
 )
 def test_an_engine_that_is_gone_is_exit_3_naming_it_and_what_espdock_was_doing(gone, call, doing):
     engine, where = gone

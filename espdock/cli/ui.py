@@ -3,12 +3,10 @@
 from __future__ import annotations
 
 import time
-from typing import assert_never
+from typing import TYPE_CHECKING, assert_never
 
 from rich.console import Console
 from rich.control import strip_control_codes
-from rich.status import Status
-from rich.table import Table
 from rich.text import Text
 
 from espdock.build.steps import EnsureBaseImage, EnsureImage, Plan
@@ -18,6 +16,19 @@ from espdock.firmware.plan import IdfBuild, InstallFirmware
 from espdock.layout import IDF_DOCKERFILE, SOURCES_FILE, firmware_install_dir
 from espdock.ros.plan import ColconBuild, RuntimeImage
 from espdock.workspace import Package, Workspace
+
+if TYPE_CHECKING:
+    from rich.status import Status
+    from rich.table import Table
+
+
+def _table(*columns: str, **options: object) -> Table:
+    """A rich Table, imported when a summary is drawn: not at every start of a command that
+    draws none (`espdock test`, `run`), whose time around the tool it runs counts."""
+    from rich.table import Table
+
+    return Table(*columns, **options)
+
 
 MARKS = {
     Outcome.BUILT: ("✓", "green"),
@@ -98,7 +109,7 @@ class Reporter:
     def summary(self) -> None:
         if not self.finished:
             return
-        table = Table(title="espdock build", title_justify="left")
+        table = _table(title="espdock build", title_justify="left")
         table.add_column("step")
         table.add_column("result")
         table.add_column("time", justify="right")
@@ -190,7 +201,7 @@ def render_micro_ros_status(console: Console, report: dict) -> None:
             if "closest_image" in image:
                 changed = ", ".join(image["changed_inputs"])
                 console.print(f"closest image {image['closest_image']} differs in: {changed}")
-        table = Table("input", "sha256", title="inputs", title_justify="left")
+        table = _table("input", "sha256", title="inputs", title_justify="left")
         for name, sha in sorted(image["inputs"].items()):
             table.add_row(name, sha[:16])
         console.print(table)
@@ -224,7 +235,7 @@ def render_pins(console: Console, pinned: list[Source], idf: IdfPin | None) -> N
 
 def render_packages(console: Console, workspace: Workspace, packages: tuple[Package, ...]) -> None:
     """`espdock list`: PACKAGES (in build order) with kind, build type and workspace dependencies."""
-    table = Table(title=str(workspace.root), title_justify="left")
+    table = _table(title=str(workspace.root), title_justify="left")
     for column in ("package", "kind", "build type", "depends on (in workspace)"):
         table.add_column(column)
     names = {p.name for p in packages}

@@ -196,6 +196,25 @@ def chip_id_argv(port: Port, esptool_major: int) -> tuple[str, ...]:
     return ("python", "-m", "esptool", "--port", port.spec, *words)
 
 
+# Run by the IDF image's Python with the probe's words spelled for esptool 5, then for esptool 4
+# (their count first): the esptool it imports picks its own spelling, so the container that probes
+# the chip is the only one needed before writing, not a second one asking `esptool version` first.
+_SPELLED_FOR_ITS_ESPTOOL = (
+    "import runpy, sys, esptool\n"
+    "count = int(sys.argv[1])\n"
+    "new = int(esptool.__version__.split('.')[0]) >= 5\n"
+    "sys.argv = ['esptool', *(sys.argv[2 : 2 + count] if new else sys.argv[2 + count :])]\n"
+    "runpy.run_module('esptool', run_name='__main__', alter_sys=True)\n"
+)
+
+
+def chip_probe_argv(port: Port) -> tuple[str, ...]:
+    """chip_id_argv for whichever esptool the image holds; esptool's banner in its output
+    ('esptool.py v4.12.0', 'esptool v5.6.0') tells esptool_major for the commands that follow."""
+    new, old = (chip_id_argv(port, major)[len(("python", "-m", "esptool")) :] for major in (5, 4))
+    return ("python", "-c", _SPELLED_FOR_ITS_ESPTOOL, str(len(new)), *new, *old)
+
+
 def detected_chip(output: list[str]) -> str | None:
     """The chip esptool detected ('Detecting chip type... ESP32-C3', esptool 4 and 5), as an IDF
     target name (esp32c3), if it said."""
@@ -233,7 +252,7 @@ def check_chip(package: str, expected: str, output: list[str], port: Port, suppo
 
 
 def esptool_major(version_output: list[str]) -> int:
-    """esptool's major version from what `python -m esptool version` printed (e.g. 'esptool v5.1.0')."""
+    """esptool's major version from the banner it prints as it starts (e.g. 'esptool.py v4.8.1', 'esptool v5.1.0')."""
     for line in version_output:
         match = re.search(r"esptool(?:\.py)? v(\d+)\.", line)
         if match:
@@ -286,9 +305,6 @@ def flash_package(
         offset, image = nvs_image
         mounts = (Mount(image.parent, IMAGE_MOUNT, read_only=True),)
         extra = (offset, f"{IMAGE_MOUNT}/{image.name}")
-    version: list[str] = []
-    steps.run_idf(workspace, step, ("python", "-m", "esptool", "version"), on_line=version.append, workdir=workdir)
-    major = esptool_major(version)
     chip = flasher_args.get("extra_esptool_args", {}).get("chip")
     if not chip:
         raise ConfigError("flasher_args.json names no chip (extra_esptool_args.chip)")
@@ -296,7 +312,7 @@ def flash_package(
     steps.run_idf(
         workspace,
         step,
-        chip_id_argv(port, major),
+        chip_probe_argv(port),
         on_line=probe.append,
         devices=port.devices,
         network=port.network,
@@ -304,6 +320,7 @@ def flash_package(
     )
     supported = component_targets(workspace.root / step.project / "main" / "idf_component.yml")
     check_chip(step.package, chip, probe, port, supported)
+    major = esptool_major(probe)
     if app:
         commands = [flash_argv(flasher_args, port, baud, major, extra)]
         if verify:

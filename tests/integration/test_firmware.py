@@ -30,6 +30,7 @@ import pytest
 from esptool.cmds import detect_chip
 
 from espdock.config import Config, resolve_ca_bundle
+from espdock.firmware.flashing import chip_probe_argv, detected_chip, esptool_major, parse_port
 from espdock.layout import firmware_install_dir
 from tests.conftest import (
     REPO,
@@ -493,6 +494,19 @@ def test_flash_writes_and_verifies_through_esptool(fw_ws, double_env, mock_bootl
     assert result.returncode == 0, result.stdout[-3000:] + result.stderr
     assert "verified" in result.stdout
     assert leftover_containers(engine, root) == []
+
+
+def test_the_chip_probe_speaks_the_esptool_it_finds_and_tells_its_version(mock_bootloader):
+    """The double's image holds esptool 4 (the flash tests above); this venv's is esptool 5, which
+    takes the probe's words hyphenated. One run detects the chip and names esptool's version."""
+    argv = chip_probe_argv(parse_port(mock_bootloader))
+    assert argv[0] == "python"
+    probe = subprocess.run([sys.executable, *argv[1:]], capture_output=True, text=True, timeout=120, check=False)
+    output = (probe.stdout + probe.stderr).splitlines()
+    assert probe.returncode == 0, "\n".join(output[-20:])
+    assert detected_chip(output) == "esp32"
+    assert esptool_major(output) == 5
+    assert not [line for line in output if "deprecated" in line.lower()], "esptool 5 was given esptool 4's words"
 
 
 def ros2_run(package: str, executable: str, *args: str, env: dict[str, str], cwd: Path) -> subprocess.CompletedProcess:

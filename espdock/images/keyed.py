@@ -3,6 +3,9 @@ else built (and pushed there with --push-cache); each one's Debian package set r
 
 from __future__ import annotations
 
+import fcntl
+import hashlib
+import os
 import re
 import shutil
 import tempfile
@@ -59,15 +62,56 @@ class KeyedImages:
         spec = step.spec
         self.used.append((spec.tag, spec.repository))
         existing = self.containers.engine.image(spec.tag)
-        if not step.force and existing is not None and existing.labels.get(LABEL_KEY) == spec.key:
-            age = datetime.now(UTC) - existing.created
-            self.containers.emit(
-                StepNote(
-                    step.name, f"{spec.tag}: cache hit (key {spec.key[:16]}, built {age_text(age.total_seconds())} ago)"
-                )
-            )
-            self._publish(step)
+        if not step.force and self._hit(step, existing):
             return Outcome.CACHED, spec.tag
+        # Two workspaces (CI jobs on one runner) that miss the same key at once: one builds, the
+        # other waits and then finds it, instead of building it again and leaving one untagged.
+        with self._building(step):
+            if not step.force:
+                existing = self.containers.engine.image(spec.tag)
+                if self._hit(step, existing):
+                    return Outcome.CACHED, spec.tag
+            return self._make(workspace, step, existing, extra_context)
+
+    def _hit(self, step: EnsureImage, existing: ImageInfo | None) -> bool:
+        """Whether EXISTING is STEP's image (its key); then say so, and publish it if asked."""
+        spec = step.spec
+        if existing is None or existing.labels.get(LABEL_KEY) != spec.key:
+            return False
+        age = age_text((datetime.now(UTC) - existing.created).total_seconds())
+        self.containers.emit(StepNote(step.name, f"{spec.tag}: cache hit (key {spec.key[:16]}, built {age} ago)"))
+        self._publish(step)
+        return True
+
+    @contextmanager
+    def _building(self, step: EnsureImage) -> Iterator[None]:
+        """Hold the lock of STEP's tag on this engine, among the espdock processes of this machine."""
+        name = hashlib.sha256(f"{self.containers.engine.info().identity}\0{step.spec.tag}".encode()).hexdigest()[:16]
+        path = Path(tempfile.gettempdir()) / f"espdock-image-{name}.lock"
+        try:
+            fd = os.open(path, os.O_RDONLY | os.O_CREAT, 0o444)
+        except OSError:
+            yield  # another user's lock file we cannot open: build unlocked, as before
+            return
+        try:
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:
+                self.containers.emit(StepNote(step.name, f"{step.spec.tag}: another espdock is making it; waiting"))
+                fcntl.flock(fd, fcntl.LOCK_EX)
+            yield
+        finally:
+            os.close(fd)
+
+    def _make(
+        self,
+        workspace: Workspace,
+        step: EnsureImage,
+        existing: ImageInfo | None,
+        extra_context: Mapping[str, Path | bytes] | None,
+    ) -> tuple[Outcome, str]:
+        """Pull STEP's image from the cache registry, else build it (EXISTING: what its tag names now)."""
+        spec = step.spec
         if not step.force and self._pull_from_cache(step):
             return Outcome.PULLED, f"{spec.tag} from {self.containers.config.cache_registry}"
         why = "rebuild requested" if step.force else "cache miss"

@@ -5,6 +5,7 @@ The images are this run's own (a comment unique to the run in Dockerfile.ros).""
 from __future__ import annotations
 
 import hashlib
+import json
 import shutil
 import subprocess
 import sys
@@ -15,6 +16,7 @@ from pathlib import Path
 
 import pytest
 
+from espdock.build.steps import LABEL_INPUTS
 from espdock.images.prune import read_records
 from tests.conftest import espdock, python_workspace
 
@@ -31,6 +33,18 @@ def start_build(root: Path, env: dict[str, str]) -> subprocess.Popen:
         stderr=subprocess.STDOUT,
         text=True,
     )
+
+
+def untagged_from(dockerfile: Path) -> list[str]:
+    """Untagged images built from DOCKERFILE as it is now (its sha256 in their recorded inputs)."""
+    digest = hashlib.sha256(dockerfile.read_bytes()).hexdigest()
+    listing = ["docker", "images", "-q", "--no-trunc", "--filter", "dangling=true", "--filter", f"label={LABEL_INPUTS}"]
+    ids = sorted(set(subprocess.run(listing, capture_output=True, text=True, check=True).stdout.split()))
+    if not ids:
+        return []
+    inspect = subprocess.run(["docker", "image", "inspect", *ids], capture_output=True, text=True, check=False)
+    return [image["Id"] for image in json.loads(inspect.stdout or "[]")
+            if json.loads(image["Config"]["Labels"][LABEL_INPUTS]).get("Dockerfile.ros") == digest]  # fmt: skip
 
 
 def test_two_workspaces_sharing_images_build_at_once(engine, tmp_path):
@@ -61,10 +75,14 @@ def test_two_workspaces_sharing_images_build_at_once(engine, tmp_path):
         records = {r.root: r for r in read_records(tmp_path / "state")}
         shared = records[str(first)].current & records[str(second)].current
         assert len(shared) == 2, records  # the ROS build image and the runtime base, one each for both
+        for tag in shared:  # one build made it, the other waited and found it
+            made = [output for output in outputs if f"{tag}: cache miss" in output]
+            assert len(made) == 1, f"{tag} built {len(made)} times:\n" + "\n".join(o[-2000:] for o in outputs)
+        assert untagged_from(dockerfile) == [], "a build left the image it raced with on the engine, untagged"
         for root in (first, second):  # both found everything they use: nothing rebuilt
             again = espdock("build", cwd=root, env=env)
             assert again.returncode == 0 and "cache miss" not in again.stdout, again.stdout[-3000:]
     finally:
         tags = {i.tag for r in read_records(tmp_path / "state") for i in r.images}
         tags |= {f"espdock/shared-{side}-{run}:latest" for side in "ab"}
-        subprocess.run(["docker", "rmi", *sorted(tags)], capture_output=True, check=False)
+        subprocess.run(["docker", "rmi", *sorted(tags), *untagged_from(dockerfile)], capture_output=True, check=False)

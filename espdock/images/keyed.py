@@ -89,7 +89,10 @@ class KeyedImages:
         name = hashlib.sha256(f"{self.containers.engine.info().identity}\0{step.spec.tag}".encode()).hexdigest()[:16]
         path = Path(tempfile.gettempdir()) / f"espdock-image-{name}.lock"
         try:
-            fd = os.open(path, os.O_RDONLY | os.O_CREAT, 0o444)
+            try:  # without O_CREAT first: protected_regular refuses it on another user's file in /tmp
+                fd = os.open(path, os.O_RDONLY)
+            except FileNotFoundError:
+                fd = os.open(path, os.O_RDONLY | os.O_CREAT, 0o444)
         except OSError:
             yield  # another user's lock file we cannot open: build unlocked, as before
             return

@@ -228,21 +228,17 @@ def leftover_containers(engine, root: Path) -> list[str]:
     return engine.containers({"io.espdock.workspace": str(root)})
 
 
-def remove_images_built_from(*dockerfiles: Path) -> list[str]:
-    """Remove every espdock image built from one of DOCKERFILES as they are now (the file's
-    sha256 in the image's recorded inputs), and say which. For tests that give their workspace a
-    Dockerfile no other run has: its keyed images can never be reused, so they go with the test
-    (the run's sweep keeps keyed images, which the next run would find)."""
+def images_built_from(*dockerfiles: Path, untagged: bool = False) -> list[dict]:
+    """The engine's inspect answers for the images built from one of DOCKERFILES as they are now
+    (the file's sha256 in the image's recorded inputs); UNTAGGED: only those that lost every name."""
     wanted = {(path.name, hashlib.sha256(path.read_bytes()).hexdigest()) for path in dockerfiles}
-    listing = subprocess.run(
-        ["docker", "image", "ls", "--format", "{{.Repository}}:{{.Tag}}", "--filter", "reference=espdock/*"],
-        capture_output=True, text=True, check=True,
-    )  # fmt: skip
-    tags = [tag for tag in listing.stdout.split() if not tag.endswith(":<none>")]
-    if not tags:
+    listing = ["docker", "image", "ls", "-q", "--no-trunc", "--filter", f"label={LABEL_INPUTS}"]
+    listing += ["--filter", "dangling=true"] if untagged else []
+    ids = sorted(set(subprocess.run(listing, capture_output=True, text=True, check=True).stdout.split()))
+    if not ids:
         return []
-    # A tag removed meanwhile (another worker) is left out of the answer, which lists the others.
-    inspect = subprocess.run(["docker", "image", "inspect", *tags], capture_output=True, text=True, check=False)
+    # An image removed meanwhile (another worker) is left out of the answer, which lists the others.
+    inspect = subprocess.run(["docker", "image", "inspect", *ids], capture_output=True, text=True, check=False)
     made = []
     for image in json.loads(inspect.stdout or "[]"):
         try:
@@ -250,7 +246,16 @@ def remove_images_built_from(*dockerfiles: Path) -> list[str]:
         except ValueError:
             continue
         if wanted & set(inputs.items()):
-            made += [tag for tag in image.get("RepoTags") or () if tag in tags]
+            made.append(image)
+    return made
+
+
+def remove_images_built_from(*dockerfiles: Path) -> list[str]:
+    """Remove every image built from one of DOCKERFILES as they are now, and say which names went.
+    For tests that give their workspace a Dockerfile no other run has: its keyed images can never
+    be reused, so they go with the test (the run's sweep keeps keyed images, which the next run
+    would find)."""
+    made = [tag for image in images_built_from(*dockerfiles) for tag in image.get("RepoTags") or ()]
     if made:
         subprocess.run(["docker", "rmi", "-f", *made], capture_output=True, check=False)
     return made

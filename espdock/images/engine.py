@@ -204,24 +204,31 @@ def _local_stream(socket_path: str, timeout: float, method: str, path: str) -> I
         connection.close()
 
 
-def _local_call(socket_path: str, timeout: float, method: str, path: str, body: bytes | None = None) -> bytes:
-    """METHOD PATH on the engine's local socket; the answer's body. A failed connection is
-    requests' ConnectionError, a slow answer its ReadTimeout, an error status docker.errors'
-    NotFound, ImageNotFound or APIError: as the SDK raises them."""
+def _exchange(socket_path: str, timeout: float, method: str, path: str, body: bytes | None = None) -> tuple[int, bytes]:
+    """METHOD PATH on the engine's local socket: (HTTP status, the answer's body). Failures raise
+    as http.client and the socket raise them."""
     connection = _UnixHTTP(socket_path, timeout)
     headers = {"Content-Type": "application/x-tar" if method == "PUT" else "application/json"} if body else {}
     try:
         connection.request(method, path, body=body, headers=headers)
         response = connection.getresponse()
-        answer = response.read()
+        return response.status, response.read()
+    finally:
+        connection.close()
+
+
+def _local_call(socket_path: str, timeout: float, method: str, path: str, body: bytes | None = None) -> bytes:
+    """METHOD PATH on the engine's local socket; the answer's body. A failed connection is
+    requests' ConnectionError, a slow answer its ReadTimeout, an error status docker.errors'
+    NotFound, ImageNotFound or APIError: as the SDK raises them."""
+    try:
+        status, answer = _exchange(socket_path, timeout, method, path, body)
     except TimeoutError as exc:
         raise requests.exceptions.ReadTimeout(f"{method} {path}: no answer within {timeout:g} s") from exc
     except (OSError, http.client.HTTPException) as exc:
         raise requests.exceptions.ConnectionError(f"{method} {path}: {exc}") from exc
-    finally:
-        connection.close()
-    if response.status >= 400:
-        _raise_api_error(response.status, answer, path)
+    if status >= 400:
+        _raise_api_error(status, answer, path)
     return answer
 
 
@@ -390,17 +397,11 @@ class Engine:
     def _get(self, path: str) -> tuple[int, Any]:
         """GET PATH of the engine API on its local socket: (HTTP status, decoded JSON body or None)."""
         assert self._socket is not None
-        connection = _UnixHTTP(self._socket, self._timeout)
+        status, body = _exchange(self._socket, self._timeout, "GET", path)
         try:
-            connection.request("GET", path)
-            response = connection.getresponse()
-            body = response.read()
-        finally:
-            connection.close()
-        try:
-            return response.status, json.loads(body) if body else None
+            return status, json.loads(body) if body else None
         except json.JSONDecodeError:
-            return response.status, None
+            return status, None
 
     @contextmanager
     def _engine_call(

@@ -5,7 +5,6 @@ The images are this run's own (a comment unique to the run in Dockerfile.ros).""
 from __future__ import annotations
 
 import hashlib
-import json
 import shutil
 import subprocess
 import sys
@@ -16,9 +15,8 @@ from pathlib import Path
 
 import pytest
 
-from espdock.build.steps import LABEL_INPUTS
 from espdock.images.prune import read_records
-from tests.conftest import espdock, python_workspace
+from tests.conftest import espdock, images_built_from, python_workspace
 
 pytestmark = [pytest.mark.engine, pytest.mark.slow]
 
@@ -36,15 +34,8 @@ def start_build(root: Path, env: dict[str, str]) -> subprocess.Popen:
 
 
 def untagged_from(dockerfile: Path) -> list[str]:
-    """Untagged images built from DOCKERFILE as it is now (its sha256 in their recorded inputs)."""
-    digest = hashlib.sha256(dockerfile.read_bytes()).hexdigest()
-    listing = ["docker", "images", "-q", "--no-trunc", "--filter", "dangling=true", "--filter", f"label={LABEL_INPUTS}"]
-    ids = sorted(set(subprocess.run(listing, capture_output=True, text=True, check=True).stdout.split()))
-    if not ids:
-        return []
-    inspect = subprocess.run(["docker", "image", "inspect", *ids], capture_output=True, text=True, check=False)
-    return [image["Id"] for image in json.loads(inspect.stdout or "[]")
-            if json.loads(image["Config"]["Labels"][LABEL_INPUTS]).get("Dockerfile.ros") == digest]  # fmt: skip
+    """Untagged images built from DOCKERFILE as it is now."""
+    return [image["Id"] for image in images_built_from(dockerfile, untagged=True)]
 
 
 def test_two_workspaces_sharing_images_build_at_once(engine, tmp_path):

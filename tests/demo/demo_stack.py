@@ -195,10 +195,8 @@ class DemoStack:
     def crash(self, service: str) -> None:
         """Kill SERVICE's node with SIGKILL from inside, as a crash would (`docker kill` counts as a
         deliberate stop, after which Docker does not restart a container)."""
-        # kill -1: every process of the node's user but PID 1 (tini), which then exits with the node's status.
-        subprocess.run(
-            ["docker", "exec", self.container(service), "sh", "-c", "kill -KILL -1"], capture_output=True, check=False
-        )
+        # The container ends with its node (tini exits with its status), the exec's answer with it.
+        self._signal_all(service, "KILL", check=False)
 
     def freeze(self, service: str) -> None:
         """Stop SERVICE's processes where they stand (SIGSTOP), leaving the container running: a
@@ -209,11 +207,12 @@ class DemoStack:
     def thaw(self, service: str) -> None:
         self._signal_all(service, "CONT")
 
-    def _signal_all(self, service: str, signal: str) -> None:
+    def _signal_all(self, service: str, signal: str, check: bool = True) -> None:
+        """SIGNAL to every process in SERVICE's container but PID 1 (tini) and the shell sending it (kill -1)."""
         subprocess.run(
             ["docker", "exec", self.container(service), "sh", "-c", f"kill -{signal} -1"],
             capture_output=True,
-            check=True,
+            check=check,
         )
 
     def wait_until(self, condition, timeout: float, what: str, interval: float = 0.5):

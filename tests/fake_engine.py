@@ -33,6 +33,9 @@ class FakeEngine:
     sees_host: bool = True
     rootless: bool = False
     mount_checks: int = 0
+    # Files read_file finds, by path in any image (an empty dpkg database unless set); what it read.
+    files: dict[str, bytes | None] = field(default_factory=dict)
+    reads: list[tuple[str, str]] = field(default_factory=list)
 
     def info(self) -> EngineInfo:
         return EngineInfo(kind="docker", rootless=self.rootless, identity="fake", where="fake://engine")
@@ -93,6 +96,10 @@ class FakeEngine:
             return 0 if self.sees_host and path.is_file() and path.read_text() == spec.argv[4] else 1
         self.runs.append(spec)
         return self.run_script(spec, on_line)
+
+    def read_file(self, image: str, path: str, labels: Mapping[str, str]) -> bytes | None:
+        self.reads.append((image, path))
+        return self.files.get(path, b"")
 
     def remove_containers(self, labels: Mapping[str, str]) -> int:
         self.removed.append(dict(labels))

@@ -777,6 +777,22 @@ class Engine:
             _fetch(container, fetch or {})
             return code
 
+    def read_file(self, image: str, path: str, labels: Mapping[str, str]) -> bytes | None:
+        """The file PATH in IMAGE, or None when the image has no such file. Read from a container
+        that is created and removed, never started: no runtime and no process, about a quarter of
+        the time and CPU of running a command that prints it (tests/bench/package_labels.py)."""
+        spec = RunSpec(image=image, argv=("true",), workdir="/", labels=tuple(labels.items()))
+        with self._container(spec, keep=False) as container:
+            try:
+                chunks, _ = container.get_archive(path)
+            except docker.errors.NotFound:
+                return None
+            stream = io.BytesIO(b"".join(chunks))
+        with tarfile.open(fileobj=stream) as archive:
+            member = archive.next()
+            handle = archive.extractfile(member) if member is not None else None
+            return handle.read() if handle is not None else None
+
     def run_attached(self, spec: RunSpec, keep: bool = False, fetch: Mapping[str, Path] | None = None) -> int:
         """Run SPEC with the terminal attached (for interactive tools); return its exit code (FETCH: as run's)."""
         with self._container(spec, keep) as container:

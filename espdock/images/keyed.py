@@ -20,9 +20,11 @@ from espdock.errors import RegistryError
 from espdock.events import Outcome, StepNote, StepOutput
 from espdock.images import bootstrap
 from espdock.images.containers import Containers, first_line
-from espdock.images.engine import ImageInfo, RegistryAnswer, RegistryStatus, RunSpec
+from espdock.images.engine import ImageInfo, RegistryAnswer, RegistryStatus
 from espdock.workspace import Workspace
 
+# dpkg's database: read from the image, not asked of a `dpkg-query` run in it (see installed_packages).
+DPKG_STATUS = "/var/lib/dpkg/status"
 DPKG_LINE = re.compile(r"^[a-z0-9][a-z0-9+.-]*(:[a-z0-9]+)?=\S+$")
 
 BUILDKIT_STEP = re.compile(r"^#\d+ \[.*\] (?P<what>.+)$")
@@ -34,6 +36,20 @@ def _denied(registry: str, what: str, answer: RegistryAnswer) -> RegistryError:
         f"the cache registry {registry} refused the engine's credentials to {what}: {first_line(answer.detail)}",
         f"Log the engine in: `docker login {host}` (espdock uses the engine's login; it reads no credentials).",
     )
+
+
+def installed_packages(status: str) -> list[str]:
+    """NAME=VERSION of every package dpkg's STATUS file holds, sorted, as `dpkg-query -W -f
+    '${Package}=${Version}\\n'` lists them: each one not marked not-installed. Reading the file
+    needs no container to start (and no entrypoint to run: the IDF image's sources export.sh)."""
+    packages = []
+    for stanza in status.split("\n\n"):
+        fields = dict(line.split(":", 1) for line in stanza.splitlines() if line[:1] not in (" ", "\t") and ":" in line)
+        if "Package" in fields and not fields.get("Status", "").rstrip().endswith(" not-installed"):
+            entry = f"{fields['Package'].strip()}={fields.get('Version', '').strip()}"
+            if DPKG_LINE.match(entry):
+                packages.append(entry)
+    return sorted(packages)
 
 
 class KeyedImages:
@@ -163,19 +179,12 @@ class KeyedImages:
 
     def _record_packages(self, workspace: Workspace, step: EnsureImage) -> None:
         """The image's Debian package set (what its apt installs gave today) as labels, as the base has."""
-        listing: list[str] = []
-        query = ("dpkg-query", "-W", "-f", "${Package}=${Version}\n")
-        labels = ((LABEL_WORKSPACE, str(workspace.root)), ("io.espdock.step", "dpkg"))
-        if (
-            self.containers.engine.run(
-                RunSpec(image=step.spec.tag, argv=query, workdir="/", labels=labels), listing.append
-            )
-            != 0
-        ):
+        labels = {LABEL_WORKSPACE: str(workspace.root), "io.espdock.step": "dpkg"}
+        status = self.containers.engine.read_file(step.spec.tag, DPKG_STATUS, labels)
+        if status is None:
             self.containers.emit(StepNote(step.name, "warning: no dpkg in the image: its package set is not recorded"))
             return
-        # An entrypoint (the IDF image's sources export.sh) may print before the command runs.
-        packages = sorted(line.strip() for line in listing if DPKG_LINE.match(line.strip()))
+        packages = installed_packages(status.decode("utf-8", "replace"))
         self.containers.engine.add_labels(step.spec.tag, bootstrap.package_labels(packages))
         self.containers.emit(StepNote(step.name, f"{len(packages)} Debian packages recorded in the image's labels"))
 

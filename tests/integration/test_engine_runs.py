@@ -17,6 +17,7 @@ import pytest
 
 from espdock.errors import ContainerError
 from espdock.images.engine import DEFAULT_SOCKET, Engine, RunSpec
+from espdock.images.keyed import DPKG_STATUS, installed_packages
 from tests.integration.test_engines import TcpForwarder
 
 pytestmark = [pytest.mark.engine]
@@ -78,3 +79,17 @@ def test_a_missing_image_is_a_clear_error_and_leaves_nothing(way):
     assert f"image {run.image} is not there" in raised.value.message
     assert "espdock build" in (raised.value.hint or "")
     assert way.containers(dict(run.labels)) == []
+
+
+def test_a_file_is_read_from_an_image_without_starting_it_and_a_missing_one_is_none(way, engine):
+    """What a keyed image's package labels come from: dpkg's status file, read without running the
+    image, gives the set `dpkg-query -W` prints when it runs in it."""
+    labels = {"io.espdock.test-run": uuid.uuid4().hex}
+    status = way.read_file(IMAGE, DPKG_STATUS, labels)
+    assert status is not None
+    queried: list[str] = []
+    assert engine.run(spec(["dpkg-query", "-W", "-f", "${Package}=${Version}\n"]), queried.append) == 0
+    assert installed_packages(status.decode()) == sorted(queried)
+    assert len(queried) > 50
+    assert way.read_file(IMAGE, "/no/such/file", labels) is None
+    assert way.containers(labels) == []

@@ -15,6 +15,7 @@ from espdock.errors import BuildFailed, RegistryError
 from espdock.events import Outcome, StepFinished, StepNote
 from espdock.images import bootstrap
 from espdock.images.engine import ImageInfo, RegistryStatus, _registry_answer
+from espdock.images.keyed import DPKG_STATUS
 from espdock.ros.plan import ColconBuild, ros_build_image
 from espdock.workspace import Workspace
 from tests.fake_engine import FakeEngine
@@ -270,20 +271,40 @@ def test_a_tool_s_output_reaches_a_log_exactly_as_rich_prints_it():
     assert fast.getvalue() == ref.getvalue()
 
 
-def test_a_built_image_records_its_debian_packages_in_labels(ws):
-    def dpkg(spec, on_line):
-        if spec.argv[0] == "dpkg-query":
-            for line in ("Setting up ESP-IDF v5.3 in /opt/esp/idf", "libc6=2.36-9", "python3=3.11.2-1+b1"):
-                on_line(line)
-        return 0
+STATUS = """Package: libc6
+Status: install ok installed
+Version: 2.36-9
+Description: GNU C Library
+ multi-line description: Version: 0
 
-    engine = FakeEngine(run_script=dpkg)
+Package: gone
+Status: deinstall ok not-installed
+Version: 1.0
+
+Package: python3
+Status: install ok installed
+Multi-Arch: allowed
+Version: 3.11.2-1+b1
+"""
+
+
+def test_a_built_image_records_its_debian_packages_in_labels_without_running_it(ws):
+    engine = FakeEngine(files={DPKG_STATUS: STATUS.encode()})
     events: list = []
     runner(engine, events).run(Plan(ws, (EnsureImage(SPEC),)))
     labels = engine.images_by_tag[SPEC.tag].labels
     assert labels["io.espdock.debian-packages"] == "libc6=2.36-9 python3=3.11.2-1+b1"
     assert labels["io.espdock.key"] == SPEC.key, "the key label stays"
     assert "2 Debian packages recorded" in notes(events)
+    assert engine.reads == [(SPEC.tag, DPKG_STATUS)] and engine.runs == [], "read from the image, no container run"
+
+
+def test_an_image_without_dpkg_is_built_with_a_warning_and_no_package_labels(ws):
+    engine = FakeEngine(files={DPKG_STATUS: None})
+    events: list = []
+    runner(engine, events).run(Plan(ws, (EnsureImage(SPEC),)))
+    assert "io.espdock.debian-packages" not in engine.images_by_tag[SPEC.tag].labels
+    assert "warning: no dpkg in the image: its package set is not recorded" in notes(events)
 
 
 def test_after_an_edit_colcon_gets_the_changed_package_and_its_dependents_only(ws):

@@ -13,7 +13,7 @@ import sys
 import tempfile
 import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from pathlib import Path
 
 import pytest
@@ -335,6 +335,29 @@ def wheel_inputs_digest() -> str:
 
 # Directories kept_in_temp handed to this process, each with a shared lock held until it exits.
 _IN_USE: dict[Path, int] = {}
+
+
+def shared_ros_images(engine, root: Path, *more: str) -> tuple[str, ...]:
+    """MORE, and the ROS build and runtime images ROOT builds with, on the shared engine: built
+    there when one is missing (it has a network; the engines the tests copy them into may not)."""
+    images = (*more, ros_build_tag(root), ros_runtime_tag(root))
+    if any(engine.image(tag) is None for tag in images):
+        warm = espdock("build", "--only", "ros", cwd=root)
+        assert warm.returncode == 0, warm.stdout + warm.stderr
+    return images
+
+
+def images_key(engine, images: Sequence[str]) -> str:
+    """A digest of IMAGES' IDs on the shared engine: what a kept copy of them is named by."""
+    ids = "\0".join(f"{tag}={engine.image(tag).id}" for tag in images)
+    return hashlib.sha256(ids.encode()).hexdigest()[:16]
+
+
+def copy_images(images: Sequence[str], env: Mapping[str, str]) -> None:
+    """IMAGES from the shared engine into the engine ENV's DOCKER_HOST names: docker save | docker load."""
+    with subprocess.Popen(["docker", "save", *images], stdout=subprocess.PIPE) as save:
+        loaded = subprocess.run(["docker", "load"], stdin=save.stdout, env=env, capture_output=True, check=False)
+    assert save.returncode == 0 and loaded.returncode == 0, loaded.stderr
 
 
 def kept_in_temp(name: str, key: str, make: Callable[[Path], None]) -> Path:

@@ -783,9 +783,7 @@ class Engine:
         the time and CPU of running a command that prints it (tests/bench/package_labels.py)."""
         spec = RunSpec(image=image, argv=("true",), workdir="/", labels=tuple(labels.items()))
         with self._container(spec, keep=False) as container:
-            try:
-                chunks, _ = container.get_archive(path)
-            except docker.errors.NotFound:
+            if (chunks := _archive(container, path)) is None:
                 return None
             stream = io.BytesIO(b"".join(chunks))
         with tarfile.open(fileobj=stream) as archive:
@@ -1171,12 +1169,19 @@ def _connect_reason(exc: Exception) -> str:
     return text
 
 
+def _archive(container: docker.models.containers.Container, path: str) -> Iterator[bytes] | None:
+    """PATH's tar stream out of CONTAINER (started or not), None when the container lacks it."""
+    try:
+        chunks, _ = container.get_archive(path)
+    except docker.errors.NotFound:
+        return None
+    return chunks
+
+
 def _fetch(container: docker.models.containers.Container, fetch: Mapping[str, Path]) -> None:
     """Each container path's tar stream into its host file (none for a path the container lacks)."""
     for path, dest in fetch.items():
-        try:
-            chunks, _ = container.get_archive(path)
-        except docker.errors.NotFound:
+        if (chunks := _archive(container, path)) is None:
             continue
         with dest.open("wb") as out:
             for chunk in chunks:

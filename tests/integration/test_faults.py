@@ -15,7 +15,6 @@ which is the shared engine's.
 from __future__ import annotations
 
 import contextlib
-import hashlib
 import os
 import shutil
 import signal
@@ -29,7 +28,16 @@ from pathlib import Path
 import pytest
 
 from espdock.build.manifest import file_hashes
-from tests.conftest import copy_workspace, espdock, kept_in_temp, python_workspace, ros_build_tag, ros_runtime_tag
+from tests.conftest import (
+    copy_images,
+    copy_workspace,
+    espdock,
+    images_key,
+    kept_in_temp,
+    python_workspace,
+    ros_build_tag,
+    shared_ros_images,
+)
 
 pytestmark = [pytest.mark.engine, pytest.mark.slow]
 
@@ -176,10 +184,7 @@ class PrivateEngine:
 
     def load(self, *images: str) -> None:
         """IMAGES from the shared engine, copied in with docker save | docker load."""
-        with subprocess.Popen(["docker", "save", *images], stdout=subprocess.PIPE) as save:
-            loaded = subprocess.run(["docker", "load"], stdin=save.stdout, env=self.env, capture_output=True,
-                                    check=False)  # fmt: skip
-        assert save.returncode == 0 and loaded.returncode == 0, loaded.stderr
+        copy_images(images, self.env)
 
     def seed(self, data_root: Path) -> None:
         """Start from a copy of DATA_ROOT, a stopped engine's data root (before start()).
@@ -238,11 +243,7 @@ def seeded_data_root(engine, tmp_path_factory) -> Path:
     Loading them takes about 17 s and 20 s of CPU, a copy 2 s; so it is made once for each set
     of image IDs and kept in the temp dir for the next run (an older one is removed then)."""
     root = copy_workspace(tmp_path_factory.mktemp("seed") / "ws-root")
-    images = ("debian:bookworm-slim", ros_build_tag(root), ros_runtime_tag(root))
-    if any(engine.image(tag) is None for tag in images):  # the shared engine makes them (it has a network)
-        warm = espdock("build", "--only", "ros", cwd=root)
-        assert warm.returncode == 0, warm.stdout + warm.stderr
-    ids = "\0".join(f"{tag}={engine.image(tag).id}" for tag in images)
+    images = shared_ros_images(engine, root, "debian:bookworm-slim")
 
     def make(place: Path) -> None:
         loader = PrivateEngine(private_home())
@@ -254,7 +255,7 @@ def seeded_data_root(engine, tmp_path_factory) -> Path:
         finally:
             drop_private_engine(loader)
 
-    return kept_in_temp("espdock-test-engine", hashlib.sha256(ids.encode()).hexdigest()[:16], make) / "data"
+    return kept_in_temp("espdock-test-engine", images_key(engine, images), make) / "data"
 
 
 def slow_package(root: Path) -> Path:

@@ -10,7 +10,6 @@ ROS images (loaded with docker save | docker load): the wheels image would take 
 
 from __future__ import annotations
 
-import hashlib
 import os
 import shutil
 import signal
@@ -25,7 +24,17 @@ import pytest
 
 from espdock.errors import ContainerError
 from espdock.images.engine import Engine
-from tests.conftest import espdock, kept_in_temp, owners, python_workspace, ros_build_tag, ros_runtime_tag
+from tests.conftest import (
+    copy_images,
+    espdock,
+    images_key,
+    kept_in_temp,
+    owners,
+    python_workspace,
+    ros_build_tag,
+    ros_runtime_tag,
+    shared_ros_images,
+)
 from tests.integration.test_engines import edit_word, installed_word, once_workspace
 from tests.integration.test_faults import mount_tmpfs
 
@@ -88,24 +97,20 @@ def podman_storage(engine: Engine, images: tuple[str, ...]) -> Path:
     every run, a copy a few seconds; so it is made once for each set of image IDs and kept in the
     temp dir for the next run, as test_faults.py keeps its private engines' data root. libpod's own
     database is left out: it records the storage root's path, and the copy's differs."""
-    ids = "\0".join(f"{tag}={engine.image(tag).id}" for tag in images)
 
     def make(place: Path) -> None:
         runroot = Path(tempfile.mkdtemp(prefix="pm-", dir="/tmp"))
         loader = PodmanService(place, runroot)
         try:
             loader.start(place)
-            with subprocess.Popen(["docker", "save", *images], stdout=subprocess.PIPE) as save:
-                loaded = subprocess.run(["docker", "load"], stdin=save.stdout, env=loader.env, capture_output=True,
-                                        check=False)  # fmt: skip
-            assert save.returncode == 0 and loaded.returncode == 0, loaded.stderr
+            copy_images(images, loader.env)
         finally:
             loader.stop()
             subprocess.run(["umount", "--lazy", str(place / "storage/overlay")], capture_output=True, check=False)
             shutil.rmtree(runroot, ignore_errors=True)
         shutil.rmtree(place / "storage/libpod")
 
-    return kept_in_temp("espdock-test-podman", hashlib.sha256(ids.encode()).hexdigest()[:16], make) / "storage"
+    return kept_in_temp("espdock-test-podman", images_key(engine, images), make) / "storage"
 
 
 @pytest.fixture(scope="module")
@@ -113,12 +118,7 @@ def podman(engine, tmp_path_factory) -> Iterator[PodmanService]:
     if shutil.which("podman") is None:
         pytest.skip("podman is not installed (tests/install-system-deps.sh installs it)")
     home = tmp_path_factory.mktemp("podman")
-    seed = python_workspace(home / "seed")
-    images = (ros_build_tag(seed), ros_runtime_tag(seed))
-    if any(engine.image(tag) is None for tag in images):
-        warm = espdock("build", "--only", "ros", cwd=seed)
-        assert warm.returncode == 0, warm.stdout + warm.stderr
-    kept = podman_storage(engine, images)
+    kept = podman_storage(engine, shared_ros_images(engine, python_workspace(home / "seed")))
     runroot = Path(tempfile.mkdtemp(prefix="pm-", dir="/tmp"))
     service = PodmanService(home, runroot)
     try:

@@ -22,7 +22,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.conftest import as_user, espdock, owners, python_workspace, ros_build_tag, ros_runtime_tag
+from tests.conftest import as_user, copy_images, espdock, owners, python_workspace, shared_ros_images
 from tests.integration.test_engines import edit_word, once_workspace
 from tests.integration.test_podman import runtime_conf
 
@@ -112,10 +112,7 @@ class RootlessDocker:
                 wanted.append(image)
         if not wanted:
             return
-        with subprocess.Popen(["docker", "save", *wanted], stdout=subprocess.PIPE) as save:
-            loaded = subprocess.run(["docker", "load"], stdin=save.stdout, env={**os.environ, **self.env},
-                                    capture_output=True, check=False)  # fmt: skip
-        assert save.returncode == 0 and loaded.returncode == 0, loaded.stderr
+        copy_images(wanted, {**os.environ, **self.env})
 
     def stop(self) -> None:
         if self.process is not None and self.process.poll() is None:
@@ -164,11 +161,7 @@ def rootless_engine(request, engine, tmp_path_factory) -> Iterator[RootlessDocke
     try:
         # The images a copied workspace builds with, made by the shared engine (it has a network).
         root = python_workspace(tmp_path_factory.mktemp("seed") / "ws-root")
-        images = ("debian:bookworm-slim", ros_build_tag(root), ros_runtime_tag(root))
-        if any(engine.image(tag) is None for tag in images):
-            warm = espdock("build", "--only", "ros", cwd=root)
-            assert warm.returncode == 0, warm.stdout + warm.stderr
-        daemon.load(*images)
+        daemon.load(*shared_ros_images(engine, root, "debian:bookworm-slim"))
         yield daemon
     finally:
         daemon.stop()

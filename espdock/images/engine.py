@@ -394,6 +394,20 @@ class Engine:
             self._info = describe(self._env, info or {}, version or {}, libpod)
         return self._info
 
+    def _listing(self, path: str, refused: str, doing: str | None = None) -> list[Any]:
+        """The JSON list GET PATH answers on the local socket. Any other answer is EspdockError "the
+        engine REFUSED: ...", as _plain_call says the SDK's; so is a connection that breaks, or with
+        DOING, the engine gone while DOING (exit 3)."""
+        try:
+            status, listed = self._get(path)
+        except OSError as exc:
+            if doing is not None:
+                raise _engine_lost(self._env, doing) from exc
+            raise EspdockError(f"the engine {refused}: {exc}") from exc
+        if status != 200 or not isinstance(listed, list):
+            raise EspdockError(f"the engine {refused}: HTTP {status} {listed}")
+        return listed
+
     def _get(self, path: str) -> tuple[int, Any]:
         """GET PATH of the engine API on its local socket: (HTTP status, decoded JSON body or None)."""
         assert self._socket is not None
@@ -468,9 +482,14 @@ class Engine:
 
     def images(self, repository: str) -> list[ImageInfo]:
         """The local images of REPOSITORY."""
-        with self._plain_call(f"failed to list images of {repository}", doing=f"listing images of {repository}"):
-            images = self._client.images.list(name=repository)
-        return [info for info in (self.image(image.id) for image in images) if info is not None]
+        refused, doing = f"failed to list images of {repository}", f"listing images of {repository}"
+        if self._plain:  # plain HTTP: `micro-ros status` does not load the SDK
+            query = quote(json.dumps({"reference": [repository]}))
+            ids = [listed["Id"] for listed in self._listing(f"/images/json?filters={query}", refused, doing)]
+        else:
+            with self._plain_call(refused, doing=doing):
+                ids = [image.id for image in self._client.images.list(name=repository)]
+        return [info for info in (self.image(image_id) for image_id in ids) if info is not None]
 
     def labelled_images(self, label: str, shared: bool = False) -> list[tuple[str, tuple[str, ...], int, int]]:
         """(id, tags, bytes no other image shares, size with shared layers) of every image carrying
@@ -479,8 +498,12 @@ class Engine:
         usage = self._disk_usage() if shared else None
         report = None if usage is None else usage.get("Images") or []
         if report is None:
-            with self._plain_call("failed to list its images", also=(requests.exceptions.RequestException,)):
-                report = self._client.api.images(filters={"label": label})
+            if self._plain:  # plain HTTP: a build's closing size note does not load the SDK
+                filters = quote(json.dumps({"label": [label]}))
+                report = self._listing(f"/images/json?filters={filters}", "failed to list its images")
+            else:
+                with self._plain_call("failed to list its images", also=(requests.exceptions.RequestException,)):
+                    report = self._client.api.images(filters={"label": label})
         return _labelled(report, label)
 
     def running_images(self) -> set[str]:
@@ -907,9 +930,13 @@ class Engine:
         """Remove every container (running or not) carrying all LABELS; return how many."""
         removed = 0
         try:
-            for container in self._labelled_containers(labels):
-                _remove(container)
+            for listed in self._all_containers({"label": _label_selector(labels)}):
+                _remove(self._handle(listed["Id"]))
                 removed += 1
+        except EngineUnavailable:
+            raise
+        except EspdockError as exc:
+            warnings.warn(f"could not list old espdock containers: {exc.message}", stacklevel=2)
         except docker.errors.APIError as exc:
             warnings.warn(f"could not list old espdock containers: {exc}", stacklevel=2)
         return removed
@@ -917,21 +944,30 @@ class Engine:
     def sweep(self, labels: Mapping[str, str]) -> int:
         """Remove the containers carrying all LABELS whose espdock process is gone (killed, or
         past its Ctrl-C grace); containers of live espdock processes are left alone."""
-        filters = {"label": [*_label_selector(labels), LABEL_OWNER]}
-        try:
-            if self._socket is not None:  # plain HTTP: a no-change build does not load the SDK for this
-                status, listed = self._get(f"/containers/json?all=1&filters={quote(json.dumps(filters))}")
-                if status != 200 or not isinstance(listed, list):
-                    raise EspdockError(f"the engine failed to list containers: HTTP {status} {listed}")
-            else:
-                listed = self._client.api.containers(all=True, filters=filters)
-        except (OSError, requests.exceptions.ConnectionError) as exc:
-            raise _engine_lost(self._env, "listing containers") from exc
+        listed = self._all_containers({"label": [*_label_selector(labels), LABEL_OWNER]})
         dead = [c["Id"] for c in listed if not owner_alive((c.get("Labels") or {}).get(LABEL_OWNER, ""))]
         for container_id in dead:
-            with suppress(docker.errors.NotFound):  # gone meanwhile
-                _remove(self._client.containers.get(container_id), stop=False)
+            _remove(self._handle(container_id), stop=False)
         return len(dead)
+
+    def _all_containers(self, filters: Mapping[str, Any]) -> list[dict[str, Any]]:
+        """The engine's listing of every container (running or not) FILTERS select. Over the local
+        socket it is plain HTTP: the sweeps around each build step do not load the SDK."""
+        if self._plain:
+            query = quote(json.dumps(filters))
+            return self._listing(
+                f"/containers/json?all=1&filters={query}", "failed to list containers", "listing containers"
+            )
+        try:
+            return self._client.api.containers(all=True, filters=filters)
+        except requests.exceptions.ConnectionError as exc:
+            raise _engine_lost(self._env, "listing containers") from exc
+
+    def _handle(self, container_id: str) -> Any:
+        """The container CONTAINER_ID, to stop and remove (one removed meanwhile is no error to _remove)."""
+        if self._plain:
+            return _LocalContainer(self._socket, max(self._timeout, OPERATION_TIMEOUT), container_id, tty=False)
+        return self._client.containers.prepare_model({"Id": container_id})
 
     def containers(self, labels: Mapping[str, str]) -> list[str]:
         """Names of containers (running or not) carrying all LABELS."""

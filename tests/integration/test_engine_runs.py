@@ -7,7 +7,10 @@ no container left."""
 from __future__ import annotations
 
 import io
+import json
 import os
+import subprocess
+import sys
 import tarfile
 import uuid
 from collections.abc import Iterator
@@ -23,12 +26,17 @@ from tests.integration.test_engines import TcpForwarder
 pytestmark = [pytest.mark.engine]
 
 IMAGE = "debian:bookworm-slim"
+KEYED = "io.espdock.key"  # the label every keyed image carries (what `espdock prune` and the size note list)
+
+
+def local_socket() -> str:
+    return (os.environ.get("DOCKER_HOST") or f"unix://{DEFAULT_SOCKET}").removeprefix("unix://")
 
 
 @pytest.fixture(scope="module", params=["local socket", "tcp"])
 def way(request, engine) -> Iterator[Engine]:
     """The engine over its local socket (plain HTTP) or over TCP (the Docker SDK)."""
-    socket_path = (os.environ.get("DOCKER_HOST") or f"unix://{DEFAULT_SOCKET}").removeprefix("unix://")
+    socket_path = local_socket()
     if request.param == "local socket":
         yield Engine.connect({**os.environ, "DOCKER_HOST": f"unix://{socket_path}"})
         return
@@ -93,3 +101,53 @@ def test_a_file_is_read_from_an_image_without_starting_it_and_a_missing_one_is_n
     assert len(queried) > 50
     assert way.read_file(IMAGE, "/no/such/file", labels) is None
     assert way.containers(labels) == []
+
+
+def docker_ids(*args: str) -> set[str]:
+    listed = subprocess.run(["docker", *args, "--quiet", "--no-trunc"], capture_output=True, text=True, check=True)
+    return set(listed.stdout.split())
+
+
+def test_the_listings_are_the_engine_s_own_and_removing_labelled_containers_removes_exactly_them(way):
+    label = ("io.espdock.test-run", uuid.uuid4().hex)
+    selector = f"label={label[0]}={label[1]}"
+    for start in ("create", "run", "run"):  # one never started, two running (stopped by the removal)
+        detached = ["--detach"] if start == "run" else []
+        made = ["docker", start, *detached, "--label", "=".join(label), IMAGE, "sleep", "60"]
+        subprocess.run(made, capture_output=True, check=True)
+    other = spec(["true"])  # a container carrying other labels stays
+    subprocess.run(
+        ["docker", "create", "--label", "=".join(other.labels[0]), IMAGE, "true"], capture_output=True, check=True
+    )
+    try:
+        assert way.remove_containers(dict([label])) == 3
+        assert docker_ids("ps", "--all", "--filter", selector) == set()
+        assert way.containers(dict(other.labels)) != []
+    finally:
+        way.remove_containers(dict(other.labels))
+    assert {image_id for image_id, *_ in way.labelled_images(KEYED)} == docker_ids(
+        "images", "--filter", f"label={KEYED}"
+    )
+    assert {image.id for image in way.images("debian")} == docker_ids("images", "debian")
+
+
+def test_a_builds_listings_on_the_local_socket_load_neither_the_sdk_nor_requests(engine):
+    """A no-change build lists containers (the sweeps around its steps) and keyed images (its
+    closing size note); `micro-ros status` lists images. Over the local socket none of that may
+    load the Docker SDK and requests: a fifth of a second of CPU at every espdock start."""
+    script = (
+        "import json, os, sys\n"
+        "from espdock.images.engine import Engine\n"
+        "engine = Engine.connect(dict(os.environ))\n"
+        "labels = {'io.espdock.test-run': 'nothing-carries-this'}\n"
+        "answers = [engine.remove_containers(labels), engine.sweep(labels), len(engine.labelled_images(sys.argv[1])),\n"
+        "           len(engine.images('debian'))]\n"
+        "print(json.dumps([answers, [name for name in ('docker', 'requests') if name in sys.modules]]))\n"
+    )
+    env = {**os.environ, "DOCKER_HOST": f"unix://{local_socket()}"}
+    ran = subprocess.run([sys.executable, "-c", script, KEYED], env=env, capture_output=True, text=True, check=False)
+    assert ran.returncode == 0, ran.stderr
+    (removed, swept, keyed, debian), loaded = json.loads(ran.stdout)
+    assert (removed, swept) == (0, 0)
+    assert keyed == len(docker_ids("images", "--filter", f"label={KEYED}")) and debian >= 1
+    assert loaded == [], f"listing over the local socket imported {loaded}"

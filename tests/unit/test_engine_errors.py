@@ -84,6 +84,7 @@ def gone(tmp_path) -> tuple[Engine, str]:
         (lambda e: e.remove_volume("v"), "removing volume v"),
         (lambda e: e.volumes({"a": "b"}), "listing volumes"),
         (lambda e: e.sweep({"a": "b"}), "listing containers"),
+        (lambda e: e.remove_containers({"a": "b"}), "listing containers"),
         (lambda e: e.run(SPEC, print), "creating a container of espdock/img:1"),
         (lambda e: e.info(), "asking what it is"),
         (lambda e: e.images("espdock/img"), "listing images of espdock/img"),
@@ -97,6 +98,7 @@ def gone(tmp_path) -> tuple[Engine, str]:
         "remove_volume",
         "volumes",
         "sweep",
+        "remove_containers",
         "run",
         "info",
         "images",
@@ -114,12 +116,33 @@ def test_an_engine_that_is_gone_is_exit_3_naming_it_and_what_espdock_was_doing(g
     assert err.value.hint == LOST_HINT
 
 
-def test_a_container_on_a_gone_local_socket_is_exit_3_over_plain_http_too(tmp_path):
+@pytest.mark.parametrize(
+    ("call", "doing"),
+    [
+        (lambda e: e.run(SPEC, print), "creating a container of espdock/img:1"),
+        (lambda e: e.sweep({"a": "b"}), "listing containers"),
+        (lambda e: e.remove_containers({"a": "b"}), "listing containers"),
+        (lambda e: e.images("espdock/img"), "listing images of espdock/img"),
+    ],
+    ids=["run", "sweep", "remove_containers", "images"],
+)
+def test_a_gone_local_socket_is_exit_3_over_plain_http_too(tmp_path, call, doing):
     where = f"unix://{tmp_path / 'gone.sock'}"
     with pytest.raises(EngineUnavailable) as err:
-        Engine({"DOCKER_HOST": where}).run(SPEC, print)
-    assert err.value.message == f"the Docker engine at {where} went away while creating a container of espdock/img:1"
+        call(Engine({"DOCKER_HOST": where}))
+    assert err.value.message == f"the Docker engine at {where} went away while {doing}"
     assert err.value.hint == LOST_HINT
+
+
+def test_keyed_images_unlisted_on_a_gone_local_socket_say_so_exit_1(tmp_path):
+    # As over the SDK (labelled_images in the refusals below): the size note after a build
+    # turns it into a warning, the build stands.
+    with pytest.raises(EspdockError) as err:
+        Engine({"DOCKER_HOST": f"unix://{tmp_path / 'gone.sock'}"}).labelled_images("io.espdock.key")
+    assert (err.value.exit_code, err.value.message) == (
+        1,
+        "the engine failed to list its images: [Errno 2] No such file or directory",
+    )
 
 
 def test_a_failed_image_lookup_on_a_gone_socket_says_so_exit_1(gone):

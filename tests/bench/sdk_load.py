@@ -1,0 +1,70 @@
+"""Benchmark: what loading the Docker SDK (and requests) costs a short espdock command.
+
+Run: .venv/bin/python tests/bench/sdk_load.py [--runs N]
+
+On the local socket espdock talks plain HTTP, so a command that only lists and runs containers
+never imports the SDK. The command runs as it is (A) and with the SDK and requests
+imported first (B): B is what every such start paid while a listing still went through the
+SDK (a no-change build's container sweeps and its closing size note, `micro-ros status`).
+A B A B in one session, so that machine load hits both alike; prints the medians of wall time
+and of the process's CPU (user + system) and their ratios.
+"""
+
+from __future__ import annotations
+
+import argparse
+import resource
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[2]
+sys.path.insert(0, str(REPO))
+
+from tests.conftest import python_workspace  # noqa: E402
+
+PRELOADED = "\n".join(
+    ("import sys", "import docker, docker.errors, requests", "from espdock.__main__ import run", "run()")
+)
+
+
+def timed(argv: list[str], cwd: Path) -> tuple[float, float]:
+    """(wall s, CPU s of the process and its children) of ARGV in CWD."""
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    started = time.perf_counter()
+    subprocess.run(argv, cwd=cwd, check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    wall = time.perf_counter() - started
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return wall, (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+
+
+def medians(runs: list[tuple[float, float]]) -> tuple[float, float]:
+    return statistics.median(wall for wall, _ in runs), statistics.median(cpu for _, cpu in runs)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__)
+    parser.add_argument("--runs", type=int, default=11)
+    args = parser.parse_args()
+    commands = {"build --only ros (no change)": ["build", "--only", "ros"]}
+    with tempfile.TemporaryDirectory(prefix="espdock-bench-") as tmp:
+        root = python_workspace(Path(tmp) / "ws-root")
+        subprocess.run([sys.executable, "-m", "espdock", "build", "--only", "ros"], cwd=root, check=True,
+                       stdout=subprocess.DEVNULL)  # fmt: skip
+        for name, words in commands.items():
+            plain, preloaded = [], []
+            for _ in range(args.runs):
+                plain.append(timed([sys.executable, "-m", "espdock", *words], root))
+                preloaded.append(timed([sys.executable, "-c", PRELOADED, *words], root))
+            (a_wall, a_cpu), (b_wall, b_cpu) = (medians(plain), medians(preloaded))
+            print(f"espdock {name}: {args.runs} runs each, alternating, medians")
+            print(f"  A  as it is              wall {a_wall:6.3f} s  CPU {a_cpu:6.3f} s")
+            print(f"  B  SDK imported first    wall {b_wall:6.3f} s  CPU {b_cpu:6.3f} s")
+            print(f"  A/B  wall {a_wall / b_wall:.2f}  CPU {a_cpu / b_cpu:.2f}")
+
+
+if __name__ == "__main__":
+    main()

@@ -347,10 +347,10 @@ def shared_ros_images(engine, root: Path, *more: str) -> tuple[str, ...]:
     return images
 
 
-def images_key(engine, images: Sequence[str]) -> str:
-    """A digest of IMAGES' IDs on the shared engine: what a kept copy of them is named by."""
+def images_key(engine, images: Sequence[str], extra: str = "") -> str:
+    """A digest of IMAGES' IDs on the shared engine (and EXTRA): what a kept copy of them is named by."""
     ids = "\0".join(f"{tag}={engine.image(tag).id}" for tag in images)
-    return hashlib.sha256(ids.encode()).hexdigest()[:16]
+    return hashlib.sha256(f"{ids}{extra}".encode()).hexdigest()[:16]
 
 
 def copy_images(images: Sequence[str], env: Mapping[str, str]) -> None:

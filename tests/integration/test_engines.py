@@ -34,6 +34,7 @@ from tests.idf_contract_double.build import use_double
 from tests.integration.test_faults import (  # noqa: F401 (seeded_data_root: a fixture)
     PrivateEngine,
     drop_private_engine,
+    kept_data_root,
     private_home,
     seeded_data_root,
 )
@@ -109,13 +110,45 @@ class RemoteEngine(PrivateEngine):
 
 
 @pytest.fixture(scope="module")
-def tcp_engine(seeded_data_root, tmp_path_factory) -> Iterator[RemoteEngine]:  # noqa: F811
+def hidden(tmp_path_factory) -> Path:
+    """The directory the private engine does not see."""
+    return tmp_path_factory.mktemp("hidden")
+
+
+@pytest.fixture(scope="module")
+def firmware_ws(engine, hidden) -> tuple[Path, dict[str, str], tuple[str, ...]]:
+    """blink_fw in a workspace the private engine cannot see, built on the shared engine (it has a
+    network; the private one has none); the settings that select the IDF contract double, which
+    stands in for espressif/idf (not pullable here); the IDF and micro-ROS images it builds with."""
+    root = hidden / "ws-firmware"
+    shutil.copytree(REPO / "tests/firmware_packages/blink_fw", root / "src/blink_fw")
+    (root / "espdock.toml").write_text("[espdock]\n")
+    (root / "docker/idf").mkdir(parents=True)
+    env = use_double(engine, resolve_ca_bundle(Config(), os.environ), lambda line: None, root)
+    local = espdock("build", cwd=root, env=env)
+    assert local.returncode == 0, local.stdout[-3000:] + local.stderr
+    ws = find_workspace(root)
+    config = load_config(ws.root, {**os.environ, **env})
+    plan = build_plan(ws.with_layout(config.package_paths, config.colcon_root), config, [])
+    images = (env["ESPDOCK_IDF_IMAGE"], *(step.spec.tag for step in plan.steps if isinstance(step, EnsureImage)))
+    yield root, env, images
+    engine.remove_containers({"io.espdock.workspace": str(root)})
+
+
+@pytest.fixture(scope="module")
+def engine_data_root(engine, seeded_data_root, firmware_ws) -> Path:  # noqa: F811
+    """seeded_data_root with firmware_ws's IDF and micro-ROS images (a gigabyte: 25 s to load,
+    where the copy onto the engine's tmpfs takes a second more)."""
+    return kept_data_root(engine, "espdock-test-idf-engine", firmware_ws[2], base=seeded_data_root)
+
+
+@pytest.fixture(scope="module")
+def tcp_engine(engine_data_root, hidden) -> Iterator[RemoteEngine]:
     if shutil.which("dockerd") is None or shutil.which("unshare") is None:
         pytest.skip("no dockerd or unshare here")
-    hidden = tmp_path_factory.mktemp("hidden")
     engine = RemoteEngine(private_home(), hidden)
     try:
-        engine.seed(seeded_data_root)
+        engine.seed(engine_data_root)
         engine.start()
         yield engine
     finally:
@@ -302,23 +335,12 @@ def test_volume_mode_builds_where_the_engine_cannot_see_rebuilds_edits_and_never
     engine.remove_containers({"io.espdock.workspace": str(root)})
 
 
-def test_volume_mode_builds_firmware_in_the_idf_image_and_installs_it_for_the_user(tcp_engine, engine):
-    """The IDF contract double stands in for espressif/idf (not pullable here); the private engine
-    gets the images the shared engine built from it, and builds the firmware on the volume. Reached
-    through its unix socket, as a dind sidecar's mounted socket is: espdock then talks plain HTTP
-    to it (files in and out of the container included), where over TCP it uses the Docker SDK."""
-    root = tcp_engine.hidden / "ws-firmware"
-    shutil.copytree(REPO / "tests/firmware_packages/blink_fw", root / "src/blink_fw")
-    (root / "espdock.toml").write_text("[espdock]\n")
-    (root / "docker/idf").mkdir(parents=True)
-    env = use_double(engine, resolve_ca_bundle(Config(), os.environ), lambda line: None, root)
-    local = espdock("build", cwd=root, env=env)  # the shared engine makes the images (it has a network)
-    assert local.returncode == 0, local.stdout[-3000:] + local.stderr
-    settings = {**os.environ, **env}
-    ws = find_workspace(root)
-    config = load_config(ws.root, settings)
-    plan = build_plan(ws.with_layout(config.package_paths, config.colcon_root), config, [])
-    tcp_engine.load(env["ESPDOCK_IDF_IMAGE"], *(step.spec.tag for step in plan.steps if isinstance(step, EnsureImage)))
+def test_volume_mode_builds_firmware_in_the_idf_image_and_installs_it_for_the_user(tcp_engine, firmware_ws):
+    """The private engine holds the images the shared engine built from the IDF contract double
+    (firmware_ws), and builds the firmware on the volume. Reached through its unix socket, as a
+    dind sidecar's mounted socket is: espdock then talks plain HTTP to it (files in and out of the
+    container included), where over TCP it uses the Docker SDK."""
+    root, env, _ = firmware_ws
     subprocess.run(["chown", "-R", f"{VOLUME_UID}:{VOLUME_UID}", str(root)], check=True)
     main = root / "src/blink_fw/main/main.c"
     main.write_text(main.read_text() + "/* built on the volume */\n")
@@ -333,7 +355,6 @@ def test_volume_mode_builds_firmware_in_the_idf_image_and_installs_it_for_the_us
     assert strangers(root) == []
     assert tcp_engine.containers(root) == []
     assert espdock("prune", "--volume", cwd=root, env=tcp_engine.env).returncode == 0
-    engine.remove_containers({"io.espdock.workspace": str(root)})
 
 
 def test_an_interrupted_volume_build_leaves_the_old_install_whole_and_no_container(tcp_engine):

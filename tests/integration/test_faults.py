@@ -22,7 +22,7 @@ import subprocess
 import sys
 import tempfile
 import time
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 
 import pytest
@@ -238,24 +238,34 @@ def private_engine() -> Iterator[PrivateEngine]:
 @pytest.fixture(scope="module")
 def seeded_data_root(engine, tmp_path_factory) -> Path:
     """A stopped private engine's data root holding Debian's base image and the workspace's ROS
-    build and runtime images, for the private engines to start from a copy of.
-
-    Loading them takes about 17 s and 20 s of CPU, a copy 2 s; so it is made once for each set
-    of image IDs and kept in the temp dir for the next run (an older one is removed then)."""
+    build and runtime images, for the private engines to start from a copy of (about 17 s and 20 s
+    of CPU to load, a copy 2 s)."""
     root = copy_workspace(tmp_path_factory.mktemp("seed") / "ws-root")
-    images = shared_ros_images(engine, root, "debian:bookworm-slim")
+    return kept_data_root(engine, "espdock-test-engine", shared_ros_images(engine, root, "debian:bookworm-slim"))
+
+
+def kept_data_root(engine, name: str, images: Sequence[str], base: Path | None = None) -> Path:
+    """A stopped private engine's data root holding IMAGES of the shared engine, over a copy of BASE
+    (another such root) when given. Made once for each set of image IDs (and BASE) and kept in the
+    temp dir as NAME-<key> for the next run, which removes an older one."""
 
     def make(place: Path) -> None:
         loader = PrivateEngine(private_home())
         try:
+            if base is not None:
+                loader.seed(base)
             loader.start()
             loader.load(*images)
             loader.stop()
-            (loader.home / "data").rename(place / "data")
+            if base is None:
+                (loader.home / "data").rename(place / "data")
+            else:  # the seed's tmpfs: copied out before drop_private_engine unmounts it
+                subprocess.run(["cp", "-a", str(loader.home / "data"), str(place / "data")], check=True)
         finally:
             drop_private_engine(loader)
 
-    return kept_in_temp("espdock-test-engine", images_key(engine, images), make) / "data"
+    key = images_key(engine, images) if base is None else images_key(engine, images, extra=str(base))
+    return kept_in_temp(name, key, make) / "data"
 
 
 def slow_package(root: Path) -> Path:

@@ -113,7 +113,8 @@ def test_the_listings_are_the_engine_s_own_and_removing_labelled_containers_remo
     selector = f"label={label[0]}={label[1]}"
     for start in ("create", "run", "run"):  # one never started, two running (stopped by the removal)
         detached = ["--detach"] if start == "run" else []
-        made = ["docker", start, *detached, "--label", "=".join(label), IMAGE, "sleep", "60"]
+        # --init: sleep as PID 1 would ignore the stop's SIGTERM and hold each removal 3 s.
+        made = ["docker", start, *detached, "--init", "--label", "=".join(label), IMAGE, "sleep", "60"]
         subprocess.run(made, capture_output=True, check=True)
     other = spec(["true"])  # a container carrying other labels stays
     subprocess.run(

@@ -884,8 +884,7 @@ class Engine:
         config = _create_config(spec, labels)
         if self._plain:
             return _LocalContainer.create(self._socket, max(self._timeout, OPERATION_TIMEOUT), spec.name, config)
-        created = self._client.api.create_container_from_config(config, spec.name)
-        return self._client.containers.prepare_model({"Id": created["Id"]})
+        return self._handle(self._client.api.create_container_from_config(config, spec.name)["Id"])
 
     @contextmanager
     def _container(self, spec: RunSpec, keep: bool) -> Iterator[docker.models.containers.Container]:
@@ -964,7 +963,8 @@ class Engine:
             raise _engine_lost(self._env, "listing containers") from exc
 
     def _handle(self, container_id: str) -> Any:
-        """The container CONTAINER_ID, to stop and remove (one removed meanwhile is no error to _remove)."""
+        """The container CONTAINER_ID, with no call to the engine (one removed meanwhile is no error
+        to _remove)."""
         if self._plain:
             return _LocalContainer(self._socket, max(self._timeout, OPERATION_TIMEOUT), container_id, tty=False)
         return self._client.containers.prepare_model({"Id": container_id})

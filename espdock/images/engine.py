@@ -482,14 +482,10 @@ class Engine:
 
     def images(self, repository: str) -> list[ImageInfo]:
         """The local images of REPOSITORY."""
-        refused, doing = f"failed to list images of {repository}", f"listing images of {repository}"
-        if self._plain:  # plain HTTP: `micro-ros status` does not load the SDK
-            query = quote(json.dumps({"reference": [repository]}))
-            ids = [listed["Id"] for listed in self._listing(f"/images/json?filters={query}", refused, doing)]
-        else:
-            with self._plain_call(refused, doing=doing):
-                ids = [image.id for image in self._client.images.list(name=repository)]
-        return [info for info in (self.image(image_id) for image_id in ids) if info is not None]
+        listed = self._image_listing(
+            {"reference": [repository]}, f"failed to list images of {repository}", f"listing images of {repository}"
+        )
+        return [info for info in (self.image(image["Id"]) for image in listed) if info is not None]
 
     def labelled_images(self, label: str, shared: bool = False) -> list[tuple[str, tuple[str, ...], int, int]]:
         """(id, tags, bytes no other image shares, size with shared layers) of every image carrying
@@ -498,13 +494,20 @@ class Engine:
         usage = self._disk_usage() if shared else None
         report = None if usage is None else usage.get("Images") or []
         if report is None:
-            if self._plain:  # plain HTTP: a build's closing size note does not load the SDK
-                filters = quote(json.dumps({"label": [label]}))
-                report = self._listing(f"/images/json?filters={filters}", "failed to list its images")
-            else:
-                with self._plain_call("failed to list its images", also=(requests.exceptions.RequestException,)):
-                    report = self._client.api.images(filters={"label": label})
+            report = self._image_listing({"label": [label]}, "failed to list its images")
         return _labelled(report, label)
+
+    def _image_listing(
+        self, filters: Mapping[str, Any], refused: str, doing: str | None = None
+    ) -> list[dict[str, Any]]:
+        """The engine's listing of the images FILTERS select; failures as _listing says them. Over
+        the local socket it is plain HTTP: a build's closing size note and `micro-ros status` do not
+        load the SDK."""
+        if self._plain:
+            return self._listing(f"/images/json?filters={quote(json.dumps(filters))}", refused, doing)
+        # With no DOING a connection that breaks is a refusal too, as _listing has it.
+        with self._plain_call(refused, also=() if doing else (requests.exceptions.RequestException,), doing=doing):
+            return self._client.api.images(filters=filters)
 
     def running_images(self) -> set[str]:
         """The image ids of the running containers."""

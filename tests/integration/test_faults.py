@@ -50,6 +50,16 @@ def mount_tmpfs(where: Path, size: str) -> None:
         pytest.skip(f"cannot mount a tmpfs here (needs root): {mounted.stderr.strip()}")
 
 
+def copy_onto_tmpfs(source: Path, dest: Path) -> None:
+    """SOURCE's contents at DEST, on a tmpfs unless a filesystem is mounted there already: a kept
+    engine's or Podman's root is a gigabyte and some 40 000 files, which on the shared disk took
+    10 to 25 s to copy and as long to remove again when other tests kept it busy; in memory both
+    take a second or two (the removal is an umount)."""
+    if not os.path.ismount(dest):
+        mount_tmpfs(dest, "8g")  # an upper bound: a tmpfs takes only what is written to it
+    subprocess.run(["cp", "-a", f"{source}/.", str(dest)], check=True)
+
+
 @pytest.fixture
 def small_disk(tmp_path: Path) -> Iterator[Path]:
     """A 300 MB filesystem of this test's own."""
@@ -187,16 +197,9 @@ class PrivateEngine:
         copy_images(images, self.env)
 
     def seed(self, data_root: Path) -> None:
-        """Start from a copy of DATA_ROOT, a stopped engine's data root (before start()).
-
-        The copy goes to a tmpfs unless the test mounted a filesystem there itself: a gigabyte and
-        some 40 000 files, which on the shared disk took 25 s to copy and as long to remove again
-        when other tests kept it busy; in memory both take a second or two (dropped by umount)."""
-        data = self.home / "data"
-        data.mkdir(exist_ok=True)
-        if not os.path.ismount(data):
-            mount_tmpfs(data, "8g")  # an upper bound: a tmpfs takes only what is written to it
-        subprocess.run(["cp", "-a", f"{data_root}/.", str(data)], check=True)
+        """Start from a copy of DATA_ROOT, a stopped engine's data root (before start()), on a tmpfs
+        unless the test mounted a filesystem there itself."""
+        copy_onto_tmpfs(data_root, self.home / "data")
 
     def containers(self, root: Path) -> list[str]:
         listed = self.docker("ps", "-aq", "--filter", f"label=io.espdock.workspace={root}")
@@ -264,8 +267,7 @@ def kept_data_root(engine, name: str, images: Sequence[str], base: Path | None =
         finally:
             drop_private_engine(loader)
 
-    key = images_key(engine, images) if base is None else images_key(engine, images, extra=str(base))
-    return kept_in_temp(name, key, make) / "data"
+    return kept_in_temp(name, images_key(engine, images, extra="" if base is None else str(base)), make) / "data"
 
 
 def slow_package(root: Path) -> Path:

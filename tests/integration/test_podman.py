@@ -36,7 +36,7 @@ from tests.conftest import (
     shared_ros_images,
 )
 from tests.integration.test_engines import edit_word, installed_word, once_workspace
-from tests.integration.test_faults import mount_tmpfs
+from tests.integration.test_faults import copy_onto_tmpfs
 
 pytestmark = [pytest.mark.engine, pytest.mark.slow]
 
@@ -122,10 +122,7 @@ def podman(engine, tmp_path_factory) -> Iterator[PodmanService]:
     runroot = Path(tempfile.mkdtemp(prefix="pm-", dir="/tmp"))
     service = PodmanService(home, runroot)
     try:
-        # On a tmpfs, as test_faults.py's private engines: the copy and its removal take a second
-        # or two in memory, 10 s or more each on the shared disk.
-        mount_tmpfs(home / "storage", "8g")
-        subprocess.run(["cp", "-a", f"{kept}/.", str(home / "storage")], check=True)
+        copy_onto_tmpfs(kept, home / "storage")
         service.start(home)
         yield service
     finally:

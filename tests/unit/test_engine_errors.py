@@ -263,7 +263,7 @@ IN_USE = "remove v: volume is in use - [4f1c]"
         ),
         (
             lambda e: e.images("espdock/img"),
-            {"images.list": REFUSED},
+            {"api.images": REFUSED},
             EspdockError,
             f"the engine failed to list images of espdock/img: {SAID}",
             None,

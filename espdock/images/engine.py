@@ -939,8 +939,6 @@ class Engine:
             raise
         except EspdockError as exc:
             warnings.warn(f"could not list old espdock containers: {exc.message}", stacklevel=2)
-        except docker.errors.APIError as exc:
-            warnings.warn(f"could not list old espdock containers: {exc}", stacklevel=2)
         return removed
 
     def sweep(self, labels: Mapping[str, str]) -> int:
@@ -960,10 +958,8 @@ class Engine:
             return self._listing(
                 f"/containers/json?all=1&filters={query}", "failed to list containers", "listing containers"
             )
-        try:
+        with self._plain_call("failed to list containers", doing="listing containers"):
             return self._client.api.containers(all=True, filters=filters)
-        except requests.exceptions.ConnectionError as exc:
-            raise _engine_lost(self._env, "listing containers") from exc
 
     def _handle(self, container_id: str) -> Any:
         """The container CONTAINER_ID, with no call to the engine (one removed meanwhile is no error

@@ -276,6 +276,13 @@ IN_USE = "remove v: volume is in use - [4f1c]"
             None,
         ),
         (
+            lambda e: e.sweep({"a": "b"}),
+            {"api.containers": REFUSED},
+            EspdockError,
+            f"the engine failed to list containers: {SAID}",
+            None,
+        ),
+        (
             lambda e: e.running_images(),
             {"api.containers": requests.exceptions.ConnectionError("Connection aborted.")},
             EspdockError,
@@ -314,6 +321,7 @@ IN_USE = "remove v: volume is in use - [4f1c]"
         "image",
         "images",
         "containers",
+        "sweep",
         "running_images-unanswered",
         "labelled_images",
         "trim_build_cache",
@@ -323,6 +331,12 @@ def test_an_engine_that_refuses_a_call_is_an_error_with_its_explanation(call, fa
     with pytest.raises(EspdockError) as err:
         call(refusing(fails))
     assert (type(err.value), err.value.message, err.value.hint) == (kind, message, hint)
+
+
+def test_old_containers_that_cannot_be_listed_are_a_warning_not_a_failed_build():
+    said = r"^could not list old espdock containers: the engine failed to list containers: 500"
+    with pytest.warns(UserWarning, match=said):
+        assert refusing({"api.containers": REFUSED}).remove_containers({"a": "b"}) == 0
 
 
 def test_a_container_whose_run_fails_is_removed():

@@ -114,17 +114,18 @@ def record_images(ws: Workspace, runner: Runner) -> None:
         notify(f"warning: could not record the images this command used in {state}: {exc.strerror}")
 
 
-def after_build(engine: Engine, ws: Workspace, config: Config, runner: Runner) -> None:
-    """Record the images the build used; prune when prune_auto; warn once when espdock's images
-    take more than images_warn_gb."""
+def after_build(engine: Engine, ws: Workspace, config: Config, runner: Runner, built: bool) -> None:
+    """Record the images the build used; prune when prune_auto; when the build BUILT something,
+    say once when espdock's images take more than images_warn_gb. A build that changed nothing
+    added no image: listing them all costs the engine more than the rest of such a build."""
     record_images(ws, runner)
     try:
-        _prune_or_warn(engine, ws, config)
+        _prune_or_warn(engine, ws, config, built)
     except EspdockError as exc:  # the build succeeded: what is only housekeeping must not fail it
         notify(f"warning: {exc.message}")
 
 
-def _prune_or_warn(engine: Engine, ws: Workspace, config: Config) -> None:
+def _prune_or_warn(engine: Engine, ws: Workspace, config: Config, built: bool) -> None:
     if config.prune_auto:
         current = current_tags(ws, config, env=os.environ, notify=notify)
         plan, busy = prune_images(engine, state_dir(os.environ), str(ws.root), current, config.prune_keep, False, False)
@@ -132,6 +133,8 @@ def _prune_or_warn(engine: Engine, ws: Workspace, config: Config) -> None:
             freed = sum(d.size for d in plan.remove if d.tag not in busy)
             notify(f"prune_auto: removed {len(plan.remove) - len(busy)} images no longer used ({size_text(freed)})")
         trim_cache(engine, config.build_cache_max_gb, False)
+    if not built:
+        return
     total = images_total(engine.labelled_images(LABEL_KEY))
     if total > config.images_warn_gb * GB:
         console.print(

@@ -134,7 +134,7 @@ def build(
         reporter.summary()
         if report is not None:
             write_report(report, reporter.finished, manifest, time.monotonic() - started)
-    after_build(engine, ws, config, runner)
+    after_build(engine, ws, config, runner, built)
 
 
 @app.command()

@@ -314,7 +314,7 @@ class ImageBuild:
 class EngineInfo:
     """What kind of engine answers, as far as espdock's containers care."""
 
-    # "docker" or "podman" (Podman's Docker API names itself in /version's components).
+    # "docker" or "podman" (Podman's Docker API names its libpod version in /_ping's headers).
     kind: str
     # Containers run in a user namespace: uid 0 inside is the user who started the engine.
     rootless: bool
@@ -340,6 +340,7 @@ class Engine:
         # Containers over plain HTTP: on a local socket, unless a client was handed in.
         self._plain = self._socket is not None and client is None
         self._info: EngineInfo | None = None
+        self._podman: bool | None = None  # known from /_ping's answer
 
     @property
     def _client(self) -> Any:
@@ -359,11 +360,7 @@ class Engine:
         engine = cls(env, timeout)
         where = env.get("DOCKER_HOST") or f"unix://{DEFAULT_SOCKET}"
         try:
-            if engine._socket is not None:
-                status, _ = engine._get("/_ping")
-            else:
-                api = engine._client.api
-                status = api.get(f"{api.base_url}/_ping", timeout=timeout).status_code
+            status = engine._ping(timeout)
             if status != 200:
                 raise EngineUnavailable(f"no Docker engine answers at {where}: /_ping gave HTTP {status}")
         except OSError as exc:
@@ -372,26 +369,46 @@ class Engine:
             raise EngineUnavailable(f"no Docker engine answers at {where}: {_connect_reason(exc)}") from exc
         return engine
 
+    def _ping(self, timeout: float) -> int:
+        """GET /_ping: its HTTP status. Podman names its libpod API version in a header of every
+        answer, /_ping's included, which Docker never sends: the engine's kind, with no request more."""
+        if self._socket is not None:
+            connection = _UnixHTTP(self._socket, timeout)
+            try:
+                connection.request("GET", "/_ping")
+                answer = connection.getresponse()
+                answer.read()
+                status, headers = answer.status, answer.headers
+            finally:
+                connection.close()
+        else:
+            api = self._client.api
+            answer = api.get(f"{api.base_url}/_ping", timeout=timeout)
+            status, headers = answer.status_code, answer.headers
+        self._podman = headers.get(LIBPOD_HEADER) is not None  # both header maps ignore case
+        return status
+
     def info(self) -> EngineInfo:
         """The engine's kind, rootless or not, and identity (asked once per Engine)."""
         if self._info is None:
             try:
-                if self._socket is not None:
-                    _, info = self._get("/info")
-                    _, version = self._get("/version")
-                else:
-                    info, version = self._client.info(), self._client.version()
-                libpod = None
-                if _is_podman(version or {}):
-                    # Podman 4's Docker API /info does not say rootless; its own API does.
+                if self._podman is None:
+                    self._ping(self._timeout)
+                if self._podman:
+                    # Podman's own /info, not its Docker API's: that one does not say rootless
+                    # (Podman 4), and it and /version each took Podman 0.4 to 0.7 s here, asking
+                    # dpkg the versions of its packages.
                     if self._socket is not None:
                         _, libpod = self._get(LIBPOD_INFO)
                     else:
                         api = self._client.api
                         libpod = api.get(f"{api.base_url}{LIBPOD_INFO}").json()
+                    self._info = describe(self._env, {}, libpod or {})
+                else:
+                    info = self._get("/info")[1] if self._socket is not None else self._client.info()
+                    self._info = describe(self._env, info or {})
             except (OSError, ValueError, docker.errors.DockerException, requests.exceptions.RequestException) as exc:
                 raise _engine_lost(self._env, "asking what it is") from exc
-            self._info = describe(self._env, info or {}, version or {}, libpod)
         return self._info
 
     def _listing(self, path: str, refused: str, doing: str | None = None) -> list[Any]:
@@ -1006,27 +1023,23 @@ class Engine:
 
 
 LIBPOD_INFO = "/v4.0.0/libpod/info"
+LIBPOD_HEADER = "Libpod-Api-Version"
 
 
-def _is_podman(version: Mapping[str, Any]) -> bool:
-    components = [str(c.get("Name", "")) for c in version.get("Components") or () if isinstance(c, dict)]
-    return any("podman" in name.lower() for name in components)
-
-
-def describe(
-    env: Mapping[str, str], info: Mapping[str, Any], version: Mapping[str, Any], libpod: Any = None
-) -> EngineInfo:
-    """EngineInfo from the engine's /info and /version answers (and Podman's own /libpod/info)."""
-    podman = _is_podman(version)
-    options = [str(o) for o in info.get("SecurityOptions") or ()]
-    # Docker says name=rootless in its security options; Podman says rootless in its own API.
-    security = ((libpod or {}).get("host") or {}).get("security") or {} if isinstance(libpod, dict) else {}
-    rootless = any("name=rootless" in o for o in options) or security.get("rootless") is True
+def describe(env: Mapping[str, str], info: Mapping[str, Any], libpod: Mapping[str, Any] | None = None) -> EngineInfo:
+    """EngineInfo from a Docker engine's /info answer, or with LIBPOD, Podman's /libpod/info."""
     where = env.get("DOCKER_HOST") or f"unix://{DEFAULT_SOCKET}"
-    # Podman's compat /info makes up a new ID on every call: its host name and storage say which it is.
-    stable = [str(info.get(k, "")) for k in ("Name", "DockerRootDir")] + ([] if podman else [str(info.get("ID", ""))])
+    if libpod is None:
+        rootless = any("name=rootless" in str(o) for o in info.get("SecurityOptions") or ())
+        stable = [str(info.get(k, "")) for k in ("Name", "DockerRootDir", "ID")]
+    else:
+        host, store = libpod.get("host") or {}, libpod.get("store") or {}
+        rootless = (host.get("security") or {}).get("rootless") is True
+        # Podman has no lasting ID (its Docker API /info makes one up per call): its host name and
+        # storage say which it is, which that /info gives as Name and DockerRootDir.
+        stable = [str(host.get("hostname", "")), str(store.get("graphRoot", ""))]
     identity = hashlib.sha256("\0".join([where, *stable]).encode()).hexdigest()[:16]
-    return EngineInfo(kind="podman" if podman else "docker", rootless=rootless, identity=identity, where=where)
+    return EngineInfo("docker" if libpod is None else "podman", rootless=rootless, identity=identity, where=where)
 
 
 class RegistryStatus(StrEnum):

@@ -40,7 +40,7 @@ def refusal(status: int, message: str) -> docker.errors.APIError:
 
 
 class EngineDouble:
-    """Stands in for the Docker SDK client of an engine that answers /info and /version and every
+    """Stands in for the Docker SDK client of a Docker engine that answers /_ping, /info and every
     call but those named in FAILS (a dotted path, `()` after a call's result: "containers.prepare_model().start"),
     which raise their exception. CALLED records every call's path."""
 
@@ -55,8 +55,10 @@ class EngineDouble:
         self.called.append(self._path)
         if self._path in self._fails:
             raise self._fails[self._path]
-        if self._path in ("info", "version"):
-            return {"Name": "host", "ID": "1"} if self._path == "info" else {}
+        if self._path == "info":
+            return {"Name": "host", "ID": "1"}
+        if self._path == "api.get":  # /_ping, as Docker answers it
+            return requests.Response()
         return EngineDouble(self._fails, f"{self._path}()", self.called)
 
     def __iter__(self):

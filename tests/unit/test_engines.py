@@ -1,11 +1,18 @@
 """Engines other than a local rootful Docker, as the runner sees them (FakeEngine): one that does
-not see the workspace, a rootless one, and what /info and /version say about an engine."""
+not see the workspace, a rootless one, and what /info says about an engine."""
 
 from __future__ import annotations
 
+import hashlib
+import http.server
 import io
+import json
 import os
+import socketserver
 import tarfile
+import threading
+import time
+from typing import ClassVar
 
 import pytest
 
@@ -14,7 +21,7 @@ from espdock.build.steps import Plan
 from espdock.config import Config
 from espdock.errors import BuildFailed, WorkspaceError, WorkspaceNotVisible
 from espdock.images import bootstrap, volume
-from espdock.images.engine import EngineInfo, describe
+from espdock.images.engine import LIBPOD_INFO, Engine, EngineInfo, describe
 from espdock.ros.colcon import unselected
 from espdock.ros.plan import ColconBuild
 from espdock.workspace import Workspace
@@ -99,21 +106,99 @@ def test_a_permission_error_on_a_workspace_path_names_it_and_its_owner(ws, monke
     assert f"permission denied on {ws.ws_dir / 'build'} (owner uid {os.getuid()}" in err.value.message
 
 
-def test_what_info_and_version_say_about_the_engine():
+def test_what_info_says_about_the_engine():
     env = {"DOCKER_HOST": "unix:///run/podman/podman.sock"}
-    podman = {"Components": [{"Name": "Podman Engine", "Version": "4.3.1"}]}
-    first = describe(env, {"ID": "a", "Name": "vm", "SecurityOptions": ["name=seccomp"]}, podman)
-    again = describe(env, {"ID": "b", "Name": "vm", "SecurityOptions": ["name=seccomp"]}, podman)
-    assert (first.kind, first.rootless) == ("podman", False)
-    assert first.identity == again.identity  # Podman makes up a new ID on every /info
-    assert first.name == "Podman engine at unix:///run/podman/podman.sock"
-    # Podman 4's Docker API /info does not say rootless: its own /libpod/info does.
-    libpod = {"host": {"security": {"rootless": True}}}
-    user_podman = describe(env, {"SecurityOptions": ["name=seccomp"]}, podman, libpod)
+    libpod = {"host": {"hostname": "vm", "security": {"rootless": False}}, "store": {"graphRoot": "/var/lib/c"}}
+    podman = describe(env, {}, libpod)
+    assert (podman.kind, podman.rootless) == ("podman", False)
+    assert podman.name == "Podman engine at unix:///run/podman/podman.sock"
+    user_podman = describe(env, {}, {**libpod, "host": {"hostname": "vm", "security": {"rootless": True}}})
     assert (user_podman.kind, user_podman.rootless) == ("podman", True)
-    rootless = describe({}, {"ID": "x", "SecurityOptions": ["name=seccomp,profile=default", "name=rootless"]}, {})
+    # Podman's identity is its host name and storage, which its Docker API /info gives as Name and
+    # DockerRootDir (beside an ID it makes up per call): records made before it asked /libpod/info hold.
+    compat = hashlib.sha256("\0".join(("unix:///run/podman/podman.sock", "vm", "/var/lib/c")).encode())
+    assert podman.identity == compat.hexdigest()[:16]
+    assert describe(env, {}, {**libpod, "store": {"graphRoot": "/home/u/c"}}).identity != podman.identity
+    rootless = describe({}, {"ID": "x", "SecurityOptions": ["name=seccomp,profile=default", "name=rootless"]})
     assert (rootless.kind, rootless.rootless) == ("docker", True)
     assert rootless.name == "rootless Docker engine at unix:///var/run/docker.sock"
+    assert describe({}, {"ID": "y", "SecurityOptions": ["name=seccomp"]}).identity != rootless.identity
+
+
+class PodmanApiDouble(http.server.BaseHTTPRequestHandler):
+    """Stands in for Podman 4.3's API service (`podman system service`) where what is tested is
+    which requests espdock makes, which the real service does not show (test_podman runs espdock
+    against the real one). It answers /_ping with the headers Podman 4.3.1 sends, and /version,
+    /info and /libpod/info with what it says of itself there (abridged); anything else is a 500.
+    Its class attribute ASKED records each path."""
+
+    asked: ClassVar[list[str]] = []
+    protocol_version = "HTTP/1.1"
+
+    def do_GET(self) -> None:
+        type(self).asked.append(self.path)
+        headers = {"Api-Version": "1.41", "Libpod-Api-Version": "4.3.1", "Server": "Libpod/4.3.1 (linux)"}
+        if self.path == "/_ping":
+            self.answer(200, b"OK", headers)
+        elif self.path.split("?")[0].removeprefix("/v1.41") == "/version":
+            version = {"Components": [{"Name": "Podman Engine", "Version": "4.3.1"}], "ApiVersion": "1.41",
+                       "MinAPIVersion": "1.24", "Version": "4.3.1"}  # fmt: skip
+            self.answer(200, json.dumps(version).encode(), headers)
+        elif self.path.split("?")[0].removeprefix("/v1.41") == "/info":
+            info = {"ID": str(time.time()), "Name": "vm", "DockerRootDir": "/c", "SecurityOptions": ["name=seccomp"]}
+            self.answer(200, json.dumps(info).encode(), headers)
+        elif self.path == LIBPOD_INFO:
+            info = {"host": {"hostname": "vm", "security": {"rootless": True}}, "store": {"graphRoot": "/c"}}
+            self.answer(200, json.dumps(info).encode(), headers)
+        else:
+            self.answer(500, b'{"message": "not asked of a Podman by espdock"}', headers)
+
+    def answer(self, status: int, body: bytes, headers: dict[str, str]) -> None:
+        self.send_response(status)
+        for name, value in headers.items():
+            self.send_header(name, value)
+        self.send_header("Content-Length", str(len(body)))
+        self.end_headers()
+        self.wfile.write(body)
+
+    def log_message(self, format: str, *args: object) -> None:
+        pass
+
+
+class UnixHTTPServer(socketserver.ThreadingMixIn, socketserver.UnixStreamServer):
+    daemon_threads = True
+
+    def get_request(self):
+        request, _ = super().get_request()
+        return request, ("local", 0)  # http.server wants a host and port
+
+
+@pytest.mark.parametrize("where", ["socket", "tcp"])
+def test_podman_is_told_by_its_ping_and_asked_only_its_own_info(tmp_path, where):
+    """Podman's Docker API /info and /version each took it 0.4 to 0.7 s here (it asks dpkg the
+    versions of its packages): on the local socket espdock asks neither; the SDK, over TCP,
+    asks /version once to pick its API version."""
+    PodmanApiDouble.asked = []
+    if where == "socket":
+        server = UnixHTTPServer(str(tmp_path / "podman.sock"), PodmanApiDouble)
+        env = {"DOCKER_HOST": f"unix://{tmp_path / 'podman.sock'}"}
+    else:
+        server = http.server.ThreadingHTTPServer(("127.0.0.1", 0), PodmanApiDouble)
+        env = {"DOCKER_HOST": f"tcp://127.0.0.1:{server.server_address[1]}"}
+    threading.Thread(target=server.serve_forever, daemon=True).start()
+    try:
+        info = Engine.connect(env, timeout=10).info()
+    finally:
+        server.shutdown()
+        server.server_close()
+    assert (info.kind, info.rootless) == ("podman", True)
+    # As when espdock read the Name and DockerRootDir of Podman's Docker API /info.
+    assert info.identity == hashlib.sha256("\0".join((env["DOCKER_HOST"], "vm", "/c")).encode()).hexdigest()[:16]
+    assert info.name == f"rootless Podman engine at {env['DOCKER_HOST']}"
+    asked = [path.split("?")[0].removeprefix("/v1.41") for path in PodmanApiDouble.asked]
+    assert "/info" not in asked and asked[-1] == LIBPOD_INFO, asked
+    if where == "socket":
+        assert asked == ["/_ping", LIBPOD_INFO]
 
 
 def test_colcon_denied_its_log_dir_names_the_dir_and_its_owner(ws):

@@ -13,10 +13,8 @@ A B A B; prints the medians and their ratio.
 from __future__ import annotations
 
 import argparse
-import http.client
 import os
 import shutil
-import socket
 import statistics
 import subprocess
 import sys
@@ -27,26 +25,13 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(REPO))
 
-from espdock.images.engine import LIBPOD_INFO, Engine  # noqa: E402
+from espdock.images.engine import LIBPOD_INFO, Engine, _exchange  # noqa: E402
 from tests.integration.test_podman import ULIMITS, PodmanService  # noqa: E402
-
-
-class UnixHTTP(http.client.HTTPConnection):
-    def __init__(self, path: str) -> None:
-        super().__init__("localhost", timeout=60)
-        self.path = path
-
-    def connect(self) -> None:
-        self.sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
-        self.sock.connect(self.path)
 
 
 def before(sock: str, podman: bool) -> None:
     for path in ("/_ping", "/info", "/version", *((LIBPOD_INFO,) if podman else ())):
-        connection = UnixHTTP(sock)
-        connection.request("GET", path)
-        connection.getresponse().read()
-        connection.close()
+        _exchange(sock, 60, "GET", path)
 
 
 def timed(call) -> float:

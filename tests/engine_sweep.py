@@ -5,7 +5,7 @@ directory. The run gives its builds a state directory of its own (so they neithe
 add to the developer's records), and when the run ends removes the runtime images
 (espdock/<workspace name>:<key> and :latest) those records name, which the tests' throwaway
 workspaces made and a later test of the run may reuse. A tag that was on the engine before the
-run started is not the run's and stays.
+run started is not the run's and stays; one the run moved to another image goes back.
 
 What stays on purpose: the keyed base images (the ROS build, runtime and test images, the IDF
 and micro-ROS images, the doubles standing in for upstream images). Their keys come from this
@@ -97,10 +97,17 @@ def pytest_sessionfinish(session: pytest.Session) -> None:
         return
     # Without --force: an image a running container uses stays, and says so.
     removed = subprocess.run(["docker", "rmi", *tags], capture_output=True, text=True, check=False, timeout=300)
+    # A tag the run moved (a developer's own espdock/robot:latest, when a test's workspace was
+    # also named robot) goes back to the image it named before.
+    before = session.config.stash[BEFORE_KEY]
+    restored = [tag for tag in tags if tag in before and subprocess.run(
+        ["docker", "tag", before[tag], tag], capture_output=True, check=False, timeout=60).returncode == 0]  # fmt: skip
     reporter = session.config.pluginmanager.get_plugin("terminalreporter")
     if reporter is not None:
         # On a line of its own: xdist's progress line does not end in a newline the reporter knows of.
         reporter.write_line(f"\nremoved the {len(tags)} runtime image tags this run's builds made: {' '.join(tags)}")
+        if restored:
+            reporter.write_line(f"and gave back the tags the run had moved: {' '.join(restored)}")
         if removed.returncode != 0:
             reporter.write_line(f"some stay: {removed.stderr.strip()}")
 

@@ -13,7 +13,7 @@ import subprocess
 import sys
 import tarfile
 import uuid
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
@@ -126,10 +126,18 @@ def test_the_listings_are_the_engine_s_own_and_removing_labelled_containers_remo
         assert way.containers(dict(other.labels)) != []
     finally:
         way.remove_containers(dict(other.labels))
-    assert {image_id for image_id, *_ in way.labelled_images(KEYED)} == docker_ids(
-        "images", "--filter", f"label={KEYED}"
-    )
-    assert {image.id for image in way.images("debian")} == docker_ids("images", "debian")
+    assert_listed(lambda: {image_id for image_id, *_ in way.labelled_images(KEYED)}, "--filter", f"label={KEYED}")
+    assert_listed(lambda: {image.id for image in way.images("debian")}, "debian")
+
+
+def assert_listed(listing: Callable[[], set[str]], *selection: str) -> None:
+    """LISTING gives what `docker images SELECTION` lists. The other test workers build and remove
+    images meanwhile: every image there both before and after must be in it, and nothing that was
+    in neither."""
+    before = docker_ids("images", *selection)
+    listed = listing()
+    after = docker_ids("images", *selection)
+    assert before & after <= listed <= before | after, (before & after - listed, listed - (before | after))
 
 
 def test_a_builds_listings_on_the_local_socket_load_neither_the_sdk_nor_requests(engine):
@@ -141,14 +149,21 @@ def test_a_builds_listings_on_the_local_socket_load_neither_the_sdk_nor_requests
         "from espdock.images.engine import Engine\n"
         "engine = Engine.connect(dict(os.environ))\n"
         "labels = {'io.espdock.test-run': 'nothing-carries-this'}\n"
-        "answers = [engine.remove_containers(labels), engine.sweep(labels), len(engine.labelled_images(sys.argv[1])),\n"
-        "           len(engine.images('debian'))]\n"
+        "answers = [engine.remove_containers(labels), engine.sweep(labels),\n"
+        "           sorted(i for i, *_ in engine.labelled_images(sys.argv[1])), len(engine.images('debian'))]\n"
         "print(json.dumps([answers, [name for name in ('docker', 'requests') if name in sys.modules]]))\n"
     )
     env = {**os.environ, "DOCKER_HOST": f"unix://{local_socket()}"}
-    ran = subprocess.run([sys.executable, "-c", script, KEYED], env=env, capture_output=True, text=True, check=False)
-    assert ran.returncode == 0, ran.stderr
-    (removed, swept, keyed, debian), loaded = json.loads(ran.stdout)
-    assert (removed, swept) == (0, 0)
-    assert keyed == len(docker_ids("images", "--filter", f"label={KEYED}")) and debian >= 1
+    loaded: list[str] = []
+
+    def keyed_images() -> set[str]:
+        argv = [sys.executable, "-c", script, KEYED]
+        ran = subprocess.run(argv, env=env, capture_output=True, text=True, check=False)
+        assert ran.returncode == 0, ran.stderr
+        (removed, swept, keyed, debian), imported = json.loads(ran.stdout)
+        assert (removed, swept) == (0, 0) and debian >= 1
+        loaded.extend(imported)
+        return set(keyed)
+
+    assert_listed(keyed_images, "--filter", f"label={KEYED}")
     assert loaded == [], f"listing over the local socket imported {loaded}"

@@ -403,7 +403,7 @@ class Engine:
                     else:
                         api = self._client.api
                         libpod = api.get(f"{api.base_url}{LIBPOD_INFO}").json()
-                    self._info = describe(self._env, {}, libpod or {})
+                    self._info = describe(self._env, {}, libpod if isinstance(libpod, dict) else {})
                 else:
                     info = self._get("/info")[1] if self._socket is not None else self._client.info()
                     self._info = describe(self._env, info or {})

@@ -204,15 +204,17 @@ def _local_stream(socket_path: str, timeout: float, method: str, path: str) -> I
         connection.close()
 
 
-def _exchange(socket_path: str, timeout: float, method: str, path: str, body: bytes | None = None) -> tuple[int, bytes]:
-    """METHOD PATH on the engine's local socket: (HTTP status, the answer's body). Failures raise
-    as http.client and the socket raise them."""
+def _exchange(
+    socket_path: str, timeout: float, method: str, path: str, body: bytes | None = None
+) -> tuple[int, bytes, http.client.HTTPMessage]:
+    """METHOD PATH on the engine's local socket: (HTTP status, the answer's body, its headers).
+    Failures raise as http.client and the socket raise them."""
     connection = _UnixHTTP(socket_path, timeout)
     headers = {"Content-Type": "application/x-tar" if method == "PUT" else "application/json"} if body else {}
     try:
         connection.request(method, path, body=body, headers=headers)
         response = connection.getresponse()
-        return response.status, response.read()
+        return response.status, response.read(), response.headers
     finally:
         connection.close()
 
@@ -222,7 +224,7 @@ def _local_call(socket_path: str, timeout: float, method: str, path: str, body: 
     requests' ConnectionError, a slow answer its ReadTimeout, an error status docker.errors'
     NotFound, ImageNotFound or APIError: as the SDK raises them."""
     try:
-        status, answer = _exchange(socket_path, timeout, method, path, body)
+        status, answer, _ = _exchange(socket_path, timeout, method, path, body)
     except TimeoutError as exc:
         raise requests.exceptions.ReadTimeout(f"{method} {path}: no answer within {timeout:g} s") from exc
     except (OSError, http.client.HTTPException) as exc:
@@ -373,14 +375,7 @@ class Engine:
         """GET /_ping: its HTTP status. Podman names its libpod API version in a header of every
         answer, /_ping's included, which Docker never sends: the engine's kind, with no request more."""
         if self._socket is not None:
-            connection = _UnixHTTP(self._socket, timeout)
-            try:
-                connection.request("GET", "/_ping")
-                answer = connection.getresponse()
-                answer.read()
-                status, headers = answer.status, answer.headers
-            finally:
-                connection.close()
+            status, _, headers = _exchange(self._socket, timeout, "GET", "/_ping")
         else:
             api = self._client.api
             answer = api.get(f"{api.base_url}/_ping", timeout=timeout)
@@ -428,7 +423,7 @@ class Engine:
     def _get(self, path: str) -> tuple[int, Any]:
         """GET PATH of the engine API on its local socket: (HTTP status, decoded JSON body or None)."""
         assert self._socket is not None
-        status, body = _exchange(self._socket, self._timeout, "GET", path)
+        status, body, _ = _exchange(self._socket, self._timeout, "GET", path)
         try:
             return status, json.loads(body) if body else None
         except json.JSONDecodeError:
@@ -987,13 +982,8 @@ class Engine:
 
     def containers(self, labels: Mapping[str, str]) -> list[str]:
         """Names of containers (running or not) carrying all LABELS."""
-        with self._plain_call("failed to list containers", doing="listing containers"):
-            listed = self._labelled_containers(labels)
-        return [str(c.attrs.get("Names", [c.id])[0]).lstrip("/") for c in listed]
-
-    def _labelled_containers(self, labels: Mapping[str, str]) -> list[docker.models.containers.Container]:
-        # sparse: no inspect per container, which fails for one removed meanwhile.
-        return self._client.containers.list(all=True, filters={"label": _label_selector(labels)}, sparse=True)
+        listed = self._all_containers({"label": _label_selector(labels)})
+        return [str((c.get("Names") or [c["Id"]])[0]).lstrip("/") for c in listed]
 
     # Volumes
 

@@ -272,7 +272,7 @@ IN_USE = "remove v: volume is in use - [4f1c]"
         ),
         (
             lambda e: e.containers({"a": "b"}),
-            {"containers.list": REFUSED},
+            {"api.containers": REFUSED},
             EspdockError,
             f"the engine failed to list containers: {SAID}",
             None,

@@ -116,8 +116,7 @@ def test_what_info_says_about_the_engine():
     assert (user_podman.kind, user_podman.rootless) == ("podman", True)
     # Podman's identity is its host name and storage, which its Docker API /info gives as Name and
     # DockerRootDir (beside an ID it makes up per call): records made before it asked /libpod/info hold.
-    compat = hashlib.sha256("\0".join(("unix:///run/podman/podman.sock", "vm", "/var/lib/c")).encode())
-    assert podman.identity == compat.hexdigest()[:16]
+    assert podman.identity == compat_identity("unix:///run/podman/podman.sock", "vm", "/var/lib/c")
     assert describe(env, {}, {**libpod, "store": {"graphRoot": "/home/u/c"}}).identity != podman.identity
     rootless = describe({}, {"ID": "x", "SecurityOptions": ["name=seccomp,profile=default", "name=rootless"]})
     assert (rootless.kind, rootless.rootless) == ("docker", True)
@@ -137,17 +136,18 @@ class PodmanApiDouble(http.server.BaseHTTPRequestHandler):
 
     def do_GET(self) -> None:
         type(self).asked.append(self.path)
+        route = unversioned(self.path)
         headers = {"Api-Version": "1.41", "Libpod-Api-Version": "4.3.1", "Server": "Libpod/4.3.1 (linux)"}
-        if self.path == "/_ping":
+        if route == "/_ping":
             self.answer(200, b"OK", headers)
-        elif self.path.split("?")[0].removeprefix("/v1.41") == "/version":
+        elif route == "/version":
             version = {"Components": [{"Name": "Podman Engine", "Version": "4.3.1"}], "ApiVersion": "1.41",
                        "MinAPIVersion": "1.24", "Version": "4.3.1"}  # fmt: skip
             self.answer(200, json.dumps(version).encode(), headers)
-        elif self.path.split("?")[0].removeprefix("/v1.41") == "/info":
+        elif route == "/info":
             info = {"ID": str(time.time()), "Name": "vm", "DockerRootDir": "/c", "SecurityOptions": ["name=seccomp"]}
             self.answer(200, json.dumps(info).encode(), headers)
-        elif self.path == LIBPOD_INFO:
+        elif route == LIBPOD_INFO:
             info = {"host": {"hostname": "vm", "security": {"rootless": True}}, "store": {"graphRoot": "/c"}}
             self.answer(200, json.dumps(info).encode(), headers)
         else:
@@ -163,6 +163,16 @@ class PodmanApiDouble(http.server.BaseHTTPRequestHandler):
 
     def log_message(self, format: str, *args: object) -> None:
         pass
+
+
+def unversioned(path: str) -> str:
+    """PATH without its query and the Docker API version the SDK puts in front."""
+    return path.split("?")[0].removeprefix("/v1.41")
+
+
+def compat_identity(where: str, name: str, root: str) -> str:
+    """The identity espdock gave a Podman from its Docker API /info's Name and DockerRootDir."""
+    return hashlib.sha256("\0".join((where, name, root)).encode()).hexdigest()[:16]
 
 
 class UnixHTTPServer(socketserver.ThreadingMixIn, socketserver.UnixStreamServer):
@@ -193,9 +203,9 @@ def test_podman_is_told_by_its_ping_and_asked_only_its_own_info(tmp_path, where)
         server.server_close()
     assert (info.kind, info.rootless) == ("podman", True)
     # As when espdock read the Name and DockerRootDir of Podman's Docker API /info.
-    assert info.identity == hashlib.sha256("\0".join((env["DOCKER_HOST"], "vm", "/c")).encode()).hexdigest()[:16]
+    assert info.identity == compat_identity(env["DOCKER_HOST"], "vm", "/c")
     assert info.name == f"rootless Podman engine at {env['DOCKER_HOST']}"
-    asked = [path.split("?")[0].removeprefix("/v1.41") for path in PodmanApiDouble.asked]
+    asked = [unversioned(path) for path in PodmanApiDouble.asked]
     assert "/info" not in asked and asked[-1] == LIBPOD_INFO, asked
     if where == "socket":
         assert asked == ["/_ping", LIBPOD_INFO]

@@ -12,11 +12,18 @@ LOCK := requirements/dev.txt
 # The pinned pip (docker/pip-installer.txt says why), then every dependency from the hashed lock
 # (`espdock lock` makes it from pyproject.toml's dependencies and `test` extra), then
 # espdock itself, whose dependencies are all in it.
+# uv, as the lock pins and hashes it, installs the lock: from a fresh clone the venv is
+# ready in about half pip's time, and it is on the way of both make commands. uv reads no
+# pip.conf, so where it cannot install the lock (an index only pip is configured for),
+# pip installs the same lock.
+UV_INSTALL := $(VENV)/bin/uv pip install -q --python $(PY)
 $(VENV)/.installed: pyproject.toml $(LOCK) docker/pip-installer.txt
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install -q --require-hashes -r docker/pip-installer.txt
-	$(PY) -m pip install -q --require-hashes -r $(LOCK)
-	$(PY) -m pip install -q --no-deps -e .
+	$(PY) -m pip install -q --require-hashes --no-deps -r <(awk '/^uv==/{p=1;print;next} p&&/^ +--hash/{print;next} p{exit}' $(LOCK))
+	$(UV_INSTALL) --require-hashes --compile-bytecode -r $(LOCK) \
+	  || { echo "make: uv could not install $(LOCK); pip installs it"; $(PY) -m pip install -q --require-hashes -r $(LOCK); }
+	$(UV_INSTALL) --no-deps -e . || $(PY) -m pip install -q --no-deps -e .
 	touch $@
 
 # The test-only system packages (apt) install while the venv does (pip): they share no lock.

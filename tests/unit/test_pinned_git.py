@@ -93,8 +93,8 @@ def test_other_git_commands_go_to_the_real_git(tmp_path):
     assert result.returncode == 0 and result.stdout.startswith("git version")
 
 
-def test_the_shipped_pins_parse():
-    result = clone(Path("/tmp"), (REPO / "docker/idf/micro_ros_sources.txt").read_text(), "clone", "file:///x")
+def test_the_shipped_pins_parse(tmp_path):
+    result = clone(tmp_path, (REPO / "docker/idf/micro_ros_sources.txt").read_text(), "clone", "file:///x")
     assert "not pinned" in result.stderr, result.stderr
 
 

@@ -10,7 +10,7 @@ import re
 import shutil
 import tempfile
 from collections.abc import Iterator, Mapping
-from contextlib import contextmanager
+from contextlib import contextmanager, suppress
 from datetime import UTC, datetime
 from pathlib import Path
 
@@ -28,6 +28,16 @@ DPKG_STATUS = "/var/lib/dpkg/status"
 DPKG_LINE = re.compile(r"^[a-z0-9][a-z0-9+.-]*(:[a-z0-9]+)?=\S+$")
 
 BUILDKIT_STEP = re.compile(r"^#\d+ \[.*\] (?P<what>.+)$")
+
+
+def _names(path: Path, fd: int) -> bool:
+    """Whether PATH is still the file open as FD (not removed, nor made again, by its last holder)."""
+    try:
+        named = path.stat()
+    except FileNotFoundError:
+        return False
+    held = os.fstat(fd)
+    return (named.st_dev, named.st_ino) == (held.st_dev, held.st_ino)
 
 
 def _denied(registry: str, what: str, answer: RegistryAnswer) -> RegistryError:
@@ -101,26 +111,42 @@ class KeyedImages:
 
     @contextmanager
     def _building(self, step: EnsureImage) -> Iterator[None]:
-        """Hold the lock of STEP's tag on this engine, among the espdock processes of this machine."""
+        """Hold the lock of STEP's tag on this engine, among the espdock processes of this machine.
+
+        Its holder removes the lock file before it lets go, so the temp dir does not keep one per
+        tag ever built; a waiter that then holds a removed file locks the path's new one instead.
+        """
         name = hashlib.sha256(f"{self.containers.engine.info().identity}\0{step.spec.tag}".encode()).hexdigest()[:16]
         path = Path(tempfile.gettempdir()) / f"espdock-image-{name}.lock"
-        try:
-            try:  # without O_CREAT first: protected_regular refuses it on another user's file in /tmp
-                fd = os.open(path, os.O_RDONLY)
-            except FileNotFoundError:
-                fd = os.open(path, os.O_RDONLY | os.O_CREAT, 0o444)
-        except OSError:
-            yield  # another user's lock file we cannot open: build unlocked, as before
-            return
-        try:
+        waiting_said = False
+        while True:
             try:
-                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-            except BlockingIOError:
-                self.containers.emit(StepNote(step.name, f"{step.spec.tag}: another espdock is making it; waiting"))
-                fcntl.flock(fd, fcntl.LOCK_EX)
-            yield
-        finally:
-            os.close(fd)
+                try:  # without O_CREAT first: protected_regular refuses it on another user's file in /tmp
+                    fd = os.open(path, os.O_RDONLY)
+                except FileNotFoundError:
+                    fd = os.open(path, os.O_RDONLY | os.O_CREAT, 0o444)
+            except OSError:
+                yield  # another user's lock file we cannot open: build unlocked, as before
+                return
+            try:
+                try:
+                    fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                except BlockingIOError:
+                    if not waiting_said:
+                        note = f"{step.spec.tag}: another espdock is making it; waiting"
+                        self.containers.emit(StepNote(step.name, note))
+                        waiting_said = True
+                    fcntl.flock(fd, fcntl.LOCK_EX)
+                if not _names(path, fd):
+                    continue
+                try:
+                    yield
+                finally:
+                    with suppress(OSError):  # another user's file in a sticky /tmp stays, unlocked
+                        path.unlink()
+                return
+            finally:
+                os.close(fd)
 
     def _make(
         self,

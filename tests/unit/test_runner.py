@@ -3,6 +3,9 @@
 from __future__ import annotations
 
 import os
+import tempfile
+import threading
+import time
 from datetime import UTC, datetime
 from pathlib import Path
 
@@ -388,3 +391,73 @@ def test_a_second_build_in_the_same_workspace_is_told_who_holds_it(ws):
         process.wait()
     with workspace_lock(ws):  # the holder's end frees it
         pass
+
+
+class SlowBuilds(FakeEngine):
+    """FakeEngine whose image builds take a while and count how many run at once."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.active = 0
+        self.most_at_once = 0
+        self.counting = threading.Lock()
+        self.started = 0
+        self.second_started = threading.Event()
+
+    def build_image(self, **kwargs) -> None:
+        with self.counting:
+            self.active += 1
+            self.most_at_once = max(self.most_at_once, self.active)
+            self.started += 1
+            if self.started == 2:
+                self.second_started.set()
+        time.sleep(0.4)
+        with self.counting:
+            self.active -= 1
+        super().build_image(**kwargs)
+
+
+def lock_files(tmp: Path) -> list[str]:
+    return sorted(p.name for p in tmp.glob("espdock-image-*.lock"))
+
+
+def test_an_image_build_leaves_no_lock_file_in_the_temp_dir(ws, tmp_path, monkeypatch):
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
+    engine = FakeEngine()
+    runner(engine, []).run(Plan(ws, (EnsureImage(SPEC),)))
+    assert [b["tag"] for b in engine.builds] == [SPEC.tag]
+    assert lock_files(tmp_path) == []
+
+
+def test_builds_of_one_tag_wait_for_each_other_even_as_lock_files_go(tmp_path, monkeypatch):
+    """Three builds of one tag from three workspaces, the third starting once the second builds,
+    the first having removed the lock file the second waited on: still one build at a time."""
+    monkeypatch.setattr(bootstrap, "ensure_compose", lambda env, notify: None)
+    temp = tmp_path / "tmp"
+    temp.mkdir()
+    monkeypatch.setattr(tempfile, "tempdir", str(temp))
+    engine = SlowBuilds()
+    events: list = []
+    failures: list[BaseException] = []
+
+    def build(name: str) -> None:
+        root = tmp_path / name
+        (root / "ws/src").mkdir(parents=True)
+        try:
+            runner(engine, events).run(Plan(Workspace(root), (EnsureImage(SPEC, force=True),)))
+        except BaseException as exc:  # reported by the assertion below
+            failures.append(exc)
+
+    threads = [threading.Thread(target=build, args=(f"w{i}",)) for i in range(3)]
+    threads[0].start()
+    time.sleep(0.1)
+    threads[1].start()
+    assert engine.second_started.wait(10)
+    threads[2].start()
+    for thread in threads:
+        thread.join(10)
+    assert failures == []
+    assert len(engine.builds) == 3
+    assert engine.most_at_once == 1, "two builds of one tag ran at once"
+    assert any(isinstance(e, StepNote) and "another espdock is making it; waiting" in e.text for e in events)
+    assert lock_files(temp) == []

@@ -20,7 +20,8 @@ UV_INSTALL := $(VENV)/bin/uv pip install -q --python $(PY)
 $(VENV)/.installed: pyproject.toml $(LOCK) docker/pip-installer.txt
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install -q --require-hashes -r docker/pip-installer.txt
-	$(PY) -m pip install -q --require-hashes --no-deps -r <(awk '/^uv==/{p=1;print;next} p&&/^ +--hash/{print;next} p{exit}' $(LOCK))
+	$(PY) -m pip install -q --require-hashes --no-deps -r <(awk '/^uv==/{p=1;print;next} p&&/^ +--hash/{print;next} p{exit}' $(LOCK)) \
+	  || echo "make: uv does not install here; pip installs $(LOCK)"
 	$(UV_INSTALL) --require-hashes --compile-bytecode -r $(LOCK) \
 	  || { echo "make: uv could not install $(LOCK); pip installs it"; $(PY) -m pip install -q --require-hashes -r $(LOCK); }
 	$(UV_INSTALL) --no-deps -e . || $(PY) -m pip install -q --no-deps -e .

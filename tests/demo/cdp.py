@@ -10,6 +10,7 @@ from __future__ import annotations
 import base64
 import itertools
 import json
+import os
 import shutil
 import subprocess
 import tempfile
@@ -53,6 +54,9 @@ class Browser:
             [self.executable, *FLAGS, f"--user-data-dir={self._profile}", "--remote-debugging-port=0", "about:blank"],
             stdout=subprocess.DEVNULL,
             stderr=subprocess.DEVNULL,
+            # Its singleton socket's dir goes into TMPDIR, and a terminated Chromium leaves it
+            # there: inside the profile, it goes with the profile.
+            env={**os.environ, "TMPDIR": self._profile},
         )
         try:
             port = self._wait_for_port()

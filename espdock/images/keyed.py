@@ -9,7 +9,7 @@ import os
 import re
 import shutil
 import tempfile
-from collections.abc import Iterator, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from contextlib import contextmanager, suppress
 from datetime import UTC, datetime
 from pathlib import Path
@@ -30,8 +30,37 @@ DPKG_LINE = re.compile(r"^[a-z0-9][a-z0-9+.-]*(:[a-z0-9]+)?=\S+$")
 BUILDKIT_STEP = re.compile(r"^#\d+ \[.*\] (?P<what>.+)$")
 
 
+def _hold_lock(path: Path, waiting: Callable[[], None]) -> int | None:
+    """A descriptor holding the exclusive lock of the file PATH names (WAITING is called once, when
+    another holds it); None where it cannot be opened. A holder removes the file before it lets
+    go, so the file a waiter gets is checked against PATH, and PATH's new one is locked instead."""
+    said = False
+    while True:
+        try:
+            try:  # without O_CREAT first: protected_regular refuses it on another user's file in /tmp
+                fd = os.open(path, os.O_RDONLY)
+            except FileNotFoundError:
+                fd = os.open(path, os.O_RDONLY | os.O_CREAT, 0o444)
+        except OSError:
+            return None
+        try:
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:
+                if not said:
+                    waiting()
+                    said = True
+                fcntl.flock(fd, fcntl.LOCK_EX)
+        except BaseException:  # Ctrl-C while waiting
+            os.close(fd)
+            raise
+        if _names(path, fd):
+            return fd
+        os.close(fd)  # removed, or made again, by its last holder
+
+
 def _names(path: Path, fd: int) -> bool:
-    """Whether PATH is still the file open as FD (not removed, nor made again, by its last holder)."""
+    """Whether PATH is still the file open as FD."""
     try:
         named = path.stat()
     except FileNotFoundError:
@@ -118,35 +147,17 @@ class KeyedImages:
         """
         name = hashlib.sha256(f"{self.containers.engine.info().identity}\0{step.spec.tag}".encode()).hexdigest()[:16]
         path = Path(tempfile.gettempdir()) / f"espdock-image-{name}.lock"
-        waiting_said = False
-        while True:
-            try:
-                try:  # without O_CREAT first: protected_regular refuses it on another user's file in /tmp
-                    fd = os.open(path, os.O_RDONLY)
-                except FileNotFoundError:
-                    fd = os.open(path, os.O_RDONLY | os.O_CREAT, 0o444)
-            except OSError:
-                yield  # another user's lock file we cannot open: build unlocked, as before
-                return
-            try:
-                try:
-                    fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-                except BlockingIOError:
-                    if not waiting_said:
-                        note = f"{step.spec.tag}: another espdock is making it; waiting"
-                        self.containers.emit(StepNote(step.name, note))
-                        waiting_said = True
-                    fcntl.flock(fd, fcntl.LOCK_EX)
-                if not _names(path, fd):
-                    continue
-                try:
-                    yield
-                finally:
-                    with suppress(OSError):  # another user's file in a sticky /tmp stays, unlocked
-                        path.unlink()
-                return
-            finally:
-                os.close(fd)
+        note = StepNote(step.name, f"{step.spec.tag}: another espdock is making it; waiting")
+        fd = _hold_lock(path, lambda: self.containers.emit(note))
+        if fd is None:
+            yield  # another user's lock file we cannot open: build unlocked, as before
+            return
+        try:
+            yield
+        finally:
+            with suppress(OSError):  # another user's file in a sticky /tmp stays
+                path.unlink()
+            os.close(fd)
 
     def _make(
         self,

@@ -14,17 +14,16 @@ LOCK := requirements/dev.txt
 # espdock itself, whose dependencies are all in it.
 # uv, as the lock pins and hashes it, installs the lock: from a fresh clone the venv is
 # ready in about half pip's time, and it is on the way of both make commands. uv reads no
-# pip.conf, so where it cannot install the lock (an index only pip is configured for),
-# pip installs the same lock.
+# pip.conf, so where uv does not install or cannot install the lock (an index only pip is
+# configured for), pip installs the same lock and espdock.
 UV_INSTALL := $(VENV)/bin/uv pip install -q --python $(PY)
 $(VENV)/.installed: pyproject.toml $(LOCK) docker/pip-installer.txt
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install -q --require-hashes -r docker/pip-installer.txt
 	$(PY) -m pip install -q --require-hashes --no-deps -r <(awk '/^uv==/{p=1;print;next} p&&/^ +--hash/{print;next} p{exit}' $(LOCK)) \
-	  || echo "make: uv does not install here; pip installs $(LOCK)"
-	$(UV_INSTALL) --require-hashes --compile-bytecode -r $(LOCK) \
-	  || { echo "make: uv could not install $(LOCK); pip installs it"; $(PY) -m pip install -q --require-hashes -r $(LOCK); }
-	$(UV_INSTALL) --no-deps -e . || $(PY) -m pip install -q --no-deps -e .
+	  && $(UV_INSTALL) --require-hashes --compile-bytecode -r $(LOCK) && $(UV_INSTALL) --no-deps -e . \
+	  || { echo "make: uv could not install $(LOCK); pip installs it"; \
+	       $(PY) -m pip install -q --require-hashes -r $(LOCK) && $(PY) -m pip install -q --no-deps -e .; }
 	touch $@
 
 # The test-only system packages (apt) install while the venv does (pip): they share no lock.

@@ -1,7 +1,9 @@
+import shutil
 from pathlib import Path
 
 import pytest
 
+import espdock.workspace
 from espdock.errors import WorkspaceError
 from espdock.workspace import (
     PackageKind,
@@ -142,7 +144,6 @@ def test_a_changed_manifest_is_read_again_however_it_was_cached(ws, monkeypatch,
     path = add_package(ws.root / "ws/src", "nodes", depends=["rclpy"])
     (first,) = discover_packages(ws)
     assert first.depends == {"rclpy"}
-    assert (tmp_path / "cache/espdock/manifests.json").is_file()
     (again,) = discover_packages(ws)  # from the cache: the same answer
     assert again == first
     manifest = path / "package.xml"
@@ -155,7 +156,55 @@ def test_a_changed_manifest_is_read_again_however_it_was_cached(ws, monkeypatch,
 
 def test_an_unreadable_cache_only_means_parsing(ws, monkeypatch, tmp_path):
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
-    (tmp_path / "cache/espdock").mkdir(parents=True)
-    (tmp_path / "cache/espdock/manifests.json").write_text("{not json")
     add_package(ws.root / "ws/src", "nodes")
+    discover_packages(ws)
+    (cached,) = (tmp_path / "cache/espdock/manifests").iterdir()
+    cached.write_text("{not json")
     assert [p.name for p in discover_packages(ws)] == ["nodes"]
+
+
+def cache_files(cache: Path) -> dict[str, str]:
+    """The manifest cache's files under CACHE (XDG_CACHE_HOME), each with the text it holds."""
+    return {f.name: f.read_text() for f in (cache / "espdock/manifests").iterdir()}
+
+
+def test_the_manifest_cache_holds_what_the_workspaces_have_now(monkeypatch, tmp_path):
+    cache = tmp_path / "cache"
+    monkeypatch.setenv("XDG_CACHE_HOME", str(cache))
+    # The one file espdock kept for every workspace before, here as it grew on a busy machine.
+    (cache / "espdock").mkdir(parents=True)
+    (cache / "espdock/manifests.json").write_text('{"format": 3, "entries": {}}' + " " * 3_000_000)
+    spaces = {}
+    for name in ("robot", "scratch", "clone"):
+        (tmp_path / name).mkdir()
+        (tmp_path / name / "espdock.toml").write_text("[espdock]\n")
+        spaces[name] = Workspace(tmp_path / name)
+        add_package(tmp_path / name / "ws/src", f"{name}_nodes")
+        add_package(tmp_path / name / "ws/src", f"{name}_msgs", interface=True)
+    discover_packages(spaces["robot"])
+    discover_packages(spaces["scratch"])
+    assert not (cache / "espdock/manifests.json").exists()
+    # Each workspace reads only its own packages at a start.
+    (robot_file,) = [text for text in cache_files(cache).values() if "robot_nodes" in text]
+    assert "scratch" not in robot_file
+
+    # A removed package drops out, and a workspace removed since goes with the next new one.
+    shutil.rmtree(tmp_path / "robot/ws/src/robot_msgs")
+    assert [p.name for p in discover_packages(spaces["robot"])] == ["robot_nodes"]
+    shutil.rmtree(tmp_path / "scratch")
+    discover_packages(spaces["clone"])
+    texts = "".join(cache_files(cache).values())
+    assert len(cache_files(cache)) == 2
+    assert "robot_msgs" not in texts and "scratch" not in texts and "clone_msgs" in texts
+
+
+def test_an_unchanged_workspace_parses_no_manifest(ws, monkeypatch, tmp_path):
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
+    add_package(ws.root / "ws/src", "nodes", depends=["rclpy"])
+    first = discover_packages(ws)
+
+    def parse(manifest, ros_distro):
+        raise AssertionError(f"parsed {manifest}")
+
+    monkeypatch.setattr(espdock.workspace, "_read_manifest", parse)
+    assert discover_packages(ws) == first

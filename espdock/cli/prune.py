@@ -53,7 +53,12 @@ def prune(
         typer.Option("--keep", min=0, help="Generations of each kind kept besides those in use (prune_keep)."),
     ] = None,
     all_workspaces: Annotated[
-        bool, typer.Option("--all-workspaces", help="Prune every workspace built on this machine, not just this one.")
+        bool,
+        typer.Option(
+            "--all-workspaces",
+            help="Prune every workspace built on this machine, not just this one; "
+            "those since removed lose all their images.",
+        ),
     ] = False,
     dry_run: Annotated[bool, typer.Option("--dry-run", help="Say what would go and how much, remove nothing.")] = False,
     cache_max_gb: Annotated[
@@ -71,7 +76,7 @@ def prune(
     workspace: WorkspaceOption = None,
 ) -> None:
     """Remove this workspace's keyed images its current inputs no longer use, keeping the last few of
-    each kind; never an image another workspace's last build used or a running container needs."""
+    each kind; never an image the last build of another workspace still there used or a running container needs."""
     ws, config = load(workspace)
     engine = bootstrap.ensure_engine(os.environ, notify)
     if volume:
@@ -90,6 +95,13 @@ def prune(
             console.print(Text(f"{verb} {decision.tag} ({size_text(decision.size)}; {decision.reason})"))
     for decision in plan.keep:
         console.print(Text(f"kept {decision.tag} ({decision.reason})", style="dim"))
+    if plan.gone_elsewhere:
+        shown = ", ".join(plan.gone_elsewhere[:3]) + (", ..." if len(plan.gone_elsewhere) > 3 else "")
+        console.print(
+            Text(f"{len(plan.gone_elsewhere)} workspace(s) built here are gone ({shown}): ")
+            + Text("espdock prune --all-workspaces", style="bold")
+            + Text(" removes their images")
+        )
     freed = sum(d.size for d in plan.remove if d.tag not in busy)
     cache, trimmed = trim_cache(engine, config.build_cache_max_gb if cache_max_gb is None else cache_max_gb, dry_run)
     cache_text = "size unknown (the engine was busy reporting it)" if cache is None else size_text(cache)

@@ -117,6 +117,19 @@ def test_prune_keeps_what_is_used_and_removes_the_rest(engine, tmp_path):
         assert "prune_auto: removed 3 images no longer used" in auto.stdout, auto.stdout[-3000:]
         assert auto.stdout.count(warned) == 1, auto.stdout[-3000:]
         assert not ours.current & on_engine(engine) and theirs.current <= on_engine(engine)
+
+        # A removed workspace protects nothing and keeps nothing: a prune says so, and a prune of
+        # every workspace removes all its images and its record.
+        shutil.rmtree(second)
+        hinted = espdock("prune", "--keep", "0", "--dry-run", cwd=first, env=env)
+        assert f"1 workspace(s) built here are gone ({second}): espdock prune --all-workspaces" in hinted.stdout
+        every = espdock("prune", "--all-workspaces", "--keep", "0", cwd=first, env=env)
+        assert every.returncode == 0, every.stdout + every.stderr
+        for tag in theirs.current:
+            assert f"removed {tag} (" in every.stdout and tag not in on_engine(engine), every.stdout
+        assert "its workspace is gone)" in every.stdout, every.stdout
+        assert list(recorded(state)) == [str(first)]
+        assert recorded(state)[str(first)].current <= on_engine(engine)
     finally:
         records = recorded(state)
         tags = {i.tag for record in records.values() for i in record.images}

@@ -51,3 +51,27 @@ def test_only_the_targets_are_pruned_and_unrecorded_images_never():
     assert [d.tag for d in plan_prune([ours, theirs], {"/a"}, {}, everything, set(), 0).remove] == ["ros:1"]
     both = plan_prune([ours, theirs], {"/a", "/b"}, {}, everything, set(), 0)
     assert sorted(d.tag for d in both.remove) == ["ros:1", "w:1"]
+
+
+def test_a_removed_workspace_protects_nothing_and_its_images_go_with_every_workspace():
+    ours = Record("/a", generations("/a", "ros", 3), frozenset({"ros:3"}))
+    removed = Record("/b", (*generations("/b", "ros", 2), *generations("/b", "w", 2)), frozenset({"ros:2", "w:2"}))
+    everything = present("ros:1", "ros:2", "ros:3", "w:1", "w:2")
+    # ros:2, which the removed workspace's last build used, no longer stays for it.
+    alone = plan_prune([ours, removed], {"/a"}, {"/a": {"ros:3"}}, everything, set(), 0, gone={"/b"})
+    assert sorted(d.tag for d in alone.remove) == ["ros:1", "ros:2"]
+    assert alone.gone_elsewhere == ("/b",)
+    # With every workspace: all of its images go, its last build's and the last N alike, but for
+    # ros:2, one of the last 1 of the live workspace's.
+    every = plan_prune([ours, removed], {"/a", "/b"}, {"/a": {"ros:3"}}, everything, set(), 1, gone={"/b"})
+    assert [d.tag for d in every.remove].count("ros:1") == 1  # both recorded it
+    assert {d.tag: d.reason for d in every.remove} == {
+        "ros:1": "no longer used by its inputs",  # the live workspace's decision, made first
+        "w:1": "its workspace is gone",
+        "w:2": "its workspace is gone",
+    }
+    assert {d.tag: d.reason for d in every.keep} == {
+        "ros:2": "one of the last 1 of its kind",
+        "ros:3": "used by the current inputs",
+    }
+    assert every.gone_elsewhere == ()

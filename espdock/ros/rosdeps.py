@@ -19,6 +19,7 @@ import hashlib
 import json
 import os
 import re
+import shutil
 import subprocess
 import tempfile
 import time
@@ -244,7 +245,22 @@ def update_database(env: Mapping[str, str], distro: str, root: Path | None = Non
         raise DatabaseUnreachable(
             "`rosdep update` could not read: " + "; ".join(failed), f"Fix the sources, then {FIX}."
         )
+    if root is not None:
+        (cache / "root").write_text(str(Path(root).resolve()))
+        _remove_gone_databases(cache_dir(env))
     return cache
+
+
+def _remove_gone_databases(base: Path) -> None:
+    """Remove the databases of workspaces since removed (a clone, a CI job's checkout): each
+    names its workspace in `root`, and nothing will read it again."""
+    for database in base.iterdir():
+        try:
+            root = (database / "root").read_text()
+        except OSError:
+            continue  # not a database, or one made before databases named their workspace
+        if not os.path.isdir(root):
+            shutil.rmtree(database, ignore_errors=True)
 
 
 @dataclass(frozen=True)

@@ -194,6 +194,14 @@ def test_each_workspace_has_its_own_rosdep_database_and_the_lock_names_its_sourc
     assert other.returncode == 2, other.stderr
     assert "acme_lidar_sdk: no rosdep rule: the key is unknown" in other.stderr
 
+    # B removed: the next `rosdep update` removes its database, and A's stays.
+    databases = tmp_path / "cache/espdock/rosdep"
+    assert len(list(databases.iterdir())) == 2
+    shutil.rmtree(tmp_path / "b")
+    again = run(tmp_path / "a", tmp_path, "lock", ROSDEP_SOURCE_PATH=str(with_private))
+    assert again.returncode == 0, again.stderr
+    assert [(d / "root").read_text() for d in databases.iterdir()] == [str((tmp_path / "a").resolve())]
+
 
 def offline(root: Path, tmp_path: Path, *args: str) -> subprocess.CompletedProcess[str]:
     """espdock with no route to anything (a network namespace of its own): rosdep's default

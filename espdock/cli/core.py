@@ -35,7 +35,21 @@ app = typer.Typer(
     add_completion=False,
     pretty_exceptions_enable=False,
 )
+# 128 + SIGPIPE: what a shell reports for a command a closed pipe ended.
+OUTPUT_CLOSED = 141
+
+
+def output_closed() -> NoReturn:
+    """The reader of espdock's output went away (`espdock test | head`): end quietly, as SIGPIPE
+    ends a command. The container the command ran is stopped and removed on the way out, as on
+    Ctrl-C; stdout goes to /dev/null first, or the exit's flush would fail again."""
+    console.quiet = True
+    os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+    raise SystemExit(OUTPUT_CLOSED)
+
+
 console = Console(soft_wrap=True)
+console.on_broken_pipe = output_closed  # rich's own exits 1, which `espdock verify` gives a changed file
 err_console = Console(stderr=True, soft_wrap=True)
 _state = {"debug": False}
 P = ParamSpec("P")

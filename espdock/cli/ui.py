@@ -63,8 +63,11 @@ class Reporter:
             # rich would (control codes stripped, tabs expanded, no wrapping) at a twentieth of
             # its cost per line, which a test suite's thousands of lines add up to seconds of.
             stamp = time.strftime("%H:%M:%S ", time.gmtime()) if self.timestamps else ""
-            self.console.file.write(f"{stamp}{strip_control_codes(text).expandtabs(self.console.tab_size)}\n")
-            self.console.file.flush()
+            try:
+                self.console.file.write(f"{stamp}{strip_control_codes(text).expandtabs(self.console.tab_size)}\n")
+                self.console.file.flush()
+            except BrokenPipeError:  # as rich's own writes handle it
+                self.console.on_broken_pipe()
             return
         self._print(Text(text) if isinstance(text, str) else text, soft_wrap=True)
 
@@ -243,4 +246,5 @@ def render_packages(console: Console, workspace: Workspace, packages: tuple[Pack
         table.add_row(p.name, p.kind.value, p.build_type, ", ".join(sorted(p.depends & names)))
     # Into a pipe or a file, at the table's own width: a name cut at 80 columns is another name.
     wide = console if console.is_terminal else Console(file=console.file, width=10_000, no_color=console.no_color)
+    wide.on_broken_pipe = console.on_broken_pipe
     wide.print(table)

@@ -883,7 +883,8 @@ class Engine:
                 f"the {self.info().name} could not start a container of {spec.image} (its message is above)",
                 "Fix what the engine says, then run again.",
             )
-        return code, (received[0] if received else None)
+        # The CLI killed by a signal (SIGPIPE: `espdock run ... 2>&1 | head`) is 128 + N, as a shell says.
+        return (128 - code if code < 0 else code), (received[0] if received else None)
 
     def _signal_container(self, name: str, signum: int, kill: bool) -> bool:
         """Send SIGNUM (or, with KILL, SIGKILL) to container NAME's process; False while it does not exist yet."""

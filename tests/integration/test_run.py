@@ -78,6 +78,30 @@ def test_run_prints_the_nodes_output_and_ctrl_c_ends_it_with_130_leaving_no_cont
     assert no_containers_left(engine, node_workspace) == []
 
 
+def test_a_closed_output_ends_run_as_a_shell_says_leaving_no_container(engine, node_workspace):
+    """`espdock run ... 2>&1 | grep -m1 'sent:'`: the reader exits at its first match."""
+    process = subprocess.Popen(
+        [sys.executable, "-m", "espdock", "run", "beacon_nodes", "beacon", "--ros-args", "-p", "period:=0.1"],
+        cwd=node_workspace,
+        env={**os.environ, "ROS_DOMAIN_ID": str(random.randrange(100, 200))},
+        stdin=subprocess.DEVNULL,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
+    try:
+        assert process.stdout is not None
+        next(line for line in process.stdout if "sent: beacon" in line)
+        process.stdout.close()
+        code = process.wait(timeout=30)
+    finally:
+        if process.poll() is None:
+            process.kill()
+            process.wait()
+    assert code == 141  # 128 + SIGPIPE, which ended the node's output on its way out
+    assert no_containers_left(engine, node_workspace) == []
+
+
 def test_two_nodes_started_with_run_talk_over_a_topic(engine, node_workspace):
     domain = random.randrange(100, 200)
     listener = Node(node_workspace, "beacon_nodes", "beacon_log", domain=domain)

@@ -15,6 +15,8 @@ import json
 import os
 import re
 import shutil
+import subprocess
+import sys
 import time
 from pathlib import Path
 from xml.etree import ElementTree
@@ -117,15 +119,41 @@ def test_build_skips_test_needs_then_test_builds_runs_and_reports_them(tmp_path,
     assert leftover_containers(engine, root) == []
 
 
-def test_ctrl_c_during_the_tests_exits_130_and_leaves_no_container(tmp_path, engine):
+def test_ctrl_c_or_a_closed_output_during_the_tests_ends_them_and_leaves_no_container(tmp_path, engine):
     root = make_workspace(tmp_path / "w", ("tested_py",))
     env = environment(tmp_path)
     # Rerun until a failure that never comes: the tests keep running until interrupted. The
     # build before them prints its own lines; "colcon test:" comes once it is done.
-    run = Started(root, "test", "--", "--pytest-args", "-k", "not nan", "--retest-until-fail", "500", env=env)
+    until = ("--", "--pytest-args", "-k", "not nan", "--retest-until-fail", "500")
+    run = Started(root, "test", *until, env=env)
     code, took = run.interrupt_on("colcon test: tested_py", timeout=300)
     assert code == 130, run.output()
     assert took < 15, took
+    assert leftover_containers(engine, root) == []
+
+    # `espdock test | grep -m1 ...`: the reader exits at its first match. espdock ends quietly,
+    # as a closed pipe ends a command (128 + SIGPIPE), not as a bug of its own.
+    process = subprocess.Popen(
+        [sys.executable, "-m", "espdock", "test", *until],
+        cwd=root,
+        env={**os.environ, **env, "TMPDIR": str(tmp_path)},
+        stdin=subprocess.DEVNULL,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert process.stdout is not None and process.stderr is not None
+        next(line for line in process.stdout if "colcon test: tested_py" in line)
+        process.stdout.close()
+        code = process.wait(timeout=60)
+        err = process.stderr.read()
+    finally:
+        if process.poll() is None:
+            process.kill()
+            process.wait()
+    assert code == 141, err
+    assert "bug" not in err and not list(tmp_path.glob("espdock-bug-*")), err
     assert leftover_containers(engine, root) == []
 
 

@@ -302,10 +302,12 @@ def test_build_makes_no_runtime_image_run_and_compose_make_it_from_the_last_buil
         assert engine.image(f"espdock/{name}:latest").id != first.id
     finally:
         espdock("compose", "-p", project, "down", "-t", "1", cwd=root)
-        listed = ["docker", "images", "-q", f"espdock/{name}"]
-        tags = subprocess.run(listed, capture_output=True, text=True, check=False).stdout
-        for image in set(tags.split()):
-            subprocess.run(["docker", "rmi", "-f", image], capture_output=True, check=False)
+        # By tag: the image is bit-identical to any other runtime image of the same install tree
+        # (another test's, a developer's own), and removing it by ID would take their tags too.
+        listed = ["docker", "images", "--format", "{{.Repository}}:{{.Tag}}", f"espdock/{name}"]
+        tags = subprocess.run(listed, capture_output=True, text=True, check=False).stdout.split()
+        if tags:
+            subprocess.run(["docker", "rmi", *tags], capture_output=True, check=False)
 
 
 @pytest.mark.slow

@@ -92,6 +92,18 @@ class Workspace:
         return Workspace(self.root, paths, root)
 
 
+def root_key(root: Path | str) -> str:
+    """A short digest of the path ROOT: the name of what espdock keeps for a workspace outside it
+    (its lock's holder file, its manifest cache, its rosdep database, its image record)."""
+    return hashlib.sha256(str(root).encode()).hexdigest()[:16]
+
+
+def workspace_gone(root: Path | str) -> bool:
+    """Whether the workspace at ROOT was removed (a deleted clone, a CI job's checkout): no
+    command will use what espdock keeps for it outside it again."""
+    return not os.path.isdir(root)
+
+
 def find_workspace(start: Path) -> Workspace:
     """The nearest directory at or above START that holds espdock.toml."""
     start = start.resolve()
@@ -131,7 +143,7 @@ def discover_packages(workspace: Workspace, ros_distro: str = DEFAULT_ROS_DISTRO
                     "Package names must be unique in a workspace.",
                 )
             found[package.name] = package
-    cache.save()
+    cache.save(seen)
     return tuple(found[name] for name in sorted(found))
 
 
@@ -166,7 +178,6 @@ class _ManifestCache:
         self.path = path
         self.root = root
         self.entries = entries
-        self.seen: set[str] = set()
         self.changed = False
         # The conditions evaluated depend on it.
         self.ros_distro = ros_distro
@@ -179,7 +190,7 @@ class _ManifestCache:
     @classmethod
     def load(cls, workspace: Workspace, ros_distro: str = DEFAULT_ROS_DISTRO) -> _ManifestCache:
         root = workspace.root.resolve()
-        path = cls.directory() / f"{hashlib.sha256(str(root).encode()).hexdigest()[:16]}.json"
+        path = cls.directory() / f"{root_key(root)}.json"
         try:
             data = json.loads(path.read_text())
             valid = data.get("format") == cls.FORMAT and data.get("root") == str(root)
@@ -194,7 +205,6 @@ class _ManifestCache:
         return [info.st_size, info.st_mtime_ns, info.st_ino]
 
     def get(self, manifest: Path) -> Package | None:
-        self.seen.add(str(manifest))
         entry = self.entries.get(str(manifest))
         try:
             if not isinstance(entry, dict) or entry.get("stamp") != [*self._stamp(manifest), self.ros_distro]:
@@ -223,13 +233,13 @@ class _ManifestCache:
         }
         self.changed = True
 
-    def save(self) -> None:
-        """Write what this discovery saw, when that differs from the file: a package removed
-        since drops out."""
-        gone = self.entries.keys() - self.seen
-        if not self.changed and not gone:
+    def save(self, seen: Iterable[Path]) -> None:
+        """Write the entries of the manifests SEEN (this discovery's), when they differ from the
+        file's: a package removed since drops out."""
+        seen = {str(manifest) for manifest in seen}
+        if not self.changed and self.entries.keys() <= seen:
             return
-        entries = {key: value for key, value in self.entries.items() if key in self.seen}
+        entries = {key: value for key, value in self.entries.items() if key in seen}
         try:
             new = not self.path.exists()
             self.path.parent.mkdir(parents=True, exist_ok=True)
@@ -247,7 +257,7 @@ class _ManifestCache:
         for other in self.path.parent.glob("*.json"):
             try:
                 root = json.loads(other.read_text()).get("root")
-                if isinstance(root, str) and not os.path.isdir(root):
+                if isinstance(root, str) and workspace_gone(root):
                     other.unlink()
             except (OSError, ValueError, AttributeError):
                 other.unlink(missing_ok=True)  # unreadable: nothing in it can be used
@@ -489,8 +499,7 @@ def workspace_lock(workspace: Workspace) -> Iterator[None]:
     fd = os.open(workspace.root, os.O_RDONLY)
     # Who holds it, for the error a second build gets: outside the workspace, so that espdock
     # run as root creates nothing there that the user's colcon could not write into.
-    name = hashlib.sha256(str(workspace.root).encode()).hexdigest()[:16]
-    holder = Path(tempfile.gettempdir()) / f"espdock-build-{name}.holder"
+    holder = Path(tempfile.gettempdir()) / f"espdock-build-{root_key(workspace.root)}.holder"
     try:
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)

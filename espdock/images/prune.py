@@ -10,9 +10,7 @@ Images no record names (another user's, a test's, a pulled base) are never candi
 
 from __future__ import annotations
 
-import hashlib
 import json
-import os
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -20,6 +18,7 @@ from pathlib import Path
 from espdock import durable
 from espdock.build.steps import LABEL_KEY
 from espdock.images.engine import Engine
+from espdock.workspace import root_key, workspace_gone
 
 GB = 1000**3
 
@@ -50,7 +49,7 @@ class Record:
 
 
 def _record_path(state: Path, root: Path | str) -> Path:
-    return state / "workspaces" / f"{hashlib.sha256(str(root).encode()).hexdigest()[:16]}.json"
+    return state / "workspaces" / f"{root_key(root)}.json"
 
 
 def _read_record(path: Path) -> Record | None:
@@ -74,7 +73,7 @@ def read_records(state: Path) -> list[Record]:
 def gone_workspaces(records: Iterable[Record]) -> set[str]:
     """The roots of RECORDS whose workspace directory no longer exists (a clone removed, a CI
     job's checkout): no build will use their images again."""
-    return {record.root for record in records if not os.path.isdir(record.root)}
+    return {record.root for record in records if workspace_gone(record.root)}
 
 
 def record_use(state: Path, root: Path, used: Iterable[tuple[str, str]], now: float) -> None:
@@ -201,9 +200,12 @@ def plan_prune(
     elsewhere = tuple(
         sorted(r.root for r in records if r.root in gone - targets and any(i.tag in on_engine for i in r.images))
     )
-    # A tag two targets recorded is removed once.
-    removing = {d.tag: d for d in reversed(remove) if d.tag not in kept_tags}
-    return PrunePlan(tuple(d for d in remove if removing.get(d.tag) is d), tuple(kept), elsewhere)
+    # A tag two targets recorded is removed once, by the first decision.
+    once: dict[str, Decision] = {}
+    for decision in remove:
+        if decision.tag not in kept_tags:
+            once.setdefault(decision.tag, decision)
+    return PrunePlan(tuple(once.values()), tuple(kept), elsewhere)
 
 
 def _decide(image: UsedImage, there: Present, index: int, keep: int, others: set[str], running: set[str]) -> str | None:

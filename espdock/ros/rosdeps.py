@@ -32,7 +32,7 @@ from espdock.defaults import locate
 from espdock.errors import DependencyError, LockError
 from espdock.ros import pypi_names
 from espdock.ros.system_python import SystemPython, normalise
-from espdock.workspace import Package, PackageKind
+from espdock.workspace import Package, PackageKind, root_key, workspace_gone
 
 # The ROS images' Python: Debian bookworm's 3.11 on x86_64 (glibc 2.36), whatever runs uv.
 ROS_IMAGE_PYTHON = ("--python-version", "3.11", "--python-platform", "x86_64-manylinux_2_36")
@@ -189,7 +189,7 @@ def cache_dir(env: Mapping[str, str], root: Path | None = None) -> Path:
     base = Path(env.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")) / CACHE_SUBDIR
     if root is None:
         return base
-    return base / hashlib.sha256(str(Path(root).resolve()).encode()).hexdigest()[:16]
+    return base / root_key(Path(root).resolve())
 
 
 def database_age(env: Mapping[str, str], root: Path | None = None) -> float | None:
@@ -259,7 +259,7 @@ def _remove_gone_databases(base: Path) -> None:
             root = (database / "root").read_text()
         except OSError:
             continue  # not a database, or one made before databases named their workspace
-        if not os.path.isdir(root):
+        if workspace_gone(root):
             shutil.rmtree(database, ignore_errors=True)
 
 

@@ -143,6 +143,38 @@ def ros_runtime_tag(root: Path) -> str:
     return runtime_base_image(ros_build_image(load_config(root, {}), inputs.ros_dockerfile, inputs.ros_files)).tag
 
 
+def reader_exits_at(
+    root: Path,
+    text: str,
+    *args: str,
+    env: Mapping[str, str] | None = None,
+    stderr_too: bool = False,
+    timeout: float = 60,
+) -> tuple[int, str]:
+    """`espdock ARGS | grep -m1 TEXT` in ROOT (`2>&1 |` with STDERR_TOO): the reader closes the
+    pipe at the first line with TEXT. espdock's exit code (within TIMEOUT s of that), and its
+    stderr when kept apart."""
+    process = subprocess.Popen(
+        [sys.executable, "-m", "espdock", *args],
+        cwd=root,
+        env={**os.environ, **(env or {})},
+        stdin=subprocess.DEVNULL,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT if stderr_too else subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert process.stdout is not None
+        next(line for line in process.stdout if text in line)
+        process.stdout.close()
+        code = process.wait(timeout=timeout)
+        return code, process.stderr.read() if process.stderr else ""
+    finally:
+        if process.poll() is None:
+            process.kill()
+            process.wait()
+
+
 class Started:
     """`espdock ARGS` in the background as a user would start it (no terminal), its output
     (stdout and stderr) collected by line as it comes."""

@@ -19,7 +19,7 @@ import yaml
 
 from espdock.config import Config, resolve_ca_bundle
 from espdock.images.prune import read_records, state_dir
-from tests.conftest import REPO, Started, espdock, leftover_containers, python_workspace
+from tests.conftest import REPO, Started, espdock, leftover_containers, python_workspace, reader_exits_at
 from tests.ros_official_double.build import build_double, settings
 from tests.rosdep_db import environment
 
@@ -80,24 +80,9 @@ def test_run_prints_the_nodes_output_and_ctrl_c_ends_it_with_130_leaving_no_cont
 
 def test_a_closed_output_ends_run_as_a_shell_says_leaving_no_container(engine, node_workspace):
     """`espdock run ... 2>&1 | grep -m1 'sent:'`: the reader exits at its first match."""
-    process = subprocess.Popen(
-        [sys.executable, "-m", "espdock", "run", "beacon_nodes", "beacon", "--ros-args", "-p", "period:=0.1"],
-        cwd=node_workspace,
-        env={**os.environ, "ROS_DOMAIN_ID": str(random.randrange(100, 200))},
-        stdin=subprocess.DEVNULL,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.STDOUT,
-        text=True,
-    )
-    try:
-        assert process.stdout is not None
-        next(line for line in process.stdout if "sent: beacon" in line)
-        process.stdout.close()
-        code = process.wait(timeout=30)
-    finally:
-        if process.poll() is None:
-            process.kill()
-            process.wait()
+    domain = {"ROS_DOMAIN_ID": str(random.randrange(100, 200))}
+    run = ("run", "beacon_nodes", "beacon", "--ros-args", "-p", "period:=0.1")
+    code, _ = reader_exits_at(node_workspace, "sent: beacon", *run, env=domain, stderr_too=True, timeout=30)
     assert code == 141  # 128 + SIGPIPE, which ended the node's output on its way out
     assert no_containers_left(engine, node_workspace) == []
 

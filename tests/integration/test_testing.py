@@ -15,8 +15,6 @@ import json
 import os
 import re
 import shutil
-import subprocess
-import sys
 import time
 from pathlib import Path
 from xml.etree import ElementTree
@@ -24,7 +22,15 @@ from xml.etree import ElementTree
 import pytest
 
 from espdock.config import Config, resolve_ca_bundle
-from tests.conftest import REPO, Started, containers_created, espdock, in_workspace_image, leftover_containers
+from tests.conftest import (
+    REPO,
+    Started,
+    containers_created,
+    espdock,
+    in_workspace_image,
+    leftover_containers,
+    reader_exits_at,
+)
 from tests.ros_official_double.build import build_double, settings
 from tests.rosdep_db import environment
 
@@ -133,25 +139,7 @@ def test_ctrl_c_or_a_closed_output_during_the_tests_ends_them_and_leaves_no_cont
 
     # `espdock test | grep -m1 ...`: the reader exits at its first match. espdock ends quietly,
     # as a closed pipe ends a command (128 + SIGPIPE), not as a bug of its own.
-    process = subprocess.Popen(
-        [sys.executable, "-m", "espdock", "test", *until],
-        cwd=root,
-        env={**os.environ, **env, "TMPDIR": str(tmp_path)},
-        stdin=subprocess.DEVNULL,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-    )
-    try:
-        assert process.stdout is not None and process.stderr is not None
-        next(line for line in process.stdout if "colcon test: tested_py" in line)
-        process.stdout.close()
-        code = process.wait(timeout=60)
-        err = process.stderr.read()
-    finally:
-        if process.poll() is None:
-            process.kill()
-            process.wait()
+    code, err = reader_exits_at(root, "colcon test: tested_py", "test", *until, env={**env, "TMPDIR": str(tmp_path)})
     assert code == 141, err
     assert "bug" not in err and not list(tmp_path.glob("espdock-bug-*")), err
     assert leftover_containers(engine, root) == []

@@ -23,6 +23,11 @@ from espdock.images.engine import Engine, compose_available
 Notify = Callable[[str], None]
 
 DOCKERD_LOG = Path("/var/log/espdock-dockerd.log")
+# What the dockerd espdock starts keeps of the starting command's environment: it outlives the
+# command, and runc puts each `docker exec`'s files in TMPDIR, so a CI job's temp dir removed
+# after the job would break every exec of the engine. A service manager gives it no more.
+DOCKERD_ENV = ("PATH", "HTTP_PROXY", "HTTPS_PROXY", "NO_PROXY", "http_proxy", "https_proxy", "no_proxy",
+               "DOCKER_TMPDIR", "DOCKER_RAMDISK")  # fmt: skip
 LOCAL_SOCKET = "unix:///var/run/docker.sock"
 SYSTEM_PLUGIN = Path("/usr/local/lib/docker/cli-plugins/docker-compose")
 ENGINE_START_TIMEOUT = 60.0
@@ -67,7 +72,13 @@ def ensure_engine(env: Mapping[str, str], notify: Notify) -> Engine:
     notify(f"starting dockerd (log: {DOCKERD_LOG})")
     with open(DOCKERD_LOG, "ab") as log:
         daemon = subprocess.Popen(
-            ["dockerd"], stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, start_new_session=True
+            ["dockerd"],
+            stdout=log,
+            stderr=subprocess.STDOUT,
+            stdin=subprocess.DEVNULL,
+            start_new_session=True,
+            cwd="/",
+            env={name: env[name] for name in DOCKERD_ENV if name in env},
         )
     deadline = time.monotonic() + ENGINE_START_TIMEOUT
     while True:

@@ -287,3 +287,29 @@ def test_a_copy_back_swaps_the_whole_tree_in_and_a_missing_one_leaves_the_old(ws
     assert volume.replace_tree(tmp_path / "install.tar", install, (os.getuid(), os.getgid()))
     assert sorted(p.name for p in (install / "app").iterdir()) == ["new.txt"]
     assert [p.name for p in ws.ws_dir.iterdir() if p.name.startswith(".")] == []  # no staging left
+
+
+def test_the_dockerd_espdock_starts_keeps_nothing_of_the_commands_temp_dirs(tmp_path, monkeypatch):
+    """dockerd outlives the command that started it (a CI job, a session): it gets a service's
+    environment, the proxies and PATH, not the job's TMPDIR (runc's exec files) or its directory."""
+    seen = tmp_path / "seen"
+    fake = tmp_path / "bin/dockerd"  # stands in for dockerd: says what it was given, then fails to start
+    fake.parent.mkdir()
+    fake.write_text(f"#!/bin/sh\n{{ pwd; env; }} > {seen}\nexit 3\n")
+    fake.chmod(0o755)
+    monkeypatch.setattr(bootstrap, "DOCKERD_LOG", tmp_path / "dockerd.log")
+    monkeypatch.setattr(bootstrap, "_can_manage_engine", lambda: True)
+    monkeypatch.setattr(Engine, "connect", classmethod(lambda cls, env, timeout: (_ for _ in ()).throw(
+        bootstrap.EngineUnavailable("no engine"))))  # fmt: skip
+    path = f"{fake.parent}:{os.environ['PATH']}"
+    monkeypatch.setenv("PATH", path)
+    monkeypatch.chdir(tmp_path)
+    job = {"PATH": path, "TMPDIR": str(tmp_path / "job-tmp"), "XDG_CACHE_HOME": str(tmp_path / "cache"),
+           "HTTPS_PROXY": "http://proxy.example:3128"}  # fmt: skip
+    with pytest.raises(bootstrap.EngineUnavailable, match="dockerd exited with code 3"):
+        bootstrap.ensure_engine(job, lambda text: None)
+    cwd, *lines = seen.read_text().splitlines()
+    given = dict(line.split("=", 1) for line in lines if "=" in line)
+    assert cwd == "/"
+    assert given["HTTPS_PROXY"] == "http://proxy.example:3128" and given["PATH"] == path
+    assert "TMPDIR" not in given and "XDG_CACHE_HOME" not in given

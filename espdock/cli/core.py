@@ -48,6 +48,18 @@ def output_closed() -> NoReturn:
     raise SystemExit(OUTPUT_CLOSED)
 
 
+def _stdout_closed() -> bool:
+    """Whether stdout is a pipe nobody reads any more, rather than a pipe to a process espdock feeds."""
+    import select
+
+    try:
+        poller = select.poll()
+        poller.register(sys.stdout.fileno(), 0)
+    except (OSError, ValueError):  # no file behind it (captured), or closed already
+        return False
+    return any(events & select.POLLERR for _, events in poller.poll(0))
+
+
 console = Console(soft_wrap=True)
 console.on_broken_pipe = output_closed  # rich's own exits 1, which `espdock verify` gives a changed file
 err_console = Console(stderr=True, soft_wrap=True)
@@ -78,6 +90,10 @@ def command(function: Callable[P, None]) -> Callable[P, None]:
             fail(INTERRUPTED)
         except (typer.Exit, typer.Abort, SystemExit):
             raise
+        except BrokenPipeError as exc:  # from a plain print (`micro-ros status --json | head`)
+            if not _stdout_closed():
+                fail(_bug_report(exc))
+            output_closed()
         except Exception as exc:  # anything else is espdock's own bug: say so, keep the traceback
             fail(_bug_report(exc))
 

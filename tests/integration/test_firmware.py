@@ -137,6 +137,23 @@ def test_first_build_makes_the_micro_ros_image_and_installs_both_apps(fw_ws, dou
         assert f"{link.rsplit('/', 1)[0]}/{os.readlink(installed)}/flasher_args.json" in files
 
 
+def test_status_json_into_a_pipe_its_reader_closed_ends_quietly_with_141(fw_ws, double_env):
+    """`espdock micro-ros status --json | head -0`: the JSON meets a pipe nobody reads, which
+    ends the command as SIGPIPE ends one, not as a bug of espdock's."""
+    root, _ = fw_ws
+    read, write = os.pipe()
+    os.close(read)
+    try:
+        result = subprocess.run(
+            [sys.executable, "-m", "espdock", "micro-ros", "status", "--json"], cwd=root,
+            env={**os.environ, **double_env}, stdout=write, stderr=subprocess.PIPE, text=True, timeout=120, check=False,
+        )  # fmt: skip
+    finally:
+        os.close(write)
+    assert result.returncode == 141, result.stderr
+    assert "bug" not in result.stderr
+
+
 def test_everything_written_belongs_to_the_workspace_owner(fw_ws):
     root, first = fw_ws
     assert first.returncode == 0

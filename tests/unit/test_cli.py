@@ -167,6 +167,23 @@ def test_an_unexpected_error_is_reported_as_a_bug_with_a_traceback_log(capsys):
     log.unlink()
 
 
+def test_a_broken_pipe_of_a_process_espdock_feeds_is_still_a_bug_while_its_own_output_is_read(capsys):
+    import pytest
+
+    from espdock.cli import command as _command
+
+    @_command
+    def feeds_a_dead_process() -> None:
+        raise BrokenPipeError(32, "Broken pipe")
+
+    with pytest.raises(SystemExit) as exit_info:
+        feeds_a_dead_process()
+    assert exit_info.value.code == 70
+    err = capsys.readouterr().err
+    assert "this is a bug in espdock" in err
+    Path(err.split("traceback in ")[1].split()[0].rstrip(".")).unlink()
+
+
 def test_new_refuses_taken_and_reserved_names_and_unknown_dependencies(tmp_path):
     root = copy_workspace(tmp_path / "w")
     taken = espdock("new", "custom_interface", cwd=root, env=NO_ENGINE)

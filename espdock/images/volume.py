@@ -29,6 +29,7 @@ from pathlib import Path
 from espdock import durable, interrupts
 from espdock.build.stamps import source_files
 from espdock.build.steps import LABEL_WORKSPACE
+from espdock.errors import EngineUnavailable
 from espdock.images.engine import Engine, Mount
 from espdock.layout import WORKSPACE_MOUNT
 from espdock.workspace import Workspace, give_tree
@@ -232,7 +233,7 @@ def _top(archive: Path) -> str:
     with tarfile.open(archive) as tar:
         first = tar.next()
     if first is None:
-        raise ValueError(f"{archive} is empty")
+        raise _cut_short(archive, "it holds nothing")
     return first.name.split("/", 1)[0]
 
 
@@ -245,10 +246,22 @@ def _unpacked(archive: Path, beside: Path, owner: tuple[int, int]) -> Path:
             tar.extractall(staging, filter="tar")
         if os.geteuid() == 0:
             give_tree(staging, owner)
+    except (tarfile.ReadError, EOFError) as exc:
+        shutil.rmtree(staging, ignore_errors=True)
+        raise _cut_short(archive, str(exc)) from exc
     except BaseException:
         shutil.rmtree(staging, ignore_errors=True)
         raise
     return staging
+
+
+def _cut_short(archive: Path, why: str) -> EngineUnavailable:
+    """The engine answered a copy out of a finished container with a broken stream (an engine
+    that went away mid-copy): the engine's failure, and the host's tree is left as it was."""
+    return EngineUnavailable(
+        f"the engine's copy of the container's {archive.stem}/ came back broken ({why})",
+        f"Nothing in {archive.stem}/ was replaced. Check the engine (`docker info`) and build again.",
+    )
 
 
 def _give(path: Path, owner: tuple[int, int]) -> None:

@@ -19,7 +19,7 @@ import pytest
 from espdock.build.runner import Runner
 from espdock.build.steps import Plan
 from espdock.config import Config
-from espdock.errors import BuildFailed, WorkspaceError, WorkspaceNotVisible
+from espdock.errors import BuildFailed, EngineUnavailable, WorkspaceError, WorkspaceNotVisible
 from espdock.images import bootstrap, volume
 from espdock.images.engine import LIBPOD_INFO, Engine, EngineInfo, describe
 from espdock.ros.colcon import unselected
@@ -286,6 +286,25 @@ def test_a_copy_back_swaps_the_whole_tree_in_and_a_missing_one_leaves_the_old(ws
         tar.add(tmp_path / "made/install", arcname="install")
     assert volume.replace_tree(tmp_path / "install.tar", install, (os.getuid(), os.getgid()))
     assert sorted(p.name for p in (install / "app").iterdir()) == ["new.txt"]
+    assert [p.name for p in ws.ws_dir.iterdir() if p.name.startswith(".")] == []  # no staging left
+
+
+@pytest.mark.parametrize("cut", ["empty", "truncated"])
+def test_a_copy_back_the_engine_cut_short_is_the_engine_s_failure_and_leaves_the_old_tree(ws, tmp_path, cut):
+    install = ws.ws_dir / "install"
+    (install / "app").mkdir(parents=True)
+    (install / "app/old.txt").write_text("old")
+    made = tmp_path / "made/install/app"
+    made.mkdir(parents=True)
+    (made / "new.bin").write_bytes(os.urandom(64 * 1024))
+    archive = tmp_path / "install.tar"
+    with tarfile.open(archive, "w") as tar:
+        tar.add(tmp_path / "made/install", arcname="install")
+    data = archive.read_bytes()
+    archive.write_bytes(b"" if cut == "empty" else data[: len(data) // 2])
+    with pytest.raises(EngineUnavailable, match=r"copy of the container's install/ came back broken"):
+        volume.replace_tree(archive, install, (os.getuid(), os.getgid()))
+    assert [p.name for p in (install / "app").iterdir()] == ["old.txt"]
     assert [p.name for p in ws.ws_dir.iterdir() if p.name.startswith(".")] == []  # no staging left
 
 

@@ -81,6 +81,14 @@ class ContainerError(EspdockError):
     exit_code = 9
 
 
+class MountSourceMissing(ContainerError):
+    """The engine has no such path for a container's bind mount: it runs on another machine."""
+
+    def __init__(self, message: str, hint: str | None, path: str) -> None:
+        super().__init__(message, hint)
+        self.path = path
+
+
 class TestsFailed(EspdockError):
     """`espdock test`: a test failed or errored (or colcon test itself failed); the summary names them."""
 

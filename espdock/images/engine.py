@@ -42,7 +42,7 @@ from typing import IO, Any
 from urllib.parse import quote
 
 from espdock import interrupts
-from espdock.errors import ContainerError, EngineUnavailable, EspdockError, ImageBuildError
+from espdock.errors import ContainerError, EngineUnavailable, EspdockError, ImageBuildError, MountSourceMissing
 
 LineSink = Callable[[str], None]
 DEFAULT_SOCKET = "/var/run/docker.sock"
@@ -161,8 +161,17 @@ def _create_config(spec: RunSpec, labels: Mapping[str, str]) -> dict[str, Any]:
     """The engine API's configuration of a container for SPEC with LABELS (POST /containers/create),
     detached: nothing attaches at creation, Engine.run_attached's `docker start --attach` later."""
     host: dict[str, Any] = {
-        # A bind's source, or a volume's name: the engine tells them apart by the slash.
-        "Binds": [f"{m.source}:{m.target}:{'ro' if m.read_only else 'rw'}" for m in spec.mounts],
+        # Mounts, not Binds: a Binds entry is split at its colons, so a workspace under
+        # /home/me/ws:old could not be mounted ("invalid volume specification").
+        "Mounts": [
+            {
+                "Type": "volume" if m.volume else "bind",
+                "Source": str(m.source),
+                "Target": m.target,
+                "ReadOnly": m.read_only,
+            }
+            for m in spec.mounts
+        ],
         "Devices": [{"PathOnHost": d, "PathInContainer": d, "CgroupPermissions": "rwm"} for d in spec.devices],
         "NetworkMode": spec.network or "default",
     }
@@ -174,7 +183,6 @@ def _create_config(spec: RunSpec, labels: Mapping[str, str]) -> dict[str, Any]:
         "WorkingDir": spec.workdir,
         "Env": [f"{key}={value}" for key, value in spec.env],
         "Labels": dict(labels),
-        "Volumes": {m.target: {} for m in spec.mounts},
         "Tty": spec.tty,
         "OpenStdin": spec.tty,
         "HostConfig": host,
@@ -921,6 +929,18 @@ class Engine:
                 except docker.errors.ImageNotFound as exc:
                     raise ContainerError(
                         f"image {spec.image} is not there: {exc}", "Run `espdock build` to build it."
+                    ) from exc
+                except docker.errors.APIError as exc:
+                    missing = re.search(r"bind source path does not exist: (.+)", str(exc.explanation or ""))
+                    if missing is None:
+                        raise
+                    raise MountSourceMissing(
+                        f"the {self.info().name} has no {missing[1]} for a container of {spec.image}: it runs "
+                        "on another machine, which lacks that path",
+                        "Build on an engine that shares this machine's files at the same paths (a local "
+                        "engine: unset DOCKER_HOST), or let espdock keep the workspace in a volume on that "
+                        'engine (workspace_mode = "volume" in espdock.toml).',
+                        missing[1],
                     ) from exc
         except BaseException:
             if container is not None:

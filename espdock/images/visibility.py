@@ -1,9 +1,10 @@
 """Whether the engine's containers see the workspace where espdock mounts it.
 
-An engine on another machine (DOCKER_HOST=tcp://... or ssh://..., a docker:dind service) makes
-an empty directory of its own in place of a bind mount's missing source: colcon would find no
-package there. Before the first build container, a container reads a nonce file espdock wrote
-into the workspace; the answer is kept under the colcon root's build/ for that engine and path.
+An engine on another machine (DOCKER_HOST=tcp://... or ssh://..., a docker:dind service) mounts
+the workspace's path from its own machine: another tree there, or nothing (the engine refuses a
+bind of a missing path). Before the first build container, a container reads a nonce file espdock
+wrote into the workspace; the answer is kept under the colcon root's build/ for that engine and
+path.
 """
 
 from __future__ import annotations
@@ -14,7 +15,7 @@ import secrets
 import stat
 from pathlib import Path
 
-from espdock.errors import WorkspaceError, WorkspaceNotVisible
+from espdock.errors import MountSourceMissing, WorkspaceError, WorkspaceNotVisible
 from espdock.images.engine import Engine, Mount, RunSpec
 from espdock.layout import WORKSPACE_MOUNT
 from espdock.workspace import Workspace
@@ -65,10 +66,15 @@ def engine_sees(
             mounts=(mount,),
             labels=(*labels, ("io.espdock.step", "mount-check")),
         )
-        code = engine.run(spec, output.append)
+        try:
+            code = engine.run(spec, output.append)
+        except MountSourceMissing as exc:
+            if exc.path != str(mount.source):
+                raise
+            code = None  # Docker's engines refuse a bind of a path their machine lacks
     finally:
         probe.unlink(missing_ok=True)
-    if code != 0 and any("permission denied" in line.lower() for line in output):
+    if code not in (0, None) and any("permission denied" in line.lower() for line in output):
         raise WorkspaceError(
             f"the build containers (user {user} on the {engine.info().name}) may not read the workspace: "
             f"{_described(mount.source)}",

@@ -63,7 +63,8 @@ def test_the_wheel_carries_the_workspace_defaults(wheel_espdock: Path, shared_di
 
 
 def test_a_new_workspace_from_init_to_installed_firmware(shared_dir, run_as_user, double_for, engine):
-    parent = shared_dir / "robots"
+    # A colon and a comma: the engine's short mount syntax splits at both.
+    parent = shared_dir / "robots:2026-11, old"
     parent.mkdir()
     subprocess.run(["chown", f"{USER_UID}:{USER_UID}", str(parent)], check=True)
     init = run_as_user("init", "myrobot", cwd=parent)

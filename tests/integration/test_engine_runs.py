@@ -19,7 +19,7 @@ from pathlib import Path
 import pytest
 
 from espdock.errors import ContainerError
-from espdock.images.engine import DEFAULT_SOCKET, Engine, RunSpec
+from espdock.images.engine import DEFAULT_SOCKET, Engine, Mount, RunSpec
 from espdock.images.keyed import DPKG_STATUS, installed_packages
 from tests.integration.test_engines import TcpForwarder
 
@@ -76,6 +76,21 @@ def test_files_go_in_before_the_start_and_come_out_after_the_end(way, tmp_path):
     with tarfile.open(fetched) as tar:
         assert tar.extractfile("out/up.txt").read() == b"FROM THE HOST\n"
     assert not missing.exists(), "a path the container lacks gives no file"
+    assert way.containers(dict(run.labels)) == []
+
+
+def test_a_host_dir_is_mounted_whatever_its_path_holds(way, tmp_path):
+    """A workspace's path is the user's: a colon (a dir named for a time, ws:old), a comma or a
+    space in it must neither break the mount nor move it. Read-only stays read-only."""
+    parent = tmp_path / "ws:old, 10:30 copy"
+    (parent / "ws").mkdir(parents=True)
+    (parent / "defaults.yaml").write_text("build: {}\n")
+    mounts = (Mount(parent / "ws", "/workspace"), Mount(parent / "defaults.yaml", "/defaults.yaml", read_only=True))
+    script = "cat /defaults.yaml > /workspace/seen && ! touch /defaults.yaml 2>/dev/null"
+    run = spec(["sh", "-c", script], mounts=mounts, user=f"{os.getuid()}:{os.getgid()}")
+    lines: list[str] = []
+    assert way.run(run, lines.append) == 0, lines
+    assert (parent / "ws" / "seen").read_text() == "build: {}\n"
     assert way.containers(dict(run.labels)) == []
 
 

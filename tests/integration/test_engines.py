@@ -81,8 +81,9 @@ class TcpForwarder:
 
 
 class RemoteEngine(PrivateEngine):
-    """A private dockerd that does not see HIDDEN (a tmpfs of its own mount namespace lies over it),
-    reached over TCP."""
+    """A private dockerd that does not see HIDDEN, reached over TCP. A tmpfs of its own mount
+    namespace lies over HIDDEN, with an empty ws-root: there, the engine's machine has the same path
+    holding another tree; at any other path under HIDDEN it has nothing."""
 
     def __init__(self, home: Path, hidden: Path) -> None:
         super().__init__(home)
@@ -92,7 +93,8 @@ class RemoteEngine(PrivateEngine):
     def start(self) -> None:
         # dockerd's own containerd, in the same namespaces: runc resolves bind mounts there.
         self.launch(["unshare", "--net", "--mount", "--propagation", "private", "--",
-                     "sh", "-c", 'mount -t tmpfs -o size=16m espdock-hidden "$0" && exec "$@"', str(self.hidden),
+                     "sh", "-c", 'mount -t tmpfs -o size=16m espdock-hidden "$0" && mkdir "$0/ws-root" && exec "$@"',
+                     str(self.hidden),
                      *self.dockerd()])  # fmt: skip
         self.forwarder = TcpForwarder(self.socket)
         self.env = {**os.environ, "DOCKER_HOST": f"tcp://127.0.0.1:{self.forwarder.port}"}

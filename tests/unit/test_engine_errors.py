@@ -16,7 +16,7 @@ import docker.errors
 import pytest
 import requests
 
-from espdock.errors import ContainerError, EngineUnavailable, EspdockError, ImageBuildError
+from espdock.errors import ContainerError, EngineUnavailable, EspdockError, ImageBuildError, MountSourceMissing
 from espdock.images.engine import Engine, RegistryAnswer, RegistryStatus, RunSpec
 
 TCP = "tcp://engine.invalid:2375"
@@ -159,6 +159,8 @@ REFUSED = refusal(500, "no space left on device")
 SAID = f'500 Server Error for {URL}: Internal Server Error ("no space left on device")'
 HYBRID = "crun: cgroups in hybrid mode are not supported"
 IN_USE = "remove v: volume is in use - [4f1c]"
+# Docker's answer to a bind of a path its machine lacks (a remote engine; Binds made a directory).
+NO_SOURCE = 'invalid mount config for type "bind": bind source path does not exist: /home/ann/.colcon/defaults.yaml'
 
 
 @pytest.mark.parametrize(
@@ -191,6 +193,16 @@ IN_USE = "remove v: volume is in use - [4f1c]"
             ContainerError,
             f'image espdock/img:1 is not there: 404 Client Error for {URL}: Not Found ("No such image: espdock/img:1")',
             "Run `espdock build` to build it.",
+        ),
+        (
+            lambda e: e.run(SPEC, print),
+            {"api.create_container_from_config": refusal(400, NO_SOURCE)},
+            MountSourceMissing,
+            f"{NAMED} has no /home/ann/.colcon/defaults.yaml for a container of espdock/img:1: it runs on another "
+            "machine, which lacks that path",
+            "Build on an engine that shares this machine's files at the same paths (a local engine: unset "
+            'DOCKER_HOST), or let espdock keep the workspace in a volume on that engine (workspace_mode = "volume" '
+            "in espdock.toml).",
         ),
         (
             lambda e: e.run(SPEC, print),
@@ -311,6 +323,7 @@ IN_USE = "remove v: volume is in use - [4f1c]"
         "remove_volume-in-use",
         "run-create",
         "run-no-image",
+        "run-no-bind-source",
         "run-start-runtime",
         "run-start-lost",
         "run-timeout",

@@ -18,6 +18,7 @@ from pathlib import Path
 
 from espdock.config import Config
 from espdock.errors import EngineUnavailable, ImageBuildError
+from espdock.images import contexts
 from espdock.images.engine import Engine, compose_available
 
 Notify = Callable[[str], None]
@@ -56,10 +57,16 @@ def ensure_engine(env: Mapping[str, str], notify: Notify) -> Engine:
     try:
         return Engine.connect(env, timeout=10)
     except EngineUnavailable as first:
-        if env.get("DOCKER_HOST", LOCAL_SOCKET) != LOCAL_SOCKET:
-            raise EngineUnavailable(
-                first.message, "Start the engine DOCKER_HOST names, or unset DOCKER_HOST."
-            ) from first
+        if contexts.engine_env(env).get("DOCKER_HOST", LOCAL_SOCKET) != LOCAL_SOCKET:
+            chosen = contexts.selected(env)
+            if chosen is None:
+                hint = "Start the engine DOCKER_HOST names, or unset DOCKER_HOST."
+            else:
+                undo = "unset DOCKER_CONTEXT" if chosen[1] == "DOCKER_CONTEXT" else "`docker context use default`"
+                hint = (
+                    f'Start the engine of the Docker context "{chosen[0]}" ({chosen[1]}), or {undo} for the local one.'
+                )
+            raise EngineUnavailable(first.message, hint) from first
         if not _can_manage_engine():
             raise EngineUnavailable(
                 first.message,

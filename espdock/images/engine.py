@@ -43,6 +43,7 @@ from urllib.parse import quote
 
 from espdock import interrupts
 from espdock.errors import ContainerError, EngineUnavailable, EspdockError, ImageBuildError, MountSourceMissing
+from espdock.images import contexts
 
 LineSink = Callable[[str], None]
 DEFAULT_SOCKET = "/var/run/docker.sock"
@@ -343,9 +344,9 @@ class Engine:
     """A connected Docker engine."""
 
     def __init__(self, env: Mapping[str, str], timeout: float = 60, client: Any = None) -> None:
-        self._env = dict(env)
+        self._env = contexts.engine_env(env)  # the engine `docker` uses: DOCKER_HOST or the CLI's context
         self._timeout = timeout
-        self._socket = _local_socket(env)
+        self._socket = _local_socket(self._env)
         self._sdk = client
         # Containers over plain HTTP: on a local socket, unless a client was handed in.
         self._plain = self._socket is not None and client is None
@@ -368,7 +369,7 @@ class Engine:
     def connect(cls, env: Mapping[str, str], timeout: float = 60) -> Engine:
         """Connect to the engine DOCKER_HOST (or the default socket) names; raise if none answers."""
         engine = cls(env, timeout)
-        where = env.get("DOCKER_HOST") or f"unix://{DEFAULT_SOCKET}"
+        where = engine._env.get("DOCKER_HOST") or f"unix://{DEFAULT_SOCKET}"
         try:
             status = engine._ping(timeout)
             if status != 200:

@@ -206,6 +206,20 @@ def test_a_workspace_the_engine_cannot_see_is_exit_8_in_mount_mode_and_never_shi
     engine.remove_containers({"io.espdock.workspace": str(root)})
 
 
+def test_the_docker_cli_s_current_context_is_the_engine_espdock_uses(tcp_engine, tmp_path):
+    """Rootless Docker's setup tool, Docker Desktop and colima pick a context and leave DOCKER_HOST
+    unset: `docker` and `docker compose` then talk to the context's engine, so espdock must too."""
+    config = {"DOCKER_CONFIG": str(tmp_path / "docker"), "DOCKER_HOST": ""}
+    host = tcp_engine.env["DOCKER_HOST"]
+    for argv in (["create", "remote", "--docker", f"host={host}"], ["use", "remote"]):
+        subprocess.run(["docker", "context", *argv], env={**os.environ, **config}, capture_output=True, check=True)
+    root = once_workspace(tcp_engine.hidden / "ws-context")
+    build = espdock("build", "--workspace-mode", "mount", cwd=root, env=config)
+    assert build.returncode == 8, build.stdout + build.stderr
+    assert f"Docker engine at {host} does not see the workspace {root}" in build.stderr
+    assert not (root / "ws/install").exists(), "built on the default socket's engine, not the context's"
+
+
 def test_the_same_engine_seeing_the_workspace_builds_rebuilds_an_edit_and_runs_it(tcp_engine, tmp_path):
     root = once_workspace(tmp_path / "ws-root")  # not under the hidden directory: the engine sees it
     first = espdock("build", cwd=root, env=tcp_engine.env)

@@ -3,7 +3,7 @@
 # provides): Debian's Chromium for the browser tests, cmake and g++ for the
 # firmware host tests, libzbar0 for pyzbar, the distribution registry and
 # htpasswd for the cache registry tests, and the other engines the engine tests
-# run (Podman; rootless Docker: rootlesskit, newuidmap, slirp4netns), and Debian's own colcon
+# run (Podman; rootless Docker: rootlesskit, newuidmap, slirp4netns; OpenSSH), and Debian's own colcon
 # (a colcon outside any venv, as a user of apt's colcon and a pipx espdock has it; with the
 # extensions its `colcon` package recommends, which apt installs by default). Installed only when
 # missing, and only where we can (root on Debian); elsewhere the tests that
@@ -20,6 +20,10 @@ command -v podman >/dev/null || missing+=(podman)
 command -v rootlesskit >/dev/null || missing+=(rootlesskit)
 command -v newuidmap >/dev/null || missing+=(uidmap)
 command -v slirp4netns >/dev/null || missing+=(slirp4netns)
+# An ssh:// engine (tests/integration/test_ssh_engine.py runs an sshd of its own on a loopback
+# port). Where systemd runs, Debian's package also enables and starts its ssh service.
+[ -x /usr/sbin/sshd ] || missing+=(openssh-server)
+command -v ssh >/dev/null || missing+=(openssh-client)
 [ -x /usr/bin/colcon ] || missing+=(colcon python3-colcon-ros python3-colcon-recursive-crawl
   python3-colcon-package-selection python3-colcon-parallel-executor python3-colcon-output
   python3-colcon-defaults python3-colcon-bash python3-colcon-library-path python3-colcon-metadata

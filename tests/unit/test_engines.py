@@ -9,6 +9,8 @@ import io
 import json
 import os
 import socketserver
+import subprocess
+import sys
 import tarfile
 import threading
 import time
@@ -332,3 +334,22 @@ def test_the_dockerd_espdock_starts_keeps_nothing_of_the_commands_temp_dirs(tmp_
     assert cwd == "/"
     assert given["HTTPS_PROXY"] == "http://proxy.example:3128" and given["PATH"] == path
     assert "TMPDIR" not in given and "XDG_CACHE_HOME" not in given
+
+
+@pytest.mark.parametrize(
+    ("host", "ssh"), [("tcp://127.0.0.1:9", False), ("unix:///nowhere.sock", False), ("ssh://ci@buildbox", True)]
+)
+def test_the_sdk_brings_paramiko_only_for_an_ssh_engine(host, ssh):
+    """paramiko is a tenth of a second at each start of espdock on a TCP engine (a third of a
+    no-change build there), and only ssh:// needs it: the SDK's ssh adapter is there then."""
+    script = (
+        "import sys\n"
+        "from espdock.images import engine\n"
+        f"engine.Engine({{'DOCKER_HOST': {host!r}}})\n"
+        "assert engine.docker.errors.APIError\n"  # the SDK, as espdock's first use of it imports it
+        "import docker.transport\n"
+        "print('paramiko' in sys.modules, hasattr(docker.transport, 'SSHHTTPAdapter'))\n"
+    )
+    ran = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, check=False)
+    assert ran.returncode == 0, ran.stderr
+    assert ran.stdout.split()[:2] == [str(ssh), str(ssh)]

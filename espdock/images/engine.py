@@ -390,10 +390,11 @@ class Engine:
         """The Docker SDK's client, made on first use."""
         if self._sdk is None:
             try:
+                _keep_engine_ca(docker.APIClient)
                 # TIMEOUT is for the first answer; a busy engine (Podman starting a container of a
                 # large image on a loaded machine) may take longer over an operation.
                 # ssh:// through the ssh command, as `docker` does (the user's ssh config, agent and
-                # known hosts), not through paramiko, which espdock does not install.
+                # known hosts), not through paramiko's own client.
                 self._sdk = docker.from_env(
                     environment=self._env, timeout=max(self._timeout, OPERATION_TIMEOUT), use_ssh_client=True
                 )
@@ -1309,6 +1310,25 @@ def _remove(container: docker.models.containers.Container, stop: bool = True) ->
         pass
     except (docker.errors.APIError, requests.exceptions.RequestException) as exc:
         warnings.warn(f"could not remove container {container.short_id}: {exc}", stacklevel=2)
+
+
+def _keep_engine_ca(api_class: Any) -> None:
+    """Have the SDK's API_CLASS check the engine's TLS certificate as DOCKER_TLS_VERIFY and
+    DOCKER_CERT_PATH say: against their CA, or not at all. requests lets REQUESTS_CA_BUNDLE or
+    CURL_CA_BUNDLE (set where a proxy re-signs HTTPS) replace a session's own CA at each request,
+    the first being the SDK's version check as it is made: no TLS engine (a GitLab docker:dind
+    service) answered espdock then, while the docker CLI, which reads neither, did."""
+    if getattr(api_class, "_espdock_keeps_engine_ca", False):
+        return
+    merge = api_class.merge_environment_settings
+
+    def merged(self: Any, url: str, proxies: Any, stream: Any, verify: Any, cert: Any) -> Any:
+        if (verify is None or verify is True) and self.verify is not True:
+            verify = self.verify  # the engine's CA file, or False: not the system's CAs
+        return merge(self, url, proxies, stream, verify, cert)
+
+    api_class.merge_environment_settings = merged
+    api_class._espdock_keeps_engine_ca = True
 
 
 def _engine_lost(env: Mapping[str, str], doing: str) -> EngineUnavailable:

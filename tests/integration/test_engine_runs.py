@@ -9,6 +9,8 @@ from __future__ import annotations
 import io
 import json
 import os
+import shutil
+import ssl
 import subprocess
 import sys
 import tarfile
@@ -16,6 +18,7 @@ import uuid
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
+import certifi
 import pytest
 
 from espdock.errors import ContainerError
@@ -33,16 +36,52 @@ def local_socket() -> str:
     return (os.environ.get("DOCKER_HOST") or f"unix://{DEFAULT_SOCKET}").removeprefix("unix://")
 
 
-@pytest.fixture(scope="module", params=["local socket", "tcp"])
-def way(request, engine) -> Iterator[Engine]:
-    """The engine over its local socket (plain HTTP) or over TCP (the Docker SDK)."""
+def make_certificates(home: Path) -> ssl.SSLContext:
+    """A CA, the engine's certificate for 127.0.0.1 and a client's in HOME/client (ca.pem,
+    cert.pem, key.pem: what DOCKER_CERT_PATH names, as a docker:dind service makes them), by
+    openssl; the engine's server context, which asks for a client certificate of that CA."""
+
+    def openssl(*args: str) -> None:
+        subprocess.run(["openssl", *args], cwd=home, capture_output=True, check=True)
+
+    (home / "client").mkdir()
+    openssl("req", "-x509", "-newkey", "rsa:2048", "-nodes", "-keyout", "ca-key.pem", "-out", "ca.pem",
+            "-days", "1", "-subj", "/CN=espdock test CA")  # fmt: skip
+    for name, usage, key in (("server", "serverAuth", "server-key.pem"), ("client", "clientAuth", "client/key.pem")):
+        (home / f"{name}.ext").write_text(f"extendedKeyUsage={usage}\nsubjectAltName=IP:127.0.0.1\n")
+        openssl("req", "-newkey", "rsa:2048", "-nodes", "-keyout", key, "-out", f"{name}.csr", "-subj", f"/CN={name}")
+        cert = "server.pem" if name == "server" else "client/cert.pem"
+        openssl("x509", "-req", "-in", f"{name}.csr", "-CA", "ca.pem", "-CAkey", "ca-key.pem", "-CAcreateserial",
+                "-out", cert, "-days", "1", "-extfile", f"{name}.ext")  # fmt: skip
+    shutil.copy(home / "ca.pem", home / "client/ca.pem")
+    context = ssl.SSLContext(ssl.PROTOCOL_TLS_SERVER)
+    context.load_cert_chain(home / "server.pem", home / "server-key.pem")
+    context.load_verify_locations(home / "ca.pem")
+    context.verify_mode = ssl.CERT_REQUIRED
+    return context
+
+
+@pytest.fixture(scope="module", params=["local socket", "tcp", "tls"])
+def way(request, engine, tmp_path_factory) -> Iterator[Engine]:
+    """The engine over its local socket (plain HTTP), or over TCP (the Docker SDK): plain, or TLS
+    with a client certificate (DOCKER_TLS_VERIFY, DOCKER_CERT_PATH) where, as behind a proxy that
+    re-signs HTTPS, REQUESTS_CA_BUNDLE names the system's CAs, which do not hold the engine's."""
     socket_path = local_socket()
     if request.param == "local socket":
         yield Engine.connect({**os.environ, "DOCKER_HOST": f"unix://{socket_path}"})
         return
-    forwarder = TcpForwarder(Path(socket_path))
+    env = {**os.environ}
+    tls = None
+    if request.param == "tls":
+        home = tmp_path_factory.mktemp("tls")
+        tls = make_certificates(home)
+        env.update(DOCKER_TLS_VERIFY="1", DOCKER_CERT_PATH=str(home / "client"))
+    forwarder = TcpForwarder(Path(socket_path), tls)
     try:
-        yield Engine.connect({**os.environ, "DOCKER_HOST": f"tcp://127.0.0.1:{forwarder.port}"})
+        with pytest.MonkeyPatch.context() as patch:
+            if tls is not None:
+                patch.setenv("REQUESTS_CA_BUNDLE", certifi.where())
+            yield Engine.connect({**env, "DOCKER_HOST": f"tcp://127.0.0.1:{forwarder.port}"})
     finally:
         forwarder.close()
 
@@ -76,6 +115,14 @@ def test_files_go_in_before_the_start_and_come_out_after_the_end(way, tmp_path):
     with tarfile.open(fetched) as tar:
         assert tar.extractfile("out/up.txt").read() == b"FROM THE HOST\n"
     assert not missing.exists(), "a path the container lacks gives no file"
+    assert way.containers(dict(run.labels)) == []
+
+
+def test_a_foreground_run_goes_through_the_docker_cli_to_the_same_engine(way, capfd):
+    """`espdock run`'s path: the docker CLI, given the engine's settings (TLS ones included)."""
+    run = spec(["sh", "-c", "echo in the foreground; exit 3"])
+    assert way.run_foreground(run) == (3, None)
+    assert "in the foreground" in capfd.readouterr().out
     assert way.containers(dict(run.labels)) == []
 
 

@@ -15,6 +15,7 @@ import re
 import shutil
 import signal
 import socket
+import ssl
 import subprocess
 import sys
 import threading
@@ -43,10 +44,13 @@ pytestmark = [pytest.mark.engine, pytest.mark.slow]
 
 
 class TcpForwarder:
-    """127.0.0.1:PORT, each connection passed byte for byte to a unix socket."""
+    """127.0.0.1:PORT, each connection passed byte for byte to a unix socket. With TLS (a server
+    context), the connections are TLS as dockerd's with --tlsverify are: the server's certificate,
+    and the client's checked against the context's CA."""
 
-    def __init__(self, target: Path) -> None:
+    def __init__(self, target: Path, tls: ssl.SSLContext | None = None) -> None:
         self._target = str(target)
+        self._tls = tls
         self._server = socket.create_server(("127.0.0.1", 0))
         self.port = self._server.getsockname()[1]
         threading.Thread(target=self._accept, daemon=True).start()
@@ -57,21 +61,28 @@ class TcpForwarder:
                 client, _ = self._server.accept()
             except OSError:
                 return
-            upstream = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
-            try:
-                upstream.connect(self._target)
-            except OSError:
-                client.close()
-                continue
-            for source, sink in ((client, upstream), (upstream, client)):
-                threading.Thread(target=self._pump, args=(source, sink), daemon=True).start()
+            threading.Thread(target=self._connect, args=(client,), daemon=True).start()
+
+    def _connect(self, client: socket.socket) -> None:
+        upstream = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        try:
+            if self._tls is not None:
+                client = self._tls.wrap_socket(client, server_side=True)
+            upstream.connect(self._target)
+        except OSError:
+            client.close()
+            upstream.close()
+            return
+        for source, sink in ((client, upstream), (upstream, client)):
+            threading.Thread(target=self._pump, args=(source, sink), daemon=True).start()
 
     @staticmethod
     def _pump(source: socket.socket, sink: socket.socket) -> None:
         try:
             while data := source.recv(65536):
                 sink.sendall(data)
-            sink.shutdown(socket.SHUT_WR)
+            # TLS has no half close: the engine's end closes the client's connection.
+            sink.close() if isinstance(sink, ssl.SSLSocket) else sink.shutdown(socket.SHUT_WR)
         except OSError:
             for end in (source, sink):
                 end.close()

@@ -148,10 +148,18 @@ def discover_packages(workspace: Workspace, ros_distro: str = DEFAULT_ROS_DISTRO
 
 
 def _manifests(base: Path) -> Iterable[Path]:
-    """package.xml files under BASE, not descending into packages, ignored or hidden dirs."""
+    """package.xml files under BASE, not descending into packages, ignored or hidden dirs. Links
+    to directories are followed, as colcon follows them (`ln -s ~/repos/driver src/`), each real
+    directory once."""
     if not base.is_dir():
         return
-    for dirpath, dirnames, filenames in os.walk(base):
+    visited: set[str] = set()
+    for dirpath, dirnames, filenames in os.walk(base, followlinks=True):
+        real = os.path.realpath(dirpath)
+        if real in visited:  # a link loop, or a second way to one directory
+            dirnames[:] = []
+            continue
+        visited.add(real)
         if any(marker in filenames for marker in IGNORE_MARKERS):
             dirnames[:] = []
             continue

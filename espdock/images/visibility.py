@@ -11,9 +11,11 @@ from __future__ import annotations
 
 import json
 import os
+import posixpath
 import secrets
 import stat
-from pathlib import Path
+from collections.abc import Iterable
+from pathlib import Path, PurePosixPath
 
 from espdock.errors import MountSourceMissing, WorkspaceError, WorkspaceNotVisible
 from espdock.images.engine import Engine, Mount, RunSpec
@@ -27,6 +29,48 @@ PROBE_PREFIX = ".espdock-probe-"
 def workspace_mount(workspace: Workspace) -> Mount:
     """The workspace as every build container mounts it (the one place that is decided)."""
     return Mount(workspace.root, WORKSPACE_MOUNT)
+
+
+def linked_mounts(workspace: Workspace, paths: Iterable[Path]) -> tuple[Mount, ...]:
+    """Mounts for the directories PATHS (under the workspace) that links lead out of it: each real
+    directory at the path a build container, which has the workspace at its mount, follows the
+    links to: for `ln -s ~/repos/driver src/` the same absolute path; for a relative link, where it
+    points from the mount. colcon follows such links; without these mounts they lead nowhere."""
+    mounts: dict[str, Mount] = {}
+    for path in paths:
+        inside = _followed(workspace.root, path, WORKSPACE_MOUNT)
+        if inside is None or inside == WORKSPACE_MOUNT or inside.startswith(f"{WORKSPACE_MOUNT}/"):
+            continue  # the workspace's own mount has it (or the links loop: colcon says so)
+        real = path.resolve()
+        if real.is_dir():
+            mounts[inside] = Mount(real, inside)
+    return tuple(mounts[target] for target in sorted(mounts))
+
+
+def _followed(root: Path, path: Path, mount: str) -> str | None:
+    """Where a container with ROOT at MOUNT finds ROOT/... PATH, following its links as the kernel
+    would there (a path outside MOUNT is read at the same path here); None for a link loop."""
+    pending = list(reversed(path.relative_to(root).parts))
+    current, hops = mount, 0
+    while pending:
+        part = pending.pop()
+        if part == "..":
+            current = posixpath.dirname(current)
+            continue
+        candidate = posixpath.join(current, part)
+        inside_mount = candidate.removeprefix(mount) if candidate.startswith(f"{mount}/") else None
+        here = os.path.join(root, inside_mount.lstrip("/")) if inside_mount is not None else candidate
+        if not os.path.islink(here):
+            current = candidate
+            continue
+        hops += 1
+        if hops > 40:  # the kernel's own limit
+            return None
+        target = PurePosixPath(os.readlink(here))
+        if target.is_absolute():
+            current = "/"
+        pending.extend(reversed([p for p in target.parts if p not in ("/", ".")]))
+    return current
 
 
 def ensure_engine_sees(

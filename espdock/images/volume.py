@@ -22,7 +22,7 @@ import re
 import shutil
 import tarfile
 import tempfile
-from collections.abc import Iterator
+from collections.abc import Collection, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -191,15 +191,31 @@ def fetched(*names: str) -> Iterator[dict[str, Path]]:
         yield {name: Path(tmp, f"{name}.tar") for name in names}
 
 
-def replace_tree(archive: Path, dest: Path, owner: tuple[int, int]) -> bool:
+def replace_tree(archive: Path, dest: Path, owner: tuple[int, int], only: Collection[str] | None = None) -> bool:
     """Swap DEST for the directory ARCHIVE holds (a container path's tar stream: one top-level
     directory), owned by OWNER when espdock runs as root; False (DEST left alone) when the
-    container had no such path. DEST is never half-written: the tree is unpacked beside it first."""
+    container had no such path. DEST is never half-written: the tree is unpacked beside it first.
+    With ONLY, of DEST's own entries just those named are the archive's: the others stay as they
+    were (linked into the new tree), and the archive's that DEST lacks are added."""
     if not archive.is_file():
         return False
     staging = _unpacked(archive, dest.parent, owner)
     old = dest.with_name(f".{dest.name}.old-{os.getpid()}")
     try:
+        if only is not None and dest.is_dir():
+            new = staging / _top(archive)
+            for entry in dest.iterdir():
+                if entry.name in only:
+                    continue
+                kept = new / entry.name
+                if kept.is_dir() and not kept.is_symlink():
+                    shutil.rmtree(kept)
+                elif kept.exists() or kept.is_symlink():
+                    kept.unlink()
+                if entry.is_dir() and not entry.is_symlink():
+                    shutil.copytree(entry, kept, symlinks=True, copy_function=os.link)
+                else:
+                    os.link(entry, kept, follow_symlinks=False)
         with interrupts.held():  # the two renames as one: DEST is the old tree or the new one
             if dest.exists() or dest.is_symlink():
                 dest.rename(old)

@@ -18,7 +18,7 @@ from espdock.images import volume
 from espdock.images.containers import Containers, give_to, permission_error, volume_mode_refused
 from espdock.images.engine import Mount, RunSpec
 from espdock.images.keyed import KeyedImages
-from espdock.images.visibility import workspace_mount
+from espdock.images.visibility import linked_mounts, workspace_mount
 from espdock.layout import ROS_BUILD_BASE
 from espdock.ros.colcon import (
     DEFAULTS_MOUNT,
@@ -62,7 +62,8 @@ class RosSteps:
             return Outcome.CACHED, f"up to date ({len(stamps)} package(s))"
         user, labels = self.containers.container_identity(workspace, "colcon", sweep=True)
         sync = self.containers.sync(workspace, step.name, step.image, user, labels)
-        if sync is not None and (sync.fresh or sync.installed != listing_digest(workspace.ws_dir / "install")):
+        whole = sync is not None and (sync.fresh or sync.installed != listing_digest(workspace.ws_dir / "install"))
+        if whole:
             # install/ is swapped for the volume's whole: every package must be built there.
             rebuild = tuple(stamps)
         # Until this build succeeds, none of them counts as built.
@@ -83,6 +84,8 @@ class RosSteps:
                 )
             )
         mounts, archives = self.containers.workspace_in(workspace, sync)
+        if sync is None:
+            mounts += linked_mounts(workspace, [workspace.ws_dir / rel for _, rel in step.sources])
         env = [("HOME", "/tmp"), *self.containers.reproducible_env(workspace)]
         if step.defaults_file is not None:
             # colcon reads the user's defaults from their home, which the container does not have.
@@ -119,8 +122,15 @@ class RosSteps:
                     spec, on_line, keep=self.containers.config.keep_containers, fetch=paths
                 )
                 volume.merge_logs(fetched["log"], logs, self.containers.owner)
-                volume.replace_tree(fetched["install"], install, self.containers.owner)
-                volume.record(workspace, self.containers.engine, sync, listing_digest(install))
+                # A whole build that failed, or did not build all it was to (colcon found not all of
+                # them), lacks some of what the host has: it brings back what it built, and the
+                # host's other packages stay as they were. install/ is then not the volume's, so the
+                # next build is a whole one too.
+                built_here = [n for n, state in (log.states() or {}).items() if state is PackageState.BUILT]
+                unbuilt = set(rebuild) - set(built_here) - set(log.unselected())
+                merge = whole and (code != 0 or bool(unbuilt))
+                volume.replace_tree(fetched["install"], install, self.containers.owner, built_here if merge else None)
+                volume.record(workspace, self.containers.engine, sync, None if merge else listing_digest(install))
                 give_to(workspace.ws_dir / "build" / volume.SYNCED, self.containers.owner)
         states = log.states()
         built = [name for name, state in (states or {}).items() if state is PackageState.BUILT and name in stamps]
@@ -162,9 +172,10 @@ class RosSteps:
                 f"colcon did not find {len(lost)} of the {len(rebuild)} package(s) it was to build: "
                 + ", ".join(f"{n} ({posixpath.join(step.colcon_root, rels.get(n, '?'))})" for n in lost),
                 "The build container sees the workspace at "
-                f"{workspace_mount(workspace).target} and nothing outside it: a package directory, or one above it, "
-                "that links out of the workspace leads nowhere there. Move the package into the workspace, then "
-                "build again; nothing of it was installed.",
+                f"{workspace_mount(workspace).target}, and where links lead out of it, their directories; in the "
+                "workspace volume, nothing outside it: a package directory, or one above it, that links out of "
+                "the workspace leads nowhere there. Move the package into the workspace, then build again; "
+                "nothing of it was installed.",
             )
         detail = f"{len(built)} package(s) built, {len(stamps) - len(rebuild)} up to date"
         return Outcome.BUILT, detail + (f", {len(others)} not built ({' '.join(others)})" if others else "")
@@ -174,7 +185,10 @@ class RosSteps:
         user, labels = self.containers.container_identity(workspace, "colcon-test", sweep=False)
         if self.containers.uses_volume(workspace, step.image, user, labels):
             raise volume_mode_refused("the test results `espdock test` reads")
-        mounts = [workspace_mount(workspace)]
+        mounts = [
+            workspace_mount(workspace),
+            *linked_mounts(workspace, [workspace.ws_dir / r for _, r in step.sources]),
+        ]
         env = [("HOME", "/tmp"), *self.containers.reproducible_env(workspace)]
         if step.defaults_file is not None:
             mounts.append(Mount(Path(step.defaults_file), DEFAULTS_MOUNT, read_only=True))

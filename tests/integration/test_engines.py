@@ -252,24 +252,36 @@ def test_the_same_engine_seeing_the_workspace_builds_rebuilds_an_edit_and_runs_i
     assert tcp_engine.containers(root) == []
 
 
-def test_a_package_colcon_does_not_find_is_a_failure_and_the_old_install_is_not_shipped(engine, tmp_path):
+def test_packages_linked_from_outside_build_as_colcon_finds_them_and_never_the_old_install(engine, tmp_path):
+    """`ln -s ~/repos/driver src/`: colcon follows links, so espdock's containers get what they
+    lead to. In the workspace volume they lead nowhere: a failure, and the old install stays."""
     root = once_workspace(tmp_path / "ws-root")
     first = espdock("build", cwd=root)
     assert first.returncode == 0, first.stdout + first.stderr
-    # The packages now live outside the workspace, src/ a link to them: espdock reads them on the
-    # host, but the build container, which sees only the workspace, does not.
-    outside = tmp_path / "elsewhere-src"
+    outside = tmp_path / "repos"
     shutil.move(root / "ws/src", outside)
-    (root / "ws/src").symlink_to(outside)
-    edit_word(root, "four")
+    (root / "ws/src").symlink_to(outside)  # absolute, as ln -s ~/repos makes it
+    edit_word(root, "linked")
+    linked = espdock("build", cwd=root)
+    assert linked.returncode == 0, linked.stdout + linked.stderr
+    assert "word: linked" in installed_word(root)
 
-    result = espdock("build", cwd=root)
+    (root / "ws/src").unlink()
+    (root / "ws/src").symlink_to("../../repos")  # relative: from the container's mount, elsewhere
+    edit_word(root, "relative")
+    relative = espdock("build", cwd=root)
+    assert relative.returncode == 0, relative.stdout + relative.stderr
+    assert "word: relative" in installed_word(root)
+
+    edit_word(root, "volume")
+    result = espdock("build", "--workspace-mode", "volume", cwd=root)
     assert result.returncode == 5, result.stdout + result.stderr
     assert "colcon did not find 1 of the 1 package(s) it was to build: beacon_nodes (ws/src/beacon_nodes)" in (
         result.stderr
     )
     assert "✓ colcon build" not in result.stdout
-    assert "word: one" in installed_word(root)
+    assert "word: relative" in installed_word(root)
+    assert espdock("prune", "--volume", cwd=root).returncode == 0
     engine.remove_containers({"io.espdock.workspace": str(root)})
 
 

@@ -24,6 +24,7 @@ from espdock.config import Config
 from espdock.errors import BuildFailed, EngineUnavailable, WorkspaceError, WorkspaceNotVisible
 from espdock.images import bootstrap, volume
 from espdock.images.engine import LIBPOD_INFO, Engine, EngineInfo, describe
+from espdock.images.visibility import linked_mounts
 from espdock.ros.colcon import unselected
 from espdock.ros.plan import ColconBuild
 from espdock.workspace import Workspace
@@ -307,6 +308,52 @@ def test_a_copy_back_the_engine_cut_short_is_the_engine_s_failure_and_leaves_the
     with pytest.raises(EngineUnavailable, match=r"copy of the container's install/ came back broken"):
         volume.replace_tree(archive, install, (os.getuid(), os.getgid()))
     assert [p.name for p in (install / "app").iterdir()] == ["old.txt"]
+    assert [p.name for p in ws.ws_dir.iterdir() if p.name.startswith(".")] == []  # no staging left
+
+
+def test_links_out_of_the_workspace_are_mounted_where_a_container_follows_them(ws, tmp_path):
+    repos = tmp_path.parent / f"{tmp_path.name}-repos"  # beside the workspace (tmp_path)
+    for name in ("driver", "relative", "deep/inner"):
+        (repos / name).mkdir(parents=True)
+    src = ws.ws_dir / "src"
+    (src / "driver").symlink_to(repos / "driver")  # ln -s ~/repos/driver src/
+    (src / "relative").symlink_to(f"../../../{repos.name}/relative")
+    (src / "stack").symlink_to(repos / "deep")  # a link above the package
+    (src / "inside").symlink_to("app")  # within the workspace: its mount has it
+    (src / "loop").symlink_to("loop")
+    paths = [src / p for p in ("driver", "relative", "stack/inner", "inside", "loop", "msgs")]
+    mounts = {m.target: m.source for m in linked_mounts(ws, paths)}
+    assert mounts == {
+        str(repos / "driver"): repos / "driver",
+        f"/{repos.name}/relative": repos / "relative",  # as the container resolves it from /workspace/ws/src
+        str(repos / "deep/inner"): repos / "deep/inner",
+    }
+
+
+def test_a_whole_volume_build_that_failed_brings_back_what_it_built_and_keeps_the_rest(ws, tmp_path):
+    """A new volume builds every package; when that fails part way, the volume's install/ lacks
+    what it did not reach, which the host's install/ still has from earlier builds."""
+    install = ws.ws_dir / "install"
+    for name, word in (("built", "old"), ("reached_not", "old"), ("setup.sh", None)):
+        if word is None:
+            (install / name).write_text("host's\n")
+        else:
+            (install / name).mkdir(parents=True, exist_ok=True)
+            (install / name / "word").write_text(word)
+    (install / "built/link").symlink_to("word")
+    made = tmp_path / "made/install"
+    (made / "built").mkdir(parents=True)
+    (made / "built/word").write_text("new")
+    (made / "setup.sh").write_text("volume's\n")
+    (made / "only_there").mkdir()
+    archive = tmp_path / "install.tar"
+    with tarfile.open(archive, "w") as tar:
+        tar.add(made, arcname="install")
+    assert volume.replace_tree(archive, install, (os.getuid(), os.getgid()), only=["built"])
+    assert (install / "built/word").read_text() == "new" and not (install / "built/link").exists()
+    assert (install / "reached_not/word").read_text() == "old"
+    assert (install / "setup.sh").read_text() == "host's\n"
+    assert (install / "only_there").is_dir()
     assert [p.name for p in ws.ws_dir.iterdir() if p.name.startswith(".")] == []  # no staging left
 
 

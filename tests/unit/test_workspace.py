@@ -208,3 +208,22 @@ def test_an_unchanged_workspace_parses_no_manifest(ws, monkeypatch, tmp_path):
 
     monkeypatch.setattr(espdock.workspace, "_read_manifest", parse)
     assert discover_packages(ws) == first
+
+
+def test_packages_behind_links_are_found_as_colcon_finds_them_each_once(tmp_path):
+    """`ln -s ~/repos/driver src/`, a link to a folder of packages, a second link to one of them
+    and a loop: colcon follows links to directories, so espdock does, visiting each once."""
+    ws = Workspace(tmp_path / "ws")
+    (ws.ws_dir / "src").mkdir(parents=True)
+    repos = tmp_path / "repos"
+    add_package(repos, "driver")
+    add_package(repos / "stack", "inner")
+    add_package(ws.ws_dir / "src", "local")
+    src = ws.ws_dir / "src"
+    (src / "driver").symlink_to(repos / "driver")
+    (src / "stack").symlink_to(repos / "stack")
+    (src / "again").symlink_to(repos / "stack")
+    (src / "loop").symlink_to(".")
+    found = discover_packages(ws)
+    assert [p.name for p in found] == ["driver", "inner", "local"]
+    assert {p.name: p.path for p in found}["driver"] == src / "driver"  # the path in the workspace, as colcon has it

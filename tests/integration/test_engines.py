@@ -274,15 +274,17 @@ def test_packages_linked_from_outside_build_as_colcon_finds_them_and_never_the_o
     assert "word: relative" in installed_word(root)
 
     edit_word(root, "volume")
-    result = espdock("build", "--workspace-mode", "volume", cwd=root)
-    assert result.returncode == 5, result.stdout + result.stderr
-    assert "colcon did not find 1 of the 1 package(s) it was to build: beacon_nodes (ws/src/beacon_nodes)" in (
-        result.stderr
-    )
-    assert "✓ colcon build" not in result.stdout
-    assert "word: relative" in installed_word(root)
-    assert espdock("prune", "--volume", cwd=root).returncode == 0
-    engine.remove_containers({"io.espdock.workspace": str(root)})
+    try:
+        result = espdock("build", "--workspace-mode", "volume", cwd=root)
+        assert result.returncode == 5, result.stdout + result.stderr
+        assert "colcon did not find 1 of the 1 package(s) it was to build: beacon_nodes (ws/src/beacon_nodes)" in (
+            result.stderr
+        )
+        assert "✓ colcon build" not in result.stdout
+        assert "word: relative" in installed_word(root)
+    finally:
+        assert espdock("prune", "--volume", cwd=root).returncode == 0
+        engine.remove_containers({"io.espdock.workspace": str(root)})
 
 
 def test_setup_prepares_the_base_image_of_a_workspace_made_by_init(engine, tmp_path):

@@ -15,7 +15,7 @@ from pathlib import Path
 
 from espdock.build.stamps import StampFile, listing_digest, tree_digest
 from espdock.config import resolve_ca_bundle
-from espdock.errors import BuildFailed
+from espdock.errors import BuildFailed, WorkspaceError
 from espdock.events import Outcome, StepNote, StepOutput
 from espdock.firmware.agent_port import LIBRARY_HEADERS, check_agent_port
 from espdock.firmware.install import COMMANDS_SOURCE, install_firmware
@@ -131,6 +131,14 @@ class FirmwareSteps:
         RESET: the host's build dir was emptied for a new target or image (_prepare_build_dir);
         in volume mode the volume's is emptied the same way.
         """
+        project = workspace.root / step.project
+        if not project.resolve().is_relative_to(workspace.root.resolve()):
+            # Found through a link, as colcon finds it; ROS packages get the link's directory mounted.
+            raise WorkspaceError(
+                f"firmware package {step.package} is linked from outside the workspace ({project} -> "
+                f"{project.resolve()}): the IDF containers see only the workspace",
+                "Move the project into the workspace; ROS packages may be linked in, firmware projects may not.",
+            )
         user, labels = self.containers.container_identity(workspace, f"idf-{step.package}", sweep)
         build_dir = firmware_build_dir(workspace.ws_dir, step.package)
         # The component manager extracts into <project>/managed_components, a place it does not

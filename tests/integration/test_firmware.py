@@ -463,6 +463,27 @@ def test_new_makes_a_package_that_builds(fw_ws, double_env):
     shutil.rmtree(root / "firmware/blinky")
 
 
+def test_a_firmware_project_linked_in_from_outside_is_refused_naming_it(fw_ws, double_env, tmp_path):
+    """colcon finds packages through links, so espdock does; the IDF containers get only the
+    workspace, so a linked firmware project is bad input, said before any IDF container starts."""
+    root, first = fw_ws
+    assert first.returncode == 0
+    created = espdock("new", "linked_fw", cwd=root, env=double_env)
+    assert created.returncode == 0, created.stderr
+    outside = tmp_path / "linked_fw"
+    shutil.move(root / "firmware/linked_fw", outside)
+    (root / "firmware/linked_fw").symlink_to(outside)
+    try:
+        result = espdock("build", "linked_fw", cwd=root, env=double_env)
+        assert result.returncode == 2, result.stdout[-2000:] + result.stderr
+        assert f"firmware package linked_fw is linked from outside the workspace ({root}/firmware/linked_fw -> " in (
+            result.stderr
+        )
+        assert not firmware_dir(root, "linked_fw").exists()
+    finally:
+        (root / "firmware/linked_fw").unlink()
+
+
 def test_idf_passthrough_runs_idf_py_in_the_image(fw_ws, double_env):
     root, first = fw_ws
     assert first.returncode == 0

@@ -4,13 +4,14 @@ from __future__ import annotations
 
 import os
 import posixpath
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from pathlib import Path
 
 from espdock.build.stamps import StampFile, listing_digest
 from espdock.build.steps import LABEL_WORKSPACE, EnsureBaseImage, EnsureImage, Plan
 from espdock.errors import ConfigError, WorkspaceError
 from espdock.images.engine import Mount, RunSpec
+from espdock.images.visibility import linked_mounts
 from espdock.layout import ROS_OFFICIAL_DOCKERFILE, WORKSPACE_MOUNT
 from espdock.ros.plan import RUNTIME_INSTALL, RuntimeImage
 from espdock.ros.runtime_tree import resolve_installed
@@ -222,17 +223,21 @@ def shell_spec(
     tty: bool,
     dockerfile: str = "",
     mount: Mount | None = None,
+    packages: Iterable[Package] = (),
 ) -> RunSpec:
     """A shell in the build IMAGE (made from DOCKERFILE) with the workspace mounted (MOUNT: its
-    volume instead, espdock.volume) and its install tree sourced."""
+    volume instead, espdock.volume), the directories the links to its ROS PACKAGES lead to (as a
+    build has them) and its install tree sourced."""
     root = posixpath.normpath(f"{WORKSPACE_MOUNT}/{workspace.colcon_root}")
     official = dockerfile == ROS_OFFICIAL_DOCKERFILE
+    mount = mount or Mount(workspace.root, WORKSPACE_MOUNT)
+    ros = [p.path for p in packages if p.kind is PackageKind.ROS]
     return RunSpec(
         image=image,
         argv=("bash", "-c", SOURCE_AND_SHELL, "bash", f"{root}/install") if official else ("bash",),
         workdir=root,
         user=f"{owner[0]}:{owner[1]}",
-        mounts=(mount or Mount(workspace.root, WORKSPACE_MOUNT),),
+        mounts=(mount,) if mount.volume else (mount, *linked_mounts(workspace, ros)),
         # The entrypoint sources this install tree when it exists (docker/ros-entrypoint.sh).
         env=(("HOME", "/tmp"), ("ESPDOCK_WS_INSTALL", f"{root}/install"), *node_env(env)),
         labels=_labels(workspace, "shell"),

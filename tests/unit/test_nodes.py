@@ -11,6 +11,7 @@ import yaml
 from espdock.build.stamps import StampFile, listing_digest
 from espdock.config import Config
 from espdock.errors import ConfigError, WorkspaceError
+from espdock.images.engine import Mount
 from espdock.ros.compose import init_compose, starter_compose
 from espdock.ros.nodes import compose_subcommand, device, find_executable, node_env, node_spec, shell_spec, volume
 from espdock.ros.plan import RuntimeImage, ros_build_image, runtime_base_image, runtime_image_spec
@@ -186,6 +187,22 @@ def test_the_shell_sources_the_install_tree_itself_on_the_official_image(ws):
     official = shell_spec(workspace, "img", (1, 1), {}, False, "Dockerfile.ros-official")
     assert official.argv[:2] == ("bash", "-c") and official.argv[-1] == "/workspace/install"
     assert "local_setup.bash" in official.argv[2] and "/workspace" not in official.argv[2]
+
+
+def test_the_shell_gets_the_directories_linked_packages_lead_to_as_a_build_does(ws, tmp_path):
+    workspace, packages = ws
+    outside = tmp_path.parent / f"{tmp_path.name}-driver"
+    outside.mkdir()
+    (tmp_path / "src").mkdir(exist_ok=True)
+    (tmp_path / "src/driver").symlink_to(outside)
+    linked = (*packages, Package("driver", tmp_path / "src/driver", PackageKind.ROS, "ament_python", frozenset()))
+    spec = shell_spec(workspace, "img", (1, 1), {}, False, "Dockerfile.ros", None, linked)
+    assert [(str(m.source), m.target) for m in spec.mounts] == [
+        (str(tmp_path), "/workspace"),
+        (str(outside), str(outside)),
+    ]
+    in_volume = Mount("espdock-ws-x", "/workspace", volume=True)
+    assert shell_spec(workspace, "img", (1, 1), {}, False, "Dockerfile.ros", in_volume, linked).mounts == (in_volume,)
 
 
 @pytest.mark.parametrize(

@@ -132,11 +132,11 @@ class FirmwareSteps:
         in volume mode the volume's is emptied the same way.
         """
         project = workspace.root / step.project
-        if not project.resolve().is_relative_to(workspace.root.resolve()):
+        if not (real := project.resolve()).is_relative_to(workspace.root.resolve()):
             # Found through a link, as colcon finds it; ROS packages get the link's directory mounted.
             raise WorkspaceError(
                 f"firmware package {step.package} is linked from outside the workspace ({project} -> "
-                f"{project.resolve()}): the IDF containers see only the workspace",
+                f"{real}): the IDF containers see only the workspace",
                 "Move the project into the workspace; ROS packages may be linked in, firmware projects may not.",
             )
         user, labels = self.containers.container_identity(workspace, f"idf-{step.package}", sweep)

@@ -287,9 +287,14 @@ def _raise_api_error(status: int, body: bytes, path: str) -> None:
     raise docker.errors.APIError(message, explanation=explanation)
 
 
+def _host(env: Mapping[str, str]) -> str:
+    """The engine's address in ENV (as contexts.engine_env gives it): DOCKER_HOST, or the default socket."""
+    return env.get("DOCKER_HOST") or f"unix://{DEFAULT_SOCKET}"
+
+
 def _local_socket(env: Mapping[str, str]) -> str | None:
     """The engine's unix socket path, or None when DOCKER_HOST names another kind of host."""
-    host = env.get("DOCKER_HOST") or f"unix://{DEFAULT_SOCKET}"
+    host = _host(env)
     return host.removeprefix("unix://") if host.startswith("unix://") else None
 
 
@@ -374,7 +379,7 @@ class Engine:
 
     def __init__(self, env: Mapping[str, str], timeout: float = 60, client: Any = None) -> None:
         self._env = contexts.engine_env(env)  # the engine `docker` uses: DOCKER_HOST or the CLI's context
-        if self._env.get("DOCKER_HOST", "").startswith("ssh://"):
+        if _host(self._env).startswith("ssh://"):
             global _ssh_engines  # noqa: PLW0603 (read by the SDK's first import, see _sdk_without_ssh)
             _ssh_engines = True
         self._timeout = timeout
@@ -406,7 +411,7 @@ class Engine:
     def connect(cls, env: Mapping[str, str], timeout: float = 60) -> Engine:
         """Connect to the engine DOCKER_HOST (or the default socket) names; raise if none answers."""
         engine = cls(env, timeout)
-        where = engine._env.get("DOCKER_HOST") or f"unix://{DEFAULT_SOCKET}"
+        where = _host(engine._env)
         try:
             status = engine._ping(timeout)
             if status != 200:
@@ -1077,7 +1082,7 @@ LIBPOD_HEADER = "Libpod-Api-Version"
 
 def describe(env: Mapping[str, str], info: Mapping[str, Any], libpod: Mapping[str, Any] | None = None) -> EngineInfo:
     """EngineInfo from a Docker engine's /info answer, or with LIBPOD, Podman's /libpod/info."""
-    where = env.get("DOCKER_HOST") or f"unix://{DEFAULT_SOCKET}"
+    where = _host(env)
     if libpod is None:
         rootless = any("name=rootless" in str(o) for o in info.get("SecurityOptions") or ())
         stable = [str(info.get(k, "")) for k in ("Name", "DockerRootDir", "ID")]
@@ -1332,7 +1337,7 @@ def _keep_engine_ca(api_class: Any) -> None:
 
 
 def _engine_lost(env: Mapping[str, str], doing: str) -> EngineUnavailable:
-    where = env.get("DOCKER_HOST") or f"unix://{DEFAULT_SOCKET}"
+    where = _host(env)
     return EngineUnavailable(
         f"the Docker engine at {where} went away while {doing}",
         "Start it again (`sudo systemctl start docker`), then rerun: the next command removes what was left.",

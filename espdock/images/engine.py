@@ -17,7 +17,6 @@ import collections
 import csv
 import hashlib
 import http.client
-import importlib
 import io
 import itertools
 import json
@@ -43,7 +42,8 @@ from urllib.parse import quote
 
 from espdock import interrupts
 from espdock.errors import ContainerError, EngineUnavailable, EspdockError, ImageBuildError, MountSourceMissing
-from espdock.images import contexts
+from espdock.images import contexts, sdk
+from espdock.images.sdk import docker, requests
 
 LineSink = Callable[[str], None]
 DEFAULT_SOCKET = "/var/run/docker.sock"
@@ -53,54 +53,6 @@ DOCKER_RUN_FAILED = 125
 # Every container espdock creates names the process that made it (boot id, pid, start time),
 # so a later command can tell a container whose espdock was killed from one still in use.
 LABEL_OWNER = "io.espdock.owner"
-
-
-class _Lazy:
-    """A module imported on first use (docker, requests)."""
-
-    def __init__(self, *names: str) -> None:
-        self._names = names
-
-    def __getattr__(self, attribute: str) -> Any:
-        # Held: a Ctrl-C in the middle of importing the SDK leaves urllib3 half-initialised in
-        # sys.modules, and the cleanup that follows (which needs the SDK) then fails.
-        with interrupts.held():
-            if self._names[0] == "docker" and not _ssh_engines and "docker" not in sys.modules:
-                return getattr(_sdk_without_ssh(), attribute)
-            for name in self._names[1:]:
-                importlib.import_module(name)
-            return getattr(importlib.import_module(self._names[0]), attribute)
-
-
-# Whether an Engine of an ssh:// host was made: only it needs the SDK's ssh adapter.
-_ssh_engines = False
-
-
-def _sdk_without_ssh() -> Any:
-    """The Docker SDK, imported without paramiko: its ssh adapter's module imports it whenever it
-    is installed (0.1 s: a no-change build on a TCP engine took 0.41 s with it, 0.29 s without),
-    in a try that leaves the adapter out when that fails. Should a later SDK import it outright,
-    it is imported with it."""
-    blocked = "paramiko" not in sys.modules
-    if blocked:
-        sys.modules["paramiko"] = None  # type: ignore[assignment]  # import paramiko: ImportError
-    try:
-        importlib.import_module("docker.errors")
-        return importlib.import_module("docker")
-    except ImportError:
-        if not blocked:
-            raise
-        sys.modules.pop("paramiko", None)
-        blocked = False
-        importlib.import_module("docker.errors")
-        return importlib.import_module("docker")
-    finally:
-        if blocked:
-            sys.modules.pop("paramiko", None)
-
-
-docker = _Lazy("docker", "docker.errors")
-requests = _Lazy("requests", "requests.exceptions")
 
 
 class _UnixHTTP(http.client.HTTPConnection):
@@ -380,8 +332,7 @@ class Engine:
     def __init__(self, env: Mapping[str, str], timeout: float = 60, client: Any = None) -> None:
         self._env = contexts.engine_env(env)  # the engine `docker` uses: DOCKER_HOST or the CLI's context
         if _host(self._env).startswith("ssh://"):
-            global _ssh_engines  # noqa: PLW0603 (read by the SDK's first import, see _sdk_without_ssh)
-            _ssh_engines = True
+            sdk.need_ssh()
         self._timeout = timeout
         self._socket = _local_socket(self._env)
         self._sdk = client
@@ -395,14 +346,9 @@ class Engine:
         """The Docker SDK's client, made on first use."""
         if self._sdk is None:
             try:
-                _keep_engine_ca(docker.APIClient)
                 # TIMEOUT is for the first answer; a busy engine (Podman starting a container of a
                 # large image on a loaded machine) may take longer over an operation.
-                # ssh:// through the ssh command, as `docker` does (the user's ssh config, agent and
-                # known hosts), not through paramiko's own client.
-                self._sdk = docker.from_env(
-                    environment=self._env, timeout=max(self._timeout, OPERATION_TIMEOUT), use_ssh_client=True
-                )
+                self._sdk = sdk.client(self._env, max(self._timeout, OPERATION_TIMEOUT))
             except docker.errors.DockerException as exc:
                 raise EngineUnavailable(f"no Docker engine answers: {_connect_reason(exc)}") from exc
         return self._sdk
@@ -1315,25 +1261,6 @@ def _remove(container: docker.models.containers.Container, stop: bool = True) ->
         pass
     except (docker.errors.APIError, requests.exceptions.RequestException) as exc:
         warnings.warn(f"could not remove container {container.short_id}: {exc}", stacklevel=2)
-
-
-def _keep_engine_ca(api_class: Any) -> None:
-    """Have the SDK's API_CLASS check the engine's TLS certificate as DOCKER_TLS_VERIFY and
-    DOCKER_CERT_PATH say: against their CA, or not at all. requests lets REQUESTS_CA_BUNDLE or
-    CURL_CA_BUNDLE (set where a proxy re-signs HTTPS) replace a session's own CA at each request,
-    the first being the SDK's version check as it is made: no TLS engine (a GitLab docker:dind
-    service) answered espdock then, while the docker CLI, which reads neither, did."""
-    if getattr(api_class, "_espdock_keeps_engine_ca", False):
-        return
-    merge = api_class.merge_environment_settings
-
-    def merged(self: Any, url: str, proxies: Any, stream: Any, verify: Any, cert: Any) -> Any:
-        if (verify is None or verify is True) and self.verify is not True:
-            verify = self.verify  # the engine's CA file, or False: not the system's CAs
-        return merge(self, url, proxies, stream, verify, cert)
-
-    api_class.merge_environment_settings = merged
-    api_class._espdock_keeps_engine_ca = True
 
 
 def _engine_lost(env: Mapping[str, str], doing: str) -> EngineUnavailable:

@@ -2,7 +2,8 @@
 logs in (with the user's ssh config, keys and known hosts) and runs `docker system dial-stdio`
 there. Real OpenSSH on both ends: an sshd of the test's own on a loopback port, with its own host
 and client keys, in front of the shared engine; the client's settings come from an ssh config
-file, handed to the real ssh by a two-line wrapper first on PATH (where a user has ~/.ssh/config).
+file, handed to the real ssh by a wrapper first on PATH (where a user has ~/.ssh/config), which
+also notes each ssh started.
 """
 
 from __future__ import annotations
@@ -11,6 +12,7 @@ import os
 import shutil
 import socket
 import subprocess
+import sys
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -18,7 +20,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.conftest import espdock
+from tests.conftest import REPO, espdock
 from tests.integration.test_engines import edit_word, installed_word, once_workspace
 from tests.ports import free_port
 
@@ -31,6 +33,15 @@ SSHD = "/usr/sbin/sshd"
 class SshEngine:
     host: str  # DOCKER_HOST
     env: dict[str, str]  # DOCKER_HOST, and PATH with the ssh that reads the test's config
+    logins: Path  # a line per ssh started: its pid
+
+    def pids(self) -> list[int]:
+        return started(self.logins)
+
+
+def started(logins: Path) -> list[int]:
+    """The pids of the ssh processes the wrapper noted in LOGINS."""
+    return [int(line) for line in logins.read_text().split()] if logins.exists() else []
 
 
 @pytest.fixture(scope="module")
@@ -55,7 +66,8 @@ def ssh_engine(engine, tmp_path_factory) -> Iterator[SshEngine]:
     )
     wrapper = home / "bin/ssh"
     wrapper.parent.mkdir()
-    wrapper.write_text(f'#!/bin/sh\nexec {shutil.which("ssh")} -F {home / "ssh_config"} "$@"\n')
+    logins = home / "logins"
+    wrapper.write_text(f'#!/bin/sh\necho $$ >> {logins}\nexec {shutil.which("ssh")} -F {home / "ssh_config"} "$@"\n')
     wrapper.chmod(0o755)
     Path("/run/sshd").mkdir(exist_ok=True)  # sshd's privilege separation dir
     daemon = subprocess.Popen([SSHD, "-D", "-e", "-f", str(home / "sshd_config")],
@@ -71,7 +83,7 @@ def ssh_engine(engine, tmp_path_factory) -> Iterator[SshEngine]:
                 assert time.monotonic() < deadline, "sshd never listened"
                 time.sleep(0.05)
         host = f"ssh://root@127.0.0.1:{port}"
-        yield SshEngine(host, {"DOCKER_HOST": host, "PATH": f"{wrapper.parent}:{os.environ['PATH']}"})
+        yield SshEngine(host, {"DOCKER_HOST": host, "PATH": f"{wrapper.parent}:{os.environ['PATH']}"}, logins)
     finally:
         daemon.terminate()
         daemon.wait(timeout=10)
@@ -94,5 +106,39 @@ def test_an_ssh_engine_builds_rebuilds_an_edit_and_runs_the_node_as_docker_reach
         assert run.returncode == 0, run.stdout + run.stderr
         assert "word: ssh" in run.stdout
         assert engine.containers({"io.espdock.workspace": str(root)}) == []
+        # One login per command, as docker's own (0.35 s each here; a passphrase or a key touch
+        # elsewhere): the SDK alone logged in for each request, 9 times for this build.
+        before = len(ssh_engine.pids())
+        quiet = espdock("build", cwd=root, env=ssh_engine.env)
+        assert quiet.returncode == 0, quiet.stdout + quiet.stderr
+        assert "up to date (1 package(s))" in quiet.stdout, quiet.stdout
+        assert len(ssh_engine.pids()) - before == 1
     finally:
         engine.remove_containers({"io.espdock.workspace": str(root)})
+
+
+# Two calls of one Engine, the ssh processes it logged in with killed between them (a dropped
+# network, an sshd restarted): the second call logs in again instead of failing.
+LOST = """
+import os, signal, sys, time
+from espdock.images.engine import Engine
+from pathlib import Path
+from tests.integration.test_ssh_engine import started
+logins = Path(os.environ["SSH_LOGINS"])
+engine = Engine.connect(os.environ)
+assert engine.image("debian:bookworm-slim") is not None
+pids = started(logins)
+for pid in pids:
+    os.kill(pid, signal.SIGKILL)
+while any(os.path.exists(f"/proc/{pid}") and open(f"/proc/{pid}/stat").read().split()[2] != "Z" for pid in pids):
+    time.sleep(0.05)
+print(len(pids), engine.image("debian:bookworm-slim") is not None, len(started(logins)))
+"""
+
+
+def test_a_lost_ssh_connection_is_made_anew_at_the_next_call(ssh_engine, engine):
+    env = {**os.environ, **ssh_engine.env, "SSH_LOGINS": str(ssh_engine.logins)}
+    ssh_engine.logins.unlink(missing_ok=True)
+    lost = subprocess.run([sys.executable, "-c", LOST], env=env, cwd=REPO, capture_output=True, text=True, check=False)
+    assert lost.returncode == 0, lost.stderr
+    assert lost.stdout.split() == ["1", "True", "2"]

@@ -1,0 +1,160 @@
+"""The Docker SDK as engine.py uses it: imported on first use, without paramiko unless an
+ssh:// engine needs it, and made to reach engines as the docker CLI does where the SDK alone
+does not (an ssh engine's connections, a TLS engine's CA)."""
+
+from __future__ import annotations
+
+import importlib
+import os
+import select
+import sys
+from collections.abc import Mapping
+from contextlib import suppress
+from typing import Any
+
+from espdock import interrupts
+
+
+class _Lazy:
+    """A module imported on first use (docker, requests)."""
+
+    def __init__(self, *names: str) -> None:
+        self._names = names
+
+    def __getattr__(self, attribute: str) -> Any:
+        # Held: a Ctrl-C in the middle of importing the SDK leaves urllib3 half-initialised in
+        # sys.modules, and the cleanup that follows (which needs the SDK) then fails.
+        with interrupts.held():
+            if self._names[0] == "docker" and not _ssh_engines and "docker" not in sys.modules:
+                return getattr(_sdk_without_ssh(), attribute)
+            for name in self._names[1:]:
+                importlib.import_module(name)
+            return getattr(importlib.import_module(self._names[0]), attribute)
+
+
+docker = _Lazy("docker", "docker.errors")
+requests = _Lazy("requests", "requests.exceptions")
+
+# Whether an ssh:// engine is to be reached: only it needs the SDK's ssh adapter.
+_ssh_engines = False
+
+
+def need_ssh() -> None:
+    """Let the SDK, when first imported, bring its ssh adapter (and paramiko) along: call it
+    before the first use of `docker` wherever an ssh:// engine is to be reached."""
+    global _ssh_engines  # noqa: PLW0603 (read by the SDK's first import, see _sdk_without_ssh)
+    _ssh_engines = True
+
+
+def _sdk_without_ssh() -> Any:
+    """The Docker SDK, imported without paramiko: its ssh adapter's module imports it whenever it
+    is installed (0.1 s: a no-change build on a TCP engine took 0.41 s with it, 0.29 s without),
+    in a try that leaves the adapter out when that fails. Should a later SDK import it outright,
+    it is imported with it."""
+    blocked = "paramiko" not in sys.modules
+    if blocked:
+        sys.modules["paramiko"] = None  # type: ignore[assignment]  # import paramiko: ImportError
+    try:
+        importlib.import_module("docker.errors")
+        return importlib.import_module("docker")
+    except ImportError:
+        if not blocked:
+            raise
+        sys.modules.pop("paramiko", None)
+        blocked = False
+        importlib.import_module("docker.errors")
+        return importlib.import_module("docker")
+    finally:
+        if blocked:
+            sys.modules.pop("paramiko", None)
+
+
+def client(env: Mapping[str, str], timeout: float) -> Any:
+    """The SDK's client of the engine ENV names (DOCKER_HOST and the TLS variables)."""
+    _keep_engine_ca(docker.APIClient)
+    if not env.get("DOCKER_HOST", "").startswith("ssh://"):
+        return docker.from_env(environment=env, timeout=timeout)
+    # Through the ssh command, as `docker` does (the user's ssh config, agent and known hosts),
+    # not paramiko's own client; the API version is asked once the connection can be kept (the
+    # SDK asks as it is made).
+    minimum = importlib.import_module("docker.constants").MINIMUM_DOCKER_API_VERSION
+    made = docker.from_env(environment=env, timeout=timeout, use_ssh_client=True, version=minimum)
+    _reuse_ssh_connections(made.api)
+    made.api._version = made.api._retrieve_server_version()  # what version="auto" does
+    return made
+
+
+def _keep_engine_ca(api_class: Any) -> None:
+    """Have the SDK's API_CLASS check the engine's TLS certificate as DOCKER_TLS_VERIFY and
+    DOCKER_CERT_PATH say: against their CA, or not at all. requests lets REQUESTS_CA_BUNDLE or
+    CURL_CA_BUNDLE (set where a proxy re-signs HTTPS) replace a session's own CA at each request,
+    the first being the SDK's version check as it is made: no TLS engine (a GitLab docker:dind
+    service) answered espdock then, while the docker CLI, which reads neither, did."""
+    if getattr(api_class, "_espdock_keeps_engine_ca", False):
+        return
+    merge = api_class.merge_environment_settings
+
+    def merged(self: Any, url: str, proxies: Any, stream: Any, verify: Any, cert: Any) -> Any:
+        if (verify is None or verify is True) and self.verify is not True:
+            verify = self.verify  # the engine's CA file, or False: not the system's CAs
+        return merge(self, url, proxies, stream, verify, cert)
+
+    api_class.merge_environment_settings = merged
+    api_class._espdock_keeps_engine_ca = True
+
+
+def _reuse_ssh_connections(api: Any) -> None:
+    """Keep API's connections to an ssh:// engine open from one request to the next, as the
+    docker CLI does. The SDK's shell-out adapter makes a new connection pool at every request,
+    so each request ran `ssh HOST docker system dial-stdio` anew: a login (0.35 s here, and a
+    passphrase or a key touch wherever the user's key asks for one) and a docker CLI started on
+    the remote host. A no-change build made 9 of them, a first build 45. Its sockets could not
+    be kept either: each answer closes the ssh process's output, which it hands out as the file
+    to read answers from."""
+    sshconn = importlib.import_module("docker.transport.sshconn")
+
+    class Socket(sshconn.SSHSocket):
+        def makefile(self, mode: str) -> Any:
+            if not self.proc:
+                self.connect()
+            # Each answer gets, and closes, its own file on the ssh process's output; the
+            # reading stops at the answer's end, so nothing of the next is read into it.
+            reader = os.fdopen(os.dup(self.proc.stdout.fileno()), "rb")
+            reader.channel = self  # where the SDK looks for a hijacked stream's socket
+            return reader
+
+        def usable(self) -> bool:
+            """The ssh process runs and has sent nothing unasked (an engine closing the stream)."""
+            if self.proc is None or self.proc.poll() is not None:
+                return False
+            readable, _, _ = select.select([self.proc.stdout], [], [], 0)
+            return not readable
+
+    class Connection(sshconn.SSHConnection):
+        def connect(self) -> None:
+            sock = Socket(self.ssh_host)
+            sock.settimeout(self.timeout)
+            sock.connect()
+            self.sock = sock
+
+    class Pool(sshconn.SSHConnectionPool):
+        def _new_conn(self) -> Any:
+            return Connection(None, self.timeout, self.ssh_host)
+
+        def _get_conn(self, timeout: float | None = None) -> Any:
+            conn = super()._get_conn(timeout)
+            if conn.sock is not None and not conn.sock.usable():
+                with suppress(OSError):  # the ssh process may be gone: its input is then a broken pipe
+                    conn.close()  # the request connects anew
+            return conn
+
+    adapter = api.get_adapter(api.base_url)
+    pool = Pool(timeout=adapter.timeout, maxsize=adapter.max_pool_size, host=adapter.ssh_host)
+    adapter.get_connection = lambda url, proxies=None: pool
+    close = adapter.close
+
+    def closed() -> None:
+        pool.close()
+        close()
+
+    adapter.close = closed

@@ -57,7 +57,7 @@ def ensure_engine(env: Mapping[str, str], notify: Notify) -> Engine:
     try:
         return Engine.connect(env, timeout=10)
     except EngineUnavailable as first:
-        if contexts.engine_env(env).get("DOCKER_HOST", LOCAL_SOCKET) != LOCAL_SOCKET:
+        if (contexts.engine_env(env).get("DOCKER_HOST") or LOCAL_SOCKET) != LOCAL_SOCKET:
             chosen = contexts.selected(env)
             if chosen is None:
                 hint = "Start the engine DOCKER_HOST names, or unset DOCKER_HOST."

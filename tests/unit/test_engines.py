@@ -357,9 +357,11 @@ def test_a_whole_volume_build_that_failed_brings_back_what_it_built_and_keeps_th
     assert [p.name for p in ws.ws_dir.iterdir() if p.name.startswith(".")] == []  # no staging left
 
 
-def test_the_dockerd_espdock_starts_keeps_nothing_of_the_commands_temp_dirs(tmp_path, monkeypatch):
+@pytest.mark.parametrize("host", [{}, {"DOCKER_HOST": ""}], ids=["unset", "empty"])
+def test_the_dockerd_espdock_starts_keeps_nothing_of_the_commands_temp_dirs(tmp_path, monkeypatch, host):
     """dockerd outlives the command that started it (a CI job, a session): it gets a service's
-    environment, the proxies and PATH, not the job's TMPDIR (runc's exec files) or its directory."""
+    environment, the proxies and PATH, not the job's TMPDIR (runc's exec files) or its directory.
+    An empty DOCKER_HOST (a CI file's way to unset it) is the local engine, as for `docker`."""
     seen = tmp_path / "seen"
     fake = tmp_path / "bin/dockerd"  # stands in for dockerd: says what it was given, then fails to start
     fake.parent.mkdir()
@@ -373,7 +375,7 @@ def test_the_dockerd_espdock_starts_keeps_nothing_of_the_commands_temp_dirs(tmp_
     monkeypatch.setenv("PATH", path)
     monkeypatch.chdir(tmp_path)
     job = {"PATH": path, "TMPDIR": str(tmp_path / "job-tmp"), "XDG_CACHE_HOME": str(tmp_path / "cache"),
-           "HTTPS_PROXY": "http://proxy.example:3128"}  # fmt: skip
+           "HTTPS_PROXY": "http://proxy.example:3128", **host}  # fmt: skip
     with pytest.raises(bootstrap.EngineUnavailable, match="dockerd exited with code 3"):
         bootstrap.ensure_engine(job, lambda text: None)
     cwd, *lines = seen.read_text().splitlines()

@@ -73,6 +73,9 @@ def client(env: Mapping[str, str], timeout: float) -> Any:
     """The SDK's client of the engine ENV names (DOCKER_HOST and the TLS variables)."""
     _keep_engine_ca(docker.APIClient)
     if not env.get("DOCKER_HOST", "").startswith("ssh://"):
+        tls = _tls_without_client_certificate(env)
+        if tls is not None:
+            return docker.DockerClient(base_url=env.get("DOCKER_HOST"), tls=tls, timeout=timeout)
         return docker.from_env(environment=env, timeout=timeout)
     # Through the ssh command, as `docker` does (the user's ssh config, agent and known hosts),
     # not paramiko's own client; the API version is asked once the connection can be kept (the
@@ -82,6 +85,20 @@ def client(env: Mapping[str, str], timeout: float) -> Any:
     _reuse_ssh_connections(made.api)
     made.api._version = made.api._retrieve_server_version()  # what version="auto" does
     return made
+
+
+def _tls_without_client_certificate(env: Mapping[str, str]) -> Any | None:
+    """The TLS settings of ENV where they name no client certificate (DOCKER_CERT_PATH holds no
+    cert.pem and key.pem: an engine that asks for none, as `dockerd --tls` without --tlsverify),
+    which the docker CLI then goes without; the SDK's own reading refuses them. None otherwise."""
+    verify = bool(env.get("DOCKER_TLS_VERIFY"))
+    if not (env.get("DOCKER_CERT_PATH") or verify):
+        return None
+    where = env.get("DOCKER_CERT_PATH") or os.path.join(os.path.expanduser("~"), ".docker")
+    if all(os.path.isfile(os.path.join(where, name)) for name in ("cert.pem", "key.pem")):
+        return None
+    ca = os.path.join(where, "ca.pem")
+    return docker.TLSConfig(ca_cert=ca if verify and os.path.isfile(ca) else None, verify=verify)
 
 
 def _keep_engine_ca(api_class: Any) -> None:

@@ -36,10 +36,11 @@ def local_socket() -> str:
     return (os.environ.get("DOCKER_HOST") or f"unix://{DEFAULT_SOCKET}").removeprefix("unix://")
 
 
-def make_certificates(home: Path) -> ssl.SSLContext:
+def make_certificates(home: Path, client: bool = True) -> ssl.SSLContext:
     """A CA, the engine's certificate for 127.0.0.1 and a client's in HOME/client (ca.pem,
     cert.pem, key.pem: what DOCKER_CERT_PATH names, as a docker:dind service makes them), by
-    openssl; the engine's server context, which asks for a client certificate of that CA."""
+    openssl; the engine's server context, which asks for a client certificate of that CA.
+    Without CLIENT: HOME/client holds only ca.pem, and the engine asks for no certificate."""
 
     def openssl(*args: str) -> None:
         subprocess.run(["openssl", *args], cwd=home, capture_output=True, check=True)
@@ -58,6 +59,10 @@ def make_certificates(home: Path) -> ssl.SSLContext:
     context.load_cert_chain(home / "server.pem", home / "server-key.pem")
     context.load_verify_locations(home / "ca.pem")
     context.verify_mode = ssl.CERT_REQUIRED
+    if not client:
+        (home / "client/cert.pem").unlink()
+        (home / "client/key.pem").unlink()
+        context.verify_mode = ssl.CERT_NONE
     return context
 
 
@@ -124,6 +129,29 @@ def test_a_foreground_run_goes_through_the_docker_cli_to_the_same_engine(way, ca
     assert way.run_foreground(run) == (3, None)
     assert "in the foreground" in capfd.readouterr().out
     assert way.containers(dict(run.labels)) == []
+
+
+def test_a_tls_engine_that_asks_no_client_certificate_is_reached_with_its_ca_as_docker_reaches_it(
+    engine, tmp_path, capfd
+):
+    """dockerd --tls without --tlsverify, or a TLS proxy before it: DOCKER_CERT_PATH holds only
+    the CA. The docker CLI then goes without a client certificate; the Docker SDK refused to."""
+    tls = make_certificates(tmp_path, client=False)
+    forwarder = TcpForwarder(Path(local_socket()), tls)
+    try:
+        env = {**os.environ, "DOCKER_HOST": f"tcp://127.0.0.1:{forwarder.port}", "DOCKER_TLS_VERIFY": "1",
+               "DOCKER_CERT_PATH": str(tmp_path / "client")}  # fmt: skip
+        with pytest.MonkeyPatch.context() as patch:
+            patch.setenv("REQUESTS_CA_BUNDLE", certifi.where())  # the engine's CA still decides
+            reached = Engine.connect(env)
+            assert reached.image(IMAGE) is not None
+            lines: list[str] = []
+            assert reached.run(spec(["echo", "over tls"]), lines.append) == 0
+            assert lines == ["over tls"]
+            assert reached.run_foreground(spec(["echo", "through the cli"]))[0] == 0
+            assert "through the cli" in capfd.readouterr().out
+    finally:
+        forwarder.close()
 
 
 def test_a_host_dir_is_mounted_whatever_its_path_holds(way, tmp_path):

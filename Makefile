@@ -16,7 +16,8 @@ LOCK := requirements/dev.txt
 # ready in about half pip's time, and it is on the way of both make commands. uv reads no
 # pip.conf, so where uv does not install or cannot install the lock (an index only pip is
 # configured for), pip installs the same lock and espdock.
-UV_INSTALL := $(VENV)/bin/uv pip install -q --python $(PY)
+# Its temp dir is the venv's: uv leaves a lock file there for each setuptools tree it builds (espdock, sdists).
+UV_INSTALL := TMPDIR=$(abspath $(VENV)) $(VENV)/bin/uv pip install -q --python $(PY)
 $(VENV)/.installed: pyproject.toml $(LOCK) docker/pip-installer.txt
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install -q --require-hashes -r docker/pip-installer.txt

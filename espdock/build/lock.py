@@ -216,7 +216,7 @@ def _compile(spec: LockSpec, root: Path, uv: str, previous: str | None, upgrade:
         output.write_text(previous or "")
         argv = [uv, "pip", "compile", "--quiet", "--no-header", *spec.command(paths), "-o", str(output)]
         argv += ["--upgrade"] if upgrade else []
-        result = subprocess.run(argv, cwd=root, capture_output=True, text=True, check=False)
+        result = subprocess.run(argv, cwd=root, env=rosdeps.uv_env(tmp), capture_output=True, text=True, check=False)
         if result.returncode != 0:
             raise LockError(
                 f"uv could not lock {spec.lock} from {spec.source}:\n{result.stderr.strip()}",

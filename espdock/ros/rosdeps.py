@@ -373,6 +373,13 @@ def pip_alternatives(keys: Iterable[str]) -> list[str]:
     return out
 
 
+def uv_env(tmp: str) -> dict[str, str]:
+    """The environment uv runs in: this one, with TMP (removed afterwards) as its temp dir. uv
+    leaves a lock file in the temp dir for every setuptools source tree it builds (a pip key's
+    sdist), about one per `espdock lock` here."""
+    return {**os.environ, "TMPDIR": tmp}
+
+
 def pip_lock_lines(
     requirements: Iterable[str], image: RosImage, root: Path, uv: str, system: SystemPython | None = None
 ) -> tuple[list[str], set[str]]:
@@ -398,7 +405,7 @@ def pip_lock_lines(
                     args += ["-c", str(installed)]
             argv = [uv, "pip", "compile", "--quiet", "--no-header", "--no-annotate", "--generate-hashes"]
             argv += [*args, str(source), "-o", str(out)]
-            result = subprocess.run(argv, check=False, capture_output=True, text=True)
+            result = subprocess.run(argv, env=uv_env(tmp), check=False, capture_output=True, text=True)
             if result.returncode == 0:
                 return _one_line_each(out.read_text()), absent
         gone = set(_NOT_FOUND.findall(result.stderr)) & set(wanted)

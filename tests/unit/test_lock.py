@@ -142,13 +142,16 @@ def test_a_workspace_on_espdocks_defaults_builds_locked_and_has_nothing_to_lock(
 def test_lock_follows_a_changed_pin_and_leaves_the_other_lock_alone(tmp_path):
     """Runs uv against the package index."""
     root = copy_workspace(tmp_path / "w")
-    first = espdock("lock", cwd=root, timeout=300)  # today's index may hold files the copied locks predate
+    temp = tmp_path / "tmp"  # the user's temp dir: uv's setuptools builds left a file each in it
+    temp.mkdir()
+    first = espdock("lock", cwd=root, env={"TMPDIR": str(temp)}, timeout=300)  # today's index may hold newer files
     assert first.returncode == 0, first.stdout + first.stderr
     runtime = (root / RUNTIME.lock).read_text()
     source = root / BUILD.source
     source.write_text(source.read_text().replace("cmake==3.31.6", "cmake==3.31.4"))
-    result = espdock("lock", cwd=root, timeout=300)
+    result = espdock("lock", cwd=root, env={"TMPDIR": str(temp)}, timeout=300)
     assert result.returncode == 0, result.stdout + result.stderr
+    assert list(temp.iterdir()) == []
     assert result.stdout.splitlines() == [
         "docker/ros-runtime.txt: unchanged (from docker/ros-runtime.in)",
         "docker/ros-build.txt: updated (from docker/ros-build.in, docker/ros-runtime.txt)",

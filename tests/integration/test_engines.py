@@ -30,6 +30,7 @@ from espdock.cli.core import build_plan
 from espdock.config import Config, load_config, resolve_ca_bundle
 from espdock.layout import firmware_install_dir
 from espdock.workspace import find_workspace
+from tests import sshd
 from tests.conftest import REPO, espdock, python_workspace
 from tests.idf_contract_double.build import use_double
 from tests.integration.test_faults import (  # noqa: F401 (seeded_data_root: a fixture)
@@ -396,6 +397,31 @@ def test_volume_mode_builds_firmware_in_the_idf_image_and_installs_it_for_the_us
     assert strangers(root) == []
     assert tcp_engine.containers(root) == []
     assert espdock("prune", "--volume", cwd=root, env=tcp_engine.env).returncode == 0
+
+
+def test_an_ssh_engine_that_cannot_see_the_workspace_builds_it_in_the_volume(tcp_engine, tmp_path_factory):
+    """DOCKER_HOST=ssh://build-box, the usual way to a remote engine: the workspace goes to the
+    volume and the build comes back through the ssh connection espdock keeps for the command."""
+    if sshd.missing():
+        pytest.skip(sshd.missing())
+    root = once_workspace(tcp_engine.hidden / "ws-ssh")
+    config = root / "espdock.toml"  # no runtime image: its build goes through compose, not espdock's connection
+    config.write_text(config.read_text().replace("runtime_image = true", "runtime_image = false"))
+    subprocess.run(["chown", "-R", f"{VOLUME_UID}:{VOLUME_UID}", str(root)], check=True)
+    with sshd.serve(tmp_path_factory.mktemp("ssh"), {"DOCKER_HOST": f"unix://{tcp_engine.socket}"}) as ssh:
+        first = espdock("build", cwd=root, env=ssh.env)
+        assert first.returncode == 0, first.stdout + first.stderr
+        assert "(new)" in first.stdout and "1 package(s) built" in first.stdout, first.stdout
+        assert len(volumes_of(tcp_engine, root)) == 1
+        edit_word(root, "over ssh")
+        again = espdock("build", cwd=root, env=ssh.env)
+        assert again.returncode == 0, again.stdout + again.stderr
+        assert ": 1 file(s) sent, 0 removed" in again.stdout, again.stdout
+        assert "word: over ssh" in installed_word(root)
+        assert strangers(root / "ws") == []
+        assert tcp_engine.containers(root) == []
+        assert espdock("prune", "--volume", cwd=root, env=ssh.env).returncode == 0
+        assert volumes_of(tcp_engine, root) == []
 
 
 def test_an_interrupted_volume_build_leaves_the_old_install_whole_and_no_container(tcp_engine):

@@ -1,92 +1,32 @@
 """An engine reached as DOCKER_HOST=ssh://user@host, the way `docker` reaches it: the ssh command
 logs in (with the user's ssh config, keys and known hosts) and runs `docker system dial-stdio`
-there. Real OpenSSH on both ends: an sshd of the test's own on a loopback port, with its own host
-and client keys, in front of the shared engine; the client's settings come from an ssh config
-file, handed to the real ssh by a wrapper first on PATH (where a user has ~/.ssh/config), which
-also notes each ssh started.
+there. Real OpenSSH on both ends (tests/sshd.py), in front of the shared engine. test_engines.py
+reaches an engine that does not see the workspace this way too.
 """
 
 from __future__ import annotations
 
 import os
-import shutil
-import socket
 import subprocess
 import sys
-import time
 from collections.abc import Iterator
-from dataclasses import dataclass
-from pathlib import Path
 
 import pytest
 
+from tests import sshd
 from tests.conftest import REPO, espdock
 from tests.integration.test_engines import edit_word, installed_word, once_workspace
-from tests.ports import free_port
+from tests.sshd import SshEngine
 
 pytestmark = [pytest.mark.engine]
-
-SSHD = "/usr/sbin/sshd"
-
-
-@dataclass(frozen=True)
-class SshEngine:
-    host: str  # DOCKER_HOST
-    env: dict[str, str]  # DOCKER_HOST, and PATH with the ssh that reads the test's config
-    logins: Path  # a line per ssh started: its pid
-
-    def pids(self) -> list[int]:
-        return started(self.logins)
-
-
-def started(logins: Path) -> list[int]:
-    """The pids of the ssh processes the wrapper noted in LOGINS."""
-    return [int(line) for line in logins.read_text().split()] if logins.exists() else []
 
 
 @pytest.fixture(scope="module")
 def ssh_engine(engine, tmp_path_factory) -> Iterator[SshEngine]:
-    if not os.access(SSHD, os.X_OK) or shutil.which("ssh") is None:
-        pytest.skip("no OpenSSH server or client here (tests/install-system-deps.sh installs them)")
-    home = tmp_path_factory.mktemp("ssh")
-    for key in ("host_key", "client_key"):
-        subprocess.run(["ssh-keygen", "-q", "-t", "ed25519", "-N", "", "-f", str(home / key)], check=True)
-    (home / "authorized_keys").write_text((home / "client_key.pub").read_text())
-    port = free_port()
-    (home / "sshd_config").write_text(
-        f"Port {port}\nListenAddress 127.0.0.1\nHostKey {home / 'host_key'}\n"
-        f"AuthorizedKeysFile {home / 'authorized_keys'}\nPermitRootLogin prohibit-password\n"
-        "PasswordAuthentication no\nKbdInteractiveAuthentication no\nUsePAM no\nStrictModes no\n"
-        f"PidFile {home / 'sshd.pid'}\n"
-    )
-    (home / "known_hosts").write_text(f"[127.0.0.1]:{port} {(home / 'host_key.pub').read_text()}")
-    (home / "ssh_config").write_text(
-        f"Host *\n  IdentityFile {home / 'client_key'}\n  IdentitiesOnly yes\n"
-        f"  UserKnownHostsFile {home / 'known_hosts'}\n  StrictHostKeyChecking yes\n  BatchMode yes\n"
-    )
-    wrapper = home / "bin/ssh"
-    wrapper.parent.mkdir()
-    logins = home / "logins"
-    wrapper.write_text(f'#!/bin/sh\necho $$ >> {logins}\nexec {shutil.which("ssh")} -F {home / "ssh_config"} "$@"\n')
-    wrapper.chmod(0o755)
-    Path("/run/sshd").mkdir(exist_ok=True)  # sshd's privilege separation dir
-    daemon = subprocess.Popen([SSHD, "-D", "-e", "-f", str(home / "sshd_config")],
-                              stdout=subprocess.DEVNULL, stderr=(home / "sshd.log").open("wb"))  # fmt: skip
-    try:
-        deadline = time.monotonic() + 20
-        while True:
-            assert daemon.poll() is None, (home / "sshd.log").read_text()
-            try:
-                socket.create_connection(("127.0.0.1", port), timeout=1).close()
-                break
-            except OSError:
-                assert time.monotonic() < deadline, "sshd never listened"
-                time.sleep(0.05)
-        host = f"ssh://root@127.0.0.1:{port}"
-        yield SshEngine(host, {"DOCKER_HOST": host, "PATH": f"{wrapper.parent}:{os.environ['PATH']}"}, logins)
-    finally:
-        daemon.terminate()
-        daemon.wait(timeout=10)
+    if sshd.missing():
+        pytest.skip(sshd.missing())
+    with sshd.serve(tmp_path_factory.mktemp("ssh")) as served:
+        yield served
 
 
 def test_an_ssh_engine_builds_rebuilds_an_edit_and_runs_the_node_as_docker_reaches_it(ssh_engine, engine, tmp_path):
@@ -123,7 +63,7 @@ LOST = """
 import os, signal, sys, time
 from espdock.images.engine import Engine
 from pathlib import Path
-from tests.integration.test_ssh_engine import started
+from tests.sshd import started
 logins = Path(os.environ["SSH_LOGINS"])
 engine = Engine.connect(os.environ)
 assert engine.image("debian:bookworm-slim") is not None

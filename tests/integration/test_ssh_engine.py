@@ -34,6 +34,8 @@ def test_an_ssh_engine_builds_rebuilds_an_edit_and_runs_the_node_as_docker_reach
     seen = subprocess.run(version, env={**os.environ, **ssh_engine.env}, capture_output=True, text=True, check=False)
     assert seen.returncode == 0, f"the docker CLI cannot reach {ssh_engine.host} either: {seen.stderr}"
     root = once_workspace(tmp_path / "ws")
+    config = root / "espdock.toml"  # the runtime image is made once, by `run`, not by each build
+    config.write_text(config.read_text().replace("runtime_image = true", "runtime_image = false"))
     try:
         first = espdock("build", cwd=root, env=ssh_engine.env)
         assert first.returncode == 0, first.stdout + first.stderr

@@ -71,18 +71,20 @@ def _sdk_without_ssh() -> Any:
 
 def client(env: Mapping[str, str], timeout: float) -> Any:
     """The SDK's client of the engine ENV names (DOCKER_HOST and the TLS variables)."""
-    _keep_engine_ca(docker.APIClient)
-    if not env.get("DOCKER_HOST", "").startswith("ssh://"):
-        tls = _tls_without_client_certificate(env)
-        if tls is not None:
-            return docker.DockerClient(base_url=env.get("DOCKER_HOST"), tls=tls, timeout=timeout)
-        return docker.from_env(environment=env, timeout=timeout)
-    # Through the ssh command, as `docker` does (the user's ssh config, agent and known hosts),
-    # not paramiko's own client; the API version is asked once the connection can be kept (the
-    # SDK asks as it is made).
+    ssh = env.get("DOCKER_HOST", "").startswith("ssh://")
+    tls = None if ssh else _tls_without_client_certificate(env)
+    # The SDK asks the engine its API version as the client is made; given one, it asks nothing,
+    # and espdock asks once the client reaches the engine as `docker` does.
     minimum = importlib.import_module("docker.constants").MINIMUM_DOCKER_API_VERSION
-    made = docker.from_env(environment=env, timeout=timeout, use_ssh_client=True, version=minimum)
-    _reuse_ssh_connections(made.api)
+    if tls is not None:
+        made = docker.DockerClient(base_url=env.get("DOCKER_HOST"), tls=tls, timeout=timeout, version=minimum)
+    else:
+        # ssh:// through the ssh command, as `docker` does (the user's ssh config, agent and known
+        # hosts), not paramiko's own client.
+        made = docker.from_env(environment=env, timeout=timeout, use_ssh_client=True, version=minimum)
+    _keep_engine_ca(made.api)
+    if ssh:
+        _reuse_ssh_connections(made.api)
     made.api._version = made.api._retrieve_server_version()  # what version="auto" does
     return made
 
@@ -101,23 +103,20 @@ def _tls_without_client_certificate(env: Mapping[str, str]) -> Any | None:
     return docker.TLSConfig(ca_cert=ca if verify and os.path.isfile(ca) else None, verify=verify)
 
 
-def _keep_engine_ca(api_class: Any) -> None:
-    """Have the SDK's API_CLASS check the engine's TLS certificate as DOCKER_TLS_VERIFY and
+def _keep_engine_ca(api: Any) -> None:
+    """Have the SDK's API client check the engine's TLS certificate as DOCKER_TLS_VERIFY and
     DOCKER_CERT_PATH say: against their CA, or not at all. requests lets REQUESTS_CA_BUNDLE or
-    CURL_CA_BUNDLE (set where a proxy re-signs HTTPS) replace a session's own CA at each request,
-    the first being the SDK's version check as it is made: no TLS engine (a GitLab docker:dind
-    service) answered espdock then, while the docker CLI, which reads neither, did."""
-    if getattr(api_class, "_espdock_keeps_engine_ca", False):
-        return
-    merge = api_class.merge_environment_settings
+    CURL_CA_BUNDLE (set where a proxy re-signs HTTPS) replace a session's own CA at each request:
+    no TLS engine (a GitLab docker:dind service) answered espdock then, while the docker CLI,
+    which reads neither, did."""
+    merge = api.merge_environment_settings
 
-    def merged(self: Any, url: str, proxies: Any, stream: Any, verify: Any, cert: Any) -> Any:
-        if (verify is None or verify is True) and self.verify is not True:
-            verify = self.verify  # the engine's CA file, or False: not the system's CAs
-        return merge(self, url, proxies, stream, verify, cert)
+    def merged(url: str, proxies: Any, stream: Any, verify: Any, cert: Any) -> Any:
+        if (verify is None or verify is True) and api.verify is not True:
+            verify = api.verify  # the engine's CA file, or False: not the system's CAs
+        return merge(url, proxies, stream, verify, cert)
 
-    api_class.merge_environment_settings = merged
-    api_class._espdock_keeps_engine_ca = True
+    api.merge_environment_settings = merged
 
 
 def _reuse_ssh_connections(api: Any) -> None:

@@ -147,13 +147,28 @@ def small_ros_image(root: Path, seed: Path) -> None:
     )
 
 
+def accepted_ca(place: Path) -> str:
+    """A CA bundle small_ros_image's build stage accepts."""
+    (place / "ca.pem").write_text("# espdock-test-ca\n")
+    return str(place / "ca.pem")
+
+
+def images_built(podman: PodmanService, seed: Path, place: Path) -> None:
+    """small_ros_image's images on PODMAN's storage, built there (by a workspace of their own in
+    PLACE) unless an earlier test of the module left them: another Podman service on that storage
+    may refuse the containers of their build."""
+    root = once_workspace(place / "images")
+    small_ros_image(root, seed)
+    if podman.docker("image", "inspect", ros_build_tag(root), check=False).returncode != 0:
+        built = espdock("build", cwd=root, env={**podman.env, "ESPDOCK_CA_BUNDLE": accepted_ca(place)})
+        assert built.returncode == 0, built.stdout + built.stderr
+
+
 def test_podman_builds_the_images_with_the_ca_as_a_secret_and_builds_edits_and_runs(podman, tmp_path):
     seed = python_workspace(tmp_path / "seed")
     root = once_workspace(tmp_path / "ws-root")
     small_ros_image(root, seed)
-    ca = tmp_path / "ca.pem"
-    ca.write_text("# espdock-test-ca\n")
-    env = {**podman.env, "ESPDOCK_CA_BUNDLE": str(ca)}
+    env = {**podman.env, "ESPDOCK_CA_BUNDLE": accepted_ca(tmp_path)}
 
     first = espdock("build", cwd=root, env=env)
     assert first.returncode == 0, first.stdout + first.stderr
@@ -192,10 +207,12 @@ def test_podman_imports_a_root_filesystem_under_its_own_tag(podman, tmp_path):
 def test_a_container_podman_refuses_to_start_is_exit_9_naming_podman(podman, tmp_path):
     """Without the containers.conf override, rootful Podman asks for rlimits this machine refuses."""
     strict = PodmanService(tmp_path, podman.runroot, conf="[containers]\n" + runtime_conf())
+    root = once_workspace(tmp_path / "ws-root")
+    seed = python_workspace(tmp_path / "seed")
+    small_ros_image(root, seed)
+    images_built(podman, seed, tmp_path)
     strict.start(podman.home)  # the same storage: the images are there
     try:
-        root = once_workspace(tmp_path / "ws-root")
-        small_ros_image(root, python_workspace(tmp_path / "seed"))
         started = subprocess.run(["docker", "run", "--rm", ros_build_tag(root), "true"], env=strict.env,
                                  capture_output=True, text=True, check=False)  # fmt: skip
         if started.returncode == 0:
@@ -214,10 +231,12 @@ def test_crun_refusing_hybrid_cgroups_is_a_clear_error_that_names_runc(podman, t
     if not runtime_conf():
         pytest.skip("this host's cgroups are not hybrid: crun runs Podman's containers here")
     crun = PodmanService(tmp_path, podman.runroot, conf=ULIMITS.replace(runtime_conf(), ""))
+    root = once_workspace(tmp_path / "ws-root")
+    seed = python_workspace(tmp_path / "seed")
+    small_ros_image(root, seed)
+    images_built(podman, seed, tmp_path)
     crun.start(podman.home)  # the same storage: the images are there
     try:
-        root = once_workspace(tmp_path / "ws-root")
-        small_ros_image(root, python_workspace(tmp_path / "seed"))
         result = espdock("build", cwd=root, env=crun.env)
         assert result.returncode != 0, result.stdout + result.stderr
         assert "cgroups in hybrid mode" in result.stderr, result.stderr

@@ -136,7 +136,9 @@ def _reuse_ssh_connections(api: Any) -> None:
             # Each answer gets, and closes, its own file on the ssh process's output; the
             # reading stops at the answer's end, so nothing of the next is read into it.
             reader = os.fdopen(os.dup(self.proc.stdout.fileno()), "rb")
-            reader.channel = self  # where the SDK looks for a hijacked stream's socket
+            # Where the SDK looks for an attached stream's socket; espdock attaches through the
+            # docker CLI, so no stream is read past this file's buffer.
+            reader.channel = self
             return reader
 
         def usable(self) -> bool:

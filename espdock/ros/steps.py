@@ -6,7 +6,7 @@ from __future__ import annotations
 import hashlib
 import os
 import posixpath
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import replace
 from pathlib import Path
 
@@ -85,7 +85,7 @@ class RosSteps:
             )
         mounts, archives = self.containers.workspace_in(workspace, sync)
         if sync is None:
-            mounts += linked_mounts(workspace, [workspace.ws_dir / rel for _, rel in step.sources])
+            mounts += _linked(workspace, step.sources)
         env = [("HOME", "/tmp"), *self.containers.reproducible_env(workspace)]
         if step.defaults_file is not None:
             # colcon reads the user's defaults from their home, which the container does not have.
@@ -188,7 +188,7 @@ class RosSteps:
             raise volume_mode_refused("the test results `espdock test` reads")
         mounts = [
             workspace_mount(workspace),
-            *linked_mounts(workspace, [workspace.ws_dir / r for _, r in step.sources]),
+            *_linked(workspace, step.sources),
         ]
         env = [("HOME", "/tmp"), *self.containers.reproducible_env(workspace)]
         if step.defaults_file is not None:
@@ -295,6 +295,12 @@ def _installed(workspace: Workspace, step: RuntimeImage) -> RuntimeImage:
     if step.packages and not present:
         raise WorkspaceError(f"no ROS package is installed in {install}", "Run `espdock build` to build them.")
     return replace(step, packages=present)
+
+
+def _linked(workspace: Workspace, sources: Iterable[tuple[str, str]]) -> tuple[Mount, ...]:
+    """The mounts of the directories that links lead to from the packages at SOURCES (name, path
+    under the colcon root): what colcon follows there, which the workspace's mount lacks."""
+    return linked_mounts(workspace, [workspace.ws_dir / rel for _, rel in sources])
 
 
 def _read_text(path: Path) -> str:

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import random
+import signal
 import subprocess
 
 import pytest
@@ -51,3 +52,39 @@ def test_every_node_stops_cleanly_whenever_it_is_signalled(image):
     assert not failed, f"seed {seed}: " + "\n".join(
         f"{f['node']} {f['signal']} after {f['delay']} s: exit {f['code']}\n{f['traceback'][-1500:]}" for f in failed
     )
+
+
+# A stop rclpy's own handler took: it shuts the context down, which ends the spin, and passes the
+# signal on to the node's handler, which the interpreter may run only once the clean-up has begun,
+# inside its first signal.signal (CPython runs pending handlers before it swaps them). Made
+# certain here: the spin ends as rclpy ends it, and the signal is raised as the clean-up begins.
+LATE_STOP = """
+import signal
+from rclpy.executors import ExternalShutdownException
+from espdock_demo import ros_common
+
+def make_node():
+    raise ExternalShutdownException()  # the spin, ended by rclpy's handler
+
+ignore, raised = ros_common._ignore_signals, []
+def ignore_late():
+    if not raised:  # the clean-up's first call: the handler runs now, as it began
+        raised.append(signal.SIGTERM)
+        signal.raise_signal(signal.SIGTERM)
+    ignore()
+ros_common._ignore_signals = ignore_late
+ros_common.spin_node(make_node)
+print("stopped", ros_common._stop_requested)
+"""
+
+
+def test_a_stop_whose_handler_runs_during_the_clean_up_ends_it_cleanly(image):
+    argv = [
+        "docker", "run", "--rm", "--network", "none",
+        "-v", f"{ROOT}/ws/src/espdock_demo/espdock_demo:{INSTALLED}:ro",
+        image, "python", "-c", LATE_STOP,
+    ]  # fmt: skip
+    result = subprocess.run(argv, capture_output=True, text=True, timeout=120, check=False)
+    assert result.returncode == 0, result.stdout + result.stderr
+    assert "Traceback" not in result.stderr, result.stderr
+    assert f"stopped [{int(signal.SIGTERM)}]" in result.stdout

@@ -5,6 +5,7 @@ from __future__ import annotations
 import os
 import pathlib
 import signal
+import threading
 import time
 from collections.abc import Callable, Mapping
 
@@ -113,6 +114,8 @@ def run_ready(executor: Executor) -> None:
 
 # The signals _request_stop took: a stop, however its KeyboardInterrupt surfaced (or was dropped).
 _stop_requested: list[int] = []
+# Set once spin_node's clean-up has begun: a stop is then only remembered (see _request_stop).
+_cleaning_up = threading.Event()
 
 
 def _stopped_by_signal(exc: BaseException, context: Context) -> bool:
@@ -135,6 +138,11 @@ def _request_stop(signum: int, _frame: object) -> None:
     # Remembered as well as raised: raised where the handler happens to run (a weakref callback,
     # a __del__), the KeyboardInterrupt is printed and dropped, and the stop must not be.
     _stop_requested.append(signum)
+    if _cleaning_up.is_set():
+        # rclpy's own handler took the signal first and ended the spin; the interpreter runs this
+        # one late, as late as the clean-up's signal.signal, which runs pending handlers before it
+        # swaps them: raising there would cut the clean-up short (exit 130 with a traceback).
+        return
     _ignore_signals()
     raise KeyboardInterrupt
 
@@ -164,6 +172,7 @@ def spin_node(
     """
     # SIGTERM too raises KeyboardInterrupt until rclpy's handlers (installed by init) take over:
     # a stop while the node is being made.
+    _cleaning_up.clear()
     for signum in (signal.SIGTERM, signal.SIGINT):
         signal.signal(signum, _request_stop)
     context = get_default_context()
@@ -185,6 +194,7 @@ def spin_node(
         if not _stopped_by_signal(exc, context):
             raise
     finally:
+        _cleaning_up.set()
         _ignore_signals()
         try:
             if node is not None:

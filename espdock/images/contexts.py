@@ -17,6 +17,8 @@ from pathlib import Path
 from espdock.errors import ConfigError
 
 DEFAULT = "default"
+# How ENV sets TLS up for the CLI's default context; a context of its own replaces them all.
+TLS_VARIABLES = ("DOCKER_TLS", "DOCKER_TLS_VERIFY", "DOCKER_CERT_PATH")
 
 
 def config_dir(env: Mapping[str, str]) -> Path:
@@ -45,7 +47,8 @@ def selected(env: Mapping[str, str]) -> tuple[str, str] | None:
 
 def engine_env(env: Mapping[str, str]) -> dict[str, str]:
     """ENV with DOCKER_HOST, and its TLS settings, of the context the CLI uses; ENV as it is when
-    that is the default. Raises ConfigError for a context the CLI does not have."""
+    that is the default. For the SDK, which knows no contexts. Raises ConfigError for a context
+    the CLI does not have."""
     chosen = selected(env)
     if chosen is None:
         return dict(env)
@@ -68,12 +71,25 @@ def engine_env(env: Mapping[str, str]) -> dict[str, str]:
             f'the Docker context "{name}" ({source}) cannot be read: {meta}: {exc}',
             f"Create it again (`docker context rm {name}`, then `docker context create`), or set DOCKER_HOST.",
         ) from None
-    resolved = {**env, "DOCKER_HOST": host}
+    # The context decides TLS, as for the CLI, which then reads none of the variables for it.
+    resolved = {key: value for key, value in env.items() if key not in TLS_VARIABLES}
+    resolved["DOCKER_HOST"] = host
     tls = store / "tls" / digest / "docker"
-    if (tls / "cert.pem").is_file() and (tls / "key.pem").is_file():
+    # As docker/cli's Endpoint.tlsConfig: TLS wherever the context holds any of the three files
+    # (a CA alone is an engine that asks no client certificate) or skips verification, which
+    # then needs none of them. A socket or an ssh endpoint never uses it.
+    has_files = any((tls / name).is_file() for name in ("ca.pem", "cert.pem", "key.pem"))
+    skip = endpoint.get("SkipTLSVerify") is True
+    if (has_files or skip) and not host.startswith(("unix://", "npipe://", "fd://", "ssh://")):
         resolved["DOCKER_CERT_PATH"] = str(tls)
-        if endpoint.get("SkipTLSVerify") is True:
-            resolved.pop("DOCKER_TLS_VERIFY", None)
-        else:
-            resolved["DOCKER_TLS_VERIFY"] = "1"
+        resolved["DOCKER_TLS" if skip else "DOCKER_TLS_VERIFY"] = "1"  # DOCKER_TLS: without verification
     return resolved
+
+
+def cli_env(env: Mapping[str, str]) -> dict[str, str]:
+    """ENV for the docker CLI and compose: the context espdock uses pinned by its name, which
+    they read as espdock does. Not engine_env's variables: the CLI wants a ca.pem in a
+    DOCKER_CERT_PATH even where it verifies nothing, which a context skipping verification
+    may not have."""
+    chosen = selected(env)
+    return dict(env) if chosen is None else {**env, "DOCKER_CONTEXT": chosen[0]}

@@ -331,6 +331,7 @@ class Engine:
 
     def __init__(self, env: Mapping[str, str], timeout: float = 60, client: Any = None) -> None:
         self._env = contexts.engine_env(env)  # the engine `docker` uses: DOCKER_HOST or the CLI's context
+        self._cli_env = contexts.cli_env(env)  # the same engine for the docker CLI and compose
         if _host(self._env).startswith("ssh://"):
             sdk.need_ssh()
         self._timeout = timeout
@@ -715,7 +716,7 @@ class Engine:
             stdin=subprocess.PIPE,
             stdout=subprocess.PIPE,
             stderr=subprocess.STDOUT,
-            env=self._env,
+            env=self._cli_env,
             text=True,
             errors="replace",
             preexec_fn=_die_with_parent(),  # noqa: PLW1509 (see _die_with_parent)
@@ -771,7 +772,7 @@ class Engine:
         process = subprocess.Popen(
             [*self.compose_command(), *args],
             cwd=cwd,
-            env=dict(env),
+            env=contexts.cli_env(env),
             preexec_fn=_die_with_parent(),  # noqa: PLW1509 (see _die_with_parent)
         )
         try:
@@ -833,7 +834,7 @@ class Engine:
             # The CLI does what the SDK cannot: raw TTY, window size, stdin forwarding.
             code = subprocess.call(
                 [docker_cli, "start", "--attach", "--interactive", container.id],
-                env=self._env,
+                env=self._cli_env,
                 preexec_fn=_die_with_parent(),
             )
             _fetch(container, fetch or {})
@@ -859,7 +860,7 @@ class Engine:
         try:
             # At a terminal the CLI needs it (raw mode: Ctrl-C reaches the node through it);
             # otherwise its own session keeps a Ctrl-C from reaching it besides espdock.
-            process = subprocess.Popen(argv, env=self._env, start_new_session=not spec.tty)
+            process = subprocess.Popen(argv, env=self._cli_env, start_new_session=not spec.tty)
             while True:
                 try:
                     code = process.wait(timeout=0.1)
@@ -874,7 +875,7 @@ class Engine:
             if process is not None and process.poll() is None:
                 process.kill()
                 process.wait()
-            subprocess.run([docker_cli, "rm", "--force", name], env=self._env, capture_output=True, check=False)
+            subprocess.run([docker_cli, "rm", "--force", name], env=self._cli_env, capture_output=True, check=False)
         if code == DOCKER_RUN_FAILED and not received:
             raise ContainerError(
                 f"the {self.info().name} could not start a container of {spec.image} (its message is above)",
@@ -888,7 +889,7 @@ class Engine:
         docker_cli = self.compose_command()[0]
         which = "KILL" if kill else signal.Signals(signum).name
         result = subprocess.run(
-            [docker_cli, "kill", "--signal", which, name], env=self._env, capture_output=True, check=False
+            [docker_cli, "kill", "--signal", which, name], env=self._cli_env, capture_output=True, check=False
         )
         return result.returncode == 0
 

@@ -13,6 +13,7 @@ from contextlib import suppress
 from typing import Any
 
 from espdock import interrupts
+from espdock.images import contexts
 
 
 class _Lazy:
@@ -72,16 +73,16 @@ def _sdk_without_ssh() -> Any:
 def client(env: Mapping[str, str], timeout: float) -> Any:
     """The SDK's client of the engine ENV names (DOCKER_HOST and the TLS variables)."""
     ssh = env.get("DOCKER_HOST", "").startswith("ssh://")
-    tls = None if ssh else _tls_without_client_certificate(env)
     # The SDK asks the engine its API version as the client is made; given one, it asks nothing,
     # and espdock asks once the client reaches the engine as `docker` does.
     minimum = importlib.import_module("docker.constants").MINIMUM_DOCKER_API_VERSION
-    if tls is not None:
-        made = docker.DockerClient(base_url=env.get("DOCKER_HOST"), tls=tls, timeout=timeout, version=minimum)
-    else:
-        # ssh:// through the ssh command, as `docker` does (the user's ssh config, agent and known
+    if ssh:
+        # Through the ssh command, as `docker` does (the user's ssh config, agent and known
         # hosts), not paramiko's own client.
         made = docker.from_env(environment=env, timeout=timeout, use_ssh_client=True, version=minimum)
+    else:
+        host = env.get("DOCKER_HOST") or None
+        made = docker.DockerClient(base_url=host, tls=_tls(env) or False, timeout=timeout, version=minimum)
     _keep_engine_ca(made.api)
     if ssh:
         _reuse_ssh_connections(made.api)
@@ -89,18 +90,18 @@ def client(env: Mapping[str, str], timeout: float) -> Any:
     return made
 
 
-def _tls_without_client_certificate(env: Mapping[str, str]) -> Any | None:
-    """The TLS settings of ENV where they name no client certificate (DOCKER_CERT_PATH holds no
-    cert.pem and key.pem: an engine that asks for none, as `dockerd --tls` without --tlsverify),
-    which the docker CLI then goes without; the SDK's own reading refuses them. None otherwise."""
+def _tls(env: Mapping[str, str]) -> Any | None:
+    """The TLS settings ENV gives the docker CLI (and compose), None for none. The SDK reads ENV
+    otherwise: it ignores DOCKER_TLS (TLS without verification), takes a DOCKER_CERT_PATH alone
+    for TLS, and refuses one without cert.pem and key.pem (an engine that asks for no client
+    certificate, as `dockerd --tls` without --tlsverify), where the CLI goes without one."""
     verify = bool(env.get("DOCKER_TLS_VERIFY"))
-    if not (env.get("DOCKER_CERT_PATH") or verify):
+    if not (verify or env.get("DOCKER_TLS")):
         return None
-    where = env.get("DOCKER_CERT_PATH") or os.path.join(os.path.expanduser("~"), ".docker")
-    if all(os.path.isfile(os.path.join(where, name)) for name in ("cert.pem", "key.pem")):
-        return None
-    ca = os.path.join(where, "ca.pem")
-    return docker.TLSConfig(ca_cert=ca if verify and os.path.isfile(ca) else None, verify=verify)
+    where = env.get("DOCKER_CERT_PATH") or str(contexts.config_dir(env))
+    cert, key, ca = (os.path.join(where, name) for name in ("cert.pem", "key.pem", "ca.pem"))
+    pair = (cert, key) if os.path.isfile(cert) and os.path.isfile(key) else None
+    return docker.TLSConfig(client_cert=pair, ca_cert=ca if verify and os.path.isfile(ca) else None, verify=verify)
 
 
 def _keep_engine_ca(api: Any) -> None:

@@ -154,6 +154,66 @@ def test_a_tls_engine_that_asks_no_client_certificate_is_reached_with_its_ca_as_
         forwarder.close()
 
 
+@pytest.mark.parametrize("setup", ["context with its CA only", "context skipping verification", "DOCKER_TLS"])
+def test_a_tls_engine_set_up_as_the_cli_takes_it_is_reached_by_espdock_and_the_cli_it_runs(
+    engine, tmp_path, capfd, setup
+):
+    """TLS as `docker` turns it on without DOCKER_TLS_VERIFY and a client certificate: a context
+    holding a CA alone, a context skipping verification (no files at all), DOCKER_TLS=1 with the
+    CLI's files in its config dir. espdock spoke plain HTTP to each."""
+    tls = make_certificates(tmp_path, client=False)
+    forwarder = TcpForwarder(Path(local_socket()), tls)
+    try:
+        host = f"tcp://127.0.0.1:{forwarder.port}"
+        unset = ("DOCKER_HOST", "DOCKER_TLS_VERIFY", "DOCKER_CERT_PATH", "DOCKER_CONTEXT")
+        env = {key: value for key, value in os.environ.items() if key not in unset}
+        env["DOCKER_CONFIG"] = str(tmp_path / "docker")
+        if setup == "DOCKER_TLS":
+            # The CLI's files where it looks without DOCKER_CERT_PATH, its config dir: the CA alone.
+            (tmp_path / "docker").mkdir()
+            shutil.copy(tmp_path / "ca.pem", tmp_path / "docker")
+            env.update(DOCKER_HOST=host, DOCKER_TLS="1")
+        else:
+            endpoint = f"host={host}," + (f"ca={tmp_path / 'ca.pem'}" if "CA" in setup else "skip-tls-verify=true")
+            for args in (("create", "engine", "--docker", endpoint), ("use", "engine")):
+                subprocess.run(["docker", "context", *args], env=env, capture_output=True, check=True)
+        asked = subprocess.run(["docker", "version", "--format", "{{.Server.Os}}"], env=env, capture_output=True,
+                               text=True, check=False)  # fmt: skip
+        assert asked.stdout.strip() == "linux", asked.stderr  # the CLI reaches it so
+        with pytest.MonkeyPatch.context() as patch:
+            patch.setenv("REQUESTS_CA_BUNDLE", certifi.where())  # the engine's CA decides, where one is named
+            reached = Engine.connect(env)
+            assert reached.image(IMAGE) is not None
+            lines: list[str] = []
+            assert reached.run(spec(["echo", "over tls"]), lines.append) == 0
+            assert lines == ["over tls"]
+            assert reached.run_foreground(spec(["echo", "through the cli"]))[0] == 0
+            assert "through the cli" in capfd.readouterr().out
+    finally:
+        forwarder.close()
+
+
+def test_a_cert_path_alone_turns_no_tls_on_as_for_the_cli(engine, tmp_path):
+    """DOCKER_CERT_PATH without DOCKER_TLS_VERIFY or DOCKER_TLS (left over from an engine that
+    had TLS) leaves the docker CLI and compose on plain HTTP. The Docker SDK alone takes it for
+    TLS: espdock reached no plain engine then, or another engine than the CLI did."""
+    make_certificates(tmp_path)
+    forwarder = TcpForwarder(Path(local_socket()), None)
+    try:
+        env = {
+            **os.environ,
+            "DOCKER_HOST": f"tcp://127.0.0.1:{forwarder.port}",
+            "DOCKER_CERT_PATH": str(tmp_path / "client"),
+        }
+        env.pop("DOCKER_TLS_VERIFY", None)
+        asked = subprocess.run(["docker", "version", "--format", "{{.Server.Os}}"], env=env, capture_output=True,
+                               text=True, check=False)  # fmt: skip
+        assert asked.stdout.strip() == "linux", asked.stderr
+        assert Engine.connect(env).image(IMAGE) is not None
+    finally:
+        forwarder.close()
+
+
 def test_a_host_dir_is_mounted_whatever_its_path_holds(way, tmp_path):
     """A workspace's path is the user's: a colon (a dir named for a time, ws:old), a comma or a
     space in it must neither break the mount nor move it. Read-only stays read-only."""

@@ -35,6 +35,12 @@ def cli_host(config: Path, env: dict[str, str]) -> str:
     return json.loads(cli(config, "context", "inspect", name))[0]["Endpoints"]["docker"]["Host"]
 
 
+def self_signed(cert: Path, key: Path) -> None:
+    """A self-signed certificate and its key, by openssl (the CLI checks a context's files)."""
+    argv = ["openssl", "req", "-x509", "-newkey", "rsa:2048", "-nodes", "-keyout", str(key), "-out", str(cert)]
+    subprocess.run([*argv, "-days", "1", "-subj", "/CN=engine"], capture_output=True, check=True)
+
+
 @pytest.fixture
 def config(tmp_path) -> Path:
     """A Docker CLI configuration as rootless Docker's setup tool leaves it: a "rootless" context, in use."""
@@ -68,9 +74,7 @@ def test_no_configuration_or_a_broken_one_is_the_default_engine_as_the_cli_has_i
 
 
 def test_a_tls_context_gives_its_certificates_and_skipping_verification_stays_skipped(config, tmp_path):
-    subprocess.run(["openssl", "req", "-x509", "-newkey", "rsa:2048", "-nodes", "-keyout", str(tmp_path / "key.pem"),
-                    "-out", str(tmp_path / "cert.pem"), "-days", "1", "-subj", "/CN=engine"],
-                   capture_output=True, check=True)  # fmt: skip
+    self_signed(tmp_path / "cert.pem", tmp_path / "key.pem")
     pems = f"ca={tmp_path / 'cert.pem'},cert={tmp_path / 'cert.pem'},key={tmp_path / 'key.pem'}"
     cli(config, "context", "create", "secure", "--docker", f"host=tcp://10.0.0.5:2376,{pems}")
     cli(config, "context", "create", "lax", "--docker", f"host=tcp://10.0.0.6:2376,{pems},skip-tls-verify=true")
@@ -82,6 +86,27 @@ def test_a_tls_context_gives_its_certificates_and_skipping_verification_stays_sk
     assert (secure["DOCKER_HOST"], secure["DOCKER_TLS_VERIFY"]) == ("tcp://10.0.0.5:2376", "1")
     lax = contexts.engine_env({**env, "DOCKER_CONTEXT": "lax"})
     assert Path(lax["DOCKER_CERT_PATH"], "cert.pem").is_file() and "DOCKER_TLS_VERIFY" not in lax
+
+
+def test_a_context_decides_tls_alone_and_the_cli_espdock_runs_is_pinned_to_it(config, tmp_path):
+    """The CLI reads no TLS variable for a context of its own: a plain one stays plain whatever
+    the shell's DOCKER_TLS_VERIFY says, and a CA alone means TLS. The docker CLI and compose
+    espdock runs get the context's name, so they go where espdock goes even when the current
+    context changes meanwhile."""
+    shell = {"DOCKER_CONFIG": str(config), "DOCKER_TLS_VERIFY": "1", "DOCKER_CERT_PATH": str(tmp_path)}
+    plain = contexts.engine_env(shell)
+    assert plain["DOCKER_HOST"] == ROOTLESS and not set(plain) & {"DOCKER_TLS_VERIFY", "DOCKER_CERT_PATH"}
+
+    self_signed(tmp_path / "ca.pem", tmp_path / "key.pem")
+    cli(config, "context", "create", "tls-ca", "--docker", f"host=tcp://10.0.0.7:2376,ca={tmp_path / 'ca.pem'}")
+    cli(config, "context", "use", "tls-ca")
+    with_ca = contexts.engine_env({"DOCKER_CONFIG": str(config)})
+    assert with_ca["DOCKER_TLS_VERIFY"] == "1"
+    assert Path(with_ca["DOCKER_CERT_PATH"], "ca.pem").read_bytes() == (tmp_path / "ca.pem").read_bytes()
+    assert not Path(with_ca["DOCKER_CERT_PATH"], "cert.pem").exists()
+
+    assert contexts.cli_env({"DOCKER_CONFIG": str(config)})["DOCKER_CONTEXT"] == "tls-ca"
+    assert "DOCKER_CONTEXT" not in contexts.cli_env({"DOCKER_CONFIG": str(config), "DOCKER_HOST": ROOTLESS})
 
 
 def test_a_context_the_cli_does_not_have_is_bad_input_naming_it_and_what_chose_it(config):

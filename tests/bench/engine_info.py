@@ -25,13 +25,14 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(REPO))
 
-from espdock.images.engine import LIBPOD_INFO, Engine, _exchange  # noqa: E402
+from espdock.images.engine import LIBPOD_INFO, Engine  # noqa: E402
+from espdock.images.local_api import exchange  # noqa: E402
 from tests.integration.test_podman import ULIMITS, PodmanService  # noqa: E402
 
 
 def before(sock: str, podman: bool) -> None:
     for path in ("/_ping", "/info", "/version", *((LIBPOD_INFO,) if podman else ())):
-        _exchange(sock, 60, "GET", path)
+        exchange(sock, 60, "GET", path)
 
 
 def timed(call) -> float:

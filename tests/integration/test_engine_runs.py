@@ -131,36 +131,16 @@ def test_a_foreground_run_goes_through_the_docker_cli_to_the_same_engine(way, ca
     assert way.containers(dict(run.labels)) == []
 
 
-def test_a_tls_engine_that_asks_no_client_certificate_is_reached_with_its_ca_as_docker_reaches_it(
-    engine, tmp_path, capfd
-):
-    """dockerd --tls without --tlsverify, or a TLS proxy before it: DOCKER_CERT_PATH holds only
-    the CA. The docker CLI then goes without a client certificate; the Docker SDK refused to."""
-    tls = make_certificates(tmp_path, client=False)
-    forwarder = TcpForwarder(Path(local_socket()), tls)
-    try:
-        env = {**os.environ, "DOCKER_HOST": f"tcp://127.0.0.1:{forwarder.port}", "DOCKER_TLS_VERIFY": "1",
-               "DOCKER_CERT_PATH": str(tmp_path / "client")}  # fmt: skip
-        with pytest.MonkeyPatch.context() as patch:
-            patch.setenv("REQUESTS_CA_BUNDLE", certifi.where())  # the engine's CA still decides
-            reached = Engine.connect(env)
-            assert reached.image(IMAGE) is not None
-            lines: list[str] = []
-            assert reached.run(spec(["echo", "over tls"]), lines.append) == 0
-            assert lines == ["over tls"]
-            assert reached.run_foreground(spec(["echo", "through the cli"]))[0] == 0
-            assert "through the cli" in capfd.readouterr().out
-    finally:
-        forwarder.close()
+SETUPS = ["DOCKER_TLS_VERIFY, the CA alone", "context with its CA only", "context skipping verification", "DOCKER_TLS"]
 
 
-@pytest.mark.parametrize("setup", ["context with its CA only", "context skipping verification", "DOCKER_TLS"])
-def test_a_tls_engine_set_up_as_the_cli_takes_it_is_reached_by_espdock_and_the_cli_it_runs(
-    engine, tmp_path, capfd, setup
-):
-    """TLS as `docker` turns it on without DOCKER_TLS_VERIFY and a client certificate: a context
-    holding a CA alone, a context skipping verification (no files at all), DOCKER_TLS=1 with the
-    CLI's files in its config dir. espdock spoke plain HTTP to each."""
+@pytest.mark.parametrize("setup", SETUPS)
+def test_a_tls_engine_that_asks_no_client_certificate_is_reached_as_the_cli_reaches_it(engine, tmp_path, capfd, setup):
+    """`dockerd --tls` without --tlsverify, or a TLS proxy before it, set up as `docker` takes it:
+    DOCKER_CERT_PATH holding only the CA (the Docker SDK refused to go without a client
+    certificate), a context holding a CA alone, a context skipping verification (no files at
+    all), DOCKER_TLS=1 with the CLI's files in its config dir (espdock spoke plain HTTP to the
+    last three)."""
     tls = make_certificates(tmp_path, client=False)
     forwarder = TcpForwarder(Path(local_socket()), tls)
     try:
@@ -168,7 +148,9 @@ def test_a_tls_engine_set_up_as_the_cli_takes_it_is_reached_by_espdock_and_the_c
         unset = ("DOCKER_HOST", "DOCKER_TLS_VERIFY", "DOCKER_CERT_PATH", "DOCKER_CONTEXT")
         env = {key: value for key, value in os.environ.items() if key not in unset}
         env["DOCKER_CONFIG"] = str(tmp_path / "docker")
-        if setup == "DOCKER_TLS":
+        if setup.startswith("DOCKER_TLS_VERIFY"):
+            env.update(DOCKER_HOST=host, DOCKER_TLS_VERIFY="1", DOCKER_CERT_PATH=str(tmp_path / "client"))
+        elif setup == "DOCKER_TLS":
             # The CLI's files where it looks without DOCKER_CERT_PATH, its config dir: the CA alone.
             (tmp_path / "docker").mkdir()
             shutil.copy(tmp_path / "ca.pem", tmp_path / "docker")
@@ -181,7 +163,7 @@ def test_a_tls_engine_set_up_as_the_cli_takes_it_is_reached_by_espdock_and_the_c
                                text=True, check=False)  # fmt: skip
         assert asked.stdout.strip() == "linux", asked.stderr  # the CLI reaches it so
         with pytest.MonkeyPatch.context() as patch:
-            patch.setenv("REQUESTS_CA_BUNDLE", certifi.where())  # the engine's CA decides, where one is named
+            patch.setenv("REQUESTS_CA_BUNDLE", certifi.where())  # the engine's CA still decides, where one is named
             reached = Engine.connect(env)
             assert reached.image(IMAGE) is not None
             lines: list[str] = []

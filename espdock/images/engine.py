@@ -51,7 +51,7 @@ DOCKER_RUN_FAILED = 125
 LABEL_OWNER = "io.espdock.owner"
 
 
-def _create_config(spec: RunSpec, labels: Mapping[str, str]) -> dict[str, Any]:
+def _create_config(spec: RunSpec, labels: Mapping[str, str], host_users: bool = False) -> dict[str, Any]:
     """The engine API's configuration of a container for SPEC with LABELS (POST /containers/create),
     detached: nothing attaches at creation, Engine.run_attached's `docker start --attach` later."""
     host: dict[str, Any] = {
@@ -71,6 +71,8 @@ def _create_config(spec: RunSpec, labels: Mapping[str, str]) -> dict[str, Any]:
     }
     if spec.group_add:
         host["GroupAdd"] = [str(g) for g in spec.group_add]
+    if host_users:
+        host["UsernsMode"] = "host"
     config: dict[str, Any] = {
         "Image": spec.image,
         "Cmd": list(spec.argv),
@@ -165,6 +167,9 @@ class EngineInfo:
     # Stable for one engine and its data root: what a cached answer about the engine is keyed by.
     identity: str
     where: str
+    # The engine maps its containers' users to subordinate ids (dockerd --userns-remap): a
+    # container running as the user is another uid outside, refused the user's workspace.
+    remapped: bool = False
 
     @property
     def name(self) -> str:
@@ -694,7 +699,7 @@ class Engine:
         however this ends. Returns its exit code and the first signal passed on, or None."""
         docker_cli = self.compose_command()[0]
         name = spec.name or f"espdock-run-{os.getpid()}-{secrets.token_hex(4)}"
-        argv = _run_argv(docker_cli, name, spec)
+        argv = _run_argv(docker_cli, name, spec, self._host_users(spec))
         received: list[int] = []
         sent = 0
 
@@ -740,9 +745,16 @@ class Engine:
         )
         return result.returncode == 0
 
+    def _host_users(self, spec: RunSpec) -> bool:
+        """Whether SPEC's container keeps the host's user ids (--userns=host): where it runs as a
+        user of the host (the invoking user, who owns the workspace) on an engine that remaps
+        them. That user is who the files it writes belong to, and it has no more rights than
+        that user has."""
+        return spec.user is not None and self.info().remapped
+
     def _create(self, spec: RunSpec, labels: Mapping[str, str]) -> Any:
         """A container for SPEC with LABELS: over plain HTTP on a local socket, else through the SDK."""
-        config = _create_config(spec, labels)
+        config = _create_config(spec, labels, self._host_users(spec))
         if self._plain:
             return local_api.LocalContainer.create(
                 self._socket, max(self._timeout, OPERATION_TIMEOUT), spec.name, config
@@ -882,7 +894,8 @@ def describe(env: Mapping[str, str], info: Mapping[str, Any], libpod: Mapping[st
     """EngineInfo from a Docker engine's /info answer, or with LIBPOD, Podman's /libpod/info."""
     where = _host(env)
     if libpod is None:
-        rootless = any("name=rootless" in str(o) for o in info.get("SecurityOptions") or ())
+        options = [str(option).split(",")[0] for option in info.get("SecurityOptions") or ()]
+        rootless, remapped = "name=rootless" in options, "name=userns" in options
         stable = [str(info.get(k, "")) for k in ("Name", "DockerRootDir", "ID")]
     else:
         host, store = libpod.get("host") or {}, libpod.get("store") or {}
@@ -890,8 +903,10 @@ def describe(env: Mapping[str, str], info: Mapping[str, Any], libpod: Mapping[st
         # Podman has no lasting ID (its Docker API /info makes one up per call): its host name and
         # storage say which it is, which that /info gives as Name and DockerRootDir.
         stable = [str(host.get("hostname", "")), str(store.get("graphRoot", ""))]
+        remapped = False
     identity = hashlib.sha256("\0".join([where, *stable]).encode()).hexdigest()[:16]
-    return EngineInfo("docker" if libpod is None else "podman", rootless=rootless, identity=identity, where=where)
+    kind = "docker" if libpod is None else "podman"
+    return EngineInfo(kind, rootless=rootless, identity=identity, where=where, remapped=remapped)
 
 
 class RegistryStatus(StrEnum):
@@ -970,7 +985,7 @@ def _label_selector(labels: Mapping[str, str]) -> list[str]:
     return [f"{key}={value}" for key, value in labels.items()]
 
 
-def _run_argv(docker_cli: str, name: str, spec: RunSpec) -> list[str]:
+def _run_argv(docker_cli: str, name: str, spec: RunSpec, host_users: bool = False) -> list[str]:
     """`docker run` of SPEC as container NAME, removed when it ends, signals left to espdock to pass on."""
     argv = [docker_cli, "run", "--rm", "--name", name, "--sig-proxy=false", "--interactive"]
     argv += ["--tty"] if spec.tty else []
@@ -984,6 +999,7 @@ def _run_argv(docker_cli: str, name: str, spec: RunSpec) -> list[str]:
     argv += [arg for device in spec.devices for arg in ("--device", device)]
     argv += [arg for group in spec.group_add for arg in ("--group-add", str(group))]
     argv += ["--network", spec.network] if spec.network else []
+    argv += ["--userns", "host"] if host_users else []
     return [*argv, spec.image, *spec.argv]
 
 

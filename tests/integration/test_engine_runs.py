@@ -25,6 +25,7 @@ from espdock.errors import ContainerError
 from espdock.images.engine import DEFAULT_SOCKET, Engine, Mount, RunSpec
 from espdock.images.keyed import DPKG_STATUS, installed_packages
 from tests.integration.test_engines import TcpForwarder
+from tests.integration.test_faults import PrivateEngine, drop_private_engine, private_home
 
 pytestmark = [pytest.mark.engine]
 
@@ -299,3 +300,42 @@ def test_a_builds_listings_on_the_local_socket_load_neither_the_sdk_nor_requests
 
     assert_listed(keyed_images, "--filter", f"label={KEYED}")
     assert loaded == [], f"listing over the local socket imported {loaded}"
+
+
+class RemappedEngine(PrivateEngine):
+    """A dockerd of the test's own that maps its containers' users to subordinate ids, as a
+    hardened host's is set up (--userns-remap=default; dockerd adds the system user dockremap
+    and its id ranges where they are missing)."""
+
+    def dockerd(self) -> list[str]:
+        return [*super().dockerd(), "--userns-remap=default"]
+
+
+def test_on_an_engine_that_remaps_users_a_step_writes_the_workspace_as_the_user(engine, tmp_path, capfd):
+    """A step runs as the invoking user, whose workspace it writes: remapped, that user is another
+    uid outside, which the workspace refused ("Permission denied"), both ways a step is run."""
+    if shutil.which("dockerd") is None or shutil.which("unshare") is None:
+        pytest.skip("no dockerd or unshare here")
+    home = private_home()
+    home.chmod(0o711)  # the remapped root of the engine's own storage passes through
+    private = RemappedEngine(home)
+    try:
+        private.start()
+        private.load(IMAGE)
+        workspace = tmp_path / "ws"
+        workspace.mkdir(mode=0o755)
+        reached = Engine.connect(private.env)
+        user = f"{os.getuid()}:{os.getgid()}"
+        mounts = (Mount(workspace, "/workspace"),)
+        step = spec(["sh", "-c", "echo built > /workspace/out"], mounts=mounts, user=user)
+        lines: list[str] = []
+        assert reached.run(step, lines.append) == 0, lines
+        foreground = spec(["sh", "-c", "echo ran > /workspace/node.log"], mounts=mounts, user=user)
+        assert reached.run_foreground(foreground)[0] == 0, capfd.readouterr().err
+        for name, text in (("out", "built\n"), ("node.log", "ran\n")):
+            written = workspace / name
+            assert written.read_text() == text
+            assert (written.stat().st_uid, written.stat().st_gid) == (os.getuid(), os.getgid())
+        assert reached.containers(dict(step.labels)) == [] == reached.containers(dict(foreground.labels))
+    finally:
+        drop_private_engine(private)

@@ -316,6 +316,8 @@ def test_on_an_engine_that_remaps_users_a_step_writes_the_workspace_as_the_user(
     uid outside, which the workspace refused ("Permission denied"), both ways a step is run."""
     if shutil.which("dockerd") is None or shutil.which("unshare") is None:
         pytest.skip("no dockerd or unshare here")
+    # dockerd adds the user whose id ranges it maps to: the test removes it again if it was not there.
+    adds_user = subprocess.run(["getent", "passwd", "dockremap"], capture_output=True, check=False).returncode != 0
     home = private_home()
     home.chmod(0o711)  # the remapped root of the engine's own storage passes through
     private = RemappedEngine(home)
@@ -339,3 +341,5 @@ def test_on_an_engine_that_remaps_users_a_step_writes_the_workspace_as_the_user(
         assert reached.containers(dict(step.labels)) == [] == reached.containers(dict(foreground.labels))
     finally:
         drop_private_engine(private)
+        if adds_user:  # with its group and its lines in /etc/subuid and /etc/subgid
+            subprocess.run(["userdel", "dockremap"], capture_output=True, check=False)

@@ -746,11 +746,13 @@ class Engine:
         return result.returncode == 0
 
     def _host_users(self, spec: RunSpec) -> bool:
-        """Whether SPEC's container keeps the host's user ids (--userns=host): where it runs as a
-        user of the host (the invoking user, who owns the workspace) on an engine that remaps
-        them. That user is who the files it writes belong to, and it has no more rights than
-        that user has."""
-        return spec.user is not None and self.info().remapped
+        """Whether SPEC's container keeps the host's user ids (--userns=host) on an engine that
+        remaps them: where it runs as the invoking user (who owns the workspace, and whom the
+        files it writes belong to; a board's serial port is passed with its group), or on the
+        host's network (the agent's, which dockerd refuses a remapped container: "cannot share
+        the host's network namespace when user namespaces are enabled"). Elsewhere it stays
+        remapped as the engine is set."""
+        return bool(spec.user or spec.network == "host") and self.info().remapped
 
     def _create(self, spec: RunSpec, labels: Mapping[str, str]) -> Any:
         """A container for SPEC with LABELS: over plain HTTP on a local socket, else through the SDK."""

@@ -11,6 +11,7 @@ import json
 import os
 import shutil
 import ssl
+import stat
 import subprocess
 import sys
 import tarfile
@@ -313,7 +314,8 @@ class RemappedEngine(PrivateEngine):
 
 def test_on_an_engine_that_remaps_users_a_step_writes_the_workspace_as_the_user(engine, tmp_path, capfd):
     """A step runs as the invoking user, whose workspace it writes: remapped, that user is another
-    uid outside, which the workspace refused ("Permission denied"), both ways a step is run."""
+    uid outside, which the workspace refused ("Permission denied"), both ways a step is run. The
+    agent's container, on the host's network with a serial port, was refused by dockerd."""
     if shutil.which("dockerd") is None or shutil.which("unshare") is None:
         pytest.skip("no dockerd or unshare here")
     # dockerd adds the user whose id ranges it maps to: the test removes it again if it was not there.
@@ -339,6 +341,16 @@ def test_on_an_engine_that_remaps_users_a_step_writes_the_workspace_as_the_user(
             assert written.read_text() == text
             assert (written.stat().st_uid, written.stat().st_gid) == (os.getuid(), os.getgid())
         assert reached.containers(dict(step.labels)) == [] == reached.containers(dict(foreground.labels))
+
+        # The micro-ROS agent's container: root, the host's network and a board's serial port
+        # (here a null device of the host's dialout group, as a port's node is).
+        port = tmp_path / "ttyUSB0"
+        os.mknod(port, 0o660 | stat.S_IFCHR, os.makedev(1, 3))
+        os.chown(port, 0, 20)
+        agent = spec(["sh", "-c", f"echo frame > {port} && echo sent"], devices=(str(port),), network="host")
+        lines = []
+        assert reached.run(agent, lines.append) == 0, lines
+        assert lines == ["sent"]
     finally:
         drop_private_engine(private)
         if adds_user:  # with its group and its lines in /etc/subuid and /etc/subgid

@@ -212,9 +212,20 @@ def private_home() -> Path:
 
 def drop_private_engine(engine: PrivateEngine) -> None:
     engine.stop()
-    subprocess.run(["umount", "--lazy", str(engine.home / "data")], capture_output=True, check=False)
+    # What is still mounted under its home (a seeded data root's tmpfs; the network namespace of a
+    # container on the host's network, which dockerd leaves bound in exec/netns): rmtree stops there.
+    for point in mounts_under(engine.home):
+        subprocess.run(["umount", "--lazy", point], capture_output=True, check=False)
     shutil.rmtree(engine.home, ignore_errors=True)
     drop_cgroups(f"espdock-test-{engine.home.name}")
+
+
+def mounts_under(home: Path) -> list[str]:
+    """The mount points under HOME, the deepest first."""
+    with open("/proc/self/mounts") as table:
+        # Spaces and the like come octal-escaped in the table (\040).
+        points = [line.split()[1].encode().decode("unicode_escape") for line in table]
+    return sorted((p for p in points if Path(p).is_relative_to(home)), key=len, reverse=True)
 
 
 def drop_cgroups(name: str) -> None:

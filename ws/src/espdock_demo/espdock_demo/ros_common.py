@@ -205,4 +205,15 @@ def spin_node(
             if not _stopped_by_signal(exc, context):
                 raise
         finally:
-            rclpy.try_shutdown()
+            _shut_down(context)
+
+
+def _shut_down(context: Context) -> None:
+    """rclpy.try_shutdown, whose check of the context and its shutdown rclpy's own signal handler
+    may come between, shutting the context down from its thread (a stop just as the clean-up
+    began: RCLError, "rcl_shutdown already called"). The context is down either way."""
+    try:
+        rclpy.try_shutdown()
+    except _rclpy.RCLError:
+        if context.ok():
+            raise

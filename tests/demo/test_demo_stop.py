@@ -79,8 +79,8 @@ print("stopped", ros_common._stop_requested)
 
 
 # rclpy's handler, on a stop as the clean-up begins, shutting the context down from its thread
-# between try_shutdown's check of the context and its shutdown (the random-stop test met it once
-# in four runs). Made certain here: the shutdown finds the context already shut down.
+# between try_shutdown's check of the context and its shutdown (the late-stop case above met it once
+# in six runs of the suite). Made certain here: the shutdown finds the context already shut down.
 RACED_SHUTDOWN = """
 import rclpy
 from rclpy.executors import ExternalShutdownException

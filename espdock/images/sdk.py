@@ -74,18 +74,18 @@ def client(env: Mapping[str, str], timeout: float) -> Any:
     """The SDK's client of the engine ENV names (DOCKER_HOST and the TLS variables)."""
     ssh = env.get("DOCKER_HOST", "").startswith("ssh://")
     # The SDK asks the engine its API version as the client is made; given one, it asks nothing,
-    # and espdock asks once the client reaches the engine as `docker` does.
-    minimum = importlib.import_module("docker.constants").MINIMUM_DOCKER_API_VERSION
+    # and espdock asks once the client reaches the engine as `docker` does. Through `docker`, so
+    # that the SDK's first import leaves paramiko out unless need_ssh was called.
+    minimum = docker.constants.MINIMUM_DOCKER_API_VERSION
     if ssh:
         # Through the ssh command, as `docker` does (the user's ssh config, agent and known
         # hosts), not paramiko's own client.
         made = docker.from_env(environment=env, timeout=timeout, use_ssh_client=True, version=minimum)
+        _reuse_ssh_connections(made.api)
     else:
         host = env.get("DOCKER_HOST") or None
         made = docker.DockerClient(base_url=host, tls=_tls(env) or False, timeout=timeout, version=minimum)
-    _keep_engine_ca(made.api)
-    if ssh:
-        _reuse_ssh_connections(made.api)
+        _keep_engine_ca(made.api)  # TLS: an ssh engine has none
     made.api._version = made.api._retrieve_server_version()  # what version="auto" does
     return made
 

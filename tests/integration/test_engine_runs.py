@@ -25,6 +25,9 @@ import pytest
 from espdock.errors import ContainerError
 from espdock.images.engine import DEFAULT_SOCKET, Engine, Mount, RunSpec
 from espdock.images.keyed import DPKG_STATUS, installed_packages
+from espdock.layout import MICRO_ROS_AGENT_IMAGE
+from espdock.ros.compose import starter_compose
+from tests.conftest import REPO
 from tests.integration.test_engines import TcpForwarder
 from tests.integration.test_faults import PrivateEngine, drop_private_engine, private_home
 
@@ -312,10 +315,9 @@ class RemappedEngine(PrivateEngine):
         return [*super().dockerd(), "--userns-remap=default"]
 
 
-def test_on_an_engine_that_remaps_users_a_step_writes_the_workspace_as_the_user(engine, tmp_path, capfd):
-    """A step runs as the invoking user, whose workspace it writes: remapped, that user is another
-    uid outside, which the workspace refused ("Permission denied"), both ways a step is run. The
-    agent's container, on the host's network with a serial port, was refused by dockerd."""
+@pytest.fixture(scope="module")
+def remapped_engine() -> Iterator[RemappedEngine]:
+    """One remapping engine for the module's tests, holding IMAGE; gone with its files after them."""
     if shutil.which("dockerd") is None or shutil.which("unshare") is None:
         pytest.skip("no dockerd or unshare here")
     # dockerd adds the user whose id ranges it maps to: the test removes it again if it was not there.
@@ -326,32 +328,71 @@ def test_on_an_engine_that_remaps_users_a_step_writes_the_workspace_as_the_user(
     try:
         private.start()
         private.load(IMAGE)
-        workspace = tmp_path / "ws"
-        workspace.mkdir(mode=0o755)
-        reached = Engine.connect(private.env)
-        user = f"{os.getuid()}:{os.getgid()}"
-        mounts = (Mount(workspace, "/workspace"),)
-        step = spec(["sh", "-c", "echo built > /workspace/out"], mounts=mounts, user=user)
-        lines: list[str] = []
-        assert reached.run(step, lines.append) == 0, lines
-        foreground = spec(["sh", "-c", "echo ran > /workspace/node.log"], mounts=mounts, user=user)
-        assert reached.run_foreground(foreground)[0] == 0, capfd.readouterr().err
-        for name, text in (("out", "built\n"), ("node.log", "ran\n")):
-            written = workspace / name
-            assert written.read_text() == text
-            assert (written.stat().st_uid, written.stat().st_gid) == (os.getuid(), os.getgid())
-        assert reached.containers(dict(step.labels)) == [] == reached.containers(dict(foreground.labels))
-
-        # The micro-ROS agent's container: root, the host's network and a board's serial port
-        # (here a null device of the host's dialout group, as a port's node is).
-        port = tmp_path / "ttyUSB0"
-        os.mknod(port, 0o660 | stat.S_IFCHR, os.makedev(1, 3))
-        os.chown(port, 0, 20)
-        agent = spec(["sh", "-c", f"echo frame > {port} && echo sent"], devices=(str(port),), network="host")
-        lines = []
-        assert reached.run(agent, lines.append) == 0, lines
-        assert lines == ["sent"]
+        yield private
     finally:
         drop_private_engine(private)
         if adds_user:  # with its group and its lines in /etc/subuid and /etc/subgid
             subprocess.run(["userdel", "dockremap"], capture_output=True, check=False)
+
+
+def serial_port(engine: PrivateEngine) -> Path:
+    """A board's serial port as the host has it: a character device of root and the dialout
+    group, mode 0660 (here the null device's numbers), where anyone may reach it, as in /dev (in
+    the engine's home: the test's own temp dir lets no other uid through)."""
+    port = engine.home / f"ttyUSB-{uuid.uuid4().hex[:8]}"
+    os.mknod(port, 0o660 | stat.S_IFCHR, os.makedev(1, 3))
+    os.chown(port, 0, 20)
+    return port
+
+
+def test_on_an_engine_that_remaps_users_a_step_writes_the_workspace_as_the_user(remapped_engine, tmp_path, capfd):
+    """A step runs as the invoking user, whose workspace it writes: remapped, that user is another
+    uid outside, which the workspace refused ("Permission denied"), both ways a step is run. The
+    agent's container, on the host's network with a serial port, was refused by dockerd."""
+    workspace = tmp_path / "ws"
+    workspace.mkdir(mode=0o755)
+    reached = Engine.connect(remapped_engine.env)
+    user = f"{os.getuid()}:{os.getgid()}"
+    mounts = (Mount(workspace, "/workspace"),)
+    step = spec(["sh", "-c", "echo built > /workspace/out"], mounts=mounts, user=user)
+    lines: list[str] = []
+    assert reached.run(step, lines.append) == 0, lines
+    foreground = spec(["sh", "-c", "echo ran > /workspace/node.log"], mounts=mounts, user=user)
+    assert reached.run_foreground(foreground)[0] == 0, capfd.readouterr().err
+    for name, text in (("out", "built\n"), ("node.log", "ran\n")):
+        written = workspace / name
+        assert written.read_text() == text
+        assert (written.stat().st_uid, written.stat().st_gid) == (os.getuid(), os.getgid())
+    assert reached.containers(dict(step.labels)) == [] == reached.containers(dict(foreground.labels))
+
+    # The micro-ROS agent's container: root, the host's network and a board's serial port.
+    port = serial_port(remapped_engine)
+    agent = spec(["sh", "-c", f"echo frame > {port} && echo sent"], devices=(str(port),), network="host")
+    lines = []
+    assert reached.run(agent, lines.append) == 0, lines
+    assert lines == ["sent"]
+
+
+@pytest.mark.parametrize("compose_file", ["demo", "starter"])
+def test_on_an_engine_that_remaps_users_the_compose_serial_agent_opens_the_board_s_port(
+    remapped_engine, tmp_path, compose_file
+):
+    """The serial agent of the demo's compose file and of the one `espdock init --compose` writes,
+    as compose runs it: remapped, its root is a subordinate uid outside, which the port (root and
+    dialout, 0660) refused ("Permission denied"); `espdock agent` opened it."""
+    if compose_file == "demo":
+        path = REPO / "compose.yaml"
+    else:
+        path = tmp_path / "compose.yaml"
+        path.write_text(starter_compose("starter", "espdock/starter:latest", {}))
+    remapped_engine.docker("tag", IMAGE, MICRO_ROS_AGENT_IMAGE)  # what the agent runs on: a shell
+    env = {**remapped_engine.env, "MICROROS_SERIAL_DEVICE": str(serial_port(remapped_engine))}
+    project = ["-p", f"espdock-test-{uuid.uuid4().hex[:8]}", "-f", str(path), "--project-directory", str(path.parent)]
+    argv = ["docker", "compose", *project, "--profile", "serial", "run", "--rm", "--no-deps", "--entrypoint", "sh",
+            "micro_ros_agent_serial", "-c", "echo frame > /dev/microros && echo sent"]  # fmt: skip
+    try:
+        ran = subprocess.run(argv, env=env, capture_output=True, text=True, timeout=120, check=False)
+    finally:
+        subprocess.run(["docker", "compose", *project, "down"], env=env, capture_output=True, check=False)
+    assert ran.returncode == 0, ran.stdout + ran.stderr
+    assert ran.stdout.splitlines()[-1] == "sent", ran.stdout + ran.stderr

@@ -19,6 +19,8 @@ from espdock.errors import ConfigError
 DEFAULT = "default"
 # How ENV sets TLS up for the CLI's default context; a context of its own replaces them all.
 TLS_VARIABLES = ("DOCKER_TLS", "DOCKER_TLS_VERIFY", "DOCKER_CERT_PATH")
+# The CLI's TLS files in DOCKER_CERT_PATH, or in a context's TLS dir: its CA, its certificate, its key.
+TLS_FILES = ("ca.pem", "cert.pem", "key.pem")
 
 
 def config_dir(env: Mapping[str, str]) -> Path:
@@ -45,11 +47,20 @@ def selected(env: Mapping[str, str]) -> tuple[str, str] | None:
     return None if chosen[0] == DEFAULT else chosen
 
 
+def resolve(env: Mapping[str, str]) -> tuple[dict[str, str], dict[str, str]]:
+    """(engine_env(ENV), cli_env(ENV)), reading the CLI's configuration once."""
+    chosen = selected(env)
+    return _engine_env(env, chosen), _cli_env(env, chosen)
+
+
 def engine_env(env: Mapping[str, str]) -> dict[str, str]:
     """ENV with DOCKER_HOST, and its TLS settings, of the context the CLI uses; ENV as it is when
     that is the default. For the SDK, which knows no contexts. Raises ConfigError for a context
     the CLI does not have."""
-    chosen = selected(env)
+    return _engine_env(env, selected(env))
+
+
+def _engine_env(env: Mapping[str, str], chosen: tuple[str, str] | None) -> dict[str, str]:
     if chosen is None:
         return dict(env)
     name, source = chosen
@@ -78,7 +89,7 @@ def engine_env(env: Mapping[str, str]) -> dict[str, str]:
     # As docker/cli's Endpoint.tlsConfig: TLS wherever the context holds any of the three files
     # (a CA alone is an engine that asks no client certificate) or skips verification, which
     # then needs none of them. A socket or an ssh endpoint never uses it.
-    has_files = any((tls / name).is_file() for name in ("ca.pem", "cert.pem", "key.pem"))
+    has_files = any((tls / name).is_file() for name in TLS_FILES)
     skip = endpoint.get("SkipTLSVerify") is True
     if (has_files or skip) and not host.startswith(("unix://", "npipe://", "fd://", "ssh://")):
         resolved["DOCKER_CERT_PATH"] = str(tls)
@@ -91,5 +102,8 @@ def cli_env(env: Mapping[str, str]) -> dict[str, str]:
     they read as espdock does. Not engine_env's variables: the CLI wants a ca.pem in a
     DOCKER_CERT_PATH even where it verifies nothing, which a context skipping verification
     may not have."""
-    chosen = selected(env)
+    return _cli_env(env, selected(env))
+
+
+def _cli_env(env: Mapping[str, str], chosen: tuple[str, str] | None) -> dict[str, str]:
     return dict(env) if chosen is None else {**env, "DOCKER_CONTEXT": chosen[0]}

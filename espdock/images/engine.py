@@ -182,8 +182,9 @@ class Engine:
     """A connected Docker engine."""
 
     def __init__(self, env: Mapping[str, str], timeout: float = 60, client: Any = None) -> None:
-        self._env = contexts.engine_env(env)  # the engine `docker` uses: DOCKER_HOST or the CLI's context
-        self._cli_env = contexts.cli_env(env)  # the same engine for the docker CLI and compose
+        # The engine `docker` uses (DOCKER_HOST or the CLI's context), for espdock's own client and
+        # for the docker CLI and compose it runs.
+        self._env, self._cli_env = contexts.resolve(env)
         if _host(self._env).startswith("ssh://"):
             sdk.need_ssh()
         self._timeout = timeout

@@ -99,7 +99,7 @@ def _tls(env: Mapping[str, str]) -> Any | None:
     if not (verify or env.get("DOCKER_TLS")):
         return None
     where = env.get("DOCKER_CERT_PATH") or str(contexts.config_dir(env))
-    cert, key, ca = (os.path.join(where, name) for name in ("cert.pem", "key.pem", "ca.pem"))
+    ca, cert, key = (os.path.join(where, name) for name in contexts.TLS_FILES)
     pair = (cert, key) if os.path.isfile(cert) and os.path.isfile(key) else None
     return docker.TLSConfig(client_cert=pair, ca_cert=ca if verify and os.path.isfile(ca) else None, verify=verify)
 

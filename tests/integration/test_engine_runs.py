@@ -136,6 +136,13 @@ def test_a_foreground_run_goes_through_the_docker_cli_to_the_same_engine(way, ca
     assert way.containers(dict(run.labels)) == []
 
 
+def assert_the_cli_reaches(env: dict[str, str]) -> None:
+    """The docker CLI, set up by ENV, reaches the engine: what espdock must then reach too."""
+    asked = subprocess.run(["docker", "version", "--format", "{{.Server.Os}}"], env=env, capture_output=True,
+                           text=True, check=False)  # fmt: skip
+    assert asked.stdout.strip() == "linux", asked.stderr
+
+
 SETUPS = ["DOCKER_TLS_VERIFY, the CA alone", "context with its CA only", "context skipping verification", "DOCKER_TLS"]
 
 
@@ -164,9 +171,7 @@ def test_a_tls_engine_that_asks_no_client_certificate_is_reached_as_the_cli_reac
             endpoint = f"host={host}," + (f"ca={tmp_path / 'ca.pem'}" if "CA" in setup else "skip-tls-verify=true")
             for args in (("create", "engine", "--docker", endpoint), ("use", "engine")):
                 subprocess.run(["docker", "context", *args], env=env, capture_output=True, check=True)
-        asked = subprocess.run(["docker", "version", "--format", "{{.Server.Os}}"], env=env, capture_output=True,
-                               text=True, check=False)  # fmt: skip
-        assert asked.stdout.strip() == "linux", asked.stderr  # the CLI reaches it so
+        assert_the_cli_reaches(env)
         with pytest.MonkeyPatch.context() as patch:
             patch.setenv("REQUESTS_CA_BUNDLE", certifi.where())  # the engine's CA still decides, where one is named
             reached = Engine.connect(env)
@@ -193,9 +198,7 @@ def test_a_cert_path_alone_turns_no_tls_on_as_for_the_cli(engine, tmp_path):
             "DOCKER_CERT_PATH": str(tmp_path / "client"),
         }
         env.pop("DOCKER_TLS_VERIFY", None)
-        asked = subprocess.run(["docker", "version", "--format", "{{.Server.Os}}"], env=env, capture_output=True,
-                               text=True, check=False)  # fmt: skip
-        assert asked.stdout.strip() == "linux", asked.stderr
+        assert_the_cli_reaches(env)
         assert Engine.connect(env).image(IMAGE) is not None
     finally:
         forwarder.close()

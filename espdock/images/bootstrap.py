@@ -57,6 +57,8 @@ def ensure_engine(env: Mapping[str, str], notify: Notify) -> Engine:
     try:
         return Engine.connect(env, timeout=10)
     except EngineUnavailable as first:
+        if first.hint is not None:  # it answered, and said what is wrong (TLS)
+            raise
         if (contexts.engine_env(env).get("DOCKER_HOST") or LOCAL_SOCKET) != LOCAL_SOCKET:
             chosen = contexts.selected(env)
             if chosen is None:

@@ -204,7 +204,7 @@ class Engine:
                 # large image on a loaded machine) may take longer over an operation.
                 self._sdk = sdk.client(self._env, max(self._timeout, OPERATION_TIMEOUT))
             except docker.errors.DockerException as exc:
-                raise EngineUnavailable(f"no Docker engine answers: {_connect_reason(exc)}") from exc
+                raise _unreachable("no Docker engine answers", exc) from exc
         return self._sdk
 
     @classmethod
@@ -219,7 +219,7 @@ class Engine:
         except OSError as exc:
             raise EngineUnavailable(f"no Docker engine answers at {where}: {_connect_reason(exc)}") from exc
         except (docker.errors.DockerException, requests.exceptions.RequestException) as exc:
-            raise EngineUnavailable(f"no Docker engine answers at {where}: {_connect_reason(exc)}") from exc
+            raise _unreachable(f"no Docker engine answers at {where}", exc) from exc
         return engine
 
     def _ping(self, timeout: float) -> int:
@@ -891,6 +891,8 @@ class Engine:
 
 LIBPOD_INFO = "/v4.0.0/libpod/info"
 LIBPOD_HEADER = "Libpod-Api-Version"
+# OpenSSL's alerts for an engine that refused the client's certificate (none, or one its CA did not sign).
+TLS_REFUSALS = ("ALERT_UNKNOWN_CA", "ALERT_CERTIFICATE_REQUIRED", "ALERT_BAD_CERTIFICATE", "ALERT_HANDSHAKE_FAILURE")
 
 
 def describe(env: Mapping[str, str], info: Mapping[str, Any], libpod: Mapping[str, Any] | None = None) -> EngineInfo:
@@ -1085,7 +1087,28 @@ def _connect_reason(exc: Exception) -> str:
         return "permission denied on the engine's socket"
     if "No such file or directory" in text or "Connection refused" in text:
         return "nothing is listening there"
+    # OpenSSL's words, out of the SDK's wrappings (urllib3's retries, requests' connection error).
+    said = re.search(r"\[SSL: \w+\][^'\")(]*", text)
+    openssl = said.group(0).strip() if said else text
+    if "CERTIFICATE_VERIFY_FAILED" in text:
+        return f"its TLS certificate is not signed by the CA espdock checks it against ({openssl})"
+    if any(alert in text for alert in TLS_REFUSALS):
+        return f"it refused espdock's TLS client certificate ({openssl})"
     return text
+
+
+def _unreachable(what: str, exc: Exception) -> EngineUnavailable:
+    """WHAT ("no Docker engine answers ..."), why, and for a TLS failure, which starting the
+    engine would not mend, what to do."""
+    text = str(exc)
+    hint = None
+    if "CERTIFICATE_VERIFY_FAILED" in text or any(alert in text for alert in TLS_REFUSALS):
+        hint = (
+            "Give espdock the engine's CA and your certificate as the docker CLI takes them (`docker version` "
+            "fails the same way): ca.pem, cert.pem and key.pem in DOCKER_CERT_PATH, or in the Docker context "
+            "(`docker context inspect`); without a ca.pem, the system's CAs (SSL_CERT_FILE) are used."
+        )
+    return EngineUnavailable(f"{what}: {_connect_reason(exc)}", hint)
 
 
 def _archive(container: docker.models.containers.Container, path: str) -> Iterator[bytes] | None:

@@ -101,7 +101,21 @@ def _tls(env: Mapping[str, str]) -> Any | None:
     where = env.get("DOCKER_CERT_PATH") or str(contexts.config_dir(env))
     ca, cert, key = (os.path.join(where, name) for name in contexts.TLS_FILES)
     pair = (cert, key) if os.path.isfile(cert) and os.path.isfile(key) else None
-    return docker.TLSConfig(client_cert=pair, ca_cert=ca if verify and os.path.isfile(ca) else None, verify=verify)
+    if not verify:
+        return docker.TLSConfig(client_cert=pair, verify=False)
+    return docker.TLSConfig(client_cert=pair, ca_cert=ca if os.path.isfile(ca) else _system_cas(env), verify=True)
+
+
+def _system_cas(env: Mapping[str, str]) -> str | None:
+    """The system's CA file, as the docker CLI finds it for a context holding no CA (a client
+    certificate alone): SSL_CERT_FILE, else OpenSSL's own file (Debian's ca-certificates). The SDK
+    would check against requests' bundle (certifi), which lacks a CA the machine's admin added."""
+    import ssl
+
+    for candidate in (env.get("SSL_CERT_FILE"), ssl.get_default_verify_paths().openssl_cafile):
+        if candidate and os.path.isfile(candidate):
+            return candidate
+    return None
 
 
 def _keep_engine_ca(api: Any) -> None:

@@ -22,7 +22,8 @@ from pathlib import Path
 import certifi
 import pytest
 
-from espdock.errors import ContainerError
+from espdock.errors import ContainerError, EngineUnavailable
+from espdock.images import bootstrap
 from espdock.images.engine import DEFAULT_SOCKET, Engine, Mount, RunSpec
 from espdock.images.keyed import DPKG_STATUS, installed_packages
 from espdock.layout import MICRO_ROS_AGENT_IMAGE
@@ -183,6 +184,66 @@ def test_a_tls_engine_that_asks_no_client_certificate_is_reached_as_the_cli_reac
             assert "through the cli" in capfd.readouterr().out
     finally:
         forwarder.close()
+
+
+def test_a_context_with_a_client_certificate_and_no_ca_checks_the_engine_against_the_systems_cas(
+    engine, tmp_path, capfd
+):
+    """`docker context create x --docker host=tcp://...,cert=...,key=...`: an engine whose CA the
+    machine trusts (here SSL_CERT_FILE names it, which Go and OpenSSL read as the system's CAs).
+    The CLI checks the engine against the system's CAs; espdock checked it against requests'
+    bundle, and reached no engine."""
+    tls = make_certificates(tmp_path)
+    forwarder = TcpForwarder(Path(local_socket()), tls)
+    try:
+        unset = ("DOCKER_HOST", "DOCKER_TLS_VERIFY", "DOCKER_CERT_PATH", "DOCKER_CONTEXT", "DOCKER_TLS")
+        env = {key: value for key, value in os.environ.items() if key not in unset}
+        env.update(DOCKER_CONFIG=str(tmp_path / "docker"), SSL_CERT_FILE=str(tmp_path / "ca.pem"))
+        client = tmp_path / "client"
+        endpoint = f"host=tcp://127.0.0.1:{forwarder.port},cert={client / 'cert.pem'},key={client / 'key.pem'}"
+        for args in (("create", "engine", "--docker", endpoint), ("use", "engine")):
+            subprocess.run(["docker", "context", *args], env=env, capture_output=True, check=True)
+        assert_the_cli_reaches(env)
+        with pytest.MonkeyPatch.context() as patch:
+            patch.setenv("REQUESTS_CA_BUNDLE", certifi.where())  # requests' own choice: not the engine's CA
+            reached = Engine.connect(env)
+            assert reached.image(IMAGE) is not None
+            assert reached.run_foreground(spec(["echo", "through the cli"]))[0] == 0
+            assert "through the cli" in capfd.readouterr().out
+    finally:
+        forwarder.close()
+
+
+@pytest.mark.parametrize("wrong", ["the engine's CA", "the client's certificate"])
+def test_a_tls_engine_that_cannot_be_checked_or_refuses_the_certificate_says_so_and_what_to_do(engine, tmp_path, wrong):
+    """A running TLS engine and certificates of another CA: a wrong ca.pem (the engine's
+    certificate fails the check), or a certificate the engine refuses. espdock said no engine
+    answered, and to start the one DOCKER_HOST names."""
+    for name in ("engine", "other"):
+        (tmp_path / name).mkdir()
+    tls = make_certificates(tmp_path / "engine")
+    other = tmp_path / "other"
+    make_certificates(other)
+    given = tmp_path / "given"
+    shutil.copytree(tmp_path / "engine/client", given)
+    if wrong == "the engine's CA":
+        shutil.copy(other / "ca.pem", given / "ca.pem")
+    else:
+        for name in ("cert.pem", "key.pem"):
+            shutil.copy(other / "client" / name, given / name)
+    forwarder = TcpForwarder(Path(local_socket()), tls)
+    try:
+        env = {key: value for key, value in os.environ.items() if not key.startswith("DOCKER_")}
+        env.update(DOCKER_HOST=f"tcp://127.0.0.1:{forwarder.port}", DOCKER_TLS_VERIFY="1", DOCKER_CERT_PATH=str(given))
+        with pytest.raises(EngineUnavailable) as raised:
+            bootstrap.ensure_engine(env, lambda text: None)
+    finally:
+        forwarder.close()
+    said = raised.value
+    reason = "its TLS certificate is not signed by" if wrong == "the engine's CA" else "it refused espdock's TLS client"
+    assert reason in said.message and "[SSL: " in said.message, said.message
+    assert "Start the engine" not in (said.hint or ""), said.hint
+    assert "DOCKER_CERT_PATH" in said.hint and "`docker version` fails the same way" in said.hint
 
 
 def test_a_cert_path_alone_turns_no_tls_on_as_for_the_cli(engine, tmp_path):

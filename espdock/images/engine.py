@@ -893,6 +893,7 @@ LIBPOD_INFO = "/v4.0.0/libpod/info"
 LIBPOD_HEADER = "Libpod-Api-Version"
 # OpenSSL's alerts for an engine that refused the client's certificate (none, or one its CA did not sign).
 TLS_REFUSALS = ("ALERT_UNKNOWN_CA", "ALERT_CERTIFICATE_REQUIRED", "ALERT_BAD_CERTIFICATE", "ALERT_HANDSHAKE_FAILURE")
+TLS_CUT = "EOF occurred in violation of protocol"  # Python's words for a TLS connection closed mid-exchange
 
 
 def describe(env: Mapping[str, str], info: Mapping[str, Any], libpod: Mapping[str, Any] | None = None) -> EngineInfo:
@@ -1094,6 +1095,10 @@ def _connect_reason(exc: Exception) -> str:
         return f"its TLS certificate is not signed by the CA espdock checks it against ({openssl})"
     if any(alert in text for alert in TLS_REFUSALS):
         return f"it refused espdock's TLS client certificate ({openssl})"
+    if TLS_CUT in text:
+        # TLS 1.3: the engine checks the client's certificate after the client is done, and its alert
+        # may be lost as it closes the connection; espdock then sees only the end.
+        return f"it ended the TLS connection, as an engine refusing espdock's TLS client certificate does ({TLS_CUT})"
     return text
 
 
@@ -1102,7 +1107,7 @@ def _unreachable(what: str, exc: Exception) -> EngineUnavailable:
     engine would not mend, what to do."""
     text = str(exc)
     hint = None
-    if "CERTIFICATE_VERIFY_FAILED" in text or any(alert in text for alert in TLS_REFUSALS):
+    if "CERTIFICATE_VERIFY_FAILED" in text or TLS_CUT in text or any(alert in text for alert in TLS_REFUSALS):
         hint = (
             "Give espdock the engine's CA and your certificate as the docker CLI takes them (`docker version` "
             "fails the same way): ca.pem, cert.pem and key.pem in DOCKER_CERT_PATH, or in the Docker context "

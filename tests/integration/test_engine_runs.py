@@ -240,8 +240,10 @@ def test_a_tls_engine_that_cannot_be_checked_or_refuses_the_certificate_says_so_
     finally:
         forwarder.close()
     said = raised.value
-    reason = "its TLS certificate is not signed by" if wrong == "the engine's CA" else "it refused espdock's TLS client"
-    assert reason in said.message and "[SSL: " in said.message, said.message
+    if wrong == "the engine's CA":
+        assert "its TLS certificate is not signed by" in said.message and "[SSL: " in said.message, said.message
+    else:  # OpenSSL's alert, or where it was lost as the engine closed (TLS 1.3), the end alone
+        assert "espdock's TLS client certificate" in said.message, said.message
     assert "Start the engine" not in (said.hint or ""), said.hint
     assert "DOCKER_CERT_PATH" in said.hint and "`docker version` fails the same way" in said.hint
 

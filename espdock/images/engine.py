@@ -216,8 +216,8 @@ class Engine:
             status = engine._ping(timeout)
             if status != 200:
                 raise EngineUnavailable(f"no Docker engine answers at {where}: /_ping gave HTTP {status}")
-        except OSError as exc:
-            raise EngineUnavailable(f"no Docker engine answers at {where}: {_connect_reason(exc)}") from exc
+        except OSError as exc:  # first: on a local socket, with no SDK imported to name its exceptions
+            raise _unreachable(f"no Docker engine answers at {where}", exc) from exc
         except (docker.errors.DockerException, requests.exceptions.RequestException) as exc:
             raise _unreachable(f"no Docker engine answers at {where}", exc) from exc
         return engine
@@ -1082,12 +1082,27 @@ def _split_ref(ref: str) -> tuple[str, str]:
     return ref, "latest"
 
 
-def _connect_reason(exc: Exception) -> str:
+def _unreachable(what: str, exc: Exception) -> EngineUnavailable:
+    """WHAT ("no Docker engine answers ..."), why, and for a TLS failure, which starting the
+    engine would not mend, what to do."""
     text = str(exc)
     if "Permission denied" in text:
-        return "permission denied on the engine's socket"
+        return EngineUnavailable(f"{what}: permission denied on the engine's socket")
     if "No such file or directory" in text or "Connection refused" in text:
-        return "nothing is listening there"
+        return EngineUnavailable(f"{what}: nothing is listening there")
+    tls = _tls_failure(text)
+    if tls is None:
+        return EngineUnavailable(f"{what}: {text}")
+    return EngineUnavailable(
+        f"{what}: {tls}",
+        "Give espdock the engine's CA and your certificate as the docker CLI takes them (`docker version` "
+        "fails the same way): ca.pem, cert.pem and key.pem in DOCKER_CERT_PATH, or in the Docker context "
+        "(`docker context inspect`); without a ca.pem, the system's CAs (SSL_CERT_FILE) are used.",
+    )
+
+
+def _tls_failure(text: str) -> str | None:
+    """What went wrong, by TEXT (an exception's), where TLS failed between espdock and the engine."""
     # OpenSSL's words, out of the SDK's wrappings (urllib3's retries, requests' connection error).
     said = re.search(r"\[SSL: \w+\][^'\")(]*", text)
     openssl = said.group(0).strip() if said else text
@@ -1099,21 +1114,7 @@ def _connect_reason(exc: Exception) -> str:
         # TLS 1.3: the engine checks the client's certificate after the client is done, and its alert
         # may be lost as it closes the connection; espdock then sees only the end.
         return f"it ended the TLS connection, as an engine refusing espdock's TLS client certificate does ({TLS_CUT})"
-    return text
-
-
-def _unreachable(what: str, exc: Exception) -> EngineUnavailable:
-    """WHAT ("no Docker engine answers ..."), why, and for a TLS failure, which starting the
-    engine would not mend, what to do."""
-    text = str(exc)
-    hint = None
-    if "CERTIFICATE_VERIFY_FAILED" in text or TLS_CUT in text or any(alert in text for alert in TLS_REFUSALS):
-        hint = (
-            "Give espdock the engine's CA and your certificate as the docker CLI takes them (`docker version` "
-            "fails the same way): ca.pem, cert.pem and key.pem in DOCKER_CERT_PATH, or in the Docker context "
-            "(`docker context inspect`); without a ca.pem, the system's CAs (SSL_CERT_FILE) are used."
-        )
-    return EngineUnavailable(f"{what}: {_connect_reason(exc)}", hint)
+    return None
 
 
 def _archive(container: docker.models.containers.Container, path: str) -> Iterator[bytes] | None:

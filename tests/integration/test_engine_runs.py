@@ -137,6 +137,12 @@ def test_a_foreground_run_goes_through_the_docker_cli_to_the_same_engine(way, ca
     assert way.containers(dict(run.labels)) == []
 
 
+def without_docker_settings() -> dict[str, str]:
+    """This process's environment without the shell's DOCKER_* settings (host, TLS, context, config),
+    which a test then sets as the case it is about needs."""
+    return {key: value for key, value in os.environ.items() if not key.startswith("DOCKER_")}
+
+
 def assert_the_cli_reaches(env: dict[str, str]) -> None:
     """The docker CLI, set up by ENV, reaches the engine: what espdock must then reach too."""
     asked = subprocess.run(["docker", "version", "--format", "{{.Server.Os}}"], env=env, capture_output=True,
@@ -158,9 +164,7 @@ def test_a_tls_engine_that_asks_no_client_certificate_is_reached_as_the_cli_reac
     forwarder = TcpForwarder(Path(local_socket()), tls)
     try:
         host = f"tcp://127.0.0.1:{forwarder.port}"
-        unset = ("DOCKER_HOST", "DOCKER_TLS_VERIFY", "DOCKER_CERT_PATH", "DOCKER_CONTEXT")
-        env = {key: value for key, value in os.environ.items() if key not in unset}
-        env["DOCKER_CONFIG"] = str(tmp_path / "docker")
+        env = {**without_docker_settings(), "DOCKER_CONFIG": str(tmp_path / "docker")}
         if setup.startswith("DOCKER_TLS_VERIFY"):
             env.update(DOCKER_HOST=host, DOCKER_TLS_VERIFY="1", DOCKER_CERT_PATH=str(tmp_path / "client"))
         elif setup == "DOCKER_TLS":
@@ -196,9 +200,8 @@ def test_a_context_with_a_client_certificate_and_no_ca_checks_the_engine_against
     tls = make_certificates(tmp_path)
     forwarder = TcpForwarder(Path(local_socket()), tls)
     try:
-        unset = ("DOCKER_HOST", "DOCKER_TLS_VERIFY", "DOCKER_CERT_PATH", "DOCKER_CONTEXT", "DOCKER_TLS")
-        env = {key: value for key, value in os.environ.items() if key not in unset}
-        env.update(DOCKER_CONFIG=str(tmp_path / "docker"), SSL_CERT_FILE=str(tmp_path / "ca.pem"))
+        env = {**without_docker_settings(), "DOCKER_CONFIG": str(tmp_path / "docker")}
+        env["SSL_CERT_FILE"] = str(tmp_path / "ca.pem")
         client = tmp_path / "client"
         endpoint = f"host=tcp://127.0.0.1:{forwarder.port},cert={client / 'cert.pem'},key={client / 'key.pem'}"
         for args in (("create", "engine", "--docker", endpoint), ("use", "engine")):
@@ -233,7 +236,7 @@ def test_a_tls_engine_that_cannot_be_checked_or_refuses_the_certificate_says_so_
             shutil.copy(other / "client" / name, given / name)
     forwarder = TcpForwarder(Path(local_socket()), tls)
     try:
-        env = {key: value for key, value in os.environ.items() if not key.startswith("DOCKER_")}
+        env = without_docker_settings()
         env.update(DOCKER_HOST=f"tcp://127.0.0.1:{forwarder.port}", DOCKER_TLS_VERIFY="1", DOCKER_CERT_PATH=str(given))
         with pytest.raises(EngineUnavailable) as raised:
             bootstrap.ensure_engine(env, lambda text: None)
@@ -255,12 +258,8 @@ def test_a_cert_path_alone_turns_no_tls_on_as_for_the_cli(engine, tmp_path):
     make_certificates(tmp_path)
     forwarder = TcpForwarder(Path(local_socket()), None)
     try:
-        env = {
-            **os.environ,
-            "DOCKER_HOST": f"tcp://127.0.0.1:{forwarder.port}",
-            "DOCKER_CERT_PATH": str(tmp_path / "client"),
-        }
-        env.pop("DOCKER_TLS_VERIFY", None)
+        env = without_docker_settings()
+        env.update(DOCKER_HOST=f"tcp://127.0.0.1:{forwarder.port}", DOCKER_CERT_PATH=str(tmp_path / "client"))
         assert_the_cli_reaches(env)
         assert Engine.connect(env).image(IMAGE) is not None
     finally:
@@ -444,8 +443,10 @@ def test_on_an_engine_that_remaps_users_the_compose_serial_agent_opens_the_board
     remapped_engine, tmp_path, compose_file
 ):
     """The serial agent of the demo's compose file and of the one `espdock init --compose` writes,
-    as compose runs it: remapped, its root is a subordinate uid outside, which the port (root and
-    dialout, 0660) refused ("Permission denied"); `espdock agent` opened it."""
+    as compose runs it. Remapped, runc cannot make its /dev/microros (in a user namespace it
+    bind-mounts the host's node at the container's path, which the host lacks: "error creating
+    device nodes"), and where the paths match, the port (root and dialout, 0660) refuses the
+    remapped root; `espdock agent` opened it."""
     if compose_file == "demo":
         path = REPO / "compose.yaml"
     else:

@@ -60,8 +60,9 @@ services:
     command: [serial, --dev, /dev/microros, -b, "${{MICROROS_SERIAL_BAUD:-115200}}"]
     devices:
       - "${{MICROROS_SERIAL_DEVICE:-/dev/ttyACM0}}:/dev/microros"
-    # Root as on any other engine: where the engine remaps users (dockerd --userns-remap), the
-    # port (root and dialout, 0660) refuses the subordinate uid it would be. A no-op elsewhere.
+    # As on any other engine where one remaps users (dockerd --userns-remap): remapped, runc cannot
+    # make /dev/microros (it bind-mounts the host's node at that path, which the host lacks), nor
+    # would the port (root and dialout, 0660) let the remapped root in. A no-op elsewhere.
     userns_mode: host
     environment:
       <<: *ros-env

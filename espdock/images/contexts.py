@@ -28,6 +28,12 @@ def config_dir(env: Mapping[str, str]) -> Path:
     return Path(env.get("DOCKER_CONFIG") or Path(env.get("HOME") or Path.home()) / ".docker")
 
 
+def is_context_tls(path: str | Path, env: Mapping[str, str]) -> bool:
+    """Whether PATH is a context's TLS dir in the CLI's store (engine_env names it in
+    DOCKER_CERT_PATH), which needs no ca.pem, unlike a DOCKER_CERT_PATH of the user's."""
+    return Path(path).is_relative_to(config_dir(env) / "contexts" / "tls")
+
+
 def selected(env: Mapping[str, str]) -> tuple[str, str] | None:
     """The context the CLI uses in ENV and what chose it, or None when that is the default
     (DOCKER_HOST set, or no context chosen)."""

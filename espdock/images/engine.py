@@ -1097,7 +1097,7 @@ def _unreachable(what: str, exc: Exception) -> EngineUnavailable:
         f"{what}: {tls}",
         "Give espdock the engine's CA and your certificate as the docker CLI takes them (`docker version` "
         "fails the same way): ca.pem, cert.pem and key.pem in DOCKER_CERT_PATH, or in the Docker context "
-        "(`docker context inspect`); without a ca.pem, the system's CAs (SSL_CERT_FILE) are used.",
+        "(`docker context inspect`); a context without a ca.pem checks against the system's CAs (SSL_CERT_FILE).",
     )
 
 

@@ -13,6 +13,7 @@ from contextlib import suppress
 from typing import Any
 
 from espdock import interrupts
+from espdock.errors import ConfigError
 from espdock.images import contexts
 
 
@@ -100,6 +101,18 @@ def _tls(env: Mapping[str, str]) -> Any | None:
         return None
     where = env.get("DOCKER_CERT_PATH") or str(contexts.config_dir(env))
     ca, cert, key = (os.path.join(where, name) for name in contexts.TLS_FILES)
+    if not os.path.isfile(ca) and not contexts.is_context_tls(where, env):
+        # The CLI and compose stop at the missing file, checking or not (docker/cli's
+        # ClientOptions keep ca.pem's path; a context's TLS has no such default).
+        variable = "DOCKER_TLS_VERIFY" if verify else "DOCKER_TLS"
+        raise ConfigError(
+            f"{variable} turns TLS on, and {where} has no ca.pem: the docker CLI and compose refuse to "
+            f"reach the engine so (`docker version`: open {ca}: no such file or directory)",
+            "Put the engine's CA certificate there as ca.pem (with cert.pem and key.pem where the engine "
+            "checks clients), or set DOCKER_CERT_PATH to the directory that holds them. A Docker context "
+            "given a certificate and no CA (`docker context create NAME --docker host=...,cert=...,key=...`) "
+            "checks the engine against the system's CAs.",
+        )
     pair = (cert, key) if os.path.isfile(cert) and os.path.isfile(key) else None
     if not verify:
         return docker.TLSConfig(client_cert=pair, verify=False)

@@ -22,7 +22,7 @@ from pathlib import Path
 import certifi
 import pytest
 
-from espdock.errors import ContainerError, EngineUnavailable
+from espdock.errors import ConfigError, ContainerError, EngineUnavailable
 from espdock.images import bootstrap
 from espdock.images.engine import DEFAULT_SOCKET, Engine, Mount, RunSpec
 from espdock.images.keyed import DPKG_STATUS, installed_packages
@@ -215,6 +215,30 @@ def test_a_context_with_a_client_certificate_and_no_ca_checks_the_engine_against
             assert "through the cli" in capfd.readouterr().out
     finally:
         forwarder.close()
+
+
+@pytest.mark.parametrize("variable", ["DOCKER_TLS_VERIFY", "DOCKER_TLS"])
+def test_tls_variables_naming_a_cert_path_without_a_ca_are_refused_as_the_cli_refuses_them(engine, tmp_path, variable):
+    """DOCKER_CERT_PATH with the client's certificate and key and no ca.pem, the engine's CA one
+    the machine trusts (SSL_CERT_FILE): the docker CLI and compose will not start, checking or
+    not. espdock reached the engine (checked against the system's CAs, or unchecked) and built,
+    and its own `run` and `compose` then failed."""
+    tls = make_certificates(tmp_path)
+    (tmp_path / "client/ca.pem").unlink()
+    forwarder = TcpForwarder(Path(local_socket()), tls)
+    try:
+        env = without_docker_settings()
+        env.update(DOCKER_HOST=f"tcp://127.0.0.1:{forwarder.port}", DOCKER_CERT_PATH=str(tmp_path / "client"))
+        env.update({variable: "1", "SSL_CERT_FILE": str(tmp_path / "ca.pem")})
+        asked = subprocess.run(["docker", "version"], env=env, capture_output=True, text=True, check=False)
+        assert asked.returncode != 0 and "ca.pem: no such file" in asked.stderr, asked.stderr
+        with pytest.raises(ConfigError) as raised:
+            bootstrap.ensure_engine(env, lambda text: None)
+    finally:
+        forwarder.close()
+    said = raised.value
+    assert f"{variable} turns TLS on, and {tmp_path / 'client'} has no ca.pem" in said.message, said.message
+    assert "as ca.pem" in said.hint and "docker context create" in said.hint
 
 
 @pytest.mark.parametrize("wrong", ["the engine's CA", "the client's certificate"])

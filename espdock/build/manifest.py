@@ -19,6 +19,7 @@ from espdock.build.steps import EnsureImage, ImageSpec, Plan
 from espdock.errors import WorkspaceError, disk_full
 from espdock.events import Outcome, StepFinished
 from espdock.firmware.plan import IdfBuild
+from espdock.images.containers import give_to
 
 MANIFEST_NAME = "espdock-manifest.json"
 FORMAT = 1
@@ -104,8 +105,11 @@ def record_build(
     return manifest
 
 
-def write_report(path: Path, finished: Iterable[StepFinished], manifest: dict | None, seconds: float) -> None:
-    """The --report JSON: every step's outcome, the build's, its duration, and the manifest (None on failure)."""
+def write_report(
+    path: Path, finished: Iterable[StepFinished], manifest: dict | None, seconds: float, owner: tuple[int, int]
+) -> None:
+    """The --report JSON: every step's outcome, the build's, its duration, and the manifest (None on failure).
+    As root, a report it creates belongs to OWNER, as the build's files do."""
     steps = list(finished)
     failed = any(step.outcome is Outcome.FAILED for step in steps) or manifest is None
     data = {
@@ -117,7 +121,10 @@ def write_report(path: Path, finished: Iterable[StepFinished], manifest: dict | 
         ],
         "manifest": manifest,
     }
+    created = not path.exists()
     path.write_text(json.dumps(data, indent=1, sort_keys=True) + "\n")
+    if created:
+        give_to(path, owner)
 
 
 @dataclass(frozen=True)

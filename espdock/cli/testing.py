@@ -103,10 +103,11 @@ def test(
     _say_firmware(firmware, say)
     if results is not None:
         on_host = {p.name for p in firmware}
+        owner = invoking_user(os.environ, ws.root)
         written = collect_results(
-            {n: r for n, r in found.items() if n not in on_host}, ws.ws_dir / ROS_BUILD_BASE, results
+            {n: r for n, r in found.items() if n not in on_host}, ws.ws_dir / ROS_BUILD_BASE, results, owner
         )
-        written += collect_results({n: r for n, r in found.items() if n in on_host}, host_base, results)
+        written += collect_results({n: r for n, r in found.items() if n in on_host}, host_base, results, owner)
         say(f"{len(written)} result file(s) copied to {results}")
     failing = [r for r in found.values() if not r.ok]
     if failing:

@@ -122,8 +122,8 @@ def build(
     engine = bootstrap.ensure_engine(os.environ, notify)
     manifest: dict | None = None
     started = time.monotonic()
+    owner = invoking_user(os.environ, ws.root)
     try:
-        owner = invoking_user(os.environ, ws.root)
         runner = Runner(engine, config, os.environ, reporter, owner, push_cache=push_cache)
         results = runner.run(plan)
         built = any(r.outcome is not Outcome.CACHED for r in results)
@@ -133,7 +133,7 @@ def build(
         reporter.close()
         reporter.summary()
         if report is not None:
-            write_report(report, reporter.finished, manifest, time.monotonic() - started)
+            write_report(report, reporter.finished, manifest, time.monotonic() - started, owner)
     after_build(engine, ws, config, runner, built)
 
 

@@ -24,6 +24,7 @@ from xml.etree.ElementTree import Element, ElementTree, ParseError
 from espdock import durable
 from espdock.build.stamps import listing_digest
 from espdock.errors import ConfigError, DependencyError
+from espdock.images.containers import give_to, make_dirs_for
 from espdock.layout import ROS_BUILD_BASE
 from espdock.ros.colcon import check_colcon_args
 
@@ -343,14 +344,18 @@ def clear_results(build_base: Path, packages: Iterable[str]) -> None:
             path.unlink(missing_ok=True)
 
 
-def collect_results(results: Mapping[str, PackageResults], build_base: Path, destination: Path) -> list[Path]:
-    """Copy every result file into DESTINATION/<package>/, named after its place in the build dir."""
+def collect_results(
+    results: Mapping[str, PackageResults], build_base: Path, destination: Path, owner: tuple[int, int]
+) -> list[Path]:
+    """Copy every result file into DESTINATION/<package>/, named after its place in the build dir.
+    As root, what it writes and the directories it makes belong to OWNER (`sudo espdock test`)."""
     written = []
     for package, result in results.items():
         for path in result.files:
             rel = path.relative_to(build_base / package).as_posix().replace("/", "-")
             target = destination / package / rel
-            target.parent.mkdir(parents=True, exist_ok=True)
+            make_dirs_for(target.parent, owner)
             shutil.copyfile(path, target)
+            give_to(target, owner)
             written.append(target)
     return written

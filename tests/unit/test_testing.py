@@ -3,8 +3,11 @@ collecting result files, and the test image made from the lock's test part."""
 
 from __future__ import annotations
 
+import os
+
 import pytest
 
+from espdock.build.manifest import write_report
 from espdock.build.steps import EnsureImage, ImageSpec, Plan
 from espdock.errors import ConfigError, DependencyError
 from espdock.ros.plan import ColconBuild
@@ -23,6 +26,7 @@ from espdock.ros.testing import (
 )
 from espdock.workspace import Workspace
 
+ME = (os.getuid(), os.getgid())
 PYTEST_XML = """<?xml version="1.0" encoding="utf-8"?><testsuites><testsuite name="pytest" errors="0" failures="1"
 skipped="1" tests="4" time="0.1"><testcase classname="p.test.test_a" name="test_ok" time="0.001"/><testcase
 classname="p.test.test_a" name="test_bad" time="0.001"><failure message="assert 1 == 0">x</failure></testcase>
@@ -125,11 +129,32 @@ def test_results_are_counted_as_colcon_test_result_counts_and_collected_by_packa
     assert p.failing == ["p.test.test_a.test_bad"] and not p.ok
     assert (c.tests, c.passed, c.ok) == (2, 2, True) and [f.name for f in c.files] == ["test_ring.gtest.xml"]
     assert found["none"].files == [] and found["none"].tests == 0
-    written = collect_results(found, build, tmp_path / "results")
+    written = collect_results(found, build, tmp_path / "results", ME)
     assert sorted(w.relative_to(tmp_path / "results").as_posix() for w in written) == [
         "c/test_results-c-test_ring.gtest.xml",
         "p/pytest.xml",
     ]
+
+
+@pytest.mark.skipif(os.geteuid() != 0, reason="only root hands files to another user")
+def test_results_and_a_report_written_as_root_belong_to_the_user_it_stands_for(tmp_path):
+    """`sudo espdock test --results DIR` and `sudo espdock build --report FILE`: the user could
+    not remove their own results, which root had made."""
+    build = tmp_path / "build"
+    (build / "p").mkdir(parents=True)
+    (build / "p" / "pytest.xml").write_text(PYTEST_XML)
+    user = (4242, 4243)
+    written = collect_results(read_results(build, ("p",)), build, tmp_path / "ci/results", user)
+    made = [tmp_path / "ci", tmp_path / "ci/results", tmp_path / "ci/results/p", *written]
+    assert {(p.stat().st_uid, p.stat().st_gid) for p in made} == {user}
+    assert tmp_path.stat().st_uid == 0, "a directory it did not make stays whose it was"
+    report = tmp_path / "report.json"
+    write_report(report, [], None, 1.0, user)
+    assert (report.stat().st_uid, report.stat().st_gid) == user
+    theirs = tmp_path / "theirs.json"
+    theirs.write_text("{}")
+    write_report(theirs, [], None, 1.0, user)
+    assert theirs.stat().st_uid == 0, "a file that was there keeps its owner"
 
 
 def spec(repository: str, key: str) -> ImageSpec:
@@ -175,7 +200,7 @@ def test_the_latest_ctest_file_counts_as_colcon_cmake_counts_it_but_is_not_colle
     c = read_results(build, ("c",))["c"]
     assert (c.tests, c.passed, c.failed, c.ctest_tests) == (2, 1, 1, 2)
     assert c.failing == ["ctest cppcheck"] and c.files == [], "the latest only, and not a JUnit file"
-    assert collect_results({"c": c}, build, tmp_path / "results") == []
+    assert collect_results({"c": c}, build, tmp_path / "results", ME) == []
 
 
 def test_cli_refuses_bad_input_before_any_engine(tmp_path):

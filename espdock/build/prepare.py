@@ -3,6 +3,7 @@ inputs and colcon settings they are planned from, a rosdep lock that answers for
 
 from __future__ import annotations
 
+import dataclasses
 import os
 from collections.abc import Callable, Mapping
 
@@ -129,19 +130,30 @@ def plan_tests(
         notify(note)
     lock = rosdeps.read_lock(inputs.rosdep_lock, ROSDEP_LOCK)
     testdeps.check_tests(ros, lock, ros_image(config, inputs)[2])
-    plan = build_plan(
-        ws, config, [p.name for p in ros], PackageKind.ROS, testing=True, known=(every, inputs), env=env, notify=notify
-    )
+    names = tuple(p.name for p in ros)
+    known = (every, inputs)
+    plan = build_plan(ws, config, list(names), PackageKind.ROS, testing=True, known=known, env=env, notify=notify)
     plan = testdeps.with_test_image(_test_build(plan), lock, official)
     build = next(step for step in plan.steps if isinstance(step, ColconBuild))
     step = ColconTest(
         image=build.image,
-        packages=tuple(p.name for p in ros),
+        packages=names,
         sources=build.sources,
         colcon_args=colcon_args,
         defaults_file=build.defaults_file,
     )
-    return plan, step
+    tested = dataclasses.replace(build, selected=names, name="colcon build: with tests")
+    steps: tuple[ColconBuild, ...] = (tested,)
+    if dependencies := tuple(name for name in build.packages if name not in names):
+        # Built, not tested: as `espdock build` builds them, in the build image (made before the
+        # test image over it), with their tests configured only where a plain build configures
+        # them. A template's `find_package(ament_lint_auto)` under BUILD_TESTING in a dependency
+        # then needs nothing, and a build before leaves them up to date.
+        plain = build_plan(ws, config, list(names), PackageKind.ROS, known=known, env=env, notify=notify)
+        first = next(s for s in plain.steps if isinstance(s, ColconBuild))
+        steps = (dataclasses.replace(first, selected=dependencies, name="colcon build: dependencies"), tested)
+    out = [new for s in plan.steps for new in (steps if s is build else (s,))]
+    return Plan(plan.workspace, tuple(out), plan.idf_images), step
 
 
 def _test_build(plan: Plan) -> Plan:

@@ -170,7 +170,7 @@ def render_plan(console: Console, plan: Plan) -> None:
                     console.print(Text(f"     {name}  {sha[:12]}", style="dim"))
             case ColconBuild():
                 console.print(f"   in {step.image}, {step.workdir}: {format_argv(step.argv())}")
-                console.print(Text(f"     packages: {', '.join(step.packages)}", style="dim"))
+                console.print(Text(f"     packages: {', '.join(step.building)}", style="dim"))
                 console.print(
                     Text("     colcon gets only the changed ones and their dependents (--packages-select)", style="dim")
                 )

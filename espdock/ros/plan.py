@@ -57,6 +57,9 @@ class ColconBuild:
     # image lacks ament's lint packages), unless the options after `--` set it.
     testing: bool = False
     tests_off: bool = False
+    # The PACKAGES this step builds, when not all: the others are dependencies a step before it
+    # built, which colcon finds (and sources) in install/ as it finds any up-to-date package.
+    selected: tuple[str, ...] = ()
     # Each package's package.xml dependencies, and which of them are test_depend only: what a
     # failure's hint says about a dependency colcon could not find.
     declared: tuple[tuple[str, frozenset[str], frozenset[str]], ...] = ()
@@ -64,6 +67,11 @@ class ColconBuild:
     @property
     def workdir(self) -> str:
         return container_path(self.colcon_root)
+
+    @property
+    def building(self) -> tuple[str, ...]:
+        """The packages this step builds and stamps."""
+        return self.selected or self.packages
 
     @property
     def options(self) -> tuple[str, ...]:

@@ -50,7 +50,8 @@ class RosSteps:
     def colcon_build(self, workspace: Workspace, step: ColconBuild) -> tuple[Outcome, str]:
         stamp_file = StampFile(workspace.ws_dir / "build" / ROS_STAMPS)
         sources = {name: tree_digest(workspace.ws_dir / rel) for name, rel in step.sources}
-        stamps = package_stamps(sources, dict(step.depends), step.stamp_image, dict(step.settings))
+        chained = package_stamps(sources, dict(step.depends), step.stamp_image, dict(step.settings))
+        stamps = {name: chained[name] for name in step.building}
 
         def installed() -> dict[str, str | None]:
             return {name: listing_digest(workspace.ws_dir / "install" / name) for name in stamps}
@@ -65,7 +66,7 @@ class RosSteps:
         whole = sync is not None and (sync.fresh or sync.installed != listing_digest(workspace.ws_dir / "install"))
         if whole:
             # install/ is swapped for the volume's whole: every package must be built there.
-            rebuild = tuple(stamps)
+            rebuild = step.packages
         # Until this build succeeds, none of them counts as built.
         recorded = stamp_file.read()
         stamp_file.forget(rebuild)
@@ -178,7 +179,7 @@ class RosSteps:
                 "the workspace leads nowhere there. Move the package into the workspace, then build again; "
                 "nothing of it was installed.",
             )
-        detail = f"{len(built)} package(s) built, {len(stamps) - len(rebuild)} up to date"
+        detail = f"{len(built)} package(s) built, {len(set(stamps) - set(rebuild))} up to date"
         return Outcome.BUILT, detail + (f", {len(others)} not built ({' '.join(others)})" if others else "")
 
     def colcon_test(self, workspace: Workspace, step: ColconTest, on_line: Callable[[str], None]) -> int:

@@ -76,6 +76,14 @@ def image_tested_in(output: str) -> str:
 def test_build_skips_test_needs_then_test_builds_runs_and_reports_them(tmp_path, engine):
     root = make_workspace(tmp_path / "w", ("tested_py", "tested_cpp", "lint_auto_cpp"))
     env = {**environment(tmp_path), "ESPDOCK_STATE_DIR": str(tmp_path / "state")}
+    # tested_cpp uses the template-made package, as a driver uses its interface package.
+    for name, old, new in (
+        ("package.xml", "  <test_depend>", "  <depend>lint_auto_cpp</depend>\n  <test_depend>"),
+        ("CMakeLists.txt", "find_package(ament_cmake REQUIRED)\n", "find_package(ament_cmake REQUIRED)\n"
+         "find_package(lint_auto_cpp REQUIRED)\n"),
+    ):  # fmt: skip
+        path = root / "src/tested_cpp" / name
+        path.write_text(path.read_text().replace(old, new, 1))
 
     # A plain build of the template's package on the wheels image: its ament_lint_auto is not
     # needed (issue 31.4). The other two build once, below, with their tests.
@@ -92,10 +100,14 @@ def test_build_skips_test_needs_then_test_builds_runs_and_reports_them(tmp_path,
     assert containers_created(root, started, time.time()) == []
 
     # The others: built again with their tests, tested; a failing pytest test is exit code 10.
+    # lint_auto_cpp is built, not tested: as the plain build left it (its tests' ament_lint_auto
+    # stopped espdock before).
     results = tmp_path / "results"
     tested = espdock("test", "tested_py", "tested_cpp", "--results", str(results), cwd=root, env=env)
     out = tested.stdout
     assert tested.returncode == 10, out[-4000:] + tested.stderr
+    events = (root / "log/latest_build/events.log").read_text()
+    assert "(tested_cpp) JobEnded" in events and "(lint_auto_cpp)" not in events, "up to date, not rebuilt"
     assert "test_limits.test_nan_is_clamped_to_zero" in tested.stderr
     assert "failed: tested_py.test.test_limits.test_nan_is_clamped_to_zero" in out
     assert "tested_py  6 tests: 4 passed, 1 failed, 0 errored, 1 skipped" in out, out[-3000:]

@@ -235,13 +235,16 @@ def nvs_partition(firmware_dir: Path, flasher_args: dict, package: str) -> Parti
     except ValueError as exc:
         raise WorkspaceError(f"{table} is not an ESP-IDF partition table: {exc}", rebuild) from None
     nvs = [p for p in partitions if (p.type, p.subtype) == (_TYPE_DATA, _SUBTYPE_NVS)]
-    # nvs_flash_init() opens the partition labelled "nvs"; the first NVS one is the fallback guess.
-    chosen = next((p for p in nvs if p.label == "nvs"), nvs[0] if nvs else None)
+    # nvs_flash_init() opens the partition labelled "nvs" (NVS_DEFAULT_PART_NAME) and no other:
+    # settings written to another NVS partition are never read, and it is erased for them.
+    chosen = next((p for p in nvs if p.label == "nvs"), None)
     if chosen is None:
+        others = f" (its NVS partitions: {', '.join(repr(p.label) for p in nvs)}; the firmware reads none of them)"
         raise ConfigError(
-            f"{package}'s partition table has no NVS partition to provision",
+            f"{package}'s partition table has no NVS partition labelled 'nvs' to provision"
+            + (others if nvs else ""),
             "Use a built-in table (CONFIG_PARTITION_TABLE_SINGLE_APP*, *TWO_OTA*) or add an "
-            '"nvs, data, nvs" row to your partitions.csv.',
+            '"nvs, data, nvs" row to your partitions.csv; nothing was written.',
         )
     return chosen
 

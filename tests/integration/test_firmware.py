@@ -965,7 +965,7 @@ def test_bad_provisioning_input_is_refused_and_the_board_is_left_alone(fw_ws, do
     try:  # the same app with a table that has no NVS partition
         table.write_bytes(original[32:])
         result = espdock("provision", "camera_node", "--port", mock_bootloader, *good, cwd=root, env=double_env)
-        assert result.returncode == 2 and "no NVS partition to provision" in result.stderr, result.stderr
+        assert result.returncode == 2 and "no NVS partition labelled 'nvs' to provision" in result.stderr, result.stderr
     finally:
         table.write_bytes(original)
     assert flash_md5(mock_bootloader, NVS_OFFSET, NVS_SIZE) == before, "the board was written to"

@@ -183,7 +183,12 @@ def test_a_table_without_nvs_or_no_table_is_refused(tmp_path):
     (tmp_path / "partition_table").mkdir()
     path = tmp_path / "partition_table/partition-table.bin"
     path.write_bytes(NO_NVS)
-    with pytest.raises(ConfigError, match="no NVS partition to provision") as caught:
+    with pytest.raises(ConfigError, match="no NVS partition labelled 'nvs' to provision") as caught:
+        nvs_partition(tmp_path, {}, "cam")
+    assert caught.value.exit_code == 2
+    # An NVS partition of another name: nvs_flash_init() never opens it, and it would be erased.
+    path.write_bytes(table(("myconf", 1, 2, 0xA000, 0x6000), ("factory", 0, 0, 0x10000, 0x100000)))
+    with pytest.raises(ConfigError, match="'myconf'; the firmware reads none of them") as caught:
         nvs_partition(tmp_path, {}, "cam")
     assert caught.value.exit_code == 2
     path.write_bytes(os.urandom(64))

@@ -59,6 +59,15 @@ def idf(
         raise ConfigError(
             "no idf.py arguments given", f"Put them after --, e.g. `espdock idf {package} -- menuconfig`."
         )
+    if "set-target" in args:
+        # IDF's set-target empties the build dir (its fullclean, sdkconfig and espdock's records
+        # with it) and then refuses the target, which espdock's build passes as IDF_TARGET.
+        raise ConfigError(
+            "idf.py set-target is not how espdock changes a package's chip: it would empty "
+            f"build/{package} (its sdkconfig too) and then fail on the chip espdock builds it for",
+            f'Set CONFIG_IDF_TARGET="CHIP" in {package}\'s sdkconfig.defaults, or build with `espdock build '
+            f"{package} --target CHIP`: espdock starts a build dir afresh for a new chip; nothing was changed.",
+        )
     plan, step = firmware_plan(ws, config, package)
     if "fullclean" in args:
         cleaned = reset_build_dir(ws, step)

@@ -210,7 +210,7 @@ def new(
     chip = target and check_target(target, "--target")
     chosen = transport.parse_transport(link)
     owner = invoking_user(os.environ, ws.root) if os.geteuid() == 0 else None
-    path = create_firmware_package(ws, name, tuple(depends or ()), packages, owner, chip, chosen)
+    path = create_firmware_package(ws, name, tuple(depends or ()), packages, owner, chip, chosen, config.target)
     console.print(f"created {path.relative_to(ws.root)}; build it with `espdock build {name}`")
     if chosen != transport.UDP:
         console.print(f"micro-ROS over {chosen}: no provisioning; start the agent with `espdock agent --port <device>`")

@@ -166,13 +166,18 @@ def package_target(config: Config, inputs: BuildInputs, firmware: Package, overr
             f"{firmware.name} does not support {target}: it supports {', '.join(supported)}",
             f"Its main/idf_component.yml lists them under `targets`; build it for one (--target {supported[0]}).",
         )
+    check_micro_ros_target(firmware.name, target)
+    return target
+
+
+def check_micro_ros_target(package: str, target: str, fix: str = "Build it for") -> None:
+    """Refuse TARGET for PACKAGE where the pinned micro-ROS cannot be built for it."""
     if target in LONGCALLS_RISCV:
         raise WorkspaceError(
-            f"{firmware.name}: micro-ROS cannot be built for {target}: the pinned micro_ros_espidf_component "
+            f"{package}: micro-ROS cannot be built for {target}: the pinned micro_ros_espidf_component "
             "gives every chip but esp32c3 the Xtensa option -mlongcalls, which the RISC-V compiler rejects",
-            "Build it for esp32, esp32s2, esp32s3 or esp32c3.",
+            f"{fix} esp32, esp32s2, esp32s3 or esp32c3.",
         )
-    return target
 
 
 # The prebuilt micro-ROS component requires esp_driver_gpio and esp_driver_spi, which ESP-IDF

@@ -241,8 +241,7 @@ def nvs_partition(firmware_dir: Path, flasher_args: dict, package: str) -> Parti
     if chosen is None:
         others = f" (its NVS partitions: {', '.join(repr(p.label) for p in nvs)}; the firmware reads none of them)"
         raise ConfigError(
-            f"{package}'s partition table has no NVS partition labelled 'nvs' to provision"
-            + (others if nvs else ""),
+            f"{package}'s partition table has no NVS partition labelled 'nvs' to provision" + (others if nvs else ""),
             "Use a built-in table (CONFIG_PARTITION_TABLE_SINGLE_APP*, *TWO_OTA*) or add an "
             '"nvs, data, nvs" row to your partitions.csv; nothing was written.',
         )

@@ -13,6 +13,7 @@ from pathlib import Path
 from espdock.defaults import default_file
 from espdock.errors import ConfigError, WorkspaceError
 from espdock.firmware import transport
+from espdock.firmware.plan import check_micro_ros_target
 from espdock.layout import CONFIG_FILE
 from espdock.workspace import Package, PackageKind, Workspace
 
@@ -75,6 +76,12 @@ def check_new_package(name: str, depends: tuple[str, ...], packages: tuple[Packa
         )
     if name in RESERVED_NAMES:
         raise ConfigError(f"'{name}' is reserved (colcon's outputs and shared components use it)", "Pick another name.")
+    if name in STANDARD_INTERFACES:
+        # Its package.xml would depend on itself (the template's std_msgs), and it would stand
+        # where micro-ROS's own package of that name does.
+        raise ConfigError(
+            f"'{name}' is one of ROS's standard interface packages, built into micro-ROS", "Pick another name."
+        )
     interfaces = sorted({*STANDARD_INTERFACES, *(p.name for p in packages if p.is_interface)})
     for dep in depends:
         validate_package_name(dep)
@@ -98,12 +105,14 @@ def create_firmware_package(
     owner: tuple[int, int] | None = None,
     target: str | None = None,
     link: str = transport.UDP,
+    workspace_target: str | None = None,
 ) -> Path:
     """Write NAME from the template where the workspace's firmware goes (firmware_home), and the
     shared espdock_uros component beside it if missing. Returns the new package's directory.
 
     TARGET, when given, is the package's chip: CONFIG_IDF_TARGET in its sdkconfig.defaults, where
-    IDF and espdock read it (other packages keep theirs).
+    IDF and espdock read it (other packages keep theirs); else WORKSPACE_TARGET (the setting) is.
+    A chip the package could never build for (its transport, micro-ROS) is refused first.
 
     LINK is how the board reaches the agent (espdock.firmware.transport): a serial one is written into
     sdkconfig.defaults and app-colcon.meta (so that a plain `idf.py build` matches too).
@@ -111,8 +120,9 @@ def create_firmware_package(
     OWNER (uid, gid), when given, gets the new files (root creating them for someone).
     """
     check_new_package(name, depends, packages)
-    if target:
-        transport.check_transport(name, link, target)
+    if chip := target or workspace_target:
+        transport.check_transport(name, link, chip, new=True)
+        check_micro_ros_target(name, chip, "Give it --target")
     home = firmware_home(workspace, packages)
     destination = home / name
     if destination.exists():

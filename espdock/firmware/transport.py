@@ -60,14 +60,20 @@ def firmware_transport(defaults: Mapping[str, bytes], target: str) -> str:
     return chosen
 
 
-def check_transport(package: str, transport: str, target: str) -> None:
-    """Refuse a transport the chip has no hardware for, before anything builds."""
+def check_transport(package: str, transport: str, target: str, new: bool = False) -> None:
+    """Refuse a transport the chip has no hardware for, before anything builds; NEW: as `espdock
+    new --transport` asks for it, before the package exists."""
     if transport == USB_SERIAL_JTAG and target not in USB_SERIAL_JTAG_CHIPS:
+        chips = " or ".join(USB_SERIAL_JTAG_CHIPS)
+        if new:
+            raise ConfigError(
+                f"{package}: {target} has no USB-Serial-JTAG port (--transport usb-serial-jtag)",
+                f"Use --transport uart (the board's USB-to-UART bridge on UART0), or --target {chips}.",
+            )
         raise WorkspaceError(
             f"{package}: {target} has no USB-Serial-JTAG port, but its sdkconfig.defaults selects "
             "CONFIG_ESPDOCK_TRANSPORT_USB_SERIAL_JTAG",
-            f"Use it on {' or '.join(USB_SERIAL_JTAG_CHIPS)}, or set CONFIG_ESPDOCK_TRANSPORT_UART=y "
-            "(the board's USB-to-UART bridge on UART0).",
+            f"Use it on {chips}, or set CONFIG_ESPDOCK_TRANSPORT_UART=y (the board's USB-to-UART bridge on UART0).",
         )
 
 

@@ -490,6 +490,12 @@ def test_idf_passthrough_runs_idf_py_in_the_image(fw_ws, double_env):
     result = espdock("idf", "led_strip_node", "--", "--version", cwd=root, env=double_env)
     assert result.returncode == 0, result.stderr
     assert "ESP-IDF v5.3.5" in result.stdout
+    # IDF's set-target would empty the build dir, then refuse the chip espdock passes.
+    before = sorted(p.name for p in (root / "ws/build/led_strip_node").iterdir())
+    result = espdock("idf", "led_strip_node", "--", "set-target", "esp32", cwd=root, env=double_env)
+    assert result.returncode == 2 and "idf.py set-target is not how espdock changes" in result.stderr, result.stderr
+    assert "CONFIG_IDF_TARGET" in result.stderr and "--target CHIP" in result.stderr
+    assert sorted(p.name for p in (root / "ws/build/led_strip_node").iterdir()) == before
 
 
 @contextlib.contextmanager

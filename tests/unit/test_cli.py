@@ -191,6 +191,9 @@ def test_new_refuses_taken_and_reserved_names_and_unknown_dependencies(tmp_path)
     for reserved in ("build", "install", "log"):
         result = espdock("new", reserved, cwd=root, env=NO_ENGINE)
         assert result.returncode == 2 and f"'{reserved}' is reserved" in result.stderr
+    # Its package.xml would depend on itself, and no package of the workspace would then resolve.
+    standard = espdock("new", "std_msgs", cwd=root, env=NO_ENGINE)
+    assert standard.returncode == 2 and "'std_msgs' is one of ROS's standard interface packages" in standard.stderr
     unknown = espdock("new", "blinky", "--depends", "custom_interfaces", cwd=root, env=NO_ENGINE)
     assert unknown.returncode == 2
     assert "--depends custom_interfaces" in unknown.stderr and "Did you mean custom_interface" in unknown.stderr
@@ -214,6 +217,10 @@ def test_new_gives_each_package_its_own_chip(tmp_path):
     assert "espdock/idf-micro-ros-jazzy-esp32c3:" in plan.stdout
     bad = espdock("new", "blinky3", "--target", "esp32c9", cwd=root, env=NO_ENGINE)
     assert bad.returncode == 2 and "unknown --target 'esp32c9'" in bad.stderr
+    # A chip IDF knows that micro-ROS cannot be built for: the package would stop every build.
+    c6 = espdock("new", "blinky3", "--target", "esp32c6", cwd=root, env=NO_ENGINE)
+    assert c6.returncode == 2 and "micro-ROS cannot be built for esp32c6" in c6.stderr, c6.stderr
+    assert "Give it --target esp32" in c6.stderr
     assert not (root / "firmware/blinky3").exists()
 
 

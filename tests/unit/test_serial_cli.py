@@ -46,6 +46,10 @@ def test_new_refuses_an_unknown_transport_and_usb_on_a_chip_without_it(tmp_path)
     assert unknown.returncode == 2 and "unknown transport 'bluetooth'" in unknown.stderr
     no_usb = espdock("new", "board", "--transport", "usb-serial-jtag", "--target", "esp32", cwd=root, env=NO_ENGINE)
     assert no_usb.returncode == 2 and "esp32 has no USB-Serial-JTAG port" in no_usb.stderr
+    assert "Use --transport uart" in no_usb.stderr and "sdkconfig" not in no_usb.stderr, "no package to edit yet"
+    # No --target: the workspace's chip (esp32) is the package's, and has no such port either.
+    implied = espdock("new", "board", "--transport", "usb-serial-jtag", cwd=root, env=NO_ENGINE)
+    assert implied.returncode == 2 and "esp32 has no USB-Serial-JTAG port" in implied.stderr, implied.stderr
     assert "Traceback" not in unknown.stderr + no_usb.stderr
     assert not (root / "firmware/board").exists()
 

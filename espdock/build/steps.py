@@ -29,6 +29,11 @@ def cache_ref(registry: str, tag: str) -> str:
     return f"{registry.rstrip('/')}/{tag}"
 
 
+def keyed_tag(repository: str, key: str) -> str:
+    """The tag of REPOSITORY's image of KEY."""
+    return f"{repository}:{key[:16]}"
+
+
 @dataclass(frozen=True)
 class ImageSpec:
     """An image espdock builds, tagged by a hash of everything that decides its content."""
@@ -47,7 +52,7 @@ class ImageSpec:
 
     @property
     def tag(self) -> str:
-        return f"{self.repository}:{self.key[:16]}"
+        return keyed_tag(self.repository, self.key)
 
     def labels(self) -> dict[str, str]:
         return {LABEL_KEY: self.key, LABEL_INPUTS: json.dumps(dict(self.inputs), sort_keys=True)}

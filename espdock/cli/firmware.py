@@ -12,6 +12,7 @@ import typer
 from rich.text import Text
 
 from espdock.build.prepare import workspace_packages
+from espdock.build.runner import Runner
 from espdock.build.steps import EnsureImage, ImageSpec, Plan
 from espdock.cli.core import (
     WorkspaceOption,
@@ -29,7 +30,7 @@ from espdock.errors import ConfigError
 from espdock.firmware import transport
 from espdock.firmware.flashing import check_port, flash_package, idf_port, parse_port, read_flasher_args
 from espdock.firmware.pins import pin_idf_image, read_sources, write_pins
-from espdock.firmware.plan import images_to_rebuild, workspace_micro_ros_images
+from espdock.firmware.plan import IdfBuild, images_to_rebuild, workspace_micro_ros_images
 from espdock.firmware.provision import (
     check_settings,
     network_settings,
@@ -87,6 +88,25 @@ def idf(
     if serial is None:
         raise typer.Exit(runner.firmware.run_idf(ws, step, argv))
     raise typer.Exit(runner.firmware.run_idf(ws, step, argv, devices=serial.devices, network=serial.network))
+
+
+def _installed(ws: Workspace, config: Config, plan: Plan, step: IdfBuild) -> tuple[Runner, IdfBuild]:
+    """A runner, and STEP as the installed firmware was built (firmware.steps.installed_from):
+    its image, made by PLAN only where that is the current one. Says when the firmware is not
+    what its sources build now."""
+    runner = runner_for(ws, config, Reporter(console))
+    built, current = runner.firmware.installed_from(ws, step)
+    if not current:
+        console.print(
+            Text(
+                f"note: the installed firmware of {step.package} is not what its sources build now; this is the one "
+                f"built last (`espdock build {step.package}` builds them)",
+                style="yellow",
+            )
+        )
+    if built is step:
+        runner.run(plan)
+    return runner, built
 
 
 def _micro_ros_specs(
@@ -222,8 +242,7 @@ def flash(
     settings = optional_network_settings(wifi_ssid, wifi_password_file, agent, domain, sys.stdin, _ask_password)
     nvs = nvs_partition(firmware_dir, flasher_args, package) if settings else None
     check_port(serial)
-    runner = runner_for(ws, config, Reporter(console))
-    runner.run(plan)
+    runner, step = _installed(ws, config, plan, step)
     if settings is not None:
         runner.firmware.check_library_port(ws, step, settings.agent_port)
     say = lambda line: console.print(Text(line))  # noqa: E731
@@ -273,8 +292,7 @@ def provision(
     nvs = nvs_partition(firmware_dir, flasher_args, package)
     settings = network_settings(wifi_ssid, wifi_password_file, agent, domain, sys.stdin, _ask_password)
     check_port(serial)
-    runner = runner_for(ws, config, Reporter(console))
-    runner.run(plan)
+    runner, step = _installed(ws, config, plan, step)
     runner.firmware.check_library_port(ws, step, settings.agent_port)
     with nvs_image(settings, nvs.size, runner.owner) as image:
         flash_package(
@@ -301,7 +319,6 @@ def monitor(
         raise ConfigError("the monitor needs a terminal (stdin is not a TTY)", "Run it from an interactive shell.")
     check_port(serial)
     plan, step = firmware_plan(ws, config, package)
-    runner = runner_for(ws, config, Reporter(console))
-    runner.run(plan)
+    runner, step = _installed(ws, config, plan, step)
     argv = step.argv(("-p", port, "monitor"))
     raise typer.Exit(runner.firmware.run_idf(ws, step, argv, devices=serial.devices, network=serial.network))

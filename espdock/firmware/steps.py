@@ -11,9 +11,11 @@ import posixpath
 import shutil
 import sys
 from collections.abc import Callable
+from dataclasses import replace
 from pathlib import Path
 
 from espdock.build.stamps import StampFile, listing_digest, tree_digest
+from espdock.build.steps import keyed_tag
 from espdock.config import resolve_ca_bundle
 from espdock.errors import BuildFailed, WorkspaceError
 from espdock.events import Outcome, StepNote, StepOutput
@@ -95,6 +97,23 @@ class FirmwareSteps:
         )
         give_to(stamp_file.path, self.containers.owner)
         return Outcome.BUILT, step.target
+
+    def installed_from(self, workspace: Workspace, step: IdfBuild) -> tuple[IdfBuild, bool]:
+        """What `flash`, `provision` and `monitor` run for STEP's package: STEP in the image its
+        build dir was last built in (the installed firmware's, its library's header included)
+        where that is another image still on the engine, else STEP; and whether the firmware is
+        what its sources build now. Building the image of sources edited since, which may not
+        even build, would stand between the user and the firmware they built."""
+        build_dir = firmware_build_dir(workspace.ws_dir, step.package)
+        stamps = self._firmware_stamp(workspace, step)
+        current = StampFile(workspace.ws_dir / "build" / FIRMWARE_STAMPS).up_to_date(
+            stamps, {step.package: listing_digest(build_dir, COLCON_RESULT_FILES)}
+        )
+        target, _, key, *_ = [*_read_marker(build_dir), "", "", ""]
+        if current or target != step.target or not key or key == step.image_key:
+            return step, current
+        built = replace(step, image=keyed_tag(step.image.rpartition(":")[0], key), image_key=key)
+        return (built, False) if self.containers.engine.image(built.image) is not None else (step, False)
 
     @staticmethod
     def _firmware_stamp(workspace: Workspace, step: IdfBuild) -> dict[str, str]:
@@ -272,6 +291,14 @@ def _outside_build_dir(workspace: Workspace, build_dir: Path) -> tuple[Mount, ..
     return (Mount(real, str(real)),)
 
 
+def _read_marker(build_dir: Path) -> list[str]:
+    """The target, sdkconfig.defaults digest and image key the build dir was last built with."""
+    try:
+        return (build_dir / TARGET_MARKER).read_text().split("\n")
+    except OSError:
+        return []
+
+
 def _prepare_build_dir(build_dir: Path, target: str, defaults: str, image_key: str) -> bool:
     """Make a build dir safe to reuse.
 
@@ -281,10 +308,10 @@ def _prepare_build_dir(build_dir: Path, target: str, defaults: str, image_key: s
     image change; an existing sdkconfig wins over sdkconfig.defaults, so it goes when the
     defaults changed, and with the target. True when it removed anything.
     """
-    marker = build_dir / TARGET_MARKER
-    if not marker.is_file():
+    marker = _read_marker(build_dir)
+    if not marker:
         return False
-    built_target, built_defaults, built_key, *_ = [*marker.read_text().split("\n"), "", "", ""]
+    built_target, built_defaults, built_key, *_ = [*marker, "", "", ""]
     if built_target != target:
         shutil.rmtree(build_dir)  # only a cache
         return True

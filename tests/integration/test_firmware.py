@@ -540,6 +540,27 @@ def test_flash_writes_and_verifies_through_esptool(fw_ws, double_env, mock_bootl
     assert leftover_containers(engine, root) == []
 
 
+def test_flash_writes_the_installed_firmware_while_its_interface_is_mid_edit(fw_ws, double_env, mock_bootloader):
+    """A .msg edited since the build, here half typed: flash (and provision and monitor) built the
+    micro-ROS image of the sources as they are, stopping on the edit with exit 4, or, for an edit
+    that builds, making a library (minutes with the real toolchain) the firmware was not built with."""
+    root, first = fw_ws
+    assert first.returncode == 0
+    message = root / "ws/src/custom_interface/msg/CameraConfig.msg"
+    text = message.read_text()
+    tags = ["docker", "image", "ls", "--format", "{{.Repository}}:{{.Tag}}"]
+    before = subprocess.run(tags, capture_output=True, text=True, check=True).stdout
+    message.write_text(text + "float33 exposure_half_typed\n")
+    try:
+        result = espdock("flash", "camera_node", "--port", mock_bootloader, "--verify", cwd=root, env=double_env)
+    finally:
+        message.write_text(text)
+    assert result.returncode == 0, result.stdout[-3000:] + result.stderr
+    assert "note: the installed firmware of camera_node is not what its sources build now" in result.stdout
+    assert "verified" in result.stdout
+    assert subprocess.run(tags, capture_output=True, text=True, check=True).stdout == before, "no image built"
+
+
 def test_the_chip_probe_speaks_the_esptool_it_finds_and_tells_its_version(mock_bootloader):
     """The double's image holds esptool 4 (the flash tests above); this venv's is esptool 5, which
     takes the probe's words hyphenated. One run detects the chip and names esptool's version."""

@@ -27,6 +27,7 @@ from enum import StrEnum
 from pathlib import Path
 
 from espdock.errors import ConfigError, WorkspaceError
+from espdock.images.containers import give_to, make_dirs_for
 
 WORKSPACE_META = "colcon.meta"
 WORKSPACE_DEFAULTS = "colcon_defaults.yaml"
@@ -380,6 +381,36 @@ def retire_container_caches(build: Path, packages: Iterable[str], mounted_build:
         if f"CMAKE_CACHEFILE_DIR:INTERNAL={mounted_build}/{name}\n" in text:
             shutil.rmtree(build / name)
             retired.append(name)
+    return retired
+
+
+# In espdock's build base: the ROS image kind its build dirs were configured against.
+UNDERLAY_MARKER = ".espdock-underlay"
+
+
+def retire_other_underlay(base: Path, underlay: str, owner: tuple[int, int]) -> list[str] | None:
+    """Remove the package build dirs under BASE (espdock's build base) that were configured
+    against another ROS image than UNDERLAY (see ColconBuild.underlay), and record UNDERLAY. Their
+    CMake caches hold that image's paths: BUILD_TESTING as it set it, its gtest sources, its
+    Python; CMake keeps them, and the build fails or builds other than asked. Returns the names
+    (maybe none here: in the workspace volume they are the volume's), None where nothing changed.
+    OWNER: who the marker (and a base it makes) belongs to, as root."""
+    marker = base / UNDERLAY_MARKER
+    try:
+        before = marker.read_text().strip()
+    except OSError:
+        before = None  # a new base, or one from before the marker: taken as configured for UNDERLAY
+    if before == underlay:
+        return None
+    retired = None if before is None else []
+    if retired is not None:
+        for entry in sorted(base.iterdir()):
+            if entry.is_dir() and not entry.is_symlink():
+                shutil.rmtree(entry)
+                retired.append(entry.name)
+    make_dirs_for(base, owner)
+    marker.write_text(f"{underlay}\n")  # torn, it names no image: the dirs go once more
+    give_to(marker, owner)
     return retired
 
 

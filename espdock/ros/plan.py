@@ -60,6 +60,9 @@ class ColconBuild:
     # The PACKAGES this step builds, when not all: the others are dependencies a step before it
     # built, which colcon finds (and sources) in install/ as it finds any up-to-date package.
     selected: tuple[str, ...] = ()
+    # The ROS image's kind (its build image's repository: flavour and distro), whose paths the
+    # packages' CMake caches hold; a test image over it is the same.
+    underlay: str = ""
     # Each package's package.xml dependencies, and which of them are test_depend only: what a
     # failure's hint says about a dependency colcon could not find.
     declared: tuple[tuple[str, frozenset[str], frozenset[str]], ...] = ()
@@ -282,6 +285,7 @@ def ros_steps(
             testing=testing,
             tests_off=tests_off and not testing,
             declared=tuple((p.name, p.depends, p.test_only_depends) for p in ros),
+            underlay=ros_image.repository,
         ),
     ]
     built = {p.name for p in all_packages if p.kind is PackageKind.ROS}

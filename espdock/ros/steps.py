@@ -26,6 +26,7 @@ from espdock.ros.colcon import (
     PackageState,
     explain_failure,
     retire_container_caches,
+    retire_other_underlay,
     usage_error,
 )
 from espdock.ros.plan import ColconBuild, RuntimeImage, runtime_image_spec
@@ -62,7 +63,18 @@ class RosSteps:
         if not rebuild:
             return Outcome.CACHED, f"up to date ({len(stamps)} package(s))"
         user, labels = self.containers.container_identity(workspace, "colcon", sweep=True)
-        sync = self.containers.sync(workspace, step.name, step.image, user, labels)
+        base = workspace.ws_dir / ROS_BUILD_BASE
+        retired = retire_other_underlay(base, step.underlay, self.containers.owner) if step.underlay else None
+        if retired:
+            self.containers.emit(
+                StepNote(
+                    step.name,
+                    f"removed the build dirs of {', '.join(retired)} in {ROS_BUILD_BASE}: configured against "
+                    f"another ROS image than {step.underlay}, whose paths their CMake caches held",
+                )
+            )
+        emptied = (base,) if retired is not None else ()  # in the workspace volume, its build dirs as well
+        sync = self.containers.sync(workspace, step.name, step.image, user, labels, emptied)
         whole = sync is not None and (sync.fresh or sync.installed != listing_digest(workspace.ws_dir / "install"))
         if whole:
             # install/ is swapped for the volume's whole: every package must be built there.

@@ -165,11 +165,18 @@ def official_double(engine) -> dict[str, str]:
 
 
 def test_the_official_image_runs_the_lint_and_pytest_tests_as_colcon_does(tmp_path, engine, official_double):
+    """After a build on the wheels image, as a user who switches does: CMake kept that image's
+    caches (BUILD_TESTING=OFF, its gtest sources' paths), and the tests failed to build."""
     root = make_workspace(tmp_path / "w", ("tested_py", "tested_cpp"))
+    wheels = espdock("build", cwd=root, env=environment(tmp_path))
+    assert wheels.returncode == 0, wheels.stdout[-3000:] + wheels.stderr
     env = {**environment(tmp_path), **official_double}
     build = espdock("build", cwd=root, env=env)
     assert build.returncode == 0, build.stdout[-3000:] + build.stderr
     assert "BUILD_TESTING=OFF" not in build.stdout, "the official image builds as colcon does"
+    cache = (root / "build/espdock-ros/tested_cpp/CMakeCache.txt").read_text()
+    assert "BUILD_TESTING:BOOL=ON" in cache and "/opt/espdock/venv" not in cache
+    assert "removed the build dirs of tested_cpp, tested_py in build/espdock-ros" in build.stdout
     tested = espdock("test", "--", "--pytest-args", "-k", "not nan", cwd=root, env=env)
     assert tested.returncode == 0, tested.stdout[-4000:] + tested.stderr
     assert "tested_py  5 tests: 4 passed, 0 failed, 0 errored, 1 skipped" in tested.stdout

@@ -3,6 +3,7 @@ colcon's event log and the failure hints made from it."""
 
 from __future__ import annotations
 
+import os
 import re
 import subprocess
 import sys
@@ -22,6 +23,7 @@ from espdock.ros.colcon import (
     parse_events,
     read_colcon_settings,
     retire_container_caches,
+    retire_other_underlay,
     usage_error,
     user_defaults_file,
 )
@@ -285,3 +287,19 @@ def test_a_test_only_dependency_colcon_missed_is_not_declare_it_in_package_xml()
     failure = explain_failure(1, states, logs, (), build_dep)
     assert "declare it" not in failure.hint and "package.xml declares ament_lint_auto" in failure.hint
     assert "declare it in cpp_pkg's package.xml" in explain_failure(1, states, logs, ()).hint
+
+
+def test_build_dirs_of_another_ros_image_go_and_the_new_kind_is_recorded(tmp_path):
+    """The first base, or one from before the marker, is taken as the image's; another kind of
+    image removes every package's build dir (colcon's own files stay), and says so even with none
+    here (the workspace volume holds them then)."""
+    me = (os.getuid(), os.getgid())
+    base = tmp_path / "build/espdock-ros"
+    assert retire_other_underlay(base, "espdock/ros-jazzy-build", me) is None
+    (base / "driver/CMakeFiles").mkdir(parents=True)
+    (base / "COLCON_IGNORE").write_text("")
+    assert retire_other_underlay(base, "espdock/ros-jazzy-build", me) is None
+    assert (base / "driver").is_dir()
+    assert retire_other_underlay(base, "espdock/ros-jazzy-official-build", me) == ["driver"]
+    assert sorted(p.name for p in base.iterdir()) == [".espdock-underlay", "COLCON_IGNORE"]
+    assert retire_other_underlay(base, "espdock/ros-jazzy-build", me) == []

@@ -11,7 +11,7 @@ from typing import assert_never
 from espdock.build.plan import Step
 from espdock.build.steps import LABEL_WORKSPACE, EnsureBaseImage, EnsureImage, Plan
 from espdock.config import Config
-from espdock.errors import EspdockError, disk_full
+from espdock.errors import BuildFailed, EspdockError, ImageBuildError, disk_full
 from espdock.events import Emit, Outcome, StepFinished, StepStarted
 from espdock.firmware.plan import IdfBuild, InstallFirmware
 from espdock.firmware.steps import FIRMWARE_STAMPS, INSTALL_STAMPS, FirmwareSteps
@@ -73,8 +73,15 @@ class Runner:
             # may still hold the workspace's files open or write into them.
             if any(isinstance(step, (ColconBuild, IdfBuild)) for step in plan.steps):
                 self.containers.engine.sweep({LABEL_WORKSPACE: str(plan.workspace.root)})
-            for step in plan.steps:
-                results.append(self._run_step(plan.workspace, step))
+            for index, step in enumerate(plan.steps):
+                try:
+                    results.append(self._run_step(plan.workspace, step))
+                except (BuildFailed, ImageBuildError) as exc:
+                    if left := _packages_of(plan.steps[index + 1 :]):
+                        # Each firmware package is a step of its own: the summary ends at the failure.
+                        said = f"Not built, the build having stopped here: {', '.join(left)}."
+                        exc.hint = f"{exc.hint} {said}" if exc.hint else said
+                    raise
         return results
 
     def _run_step(self, workspace: Workspace, step: Step) -> StepFinished:
@@ -121,3 +128,14 @@ class Runner:
                 return self.ros.runtime_image(workspace, step)
             case _:
                 assert_never(step)
+
+
+def _packages_of(steps: tuple[Step, ...]) -> list[str]:
+    """The packages STEPS build, in order."""
+    names: list[str] = []
+    for step in steps:
+        if isinstance(step, ColconBuild):
+            names += step.building
+        elif isinstance(step, IdfBuild):
+            names.append(step.package)
+    return list(dict.fromkeys(names))

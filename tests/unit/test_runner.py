@@ -16,6 +16,7 @@ from espdock.build.steps import EnsureImage, Plan
 from espdock.config import Config
 from espdock.errors import BuildFailed, RegistryError
 from espdock.events import Outcome, StepFinished, StepNote
+from espdock.firmware.plan import IdfBuild, InstallFirmware
 from espdock.images import bootstrap
 from espdock.images.engine import ImageInfo, RegistryStatus, _registry_answer
 from espdock.images.keyed import DPKG_STATUS
@@ -126,6 +127,21 @@ def test_a_failed_package_is_named_with_its_log_and_the_next_build_tries_again(w
     engine.run_script = colcon_installs(ws)
     runner(engine, []).run(Plan(ws, (COLCON,)))
     assert len(engine.runs) == 2
+
+
+def test_a_failure_names_the_packages_the_build_then_did_not_build(ws):
+    """Each firmware package is a step after colcon's: the summary ended at the failure, and
+    nothing said which of them were left unbuilt."""
+    engine = FakeEngine(run_script=colcon_installs(ws, code=2))
+    later = (IdfBuild("cam_fw", "src/cam_fw", "i", "esp32", "k"), InstallFirmware("cam_fw", "src/cam_fw", ()),
+             IdfBuild("led_fw", "src/led_fw", "i", "esp32c3", "k"))  # fmt: skip
+    with pytest.raises(BuildFailed) as err:
+        runner(engine, []).run(Plan(ws, (COLCON, *later)))
+    assert err.value.hint.endswith("Not built, the build having stopped here: cam_fw, led_fw.")
+    engine.run_script = colcon_installs(ws, code=2)
+    with pytest.raises(BuildFailed) as err:
+        runner(engine, []).run(Plan(ws, (COLCON,)))
+    assert "Not built" not in (err.value.hint or "")
 
 
 def test_a_build_where_nothing_changed_runs_no_container(ws):

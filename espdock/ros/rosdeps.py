@@ -96,6 +96,9 @@ def needed_keys(packages: Iterable[Package], image: RosImage) -> dict[str, tuple
     return needed
 
 
+UNKNOWN_KEY = "no rosdep rule: the key is unknown to rosdep's database"
+
+
 def lock_input(needed: Mapping[str, tuple[str, ...]], image: RosImage) -> str:
     """What a lock answers for: the keys, the image flavour and OS, the constraining locks."""
     data = {
@@ -142,9 +145,11 @@ def check_dependencies(
     nothing is built or run then."""
     keys = (lock or {}).get("keys", {})
     lines = []
+    whys = set()
     for package in selected:
         missing = [k for k in needed.get(package.name, ()) if not keys.get(k, {}).get("installer")]
         if missing:
+            whys |= {keys.get(k, {}).get("why", "not resolved") for k in missing}
             why = "; ".join(f"{k}: {keys.get(k, {}).get('why', 'not resolved')}" for k in missing)
             lines.append(f"  {package.name} ({package.path}): {why}")
     if not lines:
@@ -155,8 +160,10 @@ def check_dependencies(
     ]
     if building:
         ways.append("build another selection (`espdock build PKG...`, or `-- --packages-skip PKG`)")
-    if image.flavour == "wheels":
-        ways.insert(1, 'use the official ROS image (ros_image = "official" in espdock.toml), which has rclcpp')
+    # A key rosdep knows nowhere is no more known to the official image.
+    if image.flavour == "wheels" and whys - {UNKNOWN_KEY}:
+        ways.insert(1, 'use the official ROS image (ros_image = "official" in espdock.toml), whose apt has every '
+                       "ROS package of the distro (rclcpp, launch_ros, ...)")  # fmt: skip
     raise DependencyError(
         f"{len(lines)} package(s) depend on what the {image.flavour} ROS image ({image.os}) does not provide "
         "and rosdep cannot install:\n" + "\n".join(lines),
@@ -313,7 +320,7 @@ def rosdep_rules(
         try:
             definition = view.lookup(key)
         except KeyError:
-            rules[key] = Rule(None, why="no rosdep rule: the key is unknown to rosdep's database")
+            rules[key] = Rule(None, why=UNKNOWN_KEY)
             continue
         try:
             installer, rule = definition.get_rule_for_platform(os_name, os_version, installer_keys, default)

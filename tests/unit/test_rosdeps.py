@@ -86,6 +86,11 @@ def test_the_check_lists_each_package_with_its_missing_keys_and_the_ways_out():
     for way in ("rosdep rule", 'ros_image = "official"', "COLCON_IGNORE", "another selection"):
         assert way in caught.value.hint
     rosdeps.check_dependencies(packages[1:2], needed, lock, WHEELS)  # b alone is fine
+    # A key rosdep knows nowhere: the official image would not know it either.
+    lock["keys"]["nope"]["why"] = rosdeps.UNKNOWN_KEY
+    with pytest.raises(DependencyError) as caught:
+        rosdeps.check_dependencies(packages[2:], {"c": ("nope",)}, lock, WHEELS)
+    assert "official" not in caught.value.hint and "rosdep rule" in caught.value.hint
 
 
 def test_python_keys_become_pip_in_the_wheels_venv_and_ros_keys_their_wheels():

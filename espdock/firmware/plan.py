@@ -95,11 +95,26 @@ def derive_interface_packages(packages: tuple[Package, ...], firmware: Package |
     while stack:
         name = stack.pop()
         package = by_name.get(name)
-        if name in wanted or package is None or package.kind is not PackageKind.ROS or not package.is_interface:
+        if name in wanted or package is None or package.kind is not PackageKind.ROS:
+            continue
+        if not package.is_interface:
+            if GENERATORS in package.depends:
+                # Only that group goes into the library: its headers would be missing from the
+                # firmware's build, which would blame the firmware.
+                raise WorkspaceError(
+                    f"{package.name} generates interfaces ({GENERATORS}), which firmware uses, but is not "
+                    "in rosidl_interface_packages: micro-ROS's library holds only that group's packages",
+                    "Add <member_of_group>rosidl_interface_packages</member_of_group> to "
+                    f"{package.path / 'package.xml'}, as ROS 2's interface packages have it.",
+                )
             continue
         wanted.add(name)
         stack.extend(package.depends)
     return tuple(p for p in packages if p.name in wanted)
+
+
+# What an interface package depends on to generate its code (rosidl_generate_interfaces).
+GENERATORS = "rosidl_default_generators"
 
 
 # sdkconfig settings that change what libmicroros.a is: upstream compiles the library against

@@ -88,6 +88,16 @@ def test_standard_and_non_interface_dependencies_are_not_extra_packages():
     assert derive_interface_packages(packages) == ()
 
 
+def test_an_interface_package_outside_the_group_is_named_not_left_out():
+    """Without <member_of_group>rosidl_interface_packages</member_of_group> (ros2 pkg create does
+    not write it), its messages were left out of the library, and the firmware's build failed on a
+    missing header with the hint to fix the firmware."""
+    packages = (ros("cam_msgs", depends=["rosidl_default_generators"]), firmware("fw", depends=["cam_msgs"]))
+    with pytest.raises(WorkspaceError, match="cam_msgs generates interfaces") as raised:
+        derive_interface_packages(packages)
+    assert "<member_of_group>rosidl_interface_packages</member_of_group>" in raised.value.hint
+
+
 def test_each_firmware_gets_only_its_own_interfaces():
     assert [p.name for p in derive_interface_packages(PACKAGES, CAM)] == ["base_msgs", "cam_msgs"]
     assert derive_interface_packages(PACKAGES, PACKAGES[5]) == ()

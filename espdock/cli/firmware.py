@@ -60,6 +60,11 @@ def idf(
         raise ConfigError(
             "no idf.py arguments given", f"Put them after --, e.g. `espdock idf {package} -- menuconfig`."
         )
+    if {"menuconfig", "monitor"} & set(args) and not (sys.stdin and sys.stdin.isatty()):
+        raise ConfigError(
+            f"idf.py {'menuconfig' if 'menuconfig' in args else 'monitor'} needs a terminal (stdin is not a TTY)",
+            "Run it from an interactive shell.",
+        )
     if "set-target" in args:
         # IDF's set-target empties the build dir (its fullclean, sdkconfig and espdock's records
         # with it) and then refuses the target, which espdock's build passes as IDF_TARGET.

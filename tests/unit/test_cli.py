@@ -133,6 +133,10 @@ def test_idf_without_arguments_says_what_to_give_before_touching_anything(tmp_pa
     result = espdock("idf", "led_strip_node", cwd=root, env=NO_ENGINE)
     assert result.returncode == 2 and "no idf.py arguments given" in result.stderr
     assert "espdock idf led_strip_node -- menuconfig" in result.stderr
+    # The real menuconfig (curses) fails without one, after the image is made; as `monitor` does.
+    for screen in ("menuconfig", "monitor"):
+        result = espdock("idf", "led_strip_node", "--", screen, cwd=root, env=NO_ENGINE)
+        assert result.returncode == 2 and f"idf.py {screen} needs a terminal" in result.stderr, result.stderr
 
 
 def test_new_refuses_an_overlong_name_and_a_firmware_file(tmp_path):

@@ -86,13 +86,14 @@ def idf(
     serial = parse_port(port) if port is not None else None
     if serial is not None:
         check_port(serial)
-    argv = step.argv(tuple(args))
-    console.print(Text(f"in {step.image}: {format_argv(argv)}", style="dim"))
+    console.print(Text(f"in {step.image}: {format_argv(step.argv(tuple(args)))}", style="dim"))
     runner = runner_for(ws, config, Reporter(console))
     runner.run(plan)
     if serial is None:
-        raise typer.Exit(runner.firmware.run_idf(ws, step, argv))
-    raise typer.Exit(runner.firmware.run_idf(ws, step, argv, devices=serial.devices, network=serial.network))
+        raise typer.Exit(runner.firmware.run_passthrough(ws, step, tuple(args)))
+    raise typer.Exit(
+        runner.firmware.run_passthrough(ws, step, tuple(args), devices=serial.devices, network=serial.network)
+    )
 
 
 def _installed(ws: Workspace, config: Config, plan: Plan, step: IdfBuild) -> tuple[Runner, IdfBuild]:

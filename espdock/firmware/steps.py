@@ -236,6 +236,37 @@ class FirmwareSteps:
             with contextlib.suppress(OSError):  # not empty: the user's own, left alone
                 mountpoint.rmdir()
 
+    def run_passthrough(
+        self,
+        workspace: Workspace,
+        step: IdfBuild,
+        args: tuple[str, ...],
+        devices: tuple[str, ...] = (),
+        network: str | None = None,
+    ) -> int:
+        """`idf.py ARGS` for STEP's package, attached to the terminal (`espdock idf`). The library
+        settings of a build dir's first configure from sdkconfig.defaults are what the build warns
+        against (_library_settings_changed): recorded after a run that made the sdkconfig, and
+        for menuconfig, whose first run would save the user's changes with them, by a reconfigure
+        before it."""
+        sdkconfig = firmware_build_dir(workspace.ws_dir, step.package) / "sdkconfig"
+        made = not sdkconfig.is_file()
+        if made and "menuconfig" in args:
+            say = lambda line: self.containers.emit(StepOutput("idf.py reconfigure", line))  # noqa: E731
+            if code := self.run_idf(workspace, step, step.argv(("reconfigure",)), on_line=say):
+                return code
+            self._record_library_baseline(workspace, step)
+            made = False
+        code = self.run_idf(workspace, step, step.argv(args), devices=devices, network=network)
+        if made and sdkconfig.is_file():
+            self._record_library_baseline(workspace, step)
+        return code
+
+    def _record_library_baseline(self, workspace: Workspace, step: IdfBuild) -> None:
+        build_dir = firmware_build_dir(workspace.ws_dir, step.package)
+        _library_settings_changed(build_dir, fresh=True)
+        give_to(build_dir / LIBRARY_BASELINE, self.containers.owner)
+
     def check_library_port(self, workspace: Workspace, step: IdfBuild, port: int) -> None:
         """Refuse an agent PORT the package's micro-ROS library would cut, reading the library's header
         in its image (a header that does not state MAX_PORT_LEN leaves it to the board)."""

@@ -348,6 +348,28 @@ def test_a_build_with_nothing_changed_starts_no_container(fw_ws, double_env):
     assert changed.returncode == 0 and "Building C object" in changed.stdout
 
 
+def test_a_library_option_changed_after_a_first_configure_through_idf_is_still_warned_about(fw_ws, double_env):
+    """The build dir configured by `espdock idf PKG -- reconfigure` (or menuconfig) before any build:
+    the build took the edited sdkconfig for what the library was built with, and said nothing."""
+    root, first = fw_ws
+    assert first.returncode == 0
+    build_dir = root / "ws/build/led_strip_node"
+    shutil.rmtree(build_dir)
+    configured = espdock("idf", "led_strip_node", "--", "reconfigure", cwd=root, env=double_env)
+    assert configured.returncode == 0, configured.stdout[-2000:] + configured.stderr
+    sdkconfig = build_dir / "sdkconfig"
+    fresh = sdkconfig.read_text()
+    assert "CONFIG_FREERTOS_HZ=100\n" in fresh
+    sdkconfig.write_text(fresh.replace("CONFIG_FREERTOS_HZ=100\n", "CONFIG_FREERTOS_HZ=1000\n"))
+    try:
+        built = espdock("build", "led_strip_node", "--only", "firmware", cwd=root, env=double_env)
+        assert built.returncode == 0, built.stdout[-2000:] + built.stderr
+        assert "CONFIG_FREERTOS_HZ=1000 (was 100)" in built.stdout and "not libmicroros.a" in built.stdout
+    finally:
+        sdkconfig.write_text(fresh)
+    assert espdock("build", "led_strip_node", "--only", "firmware", cwd=root, env=double_env).returncode == 0
+
+
 def test_a_firmware_source_change_rebuilds_the_app_but_reuses_the_library(fw_ws, double_env):
     root, first = fw_ws
     assert first.returncode == 0

@@ -28,7 +28,14 @@ from espdock.cli.ui import Reporter, render_micro_ros_status, render_pins
 from espdock.config import Config, check_target
 from espdock.errors import ConfigError
 from espdock.firmware import transport
-from espdock.firmware.flashing import check_port, flash_package, idf_port, parse_port, read_flasher_args
+from espdock.firmware.flashing import (
+    check_port,
+    flash_package,
+    idf_port,
+    parse_port,
+    port_of_env,
+    read_flasher_args,
+)
 from espdock.firmware.pins import pin_idf_image, read_sources, write_pins
 from espdock.firmware.plan import IdfBuild, images_to_rebuild, workspace_micro_ros_images
 from espdock.firmware.provision import (
@@ -82,6 +89,7 @@ def idf(
         if not args:
             return
     # `flash` and `monitor` through idf.py: only the port they name goes into the container.
+    args = list(port_of_env(args, os.environ))
     port = idf_port(args)
     serial = parse_port(port) if port is not None else None
     if serial is not None:

@@ -10,7 +10,7 @@ import posixpath
 import re
 import socket
 import stat
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from urllib.parse import urlsplit
@@ -86,6 +86,23 @@ def idf_port(args: Sequence[str]) -> str | None:
         if arg.startswith("-p") and not arg.startswith("--") and len(arg) > 2:
             return arg[2:]
     return None
+
+
+def port_of_env(args: Sequence[str], env: Mapping[str, str]) -> tuple[str, ...]:
+    """ARGS with `-p $ESPPORT` first where they name no port but an action that uses one, as
+    idf.py reads ESPPORT (the container has none of the host's environment)."""
+    wanted = any(
+        arg.endswith("flash") or arg.startswith("efuse") or arg in PORT_ACTIONS
+        for arg in args
+        if not arg.startswith("-")
+    )
+    if idf_port(args) is None and wanted and (port := env.get("ESPPORT")):
+        return ("-p", port, *args)
+    return tuple(args)
+
+
+# idf.py's actions that talk to the board, other than the *flash and efuse-* ones.
+PORT_ACTIONS = frozenset({"monitor", "read-otadata", "read_otadata", "erase-otadata", "erase_otadata"})
 
 
 def check_port(port: Port, timeout: float = 3.0) -> None:

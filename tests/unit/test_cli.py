@@ -133,6 +133,10 @@ def test_idf_without_arguments_says_what_to_give_before_touching_anything(tmp_pa
     result = espdock("idf", "led_strip_node", cwd=root, env=NO_ENGINE)
     assert result.returncode == 2 and "no idf.py arguments given" in result.stderr
     assert "espdock idf led_strip_node -- menuconfig" in result.stderr
+    # ESPPORT names the port as it does for idf.py: checked, and the only device passed in.
+    env = {**NO_ENGINE, "ESPPORT": "/dev/null"}
+    result = espdock("idf", "led_strip_node", "--", "flash", cwd=root, env=env)
+    assert result.returncode == 6 and "/dev/null is not a serial port" in result.stderr, result.stderr
     # The real menuconfig (curses) fails without one, after the image is made; as `monitor` does.
     for screen in ("menuconfig", "monitor"):
         result = espdock("idf", "led_strip_node", "--", screen, cwd=root, env=NO_ENGINE)

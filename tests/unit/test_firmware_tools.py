@@ -17,6 +17,7 @@ from espdock.firmware.flashing import (
     flash_argv,
     idf_port,
     parse_port,
+    port_of_env,
     verify_argv,
     write_region_argv,
 )
@@ -128,6 +129,16 @@ def test_bad_port_specs_are_refused(spec):
 )
 def test_the_idf_passthrough_finds_the_port_idf_py_is_given(args, port):
     assert idf_port(args) == port
+
+
+def test_espport_is_the_port_of_actions_that_use_one_and_only_where_none_is_given():
+    env = {"ESPPORT": "/dev/ttyUSB3"}
+    assert port_of_env(["flash", "monitor"], env) == ("-p", "/dev/ttyUSB3", "flash", "monitor")
+    assert port_of_env(["erase-flash"], env)[:2] == ("-p", "/dev/ttyUSB3")
+    assert port_of_env(["efuse-summary"], env)[:2] == ("-p", "/dev/ttyUSB3")
+    assert port_of_env(["-p", "/dev/ttyACM0", "flash"], env) == ("-p", "/dev/ttyACM0", "flash")
+    assert port_of_env(["menuconfig"], env) == ("menuconfig",), "no board: an unplugged one must not stop it"
+    assert port_of_env(["flash"], {}) == ("flash",)
 
 
 def test_missing_device_is_a_clear_error(tmp_path):

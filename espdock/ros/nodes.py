@@ -52,6 +52,13 @@ def find_executable(workspace: Workspace, packages: tuple[Package, ...], package
     ros = [p.name for p in packages if p.kind is PackageKind.ROS]
     runnable = {name: found for name in ros if (found := executables(install, name, workspace.root))}
     listing = "; ".join(f"{name}: {', '.join(found)}" for name, found in sorted(runnable.items())) or "none"
+    if any(p.name == package and p.kind is PackageKind.FIRMWARE for p in packages):
+        # Its `ros2 run` commands (flash, idf, monitor) run espdock on the host, not in a node's image.
+        raise WorkspaceError(
+            f"'{package}' is a firmware package: it runs on the board, not in the runtime image",
+            f"`espdock flash {package} --port PORT` (or `ros2 run {package} flash --port PORT`) writes it to the "
+            f"board, and `espdock monitor {package} --port PORT` shows its output.",
+        )
     if package not in ros:
         raise WorkspaceError(
             f"no ROS package '{package}' in this workspace",

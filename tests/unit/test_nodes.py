@@ -67,7 +67,6 @@ def test_an_install_tree_a_native_colcon_build_rewrote_is_refused_with_what_to_d
     ("package", "executable", "said"),
     [
         ("talks", "talker", "no ROS package 'talks'"),
-        ("board", "x", "no ROS package 'board'"),
         ("quiet", "x", "'quiet' is not built yet"),
         ("talk", "not_executable.txt", "no executable 'not_executable.txt'"),
     ],
@@ -79,6 +78,14 @@ def test_unknown_names_are_user_errors_that_list_what_exists(ws, package, execut
     assert caught.value.exit_code == 2 and said in caught.value.message
     if "not built" not in said:
         assert "talk: listener, talker" in caught.value.hint
+
+
+def test_a_firmware_package_is_not_run_but_its_commands_are_named(ws):
+    workspace, packages = ws
+    with pytest.raises(WorkspaceError) as caught:
+        find_executable(workspace, packages, "board", "flash")
+    assert caught.value.exit_code == 2 and "'board' is a firmware package" in caught.value.message
+    assert "espdock flash board --port PORT" in caught.value.hint
 
 
 def test_the_node_gets_the_ros_settings_and_udp_only_dds_unless_told_otherwise():

@@ -28,6 +28,7 @@ from pathlib import Path
 
 from espdock.errors import ConfigError, WorkspaceError
 from espdock.images.containers import give_to, make_dirs_for
+from espdock.layout import ROS_BUILD_BASE
 
 WORKSPACE_META = "colcon.meta"
 WORKSPACE_DEFAULTS = "colcon_defaults.yaml"
@@ -528,6 +529,10 @@ class ColconFailure:
     hint: str
 
 
+# What ament_cmake's symlink install says where a copying build left a directory.
+SYMLINK_OVER_COPY = "because existing path cannot be removed: Is a directory"
+
+
 def explain_failure(
     code: int,
     states: Mapping[str, PackageState],
@@ -552,6 +557,14 @@ def explain_failure(
         if missing:
             lines.append(f"  {name}: could not find {', '.join(missing)}; log: {log}")
             hints.append(_missing_hint(name, missing, *(declared or {}).get(name, (frozenset(), frozenset()))))
+        elif SYMLINK_OVER_COPY in output:
+            # ament_cmake's symlink install cannot replace what a copying install left in the build
+            # dir (colcon as well): the package is fine, its build dir is of the other kind.
+            lines.append(f"  {name}: its build dir is from a build without --symlink-install; log: {log}")
+            hints.append(
+                f"Remove {ROS_BUILD_BASE}/{name} (only a cache; colcon cannot switch it to --symlink-install in "
+                "place) and build again."
+            )
         else:
             lines.append(f"  {name}: its own build failed; log: {log}")
             own.append(name)

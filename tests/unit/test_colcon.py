@@ -183,6 +183,18 @@ def test_a_failure_of_the_package_itself_says_fix_it_and_what_was_kept():
     assert "The 1 package(s) that built are kept" in failure.hint
 
 
+def test_a_build_dir_from_a_copying_build_under_symlink_install_is_named_not_the_package():
+    """`-- --symlink-install` after a plain build: ament_cmake cannot put its link where the copy
+    left a directory (colcon alone fails the same). The hint said to fix the package."""
+    output = (  # the wheels image's colcon, custom_interface built plain, then with --symlink-install
+        "failed to create symbolic link '/workspace/build/espdock-ros/robot_msgs/ament_cmake_python/"
+        "robot_msgs/robot_msgs' because existing path cannot be removed: Is a directory\n"
+    )
+    failure = explain_failure(1, {"robot_msgs": PackageState.FAILED}, {"robot_msgs": (Path("/l/r.log"), output)}, ())
+    assert "robot_msgs: its build dir is from a build without --symlink-install" in failure.message
+    assert failure.hint.startswith("Remove build/espdock-ros/robot_msgs (only a cache") and "Fix" not in failure.hint
+
+
 def test_a_missing_dependency_is_not_the_packages_fault_and_nothing_kept_is_claimed():
     output = (
         'CMake Error at CMakeLists.txt:9 (find_package):\n  By not providing "Findrclcpp.cmake" in CMAKE_MODULE_PATH\n'

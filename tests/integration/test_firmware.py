@@ -366,8 +366,7 @@ def test_a_library_option_changed_after_a_first_configure_through_idf_is_still_w
         assert built.returncode == 0, built.stdout[-2000:] + built.stderr
         assert "CONFIG_FREERTOS_HZ=1000 (was 100)" in built.stdout and "not libmicroros.a" in built.stdout
     finally:
-        sdkconfig.write_text(fresh)
-    assert espdock("build", "led_strip_node", "--only", "firmware", cwd=root, env=double_env).returncode == 0
+        sdkconfig.write_text(fresh)  # the next build of it, a later test's, builds it so
 
 
 def test_a_firmware_source_change_rebuilds_the_app_but_reuses_the_library(fw_ws, double_env):

@@ -115,12 +115,14 @@ class FirmwareSteps:
         built = replace(step, image=keyed_tag(step.image.rpartition(":")[0], key), image_key=key)
         return (built, False) if self.containers.engine.image(built.image) is not None else (step, False)
 
-    @staticmethod
-    def _firmware_stamp(workspace: Workspace, step: IdfBuild) -> dict[str, str]:
+    def _firmware_stamp(self, workspace: Workspace, step: IdfBuild) -> dict[str, str]:
         """What decides a firmware build: the project, the shared components, the sdkconfig in
-        the build dir (menuconfig's changes), the image and the target."""
+        the build dir (menuconfig's changes), the image and the target. The image by its ID as
+        well: `micro-ros rebuild` makes another image of the same key, whose library may differ
+        (a source that follows its branch head), and the firmware must be linked against it."""
         sdkconfig = workspace.ws_dir / "build" / step.package / "sdkconfig"
-        digest = hashlib.sha256(f"{step.image_key}\0{step.target}\n".encode())
+        image = self.containers.engine.image(step.image)
+        digest = hashlib.sha256(f"{step.image_key}\0{image.id if image else ''}\0{step.target}\n".encode())
         digest.update(tree_digest(workspace.root / step.project).encode())
         # Shared components beside the project (CMake's EXTRA_COMPONENT_DIRS ../components).
         components = (workspace.root / step.project).parent / "components"

@@ -775,6 +775,12 @@ def test_micro_ros_rebuild_builds_the_named_package_s_image_afresh_and_removes_t
     assert status(root, double_env, "led_strip_node")["key"] == report["key"]
     assert engine.image(before.id) is None, "the image the rebuild replaced was left on the engine, untagged"
     assert engine.image(other["image"]).id == untouched.id, "camera_node's image was rebuilt, though not named"
+    # The firmware is linked against the new library (a source following its branch head may differ).
+    relinked = espdock("build", "--only", "firmware", cwd=root, env=double_env)
+    assert relinked.returncode == 0, relinked.stdout[-2000:] + relinked.stderr
+    lines = relinked.stdout.splitlines()
+    assert not any("idf.py build led_strip_node" in line and "up to date" in line for line in lines), relinked.stdout
+    assert any("idf.py build camera_node" in line and "up to date" in line for line in lines), relinked.stdout
 
 
 def host_esptool(port: str, *args: str) -> None:

@@ -21,7 +21,8 @@ import os
 import posixpath
 import re
 import shutil
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Iterator, Mapping
+from contextlib import contextmanager, suppress
 from dataclasses import dataclass
 from enum import StrEnum
 from pathlib import Path
@@ -29,6 +30,7 @@ from pathlib import Path
 from espdock.errors import ConfigError, WorkspaceError
 from espdock.images.containers import give_to, make_dirs_for
 from espdock.layout import ROS_BUILD_BASE
+from espdock.workspace import write_atomically
 
 WORKSPACE_META = "colcon.meta"
 WORKSPACE_DEFAULTS = "colcon_defaults.yaml"
@@ -383,6 +385,33 @@ def retire_container_caches(build: Path, packages: Iterable[str], mounted_build:
             shutil.rmtree(build / name)
             retired.append(name)
     return retired
+
+
+# The install space's scripts that chain the underlays colcon was given before its own packages.
+CHAINING_SCRIPTS = ("setup.bash", "setup.sh", "setup.zsh", "setup.ps1")
+
+
+@contextmanager
+def native_setup_kept(install: Path) -> Iterator[None]:
+    """Put back INSTALL's chaining scripts as they were, when a native colcon build wrote them
+    (its setup.sh names INSTALL's host path, where a container's names the mount): a build in a
+    container writes the image's underlay (/opt/espdock/venv, /opt/ros/jazzy) in place of the
+    host's, and `source install/setup.bash` then lost the user's ROS and said "not found"."""
+    try:
+        native = str(install).encode() in (install / "setup.sh").read_bytes()
+    except OSError:
+        native = False
+    kept = {}
+    for name in CHAINING_SCRIPTS if native else ():
+        with suppress(OSError):
+            kept[install / name] = (install / name).read_bytes()
+    try:
+        yield
+    finally:
+        for path, data in kept.items():
+            with suppress(OSError):
+                if path.read_bytes() != data:
+                    write_atomically(path, data.decode())
 
 
 # In espdock's build base: the ROS image kind its build dirs were configured against.

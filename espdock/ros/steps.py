@@ -25,6 +25,7 @@ from espdock.ros.colcon import (
     ColconLog,
     PackageState,
     explain_failure,
+    native_setup_kept,
     retire_container_caches,
     retire_other_underlay,
     usage_error,
@@ -124,29 +125,33 @@ class RosSteps:
             labels=labels,
             archives=tuple(archives),
         )
-        if sync is None:
-            code = self.containers.engine.run(spec, on_line, keep=self.containers.config.keep_containers)
-            states = log.states()
-        else:
-            with volume.fetched("install", "log") as fetched:
-                install, logs = workspace.ws_dir / "install", workspace.ws_dir / "log"
-                paths = {volume.container_path(workspace, install): fetched["install"],
-                         volume.container_path(workspace, logs): fetched["log"]}  # fmt: skip
-                code = self.containers.engine.run(
-                    spec, on_line, keep=self.containers.config.keep_containers, fetch=paths
-                )
-                volume.merge_logs(fetched["log"], logs, self.containers.owner)
+        # A native build's setup scripts chain the host's ROS; the container's chain the image's.
+        with native_setup_kept(workspace.ws_dir / "install"):
+            if sync is None:
+                code = self.containers.engine.run(spec, on_line, keep=self.containers.config.keep_containers)
                 states = log.states()
-                # A whole build that failed, or did not build all it was to (colcon found not all of
-                # them), lacks some of what the host has: it brings back what it built, and the
-                # host's other packages stay as they were. install/ is then not the volume's, so the
-                # next build is a whole one too.
-                built_here = [n for n, state in (states or {}).items() if state is PackageState.BUILT]
-                unbuilt = set(rebuild) - set(built_here) - set(log.unselected())
-                merge = whole and (code != 0 or bool(unbuilt))
-                volume.replace_tree(fetched["install"], install, self.containers.owner, built_here if merge else None)
-                volume.record(workspace, self.containers.engine, sync, None if merge else listing_digest(install))
-                give_to(workspace.ws_dir / "build" / volume.SYNCED, self.containers.owner)
+            else:
+                with volume.fetched("install", "log") as fetched:
+                    install, logs = workspace.ws_dir / "install", workspace.ws_dir / "log"
+                    paths = {volume.container_path(workspace, install): fetched["install"],
+                             volume.container_path(workspace, logs): fetched["log"]}  # fmt: skip
+                    code = self.containers.engine.run(
+                        spec, on_line, keep=self.containers.config.keep_containers, fetch=paths
+                    )
+                    volume.merge_logs(fetched["log"], logs, self.containers.owner)
+                    states = log.states()
+                    # A whole build that failed, or did not build all it was to (colcon found not all of
+                    # them), lacks some of what the host has: it brings back what it built, and the
+                    # host's other packages stay as they were. install/ is then not the volume's, so the
+                    # next build is a whole one too.
+                    built_here = [n for n, state in (states or {}).items() if state is PackageState.BUILT]
+                    unbuilt = set(rebuild) - set(built_here) - set(log.unselected())
+                    merge = whole and (code != 0 or bool(unbuilt))
+                    volume.replace_tree(
+                        fetched["install"], install, self.containers.owner, built_here if merge else None
+                    )
+                    volume.record(workspace, self.containers.engine, sync, None if merge else listing_digest(install))
+                    give_to(workspace.ws_dir / "build" / volume.SYNCED, self.containers.owner)
         built = [name for name, state in (states or {}).items() if state is PackageState.BUILT and name in stamps]
         if built:
             stamp_file.record({name: stamps[name] for name in built}, installed())

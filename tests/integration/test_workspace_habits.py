@@ -46,13 +46,16 @@ def beacon_says(root: Path, text: str, env: dict[str, str] | None = None) -> Non
         node.stop()
 
 
-def native_colcon(root: Path, *args: str, at: str | None = None) -> subprocess.CompletedProcess[str]:
+def native_colcon(
+    root: Path, *args: str, at: str | None = None, underlay: Path | None = None
+) -> subprocess.CompletedProcess[str]:
     """`colcon build` with the workspace at its own path, as on the developer's machine (AT: at
-    another path in the container)."""
+    another path in the container; UNDERLAY: a workspace sourced before, as /opt/ros/jazzy is)."""
     ws = str(root / "ws")
     inside = at or ws
+    chain = ["-v", f"{underlay}:{underlay}:ro", "-e", f"COLCON_PREFIX_PATH={underlay}"] if underlay else []
     return subprocess.run(
-        ["docker", "run", "--rm", "-u", f"{os.getuid()}:{os.getgid()}", "-e", "HOME=/tmp",
+        ["docker", "run", "--rm", "-u", f"{os.getuid()}:{os.getgid()}", "-e", "HOME=/tmp", *chain,
          "-v", f"{ws}:{inside}", "-w", inside, ros_build_tag(root), "colcon", "build", *args],
         capture_output=True, text=True, timeout=900, check=False,
     )  # fmt: skip
@@ -100,8 +103,13 @@ def test_native_and_espdock_builds_take_turns_in_one_workspace(engine, tmp_path)
     assert old.returncode == 0, old.stdout[-3000:] + old.stderr[-3000:]
     retiring = espdock("build", "--only", "ros", cwd=root)
     assert retiring.returncode == 0 and "removed build/uptime_tools" in retiring.stdout + retiring.stderr
-    first = native_colcon(root)
+    underlay = tmp_path / "underlay"  # the developer's ROS, sourced before their colcon build
+    underlay.mkdir()
+    (underlay / "local_setup.bash").write_text("export ESPDOCK_TEST_UNDERLAY=sourced\n")
+    first = native_colcon(root, underlay=underlay)
     assert first.returncode == 0, first.stdout[-3000:] + first.stderr[-3000:]
+    install = root / "ws/install"
+    scripts = {name: (install / name).read_bytes() for name in ("setup.bash", "setup.sh")}
 
     refused = run_once(root, "uptime_tools", "uptime_report")
     assert refused.returncode == 2, refused.stdout + refused.stderr
@@ -109,6 +117,12 @@ def test_native_and_espdock_builds_take_turns_in_one_workspace(engine, tmp_path)
     assert "espdock build uptime_tools" in refused.stderr
 
     built(root)  # CMake caches of the native build stay where they are, and stay valid
+    # The native build's setup scripts, which chain the developer's ROS, stay: a container's chain
+    # the image's underlay, and `source install/setup.bash` lost theirs.
+    assert {name: (install / name).read_bytes() for name in scripts} == scripts
+    sourced = subprocess.run(["bash", "-c", f"source {install}/setup.bash; echo $ESPDOCK_TEST_UNDERLAY"],
+                             capture_output=True, text=True, check=False)  # fmt: skip
+    assert sourced.stdout.strip() == "sourced", sourced.stdout + sourced.stderr
     again = native_colcon(root)
     assert again.returncode == 0, again.stdout[-3000:] + again.stderr[-3000:]
     built(root)

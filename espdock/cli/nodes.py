@@ -29,7 +29,7 @@ def runtime_image(ws: Workspace, config: Config, plan: Plan | None = None) -> tu
     plan, step = nodes.runtime_plan(plan or build_plan(ws, config, [], PackageKind.ROS))
     runner = ensure_images(ws, config, plan)
     # A runtime image `run` or `compose` made is the workspace's as much as a build's: prune may take it.
-    record_images(ws, runner)
+    record_images(ws, runner, step.repository)
     return runner, runtime_spec(ws, step).tag
 
 

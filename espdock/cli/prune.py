@@ -22,12 +22,14 @@ from espdock.images.prune import (
     GB,
     images_total,
     prune_images,
+    read_records,
     record_use,
     size_text,
     state_dir,
     trim_cache,
 )
-from espdock.workspace import Workspace, workspace_lock
+from espdock.ros.plan import runtime_repository
+from espdock.workspace import Workspace, workspace_gone, workspace_lock
 
 
 def remove_volumes(engine: Engine, ws: Workspace, dry_run: bool) -> None:
@@ -116,21 +118,38 @@ def prune(
     )
 
 
-def record_images(ws: Workspace, runner: Runner) -> None:
+def record_images(ws: Workspace, runner: Runner, runtime: str | None = None) -> None:
     """Record the keyed images RUNNER used for WS (a build's, `run`'s, `espdock test`'s): what
-    `espdock prune` may remove later."""
+    `espdock prune` may remove later. RUNTIME: the workspace's runtime image repository, which
+    another workspace of the same name shares (said once it is used)."""
     state = state_dir(os.environ)
     try:
         record_use(state, ws.root, runner.used_images, time.time())
     except OSError as exc:
         notify(f"warning: could not record the images this command used in {state}: {exc.strerror}")
+    if runtime is None or all(repository != runtime for _, repository in runner.used_images):
+        return
+    others = [
+        record.root
+        for record in read_records(state)
+        if record.root != str(ws.root)
+        and any(image.repository == runtime for image in record.images)
+        and not workspace_gone(record.root)
+    ]
+    if others:
+        name = runtime.removeprefix("espdock/")
+        notify(
+            f"warning: {others[0]} names its runtime images {runtime}:latest too (its directory has this one's "
+            f"name): `docker compose` in either runs the one built last, and their compose projects ({name}) "
+            f"replace each other's containers; set name = \"...\" in one's espdock.toml to tell them apart"
+        )
 
 
 def after_build(engine: Engine, ws: Workspace, config: Config, runner: Runner, built: bool) -> None:
     """Record the images the build used; prune when prune_auto; when the build BUILT something,
     say once when espdock's images take more than images_warn_gb. A build that changed nothing
     added no image: listing them all costs the engine more than the rest of such a build."""
-    record_images(ws, runner)
+    record_images(ws, runner, runtime_repository(config, ws))
     try:
         _prune_or_warn(engine, ws, config, built)
     except EspdockError as exc:  # the build succeeded: what is only housekeeping must not fail it

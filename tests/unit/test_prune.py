@@ -75,3 +75,28 @@ def test_a_removed_workspace_protects_nothing_and_its_images_go_with_every_works
         "ros:3": "used by the current inputs",
     }
     assert every.gone_elsewhere == ()
+
+
+def test_a_second_workspace_of_the_same_name_is_told_to_set_its_own(tmp_path, monkeypatch, capsys):
+    """Two clones called robot: both made espdock/robot:latest and compose project robot, so plain
+    `docker compose up` in one ran the other's nodes, and one's compose replaced the other's."""
+    from types import SimpleNamespace
+
+    from espdock.cli.prune import record_images
+    from espdock.workspace import Workspace
+
+    monkeypatch.setenv("ESPDOCK_STATE_DIR", str(tmp_path / "state"))
+    first, second = tmp_path / "main/robot", tmp_path / "feature/robot"
+    for root in (first, second):
+        root.mkdir(parents=True)
+    runtime = SimpleNamespace(used_images=[("espdock/robot:0123456789abcdef", "espdock/robot")])
+    record_images(Workspace(first), runtime, "espdock/robot")
+    record_images(Workspace(first), runtime, "espdock/robot")
+    assert "names its runtime images" not in capsys.readouterr().out
+    keyed = SimpleNamespace(used_images=[("espdock/ros-jazzy-build:0123456789abcdef", "espdock/ros-jazzy-build")])
+    record_images(Workspace(second), keyed, "espdock/robot")
+    assert "names its runtime images" not in capsys.readouterr().out, "shared keyed images are no clash"
+    record_images(Workspace(second), runtime, "espdock/robot")
+    err = " ".join(capsys.readouterr().out.split())
+    assert f"{first} names its runtime images espdock/robot:latest too" in err
+    assert 'set name = "..." in one\'s espdock.toml' in err

@@ -387,6 +387,23 @@ def retire_container_caches(build: Path, packages: Iterable[str], mounted_build:
     return retired
 
 
+def check_isolated_install(install: Path) -> None:
+    """Refuse an INSTALL a native `colcon build --merge-install` made: espdock installs each package
+    in its own prefix, and colcon will not mix the two layouts in one install base (it stops before
+    any package, advising an option espdock keeps to itself)."""
+    try:
+        layout = (install / ".colcon_install_layout").read_text().strip()
+    except OSError:
+        return
+    if layout == "merged":
+        raise WorkspaceError(
+            f"{install} was made by `colcon build --merge-install` (its .colcon_install_layout says merged); "
+            "espdock builds an isolated install (install/PKG), and colcon will not mix the two",
+            "Remove install/ (your native build makes it again), or give your merged builds an install base of "
+            "their own (`colcon build --merge-install --install-base install-merged`); nothing was built.",
+        )
+
+
 # The install space's scripts that chain the underlays colcon was given before its own packages.
 CHAINING_SCRIPTS = ("setup.bash", "setup.sh", "setup.zsh", "setup.ps1")
 

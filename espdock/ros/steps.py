@@ -24,6 +24,7 @@ from espdock.ros.colcon import (
     DEFAULTS_MOUNT,
     ColconLog,
     PackageState,
+    check_isolated_install,
     explain_failure,
     native_setup_kept,
     retire_container_caches,
@@ -63,6 +64,7 @@ class RosSteps:
         rebuild = tuple(stamps) if step.force else stamp_file.stale(stamps, installed())
         if not rebuild:
             return Outcome.CACHED, f"up to date ({len(stamps)} package(s))"
+        check_isolated_install(workspace.ws_dir / "install")
         user, labels = self.containers.container_identity(workspace, "colcon", sweep=True)
         base = workspace.ws_dir / ROS_BUILD_BASE
         retired = retire_other_underlay(base, step.underlay, self.containers.owner) if step.underlay else None

@@ -16,6 +16,7 @@ from espdock.errors import ConfigError, WorkspaceError
 from espdock.ros.colcon import (
     PackageState,
     check_colcon_args,
+    check_isolated_install,
     explain_failure,
     meta_paths,
     missing_dependencies,
@@ -315,3 +316,18 @@ def test_build_dirs_of_another_ros_image_go_and_the_new_kind_is_recorded(tmp_pat
     assert retire_other_underlay(base, "espdock/ros-jazzy-official-build", me) == ["driver"]
     assert sorted(p.name for p in base.iterdir()) == [".espdock-underlay", "COLCON_IGNORE"]
     assert retire_other_underlay(base, "espdock/ros-jazzy-build", me) == []
+
+
+def test_an_install_a_native_merge_install_made_is_refused_before_colcon(tmp_path):
+    """colcon itself stopped before any package, advising --merge-install, which espdock refuses
+    after `--`; the hint said to check the options given after `--` (there were none)."""
+    install = tmp_path / "install"
+    check_isolated_install(install)  # none yet
+    install.mkdir()
+    (install / ".colcon_install_layout").write_text("isolated\n")
+    check_isolated_install(install)
+    (install / ".colcon_install_layout").write_text("merged\n")
+    with pytest.raises(WorkspaceError) as raised:
+        check_isolated_install(install)
+    assert raised.value.exit_code == 2 and "--merge-install" in raised.value.message
+    assert "Remove install/" in raised.value.hint and "--install-base" in raised.value.hint

@@ -187,6 +187,12 @@ def _read_toml(path: Path) -> dict[str, Any]:
     return dict(table)
 
 
+def in_ci(env: Mapping[str, str]) -> bool:
+    """Whether ENV is a CI job's: CI set, as every CI service sets it (true, 1, the service's name),
+    and not turned off (false, 0, no)."""
+    return env.get("CI", "").strip().lower() not in ("", "0", "false", "no", "off")
+
+
 def check_target(target: str, where: str = "chip target") -> str:
     """TARGET, when it is a chip ESP-IDF 5.3 knows; a ConfigError naming WHERE otherwise."""
     if target not in CHIP_TARGETS:

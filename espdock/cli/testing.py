@@ -16,7 +16,7 @@ from espdock.build.runner import Runner
 from espdock.cli.core import PASSED, PassThrough, WorkspaceOption, app, command, console, load, notify
 from espdock.cli.prune import record_images
 from espdock.cli.ui import Reporter
-from espdock.config import invoking_user
+from espdock.config import in_ci, invoking_user
 from espdock.errors import TestsFailed, WorkspaceError
 from espdock.layout import ROS_BUILD_BASE
 from espdock.ros.testing import (
@@ -65,7 +65,7 @@ def test(
     Options after `--` go to `colcon test` (e.g. `espdock test -- --pytest-args -k fast`)."""
     ws, config = load(workspace)
     colcon_args = check_test_args(ctx.meta.get(PASSED))
-    locked = locked if locked is not None else os.environ.get("CI", "").lower() == "true"
+    locked = locked if locked is not None else in_ci(os.environ)
     every = discover(ws, config.ros_distro)
     by_name = {p.name: p for p in every}
     if unknown := [n for n in packages or () if n not in by_name]:

@@ -27,7 +27,7 @@ from espdock.cli.core import (
 )
 from espdock.cli.prune import after_build
 from espdock.cli.ui import Reporter, render_packages, render_plan
-from espdock.config import check_target, invoking_user
+from espdock.config import check_target, in_ci, invoking_user
 from espdock.errors import ConfigError, WorkspaceError
 from espdock.events import Outcome
 from espdock.firmware import transport
@@ -99,7 +99,7 @@ def build(
 
     Options after `--` go to `colcon build` (e.g. `espdock build -- --cmake-args -DBUILD_TESTING=OFF`)."""
     ws, config = load(workspace, runtime_image=runtime_image, workspace_mode=workspace_mode)
-    locked = locked if locked is not None else os.environ.get("CI", "").lower() == "true"
+    locked = locked if locked is not None else in_ci(os.environ)
     plan = build_plan(
         ws,
         config,

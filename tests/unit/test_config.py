@@ -2,7 +2,7 @@ from pathlib import Path
 
 import pytest
 
-from espdock.config import Config, load_config, pip_configured_cert, resolve_ca_bundle
+from espdock.config import Config, in_ci, load_config, pip_configured_cert, resolve_ca_bundle
 from espdock.errors import ConfigError
 
 
@@ -120,3 +120,13 @@ def test_the_cache_registry_is_a_registry_name_never_a_url_or_credentials(tmp_pa
     for bad in ("https://registry.example.com", "user:pass@registry.example.com", "registry.example.com/Team"):
         with pytest.raises(ConfigError, match="ESPDOCK_CACHE_REGISTRY must be a registry host"):
             load_config(tmp_path, {"ESPDOCK_CACHE_REGISTRY": bad})
+
+
+def test_a_ci_job_is_told_by_ci_as_ci_services_set_it():
+    """CI=1 or a service's name (Woodpecker: CI=woodpecker) is a CI job as CI=true is: builds there
+    rewrote a stale rosdep lock and built from it, where --locked refuses."""
+    for value in ("true", "TRUE", "1", "yes", "woodpecker"):
+        assert in_ci({"CI": value}), value
+    for value in ("", "0", "false", "False", "no"):
+        assert not in_ci({"CI": value}), value
+    assert not in_ci({})

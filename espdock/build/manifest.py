@@ -136,6 +136,8 @@ class Difference:
 def read_manifest(path: Path) -> dict:
     try:
         data = json.loads(path.read_text())
+    except FileNotFoundError:
+        raise WorkspaceError(f"{path} does not exist", f"A build writes it into install/ ({MANIFEST_NAME}).") from None
     except (OSError, ValueError) as exc:
         raise WorkspaceError(f"{path} is not an espdock manifest: {exc}", "Give the install tree's one.") from None
     if not isinstance(data, dict) or data.get("format") != FORMAT or not isinstance(data.get("files"), dict):

@@ -204,7 +204,7 @@ class Engine:
                 # large image on a loaded machine) may take longer over an operation.
                 self._sdk = sdk.client(self._env, max(self._timeout, OPERATION_TIMEOUT))
             except docker.errors.DockerException as exc:
-                raise _unreachable("no Docker engine answers", exc) from exc
+                raise _unreachable(f"no Docker engine answers at {_host(self._env)}", exc) from exc
         return self._sdk
 
     @classmethod

@@ -136,6 +136,15 @@ def test_a_gone_local_socket_is_exit_3_over_plain_http_too(tmp_path, call, doing
     assert err.value.hint == LOST_HINT
 
 
+def test_an_engine_nothing_answers_for_is_named_over_tcp_as_on_a_socket(tmp_path):
+    from tests.ports import free_port
+
+    for where in (f"tcp://127.0.0.1:{free_port()}", f"unix://{tmp_path / 'none.sock'}"):
+        with pytest.raises(EngineUnavailable) as err:
+            Engine.connect({"DOCKER_HOST": where}, timeout=5)
+        assert err.value.message == f"no Docker engine answers at {where}: nothing is listening there"
+
+
 def test_keyed_images_unlisted_on_a_gone_local_socket_say_so_exit_1(tmp_path):
     # As over the SDK (labelled_images in the refusals below): the size note after a build
     # turns it into a warning, the build stands.

@@ -66,6 +66,8 @@ def test_something_that_is_no_manifest_is_refused(tmp_path):
     bad.write_text("{")
     with pytest.raises(WorkspaceError, match="not an espdock manifest"):
         read_manifest(bad)
+    with pytest.raises(WorkspaceError, match=f"{tmp_path / 'gone.json'} does not exist$"):
+        read_manifest(tmp_path / "gone.json")  # a typo: not a file that is no manifest
 
 
 def test_a_build_killed_before_its_manifest_was_written_gets_a_new_one(tmp_path):

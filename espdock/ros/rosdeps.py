@@ -129,8 +129,28 @@ def stale_reason(lock: dict | None, needed: Mapping[str, tuple[str, ...]], image
     if lock is None:
         return f"{name} is missing" if needed else None
     if lock.get("input") != lock_input(needed, image):
-        return f"{name} is stale: the packages' dependencies, ros_image or its locks changed since it was made"
+        return f"{name} is stale: {_what_changed(lock, needed, image)}"
     return None
+
+
+def _what_changed(lock: Mapping, needed: Mapping[str, tuple[str, ...]], image: RosImage) -> str:
+    """What the lock answers for that NEEDED on IMAGE does not: the keys each package depends on,
+    the image; its locks, where nothing else differs."""
+    said = []
+    locked = {p: tuple(keys) for p, keys in (lock.get("packages") or {}).items()} if "packages" in lock else None
+    if locked is not None:
+        for package in sorted(set(needed) | set(locked)):
+            now, before = set(needed.get(package, ())), set(locked.get(package, ()))
+            if now - before:
+                said.append(f"{package} now depends on {', '.join(sorted(now - before))}")
+            if before - now:
+                said.append(f"{package} no longer depends on {', '.join(sorted(before - now))}")
+    for field, value in (("ros_image", image.flavour), ("os", image.os), ("ros_distro", image.distro)):
+        if field in lock and lock[field] != value:
+            said.append(f"{field} is {value}, not {lock[field]}")
+    if said:
+        return "since it was made, " + "; ".join(said[:6]) + (f" (and {len(said) - 6} more)" if len(said) > 6 else "")
+    return "the packages' dependencies, ros_image or its locks changed since it was made"
 
 
 def check_dependencies(

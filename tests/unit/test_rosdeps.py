@@ -63,6 +63,19 @@ def test_a_lock_is_stale_when_a_key_the_image_or_its_locks_change():
     newer = rosdeps.RosImage("wheels", "jazzy", "debian:bookworm", WHEELS.provided, (("docker/ros-runtime.txt", "x"),))
     for changed_needed, image in (({"node": ("tinyxml2", "acpitool")}, WHEELS), (needed, official), (needed, newer)):
         assert "is stale" in rosdeps.stale_reason(lock, changed_needed, image, "rosdep.lock.json")
+    # What changed, where the lock says what it answered for (a CI log then tells which package.xml).
+    made = {**lock, "packages": needed, "ros_image": "wheels", "os": "debian:bookworm", "ros_distro": "jazzy"}
+    said = rosdeps.stale_reason(made, {"node": ("acpitool",), "app": ("tinyxml2",)}, WHEELS, "rosdep.lock.json")
+    assert said == (
+        "rosdep.lock.json is stale: since it was made, app now depends on tinyxml2; node now depends on "
+        "acpitool; node no longer depends on tinyxml2"
+    )
+    said = rosdeps.stale_reason(made, needed, official, "rosdep.lock.json")
+    assert said == (
+        "rosdep.lock.json is stale: since it was made, ros_image is official, not wheels; "
+        "os is ubuntu:noble, not debian:bookworm"
+    )
+    assert "its locks changed" in rosdeps.stale_reason(made, needed, newer, "rosdep.lock.json")
 
 
 def test_the_check_lists_each_package_with_its_missing_keys_and_the_ways_out():

@@ -106,13 +106,20 @@ def record_build(
 
 
 def write_report(
-    path: Path, finished: Iterable[StepFinished], manifest: dict | None, seconds: float, owner: tuple[int, int]
+    path: Path,
+    finished: Iterable[StepFinished],
+    manifest: dict | None,
+    seconds: float,
+    owner: tuple[int, int],
+    error: str | None = None,
 ) -> None:
-    """The --report JSON: every step's outcome, the build's, its duration, and the manifest (None on failure).
-    As root, a report it creates belongs to OWNER, as the build's files do."""
+    """The --report JSON: every step's outcome, the build's, its duration, and the manifest (None on failure);
+    ERROR: what stopped the build before any step ran. As root, a report it creates belongs to OWNER, as the
+    build's files do."""
     steps = list(finished)
     failed = any(step.outcome is Outcome.FAILED for step in steps) or manifest is None
-    data = {
+    data: dict = {} if error is None else {"error": error}
+    data |= {
         "outcome": "failed" if failed else "succeeded",
         "seconds": round(seconds, 3),
         "steps": [

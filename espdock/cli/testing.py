@@ -52,7 +52,7 @@ def test(
         bool | None,
         typer.Option(
             "--locked/--no-locked",
-            help="Refuse to test when the rosdep lock is missing or stale (default: on when CI=true).",
+            help="Refuse to test when the rosdep lock is missing or stale (default: on in CI, CI set).",
             show_default=False,
         ),
     ] = None,

@@ -28,7 +28,7 @@ from espdock.cli.core import (
 from espdock.cli.prune import after_build
 from espdock.cli.ui import Reporter, render_packages, render_plan
 from espdock.config import check_target, in_ci, invoking_user
-from espdock.errors import ConfigError, WorkspaceError
+from espdock.errors import ConfigError, EspdockError, WorkspaceError
 from espdock.events import Outcome
 from espdock.firmware import transport
 from espdock.firmware.scaffold import check_new_package, create_firmware_package, init_workspace
@@ -64,7 +64,7 @@ def build(
         bool | None,
         typer.Option(
             "--locked/--no-locked",
-            help="Refuse to build when a lock the images use is missing or stale (default: on when CI=true).",
+            help="Refuse to build when a lock the images use is missing or stale (default: on in CI, CI set).",
             show_default=False,
         ),
     ] = None,
@@ -100,29 +100,35 @@ def build(
     Options after `--` go to `colcon build` (e.g. `espdock build -- --cmake-args -DBUILD_TESTING=OFF`)."""
     ws, config = load(workspace, runtime_image=runtime_image, workspace_mode=workspace_mode)
     locked = locked if locked is not None else in_ci(os.environ)
-    plan = build_plan(
-        ws,
-        config,
-        packages or [],
-        only,
-        force,
-        ctx.meta.get(PASSED),
-        locked,
-        target and check_target(target, "--target"),
-        dry_run=dry_run,
-    )
-    if dry_run:
-        render_plan(console, plan)
-        return
-    if locked:
-        check_locks(ws.root, plan_locks(plan))
-    if push_cache and not config.cache_registry:
-        raise ConfigError("--push-cache needs a cache registry", "Set cache_registry or ESPDOCK_CACHE_REGISTRY.")
-    reporter = Reporter(console, verbose=verbose, timestamps=timestamps)
-    engine = bootstrap.ensure_engine(os.environ, notify)
-    manifest: dict | None = None
     started = time.monotonic()
     owner = invoking_user(os.environ, ws.root)
+    try:
+        plan = build_plan(
+            ws,
+            config,
+            packages or [],
+            only,
+            force,
+            ctx.meta.get(PASSED),
+            locked,
+            target and check_target(target, "--target"),
+            dry_run=dry_run,
+        )
+        if dry_run:
+            render_plan(console, plan)
+            return
+        if locked:
+            check_locks(ws.root, plan_locks(plan))
+        if push_cache and not config.cache_registry:
+            raise ConfigError("--push-cache needs a cache registry", "Set cache_registry or ESPDOCK_CACHE_REGISTRY.")
+        engine = bootstrap.ensure_engine(os.environ, notify)
+    except EspdockError as exc:
+        # A CI job keeps the report whatever stopped the build: a stale lock, no engine.
+        if report is not None and not dry_run:
+            write_report(report, (), None, time.monotonic() - started, owner, exc.message)
+        raise
+    reporter = Reporter(console, verbose=verbose, timestamps=timestamps)
+    manifest: dict | None = None
     try:
         runner = Runner(engine, config, os.environ, reporter, owner, push_cache=push_cache)
         results = runner.run(plan)

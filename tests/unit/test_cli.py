@@ -1,5 +1,6 @@
 """The CLI's answers to bad input; none of these may need (or touch) a container engine."""
 
+import json
 import re
 import shutil
 from pathlib import Path
@@ -335,3 +336,15 @@ def test_a_command_starts_without_the_other_commands_modules(tmp_path):
     # And the command itself works from its own module alone.
     result = espdock("flash", "--help", cwd=tmp_path, env=NO_ENGINE)
     assert result.returncode == 0 and "--port" in result.stdout, result.stderr
+
+
+def test_a_build_stopped_before_any_step_still_writes_its_report(tmp_path):
+    """A CI job's `--report`: a missing engine or a stale lock stopped the build before the report
+    was written, and the job's artefact step found nothing."""
+    root = copy_workspace(tmp_path / "w")
+    report = tmp_path / "report.json"
+    result = espdock("build", "--no-locked", "--report", str(report), cwd=root, env=NO_ENGINE)
+    assert result.returncode == 3, result.stderr
+    data = json.loads(report.read_text())
+    assert data["outcome"] == "failed" and data["steps"] == [] and data["manifest"] is None
+    assert data["error"].startswith("no Docker engine answers at unix:///nonexistent/docker.sock")

@@ -762,6 +762,8 @@ def test_micro_ros_rebuild_builds_the_named_package_s_image_afresh_and_removes_t
 ):
     root, first = fw_ws
     assert first.returncode == 0
+    settled = espdock("build", "--only", "firmware", cwd=root, env=double_env)  # whatever earlier tests left
+    assert settled.returncode == 0, settled.stdout[-2000:] + settled.stderr
     report, other = status(root, double_env, "led_strip_node"), status(root, double_env, "camera_node")
     assert report["present"]
     before, untouched = engine.image(report["image"]), engine.image(other["image"])

@@ -28,6 +28,10 @@ from espdock.workspace import Workspace, component_targets
 URL_SCHEMES = ("socket", "rfc2217")
 
 
+# esptool's words (4 and 5) for an image whose minimum chip revision the board is below.
+REVISION_REFUSED = "requires chip revision"
+
+
 class PortError(EspdockError):
     """The serial port is missing, busy or unreachable."""
 
@@ -346,17 +350,32 @@ def flash_package(
         commands = [write_region_argv(flasher_args, port, baud, major, extra)]
     else:
         commands = []
+    said: list[str] = []
+
+    def line(text: str) -> None:
+        said.append(text)
+        say(text)
+
     for argv in commands:
         say(format_argv(argv))
+        said.clear()
         code = steps.run_idf(
             workspace,
             step,
             argv,
-            on_line=say,
+            on_line=line,
             devices=port.devices,
             network=port.network,
             workdir=workdir,
             extra_mounts=mounts,
         )
+        if code != 0 and (revision := next((t for t in said if REVISION_REFUSED in t), None)):
+            # esptool checks every image against the chip before it writes: a board matter, not the port's.
+            raise ConfigError(
+                f"the board at {port.spec} is older than {step.package} is built for: "
+                f"{revision.strip().removeprefix('A fatal error occurred: ')}",
+                "Nothing was written. Build it for that revision (the minimum chip revision in its sdkconfig.defaults, "
+                f"e.g. CONFIG_{chip.upper()}_REV_MIN_0=y for an early {chip}), or flash a newer board.",
+            )
         if code != 0:
             raise PortError(f"esptool failed (exit code {code}) on {port.spec}", "See its output above.")

@@ -730,6 +730,12 @@ def test_flash_and_provision_refuse_a_board_of_another_chip_before_writing(fw_ws
             "--wifi-password-file", "/dev/null", "--agent", "10.0.0.2:8888", cwd=root, env=double_env,
         )  # fmt: skip
         assert provisioned.returncode == 2 and "is an esp32c3" in provisioned.stderr
+        # Its own chip at revision v0.0, below IDF's default minimum (v0.3): a board matter, not the port's
+        # (it was exit 6, "esptool failed").
+        older = espdock("flash", "led_strip_node", "--port", esp32c3, cwd=root, env=double_env)
+        assert older.returncode == 2, older.stdout[-2000:] + older.stderr
+        assert f"the board at {esp32c3} is older than led_strip_node is built for" in older.stderr
+        assert "requires chip revision" in older.stderr and "CONFIG_ESP32C3_REV_MIN_0=y" in older.stderr
         assert flash_md5(esp32c3, 0x0, 0x20000) == before, "a board of another chip was written to"
 
 

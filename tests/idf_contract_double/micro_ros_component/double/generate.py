@@ -3,7 +3,9 @@
 rosidl_typesupport_c, because the micro-ROS sources cannot be fetched here.
 
 Reads every ROS package under --src (a dir with package.xml), turns each msg/*.msg and
-srv/*.srv into rosidl-shaped C headers (include/<pkg>/<pkg>/msg/<name>.h, ...) and C sources
+srv/*.srv its CMakeLists.txt names (as rosidl_generate_interfaces generates only those, and
+refuses a named file that is missing) into rosidl-shaped C headers
+(include/<pkg>/<pkg>/msg/<name>.h, ...) and C sources
 defining the typesupport getters, and writes the manifest the library embeds. libmicroros.mk
 compiles the sources and merges the objects into libmicroros.a. A malformed interface file
 fails with `<file>:<line>: error: ...` and exit status 1, and nothing is left in --out.
@@ -597,12 +599,38 @@ def c_string(text: str) -> str:
     return '"' + text.replace("\\", "\\\\").replace('"', '\\"') + '"'
 
 
+# An interface file named in a CMakeLists.txt (rosidl_generate_interfaces' arguments, or a set() of them).
+_LISTED = re.compile(r"""(?:^|[\s"'(])((?:msg|srv|action)/[^\s"')]+\.(?:msg|srv|action))(?=[\s"')]|$)""")
+
+
+def listed_interfaces(package: Package) -> set[str] | None:
+    """The interface files PACKAGE's CMakeLists.txt names: what rosidl generates, as the real
+    library's colcon build of the package does (a file in msg/ it does not name gets no header).
+    None (every file) where it globs them, names none literally, or has no CMakeLists.txt."""
+    try:
+        text = (package.path / "CMakeLists.txt").read_text()
+    except OSError:
+        return None
+    text = re.sub(r"#[^\n]*", "", text)
+    if re.search(r"file\s*\(\s*GLOB", text, re.IGNORECASE):
+        return None
+    return set(_LISTED.findall(text)) or None
+
+
 def generate(args: argparse.Namespace) -> None:
     packages = find_packages(args.src)
     for package in packages:
+        listed = listed_interfaces(package)
+        for rel in sorted(listed or ()):
+            if not (package.path / rel).is_file():
+                raise InterfaceError(
+                    f"{package.path}/CMakeLists.txt: error: rosidl_generate_interfaces() the passed file '{rel}' "
+                    f"doesn't exist relative to the CMAKE_CURRENT_SOURCE_DIR '{package.path}'"
+                )
         for kind in ("msg", "srv"):
             for path in sorted((package.path / kind).glob(f"*.{kind}")):
-                package.interfaces.append(parse_interface_file(package, path, kind))
+                if listed is None or f"{kind}/{path.name}" in listed:
+                    package.interfaces.append(parse_interface_file(package, path, kind))
         if sorted(package.path.glob("action/*.action")):
             print(f"{package.path}: warning: the micro-ROS double does not generate actions", file=sys.stderr)
     resolve_types(packages)

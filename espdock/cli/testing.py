@@ -13,12 +13,15 @@ from rich.text import Text
 from espdock.build.prepare import plan_tests
 from espdock.build.prepare import workspace_packages as discover
 from espdock.build.runner import Runner
+from espdock.build.steps import Plan
 from espdock.cli.core import PASSED, PassThrough, WorkspaceOption, app, command, console, load, notify
 from espdock.cli.prune import record_images
 from espdock.cli.ui import Reporter
 from espdock.config import in_ci, invoking_user
 from espdock.errors import TestsFailed, WorkspaceError
 from espdock.layout import ROS_BUILD_BASE
+from espdock.ros.plan import ColconBuild
+from espdock.ros.steps import TEST_RESULTS
 from espdock.ros.testing import (
     HOST_TESTS_BASE,
     HOST_TESTS_TAG,
@@ -127,8 +130,12 @@ def _test_ros(ws, config, every, ros, colcon_args, locked, official, reporter: R
     plan, step = plan_tests(ws, config, every, ros, colcon_args, locked, official, env=os.environ, notify=notify)
     engine = bootstrap.ensure_engine(os.environ, notify)
     runner = Runner(engine, config, os.environ, reporter, invoking_user(os.environ, ws.root))
+    builds = tuple(s for s in plan.steps if isinstance(s, ColconBuild))
     try:
-        runner.run(plan)
+        runner.run(Plan(plan.workspace, tuple(s for s in plan.steps if s not in builds), plan.idf_images))
+        # Refused before any build in the workspace volume, which the results would not leave.
+        runner.containers.needs_this_machine(ws, step.image, TEST_RESULTS, firmware=False)
+        runner.run(Plan(plan.workspace, builds, plan.idf_images))
     finally:
         reporter.close()
     record_images(ws, runner)

@@ -122,11 +122,11 @@ class Containers:
                 )
         return sync
 
-    def needs_this_machine(self, workspace: Workspace, image: str, what: str) -> None:
+    def needs_this_machine(self, workspace: Workspace, image: str, what: str, firmware: bool = True) -> None:
         """Refuse WHAT (a command that needs this machine's files or devices) in volume mode."""
         user, labels = self.container_identity(workspace, "mount-check", sweep=False)
         if self.uses_volume(workspace, image, user, labels):
-            raise volume_mode_refused(what)
+            raise volume_mode_refused(what, firmware)
 
     def workspace_for(self, workspace: Workspace, image: str, step_label: str) -> Mount:
         """The workspace for an interactive container of IMAGE (espdock shell): the bind mount, or in
@@ -210,14 +210,19 @@ def permission_error(exc: PermissionError) -> WorkspaceError:
     )
 
 
-def volume_mode_refused(what: str) -> WorkspaceNotVisible:
-    """The error of a command that needs this machine's files or devices in volume mode."""
+def volume_mode_refused(what: str, firmware: bool = True) -> WorkspaceNotVisible:
+    """The error of a command that needs this machine's files or devices (WHAT) in volume mode;
+    FIRMWARE: one that would write firmware to a board, which any flasher can do instead."""
+    elsewhere = (
+        "; the firmware `espdock build` installed is in install/<package>/share/<package>/firmware for any flasher"
+        if firmware
+        else ""
+    )
     return WorkspaceNotVisible(
         f"the build containers use the workspace's volume on an engine that does not see this machine "
-        f"(workspace_mode), and {what} is on this machine",
+        f"(workspace_mode), and {what} must be on this machine",
         "Use an engine that sees this machine's files and devices for it (a local engine: unset DOCKER_HOST, "
-        "or ESPDOCK_WORKSPACE_MODE=mount with an engine sharing the path); the firmware `espdock build` "
-        "installed is in install/<package>/share/<package>/firmware for any flasher.",
+        f"or ESPDOCK_WORKSPACE_MODE=mount with an engine sharing the path){elsewhere}.",
     )
 
 

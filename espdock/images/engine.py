@@ -234,13 +234,37 @@ class Engine:
         self._podman = headers.get(LIBPOD_HEADER) is not None  # both header maps ignore case
         return status
 
+    def _lost(self, doing: str) -> EngineUnavailable:
+        """The engine stopped answering while DOING: named as what it is, with how to start it again."""
+        where = _host(self._env)
+        if self._podman or (self._podman is None and "podman" in where):  # gone before it said what it is
+            # Podman's containers do not depend on its API service: a killed service leaves them running.
+            return EngineUnavailable(
+                f"the Podman engine at {where} went away while {doing}; a container it was running may "
+                "still be running",
+                "Start its API service again (`systemctl --user start podman.socket`, as root `systemctl start "
+                "podman.socket`, or `podman system service`), then rerun: the next command stops and removes what "
+                "was left.",
+            )
+        socket = _local_socket(self._env)
+        if socket is None:
+            start = f"Start the engine at {where} again"
+        elif socket == DEFAULT_SOCKET:
+            start = "Start it again (`sudo systemctl start docker`)"
+        else:  # rootless Docker's, or another daemon's of the user's
+            start = f"Start the daemon of {socket} again (rootless Docker: `systemctl --user start docker`)"
+        return EngineUnavailable(
+            f"the Docker engine at {where} went away while {doing}",
+            f"{start}, then rerun: the next command removes what was left.",
+        )
+
     def info(self) -> EngineInfo:
         """The engine's kind, rootless or not, and identity (asked once per Engine)."""
         if self._info is None:
             try:
                 if self._podman is None:
                     self._ping(self._timeout)
-                if self._podman:
+                if self._podman or (self._podman is None and "podman" in where):  # gone before it said what it is
                     # Podman's own /info, not its Docker API's: that one does not say rootless
                     # (Podman 4), and it and /version each took Podman 0.4 to 0.7 s here, asking
                     # dpkg the versions of its packages.
@@ -254,7 +278,7 @@ class Engine:
                     info = self._get("/info")[1] if self._socket is not None else self._client.info()
                     self._info = describe(self._env, info or {})
             except (OSError, ValueError, docker.errors.DockerException, requests.exceptions.RequestException) as exc:
-                raise _engine_lost(self._env, "asking what it is") from exc
+                raise self._lost("asking what it is") from exc
         return self._info
 
     def _listing(self, path: str, refused: str, doing: str | None = None) -> list[Any]:
@@ -265,7 +289,7 @@ class Engine:
             status, listed = self._get(path)
         except OSError as exc:
             if doing is not None:
-                raise _engine_lost(self._env, doing) from exc
+                raise self._lost(doing) from exc
             raise EspdockError(f"the engine {refused}: {exc}") from exc
         if status != 200 or not isinstance(listed, list):
             raise EspdockError(f"the engine {refused}: HTTP {status} {listed}")
@@ -307,7 +331,7 @@ class Engine:
             raise
         except Exception as exc:
             if doing is not None and isinstance(exc, requests.exceptions.ConnectionError):
-                raise _engine_lost(self._env, doing) from exc
+                raise self._lost(doing) from exc
             # ALSO first: an OSError over the plain socket is told apart without importing the SDK.
             if refused is None or not (isinstance(exc, also) or isinstance(exc, docker.errors.APIError)):
                 raise
@@ -599,7 +623,7 @@ class Engine:
                     "build cache, a failed build's included), then build again.",
                 )
             if any("cannot connect to the docker daemon" in line.lower() for line in tail):
-                raise _engine_lost(self._env, f"building {build.tag}")
+                raise self._lost(f"building {build.tag}")
             raise ImageBuildError(
                 f"building {build.tag} from {build.dockerfile} (stage {build.target}) failed:\n" + "\n".join(tail),
                 _buildkit_hint(tail),
@@ -879,7 +903,7 @@ class Engine:
         try:
             return sorted(v.name for v in self._client.volumes.list(filters={"label": _label_selector(labels)}))
         except (docker.errors.APIError, requests.exceptions.ConnectionError) as exc:
-            raise _engine_lost(self._env, "listing volumes") from exc
+            raise self._lost("listing volumes") from exc
 
     def remove_volume(self, name: str) -> None:
         """Remove volume NAME (gone already is fine); a container still using it is an error."""
@@ -1161,14 +1185,6 @@ def _remove(container: docker.models.containers.Container, stop: bool = True) ->
         pass
     except (docker.errors.APIError, requests.exceptions.RequestException) as exc:
         warnings.warn(f"could not remove container {container.short_id}: {exc}", stacklevel=2)
-
-
-def _engine_lost(env: Mapping[str, str], doing: str) -> EngineUnavailable:
-    where = _host(env)
-    return EngineUnavailable(
-        f"the Docker engine at {where} went away while {doing}",
-        "Start it again (`sudo systemctl start docker`), then rerun: the next command removes what was left.",
-    )
 
 
 def _boot_id() -> str:

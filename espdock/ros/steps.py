@@ -36,6 +36,9 @@ from espdock.ros.runtime_tree import runtime_files
 from espdock.ros.testing import ColconTest, PackageResults, SourcedEnv, clear_results, read_results
 from espdock.workspace import Workspace, workspace_lock
 
+# What `espdock test` needs on this machine, which the workspace volume does not give it.
+TEST_RESULTS = "the test results `espdock test` reads"
+
 # Under ws/build: what the ROS packages and the firmware were last built from (espdock.build.stamps).
 ROS_STAMPS = ".espdock-colcon-stamps.json"
 
@@ -205,7 +208,7 @@ class RosSteps:
         """Run STEP (colcon test) as the invoking user, its output to ON_LINE; colcon's exit code."""
         user, labels = self.containers.container_identity(workspace, "colcon-test", sweep=False)
         if self.containers.uses_volume(workspace, step.image, user, labels):
-            raise volume_mode_refused("the test results `espdock test` reads")
+            raise volume_mode_refused(TEST_RESULTS, firmware=False)
         mounts = [
             workspace_mount(workspace),
             *_linked(workspace, step.sources),

@@ -347,6 +347,12 @@ def test_volume_mode_builds_where_the_engine_cannot_see_rebuilds_edits_and_never
     assert noop.returncode == 0, noop.stdout + noop.stderr
     assert "up to date" in noop.stdout
     assert tcp_engine.created(since, "io.espdock.workspace=" + str(root)) == []
+    # The tests' results would stay in the volume: refused before any build there (it built first).
+    tested = espdock("test", cwd=root, env=tcp_engine.env)
+    assert tested.returncode == 8, tested.stdout[-2000:] + tested.stderr
+    assert "the test results `espdock test` reads must be on this machine" in tested.stderr
+    assert "flasher" not in tested.stderr and "colcon build" not in tested.stdout
+    assert tcp_engine.created(since, "io.espdock.workspace=" + str(root)) == []
 
     # A deleted source is deleted on the volume too: its module leaves the install tree.
     extra = root / "ws/src/beacon_nodes/beacon_nodes/extra.py"

@@ -21,7 +21,10 @@ from espdock.images.engine import Engine, RegistryAnswer, RegistryStatus, RunSpe
 
 TCP = "tcp://engine.invalid:2375"
 NAMED = f"the Docker engine at {TCP}"
-LOST_HINT = "Start it again (`sudo systemctl start docker`), then rerun: the next command removes what was left."
+RERUN = "then rerun: the next command removes what was left."
+# An engine that went away, by where it was: another daemon's socket, or a TCP engine.
+LOST_HINT = "Start the daemon of {} again (rootless Docker: `systemctl --user start docker`), " + RERUN
+TCP_LOST_HINT = f"Start the engine at {TCP} again, " + RERUN
 URL = "http+docker://localhost/v1.44/volumes/create"
 SPEC = RunSpec("espdock/img:1", ("true",), "/")
 
@@ -115,7 +118,7 @@ def test_an_engine_that_is_gone_is_exit_3_naming_it_and_what_espdock_was_doing(g
     with pytest.raises(EngineUnavailable) as err:
         call(engine)
     assert (err.value.exit_code, err.value.message) == (3, f"the Docker engine at {where} went away while {doing}")
-    assert err.value.hint == LOST_HINT
+    assert err.value.hint == LOST_HINT.format(where.removeprefix("unix://"))
 
 
 @pytest.mark.parametrize(
@@ -133,7 +136,7 @@ def test_a_gone_local_socket_is_exit_3_over_plain_http_too(tmp_path, call, doing
     with pytest.raises(EngineUnavailable) as err:
         call(Engine({"DOCKER_HOST": where}))
     assert err.value.message == f"the Docker engine at {where} went away while {doing}"
-    assert err.value.hint == LOST_HINT
+    assert err.value.hint == LOST_HINT.format(where.removeprefix("unix://"))
 
 
 def test_an_engine_nothing_answers_for_is_named_over_tcp_as_on_a_socket(tmp_path):
@@ -226,7 +229,7 @@ NO_SOURCE = 'invalid mount config for type "bind": bind source path does not exi
             {"containers.prepare_model().start": requests.exceptions.ConnectionError("Connection aborted.")},
             EngineUnavailable,
             f"{NAMED} went away while running a container of espdock/img:1",
-            LOST_HINT,
+            TCP_LOST_HINT,
         ),
         (
             lambda e: e.run(SPEC, print),
@@ -384,3 +387,23 @@ def test_what_is_gone_already_or_missing_is_an_answer_not_an_error():
     denied = refusal(500, "unauthorized: authentication required")
     answer = refusing({"api.inspect_distribution": denied}).registry_has("espdock/img:1")
     assert answer == RegistryAnswer(RegistryStatus.DENIED, str(denied))
+
+
+def test_a_podman_engine_that_went_away_says_its_container_may_still_run_and_how_to_start_it(gone):
+    """Podman's containers outlive its API service: a build's kept writing install/ after espdock said
+    exit 3, and the hint named the Docker service."""
+    engine, where = gone
+    engine._podman = True  # what /_ping said before the service went away
+    with pytest.raises(EngineUnavailable) as err:
+        engine.containers({"a": "b"})
+    assert err.value.message.startswith(f"the Podman engine at {where} went away while listing containers")
+    assert "may still be running" in err.value.message
+    assert "podman.socket" in err.value.hint and "stops and removes" in err.value.hint
+    assert "docker" not in err.value.hint
+
+
+def test_the_default_socket_s_engine_is_started_as_docker_is():
+    from espdock.images.engine import DEFAULT_SOCKET
+
+    lost = Engine({"DOCKER_HOST": f"unix://{DEFAULT_SOCKET}"})._lost("listing containers")
+    assert lost.hint == "Start it again (`sudo systemctl start docker`), " + RERUN

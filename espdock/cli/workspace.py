@@ -248,7 +248,7 @@ def init(
     owner = invoking_user(os.environ, existing) if os.geteuid() == 0 else None
     ws, created = init_workspace(directory, owner)
     if "espdock.toml" not in created:
-        console.print(f"{ws.root} is an espdock workspace already (espdock.toml exists); nothing changed")
+        console.print(f"{ws.root} is an espdock workspace already (espdock.toml exists)")
     else:
         console.print(f"made {ws.root} an espdock workspace: created {', '.join(created)}")
     ws, config = load(ws.root)

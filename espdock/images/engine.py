@@ -37,12 +37,21 @@ from typing import IO, Any
 from urllib.parse import quote
 
 from espdock import interrupts
-from espdock.errors import ContainerError, EngineUnavailable, EspdockError, ImageBuildError, MountSourceMissing
+from espdock.errors import (
+    ConfigError,
+    ContainerError,
+    EngineUnavailable,
+    EspdockError,
+    ImageBuildError,
+    MountSourceMissing,
+)
 from espdock.images import contexts, local_api, sdk
 from espdock.images.sdk import docker, requests
 
 LineSink = Callable[[str], None]
 DEFAULT_SOCKET = "/var/run/docker.sock"
+# The addresses docker/cli's ParseHost takes (npipe: Windows; fd: systemd's socket activation).
+ENGINE_SCHEMES = ("unix", "tcp", "ssh", "npipe", "fd")
 OPERATION_TIMEOUT = 120
 # `docker run`'s own exit code when the engine could not create or start the container.
 DOCKER_RUN_FAILED = 125
@@ -212,6 +221,13 @@ class Engine:
         """Connect to the engine DOCKER_HOST (or the default socket) names; raise if none answers."""
         engine = cls(env, timeout)
         where = _host(engine._env)
+        scheme, found, _ = where.partition("://")
+        if found and scheme not in ENGINE_SCHEMES:
+            # The docker CLI refuses it as well ("Invalid bind address protocol"): bad input, not a stopped engine.
+            raise ConfigError(
+                f"DOCKER_HOST {where}: {scheme}:// is no engine address the docker CLI knows",
+                "An engine is unix:///path/docker.sock, tcp://HOST:PORT or ssh://USER@HOST (or a Docker context).",
+            )
         try:
             status = engine._ping(timeout)
             if status != 200:
@@ -264,7 +280,7 @@ class Engine:
             try:
                 if self._podman is None:
                     self._ping(self._timeout)
-                if self._podman or (self._podman is None and "podman" in where):  # gone before it said what it is
+                if self._podman:
                     # Podman's own /info, not its Docker API's: that one does not say rootless
                     # (Podman 4), and it and /version each took Podman 0.4 to 0.7 s here, asking
                     # dpkg the versions of its packages.
@@ -1114,6 +1130,8 @@ def _unreachable(what: str, exc: Exception) -> EngineUnavailable:
         return EngineUnavailable(f"{what}: permission denied on the engine's socket")
     if "No such file or directory" in text or "Connection refused" in text:
         return EngineUnavailable(f"{what}: nothing is listening there")
+    if any(said in text for said in ("NameResolutionError", "Name or service not known", "name resolution")):
+        return EngineUnavailable(f"{what}: its host name does not resolve")
     tls = _tls_failure(text)
     if tls is None:
         return EngineUnavailable(f"{what}: {text}")

@@ -407,3 +407,17 @@ def test_the_default_socket_s_engine_is_started_as_docker_is():
 
     lost = Engine({"DOCKER_HOST": f"unix://{DEFAULT_SOCKET}"})._lost("listing containers")
     assert lost.hint == "Start it again (`sudo systemctl start docker`), " + RERUN
+
+
+def test_an_address_no_engine_has_is_bad_input_and_a_name_that_does_not_resolve_is_said_so():
+    """DOCKER_HOST=bogus://x was exit 3 with the SDK's words and "start the engine"; a host name
+    that does not resolve showed urllib3's text."""
+    from espdock.errors import ConfigError
+
+    with pytest.raises(ConfigError) as err:
+        Engine.connect({"DOCKER_HOST": "bogus://x"}, timeout=5)
+    assert err.value.exit_code == 2 and "bogus:// is no engine address the docker CLI knows" in err.value.message
+    with pytest.raises(EngineUnavailable) as err:
+        Engine.connect({"DOCKER_HOST": "tcp://no-such-host.invalid:2375"}, timeout=5)
+    said = "no Docker engine answers at tcp://no-such-host.invalid:2375: its host name does not resolve"
+    assert err.value.message == said

@@ -256,6 +256,8 @@ def init(
     if force and not compose:
         raise ConfigError("--force goes with --compose", "`espdock init --compose --force`.")
     outcome = init_compose(ws, runtime_repository(config, ws), packages, owner, refresh=compose, force=force)
+    if "espdock.toml" not in created and outcome in (None, "unchanged"):
+        console.print("nothing changed")
     if outcome == "unchanged":
         console.print("compose.yaml is up to date with install/")
     elif outcome is not None:

@@ -284,6 +284,10 @@ def test_init_adopts_a_colcon_workspace_and_never_overwrites(tmp_path):
     (ws / "espdock.toml").write_text("[espdock]\n# mine\n")
     again = espdock("init", str(ws), cwd=tmp_path, env=NO_ENGINE)
     assert again.returncode == 0 and "nothing changed" in again.stdout
+    # espdock.toml there and compose.yaml not: it is written, and "nothing changed" would be false.
+    (ws / "compose.yaml").unlink()
+    third = espdock("init", str(ws), cwd=tmp_path, env=NO_ENGINE)
+    assert "wrote compose.yaml" in third.stdout and "nothing changed" not in third.stdout, third.stdout
     assert (ws / "espdock.toml").read_text() == "[espdock]\n# mine\n"
 
 

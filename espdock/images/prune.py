@@ -205,7 +205,11 @@ def plan_prune(
     for decision in remove:
         if decision.tag not in kept_tags:
             once.setdefault(decision.tag, decision)
-    return PrunePlan(tuple(once.values()), tuple(kept), elsewhere)
+    # And kept once: the first reason says why (each target whose inputs use a shared image keeps it).
+    kept_once: dict[str, Decision] = {}
+    for decision in kept:
+        kept_once.setdefault(decision.tag, decision)
+    return PrunePlan(tuple(once.values()), tuple(kept_once.values()), elsewhere)
 
 
 def _decide(image: UsedImage, there: Present, index: int, keep: int, others: set[str], running: set[str]) -> str | None:

@@ -51,6 +51,9 @@ def test_only_the_targets_are_pruned_and_unrecorded_images_never():
     assert [d.tag for d in plan_prune([ours, theirs], {"/a"}, {}, everything, set(), 0).remove] == ["ros:1"]
     both = plan_prune([ours, theirs], {"/a", "/b"}, {}, everything, set(), 0)
     assert sorted(d.tag for d in both.remove) == ["ros:1", "w:1"]
+    # An image both targets' inputs use (the shared build image) is kept once, not once a workspace.
+    shared = plan_prune([ours, theirs], {"/a", "/b"}, {"/a": {"ros:2"}, "/b": {"ros:2"}}, everything, set(), 0)
+    assert [d.tag for d in shared.keep].count("ros:2") == 1
 
 
 def test_a_removed_workspace_protects_nothing_and_its_images_go_with_every_workspace():

@@ -11,6 +11,7 @@ it is). The images come from the shared engine (docker save | docker load), once
 
 from __future__ import annotations
 
+import contextlib
 import os
 import pwd
 import shutil
@@ -152,6 +153,15 @@ class RootlessPodman(RootlessDocker):
                            cwd=self.home, capture_output=True, check=False)  # fmt: skip
         return ["podman", "system", "service", "--time=0", f"unix://{self.socket}"]
 
+    def stop(self) -> None:
+        super().stop()
+        # Rootless Podman's pause process, which holds the user's namespace, leaves the service's
+        # session (setsid): it outlived every run.
+        pause = self.runtime / "libpod/tmp/pause.pid"
+        with contextlib.suppress(OSError, ValueError):
+            os.kill(int(pause.read_text().strip()), signal.SIGKILL)
+            pause.unlink()
+
 
 @pytest.fixture(scope="module", params=[RootlessDocker, RootlessPodman], ids=["docker", "podman"])
 def rootless_engine(request, engine, tmp_path_factory) -> Iterator[RootlessDocker]:
@@ -165,6 +175,21 @@ def rootless_engine(request, engine, tmp_path_factory) -> Iterator[RootlessDocke
         yield daemon
     finally:
         daemon.stop()
+    # Nothing of the engine outlives the tests (Podman's pause process did).
+    deadline = time.monotonic() + 10
+    while (left := processes_of(user.pw_uid)) and time.monotonic() < deadline:
+        time.sleep(0.2)
+    assert not left, f"the rootless engine left processes of {TEST_USER}: {left}"
+
+
+def processes_of(uid: int) -> list[str]:
+    """The command lines of UID's processes."""
+    found = []
+    for pid in (p for p in os.listdir("/proc") if p.isdigit()):
+        with contextlib.suppress(OSError):
+            if os.stat(f"/proc/{pid}").st_uid == uid:
+                found.append(Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode().strip())
+    return found
 
 
 def test_a_rootless_engine_builds_runs_and_everything_written_is_the_users(rootless_engine, wheel_espdock):

@@ -67,11 +67,8 @@ def idf(
         raise ConfigError(
             "no idf.py arguments given", f"Put them after --, e.g. `espdock idf {package} -- menuconfig`."
         )
-    if {"menuconfig", "monitor"} & set(args) and not (sys.stdin and sys.stdin.isatty()):
-        raise ConfigError(
-            f"idf.py {'menuconfig' if 'menuconfig' in args else 'monitor'} needs a terminal (stdin is not a TTY)",
-            "Run it from an interactive shell.",
-        )
+    if screen := next((a for a in ("menuconfig", "monitor") if a in args), None):
+        _need_terminal(f"idf.py {screen}")
     if "set-target" in args:
         # IDF's set-target empties the build dir (its fullclean, sdkconfig and espdock's records
         # with it) and then refuses the target, which espdock's build passes as IDF_TARGET.
@@ -102,6 +99,12 @@ def idf(
     raise typer.Exit(
         runner.firmware.run_passthrough(ws, step, tuple(args), devices=serial.devices, network=serial.network)
     )
+
+
+def _need_terminal(what: str) -> None:
+    """Refuse WHAT (a screen of its own: menuconfig, the monitor) without a terminal to draw it on."""
+    if not (sys.stdin and sys.stdin.isatty()):
+        raise ConfigError(f"{what} needs a terminal (stdin is not a TTY)", "Run it from an interactive shell.")
 
 
 def _installed(ws: Workspace, config: Config, plan: Plan, step: IdfBuild) -> tuple[Runner, IdfBuild]:
@@ -329,8 +332,7 @@ def monitor(
     """Open idf.py monitor on PORT for a firmware package (needs a terminal)."""
     ws, config = load(workspace)
     serial = parse_port(port)
-    if not (sys.stdin and sys.stdin.isatty()):
-        raise ConfigError("the monitor needs a terminal (stdin is not a TTY)", "Run it from an interactive shell.")
+    _need_terminal("the monitor")
     check_port(serial)
     plan, step = firmware_plan(ws, config, package)
     runner, step = _installed(ws, config, plan, step)

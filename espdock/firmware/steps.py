@@ -53,7 +53,8 @@ class FirmwareSteps:
     def idf_build(self, workspace: Workspace, step: IdfBuild) -> tuple[Outcome, str]:
         build_dir = firmware_build_dir(workspace.ws_dir, step.package)
         stamp_file = StampFile(workspace.ws_dir / "build" / FIRMWARE_STAMPS)
-        stamps = self._firmware_stamp(workspace, step)
+        image_id = self._image_id(step)  # the same after the build: asked once
+        stamps = _firmware_stamp(workspace, step, image_id)
         listing = {step.package: listing_digest(build_dir, COLCON_RESULT_FILES)}
         if not step.force and stamp_file.up_to_date(stamps, listing):
             return Outcome.CACHED, f"up to date ({step.target})"
@@ -93,7 +94,7 @@ class FirmwareSteps:
             )
         # After the build: IDF itself writes into the project (the component manager's lock).
         stamp_file.record(
-            self._firmware_stamp(workspace, step), {step.package: listing_digest(build_dir, COLCON_RESULT_FILES)}
+            _firmware_stamp(workspace, step, image_id), {step.package: listing_digest(build_dir, COLCON_RESULT_FILES)}
         )
         give_to(stamp_file.path, self.containers.owner)
         return Outcome.BUILT, step.target
@@ -105,7 +106,7 @@ class FirmwareSteps:
         what its sources build now. Building the image of sources edited since, which may not
         even build, would stand between the user and the firmware they built."""
         build_dir = firmware_build_dir(workspace.ws_dir, step.package)
-        stamps = self._firmware_stamp(workspace, step)
+        stamps = _firmware_stamp(workspace, step, self._image_id(step))
         current = StampFile(workspace.ws_dir / "build" / FIRMWARE_STAMPS).up_to_date(
             stamps, {step.package: listing_digest(build_dir, COLCON_RESULT_FILES)}
         )
@@ -115,22 +116,10 @@ class FirmwareSteps:
         built = replace(step, image=keyed_tag(step.image.rpartition(":")[0], key), image_key=key)
         return (built, False) if self.containers.engine.image(built.image) is not None else (step, False)
 
-    def _firmware_stamp(self, workspace: Workspace, step: IdfBuild) -> dict[str, str]:
-        """What decides a firmware build: the project, the shared components, the sdkconfig in
-        the build dir (menuconfig's changes), the image and the target. The image by its ID as
-        well: `micro-ros rebuild` makes another image of the same key, whose library may differ
-        (a source that follows its branch head), and the firmware must be linked against it."""
-        sdkconfig = workspace.ws_dir / "build" / step.package / "sdkconfig"
+    def _image_id(self, step: IdfBuild) -> str:
+        """The ID of STEP's micro-ROS image ('' where the engine lacks it)."""
         image = self.containers.engine.image(step.image)
-        digest = hashlib.sha256(f"{step.image_key}\0{image.id if image else ''}\0{step.target}\n".encode())
-        digest.update(tree_digest(workspace.root / step.project).encode())
-        # Shared components beside the project (CMake's EXTRA_COMPONENT_DIRS ../components).
-        components = (workspace.root / step.project).parent / "components"
-        if components.is_dir():
-            digest.update(tree_digest(components).encode())
-        if sdkconfig.is_file():
-            digest.update(hashlib.sha256(sdkconfig.read_bytes()).digest())
-        return {step.package: digest.hexdigest()}
+        return image.id if image else ""
 
     def run_idf(
         self,
@@ -322,6 +311,23 @@ def _outside_build_dir(workspace: Workspace, build_dir: Path) -> tuple[Mount, ..
     if real.is_relative_to(workspace.root.resolve()):
         return ()  # the workspace mount has it, and the link is relative
     return (Mount(real, str(real)),)
+
+
+def _firmware_stamp(workspace: Workspace, step: IdfBuild, image_id: str) -> dict[str, str]:
+    """What decides a firmware build: the project, the shared components, the sdkconfig in
+    the build dir (menuconfig's changes), the image and the target. The image by its ID (IMAGE_ID) as
+    well: `micro-ros rebuild` makes another image of the same key, whose library may differ
+    (a source that follows its branch head), and the firmware must be linked against it."""
+    sdkconfig = workspace.ws_dir / "build" / step.package / "sdkconfig"
+    digest = hashlib.sha256(f"{step.image_key}\0{image_id}\0{step.target}\n".encode())
+    digest.update(tree_digest(workspace.root / step.project).encode())
+    # Shared components beside the project (CMake's EXTRA_COMPONENT_DIRS ../components).
+    components = (workspace.root / step.project).parent / "components"
+    if components.is_dir():
+        digest.update(tree_digest(components).encode())
+    if sdkconfig.is_file():
+        digest.update(hashlib.sha256(sdkconfig.read_bytes()).digest())
+    return {step.package: digest.hexdigest()}
 
 
 def _read_marker(build_dir: Path) -> list[str]:

@@ -20,17 +20,13 @@ import json
 import os
 import posixpath
 import re
-import shutil
-from collections.abc import Iterable, Iterator, Mapping
-from contextlib import contextmanager, suppress
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from enum import StrEnum
 from pathlib import Path
 
 from espdock.errors import ConfigError, WorkspaceError
-from espdock.images.containers import give_to, make_dirs_for
 from espdock.layout import ROS_BUILD_BASE
-from espdock.workspace import write_atomically
 
 WORKSPACE_META = "colcon.meta"
 WORKSPACE_DEFAULTS = "colcon_defaults.yaml"
@@ -367,98 +363,6 @@ def usage_error(output: Iterable[str], args: Iterable[str]) -> str | None:
     if unknown:
         return f"colcon build does not accept {unknown[0]} (given after `--`)"
     return f"colcon build refused its options: {said[:300]}"
-
-
-def retire_container_caches(build: Path, packages: Iterable[str], mounted_build: str) -> list[str]:
-    """Remove PACKAGES' build dirs under BUILD (colcon's default build base) whose CMake cache
-    was configured at MOUNTED_BUILD, the build containers' path of BUILD: what espdock built
-    there before it had a build base of its own. A native `colcon build` refuses them
-    ("CMakeCache.txt directory ... is different"); they are only caches. Returns the names."""
-    retired = []
-    for name in packages:
-        cache = build / name / "CMakeCache.txt"
-        try:
-            text = cache.read_text(errors="replace")
-        except OSError:
-            continue
-        if f"CMAKE_CACHEFILE_DIR:INTERNAL={mounted_build}/{name}\n" in text:
-            shutil.rmtree(build / name)
-            retired.append(name)
-    return retired
-
-
-def check_isolated_install(install: Path) -> None:
-    """Refuse an INSTALL a native `colcon build --merge-install` made: espdock installs each package
-    in its own prefix, and colcon will not mix the two layouts in one install base (it stops before
-    any package, advising an option espdock keeps to itself)."""
-    try:
-        layout = (install / ".colcon_install_layout").read_text().strip()
-    except OSError:
-        return
-    if layout == "merged":
-        raise WorkspaceError(
-            f"{install} was made by `colcon build --merge-install` (its .colcon_install_layout says merged); "
-            "espdock builds an isolated install (install/PKG), and colcon will not mix the two",
-            "Remove install/ (your native build makes it again), or give your merged builds an install base of "
-            "their own (`colcon build --merge-install --install-base install-merged`); nothing was built.",
-        )
-
-
-# The install space's scripts that chain the underlays colcon was given before its own packages.
-CHAINING_SCRIPTS = ("setup.bash", "setup.sh", "setup.zsh", "setup.ps1")
-
-
-@contextmanager
-def native_setup_kept(install: Path) -> Iterator[None]:
-    """Put back INSTALL's chaining scripts as they were, when a native colcon build wrote them
-    (its setup.sh names INSTALL's host path, where a container's names the mount): a build in a
-    container writes the image's underlay (/opt/espdock/venv, /opt/ros/jazzy) in place of the
-    host's, and `source install/setup.bash` then lost the user's ROS and said "not found"."""
-    try:
-        native = str(install).encode() in (install / "setup.sh").read_bytes()
-    except OSError:
-        native = False
-    kept = {}
-    for name in CHAINING_SCRIPTS if native else ():
-        with suppress(OSError):
-            kept[install / name] = (install / name).read_bytes()
-    try:
-        yield
-    finally:
-        for path, data in kept.items():
-            with suppress(OSError):
-                if path.read_bytes() != data:
-                    write_atomically(path, data.decode())
-
-
-# In espdock's build base: the ROS image kind its build dirs were configured against.
-UNDERLAY_MARKER = ".espdock-underlay"
-
-
-def retire_other_underlay(base: Path, underlay: str, owner: tuple[int, int]) -> list[str] | None:
-    """Remove the package build dirs under BASE (espdock's build base) that were configured
-    against another ROS image than UNDERLAY (see ColconBuild.underlay), and record UNDERLAY. Their
-    CMake caches hold that image's paths: BUILD_TESTING as it set it, its gtest sources, its
-    Python; CMake keeps them, and the build fails or builds other than asked. Returns the names
-    (maybe none here: in the workspace volume they are the volume's), None where nothing changed.
-    OWNER: who the marker (and a base it makes) belongs to, as root."""
-    marker = base / UNDERLAY_MARKER
-    try:
-        before = marker.read_text().strip()
-    except OSError:
-        before = None  # a new base, or one from before the marker: taken as configured for UNDERLAY
-    if before == underlay:
-        return None
-    retired = None if before is None else []
-    if retired is not None:
-        for entry in sorted(base.iterdir()):
-            if entry.is_dir() and not entry.is_symlink():
-                shutil.rmtree(entry)
-                retired.append(entry.name)
-    make_dirs_for(base, owner)
-    marker.write_text(f"{underlay}\n")  # torn, it names no image: the dirs go once more
-    give_to(marker, owner)
-    return retired
 
 
 class PackageState(StrEnum):

@@ -24,16 +24,13 @@ from espdock.ros.colcon import (
     DEFAULTS_MOUNT,
     ColconLog,
     PackageState,
-    check_isolated_install,
     explain_failure,
-    native_setup_kept,
-    retire_container_caches,
-    retire_other_underlay,
     usage_error,
 )
 from espdock.ros.plan import ColconBuild, RuntimeImage, runtime_image_spec
 from espdock.ros.runtime_tree import runtime_files
 from espdock.ros.testing import ColconTest, PackageResults, SourcedEnv, clear_results, read_results
+from espdock.ros.trees import check_isolated_install, native_setup_kept, retire_container_caches, retire_other_underlay
 from espdock.workspace import Workspace, workspace_lock
 
 # What `espdock test` needs on this machine, which the workspace volume does not give it.

@@ -16,19 +16,17 @@ from espdock.errors import ConfigError, WorkspaceError
 from espdock.ros.colcon import (
     PackageState,
     check_colcon_args,
-    check_isolated_install,
     explain_failure,
     meta_paths,
     missing_dependencies,
     output_args,
     parse_events,
     read_colcon_settings,
-    retire_container_caches,
-    retire_other_underlay,
     usage_error,
     user_defaults_file,
 )
 from espdock.ros.plan import ColconBuild
+from espdock.ros.trees import check_isolated_install, retire_container_caches, retire_other_underlay
 from tests.conftest import copy_workspace, espdock
 
 NO_ENGINE = {"DOCKER_HOST": "unix:///nonexistent/docker.sock"}

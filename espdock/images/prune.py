@@ -205,11 +205,27 @@ def plan_prune(
     for decision in remove:
         if decision.tag not in kept_tags:
             once.setdefault(decision.tag, decision)
-    # And kept once: the first reason says why (each target whose inputs use a shared image keeps it).
+    # And kept once, for its strongest reason: records are read in the order of their file names
+    # (hashes of the roots), so "the first reason" would differ from machine to machine.
     kept_once: dict[str, Decision] = {}
     for decision in kept:
-        kept_once.setdefault(decision.tag, decision)
+        held = kept_once.get(decision.tag)
+        if held is None or _strength(decision.reason) < _strength(held.reason):
+            kept_once[decision.tag] = decision
     return PrunePlan(tuple(once.values()), tuple(kept_once.values()), elsewhere)
+
+
+_STRONGEST_FIRST = (
+    "used by the current inputs",
+    "a running container uses it",
+    "another workspace's last build used it",
+)
+
+
+def _strength(reason: str) -> int:
+    """REASON's rank among the reasons an image is kept (0: the strongest); "one of the last N"
+    ranks last, as only a --keep protects it."""
+    return _STRONGEST_FIRST.index(reason) if reason in _STRONGEST_FIRST else len(_STRONGEST_FIRST)
 
 
 def _decide(image: UsedImage, there: Present, index: int, keep: int, others: set[str], running: set[str]) -> str | None:

@@ -54,6 +54,12 @@ def test_only_the_targets_are_pruned_and_unrecorded_images_never():
     # An image both targets' inputs use (the shared build image) is kept once, not once a workspace.
     shared = plan_prune([ours, theirs], {"/a", "/b"}, {"/a": {"ros:2"}, "/b": {"ros:2"}}, everything, set(), 0)
     assert [d.tag for d in shared.keep].count("ros:2") == 1
+    # Kept for the strongest of its reasons, whichever record is read first (their file names are
+    # hashes of the roots, so the order differs from machine to machine).
+    theirs_uses_ours = Record("/b", generations("/b", "w", 2), frozenset({"w:2", "ros:1"}))
+    for records in ([ours, theirs_uses_ours], [theirs_uses_ours, ours]):
+        plan = plan_prune(records, {"/a", "/b"}, {"/b": {"ros:1"}}, everything, set(), 0)
+        assert {d.tag: d.reason for d in plan.keep}["ros:1"] == "used by the current inputs"
 
 
 def test_a_removed_workspace_protects_nothing_and_its_images_go_with_every_workspace():

@@ -18,7 +18,6 @@ from pathlib import Path
 
 from espdock.config import Config
 from espdock.errors import EngineUnavailable, ImageBuildError
-from espdock.images import contexts
 from espdock.images.engine import Engine, compose_available
 
 Notify = Callable[[str], None]
@@ -59,22 +58,17 @@ def ensure_engine(env: Mapping[str, str], notify: Notify) -> Engine:
     except EngineUnavailable as first:
         if first.hint is not None:  # it answered, and said what is wrong (TLS)
             raise
-        if (contexts.engine_env(env).get("DOCKER_HOST") or LOCAL_SOCKET) != LOCAL_SOCKET:
-            chosen = contexts.selected(env)
-            if chosen is None:
-                hint = "Start the engine DOCKER_HOST names, or unset DOCKER_HOST."
-            else:
-                undo = "unset DOCKER_CONTEXT" if chosen[1] == "DOCKER_CONTEXT" else "`docker context use default`"
+        chosen = Engine(env)
+        if chosen.host != LOCAL_SOCKET or not _can_manage_engine():
+            # Another engine than the default socket's is the user's to start, never replaced by a
+            # local one; so is the default one for a user who cannot install or start it.
+            hint = chosen.start_hint()
+            if chosen.host == LOCAL_SOCKET:
                 hint = (
-                    f'Start the engine of the Docker context "{chosen[0]}" ({chosen[1]}), or {undo} for the local one.'
+                    f"{hint.removesuffix('.')} and make sure you may use it (the docker group); as root on "
+                    "Debian/Ubuntu espdock installs and starts docker.io itself."
                 )
             raise EngineUnavailable(first.message, hint) from first
-        if not _can_manage_engine():
-            raise EngineUnavailable(
-                first.message,
-                "Start Docker (e.g. `sudo systemctl start docker`) and make sure you may use it (the docker group); "
-                "as root on Debian/Ubuntu espdock installs and starts docker.io itself.",
-            ) from first
     if shutil.which("dockerd") is None:
         notify("no Docker engine: installing docker.io from Debian")
         _apt_install(["docker.io"], notify)

@@ -53,10 +53,10 @@ def selected(env: Mapping[str, str]) -> tuple[str, str] | None:
     return None if chosen[0] == DEFAULT else chosen
 
 
-def resolve(env: Mapping[str, str]) -> tuple[dict[str, str], dict[str, str]]:
-    """(engine_env(ENV), cli_env(ENV)), reading the CLI's configuration once."""
+def resolve(env: Mapping[str, str]) -> tuple[dict[str, str], dict[str, str], tuple[str, str] | None]:
+    """(engine_env(ENV), cli_env(ENV), selected(ENV)), reading the CLI's configuration once."""
     chosen = selected(env)
-    return _engine_env(env, chosen), _cli_env(env, chosen)
+    return _engine_env(env, chosen), _cli_env(env, chosen), chosen
 
 
 def engine_env(env: Mapping[str, str]) -> dict[str, str]:

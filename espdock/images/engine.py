@@ -108,6 +108,32 @@ def _local_socket(env: Mapping[str, str]) -> str | None:
     return host.removeprefix("unix://") if host.startswith("unix://") else None
 
 
+def _looks_like_podman(where: str) -> bool:
+    # Before /_ping has said what the engine is, its address is all there is to go by: Podman's
+    # sockets are /run/podman/podman.sock and $XDG_RUNTIME_DIR/podman/podman.sock.
+    return "podman" in where
+
+
+def how_to_start(env: Mapping[str, str], context: tuple[str, str] | None, podman: bool | None) -> str:
+    """How a user starts the engine ENV (contexts.engine_env's) names: Docker's service, rootless
+    Docker's, Podman's API service (PODMAN: what /_ping said, None before it answered), or the
+    remote engine, by the CONTEXT (contexts.selected's) that chose it when one did."""
+    where = _host(env)
+    if podman or (podman is None and _looks_like_podman(where)):
+        return (
+            "Start Podman's API service (`systemctl --user start podman.socket`, as root "
+            "`systemctl start podman.socket`, or `podman system service`)"
+        )
+    if context is not None:
+        return f'Start the engine of the Docker context "{context[0]}" ({context[1]}, at {where})'
+    socket = _local_socket(env)
+    if socket is None:
+        return f"Start the engine at {where}"
+    if socket == DEFAULT_SOCKET:
+        return "Start Docker (`sudo systemctl start docker`)"
+    return f"Start the daemon of {socket} (rootless Docker: `systemctl --user start docker`)"
+
+
 @dataclass(frozen=True)
 class ImageInfo:
     id: str
@@ -193,7 +219,7 @@ class Engine:
     def __init__(self, env: Mapping[str, str], timeout: float = 60, client: Any = None) -> None:
         # The engine `docker` uses (DOCKER_HOST or the CLI's context), for espdock's own client and
         # for the docker CLI and compose it runs.
-        self._env, self._cli_env = contexts.resolve(env)
+        self._env, self._cli_env, self._context = contexts.resolve(env)
         if _host(self._env).startswith("ssh://"):
             sdk.need_ssh()
         self._timeout = timeout
@@ -203,6 +229,11 @@ class Engine:
         self._plain = self._socket is not None and client is None
         self._info: EngineInfo | None = None
         self._podman: bool | None = None  # known from /_ping's answer
+
+    @property
+    def host(self) -> str:
+        """The engine's address: DOCKER_HOST, the CLI's context's, or the default socket's."""
+        return _host(self._env)
 
     @property
     def _client(self) -> Any:
@@ -253,26 +284,29 @@ class Engine:
     def _lost(self, doing: str) -> EngineUnavailable:
         """The engine stopped answering while DOING: named as what it is, with how to start it again."""
         where = _host(self._env)
-        if self._podman or (self._podman is None and "podman" in where):  # gone before it said what it is
+        start = how_to_start(self._env, self._context, self._podman)
+        if self._podman or (self._podman is None and _looks_like_podman(where)):
             # Podman's containers do not depend on its API service: a killed service leaves them running.
             return EngineUnavailable(
                 f"the Podman engine at {where} went away while {doing}; a container it was running may "
                 "still be running",
-                "Start its API service again (`systemctl --user start podman.socket`, as root `systemctl start "
-                "podman.socket`, or `podman system service`), then rerun: the next command stops and removes what "
-                "was left.",
+                f"{start}, then rerun: the next command stops and removes what was left.",
             )
-        socket = _local_socket(self._env)
-        if socket is None:
-            start = f"Start the engine at {where} again"
-        elif socket == DEFAULT_SOCKET:
-            start = "Start it again (`sudo systemctl start docker`)"
-        else:  # rootless Docker's, or another daemon's of the user's
-            start = f"Start the daemon of {socket} again (rootless Docker: `systemctl --user start docker`)"
         return EngineUnavailable(
             f"the Docker engine at {where} went away while {doing}",
             f"{start}, then rerun: the next command removes what was left.",
         )
+
+    def start_hint(self) -> str:
+        """How to start this engine, for one that never answered: how_to_start's words, and how to
+        use the local engine instead where another was chosen."""
+        start = how_to_start(self._env, self._context, self._podman)
+        if self._context is not None:
+            undo = "unset DOCKER_CONTEXT" if self._context[1] == "DOCKER_CONTEXT" else "`docker context use default`"
+            return f"{start}, or {undo} for the local one."
+        if _host(self._env) != f"unix://{DEFAULT_SOCKET}":
+            return f"{start}, or unset DOCKER_HOST."
+        return f"{start}."
 
     def info(self) -> EngineInfo:
         """The engine's kind, rootless or not, and identity (asked once per Engine)."""

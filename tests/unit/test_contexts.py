@@ -127,6 +127,36 @@ def test_a_context_s_engine_that_is_down_is_never_replaced_by_a_local_one(config
         bootstrap.ensure_engine({"DOCKER_CONFIG": str(config)}, print)
     assert f"no Docker engine answers at {ROOTLESS}" in raised.value.message
     assert raised.value.hint == (
-        f'Start the engine of the Docker context "rootless" (currentContext in {config / "config.json"}), '
+        f'Start the engine of the Docker context "rootless" (currentContext in {config / "config.json"}, '
+        f"at {ROOTLESS}), "
         "or `docker context use default` for the local one."
     )
+
+
+def test_a_context_s_engine_that_went_away_is_named_by_its_context_as_when_it_never_answered(config):
+    """An engine lost mid-build was named by its address alone, with other words for how to start
+    it than an engine that never answered got."""
+    lost = Engine({"DOCKER_CONFIG": str(config)})._lost("listing containers")
+    assert lost.hint == (
+        f'Start the engine of the Docker context "rootless" (currentContext in {config / "config.json"}, '
+        f"at {ROOTLESS}), "
+        "then rerun: the next command removes what was left."
+    )
+
+
+@pytest.mark.parametrize(
+    ("socket", "start"),
+    [
+        ("run/user/1000/docker.sock", "(rootless Docker: `systemctl --user start docker`), or unset DOCKER_HOST."),
+        ("run/user/1000/podman/podman.sock", "`systemctl --user start podman.socket`"),
+    ],
+)
+def test_a_user_socket_that_never_answered_is_started_as_what_it_is(tmp_path, socket, start):
+    """DOCKER_HOST naming rootless Docker's or Podman's socket, neither running: the hint said only
+    "start the engine DOCKER_HOST names", where an engine that went away got the command."""
+    host = f"unix://{tmp_path / socket}"
+    with pytest.raises(EngineUnavailable) as raised:
+        bootstrap.ensure_engine({"DOCKER_HOST": host, "DOCKER_CONFIG": str(tmp_path)}, print)
+    assert raised.value.message == f"no Docker engine answers at {host}: nothing is listening there"
+    assert start in raised.value.hint, raised.value.hint
+    assert ("docker" in raised.value.hint) == ("podman" not in socket), raised.value.hint

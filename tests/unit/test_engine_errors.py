@@ -23,8 +23,8 @@ TCP = "tcp://engine.invalid:2375"
 NAMED = f"the Docker engine at {TCP}"
 RERUN = "then rerun: the next command removes what was left."
 # An engine that went away, by where it was: another daemon's socket, or a TCP engine.
-LOST_HINT = "Start the daemon of {} again (rootless Docker: `systemctl --user start docker`), " + RERUN
-TCP_LOST_HINT = f"Start the engine at {TCP} again, " + RERUN
+LOST_HINT = "Start the daemon of {} (rootless Docker: `systemctl --user start docker`), " + RERUN
+TCP_LOST_HINT = f"Start the engine at {TCP}, " + RERUN
 URL = "http+docker://localhost/v1.44/volumes/create"
 SPEC = RunSpec("espdock/img:1", ("true",), "/")
 
@@ -406,7 +406,7 @@ def test_the_default_socket_s_engine_is_started_as_docker_is():
     from espdock.images.engine import DEFAULT_SOCKET
 
     lost = Engine({"DOCKER_HOST": f"unix://{DEFAULT_SOCKET}"})._lost("listing containers")
-    assert lost.hint == "Start it again (`sudo systemctl start docker`), " + RERUN
+    assert lost.hint == "Start Docker (`sudo systemctl start docker`), " + RERUN
 
 
 def test_an_address_no_engine_has_is_bad_input_and_a_name_that_does_not_resolve_is_said_so():

@@ -60,7 +60,19 @@ class FirmwareSteps:
             return Outcome.CACHED, f"up to date ({step.target})"
         stamp_file.forget(stamps)
         defaults = _defaults_digest(workspace.root / step.project)
-        reset = _prepare_build_dir(build_dir, step.target, defaults, step.image_key)
+        reset, replaced = _prepare_build_dir(build_dir, step.target, defaults, step.image_key)
+        if replaced:
+            rel = build_dir.relative_to(workspace.root)
+            self.containers.emit(
+                StepNote(
+                    step.name,
+                    f"{step.project}/sdkconfig.defaults changed: {rel}/sdkconfig is made afresh from it, as IDF "
+                    f"would not; the one before, with any menuconfig changes, is {rel}/{SDKCONFIG_OLD}",
+                )
+            )
+        # What the sdkconfig is made from, before the build: a failed build's sdkconfig is of these
+        # defaults, and the next build must not take it for the last successful build's.
+        _write_marker(build_dir, step.target, defaults, _built_key(build_dir, step.target), self.containers.owner)
         fresh = not (build_dir / "sdkconfig").is_file()
         code = self.run_idf(
             workspace,
@@ -76,8 +88,7 @@ class FirmwareSteps:
                 f"build files in {build_dir}",
                 "Fix the firmware and run `espdock build` again; installed firmware was left as it was.",
             )
-        (build_dir / TARGET_MARKER).write_text(f"{step.target}\n{defaults}\n{step.image_key}\n")
-        give_to(build_dir / TARGET_MARKER, self.containers.owner)
+        _write_marker(build_dir, step.target, defaults, step.image_key, self.containers.owner)
         changed = _library_settings_changed(build_dir, fresh)
         give_to(build_dir / LIBRARY_BASELINE, self.containers.owner)
         if changed:
@@ -168,7 +179,7 @@ class FirmwareSteps:
         if sync is not None:
             # espdock's records of the build dir live on the host (the volume's come back without
             # them), and a new volume gets menuconfig's sdkconfig, which outlives a reset.
-            kept = (TARGET_MARKER, LIBRARY_BASELINE, *(("sdkconfig",) if reset or sync.fresh else ()))
+            kept = (TARGET_MARKER, LIBRARY_BASELINE, *(("sdkconfig", SDKCONFIG_OLD) if reset or sync.fresh else ()))
             archives.append(volume.files_archive(workspace, build_dir, kept, self.containers.container_owner()))
         if sync is None:
             mounts += [
@@ -338,34 +349,51 @@ def _read_marker(build_dir: Path) -> list[str]:
         return []
 
 
-def _prepare_build_dir(build_dir: Path, target: str, defaults: str, image_key: str) -> bool:
+def _write_marker(build_dir: Path, target: str, defaults: str, image_key: str, owner: tuple[int, int]) -> None:
+    make_dirs_for(build_dir, owner)
+    (build_dir / TARGET_MARKER).write_text(f"{target}\n{defaults}\n{image_key}\n")
+    give_to(build_dir / TARGET_MARKER, owner)
+
+
+def _built_key(build_dir: Path, target: str) -> str:
+    """The image key of the build dir's last successful build for TARGET ('' if none)."""
+    built_target, _, key, *_ = [*_read_marker(build_dir), "", "", ""]
+    return key if built_target == target else ""
+
+
+SDKCONFIG_OLD = "sdkconfig.old"  # the name menuconfig gives the one it replaces
+
+
+def _prepare_build_dir(build_dir: Path, target: str, defaults: str, image_key: str) -> tuple[bool, bool]:
     """Make a build dir safe to reuse.
 
     IDF refuses a build dir configured for another chip, and one configured in another image
     keeps that image's toolchain paths and library in CMakeCache.txt and ninja's state, so a
     new target or image key starts afresh. The sdkconfig (menuconfig's changes) survives an
     image change; an existing sdkconfig wins over sdkconfig.defaults, so it goes when the
-    defaults changed, and with the target. True when it removed anything.
+    defaults changed (kept as sdkconfig.old), and with the target. Returns whether it removed
+    anything, and whether it replaced an sdkconfig for new defaults.
     """
     marker = _read_marker(build_dir)
     if not marker:
-        return False
+        return False, False
     built_target, built_defaults, built_key, *_ = [*marker, "", "", ""]
     if built_target != target:
         shutil.rmtree(build_dir)  # only a cache
-        return True
+        return True, False
     keep = "sdkconfig" if built_defaults == defaults else None
+    replaced = keep is None and (build_dir / "sdkconfig").is_file()
+    if replaced:
+        (build_dir / "sdkconfig").replace(build_dir / SDKCONFIG_OLD)
     if built_key != image_key:
         for entry in build_dir.iterdir():
-            if keep is not None and entry.name in (keep, LIBRARY_BASELINE):
+            if entry.name in (keep, LIBRARY_BASELINE, SDKCONFIG_OLD, TARGET_MARKER):
                 continue
             if entry.is_dir() and not entry.is_symlink():
                 shutil.rmtree(entry)
             else:
                 entry.unlink()
-    elif keep is None:
-        (build_dir / "sdkconfig").unlink(missing_ok=True)
-    return built_key != image_key or keep is None
+    return built_key != image_key or keep is None, replaced
 
 
 LIBRARY_BASELINE = ".espdock-library-sdkconfig"

@@ -430,6 +430,35 @@ def test_a_broken_firmware_build_keeps_the_installed_firmware(fw_ws, double_env,
     assert leftover_containers(engine, root) == []
 
 
+def test_new_defaults_set_menuconfig_s_sdkconfig_aside_and_a_failed_build_s_is_never_kept_for_others(fw_ws, double_env):
+    """sdkconfig.defaults edited (and the app broken), the build failed, the edit undone and the app
+    mended: the next build kept the failed build's sdkconfig, made from the undone edit, without a
+    word; and the edit had deleted the sdkconfig menuconfig changed, without a word either."""
+    root, first = fw_ws
+    assert first.returncode == 0
+    project = root / "firmware/led_strip_node"
+    defaults, source = project / "sdkconfig.defaults", project / "main/color_parse.c"
+    sdkconfig = root / "ws/build/led_strip_node/sdkconfig"
+    original, code = defaults.read_text(), source.read_text()
+    assert "CONFIG_ESPDOCK_LED_COUNT=8\n" in sdkconfig.read_text()
+    sdkconfig.write_text(sdkconfig.read_text().replace("CONFIG_ESPDOCK_LED_COUNT=8\n", "CONFIG_ESPDOCK_LED_COUNT=9\n"))
+    try:
+        defaults.write_text(original + "CONFIG_ESPDOCK_LED_COUNT=30\n")
+        source.write_text(code + "\n#error deliberately broken\n")
+        failed = espdock("build", "led_strip_node", "--only", "firmware", cwd=root, env=double_env)
+        assert failed.returncode == 5, failed.stdout[-2000:] + failed.stderr
+        said = "sdkconfig.defaults changed: ws/build/led_strip_node/sdkconfig is made afresh from it"
+        assert said in failed.stdout, failed.stdout[-2000:]
+        assert "CONFIG_ESPDOCK_LED_COUNT=9\n" in (sdkconfig.parent / "sdkconfig.old").read_text()
+        assert "CONFIG_ESPDOCK_LED_COUNT=30\n" in sdkconfig.read_text()
+    finally:
+        defaults.write_text(original)
+        source.write_text(code)
+    built = espdock("build", "led_strip_node", "--only", "firmware", cwd=root, env=double_env)
+    assert built.returncode == 0, built.stdout[-2000:] + built.stderr
+    assert "CONFIG_ESPDOCK_LED_COUNT=8\n" in sdkconfig.read_text()
+
+
 def test_a_broken_interface_fails_the_library_build_and_tags_nothing(fw_ws, double_env, engine):
     root, first = fw_ws
     assert first.returncode == 0

@@ -2,7 +2,7 @@
 
 from pathlib import Path
 
-from espdock.firmware.steps import TARGET_MARKER, _prepare_build_dir
+from espdock.firmware.steps import SDKCONFIG_OLD, TARGET_MARKER, _prepare_build_dir
 
 
 def built(tmp_path: Path, target="esp32", defaults="d1", key="k1") -> Path:
@@ -16,27 +16,30 @@ def built(tmp_path: Path, target="esp32", defaults="d1", key="k1") -> Path:
 
 def test_same_inputs_keep_everything(tmp_path):
     build = built(tmp_path)
-    _prepare_build_dir(build, "esp32", "d1", "k1")
+    assert _prepare_build_dir(build, "esp32", "d1", "k1") == (False, False)
     assert sorted(p.name for p in build.iterdir()) == [TARGET_MARKER, "CMakeCache.txt", "esp-idf", "sdkconfig"]
 
 
 def test_a_new_image_key_resets_the_build_but_keeps_menuconfig_changes(tmp_path):
     build = built(tmp_path)
-    _prepare_build_dir(build, "esp32", "d1", "k2")
-    assert [p.name for p in build.iterdir()] == ["sdkconfig"]
+    assert _prepare_build_dir(build, "esp32", "d1", "k2") == (True, False)
+    assert sorted(p.name for p in build.iterdir()) == [TARGET_MARKER, "sdkconfig"]
     assert "from menuconfig" in (build / "sdkconfig").read_text()
 
 
-def test_a_new_image_key_with_new_defaults_drops_the_sdkconfig_too(tmp_path):
+def test_a_new_image_key_with_new_defaults_sets_the_sdkconfig_aside_too(tmp_path):
     build = built(tmp_path)
-    _prepare_build_dir(build, "esp32", "d2", "k2")
-    assert list(build.iterdir()) == []
+    assert _prepare_build_dir(build, "esp32", "d2", "k2") == (True, True)
+    assert sorted(p.name for p in build.iterdir()) == [TARGET_MARKER, SDKCONFIG_OLD]
 
 
-def test_new_defaults_drop_only_the_sdkconfig(tmp_path):
+def test_new_defaults_set_only_the_sdkconfig_aside_as_menuconfig_would(tmp_path):
+    """New defaults make the sdkconfig afresh; the one before, menuconfig's changes in it, was
+    deleted without a word."""
     build = built(tmp_path)
-    _prepare_build_dir(build, "esp32", "d2", "k1")
-    assert sorted(p.name for p in build.iterdir()) == [TARGET_MARKER, "CMakeCache.txt", "esp-idf"]
+    assert _prepare_build_dir(build, "esp32", "d2", "k1") == (True, True)
+    assert sorted(p.name for p in build.iterdir()) == [TARGET_MARKER, "CMakeCache.txt", "esp-idf", SDKCONFIG_OLD]
+    assert "from menuconfig" in (build / SDKCONFIG_OLD).read_text()
 
 
 def test_a_new_target_removes_the_build_dir(tmp_path):
@@ -64,5 +67,5 @@ def test_a_menuconfig_change_of_a_library_option_is_reported_and_others_are_not(
     # The baseline survives an image change with the sdkconfig (the library is still without them).
     (build / TARGET_MARKER).write_text("esp32\nd1\nk1\n")
     _prepare_build_dir(build, "esp32", "d1", "k2")
-    assert sorted(p.name for p in build.iterdir()) == [LIBRARY_BASELINE, "sdkconfig"]
+    assert sorted(p.name for p in build.iterdir()) == [LIBRARY_BASELINE, TARGET_MARKER, "sdkconfig"]
     assert _library_settings_changed(build, fresh=False)

@@ -102,7 +102,7 @@ _COMMAND_SCRIPT = """#!/bin/sh
 # install tree stays the same wherever the workspace is).
 here=$(CDPATH= cd -- "$(dirname -- "$0")" && pwd -P) || exit 1
 if ! command -v espdock >/dev/null 2>&1; then
-    echo "{name}: espdock is not on PATH; install it (pip install espdock) or activate its venv" >&2
+    echo "{name}: espdock is not on PATH; activate the venv it is installed in" >&2
     exit 127
 fi
 exec espdock {argv} --workspace "$here/{workspace}" {separator}"$@"

@@ -681,7 +681,8 @@ def test_ros2_run_without_espdock_on_path_says_so(fw_ws, double_env, tmp_path):
     env = {**sourced_env(root, double_env), "PATH": "/usr/bin:/bin"}
     result = ros2_run("camera_node", "flash", "--port", "/dev/ttyUSB0", env=env, cwd=tmp_path)
     assert result.returncode == 127
-    assert "espdock is not on PATH" in result.stderr
+    assert "espdock is not on PATH; activate the venv it is installed in" in result.stderr
+    assert "pip install espdock" not in result.stderr  # not on PyPI: that would install someone else's
 
 
 def test_ctrl_c_during_flash_ends_with_130_leaving_no_container_and_the_next_flash_works(fw_ws, double_env, engine):

@@ -138,7 +138,7 @@ def _test_ros(ws, config, every, ros, colcon_args, locked, official, reporter: R
         runner.run(Plan(plan.workspace, builds, plan.idf_images))
     finally:
         reporter.close()
-    record_images(ws, runner)
+        record_images(ws, runner)  # a failed build's images too: they are its inputs' as they are
     reporter.line(Text(f"colcon test: {' '.join(step.packages)}", style="bold"))
     return runner.ros.test_packages(ws, step, reporter.line)
 

@@ -25,7 +25,7 @@ from espdock.cli.core import (
     load,
     notify,
 )
-from espdock.cli.prune import after_build
+from espdock.cli.prune import after_build, record_images
 from espdock.cli.ui import Reporter, render_packages, render_plan
 from espdock.config import check_target, in_ci, invoking_user
 from espdock.errors import ConfigError, EspdockError, WorkspaceError
@@ -131,7 +131,12 @@ def build(
     manifest: dict | None = None
     try:
         runner = Runner(engine, config, os.environ, reporter, owner, push_cache=push_cache)
-        results = runner.run(plan)
+        try:
+            results = runner.run(plan)
+        except BaseException:
+            # The images a failed build made are its inputs' as they are: prune has to know them.
+            record_images(ws, runner)
+            raise
         built = any(r.outcome is not Outcome.CACHED for r in results)
         chown = owner if os.geteuid() == 0 else None
         manifest = record_build(plan, config.target, ws.ws_dir / "install", built, stamp_files(ws), chown)

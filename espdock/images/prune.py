@@ -156,11 +156,11 @@ def plan_prune(
 ) -> PrunePlan:
     """Which of TARGETS' (workspace roots) recorded images to remove.
 
-    Each target keeps what CURRENT (root -> tags its inputs use now) names and, of each kind
-    (repository), the KEEP most recently used others. An image stays, too, when another record's
-    last build used it, when a running container runs it (RUNNING: image ids), or when it is no
-    longer on the engine (PRESENT). A GONE workspace (its root removed) keeps nothing and protects
-    nothing: no build will use its images again."""
+    Each target keeps what CURRENT (root -> tags its inputs use now; else what its last build
+    used) names and, of each kind (repository), the KEEP most recently used others. An image
+    stays, too, when another record's last build used it, when a running container runs it
+    (RUNNING: image ids), or when it is no longer on the engine (PRESENT). A GONE workspace (its
+    root removed) keeps nothing and protects nothing: no build will use its images again."""
     records = list(records)
     targets = set(targets)
     gone = set(gone)
@@ -173,7 +173,15 @@ def plan_prune(
         if record.root not in targets:
             continue
         removed = record.root in gone
-        now_used = set() if removed else set(current.get(record.root, ())) | set(record.current)
+        # What a workspace's inputs use now, where CURRENT says: its record's "current" keeps a
+        # kind no package uses any more (a chip whose last package went, a one-off --target).
+        # Other workspaces' are what their last builds used.
+        if removed:
+            now_used = set()
+        elif record.root in current:
+            now_used = set(current[record.root])
+        else:
+            now_used = set(record.current)
         others = {tag for other in records if other.root not in (record.root, *gone) for tag in other.current}
         by_kind: dict[str, list[UsedImage]] = {}
         for image in record.images:

@@ -31,6 +31,7 @@ from esptool.cmds import detect_chip
 
 from espdock.config import Config, resolve_ca_bundle
 from espdock.firmware.flashing import chip_probe_argv, detected_chip, esptool_major, parse_port
+from espdock.images.prune import read_records, state_dir
 from espdock.layout import firmware_install_dir
 from tests.conftest import (
     REPO,
@@ -402,9 +403,21 @@ def test_a_msg_change_is_never_served_a_stale_library(fw_ws, double_env):
         before = app.read_bytes()
         # Firmware only: the ROS side's rebuild on a .msg change is test_colcon's, and here it would
         # build the interface package twice (the change, then the restore: ~40 s of CPU).
+        # First with the app broken: the library is built, the app fails, and prune knows the image
+        # (a failed build's images were never recorded, so never pruned).
+        source = root / "firmware/camera_node/main/frame_pacer.c"
+        code = source.read_text()
+        source.write_text(code + "\n#error deliberately broken\n")
+        try:
+            failed = espdock("build", "camera_node", "--only", "firmware", cwd=root, env=double_env)
+        finally:
+            source.write_text(code)
+        assert failed.returncode == 5, failed.stdout[-2000:] + failed.stderr
+        assert "cache miss" in failed.stdout
+        (record,) = [r for r in read_records(state_dir(os.environ)) if r.root == str(root)]
+        assert changed["image"] in record.current, record.current
         result = espdock("build", "camera_node", "--only", "firmware", cwd=root, env=double_env)
         assert result.returncode == 0, result.stdout[-2000:] + result.stderr
-        assert "cache miss" in result.stdout
         assert field in header(changed["image"])
         assert app.read_bytes() != before, "the app must relink against the new library"
     finally:

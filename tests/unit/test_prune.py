@@ -40,8 +40,20 @@ def test_the_old_generations_go_the_last_n_and_what_others_or_containers_use_sta
 
 def test_what_the_inputs_use_now_stays_though_no_build_recorded_it_and_gone_images_are_skipped():
     ours = Record("/a", generations("/a", "ros", 3), frozenset({"ros:3"}))
-    plan = plan_prune([ours], {"/a"}, {"/a": {"ros:1"}}, present("ros:1", "ros:3"), set(), keep=0)
+    plan = plan_prune([ours], {"/a"}, {"/a": {"ros:1"}}, present("ros:1", "ros:3"), set(), keep=1)
     assert plan.remove == ()  # ros:2 is no longer on the engine, ros:1 is what the inputs use now
+
+
+def test_a_kind_the_inputs_no_longer_use_is_not_kept_as_current_because_the_last_build_used_it():
+    """A chip whose last firmware package went (or a one-off --target build): its micro-ROS image
+    stayed "used by the current inputs" for ever, as the record keeps the current image of each
+    kind a build did not touch."""
+    ours = Record("/a", (UsedImage("ros:1", "ros", 1.0), UsedImage("s3:1", "s3", 1.0)), frozenset({"ros:1", "s3:1"}))
+    plan = plan_prune([ours], {"/a"}, {"/a": {"ros:1"}}, present("ros:1", "s3:1"), set(), keep=0)
+    assert [(d.tag, d.reason) for d in plan.remove] == [("s3:1", "no longer used by its inputs")]
+    # Another workspace's record, whose current inputs no one computed, still speaks for it.
+    theirs = Record("/b", (UsedImage("s3:1", "s3", 1.0),), frozenset({"s3:1"}))
+    assert plan_prune([ours, theirs], {"/a", "/b"}, {"/a": {"ros:1"}}, present("ros:1", "s3:1"), set(), 0).remove == ()
 
 
 def test_only_the_targets_are_pruned_and_unrecorded_images_never():

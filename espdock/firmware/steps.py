@@ -25,6 +25,7 @@ from espdock.firmware.plan import LIBRARY_SDKCONFIG_PREFIXES, SDKCONFIG_LINE, Id
 from espdock.images import volume
 from espdock.images.containers import Containers, give_to, make_dirs_for, volume_mode_refused
 from espdock.images.engine import Mount, RunSpec
+from espdock.images.visibility import host_paths
 from espdock.layout import COLCON_RESULT_FILES, firmware_build_dir, install_prefix
 from espdock.workspace import Workspace, workspace_lock
 
@@ -78,7 +79,7 @@ class FirmwareSteps:
             workspace,
             step,
             step.argv(),
-            on_line=lambda line: self.containers.emit(StepOutput(step.name, line)),
+            on_line=lambda line: self.containers.emit(StepOutput(step.name, host_paths(line, workspace))),
             sweep=True,
             reset=reset,
         )
@@ -254,7 +255,7 @@ class FirmwareSteps:
         sdkconfig = firmware_build_dir(workspace.ws_dir, step.package) / "sdkconfig"
         made = not sdkconfig.is_file()
         if made and "menuconfig" in args:
-            say = lambda line: self.containers.emit(StepOutput("idf.py reconfigure", line))  # noqa: E731
+            say = lambda line: self.containers.emit(StepOutput("idf.py reconfigure", host_paths(line, workspace)))  # noqa: E731
             if code := self.run_idf(workspace, step, step.argv(("reconfigure",)), on_line=say):
                 return code
             self._record_library_baseline(workspace, step)

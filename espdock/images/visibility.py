@@ -12,6 +12,7 @@ from __future__ import annotations
 import json
 import os
 import posixpath
+import re
 import secrets
 import stat
 from collections.abc import Iterable
@@ -29,6 +30,20 @@ PROBE_PREFIX = ".espdock-probe-"
 def workspace_mount(workspace: Workspace) -> Mount:
     """The workspace as every build container mounts it (the one place that is decided)."""
     return Mount(workspace.root, WORKSPACE_MOUNT)
+
+
+# The mount point as a path of its own (not /workspaces, not a/workspace): at the start of a line
+# or after a space, quote, bracket, = or :, and followed by / or the end of the path.
+_MOUNTED = re.compile(rf"(?<![\w.~/-]){re.escape(WORKSPACE_MOUNT)}(?=/|$|[\s:'\")\],;])")
+
+
+def host_paths(line: str, workspace: Workspace) -> str:
+    """LINE (a tool's output in a build container) with the workspace's paths as the user's: a
+    compiler's or CMake's error names /workspace/..., which no editor or terminal can open."""
+    if WORKSPACE_MOUNT not in line:
+        return line
+    root = str(workspace.root)
+    return _MOUNTED.sub(lambda _: root, line)
 
 
 def linked_mounts(workspace: Workspace, paths: Iterable[Path]) -> tuple[Mount, ...]:

@@ -18,7 +18,7 @@ from espdock.images import volume
 from espdock.images.containers import Containers, give_to, permission_error, volume_mode_refused
 from espdock.images.engine import Mount, RunSpec
 from espdock.images.keyed import KeyedImages
-from espdock.images.visibility import linked_mounts, workspace_mount
+from espdock.images.visibility import host_paths, linked_mounts, workspace_mount
 from espdock.layout import ROS_BUILD_BASE
 from espdock.ros.colcon import (
     DEFAULTS_MOUNT,
@@ -115,7 +115,7 @@ class RosSteps:
 
         def on_line(line: str) -> None:
             output.append(line)
-            self.containers.emit(StepOutput(step.name, line))
+            self.containers.emit(StepOutput(step.name, host_paths(line, workspace)))
 
         spec = RunSpec(
             image=step.image,
@@ -245,7 +245,7 @@ class RosSteps:
 
         def collect(line: str) -> None:
             output.append(line)
-            on_line(line)
+            on_line(host_paths(line, workspace))
 
         code = self.colcon_test(workspace, step, collect)
         found = read_results(build_base, step.packages)

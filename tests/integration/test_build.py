@@ -194,11 +194,17 @@ def test_a_failing_package_is_named_with_its_log(engine, tmp_path):
     manifest = broken / "package.xml"
     manifest.write_text(manifest.read_text().replace("<name>custom_interface</name>", "<name>broken_pkg</name>"))
     (broken / "CMakeLists.txt").write_text(
-        'cmake_minimum_required(VERSION 3.16)\nproject(broken_pkg)\nmessage(FATAL_ERROR "deliberately broken")\n'
+        "cmake_minimum_required(VERSION 3.16)\nproject(broken_pkg C)\nadd_executable(broken src/broken.c)\n"
     )
+    (broken / "src").mkdir()
+    (broken / "src/broken.c").write_text("#error deliberately broken\nint main(void) { return 0; }\n")
     result = espdock("build", cwd=root)
     assert result.returncode == 5, result.stdout + result.stderr
     assert "broken_pkg" in result.stderr
+    # The error's file as the user opens it, not where the container had the workspace mounted.
+    assert f"{root}/ws/src/broken_pkg/src/broken.c:1:2: error: #error deliberately broken" in result.stdout, (
+        result.stdout
+    )
     log = root / "ws/log/latest_build/broken_pkg/stdout_stderr.log"
     assert str(log) in result.stderr
     assert "deliberately broken" in log.read_text()

@@ -14,6 +14,7 @@ import sys
 import tarfile
 import threading
 import time
+from pathlib import Path
 from typing import ClassVar
 
 import pytest
@@ -406,3 +407,17 @@ def test_the_sdk_brings_paramiko_only_for_an_ssh_engine(host, ssh):
     ran = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, check=False)
     assert ran.returncode == 0, ran.stderr
     assert ran.stdout.split()[:2] == [str(ssh), str(ssh)]
+
+
+def test_a_tool_s_paths_in_the_workspace_mount_are_shown_as_the_user_s():
+    from espdock.images.visibility import host_paths
+
+    ws = Workspace(Path("/home/ann/robot"))
+    assert host_paths("/workspace/ws/src/d/a.c:3:1: error: x", ws) == "/home/ann/robot/ws/src/d/a.c:3:1: error: x"
+    assert host_paths("CMake Error at /workspace/firmware/b/CMakeLists.txt:3", ws).endswith(
+        " /home/ann/robot/firmware/b/CMakeLists.txt:3"
+    )
+    assert host_paths("cwd '/workspace'", ws) == "cwd '/home/ann/robot'"
+    # Only the mount point itself: other paths that contain its name stay as they are.
+    for line in ("/workspaces/x", "src/workspace/x", "~/workspace/x", "/workspace_2/x", "no path here"):
+        assert host_paths(line, ws) == line

@@ -29,7 +29,7 @@ import tempfile
 import warnings
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from contextlib import AbstractContextManager, contextmanager, suppress
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from datetime import UTC, datetime
 from enum import StrEnum
 from pathlib import Path
@@ -774,7 +774,10 @@ class Engine:
         however this ends. Returns its exit code and the first signal passed on, or None."""
         docker_cli = self.compose_command()[0]
         name = spec.name or f"espdock-run-{os.getpid()}-{secrets.token_hex(4)}"
-        argv = _run_argv(docker_cli, name, spec, self._host_users(spec))
+        # Labelled with this espdock, as every container it makes: one a killed espdock left
+        # running (a node, a shell) is the next build's to remove (Engine.sweep).
+        labelled = replace(spec, labels=(*spec.labels, (LABEL_OWNER, owner_identity())))
+        argv = _run_argv(docker_cli, name, labelled, self._host_users(spec))
         received: list[int] = []
         sent = 0
 
@@ -787,7 +790,13 @@ class Engine:
         try:
             # At a terminal the CLI needs it (raw mode: Ctrl-C reaches the node through it);
             # otherwise its own session keeps a Ctrl-C from reaching it besides espdock.
-            process = subprocess.Popen(argv, env=self._cli_env, start_new_session=not spec.tty)
+            # The CLI goes with espdock (SIGKILL included): the container it leaves is swept.
+            process = subprocess.Popen(
+                argv,
+                env=self._cli_env,
+                start_new_session=not spec.tty,
+                preexec_fn=_die_with_parent(),  # noqa: PLW1509 (see _die_with_parent)
+            )
             while True:
                 try:
                     code = process.wait(timeout=0.1)

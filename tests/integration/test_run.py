@@ -87,6 +87,22 @@ def test_a_closed_output_ends_run_as_a_shell_says_leaving_no_container(engine, n
     assert no_containers_left(engine, node_workspace) == []
 
 
+def test_a_node_whose_espdock_was_killed_outright_is_removed_by_the_next_build(engine, node_workspace):
+    """kill -9 of `espdock run` (or a closed terminal's SIGKILL): the node went on running, its
+    docker CLI with it, and no build removed it, the container lacking espdock's owner label."""
+    node = Node(node_workspace, "beacon_nodes", "beacon", domain=random.randrange(100, 200))
+    try:
+        node.wait_for("sent: beacon 1")
+        node.process.kill()
+        node.process.wait(timeout=30)
+    finally:
+        node.stop()
+    assert leftover_containers(engine, node_workspace), "the node stops only when something removes it"
+    built = espdock("build", "--only", "ros", cwd=node_workspace)
+    assert built.returncode == 0, built.stdout + built.stderr
+    assert no_containers_left(engine, node_workspace) == []
+
+
 def test_two_nodes_started_with_run_talk_over_a_topic(engine, node_workspace):
     domain = random.randrange(100, 200)
     listener = Node(node_workspace, "beacon_nodes", "beacon_log", domain=domain)

@@ -13,9 +13,9 @@ from espdock.build.steps import EnsureImage, Plan
 from espdock.config import Config, invoking_user
 from espdock.errors import EspdockError
 from espdock.firmware.plan import IdfBuild, firmware_step
-from espdock.layout import ROSDEP_LOCK
+from espdock.layout import ROS_BUILD_BASE, ROSDEP_LOCK
 from espdock.ros import rosdeps, testdeps
-from espdock.ros.colcon import read_colcon_settings
+from espdock.ros.colcon import last_build_args, read_colcon_settings, without_build_testing
 from espdock.ros.plan import ColconBuild, RuntimeImage, checked_packages, ros_image
 from espdock.ros.steps import runtime_spec
 from espdock.ros.testing import ColconTest
@@ -132,7 +132,23 @@ def plan_tests(
     testdeps.check_tests(ros, lock, ros_image(config, inputs)[2])
     names = tuple(p.name for p in ros)
     known = (every, inputs)
-    plan = build_plan(ws, config, list(names), PackageKind.ROS, testing=True, known=known, env=env, notify=notify)
+    # The builds keep install/ as the last build made it: its options after `--` (a
+    # --symlink-install stays one, and dependencies it built are up to date), BUILD_TESTING aside.
+    last = last_build_args(ws.ws_dir / ROS_BUILD_BASE)
+    if last:
+        notify(f"building with the options of the last espdock build: {' '.join(last)}")
+    tested_args = without_build_testing(last) or None
+    plan = build_plan(
+        ws,
+        config,
+        list(names),
+        PackageKind.ROS,
+        colcon_args=tested_args,
+        testing=True,
+        known=known,
+        env=env,
+        notify=notify,
+    )
     plan = testdeps.with_test_image(_test_build(plan), lock, official)
     build = next(step for step in plan.steps if isinstance(step, ColconBuild))
     step = ColconTest(
@@ -149,7 +165,9 @@ def plan_tests(
         # test image over it), with their tests configured only where a plain build configures
         # them. A template's `find_package(ament_lint_auto)` under BUILD_TESTING in a dependency
         # then needs nothing, and a build before leaves them up to date.
-        plain = build_plan(ws, config, list(names), PackageKind.ROS, known=known, env=env, notify=notify)
+        plain = build_plan(
+            ws, config, list(names), PackageKind.ROS, colcon_args=last or None, known=known, env=env, notify=notify
+        )
         first = next(s for s in plain.steps if isinstance(s, ColconBuild))
         steps = (dataclasses.replace(first, selected=dependencies, name="colcon build: dependencies"), tested)
     out = [new for s in plan.steps for new in (steps if s is build else (s,))]

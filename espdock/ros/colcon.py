@@ -190,6 +190,34 @@ def left_out(args: Iterable[str], depends: Mapping[str, Iterable[str]]) -> froze
 
 _BUILD_TESTING = re.compile(r"^-DBUILD_TESTING(:BOOL)?=", re.IGNORECASE)
 
+# The options after `--` of the last colcon build that ran (in the ROS build base): what install/
+# is built with, which `espdock test`'s builds keep (a --symlink-install stays one).
+LAST_ARGS = ".espdock-colcon-args"
+
+
+def record_build_args(base: Path, args: tuple[str, ...]) -> Path | None:
+    """Keep ARGS as the last build's options in BASE (the ROS build base colcon made); the file."""
+    if not base.is_dir():
+        return None
+    path = base / LAST_ARGS
+    path.write_text(json.dumps(list(args)) + "\n")
+    return path
+
+
+def last_build_args(base: Path) -> tuple[str, ...]:
+    """The options after `--` of the last colcon build in BASE (none when unknown)."""
+    try:
+        args = json.loads((base / LAST_ARGS).read_text())
+    except (OSError, ValueError):
+        return ()
+    return tuple(str(arg) for arg in args) if isinstance(args, list) else ()
+
+
+def without_build_testing(args: tuple[str, ...]) -> tuple[str, ...]:
+    """ARGS without their BUILD_TESTING setting: a test build configures the tests whatever the
+    build before it did."""
+    return tuple(arg for arg in args if not _BUILD_TESTING.match(arg.strip()))
+
 
 def sets_build_testing(args: Iterable[str]) -> bool:
     """Whether ARGS (colcon options) set BUILD_TESTING themselves (`--cmake-args -DBUILD_TESTING=ON`)."""

@@ -25,6 +25,7 @@ from espdock.ros.colcon import (
     ColconLog,
     PackageState,
     explain_failure,
+    record_build_args,
     usage_error,
 )
 from espdock.ros.plan import ColconBuild, RuntimeImage, runtime_image_spec
@@ -154,6 +155,8 @@ class RosSteps:
                     )
                     volume.record(workspace, self.containers.engine, sync, None if merge else listing_digest(install))
                     give_to(workspace.ws_dir / "build" / volume.SYNCED, self.containers.owner)
+        if states is not None and not step.testing and (recorded_args := record_build_args(base, step.colcon_args)):
+            give_to(recorded_args, self.containers.owner)
         built = [name for name, state in (states or {}).items() if state is PackageState.BUILT and name in stamps]
         if built:
             stamp_file.record({name: stamps[name] for name in built}, installed())

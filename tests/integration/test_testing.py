@@ -73,10 +73,8 @@ def image_tested_in(output: str) -> str:
     return re.search(r"espdock/ros-jazzy(?:-official)?-test:[0-9a-f]{16}", output).group(0)
 
 
-def test_build_skips_test_needs_then_test_builds_runs_and_reports_them(tmp_path, engine):
-    root = make_workspace(tmp_path / "w", ("tested_py", "tested_cpp", "lint_auto_cpp"))
-    env = {**environment(tmp_path), "ESPDOCK_STATE_DIR": str(tmp_path / "state")}
-    # tested_cpp uses the template-made package, as a driver uses its interface package.
+def depend_on_the_template_package(root: Path) -> None:
+    """tested_cpp uses the template-made package, as a driver uses its interface package."""
     for name, old, new in (
         ("package.xml", "  <test_depend>", "  <depend>lint_auto_cpp</depend>\n  <test_depend>"),
         ("CMakeLists.txt", "find_package(ament_cmake REQUIRED)\n", "find_package(ament_cmake REQUIRED)\n"
@@ -84,6 +82,12 @@ def test_build_skips_test_needs_then_test_builds_runs_and_reports_them(tmp_path,
     ):  # fmt: skip
         path = root / "src/tested_cpp" / name
         path.write_text(path.read_text().replace(old, new, 1))
+
+
+def test_build_skips_test_needs_then_test_builds_runs_and_reports_them(tmp_path, engine):
+    root = make_workspace(tmp_path / "w", ("tested_py", "tested_cpp", "lint_auto_cpp"))
+    env = {**environment(tmp_path), "ESPDOCK_STATE_DIR": str(tmp_path / "state")}
+    depend_on_the_template_package(root)
 
     # A plain build of the template's package on the wheels image: its ament_lint_auto is not
     # needed (issue 31.4). The other two build once, below, with their tests.
@@ -134,6 +138,27 @@ def test_build_skips_test_needs_then_test_builds_runs_and_reports_them(tmp_path,
     assert again.returncode == 0, again.stdout[-3000:] + again.stderr
     assert "tested_py  5 tests: 4 passed, 0 failed, 0 errored, 1 skipped" in again.stdout
     assert "up to date" in again.stdout
+    assert leftover_containers(engine, root) == []
+
+
+def test_the_tests_build_keeps_the_symlink_install_the_last_build_made(tmp_path, engine):
+    """`espdock build -- --symlink-install`, then `espdock test`: the test's builds were plain
+    ones, so the dependencies were built again and install/ became copies (source edits no longer
+    reached the nodes), where `colcon test` leaves install/ alone."""
+    root = make_workspace(tmp_path / "w", ("tested_py", "tested_cpp", "lint_auto_cpp"))
+    env = {**environment(tmp_path), "ESPDOCK_STATE_DIR": str(tmp_path / "state")}
+    depend_on_the_template_package(root)
+    built = espdock("build", "--", "--symlink-install", cwd=root, env=env)
+    assert built.returncode == 0, built.stdout[-3000:] + built.stderr
+    linked = [root / f"install/{name}/share/{name}/package.xml" for name in ("lint_auto_cpp", "tested_py")]
+    assert all(path.is_symlink() for path in linked)
+
+    tested = espdock("test", "tested_py", "tested_cpp", cwd=root, env=env)
+    assert tested.returncode == 10, tested.stdout[-3000:] + tested.stderr  # tested_py's failing test
+    assert "building with the options of the last espdock build: --symlink-install" in tested.stdout + tested.stderr
+    assert re.search(r"colcon build: dependencies +cached .*up to date", tested.stdout), tested.stdout[-3000:]
+    assert "tested_cpp  3 tests: 3 passed" in tested.stdout, tested.stdout[-3000:]
+    assert all(path.is_symlink() for path in linked), "install/ is as the last build made it"
     assert leftover_containers(engine, root) == []
 
 

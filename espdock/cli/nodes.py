@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import pwd
 import sys
 from pathlib import Path
 from typing import Annotated
@@ -17,10 +18,19 @@ from espdock.cli.prune import record_images
 from espdock.config import Config, resolve_ca_bundle
 from espdock.errors import Interrupted
 from espdock.images import bootstrap
+from espdock.images.containers import give_to, make_dirs_for
 from espdock.ros import nodes
 from espdock.ros.plan import RuntimeImage
 from espdock.ros.steps import runtime_spec
 from espdock.workspace import PackageKind, Workspace
+
+
+def user_name(uid: int) -> str | None:
+    """UID's login name on this machine, None where it has none."""
+    try:
+        return pwd.getpwuid(uid).pw_name
+    except KeyError:
+        return None
 
 
 def runtime_image(ws: Workspace, config: Config, plan: Plan | None = None) -> tuple[Runner, str]:
@@ -133,6 +143,14 @@ def shell(workspace: WorkspaceOption = None) -> None:
     mount = runner.containers.workspace_for(ws, image, "shell")
     packages = workspace_packages(ws, config.ros_distro)
     owner = runner.containers.container_owner()
-    spec = nodes.shell_spec(ws, image, owner, os.environ, tty, dockerfile, mount, packages)
+    if not mount.volume:
+        home = ws.ws_dir / nodes.SHELL_HOME
+        make_dirs_for(home, runner.owner)
+        if not (bashrc := home / ".bashrc").exists():
+            bashrc.write_text(nodes.SHELL_BASHRC)
+            give_to(bashrc, runner.owner)
+    spec = nodes.shell_spec(
+        ws, image, owner, os.environ, tty, dockerfile, mount, packages, Path.cwd(), user_name(runner.owner[0])
+    )
     code, stopped_by = runner.engine.run_foreground(spec)
     raise typer.Exit(128 + stopped_by if stopped_by else code)

@@ -222,6 +222,16 @@ def node_spec(
 SOURCE_AND_SHELL = 'if [ -f "$1/local_setup.bash" ]; then . "$1/local_setup.bash"; fi; exec bash'
 
 
+# The shell's home, under the colcon root's build/: its history and ~/.ros outlive the container.
+SHELL_HOME = "build/espdock-home"
+# The containers' /etc/passwd has no line for the user: bash's prompt would say "I have no name!".
+SHELL_BASHRC = """\
+# espdock shell's ~/.bashrc (the home is build/espdock-home: history and ~/.ros stay between shells).
+# The container's /etc/passwd does not know you, so the prompt names you from $USER.
+if ! id -un >/dev/null 2>&1; then PS1='${USER:-me}@\\h:\\w\\$ '; fi
+"""
+
+
 def shell_spec(
     workspace: Workspace,
     image: str,
@@ -231,22 +241,30 @@ def shell_spec(
     dockerfile: str = "",
     mount: Mount | None = None,
     packages: Iterable[Package] = (),
+    cwd: Path | None = None,
+    user_name: str | None = None,
 ) -> RunSpec:
     """A shell in the build IMAGE (made from DOCKERFILE) with the workspace mounted (MOUNT: its
     volume instead, espdock.volume), the directories the links to its ROS PACKAGES lead to (as a
-    build has them) and its install tree sourced."""
+    build has them) and its install tree sourced; in CWD where that is in the colcon root, else
+    there; as USER_NAME (USER, LOGNAME), with SHELL_HOME as its home on the workspace's mount."""
     root = posixpath.normpath(f"{WORKSPACE_MOUNT}/{workspace.colcon_root}")
     official = dockerfile == ROS_OFFICIAL_DOCKERFILE
     mount = mount or Mount(workspace.root, WORKSPACE_MOUNT)
     ros = [p.path for p in packages if p.kind is PackageKind.ROS]
+    workdir = root
+    if cwd is not None and cwd.resolve().is_relative_to(workspace.ws_dir.resolve()):
+        workdir = posixpath.join(root, cwd.resolve().relative_to(workspace.ws_dir.resolve()).as_posix())
+    home = "/tmp" if mount.volume else posixpath.join(root, SHELL_HOME)
+    named = (("USER", user_name), ("LOGNAME", user_name)) if user_name else ()
     return RunSpec(
         image=image,
         argv=("bash", "-c", SOURCE_AND_SHELL, "bash", f"{root}/install") if official else ("bash",),
-        workdir=root,
+        workdir=posixpath.normpath(workdir),
         user=f"{owner[0]}:{owner[1]}",
         mounts=(mount,) if mount.volume else (mount, *linked_mounts(workspace, ros)),
         # The entrypoint sources this install tree when it exists (docker/ros-entrypoint.sh).
-        env=(("HOME", "/tmp"), ("ESPDOCK_WS_INSTALL", f"{root}/install"), *node_env(env)),
+        env=(("HOME", home), *named, ("ESPDOCK_WS_INSTALL", f"{root}/install"), *node_env(env)),
         labels=_labels(workspace, "shell"),
         network=DEFAULT_NETWORK,
         tty=tty,

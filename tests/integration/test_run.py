@@ -311,6 +311,27 @@ def test_build_makes_no_runtime_image_run_and_compose_make_it_from_the_last_buil
             subprocess.run(["docker", "rmi", *tags], capture_output=True, check=False)
 
 
+def test_the_shell_opens_where_you_are_keeps_its_home_and_sources_install_as_ros_does(engine, node_workspace):
+    """`source install/setup.bash`, a ROS developer's reflex, said `not found:
+    "/opt/espdock/venv/local_setup.bash"`; the shell opened in the colcon root wherever it was
+    started, its home (/tmp) went with each container, and $USER was empty."""
+
+    def shell(cwd: Path, commands: str) -> subprocess.CompletedProcess[str]:
+        return subprocess.run([sys.executable, "-m", "espdock", "shell"], cwd=cwd, input=commands,
+                              capture_output=True, text=True, timeout=600, check=False)  # fmt: skip
+
+    first = shell(node_workspace, 'source install/setup.bash\necho "user=$USER"\necho kept > ~/mark\n')
+    assert first.returncode == 0, first.stdout + first.stderr
+    assert first.stderr == "", first.stderr
+    assert "user=root" in first.stdout, first.stdout  # the workspace's owner (a root-made test workspace)
+    package = node_workspace / "ws/src/beacon_nodes"
+    second = shell(package, "pwd\ncat ~/mark\n")
+    assert second.returncode == 0, second.stdout + second.stderr
+    assert second.stdout.split() == ["/workspace/ws/src/beacon_nodes", "kept"], second.stdout
+    assert (node_workspace / "ws/build/espdock-home/mark").is_file()
+    assert no_containers_left(engine, node_workspace) == []
+
+
 @pytest.mark.slow
 def test_shell_on_the_official_image_has_the_workspace_sourced(engine, tmp_path):
     """The official image's build stage keeps its own entrypoint, which sources ROS only."""

@@ -225,3 +225,17 @@ def test_the_shell_gets_the_directories_linked_packages_lead_to_as_a_build_does(
 )
 def test_the_compose_subcommand_is_found_after_composes_own_options(args, subcommand):
     assert compose_subcommand(args) == subcommand
+
+
+def test_the_shell_opens_where_it_was_started_in_the_colcon_root_with_a_home_on_the_workspace(ws):
+    workspace, _ = ws
+    inside = workspace.ws_dir / "src"
+    spec = shell_spec(workspace, "img", (1000, 1000), {}, False, "Dockerfile.ros", cwd=inside, user_name="ann")
+    assert spec.workdir == "/workspace/src"
+    env = dict(spec.env)
+    assert env["HOME"] == "/workspace/build/espdock-home" and env["USER"] == env["LOGNAME"] == "ann"
+    # Outside the colcon root: the colcon root, where `source install/setup.bash` works.
+    assert shell_spec(workspace, "img", (1, 1), {}, False, cwd=workspace.root.parent).workdir == "/workspace"
+    # In the workspace volume the home would not come back: /tmp, as before.
+    in_volume = Mount("espdock-ws-x", "/workspace", volume=True)
+    assert dict(shell_spec(workspace, "img", (1, 1), {}, False, "", in_volume).env)["HOME"] == "/tmp"

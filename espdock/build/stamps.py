@@ -16,8 +16,10 @@ from pathlib import Path
 
 from espdock import durable
 
-# Not sources: colcon's and IDF's outputs, caches, VCS and editor state.
-SKIP_DIRS = {"build", "install", "log", "managed_components", "__pycache__"}
+# Not sources: colcon's and IDF's outputs beside a package.xml (or in the colcon root), caches,
+# VCS and editor state. Deeper down they are sources: a Python subpackage `log`, an IDF
+# project's override of IDF's `log` component in components/log.
+OUTPUT_DIRS = {"build", "install", "log", "managed_components"}
 
 
 def tree_digest(*roots: Path) -> str:
@@ -145,10 +147,16 @@ class StampFile:
         durable.write_text(self.path, json.dumps(data, indent=1, sort_keys=True) + "\n")
 
 
-def source_files(root: Path) -> list[Path]:
-    """The files under ROOT a build reads: hidden and output dirs, hidden files and .pyc left out."""
+def source_files(root: Path, output_parents: Collection[Path] = ()) -> list[Path]:
+    """The files under ROOT a build reads: hidden files and dirs, __pycache__ and .pyc left out,
+    and OUTPUT_DIRS where they are outputs: in a package's directory (it holds a package.xml),
+    and in OUTPUT_PARENTS (the colcon root)."""
     found = []
+    parents = {os.fspath(p) for p in output_parents}
     for dirpath, dirnames, filenames in os.walk(root):
-        dirnames[:] = sorted(d for d in dirnames if not d.startswith(".") and d not in SKIP_DIRS)
+        outputs = "package.xml" in filenames or dirpath in parents
+        dirnames[:] = sorted(
+            d for d in dirnames if not d.startswith(".") and d != "__pycache__" and not (outputs and d in OUTPUT_DIRS)
+        )
         found += [Path(dirpath) / f for f in sorted(filenames) if not f.startswith(".") and not f.endswith(".pyc")]
     return found

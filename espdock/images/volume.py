@@ -95,7 +95,7 @@ def prepare(engine: Engine, workspace: Workspace, owner: tuple[int, int]) -> Syn
         except (OSError, ValueError, AttributeError):
             pass
     now: dict[str, Path] = {}
-    for path in source_files(workspace.root):
+    for path in source_files(workspace.root, (workspace.root, workspace.ws_dir)):
         if not _output(workspace, path):
             now[path.relative_to(workspace.root).as_posix()] = path
     files: dict[str, list[int]] = {}

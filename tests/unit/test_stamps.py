@@ -30,3 +30,26 @@ def test_an_install_listing_keeps_the_format_earlier_builds_recorded(tmp_path):
     expected = hashlib.sha256("".join(lines).encode()).hexdigest()
     assert listing_digest(root, ignore={"setup.sh"}) == expected
     assert listing_digest(tmp_path / "missing") is None
+
+
+def test_output_dirs_are_left_out_only_where_they_are_outputs(tmp_path):
+    """A Python subpackage `log` and an IDF project's components/log (an override of IDF's log
+    component) are sources: a change in them was no change to the build, and the workspace
+    volume never got them."""
+    from espdock.build.stamps import source_files, tree_digest
+
+    package = tmp_path / "ws/src/my_py"
+    for rel in ("package.xml", "my_py/log/__init__.py", "components/log/log.c", "build/lib/x.py", "log/out.txt",
+                "my_py/__pycache__/a.pyc", ".git/HEAD"):  # fmt: skip
+        (package / rel).parent.mkdir(parents=True, exist_ok=True)
+        (package / rel).write_text(rel)
+    (tmp_path / "ws/build/my_py").mkdir(parents=True)
+    (tmp_path / "ws/build/my_py/CMakeCache.txt").write_text("")
+    found = {p.relative_to(package).as_posix() for p in source_files(package)}
+    assert found == {"package.xml", "my_py/log/__init__.py", "components/log/log.c"}
+    before = tree_digest(package)
+    (package / "my_py/log/__init__.py").write_text('LEVEL = "v2"\n')
+    assert tree_digest(package) != before
+    # From the workspace root (the volume's sync): the colcon root's own outputs stay out too.
+    every = {p.relative_to(tmp_path).as_posix() for p in source_files(tmp_path, (tmp_path, tmp_path / "ws"))}
+    assert every == {f"ws/src/my_py/{rel}" for rel in found}

@@ -301,6 +301,7 @@ def _context_dir(workspace: Workspace, spec: ImageSpec, files: Mapping[str, Path
             path = Path(tmp, rel)
             path.parent.mkdir(parents=True, exist_ok=True)
             path.write_bytes(data)
+            path.chmod(0o644)
         for rel, source in files.items():
             path = Path(tmp, rel)
             path.parent.mkdir(parents=True, exist_ok=True)
@@ -309,6 +310,10 @@ def _context_dir(workspace: Workspace, spec: ImageSpec, files: Mapping[str, Path
                 path.chmod(0o644)
             else:
                 shutil.copy2(source, path, follow_symlinks=False)
+        # The modes the image gets, whatever the umask (077 made files only root could read, in
+        # an image whose key, of contents, every umask shares).
+        for directory in (Path(tmp), *(p for p in Path(tmp).rglob("*") if p.is_dir() and not p.is_symlink())):
+            directory.chmod(0o755)
         yield Path(tmp)
 
 

@@ -19,8 +19,10 @@ from espdock.config import Config, resolve_ca_bundle
 from espdock.errors import Interrupted
 from espdock.images import bootstrap
 from espdock.images.containers import give_to, make_dirs_for
+from espdock.layout import COMPOSE_FILES
+from espdock.ros import compose as compose_file
 from espdock.ros import nodes
-from espdock.ros.plan import RuntimeImage
+from espdock.ros.plan import RuntimeImage, runtime_repository
 from espdock.ros.steps import runtime_spec
 from espdock.workspace import PackageKind, Workspace
 
@@ -59,6 +61,8 @@ def compose(ctx: typer.Context, workspace: WorkspaceOption = None) -> None:
         # A workspace's own ROS Dockerfile may have no runtime stage: its compose file names others.
         if any(isinstance(step, RuntimeImage) for step in plan.steps):
             runtime_image(ws, config, plan)
+    if subcommand in nodes.COMPOSE_CREATING:
+        _warn_foreign_compose(ws, config, ctx.args)
     env = dict(os.environ)
     ca_bundle = resolve_ca_bundle(config, os.environ)
     if ca_bundle is not None:
@@ -79,6 +83,29 @@ def compose(ctx: typer.Context, workspace: WorkspaceOption = None) -> None:
             "`espdock compose down` removes them (with the same -p/--profile options as `up`).",
         ) from None
     raise typer.Exit(code)
+
+
+def _warn_foreign_compose(ws: Workspace, config: Config, args: list[str]) -> None:
+    """Say when the compose file runs another workspace's runtime image (a copy or clone of a
+    workspace keeps the original's compose file): not this workspace's nodes."""
+    if {"-f", "--file"} & set(args) or any(a.startswith(("-f=", "--file=")) for a in args):
+        return  # the user named the files
+    path = next((ws.root / name for name in COMPOSE_FILES if (ws.root / name).is_file()), None)
+    if path is None:
+        return
+    own = runtime_repository(config, ws)
+    foreign, project = compose_file.foreign_runtime_images(path.read_text(errors="replace"), own)
+    if not foreign:
+        return
+    replaced = (
+        f", and its project `name: {project}` is that workspace's too (its containers get replaced)" if project else ""
+    )
+    notify(
+        f"warning: {path.name} runs {', '.join(foreign)}, another workspace's runtime image, not this one's "
+        f"({own}:latest, of this install/){replaced}; set image: {own}:latest"
+        + (f" and name: {own.removeprefix('espdock/')}" if project else "")
+        + f" in {path.name} (a copied or cloned workspace keeps the original's)"
+    )
 
 
 @app.command(context_settings={"allow_interspersed_args": False, "ignore_unknown_options": True})

@@ -6,6 +6,8 @@ import hashlib
 import os
 from pathlib import Path
 
+import yaml
+
 from espdock.errors import WorkspaceError
 from espdock.workspace import Package, PackageKind, Workspace
 
@@ -96,6 +98,37 @@ def starter_compose(project: str, image: str, executables: dict[str, list[str]])
         project=project, image=image, name=name, services=services, agent=MICRO_ROS_AGENT_IMAGE
     )
     return f"{COMPOSE_MARK}{hashlib.sha256(body.encode()).hexdigest()}\n{body}"
+
+
+def foreign_runtime_images(text: str, own: str) -> tuple[list[str], str | None]:
+    """The images TEXT (a compose file) runs that are another workspace's runtime images
+    (espdock/<name>:latest where OWN, espdock/<this workspace's name>, is not), and its project
+    name where that is the same other workspace's: a copied or cloned workspace's compose file
+    still naming the original, whose nodes it would run and whose containers it would replace."""
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError:
+        return [], None  # Compose says what is wrong with it
+    services = data.get("services") if isinstance(data, dict) else None
+    images = sorted(
+        {
+            str(service["image"])
+            for service in (services.values() if isinstance(services, dict) else ())
+            if isinstance(service, dict) and isinstance(service.get("image"), str)
+        }
+    )
+    foreign = [
+        image
+        for image in images
+        if image.startswith("espdock/")
+        and image.endswith(":latest")
+        and "$" not in image
+        and image.rpartition(":")[0] != own
+        and not image.startswith(("espdock/ros-", "espdock/idf-"))  # keyed images, not a workspace's
+    ]
+    names = {image.rpartition(":")[0].removeprefix("espdock/") for image in foreign}
+    project = data.get("name") if isinstance(data, dict) else None
+    return foreign, project if isinstance(project, str) and project in names else None
 
 
 def generated_unchanged(text: str) -> bool:

@@ -240,6 +240,23 @@ def test_ctrl_c_ends_compose_up_with_130_within_10_s_and_compose_stops_every_ser
                        capture_output=True, check=False)  # fmt: skip
 
 
+def test_compose_in_a_copy_of_a_workspace_warns_that_its_file_runs_the_original_s_nodes(engine, tmp_path):
+    """A workspace copied, cloned into another directory or checked out as a git worktree keeps
+    the original's compose file: `espdock compose up` built this one's runtime image, then ran
+    the original's, in the original's project, replacing its containers, without a word."""
+    from espdock.ros.compose import starter_compose
+
+    root = tmp_path / "robot-copy"
+    root.mkdir()
+    (root / "espdock.toml").write_text("[espdock]\n")
+    (root / "compose.yaml").write_text(starter_compose("robot", "espdock/robot:latest", {"talk": ["talker"]}))
+    created = espdock("compose", "create", "--pull", "never", "talker", cwd=root)
+    said = created.stdout + created.stderr
+    assert "compose.yaml runs espdock/robot:latest, another workspace's runtime image" in said, said
+    assert "set image: espdock/robot-copy:latest and name: robot-copy in compose.yaml" in said, said
+    assert leftover_containers(engine, root) == []
+
+
 def test_run_passes_a_params_file_with_volume_and_a_device_and_refuses_missing_ones(engine, node_workspace, tmp_path):
     params = tmp_path / "beacon.yaml"
     params.write_text("beacon:\n  ros__parameters:\n    prefix: fromfile\n    period: 0.1\n")

@@ -239,3 +239,17 @@ def test_the_shell_opens_where_it_was_started_in_the_colcon_root_with_a_home_on_
     # In the workspace volume the home would not come back: /tmp, as before.
     in_volume = Mount("espdock-ws-x", "/workspace", volume=True)
     assert dict(shell_spec(workspace, "img", (1, 1), {}, False, "", in_volume).env)["HOME"] == "/tmp"
+
+
+def test_a_compose_file_that_runs_another_workspace_s_runtime_image_is_found():
+    from espdock.ros.compose import foreign_runtime_images, starter_compose
+
+    original = starter_compose("robot", "espdock/robot:latest", {"talk": ["talker"]})
+    # A copy or clone of the workspace under another name still runs the original's nodes.
+    assert foreign_runtime_images(original, "espdock/robot-copy") == (["espdock/robot:latest"], "robot")
+    assert foreign_runtime_images(original, "espdock/robot") == ([], None)
+    other_project = original.replace("name: robot", "name: sim")
+    assert foreign_runtime_images(other_project, "espdock/robot-copy") == (["espdock/robot:latest"], None)
+    # Not a workspace's runtime image: keyed images, an interpolated one, anyone else's.
+    for image in ("espdock/ros-jazzy-runtime:0123abcd", "espdock/${NAME}:latest", "microros/micro-ros-agent:jazzy"):
+        assert foreign_runtime_images(f"services:\n  a:\n    image: {image}\n", "espdock/robot") == ([], None)

@@ -525,6 +525,20 @@ def workspace_lock(workspace: Workspace) -> Iterator[None]:
         os.close(fd)
 
 
+def build_running(workspace: Workspace) -> str | None:
+    """Who holds the workspace lock (" (pid N: COMMAND)", or "" unknown), None when nobody does."""
+    fd = os.open(workspace.root, os.O_RDONLY)
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            return _holder_text(Path(tempfile.gettempdir()) / f"espdock-build-{root_key(workspace.root)}.holder")
+        fcntl.flock(fd, fcntl.LOCK_UN)
+        return None
+    finally:
+        os.close(fd)
+
+
 def _write_holder(holder: Path) -> None:
     try:
         command = " ".join([Path(sys.argv[0]).name, *sys.argv[1:]]).encode(errors="backslashreplace")

@@ -12,10 +12,10 @@ from espdock.build.steps import LABEL_WORKSPACE, EnsureBaseImage, EnsureImage, P
 from espdock.errors import ConfigError, WorkspaceError
 from espdock.images.engine import Mount, RunSpec
 from espdock.images.visibility import linked_mounts
-from espdock.layout import ROS_OFFICIAL_DOCKERFILE, WORKSPACE_MOUNT
+from espdock.layout import ROS_BUILD_BASE, ROS_OFFICIAL_DOCKERFILE, WORKSPACE_MOUNT
 from espdock.ros.plan import RUNTIME_INSTALL, RuntimeImage
 from espdock.ros.runtime_tree import resolve_installed
-from espdock.workspace import Package, PackageKind, Workspace
+from espdock.workspace import Package, PackageKind, Workspace, build_running
 
 # What reaches a node from the caller's environment, as `ros2 run` would see it.
 PASSED_ENV = (
@@ -86,6 +86,18 @@ def check_built_by_espdock(workspace: Workspace, package: str) -> None:
     listing = listing_digest(workspace.ws_dir / "install" / package)
     if isinstance(recorded, dict) and recorded.get("installed") == listing:
         return
+    if (holder := build_running(workspace)) is not None:
+        raise WorkspaceError(
+            f"an espdock build is running in {workspace.root}{holder}: install/{package} may be half rebuilt",
+            "Wait for it to finish, then run again.",
+        )
+    if recorded is None and (workspace.ws_dir / ROS_BUILD_BASE / package).is_dir():
+        # espdock's colcon configured it (its own build base), and no build of it finished since.
+        raise WorkspaceError(
+            f"the last espdock build of {package} did not finish (it failed or was interrupted): "
+            f"install/{package} may be half written",
+            f"Run `espdock build {package}`, then run again.",
+        )
     raise WorkspaceError(
         f"install/{package} was not built by espdock, or changed since its last `espdock build` "
         "(a native `colcon build`?): its executables may name the host's paths and Python, "

@@ -3,6 +3,7 @@ runtime image is keyed by and made of, the starter compose file."""
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import pytest
@@ -61,6 +62,29 @@ def test_an_install_tree_a_native_colcon_build_rewrote_is_refused_with_what_to_d
     assert "espdock build talk" in caught.value.hint
     record_build(workspace, "talk")  # espdock build rebuilt it
     assert find_executable(workspace, packages, "talk", "talker").endswith("/talk/lib/talk/talker")
+
+
+def test_run_during_a_build_or_after_one_that_did_not_finish_says_so_not_native_colcon(ws):
+    """Both were refused as "not built by espdock (a native colcon build?)"."""
+    import fcntl
+
+    from espdock.workspace import workspace_lock
+
+    workspace, packages = ws
+    StampFile(workspace.ws_dir / "build" / ROS_STAMPS).forget(["talk"])  # as a build does before colcon
+    (workspace.ws_dir / "build/espdock-ros/talk").mkdir(parents=True)
+    with pytest.raises(WorkspaceError) as caught:
+        find_executable(workspace, packages, "talk", "talker")
+    assert "the last espdock build of talk did not finish" in caught.value.message
+    with workspace_lock(workspace), pytest.raises(WorkspaceError) as caught:
+        find_executable(workspace, packages, "talk", "talker")
+    assert caught.value.message.startswith(f"an espdock build is running in {workspace.root} (pid ")
+    # The lock is free again once the build is over.
+    fd = os.open(workspace.root, os.O_RDONLY)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    finally:
+        os.close(fd)
 
 
 @pytest.mark.parametrize(

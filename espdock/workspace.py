@@ -95,7 +95,7 @@ class Workspace:
 def root_key(root: Path | str) -> str:
     """A short digest of the path ROOT: the name of what espdock keeps for a workspace outside it
     (its lock's holder file, its manifest cache, its rosdep database, its image record)."""
-    return hashlib.sha256(str(root).encode()).hexdigest()[:16]
+    return hashlib.sha256(str(root).encode(errors="surrogateescape")).hexdigest()[:16]
 
 
 def workspace_gone(root: Path | str) -> bool:
@@ -104,13 +104,32 @@ def workspace_gone(root: Path | str) -> bool:
     return not os.path.isdir(root)
 
 
-def find_workspace(start: Path) -> Workspace:
-    """The nearest directory at or above START that holds espdock.toml."""
-    start = start.resolve()
+def check_utf8_path(directory: Path) -> None:
+    """Refuse a workspace at a path that is not UTF-8 (bytes Python holds as lone surrogates)."""
+    try:
+        str(directory).encode()
+    except UnicodeEncodeError:
+        raise WorkspaceError(
+            f"the workspace's path is not UTF-8: {os.fsencode(directory)!r}",
+            "Rename the directory (or one above it) with a UTF-8 name: the engine's API (JSON) and "
+            "image labels carry the path as text.",
+        ) from None
+
+
+def find_workspace(start: Path | None = None) -> Workspace:
+    """The nearest directory at or above START (default: the current one) that holds espdock.toml."""
+    try:
+        start = (start or Path.cwd()).resolve()
+    except FileNotFoundError:
+        raise WorkspaceError(
+            "the current directory no longer exists (removed, or replaced by a new clone)",
+            "cd into the workspace again (`cd $PWD`), then run again.",
+        ) from None
     looked = []
     for directory in (start, *start.parents):
         looked.append(directory)
         if (directory / CONFIG_FILE).is_file():
+            check_utf8_path(directory)
             return Workspace(directory)
     shown = ", ".join(str(d) for d in looked[:4]) + (", ..." if len(looked) > 4 else "")
     raise WorkspaceError(

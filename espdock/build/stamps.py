@@ -26,9 +26,10 @@ def tree_digest(*roots: Path) -> str:
     """sha256 over every file under ROOTS (relative path and content), hidden and output dirs skipped."""
     digest = hashlib.sha256()
     for root in roots:
-        digest.update(f"root\0{root.name}\n".encode())
+        # File names are bytes: one that is not UTF-8 (Python's lone surrogates) is hashed as it is.
+        digest.update(f"root\0{root.name}\n".encode(errors="surrogateescape"))
         for path in source_files(root):
-            digest.update(path.relative_to(root).as_posix().encode() + b"\0")
+            digest.update(path.relative_to(root).as_posix().encode(errors="surrogateescape") + b"\0")
             digest.update(hashlib.sha256(path.read_bytes()).digest())
     return digest.hexdigest()
 
@@ -64,7 +65,8 @@ def listing_digest(root: Path, ignore: Collection[str] = ()) -> str | None:
                 target = os.readlink(entry.path) if linked else ""
             except OSError:
                 continue
-            digest.update(f"{prefix}{entry.name}\0{info.st_size}\0{info.st_mtime_ns}\0{target}\n".encode())
+            line = f"{prefix}{entry.name}\0{info.st_size}\0{info.st_mtime_ns}\0{target}\n"
+            digest.update(line.encode(errors="surrogateescape"))
         pending.extend(reversed(subdirs))
     return digest.hexdigest()
 

@@ -138,7 +138,7 @@ def notify(text: str) -> None:
 
 
 def load(workspace: Path | None, **overrides: object) -> tuple[Workspace, Config]:
-    ws = find_workspace(workspace or Path.cwd())
+    ws = find_workspace(workspace)
     config = load_config(ws.root, os.environ, overrides)
     return ws.with_layout(config.package_paths, config.colcon_root), config
 

@@ -238,9 +238,25 @@ def init_workspace(directory: Path, owner: tuple[int, int] | None = None) -> tup
     """Make DIRECTORY (empty, or an existing colcon workspace) an espdock workspace: a commented
     espdock.toml with the detected layout, and src/ where there is no package path yet. Only adds
     files: an existing espdock.toml is left as it is. Returns the workspace and what was created."""
-    from espdock.workspace import CLASSIC_LAYOUT, COLCON_LAYOUT
+    from espdock.workspace import CLASSIC_LAYOUT, COLCON_LAYOUT, check_utf8_path
 
     root = directory.resolve()
+    check_utf8_path(root)
+    if not (root / CONFIG_FILE).exists():
+        if above := next((d for d in root.parents if (d / CONFIG_FILE).is_file()), None):
+            raise WorkspaceError(
+                f"{root} is inside the espdock workspace {above}: a workspace in it would take over every "
+                "command run below it",
+                f"Run espdock in {above} (`espdock new`, `espdock build`); to start another workspace, "
+                "init a directory outside it.",
+            )
+        held = sorted(d.name for d in root.iterdir() if (d / "package.xml").is_file()) if root.is_dir() else []
+        if root.name == "src" and held:
+            raise WorkspaceError(
+                f"{root} holds packages ({', '.join(held[:3])}{', ...' if len(held) > 3 else ''}): it is the "
+                "src/ of a colcon workspace, not one",
+                f"Run `espdock init {root.parent}`: the colcon workspace around it.",
+            )
     created: list[str] = []
     try:
         if not root.exists():

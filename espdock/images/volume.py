@@ -43,7 +43,7 @@ OUTPUT_DIRS = ("build", "install", "log")
 
 def volume_name(workspace: Workspace) -> str:
     """The workspace's volume: its directory's name (for people) and a digest of its path (unique)."""
-    digest = hashlib.sha256(str(workspace.root).encode()).hexdigest()[:12]
+    digest = hashlib.sha256(str(workspace.root).encode(errors="surrogateescape")).hexdigest()[:12]
     readable = re.sub(r"[^a-z0-9_.-]+", "-", workspace.root.name.lower()).strip("-.")[:40] or "workspace"
     return f"espdock-ws-{readable}-{digest}"
 

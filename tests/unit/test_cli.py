@@ -3,10 +3,12 @@
 import json
 import re
 import shutil
+import subprocess
+import sys
 from pathlib import Path
 
 from espdock.layout import firmware_install_dir
-from tests.conftest import copy_workspace, espdock
+from tests.conftest import REPO, copy_workspace, espdock
 
 # Any engine use would fail loudly against this address.
 NO_ENGINE = {"DOCKER_HOST": "unix:///nonexistent/docker.sock"}
@@ -289,6 +291,42 @@ def test_init_adopts_a_colcon_workspace_and_never_overwrites(tmp_path):
     third = espdock("init", str(ws), cwd=tmp_path, env=NO_ENGINE)
     assert "wrote compose.yaml" in third.stdout and "nothing changed" not in third.stdout, third.stdout
     assert (ws / "espdock.toml").read_text() == "[espdock]\n# mine\n"
+
+
+def test_init_in_the_src_of_a_workspace_or_inside_one_is_refused_leaving_nothing(tmp_path):
+    """`cd ~/ros2_ws/src && espdock init` made src/ a workspace of its own (src/src/, found 0
+    packages), which every later command below it then took for the workspace."""
+    ws = tmp_path / "ros2_ws"
+    (ws / "src/pkg").mkdir(parents=True)
+    (ws / "src/pkg/package.xml").write_text((REPO / "ws/src/custom_interface/package.xml").read_text())
+    refused = espdock("init", cwd=ws / "src", env=NO_ENGINE)
+    assert refused.returncode == 2, refused.stdout + refused.stderr
+    assert "holds packages (pkg): it is the src/ of a colcon workspace" in refused.stderr
+    assert f"espdock init {ws}" in refused.stderr
+    assert sorted(p.name for p in (ws / "src").iterdir()) == ["pkg"]
+    assert espdock("init", cwd=ws, env=NO_ENGINE).returncode == 0
+    nested = espdock("init", "src/pkg", cwd=ws, env=NO_ENGINE)
+    assert nested.returncode == 2 and f"is inside the espdock workspace {ws}" in nested.stderr
+    assert not (ws / "src/pkg/espdock.toml").exists()
+
+
+def test_paths_that_are_not_utf_8_or_gone_are_bad_input_not_espdock_bugs(tmp_path):
+    """A workspace path with a byte that is not UTF-8 was exit 70 ("a bug in espdock"), after
+    init had made half a workspace; so was a current directory removed under the shell."""
+    import os
+
+    odd = Path(os.fsdecode(bytes(tmp_path) + b"/caf\xe9"))
+    odd.mkdir()
+    refused = espdock("init", cwd=odd, env=NO_ENGINE)
+    assert refused.returncode == 2 and "the workspace's path is not UTF-8" in refused.stderr, refused.stderr
+    assert list(odd.iterdir()) == []
+    gone = tmp_path / "gone"
+    gone.mkdir()
+    listing = subprocess.run(
+        ["sh", "-c", f'cd "{gone}" && rmdir "{gone}" && exec "$0" -m espdock list', sys.executable],
+        capture_output=True, text=True, check=False, env={**os.environ, **NO_ENGINE},
+    )  # fmt: skip
+    assert listing.returncode == 2 and "the current directory no longer exists" in listing.stderr, listing.stderr
 
 
 def test_idf_fullclean_is_espdock_s_reset_that_keeps_the_sdkconfig(tmp_path):

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import hashlib
 import os
+from pathlib import Path
 
 from espdock.build.stamps import listing_digest
 
@@ -53,3 +54,15 @@ def test_output_dirs_are_left_out_only_where_they_are_outputs(tmp_path):
     # From the workspace root (the volume's sync): the colcon root's own outputs stay out too.
     every = {p.relative_to(tmp_path).as_posix() for p in source_files(tmp_path, (tmp_path, tmp_path / "ws"))}
     assert every == {f"ws/src/my_py/{rel}" for rel in found}
+
+
+def test_a_file_name_that_is_not_utf_8_is_hashed_as_its_bytes(tmp_path):
+    """A package file named caf\\xe9.txt made every build exit 70 ("a bug in espdock")."""
+    from espdock.build.stamps import tree_digest
+
+    (tmp_path / "package.xml").write_text("<package/>")
+    odd = Path(os.fsdecode(bytes(tmp_path) + b"/caf\xe9.txt"))
+    odd.write_text("a")
+    before = tree_digest(tmp_path), listing_digest(tmp_path)
+    odd.write_text("bb")
+    assert tree_digest(tmp_path) != before[0] and listing_digest(tmp_path) != before[1]

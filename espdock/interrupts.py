@@ -26,8 +26,12 @@ from typing import NoReturn
 GRACE = 8.0  # seconds between the first signal and the exit, however cleanup goes
 EXIT_CODE = 130  # 128 + SIGINT, as shells report it
 
+# A signal of the other kind this soon after the first is the same interruption passed on twice
+# (a wrapper that relays Ctrl-C as SIGINT and SIGTERM, a CI runner's INT then TERM), not a second.
+RELAYED = 1.0
+
 # Only the main thread reads and writes this (Python runs signal handlers there).
-_state: dict[str, float | int | bool | None] = {"first": None, "held": 0, "pending": False}
+_state: dict[str, float | int | bool | None] = {"first": None, "signal": None, "held": 0, "pending": False}
 
 
 def install() -> None:
@@ -82,10 +86,13 @@ def _give_up() -> None:
 
 
 def _on_signal(signum: int, frame: object) -> None:
-    if _state["first"] is not None:
+    first = _state["first"]
+    if first is not None:
+        if signum != _state["signal"] and time.monotonic() - float(first) < RELAYED:
+            return  # the cleanup the first one started goes on
         _say("interrupted again: exiting now (the next espdock command removes any container left behind)")
         os._exit(EXIT_CODE)
-    _state["first"] = time.monotonic()
+    _state["first"], _state["signal"] = time.monotonic(), signum
     watchdog = threading.Timer(GRACE, _give_up)
     watchdog.daemon = True
     watchdog.start()
@@ -111,4 +118,4 @@ def held() -> Iterator[None]:
 
 def reset() -> None:
     """Forget a first signal (tests run several commands in one process)."""
-    _state.update(first=None, held=0, pending=False)
+    _state.update(first=None, signal=None, held=0, pending=False)

@@ -12,7 +12,7 @@ from espdock.build.plan import Step
 from espdock.build.steps import LABEL_WORKSPACE, EnsureBaseImage, EnsureImage, Plan
 from espdock.config import Config
 from espdock.errors import BuildFailed, EspdockError, ImageBuildError, disk_full
-from espdock.events import Emit, Outcome, StepFinished, StepStarted
+from espdock.events import Emit, Outcome, StepFinished, StepNote, StepStarted
 from espdock.firmware.plan import IdfBuild, InstallFirmware
 from espdock.firmware.steps import FIRMWARE_STAMPS, INSTALL_STAMPS, FirmwareSteps
 from espdock.images.containers import Containers, permission_error
@@ -72,7 +72,14 @@ class Runner:
             # Before any step: a container an espdock killed earlier (kill -9, a lost terminal)
             # may still hold the workspace's files open or write into them.
             if any(isinstance(step, (ColconBuild, IdfBuild)) for step in plan.steps):
-                self.containers.engine.sweep({LABEL_WORKSPACE: str(plan.workspace.root)})
+                if swept := self.containers.engine.sweep({LABEL_WORKSPACE: str(plan.workspace.root)}):
+                    self.containers.emit(
+                        StepNote(
+                            "workspace",
+                            f"removed {swept} container(s) an espdock killed earlier (kill -9, a closed terminal) "
+                            "left running in this workspace",
+                        )
+                    )
             for index, step in enumerate(plan.steps):
                 try:
                     results.append(self._run_step(plan.workspace, step))

@@ -100,6 +100,7 @@ def test_a_node_whose_espdock_was_killed_outright_is_removed_by_the_next_build(e
     assert leftover_containers(engine, node_workspace), "the node stops only when something removes it"
     built = espdock("build", "--only", "ros", cwd=node_workspace)
     assert built.returncode == 0, built.stdout + built.stderr
+    assert "removed 1 container(s) an espdock killed earlier (kill -9, a closed terminal) left running" in built.stdout
     assert no_containers_left(engine, node_workspace) == []
 
 

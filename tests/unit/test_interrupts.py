@@ -87,6 +87,20 @@ def test_a_second_signal_ends_it_at_once():
     assert "interrupted again" in err
 
 
+def test_sigint_and_sigterm_together_are_one_interruption_that_cleans_up():
+    """A wrapper relaying Ctrl-C as SIGINT and SIGTERM (or a CI runner's INT then TERM) 0.01 to
+    0.1 s apart: the second was "interrupted again", exiting with the build container running."""
+    process = start(cleanup=1)
+    wait_for(process, "holding")
+    wait_for(process, "ready")
+    process.send_signal(signal.SIGINT)
+    time.sleep(0.05)
+    process.send_signal(signal.SIGTERM)
+    out, err = process.communicate(timeout=10)
+    assert process.returncode == 130
+    assert out.split() == ["cleaning", "up", "cleaned", "up"] and "again" not in err
+
+
 def test_a_signal_in_a_held_block_is_raised_when_the_block_ends():
     process = start(hold=1.5)
     wait_for(process, "holding")

@@ -137,6 +137,7 @@ def run(
     The runtime image is made of install/ first when a build changed it."""
     mounts = tuple(nodes.volume(text, Path.cwd()) for text in volume or ())
     devices = tuple(nodes.device(text) for text in device or ())
+    nodes.profile_mounts(os.environ, Path.cwd())  # a missing profiles file: refused before any image is made
     ws, config = load(workspace, runtime_image=True)
     packages = workspace_packages(ws, config.ros_distro)
     path = nodes.find_executable(ws, packages, package, executable)

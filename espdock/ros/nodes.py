@@ -21,9 +21,13 @@ from espdock.workspace import Package, PackageKind, Workspace, build_running
 PASSED_ENV = (
     "ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE", "ROS_STATIC_PEERS", "ROS_LOCALHOST_ONLY",
     "RMW_IMPLEMENTATION", "FASTDDS_BUILTIN_TRANSPORTS", "FASTRTPS_DEFAULT_PROFILES_FILE",
-    "RCUTILS_COLORIZED_OUTPUT", "RCUTILS_CONSOLE_OUTPUT_FORMAT", "RCUTILS_LOGGING_BUFFERED_STREAM",
-    "PYTHONUNBUFFERED",
+    "FASTDDS_DEFAULT_PROFILES_FILE", "RCUTILS_COLORIZED_OUTPUT", "RCUTILS_CONSOLE_OUTPUT_FORMAT",
+    "RCUTILS_LOGGING_BUFFERED_STREAM", "PYTHONUNBUFFERED",
 )  # fmt: skip
+# Fast DDS's XML profiles, by the file these name: a path on the host, which the container has
+# only where espdock mounts it (Fast DDS only warns about a missing one, and runs on defaults).
+PROFILE_VARIABLES = ("FASTRTPS_DEFAULT_PROFILES_FILE", "FASTDDS_DEFAULT_PROFILES_FILE")
+PROFILES_DIR = "/opt/espdock/dds"
 # Containers have their own /dev/shm, so Fast DDS's shared-memory transport loses topics
 # between them (micro-ROS/docker#85): UDP only, unless the caller says otherwise.
 DDS_DEFAULTS = (("FASTDDS_BUILTIN_TRANSPORTS", "UDPv4"),)
@@ -106,10 +110,35 @@ def check_built_by_espdock(workspace: Workspace, package: str) -> None:
     )
 
 
-def node_env(env: Mapping[str, str]) -> tuple[tuple[str, str], ...]:
-    """The node's environment: DDS_DEFAULTS, then what PASSED_ENV names from ENV."""
+def node_env(env: Mapping[str, str], mounted: bool = True) -> tuple[tuple[str, str], ...]:
+    """The node's environment: DDS_DEFAULTS, then what PASSED_ENV names from ENV, a profiles file
+    where profile_mounts mounts it (MOUNTED; else left out: its host path means nothing there)."""
     values = dict(DDS_DEFAULTS) | {name: env[name] for name in PASSED_ENV if name in env}
+    for name in PROFILE_VARIABLES:
+        if values.get(name):
+            if mounted:
+                values[name] = f"{PROFILES_DIR}/{name}.xml"
+            else:
+                del values[name]
     return tuple(sorted(values.items()))
+
+
+def profile_mounts(env: Mapping[str, str], cwd: Path) -> tuple[Mount, ...]:
+    """The Fast DDS profiles files ENV names (relative to CWD), each mounted where node_env says;
+    a ConfigError (exit 2) for one that is not a file, which Fast DDS would only warn about."""
+    mounts = []
+    for name in PROFILE_VARIABLES:
+        if not (value := env.get(name)):
+            continue
+        path = cwd / Path(value).expanduser()
+        if not path.is_file():
+            raise ConfigError(
+                f"{name}={value}: no such file ({path})",
+                "Fast DDS would warn and run the node on its default settings: name the XML profiles file on "
+                "this machine (espdock mounts it into the container), or unset the variable.",
+            )
+        mounts.append(Mount(path.resolve(), f"{PROFILES_DIR}/{name}.xml", read_only=True))
+    return tuple(mounts)
 
 
 def runtime_plan(plan: Plan) -> tuple[Plan, RuntimeImage]:
@@ -219,7 +248,7 @@ def node_spec(
         argv=(path, *args),
         workdir="/tmp",
         user=f"{owner[0]}:{owner[1]}",
-        mounts=mounts,
+        mounts=(*mounts, *profile_mounts(env, Path.cwd())),
         env=(("HOME", "/tmp"), *node_env(env)),
         labels=_labels(workspace, "run"),
         devices=tuple(f"{host}:{inside}" for host, inside in devices),
@@ -274,9 +303,14 @@ def shell_spec(
         argv=("bash", "-c", SOURCE_AND_SHELL, "bash", f"{root}/install") if official else ("bash",),
         workdir=posixpath.normpath(workdir),
         user=f"{owner[0]}:{owner[1]}",
-        mounts=(mount,) if mount.volume else (mount, *linked_mounts(workspace, ros)),
+        mounts=(mount,) if mount.volume else (mount, *linked_mounts(workspace, ros), *profile_mounts(env, Path.cwd())),
         # The entrypoint sources this install tree when it exists (docker/ros-entrypoint.sh).
-        env=(("HOME", home), *named, ("ESPDOCK_WS_INSTALL", f"{root}/install"), *node_env(env)),
+        env=(
+            ("HOME", home),
+            *named,
+            ("ESPDOCK_WS_INSTALL", f"{root}/install"),
+            *node_env(env, mounted=not mount.volume),
+        ),
         labels=_labels(workspace, "shell"),
         network=DEFAULT_NETWORK,
         tty=tty,

@@ -104,6 +104,29 @@ def test_a_node_whose_espdock_was_killed_outright_is_removed_by_the_next_build(e
     assert no_containers_left(engine, node_workspace) == []
 
 
+def test_a_fast_dds_profiles_file_named_on_the_host_reaches_the_node(engine, node_workspace, tmp_path):
+    """The variable was passed on with the host's path: Fast DDS said `XMLPARSER Error ...
+    realpath failed` and ran the node on its defaults."""
+    profiles = tmp_path / "fastdds.xml"
+    profiles.write_text(
+        '<?xml version="1.0" encoding="UTF-8" ?>\n'
+        '<profiles xmlns="http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles">\n'
+        '  <participant profile_name="espdock_test" is_default_profile="true">\n'
+        "    <rtps><name>espdock_profiled</name></rtps>\n"
+        "  </participant>\n"
+        "</profiles>\n"
+    )
+    env = {"ROS_DOMAIN_ID": str(random.randrange(100, 200)), "FASTRTPS_DEFAULT_PROFILES_FILE": str(profiles)}
+    node = Started(node_workspace, "run", "beacon_nodes", "beacon", env=env)
+    try:
+        node.wait_for("sent: beacon 1")
+        assert node.interrupt() == 130
+    finally:
+        node.stop()
+    assert not [line for line in node.lines if "XMLPARSER" in line], node.lines
+    assert no_containers_left(engine, node_workspace) == []
+
+
 def test_two_nodes_started_with_run_talk_over_a_topic(engine, node_workspace):
     domain = random.randrange(100, 200)
     listener = Node(node_workspace, "beacon_nodes", "beacon_log", domain=domain)

@@ -277,3 +277,29 @@ def test_a_compose_file_that_runs_another_workspace_s_runtime_image_is_found():
     # Not a workspace's runtime image: keyed images, an interpolated one, anyone else's.
     for image in ("espdock/ros-jazzy-runtime:0123abcd", "espdock/${NAME}:latest", "microros/micro-ros-agent:jazzy"):
         assert foreign_runtime_images(f"services:\n  a:\n    image: {image}\n", "espdock/robot") == ([], None)
+
+
+def test_a_fast_dds_profiles_file_reaches_the_node_mounted_or_is_refused(ws, tmp_path, monkeypatch):
+    """FASTRTPS_DEFAULT_PROFILES_FILE was passed on as the host's path, which the container
+    lacks: Fast DDS warned (`XMLPARSER Error ... realpath failed`) and ran on its defaults."""
+    from espdock.errors import ConfigError
+
+    workspace, _ = ws
+    profiles = tmp_path / "fastdds.xml"
+    profiles.write_text("<profiles/>\n")
+    monkeypatch.chdir(tmp_path)
+    spec = node_spec(
+        workspace, "img", "/n", (), (1, 1), {"FASTRTPS_DEFAULT_PROFILES_FILE": "fastdds.xml"}, "host", False
+    )
+    inside = "/opt/espdock/dds/FASTRTPS_DEFAULT_PROFILES_FILE.xml"
+    assert dict(spec.env)["FASTRTPS_DEFAULT_PROFILES_FILE"] == inside
+    assert [(m.source, m.target, m.read_only) for m in spec.mounts] == [(profiles, inside, True)]
+    with pytest.raises(ConfigError) as caught:
+        node_spec(workspace, "img", "/n", (), (1, 1), {"FASTDDS_DEFAULT_PROFILES_FILE": "nope.xml"}, "host", False)
+    assert caught.value.message.startswith("FASTDDS_DEFAULT_PROFILES_FILE=nope.xml: no such file")
+    # In the workspace volume (an engine elsewhere) there is nothing to mount it from: left out.
+    in_volume = Mount("espdock-ws-x", "/workspace", volume=True)
+    shell = shell_spec(
+        workspace, "img", (1, 1), {"FASTRTPS_DEFAULT_PROFILES_FILE": "fastdds.xml"}, False, "", in_volume
+    )
+    assert "FASTRTPS_DEFAULT_PROFILES_FILE" not in dict(shell.env) and shell.mounts == (in_volume,)

@@ -105,6 +105,10 @@ def record_build(
     return manifest
 
 
+# A build's error when a signal (Ctrl-C, SIGTERM) stopped it.
+INTERRUPTED = "interrupted"
+
+
 def write_report(
     path: Path,
     finished: Iterable[StepFinished],
@@ -113,14 +117,14 @@ def write_report(
     owner: tuple[int, int],
     error: str | None = None,
 ) -> None:
-    """The --report JSON: every step's outcome, the build's, its duration, and the manifest (None on failure);
-    ERROR: what stopped the build before any step ran. As root, a report it creates belongs to OWNER, as the
-    build's files do."""
+    """The --report JSON: every step's outcome, the build's, its duration, and the manifest (None on
+    failure); ERROR: what stopped the build (INTERRUPTED: a signal, outcome "interrupted"). As root,
+    a report it creates belongs to OWNER, as the build's files do."""
     steps = list(finished)
     failed = any(step.outcome is Outcome.FAILED for step in steps) or manifest is None
     data: dict = {} if error is None else {"error": error}
     data |= {
-        "outcome": "failed" if failed else "succeeded",
+        "outcome": "interrupted" if error == INTERRUPTED else "failed" if failed else "succeeded",
         "seconds": round(seconds, 3),
         "steps": [
             {"step": s.step, "outcome": s.outcome.value, "seconds": round(s.seconds, 3), "detail": s.detail}

@@ -149,13 +149,23 @@ class QuietReporter:
         self._reporter.close()
 
 
+def nothing_to_build(workspace: Workspace) -> str:
+    """What a build of a workspace without packages says: where it looked (package_paths), and
+    which of those places do not exist (a typo in espdock.toml)."""
+    missing = [rel for rel in workspace.package_paths if not (workspace.root / rel).is_dir()]
+    said = f"nothing to build: no packages in {', '.join(workspace.package_paths)} (package_paths)"
+    if missing:
+        said += f"; {', '.join(missing)} does not exist in {workspace.root}"
+    return said
+
+
 def render_plan(console: Console, plan: Plan) -> None:
     """Print the steps a plan would run, without running them (--dry-run)."""
     from espdock.images.engine import format_argv
 
     console.print(Text(f"workspace {plan.workspace.root}", style="bold"))
     if not plan.steps:
-        console.print("nothing to build: no packages in ws/src")
+        console.print(nothing_to_build(plan.workspace))
     for number, step in enumerate(plan.steps, 1):
         console.print(Text(f"{number}. {step.name}", style="bold"))
         match step:

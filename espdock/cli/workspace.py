@@ -10,7 +10,7 @@ from typing import Annotated
 import typer
 
 from espdock.build.lock import check_locks, lock_rosdeps, lock_workspace, plan_locks, uv_binary
-from espdock.build.manifest import compare, file_hashes, read_manifest, record_build, write_report
+from espdock.build.manifest import INTERRUPTED, compare, file_hashes, read_manifest, record_build, write_report
 from espdock.build.prepare import workspace_packages
 from espdock.build.runner import Runner, stamp_files
 from espdock.cli.core import (
@@ -26,7 +26,7 @@ from espdock.cli.core import (
     notify,
 )
 from espdock.cli.prune import after_build, record_images
-from espdock.cli.ui import Reporter, render_packages, render_plan
+from espdock.cli.ui import Reporter, nothing_to_build, render_packages, render_plan
 from espdock.config import check_target, in_ci, invoking_user
 from espdock.errors import ConfigError, EspdockError, WorkspaceError
 from espdock.events import Outcome
@@ -117,6 +117,9 @@ def build(
         if dry_run:
             render_plan(console, plan)
             return
+        if not plan.steps:
+            console.print(nothing_to_build(ws))
+            return
         if locked:
             check_locks(ws.root, plan_locks(plan))
         if push_cache and not config.cache_registry:
@@ -129,6 +132,7 @@ def build(
         raise
     reporter = Reporter(console, verbose=verbose, timestamps=timestamps)
     manifest: dict | None = None
+    stopped: str | None = None  # what ended the build, for the report
     try:
         runner = Runner(engine, config, os.environ, reporter, owner, push_cache=push_cache)
         try:
@@ -140,11 +144,17 @@ def build(
         built = any(r.outcome is not Outcome.CACHED for r in results)
         chown = owner if os.geteuid() == 0 else None
         manifest = record_build(plan, config.target, ws.ws_dir / "install", built, stamp_files(ws), chown)
+    except KeyboardInterrupt:
+        stopped = INTERRUPTED  # a cancelled CI job, not a failed build
+        raise
+    except EspdockError as exc:
+        stopped = exc.message
+        raise
     finally:
         reporter.close()
         reporter.summary()
         if report is not None:
-            write_report(report, reporter.finished, manifest, time.monotonic() - started, owner)
+            write_report(report, reporter.finished, manifest, time.monotonic() - started, owner, stopped)
     after_build(engine, ws, config, runner, built)
 
 

@@ -228,11 +228,11 @@ def _slow_workspace(tmp_path: Path) -> Path:
     return root
 
 
-def _start_build_until_colcon_runs(engine, root: Path) -> subprocess.Popen:
-    """`espdock build` in ROOT, started as a shell without job control starts a background
+def _start_build_until_colcon_runs(engine, root: Path, *args: str) -> subprocess.Popen:
+    """`espdock build ARGS` in ROOT, started as a shell without job control starts a background
     command: with SIGINT ignored (Python then never raises KeyboardInterrupt by itself)."""
     process = subprocess.Popen(
-        [sys.executable, "-m", "espdock", "build"],
+        [sys.executable, "-m", "espdock", "build", *args],
         cwd=root,
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
@@ -250,7 +250,8 @@ def _start_build_until_colcon_runs(engine, root: Path) -> subprocess.Popen:
 
 def test_ctrl_c_stops_and_removes_the_container_and_the_next_build_works(engine, tmp_path):
     root = _slow_workspace(tmp_path)
-    process = _start_build_until_colcon_runs(engine, root)
+    report = tmp_path / "report.json"
+    process = _start_build_until_colcon_runs(engine, root, "--report", str(report))
     try:
         sent = time.monotonic()
         process.send_signal(signal.SIGINT)
@@ -263,6 +264,9 @@ def test_ctrl_c_stops_and_removes_the_container_and_the_next_build_works(engine,
     assert took < 10, f"Ctrl-C took {took:.1f} s"
     assert "interrupted" in err
     assert leftover_containers(engine, root) == []
+    # A CI job's report tells a cancelled build from a failed one (it said "failed", no error).
+    data = json.loads(report.read_text())
+    assert (data["outcome"], data["error"]) == ("interrupted", "interrupted"), data
 
     shutil.rmtree(root / "ws/src/slow_pkg")
     result = espdock("build", cwd=root)

@@ -310,6 +310,18 @@ def test_init_in_the_src_of_a_workspace_or_inside_one_is_refused_leaving_nothing
     assert not (ws / "src/pkg/espdock.toml").exists()
 
 
+def test_a_build_with_no_packages_says_where_it_looked(tmp_path):
+    """A mistyped package_paths built nothing, said nothing and exited 0; --dry-run named ws/src,
+    whatever the layout."""
+    (tmp_path / "src").mkdir()
+    (tmp_path / "espdock.toml").write_text('[espdock]\npackage_paths = ["scr"]\n')
+    for args in (("build",), ("build", "--dry-run")):
+        result = espdock(*args, cwd=tmp_path, env=NO_ENGINE)
+        assert result.returncode == 0, result.stdout + result.stderr
+        said = f"nothing to build: no packages in scr (package_paths); scr does not exist in {tmp_path}"
+        assert said in " ".join(result.stdout.split()), result.stdout
+
+
 def test_paths_that_are_not_utf_8_or_gone_are_bad_input_not_espdock_bugs(tmp_path):
     """A workspace path with a byte that is not UTF-8 was exit 70 ("a bug in espdock"), after
     init had made half a workspace; so was a current directory removed under the shell."""

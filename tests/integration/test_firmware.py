@@ -438,6 +438,8 @@ def test_a_broken_firmware_build_keeps_the_installed_firmware(fw_ws, double_env,
         source.write_text(original)
     assert result.returncode == 5, result.stdout[-2000:] + result.stderr
     assert "led_strip_node" in result.stderr
+    # The compiler's error names the file as the user opens it, not as the container saw it.
+    assert f"{root}/firmware/led_strip_node/main/color_parse.c:" in result.stdout, result.stdout[-2000:]
     assert "deliberately broken" in result.stdout
     assert {p.name: p.read_bytes() for p in installed.iterdir() if p.is_file()} == before
     assert leftover_containers(engine, root) == []
@@ -780,6 +782,35 @@ def test_flash_and_provision_refuse_a_board_of_another_chip_before_writing(fw_ws
         assert f"the board at {esp32c3} is older than led_strip_node is built for" in older.stderr
         assert "requires chip revision" in older.stderr and "CONFIG_ESP32C3_REV_MIN_0=y" in older.stderr
         assert flash_md5(esp32c3, 0x0, 0x20000) == before, "a board of another chip was written to"
+
+
+def test_what_espdock_s_hints_say_to_do_works(fw_ws, double_env):
+    """The revision refusal says to set CONFIG_ESP32C3_REV_MIN_0=y, and the menuconfig warning to
+    run `espdock idf PKG -- save-defconfig`: the double knew neither, so no test could follow them."""
+    root, first = fw_ws
+    assert first.returncode == 0
+    defaults = root / "firmware/led_strip_node/sdkconfig.defaults"
+    original = defaults.read_text()
+    try:
+        saved = espdock("idf", "led_strip_node", "--", "save-defconfig", cwd=root, env=double_env)
+        assert saved.returncode == 0, saved.stdout[-2000:] + saved.stderr
+        written = defaults.read_text()
+        # kconfgen's minimal config: what differs from the Kconfig defaults (not the micro-ROS
+        # component's own defaults, Wi-Fi and XRCE-DDS).
+        assert 'CONFIG_IDF_TARGET="esp32c3"\n' in written, written
+        assert "CONFIG_PARTITION_TABLE_SINGLE_APP_LARGE=y\n" in written, written
+        assert defaults.stat().st_uid == USER_UID, "written into the sources as their owner"
+
+        defaults.write_text(original + "CONFIG_ESP32C3_REV_MIN_0=y\n")
+        built = espdock("build", "led_strip_node", "--only", "firmware", cwd=root, env=double_env)
+        assert built.returncode == 0, built.stdout[-2000:] + built.stderr
+        with emulated_board("esp32c3") as esp32c3:  # revision v0.0
+            flashed = espdock("flash", "led_strip_node", "--port", esp32c3, cwd=root, env=double_env)
+        assert flashed.returncode == 0, flashed.stdout[-2000:] + flashed.stderr
+    finally:
+        defaults.write_text(original)
+    again = espdock("build", "led_strip_node", "--only", "firmware", cwd=root, env=double_env)
+    assert again.returncode == 0, again.stdout[-2000:] + again.stderr
 
 
 def test_flash_to_a_missing_or_silent_port_says_so(fw_ws, double_env):

@@ -141,3 +141,41 @@ def test_the_double_embeds_paths_and_build_time_unless_the_option_is_set(double,
     repro_b = build_in_double(tag, project(tmp_path / "repro-b", True), "/srv/ci/job-7/probe")
     assert repro_a == repro_b
     assert b"/home/alice" not in repro_a["probe.elf"] and b"/COMPONENT_MAIN_DIR/main.c" in repro_a["probe.elf"]
+
+
+def test_the_double_refuses_a_partition_table_gen_esp32part_refuses_and_names_sources_absolutely(double, tmp_path):
+    """Two partitions of one name and an app at an offset not 64 KB aligned built and installed
+    against the double (the flash line wrote the app at 0x18000), where gen_esp32part.py's verify()
+    stops the real build; and gcc names a file as IDF's CMake passes it, by its absolute path."""
+    project = tmp_path / "parts"
+    (project / "main").mkdir(parents=True)
+    (project / "CMakeLists.txt").write_text(
+        "cmake_minimum_required(VERSION 3.16)\ninclude($ENV{IDF_PATH}/tools/cmake/project.cmake)\nproject(parts)\n"
+    )
+    (project / "main/CMakeLists.txt").write_text('idf_component_register(SRCS "main.c")\n')
+    (project / "main/main.c").write_text("void app_main(void) {}\n")
+    (project / "sdkconfig.defaults").write_text(
+        'CONFIG_PARTITION_TABLE_CUSTOM=y\nCONFIG_PARTITION_TABLE_CUSTOM_FILENAME="partitions.csv"\n'
+    )
+    table = project / "partitions.csv"
+
+    def build(rows: str) -> subprocess.CompletedProcess:
+        table.write_text("# Name, Type, SubType, Offset, Size, Flags\nnvs, data, nvs, 0x9000, 0x6000,\n" + rows)
+        (project / "sdkconfig").unlink(missing_ok=True)
+        subprocess.run(["chown", "-R", f"{USER_UID}:{USER_UID}", str(tmp_path)], check=True)
+        return run_in_double(double, project, "build")
+
+    assert build("factory, app, factory, 0x10000, 0x100000,\n").returncode == 0
+    twice = build(
+        "storage, data, spiffs, 0xf000, 0x1000,\nfactory, app, factory, 0x10000, 1M,\nstorage, data, fat, , 64K,\n"
+    )
+    assert twice.returncode == 2 and "Partition names must be unique" in twice.stderr, twice.stderr[-2000:]
+    unaligned = build("factory, app, factory, 0x18000, 0x100000,\n")
+    assert unaligned.returncode == 2, unaligned.stdout[-2000:]
+    assert "Partition factory invalid: Offset 0x18000 is not aligned to 0x10000" in unaligned.stderr
+
+    table.unlink()
+    (project / "sdkconfig.defaults").unlink()
+    (project / "main/main.c").write_text("#error deliberately broken\nvoid app_main(void) {}\n")
+    broken = build("")
+    assert broken.returncode == 2 and "/project/main/main.c:1:2: error: #error deliberately broken" in broken.stderr

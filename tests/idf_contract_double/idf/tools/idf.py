@@ -228,6 +228,7 @@ def plan_actions(tokens: list[str]) -> list[tuple[str, str | None]]:
         "clean",
         "clean-microros",
         "menuconfig",
+        "save-defconfig",
         "flash",
         "monitor",
     }
@@ -255,6 +256,7 @@ def plan_actions(tokens: list[str]) -> list[tuple[str, str | None]]:
         "set-target": 1,
         "menuconfig": 2,
         "reconfigure": 3,
+        "save-defconfig": 3,
         "build": 4,
         "flash": 5,
         "monitor": 6,
@@ -304,6 +306,8 @@ class Context:
         self.env = dict(os.environ)
         # namespace/name of every registry dependency in the components' idf_component.yml.
         self.registry_dependencies: set[str] = set()
+        # save-defconfig's output, which kconfgen then writes too.
+        self.savedefconfig: Path | None = None
 
     @staticmethod
     def _defines(entries: list[str]) -> dict[str, str]:
@@ -666,6 +670,8 @@ def run_kconfgen(
         "config",
         str(sdkconfig),
     ]
+    if ctx.savedefconfig is not None:
+        argv += ["--output", "savedefconfig", str(ctx.savedefconfig)]
     result = subprocess.run(argv, capture_output=True, text=True, check=False)
     for line in (result.stdout + result.stderr).splitlines():
         out(line)
@@ -974,12 +980,11 @@ class Diagnostic:
     message: str
     chain: tuple[tuple[Path, int], ...] = ()
 
-    def render(self, project_dir: Path) -> str:
+    def render(self) -> str:
+        # gcc names a file as its command line or the -I path it was found through did: IDF's
+        # CMake passes every source and include directory as an absolute path.
         def show(p: Path) -> str:
-            try:
-                return str(p.relative_to(project_dir))
-            except ValueError:
-                return str(p)
+            return str(p)
 
         last = len(self.chain) - 1
         lead = ("In file included from",) + ("                 from",) * last
@@ -1365,6 +1370,23 @@ def partition_table(ctx: Context, config: dict[str, object]) -> tuple[bytes, lis
                 "flags": (1 if "encrypted" in flags else 0) | (2 if "readonly" in flags else 0),
             }
         )
+    # gen_esp32part.py's verify(): each partition's alignment (an app's offset to 64 KB, its size
+    # to a flash sector; data to a sector), then one name per partition.
+    for part in parts:
+        align = 0x10000 if part["type"] == 0 else 0x1000
+        if part["offset"] % align:
+            raise FatalError(
+                f"Partition {part['name']} invalid: Offset 0x{part['offset']:x} is not aligned to 0x{align:x}"
+            )
+        if part["type"] == 0 and part["size"] % 0x1000:
+            raise FatalError(f"Partition {part['name']} invalid: Size 0x{part['size']:x} is not aligned to 0x1000")
+    names = [part["name"] for part in parts]
+    if duplicates := sorted({name for name in names if names.count(name) > 1}):
+        print("A list of partitions that have the same name:", file=sys.stderr)
+        for row in rows:
+            if row[0] in duplicates:
+                print(",".join(row[:6]), file=sys.stderr)
+        raise FatalError("Partition names must be unique")
     flash_size = parse_size(str(config["ESPTOOLPY_FLASHSIZE"]).replace("MB", "M"))
     if cursor > flash_size:
         raise FatalError(
@@ -1444,7 +1466,7 @@ def run_build(ctx: Context, project: Project) -> None:
         if found:
             out(f"FAILED: {obj}")
         for d in found:
-            print(d.render(ctx.project_dir), file=sys.stderr, flush=True)
+            print(d.render(), file=sys.stderr, flush=True)
         diagnostics += found
         if found:
             break  # ninja -k 1: no new jobs after the first failure
@@ -1876,6 +1898,11 @@ def main(argv: list[str]) -> int:
             out(f"Set Target to: {value}, new sdkconfig will be created.")
             project = configure(ctx, set_target=value)
         elif action == "reconfigure":
+            project = configure(ctx)
+        elif action == "save-defconfig":
+            # tools/cmake/kconfig.cmake's target: kconfgen's minimal config (what differs from
+            # the Kconfig defaults) over the project's sdkconfig.defaults.
+            ctx.savedefconfig = ctx.project_dir / "sdkconfig.defaults"
             project = configure(ctx)
         elif action == "build":
             project = project or configure(ctx)

@@ -8,6 +8,7 @@ from pathlib import Path
 from typing import Annotated
 
 import typer
+from rich.text import Text
 
 from espdock.build.lock import check_locks, lock_rosdeps, lock_workspace, plan_locks, uv_binary
 from espdock.build.manifest import INTERRUPTED, compare, file_hashes, read_manifest, record_build, write_report
@@ -37,6 +38,7 @@ from espdock.layout import ROSDEP_LOCK
 from espdock.ros import colcon_register
 from espdock.ros.compose import init_compose
 from espdock.ros.plan import base_image, runtime_repository
+from espdock.ros.trees import orphan_installs
 from espdock.workspace import PackageKind, read_build_inputs
 
 
@@ -155,6 +157,16 @@ def build(
         reporter.summary()
         if report is not None:
             write_report(report, reporter.finished, manifest, time.monotonic() - started, owner, stopped)
+    if orphans := orphan_installs(ws.ws_dir / "install", (p.name for p in workspace_packages(ws, config.ros_distro))):
+        dirs = " ".join(f"{rel}/{name}" for name in orphans for rel in ("install", "build"))
+        console.print(
+            Text(
+                f"note: install/ holds {', '.join(orphans)}, of no package in this workspace any more (renamed or "
+                f"removed?): colcon's setup scripts and ros2 run still find it; `rm -r {dirs}` in "
+                f"{ws.ws_dir} removes it",
+                style="yellow",
+            )
+        )
     after_build(engine, ws, config, runner, built)
 
 

@@ -105,3 +105,19 @@ def retire_other_underlay(base: Path, underlay: str, owner: tuple[int, int]) -> 
     marker.write_text(f"{underlay}\n")  # torn, it names no image: the dirs go once more
     give_to(marker, owner)
     return retired
+
+
+def orphan_installs(install: Path, packages: Iterable[str]) -> list[str]:
+    """The package prefixes in INSTALL (colcon's isolated install) of no package in PACKAGES: a
+    package renamed or removed since it was built. colcon leaves them, and its setup scripts and
+    `ros2 run` still find them (a firmware package's `flash` then fails: no such package)."""
+    names = set(packages)
+    try:
+        entries = sorted(install.iterdir())
+    except OSError:
+        return []
+    return [
+        entry.name
+        for entry in entries
+        if entry.name not in names and (entry / "share" / "colcon-core" / "packages" / entry.name).is_file()
+    ]

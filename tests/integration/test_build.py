@@ -211,6 +211,27 @@ def test_a_failing_package_is_named_with_its_log(engine, tmp_path):
     assert leftover_containers(engine, root) == []
 
 
+def test_a_package_renamed_since_its_build_is_named_with_what_removes_its_install(engine, tmp_path):
+    """colcon leaves the install prefix of a package renamed or removed, and its setup scripts and
+    `ros2 run` still find it (a firmware package's `flash` script then fails); nothing said so."""
+    from tests.integration.test_faults import add_package
+
+    root = copy_workspace(tmp_path / "w", packages=())
+    add_package(root, "old_name", "install(FILES package.xml DESTINATION share/${PROJECT_NAME})\n")
+    add_package(root, "kept_pkg", "install(FILES package.xml DESTINATION share/${PROJECT_NAME})\n")
+    assert espdock("build", cwd=root).returncode == 0
+    renamed = root / "ws/src/new_name"
+    (root / "ws/src/old_name").rename(renamed)
+    manifest = renamed / "package.xml"
+    manifest.write_text(manifest.read_text().replace("old_name", "new_name"))
+    (renamed / "CMakeLists.txt").write_text((renamed / "CMakeLists.txt").read_text().replace("old_name", "new_name"))
+    built = espdock("build", cwd=root)
+    assert built.returncode == 0, built.stdout + built.stderr
+    said = " ".join(built.stdout.split())
+    assert "install/ holds old_name, of no package in this workspace any more" in said, built.stdout
+    assert "`rm -r install/old_name build/old_name`" in said and "kept_pkg" not in said
+
+
 def _slow_workspace(tmp_path: Path) -> Path:
     """A workspace whose slow_pkg keeps colcon busy for five minutes."""
     root = python_workspace(tmp_path / "ws-root")

@@ -396,6 +396,14 @@ def read_tree(base: Path, exclude: tuple[str, ...] = ()) -> dict[str, bytes]:
     return files
 
 
+def editor_leftover(rel: str) -> bool:
+    """Whether REL names an editor's or patch's leftover (Foo.msg~, #Foo.msg#, .orig, .rej, .bak):
+    nothing a build reads, and in an interface package it would key a new micro-ROS library
+    (minutes with the real toolchain)."""
+    name = rel.rsplit("/", 1)[-1]
+    return name.endswith(("~", ".orig", ".rej", ".bak")) or (name.startswith("#") and name.endswith("#"))
+
+
 def read_image_inputs(root: Path, directory: str, exclude: tuple[str, ...] = ()) -> dict[str, bytes]:
     """The files under ROOT/DIRECTORY that an image is built from, keyed by path relative to ROOT."""
     return {f"{directory}/{rel}": data for rel, data in read_tree(root / directory, exclude).items()}
@@ -446,7 +454,11 @@ def read_build_inputs(workspace: Workspace, packages: Iterable[Package]) -> Buil
         idf_files={rel.removeprefix(idf_prefix): data for rel, data in files.items() if rel.startswith(idf_prefix)},
         own_files=frozenset(own),
         package_files={
-            p.name: read_tree(p.path, exclude=("build/", "install/", "log/"))
+            p.name: {
+                rel: data
+                for rel, data in read_tree(p.path, exclude=("build/", "install/", "log/")).items()
+                if not editor_leftover(rel)
+            }
             for p in packages
             if p.kind is PackageKind.ROS and p.is_interface
         },

@@ -227,3 +227,20 @@ def test_packages_behind_links_are_found_as_colcon_finds_them_each_once(tmp_path
     found = discover_packages(ws)
     assert [p.name for p in found] == ["driver", "inner", "local"]
     assert {p.name: p.path for p in found}["driver"] == src / "driver"  # the path in the workspace, as colcon has it
+
+
+def test_an_interface_package_s_editor_leftovers_are_not_library_inputs(tmp_path):
+    """An Emacs backup (BoardStatus.msg~) went into the micro-ROS library's inputs: a new key,
+    a library built again (minutes with the real toolchain) for nothing."""
+    from espdock.workspace import Workspace, discover_packages, read_build_inputs
+
+    package = add_package(tmp_path / "src", "robo_interfaces", interface=True)
+    (package / "msg").mkdir(exist_ok=True)
+    (package / "msg/BoardStatus.msg").write_text("uint8 level\n")
+    workspace = Workspace(tmp_path, ("src",), ".")
+    packages = discover_packages(workspace)
+    before = read_build_inputs(workspace, packages).package_files["robo_interfaces"]
+    for leftover in ("msg/BoardStatus.msg~", "msg/#BoardStatus.msg#", "CMakeLists.txt.orig", "msg/x.rej"):
+        (package / leftover).write_text("old\n")
+    assert read_build_inputs(workspace, packages).package_files["robo_interfaces"] == before
+    assert "msg/BoardStatus.msg" in before

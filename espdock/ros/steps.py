@@ -6,6 +6,7 @@ from __future__ import annotations
 import hashlib
 import os
 import posixpath
+import re
 from collections.abc import Callable, Iterable
 from dataclasses import replace
 from pathlib import Path
@@ -19,7 +20,7 @@ from espdock.images.containers import Containers, give_to, permission_error, vol
 from espdock.images.engine import Mount, RunSpec
 from espdock.images.keyed import KeyedImages
 from espdock.images.visibility import host_paths, linked_mounts, workspace_mount
-from espdock.layout import ROS_BUILD_BASE
+from espdock.layout import ROS_BUILD_BASE, WORKSPACE_MOUNT
 from espdock.ros.colcon import (
     DEFAULTS_MOUNT,
     ColconLog,
@@ -184,6 +185,12 @@ class RosSteps:
                 for name, state in (states or {}).items()
                 if state is PackageState.FAILED
             }
+            # colcon's own errors (its shell hooks) are in its output; a package's build, in its log.
+            texts = ("\n".join(output), *(text for _, text in logs.values()))
+            denied = denied_path(texts, workspace.root, self.containers.owner[0])
+            if denied is not None:
+                # Another user's file in the trees colcon writes (a `sudo colcon build`): not the package's fault.
+                raise permission_error(PermissionError(13, "Permission denied", str(denied)))
             declared = {name: (depends, tests) for name, depends, tests in step.declared}
             failure = explain_failure(code, states or {}, logs, step.colcon_args, declared)
             raise BuildFailed(failure.message, failure.hint)
@@ -324,6 +331,27 @@ def _linked(workspace: Workspace, sources: Iterable[tuple[str, str]]) -> tuple[M
     """The mounts of the directories that links lead to from the packages at SOURCES (name, path
     under the colcon root): what colcon follows there, which the workspace's mount lacks."""
     return linked_mounts(workspace, [workspace.ws_dir / rel for _, rel in sources])
+
+
+# Python's `PermissionError: [Errno 13] Permission denied: '/workspace/...'`, and CMake's
+# `file INSTALL cannot copy file "..." to "/workspace/...": Permission denied.`
+_DENIED = re.compile(
+    rf"Permission denied: ['\"]({re.escape(WORKSPACE_MOUNT)}/[^'\"]+)['\"]"
+    rf"|['\"]({re.escape(WORKSPACE_MOUNT)}/[^'\"]+)['\"][^\n]*Permission denied"
+)
+
+
+def denied_path(texts: Iterable[str], root: Path, uid: int) -> Path | None:
+    """The workspace path (under ROOT) a failed build's logs (TEXTS) were denied, where it, or
+    the nearest of its directories that exists, belongs to another user than UID."""
+    for text in texts:
+        for match in _DENIED.finditer(text):
+            inside = match.group(1) or match.group(2)
+            path = root / posixpath.relpath(inside, WORKSPACE_MOUNT)
+            existing = next((p for p in (path, *path.parents) if p.exists() or p.is_symlink()), None)
+            if existing is not None and existing.is_relative_to(root) and existing.lstat().st_uid != uid:
+                return existing
+    return None
 
 
 def _read_text(path: Path) -> str:

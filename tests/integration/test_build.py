@@ -232,6 +232,21 @@ def test_a_package_renamed_since_its_build_is_named_with_what_removes_its_instal
     assert "`rm -r install/old_name build/old_name`" in said and "kept_pkg" not in said
 
 
+def test_another_user_s_file_in_install_is_named_with_its_owner_not_blamed_on_the_package(engine, tmp_path):
+    """After a `sudo colcon build`, install/ holds root's files: the build failed with "Fix
+    beacon_nodes (the error is in the log above)", where the firmware side named the path."""
+    root = python_workspace(tmp_path / "w")
+    subprocess.run(["chown", "-R", f"{USER_UID}:{USER_UID}", str(root)], check=True)
+    assert espdock("build", cwd=root).returncode == 0
+    share = root / "ws/install/beacon_nodes/share/beacon_nodes"
+    subprocess.run(["chown", "-R", "0:0", str(share)], check=True)
+    result = espdock("build", "--force", cwd=root)
+    assert result.returncode == 2, result.stdout[-3000:] + result.stderr
+    said = " ".join(result.stderr.split())
+    assert f"permission denied on {share}" in said and "(owner uid 0," in said, result.stderr
+    assert "sudo chown -R" in said and "Fix beacon_nodes" not in said
+
+
 def _slow_workspace(tmp_path: Path) -> Path:
     """A workspace whose slow_pkg keeps colcon busy for five minutes."""
     root = python_workspace(tmp_path / "ws-root")

@@ -5,6 +5,7 @@ from __future__ import annotations
 import os
 import pwd
 import sys
+import time
 from pathlib import Path
 from typing import Annotated
 
@@ -67,9 +68,13 @@ def compose(ctx: typer.Context, workspace: WorkspaceOption = None) -> None:
     ca_bundle = resolve_ca_bundle(config, os.environ)
     if ca_bundle is not None:
         env["ESPDOCK_CA_BUNDLE"] = str(ca_bundle)
+    started = time.time()
     try:
         code = engine.run_compose(ctx.args, ws.root, env)
     except KeyboardInterrupt:
+        if subcommand == "run" and engine.remove_compose_runs(ws.root, started):
+            # Without a terminal Compose ends and leaves the run's container running, --rm or not.
+            raise Interrupted("interrupted; the container `compose run` started was stopped and removed") from None
         if subcommand != "up":
             raise Interrupted("interrupted") from None
         if {"-d", "--detach"} & set(ctx.args):

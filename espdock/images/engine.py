@@ -940,6 +940,17 @@ class Engine:
             )
         return self._client.containers.prepare_model({"Id": container_id})
 
+    def remove_compose_runs(self, project_dir: Path, since: float) -> int:
+        """Remove the one-off containers (`compose run`) of the compose project in PROJECT_DIR
+        created at or after SINCE (epoch seconds); return how many. Compose leaves one running
+        when `compose run --rm` is interrupted without a terminal."""
+        selector = ["com.docker.compose.oneoff=True", f"com.docker.compose.project.working_dir={project_dir}"]
+        listed = self._all_containers({"label": selector})
+        started = [c["Id"] for c in listed if int(c.get("Created") or 0) >= int(since)]
+        for container_id in started:
+            _remove(self._handle(container_id), stop=False)
+        return len(started)
+
     def containers(self, labels: Mapping[str, str]) -> list[str]:
         """Names of containers (running or not) carrying all LABELS."""
         listed = self._all_containers({"label": _label_selector(labels)})

@@ -199,6 +199,31 @@ def test_init_writes_a_starter_compose_file_whose_services_start_and_talk(engine
         compose("--profile", "*", "down", "-v", "--remove-orphans", "-t", "3")
 
 
+def test_ctrl_c_without_a_terminal_ends_compose_run_and_removes_its_container(engine, node_workspace):
+    """`espdock compose run --rm SERVICE` interrupted by `kill -INT` (CI, a script): espdock said
+    interrupted and exited, while Compose left the run's container up, as plain Compose does."""
+    project = f"espdock-test-oneoff-{os.getpid()}-{random.randrange(16**6):06x}"
+    file = node_workspace / f"{project}.yaml"
+    file.write_text(
+        "services:\n  beacon:\n    image: espdock/nodes:latest\n"
+        "    command: [/opt/espdock/ws/install/beacon_nodes/lib/beacon_nodes/beacon]\n"
+        f"    environment: {{ROS_DOMAIN_ID: '{random.randrange(100, 200)}', PYTHONUNBUFFERED: '1'}}\n"
+    )
+    oneoff = ["docker", "ps", "-aq", "--filter", f"label=com.docker.compose.project={project}"]
+    try:
+        run = Started(node_workspace, "compose", "-p", project, "-f", file.name, "run", "--rm", "beacon")
+        code, took = run.interrupt_on("sent: beacon 1", timeout=300)
+        assert took < 15, took
+        assert code == 130, run.output()
+        assert "the container `compose run` started was stopped and removed" in run.output()
+        left = subprocess.run(oneoff, capture_output=True, text=True, check=True).stdout.split()
+        assert left == [], "the run's container is still there"
+    finally:
+        down = ["docker", "compose", "-p", project, "-f", file.name, "down", "--remove-orphans", "-t", "1"]
+        subprocess.run(down, cwd=node_workspace, capture_output=True, check=False)
+        file.unlink()
+
+
 COMPOSE_PROJECT = """\
 # A service that stops on SIGTERM and one that ignores it, which Compose kills at the end of its
 # stop_grace_period (longer than espdock's Ctrl-C budget).

@@ -179,9 +179,10 @@ def shell(workspace: WorkspaceOption = None) -> None:
     if not mount.volume:
         home = ws.ws_dir / nodes.SHELL_HOME
         make_dirs_for(home, runner.owner)
-        if not (bashrc := home / ".bashrc").exists():
-            bashrc.write_text(nodes.SHELL_BASHRC)
-            give_to(bashrc, runner.owner)
+        for name, text in ((".bashrc", nodes.SHELL_BASHRC), ("colcon-defaults.yaml", nodes.SHELL_COLCON_DEFAULTS)):
+            if not (written := home / name).exists():  # once: then the user's to edit
+                written.write_text(text)
+                give_to(written, runner.owner)
     spec = nodes.shell_spec(
         ws, image, owner, os.environ, tty, dockerfile, mount, packages, Path.cwd(), user_name(runner.owner[0])
     )

@@ -104,8 +104,8 @@ def check_built_by_espdock(workspace: Workspace, package: str) -> None:
         )
     raise WorkspaceError(
         f"install/{package} was not built by espdock, or changed since its last `espdock build` "
-        "(a native `colcon build`?): its executables may name the host's paths and Python, "
-        "which the runtime image does not have",
+        "(a colcon build of your own, native or in `espdock shell`?): its executables may name the "
+        "host's paths and Python, which the runtime image does not have",
         f"Run `espdock build {package}` (it rebuilds what changed in install/), then run again.",
     )
 
@@ -273,6 +273,19 @@ if ! id -un >/dev/null 2>&1; then PS1='${USER:-me}@\\h:\\w\\$ '; fi
 """
 
 
+# colcon run in the shell builds where `espdock build` does: one set of CMake caches, which
+# neither takes for another build's (espdock retires caches configured at the container's
+# default build/ as its own old ones).
+SHELL_COLCON_DEFAULTS = """\
+# espdock shell's colcon defaults (COLCON_DEFAULTS_FILE): colcon here builds where `espdock build`
+# does, build/espdock-ros, so the two share CMake caches and never remove each other's.
+build:
+  build-base: build/espdock-ros
+test:
+  build-base: build/espdock-ros
+"""
+
+
 def shell_spec(
     workspace: Workspace,
     image: str,
@@ -298,6 +311,7 @@ def shell_spec(
         workdir = posixpath.join(root, cwd.resolve().relative_to(workspace.ws_dir.resolve()).as_posix())
     home = "/tmp" if mount.volume else posixpath.join(root, SHELL_HOME)
     named = (("USER", user_name), ("LOGNAME", user_name)) if user_name else ()
+    colcon = () if mount.volume else (("COLCON_DEFAULTS_FILE", f"{home}/colcon-defaults.yaml"),)
     return RunSpec(
         image=image,
         argv=("bash", "-c", SOURCE_AND_SHELL, "bash", f"{root}/install") if official else ("bash",),
@@ -308,6 +322,7 @@ def shell_spec(
         env=(
             ("HOME", home),
             *named,
+            *colcon,
             ("ESPDOCK_WS_INSTALL", f"{root}/install"),
             *node_env(env, mounted=not mount.volume),
         ),

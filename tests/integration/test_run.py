@@ -395,6 +395,11 @@ def test_the_shell_opens_where_you_are_keeps_its_home_and_sources_install_as_ros
     assert second.returncode == 0, second.stdout + second.stderr
     assert second.stdout.split() == ["/workspace/ws/src/beacon_nodes", "kept"], second.stdout
     assert (node_workspace / "ws/build/espdock-home/mark").is_file()
+    # colcon in the shell builds where espdock does: a later `espdock build` took its CMake caches
+    # (colcon's default build/) for espdock's own old ones and removed them.
+    third = shell(node_workspace, "colcon build --event-handlers console_direct- >/dev/null && ls build\n")
+    assert third.returncode == 0, third.stdout + third.stderr
+    assert sorted(third.stdout.split()) == ["espdock-home", "espdock-ros"], third.stdout
     assert no_containers_left(engine, node_workspace) == []
 
 

@@ -20,6 +20,7 @@ from espdock.config import Config, resolve_ca_bundle
 from espdock.errors import Interrupted
 from espdock.images import bootstrap
 from espdock.images.containers import give_to, make_dirs_for
+from espdock.images.engine import ComposeStillStopping
 from espdock.layout import COMPOSE_FILES
 from espdock.ros import compose as compose_file
 from espdock.ros import nodes
@@ -71,7 +72,7 @@ def compose(ctx: typer.Context, workspace: WorkspaceOption = None) -> None:
     started = time.time()
     try:
         code = engine.run_compose(ctx.args, ws.root, env)
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as exc:
         if subcommand == "run" and engine.remove_compose_runs(ws.root, started):
             # Without a terminal Compose ends and leaves the run's container running, --rm or not.
             raise Interrupted("interrupted; the container `compose run` started was stopped and removed") from None
@@ -81,6 +82,13 @@ def compose(ctx: typer.Context, workspace: WorkspaceOption = None) -> None:
             raise Interrupted(
                 "interrupted; services Compose had started may be running",
                 "`espdock compose ps -a` lists them, `espdock compose down` stops and removes them.",
+            ) from None
+        if isinstance(exc, ComposeStillStopping):
+            raise Interrupted(
+                "interrupted; Compose is still stopping the services (one that ignores SIGTERM is killed at the "
+                "end of its stop_grace_period), and their containers remain, stopped",
+                "`espdock compose down` removes them (`-t 0` stops them at once; the same -p/--profile options "
+                "as `up`).",
             ) from None
         # Compose stops what `up` started on Ctrl-C, and keeps the containers (and networks).
         raise Interrupted(

@@ -213,6 +213,11 @@ class EngineInfo:
         return f"{'rootless ' if self.rootless else ''}{kind} engine at {self.where}"
 
 
+class ComposeStillStopping(KeyboardInterrupt):
+    """Ctrl-C ended `run_compose` while Compose was still stopping the services (a service that
+    ignores SIGTERM holds it for its stop_grace_period)."""
+
+
 class Engine:
     """A connected Docker engine."""
 
@@ -716,12 +721,7 @@ class Engine:
                 # A service that ignores SIGTERM holds Compose for its stop_grace_period, and a
                 # second SIGINT does not hurry it without a terminal. Compose (which ignores the
                 # SIGTERM espdock's exit sends it) goes on, and kills such a service at the end.
-                print(
-                    "espdock: Compose is still stopping the services; one that ignores SIGTERM is killed at "
-                    "the end of its stop_grace_period (`espdock compose down -t 0` stops them at once)",
-                    file=sys.stderr,
-                    flush=True,
-                )
+                raise ComposeStillStopping from None
             raise
 
     # Containers

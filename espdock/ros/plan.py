@@ -253,6 +253,10 @@ def checked_packages(
     return tuple(p for p in selected if p.name not in skipped)
 
 
+# colcon's Python build types: no CMake, no BUILD_TESTING.
+PYTHON_BUILD_TYPES = frozenset({"ament_python", "python"})
+
+
 def ros_steps(
     workspace: Workspace,
     config: Config,
@@ -283,7 +287,8 @@ def ros_steps(
             settings=tuple(item for item in colcon.digests if item[0] in names),
             defaults_file=colcon.defaults_file,
             testing=testing,
-            tests_off=tests_off and not testing,
+            # Only CMake packages read BUILD_TESTING: a workspace of Python packages is told nothing.
+            tests_off=tests_off and not testing and any(p.build_type not in PYTHON_BUILD_TYPES for p in ros),
             declared=tuple((p.name, p.depends, p.test_only_depends) for p in ros),
             underlay=ros_image.repository,
         ),

@@ -274,6 +274,8 @@ def test_ctrl_c_ends_compose_up_with_130_within_10_s_and_compose_stops_every_ser
         # What is said is true: the containers are stopped, not removed, until `compose down`.
         assert "stopped and removed" not in up.output()
         assert "their containers remain" in up.output() and "espdock compose down" in up.output()
+        # Said once, in one message: it was said still stopping, then "Compose stopped the services".
+        assert "Compose stopped the services" not in up.output()
         assert running() == ["stubborn"], "the service that stops on SIGTERM was not stopped"
         while running() and time.monotonic() < signalled + 14 + 10:
             time.sleep(0.5)

@@ -138,3 +138,17 @@ def test_the_official_ros_image_gives_runtime_images_its_own_runtime_stage():
     assert "docker/ros-entrypoint.sh" in dict(base.spec.context)
     assert "FROM build AS runtime" in text and '"/ros_entrypoint.sh", "/opt/espdock/entrypoint.sh"' in text
     assert runtime.base == base.spec and runtime.stable_tag == "espdock/bot:latest"
+
+
+def test_build_testing_is_turned_off_only_where_a_cmake_package_reads_it():
+    """A workspace of ament_python packages was told "CMake packages are configured with
+    BUILD_TESTING=OFF" at every build."""
+    from dataclasses import replace
+
+    ws = Workspace(Path("/w"))
+    spec = ros_build_image(Config(), DOCKERFILE, FILES)
+    python = tuple(replace(pkg(name), build_type="ament_python") for name in ("talker", "listener"))
+    built = plan_build(ws, Config(), python, spec, tests_off=True).steps[2]
+    assert not built.says_tests_off and "-DBUILD_TESTING=OFF" not in built.argv()
+    mixed = plan_build(ws, Config(), (*python, pkg("msgs")), spec, tests_off=True).steps[2]
+    assert mixed.says_tests_off and "-DBUILD_TESTING=OFF" in mixed.argv()

@@ -47,6 +47,8 @@ def finish(code: int) -> NoReturn:
     signal.signal(signal.SIGINT, _exit_now)  # first: the flush below can wait on a full pipe
     signal.signal(signal.SIGTERM, _exit_now)
     for stream in (sys.stdout, sys.stderr):
+        if stream is None:  # started with it closed (`espdock build >&-`): nothing to flush
+            continue
         try:
             stream.flush()
         except (OSError, ValueError):

@@ -133,3 +133,10 @@ def test_an_interrupt_python_swallowed_still_exits_130():
 def test_the_command_s_own_exit_code_is_kept():
     assert run_main("def app():\n    sys.exit(5)").returncode == 5
     assert run_main("def app():\n    sys.exit(0)").returncode == 0
+
+
+def test_a_command_started_with_its_output_closed_keeps_its_exit_code():
+    """`espdock build >&-`: the build succeeded, then ended with AttributeError and exit code 1."""
+    script = "from espdock import interrupts\ninterrupts.finish(0)\n"
+    closed = subprocess.run(["sh", "-c", 'exec "$0" -c "$1" >&- 2>&-', sys.executable, script], check=False)
+    assert closed.returncode == 0

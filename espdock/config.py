@@ -16,7 +16,7 @@ import msgspec
 from msgspec import Meta, Struct
 
 from espdock.errors import ConfigError
-from espdock.layout import CONFIG_FILE
+from espdock.layout import CONFIG_FILE, xdg_dir
 
 CHIP_TARGETS = (
     "esp32",
@@ -223,7 +223,7 @@ def pip_configured_cert(env: Mapping[str, str]) -> Path | None:
     if env.get("PIP_CERT"):
         return Path(env["PIP_CERT"])
     home = Path(env.get("HOME", "~")).expanduser()
-    xdg = Path(env.get("XDG_CONFIG_HOME", home / ".config"))
+    xdg = xdg_dir(env, "XDG_CONFIG_HOME", ".config")
     # pip's own order: global, user, site; later files win.
     candidates = [Path("/etc/xdg/pip/pip.conf"), Path("/etc/pip.conf"), home / ".pip/pip.conf", xdg / "pip/pip.conf"]
     if env.get("VIRTUAL_ENV"):

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import os
 import posixpath
+from collections.abc import Mapping
 from pathlib import Path
 
 # The workspace marker and its settings, at the workspace root.
@@ -100,3 +102,13 @@ def installed_firmware_dir(ws_dir: Path, package: str) -> Path:
 MICRO_ROS_AGENT_IMAGE = "microros/micro-ros-agent:jazzy"
 # The compose file names Compose looks for; espdock init writes the first, beside none of them.
 COMPOSE_FILES = ("compose.yaml", "compose.yml", "docker-compose.yaml", "docker-compose.yml")
+
+
+def xdg_dir(env: Mapping[str, str], variable: str, fallback: str) -> Path:
+    """The XDG base directory VARIABLE (XDG_CACHE_HOME, ...) names in ENV, else ~/FALLBACK; a
+    relative value is ignored, as the XDG Base Directory spec says (it made directories in
+    whatever directory espdock ran in)."""
+    value = env.get(variable, "")
+    if value and os.path.isabs(value):
+        return Path(value)
+    return Path(env.get("HOME") or Path.home()) / fallback

@@ -26,6 +26,7 @@ from espdock.layout import (
     ROS_DOCKERFILE,
     ROS_OFFICIAL_DOCKERFILE,
     ROSDEP_LOCK,
+    xdg_dir,
 )
 
 IGNORE_MARKERS = ("COLCON_IGNORE", "AMENT_IGNORE", "CATKIN_IGNORE")
@@ -211,8 +212,7 @@ class _ManifestCache:
 
     @staticmethod
     def directory() -> Path:
-        base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
-        return Path(base) / "espdock" / "manifests"
+        return xdg_dir(os.environ, "XDG_CACHE_HOME", ".cache") / "espdock" / "manifests"
 
     @classmethod
     def load(cls, workspace: Workspace, ros_distro: str = DEFAULT_ROS_DISTRO) -> _ManifestCache:

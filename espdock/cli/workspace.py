@@ -120,7 +120,8 @@ def build(
             render_plan(console, plan)
             return
         if not plan.steps:
-            console.print(nothing_to_build(ws))
+            has_any = only is not None and workspace_packages(ws, config.ros_distro)
+            console.print(f"nothing to build: no {only} package in the workspace" if has_any else nothing_to_build(ws))
             return
         if locked:
             check_locks(ws.root, plan_locks(plan))

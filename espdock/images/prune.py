@@ -18,6 +18,7 @@ from pathlib import Path
 from espdock import durable
 from espdock.build.steps import LABEL_KEY
 from espdock.images.engine import Engine
+from espdock.layout import xdg_dir
 from espdock.workspace import root_key, workspace_gone
 
 GB = 1000**3
@@ -27,9 +28,7 @@ def state_dir(env: Mapping[str, str]) -> Path:
     """Where espdock keeps what outlives a workspace's build tree (the image records)."""
     if env.get("ESPDOCK_STATE_DIR"):
         return Path(env["ESPDOCK_STATE_DIR"])
-    if env.get("XDG_STATE_HOME"):
-        return Path(env["XDG_STATE_HOME"]) / "espdock"
-    return Path(env.get("HOME") or Path.home()) / ".local" / "state" / "espdock"
+    return xdg_dir(env, "XDG_STATE_HOME", ".local/state") / "espdock"
 
 
 @dataclass(frozen=True)

@@ -30,6 +30,7 @@ from pathlib import Path
 
 from espdock.defaults import locate
 from espdock.errors import DependencyError, LockError
+from espdock.layout import xdg_dir
 from espdock.ros import pypi_names
 from espdock.ros.system_python import SystemPython, normalise
 from espdock.workspace import Package, PackageKind, root_key, workspace_gone
@@ -213,7 +214,7 @@ class DatabaseUnreachable(LockError):
 def cache_dir(env: Mapping[str, str], root: Path | None = None) -> Path:
     """Where rosdep's database is kept for the workspace at ROOT: one per workspace, so the
     sources one workspace's rosdep was pointed at (a private rule) never serve another."""
-    base = Path(env.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")) / CACHE_SUBDIR
+    base = xdg_dir(env, "XDG_CACHE_HOME", ".cache") / CACHE_SUBDIR
     if root is None:
         return base
     return base / root_key(Path(root).resolve())

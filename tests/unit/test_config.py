@@ -130,3 +130,16 @@ def test_a_ci_job_is_told_by_ci_as_ci_services_set_it():
     for value in ("", "0", "false", "False", "no"):
         assert not in_ci({"CI": value}), value
     assert not in_ci({})
+
+
+def test_a_relative_xdg_directory_is_ignored_as_the_spec_says(tmp_path):
+    """XDG_CACHE_HOME=relative/cache made relative/ in whatever directory espdock ran in."""
+    from espdock.images.prune import state_dir
+    from espdock.layout import xdg_dir
+    from espdock.ros.rosdeps import cache_dir
+
+    env = {"HOME": str(tmp_path), "XDG_CACHE_HOME": "relative/cache", "XDG_STATE_HOME": "state"}
+    assert xdg_dir(env, "XDG_CACHE_HOME", ".cache") == tmp_path / ".cache"
+    assert cache_dir(env).is_relative_to(tmp_path / ".cache")
+    assert state_dir(env) == tmp_path / ".local/state/espdock"
+    assert xdg_dir({**env, "XDG_CACHE_HOME": "/var/cache/me"}, "XDG_CACHE_HOME", ".cache") == Path("/var/cache/me")

@@ -119,10 +119,11 @@ def test_build_checks_only_the_locks_of_the_images_it_uses(tmp_path):
     root = copy_workspace(tmp_path / "w")
     (root / RUNTIME.source).write_text("segno==1.6.5\n")
     assert espdock("build", "--locked", cwd=root, env=NO_ENGINE).returncode == 2
-    # Only firmware (of which the workspace has none): no ROS image, so its locks do not matter
-    # and the build gets past the check, to the missing engine.
+    # Only firmware (of which the workspace has none): no ROS image, so its locks do not matter:
+    # nothing to build, and nothing refused.
     result = espdock("build", "--only", "firmware", "--locked", cwd=root, env=NO_ENGINE)
-    assert result.returncode == 3, result.stdout + result.stderr
+    assert result.returncode == 0, result.stdout + result.stderr
+    assert "nothing to build: no firmware package in the workspace" in result.stdout
 
 
 def test_a_workspace_on_espdocks_defaults_builds_locked_and_has_nothing_to_lock(tmp_path):

@@ -26,17 +26,24 @@ def run_in_double(double, project: Path, *argv: str) -> subprocess.CompletedProc
     )  # fmt: skip
 
 
+def idf_project(where: Path, main: str = 'idf_component_register(SRCS "main.c")\n', name: str = "") -> Path:
+    """A minimal ESP-IDF project at WHERE, NAME (default: the directory's), its main/ registered
+    by MAIN with a main.c of an empty app_main."""
+    (where / "main").mkdir(parents=True)
+    (where / "CMakeLists.txt").write_text(
+        "cmake_minimum_required(VERSION 3.16)\ninclude($ENV{IDF_PATH}/tools/cmake/project.cmake)\n"
+        f"project({name or where.name})\n"
+    )
+    (where / "main/CMakeLists.txt").write_text(main)
+    (where / "main/main.c").write_text("void app_main(void) {}\n")
+    return where
+
+
 def test_the_double_refuses_headers_of_components_a_component_does_not_require(double, tmp_path):
     """IDF compiles a component with the include dirs of what it requires (publicly, transitively);
     the double must fail where IDF would, or it cannot catch glue that misses a requirement."""
-    project = tmp_path / "probe"
-    (project / "main").mkdir(parents=True)
+    project = idf_project(tmp_path / "probe")
     (project / "components/netif").mkdir(parents=True)
-    (project / "CMakeLists.txt").write_text(
-        "cmake_minimum_required(VERSION 3.16)\ninclude($ENV{IDF_PATH}/tools/cmake/project.cmake)\nproject(probe)\n"
-    )
-    (project / "main/CMakeLists.txt").write_text('idf_component_register(SRCS "main.c")\n')
-    (project / "main/main.c").write_text("void app_main(void) {}\n")
     (project / "components/netif/netif.c").write_text('#include "esp_eth.h"\n#include "driver/gpio.h"\n')
     component = project / "components/netif/CMakeLists.txt"
 
@@ -64,12 +71,7 @@ def test_the_double_refuses_headers_of_components_a_component_does_not_require(d
 def test_the_double_links_esp32_camera_s_driver_only_where_upstream_builds_it(double, tmp_path):
     """esp32-camera compiles its driver only for esp32, esp32s2 and esp32s3: on an esp32c3 an app
     calling esp_camera_init fails at the link, so camera_node lists the chips it supports."""
-    project = tmp_path / "cam"
-    (project / "main").mkdir(parents=True)
-    (project / "CMakeLists.txt").write_text(
-        "cmake_minimum_required(VERSION 3.16)\ninclude($ENV{IDF_PATH}/tools/cmake/project.cmake)\nproject(cam)\n"
-    )
-    (project / "main/CMakeLists.txt").write_text('idf_component_register(SRCS "main.c")\n')
+    project = idf_project(tmp_path / "cam")
     (project / "main/idf_component.yml").write_text('dependencies:\n  espressif/esp32-camera: "^2.0.14"\n')
     (project / "main/main.c").write_text(
         "int esp_camera_init(const void *config);\nvoid app_main(void) { esp_camera_init(0); }\n"
@@ -86,15 +88,9 @@ def test_the_double_links_esp32_camera_s_driver_only_where_upstream_builds_it(do
 def test_the_double_stops_a_component_for_a_chip_outside_its_required_idf_targets(double, tmp_path):
     """ESP-IDF's component.cmake (__component_check_target) ends the configure of a component whose
     REQUIRED_IDF_TARGETS leaves out the chip, which camera_node's registration relies on."""
-    project = tmp_path / "cam"
-    (project / "main").mkdir(parents=True)
-    (project / "CMakeLists.txt").write_text(
-        "cmake_minimum_required(VERSION 3.16)\ninclude($ENV{IDF_PATH}/tools/cmake/project.cmake)\nproject(cam)\n"
+    project = idf_project(
+        tmp_path / "cam", 'idf_component_register(SRCS "main.c"\n    REQUIRED_IDF_TARGETS esp32 esp32s3)\n'
     )
-    (project / "main/CMakeLists.txt").write_text(
-        'idf_component_register(SRCS "main.c"\n    REQUIRED_IDF_TARGETS esp32 esp32s3)\n'
-    )
-    (project / "main/main.c").write_text("void app_main(void) {}\n")
     subprocess.run(["chown", "-R", f"{USER_UID}:{USER_UID}", str(tmp_path)], check=True)
     c3 = run_in_double(double, project, "-DIDF_TARGET=esp32c3", "build")
     assert c3.returncode != 0, c3.stdout[-2000:]
@@ -105,12 +101,7 @@ def test_the_double_stops_a_component_for_a_chip_outside_its_required_idf_target
 
 
 def project(where: Path, reproducible: bool) -> Path:
-    (where / "main").mkdir(parents=True)
-    (where / "CMakeLists.txt").write_text(
-        "cmake_minimum_required(VERSION 3.16)\ninclude($ENV{IDF_PATH}/tools/cmake/project.cmake)\nproject(probe)\n"
-    )
-    (where / "main/CMakeLists.txt").write_text('idf_component_register(SRCS "main.c")\n')
-    (where / "main/main.c").write_text("void app_main(void) {}\n")
+    idf_project(where, name="probe")  # one name: the app's bytes may differ only by the path and time
     if reproducible:
         (where / "sdkconfig.defaults").write_text("CONFIG_APP_REPRODUCIBLE_BUILD=y\n")
     return where
@@ -147,13 +138,7 @@ def test_the_double_refuses_a_partition_table_gen_esp32part_refuses_and_names_so
     """Two partitions of one name and an app at an offset not 64 KB aligned built and installed
     against the double (the flash line wrote the app at 0x18000), where gen_esp32part.py's verify()
     stops the real build; and gcc names a file as IDF's CMake passes it, by its absolute path."""
-    project = tmp_path / "parts"
-    (project / "main").mkdir(parents=True)
-    (project / "CMakeLists.txt").write_text(
-        "cmake_minimum_required(VERSION 3.16)\ninclude($ENV{IDF_PATH}/tools/cmake/project.cmake)\nproject(parts)\n"
-    )
-    (project / "main/CMakeLists.txt").write_text('idf_component_register(SRCS "main.c")\n')
-    (project / "main/main.c").write_text("void app_main(void) {}\n")
+    project = idf_project(tmp_path / "parts")
     (project / "sdkconfig.defaults").write_text(
         'CONFIG_PARTITION_TABLE_CUSTOM=y\nCONFIG_PARTITION_TABLE_CUSTOM_FILENAME="partitions.csv"\n'
     )

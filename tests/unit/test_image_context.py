@@ -20,3 +20,20 @@ def test_an_image_s_staged_context_has_the_same_modes_under_any_umask(tmp_path):
     finally:
         os.umask(previous)
     assert modes == {"a": 0o755, "a/b": 0o755, "a/b/with-ca.sh": 0o644, "c": 0o755, "c/d.txt": 0o644}
+
+
+def test_a_context_a_killed_espdock_staged_is_removed_by_the_next_and_a_live_one_s_is_not(tmp_path, monkeypatch):
+    """kill -9 during an image build left its staged context (Dockerfile and docker/) in /tmp for good."""
+    import tempfile
+
+    from espdock.images.engine import owner_identity
+
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
+    left = tmp_path / "espdock-context-0000:1:1-abcd1234"  # another boot's process: gone
+    live = tmp_path / f"espdock-context-{owner_identity()}-efgh5678"
+    for path in (left, live):
+        (path / "docker").mkdir(parents=True)
+    spec = ImageSpec("espdock/x", "k", "Dockerfile", "build", (), context=(("Dockerfile", b"FROM x\n"),))
+    with _context_dir(Workspace(tmp_path), spec, {}) as staged:
+        assert staged.name.startswith(f"espdock-context-{owner_identity()}-")
+    assert not left.exists() and live.is_dir()

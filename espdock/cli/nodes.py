@@ -19,9 +19,7 @@ from espdock.cli.prune import record_images
 from espdock.config import Config, resolve_ca_bundle
 from espdock.errors import Interrupted
 from espdock.images import bootstrap
-from espdock.images.containers import give_to, make_dirs_for
 from espdock.images.engine import ComposeStillStopping
-from espdock.layout import COMPOSE_FILES
 from espdock.ros import compose as compose_file
 from espdock.ros import nodes
 from espdock.ros.plan import RuntimeImage, runtime_repository
@@ -63,8 +61,10 @@ def compose(ctx: typer.Context, workspace: WorkspaceOption = None) -> None:
         # A workspace's own ROS Dockerfile may have no runtime stage: its compose file names others.
         if any(isinstance(step, RuntimeImage) for step in plan.steps):
             runtime_image(ws, config, plan)
-    if subcommand in nodes.COMPOSE_CREATING:
-        _warn_foreign_compose(ws, config, ctx.args)
+    if subcommand in nodes.COMPOSE_CREATING and (
+        warning := compose_file.foreign_compose_warning(ws.root, runtime_repository(config, ws), ctx.args)
+    ):
+        notify(warning)
     env = dict(os.environ)
     ca_bundle = resolve_ca_bundle(config, os.environ)
     if ca_bundle is not None:
@@ -96,29 +96,6 @@ def compose(ctx: typer.Context, workspace: WorkspaceOption = None) -> None:
             "`espdock compose down` removes them (with the same -p/--profile options as `up`).",
         ) from None
     raise typer.Exit(code)
-
-
-def _warn_foreign_compose(ws: Workspace, config: Config, args: list[str]) -> None:
-    """Say when the compose file runs another workspace's runtime image (a copy or clone of a
-    workspace keeps the original's compose file): not this workspace's nodes."""
-    if {"-f", "--file"} & set(args) or any(a.startswith(("-f=", "--file=")) for a in args):
-        return  # the user named the files
-    path = next((ws.root / name for name in COMPOSE_FILES if (ws.root / name).is_file()), None)
-    if path is None:
-        return
-    own = runtime_repository(config, ws)
-    foreign, project = compose_file.foreign_runtime_images(path.read_text(errors="replace"), own)
-    if not foreign:
-        return
-    replaced = (
-        f", and its project `name: {project}` is that workspace's too (its containers get replaced)" if project else ""
-    )
-    notify(
-        f"warning: {path.name} runs {', '.join(foreign)}, another workspace's runtime image, not this one's "
-        f"({own}:latest, of this install/){replaced}; set image: {own}:latest"
-        + (f" and name: {own.removeprefix('espdock/')}" if project else "")
-        + f" in {path.name} (a copied or cloned workspace keeps the original's)"
-    )
 
 
 @app.command(context_settings={"allow_interspersed_args": False, "ignore_unknown_options": True})
@@ -185,12 +162,7 @@ def shell(workspace: WorkspaceOption = None) -> None:
     packages = workspace_packages(ws, config.ros_distro)
     owner = runner.containers.container_owner()
     if not mount.volume:
-        home = ws.ws_dir / nodes.SHELL_HOME
-        make_dirs_for(home, runner.owner)
-        for name, text in ((".bashrc", nodes.SHELL_BASHRC), ("colcon-defaults.yaml", nodes.SHELL_COLCON_DEFAULTS)):
-            if not (written := home / name).exists():  # once: then the user's to edit
-                written.write_text(text)
-                give_to(written, runner.owner)
+        nodes.make_shell_home(ws, runner.owner)
     spec = nodes.shell_spec(
         ws, image, owner, os.environ, tty, dockerfile, mount, packages, Path.cwd(), user_name(runner.owner[0])
     )

@@ -131,6 +131,28 @@ def foreign_runtime_images(text: str, own: str) -> tuple[list[str], str | None]:
     return foreign, project if isinstance(project, str) and project in names else None
 
 
+def foreign_compose_warning(root: Path, own: str, args: list[str] | tuple[str, ...]) -> str | None:
+    """The warning for a compose file in ROOT (the one Compose reads when ARGS name none) that
+    runs another workspace's runtime image than OWN (espdock/<name>), or None."""
+    from espdock.layout import COMPOSE_FILES
+
+    if {"-f", "--file"} & set(args) or any(a.startswith(("-f=", "--file=")) for a in args):
+        return None  # the user named the files
+    path = next((root / name for name in COMPOSE_FILES if (root / name).is_file()), None)
+    if path is None:
+        return None
+    foreign, project = foreign_runtime_images(path.read_text(errors="replace"), own)
+    if not foreign:
+        return None
+    replaced = f", and its project `name: {project}` is that workspace's too (its containers get replaced)"
+    rename = f" and name: {own.removeprefix('espdock/')}"
+    return (
+        f"warning: {path.name} runs {', '.join(foreign)}, another workspace's runtime image, not this one's "
+        f"({own}:latest, of this install/){replaced if project else ''}; set image: {own}:latest"
+        f"{rename if project else ''} in {path.name} (a copied or cloned workspace keeps the original's)"
+    )
+
+
 def generated_unchanged(text: str) -> bool:
     """Whether TEXT is a compose file as espdock wrote it (its mark matches the rest)."""
     first, _, body = text.partition("\n")

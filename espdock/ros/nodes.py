@@ -10,6 +10,7 @@ from pathlib import Path
 from espdock.build.stamps import StampFile, listing_digest
 from espdock.build.steps import LABEL_WORKSPACE, EnsureBaseImage, EnsureImage, Plan
 from espdock.errors import ConfigError, WorkspaceError
+from espdock.images.containers import give_to, make_dirs_for
 from espdock.images.engine import Mount, RunSpec
 from espdock.images.visibility import linked_mounts
 from espdock.layout import ROS_BUILD_BASE, ROS_OFFICIAL_DOCKERFILE, WORKSPACE_MOUNT
@@ -284,6 +285,17 @@ build:
 test:
   build-base: build/espdock-ros
 """
+
+
+def make_shell_home(workspace: Workspace, owner: tuple[int, int]) -> None:
+    """The shell's home on the workspace (SHELL_HOME), with its .bashrc and colcon defaults
+    written once (then the user's to edit), all OWNER's."""
+    home = workspace.ws_dir / SHELL_HOME
+    make_dirs_for(home, owner)
+    for name, text in ((".bashrc", SHELL_BASHRC), ("colcon-defaults.yaml", SHELL_COLCON_DEFAULTS)):
+        if not (written := home / name).exists():
+            written.write_text(text)
+            give_to(written, owner)
 
 
 def shell_spec(

@@ -53,6 +53,9 @@ from espdock.images.engine import format_argv
 from espdock.layout import installed_firmware_dir
 from espdock.workspace import Package, Workspace, read_build_inputs
 
+# idf.py's options that say where the project and its build dir are.
+IDF_PLACES = frozenset({"-C", "--project-dir", "-B", "--build-dir"})
+
 
 @app.command(context_settings={"allow_extra_args": True, "ignore_unknown_options": True})
 @command
@@ -77,6 +80,13 @@ def idf(
             f"build/{package} (its sdkconfig too) and then fail on the chip espdock builds it for",
             f'Set CONFIG_IDF_TARGET="CHIP" in {package}\'s sdkconfig.defaults, or build with `espdock build '
             f"{package} --target CHIP`: espdock starts a build dir afresh for a new chip; nothing was changed.",
+        )
+    if placed := next((a for a in args if a.split("=", 1)[0] in IDF_PLACES), None):
+        # espdock passes -C and -B itself: another build dir is one in the container, gone with it.
+        raise ConfigError(
+            f"idf.py {placed}: espdock decides where {package} is built (-C its project, -B "
+            f"build/{package} in the colcon root) and passes them itself",
+            "Leave it out; the build dir is where `espdock build`, flash and monitor find it. Nothing ran.",
         )
     plan, step = firmware_plan(ws, config, package)
     if "fullclean" in args:

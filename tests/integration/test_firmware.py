@@ -561,6 +561,10 @@ def test_idf_passthrough_runs_idf_py_in_the_image(fw_ws, double_env):
     assert result.returncode == 2 and "idf.py set-target is not how espdock changes" in result.stderr, result.stderr
     assert "CONFIG_IDF_TARGET" in result.stderr and "--target CHIP" in result.stderr
     assert sorted(p.name for p in (root / "ws/build/led_strip_node").iterdir()) == before
+    # Another build dir: idf.py built into the container's /tmp, exit 0, and it went with the container.
+    elsewhere = espdock("idf", "led_strip_node", "--", "-B", "/tmp/xx", "build", cwd=root, env=double_env)
+    assert elsewhere.returncode == 2, elsewhere.stdout[-2000:] + elsewhere.stderr
+    assert "idf.py -B: espdock decides where led_strip_node is built" in elsewhere.stderr
 
 
 @contextlib.contextmanager

@@ -113,7 +113,7 @@ class Reporter:
         if not self.finished:
             return
         table = _table(title="espdock build", title_justify="left")
-        table.add_column("step")
+        table.add_column("step", overflow="fold")  # whole in an 80-column CI log, never cut short
         table.add_column("result")
         table.add_column("time", justify="right")
         table.add_column("detail", overflow="fold")

@@ -477,3 +477,23 @@ def test_builds_of_one_tag_wait_for_each_other_even_as_lock_files_go(tmp_path, m
     assert engine.most_at_once == 1, "two builds of one tag ran at once"
     assert any(isinstance(e, StepNote) and "another espdock is making it; waiting" in e.text for e in events)
     assert lock_files(temp) == []
+
+
+def test_the_summary_in_an_80_column_log_cuts_no_step_name_short():
+    """Without a terminal (a CI log) the table is 80 columns wide: a micro-ROS image step came out
+    as `espdock/idf-micro-ros-jazz…`, its chip and key lost."""
+    import io
+
+    from rich.console import Console
+
+    from espdock.cli.ui import Reporter
+    from espdock.events import Outcome, StepFinished
+
+    out = io.StringIO()
+    reporter = Reporter(Console(file=out, width=80, soft_wrap=True))
+    tag = "espdock/idf-micro-ros-jazzy-esp32c3:0123456789abcdef"
+    reporter.finished.append(StepFinished(f"image {tag}", Outcome.BUILT, 12.3, tag))
+    reporter.summary()
+    cells = "".join(line.split("│")[1].strip() for line in out.getvalue().splitlines() if line.startswith("│"))
+    assert f"image{tag}" in cells.replace(" ", ""), out.getvalue()
+    assert "…" not in out.getvalue()

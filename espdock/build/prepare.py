@@ -87,9 +87,9 @@ def firmware_plan(
 
 
 def current_tags(ws: Workspace, config: Config, *, env: Mapping[str, str], notify: Callable[[str], None]) -> set[str]:
-    """The keyed images the workspace's inputs use now: its plan's images and its runtime image
-    for the install tree as it is."""
-    plan = build_plan(ws, config, [], env=env, notify=notify)
+    """The keyed images the workspace's inputs use now: its plan's images and the runtime image
+    (and its base) `espdock run` makes of the install tree as it is, runtime_image set or not."""
+    plan = build_plan(ws, dataclasses.replace(config, runtime_image=True), [], env=env, notify=notify)
     tags = {step.spec.tag for step in plan.steps if isinstance(step, EnsureImage)}
     if any(isinstance(step, ColconBuild) for step in plan.steps):
         # `espdock test`'s: the build image plus the lock's test part.

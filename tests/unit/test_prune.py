@@ -121,3 +121,17 @@ def test_a_second_workspace_of_the_same_name_is_told_to_set_its_own(tmp_path, mo
     err = " ".join(capsys.readouterr().out.split())
     assert f"{first} names its runtime images espdock/robot:latest too" in err
     assert 'set name = "..." in one\'s espdock.toml' in err
+
+
+def test_the_runtime_images_run_uses_are_current_where_builds_make_none(tmp_path):
+    """With runtime_image off, `espdock run` makes the runtime image (and its base, minutes to
+    build): once prune took only what the inputs use now, it counted neither as in use."""
+    from espdock.build.prepare import current_tags
+    from espdock.config import Config
+    from espdock.workspace import find_workspace
+    from tests.conftest import copy_workspace
+
+    root = copy_workspace(tmp_path / "w", runtime_image=False)
+    ws = find_workspace(root).with_layout(("ws/src",), "ws")
+    tags = current_tags(ws, Config(runtime_image=False), env={}, notify=lambda text: None)
+    assert any(tag.startswith("espdock/ros-jazzy-runtime:") for tag in tags), tags

@@ -536,9 +536,7 @@ def workspace_lock(workspace: Workspace) -> Iterator[None]:
     """Hold an exclusive lock on the workspace for the duration of a build; a second build in the
     same workspace is refused naming the holder's pid and command."""
     fd = os.open(workspace.root, os.O_RDONLY)
-    # Who holds it, for the error a second build gets: outside the workspace, so that espdock
-    # run as root creates nothing there that the user's colcon could not write into.
-    holder = Path(tempfile.gettempdir()) / f"espdock-build-{root_key(workspace.root)}.holder"
+    holder = _holder_path(workspace)
     try:
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
@@ -563,11 +561,18 @@ def build_running(workspace: Workspace) -> str | None:
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
-            return _holder_text(Path(tempfile.gettempdir()) / f"espdock-build-{root_key(workspace.root)}.holder")
+            return _holder_text(_holder_path(workspace))
         fcntl.flock(fd, fcntl.LOCK_UN)
         return None
     finally:
         os.close(fd)
+
+
+def _holder_path(workspace: Workspace) -> Path:
+    """Where the lock's holder says who it is, for the error a second build gets: outside the
+    workspace, so that espdock run as root creates nothing there that the user's colcon could not
+    write into."""
+    return Path(tempfile.gettempdir()) / f"espdock-build-{root_key(workspace.root)}.holder"
 
 
 def _write_holder(holder: Path) -> None:

@@ -122,7 +122,7 @@ class FirmwareSteps:
         current = StampFile(workspace.ws_dir / "build" / FIRMWARE_STAMPS).up_to_date(
             stamps, {step.package: listing_digest(build_dir, COLCON_RESULT_FILES)}
         )
-        target, _, key, *_ = [*_read_marker(build_dir), "", "", ""]
+        target, _, key = _read_marker(build_dir) or ("", "", "")
         if current or target != step.target or not key or key == step.image_key:
             return step, current
         built = replace(step, image=keyed_tag(step.image.rpartition(":")[0], key), image_key=key)
@@ -342,12 +342,15 @@ def _firmware_stamp(workspace: Workspace, step: IdfBuild, image_id: str) -> dict
     return {step.package: digest.hexdigest()}
 
 
-def _read_marker(build_dir: Path) -> list[str]:
-    """The target, sdkconfig.defaults digest and image key the build dir was last built with."""
+def _read_marker(build_dir: Path) -> tuple[str, str, str] | None:
+    """The target, sdkconfig.defaults digest and image key the build dir was last built with
+    (missing lines empty), None where it has no record."""
     try:
-        return (build_dir / TARGET_MARKER).read_text().split("\n")
+        lines = (build_dir / TARGET_MARKER).read_text().split("\n")
     except OSError:
-        return []
+        return None
+    target, defaults, key, *_ = [*lines, "", "", ""]
+    return target, defaults, key
 
 
 def _write_marker(build_dir: Path, target: str, defaults: str, image_key: str, owner: tuple[int, int]) -> None:
@@ -358,7 +361,7 @@ def _write_marker(build_dir: Path, target: str, defaults: str, image_key: str, o
 
 def _built_key(build_dir: Path, target: str) -> str:
     """The image key of the build dir's last successful build for TARGET ('' if none)."""
-    built_target, _, key, *_ = [*_read_marker(build_dir), "", "", ""]
+    built_target, _, key = _read_marker(build_dir) or ("", "", "")
     return key if built_target == target else ""
 
 
@@ -376,9 +379,9 @@ def _prepare_build_dir(build_dir: Path, target: str, defaults: str, image_key: s
     anything, and whether it replaced an sdkconfig for new defaults.
     """
     marker = _read_marker(build_dir)
-    if not marker:
+    if marker is None:
         return False, False
-    built_target, built_defaults, built_key, *_ = [*marker, "", "", ""]
+    built_target, built_defaults, built_key = marker
     if built_target != target:
         shutil.rmtree(build_dir)  # only a cache
         return True, False

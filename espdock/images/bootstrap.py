@@ -18,7 +18,7 @@ from pathlib import Path
 
 from espdock.config import Config
 from espdock.errors import EngineUnavailable, ImageBuildError
-from espdock.images.engine import Engine, compose_available
+from espdock.images.engine import DEFAULT_HOST, Engine, compose_available
 
 Notify = Callable[[str], None]
 
@@ -28,7 +28,6 @@ DOCKERD_LOG = Path("/var/log/espdock-dockerd.log")
 # after the job would break every exec of the engine. A service manager gives it no more.
 DOCKERD_ENV = ("PATH", "HTTP_PROXY", "HTTPS_PROXY", "NO_PROXY", "http_proxy", "https_proxy", "no_proxy",
                "DOCKER_TMPDIR", "DOCKER_RAMDISK")  # fmt: skip
-LOCAL_SOCKET = "unix:///var/run/docker.sock"
 SYSTEM_PLUGIN = Path("/usr/local/lib/docker/cli-plugins/docker-compose")
 ENGINE_START_TIMEOUT = 60.0
 # debian:<suite> and debian:<suite>-slim can be rebuilt from Debian's archive.
@@ -59,16 +58,10 @@ def ensure_engine(env: Mapping[str, str], notify: Notify) -> Engine:
         if first.hint is not None:  # it answered, and said what is wrong (TLS)
             raise
         chosen = Engine(env)
-        if chosen.host != LOCAL_SOCKET or not _can_manage_engine():
+        if chosen.host != DEFAULT_HOST or not _can_manage_engine():
             # Another engine than the default socket's is the user's to start, never replaced by a
             # local one; so is the default one for a user who cannot install or start it.
-            hint = chosen.start_hint()
-            if chosen.host == LOCAL_SOCKET:
-                hint = (
-                    f"{hint.removesuffix('.')} and make sure you may use it (the docker group); as root on "
-                    "Debian/Ubuntu espdock installs and starts docker.io itself."
-                )
-            raise EngineUnavailable(first.message, hint) from first
+            raise EngineUnavailable(first.message, chosen.start_hint()) from first
     if shutil.which("dockerd") is None:
         notify("no Docker engine: installing docker.io from Debian")
         _apt_install(["docker.io"], notify)

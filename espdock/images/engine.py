@@ -50,6 +50,7 @@ from espdock.images.sdk import docker, requests
 
 LineSink = Callable[[str], None]
 DEFAULT_SOCKET = "/var/run/docker.sock"
+DEFAULT_HOST = f"unix://{DEFAULT_SOCKET}"
 # The addresses docker/cli's ParseHost takes (npipe: Windows; fd: systemd's socket activation).
 ENGINE_SCHEMES = ("unix", "tcp", "ssh", "npipe", "fd")
 OPERATION_TIMEOUT = 120
@@ -99,7 +100,7 @@ def _create_config(spec: RunSpec, labels: Mapping[str, str], host_users: bool = 
 
 def _host(env: Mapping[str, str]) -> str:
     """The engine's address in ENV (as contexts.engine_env gives it): DOCKER_HOST, or the default socket."""
-    return env.get("DOCKER_HOST") or f"unix://{DEFAULT_SOCKET}"
+    return env.get("DOCKER_HOST") or DEFAULT_HOST
 
 
 def _local_socket(env: Mapping[str, str]) -> str | None:
@@ -108,10 +109,10 @@ def _local_socket(env: Mapping[str, str]) -> str | None:
     return host.removeprefix("unix://") if host.startswith("unix://") else None
 
 
-def _looks_like_podman(where: str) -> bool:
-    # Before /_ping has said what the engine is, its address is all there is to go by: Podman's
-    # sockets are /run/podman/podman.sock and $XDG_RUNTIME_DIR/podman/podman.sock.
-    return "podman" in where
+def _is_podman(where: str, podman: bool | None) -> bool:
+    """Whether the engine at WHERE is Podman: what /_ping said (PODMAN), and before it answered,
+    its address (Podman's sockets are /run/podman/podman.sock and $XDG_RUNTIME_DIR/podman/podman.sock)."""
+    return podman if podman is not None else "podman" in where
 
 
 def how_to_start(env: Mapping[str, str], context: tuple[str, str] | None, podman: bool | None) -> str:
@@ -119,7 +120,7 @@ def how_to_start(env: Mapping[str, str], context: tuple[str, str] | None, podman
     Docker's, Podman's API service (PODMAN: what /_ping said, None before it answered), or the
     remote engine, by the CONTEXT (contexts.selected's) that chose it when one did."""
     where = _host(env)
-    if podman or (podman is None and _looks_like_podman(where)):
+    if _is_podman(where, podman):
         return (
             "Start Podman's API service (`systemctl --user start podman.socket`, as root "
             "`systemctl start podman.socket`, or `podman system service`)"
@@ -290,7 +291,7 @@ class Engine:
         """The engine stopped answering while DOING: named as what it is, with how to start it again."""
         where = _host(self._env)
         start = how_to_start(self._env, self._context, self._podman)
-        if self._podman or (self._podman is None and _looks_like_podman(where)):
+        if _is_podman(where, self._podman):
             # Podman's containers do not depend on its API service: a killed service leaves them running.
             return EngineUnavailable(
                 f"the Podman engine at {where} went away while {doing}; a container it was running may "
@@ -304,14 +305,18 @@ class Engine:
 
     def start_hint(self) -> str:
         """How to start this engine, for one that never answered: how_to_start's words, and how to
-        use the local engine instead where another was chosen."""
+        use the local engine instead where another was chosen; the default socket's is one the
+        user could not install or start (bootstrap.ensure_engine does where it can)."""
         start = how_to_start(self._env, self._context, self._podman)
         if self._context is not None:
             undo = "unset DOCKER_CONTEXT" if self._context[1] == "DOCKER_CONTEXT" else "`docker context use default`"
             return f"{start}, or {undo} for the local one."
-        if _host(self._env) != f"unix://{DEFAULT_SOCKET}":
+        if self.host != DEFAULT_HOST:
             return f"{start}, or unset DOCKER_HOST."
-        return f"{start}."
+        return (
+            f"{start} and make sure you may use it (the docker group); as root on Debian/Ubuntu espdock "
+            "installs and starts docker.io itself."
+        )
 
     def info(self) -> EngineInfo:
         """The engine's kind, rootless or not, and identity (asked once per Engine)."""

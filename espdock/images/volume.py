@@ -13,7 +13,6 @@ colcon's log, or a firmware package's build dir.
 from __future__ import annotations
 
 import contextlib
-import hashlib
 import io
 import json
 import os
@@ -32,7 +31,7 @@ from espdock.build.steps import LABEL_WORKSPACE
 from espdock.errors import EngineUnavailable
 from espdock.images.engine import Engine, Mount
 from espdock.layout import WORKSPACE_MOUNT
-from espdock.workspace import Workspace, give_tree
+from espdock.workspace import Workspace, give_tree, root_key
 
 LABEL_VOLUME = "io.espdock.volume"
 # Under the colcon root's build/ on the host: what the volume holds of the sources.
@@ -43,7 +42,7 @@ OUTPUT_DIRS = ("build", "install", "log")
 
 def volume_name(workspace: Workspace) -> str:
     """The workspace's volume: its directory's name (for people) and a digest of its path (unique)."""
-    digest = hashlib.sha256(str(workspace.root).encode(errors="surrogateescape")).hexdigest()[:12]
+    digest = root_key(workspace.root)[:12]
     readable = re.sub(r"[^a-z0-9_.-]+", "-", workspace.root.name.lower()).strip("-.")[:40] or "workspace"
     return f"espdock-ws-{readable}-{digest}"
 

@@ -15,6 +15,7 @@ import stat
 import subprocess
 import sys
 import tarfile
+import time
 import uuid
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -358,12 +359,17 @@ def test_the_listings_are_the_engine_s_own_and_removing_labelled_containers_remo
 
 def assert_listed(listing: Callable[[], set[str]], *selection: str) -> None:
     """LISTING gives what `docker images SELECTION` lists. The other test workers build and remove
-    images meanwhile: every image there both before and after must be in it, and nothing that was
-    in neither."""
-    before = docker_ids("images", *selection)
-    listed = listing()
-    after = docker_ids("images", *selection)
-    assert before & after <= listed <= before | after, (before & after - listed, listed - (before | after))
+    images meanwhile, and an image can come and go within one listing, so the check waits for a
+    listing the CLI's answers on both sides of agree with; then the two must be the same set."""
+    for _ in range(60):
+        before = docker_ids("images", *selection)
+        listed = listing()
+        after = docker_ids("images", *selection)
+        if before == after:
+            assert listed == before, (before - listed, listed - before)
+            return
+        time.sleep(0.5)
+    pytest.fail(f"`docker images {' '.join(selection)}` changed during each of 60 listings")
 
 
 def test_a_builds_listings_on_the_local_socket_load_neither_the_sdk_nor_requests(engine):

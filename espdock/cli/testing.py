@@ -29,6 +29,7 @@ from espdock.ros.testing import (
     check_test_args,
     check_testable,
     collect_results,
+    forget_collected,
     host_tests_dir,
     read_results,
     run_host_tests,
@@ -45,7 +46,11 @@ def test(
     ] = None,
     results: Annotated[
         Path | None,
-        typer.Option("--results", help="Copy every JUnit XML file the tests wrote here, as DIR/<package>/<file>."),
+        typer.Option(
+            "--results",
+            help="Copy every JUnit XML file the tests wrote here, as DIR/<package>/<file>,"
+            " in place of those the last --results DIR copied.",
+        ),
     ] = None,
     verbose: Annotated[bool, typer.Option("--verbose", "-v", help="Show image build logs in full.")] = False,
     timestamps: Annotated[
@@ -78,6 +83,8 @@ def test(
     firmware = [p for p in chosen if p.kind is PackageKind.FIRMWARE]
     official = config.ros_image == "official"
     check_testable({p.name: p.depends for p in ros}, "official" if official else "wheels")
+    if results is not None:
+        forget_collected(results)
     found: dict[str, PackageResults] = {}
     logs: dict[str, Path] = {}
     code = 0

@@ -11,6 +11,7 @@ colcon's count less the CTest entries.
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import os
@@ -344,11 +345,16 @@ def clear_results(build_base: Path, packages: Iterable[str]) -> None:
             path.unlink(missing_ok=True)
 
 
+# What the last `--results DIR` copied into DIR, one path under it per line.
+RESULTS_RECORD = ".espdock-results"
+
+
 def collect_results(
     results: Mapping[str, PackageResults], build_base: Path, destination: Path, owner: tuple[int, int]
 ) -> list[Path]:
-    """Copy every result file into DESTINATION/<package>/, named after its place in the build dir.
-    As root, what it writes and the directories it makes belong to OWNER (`sudo espdock test`)."""
+    """Copy every result file into DESTINATION/<package>/, named after its place in the build dir,
+    and add it to DESTINATION's record (forget_collected). As root, what it writes and the
+    directories it makes belong to OWNER (`sudo espdock test`)."""
     written = []
     for package, result in results.items():
         for path in result.files:
@@ -358,4 +364,31 @@ def collect_results(
             shutil.copyfile(path, target)
             give_to(target, owner)
             written.append(target)
+    if written:
+        record = destination / RESULTS_RECORD
+        made = not record.exists()
+        with record.open("a") as lines:
+            lines.writelines(f"{target.relative_to(destination).as_posix()}\n" for target in written)
+        if made:
+            give_to(record, owner)
     return written
+
+
+def forget_collected(destination: Path) -> None:
+    """Remove the files an earlier `--results DESTINATION` copied there, before this run's: on a CI
+    runner that keeps its directories, the packages and tests this run does not test would
+    otherwise be reported again as its own, and a run that fails before its tests would leave
+    the last run's results standing. Only what the record names goes."""
+    record = destination / RESULTS_RECORD
+    try:
+        names = record.read_text().splitlines()
+    except (FileNotFoundError, NotADirectoryError):
+        return
+    for name in names:
+        parts = Path(name).parts
+        if len(parts) != 2 or ".." in parts:
+            continue  # the record only ever names <package>/<file>
+        (destination / name).unlink(missing_ok=True)
+        with contextlib.suppress(OSError):  # holds other files still
+            (destination / parts[0]).rmdir()
+    record.unlink()

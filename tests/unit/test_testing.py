@@ -20,6 +20,7 @@ from espdock.ros.testing import (
     check_test_args,
     check_testable,
     collect_results,
+    forget_collected,
     host_test_steps,
     host_tests_failed,
     read_results,
@@ -136,6 +137,26 @@ def test_results_are_counted_as_colcon_test_result_counts_and_collected_by_packa
     ]
 
 
+def test_a_run_s_results_replace_the_last_run_s_and_leave_what_espdock_did_not_copy(tmp_path):
+    """A CI runner that keeps its directories: the second run tests only p, and a JUnit reporter
+    reading DIR must not find c's results from the first as this run's."""
+    build, results = tmp_path / "build", tmp_path / "results"
+    (build / "p").mkdir(parents=True)
+    (build / "p" / "pytest.xml").write_text(PYTEST_XML)
+    (build / "c" / "test_results" / "c").mkdir(parents=True)
+    (build / "c" / "test_results" / "c" / "test_ring.gtest.xml").write_text(GTEST_XML)
+    collect_results(read_results(build, ("p", "c")), build, results, ME)
+    (results / "c" / "mine.xml").write_text("<testsuite/>")  # the user's, or another tool's
+    (results / "notes.txt").write_text("kept")
+    forget_collected(results)
+    collect_results(read_results(build, ("p",)), build, results, ME)
+    left = sorted(p.relative_to(results).as_posix() for p in results.rglob("*") if p.is_file())
+    assert left == [".espdock-results", "c/mine.xml", "notes.txt", "p/pytest.xml"]
+    forget_collected(results)
+    assert not (results / "p").exists(), "a package directory it emptied goes"
+    forget_collected(results)  # nothing recorded: nothing to do
+
+
 @pytest.mark.skipif(os.geteuid() != 0, reason="only root hands files to another user")
 def test_results_and_a_report_written_as_root_belong_to_the_user_it_stands_for(tmp_path):
     """`sudo espdock test --results DIR` and `sudo espdock build --report FILE`: the user could
@@ -217,6 +238,15 @@ def test_cli_refuses_bad_input_before_any_engine(tmp_path):
         result = espdock(*args, cwd=root, env=no_engine)
         assert result.returncode == 2, (args, result.stdout, result.stderr)
         assert said in result.stderr and "Traceback" not in result.stderr
+    # Valid input: the last run's results go before the run, so a run that fails (here before any test)
+    # leaves none of them for CI to report as its own.
+    build, results = tmp_path / "build", tmp_path / "results"
+    (build / "tested_py").mkdir(parents=True)
+    (build / "tested_py" / "pytest.xml").write_text(PYTEST_XML)
+    collect_results(read_results(build, ("tested_py",)), build, results, ME)
+    result = espdock("test", "tested_py", "--results", str(results), cwd=root, env=no_engine)
+    assert result.returncode != 0, result.stdout + result.stderr
+    assert not (results / "tested_py").exists()
 
 
 def test_a_firmware_package_without_host_tests_has_nothing_to_run_and_needs_no_engine(tmp_path):

@@ -21,7 +21,7 @@ from typing import NoReturn
 import typer
 
 from espdock import interrupts
-from espdock.cli.core import INTERRUPTED, app, command, fail
+from espdock.cli.core import INTERRUPTED, app, command, fail, output_failed
 from espdock.errors import Interrupted
 
 MODULES = ("workspace", "testing", "firmware", "nodes", "agent")
@@ -57,6 +57,10 @@ def main() -> NoReturn:
             app()
         except KeyboardInterrupt:  # in Typer's own code, before or after the command
             fail(INTERRUPTED)
+        except OSError as exc:  # in Typer's: its help, `--version`
+            if failed := output_failed(exc):
+                fail(failed)
+            raise
         except SystemExit as exc:
             # A Ctrl-C that Python swallowed (raised in a callback whose exceptions it only prints)
             # still ends the command as interrupted.

@@ -3,8 +3,10 @@ espdock's errors and Ctrl-C into a message and an exit code."""
 
 from __future__ import annotations
 
+import errno
 import functools
 import os
+import stat
 import sys
 from collections.abc import Callable
 from pathlib import Path
@@ -21,7 +23,7 @@ from espdock.build.runner import Runner
 from espdock.build.steps import Plan
 from espdock.cli.ui import QuietReporter, Reporter
 from espdock.config import Config, invoking_user, load_config
-from espdock.errors import EspdockBug, EspdockError, Interrupted
+from espdock.errors import DiskFull, EspdockBug, EspdockError, Interrupted
 from espdock.firmware.plan import IdfBuild
 from espdock.images import bootstrap
 from espdock.workspace import (
@@ -95,9 +97,46 @@ def command(function: Callable[P, None]) -> Callable[P, None]:
                 fail(_bug_report(exc))
             output_closed()
         except Exception as exc:  # anything else is espdock's own bug: say so, keep the traceback
-            fail(_bug_report(exc))
+            fail(output_failed(exc) or _bug_report(exc))
 
     return wrapper
+
+
+def output_failed(exc: BaseException) -> EspdockError | None:
+    """EXC as espdock's output finding no room where stdout goes (`espdock build > build.log` on a
+    full disk), or None where it is something else."""
+    if not isinstance(exc, OSError) or exc.errno != errno.ENOSPC or exc.filename is not None or not _stdout_full():
+        return None
+    where = _stdout_name()
+    # What is still buffered goes nowhere, or the flush at exit would fail again.
+    os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+    return DiskFull(
+        f"espdock could not write its output to {where}: {exc.strerror}",
+        "Free space there, or send the output elsewhere, and run the command again.",
+    )
+
+
+def _stdout_full() -> bool:
+    """Whether stdout goes to a filesystem with no room left, or a device that takes nothing (/dev/full)."""
+    try:
+        fd = sys.stdout.fileno()
+        if stat.S_ISCHR(os.fstat(fd).st_mode):
+            try:
+                os.write(fd, b"")  # a terminal takes an empty write; /dev/full refuses any
+            except OSError:
+                return True
+            return False
+        free = os.fstatvfs(fd)
+    except (OSError, ValueError):
+        return False
+    return free.f_bavail * free.f_frsize < 1 << 20
+
+
+def _stdout_name() -> str:
+    try:
+        return os.readlink(f"/proc/self/fd/{sys.stdout.fileno()}")
+    except (OSError, ValueError):
+        return "stdout"
 
 
 def _bug_report(exc: Exception) -> EspdockBug:

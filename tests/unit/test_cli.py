@@ -402,3 +402,20 @@ def test_a_build_stopped_before_any_step_still_writes_its_report(tmp_path):
     data = json.loads(report.read_text())
     assert data["outcome"] == "failed" and data["steps"] == [] and data["manifest"] is None
     assert data["error"].startswith("no Docker engine answers at unix:///nonexistent/docker.sock")
+
+
+def test_output_that_finds_no_room_is_a_full_disk_not_an_espdock_bug(tmp_path):
+    """`espdock list > listing.txt` on a full disk (here /dev/full, which refuses every byte) was
+    exit 70, "a bug in espdock", with a bug log to report; `--version` a raw traceback."""
+    import os
+
+    root = copy_workspace(tmp_path / "w", packages=())
+    for args in (("list",), ("--version",), ("build", "--dry-run")):
+        with open("/dev/full", "w") as full:
+            result = subprocess.run(
+                [sys.executable, "-m", "espdock", *args], cwd=root, stdout=full, stderr=subprocess.PIPE,
+                text=True, check=False, env={**os.environ, **NO_ENGINE},
+            )  # fmt: skip
+        assert result.returncode == 7, (args, result.stderr)
+        assert "could not write its output to /dev/full: No space left on device" in result.stderr
+        assert "Traceback" not in result.stderr and "bug" not in result.stderr

@@ -300,6 +300,9 @@ def init(
         console.print(f"note: {skips}")
     here = "" if directory.resolve() == Path.cwd() else f"cd {directory} && "
     console.print("next:")
+    if compose:  # after a build, to run what it built
+        console.print(f"  {here}espdock compose up        # the nodes compose.yaml names, each a service")
+        return
     if not firmware:
         console.print(f"  {here}espdock new my_board      # a firmware package (ESP-IDF project + ROS 2 package)")
     console.print(f"  {here}espdock build             # images, then every package, each in its container")

@@ -344,7 +344,12 @@ def test_build_makes_no_runtime_image_run_and_compose_make_it_from_the_last_buil
         built = espdock("build", cwd=root)
         assert built.returncode == 0, built.stdout[-3000:] + built.stderr
         assert "runtime image" not in built.stdout and engine.image(f"espdock/{name}:latest") is None
-        assert espdock("init", "--compose", cwd=root).returncode == 0
+        refreshed = espdock("init", "--compose", cwd=root)
+        assert refreshed.returncode == 0, refreshed.stderr
+        assert refreshed.stdout.splitlines()[-2:] == [
+            "next:",
+            "  espdock compose up        # the nodes compose.yaml names, each a service",
+        ], refreshed.stdout
         services = yaml.safe_load((root / "compose.yaml").read_text())["services"]
         assert services["beacon"]["restart"] == "no"  # merged from the node template in Compose
         env = {"ROS_DOMAIN_ID": domain}

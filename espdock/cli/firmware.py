@@ -25,7 +25,7 @@ from espdock.cli.core import (
     runner_for,
 )
 from espdock.cli.ui import Reporter, render_micro_ros_status, render_pins
-from espdock.config import Config, check_target
+from espdock.config import Config, check_target, invoking_user
 from espdock.errors import ConfigError
 from espdock.firmware import transport
 from espdock.firmware.flashing import (
@@ -205,10 +205,11 @@ def micro_ros_pin(
     commits the current micro-ROS images were built from, and IDF_IMAGE to its digest."""
     ws, config, _, specs = _micro_ros_specs(workspace, target)
     engine = bootstrap.ensure_engine(os.environ, notify)
-    pinned = write_pins(ws.root, resolved_sources(engine, specs))
+    owner = invoking_user(os.environ, ws.root)
+    pinned = write_pins(ws.root, resolved_sources(engine, specs), owner)
     reference = dict(next(iter(specs.values())).build_args)["IDF_IMAGE"]
     image = engine.image(reference)
-    idf = pin_idf_image(ws.root, reference, image.digests if image else (), bool(config.idf_image))
+    idf = pin_idf_image(ws.root, reference, image.digests if image else (), bool(config.idf_image), owner)
     render_pins(console, pinned, idf)
 
 

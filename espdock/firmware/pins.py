@@ -7,12 +7,15 @@ writes back for "-" rows (write_pins, pin_idf_image: the only functions here tha
 
 from __future__ import annotations
 
+import os
 import re
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
+from espdock.defaults import locate
 from espdock.errors import WorkspaceError
+from espdock.images.containers import give_to, make_dirs_for
 from espdock.layout import IDF_DOCKERFILE, SOURCES_FILE
 from espdock.workspace import write_atomically
 
@@ -80,28 +83,48 @@ def pin_heads(text: str, resolved: Mapping[str, Source]) -> tuple[str, list[Sour
 def pin_image_digest(dockerfile: str, arg: str, reference: str, digests: Iterable[str]) -> str | None:
     """DOCKERFILE with `ARG ARG=REFERENCE` pinned to REFERENCE@sha256:... from DIGESTS (an
     image's RepoDigests, `repository@sha256:...`); None when no digest is of that repository."""
-    repository = reference.rsplit(":", 1)[0] if ":" in reference.rsplit("/", 1)[-1] else reference
-    digest = next((d.split("@", 1)[1] for d in digests if d.split("@", 1)[0] == repository), None)
+    digest = _digest_of(reference, digests)
     if digest is None:
         return None
     line = re.compile(rf"^(\s*ARG\s+{re.escape(arg)}=){re.escape(reference)}[ \t]*$", re.MULTILINE)
     return line.sub(lambda m: f"{m.group(1)}{reference}@{digest}", dockerfile, count=1)
 
 
+def _digest_of(reference: str, digests: Iterable[str]) -> str | None:
+    repository = reference.rsplit(":", 1)[0] if ":" in reference.rsplit("/", 1)[-1] else reference
+    return next((d.split("@", 1)[1] for d in digests if d.split("@", 1)[0] == repository), None)
+
+
 def read_sources(root: Path) -> str:
-    """The text of ROOT's sources file; its absence is an error (it pins what micro-ROS is built from)."""
-    path = root / SOURCES_FILE
-    if not path.is_file():
-        raise WorkspaceError(f"{path} is missing", "It pins every repository micro-ROS is built from.")
+    """The text of ROOT's sources file, or of espdock's default where the workspace has none, as
+    the image builds read it; its absence is an error (it pins what micro-ROS is built from)."""
+    path = locate(root, SOURCES_FILE)
+    if path is None:
+        raise WorkspaceError(f"{root / SOURCES_FILE} is missing", "It pins every repository micro-ROS is built from.")
     return path.read_text()
 
 
-def write_pins(root: Path, resolved: Mapping[str, Source]) -> list[Source]:
-    """Pin ROOT's "-" rows to the commits in RESOLVED, in one rename; the rows pinned."""
+def write_pins(root: Path, resolved: Mapping[str, Source], owner: tuple[int, int]) -> list[Source]:
+    """Pin ROOT's "-" rows to the commits in RESOLVED, in one rename; the rows pinned. A workspace
+    on espdock's default gets its own file, the default pinned (as root, OWNER's)."""
     text, pinned = pin_heads(read_sources(root), resolved)
     if pinned:
-        write_atomically(root / SOURCES_FILE, text)
+        _write(root / SOURCES_FILE, text, owner)
     return pinned
+
+
+def _write(path: Path, text: str, owner: tuple[int, int]) -> None:
+    if path.exists():
+        write_atomically(path, text)
+        return
+    make_dirs_for(path.parent, owner)
+    fresh = path.with_name(f".{path.name}.espdock-tmp")
+    try:
+        fresh.write_text(text)
+        give_to(fresh, owner)
+        os.replace(fresh, path)
+    finally:
+        fresh.unlink(missing_ok=True)
 
 
 @dataclass(frozen=True)
@@ -113,17 +136,23 @@ class IdfPin:
     written: bool  # False with a digest: the reference comes from espdock.toml, pinned there by hand
 
 
-def pin_idf_image(root: Path, reference: str, digests: Iterable[str], from_config: bool) -> IdfPin | None:
+def pin_idf_image(
+    root: Path, reference: str, digests: Iterable[str], from_config: bool, owner: tuple[int, int]
+) -> IdfPin | None:
     """Pin ROOT's Dockerfile.idf `ARG IDF_IMAGE=REFERENCE` to the digest among DIGESTS (the pulled
     image's RepoDigests); None when REFERENCE is pinned already. FROM_CONFIG: espdock.toml's
-    idf_image names it, so the Dockerfile is left alone."""
+    idf_image names it, so the Dockerfile is left alone. A workspace on espdock's default
+    Dockerfile.idf gets its own, the default pinned (as root, OWNER's)."""
     if "@sha256:" in reference:
         return None
-    dockerfile = root / IDF_DOCKERFILE
-    pinned = pin_image_digest(dockerfile.read_text(), "IDF_IMAGE", reference, digests)
-    if pinned is None:
+    digest = _digest_of(reference, digests)
+    if digest is None:
         return IdfPin(reference, None, False)
-    digest = pinned.split(f"{reference}@", 1)[1].split()[0]
-    if not from_config:
-        write_atomically(dockerfile, pinned)
-    return IdfPin(reference, digest, not from_config)
+    if from_config:
+        return IdfPin(reference, digest, False)
+    dockerfile = locate(root, IDF_DOCKERFILE)
+    if dockerfile is None:
+        raise WorkspaceError(f"{root / IDF_DOCKERFILE} is missing", "It builds the IDF and micro-ROS images.")
+    text = dockerfile.read_text()
+    _write(root / IDF_DOCKERFILE, pin_image_digest(text, "IDF_IMAGE", reference, digests) or text, owner)
+    return IdfPin(reference, digest, True)

@@ -1,7 +1,10 @@
 """The micro-ROS pins file: parsing, and pinning rows that follow a branch head."""
 
+import os
+
 import pytest
 
+from espdock.defaults import defaults_root
 from espdock.errors import WorkspaceError
 from espdock.firmware.pins import (
     IdfPin,
@@ -17,6 +20,7 @@ from espdock.firmware.pins import (
 from tests.conftest import REPO
 
 A, B = "a" * 40, "b" * 40
+ME = (os.getuid(), os.getgid())
 TEXT = f"""# header comment
 https://github.com/ros2/rcl jazzy {A}  # pinned
 https://github.com/ros2/rclc jazzy -
@@ -89,26 +93,38 @@ def _workspace(tmp_path, sources: str = TEXT):
 def test_pinning_writes_the_heads_back_and_a_second_run_finds_nothing_to_pin(tmp_path):
     root = _workspace(tmp_path)
     resolved = {s.key: s for s in [Source("https://github.com/ros2/rclc", "jazzy", B)]}
-    assert write_pins(root, resolved) == [Source("https://github.com/ros2/rclc", "jazzy", B)]
+    assert write_pins(root, resolved, ME) == [Source("https://github.com/ros2/rclc", "jazzy", B)]
     assert f"https://github.com/ros2/rclc jazzy {B}\n" in read_sources(root)
-    assert write_pins(root, resolved) == []
+    assert write_pins(root, resolved, ME) == []
 
 
 def test_the_idf_image_digest_goes_into_the_dockerfile_unless_espdock_toml_names_the_image(tmp_path):
     root = _workspace(tmp_path)
     digests = [f"espressif/idf@{DIGEST}"]
-    assert pin_idf_image(root, "espressif/idf:v5.3.5", digests, from_config=True) == IdfPin(
+    assert pin_idf_image(root, "espressif/idf:v5.3.5", digests, from_config=True, owner=ME) == IdfPin(
         "espressif/idf:v5.3.5", DIGEST, False
     )
     assert (root / "Dockerfile.idf").read_text() == DOCKERFILE
-    assert pin_idf_image(root, "espressif/idf:v5.3.5", digests, from_config=False).written
+    assert pin_idf_image(root, "espressif/idf:v5.3.5", digests, from_config=False, owner=ME).written
     assert f"espressif/idf:v5.3.5@{DIGEST}" in (root / "Dockerfile.idf").read_text()
-    assert pin_idf_image(root, f"espressif/idf:v5.3.5@{DIGEST}", digests, from_config=False) is None
-    assert pin_idf_image(root, "espressif/idf:v5.3.5", [], from_config=False) == IdfPin(
+    assert pin_idf_image(root, f"espressif/idf:v5.3.5@{DIGEST}", digests, from_config=False, owner=ME) is None
+    assert pin_idf_image(root, "espressif/idf:v5.3.5", [], from_config=False, owner=ME) == IdfPin(
         "espressif/idf:v5.3.5", None, False
     )
 
 
-def test_a_workspace_without_its_sources_file_is_told_what_it_is_for(tmp_path):
-    with pytest.raises(WorkspaceError, match=r"micro_ros_sources\.txt is missing"):
-        read_sources(tmp_path)
+def test_a_workspace_on_espdock_s_default_files_reads_them_and_pinning_gives_it_its_own(tmp_path):
+    """`espdock init` makes no docker/idf/ nor Dockerfile.idf: builds take espdock's default of
+    each. `micro-ros status` said the sources file was missing (exit 2), and `pin` crashed on
+    the Dockerfile (exit 70)."""
+    default = (defaults_root() / "docker/idf/micro_ros_sources.txt").read_text()
+    assert read_sources(tmp_path) == default
+    heads = [s for s in parse_sources(default) if s.commit == "-"]
+    assert heads, "the default follows some branch heads"
+    resolved = {s.key: Source(s.url, s.branch, B) for s in heads}
+    assert write_pins(tmp_path, resolved, ME) == [resolved[s.key] for s in heads]
+    assert read_sources(tmp_path) == (tmp_path / "docker/idf/micro_ros_sources.txt").read_text() != default
+    reference = "espressif/idf:v5.3.5"
+    assert pin_idf_image(tmp_path, reference, [f"espressif/idf@{DIGEST}"], from_config=False, owner=ME).written
+    assert f"ARG IDF_IMAGE={reference}@{DIGEST}" in (tmp_path / "Dockerfile.idf").read_text()
+    assert not list(tmp_path.rglob(".*espdock-tmp"))

@@ -38,7 +38,7 @@ from espdock.layout import ROSDEP_LOCK
 from espdock.ros import colcon_register
 from espdock.ros.compose import init_compose
 from espdock.ros.plan import base_image, runtime_repository
-from espdock.ros.trees import orphan_installs
+from espdock.ros.trees import orphan_installs, package_trees
 from espdock.workspace import PackageKind, read_build_inputs
 
 
@@ -159,7 +159,7 @@ def build(
         if report is not None:
             write_report(report, reporter.finished, manifest, time.monotonic() - started, owner, stopped)
     if orphans := orphan_installs(ws.ws_dir / "install", (p.name for p in workspace_packages(ws, config.ros_distro))):
-        dirs = " ".join(f"{rel}/{name}" for name in orphans for rel in ("install", "build"))
+        dirs = " ".join(rel for name in orphans for rel in package_trees(ws.ws_dir, name))
         console.print(
             Text(
                 f"note: install/ holds {', '.join(orphans)}, of no package in this workspace any more (renamed or "

@@ -12,6 +12,7 @@ from pathlib import Path
 
 from espdock.errors import WorkspaceError
 from espdock.images.containers import give_to, make_dirs_for
+from espdock.layout import ROS_BUILD_BASE
 from espdock.workspace import write_atomically
 
 
@@ -121,3 +122,10 @@ def orphan_installs(install: Path, packages: Iterable[str]) -> list[str]:
         for entry in entries
         if entry.name not in names and (entry / "share" / "colcon-core" / "packages" / entry.name).is_file()
     ]
+
+
+def package_trees(ws_dir: Path, name: str) -> list[str]:
+    """What colcon root WS_DIR holds of package NAME, relative to it: its install prefix, espdock's
+    build dir and the one a native `colcon build` (or espdock's firmware build) makes."""
+    places = (f"install/{name}", f"{ROS_BUILD_BASE}/{name}", f"build/{name}")
+    return [rel for rel in places if (ws_dir / rel).exists() or (ws_dir / rel).is_symlink()]

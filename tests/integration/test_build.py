@@ -229,7 +229,10 @@ def test_a_package_renamed_since_its_build_is_named_with_what_removes_its_instal
     assert built.returncode == 0, built.stdout + built.stderr
     said = " ".join(built.stdout.split())
     assert "install/ holds old_name, of no package in this workspace any more" in said, built.stdout
-    assert "`rm -r install/old_name build/old_name`" in said and "kept_pkg" not in said
+    assert "`rm -r install/old_name build/espdock-ros/old_name`" in said and "kept_pkg" not in said
+    subprocess.run(["rm", "-r", "install/old_name", "build/espdock-ros/old_name"], cwd=root / "ws", check=True)
+    again = espdock("build", cwd=root)
+    assert again.returncode == 0 and "old_name" not in again.stdout, again.stdout + again.stderr
 
 
 def test_another_user_s_file_in_install_is_named_with_its_owner_not_blamed_on_the_package(engine, tmp_path):

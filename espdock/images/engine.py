@@ -59,6 +59,9 @@ DOCKER_RUN_FAILED = 125
 # Every container espdock creates names the process that made it (boot id, pid, start time),
 # so a later command can tell a container whose espdock was killed from one still in use.
 LABEL_OWNER = "io.espdock.owner"
+# On a container kept after its run (keep_containers): one that has stopped is the user's to look
+# into, not a killed espdock's leftover for the sweep.
+LABEL_KEPT = "io.espdock.kept"
 
 
 def _create_config(spec: RunSpec, labels: Mapping[str, str], host_users: bool = False) -> dict[str, Any]:
@@ -855,7 +858,7 @@ class Engine:
     @contextmanager
     def _container(self, spec: RunSpec, keep: bool) -> Iterator[docker.models.containers.Container]:
         container = None
-        labels = {**dict(spec.labels), LABEL_OWNER: owner_identity()}
+        labels = {**dict(spec.labels), LABEL_OWNER: owner_identity(), **({LABEL_KEPT: "1"} if keep else {})}
         try:
             with self._engine_call(
                 f"creating a container of {spec.image}", f"could not create a container of {spec.image}"
@@ -918,9 +921,15 @@ class Engine:
 
     def sweep(self, labels: Mapping[str, str]) -> int:
         """Remove the containers carrying all LABELS whose espdock process is gone (killed, or
-        past its Ctrl-C grace); containers of live espdock processes are left alone."""
+        past its Ctrl-C grace); containers of live espdock processes, and kept ones that have
+        stopped, are left alone."""
         listed = self._all_containers({"label": [*_label_selector(labels), LABEL_OWNER]})
-        dead = [c["Id"] for c in listed if not owner_alive((c.get("Labels") or {}).get(LABEL_OWNER, ""))]
+        dead = [
+            c["Id"]
+            for c in listed
+            if not owner_alive((c.get("Labels") or {}).get(LABEL_OWNER, ""))
+            and not (LABEL_KEPT in (c.get("Labels") or {}) and c.get("State") != "running")
+        ]
         for container_id in dead:
             _remove(self._handle(container_id), stop=False)
         return len(dead)

@@ -340,3 +340,20 @@ def test_a_user_without_engine_access_gets_a_clear_message(engine, shared_dir, w
     assert "permission denied" in result.stderr
     assert "docker group" in result.stderr
     assert not (root / "ws/build").exists()
+
+
+def test_a_kept_build_container_is_replaced_by_the_next_build_s_not_blamed_on_a_crash(engine, tmp_path):
+    """keep_containers: the next build removed the last one's kept container, saying that an
+    espdock killed earlier had left it running. Each step keeps its last container."""
+    root = python_workspace(tmp_path / "w")
+    kept = {"ESPDOCK_KEEP_CONTAINERS": "true"}
+    try:
+        assert espdock("build", cwd=root, env=kept).returncode == 0
+        (first,) = leftover_containers(engine, root)
+        again = espdock("build", "--force", cwd=root, env=kept)
+        assert again.returncode == 0, again.stdout + again.stderr
+        assert "killed earlier" not in again.stdout
+        (second,) = leftover_containers(engine, root)
+        assert second != first
+    finally:
+        engine.remove_containers({"io.espdock.workspace": str(root)})

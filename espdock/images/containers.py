@@ -192,8 +192,10 @@ def give_to(path: Path, owner: tuple[int, int]) -> None:
         os.chown(path, *owner)
 
 
-def permission_error(exc: PermissionError) -> WorkspaceError:
-    """A path espdock may not write or read, named with its owner (a rootless engine's files, say)."""
+def permission_error(exc: PermissionError, user: tuple[int, int] | None = None) -> WorkspaceError:
+    """A path espdock may not write or read, named with its owner (a rootless engine's files, say).
+    USER: the uid, gid the build that was refused writes as (`sudo espdock build` in another
+    user's workspace builds as that user), else espdock's own."""
     path = Path(exc.filename) if exc.filename else None
     owner = ""
     if path is not None:
@@ -203,9 +205,14 @@ def permission_error(exc: PermissionError) -> WorkspaceError:
             owner = f" (owner uid {info.st_uid}, mode {info.st_mode & 0o7777:04o}{where})"
         except OSError:
             pass
+    who, chown = (
+        (f"espdock runs as uid {os.geteuid()}", "$(id -u):$(id -g)")
+        if user is None
+        else (f"the build writes as uid {user[0]}", f"{user[0]}:{user[1]}")
+    )
     return WorkspaceError(
-        f"permission denied on {path or 'a workspace file'}{owner}; espdock runs as uid {os.geteuid()}",
-        "Give that path back to you (e.g. `sudo chown -R $(id -u):$(id -g) PATH`); files a container wrote as "
+        f"permission denied on {path or 'a workspace file'}{owner}; {who}",
+        f"Give that path back (e.g. `sudo chown -R {chown} PATH`); files a container wrote as "
         "another user are the engine's doing: see the Engines page of espdock's docs (rootless engines).",
     )
 

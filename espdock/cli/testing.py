@@ -18,7 +18,8 @@ from espdock.cli.core import PASSED, PassThrough, WorkspaceOption, app, command,
 from espdock.cli.prune import record_images
 from espdock.cli.ui import Reporter
 from espdock.config import in_ci, invoking_user
-from espdock.errors import TestsFailed, WorkspaceError
+from espdock.errors import EspdockError, TestsFailed, WorkspaceError
+from espdock.images.containers import permission_error, prepare_output
 from espdock.layout import ROS_BUILD_BASE
 from espdock.ros.plan import ColconBuild
 from espdock.ros.steps import TEST_RESULTS
@@ -84,7 +85,14 @@ def test(
     official = config.ros_image == "official"
     check_testable({p.name: p.depends for p in ros}, "official" if official else "wheels")
     if results is not None:
-        forget_collected(results)
+        owner = invoking_user(os.environ, ws.root)
+        prepare_output(results, owner, "--results", directory=True)
+        try:
+            forget_collected(results)
+        except PermissionError as exc:
+            raise permission_error(exc) from None
+        for package in (p.name for p in chosen if (results / p.name).exists()):
+            prepare_output(results / package, owner, "--results", directory=True)
     found: dict[str, PackageResults] = {}
     logs: dict[str, Path] = {}
     code = 0
@@ -111,14 +119,24 @@ def test(
     if found:
         _render(found, ws.root, logs, say)
     _say_firmware(firmware, say)
+    unwritten: EspdockError | None = None
     if results is not None:
         on_host = {p.name for p in firmware}
         owner = invoking_user(os.environ, ws.root)
-        written = collect_results(
-            {n: r for n, r in found.items() if n not in on_host}, ws.ws_dir / ROS_BUILD_BASE, results, owner
-        )
-        written += collect_results({n: r for n, r in found.items() if n in on_host}, host_base, results, owner)
-        say(f"{len(written)} result file(s) copied to {results}")
+        try:
+            written = collect_results(
+                {n: r for n, r in found.items() if n not in on_host}, ws.ws_dir / ROS_BUILD_BASE, results, owner
+            )
+            written += collect_results({n: r for n, r in found.items() if n in on_host}, host_base, results, owner)
+            say(f"{len(written)} result file(s) copied to {results}")
+        except OSError as exc:
+            # Checked before the run, so something changed since: the tests' outcome still decides the exit.
+            unwritten = (
+                permission_error(exc)
+                if isinstance(exc, PermissionError)
+                else WorkspaceError(f"could not copy the results to {results}: {exc.strerror or exc}")
+            )
+            say(Text.assemble(("results not copied: ", "yellow"), unwritten.message))
     failing = [r for r in found.values() if not r.ok]
     if failing:
         raise TestsFailed(
@@ -128,6 +146,8 @@ def test(
         )
     if code != 0:
         raise TestsFailed(f"colcon test failed (exit code {code})", "Its output is above.")
+    if unwritten is not None:
+        raise unwritten
 
 
 def _test_ros(ws, config, every, ros, colcon_args, locked, official, reporter: Reporter):

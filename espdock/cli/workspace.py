@@ -34,6 +34,7 @@ from espdock.events import Outcome
 from espdock.firmware import transport
 from espdock.firmware.scaffold import check_new_package, create_firmware_package, init_workspace
 from espdock.images import bootstrap
+from espdock.images.containers import prepare_output
 from espdock.layout import ROSDEP_LOCK
 from espdock.ros import colcon_register
 from espdock.ros.compose import init_compose
@@ -104,6 +105,8 @@ def build(
     locked = locked if locked is not None else in_ci(os.environ)
     started = time.monotonic()
     owner = invoking_user(os.environ, ws.root)
+    if report is not None and not dry_run:
+        prepare_output(report, owner, "--report")
     try:
         plan = build_plan(
             ws,
@@ -157,7 +160,15 @@ def build(
         reporter.close()
         reporter.summary()
         if report is not None:
-            write_report(report, reporter.finished, manifest, time.monotonic() - started, owner, stopped)
+            try:
+                write_report(report, reporter.finished, manifest, time.monotonic() - started, owner, stopped)
+            except OSError as exc:
+                # Checked before the build, so something changed since; the build's outcome stands.
+                unwritten = f"could not write the report {report}: {exc.strerror or exc}"
+                if manifest is None:
+                    err_console.print(Text.assemble(("warning: ", "yellow"), unwritten))
+                else:
+                    raise WorkspaceError(unwritten, "The build succeeded; its manifest is in install/.") from None
     if orphans := orphan_installs(ws.ws_dir / "install", (p.name for p in workspace_packages(ws, config.ros_distro))):
         dirs = " ".join(rel for name in orphans for rel in package_trees(ws.ws_dir, name))
         console.print(

@@ -12,7 +12,7 @@ from pathlib import Path
 
 from espdock.build.steps import LABEL_WORKSPACE
 from espdock.config import Config
-from espdock.errors import EspdockError, WorkspaceError, WorkspaceNotVisible
+from espdock.errors import ConfigError, EspdockError, WorkspaceError, WorkspaceNotVisible
 from espdock.events import Emit, StepNote
 from espdock.images import volume
 from espdock.images.engine import Engine, Mount, RunSpec
@@ -215,6 +215,27 @@ def permission_error(exc: PermissionError, user: tuple[int, int] | None = None) 
         f"Give that path back (e.g. `sudo chown -R {chown} PATH`); files a container wrote as "
         "another user are the engine's doing: see the Engines page of espdock's docs (rootless engines).",
     )
+
+
+def prepare_output(path: Path, owner: tuple[int, int], option: str, directory: bool = False) -> None:
+    """Make sure espdock can write an output it was asked for (`--report FILE`, `--results DIR`)
+    before any work: the missing directories made (as root, OWNER's), anything in the way
+    refused, so a CI job learns of it at once and not as a failure after its build."""
+    where = path if directory else path.parent
+    if directory and path.exists() and not path.is_dir():
+        raise ConfigError(f"{option} {path}: that is a file, and {option} names a directory", "Name a directory.")
+    if not directory and path.is_dir():
+        raise ConfigError(f"{option} {path}: that is a directory, and {option} names a file", "Name a file.")
+    try:
+        make_dirs_for(where, owner)
+    except (FileExistsError, NotADirectoryError):
+        raise ConfigError(f"{option} {path}: a file is in the way of its directory", "Name another path.") from None
+    except PermissionError as exc:
+        raise permission_error(exc) from None
+    writable = os.access(where, os.W_OK | os.X_OK) and (directory or not path.exists() or os.access(path, os.W_OK))
+    if not writable:
+        denied = path if path.exists() else where
+        raise permission_error(PermissionError(13, "Permission denied", str(denied)))
 
 
 def volume_mode_refused(what: str, firmware: bool = True) -> WorkspaceNotVisible:

@@ -419,3 +419,21 @@ def test_output_that_finds_no_room_is_a_full_disk_not_an_espdock_bug(tmp_path):
         assert result.returncode == 7, (args, result.stderr)
         assert "could not write its output to /dev/full: No space left on device" in result.stderr
         assert "Traceback" not in result.stderr and "bug" not in result.stderr
+
+
+def test_a_report_or_results_path_is_checked_before_the_build_and_its_directories_made(tmp_path):
+    """A CI job's `--report out/report.json` (no out/ yet) or a file in the way was exit 70, "a
+    bug in espdock", after the build had run, and its real exit code was lost."""
+    root = copy_workspace(tmp_path / "w")
+    (root / "afile").write_text("")
+    for args, said in (
+        (("build", "--report", "afile/report.json"), "--report afile/report.json: a file is in the way"),
+        (("build", "--report", "ws"), "--report ws: that is a directory"),
+        (("test", "--results", "afile"), "--results afile: that is a file"),
+    ):
+        result = espdock(*args, cwd=root, env=NO_ENGINE)
+        assert result.returncode == 2 and said in result.stderr, (args, result.stderr)
+        assert "bug" not in result.stderr
+    stopped = espdock("build", "--report", "out/ci/report.json", cwd=root, env=NO_ENGINE)
+    assert stopped.returncode == 3, stopped.stderr  # no engine: the build's own exit code
+    assert json.loads((root / "out/ci/report.json").read_text())["outcome"] == "failed"

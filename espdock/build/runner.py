@@ -104,7 +104,7 @@ class Runner:
                 if full is not None:
                     raise full from exc
                 if isinstance(exc, PermissionError):
-                    raise permission_error(exc) from exc
+                    raise permission_error(exc, within=workspace.ws_dir) from exc
                 raise
         except BaseException as exc:
             if isinstance(exc, EspdockError):

@@ -192,29 +192,45 @@ def give_to(path: Path, owner: tuple[int, int]) -> None:
         os.chown(path, *owner)
 
 
-def permission_error(exc: PermissionError, user: tuple[int, int] | None = None) -> WorkspaceError:
+def permission_error(
+    exc: PermissionError, user: tuple[int, int] | None = None, within: Path | None = None
+) -> WorkspaceError:
     """A path espdock may not write or read, named with its owner (a rootless engine's files, say).
     USER: the uid, gid the build that was refused writes as (`sudo espdock build` in another
-    user's workspace builds as that user), else espdock's own."""
+    user's workspace builds as that user), else espdock's own. WITHIN (the colcon root): the
+    hint's chown takes the topmost directory under it of the same other owner, so one command
+    gives back all a `sudo colcon build` left, not one file per run."""
     path = Path(exc.filename) if exc.filename else None
     owner = ""
+    top = None
     if path is not None:
         try:
             info = path.lstat() if path.exists() or path.is_symlink() else path.parent.lstat()
             where = "" if path.exists() else ", its directory"
             owner = f" (owner uid {info.st_uid}, mode {info.st_mode & 0o7777:04o}{where})"
+            top = _topmost_of(path if path.exists() else path.parent, info.st_uid, within)
         except OSError:
             pass
-    who, chown = (
-        (f"espdock runs as uid {os.geteuid()}", "$(id -u):$(id -g)")
-        if user is None
-        else (f"the build writes as uid {user[0]}", f"{user[0]}:{user[1]}")
-    )
+    if user is None:
+        who, chown = f"espdock runs as uid {os.geteuid()}", "$(id -u):$(id -g)"
+    else:
+        who, chown = f"the build writes as uid {user[0]}", f"{user[0]}:{user[1]}"
+    give_back = f"sudo chown -R {chown} {top}" if top is not None else f"sudo chown -R {chown} PATH"
     return WorkspaceError(
         f"permission denied on {path or 'a workspace file'}{owner}; {who}",
-        f"Give that path back (e.g. `sudo chown -R {chown} PATH`); files a container wrote as "
-        "another user are the engine's doing: see the Engines page of espdock's docs (rootless engines).",
+        f"Give it back (`{give_back}`); files a container wrote as another user are the engine's doing: "
+        "see the Engines page of espdock's docs (rootless engines).",
     )
+
+
+def _topmost_of(path: Path, uid: int, within: Path | None) -> Path | None:
+    """The highest of PATH and its parents below WITHIN that UID owns, PATH's owner; None without WITHIN."""
+    if within is None or not path.is_relative_to(within) or path == within:
+        return None
+    top = path
+    while top.parent != within and top.parent.is_relative_to(within) and top.parent.lstat().st_uid == uid:
+        top = top.parent
+    return top
 
 
 def prepare_output(path: Path, owner: tuple[int, int], option: str, directory: bool = False) -> None:

@@ -172,7 +172,8 @@ class RosSteps:
                 # colcon may not write its log or build dirs: they belong to someone else.
                 where = next((d for d in (workspace.ws_dir / n for n in ("log", "build", "install")) if d.exists()
                               and d.stat().st_uid != self.containers.owner[0]), workspace.ws_dir)  # fmt: skip
-                raise permission_error(PermissionError(13, last.strip(), str(where)), self.containers.owner)
+                refused = PermissionError(13, last.strip(), str(where))
+                raise permission_error(refused, self.containers.owner, workspace.ws_dir)
             said = usage_error(output, step.colcon_args)
             raise ConfigError(
                 said or f"colcon stopped before building any package (exit code {code}): {last.strip()}",
@@ -190,7 +191,9 @@ class RosSteps:
             denied = denied_path(texts, workspace.root, self.containers.owner[0])
             if denied is not None:
                 # Another user's file in the trees colcon writes (a `sudo colcon build`): not the package's fault.
-                raise permission_error(PermissionError(13, "Permission denied", str(denied)), self.containers.owner)
+                raise permission_error(
+                    PermissionError(13, "Permission denied", str(denied)), self.containers.owner, workspace.ws_dir
+                )
             declared = {name: (depends, tests) for name, depends, tests in step.declared}
             failure = explain_failure(code, states or {}, logs, step.colcon_args, declared)
             raise BuildFailed(failure.message, failure.hint)

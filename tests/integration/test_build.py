@@ -241,14 +241,18 @@ def test_another_user_s_file_in_install_is_named_with_its_owner_not_blamed_on_th
     root = python_workspace(tmp_path / "w")
     subprocess.run(["chown", "-R", f"{USER_UID}:{USER_UID}", str(root)], check=True)
     assert espdock("build", cwd=root).returncode == 0
-    share = root / "ws/install/beacon_nodes/share/beacon_nodes"
-    subprocess.run(["chown", "-R", "0:0", str(share)], check=True)
+    prefix = root / "ws/install/beacon_nodes"
+    subprocess.run(["chown", "-R", "0:0", str(prefix)], check=True)
     result = espdock("build", "--force", cwd=root)
     assert result.returncode == 2, result.stdout[-3000:] + result.stderr
     said = " ".join(result.stderr.split())
-    assert f"permission denied on {share}" in said and "(owner uid 0," in said, result.stderr
-    # The build wrote as the workspace's owner, not as root: root's chown would change nothing.
-    assert f"the build writes as uid {USER_UID}" in said and f"sudo chown -R {USER_UID}:{USER_UID} PATH" in said
+    assert f"permission denied on {prefix}/" in said and "(owner uid 0," in said, result.stderr
+    # The build wrote as the workspace's owner, not as root: root's chown would change nothing. The
+    # chown takes all root left (it named one file, another on the next run, and so on).
+    assert f"the build writes as uid {USER_UID}" in said, result.stderr
+    assert f"`sudo chown -R {USER_UID}:{USER_UID} {prefix}`" in said, result.stderr
+    subprocess.run(["chown", "-R", f"{USER_UID}:{USER_UID}", str(prefix)], check=True)
+    assert espdock("build", "--force", cwd=root).returncode == 0
     assert "Fix beacon_nodes" not in said
 
 

@@ -71,7 +71,11 @@ def stale_reason(lock: Mapping | None, packages: Iterable[Package], image: rosde
     needed = keys_for_tests(packages, image)
     part = lock_test_part(lock)
     if part is None:
-        return f"{name} has no test dependencies recorded" if needed else None
+        if not needed:
+            return None
+        said = [f"{package}'s tests need {', '.join(keys)}" for package, keys in sorted(needed.items())]
+        why = "; ".join(said[:6]) + (f" (and {len(said) - 6} more)" if len(said) > 6 else "")
+        return f"{name} is missing: {why}" if lock is None else f"{name} records no test dependencies: {why}"
     return rosdeps.stale_reason(part, needed, image, f"{name} (its test part)")
 
 

@@ -78,6 +78,19 @@ def test_a_lock_is_stale_when_a_key_the_image_or_its_locks_change():
     assert "its locks changed" in rosdeps.stale_reason(made, needed, newer, "rosdep.lock.json")
 
 
+def test_a_lock_without_the_test_keys_names_them_and_whether_the_file_exists():
+    """`CI=true espdock test` in a workspace with no lock said "rosdep.lock.json has no test
+    dependencies recorded", of a file that did not exist, naming no key."""
+    from espdock.ros import testdeps
+
+    packages = (package("alpha", {"rclpy"}, test_only={"python3-pytest"}), package("quiet", {"rclpy"}))
+    said = testdeps.stale_reason(None, packages, WHEELS, "rosdep.lock.json")
+    assert said == "rosdep.lock.json is missing: alpha's tests need python3-pytest"
+    no_part = testdeps.stale_reason({"format": 1}, packages, WHEELS, "rosdep.lock.json")
+    assert no_part == "rosdep.lock.json records no test dependencies: alpha's tests need python3-pytest"
+    assert testdeps.stale_reason(None, packages[1:], WHEELS, "rosdep.lock.json") is None
+
+
 def test_the_check_lists_each_package_with_its_missing_keys_and_the_ways_out():
     packages = (package("a", {"rclcpp"}), package("b", {"tinyxml2"}), package("c", {"rclcpp", "nope"}))
     needed = {"a": ("rclcpp",), "b": ("tinyxml2",), "c": ("nope", "rclcpp")}

@@ -189,7 +189,7 @@ def _render(
         )
         say(Text.assemble((f"  {result.package}", "bold"), "  ", (counts, colour)))
         for name in result.failing:
-            say(Text(f"    failed: {name}", style="red"))
+            say(Text(f"    {'errored' if name in result.erroring else 'failed'}: {name}", style="red"))
         say(Text(f"    log: {logs[result.package].relative_to(root)}", style="dim"))
         for path in result.files:
             say(Text(f"    result: {path.relative_to(root)}", style="dim"))

@@ -248,8 +248,10 @@ class PackageResults:
     errored: int = 0
     skipped: int = 0
     files: list[Path] = field(default_factory=list)
-    # The failing and erroring test cases, as classname.name.
+    # The failing and erroring test cases, as classname.name; those of them that errored (an
+    # exception outside the test's assertions: a fixture, a setup) besides.
     failing: list[str] = field(default_factory=list)
+    erroring: set[str] = field(default_factory=set)
     # The CTest results file counted besides (not JUnit), and how many tests it counted.
     ctest_file: Path | None = None
     ctest_tests: int = 0
@@ -276,9 +278,12 @@ def _count(suite: Element, results: PackageResults) -> None:
     results.errored += counts["errors"]
     results.skipped += counts["skip"] + counts["skipped"] + counts["disabled"]
     for case in suite.iter("testcase"):
-        if any(child.tag in ("failure", "error") for child in case):
+        outcomes = {child.tag for child in case}
+        if outcomes & {"failure", "error"}:
             name = ".".join(part for part in (case.attrib.get("classname"), case.attrib.get("name")) if part)
             results.failing.append(name)
+            if "failure" not in outcomes:
+                results.erroring.add(name)
 
 
 def read_results(build_base: Path, packages: Iterable[str]) -> dict[str, PackageResults]:
@@ -306,6 +311,7 @@ def read_results(build_base: Path, packages: Iterable[str]) -> dict[str, Package
                 results.errored += partial.errored
                 results.skipped += partial.skipped
                 results.failing += partial.failing
+                results.erroring |= partial.erroring
                 results.files.append(path)
         _count_ctest(root, results)
         found[package] = results

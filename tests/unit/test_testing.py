@@ -274,3 +274,20 @@ def test_host_test_steps_are_cmake_then_ctest_and_only_a_failing_ctest_with_resu
     junit.parent.mkdir()
     junit.write_text("<testsuite tests='1' failures='1'/>")
     assert host_tests_failed(steps[2], 8, junit) is False, "a failing test is a result"
+
+
+def test_a_test_that_errored_is_named_as_errored_not_failed(tmp_path):
+    """A fixture's exception is an error in JUnit and colcon test-result counts it as one; the
+    summary counted it so, then listed it under "failed:"."""
+    from espdock.cli.testing import _render
+
+    build = tmp_path / "build"
+    (build / "p").mkdir(parents=True)
+    errored = PYTEST_XML.replace('errors="0"', 'errors="1"').replace(
+        'name="test_two"/>', 'name="test_two"><error message="fixture">x</error></testcase>'
+    )
+    (build / "p" / "pytest.xml").write_text(errored)
+    found = read_results(build, ("p",))
+    lines: list[str] = []
+    _render(found, tmp_path, {"p": tmp_path / "log"}, lambda text: lines.append(str(text)))
+    assert "    failed: p.test.test_a.test_bad" in lines and "    errored: p.test.test_a.test_two" in lines, lines

@@ -93,9 +93,13 @@ def test_each_example_builds_locked_reports_and_pushes_only_from_the_main_branch
 
 @pytest.mark.parametrize("path", [GITHUB, GITLAB, GITLAB_DIND])
 def test_each_example_uploads_what_espdock_installs_in_the_default_layout(path):
-    """Paths from espdock's own layout: a renamed manifest or firmware directory fails here."""
-    install = f"{CLASSIC_LAYOUT[1]}/install"
+    """Paths from espdock's own layout: a renamed manifest or firmware directory fails here. The
+    colcon root is a variable the user sets (`.` in a workspace `espdock init` made): the
+    examples had ws/ written into the paths, and in such a workspace uploaded no firmware and
+    no manifest, without an error."""
+    install = "$COLCON_ROOT/install"
     text = path.read_text()
+    assert f"  COLCON_ROOT: {CLASSIC_LAYOUT[1]}\n" in text and "ws/install" not in text
     assert f"for dir in {install}/*/share/*/{FIRMWARE_DIR}; do" in text
     assert 'cp -rL "$dir" "artefacts/$(basename "$(dirname "$dir")")"' in text
     assert f"cp {install}/{MANIFEST_NAME}" in text and " report.json artefacts/" in text.replace("\n", " ")

@@ -87,11 +87,12 @@ def derive_interface_packages(packages: tuple[Package, ...], firmware: Package |
     transitively, in dependency order.
 
     Standard interfaces (std_msgs, sensor_msgs, ...) are not in the workspace: micro-ROS has them.
+    A <test_depend> is no dependency of the library: the firmware's tests run on the host.
     """
     by_name = {p.name: p for p in packages}
     roots = [firmware] if firmware is not None else [p for p in packages if p.kind is PackageKind.FIRMWARE]
     wanted: set[str] = set()
-    stack = [dep for p in roots for dep in p.depends]
+    stack = [dep for p in roots for dep in p.depends - p.test_only_depends]
     while stack:
         name = stack.pop()
         package = by_name.get(name)
@@ -109,7 +110,7 @@ def derive_interface_packages(packages: tuple[Package, ...], firmware: Package |
                 )
             continue
         wanted.add(name)
-        stack.extend(package.depends)
+        stack.extend(package.depends - package.test_only_depends)
     return tuple(p for p in packages if p.name in wanted)
 
 

@@ -98,6 +98,19 @@ def test_an_interface_package_outside_the_group_is_named_not_left_out():
     assert "<member_of_group>rosidl_interface_packages</member_of_group>" in raised.value.hint
 
 
+def test_a_test_only_dependency_is_not_in_the_library():
+    """A <test_depend> of the firmware or of an interface package it uses went into the library
+    (a bigger one, rebuilt when that package changed, failing the firmware over types it never uses)."""
+    packages = (
+        ros("probe_msgs", interface=True),
+        ros("test_msgs_pkg", interface=True),
+        replace(ros("robo_msgs", depends=["probe_msgs", "test_msgs_pkg"], interface=True),
+                test_only_depends=frozenset({"test_msgs_pkg"})),
+        replace(firmware("fw", depends=["robo_msgs", "probe_msgs"]), test_only_depends=frozenset({"probe_msgs"})),
+    )  # fmt: skip
+    assert [p.name for p in derive_interface_packages(packages)] == ["probe_msgs", "robo_msgs"]
+
+
 def test_each_firmware_gets_only_its_own_interfaces():
     assert [p.name for p in derive_interface_packages(PACKAGES, CAM)] == ["base_msgs", "cam_msgs"]
     assert derive_interface_packages(PACKAGES, PACKAGES[5]) == ()

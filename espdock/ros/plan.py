@@ -66,6 +66,17 @@ class ColconBuild:
     # Each package's package.xml dependencies, and which of them are test_depend only: what a
     # failure's hint says about a dependency colcon could not find.
     declared: tuple[tuple[str, frozenset[str], frozenset[str]], ...] = ()
+    # The interface packages among PACKAGES (see stale_interfaces).
+    interfaces: tuple[str, ...] = ()
+
+    def stale_interfaces(self, rebuild: tuple[str, ...]) -> tuple[str, ...]:
+        """The interface packages in REBUILD that depend on another one in it: their build dirs
+        must go. rosidl's type description step depends on no file of the packages it refers
+        to (jazzy's rosidl_generator_type_description leaves its _dependency_files empty), so an
+        incremental build keeps their old type hashes and names; the node then aborts on a hash
+        assertion, or fails to import an undefined symbol, with every build saying it built."""
+        changed = set(rebuild) & set(self.interfaces)
+        return tuple(n for n, deps in self.depends if n in changed and changed & set(deps))
 
     @property
     def workdir(self) -> str:
@@ -291,6 +302,7 @@ def ros_steps(
             tests_off=tests_off and not testing and any(p.build_type not in PYTHON_BUILD_TYPES for p in ros),
             declared=tuple((p.name, p.depends, p.test_only_depends) for p in ros),
             underlay=ros_image.repository,
+            interfaces=tuple(p.name for p in ros if p.is_interface),
         ),
     ]
     built = {p.name for p in all_packages if p.kind is PackageKind.ROS}

@@ -7,6 +7,7 @@ import hashlib
 import os
 import posixpath
 import re
+import shutil
 from collections.abc import Callable, Iterable
 from dataclasses import replace
 from pathlib import Path
@@ -79,6 +80,17 @@ class RosSteps:
                 )
             )
         emptied = (base,) if retired is not None else ()  # in the workspace volume, its build dirs as well
+        if stale := step.stale_interfaces(rebuild):
+            for name in stale:
+                shutil.rmtree(base / name, ignore_errors=True)
+            emptied += tuple(base / name for name in stale)
+            self.containers.emit(
+                StepNote(
+                    step.name,
+                    f"building {', '.join(stale)} afresh: interface packages whose interface dependencies changed, "
+                    "whose type hashes rosidl's incremental build would keep",
+                )
+            )
         sync = self.containers.sync(workspace, step.name, step.image, user, labels, emptied)
         whole = sync is not None and (sync.fresh or sync.installed != listing_digest(workspace.ws_dir / "install"))
         if whole:

@@ -4,14 +4,16 @@ colcon ran is read from colcon's own event log, not from espdock's output."""
 
 from __future__ import annotations
 
+import json
 import re
+import shutil
 import time
 from pathlib import Path
 
 import pytest
 
 from tests.conftest import containers_created, copy_workspace, espdock, leftover_containers
-from tests.robot_packages import write_robot
+from tests.robot_packages import write_interface_package, write_robot
 
 pytestmark = [pytest.mark.engine, pytest.mark.slow]
 
@@ -77,12 +79,26 @@ def test_an_edit_rebuilds_only_the_package_and_what_depends_on_it(robot):
 
 
 def test_a_changed_interface_package_rebuilds_its_dependents(robot):
-    message = robot / "ws/src/robot_msgs/msg/WheelSpeeds.msg"
-    message.write_text(message.read_text() + "float64 battery_voltage\n")
-    build(robot)
-    assert set(colcon_ran(robot)) == {p.name for p in (robot / "ws/src").iterdir()}
-    generated = robot / "ws/install/robot_msgs/share/robot_msgs/msg/WheelSpeeds.msg"
-    assert "battery_voltage" in generated.read_text()
+    """Interface packages on it too: rosidl's incremental build kept their type descriptions, and
+    so their hash of its message, from before the change (a node then aborts on a hash assertion)."""
+    state = write_interface_package(robot / "ws/src", "robot_state_msgs", service=False, uses="robot_msgs")
+    try:
+        build(robot)
+        message = robot / "ws/src/robot_msgs/msg/WheelSpeeds.msg"
+        message.write_text(message.read_text() + "float64 battery_voltage\n")
+        built = build(robot)
+        assert set(colcon_ran(robot)) == {p.name for p in (robot / "ws/src").iterdir()}
+        generated = robot / "ws/install/robot_msgs/share/robot_msgs/msg/WheelSpeeds.msg"
+        assert "battery_voltage" in generated.read_text()
+        description = json.loads((robot / "ws/install/robot_state_msgs/share/robot_state_msgs/msg/RobotState.json")
+                                 .read_text())  # fmt: skip
+        referenced = description["type_description_msg"]["referenced_type_descriptions"]
+        (wheels,) = [t for t in referenced if t["type_name"].endswith("WheelSpeeds")]
+        assert "battery_voltage" in {field["name"] for field in wheels["fields"]}, wheels
+        assert "building robot_state_msgs afresh" in " ".join(built.stdout.split())
+    finally:
+        for tree in (state, *(robot / "ws" / rel / "robot_state_msgs" for rel in ("install", "build/espdock-ros"))):
+            shutil.rmtree(tree, ignore_errors=True)
 
 
 def test_colcon_meta_and_options_after_the_double_dash_reach_colcon_and_decide_the_stamps(robot):

@@ -9,7 +9,7 @@ from typing import Annotated
 import typer
 
 from espdock.cli.core import app, command, notify
-from espdock.errors import EspdockError
+from espdock.errors import ImageBuildError
 from espdock.firmware.agent import DEFAULT_BAUD, DEFAULT_UDP_PORT, agent_spec
 from espdock.firmware.flashing import check_port, parse_port
 from espdock.images import bootstrap
@@ -38,7 +38,7 @@ def agent(
         check_port(serial)
     engine = bootstrap.ensure_engine(os.environ, notify)
     if engine.image(image) is None and not engine.pull(image):
-        raise EspdockError(
+        raise ImageBuildError(  # as a missing IDF image is
             f"the agent image {image} is not here and could not be pulled",
             f"Pull it where a registry is reachable (`docker pull {image}`), or give another with --image.",
         )

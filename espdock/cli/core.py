@@ -65,6 +65,16 @@ def _stdout_closed() -> bool:
 console = Console(soft_wrap=True)
 console.on_broken_pipe = output_closed  # rich's own exits 1, which `espdock verify` gives a changed file
 err_console = Console(stderr=True, soft_wrap=True)
+
+
+def _errors_unread() -> None:
+    """The reader of espdock's errors went away (`espdock new X 2>&1 | head -1`): what is left of
+    them goes nowhere, and the exit code stays the error's (rich's own would make it 1)."""
+    err_console.quiet = True
+    os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stderr.fileno())
+
+
+err_console.on_broken_pipe = _errors_unread
 _state = {"debug": False}
 P = ParamSpec("P")
 

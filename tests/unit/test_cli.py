@@ -437,3 +437,21 @@ def test_a_report_or_results_path_is_checked_before_the_build_and_its_directorie
     stopped = espdock("build", "--report", "out/ci/report.json", cwd=root, env=NO_ENGINE)
     assert stopped.returncode == 3, stopped.stderr  # no engine: the build's own exit code
     assert json.loads((root / "out/ci/report.json").read_text())["outcome"] == "failed"
+
+
+def test_an_error_nobody_reads_keeps_its_exit_code(tmp_path):
+    """`espdock new Bad-Name 2>&1 | head -1`: the reader gone, rich made the exit code 1 where the
+    error's is 2 (bad input), which a script checking for 2 took as another failure."""
+    import os
+
+    root = copy_workspace(tmp_path / "w", packages=())
+    read_end, write_end = os.pipe()
+    os.close(read_end)  # the reader is gone before espdock writes a byte
+    try:
+        result = subprocess.run(
+            [sys.executable, "-m", "espdock", "new", "Bad-Name"], cwd=root, stdout=write_end, stderr=write_end,
+            stdin=subprocess.DEVNULL, check=False, env={**os.environ, **NO_ENGINE},
+        )  # fmt: skip
+    finally:
+        os.close(write_end)
+    assert result.returncode == 2

@@ -17,6 +17,7 @@ from urllib.parse import urlsplit
 
 from espdock.config import CHIP_TARGETS
 from espdock.errors import ConfigError, EspdockError, WorkspaceError
+from espdock.firmware import transport
 from espdock.firmware.plan import LONGCALLS_RISCV, IdfBuild
 from espdock.firmware.provision import IMAGE_MOUNT
 from espdock.firmware.steps import FirmwareSteps
@@ -246,27 +247,44 @@ def detected_chip(output: list[str]) -> str | None:
     return None
 
 
-def buildable_chip(chip: str, supported: Sequence[str]) -> bool:
+def buildable_chip(chip: str, supported: Sequence[str], link: str = transport.UDP) -> bool:
     """Whether `espdock build --target CHIP` would build a package that lists SUPPORTED chips
-    (none: any) in its idf_component.yml: the checks of plan.package_target."""
+    (none: any) in its idf_component.yml and talks over LINK on CHIP: the checks of
+    plan.package_target and transport.check_transport."""
+    if link == transport.USB_SERIAL_JTAG and chip not in transport.USB_SERIAL_JTAG_CHIPS:
+        return False
     return chip in CHIP_TARGETS and chip not in LONGCALLS_RISCV and (not supported or chip in supported)
 
 
-def check_chip(package: str, expected: str, output: list[str], port: Port, supported: Sequence[str] = ()) -> None:
+def check_chip(
+    package: str,
+    expected: str,
+    output: list[str],
+    port: Port,
+    supported: Sequence[str] = (),
+    project: Path | None = None,
+) -> None:
     """Refuse (before anything is written) a board whose chip is not the one PACKAGE was built for;
-    suggest building for the board's chip only where espdock can (SUPPORTED: the package's chips)."""
+    suggest building for the board's chip only where espdock can (SUPPORTED: the package's chips;
+    PROJECT: its directory, whose sdkconfig.defaults choose the transport on that chip)."""
     found = detected_chip(output)
     if found is None:
         tail = " | ".join(line.strip() for line in output[-3:] if line.strip())
         raise PortError(f"esptool could not tell which chip is at {port.spec}", tail or "Is a board connected?")
     if found != expected:
-        if buildable_chip(found, supported):
+        link = transport.project_transport(project, found) if project is not None else transport.UDP
+        if buildable_chip(found, supported, link):
             hint = (
                 f"Connect an {expected} board, or build {package} for it: `espdock build {package} --target {found}`."
             )
         else:
             hint = f"Connect an {expected} board: espdock cannot build {package} for an {found}"
-            hint += f" (it supports {', '.join(supported)})." if supported else "."
+            if supported and found not in supported:
+                hint += f" (it supports {', '.join(supported)})."
+            elif link == transport.USB_SERIAL_JTAG and found not in transport.USB_SERIAL_JTAG_CHIPS:
+                hint += f" (its transport is USB-Serial-JTAG, a port an {found} has not)."
+            else:
+                hint += "."
         raise ConfigError(
             f"the board at {port.spec} is an {found}, but {package} is built for {expected}; nothing was written", hint
         )
@@ -340,7 +358,7 @@ def flash_package(
         workdir=workdir,
     )
     supported = component_targets(workspace.root / step.project / "main" / "idf_component.yml")
-    check_chip(step.package, chip, probe, port, supported)
+    check_chip(step.package, chip, probe, port, supported, workspace.root / step.project)
     major = esptool_major(probe)
     if app:
         commands = [flash_argv(flasher_args, port, baud, major, extra)]

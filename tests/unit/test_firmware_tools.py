@@ -295,3 +295,18 @@ def test_the_chip_mismatch_hint_suggests_only_a_chip_espdock_builds_the_package_
         check_chip("camera_node", "esp32", probe, parse_port("socket://127.0.0.1:1"), supported)
     assert f"is an {found}, but camera_node is built for esp32" in error.value.message
     assert hint in error.value.hint
+
+
+def test_the_chip_mismatch_hint_suggests_no_chip_the_package_s_transport_has_no_port_on(tmp_path):
+    """A USB-Serial-JTAG package built for an esp32c3, at an esp32: the hint said to build it with
+    --target esp32, which espdock refuses (an esp32 has no USB-Serial-JTAG port)."""
+    (tmp_path / "sdkconfig.defaults").write_text("CONFIG_ESPDOCK_TRANSPORT_USB_SERIAL_JTAG=y\n")
+    probe = ["esptool v5.1.0", "Detecting chip type... ESP32"]
+    with pytest.raises(ConfigError) as error:
+        check_chip("u2", "esp32c3", probe, parse_port("socket://127.0.0.1:1"), (), tmp_path)
+    assert "--target" not in error.value.hint
+    assert "espdock cannot build u2 for an esp32 (its transport is USB-Serial-JTAG" in error.value.hint
+    at_s3 = ["esptool v5.1.0", "Detecting chip type... ESP32-S3"]
+    with pytest.raises(ConfigError) as error:
+        check_chip("u2", "esp32c3", at_s3, parse_port("socket://127.0.0.1:1"), (), tmp_path)
+    assert "`espdock build u2 --target esp32s3`" in error.value.hint

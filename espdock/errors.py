@@ -45,7 +45,7 @@ class DependencyError(EspdockError):
 
 
 class RegistryError(EspdockError):
-    """The cache registry refused the engine's credentials."""
+    """The cache registry refused the engine's credentials, or --push-cache could not push."""
 
     exit_code = 2
 

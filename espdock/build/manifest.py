@@ -121,7 +121,7 @@ def write_report(
     failure); ERROR: what stopped the build (INTERRUPTED: a signal, outcome "interrupted"). As root,
     a report it creates belongs to OWNER, as the build's files do."""
     steps = list(finished)
-    failed = any(step.outcome is Outcome.FAILED for step in steps) or manifest is None
+    failed = any(step.outcome is Outcome.FAILED for step in steps) or manifest is None or error is not None
     data: dict = {} if error is None else {"error": error}
     data |= {
         "outcome": "interrupted" if error == INTERRUPTED else "failed" if failed else "succeeded",

@@ -62,6 +62,11 @@ class Runner:
         """The keyed images this runner's steps used (tag, repository), for espdock.images.prune's record."""
         return self.images.used
 
+    @property
+    def unpushed(self) -> list[tuple[str, str]]:
+        """The images --push-cache could not push (reference, why)."""
+        return self.images.unpushed
+
     def run(self, plan: Plan, lock: bool = True) -> list[StepFinished]:
         """Run every step in order; stops at the first failure, raising its error.
 

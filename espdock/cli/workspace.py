@@ -29,7 +29,7 @@ from espdock.cli.core import (
 from espdock.cli.prune import after_build, record_images
 from espdock.cli.ui import Reporter, nothing_to_build, render_packages, render_plan
 from espdock.config import check_target, in_ci, invoking_user
-from espdock.errors import ConfigError, EspdockError, WorkspaceError
+from espdock.errors import ConfigError, EspdockError, RegistryError, WorkspaceError
 from espdock.events import Outcome
 from espdock.firmware import transport
 from espdock.firmware.scaffold import check_new_package, create_firmware_package, init_workspace
@@ -150,6 +150,14 @@ def build(
         built = any(r.outcome is not Outcome.CACHED for r in results)
         chown = owner if os.geteuid() == 0 else None
         manifest = record_build(plan, config.target, ws.ws_dir / "install", built, stamp_files(ws), chown)
+        if runner.unpushed:
+            # Asked for, so a job that publishes the cache must not pass without it.
+            after_build(engine, ws, config, runner, built)
+            raise RegistryError(
+                f"--push-cache: {len(runner.unpushed)} image(s) not pushed to {config.cache_registry}: "
+                + "; ".join(f"{ref} ({why})" for ref, why in runner.unpushed[:3]),
+                "The build itself succeeded and is installed; build again with --push-cache once the registry answers.",
+            )
     except KeyboardInterrupt:
         stopped = INTERRUPTED  # a cancelled CI job, not a failed build
         raise

@@ -4,6 +4,7 @@ reproducible environment they get, and the check that the engine sees the worksp
 from __future__ import annotations
 
 import os
+import re
 import shutil
 import subprocess
 from collections.abc import Mapping
@@ -270,5 +271,13 @@ def volume_mode_refused(what: str, firmware: bool = True) -> WorkspaceNotVisible
     )
 
 
+# The Docker SDK's text of an engine's error answer, around the engine's own message.
+_SDK_ERROR = re.compile(r'^\d{3} (?:Client|Server) Error for \S+: [^(]*\("(?P<said>.*)"\)\s*$', re.DOTALL)
+
+
 def first_line(text: str) -> str:
+    """TEXT's first line, cut at 200 characters: what a one-line message has room for. Of the Docker
+    SDK's text, the engine's own message, which the 200 characters of the URL before it cut off."""
+    if match := _SDK_ERROR.match(text.strip()):
+        text = match.group("said")
     return (text.strip().splitlines() or ["no details"])[0][:200]

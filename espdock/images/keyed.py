@@ -100,6 +100,8 @@ class KeyedImages:
         self._push_cache = push_cache
         # The keyed images this run used (tag, repository), for espdock.images.prune's record.
         self.used: list[tuple[str, str]] = []
+        # The images --push-cache could not push, with why: the build goes on, and fails at its end.
+        self.unpushed: list[tuple[str, str]] = []
 
     def ensure_base(self, step: EnsureBaseImage) -> tuple[Outcome, str]:
         how = bootstrap.ensure_base_image(
@@ -285,6 +287,7 @@ class KeyedImages:
             if held.status is RegistryStatus.DENIED:
                 raise _denied(registry, "push", held)
         why = first_line(held.detail)
+        self.unpushed.append((remote, why))
         self.containers.emit(StepNote(step.name, f"warning: could not push to the cache registry {registry} ({why})"))
 
 

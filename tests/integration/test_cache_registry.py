@@ -154,6 +154,12 @@ def test_a_silent_registry_is_a_warning_and_a_local_build(registry, origin, tmp_
     assert again.returncode == 0, again.stdout[-4000:] + again.stderr
     assert "did not answer" in again.stdout and "building locally" in again.stdout
     assert "built" in image_outcomes(report).values()
+    # Asked to publish the cache, the build fails at its end, and its report says why: it
+    # passed before, its warning cut short in the SDK's URL before the engine's reason.
+    pushed, report = build(root, env, *FIRMWARE, "--push-cache")
+    assert pushed.returncode == 2, pushed.stdout[-4000:] + pushed.stderr
+    assert report["outcome"] == "failed" and "1 image(s) not pushed to 127.0.0.1:" in report["error"], report
+    assert "connection refused" in report["error"], report["error"]
 
 
 def test_wrong_credentials_are_a_clear_error(registry, origin, tmp_path):

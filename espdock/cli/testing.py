@@ -18,8 +18,9 @@ from espdock.cli.core import PASSED, PassThrough, WorkspaceOption, app, command,
 from espdock.cli.prune import record_images
 from espdock.cli.ui import Reporter
 from espdock.config import in_ci, invoking_user
-from espdock.errors import EspdockError, TestsFailed, WorkspaceError
+from espdock.errors import ConfigError, EspdockError, TestsFailed, WorkspaceError
 from espdock.images.containers import permission_error, prepare_output
+from espdock.images.keyed import unpushed_error
 from espdock.layout import ROS_BUILD_BASE
 from espdock.ros.plan import ColconBuild
 from espdock.ros.steps import TEST_RESULTS
@@ -65,6 +66,13 @@ def test(
             show_default=False,
         ),
     ] = None,
+    push_cache: Annotated[
+        bool,
+        typer.Option(
+            "--push-cache",
+            help="Push keyed images the cache registry lacks, the test image too (cache_registry; CI on main).",
+        ),
+    ] = False,
     workspace: WorkspaceOption = None,
 ) -> None:
     """Build what needs building with the packages' tests, run `colcon test` in the build image and
@@ -84,6 +92,8 @@ def test(
     firmware = [p for p in chosen if p.kind is PackageKind.FIRMWARE]
     official = config.ros_image == "official"
     check_testable({p.name: p.depends for p in ros}, "official" if official else "wheels")
+    if push_cache and not config.cache_registry:
+        raise ConfigError("--push-cache needs a cache registry", "Set cache_registry or ESPDOCK_CACHE_REGISTRY.")
     if results is not None:
         owner = invoking_user(os.environ, ws.root)
         prepare_output(results, owner, "--results", directory=True)
@@ -96,10 +106,11 @@ def test(
     found: dict[str, PackageResults] = {}
     logs: dict[str, Path] = {}
     code = 0
+    unpushed: list[tuple[str, str]] = []
     reporter = Reporter(console, verbose=verbose, timestamps=timestamps)
     say = reporter.line
     if ros:
-        found, code = _test_ros(ws, config, every, ros, colcon_args, locked, official, reporter)
+        found, code, unpushed = _test_ros(ws, config, every, ros, colcon_args, locked, official, push_cache, reporter)
         logs = {name: ws.ws_dir / "log" / "latest_test" / name for name in found}
     host_base = ws.ws_dir / HOST_TESTS_BASE
     for package in firmware:
@@ -148,15 +159,18 @@ def test(
         raise TestsFailed(f"colcon test failed (exit code {code})", "Its output is above.")
     if unwritten is not None:
         raise unwritten
+    if unpushed:
+        raise unpushed_error(unpushed, config.cache_registry, "The tests ran and passed")
 
 
-def _test_ros(ws, config, every, ros, colcon_args, locked, official, reporter: Reporter):
-    """Build ROS packages with their tests and run colcon test: their results and colcon's exit code."""
+def _test_ros(ws, config, every, ros, colcon_args, locked, official, push_cache, reporter: Reporter):
+    """Build ROS packages with their tests and run colcon test: their results, colcon's exit code
+    and the images --push-cache could not push."""
     from espdock.images import bootstrap
 
     plan, step = plan_tests(ws, config, every, ros, colcon_args, locked, official, env=os.environ, notify=notify)
     engine = bootstrap.ensure_engine(os.environ, notify)
-    runner = Runner(engine, config, os.environ, reporter, invoking_user(os.environ, ws.root))
+    runner = Runner(engine, config, os.environ, reporter, invoking_user(os.environ, ws.root), push_cache=push_cache)
     builds = tuple(s for s in plan.steps if isinstance(s, ColconBuild))
     try:
         runner.run(Plan(plan.workspace, tuple(s for s in plan.steps if s not in builds), plan.idf_images))
@@ -167,7 +181,7 @@ def _test_ros(ws, config, every, ros, colcon_args, locked, official, reporter: R
         reporter.close()
         record_images(ws, runner)  # a failed build's images too: they are its inputs' as they are
     reporter.line(Text(f"colcon test: {' '.join(step.packages)}", style="bold"))
-    return runner.ros.test_packages(ws, step, reporter.line)
+    return (*runner.ros.test_packages(ws, step, reporter.line), runner.unpushed)
 
 
 def _give_back(base: Path, owner: tuple[int, int]) -> None:

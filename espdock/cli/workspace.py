@@ -29,12 +29,13 @@ from espdock.cli.core import (
 from espdock.cli.prune import after_build, record_images
 from espdock.cli.ui import Reporter, nothing_to_build, render_packages, render_plan
 from espdock.config import check_target, in_ci, invoking_user
-from espdock.errors import ConfigError, EspdockError, RegistryError, WorkspaceError
+from espdock.errors import ConfigError, EspdockError, WorkspaceError
 from espdock.events import Outcome
 from espdock.firmware import transport
 from espdock.firmware.scaffold import check_new_package, create_firmware_package, init_workspace
 from espdock.images import bootstrap
 from espdock.images.containers import prepare_output
+from espdock.images.keyed import unpushed_error
 from espdock.layout import ROSDEP_LOCK
 from espdock.ros import colcon_register
 from espdock.ros.compose import init_compose
@@ -153,11 +154,7 @@ def build(
         if runner.unpushed:
             # Asked for, so a job that publishes the cache must not pass without it.
             after_build(engine, ws, config, runner, built)
-            raise RegistryError(
-                f"--push-cache: {len(runner.unpushed)} image(s) not pushed to {config.cache_registry}: "
-                + "; ".join(f"{ref} ({why})" for ref, why in runner.unpushed[:3]),
-                "The build itself succeeded and is installed; build again with --push-cache once the registry answers.",
-            )
+            raise unpushed_error(runner.unpushed, config.cache_registry, "The build itself succeeded and is installed")
     except KeyboardInterrupt:
         stopped = INTERRUPTED  # a cancelled CI job, not a failed build
         raise

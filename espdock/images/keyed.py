@@ -291,6 +291,16 @@ class KeyedImages:
         self.containers.emit(StepNote(step.name, f"warning: could not push to the cache registry {registry} ({why})"))
 
 
+def unpushed_error(unpushed: list[tuple[str, str]], registry: str, done: str) -> RegistryError:
+    """The error of a run asked to --push-cache that could not push UNPUSHED (reference, why); DONE:
+    what the run itself did."""
+    return RegistryError(
+        f"--push-cache: {len(unpushed)} image(s) not pushed to {registry}: "
+        + "; ".join(f"{ref} ({why})" for ref, why in unpushed[:3]),
+        f"{done}; run it again with --push-cache once the registry answers.",
+    )
+
+
 CONTEXT_PREFIX = "espdock-context-"
 
 

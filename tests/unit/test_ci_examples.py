@@ -127,13 +127,17 @@ def test_the_dind_example_builds_in_the_checkout_the_runner_shares_with_the_serv
     assert not any("--workspace" in line or " -w " in line for line in lines)
 
 
+PUSH = {GITHUB: '"${push[@]}"', GITLAB: "$push"}
+
+
 @pytest.mark.parametrize("path", [GITHUB, GITLAB])
 def test_each_example_tests_after_the_build_and_publishes_the_junit_results(path):
     lines = [line.removeprefix("- ").removeprefix("run: ") for line in code_lines(path)]
     build = next(i for i, line in enumerate(lines) if line.startswith("espdock build"))
     tests = [i for i, line in enumerate(lines) if line.startswith("espdock test")]
     assert len(tests) == 1 and tests[0] > build, "tested once, after the build"
-    assert lines[tests[0]] == "espdock test --locked --results test-results"
+    # Pushing the test image on the main branch as the build pushes its images (the guard: above).
+    assert lines[tests[0]] == "espdock test --locked --results test-results " + PUSH[path]
     text = path.read_text()
     if path == GITLAB:
         assert "    reports:\n      junit: test-results/**/*.xml\n" in text

@@ -234,6 +234,7 @@ def test_cli_refuses_bad_input_before_any_engine(tmp_path):
         (("test", "tested_py", "--", "--test-result-base", "x"), "--test-result-base"),
         (("test", "tested_py", "--"), "nothing after `--`"),
         (("test",), "lint_auto_cpp: ament_lint_auto, ament_lint_common"),
+        (("test", "tested_py", "--push-cache"), "--push-cache needs a cache registry"),
     ):
         result = espdock(*args, cwd=root, env=no_engine)
         assert result.returncode == 2, (args, result.stdout, result.stderr)

@@ -12,7 +12,7 @@ from espdock.build.plan import plan_workspace
 from espdock.build.steps import EnsureImage, Plan
 from espdock.config import Config, invoking_user
 from espdock.errors import EspdockError
-from espdock.firmware.plan import IdfBuild, firmware_step
+from espdock.firmware.plan import IdfBuild, firmware_step, unknown_dependencies
 from espdock.layout import ROS_BUILD_BASE, ROSDEP_LOCK
 from espdock.ros import rosdeps, testdeps
 from espdock.ros.colcon import last_build_args, read_colcon_settings, without_build_testing
@@ -74,6 +74,15 @@ def build_plan(
         inputs, note = current_rosdep_inputs(ws.root, config, packages, inputs, locked, env, owner, built)
         if note:
             notify(note)
+    if only in (None, PackageKind.FIRMWARE):
+        chosen = select_up_to(packages, names) if names else packages
+        for firmware in (p for p in chosen if p.kind is PackageKind.FIRMWARE):
+            if unknown := unknown_dependencies(firmware, packages):
+                notify(
+                    f"warning: {firmware.name} depends on {', '.join(unknown)}: in no package of this workspace, nor "
+                    "an interface package micro-ROS builds (std_msgs, sensor_msgs, ...), so the library has no "
+                    "headers of it"
+                )
     return plan_workspace(
         ws, config, packages, inputs, tuple(names), only, force, target, colcon, checked, testing=testing
     )

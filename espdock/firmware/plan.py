@@ -82,6 +82,24 @@ class InstallFirmware:
         return f"install {self.package}"
 
 
+# The interface packages micro-ROS's library is built with, the jazzy component's standard set.
+STANDARD_INTERFACES = (
+    "action_msgs", "actionlib_msgs", "builtin_interfaces", "composition_interfaces", "diagnostic_msgs",
+    "example_interfaces", "geometry_msgs", "lifecycle_msgs", "micro_ros_msgs", "nav_msgs", "rcl_interfaces",
+    "rosgraph_msgs", "sensor_msgs", "shape_msgs", "statistics_msgs", "std_msgs", "std_srvs", "stereo_msgs",
+    "trajectory_msgs", "type_description_interfaces", "unique_identifier_msgs", "visualization_msgs",
+)  # fmt: skip
+
+
+def unknown_dependencies(firmware: Package, packages: tuple[Package, ...]) -> list[str]:
+    """FIRMWARE's build dependencies that are neither packages of the workspace (PACKAGES) nor
+    interface packages micro-ROS builds: a header the firmware includes of one is missing at
+    compile time, where the message blames the firmware. Named before the build."""
+    names = {p.name for p in packages}
+    deps = firmware.depends - firmware.test_only_depends
+    return sorted(d for d in deps if d not in names and d not in STANDARD_INTERFACES)
+
+
 def derive_interface_packages(packages: tuple[Package, ...], firmware: Package | None = None) -> tuple[Package, ...]:
     """The workspace's interface packages FIRMWARE (default: every firmware package) depends on,
     transitively, in dependency order.

@@ -13,7 +13,7 @@ from pathlib import Path
 from espdock.defaults import default_file
 from espdock.errors import ConfigError, WorkspaceError
 from espdock.firmware import transport
-from espdock.firmware.plan import check_micro_ros_target
+from espdock.firmware.plan import STANDARD_INTERFACES, check_micro_ros_target
 from espdock.layout import CONFIG_FILE
 from espdock.workspace import Package, PackageKind, Workspace
 
@@ -46,12 +46,6 @@ def validate_package_name(name: str) -> None:
 
 # Standard interface packages micro-ROS (jazzy) builds into every library: a firmware package
 # may depend on these without the workspace holding them.
-STANDARD_INTERFACES = (
-    "action_msgs", "actionlib_msgs", "builtin_interfaces", "composition_interfaces", "diagnostic_msgs",
-    "example_interfaces", "geometry_msgs", "lifecycle_msgs", "micro_ros_msgs", "nav_msgs", "rcl_interfaces",
-    "rosgraph_msgs", "sensor_msgs", "shape_msgs", "statistics_msgs", "std_msgs", "std_srvs", "stereo_msgs",
-    "trajectory_msgs", "type_description_interfaces", "unique_identifier_msgs", "visualization_msgs",
-)  # fmt: skip
 # Names that would sit where colcon's outputs or the shared components live.
 RESERVED_NAMES = ("build", "install", "log", "components")
 

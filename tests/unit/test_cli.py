@@ -455,3 +455,17 @@ def test_an_error_nobody_reads_keeps_its_exit_code(tmp_path):
     finally:
         os.close(write_end)
     assert result.returncode == 2
+
+
+def test_a_firmware_dependency_micro_ros_has_no_headers_of_is_named_before_the_build(tmp_path):
+    """<depend>nav2_msgs</depend> in a firmware package: nothing said so until the firmware's
+    compile failed on a missing header, with the hint to fix the firmware."""
+    root = copy_workspace(tmp_path / "w")
+    shutil.copytree(REPO / "firmware", root / "firmware")
+    planned = espdock("build", "--dry-run", cwd=root, env=NO_ENGINE)
+    assert planned.returncode == 0 and "warning" not in planned.stdout + planned.stderr, planned.stderr
+    manifest = root / "firmware/led_strip_node/package.xml"
+    manifest.write_text(manifest.read_text().replace("<depend>std_msgs</depend>", "<depend>nav2_msgs</depend>"))
+    planned = espdock("build", "--dry-run", cwd=root, env=NO_ENGINE)
+    said = " ".join((planned.stdout + planned.stderr).split())
+    assert planned.returncode == 0 and "warning: led_strip_node depends on nav2_msgs: in no package" in said, said

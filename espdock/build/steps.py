@@ -49,6 +49,15 @@ class ImageSpec:
     context: tuple[tuple[str, bytes], ...] | None = None
     # Where the Dockerfile came from, and why (the workspace's own wins over espdock's default).
     origin: str = ""
+    # Paths in the image build (a context directory's, as the Dockerfile copies it) and the host
+    # paths the user knows them by: its errors name those.
+    sources: tuple[tuple[str, str], ...] = ()
+
+    def host_paths(self, text: str) -> str:
+        """TEXT with the image build's paths of SOURCES as the host's."""
+        for built, host in self.sources:
+            text = text.replace(f"{built}/", f"{host}/")
+        return text
 
     @property
     def tag(self) -> str:

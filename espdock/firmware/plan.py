@@ -100,6 +100,9 @@ def unknown_dependencies(firmware: Package, packages: tuple[Package, ...]) -> li
     return sorted(d for d in deps if d not in names and d not in STANDARD_INTERFACES)
 
 
+EXTRA_PACKAGES_DIR = "/opt/uros_builder/extra_ros_packages"
+
+
 def derive_interface_packages(packages: tuple[Package, ...], firmware: Package | None = None) -> tuple[Package, ...]:
     """The workspace's interface packages FIRMWARE (default: every firmware package) depends on,
     transitively, in dependency order.
@@ -293,7 +296,8 @@ def micro_ros_image(
         # COPY needs the directory even when no interface package goes in.
         "micro-ros/extra_packages/.espdock-keep": b"",
     }
-    for package in derive_interface_packages(packages, firmware):
+    interfaces = derive_interface_packages(packages, firmware)
+    for package in interfaces:
         for rel, data in inputs.package_files[package.name].items():
             context[f"micro-ros/extra_packages/{package.name}/{rel}"] = data
     spec = keyed_image(
@@ -305,7 +309,9 @@ def micro_ros_image(
         context=context,
         extra={"ros_distro": config.ros_distro.encode()},
     )
-    return replace(spec, origin=image_origin(IDF_DOCKERFILE, context, inputs.own_files))
+    # Where espdock's Dockerfile.idf copies them: rosidl's errors in the library build name these.
+    sources = tuple((f"{EXTRA_PACKAGES_DIR}/{p.name}", str(p.path)) for p in interfaces)
+    return replace(spec, origin=image_origin(IDF_DOCKERFILE, context, inputs.own_files), sources=sources)
 
 
 def micro_ros_images(

@@ -687,8 +687,10 @@ class Engine:
                 )
             if any("cannot connect to the docker daemon" in line.lower() for line in tail):
                 raise self._lost(f"building {build.tag}")
+            # BuildKit's last lines repeat the failed RUN's whole command, a screen each: 300 characters do.
+            shown = [line if len(line) <= 300 else f"{line[:300]} ..." for line in tail]
             raise ImageBuildError(
-                f"building {build.tag} from {build.dockerfile} (stage {build.target}) failed:\n" + "\n".join(tail),
+                f"building {build.tag} from {build.dockerfile} (stage {build.target}) failed:\n" + "\n".join(shown),
                 _buildkit_hint(tail),
             )
 

@@ -16,7 +16,7 @@ from pathlib import Path
 
 from espdock.build.steps import LABEL_KEY, LABEL_WORKSPACE, EnsureBaseImage, EnsureImage, ImageSpec, cache_ref
 from espdock.config import resolve_ca_bundle
-from espdock.errors import RegistryError
+from espdock.errors import EspdockError, RegistryError
 from espdock.events import Outcome, StepNote, StepOutput
 from espdock.images import bootstrap
 from espdock.images.containers import Containers, first_line
@@ -180,9 +180,10 @@ class KeyedImages:
 
         def on_line(line: str) -> None:
             match = BUILDKIT_STEP.match(line)
-            self.containers.emit(StepOutput(step.name, match.group("what") if match else line, progress=True))
+            shown = spec.host_paths(match.group("what") if match else line)
+            self.containers.emit(StepOutput(step.name, shown, progress=True))
 
-        with _context_dir(workspace, spec, extra_context or {}) as context:
+        with _context_dir(workspace, spec, extra_context or {}) as context, _host_paths_in(spec):
             self.containers.engine.build_image(
                 context=context,
                 dockerfile=spec.dockerfile,
@@ -299,6 +300,17 @@ def unpushed_error(unpushed: list[tuple[str, str]], registry: str, done: str) ->
         + "; ".join(f"{ref} ({why})" for ref, why in unpushed[:3]),
         f"{done}; run it again with --push-cache once the registry answers.",
     )
+
+
+@contextmanager
+def _host_paths_in(spec: ImageSpec) -> Iterator[None]:
+    """A failed build's message names SPEC's sources by their host paths, as its output does."""
+    try:
+        yield
+    except EspdockError as exc:
+        exc.message = spec.host_paths(exc.message)
+        exc.args = (exc.message,)
+        raise
 
 
 CONTEXT_PREFIX = "espdock-context-"

@@ -213,6 +213,15 @@ def last_build_args(base: Path) -> tuple[str, ...]:
     return tuple(str(arg) for arg in args) if isinstance(args, list) else ()
 
 
+def install_kind_switched(base: Path, args: tuple[str, ...]) -> bool:
+    """Whether ARGS turn --symlink-install on or off since the last build in BASE. colcon does not
+    switch a build dir in place: an interface package's ament_cmake Python install fails on the
+    directories a copying install left, one package per run."""
+    if not (base / LAST_ARGS).is_file():
+        return False
+    return ("--symlink-install" in args) != ("--symlink-install" in last_build_args(base))
+
+
 def without_build_testing(args: tuple[str, ...]) -> tuple[str, ...]:
     """ARGS without their BUILD_TESTING setting: a test build configures the tests whatever the
     build before it did."""

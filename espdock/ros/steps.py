@@ -27,6 +27,7 @@ from espdock.ros.colcon import (
     ColconLog,
     PackageState,
     explain_failure,
+    install_kind_switched,
     record_build_args,
     usage_error,
 )
@@ -80,7 +81,24 @@ class RosSteps:
                 )
             )
         emptied = (base,) if retired is not None else ()  # in the workspace volume, its build dirs as well
-        if stale := step.stale_interfaces(rebuild):
+        if install_kind_switched(base, step.colcon_args):
+            # Every package's stamp changed with the options: all of them build afresh.
+            for name in rebuild:
+                for tree in (base / name, workspace.ws_dir / "install" / name):
+                    if tree.is_symlink():
+                        tree.unlink()
+                    else:
+                        shutil.rmtree(tree, ignore_errors=True)
+                    emptied += (tree,)
+            self.containers.emit(
+                StepNote(
+                    step.name,
+                    f"--symlink-install {'on' if '--symlink-install' in step.colcon_args else 'off'} since the last "
+                    f"build: removed the build dirs and install prefixes of {len(rebuild)} package(s), which colcon "
+                    "cannot switch in place",
+                )
+            )
+        elif stale := step.stale_interfaces(rebuild):
             for name in stale:
                 shutil.rmtree(base / name, ignore_errors=True)
             emptied += tuple(base / name for name in stale)

@@ -489,6 +489,10 @@ def test_a_broken_interface_fails_the_library_build_and_tags_nothing(fw_ws, doub
     assert result.returncode == 4, result.stdout[-2000:] + result.stderr
     assert engine.image(broken["image"]) is None
     assert (firmware_dir(root, "camera_node") / "flasher_args.json").is_file()
+    # rosidl's error names the .msg as the user knows it, not where the image build copied it.
+    said = f"{msg}:{len(original.splitlines()) + 1}: error: unknown field type 'no_such_type'"
+    assert said in result.stdout and said in result.stderr, result.stdout[-2000:] + result.stderr
+    assert "extra_ros_packages/custom_interface" not in result.stdout + result.stderr
 
 
 def test_switching_the_chip_target_builds_a_new_library_and_retargets(fw_ws, double_env):

@@ -62,8 +62,16 @@ def native_colcon(
 
 
 def test_symlink_install_builds_runs_and_shows_a_source_edit_without_a_rebuild(engine, tmp_path):
+    """After a plain build, as a workspace is before the developer turns it on: colcon does not
+    switch a build dir in place (an interface package failed, one per run), so espdock builds
+    each package afresh when the option changes."""
     root = copy_workspace(tmp_path / "symlinks", packages=(), test_packages=PACKAGES)
-    built(root, "--", "--symlink-install")
+    built(root)
+    switched = espdock("build", "--only", "ros", "--", "--symlink-install", cwd=root)
+    assert switched.returncode == 0, switched.stdout[-3000:] + switched.stderr[-3000:]
+    assert "--symlink-install on since the last build: removed the build dirs and install prefixes of 2" in " ".join(
+        switched.stdout.split()
+    )
     install = root / "ws" / "install"
     # colcon really installed links: into build/ for the compiled tool, into src/ for the script.
     assert (install / "uptime_tools" / "lib" / "uptime_tools" / "uptime_report").is_symlink()
@@ -79,6 +87,13 @@ def test_symlink_install_builds_runs_and_shows_a_source_edit_without_a_rebuild(e
     # What a symlink install gives: an edited Python source runs without `colcon build`.
     source = root / "ws" / "src" / "beacon_nodes" / "beacon_nodes" / "beacon.py"
     source.write_text(source.read_text().replace('"beacon up"', '"beacon up, edited"'))
+    beacon_says(root, "beacon up, edited")
+
+    # And off again: copies, the sources untouched.
+    sources = {p: p.read_bytes() for p in (root / "ws" / "src").rglob("*") if p.is_file()}
+    built(root)
+    assert not (install / "uptime_tools" / "lib" / "uptime_tools" / "tools_banner").is_symlink()
+    assert {p: p.read_bytes() for p in (root / "ws" / "src").rglob("*") if p.is_file()} == sources
     beacon_says(root, "beacon up, edited")
 
 

@@ -19,7 +19,6 @@ from espdock.cli.prune import record_images
 from espdock.cli.ui import Reporter
 from espdock.config import in_ci, invoking_user
 from espdock.errors import ConfigError, EspdockError, TestsFailed, WorkspaceError
-from espdock.images.containers import permission_error, prepare_output
 from espdock.images.keyed import unpushed_error
 from espdock.layout import ROS_BUILD_BASE
 from espdock.ros.plan import ColconBuild
@@ -30,9 +29,9 @@ from espdock.ros.testing import (
     PackageResults,
     check_test_args,
     check_testable,
-    collect_results,
-    forget_collected,
+    copy_results,
     host_tests_dir,
+    prepare_results,
     read_results,
     run_host_tests,
 )
@@ -95,14 +94,7 @@ def test(
     if push_cache and not config.cache_registry:
         raise ConfigError("--push-cache needs a cache registry", "Set cache_registry or ESPDOCK_CACHE_REGISTRY.")
     if results is not None:
-        owner = invoking_user(os.environ, ws.root)
-        prepare_output(results, owner, "--results", directory=True)
-        try:
-            forget_collected(results)
-        except PermissionError as exc:
-            raise permission_error(exc) from None
-        for package in (p.name for p in chosen if (results / p.name).exists()):
-            prepare_output(results / package, owner, "--results", directory=True)
+        prepare_results(results, invoking_user(os.environ, ws.root), [p.name for p in chosen])
     found: dict[str, PackageResults] = {}
     logs: dict[str, Path] = {}
     code = 0
@@ -133,20 +125,11 @@ def test(
     unwritten: EspdockError | None = None
     if results is not None:
         on_host = {p.name for p in firmware}
-        owner = invoking_user(os.environ, ws.root)
-        try:
-            written = collect_results(
-                {n: r for n, r in found.items() if n not in on_host}, ws.ws_dir / ROS_BUILD_BASE, results, owner
-            )
-            written += collect_results({n: r for n, r in found.items() if n in on_host}, host_base, results, owner)
-            say(f"{len(written)} result file(s) copied to {results}")
-        except OSError as exc:
-            # Checked before the run, so something changed since: the tests' outcome still decides the exit.
-            unwritten = (
-                permission_error(exc)
-                if isinstance(exc, PermissionError)
-                else WorkspaceError(f"could not copy the results to {results}: {exc.strerror or exc}")
-            )
+        bases = {n: host_base if n in on_host else ws.ws_dir / ROS_BUILD_BASE for n in found}
+        written, unwritten = copy_results(found, bases, results, invoking_user(os.environ, ws.root))
+        if unwritten is None:
+            say(f"{written} result file(s) copied to {results}")
+        else:  # the tests' outcome still decides the exit code
             say(Text.assemble(("results not copied: ", "yellow"), unwritten.message))
     failing = [r for r in found.values() if not r.ok]
     if failing:

@@ -24,8 +24,8 @@ from xml.etree.ElementTree import Element, ElementTree, ParseError
 
 from espdock import durable
 from espdock.build.stamps import listing_digest
-from espdock.errors import ConfigError, DependencyError
-from espdock.images.containers import give_to, make_dirs_for
+from espdock.errors import ConfigError, DependencyError, EspdockError, WorkspaceError
+from espdock.images.containers import give_to, make_dirs_for, permission_error, prepare_output
 from espdock.layout import ROS_BUILD_BASE
 from espdock.ros.colcon import check_colcon_args
 
@@ -341,6 +341,36 @@ def _count_ctest(root: Path, results: PackageResults) -> None:
             results.errored += 1
     results.tests += len(tests)
     results.ctest_file, results.ctest_tests = latest, len(tests)
+
+
+def prepare_results(destination: Path, owner: tuple[int, int], packages: Iterable[str]) -> None:
+    """Before a run with `--results DESTINATION`: it can be written (its directories made, as root
+    OWNER's), and for PACKAGES, and the last run's copies are gone (forget_collected)."""
+    prepare_output(destination, owner, "--results", directory=True)
+    try:
+        forget_collected(destination)
+    except PermissionError as exc:
+        raise permission_error(exc) from None
+    for package in packages:
+        if (destination / package).exists():
+            prepare_output(destination / package, owner, "--results", directory=True)
+
+
+def copy_results(
+    results: Mapping[str, PackageResults], bases: Mapping[str, Path], destination: Path, owner: tuple[int, int]
+) -> tuple[int, EspdockError | None]:
+    """collect_results of each package from its build base in BASES: how many files, and the error
+    that stopped it (checked before the run, so something changed since)."""
+    written = 0
+    try:
+        for base in dict.fromkeys(bases.values()):
+            here = {name: result for name, result in results.items() if bases[name] == base}
+            written += len(collect_results(here, base, destination, owner))
+    except PermissionError as exc:
+        return written, permission_error(exc)
+    except OSError as exc:
+        return written, WorkspaceError(f"could not copy the results to {destination}: {exc.strerror or exc}")
+    return written, None
 
 
 def clear_results(build_base: Path, packages: Iterable[str]) -> None:

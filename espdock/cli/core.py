@@ -21,7 +21,7 @@ from espdock import __version__
 from espdock.build import prepare
 from espdock.build.runner import Runner
 from espdock.build.steps import Plan
-from espdock.cli.ui import QuietReporter, Reporter
+from espdock.cli.ui import STAMPED, QuietReporter, Reporter, stamped
 from espdock.config import Config, invoking_user, load_config
 from espdock.errors import DiskFull, EspdockBug, EspdockError, Interrupted
 from espdock.firmware.plan import IdfBuild
@@ -236,7 +236,9 @@ def fail(exc: EspdockError) -> NoReturn:
         import traceback
 
         traceback.print_exception(exc)
-    err_console.print(Text.assemble(("error: ", "bold red"), exc.message))
+    lines = [Text.assemble(("error: ", "bold red"), exc.message)]
     if exc.hint:
-        err_console.print(Text.assemble(("hint: ", "yellow"), exc.hint))
+        lines.append(Text.assemble(("hint: ", "yellow"), exc.hint))
+    for line in lines:
+        err_console.print(stamped(line) if STAMPED["errors"] else line)
     sys.exit(exc.exit_code)

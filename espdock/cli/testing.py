@@ -16,7 +16,7 @@ from espdock.build.runner import Runner
 from espdock.build.steps import Plan
 from espdock.cli.core import PASSED, PassThrough, WorkspaceOption, app, command, console, load, notify
 from espdock.cli.prune import record_images
-from espdock.cli.ui import Reporter
+from espdock.cli.ui import STAMPED, Reporter
 from espdock.config import in_ci, invoking_user
 from espdock.errors import ConfigError, EspdockError, TestsFailed, WorkspaceError
 from espdock.images.keyed import unpushed_error
@@ -79,6 +79,7 @@ def test(
     when a test fails or errors.
 
     Options after `--` go to `colcon test` (e.g. `espdock test -- --pytest-args -k fast`)."""
+    STAMPED["errors"] = timestamps
     ws, config = load(workspace)
     colcon_args = check_test_args(ctx.meta.get(PASSED))
     locked = locked if locked is not None else in_ci(os.environ)

@@ -38,6 +38,19 @@ MARKS = {
 }
 
 
+# Set by a command asked for --timestamps: its error lines (espdock.cli.core.fail) then start with
+# the UTC time as every line before them did.
+STAMPED = {"errors": False}
+
+
+STAMP_EXAMPLE = "12:00:00 "
+
+
+def stamped(text: Text) -> Text:
+    """TEXT after the UTC time, as --timestamps starts every line."""
+    return Text.assemble((time.strftime("%H:%M:%S ", time.gmtime()), "dim"), text)
+
+
 class Reporter:
     """Turns events into terminal output; verbose shows image build logs too.
 
@@ -52,9 +65,7 @@ class Reporter:
         self._status: Status | None = None
 
     def _print(self, text: Text, **options: object) -> None:
-        if self.timestamps:
-            text = Text.assemble((time.strftime("%H:%M:%S ", time.gmtime()), "dim"), text)
-        self.console.print(text, **options)
+        self.console.print(stamped(text) if self.timestamps else text, **options)
 
     def line(self, text: str | Text) -> None:
         """Print TEXT (a tool's output line as it is, or espdock's own), timestamped when asked."""
@@ -120,7 +131,12 @@ class Reporter:
         for event in self.finished:
             _, colour = MARKS[event.outcome]
             table.add_row(event.step, Text(event.outcome.value, style=colour), f"{event.seconds:.1f} s", event.detail)
-        self.console.print(table)
+        if not self.timestamps:
+            self.console.print(table)
+            return
+        narrower = self.console.options.update(width=max(40, self.console.width - len(STAMP_EXAMPLE)))
+        for line in self.console.render_lines(table, narrower, pad=False, new_lines=False):
+            self.console.print(stamped(Text.assemble(*((seg.text, seg.style) for seg in line))), soft_wrap=True)
 
 
 class QuietReporter:

@@ -27,7 +27,7 @@ from espdock.cli.core import (
     notify,
 )
 from espdock.cli.prune import after_build, record_images
-from espdock.cli.ui import Reporter, nothing_to_build, render_packages, render_plan
+from espdock.cli.ui import STAMPED, Reporter, nothing_to_build, render_packages, render_plan
 from espdock.config import check_target, in_ci, invoking_user
 from espdock.errors import ConfigError, EspdockError, WorkspaceError
 from espdock.events import Outcome
@@ -102,6 +102,7 @@ def build(
     depends on it; record what the build produced in install/espdock-manifest.json.
 
     Options after `--` go to `colcon build` (e.g. `espdock build -- --cmake-args -DBUILD_TESTING=OFF`)."""
+    STAMPED["errors"] = timestamps
     ws, config = load(workspace, runtime_image=runtime_image, workspace_mode=workspace_mode)
     locked = locked if locked is not None else in_ci(os.environ)
     started = time.monotonic()

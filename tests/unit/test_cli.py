@@ -469,3 +469,12 @@ def test_a_firmware_dependency_micro_ros_has_no_headers_of_is_named_before_the_b
     planned = espdock("build", "--dry-run", cwd=root, env=NO_ENGINE)
     said = " ".join((planned.stdout + planned.stderr).split())
     assert planned.returncode == 0 and "warning: led_strip_node depends on nav2_msgs: in no package" in said, said
+
+
+def test_timestamps_reach_the_error_that_ends_the_command(tmp_path):
+    """`espdock build --timestamps` in CI: every line was timed but the error and its hint."""
+    root = copy_workspace(tmp_path / "w")
+    result = espdock("build", "--timestamps", cwd=root, env=NO_ENGINE)
+    lines = [line for line in result.stderr.splitlines() if line.strip()]
+    assert result.returncode == 3 and lines, result.stderr
+    assert all(re.match(r"\d\d:\d\d:\d\d (error|hint): ", line) for line in lines), lines

@@ -6,6 +6,7 @@ import json
 import re
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
+from pathlib import Path
 
 from espdock.build.steps import (
     EnsureImage,
@@ -375,6 +376,17 @@ def firmware_step(plan: Plan, name: str) -> tuple[Plan, IdfBuild]:
     return Plan(plan.workspace, (EnsureImage(spec),), (spec,)), step
 
 
+def check_inside(workspace: Workspace, package: str, project: Path) -> None:
+    """Refuse a firmware PROJECT found through a link to outside the workspace, as colcon finds
+    it: the IDF containers see only the workspace (ROS packages get the link's directory mounted)."""
+    if not (real := project.resolve()).is_relative_to(workspace.root.resolve()):
+        raise WorkspaceError(
+            f"firmware package {package} is linked from outside the workspace ({project} -> "
+            f"{real}): the IDF containers see only the workspace",
+            "Move the project into the workspace; ROS packages may be linked in, firmware projects may not.",
+        )
+
+
 def firmware_steps(
     workspace: Workspace,
     config: Config,
@@ -390,6 +402,7 @@ def firmware_steps(
     ensured: dict[str, ImageSpec] = {}
     everything = {p.name for p in all_packages}
     for package in firmware:
+        check_inside(workspace, package.name, package.path)  # before minutes of its micro-ROS image
         spec = idf_images.get(package.name)
         if spec is None:
             raise WorkspaceError(f"firmware package {package.name} needs Dockerfile.idf at the workspace root")

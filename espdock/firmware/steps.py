@@ -17,11 +17,17 @@ from pathlib import Path
 from espdock.build.stamps import StampFile, listing_digest, tree_digest
 from espdock.build.steps import keyed_tag
 from espdock.config import resolve_ca_bundle
-from espdock.errors import BuildFailed, WorkspaceError
+from espdock.errors import BuildFailed
 from espdock.events import Outcome, StepNote, StepOutput
 from espdock.firmware.agent_port import LIBRARY_HEADERS, check_agent_port
 from espdock.firmware.install import COMMANDS_SOURCE, install_firmware
-from espdock.firmware.plan import LIBRARY_SDKCONFIG_PREFIXES, SDKCONFIG_LINE, IdfBuild, InstallFirmware
+from espdock.firmware.plan import (
+    LIBRARY_SDKCONFIG_PREFIXES,
+    SDKCONFIG_LINE,
+    IdfBuild,
+    InstallFirmware,
+    check_inside,
+)
 from espdock.images import volume
 from espdock.images.containers import Containers, give_to, make_dirs_for, volume_mode_refused
 from espdock.images.engine import Mount, RunSpec
@@ -153,14 +159,7 @@ class FirmwareSteps:
         RESET: the host's build dir was emptied for a new target or image (_prepare_build_dir);
         in volume mode the volume's is emptied the same way.
         """
-        project = workspace.root / step.project
-        if not (real := project.resolve()).is_relative_to(workspace.root.resolve()):
-            # Found through a link, as colcon finds it; ROS packages get the link's directory mounted.
-            raise WorkspaceError(
-                f"firmware package {step.package} is linked from outside the workspace ({project} -> "
-                f"{real}): the IDF containers see only the workspace",
-                "Move the project into the workspace; ROS packages may be linked in, firmware projects may not.",
-            )
+        check_inside(workspace, step.package, workspace.root / step.project)  # linked in since it was planned
         user, labels = self.containers.container_identity(workspace, f"idf-{step.package}", sweep)
         build_dir = firmware_build_dir(workspace.ws_dir, step.package)
         # The component manager extracts into <project>/managed_components, a place it does not

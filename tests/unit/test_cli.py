@@ -478,3 +478,17 @@ def test_timestamps_reach_the_error_that_ends_the_command(tmp_path):
     lines = [line for line in result.stderr.splitlines() if line.strip()]
     assert result.returncode == 3 and lines, result.stderr
     assert all(re.match(r"\d\d:\d\d:\d\d (error|hint): ", line) for line in lines), lines
+
+
+def test_a_firmware_project_linked_from_outside_is_refused_when_planned(tmp_path):
+    """It was refused only at its idf.py step, after its micro-ROS image (minutes when not cached),
+    and `build --dry-run` showed nothing wrong."""
+    root = copy_workspace(tmp_path / "w")
+    shutil.copytree(REPO / "firmware", root / "firmware")
+    outside = tmp_path / "elsewhere"
+    shutil.move(root / "firmware/led_strip_node", outside)
+    (root / "firmware/led_strip_node").symlink_to(outside)
+    for args in (("build", "--dry-run"), ("build",)):
+        result = espdock(*args, cwd=root, env=NO_ENGINE)
+        assert result.returncode == 2, (args, result.stderr)
+        assert "firmware package led_strip_node is linked from outside the workspace" in result.stderr

@@ -38,3 +38,17 @@ def test_only_the_interfaces_the_cmakelists_names_get_headers_as_rosidl_makes_th
     assert refused.returncode == 1
     assert "rosidl_generate_interfaces() the passed file 'msg/Gone.msg' doesn't exist" in refused.stderr
     assert not (tmp_path / "b/out").exists(), "a refused build leaves nothing"
+
+
+def test_a_bounded_string_constant_is_refused_as_rosidl_refuses_it(tmp_path):
+    """rosidl_adapter takes only primitive types as constants, and `string<=8` is none: the ROS
+    side refused it, the double built a library and firmware with it."""
+    package = tmp_path / "src/custom_interface"
+    shutil.copytree(REPO / "ws/src/custom_interface", package)
+    message = package / "msg/CameraConfig.msg"
+    message.write_text(message.read_text() + 'string<=8 LABEL="probe"\nstring PLAIN="ok"\n')
+    refused = generate(tmp_path / "src", tmp_path / "a")
+    assert refused.returncode == 1
+    assert "error: the constant type 'string<=8' must be a primitive type" in refused.stderr
+    message.write_text(message.read_text().replace('string<=8 LABEL="probe"\n', ""))
+    assert generate(tmp_path / "src", tmp_path / "b").returncode == 0, "an unbounded string constant is one"

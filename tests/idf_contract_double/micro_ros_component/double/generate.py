@@ -250,6 +250,9 @@ def parse_structure(package: str, kind: str, name: str, path: Path, lines: list[
             const_name, value = (part.strip() for part in rest.split("=", 1))
             if not CONST_NAME_RE.match(const_name):
                 raise InterfaceError(f"{where}: error: '{const_name}' is not a valid constant name")
+            if match["strbound"] is not None:
+                # rosidl_adapter's Constant takes only PRIMITIVE_TYPES, of which a bounded string is none.
+                raise InterfaceError(f"{where}: error: the constant type '{type_string}' must be a primitive type")
             check_constant(where, base, value)
             structure.constants.append(Constant(base, const_name, value, number))
             name_seen = const_name

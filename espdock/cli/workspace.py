@@ -127,6 +127,8 @@ def build(
         if not plan.steps:
             has_any = only is not None and workspace_packages(ws, config.ros_distro)
             console.print(f"nothing to build: no {only} package in the workspace" if has_any else nothing_to_build(ws))
+            if report is not None:  # a CI job's artefact step expects one; an empty manifest: nothing built
+                write_report(report, (), {}, time.monotonic() - started, owner)
             return
         if locked:
             check_locks(ws.root, plan_locks(plan))

@@ -320,6 +320,10 @@ def test_a_build_with_no_packages_says_where_it_looked(tmp_path):
         assert result.returncode == 0, result.stdout + result.stderr
         said = f"nothing to build: no packages in scr (package_paths); scr does not exist in {tmp_path}"
         assert said in " ".join(result.stdout.split()), result.stdout
+    # A CI job's report too: its artefact step found no file.
+    assert espdock("build", "--report", "report.json", cwd=tmp_path, env=NO_ENGINE).returncode == 0
+    report = json.loads((tmp_path / "report.json").read_text())
+    assert (report["outcome"], report["steps"], report["manifest"]) == ("succeeded", [], {})
 
 
 def test_paths_that_are_not_utf_8_or_gone_are_bad_input_not_espdock_bugs(tmp_path):

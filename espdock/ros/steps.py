@@ -54,6 +54,35 @@ class RosSteps:
         # image is made from them.
         self.unbuilt: set[str] = set()
 
+    def _build_afresh(self, workspace: Workspace, step: ColconBuild, rebuild: tuple[str, ...]) -> tuple[Path, ...]:
+        """Remove what colcon would build on wrongly from REBUILD's trees, and say why: every build
+        dir and install prefix when --symlink-install was turned on or off, else the build dirs of
+        interface packages whose interface dependencies changed (ColconBuild.stale_interfaces).
+        Returns them, for the workspace volume to remove its copies as well."""
+        base = workspace.ws_dir / ROS_BUILD_BASE
+        if install_kind_switched(base, step.colcon_args):
+            trees = tuple(tree for name in rebuild for tree in (base / name, workspace.ws_dir / "install" / name))
+            why = (
+                f"--symlink-install {'on' if '--symlink-install' in step.colcon_args else 'off'} since the last "
+                f"build: removed the build dirs and install prefixes of {len(rebuild)} package(s), which colcon "
+                "cannot switch in place"
+            )
+        elif stale := step.stale_interfaces(rebuild):
+            trees = tuple(base / name for name in stale)
+            why = (
+                f"building {', '.join(stale)} afresh: interface packages whose interface dependencies changed, "
+                "whose type hashes rosidl's incremental build would keep"
+            )
+        else:
+            return ()
+        for tree in trees:
+            if tree.is_symlink():
+                tree.unlink()
+            else:
+                shutil.rmtree(tree, ignore_errors=True)
+        self.containers.emit(StepNote(step.name, why))
+        return trees
+
     def colcon_build(self, workspace: Workspace, step: ColconBuild) -> tuple[Outcome, str]:
         stamp_file = StampFile(workspace.ws_dir / "build" / ROS_STAMPS)
         sources = {name: tree_digest(workspace.ws_dir / rel) for name, rel in step.sources}
@@ -81,34 +110,7 @@ class RosSteps:
                 )
             )
         emptied = (base,) if retired is not None else ()  # in the workspace volume, its build dirs as well
-        if install_kind_switched(base, step.colcon_args):
-            # Every package's stamp changed with the options: all of them build afresh.
-            for name in rebuild:
-                for tree in (base / name, workspace.ws_dir / "install" / name):
-                    if tree.is_symlink():
-                        tree.unlink()
-                    else:
-                        shutil.rmtree(tree, ignore_errors=True)
-                    emptied += (tree,)
-            self.containers.emit(
-                StepNote(
-                    step.name,
-                    f"--symlink-install {'on' if '--symlink-install' in step.colcon_args else 'off'} since the last "
-                    f"build: removed the build dirs and install prefixes of {len(rebuild)} package(s), which colcon "
-                    "cannot switch in place",
-                )
-            )
-        elif stale := step.stale_interfaces(rebuild):
-            for name in stale:
-                shutil.rmtree(base / name, ignore_errors=True)
-            emptied += tuple(base / name for name in stale)
-            self.containers.emit(
-                StepNote(
-                    step.name,
-                    f"building {', '.join(stale)} afresh: interface packages whose interface dependencies changed, "
-                    "whose type hashes rosidl's incremental build would keep",
-                )
-            )
+        emptied += self._build_afresh(workspace, step, rebuild)
         sync = self.containers.sync(workspace, step.name, step.image, user, labels, emptied)
         whole = sync is not None and (sync.fresh or sync.installed != listing_digest(workspace.ws_dir / "install"))
         if whole:

@@ -58,6 +58,17 @@ def test_the_page_shows_live_frames(page):
     page.wait_for("document.getElementById('camera-info').textContent.startsWith('320x240 at')")
 
 
+def test_the_picture_comes_back_after_the_ui_service_restarts(page, demo):
+    """`espdock compose restart camera_ui`: the server's clean stop ended the stream as a finished
+    picture, and the page went on showing that one frame (the settings and QR text still live)."""
+    page.wait_for("document.getElementById('stream').naturalWidth === 320")
+    assert distinct_frames(page, 1.0) >= 5
+    demo.compose("restart", "-t", "5", "camera_ui")
+    deadline = time.monotonic() + 60
+    while distinct_frames(page, 1.0) < 5:
+        assert time.monotonic() < deadline, "the stream did not come back after the restart"
+
+
 def test_the_swatch_follows_the_led_colour(page):
     colours = []
     deadline = time.monotonic() + 15

@@ -62,6 +62,11 @@ function render(state) {
 const events = new EventSource('/events');
 events.addEventListener('state', (e) => render(JSON.parse(e.data)));
 $('stream').addEventListener('error', () => setTimeout(restartStream, 1000));
+// A UI server that stopped cleanly (a restart) ended the stream as a finished picture, which
+// fires no error: the events reconnecting to its successor say the stream needs it too.
+let eventsLost = false;
+events.addEventListener('error', () => { eventsLost = true; });
+events.addEventListener('open', () => { if (eventsLost) restartStream(); eventsLost = false; });
 
 for (const slider of form.querySelectorAll('input[type=range]')) {
   slider.addEventListener('input', () => { $('out-' + slider.name).textContent = slider.value; });

@@ -64,7 +64,7 @@ unit: $(VENV)/.installed
 demo: setup
 	# Builds ws/ and the runtime image compose.yaml names (espdock/demo:latest: espdock.toml asks for it).
 	$(ESPDOCK) build --only ros
-	@echo "espdock demo: the camera UI is at http://127.0.0.1:8080 (Ctrl-C stops it)"
+	@echo "espdock demo: its console names the camera UI's address (http://127.0.0.1:8080 unless ESPDOCK_DEMO_PORT or ESPDOCK_DEMO_BIND, in the environment or .env, say otherwise); Ctrl-C stops it"
 	# --attach demo: one console, and Ctrl-C stops every service, not only `demo`. Ctrl-C is
 	# how the demo ends: its 130 is no failure of make's.
 	$(ESPDOCK) compose --profile sim up --attach demo || [ $$? -eq 130 ]

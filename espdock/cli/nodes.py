@@ -95,6 +95,12 @@ def compose(ctx: typer.Context, workspace: WorkspaceOption = None) -> None:
             "interrupted; Compose stopped the services, their containers remain (stopped)",
             "`espdock compose down` removes them (with the same -p/--profile options as `up`).",
         ) from None
+    if subcommand == "up" and code != 0 and (running := engine.compose_services_running(ws.root)):
+        # `up` failed on one service (its port taken, say) after starting others, which run on.
+        notify(
+            f"compose up failed (exit code {code}), and these services are still running: {', '.join(running)}; "
+            "`espdock compose down` stops them (with the same -p/--profile options as `up`)"
+        )
     raise typer.Exit(code)
 
 

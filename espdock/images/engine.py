@@ -967,6 +967,14 @@ class Engine:
             _remove(self._handle(container_id), stop=False)
         return len(started)
 
+    def compose_services_running(self, project_dir: Path) -> list[str]:
+        """The services of the compose project in PROJECT_DIR that have a running container."""
+        listed = self._all_containers(
+            {"label": [f"com.docker.compose.project.working_dir={project_dir}"], "status": ["running"]}
+        )
+        labels = [c.get("Labels") or {} for c in listed]
+        return sorted({str(lab.get("com.docker.compose.service", "?")) for lab in labels})
+
     def containers(self, labels: Mapping[str, str]) -> list[str]:
         """Names of containers (running or not) carrying all LABELS."""
         listed = self._all_containers({"label": _label_selector(labels)})

@@ -424,3 +424,30 @@ def test_shell_on_the_official_image_has_the_workspace_sourced(engine, tmp_path)
     assert shell.returncode == 0, shell.stdout + shell.stderr
     assert "/workspace/ws/install/beacon_nodes/" in shell.stdout
     assert "ament: /workspace/ws/install/beacon_nodes" in shell.stdout and "/opt/ros/jazzy" in shell.stdout
+
+
+def test_compose_up_that_fails_on_a_taken_port_names_the_services_it_left_running(engine, tmp_path):
+    """`make demo` with the UI's port taken: Compose failed on that service and left the others
+    running (restart: unless-stopped), and nothing said so."""
+    import socket
+
+    root = python_workspace(tmp_path / "taken")
+    project = f"espdock-test-taken-{os.getpid()}"
+    with socket.socket() as holder:
+        holder.bind(("127.0.0.1", 0))
+        holder.listen()
+        port = holder.getsockname()[1]
+        (root / "compose.yaml").write_text(
+            "services:\n"
+            "  first:\n    image: debian:bookworm-slim\n    command: [sleep, '60']\n    init: true\n"
+            f"  second:\n    image: debian:bookworm-slim\n    command: [sleep, '60']\n    init: true\n"
+            f"    depends_on: [first]\n    ports: ['127.0.0.1:{port}:80']\n"
+        )
+        try:
+            up = espdock("compose", "-p", project, "up", cwd=root, timeout=120)
+            assert up.returncode != 0, up.stdout + up.stderr
+            said = " ".join((up.stdout + up.stderr).split())
+            assert "these services are still running: first; `espdock compose down` stops them" in said, said
+        finally:
+            subprocess.run(["docker", "compose", "-p", project, "down", "-t", "0"], cwd=root, capture_output=True,
+                           check=False)  # fmt: skip

@@ -102,9 +102,9 @@ def starter_compose(project: str, image: str, executables: dict[str, list[str]])
 
 def foreign_runtime_images(text: str, own: str) -> tuple[list[str], str | None]:
     """The images TEXT (a compose file) runs that are another workspace's runtime images
-    (espdock/<name>:latest where OWN, espdock/<this workspace's name>, is not), and its project
-    name where that is the same other workspace's: a copied or cloned workspace's compose file
-    still naming the original, whose nodes it would run and whose containers it would replace."""
+    (espdock/<name>:latest where OWN, espdock/<this workspace's name>, is not), and, with those, its
+    project name (`name:`): a copied or cloned workspace's compose file still naming the original,
+    whose nodes it would run and, under the same project name, whose containers it would replace."""
     try:
         data = yaml.safe_load(text)
     except yaml.YAMLError:
@@ -126,9 +126,8 @@ def foreign_runtime_images(text: str, own: str) -> tuple[list[str], str | None]:
         and image.rpartition(":")[0] != own
         and not image.startswith(("espdock/ros-", "espdock/idf-"))  # keyed images, not a workspace's
     ]
-    names = {image.rpartition(":")[0].removeprefix("espdock/") for image in foreign}
     project = data.get("name") if isinstance(data, dict) else None
-    return foreign, project if isinstance(project, str) and project in names else None
+    return foreign, project if foreign and isinstance(project, str) and "$" not in project else None
 
 
 def foreign_compose_warning(root: Path, own: str, args: list[str] | tuple[str, ...]) -> str | None:
@@ -145,6 +144,7 @@ def foreign_compose_warning(root: Path, own: str, args: list[str] | tuple[str, .
     if not foreign:
         return None
     replaced = f", and its project `name: {project}` is that workspace's too (its containers get replaced)"
+    # The project name is kept by a copy whatever it is (this repository's is espdock-demo).
     rename = f" and name: {own.removeprefix('espdock/')}"
     return (
         f"warning: {path.name} runs {', '.join(foreign)}, another workspace's runtime image, not this one's "

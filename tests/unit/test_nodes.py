@@ -272,8 +272,12 @@ def test_a_compose_file_that_runs_another_workspace_s_runtime_image_is_found():
     # A copy or clone of the workspace under another name still runs the original's nodes.
     assert foreign_runtime_images(original, "espdock/robot-copy") == (["espdock/robot:latest"], "robot")
     assert foreign_runtime_images(original, "espdock/robot") == ([], None)
+    # Whatever its project name (this repository's is espdock-demo, its image espdock/demo): a
+    # copy keeps it, and replaces the original's containers. It went unsaid where they differed.
     other_project = original.replace("name: robot", "name: sim")
-    assert foreign_runtime_images(other_project, "espdock/robot-copy") == (["espdock/robot:latest"], None)
+    assert foreign_runtime_images(other_project, "espdock/robot-copy") == (["espdock/robot:latest"], "sim")
+    demo = (Path(__file__).parents[2] / "compose.yaml").read_text()
+    assert foreign_runtime_images(demo, "espdock/demo52x") == (["espdock/demo:latest"], "espdock-demo")
     # Not a workspace's runtime image: keyed images, an interpolated one, anyone else's.
     for image in ("espdock/ros-jazzy-runtime:0123abcd", "espdock/${NAME}:latest", "microros/micro-ros-agent:jazzy"):
         assert foreign_runtime_images(f"services:\n  a:\n    image: {image}\n", "espdock/robot") == ([], None)

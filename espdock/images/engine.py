@@ -1110,8 +1110,10 @@ def _label_selector(labels: Mapping[str, str]) -> list[str]:
 
 
 def _run_argv(docker_cli: str, name: str, spec: RunSpec, host_users: bool = False) -> list[str]:
-    """`docker run` of SPEC as container NAME, removed when it ends, signals left to espdock to pass on."""
-    argv = [docker_cli, "run", "--rm", "--name", name, "--sig-proxy=false", "--interactive"]
+    """`docker run` of SPEC as container NAME, signals left to espdock to pass on. Without --rm, which
+    made the docker CLI exit 0 whatever the container's code against Podman's compat API (4.3):
+    run_foreground removes the container when it ends, and the sweep one a killed espdock left."""
+    argv = [docker_cli, "run", "--name", name, "--sig-proxy=false", "--interactive"]
     argv += ["--tty"] if spec.tty else []
     argv += ["--workdir", spec.workdir] + (["--user", spec.user] if spec.user else [])
     argv += [arg for key, value in spec.env for arg in ("--env", f"{key}={value}")]

@@ -187,6 +187,11 @@ def test_podman_builds_the_images_with_the_ca_as_a_secret_and_builds_edits_and_r
     run = espdock("run", "beacon_nodes", "once", cwd=root, env=env)
     assert run.returncode == 0, run.stdout + run.stderr
     assert "word: podman" in run.stdout
+    # A node that fails fails `espdock run`: the docker CLI's `run --rm` said 0 whatever the
+    # container's code against Podman's compat API.
+    failed = espdock("run", "beacon_nodes", "beacon", "--ros-args", "-p", "period:=fast", cwd=root, env=env)
+    assert failed.returncode not in (0, 130), failed.stdout + failed.stderr
+    assert podman.docker("ps", "-aq", check=False).stdout.strip() == "", "the container is removed all the same"
 
 
 def test_podman_imports_a_root_filesystem_under_its_own_tag(podman, tmp_path):

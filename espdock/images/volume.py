@@ -19,11 +19,12 @@ import os
 import posixpath
 import re
 import shutil
+import stat
 import tarfile
 import tempfile
 from collections.abc import Collection, Iterator
 from dataclasses import dataclass
-from pathlib import Path
+from pathlib import Path, PurePosixPath
 
 from espdock import durable, interrupts
 from espdock.build.stamps import source_files
@@ -256,9 +257,7 @@ def _unpacked(archive: Path, beside: Path, owner: tuple[int, int]) -> Path:
     staging = Path(tempfile.mkdtemp(prefix=".espdock-fetched-", dir=beside))
     try:
         with tarfile.open(archive) as tar:
-            # "tar": no absolute names or ones leading out; links may lead anywhere (a symlink
-            # install's point at the build dirs), as colcon made them.
-            tar.extractall(staging, filter="tar")
+            _extract(tar, staging)
         if os.geteuid() == 0:
             give_tree(staging, owner)
     except (tarfile.ReadError, EOFError) as exc:
@@ -268,6 +267,22 @@ def _unpacked(archive: Path, beside: Path, owner: tuple[int, int]) -> Path:
         shutil.rmtree(staging, ignore_errors=True)
         raise
     return staging
+
+
+def _extract(tar: tarfile.TarFile, where: Path) -> None:
+    """Extract TAR into WHERE through tarfile's "tar" filter: no absolute names or ones leading out,
+    no setuid, setgid, sticky or group and other write bits; links may lead anywhere (a symlink
+    install's point at the build dirs), as colcon made them. Python before 3.11.4 (Debian
+    bookworm's 3.11.2) has no filters: the same checks, made here."""
+    if hasattr(tarfile, "tar_filter"):
+        tar.extractall(where, filter="tar")
+        return
+    members = tar.getmembers()
+    for member in members:
+        if member.name.startswith("/") or ".." in PurePosixPath(member.name).parts:
+            raise ValueError(f"{member.name}: a name out of the directory a copy from the engine goes to")
+        member.mode &= ~(stat.S_ISUID | stat.S_ISGID | stat.S_ISVTX | stat.S_IWGRP | stat.S_IWOTH)
+    tar.extractall(where, members)
 
 
 def _cut_short(archive: Path, why: str) -> EngineUnavailable:

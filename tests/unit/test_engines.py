@@ -421,3 +421,35 @@ def test_a_tool_s_paths_in_the_workspace_mount_are_shown_as_the_user_s():
     # Only the mount point itself: other paths that contain its name stay as they are.
     for line in ("/workspaces/x", "src/workspace/x", "~/workspace/x", "/workspace_2/x", "no path here"):
         assert host_paths(line, ws) == line
+
+
+def _archive(path: Path, members: dict[str, tuple[bytes, int]]) -> Path:
+    with tarfile.open(path, "w") as tar:
+        for name, (data, mode) in members.items():
+            info = tarfile.TarInfo(name)
+            info.size, info.mode = len(data), mode
+            tar.addfile(info, io.BytesIO(data))
+    return path
+
+
+def test_a_copy_back_from_the_volume_unpacks_on_a_python_without_tar_filters(tmp_path, monkeypatch):
+    """Python before 3.11.4 (Debian bookworm's 3.11.2) has no extraction filters: every volume-mode
+    build crashed on `filter=` (exit 70, after colcon had built), and no install/ came back."""
+    original = tarfile.TarFile.extractall
+
+    def old_extractall(self, path=".", members=None, *, numeric_owner=False, **filters):
+        if filters:
+            raise TypeError("TarFile.extractall() got an unexpected keyword argument 'filter'")
+        return original(self, path, members, numeric_owner=numeric_owner)
+
+    monkeypatch.setattr(tarfile.TarFile, "extractall", old_extractall)
+    monkeypatch.delattr(tarfile, "tar_filter")
+    archive = _archive(tmp_path / "ok.tar", {"install/p/lib/p/node": (b"#!/bin/sh\n", 0o4777)})
+    staging = volume._unpacked(archive, tmp_path, (os.getuid(), os.getgid()))
+    node = staging / "install/p/lib/p/node"
+    assert node.read_bytes() == b"#!/bin/sh\n" and node.stat().st_mode & 0o7777 == 0o755, "as the tar filter has it"
+    bad = _archive(tmp_path / "bad.tar", {"install/../../escaped": (b"x", 0o644)})
+    with pytest.raises(ValueError, match="out of the directory"):
+        volume._unpacked(bad, tmp_path, (os.getuid(), os.getgid()))
+    assert not (tmp_path.parent / "escaped").exists()
+    assert list(tmp_path.glob(".espdock-fetched-*")) == [staging], "the refused one's staging dir went"

@@ -230,6 +230,13 @@ def _labels(workspace: Workspace, what: str) -> tuple[tuple[str, str], ...]:
     return ((LABEL_WORKSPACE, str(workspace.root)), ("io.espdock.step", what))
 
 
+# Without a terminal espdock passes Ctrl-C on to the container's PID 1, tini (the images'
+# entrypoint), which passes it to its child alone: a shell reading a script from stdin waited for
+# the command it ran, which never got it, then ran the rest. tini -g's setting: to the child's
+# process group, as a terminal sends it.
+SIGNAL_GROUP = ("TINI_KILL_PROCESS_GROUP", "1")
+
+
 def node_spec(
     workspace: Workspace,
     image: str,
@@ -250,7 +257,7 @@ def node_spec(
         workdir="/tmp",
         user=f"{owner[0]}:{owner[1]}",
         mounts=(*mounts, *profile_mounts(env, Path.cwd())),
-        env=(("HOME", "/tmp"), *node_env(env)),
+        env=(("HOME", "/tmp"), SIGNAL_GROUP, *node_env(env)),
         labels=_labels(workspace, "run"),
         devices=tuple(f"{host}:{inside}" for host, inside in devices),
         group_add=tuple(sorted({os.stat(host).st_gid for host, _ in devices})),
@@ -333,6 +340,7 @@ def shell_spec(
         # The entrypoint sources this install tree when it exists (docker/ros-entrypoint.sh).
         env=(
             ("HOME", home),
+            SIGNAL_GROUP,
             *named,
             *colcon,
             ("ESPDOCK_WS_INSTALL", f"{root}/install"),

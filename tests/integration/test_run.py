@@ -410,6 +410,29 @@ def test_the_shell_opens_where_you_are_keeps_its_home_and_sources_install_as_ros
     assert no_containers_left(engine, node_workspace) == []
 
 
+def test_ctrl_c_stops_a_script_piped_into_the_shell(engine, node_workspace):
+    """`... | espdock shell`, then Ctrl-C: the command running went on to its end and the rest of
+    the script ran after it (Ctrl-C reached bash alone, which waited for its command), exit 130."""
+    after = node_workspace / "ws/build/after-ctrl-c"
+    script = f"echo started\nsleep 30\necho ran > /workspace/ws/build/{after.name}\n"
+    process = subprocess.Popen([sys.executable, "-m", "espdock", "shell"], cwd=node_workspace, stdin=subprocess.PIPE,
+                               stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)  # fmt: skip
+    try:
+        process.stdin.write(script)
+        process.stdin.close()
+        assert "started" in process.stdout.readline()
+        started = time.monotonic()
+        process.send_signal(signal.SIGINT)
+        assert process.wait(timeout=60) == 130
+        assert time.monotonic() - started < 15, "the script's sleep ran to its end"
+    finally:
+        if process.poll() is None:
+            process.kill()
+    time.sleep(1)
+    assert not after.exists(), "the script went on after Ctrl-C"
+    assert no_containers_left(engine, node_workspace) == []
+
+
 @pytest.mark.slow
 def test_shell_on_the_official_image_has_the_workspace_sourced(engine, tmp_path):
     """The official image's build stage keeps its own entrypoint, which sources ROS only."""

@@ -104,6 +104,9 @@ def compose(ctx: typer.Context, workspace: WorkspaceOption = None) -> None:
     raise typer.Exit(code)
 
 
+RUN_FILES = "the files and devices `espdock run` passes in (--volume, --device, FASTRTPS_DEFAULT_PROFILES_FILE)"
+
+
 @app.command(context_settings={"allow_interspersed_args": False, "ignore_unknown_options": True})
 @command
 def run(
@@ -139,6 +142,9 @@ def run(
     path = nodes.find_executable(ws, packages, package, executable)
     # Only what runs must be served: another package's missing key does not stop this node.
     runner, image = runtime_image(ws, config, build_plan(ws, config, [], PackageKind.ROS, checked=(package,)))
+    if mounts or devices or nodes.profile_mounts(os.environ, Path.cwd()):
+        # An engine that does not see this machine would mount its own machine's path, or none.
+        runner.containers.needs_this_machine(ws, image, RUN_FILES, firmware=False)
     tty = bool(sys.stdin and sys.stdin.isatty()) and sys.stdout.isatty()
     spec = nodes.node_spec(
         ws,

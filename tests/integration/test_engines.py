@@ -340,6 +340,12 @@ def test_volume_mode_builds_where_the_engine_cannot_see_rebuilds_edits_and_never
     assert tcp_engine.created(since, "io.espdock.step=mount-check") == []
     run = espdock("run", "beacon_nodes", "once", cwd=root, env=tcp_engine.env)
     assert "word: three" in run.stdout, run.stdout + run.stderr
+    # A file passed in would be the engine machine's (or none): exit 8 saying so, where it was the
+    # engine's "bind source path does not exist" and a hint to fix what the engine says.
+    passed = espdock("run", "-v", "espdock.toml:/params/p.toml:ro", "beacon_nodes", "once", cwd=root,
+                     env=tcp_engine.env)  # fmt: skip
+    assert passed.returncode == 8, passed.stdout + passed.stderr
+    assert "the files and devices `espdock run` passes in (--volume" in passed.stderr
 
     # Nothing changed: decided on the host, no container on the engine.
     since = time.time()

@@ -441,7 +441,8 @@ class Engine:
         """(id, tags, bytes no other image shares, size with shared layers) of every image carrying
         LABEL. SHARED: tell the shared layers apart, from the engine's disk-usage report (slow, and
         one at a time per engine: while another runs, each image's whole size stands in)."""
-        usage = self._disk_usage() if shared else None
+        # Podman's report (4.3) has no labels and tags without their repository: its listing then.
+        usage = self._disk_usage() if shared and self.info().kind != "podman" else None
         report = None if usage is None else usage.get("Images") or []
         if report is None:
             report = self._image_listing({"label": [label]}, "failed to list its images")
@@ -1094,9 +1095,18 @@ def _labelled(report: Sequence[Mapping[str, Any]], label: str) -> list[tuple[str
         if label not in (image.get("Labels") or {}):
             continue
         size, common = int(image.get("Size", 0)), int(image.get("SharedSize", -1) or 0)
-        tags = tuple(t for t in image.get("RepoTags") or () if t != "<none>:<none>")
+        tags = tuple(_short_name(t) for t in image.get("RepoTags") or () if t != "<none>:<none>")
         found.append((image["Id"], tags, size - max(common, 0), size))
     return found
+
+
+def _short_name(tag: str) -> str:
+    """TAG as espdock names it: Podman lists espdock/x:k as localhost/espdock/x:k, and a pulled
+    image with its registry (docker.io/...), where Docker lists the name as it was given."""
+    for prefix in ("localhost/", "docker.io/library/", "docker.io/"):
+        if tag.startswith(prefix):
+            return tag.removeprefix(prefix)
+    return tag
 
 
 def _label_args(labels: Mapping[str, str]) -> list[str]:

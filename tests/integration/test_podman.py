@@ -192,6 +192,11 @@ def test_podman_builds_the_images_with_the_ca_as_a_secret_and_builds_edits_and_r
     failed = espdock("run", "beacon_nodes", "beacon", "--ros-args", "-p", "period:=fast", cwd=root, env=env)
     assert failed.returncode not in (0, 130), failed.stdout + failed.stderr
     assert podman.docker("ps", "-aq", check=False).stdout.strip() == "", "the container is removed all the same"
+    # The runtime image of the build before the edit is no longer used: prune finds it. Podman's
+    # disk-usage report has no labels and short tags, and its listing localhost/ names: it found none.
+    pruned = espdock("prune", "--keep", "0", "--dry-run", cwd=root, env=env)
+    assert pruned.returncode == 0, pruned.stdout + pruned.stderr
+    assert "; no longer used by its inputs)" in pruned.stdout and "localhost/" not in pruned.stdout, pruned.stdout
 
 
 def test_podman_imports_a_root_filesystem_under_its_own_tag(podman, tmp_path):

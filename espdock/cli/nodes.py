@@ -95,10 +95,14 @@ def compose(ctx: typer.Context, workspace: WorkspaceOption = None) -> None:
             "interrupted; Compose stopped the services, their containers remain (stopped)",
             "`espdock compose down` removes them (with the same -p/--profile options as `up`).",
         ) from None
-    if subcommand == "up" and code != 0 and (running := engine.compose_services_running(ws.root)):
-        # `up` failed on one service (its port taken, say) after starting others, which run on.
+    detached = {"-d", "--detach", "--wait"} & set(ctx.args)
+    if subcommand == "up" and not detached and (running := engine.compose_services_running(ws.root)):
+        # A foreground `up` that returned with services left running: it failed on one service
+        # (its port taken, say) after starting others, or the service it attached to (--attach)
+        # stopped. Ctrl-C no longer reaches them.
+        how = f"compose up failed (exit code {code})" if code else "compose up returned"
         notify(
-            f"compose up failed (exit code {code}), and these services are still running: {', '.join(running)}; "
+            f"{how}, and these services are still running: {', '.join(running)}; "
             "`espdock compose down` stops them (with the same -p/--profile options as `up`)"
         )
     raise typer.Exit(code)

@@ -471,6 +471,17 @@ def test_compose_up_that_fails_on_a_taken_port_names_the_services_it_left_runnin
             assert up.returncode != 0, up.stdout + up.stderr
             said = " ".join((up.stdout + up.stderr).split())
             assert "these services are still running: first; `espdock compose down` stops them" in said, said
+            # The service `up --attach` follows ends (`make demo`'s console, restarted from another
+            # terminal): up returns, and the rest run on where Ctrl-C no longer reaches them.
+            (root / "compose.yaml").write_text(
+                "services:\n"
+                "  first:\n    image: debian:bookworm-slim\n    command: [sleep, '60']\n    init: true\n"
+                "  console:\n    image: debian:bookworm-slim\n    command: [sleep, '1']\n    depends_on: [first]\n"
+            )
+            attached = espdock("compose", "-p", project, "up", "--attach", "console", cwd=root, timeout=120)
+            said = " ".join((attached.stdout + attached.stderr).split())
+            assert attached.returncode == 0, said
+            assert "compose up returned, and these services are still running: first;" in said, said
         finally:
             subprocess.run(["docker", "compose", "-p", project, "down", "-t", "0"], cwd=root, capture_output=True,
                            check=False)  # fmt: skip

@@ -156,6 +156,7 @@ def _test_ros(ws, config, every, ros, colcon_args, locked, official, push_cache,
     engine = bootstrap.ensure_engine(os.environ, notify)
     runner = Runner(engine, config, os.environ, reporter, invoking_user(os.environ, ws.root), push_cache=push_cache)
     builds = tuple(s for s in plan.steps if isinstance(s, ColconBuild))
+    runner.containers.known_to_need_this_machine(ws, TEST_RESULTS, firmware=False)  # before the test image
     try:
         runner.run(Plan(plan.workspace, tuple(s for s in plan.steps if s not in builds), plan.idf_images))
         # Refused before any build in the workspace volume, which the results would not leave.

@@ -17,7 +17,7 @@ from espdock.errors import ConfigError, EspdockError, WorkspaceError, WorkspaceN
 from espdock.events import Emit, StepNote
 from espdock.images import volume
 from espdock.images.engine import Engine, Mount, RunSpec
-from espdock.images.visibility import CHECKED, engine_sees, ensure_engine_sees, workspace_mount
+from espdock.images.visibility import CHECKED, engine_sees, ensure_engine_sees, sees_as_checked, workspace_mount
 from espdock.workspace import Workspace
 
 
@@ -122,6 +122,13 @@ class Containers:
                     "Remove the volume (`espdock prune --volume`) and build again: it is made afresh.",
                 )
         return sync
+
+    def known_to_need_this_machine(self, workspace: Workspace, what: str, firmware: bool = True) -> None:
+        """Refuse WHAT as needs_this_machine does where the answer is known without a container
+        (workspace_mode volume, or auto with the engine checked before): before any image work."""
+        mode = self.config.workspace_mode
+        if mode == "volume" or (mode == "auto" and sees_as_checked(self.engine, workspace) is False):
+            raise volume_mode_refused(what, firmware)
 
     def needs_this_machine(self, workspace: Workspace, image: str, what: str, firmware: bool = True) -> None:
         """Refuse WHAT (a command that needs this machine's files or devices) in volume mode."""

@@ -96,20 +96,32 @@ def ensure_engine_sees(
         raise not_visible(engine, workspace)
 
 
+def _check_record(engine: Engine, workspace: Workspace) -> dict[str, str]:
+    """What engine_sees's answer for WORKSPACE is kept with: the engine and the mount."""
+    mount = workspace_mount(workspace)
+    return {"engine": engine.info().identity, "root": str(mount.source), "mount": mount.target}
+
+
+def sees_as_checked(engine: Engine, workspace: Workspace) -> bool | None:
+    """What engine_sees found the last time it asked ENGINE about WORKSPACE, or None: no container needed."""
+    record = _check_record(engine, workspace)
+    try:
+        cached = json.loads((workspace.ws_dir / "build" / CHECKED).read_text())
+        if {k: cached.get(k) for k in record} == record:
+            return cached.get("sees", True) is True
+    except (OSError, ValueError, AttributeError):
+        pass
+    return None
+
+
 def engine_sees(
     engine: Engine, workspace: Workspace, image: str, user: str, labels: tuple[tuple[str, str], ...]
 ) -> bool:
     """Whether a container of IMAGE, run as USER, reads the workspace at its mount path; the
     answer, either way, is kept for the engine and path (workspace_mode auto asks it each build)."""
     mount = workspace_mount(workspace)
-    record = {"engine": engine.info().identity, "root": str(mount.source), "mount": mount.target}
-    cache = workspace.ws_dir / "build" / CHECKED
-    try:
-        cached = json.loads(cache.read_text())
-        if {k: cached.get(k) for k in record} == record:
-            return cached.get("sees", True) is True
-    except (OSError, ValueError, AttributeError):
-        pass
+    if (known := sees_as_checked(engine, workspace)) is not None:
+        return known
     nonce = secrets.token_hex(16)
     probe = mount.source / f"{PROBE_PREFIX}{os.getpid()}-{nonce[:8]}"
     output: list[str] = []
@@ -140,8 +152,9 @@ def engine_sees(
             "Let that user read and enter it and its parent directories (e.g. `chmod o+rx` on them), "
             "or move the workspace somewhere it can.",
         )
+    cache = workspace.ws_dir / "build" / CHECKED
     cache.parent.mkdir(parents=True, exist_ok=True)
-    cache.write_text(json.dumps({**record, "sees": code == 0}) + "\n")
+    cache.write_text(json.dumps({**_check_record(engine, workspace), "sees": code == 0}) + "\n")
     return code == 0
 
 

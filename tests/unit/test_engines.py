@@ -453,3 +453,20 @@ def test_a_copy_back_from_the_volume_unpacks_on_a_python_without_tar_filters(tmp
         volume._unpacked(bad, tmp_path, (os.getuid(), os.getgid()))
     assert not (tmp_path.parent / "escaped").exists()
     assert list(tmp_path.glob(".espdock-fetched-*")) == [staging], "the refused one's staging dir went"
+
+
+def test_what_needs_this_machine_is_refused_before_any_image_where_the_volume_is_known(ws):
+    """`espdock test` on an engine that does not see the workspace built its test image (minutes,
+    left on that engine), then refused with exit 8: the engine's answer was known from the build."""
+    engine = FakeEngine(run_script=colcon_installs(ws), sees_host=False)
+    auto = runner(engine).containers
+    auto.known_to_need_this_machine(ws, "the results")  # never asked: no container to find out here
+    assert engine.runs == []
+    with pytest.raises(WorkspaceNotVisible):
+        auto.needs_this_machine(ws, "img", "the results")  # asks the engine, and keeps its answer
+    asked = len(engine.runs)
+    with pytest.raises(WorkspaceNotVisible, match="the results must be on this machine"):
+        runner(engine).containers.known_to_need_this_machine(ws, "the results")
+    assert len(engine.runs) == asked, "decided from the kept answer"
+    with pytest.raises(WorkspaceNotVisible):
+        runner(FakeEngine(), Config(workspace_mode="volume")).containers.known_to_need_this_machine(ws, "x")

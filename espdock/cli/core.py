@@ -10,7 +10,7 @@ import stat
 import sys
 from collections.abc import Callable
 from pathlib import Path
-from typing import Annotated, NoReturn, ParamSpec
+from typing import Annotated, NoReturn, ParamSpec, TextIO
 
 import typer
 import typer.core
@@ -46,8 +46,14 @@ def output_closed() -> NoReturn:
     ends a command. The container the command ran is stopped and removed on the way out, as on
     Ctrl-C; stdout goes to /dev/null first, or the exit's flush would fail again."""
     console.quiet = True
-    os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+    _discard(sys.stdout)
     raise SystemExit(OUTPUT_CLOSED)
+
+
+def _discard(stream: TextIO) -> None:
+    """What is still to be written to STREAM (stdout, stderr) goes to /dev/null: its reader went
+    away or its disk is full, and the flush at exit would fail again."""
+    os.dup2(os.open(os.devnull, os.O_WRONLY), stream.fileno())
 
 
 def _stdout_closed() -> bool:
@@ -71,7 +77,7 @@ def _errors_unread() -> None:
     """The reader of espdock's errors went away (`espdock new X 2>&1 | head -1`): what is left of
     them goes nowhere, and the exit code stays the error's (rich's own would make it 1)."""
     err_console.quiet = True
-    os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stderr.fileno())
+    _discard(sys.stderr)
 
 
 err_console.on_broken_pipe = _errors_unread
@@ -118,8 +124,7 @@ def output_failed(exc: BaseException) -> EspdockError | None:
     if not isinstance(exc, OSError) or exc.errno != errno.ENOSPC or exc.filename is not None or not _stdout_full():
         return None
     where = _stdout_name()
-    # What is still buffered goes nowhere, or the flush at exit would fail again.
-    os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+    _discard(sys.stdout)
     return DiskFull(
         f"espdock could not write its output to {where}: {exc.strerror}",
         "Free space there, or send the output elsewhere, and run the command again.",

@@ -251,7 +251,7 @@ def buildable_chip(chip: str, supported: Sequence[str], link: str = transport.UD
     """Whether `espdock build --target CHIP` would build a package that lists SUPPORTED chips
     (none: any) in its idf_component.yml and talks over LINK on CHIP: the checks of
     plan.package_target and transport.check_transport."""
-    if link == transport.USB_SERIAL_JTAG and chip not in transport.USB_SERIAL_JTAG_CHIPS:
+    if transport.lacks_port(link, chip):
         return False
     return chip in CHIP_TARGETS and chip not in LONGCALLS_RISCV and (not supported or chip in supported)
 
@@ -281,7 +281,7 @@ def check_chip(
             hint = f"Connect an {expected} board: espdock cannot build {package} for an {found}"
             if supported and found not in supported:
                 hint += f" (it supports {', '.join(supported)})."
-            elif link == transport.USB_SERIAL_JTAG and found not in transport.USB_SERIAL_JTAG_CHIPS:
+            elif transport.lacks_port(link, found):
                 hint += f" (its transport is USB-Serial-JTAG, a port an {found} has not)."
             else:
                 hint += "."

@@ -60,10 +60,15 @@ def firmware_transport(defaults: Mapping[str, bytes], target: str) -> str:
     return chosen
 
 
+def lacks_port(transport: str, target: str) -> bool:
+    """Whether chip TARGET has no hardware for TRANSPORT (USB-Serial-JTAG on a chip without one)."""
+    return transport == USB_SERIAL_JTAG and target not in USB_SERIAL_JTAG_CHIPS
+
+
 def check_transport(package: str, transport: str, target: str, new: bool = False) -> None:
     """Refuse a transport the chip has no hardware for, before anything builds; NEW: as `espdock
     new --transport` asks for it, before the package exists."""
-    if transport == USB_SERIAL_JTAG and target not in USB_SERIAL_JTAG_CHIPS:
+    if lacks_port(transport, target):
         chips = " or ".join(USB_SERIAL_JTAG_CHIPS)
         if new:
             raise ConfigError(

@@ -7,12 +7,12 @@ writes back for "-" rows (write_pins, pin_idf_image: the only functions here tha
 
 from __future__ import annotations
 
-import os
 import re
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
+from espdock import durable
 from espdock.defaults import locate
 from espdock.errors import WorkspaceError
 from espdock.images.containers import give_to, make_dirs_for
@@ -114,17 +114,14 @@ def write_pins(root: Path, resolved: Mapping[str, Source], owner: tuple[int, int
 
 
 def _write(path: Path, text: str, owner: tuple[int, int]) -> None:
+    """PATH holds TEXT, in one rename: a file it replaces keeps its mode and owner, a new one
+    (and the directories it needs) is OWNER's."""
     if path.exists():
         write_atomically(path, text)
         return
     make_dirs_for(path.parent, owner)
-    fresh = path.with_name(f".{path.name}.espdock-tmp")
-    try:
-        fresh.write_text(text)
-        give_to(fresh, owner)
-        os.replace(fresh, path)
-    finally:
-        fresh.unlink(missing_ok=True)
+    durable.write_text(path, text)
+    give_to(path, owner)
 
 
 @dataclass(frozen=True)

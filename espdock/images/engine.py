@@ -927,12 +927,12 @@ class Engine:
         past its Ctrl-C grace); containers of live espdock processes, and kept ones that have
         stopped, are left alone."""
         listed = self._all_containers({"label": [*_label_selector(labels), LABEL_OWNER]})
-        dead = [
-            c["Id"]
-            for c in listed
-            if not owner_alive((c.get("Labels") or {}).get(LABEL_OWNER, ""))
-            and not (LABEL_KEPT in (c.get("Labels") or {}) and c.get("State") != "running")
-        ]
+        dead = []
+        for container in listed:
+            labelled = container.get("Labels") or {}
+            kept = LABEL_KEPT in labelled and container.get("State") != "running"
+            if not kept and not owner_alive(labelled.get(LABEL_OWNER, "")):
+                dead.append(container["Id"])
         for container_id in dead:
             _remove(self._handle(container_id), stop=False)
         return len(dead)

@@ -95,10 +95,13 @@ def firmware_plan(
     return firmware_step(build_plan(ws, config, [name], env=env, notify=notify), name)
 
 
-def current_tags(ws: Workspace, config: Config, *, env: Mapping[str, str], notify: Callable[[str], None]) -> set[str]:
+def current_tags(ws: Workspace, config: Config, *, env: Mapping[str, str]) -> set[str]:
     """The keyed images the workspace's inputs use now: its plan's images and the runtime image
-    (and its base) `espdock run` makes of the install tree as it is, runtime_image set or not."""
-    plan = build_plan(ws, dataclasses.replace(config, runtime_image=True), [], env=env, notify=notify)
+    (and its base) `espdock run` makes of the install tree as it is, runtime_image set or not.
+    Planned without a word: a plan's notes are the build's to say (prune_auto's plan, after a
+    build, said them a second time)."""
+    config = dataclasses.replace(config, runtime_image=True)
+    plan = build_plan(ws, config, [], env=env, notify=lambda text: None)
     tags = {step.spec.tag for step in plan.steps if isinstance(step, EnsureImage)}
     if any(isinstance(step, ColconBuild) for step in plan.steps):
         # `espdock test`'s: the build image plus the lock's test part.

@@ -86,7 +86,7 @@ def prune(
         return
     keep = config.prune_keep if keep is None else keep
     layers_before = None if dry_run else engine.layers_size()
-    current = current_tags(ws, config, env=os.environ, notify=notify)
+    current = current_tags(ws, config, env=os.environ)
     plan, busy = prune_images(engine, state_dir(os.environ), str(ws.root), current, keep, all_workspaces, dry_run)
     layers_after = None if dry_run else engine.layers_size()
     verb = "would remove" if dry_run else "removed"
@@ -158,7 +158,7 @@ def after_build(engine: Engine, ws: Workspace, config: Config, runner: Runner, b
 
 def _prune_or_warn(engine: Engine, ws: Workspace, config: Config, built: bool) -> None:
     if config.prune_auto:
-        current = current_tags(ws, config, env=os.environ, notify=notify)
+        current = current_tags(ws, config, env=os.environ)
         plan, busy = prune_images(engine, state_dir(os.environ), str(ws.root), current, config.prune_keep, False, False)
         if plan.remove:
             freed = sum(d.size for d in plan.remove if d.tag not in busy)

@@ -133,5 +133,5 @@ def test_the_runtime_images_run_uses_are_current_where_builds_make_none(tmp_path
 
     root = copy_workspace(tmp_path / "w", runtime_image=False)
     ws = find_workspace(root).with_layout(("ws/src",), "ws")
-    tags = current_tags(ws, Config(runtime_image=False), env={}, notify=lambda text: None)
+    tags = current_tags(ws, Config(runtime_image=False), env={})
     assert any(tag.startswith("espdock/ros-jazzy-runtime:") for tag in tags), tags

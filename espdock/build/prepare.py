@@ -14,7 +14,7 @@ from espdock.config import Config, invoking_user
 from espdock.errors import EspdockError
 from espdock.firmware.plan import IdfBuild, firmware_step, unknown_dependencies
 from espdock.layout import ROS_BUILD_BASE, ROSDEP_LOCK
-from espdock.ros import rosdeps, testdeps
+from espdock.ros import interfaces, rosdeps, testdeps
 from espdock.ros.colcon import last_build_args, read_colcon_settings, without_build_testing
 from espdock.ros.plan import ColconBuild, RuntimeImage, checked_packages, ros_image
 from espdock.ros.steps import runtime_spec
@@ -74,8 +74,11 @@ def build_plan(
         inputs, note = current_rosdep_inputs(ws.root, config, packages, inputs, locked, env, owner, built)
         if note:
             notify(note)
+    chosen = select_up_to(packages, names) if names else packages
+    for package in chosen:
+        for line in interfaces.undeclared(package, inputs.package_files.get(package.name, {})):
+            notify(f"warning: {line}")
     if only in (None, PackageKind.FIRMWARE):
-        chosen = select_up_to(packages, names) if names else packages
         for firmware in (p for p in chosen if p.kind is PackageKind.FIRMWARE):
             if unknown := unknown_dependencies(firmware, packages):
                 notify(

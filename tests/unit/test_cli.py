@@ -9,6 +9,7 @@ from pathlib import Path
 
 from espdock.layout import firmware_install_dir
 from tests.conftest import REPO, copy_workspace, espdock
+from tests.robot_packages import write_interface_package
 
 # Any engine use would fail loudly against this address.
 NO_ENGINE = {"DOCKER_HOST": "unix:///nonexistent/docker.sock"}
@@ -496,3 +497,23 @@ def test_a_firmware_project_linked_from_outside_is_refused_when_planned(tmp_path
         result = espdock(*args, cwd=root, env=NO_ENGINE)
         assert result.returncode == 2, (args, result.stderr)
         assert "firmware package led_strip_node is linked from outside the workspace" in result.stderr
+
+
+def test_an_interface_package_using_a_type_of_one_it_does_not_depend_on_is_named_before_the_build(tmp_path):
+    """robot_state_msgs's message holds a robot_msgs/WheelSpeeds without <depend>robot_msgs</depend>:
+    builds passed on the old install of robot_msgs, and micro-ROS's library build failed on it."""
+    root = copy_workspace(tmp_path / "w", packages=())
+    write_interface_package(root / "ws/src", "robot_msgs", service=False)
+    state = write_interface_package(root / "ws/src", "robot_state_msgs", service=False, uses="robot_msgs")
+    planned = espdock("build", "--dry-run", cwd=root, env=NO_ENGINE)
+    assert planned.returncode == 0 and "warning" not in planned.stdout + planned.stderr, planned.stderr
+    manifest = state / "package.xml"
+    manifest.write_text(manifest.read_text().replace("<depend>robot_msgs</depend>", ""))
+    planned = espdock("build", "--dry-run", cwd=root, env=NO_ENGINE)
+    said = " ".join((planned.stdout + planned.stderr).split())
+    assert planned.returncode == 0, said
+    assert (
+        "warning: robot_state_msgs uses robot_msgs/WheelSpeeds (msg/RobotState.msg), but its package.xml does not "
+        "depend on robot_msgs" in said
+    ), said
+    assert f"Add <depend>robot_msgs</depend> to {manifest}" in said

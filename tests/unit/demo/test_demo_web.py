@@ -18,7 +18,7 @@ require("segno")
 from espdock_demo.camera_config import DEFAULT_CONFIG  # noqa: E402
 from espdock_demo.colors import Rgb  # noqa: E402
 from espdock_demo.mjpeg import BOUNDARY, FrameBroadcaster  # noqa: E402
-from espdock_demo.web import CameraUnavailable, LiveState, SetResult, UiApp, make_server  # noqa: E402
+from espdock_demo.web import CameraUnavailable, LiveState, SetResult, UiApp, address_to_open, make_server  # noqa: E402
 
 
 class FakeCamera:
@@ -254,3 +254,17 @@ def test_health_follows_the_executor(ui):
     camera.alive = False
     assert request(port, "GET", "/healthz")[0] == 503
     assert request(port, "GET", "/nothing")[0] == 404
+
+
+@pytest.mark.parametrize(
+    ("published", "opened"),
+    [
+        ("http://127.0.0.1:8080", "http://127.0.0.1:8080"),
+        ("http://192.168.1.20:9000", "http://192.168.1.20:9000"),
+        ("http://0.0.0.0:8080", "http://127.0.0.1:8080 (or this machine's address"),
+        ("http://[::]:8081", "http://[::1]:8081 (or this machine's address"),
+    ],
+)
+def test_the_console_names_an_address_a_browser_opens(published, opened):
+    """ESPDOCK_DEMO_BIND=0.0.0.0 made the console say `open http://0.0.0.0:8080`: no address to open."""
+    assert address_to_open(published).startswith(opened)

@@ -16,6 +16,7 @@ from espdock_demo.colors import Rgb, shorten
 from espdock_demo.health import SIM_NODES, NodeHealth
 from espdock_demo.names import DIAGNOSTICS_TOPIC, LED_COLOR_TOPIC, QR_MESSAGE_TOPIC
 from espdock_demo.ros_common import LATCHED_QOS, TEXT_QOS, spin_node, start_heartbeat
+from espdock_demo.web import address_to_open
 
 
 class DemoMonitor(Node):
@@ -23,7 +24,7 @@ class DemoMonitor(Node):
 
     def __init__(self) -> None:
         super().__init__("demo_monitor")
-        self.url = str(self.declare_parameter("ui_url", "http://127.0.0.1:8080").value)
+        self.url = address_to_open(str(self.declare_parameter("ui_url", "http://127.0.0.1:8080").value))
         period = float(self.declare_parameter("summary_period", 15.0).value)
         watched = list(self.declare_parameter("watch_nodes", list(SIM_NODES)).value)
         self.latest: dict[str, dict[str, str]] = {}

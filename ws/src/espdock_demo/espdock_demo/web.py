@@ -147,6 +147,17 @@ def live_view(app: UiApp, values: Mapping[str, object] | None = None) -> dict[st
     }
 
 
+def address_to_open(url: str) -> str:
+    """URL as a browser can open it: a UI published on every address (ESPDOCK_DEMO_BIND=0.0.0.0
+    or ::) is reached at none of them by that name, so name this machine's own and say the rest."""
+    parts = urlsplit(url)
+    if parts.hostname not in ("0.0.0.0", "::"):
+        return url
+    local = "127.0.0.1" if parts.hostname == "0.0.0.0" else "[::1]"
+    port = f":{parts.port}" if parts.port else ""
+    return f"{parts.scheme}://{local}{port}{parts.path} (or this machine's address: the UI is published on every one)"
+
+
 def make_server(host: str, port: int, app: UiApp) -> ThreadingHTTPServer:
     """A threading HTTP server for APP on HOST:PORT (not yet serving)."""
     server = ThreadingHTTPServer((host, port), _Handler)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import time
+from collections.abc import Sequence
 from typing import TYPE_CHECKING, assert_never
 
 from rich.console import Console
@@ -175,8 +176,8 @@ def nothing_to_build(workspace: Workspace) -> str:
     return said
 
 
-def render_plan(console: Console, plan: Plan) -> None:
-    """Print the steps a plan would run, without running them (--dry-run)."""
+def render_plan(console: Console, plan: Plan, states: Sequence[str] = ()) -> None:
+    """Print the steps a plan would run, without running them (--dry-run), each with its STATE."""
     from espdock.images.engine import format_argv
 
     console.print(Text(f"workspace {plan.workspace.root}", style="bold"))
@@ -209,6 +210,11 @@ def render_plan(console: Console, plan: Plan) -> None:
                 console.print(Text(f"     packages: {', '.join(step.packages)}", style="dim"))
             case _:
                 assert_never(step)
+        if len(states) >= number:
+            state = states[number - 1]
+            console.print(
+                Text.assemble("   now: ", (state, "green" if state.startswith(("up to date", "present")) else "yellow"))
+            )
 
 
 def render_micro_ros_status(console: Console, report: dict) -> None:

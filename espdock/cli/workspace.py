@@ -13,6 +13,7 @@ from rich.text import Text
 from espdock.build.lock import check_locks, lock_rosdeps, lock_workspace, plan_locks, uv_binary
 from espdock.build.manifest import INTERRUPTED, compare, file_hashes, read_manifest, record_build, write_report
 from espdock.build.prepare import workspace_packages
+from espdock.build.preview import preview
 from espdock.build.runner import Runner, stamp_files
 from espdock.cli.core import (
     PASSED,
@@ -122,7 +123,9 @@ def build(
             dry_run=dry_run,
         )
         if dry_run:
-            render_plan(console, plan)
+            render_plan(
+                console, plan, preview(ws, plan, bootstrap.reachable_engine(os.environ), bool(config.cache_registry))
+            )
             return
         if not plan.steps:
             has_any = only is not None and workspace_packages(ws, config.ros_distro)

@@ -59,11 +59,9 @@ class FirmwareSteps:
 
     def idf_build(self, workspace: Workspace, step: IdfBuild) -> tuple[Outcome, str]:
         build_dir = firmware_build_dir(workspace.ws_dir, step.package)
-        stamp_file = StampFile(workspace.ws_dir / "build" / FIRMWARE_STAMPS)
         image_id = self._image_id(step)  # the same after the build: asked once
-        stamps = _firmware_stamp(workspace, step, image_id)
-        listing = {step.package: listing_digest(build_dir, COLCON_RESULT_FILES)}
-        if not step.force and stamp_file.up_to_date(stamps, listing):
+        stamp_file, stamps, current = firmware_state(workspace, step, image_id)
+        if current and not step.force:
             return Outcome.CACHED, f"up to date ({step.target})"
         stamp_file.forget(stamps)
         defaults = _defaults_digest(workspace.root / step.project)
@@ -124,10 +122,7 @@ class FirmwareSteps:
         what its sources build now. Building the image of sources edited since, which may not
         even build, would stand between the user and the firmware they built."""
         build_dir = firmware_build_dir(workspace.ws_dir, step.package)
-        stamps = _firmware_stamp(workspace, step, self._image_id(step))
-        current = StampFile(workspace.ws_dir / "build" / FIRMWARE_STAMPS).up_to_date(
-            stamps, {step.package: listing_digest(build_dir, COLCON_RESULT_FILES)}
-        )
+        current = firmware_state(workspace, step, self._image_id(step))[2]
         target, _, key = _read_marker(build_dir) or ("", "", "")
         if current or target != step.target or not key or key == step.image_key:
             return step, current
@@ -278,21 +273,7 @@ class FirmwareSteps:
         check_agent_port(port, "\n".join(lines), step.package)
 
     def install(self, workspace: Workspace, step: InstallFirmware) -> tuple[Outcome, str]:
-        build_dir = firmware_build_dir(workspace.ws_dir, step.package)
-        # A merged install/ (colcon --merge-install, which refuses an install/<package> there):
-        # the firmware goes where that layout's setup files and ament index see it.
-        prefix = install_prefix(workspace.ws_dir / "install", step.package)
-        # What the stamp lists: the package's own files, not a merged prefix's other packages.
-        installed = prefix / "share" / step.package if prefix == workspace.ws_dir / "install" else prefix
-        manifest = workspace.root / step.project / "package.xml"
-        stamp_file = StampFile(workspace.ws_dir / "build" / INSTALL_STAMPS)
-        # The ros2 run commands' text too: an install made before them (or another version) is redone.
-        source = hashlib.sha256(
-            f"{listing_digest(build_dir, COLCON_RESULT_FILES)}\0{':'.join(step.run_depends)}\0".encode()
-            + manifest.read_bytes()
-            + COMMANDS_SOURCE
-        )
-        stamps = {step.package: source.hexdigest()}
+        stamp_file, stamps, installed, prefix = _install_stamps(workspace, step)
         if stamp_file.up_to_date(stamps, {step.package: listing_digest(installed)}):
             return Outcome.CACHED, "up to date"
         stamp_file.forget(stamps)
@@ -310,6 +291,41 @@ class FirmwareSteps:
         stamp_file.record(stamps, {step.package: listing_digest(installed)})
         give_to(stamp_file.path, self.containers.owner)
         return Outcome.BUILT, str(firmware.relative_to(workspace.root))
+
+
+def firmware_state(workspace: Workspace, step: IdfBuild, image_id: str) -> tuple[StampFile, dict[str, str], bool]:
+    """STEP's stamp file, its stamp now, and whether its build dir holds what its sources build
+    now in the image of IMAGE_ID."""
+    build_dir = firmware_build_dir(workspace.ws_dir, step.package)
+    stamp_file = StampFile(workspace.ws_dir / "build" / FIRMWARE_STAMPS)
+    stamps = _firmware_stamp(workspace, step, image_id)
+    listing = {step.package: listing_digest(build_dir, COLCON_RESULT_FILES)}
+    return stamp_file, stamps, stamp_file.up_to_date(stamps, listing)
+
+
+def install_up_to_date(workspace: Workspace, step: InstallFirmware) -> bool:
+    """Whether STEP's package is installed from its build dir as it is now."""
+    stamp_file, stamps, installed, _ = _install_stamps(workspace, step)
+    return stamp_file.up_to_date(stamps, {step.package: listing_digest(installed)})
+
+
+def _install_stamps(workspace: Workspace, step: InstallFirmware) -> tuple[StampFile, dict[str, str], Path, Path]:
+    """STEP's stamp file, its stamp now, the installed files it lists and the install prefix."""
+    build_dir = firmware_build_dir(workspace.ws_dir, step.package)
+    # A merged install/ (colcon --merge-install, which refuses an install/<package> there):
+    # the firmware goes where that layout's setup files and ament index see it.
+    prefix = install_prefix(workspace.ws_dir / "install", step.package)
+    # What the stamp lists: the package's own files, not a merged prefix's other packages.
+    installed = prefix / "share" / step.package if prefix == workspace.ws_dir / "install" else prefix
+    manifest = workspace.root / step.project / "package.xml"
+    # The ros2 run commands' text too: an install made before them (or another version) is redone.
+    source = hashlib.sha256(
+        f"{listing_digest(build_dir, COLCON_RESULT_FILES)}\0{':'.join(step.run_depends)}\0".encode()
+        + manifest.read_bytes()
+        + COMMANDS_SOURCE
+    )
+    stamps = {step.package: source.hexdigest()}
+    return StampFile(workspace.ws_dir / "build" / INSTALL_STAMPS), stamps, installed, prefix
 
 
 def _outside_build_dir(workspace: Workspace, build_dir: Path) -> tuple[Mount, ...]:

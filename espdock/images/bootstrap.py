@@ -17,7 +17,7 @@ from collections.abc import Callable, Mapping
 from pathlib import Path
 
 from espdock.config import Config
-from espdock.errors import EngineUnavailable, ImageBuildError
+from espdock.errors import EngineUnavailable, EspdockError, ImageBuildError
 from espdock.images.engine import DEFAULT_HOST, Engine, compose_available
 
 Notify = Callable[[str], None]
@@ -48,6 +48,14 @@ APT::Update::Post-Invoke { "rm -f /var/cache/apt/archives/*.deb /var/cache/apt/*
 Dir::Cache::pkgcache "";
 Dir::Cache::srcpkgcache "";
 """
+
+
+def reachable_engine(env: Mapping[str, str]) -> Engine | None:
+    """The engine that answers now, else None: never one started or installed for the asking."""
+    try:
+        return Engine.connect(env, timeout=5)
+    except EspdockError:
+        return None
 
 
 def ensure_engine(env: Mapping[str, str], notify: Notify) -> Engine:

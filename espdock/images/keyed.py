@@ -133,7 +133,7 @@ class KeyedImages:
     def _hit(self, step: EnsureImage, existing: ImageInfo | None) -> bool:
         """Whether EXISTING is STEP's image (its key); then say so, and publish it if asked."""
         spec = step.spec
-        if existing is None or existing.labels.get(LABEL_KEY) != spec.key:
+        if not is_current(spec, existing):
             return False
         age = age_text((datetime.now(UTC) - existing.created).total_seconds())
         self.containers.emit(StepNote(step.name, f"{spec.tag}: cache hit (key {spec.key[:16]}, built {age} ago)"))
@@ -363,3 +363,8 @@ def age_text(seconds: float) -> str:
         if seconds >= size:
             return f"{seconds / size:.0f} {unit}"
     return f"{max(seconds, 0):.0f} s"
+
+
+def is_current(spec: ImageSpec, existing: ImageInfo | None) -> bool:
+    """Whether EXISTING (the engine's image of SPEC's tag, if any) is SPEC's image: its key."""
+    return existing is not None and existing.labels.get(LABEL_KEY) == spec.key

@@ -84,17 +84,11 @@ class RosSteps:
         return trees
 
     def colcon_build(self, workspace: Workspace, step: ColconBuild) -> tuple[Outcome, str]:
-        stamp_file = StampFile(workspace.ws_dir / "build" / ROS_STAMPS)
-        sources = {name: tree_digest(workspace.ws_dir / rel) for name, rel in step.sources}
-        chained = package_stamps(sources, dict(step.depends), step.stamp_image, dict(step.settings))
-        stamps = {name: chained[name] for name in step.building}
+        stamp_file, stamps, rebuild = colcon_rebuild(workspace, step)
 
         def installed() -> dict[str, str | None]:
             return {name: listing_digest(workspace.ws_dir / "install" / name) for name in stamps}
 
-        # The changed packages and, their stamps being chained, what depends on them; the rest
-        # are up to date in install/, where colcon finds them.
-        rebuild = tuple(stamps) if step.force else stamp_file.stale(stamps, installed())
         if not rebuild:
             return Outcome.CACHED, f"up to date ({len(stamps)} package(s))"
         check_isolated_install(workspace.ws_dir / "install")
@@ -323,6 +317,20 @@ class RosSteps:
             self.containers.engine.tag(spec.tag, step.stable_tag)
             self.containers.emit(StepNote(step.name, f"{step.stable_tag} is now {spec.tag}"))
         return outcome, f"{spec.tag}, {step.stable_tag}"
+
+
+def colcon_rebuild(workspace: Workspace, step: ColconBuild) -> tuple[StampFile, dict[str, str], tuple[str, ...]]:
+    """STEP's stamp file, the stamps of the packages it builds as they are now, and which of them
+    colcon gets: the changed ones and, their stamps being chained, what depends on them (all of
+    them with --force). The rest are up to date in install/, where colcon finds them."""
+    stamp_file = StampFile(workspace.ws_dir / "build" / ROS_STAMPS)
+    sources = {name: tree_digest(workspace.ws_dir / rel) for name, rel in step.sources}
+    chained = package_stamps(sources, dict(step.depends), step.stamp_image, dict(step.settings))
+    stamps = {name: chained[name] for name in step.building}
+    if step.force:
+        return stamp_file, stamps, tuple(stamps)
+    installed = {name: listing_digest(workspace.ws_dir / "install" / name) for name in stamps}
+    return stamp_file, stamps, stamp_file.stale(stamps, installed)
 
 
 def runtime_spec(workspace: Workspace, step: RuntimeImage) -> ImageSpec:

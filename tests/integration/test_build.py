@@ -5,6 +5,7 @@ from __future__ import annotations
 import grp
 import hashlib
 import json
+import re
 import shutil
 import signal
 import subprocess
@@ -123,7 +124,12 @@ def test_a_build_builds_again_exactly_when_something_changed(engine, built):
     # shows it without rosidl generating and compiling them all again (twice: edit, restore).
     extra = package / "NOTES.txt"
     extra.write_text("an added file\n")
+    planned = espdock("build", "--dry-run", cwd=root, env={"COLUMNS": "400"})
+    assert re.search(r"^\d\. colcon build\n(   .*\n)*   now: would build 1 of 1 package\(s\): custom_interface$",
+                     planned.stdout, flags=re.M), planned.stdout  # fmt: skip
+    assert re.search(r"^\d\. image espdock/ros-jazzy-build\n(   .*\n)*   now: present$", planned.stdout, flags=re.M)
     assert build()[0], "an added file must build"
+    assert "now: up to date (1 package(s))" in espdock("build", "--dry-run", cwd=root).stdout
     assert not build()[0]
     extra.write_text("an edited file\n")
     assert build()[0], "an edited file must build"

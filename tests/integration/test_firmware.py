@@ -342,11 +342,29 @@ def test_a_build_with_nothing_changed_starts_no_container(fw_ws, double_env):
     assert containers_created(root, started, time.time() + 0.5) == []
     for step in ("colcon build", "idf.py build camera_node", "install led_strip_node"):
         assert any(step in line and "up to date" in line for line in noop.stdout.splitlines()), noop.stdout
+    # --dry-run says what the build would find: here every step up to date, its images present.
+    steps = dry_run_states(root, double_env)
+    assert steps and all(state.startswith(("up to date", "present")) for state in steps.values()), steps
     # menuconfig's changes live in the build dir's sdkconfig: they must build.
     sdkconfig = root / "ws/build/led_strip_node/sdkconfig"
     sdkconfig.write_text(sdkconfig.read_text() + "# changed by menuconfig\n")
+    started = time.time()
+    steps = dry_run_states(root, double_env)
+    assert containers_created(root, started, time.time() + 0.5) == []
+    assert steps["idf.py build led_strip_node"] == "would build (esp32c3)", steps
+    assert steps["install led_strip_node"].startswith("would install"), steps
+    assert steps["idf.py build camera_node"] == "up to date (esp32)", steps
     changed = espdock("build", "led_strip_node", "--only", "firmware", cwd=root, env=double_env)
     assert changed.returncode == 0 and "Building C object" in changed.stdout
+    assert dry_run_states(root, double_env)["idf.py build led_strip_node"] == "up to date (esp32c3)"
+
+
+def dry_run_states(root: Path, env: dict[str, str]) -> dict[str, str]:
+    """Each step of `espdock build --dry-run` by name, with the state its `now:` line names."""
+    planned = espdock("build", "--dry-run", cwd=root, env={**env, "COLUMNS": "400"})
+    assert planned.returncode == 0, planned.stdout[-2000:] + planned.stderr
+    blocks = re.findall(r"^\d+\. (.+)$((?:\n   .*)*)", planned.stdout, flags=re.M)
+    return {name: re.search(r"^   now: (.+)$", block, flags=re.M).group(1) for name, block in blocks}
 
 
 def test_a_library_option_changed_after_a_first_configure_through_idf_is_still_warned_about(fw_ws, double_env):

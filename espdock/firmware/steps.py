@@ -32,7 +32,7 @@ from espdock.images import volume
 from espdock.images.containers import Containers, give_to, make_dirs_for, volume_mode_refused
 from espdock.images.engine import Mount, RunSpec
 from espdock.images.visibility import host_paths
-from espdock.layout import COLCON_RESULT_FILES, firmware_build_dir, install_prefix
+from espdock.layout import COLCON_RESULT_FILES, firmware_build_dir, host_path, install_prefix
 from espdock.workspace import Workspace, workspace_lock
 
 TARGET_MARKER = ".espdock-target"
@@ -354,7 +354,30 @@ def _firmware_stamp(workspace: Workspace, step: IdfBuild, image_id: str) -> dict
         digest.update(tree_digest(components).encode())
     if sdkconfig.is_file():
         digest.update(hashlib.sha256(sdkconfig.read_bytes()).digest())
+    for path in _other_components(workspace, step):
+        digest.update(f"{path}\0{tree_digest(path)}\n".encode())
     return {step.package: digest.hexdigest()}
+
+
+def _other_components(workspace: Workspace, step: IdfBuild) -> list[Path]:
+    """The components of the workspace the last build of STEP used from outside its project and
+    the components beside it (another EXTRA_COMPONENT_DIRS entry, an idf_component.yml `path:`
+    dependency): an edit of one must build the app again, as idf.py would. IDF's
+    project_description.json names every component the build used by its path in the container;
+    those of the image are the image's ID's, downloaded ones are the component manager's lock's."""
+    description = firmware_build_dir(workspace.ws_dir, step.package) / "project_description.json"
+    try:
+        paths = json.loads(description.read_text()).get("build_component_paths", [])
+    except (OSError, ValueError, AttributeError):
+        return []
+    project = workspace.root / step.project
+    covered = (project, project.parent / "components", workspace.ws_dir / "build", workspace.ws_dir / "install")
+    found = set()
+    for raw in paths if isinstance(paths, list) else []:
+        host = host_path(raw, workspace.root) if isinstance(raw, str) and raw else None
+        if host is not None and host.is_dir() and not any(host.is_relative_to(place) for place in covered):
+            found.add(host)
+    return sorted(found)
 
 
 def _read_marker(build_dir: Path) -> tuple[str, str, str] | None:

@@ -403,6 +403,40 @@ def test_a_firmware_source_change_rebuilds_the_app_but_reuses_the_library(fw_ws,
     assert app.read_bytes() != before
 
 
+def test_an_edit_of_a_component_the_app_takes_from_elsewhere_in_the_workspace_rebuilds_it(fw_ws, double_env):
+    """A component shared through another EXTRA_COMPONENT_DIRS entry than ../components: its edit
+    left the build "up to date" and the old firmware installed (and flashed) until --force."""
+    root, first = fw_ws
+    assert first.returncode == 0
+    shared = root / "firmware/shared/board_led"
+    shared.mkdir(parents=True)
+    (root / "firmware/shared/COLCON_IGNORE").touch()
+    (shared / "CMakeLists.txt").write_text('idf_component_register(SRCS "board_led.c" INCLUDE_DIRS ".")\n')
+    (shared / "board_led.c").write_text("int board_led_level(void) { return 1; }\n")
+    project = root / "firmware/led_strip_node/CMakeLists.txt"
+    original = project.read_text()
+    project.write_text(
+        original.replace(
+            "${CMAKE_CURRENT_LIST_DIR}/../components)",
+            "${CMAKE_CURRENT_LIST_DIR}/../components\n    ${CMAKE_CURRENT_LIST_DIR}/../shared)",
+        )
+    )
+    app = firmware_dir(root, "led_strip_node") / "led_strip_node.bin"
+    try:
+        built = espdock("build", "led_strip_node", "--only", "firmware", cwd=root, env=double_env)
+        assert built.returncode == 0, built.stdout[-2000:] + built.stderr
+        before = app.read_bytes()
+        (shared / "board_led.c").write_text("int board_led_level(void) { return 2; }\n")
+        rebuilt = espdock("build", "led_strip_node", "--only", "firmware", cwd=root, env=double_env)
+        assert rebuilt.returncode == 0, rebuilt.stdout[-2000:] + rebuilt.stderr
+        assert "board_led.c" in rebuilt.stdout and app.read_bytes() != before, rebuilt.stdout[-2000:]
+    finally:
+        project.write_text(original)
+        shutil.rmtree(root / "firmware/shared")
+    settled = espdock("build", "led_strip_node", "--only", "firmware", cwd=root, env=double_env)
+    assert settled.returncode == 0, settled.stdout[-2000:] + settled.stderr
+
+
 def test_a_msg_change_is_never_served_a_stale_library(fw_ws, double_env):
     root, first = fw_ws
     assert first.returncode == 0

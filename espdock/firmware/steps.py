@@ -16,7 +16,7 @@ from pathlib import Path
 
 from espdock.build.stamps import StampFile, listing_digest, tree_digest
 from espdock.build.steps import keyed_tag
-from espdock.config import resolve_ca_bundle
+from espdock.config import CHIP_TARGETS, resolve_ca_bundle
 from espdock.errors import BuildFailed
 from espdock.events import Outcome, StepNote, StepOutput
 from espdock.firmware.agent_port import LIBRARY_HEADERS, check_agent_port
@@ -33,7 +33,7 @@ from espdock.images.containers import Containers, give_to, make_dirs_for, volume
 from espdock.images.engine import Mount, RunSpec
 from espdock.images.visibility import host_paths
 from espdock.layout import COLCON_RESULT_FILES, firmware_build_dir, host_path, install_prefix
-from espdock.workspace import Workspace, workspace_lock
+from espdock.workspace import Workspace, editor_leftover, workspace_lock
 
 TARGET_MARKER = ".espdock-target"
 
@@ -64,15 +64,19 @@ class FirmwareSteps:
         if current and not step.force:
             return Outcome.CACHED, f"up to date ({step.target})"
         stamp_file.forget(stamps)
-        defaults = _defaults_digest(workspace.root / step.project)
-        reset, replaced = _prepare_build_dir(build_dir, step.target, defaults, step.image_key)
-        if replaced:
+        project = workspace.root / step.project
+        defaults = _defaults_digest(project, step.target)
+        reset, replaced = _prepare_build_dir(build_dir, step.target, defaults, step.image_key, project, workspace.root)
+        if replaced is not None:
             rel = build_dir.relative_to(workspace.root)
+            if replaced:  # the chip the build dir was for
+                why = f"{rel} was for {replaced}: made afresh for {step.target}, as IDF's set-target does"
+            else:
+                files = " or ".join(path.name for path in _defaults_files(project, step.target))
+                why = f"{step.project}/{files} changed: {rel}/sdkconfig is made afresh from it, as IDF would not"
             self.containers.emit(
                 StepNote(
-                    step.name,
-                    f"{step.project}/sdkconfig.defaults changed: {rel}/sdkconfig is made afresh from it, as IDF "
-                    f"would not; the one before, with any menuconfig changes, is {rel}/{SDKCONFIG_OLD}",
+                    step.name, f"{why}; the sdkconfig before, with any menuconfig changes, is {rel}/{SDKCONFIG_OLD}"
                 )
             )
         # What the sdkconfig is made from, before the build: a failed build's sdkconfig is of these
@@ -406,36 +410,56 @@ def _built_key(build_dir: Path, target: str) -> str:
 SDKCONFIG_OLD = "sdkconfig.old"  # the name menuconfig gives the one it replaces
 
 
-def _prepare_build_dir(build_dir: Path, target: str, defaults: str, image_key: str) -> tuple[bool, bool]:
-    """Make a build dir safe to reuse.
+def _prepare_build_dir(
+    build_dir: Path, target: str, defaults: str, image_key: str, project: Path, root: Path
+) -> tuple[bool, str | None]:
+    """Make a build dir safe to reuse for PROJECT (on the host, in workspace ROOT).
 
-    IDF refuses a build dir configured for another chip, and one configured in another image
-    keeps that image's toolchain paths and library in CMakeCache.txt and ninja's state, so a
-    new target or image key starts afresh. The sdkconfig (menuconfig's changes) survives an
-    image change; an existing sdkconfig wins over sdkconfig.defaults, so it goes when the
-    defaults changed (kept as sdkconfig.old), and with the target. Returns whether it removed
-    anything, and whether it replaced an sdkconfig for new defaults.
+    IDF refuses a build dir configured for another chip or another project directory (a project
+    moved or renamed: "Run 'idf.py fullclean'"), and one configured in another image keeps that
+    image's toolchain paths and library in CMakeCache.txt and ninja's state, so any of them
+    starts afresh. The sdkconfig (menuconfig's changes) survives an image or project change; an
+    existing sdkconfig wins over sdkconfig.defaults, so it is set aside as sdkconfig.old when the
+    defaults changed, and with the target (as IDF's set-target does). Returns whether it removed
+    anything, and whether it set the sdkconfig aside: None if not, else the chip it was for when
+    the target changed ('' when the defaults did).
     """
     marker = _read_marker(build_dir)
     if marker is None:
-        return False, False
+        return False, None
     built_target, built_defaults, built_key = marker
-    if built_target != target:
-        shutil.rmtree(build_dir)  # only a cache
-        return True, False
-    keep = "sdkconfig" if built_defaults == defaults else None
-    replaced = keep is None and (build_dir / "sdkconfig").is_file()
-    if replaced:
+    keep = "sdkconfig" if built_defaults == defaults and built_target == target else None
+    replaced = None
+    if keep is None and (build_dir / "sdkconfig").is_file():
         (build_dir / "sdkconfig").replace(build_dir / SDKCONFIG_OLD)
-    if built_key != image_key:
+        replaced = built_target if built_target != target else ""
+    # As IDF compares them: by real path (here, the host's: ROOT is the workspace mount's).
+    configured = _configured_project(build_dir)
+    moved = configured is not None and (host_path(configured, root) or Path(configured)).resolve() != project.resolve()
+    if built_key != image_key or built_target != target or moved:
+        # What the last library's settings were compared against is another chip's library's.
+        baseline = LIBRARY_BASELINE if built_target == target else None
         for entry in build_dir.iterdir():
-            if entry.name in (keep, LIBRARY_BASELINE, SDKCONFIG_OLD, TARGET_MARKER):
+            if entry.name in (keep, baseline, SDKCONFIG_OLD, TARGET_MARKER):
                 continue
             if entry.is_dir() and not entry.is_symlink():
                 shutil.rmtree(entry)
             else:
                 entry.unlink()
-    return built_key != image_key or keep is None, replaced
+        return True, replaced
+    return keep is None, replaced
+
+
+def _configured_project(build_dir: Path) -> str | None:
+    """The project directory BUILD_DIR's CMake cache was configured for (None: no cache)."""
+    try:
+        with (build_dir / "CMakeCache.txt").open(encoding="utf-8", errors="replace") as cache:
+            for line in cache:
+                if line.startswith("CMAKE_HOME_DIRECTORY:"):
+                    return line.split("=", 1)[1].strip()
+    except OSError:
+        pass
+    return None
 
 
 LIBRARY_BASELINE = ".espdock-library-sdkconfig"
@@ -488,9 +512,21 @@ def reset_build_dir(workspace: Workspace, step: IdfBuild) -> Path:
     return build_dir
 
 
-def _defaults_digest(project: Path) -> str:
+def _defaults_files(project: Path, target: str) -> list[Path]:
+    """The sdkconfig.defaults files of PROJECT that an IDF build for TARGET reads: sdkconfig.defaults
+    and its variants (a CMakeLists' SDKCONFIG_DEFAULTS may name any), but other chips' and an
+    editor's or patch's leftovers."""
+    others = {f"sdkconfig.defaults.{chip}" for chip in CHIP_TARGETS if chip != target}
+    return [
+        path
+        for path in sorted(project.glob("sdkconfig.defaults*"))
+        if path.is_file() and path.name not in others and not editor_leftover(path.name)
+    ]
+
+
+def _defaults_digest(project: Path, target: str) -> str:
     digest = hashlib.sha256()
-    for path in sorted(project.glob("sdkconfig.defaults*")):
+    for path in _defaults_files(project, target):
         digest.update(path.name.encode() + b"\0" + path.read_bytes())
     return digest.hexdigest()[:16]
 

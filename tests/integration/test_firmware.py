@@ -567,6 +567,25 @@ def test_switching_the_chip_target_builds_a_new_library_and_retargets(fw_ws, dou
     assert status(root, double_env, "camera_node")["key"] == esp32["key"]
     sdkconfig = (root / "ws/build/camera_node/sdkconfig").read_text()
     assert "CONFIG_ESPDOCK_CAM_BOARD_AI_THINKER=y" in sdkconfig and "SPIRAM_MODE_OCT" not in sdkconfig
+    # Each switch set the chip's sdkconfig (menuconfig's changes) aside, as IDF's set-target does, and said so.
+    said = " ".join(back.stdout.split())
+    assert "ws/build/camera_node was for esp32s3: made afresh for esp32" in said, back.stdout[-3000:]
+    assert "CONFIG_SPIRAM_MODE_OCT=y" in (root / "ws/build/camera_node/sdkconfig.old").read_text()
+
+
+def test_a_moved_firmware_project_builds_in_its_build_dir_made_afresh(fw_ws, double_env):
+    """`mv firmware/led_strip_node firmware/led_strip`: IDF refused the build dir, configured for the
+    old path ("Run 'idf.py fullclean'"), and espdock's hint said to fix the firmware."""
+    root, first = fw_ws
+    assert first.returncode == 0
+    shutil.move(root / "firmware/led_strip_node", root / "firmware/led_strip")
+    try:
+        moved = espdock("build", "led_strip_node", "--only", "firmware", cwd=root, env=double_env)
+        assert moved.returncode == 0, moved.stdout[-2000:] + moved.stderr
+    finally:
+        shutil.move(root / "firmware/led_strip", root / "firmware/led_strip_node")
+    back = espdock("build", "led_strip_node", "--only", "firmware", cwd=root, env=double_env)
+    assert back.returncode == 0, back.stdout[-2000:] + back.stderr
 
 
 def test_new_makes_a_package_that_builds(fw_ws, double_env):

@@ -2,13 +2,22 @@
 
 from pathlib import Path
 
-from espdock.firmware.steps import SDKCONFIG_OLD, TARGET_MARKER, _prepare_build_dir
+from espdock.firmware.steps import SDKCONFIG_OLD, TARGET_MARKER, _defaults_digest
+from espdock.firmware.steps import _prepare_build_dir as prepare
+
+
+def _prepare_build_dir(build: Path, target: str, defaults: str, key: str, project: str = "firmware/app"):
+    """The build dir BUILD of the project at PROJECT in workspace /w prepared for a build."""
+    return prepare(build, target, defaults, key, Path("/w") / project, Path("/w"))
 
 
 def built(tmp_path: Path, target="esp32", defaults="d1", key="k1") -> Path:
     build = tmp_path / "build"
     (build / "esp-idf").mkdir(parents=True)
-    (build / "CMakeCache.txt").write_text("CMAKE_C_COMPILER:FILEPATH=/opt/old-image/xtensa-esp32-elf-gcc\n")
+    (build / "CMakeCache.txt").write_text(
+        "CMAKE_C_COMPILER:FILEPATH=/opt/old-image/xtensa-esp32-elf-gcc\n"
+        "CMAKE_HOME_DIRECTORY:INTERNAL=/workspace/firmware/app\n"
+    )
     (build / "sdkconfig").write_text('CONFIG_ESPDOCK_NODE_NAME="from menuconfig"\n')
     (build / TARGET_MARKER).write_text(f"{target}\n{defaults}\n{key}\n")
     return build
@@ -16,20 +25,20 @@ def built(tmp_path: Path, target="esp32", defaults="d1", key="k1") -> Path:
 
 def test_same_inputs_keep_everything(tmp_path):
     build = built(tmp_path)
-    assert _prepare_build_dir(build, "esp32", "d1", "k1") == (False, False)
+    assert _prepare_build_dir(build, "esp32", "d1", "k1") == (False, None)
     assert sorted(p.name for p in build.iterdir()) == [TARGET_MARKER, "CMakeCache.txt", "esp-idf", "sdkconfig"]
 
 
 def test_a_new_image_key_resets_the_build_but_keeps_menuconfig_changes(tmp_path):
     build = built(tmp_path)
-    assert _prepare_build_dir(build, "esp32", "d1", "k2") == (True, False)
+    assert _prepare_build_dir(build, "esp32", "d1", "k2") == (True, None)
     assert sorted(p.name for p in build.iterdir()) == [TARGET_MARKER, "sdkconfig"]
     assert "from menuconfig" in (build / "sdkconfig").read_text()
 
 
 def test_a_new_image_key_with_new_defaults_sets_the_sdkconfig_aside_too(tmp_path):
     build = built(tmp_path)
-    assert _prepare_build_dir(build, "esp32", "d2", "k2") == (True, True)
+    assert _prepare_build_dir(build, "esp32", "d2", "k2") == (True, "")
     assert sorted(p.name for p in build.iterdir()) == [TARGET_MARKER, SDKCONFIG_OLD]
 
 
@@ -37,15 +46,39 @@ def test_new_defaults_set_only_the_sdkconfig_aside_as_menuconfig_would(tmp_path)
     """New defaults make the sdkconfig afresh; the one before, menuconfig's changes in it, was
     deleted without a word."""
     build = built(tmp_path)
-    assert _prepare_build_dir(build, "esp32", "d2", "k1") == (True, True)
+    assert _prepare_build_dir(build, "esp32", "d2", "k1") == (True, "")
     assert sorted(p.name for p in build.iterdir()) == [TARGET_MARKER, "CMakeCache.txt", "esp-idf", SDKCONFIG_OLD]
     assert "from menuconfig" in (build / SDKCONFIG_OLD).read_text()
 
 
-def test_a_new_target_removes_the_build_dir(tmp_path):
+def test_a_new_target_empties_the_build_dir_and_sets_the_sdkconfig_aside_as_set_target_does(tmp_path):
+    """A one-off build for another chip deleted the build dir, menuconfig's changes with it, unsaid."""
     build = built(tmp_path)
-    _prepare_build_dir(build, "esp32s3", "d1", "k1")
-    assert not build.exists()
+    assert _prepare_build_dir(build, "esp32s3", "d1", "k1") == (True, "esp32")
+    assert sorted(p.name for p in build.iterdir()) == [TARGET_MARKER, SDKCONFIG_OLD]
+    assert "from menuconfig" in (build / SDKCONFIG_OLD).read_text()
+
+
+def test_a_moved_project_empties_the_build_dir_but_keeps_menuconfig_changes(tmp_path):
+    """`mv firmware/app firmware/board`: IDF refused the build dir ("configured for project
+    .../app not .../board. Run 'idf.py fullclean'") and the hint said to fix the firmware."""
+    build = built(tmp_path)
+    assert _prepare_build_dir(build, "esp32", "d1", "k1", project="firmware/board") == (True, None)
+    assert sorted(p.name for p in build.iterdir()) == [TARGET_MARKER, "sdkconfig"]
+    assert "from menuconfig" in (build / "sdkconfig").read_text()
+
+
+def test_only_the_defaults_files_a_build_for_the_chip_reads_decide_the_sdkconfig(tmp_path):
+    """Another chip's sdkconfig.defaults.<chip>, or an editor's sdkconfig.defaults~, made the
+    sdkconfig afresh, menuconfig's changes set aside."""
+    (tmp_path / "sdkconfig.defaults").write_text("CONFIG_FREERTOS_HZ=1000\n")
+    digest = _defaults_digest(tmp_path, "esp32")
+    (tmp_path / "sdkconfig.defaults.esp32s3").write_text("CONFIG_SPIRAM=y\n")
+    (tmp_path / "sdkconfig.defaults~").write_text("CONFIG_FREERTOS_HZ=100\n")
+    assert _defaults_digest(tmp_path, "esp32") == digest
+    assert _defaults_digest(tmp_path, "esp32s3") != digest
+    (tmp_path / "sdkconfig.defaults.esp32").write_text("CONFIG_FREERTOS_HZ=500\n")
+    assert _defaults_digest(tmp_path, "esp32") != digest
 
 
 def test_a_menuconfig_change_of_a_library_option_is_reported_and_others_are_not(tmp_path):

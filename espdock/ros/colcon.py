@@ -233,16 +233,34 @@ def sets_build_testing(args: Iterable[str]) -> bool:
     return any(_BUILD_TESTING.match(arg.strip()) for arg in args)
 
 
-def with_build_testing(args: tuple[str, ...], value: str) -> tuple[str, ...]:
-    """ARGS with CMake packages configured with BUILD_TESTING=VALUE, unless ARGS set it. Given each
-    time: CMake keeps a cached value. colcon keeps the last `--cmake-args` only, so the value joins
-    the user's own."""
+def with_build_testing(
+    args: tuple[str, ...], value: str, defaults: tuple[str, ...] = (), force: bool = False
+) -> tuple[str, ...]:
+    """ARGS with CMake packages configured with BUILD_TESTING=VALUE, unless ARGS set it (or the
+    DEFAULTS, the cmake-args of the user's colcon defaults file, do, and not FORCE). Given each
+    time: CMake keeps a cached value. colcon keeps the last `--cmake-args` only, and one on the
+    command line replaces the defaults file's: the value joins the user's own, from either."""
     if sets_build_testing(args):
         return args
     for index, arg in enumerate(args):
         if arg == "--cmake-args":
             return (*args[: index + 1], f"-DBUILD_TESTING={value}", *args[index + 1 :])
-    return (*args, "--cmake-args", f"-DBUILD_TESTING={value}")
+    if sets_build_testing(defaults) and not force:
+        return args
+    return (*args, "--cmake-args", *without_build_testing(defaults), f"-DBUILD_TESTING={value}")
+
+
+def defaults_cmake_args(text: str) -> tuple[str, ...] | None:
+    """The `build` verb's cmake-args a colcon defaults file (TEXT) sets; None where it sets none."""
+    import yaml
+
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError:
+        return None  # colcon refuses it itself, naming the file
+    verb = data.get("build") if isinstance(data, dict) else None
+    args = verb.get("cmake-args") if isinstance(verb, dict) else None
+    return tuple(str(arg) for arg in args) if isinstance(args, list) else None
 
 
 def meta_paths(args: Iterable[str]) -> tuple[str, ...]:
@@ -342,6 +360,8 @@ class ColconSettings:
     defaults_file: str | None = None
     # The settings files that were read (for --dry-run).
     files: tuple[str, ...] = ()
+    # The cmake-args of `colcon build` the defaults files set (the workspace's over the user's).
+    cmake_args: tuple[str, ...] = ()
 
 
 def read_colcon_settings(
@@ -354,12 +374,14 @@ def read_colcon_settings(
     files: list[str] = []
     common = hashlib.sha256(json.dumps(output_args(args)).encode())
     defaults: str | None = None
+    cmake_args: tuple[str, ...] = ()
     user = user_defaults_file(env)
     for path, shown in ((user, str(user)), (colcon_root / WORKSPACE_DEFAULTS, WORKSPACE_DEFAULTS)):
         if not path.is_file():
             continue
         text = path.read_text(errors="replace")
         check_defaults(shown, text)
+        cmake_args = defaults_cmake_args(text) or cmake_args
         common.update(f"{shown}\0".encode() + hashlib.sha256(text.encode()).digest())
         files.append(shown)
         if path == user:
@@ -381,7 +403,7 @@ def read_colcon_settings(
         digest = common.copy()
         digest.update(json.dumps(said, sort_keys=True).encode())
         digests.append((name, digest.hexdigest()))
-    return ColconSettings(args, tuple(digests), defaults, tuple(files))
+    return ColconSettings(args, tuple(digests), defaults, tuple(files), cmake_args)
 
 
 _QUOTED = re.compile(r"'(-[^']*)'|: (--?[\w-]+)")

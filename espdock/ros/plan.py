@@ -52,6 +52,8 @@ class ColconBuild:
     colcon_args: tuple[str, ...] = ()
     settings: tuple[tuple[str, str], ...] = ()
     defaults_file: str | None = None
+    # The cmake-args the colcon defaults files set, which the options given here would replace.
+    defaults_cmake_args: tuple[str, ...] = ()
     # TESTING: a build for `espdock test` (tests configured, in the image with the test
     # dependencies); TESTS_OFF: CMake packages configured with BUILD_TESTING=OFF (the wheels
     # image lacks ament's lint packages), unless the options after `--` set it.
@@ -92,13 +94,15 @@ class ColconBuild:
         """The options after `--`, with BUILD_TESTING=OFF where TESTS_OFF asks for it, and ON for
         a test build (CMake would keep the OFF an earlier build cached)."""
         if self.testing:
-            return with_build_testing(self.colcon_args, "ON")
-        return with_build_testing(self.colcon_args, "OFF") if self.tests_off else self.colcon_args
+            return with_build_testing(self.colcon_args, "ON", self.defaults_cmake_args, force=True)
+        if self.tests_off:
+            return with_build_testing(self.colcon_args, "OFF", self.defaults_cmake_args)
+        return self.colcon_args
 
     @property
     def says_tests_off(self) -> bool:
         """Whether this build turns the CMake packages' tests off itself (the user did not set it)."""
-        return self.tests_off and not sets_build_testing(self.colcon_args)
+        return self.tests_off and not sets_build_testing((*self.colcon_args, *self.defaults_cmake_args))
 
     @property
     def stamp_image(self) -> str:
@@ -297,6 +301,7 @@ def ros_steps(
             colcon_args=colcon.args,
             settings=tuple(item for item in colcon.digests if item[0] in names),
             defaults_file=colcon.defaults_file,
+            defaults_cmake_args=colcon.cmake_args,
             testing=testing,
             # Only CMake packages read BUILD_TESTING: a workspace of Python packages is told nothing.
             tests_off=tests_off and not testing and any(p.build_type not in PYTHON_BUILD_TYPES for p in ros),

@@ -142,6 +142,20 @@ def test_a_build_builds_again_exactly_when_something_changed(engine, built):
     assert owners(root / "ws") == {USER_UID}
 
 
+def test_the_cmake_args_of_the_users_colcon_defaults_file_reach_cmake(built, tmp_path):
+    """espdock's own --cmake-args -DBUILD_TESTING=OFF on the command line replaced the defaults
+    file's cmake-args, silently: no compile_commands.json for the editor."""
+    root, first = built
+    assert first.returncode == 0
+    defaults = tmp_path / "defaults.yaml"
+    defaults.write_text("build:\n  cmake-args:\n    - -DCMAKE_EXPORT_COMPILE_COMMANDS=ON\n")
+    result = espdock("build", cwd=root, env={"COLCON_DEFAULTS_FILE": str(defaults)})
+    assert result.returncode == 0, result.stdout[-3000:] + result.stderr
+    cache = (root / "ws/build/espdock-ros/custom_interface/CMakeCache.txt").read_text()
+    assert "CMAKE_EXPORT_COMPILE_COMMANDS:UNINITIALIZED=ON" in cache and "BUILD_TESTING:BOOL=OFF" in cache
+    assert (root / "ws/build/espdock-ros/custom_interface/compile_commands.json").is_file()
+
+
 def test_the_build_records_what_it_produced_and_verify_checks_it(engine, built, tmp_path):
     root, first = built
     assert first.returncode == 0

@@ -7,6 +7,7 @@ import os
 import re
 import subprocess
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
@@ -329,3 +330,22 @@ def test_an_install_a_native_merge_install_made_is_refused_before_colcon(tmp_pat
         check_isolated_install(install)
     assert raised.value.exit_code == 2 and "--merge-install" in raised.value.message
     assert "Remove install/" in raised.value.hint and "--install-base" in raised.value.hint
+
+
+def test_the_defaults_files_cmake_args_join_the_build_testing_espdock_gives(tmp_path):
+    """A `--cmake-args` on colcon's command line replaces the defaults file's: espdock's own
+    -DBUILD_TESTING dropped the user's cmake-args unsaid."""
+    root, dirs = _workspace(tmp_path)
+    user = tmp_path / "defaults.yaml"
+    user.write_text("build:\n  cmake-args: [-DCMAKE_EXPORT_COMPILE_COMMANDS=ON, -DBUILD_TESTING=OFF]\n")
+    settings = read_colcon_settings(root, dirs, None, {"COLCON_DEFAULTS_FILE": str(user)})
+    assert settings.cmake_args == ("-DCMAKE_EXPORT_COMPILE_COMMANDS=ON", "-DBUILD_TESTING=OFF")
+    build = ColconBuild("x", ("a",), (("a", "src"),), defaults_cmake_args=("-DCMAKE_EXPORT_COMPILE_COMMANDS=ON",))
+    plain = replace(build, tests_off=True)
+    assert plain.options == ("--cmake-args", "-DCMAKE_EXPORT_COMPILE_COMMANDS=ON", "-DBUILD_TESTING=OFF")
+    # A test build configures the tests whatever the defaults say; a defaults file setting them
+    # itself is left to say so for a plain build.
+    testing = replace(build, testing=True, defaults_cmake_args=settings.cmake_args)
+    assert testing.options == ("--cmake-args", "-DCMAKE_EXPORT_COMPILE_COMMANDS=ON", "-DBUILD_TESTING=ON")
+    assert replace(plain, defaults_cmake_args=settings.cmake_args).options == ()
+    assert not replace(plain, defaults_cmake_args=settings.cmake_args).says_tests_off

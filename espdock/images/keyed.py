@@ -350,6 +350,8 @@ def _context_dir(workspace: Workspace, spec: ImageSpec, files: Mapping[str, Path
                 path.chmod(0o644)
             else:
                 shutil.copy2(source, path, follow_symlinks=False)
+                if not path.is_symlink():
+                    path.chmod(image_mode(path.stat().st_mode))
         # The modes the image gets, whatever the umask (077 made files only root could read, in
         # an image whose key, of contents, every umask shares).
         for directory in (Path(tmp), *(p for p in Path(tmp).rglob("*") if p.is_dir() and not p.is_symlink())):
@@ -368,3 +370,10 @@ def age_text(seconds: float) -> str:
 def is_current(spec: ImageSpec, existing: ImageInfo | None) -> bool:
     """Whether EXISTING (the engine's image of SPEC's tag, if any) is SPEC's image: its key."""
     return existing is not None and existing.labels.get(LABEL_KEY) == spec.key
+
+
+def image_mode(st_mode: int) -> int:
+    """The mode a file copied into an image gets: readable by all, executable by all where its
+    owner may execute it. A umask of 077 left the install tree's files 0600 (setuptools keeps the
+    sources' modes), which the runtime image's user, not their owner there, could not read."""
+    return 0o755 if st_mode & 0o100 else 0o644

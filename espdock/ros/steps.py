@@ -19,7 +19,7 @@ from espdock.events import Outcome, StepNote, StepOutput
 from espdock.images import volume
 from espdock.images.containers import Containers, give_to, permission_error, volume_mode_refused
 from espdock.images.engine import Mount, RunSpec
-from espdock.images.keyed import KeyedImages
+from espdock.images.keyed import KeyedImages, image_mode
 from espdock.images.visibility import host_paths, linked_mounts, workspace_mount
 from espdock.layout import ROS_BUILD_BASE, WORKSPACE_MOUNT
 from espdock.ros.colcon import (
@@ -347,9 +347,10 @@ def runtime_install_digest(install: Path, packages: tuple[str, ...], root: Path 
     for rel, path in runtime_files(install, packages, root).items():
         if isinstance(path, bytes):
             mode, data = 0o644, path
+        elif path.is_symlink():
+            mode, data = 0o777, os.readlink(path).encode()
         else:
-            mode = path.lstat().st_mode & 0o777
-            data = os.readlink(path).encode() if path.is_symlink() else path.read_bytes()
+            mode, data = image_mode(path.stat().st_mode), path.read_bytes()
         digest.update(f"{rel}\0{mode:o}\0".encode())
         digest.update(hashlib.sha256(data).digest())
     return digest.hexdigest()

@@ -31,6 +31,7 @@ from espdock.ros.testing import (
     check_testable,
     copy_results,
     host_tests_dir,
+    not_left_out,
     prepare_results,
     read_results,
     run_host_tests,
@@ -88,8 +89,15 @@ def test(
     if unknown := [n for n in packages or () if n not in by_name]:
         raise WorkspaceError(f"no package named {', '.join(unknown)} in the workspace", "See `espdock list`.")
     chosen = [by_name[n] for n in packages] if packages else list(every)
-    ros = [p for p in chosen if p.kind is PackageKind.ROS]
+    ros, skipped = not_left_out([p for p in chosen if p.kind is PackageKind.ROS], every, colcon_args)
     firmware = [p for p in chosen if p.kind is PackageKind.FIRMWARE]
+    if skipped and not ros and not firmware:
+        raise ConfigError(
+            f"nothing to test: the options after `--` skip {', '.join(skipped)}",
+            "Name the packages to test (`espdock test PKG...`) or skip fewer; a run that tests nothing passes nothing.",
+        )
+    if skipped:
+        notify(f"not tested (the options after `--` skip them): {', '.join(skipped)}")
     official = config.ros_image == "official"
     check_testable({p.name: p.depends for p in ros}, "official" if official else "wheels")
     if push_cache and not config.cache_registry:

@@ -50,7 +50,9 @@ SELECTING = (
     "--packages-above-and-dependencies", "--packages-above-depth", "--packages-start", "--packages-end",
 )  # fmt: skip
 for _option in SELECTING:
-    REFUSED[_option] = "espdock selects the packages: name them as `espdock build PKG...`"
+    REFUSED[_option] = (
+        "espdock selects the packages: name them on its command line (`espdock build PKG...`, `espdock test PKG...`)"
+    )
 # Options that change which packages run or how they are scheduled, not what a build produces:
 # left out of the stamps, so adding --parallel-workers does not rebuild everything. The value is
 # whether the option takes values.

@@ -27,7 +27,8 @@ from espdock.build.stamps import listing_digest
 from espdock.errors import ConfigError, DependencyError, EspdockError, WorkspaceError
 from espdock.images.containers import give_to, make_dirs_for, permission_error, prepare_output
 from espdock.layout import ROS_BUILD_BASE
-from espdock.ros.colcon import check_colcon_args
+from espdock.ros.colcon import check_colcon_args, left_out
+from espdock.workspace import Package
 
 # Where espdock reads the results: colcon's default (the package's build dir).
 REFUSED_FOR_TEST = {"--test-result-base": f"espdock reads the results in {ROS_BUILD_BASE}/ of the colcon root"}
@@ -428,3 +429,13 @@ def forget_collected(destination: Path) -> None:
         with contextlib.suppress(OSError):  # holds other files still
             (destination / parts[0]).rmdir()
     record.unlink()
+
+
+def not_left_out(
+    packages: list[Package], every: tuple[Package, ...], colcon_args: tuple[str, ...]
+) -> tuple[list[Package], list[str]]:
+    """PACKAGES but those COLCON_ARGS (`colcon test`'s options) skip, and the names of those: colcon
+    would run none of their tests and find no result files (EVERY: the workspace's packages, whose
+    dependencies --packages-skip-up-to and -by-dep follow). Their test dependencies are not asked for."""
+    skipped = left_out(colcon_args, {p.name: p.depends for p in every})
+    return [p for p in packages if p.name not in skipped], [p.name for p in packages if p.name in skipped]

@@ -42,7 +42,7 @@ def test_build_options_pass_and_what_espdock_controls_is_refused():
         with pytest.raises(ConfigError) as err:
             check_colcon_args(("--symlink-install", refused, "a"))
         assert refused.split("=")[0] in err.value.message
-    with pytest.raises(ConfigError, match="name them as `espdock build PKG"):
+    with pytest.raises(ConfigError, match=r"name them on its command line \(`espdock build PKG"):
         check_colcon_args(("--packages-select", "a"))
 
 

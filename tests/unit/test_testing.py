@@ -292,3 +292,27 @@ def test_a_test_that_errored_is_named_as_errored_not_failed(tmp_path):
     lines: list[str] = []
     _render(found, tmp_path, {"p": tmp_path / "log"}, lambda text: lines.append(str(text)))
     assert "    failed: p.test.test_a.test_bad" in lines and "    errored: p.test.test_a.test_two" in lines, lines
+
+
+def test_packages_the_options_after_the_double_dash_skip_are_not_tested_nor_asked_for(tmp_path):
+    """`espdock test PKG -- --packages-skip PKG` passed with "0 tests" where PKG has seven (a green
+    CI job that ran nothing); `-- --packages-skip` of a package with ament_lint test dependencies
+    was still refused for them."""
+    from tests.conftest import copy_workspace, espdock
+    from tests.robot_packages import write_python_package
+
+    root = copy_workspace(tmp_path / "w")
+    linted = write_python_package(root / "ws/src", "linted")
+    manifest = linted / "package.xml"
+    manifest.write_text(manifest.read_text().replace("</package>", "").replace(
+        "<export>", "<test_depend>ament_lint_auto</test_depend>\n  <export>"
+    ) + "</package>\n")  # fmt: skip
+    no_engine = {"DOCKER_HOST": "unix:///nonexistent/docker.sock"}
+    refused = espdock("test", cwd=root, env=no_engine)
+    assert refused.returncode == 2 and "ament_lint_auto" in refused.stderr, refused.stderr
+    skipped = espdock("test", "--", "--packages-skip", "linted", cwd=root, env=no_engine)
+    said = " ".join((skipped.stdout + skipped.stderr).split())
+    assert "not tested (the options after `--` skip them): linted" in said, said
+    assert skipped.returncode == 3 and "ament_lint_auto" not in said  # on to the engine, which is not there
+    nothing = espdock("test", "linted", "--", "--packages-skip", "linted", cwd=root, env=no_engine)
+    assert nothing.returncode == 2 and "nothing to test: the options after `--` skip linted" in nothing.stderr

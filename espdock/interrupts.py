@@ -1,4 +1,4 @@
-"""Ctrl-C and SIGTERM: the first ends any command within GRACE seconds, cleaning up; a second at once.
+"""Ctrl-C, SIGTERM and SIGHUP: the first ends any command within GRACE seconds, cleaning up; a second at once.
 
 espdock installs its own handler because Python turns SIGINT into KeyboardInterrupt only
 when SIGINT was at its default at start-up: a process started in the background by a shell
@@ -35,17 +35,25 @@ _state: dict[str, float | int | bool | None] = {"first": None, "signal": None, "
 
 
 def install() -> None:
-    """Handle SIGINT and SIGTERM as described above, whatever their disposition was at start-up."""
-    signal.signal(signal.SIGINT, _on_signal)
-    signal.signal(signal.SIGTERM, _on_signal)
+    """Handle SIGINT and SIGTERM as described above, whatever their disposition was at start-up;
+    and SIGHUP (the terminal closed, an ssh session dropped), unless it was ignored at start-up
+    (`nohup espdock build`): by default it ended espdock with no cleanup at all, leaving a
+    `monitor` or `menuconfig` container running, holding the serial port."""
+    for signum in _handled():
+        signal.signal(signum, _on_signal)
+
+
+def _handled() -> tuple[signal.Signals, ...]:
+    hangup = () if signal.getsignal(signal.SIGHUP) == signal.SIG_IGN else (signal.SIGHUP,)
+    return (signal.SIGINT, signal.SIGTERM, *hangup)
 
 
 def finish(code: int) -> NoReturn:
     """End the process with CODE once the command is over: flush what it printed, and leave
     without Python's shutdown, which resets signal handlers to the default: a Ctrl-C then would
     kill the process by SIGINT instead of ending it with EXIT_CODE."""
-    signal.signal(signal.SIGINT, _exit_now)  # first: the flush below can wait on a full pipe
-    signal.signal(signal.SIGTERM, _exit_now)
+    for signum in _handled():  # first: the flush below can wait on a full pipe
+        signal.signal(signum, _exit_now)
     for stream in (sys.stdout, sys.stderr):
         if stream is None:  # started with it closed (`espdock build >&-`): nothing to flush
             continue

@@ -30,17 +30,21 @@ except KeyboardInterrupt:
 """
 
 
-def start(grace: float = 8, hold: float = 0, cleanup: float = 0, ignore_sigint: bool = False) -> subprocess.Popen:
+def start(
+    grace: float = 8, hold: float = 0, cleanup: float = 0, ignore_sigint: bool = False, nohup: bool = False
+) -> subprocess.Popen:
     def ignore() -> None:
         # What a shell without job control does to a command it starts in the background.
         signal.signal(signal.SIGINT, signal.SIG_IGN)
+        if nohup:
+            signal.signal(signal.SIGHUP, signal.SIG_IGN)
 
     return subprocess.Popen(
         [sys.executable, "-c", SCRIPT.format(grace=grace, hold=hold, cleanup=cleanup)],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
-        preexec_fn=ignore if ignore_sigint else None,  # noqa: PLW1509 (no threads in the test)
+        preexec_fn=ignore if ignore_sigint or nohup else None,  # noqa: PLW1509 (no threads in the test)
     )
 
 
@@ -49,7 +53,7 @@ def wait_for(process: subprocess.Popen, line: str) -> None:
     assert process.stdout.readline().strip() == line
 
 
-@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM])
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM, signal.SIGHUP])
 def test_a_signal_ends_a_command_started_with_sigint_ignored(signum):
     process = start(ignore_sigint=True)
     wait_for(process, "holding")
@@ -140,3 +144,16 @@ def test_a_command_started_with_its_output_closed_keeps_its_exit_code():
     script = "from espdock import interrupts\ninterrupts.finish(0)\n"
     closed = subprocess.run(["sh", "-c", 'exec "$0" -c "$1" >&- 2>&-', sys.executable, script], check=False)
     assert closed.returncode == 0
+
+
+def test_a_hangup_is_left_to_nohup():
+    """`nohup espdock build &`: the closed terminal's SIGHUP must not end it."""
+    process = start(nohup=True)
+    wait_for(process, "holding")
+    wait_for(process, "ready")
+    process.send_signal(signal.SIGHUP)
+    time.sleep(0.5)
+    assert process.poll() is None, "a hangup nohup asked to ignore ended the command"
+    process.send_signal(signal.SIGTERM)
+    out, _ = process.communicate(timeout=10)
+    assert process.returncode == 130 and out.split() == ["cleaning", "up", "cleaned", "up"]

@@ -48,9 +48,17 @@ def register(argv: Sequence[str] | None = None) -> typer.Typer:
     return app
 
 
+UTF8 = ("utf-8", "utf8")
+
+
 def main() -> NoReturn:
     """Entry point: Ctrl-C and SIGTERM (CI timeouts, `docker stop`) end any command (espdock.interrupts)."""
     interrupts.install()
+    for stream in (sys.stdout, sys.stderr):
+        # A Latin-1 or ASCII locale (or PYTHONIOENCODING) cannot write a bullet or a workspace's
+        # non-ASCII path: a `?` for each such character, not a crash.
+        if stream is not None and hasattr(stream, "reconfigure") and (stream.encoding or "").lower() not in UTF8:
+            stream.reconfigure(errors="replace")
     try:
         try:
             register(sys.argv[1:])

@@ -246,20 +246,34 @@ def prepare_output(path: Path, owner: tuple[int, int], option: str, directory: b
     before any work: the missing directories made (as root, OWNER's), anything in the way
     refused, so a CI job learns of it at once and not as a failure after its build."""
     where = path if directory else path.parent
-    if directory and path.exists() and not path.is_dir():
-        raise ConfigError(f"{option} {path}: that is a file, and {option} names a directory", "Name a directory.")
-    if not directory and path.is_dir():
-        raise ConfigError(f"{option} {path}: that is a directory, and {option} names a file", "Name a file.")
     try:
-        make_dirs_for(where, owner)
-    except (FileExistsError, NotADirectoryError):
-        raise ConfigError(f"{option} {path}: a file is in the way of its directory", "Name another path.") from None
-    except PermissionError as exc:
-        raise permission_error(exc) from None
-    writable = os.access(where, os.W_OK | os.X_OK) and (directory or not path.exists() or os.access(path, os.W_OK))
-    if not writable:
-        denied = path if path.exists() else where
-        raise permission_error(PermissionError(13, "Permission denied", str(denied)))
+        if directory and path.exists() and not path.is_dir():
+            raise ConfigError(f"{option} {path}: that is a file, and {option} names a directory", "Name a directory.")
+        if not directory and path.is_dir():
+            raise ConfigError(f"{option} {path}: that is a directory, and {option} names a file", "Name a file.")
+        try:
+            make_dirs_for(where, owner)
+        except (FileExistsError, NotADirectoryError):
+            raise ConfigError(f"{option} {path}: a file is in the way of its directory", "Name another path.") from None
+        writable = os.access(where, os.W_OK | os.X_OK) and (directory or not path.exists() or os.access(path, os.W_OK))
+        if not writable:
+            raise PermissionError(13, "Permission denied", str(path if path.exists() else where))
+    except OSError as exc:
+        if isinstance(exc, PermissionError) and _owner(exc.filename) not in (None, 0):
+            raise permission_error(exc) from None  # a user's leftover (a `sudo` run's): chown it back
+        # Root's directory (/root/x as a user: even asking whether it exists is refused), a
+        # system one (/proc): no chown of the user's to give, another path to name.
+        raise ConfigError(
+            f"{option} {path}: espdock (uid {os.geteuid()}) cannot write there ({exc.strerror or exc})",
+            "Name a path you can write, e.g. in the workspace.",
+        ) from None
+
+
+def _owner(path: str | None) -> int | None:
+    try:
+        return os.stat(path).st_uid if path else None
+    except OSError:
+        return None
 
 
 def volume_mode_refused(what: str, firmware: bool = True) -> WorkspaceNotVisible:

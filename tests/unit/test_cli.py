@@ -7,6 +7,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 from espdock.layout import firmware_install_dir
 from tests.conftest import REPO, copy_workspace, espdock
 from tests.robot_packages import write_interface_package
@@ -435,6 +437,9 @@ def test_a_report_or_results_path_is_checked_before_the_build_and_its_directorie
         (("build", "--report", "afile/report.json"), "--report afile/report.json: a file is in the way"),
         (("build", "--report", "ws"), "--report ws: that is a directory"),
         (("test", "--results", "afile"), "--results afile: that is a file"),
+        # A system directory: it was exit 70, "a bug in espdock" (FileNotFoundError).
+        (("test", "--results", "/proc/espdock-results"), "--results /proc/espdock-results: espdock (uid 0) cannot"),
+        (("build", "--report", "/proc/espdock/r.json"), "--report /proc/espdock/r.json: espdock (uid 0) cannot"),
     ):
         result = espdock(*args, cwd=root, env=NO_ENGINE)
         assert result.returncode == 2 and said in result.stderr, (args, result.stderr)
@@ -517,3 +522,31 @@ def test_an_interface_package_using_a_type_of_one_it_does_not_depend_on_is_named
         "depend on robot_msgs" in said
     ), said
     assert f"Add <depend>robot_msgs</depend> to {manifest}" in said
+
+
+def test_an_output_path_in_root_s_directory_is_refused_as_bad_input_without_a_chown_hint(tmp_path, monkeypatch):
+    """`--results /root/x` as a user: asking whether it exists raised PermissionError, exit 70,
+    "a bug in espdock"."""
+    from espdock.errors import ConfigError
+    from espdock.images.containers import prepare_output
+
+    private = tmp_path / "root-only"
+    private.mkdir(mode=0o700)
+
+    def refused(self, *args, **kwargs):
+        raise PermissionError(13, "Permission denied", str(self))
+
+    monkeypatch.setattr(Path, "exists", refused)  # as for a user: root reads any directory
+    with pytest.raises(ConfigError, match="cannot write there") as err:
+        prepare_output(private / "x", (4242, 4242), "--results", directory=True)
+    assert err.value.exit_code == 2 and "chown" not in (err.value.hint or "")
+
+
+def test_a_locale_that_cannot_write_a_character_gets_a_question_mark_not_a_crash(tmp_path):
+    """LANG=en_US.ISO-8859-1 (or PYTHONIOENCODING=ascii) and a workspace called röbot: exit 70,
+    "a bug in espdock" (UnicodeEncodeError) on the first bullet or on the path."""
+    root = copy_workspace(tmp_path / "röbot")
+    listed = espdock("list", cwd=root, env={"PYTHONIOENCODING": "ascii"})
+    assert listed.returncode == 0 and "r?bot" in listed.stdout, listed.stderr
+    planned = espdock("build", "--dry-run", cwd=root, env={"PYTHONIOENCODING": "ascii", **NO_ENGINE})
+    assert planned.returncode == 0 and "custom_interface" in planned.stdout, planned.stderr

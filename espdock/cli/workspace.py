@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import shlex
 import time
 from pathlib import Path
 from typing import Annotated
@@ -320,7 +321,7 @@ def init(
     console.print(f"found {len(firmware)} firmware package(s){': ' + ', '.join(firmware) if firmware else ''}")
     if firmware and (skips := colcon_register.colcon_skips_firmware(dict(os.environ))):
         console.print(f"note: {skips}")
-    here = "" if directory.resolve() == Path.cwd() else f"cd {directory} && "
+    here = "" if directory.resolve() == Path.cwd() else f"cd {shlex.quote(str(directory))} && "
     console.print("next:")
     if compose:  # after a build, to run what it built
         console.print(f"  {here}espdock compose up        # the nodes compose.yaml names, each a service")

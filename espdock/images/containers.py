@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import os
 import re
+import shlex
 import shutil
 import subprocess
 from collections.abc import Mapping
@@ -211,19 +212,29 @@ def permission_error(
     path = Path(exc.filename) if exc.filename else None
     owner = ""
     top = None
+    owner_uid = None
     if path is not None:
         try:
-            info = path.lstat() if path.exists() or path.is_symlink() else path.parent.lstat()
-            where = "" if path.exists() else ", its directory"
+            denied = path if path.exists() or path.is_symlink() else path.parent
+            info = denied.lstat()
+            owner_uid = info.st_uid
+            where = "" if denied == path else ", its directory"
             owner = f" (owner uid {info.st_uid}, mode {info.st_mode & 0o7777:04o}{where})"
-            top = _topmost_of(path if path.exists() else path.parent, info.st_uid, within)
+            top = _topmost_of(denied, info.st_uid, within)
         except OSError:
             pass
+    writer = os.geteuid() if user is None else user[0]
     if user is None:
         who, chown = f"espdock runs as uid {os.geteuid()}", "$(id -u):$(id -g)"
     else:
         who, chown = f"the build writes as uid {user[0]}", f"{user[0]}:{user[1]}"
-    give_back = f"sudo chown -R {chown} {top}" if top is not None else f"sudo chown -R {chown} PATH"
+    if owner_uid == writer:
+        # Its own file, without the write bit (a `chmod -R a-w` tree): no owner to give it back to.
+        return WorkspaceError(
+            f"permission denied on {path}{owner}; {who}, its owner, but its mode does not let it write",
+            f"Let its owner write it (`chmod u+w {shlex.quote(str(denied))}`), or build elsewhere.",
+        )
+    give_back = f"sudo chown -R {chown} {shlex.quote(str(top))}" if top is not None else f"sudo chown -R {chown} PATH"
     return WorkspaceError(
         f"permission denied on {path or 'a workspace file'}{owner}; {who}",
         f"Give it back (`{give_back}`); files a container wrote as another user are the engine's doing: "

@@ -550,3 +550,10 @@ def test_a_locale_that_cannot_write_a_character_gets_a_question_mark_not_a_crash
     assert listed.returncode == 0 and "r?bot" in listed.stdout, listed.stderr
     planned = espdock("build", "--dry-run", cwd=root, env={"PYTHONIOENCODING": "ascii", **NO_ENGINE})
     assert planned.returncode == 0 and "custom_interface" in planned.stdout, planned.stderr
+
+
+def test_init_s_next_step_is_a_command_line_that_works_when_pasted(tmp_path):
+    """`espdock init "my röbot ws"` said `cd my röbot ws && espdock new my_board`: cd: too many arguments."""
+    made = espdock("init", "my röbot ws", cwd=tmp_path)
+    assert made.returncode == 0, made.stderr
+    assert "cd 'my röbot ws' && espdock new" in " ".join(made.stdout.split()), made.stdout

@@ -470,3 +470,21 @@ def test_what_needs_this_machine_is_refused_before_any_image_where_the_volume_is
     assert len(engine.runs) == asked, "decided from the kept answer"
     with pytest.raises(WorkspaceNotVisible):
         runner(FakeEngine(), Config(workspace_mode="volume")).containers.known_to_need_this_machine(ws, "x")
+
+
+def test_permission_hints_quote_their_path_and_name_the_fix_that_applies(tmp_path):
+    """`chmod -R a-w src` of the user's own tree got "sudo chown -R" to the user it already was;
+    a workspace called `my ws` got a chown hint that, pasted, changed two other paths."""
+    import shlex
+
+    from espdock.images.containers import permission_error
+
+    root = tmp_path / "my ws"
+    (root / "install/talker").mkdir(parents=True)
+    os.chown(root / "install", 4242, 4242)
+    os.chown(root / "install/talker", 4242, 4242)
+    other = permission_error(PermissionError(13, "denied", str(root / "install/talker/x")), (1000, 1000), root)
+    assert f"`sudo chown -R 1000:1000 {shlex.quote(str(root / 'install'))}`" in other.hint
+    own = permission_error(PermissionError(13, "denied", str(root / "install/talker/x")), (4242, 4242), root)
+    assert "its owner, but its mode does not let it write" in own.message and "chown" not in own.hint
+    assert f"`chmod u+w {shlex.quote(str(root / 'install/talker'))}`" in own.hint

@@ -101,8 +101,11 @@ class DiskFull(EspdockError):
     exit_code = 7
 
 
-def disk_full(path: str | os.PathLike[str], low: int = 64 << 20) -> DiskFull | None:
-    """A DiskFull naming the filesystem that holds PATH when it has less than LOW bytes free, else None."""
+def disk_full(path: str | os.PathLike[str], low: int = 64 << 20, known: bool = False) -> DiskFull | None:
+    """A DiskFull naming the filesystem that holds PATH when it is nearly full (less than LOW bytes
+    and under 5 % of it free: a small filesystem with most of it free is not full, and taking it
+    for full hid a build's real error), or whatever it has free when it is KNOWN to be (ENOSPC);
+    else None."""
     where = os.path.abspath(path)
     while not os.path.exists(where):
         where = os.path.dirname(where)
@@ -110,7 +113,7 @@ def disk_full(path: str | os.PathLike[str], low: int = 64 << 20) -> DiskFull | N
         usage = shutil.disk_usage(where)
     except OSError:
         return None
-    if usage.free >= low:
+    if not known and (usage.free >= low or usage.free >= usage.total / 20):
         return None
     mount = where
     while not os.path.ismount(mount):
@@ -118,7 +121,7 @@ def disk_full(path: str | os.PathLike[str], low: int = 64 << 20) -> DiskFull | N
     return DiskFull(
         f"the disk holding {path} (the filesystem mounted at {mount}) is full: "
         f"{usage.free >> 20} MiB free of {usage.total >> 20} MiB",
-        "Free space there, then build again: what was installed before is unchanged, and the build resumes.",
+        "Free space there, then build again: what this build did not finish is built again.",
     )
 
 

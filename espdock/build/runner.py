@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import errno
 import time
 from collections.abc import Mapping
 from pathlib import Path
@@ -11,7 +12,7 @@ from typing import assert_never
 from espdock.build.plan import Step
 from espdock.build.steps import LABEL_WORKSPACE, EnsureBaseImage, EnsureImage, Plan
 from espdock.config import Config
-from espdock.errors import BuildFailed, EspdockError, ImageBuildError, disk_full
+from espdock.errors import BuildFailed, DiskFull, EspdockError, ImageBuildError, disk_full
 from espdock.events import Emit, Outcome, StepFinished, StepNote, StepStarted
 from espdock.firmware.plan import IdfBuild, InstallFirmware
 from espdock.firmware.steps import FIRMWARE_STAMPS, INSTALL_STAMPS, FirmwareSteps
@@ -105,7 +106,7 @@ class Runner:
             except (EspdockError, OSError) as exc:
                 # A build that failed for want of space says so (a compiler's "No space left"
                 # is easy to miss in its log); espdock's own writes fail with ENOSPC.
-                full = disk_full(workspace.ws_dir)
+                full = _full_disk(workspace, exc)
                 if full is not None:
                     raise full from exc
                 if isinstance(exc, PermissionError):
@@ -151,3 +152,12 @@ def _packages_of(steps: tuple[Step, ...]) -> list[str]:
         elif isinstance(step, IdfBuild):
             names.append(step.package)
     return list(dict.fromkeys(names))
+
+
+def _full_disk(workspace: Workspace, exc: Exception) -> DiskFull | None:
+    """The full disk a step failed for: the one an ENOSPC names, else a nearly full one of the trees
+    a build writes (build/ or install/ may be filesystems of their own)."""
+    if isinstance(exc, OSError) and exc.errno == errno.ENOSPC:
+        return disk_full(exc.filename or workspace.ws_dir, known=True)
+    trees = (workspace.ws_dir, workspace.ws_dir / "build", workspace.ws_dir / "install")
+    return next((full for tree in trees if (full := disk_full(tree)) is not None), None)

@@ -488,3 +488,20 @@ def test_permission_hints_quote_their_path_and_name_the_fix_that_applies(tmp_pat
     own = permission_error(PermissionError(13, "denied", str(root / "install/talker/x")), (4242, 4242), root)
     assert "its owner, but its mode does not let it write" in own.message and "chown" not in own.hint
     assert f"`chmod u+w {shlex.quote(str(root / 'install/talker'))}`" in own.hint
+
+
+def test_no_space_left_where_the_workspace_disk_has_room_is_a_full_disk_not_a_bug(ws, monkeypatch):
+    """build/ on a filesystem of its own, full: colcon's ENOSPC in espdock's own write was exit 70."""
+    import errno
+
+    from espdock.errors import DiskFull
+
+    engine = FakeEngine(run_script=colcon_installs(ws))
+
+    def no_space(base, args):
+        raise OSError(errno.ENOSPC, "No space left on device", str(base / ".espdock-colcon-args"))
+
+    monkeypatch.setattr("espdock.ros.steps.record_build_args", no_space)
+    with pytest.raises(DiskFull) as err:
+        runner(engine).run(Plan(ws, (COLCON,)))
+    assert err.value.exit_code == 7 and f"the disk holding {ws.ws_dir / 'build'}" in err.value.message

@@ -7,7 +7,6 @@ import fcntl
 import hashlib
 import json
 import os
-import re
 import sys
 import tempfile
 from collections.abc import Iterable, Iterator
@@ -480,33 +479,23 @@ def read_build_inputs(workspace: Workspace, packages: Iterable[Package]) -> Buil
     )
 
 
-_TARGETS_KEY = re.compile(r"^targets\s*:\s*(\[[^\]]*\])?\s*(#.*)?$")
-_LIST_ITEM = re.compile(r"^\s+-\s*[\"']?([A-Za-z0-9_]+)[\"']?\s*(#.*)?$")
-
-
 def component_targets(manifest: Path) -> tuple[str, ...]:
     """The chips an IDF component manifest (idf_component.yml) lists under its top-level
-    `targets` (a block or flow list of names, the component manager's field for the targets a
-    component supports); () when it lists none."""
+    `targets` (the component manager's field for the targets a component supports), read as the
+    component manager reads it, YAML in any of its list forms; () when it lists none."""
     if not manifest.is_file():
         return ()
-    lines = manifest.read_text(errors="replace").splitlines()
-    for index, line in enumerate(lines):
-        match = _TARGETS_KEY.match(line)
-        if not match:
-            continue
-        if match.group(1):
-            return tuple(t.strip().strip("\"'") for t in match.group(1)[1:-1].split(",") if t.strip())
-        found = []
-        for item in lines[index + 1 :]:
-            if not item.strip() or item.lstrip().startswith("#"):
-                continue
-            entry = _LIST_ITEM.match(item)
-            if not entry:
-                break
-            found.append(entry.group(1))
-        return tuple(found)
-    return ()
+    import yaml  # only for a workspace with such a file
+
+    try:
+        data = yaml.safe_load(manifest.read_text(errors="replace"))
+    except yaml.YAMLError as exc:
+        raise WorkspaceError(
+            f"{manifest} is not valid YAML: {str(exc).splitlines()[0]}",
+            "Fix it: the IDF component manager refuses it too.",
+        ) from None
+    targets = data.get("targets") if isinstance(data, dict) else None
+    return tuple(str(target) for target in targets) if isinstance(targets, list) else ()
 
 
 def write_atomically(path: Path, text: str) -> None:

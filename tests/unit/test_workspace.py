@@ -244,3 +244,22 @@ def test_an_interface_package_s_editor_leftovers_are_not_library_inputs(tmp_path
         (package / leftover).write_text("old\n")
     assert read_build_inputs(workspace, packages).package_files["robo_interfaces"] == before
     assert "msg/BoardStatus.msg" in before
+
+
+@pytest.mark.parametrize(
+    "text",
+    [
+        "targets:\n  - esp32\n  - esp32s3\n",
+        "targets:\n- esp32\n- esp32s3\n",  # a block list at the key's indent: valid YAML
+        "targets: [\n  esp32,\n  esp32s3\n]\n",  # a flow list over several lines
+        "dependencies:\n  idf: '>=5.1'\ntargets: ['esp32', \"esp32s3\"]  # the chips\n",
+    ],
+)
+def test_an_idf_component_manifest_s_targets_are_read_in_every_yaml_list_form(tmp_path, text):
+    """An unindented block list or a multi-line flow list read as "any chip": a build for another
+    chip went ahead, where the component manager would have refused it."""
+    from espdock.workspace import component_targets
+
+    manifest = tmp_path / "idf_component.yml"
+    manifest.write_text(text)
+    assert component_targets(manifest) == ("esp32", "esp32s3")

@@ -120,6 +120,15 @@ def derive_interface_packages(packages: tuple[Package, ...], firmware: Package |
         package = by_name.get(name)
         if name in wanted or package is None or package.kind is not PackageKind.ROS:
             continue
+        if name in STANDARD_INTERFACES:
+            # micro-ROS builds its own beside the library's extra packages, and colcon there
+            # refuses two packages of one name ("duplicate package name").
+            raise WorkspaceError(
+                f"{package.path} is a package named {name}, which micro-ROS builds itself: its library "
+                "cannot take a second one, which firmware here depends on",
+                f"Give the workspace's package a name of its own (and its users the new name), or keep "
+                f"firmware off it: micro-ROS's {name} is the standard one.",
+            )
         if not package.is_interface:
             if GENERATORS in package.depends:
                 # Only that group goes into the library: its headers would be missing from the

@@ -98,6 +98,15 @@ def test_an_interface_package_outside_the_group_is_named_not_left_out():
     assert "<member_of_group>rosidl_interface_packages</member_of_group>" in raised.value.hint
 
 
+def test_a_workspace_package_with_a_standard_interface_s_name_is_refused_for_firmware():
+    """A std_msgs of the workspace's own (an overlay adding a message): micro-ROS's library build
+    failed on "duplicate package name 'std_msgs'" with the hint to read its output."""
+    packages = (ros("std_msgs", interface=True), firmware("fw", depends=["std_msgs"]))
+    with pytest.raises(WorkspaceError, match="a package named std_msgs, which micro-ROS builds itself"):
+        derive_interface_packages(packages)
+    assert derive_interface_packages((ros("std_msgs", interface=True), firmware("fw", depends=["sensor_msgs"]))) == ()
+
+
 def test_a_test_only_dependency_is_not_in_the_library():
     """A <test_depend> of the firmware or of an interface package it uses went into the library
     (a bigger one, rebuilt when that package changed, failing the firmware over types it never uses)."""

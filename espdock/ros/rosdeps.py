@@ -352,7 +352,8 @@ def rosdep_rules(
         if installer not in ("apt", "pip"):
             rules[key] = Rule(None, why=f"rosdep installs it with {installer}, which the image lacks")
         elif not packages:
-            rules[key] = Rule(None, why=f"rosdep's rule for {os_spec} installs nothing")
+            # rosdep's way of saying the key needs nothing on this platform: satisfied as it is.
+            rules[key] = Rule(installer)
         else:
             rules[key] = Rule(installer, packages, pip_elsewhere=_pip_packages(definition.data))
     return rules
@@ -368,7 +369,9 @@ def for_image(rules: Mapping[str, Rule], image: RosImage, pip_rules: Mapping[str
     mapped = {}
     for key, rule in rules.items():
         python = [p for p in rule.packages if p.startswith("python3-") and p not in pypi_names.APT_KEPT]
-        if rule.installer == "apt" and all(p.startswith(ros_prefix) for p in rule.packages):
+        if not rule.packages:
+            mapped[key] = rule
+        elif rule.installer == "apt" and all(p.startswith(ros_prefix) for p in rule.packages):
             mapped[key] = Rule("pip", rule.packages, f"the wheel(s) {', '.join(rule.packages)}")
         elif rule.installer == "apt" and python:
             mapped[key] = python_rule(key, rule, pip_rules.get(key))

@@ -153,7 +153,15 @@ def test_the_real_rosdep_resolves_the_rules_for_each_image_os(tmp_path, monkeypa
     env = environment(tmp_path)
     for name, value in env.items():
         monkeypatch.setenv(name, value)
-    keys = ["tinyxml2", "python-tabulate-pip", "acpitool", "fswebcam", "rclcpp", "no_such_key"]
+    keys = [
+        "tinyxml2",
+        "python-tabulate-pip",
+        "acpitool",
+        "fswebcam",
+        "rclcpp",
+        "no_such_key",
+        "espdock_test_satisfied",
+    ]
     debian = rosdeps.rosdep_rules(keys, "debian:bookworm", "jazzy", env)
     ubuntu = rosdeps.rosdep_rules(keys, "ubuntu:noble", "jazzy", env)
 
@@ -169,6 +177,11 @@ def test_the_real_rosdep_resolves_the_rules_for_each_image_os(tmp_path, monkeypa
     assert "ubuntu:noble" in ubuntu["acpitool"].why
     assert ubuntu["fswebcam"].installer == "apt" and debian["fswebcam"].installer is None
     assert "unknown" in debian["no_such_key"].why
+    # An empty list is rosdep's "nothing to install": satisfied, on the image as it is. It was refused
+    # ("installs nothing") after the build's own hint had said to add a rule.
+    assert answer(debian["espdock_test_satisfied"]) == ("apt", ())
+    wheels = rosdeps.RosImage("wheels", "jazzy", "debian:bookworm", frozenset())
+    assert answer(rosdeps.for_image(debian, wheels, {})["espdock_test_satisfied"]) == ("apt", ())
     assert rosdeps.database_age(env) is not None
 
 

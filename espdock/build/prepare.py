@@ -13,7 +13,7 @@ from espdock.build.steps import EnsureImage, Plan
 from espdock.config import Config, invoking_user
 from espdock.errors import EspdockError
 from espdock.firmware.plan import IdfBuild, firmware_step, unknown_dependencies
-from espdock.layout import ROS_BUILD_BASE, ROSDEP_LOCK
+from espdock.layout import ROS_BUILD_BASE, ROSDEP_LOCK, firmware_build_dir
 from espdock.ros import interfaces, rosdeps, testdeps
 from espdock.ros.colcon import last_build_args, read_colcon_settings, without_build_testing
 from espdock.ros.plan import ColconBuild, RuntimeImage, checked_packages, ros_image
@@ -80,6 +80,14 @@ def build_plan(
             notify(f"warning: {line}")
     if only in (None, PackageKind.FIRMWARE):
         for firmware in (p for p in chosen if p.kind is PackageKind.FIRMWARE):
+            if (firmware.path / "sdkconfig").is_file():
+                rel = (firmware.path / "sdkconfig").relative_to(ws.root)
+                used = (firmware_build_dir(ws.ws_dir, firmware.name) / "sdkconfig").relative_to(ws.root)
+                notify(
+                    f"warning: {rel} is not read: the build's sdkconfig is {used}, made from "
+                    f"sdkconfig.defaults (plain idf.py would take the project's). Put its settings in "
+                    f"sdkconfig.defaults (`idf.py save-defconfig` writes the ones that differ) and remove it"
+                )
             if unknown := unknown_dependencies(firmware, packages):
                 notify(
                     f"warning: {firmware.name} depends on {', '.join(unknown)}: in no package of this workspace, nor "

@@ -557,3 +557,18 @@ def test_init_s_next_step_is_a_command_line_that_works_when_pasted(tmp_path):
     made = espdock("init", "my röbot ws", cwd=tmp_path)
     assert made.returncode == 0, made.stderr
     assert "cd 'my röbot ws' && espdock new" in " ".join(made.stdout.split()), made.stdout
+
+
+def test_a_project_s_own_sdkconfig_which_the_build_does_not_read_is_named_before_it(tmp_path):
+    """An existing IDF project moved in with its committed sdkconfig: espdock built from
+    sdkconfig.defaults into ws/build/PKG/sdkconfig, and the firmware differed, unsaid."""
+    root = copy_workspace(tmp_path / "w")
+    shutil.copytree(REPO / "firmware", root / "firmware")
+    (root / "firmware/led_strip_node/sdkconfig").write_text("CONFIG_FREERTOS_HZ=200\n")
+    planned = espdock("build", "--dry-run", cwd=root, env=NO_ENGINE)
+    said = " ".join((planned.stdout + planned.stderr).split())
+    assert planned.returncode == 0, said
+    assert (
+        "warning: firmware/led_strip_node/sdkconfig is not read: the build's sdkconfig is "
+        "ws/build/led_strip_node/sdkconfig" in said
+    )

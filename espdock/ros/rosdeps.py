@@ -30,7 +30,7 @@ from pathlib import Path
 
 from espdock.defaults import locate
 from espdock.errors import DependencyError, LockError
-from espdock.layout import xdg_dir
+from espdock.layout import ROSDEP_LOCK, xdg_dir
 from espdock.ros import pypi_names
 from espdock.ros.system_python import SystemPython, normalise
 from espdock.workspace import Package, PackageKind, root_key, workspace_gone
@@ -98,6 +98,8 @@ def needed_keys(packages: Iterable[Package], image: RosImage) -> dict[str, tuple
 
 
 UNKNOWN_KEY = "no rosdep rule: the key is unknown to rosdep's database"
+# A key the lock has no entry for: the lock was made before a package.xml named it.
+NOT_LOCKED = "not in the lock"
 
 
 def lock_input(needed: Mapping[str, tuple[str, ...]], image: RosImage) -> str:
@@ -170,11 +172,18 @@ def check_dependencies(
     for package in selected:
         missing = [k for k in needed.get(package.name, ()) if not keys.get(k, {}).get("installer")]
         if missing:
-            whys |= {keys.get(k, {}).get("why", "not resolved") for k in missing}
-            why = "; ".join(f"{k}: {keys.get(k, {}).get('why', 'not resolved')}" for k in missing)
+            whys |= {keys.get(k, {}).get("why", NOT_LOCKED) for k in missing}
+            why = "; ".join(f"{k}: {keys.get(k, {}).get('why', NOT_LOCKED)}" for k in missing)
             lines.append(f"  {package.name} ({package.path}): {why}")
     if not lines:
         return
+    if whys == {NOT_LOCKED}:
+        # Only keys the lock has never seen (a dependency declared, or a typo fixed, since): the
+        # lock is behind the package.xml files, not rosdep behind the key.
+        raise DependencyError(
+            f"{ROSDEP_LOCK} is older than the package.xml files:\n" + "\n".join(lines),
+            "Run `espdock lock` (or `espdock build`, which refreshes it) and run again.",
+        )
     ways = [
         "add a rosdep rule for the key (a sources.list.d entry; ROSDEP_SOURCE_PATH) and run `espdock lock`",
         "put COLCON_IGNORE in the package's directory",

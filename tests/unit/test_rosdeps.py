@@ -119,6 +119,19 @@ def test_the_check_lists_each_package_with_its_missing_keys_and_the_ways_out():
     assert "official" not in caught.value.hint and "rosdep rule" in caught.value.hint
 
 
+def test_a_key_the_lock_has_never_seen_names_the_stale_lock_not_rosdep():
+    """A typo fixed in package.xml (python3-serail -> python3-serial), then `espdock run`: "not
+    resolved", with ways out about rosdep rules and the official image, where `espdock lock` was it."""
+    lock = {"keys": {"python3-serail": {"installer": None, "why": rosdeps.UNKNOWN_KEY}}}
+    with pytest.raises(DependencyError) as caught:
+        rosdeps.check_dependencies((package("a", {"python3-serial"}),), {"a": ("python3-serial",)}, lock, WHEELS)
+    assert caught.value.message.splitlines() == [
+        "rosdep.lock.json is older than the package.xml files:",
+        "  a (/ws/src/a): python3-serial: not in the lock",
+    ]
+    assert "`espdock lock`" in caught.value.hint and "official" not in caught.value.hint
+
+
 def test_python_keys_become_pip_in_the_wheels_venv_and_ros_keys_their_wheels():
     rules = {
         "python3-numpy": rosdeps.Rule("apt", ("python3-numpy",)),

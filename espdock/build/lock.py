@@ -24,7 +24,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 
 from espdock.build.steps import EnsureImage, Plan
-from espdock.config import Config
+from espdock.config import Config, resolve_ca_bundle
 from espdock.defaults import locate
 from espdock.errors import LockError
 from espdock.layout import ROSDEP_LOCK
@@ -177,10 +177,14 @@ def uv_binary() -> str:
 
 
 def lock_workspace(
-    root: Path, uv: str, upgrade: bool = False, owner: tuple[int, int] | None = None
+    root: Path,
+    uv: str,
+    upgrade: bool = False,
+    owner: tuple[int, int] | None = None,
+    ca_bundle: Path | None = None,
 ) -> list[LockResult]:
     """Compile every lock of the workspace at ROOT from its source with the uv binary UV, writing
-    the ones that changed; OWNER (uid, gid) gets the files it creates."""
+    the ones that changed; OWNER (uid, gid) gets the files it creates (CA_BUNDLE: rosdeps.uv_env)."""
     results = []
     for spec in LOCKS:
         if not applies(spec, root):
@@ -189,7 +193,7 @@ def lock_workspace(
             results.append(LockResult(spec, "default"))
             continue
         old, digests = _state(spec, root)
-        text = header(spec, digests) + _compile(spec, root, uv, old, upgrade)
+        text = header(spec, digests) + _compile(spec, root, uv, old, upgrade, ca_bundle)
         target = root / spec.lock
         before = target.read_text() if target.is_file() else None
         if text == before:
@@ -206,7 +210,9 @@ def lock_workspace(
     return results
 
 
-def _compile(spec: LockSpec, root: Path, uv: str, previous: str | None, upgrade: bool) -> str:
+def _compile(
+    spec: LockSpec, root: Path, uv: str, previous: str | None, upgrade: bool, ca_bundle: Path | None = None
+) -> str:
     """uv's lock of SPEC, keeping PREVIOUS's pins where the source allows (unless UPGRADE)."""
     # Inputs of the workspace's own by their relative paths (so uv's "# via" notes name them so),
     # espdock's defaults by their absolute ones.
@@ -216,7 +222,8 @@ def _compile(spec: LockSpec, root: Path, uv: str, previous: str | None, upgrade:
         output.write_text(previous or "")
         argv = [uv, "pip", "compile", "--quiet", "--no-header", *spec.command(paths), "-o", str(output)]
         argv += ["--upgrade"] if upgrade else []
-        result = subprocess.run(argv, cwd=root, env=rosdeps.uv_env(tmp), capture_output=True, text=True, check=False)
+        env = rosdeps.uv_env(tmp, ca_bundle)
+        result = subprocess.run(argv, cwd=root, env=env, capture_output=True, text=True, check=False)
         if result.returncode != 0:
             raise LockError(
                 f"uv could not lock {spec.lock} from {spec.source}:\n{result.stderr.strip()}",
@@ -262,9 +269,10 @@ def lock_rosdeps(
     from espdock.images.keyed import age_text
 
     system = official_python(config, inputs, env) if image.flavour == "official" else None
-    lock = rosdeps.resolve_workspace(packages, image, root, env, uv_binary(), system)
+    ca = resolve_ca_bundle(config, env)
+    lock = rosdeps.resolve_workspace(packages, image, root, env, uv_binary(), system, ca)
     if tests:  # apart from the build's: only `espdock test` installs them
-        lock[testdeps.SECTION] = testdeps.resolve(packages, image, root, env, uv_binary(), system)
+        lock[testdeps.SECTION] = testdeps.resolve(packages, image, root, env, uv_binary(), system, ca)
     if needed or tests:
         lock["sources"] = rosdeps.database_sources(env, root)
     text = rosdeps.lock_text(lock)

@@ -30,7 +30,7 @@ from espdock.cli.core import (
 )
 from espdock.cli.prune import after_build, record_images
 from espdock.cli.ui import STAMPED, Reporter, nothing_to_build, render_packages, render_plan
-from espdock.config import check_target, in_ci, invoking_user
+from espdock.config import check_target, in_ci, invoking_user, resolve_ca_bundle
 from espdock.errors import ConfigError, EspdockError, WorkspaceError
 from espdock.events import Outcome
 from espdock.firmware import transport
@@ -210,7 +210,7 @@ def lock(
     status, database = lock_rosdeps(ws.root, config, packages, read_build_inputs(ws, packages), os.environ, owner)
     if database:  # else: none needed, none there
         console.print(f"{ROSDEP_LOCK}: {status} ({database})")
-    for result in lock_workspace(ws.root, uv_binary(), upgrade, owner):
+    for result in lock_workspace(ws.root, uv_binary(), upgrade, owner, resolve_ca_bundle(config, os.environ)):
         spec = result.spec
         if result.status == "default":
             console.print(f"{spec.lock}: espdock's default (the workspace has no {spec.source} of its own)")

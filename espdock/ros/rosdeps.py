@@ -413,15 +413,31 @@ def pip_alternatives(keys: Iterable[str]) -> list[str]:
     return out
 
 
-def uv_env(tmp: str) -> dict[str, str]:
+def uv_env(tmp: str, ca_bundle: Path | None = None) -> dict[str, str]:
     """The environment uv runs in: this one, with TMP (removed afterwards) as its temp dir. uv
     leaves a lock file in the temp dir for every setuptools source tree it builds (a pip key's
-    sdist), about one per `espdock lock` here."""
-    return {**os.environ, "TMPDIR": tmp}
+    sdist), about one per `espdock lock` here. CA_BUNDLE: the extra CA bundle (espdock's
+    ca_bundle, else pip's configured cert), which uv reads from no pip.conf: with the system's
+    CAs, its SSL_CERT_FILE, unless the user set one."""
+    env = {**os.environ, "TMPDIR": tmp}
+    if ca_bundle is not None and not env.get("SSL_CERT_FILE"):
+        import ssl
+
+        paths = ssl.get_default_verify_paths()
+        system = next((Path(p) for p in (paths.cafile, paths.openssl_cafile) if p and Path(p).is_file()), None)
+        combined = Path(tmp) / "espdock-ca.pem"
+        combined.write_bytes((system.read_bytes() + b"\n" if system else b"") + ca_bundle.read_bytes())
+        env["SSL_CERT_FILE"] = str(combined)
+    return env
 
 
 def pip_lock_lines(
-    requirements: Iterable[str], image: RosImage, root: Path, uv: str, system: SystemPython | None = None
+    requirements: Iterable[str],
+    image: RosImage,
+    root: Path,
+    uv: str,
+    system: SystemPython | None = None,
+    ca_bundle: Path | None = None,
 ) -> tuple[list[str], set[str]]:
     """uv's hashed lock of REQUIREMENTS for the image's Python (one line per package, hashes
     inline), and the requirements PyPI does not have (dropped). SYSTEM: the official image's
@@ -445,7 +461,7 @@ def pip_lock_lines(
                     args += ["-c", str(installed)]
             argv = [uv, "pip", "compile", "--quiet", "--no-header", "--no-annotate", "--generate-hashes"]
             argv += [*args, str(source), "-o", str(out)]
-            result = subprocess.run(argv, env=uv_env(tmp), check=False, capture_output=True, text=True)
+            result = subprocess.run(argv, env=uv_env(tmp, ca_bundle), check=False, capture_output=True, text=True)
             if result.returncode == 0:
                 return _one_line_each(out.read_text()), absent
         gone = set(_NOT_FOUND.findall(result.stderr)) & set(wanted)
@@ -483,8 +499,10 @@ def resolve_workspace(
     env: Mapping[str, str],
     uv: str,
     system: Callable[[], SystemPython] | None = None,
+    ca_bundle: Path | None = None,
 ) -> dict:
-    """The lock for PACKAGES on IMAGE: rosdep's rules for every needed key, as the image installs them."""
+    """The lock for PACKAGES on IMAGE: rosdep's rules for every needed key, as the image installs
+    them (CA_BUNDLE: see uv_env)."""
     needed = needed_keys(packages, image)
     keys = sorted({k for ks in needed.values() for k in ks})
     rules = rosdep_rules([*keys, *pip_alternatives(keys)], image.os, image.distro, env, root) if keys else {}
@@ -493,7 +511,7 @@ def resolve_workspace(
     pip_wanted = [p for rule in mapped.values() if rule.installer == "pip" for p in rule.packages]
     # The official image's Python is read (a container run) only when there is pip to lock.
     installed = system() if pip_wanted and system is not None else None
-    pip_lines, absent = pip_lock_lines(pip_wanted, image, root, uv, installed) if pip_wanted else ([], set())
+    pip_lines, absent = pip_lock_lines(pip_wanted, image, root, uv, installed, ca_bundle) if pip_wanted else ([], set())
     entries = {}
     for key, rule in sorted(mapped.items()):
         if rule.installer == "pip" and absent & set(rule.packages):

@@ -86,9 +86,10 @@ def resolve(
     env: Mapping[str, str],
     uv: str,
     system: Callable[[], SystemPython] | None = None,
+    ca_bundle: Path | None = None,
 ) -> dict:
     """The lock's test part: rosdep's rules for the test keys, as the image installs them."""
-    part = rosdeps.resolve_workspace(_as_tests(packages, image), image, root, env, uv, system)
+    part = rosdeps.resolve_workspace(_as_tests(packages, image), image, root, env, uv, system, ca_bundle)
     part.pop("format", None)
     part["made_by"] = "`espdock lock`: the packages' test_depend keys, installed only by `espdock test`"
     return part

@@ -313,3 +313,16 @@ def test_the_lock_decides_the_image_key_and_the_flavour_its_dockerfile_and_name(
     assert sorted(dict(official.context)) == [
         "Dockerfile.ros-official", "docker/rosdep-install.sh", "docker/rosdep/apt.txt", "docker/rosdep/pip.txt",
     ]  # fmt: skip
+
+
+def test_uv_gets_the_extra_ca_bundle_beside_the_system_s_which_it_reads_from_no_pip_conf(tmp_path, monkeypatch):
+    """Behind a TLS-intercepting proxy with pip.conf's `cert` (or ESPDOCK_CA_BUNDLE), `espdock lock`
+    failed: "invalid peer certificate: UnknownIssuer", and uv's own hint named a flag espdock passes."""
+    extra = tmp_path / "proxy-ca.pem"
+    extra.write_text("-----BEGIN CERTIFICATE-----\nproxy\n-----END CERTIFICATE-----\n")
+    monkeypatch.delenv("SSL_CERT_FILE", raising=False)
+    assert "SSL_CERT_FILE" not in rosdeps.uv_env(str(tmp_path))
+    bundle = Path(rosdeps.uv_env(str(tmp_path), extra)["SSL_CERT_FILE"]).read_text()
+    assert bundle.endswith(extra.read_text()) and bundle.count("BEGIN CERTIFICATE") > 1, "the system's CAs too"
+    monkeypatch.setenv("SSL_CERT_FILE", "/users/own.pem")
+    assert rosdeps.uv_env(str(tmp_path), extra)["SSL_CERT_FILE"] == "/users/own.pem"

@@ -76,6 +76,7 @@ class Partition:
     subtype: int
     offset: int
     size: int
+    flags: int = 0
 
 
 def parse_agent(text: str) -> tuple[str, int]:
@@ -216,10 +217,10 @@ def parse_partition_table(data: bytes) -> list[Partition]:
         chunk = data[start : start + _ENTRY.size]
         if len(chunk) < _ENTRY.size or chunk[:2] in (_MD5_MAGIC, b"\xff\xff"):
             break
-        magic, ptype, subtype, offset, size, label, _flags = _ENTRY.unpack(chunk)
+        magic, ptype, subtype, offset, size, label, flags = _ENTRY.unpack(chunk)
         if magic != _ENTRY_MAGIC:
             raise ValueError(f"entry {len(entries)} has no partition magic")
-        entries.append(Partition(label.rstrip(b"\0").decode(errors="replace"), ptype, subtype, offset, size))
+        entries.append(Partition(label.rstrip(b"\0").decode(errors="replace"), ptype, subtype, offset, size, flags))
     return entries
 
 
@@ -245,7 +246,20 @@ def nvs_partition(firmware_dir: Path, flasher_args: dict, package: str) -> Parti
             "Use a built-in table (CONFIG_PARTITION_TABLE_SINGLE_APP*, *TWO_OTA*) or add an "
             '"nvs, data, nvs" row to your partitions.csv; nothing was written.',
         )
+    if chosen.size < NVS_MIN_SIZE and not chosen.flags & _FLAG_READONLY:
+        # nvs_flash_init() refuses a read-write one this small (ESP_ERR_NVS_NO_FREE_PAGES), and
+        # apps answer that by erasing it: the settings would be gone at the first boot.
+        raise ConfigError(
+            f"{package}'s 'nvs' partition is {chosen.size:#x} bytes; a read-write NVS partition needs at least "
+            f"{NVS_MIN_SIZE:#x} (3 pages), or nvs_flash_init() does not open it",
+            "Make the nvs row of your partitions.csv 0x3000 or more (IDF's tables have 0x6000) and build again; "
+            "nothing was written.",
+        )
     return chosen
+
+
+NVS_MIN_SIZE = 0x3000
+_FLAG_READONLY = 0x2  # ESP-IDF's partition table flag `readonly`
 
 
 @contextlib.contextmanager

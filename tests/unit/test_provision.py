@@ -191,6 +191,14 @@ def test_a_table_without_nvs_or_no_table_is_refused(tmp_path):
     with pytest.raises(ConfigError, match="'myconf'; the firmware reads none of them") as caught:
         nvs_partition(tmp_path, {}, "cam")
     assert caught.value.exit_code == 2
+    # Too small for a read-write NVS: the generator warned and made a read-only image, which the
+    # firmware's nvs_flash_init() refused (and erased), and provisioning said it had provisioned.
+    path.write_bytes(table(("nvs", 1, 2, 0x9000, 0x2000), ("factory", 0, 0, 0x10000, 0x100000)))
+    with pytest.raises(
+        ConfigError, match="'nvs' partition is 0x2000 bytes; a read-write NVS partition needs"
+    ) as caught:
+        nvs_partition(tmp_path, {}, "cam")
+    assert caught.value.exit_code == 2
     path.write_bytes(os.urandom(64))
     with pytest.raises(WorkspaceError, match="not an ESP-IDF partition table"):
         nvs_partition(tmp_path, {}, "cam")

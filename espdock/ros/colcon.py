@@ -216,9 +216,10 @@ def last_build_args(base: Path) -> tuple[str, ...]:
 
 
 def install_kind_switched(base: Path, args: tuple[str, ...]) -> bool:
-    """Whether ARGS turn --symlink-install on or off since the last build in BASE. colcon does not
-    switch a build dir in place: an interface package's ament_cmake Python install fails on the
-    directories a copying install left, one package per run."""
+    """Whether ARGS (with what the defaults file turns on: ColconBuild.effective_args) turn
+    --symlink-install on or off since the last build in BASE. colcon does not switch a build dir in
+    place: an interface package's ament_cmake Python install fails on the directories a copying
+    install left, one package per run."""
     if not (base / LAST_ARGS).is_file():
         return False
     return ("--symlink-install" in args) != ("--symlink-install" in last_build_args(base))
@@ -252,16 +253,22 @@ def with_build_testing(
     return (*args, "--cmake-args", *without_build_testing(defaults), f"-DBUILD_TESTING={value}")
 
 
-def defaults_cmake_args(text: str) -> tuple[str, ...] | None:
-    """The `build` verb's cmake-args a colcon defaults file (TEXT) sets; None where it sets none."""
+def defaults_for_build(text: str) -> dict:
+    """What a colcon defaults file (TEXT) sets for the `build` verb ({} when nothing or not YAML:
+    colcon refuses such a file itself, naming it)."""
     import yaml
 
     try:
         data = yaml.safe_load(text)
     except yaml.YAMLError:
-        return None  # colcon refuses it itself, naming the file
+        return {}
     verb = data.get("build") if isinstance(data, dict) else None
-    args = verb.get("cmake-args") if isinstance(verb, dict) else None
+    return verb if isinstance(verb, dict) else {}
+
+
+def defaults_cmake_args(text: str) -> tuple[str, ...] | None:
+    """The `build` verb's cmake-args a colcon defaults file (TEXT) sets; None where it sets none."""
+    args = defaults_for_build(text).get("cmake-args")
     return tuple(str(arg) for arg in args) if isinstance(args, list) else None
 
 
@@ -364,6 +371,8 @@ class ColconSettings:
     files: tuple[str, ...] = ()
     # The cmake-args of `colcon build` the defaults files set (the workspace's over the user's).
     cmake_args: tuple[str, ...] = ()
+    # Whether they turn `colcon build`'s symlink-install on.
+    symlink_install: bool = False
 
 
 def read_colcon_settings(
@@ -377,6 +386,7 @@ def read_colcon_settings(
     common = hashlib.sha256(json.dumps(output_args(args)).encode())
     defaults: str | None = None
     cmake_args: tuple[str, ...] = ()
+    symlink_install = False
     user = user_defaults_file(env)
     for path, shown in ((user, str(user)), (colcon_root / WORKSPACE_DEFAULTS, WORKSPACE_DEFAULTS)):
         if not path.is_file():
@@ -384,6 +394,7 @@ def read_colcon_settings(
         text = path.read_text(errors="replace")
         check_defaults(shown, text)
         cmake_args = defaults_cmake_args(text) or cmake_args
+        symlink_install = defaults_for_build(text).get("symlink-install", symlink_install) is True
         common.update(f"{shown}\0".encode() + hashlib.sha256(text.encode()).digest())
         files.append(shown)
         if path == user:
@@ -405,7 +416,7 @@ def read_colcon_settings(
         digest = common.copy()
         digest.update(json.dumps(said, sort_keys=True).encode())
         digests.append((name, digest.hexdigest()))
-    return ColconSettings(args, tuple(digests), defaults, tuple(files), cmake_args)
+    return ColconSettings(args, tuple(digests), defaults, tuple(files), cmake_args, symlink_install)
 
 
 _QUOTED = re.compile(r"'(-[^']*)'|: (--?[\w-]+)")

@@ -52,8 +52,10 @@ class ColconBuild:
     colcon_args: tuple[str, ...] = ()
     settings: tuple[tuple[str, str], ...] = ()
     defaults_file: str | None = None
-    # The cmake-args the colcon defaults files set, which the options given here would replace.
+    # The cmake-args the colcon defaults files set, which the options given here would replace, and
+    # whether they turn symlink-install on.
     defaults_cmake_args: tuple[str, ...] = ()
+    defaults_symlink_install: bool = False
     # TESTING: a build for `espdock test` (tests configured, in the image with the test
     # dependencies); TESTS_OFF: CMake packages configured with BUILD_TESTING=OFF (the wheels
     # image lacks ament's lint packages), unless the options after `--` set it.
@@ -97,6 +99,14 @@ class ColconBuild:
             return with_build_testing(self.colcon_args, "ON", self.defaults_cmake_args, force=True)
         if self.tests_off:
             return with_build_testing(self.colcon_args, "OFF", self.defaults_cmake_args)
+        return self.colcon_args
+
+    @property
+    def effective_args(self) -> tuple[str, ...]:
+        """The options after `--` with the --symlink-install the defaults file gives: what decides
+        the kind of install colcon makes (see install_kind_switched)."""
+        if self.defaults_symlink_install and "--symlink-install" not in self.colcon_args:
+            return (*self.colcon_args, "--symlink-install")
         return self.colcon_args
 
     @property
@@ -302,6 +312,7 @@ def ros_steps(
             settings=tuple(item for item in colcon.digests if item[0] in names),
             defaults_file=colcon.defaults_file,
             defaults_cmake_args=colcon.cmake_args,
+            defaults_symlink_install=colcon.symlink_install,
             testing=testing,
             # Only CMake packages read BUILD_TESTING: a workspace of Python packages is told nothing.
             tests_off=tests_off and not testing and any(p.build_type not in PYTHON_BUILD_TYPES for p in ros),

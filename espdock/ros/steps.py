@@ -60,10 +60,10 @@ class RosSteps:
         interface packages whose interface dependencies changed (ColconBuild.stale_interfaces).
         Returns them, for the workspace volume to remove its copies as well."""
         base = workspace.ws_dir / ROS_BUILD_BASE
-        if install_kind_switched(base, step.colcon_args):
+        if install_kind_switched(base, step.effective_args):
             trees = tuple(tree for name in rebuild for tree in (base / name, workspace.ws_dir / "install" / name))
             why = (
-                f"--symlink-install {'on' if '--symlink-install' in step.colcon_args else 'off'} since the last "
+                f"--symlink-install {'on' if '--symlink-install' in step.effective_args else 'off'} since the last "
                 f"build: removed the build dirs and install prefixes of {len(rebuild)} package(s), which colcon "
                 "cannot switch in place"
             )
@@ -182,7 +182,7 @@ class RosSteps:
                     )
                     volume.record(workspace, self.containers.engine, sync, None if merge else listing_digest(install))
                     give_to(workspace.ws_dir / "build" / volume.SYNCED, self.containers.owner)
-        if states is not None and not step.testing and (recorded_args := record_build_args(base, step.colcon_args)):
+        if states is not None and not step.testing and (recorded_args := record_build_args(base, step.effective_args)):
             give_to(recorded_args, self.containers.owner)
         built = [name for name, state in (states or {}).items() if state is PackageState.BUILT and name in stamps]
         if built:

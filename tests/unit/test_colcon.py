@@ -349,3 +349,13 @@ def test_the_defaults_files_cmake_args_join_the_build_testing_espdock_gives(tmp_
     assert testing.options == ("--cmake-args", "-DCMAKE_EXPORT_COMPILE_COMMANDS=ON", "-DBUILD_TESTING=ON")
     assert replace(plain, defaults_cmake_args=settings.cmake_args).options == ()
     assert not replace(plain, defaults_cmake_args=settings.cmake_args).says_tests_off
+
+
+def test_the_defaults_files_symlink_install_is_read_the_workspace_s_over_the_user_s(tmp_path):
+    root, dirs = _workspace(tmp_path)
+    user = tmp_path / "defaults.yaml"
+    user.write_text("build:\n  symlink-install: true\n")
+    env = {"COLCON_DEFAULTS_FILE": str(user)}
+    assert read_colcon_settings(root, dirs, None, env).symlink_install
+    (root / "colcon_defaults.yaml").write_text("build: {symlink-install: false}\n")
+    assert not read_colcon_settings(root, dirs, None, env).symlink_install

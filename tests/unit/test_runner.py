@@ -499,3 +499,21 @@ def test_the_summary_in_an_80_column_log_cuts_no_step_name_short():
     cells = "".join(line.split("│")[1].strip() for line in out.getvalue().splitlines() if line.startswith("│"))
     assert f"image{tag}" in cells.replace(" ", ""), out.getvalue()
     assert "…" not in out.getvalue()
+
+
+def test_symlink_install_turned_on_in_the_colcon_defaults_file_is_a_switch_and_on_in_both_is_none(ws):
+    """A switch made in ~/.colcon/defaults.yaml failed an interface package, one per run ("its build
+    dir is from a build without --symlink-install"); `-- --symlink-install` with it already on
+    there said "on since the last build" and rebuilt everything from scratch."""
+    from dataclasses import replace
+
+    engine = FakeEngine(run_script=colcon_installs(ws))
+    (ws.ws_dir / "build/espdock-ros").mkdir(parents=True)
+    runner(engine, []).run(Plan(ws, (COLCON,)))
+    events: list = []
+    on_in_defaults = replace(COLCON, defaults_symlink_install=True, force=True)
+    runner(engine, events).run(Plan(ws, (on_in_defaults,)))
+    assert "--symlink-install on since the last build" in notes(events)
+    events.clear()
+    runner(engine, events).run(Plan(ws, (replace(on_in_defaults, colcon_args=("--symlink-install",)),)))
+    assert "since the last build" not in notes(events)

@@ -34,7 +34,13 @@ from espdock.ros.colcon import (
 from espdock.ros.plan import ColconBuild, RuntimeImage, runtime_image_spec
 from espdock.ros.runtime_tree import runtime_files
 from espdock.ros.testing import ColconTest, PackageResults, SourcedEnv, clear_results, read_results
-from espdock.ros.trees import check_isolated_install, native_setup_kept, retire_container_caches, retire_other_underlay
+from espdock.ros.trees import (
+    check_isolated_install,
+    native_setup_kept,
+    natively_linked,
+    retire_container_caches,
+    retire_other_underlay,
+)
 from espdock.workspace import Workspace, workspace_lock
 
 # What `espdock test` needs on this machine, which the workspace volume does not give it.
@@ -72,6 +78,12 @@ class RosSteps:
             why = (
                 f"building {', '.join(stale)} afresh: interface packages whose interface dependencies changed, "
                 "whose type hashes rosidl's incremental build would keep"
+            )
+        elif native := natively_linked(workspace.ws_dir / "install", rebuild, workspace.root):
+            trees = tuple(workspace.ws_dir / "install" / name for name in native)
+            why = (
+                f"removed the install prefixes of {', '.join(native)}: a native `colcon build --symlink-install` "
+                "linked them to this machine's paths, which colcon in the container cannot replace"
             )
         else:
             return ()

@@ -5,6 +5,7 @@ scripts)."""
 
 from __future__ import annotations
 
+import os
 import shutil
 from collections.abc import Iterable, Iterator
 from contextlib import contextmanager, suppress
@@ -129,3 +130,18 @@ def package_trees(ws_dir: Path, name: str) -> list[str]:
     build dir and the one a native `colcon build` (or espdock's firmware build) makes."""
     places = (f"install/{name}", f"{ROS_BUILD_BASE}/{name}", f"build/{name}")
     return [rel for rel in places if (ws_dir / rel).exists() or (ws_dir / rel).is_symlink()]
+
+
+def natively_linked(install: Path, packages: Iterable[str], root: Path) -> list[str]:
+    """PACKAGES whose install prefix in INSTALL holds a link to a path of this machine's workspace
+    (ROOT): a native `colcon build --symlink-install` made it. colcon in the container, where
+    that path is not, fails on such a link ("[Errno 17] File exists"), blaming the package."""
+    inside = f"{root}/"
+    found = []
+    for name in packages:
+        for directory, dirnames, filenames in os.walk(install / name):
+            links = (os.path.join(directory, entry) for entry in (*dirnames, *filenames))
+            if any(os.path.islink(link) and os.readlink(link).startswith(inside) for link in links):
+                found.append(name)
+                break
+    return found

@@ -109,6 +109,21 @@ def test_symlink_install_on_the_official_flavour_runs_from_a_runtime_image_witho
     beacon_says(root, "beacon up", env=env)
 
 
+def test_espdock_builds_over_a_native_symlink_install(engine, tmp_path):
+    """The ROS tutorials' `colcon build --symlink-install` first, then espdock's: colcon in the
+    container failed on the links to this machine's paths ("[Errno 17] File exists"), and the
+    error said to fix the package."""
+    root = copy_workspace(tmp_path / "native-links", packages=(), test_packages=PACKAGES)
+    native = native_colcon(root, "--symlink-install")
+    assert native.returncode == 0, native.stdout[-3000:] + native.stderr[-3000:]
+    result = espdock("build", "--only", "ros", "--", "--symlink-install", cwd=root)
+    assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
+    said = " ".join(result.stdout.split())
+    assert "removed the install prefixes of beacon_nodes" in said and "native `colcon build --symlink-install`" in said
+    report = run_once(root, "uptime_tools", "uptime_report")
+    assert report.returncode == 0 and "uptime_report: up" in report.stdout, report.stdout + report.stderr
+
+
 def test_native_and_espdock_builds_take_turns_in_one_workspace(engine, tmp_path):
     root = copy_workspace(tmp_path / "native", packages=(), test_packages=PACKAGES)
     built(root)  # the images; then the developer builds natively and with espdock, in turns

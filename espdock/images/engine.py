@@ -1200,6 +1200,13 @@ def _buildkit_hint(tail: Sequence[str]) -> str:
             f"{unpulled.group(1)} is not here and could not be pulled: is a registry reachable? "
             "Or load the image locally (docker load) or point espdock.toml at one you have."
         )
+    if config := re.search(r"mkdir (\S*\.docker): permission denied", output):
+        # Compose's build writes the docker CLI's config dir first (buildx state); a HOME
+        # espdock can read but not write fails every image build so.
+        return (
+            f"The docker CLI could not make its config dir {config.group(1)}: point DOCKER_CONFIG at a "
+            "directory you can write (or make that one writable)."
+        )
     return "Read the build output above; run with --verbose for all of it."
 
 

@@ -505,3 +505,12 @@ def test_no_space_left_where_the_workspace_disk_has_room_is_a_full_disk_not_a_bu
     with pytest.raises(DiskFull) as err:
         runner(engine).run(Plan(ws, (COLCON,)))
     assert err.value.exit_code == 7 and f"the disk holding {ws.ws_dir / 'build'}" in err.value.message
+
+
+def test_an_image_build_that_cannot_make_the_docker_cli_config_dir_names_docker_config():
+    """HOME read-only: every image build failed with `mkdir ~/.docker: permission denied` and the
+    hint to read the build output, which had nothing more."""
+    from espdock.images.engine import _buildkit_hint
+
+    hint = _buildkit_hint(["mkdir /home/ci/.docker: permission denied"])
+    assert "config dir /home/ci/.docker" in hint and "DOCKER_CONFIG" in hint

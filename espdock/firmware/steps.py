@@ -102,13 +102,22 @@ class FirmwareSteps:
         give_to(build_dir / LIBRARY_BASELINE, self.containers.owner)
         if changed:
             shown = ", ".join(changed[:4]) + (", ..." if len(changed) > 4 else "")
+            # An option the chip's own defaults file sets wins over sdkconfig.defaults, where
+            # save-defconfig writes: the line goes there, or the change is lost at the next build.
+            chip_file = workspace.root / step.project / f"sdkconfig.defaults.{step.target}"
+            overridden = _set_in(chip_file, {line.split("=", 1)[0] for line in changed})
+            where = (
+                f"{chip_file.relative_to(workspace.root)}, which sets {', '.join(overridden)} over "
+                "sdkconfig.defaults (`save-defconfig` writes sdkconfig.defaults, which would lose it)"
+                if overridden
+                else f"{step.project}/sdkconfig.defaults (`espdock idf {step.package} -- save-defconfig`)"
+            )
             self.containers.emit(
                 StepNote(
                     step.name,
                     f"warning: {shown} changed in {build_dir.relative_to(workspace.root)}/sdkconfig (menuconfig) "
-                    "reach the app but not libmicroros.a, built from sdkconfig.defaults: put the line in "
-                    f"{step.project}/sdkconfig.defaults (`espdock idf {step.package} -- save-defconfig`) and "
-                    "build again, so a library with it is built (`espdock micro-ros rebuild` rebuilds it from "
+                    f"reach the app but not libmicroros.a, built from the defaults files: put the line in {where} "
+                    "and build again, so a library with it is built (`espdock micro-ros rebuild` rebuilds it from "
                     "scratch)",
                 )
             )
@@ -463,6 +472,16 @@ def _configured_project(build_dir: Path) -> str | None:
 
 
 LIBRARY_BASELINE = ".espdock-library-sdkconfig"
+
+
+def _set_in(defaults: Path, names: set[str]) -> list[str]:
+    """Which of the options NAMES the sdkconfig defaults file DEFAULTS sets (none when it is absent)."""
+    try:
+        lines = defaults.read_text(errors="replace").splitlines()
+    except OSError:
+        return []
+    found = {m.group(1) or m.group(3) for line in lines if (m := SDKCONFIG_LINE.match(line.strip()))}
+    return sorted(found & names)
 
 
 def _library_lines(sdkconfig: Path) -> dict[str, str]:

@@ -517,3 +517,29 @@ def test_symlink_install_turned_on_in_the_colcon_defaults_file_is_a_switch_and_o
     events.clear()
     runner(engine, events).run(Plan(ws, (replace(on_in_defaults, colcon_args=("--symlink-install",)),)))
     assert "since the last build" not in notes(events)
+
+
+def test_a_menuconfig_change_of_an_option_the_chip_s_defaults_file_sets_names_that_file(ws):
+    """The warning said to run save-defconfig, which writes sdkconfig.defaults: the chip's
+    sdkconfig.defaults.<chip> setting the option won over it, and the change was lost, unsaid."""
+    project = ws.root / "src/led_fw"
+    project.mkdir(parents=True)
+    (project / "sdkconfig.defaults").write_text("CONFIG_FREERTOS_HZ=100\n")
+    (project / "sdkconfig.defaults.esp32c3").write_text("CONFIG_FREERTOS_HZ=100\n")
+    sdkconfig = ws.ws_dir / "build/led_fw/sdkconfig"
+
+    def configure(spec, on_line):
+        if not sdkconfig.is_file():  # IDF makes it from the defaults files, else keeps it
+            sdkconfig.parent.mkdir(parents=True, exist_ok=True)
+            sdkconfig.write_text("CONFIG_FREERTOS_HZ=100\n")
+        return 0
+
+    step = IdfBuild("led_fw", "src/led_fw", "i", "esp32c3", "k")
+    engine = FakeEngine(run_script=configure)
+    runner(engine, []).run(Plan(ws, (step,)))
+    sdkconfig.write_text("CONFIG_FREERTOS_HZ=1000\n")  # menuconfig
+    events: list = []
+    runner(engine, events).run(Plan(ws, (step,)))
+    said = " ".join(notes(events).split())
+    assert "CONFIG_FREERTOS_HZ=1000 (was 100)" in said
+    assert "put the line in src/led_fw/sdkconfig.defaults.esp32c3, which sets CONFIG_FREERTOS_HZ" in said, said

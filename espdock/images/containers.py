@@ -161,6 +161,7 @@ class Containers:
         """The mounts and archives that give a build container the workspace: the bind mount, or
         the volume and SYNC's changed sources."""
         if sync is None:
+            check_trees_inside(workspace)
             return [workspace_mount(workspace)], []
         return [volume.volume_mount(workspace)], [(volume.WORKSPACE_MOUNT, sync.archive)]
 
@@ -285,6 +286,21 @@ def _owner(path: str | None) -> int | None:
         return os.stat(path).st_uid if path else None
     except OSError:
         return None
+
+
+def check_trees_inside(workspace: Workspace) -> None:
+    """Refuse a build/, install/ or log/ of the colcon root that links out of the workspace: a
+    build container sees only the workspace, where that link leads nowhere (colcon failed on
+    FileNotFoundError: /workspace/build/espdock-ros, the hint blaming options never given)."""
+    root = workspace.root.resolve()
+    for name in ("build", "install", "log"):
+        tree = workspace.ws_dir / name
+        if tree.is_symlink() and not tree.resolve().is_relative_to(root):
+            raise WorkspaceError(
+                f"{tree} links to {tree.resolve()}, outside the workspace: the build containers see only the "
+                f"workspace ({root}), where that link leads nowhere",
+                f"Make {name}/ a directory of the workspace (or link it to one inside it); nothing was built.",
+            )
 
 
 def volume_mode_refused(what: str, firmware: bool = True) -> WorkspaceNotVisible:

@@ -514,3 +514,16 @@ def test_an_image_build_that_cannot_make_the_docker_cli_config_dir_names_docker_
 
     hint = _buildkit_hint(["mkdir /home/ci/.docker: permission denied"])
     assert "config dir /home/ci/.docker" in hint and "DOCKER_CONFIG" in hint
+
+
+def test_a_build_tree_linked_out_of_the_workspace_is_refused_naming_it(ws, tmp_path_factory):
+    """`ln -s ../scratch/build build`: colcon failed on "FileNotFoundError: /workspace/build/espdock-ros",
+    with the hint to check the options after `--` that the user never gave."""
+    from espdock.errors import WorkspaceError
+
+    elsewhere = tmp_path_factory.mktemp("scratch-build")
+    (ws.ws_dir / "build").symlink_to(elsewhere)
+    engine = FakeEngine(run_script=colcon_installs(ws))
+    with pytest.raises(WorkspaceError, match=r"build links to .*scratch-build0, outside the workspace") as err:
+        runner(engine).run(Plan(ws, (COLCON,)))
+    assert err.value.exit_code == 2 and engine.runs == []

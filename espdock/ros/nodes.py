@@ -73,12 +73,23 @@ def find_executable(workspace: Workspace, packages: tuple[Package, ...], package
         raise WorkspaceError(f"package '{package}' is not built yet", f"Run `espdock build {package}` first.")
     if executable not in runnable.get(package, []):
         found = ", ".join(runnable.get(package, [])) or "none (it installs nothing into lib/" + package + ")"
+        if executable.endswith(LAUNCH_SUFFIXES):
+            # `ros2 launch PKG FILE` habits: espdock run is `ros2 run`.
+            raise WorkspaceError(
+                f"'{executable}' is a launch file, and `espdock run` runs a package's executables, as `ros2 run` "
+                f"does (its executables: {found})",
+                f"Launch it with `ros2 launch {package} {executable}` in `espdock shell` on the official ROS image "
+                '(ros_image = "official"), which has launch and the `ros2` command; the wheels image has neither.',
+            )
         raise WorkspaceError(
             f"package '{package}' has no executable '{executable}'",
             f"Its executables: {found}. All packages with executables: {listing}.",
         )
     check_built_by_espdock(workspace, package)
     return posixpath.join(RUNTIME_INSTALL, package, "lib", package, executable)
+
+
+LAUNCH_SUFFIXES = (".launch.py", ".launch.xml", ".launch.yaml", "_launch.py", "_launch.xml", "_launch.yaml")
 
 
 def check_built_by_espdock(workspace: Workspace, package: str) -> None:

@@ -104,6 +104,15 @@ def test_unknown_names_are_user_errors_that_list_what_exists(ws, package, execut
         assert "talk: listener, talker" in caught.value.hint
 
 
+def test_a_launch_file_given_to_run_says_how_to_launch_it(ws):
+    """`espdock run talk talk.launch.py` said only "no executable", listing executables."""
+    workspace, packages = ws
+    with pytest.raises(WorkspaceError) as caught:
+        find_executable(workspace, packages, "talk", "talk.launch.py")
+    assert "'talk.launch.py' is a launch file" in caught.value.message and "listener, talker" in caught.value.message
+    assert "`ros2 launch talk talk.launch.py` in `espdock shell`" in caught.value.hint
+
+
 def test_a_firmware_package_is_not_run_but_its_commands_are_named(ws):
     workspace, packages = ws
     with pytest.raises(WorkspaceError) as caught:

@@ -89,7 +89,7 @@ WorkspaceOption = Annotated[
 ]
 
 
-INTERRUPTED = Interrupted("interrupted; containers started by this run were stopped and removed")
+INTERRUPTED = Interrupted("interrupted; any container or image build this run had started was stopped and removed")
 
 
 def command(function: Callable[P, None]) -> Callable[P, None]:

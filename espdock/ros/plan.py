@@ -243,7 +243,11 @@ def runtime_base_image(build: ImageSpec) -> ImageSpec:
 def runtime_repository(config: Config, workspace: Workspace) -> str:
     """espdock/<name>: the workspace's runtime images (name: the setting, else the directory's name)."""
     name = config.name or re.sub(r"[^a-z0-9._-]+", "-", workspace.root.name.lower()).strip("._-")
-    return f"espdock/{name or 'workspace'}"
+    if not name:
+        # A name of no ASCII letter or digit (ロボット, _-..): one of its own, not one every such
+        # workspace would share (each build's :latest replacing the other's).
+        name = f"workspace-{hashlib.sha256(str(workspace.root).encode()).hexdigest()[:8]}"
+    return f"espdock/{name}"
 
 
 def runtime_image_spec(step: RuntimeImage, install_digest: str) -> ImageSpec:

@@ -316,3 +316,14 @@ def test_a_fast_dds_profiles_file_reaches_the_node_mounted_or_is_refused(ws, tmp
         workspace, "img", (1, 1), {"FASTRTPS_DEFAULT_PROFILES_FILE": "fastdds.xml"}, False, "", in_volume
     )
     assert "FASTRTPS_DEFAULT_PROFILES_FILE" not in dict(shell.env) and shell.mounts == (in_volume,)
+
+
+def test_workspaces_named_with_no_ascii_letter_get_runtime_images_of_their_own(tmp_path):
+    """Two workspaces called ロボット and _-.. both made espdock/workspace:latest, each build
+    replacing the other's."""
+    from espdock.config import Config
+    from espdock.ros.plan import runtime_repository
+
+    names = {runtime_repository(Config(), Workspace(tmp_path / name)) for name in ("ロボット", "_-..", "ロボ")}
+    assert len(names) == 3 and all(n.startswith("espdock/workspace-") for n in names), names
+    assert runtime_repository(Config(), Workspace(tmp_path / "My Robot")) == "espdock/my-robot"

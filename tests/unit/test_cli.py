@@ -467,18 +467,24 @@ def test_an_error_nobody_reads_keeps_its_exit_code(tmp_path):
     assert result.returncode == 2
 
 
+def dry_run_says(root: Path) -> str:
+    """What `espdock build --dry-run` in ROOT prints, whitespace folded (it must succeed)."""
+    planned = espdock("build", "--dry-run", cwd=root, env=NO_ENGINE)
+    said = " ".join((planned.stdout + planned.stderr).split())
+    assert planned.returncode == 0, said
+    return said
+
+
 def test_a_firmware_dependency_micro_ros_has_no_headers_of_is_named_before_the_build(tmp_path):
     """<depend>nav2_msgs</depend> in a firmware package: nothing said so until the firmware's
     compile failed on a missing header, with the hint to fix the firmware."""
     root = copy_workspace(tmp_path / "w")
     shutil.copytree(REPO / "firmware", root / "firmware")
-    planned = espdock("build", "--dry-run", cwd=root, env=NO_ENGINE)
-    assert planned.returncode == 0 and "warning" not in planned.stdout + planned.stderr, planned.stderr
+    assert "warning" not in dry_run_says(root)
     manifest = root / "firmware/led_strip_node/package.xml"
     manifest.write_text(manifest.read_text().replace("<depend>std_msgs</depend>", "<depend>nav2_msgs</depend>"))
-    planned = espdock("build", "--dry-run", cwd=root, env=NO_ENGINE)
-    said = " ".join((planned.stdout + planned.stderr).split())
-    assert planned.returncode == 0 and "warning: led_strip_node depends on nav2_msgs: in no package" in said, said
+    said = dry_run_says(root)
+    assert "warning: led_strip_node depends on nav2_msgs: in no package" in said, said
 
 
 def test_timestamps_reach_the_error_that_ends_the_command(tmp_path):
@@ -510,13 +516,10 @@ def test_an_interface_package_using_a_type_of_one_it_does_not_depend_on_is_named
     root = copy_workspace(tmp_path / "w", packages=())
     write_interface_package(root / "ws/src", "robot_msgs", service=False)
     state = write_interface_package(root / "ws/src", "robot_state_msgs", service=False, uses="robot_msgs")
-    planned = espdock("build", "--dry-run", cwd=root, env=NO_ENGINE)
-    assert planned.returncode == 0 and "warning" not in planned.stdout + planned.stderr, planned.stderr
+    assert "warning" not in dry_run_says(root)
     manifest = state / "package.xml"
     manifest.write_text(manifest.read_text().replace("<depend>robot_msgs</depend>", ""))
-    planned = espdock("build", "--dry-run", cwd=root, env=NO_ENGINE)
-    said = " ".join((planned.stdout + planned.stderr).split())
-    assert planned.returncode == 0, said
+    said = dry_run_says(root)
     assert (
         "warning: robot_state_msgs uses robot_msgs/WheelSpeeds (msg/RobotState.msg), but its package.xml does not "
         "depend on robot_msgs" in said
@@ -565,9 +568,7 @@ def test_a_project_s_own_sdkconfig_which_the_build_does_not_read_is_named_before
     root = copy_workspace(tmp_path / "w")
     shutil.copytree(REPO / "firmware", root / "firmware")
     (root / "firmware/led_strip_node/sdkconfig").write_text("CONFIG_FREERTOS_HZ=200\n")
-    planned = espdock("build", "--dry-run", cwd=root, env=NO_ENGINE)
-    said = " ".join((planned.stdout + planned.stderr).split())
-    assert planned.returncode == 0, said
+    said = dry_run_says(root)
     assert (
         "warning: firmware/led_strip_node/sdkconfig is not read: the build's sdkconfig is "
         "ws/build/led_strip_node/sdkconfig" in said

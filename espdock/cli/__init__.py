@@ -52,7 +52,7 @@ UTF8 = ("utf-8", "utf8")
 
 
 def main() -> NoReturn:
-    """Entry point: Ctrl-C and SIGTERM (CI timeouts, `docker stop`) end any command (espdock.interrupts)."""
+    """Entry point: Ctrl-C, SIGTERM (CI timeouts, `docker stop`) and SIGHUP end any command (espdock.interrupts)."""
     interrupts.install()
     for stream in (sys.stdout, sys.stderr):
         # A Latin-1 or ASCII locale (or PYTHONIOENCODING) cannot write a bullet or a workspace's

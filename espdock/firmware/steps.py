@@ -169,6 +169,17 @@ class FirmwareSteps:
         """
         check_inside(workspace, step.package, workspace.root / step.project)  # linked in since it was planned
         user, labels = self.containers.container_identity(workspace, f"idf-{step.package}", sweep)
+        if not sweep and (swept := self.containers.engine.sweep(dict(labels))):
+            # Without the workspace lock only a dead espdock's: a `monitor` killed outright
+            # (kill -9, `timeout -s KILL`) leaves its container on the port, and the next `flash`
+            # found the board silent.
+            self.containers.emit(
+                StepNote(
+                    step.name,
+                    f"removed {swept} container(s) of {step.package} an espdock killed earlier left running "
+                    "(a monitor holding the port, say)",
+                )
+            )
         build_dir = firmware_build_dir(workspace.ws_dir, step.package)
         # The component manager extracts into <project>/managed_components, a place it does not
         # let anyone move; a mount keeps that in ws/build, and the source tree clean. On the

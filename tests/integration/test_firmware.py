@@ -806,6 +806,42 @@ def test_ctrl_c_during_idf_passthrough_ends_with_130_leaving_no_container(fw_ws,
     assert leftover_containers(engine, root) == []
 
 
+def test_a_flash_after_a_monitor_killed_outright_removes_its_container_from_the_port(fw_ws, double_env, engine):
+    """`kill -9` (or `timeout -s KILL`) of `espdock monitor` left its container on the port: the next
+    `flash` found the board silent ("esptool could not tell which chip"), and only a build removed it."""
+    root, first = fw_ws
+    assert first.returncode == 0
+    with emulated_board("esp32") as port:
+        controller, terminal = pty.openpty()
+        monitor = subprocess.Popen(
+            [sys.executable, "-m", "espdock", "monitor", "camera_node", "--port", port],
+            cwd=root, env={**os.environ, **double_env}, stdin=terminal, stdout=terminal, stderr=terminal,
+        )  # fmt: skip
+        os.close(terminal)
+        seen = b""
+        try:
+            deadline = time.monotonic() + 300
+            while b"esp-idf-monitor" not in seen and time.monotonic() < deadline and monitor.poll() is None:
+                if select.select([controller], [], [], 0.5)[0]:
+                    with contextlib.suppress(OSError):
+                        seen += os.read(controller, 65536)
+            assert b"esp-idf-monitor" in seen, seen.decode(errors="replace")[-2000:]
+            monitor.kill()
+            monitor.wait()
+        finally:
+            if monitor.poll() is None:
+                monitor.kill()
+                monitor.wait()
+            os.close(controller)
+        assert leftover_containers(engine, root), "the killed monitor's container is left running"
+        flashed = espdock("flash", "camera_node", "--port", port, cwd=root, env=double_env)
+    assert flashed.returncode == 0, flashed.stdout[-3000:] + flashed.stderr
+    assert "removed 1 container(s) of camera_node an espdock killed earlier left running" in " ".join(
+        flashed.stdout.split()
+    ), flashed.stdout[-3000:]
+    assert leftover_containers(engine, root) == []
+
+
 def test_ctrl_c_ends_the_monitor_with_130_leaving_no_container(fw_ws, double_env, engine):
     """`espdock monitor` needs a terminal: it runs on a pseudo-terminal here, and gets SIGINT as
     from `kill -INT` (at the terminal itself, Ctrl-C goes to the board and Ctrl-] ends the monitor,

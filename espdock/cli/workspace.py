@@ -39,7 +39,7 @@ from espdock.images import bootstrap
 from espdock.images.containers import prepare_output
 from espdock.images.keyed import unpushed_error
 from espdock.layout import ROSDEP_LOCK
-from espdock.ros import colcon_register
+from espdock.ros import colcon_register, rosdeps
 from espdock.ros.compose import init_compose
 from espdock.ros.plan import base_image, runtime_repository
 from espdock.ros.trees import orphan_installs, package_trees
@@ -210,6 +210,10 @@ def lock(
     status, database = lock_rosdeps(ws.root, config, packages, read_build_inputs(ws, packages), os.environ, owner)
     if database:  # else: none needed, none there
         console.print(f"{ROSDEP_LOCK}: {status} ({database})")
+        # Recorded, not refused: a build of a package that needs one is what refuses it.
+        lock = rosdeps.read_lock((ws.root / ROSDEP_LOCK).read_bytes(), ROSDEP_LOCK)
+        for key, why in rosdeps.unserved(lock):
+            err_console.print(Text.assemble(("warning: ", "yellow"), f"{key}: {why}; a build needing it is refused"))
     for result in lock_workspace(ws.root, uv_binary(), upgrade, owner, resolve_ca_bundle(config, os.environ)):
         spec = result.spec
         if result.status == "default":

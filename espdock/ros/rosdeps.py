@@ -156,6 +156,17 @@ def _what_changed(lock: Mapping, needed: Mapping[str, tuple[str, ...]], image: R
     return "the packages' dependencies, ros_image or its locks changed since it was made"
 
 
+def unserved(lock: dict | None) -> list[tuple[str, str]]:
+    """The keys LOCK (its test part too) records that nothing installs, each with why, in order:
+    what a build or test of a package needing one refuses."""
+    found: dict[str, str] = {}
+    for part in (lock or {}, (lock or {}).get("test") or {}):
+        for key, entry in sorted((part.get("keys") or {}).items()):
+            if isinstance(entry, dict) and not entry.get("installer") and key not in found:
+                found[key] = str(entry.get("why") or NOT_LOCKED)
+    return list(found.items())
+
+
 def check_dependencies(
     selected: Iterable[Package],
     needed: Mapping[str, tuple[str, ...]],

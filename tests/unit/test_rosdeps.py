@@ -241,6 +241,11 @@ def test_an_rclcpp_package_on_the_wheels_image_is_refused_before_anything_builds
     assert lock["keys"]["tinyxml2"] == {"installer": "apt", "packages": ["libtinyxml2-dev"]}
     # Another selection, without the C++ node, passes the check (and then needs the engine).
     assert run_build(root, tmp_path, "rosdeps_xml_count").returncode == 3
+    # `espdock lock` records the key nothing serves, and says so (it said nothing).
+    locked = espdock("lock", cwd=root, env={**NO_ENGINE, **environment(tmp_path)})
+    assert locked.returncode == 0, locked.stderr
+    said = " ".join(locked.stderr.split())
+    assert "warning: rclcpp: PyPI has no ros-jazzy-rclcpp; a build needing it is refused" in said, said
 
 
 @pytest.mark.parametrize(
@@ -326,3 +331,19 @@ def test_uv_gets_the_extra_ca_bundle_beside_the_system_s_which_it_reads_from_no_
     assert bundle.endswith(extra.read_text()) and bundle.count("BEGIN CERTIFICATE") > 1, "the system's CAs too"
     monkeypatch.setenv("SSL_CERT_FILE", "/users/own.pem")
     assert rosdeps.uv_env(str(tmp_path), extra)["SSL_CERT_FILE"] == "/users/own.pem"
+
+
+def test_the_keys_a_lock_records_that_nothing_installs_are_listed_with_why():
+    """`espdock lock` recorded `launch_ros: installer null` without a word; the user learnt it at build time."""
+    lock = {
+        "keys": {
+            "launch_ros": {"installer": None, "why": "PyPI has no ros-jazzy-launch-ros"},
+            "tinyxml2": {"installer": "apt", "packages": ["libtinyxml2-dev"]},
+        },
+        "test": {"keys": {"ament_lint_auto": {"installer": None, "why": "PyPI has no ros-jazzy-ament-lint-auto"}}},
+    }
+    assert rosdeps.unserved(lock) == [
+        ("launch_ros", "PyPI has no ros-jazzy-launch-ros"),
+        ("ament_lint_auto", "PyPI has no ros-jazzy-ament-lint-auto"),
+    ]
+    assert rosdeps.unserved(None) == []

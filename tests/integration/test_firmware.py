@@ -24,6 +24,7 @@ import tempfile
 import threading
 import time
 import uuid
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -806,33 +807,41 @@ def test_ctrl_c_during_idf_passthrough_ends_with_130_leaving_no_container(fw_ws,
     assert leftover_containers(engine, root) == []
 
 
+@contextlib.contextmanager
+def monitor_running(root: Path, env: dict[str, str], port: str) -> Iterator[tuple[subprocess.Popen, bytes]]:
+    """`espdock monitor camera_node` on a pseudo-terminal (it needs one), once idf.py monitor is
+    up: the process and what it printed so far. It is killed on the way out if still running."""
+    controller, terminal = pty.openpty()
+    monitor = subprocess.Popen(
+        [sys.executable, "-m", "espdock", "monitor", "camera_node", "--port", port],
+        cwd=root, env={**os.environ, **env}, stdin=terminal, stdout=terminal, stderr=terminal,
+    )  # fmt: skip
+    os.close(terminal)
+    seen = b""
+    try:
+        deadline = time.monotonic() + 300
+        while b"esp-idf-monitor" not in seen and time.monotonic() < deadline and monitor.poll() is None:
+            if select.select([controller], [], [], 0.5)[0]:
+                with contextlib.suppress(OSError):
+                    seen += os.read(controller, 65536)
+        assert b"esp-idf-monitor" in seen, seen.decode(errors="replace")[-2000:]
+        yield monitor, seen
+    finally:
+        if monitor.poll() is None:
+            monitor.kill()
+            monitor.wait()
+        os.close(controller)
+
+
 def test_a_flash_after_a_monitor_killed_outright_removes_its_container_from_the_port(fw_ws, double_env, engine):
     """`kill -9` (or `timeout -s KILL`) of `espdock monitor` left its container on the port: the next
     `flash` found the board silent ("esptool could not tell which chip"), and only a build removed it."""
     root, first = fw_ws
     assert first.returncode == 0
     with emulated_board("esp32") as port:
-        controller, terminal = pty.openpty()
-        monitor = subprocess.Popen(
-            [sys.executable, "-m", "espdock", "monitor", "camera_node", "--port", port],
-            cwd=root, env={**os.environ, **double_env}, stdin=terminal, stdout=terminal, stderr=terminal,
-        )  # fmt: skip
-        os.close(terminal)
-        seen = b""
-        try:
-            deadline = time.monotonic() + 300
-            while b"esp-idf-monitor" not in seen and time.monotonic() < deadline and monitor.poll() is None:
-                if select.select([controller], [], [], 0.5)[0]:
-                    with contextlib.suppress(OSError):
-                        seen += os.read(controller, 65536)
-            assert b"esp-idf-monitor" in seen, seen.decode(errors="replace")[-2000:]
+        with monitor_running(root, double_env, port) as (monitor, _):
             monitor.kill()
             monitor.wait()
-        finally:
-            if monitor.poll() is None:
-                monitor.kill()
-                monitor.wait()
-            os.close(controller)
         assert leftover_containers(engine, root), "the killed monitor's container is left running"
         flashed = espdock("flash", "camera_node", "--port", port, cwd=root, env=double_env)
     assert flashed.returncode == 0, flashed.stdout[-3000:] + flashed.stderr
@@ -848,30 +857,11 @@ def test_ctrl_c_ends_the_monitor_with_130_leaving_no_container(fw_ws, double_env
     as in idf.py monitor)."""
     root, first = fw_ws
     assert first.returncode == 0
-    with emulated_board("esp32") as port:
-        controller, terminal = pty.openpty()
-        monitor = subprocess.Popen(
-            [sys.executable, "-m", "espdock", "monitor", "camera_node", "--port", port],
-            cwd=root, env={**os.environ, **double_env}, stdin=terminal, stdout=terminal, stderr=terminal,
-        )  # fmt: skip
-        os.close(terminal)
-        seen = b""
-        try:
-            deadline = time.monotonic() + 300
-            while b"esp-idf-monitor" not in seen and time.monotonic() < deadline and monitor.poll() is None:
-                if select.select([controller], [], [], 0.5)[0]:
-                    with contextlib.suppress(OSError):
-                        seen += os.read(controller, 65536)
-            assert b"esp-idf-monitor" in seen, seen.decode(errors="replace")[-2000:]
-            sent = time.monotonic()
-            monitor.send_signal(signal.SIGINT)
-            code = monitor.wait(timeout=60)
-            took = time.monotonic() - sent
-        finally:
-            if monitor.poll() is None:
-                monitor.kill()
-                monitor.wait()
-            os.close(controller)
+    with emulated_board("esp32") as port, monitor_running(root, double_env, port) as (monitor, seen):
+        sent = time.monotonic()
+        monitor.send_signal(signal.SIGINT)
+        code = monitor.wait(timeout=60)
+        took = time.monotonic() - sent
     assert code == 130, seen.decode(errors="replace")[-2000:]
     assert took < 10, f"espdock monitor took {took:.1f} s to end after Ctrl-C"
     assert leftover_containers(engine, root) == []

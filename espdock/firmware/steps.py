@@ -135,7 +135,10 @@ class FirmwareSteps:
         what its sources build now. Building the image of sources edited since, which may not
         even build, would stand between the user and the firmware they built."""
         build_dir = firmware_build_dir(workspace.ws_dir, step.package)
-        current = firmware_state(workspace, step, self._image_id(step))[2]
+        stamp_file, stamps, _ = firmware_state(workspace, step, self._image_id(step))
+        # The sources against what the installed firmware was built from, not the build dir's
+        # files: `espdock idf PKG -- fullclean` empties those, and the sources build the same.
+        current = (stamp_file.read().get(step.package) or {}).get("stamp") == stamps[step.package]
         target, _, key = _read_marker(build_dir) or ("", "", "")
         if current or target != step.target or not key or key == step.image_key:
             return step, current
@@ -526,14 +529,16 @@ def _library_settings_changed(build_dir: Path, fresh: bool) -> list[str]:
 
 def reset_build_dir(workspace: Workspace, step: IdfBuild) -> Path:
     """espdock's `idf.py fullclean`: empty STEP's build dir but for its sdkconfig (menuconfig's
-    changes, which IDF's fullclean leaves in the project dir). IDF's own would delete the source
-    of the managed_components mount, and the component manager would fail (EBUSY) removing the
+    changes, which IDF's fullclean leaves in the project dir) and espdock's record of what it was
+    built with (which image the installed firmware is of: `flash` after a fullclean and an
+    interface edit built the edited sources' image). IDF's own would delete the source of the
+    managed_components mount, and the component manager would fail (EBUSY) removing the
     mountpoint; here the next build extracts it again from the download cache."""
     build_dir = workspace.ws_dir / "build" / step.package
     with workspace_lock(workspace):
         if build_dir.is_dir():
             for entry in build_dir.iterdir():
-                if entry.name in ("sdkconfig", LIBRARY_BASELINE):
+                if entry.name in ("sdkconfig", LIBRARY_BASELINE, TARGET_MARKER):
                     continue
                 if entry.is_dir() and not entry.is_symlink():
                     shutil.rmtree(entry)

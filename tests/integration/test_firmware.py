@@ -685,6 +685,26 @@ def test_flash_writes_and_verifies_through_esptool(fw_ws, double_env, mock_bootl
     assert leftover_containers(engine, root) == []
 
 
+def test_flash_after_a_fullclean_writes_the_firmware_without_calling_it_stale(fw_ws, double_env, mock_bootloader):
+    """`espdock idf PKG -- fullclean`, then `flash`: "the installed firmware of PKG is not what its
+    sources build now", with no source changed."""
+    root, first = fw_ws
+    assert first.returncode == 0
+    cleaned = espdock("idf", "camera_node", "--", "fullclean", cwd=root, env=double_env)
+    assert cleaned.returncode == 0, cleaned.stdout[-2000:] + cleaned.stderr
+    flashed = espdock("flash", "camera_node", "--port", mock_bootloader, cwd=root, env=double_env)
+    assert flashed.returncode == 0, flashed.stdout[-3000:] + flashed.stderr
+    assert "not what its sources build now" not in flashed.stdout, flashed.stdout[-2000:]
+    source = root / "firmware/camera_node/main/camera_node_main.c"
+    original = source.read_text()
+    source.write_text(original + "\n/* an edit since the build */\n")
+    try:
+        edited = espdock("flash", "camera_node", "--port", mock_bootloader, cwd=root, env=double_env)
+    finally:
+        source.write_text(original)
+    assert edited.returncode == 0 and "not what its sources build now" in " ".join(edited.stdout.split())
+
+
 def test_flash_writes_the_installed_firmware_while_its_interface_is_mid_edit(fw_ws, double_env, mock_bootloader):
     """A .msg edited since the build, here half typed: flash (and provision and monitor) built the
     micro-ROS image of the sources as they are, stopping on the edit with exit 4, or, for an edit

@@ -409,9 +409,9 @@ def test_an_edit_of_a_component_the_app_takes_from_elsewhere_in_the_workspace_re
     left the build "up to date" and the old firmware installed (and flashed) until --force."""
     root, first = fw_ws
     assert first.returncode == 0
-    shared = root / "firmware/shared/board_led"
+    shared = root / "firmware/common/board_led"
     shared.mkdir(parents=True)
-    (root / "firmware/shared/COLCON_IGNORE").touch()
+    (root / "firmware/common/COLCON_IGNORE").touch()
     (shared / "CMakeLists.txt").write_text('idf_component_register(SRCS "board_led.c" INCLUDE_DIRS ".")\n')
     (shared / "board_led.c").write_text("int board_led_level(void) { return 1; }\n")
     project = root / "firmware/led_strip_node/CMakeLists.txt"
@@ -419,7 +419,7 @@ def test_an_edit_of_a_component_the_app_takes_from_elsewhere_in_the_workspace_re
     project.write_text(
         original.replace(
             "${CMAKE_CURRENT_LIST_DIR}/../components)",
-            "${CMAKE_CURRENT_LIST_DIR}/../components\n    ${CMAKE_CURRENT_LIST_DIR}/../shared)",
+            "${CMAKE_CURRENT_LIST_DIR}/../components\n    ${CMAKE_CURRENT_LIST_DIR}/../common)",
         )
     )
     app = firmware_dir(root, "led_strip_node") / "led_strip_node.bin"
@@ -433,7 +433,7 @@ def test_an_edit_of_a_component_the_app_takes_from_elsewhere_in_the_workspace_re
         assert "board_led.c" in rebuilt.stdout and app.read_bytes() != before, rebuilt.stdout[-2000:]
     finally:
         project.write_text(original)
-        shutil.rmtree(root / "firmware/shared")
+        shutil.rmtree(root / "firmware/common")
     settled = espdock("build", "led_strip_node", "--only", "firmware", cwd=root, env=double_env)
     assert settled.returncode == 0, settled.stdout[-2000:] + settled.stderr
 

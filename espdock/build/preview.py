@@ -86,10 +86,10 @@ def _runtime_state(workspace: Workspace, step: RuntimeImage, engine: Engine | No
         spec = runtime_spec(workspace, step)
     except EspdockError:
         return "would be made of what the build installs"
-    if not is_current(spec, engine.image(spec.tag)):
+    keyed = engine.image(spec.tag)
+    if keyed is None or not is_current(spec, keyed):
         return f"would be made ({spec.tag})"
     stable = engine.image(step.stable_tag)
-    keyed = engine.image(spec.tag)
-    if stable is None or keyed is None or stable.id != keyed.id:
+    if stable is None or stable.id != keyed.id:
         return f"present; {step.stable_tag} would be tagged to it"
     return "up to date"

@@ -105,7 +105,7 @@ class FirmwareSteps:
             # An option the chip's own defaults file sets wins over sdkconfig.defaults, where
             # save-defconfig writes: the line goes there, or the change is lost at the next build.
             chip_file = workspace.root / step.project / f"sdkconfig.defaults.{step.target}"
-            overridden = _set_in(chip_file, {line.split("=", 1)[0] for line in changed})
+            overridden = sorted(set(_library_lines(chip_file)) & {line.split("=", 1)[0] for line in changed})
             where = (
                 f"{chip_file.relative_to(workspace.root)}, which sets {', '.join(overridden)} over "
                 "sdkconfig.defaults (`save-defconfig` writes sdkconfig.defaults, which would lose it)"
@@ -135,10 +135,11 @@ class FirmwareSteps:
         what its sources build now. Building the image of sources edited since, which may not
         even build, would stand between the user and the firmware they built."""
         build_dir = firmware_build_dir(workspace.ws_dir, step.package)
-        stamp_file, stamps, _ = firmware_state(workspace, step, self._image_id(step))
+        stamp = _firmware_stamp(workspace, step, self._image_id(step))[step.package]
         # The sources against what the installed firmware was built from, not the build dir's
         # files: `espdock idf PKG -- fullclean` empties those, and the sources build the same.
-        current = (stamp_file.read().get(step.package) or {}).get("stamp") == stamps[step.package]
+        recorded = StampFile(workspace.ws_dir / "build" / FIRMWARE_STAMPS).read().get(step.package) or {}
+        current = recorded.get("stamp") == stamp
         target, _, key = _read_marker(build_dir) or ("", "", "")
         if current or target != step.target or not key or key == step.image_key:
             return step, current
@@ -486,16 +487,6 @@ def _configured_project(build_dir: Path) -> str | None:
 
 
 LIBRARY_BASELINE = ".espdock-library-sdkconfig"
-
-
-def _set_in(defaults: Path, names: set[str]) -> list[str]:
-    """Which of the options NAMES the sdkconfig defaults file DEFAULTS sets (none when it is absent)."""
-    try:
-        lines = defaults.read_text(errors="replace").splitlines()
-    except OSError:
-        return []
-    found = {m.group(1) or m.group(3) for line in lines if (m := SDKCONFIG_LINE.match(line.strip()))}
-    return sorted(found & names)
 
 
 def _library_lines(sdkconfig: Path) -> dict[str, str]:

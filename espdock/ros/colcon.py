@@ -266,9 +266,9 @@ def defaults_for_build(text: str) -> dict:
     return verb if isinstance(verb, dict) else {}
 
 
-def defaults_cmake_args(text: str) -> tuple[str, ...] | None:
-    """The `build` verb's cmake-args a colcon defaults file (TEXT) sets; None where it sets none."""
-    args = defaults_for_build(text).get("cmake-args")
+def _cmake_args(build: Mapping) -> tuple[str, ...] | None:
+    """The cmake-args a defaults file's `build` verb (BUILD) sets; None where it sets none."""
+    args = build.get("cmake-args")
     return tuple(str(arg) for arg in args) if isinstance(args, list) else None
 
 
@@ -393,8 +393,9 @@ def read_colcon_settings(
             continue
         text = path.read_text(errors="replace")
         check_defaults(shown, text)
-        cmake_args = defaults_cmake_args(text) or cmake_args
-        symlink_install = defaults_for_build(text).get("symlink-install", symlink_install) is True
+        build = defaults_for_build(text)
+        cmake_args = _cmake_args(build) or cmake_args
+        symlink_install = build.get("symlink-install", symlink_install) is True
         common.update(f"{shown}\0".encode() + hashlib.sha256(text.encode()).digest())
         files.append(shown)
         if path == user:

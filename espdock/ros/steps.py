@@ -62,38 +62,42 @@ class RosSteps:
 
     def _build_afresh(self, workspace: Workspace, step: ColconBuild, rebuild: tuple[str, ...]) -> tuple[Path, ...]:
         """Remove what colcon would build on wrongly from REBUILD's trees, and say why: every build
-        dir and install prefix when --symlink-install was turned on or off, else the build dirs of
-        interface packages whose interface dependencies changed (ColconBuild.stale_interfaces).
-        Returns them, for the workspace volume to remove its copies as well."""
+        dir and install prefix when --symlink-install was turned on or off; else the build dirs of
+        interface packages whose interface dependencies changed (ColconBuild.stale_interfaces),
+        and the install prefixes a native symlink install linked to this machine's paths, each
+        reason that holds. Returns them, for the workspace volume to remove its copies as well."""
         base = workspace.ws_dir / ROS_BUILD_BASE
+        install = workspace.ws_dir / "install"
+        reasons: list[tuple[tuple[Path, ...], str]] = []
         if install_kind_switched(base, step.effective_args):
-            trees = tuple(tree for name in rebuild for tree in (base / name, workspace.ws_dir / "install" / name))
+            turned = "on" if "--symlink-install" in step.effective_args else "off"
             why = (
-                f"--symlink-install {'on' if '--symlink-install' in step.effective_args else 'off'} since the last "
-                f"build: removed the build dirs and install prefixes of {len(rebuild)} package(s), which colcon "
-                "cannot switch in place"
+                f"--symlink-install {turned} since the last build: removed the build dirs and install prefixes "
+                f"of {len(rebuild)} package(s), which colcon cannot switch in place"
             )
-        elif stale := step.stale_interfaces(rebuild):
-            trees = tuple(base / name for name in stale)
-            why = (
-                f"building {', '.join(stale)} afresh: interface packages whose interface dependencies changed, "
-                "whose type hashes rosidl's incremental build would keep"
-            )
-        elif native := natively_linked(workspace.ws_dir / "install", rebuild, workspace.root):
-            trees = tuple(workspace.ws_dir / "install" / name for name in native)
-            why = (
-                f"removed the install prefixes of {', '.join(native)}: a native `colcon build --symlink-install` "
-                "linked them to this machine's paths, which colcon in the container cannot replace"
-            )
+            reasons.append((tuple(tree for name in rebuild for tree in (base / name, install / name)), why))
         else:
-            return ()
-        for tree in trees:
-            if tree.is_symlink():
-                tree.unlink()
-            else:
-                shutil.rmtree(tree, ignore_errors=True)
-        self.containers.emit(StepNote(step.name, why))
-        return trees
+            if stale := step.stale_interfaces(rebuild):
+                why = (
+                    f"building {', '.join(stale)} afresh: interface packages whose interface dependencies changed, "
+                    "whose type hashes rosidl's incremental build would keep"
+                )
+                reasons.append((tuple(base / name for name in stale), why))
+            if native := natively_linked(install, rebuild, workspace.root):
+                why = (
+                    f"removed the install prefixes of {', '.join(native)}: a native `colcon build "
+                    "--symlink-install` linked them to this machine's paths, which colcon in the container "
+                    "cannot replace"
+                )
+                reasons.append((tuple(install / name for name in native), why))
+        for trees, why in reasons:
+            for tree in trees:
+                if tree.is_symlink():
+                    tree.unlink()
+                else:
+                    shutil.rmtree(tree, ignore_errors=True)
+            self.containers.emit(StepNote(step.name, why))
+        return tuple(tree for trees, _ in reasons for tree in trees)
 
     def colcon_build(self, workspace: Workspace, step: ColconBuild) -> tuple[Outcome, str]:
         stamp_file, stamps, rebuild = colcon_rebuild(workspace, step)

@@ -343,6 +343,38 @@ def test_after_an_edit_colcon_gets_the_changed_package_and_its_dependents_only(w
     assert "--packages-select" not in engine.runs[-1].argv, "msgs changed: app depends on it, both rebuild"
 
 
+def test_stale_interfaces_and_a_native_symlink_install_are_both_cleared_before_colcon(ws):
+    """Two reasons to clear trees in one build: app's interfaces use msgs's, which changed, and a
+    native `colcon build --symlink-install` linked both install prefixes to this machine's paths."""
+    from dataclasses import replace
+
+    step = replace(COLCON, interfaces=("msgs", "app"))
+    engine = FakeEngine(run_script=colcon_installs(ws))
+    runner(engine, []).run(Plan(ws, (step,)))
+    for name in ("msgs", "app"):
+        share = ws.ws_dir / "install" / name / "share" / name
+        share.mkdir(parents=True)
+        (share / "package.xml").symlink_to(ws.root / "ws/src" / name / "package.xml")
+    (ws.ws_dir / "build/espdock-ros/app/rosidl_generator_type_description").mkdir(parents=True)
+    (ws.root / "ws/src/msgs/msg.txt").write_text("x")
+    seen: list[bool] = []
+    play = colcon_installs(ws)
+
+    def checked(spec, on_line):
+        seen.append(
+            any((ws.ws_dir / "install" / n / "share" / n / "package.xml").is_symlink() for n in ("msgs", "app"))
+        )
+        seen.append((ws.ws_dir / "build/espdock-ros/app").exists())
+        return play(spec, on_line)
+
+    engine.run_script = checked
+    events: list = []
+    runner(engine, events).run(Plan(ws, (step,)))
+    assert seen == [False, False], "colcon ran on a native link or on app's old type descriptions"
+    assert "building app afresh" in notes(events)
+    assert "removed the install prefixes of msgs, app" in notes(events)
+
+
 def test_with_continue_on_error_what_built_is_kept_and_what_failed_is_not(ws):
     from dataclasses import replace
 

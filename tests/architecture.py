@@ -36,6 +36,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
             "espdock.defaults",
             "espdock.durable",
             "espdock.interrupts",
+            "espdock.scratch",
         ),
     ),
     ("build core", ("espdock.build", "espdock.build.steps", "espdock.build.stamps")),

@@ -17,12 +17,12 @@ import json
 import os
 import shlex
 import subprocess
-import tempfile
 import tomllib
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, replace
 from pathlib import Path
 
+from espdock import scratch
 from espdock.build.steps import EnsureImage, Plan
 from espdock.config import Config, resolve_ca_bundle
 from espdock.defaults import locate
@@ -217,8 +217,8 @@ def _compile(
     # Inputs of the workspace's own by their relative paths (so uv's "# via" notes name them so),
     # espdock's defaults by their absolute ones.
     paths = {rel: rel if (root / rel).is_file() else str(locate(root, rel)) for rel in spec.inputs}
-    with tempfile.TemporaryDirectory(prefix="espdock-lock-") as tmp:
-        output = Path(tmp) / "lock.txt"
+    with scratch.scratch_dir("espdock-lock-") as tmp:
+        output = tmp / "lock.txt"
         output.write_text(previous or "")
         argv = [uv, "pip", "compile", "--quiet", "--no-header", *spec.command(paths), "-o", str(output)]
         argv += ["--upgrade"] if upgrade else []

@@ -25,11 +25,11 @@ import shutil
 import struct
 import subprocess
 import sys
-import tempfile
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from espdock import scratch
 from espdock.errors import ConfigError, EspdockError, WorkspaceError
 
 # The firmware's side of the contract: firmware/components/espdock_uros/include/net_settings.h.
@@ -266,7 +266,8 @@ _FLAG_READONLY = 0x2  # ESP-IDF's partition table flag `readonly`
 def nvs_image(settings: NetSettings, size: int, owner: tuple[int, int] | None = None) -> Iterator[Path]:
     """A private directory holding IMAGE_NAME, the NVS partition image for SETTINGS (SIZE bytes),
     readable by OWNER (the container's user); removed on exit, however it is left."""
-    directory = Path(tempfile.mkdtemp(prefix="espdock-provision-"))  # 0700
+    # 0700, and named with this process's identity: the next run removes what a kill -9 left.
+    directory = scratch.make("espdock-provision-")
     try:
         source = directory / "nvs.csv"
         image = directory / IMAGE_NAME

@@ -47,6 +47,7 @@ from espdock.errors import (
 )
 from espdock.images import contexts, local_api, sdk
 from espdock.images.sdk import docker, requests
+from espdock.scratch import owner_alive, owner_identity
 
 LineSink = Callable[[str], None]
 DEFAULT_SOCKET = "/var/run/docker.sock"
@@ -1300,36 +1301,6 @@ def _remove(container: docker.models.containers.Container, stop: bool = True) ->
         pass
     except (docker.errors.APIError, requests.exceptions.RequestException) as exc:
         warnings.warn(f"could not remove container {container.short_id}: {exc}", stacklevel=2)
-
-
-def _boot_id() -> str:
-    try:
-        return Path("/proc/sys/kernel/random/boot_id").read_text().strip()
-    except OSError:
-        return "unknown-boot"
-
-
-def _start_time(pid: int) -> str | None:
-    """PID's start time in clock ticks since boot (/proc/PID/stat field 22), None when it is gone."""
-    try:
-        stat = Path(f"/proc/{pid}/stat").read_text()
-    except OSError:
-        return None
-    return stat.rsplit(")", 1)[1].split()[19]
-
-
-def owner_identity() -> str:
-    """This process as LABEL_OWNER names it: a pid is reused, a pid with its start time is not."""
-    return f"{_boot_id()}:{os.getpid()}:{_start_time(os.getpid())}"
-
-
-def owner_alive(owner: str) -> bool:
-    """Whether the process OWNER (an owner_identity) still runs on this machine. One of another
-    machine's (an engine over TCP) is not found here, so it counts as gone: only sweep what a
-    workspace path of this machine labels."""
-    boot, _, rest = owner.partition(":")
-    pid, _, started = rest.partition(":")
-    return boot == _boot_id() and pid.isdigit() and _start_time(int(pid)) == started
 
 
 _PR_SET_PDEATHSIG = 1

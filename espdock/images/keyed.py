@@ -14,13 +14,14 @@ from contextlib import contextmanager, suppress
 from datetime import UTC, datetime
 from pathlib import Path
 
+from espdock import scratch
 from espdock.build.steps import LABEL_KEY, LABEL_WORKSPACE, EnsureBaseImage, EnsureImage, ImageSpec, cache_ref
 from espdock.config import resolve_ca_bundle
 from espdock.errors import EspdockError, RegistryError
 from espdock.events import Outcome, StepNote, StepOutput
 from espdock.images import bootstrap
 from espdock.images.containers import Containers, first_line
-from espdock.images.engine import ImageInfo, RegistryAnswer, RegistryStatus, owner_alive, owner_identity
+from espdock.images.engine import ImageInfo, RegistryAnswer, RegistryStatus
 from espdock.workspace import Workspace
 
 # dpkg's database: read from the image, not asked of a `dpkg-query` run in it (see installed_packages).
@@ -316,17 +317,6 @@ def _host_paths_in(spec: ImageSpec) -> Iterator[None]:
 CONTEXT_PREFIX = "espdock-context-"
 
 
-def _sweep_contexts() -> None:
-    """Remove the staged contexts this user's espdock processes left in the temp dir when killed
-    outright (kill -9 during an image build): each is named with its process's identity."""
-    base = Path(tempfile.gettempdir())
-    for path in base.glob(f"{CONTEXT_PREFIX}*"):
-        owner = path.name.removeprefix(CONTEXT_PREFIX).rpartition("-")[0]
-        with suppress(OSError):
-            if path.lstat().st_uid == os.geteuid() and path.is_dir() and not owner_alive(owner):
-                shutil.rmtree(path)
-
-
 @contextmanager
 def _context_dir(workspace: Workspace, spec: ImageSpec, files: Mapping[str, Path | bytes]) -> Iterator[Path]:
     """The build context: the workspace root, or a temporary directory staged from the spec
@@ -335,8 +325,8 @@ def _context_dir(workspace: Workspace, spec: ImageSpec, files: Mapping[str, Path
     if spec.context is None:
         yield workspace.root
         return
-    _sweep_contexts()
-    with tempfile.TemporaryDirectory(prefix=f"{CONTEXT_PREFIX}{owner_identity()}-") as tmp:
+    # Named with this process's identity: the next run removes what a kill -9 left.
+    with scratch.scratch_dir(CONTEXT_PREFIX) as tmp:
         for rel, data in spec.context:
             path = Path(tmp, rel)
             path.parent.mkdir(parents=True, exist_ok=True)

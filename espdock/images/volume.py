@@ -21,12 +21,11 @@ import re
 import shutil
 import stat
 import tarfile
-import tempfile
 from collections.abc import Collection, Iterator
 from dataclasses import dataclass
 from pathlib import Path, PurePosixPath
 
-from espdock import durable, interrupts
+from espdock import durable, interrupts, scratch
 from espdock.build.stamps import source_files
 from espdock.build.steps import LABEL_WORKSPACE
 from espdock.errors import EngineUnavailable
@@ -187,8 +186,8 @@ def _owned(info: tarfile.TarInfo, kind: bytes, mode: int, owner: tuple[int, int]
 @contextlib.contextmanager
 def fetched(*names: str) -> Iterator[dict[str, Path]]:
     """Temporary files (NAME -> path) for the tar streams a build container hands back."""
-    with tempfile.TemporaryDirectory(prefix="espdock-volume-") as tmp:
-        yield {name: Path(tmp, f"{name}.tar") for name in names}
+    with scratch.scratch_dir("espdock-volume-") as tmp:
+        yield {name: tmp / f"{name}.tar" for name in names}
 
 
 def replace_tree(archive: Path, dest: Path, owner: tuple[int, int], only: Collection[str] | None = None) -> bool:
@@ -200,7 +199,7 @@ def replace_tree(archive: Path, dest: Path, owner: tuple[int, int], only: Collec
     if not archive.is_file():
         return False
     staging = _unpacked(archive, dest.parent, owner)
-    old = dest.with_name(f".{dest.name}.old-{os.getpid()}")
+    old: Path | None = None
     try:
         if only is not None and dest.is_dir():
             new = staging / _top(archive)
@@ -216,14 +215,16 @@ def replace_tree(archive: Path, dest: Path, owner: tuple[int, int], only: Collec
                     shutil.copytree(entry, kept, symlinks=True, copy_function=os.link)
                 else:
                     os.link(entry, kept, follow_symlinks=False)
+        old = scratch.make(".espdock-old-", dest.parent)  # DEST goes in it, to be removed with it
         with interrupts.held():  # the two renames as one: DEST is the old tree or the new one
             if dest.exists() or dest.is_symlink():
-                dest.rename(old)
+                dest.rename(old / dest.name)
             (staging / _top(archive)).rename(dest)
         durable.sync_dir(dest.parent)
     finally:
         shutil.rmtree(staging, ignore_errors=True)
-        shutil.rmtree(old, ignore_errors=True)
+        if old is not None:
+            shutil.rmtree(old, ignore_errors=True)
     return True
 
 
@@ -254,7 +255,7 @@ def _top(archive: Path) -> str:
 
 
 def _unpacked(archive: Path, beside: Path, owner: tuple[int, int]) -> Path:
-    staging = Path(tempfile.mkdtemp(prefix=".espdock-fetched-", dir=beside))
+    staging = scratch.make(".espdock-fetched-", beside)
     try:
         with tarfile.open(archive) as tar:
             _extract(tar, staging)

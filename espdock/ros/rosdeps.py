@@ -21,13 +21,13 @@ import os
 import re
 import shutil
 import subprocess
-import tempfile
 import time
 import warnings
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
+from espdock import scratch
 from espdock.defaults import locate
 from espdock.errors import DependencyError, LockError
 from espdock.layout import ROSDEP_LOCK, xdg_dir
@@ -424,19 +424,19 @@ def pip_alternatives(keys: Iterable[str]) -> list[str]:
     return out
 
 
-def uv_env(tmp: str, ca_bundle: Path | None = None) -> dict[str, str]:
+def uv_env(tmp: Path, ca_bundle: Path | None = None) -> dict[str, str]:
     """The environment uv runs in: this one, with TMP (removed afterwards) as its temp dir. uv
     leaves a lock file in the temp dir for every setuptools source tree it builds (a pip key's
     sdist), about one per `espdock lock` here. CA_BUNDLE: the extra CA bundle (espdock's
     ca_bundle, else pip's configured cert), which uv reads from no pip.conf: with the system's
     CAs, its SSL_CERT_FILE, unless the user set one."""
-    env = {**os.environ, "TMPDIR": tmp}
+    env = {**os.environ, "TMPDIR": str(tmp)}
     if ca_bundle is not None and not env.get("SSL_CERT_FILE"):
         import ssl
 
         paths = ssl.get_default_verify_paths()
         system = next((Path(p) for p in (paths.cafile, paths.openssl_cafile) if p and Path(p).is_file()), None)
-        combined = Path(tmp) / "espdock-ca.pem"
+        combined = tmp / "espdock-ca.pem"
         combined.write_bytes((system.read_bytes() + b"\n" if system else b"") + ca_bundle.read_bytes())
         env["SSL_CERT_FILE"] = str(combined)
     return env
@@ -456,10 +456,10 @@ def pip_lock_lines(
     wanted = sorted(set(requirements))
     absent: set[str] = set()
     while wanted:
-        with tempfile.TemporaryDirectory(prefix="espdock-rosdep-") as tmp:
-            source = Path(tmp) / "rosdep.in"
+        with scratch.scratch_dir("espdock-rosdep-") as tmp:
+            source = tmp / "rosdep.in"
             source.write_text("".join(f"{r}\n" for r in wanted))
-            out = Path(tmp) / "rosdep.txt"
+            out = tmp / "rosdep.txt"
             if image.flavour == "wheels":
                 args = [*ROS_IMAGE_PYTHON]
                 for rel, _ in image.constraints:
@@ -467,7 +467,7 @@ def pip_lock_lines(
             else:  # the official image's system Python (noble: 3.12; the test double: 3.11)
                 args = ["--universal", "--python-version", system.version if system else "3.11"]
                 if system is not None:
-                    installed = Path(tmp) / "installed.txt"
+                    installed = tmp / "installed.txt"
                     installed.write_text(system.constraints())
                     args += ["-c", str(installed)]
             argv = [uv, "pip", "compile", "--quiet", "--no-header", "--no-annotate", "--generate-hashes"]

@@ -12,6 +12,7 @@ import socketserver
 import subprocess
 import sys
 import tarfile
+import tempfile
 import threading
 import time
 from pathlib import Path
@@ -291,6 +292,34 @@ def test_a_copy_back_swaps_the_whole_tree_in_and_a_missing_one_leaves_the_old(ws
     assert volume.replace_tree(tmp_path / "install.tar", install, (os.getuid(), os.getgid()))
     assert sorted(p.name for p in (install / "app").iterdir()) == ["new.txt"]
     assert [p.name for p in ws.ws_dir.iterdir() if p.name.startswith(".")] == []  # no staging left
+
+
+def test_what_a_copy_back_killed_outright_left_is_removed_by_the_next_and_a_live_one_s_is_not(
+    ws, tmp_path, monkeypatch
+):
+    """kill -9 during a copy back from the volume left its tar streams in the temp dir and the
+    unpacked or swapped-out install tree hidden in the colcon root, for good."""
+    from espdock.scratch import owner_identity
+
+    temp = tmp_path / "temp"
+    temp.mkdir()
+    monkeypatch.setattr(tempfile, "tempdir", str(temp))
+    gone, live = "0000:1:1", owner_identity()  # another boot's process, and this one
+    left = [temp / f"espdock-volume-{gone}-ab12", ws.ws_dir / f".espdock-fetched-{gone}-cd34"]
+    left.append(ws.ws_dir / f".espdock-old-{gone}-ef56")
+    kept = [temp / f"espdock-volume-{live}-ab12", ws.ws_dir / f".espdock-fetched-{live}-cd34"]
+    kept.append(temp / "espdock-volume-bench-gh78")  # not one of espdock's: tests/bench/volume_mode.py's
+    for path in (*left, *kept):
+        (path / "install/app").mkdir(parents=True)
+    made = tmp_path / "made/install/app"
+    made.mkdir(parents=True)
+    (made / "new.txt").write_text("new")
+    with volume.fetched("install") as archives:
+        with tarfile.open(archives["install"], "w") as tar:
+            tar.add(tmp_path / "made/install", arcname="install")
+        assert volume.replace_tree(archives["install"], ws.ws_dir / "install", (os.getuid(), os.getgid()))
+    assert [path for path in left if path.exists()] == []
+    assert all(path.is_dir() for path in kept)
 
 
 @pytest.mark.parametrize("cut", ["empty", "truncated"])

@@ -51,7 +51,7 @@ def test_a_context_a_killed_espdock_staged_is_removed_by_the_next_and_a_live_one
     """kill -9 during an image build left its staged context (Dockerfile and docker/) in /tmp for good."""
     import tempfile
 
-    from espdock.images.engine import owner_identity
+    from espdock.scratch import owner_identity
 
     monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
     left = tmp_path / "espdock-context-0000:1:1-abcd1234"  # another boot's process: gone

@@ -171,6 +171,19 @@ def test_the_temporary_files_go_also_when_the_write_fails():
     assert not directory.exists()
 
 
+def test_the_credentials_a_provisioning_killed_outright_left_are_removed_by_the_next(tmp_path, monkeypatch):
+    """kill -9 while the generator ran left the WiFi password in the temp dir, for good."""
+    import tempfile
+
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
+    left = tmp_path / "espdock-provision-0000:1:1-ab12cd34"  # another boot's process: gone
+    left.mkdir()
+    (left / "nvs.csv").write_text("espdock,namespace,,\npassword,data,string,secret\n")
+    with nvs_image(NetSettings("lab", "", "10.0.0.2", 1), 0x3000) as image:
+        assert image.parent.parent == tmp_path
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_the_nvs_partition_comes_from_the_installed_table(tmp_path):
     (tmp_path / "partition_table").mkdir()
     (tmp_path / "partition_table/partition-table.bin").write_bytes(SINGLE_APP_LARGE)

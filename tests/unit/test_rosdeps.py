@@ -326,11 +326,11 @@ def test_uv_gets_the_extra_ca_bundle_beside_the_system_s_which_it_reads_from_no_
     extra = tmp_path / "proxy-ca.pem"
     extra.write_text("-----BEGIN CERTIFICATE-----\nproxy\n-----END CERTIFICATE-----\n")
     monkeypatch.delenv("SSL_CERT_FILE", raising=False)
-    assert "SSL_CERT_FILE" not in rosdeps.uv_env(str(tmp_path))
-    bundle = Path(rosdeps.uv_env(str(tmp_path), extra)["SSL_CERT_FILE"]).read_text()
+    assert "SSL_CERT_FILE" not in rosdeps.uv_env(tmp_path)
+    bundle = Path(rosdeps.uv_env(tmp_path, extra)["SSL_CERT_FILE"]).read_text()
     assert bundle.endswith(extra.read_text()) and bundle.count("BEGIN CERTIFICATE") > 1, "the system's CAs too"
     monkeypatch.setenv("SSL_CERT_FILE", "/users/own.pem")
-    assert rosdeps.uv_env(str(tmp_path), extra)["SSL_CERT_FILE"] == "/users/own.pem"
+    assert rosdeps.uv_env(tmp_path, extra)["SSL_CERT_FILE"] == "/users/own.pem"
 
 
 def test_the_keys_a_lock_records_that_nothing_installs_are_listed_with_why():

@@ -1,0 +1,79 @@
+"""Which espdock process made a thing, and scratch directories named by it.
+
+A process's identity (its boot, pid and start time) names the containers it labels and the
+scratch directories it makes, so that the next espdock run removes what an espdock killed
+outright (kill -9, the OOM killer) left behind: containers, staged image contexts, the workspace
+volume's tar streams and the trees it unpacks beside install/, provisioning's NVS image. A live
+espdock's are never touched."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import tempfile
+from collections.abc import Iterator
+from contextlib import contextmanager, suppress
+from pathlib import Path
+
+
+def _boot_id() -> str:
+    try:
+        return Path("/proc/sys/kernel/random/boot_id").read_text().strip()
+    except OSError:
+        return "unknown-boot"
+
+
+def _start_time(pid: int) -> str | None:
+    """PID's start time in clock ticks since boot (/proc/PID/stat field 22), None when it is gone."""
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:
+        return None
+    return stat.rsplit(")", 1)[1].split()[19]
+
+
+def owner_identity() -> str:
+    """This process as LABEL_OWNER names it: a pid is reused, a pid with its start time is not."""
+    return f"{_boot_id()}:{os.getpid()}:{_start_time(os.getpid())}"
+
+
+def owner_alive(owner: str) -> bool:
+    """Whether the process OWNER (an owner_identity) still runs on this machine. One of another
+    machine's (an engine over TCP) is not found here, so it counts as gone: only sweep what a
+    workspace path of this machine labels."""
+    boot, _, rest = owner.partition(":")
+    pid, _, started = rest.partition(":")
+    return boot == _boot_id() and pid.isdigit() and _start_time(int(pid)) == started
+
+
+def sweep(directory: Path, prefix: str) -> None:
+    """Remove this user's PREFIX directories in DIRECTORY whose process is gone."""
+    try:
+        left = [entry for entry in directory.iterdir() if entry.name.startswith(prefix)]
+    except OSError:  # a temp dir this user cannot list: nothing of theirs to sweep
+        return
+    for path in left:
+        owner = path.name.removeprefix(prefix).rpartition("-")[0]
+        if owner.count(":") != 2:  # not named by make(): another tool's, or an older espdock's
+            continue
+        with suppress(OSError):
+            if path.lstat().st_uid == os.geteuid() and path.is_dir() and not owner_alive(owner):
+                shutil.rmtree(path)
+
+
+def make(prefix: str, directory: Path | None = None) -> Path:
+    """A new private directory PREFIX<identity>-<random> in DIRECTORY (the temp dir by default),
+    after sweeping the ones of processes that are gone."""
+    where = Path(directory or tempfile.gettempdir())
+    sweep(where, prefix)
+    return Path(tempfile.mkdtemp(prefix=f"{prefix}{owner_identity()}-", dir=where))
+
+
+@contextmanager
+def scratch_dir(prefix: str, directory: Path | None = None) -> Iterator[Path]:
+    """make()'s directory, removed with what it holds when the block ends."""
+    path = make(prefix, directory)
+    try:
+        yield path
+    finally:
+        shutil.rmtree(path, ignore_errors=True)

@@ -8,6 +8,7 @@ import json
 import os
 import posixpath
 import re
+import shlex
 import socket
 import stat
 from collections.abc import Callable, Mapping, Sequence
@@ -147,6 +148,19 @@ def check_port(port: Port, timeout: float = 3.0) -> None:
         raise PortError(f"serial port {path} is busy", "Close the program using it (a monitor?).") from None
     finally:
         os.close(fd)
+    if os.major(path.stat().st_rdev) in _PTY_MAJORS:
+        # The engine makes the node in the container's /dev/pts, its own devpts, where runc cannot
+        # open it ("error creating device nodes: ... permission denied").
+        raise PortError(
+            f"{path} is a pseudo-terminal (an emulator's or socat's serial port), which no container can open",
+            "Serve it over the network and pass that: QEMU's `-serial tcp::5555,server,nowait` as "
+            f"socket://localhost:5555, or `esp_rfc2217_server -p 4000 {shlex.quote(str(path))}` as "
+            "rfc2217://localhost:4000.",
+        )
+
+
+# Unix98 pseudo-terminal slaves (/dev/pts/N): the kernel's devices.txt.
+_PTY_MAJORS = range(136, 144)
 
 
 # An extra (offset, path in the container) to write beside, or instead of, the app's files.

@@ -157,7 +157,6 @@ def test_busy_serial_port_is_reported():
 
     controller, device = pty.openpty()
     path = os.ttyname(device)
-    check_port(parse_port(path))  # free: passes
     holder = os.open(path, os.O_RDWR | os.O_NOCTTY)
     fcntl.flock(holder, fcntl.LOCK_EX | fcntl.LOCK_NB)  # as pyserial does for an open port
     try:
@@ -166,6 +165,22 @@ def test_busy_serial_port_is_reported():
     finally:
         for fd in (holder, device, controller):
             os.close(fd)
+
+
+def test_a_pseudo_terminal_is_refused_with_the_network_way_to_serve_it(tmp_path):
+    """The engine cannot make a /dev/pts node in a container: runc failed with "error creating
+    device nodes: ... permission denied". socat's and emulators' ports are such nodes, often
+    under a name of their own."""
+    controller, device = pty.openpty()
+    (tmp_path / "ttyV0").symlink_to(os.ttyname(device))
+    try:
+        for path in (os.ttyname(device), str(tmp_path / "ttyV0")):
+            with pytest.raises(PortError, match="is a pseudo-terminal") as err:
+                check_port(parse_port(path))
+            assert "socket://localhost:5555" in (err.value.hint or "")
+    finally:
+        os.close(device)
+        os.close(controller)
 
 
 def test_network_port_with_nothing_listening():

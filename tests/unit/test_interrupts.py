@@ -33,18 +33,20 @@ except KeyboardInterrupt:
 def start(
     grace: float = 8, hold: float = 0, cleanup: float = 0, ignore_sigint: bool = False, nohup: bool = False
 ) -> subprocess.Popen:
-    def ignore() -> None:
-        # What a shell without job control does to a command it starts in the background.
-        signal.signal(signal.SIGINT, signal.SIG_IGN)
-        if nohup:
-            signal.signal(signal.SIGHUP, signal.SIG_IGN)
+    def dispositions() -> None:
+        # SIGINT ignored: what a shell without job control does to a command it starts in the
+        # background. SIGHUP as a terminal's command has it, whatever the test run's own is (a
+        # `nohup make test` ignores it, and espdock then leaves it ignored).
+        if ignore_sigint:
+            signal.signal(signal.SIGINT, signal.SIG_IGN)
+        signal.signal(signal.SIGHUP, signal.SIG_IGN if nohup else signal.SIG_DFL)
 
     return subprocess.Popen(
         [sys.executable, "-c", SCRIPT.format(grace=grace, hold=hold, cleanup=cleanup)],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
-        preexec_fn=ignore if ignore_sigint or nohup else None,  # noqa: PLW1509 (no threads in the test)
+        preexec_fn=dispositions,  # noqa: PLW1509 (no threads in the test)
     )
 
 

@@ -158,22 +158,23 @@ def _option_values(args: Iterable[str]) -> dict[str, list[str]]:
     return values
 
 
+def closure(names: Iterable[str], depends: Mapping[str, Iterable[str]]) -> set[str]:
+    """What NAMES depend on in DEPENDS (name -> its workspace dependencies), directly or not."""
+    found, stack = set(), list(names)
+    while stack:
+        name = stack.pop()
+        for dep in depends.get(name, ()):
+            if dep not in found:
+                found.add(dep)
+                stack.append(dep)
+    return found
+
+
 def left_out(args: Iterable[str], depends: Mapping[str, Iterable[str]]) -> frozenset[str]:
     """The packages of DEPENDS (name -> its workspace dependencies) that `colcon build ARGS`
     does not build: skipped or ignored by name or pattern (re.match, as colcon), skipped up to
     (with their dependencies) or by dependency (the packages depending on them)."""
     values = _option_values(args)
-
-    def closure(names: set[str], edges: Mapping[str, Iterable[str]]) -> set[str]:
-        found, stack = set(), list(names)
-        while stack:
-            name = stack.pop()
-            for dep in edges.get(name, ()):
-                if dep not in found:
-                    found.add(dep)
-                    stack.append(dep)
-        return found
-
     out = set(values.get("--packages-skip", [])) | set(values.get("--packages-ignore", []))
     patterns = values.get("--packages-skip-regex", []) + values.get("--packages-ignore-regex", [])
     try:

@@ -26,8 +26,10 @@ from espdock.ros.colcon import (
     DEFAULTS_MOUNT,
     ColconLog,
     PackageState,
+    closure,
     explain_failure,
     install_kind_switched,
+    left_out,
     record_build_args,
     usage_error,
 )
@@ -201,8 +203,22 @@ class RosSteps:
         if states is not None and not step.testing and (recorded_args := record_build_args(base, step.effective_args)):
             give_to(recorded_args, self.containers.owner)
         built = [name for name, state in (states or {}).items() if state is PackageState.BUILT and name in stamps]
-        if built:
-            stamp_file.record({name: stamps[name] for name in built}, installed())
+        # A dependency this build was to build and did not (`-- --packages-skip` it, or it failed
+        # under --continue-on-error): what built on it built on its old install, so it is not up
+        # to date once that dependency is built.
+        depends = dict(step.depends)
+        on_old = {name: closure([name], depends) & (set(rebuild) - set(built)) for name in built}
+        if against := [name for name in built if on_old[name]]:
+            olds = sorted(set().union(*(on_old[name] for name in against)))
+            self.containers.emit(
+                StepNote(
+                    step.name,
+                    f"{', '.join(against)} built on the old install of {', '.join(olds)}, which this build did "
+                    "not build: the next build builds them again",
+                )
+            )
+        if current := [name for name in built if not on_old[name]]:
+            stamp_file.record({name: stamps[name] for name in current}, installed())
             give_to(stamp_file.path, self.containers.owner)
         self.unbuilt |= set(rebuild) - set(built)
         if states is None and code != 0:
@@ -242,7 +258,9 @@ class RosSteps:
         others = [n for n in rebuild if n not in built]
         # Asked for and neither built nor left out as told (`-- --packages-skip`): colcon did not
         # find it where espdock did (a package linked from outside the workspace, say).
-        if lost := [n for n in others if n not in (states or {}) and n not in log.unselected()]:
+        # colcon logs no event of a package an option ignores (`--packages-ignore`): as if not found.
+        ignored = left_out(step.colcon_args, depends)
+        if lost := [n for n in others if n not in (states or {}) and n not in log.unselected() and n not in ignored]:
             rels = dict(step.sources)
             raise BuildFailed(
                 f"colcon did not find {len(lost)} of the {len(rebuild)} package(s) it was to build: "

@@ -6,6 +6,7 @@ import os
 import tempfile
 import threading
 import time
+from dataclasses import replace
 from datetime import UTC, datetime
 from pathlib import Path
 
@@ -51,27 +52,28 @@ def colcon_installs(ws: Workspace, code: int = 0, lines: tuple[str, ...] = (), r
     RCS: a package's return code (colcon-core's 'SIGINT' when aborted, None when skipped);
     the others get CODE."""
 
+    def named(argv: list[str], option: str) -> tuple[str, ...]:
+        if option not in argv:
+            return ()
+        rest = argv[argv.index(option) + 1 :]
+        return tuple(rest[: next((i for i, a in enumerate(rest) if a.startswith("-")), len(rest))])
+
     def play(spec, on_line):
         for line in lines:
             on_line(line)
         argv = list(spec.argv)
-        selected = ("msgs", "app")
+        # --packages-ignore: as if colcon had not found it, so no event names it.
+        found = tuple(n for n in ("msgs", "app") if n not in named(argv, "--packages-ignore"))
+        selected = tuple(n for n in found if n not in named(argv, "--packages-skip"))
         if "--packages-select" in argv:
-            rest = argv[argv.index("--packages-select") + 1 :]
-            selected = tuple(
-                n
-                for n in selected
-                if n in rest[: next((i for i, a in enumerate(rest) if a.startswith("-")), len(rest))]
-            )
+            selected = tuple(n for n in selected if n in named(argv, "--packages-select"))
         log = (
             ws.ws_dir
             / "log"
             / f"build_{len(list((ws.ws_dir / 'log').glob('build_*'))) if (ws.ws_dir / 'log').is_dir() else 0}"
         )
         log.mkdir(parents=True)
-        events = [
-            f"[0.000100] (-) JobUnselected: {{'identifier': '{n}'}}" for n in ("msgs", "app") if n not in selected
-        ]
+        events = [f"[0.000100] (-) JobUnselected: {{'identifier': '{n}'}}" for n in found if n not in selected]
         for name in selected:
             events.append(f"[0.000200] ({name}) JobQueued: {{'identifier': '{name}', 'dependencies': OrderedDict()}}")
         for name in selected:
@@ -373,6 +375,23 @@ def test_stale_interfaces_and_a_native_symlink_install_are_both_cleared_before_c
     assert seen == [False, False], "colcon ran on a native link or on app's old type descriptions"
     assert "building app afresh" in notes(events)
     assert "removed the install prefixes of msgs, app" in notes(events)
+
+
+@pytest.mark.parametrize("option", ["--packages-skip", "--packages-ignore"])
+def test_what_built_on_a_changed_package_left_out_is_built_again_once_that_is_built(ws, option):
+    """`-- --packages-skip msgs` after an edit of msgs: app built on msgs's old install. The next
+    plain build built msgs alone and called app up to date, on msgs's old headers for good."""
+    engine = FakeEngine(run_script=colcon_installs(ws))
+    runner(engine, []).run(Plan(ws, (COLCON,)))
+    (ws.root / "ws/src/msgs/msg.txt").write_text("x")
+    events: list = []
+    runner(engine, events).run(Plan(ws, (replace(COLCON, colcon_args=(option, "msgs")),)))
+    assert events[-1].detail == "1 package(s) built, 0 up to date, 1 not built (msgs)"
+    assert "app built on the old install of msgs, which this build did not build" in notes(events)
+    runner(engine, []).run(Plan(ws, (COLCON,)))
+    assert "--packages-select" not in engine.runs[-1].argv, "msgs is built now: app must be built again on it"
+    runner(engine, events := []).run(Plan(ws, (COLCON,)))
+    assert events[-1].detail == "up to date (2 package(s))"
 
 
 def test_with_continue_on_error_what_built_is_kept_and_what_failed_is_not(ws):

@@ -12,6 +12,7 @@ from espdock.firmware.plan import IdfBuild, InstallFirmware
 from espdock.firmware.steps import firmware_state, install_up_to_date
 from espdock.images.engine import Engine
 from espdock.images.keyed import is_current
+from espdock.ros.colcon import left_out
 from espdock.ros.plan import ColconBuild, RuntimeImage
 from espdock.ros.steps import colcon_rebuild, runtime_spec
 from espdock.workspace import Workspace
@@ -42,9 +43,15 @@ def preview(workspace: Workspace, plan: Plan, engine: Engine | None, registry: b
                     made.add(step.spec.tag)
             case ColconBuild():
                 _, stamps, rebuild = colcon_rebuild(workspace, step)
+                out = left_out(step.colcon_args, dict(step.depends))
+                building = [name for name in rebuild if name not in out]
                 if rebuild:
-                    ros_built = True
-                    states.append(f"would build {len(rebuild)} of {len(stamps)} package(s): {', '.join(rebuild)}")
+                    ros_built = ros_built or bool(building)
+                    state = f"would build {len(building)} of {len(stamps)} package(s)"
+                    state += f": {', '.join(building)}" if building else ""
+                    if skipped := [name for name in rebuild if name in out]:
+                        state += f"; the options after `--` leave out {', '.join(skipped)}"
+                    states.append(state)
                 else:
                     states.append(f"up to date ({len(stamps)} package(s))")
             case IdfBuild():

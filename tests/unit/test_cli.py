@@ -487,6 +487,17 @@ def test_a_firmware_dependency_micro_ros_has_no_headers_of_is_named_before_the_b
     assert "warning: led_strip_node depends on nav2_msgs: in no package" in said, said
 
 
+def test_the_dry_run_leaves_out_what_the_options_after_the_double_dash_skip(tmp_path):
+    """`--dry-run -- --packages-skip-by-dep custom_interface` listed all three packages as to build."""
+    root = copy_workspace(tmp_path / "w", packages=("custom_interface", "espdock_demo"))
+    planned = espdock("build", "--dry-run", "--", "--packages-skip-by-dep", "custom_interface", cwd=root, env=NO_ENGINE)
+    said = " ".join(planned.stdout.split())
+    assert planned.returncode == 0, said + planned.stderr
+    assert (
+        "now: would build 1 of 2 package(s): custom_interface; the options after `--` leave out espdock_demo" in said
+    ), said
+
+
 def test_timestamps_reach_the_error_that_ends_the_command(tmp_path):
     """`espdock build --timestamps` in CI: every line was timed but the error and its hint."""
     root = copy_workspace(tmp_path / "w")

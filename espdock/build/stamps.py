@@ -110,10 +110,14 @@ class StampFile:
         """True when every package's stamp and install listing are those recorded."""
         return not self.stale(stamps, installed)
 
-    def stale(self, stamps: Mapping[str, str], installed: Mapping[str, str | None]) -> tuple[str, ...]:
+    def stale(
+        self, stamps: Mapping[str, str], installed: Mapping[str, str | None], sources: Mapping[str, str] | None = None
+    ) -> tuple[str, ...]:
         """The packages of STAMPS (in their order) whose stamp or install listing is not the one
-        recorded: what changed, and through the chained stamps, what depends on it."""
+        recorded: what changed, and through the chained stamps, what depends on it; with
+        SOURCES (name -> its directory), what moved as well."""
         recorded = self.read()
+        moved = self.moved(sources or {})
         return tuple(
             name
             for name, stamp in stamps.items()
@@ -122,14 +126,29 @@ class StampFile:
                 and recorded[name].get("stamp") == stamp
                 and installed.get(name) is not None
                 and recorded[name].get("installed") == installed[name]
+                and name not in moved
             )
         )
 
-    def record(self, stamps: Mapping[str, str], installed: Mapping[str, str | None]) -> None:
-        """Record STAMPS with what is installed now, keeping other packages' records."""
+    def moved(self, sources: Mapping[str, str]) -> dict[str, str]:
+        """The packages of SOURCES (name -> its directory) last built from another directory: that one."""
+        recorded = self.read()
+        return {
+            name: old
+            for name, rel in sources.items()
+            if isinstance(recorded.get(name), dict) and (old := recorded[name].get("source")) not in (None, rel)
+        }
+
+    def record(
+        self, stamps: Mapping[str, str], installed: Mapping[str, str | None], sources: Mapping[str, str] | None = None
+    ) -> None:
+        """Record STAMPS with what is installed now (and each package's directory, from SOURCES),
+        keeping other packages' records."""
         data = self.read()
         for name, stamp in stamps.items():
             data[name] = {"stamp": stamp, "installed": installed.get(name)}
+            if sources and name in sources:
+                data[name]["source"] = sources[name]
         self.path.parent.mkdir(parents=True, exist_ok=True)
         durable.write_text(self.path, json.dumps(data, indent=1, sort_keys=True) + "\n")
 

@@ -62,12 +62,15 @@ class RosSteps:
         # image is made from them.
         self.unbuilt: set[str] = set()
 
-    def _build_afresh(self, workspace: Workspace, step: ColconBuild, rebuild: tuple[str, ...]) -> tuple[Path, ...]:
+    def _build_afresh(
+        self, workspace: Workspace, step: ColconBuild, rebuild: tuple[str, ...], stamp_file: StampFile
+    ) -> tuple[Path, ...]:
         """Remove what colcon would build on wrongly from REBUILD's trees, and say why: every build
         dir and install prefix when --symlink-install was turned on or off; else the build dirs of
         interface packages whose interface dependencies changed (ColconBuild.stale_interfaces),
-        and the install prefixes a native symlink install linked to this machine's paths, each
-        reason that holds. Returns them, for the workspace volume to remove its copies as well."""
+        the install prefixes a native symlink install linked to this machine's paths, and the
+        build dirs and install prefixes of packages that moved (STAMP_FILE knows where they were),
+        each reason that holds. Returns them, for the workspace volume to remove its copies as well."""
         base = workspace.ws_dir / ROS_BUILD_BASE
         install = workspace.ws_dir / "install"
         reasons: list[tuple[tuple[Path, ...], str]] = []
@@ -92,6 +95,12 @@ class RosSteps:
                     "cannot replace"
                 )
                 reasons.append((tuple(install / name for name in native), why))
+            if moved := stamp_file.moved({name: rel for name, rel in step.sources if name in rebuild}):
+                # Their CMake caches and symlink installs hold the old directory.
+                why = "building afresh what moved since the last build: " + ", ".join(
+                    f"{name} (from {old})" for name, old in moved.items()
+                )
+                reasons.append((tuple(tree for name in moved for tree in (base / name, install / name)), why))
         for trees, why in reasons:
             for tree in trees:
                 if tree.is_symlink():
@@ -122,7 +131,7 @@ class RosSteps:
                 )
             )
         emptied = (base,) if retired is not None else ()  # in the workspace volume, its build dirs as well
-        emptied += self._build_afresh(workspace, step, rebuild)
+        emptied += self._build_afresh(workspace, step, rebuild, stamp_file)
         sync = self.containers.sync(workspace, step.name, step.image, user, labels, emptied)
         whole = sync is not None and (sync.fresh or sync.installed != listing_digest(workspace.ws_dir / "install"))
         if whole:
@@ -218,7 +227,7 @@ class RosSteps:
                 )
             )
         if current := [name for name in built if not on_old[name]]:
-            stamp_file.record({name: stamps[name] for name in current}, installed())
+            stamp_file.record({name: stamps[name] for name in current}, installed(), dict(step.sources))
             give_to(stamp_file.path, self.containers.owner)
         self.unbuilt |= set(rebuild) - set(built)
         if states is None and code != 0:
@@ -364,7 +373,7 @@ def colcon_rebuild(workspace: Workspace, step: ColconBuild) -> tuple[StampFile, 
     if step.force:
         return stamp_file, stamps, tuple(stamps)
     installed = {name: listing_digest(workspace.ws_dir / "install" / name) for name in stamps}
-    return stamp_file, stamps, stamp_file.stale(stamps, installed)
+    return stamp_file, stamps, stamp_file.stale(stamps, installed, dict(step.sources))
 
 
 def runtime_spec(workspace: Workspace, step: RuntimeImage) -> ImageSpec:

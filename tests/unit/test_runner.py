@@ -394,6 +394,36 @@ def test_what_built_on_a_changed_package_left_out_is_built_again_once_that_is_bu
     assert events[-1].detail == "up to date (2 package(s))"
 
 
+def test_a_package_that_moved_is_built_afresh_in_a_new_build_dir(ws):
+    """An upstream restructure moved app's directory with its contents unchanged: the build said
+    up to date, and a symlink install's links and the CMake cache named the old directory."""
+    engine = FakeEngine(run_script=colcon_installs(ws))
+    runner(engine, []).run(Plan(ws, (COLCON,)))
+    (ws.ws_dir / "build/espdock-ros/app").mkdir(parents=True)
+    (ws.ws_dir / "build/espdock-ros/app/CMakeCache.txt").write_text(
+        "CMAKE_HOME_DIRECTORY:INTERNAL=/workspace/ws/src/app\n"
+    )
+    (ws.ws_dir / "src/apps").mkdir()
+    (ws.ws_dir / "src/app").rename(ws.ws_dir / "src/apps/app")
+    moved = replace(COLCON, sources=(("msgs", "src/msgs"), ("app", "src/apps/app")))
+    play = colcon_installs(ws)
+    cached: list[bool] = []
+
+    def checked(spec, on_line):
+        cached.append((ws.ws_dir / "build/espdock-ros/app/CMakeCache.txt").exists())
+        return play(spec, on_line)
+
+    engine.run_script = checked
+    events: list = []
+    runner(engine, events).run(Plan(ws, (moved,)))
+    argv = engine.runs[-1].argv
+    assert argv[argv.index("--packages-select") :] == ("--packages-select", "app")
+    assert cached == [False], "colcon ran on the build dir configured from src/app"
+    assert "building afresh what moved since the last build: app (from src/app)" in notes(events)
+    runner(engine, events := []).run(Plan(ws, (moved,)))
+    assert events[-1].detail == "up to date (2 package(s))"
+
+
 def test_with_continue_on_error_what_built_is_kept_and_what_failed_is_not(ws):
     from dataclasses import replace
 

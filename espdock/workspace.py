@@ -116,21 +116,39 @@ def check_utf8_path(directory: Path) -> None:
         ) from None
 
 
-def find_workspace(start: Path | None = None) -> Workspace:
-    """The nearest directory at or above START (default: the current one) that holds espdock.toml."""
+def ways_up(start: Path | None = None) -> tuple[list[Path], list[Path]]:
+    """START (default: the current directory) and its parents as the filesystem has them (links
+    resolved), and as the shell reached START (its $PWD, links kept), when that differs: a
+    package linked into a workspace's src/ from a checkout elsewhere lies in the workspace only
+    the second way. Raises FileNotFoundError when the current directory is gone."""
+    cwd = Path.cwd()
+    here = (start or cwd).resolve()
+    pwd = os.environ.get("PWD", "")
     try:
-        start = (start or Path.cwd()).resolve()
+        shell = Path(pwd) if pwd.startswith("/") and os.path.samefile(pwd, cwd) else cwd
+    except OSError:
+        shell = cwd
+    logical = Path(os.path.normpath(shell / (start or ".")))
+    return [here, *here.parents], ([logical, *logical.parents] if logical != here else [])
+
+
+def find_workspace(start: Path | None = None) -> Workspace:
+    """The nearest directory at or above START (default: the current one) that holds espdock.toml,
+    through links as they are, else as the shell took them (ways_up)."""
+    try:
+        resolved, logical = ways_up(start)
     except FileNotFoundError:
         raise WorkspaceError(
             "the current directory no longer exists (removed, or replaced by a new clone)",
             "cd into the workspace again (`cd $PWD`), then run again.",
         ) from None
-    looked = []
-    for directory in (start, *start.parents):
+    start, looked = resolved[0], []
+    for directory in (*resolved, *logical):
         looked.append(directory)
         if (directory / CONFIG_FILE).is_file():
-            check_utf8_path(directory)
-            return Workspace(directory)
+            check_utf8_path(directory.resolve())
+            return Workspace(directory.resolve())
+    looked = looked[: len(resolved)]
     shown = ", ".join(str(d) for d in looked[:4]) + (", ..." if len(looked) > 4 else "")
     raise WorkspaceError(
         f"not inside an espdock workspace: no {CONFIG_FILE} in {start} or any parent ({shown})",

@@ -232,12 +232,14 @@ def init_workspace(directory: Path, owner: tuple[int, int] | None = None) -> tup
     """Make DIRECTORY (empty, or an existing colcon workspace) an espdock workspace: a commented
     espdock.toml with the detected layout, and src/ where there is no package path yet. Only adds
     files: an existing espdock.toml is left as it is. Returns the workspace and what was created."""
-    from espdock.workspace import CLASSIC_LAYOUT, COLCON_LAYOUT, check_utf8_path
+    from espdock.workspace import CLASSIC_LAYOUT, COLCON_LAYOUT, check_utf8_path, ways_up
 
-    root = directory.resolve()
+    resolved, logical = ways_up(directory)
+    root = resolved[0]
     check_utf8_path(root)
     if not (root / CONFIG_FILE).exists():
-        if above := next((d for d in root.parents if (d / CONFIG_FILE).is_file()), None):
+        # Above it through links as they are, or as the shell reached it (a package linked into src/).
+        if above := next((d for d in (*resolved[1:], *logical[1:]) if (d / CONFIG_FILE).is_file()), None):
             raise WorkspaceError(
                 f"{root} is inside the espdock workspace {above}: a workspace in it would take over every "
                 "command run below it",

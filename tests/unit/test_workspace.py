@@ -49,6 +49,31 @@ def test_finds_the_workspace_from_a_subdirectory(ws):
     assert find_workspace(deep) == ws
 
 
+def test_a_package_linked_in_from_a_checkout_elsewhere_is_in_the_workspace_the_shell_reached_it_in(
+    tmp_path, monkeypatch
+):
+    """`ln -s ~/checkouts/utils src/`, as the docs offer, then `cd src/utils/robot_utils`:
+    espdock build said "not inside an espdock workspace", and `espdock init` made the other
+    repository a workspace of its own."""
+    from espdock.firmware.scaffold import init_workspace
+
+    root = tmp_path / "robot_ws"
+    (root / "src").mkdir(parents=True)
+    (root / "espdock.toml").write_text("[espdock]\n")
+    checkout = tmp_path / "checkouts/utils/robot_utils"
+    checkout.mkdir(parents=True)
+    (root / "src/utils").symlink_to(tmp_path / "checkouts/utils")
+    monkeypatch.chdir(checkout)
+    monkeypatch.setenv("PWD", str(root / "src/utils/robot_utils"))  # what the shell's cd keeps
+    assert find_workspace() == Workspace(root)
+    with pytest.raises(WorkspaceError, match=f"inside the espdock workspace {root}"):
+        init_workspace(Path("."))
+    assert not (checkout / "espdock.toml").exists()
+    monkeypatch.setenv("PWD", str(tmp_path / "elsewhere"))  # a stale $PWD names another directory
+    with pytest.raises(WorkspaceError, match="not inside an espdock workspace"):
+        find_workspace()
+
+
 def test_outside_a_workspace_says_where_it_looked(tmp_path):
     start = tmp_path / "x"
     start.mkdir()

@@ -28,7 +28,7 @@ def tree_digest(*roots: Path) -> str:
     for root in roots:
         # File names are bytes: one that is not UTF-8 (Python's lone surrogates) is hashed as it is.
         digest.update(f"root\0{root.name}\n".encode(errors="surrogateescape"))
-        for path in source_files(root):
+        for path in source_files(root, follow_links=True):
             digest.update(path.relative_to(root).as_posix().encode(errors="surrogateescape") + b"\0")
             digest.update(hashlib.sha256(path.read_bytes()).digest())
     return digest.hexdigest()
@@ -168,14 +168,22 @@ class StampFile:
         durable.write_text(self.path, json.dumps(data, indent=1, sort_keys=True) + "\n")
 
 
-def source_files(root: Path, output_parents: Collection[Path] = ()) -> list[Path]:
+def source_files(root: Path, output_parents: Collection[Path] = (), follow_links: bool = False) -> list[Path]:
     """The files under ROOT a build reads: hidden files and dirs, __pycache__ and .pyc left out,
     and OUTPUT_DIRS where they are outputs: in a package's directory (it holds a package.xml),
-    and in OUTPUT_PARENTS (the colcon root)."""
+    and in OUTPUT_PARENTS (the colcon root). FOLLOW_LINKS: under links to directories as well,
+    each directory once (a package's `config -> ../../shared/config`, which colcon installs)."""
     found = []
     parents = {os.fspath(p) for p in output_parents}
-    for dirpath, dirnames, filenames in os.walk(root):
+    seen: set[tuple[int, int]] = set()
+    for dirpath, dirnames, filenames in os.walk(root, followlinks=follow_links):
         outputs = "package.xml" in filenames or dirpath in parents
+        if follow_links:
+            info = os.stat(dirpath)
+            if (info.st_dev, info.st_ino) in seen:  # a link loop, or a directory reached twice
+                dirnames[:] = []
+                continue
+            seen.add((info.st_dev, info.st_ino))
         dirnames[:] = sorted(
             d for d in dirnames if not d.startswith(".") and d != "__pycache__" and not (outputs and d in OUTPUT_DIRS)
         )

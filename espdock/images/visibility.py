@@ -62,6 +62,22 @@ def linked_mounts(workspace: Workspace, paths: Iterable[Path]) -> tuple[Mount, .
     return tuple(mounts[target] for target in sorted(mounts))
 
 
+def directory_links(root: Path) -> list[Path]:
+    """The links to directories under ROOT, following them (each directory once): a package's
+    `config -> ~/shared/config`, whose files colcon installs, and linked_mounts must mount."""
+    found: list[Path] = []
+    seen: set[tuple[int, int]] = set()
+    for dirpath, dirnames, _ in os.walk(root, followlinks=True):
+        info = os.stat(dirpath)
+        if (info.st_dev, info.st_ino) in seen:
+            dirnames[:] = []
+            continue
+        seen.add((info.st_dev, info.st_ino))
+        dirnames[:] = sorted(d for d in dirnames if not d.startswith(".") and d != "__pycache__")
+        found += [Path(dirpath, d) for d in dirnames if os.path.islink(os.path.join(dirpath, d))]
+    return found
+
+
 def _followed(root: Path, path: Path, mount: str) -> str | None:
     """Where a container with ROOT at MOUNT finds ROOT/... PATH, following its links as the kernel
     would there (a path outside MOUNT is read at the same path here); None for a link loop."""

@@ -12,7 +12,7 @@ from espdock.build.steps import LABEL_WORKSPACE, EnsureBaseImage, EnsureImage, P
 from espdock.errors import ConfigError, WorkspaceError
 from espdock.images.containers import give_to, make_dirs_for
 from espdock.images.engine import Mount, RunSpec
-from espdock.images.visibility import linked_mounts
+from espdock.images.visibility import directory_links, linked_mounts
 from espdock.layout import ROS_BUILD_BASE, ROS_OFFICIAL_DOCKERFILE, WORKSPACE_MOUNT
 from espdock.ros.plan import RUNTIME_INSTALL, RuntimeImage
 from espdock.ros.runtime_tree import resolve_installed
@@ -336,6 +336,7 @@ def shell_spec(
     official = dockerfile == ROS_OFFICIAL_DOCKERFILE
     mount = mount or Mount(workspace.root, WORKSPACE_MOUNT)
     ros = [p.path for p in packages if p.kind is PackageKind.ROS]
+    ros += [link for path in ros for link in directory_links(path)]  # what colcon follows in the shell too
     workdir = root
     if cwd is not None and cwd.resolve().is_relative_to(workspace.ws_dir.resolve()):
         workdir = posixpath.join(root, cwd.resolve().relative_to(workspace.ws_dir.resolve()).as_posix())

@@ -20,7 +20,7 @@ from espdock.images import volume
 from espdock.images.containers import Containers, give_to, permission_error, volume_mode_refused
 from espdock.images.engine import Mount, RunSpec
 from espdock.images.keyed import KeyedImages, image_mode
-from espdock.images.visibility import host_paths, linked_mounts, workspace_mount
+from espdock.images.visibility import directory_links, host_paths, linked_mounts, workspace_mount
 from espdock.layout import ROS_BUILD_BASE, WORKSPACE_MOUNT
 from espdock.ros.colcon import (
     DEFAULTS_MOUNT,
@@ -416,8 +416,10 @@ def _installed(workspace: Workspace, step: RuntimeImage) -> RuntimeImage:
 
 def _linked(workspace: Workspace, sources: Iterable[tuple[str, str]]) -> tuple[Mount, ...]:
     """The mounts of the directories that links lead to from the packages at SOURCES (name, path
-    under the colcon root): what colcon follows there, which the workspace's mount lacks."""
-    return linked_mounts(workspace, [workspace.ws_dir / rel for _, rel in sources])
+    under the colcon root), or from within them: what colcon follows there, which the workspace's
+    mount lacks."""
+    packages = [workspace.ws_dir / rel for _, rel in sources]
+    return linked_mounts(workspace, [*packages, *(link for path in packages for link in directory_links(path))])
 
 
 # Python's `PermissionError: [Errno 13] Permission denied: '/workspace/...'`, and CMake's

@@ -32,6 +32,12 @@ WORKSPACE_META = "colcon.meta"
 WORKSPACE_DEFAULTS = "colcon_defaults.yaml"
 # Where the user's defaults file is mounted in the build container.
 DEFAULTS_MOUNT = "/run/espdock/colcon-defaults.yaml"
+# setuptools' build and install copy a file only when it is newer than its last copy: a source
+# put back with an older time (`git archive | tar -x`, `cp -p`, a restored backup) left the newer
+# code installed, while espdock, which decides by content, said it built it. setuptools'
+# distutils reads this extra config file (DIST_EXTRA_CONFIG), which has them copy every file.
+SETUPTOOLS_CONFIG = "/run/espdock/setuptools.cfg"
+SETUPTOOLS_FORCE = b"[build]\nforce = 1\n[install]\nforce = 1\n"
 
 _OWN = "espdock decides it"
 # Options espdock itself sets or relies on, with why; colcon accepts unique prefixes of options.

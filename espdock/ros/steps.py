@@ -24,6 +24,8 @@ from espdock.images.visibility import directory_links, host_paths, linked_mounts
 from espdock.layout import ROS_BUILD_BASE, WORKSPACE_MOUNT
 from espdock.ros.colcon import (
     DEFAULTS_MOUNT,
+    SETUPTOOLS_CONFIG,
+    SETUPTOOLS_FORCE,
     ColconLog,
     PackageState,
     closure,
@@ -157,7 +159,8 @@ class RosSteps:
         mounts, archives = self.containers.workspace_in(workspace, sync)
         if sync is None:
             mounts += _linked(workspace, step.sources)
-        env = [("HOME", "/tmp"), *self.containers.reproducible_env(workspace)]
+        env = [("HOME", "/tmp"), ("DIST_EXTRA_CONFIG", SETUPTOOLS_CONFIG), *self.containers.reproducible_env(workspace)]
+        archives.append(volume.file_archive(SETUPTOOLS_CONFIG, SETUPTOOLS_FORCE))
         if step.defaults_file is not None:
             # colcon reads the user's defaults from their home, which the container does not have.
             if sync is None:

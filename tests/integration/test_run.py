@@ -171,6 +171,25 @@ def test_the_node_exit_code_passes_through(node_workspace):
     assert result.returncode not in (0, 130), result.stdout + result.stderr
 
 
+def test_a_source_put_back_with_its_older_time_is_what_gets_installed(node_workspace):
+    """`git archive main | tar -x`, `cp -p` or a backup put a source back with its old time:
+    setuptools copies only what is newer than its last copy, so the build said it built the
+    package and the edited code stayed installed."""
+    source = node_workspace / "ws/src/beacon_nodes/beacon_nodes/beacon.py"
+    original, times = source.read_bytes(), source.stat()
+    (installed,) = node_workspace.glob("ws/install/beacon_nodes/lib/python3*/site-packages/beacon_nodes/beacon.py")
+    try:
+        source.write_bytes(original + b"# edited\n")
+        edited = espdock("build", "--only", "ros", cwd=node_workspace)
+        assert edited.returncode == 0 and installed.read_bytes().endswith(b"# edited\n"), edited.stdout[-2000:]
+    finally:
+        source.write_bytes(original)
+        os.utime(source, ns=(times.st_atime_ns, times.st_mtime_ns))
+    restored = espdock("build", "--only", "ros", cwd=node_workspace)
+    assert restored.returncode == 0 and "1 package(s) built" in restored.stdout, restored.stdout[-2000:]
+    assert installed.read_bytes() == original
+
+
 def test_init_writes_a_starter_compose_file_whose_services_start_and_talk(engine, node_workspace):
     written = espdock("init", cwd=node_workspace)
     assert written.returncode == 0 and "wrote compose.yaml" in written.stdout, written.stdout + written.stderr

@@ -217,7 +217,7 @@ class _ManifestCache:
     developer's machine, 54 ms to read at every start and rewritten whole on any change). The
     files of workspaces whose root is gone are removed when a new workspace's file is made."""
 
-    FORMAT = 4
+    FORMAT = 5
 
     def __init__(self, path: Path, root: Path, entries: dict, ros_distro: str = DEFAULT_ROS_DISTRO) -> None:
         self.path = path
@@ -245,8 +245,9 @@ class _ManifestCache:
 
     @staticmethod
     def _stamp(manifest: Path) -> list[int]:
+        # The change time too: `cp -p` of a same-size manifest keeps its size and time.
         info = manifest.stat()
-        return [info.st_size, info.st_mtime_ns, info.st_ino]
+        return [info.st_size, info.st_mtime_ns, info.st_ino, info.st_ctime_ns]
 
     def get(self, manifest: Path) -> Package | None:
         entry = self.entries.get(str(manifest))

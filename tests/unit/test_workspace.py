@@ -1,3 +1,4 @@
+import os
 import shutil
 from pathlib import Path
 
@@ -177,6 +178,12 @@ def test_a_changed_manifest_is_read_again_however_it_was_cached(ws, monkeypatch,
     )
     (changed,) = discover_packages(ws)
     assert changed.depends == {"rclpy", "x"}
+    # `cp -p` of another manifest of the same size: its size and modification time are the old ones.
+    before = manifest.stat()
+    manifest.write_text(manifest.read_text().replace("<depend>x</depend>", "<depend>y</depend>"))
+    os.utime(manifest, ns=(before.st_atime_ns, before.st_mtime_ns))
+    (copied,) = discover_packages(ws)
+    assert copied.depends == {"rclpy", "y"}
 
 
 def test_an_unreadable_cache_only_means_parsing(ws, monkeypatch, tmp_path):

@@ -7,10 +7,11 @@ import fcntl
 import hashlib
 import json
 import os
+import re
 import sys
 import tempfile
 from collections.abc import Iterable, Iterator
-from contextlib import contextmanager
+from contextlib import contextmanager, suppress
 from dataclasses import dataclass, field
 from enum import StrEnum
 from pathlib import Path
@@ -205,6 +206,28 @@ def _manifests(base: Path) -> Iterable[Path]:
             yield Path(dirpath) / "package.xml"
             continue
         dirnames[:] = sorted(d for d in dirnames if not d.startswith((".", "__")) and d not in NOT_SOURCES)
+
+
+def ignored_packages(workspace: Workspace) -> dict[str, str]:
+    """The packages under the workspace's package paths that an ignore marker leaves out (colcon
+    does not see them), by name: the marker, relative to the workspace root. Read only to
+    explain a dependency nothing else provides: the names are taken from package.xml as text."""
+    found: dict[str, str] = {}
+    for rel in workspace.package_paths:
+        for dirpath, dirnames, filenames in os.walk(workspace.root / rel, followlinks=True):
+            dirnames[:] = [d for d in dirnames if not d.startswith(".") and d not in NOT_SOURCES]
+            marker = next((m for m in IGNORE_MARKERS if m in filenames), None)
+            if marker is None:
+                continue
+            dirnames[:] = []
+            shown = os.path.relpath(os.path.join(dirpath, marker), workspace.root)
+            for inner, _, names in os.walk(dirpath, followlinks=True):
+                if "package.xml" in names:
+                    with suppress(OSError, UnicodeDecodeError):
+                        text = Path(inner, "package.xml").read_text()
+                        if match := re.search(r"<name>\s*([^<\s]+)\s*</name>", text):
+                            found.setdefault(match.group(1), shown)
+    return found
 
 
 class _ManifestCache:

@@ -32,7 +32,7 @@ from espdock.ros.plan import (
     ros_image,
     ros_steps,
 )
-from espdock.workspace import BuildInputs, Package, PackageKind, Workspace, select_up_to
+from espdock.workspace import BuildInputs, Package, PackageKind, Workspace, ignored_packages, select_up_to
 
 Step = EnsureBaseImage | EnsureImage | ColconBuild | IdfBuild | InstallFirmware | RuntimeImage
 
@@ -95,7 +95,9 @@ def plan_workspace(
     needed = rosdeps.needed_keys(packages, image)
     # The lock is current here (the caller made it so, or refused a stale one under --locked).
     to_check = checked_packages(packages, selected, colcon.args if colcon else (), checked)
-    rosdeps.check_dependencies(to_check, needed, lock, image, building=checked is None)
+    rosdeps.check_dependencies(
+        to_check, needed, lock, image, building=checked is None, ignored=lambda: ignored_packages(workspace)
+    )
     # The official image reads only the rosdep installer of docker/, and the entry point (runtime).
     official = {k: v for k, v in inputs.ros_files.items() if "rosdep" in k or k == OFFICIAL_ENTRYPOINT}
     files = inputs.ros_files if name == ROS_DOCKERFILE else official

@@ -173,21 +173,33 @@ def check_dependencies(
     lock: dict | None,
     image: RosImage,
     building: bool = True,
+    ignored: Callable[[], Mapping[str, str]] | None = None,
 ) -> None:
     """Raise DependencyError listing, per selected package, each key neither the image nor the
     lock provides, with the ways out (BUILDING: a build, which another selection can avoid);
-    nothing is built or run then."""
+    nothing is built or run then. IGNORED: the workspace packages an ignore marker leaves out
+    (name -> the marker), asked only then: a key that is one of them is no rosdep matter."""
     keys = (lock or {}).get("keys", {})
+    missing = {p: [k for k in needed.get(p.name, ()) if not keys.get(k, {}).get("installer")] for p in selected}
+    if not any(missing.values()):
+        return
+    markers = {k: m for k, m in (ignored() if ignored else {}).items() if any(k in ks for ks in missing.values())}
     lines = []
     whys = set()
-    for package in selected:
-        missing = [k for k in needed.get(package.name, ()) if not keys.get(k, {}).get("installer")]
-        if missing:
-            whys |= {keys.get(k, {}).get("why", NOT_LOCKED) for k in missing}
-            why = "; ".join(f"{k}: {keys.get(k, {}).get('why', NOT_LOCKED)}" for k in missing)
+    for package, absent in missing.items():
+        if absent:
+            whys |= {keys.get(k, {}).get("why", NOT_LOCKED) for k in absent if k not in markers}
+            why = "; ".join(
+                f"{k}: a workspace package, which {markers[k]} leaves out" if k in markers
+                else f"{k}: {keys.get(k, {}).get('why', NOT_LOCKED)}"
+                for k in absent
+            )  # fmt: skip
             lines.append(f"  {package.name} ({package.path}): {why}")
-    if not lines:
-        return
+    if not whys:
+        raise DependencyError(
+            f"{len(lines)} package(s) depend on workspace packages an ignore marker leaves out:\n" + "\n".join(lines),
+            f"Remove {', '.join(sorted(set(markers.values())))}, or the dependency on what it leaves out.",
+        )
     if whys == {NOT_LOCKED}:
         # Only keys the lock has never seen (a dependency declared, or a typo fixed, since): the
         # lock is behind the package.xml files, not rosdep behind the key.
@@ -201,6 +213,8 @@ def check_dependencies(
     ]
     if building:
         ways.append("build another selection (`espdock build PKG...`, or `-- --packages-skip PKG`)")
+    if markers:
+        ways.insert(0, f"remove {', '.join(sorted(set(markers.values())))}, which leaves out a package depended on")
     # A key rosdep knows nowhere is no more known to the official image.
     if image.flavour == "wheels" and whys - {UNKNOWN_KEY}:
         ways.insert(1, 'use the official ROS image (ros_image = "official" in espdock.toml), whose apt has every '

@@ -252,3 +252,24 @@ def test_list_does_not_cut_names_without_a_terminal(tmp_path):
     result = espdock("list", cwd=root, env=NO_ENGINE)
     assert result.returncode == 0, result.stderr
     assert long_name in result.stdout and "…" not in result.stdout
+
+
+def test_a_dependency_on_a_workspace_package_an_ignore_marker_leaves_out_names_the_marker(tmp_path):
+    """A metapackage's exec_depend on a driver whose directory got a COLCON_IGNORE: "no rosdep
+    rule: the key is unknown", with COLCON_IGNORE among the ways out of what it caused."""
+    root = make_workspace(tmp_path / "w", "rosdeps_xml_count")
+    driver = root / "src/drivers/imu_driver"
+    shutil.copytree(PACKAGES / "rosdeps_py_table", driver)
+    manifest = driver / "package.xml"
+    manifest.write_text(manifest.read_text().replace("<name>rosdeps_py_table</name>", "<name>imu_driver</name>"))
+    (root / "src/drivers/COLCON_IGNORE").touch()
+    depending = root / "src/rosdeps_xml_count/package.xml"
+    depending.write_text(
+        depending.read_text().replace("</depend>", "</depend>\n  <exec_depend>imu_driver</exec_depend>")
+    )
+    built = run(root, tmp_path, "build")
+    said = " ".join(built.stderr.split())
+    assert built.returncode == 2, said
+    assert "imu_driver: a workspace package, which src/drivers/COLCON_IGNORE leaves out" in said
+    assert "Remove src/drivers/COLCON_IGNORE, or the dependency on what it leaves out" in said
+    assert "rosdep rule" not in said

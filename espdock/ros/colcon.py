@@ -35,9 +35,14 @@ DEFAULTS_MOUNT = "/run/espdock/colcon-defaults.yaml"
 # setuptools' build and install copy a file only when it is newer than its last copy: a source
 # put back with an older time (`git archive | tar -x`, `cp -p`, a restored backup) left the newer
 # code installed, while espdock, which decides by content, said it built it. setuptools'
-# distutils reads this extra config file (DIST_EXTRA_CONFIG), which has them copy every file.
+# distutils reads this extra config file (DIST_EXTRA_CONFIG), which has them copy every file:
+# each copying command's own `force` (the install command's would reach `develop` too, whose
+# --symlink-install then failed on the ament index).
 SETUPTOOLS_CONFIG = "/run/espdock/setuptools.cfg"
-SETUPTOOLS_FORCE = b"[build]\nforce = 1\n[install]\nforce = 1\n"
+SETUPTOOLS_FORCE = "".join(
+    f"[{command}]\nforce = 1\n"
+    for command in ("build_py", "build_scripts", "install_lib", "install_data", "install_scripts")
+).encode()
 
 _OWN = "espdock decides it"
 # Options espdock itself sets or relies on, with why; colcon accepts unique prefixes of options.
@@ -139,7 +144,11 @@ def _scheduling(option: str | None) -> bool | None:
 LEAVING_OUT = (
     "--packages-skip", "--packages-skip-regex", "--packages-skip-up-to", "--packages-skip-by-dep",
     "--packages-ignore", "--packages-ignore-regex",
+    "--packages-skip-build-finished", "--packages-skip-test-passed",
 )  # fmt: skip
+# What those two read: the result of the package's last `colcon build` or `colcon test`, which
+# colcon-package-selection keeps in its build dir ("0": it finished, or its tests passed).
+_PREVIOUS = {"--packages-skip-build-finished": "colcon_build.rc", "--packages-skip-test-passed": "colcon_test.rc"}
 
 
 def _option_values(args: Iterable[str]) -> dict[str, list[str]]:
@@ -158,6 +167,8 @@ def _option_values(args: Iterable[str]) -> dict[str, list[str]]:
                 values.setdefault(current, [])
                 if "=" in arg:
                     values[current].append(arg.split("=", 1)[1])
+                if not SCHEDULING[current]:  # a flag: what follows is no value of it
+                    current = None
             continue
         if current is not None:
             values[current].append(arg)
@@ -176,10 +187,14 @@ def closure(names: Iterable[str], depends: Mapping[str, Iterable[str]]) -> set[s
     return found
 
 
-def left_out(args: Iterable[str], depends: Mapping[str, Iterable[str]]) -> frozenset[str]:
-    """The packages of DEPENDS (name -> its workspace dependencies) that `colcon build ARGS`
-    does not build: skipped or ignored by name or pattern (re.match, as colcon), skipped up to
-    (with their dependencies) or by dependency (the packages depending on them)."""
+def left_out(
+    args: Iterable[str], depends: Mapping[str, Iterable[str]], build_base: Path | None = None
+) -> frozenset[str]:
+    """The packages of DEPENDS (name -> its workspace dependencies) that `colcon build ARGS` (or
+    `colcon test ARGS`) does not build: skipped or ignored by name or pattern (re.match, as
+    colcon), skipped up to (with their dependencies) or by dependency (the packages depending on
+    them), and with BUILD_BASE (colcon's), those whose last build finished or whose last tests
+    passed, where ARGS skip them."""
     values = _option_values(args)
     out = set(values.get("--packages-skip", [])) | set(values.get("--packages-ignore", []))
     patterns = values.get("--packages-skip-regex", []) + values.get("--packages-ignore-regex", [])
@@ -194,7 +209,17 @@ def left_out(args: Iterable[str], depends: Mapping[str, Iterable[str]]) -> froze
     out |= up_to | closure(up_to, depends)
     by_dep = set(values.get("--packages-skip-by-dep", []))
     out |= {name for name in depends if closure({name}, depends) & by_dep}
+    for option, result in _PREVIOUS.items():
+        if option in values and build_base is not None:
+            out |= {name for name in depends if _read_stripped(build_base / name / result) == "0"}
     return frozenset(out & set(depends))
+
+
+def _read_stripped(path: Path) -> str | None:
+    try:
+        return path.read_text().strip()
+    except OSError:
+        return None
 
 
 _BUILD_TESTING = re.compile(r"^-DBUILD_TESTING(:BOOL)?=", re.IGNORECASE)

@@ -15,7 +15,7 @@ from espdock.errors import EspdockError
 from espdock.firmware.plan import IdfBuild, firmware_step, unknown_dependencies
 from espdock.layout import ROS_BUILD_BASE, ROSDEP_LOCK, firmware_build_dir
 from espdock.ros import interfaces, rosdeps, testdeps
-from espdock.ros.colcon import last_build_args, read_colcon_settings, without_build_testing
+from espdock.ros.colcon import last_build_args, output_args, read_colcon_settings, without_build_testing
 from espdock.ros.plan import ColconBuild, RuntimeImage, checked_packages, ros_image
 from espdock.ros.steps import runtime_spec
 from espdock.ros.testing import ColconTest
@@ -156,10 +156,15 @@ def plan_tests(
     names = tuple(p.name for p in ros)
     known = (every, inputs)
     # The builds keep install/ as the last build made it: its options after `--` (a
-    # --symlink-install stays one, and dependencies it built are up to date), BUILD_TESTING aside.
-    last = last_build_args(ws.ws_dir / ROS_BUILD_BASE)
+    # --symlink-install stays one, and dependencies it built are up to date), BUILD_TESTING aside,
+    # and those that only leave packages out or schedule them: a package the last build skipped
+    # kept its tests unconfigured, and its failing tests passed for none.
+    built_with = last_build_args(ws.ws_dir / ROS_BUILD_BASE)
+    last = output_args(built_with)
     if last:
         notify(f"building with the options of the last espdock build: {' '.join(last)}")
+    if dropped := [arg for arg in built_with if arg not in last]:
+        notify(f"not with its {' '.join(dropped)}: the packages tested are built with their tests")
     tested_args = without_build_testing(last) or None
     plan = build_plan(
         ws,

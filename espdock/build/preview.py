@@ -12,6 +12,7 @@ from espdock.firmware.plan import IdfBuild, InstallFirmware
 from espdock.firmware.steps import firmware_state, install_up_to_date
 from espdock.images.engine import Engine
 from espdock.images.keyed import is_current
+from espdock.layout import ROS_BUILD_BASE
 from espdock.ros.colcon import left_out
 from espdock.ros.plan import ColconBuild, RuntimeImage
 from espdock.ros.steps import colcon_rebuild, runtime_spec
@@ -43,7 +44,7 @@ def preview(workspace: Workspace, plan: Plan, engine: Engine | None, registry: b
                     made.add(step.spec.tag)
             case ColconBuild():
                 _, stamps, rebuild = colcon_rebuild(workspace, step)
-                out = left_out(step.colcon_args, dict(step.depends))
+                out = left_out(step.colcon_args, dict(step.depends), workspace.ws_dir / ROS_BUILD_BASE)
                 building = [name for name in rebuild if name not in out]
                 if rebuild:
                     ros_built = ros_built or bool(building)

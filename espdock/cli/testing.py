@@ -89,7 +89,8 @@ def test(
     if unknown := [n for n in packages or () if n not in by_name]:
         raise WorkspaceError(f"no package named {', '.join(unknown)} in the workspace", "See `espdock list`.")
     chosen = [by_name[n] for n in packages] if packages else list(every)
-    ros, skipped = not_left_out([p for p in chosen if p.kind is PackageKind.ROS], every, colcon_args)
+    base = ws.ws_dir / ROS_BUILD_BASE
+    ros, skipped = not_left_out([p for p in chosen if p.kind is PackageKind.ROS], every, colcon_args, base)
     firmware = [p for p in chosen if p.kind is PackageKind.FIRMWARE]
     if skipped and not ros and not firmware:
         raise ConfigError(

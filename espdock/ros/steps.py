@@ -82,6 +82,8 @@ class RosSteps:
                 f"--symlink-install {turned} since the last build: removed the build dirs and install prefixes "
                 f"of {len(rebuild)} package(s), which colcon cannot switch in place"
             )
+            if out := [name for name in rebuild if name in left_out(step.colcon_args, dict(step.depends), base)]:
+                why += f"; {', '.join(out)}, which the options after `--` leave out, stay uninstalled until built"
             reasons.append((tuple(tree for name in rebuild for tree in (base / name, install / name)), why))
         else:
             if stale := step.stale_interfaces(rebuild):
@@ -271,7 +273,7 @@ class RosSteps:
         # Asked for and neither built nor left out as told (`-- --packages-skip`): colcon did not
         # find it where espdock did (a package linked from outside the workspace, say).
         # colcon logs no event of a package an option ignores (`--packages-ignore`): as if not found.
-        ignored = left_out(step.colcon_args, depends)
+        ignored = left_out(step.colcon_args, depends, base)
         if lost := [n for n in others if n not in (states or {}) and n not in log.unselected() and n not in ignored]:
             rels = dict(step.sources)
             raise BuildFailed(

@@ -432,10 +432,12 @@ def forget_collected(destination: Path) -> None:
 
 
 def not_left_out(
-    packages: list[Package], every: tuple[Package, ...], colcon_args: tuple[str, ...]
+    packages: list[Package], every: tuple[Package, ...], colcon_args: tuple[str, ...], build_base: Path
 ) -> tuple[list[Package], list[str]]:
     """PACKAGES but those COLCON_ARGS (`colcon test`'s options) skip, and the names of those: colcon
     would run none of their tests and find no result files (EVERY: the workspace's packages, whose
-    dependencies --packages-skip-up-to and -by-dep follow). Their test dependencies are not asked for."""
-    skipped = left_out(colcon_args, {p.name: p.depends for p in every})
+    dependencies --packages-skip-up-to and -by-dep follow; BUILD_BASE: where the last tests' results
+    are, which --packages-skip-test-passed reads). Their test dependencies are not asked for, and
+    their results are kept."""
+    skipped = left_out(colcon_args, {p.name: p.depends for p in every}, build_base)
     return [p for p in packages if p.name not in skipped], [p.name for p in packages if p.name in skipped]

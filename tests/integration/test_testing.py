@@ -144,18 +144,21 @@ def test_build_skips_test_needs_then_test_builds_runs_and_reports_them(tmp_path,
 def test_the_tests_build_keeps_the_symlink_install_the_last_build_made(tmp_path, engine):
     """`espdock build -- --symlink-install`, then `espdock test`: the test's builds were plain
     ones, so the dependencies were built again and install/ became copies (source edits no longer
-    reached the nodes), where `colcon test` leaves install/ alone."""
+    reached the nodes), where `colcon test` leaves install/ alone. Its `--packages-skip` is not
+    kept: a package it skipped stayed unconfigured for tests, and its 3 tests ran as 0, green."""
     root = make_workspace(tmp_path / "w", ("tested_py", "tested_cpp", "lint_auto_cpp"))
     env = {**environment(tmp_path), "ESPDOCK_STATE_DIR": str(tmp_path / "state")}
     depend_on_the_template_package(root)
-    built = espdock("build", "--", "--symlink-install", cwd=root, env=env)
+    built = espdock("build", "--", "--symlink-install", "--packages-skip", "tested_cpp", cwd=root, env=env)
     assert built.returncode == 0, built.stdout[-3000:] + built.stderr
     linked = [root / f"install/{name}/share/{name}/package.xml" for name in ("lint_auto_cpp", "tested_py")]
     assert all(path.is_symlink() for path in linked)
 
     tested = espdock("test", "tested_py", "tested_cpp", cwd=root, env=env)
     assert tested.returncode == 10, tested.stdout[-3000:] + tested.stderr  # tested_py's failing test
-    assert "building with the options of the last espdock build: --symlink-install" in tested.stdout + tested.stderr
+    said = tested.stdout + tested.stderr
+    assert "building with the options of the last espdock build: --symlink-install" in said
+    assert "not with its --packages-skip tested_cpp: the packages tested are built with their tests" in said
     assert re.search(r"colcon build: dependencies +cached .*up to date", tested.stdout), tested.stdout[-3000:]
     assert "tested_cpp  3 tests: 3 passed" in tested.stdout, tested.stdout[-3000:]
     assert all(path.is_symlink() for path in linked), "install/ is as the last build made it"

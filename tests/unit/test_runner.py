@@ -424,6 +424,21 @@ def test_a_package_that_moved_is_built_afresh_in_a_new_build_dir(ws):
     assert events[-1].detail == "up to date (2 package(s))"
 
 
+def test_a_symlink_switch_says_which_removed_install_the_options_leave_out(ws):
+    """`-- --symlink-install --packages-skip app` after a plain build: app's install went with
+    the others' and nothing said it was not built again."""
+    engine = FakeEngine(run_script=colcon_installs(ws))
+    (ws.ws_dir / "build/espdock-ros").mkdir(parents=True)  # colcon's build base, where the options are kept
+    runner(engine, []).run(Plan(ws, (COLCON,)))
+    events: list = []
+    # The planner's settings digest: another kind of install changes every package's stamp.
+    linked = replace(COLCON, colcon_args=("--symlink-install", "--packages-skip", "app"),
+                     settings=(("msgs", "symlink"), ("app", "symlink")))  # fmt: skip
+    runner(engine, events).run(Plan(ws, (linked,)))
+    assert "app, which the options after `--` leave out, stay uninstalled until built" in notes(events)
+    assert not (ws.ws_dir / "install/app").exists()
+
+
 def test_with_continue_on_error_what_built_is_kept_and_what_failed_is_not(ws):
     from dataclasses import replace
 

@@ -316,3 +316,21 @@ def test_packages_the_options_after_the_double_dash_skip_are_not_tested_nor_aske
     assert skipped.returncode == 3 and "ament_lint_auto" not in said  # on to the engine, which is not there
     nothing = espdock("test", "linted", "--", "--packages-skip", "linted", cwd=root, env=no_engine)
     assert nothing.returncode == 2 and "nothing to test: the options after `--` skip linted" in nothing.stderr
+
+
+def test_packages_whose_tests_passed_last_time_are_left_out_with_their_results_kept(tmp_path):
+    """`espdock test -- --packages-skip-test-passed` (colcon's retest of what failed): espdock
+    deleted the passed packages' result files, then called them packages with no tests."""
+    from espdock.ros.testing import not_left_out
+    from tests.unit.test_rosdeps import package
+
+    every = (package("passed", set()), package("failed", set()), package("new", set()))
+    base = tmp_path / "build/espdock-ros"
+    for name, result in (("passed", "0"), ("failed", "test failures")):
+        (base / name).mkdir(parents=True)
+        (base / name / "colcon_test.rc").write_text(result + "\n")  # colcon-package-selection's record
+    tested, skipped = not_left_out(list(every), every, ("--packages-skip-test-passed",), base)
+    assert [p.name for p in tested] == ["failed", "new"] and skipped == ["passed"]
+    tested, skipped = not_left_out(list(every), every, ("--packages-skip-test-p", "--pytest-args", "-x"), base)
+    assert skipped == ["passed"], "an abbreviation, followed by other options"
+    assert not_left_out(list(every), every, ("--pytest-args", "-x"), base)[1] == []

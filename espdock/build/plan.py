@@ -96,7 +96,12 @@ def plan_workspace(
     # The lock is current here (the caller made it so, or refused a stale one under --locked).
     to_check = checked_packages(packages, selected, colcon.args if colcon else (), checked)
     rosdeps.check_dependencies(
-        to_check, needed, lock, image, building=checked is None, ignored=lambda: ignored_packages(workspace)
+        to_check,
+        needed,
+        lock,
+        image,
+        command="build" if checked is None else None,
+        ignored=lambda: ignored_packages(workspace),
     )
     # The official image reads only the rosdep installer of docker/, and the entry point (runtime).
     official = {k: v for k, v in inputs.ros_files.items() if "rosdep" in k or k == OFFICIAL_ENTRYPOINT}

@@ -82,16 +82,24 @@ SCHEDULING = {
 }
 
 
-def check_colcon_args(args: Iterable[str] | None) -> tuple[str, ...]:
-    """ARGS for `colcon build` (None: no `--` was given), refusing an empty `--` and what
+# Per verb: an example of options after `--`, and of the options that are allowed there.
+_VERB_EXAMPLES = {
+    "build": ("--cmake-args -DBUILD_TESTING=OFF", "about how packages are built, e.g. `--cmake-args ...`"),
+    "test": ("--pytest-args -k fast", "about how the tests run, e.g. `--pytest-args ...`, `--ctest-args ...`"),
+}
+
+
+def check_colcon_args(args: Iterable[str] | None, verb: str = "build") -> tuple[str, ...]:
+    """ARGS for `colcon VERB` (None: no `--` was given), refusing an empty `--` and what
     conflicts with what espdock controls."""
     if args is None:
         return ()
     args = tuple(args)
+    example, allowed = _VERB_EXAMPLES[verb]
     if not args:
         raise ConfigError(
-            "nothing after `--`: it passes the options that follow it to `colcon build`",
-            "Add them, e.g. `espdock build -- --cmake-args -DBUILD_TESTING=OFF`, or leave out the `--`.",
+            f"nothing after `--`: it passes the options that follow it to `colcon {verb}`",
+            f"Add them, e.g. `espdock {verb} -- {example}`, or leave out the `--`.",
         )
     for arg in args:
         option = _option_name(arg)
@@ -102,7 +110,7 @@ def check_colcon_args(args: Iterable[str] | None) -> tuple[str, ...]:
                 shown = option if refused == option else f"{option} ({refused})"
                 raise ConfigError(
                     f"colcon option {shown} is not allowed after `--`: {why}",
-                    "Pass colcon only options about how packages are built, e.g. `--cmake-args ...`, "
+                    f"Pass colcon only options {allowed}, "
                     "`--packages-skip X`, `--continue-on-error`, `--parallel-workers N`.",
                 )
     return args
@@ -594,10 +602,12 @@ def explain_failure(
     logs: Mapping[str, tuple[Path, str]],
     args: tuple[str, ...],
     declared: Mapping[str, tuple[frozenset[str], frozenset[str]]] | None = None,
+    command: str = "build",
 ) -> ColconFailure:
     """Why colcon exited with CODE: STATES from its event log, LOGS (failed package -> its log
     file and output), ARGS the options given after `--`, DECLARED (package -> what its package.xml
-    names, and which of those only as test_depend)."""
+    names, and which of those only as test_depend). COMMAND: the espdock command whose build it
+    was (`espdock test`'s configures the tests, which a plain build does not compile)."""
     by_state: dict[PackageState, list[str]] = {}
     for name, state in sorted(states.items()):
         by_state.setdefault(state, []).append(name)
@@ -624,9 +634,9 @@ def explain_failure(
             lines.append(f"  {name}: its own build failed; log: {log}")
             own.append(name)
     if own:
-        hints.insert(0, f"Fix {' and '.join(own)} (the error is in the log above) and run `espdock build` again.")
+        hints.insert(0, f"Fix {' and '.join(own)} (the error is in the log above) and run `espdock {command}` again.")
     stopped = by_state.get(PackageState.ABORTED, []) + by_state.get(PackageState.NOT_PROCESSED, [])
-    if stopped and "--continue-on-error" not in args:
+    if stopped and "--continue-on-error" not in args and command == "build":
         hints.append(
             f"{len(stopped)} package(s) were not built because colcon stopped at the failure; "
             "`espdock build -- --continue-on-error` builds every package that does not depend on a failed one."

@@ -172,11 +172,12 @@ def check_dependencies(
     needed: Mapping[str, tuple[str, ...]],
     lock: dict | None,
     image: RosImage,
-    building: bool = True,
+    command: str | None = "build",
     ignored: Callable[[], Mapping[str, str]] | None = None,
 ) -> None:
     """Raise DependencyError listing, per selected package, each key neither the image nor the
-    lock provides, with the ways out (BUILDING: a build, which another selection can avoid);
+    lock provides, with the ways out (COMMAND: `espdock build` or `test`, which another selection can
+    avoid; None: a command that selects nothing else);
     nothing is built or run then. IGNORED: the workspace packages an ignore marker leaves out
     (name -> the marker), asked only then: a key that is one of them is no rosdep matter."""
     keys = (lock or {}).get("keys", {})
@@ -211,8 +212,8 @@ def check_dependencies(
         "add a rosdep rule for the key (a sources.list.d entry; ROSDEP_SOURCE_PATH) and run `espdock lock`",
         "put COLCON_IGNORE in the package's directory",
     ]
-    if building:
-        ways.append("build another selection (`espdock build PKG...`, or `-- --packages-skip PKG`)")
+    if command is not None:
+        ways.append(f"{command} another selection (`espdock {command} PKG...`, or `-- --packages-skip PKG`)")
     if markers:
         ways.insert(0, f"remove {', '.join(sorted(set(markers.values())))}, which leaves out a package depended on")
     # A key rosdep knows nowhere is no more known to the official image.

@@ -267,7 +267,9 @@ class RosSteps:
                     PermissionError(13, "Permission denied", str(denied)), self.containers.owner, workspace.ws_dir
                 )
             declared = {name: (depends, tests) for name, depends, tests in step.declared}
-            failure = explain_failure(code, states or {}, logs, step.colcon_args, declared)
+            failure = explain_failure(
+                code, states or {}, logs, step.colcon_args, declared, "test" if step.testing else "build"
+            )
             raise BuildFailed(failure.message, failure.hint)
         others = [n for n in rebuild if n not in built]
         # Asked for and neither built nor left out as told (`-- --packages-skip`): colcon did not

@@ -99,7 +99,9 @@ def check_tests(selected: Iterable[Package], lock: Mapping | None, image: rosdep
     """Refuse (exit 2, before anything runs) packages whose test keys neither the image nor the
     lock's test part provides; on the wheels image the way out names the official one."""
     selected = tuple(selected)
-    rosdeps.check_dependencies(_as_tests(selected, image), keys_for_tests(selected, image), lock_test_part(lock), image)
+    rosdeps.check_dependencies(
+        _as_tests(selected, image), keys_for_tests(selected, image), lock_test_part(lock), image, command="test"
+    )
 
 
 def image_for_tests(build: ImageSpec, lock: Mapping | None, official: bool) -> ImageSpec | None:

@@ -118,7 +118,7 @@ def run_host_tests(name: str, package_dir: Path, base: Path, on_line: Callable[[
 def check_test_args(args: Iterable[str] | None) -> tuple[str, ...]:
     """ARGS for `colcon test`, by the rules of `espdock build -- ...` (espdock.ros.colcon), plus what
     decides where the results go."""
-    checked = check_colcon_args(args)
+    checked = check_colcon_args(args, "test")
     for arg in checked:
         option = arg.split("=", 1)[0]
         for refused, why in REFUSED_FOR_TEST.items():

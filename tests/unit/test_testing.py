@@ -334,3 +334,30 @@ def test_packages_whose_tests_passed_last_time_are_left_out_with_their_results_k
     tested, skipped = not_left_out(list(every), every, ("--packages-skip-test-p", "--pytest-args", "-x"), base)
     assert skipped == ["passed"], "an abbreviation, followed by other options"
     assert not_left_out(list(every), every, ("--pytest-args", "-x"), base)[1] == []
+
+
+def test_what_espdock_test_refuses_or_fails_on_says_what_to_do_with_espdock_test():
+    """Each hint followed from `espdock test` led to `espdock build`: a gtest file that does not
+    compile was "run `espdock build` again" (which passes: it builds without the tests), a refused
+    option was "e.g. `--cmake-args ...`" (which colcon test refuses)."""
+    from pathlib import Path
+
+    from espdock.ros import rosdeps
+    from espdock.ros.colcon import PackageState, explain_failure
+    from espdock.ros.testing import check_test_args
+    from tests.unit.test_rosdeps import WHEELS, package
+
+    with pytest.raises(ConfigError) as empty:
+        check_test_args(())
+    assert "`colcon test`" in empty.value.message and "`espdock test -- --pytest-args" in (empty.value.hint or "")
+    with pytest.raises(ConfigError) as refused:
+        check_test_args(("--event-handlers", "console_direct-"))
+    assert "--pytest-args" in (refused.value.hint or "") and "--cmake-args" not in (refused.value.hint or "")
+    states = {"cpp_pkg": PackageState.FAILED, "later": PackageState.ABORTED}
+    logs = {"cpp_pkg": (Path("log/cpp_pkg.log"), "error: expected ';' before '}' token")}
+    failed = explain_failure(2, states, logs, (), command="test")
+    assert "run `espdock test` again" in failed.hint and "espdock build" not in failed.hint
+    lock = {"keys": {"launch_testing": {"installer": None, "why": rosdeps.UNKNOWN_KEY}}}
+    with pytest.raises(DependencyError) as missing:
+        rosdeps.check_dependencies([package("a", set())], {"a": ("launch_testing",)}, lock, WHEELS, command="test")
+    assert "`espdock test PKG...`" in (missing.value.hint or "") and "espdock build" not in (missing.value.hint or "")

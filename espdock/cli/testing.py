@@ -21,6 +21,7 @@ from espdock.config import in_ci, invoking_user
 from espdock.errors import ConfigError, EspdockError, TestsFailed, WorkspaceError
 from espdock.images.keyed import unpushed_error
 from espdock.layout import ROS_BUILD_BASE
+from espdock.ros.colcon import passed_last_time
 from espdock.ros.plan import ColconBuild
 from espdock.ros.steps import TEST_RESULTS
 from espdock.ros.testing import (
@@ -92,6 +93,12 @@ def test(
     base = ws.ws_dir / ROS_BUILD_BASE
     ros, skipped = not_left_out([p for p in chosen if p.kind is PackageKind.ROS], every, colcon_args, base)
     firmware = [p for p in chosen if p.kind is PackageKind.FIRMWARE]
+    if skipped and not ros and not firmware and set(skipped) <= passed_last_time(colcon_args, skipped, base):
+        # colcon's retest of what failed, once nothing did: a pass, as plain colcon's.
+        console.print(
+            f"nothing to test: the tests of {', '.join(skipped)} passed last time (--packages-skip-test-passed)"
+        )
+        return
     if skipped and not ros and not firmware:
         raise ConfigError(
             f"nothing to test: the options after `--` skip {', '.join(skipped)}",

@@ -223,6 +223,14 @@ def left_out(
     return frozenset(out & set(depends))
 
 
+def passed_last_time(args: Iterable[str], names: Iterable[str], build_base: Path) -> frozenset[str]:
+    """NAMES that `--packages-skip-test-passed` in ARGS leaves out: their last tests passed."""
+    if "--packages-skip-test-passed" not in _option_values(args):
+        return frozenset()
+    result = _PREVIOUS["--packages-skip-test-passed"]
+    return frozenset(name for name in names if _read_stripped(build_base / name / result) == "0")
+
+
 def _read_stripped(path: Path) -> str | None:
     try:
         return path.read_text().strip()

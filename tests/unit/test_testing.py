@@ -361,3 +361,20 @@ def test_what_espdock_test_refuses_or_fails_on_says_what_to_do_with_espdock_test
     with pytest.raises(DependencyError) as missing:
         rosdeps.check_dependencies([package("a", set())], {"a": ("launch_testing",)}, lock, WHEELS, command="test")
     assert "`espdock test PKG...`" in (missing.value.hint or "") and "espdock build" not in (missing.value.hint or "")
+
+
+def test_a_retest_of_what_failed_once_everything_passed_is_a_pass(tmp_path):
+    """`espdock test -- --packages-skip-test-passed` in a CI loop, after the last failure was
+    fixed: exit 2, "nothing to test", where colcon passes."""
+    from tests.conftest import copy_workspace, espdock
+
+    root = copy_workspace(tmp_path / "w", packages=(), test_packages=("beacon_nodes",))
+    (root / "ws/build/espdock-ros/beacon_nodes").mkdir(parents=True)
+    (root / "ws/build/espdock-ros/beacon_nodes/colcon_test.rc").write_text("0\n")
+    no_engine = {"DOCKER_HOST": "unix:///nonexistent/docker.sock"}
+    again = espdock("test", "--", "--packages-skip-test-passed", cwd=root, env=no_engine)
+    said = " ".join((again.stdout + again.stderr).split())
+    assert again.returncode == 0 and "the tests of beacon_nodes passed last time" in said, said
+    (root / "ws/build/espdock-ros/beacon_nodes/colcon_test.rc").write_text("test failures\n")
+    failed = espdock("test", "--", "--packages-skip-test-passed", cwd=root, env=no_engine)
+    assert failed.returncode == 3, failed.stderr  # on to the engine, which is not there

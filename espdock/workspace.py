@@ -354,7 +354,9 @@ def _read_manifest(manifest: Path, ros_distro: str = DEFAULT_ROS_DISTRO) -> Pack
         build_type = pkg.get_build_type()
     except (InvalidPackage, ValueError, OSError) as exc:
         raise WorkspaceError(
-            f"{manifest} is not a valid package.xml: {exc}", "Fix the manifest and run again."
+            f"{manifest} is not a valid package.xml: {exc}",
+            "Fix the manifest and run again; a package that is not yours to fix can be left out with a "
+            "COLCON_IGNORE file in its directory (colcon itself warns of it and leaves it out).",
         ) from exc
 
     def names(*groups: list) -> set[str]:

@@ -1,4 +1,5 @@
 import os
+import re
 import shutil
 from pathlib import Path
 
@@ -295,3 +296,17 @@ def test_an_idf_component_manifest_s_targets_are_read_in_every_yaml_list_form(tm
     manifest = tmp_path / "idf_component.yml"
     manifest.write_text(text)
     assert component_targets(manifest) == ("esp32", "esp32s3")
+
+
+def test_an_invalid_third_party_manifest_names_the_way_to_leave_it_out(ws):
+    """A vendored repository's `maintainer email="dev@robot"` stopped every command, with only
+    "Fix the manifest" to go on; colcon warns of such a package and leaves it out."""
+    add_package(ws.root / "ws/src", "status_probe")
+    vendor = add_package(ws.root / "ws/src/vendor", "imu_driver")
+    manifest = vendor / "package.xml"
+    manifest.write_text(re.sub(r'email="[^"]*"', 'email="dev@robot"', manifest.read_text()))
+    with pytest.raises(WorkspaceError) as err:
+        discover_packages(ws)
+    assert "is not a valid package.xml" in err.value.message and "COLCON_IGNORE" in (err.value.hint or "")
+    (ws.root / "ws/src/vendor/COLCON_IGNORE").touch()
+    assert [p.name for p in discover_packages(ws)] == ["status_probe"]

@@ -275,8 +275,8 @@ class RosSteps:
         # Asked for and neither built nor left out as told (`-- --packages-skip`): colcon did not
         # find it where espdock did (a package linked from outside the workspace, say).
         # colcon logs no event of a package an option ignores (`--packages-ignore`): as if not found.
-        ignored = left_out(step.colcon_args, depends, base)
-        if lost := [n for n in others if n not in (states or {}) and n not in log.unselected() and n not in ignored]:
+        told = left_out(step.colcon_args, depends, base)
+        if lost := [n for n in others if n not in (states or {}) and n not in log.unselected() and n not in told]:
             rels = dict(step.sources)
             raise BuildFailed(
                 f"colcon did not find {len(lost)} of the {len(rebuild)} package(s) it was to build: "

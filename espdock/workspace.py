@@ -122,14 +122,17 @@ def ways_up(start: Path | None = None) -> tuple[list[Path], list[Path]]:
     resolved), and as the shell reached START (its $PWD, links kept), when that differs: a
     package linked into a workspace's src/ from a checkout elsewhere lies in the workspace only
     the second way. Raises FileNotFoundError when the current directory is gone."""
-    cwd = Path.cwd()
-    here = (start or cwd).resolve()
-    pwd = os.environ.get("PWD", "")
-    try:
-        shell = Path(pwd) if pwd.startswith("/") and os.path.samefile(pwd, cwd) else cwd
-    except OSError:
-        shell = cwd
-    logical = Path(os.path.normpath(shell / (start or ".")))
+    if start is not None and start.is_absolute():
+        here, logical = start.resolve(), Path(os.path.normpath(start))
+    else:
+        cwd = Path.cwd()
+        here = (start or cwd).resolve()
+        pwd = os.environ.get("PWD", "")
+        try:
+            shell = Path(pwd) if pwd.startswith("/") and os.path.samefile(pwd, cwd) else cwd
+        except OSError:
+            shell = cwd
+        logical = Path(os.path.normpath(shell / (start or ".")))
     return [here, *here.parents], ([logical, *logical.parents] if logical != here else [])
 
 

@@ -407,16 +407,30 @@ def order_packages(packages: Iterable[Package]) -> tuple[Package, ...]:
     return tuple(ordered)
 
 
-def select_up_to(packages: tuple[Package, ...], names: Iterable[str]) -> tuple[Package, ...]:
-    """NAMES and every workspace package they depend on, transitively, in build order."""
+def unknown_package(name: str, known: Iterable[str], workspace: Workspace | None = None) -> WorkspaceError:
+    """The error for a package NAME the workspace's discovery did not find (KNOWN: what it found):
+    left out by an ignore marker in WORKSPACE, misspelt, or not there."""
+    if workspace is not None and (marker := ignored_packages(workspace).get(name)):
+        return WorkspaceError(
+            f"no package named '{name}' in this workspace: {marker} leaves it out",
+            f"Remove {marker} to build and run {name}.",
+        )
+    close = difflib.get_close_matches(name, list(known), n=1)
+    hint = f"Did you mean '{close[0]}'?" if close else f"Packages: {', '.join(sorted(known)) or 'none'}."
+    return WorkspaceError(f"no package named '{name}' in this workspace", hint)
+
+
+def select_up_to(
+    packages: tuple[Package, ...], names: Iterable[str], workspace: Workspace | None = None
+) -> tuple[Package, ...]:
+    """NAMES and every workspace package they depend on, transitively, in build order (WORKSPACE:
+    where a name not found may be left out by an ignore marker)."""
     by_name = {p.name: p for p in packages}
     wanted: set[str] = set()
     stack = []
     for name in names:
         if name not in by_name:
-            close = difflib.get_close_matches(name, by_name, n=1)
-            hint = f"Did you mean '{close[0]}'?" if close else f"Packages: {', '.join(sorted(by_name)) or 'none'}."
-            raise WorkspaceError(f"no package named '{name}' in this workspace", hint)
+            raise unknown_package(name, by_name, workspace)
         stack.append(name)
     while stack:
         name = stack.pop()

@@ -87,7 +87,7 @@ def plan_workspace(
     TESTING: the build `espdock test` runs first (tests configured on every image flavour; on the
     wheels image a plain build configures CMake packages without them, since it lacks ament's lint
     packages)."""
-    selected = select_up_to(packages, names) if names else packages
+    selected = select_up_to(packages, names, workspace) if names else packages
     if only is not None:
         selected = tuple(p for p in selected if p.kind is only)
     name, text, image = ros_image(config, inputs)

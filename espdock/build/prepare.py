@@ -69,12 +69,12 @@ def build_plan(
             checked = ()
     elif locked is not None:
         owner = invoking_user(env, ws.root) if os.geteuid() == 0 else None
-        selected = select_up_to(packages, names) if names else packages
+        selected = select_up_to(packages, names, ws) if names else packages
         built = checked_packages(packages, tuple(p for p in selected if only in (None, p.kind)), colcon.args)
         inputs, note = current_rosdep_inputs(ws.root, config, packages, inputs, locked, env, owner, built)
         if note:
             notify(note)
-    chosen = select_up_to(packages, names) if names else packages
+    chosen = select_up_to(packages, names, ws) if names else packages
     for package in chosen:
         for line in interfaces.undeclared(package, inputs.package_files.get(package.name, {})):
             notify(f"warning: {line}")

@@ -18,7 +18,7 @@ from espdock.cli.core import PASSED, PassThrough, WorkspaceOption, app, command,
 from espdock.cli.prune import record_images
 from espdock.cli.ui import STAMPED, Reporter
 from espdock.config import in_ci, invoking_user
-from espdock.errors import ConfigError, EspdockError, TestsFailed, WorkspaceError
+from espdock.errors import ConfigError, EspdockError, TestsFailed
 from espdock.images.keyed import unpushed_error
 from espdock.layout import ROS_BUILD_BASE
 from espdock.ros.colcon import passed_last_time
@@ -37,7 +37,7 @@ from espdock.ros.testing import (
     read_results,
     run_host_tests,
 )
-from espdock.workspace import Package, PackageKind
+from espdock.workspace import Package, PackageKind, unknown_package
 
 
 @app.command(cls=PassThrough)
@@ -88,7 +88,7 @@ def test(
     every = discover(ws, config.ros_distro)
     by_name = {p.name: p for p in every}
     if unknown := [n for n in packages or () if n not in by_name]:
-        raise WorkspaceError(f"no package named {', '.join(unknown)} in the workspace", "See `espdock list`.")
+        raise unknown_package(unknown[0], by_name, ws)
     chosen = [by_name[n] for n in packages] if packages else list(every)
     base = ws.ws_dir / ROS_BUILD_BASE
     ros, skipped = not_left_out([p for p in chosen if p.kind is PackageKind.ROS], every, colcon_args, base)

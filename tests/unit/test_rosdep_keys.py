@@ -273,3 +273,5 @@ def test_a_dependency_on_a_workspace_package_an_ignore_marker_leaves_out_names_t
     assert "imu_driver: a workspace package, which src/drivers/COLCON_IGNORE leaves out" in said
     assert "Remove src/drivers/COLCON_IGNORE, or the dependency on what it leaves out" in said
     assert "rosdep rule" not in said
+    named = run(root, tmp_path, "build", "imu_driver")
+    assert named.returncode == 2 and "src/drivers/COLCON_IGNORE leaves it out" in named.stderr, named.stderr

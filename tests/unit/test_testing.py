@@ -230,7 +230,7 @@ def test_cli_refuses_bad_input_before_any_engine(tmp_path):
     root = copy_workspace(tmp_path / "w", packages=(), test_packages=("tested_py", "lint_auto_cpp"))
     no_engine = {"DOCKER_HOST": "unix:///nonexistent/docker.sock"}
     for args, said in (
-        (("test", "nosuch"), "no package named nosuch"),
+        (("test", "nosuch"), "no package named 'nosuch'"),
         (("test", "tested_py", "--", "--test-result-base", "x"), "--test-result-base"),
         (("test", "tested_py", "--"), "nothing after `--`"),
         (("test",), "lint_auto_cpp: ament_lint_auto, ament_lint_common"),

@@ -122,12 +122,23 @@ def _option_name(arg: str) -> str | None:
 
 def output_args(args: Iterable[str]) -> tuple[str, ...]:
     """ARGS without the scheduling options (SCHEDULING): what decides what colcon produces."""
+    return _without(args, SCHEDULING)
+
+
+def without_leaving_out(args: Iterable[str]) -> tuple[str, ...]:
+    """ARGS without the options that leave packages out (LEAVING_OUT): for a colcon run given only
+    the packages espdock chose by them (colcon warns of each one it was told to skip and has not)."""
+    return _without(args, LEAVING_OUT)
+
+
+def _without(args: Iterable[str], options: Iterable[str]) -> tuple[str, ...]:
+    """ARGS without OPTIONS (of SCHEDULING) and their values."""
     kept: list[str] = []
     skipping = False
     for arg in args:
         option = _option_name(arg)
         if option is not None or arg.startswith("-"):
-            takes_values = _scheduling(option)
+            takes_values = _scheduling(option, options)
             skipping = bool(takes_values) and "=" not in arg
             if takes_values is None:
                 kept.append(arg)
@@ -137,15 +148,14 @@ def output_args(args: Iterable[str]) -> tuple[str, ...]:
     return tuple(kept)
 
 
-def _scheduling(option: str | None) -> bool | None:
-    """Whether OPTION (or the option it uniquely abbreviates) is a scheduling one that takes
-    values; None when it is not a scheduling option."""
+def _scheduling(option: str | None, among: Iterable[str] = SCHEDULING) -> bool | None:
+    """Whether OPTION (or the option it uniquely abbreviates among SCHEDULING's) is one of AMONG
+    that takes values; None when it is none of them."""
     if option is None:
         return None
-    if option in SCHEDULING:
-        return SCHEDULING[option]
-    matches = [name for name in SCHEDULING if name.startswith(option)]
-    return SCHEDULING[matches[0]] if len(matches) == 1 and len(option) > 3 else None
+    matches = [name for name in SCHEDULING if name == option] or [n for n in SCHEDULING if n.startswith(option)]
+    full = matches[0] if len(matches) == 1 and (matches[0] == option or len(option) > 3) else None
+    return SCHEDULING[full] if full is not None and full in among else None
 
 
 # colcon's options that leave packages out of a build (colcon-package-selection).

@@ -27,7 +27,7 @@ from espdock.build.stamps import listing_digest
 from espdock.errors import ConfigError, DependencyError, EspdockError, WorkspaceError
 from espdock.images.containers import give_to, make_dirs_for, permission_error, prepare_output
 from espdock.layout import ROS_BUILD_BASE
-from espdock.ros.colcon import check_colcon_args, left_out
+from espdock.ros.colcon import check_colcon_args, left_out, without_leaving_out
 from espdock.workspace import Package
 
 # Where espdock reads the results: colcon's default (the package's build dir).
@@ -165,7 +165,7 @@ class ColconTest:
         options = (
             "--base-paths", *(rel for _, rel in self.sources), "--build-base", ROS_BUILD_BASE,
             "--event-handlers", "console_direct+", "console_start_end+", "summary+",
-            "--packages-select", *self.packages, *self.colcon_args,
+            "--packages-select", *self.packages, *without_leaving_out(self.colcon_args),
         )  # fmt: skip
         if not source:
             return ("colcon", "test", *options)

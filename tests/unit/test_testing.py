@@ -59,6 +59,15 @@ def test_tests_that_need_what_pypi_lacks_are_refused_on_the_wheels_image_only():
     check_testable({"py": frozenset({"ament_flake8", "ament_cmake_gtest"})}, "wheels")
 
 
+def test_colcon_test_is_not_told_to_skip_what_espdock_already_left_out():
+    """`espdock test -- --packages-skip tmpl_py cpp_pkg`: colcon, given only the packages espdock
+    chose, warned "ignoring unknown package" of each one it was told to skip."""
+    told = ("--packages-skip", "b", "c", "--retest-until-fail", "2", "--packages-skip-test-p")
+    step = ColconTest(image="i", packages=("a",), sources=(("a", "src/a"),), colcon_args=told)
+    argv = step.argv(source=False)
+    assert argv[argv.index("--packages-select") :] == ("--packages-select", "a", "--retest-until-fail", "2")
+
+
 def test_colcon_test_gets_the_options_as_arguments_not_shell_text():
     step = ColconTest(image="i", packages=("a", "b"), sources=(("a", "src/a"), ("b", "src/b")),
                       colcon_args=("--pytest-args", "-k", "x; rm -rf /"))  # fmt: skip

@@ -30,7 +30,13 @@ def tree_digest(*roots: Path) -> str:
         digest.update(f"root\0{root.name}\n".encode(errors="surrogateescape"))
         for path in source_files(root, follow_links=True):
             digest.update(path.relative_to(root).as_posix().encode(errors="surrogateescape") + b"\0")
-            digest.update(hashlib.sha256(path.read_bytes()).digest())
+            try:
+                data = path.read_bytes()
+            except FileNotFoundError:
+                if not path.is_symlink():
+                    raise
+                data = b"dangling link\0" + os.fsencode(os.readlink(path))  # leads nowhere: its target's name
+            digest.update(hashlib.sha256(data).digest())
     return digest.hexdigest()
 
 

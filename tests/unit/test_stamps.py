@@ -84,5 +84,13 @@ def test_files_under_a_package_s_link_to_a_directory_are_its_sources(tmp_path):
     before = tree_digest(package)
     (shared / "outside.yaml").write_text("speed: 2\n")
     assert tree_digest(package) != before
+    # A link that leads nowhere is part of the package too: by its target's name (every build
+    # crashed on it, exit 70).
+    (package / "dangling").symlink_to("/nonexistent/x")
+    dangling = tree_digest(package)
+    (package / "dangling").unlink()
+    (package / "dangling").symlink_to("/nonexistent/y")
+    assert tree_digest(package) != dangling
+    (package / "dangling").unlink()
     # The workspace volume's sync sends links as links: it does not follow them.
     assert {p.name for p in source_files(package)} == {"package.xml"}

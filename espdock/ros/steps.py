@@ -54,6 +54,10 @@ TEST_RESULTS = "the test results `espdock test` reads"
 ROS_STAMPS = ".espdock-colcon-stamps.json"
 
 
+# The stamp of a package built on the old install of a dependency the build left out.
+ON_OLD_INSTALL = "built on an old install of a dependency"
+
+
 class RosSteps:
     """Runs the ROS side's steps in containers of CONTAINERS, its images through IMAGES."""
 
@@ -231,8 +235,11 @@ class RosSteps:
                     "not build: the next build builds them again",
                 )
             )
-        if current := [name for name in built if not on_old[name]]:
-            stamp_file.record({name: stamps[name] for name in current}, installed(), dict(step.sources))
+        if built:
+            # Those recorded as built (their install is espdock's: `espdock run` takes it), with a
+            # stamp no package has: the next build builds them again.
+            recorded_stamps = {name: ON_OLD_INSTALL if on_old[name] else stamps[name] for name in built}
+            stamp_file.record(recorded_stamps, installed(), dict(step.sources))
             give_to(stamp_file.path, self.containers.owner)
         self.unbuilt |= set(rebuild) - set(built)
         if states is None and code != 0:

@@ -36,7 +36,6 @@ _FLAKE8 = (
 WHEELS_OMIT = {
     "ament_flake8": (*_FLAKE8, "ament_lint"),
     "ament_pep257": ("ament_lint",),
-    "ament_copyright": ("ament_lint",),
     "ament_cmake_flake8": _FLAKE8,
     "ament_cppcheck": ("cppcheck",),
     "ament_cmake_cppcheck": ("cppcheck",),

@@ -21,6 +21,7 @@ from espdock.firmware.plan import IdfBuild, InstallFirmware
 from espdock.images import bootstrap
 from espdock.images.engine import ImageInfo, RegistryStatus, _registry_answer
 from espdock.images.keyed import DPKG_STATUS
+from espdock.ros.nodes import check_built_by_espdock
 from espdock.ros.plan import ColconBuild, ros_build_image
 from espdock.workspace import Workspace
 from tests.fake_engine import FakeEngine
@@ -388,6 +389,7 @@ def test_what_built_on_a_changed_package_left_out_is_built_again_once_that_is_bu
     runner(engine, events).run(Plan(ws, (replace(COLCON, colcon_args=(option, "msgs")),)))
     assert events[-1].detail == "1 package(s) built, 0 up to date, 1 not built (msgs)"
     assert "app built on the old install of msgs, which this build did not build" in notes(events)
+    check_built_by_espdock(ws, "app")  # built, by espdock: `espdock run` takes it meanwhile
     runner(engine, []).run(Plan(ws, (COLCON,)))
     assert "--packages-select" not in engine.runs[-1].argv, "msgs is built now: app must be built again on it"
     runner(engine, events := []).run(Plan(ws, (COLCON,)))

@@ -178,7 +178,7 @@ def source_files(root: Path, output_parents: Collection[Path] = (), follow_links
     """The files under ROOT a build reads: hidden files and dirs, __pycache__ and .pyc left out,
     and OUTPUT_DIRS where they are outputs: in a package's directory (it holds a package.xml),
     and in OUTPUT_PARENTS (the colcon root). FOLLOW_LINKS: under links to directories as well,
-    each directory once (a package's `config -> ../../shared/config`, which colcon installs)."""
+    each directory once (a package's `config -> ../../common/config`, which colcon installs)."""
     found = []
     parents = {os.fspath(p) for p in output_parents}
     seen: set[tuple[int, int]] = set()

@@ -64,7 +64,7 @@ def linked_mounts(workspace: Workspace, paths: Iterable[Path]) -> tuple[Mount, .
 
 def directory_links(root: Path) -> list[Path]:
     """The links to directories under ROOT, following them (each directory once): a package's
-    `config -> ~/shared/config`, whose files colcon installs, and linked_mounts must mount."""
+    `config -> ~/common/config`, whose files colcon installs, and linked_mounts must mount."""
     found: list[Path] = []
     seen: set[tuple[int, int]] = set()
     for dirpath, dirnames, _ in os.walk(root, followlinks=True):

@@ -342,20 +342,20 @@ def test_a_copy_back_the_engine_cut_short_is_the_engine_s_failure_and_leaves_the
 
 
 def test_a_link_out_of_the_workspace_within_a_package_is_mounted_for_colcon(ws, tmp_path):
-    """A package's `config -> /abs/shared_cfg`: the container found nothing there, the build
+    """A package's `config -> /abs/common_cfg`: the container found nothing there, the build
     passed without a word, and the config was never installed."""
     from espdock.images.visibility import directory_links
     from espdock.ros.steps import _linked
 
-    shared = tmp_path.parent / f"{tmp_path.name}-shared_cfg"
-    shared.mkdir()
+    common = tmp_path.parent / f"{tmp_path.name}-common_cfg"
+    common.mkdir()
     package = ws.ws_dir / "src/bringup"
     (package / "bringup").mkdir(parents=True)
-    (package / "bringup/config").symlink_to(shared)
+    (package / "bringup/config").symlink_to(common)
     (package / "bringup/launch").symlink_to("../launch_files")  # within the package: its mount has it
     (package / "launch_files").mkdir()
     assert directory_links(package) == [package / "bringup/config", package / "bringup/launch"]
-    assert {m.target: m.source for m in _linked(ws, [("bringup", "src/bringup")])} == {str(shared): shared}
+    assert {m.target: m.source for m in _linked(ws, [("bringup", "src/bringup")])} == {str(common): common}
 
 
 def test_links_out_of_the_workspace_are_mounted_where_a_container_follows_them(ws, tmp_path):

@@ -69,20 +69,20 @@ def test_a_file_name_that_is_not_utf_8_is_hashed_as_its_bytes(tmp_path):
 
 
 def test_files_under_a_package_s_link_to_a_directory_are_its_sources(tmp_path):
-    """`config -> ../../shared/config` in a package (a config dir another repository holds): a
+    """`config -> ../../common/config` in a package (a config dir another repository holds): a
     file added there was no change, and the build kept installing the old config."""
     from espdock.build.stamps import source_files, tree_digest
 
-    shared = tmp_path / "shared/config"
-    shared.mkdir(parents=True)
-    (shared / "robot.yaml").write_text("speed: 1\n")
+    common = tmp_path / "common/config"
+    common.mkdir(parents=True)
+    (common / "robot.yaml").write_text("speed: 1\n")
     package = tmp_path / "src/bringup"
     package.mkdir(parents=True)
     (package / "package.xml").write_text("<package/>")
-    (package / "config").symlink_to("../../shared/config")
+    (package / "config").symlink_to("../../common/config")
     (package / "loop").symlink_to(".")  # a link loop is walked once
     before = tree_digest(package)
-    (shared / "outside.yaml").write_text("speed: 2\n")
+    (common / "outside.yaml").write_text("speed: 2\n")
     assert tree_digest(package) != before
     # A link that leads nowhere is part of the package too: by its target's name (every build
     # crashed on it, exit 70).

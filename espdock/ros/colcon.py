@@ -84,8 +84,15 @@ SCHEDULING = {
 
 # Per verb: an example of options after `--`, and of the options that are allowed there.
 _VERB_EXAMPLES = {
-    "build": ("--cmake-args -DBUILD_TESTING=OFF", "about how packages are built, e.g. `--cmake-args ...`"),
-    "test": ("--pytest-args -k fast", "about how the tests run, e.g. `--pytest-args ...`, `--ctest-args ...`"),
+    "build": (
+        "--cmake-args -DBUILD_TESTING=OFF",
+        "about how packages are built, e.g. `--cmake-args ...`, `--packages-skip X`, `--continue-on-error`",
+    ),
+    "test": (
+        "--pytest-args -k fast",
+        "about how the tests run, e.g. `--pytest-args ...`, `--ctest-args ...`, `--packages-skip X`, "
+        "`--retest-until-fail N`",
+    ),
 }
 
 
@@ -110,8 +117,7 @@ def check_colcon_args(args: Iterable[str] | None, verb: str = "build") -> tuple[
                 shown = option if refused == option else f"{option} ({refused})"
                 raise ConfigError(
                     f"colcon option {shown} is not allowed after `--`: {why}",
-                    f"Pass colcon only options {allowed}, "
-                    "`--packages-skip X`, `--continue-on-error`, `--parallel-workers N`.",
+                    f"Pass colcon only options {allowed}, `--parallel-workers N`.",
                 )
     return args
 

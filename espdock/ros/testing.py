@@ -32,6 +32,14 @@ from espdock.workspace import Package
 
 # Where espdock reads the results: colcon's default (the package's build dir).
 REFUSED_FOR_TEST = {"--test-result-base": f"espdock reads the results in {ROS_BUILD_BASE}/ of the colcon root"}
+# colcon build's options that colcon test lacks (the build image's colcon, each verb's --help):
+# refused before the build with tests, which otherwise ran for minutes and then colcon test
+# failed on "unrecognized argument".
+BUILD_ONLY = (
+    "--ament-cmake-args", "--catkin-cmake-args", "--catkin-skip-building-tests", "--cmake-args", "--cmake-clean-cache",
+    "--cmake-clean-first", "--cmake-force-configure", "--cmake-target", "--cmake-target-skip-unavailable",
+    "--continue-on-error", "--symlink-install",
+)  # fmt: skip
 # ROS packages the wheels image cannot give a package's tests: ament's lint packages PyPI lacks
 # (PyPI has ament_flake8, ament_pep257, ament_cppcheck, ament_cpplint, ament_uncrustify,
 # ament_cmake_pytest and ament_cmake_gtest, and their ament_cmake_* wrappers).
@@ -121,9 +129,21 @@ def check_test_args(args: Iterable[str] | None) -> tuple[str, ...]:
     checked = check_colcon_args(args, "test")
     for arg in checked:
         option = arg.split("=", 1)[0]
+        if not arg.startswith("--") or len(option) <= 3:
+            continue
         for refused, why in REFUSED_FOR_TEST.items():
-            if arg.startswith("--") and len(option) > 3 and refused.startswith(option):
+            if refused.startswith(option):
                 raise ConfigError(f"colcon option {option} is not allowed after `--`: {why}", "Leave it out.")
+        building = [option] if option in BUILD_ONLY else [name for name in BUILD_ONLY if name.startswith(option)]
+        if len(building) == 1:
+            if building[0] == "--continue-on-error":
+                hint = "Leave it out: colcon test goes on past failing tests (`--abort-on-error` stops at the first)."
+            else:
+                hint = (
+                    f"espdock test builds with the options of the last `espdock build`: pass it there "
+                    f"(`espdock build -- {building[0]} ...`), then run `espdock test`."
+                )
+            raise ConfigError(f"colcon option {option} is one of colcon build's, which colcon test does not take", hint)
     return checked
 
 

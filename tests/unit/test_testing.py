@@ -362,6 +362,16 @@ def test_what_espdock_test_refuses_or_fails_on_says_what_to_do_with_espdock_test
     with pytest.raises(ConfigError) as refused:
         check_test_args(("--event-handlers", "console_direct-"))
     assert "--pytest-args" in (refused.value.hint or "") and "--cmake-args" not in (refused.value.hint or "")
+    assert "--continue-on-error" not in (refused.value.hint or ""), "colcon test has no such option"
+    # colcon build's options: refused before the build with tests, not by colcon test after it.
+    for option, way in (("--cmake-args", "`espdock build -- --cmake-args ...`"),
+                        ("--cmake-target", "`espdock build -- --cmake-target ...`"),
+                        ("--symlink-inst", "`espdock build -- --symlink-install ...`"),
+                        ("--continue-on-error", "--abort-on-error")):  # fmt: skip
+        with pytest.raises(ConfigError, match="one of colcon build's") as building:
+            check_test_args((option, "x"))
+        assert way in (building.value.hint or ""), building.value.hint
+    check_test_args(("--abort-on-error", "--ctest-args", "-R", "ring"))
     states = {"cpp_pkg": PackageState.FAILED, "later": PackageState.ABORTED}
     logs = {"cpp_pkg": (Path("log/cpp_pkg.log"), "error: expected ';' before '}' token")}
     failed = explain_failure(2, states, logs, (), command="test")

@@ -340,11 +340,12 @@ def current_rosdep_inputs(
     env: Mapping[str, str],
     owner: tuple[int, int] | None = None,
     built: tuple[Package, ...] | None = None,
+    ignored: Callable[[], Mapping[str, str]] | None = None,
 ) -> tuple[BuildInputs, str | None]:
     """INPUTS with a rosdep lock that answers for the packages: the current one; else, unless
     LOCKED (which refuses a stale one), one made now. Where rosdep's database cannot be fetched,
     the lock as it is, when it answers for the packages BUILT (default: all). The second value
-    says what was done."""
+    says what was done. IGNORED: as for rosdeps.check_dependencies."""
     _, _, reason = _rosdep_state(config, packages, inputs)
     if reason is None:
         return inputs, None
@@ -353,7 +354,8 @@ def current_rosdep_inputs(
     try:
         status, database = lock_rosdeps(root, config, packages, inputs, env, owner, refresh=False)
     except rosdeps.DatabaseUnreachable as exc:
-        return inputs, offline_note(config, packages, inputs, packages if built is None else built, reason, exc)
+        built = packages if built is None else built
+        return inputs, offline_note(config, packages, inputs, built, reason, exc, ignored)
     data = (root / ROSDEP_LOCK).read_bytes() if (root / ROSDEP_LOCK).is_file() else None
     return replace(inputs, rosdep_lock=data), f"{ROSDEP_LOCK} {status} ({reason}; {database})"
 
@@ -365,10 +367,13 @@ def offline_note(
     built: tuple[Package, ...],
     reason: str,
     unreachable: rosdeps.DatabaseUnreachable,
+    ignored: Callable[[], Mapping[str, str]] | None = None,
 ) -> str:
     """What a build does without rosdep's database: it goes on with the lock as it is when that
     answers for every key of the packages BUILT the image lacks (else LockError naming the
-    packages that need the database, and those that could build)."""
+    packages that need the database, and those that could build; or, where every such key is a
+    workspace package an ignore marker leaves out (IGNORED), rosdeps.check_dependencies' error
+    naming the markers: no database would answer for them)."""
     image, needed, _ = _rosdep_state(config, packages, inputs)
     answered = (rosdeps.read_lock(inputs.rosdep_lock, ROSDEP_LOCK) or {}).get("keys", {})
 
@@ -376,6 +381,10 @@ def offline_note(
         return [k for k in needed.get(package.name, ()) if not answered.get(k, {}).get("installer")]
 
     blocked = {p.name: keys for p in built if (keys := unanswered(p))}
+    marked = ignored() if ignored and blocked else {}
+    if blocked and all(key in marked for keys in blocked.values() for key in keys):
+        checked = [p for p in built if p.name in blocked]
+        rosdeps.check_dependencies(checked, needed, None, image, ignored=lambda: marked)
     if not blocked:
         return (
             f"{reason}, and {unreachable.message}; the packages built need nothing more from rosdep, "
@@ -383,7 +392,8 @@ def offline_note(
         )
     # Those that need nothing from rosdep, nor does any workspace package they depend on.
     others = [p.name for p in built if not any(unanswered(d) for d in select_up_to(packages, [p.name]))]
-    lines = "\n".join(f"  {name}: {', '.join(keys)}" for name, keys in blocked.items())
+    shown = {k: f"{k} (a workspace package, which {marked[k]} leaves out)" for k in marked}
+    lines = "\n".join(f"  {name}: {', '.join(shown.get(k, k) for k in keys)}" for name, keys in blocked.items())
     hint = f"Reach rosdep's sources (or point ROSDEP_SOURCE_PATH at a local copy), then {FIX}."
     if others:
         hint += f" Meanwhile the others build: `espdock build {' '.join(others)}`."

@@ -26,6 +26,7 @@ from espdock.workspace import (
     PackageKind,
     Workspace,
     discover_packages,
+    ignored_packages,
     order_packages,
     read_build_inputs,
     select_up_to,
@@ -71,7 +72,9 @@ def build_plan(
         owner = invoking_user(env, ws.root) if os.geteuid() == 0 else None
         selected = select_up_to(packages, names, ws) if names else packages
         built = checked_packages(packages, tuple(p for p in selected if only in (None, p.kind)), colcon.args)
-        inputs, note = current_rosdep_inputs(ws.root, config, packages, inputs, locked, env, owner, built)
+        inputs, note = current_rosdep_inputs(
+            ws.root, config, packages, inputs, locked, env, owner, built, ignored=lambda: ignored_packages(ws)
+        )
         if note:
             notify(note)
     chosen = select_up_to(packages, names, ws) if names else packages

@@ -275,3 +275,15 @@ def test_a_dependency_on_a_workspace_package_an_ignore_marker_leaves_out_names_t
     assert "rosdep rule" not in said
     named = run(root, tmp_path, "build", "imu_driver")
     assert named.returncode == 2 and "src/drivers/COLCON_IGNORE leaves it out" in named.stderr, named.stderr
+    # With no route to rosdep's sources and no lock: tinyxml2 needs rosdep, imu_driver never does.
+    (root / "rosdep.lock.json").unlink()
+    cut_off = offline(root, tmp_path, "build")
+    said = " ".join(cut_off.stderr.split())
+    assert cut_off.returncode == 2 and "`rosdep update` failed" in said, said
+    assert "imu_driver (a workspace package, which src/drivers/COLCON_IGNORE leaves out), tinyxml2" in said
+    # Without tinyxml2: nothing needs rosdep's sources, and the marker is the error.
+    depending.write_text(depending.read_text().replace("<depend>tinyxml2</depend>", ""))
+    alone = offline(root, tmp_path, "build")
+    said = " ".join(alone.stderr.split())
+    assert alone.returncode == 2 and "imu_driver: a workspace package, which src/drivers/COLCON_IGNORE" in said, said
+    assert "rosdep update" not in said

@@ -240,8 +240,9 @@ def init_workspace(directory: Path, owner: tuple[int, int] | None = None) -> tup
     if not (root / CONFIG_FILE).exists():
         # Above it through links as they are, or as the shell reached it (a package linked into src/).
         if above := next((d for d in (*resolved[1:], *logical[1:]) if (d / CONFIG_FILE).is_file()), None):
+            shown = root if above in resolved else f"{logical[0]} (through a link, {root})"
             raise WorkspaceError(
-                f"{root} is inside the espdock workspace {above}: a workspace in it would take over every "
+                f"{shown} is inside the espdock workspace {above}: a workspace in it would take over every "
                 "command run below it",
                 f"Run espdock in {above} (`espdock new`, `espdock build`); to start another workspace, "
                 "init a directory outside it.",

@@ -194,13 +194,7 @@ def _manifests(base: Path) -> Iterable[Path]:
     directory once."""
     if not base.is_dir():
         return
-    visited: set[str] = set()
-    for dirpath, dirnames, filenames in os.walk(base, followlinks=True):
-        real = os.path.realpath(dirpath)
-        if real in visited:  # a link loop, or a second way to one directory
-            dirnames[:] = []
-            continue
-        visited.add(real)
+    for dirpath, dirnames, filenames in walk_following_links(base):
         if any(marker in filenames for marker in IGNORE_MARKERS):
             dirnames[:] = []
             continue
@@ -211,20 +205,34 @@ def _manifests(base: Path) -> Iterable[Path]:
         dirnames[:] = sorted(d for d in dirnames if not d.startswith((".", "__")) and d not in NOT_SOURCES)
 
 
+def walk_following_links(root: str | os.PathLike[str]) -> Iterator[tuple[str, list[str], list[str]]]:
+    """os.walk of ROOT following links to directories, as colcon follows them, each real directory
+    once: a link loop, or a second way to a directory, is not walked again. Prune dirnames as
+    with os.walk."""
+    visited: set[str] = set()
+    for dirpath, dirnames, filenames in os.walk(root, followlinks=True):
+        real = os.path.realpath(dirpath)
+        if real in visited:
+            dirnames[:] = []
+            continue
+        visited.add(real)
+        yield dirpath, dirnames, filenames
+
+
 def ignored_packages(workspace: Workspace) -> dict[str, str]:
     """The packages under the workspace's package paths that an ignore marker leaves out (colcon
     does not see them), by name: the marker, relative to the workspace root. Read only to
     explain a dependency nothing else provides: the names are taken from package.xml as text."""
     found: dict[str, str] = {}
     for rel in workspace.package_paths:
-        for dirpath, dirnames, filenames in os.walk(workspace.root / rel, followlinks=True):
+        for dirpath, dirnames, filenames in walk_following_links(workspace.root / rel):
             dirnames[:] = [d for d in dirnames if not d.startswith(".") and d not in NOT_SOURCES]
             marker = next((m for m in IGNORE_MARKERS if m in filenames), None)
             if marker is None:
                 continue
             dirnames[:] = []
             shown = os.path.relpath(os.path.join(dirpath, marker), workspace.root)
-            for inner, _, names in os.walk(dirpath, followlinks=True):
+            for inner, _, names in walk_following_links(dirpath):
                 if "package.xml" in names:
                     with suppress(OSError, UnicodeDecodeError):
                         text = Path(inner, "package.xml").read_text()

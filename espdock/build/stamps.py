@@ -15,6 +15,7 @@ from collections.abc import Collection, Iterable, Mapping
 from pathlib import Path
 
 from espdock import durable
+from espdock.workspace import walk_following_links
 
 # Not sources: colcon's and IDF's outputs beside a package.xml (or in the colcon root), caches,
 # VCS and editor state. Deeper down they are sources: a Python subpackage `log`, an IDF
@@ -181,15 +182,8 @@ def source_files(root: Path, output_parents: Collection[Path] = (), follow_links
     each directory once (a package's `config -> ../../common/config`, which colcon installs)."""
     found = []
     parents = {os.fspath(p) for p in output_parents}
-    seen: set[tuple[int, int]] = set()
-    for dirpath, dirnames, filenames in os.walk(root, followlinks=follow_links):
+    for dirpath, dirnames, filenames in walk_following_links(root) if follow_links else os.walk(root):
         outputs = "package.xml" in filenames or dirpath in parents
-        if follow_links:
-            info = os.stat(dirpath)
-            if (info.st_dev, info.st_ino) in seen:  # a link loop, or a directory reached twice
-                dirnames[:] = []
-                continue
-            seen.add((info.st_dev, info.st_ino))
         dirnames[:] = sorted(
             d for d in dirnames if not d.startswith(".") and d != "__pycache__" and not (outputs and d in OUTPUT_DIRS)
         )

@@ -21,7 +21,7 @@ from pathlib import Path, PurePosixPath
 from espdock.errors import MountSourceMissing, WorkspaceError, WorkspaceNotVisible
 from espdock.images.engine import Engine, Mount, RunSpec
 from espdock.layout import WORKSPACE_MOUNT
-from espdock.workspace import Workspace
+from espdock.workspace import Workspace, walk_following_links
 
 CHECKED = ".espdock-engine-sees.json"
 PROBE_PREFIX = ".espdock-probe-"
@@ -66,13 +66,7 @@ def directory_links(root: Path) -> list[Path]:
     """The links to directories under ROOT, following them (each directory once): a package's
     `config -> ~/common/config`, whose files colcon installs, and linked_mounts must mount."""
     found: list[Path] = []
-    seen: set[tuple[int, int]] = set()
-    for dirpath, dirnames, _ in os.walk(root, followlinks=True):
-        info = os.stat(dirpath)
-        if (info.st_dev, info.st_ino) in seen:
-            dirnames[:] = []
-            continue
-        seen.add((info.st_dev, info.st_ino))
+    for dirpath, dirnames, _ in walk_following_links(root):
         dirnames[:] = sorted(d for d in dirnames if not d.startswith(".") and d != "__pycache__")
         found += [Path(dirpath, d) for d in dirnames if os.path.islink(os.path.join(dirpath, d))]
     return found

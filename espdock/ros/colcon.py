@@ -157,11 +157,18 @@ def _without(args: Iterable[str], options: Iterable[str]) -> tuple[str, ...]:
 def _scheduling(option: str | None, among: Iterable[str] = SCHEDULING) -> bool | None:
     """Whether OPTION (or the option it uniquely abbreviates among SCHEDULING's) is one of AMONG
     that takes values; None when it is none of them."""
-    if option is None:
-        return None
-    matches = [name for name in SCHEDULING if name == option] or [n for n in SCHEDULING if n.startswith(option)]
-    full = matches[0] if len(matches) == 1 and (matches[0] == option or len(option) > 3) else None
+    full = full_option(option, SCHEDULING) if option is not None else None
     return SCHEDULING[full] if full is not None and full in among else None
+
+
+def full_option(option: str, names: Iterable[str]) -> str | None:
+    """The one of NAMES that OPTION is, or abbreviates uniquely as colcon's argparse takes it
+    (more than `--x`); else None."""
+    names = tuple(names)
+    if option in names:
+        return option
+    matches = [name for name in names if name.startswith(option)]
+    return matches[0] if len(matches) == 1 and len(option) > 3 else None
 
 
 # colcon's options that leave packages out of a build (colcon-package-selection).

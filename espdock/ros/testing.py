@@ -27,7 +27,7 @@ from espdock.build.stamps import listing_digest
 from espdock.errors import ConfigError, DependencyError, EspdockError, WorkspaceError
 from espdock.images.containers import give_to, make_dirs_for, permission_error, prepare_output
 from espdock.layout import ROS_BUILD_BASE
-from espdock.ros.colcon import check_colcon_args, left_out, without_leaving_out
+from espdock.ros.colcon import check_colcon_args, full_option, left_out, without_leaving_out
 from espdock.workspace import Package
 
 # Where espdock reads the results: colcon's default (the package's build dir).
@@ -134,14 +134,13 @@ def check_test_args(args: Iterable[str] | None) -> tuple[str, ...]:
         for refused, why in REFUSED_FOR_TEST.items():
             if refused.startswith(option):
                 raise ConfigError(f"colcon option {option} is not allowed after `--`: {why}", "Leave it out.")
-        building = [option] if option in BUILD_ONLY else [name for name in BUILD_ONLY if name.startswith(option)]
-        if len(building) == 1:
-            if building[0] == "--continue-on-error":
+        if (building := full_option(option, BUILD_ONLY)) is not None:
+            if building == "--continue-on-error":
                 hint = "Leave it out: colcon test goes on past failing tests (`--abort-on-error` stops at the first)."
             else:
                 hint = (
                     f"espdock test builds with the options of the last `espdock build`: pass it there "
-                    f"(`espdock build -- {building[0]} ...`), then run `espdock test`."
+                    f"(`espdock build -- {building} ...`), then run `espdock test`."
                 )
             raise ConfigError(f"colcon option {option} is one of colcon build's, which colcon test does not take", hint)
     return checked

@@ -124,7 +124,7 @@ class StampFile:
         recorded: what changed, and through the chained stamps, what depends on it; with
         SOURCES (name -> its directory), what moved as well."""
         recorded = self.read()
-        moved = self.moved(sources or {})
+        moved = _moved(recorded, sources or {})
         return tuple(
             name
             for name, stamp in stamps.items()
@@ -139,12 +139,7 @@ class StampFile:
 
     def moved(self, sources: Mapping[str, str]) -> dict[str, str]:
         """The packages of SOURCES (name -> its directory) last built from another directory: that one."""
-        recorded = self.read()
-        return {
-            name: old
-            for name, rel in sources.items()
-            if isinstance(recorded.get(name), dict) and (old := recorded[name].get("source")) not in (None, rel)
-        }
+        return _moved(self.read(), sources)
 
     def record(
         self, stamps: Mapping[str, str], installed: Mapping[str, str | None], sources: Mapping[str, str] | None = None
@@ -173,6 +168,14 @@ class StampFile:
         data = self.read()
         data.update(records)
         durable.write_text(self.path, json.dumps(data, indent=1, sort_keys=True) + "\n")
+
+
+def _moved(recorded: Mapping[str, object], sources: Mapping[str, str]) -> dict[str, str]:
+    return {
+        name: old
+        for name, rel in sources.items()
+        if isinstance(entry := recorded.get(name), dict) and (old := entry.get("source")) not in (None, rel)
+    }
 
 
 def source_files(root: Path, output_parents: Collection[Path] = (), follow_links: bool = False) -> list[Path]:

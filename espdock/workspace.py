@@ -33,8 +33,11 @@ IGNORE_MARKERS = ("COLCON_IGNORE", "AMENT_IGNORE", "CATKIN_IGNORE")
 # The ROS distribution package.xml conditions are evaluated for (espdock.toml's ros_distro).
 DEFAULT_ROS_DISTRO = "jazzy"
 FIRMWARE_BUILD_TYPE = "esp_idf"
-# colcon's and IDF's outputs: never searched for packages.
-NOT_SOURCES = ("build", "install", "log", "managed_components")
+# colcon's outputs, in the colcon root only: colcon marks them COLCON_IGNORE and searches any
+# other directory of these names (a repository cloned as src/log), so espdock does too.
+COLCON_OUTPUTS = ("build", "install", "log")
+# IDF's component manager's downloads, wherever a project is: they hold micro-ROS's packages.
+NOT_SOURCES = ("managed_components",)
 
 
 class PackageKind(StrEnum):
@@ -170,7 +173,7 @@ def discover_packages(workspace: Workspace, ros_distro: str = DEFAULT_ROS_DISTRO
     seen: set[Path] = set()
     cache = _ManifestCache.load(workspace, ros_distro)
     for rel in workspace.package_paths:
-        for manifest in _manifests(workspace.root / rel):
+        for manifest in _manifests(workspace.root / rel, _outputs(workspace)):
             if manifest in seen:  # nested package paths
                 continue
             seen.add(manifest)
@@ -188,10 +191,20 @@ def discover_packages(workspace: Workspace, ros_distro: str = DEFAULT_ROS_DISTRO
     return tuple(found[name] for name in sorted(found))
 
 
-def _manifests(base: Path) -> Iterable[Path]:
-    """package.xml files under BASE, not descending into packages, ignored or hidden dirs. Links
-    to directories are followed, as colcon follows them (`ln -s ~/repos/driver src/`), each real
-    directory once."""
+def _outputs(workspace: Workspace) -> frozenset[str]:
+    return frozenset(os.path.join(workspace.ws_dir, d) for d in COLCON_OUTPUTS)
+
+
+def _sources(dirpath: str, dirnames: list[str], outputs: frozenset[str]) -> list[str]:
+    """The directories under DIRPATH that may hold packages: not hidden, not outputs."""
+    kept = [d for d in dirnames if not d.startswith((".", "__")) and d not in NOT_SOURCES]
+    return [d for d in kept if os.path.normpath(os.path.join(dirpath, d)) not in outputs]
+
+
+def _manifests(base: Path, outputs: frozenset[str] = frozenset()) -> Iterable[Path]:
+    """package.xml files under BASE, not descending into packages, ignored or hidden dirs or
+    OUTPUTS. Links to directories are followed, as colcon follows them (`ln -s ~/repos/driver
+    src/`), each real directory once."""
     if not base.is_dir():
         return
     for dirpath, dirnames, filenames in walk_following_links(base):
@@ -202,7 +215,7 @@ def _manifests(base: Path) -> Iterable[Path]:
             dirnames[:] = []
             yield Path(dirpath) / "package.xml"
             continue
-        dirnames[:] = sorted(d for d in dirnames if not d.startswith((".", "__")) and d not in NOT_SOURCES)
+        dirnames[:] = sorted(_sources(dirpath, dirnames, outputs))
 
 
 def walk_following_links(root: str | os.PathLike[str]) -> Iterator[tuple[str, list[str], list[str]]]:
@@ -224,9 +237,10 @@ def ignored_packages(workspace: Workspace) -> dict[str, str]:
     does not see them), by name: the marker, relative to the workspace root. Read only to
     explain a dependency nothing else provides: the names are taken from package.xml as text."""
     found: dict[str, str] = {}
+    outputs = _outputs(workspace)
     for rel in workspace.package_paths:
         for dirpath, dirnames, filenames in walk_following_links(workspace.root / rel):
-            dirnames[:] = [d for d in dirnames if not d.startswith(".") and d not in NOT_SOURCES]
+            dirnames[:] = _sources(dirpath, dirnames, outputs)
             marker = next((m for m in IGNORE_MARKERS if m in filenames), None)
             if marker is None:
                 continue

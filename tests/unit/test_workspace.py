@@ -100,12 +100,24 @@ def test_discovers_ros_and_firmware_packages(ws):
     assert found["nodes"].depends == {"msgs", "rclpy"}
 
 
-def test_ignored_and_build_directories_are_skipped(ws):
+def test_ignored_and_output_directories_are_skipped(ws):
     add_package((ws.root / "ws/src"), "kept")
     skipped = add_package((ws.root / "ws/src"), "skipped")
     (skipped / "COLCON_IGNORE").touch()
-    add_package((ws.root / "ws/src") / "build", "stale_copy")
-    assert [p.name for p in discover_packages(ws)] == ["kept"]
+    # colcon's outputs in the colcon root, reached here because the package path holds it.
+    add_package(ws.root / "ws/build", "stale_copy")
+    add_package(ws.root / "ws/install", "installed_copy")
+    add_package(ws.root / "ws/src/fw/managed_components", "micro_ros_internal")
+    assert [p.name for p in discover_packages(Workspace(ws.root, ("ws",), "ws"))] == ["kept"]
+
+
+def test_a_repository_named_like_colcon_s_outputs_is_searched_as_colcon_searches_it(ws):
+    # `vcs import` of a repository into src/log: colcon builds its packages (it skips only
+    # what it marked COLCON_IGNORE), so leaving them out would build nothing and say nothing.
+    add_package(ws.root / "ws/src/log", "log_utils")
+    add_package(ws.root / "ws/src/tools/build", "build_helpers")
+    add_package(ws.root / "ws/src/tools/install", "install_scripts")
+    assert [p.name for p in discover_packages(ws)] == ["build_helpers", "install_scripts", "log_utils"]
 
 
 def test_broken_manifest_names_the_file_and_the_error(ws):

@@ -232,11 +232,35 @@ def walk_following_links(root: str | os.PathLike[str]) -> Iterator[tuple[str, li
         yield dirpath, dirnames, filenames
 
 
-def ignored_packages(workspace: Workspace) -> dict[str, str]:
-    """The packages under the workspace's package paths that an ignore marker leaves out (colcon
-    does not see them), by name: the marker, relative to the workspace root. Read only to
-    explain a dependency nothing else provides: the names are taken from package.xml as text."""
-    found: dict[str, str] = {}
+@dataclass(frozen=True)
+class LeftOut:
+    """A package of the workspace that espdock does not build: WHERE (relative to the workspace
+    root) is the ignore marker that leaves it out, or, with KIND, the directory colcon would build
+    as a package of that kind though it has no package.xml."""
+
+    where: str
+    kind: str = ""
+    build_type: str = ""
+
+    @property
+    def what(self) -> str:
+        if not self.kind:
+            return f"a workspace package, which {self.where} leaves out"
+        return f"{self.where}, {self.kind} with no package.xml, which espdock does not build"
+
+    @property
+    def fix(self) -> str:
+        if not self.kind:
+            return f"remove {self.where}"
+        return f"add a package.xml to {self.where} (<build_type>{self.build_type}</build_type>)"
+
+
+def left_out(workspace: Workspace) -> dict[str, LeftOut]:
+    """The packages under the workspace's package paths that espdock does not build, by name:
+    those an ignore marker leaves out (colcon does not see them either), and the projects
+    colcon would build though they have no package.xml (unmanifested). Read only to explain a
+    name nothing else provides: names are taken from the files as text."""
+    found: dict[str, LeftOut] = {}
     outputs = _outputs(workspace)
     for rel in workspace.package_paths:
         for dirpath, dirnames, filenames in walk_following_links(workspace.root / rel):
@@ -251,8 +275,71 @@ def ignored_packages(workspace: Workspace) -> dict[str, str]:
                     with suppress(OSError, UnicodeDecodeError):
                         text = Path(inner, "package.xml").read_text()
                         if match := re.search(r"<name>\s*([^<\s]+)\s*</name>", text):
-                            found.setdefault(match.group(1), shown)
+                            found.setdefault(match.group(1), LeftOut(shown))
+    for name, project in unmanifested(workspace).items():
+        found.setdefault(name, project)
     return found
+
+
+def unmanifested(workspace: Workspace) -> dict[str, LeftOut]:
+    """The directories under the workspace's package paths that colcon identifies as packages
+    without a package.xml (its cmake, python and colcon.pkg identification), by the name colcon
+    would give them, where no package lies below them (a repository's top-level CMakeLists.txt
+    beside its packages is no package of its own to anyone building them). IDF components are
+    not projects: the firmware that uses them builds them."""
+    found: dict[str, LeftOut] = {}
+    outputs = _outputs(workspace)
+    for rel in workspace.package_paths:
+        candidates: list[tuple[str, str, LeftOut]] = []
+        manifests: list[str] = []
+        for dirpath, dirnames, filenames in walk_following_links(workspace.root / rel):
+            if any(marker in filenames for marker in IGNORE_MARKERS):
+                dirnames[:] = []
+                continue
+            if "package.xml" in filenames:
+                dirnames[:] = []
+                manifests.append(dirpath)
+                continue
+            dirnames[:] = sorted(_sources(dirpath, dirnames, outputs))
+            if (project := _project(Path(dirpath), set(filenames), workspace.root)) is not None:
+                candidates.append((dirpath, *project))
+        for dirpath, name, project in candidates:
+            if not any(m.startswith(dirpath + os.sep) for m in manifests):
+                found.setdefault(name, project)
+    return found
+
+
+def _project(directory: Path, files: set[str], root: Path) -> tuple[str, LeftOut] | None:
+    """The name and description of the package colcon would make of DIRECTORY (FILES: its
+    files) with no package.xml, if any."""
+    shown = os.path.relpath(directory, root)
+    name = directory.name
+    with suppress(OSError, UnicodeDecodeError):
+        if "colcon.pkg" in files:
+            import yaml  # only for a workspace with such a file
+
+            with suppress(yaml.YAMLError):
+                data = yaml.safe_load((directory / "colcon.pkg").read_text())
+                if isinstance(data, dict) and data.get("type"):
+                    kind = str(data["type"])
+                    build_type = "cmake" if kind == "cmake" else "ament_python" if kind == "python" else kind
+                    return str(data.get("name") or name), LeftOut(shown, f"a {kind} package of colcon.pkg", build_type)
+        if "CMakeLists.txt" in files:
+            text = (directory / "CMakeLists.txt").read_text()
+            if re.search(r"^\s*idf_component_register\s*\(", text, re.MULTILINE | re.IGNORECASE):
+                return None
+            if "project.cmake" in text and "IDF_PATH" in text:
+                return name, LeftOut(shown, "an ESP-IDF project", FIRMWARE_BUILD_TYPE)
+            match = re.search(r"^\s*project\s*\(\s*([\w.+-]+)", text, re.MULTILINE | re.IGNORECASE)
+            return (match.group(1) if match else name), LeftOut(shown, "a CMake project", "cmake")
+        if "setup.py" in files or "setup.cfg" in files:
+            cfg = (directory / "setup.cfg").read_text() if "setup.cfg" in files else ""
+            py = (directory / "setup.py").read_text() if "setup.py" in files else ""
+            match = re.search(r"^\s*name\s*=\s*([\w.-]+)", cfg, re.MULTILINE) or re.search(
+                r"""\bname\s*=\s*['"]([\w.-]+)['"]""", py
+            )
+            return (match.group(1) if match else name), LeftOut(shown, "a Python project", "ament_python")
+    return None
 
 
 class _ManifestCache:
@@ -432,10 +519,15 @@ def order_packages(packages: Iterable[Package]) -> tuple[Package, ...]:
 def unknown_package(name: str, known: Iterable[str], workspace: Workspace | None = None) -> WorkspaceError:
     """The error for a package NAME the workspace's discovery did not find (KNOWN: what it found):
     left out by an ignore marker in WORKSPACE, misspelt, or not there."""
-    if workspace is not None and (marker := ignored_packages(workspace).get(name)):
+    if workspace is not None and (left := left_out(workspace).get(name)):
+        if not left.kind:
+            return WorkspaceError(
+                f"no package named '{name}' in this workspace: {left.where} leaves it out",
+                f"Remove {left.where} to build and run {name}.",
+            )
         return WorkspaceError(
-            f"no package named '{name}' in this workspace: {marker} leaves it out",
-            f"Remove {marker} to build and run {name}.",
+            f"no package named '{name}' in this workspace: {left.where} is {left.kind} with no package.xml",
+            f"To build and run it with espdock, {left.fix}.",
         )
     close = difflib.get_close_matches(name, list(known), n=1)
     hint = f"Did you mean '{close[0]}'?" if close else f"Packages: {', '.join(sorted(known)) or 'none'}."

@@ -32,7 +32,7 @@ from espdock.ros import rosdeps, testdeps
 from espdock.ros.plan import base_image, ros_image
 from espdock.ros.rosdeps import ROS_IMAGE_PYTHON
 from espdock.ros.system_python import SystemPython, probe_image
-from espdock.workspace import BuildInputs, Package, select_up_to, write_atomically
+from espdock.workspace import BuildInputs, LeftOut, Package, select_up_to, write_atomically
 
 INPUT_MARK = "# espdock-lock-input:"
 FIX = "run `espdock lock`"
@@ -340,7 +340,7 @@ def current_rosdep_inputs(
     env: Mapping[str, str],
     owner: tuple[int, int] | None = None,
     built: tuple[Package, ...] | None = None,
-    ignored: Callable[[], Mapping[str, str]] | None = None,
+    ignored: Callable[[], Mapping[str, LeftOut]] | None = None,
 ) -> tuple[BuildInputs, str | None]:
     """INPUTS with a rosdep lock that answers for the packages: the current one; else, unless
     LOCKED (which refuses a stale one), one made now. Where rosdep's database cannot be fetched,
@@ -367,7 +367,7 @@ def offline_note(
     built: tuple[Package, ...],
     reason: str,
     unreachable: rosdeps.DatabaseUnreachable,
-    ignored: Callable[[], Mapping[str, str]] | None = None,
+    ignored: Callable[[], Mapping[str, LeftOut]] | None = None,
 ) -> str:
     """What a build does without rosdep's database: it goes on with the lock as it is when that
     answers for every key of the packages BUILT the image lacks (else LockError naming the
@@ -392,7 +392,7 @@ def offline_note(
         )
     # Those that need nothing from rosdep, nor does any workspace package they depend on.
     others = [p.name for p in built if not any(unanswered(d) for d in select_up_to(packages, [p.name]))]
-    shown = {k: f"{k} (a workspace package, which {marked[k]} leaves out)" for k in marked}
+    shown = {k: f"{k} ({marked[k].what})" for k in marked}
     lines = "\n".join(f"  {name}: {', '.join(shown.get(k, k) for k in keys)}" for name, keys in blocked.items())
     hint = f"Reach rosdep's sources (or point ROSDEP_SOURCE_PATH at a local copy), then {FIX}."
     if others:

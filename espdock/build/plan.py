@@ -32,7 +32,7 @@ from espdock.ros.plan import (
     ros_image,
     ros_steps,
 )
-from espdock.workspace import BuildInputs, Package, PackageKind, Workspace, ignored_packages, select_up_to
+from espdock.workspace import BuildInputs, Package, PackageKind, Workspace, left_out, select_up_to
 
 Step = EnsureBaseImage | EnsureImage | ColconBuild | IdfBuild | InstallFirmware | RuntimeImage
 
@@ -101,7 +101,7 @@ def plan_workspace(
         lock,
         image,
         command="build" if checked is None else None,
-        ignored=lambda: ignored_packages(workspace),
+        ignored=lambda: left_out(workspace),
     )
     # The official image reads only the rosdep installer of docker/, and the entry point (runtime).
     official = {k: v for k, v in inputs.ros_files.items() if "rosdep" in k or k == OFFICIAL_ENTRYPOINT}

@@ -26,10 +26,11 @@ from espdock.workspace import (
     PackageKind,
     Workspace,
     discover_packages,
-    ignored_packages,
+    left_out,
     order_packages,
     read_build_inputs,
     select_up_to,
+    unmanifested,
 )
 
 
@@ -73,7 +74,7 @@ def build_plan(
         selected = select_up_to(packages, names, ws) if names else packages
         built = checked_packages(packages, tuple(p for p in selected if only in (None, p.kind)), colcon.args)
         inputs, note = current_rosdep_inputs(
-            ws.root, config, packages, inputs, locked, env, owner, built, ignored=lambda: ignored_packages(ws)
+            ws.root, config, packages, inputs, locked, env, owner, built, ignored=lambda: left_out(ws)
         )
         if note:
             notify(note)
@@ -81,6 +82,11 @@ def build_plan(
     for package in chosen:
         for line in interfaces.undeclared(package, inputs.package_files.get(package.name, {})):
             notify(f"warning: {line}")
+    for name, project in unmanifested(ws).items():
+        notify(
+            f"warning: {project.where} is not built: {project.kind} with no package.xml, which colcon would "
+            f"build as package '{name}'. To build it, {project.fix}; if it is no package, put a COLCON_IGNORE in it"
+        )
     if only in (None, PackageKind.FIRMWARE):
         for firmware in (p for p in chosen if p.kind is PackageKind.FIRMWARE):
             if (firmware.path / "sdkconfig").is_file():

@@ -33,7 +33,7 @@ from espdock.errors import DependencyError, LockError
 from espdock.layout import ROSDEP_LOCK, xdg_dir
 from espdock.ros import pypi_names
 from espdock.ros.system_python import SystemPython, normalise
-from espdock.workspace import Package, PackageKind, root_key, workspace_gone
+from espdock.workspace import LeftOut, Package, PackageKind, root_key, workspace_gone
 
 # The ROS images' Python: Debian bookworm's 3.11 on x86_64 (glibc 2.36), whatever runs uv.
 ROS_IMAGE_PYTHON = ("--python-version", "3.11", "--python-platform", "x86_64-manylinux_2_36")
@@ -173,13 +173,14 @@ def check_dependencies(
     lock: dict | None,
     image: RosImage,
     command: str | None = "build",
-    ignored: Callable[[], Mapping[str, str]] | None = None,
+    ignored: Callable[[], Mapping[str, LeftOut]] | None = None,
 ) -> None:
     """Raise DependencyError listing, per selected package, each key neither the image nor the
     lock provides, with the ways out (COMMAND: `espdock build` or `test`, which another selection can
     avoid; None: a command that selects nothing else);
-    nothing is built or run then. IGNORED: the workspace packages an ignore marker leaves out
-    (name -> the marker), asked only then: a key that is one of them is no rosdep matter."""
+    nothing is built or run then. IGNORED: the workspace packages espdock does not build (an
+    ignore marker leaves them out, or they have no package.xml), asked only then: a key that is
+    one of them is no rosdep matter."""
     keys = (lock or {}).get("keys", {})
     missing = {p: [k for k in needed.get(p.name, ()) if not keys.get(k, {}).get("installer")] for p in selected}
     if not any(missing.values()):
@@ -191,15 +192,15 @@ def check_dependencies(
         if absent:
             whys |= {keys.get(k, {}).get("why", NOT_LOCKED) for k in absent if k not in markers}
             why = "; ".join(
-                f"{k}: a workspace package, which {markers[k]} leaves out" if k in markers
-                else f"{k}: {keys.get(k, {}).get('why', NOT_LOCKED)}"
+                f"{k}: {markers[k].what}" if k in markers else f"{k}: {keys.get(k, {}).get('why', NOT_LOCKED)}"
                 for k in absent
-            )  # fmt: skip
+            )
             lines.append(f"  {package.name} ({package.path}): {why}")
+    fixes = "; or ".join(sorted({left.fix for left in markers.values()}))
     if not whys:
         raise DependencyError(
-            f"{len(lines)} package(s) depend on workspace packages an ignore marker leaves out:\n" + "\n".join(lines),
-            f"Remove {', '.join(sorted(set(markers.values())))}, or the dependency on what it leaves out.",
+            f"{len(lines)} package(s) depend on workspace packages espdock does not build:\n" + "\n".join(lines),
+            f"{fixes[0].upper()}{fixes[1:]}; or drop the dependency on it.",
         )
     if whys == {NOT_LOCKED}:
         # Only keys the lock has never seen (a dependency declared, or a typo fixed, since): the
@@ -215,7 +216,7 @@ def check_dependencies(
     if command is not None:
         ways.append(f"{command} another selection (`espdock {command} PKG...`, or `-- --packages-skip PKG`)")
     if markers:
-        ways.insert(0, f"remove {', '.join(sorted(set(markers.values())))}, which leaves out a package depended on")
+        ways.insert(0, f"{fixes}, to build the workspace package depended on")
     # A key rosdep knows nowhere is no more known to the official image.
     if image.flavour == "wheels" and whys - {UNKNOWN_KEY}:
         ways.insert(1, 'use the official ROS image (ros_image = "official" in espdock.toml), whose apt has every '

@@ -271,7 +271,7 @@ def test_a_dependency_on_a_workspace_package_an_ignore_marker_leaves_out_names_t
     said = " ".join(built.stderr.split())
     assert built.returncode == 2, said
     assert "imu_driver: a workspace package, which src/drivers/COLCON_IGNORE leaves out" in said
-    assert "Remove src/drivers/COLCON_IGNORE, or the dependency on what it leaves out" in said
+    assert "Remove src/drivers/COLCON_IGNORE; or drop the dependency on it" in said
     assert "rosdep rule" not in said
     named = run(root, tmp_path, "build", "imu_driver")
     assert named.returncode == 2 and "src/drivers/COLCON_IGNORE leaves it out" in named.stderr, named.stderr
@@ -287,3 +287,36 @@ def test_a_dependency_on_a_workspace_package_an_ignore_marker_leaves_out_names_t
     said = " ".join(alone.stderr.split())
     assert alone.returncode == 2 and "imu_driver: a workspace package, which src/drivers/COLCON_IGNORE" in said, said
     assert "rosdep update" not in said
+
+
+def test_a_dependency_on_a_vendored_cmake_project_without_a_package_xml_names_the_project(tmp_path):
+    """A plain CMake library vendored into src/ (colcon builds it as a `cmake` package): a
+    package depending on it was "no rosdep rule" for its name, or, without rosdep's sources,
+    "need rosdep for keys", where no rosdep rule could ever serve it."""
+    root = make_workspace(tmp_path / "w", "rosdeps_xml_count")
+    vendored = root / "src/third_party/tinylib"
+    vendored.mkdir(parents=True)
+    (vendored / "CMakeLists.txt").write_text(
+        "cmake_minimum_required(VERSION 3.16)\nproject(tinylib VERSION 1.0 LANGUAGES C)\n"
+        "add_library(tinylib STATIC tiny.c)\ninstall(TARGETS tinylib ARCHIVE DESTINATION lib)\n"
+    )
+    manifest = root / "src/rosdeps_xml_count/package.xml"
+    manifest.write_text(manifest.read_text().replace("<depend>tinyxml2</depend>", "<depend>tinylib</depend>"))
+    cut_off = offline(root, tmp_path, "build")
+    said = " ".join(cut_off.stderr.split())
+    assert cut_off.returncode == 2, said
+    assert "tinylib: src/third_party/tinylib, a CMake project with no package.xml" in said
+    assert "Add a package.xml to src/third_party/tinylib (<build_type>cmake</build_type>)" in said
+    assert "rosdep rule" not in said and "rosdep update" not in said
+    named = offline(root, tmp_path, "build", "tinylib")
+    assert named.returncode == 2, named.stderr
+    assert "src/third_party/tinylib is a CMake project with no package.xml" in named.stderr
+    # Nothing depending on it: each build says what it leaves unbuilt that colcon would build.
+    manifest.write_text(manifest.read_text().replace("<depend>tinylib</depend>", ""))
+    planned = run(root, tmp_path, "build", "--dry-run")
+    said = " ".join(planned.stderr.split() + planned.stdout.split())
+    assert planned.returncode == 0, said
+    assert "warning: src/third_party/tinylib is not built: a CMake project with no package.xml" in said
+    (vendored / "COLCON_IGNORE").touch()
+    ignored = run(root, tmp_path, "build", "--dry-run")
+    assert ignored.returncode == 0 and "not built" not in ignored.stdout + ignored.stderr

@@ -324,3 +324,36 @@ def test_an_invalid_third_party_manifest_names_the_way_to_leave_it_out(ws):
     assert "is not a valid package.xml" in err.value.message and "COLCON_IGNORE" in (err.value.hint or "")
     (ws.root / "ws/src/vendor/COLCON_IGNORE").touch()
     assert [p.name for p in discover_packages(ws)] == ["status_probe"]
+
+
+def test_projects_colcon_would_build_without_a_package_xml_are_named_as_colcon_names_them(ws):
+    src = ws.root / "ws/src"
+    add_package(src, "kept")
+    for rel, name, text in (
+        ("vendor/tinylib", "CMakeLists.txt", "cmake_minimum_required(VERSION 3.16)\nproject(tiny_lib C)\n"),
+        ("vendor/pylib", "setup.py", "from setuptools import setup\nsetup(\n    name='py_lib',\n)\n"),
+        ("vendor/cfglib", "setup.cfg", "[metadata]\nname = cfg_lib\n"),
+        ("vendor/described", "colcon.pkg", "name: described_lib\ntype: cmake\n"),
+        # A repository's CMakeLists.txt beside its packages, an IDF component, an ignored project.
+        ("repo", "CMakeLists.txt", "project(whole_repo)\n"),
+        ("vendor/comp", "CMakeLists.txt", "idf_component_register(SRCS x.c)\n"),
+        ("vendor/gone", "CMakeLists.txt", "project(gone)\n"),
+    ):
+        (src / rel).mkdir(parents=True, exist_ok=True)
+        (src / rel / name).write_text(text)
+    add_package(src / "repo", "repo_pkg")
+    (src / "vendor/gone/COLCON_IGNORE").touch()
+    (ws.root / "firmware/blink").mkdir(parents=True)
+    (ws.root / "firmware/blink/CMakeLists.txt").write_text(
+        "cmake_minimum_required(VERSION 3.16)\ninclude($ENV{IDF_PATH}/tools/cmake/project.cmake)\nproject(blink)\n"
+    )
+    found = espdock.workspace.unmanifested(ws)
+    assert {name: (p.where, p.build_type) for name, p in found.items()} == {
+        "tiny_lib": ("ws/src/vendor/tinylib", "cmake"),
+        "py_lib": ("ws/src/vendor/pylib", "ament_python"),
+        "cfg_lib": ("ws/src/vendor/cfglib", "ament_python"),
+        "described_lib": ("ws/src/vendor/described", "cmake"),
+        "blink": ("firmware/blink", "esp_idf"),
+    }
+    assert [p.name for p in discover_packages(ws)] == ["kept", "repo_pkg"]
+    assert "no package.xml" in str(espdock.workspace.unknown_package("py_lib", ["kept"], ws))

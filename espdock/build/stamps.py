@@ -101,10 +101,16 @@ def package_stamps(
 
 
 class StampFile:
-    """A JSON file of {package: {"stamp": ..., "installed": ...}} under ws/build."""
+    """A JSON file of {package: {"stamp": ..., "installed": ...}} under ws/build.
 
-    def __init__(self, path: Path) -> None:
+    With a FORMAT, each record says the format it was written in, and a record of another
+    format (an older espdock's, or one a colleague's older espdock rewrote) is stale: what it
+    holds does not say what this espdock checks (where a package was built from, whether it was
+    built on a dependency's old install), so its package is built again, afresh."""
+
+    def __init__(self, path: Path, format: int | None = None) -> None:
         self.path = path
+        self.format = format
 
     def read(self) -> dict[str, dict[str, str | None]]:
         try:
@@ -129,7 +135,7 @@ class StampFile:
             name
             for name, stamp in stamps.items()
             if not (
-                isinstance(recorded.get(name), dict)
+                self._current(recorded.get(name))
                 and recorded[name].get("stamp") == stamp
                 and installed.get(name) is not None
                 and recorded[name].get("installed") == installed[name]
@@ -137,9 +143,17 @@ class StampFile:
             )
         )
 
+    def _current(self, entry: object) -> bool:
+        return isinstance(entry, dict) and (self.format is None or entry.get("format") == self.format)
+
     def moved(self, sources: Mapping[str, str]) -> dict[str, str]:
         """The packages of SOURCES (name -> its directory) last built from another directory: that one."""
         return _moved(self.read(), sources)
+
+    def foreign(self, names: Iterable[str]) -> tuple[str, ...]:
+        """NAMES whose records are of another format than this file's."""
+        recorded = self.read()
+        return tuple(name for name in names if name in recorded and not self._current(recorded[name]))
 
     def record(
         self, stamps: Mapping[str, str], installed: Mapping[str, str | None], sources: Mapping[str, str] | None = None
@@ -148,26 +162,44 @@ class StampFile:
         keeping other packages' records."""
         data = self.read()
         for name, stamp in stamps.items():
-            data[name] = {"stamp": stamp, "installed": installed.get(name)}
-            if sources and name in sources:
-                data[name]["source"] = sources[name]
+            data[name] = self._entry(name, sources, stamp=stamp, installed=installed.get(name))
         self.path.parent.mkdir(parents=True, exist_ok=True)
         durable.write_text(self.path, json.dumps(data, indent=1, sort_keys=True) + "\n")
 
-    def forget(self, names: Iterable[str]) -> None:
-        """Drop NAMES' records (their build failed or was interrupted: build them next time)."""
-        data = self.read()
-        dropped = [data.pop(name) for name in names if name in data]  # every one: no short-circuit
-        if dropped:
+    def _entry(self, name: str, sources: Mapping[str, str] | None, **fields: str | None) -> dict[str, str | None]:
+        entry = dict(fields)
+        if sources and name in sources:
+            entry["source"] = sources[name]
+        if self.format is not None:
+            entry["format"] = self.format  # type: ignore[assignment]
+        return entry
+
+    def forget(self, names: Iterable[str], sources: Mapping[str, str] | None = None) -> None:
+        """Drop NAMES' records (their build failed or was interrupted: build them next time). With
+        SOURCES, what is about to build from there keeps only that directory: a build dir colcon
+        configures there is one of that directory, however the build ends."""
+        before = self.read()
+        data = dict(before)
+        for name in names:
+            if sources and name in sources:
+                data[name] = self._entry(name, sources)
+            else:
+                data.pop(name, None)
+        if data != before:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
             durable.write_text(self.path, json.dumps(data, indent=1, sort_keys=True) + "\n")
 
-    def restore(self, records: Mapping[str, dict[str, str | None]]) -> None:
-        """Put back RECORDS that forget dropped: the run that was to rebuild them changed nothing."""
-        if not records:
+    def restore(self, records: Mapping[str, dict[str, str | None]], forgotten: Iterable[str] = ()) -> None:
+        """Put back RECORDS that forget dropped, and drop what it kept of the other FORGOTTEN: the
+        run that was to rebuild them changed nothing."""
+        before, dropped = self.read(), set(forgotten) - set(records)
+        data = {name: entry for name, entry in before.items() if name not in dropped} | dict(records)
+        if data == before:
             return
-        data = self.read()
-        data.update(records)
-        durable.write_text(self.path, json.dumps(data, indent=1, sort_keys=True) + "\n")
+        if data:
+            durable.write_text(self.path, json.dumps(data, indent=1, sort_keys=True) + "\n")
+        else:
+            self.path.unlink(missing_ok=True)  # as it was before a first build that never started
 
 
 def _moved(recorded: Mapping[str, object], sources: Mapping[str, str]) -> dict[str, str]:

@@ -100,14 +100,16 @@ def check_built_by_espdock(workspace: Workspace, package: str) -> None:
 
     recorded = StampFile(workspace.ws_dir / "build" / ROS_STAMPS).read().get(package)
     listing = listing_digest(workspace.ws_dir / "install" / package)
-    if isinstance(recorded, dict) and recorded.get("installed") == listing:
+    # A record without a stamp names only where a build that did not finish was building from.
+    finished = isinstance(recorded, dict) and "stamp" in recorded
+    if finished and listing is not None and recorded.get("installed") == listing:
         return
     if (holder := build_running(workspace)) is not None:
         raise WorkspaceError(
             f"an espdock build is running in {workspace.root}{holder}: install/{package} may be half rebuilt",
             "Wait for it to finish, then run again.",
         )
-    if recorded is None and (workspace.ws_dir / ROS_BUILD_BASE / package).is_dir():
+    if not finished and (workspace.ws_dir / ROS_BUILD_BASE / package).is_dir():
         # espdock's colcon configured it (its own build base), and no build of it finished since.
         raise WorkspaceError(
             f"the last espdock build of {package} did not finish (it failed or was interrupted): "

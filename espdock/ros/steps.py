@@ -52,6 +52,10 @@ TEST_RESULTS = "the test results `espdock test` reads"
 
 # Under ws/build: what the ROS packages and the firmware were last built from (espdock.build.stamps).
 ROS_STAMPS = ".espdock-colcon-stamps.json"
+# Its records' format: 2 since they record where each package was built from and whether it was
+# built on a dependency's old install, and the copies setuptools makes are forced (an older
+# espdock's records are stale: its packages are built again, afresh).
+ROS_STAMP_FORMAT = 2
 
 
 # The stamp of a package built on the old install of a dependency the build left out.
@@ -109,6 +113,12 @@ class RosSteps:
                     f"{name} (from {old})" for name, old in moved.items()
                 )
                 reasons.append((tuple(tree for name in moved for tree in (base / name, install / name)), why))
+            if older := [name for name in stamp_file.foreign(rebuild) if name not in moved]:
+                why = (
+                    f"building afresh what an older espdock built: {', '.join(older)} (its records do not say "
+                    "where each package was built from, nor on what)"
+                )
+                reasons.append((tuple(tree for name in older for tree in (base / name, install / name)), why))
         for trees, why in reasons:
             for tree in trees:
                 if tree.is_symlink():
@@ -147,7 +157,7 @@ class RosSteps:
             rebuild = step.packages
         # Until this build succeeds, none of them counts as built.
         recorded = stamp_file.read()
-        stamp_file.forget(rebuild)
+        stamp_file.forget(rebuild, dict(step.sources))
         mounted_build = posixpath.join(step.workdir, "build")
         if retired := retire_container_caches(workspace.ws_dir / "build", stamps, mounted_build):
             why = f"espdock's CMake caches from before {ROS_BUILD_BASE}, which a native colcon build refuses"
@@ -245,7 +255,7 @@ class RosSteps:
         if states is None and code != 0:
             # Nothing in build/ or install/ changed: the packages keep their records, and the
             # next build with other options rebuilds only what those change.
-            stamp_file.restore({name: recorded[name] for name in rebuild if name in recorded})
+            stamp_file.restore({name: recorded[name] for name in rebuild if name in recorded}, rebuild)
             last = next((line for line in reversed(output) if line.strip()), "no output")
             if "PermissionError" in last or "Permission denied" in last:
                 # colcon may not write its log or build dirs: they belong to someone else.
@@ -380,7 +390,7 @@ def colcon_rebuild(workspace: Workspace, step: ColconBuild) -> tuple[StampFile, 
     """STEP's stamp file, the stamps of the packages it builds as they are now, and which of them
     colcon gets: the changed ones and, their stamps being chained, what depends on them (all of
     them with --force). The rest are up to date in install/, where colcon finds them."""
-    stamp_file = StampFile(workspace.ws_dir / "build" / ROS_STAMPS)
+    stamp_file = StampFile(workspace.ws_dir / "build" / ROS_STAMPS, ROS_STAMP_FORMAT)
     sources = {name: tree_digest(workspace.ws_dir / rel) for name, rel in step.sources}
     chained = package_stamps(sources, dict(step.depends), step.stamp_image, dict(step.settings))
     stamps = {name: chained[name] for name in step.building}

@@ -426,6 +426,60 @@ def test_a_package_that_moved_is_built_afresh_in_a_new_build_dir(ws):
     assert events[-1].detail == "up to date (2 package(s))"
 
 
+def test_what_an_older_espdock_recorded_is_built_again_afresh(ws):
+    """An upgrade, or a colleague's older espdock rebuilding in the same checkout: its records
+    say neither where a package was built from nor whether it was built on a dependency's old
+    install, and were trusted as they were: a package moved under it was "up to date", then failed
+    at the next edit in the CMake cache of its old directory, and --force failed the same way."""
+    import json
+
+    engine = FakeEngine(run_script=colcon_installs(ws))
+    runner(engine, []).run(Plan(ws, (COLCON,)))
+    stamps = ws.ws_dir / "build/.espdock-colcon-stamps.json"
+    older = {
+        name: {"stamp": e["stamp"], "installed": e["installed"]} for name, e in json.loads(stamps.read_text()).items()
+    }
+    stamps.write_text(json.dumps(older))
+    (ws.ws_dir / "build/espdock-ros/app").mkdir(parents=True)
+    (ws.ws_dir / "build/espdock-ros/app/CMakeCache.txt").write_text("CMAKE_HOME_DIRECTORY:INTERNAL=/elsewhere\n")
+    events: list = []
+    runner(engine, events).run(Plan(ws, (COLCON,)))
+    assert "building afresh what an older espdock built: msgs, app" in notes(events)
+    assert not (ws.ws_dir / "build/espdock-ros/app/CMakeCache.txt").exists()
+    runner(engine, events := []).run(Plan(ws, (COLCON,)))
+    assert events[-1].detail == "up to date (2 package(s))"
+
+
+def check_raises_did_not_finish(ws, package: str) -> bool:
+    from espdock.errors import WorkspaceError
+
+    (ws.ws_dir / "build/espdock-ros" / package).mkdir(parents=True, exist_ok=True)
+    with pytest.raises(WorkspaceError, match="did not finish"):
+        check_built_by_espdock(ws, package)
+    return True
+
+
+def test_a_package_whose_build_failed_and_that_then_moved_is_built_afresh(ws):
+    """The first build of app fails; app is moved and fixed: its build dir was configured from the
+    old directory, and CMake failed on "The source directory ... does not exist", --force too."""
+    engine = FakeEngine(run_script=colcon_installs(ws, code=1, rcs={"msgs": 0, "app": 1}))
+    with pytest.raises(BuildFailed):
+        runner(engine, []).run(Plan(ws, (COLCON,)))
+    assert check_raises_did_not_finish(ws, "app")
+    (ws.ws_dir / "build/espdock-ros/app").mkdir(parents=True, exist_ok=True)
+    (ws.ws_dir / "build/espdock-ros/app/CMakeCache.txt").write_text(
+        "CMAKE_HOME_DIRECTORY:INTERNAL=/workspace/ws/src/app\n"
+    )
+    (ws.ws_dir / "src/apps").mkdir()
+    (ws.ws_dir / "src/app").rename(ws.ws_dir / "src/apps/app")
+    moved = replace(COLCON, sources=(("msgs", "src/msgs"), ("app", "src/apps/app")), force=True)
+    engine.run_script = colcon_installs(ws)
+    events: list = []
+    runner(engine, events).run(Plan(ws, (moved,)))
+    assert "building afresh what moved since the last build: app (from src/app)" in notes(events)
+    assert not (ws.ws_dir / "build/espdock-ros/app/CMakeCache.txt").exists()
+
+
 def test_a_symlink_switch_says_which_removed_install_the_options_leave_out(ws):
     """`-- --symlink-install --packages-skip app` after a plain build: app's install went with
     the others' and nothing said it was not built again."""

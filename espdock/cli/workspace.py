@@ -207,6 +207,13 @@ def lock(
     ws, config = load(workspace)
     owner = invoking_user(os.environ, ws.root) if os.geteuid() == 0 else None
     packages = workspace_packages(ws, config.ros_distro)
+    for result in lock_workspace(ws.root, uv_binary(), upgrade, owner, resolve_ca_bundle(config, os.environ)):
+        spec = result.spec
+        if result.status == "default":
+            console.print(f"{spec.lock}: espdock's default (the workspace has no {spec.source} of its own)")
+        else:
+            console.print(f"{spec.lock}: {result.status} (from {', '.join(spec.inputs)})")
+    # After the wheel locks, whose pins constrain (and whose digests are part of) the rosdep lock's.
     status, database = lock_rosdeps(ws.root, config, packages, read_build_inputs(ws, packages), os.environ, owner)
     if database:  # else: none needed, none there
         console.print(f"{ROSDEP_LOCK}: {status} ({database})")
@@ -214,12 +221,6 @@ def lock(
         lock = rosdeps.read_lock((ws.root / ROSDEP_LOCK).read_bytes(), ROSDEP_LOCK)
         for key, why in rosdeps.unserved(lock):
             err_console.print(Text.assemble(("warning: ", "yellow"), f"{key}: {why}; a build needing it is refused"))
-    for result in lock_workspace(ws.root, uv_binary(), upgrade, owner, resolve_ca_bundle(config, os.environ)):
-        spec = result.spec
-        if result.status == "default":
-            console.print(f"{spec.lock}: espdock's default (the workspace has no {spec.source} of its own)")
-        else:
-            console.print(f"{spec.lock}: {result.status} (from {', '.join(spec.inputs)})")
 
 
 @app.command()

@@ -10,6 +10,7 @@ from espdock.build import lock
 from espdock.build.lock import LOCKS, check_locks, digest, stale_reason
 from espdock.errors import LockError
 from tests.conftest import REPO, copy_workspace, espdock
+from tests.rosdep_db import environment
 
 NO_ENGINE = {"DOCKER_HOST": "unix:///nonexistent/docker.sock"}
 RUNTIME, BUILD, DEV = LOCKS
@@ -173,3 +174,20 @@ def test_lock_names_the_source_uv_cannot_resolve(tmp_path):
     assert "uv could not lock docker/ros-runtime.txt from docker/ros-runtime.in" in result.stderr
     assert "segno" in result.stderr and "Traceback" not in result.stderr
     assert (root / RUNTIME.lock).read_text() == before
+
+
+def test_one_lock_after_a_wheel_pin_changed_leaves_every_lock_current(tmp_path):
+    """Runs uv against the package index. The rosdep lock answers for the wheel locks' pins (they
+    constrain its pip part): `espdock lock` made it before it compiled them, and after a changed
+    pin the next `build --locked` (CI's) refused it as stale until a second `espdock lock`."""
+    root = copy_workspace(tmp_path / "w", test_packages=("rosdeps_xml_count",))
+    env = environment(tmp_path)
+    first = espdock("lock", cwd=root, env=env, timeout=300)
+    assert first.returncode == 0, first.stdout + first.stderr
+    source = root / BUILD.source
+    source.write_text(source.read_text().replace("cmake==3.31.6", "cmake==3.31.4"))
+    relocked = espdock("lock", cwd=root, env=env, timeout=300)
+    assert relocked.returncode == 0, relocked.stdout + relocked.stderr
+    assert "docker/ros-build.txt: updated" in relocked.stdout and "rosdep.lock.json: updated" in relocked.stdout
+    built = espdock("build", "--locked", cwd=root, env={**env, **NO_ENGINE, "CI": "true"})
+    assert built.returncode == 3, built.stdout + built.stderr  # past every lock, at the engine

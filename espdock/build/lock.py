@@ -215,8 +215,10 @@ def _compile(
 ) -> str:
     """uv's lock of SPEC, keeping PREVIOUS's pins where the source allows (unless UPGRADE)."""
     # Inputs of the workspace's own by their relative paths (so uv's "# via" notes name them so),
-    # espdock's defaults by their absolute ones.
+    # espdock's defaults by their absolute ones, named in the lock by their relative ones too:
+    # the lock is committed, and the same for everyone wherever espdock is installed.
     paths = {rel: rel if (root / rel).is_file() else str(locate(root, rel)) for rel in spec.inputs}
+    renamed = {path: rel for rel, path in paths.items() if path != rel}
     with scratch.scratch_dir("espdock-lock-") as tmp:
         output = tmp / "lock.txt"
         output.write_text(previous or "")
@@ -229,7 +231,10 @@ def _compile(
                 f"uv could not lock {spec.lock} from {spec.source}:\n{result.stderr.strip()}",
                 f"Fix {spec.source} (or the network), then {FIX} again.",
             )
-        return output.read_text()
+        text = output.read_text()
+    for path, rel in renamed.items():
+        text = text.replace(path, rel)
+    return text
 
 
 def _rosdep_state(

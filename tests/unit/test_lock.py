@@ -191,3 +191,18 @@ def test_one_lock_after_a_wheel_pin_changed_leaves_every_lock_current(tmp_path):
     assert "docker/ros-build.txt: updated" in relocked.stdout and "rosdep.lock.json: updated" in relocked.stdout
     built = espdock("build", "--locked", cwd=root, env={**env, **NO_ENGINE, "CI": "true"})
     assert built.returncode == 3, built.stdout + built.stderr  # past every lock, at the engine
+
+
+def test_a_lock_compiled_from_espdocks_default_source_does_not_name_where_espdock_is_installed(tmp_path):
+    """Runs uv against the package index. A workspace with its own runtime lock gets its own build
+    lock, from espdock's default docker/ros-build.in: its "# via -r" named that file's absolute
+    path, so the same `espdock lock` from another install (a colleague's, an upgrade) rewrote the
+    committed lock and the build image's key changed with it."""
+    root = copy_workspace(tmp_path / "w")
+    (root / BUILD.source).unlink()
+    (root / BUILD.lock).unlink()
+    result = espdock("lock", cwd=root, timeout=300)
+    assert result.returncode == 0, result.stdout + result.stderr
+    text = (root / BUILD.lock).read_text()
+    assert "# via -r docker/ros-build.in" in text
+    assert str(defaults.defaults_root()) not in text and str(REPO) not in text

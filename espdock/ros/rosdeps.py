@@ -38,7 +38,9 @@ from espdock.workspace import LeftOut, Package, PackageKind, root_key, workspace
 # The ROS images' Python: Debian bookworm's 3.11 on x86_64 (glibc 2.36), whatever runs uv.
 ROS_IMAGE_PYTHON = ("--python-version", "3.11", "--python-platform", "x86_64-manylinux_2_36")
 
-FORMAT = 1
+# 2: a rule that installs nothing (an empty list: rosdep's "satisfied") is served, where format 1
+# recorded it as unserved, and builds needing it were refused. An older format is stale.
+FORMAT = 2
 FIX = "run `espdock lock`"
 # Where rosdep's database (what `rosdep update` downloads) is cached, under the user's cache dir.
 CACHE_SUBDIR = "espdock/rosdep"
@@ -120,8 +122,13 @@ def read_lock(data: bytes | None, name: str) -> dict | None:
         return None
     try:
         lock = json.loads(data)
-        if not isinstance(lock, dict) or lock.get("format") != FORMAT:
+        if not isinstance(lock, dict) or not isinstance(lock.get("format"), int):
             raise ValueError(f"not format {FORMAT}")
+        if lock["format"] > FORMAT:
+            raise LockError(
+                f"{name} was made by a newer espdock (its format {lock['format']}, this one's {FORMAT})",
+                f"Use that espdock, or {FIX} with this one.",
+            )
     except ValueError as exc:
         raise LockError(f"{name} is not an espdock rosdep lock: {exc}", f"Delete it and {FIX}.") from None
     return lock
@@ -131,6 +138,8 @@ def stale_reason(lock: dict | None, needed: Mapping[str, tuple[str, ...]], image
     """Why LOCK does not answer for NEEDED on IMAGE; None when it does (or nothing is needed)."""
     if lock is None:
         return f"{name} is missing" if needed else None
+    if lock.get("format", FORMAT) != FORMAT:  # a test part has none: its lock's is checked
+        return f"{name} was made by an older espdock (format {lock['format']}), which read rosdep's rules otherwise"
     if lock.get("input") != lock_input(needed, image):
         return f"{name} is stale: {_what_changed(lock, needed, image)}"
     return None

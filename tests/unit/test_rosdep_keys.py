@@ -320,3 +320,23 @@ def test_a_dependency_on_a_vendored_cmake_project_without_a_package_xml_names_th
     (vendored / "COLCON_IGNORE").touch()
     ignored = run(root, tmp_path, "build", "--dry-run")
     assert ignored.returncode == 0 and "not built" not in ignored.stdout + ignored.stderr
+
+
+def test_a_rosdep_lock_an_older_espdock_made_is_stale_not_trusted(tmp_path):
+    """Format 1 recorded a rule that installs nothing (rosdep's "satisfied") as unserved: after an
+    upgrade that lock, trusted as it was, refused the build with "add a rosdep rule" for a key
+    that had one."""
+    root = make_workspace(tmp_path / "w", "rosdeps_xml_count")
+    assert run(root, tmp_path, "build").returncode == 3  # locked, then at the engine
+    path = root / "rosdep.lock.json"
+    lock = json.loads(path.read_text())
+    path.write_text(json.dumps({**lock, "format": 1}))
+    refused = run(root, tmp_path, "build", "--locked", CI="true")
+    said = " ".join(refused.stderr.split())
+    assert refused.returncode == 2, said
+    assert "rosdep.lock.json was made by an older espdock (format 1)" in said and "espdock lock" in said
+    assert run(root, tmp_path, "build").returncode == 3
+    assert json.loads(path.read_text())["format"] == rosdeps.FORMAT
+    path.write_text(json.dumps({**lock, "format": rosdeps.FORMAT + 1}))
+    newer = run(root, tmp_path, "build")
+    assert newer.returncode == 2 and "made by a newer espdock" in newer.stderr, newer.stderr

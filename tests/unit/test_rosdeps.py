@@ -55,7 +55,7 @@ def test_needed_keys_leave_out_workspace_packages_what_the_image_has_and_test_on
 
 def test_a_lock_is_stale_when_a_key_the_image_or_its_locks_change():
     needed = {"node": ("tinyxml2",)}
-    lock = {"format": 1, "input": rosdeps.lock_input(needed, WHEELS)}
+    lock = {"format": rosdeps.FORMAT, "input": rosdeps.lock_input(needed, WHEELS)}
     assert rosdeps.stale_reason(lock, needed, WHEELS, "rosdep.lock.json") is None
     assert rosdeps.stale_reason(None, {}, WHEELS, "rosdep.lock.json") is None  # nothing needed: no lock needed
     assert rosdeps.stale_reason(None, needed, WHEELS, "rosdep.lock.json") == "rosdep.lock.json is missing"
@@ -86,7 +86,7 @@ def test_a_lock_without_the_test_keys_names_them_and_whether_the_file_exists():
     packages = (package("alpha", {"rclpy"}, test_only={"python3-pytest"}), package("quiet", {"rclpy"}))
     said = testdeps.stale_reason(None, packages, WHEELS, "rosdep.lock.json")
     assert said == "rosdep.lock.json is missing: alpha's tests need python3-pytest"
-    no_part = testdeps.stale_reason({"format": 1}, packages, WHEELS, "rosdep.lock.json")
+    no_part = testdeps.stale_reason({"format": rosdeps.FORMAT}, packages, WHEELS, "rosdep.lock.json")
     assert no_part == "rosdep.lock.json records no test dependencies: alpha's tests need python3-pytest"
     assert testdeps.stale_reason(None, packages[1:], WHEELS, "rosdep.lock.json") is None
 

@@ -247,6 +247,11 @@ def _rosdep_state(
     return image, needed, rosdeps.stale_reason(lock, needed, image, ROSDEP_LOCK)
 
 
+def stale_rosdep_lock(root: Path, reason: str) -> LockError:
+    """What a build under --locked says of a stale rosdep lock (REASON: why it is)."""
+    return LockError(reason, f"In {root}: {FIX} and commit {ROSDEP_LOCK} (or build with --no-locked).")
+
+
 def rosdep_lock_stale(config: Config, packages: tuple[Package, ...], inputs: BuildInputs) -> str | None:
     """Why the workspace's rosdep lock does not answer for PACKAGES; None when it does."""
     return _rosdep_state(config, packages, inputs)[2]
@@ -355,7 +360,7 @@ def current_rosdep_inputs(
     if reason is None:
         return inputs, None
     if locked:
-        raise LockError(reason, f"In {root}: {FIX} and commit {ROSDEP_LOCK} (or build with --no-locked).")
+        raise stale_rosdep_lock(root, reason)
     try:
         status, database = lock_rosdeps(root, config, packages, inputs, env, owner, refresh=False)
     except rosdeps.DatabaseUnreachable as exc:

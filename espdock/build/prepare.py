@@ -7,7 +7,7 @@ import dataclasses
 import os
 from collections.abc import Callable, Mapping
 
-from espdock.build.lock import current_rosdep_inputs, current_test_inputs, rosdep_lock_stale
+from espdock.build.lock import current_rosdep_inputs, current_test_inputs, rosdep_lock_stale, stale_rosdep_lock
 from espdock.build.plan import plan_workspace
 from espdock.build.steps import EnsureImage, Plan
 from espdock.config import Config, invoking_user
@@ -66,6 +66,8 @@ def build_plan(
     colcon = read_colcon_settings(ws.ws_dir, ros, colcon_args, env)
     if dry_run:
         reason = rosdep_lock_stale(config, packages, inputs)
+        if reason and locked:
+            raise stale_rosdep_lock(ws.root, reason)  # as the build would, before anything
         if reason:
             notify(f"{reason}: a build would make it first; the plan below uses it as it is, unchecked")
             checked = ()

@@ -123,6 +123,8 @@ def build(
             target and check_target(target, "--target"),
             dry_run=dry_run,
         )
+        if dry_run and locked:
+            check_locks(ws.root, plan_locks(plan))  # as the build would refuse them
         if dry_run:
             render_plan(
                 console, plan, preview(ws, plan, bootstrap.reachable_engine(os.environ), bool(config.cache_registry))

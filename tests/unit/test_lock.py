@@ -120,6 +120,8 @@ def test_build_checks_only_the_locks_of_the_images_it_uses(tmp_path):
     root = copy_workspace(tmp_path / "w")
     (root / RUNTIME.source).write_text("segno==1.6.5\n")
     assert espdock("build", "--locked", cwd=root, env=NO_ENGINE).returncode == 2
+    previewed = espdock("build", "--locked", "--dry-run", cwd=root, env=NO_ENGINE)
+    assert previewed.returncode == 2 and "docker/ros-runtime.txt is stale" in previewed.stderr, previewed.stdout
     # Only firmware (of which the workspace has none): no ROS image, so its locks do not matter:
     # nothing to build, and nothing refused.
     result = espdock("build", "--only", "firmware", "--locked", cwd=root, env=NO_ENGINE)

@@ -151,6 +151,11 @@ def test_dry_run_neither_updates_rosdep_nor_writes_the_lock(tmp_path):
     assert "rosdep.lock.json is missing: a build would make it first" in result.stdout
     assert not (root / "rosdep.lock.json").exists()
     assert not (tmp_path / "cache/espdock/rosdep").exists()  # no `rosdep update`
+    # Under --locked (CI's default) the build refuses it before anything: so does its preview.
+    for args, extra in ((("--locked",), {}), ((), {"CI": "true"})):
+        refused = run(root, tmp_path, "build", "--dry-run", *args, **extra)
+        assert refused.returncode == 2, refused.stdout + refused.stderr
+        assert "rosdep.lock.json is missing" in refused.stderr and "espdock lock" in refused.stderr
 
 
 def test_colcons_skip_options_leave_packages_out_of_the_check(tmp_path):

@@ -787,8 +787,14 @@ class Engine:
         docker_cli = self.compose_command()[0]
         name = spec.name or f"espdock-run-{os.getpid()}-{secrets.token_hex(4)}"
         # Labelled with this espdock, as every container it makes: one a killed espdock left
-        # running (a node, a shell) is the next build's to remove (Engine.sweep).
+        # running (a node, a shell) is the next command's to remove (Engine.sweep), the watcher's
+        # first (_reaper).
         labelled = replace(spec, labels=(*spec.labels, (LABEL_OWNER, owner_identity())))
+        if spec.labels and (swept := self.sweep(dict(spec.labels))):
+            warnings.warn(
+                f"removed {swept} container(s) an espdock killed earlier (kill -9, a closed terminal) left running",
+                stacklevel=2,
+            )
         argv = _run_argv(docker_cli, name, labelled, self._host_users(spec))
         received: list[int] = []
         sent = 0
@@ -799,10 +805,11 @@ class Engine:
         handled = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
         previous = {signum: signal.signal(signum, on_signal) for signum in handled}
         process: subprocess.Popen | None = None
+        reaper = _reaper(docker_cli, name, self._cli_env)
         try:
             # At a terminal the CLI needs it (raw mode: Ctrl-C reaches the node through it);
             # otherwise its own session keeps a Ctrl-C from reaching it besides espdock.
-            # The CLI goes with espdock (SIGKILL included): the container it leaves is swept.
+            # The CLI goes with espdock (SIGKILL included): the container it leaves is the reaper's.
             process = subprocess.Popen(
                 argv,
                 env=self._cli_env,
@@ -824,6 +831,8 @@ class Engine:
                 process.kill()
                 process.wait()
             subprocess.run([docker_cli, "rm", "--force", name], env=self._cli_env, capture_output=True, check=False)
+            reaper.kill()
+            reaper.wait()
         if code == DOCKER_RUN_FAILED and not received:
             raise ContainerError(
                 f"the {self.info().name} could not start a container of {spec.image} (its message is above)",
@@ -1301,6 +1310,23 @@ def _remove(container: docker.models.containers.Container, stop: bool = True) ->
         pass
     except (docker.errors.APIError, requests.exceptions.RequestException) as exc:
         warnings.warn(f"could not remove container {container.short_id}: {exc}", stacklevel=2)
+
+
+def _reaper(docker_cli: str, name: str, env: Mapping[str, str]) -> subprocess.Popen:
+    """A watcher that removes container NAME once this espdock is gone: killed outright (SIGKILL
+    of espdock alone, a supervisor's escalation after its SIGTERM), espdock cannot, and the
+    node went on running and talking on the ROS network until the next espdock command swept it.
+    In a session of its own, so a signal to espdock's process group leaves it watching; killed
+    when espdock ends the container itself."""
+    watch = 'while kill -0 "$1" 2>/dev/null; do sleep 0.5; done; exec "$2" rm --force "$3"'
+    return subprocess.Popen(
+        ["sh", "-c", watch, "espdock-reaper", str(os.getpid()), docker_cli, name],
+        env=env,
+        start_new_session=True,
+        stdin=subprocess.DEVNULL,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
 
 
 _PR_SET_PDEATHSIG = 1

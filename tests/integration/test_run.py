@@ -87,20 +87,42 @@ def test_a_closed_output_ends_run_as_a_shell_says_leaving_no_container(engine, n
     assert no_containers_left(engine, node_workspace) == []
 
 
-def test_a_node_whose_espdock_was_killed_outright_is_removed_by_the_next_build(engine, node_workspace):
-    """kill -9 of `espdock run` (or a closed terminal's SIGKILL): the node went on running, its
-    docker CLI with it, and no build removed it, the container lacking espdock's owner label."""
-    node = Node(node_workspace, "beacon_nodes", "beacon", domain=random.randrange(100, 200))
+def test_a_node_whose_espdock_was_killed_outright_is_removed_at_once_or_by_the_next_command(engine, node_workspace):
+    """kill -9 of `espdock run` (a supervisor's escalation after its SIGTERM, a closed terminal's
+    SIGKILL): the node went on running and talking on the ROS network, its docker CLI with it,
+    until the next build; `espdock run` and `shell` never removed it."""
+    domain = random.randrange(100, 200)
+    node = Node(node_workspace, "beacon_nodes", "beacon", domain=domain)
     try:
         node.wait_for("sent: beacon 1")
         node.process.kill()
         node.process.wait(timeout=30)
     finally:
         node.stop()
-    assert leftover_containers(engine, node_workspace), "the node stops only when something removes it"
-    built = espdock("build", "--only", "ros", cwd=node_workspace)
-    assert built.returncode == 0, built.stdout + built.stderr
-    assert "removed 1 container(s) an espdock killed earlier (kill -9, a closed terminal) left running" in built.stdout
+    assert no_containers_left(engine, node_workspace) == [], "espdock's watcher removes it once espdock is gone"
+    # Its watcher killed as well (a whole cgroup killed): the next command removes it.
+    node = Node(node_workspace, "beacon_nodes", "beacon", domain=domain)
+    try:
+        node.wait_for("sent: beacon 1")
+        watcher = subprocess.run(
+            ["pgrep", "-f", f"espdock-reaper {node.process.pid} "], capture_output=True, text=True, check=False
+        )
+        assert watcher.stdout.split(), "no watcher of the running espdock"
+        for pid in watcher.stdout.split():
+            os.kill(int(pid), signal.SIGKILL)
+        node.process.kill()
+        node.process.wait(timeout=30)
+    finally:
+        node.stop()
+    (left,) = leftover_containers(engine, node_workspace)
+    again = Node(node_workspace, "beacon_nodes", "beacon", domain=domain)
+    try:
+        again.wait_for("sent: beacon 1")
+        assert "removed 1 container(s) an espdock killed earlier" in "\n".join(again.lines)
+        assert left not in leftover_containers(engine, node_workspace)
+        assert again.interrupt() == 130
+    finally:
+        again.stop()
     assert no_containers_left(engine, node_workspace) == []
 
 

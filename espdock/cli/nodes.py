@@ -133,6 +133,14 @@ def run(
         list[str] | None,
         typer.Option("--device", help="HOST[:CONTAINER]: a device the node opens, e.g. /dev/ttyUSB0 (repeatable)."),
     ] = None,
+    env: Annotated[
+        list[str] | None,
+        typer.Option(
+            "--env",
+            "-e",
+            help="NAME=VALUE, or NAME for its value here: a variable for the node (repeatable), as `docker run -e`.",
+        ),
+    ] = None,
     workspace: WorkspaceOption = None,
 ) -> None:
     """Run EXECUTABLE of a built PACKAGE in the workspace's runtime image, like `ros2 run`
@@ -140,6 +148,7 @@ def run(
     The runtime image is made of install/ first when a build changed it."""
     mounts = tuple(nodes.volume(text, Path.cwd()) for text in volume or ())
     devices = tuple(nodes.device(text) for text in device or ())
+    variables = tuple(v for text in env or () if (v := nodes.variable(text, os.environ)) is not None)
     nodes.profile_mounts(os.environ, Path.cwd())  # a missing profiles file: refused before any image is made
     ws, config = load(workspace, runtime_image=True)
     packages = workspace_packages(ws, config.ros_distro)
@@ -161,6 +170,7 @@ def run(
         tty,
         mounts,
         devices,
+        variables,
     )
     code, stopped_by = runner.engine.run_foreground(spec)
     raise typer.Exit(128 + stopped_by if stopped_by else code)

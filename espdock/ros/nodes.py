@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 import posixpath
+import re
 from collections.abc import Iterable, Mapping
 from pathlib import Path
 
@@ -22,9 +23,13 @@ from espdock.workspace import Package, PackageKind, Workspace, build_running
 PASSED_ENV = (
     "ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE", "ROS_STATIC_PEERS", "ROS_LOCALHOST_ONLY",
     "RMW_IMPLEMENTATION", "FASTDDS_BUILTIN_TRANSPORTS", "FASTRTPS_DEFAULT_PROFILES_FILE",
-    "FASTDDS_DEFAULT_PROFILES_FILE", "RCUTILS_COLORIZED_OUTPUT", "RCUTILS_CONSOLE_OUTPUT_FORMAT",
-    "RCUTILS_LOGGING_BUFFERED_STREAM", "PYTHONUNBUFFERED",
+    "FASTDDS_DEFAULT_PROFILES_FILE", "ROS_DISCOVERY_SERVER", "ROS_SUPER_CLIENT", "RCUTILS_COLORIZED_OUTPUT",
+    "RCUTILS_CONSOLE_OUTPUT_FORMAT", "RCUTILS_LOGGING_BUFFERED_STREAM", "RCUTILS_LOGGING_USE_STDOUT",
+    "PYTHONUNBUFFERED",
 )  # fmt: skip
+# Not passed whatever --env says: the image's own ROS (a host's sourced ROS_DISTRO would lie to
+# the node), and where the container keeps its install tree.
+IMAGE_ENV = ("ROS_DISTRO", "ROS_VERSION", "ROS_PYTHON_VERSION", "AMENT_PREFIX_PATH", "PYTHONPATH", "LD_LIBRARY_PATH")
 # Fast DDS's XML profiles, by the file these name: a path on the host, which the container has
 # only where espdock mounts it (Fast DDS only warns about a missing one, and runs on defaults).
 PROFILE_VARIABLES = ("FASTRTPS_DEFAULT_PROFILES_FILE", "FASTDDS_DEFAULT_PROFILES_FILE")
@@ -225,6 +230,23 @@ def volume(text: str, cwd: Path) -> Mount:
     return Mount(host, posixpath.normpath(parts[1]), read_only=parts[2:] == ["ro"])
 
 
+def variable(text: str, env: Mapping[str, str]) -> tuple[str, str] | None:
+    """`--env NAME=VALUE`, or `--env NAME` for ENV's value (None where ENV has none, as `docker
+    run -e` leaves it out); a ConfigError (exit 2) naming the option for a malformed one or one of
+    IMAGE_ENV."""
+    name, given, value = text.partition("=")
+    if not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*", name):
+        raise ConfigError(f"--env {text}: expected NAME=VALUE or NAME", "For example: --env ROBOT_SITE=lab.")
+    if name in IMAGE_ENV:
+        raise ConfigError(
+            f"--env {text}: {name} is the runtime image's own (its ROS and install tree)",
+            "Give the node's settings as variables of its own, or as --ros-args parameters.",
+        )
+    if not given:
+        return (name, env[name]) if name in env else None
+    return name, value
+
+
 def device(text: str) -> tuple[str, str]:
     """`--device HOST[:CONTAINER]`: HOST must be a device file, CONTAINER (default: the same path)
     absolute; a ConfigError (exit 2) naming the option otherwise."""
@@ -261,16 +283,20 @@ def node_spec(
     tty: bool,
     mounts: tuple[Mount, ...] = (),
     devices: tuple[tuple[str, str], ...] = (),
+    variables: tuple[tuple[str, str], ...] = (),
 ) -> RunSpec:
     """A container of IMAGE running the node at PATH with ARGS, as OWNER, with MOUNTS and DEVICES
-    (host, container) passed in; OWNER also gets the devices' groups (a serial port's dialout)."""
+    (host, container) passed in; OWNER also gets the devices' groups (a serial port's dialout).
+    VARIABLES (--env) come last: they win."""
+    given = dict(variables)
+    passed = [(name, value) for name, value in (("HOME", "/tmp"), SIGNAL_GROUP, *node_env(env)) if name not in given]
     return RunSpec(
         image=image,
         argv=(path, *args),
         workdir="/tmp",
         user=f"{owner[0]}:{owner[1]}",
         mounts=(*mounts, *profile_mounts(env, Path.cwd())),
-        env=(("HOME", "/tmp"), SIGNAL_GROUP, *node_env(env)),
+        env=(*passed, *given.items()),
         labels=_labels(workspace, "run"),
         devices=tuple(f"{host}:{inside}" for host, inside in devices),
         group_add=tuple(sorted({os.stat(host).st_gid for host, _ in devices})),

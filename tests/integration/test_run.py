@@ -87,6 +87,18 @@ def test_a_closed_output_ends_run_as_a_shell_says_leaving_no_container(engine, n
     assert no_containers_left(engine, node_workspace) == []
 
 
+def test_variables_reach_the_node_passed_through_and_given_with_env(engine, node_workspace):
+    """RCUTILS_LOGGING_USE_STDOUT (rcutils' own, as the docs' "RCUTILS_* settings" promised) was
+    dropped, and `espdock run` had no way to give the node any other variable."""
+    env = {"ROS_DOMAIN_ID": str(random.randrange(100, 200)), "RCUTILS_LOGGING_USE_STDOUT": "1"}
+    given = ("-e", "RCUTILS_CONSOLE_OUTPUT_FORMAT=[from --env] {message}")
+    run = ("run", *given, "beacon_nodes", "beacon", "--ros-args", "-p", "period:=0.1")
+    # Its log lines on stdout alone (stderr kept apart), in the format --env gave.
+    code, _ = reader_exits_at(node_workspace, "[from --env] sent: beacon", *run, env=env, timeout=30)
+    assert code == 141
+    assert no_containers_left(engine, node_workspace) == []
+
+
 def test_a_node_whose_espdock_was_killed_outright_is_removed_at_once_or_by_the_next_command(engine, node_workspace):
     """kill -9 of `espdock run` (a supervisor's escalation after its SIGTERM, a closed terminal's
     SIGKILL): the node went on running and talking on the ROS network, its docker CLI with it,

@@ -14,7 +14,16 @@ from espdock.config import Config
 from espdock.errors import ConfigError, WorkspaceError
 from espdock.images.engine import Mount
 from espdock.ros.compose import init_compose, starter_compose
-from espdock.ros.nodes import compose_subcommand, device, find_executable, node_env, node_spec, shell_spec, volume
+from espdock.ros.nodes import (
+    compose_subcommand,
+    device,
+    find_executable,
+    node_env,
+    node_spec,
+    shell_spec,
+    variable,
+    volume,
+)
 from espdock.ros.plan import RuntimeImage, ros_build_image, runtime_base_image, runtime_image_spec
 from espdock.ros.steps import ROS_STAMPS, runtime_context, runtime_install_digest
 from espdock.workspace import Package, PackageKind, Workspace
@@ -327,3 +336,17 @@ def test_workspaces_named_with_no_ascii_letter_get_runtime_images_of_their_own(t
     names = {runtime_repository(Config(), Workspace(tmp_path / name)) for name in ("ロボット", "_-..", "ロボ")}
     assert len(names) == 3 and all(n.startswith("espdock/workspace-") for n in names), names
     assert runtime_repository(Config(), Workspace(tmp_path / "My Robot")) == "espdock/my-robot"
+
+
+def test_env_gives_the_node_a_variable_or_passes_one_and_refuses_the_images_own(ws):
+    workspace, _ = ws
+    assert variable("ROBOT_SITE=lab=2", {}) == ("ROBOT_SITE", "lab=2")
+    assert variable("ROBOT_SITE", {"ROBOT_SITE": "here"}) == ("ROBOT_SITE", "here")
+    assert variable("ROBOT_SITE", {}) is None  # as `docker run -e NAME` leaves out an unset one
+    for bad in ("=x", "1A=x", "A B=x", "ROS_DISTRO=humble"):
+        with pytest.raises(ConfigError, match="--env"):
+            variable(bad, {})
+    spec = node_spec(
+        workspace, "img", "/n", (), (1, 1), {"ROS_DOMAIN_ID": "7"}, "host", False, variables=(("ROS_DOMAIN_ID", "9"),)
+    )
+    assert [value for name, value in spec.env if name == "ROS_DOMAIN_ID"] == ["9"]

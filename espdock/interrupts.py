@@ -29,6 +29,10 @@ EXIT_CODE = 130  # 128 + SIGINT, as shells report it
 # A signal of the other kind this soon after the first is the same interruption passed on twice
 # (a wrapper that relays Ctrl-C as SIGINT and SIGTERM, a CI runner's INT then TERM), not a second.
 RELAYED = 1.0
+# The same signal this soon after the first is the same interruption too: a terminal's Ctrl-C
+# reaches espdock and the wrapper that relays it (`timeout --foreground`), a kill of a process
+# group whose wrapper passes it on, microseconds apart. A hand pressing Ctrl-C again is slower.
+ECHOED = 0.2
 
 # Only the main thread reads and writes this (Python runs signal handlers there).
 _state: dict[str, float | int | bool | None] = {"first": None, "signal": None, "held": 0, "pending": False}
@@ -98,9 +102,10 @@ def _give_up() -> None:
 def _on_signal(signum: int, frame: object) -> None:
     first = _state["first"]
     if first is not None:
-        if signum != _state["signal"] and time.monotonic() - float(first) < RELAYED:
+        since = time.monotonic() - float(first)
+        if since < ECHOED or (signum != _state["signal"] and since < RELAYED):
             return  # the cleanup the first one started goes on
-        _say("interrupted again: exiting now (the next espdock command removes any container left behind)")
+        _say("interrupted again: exiting now (the next espdock build here removes any container left behind)")
         os._exit(EXIT_CODE)
     _state["first"], _state["signal"] = time.monotonic(), signum
     watchdog = threading.Timer(GRACE, _give_up)

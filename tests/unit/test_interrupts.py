@@ -85,12 +85,29 @@ def test_a_second_signal_ends_it_at_once():
     wait_for(process, "ready")
     process.send_signal(signal.SIGINT)
     wait_for(process, "cleaning up")
+    time.sleep(0.3)  # a hand's second Ctrl-C
     sent = time.monotonic()
     process.send_signal(signal.SIGINT)
     _, err = process.communicate(timeout=10)
     assert process.returncode == 130
     assert time.monotonic() - sent < 2
     assert "interrupted again" in err
+
+
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM])
+def test_one_signal_delivered_twice_at_once_is_one_interruption_that_cleans_up(signum):
+    """Ctrl-C under `timeout --foreground` (the terminal's SIGINT and the one timeout relays), a
+    process group's kill that a wrapper passes on: the second copy was "interrupted again",
+    exiting at once with the build container still running and writing into the workspace."""
+    process = start(cleanup=1)
+    wait_for(process, "holding")
+    wait_for(process, "ready")
+    process.send_signal(signum)
+    time.sleep(0.05)  # each copy handled (two at once could be one pending signal to Python)
+    process.send_signal(signum)
+    out, err = process.communicate(timeout=10)
+    assert process.returncode == 130
+    assert out.split() == ["cleaning", "up", "cleaned", "up"] and "again" not in err
 
 
 def test_sigint_and_sigterm_together_are_one_interruption_that_cleans_up():

@@ -32,17 +32,31 @@ def _start_time(pid: int) -> str | None:
     return stat.rsplit(")", 1)[1].split()[19]
 
 
+def _pid_namespace() -> str:
+    """This process's PID namespace (its inode), '' where /proc does not say."""
+    try:
+        return os.readlink("/proc/self/ns/pid").partition("[")[2].rstrip("]")
+    except OSError:
+        return ""
+
+
 def owner_identity() -> str:
-    """This process as LABEL_OWNER names it: a pid is reused, a pid with its start time is not."""
-    return f"{_boot_id()}:{os.getpid()}:{_start_time(os.getpid())}"
+    """This process as LABEL_OWNER names it: a pid is reused, a pid with its start time is not;
+    and a pid means something only in its PID namespace (NAMESPACE.PID)."""
+    return f"{_boot_id()}:{_pid_namespace()}.{os.getpid()}:{_start_time(os.getpid())}"
 
 
 def owner_alive(owner: str) -> bool:
     """Whether the process OWNER (an owner_identity) still runs on this machine. One of another
     machine's (an engine over TCP) is not found here, so it counts as gone: only sweep what a
-    workspace path of this machine labels."""
+    workspace path of this machine labels. One of another PID namespace of this machine (a CI
+    job's container beside this one, on the same engine and at the same checkout path) cannot be
+    looked up, so it counts as running: a live build there is never taken for a killed one."""
     boot, _, rest = owner.partition(":")
     pid, _, started = rest.partition(":")
+    namespace, dot, pid = pid.rpartition(".")
+    if dot and boot == _boot_id() and namespace != _pid_namespace():
+        return True
     return boot == _boot_id() and pid.isdigit() and _start_time(int(pid)) == started
 
 

@@ -30,6 +30,7 @@ from espdock.images.visibility import linked_mounts
 from espdock.ros.colcon import unselected
 from espdock.ros.plan import ColconBuild
 from espdock.workspace import Workspace
+from tests.conftest import REPO
 from tests.fake_engine import FakeEngine
 from tests.unit.test_runner import COLCON, colcon_installs
 
@@ -320,6 +321,36 @@ def test_what_a_copy_back_killed_outright_left_is_removed_by_the_next_and_a_live
         assert volume.replace_tree(archives["install"], ws.ws_dir / "install", (os.getuid(), os.getgid()))
     assert [path for path in left if path.exists()] == []
     assert all(path.is_dir() for path in kept)
+
+
+def test_a_process_of_another_pid_namespace_of_this_machine_is_never_taken_for_a_gone_one():
+    """Two CI jobs in containers of their own, on one engine, at the same checkout path: each
+    espdock looked the other's pid up in its own /proc, took the live build for one killed
+    outright, and removed its colcon container (exit 137, "colcon stopped before building")."""
+    from espdock.scratch import owner_alive, owner_identity
+
+    job = subprocess.run(
+        [
+            "unshare",
+            "-rpf",
+            "--mount-proc",
+            sys.executable,
+            "-c",
+            "from espdock.scratch import owner_identity as o; print(o())",
+        ],
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+        check=False,
+    )
+    if job.returncode != 0:
+        pytest.skip(f"unshare cannot make a PID namespace here: {job.stderr.strip()}")
+    other = job.stdout.strip()
+    assert other != owner_identity() and owner_alive(other), other
+    boot, _, rest = owner_identity().partition(":")
+    mine = rest.partition(":")[0]
+    assert not owner_alive(f"{boot}:{mine.rpartition('.')[0]}.999999999:1"), "one of this namespace that is gone"
+    assert owner_alive(owner_identity())
 
 
 @pytest.mark.parametrize("cut", ["empty", "truncated"])

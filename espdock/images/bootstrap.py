@@ -19,6 +19,7 @@ from pathlib import Path
 from espdock.config import Config
 from espdock.errors import EngineUnavailable, EspdockError, ImageBuildError
 from espdock.images.engine import DEFAULT_HOST, Engine, compose_available
+from espdock.images.machine_lock import machine_lock
 
 Notify = Callable[[str], None]
 
@@ -157,9 +158,19 @@ def _install_plugin(binary: Path, plugin: Path, notify: Notify) -> None:
 
 
 def ensure_base_image(engine: Engine, ref: str, config: Config, notify: Notify) -> str:
-    """Make REF available locally; returns how: 'present', 'pulled' or 'debootstrap'."""
+    """Make REF available locally; returns how: 'present', 'pulled' or 'debootstrap'. One espdock
+    of this machine at a time makes it: two that missed it at once both ran debootstrap, and the
+    second import took the tag from the image the first one's builds had started from."""
     if engine.image(ref) is not None:
         return "present"
+    name = hashlib.sha256(f"{engine.info().identity}\0{ref}".encode()).hexdigest()[:16]
+    with machine_lock(f"base-{name}", lambda: notify(f"{ref}: another espdock is making it; waiting")):
+        if engine.image(ref) is not None:
+            return "present"
+        return _make_base_image(engine, ref, config, notify)
+
+
+def _make_base_image(engine: Engine, ref: str, config: Config, notify: Notify) -> str:
     notify(f"pulling {ref}")
     if engine.pull(ref):
         return "pulled"

@@ -3,14 +3,11 @@ else built (and pushed there with --push-cache); each one's Debian package set r
 
 from __future__ import annotations
 
-import fcntl
 import hashlib
-import os
 import re
 import shutil
-import tempfile
-from collections.abc import Callable, Iterator, Mapping
-from contextlib import contextmanager, suppress
+from collections.abc import Iterator, Mapping
+from contextlib import AbstractContextManager, contextmanager
 from datetime import UTC, datetime
 from pathlib import Path
 
@@ -22,6 +19,7 @@ from espdock.events import Outcome, StepNote, StepOutput
 from espdock.images import bootstrap
 from espdock.images.containers import Containers, first_line
 from espdock.images.engine import ImageInfo, RegistryAnswer, RegistryStatus
+from espdock.images.machine_lock import machine_lock
 from espdock.workspace import Workspace
 
 # dpkg's database: read from the image, not asked of a `dpkg-query` run in it (see installed_packages).
@@ -29,45 +27,6 @@ DPKG_STATUS = "/var/lib/dpkg/status"
 DPKG_LINE = re.compile(r"^[a-z0-9][a-z0-9+.-]*(:[a-z0-9]+)?=\S+$")
 
 BUILDKIT_STEP = re.compile(r"^#\d+ \[.*\] (?P<what>.+)$")
-
-
-def _hold_lock(path: Path, waiting: Callable[[], None]) -> int | None:
-    """A descriptor holding the exclusive lock of the file PATH names (WAITING is called once, when
-    another holds it); None where it cannot be opened. A holder removes the file before it lets
-    go, so the file a waiter gets is checked against PATH, and PATH's new one is locked instead."""
-    said = False
-    while True:
-        try:
-            try:  # without O_CREAT first: protected_regular refuses it on another user's file in /tmp
-                fd = os.open(path, os.O_RDONLY)
-            except FileNotFoundError:
-                fd = os.open(path, os.O_RDONLY | os.O_CREAT, 0o444)
-        except OSError:
-            return None
-        try:
-            try:
-                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-            except BlockingIOError:
-                if not said:
-                    waiting()
-                    said = True
-                fcntl.flock(fd, fcntl.LOCK_EX)
-        except BaseException:  # Ctrl-C while waiting
-            os.close(fd)
-            raise
-        if _names(path, fd):
-            return fd
-        os.close(fd)  # removed, or made again, by its last holder
-
-
-def _names(path: Path, fd: int) -> bool:
-    """Whether PATH is still the file open as FD."""
-    try:
-        named = path.stat()
-    except FileNotFoundError:
-        return False
-    held = os.fstat(fd)
-    return (named.st_dev, named.st_ino) == (held.st_dev, held.st_ino)
 
 
 def _denied(registry: str, what: str, answer: RegistryAnswer) -> RegistryError:
@@ -141,26 +100,11 @@ class KeyedImages:
         self._publish(step)
         return True
 
-    @contextmanager
-    def _building(self, step: EnsureImage) -> Iterator[None]:
-        """Hold the lock of STEP's tag on this engine, among the espdock processes of this machine.
-
-        Its holder removes the lock file before it lets go, so the temp dir does not keep one per
-        tag ever built; a waiter that then holds a removed file locks the path's new one instead.
-        """
+    def _building(self, step: EnsureImage) -> AbstractContextManager[None]:
+        """The lock of STEP's tag on this engine, among the espdock processes of this machine."""
         name = hashlib.sha256(f"{self.containers.engine.info().identity}\0{step.spec.tag}".encode()).hexdigest()[:16]
-        path = Path(tempfile.gettempdir()) / f"espdock-image-{name}.lock"
         note = StepNote(step.name, f"{step.spec.tag}: another espdock is making it; waiting")
-        fd = _hold_lock(path, lambda: self.containers.emit(note))
-        if fd is None:
-            yield  # another user's lock file we cannot open: build unlocked, as before
-            return
-        try:
-            yield
-        finally:
-            with suppress(OSError):  # another user's file in a sticky /tmp stays
-                path.unlink()
-            os.close(fd)
+        return machine_lock(f"image-{name}", lambda: self.containers.emit(note))
 
     def _make(
         self,

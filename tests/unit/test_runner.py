@@ -18,7 +18,7 @@ from espdock.config import Config
 from espdock.errors import BuildFailed, RegistryError
 from espdock.events import Outcome, StepFinished, StepNote
 from espdock.firmware.plan import IdfBuild, InstallFirmware
-from espdock.images import bootstrap
+from espdock.images import bootstrap, machine_lock
 from espdock.images.engine import ImageInfo, RegistryStatus, _registry_answer
 from espdock.images.keyed import DPKG_STATUS
 from espdock.ros.nodes import check_built_by_espdock
@@ -592,7 +592,7 @@ def lock_files(tmp: Path) -> list[str]:
 
 
 def test_an_image_build_leaves_no_lock_file_in_the_temp_dir(ws, tmp_path, monkeypatch):
-    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
+    monkeypatch.setattr(machine_lock, "LOCK_DIR", tmp_path)
     engine = FakeEngine()
     runner(engine, []).run(Plan(ws, (EnsureImage(SPEC),)))
     assert [b["tag"] for b in engine.builds] == [SPEC.tag]
@@ -605,7 +605,15 @@ def test_builds_of_one_tag_wait_for_each_other_even_as_lock_files_go(tmp_path, m
     monkeypatch.setattr(bootstrap, "ensure_compose", lambda env, notify: None)
     temp = tmp_path / "tmp"
     temp.mkdir()
-    monkeypatch.setattr(tempfile, "tempdir", str(temp))
+    monkeypatch.setattr(machine_lock, "LOCK_DIR", temp)
+
+    # Each build with a temp dir of its own (a CI runner's per-job TMPDIR): the lock is not in it.
+    def job_temp() -> str:
+        own = tmp_path / f"job-{threading.get_ident()}"
+        own.mkdir(exist_ok=True)
+        return str(own)
+
+    monkeypatch.setattr(tempfile, "gettempdir", job_temp)
     engine = SlowBuilds()
     events: list = []
     failures: list[BaseException] = []
@@ -695,3 +703,35 @@ def test_a_menuconfig_change_of_an_option_the_chip_s_defaults_file_sets_names_th
     said = " ".join(notes(events).split())
     assert "CONFIG_FREERTOS_HZ=1000 (was 100)" in said
     assert "put the line in src/led_fw/sdkconfig.defaults.esp32c3, which sets CONFIG_FREERTOS_HZ" in said, said
+
+
+def test_a_base_image_two_builds_miss_at_once_is_made_once(tmp_path, monkeypatch):
+    """Two CI jobs on a machine without the base image: both pulled (or ran debootstrap, a minute
+    each), and the second import took the tag from the image the first one's builds started from."""
+    monkeypatch.setattr(machine_lock, "LOCK_DIR", tmp_path)
+    made: list[str] = []
+    ref = "debian:trixie-slim"
+
+    class SlowPull(FakeEngine):
+        def pull(self, wanted: str) -> bool:
+            made.append(wanted)
+            time.sleep(0.4)
+            self.images_by_tag[wanted] = ImageInfo("id", (wanted,), datetime.now(UTC), 1, {})
+            return True
+
+    engine = SlowPull()
+    hows: list[str] = []
+    notes_said: list[str] = []
+    threads = [
+        threading.Thread(
+            target=lambda: hows.append(bootstrap.ensure_base_image(engine, ref, Config(), notes_said.append))
+        )
+        for _ in range(2)
+    ]
+    for thread in threads:
+        thread.start()
+        time.sleep(0.1)
+    for thread in threads:
+        thread.join(10)
+    assert made == [ref] and sorted(hows) == ["present", "pulled"]
+    assert f"{ref}: another espdock is making it; waiting" in notes_said

@@ -1,0 +1,74 @@
+"""Locks among the espdock processes of this machine on one engine: one image build of a tag at a
+time, one import of a base image. Their files are in /tmp, whatever TMPDIR says: a CI runner's
+per-job TMPDIR, or libpam-tmpdir's per-user one, gave two builds of one tag a lock each, and the
+same image was built twice, one copy left untagged where prune never sees it."""
+
+from __future__ import annotations
+
+import fcntl
+import os
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager, suppress
+from pathlib import Path
+
+LOCK_DIR = Path("/tmp")
+
+
+@contextmanager
+def machine_lock(name: str, waiting: Callable[[], None]) -> Iterator[None]:
+    """Hold the lock NAME (WAITING is called once, when another process holds it).
+
+    Its holder removes the lock file before it lets go, so /tmp does not keep one per tag ever
+    built; a waiter that then holds a removed file locks the path's new one instead. Where the
+    file cannot be opened (another user's, in a directory that refuses it) the block runs
+    unlocked, as it did before locks."""
+    path = LOCK_DIR / f"espdock-{name}.lock"
+    fd = _hold_lock(path, waiting)
+    if fd is None:
+        yield
+        return
+    try:
+        yield
+    finally:
+        with suppress(OSError):  # another user's file in a sticky /tmp stays
+            path.unlink()
+        os.close(fd)
+
+
+def _hold_lock(path: Path, waiting: Callable[[], None]) -> int | None:
+    """A descriptor holding the exclusive lock of the file PATH names (WAITING is called once, when
+    another holds it); None where it cannot be opened. A holder removes the file before it lets
+    go, so the file a waiter gets is checked against PATH, and PATH's new one is locked instead."""
+    said = False
+    while True:
+        try:
+            try:  # without O_CREAT first: protected_regular refuses it on another user's file in /tmp
+                fd = os.open(path, os.O_RDONLY)
+            except FileNotFoundError:
+                fd = os.open(path, os.O_RDONLY | os.O_CREAT, 0o444)
+        except OSError:
+            return None
+        try:
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:
+                if not said:
+                    waiting()
+                    said = True
+                fcntl.flock(fd, fcntl.LOCK_EX)
+        except BaseException:  # Ctrl-C while waiting
+            os.close(fd)
+            raise
+        if _names(path, fd):
+            return fd
+        os.close(fd)  # removed, or made again, by its last holder
+
+
+def _names(path: Path, fd: int) -> bool:
+    """Whether PATH is still the file open as FD."""
+    try:
+        named = path.stat()
+    except FileNotFoundError:
+        return False
+    held = os.fstat(fd)
+    return (named.st_dev, named.st_ino) == (held.st_dev, held.st_ino)

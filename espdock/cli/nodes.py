@@ -17,14 +17,14 @@ from espdock.build.steps import Plan
 from espdock.cli.core import WorkspaceOption, app, build_plan, command, ensure_images, load, notify
 from espdock.cli.prune import record_images
 from espdock.config import Config, resolve_ca_bundle
-from espdock.errors import Interrupted
+from espdock.errors import Interrupted, WorkspaceError
 from espdock.images import bootstrap
 from espdock.images.engine import ComposeStillStopping
 from espdock.ros import compose as compose_file
 from espdock.ros import nodes
 from espdock.ros.plan import RuntimeImage, runtime_repository
 from espdock.ros.steps import runtime_spec
-from espdock.workspace import PackageKind, Workspace
+from espdock.workspace import PackageKind, Workspace, build_running
 
 
 def user_name(uid: int) -> str | None:
@@ -51,10 +51,16 @@ def compose(ctx: typer.Context, workspace: WorkspaceOption = None) -> None:
     """Run `docker compose ARGS...` in the workspace with espdock's settings (CA bundle) in its
     environment; `up`, `run` and `create` first make the runtime image of what install/ holds."""
     ws, config = load(workspace, runtime_image=True)
-    engine = bootstrap.ensure_engine(os.environ, notify)
-    bootstrap.ensure_compose(os.environ, notify)
     subcommand = nodes.compose_subcommand(ctx.args)
     installed = nodes.installed_ros_packages(ws, workspace_packages(ws, config.ros_distro))
+    if subcommand in nodes.COMPOSE_CREATING and installed and (holder := build_running(ws)) is not None:
+        # Its runtime image would be made of a half rebuilt install/, and `:latest` moved to it.
+        raise WorkspaceError(
+            f"an espdock build is running in {ws.root}{holder}: install/ may be half rebuilt",
+            "Wait for it to finish, then run again.",
+        )
+    engine = bootstrap.ensure_engine(os.environ, notify)
+    bootstrap.ensure_compose(os.environ, notify)
     if subcommand in nodes.COMPOSE_CREATING and installed:
         # What the services run must be served, as for `espdock run`.
         plan = build_plan(ws, config, [], PackageKind.ROS, checked=tuple(installed))
@@ -181,6 +187,11 @@ def run(
 def shell(workspace: WorkspaceOption = None) -> None:
     """Open a shell in the ROS build image with the workspace mounted and its install tree sourced."""
     ws, config = load(workspace)
+    if (holder := build_running(ws)) is not None:
+        notify(
+            f"warning: an espdock build is running in {ws.root}{holder}: a colcon build in this shell "
+            f"would build in its build dirs at the same time, and one of them fail"
+        )
     plan, image, dockerfile = nodes.build_image_plan(build_plan(ws, config, [], PackageKind.ROS, checked=()))
     runner = ensure_images(ws, config, plan)
     tty = bool(sys.stdin and sys.stdin.isatty()) and sys.stdout.isatty()

@@ -584,3 +584,32 @@ def test_a_project_s_own_sdkconfig_which_the_build_does_not_read_is_named_before
         "warning: firmware/led_strip_node/sdkconfig is not read: the build's sdkconfig is "
         "ws/build/led_strip_node/sdkconfig" in said
     )
+
+
+def test_compose_up_during_a_build_is_refused_before_it_makes_an_image_of_install(tmp_path):
+    """`espdock compose run` 8 s into a build made the runtime image of a half rebuilt install/
+    and moved `:latest` to it, where `espdock run` refuses."""
+    root = copy_workspace(tmp_path / "w")
+    (root / "ws/install/custom_interface").mkdir(parents=True)
+    holder = (
+        "import sys, time; from pathlib import Path; from espdock.workspace import Workspace, workspace_lock; "
+        "sys.argv = ['espdock', 'build'];\n"
+        f"with workspace_lock(Workspace(Path({str(root)!r}))):\n"
+        "    print('locked', flush=True); time.sleep(30)"
+    )
+    process = subprocess.Popen([sys.executable, "-c", holder], cwd=REPO, stdout=subprocess.PIPE, text=True)
+    try:
+        assert process.stdout.readline().strip() == "locked"
+        for subcommand in ("up", "run"):
+            refused = espdock("compose", subcommand, cwd=root, env=NO_ENGINE)
+            assert refused.returncode == 2, refused.stdout + refused.stderr
+            assert f"an espdock build is running in {root} (pid {process.pid}: espdock build)" in refused.stderr
+        assert espdock("compose", "ps", cwd=root, env=NO_ENGINE).returncode == 3  # not one that makes containers
+        # A shell opens (its colcon would collide with the build's, in the same build dirs), and says so.
+        shell = espdock("shell", cwd=root, env=NO_ENGINE)
+        assert "warning: an espdock build is running" in shell.stdout + shell.stderr, shell.stdout + shell.stderr
+    finally:
+        process.kill()
+        process.wait()
+    # The lock free again: on to the engine (none here).
+    assert espdock("compose", "up", cwd=root, env=NO_ENGINE).returncode == 3

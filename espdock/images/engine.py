@@ -713,10 +713,12 @@ class Engine:
 
     def run_compose(self, args: Sequence[str], cwd: Path, env: Mapping[str, str]) -> int:
         """`docker compose ARGS` in CWD with ENV, attached to this terminal; its exit code."""
+        # Compose's navigation menu (2.26+) takes the terminal's keys raw: Ctrl-C then stopped the
+        # services without a signal, and espdock said nothing and exited 0. Unless asked for.
         process = subprocess.Popen(
             [*self.compose_command(), *args],
             cwd=cwd,
-            env=contexts.cli_env(env),
+            env={"COMPOSE_MENU": "false", **contexts.cli_env(env)},
             preexec_fn=_die_with_parent(),  # noqa: PLW1509 (see _die_with_parent)
         )
         try:

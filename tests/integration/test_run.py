@@ -7,6 +7,7 @@ import contextlib
 import json
 import os
 import random
+import select
 import signal
 import subprocess
 import sys
@@ -342,6 +343,42 @@ def test_ctrl_c_ends_compose_up_with_130_within_10_s_and_compose_stops_every_ser
         up.stop()
         subprocess.run(["docker", "compose", "-p", project, "down", "--timeout", "0"], cwd=root,
                        capture_output=True, check=False)  # fmt: skip
+
+
+def test_ctrl_c_at_a_terminal_ends_compose_up_with_130_and_says_what_remains(engine, tmp_path):
+    """At a real terminal Compose's navigation menu took the key itself: it stopped the services,
+    and espdock said nothing and exited 0."""
+    import pty
+
+    root = tmp_path / "compose-ws"
+    root.mkdir()
+    (root / "espdock.toml").write_text("")
+    (root / "compose.yaml").write_text(COMPOSE_PROJECT.format(base=base_image()).replace("14s", "1s"))
+    project = f"espdock-tty-{os.getpid()}"
+    env = {k: v for k, v in os.environ.items() if k != "COMPOSE_MENU"}
+    pid, terminal = pty.fork()
+    if pid == 0:
+        os.chdir(root)
+        os.execve(sys.executable, [sys.executable, "-m", "espdock", "compose", "-p", project, "up"], env)
+    said = b""
+    try:
+        deadline = time.monotonic() + 120
+        while b"stubborn up" not in said or b"polite up" not in said:
+            assert time.monotonic() < deadline, said.decode(errors="replace")
+            if select.select([terminal], [], [], 0.5)[0]:
+                said += os.read(terminal, 4096)
+        time.sleep(1)  # the menu, where Compose shows one, is up by now
+        os.write(terminal, b"\x03")
+        with contextlib.suppress(OSError):  # the terminal closes with espdock
+            while chunk := os.read(terminal, 4096):
+                said += chunk
+        _, status = os.waitpid(pid, 0)
+    finally:
+        subprocess.run(["docker", "compose", "-p", project, "down", "--timeout", "0"], cwd=root,
+                       capture_output=True, check=False)  # fmt: skip
+    text = said.decode(errors="replace")
+    assert os.waitstatus_to_exitcode(status) == 130, text
+    assert "their containers remain" in text and "espdock compose down" in text, text
 
 
 def test_compose_in_a_copy_of_a_workspace_warns_that_its_file_runs_the_original_s_nodes(engine, tmp_path):

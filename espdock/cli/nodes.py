@@ -16,7 +16,7 @@ from espdock.build.runner import Runner
 from espdock.build.steps import Plan
 from espdock.cli.core import WorkspaceOption, app, build_plan, command, ensure_images, load, notify
 from espdock.cli.prune import record_images
-from espdock.config import Config, resolve_ca_bundle
+from espdock.config import Config, invoking_user, resolve_ca_bundle
 from espdock.errors import Interrupted, WorkspaceError
 from espdock.images import bootstrap
 from espdock.images.engine import ComposeStillStopping
@@ -72,6 +72,8 @@ def compose(ctx: typer.Context, workspace: WorkspaceOption = None) -> None:
     ):
         notify(warning)
     env = dict(os.environ)
+    # The starter compose file's nodes run as ESPDOCK_USER: the user espdock builds for.
+    env.setdefault("ESPDOCK_USER", ":".join(str(n) for n in invoking_user(os.environ, ws.root)))
     ca_bundle = resolve_ca_bundle(config, os.environ)
     if ca_bundle is not None:
         env["ESPDOCK_CA_BUNDLE"] = str(ca_bundle)

@@ -30,8 +30,14 @@ x-ros-node: &ros-node
   # The runtime image of install/ (no compilers) that `espdock compose up` and `espdock run`
   # make when a build changed install/; espdock/{name}:<key> names one of them for good.
   image: {image}
+  # As you under `espdock compose`, which sets ESPDOCK_USER to your uid:gid (what a node writes
+  # into a mounted directory is yours, as with `espdock run`); plain `docker compose`: the
+  # image's own user, ros.
+  user: ${{ESPDOCK_USER:-ros}}
   environment: &ros-env
     ROS_DOMAIN_ID: ${{ROS_DOMAIN_ID:-0}}
+    # A home any user can write in (rcl's logs go to ~/.ros/log); ros's own.
+    HOME: /tmp
     # Fast DDS's default shared-memory transport loses topics between containers, each
     # having its own /dev/shm: UDP only, discovery by multicast on the compose network.
     FASTDDS_BUILTIN_TRANSPORTS: UDPv4

@@ -249,6 +249,18 @@ def test_init_writes_a_starter_compose_file_whose_services_start_and_talk(engine
         heard = logs_show(["docker", "compose", "-p", project, "logs", "-f", "--no-color", "beacon_log"],
                           node_workspace, "heard: beacon")  # fmt: skip
         assert heard, compose("logs", "--no-color").stdout[-3000:]
+        # The nodes run as the image's user under plain Compose, as the user espdock builds for
+        # under `espdock compose` (here root standing in for a sudo caller): they ran as ros
+        # there too, and a node writing into a mounted directory of the user's was refused.
+        ran = compose("run", "--rm", "--no-deps", "--entrypoint", "id", "beacon", "-u")
+        assert ran.stdout.split() == ["10001"], ran.stdout + ran.stderr
+        mine = subprocess.run(
+            [sys.executable, "-m", "espdock", "compose", "-p", project, "run", "--rm", "--no-deps",
+             "--entrypoint", "id", "beacon", "-u"],
+            cwd=node_workspace, env={**env, "SUDO_UID": "1234", "SUDO_GID": "1234"},
+            capture_output=True, text=True, timeout=300, check=False,
+        )  # fmt: skip
+        assert mine.stdout.split()[-1:] == ["1234"], mine.stdout + mine.stderr
     finally:
         compose("--profile", "*", "down", "-v", "--remove-orphans", "-t", "3")
 

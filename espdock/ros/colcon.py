@@ -600,6 +600,8 @@ class ColconLog:
 _MISSING = (
     re.compile(r'Could not find a package configuration file provided by\s+"(?P<dep>[\w.-]+)"'),
     re.compile(r"By not providing \"Find(?P<dep>[\w.-]+)\.cmake\""),
+    # find_package_handle_standard_args's form (a Find module's: OpenSSL, Boost, ...).
+    re.compile(r"Could NOT find (?P<dep>[\w.-]+)"),
     re.compile(r"No module named '(?P<dep>[\w.]+)'"),
     re.compile(r"Check that the following packages have been built:\s*\n- (?P<dep>[\w.-]+)"),
 )
@@ -624,6 +626,10 @@ class ColconFailure:
 
 # What ament_cmake's symlink install says where a copying build left a directory.
 SYMLINK_OVER_COPY = "because existing path cannot be removed: Is a directory"
+# The wheels image's Fast DDS CMake files, which rcl's (through rmw_implementation's) load: they
+# need OpenSSL and name libraries at the wheels' manylinux build paths, so no C or C++ code
+# linking rcl (rcl, rclcpp, rcl_action, ...) configures there; its rclpy uses the libraries alone.
+WHEELS_FASTDDS_CMAKE = re.compile(r"/opt/espdock/venv/share/(fastrtps|fastdds|rmw_fastrtps\w*)/cmake/")
 
 
 def explain_failure(
@@ -649,7 +655,15 @@ def explain_failure(
     for name in failed:
         log, output = logs.get(name, (Path("?"), ""))
         missing = missing_dependencies(output)
-        if missing:
+        if WHEELS_FASTDDS_CMAKE.search(output):
+            lines.append(f"  {name}: the wheels image's Fast DDS CMake files failed in its configure; log: {log}")
+            hints.append(
+                f"{name} links rcl (directly or through rclcpp, rcl_action, ...), whose CMake files on the wheels "
+                "image load Fast DDS's, which need OpenSSL and libraries the image does not have: the wheels serve "
+                'Python nodes (rclpy) only. Build C and C++ nodes on the official image (ros_image = "official"), '
+                f"or leave {name} out (COLCON_IGNORE, `-- --packages-skip {name}`)."
+            )
+        elif missing:
             lines.append(f"  {name}: could not find {', '.join(missing)}; log: {log}")
             hints.append(_missing_hint(name, missing, *(declared or {}).get(name, (frozenset(), frozenset()))))
         elif SYMLINK_OVER_COPY in output:

@@ -175,3 +175,17 @@ def test_a_malformed_colcon_meta_and_an_empty_double_dash_build_nothing(robot):
         meta.unlink()
     build(robot)
     assert colcon_ran(robot) == {"behaviour_3": "built"}
+
+
+def test_a_c_node_on_rcl_on_the_wheels_image_is_told_to_use_the_official_one(engine, tmp_path):
+    """rcl is on the wheels image (rclpy's), so the dependency check passed it; CMake then failed
+    in the image's own Fast DDS files (OpenSSL), and the hint said to fix the package."""
+    root = copy_workspace(tmp_path / "w", packages=(), test_packages=("rcl_heartbeat",), runtime_image=False)
+    try:
+        failed = build(root, code=5)
+        said = " ".join(failed.stderr.split())
+        assert "rcl_heartbeat: the wheels image's Fast DDS CMake files failed in its configure" in said, said
+        assert 'Build C and C++ nodes on the official image (ros_image = "official")' in said
+        assert "Fix rcl_heartbeat" not in said
+    finally:
+        engine.remove_containers({"io.espdock.workspace": str(root)})

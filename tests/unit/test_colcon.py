@@ -359,3 +359,18 @@ def test_the_defaults_files_symlink_install_is_read_the_workspace_s_over_the_use
     assert read_colcon_settings(root, dirs, None, env).symlink_install
     (root / "colcon_defaults.yaml").write_text("build: {symlink-install: false}\n")
     assert not read_colcon_settings(root, dirs, None, env).symlink_install
+
+
+def test_a_find_module_s_could_not_find_is_a_missing_dependency():
+    """find_package_handle_standard_args's "Could NOT find" (a Find module: OpenSSL, Boost) was
+    the package's own fault: "Fix cam_node"."""
+    output = (
+        "CMake Error at /usr/share/cmake-3.28/Modules/FindPackageHandleStandardArgs.cmake:230 (message):\n"
+        "  Could NOT find OpenSSL, try to set the path to OpenSSL root folder in the\n"
+        "  system variable OPENSSL_ROOT_DIR (missing: OPENSSL_CRYPTO_LIBRARY\n"
+        "Call Stack (most recent call first):\n"
+        "  CMakeLists.txt:12 (find_package)\n"
+    )
+    assert missing_dependencies(output) == ("OpenSSL",)
+    failure = explain_failure(1, {"cam_node": PackageState.FAILED}, {"cam_node": (Path("/l/c.log"), output)}, ())
+    assert "cam_node: could not find OpenSSL" in failure.message and "Fix" not in failure.hint

@@ -9,7 +9,6 @@ import json
 import os
 import re
 import sys
-import tempfile
 from collections.abc import Iterable, Iterator
 from contextlib import contextmanager, suppress
 from dataclasses import dataclass, field
@@ -705,10 +704,7 @@ def workspace_lock(workspace: Workspace) -> Iterator[None]:
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
-            raise WorkspaceError(
-                f"another espdock build is running in {workspace.root}{_holder_text(holder)}",
-                "Wait for it to finish, then run again.",
-            ) from None
+            raise _held(workspace, _holder_text(holder)) from None
         _write_holder(holder)
         try:
             yield
@@ -716,6 +712,19 @@ def workspace_lock(workspace: Workspace) -> Iterator[None]:
             holder.unlink(missing_ok=True)
     finally:
         os.close(fd)
+
+
+def _held(workspace: Workspace, holder: str) -> WorkspaceError:
+    return WorkspaceError(
+        f"another espdock build is running in {workspace.root}{holder}", "Wait for it to finish, then run again."
+    )
+
+
+def check_not_building(workspace: Workspace) -> None:
+    """Refuse, as workspace_lock would, while another build holds the workspace: before a build or
+    test writes anything (the rosdep lock it makes first)."""
+    if (holder := build_running(workspace)) is not None:
+        raise _held(workspace, holder)
 
 
 def build_running(workspace: Workspace) -> str | None:
@@ -732,16 +741,23 @@ def build_running(workspace: Workspace) -> str | None:
         os.close(fd)
 
 
+# In /tmp whatever TMPDIR says, as the image locks are: a build with a temp dir of its own (a CI
+# job's, libpam-tmpdir's) named to a second one no holder.
+HOLDER_DIR = Path("/tmp")
+
+
 def _holder_path(workspace: Workspace) -> Path:
     """Where the lock's holder says who it is, for the error a second build gets: outside the
     workspace, so that espdock run as root creates nothing there that the user's colcon could not
     write into."""
-    return Path(tempfile.gettempdir()) / f"espdock-build-{root_key(workspace.root)}.holder"
+    return HOLDER_DIR / f"espdock-build-{root_key(workspace.root)}.holder"
 
 
 def _write_holder(holder: Path) -> None:
     try:
-        command = " ".join([Path(sys.argv[0]).name, *sys.argv[1:]]).encode(errors="backslashreplace")
+        program = Path(sys.argv[0]).name
+        program = "espdock" if program == "__main__.py" else program  # `python -m espdock`
+        command = " ".join([program, *sys.argv[1:]]).encode(errors="backslashreplace")
         temporary = holder.with_name(f".{holder.name}.{os.getpid()}")
         temporary.write_bytes(f"{os.getpid()}\n".encode() + command + b"\n")
         os.replace(temporary, holder)

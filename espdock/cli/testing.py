@@ -37,7 +37,7 @@ from espdock.ros.testing import (
     read_results,
     run_host_tests,
 )
-from espdock.workspace import Package, PackageKind, unknown_package
+from espdock.workspace import Package, PackageKind, check_not_building, unknown_package
 
 
 @app.command(cls=PassThrough)
@@ -83,6 +83,7 @@ def test(
     Options after `--` go to `colcon test` (e.g. `espdock test -- --pytest-args -k fast`)."""
     STAMPED["errors"] = timestamps
     ws, config = load(workspace)
+    check_not_building(ws)
     colcon_args = check_test_args(ctx.meta.get(PASSED))
     locked = locked if locked is not None else in_ci(os.environ)
     every = discover(ws, config.ros_distro)

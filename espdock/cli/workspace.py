@@ -43,7 +43,7 @@ from espdock.ros import colcon_register, rosdeps
 from espdock.ros.compose import init_compose
 from espdock.ros.plan import base_image, runtime_repository
 from espdock.ros.trees import orphan_installs, package_trees
-from espdock.workspace import PackageKind, read_build_inputs
+from espdock.workspace import PackageKind, check_not_building, read_build_inputs
 
 
 @app.command(cls=PassThrough)
@@ -107,6 +107,8 @@ def build(
     STAMPED["errors"] = timestamps
     ws, config = load(workspace, runtime_image=runtime_image, workspace_mode=workspace_mode)
     locked = locked if locked is not None else in_ci(os.environ)
+    if not dry_run:
+        check_not_building(ws)
     started = time.monotonic()
     owner = invoking_user(os.environ, ws.root)
     if report is not None and not dry_run:

@@ -345,3 +345,26 @@ def test_a_rosdep_lock_an_older_espdock_made_is_stale_not_trusted(tmp_path):
     path.write_text(json.dumps({**lock, "format": rosdeps.FORMAT + 1}))
     newer = run(root, tmp_path, "build")
     assert newer.returncode == 2 and "made by a newer espdock" in newer.stderr, newer.stderr
+
+
+def test_a_build_or_test_during_another_build_is_refused_before_it_writes_the_lock(tmp_path):
+    """`espdock test` while a build held the workspace wrote rosdep.lock.json into it, then said
+    another build was running."""
+    root = make_workspace(tmp_path / "w", "rosdeps_xml_count")
+    holder = (
+        "import sys, time; from pathlib import Path; from espdock.workspace import Workspace, workspace_lock; "
+        "sys.argv = ['espdock', 'build'];\n"
+        f"with workspace_lock(Workspace(Path({str(root)!r}))):\n"
+        "    print('locked', flush=True); time.sleep(30)"
+    )
+    process = subprocess.Popen([sys.executable, "-c", holder], cwd=REPO, stdout=subprocess.PIPE, text=True)
+    try:
+        assert process.stdout.readline().strip() == "locked"
+        for command in ("build", "test"):
+            refused = run(root, tmp_path, command)
+            assert refused.returncode == 2, refused.stdout + refused.stderr
+            assert f"another espdock build is running in {root} (pid {process.pid}: espdock build)" in refused.stderr
+            assert not (root / "rosdep.lock.json").exists(), command
+    finally:
+        process.kill()
+        process.wait()

@@ -704,8 +704,8 @@ def workspace_lock(workspace: Workspace) -> Iterator[None]:
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
-            raise _held(workspace, _holder_text(holder)) from None
-        _write_holder(holder)
+            raise _held(workspace, holder_text(holder)) from None
+        write_holder(holder)
         try:
             yield
         finally:
@@ -734,7 +734,7 @@ def build_running(workspace: Workspace) -> str | None:
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
-            return _holder_text(_holder_path(workspace))
+            return holder_text(_holder_path(workspace))
         fcntl.flock(fd, fcntl.LOCK_UN)
         return None
     finally:
@@ -753,7 +753,8 @@ def _holder_path(workspace: Workspace) -> Path:
     return HOLDER_DIR / f"espdock-build-{root_key(workspace.root)}.holder"
 
 
-def _write_holder(holder: Path) -> None:
+def write_holder(holder: Path) -> None:
+    """Say in the file HOLDER who holds a lock (this process's pid and command), best effort."""
     try:
         program = Path(sys.argv[0]).name
         program = "espdock" if program == "__main__.py" else program  # `python -m espdock`
@@ -765,7 +766,8 @@ def _write_holder(holder: Path) -> None:
         pass  # only the error message a second build would give loses its detail
 
 
-def _holder_text(holder: Path) -> str:
+def holder_text(holder: Path) -> str:
+    """ " (pid N: COMMAND)" of what write_holder wrote in HOLDER, or "" where it did not."""
     try:
         pid, _, command = holder.read_text(errors="replace").partition("\n")
     except OSError:

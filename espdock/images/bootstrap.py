@@ -164,7 +164,7 @@ def ensure_base_image(engine: Engine, ref: str, config: Config, notify: Notify) 
     if engine.image(ref) is not None:
         return "present"
     name = hashlib.sha256(f"{engine.info().identity}\0{ref}".encode()).hexdigest()[:16]
-    with machine_lock(f"base-{name}", lambda: notify(f"{ref}: another espdock is making it; waiting")):
+    with machine_lock(f"base-{name}", lambda who: notify(f"{ref}: another espdock{who} is making it; waiting")):
         if engine.image(ref) is not None:
             return "present"
         return _make_base_image(engine, ref, config, notify)

@@ -103,8 +103,11 @@ class KeyedImages:
     def _building(self, step: EnsureImage) -> AbstractContextManager[None]:
         """The lock of STEP's tag on this engine, among the espdock processes of this machine."""
         name = hashlib.sha256(f"{self.containers.engine.info().identity}\0{step.spec.tag}".encode()).hexdigest()[:16]
-        note = StepNote(step.name, f"{step.spec.tag}: another espdock is making it; waiting")
-        return machine_lock(f"image-{name}", lambda: self.containers.emit(note))
+        tag = step.spec.tag
+        return machine_lock(
+            f"image-{name}",
+            lambda who: self.containers.emit(StepNote(step.name, f"{tag}: another espdock{who} is making it; waiting")),
+        )
 
     def _make(
         self,

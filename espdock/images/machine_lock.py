@@ -11,26 +11,33 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager, suppress
 from pathlib import Path
 
+from espdock.workspace import holder_text, write_holder
+
 LOCK_DIR = Path("/tmp")
 
 
 @contextmanager
-def machine_lock(name: str, waiting: Callable[[], None]) -> Iterator[None]:
-    """Hold the lock NAME (WAITING is called once, when another process holds it).
+def machine_lock(name: str, waiting: Callable[[str], None]) -> Iterator[None]:
+    """Hold the lock NAME (WAITING is called once, when another process holds it, with who that
+    is: " (pid N: COMMAND)", or "" where it did not say).
 
     Its holder removes the lock file before it lets go, so /tmp does not keep one per tag ever
     built; a waiter that then holds a removed file locks the path's new one instead. Where the
     file cannot be opened (another user's, in a directory that refuses it) the block runs
     unlocked, as it did before locks."""
     path = LOCK_DIR / f"espdock-{name}.lock"
-    fd = _hold_lock(path, waiting)
+    holder = path.with_suffix(".holder")
+    fd = _hold_lock(path, lambda: waiting(holder_text(holder)))
     if fd is None:
         yield
         return
+    write_holder(holder)
     try:
         yield
     finally:
         with suppress(OSError):  # another user's file in a sticky /tmp stays
+            holder.unlink()
+        with suppress(OSError):
             path.unlink()
         os.close(fd)
 

@@ -19,7 +19,7 @@ from espdock.cli.prune import record_images
 from espdock.config import Config, invoking_user, resolve_ca_bundle
 from espdock.errors import Interrupted, WorkspaceError
 from espdock.images import bootstrap
-from espdock.images.engine import ComposeStillStopping
+from espdock.images.engine import ComposeStillStopping, Engine, RunSpec
 from espdock.ros import compose as compose_file
 from espdock.ros import nodes
 from espdock.ros.plan import RuntimeImage, runtime_repository
@@ -33,6 +33,14 @@ def user_name(uid: int) -> str | None:
         return pwd.getpwuid(uid).pw_name
     except KeyError:
         return None
+
+
+def run_foreground(engine: Engine, spec: RunSpec) -> tuple[int, int | None]:
+    """Engine.run_foreground of SPEC, after removing what a killed espdock's run (or shell) of the
+    workspace left running, and saying so."""
+    if swept := engine.sweep(dict(spec.labels)):
+        notify(f"removed {swept} container(s) an espdock killed earlier (kill -9, a closed terminal) left running")
+    return engine.run_foreground(spec)
 
 
 def runtime_image(ws: Workspace, config: Config, plan: Plan | None = None) -> tuple[Runner, str]:
@@ -180,7 +188,7 @@ def run(
         devices,
         variables,
     )
-    code, stopped_by = runner.engine.run_foreground(spec)
+    code, stopped_by = run_foreground(runner.engine, spec)
     raise typer.Exit(128 + stopped_by if stopped_by else code)
 
 
@@ -205,5 +213,5 @@ def shell(workspace: WorkspaceOption = None) -> None:
     spec = nodes.shell_spec(
         ws, image, owner, os.environ, tty, dockerfile, mount, packages, Path.cwd(), user_name(runner.owner[0])
     )
-    code, stopped_by = runner.engine.run_foreground(spec)
+    code, stopped_by = run_foreground(runner.engine, spec)
     raise typer.Exit(128 + stopped_by if stopped_by else code)

@@ -172,7 +172,8 @@ class Containers:
 
         With SWEEP, containers with the same labels are removed first: left by an espdock
         killed outright. Only a caller holding the workspace lock may sweep, since only
-        then can none of them be live.
+        then can none of them be live here; a live espdock's elsewhere (another PID namespace
+        at the same path, which another lock holds) are left alone.
         """
         labels = {LABEL_WORKSPACE: str(workspace.root), "io.espdock.step": step_label}
         if sweep:

@@ -789,14 +789,9 @@ class Engine:
         docker_cli = self.compose_command()[0]
         name = spec.name or f"espdock-run-{os.getpid()}-{secrets.token_hex(4)}"
         # Labelled with this espdock, as every container it makes: one a killed espdock left
-        # running (a node, a shell) is the next command's to remove (Engine.sweep), the watcher's
-        # first (_reaper).
+        # running (a node, a shell) is the watcher's to remove (_reaper), else the next command's
+        # (Engine.sweep).
         labelled = replace(spec, labels=(*spec.labels, (LABEL_OWNER, owner_identity())))
-        if spec.labels and (swept := self.sweep(dict(spec.labels))):
-            warnings.warn(
-                f"removed {swept} container(s) an espdock killed earlier (kill -9, a closed terminal) left running",
-                stacklevel=2,
-            )
         argv = _run_argv(docker_cli, name, labelled, self._host_users(spec))
         received: list[int] = []
         sent = 0
@@ -922,10 +917,14 @@ class Engine:
                 _remove(container)
 
     def remove_containers(self, labels: Mapping[str, str]) -> int:
-        """Remove every container (running or not) carrying all LABELS; return how many."""
+        """Remove every container (running or not) carrying all LABELS but a live espdock's (one
+        of another PID namespace of this machine, a CI job's container beside this one at the
+        same workspace path, counts as live); return how many."""
         removed = 0
         try:
             for listed in self._all_containers({"label": _label_selector(labels)}):
+                if owner_alive((listed.get("Labels") or {}).get(LABEL_OWNER, "")):
+                    continue
                 _remove(self._handle(listed["Id"]))
                 removed += 1
         except EngineUnavailable:

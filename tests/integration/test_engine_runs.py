@@ -25,10 +25,11 @@ import pytest
 
 from espdock.errors import ConfigError, ContainerError, EngineUnavailable
 from espdock.images import bootstrap
-from espdock.images.engine import DEFAULT_SOCKET, Engine, Mount, RunSpec
+from espdock.images.engine import DEFAULT_SOCKET, LABEL_OWNER, Engine, Mount, RunSpec
 from espdock.images.keyed import DPKG_STATUS, installed_packages
 from espdock.layout import MICRO_ROS_AGENT_IMAGE
 from espdock.ros.compose import starter_compose
+from espdock.scratch import owner_identity
 from tests.conftest import REPO
 from tests.integration.test_engines import TcpForwarder
 from tests.integration.test_faults import PrivateEngine, drop_private_engine, private_home
@@ -347,8 +348,16 @@ def test_the_listings_are_the_engine_s_own_and_removing_labelled_containers_remo
     subprocess.run(
         ["docker", "create", "--label", "=".join(other.labels[0]), IMAGE, "true"], capture_output=True, check=True
     )
+    # So does a live espdock's of another PID namespace of this machine (a CI job beside this one
+    # at the same workspace path): its build container was removed under it (exit 137).
+    boot = owner_identity().partition(":")[0]
+    elsewhere = f"{boot}:1.{os.getpid()}:1"
+    made = ["docker", "create", "--label", "=".join(label), "--label", f"{LABEL_OWNER}={elsewhere}", IMAGE, "true"]
+    spared = subprocess.run(made, capture_output=True, text=True, check=True).stdout.strip()
     try:
         assert way.remove_containers(dict([label])) == 3
+        assert docker_ids("ps", "--all", "--filter", selector) == {spared}
+        subprocess.run(["docker", "rm", "--force", spared], capture_output=True, check=True)
         assert docker_ids("ps", "--all", "--filter", selector) == set()
         assert way.containers(dict(other.labels)) != []
     finally:

@@ -25,7 +25,13 @@ OUTPUT_DIRS = {"build", "install", "log", "managed_components"}
 
 def tree_digest(*roots: Path) -> str:
     """sha256 over every file under ROOTS (relative path and content), hidden and output dirs skipped."""
+    return tree_state(*roots)[0]
+
+
+def tree_state(*roots: Path) -> tuple[str, int]:
+    """tree_digest of ROOTS, and the newest modification time (ns) of a file in them."""
     digest = hashlib.sha256()
+    newest = 0
     for root in roots:
         # File names are bytes: one that is not UTF-8 (Python's lone surrogates) is hashed as it is.
         digest.update(f"root\0{root.name}\n".encode(errors="surrogateescape"))
@@ -33,12 +39,13 @@ def tree_digest(*roots: Path) -> str:
             digest.update(path.relative_to(root).as_posix().encode(errors="surrogateescape") + b"\0")
             try:
                 data = path.read_bytes()
+                newest = max(newest, path.stat().st_mtime_ns)
             except FileNotFoundError:
                 if not path.is_symlink():
                     raise
                 data = b"dangling link\0" + os.fsencode(os.readlink(path))  # leads nowhere: its target's name
             digest.update(hashlib.sha256(data).digest())
-    return digest.hexdigest()
+    return digest.hexdigest(), newest
 
 
 def listing_digest(root: Path, ignore: Collection[str] = ()) -> str | None:
@@ -150,19 +157,41 @@ class StampFile:
         """The packages of SOURCES (name -> its directory) last built from another directory: that one."""
         return _moved(self.read(), sources)
 
+    def put_back(self, trees: Mapping[str, tuple[str, int]]) -> tuple[str, ...]:
+        """The packages of TREES (name -> its tree_state now) whose sources changed since their last
+        build with no file newer than the newest then: put back from a backup or an archive
+        (`cp -p`, `git archive | tar -x`), or a file renamed or removed. make and setuptools,
+        which decide by time, would keep what the build made of the sources before."""
+        recorded = self.read()
+        return tuple(
+            name
+            for name, (tree, newest) in trees.items()
+            if isinstance(entry := recorded.get(name), dict)
+            and isinstance(entry.get("newest"), int)
+            and entry.get("tree") not in (None, tree)
+            and newest <= entry["newest"]
+        )
+
     def foreign(self, names: Iterable[str]) -> tuple[str, ...]:
         """NAMES whose records are of another format than this file's."""
         recorded = self.read()
         return tuple(name for name in names if name in recorded and not self._current(recorded[name]))
 
     def record(
-        self, stamps: Mapping[str, str], installed: Mapping[str, str | None], sources: Mapping[str, str] | None = None
+        self,
+        stamps: Mapping[str, str],
+        installed: Mapping[str, str | None],
+        sources: Mapping[str, str] | None = None,
+        trees: Mapping[str, tuple[str, int]] | None = None,
     ) -> None:
-        """Record STAMPS with what is installed now (and each package's directory, from SOURCES),
-        keeping other packages' records."""
+        """Record STAMPS with what is installed now (and each package's directory, from SOURCES,
+        and its own sources' digest and newest time, from TREES: tree_state), keeping other
+        packages' records."""
         data = self.read()
         for name, stamp in stamps.items():
             data[name] = self._entry(name, sources, stamp=stamp, installed=installed.get(name))
+            if trees and name in trees:
+                data[name]["tree"], data[name]["newest"] = trees[name]  # type: ignore[assignment]
         self.path.parent.mkdir(parents=True, exist_ok=True)
         durable.write_text(self.path, json.dumps(data, indent=1, sort_keys=True) + "\n")
 

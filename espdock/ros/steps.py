@@ -8,11 +8,11 @@ import os
 import posixpath
 import re
 import shutil
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import replace
 from pathlib import Path
 
-from espdock.build.stamps import StampFile, listing_digest, package_stamps, tree_digest
+from espdock.build.stamps import StampFile, listing_digest, package_stamps, tree_state
 from espdock.build.steps import EnsureImage, ImageSpec
 from espdock.errors import BuildFailed, ConfigError, WorkspaceError
 from espdock.events import Outcome, StepNote, StepOutput
@@ -73,14 +73,21 @@ class RosSteps:
         self.unbuilt: set[str] = set()
 
     def _build_afresh(
-        self, workspace: Workspace, step: ColconBuild, rebuild: tuple[str, ...], stamp_file: StampFile
+        self,
+        workspace: Workspace,
+        step: ColconBuild,
+        rebuild: tuple[str, ...],
+        stamp_file: StampFile,
+        trees: Mapping[str, tuple[str, int]],
     ) -> tuple[Path, ...]:
         """Remove what colcon would build on wrongly from REBUILD's trees, and say why: every build
-        dir and install prefix when --symlink-install was turned on or off; else the build dirs of
-        interface packages whose interface dependencies changed (ColconBuild.stale_interfaces),
-        the install prefixes a native symlink install linked to this machine's paths, and the
-        build dirs and install prefixes of packages that moved (STAMP_FILE knows where they were),
-        each reason that holds. Returns them, for the workspace volume to remove its copies as well."""
+        dir and install prefix with --force (but those the options after `--` leave out) or when
+        --symlink-install was turned on or off; else the build dirs of interface packages whose
+        interface dependencies changed (ColconBuild.stale_interfaces), the install prefixes a
+        native symlink install linked to this machine's paths, and the build dirs and install
+        prefixes of packages that moved (STAMP_FILE knows where they were) or that an older
+        espdock built, each reason that holds. Returns them, for the workspace volume to remove
+        its copies as well."""
         base = workspace.ws_dir / ROS_BUILD_BASE
         install = workspace.ws_dir / "install"
         reasons: list[tuple[tuple[Path, ...], str]] = []
@@ -93,6 +100,13 @@ class RosSteps:
             if out := [name for name in rebuild if name in left_out(step.colcon_args, dict(step.depends), base)]:
                 why += f"; {', '.join(out)}, which the options after `--` leave out, stay uninstalled until built"
             reasons.append((tuple(tree for name in rebuild for tree in (base / name, install / name)), why))
+        elif step.force:
+            # A rebuild by make and setuptools, which decide by time, kept what a source put back
+            # with an older time (`cp -p`, a backup) had built: the old binary, --force or not.
+            out = left_out(step.colcon_args, dict(step.depends), base)
+            afresh = [name for name in rebuild if name not in out]
+            why = f"--force: building {len(afresh)} package(s) afresh, in new build dirs and install prefixes"
+            reasons.append((tuple(tree for name in afresh for tree in (base / name, install / name)), why))
         else:
             if stale := step.stale_interfaces(rebuild):
                 why = (
@@ -113,6 +127,14 @@ class RosSteps:
                     f"{name} (from {old})" for name, old in moved.items()
                 )
                 reasons.append((tuple(tree for name in moved for tree in (base / name, install / name)), why))
+            if put_back := [n for n in stamp_file.put_back({n: trees[n] for n in rebuild}) if n not in moved]:
+                why = (
+                    f"building afresh what changed with no newer file: {', '.join(put_back)} (put back from a "
+                    "backup or an archive, or a file renamed or removed), which make and setuptools, deciding by "
+                    "time, would not build again"
+                )
+                reasons.append((tuple(tree for name in put_back for tree in (base / name, install / name)), why))
+                moved = {**moved, **dict.fromkeys(put_back, "")}
             if older := [name for name in stamp_file.foreign(rebuild) if name not in moved]:
                 why = (
                     f"building afresh what an older espdock built: {', '.join(older)} (its records do not say "
@@ -149,7 +171,9 @@ class RosSteps:
                 )
             )
         emptied = (base,) if retired is not None else ()  # in the workspace volume, its build dirs as well
-        emptied += self._build_afresh(workspace, step, rebuild, stamp_file)
+        # The sources as this build takes them: what put them back, and what is recorded of them.
+        trees = source_states(workspace, step)
+        emptied += self._build_afresh(workspace, step, rebuild, stamp_file, trees)
         sync = self.containers.sync(workspace, step.name, step.image, user, labels, emptied)
         whole = sync is not None and (sync.fresh or sync.installed != listing_digest(workspace.ws_dir / "install"))
         if whole:
@@ -249,7 +273,7 @@ class RosSteps:
             # Those recorded as built (their install is espdock's: `espdock run` takes it), with a
             # stamp no package has: the next build builds them again.
             recorded_stamps = {name: ON_OLD_INSTALL if on_old[name] else stamps[name] for name in built}
-            stamp_file.record(recorded_stamps, installed(), dict(step.sources))
+            stamp_file.record(recorded_stamps, installed(), dict(step.sources), trees)
             give_to(stamp_file.path, self.containers.owner)
         self.unbuilt |= set(rebuild) - set(built)
         if states is None and code != 0:
@@ -386,12 +410,17 @@ class RosSteps:
         return outcome, f"{spec.tag}, {step.stable_tag}"
 
 
+def source_states(workspace: Workspace, step: ColconBuild) -> dict[str, tuple[str, int]]:
+    """Each package's own sources as tree_state has them, in STEP's order."""
+    return {name: tree_state(workspace.ws_dir / rel) for name, rel in step.sources}
+
+
 def colcon_rebuild(workspace: Workspace, step: ColconBuild) -> tuple[StampFile, dict[str, str], tuple[str, ...]]:
     """STEP's stamp file, the stamps of the packages it builds as they are now, and which of them
     colcon gets: the changed ones and, their stamps being chained, what depends on them (all of
     them with --force). The rest are up to date in install/, where colcon finds them."""
     stamp_file = StampFile(workspace.ws_dir / "build" / ROS_STAMPS, ROS_STAMP_FORMAT)
-    sources = {name: tree_digest(workspace.ws_dir / rel) for name, rel in step.sources}
+    sources = {name: tree for name, (tree, _) in source_states(workspace, step).items()}
     chained = package_stamps(sources, dict(step.depends), step.stamp_image, dict(step.settings))
     stamps = {name: chained[name] for name in step.building}
     if step.force:

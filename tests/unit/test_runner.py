@@ -472,12 +472,43 @@ def test_a_package_whose_build_failed_and_that_then_moved_is_built_afresh(ws):
     )
     (ws.ws_dir / "src/apps").mkdir()
     (ws.ws_dir / "src/app").rename(ws.ws_dir / "src/apps/app")
-    moved = replace(COLCON, sources=(("msgs", "src/msgs"), ("app", "src/apps/app")), force=True)
+    moved = replace(COLCON, sources=(("msgs", "src/msgs"), ("app", "src/apps/app")))
     engine.run_script = colcon_installs(ws)
     events: list = []
     runner(engine, events).run(Plan(ws, (moved,)))
     assert "building afresh what moved since the last build: app (from src/app)" in notes(events)
     assert not (ws.ws_dir / "build/espdock-ros/app/CMakeCache.txt").exists()
+
+
+def test_sources_put_back_with_an_older_time_and_force_build_afresh_and_an_edit_does_not(ws):
+    """A source put back from a backup (`cp -p`, `git archive | tar -x`): espdock saw the change
+    and ran colcon, and make, deciding by time, kept the old binary; `--force` did the same."""
+    from dataclasses import replace
+
+    engine = FakeEngine(run_script=colcon_installs(ws))
+    source = ws.ws_dir / "src/app/main.c"
+    source.write_text("int main(void) { return 42; }\n")
+    runner(engine, []).run(Plan(ws, (COLCON,)))
+    cache = ws.ws_dir / "build/espdock-ros/app/CMakeCache.txt"
+
+    def configured() -> None:
+        cache.parent.mkdir(parents=True, exist_ok=True)
+        cache.write_text("CMAKE_HOME_DIRECTORY:INTERNAL=/workspace/ws/src/app\n")
+
+    configured()
+    before = source.stat().st_mtime_ns
+    source.write_text("int main(void) { return 7; }\n")  # an edit: newer, as make sees it
+    os.utime(source, ns=(before + 10**9, before + 10**9))
+    runner(engine, events := []).run(Plan(ws, (COLCON,)))
+    assert "afresh" not in notes(events) and cache.exists()
+    source.write_text("int main(void) { return 42; }\n")  # the backup put back, with its time
+    os.utime(source, ns=(before, before))
+    runner(engine, events := []).run(Plan(ws, (COLCON,)))
+    assert "building afresh what changed with no newer file: app" in notes(events)
+    assert not cache.exists()
+    configured()
+    runner(engine, events := []).run(Plan(ws, (replace(COLCON, force=True),)))
+    assert "--force: building 2 package(s) afresh" in notes(events) and not cache.exists()
 
 
 def test_a_symlink_switch_says_which_removed_install_the_options_leave_out(ws):

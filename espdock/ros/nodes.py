@@ -29,7 +29,10 @@ PASSED_ENV = (
 )  # fmt: skip
 # Not passed whatever --env says: the image's own ROS (a host's sourced ROS_DISTRO would lie to
 # the node), and where the container keeps its install tree.
-IMAGE_ENV = ("ROS_DISTRO", "ROS_VERSION", "ROS_PYTHON_VERSION", "AMENT_PREFIX_PATH", "PYTHONPATH", "LD_LIBRARY_PATH")
+IMAGE_ENV = (
+    "ROS_DISTRO", "ROS_VERSION", "ROS_PYTHON_VERSION", "AMENT_PREFIX_PATH", "PYTHONPATH", "LD_LIBRARY_PATH", "PATH",
+    "VIRTUAL_ENV",
+)  # fmt: skip
 # Fast DDS's XML profiles, by the file these name: a path on the host, which the container has
 # only where espdock mounts it (Fast DDS only warns about a missing one, and runs on defaults).
 PROFILE_VARIABLES = ("FASTRTPS_DEFAULT_PROFILES_FILE", "FASTDDS_DEFAULT_PROFILES_FILE")

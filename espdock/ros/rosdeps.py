@@ -127,7 +127,7 @@ def read_lock(data: bytes | None, name: str) -> dict | None:
         if lock["format"] > FORMAT:
             raise LockError(
                 f"{name} was made by a newer espdock (its format {lock['format']}, this one's {FORMAT})",
-                f"Use that espdock, or {FIX} with this one.",
+                f"Use that espdock, or delete {name} and {FIX} with this one.",
             )
     except ValueError as exc:
         raise LockError(f"{name} is not an espdock rosdep lock: {exc}", f"Delete it and {FIX}.") from None

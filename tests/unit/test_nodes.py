@@ -343,7 +343,7 @@ def test_env_gives_the_node_a_variable_or_passes_one_and_refuses_the_images_own(
     assert variable("ROBOT_SITE=lab=2", {}) == ("ROBOT_SITE", "lab=2")
     assert variable("ROBOT_SITE", {"ROBOT_SITE": "here"}) == ("ROBOT_SITE", "here")
     assert variable("ROBOT_SITE", {}) is None  # as `docker run -e NAME` leaves out an unset one
-    for bad in ("=x", "1A=x", "A B=x", "ROS_DISTRO=humble"):
+    for bad in ("=x", "1A=x", "A B=x", "ROS_DISTRO=humble", "PATH=/x"):
         with pytest.raises(ConfigError, match="--env"):
             variable(bad, {})
     spec = node_spec(

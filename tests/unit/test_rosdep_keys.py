@@ -345,6 +345,11 @@ def test_a_rosdep_lock_an_older_espdock_made_is_stale_not_trusted(tmp_path):
     path.write_text(json.dumps({**lock, "format": rosdeps.FORMAT + 1}))
     newer = run(root, tmp_path, "build")
     assert newer.returncode == 2 and "made by a newer espdock" in newer.stderr, newer.stderr
+    # The way out it names works: `espdock lock` alone refuses that file too.
+    assert "delete rosdep.lock.json and run `espdock lock`" in " ".join(newer.stderr.split())
+    path.unlink()
+    assert run(root, tmp_path, "lock").returncode == 0
+    assert json.loads(path.read_text())["format"] == rosdeps.FORMAT
 
 
 def test_a_build_or_test_during_another_build_is_refused_before_it_writes_the_lock(tmp_path):

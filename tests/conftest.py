@@ -14,6 +14,7 @@ import tempfile
 import threading
 import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
+from contextlib import contextmanager
 from pathlib import Path
 
 import pytest
@@ -254,6 +255,25 @@ def in_workspace_image(image: str, root: Path, *argv: str) -> subprocess.Complet
          "-v", f"{root}:/workspace", "-w", "/workspace", image, *argv],
         capture_output=True, text=True, check=False, timeout=120,
     )  # fmt: skip
+
+
+@contextmanager
+def build_holding(root: Path, *command: str) -> Iterator[subprocess.Popen]:
+    """Another process holding ROOT's workspace lock, as `espdock COMMAND` (default: build) does
+    while it runs, until the block ends."""
+    holder = (
+        "import sys, time; from pathlib import Path; from espdock.workspace import Workspace, workspace_lock; "
+        f"sys.argv = {['espdock', *(command or ('build',))]!r};\n"
+        f"with workspace_lock(Workspace(Path({str(root)!r}))):\n"
+        "    print('locked', flush=True); time.sleep(30)"
+    )
+    process = subprocess.Popen([sys.executable, "-c", holder], cwd=REPO, stdout=subprocess.PIPE, text=True)
+    try:
+        assert process.stdout is not None and process.stdout.readline().strip() == "locked"
+        yield process
+    finally:
+        process.kill()
+        process.wait()
 
 
 def leftover_containers(engine, root: Path) -> list[str]:

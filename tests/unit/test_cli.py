@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 from espdock.layout import firmware_install_dir
-from tests.conftest import REPO, copy_workspace, espdock
+from tests.conftest import REPO, build_holding, copy_workspace, espdock
 from tests.robot_packages import write_interface_package
 
 # Any engine use would fail loudly against this address.
@@ -591,15 +591,7 @@ def test_compose_up_during_a_build_is_refused_before_it_makes_an_image_of_instal
     and moved `:latest` to it, where `espdock run` refuses."""
     root = copy_workspace(tmp_path / "w")
     (root / "ws/install/custom_interface").mkdir(parents=True)
-    holder = (
-        "import sys, time; from pathlib import Path; from espdock.workspace import Workspace, workspace_lock; "
-        "sys.argv = ['espdock', 'build'];\n"
-        f"with workspace_lock(Workspace(Path({str(root)!r}))):\n"
-        "    print('locked', flush=True); time.sleep(30)"
-    )
-    process = subprocess.Popen([sys.executable, "-c", holder], cwd=REPO, stdout=subprocess.PIPE, text=True)
-    try:
-        assert process.stdout.readline().strip() == "locked"
+    with build_holding(root) as process:
         for subcommand in ("up", "run"):
             refused = espdock("compose", subcommand, cwd=root, env=NO_ENGINE)
             assert refused.returncode == 2, refused.stdout + refused.stderr
@@ -608,8 +600,5 @@ def test_compose_up_during_a_build_is_refused_before_it_makes_an_image_of_instal
         # A shell opens (its colcon would collide with the build's, in the same build dirs), and says so.
         shell = espdock("shell", cwd=root, env=NO_ENGINE)
         assert "warning: an espdock build is running" in shell.stdout + shell.stderr, shell.stdout + shell.stderr
-    finally:
-        process.kill()
-        process.wait()
     # The lock free again: on to the engine (none here).
     assert espdock("compose", "up", cwd=root, env=NO_ENGINE).returncode == 3

@@ -18,7 +18,7 @@ from espdock.build.stamps import StampFile, listing_digest
 from espdock.ros import rosdeps
 from espdock.ros.steps import ROS_STAMPS
 from espdock.workspace import Workspace, discover_packages
-from tests.conftest import REPO, espdock
+from tests.conftest import REPO, build_holding, espdock
 from tests.rosdep_db import environment
 
 PACKAGES = REPO / "tests" / "ros_packages"
@@ -356,20 +356,9 @@ def test_a_build_or_test_during_another_build_is_refused_before_it_writes_the_lo
     """`espdock test` while a build held the workspace wrote rosdep.lock.json into it, then said
     another build was running."""
     root = make_workspace(tmp_path / "w", "rosdeps_xml_count")
-    holder = (
-        "import sys, time; from pathlib import Path; from espdock.workspace import Workspace, workspace_lock; "
-        "sys.argv = ['espdock', 'build'];\n"
-        f"with workspace_lock(Workspace(Path({str(root)!r}))):\n"
-        "    print('locked', flush=True); time.sleep(30)"
-    )
-    process = subprocess.Popen([sys.executable, "-c", holder], cwd=REPO, stdout=subprocess.PIPE, text=True)
-    try:
-        assert process.stdout.readline().strip() == "locked"
+    with build_holding(root) as process:
         for command in ("build", "test"):
             refused = run(root, tmp_path, command)
             assert refused.returncode == 2, refused.stdout + refused.stderr
             assert f"another espdock build is running in {root} (pid {process.pid}: espdock build)" in refused.stderr
             assert not (root / "rosdep.lock.json").exists(), command
-    finally:
-        process.kill()
-        process.wait()

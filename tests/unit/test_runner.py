@@ -24,6 +24,7 @@ from espdock.images.keyed import DPKG_STATUS
 from espdock.ros.nodes import check_built_by_espdock
 from espdock.ros.plan import ColconBuild, ros_build_image
 from espdock.workspace import Workspace
+from tests.conftest import build_holding
 from tests.fake_engine import FakeEngine
 
 DOCKERFILE = "ARG BASE_IMAGE=debian:bookworm-slim\nFROM ${BASE_IMAGE} AS build\n"
@@ -569,27 +570,13 @@ def test_the_users_colcon_defaults_file_is_mounted_where_colcon_reads_it(ws, tmp
 
 def test_a_second_build_in_the_same_workspace_is_told_who_holds_it(ws):
     """A build waiting on another one's lock names that build's pid and command."""
-    import subprocess
-    import sys
+    from espdock.errors import WorkspaceError
+    from espdock.workspace import workspace_lock
 
-    holder = (
-        "import sys, time; from pathlib import Path; from espdock.workspace import workspace_lock; "
-        "from espdock.workspace import Workspace; sys.argv = ['espdock', 'build', 'talker_py'];\n"
-        f"with workspace_lock(Workspace(Path({str(ws.root)!r}))):\n"
-        "    print('locked', flush=True); time.sleep(30)"
-    )
-    process = subprocess.Popen([sys.executable, "-c", holder], stdout=subprocess.PIPE, text=True)
-    try:
-        assert process.stdout.readline().strip() == "locked"
-        from espdock.errors import WorkspaceError
-        from espdock.workspace import workspace_lock
-
+    with build_holding(ws.root, "build", "talker_py") as process:
         with pytest.raises(WorkspaceError) as error, workspace_lock(ws):
             pass
         assert f"(pid {process.pid}: espdock build talker_py)" in error.value.message
-    finally:
-        process.kill()
-        process.wait()
     with workspace_lock(ws):  # the holder's end frees it
         pass
 

@@ -134,8 +134,7 @@ class RosSteps:
                     "time, would not build again"
                 )
                 reasons.append((tuple(tree for name in put_back for tree in (base / name, install / name)), why))
-                moved = {**moved, **dict.fromkeys(put_back, "")}
-            if older := [name for name in stamp_file.foreign(rebuild) if name not in moved]:
+            if older := [name for name in stamp_file.foreign(rebuild) if name not in {*moved, *put_back}]:
                 why = (
                     f"building afresh what an older espdock built: {', '.join(older)} (its records do not say "
                     "where each package was built from, nor on what)"

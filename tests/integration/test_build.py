@@ -263,7 +263,9 @@ def test_another_user_s_file_in_install_is_named_with_its_owner_not_blamed_on_th
     assert espdock("build", cwd=root).returncode == 0
     prefix = root / "ws/install/beacon_nodes"
     subprocess.run(["chown", "-R", "0:0", str(prefix)], check=True)
-    result = espdock("build", "--force", cwd=root)
+    node = root / "ws/src/beacon_nodes/beacon_nodes/beacon.py"
+    node.write_text(node.read_text() + "# an edit\n")  # a rebuild into it (--force builds afresh)
+    result = espdock("build", cwd=root)
     assert result.returncode == 2, result.stdout[-3000:] + result.stderr
     said = " ".join(result.stderr.split())
     assert f"permission denied on {prefix}/" in said and "(owner uid 0," in said, result.stderr

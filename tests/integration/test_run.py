@@ -400,13 +400,19 @@ def test_compose_in_a_copy_of_a_workspace_warns_that_its_file_runs_the_original_
     the original's, in the original's project, replacing its containers, without a word."""
     from espdock.ros.compose import starter_compose
 
+    # The original's name no engine holds an image of: with a real workspace's (a user's
+    # espdock/robot:latest), `compose create` made a container in that workspace's project.
+    original = f"original{os.getpid()}"
     root = tmp_path / "robot-copy"
     root.mkdir()
     (root / "espdock.toml").write_text("[espdock]\n")
-    (root / "compose.yaml").write_text(starter_compose("robot", "espdock/robot:latest", {"talk": ["talker"]}))
-    created = espdock("compose", "create", "--pull", "never", "talker", cwd=root)
+    (root / "compose.yaml").write_text(starter_compose(original, f"espdock/{original}:latest", {"talk": ["talker"]}))
+    try:
+        created = espdock("compose", "create", "--pull", "never", "talker", cwd=root)
+    finally:  # the project's network, which Compose makes before it finds no image
+        subprocess.run(["docker", "compose", "down"], cwd=root, capture_output=True, check=False)
     said = created.stdout + created.stderr
-    assert "compose.yaml runs espdock/robot:latest, another workspace's runtime image" in said, said
+    assert f"compose.yaml runs espdock/{original}:latest, another workspace's runtime image" in said, said
     assert "set image: espdock/robot-copy:latest and name: robot-copy in compose.yaml" in said, said
     assert leftover_containers(engine, root) == []
 

@@ -262,18 +262,20 @@ def build_holding(root: Path, *command: str) -> Iterator[subprocess.Popen]:
     """Another process holding ROOT's workspace lock, as `espdock COMMAND` (default: build) does
     while it runs, until the block ends."""
     holder = (
-        "import sys, time; from pathlib import Path; from espdock.workspace import Workspace, workspace_lock; "
+        "import sys; from pathlib import Path; from espdock.workspace import Workspace, workspace_lock; "
         f"sys.argv = {['espdock', *(command or ('build',))]!r};\n"
         f"with workspace_lock(Workspace(Path({str(root)!r}))):\n"
-        "    print('locked', flush=True); time.sleep(30)"
+        "    print('locked', flush=True); sys.stdin.read()"
     )
-    process = subprocess.Popen([sys.executable, "-c", holder], cwd=REPO, stdout=subprocess.PIPE, text=True)
+    process = subprocess.Popen(
+        [sys.executable, "-c", holder], cwd=REPO, stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True
+    )
     try:
         assert process.stdout is not None and process.stdout.readline().strip() == "locked"
         yield process
     finally:
-        process.kill()
-        process.wait()
+        # Its end, as a build's: the lock and the note of who holds it go (killed, the note stayed).
+        process.communicate(timeout=30)
 
 
 def leftover_containers(engine, root: Path) -> list[str]:

@@ -253,6 +253,13 @@ class LeftOut:
             return f"remove {self.where}"
         return f"add a package.xml to {self.where} (<build_type>{self.build_type}</build_type>)"
 
+    def not_built(self, name: str) -> str:
+        """The warning for a project without a package.xml (unmanifested) that colcon names NAME."""
+        return (
+            f"warning: {self.where} is not built: {self.kind} with no package.xml, which colcon would build as "
+            f"package '{name}'. To build it, {self.fix}; if it is no package, put a COLCON_IGNORE in it"
+        )
+
 
 def left_out(workspace: Workspace) -> dict[str, LeftOut]:
     """The packages under the workspace's package paths that espdock does not build, by name:

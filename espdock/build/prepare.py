@@ -85,10 +85,7 @@ def build_plan(
         for line in interfaces.undeclared(package, inputs.package_files.get(package.name, {})):
             notify(f"warning: {line}")
     for name, project in unmanifested(ws).items():
-        notify(
-            f"warning: {project.where} is not built: {project.kind} with no package.xml, which colcon would "
-            f"build as package '{name}'. To build it, {project.fix}; if it is no package, put a COLCON_IGNORE in it"
-        )
+        notify(project.not_built(name))
     if only in (None, PackageKind.FIRMWARE):
         for firmware in (p for p in chosen if p.kind is PackageKind.FIRMWARE):
             if (firmware.path / "sdkconfig").is_file():

@@ -43,7 +43,7 @@ from espdock.ros import colcon_register, rosdeps
 from espdock.ros.compose import init_compose
 from espdock.ros.plan import base_image, runtime_repository
 from espdock.ros.trees import orphan_installs, package_trees
-from espdock.workspace import PackageKind, check_not_building, read_build_inputs
+from espdock.workspace import PackageKind, build_running, check_not_building, read_build_inputs, unmanifested
 
 
 @app.command(cls=PassThrough)
@@ -109,6 +109,8 @@ def build(
     locked = locked if locked is not None else in_ci(os.environ)
     if not dry_run:
         check_not_building(ws)
+    elif (holder := build_running(ws)) is not None:
+        notify(f"note: an espdock build is running in {ws.root}{holder}: a build now is refused until it ends")
     started = time.monotonic()
     owner = invoking_user(os.environ, ws.root)
     if report is not None and not dry_run:
@@ -368,6 +370,8 @@ def list_packages(workspace: WorkspaceOption = None) -> None:
     """List the workspace's packages in build order."""
     ws, _ = load(workspace)
     render_packages(console, ws, workspace_packages(ws))
+    for name, project in unmanifested(ws).items():
+        notify(project.not_built(name))
 
 
 colcon_extension = typer.Typer(

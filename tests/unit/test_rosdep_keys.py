@@ -322,6 +322,9 @@ def test_a_dependency_on_a_vendored_cmake_project_without_a_package_xml_names_th
     said = " ".join(planned.stderr.split() + planned.stdout.split())
     assert planned.returncode == 0, said
     assert "warning: src/third_party/tinylib is not built: a CMake project with no package.xml" in said
+    listed = run(root, tmp_path, "list")  # where a user looks for what the workspace builds
+    said = " ".join(listed.stderr.split() + listed.stdout.split())
+    assert listed.returncode == 0 and "src/third_party/tinylib is not built" in said, said
     (vendored / "COLCON_IGNORE").touch()
     ignored = run(root, tmp_path, "build", "--dry-run")
     assert ignored.returncode == 0 and "not built" not in ignored.stdout + ignored.stderr
@@ -357,6 +360,9 @@ def test_a_build_or_test_during_another_build_is_refused_before_it_writes_the_lo
     another build was running."""
     root = make_workspace(tmp_path / "w", "rosdeps_xml_count")
     with build_holding(root) as process:
+        previewed = run(root, tmp_path, "build", "--dry-run")
+        said = " ".join(previewed.stdout.split() + previewed.stderr.split())
+        assert previewed.returncode == 0 and f"(pid {process.pid}: espdock build): a build now is refused" in said
         for command in ("build", "test"):
             refused = run(root, tmp_path, command)
             assert refused.returncode == 2, refused.stdout + refused.stderr

@@ -200,21 +200,22 @@ def _sources(dirpath: str, dirnames: list[str], outputs: frozenset[str]) -> list
     return [d for d in kept if os.path.normpath(os.path.join(dirpath, d)) not in outputs]
 
 
-def _manifests(base: Path, outputs: frozenset[str] = frozenset()) -> Iterable[Path]:
-    """package.xml files under BASE, not descending into packages, ignored or hidden dirs or
+def _searched(base: Path, outputs: frozenset[str] = frozenset()) -> Iterator[tuple[str, list[str]]]:
+    """The directories under BASE a search for packages looks at, with their files, as colcon's
+    crawl: not below a package or an ignore marker (nor the marker's own), hidden dirs or
     OUTPUTS. Links to directories are followed, as colcon follows them (`ln -s ~/repos/driver
     src/`), each real directory once."""
-    if not base.is_dir():
-        return
     for dirpath, dirnames, filenames in walk_following_links(base):
         if any(marker in filenames for marker in IGNORE_MARKERS):
             dirnames[:] = []
             continue
-        if "package.xml" in filenames:
-            dirnames[:] = []
-            yield Path(dirpath) / "package.xml"
-            continue
-        dirnames[:] = sorted(_sources(dirpath, dirnames, outputs))
+        dirnames[:] = [] if "package.xml" in filenames else sorted(_sources(dirpath, dirnames, outputs))
+        yield dirpath, filenames
+
+
+def _manifests(base: Path, outputs: frozenset[str] = frozenset()) -> Iterable[Path]:
+    """package.xml files under BASE (see _searched)."""
+    return (Path(dirpath) / "package.xml" for dirpath, files in _searched(base, outputs) if "package.xml" in files)
 
 
 def walk_following_links(root: str | os.PathLike[str]) -> Iterator[tuple[str, list[str], list[str]]]:
@@ -298,16 +299,10 @@ def unmanifested(workspace: Workspace) -> dict[str, LeftOut]:
     for rel in workspace.package_paths:
         candidates: list[tuple[str, str, LeftOut]] = []
         manifests: list[str] = []
-        for dirpath, dirnames, filenames in walk_following_links(workspace.root / rel):
-            if any(marker in filenames for marker in IGNORE_MARKERS):
-                dirnames[:] = []
-                continue
+        for dirpath, filenames in _searched(workspace.root / rel, outputs):
             if "package.xml" in filenames:
-                dirnames[:] = []
                 manifests.append(dirpath)
-                continue
-            dirnames[:] = sorted(_sources(dirpath, dirnames, outputs))
-            if (project := _project(Path(dirpath), set(filenames), workspace.root)) is not None:
+            elif (project := _project(Path(dirpath), set(filenames), workspace.root)) is not None:
                 candidates.append((dirpath, *project))
         for dirpath, name, project in candidates:
             if not any(m.startswith(dirpath + os.sep) for m in manifests):

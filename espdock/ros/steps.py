@@ -150,7 +150,7 @@ class RosSteps:
         return tuple(tree for trees, _ in reasons for tree in trees)
 
     def colcon_build(self, workspace: Workspace, step: ColconBuild) -> tuple[Outcome, str]:
-        stamp_file, stamps, rebuild = colcon_rebuild(workspace, step)
+        stamp_file, stamps, rebuild, trees = colcon_rebuild(workspace, step)
 
         def installed() -> dict[str, str | None]:
             return {name: listing_digest(workspace.ws_dir / "install" / name) for name in stamps}
@@ -170,8 +170,6 @@ class RosSteps:
                 )
             )
         emptied = (base,) if retired is not None else ()  # in the workspace volume, its build dirs as well
-        # The sources as this build takes them: what put them back, and what is recorded of them.
-        trees = source_states(workspace, step)
         emptied += self._build_afresh(workspace, step, rebuild, stamp_file, trees)
         sync = self.containers.sync(workspace, step.name, step.image, user, labels, emptied)
         whole = sync is not None and (sync.fresh or sync.installed != listing_digest(workspace.ws_dir / "install"))
@@ -409,23 +407,23 @@ class RosSteps:
         return outcome, f"{spec.tag}, {step.stable_tag}"
 
 
-def source_states(workspace: Workspace, step: ColconBuild) -> dict[str, tuple[str, int]]:
-    """Each package's own sources as tree_state has them, in STEP's order."""
-    return {name: tree_state(workspace.ws_dir / rel) for name, rel in step.sources}
-
-
-def colcon_rebuild(workspace: Workspace, step: ColconBuild) -> tuple[StampFile, dict[str, str], tuple[str, ...]]:
-    """STEP's stamp file, the stamps of the packages it builds as they are now, and which of them
-    colcon gets: the changed ones and, their stamps being chained, what depends on them (all of
-    them with --force). The rest are up to date in install/, where colcon finds them."""
+def colcon_rebuild(
+    workspace: Workspace, step: ColconBuild
+) -> tuple[StampFile, dict[str, str], tuple[str, ...], dict[str, tuple[str, int]]]:
+    """STEP's stamp file, the stamps of the packages it builds as they are now, which of them
+    colcon gets (the changed ones and, their stamps being chained, what depends on them; all of
+    them with --force; the rest are up to date in install/, where colcon finds them), and each
+    package's own sources as tree_state had them: what a build of them records, and what tells
+    sources put back with an older time."""
     stamp_file = StampFile(workspace.ws_dir / "build" / ROS_STAMPS, ROS_STAMP_FORMAT)
-    sources = {name: tree for name, (tree, _) in source_states(workspace, step).items()}
+    trees = {name: tree_state(workspace.ws_dir / rel) for name, rel in step.sources}
+    sources = {name: tree for name, (tree, _) in trees.items()}
     chained = package_stamps(sources, dict(step.depends), step.stamp_image, dict(step.settings))
     stamps = {name: chained[name] for name in step.building}
     if step.force:
-        return stamp_file, stamps, tuple(stamps)
+        return stamp_file, stamps, tuple(stamps), trees
     installed = {name: listing_digest(workspace.ws_dir / "install" / name) for name in stamps}
-    return stamp_file, stamps, stamp_file.stale(stamps, installed, dict(step.sources))
+    return stamp_file, stamps, stamp_file.stale(stamps, installed, dict(step.sources)), trees
 
 
 def runtime_spec(workspace: Workspace, step: RuntimeImage) -> ImageSpec:

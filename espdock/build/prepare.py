@@ -194,17 +194,19 @@ def plan_tests(
         colcon_args=colcon_args,
         defaults_file=build.defaults_file,
     )
-    tested = dataclasses.replace(build, selected=names, name="colcon build: with tests")
+    # The plain build of these packages, as `espdock build` would build them (of the same
+    # workspace and inputs: what it would say, the plan above said).
+    plain = build_plan(
+        ws, config, list(names), PackageKind.ROS, colcon_args=last or None, known=known, env=env, notify=lambda _: None
+    )
+    first = next(s for s in plain.steps if isinstance(s, ColconBuild))
+    tested = dataclasses.replace(build, selected=names, name="colcon build: with tests", serves=first.stamp_image)
     steps: tuple[ColconBuild, ...] = (tested,)
     if dependencies := tuple(name for name in build.packages if name not in names):
         # Built, not tested: as `espdock build` builds them, in the build image (made before the
         # test image over it), with their tests configured only where a plain build configures
         # them. A template's `find_package(ament_lint_auto)` under BUILD_TESTING in a dependency
         # then needs nothing, and a build before leaves them up to date.
-        plain = build_plan(
-            ws, config, list(names), PackageKind.ROS, colcon_args=last or None, known=known, env=env, notify=notify
-        )
-        first = next(s for s in plain.steps if isinstance(s, ColconBuild))
         steps = (dataclasses.replace(first, selected=dependencies, name="colcon build: dependencies"), tested)
     out = [new for s in plan.steps for new in (steps if s is build else (s,))]
     return Plan(plan.workspace, tuple(out), plan.idf_images), step

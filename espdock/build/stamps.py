@@ -143,7 +143,7 @@ class StampFile:
             for name, stamp in stamps.items()
             if not (
                 self._current(recorded.get(name))
-                and recorded[name].get("stamp") == stamp
+                and stamp in (recorded[name].get("stamp"), recorded[name].get("serves"))
                 and installed.get(name) is not None
                 and recorded[name].get("installed") == installed[name]
                 and name not in moved
@@ -183,13 +183,17 @@ class StampFile:
         installed: Mapping[str, str | None],
         sources: Mapping[str, str] | None = None,
         trees: Mapping[str, tuple[str, int]] | None = None,
+        serves: Mapping[str, str] | None = None,
     ) -> None:
         """Record STAMPS with what is installed now (and each package's directory, from SOURCES,
         and its own sources' digest and newest time, from TREES: tree_state), keeping other
-        packages' records."""
+        packages' records. SERVES: another stamp each package's build stands for as well (a test
+        build's install is the one a plain build of the same sources would make)."""
         data = self.read()
         for name, stamp in stamps.items():
             data[name] = self._entry(name, sources, stamp=stamp, installed=installed.get(name))
+            if serves and name in serves:
+                data[name]["serves"] = serves[name]
             if trees and name in trees:
                 data[name]["tree"], data[name]["newest"] = trees[name]  # type: ignore[assignment]
         self.path.parent.mkdir(parents=True, exist_ok=True)

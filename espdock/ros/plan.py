@@ -61,6 +61,9 @@ class ColconBuild:
     # image lacks ament's lint packages), unless the options after `--` set it.
     testing: bool = False
     tests_off: bool = False
+    # A test build's: the stamp_image of the plain build its install also serves (tests are
+    # built, not installed), so `espdock build` after `espdock test` rebuilds nothing.
+    serves: str = ""
     # The PACKAGES this step builds, when not all: the others are dependencies a step before it
     # built, which colcon finds (and sources) in install/ as it finds any up-to-date package.
     selected: tuple[str, ...] = ()
@@ -117,7 +120,7 @@ class ColconBuild:
     @property
     def stamp_image(self) -> str:
         """What the packages' stamps hold of the image and how tests are configured: a test build
-        and a plain one never pass for each other."""
+        and a plain one have different stamps (a plain build takes a test build's install: serves)."""
         configured = "tests" if self.testing else "no-tests" if self.says_tests_off else ""
         return f"{self.image}\0{configured}" if configured else self.image
 
@@ -319,7 +322,11 @@ def ros_steps(
             defaults_symlink_install=colcon.symlink_install,
             testing=testing,
             # Only CMake packages read BUILD_TESTING: a workspace of Python packages is told nothing.
-            tests_off=tests_off and not testing and any(p.build_type not in PYTHON_BUILD_TYPES for p in ros),
+            # Of the workspace, not of this build's packages: a build of a Python package alone
+            # has the stamps of a build of all (`espdock build PKG`, then `espdock build`).
+            tests_off=tests_off
+            and not testing
+            and any(p.build_type not in PYTHON_BUILD_TYPES for p in all_packages if p.kind is PackageKind.ROS),
             declared=tuple((p.name, p.depends, p.test_only_depends) for p in ros),
             underlay=ros_image.repository,
             interfaces=tuple(p.name for p in ros if p.is_interface),

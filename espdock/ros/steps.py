@@ -270,7 +270,12 @@ class RosSteps:
             # Those recorded as built (their install is espdock's: `espdock run` takes it), with a
             # stamp no package has: the next build builds them again.
             recorded_stamps = {name: ON_OLD_INSTALL if on_old[name] else stamps[name] for name in built}
-            stamp_file.record(recorded_stamps, installed(), dict(step.sources), trees)
+            serves = None
+            if step.serves:
+                sources = {name: tree for name, (tree, _) in trees.items()}
+                plain = package_stamps(sources, dict(step.depends), step.serves, dict(step.settings))
+                serves = {name: plain[name] for name in built if not on_old[name]}
+            stamp_file.record(recorded_stamps, installed(), dict(step.sources), trees, serves)
             give_to(stamp_file.path, self.containers.owner)
         self.unbuilt |= set(rebuild) - set(built)
         if states is None and code != 0:

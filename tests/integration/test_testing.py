@@ -106,9 +106,13 @@ def test_build_skips_test_needs_then_test_builds_runs_and_reports_them(tmp_path,
     # The others: built again with their tests, tested; a failing pytest test is exit code 10.
     # lint_auto_cpp is built, not tested: as the plain build left it (its tests' ament_lint_auto
     # stopped espdock before).
+    # A vendored CMake project without a package.xml: warned of once, not once per plan.
+    (root / "src/vendored").mkdir()
+    (root / "src/vendored/CMakeLists.txt").write_text("cmake_minimum_required(VERSION 3.8)\n")
     results = tmp_path / "results"
     tested = espdock("test", "tested_py", "tested_cpp", "--results", str(results), cwd=root, env=env)
     out = tested.stdout
+    assert (out + tested.stderr).count("src/vendored is not built") == 1, out[:3000]
     assert tested.returncode == 10, out[-4000:] + tested.stderr
     events = (root / "log/latest_build/events.log").read_text()
     assert "(tested_cpp) JobEnded" in events and "(lint_auto_cpp)" not in events, "up to date, not rebuilt"
@@ -141,6 +145,12 @@ def test_build_skips_test_needs_then_test_builds_runs_and_reports_them(tmp_path,
     assert again.returncode == 0, again.stdout[-3000:] + again.stderr
     assert "tested_py  5 tests: 4 passed, 0 failed, 0 errored, 1 skipped" in again.stdout
     assert "up to date" in again.stdout
+
+    # A plain build after them rebuilds nothing: a test build installs what it would (tests are
+    # built, not installed). It rebuilt both, on every `espdock test` in turn.
+    plain = espdock("build", cwd=root, env=env)
+    assert plain.returncode == 0, plain.stdout[-3000:] + plain.stderr
+    assert re.search(r"colcon build +cached .*up to date \(3 package\(s\)\)", plain.stdout), plain.stdout[-3000:]
     assert leftover_containers(engine, root) == []
 
 

@@ -152,3 +152,17 @@ def test_build_testing_is_turned_off_only_where_a_cmake_package_reads_it():
     assert not built.says_tests_off and "-DBUILD_TESTING=OFF" not in built.argv()
     mixed = plan_build(ws, Config(), (*python, pkg("msgs")), spec, tests_off=True).steps[2]
     assert mixed.says_tests_off and "-DBUILD_TESTING=OFF" in mixed.argv()
+
+
+def test_a_build_of_a_python_package_alone_has_the_stamps_of_a_build_of_all():
+    """`espdock build talker`, then `espdock build`: the second rebuilt talker, and what depends
+    on it, since the first had no CMake package to turn tests off for and stamped it so."""
+    from dataclasses import replace
+
+    ws = Workspace(Path("/w"))
+    spec = ros_build_image(Config(), DOCKERFILE, FILES)
+    talker = replace(pkg("talker"), build_type="ament_python")
+    everything = (pkg("msgs"), talker)
+    alone = plan_build(ws, Config(), (talker,), spec, ("talker",), all_packages=everything, tests_off=True).steps[2]
+    whole = plan_build(ws, Config(), everything, spec, all_packages=everything, tests_off=True).steps[2]
+    assert alone.stamp_image == whole.stamp_image

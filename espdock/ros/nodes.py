@@ -17,7 +17,7 @@ from espdock.images.visibility import directory_links, linked_mounts
 from espdock.layout import ROS_BUILD_BASE, ROS_OFFICIAL_DOCKERFILE, WORKSPACE_MOUNT
 from espdock.ros.plan import RUNTIME_INSTALL, RuntimeImage
 from espdock.ros.runtime_tree import resolve_installed
-from espdock.workspace import Package, PackageKind, Workspace, build_running
+from espdock.workspace import Package, PackageKind, Workspace, build_running, left_out
 
 # What reaches a node from the caller's environment, as `ros2 run` would see it.
 PASSED_ENV = (
@@ -73,8 +73,11 @@ def find_executable(workspace: Workspace, packages: tuple[Package, ...], package
             f"board, and `espdock monitor {package} --port PORT` shows its output.",
         )
     if package not in ros:
+        # A package an ignore marker leaves out, or a project colcon would build without a
+        # package.xml: said as the build says it.
+        why = f": {out.what}" if (out := left_out(workspace).get(package)) else ""
         raise WorkspaceError(
-            f"no ROS package '{package}' in this workspace",
+            f"no ROS package '{package}' in this workspace{why}",
             f"Packages with executables (after `espdock build`): {listing}.",
         )
     if not (install / package).is_dir():

@@ -113,6 +113,25 @@ def test_unknown_names_are_user_errors_that_list_what_exists(ws, package, execut
         assert "talk: listener, talker" in caught.value.hint
 
 
+def test_run_of_a_package_espdock_leaves_out_says_what_leaves_it_out(ws):
+    """Both were "no ROS package 'NAME' in this workspace", as for a misspelt name."""
+    workspace, packages = ws
+    vendored = workspace.root / "src/vendored"
+    vendored.mkdir(parents=True)
+    (vendored / "CMakeLists.txt").write_text("cmake_minimum_required(VERSION 3.8)\nproject(vendored)\n")
+    ignored = workspace.root / "src/old_driver"
+    ignored.mkdir()
+    (ignored / "package.xml").write_text("<package format='3'><name>old_driver</name></package>")
+    (ignored / "COLCON_IGNORE").touch()
+    for name, said in (
+        ("vendored", "src/vendored, a CMake project with no package.xml, which espdock does not build"),
+        ("old_driver", "a workspace package, which src/old_driver/COLCON_IGNORE leaves out"),
+    ):
+        with pytest.raises(WorkspaceError) as caught:
+            find_executable(workspace, packages, name, "x")
+        assert caught.value.message == f"no ROS package '{name}' in this workspace: {said}"
+
+
 def test_a_launch_file_given_to_run_says_how_to_launch_it(ws):
     """`espdock run talk talk.launch.py` said only "no executable", listing executables."""
     workspace, packages = ws

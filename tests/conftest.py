@@ -119,9 +119,25 @@ def espdock(
         stdin=subprocess.DEVNULL,  # never the terminal pytest may run in: nothing may wait for typing
         capture_output=True,
         text=True,
+        errors="replace",  # a non-UTF-8 locale's output (a Latin-1 ü) is read, not a crash of the test
         timeout=timeout,
         check=False,
     )
+
+
+def locale_env(tmp: Path, language: str, charmap: str) -> dict[str, str]:
+    """The variables of a user whose locale is LANGUAGE in CHARMAP (en_US, ISO-8859-1): the locale
+    made under TMP by localedef from the machine's locale sources (no root, no locale-gen)."""
+    name = f"{language}.{charmap}"
+    (tmp / "locales").mkdir(parents=True, exist_ok=True)
+    made = subprocess.run(
+        ["localedef", "-c", "-i", language, "-f", charmap, str(tmp / "locales" / name)],
+        check=False,  # -c: warnings are no failure; the locale made is what counts
+        capture_output=True,
+        text=True,
+    )
+    assert (tmp / "locales" / name).is_dir(), made.stderr
+    return {"LOCPATH": str(tmp / "locales"), "LC_ALL": name}
 
 
 def ros_build_tag(root: Path) -> str:

@@ -15,7 +15,7 @@ from pathlib import Path
 import pytest
 
 from espdock.images.prune import read_records
-from tests.conftest import espdock, images_built_from, python_workspace
+from tests.conftest import espdock, images_built_from, locale_env, python_workspace
 
 pytestmark = [pytest.mark.engine, pytest.mark.slow]
 
@@ -75,3 +75,15 @@ def test_two_workspaces_sharing_images_build_at_once(engine, tmp_path):
         tags = {i.tag for r in read_records(tmp_path / "state") for i in r.images}
         tags |= {f"espdock/shared-{side}-{run}:latest" for side in "ab"}
         subprocess.run(["docker", "rmi", *sorted(tags), *untagged_from(dockerfile)], capture_output=True, check=False)
+
+
+def test_a_build_under_a_latin1_locale_gives_the_engine_the_workspace_s_own_path(engine, tmp_path):
+    """LC_ALL=en_US.ISO-8859-1 and a workspace at .../wü: espdock read the path's UTF-8 bytes as
+    Latin-1 (wÃ¼), gave the engine that path, which it did not find, and the build went through a
+    workspace volume without a word (and `espdock run -v` was then refused)."""
+    root = python_workspace(tmp_path / "wü")
+    env = {**locale_env(tmp_path, "en_US", "ISO-8859-1"), "ESPDOCK_STATE_DIR": str(tmp_path / "state")}
+    built = espdock("build", cwd=root, env=env)
+    assert built.returncode == 0, built.stdout[-3000:] + built.stderr
+    assert "workspace volume" not in built.stdout, built.stdout[-3000:]
+    assert (root / "ws/install/beacon_nodes").is_dir()

@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 from espdock.layout import firmware_install_dir
-from tests.conftest import REPO, build_holding, copy_workspace, espdock
+from tests.conftest import REPO, build_holding, copy_workspace, espdock, locale_env
 from tests.robot_packages import write_interface_package
 
 # Any engine use would fail loudly against this address.
@@ -563,6 +563,19 @@ def test_a_locale_that_cannot_write_a_character_gets_a_question_mark_not_a_crash
     listed = espdock("list", cwd=root, env={"PYTHONIOENCODING": "ascii"})
     assert listed.returncode == 0 and "r?bot" in listed.stdout, listed.stderr
     planned = espdock("build", "--dry-run", cwd=root, env={"PYTHONIOENCODING": "ascii", **NO_ENGINE})
+    assert planned.returncode == 0 and "custom_interface" in planned.stdout, planned.stderr
+
+
+def test_a_utf8_workspace_path_is_read_as_utf8_whatever_the_locale(tmp_path):
+    """LC_ALL=ja_JP.EUC-JP and a workspace called 机器人: every command said "the workspace's path
+    is not UTF-8" (EUC-JP cannot read it); the path is UTF-8, as the engine takes it."""
+    env = {**locale_env(tmp_path, "ja_JP", "EUC-JP"), **NO_ENGINE}
+    root = copy_workspace(tmp_path / "机器人")
+    # The command (`python -m espdock` stops in Python's own search for the module there).
+    command = (str(Path(sys.executable).with_name("espdock")),)
+    listed = espdock("list", cwd=root, env=env, prefix=command)
+    assert listed.returncode == 0 and "custom_interface" in listed.stdout, listed.stderr
+    planned = espdock("build", "--dry-run", cwd=root, env=env, prefix=command)
     assert planned.returncode == 0 and "custom_interface" in planned.stdout, planned.stderr
 
 

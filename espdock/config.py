@@ -16,7 +16,7 @@ import msgspec
 from msgspec import Meta, Struct
 
 from espdock.errors import ConfigError
-from espdock.layout import CONFIG_FILE, xdg_dir
+from espdock.layout import CONFIG_FILE, home_dir, xdg_dir
 
 CHIP_TARGETS = (
     "esp32",
@@ -222,7 +222,7 @@ def pip_configured_cert(env: Mapping[str, str]) -> Path | None:
     """The CA bundle pip on this machine is told to trust (PIP_CERT or pip.conf `cert`), if any."""
     if env.get("PIP_CERT"):
         return Path(env["PIP_CERT"])
-    home = Path(env.get("HOME", "~")).expanduser()
+    home = home_dir(env)
     xdg = xdg_dir(env, "XDG_CONFIG_HOME", ".config")
     # pip's own order: global, user, site; later files win.
     candidates = [Path("/etc/xdg/pip/pip.conf"), Path("/etc/pip.conf"), home / ".pip/pip.conf", xdg / "pip/pip.conf"]

@@ -4,8 +4,11 @@ from __future__ import annotations
 
 import os
 import posixpath
+import pwd
 from collections.abc import Mapping
 from pathlib import Path
+
+from espdock.errors import ConfigError
 
 # The workspace marker and its settings, at the workspace root.
 CONFIG_FILE = "espdock.toml"
@@ -111,4 +114,20 @@ def xdg_dir(env: Mapping[str, str], variable: str, fallback: str) -> Path:
     value = env.get(variable, "")
     if value and os.path.isabs(value):
         return Path(value)
-    return Path(env.get("HOME") or Path.home()) / fallback
+    return home_dir(env) / fallback
+
+
+def home_dir(env: Mapping[str, str]) -> Path:
+    """The user's home: HOME in ENV, else their passwd entry's. A uid with neither (a CI runner's
+    or OpenShift's random uid, run under `env -i`) is told what to set: Python's own lookup raised
+    a RuntimeError, "a bug in espdock", at nearly every command."""
+    if value := env.get("HOME"):
+        return Path(value)
+    try:
+        return Path(pwd.getpwuid(os.getuid()).pw_dir)
+    except KeyError:
+        raise ConfigError(
+            f"HOME is not set and uid {os.getuid()} has no entry in /etc/passwd, so it has no home",
+            "Set HOME to a directory of yours (espdock keeps its caches and state under it, as the Docker CLI "
+            "keeps its configuration), e.g. `export HOME=$(mktemp -d)` in a CI job.",
+        ) from None

@@ -18,6 +18,7 @@ from pathlib import Path
 
 from espdock.config import Config
 from espdock.errors import EngineUnavailable, EspdockError, ImageBuildError
+from espdock.images import contexts
 from espdock.images.engine import DEFAULT_HOST, Engine, compose_available
 from espdock.images.machine_lock import machine_lock
 
@@ -120,8 +121,7 @@ def ensure_compose(env: Mapping[str, str], notify: Notify) -> None:
     if root:
         plugin = SYSTEM_PLUGIN  # every user of this machine gets it
     else:
-        config_dir = Path(env.get("DOCKER_CONFIG") or Path(env.get("HOME", "~")).expanduser() / ".docker")
-        plugin = config_dir / "cli-plugins" / "docker-compose"
+        plugin = contexts.config_dir(env) / "cli-plugins" / "docker-compose"
     _install_plugin(_wheel_compose(), plugin, notify)
 
 

@@ -15,6 +15,7 @@ from collections.abc import Mapping
 from pathlib import Path
 
 from espdock.errors import ConfigError
+from espdock.layout import home_dir
 
 DEFAULT = "default"
 # How ENV sets TLS up for the CLI's default context; a context of its own replaces them all.
@@ -25,7 +26,7 @@ TLS_FILES = ("ca.pem", "cert.pem", "key.pem")
 
 def config_dir(env: Mapping[str, str]) -> Path:
     """The Docker CLI's configuration directory."""
-    return Path(env.get("DOCKER_CONFIG") or Path(env.get("HOME") or Path.home()) / ".docker")
+    return Path(env.get("DOCKER_CONFIG") or home_dir(env) / ".docker")
 
 
 def is_context_tls(path: str | Path, env: Mapping[str, str]) -> bool:

@@ -10,6 +10,7 @@ from __future__ import annotations
 import grp
 import json
 import os
+import shutil
 import subprocess
 from pathlib import Path
 
@@ -129,3 +130,21 @@ def test_an_existing_colcon_workspace_with_firmware_deep_in_src(shared_dir, run_
         assert owners(root) == {USER_UID}
     finally:
         engine.remove_containers({"io.espdock.workspace": str(root)})
+
+
+def test_a_uid_with_no_passwd_entry_and_no_home_is_told_to_set_home(shared_dir, wheel_espdock):
+    """`env -i` as a uid /etc/passwd lacks (a CI runner's or OpenShift's random uid): exit 70,
+    "a bug in espdock" (RuntimeError: Could not determine home directory.) at nearly every command."""
+    uid = 123457
+    root = shared_dir / "random-uid"
+    (root / "src").mkdir(parents=True)
+    shutil.copytree(REPO / "tests/ros_packages/beacon_nodes", root / "src/beacon_nodes")
+    (root / "espdock.toml").write_text("[espdock]\n")
+    subprocess.run(["chown", "-R", f"{uid}:{uid}", str(root)], check=True)
+    *setpriv, command = as_user(uid, uid, [], wheel_espdock)
+    listed = espdock("list", cwd=root, prefix=(*setpriv, "env", "-u", "HOME", command))
+    assert listed.returncode == 2, listed.stdout + listed.stderr
+    assert f"HOME is not set and uid {uid} has no entry in /etc/passwd" in listed.stderr
+    assert "Set HOME to a directory of yours" in listed.stderr
+    listed = espdock("list", cwd=root, env={"HOME": str(root / "home")}, prefix=(*setpriv, command))
+    assert listed.returncode == 0 and "beacon_nodes" in listed.stdout, listed.stderr

@@ -148,16 +148,22 @@ def find_workspace(start: Path | None = None) -> Workspace:
             "the current directory no longer exists (removed, or replaced by a new clone)",
             "cd into the workspace again (`cd $PWD`), then run again.",
         ) from None
-    start, looked = resolved[0], []
+    start, looked, denied = resolved[0], [], []
     for directory in (*resolved, *logical):
         looked.append(directory)
-        if (directory / CONFIG_FILE).is_file():
+        try:
+            found = (directory / CONFIG_FILE).is_file()
+        except PermissionError:  # one this user may not look into (`sudo -u builder` in /root)
+            denied.append(directory)
+            continue
+        if found:
             check_utf8_path(directory.resolve())
             return Workspace(directory.resolve())
     looked = looked[: len(resolved)]
     shown = ", ".join(str(d) for d in looked[:4]) + (", ..." if len(looked) > 4 else "")
+    barred = f"; you may not look into {', '.join(map(str, dict.fromkeys(denied)))}" if denied else ""
     raise WorkspaceError(
-        f"not inside an espdock workspace: no {CONFIG_FILE} in {start} or any parent ({shown})",
+        f"not inside an espdock workspace: no {CONFIG_FILE} in {start} or any parent ({shown}){barred}",
         f"Run espdock from a workspace, or create {CONFIG_FILE} at its root.",
     )
 

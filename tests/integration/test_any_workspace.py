@@ -148,3 +148,17 @@ def test_a_uid_with_no_passwd_entry_and_no_home_is_told_to_set_home(shared_dir, 
     assert "Set HOME to a directory of yours" in listed.stderr
     listed = espdock("list", cwd=root, env={"HOME": str(root / "home")}, prefix=(*setpriv, command))
     assert listed.returncode == 0 and "beacon_nodes" in listed.stdout, listed.stderr
+
+
+def test_espdock_run_in_a_directory_the_user_may_not_look_into_says_so(shared_dir, wheel_espdock):
+    """`cd /root && runuser -u builder -- espdock list` (cron, `sudo -u`): exit 70, "a bug in
+    espdock" (PermissionError: '/root/espdock.toml')."""
+    barred = shared_dir / "root-only"
+    barred.mkdir(mode=0o700)
+    listed = espdock(
+        "list", cwd=barred, env=user_env(shared_dir / "home"), prefix=as_user(USER_UID, USER_UID, [], wheel_espdock)
+    )
+    assert listed.returncode == 2, listed.stdout + listed.stderr
+    said = " ".join(listed.stderr.split())
+    assert f"not inside an espdock workspace: no espdock.toml in {barred} or any parent" in said, said
+    assert f"you may not look into {barred}" in said, said

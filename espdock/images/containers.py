@@ -213,7 +213,7 @@ def permission_error(
     gives back all a `sudo colcon build` left, not one file per run."""
     path = Path(exc.filename) if exc.filename else None
     owner = ""
-    top = None
+    top = denied = None
     owner_uid = None
     if path is not None:
         try:
@@ -236,11 +236,12 @@ def permission_error(
             f"permission denied on {path}{owner}; {who}, its owner, but its mode does not let it write",
             f"Let its owner write it (`chmod u+w {shlex.quote(str(denied))}`), or build elsewhere.",
         )
-    give_back = f"sudo chown -R {chown} {shlex.quote(str(top))}" if top is not None else f"sudo chown -R {chown} PATH"
+    mine = top if top is not None else denied
+    give_back = f"sudo chown -R {chown} {shlex.quote(str(mine)) if mine is not None else 'PATH'}"
     return WorkspaceError(
         f"permission denied on {path or 'a workspace file'}{owner}; {who}",
-        f"Give it back (`{give_back}`); files a container wrote as another user are the engine's doing: "
-        "see the Engines page of espdock's docs (rootless engines).",
+        f"Give it back (`{give_back}`), or work in a copy of your own. Where a container wrote it as another "
+        "user, that is the engine's doing: see the Engines page of espdock's docs (rootless engines).",
     )
 
 

@@ -136,8 +136,16 @@ def engine_sees(
     probe = mount.source / f"{PROBE_PREFIX}{os.getpid()}-{nonce[:8]}"
     output: list[str] = []
     try:
-        probe.write_text(nonce)
-        probe.chmod(0o644)
+        try:
+            probe.write_text(nonce)
+            probe.chmod(0o644)
+        except OSError as exc:  # a read-only checkout, or one of another user's
+            raise WorkspaceError(
+                f"espdock cannot write in the workspace {mount.source}: {exc.strerror or exc}",
+                "espdock writes there: its build trees (build/, install/, log/), and the file it asks the engine "
+                "to find. Let your user write the workspace (`chmod u+w`, or `sudo chown -R $(id -u):$(id -g)` "
+                "on what another user owns), or work in a copy of your own.",
+            ) from None
         spec = RunSpec(
             image=image,
             # Judged by the exit code: a short container's output can come back empty.

@@ -549,6 +549,27 @@ def test_what_needs_this_machine_is_refused_before_any_image_where_the_volume_is
         runner(FakeEngine(), Config(workspace_mode="volume")).containers.known_to_need_this_machine(ws, "x")
 
 
+def test_a_workspace_espdock_may_not_write_is_said_before_anything_runs(ws, monkeypatch):
+    """A read-only checkout (`chmod -R a-w`, or root's clone built by a user): `espdock shell`
+    failed as "a bug in espdock" (PermissionError) writing the file it asks the engine to find."""
+    from pathlib import Path
+
+    write_text = Path.write_text
+
+    def read_only(path, *args, **kwargs):
+        if path.parent == ws.root:
+            raise PermissionError(13, "Permission denied", str(path))
+        return write_text(path, *args, **kwargs)
+
+    monkeypatch.setattr(Path, "write_text", read_only)
+    engine = FakeEngine(run_script=colcon_installs(ws))
+    with pytest.raises(WorkspaceError) as err:
+        runner(engine).run(Plan(ws, (COLCON,)))
+    assert err.value.exit_code == 2
+    assert err.value.message == f"espdock cannot write in the workspace {ws.root}: Permission denied"
+    assert engine.runs == []
+
+
 def test_permission_hints_quote_their_path_and_name_the_fix_that_applies(tmp_path):
     """`chmod -R a-w src` of the user's own tree got "sudo chown -R" to the user it already was;
     a workspace called `my ws` got a chown hint that, pasted, changed two other paths."""
@@ -565,6 +586,14 @@ def test_permission_hints_quote_their_path_and_name_the_fix_that_applies(tmp_pat
     own = permission_error(PermissionError(13, "denied", str(root / "install/talker/x")), (4242, 4242), root)
     assert "its owner, but its mode does not let it write" in own.message and "chown" not in own.hint
     assert f"`chmod u+w {shlex.quote(str(root / 'install/talker'))}`" in own.hint
+    # A checkout another user owns down to its root (`git clone` as root, built by a user): the
+    # hint named a literal PATH, and blamed the engine for files no container wrote.
+    checkout = tmp_path / "checkout"
+    checkout.mkdir()
+    os.chown(checkout, 0, 0)
+    theirs = permission_error(PermissionError(13, "denied", str(checkout / "build")), (1000, 1000), checkout)
+    assert f"(owner uid 0, mode {checkout.stat().st_mode & 0o7777:04o}, its directory)" in theirs.message
+    assert f"`sudo chown -R 1000:1000 {checkout}`), or work in a copy of your own" in theirs.hint, theirs.hint
 
 
 def test_no_space_left_where_the_workspace_disk_has_room_is_a_full_disk_not_a_bug(ws, monkeypatch):

@@ -68,6 +68,8 @@ def firmware_build_dir(ws_dir: Path, package: str) -> Path:
 COLCON_RESULT_FILES = ("colcon_build.rc", "colcon_test.rc")
 # Under share/<package> of an installed firmware package: its flashable artefacts.
 FIRMWARE_DIR = "firmware"
+# In install/: what the last successful `espdock build` produced (espdock.build.manifest).
+MANIFEST_NAME = "espdock-manifest.json"
 
 
 # colcon's record of an install base's layout ("isolated" or "merged"): colcon-core writes it

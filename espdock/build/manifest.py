@@ -20,8 +20,8 @@ from espdock.errors import WorkspaceError, disk_full
 from espdock.events import Outcome, StepFinished
 from espdock.firmware.plan import IdfBuild
 from espdock.images.containers import give_to
+from espdock.layout import MANIFEST_NAME
 
-MANIFEST_NAME = "espdock-manifest.json"
 FORMAT = 1
 
 

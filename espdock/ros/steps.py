@@ -21,7 +21,7 @@ from espdock.images.containers import Containers, give_to, permission_error, vol
 from espdock.images.engine import Mount, RunSpec
 from espdock.images.keyed import KeyedImages, image_mode
 from espdock.images.visibility import directory_links, host_paths, linked_mounts, workspace_mount
-from espdock.layout import ROS_BUILD_BASE, WORKSPACE_MOUNT
+from espdock.layout import FIRMWARE_DIR, MANIFEST_NAME, ROS_BUILD_BASE, WORKSPACE_MOUNT
 from espdock.ros.colcon import (
     DEFAULTS_MOUNT,
     SETUPTOOLS_CONFIG,
@@ -172,7 +172,7 @@ class RosSteps:
         emptied = (base,) if retired is not None else ()  # in the workspace volume, its build dirs as well
         emptied += self._build_afresh(workspace, step, rebuild, stamp_file, trees)
         sync = self.containers.sync(workspace, step.name, step.image, user, labels, emptied)
-        whole = sync is not None and (sync.fresh or sync.installed != listing_digest(workspace.ws_dir / "install"))
+        whole = sync is not None and (sync.fresh or sync.installed != volume_listing(workspace.ws_dir / "install"))
         if whole:
             # install/ is swapped for the volume's whole: every package must be built there.
             rebuild = step.packages
@@ -247,7 +247,7 @@ class RosSteps:
                     volume.replace_tree(
                         fetched["install"], install, self.containers.owner, built_here if merge else None
                     )
-                    volume.record(workspace, self.containers.engine, sync, None if merge else listing_digest(install))
+                    volume.record(workspace, self.containers.engine, sync, None if merge else volume_listing(install))
                     give_to(workspace.ws_dir / "build" / volume.SYNCED, self.containers.owner)
         if states is not None and not step.testing and (recorded_args := record_build_args(base, step.effective_args)):
             give_to(recorded_args, self.containers.owner)
@@ -429,6 +429,18 @@ def colcon_rebuild(
         return stamp_file, stamps, tuple(stamps), trees
     installed = {name: listing_digest(workspace.ws_dir / "install" / name) for name in stamps}
     return stamp_file, stamps, stamp_file.stale(stamps, installed, dict(step.sources)), trees
+
+
+def volume_listing(install: Path) -> str | None:
+    """INSTALL's listing as the workspace volume's build left it: without what espdock adds on the
+    host after it (the manifest, the firmware packages' installs). With them, every build on the
+    volume took install/ for one another build had changed, and rebuilt every package."""
+    try:
+        names = os.listdir(install)
+    except OSError:
+        names = []
+    added = {name for name in names if (install / name / "share" / name / FIRMWARE_DIR).is_dir()}
+    return listing_digest(install, {MANIFEST_NAME, *added})
 
 
 def runtime_spec(workspace: Workspace, step: RuntimeImage) -> ImageSpec:

@@ -188,6 +188,23 @@ def once_workspace(dest: Path) -> Path:
     return root
 
 
+def idle_package(directory: Path) -> None:
+    """An ament_python package of nothing but its manifest and marker, with no dependency."""
+    name = directory.name
+    (directory / "resource").mkdir(parents=True)
+    (directory / "resource" / name).touch()
+    (directory / "package.xml").write_text(
+        f'<?xml version="1.0"?>\n<package format="3">\n  <name>{name}</name>\n  <version>0.0.0</version>\n'
+        f'  <description>Idle.</description>\n  <maintainer email="robot@example.com">Robot</maintainer>\n'
+        f"  <license>Apache-2.0</license>\n  <export><build_type>ament_python</build_type></export>\n</package>\n"
+    )
+    (directory / "setup.py").write_text(
+        f"from setuptools import setup\n\nsetup(name={name!r}, version='0.0.0', data_files=[\n"
+        f"    ('share/ament_index/resource_index/packages', ['resource/{name}']),\n"
+        f"    ('share/{name}', ['package.xml']),\n])\n"
+    )
+
+
 def edit_word(root: Path, word: str) -> None:
     once = root / "ws/src/beacon_nodes/beacon_nodes/once.py"
     once.write_text(re.sub(r'print\("word: [^"]*"\)', f'print("word: {word}")', once.read_text()))
@@ -315,15 +332,17 @@ def test_volume_mode_builds_where_the_engine_cannot_see_rebuilds_edits_and_never
     tcp_engine, engine
 ):
     root = once_workspace(tcp_engine.hidden / "ws-volume")
+    idle_package(root / "ws/src/idle_py")  # a package no edit touches
     subprocess.run(["chown", "-R", f"{VOLUME_UID}:{VOLUME_UID}", str(root)], check=True)
     local = espdock("build", cwd=root)  # the shared engine sees it: an install of the old code
     assert local.returncode == 0, local.stdout + local.stderr
     edit_word(root, "two")
 
-    # auto: the engine does not see the workspace, so espdock keeps it in a volume there
+    # auto: the engine does not see the workspace, so espdock keeps it in a volume there: a new
+    # one, whose build builds every package
     remote = espdock("build", cwd=root, env=tcp_engine.env)
     assert remote.returncode == 0, remote.stdout + remote.stderr
-    assert "1 package(s) built" in remote.stdout, remote.stdout
+    assert "2 package(s) built" in remote.stdout, remote.stdout
     assert "word: two" in installed_word(root)
     assert len(volumes_of(tcp_engine, root)) == 1
     run = espdock("run", "beacon_nodes", "once", cwd=root, env=tcp_engine.env)
@@ -337,6 +356,9 @@ def test_volume_mode_builds_where_the_engine_cannot_see_rebuilds_edits_and_never
     again = espdock("build", cwd=root, env=tcp_engine.env)
     assert again.returncode == 0, again.stdout + again.stderr
     assert ": 1 file(s) sent, 0 removed" in again.stdout, again.stdout
+    # Only the edited package: the manifest the build before wrote into install/ after the copy
+    # back made every build on the volume a whole one.
+    assert "1 package(s) built, 1 up to date" in again.stdout, again.stdout
     assert tcp_engine.created(since, "io.espdock.step=mount-check") == []
     run = espdock("run", "beacon_nodes", "once", cwd=root, env=tcp_engine.env)
     assert "word: three" in run.stdout, run.stdout + run.stderr

@@ -170,9 +170,14 @@ def _checked(raw: Mapping[str, Any], strict: bool, where: Callable[[str], str]) 
 
 def _read_toml(path: Path) -> dict[str, Any]:
     try:
-        data = tomllib.loads(path.read_text())
+        data = tomllib.loads(path.read_text(encoding="utf-8"))
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{path} is not valid TOML: {exc}") from exc
+    except UnicodeDecodeError as exc:  # TOML is UTF-8: a Latin-1 editor's ü
+        raise ConfigError(
+            f"{path} is not UTF-8 (byte {exc.object[exc.start]:#04x} at offset {exc.start})",
+            "Save it as UTF-8, as TOML files are, and run again.",
+        ) from None
     unknown_tables = set(data) - {"espdock"}
     if unknown_tables:
         raise ConfigError(f"{path}: unknown table [{min(unknown_tables)}]", "espdock.toml has one table, [espdock].")

@@ -46,6 +46,15 @@ def test_broken_toml_names_the_file(tmp_path):
     assert str(tmp_path / "espdock.toml") in err.value.message
 
 
+def test_toml_that_is_not_utf8_is_bad_input_naming_the_file(tmp_path):
+    """`name = "r\\xf6bot"` saved by a Latin-1 editor: exit 70, "a bug in espdock" (UnicodeDecodeError)."""
+    (tmp_path / "espdock.toml").write_bytes(b'[espdock]\nname = "r\xf6bot"\n')
+    with pytest.raises(ConfigError) as err:
+        load_config(tmp_path, {})
+    assert err.value.exit_code == 2
+    assert err.value.message == f"{tmp_path / 'espdock.toml'} is not UTF-8 (byte 0xf6 at offset 19)"
+
+
 def test_ca_bundle_relative_to_the_workspace_and_must_exist(tmp_path):
     (tmp_path / "corp.pem").write_text("-----BEGIN CERTIFICATE-----\n")
     write(tmp_path, '[espdock]\nca_bundle = "corp.pem"\n')

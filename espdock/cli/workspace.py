@@ -134,6 +134,16 @@ def build(
                 console, plan, preview(ws, plan, bootstrap.reachable_engine(os.environ), bool(config.cache_registry))
             )
             return
+        if not plan.steps and packages and only is not None:
+            # `espdock build FIRMWARE_PKG --only ros` in a Makefile: it built nothing and passed.
+            kinds = {p.name: p.kind for p in workspace_packages(ws, config.ros_distro)}
+            named = ", ".join(
+                f"{name} ({'ROS' if kinds[name] is PackageKind.ROS else 'firmware'})" for name in packages
+            )
+            raise ConfigError(
+                f"nothing to build: --only {only} builds no package of {named}",
+                f"Name a {'ROS' if only is PackageKind.ROS else 'firmware'} package, or leave --only out.",
+            )
         if not plan.steps:
             has_any = only is not None and workspace_packages(ws, config.ros_distro)
             console.print(f"nothing to build: no {only} package in the workspace" if has_any else nothing_to_build(ws))

@@ -1,5 +1,6 @@
 """Dependency locks: staleness decided offline from a lock's header, `build --locked`, `espdock lock`."""
 
+import json
 import shutil
 from pathlib import Path
 
@@ -127,6 +128,14 @@ def test_build_checks_only_the_locks_of_the_images_it_uses(tmp_path):
     result = espdock("build", "--only", "firmware", "--locked", cwd=root, env=NO_ENGINE)
     assert result.returncode == 0, result.stdout + result.stderr
     assert "nothing to build: no firmware package in the workspace" in result.stdout
+    # A ROS package named with --only firmware: nothing it names is built, which is no success
+    # (it passed, "no firmware package in the workspace", and its report said succeeded).
+    report = tmp_path / "report.json"
+    named = espdock("build", "custom_interface", "--only", "firmware", "--report", str(report), cwd=root, env=NO_ENGINE)
+    assert named.returncode == 2, named.stdout + named.stderr
+    said = " ".join(named.stderr.split())
+    assert "nothing to build: --only firmware builds no package of custom_interface (ROS)" in said, said
+    assert json.loads(report.read_text())["outcome"] == "failed"
 
 
 def test_a_workspace_on_espdocks_defaults_builds_locked_and_has_nothing_to_lock(tmp_path):

@@ -1235,7 +1235,13 @@ def _unreachable(what: str, exc: Exception) -> EngineUnavailable:
     engine would not mend, what to do."""
     text = str(exc)
     if "Permission denied" in text:
-        return EngineUnavailable(f"{what}: permission denied on the engine's socket")
+        # The engine runs: starting it, the usual hint, would not help.
+        return EngineUnavailable(
+            f"{what}: permission denied on the engine's socket",
+            "The engine runs, but this user may not use its socket: join the group that owns it (for Docker's, "
+            "`sudo usermod -aG docker $USER`, then log in again), or use an engine of your own (rootless Docker "
+            "or Podman, through DOCKER_HOST).",
+        )
     if "No such file or directory" in text or "Connection refused" in text:
         return EngineUnavailable(f"{what}: nothing is listening there")
     if any(said in text for said in ("NameResolutionError", "Name or service not known", "name resolution")):

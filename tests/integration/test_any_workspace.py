@@ -162,3 +162,18 @@ def test_espdock_run_in_a_directory_the_user_may_not_look_into_says_so(shared_di
     said = " ".join(listed.stderr.split())
     assert f"not inside an espdock workspace: no espdock.toml in {barred} or any parent" in said, said
     assert f"you may not look into {barred}" in said, said
+
+
+def test_a_user_who_may_not_use_the_engine_s_socket_is_told_to_join_its_group(shared_dir, wheel_espdock):
+    """Not in the docker group, with the engine running: the hint began "Start Docker (`sudo
+    systemctl start docker`)"."""
+    home = shared_dir / "outsider"
+    home.mkdir()
+    subprocess.run(["chown", f"{USER_UID + 1}:{USER_UID + 1}", str(home)], check=True)
+    refused = espdock(
+        "setup", cwd=home, env=user_env(home), prefix=as_user(USER_UID + 1, USER_UID + 1, [], wheel_espdock)
+    )
+    assert refused.returncode == 3, refused.stdout + refused.stderr
+    said = " ".join(refused.stderr.split())
+    assert "permission denied on the engine's socket" in said and "Start Docker" not in said, said
+    assert "join the group that owns it (for Docker's, `sudo usermod -aG docker $USER`" in said, said

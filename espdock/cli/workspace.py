@@ -342,7 +342,9 @@ def init(
     console.print(f"found {len(firmware)} firmware package(s){': ' + ', '.join(firmware) if firmware else ''}")
     if firmware and (skips := colcon_register.colcon_skips_firmware(dict(os.environ))):
         console.print(f"note: {skips}")
-    here = "" if directory.resolve() == Path.cwd() else f"cd {shlex.quote(str(directory))} && "
+    # `cd -x` is an option to cd: a name that starts with a dash goes as ./-x.
+    shown = str(directory) if directory.is_absolute() or not str(directory).startswith("-") else f"./{directory}"
+    here = "" if directory.resolve() == Path.cwd() else f"cd {shlex.quote(shown)} && "
     console.print("next:")
     if compose:  # after a build, to run what it built
         console.print(f"  {here}espdock compose up        # the nodes compose.yaml names, each a service")

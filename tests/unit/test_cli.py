@@ -584,6 +584,10 @@ def test_init_s_next_step_is_a_command_line_that_works_when_pasted(tmp_path):
     made = espdock("init", "my röbot ws", cwd=tmp_path)
     assert made.returncode == 0, made.stderr
     assert "cd 'my röbot ws' && espdock new" in " ".join(made.stdout.split()), made.stdout
+    # A name that starts with a dash: `cd -my-robot` said "cd: -m: invalid option".
+    made = espdock("init", "--", "-my-robot", cwd=tmp_path)
+    assert made.returncode == 0, made.stderr
+    assert "cd ./-my-robot && espdock new" in made.stdout, made.stdout
 
 
 def test_a_project_s_own_sdkconfig_which_the_build_does_not_read_is_named_before_it(tmp_path):

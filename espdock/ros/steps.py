@@ -498,15 +498,21 @@ _DENIED = re.compile(
 
 
 def denied_path(texts: Iterable[str], root: Path, uid: int) -> Path | None:
-    """The workspace path (under ROOT) a failed build's logs (TEXTS) were denied, where it, or
-    the nearest of its directories that exists, belongs to another user than UID."""
+    """The workspace path (under ROOT) a failed build's logs (TEXTS) were denied, where it (or,
+    for a file of UID's, its directory), or the nearest of its directories that exists, belongs
+    to another user than UID."""
     for text in texts:
         for match in _DENIED.finditer(text):
             inside = match.group(1) or match.group(2)
             path = root / posixpath.relpath(inside, WORKSPACE_MOUNT)
             existing = next((p for p in (path, *path.parents) if p.exists() or p.is_symlink()), None)
-            if existing is not None and existing.is_relative_to(root) and existing.lstat().st_uid != uid:
-                return existing
+            if existing is None:
+                continue
+            # A file of the user's own in a directory of another's: removing or replacing it is
+            # the directory's to allow (setuptools' "could not delete '...'").
+            for denied in (existing, existing.parent) if existing == path else (existing,):
+                if denied.is_relative_to(root) and denied.lstat().st_uid != uid:
+                    return denied
     return None
 
 

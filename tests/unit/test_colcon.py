@@ -374,3 +374,22 @@ def test_a_find_module_s_could_not_find_is_a_missing_dependency():
     assert missing_dependencies(output) == ("OpenSSL",)
     failure = explain_failure(1, {"cam_node": PackageState.FAILED}, {"cam_node": (Path("/l/c.log"), output)}, ())
     assert "cam_node: could not find OpenSSL" in failure.message and "Fix" not in failure.hint
+
+
+def test_a_file_of_the_user_s_in_a_directory_of_another_s_is_the_directory_denied(tmp_path):
+    """`chown 0:0` of a package's installed module directory: setuptools' "could not delete
+    '.../envdump.py': Permission denied" named a file of the user's, so the build blamed the
+    package ("Fix py_talker") where the directory was root's."""
+    from espdock.ros.steps import denied_path
+
+    module = tmp_path / "install/py_talker/lib/python3.11/site-packages/py_talker"
+    module.mkdir(parents=True)
+    (module / "envdump.py").write_text("")
+    for path in (tmp_path / "install", *module.relative_to(tmp_path).parents, module, module / "envdump.py"):
+        os.chown(tmp_path / path, 1000, 1000)
+    os.chown(module, 0, 0)
+    inside = "/workspace/install/py_talker/lib/python3.11/site-packages/py_talker/envdump.py"
+    said = f"error: could not delete '{inside}': Permission denied"
+    assert denied_path([said], tmp_path, 1000) == module
+    os.chown(module, 1000, 1000)  # the user's own, all of it: not a matter of owners
+    assert denied_path([said], tmp_path, 1000) is None

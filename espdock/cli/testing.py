@@ -100,6 +100,9 @@ def test(
             f"nothing to test: the tests of {', '.join(skipped)} passed last time (--packages-skip-test-passed)"
         )
         return
+    if results is not None:
+        # Before anything refuses the run: a CI runner then never reports the last run's results.
+        prepare_results(results, invoking_user(os.environ, ws.root), [p.name for p in chosen])
     if skipped and not ros and not firmware:
         raise ConfigError(
             f"nothing to test: the options after `--` skip {', '.join(skipped)}",
@@ -111,8 +114,6 @@ def test(
     check_testable({p.name: p.depends for p in ros}, "official" if official else "wheels")
     if push_cache and not config.cache_registry:
         raise ConfigError("--push-cache needs a cache registry", "Set cache_registry or ESPDOCK_CACHE_REGISTRY.")
-    if results is not None:
-        prepare_results(results, invoking_user(os.environ, ws.root), [p.name for p in chosen])
     found: dict[str, PackageResults] = {}
     logs: dict[str, Path] = {}
     code = 0

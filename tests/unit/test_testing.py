@@ -323,8 +323,17 @@ def test_packages_the_options_after_the_double_dash_skip_are_not_tested_nor_aske
     said = " ".join((skipped.stdout + skipped.stderr).split())
     assert "not tested (the options after `--` skip them): linted" in said, said
     assert skipped.returncode == 3 and "ament_lint_auto" not in said  # on to the engine, which is not there
-    nothing = espdock("test", "linted", "--", "--packages-skip", "linted", cwd=root, env=no_engine)
+    # The last run's results (as its --results copy recorded them) go before the refusal: a CI
+    # runner reported them as this run's.
+    results = tmp_path / "results"
+    (results / "linted").mkdir(parents=True)
+    (results / "linted/pytest.xml").write_text("<testsuite tests='1'/>\n")
+    (results / ".espdock-results").write_text("linted/pytest.xml\n")
+    nothing = espdock(
+        "test", "linted", "--results", str(results), "--", "--packages-skip", "linted", cwd=root, env=no_engine
+    )
     assert nothing.returncode == 2 and "nothing to test: the options after `--` skip linted" in nothing.stderr
+    assert not (results / "linted/pytest.xml").exists()
 
 
 def test_packages_whose_tests_passed_last_time_are_left_out_with_their_results_kept(tmp_path):

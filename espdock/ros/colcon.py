@@ -108,6 +108,14 @@ def check_colcon_args(args: Iterable[str] | None, verb: str = "build") -> tuple[
             f"nothing after `--`: it passes the options that follow it to `colcon {verb}`",
             f"Add them, e.g. `espdock {verb} -- {example}`, or leave out the `--`.",
         )
+    if not args[0].startswith("-"):
+        # colcon takes no positional argument: after espdock's own options, the word went into
+        # the last of them that takes values (--event-handlers, --packages-select).
+        raise ConfigError(
+            f"'{args[0]}' after `--` is no colcon option: what follows `--` goes to `colcon {verb}` as options",
+            f"Name packages before the `--` (`espdock {verb} {args[0]}`); options after it, e.g. "
+            f"`espdock {verb} -- {example}`.",
+        )
     for arg in args:
         option = _option_name(arg)
         if option is None:

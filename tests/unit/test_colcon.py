@@ -216,6 +216,12 @@ def test_cli_refuses_an_empty_double_dash_and_refused_options_before_any_engine(
     empty = espdock("build", "--", cwd=root, env=NO_ENGINE)
     assert empty.returncode == 2, empty.stderr
     assert "nothing after `--`" in empty.stderr
+    # A package named after `--`: colcon refused it as an --event-handlers value, in its container.
+    word = espdock("build", "--", "custom_interface", cwd=root, env=NO_ENGINE)
+    assert word.returncode == 2, word.stdout + word.stderr
+    said = " ".join(word.stderr.split())
+    assert "'custom_interface' after `--` is no colcon option" in said, said
+    assert "Name packages before the `--` (`espdock build custom_interface`)" in said, said
     refused = espdock("build", "custom_interface", "--", "--install-base", "/tmp/x", cwd=root, env=NO_ENGINE)
     assert refused.returncode == 2 and "--install-base is not allowed" in refused.stderr
     (root / "ws/colcon.meta").write_text("{")

@@ -242,6 +242,8 @@ def test_cli_refuses_bad_input_before_any_engine(tmp_path):
         (("test", "nosuch"), "no package named 'nosuch'"),
         (("test", "tested_py", "--", "--test-result-base", "x"), "--test-result-base"),
         (("test", "tested_py", "--"), "nothing after `--`"),
+        # A package named after `--` went into espdock's --packages-select: only tested_py tested, exit 0.
+        (("test", "tested_py", "--", "lint_auto_cpp"), "'lint_auto_cpp' after `--` is no colcon option"),
         (("test",), "lint_auto_cpp: ament_lint_auto, ament_lint_common"),
         (("test", "tested_py", "--push-cache"), "--push-cache needs a cache registry"),
     ):

@@ -196,8 +196,17 @@ class StampFile:
                 data[name]["serves"] = serves[name]
             if trees and name in trees:
                 data[name]["tree"], data[name]["newest"] = trees[name]  # type: ignore[assignment]
+        self._write(data)
+
+    def _write(self, data: Mapping[str, object]) -> None:
+        """DATA as the file, which (written as root: `sudo espdock build`) takes the owner of its
+        directory, the workspace's build/: a build that failed or was interrupted, which never got
+        to hand its records back, left them root's."""
         self.path.parent.mkdir(parents=True, exist_ok=True)
         durable.write_text(self.path, json.dumps(data, indent=1, sort_keys=True) + "\n")
+        if os.geteuid() == 0:
+            directory = self.path.parent.stat()
+            os.chown(self.path, directory.st_uid, directory.st_gid)
 
     def _entry(self, name: str, sources: Mapping[str, str] | None, **fields: str | None) -> dict[str, str | None]:
         entry = dict(fields)
@@ -219,8 +228,7 @@ class StampFile:
             else:
                 data.pop(name, None)
         if data != before:
-            self.path.parent.mkdir(parents=True, exist_ok=True)
-            durable.write_text(self.path, json.dumps(data, indent=1, sort_keys=True) + "\n")
+            self._write(data)
 
     def restore(self, records: Mapping[str, dict[str, str | None]], forgotten: Iterable[str] = ()) -> None:
         """Put back RECORDS that forget dropped, and drop what it kept of the other FORGOTTEN: the
@@ -230,7 +238,7 @@ class StampFile:
         if data == before:
             return
         if data:
-            durable.write_text(self.path, json.dumps(data, indent=1, sort_keys=True) + "\n")
+            self._write(data)
         else:
             self.path.unlink(missing_ok=True)  # as it was before a first build that never started
 

@@ -94,3 +94,18 @@ def test_files_under_a_package_s_link_to_a_directory_are_its_sources(tmp_path):
     (package / "dangling").unlink()
     # The workspace volume's sync sends links as links: it does not follow them.
     assert {p.name for p in source_files(package)} == {"package.xml"}
+
+
+def test_records_written_as_root_belong_to_the_workspace_s_build_dir_owner(tmp_path):
+    """`sudo espdock build` in a user's workspace, failed or interrupted: the records it dropped
+    before colcon ran were left root's, where only a build that succeeded handed them back."""
+    from espdock.build.stamps import StampFile
+
+    build = tmp_path / "build"
+    build.mkdir()
+    os.chown(build, 4242, 4243)
+    stamps = StampFile(build / "stamps.json", 2)
+    stamps.record({"talker": "s1", "listener": "s2"}, {"talker": "i1", "listener": "i2"})
+    os.chown(stamps.path, 0, 0)  # as an espdock that handed nothing back left it
+    stamps.forget(["talker"])  # as a build does before colcon runs
+    assert (stamps.path.stat().st_uid, stamps.path.stat().st_gid) == (4242, 4243)

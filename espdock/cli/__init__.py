@@ -13,7 +13,9 @@ docs' reference) registers them all, in the order `espdock --help` lists them.""
 
 from __future__ import annotations
 
+import contextlib
 import importlib
+import os
 import sys
 from collections.abc import Sequence
 from typing import NoReturn
@@ -21,6 +23,7 @@ from typing import NoReturn
 import typer
 
 from espdock import interrupts
+from espdock.cli import home
 from espdock.cli.core import INTERRUPTED, app, command, fail, output_failed
 from espdock.errors import Interrupted
 
@@ -54,6 +57,7 @@ UTF8 = ("utf-8", "utf8")
 def main() -> NoReturn:
     """Entry point: Ctrl-C, SIGTERM (CI timeouts, `docker stop`) and SIGHUP end any command (espdock.interrupts)."""
     interrupts.install()
+    hand_back = home.kept(os.environ)
     for stream in (sys.stdout, sys.stderr):
         # A Latin-1 or ASCII locale (or PYTHONIOENCODING) cannot write a bullet or a workspace's
         # non-ASCII path: a `?` for each such character, not a crash.
@@ -84,4 +88,6 @@ def main() -> NoReturn:
         else:
             print(exc.code, file=sys.stderr)
             code = 1
+    with contextlib.suppress(OSError):
+        hand_back()
     interrupts.finish(code)

@@ -1,6 +1,7 @@
 """The CLI's answers to bad input; none of these may need (or touch) a container engine."""
 
 import json
+import os
 import re
 import shutil
 import subprocess
@@ -577,6 +578,21 @@ def test_a_utf8_workspace_path_is_read_as_utf8_whatever_the_locale(tmp_path):
     assert listed.returncode == 0 and "custom_interface" in listed.stdout, listed.stderr
     planned = espdock("build", "--dry-run", cwd=root, env=env, prefix=command)
     assert planned.returncode == 0 and "custom_interface" in planned.stdout, planned.stderr
+
+
+def test_sudo_keeping_the_user_s_home_leaves_nothing_of_root_s_in_it(tmp_path):
+    """`sudo -E espdock list` (root, with the user's HOME): ~/.cache and espdock's cache in it were
+    root's; the user's pip then could not make ~/.cache/pip."""
+    home = tmp_path / "home"
+    home.mkdir()
+    os.chown(home, 4242, 4243)
+    root = copy_workspace(tmp_path / "w")
+    env = {"HOME": str(home), "XDG_CACHE_HOME": "", "XDG_STATE_HOME": "", "ESPDOCK_STATE_DIR": "", **NO_ENGINE}
+    listed = espdock("list", cwd=root, env=env)
+    assert listed.returncode == 0, listed.stderr
+    assert (home / ".cache/espdock").is_dir(), "nothing was written there: the test tests nothing"
+    owners = {(p.relative_to(home).as_posix(), p.lstat().st_uid) for p in home.rglob("*")}
+    assert {(rel, uid) for rel, uid in owners if uid != 4242} == set()
 
 
 def test_init_s_next_step_is_a_command_line_that_works_when_pasted(tmp_path):

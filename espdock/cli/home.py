@@ -1,0 +1,49 @@
+"""What espdock writes under a home that is not root's while it runs as root with it (`sudo -E
+espdock ...`, `sudo --preserve-env=HOME`): handed to the home's owner when the command ends. Left
+root's, a new ~/.cache kept the user's pip out of it, and their next espdock could not record
+its images ("Permission denied")."""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable, Mapping
+from pathlib import Path
+
+from espdock.errors import EspdockError
+from espdock.layout import xdg_dir
+
+
+def kept(env: Mapping[str, str]) -> Callable[[], None]:
+    """What hands espdock's directories under ENV's home (its cache, its state, and the missing
+    directories above them it makes) to the home's owner: to call as the command ends."""
+    if os.geteuid() != 0 or not env.get("HOME"):
+        return lambda: None
+    from espdock.images.prune import state_dir  # here: every command starts through this module
+
+    home = Path(env["HOME"])
+    try:
+        info = home.stat()
+        ours = [xdg_dir(env, "XDG_CACHE_HOME", ".cache") / "espdock", state_dir(env)]
+    except (OSError, EspdockError):
+        return lambda: None
+    if info.st_uid == 0:
+        return lambda: None
+    ours = [path for path in ours if path.is_relative_to(home) and path != home]
+    made = sorted(
+        {p for path in ours for p in (path, *path.parents) if p.is_relative_to(home) and p != home and not p.exists()},
+        key=lambda p: len(p.parts),
+    )
+    owner = (info.st_uid, info.st_gid)
+
+    def hand_back() -> None:
+        for path in made:  # ~/.cache, ~/.local, ~/.local/state, as they were made: parents first
+            if path.is_dir() and not path.is_symlink() and path.stat().st_uid == 0:
+                os.chown(path, *owner)
+        for path in ours:
+            for directory, dirnames, filenames in os.walk(path):
+                for name in (".", *dirnames, *filenames):
+                    entry = os.path.join(directory, name)
+                    if os.lstat(entry).st_uid == 0:
+                        os.chown(entry, *owner, follow_symlinks=False)
+
+    return hand_back

@@ -26,6 +26,7 @@ from espdock.config import Config, invoking_user, load_config
 from espdock.errors import DiskFull, EspdockBug, EspdockError, Interrupted
 from espdock.firmware.plan import IdfBuild
 from espdock.images import bootstrap
+from espdock.images.prune import state_dir
 from espdock.workspace import (
     Workspace,
     find_workspace,
@@ -194,6 +195,7 @@ def notify(text: str) -> None:
 def load(workspace: Path | None, **overrides: object) -> tuple[Workspace, Config]:
     ws = find_workspace(workspace)
     config = load_config(ws.root, os.environ, overrides)
+    state_dir(os.environ)  # checked before any work: a build records its images into it as it ends
     return ws.with_layout(config.package_paths, config.colcon_root), config
 
 

@@ -11,12 +11,14 @@ Images no record names (another user's, a test's, a pulled base) are never candi
 from __future__ import annotations
 
 import json
+import os
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
 from espdock import durable
 from espdock.build.steps import LABEL_KEY
+from espdock.errors import ConfigError
 from espdock.images.engine import Engine
 from espdock.layout import xdg_dir
 from espdock.workspace import root_key, workspace_gone
@@ -26,8 +28,14 @@ GB = 1000**3
 
 def state_dir(env: Mapping[str, str]) -> Path:
     """Where espdock keeps what outlives a workspace's build tree (the image records)."""
-    if env.get("ESPDOCK_STATE_DIR"):
-        return Path(env["ESPDOCK_STATE_DIR"])
+    if value := env.get("ESPDOCK_STATE_DIR"):
+        if not os.path.isabs(value):
+            # Relative to wherever espdock runs: a build from src/ made one there, in the sources.
+            raise ConfigError(
+                f"ESPDOCK_STATE_DIR must be an absolute path, got {value!r}",
+                f'espdock runs from any directory of a workspace: give the whole path (`"$PWD/{value}"`).',
+            )
+        return Path(value)
     return xdg_dir(env, "XDG_STATE_HOME", ".local/state") / "espdock"
 
 

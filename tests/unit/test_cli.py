@@ -595,6 +595,15 @@ def test_sudo_keeping_the_user_s_home_leaves_nothing_of_root_s_in_it(tmp_path):
     assert {(rel, uid) for rel, uid in owners if uid != 4242} == set()
 
 
+def test_a_relative_state_dir_is_refused_before_any_work(tmp_path):
+    """`ESPDOCK_STATE_DIR=relstate espdock build` from src/ made src/relstate, in the sources."""
+    root = copy_workspace(tmp_path / "w")
+    refused = espdock("build", "--dry-run", cwd=root / "ws/src", env={"ESPDOCK_STATE_DIR": "relstate", **NO_ENGINE})
+    assert refused.returncode == 2, refused.stdout + refused.stderr
+    assert "ESPDOCK_STATE_DIR must be an absolute path, got 'relstate'" in refused.stderr
+    assert not (root / "ws/src/relstate").exists()
+
+
 def test_init_s_next_step_is_a_command_line_that_works_when_pasted(tmp_path):
     """`espdock init "my röbot ws"` said `cd my röbot ws && espdock new my_board`: cd: too many arguments."""
     made = espdock("init", "my röbot ws", cwd=tmp_path)

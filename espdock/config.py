@@ -152,6 +152,19 @@ def load_config(root: Path, env: Mapping[str, str], overrides: Mapping[str, Any]
     return _validate(values, root)
 
 
+def misspelt_variables(env: Mapping[str, str]) -> list[str]:
+    """A warning for each ESPDOCK_ variable in ENV that is no setting but close to one
+    (ESPDOCK_KEEP_CONTAINER): a CI variable's typo was ignored without a word. Others of the
+    prefix, espdock's own (ESPDOCK_STATE_DIR) or nothing like a setting, are not said."""
+    said = []
+    for var in sorted(env):
+        if var.startswith("ESPDOCK_") and var not in _ENV:
+            close = difflib.get_close_matches(var.removeprefix("ESPDOCK_").lower(), _KEYS, n=1, cutoff=0.8)
+            if close:
+                said.append(f"warning: {var} is no espdock setting (ignored): did you mean ESPDOCK_{close[0].upper()}?")
+    return said
+
+
 def _checked(raw: Mapping[str, Any], strict: bool, where: Callable[[str], str]) -> dict[str, Any]:
     """RAW's settings, type-checked (STRICT: TOML's own types, no coercion from strings)."""
     try:

@@ -22,7 +22,7 @@ from espdock.build import prepare
 from espdock.build.runner import Runner
 from espdock.build.steps import Plan
 from espdock.cli.ui import STAMPED, QuietReporter, Reporter, stamped
-from espdock.config import Config, invoking_user, load_config
+from espdock.config import Config, invoking_user, load_config, misspelt_variables
 from espdock.errors import DiskFull, EspdockBug, EspdockError, Interrupted
 from espdock.firmware.plan import IdfBuild
 from espdock.images import bootstrap
@@ -195,6 +195,8 @@ def notify(text: str) -> None:
 def load(workspace: Path | None, **overrides: object) -> tuple[Workspace, Config]:
     ws = find_workspace(workspace)
     config = load_config(ws.root, os.environ, overrides)
+    for warning in misspelt_variables(os.environ):
+        notify(warning)
     state_dir(os.environ)  # checked before any work: a build records its images into it as it ends
     return ws.with_layout(config.package_paths, config.colcon_root), config
 

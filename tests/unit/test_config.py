@@ -55,6 +55,16 @@ def test_toml_that_is_not_utf8_is_bad_input_naming_the_file(tmp_path):
     assert err.value.message == f"{tmp_path / 'espdock.toml'} is not UTF-8 (byte 0xf6 at offset 19)"
 
 
+def test_an_espdock_variable_close_to_a_setting_is_warned_of_with_it():
+    """ESPDOCK_KEEP_CONTAINER=1 in a CI job was ignored without a word."""
+    from espdock.config import misspelt_variables
+
+    env = {"ESPDOCK_KEEP_CONTAINER": "1", "ESPDOCK_STATE_DIR": "/s", "ESPDOCK_USER": "ros", "ESPDOCK_TARGET": "esp32"}
+    assert misspelt_variables(env) == [
+        "warning: ESPDOCK_KEEP_CONTAINER is no espdock setting (ignored): did you mean ESPDOCK_KEEP_CONTAINERS?"
+    ]
+
+
 def test_ca_bundle_relative_to_the_workspace_and_must_exist(tmp_path):
     (tmp_path / "corp.pem").write_text("-----BEGIN CERTIFICATE-----\n")
     write(tmp_path, '[espdock]\nca_bundle = "corp.pem"\n')

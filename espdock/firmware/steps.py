@@ -29,7 +29,7 @@ from espdock.firmware.plan import (
     check_inside,
 )
 from espdock.images import volume
-from espdock.images.containers import Containers, give_to, make_dirs_for, volume_mode_refused
+from espdock.images.containers import Containers, give_to, make_dirs_for, volume_mode_refused, with_host_umask
 from espdock.images.engine import Mount, RunSpec
 from espdock.images.visibility import host_paths
 from espdock.layout import COLCON_RESULT_FILES, firmware_build_dir, host_path, install_prefix
@@ -228,7 +228,7 @@ class FirmwareSteps:
             env.append(("ESPDOCK_EXTRA_CA", EXTRA_CA_MOUNT))
         spec = RunSpec(
             image=step.image,
-            argv=("sh", WITH_CA, *argv),
+            argv=with_host_umask(("sh", WITH_CA, *argv)),
             workdir=workdir or step.project_dir,
             user=user,
             mounts=tuple(mounts),

@@ -190,6 +190,23 @@ class Containers:
         return (0, 0) if self.engine.info().rootless else self.owner
 
 
+# The umask of the engine's containers (Docker's and Podman's): what they write is 0644, 0755.
+CONTAINER_UMASK = 0o022
+
+
+def with_host_umask(argv: tuple[str, ...]) -> tuple[str, ...]:
+    """ARGV, run with the host's umask where it lets the group (or others) write what 022 does
+    not: a workspace a group shares (umask 002, a setgid directory) gets build trees its members
+    can rebuild, as colcon on the host makes them; the containers' 0755 log/ and build/ refused
+    the teammate's build. A stricter umask (077) is not taken: what the containers write stays
+    readable to the runtime image's user."""
+    mask = os.umask(0)
+    os.umask(mask)
+    if mask == CONTAINER_UMASK or mask & ~CONTAINER_UMASK:
+        return argv
+    return ("sh", "-c", 'umask "$0" && exec "$@"', f"{mask:04o}", *argv)
+
+
 def make_dirs_for(directory: Path, owner: tuple[int, int]) -> None:
     """mkdir -p DIRECTORY; as root, the directories it creates belong to OWNER."""
     missing = [d for d in (directory, *directory.parents) if not d.exists()]

@@ -17,7 +17,7 @@ from espdock.build.steps import EnsureImage, ImageSpec
 from espdock.errors import BuildFailed, ConfigError, WorkspaceError
 from espdock.events import Outcome, StepNote, StepOutput
 from espdock.images import volume
-from espdock.images.containers import Containers, give_to, permission_error, volume_mode_refused
+from espdock.images.containers import Containers, give_to, permission_error, volume_mode_refused, with_host_umask
 from espdock.images.engine import Mount, RunSpec
 from espdock.images.keyed import KeyedImages, image_mode
 from espdock.images.visibility import directory_links, host_paths, linked_mounts, workspace_mount
@@ -214,7 +214,7 @@ class RosSteps:
 
         spec = RunSpec(
             image=step.image,
-            argv=step.argv(rebuild),
+            argv=with_host_umask(step.argv(rebuild)),
             workdir=step.workdir,
             user=user,
             mounts=tuple(mounts),

@@ -385,3 +385,19 @@ def test_a_kept_build_container_is_replaced_by_the_next_build_s_not_blamed_on_a_
         assert second != first
     finally:
         engine.remove_containers({"io.espdock.workspace": str(root)})
+
+
+def test_a_build_under_umask_002_leaves_trees_the_group_can_rebuild(engine, tmp_path):
+    """A workspace a group shares (umask 002, as a lab's machine sets it): colcon's containers
+    wrote 0755 dirs into build/, install/ and log/, and a teammate's build was refused."""
+    root = python_workspace(tmp_path / "w")
+    shared = ("sh", "-c", 'umask 002 && exec "$@"', "sh", sys.executable, "-m", "espdock")
+    built = espdock("build", "--only", "ros", cwd=root, prefix=shared)
+    assert built.returncode == 0, built.stdout[-3000:] + built.stderr
+    for tree in ("build", "install", "log"):
+        closed = [
+            p.relative_to(root).as_posix()
+            for p in (root / "ws" / tree).rglob("*")
+            if p.is_dir() and not p.is_symlink() and not p.stat().st_mode & 0o020
+        ]
+        assert closed == [], closed[:10]

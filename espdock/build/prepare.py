@@ -200,7 +200,9 @@ def plan_tests(
         ws, config, list(names), PackageKind.ROS, colcon_args=last or None, known=known, env=env, notify=lambda _: None
     )
     first = next(s for s in plain.steps if isinstance(s, ColconBuild))
-    tested = dataclasses.replace(build, selected=names, name="colcon build: with tests", serves=first.stamp_image)
+    tested = dataclasses.replace(
+        build, selected=names, name="colcon build: with tests", serves=tuple(first.stamp_images().items())
+    )
     steps: tuple[ColconBuild, ...] = (tested,)
     if dependencies := tuple(name for name in build.packages if name not in names):
         # Built, not tested: as `espdock build` builds them, in the build image (made before the

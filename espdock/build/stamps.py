@@ -88,11 +88,12 @@ def listing_digest(root: Path, ignore: Collection[str] = ()) -> str | None:
 def package_stamps(
     sources: Mapping[str, str],
     depends: Mapping[str, Iterable[str]],
-    image: str,
+    image: str | Mapping[str, str],
     settings: Mapping[str, str] | None = None,
 ) -> dict[str, str]:
-    """Each package's stamp from its source digest, its workspace dependencies' stamps, IMAGE and
-    its colcon SETTINGS digest (options, colcon.meta, defaults files: espdock.ros.colcon).
+    """Each package's stamp from its source digest, its workspace dependencies' stamps, IMAGE (or
+    the package's, by name) and its colcon SETTINGS digest (options, colcon.meta, defaults files:
+    espdock.ros.colcon).
 
     SOURCES must list the packages in dependency order (a package after what it depends on).
     A dependency's stamp is part of its dependents', so a change rebuilds what depends on it.
@@ -100,7 +101,8 @@ def package_stamps(
     stamps: dict[str, str] = {}
     for name, source in sources.items():
         setting = (settings or {}).get(name, "")
-        digest = hashlib.sha256(f"{image}\0{name}\0{source}\0{setting}\n".encode())
+        held = image if isinstance(image, str) else image[name]
+        digest = hashlib.sha256(f"{held}\0{name}\0{source}\0{setting}\n".encode())
         for dep in sorted(set(depends.get(name, ())) & stamps.keys()):
             digest.update(f"{dep}\0{stamps[dep]}\n".encode())
         stamps[name] = digest.hexdigest()

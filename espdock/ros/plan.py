@@ -61,9 +61,11 @@ class ColconBuild:
     # image lacks ament's lint packages), unless the options after `--` set it.
     testing: bool = False
     tests_off: bool = False
-    # A test build's: the stamp_image of the plain build its install also serves (tests are
+    # The packages of a Python build type, which read no BUILD_TESTING (see stamp_images).
+    python: tuple[str, ...] = ()
+    # A test build's: the stamp_images of the plain build its install also serves (tests are
     # built, not installed), so `espdock build` after `espdock test` rebuilds nothing.
-    serves: str = ""
+    serves: tuple[tuple[str, str], ...] = ()
     # The PACKAGES this step builds, when not all: the others are dependencies a step before it
     # built, which colcon finds (and sources) in install/ as it finds any up-to-date package.
     selected: tuple[str, ...] = ()
@@ -117,12 +119,14 @@ class ColconBuild:
         """Whether this build turns the CMake packages' tests off itself (the user did not set it)."""
         return self.tests_off and not sets_build_testing((*self.colcon_args, *self.defaults_cmake_args))
 
-    @property
-    def stamp_image(self) -> str:
-        """What the packages' stamps hold of the image and how tests are configured: a test build
-        and a plain one have different stamps (a plain build takes a test build's install: serves)."""
+    def stamp_images(self) -> dict[str, str]:
+        """What each package's stamp holds of the image and how its tests are configured: a test
+        build and a plain one have different stamps (a plain build takes a test build's install:
+        serves). A Python package's, the image alone: whether this build's CMake packages have
+        their tests (none may be among them) changes nothing it builds."""
         configured = "tests" if self.testing else "no-tests" if self.says_tests_off else ""
-        return f"{self.image}\0{configured}" if configured else self.image
+        cmake = f"{self.image}\0{configured}" if configured else self.image
+        return {name: self.image if name in self.python else cmake for name in self.packages}
 
     def argv(self, rebuild: tuple[str, ...] = ()) -> tuple[str, ...]:
         """colcon's command line; REBUILD: only these packages (the changed ones and their
@@ -322,11 +326,8 @@ def ros_steps(
             defaults_symlink_install=colcon.symlink_install,
             testing=testing,
             # Only CMake packages read BUILD_TESTING: a workspace of Python packages is told nothing.
-            # Of the workspace, not of this build's packages: a build of a Python package alone
-            # has the stamps of a build of all (`espdock build PKG`, then `espdock build`).
-            tests_off=tests_off
-            and not testing
-            and any(p.build_type not in PYTHON_BUILD_TYPES for p in all_packages if p.kind is PackageKind.ROS),
+            tests_off=tests_off and not testing and any(p.build_type not in PYTHON_BUILD_TYPES for p in ros),
+            python=tuple(p.name for p in ros if p.build_type in PYTHON_BUILD_TYPES),
             declared=tuple((p.name, p.depends, p.test_only_depends) for p in ros),
             underlay=ros_image.repository,
             interfaces=tuple(p.name for p in ros if p.is_interface),

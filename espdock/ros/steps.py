@@ -273,7 +273,9 @@ class RosSteps:
             serves = None
             if step.serves:
                 sources = {name: tree for name, (tree, _) in trees.items()}
-                plain = package_stamps(sources, dict(step.depends), step.serves, dict(step.settings))
+                served = dict(step.serves)
+                images = {name: served.get(name, "") for name in sources}
+                plain = package_stamps(sources, dict(step.depends), images, dict(step.settings))
                 serves = {name: plain[name] for name in built if not on_old[name]}
             stamp_file.record(recorded_stamps, installed(), dict(step.sources), trees, serves)
             give_to(stamp_file.path, self.containers.owner)
@@ -423,7 +425,7 @@ def colcon_rebuild(
     stamp_file = StampFile(workspace.ws_dir / "build" / ROS_STAMPS, ROS_STAMP_FORMAT)
     trees = {name: tree_state(workspace.ws_dir / rel) for name, rel in step.sources}
     sources = {name: tree for name, (tree, _) in trees.items()}
-    chained = package_stamps(sources, dict(step.depends), step.stamp_image, dict(step.settings))
+    chained = package_stamps(sources, dict(step.depends), step.stamp_images(), dict(step.settings))
     stamps = {name: chained[name] for name in step.building}
     if step.force:
         return stamp_file, stamps, tuple(stamps), trees

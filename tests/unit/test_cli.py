@@ -390,7 +390,13 @@ def test_a_command_starts_without_the_other_commands_modules(tmp_path):
     loaded = subprocess.run(
         [sys.executable, "-c", script, "test", "--help"], capture_output=True, text=True, check=True
     )
-    assert loaded.stdout.split() == ["espdock.cli.core", "espdock.cli.prune", "espdock.cli.testing", "espdock.cli.ui"]
+    assert loaded.stdout.split() == [
+        "espdock.cli.core",
+        "espdock.cli.home",
+        "espdock.cli.prune",
+        "espdock.cli.testing",
+        "espdock.cli.ui",
+    ]
     everything = subprocess.run(
         [sys.executable, "-c", script, "--help", "test"], capture_output=True, text=True, check=True
     )

@@ -288,9 +288,9 @@ def test_a_plain_build_on_the_wheels_image_configures_cmake_packages_without_tes
     testing = ColconBuild(image="i", packages=("a",), testing=True)
     # Said each time: CMake would keep the OFF an earlier build left in its cache.
     assert testing.argv()[-2:] == ("--cmake-args", "-DBUILD_TESTING=ON")
-    stamps = {step.stamp_image for step in (plain, official, testing)}
+    stamps = {step.stamp_images()["a"] for step in (plain, official, testing)}
     assert len(stamps) == 3, "a test build, a build without tests and colcon's default never pass for each other"
-    assert official.stamp_image == "i", "builds of before keep their stamps"
+    assert official.stamp_images() == {"a": "i"}, "builds of before keep their stamps"
 
 
 def test_a_test_only_dependency_colcon_missed_is_not_declare_it_in_package_xml():

@@ -1238,9 +1238,9 @@ def _unreachable(what: str, exc: Exception) -> EngineUnavailable:
         # The engine runs: starting it, the usual hint, would not help.
         return EngineUnavailable(
             f"{what}: permission denied on the engine's socket",
-            "The engine runs, but this user may not use its socket: join the group that owns it (for Docker's, "
-            "`sudo usermod -aG docker $USER`, then log in again), or use an engine of your own (rootless Docker "
-            "or Podman, through DOCKER_HOST).",
+            "The engine runs, but this user may not use its socket: join the group that owns it (the docker "
+            "group, for Docker's: `sudo usermod -aG docker $USER`, then log in again), or use an engine of your "
+            "own (rootless Docker or Podman, through DOCKER_HOST).",
         )
     if "No such file or directory" in text or "Connection refused" in text:
         return EngineUnavailable(f"{what}: nothing is listening there")

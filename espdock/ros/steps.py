@@ -222,10 +222,49 @@ class RosSteps:
             labels=labels,
             archives=tuple(archives),
         )
+
         # A native build's setup scripts chain the host's ROS; the container's chain the image's.
+        def keep_built(states: dict[str, PackageState] | None) -> list[str]:
+            """Record the packages colcon built (its event log's STATES), and return them."""
+            built = [name for name, state in (states or {}).items() if state is PackageState.BUILT and name in stamps]
+            # A dependency this build was to build and did not (`-- --packages-skip` it, or it failed
+            # under --continue-on-error): what built on it built on its old install, so it is not up
+            # to date once that dependency is built.
+            depends = dict(step.depends)
+            on_old = {name: closure([name], depends) & (set(rebuild) - set(built)) for name in built}
+            if against := [name for name in built if on_old[name]]:
+                olds = sorted(set().union(*(on_old[name] for name in against)))
+                self.containers.emit(
+                    StepNote(
+                        step.name,
+                        f"{', '.join(against)} built on the old install of {', '.join(olds)}, which this build "
+                        "did not build: the next build builds them again",
+                    )
+                )
+            if built:
+                # Those recorded as built (their install is espdock's: `espdock run` takes it), with a
+                # stamp no package has: the next build builds them again.
+                recorded_stamps = {name: ON_OLD_INSTALL if on_old[name] else stamps[name] for name in built}
+                serves = None
+                if step.serves:
+                    sources = {name: tree for name, (tree, _) in trees.items()}
+                    served = dict(step.serves)
+                    images = {name: served.get(name, "") for name in sources}
+                    plain = package_stamps(sources, dict(step.depends), images, dict(step.settings))
+                    serves = {name: plain[name] for name in built if not on_old[name]}
+                stamp_file.record(recorded_stamps, installed(), dict(step.sources), trees, serves)
+                give_to(stamp_file.path, self.containers.owner)
+            return built
+
         with native_setup_kept(workspace.ws_dir / "install"):
             if sync is None:
-                code = self.containers.engine.run(spec, on_line, keep=self.containers.config.keep_containers)
+                try:
+                    code = self.containers.engine.run(spec, on_line, keep=self.containers.config.keep_containers)
+                except KeyboardInterrupt:
+                    # What colcon finished before Ctrl-C (or a CI job's cancel) is built: the next
+                    # build goes on from there, where it built all of them again.
+                    keep_built(log.states())
+                    raise
                 states = log.states()
             else:
                 with volume.fetched("install", "log") as fetched:
@@ -251,34 +290,7 @@ class RosSteps:
                     give_to(workspace.ws_dir / "build" / volume.SYNCED, self.containers.owner)
         if states is not None and not step.testing and (recorded_args := record_build_args(base, step.effective_args)):
             give_to(recorded_args, self.containers.owner)
-        built = [name for name, state in (states or {}).items() if state is PackageState.BUILT and name in stamps]
-        # A dependency this build was to build and did not (`-- --packages-skip` it, or it failed
-        # under --continue-on-error): what built on it built on its old install, so it is not up
-        # to date once that dependency is built.
-        depends = dict(step.depends)
-        on_old = {name: closure([name], depends) & (set(rebuild) - set(built)) for name in built}
-        if against := [name for name in built if on_old[name]]:
-            olds = sorted(set().union(*(on_old[name] for name in against)))
-            self.containers.emit(
-                StepNote(
-                    step.name,
-                    f"{', '.join(against)} built on the old install of {', '.join(olds)}, which this build did "
-                    "not build: the next build builds them again",
-                )
-            )
-        if built:
-            # Those recorded as built (their install is espdock's: `espdock run` takes it), with a
-            # stamp no package has: the next build builds them again.
-            recorded_stamps = {name: ON_OLD_INSTALL if on_old[name] else stamps[name] for name in built}
-            serves = None
-            if step.serves:
-                sources = {name: tree for name, (tree, _) in trees.items()}
-                served = dict(step.serves)
-                images = {name: served.get(name, "") for name in sources}
-                plain = package_stamps(sources, dict(step.depends), images, dict(step.settings))
-                serves = {name: plain[name] for name in built if not on_old[name]}
-            stamp_file.record(recorded_stamps, installed(), dict(step.sources), trees, serves)
-            give_to(stamp_file.path, self.containers.owner)
+        built = keep_built(states)
         self.unbuilt |= set(rebuild) - set(built)
         if states is None and code != 0:
             # Nothing in build/ or install/ changed: the packages keep their records, and the
@@ -320,7 +332,7 @@ class RosSteps:
         # Asked for and neither built nor left out as told (`-- --packages-skip`): colcon did not
         # find it where espdock did (a package linked from outside the workspace, say).
         # colcon logs no event of a package an option ignores (`--packages-ignore`): as if not found.
-        told = left_out(step.colcon_args, depends, base)
+        told = left_out(step.colcon_args, dict(step.depends), base)
         if lost := [n for n in others if n not in (states or {}) and n not in log.unselected() and n not in told]:
             rels = dict(step.sources)
             raise BuildFailed(

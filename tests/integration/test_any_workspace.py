@@ -176,4 +176,4 @@ def test_a_user_who_may_not_use_the_engine_s_socket_is_told_to_join_its_group(sh
     assert refused.returncode == 3, refused.stdout + refused.stderr
     said = " ".join(refused.stderr.split())
     assert "permission denied on the engine's socket" in said and "Start Docker" not in said, said
-    assert "join the group that owns it (for Docker's, `sudo usermod -aG docker $USER`" in said, said
+    assert "join the group that owns it (the docker group, for Docker's: `sudo usermod -aG docker $USER`" in said

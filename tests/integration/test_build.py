@@ -320,6 +320,10 @@ def test_ctrl_c_stops_and_removes_the_container_and_the_next_build_works(engine,
     report = tmp_path / "report.json"
     process = _start_build_until_colcon_runs(engine, root, "--report", str(report))
     try:
+        events, deadline = root / "ws/log/latest_build/events.log", time.monotonic() + 120
+        while "(beacon_nodes) JobEnded" not in (events.read_text() if events.is_file() else ""):
+            assert time.monotonic() < deadline and process.poll() is None, "beacon_nodes never finished"
+            time.sleep(0.2)
         sent = time.monotonic()
         process.send_signal(signal.SIGINT)
         out, err = process.communicate(timeout=60)
@@ -334,6 +338,10 @@ def test_ctrl_c_stops_and_removes_the_container_and_the_next_build_works(engine,
     # A CI job's report tells a cancelled build from a failed one (it said "failed", no error).
     data = json.loads(report.read_text())
     assert (data["outcome"], data["error"]) == ("interrupted", "interrupted"), data
+    # What colcon finished before the Ctrl-C is built: the next build goes on from there (it
+    # built every package again, on a large workspace minutes of work thrown away).
+    planned = espdock("build", "--dry-run", cwd=root)
+    assert "would build 1 of 2 package(s): slow_pkg" in " ".join(planned.stdout.split()), planned.stdout
 
     shutil.rmtree(root / "ws/src/slow_pkg")
     result = espdock("build", cwd=root)

@@ -47,6 +47,17 @@ def runtime_image(ws: Workspace, config: Config, plan: Plan | None = None) -> tu
     """Make sure the runtime image holds what install/ holds now (made again when a build changed
     it since); the runner that did, and the image's keyed tag (`:latest` names it too)."""
     plan, step = nodes.runtime_plan(plan or build_plan(ws, config, [], PackageKind.ROS))
+    if (holder := build_running(ws)) is not None:
+        # An image of what install/ holds now would be of a half rebuilt tree (the node's own
+        # package may be whole, its dependencies not), and `:latest` would move to it: one made
+        # before of the same files is the only one to run.
+        tag = runtime_spec(ws, step).tag
+        if bootstrap.ensure_engine(os.environ, notify).image(tag) is None:
+            raise WorkspaceError(
+                f"an espdock build is running in {ws.root}{holder}: install/ may be half rebuilt, and the runtime "
+                "image would be made of it",
+                "Wait for it to finish, then run again.",
+            )
     runner = ensure_images(ws, config, plan)
     # A runtime image `run` or `compose` made is the workspace's as much as a build's: prune may take it.
     record_images(ws, runner, step.repository)

@@ -20,7 +20,15 @@ import yaml
 
 from espdock.config import Config, resolve_ca_bundle
 from espdock.images.prune import read_records, state_dir
-from tests.conftest import REPO, Started, espdock, leftover_containers, python_workspace, reader_exits_at
+from tests.conftest import (
+    REPO,
+    Started,
+    build_holding,
+    espdock,
+    leftover_containers,
+    python_workspace,
+    reader_exits_at,
+)
 from tests.ros_official_double.build import build_double, settings
 from tests.rosdep_db import environment
 
@@ -199,6 +207,28 @@ def test_an_unknown_executable_is_exit_2_listing_what_there_is(node_workspace):
     assert "no executable 'beacon_lgo'" in result.stderr and "beacon, beacon_log" in result.stderr
     result = espdock("run", "beacon_node", "beacon", cwd=node_workspace)
     assert result.returncode == 2 and "beacon_nodes: beacon, beacon_log" in result.stderr
+
+
+def test_run_during_a_build_runs_no_image_of_a_half_rebuilt_install(engine, node_workspace):
+    """`espdock run` of a package the build was not rebuilding made the runtime image of the whole
+    install/ while the build wrote into it, and moved `:latest` to it."""
+    run = ("run", "beacon_nodes", "beacon", "--ros-args", "-p", "period:=fast")
+    assert espdock(*run, cwd=node_workspace).returncode not in (0, 2)  # its image exists, for the install as it is
+    with build_holding(node_workspace):
+        # The image of the install as it is: the node runs (and fails on its parameter, as above).
+        ran = espdock(*run, cwd=node_workspace)
+        assert ran.returncode not in (0, 2), ran.stdout + ran.stderr
+        # What the build writes beside beacon_nodes (colcon's top-level setup files, another
+        # package's tree), which its image would hold.
+        half = node_workspace / "ws/install/half_written.sh"
+        half.write_text("# a file a build is writing\n")
+        try:
+            refused = espdock(*run, cwd=node_workspace)
+        finally:
+            half.unlink()
+    assert refused.returncode == 2, refused.stdout + refused.stderr
+    said = " ".join(refused.stderr.split())
+    assert "install/ may be half rebuilt, and the runtime image would be made of it" in said, said
 
 
 def test_the_node_exit_code_passes_through(node_workspace):

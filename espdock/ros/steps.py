@@ -108,7 +108,11 @@ class RosSteps:
             why = f"--force: building {len(afresh)} package(s) afresh, in new build dirs and install prefixes"
             reasons.append((tuple(tree for name in afresh for tree in (base / name, install / name)), why))
         else:
-            if stale := step.stale_interfaces(rebuild):
+            # Only those built before (a build dir here, or a record of one in the workspace volume): a
+            # first build has nothing to build afresh, and said it did.
+            recorded = stamp_file.read()
+            before = [name for name in step.stale_interfaces(rebuild) if name in recorded or (base / name).exists()]
+            if stale := tuple(before):
                 why = (
                     f"building {', '.join(stale)} afresh: interface packages whose interface dependencies changed, "
                     "whose type hashes rosidl's incremental build would keep"

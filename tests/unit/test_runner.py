@@ -354,7 +354,10 @@ def test_stale_interfaces_and_a_native_symlink_install_are_both_cleared_before_c
 
     step = replace(COLCON, interfaces=("msgs", "app"))
     engine = FakeEngine(run_script=colcon_installs(ws))
-    runner(engine, []).run(Plan(ws, (step,)))
+    first: list = []
+    runner(engine, first).run(Plan(ws, (step,)))
+    # A first build has nothing to build afresh (it said it built app afresh, its deps "changed").
+    assert "afresh" not in notes(first)
     for name in ("msgs", "app"):
         share = ws.ws_dir / "install" / name / "share" / name
         share.mkdir(parents=True)

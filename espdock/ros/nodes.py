@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import difflib
 import os
 import posixpath
 import re
@@ -64,7 +65,10 @@ def find_executable(workspace: Workspace, packages: tuple[Package, ...], package
     install = workspace.ws_dir / "install"
     ros = [p.name for p in packages if p.kind is PackageKind.ROS]
     runnable = {name: found for name in ros if (found := executables(install, name, workspace.root))}
-    listing = "; ".join(f"{name}: {', '.join(found)}" for name, found in sorted(runnable.items())) or "none"
+    if len(runnable) > LISTED:  # each package's executables, in a workspace of dozens, made a hint of pages
+        listing = f"{len(runnable)} packages: {', '.join(sorted(runnable))}"
+    else:
+        listing = "; ".join(f"{name}: {', '.join(found)}" for name, found in sorted(runnable.items())) or "none"
     if any(p.name == package and p.kind is PackageKind.FIRMWARE for p in packages):
         # Its `ros2 run` commands (flash, idf, monitor) run espdock on the host, not in a node's image.
         raise WorkspaceError(
@@ -76,9 +80,12 @@ def find_executable(workspace: Workspace, packages: tuple[Package, ...], package
         # A package an ignore marker leaves out, or a project colcon would build without a
         # package.xml: said as the build says it.
         why = f": {out.what}" if (out := left_out(workspace).get(package)) else ""
+        close = difflib.get_close_matches(package, ros, n=1)
         raise WorkspaceError(
             f"no ROS package '{package}' in this workspace{why}",
-            f"Packages with executables (after `espdock build`): {listing}.",
+            f"Did you mean '{close[0]}'? {close[0]}: {', '.join(runnable.get(close[0], [])) or 'no executable'}."
+            if close and not why
+            else f"Packages with executables (after `espdock build`): {listing}.",
         )
     if not (install / package).is_dir():
         raise WorkspaceError(f"package '{package}' is not built yet", f"Run `espdock build {package}` first.")
@@ -92,14 +99,19 @@ def find_executable(workspace: Workspace, packages: tuple[Package, ...], package
                 f"Launch it with `ros2 launch {package} {executable}` in `espdock shell` on the official ROS image "
                 '(ros_image = "official"), which has launch and the `ros2` command; the wheels image has neither.',
             )
+        close = difflib.get_close_matches(executable, runnable.get(package, []), n=1)
         raise WorkspaceError(
             f"package '{package}' has no executable '{executable}'",
-            f"Its executables: {found}. All packages with executables: {listing}.",
+            f"Did you mean '{close[0]}'? {package}: {found}."
+            if close
+            else f"Its executables: {found}. All packages with executables: {listing}.",
         )
     check_built_by_espdock(workspace, package)
     return posixpath.join(RUNTIME_INSTALL, package, "lib", package, executable)
 
 
+# Above this many packages with executables, a hint names the packages, not each one's executables.
+LISTED = 8
 LAUNCH_SUFFIXES = (".launch.py", ".launch.xml", ".launch.yaml", "_launch.py", "_launch.xml", "_launch.yaml")
 
 

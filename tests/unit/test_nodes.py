@@ -113,6 +113,30 @@ def test_unknown_names_are_user_errors_that_list_what_exists(ws, package, execut
         assert "talk: listener, talker" in caught.value.hint
 
 
+def test_a_misspelt_name_in_a_large_workspace_is_suggested_in_a_short_hint(ws):
+    """`espdock run acme_cor ...` in a workspace of 58 executables: no suggestion, where `build`
+    and `test` give one, and a hint of 2,000 characters listing every executable."""
+    workspace, packages = ws
+    names = [f"acme_driver_{i}" for i in range(12)]
+    for name in names:
+        installed(workspace.root, name, f"{name}_node", f"{name}_diagnostics")
+    packages += tuple(
+        Package(n, workspace.root / "src" / n, PackageKind.ROS, "ament_python", frozenset()) for n in names
+    )
+    with pytest.raises(WorkspaceError) as caught:
+        find_executable(workspace, packages, "acme_drver_3", "x")
+    assert (
+        caught.value.hint
+        == "Did you mean 'acme_driver_3'? acme_driver_3: acme_driver_3_diagnostics, acme_driver_3_node."
+    )
+    with pytest.raises(WorkspaceError) as caught:
+        find_executable(workspace, packages, "talk", "talkr")
+    assert caught.value.hint == "Did you mean 'talker'? talk: listener, talker."
+    with pytest.raises(WorkspaceError) as caught:
+        find_executable(workspace, packages, "nothing_like_it", "x")
+    assert "13 packages: acme_driver_0, acme_driver_1," in caught.value.hint and "_node" not in caught.value.hint
+
+
 def test_run_of_a_package_espdock_leaves_out_says_what_leaves_it_out(ws):
     """Both were "no ROS package 'NAME' in this workspace", as for a misspelt name."""
     workspace, packages = ws

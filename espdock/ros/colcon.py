@@ -640,6 +640,16 @@ SYMLINK_OVER_COPY = "because existing path cannot be removed: Is a directory"
 WHEELS_FASTDDS_CMAKE = re.compile(r"/opt/espdock/venv/share/(fastrtps|fastdds|rmw_fastrtps\w*)/cmake/")
 
 
+# Above this many, a count says a state's packages, not their names: a failure in a workspace of
+# dozens named every one (the summary's cell wrapped into forty lines, then said it all again).
+NAMED = 5
+
+
+def named(names: list[str], state: str) -> str:
+    """`3 built (a b c)`, or beyond NAMED of them, `46 not processed`."""
+    return f"{len(names)} {state} ({' '.join(names)})" if len(names) <= NAMED else f"{len(names)} {state}"
+
+
 def explain_failure(
     code: int,
     states: Mapping[str, PackageState],
@@ -656,7 +666,7 @@ def explain_failure(
     for name, state in sorted(states.items()):
         by_state.setdefault(state, []).append(name)
     failed = by_state.get(PackageState.FAILED, [])
-    counts = ", ".join(f"{len(names)} {state.value} ({' '.join(names)})" for state, names in sorted(by_state.items()))
+    counts = ", ".join(named(names, state.value) for state, names in sorted(by_state.items()))
     lines = [f"colcon build failed (exit code {code}) in {', '.join(failed) or 'no package'}: {counts or 'none ran'}"]
     hints = []
     own = []

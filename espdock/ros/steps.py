@@ -32,6 +32,7 @@ from espdock.ros.colcon import (
     explain_failure,
     install_kind_switched,
     left_out,
+    named,
     record_build_args,
     usage_error,
 )
@@ -349,7 +350,7 @@ class RosSteps:
                 "nothing of it was installed.",
             )
         detail = f"{len(built)} package(s) built, {len(set(stamps) - set(rebuild))} up to date"
-        return Outcome.BUILT, detail + (f", {len(others)} not built ({' '.join(others)})" if others else "")
+        return Outcome.BUILT, detail + (f", {named(others, 'not built')}" if others else "")
 
     def colcon_test(self, workspace: Workspace, step: ColconTest, on_line: Callable[[str], None]) -> int:
         """Run STEP (colcon test) as the invoking user, its output to ON_LINE; colcon's exit code."""

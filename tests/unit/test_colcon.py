@@ -180,6 +180,13 @@ def test_a_failure_of_the_package_itself_says_fix_it_and_what_was_kept():
     assert "app: its own build failed; log: /l/app.log" in failure.message
     assert failure.hint.startswith("Fix app")
     assert "--continue-on-error" in failure.hint
+    # In a workspace of dozens, each state's packages past a few are counted, not named: it named
+    # every one, in the summary's cell and the error line both.
+    many = {**states, **{f"waiting_{i}": PackageState.NOT_PROCESSED for i in range(46)}}
+    failure = explain_failure(1, many, {"app": (Path("/l/app.log"), "SyntaxError: invalid syntax")}, ())
+    assert failure.message.splitlines()[0].endswith(
+        ": 1 aborted (slow), 1 built (msgs), 1 failed (app), 47 not processed"
+    )
     assert "The 1 package(s) that built are kept" in failure.hint
 
 

@@ -265,15 +265,19 @@ def lock_rosdeps(
     env: Mapping[str, str],
     owner: tuple[int, int] | None = None,
     refresh: bool = True,
-) -> tuple[str, str]:
+    served: tuple[Package, ...] | None = None,
+) -> tuple[str, str, bytes | None]:
     """Write ROOT/rosdep.lock.json: rosdep's resolution of the packages' dependencies for the
     chosen ROS image (REFRESH: `rosdep update` first). Returns its status (created, updated,
-    unchanged, not needed) and where rosdep's database came from, with its age."""
+    unchanged, not needed), where rosdep's database came from, with its age, and the lock's
+    content. SERVED (a build's packages): the lock is not written where it leaves a key of
+    theirs unresolved, for which the build is refused: a committed file changed by a build that
+    did not run (a COLCON_IGNORE put in for a moment, a key misspelt)."""
     image, needed, _ = _rosdep_state(config, packages, inputs)
     tests = testdeps.keys_for_tests(packages, image)
     target = root / ROSDEP_LOCK
     if not needed and not tests and not target.is_file():
-        return "not needed (the image provides every dependency)", ""
+        return "not needed (the image provides every dependency)", "", None
     if (needed or tests) and refresh:
         rosdeps.update_database(env, image.distro, root)
     from espdock.images.keyed import age_text
@@ -292,14 +296,18 @@ def lock_rosdeps(
     )
     before = target.read_text() if target.is_file() else None
     if text == before:
-        return "unchanged", database
+        return "unchanged", database, text.encode()
+    keys = lock.get("keys", {})  # as rosdeps.check_dependencies reads it
+    unserved = sorted({k for p in served or () for k in needed.get(p.name, ()) if not keys.get(k, {}).get("installer")})
+    if unserved:
+        return f"not written (it would leave {', '.join(unserved)} unresolved)", database, text.encode()
     if before is None:
         target.write_text(text)
         if owner is not None:
             os.chown(target, *owner)
-        return "created", database
+        return "created", database, text.encode()
     write_atomically(target, text)
-    return "updated", database
+    return "updated", database, text.encode()
 
 
 def official_python(config: Config, inputs: BuildInputs, env: Mapping[str, str]) -> Callable[[], SystemPython]:
@@ -336,7 +344,7 @@ def current_test_inputs(
         return inputs, None
     if locked:
         raise LockError(reason, f"In {root}: {FIX} and commit {ROSDEP_LOCK} (or test with --no-locked).")
-    status, database = lock_rosdeps(root, config, packages, inputs, env, owner, refresh=False)
+    status, database, _ = lock_rosdeps(root, config, packages, inputs, env, owner, refresh=False)
     data = (root / ROSDEP_LOCK).read_bytes() if (root / ROSDEP_LOCK).is_file() else None
     return replace(inputs, rosdep_lock=data), f"{ROSDEP_LOCK} {status} ({reason}; {database})"
 
@@ -361,12 +369,11 @@ def current_rosdep_inputs(
         return inputs, None
     if locked:
         raise stale_rosdep_lock(root, reason)
+    built = packages if built is None else built
     try:
-        status, database = lock_rosdeps(root, config, packages, inputs, env, owner, refresh=False)
+        status, database, data = lock_rosdeps(root, config, packages, inputs, env, owner, refresh=False, served=built)
     except rosdeps.DatabaseUnreachable as exc:
-        built = packages if built is None else built
         return inputs, offline_note(config, packages, inputs, built, reason, exc, ignored)
-    data = (root / ROSDEP_LOCK).read_bytes() if (root / ROSDEP_LOCK).is_file() else None
     return replace(inputs, rosdep_lock=data), f"{ROSDEP_LOCK} {status} ({reason}; {database})"
 
 

@@ -237,10 +237,13 @@ def test_an_rclcpp_package_on_the_wheels_image_is_refused_before_anything_builds
     assert lines == [f"  rosdeps_cpp_talker ({root}/src/rosdeps_cpp_talker): rclcpp: PyPI has no ros-jazzy-rclcpp"]
     assert 'ros_image = "official"' in result.stderr and "COLCON_IGNORE" in result.stderr
     assert not (root / "build").exists() and not (root / "install").exists()
-    lock = json.loads((root / "rosdep.lock.json").read_text())
-    assert lock["keys"]["tinyxml2"] == {"installer": "apt", "packages": ["libtinyxml2-dev"]}
+    # Nor a lock: one written would say rclcpp is served by nothing, for a build that did not run.
+    assert "rosdep.lock.json not written (it would leave rclcpp unresolved)" in result.stdout, result.stdout
+    assert not (root / "rosdep.lock.json").exists()
     # Another selection, without the C++ node, passes the check (and then needs the engine).
     assert run_build(root, tmp_path, "rosdeps_xml_count").returncode == 3
+    lock = json.loads((root / "rosdep.lock.json").read_text())
+    assert lock["keys"]["tinyxml2"] == {"installer": "apt", "packages": ["libtinyxml2-dev"]}
     # `espdock lock` records the key nothing serves, and says so (it said nothing).
     locked = espdock("lock", cwd=root, env={**NO_ENGINE, **environment(tmp_path)})
     assert locked.returncode == 0, locked.stderr

@@ -60,6 +60,8 @@ ROS_STAMP_FORMAT = 2
 
 
 # The stamp of a package built on the old install of a dependency the build left out.
+# colcon's console_start_end handler's line as a package's job ends: "Finished <<< msgs [2.1s]".
+ENDED = re.compile(r"^(Finished|Failed|Aborted) +<<< \S")
 ON_OLD_INSTALL = "built on an old install of a dependency"
 
 
@@ -213,9 +215,16 @@ class RosSteps:
         log = ColconLog(workspace.ws_dir / "log")
         output: list[str] = []
 
+        ended = 0
+
         def on_line(line: str) -> None:
+            nonlocal ended
             output.append(line)
             self.containers.emit(StepOutput(step.name, host_paths(line, workspace)))
+            if ENDED.match(line):
+                # At a terminal, the step's status line counts (colcon's own would: "[12/48 done]").
+                ended += 1
+                self.containers.emit(StepOutput(step.name, f"{ended} of {len(rebuild)} package(s) done", progress=True))
 
         spec = RunSpec(
             image=step.image,

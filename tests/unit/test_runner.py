@@ -758,3 +758,21 @@ def test_a_base_image_two_builds_miss_at_once_is_made_once(tmp_path, monkeypatch
         thread.join(10)
     assert made == [ref] and sorted(hows) == ["present", "pulled"]
     assert any(f"{ref}: another espdock (pid {os.getpid()}: " in note for note in notes_said), notes_said
+
+
+def test_the_colcon_step_s_status_counts_the_packages_done(ws):
+    """At a terminal, a build of 48 packages showed only a spinner beside "colcon build" (colcon's
+    own status line says how many are done)."""
+    from espdock.events import StepOutput
+
+    lines = (
+        "Starting >>> msgs",
+        "Finished <<< msgs [0.31s]",
+        "Starting >>> app",
+        "Failed   <<< app [0.2s, exited with code 1]",
+    )
+    engine = FakeEngine(run_script=colcon_installs(ws, lines=lines))
+    events: list = []
+    runner(engine, events).run(Plan(ws, (COLCON,)))
+    said = [e.line for e in events if isinstance(e, StepOutput) and e.progress]
+    assert said == ["1 of 2 package(s) done", "2 of 2 package(s) done"]

@@ -132,12 +132,24 @@ class Reporter:
         for event in self.finished:
             _, colour = MARKS[event.outcome]
             table.add_row(event.step, Text(event.outcome.value, style=colour), f"{event.seconds:.1f} s", event.detail)
+        # Into a CI log, at the table's own width: an image tag or a path folded at 80 columns is
+        # found by no grep.
+        console = wide(self.console)
         if not self.timestamps:
-            self.console.print(table)
+            console.print(table)
             return
-        narrower = self.console.options.update(width=max(40, self.console.width - len(STAMP_EXAMPLE)))
-        for line in self.console.render_lines(table, narrower, pad=False, new_lines=False):
-            self.console.print(stamped(Text.assemble(*((seg.text, seg.style) for seg in line))), soft_wrap=True)
+        narrower = console.options.update(width=max(40, console.width - len(STAMP_EXAMPLE)))
+        for line in console.render_lines(table, narrower, pad=False, new_lines=False):
+            console.print(stamped(Text.assemble(*((seg.text, seg.style) for seg in line))), soft_wrap=True)
+
+
+def wide(console: Console) -> Console:
+    """CONSOLE at a terminal; into a pipe or a file, one as wide as what it prints."""
+    if console.is_terminal:
+        return console
+    unbounded = Console(file=console.file, width=10_000, no_color=console.no_color, soft_wrap=True)
+    unbounded.on_broken_pipe = console.on_broken_pipe
+    return unbounded
 
 
 class QuietReporter:
@@ -277,6 +289,4 @@ def render_packages(console: Console, workspace: Workspace, packages: tuple[Pack
     for p in packages:
         table.add_row(p.name, p.kind.value, p.build_type, ", ".join(sorted(p.depends & names)))
     # Into a pipe or a file, at the table's own width: a name cut at 80 columns is another name.
-    wide = console if console.is_terminal else Console(file=console.file, width=10_000, no_color=console.no_color)
-    wide.on_broken_pipe = console.on_broken_pipe
-    wide.print(table)
+    wide(console).print(table)

@@ -682,6 +682,17 @@ def test_the_summary_in_an_80_column_log_cuts_no_step_name_short():
     cells = "".join(line.split("│")[1].strip() for line in out.getvalue().splitlines() if line.startswith("│"))
     assert f"image{tag}" in cells.replace(" ", ""), out.getvalue()
     assert "…" not in out.getvalue()
+    # Each on one line, whole: folded at 80 columns, `grep` found neither the tag nor the path.
+    installed = "install/led_strip_node/share/led_strip_node/firmware"
+    reporter.finished[:] = [StepFinished(f"image {tag}", Outcome.BUILT, 12.3, tag)]
+    reporter.finished.append(StepFinished("install led_strip_node", Outcome.BUILT, 0.1, installed))
+    out.seek(0), out.truncate()
+    reporter.summary()
+    assert (
+        len([line for line in out.getvalue().splitlines() if f"image {tag}" in line and tag in line.split("│")[-2]])
+        == 1
+    )
+    assert len([line for line in out.getvalue().splitlines() if installed in line]) == 1, out.getvalue()
 
 
 def test_symlink_install_turned_on_in_the_colcon_defaults_file_is_a_switch_and_on_in_both_is_none(ws):

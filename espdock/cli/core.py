@@ -14,6 +14,7 @@ from typing import Annotated, NoReturn, ParamSpec, TextIO
 
 import typer
 import typer.core
+import typer.rich_utils
 from rich.console import Console
 from rich.text import Text
 
@@ -82,6 +83,24 @@ def _errors_unread() -> None:
 
 
 err_console.on_broken_pipe = _errors_unread
+_typer_console = typer.rich_utils._get_rich_console
+
+
+def _help_console(stderr: bool = False) -> Console:
+    """Typer's console for help and usage errors, whose reader going away ends espdock as it ends
+    for espdock's own: rich's exits 1, and `espdock build --help | grep -q OPTION` failed under
+    pipefail as the match came early (a CI step probing for an option)."""
+    made = _typer_console(stderr)
+
+    def closed() -> None:
+        made.quiet = True
+        (_errors_unread if stderr else output_closed)()
+
+    made.on_broken_pipe = closed
+    return made
+
+
+typer.rich_utils._get_rich_console = _help_console  # Typer has no hook for it (0.x, pinned by the lock)
 _state = {"debug": False}
 P = ParamSpec("P")
 

@@ -610,6 +610,21 @@ def test_a_relative_state_dir_is_refused_before_any_work(tmp_path):
     assert not (root / "ws/src/relstate").exists()
 
 
+def test_help_whose_reader_went_away_ends_as_a_closed_output_does(tmp_path):
+    """`set -o pipefail; espdock build --help | grep -q -- --force`: exit 1 (rich's own) where the
+    reader closed the pipe first, where espdock's own output gives 141 as SIGPIPE would."""
+    process = subprocess.Popen(
+        [sys.executable, "-m", "espdock", "build", "--help"],
+        cwd=tmp_path,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    process.stdout.close()  # before Python has started: its first write finds no reader
+    code = process.wait(timeout=60)
+    assert code == 141, process.stderr.read()
+
+
 def test_init_s_next_step_is_a_command_line_that_works_when_pasted(tmp_path):
     """`espdock init "my röbot ws"` said `cd my röbot ws && espdock new my_board`: cd: too many arguments."""
     made = espdock("init", "my röbot ws", cwd=tmp_path)

@@ -50,7 +50,7 @@ def tree_state(*roots: Path) -> tuple[str, int]:
 
 def listing_digest(root: Path, ignore: Collection[str] = ()) -> str | None:
     """sha256 over paths, sizes and modification times under ROOT (symlinks as their targets'
-    names, not followed) but for the files IGNORE names directly in ROOT; None when ROOT does not
+    names, not followed) but for what IGNORE names directly in ROOT (files and directories); None when ROOT does not
     exist. Cheap: reads no file contents, and stats each entry once (every build and test checks
     the whole install tree this way)."""
     if not root.exists() and not root.is_symlink():
@@ -68,12 +68,12 @@ def listing_digest(root: Path, ignore: Collection[str] = ()) -> str | None:
             continue
         subdirs = []
         for entry in entries:
+            if not prefix and entry.name in ignore:
+                continue
             try:
                 linked = entry.is_symlink()
                 if not linked and entry.is_dir():
                     subdirs.append((prefix + entry.name + "/", entry.path))
-                    continue
-                if not prefix and entry.name in ignore:
                     continue
                 info = entry.stat(follow_symlinks=False)
                 target = os.readlink(entry.path) if linked else ""

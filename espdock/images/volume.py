@@ -213,6 +213,12 @@ def replace_tree(archive: Path, dest: Path, owner: tuple[int, int], only: Collec
                     kept.unlink()
                 if entry.is_dir() and not entry.is_symlink():
                     shutil.copytree(entry, kept, symlinks=True, copy_function=os.link)
+                    if os.geteuid() == 0:
+                        # The files are the old ones (links); the directories are new, and root's
+                        # kept the user from removing the old tree's files after a `sudo` build.
+                        for directory, _, _ in os.walk(kept):
+                            was = (entry / os.path.relpath(directory, kept)).stat()
+                            os.chown(directory, was.st_uid, was.st_gid)
                 else:
                     os.link(entry, kept, follow_symlinks=False)
         old = scratch.make(".espdock-old-", dest.parent)  # DEST goes in it, to be removed with it

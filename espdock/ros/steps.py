@@ -297,9 +297,11 @@ class RosSteps:
                     built_here = [n for n, state in (states or {}).items() if state is PackageState.BUILT]
                     unbuilt = set(rebuild) - set(built_here) - set(log.unselected())
                     merge = whole and (code != 0 or bool(unbuilt))
-                    volume.replace_tree(
-                        fetched["install"], install, self.containers.owner, built_here if merge else None
-                    )
+                    # The host's own entries stay: a build of the ROS packages (`--only ros`, a
+                    # selection) removed the firmware installs, and `espdock flash` found none.
+                    kept = host_added(install)
+                    theirs = built_here if merge else [e for e in _entries(install) if e not in kept]
+                    volume.replace_tree(fetched["install"], install, self.containers.owner, theirs)
                     volume.record(workspace, self.containers.engine, sync, None if merge else volume_listing(install))
                     give_to(workspace.ws_dir / "build" / volume.SYNCED, self.containers.owner)
         if states is not None and not step.testing and (recorded_args := record_build_args(base, step.effective_args)):
@@ -459,16 +461,28 @@ def colcon_rebuild(
     return stamp_file, stamps, stamp_file.stale(stamps, installed, dict(step.sources)), trees
 
 
-def volume_listing(install: Path) -> str | None:
-    """INSTALL's listing as the workspace volume's build left it: without what espdock adds on the
-    host after it (the manifest, the firmware packages' installs). With them, every build on the
-    volume took install/ for one another build had changed, and rebuilt every package."""
+def host_added(install: Path) -> set[str]:
+    """What espdock adds to INSTALL on the host, beside what the workspace volume's colcon built:
+    the manifest, the firmware packages' installs."""
     try:
         names = os.listdir(install)
     except OSError:
         names = []
-    added = {name for name in names if (install / name / "share" / name / FIRMWARE_DIR).is_dir()}
-    return listing_digest(install, {MANIFEST_NAME, *added})
+    return {MANIFEST_NAME} | {name for name in names if (install / name / "share" / name / FIRMWARE_DIR).is_dir()}
+
+
+def volume_listing(install: Path) -> str | None:
+    """INSTALL's listing as the workspace volume's build left it (without host_added). With what
+    the host added, every build on the volume took install/ for one another build had changed,
+    and rebuilt every package."""
+    return listing_digest(install, host_added(install))
+
+
+def _entries(directory: Path) -> list[str]:
+    try:
+        return os.listdir(directory)
+    except OSError:
+        return []
 
 
 def runtime_spec(workspace: Workspace, step: RuntimeImage) -> ImageSpec:

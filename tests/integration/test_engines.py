@@ -350,15 +350,24 @@ def test_volume_mode_builds_where_the_engine_cannot_see_rebuilds_edits_and_never
     assert "word: two" in run.stdout
     assert strangers(root / "ws") == []
 
+    # A firmware package's install beside the ROS packages', as the host's install step makes it
+    # after the copy back (the volume's colcon never builds it).
+    flashable = root / "ws/install/board/share/board/firmware/flasher_args.json"
+    flashable.parent.mkdir(parents=True)
+    flashable.write_text("{}\n")
+    subprocess.run(["chown", "-R", f"{VOLUME_UID}:{VOLUME_UID}", str(root / "ws/install/board")], check=True)
+
     # A one-line edit: only it goes to the engine, and the rebuild runs the new code.
     edit_word(root, "three")
     since = time.time()
     again = espdock("build", cwd=root, env=tcp_engine.env)
     assert again.returncode == 0, again.stdout + again.stderr
     assert ": 1 file(s) sent, 0 removed" in again.stdout, again.stdout
-    # Only the edited package: the manifest the build before wrote into install/ after the copy
-    # back made every build on the volume a whole one.
+    # Only the edited package: the manifest and the firmware install the host adds after the copy
+    # back made every build on the volume a whole one; and the copy back kept the firmware (it
+    # swapped in the volume's install/, which has none: `espdock flash` found nothing to flash).
     assert "1 package(s) built, 1 up to date" in again.stdout, again.stdout
+    assert flashable.read_text() == "{}\n"
     assert tcp_engine.created(since, "io.espdock.step=mount-check") == []
     run = espdock("run", "beacon_nodes", "once", cwd=root, env=tcp_engine.env)
     assert "word: three" in run.stdout, run.stdout + run.stderr

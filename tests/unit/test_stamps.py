@@ -109,3 +109,17 @@ def test_records_written_as_root_belong_to_the_workspace_s_build_dir_owner(tmp_p
     os.chown(stamps.path, 0, 0)  # as an espdock that handed nothing back left it
     stamps.forget(["talker"])  # as a build does before colcon runs
     assert (stamps.path.stat().st_uid, stamps.path.stat().st_gid) == (4242, 4243)
+
+
+def test_a_listing_leaves_out_the_directories_it_is_told_to_as_well_as_files(tmp_path):
+    """The workspace volume's record of install/ left out the firmware installs espdock adds on
+    the host: the directories were walked all the same, so with a firmware package beside the ROS
+    ones every build on the volume rebuilt every ROS package."""
+    (tmp_path / "talker/share").mkdir(parents=True)
+    (tmp_path / "talker/share/x").write_text("x")
+    bare = listing_digest(tmp_path)
+    (tmp_path / "board/share/board/firmware").mkdir(parents=True)
+    (tmp_path / "board/share/board/firmware/app.bin").write_bytes(b"\0")
+    (tmp_path / "espdock-manifest.json").write_text("{}")
+    assert listing_digest(tmp_path, {"board", "espdock-manifest.json"}) == bare
+    assert listing_digest(tmp_path, {"espdock-manifest.json"}) != bare

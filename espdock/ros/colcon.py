@@ -303,15 +303,25 @@ def install_kind_switched(base: Path, args: tuple[str, ...]) -> bool:
     return ("--symlink-install" in args) != ("--symlink-install" in last_build_args(base))
 
 
+def _spelt_apart(args: Iterable[str]) -> tuple[str, ...]:
+    """ARGS with `--cmake-args=VALUE` as `--cmake-args VALUE`, as argparse reads it: the value
+    the one form holds is the other's first."""
+    return tuple(
+        part
+        for arg in args
+        for part in (("--cmake-args", arg.split("=", 1)[1]) if arg.startswith("--cmake-args=") else (arg,))
+    )
+
+
 def without_build_testing(args: tuple[str, ...]) -> tuple[str, ...]:
     """ARGS without their BUILD_TESTING setting: a test build configures the tests whatever the
     build before it did."""
-    return tuple(arg for arg in args if not _BUILD_TESTING.match(arg.strip()))
+    return tuple(arg for arg in _spelt_apart(args) if not _BUILD_TESTING.match(arg.strip()))
 
 
 def sets_build_testing(args: Iterable[str]) -> bool:
     """Whether ARGS (colcon options) set BUILD_TESTING themselves (`--cmake-args -DBUILD_TESTING=ON`)."""
-    return any(_BUILD_TESTING.match(arg.strip()) for arg in args)
+    return any(_BUILD_TESTING.match(arg.strip()) for arg in _spelt_apart(args))
 
 
 def with_build_testing(
@@ -323,6 +333,9 @@ def with_build_testing(
     command line replaces the defaults file's: the value joins the user's own, from either."""
     if sets_build_testing(args):
         return args
+    # `--cmake-args=-DFOO=3` is the same option: a second `--cmake-args` replaced it (colcon keeps
+    # the last), and FOO stayed as CMake had cached it, unsaid.
+    args = _spelt_apart(args)
     for index, arg in enumerate(args):
         if arg == "--cmake-args":
             return (*args[: index + 1], f"-DBUILD_TESTING={value}", *args[index + 1 :])

@@ -288,6 +288,13 @@ def test_a_plain_build_on_the_wheels_image_configures_cmake_packages_without_tes
     own = ColconBuild(image="i", packages=("a",), tests_off=True, colcon_args=("--cmake-args", "-DX=1", "--foo"))
     # colcon keeps only the last --cmake-args: the value joins the user's own.
     assert own.argv()[-4:] == ("--cmake-args", "-DBUILD_TESTING=OFF", "-DX=1", "--foo")
+    # The `=` form is the same option (a second --cmake-args replaced it: FOO stayed as cached).
+    equals = ColconBuild(image="i", packages=("a",), tests_off=True, colcon_args=("--cmake-args=-DFOO=3", "--foo"))
+    assert equals.argv()[-4:] == ("--cmake-args", "-DBUILD_TESTING=OFF", "-DFOO=3", "--foo")
+    asked_equals = ColconBuild(
+        image="i", packages=("a",), tests_off=True, colcon_args=("--cmake-args=-DBUILD_TESTING=ON",)
+    )
+    assert "-DBUILD_TESTING=OFF" not in asked_equals.argv() and not asked_equals.says_tests_off
     asked = ColconBuild(image="i", packages=("a",), tests_off=True, colcon_args=("--cmake-args", "-DBUILD_TESTING=ON"))
     assert asked.argv().count("-DBUILD_TESTING=OFF") == 0 and not asked.says_tests_off
     official = ColconBuild(image="i", packages=("a",))

@@ -89,12 +89,17 @@ def test(
     every = discover(ws, config.ros_distro)
     by_name = {p.name: p for p in every}
     if unknown := [n for n in packages or () if n not in by_name]:
+        if results is not None:  # the last run's results go as for any run refused
+            prepare_results(results, invoking_user(os.environ, ws.root), [])
         raise unknown_package(unknown[0], by_name, ws)
     chosen = [by_name[n] for n in packages] if packages else list(every)
     base = ws.ws_dir / ROS_BUILD_BASE
     ros, skipped = not_left_out([p for p in chosen if p.kind is PackageKind.ROS], every, colcon_args, base)
     firmware = [p for p in chosen if p.kind is PackageKind.FIRMWARE]
-    if skipped and not ros and not firmware and set(skipped) <= passed_last_time(colcon_args, skipped, base):
+    # Firmware packages without host tests test nothing either: a run of only them passed, with
+    # no result file.
+    hosted = [p for p in firmware if host_tests_dir(p.path) is not None]
+    if skipped and not ros and not hosted and set(skipped) <= passed_last_time(colcon_args, skipped, base):
         # colcon's retest of what failed, once nothing did: a pass, as plain colcon's.
         console.print(
             f"nothing to test: the tests of {', '.join(skipped)} passed last time (--packages-skip-test-passed)"
@@ -103,7 +108,7 @@ def test(
     if results is not None:
         # Before anything refuses the run: a CI runner then never reports the last run's results.
         prepare_results(results, invoking_user(os.environ, ws.root), [p.name for p in chosen])
-    if skipped and not ros and not firmware:
+    if skipped and not ros and not hosted:
         raise ConfigError(
             f"nothing to test: the options after `--` skip {', '.join(skipped)}",
             "Name the packages to test (`espdock test PKG...`) or skip fewer; a run that tests nothing passes nothing.",

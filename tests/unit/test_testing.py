@@ -309,7 +309,9 @@ def test_packages_the_options_after_the_double_dash_skip_are_not_tested_nor_aske
     """`espdock test PKG -- --packages-skip PKG` passed with "0 tests" where PKG has seven (a green
     CI job that ran nothing); `-- --packages-skip` of a package with ament_lint test dependencies
     was still refused for them."""
-    from tests.conftest import copy_workspace, espdock
+    import shutil
+
+    from tests.conftest import REPO, copy_workspace, espdock
     from tests.robot_packages import write_python_package
 
     root = copy_workspace(tmp_path / "w")
@@ -335,6 +337,20 @@ def test_packages_the_options_after_the_double_dash_skip_are_not_tested_nor_aske
         "test", "linted", "--results", str(results), "--", "--packages-skip", "linted", cwd=root, env=no_engine
     )
     assert nothing.returncode == 2 and "nothing to test: the options after `--` skip linted" in nothing.stderr
+    assert not (results / "linted/pytest.xml").exists()
+    # A firmware package beside them that declares no host tests tests nothing either: every ROS
+    # package skipped passed, exit 0, with no result file.
+    shutil.copytree(REPO / "firmware/led_strip_node", root / "firmware/led_strip_node")
+    everything = ("--packages-skip", "linted", "custom_interface")
+    beside = espdock("test", "--", *everything, cwd=root, env=no_engine)
+    assert beside.returncode == 2, beside.stdout + beside.stderr
+    assert "nothing to test: the options after `--` skip" in beside.stderr
+    # A package name espdock does not know: refused, and the last run's results gone as well.
+    (results / "linted").mkdir()
+    (results / "linted/pytest.xml").write_text("<testsuite tests='1'/>\n")
+    (results / ".espdock-results").write_text("linted/pytest.xml\n")
+    unknown = espdock("test", "nosuch", "--results", str(results), cwd=root, env=no_engine)
+    assert unknown.returncode == 2 and "no package named 'nosuch'" in unknown.stderr, unknown.stderr
     assert not (results / "linted/pytest.xml").exists()
 
 

@@ -160,7 +160,7 @@ def plan_tests(
     if note:
         notify(note)
     lock = rosdeps.read_lock(inputs.rosdep_lock, ROSDEP_LOCK)
-    testdeps.check_tests(ros, lock, ros_image(config, inputs)[2])
+    testdeps.check_tests(ros, lock, ros_image(config, inputs)[2], every)
     names = tuple(p.name for p in ros)
     known = (every, inputs)
     # The builds keep install/ as the last build made it: its options after `--` (a

@@ -98,12 +98,22 @@ def resolve(
     return part
 
 
-def check_tests(selected: Iterable[Package], lock: Mapping | None, image: rosdeps.RosImage) -> None:
+def check_tests(
+    selected: Iterable[Package], lock: Mapping | None, image: rosdeps.RosImage, every: Iterable[Package] = ()
+) -> None:
     """Refuse (exit 2, before anything runs) packages whose test keys neither the image nor the
-    lock's test part provides; on the wheels image the way out names the official one."""
+    lock's test part provides; on the wheels image the way out names the official one. EVERY:
+    the workspace's packages, which a test_depend may name (a package of test helpers): `espdock
+    test PKG` took one for a key missing from the lock, which `espdock lock` never added."""
     selected = tuple(selected)
+    names = {p.name for p in selected}
+    needed = keys_for_tests((*selected, *(p for p in every if p.name not in names)), image)
     rosdeps.check_dependencies(
-        _as_tests(selected, image), keys_for_tests(selected, image), lock_test_part(lock), image, command="test"
+        _as_tests(selected, image),
+        {name: keys for name, keys in needed.items() if name in names},
+        lock_test_part(lock),
+        image,
+        command="test",
     )
 
 

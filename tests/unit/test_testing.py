@@ -424,3 +424,23 @@ def test_a_retest_of_what_failed_once_everything_passed_is_a_pass(tmp_path):
     (root / "ws/build/espdock-ros/beacon_nodes/colcon_test.rc").write_text("test failures\n")
     failed = espdock("test", "--", "--packages-skip-test-passed", cwd=root, env=no_engine)
     assert failed.returncode == 3, failed.stderr  # on to the engine, which is not there
+
+
+def test_a_package_whose_tests_depend_on_a_workspace_package_is_tested_alone(tmp_path):
+    """`<test_depend>test_utils</test_depend>`, test_utils a package of the workspace: `espdock
+    test py_talker` was refused ("test_utils: not in the lock"), which `espdock lock` never added;
+    `espdock test` of every package passed the check."""
+    from tests.conftest import copy_workspace, espdock
+    from tests.robot_packages import write_python_package
+    from tests.rosdep_db import environment
+
+    root = copy_workspace(tmp_path / "w", packages=())
+    write_python_package(root / "ws/src", "test_utils")
+    talker = write_python_package(root / "ws/src", "py_talker")
+    manifest = talker / "package.xml"
+    manifest.write_text(manifest.read_text().replace("<export>", "<test_depend>test_utils</test_depend>\n  <export>"))
+    env = {**environment(tmp_path), "DOCKER_HOST": "unix:///nonexistent/docker.sock"}
+    assert espdock("lock", cwd=root, env=env).returncode == 0
+    alone = espdock("test", "py_talker", cwd=root, env=env)
+    assert alone.returncode == 3, alone.stdout + alone.stderr  # on to the engine, which is not there
+    assert "not in the lock" not in alone.stderr

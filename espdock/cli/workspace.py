@@ -127,6 +127,20 @@ def build(
             target and check_target(target, "--target"),
             dry_run=dry_run,
         )
+        if packages and only is not None:
+            kinds = {p.name: p.kind for p in workspace_packages(ws, config.ros_distro)}
+            kind = {PackageKind.ROS: "ROS", PackageKind.FIRMWARE: "firmware"}
+            if not plan.steps:
+                # `espdock build FIRMWARE_PKG --only ros` in a Makefile: it built nothing and passed.
+                named = ", ".join(f"{name} ({kind[kinds[name]]})" for name in packages)
+                raise ConfigError(
+                    f"nothing to build: --only {only} builds no package of {named}",
+                    f"Name a {kind[only]} package, or leave --only out.",
+                )
+            if others := [name for name in packages if kinds[name] is not only]:
+                notify(
+                    f"note: not built, --only {only} leaves them out: {', '.join(others)} ({kind[kinds[others[0]]]})"
+                )
         if dry_run and locked:
             check_locks(ws.root, plan_locks(plan))  # as the build would refuse them
         if dry_run:
@@ -134,16 +148,6 @@ def build(
                 console, plan, preview(ws, plan, bootstrap.reachable_engine(os.environ), bool(config.cache_registry))
             )
             return
-        if not plan.steps and packages and only is not None:
-            # `espdock build FIRMWARE_PKG --only ros` in a Makefile: it built nothing and passed.
-            kinds = {p.name: p.kind for p in workspace_packages(ws, config.ros_distro)}
-            named = ", ".join(
-                f"{name} ({'ROS' if kinds[name] is PackageKind.ROS else 'firmware'})" for name in packages
-            )
-            raise ConfigError(
-                f"nothing to build: --only {only} builds no package of {named}",
-                f"Name a {'ROS' if only is PackageKind.ROS else 'firmware'} package, or leave --only out.",
-            )
         if not plan.steps:
             has_any = only is not None and workspace_packages(ws, config.ros_distro)
             console.print(f"nothing to build: no {only} package in the workspace" if has_any else nothing_to_build(ws))

@@ -136,6 +136,13 @@ def test_build_checks_only_the_locks_of_the_images_it_uses(tmp_path):
     said = " ".join(named.stderr.split())
     assert "nothing to build: --only firmware builds no package of custom_interface (ROS)" in said, said
     assert json.loads(report.read_text())["outcome"] == "failed"
+    # Beside a package of the kind: built, and the other named is said to be left out (it was not).
+    shutil.copytree(REPO / "firmware/led_strip_node", root / "firmware/led_strip_node")
+    mixed = espdock(
+        "build", "custom_interface", "led_strip_node", "--only", "ros", "--dry-run", cwd=root, env=NO_ENGINE
+    )
+    said = " ".join(mixed.stdout.split())
+    assert "note: not built, --only ros leaves them out: led_strip_node (firmware)" in said, said
 
 
 def test_a_workspace_on_espdocks_defaults_builds_locked_and_has_nothing_to_lock(tmp_path):

@@ -14,8 +14,9 @@ from espdock.layout import xdg_dir
 
 
 def kept(env: Mapping[str, str]) -> Callable[[], None]:
-    """What hands espdock's directories under ENV's home (its cache, its state, and the missing
-    directories above them it makes) to the home's owner: to call as the command ends."""
+    """What hands espdock's directories under ENV's home (its cache, its state, rosdep's and uv's
+    caches, and the missing directories above them it makes) to the home's owner: to call as the
+    command ends. A root ~/.ros/rosdep made the user's next `espdock lock` fail on rosdep's cache."""
     if os.geteuid() != 0 or not env.get("HOME"):
         return lambda: None
     from espdock.images.prune import state_dir  # here: every command starts through this module
@@ -23,7 +24,10 @@ def kept(env: Mapping[str, str]) -> Callable[[], None]:
     home = Path(env["HOME"])
     try:
         info = home.stat()
-        ours = [xdg_dir(env, "XDG_CACHE_HOME", ".cache") / "espdock", state_dir(env)]
+        cache = xdg_dir(env, "XDG_CACHE_HOME", ".cache")
+        # espdock's cache and state; rosdep's meta cache (in ROS_HOME) and uv's, which it runs.
+        ros_home = Path(env.get("ROS_HOME") or home / ".ros")
+        ours = [cache / "espdock", state_dir(env), ros_home / "rosdep", Path(env.get("UV_CACHE_DIR") or cache / "uv")]
     except (OSError, EspdockError):
         return lambda: None
     if info.st_uid == 0:

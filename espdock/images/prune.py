@@ -33,7 +33,8 @@ def state_dir(env: Mapping[str, str]) -> Path:
             # Relative to wherever espdock runs: a build from src/ made one there, in the sources.
             raise ConfigError(
                 f"ESPDOCK_STATE_DIR must be an absolute path, got {value!r}",
-                f'espdock runs from any directory of a workspace: give the whole path (`"$PWD/{value}"`).',
+                "espdock runs from any directory of a workspace: give the whole path "
+                f'(`"{"$HOME" + value[1:] if value.startswith("~/") else "$PWD/" + value}"`).',
             )
         return Path(value)
     return xdg_dir(env, "XDG_STATE_HOME", ".local/state") / "espdock"

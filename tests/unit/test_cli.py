@@ -13,6 +13,7 @@ import pytest
 from espdock.layout import firmware_install_dir
 from tests.conftest import REPO, build_holding, copy_workspace, espdock, locale_env
 from tests.robot_packages import write_interface_package
+from tests.rosdep_db import environment
 
 # Any engine use would fail loudly against this address.
 NO_ENGINE = {"DOCKER_HOST": "unix:///nonexistent/docker.sock"}
@@ -592,11 +593,16 @@ def test_sudo_keeping_the_user_s_home_leaves_nothing_of_root_s_in_it(tmp_path):
     home = tmp_path / "home"
     home.mkdir()
     os.chown(home, 4242, 4243)
-    root = copy_workspace(tmp_path / "w")
+    root = copy_workspace(tmp_path / "w", test_packages=("rosdeps_xml_count",))  # tinyxml2: rosdep runs
     env = {"HOME": str(home), "XDG_CACHE_HOME": "", "XDG_STATE_HOME": "", "ESPDOCK_STATE_DIR": "", **NO_ENGINE}
     listed = espdock("list", cwd=root, env=env)
     assert listed.returncode == 0, listed.stderr
     assert (home / ".cache/espdock").is_dir(), "nothing was written there: the test tests nothing"
+    # `sudo -E espdock lock`: rosdep's meta cache in ~/.ros was root's, and the user's next lock
+    # failed on it ("Permission denied", blamed on the network).
+    locked = espdock("lock", cwd=root, env={**environment(tmp_path), **env})
+    assert locked.returncode == 0, locked.stderr
+    assert (home / ".ros/rosdep").is_dir(), "rosdep wrote nothing there: the test tests nothing"
     owners = {(p.relative_to(home).as_posix(), p.lstat().st_uid) for p in home.rglob("*")}
     assert {(rel, uid) for rel, uid in owners if uid != 4242} == set()
 
@@ -608,6 +614,9 @@ def test_a_relative_state_dir_is_refused_before_any_work(tmp_path):
     assert refused.returncode == 2, refused.stdout + refused.stderr
     assert "ESPDOCK_STATE_DIR must be an absolute path, got 'relstate'" in refused.stderr
     assert not (root / "ws/src/relstate").exists()
+    # A `~` no shell expanded (a CI file's, a .env's): the way out is $HOME's, not a dir called ~.
+    tilde = espdock("list", cwd=root, env={"ESPDOCK_STATE_DIR": "~/state", **NO_ENGINE})
+    assert tilde.returncode == 2 and '(`"$HOME/state"`)' in tilde.stderr, tilde.stderr
 
 
 def test_help_whose_reader_went_away_ends_as_a_closed_output_does(tmp_path):

@@ -235,7 +235,7 @@ class FirmwareSteps:
             env=tuple(env),
             labels=labels,
             devices=devices,
-            group_add=tuple(_device_groups(devices)),
+            group_add=(*_device_groups(devices), *self.containers.shared_group(workspace)),
             network=network,
             tty=on_line is None and bool(sys.stdin and sys.stdin.isatty()),
             archives=tuple(archives),

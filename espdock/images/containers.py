@@ -4,6 +4,7 @@ reproducible environment they get, and the check that the engine sees the worksp
 from __future__ import annotations
 
 import os
+import pwd
 import re
 import shlex
 import shutil
@@ -183,6 +184,20 @@ class Containers:
     def container_user(self) -> str:
         uid, gid = self.container_owner()
         return f"{uid}:{gid}"
+
+    def shared_group(self, workspace: Workspace) -> tuple[int, ...]:
+        """The workspace's group, where the invoking user is in it but not by their primary group
+        (a setgid directory a team shares): a container runs with the primary group alone, and
+        was refused the group-writable trees a teammate's build left."""
+        if self.engine.info().rootless:
+            return ()
+        uid, gid = self.owner
+        try:
+            group = workspace.root.stat().st_gid
+            member = os.getgrouplist(pwd.getpwuid(uid).pw_name, gid) if uid != os.getuid() else os.getgroups()
+        except (OSError, KeyError):
+            return ()
+        return (group,) if group != gid and group in member else ()
 
     def container_owner(self) -> tuple[int, int]:
         """Who a container writing into the workspace runs as, so its files are the invoking user's:

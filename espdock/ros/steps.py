@@ -231,6 +231,7 @@ class RosSteps:
             argv=with_host_umask(step.argv(rebuild)),
             workdir=step.workdir,
             user=user,
+            group_add=self.containers.shared_group(workspace),
             mounts=tuple(mounts),
             env=tuple(env),
             labels=labels,

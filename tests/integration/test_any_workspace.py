@@ -177,3 +177,37 @@ def test_a_user_who_may_not_use_the_engine_s_socket_is_told_to_join_its_group(sh
     said = " ".join(refused.stderr.split())
     assert "permission denied on the engine's socket" in said and "Start Docker" not in said, said
     assert "join the group that owns it (the docker group, for Docker's: `sudo usermod -aG docker $USER`" in said
+
+
+def test_a_workspace_a_team_shares_through_its_group_rebuilds_for_each_member(shared_dir, wheel_espdock):
+    """A setgid directory of a team's group, umask 002, the group each member's supplementary one:
+    the containers ran with the primary group alone (and wrote 0755), so the second member's build
+    was refused on log/ ("give it back: sudo chown"), which the first member owns."""
+    docker_gid, team = grp.getgrnam("docker").gr_gid, 4300
+    root = shared_dir / "team"
+    (root / "src").mkdir(parents=True)
+    shutil.copytree(REPO / "tests/ros_packages/beacon_nodes", root / "src/beacon_nodes")
+    (root / "espdock.toml").write_text("[espdock]\n")
+    for directory, dirnames, filenames in os.walk(root):
+        for name in (".", *dirnames, *filenames):
+            os.chown(os.path.join(directory, name), USER_UID, team)
+        os.chmod(directory, 0o2775)
+    subprocess.run(["chmod", "-R", "g+w", str(root)], check=True)
+    homes = {}
+    for uid in (USER_UID, USER_UID + 2):
+        homes[uid] = shared_dir / f"home-{uid}"
+        homes[uid].mkdir()
+        os.chown(homes[uid], uid, uid)
+
+    def build_as(uid: int) -> subprocess.CompletedProcess:
+        *setpriv, command = as_user(uid, uid, [docker_gid, team], wheel_espdock)
+        return espdock("build", cwd=root, env=user_env(homes[uid]),
+                       prefix=(*setpriv, "sh", "-c", 'umask 002 && exec "$@"', "sh", command))  # fmt: skip
+
+    first = build_as(USER_UID)
+    assert first.returncode == 0, first.stdout[-3000:] + first.stderr
+    node = root / "src/beacon_nodes/beacon_nodes/beacon.py"
+    node.write_text(node.read_text() + "# a teammate's edit\n")
+    second = build_as(USER_UID + 2)
+    assert second.returncode == 0, second.stdout[-3000:] + second.stderr
+    assert "1 package(s) built" in second.stdout

@@ -50,9 +50,9 @@ def tree_state(*roots: Path) -> tuple[str, int]:
 
 def listing_digest(root: Path, ignore: Collection[str] = ()) -> str | None:
     """sha256 over paths, sizes and modification times under ROOT (symlinks as their targets'
-    names, not followed) but for what IGNORE names directly in ROOT (files and directories); None when ROOT does not
-    exist. Cheap: reads no file contents, and stats each entry once (every build and test checks
-    the whole install tree this way)."""
+    names, not followed) but for the files and directories IGNORE names directly in ROOT; None
+    when ROOT does not exist. Cheap: reads no file contents, and stats each entry once (every
+    build and test checks the whole install tree this way)."""
     if not root.exists() and not root.is_symlink():
         return None
     digest = hashlib.sha256()

@@ -59,9 +59,9 @@ ROS_STAMPS = ".espdock-colcon-stamps.json"
 ROS_STAMP_FORMAT = 2
 
 
-# The stamp of a package built on the old install of a dependency the build left out.
 # colcon's console_start_end handler's line as a package's job ends: "Finished <<< msgs [2.1s]".
 ENDED = re.compile(r"^(Finished|Failed|Aborted) +<<< \S")
+# The stamp of a package built on the old install of a dependency the build left out.
 ON_OLD_INSTALL = "built on an old install of a dependency"
 
 
@@ -238,7 +238,6 @@ class RosSteps:
             archives=tuple(archives),
         )
 
-        # A native build's setup scripts chain the host's ROS; the container's chain the image's.
         def keep_built(states: dict[str, PackageState] | None) -> list[str]:
             """Record the packages colcon built (its event log's STATES), and return them."""
             built = [name for name, state in (states or {}).items() if state is PackageState.BUILT and name in stamps]
@@ -271,6 +270,7 @@ class RosSteps:
                 give_to(stamp_file.path, self.containers.owner)
             return built
 
+        # A native build's setup scripts chain the host's ROS; the container's chain the image's.
         with native_setup_kept(workspace.ws_dir / "install"):
             if sync is None:
                 try:
@@ -465,11 +465,8 @@ def colcon_rebuild(
 def host_added(install: Path) -> set[str]:
     """What espdock adds to INSTALL on the host, beside what the workspace volume's colcon built:
     the manifest, the firmware packages' installs."""
-    try:
-        names = os.listdir(install)
-    except OSError:
-        names = []
-    return {MANIFEST_NAME} | {name for name in names if (install / name / "share" / name / FIRMWARE_DIR).is_dir()}
+    firmware = {name for name in _entries(install) if (install / name / "share" / name / FIRMWARE_DIR).is_dir()}
+    return {MANIFEST_NAME, *firmware}
 
 
 def volume_listing(install: Path) -> str | None:

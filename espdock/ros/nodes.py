@@ -60,6 +60,10 @@ def executables(install: Path, package: str, root: Path | None = None) -> list[s
     return sorted(found)
 
 
+# Above this many packages with executables, a hint names the packages, not each one's executables.
+LISTED = 8
+
+
 def find_executable(workspace: Workspace, packages: tuple[Package, ...], package: str, executable: str) -> str:
     """Where EXECUTABLE of PACKAGE is in the runtime image; a WorkspaceError listing what exists otherwise."""
     install = workspace.ws_dir / "install"
@@ -110,8 +114,6 @@ def find_executable(workspace: Workspace, packages: tuple[Package, ...], package
     return posixpath.join(RUNTIME_INSTALL, package, "lib", package, executable)
 
 
-# Above this many packages with executables, a hint names the packages, not each one's executables.
-LISTED = 8
 LAUNCH_SUFFIXES = (".launch.py", ".launch.xml", ".launch.yaml", "_launch.py", "_launch.xml", "_launch.yaml")
 
 

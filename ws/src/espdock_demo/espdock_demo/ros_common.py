@@ -116,6 +116,10 @@ def run_ready(executor: Executor) -> None:
 _stop_requested: list[int] = []
 # Set once spin_node's clean-up has begun: a stop is then only remembered (see _request_stop).
 _cleaning_up = threading.Event()
+# Set while a polling node runs a round of its callbacks: a stop is then only remembered, and
+# ends the loop after the round. Raised in it, the KeyboardInterrupt could land inside rclpy's
+# Task constructor, whose half-made object printed an AttributeError as it was collected.
+_in_round = threading.Event()
 
 
 def _stopped_by_signal(exc: BaseException, context: Context) -> bool:
@@ -138,6 +142,8 @@ def _request_stop(signum: int, _frame: object) -> None:
     # Remembered as well as raised: raised where the handler happens to run (a weakref callback,
     # a __del__), the KeyboardInterrupt is printed and dropped, and the stop must not be.
     _stop_requested.append(signum)
+    if _in_round.is_set():
+        return
     if _cleaning_up.is_set():
         # rclpy's own handler took the signal first and ended the spin; the interpreter runs this
         # one late, as late as the clean-up's signal.signal, which runs pending handlers before it
@@ -187,9 +193,13 @@ def spin_node(
         if poll_period is None:
             executor.spin()
         else:
-            while context.ok():
+            while context.ok() and not _stop_requested:
                 time.sleep(poll_period)
-                run_ready(executor)
+                _in_round.set()
+                try:
+                    run_ready(executor)
+                finally:
+                    _in_round.clear()
     except BaseException as exc:
         if not _stopped_by_signal(exc, context):
             raise

@@ -315,8 +315,15 @@ def _spelt_apart(args: Iterable[str]) -> tuple[str, ...]:
 
 def without_build_testing(args: tuple[str, ...]) -> tuple[str, ...]:
     """ARGS without their BUILD_TESTING setting: a test build configures the tests whatever the
-    build before it did."""
-    return tuple(arg for arg in _spelt_apart(args) if not _BUILD_TESTING.match(arg.strip()))
+    build before it did. The others as they were spelt: the options decide the stamps, and a test
+    build's must be the plain build's (`--cmake-args=-DFOO=7` taken apart, each rebuilt the other's)."""
+    kept = []
+    for arg in args:
+        if arg.startswith("--cmake-args=") and _BUILD_TESTING.match(arg.split("=", 1)[1].strip()):
+            kept.append("--cmake-args")
+        elif not _BUILD_TESTING.match(arg.strip()):
+            kept.append(arg)
+    return tuple(kept)
 
 
 def sets_build_testing(args: Iterable[str]) -> bool:

@@ -295,6 +295,12 @@ def test_a_plain_build_on_the_wheels_image_configures_cmake_packages_without_tes
         image="i", packages=("a",), tests_off=True, colcon_args=("--cmake-args=-DBUILD_TESTING=ON",)
     )
     assert "-DBUILD_TESTING=OFF" not in asked_equals.argv() and not asked_equals.says_tests_off
+    # The test build takes the last build's options as spelt (they decide the stamps): taken apart,
+    # `espdock test` and `espdock build` rebuilt each other's packages each time.
+    from espdock.ros.colcon import without_build_testing
+
+    assert without_build_testing(("--cmake-args=-DFOO=7", "--foo")) == ("--cmake-args=-DFOO=7", "--foo")
+    assert without_build_testing(("--cmake-args=-DBUILD_TESTING=ON", "--foo")) == ("--cmake-args", "--foo")
     asked = ColconBuild(image="i", packages=("a",), tests_off=True, colcon_args=("--cmake-args", "-DBUILD_TESTING=ON"))
     assert asked.argv().count("-DBUILD_TESTING=OFF") == 0 and not asked.says_tests_off
     official = ColconBuild(image="i", packages=("a",))

@@ -25,6 +25,9 @@ class StepOutput:
     line: str
     # Progress lines (image builds) are shown as status; the rest is streamed.
     progress: bool = False
+    # A terminal's status line only (a count of what is done): never printed as a line, in a log
+    # or with --verbose, where the tool's own lines say it.
+    status: bool = False
 
 
 @dataclass(frozen=True)

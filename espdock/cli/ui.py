@@ -93,6 +93,9 @@ class Reporter:
                     self._print(Text(event.step, style="bold"))
             case StepNote():
                 self._print(Text(f"  {event.text}", style="dim"))
+            case StepOutput(status=True):
+                if self._status is not None:
+                    self._status.update(Text.assemble((event.step, "bold"), "  ", (event.line[:100], "dim")))
             case StepOutput(progress=True) if not self.verbose:
                 if self._status is not None:
                     self._status.update(Text.assemble((event.step, "bold"), "  ", (event.line[:100], "dim")))

@@ -224,7 +224,7 @@ class RosSteps:
             if ENDED.match(line):
                 # At a terminal, the step's status line counts (colcon's own would: "[12/48 done]").
                 ended += 1
-                self.containers.emit(StepOutput(step.name, f"{ended} of {len(rebuild)} package(s) done", progress=True))
+                self.containers.emit(StepOutput(step.name, f"{ended} of {len(rebuild)} package(s) done", status=True))
 
         spec = RunSpec(
             image=step.image,

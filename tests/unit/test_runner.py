@@ -785,5 +785,18 @@ def test_the_colcon_step_s_status_counts_the_packages_done(ws):
     engine = FakeEngine(run_script=colcon_installs(ws, lines=lines))
     events: list = []
     runner(engine, events).run(Plan(ws, (COLCON,)))
-    said = [e.line for e in events if isinstance(e, StepOutput) and e.progress]
+    said = [e.line for e in events if isinstance(e, StepOutput) and e.status]
     assert said == ["1 of 2 package(s) done", "2 of 2 package(s) done"]
+    # For a terminal's status line only: a CI log (or --verbose) has colcon's own lines, not these.
+    import io
+
+    from rich.console import Console
+
+    from espdock.cli.ui import Reporter
+
+    for verbose in (False, True):
+        out = io.StringIO()
+        reporter = Reporter(Console(file=out, width=120), verbose=verbose)
+        for event in events:
+            reporter(event)
+        assert "package(s) done" not in out.getvalue() and "Finished <<< msgs" in out.getvalue()

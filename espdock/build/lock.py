@@ -265,14 +265,15 @@ def lock_rosdeps(
     env: Mapping[str, str],
     owner: tuple[int, int] | None = None,
     refresh: bool = True,
-    served: tuple[Package, ...] | None = None,
+    unresolved_ok: bool = True,
 ) -> tuple[str, str, bytes | None]:
     """Write ROOT/rosdep.lock.json: rosdep's resolution of the packages' dependencies for the
     chosen ROS image (REFRESH: `rosdep update` first). Returns its status (created, updated,
     unchanged, not needed), where rosdep's database came from, with its age, and the lock's
-    content. SERVED (a build's packages): the lock is not written where it leaves a key of
-    theirs unresolved, for which the build is refused: a committed file changed by a build that
-    did not run (a COLCON_IGNORE put in for a moment, a key misspelt)."""
+    content. Not UNRESOLVED_OK (a build's refresh): it is not written where it leaves any key
+    unresolved (a COLCON_IGNORE put in for a moment, a key misspelt): the committed file named
+    the key as served by nothing, changed by a build that was refused, or one of a selection
+    beside the package needing it; `espdock lock` writes it all the same."""
     image, needed, _ = _rosdep_state(config, packages, inputs)
     tests = testdeps.keys_for_tests(packages, image)
     target = root / ROSDEP_LOCK
@@ -298,8 +299,8 @@ def lock_rosdeps(
     if text == before:
         return "unchanged", database, text.encode()
     keys = lock.get("keys", {})  # as rosdeps.check_dependencies reads it
-    unserved = sorted({k for p in served or () for k in needed.get(p.name, ()) if not keys.get(k, {}).get("installer")})
-    if unserved:
+    unserved = sorted({k for ks in needed.values() for k in ks if not keys.get(k, {}).get("installer")})
+    if unserved and not unresolved_ok:
         return f"not written (it would leave {', '.join(unserved)} unresolved)", database, text.encode()
     if before is None:
         target.write_text(text)
@@ -371,7 +372,9 @@ def current_rosdep_inputs(
         raise stale_rosdep_lock(root, reason)
     built = packages if built is None else built
     try:
-        status, database, data = lock_rosdeps(root, config, packages, inputs, env, owner, refresh=False, served=built)
+        status, database, data = lock_rosdeps(
+            root, config, packages, inputs, env, owner, refresh=False, unresolved_ok=False
+        )
     except rosdeps.DatabaseUnreachable as exc:
         return inputs, offline_note(config, packages, inputs, built, reason, exc, ignored)
     return replace(inputs, rosdep_lock=data), f"{ROSDEP_LOCK} {status} ({reason}; {database})"

@@ -240,15 +240,18 @@ def test_an_rclcpp_package_on_the_wheels_image_is_refused_before_anything_builds
     # Nor a lock: one written would say rclcpp is served by nothing, for a build that did not run.
     assert "rosdep.lock.json not written (it would leave rclcpp unresolved)" in result.stdout, result.stdout
     assert not (root / "rosdep.lock.json").exists()
-    # Another selection, without the C++ node, passes the check (and then needs the engine).
+    # Another selection, without the C++ node, passes the check (and then needs the engine); it
+    # writes no lock either, which would name rclcpp as served by nothing.
     assert run_build(root, tmp_path, "rosdeps_xml_count").returncode == 3
-    lock = json.loads((root / "rosdep.lock.json").read_text())
-    assert lock["keys"]["tinyxml2"] == {"installer": "apt", "packages": ["libtinyxml2-dev"]}
+    assert not (root / "rosdep.lock.json").exists()
     # `espdock lock` records the key nothing serves, and says so (it said nothing).
     locked = espdock("lock", cwd=root, env={**NO_ENGINE, **environment(tmp_path)})
     assert locked.returncode == 0, locked.stderr
     said = " ".join(locked.stderr.split())
     assert "warning: rclcpp: PyPI has no ros-jazzy-rclcpp; a build needing it is refused" in said, said
+    lock = json.loads((root / "rosdep.lock.json").read_text())
+    assert lock["keys"]["tinyxml2"] == {"installer": "apt", "packages": ["libtinyxml2-dev"]}
+    assert run_build(root, tmp_path, "rosdeps_xml_count").returncode == 3  # the lock answers for it
 
 
 @pytest.mark.parametrize(

@@ -346,8 +346,8 @@ def volume_mode_refused(what: str, firmware: bool = True) -> WorkspaceNotVisible
         else ""
     )
     return WorkspaceNotVisible(
-        f"the build containers use the workspace's volume on an engine that does not see this machine "
-        f"(workspace_mode), and {what} must be on this machine",
+        f"the build containers use the workspace's volume (workspace_mode: an engine that does not see this "
+        f"machine, or volume chosen), and {what} must be on this machine",
         "Use an engine that sees this machine's files and devices for it (a local engine: unset DOCKER_HOST, "
         f"or ESPDOCK_WORKSPACE_MODE=mount with an engine sharing the path){elsewhere}.",
     )

@@ -34,7 +34,7 @@ def state_dir(env: Mapping[str, str]) -> Path:
             raise ConfigError(
                 f"ESPDOCK_STATE_DIR must be an absolute path, got {value!r}",
                 "espdock runs from any directory of a workspace: give the whole path "
-                f'(`"{"$HOME" + value[1:] if value.startswith("~/") else "$PWD/" + value}"`).',
+                f'(`"{"$HOME" + value[1:] if value == "~" or value.startswith("~/") else "$PWD/" + value}"`).',
             )
         return Path(value)
     return xdg_dir(env, "XDG_STATE_HOME", ".local/state") / "espdock"

@@ -216,9 +216,13 @@ def replace_tree(archive: Path, dest: Path, owner: tuple[int, int], only: Collec
                     if os.geteuid() == 0:
                         # The files are the old ones (links); the directories are new, and root's
                         # kept the user from removing the old tree's files after a `sudo` build.
-                        for directory, _, _ in os.walk(kept):
+                        for directory, _, names in os.walk(kept):
                             was = (entry / os.path.relpath(directory, kept)).stat()
                             os.chown(directory, was.st_uid, was.st_gid)
+                            for name in names:  # copytree makes its links anew, as root
+                                if (link := Path(directory, name)).is_symlink():
+                                    was = (entry / link.relative_to(kept)).lstat()
+                                    os.chown(link, was.st_uid, was.st_gid, follow_symlinks=False)
                 else:
                     os.link(entry, kept, follow_symlinks=False)
         old = scratch.make(".espdock-old-", dest.parent)  # DEST goes in it, to be removed with it

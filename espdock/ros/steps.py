@@ -192,7 +192,7 @@ class RosSteps:
             self.containers.emit(
                 StepNote(step.name, f"removed {', '.join(f'build/{name}' for name in retired)}: {why}")
             )
-        if step.says_tests_off:
+        if step.says_tests_off and any(name not in step.python for name in rebuild):
             self.containers.emit(
                 StepNote(
                     step.name,

@@ -617,6 +617,8 @@ def test_a_relative_state_dir_is_refused_before_any_work(tmp_path):
     # A `~` no shell expanded (a CI file's, a .env's): the way out is $HOME's, not a dir called ~.
     tilde = espdock("list", cwd=root, env={"ESPDOCK_STATE_DIR": "~/state", **NO_ENGINE})
     assert tilde.returncode == 2 and '(`"$HOME/state"`)' in tilde.stderr, tilde.stderr
+    home = espdock("list", cwd=root, env={"ESPDOCK_STATE_DIR": "~", **NO_ENGINE})
+    assert home.returncode == 2 and '(`"$HOME"`)' in home.stderr, home.stderr
 
 
 def test_help_whose_reader_went_away_ends_as_a_closed_output_does(tmp_path):

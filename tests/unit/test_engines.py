@@ -436,8 +436,11 @@ def test_a_whole_volume_build_that_failed_brings_back_what_it_built_and_keeps_th
     # As root (`sudo espdock build` in a user's workspace): what stays is still the user's, its
     # directories too, which were root's and kept the user from removing the old tree after.
     os.chown(install / "reached_not", 4242, 4242)
+    (install / "reached_not/firmware").symlink_to(".firmware-0123")  # as a firmware install links it
+    os.chown(install / "reached_not/firmware", 4242, 4242, follow_symlinks=False)
     assert volume.replace_tree(archive, install, (4242, 4242), only=["built"])
     assert (install / "reached_not").stat().st_uid == 4242
+    assert (install / "reached_not/firmware").lstat().st_uid == 4242
 
 
 @pytest.mark.parametrize("host", [{}, {"DOCKER_HOST": ""}], ids=["unset", "empty"])

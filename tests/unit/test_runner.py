@@ -800,3 +800,20 @@ def test_the_colcon_step_s_status_counts_the_packages_done(ws):
         for event in events:
             reporter(event)
         assert "package(s) done" not in out.getvalue() and "Finished <<< msgs" in out.getvalue()
+
+
+def test_a_build_that_rebuilds_only_python_packages_says_nothing_of_cmake_s_tests(ws):
+    """A whole-workspace build on the wheels image that rebuilt only an ament_python package said
+    "CMake packages are configured with BUILD_TESTING=OFF" though it configured none."""
+    from dataclasses import replace
+
+    step = replace(COLCON, tests_off=True, python=("app",))
+    engine = FakeEngine(run_script=colcon_installs(ws))
+    first: list = []
+    runner(engine, first).run(Plan(ws, (step,)))
+    assert "BUILD_TESTING=OFF" in notes(first), "msgs, a CMake package, was configured"
+    (ws.root / "ws/src/app/app.txt").write_text("an edit")
+    events: list = []
+    runner(engine, events).run(Plan(ws, (step,)))
+    assert events[-1].detail == "1 package(s) built, 1 up to date"
+    assert "BUILD_TESTING" not in notes(events)

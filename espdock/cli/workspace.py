@@ -382,10 +382,23 @@ def setup() -> None:
 
 @app.command("list")
 @command
-def list_packages(workspace: WorkspaceOption = None) -> None:
+def list_packages(
+    workspace: WorkspaceOption = None,
+    names: Annotated[
+        bool, typer.Option("--names", "-n", help="Only the names, one per line (as `colcon list -n`), for scripts.")
+    ] = False,
+) -> None:
     """List the workspace's packages in build order."""
     ws, _ = load(workspace)
-    render_packages(console, ws, workspace_packages(ws))
+    packages = workspace_packages(ws)
+    if names:
+        # A script's input: the names alone on stdout (a table's borders and title were all there
+        # was to parse), what espdock warns of on stderr.
+        console.print("\n".join(p.name for p in packages), markup=False, highlight=False, soft_wrap=True)
+        for name, project in unmanifested(ws).items():
+            err_console.print(project.not_built(name), markup=False, highlight=False, soft_wrap=True)
+        return
+    render_packages(console, ws, packages)
     for name, project in unmanifested(ws).items():
         notify(project.not_built(name))
 

@@ -72,6 +72,14 @@ def test_list_shows_packages_in_build_order(tmp_path):
     assert result.returncode == 0, result.stderr
     names = [line.split("│")[1].strip() for line in result.stdout.splitlines() if "│" in line]
     assert names.index("zz_interface") < names.index("espdock_demo"), result.stdout
+    # For a script: the names alone, in that order, and what espdock warns of on stderr (a box
+    # table with a title was all there was to parse).
+    (root / "ws/src/vendored").mkdir()
+    (root / "ws/src/vendored/CMakeLists.txt").write_text("cmake_minimum_required(VERSION 3.8)\n")
+    bare = espdock("list", "-n", cwd=root, env=NO_ENGINE)
+    assert bare.returncode == 0, bare.stderr
+    assert bare.stdout == "zz_interface\nespdock_demo\n"
+    assert "ws/src/vendored is not built" in bare.stderr
 
 
 def test_monitor_needs_a_terminal_and_says_so(tmp_path):

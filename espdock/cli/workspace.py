@@ -395,12 +395,13 @@ def list_packages(
         # A script's input: the names alone on stdout (a table's borders and title were all there
         # was to parse), what espdock warns of on stderr.
         console.print("\n".join(p.name for p in packages), markup=False, highlight=False, soft_wrap=True)
-        for name, project in unmanifested(ws).items():
-            err_console.print(project.not_built(name), markup=False, highlight=False, soft_wrap=True)
-        return
-    render_packages(console, ws, packages)
+    else:
+        render_packages(console, ws, packages)
     for name, project in unmanifested(ws).items():
-        notify(project.not_built(name))
+        if names:
+            err_console.print(project.not_built(name), markup=False, highlight=False, soft_wrap=True)
+        else:
+            notify(project.not_built(name))
 
 
 colcon_extension = typer.Typer(

@@ -84,11 +84,14 @@ def wheel_packages(lock_texts: Iterable[str], distro: str) -> frozenset[str]:
     return frozenset(found)
 
 
-def needed_keys(packages: Iterable[Package], image: RosImage) -> dict[str, tuple[str, ...]]:
-    """Per ROS package: its dependencies that are neither workspace packages nor provided by the
-    image (test-only ones aside: espdock builds, it does not run `colcon test`)."""
+def needed_keys(
+    packages: Iterable[Package], image: RosImage, workspace: Iterable[str] = ()
+) -> dict[str, tuple[str, ...]]:
+    """Per ROS package: its dependencies that are neither workspace packages (PACKAGES' and those
+    WORKSPACE names besides) nor provided by the image (test-only ones aside: espdock builds, it
+    does not run `colcon test`)."""
     packages = tuple(packages)
-    names = {p.name for p in packages}
+    names = {p.name for p in packages} | set(workspace)
     needed = {}
     for package in packages:
         if package.kind is not PackageKind.ROS:

@@ -58,9 +58,12 @@ def _as_tests(packages: Iterable[Package], image: rosdeps.RosImage | None = None
     return tuple(tested)
 
 
-def keys_for_tests(packages: Iterable[Package], image: rosdeps.RosImage) -> dict[str, tuple[str, ...]]:
-    """Per ROS package: its test_depend keys that are neither workspace packages nor in the image."""
-    return rosdeps.needed_keys(_as_tests(packages, image), image)
+def keys_for_tests(
+    packages: Iterable[Package], image: rosdeps.RosImage, workspace: Iterable[str] = ()
+) -> dict[str, tuple[str, ...]]:
+    """Per ROS package: its test_depend keys that are neither workspace packages (PACKAGES' and
+    those WORKSPACE names besides) nor in the image."""
+    return rosdeps.needed_keys(_as_tests(packages, image), image, workspace)
 
 
 def lock_test_part(lock: Mapping | None) -> dict | None:
@@ -106,15 +109,8 @@ def check_tests(
     the workspace's packages, which a test_depend may name (a package of test helpers): `espdock
     test PKG` took one for a key missing from the lock, which `espdock lock` never added."""
     selected = tuple(selected)
-    names = {p.name for p in selected}
-    needed = keys_for_tests((*selected, *(p for p in every if p.name not in names)), image)
-    rosdeps.check_dependencies(
-        _as_tests(selected, image),
-        {name: keys for name, keys in needed.items() if name in names},
-        lock_test_part(lock),
-        image,
-        command="test",
-    )
+    needed = keys_for_tests(selected, image, (p.name for p in every))
+    rosdeps.check_dependencies(_as_tests(selected, image), needed, lock_test_part(lock), image, command="test")
 
 
 def image_for_tests(build: ImageSpec, lock: Mapping | None, official: bool) -> ImageSpec | None:

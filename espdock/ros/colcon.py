@@ -269,6 +269,8 @@ def _read_stripped(path: Path) -> str | None:
 
 
 _BUILD_TESTING = re.compile(r"^-DBUILD_TESTING(:BOOL)?=", re.IGNORECASE)
+# The options colcon passes on to a tool (cmake, ament-cmake, pytest, ctest), given with their value joined.
+_PASSED_ON_JOINED = re.compile(r"^--[a-z-]+-args=")
 
 # The options after `--` of the last colcon build that ran (in the ROS build base): what install/
 # is built with, which `espdock test`'s builds keep (a --symlink-install stays one).
@@ -304,13 +306,9 @@ def install_kind_switched(base: Path, args: tuple[str, ...]) -> bool:
 
 
 def _spelt_apart(args: Iterable[str]) -> tuple[str, ...]:
-    """ARGS with `--cmake-args=VALUE` as `--cmake-args VALUE`, as argparse reads it: the value
-    the one form holds is the other's first."""
-    return tuple(
-        part
-        for arg in args
-        for part in (("--cmake-args", arg.split("=", 1)[1]) if arg.startswith("--cmake-args=") else (arg,))
-    )
+    """ARGS with `--cmake-args=VALUE` (or any `--*-args=VALUE`) as `--cmake-args VALUE`, as argparse
+    reads it: the value the one form holds is the other's first."""
+    return tuple(part for arg in args for part in (arg.split("=", 1) if _PASSED_ON_JOINED.match(arg) else (arg,)))
 
 
 def without_build_testing(args: tuple[str, ...]) -> tuple[str, ...]:
@@ -481,7 +479,8 @@ def read_colcon_settings(
     anything runs."""
     args = check_colcon_args(args)
     files: list[str] = []
-    common = hashlib.sha256(json.dumps(output_args(args)).encode())
+    # The same options spelt either way (`--cmake-args=-DX=1`, `--cmake-args -DX=1`) build the same.
+    common = hashlib.sha256(json.dumps(output_args(_spelt_apart(args))).encode())
     defaults: str | None = None
     cmake_args: tuple[str, ...] = ()
     symlink_install = False

@@ -92,6 +92,11 @@ def test_settings_decide_each_package_stamp(tmp_path):
     (root / "colcon.meta").unlink()
     assert digests(("--parallel-workers", "2")) == base
     assert digests(("--cmake-args", "-DBUILD_TESTING=OFF"))["msgs"] != base["msgs"]
+    joined = digests(("--cmake-args=-DFOO=1", "-DBAR=2", "--pytest-args=-k", "x"))
+    assert joined == digests(("--cmake-args", "-DFOO=1", "-DBAR=2", "--pytest-args", "-k", "x")), (
+        "either spelling of the same options builds the same"
+    )
+    assert joined != digests(("--cmake-args", "-DFOO=2", "-DBAR=2", "--pytest-args", "-k", "x"))
     (root / "colcon_defaults.yaml").write_text("build:\n  symlink-install: true\n")
     workspace_defaults = digests()
     assert workspace_defaults["msgs"] != base["msgs"]

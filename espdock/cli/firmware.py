@@ -39,6 +39,7 @@ from espdock.firmware.flashing import (
 from espdock.firmware.pins import pin_idf_image, read_sources, write_pins
 from espdock.firmware.plan import IdfBuild, images_to_rebuild, workspace_micro_ros_images
 from espdock.firmware.provision import (
+    check_reads_settings,
     check_settings,
     network_settings,
     nvs_image,
@@ -267,6 +268,8 @@ def flash(
         transport.check_provisionable(package, transport.project_transport(ws.root / step.project, step.target))
     firmware_dir = installed_firmware_dir(ws.ws_dir, package)
     flasher_args = read_flasher_args(firmware_dir, package)
+    if wifi_ssid is not None or agent is not None:
+        check_reads_settings(firmware_dir, package)
     settings = optional_network_settings(wifi_ssid, wifi_password_file, agent, domain, sys.stdin, _ask_password)
     nvs = nvs_partition(firmware_dir, flasher_args, package) if settings else None
     check_port(serial)
@@ -317,6 +320,7 @@ def provision(
         raise ConfigError(f"provisioning {package} needs --wifi-ssid and --agent", "See `espdock provision --help`.")
     firmware_dir = installed_firmware_dir(ws.ws_dir, package)
     flasher_args = read_flasher_args(firmware_dir, package)
+    check_reads_settings(firmware_dir, package)
     nvs = nvs_partition(firmware_dir, flasher_args, package)
     settings = network_settings(wifi_ssid, wifi_password_file, agent, domain, sys.stdin, _ask_password)
     check_port(serial)

@@ -19,6 +19,7 @@ import contextlib
 import csv
 import io
 import ipaddress
+import json
 import os
 import re
 import shutil
@@ -222,6 +223,29 @@ def parse_partition_table(data: bytes) -> list[Partition]:
             raise ValueError(f"entry {len(entries)} has no partition magic")
         entries.append(Partition(label.rstrip(b"\0").decode(errors="replace"), ptype, subtype, offset, size, flags))
     return entries
+
+
+# The component that reads NVS_NAMESPACE at boot (firmware/components/espdock_uros).
+SETTINGS_COMPONENT = "espdock_uros"
+
+
+def check_reads_settings(firmware_dir: Path, package: str) -> None:
+    """Refuse to provision firmware whose build used no SETTINGS_COMPONENT (a plain IDF app, a
+    micro-ROS app that takes its agent from Kconfig): nothing on it reads the settings, and writing
+    them erases its NVS partition. IDF's project_description.json names the components the build
+    used; firmware installed without one is not judged."""
+    try:
+        used = json.loads((firmware_dir / "project_description.json").read_text()).get("build_components")
+    except (OSError, ValueError, AttributeError):
+        return
+    if isinstance(used, list) and SETTINGS_COMPONENT not in used:
+        raise ConfigError(
+            f"{package} does not read the settings provisioning writes: its build used no "
+            f"{SETTINGS_COMPONENT} component (it used {', '.join(map(str, used)) or 'none'}), and writing them "
+            "would erase its NVS partition",
+            f"Flash it without --wifi-ssid/--agent; to provision it, build it on {SETTINGS_COMPONENT} "
+            "(`espdock new` makes such a package). Nothing was written.",
+        )
 
 
 def nvs_partition(firmware_dir: Path, flasher_args: dict, package: str) -> Partition:

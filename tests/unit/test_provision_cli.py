@@ -101,3 +101,21 @@ def test_a_bug_report_keeps_a_command_line_that_is_not_utf8(tmp_path, monkeypatc
     assert log.name in bug.hint
     text = log.read_text()
     assert "--wifi-ssid caf\\udce9" in text and "ValueError" in text and "Traceback" in text
+
+
+@pytest.mark.parametrize("command", ["provision", "flash"])
+def test_firmware_built_without_the_settings_component_is_not_provisioned(installed, command):
+    description = installed / "ws/install/camera_node/share/camera_node/firmware/project_description.json"
+    argv = (command, "camera_node", "-p", NOWHERE, "--wifi-ssid", "lab", *AGENT, "--wifi-password-file", "/dev/null")
+    try:
+        description.write_text(json.dumps({"build_components": ["blinklib", "main", "nvs_flash"]}))
+        refused = run(installed, *argv)
+        description.write_text(json.dumps({"build_components": ["espdock_uros", "main", "nvs_flash"]}))
+        reading = run(installed, *argv)
+    finally:
+        description.unlink()
+    assert refused.returncode == 2, refused.stderr
+    assert b"camera_node does not read the settings provisioning writes" in refused.stderr
+    assert b"erase its NVS partition" in refused.stderr and b"Nothing was written" in refused.stderr
+    # Firmware on the component goes on to the port (here one that answers nothing).
+    assert b"does not read the settings" not in reading.stderr and b"127.0.0.1:1" in reading.stderr, reading.stderr

@@ -161,6 +161,9 @@ LIBRARY_SDKCONFIG_PREFIXES = (
     "CONFIG_ESP32_REV_MIN",
     "CONFIG_ESP_REV_MIN",
 )
+# The micro-ROS options only the app reads (upstream's examples pass them to
+# rmw_uros_options_set_udp_address at run time): a new agent address builds no new library.
+APP_ONLY_SDKCONFIG = frozenset({"CONFIG_MICRO_ROS_AGENT_IP", "CONFIG_MICRO_ROS_AGENT_PORT"})
 
 
 SDKCONFIG_LINE = re.compile(r"^(CONFIG_[A-Za-z0-9_]+)=(.*)$|^#\s*(CONFIG_[A-Za-z0-9_]+) is not set\s*$")
@@ -178,7 +181,7 @@ def library_sdkconfig(defaults: Mapping[str, bytes], target: str) -> str:
             if not match:
                 continue
             key = match.group(1) or match.group(3)
-            if key.startswith(LIBRARY_SDKCONFIG_PREFIXES):
+            if key.startswith(LIBRARY_SDKCONFIG_PREFIXES) and key not in APP_ONLY_SDKCONFIG:
                 values[key] = match.group(2) if match.group(1) else "n"
     return "".join(
         f"# {key} is not set\n" if value == "n" else f"{key}={value}\n" for key, value in sorted(values.items())

@@ -224,6 +224,8 @@ def test_library_settings_take_the_target_file_last_and_only_relevant_keys():
     defaults = {
         "sdkconfig.defaults": (
             b"CONFIG_FREERTOS_HZ=100\nCONFIG_MICRO_ROS_ESP_NETIF_WLAN=y\nCONFIG_LOG_DEFAULT_LEVEL=3\n"
+            # The agent's address is the app's: another builds the same library.
+            b'CONFIG_MICRO_ROS_AGENT_IP="192.168.1.50"\nCONFIG_MICRO_ROS_AGENT_PORT="8888"\n'
         ),
         "sdkconfig.defaults.esp32s3": b"CONFIG_FREERTOS_HZ=1000\n# CONFIG_MICRO_ROS_ESP_NETIF_WLAN is not set\n",
     }

@@ -438,6 +438,41 @@ def test_an_edit_of_a_component_the_app_takes_from_elsewhere_in_the_workspace_re
     assert settled.returncode == 0, settled.stdout[-2000:] + settled.stderr
 
 
+def test_components_a_link_in_the_project_leads_to_out_of_the_workspace_are_built_in(fw_ws, double_env, tmp_path):
+    """`shared -> ~/repos/components` in a firmware project, named in EXTRA_COMPONENT_DIRS: the IDF
+    container had only the workspace, and IDF said the directory did not exist."""
+    root, first = fw_ws
+    assert first.returncode == 0
+    outside = tmp_path / "repos/components"
+    (outside / "board_led").mkdir(parents=True)
+    (outside / "board_led/CMakeLists.txt").write_text('idf_component_register(SRCS "board_led.c" INCLUDE_DIRS ".")\n')
+    (outside / "board_led/board_led.c").write_text("int board_led_level(void) { return 1; }\n")
+    link = root / "firmware/led_strip_node/shared"
+    link.symlink_to(outside)
+    project = root / "firmware/led_strip_node/CMakeLists.txt"
+    original = project.read_text()
+    project.write_text(
+        original.replace(
+            "${CMAKE_CURRENT_LIST_DIR}/../components)",
+            "${CMAKE_CURRENT_LIST_DIR}/../components\n    ${CMAKE_CURRENT_LIST_DIR}/shared)",
+        )
+    )
+    app = firmware_dir(root, "led_strip_node") / "led_strip_node.bin"
+    try:
+        built = espdock("build", "led_strip_node", "--only", "firmware", cwd=root, env=double_env)
+        assert built.returncode == 0, built.stdout[-2000:] + built.stderr
+        before = app.read_bytes()
+        (outside / "board_led/board_led.c").write_text("int board_led_level(void) { return 2; }\n")
+        rebuilt = espdock("build", "led_strip_node", "--only", "firmware", cwd=root, env=double_env)
+        assert rebuilt.returncode == 0, rebuilt.stdout[-2000:] + rebuilt.stderr
+        assert "board_led.c" in rebuilt.stdout and app.read_bytes() != before, rebuilt.stdout[-2000:]
+    finally:
+        project.write_text(original)
+        link.unlink()
+    settled = espdock("build", "led_strip_node", "--only", "firmware", cwd=root, env=double_env)
+    assert settled.returncode == 0, settled.stdout[-2000:] + settled.stderr
+
+
 def test_a_msg_change_is_never_served_a_stale_library(fw_ws, double_env):
     root, first = fw_ws
     assert first.returncode == 0

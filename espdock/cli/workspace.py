@@ -34,7 +34,7 @@ from espdock.config import check_target, in_ci, invoking_user, resolve_ca_bundle
 from espdock.errors import ConfigError, EspdockError, WorkspaceError
 from espdock.events import Outcome
 from espdock.firmware import transport
-from espdock.firmware.scaffold import check_new_package, create_firmware_package, init_workspace
+from espdock.firmware.scaffold import check_new_package, create_firmware_package, init_workspace, undo_init
 from espdock.images import bootstrap
 from espdock.images.containers import prepare_output
 from espdock.images.keyed import unpushed_error
@@ -319,18 +319,22 @@ def init(
     """Make DIRECTORY an espdock workspace: writes a commented espdock.toml with the layout it finds
     (and src/ if there is none) and a compose.yaml of its nodes. Only adds files, but
     `--compose` writes compose.yaml again, unless it was edited since."""
+    if force and not compose:
+        raise ConfigError("--force goes with --compose", "`espdock init --compose --force`.")
     # As root for someone else: the new files belong to who owns the nearest existing directory.
     existing = next(d for d in (directory.resolve(), *directory.resolve().parents) if d.exists())
     owner = invoking_user(os.environ, existing) if os.geteuid() == 0 else None
     ws, created = init_workspace(directory, owner)
+    try:
+        ws, config = load(ws.root)
+        packages = workspace_packages(ws, config.ros_distro)
+    except EspdockError:
+        undo_init(ws.root, created)  # a package.xml to fix first: run again after, from where it was
+        raise
     if "espdock.toml" not in created:
         console.print(f"{ws.root} is an espdock workspace already (espdock.toml exists)")
     else:
         console.print(f"made {ws.root} an espdock workspace: created {', '.join(created)}")
-    ws, config = load(ws.root)
-    packages = workspace_packages(ws, config.ros_distro)
-    if force and not compose:
-        raise ConfigError("--force goes with --compose", "`espdock init --compose --force`.")
     outcome = init_compose(ws, runtime_repository(config, ws), packages, owner, refresh=compose, force=force)
     if "espdock.toml" not in created and outcome in (None, "unchanged"):
         console.print("nothing changed")

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import difflib
 import os
 import re
@@ -277,3 +278,15 @@ def init_workspace(directory: Path, owner: tuple[int, int] | None = None) -> tup
             path = root / rel.rstrip("/") if not Path(rel).is_absolute() else Path(rel)
             os.lchown(path, *owner)
     return Workspace(root, paths, colcon_root), created
+
+
+def undo_init(root: Path, created: list[str]) -> None:
+    """Remove what init_workspace CREATED in ROOT, newest first (directories only while empty):
+    an init that failed after it leaves the directory as it found it."""
+    for rel in reversed(created):
+        path = Path(rel) if Path(rel).is_absolute() else root / rel.rstrip("/")
+        with contextlib.suppress(OSError):
+            if path.is_dir() and not path.is_symlink():
+                path.rmdir()
+            else:
+                path.unlink()

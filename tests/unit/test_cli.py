@@ -323,6 +323,21 @@ def test_init_in_the_src_of_a_workspace_or_inside_one_is_refused_leaving_nothing
     assert not (ws / "src/pkg/espdock.toml").exists()
 
 
+def test_init_refused_after_looking_leaves_the_directory_as_it_was(tmp_path):
+    """An invalid package.xml: init said "created espdock.toml", exited 2, and left it (and src/),
+    so the next init said the directory was a workspace already; --force without --compose wrote
+    a whole workspace before refusing."""
+    ws = tmp_path / "ros2_ws"
+    (ws / "src/p").mkdir(parents=True)
+    (ws / "src/p/package.xml").write_text('<package format="3"><name>p</name>\n')
+    refused = espdock("init", cwd=ws, env=NO_ENGINE)
+    assert refused.returncode == 2 and "is not a valid package.xml" in refused.stderr, refused.stderr
+    assert "created" not in refused.stdout and sorted(p.name for p in ws.iterdir()) == ["src"]
+    forced = espdock("init", "new_ws", "--force", cwd=tmp_path, env=NO_ENGINE)
+    assert forced.returncode == 2 and "--force goes with --compose" in forced.stderr, forced.stderr
+    assert not (tmp_path / "new_ws").exists()
+
+
 def test_a_build_with_no_packages_says_where_it_looked(tmp_path):
     """A mistyped package_paths built nothing, said nothing and exited 0; --dry-run named ws/src,
     whatever the layout."""

@@ -26,6 +26,7 @@ import subprocess
 import sys
 import tarfile
 import tempfile
+import time
 import warnings
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from contextlib import AbstractContextManager, contextmanager, suppress
@@ -784,8 +785,9 @@ class Engine:
     def run_foreground(self, spec: RunSpec) -> tuple[int, int | None]:
         """`docker run` SPEC in the foreground, as a shell runs a command: attached to this
         terminal when SPEC.tty, stdin forwarded, and SIGINT, SIGTERM and SIGHUP that espdock gets
-        passed to the container's process (a third SIGINT kills it). The container is removed
-        however this ends. Returns its exit code and the first signal passed on, or None."""
+        passed to the container's process (a third SIGINT, or interrupts.GRACE seconds after the
+        first, kills it). The container is removed however this ends. Returns its exit code and
+        the first signal passed on, or None."""
         docker_cli = self.compose_command()[0]
         name = spec.name or f"espdock-run-{os.getpid()}-{secrets.token_hex(4)}"
         # Labelled with this espdock, as every container it makes: one a killed espdock left
@@ -795,6 +797,8 @@ class Engine:
         argv = _run_argv(docker_cli, name, labelled, self._host_users(spec))
         received: list[int] = []
         sent = 0
+        first_sent: float | None = None
+        killed = False
 
         def on_signal(signum: int, frame: object) -> None:
             received.append(signum)
@@ -821,6 +825,11 @@ class Engine:
                     pass
                 if sent < len(received) and self._signal_container(name, received[sent], sent >= 2):
                     sent += 1
+                    first_sent = first_sent or time.monotonic()
+                elif not killed and first_sent is not None and time.monotonic() > first_sent + interrupts.GRACE:
+                    # A node that ignores the signal is killed, as `docker stop` kills after its grace:
+                    # one Ctrl-C or SIGTERM (a CI job's cancel) ends espdock within 10 s.
+                    killed = self._signal_container(name, signal.SIGKILL, True)
         finally:
             for signum, handler in previous.items():
                 signal.signal(signum, handler)

@@ -87,6 +87,20 @@ def test_run_prints_the_nodes_output_and_ctrl_c_ends_it_with_130_leaving_no_cont
     assert no_containers_left(engine, node_workspace) == []
 
 
+def test_one_stop_ends_run_within_10_s_when_the_node_ignores_it(engine, node_workspace):
+    """Without a terminal, a node that ignored SIGINT and SIGTERM kept running after one Ctrl-C,
+    or a CI job's cancel, until two more came; docs/troubleshooting.md promises 10 s."""
+    node = Node(node_workspace, "beacon_nodes", "beacon", "--ros-args", "-p", "ignore_stop:=true",
+                domain=random.randrange(100, 200))  # fmt: skip
+    try:
+        node.wait_for("beacon up")
+        code, took = node.interrupt_timed()
+    finally:
+        node.stop()
+    assert code == 130 and took < 10, (code, took, node.output()[-2000:])
+    assert no_containers_left(engine, node_workspace) == []
+
+
 def test_a_closed_output_ends_run_as_a_shell_says_leaving_no_container(engine, node_workspace):
     """`espdock run ... 2>&1 | grep -m1 'sent:'`: the reader exits at its first match."""
     domain = {"ROS_DOMAIN_ID": str(random.randrange(100, 200))}

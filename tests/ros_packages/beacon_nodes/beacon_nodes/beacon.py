@@ -1,4 +1,7 @@
-"""Publishes `<prefix> <n>` on /beacon every PERIOD seconds and logs each message."""
+"""Publishes `<prefix> <n>` on /beacon every PERIOD seconds and logs each message; with
+IGNORE_STOP it ignores SIGINT and SIGTERM, as a node busy in C code or written carelessly does."""
+
+import signal
 
 import rclpy
 from rclpy.executors import ExternalShutdownException
@@ -11,6 +14,9 @@ class Beacon(Node):
         super().__init__("beacon")
         self.declare_parameter("prefix", "beacon")
         self.declare_parameter("period", 0.2)
+        if self.declare_parameter("ignore_stop", False).value:
+            signal.signal(signal.SIGINT, signal.SIG_IGN)
+            signal.signal(signal.SIGTERM, signal.SIG_IGN)
         self._publisher = self.create_publisher(String, "beacon", 10)
         self._count = 0
         self.create_timer(self.get_parameter("period").value, self._tick)

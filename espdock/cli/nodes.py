@@ -178,6 +178,7 @@ def run(
     variables = tuple(v for text in env or () if (v := nodes.variable(text, os.environ)) is not None)
     nodes.profile_mounts(os.environ, Path.cwd())  # a missing profiles file: refused before any image is made
     ws, config = load(workspace, runtime_image=True)
+    nodes.check_file_arguments(ws, args or (), mounts, Path.cwd())
     packages = workspace_packages(ws, config.ros_distro)
     path = nodes.find_executable(ws, packages, package, executable)
     # Only what runs must be served: another package's missing key does not stop this node.

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import difflib
+import itertools
 import os
 import posixpath
 import re
@@ -250,6 +251,37 @@ def volume(text: str, cwd: Path) -> Mount:
     return Mount(host, posixpath.normpath(parts[1]), read_only=parts[2:] == ["ro"])
 
 
+# Where a node starts (node_spec's workdir): a relative file argument is read there.
+NODE_WORKDIR = "/tmp"
+
+
+def check_file_arguments(workspace: Workspace, args: Iterable[str], mounts: Iterable[Mount], cwd: Path) -> None:
+    """Refuse a `--params-file FILE` in a node's ARGS that names a file of this machine the node
+    cannot see (no --volume among MOUNTS holds it): rcl's "Couldn't parse params file" said
+    nothing of why. A file of the workspace's install/ is in the runtime image: its path there."""
+    targets = [m.target for m in mounts]
+    for option, value in itertools.pairwise(args):
+        if option != "--params-file":
+            continue
+        inside = posixpath.normpath(posixpath.join(NODE_WORKDIR, value))
+        if any(inside == t or inside.startswith(t.rstrip("/") + "/") for t in (*targets, RUNTIME_INSTALL)):
+            continue
+        host = (cwd / Path(value).expanduser()).resolve()
+        if not host.is_file():
+            continue  # a file of the image, or none: rcl says which
+        install = workspace.ws_dir.resolve() / "install"
+        if host.is_relative_to(install):
+            there = posixpath.join(RUNTIME_INSTALL, host.relative_to(install).as_posix())
+            fix = f"The runtime image holds install/ at {RUNTIME_INSTALL}: pass `--params-file {there}`."
+        else:
+            fix = f"Mount it: `espdock run -v {value}:/params/{host.name}:ro ... --params-file /params/{host.name}`."
+        raise ConfigError(
+            f"--params-file {value}: the node runs in a container, which has no {host} (it sees only the "
+            "runtime image and what --volume mounts)",
+            fix,
+        )
+
+
 def variable(text: str, env: Mapping[str, str]) -> tuple[str, str] | None:
     """`--env NAME=VALUE`, or `--env NAME` for ENV's value (None where ENV has none, as `docker
     run -e` leaves it out); a ConfigError (exit 2) naming the option for a malformed one or one of
@@ -313,7 +345,7 @@ def node_spec(
     return RunSpec(
         image=image,
         argv=(path, *args),
-        workdir="/tmp",
+        workdir=NODE_WORKDIR,
         user=f"{owner[0]}:{owner[1]}",
         mounts=(*mounts, *profile_mounts(env, Path.cwd())),
         env=(*passed, *given.items()),

@@ -338,6 +338,31 @@ def test_init_refused_after_looking_leaves_the_directory_as_it_was(tmp_path):
     assert not (tmp_path / "new_ws").exists()
 
 
+def test_run_refuses_a_params_file_of_this_machine_the_node_cannot_see(tmp_path):
+    """`espdock run PKG EXE --ros-args --params-file install/.../params.yaml`, as one types it for
+    `ros2 run`: the node's container has no such file, and rcl's "Couldn't parse params file" said
+    nothing of why. Refused before any engine or image, with the path the runtime image has."""
+    (tmp_path / "src").mkdir()
+    (tmp_path / "espdock.toml").write_text("[espdock]\n")
+    installed = tmp_path / "install/talker/share/talker/config/params.yaml"
+    installed.parent.mkdir(parents=True)
+    installed.write_text("talker: {}\n")
+    (tmp_path / "mine.yaml").write_text("talker: {}\n")
+    run = ("run", "talker", "talk", "--ros-args", "--params-file")
+    result = espdock(*run, "install/talker/share/talker/config/params.yaml", cwd=tmp_path, env=NO_ENGINE)
+    assert result.returncode == 2, result.stdout + result.stderr
+    said = " ".join(result.stderr.split())
+    assert "the node runs in a container, which has no" in said, said
+    assert "--params-file /opt/espdock/ws/install/talker/share/talker/config/params.yaml" in said, said
+    mine = espdock(*run, str(tmp_path / "mine.yaml"), cwd=tmp_path / "src", env=NO_ENGINE)
+    assert mine.returncode == 2 and "-v " in mine.stderr and "/params/mine.yaml" in mine.stderr, mine.stderr
+    # Mounted, in the image, or no file here: past the check (to the package, which is not there).
+    mounted = ("run", "-v", "mine.yaml:/p/mine.yaml", *run[1:], "/p/mine.yaml")
+    for given in (mounted, (*run, "/opt/ros/jazzy/x.yaml")):
+        passed = espdock(*given, cwd=tmp_path, env=NO_ENGINE)
+        assert "no ROS package 'talker'" in passed.stderr and "which has no" not in passed.stderr, passed.stderr
+
+
 def test_a_build_with_no_packages_says_where_it_looked(tmp_path):
     """A mistyped package_paths built nothing, said nothing and exited 0; --dry-run named ws/src,
     whatever the layout."""

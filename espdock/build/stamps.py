@@ -15,7 +15,7 @@ from collections.abc import Collection, Iterable, Mapping
 from pathlib import Path
 
 from espdock import durable
-from espdock.workspace import walk_following_links
+from espdock.workspace import editor_leftover, walk_following_links
 
 # Not sources: colcon's and IDF's outputs beside a package.xml (or in the colcon root), caches,
 # VCS and editor state. Deeper down they are sources: a Python subpackage `log`, an IDF
@@ -28,15 +28,18 @@ def tree_digest(*roots: Path) -> str:
     return tree_state(*roots)[0]
 
 
-def tree_state(*roots: Path) -> tuple[str, int]:
-    """tree_digest of ROOTS, and the newest modification time (ns) of a file in them."""
+def tree_state(*roots: Path) -> tuple[str, int, tuple[str, ...]]:
+    """tree_digest of ROOTS, the newest modification time (ns) of a file in them, and their files'
+    paths (each relative to its root)."""
     digest = hashlib.sha256()
     newest = 0
+    paths: list[str] = []
     for root in roots:
         # File names are bytes: one that is not UTF-8 (Python's lone surrogates) is hashed as it is.
         digest.update(f"root\0{root.name}\n".encode(errors="surrogateescape"))
         for path in source_files(root, follow_links=True):
-            digest.update(path.relative_to(root).as_posix().encode(errors="surrogateescape") + b"\0")
+            paths.append(rel := path.relative_to(root).as_posix())
+            digest.update(rel.encode(errors="surrogateescape") + b"\0")
             try:
                 data = path.read_bytes()
                 newest = max(newest, path.stat().st_mtime_ns)
@@ -45,7 +48,7 @@ def tree_state(*roots: Path) -> tuple[str, int]:
                     raise
                 data = b"dangling link\0" + os.fsencode(os.readlink(path))  # leads nowhere: its target's name
             digest.update(hashlib.sha256(data).digest())
-    return digest.hexdigest(), newest
+    return digest.hexdigest(), newest, tuple(paths)
 
 
 def listing_digest(root: Path, ignore: Collection[str] = ()) -> str | None:
@@ -159,7 +162,7 @@ class StampFile:
         """The packages of SOURCES (name -> its directory) last built from another directory: that one."""
         return _moved(self.read(), sources)
 
-    def put_back(self, trees: Mapping[str, tuple[str, int]]) -> tuple[str, ...]:
+    def put_back(self, trees: Mapping[str, tuple[str, int, tuple[str, ...]]]) -> tuple[str, ...]:
         """The packages of TREES (name -> its tree_state now) whose sources changed since their last
         build with no file newer than the newest then: put back from a backup or an archive
         (`cp -p`, `git archive | tar -x`), or a file renamed or removed. make and setuptools,
@@ -167,12 +170,27 @@ class StampFile:
         recorded = self.read()
         return tuple(
             name
-            for name, (tree, newest) in trees.items()
+            for name, (tree, newest, _) in trees.items()
             if isinstance(entry := recorded.get(name), dict)
             and isinstance(entry.get("newest"), int)
             and entry.get("tree") not in (None, tree)
             and newest <= entry["newest"]
         )
+
+    def removed(self, trees: Mapping[str, tuple[str, int, tuple[str, ...]]]) -> dict[str, tuple[str, ...]]:
+        """The packages of TREES (name -> its tree_state now) that lost source files since their last
+        build (a branch checked out, a file renamed): those files, an editor's leftovers aside. colcon
+        builds on the install prefix, and what they installed (a module, a config, a script) stayed
+        installed, and in the runtime image, whatever else changed beside."""
+        recorded = self.read()
+        lost = {}
+        for name, (_, _, paths) in trees.items():
+            entry = recorded.get(name)
+            before = entry.get("paths") if isinstance(entry, dict) else None
+            if isinstance(before, list) and (gone := sorted(set(before) - set(paths))):
+                if gone := tuple(path for path in gone if isinstance(path, str) and not editor_leftover(path)):
+                    lost[name] = gone
+        return lost
 
     def foreign(self, names: Iterable[str]) -> tuple[str, ...]:
         """NAMES whose records are of another format than this file's."""
@@ -184,11 +202,11 @@ class StampFile:
         stamps: Mapping[str, str],
         installed: Mapping[str, str | None],
         sources: Mapping[str, str] | None = None,
-        trees: Mapping[str, tuple[str, int]] | None = None,
+        trees: Mapping[str, tuple[str, int, tuple[str, ...]]] | None = None,
         serves: Mapping[str, str] | None = None,
     ) -> None:
         """Record STAMPS with what is installed now (and each package's directory, from SOURCES,
-        and its own sources' digest and newest time, from TREES: tree_state), keeping other
+        and its own sources' digest, newest time and paths, from TREES: tree_state), keeping other
         packages' records. SERVES: another stamp each package's build stands for as well (a test
         build's install is the one a plain build of the same sources would make)."""
         data = self.read()
@@ -197,7 +215,8 @@ class StampFile:
             if serves and name in serves:
                 data[name]["serves"] = serves[name]
             if trees and name in trees:
-                data[name]["tree"], data[name]["newest"] = trees[name]  # type: ignore[assignment]
+                tree, newest, paths = trees[name]
+                data[name].update(tree=tree, newest=newest, paths=list(paths))  # type: ignore[arg-type]
         self._write(data)
 
     def _write(self, data: Mapping[str, object]) -> None:
@@ -226,7 +245,12 @@ class StampFile:
         data = dict(before)
         for name in names:
             if sources and name in sources:
+                # The paths it was last built from stay: a build that fails after a branch switch
+                # has installed its new files beside the old ones, and the next must still see which went.
+                paths = before.get(name, {}).get("paths") if isinstance(before.get(name), dict) else None
                 data[name] = self._entry(name, sources)
+                if paths is not None:
+                    data[name]["paths"] = paths
             else:
                 data.pop(name, None)
         if data != before:

@@ -270,6 +270,31 @@ def test_a_source_put_back_with_its_older_time_is_what_gets_installed(node_works
     assert installed.read_bytes() == original
 
 
+def test_a_module_removed_beside_an_edit_is_no_longer_installed(node_workspace):
+    """`git checkout main` from a branch that added a module and edited another: the edit is newer
+    than the last build, and the module the other branch added stayed installed, importable and
+    in the runtime image."""
+    package = node_workspace / "ws/src/beacon_nodes/beacon_nodes"
+    source = package / "beacon.py"
+    original = source.read_bytes()
+    site = next(node_workspace.glob("ws/install/beacon_nodes/lib/python3*/site-packages/beacon_nodes"))
+    (package / "extra.py").write_text("X = 1\n")
+    try:
+        added = espdock("build", "--only", "ros", cwd=node_workspace)
+        assert added.returncode == 0 and (site / "extra.py").is_file(), added.stdout[-2000:]
+    finally:
+        (package / "extra.py").unlink()
+        source.write_bytes(original + b"# the other branch\n")
+    switched = espdock("build", "--only", "ros", cwd=node_workspace)
+    assert switched.returncode == 0, switched.stdout[-2000:] + switched.stderr
+    assert "building afresh what lost source files since its last build: beacon_nodes (beacon_nodes/extra.py)" in (
+        " ".join(switched.stdout.split())
+    )
+    assert not (site / "extra.py").exists() and (site / "beacon.py").read_bytes().endswith(b"# the other branch\n")
+    source.write_bytes(original)
+    assert espdock("build", "--only", "ros", cwd=node_workspace).returncode == 0
+
+
 def test_init_writes_a_starter_compose_file_whose_services_start_and_talk(engine, node_workspace):
     written = espdock("init", cwd=node_workspace)
     assert written.returncode == 0 and "wrote compose.yaml" in written.stdout, written.stdout + written.stderr

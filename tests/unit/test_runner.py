@@ -515,6 +515,30 @@ def test_sources_put_back_with_an_older_time_and_force_build_afresh_and_an_edit_
     assert "--force: building 2 package(s) afresh" in notes(events) and not cache.exists()
 
 
+def test_a_source_removed_beside_an_edit_builds_afresh_and_an_editor_leftover_does_not(ws):
+    """A branch switch removes one file and edits another: the edit is newer than the last build,
+    so nothing was built afresh, and what the removed file installed stayed in install/."""
+    engine = FakeEngine(run_script=colcon_installs(ws))
+    app = ws.ws_dir / "src/app"
+    (app / "extra.c").write_text("int extra(void) { return 1; }\n")
+    (app / "main.c~").write_text("int main(void) { return 0; }\n")
+    runner(engine, []).run(Plan(ws, (COLCON,)))
+    cache = ws.ws_dir / "build/espdock-ros/app/CMakeCache.txt"
+    cache.parent.mkdir(parents=True, exist_ok=True)
+    cache.write_text("CMAKE_HOME_DIRECTORY:INTERNAL=/workspace/ws/src/app\n")
+    (app / "main.c~").unlink()
+    (app / "main.c").write_text("int main(void) { return 8; }\n")
+    runner(engine, events := []).run(Plan(ws, (COLCON,)))
+    assert "afresh" not in notes(events) and cache.exists(), notes(events)
+    (app / "extra.c").unlink()
+    (app / "main.c").write_text("int main(void) { return 9; }\n")
+    later = time.time_ns() + 10**9
+    os.utime(app / "main.c", ns=(later, later))  # newer than anything the last build saw
+    runner(engine, events := []).run(Plan(ws, (COLCON,)))
+    assert "building afresh what lost source files since its last build: app (extra.c)" in notes(events)
+    assert not cache.exists()
+
+
 def test_a_symlink_switch_says_which_removed_install_the_options_leave_out(ws):
     """`-- --symlink-install --packages-skip app` after a plain build: app's install went with
     the others' and nothing said it was not built again."""

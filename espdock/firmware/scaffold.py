@@ -5,6 +5,7 @@ from __future__ import annotations
 import contextlib
 import difflib
 import os
+import posixpath
 import re
 import shutil
 import tempfile
@@ -271,6 +272,14 @@ def init_workspace(directory: Path, owner: tuple[int, int] | None = None) -> tup
         with config.open("x") as out:  # never overwrites
             out.write(CONFIG_TEMPLATE.format(paths=", ".join(f'"{p}"' for p in paths), colcon_root=colcon_root))
         created.append(CONFIG_FILE)
+        if not (root / GITIGNORE).exists():
+            # Without it a `git stash -u` took the whole build along, and its pop then failed on
+            # every file the next build had made again.
+            outputs = posixpath.normpath(f"/{colcon_root}")
+            (root / GITIGNORE).write_text(
+                GITIGNORE_TEMPLATE.format(*(posixpath.join(outputs, d) for d in ("build", "install", "log")))
+            )
+            created.append(GITIGNORE)
     except OSError as exc:
         raise WorkspaceError(f"cannot make {root} a workspace: {exc.strerror or exc}") from None
     if owner is not None:
@@ -278,6 +287,16 @@ def init_workspace(directory: Path, owner: tuple[int, int] | None = None) -> tup
             path = root / rel.rstrip("/") if not Path(rel).is_absolute() else Path(rel)
             os.lchown(path, *owner)
     return Workspace(root, paths, colcon_root), created
+
+
+GITIGNORE = ".gitignore"
+GITIGNORE_TEMPLATE = """\
+# colcon's outputs, espdock's builds' and yours: made again from the sources, never committed.
+# espdock.toml, compose.yaml and the locks (rosdep.lock.json, ...) are sources: commit them.
+{}/
+{}/
+{}/
+"""
 
 
 def undo_init(root: Path, created: list[str]) -> None:

@@ -306,6 +306,25 @@ def test_init_adopts_a_colcon_workspace_and_never_overwrites(tmp_path):
     assert (ws / "espdock.toml").read_text() == "[espdock]\n# mine\n"
 
 
+def test_init_has_git_ignore_the_build_outputs_and_keeps_an_ignore_file_of_its_own(tmp_path):
+    """With no .gitignore, `git stash -u` in a built workspace took build/, install/ and log/ along,
+    and the pop failed on every file the next build had made again."""
+    made = espdock("init", "robot", cwd=tmp_path, env=NO_ENGINE)
+    assert made.returncode == 0 and ".gitignore" in made.stdout, made.stdout + made.stderr
+    robot = tmp_path / "robot"
+    for directory in ("build", "install", "log", "src/pkg"):
+        (robot / directory).mkdir(parents=True, exist_ok=True)
+        (robot / directory / "file").write_text("x")
+    subprocess.run(["git", "init", "-q", str(robot)], check=True)
+    status = ["git", "-C", str(robot), "status", "--porcelain", "-uall"]
+    listed = subprocess.run(status, capture_output=True, text=True, check=True)
+    assert sorted(listed.stdout.split()[1::2]) == [".gitignore", "compose.yaml", "espdock.toml", "src/pkg/file"]
+    (tmp_path / "mine").mkdir()
+    (tmp_path / "mine/.gitignore").write_text("secrets/\n")
+    assert espdock("init", "mine", cwd=tmp_path, env=NO_ENGINE).returncode == 0
+    assert (tmp_path / "mine/.gitignore").read_text() == "secrets/\n"
+
+
 def test_init_in_the_src_of_a_workspace_or_inside_one_is_refused_leaving_nothing(tmp_path):
     """`cd ~/ros2_ws/src && espdock init` made src/ a workspace of its own (src/src/, found 0
     packages), which every later command below it then took for the workspace."""

@@ -13,6 +13,7 @@ import json
 import os
 from collections.abc import Collection, Iterable, Mapping
 from pathlib import Path
+from typing import NamedTuple
 
 from espdock import durable
 from espdock.workspace import editor_leftover, walk_following_links
@@ -28,10 +29,26 @@ def tree_digest(*roots: Path) -> str:
     return tree_state(*roots)[0]
 
 
-def tree_state(*roots: Path) -> tuple[str, int, tuple[str, ...]]:
-    """tree_digest of ROOTS, the newest modification time (ns) of a file in them, and their files'
-    paths (each relative to its root)."""
+class TreeState(NamedTuple):
+    """A package's sources as a build saw them (tree_state)."""
+
+    digest: str  # tree_digest
+    newest: int  # the newest modification time (ns) of a file
+    paths: tuple[str, ...]  # the files, each relative to its root
+    # setup.py's and setup.cfg's digest ("" without them): where an ament_python package declares
+    # what it installs (entry points, data_files), and so what stays installed when it stops.
+    declares: str
+
+
+# The files of a package (relative to it) that declare what setuptools installs.
+SETUP_FILES = ("setup.py", "setup.cfg")
+
+
+def tree_state(*roots: Path) -> TreeState:
+    """tree_digest of ROOTS, the newest modification time of a file in them, their files' paths
+    and the digest of their SETUP_FILES."""
     digest = hashlib.sha256()
+    declares = hashlib.sha256()
     newest = 0
     paths: list[str] = []
     for root in roots:
@@ -47,8 +64,11 @@ def tree_state(*roots: Path) -> tuple[str, int, tuple[str, ...]]:
                 if not path.is_symlink():
                     raise
                 data = b"dangling link\0" + os.fsencode(os.readlink(path))  # leads nowhere: its target's name
-            digest.update(hashlib.sha256(data).digest())
-    return digest.hexdigest(), newest, tuple(paths)
+            digest.update(content := hashlib.sha256(data).digest())
+            if rel in SETUP_FILES:
+                declares.update(rel.encode() + b"\0" + content)
+    declared = declares.hexdigest() if any(p in SETUP_FILES for p in paths) else ""
+    return TreeState(digest.hexdigest(), newest, tuple(paths), declared)
 
 
 def listing_digest(root: Path, ignore: Collection[str] = ()) -> str | None:
@@ -162,7 +182,7 @@ class StampFile:
         """The packages of SOURCES (name -> its directory) last built from another directory: that one."""
         return _moved(self.read(), sources)
 
-    def put_back(self, trees: Mapping[str, tuple[str, int, tuple[str, ...]]]) -> tuple[str, ...]:
+    def put_back(self, trees: Mapping[str, TreeState]) -> tuple[str, ...]:
         """The packages of TREES (name -> its tree_state now) whose sources changed since their last
         build with no file newer than the newest then: put back from a backup or an archive
         (`cp -p`, `git archive | tar -x`), or a file renamed or removed. make and setuptools,
@@ -170,27 +190,41 @@ class StampFile:
         recorded = self.read()
         return tuple(
             name
-            for name, (tree, newest, _) in trees.items()
+            for name, now in trees.items()
             if isinstance(entry := recorded.get(name), dict)
             and isinstance(entry.get("newest"), int)
-            and entry.get("tree") not in (None, tree)
-            and newest <= entry["newest"]
+            and entry.get("tree") not in (None, now.digest)
+            and now.newest <= entry["newest"]
         )
 
-    def removed(self, trees: Mapping[str, tuple[str, int, tuple[str, ...]]]) -> dict[str, tuple[str, ...]]:
+    def removed(self, trees: Mapping[str, TreeState]) -> dict[str, tuple[str, ...]]:
         """The packages of TREES (name -> its tree_state now) that lost source files since their last
         build (a branch checked out, a file renamed): those files, an editor's leftovers aside. colcon
         builds on the install prefix, and what they installed (a module, a config, a script) stayed
         installed, and in the runtime image, whatever else changed beside."""
         recorded = self.read()
         lost = {}
-        for name, (_, _, paths) in trees.items():
+        for name, now in trees.items():
             entry = recorded.get(name)
             before = entry.get("paths") if isinstance(entry, dict) else None
-            if isinstance(before, list) and (gone := sorted(set(before) - set(paths))):
+            if isinstance(before, list) and (gone := sorted(set(before) - set(now.paths))):
                 if gone := tuple(path for path in gone if isinstance(path, str) and not editor_leftover(path)):
                     lost[name] = gone
         return lost
+
+    def redeclared(self, trees: Mapping[str, TreeState]) -> tuple[str, ...]:
+        """The packages of TREES whose SETUP_FILES changed since their last build: an entry point or
+        a data file taken out of setup.py stayed installed (`espdock run` listed the script, and it
+        failed), since setuptools only adds to an install."""
+        recorded = self.read()
+        return tuple(
+            name
+            for name, now in trees.items()
+            if isinstance(entry := recorded.get(name), dict)
+            and isinstance(before := entry.get("declares"), str)
+            and before
+            and before != now.declares
+        )
 
     def foreign(self, names: Iterable[str]) -> tuple[str, ...]:
         """NAMES whose records are of another format than this file's."""
@@ -202,11 +236,11 @@ class StampFile:
         stamps: Mapping[str, str],
         installed: Mapping[str, str | None],
         sources: Mapping[str, str] | None = None,
-        trees: Mapping[str, tuple[str, int, tuple[str, ...]]] | None = None,
+        trees: Mapping[str, TreeState] | None = None,
         serves: Mapping[str, str] | None = None,
     ) -> None:
         """Record STAMPS with what is installed now (and each package's directory, from SOURCES,
-        and its own sources' digest, newest time and paths, from TREES: tree_state), keeping other
+        and its own sources' state, from TREES: tree_state), keeping other
         packages' records. SERVES: another stamp each package's build stands for as well (a test
         build's install is the one a plain build of the same sources would make)."""
         data = self.read()
@@ -215,8 +249,8 @@ class StampFile:
             if serves and name in serves:
                 data[name]["serves"] = serves[name]
             if trees and name in trees:
-                tree, newest, paths = trees[name]
-                data[name].update(tree=tree, newest=newest, paths=list(paths))  # type: ignore[arg-type]
+                now = trees[name]
+                data[name].update(tree=now.digest, newest=now.newest, paths=list(now.paths), declares=now.declares)  # type: ignore[arg-type]
         self._write(data)
 
     def _write(self, data: Mapping[str, object]) -> None:

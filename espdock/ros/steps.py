@@ -12,7 +12,7 @@ from collections.abc import Callable, Iterable, Mapping
 from dataclasses import replace
 from pathlib import Path
 
-from espdock.build.stamps import StampFile, listing_digest, package_stamps, tree_state
+from espdock.build.stamps import StampFile, TreeState, listing_digest, package_stamps, tree_state
 from espdock.build.steps import EnsureImage, ImageSpec
 from espdock.errors import BuildFailed, ConfigError, WorkspaceError
 from espdock.events import Outcome, StepNote, StepOutput
@@ -81,7 +81,7 @@ class RosSteps:
         step: ColconBuild,
         rebuild: tuple[str, ...],
         stamp_file: StampFile,
-        trees: Mapping[str, tuple[str, int, tuple[str, ...]]],
+        trees: Mapping[str, TreeState],
     ) -> tuple[Path, ...]:
         """Remove what colcon would build on wrongly from REBUILD's trees, and say why: every build
         dir and install prefix with --force (but those the options after `--` leave out) or when
@@ -148,7 +148,15 @@ class RosSteps:
                 )
                 why += ", which colcon would leave installed"
                 reasons.append((tuple(tree for name in lost for tree in (base / name, install / name)), why))
-            if older := [name for name in stamp_file.foreign(rebuild) if name not in {*moved, *put_back, *lost}]:
+            python = [n for n in rebuild if n in step.python and n not in {*moved, *put_back, *lost}]
+            if redeclared := stamp_file.redeclared({n: trees[n] for n in python}):
+                why = (
+                    f"building afresh what changed its setup.py or setup.cfg: {', '.join(redeclared)} (an entry "
+                    "point or data file taken out of it would stay installed)"
+                )
+                reasons.append((tuple(tree for name in redeclared for tree in (base / name, install / name)), why))
+            done = {*moved, *put_back, *lost, *redeclared}
+            if older := [name for name in stamp_file.foreign(rebuild) if name not in done]:
                 why = (
                     f"building afresh what an older espdock built: {', '.join(older)} (its records do not say "
                     "where each package was built from, nor on what)"
@@ -268,7 +276,7 @@ class RosSteps:
                 recorded_stamps = {name: ON_OLD_INSTALL if on_old[name] else stamps[name] for name in built}
                 serves = None
                 if step.serves:
-                    sources = {name: tree for name, (tree, _, _) in trees.items()}
+                    sources = {name: now.digest for name, now in trees.items()}
                     served = dict(step.serves)
                     images = {name: served.get(name, "") for name in sources}
                     plain = package_stamps(sources, dict(step.depends), images, dict(step.settings))
@@ -452,7 +460,7 @@ class RosSteps:
 
 def colcon_rebuild(
     workspace: Workspace, step: ColconBuild
-) -> tuple[StampFile, dict[str, str], tuple[str, ...], dict[str, tuple[str, int, tuple[str, ...]]]]:
+) -> tuple[StampFile, dict[str, str], tuple[str, ...], dict[str, TreeState]]:
     """STEP's stamp file, the stamps of the packages it builds as they are now, which of them
     colcon gets (the changed ones and, their stamps being chained, what depends on them; all of
     them with --force; the rest are up to date in install/, where colcon finds them), and each
@@ -460,7 +468,7 @@ def colcon_rebuild(
     sources put back with an older time."""
     stamp_file = StampFile(workspace.ws_dir / "build" / ROS_STAMPS, ROS_STAMP_FORMAT)
     trees = {name: tree_state(workspace.ws_dir / rel) for name, rel in step.sources}
-    sources = {name: tree for name, (tree, _, _) in trees.items()}
+    sources = {name: now.digest for name, now in trees.items()}
     chained = package_stamps(sources, dict(step.depends), step.stamp_images(), dict(step.settings))
     stamps = {name: chained[name] for name in step.building}
     if step.force:

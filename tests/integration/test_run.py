@@ -295,6 +295,29 @@ def test_a_module_removed_beside_an_edit_is_no_longer_installed(node_workspace):
     assert espdock("build", "--only", "ros", cwd=node_workspace).returncode == 0
 
 
+def test_an_entry_point_taken_out_of_setup_py_is_no_longer_installed(node_workspace):
+    """setuptools only adds to an install: the script stayed, `espdock run` listed it, and
+    `espdock init --compose` wrote a service for it, which failed as it started."""
+    setup = node_workspace / "ws/src/beacon_nodes/setup.py"
+    original = setup.read_text()
+    script = node_workspace / "ws/install/beacon_nodes/lib/beacon_nodes/beacon_log"
+    assert script.is_file()
+    setup.write_text(original.replace('"beacon_log = beacon_nodes.beacon_log:main",', ""))
+    try:
+        dropped = espdock("build", "--only", "ros", cwd=node_workspace)
+        assert dropped.returncode == 0, dropped.stdout[-2000:] + dropped.stderr
+        assert "building afresh what changed its setup.py or setup.cfg: beacon_nodes" in " ".join(
+            dropped.stdout.split()
+        )
+        assert not script.exists()
+        listed = espdock("run", "beacon_nodes", "beacon_log", cwd=node_workspace)
+        assert listed.returncode == 2 and "no executable 'beacon_log'" in listed.stderr, listed.stderr
+    finally:
+        setup.write_text(original)
+    restored = espdock("build", "--only", "ros", cwd=node_workspace)
+    assert restored.returncode == 0 and script.is_file(), restored.stdout[-2000:] + restored.stderr
+
+
 def test_init_writes_a_starter_compose_file_whose_services_start_and_talk(engine, node_workspace):
     written = espdock("init", cwd=node_workspace)
     assert written.returncode == 0 and "wrote compose.yaml" in written.stdout, written.stdout + written.stderr

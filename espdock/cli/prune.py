@@ -141,7 +141,8 @@ def record_images(ws: Workspace, runner: Runner, runtime: str | None = None) -> 
         notify(
             f"warning: {others[0]} names its runtime images {runtime}:latest too (its directory has this one's "
             f"name): `docker compose` in either runs the one built last, and their compose projects ({name}) "
-            f"replace each other's containers; set name = \"...\" in one's espdock.toml to tell them apart"
+            f"replace each other's containers; set name = \"...\" in one's espdock.toml to tell them apart "
+            f"(or ESPDOCK_NAME=... in its environment, for a git worktree or clone sharing the file)"
         )
 
 

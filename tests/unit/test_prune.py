@@ -120,7 +120,7 @@ def test_a_second_workspace_of_the_same_name_is_told_to_set_its_own(tmp_path, mo
     record_images(Workspace(second), runtime, "espdock/robot")
     err = " ".join(capsys.readouterr().out.split())
     assert f"{first} names its runtime images espdock/robot:latest too" in err
-    assert 'set name = "..." in one\'s espdock.toml' in err
+    assert 'set name = "..." in one\'s espdock.toml' in err and "ESPDOCK_NAME=... in its environment" in err
 
 
 def test_the_runtime_images_run_uses_are_current_where_builds_make_none(tmp_path):

@@ -101,7 +101,9 @@ def find_executable(workspace: Workspace, packages: tuple[Package, ...], package
             raise WorkspaceError(
                 f"'{executable}' is a launch file, and `espdock run` runs a package's executables, as `ros2 run` "
                 f"does (its executables: {found})",
-                f"Launch it with `ros2 launch {package} {executable}` in `espdock shell` on the official ROS image "
+                # ros2 launch finds a package's launch file by its name in its share/ directory.
+                f"Launch it with `ros2 launch {package} {posixpath.basename(executable)}` in `espdock shell` on the "
+                "official ROS image "
                 '(ros_image = "official"), which has launch and the `ros2` command; the wheels image has neither.',
             )
         close = difflib.get_close_matches(executable, runnable.get(package, []), n=1)

@@ -163,6 +163,9 @@ def test_a_launch_file_given_to_run_says_how_to_launch_it(ws):
         find_executable(workspace, packages, "talk", "talk.launch.py")
     assert "'talk.launch.py' is a launch file" in caught.value.message and "listener, talker" in caught.value.message
     assert "`ros2 launch talk talk.launch.py` in `espdock shell`" in caught.value.hint
+    with pytest.raises(WorkspaceError) as caught:  # named by its path in the package: ros2 launch takes its name
+        find_executable(workspace, packages, "talk", "launch/talk.launch.py")
+    assert "`ros2 launch talk talk.launch.py` in `espdock shell`" in caught.value.hint
 
 
 def test_a_firmware_package_is_not_run_but_its_commands_are_named(ws):

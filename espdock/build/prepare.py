@@ -12,7 +12,7 @@ from espdock.build.plan import plan_workspace
 from espdock.build.steps import EnsureImage, Plan
 from espdock.config import Config, invoking_user
 from espdock.errors import EspdockError
-from espdock.firmware.plan import IdfBuild, firmware_step, unknown_dependencies
+from espdock.firmware.plan import IdfBuild, check_no_vendored_micro_ros, firmware_step, unknown_dependencies
 from espdock.layout import ROS_BUILD_BASE, ROSDEP_LOCK, firmware_build_dir
 from espdock.ros import interfaces, rosdeps, testdeps
 from espdock.ros.colcon import last_build_args, output_args, read_colcon_settings, without_build_testing
@@ -86,8 +86,15 @@ def build_plan(
             notify(f"warning: {line}")
     for name, project in unmanifested(ws).items():
         notify(project.not_built(name))
+    check_no_vendored_micro_ros((p for p in chosen if only in (None, p.kind)), ws.root)
     if only in (None, PackageKind.FIRMWARE):
         for firmware in (p for p in chosen if p.kind is PackageKind.FIRMWARE):
+            if (firmware.path / "extra_ros_packages").is_dir():
+                notify(
+                    f"warning: {(firmware.path / 'extra_ros_packages').relative_to(ws.root)} is not read (upstream's "
+                    f"micro_ros_espidf_component reads it): the library holds the workspace's interface packages "
+                    f"{firmware.name} <depend>s on. Move them into a package path and add the <depend>"
+                )
             if (firmware.path / "sdkconfig").is_file():
                 rel = (firmware.path / "sdkconfig").relative_to(ws.root)
                 used = (firmware_build_dir(ws.ws_dir, firmware.name) / "sdkconfig").relative_to(ws.root)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import json
 import re
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -99,6 +99,32 @@ def unknown_dependencies(firmware: Package, packages: tuple[Package, ...]) -> li
     names = {p.name for p in packages}
     deps = firmware.depends - firmware.test_only_depends
     return sorted(d for d in deps if d not in names and d not in STANDARD_INTERFACES)
+
+
+# What marks a copy of micro_ros_espidf_component: the makefile that builds the library.
+UROS_COMPONENT_MARK = "libmicroros.mk"
+
+
+def check_no_vendored_micro_ros(packages: Iterable[Package], root: Path) -> None:
+    """Refuse a copy of micro_ros_espidf_component in a firmware project's components/ (upstream's
+    README clones it there), or taken for a ROS package (its package.xml, in a project colcon
+    then searched): the copy replaced the library the IDF image keeps (a component of the same
+    name), and would build micro-ROS inside the firmware build, or colcon failed on it."""
+    for package in packages:
+        if package.kind is PackageKind.FIRMWARE:
+            components = package.path / "components"
+            copies = sorted(d for d in components.glob("*") if (d / UROS_COMPONENT_MARK).is_file())
+        else:
+            copies = [package.path] if (package.path / UROS_COMPONENT_MARK).is_file() else []
+        if copies:
+            raise WorkspaceError(
+                f"{copies[0].relative_to(root)} is a copy of micro_ros_espidf_component: espdock builds micro-ROS "
+                "once, in the IDF image, as a component of the same name, which this copy would replace "
+                "(and colcon cannot build it)",
+                "Remove it. Its settings go in the firmware project: app-colcon.meta beside its CMakeLists.txt, "
+                "the interface packages it uses as workspace packages it <depend>s on "
+                '(docs/firmware.md, "The IDF image and the micro-ROS cache").',
+            )
 
 
 EXTRA_PACKAGES_DIR = "/opt/uros_builder/extra_ros_packages"

@@ -382,6 +382,31 @@ def test_run_refuses_a_params_file_of_this_machine_the_node_cannot_see(tmp_path)
         assert "no ROS package 'talker'" in passed.stderr and "which has no" not in passed.stderr, passed.stderr
 
 
+def test_a_copy_of_micro_ros_espidf_component_in_a_project_is_refused_naming_it(tmp_path):
+    """Upstream's README clones the component into the app's components/: the copy replaced the
+    library the IDF image keeps (IDF takes a project's own component of a name first), without a
+    word; in a project without package.xml, colcon took its package.xml for a ROS package and
+    failed on idf_component_register."""
+    (tmp_path / "espdock.toml").write_text("[espdock]\n")
+    app = tmp_path / "src/counter"
+    shutil.copytree(REPO / "tests/firmware_packages/blink_fw", app)
+    copy = app / "components/micro_ros_espidf_component"
+    copy.mkdir(parents=True)
+    (copy / "libmicroros.mk").write_text("all:\n")
+    (copy / "CMakeLists.txt").write_text('idf_component_register(SRCS "x.c")\n')
+    (copy / "package.xml").write_text(
+        '<package format="3"><name>micro_ros_espidf</name><version>0.0.0</version><description>d</description>'
+        '<maintainer email="m@example.com">m</maintainer><license>Apache-2.0</license></package>\n'
+    )
+    for manifest in (True, False):
+        if not manifest:
+            (app / "package.xml").unlink()
+        result = espdock("build", "--dry-run", cwd=tmp_path, env=NO_ENGINE)
+        said = " ".join(result.stderr.split())
+        assert result.returncode == 2, result.stdout + result.stderr
+        assert "src/counter/components/micro_ros_espidf_component is a copy of micro_ros_espidf_component" in said
+
+
 def test_a_build_with_no_packages_says_where_it_looked(tmp_path):
     """A mistyped package_paths built nothing, said nothing and exited 0; --dry-run named ws/src,
     whatever the layout."""

@@ -12,7 +12,13 @@ from espdock.build.plan import plan_workspace
 from espdock.build.steps import EnsureImage, Plan
 from espdock.config import Config, invoking_user
 from espdock.errors import EspdockError
-from espdock.firmware.plan import IdfBuild, check_no_vendored_micro_ros, firmware_step, unknown_dependencies
+from espdock.firmware.plan import (
+    IdfBuild,
+    check_idf_projects_typed,
+    check_no_vendored_micro_ros,
+    firmware_step,
+    unknown_dependencies,
+)
 from espdock.layout import ROS_BUILD_BASE, ROSDEP_LOCK, firmware_build_dir
 from espdock.ros import interfaces, rosdeps, testdeps
 from espdock.ros.colcon import last_build_args, output_args, read_colcon_settings, without_build_testing
@@ -87,6 +93,7 @@ def build_plan(
     for name, project in unmanifested(ws).items():
         notify(project.not_built(name))
     check_no_vendored_micro_ros((p for p in chosen if only in (None, p.kind)), ws.root)
+    check_idf_projects_typed((p for p in chosen if only in (None, p.kind)), ws.root)
     if only in (None, PackageKind.FIRMWARE):
         for firmware in (p for p in chosen if p.kind is PackageKind.FIRMWARE):
             if (firmware.path / "extra_ros_packages").is_dir():

@@ -28,7 +28,7 @@ from espdock.layout import (
     SOURCES_NAME,
     firmware_install_dir,
 )
-from espdock.workspace import BuildInputs, Package, PackageKind, Workspace
+from espdock.workspace import FIRMWARE_BUILD_TYPE, BuildInputs, Package, PackageKind, Workspace
 
 
 @dataclass(frozen=True)
@@ -124,6 +124,27 @@ def check_no_vendored_micro_ros(packages: Iterable[Package], root: Path) -> None
                 "Remove it. Its settings go in the firmware project: app-colcon.meta beside its CMakeLists.txt, "
                 "the interface packages it uses as workspace packages it <depend>s on "
                 '(docs/firmware.md, "The IDF image and the micro-ROS cache").',
+            )
+
+
+def check_idf_projects_typed(packages: Iterable[Package], root: Path) -> None:
+    """Refuse a ROS package whose CMakeLists.txt is an ESP-IDF project's (it includes IDF's
+    project.cmake) under another build type: colcon ran CMake on it, which failed on
+    `include($ENV{IDF_PATH}/...)` with a hint to fix the package's code."""
+    for package in packages:
+        if package.kind is not PackageKind.ROS:
+            continue
+        try:
+            text = (package.path / "CMakeLists.txt").read_text(errors="replace")
+        except OSError:
+            continue
+        if "project.cmake" in text and "IDF_PATH" in text:
+            raise WorkspaceError(
+                f"{package.name} ({package.path.relative_to(root)}) is an ESP-IDF project (its CMakeLists.txt "
+                f"includes IDF's project.cmake), but its package.xml says build type {package.build_type}, which "
+                "colcon builds with CMake alone",
+                f"Set <export><build_type>{FIRMWARE_BUILD_TYPE}</build_type></export> in its package.xml: espdock "
+                "builds it in the IDF image.",
             )
 
 

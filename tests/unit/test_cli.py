@@ -407,6 +407,21 @@ def test_a_copy_of_micro_ros_espidf_component_in_a_project_is_refused_naming_it(
         assert "src/counter/components/micro_ros_espidf_component is a copy of micro_ros_espidf_component" in said
 
 
+def test_an_idf_project_whose_package_xml_says_cmake_is_refused_with_the_build_type_to_set(tmp_path):
+    """colcon ran CMake on it, which failed on `include($ENV{IDF_PATH}/...)` and said "Fix blink_fw"."""
+    (tmp_path / "espdock.toml").write_text("[espdock]\n")
+    app = tmp_path / "src/blink_fw"
+    shutil.copytree(REPO / "tests/firmware_packages/blink_fw", app)
+    manifest = app / "package.xml"
+    manifest.write_text(
+        manifest.read_text().replace("<build_type>esp_idf</build_type>", "<build_type>cmake</build_type>")
+    )
+    result = espdock("build", "--dry-run", cwd=tmp_path, env=NO_ENGINE)
+    said = " ".join(result.stderr.split())
+    assert result.returncode == 2 and "blink_fw (src/blink_fw) is an ESP-IDF project" in said, said
+    assert "<build_type>esp_idf</build_type>" in said
+
+
 def test_a_build_with_no_packages_says_where_it_looked(tmp_path):
     """A mistyped package_paths built nothing, said nothing and exited 0; --dry-run named ws/src,
     whatever the layout."""

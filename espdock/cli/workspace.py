@@ -348,6 +348,16 @@ def init(
     console.print(f"layout: packages in {', '.join(ws.package_paths)}; colcon's build/install/log in {ws.colcon_root}")
     console.print(f"found {len(ros)} ROS package(s){': ' + ', '.join(ros) if ros else ''}")
     console.print(f"found {len(firmware)} firmware package(s){': ' + ', '.join(firmware) if firmware else ''}")
+    for name, project in unmanifested(ws).items():  # an ESP-IDF project brought in, say: what makes it one
+        notify(project.not_built(name))
+    top = ws.root / "CMakeLists.txt"
+    if "espdock.toml" in created and top.is_file() and "project.cmake" in (text := top.read_text(errors="replace")):
+        if "IDF_PATH" in text:
+            notify(
+                f"note: {ws.root} is an ESP-IDF project itself, and packages are looked for in "
+                f"{', '.join(ws.package_paths)}: to build it, give it a package.xml "
+                '(<build_type>esp_idf</build_type>) and set package_paths = ["."] in espdock.toml'
+            )
     if firmware and (skips := colcon_register.colcon_skips_firmware(dict(os.environ))):
         console.print(f"note: {skips}")
     # `cd -x` is an option to cd: a name that starts with a dash goes as ./-x.

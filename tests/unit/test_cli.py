@@ -422,6 +422,22 @@ def test_an_idf_project_whose_package_xml_says_cmake_is_refused_with_the_build_t
     assert "<build_type>esp_idf</build_type>" in said
 
 
+def test_init_says_how_an_esp_idf_project_it_finds_becomes_a_firmware_package(tmp_path):
+    """init said "found 0 firmware package(s)" of an ESP-IDF project brought into src/, and nothing
+    in a project's own directory, where it made src/ and the next build found nothing to build."""
+    idf = "cmake_minimum_required(VERSION 3.16)\ninclude($ENV{IDF_PATH}/tools/cmake/project.cmake)\nproject(blinky)\n"
+    (tmp_path / "ws/src/blinky").mkdir(parents=True)
+    (tmp_path / "ws/src/blinky/CMakeLists.txt").write_text(idf)
+    brought = espdock("init", cwd=tmp_path / "ws", env=NO_ENGINE)
+    said = " ".join((brought.stdout + brought.stderr).split())
+    assert brought.returncode == 0 and "src/blinky is not built: an ESP-IDF project with no package.xml" in said, said
+    (tmp_path / "blinky").mkdir()
+    (tmp_path / "blinky/CMakeLists.txt").write_text(idf)
+    own = espdock("init", cwd=tmp_path / "blinky", env=NO_ENGINE)
+    said = " ".join((own.stdout + own.stderr).split())
+    assert own.returncode == 0 and "is an ESP-IDF project itself" in said and 'package_paths = ["."]' in said, said
+
+
 def test_a_build_with_no_packages_says_where_it_looked(tmp_path):
     """A mistyped package_paths built nothing, said nothing and exited 0; --dry-run named ws/src,
     whatever the layout."""

@@ -23,7 +23,7 @@ from espdock.images.engine import ComposeStillStopping, Engine, RunSpec
 from espdock.ros import compose as compose_file
 from espdock.ros import nodes
 from espdock.ros.plan import RuntimeImage, runtime_repository
-from espdock.ros.steps import runtime_spec
+from espdock.ros.steps import edited_since_built, runtime_spec
 from espdock.workspace import PackageKind, Workspace, build_running
 
 
@@ -181,6 +181,11 @@ def run(
     nodes.check_file_arguments(ws, args or (), mounts, Path.cwd())
     packages = workspace_packages(ws, config.ros_distro)
     path = nodes.find_executable(ws, packages, package, executable)
+    if any(p.name == package and edited_since_built(ws, p) for p in packages):
+        notify(
+            f"warning: {package}'s sources changed since its last build: this runs what that build "
+            f"installed (`espdock build {package}` first to run them)"
+        )
     # Only what runs must be served: another package's missing key does not stop this node.
     runner, image = runtime_image(ws, config, build_plan(ws, config, [], PackageKind.ROS, checked=(package,)))
     if mounts or devices or nodes.profile_mounts(os.environ, Path.cwd()):

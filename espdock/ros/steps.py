@@ -46,7 +46,7 @@ from espdock.ros.trees import (
     retire_container_caches,
     retire_other_underlay,
 )
-from espdock.workspace import Workspace, workspace_lock
+from espdock.workspace import Package, Workspace, workspace_lock
 
 # What `espdock test` needs on this machine, which the workspace volume does not give it.
 TEST_RESULTS = "the test results `espdock test` reads"
@@ -475,6 +475,14 @@ def colcon_rebuild(
         return stamp_file, stamps, tuple(stamps), trees
     installed = {name: listing_digest(workspace.ws_dir / "install" / name) for name in stamps}
     return stamp_file, stamps, stamp_file.stale(stamps, installed, dict(step.sources)), trees
+
+
+def edited_since_built(workspace: Workspace, package: Package) -> bool:
+    """Whether PACKAGE's sources differ from those its last build recorded (a branch checked out, an
+    edit): `espdock run` runs what that build installed."""
+    entry = StampFile(workspace.ws_dir / "build" / ROS_STAMPS, ROS_STAMP_FORMAT).read().get(package.name)
+    tree = entry.get("tree") if isinstance(entry, dict) else None
+    return isinstance(tree, str) and tree != tree_state(package.path).digest
 
 
 def host_added(install: Path) -> set[str]:

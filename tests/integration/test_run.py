@@ -318,6 +318,23 @@ def test_an_entry_point_taken_out_of_setup_py_is_no_longer_installed(node_worksp
     assert restored.returncode == 0 and script.is_file(), restored.stdout[-2000:] + restored.stderr
 
 
+def test_run_says_when_the_package_s_sources_changed_since_its_build(node_workspace):
+    """After `git checkout other-branch`, `espdock run` ran the last build's install without a word."""
+    source = node_workspace / "ws/src/beacon_nodes/beacon_nodes/beacon.py"
+    original = source.read_bytes()
+    # A params file rcl cannot open: the node ends at once.
+    run = ("run", "beacon_nodes", "beacon", "--ros-args", "--params-file", "/nonexistent/params.yaml")
+    try:
+        source.write_bytes(original + b"# on another branch\n")
+        edited = espdock(*run, cwd=node_workspace)
+    finally:
+        source.write_bytes(original)
+    said = " ".join((edited.stdout + edited.stderr).split())
+    assert "warning: beacon_nodes's sources changed since its last build: this runs what that build installed" in said
+    again = espdock(*run, cwd=node_workspace)
+    assert "sources changed" not in again.stdout + again.stderr
+
+
 def test_init_writes_a_starter_compose_file_whose_services_start_and_talk(engine, node_workspace):
     written = espdock("init", cwd=node_workspace)
     assert written.returncode == 0 and "wrote compose.yaml" in written.stdout, written.stdout + written.stderr

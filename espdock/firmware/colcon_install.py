@@ -19,13 +19,13 @@ from pathlib import Path
 from espdock.config import load_config
 from espdock.errors import EspdockError
 from espdock.firmware.install import install_firmware
-from espdock.firmware.steps import LIBRARY_BASELINE, SDKCONFIG_OLD, TARGET_MARKER
+from espdock.firmware.steps import LIBRARY_BASELINE, OLD_CHANGED, SDKCONFIG_MADE, SDKCONFIG_OLD, TARGET_MARKER
 from espdock.layout import FIRMWARE_DIR, INSTALL_LAYOUT_FILE, firmware_build_dir, install_prefix, merged_install
 from espdock.workspace import Workspace, find_workspace, read_package, workspace_lock
 
 # What a build dir keeps when it moves: the sdkconfig (menuconfig's changes) and what tells espdock
 # what it was configured with. The rest is a cache, and CMake's records the path it was made at.
-KEPT_ON_MOVE = ("sdkconfig", SDKCONFIG_OLD, TARGET_MARKER, LIBRARY_BASELINE)
+KEPT_ON_MOVE = ("sdkconfig", SDKCONFIG_OLD, OLD_CHANGED, SDKCONFIG_MADE, TARGET_MARKER, LIBRARY_BASELINE)
 
 
 def _workspace(package_dir: Path) -> Workspace:

@@ -66,7 +66,9 @@ class FirmwareSteps:
         stamp_file.forget(stamps)
         project = workspace.root / step.project
         defaults = _defaults_digest(project, step.target)
-        reset, replaced = _prepare_build_dir(build_dir, step.target, defaults, step.image_key, project, workspace.root)
+        reset, replaced = _prepare_build_dir(
+            build_dir, step.target, defaults, step.image_key, project, workspace.root, self.containers.owner
+        )
         if replaced is not None:
             rel = build_dir.relative_to(workspace.root)
             if replaced:  # the chip the build dir was for
@@ -83,14 +85,21 @@ class FirmwareSteps:
         # defaults, and the next build must not take it for the last successful build's.
         _write_marker(build_dir, step.target, defaults, _built_key(build_dir, step.target), self.containers.owner)
         fresh = not (build_dir / "sdkconfig").is_file()
-        code = self.run_idf(
-            workspace,
-            step,
-            step.argv(),
-            on_line=lambda line: self.containers.emit(StepOutput(step.name, host_paths(line, workspace))),
-            sweep=True,
-            reset=reset,
-        )
+        try:
+            code = self.run_idf(
+                workspace,
+                step,
+                step.argv(),
+                on_line=lambda line: self.containers.emit(StepOutput(step.name, host_paths(line, workspace))),
+                sweep=True,
+                reset=reset,
+            )
+        finally:
+            if fresh and (build_dir / "sdkconfig").is_file():
+                # The sdkconfig as the defaults made it, failed build or not: one still like it
+                # has no menuconfig change for sdkconfig.old to keep (_prepare_build_dir).
+                shutil.copyfile(build_dir / "sdkconfig", build_dir / SDKCONFIG_MADE)
+                give_to(build_dir / SDKCONFIG_MADE, self.containers.owner)
         if code != 0:
             raise BuildFailed(
                 f"idf.py build of {step.package} failed (exit code {code}); its output is above, "
@@ -202,7 +211,12 @@ class FirmwareSteps:
         if sync is not None:
             # espdock's records of the build dir live on the host (the volume's come back without
             # them), and a new volume gets menuconfig's sdkconfig, which outlives a reset.
-            kept = (TARGET_MARKER, LIBRARY_BASELINE, *(("sdkconfig", SDKCONFIG_OLD) if reset or sync.fresh else ()))
+            kept = (
+                TARGET_MARKER,
+                LIBRARY_BASELINE,
+                SDKCONFIG_MADE,
+                *(("sdkconfig", SDKCONFIG_OLD, OLD_CHANGED) if reset or sync.fresh else ()),
+            )
             archives.append(volume.files_archive(workspace, build_dir, kept, self.containers.container_owner()))
         if sync is None:
             mounts += [
@@ -442,10 +456,12 @@ def _built_key(build_dir: Path, target: str) -> str:
 
 
 SDKCONFIG_OLD = "sdkconfig.old"  # the name menuconfig gives the one it replaces
+SDKCONFIG_MADE = ".espdock-sdkconfig-made"  # the sdkconfig as the defaults made it
+OLD_CHANGED = ".espdock-sdkconfig-old-changed"  # there when sdkconfig.old has menuconfig's changes
 
 
 def _prepare_build_dir(
-    build_dir: Path, target: str, defaults: str, image_key: str, project: Path, root: Path
+    build_dir: Path, target: str, defaults: str, image_key: str, project: Path, root: Path, owner: tuple[int, int]
 ) -> tuple[bool, str | None]:
     """Make a build dir safe to reuse for PROJECT (on the host, in workspace ROOT).
 
@@ -465,7 +481,19 @@ def _prepare_build_dir(
     keep = "sdkconfig" if built_defaults == defaults and built_target == target else None
     replaced = None
     if keep is None and (build_dir / "sdkconfig").is_file():
-        (build_dir / "sdkconfig").replace(build_dir / SDKCONFIG_OLD)
+        changed = not _same_file(build_dir / "sdkconfig", build_dir / SDKCONFIG_MADE)
+        if not changed and (build_dir / OLD_CHANGED).is_file() and (build_dir / SDKCONFIG_OLD).is_file():
+            # No menuconfig change since the defaults made it: sdkconfig.old keeps the one that had
+            # some (a branch switched there and back replaced it with this one).
+            (build_dir / "sdkconfig").unlink()
+        else:
+            (build_dir / "sdkconfig").replace(build_dir / SDKCONFIG_OLD)
+            if changed:
+                (build_dir / OLD_CHANGED).touch()
+                give_to(build_dir / OLD_CHANGED, owner)
+            else:
+                (build_dir / OLD_CHANGED).unlink(missing_ok=True)
+        (build_dir / SDKCONFIG_MADE).unlink(missing_ok=True)
         replaced = built_target if built_target != target else ""
     # As IDF compares them: by real path (here, the host's: ROOT is the workspace mount's).
     configured = _configured_project(build_dir)
@@ -473,8 +501,9 @@ def _prepare_build_dir(
     if built_key != image_key or built_target != target or moved:
         # What the last library's settings were compared against is another chip's library's.
         baseline = LIBRARY_BASELINE if built_target == target else None
+        kept = {keep, baseline, SDKCONFIG_OLD, OLD_CHANGED, TARGET_MARKER, *((SDKCONFIG_MADE,) if keep else ())}
         for entry in build_dir.iterdir():
-            if entry.name in (keep, baseline, SDKCONFIG_OLD, TARGET_MARKER):
+            if entry.name in kept:
                 continue
             if entry.is_dir() and not entry.is_symlink():
                 shutil.rmtree(entry)
@@ -482,6 +511,13 @@ def _prepare_build_dir(
                 entry.unlink()
         return True, replaced
     return keep is None, replaced
+
+
+def _same_file(one: Path, other: Path) -> bool:
+    try:
+        return one.read_bytes() == other.read_bytes()
+    except OSError:
+        return False
 
 
 def _configured_project(build_dir: Path) -> str | None:

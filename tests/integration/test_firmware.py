@@ -560,6 +560,9 @@ def test_new_defaults_set_menuconfig_s_sdkconfig_aside_and_a_failed_build_s_is_n
     built = espdock("build", "led_strip_node", "--only", "firmware", cwd=root, env=double_env)
     assert built.returncode == 0, built.stdout[-2000:] + built.stderr
     assert "CONFIG_ESPDOCK_LED_COUNT=8\n" in sdkconfig.read_text()
+    # The defaults back as they were (a branch switched there and back): the sdkconfig set aside
+    # had no menuconfig change, and sdkconfig.old still has the one that had.
+    assert "CONFIG_ESPDOCK_LED_COUNT=9\n" in (sdkconfig.parent / "sdkconfig.old").read_text()
 
 
 def test_a_broken_interface_fails_the_library_build_and_tags_nothing(fw_ws, double_env, engine):

@@ -1,14 +1,15 @@
 """Reusing ws/build/<pkg>: what a new target, image or sdkconfig.defaults leaves of it."""
 
+import os
 from pathlib import Path
 
-from espdock.firmware.steps import SDKCONFIG_OLD, TARGET_MARKER, _defaults_digest
+from espdock.firmware.steps import OLD_CHANGED, SDKCONFIG_MADE, SDKCONFIG_OLD, TARGET_MARKER, _defaults_digest
 from espdock.firmware.steps import _prepare_build_dir as prepare
 
 
 def _prepare_build_dir(build: Path, target: str, defaults: str, key: str, project: str = "firmware/app"):
     """The build dir BUILD of the project at PROJECT in workspace /w prepared for a build."""
-    return prepare(build, target, defaults, key, Path("/w") / project, Path("/w"))
+    return prepare(build, target, defaults, key, Path("/w") / project, Path("/w"), (os.getuid(), os.getgid()))
 
 
 def built(tmp_path: Path, target="esp32", defaults="d1", key="k1") -> Path:
@@ -39,7 +40,7 @@ def test_a_new_image_key_resets_the_build_but_keeps_menuconfig_changes(tmp_path)
 def test_a_new_image_key_with_new_defaults_sets_the_sdkconfig_aside_too(tmp_path):
     build = built(tmp_path)
     assert _prepare_build_dir(build, "esp32", "d2", "k2") == (True, "")
-    assert sorted(p.name for p in build.iterdir()) == [TARGET_MARKER, SDKCONFIG_OLD]
+    assert sorted(p.name for p in build.iterdir()) == [OLD_CHANGED, TARGET_MARKER, SDKCONFIG_OLD]
 
 
 def test_new_defaults_set_only_the_sdkconfig_aside_as_menuconfig_would(tmp_path):
@@ -47,7 +48,9 @@ def test_new_defaults_set_only_the_sdkconfig_aside_as_menuconfig_would(tmp_path)
     deleted without a word."""
     build = built(tmp_path)
     assert _prepare_build_dir(build, "esp32", "d2", "k1") == (True, "")
-    assert sorted(p.name for p in build.iterdir()) == [TARGET_MARKER, "CMakeCache.txt", "esp-idf", SDKCONFIG_OLD]
+    assert sorted(p.name for p in build.iterdir()) == [
+        OLD_CHANGED, TARGET_MARKER, "CMakeCache.txt", "esp-idf", SDKCONFIG_OLD
+    ]  # fmt: skip
     assert "from menuconfig" in (build / SDKCONFIG_OLD).read_text()
 
 
@@ -55,8 +58,28 @@ def test_a_new_target_empties_the_build_dir_and_sets_the_sdkconfig_aside_as_set_
     """A one-off build for another chip deleted the build dir, menuconfig's changes with it, unsaid."""
     build = built(tmp_path)
     assert _prepare_build_dir(build, "esp32s3", "d1", "k1") == (True, "esp32")
-    assert sorted(p.name for p in build.iterdir()) == [TARGET_MARKER, SDKCONFIG_OLD]
+    assert sorted(p.name for p in build.iterdir()) == [OLD_CHANGED, TARGET_MARKER, SDKCONFIG_OLD]
     assert "from menuconfig" in (build / SDKCONFIG_OLD).read_text()
+
+
+def test_an_sdkconfig_set_aside_with_no_menuconfig_change_leaves_the_one_with_changes(tmp_path):
+    """menuconfig's change set aside as sdkconfig.old by new defaults, then the defaults back (a
+    branch switched there and back): the sdkconfig the new defaults had made replaced it."""
+    build = built(tmp_path)
+    assert _prepare_build_dir(build, "esp32", "d2", "k1") == (True, "")
+    made = 'CONFIG_ESPDOCK_NODE_NAME="from defaults d2"\n'
+    for name in ("sdkconfig", SDKCONFIG_MADE):
+        (build / name).write_text(made)
+    (build / TARGET_MARKER).write_text("esp32\nd2\nk1\n")
+    assert _prepare_build_dir(build, "esp32", "d1", "k1") == (True, "")
+    assert "from menuconfig" in (build / SDKCONFIG_OLD).read_text() and not (build / "sdkconfig").exists()
+    # One with no change replaces one with none: the last set aside, as IDF's set-target keeps it.
+    (build / OLD_CHANGED).unlink()
+    for name in ("sdkconfig", SDKCONFIG_MADE):
+        (build / name).write_text(made)
+    (build / TARGET_MARKER).write_text("esp32\nd2\nk1\n")
+    assert _prepare_build_dir(build, "esp32", "d1", "k1") == (True, "")
+    assert (build / SDKCONFIG_OLD).read_text() == made
 
 
 def test_a_moved_project_empties_the_build_dir_but_keeps_menuconfig_changes(tmp_path):

@@ -404,35 +404,46 @@ def test_a_firmware_source_change_rebuilds_the_app_but_reuses_the_library(fw_ws,
     assert app.read_bytes() != before
 
 
+def component_edits_rebuild_the_app(root: Path, env: dict[str, str], components: Path, listed: str) -> None:
+    """Add the component board_led in COMPONENTS, which the app takes through the EXTRA_COMPONENT_DIRS
+    entry LISTED; build, edit it, build: the app is built again with the edit."""
+    (components / "board_led").mkdir(parents=True)
+    (components / "board_led/CMakeLists.txt").write_text(
+        'idf_component_register(SRCS "board_led.c" INCLUDE_DIRS ".")\n'
+    )
+    (components / "board_led/board_led.c").write_text("int board_led_level(void) { return 1; }\n")
+    project = root / "firmware/led_strip_node/CMakeLists.txt"
+    original = project.read_text()
+    project.write_text(
+        original.replace(
+            "${CMAKE_CURRENT_LIST_DIR}/../components)", f"${{CMAKE_CURRENT_LIST_DIR}}/../components\n    {listed})"
+        )
+    )
+    app = firmware_dir(root, "led_strip_node") / "led_strip_node.bin"
+    try:
+        built = espdock("build", "led_strip_node", "--only", "firmware", cwd=root, env=env)
+        assert built.returncode == 0, built.stdout[-2000:] + built.stderr
+        before = app.read_bytes()
+        (components / "board_led/board_led.c").write_text("int board_led_level(void) { return 2; }\n")
+        rebuilt = espdock("build", "led_strip_node", "--only", "firmware", cwd=root, env=env)
+        assert rebuilt.returncode == 0, rebuilt.stdout[-2000:] + rebuilt.stderr
+        assert "board_led.c" in rebuilt.stdout and app.read_bytes() != before, rebuilt.stdout[-2000:]
+    finally:
+        project.write_text(original)
+
+
 def test_an_edit_of_a_component_the_app_takes_from_elsewhere_in_the_workspace_rebuilds_it(fw_ws, double_env):
     """A component shared through another EXTRA_COMPONENT_DIRS entry than ../components: its edit
     left the build "up to date" and the old firmware installed (and flashed) until --force."""
     root, first = fw_ws
     assert first.returncode == 0
-    shared = root / "firmware/common/board_led"
-    shared.mkdir(parents=True)
+    (root / "firmware/common").mkdir()
     (root / "firmware/common/COLCON_IGNORE").touch()
-    (shared / "CMakeLists.txt").write_text('idf_component_register(SRCS "board_led.c" INCLUDE_DIRS ".")\n')
-    (shared / "board_led.c").write_text("int board_led_level(void) { return 1; }\n")
-    project = root / "firmware/led_strip_node/CMakeLists.txt"
-    original = project.read_text()
-    project.write_text(
-        original.replace(
-            "${CMAKE_CURRENT_LIST_DIR}/../components)",
-            "${CMAKE_CURRENT_LIST_DIR}/../components\n    ${CMAKE_CURRENT_LIST_DIR}/../common)",
-        )
-    )
-    app = firmware_dir(root, "led_strip_node") / "led_strip_node.bin"
     try:
-        built = espdock("build", "led_strip_node", "--only", "firmware", cwd=root, env=double_env)
-        assert built.returncode == 0, built.stdout[-2000:] + built.stderr
-        before = app.read_bytes()
-        (shared / "board_led.c").write_text("int board_led_level(void) { return 2; }\n")
-        rebuilt = espdock("build", "led_strip_node", "--only", "firmware", cwd=root, env=double_env)
-        assert rebuilt.returncode == 0, rebuilt.stdout[-2000:] + rebuilt.stderr
-        assert "board_led.c" in rebuilt.stdout and app.read_bytes() != before, rebuilt.stdout[-2000:]
+        component_edits_rebuild_the_app(
+            root, double_env, root / "firmware/common", "${CMAKE_CURRENT_LIST_DIR}/../common"
+        )
     finally:
-        project.write_text(original)
         shutil.rmtree(root / "firmware/common")
     settled = espdock("build", "led_strip_node", "--only", "firmware", cwd=root, env=double_env)
     assert settled.returncode == 0, settled.stdout[-2000:] + settled.stderr
@@ -444,30 +455,12 @@ def test_components_a_link_in_the_project_leads_to_out_of_the_workspace_are_buil
     root, first = fw_ws
     assert first.returncode == 0
     outside = tmp_path / "repos/components"
-    (outside / "board_led").mkdir(parents=True)
-    (outside / "board_led/CMakeLists.txt").write_text('idf_component_register(SRCS "board_led.c" INCLUDE_DIRS ".")\n')
-    (outside / "board_led/board_led.c").write_text("int board_led_level(void) { return 1; }\n")
     link = root / "firmware/led_strip_node/shared"
+    outside.mkdir(parents=True)
     link.symlink_to(outside)
-    project = root / "firmware/led_strip_node/CMakeLists.txt"
-    original = project.read_text()
-    project.write_text(
-        original.replace(
-            "${CMAKE_CURRENT_LIST_DIR}/../components)",
-            "${CMAKE_CURRENT_LIST_DIR}/../components\n    ${CMAKE_CURRENT_LIST_DIR}/shared)",
-        )
-    )
-    app = firmware_dir(root, "led_strip_node") / "led_strip_node.bin"
     try:
-        built = espdock("build", "led_strip_node", "--only", "firmware", cwd=root, env=double_env)
-        assert built.returncode == 0, built.stdout[-2000:] + built.stderr
-        before = app.read_bytes()
-        (outside / "board_led/board_led.c").write_text("int board_led_level(void) { return 2; }\n")
-        rebuilt = espdock("build", "led_strip_node", "--only", "firmware", cwd=root, env=double_env)
-        assert rebuilt.returncode == 0, rebuilt.stdout[-2000:] + rebuilt.stderr
-        assert "board_led.c" in rebuilt.stdout and app.read_bytes() != before, rebuilt.stdout[-2000:]
+        component_edits_rebuild_the_app(root, double_env, outside, "${CMAKE_CURRENT_LIST_DIR}/shared")
     finally:
-        project.write_text(original)
         link.unlink()
     settled = espdock("build", "led_strip_node", "--only", "firmware", cwd=root, env=double_env)
     assert settled.returncode == 0, settled.stdout[-2000:] + settled.stderr

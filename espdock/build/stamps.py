@@ -250,7 +250,8 @@ class StampFile:
                 data[name]["serves"] = serves[name]
             if trees and name in trees:
                 now = trees[name]
-                data[name].update(tree=now.digest, newest=now.newest, paths=list(now.paths), declares=now.declares)  # type: ignore[arg-type]
+                state = {"tree": now.digest, "newest": now.newest, "paths": list(now.paths), "declares": now.declares}
+                data[name].update(state)  # type: ignore[arg-type]
         self._write(data)
 
     def _write(self, data: Mapping[str, object]) -> None:
@@ -279,12 +280,12 @@ class StampFile:
         data = dict(before)
         for name in names:
             if sources and name in sources:
-                # The paths it was last built from stay: a build that fails after a branch switch
-                # has installed its new files beside the old ones, and the next must still see which went.
-                paths = before.get(name, {}).get("paths") if isinstance(before.get(name), dict) else None
-                data[name] = self._entry(name, sources)
-                if paths is not None:
-                    data[name]["paths"] = paths
+                # What it was last built from stays (its files, its setup.py's digest): a build that
+                # fails after a branch switch has installed new files beside the old ones, and the
+                # next must still see what went.
+                entry = before.get(name)
+                kept = {k: entry[k] for k in ("paths", "declares") if k in entry} if isinstance(entry, dict) else {}
+                data[name] = {**self._entry(name, sources), **kept}
             else:
                 data.pop(name, None)
         if data != before:

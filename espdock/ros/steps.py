@@ -88,8 +88,9 @@ class RosSteps:
         --symlink-install was turned on or off; else the build dirs of interface packages whose
         interface dependencies changed (ColconBuild.stale_interfaces), the install prefixes a
         native symlink install linked to this machine's paths, and the build dirs and install
-        prefixes of packages that moved (STAMP_FILE knows where they were) or that an older
-        espdock built, each reason that holds. Returns them, for the workspace volume to remove
+        prefixes of packages that moved (STAMP_FILE knows where they were), whose sources changed
+        with no newer file, lost a file, or changed their setup.py (trees: their tree_state now),
+        or that an older espdock built, each reason that holds. Returns them, for the workspace volume to remove
         its copies as well."""
         base = workspace.ws_dir / ROS_BUILD_BASE
         install = workspace.ws_dir / "install"

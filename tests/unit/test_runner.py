@@ -534,6 +534,12 @@ def test_a_source_removed_beside_an_edit_builds_afresh_and_an_editor_leftover_do
     (app / "main.c").write_text("int main(void) { return 9; }\n")
     later = time.time_ns() + 10**9
     os.utime(app / "main.c", ns=(later, later))  # newer than anything the last build saw
+    engine.run_script = colcon_installs(ws, code=1, rcs={"msgs": 0, "app": 1})
+    with pytest.raises(BuildFailed):  # a failed build between: the next still knows what went
+        runner(engine, []).run(Plan(ws, (COLCON,)))
+    cache.parent.mkdir(parents=True, exist_ok=True)
+    cache.write_text("CMAKE_HOME_DIRECTORY:INTERNAL=/workspace/ws/src/app\n")
+    engine.run_script = colcon_installs(ws)
     runner(engine, events := []).run(Plan(ws, (COLCON,)))
     assert "building afresh what lost source files since its last build: app (extra.c)" in notes(events)
     assert not cache.exists()

@@ -268,11 +268,19 @@ def check_file_arguments(workspace: Workspace, args: Iterable[str], mounts: Iter
         inside = posixpath.normpath(posixpath.join(NODE_WORKDIR, value))
         if any(inside == t or inside.startswith(t.rstrip("/") + "/") for t in (*targets, RUNTIME_INSTALL)):
             continue
-        host = (cwd / Path(value).expanduser()).resolve()
+        host = Path(os.path.abspath(cwd / Path(value).expanduser()))
         if not host.is_file():
             continue  # a file of the image, or none: rcl says which
-        install = workspace.ws_dir.resolve() / "install"
-        if host.is_relative_to(install):
+        # A --symlink-install's file leads into the sources: by the path given first.
+        install = next(
+            (
+                i
+                for i in (workspace.ws_dir / "install", workspace.ws_dir.resolve() / "install")
+                if host.is_relative_to(i)
+            ),
+            None,
+        )
+        if install is not None:
             there = posixpath.join(RUNTIME_INSTALL, host.relative_to(install).as_posix())
             fix = f"The runtime image holds install/ at {RUNTIME_INSTALL}: pass `--params-file {there}`."
         else:

@@ -373,6 +373,10 @@ def test_run_refuses_a_params_file_of_this_machine_the_node_cannot_see(tmp_path)
     said = " ".join(result.stderr.split())
     assert "the node runs in a container, which has no" in said, said
     assert "--params-file /opt/espdock/ws/install/talker/share/talker/config/params.yaml" in said, said
+    (installed.parent / "linked.yaml").symlink_to(tmp_path / "mine.yaml")  # as --symlink-install leaves it
+    linked = espdock(*run, "install/talker/share/talker/config/linked.yaml", cwd=tmp_path, env=NO_ENGINE)
+    said = " ".join(linked.stderr.split())
+    assert "--params-file /opt/espdock/ws/install/talker/share/talker/config/linked.yaml" in said, said
     mine = espdock(*run, str(tmp_path / "mine.yaml"), cwd=tmp_path / "src", env=NO_ENGINE)
     assert mine.returncode == 2 and "-v " in mine.stderr and "/params/mine.yaml" in mine.stderr, mine.stderr
     # Mounted, in the image, or no file here: past the check (to the package, which is not there).

@@ -8,6 +8,7 @@ times), so a deleted or edited install tree is noticed too. Any difference, or n
 
 from __future__ import annotations
 
+import errno
 import hashlib
 import json
 import os
@@ -60,10 +61,11 @@ def tree_state(*roots: Path) -> TreeState:
             try:
                 data = path.read_bytes()
                 newest = max(newest, path.stat().st_mtime_ns)
-            except FileNotFoundError:
-                if not path.is_symlink():
+            except OSError as exc:
+                # A link that leads nowhere, or around in a loop (ELOOP): its target's name.
+                if not path.is_symlink() or exc.errno not in (errno.ENOENT, errno.ELOOP):
                     raise
-                data = b"dangling link\0" + os.fsencode(os.readlink(path))  # leads nowhere: its target's name
+                data = b"dangling link\0" + os.fsencode(os.readlink(path))
             digest.update(content := hashlib.sha256(data).digest())
             if rel in SETUP_FILES:
                 declares.update(rel.encode() + b"\0" + content)

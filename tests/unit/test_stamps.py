@@ -92,6 +92,11 @@ def test_files_under_a_package_s_link_to_a_directory_are_its_sources(tmp_path):
     (package / "dangling").symlink_to("/nonexistent/y")
     assert tree_digest(package) != dangling
     (package / "dangling").unlink()
+    (package / "ping").symlink_to("pong")  # two links that lead to each other (ELOOP): the same
+    (package / "pong").symlink_to("ping")
+    assert tree_digest(package) not in (before, dangling)
+    (package / "ping").unlink()
+    (package / "pong").unlink()
     # The workspace volume's sync sends links as links: it does not follow them.
     assert {p.name for p in source_files(package)} == {"package.xml"}
 

@@ -43,6 +43,8 @@ class TreeState(NamedTuple):
 
 # The files of a package (relative to it) that declare what setuptools installs.
 SETUP_FILES = ("setup.py", "setup.cfg")
+# A record's setup.py digest after a build that failed with another: matches no tree_state.
+CHANGED_SINCE = "changed by a build that did not finish"
 
 
 def tree_state(*roots: Path) -> TreeState:
@@ -274,19 +276,30 @@ class StampFile:
             entry["format"] = self.format  # type: ignore[assignment]
         return entry
 
-    def forget(self, names: Iterable[str], sources: Mapping[str, str] | None = None) -> None:
+    def forget(
+        self,
+        names: Iterable[str],
+        sources: Mapping[str, str] | None = None,
+        trees: Mapping[str, TreeState] | None = None,
+    ) -> None:
         """Drop NAMES' records (their build failed or was interrupted: build them next time). With
         SOURCES, what is about to build from there keeps only that directory: a build dir colcon
-        configures there is one of that directory, however the build ends."""
+        configures there is one of that directory, however the build ends. With TREES (their
+        tree_state now), each keeps the files of both its last build and this one, and a setup.py
+        digest that matches neither where this one's differs: a build that fails after a branch
+        switch has installed some of the new files beside the old ones, and the next build must
+        still see what went, whichever branch it is on."""
         before = self.read()
         data = dict(before)
         for name in names:
             if sources and name in sources:
-                # What it was last built from stays (its files, its setup.py's digest): a build that
-                # fails after a branch switch has installed new files beside the old ones, and the
-                # next must still see what went.
-                entry = before.get(name)
-                kept = {k: entry[k] for k in ("paths", "declares") if k in entry} if isinstance(entry, dict) else {}
+                entry = before.get(name) if isinstance(before.get(name), dict) else {}
+                kept = {k: entry[k] for k in ("paths", "declares") if k in entry}
+                if trees and name in trees:
+                    now = trees[name]
+                    kept["paths"] = sorted({*kept.get("paths", ()), *now.paths})
+                    if kept.get("declares", now.declares) != now.declares:
+                        kept["declares"] = CHANGED_SINCE
                 data[name] = {**self._entry(name, sources), **kept}
             else:
                 data.pop(name, None)

@@ -144,11 +144,17 @@ class RosSteps:
                 reasons.append((tuple(tree for name in put_back for tree in (base / name, install / name)), why))
             lost = stamp_file.removed({n: trees[n] for n in rebuild if n not in {*moved, *put_back}})
             if lost:
-                why = "building afresh what lost source files since its last build: " + "; ".join(
+                why = "installing afresh what lost source files since its last build: " + "; ".join(
                     f"{name} ({', '.join(gone[:3])}{', ...' if len(gone) > 3 else ''})" for name, gone in lost.items()
                 )
-                why += ", which colcon would leave installed"
-                reasons.append((tuple(tree for name in lost for tree in (base / name, install / name)), why))
+                why += ", whose installed files colcon would leave in install/"
+                # CMake installs every file of its rules again into an empty prefix, and its build
+                # stays incremental; the build dirs of setuptools and ament_cmake_python keep the
+                # removed modules, and rosidl's generated code of a removed interface failed the build.
+                afresh = [n for n, gone in lost.items() if n in step.python or any(map(_lost_from_build_dir, gone))]
+                why += f"; building {', '.join(afresh)} afresh as well" if afresh else ""
+                trees_of = [install / name for name in lost] + [base / name for name in afresh]
+                reasons.append((tuple(trees_of), why))
             python = [n for n in rebuild if n in step.python and n not in {*moved, *put_back, *lost}]
             if redeclared := stamp_file.redeclared({n: trees[n] for n in python}):
                 why = (
@@ -201,7 +207,7 @@ class RosSteps:
             rebuild = step.packages
         # Until this build succeeds, none of them counts as built.
         recorded = stamp_file.read()
-        stamp_file.forget(rebuild, dict(step.sources))
+        stamp_file.forget(rebuild, dict(step.sources), trees)
         mounted_build = posixpath.join(step.workdir, "build")
         if retired := retire_container_caches(workspace.ws_dir / "build", stamps, mounted_build):
             why = f"espdock's CMake caches from before {ROS_BUILD_BASE}, which a native colcon build refuses"
@@ -476,6 +482,12 @@ def colcon_rebuild(
         return stamp_file, stamps, tuple(stamps), trees
     installed = {name: listing_digest(workspace.ws_dir / "install" / name) for name in stamps}
     return stamp_file, stamps, stamp_file.stale(stamps, installed, dict(step.sources)), trees
+
+
+def _lost_from_build_dir(path: str) -> bool:
+    """Whether a lost source file at PATH leaves its package's build dir wrong: an interface file
+    (rosidl's generated code of it) or a Python module (the copy a build dir keeps)."""
+    return path.endswith((".msg", ".srv", ".action", ".idl", ".py"))
 
 
 def edited_since_built(workspace: Workspace, package: Package) -> bool:

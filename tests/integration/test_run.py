@@ -287,9 +287,9 @@ def test_a_module_removed_beside_an_edit_is_no_longer_installed(node_workspace):
         source.write_bytes(original + b"# the other branch\n")
     switched = espdock("build", "--only", "ros", cwd=node_workspace)
     assert switched.returncode == 0, switched.stdout[-2000:] + switched.stderr
-    assert "building afresh what lost source files since its last build: beacon_nodes (beacon_nodes/extra.py)" in (
-        " ".join(switched.stdout.split())
-    )
+    said = " ".join(switched.stdout.split())
+    assert "installing afresh what lost source files since its last build: beacon_nodes (beacon_nodes/extra.py)" in said
+    assert "building beacon_nodes afresh as well" in said
     assert not (site / "extra.py").exists() and (site / "beacon.py").read_bytes().endswith(b"# the other branch\n")
     source.write_bytes(original)
     assert espdock("build", "--only", "ros", cwd=node_workspace).returncode == 0

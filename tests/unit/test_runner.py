@@ -540,9 +540,34 @@ def test_a_source_removed_beside_an_edit_builds_afresh_and_an_editor_leftover_do
     cache.parent.mkdir(parents=True, exist_ok=True)
     cache.write_text("CMAKE_HOME_DIRECTORY:INTERNAL=/workspace/ws/src/app\n")
     engine.run_script = colcon_installs(ws)
+    stale = ws.ws_dir / "install/app/lib/libextra.so"  # what extra.c built and installed
+    stale.parent.mkdir(parents=True, exist_ok=True)
+    stale.write_text("old")
     runner(engine, events := []).run(Plan(ws, (COLCON,)))
-    assert "building afresh what lost source files since its last build: app (extra.c)" in notes(events)
-    assert not cache.exists()
+    said = notes(events)
+    assert "installing afresh what lost source files since its last build: app (extra.c)" in said
+    assert "building app afresh" not in said, "CMake installs every file again; its build stays incremental"
+    assert cache.exists() and not stale.exists()
+    # A lost interface: rosidl's generated code of it in the build dir failed the next build.
+    (ws.ws_dir / "src/msgs/Old.msg").write_text("int32 x\n")
+    runner(engine, []).run(Plan(ws, (COLCON,)))
+    (ws.ws_dir / "src/msgs/Old.msg").unlink()
+    (ws.ws_dir / "src/msgs/New.msg").write_text("int32 y\n")
+    generated = ws.ws_dir / "build/espdock-ros/msgs/rosidl_generator_c/old.h"
+    generated.parent.mkdir(parents=True)
+    generated.write_text("/* generated */\n")
+    runner(engine, events := []).run(Plan(ws, (COLCON,)))
+    assert "msgs (Old.msg)" in notes(events) and "building msgs afresh as well" in notes(events)
+    assert not generated.exists()
+    # A branch's new file in a build that failed, then back: what that build installed of it goes.
+    (app / "branch.c").write_text("int branch(void) { return 1; }\n")
+    engine.run_script = colcon_installs(ws, code=1, rcs={"msgs": 0, "app": 1})
+    with pytest.raises(BuildFailed):
+        runner(engine, []).run(Plan(ws, (COLCON,)))
+    (app / "branch.c").unlink()
+    engine.run_script = colcon_installs(ws)
+    runner(engine, events := []).run(Plan(ws, (COLCON,)))
+    assert "app (branch.c" in notes(events), notes(events)
 
 
 def test_a_symlink_switch_says_which_removed_install_the_options_leave_out(ws):

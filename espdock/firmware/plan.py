@@ -107,13 +107,15 @@ UROS_COMPONENT_MARK = "libmicroros.mk"
 
 def check_no_vendored_micro_ros(packages: Iterable[Package], root: Path) -> None:
     """Refuse a copy of micro_ros_espidf_component in a firmware project's components/ (upstream's
-    README clones it there), or taken for a ROS package (its package.xml, in a project colcon
-    then searched): the copy replaced the library the IDF image keeps (a component of the same
-    name), and would build micro-ROS inside the firmware build, or colcon failed on it."""
+    README clones it there) or the shared one beside it, or taken for a ROS package (its
+    package.xml, in a project colcon then searched): the copy replaced the library the IDF image
+    keeps (a component of the same name), and would build micro-ROS inside the firmware build, or
+    colcon failed on it."""
     for package in packages:
         if package.kind is PackageKind.FIRMWARE:
-            components = package.path / "components"
-            copies = sorted(d for d in components.glob("*") if (d / UROS_COMPONENT_MARK).is_file())
+            # Its own components/, and the one beside it that `espdock new` makes the projects share.
+            places = (package.path / "components", package.path.parent / "components")
+            copies = sorted(d for place in places for d in place.glob("*") if (d / UROS_COMPONENT_MARK).is_file())
         else:
             copies = [package.path] if (package.path / UROS_COMPONENT_MARK).is_file() else []
         if copies:

@@ -409,6 +409,11 @@ def test_a_copy_of_micro_ros_espidf_component_in_a_project_is_refused_naming_it(
         said = " ".join(result.stderr.split())
         assert result.returncode == 2, result.stdout + result.stderr
         assert "src/counter/components/micro_ros_espidf_component is a copy of micro_ros_espidf_component" in said
+    # In the components/ the projects share (where `espdock new` puts espdock_uros), IDF takes it too.
+    shutil.copy2(REPO / "tests/firmware_packages/blink_fw/package.xml", app)
+    shutil.move(copy, tmp_path / "src/components/uros")
+    result = espdock("build", "blink_fw", "--dry-run", cwd=tmp_path, env=NO_ENGINE)
+    assert result.returncode == 2 and "src/components/uros is a copy of micro_ros_espidf_component" in result.stderr
 
 
 def test_an_idf_project_whose_package_xml_says_cmake_is_refused_with_the_build_type_to_set(tmp_path):

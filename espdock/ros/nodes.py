@@ -260,7 +260,8 @@ NODE_WORKDIR = "/tmp"
 def check_file_arguments(workspace: Workspace, args: Iterable[str], mounts: Iterable[Mount], cwd: Path) -> None:
     """Refuse a `--params-file FILE` in a node's ARGS that names a file of this machine the node
     cannot see (no --volume among MOUNTS holds it): rcl's "Couldn't parse params file" said
-    nothing of why. A file of the workspace's install/ is in the runtime image: its path there."""
+    nothing of why. Only files of the workspace, here or of the home directory: another path may
+    be the image's too. A file of the workspace's install/ is in the runtime image: its path there."""
     targets = [m.target for m in mounts]
     for option, value in itertools.pairwise(args):
         if option != "--params-file":
@@ -269,9 +270,12 @@ def check_file_arguments(workspace: Workspace, args: Iterable[str], mounts: Iter
         if any(inside == t or inside.startswith(t.rstrip("/") + "/") for t in (*targets, RUNTIME_INSTALL)):
             continue
         host = Path(os.path.abspath(cwd / Path(value).expanduser()))
-        if not host.is_file():
+        # A --symlink-install's file may be a link that leads nowhere here (to /workspace/...).
+        if not os.path.lexists(host):
             continue  # a file of the image, or none: rcl says which
-        # A --symlink-install's file leads into the sources: by the path given first.
+        mine = (workspace.root, workspace.root.resolve(), cwd, *(Path(h) for h in [os.environ.get("HOME")] if h))
+        if not any(host.is_relative_to(place) for place in mine):
+            continue  # /opt/ros/... of a ROS on this machine is the official image's as well
         install = next(
             (
                 i

@@ -373,15 +373,20 @@ def test_run_refuses_a_params_file_of_this_machine_the_node_cannot_see(tmp_path)
     said = " ".join(result.stderr.split())
     assert "the node runs in a container, which has no" in said, said
     assert "--params-file /opt/espdock/ws/install/talker/share/talker/config/params.yaml" in said, said
-    (installed.parent / "linked.yaml").symlink_to(tmp_path / "mine.yaml")  # as --symlink-install leaves it
-    linked = espdock(*run, "install/talker/share/talker/config/linked.yaml", cwd=tmp_path, env=NO_ENGINE)
-    said = " ".join(linked.stderr.split())
-    assert "--params-file /opt/espdock/ws/install/talker/share/talker/config/linked.yaml" in said, said
+    (installed.parent / "linked.yaml").symlink_to(tmp_path / "mine.yaml")  # as a native --symlink-install leaves it
+    # espdock's --symlink-install links to the build containers' path: nowhere, here.
+    (installed.parent / "dangling.yaml").symlink_to("/workspace/src/talker/config/params.yaml")
+    for name in ("linked.yaml", "dangling.yaml"):
+        linked = espdock(*run, f"install/talker/share/talker/config/{name}", cwd=tmp_path, env=NO_ENGINE)
+        said = " ".join(linked.stderr.split())
+        assert f"--params-file /opt/espdock/ws/install/talker/share/talker/config/{name}" in said, said
     mine = espdock(*run, str(tmp_path / "mine.yaml"), cwd=tmp_path / "src", env=NO_ENGINE)
     assert mine.returncode == 2 and "-v " in mine.stderr and "/params/mine.yaml" in mine.stderr, mine.stderr
     # Mounted, in the image, or no file here: past the check (to the package, which is not there).
     mounted = ("run", "-v", "mine.yaml:/p/mine.yaml", *run[1:], "/p/mine.yaml")
-    for given in (mounted, (*run, "/opt/ros/jazzy/x.yaml")):
+    # A file of this machine outside the workspace and home may be the image's too (/opt/ros/... of a
+    # ROS installed here, on the official image): rcl says whether it is.
+    for given in (mounted, (*run, "/opt/ros/jazzy/x.yaml"), (*run, "/etc/hostname")):
         passed = espdock(*given, cwd=tmp_path, env=NO_ENGINE)
         assert "no ROS package 'talker'" in passed.stderr and "which has no" not in passed.stderr, passed.stderr
 

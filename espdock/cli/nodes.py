@@ -181,10 +181,10 @@ def run(
     nodes.check_file_arguments(ws, args or (), mounts, Path.cwd())
     packages = workspace_packages(ws, config.ros_distro)
     path = nodes.find_executable(ws, packages, package, executable)
-    if any(p.name == package and edited_since_built(ws, p) for p in packages):
+    if runs := next((edited_since_built(ws, p) for p in packages if p.name == package), None):
         notify(
-            f"warning: {package}'s sources changed since its last build: this runs what that build "
-            f"installed (`espdock build {package}` first to run them)"
+            f"warning: {package}'s sources changed since its last build: this runs {runs} "
+            f"(`espdock build {package}` first to run them)"
         )
     # Only what runs must be served: another package's missing key does not stop this node.
     runner, image = runtime_image(ws, config, build_plan(ws, config, [], PackageKind.ROS, checked=(package,)))

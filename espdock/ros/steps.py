@@ -31,12 +31,13 @@ from espdock.ros.colcon import (
     closure,
     explain_failure,
     install_kind_switched,
+    last_build_args,
     left_out,
     named,
     record_build_args,
     usage_error,
 )
-from espdock.ros.plan import ColconBuild, RuntimeImage, runtime_image_spec
+from espdock.ros.plan import PYTHON_BUILD_TYPES, ColconBuild, RuntimeImage, runtime_image_spec
 from espdock.ros.runtime_tree import runtime_files
 from espdock.ros.testing import ColconTest, PackageResults, SourcedEnv, clear_results, read_results
 from espdock.ros.trees import (
@@ -490,12 +491,19 @@ def _lost_from_build_dir(path: str) -> bool:
     return path.endswith((".msg", ".srv", ".action", ".idl", ".py"))
 
 
-def edited_since_built(workspace: Workspace, package: Package) -> bool:
-    """Whether PACKAGE's sources differ from those its last build recorded (a branch checked out, an
-    edit): `espdock run` runs what that build installed."""
+def edited_since_built(workspace: Workspace, package: Package) -> str | None:
+    """What `espdock run` runs of PACKAGE where its sources differ from those its last build
+    recorded (a branch checked out, an edit), None where they do not or a symlink install runs
+    them as they are (an ament_python package's modules)."""
     entry = StampFile(workspace.ws_dir / "build" / ROS_STAMPS, ROS_STAMP_FORMAT).read().get(package.name)
     tree = entry.get("tree") if isinstance(entry, dict) else None
-    return isinstance(tree, str) and tree != tree_state(package.path).digest
+    if not isinstance(tree, str) or tree == (now := tree_state(package.path)).digest:
+        return None
+    if "--symlink-install" not in last_build_args(workspace.ws_dir / ROS_BUILD_BASE):
+        return "what that build installed"
+    if package.build_type in PYTHON_BUILD_TYPES and now.declares == entry.get("declares"):
+        return None
+    return "what that build compiled or generated, beside the sources its --symlink-install links to"
 
 
 def host_added(install: Path) -> set[str]:

@@ -396,3 +396,31 @@ def test_env_gives_the_node_a_variable_or_passes_one_and_refuses_the_images_own(
         workspace, "img", "/n", (), (1, 1), {"ROS_DOMAIN_ID": "7"}, "host", False, variables=(("ROS_DOMAIN_ID", "9"),)
     )
     assert [value for name, value in spec.env if name == "ROS_DOMAIN_ID"] == ["9"]
+
+
+def test_run_tells_what_it_runs_of_a_package_edited_since_its_build(tmp_path):
+    """After `git checkout`, run ran the last build's install without a word; under a symlink
+    install an ament_python package's edited modules are what runs, and a warning would be false."""
+    from espdock.build.stamps import tree_state
+    from espdock.ros.colcon import record_build_args
+    from espdock.ros.steps import ROS_STAMP_FORMAT, edited_since_built
+
+    workspace = Workspace(tmp_path, ("src",), ".")
+    py = Package("talk", tmp_path / "src/talk", PackageKind.ROS, "ament_python", frozenset())
+    cpp = Package("drive", tmp_path / "src/drive", PackageKind.ROS, "ament_cmake", frozenset())
+    for package in (py, cpp):
+        package.path.mkdir(parents=True)
+        (package.path / "node.py").write_text("print(1)\n")
+    (py.path / "setup.py").write_text("setup()\n")
+    stamps = StampFile(tmp_path / "build" / ROS_STAMPS, ROS_STAMP_FORMAT)
+    stamps.record({"talk": "s1", "drive": "s2"}, {}, None, {p.name: tree_state(p.path) for p in (py, cpp)})
+    assert edited_since_built(workspace, py) is None and edited_since_built(workspace, cpp) is None
+    for package in (py, cpp):
+        (package.path / "node.py").write_text("print(2)\n")
+    assert edited_since_built(workspace, py) == "what that build installed"
+    (tmp_path / "build/espdock-ros").mkdir(parents=True)
+    record_build_args(tmp_path / "build/espdock-ros", ("--symlink-install",))
+    assert edited_since_built(workspace, py) is None, "the symlinked modules are the sources as they are"
+    assert "compiled or generated" in (edited_since_built(workspace, cpp) or "")
+    (py.path / "setup.py").write_text("setup(name='talk')\n")
+    assert edited_since_built(workspace, py) is not None, "an entry point changed is not linked"

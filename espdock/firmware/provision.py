@@ -240,9 +240,8 @@ def check_reads_settings(firmware_dir: Path, package: str) -> None:
         return
     if isinstance(used, list) and SETTINGS_COMPONENT not in used:
         raise ConfigError(
-            f"{package} does not read the settings provisioning writes: its build used no "
-            f"{SETTINGS_COMPONENT} component (it used {', '.join(map(str, used)) or 'none'}), and writing them "
-            "would erase its NVS partition",
+            f"{package} does not read the settings provisioning writes: none of the {len(used)} components its "
+            f"build used is {SETTINGS_COMPONENT}, and writing them would erase its NVS partition",
             f"Flash it without --wifi-ssid/--agent; to provision it, build it on {SETTINGS_COMPONENT} "
             "(`espdock new` makes such a package). Nothing was written.",
         )

@@ -216,6 +216,30 @@ class StampFile:
                     lost[name] = gone
         return lost
 
+    def gained(self, trees: Mapping[str, TreeState]) -> tuple[str, ...]:
+        """The packages of TREES that have source files their last build did not (a branch switched
+        back): a CMake build that lists its sources with file(GLOB) keeps the list it was configured with."""
+        recorded = self.read()
+        return tuple(
+            name
+            for name, now in trees.items()
+            if isinstance(entry := recorded.get(name), dict)
+            and isinstance(before := entry.get("paths"), list)
+            and set(now.paths) - set(before)
+        )
+
+    def unlisted(self, trees: Mapping[str, TreeState]) -> tuple[str, ...]:
+        """The packages of TREES whose sources changed since a build an older espdock recorded, which
+        kept no list of their files: whether one was lost is not known."""
+        recorded = self.read()
+        return tuple(
+            name
+            for name, now in trees.items()
+            if isinstance(entry := recorded.get(name), dict)
+            and entry.get("tree") not in (None, now.digest)
+            and "paths" not in entry
+        )
+
     def redeclared(self, trees: Mapping[str, TreeState]) -> tuple[str, ...]:
         """The packages of TREES whose SETUP_FILES changed since their last build: an entry point or
         a data file taken out of setup.py stayed installed (`espdock run` listed the script, and it

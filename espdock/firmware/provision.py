@@ -240,8 +240,8 @@ def check_reads_settings(firmware_dir: Path, package: str) -> None:
         return
     if isinstance(used, list) and SETTINGS_COMPONENT not in used:
         raise ConfigError(
-            f"{package} does not read the settings provisioning writes: none of the {len(used)} components its "
-            f"build used is {SETTINGS_COMPONENT}, and writing them would erase its NVS partition",
+            f"{package} does not read the settings provisioning writes: its build used no {SETTINGS_COMPONENT} "
+            f"component (of {len(used)}), and writing them would erase its NVS partition",
             f"Flash it without --wifi-ssid/--agent; to provision it, build it on {SETTINGS_COMPONENT} "
             "(`espdock new` makes such a package). Nothing was written.",
         )

@@ -152,10 +152,22 @@ class RosSteps:
                 # CMake installs every file of its rules again into an empty prefix, and its build
                 # stays incremental; the build dirs of setuptools and ament_cmake_python keep the
                 # removed modules, and rosidl's generated code of a removed interface failed the build.
-                afresh = [n for n, gone in lost.items() if n in step.python or any(map(_lost_from_build_dir, gone))]
+                afresh = [
+                    name
+                    for name, gone in lost.items()
+                    if name in step.python or any(_lost_from_build_dir(path, base / name) for path in gone)
+                ]
                 why += f"; building {', '.join(afresh)} afresh as well" if afresh else ""
                 trees_of = [install / name for name in lost] + [base / name for name in afresh]
                 reasons.append((tuple(trees_of), why))
+            else:
+                afresh = []
+            # A CMake package whose files changed configures again, its compile incremental: a file(GLOB)
+            # kept the list it was configured with (a removed source failed every build, one back was left out).
+            listed = {*lost, *stamp_file.gained({n: trees[n] for n in rebuild if n not in {*moved, *put_back}})}
+            if cmake := sorted(n for n in listed if n not in step.python and n not in afresh and (base / n).is_dir()):
+                why = f"configuring {', '.join(cmake)} again: its source files are others than at its last build"
+                reasons.append((tuple(base / name / "CMakeCache.txt" for name in cmake), why))
             python = [n for n in rebuild if n in step.python and n not in {*moved, *put_back, *lost}]
             if redeclared := stamp_file.redeclared({n: trees[n] for n in python}):
                 why = (
@@ -164,7 +176,9 @@ class RosSteps:
                 )
                 reasons.append((tuple(tree for name in redeclared for tree in (base / name, install / name)), why))
             done = {*moved, *put_back, *lost, *redeclared}
-            if older := [name for name in stamp_file.foreign(rebuild) if name not in done]:
+            # An older espdock's records keep no list of files: whether one went is not known.
+            unlisted = stamp_file.unlisted({n: trees[n] for n in rebuild if n not in done})
+            if older := [name for name in (*stamp_file.foreign(rebuild), *unlisted) if name not in done]:
                 why = (
                     f"building afresh what an older espdock built: {', '.join(older)} (its records do not say "
                     "where each package was built from, nor on what)"
@@ -172,10 +186,10 @@ class RosSteps:
                 reasons.append((tuple(tree for name in older for tree in (base / name, install / name)), why))
         for trees, why in reasons:
             for tree in trees:
-                if tree.is_symlink():
-                    tree.unlink()
-                else:
+                if tree.is_dir() and not tree.is_symlink():
                     shutil.rmtree(tree, ignore_errors=True)
+                else:
+                    tree.unlink(missing_ok=True)
             self.containers.emit(StepNote(step.name, why))
         return tuple(tree for trees, _ in reasons for tree in trees)
 
@@ -485,10 +499,13 @@ def colcon_rebuild(
     return stamp_file, stamps, stamp_file.stale(stamps, installed, dict(step.sources)), trees
 
 
-def _lost_from_build_dir(path: str) -> bool:
-    """Whether a lost source file at PATH leaves its package's build dir wrong: an interface file
-    (rosidl's generated code of it) or a Python module (the copy a build dir keeps)."""
-    return path.endswith((".msg", ".srv", ".action", ".idl", ".py"))
+def _lost_from_build_dir(path: str, build_dir: Path) -> bool:
+    """Whether a lost source file at PATH leaves its package's BUILD_DIR wrong: an interface file
+    (rosidl's generated code of it), or a Python module where ament_cmake_python copies the
+    package's modules there (a launch file or script of a CMake package is not)."""
+    return path.endswith((".msg", ".srv", ".action", ".idl")) or (
+        path.endswith(".py") and (build_dir / "ament_cmake_python").is_dir()
+    )
 
 
 def edited_since_built(workspace: Workspace, package: Package) -> str | None:
@@ -501,8 +518,10 @@ def edited_since_built(workspace: Workspace, package: Package) -> str | None:
         return None
     if "--symlink-install" not in last_build_args(workspace.ws_dir / ROS_BUILD_BASE):
         return "what that build installed"
-    if package.build_type in PYTHON_BUILD_TYPES and now.declares == entry.get("declares"):
-        return None
+    if package.build_type in PYTHON_BUILD_TYPES:
+        if now.declares == entry.get("declares"):
+            return None
+        return "the entry points and data files of its setup.py as that build installed them"
     return "what that build compiled or generated, beside the sources its --symlink-install links to"
 
 

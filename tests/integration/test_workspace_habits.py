@@ -97,6 +97,40 @@ def test_symlink_install_builds_runs_and_shows_a_source_edit_without_a_rebuild(e
     beacon_says(root, "beacon up, edited")
 
 
+def test_a_cmake_package_that_globs_its_files_follows_a_branch_switch_both_ways(engine, tmp_path):
+    """A script removed beside an edit (a branch switch) in a package that installs `file(GLOB)`'s
+    list: CMake kept the list it was configured with, and every build failed on the removed file
+    until --force; switched back, the file came back but was not installed."""
+    root = copy_workspace(tmp_path / "globs", packages=(), test_packages=("uptime_tools",), runtime_image=False)
+    package = root / "ws/src/uptime_tools"
+    cmake = package / "CMakeLists.txt"
+    cmake.write_text(
+        cmake.read_text().replace(
+            "install(PROGRAMS scripts/tools_banner DESTINATION lib/${PROJECT_NAME})",
+            'file(GLOB SCRIPTS "${CMAKE_CURRENT_SOURCE_DIR}/scripts/*")\n'
+            "install(PROGRAMS ${SCRIPTS} DESTINATION lib/${PROJECT_NAME})",
+        )
+    )
+    lib = root / "ws/install/uptime_tools/lib/uptime_tools"
+    extra = package / "scripts/extra_banner"
+    extra.write_text("#!/bin/sh\necho extra\n")
+    extra.chmod(0o755)
+    built(root)
+    assert (lib / "extra_banner").is_file()
+    kept = extra.read_bytes()
+    extra.unlink()
+    (package / "src/uptime_report.c").write_text((package / "src/uptime_report.c").read_text() + "\n/* branch */\n")
+    switched = espdock("build", "--only", "ros", cwd=root)
+    assert switched.returncode == 0, switched.stdout[-3000:] + switched.stderr[-3000:]
+    said = " ".join(switched.stdout.split())
+    assert "configuring uptime_tools again" in said, said[-3000:]
+    assert not (lib / "extra_banner").exists() and (lib / "tools_banner").is_file()
+    extra.write_bytes(kept)
+    extra.chmod(0o755)
+    built(root)
+    assert (lib / "extra_banner").is_file(), "a file back in the glob's directory is installed again"
+
+
 def test_symlink_install_on_the_official_flavour_runs_from_a_runtime_image_without_build(engine, tmp_path):
     """The official image (through its double: apt's setuptools, which still has develop --editable)."""
     tag = build_double(engine, resolve_ca_bundle(Config(), os.environ), lambda line: None)

@@ -521,6 +521,7 @@ def test_a_source_removed_beside_an_edit_builds_afresh_and_an_editor_leftover_do
     engine = FakeEngine(run_script=colcon_installs(ws))
     app = ws.ws_dir / "src/app"
     (app / "extra.c").write_text("int extra(void) { return 1; }\n")
+    (app / "main.c").write_text("int main(void) { return 7; }\n")
     (app / "main.c~").write_text("int main(void) { return 0; }\n")
     runner(engine, []).run(Plan(ws, (COLCON,)))
     cache = ws.ws_dir / "build/espdock-ros/app/CMakeCache.txt"
@@ -547,7 +548,10 @@ def test_a_source_removed_beside_an_edit_builds_afresh_and_an_editor_leftover_do
     said = notes(events)
     assert "installing afresh what lost source files since its last build: app (extra.c)" in said
     assert "building app afresh" not in said, "CMake installs every file again; its build stays incremental"
-    assert cache.exists() and not stale.exists()
+    assert not stale.exists() and cache.parent.is_dir()
+    # It configures again (a file(GLOB) of its sources kept the lost one), its compile incremental.
+    assert "configuring app again" in said and not cache.exists()
+    cache.write_text("CMAKE_HOME_DIRECTORY:INTERNAL=/workspace/ws/src/app\n")
     # A lost interface: rosidl's generated code of it in the build dir failed the next build.
     (ws.ws_dir / "src/msgs/Old.msg").write_text("int32 x\n")
     runner(engine, []).run(Plan(ws, (COLCON,)))
@@ -568,6 +572,15 @@ def test_a_source_removed_beside_an_edit_builds_afresh_and_an_editor_leftover_do
     engine.run_script = colcon_installs(ws)
     runner(engine, events := []).run(Plan(ws, (COLCON,)))
     assert "app (branch.c" in notes(events), notes(events)
+    # A launch file of a CMake package is no module of its build dir: the compile stays incremental.
+    (app / "launch").mkdir()
+    (app / "launch/robot.launch.py").write_text("def generate_launch_description(): ...\n")
+    runner(engine, []).run(Plan(ws, (COLCON,)))
+    (app / "launch/robot.launch.py").rename(app / "launch/bringup.launch.py")
+    later = time.time_ns() + 2 * 10**9
+    os.utime(app / "launch/bringup.launch.py", ns=(later, later))  # as git's checkout writes it
+    runner(engine, events := []).run(Plan(ws, (COLCON,)))
+    assert "app (launch/robot.launch.py)" in notes(events) and "building app afresh" not in notes(events)
 
 
 def test_a_symlink_switch_says_which_removed_install_the_options_leave_out(ws):
@@ -872,3 +885,25 @@ def test_a_build_that_rebuilds_only_python_packages_says_nothing_of_cmake_s_test
     runner(engine, events).run(Plan(ws, (step,)))
     assert events[-1].detail == "1 package(s) built, 1 up to date"
     assert "BUILD_TESTING" not in notes(events)
+
+
+def test_a_record_an_espdock_before_file_lists_wrote_builds_its_changed_package_afresh(ws):
+    """After an upgrade, the first branch switch left a removed module and script installed for
+    good: the older espdock's records, of the same format, kept no list of files to compare."""
+    import json
+
+    from espdock.ros.steps import ROS_STAMPS
+
+    engine = FakeEngine(run_script=colcon_installs(ws))
+    app = ws.ws_dir / "src/app"
+    (app / "main.c").write_text("int main(void) { return 1; }\n")
+    runner(engine, []).run(Plan(ws, (COLCON,)))
+    records = ws.ws_dir / "build" / ROS_STAMPS
+    older = {name: {k: v for k, v in entry.items() if k not in ("paths", "declares")}
+             for name, entry in json.loads(records.read_text()).items()}  # fmt: skip
+    records.write_text(json.dumps(older))
+    runner(engine, events := []).run(Plan(ws, (COLCON,)))
+    assert "afresh" not in notes(events), "nothing changed: up to date"
+    (app / "main.c").write_text("int main(void) { return 2; }\n")
+    runner(engine, events := []).run(Plan(ws, (COLCON,)))
+    assert "building afresh what an older espdock built: app" in notes(events)

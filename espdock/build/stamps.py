@@ -12,7 +12,7 @@ import errno
 import hashlib
 import json
 import os
-from collections.abc import Collection, Iterable, Mapping
+from collections.abc import Callable, Collection, Iterable, Mapping
 from pathlib import Path
 from typing import NamedTuple
 
@@ -191,14 +191,13 @@ class StampFile:
         build with no file newer than the newest then: put back from a backup or an archive
         (`cp -p`, `git archive | tar -x`), or a file renamed or removed. make and setuptools,
         which decide by time, would keep what the build made of the sources before."""
-        recorded = self.read()
-        return tuple(
-            name
-            for name, now in trees.items()
-            if isinstance(entry := recorded.get(name), dict)
-            and isinstance(entry.get("newest"), int)
-            and entry.get("tree") not in (None, now.digest)
-            and now.newest <= entry["newest"]
+        return self._where(
+            trees,
+            lambda entry, now: (
+                isinstance(entry.get("newest"), int)
+                and entry.get("tree") not in (None, now.digest)
+                and now.newest <= entry["newest"]
+            ),
         )
 
     def removed(self, trees: Mapping[str, TreeState]) -> dict[str, tuple[str, ...]]:
@@ -219,39 +218,29 @@ class StampFile:
     def gained(self, trees: Mapping[str, TreeState]) -> tuple[str, ...]:
         """The packages of TREES that have source files their last build did not (a branch switched
         back): a CMake build that lists its sources with file(GLOB) keeps the list it was configured with."""
-        recorded = self.read()
-        return tuple(
-            name
-            for name, now in trees.items()
-            if isinstance(entry := recorded.get(name), dict)
-            and isinstance(before := entry.get("paths"), list)
-            and set(now.paths) - set(before)
+        return self._where(
+            trees,
+            lambda entry, now: isinstance(before := entry.get("paths"), list) and bool(set(now.paths) - set(before)),
         )
 
     def unlisted(self, trees: Mapping[str, TreeState]) -> tuple[str, ...]:
         """The packages of TREES whose sources changed since a build an older espdock recorded, which
         kept no list of their files: whether one was lost is not known."""
-        recorded = self.read()
-        return tuple(
-            name
-            for name, now in trees.items()
-            if isinstance(entry := recorded.get(name), dict)
-            and entry.get("tree") not in (None, now.digest)
-            and "paths" not in entry
+        return self._where(
+            trees, lambda entry, now: entry.get("tree") not in (None, now.digest) and "paths" not in entry
         )
 
     def redeclared(self, trees: Mapping[str, TreeState]) -> tuple[str, ...]:
         """The packages of TREES whose SETUP_FILES changed since their last build: an entry point or
         a data file taken out of setup.py stayed installed (`espdock run` listed the script, and it
         failed), since setuptools only adds to an install."""
+        return self._where(trees, lambda entry, now: bool(before := entry.get("declares")) and before != now.declares)
+
+    def _where(self, trees: Mapping[str, TreeState], holds: Callable[[dict, TreeState], bool]) -> tuple[str, ...]:
+        """The packages of TREES whose record and tree_state now HOLDS is true of."""
         recorded = self.read()
         return tuple(
-            name
-            for name, now in trees.items()
-            if isinstance(entry := recorded.get(name), dict)
-            and isinstance(before := entry.get("declares"), str)
-            and before
-            and before != now.declares
+            name for name, now in trees.items() if isinstance(entry := recorded.get(name), dict) and holds(entry, now)
         )
 
     def foreign(self, names: Iterable[str]) -> tuple[str, ...]:

@@ -214,9 +214,16 @@ class RosSteps:
                 )
             )
         emptied = (base,) if retired is not None else ()  # in the workspace volume, its build dirs as well
+        # install/ as the last build left it: what _build_afresh empties goes from the volume's too,
+        # and is no change of the host's that would make the volume's another.
+        listed = (
+            volume_listing(workspace.ws_dir / "install")
+            if self.containers.uses_volume(workspace, step.image, user, labels)
+            else None
+        )
         emptied += self._build_afresh(workspace, step, rebuild, stamp_file, trees)
         sync = self.containers.sync(workspace, step.name, step.image, user, labels, emptied)
-        whole = sync is not None and (sync.fresh or sync.installed != volume_listing(workspace.ws_dir / "install"))
+        whole = sync is not None and (sync.fresh or sync.installed != listed)
         if whole:
             # install/ is swapped for the volume's whole: every package must be built there.
             rebuild = step.packages

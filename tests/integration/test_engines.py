@@ -402,6 +402,9 @@ def test_volume_mode_builds_where_the_engine_cannot_see_rebuilds_edits_and_never
     # Built afresh (a file removed is no newer file: make would keep its object), so the
     # package's build dir and install prefix on the volume go with it.
     assert ": 0 file(s) sent, " in gone.stdout and "building afresh what changed with no newer file" in gone.stdout
+    # Only that package: the install prefix emptied on purpose made the volume's install/ another
+    # than the host's, and colcon built every package of the workspace.
+    assert "1 package(s) built, 1 up to date" in gone.stdout, gone.stdout
     assert not list((root / "ws/install/beacon_nodes").rglob("extra.py"))
     (name,) = volumes_of(tcp_engine, root)
     listed = tcp_engine.docker("run", "--rm", "-v", f"{name}:/w", "debian:bookworm-slim", "ls", "-a",

@@ -316,6 +316,11 @@ def unmanifested(workspace: Workspace) -> dict[str, LeftOut]:
     return found
 
 
+def idf_project_cmake(text: str) -> bool:
+    """Whether TEXT, a CMakeLists.txt, is an ESP-IDF project's: it includes IDF's project.cmake."""
+    return "project.cmake" in text and "IDF_PATH" in text
+
+
 def _project(directory: Path, files: set[str], root: Path) -> tuple[str, LeftOut] | None:
     """The name and description of the package colcon would make of DIRECTORY (FILES: its
     files) with no package.xml, if any."""
@@ -335,7 +340,7 @@ def _project(directory: Path, files: set[str], root: Path) -> tuple[str, LeftOut
             text = (directory / "CMakeLists.txt").read_text()
             if re.search(r"^\s*idf_component_register\s*\(", text, re.MULTILINE | re.IGNORECASE):
                 return None
-            if "project.cmake" in text and "IDF_PATH" in text:
+            if idf_project_cmake(text):
                 return name, LeftOut(shown, "an ESP-IDF project", FIRMWARE_BUILD_TYPE)
             match = re.search(r"^\s*project\s*\(\s*([\w.+-]+)", text, re.MULTILINE | re.IGNORECASE)
             return (match.group(1) if match else name), LeftOut(shown, "a CMake project", "cmake")

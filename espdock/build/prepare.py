@@ -92,8 +92,9 @@ def build_plan(
             notify(f"warning: {line}")
     for name, project in unmanifested(ws).items():
         notify(project.not_built(name))
-    check_no_vendored_micro_ros((p for p in chosen if only in (None, p.kind)), ws.root)
-    check_idf_projects_typed((p for p in chosen if only in (None, p.kind)), ws.root)
+    of_kind = [p for p in chosen if only in (None, p.kind)]
+    check_no_vendored_micro_ros(of_kind, ws.root)
+    check_idf_projects_typed(of_kind, ws.root)
     if only in (None, PackageKind.FIRMWARE):
         for firmware in (p for p in chosen if p.kind is PackageKind.FIRMWARE):
             if (firmware.path / "extra_ros_packages").is_dir():

@@ -43,7 +43,14 @@ from espdock.ros import colcon_register, rosdeps
 from espdock.ros.compose import init_compose
 from espdock.ros.plan import base_image, runtime_repository
 from espdock.ros.trees import orphan_installs, package_trees
-from espdock.workspace import PackageKind, build_running, check_not_building, read_build_inputs, unmanifested
+from espdock.workspace import (
+    PackageKind,
+    build_running,
+    check_not_building,
+    idf_project_cmake,
+    read_build_inputs,
+    unmanifested,
+)
 
 
 @app.command(cls=PassThrough)
@@ -351,13 +358,12 @@ def init(
     for name, project in unmanifested(ws).items():  # an ESP-IDF project brought in, say: what makes it one
         notify(project.not_built(name))
     top = ws.root / "CMakeLists.txt"
-    if "espdock.toml" in created and top.is_file() and "project.cmake" in (text := top.read_text(errors="replace")):
-        if "IDF_PATH" in text:
-            notify(
-                f"note: {ws.root} is an ESP-IDF project itself, and packages are looked for in "
-                f"{', '.join(ws.package_paths)}: to build it, give it a package.xml "
-                '(<build_type>esp_idf</build_type>) and set package_paths = ["."] in espdock.toml'
-            )
+    if "espdock.toml" in created and top.is_file() and idf_project_cmake(top.read_text(errors="replace")):
+        notify(
+            f"note: {ws.root} is an ESP-IDF project itself, and packages are looked for in "
+            f"{', '.join(ws.package_paths)}: to build it, give it a package.xml "
+            '(<build_type>esp_idf</build_type>) and set package_paths = ["."] in espdock.toml'
+        )
     if firmware and (skips := colcon_register.colcon_skips_firmware(dict(os.environ))):
         console.print(f"note: {skips}")
     # `cd -x` is an option to cd: a name that starts with a dash goes as ./-x.

@@ -28,7 +28,7 @@ from espdock.layout import (
     SOURCES_NAME,
     firmware_install_dir,
 )
-from espdock.workspace import FIRMWARE_BUILD_TYPE, BuildInputs, Package, PackageKind, Workspace
+from espdock.workspace import FIRMWARE_BUILD_TYPE, BuildInputs, Package, PackageKind, Workspace, idf_project_cmake
 
 
 @dataclass(frozen=True)
@@ -140,7 +140,7 @@ def check_idf_projects_typed(packages: Iterable[Package], root: Path) -> None:
             text = (package.path / "CMakeLists.txt").read_text(errors="replace")
         except OSError:
             continue
-        if "project.cmake" in text and "IDF_PATH" in text:
+        if idf_project_cmake(text):
             raise WorkspaceError(
                 f"{package.name} ({package.path.relative_to(root)}) is an ESP-IDF project (its CMakeLists.txt "
                 f"includes IDF's project.cmake), but its package.xml says build type {package.build_type}, which "

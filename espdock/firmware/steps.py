@@ -31,7 +31,7 @@ from espdock.firmware.plan import (
 from espdock.images import volume
 from espdock.images.containers import Containers, give_to, make_dirs_for, volume_mode_refused, with_host_umask
 from espdock.images.engine import Mount, RunSpec
-from espdock.images.visibility import directory_links, host_paths, linked_mounts
+from espdock.images.visibility import host_paths, links_out
 from espdock.layout import COLCON_RESULT_FILES, firmware_build_dir, host_path, install_prefix
 from espdock.workspace import Workspace, editor_leftover, workspace_lock
 
@@ -388,8 +388,7 @@ def _linked_out(workspace: Workspace, step: IdfBuild) -> tuple[Mount, ...]:
     components beside it (a `shared -> ~/repos/components` EXTRA_COMPONENT_DIRS names), as the ROS
     side's: the stamps already follow such links, and without the mounts IDF found nothing there."""
     project = workspace.root / step.project
-    roots = [root for root in (project, project.parent / "components") if root.is_dir()]
-    return linked_mounts(workspace, [*roots, *(link for root in roots for link in directory_links(root))])
+    return links_out(workspace, (root for root in (project, project.parent / "components") if root.is_dir()))
 
 
 def _firmware_stamp(workspace: Workspace, step: IdfBuild, image_id: str) -> dict[str, str]:

@@ -62,6 +62,13 @@ def linked_mounts(workspace: Workspace, paths: Iterable[Path]) -> tuple[Mount, .
     return tuple(mounts[target] for target in sorted(mounts))
 
 
+def links_out(workspace: Workspace, roots: Iterable[Path]) -> tuple[Mount, ...]:
+    """linked_mounts of the directories ROOTS (packages, firmware projects) and of the links to
+    directories within them: what colcon, or IDF, follows there, which the workspace's mount lacks."""
+    roots = list(roots)
+    return linked_mounts(workspace, [*roots, *(link for root in roots for link in directory_links(root))])
+
+
 def directory_links(root: Path) -> list[Path]:
     """The links to directories under ROOT, following them (each directory once): a package's
     `config -> ~/common/config`, whose files colcon installs, and linked_mounts must mount."""

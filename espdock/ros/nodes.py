@@ -8,14 +8,14 @@ import os
 import posixpath
 import re
 from collections.abc import Iterable, Mapping
-from pathlib import Path
+from pathlib import Path, PurePosixPath
 
 from espdock.build.stamps import StampFile, listing_digest
 from espdock.build.steps import LABEL_WORKSPACE, EnsureBaseImage, EnsureImage, Plan
 from espdock.errors import ConfigError, WorkspaceError
 from espdock.images.containers import give_to, make_dirs_for
 from espdock.images.engine import Mount, RunSpec
-from espdock.images.visibility import directory_links, linked_mounts
+from espdock.images.visibility import links_out
 from espdock.layout import ROS_BUILD_BASE, ROS_OFFICIAL_DOCKERFILE, WORKSPACE_MOUNT
 from espdock.ros.plan import RUNTIME_INSTALL, RuntimeImage
 from espdock.ros.runtime_tree import resolve_installed
@@ -267,13 +267,14 @@ def check_file_arguments(workspace: Workspace, args: Iterable[str], mounts: Iter
         if option != "--params-file":
             continue
         inside = posixpath.normpath(posixpath.join(NODE_WORKDIR, value))
-        if any(inside == t or inside.startswith(t.rstrip("/") + "/") for t in (*targets, RUNTIME_INSTALL)):
+        if any(PurePosixPath(inside).is_relative_to(t) for t in (*targets, RUNTIME_INSTALL)):
             continue
         host = Path(os.path.abspath(cwd / Path(value).expanduser()))
         # A --symlink-install's file may be a link that leads nowhere here (to /workspace/...).
         if not os.path.lexists(host):
             continue  # a file of the image, or none: rcl says which
-        mine = (workspace.root, workspace.root.resolve(), cwd, *(Path(h) for h in [os.environ.get("HOME")] if h))
+        home = os.environ.get("HOME")
+        mine = (workspace.root, workspace.root.resolve(), cwd, *([Path(home)] if home else []))
         if not any(host.is_relative_to(place) for place in mine):
             continue  # /opt/ros/... of a ROS on this machine is the official image's as well
         install = next(
@@ -430,7 +431,6 @@ def shell_spec(
     official = dockerfile == ROS_OFFICIAL_DOCKERFILE
     mount = mount or Mount(workspace.root, WORKSPACE_MOUNT)
     ros = [p.path for p in packages if p.kind is PackageKind.ROS]
-    ros += [link for path in ros for link in directory_links(path)]  # what colcon follows in the shell too
     workdir = root
     if cwd is not None and cwd.resolve().is_relative_to(workspace.ws_dir.resolve()):
         workdir = posixpath.join(root, cwd.resolve().relative_to(workspace.ws_dir.resolve()).as_posix())
@@ -442,7 +442,7 @@ def shell_spec(
         argv=("bash", "-c", SOURCE_AND_SHELL, "bash", f"{root}/install") if official else ("bash",),
         workdir=posixpath.normpath(workdir),
         user=f"{owner[0]}:{owner[1]}",
-        mounts=(mount,) if mount.volume else (mount, *linked_mounts(workspace, ros), *profile_mounts(env, Path.cwd())),
+        mounts=(mount,) if mount.volume else (mount, *links_out(workspace, ros), *profile_mounts(env, Path.cwd())),
         # The entrypoint sources this install tree when it exists (docker/ros-entrypoint.sh).
         env=(
             ("HOME", home),

@@ -20,7 +20,7 @@ from espdock.images import volume
 from espdock.images.containers import Containers, give_to, permission_error, volume_mode_refused, with_host_umask
 from espdock.images.engine import Mount, RunSpec
 from espdock.images.keyed import KeyedImages, image_mode
-from espdock.images.visibility import directory_links, host_paths, linked_mounts, workspace_mount
+from espdock.images.visibility import host_paths, links_out, workspace_mount
 from espdock.layout import FIRMWARE_DIR, MANIFEST_NAME, ROS_BUILD_BASE, WORKSPACE_MOUNT
 from espdock.ros.colcon import (
     DEFAULTS_MOUNT,
@@ -90,12 +90,17 @@ class RosSteps:
         interface dependencies changed (ColconBuild.stale_interfaces), the install prefixes a
         native symlink install linked to this machine's paths, and the build dirs and install
         prefixes of packages that moved (STAMP_FILE knows where they were), whose sources changed
-        with no newer file, lost a file, or changed their setup.py (trees: their tree_state now),
-        or that an older espdock built, each reason that holds. Returns them, for the workspace volume to remove
-        its copies as well."""
+        with no newer file, lost a file, or changed their setup.py (TREES: their tree_state now),
+        or that an older espdock built, each reason that holds. Returns them, for the workspace
+        volume to remove its copies as well."""
         base = workspace.ws_dir / ROS_BUILD_BASE
         install = workspace.ws_dir / "install"
         reasons: list[tuple[tuple[Path, ...], str]] = []
+
+        def both(names: Iterable[str]) -> tuple[Path, ...]:
+            """NAMES' build dirs and install prefixes."""
+            return tuple(tree for name in names for tree in (base / name, install / name))
+
         if install_kind_switched(base, step.effective_args):
             turned = "on" if "--symlink-install" in step.effective_args else "off"
             why = (
@@ -104,14 +109,14 @@ class RosSteps:
             )
             if out := [name for name in rebuild if name in left_out(step.colcon_args, dict(step.depends), base)]:
                 why += f"; {', '.join(out)}, which the options after `--` leave out, stay uninstalled until built"
-            reasons.append((tuple(tree for name in rebuild for tree in (base / name, install / name)), why))
+            reasons.append((both(rebuild), why))
         elif step.force:
             # A rebuild by make and setuptools, which decide by time, kept what a source put back
             # with an older time (`cp -p`, a backup) had built: the old binary, --force or not.
             out = left_out(step.colcon_args, dict(step.depends), base)
             afresh = [name for name in rebuild if name not in out]
             why = f"--force: building {len(afresh)} package(s) afresh, in new build dirs and install prefixes"
-            reasons.append((tuple(tree for name in afresh for tree in (base / name, install / name)), why))
+            reasons.append((both(afresh), why))
         else:
             # Only those built before (a build dir here, or a record of one in the workspace volume): a
             # first build has nothing to build afresh, and said it did.
@@ -135,15 +140,17 @@ class RosSteps:
                 why = "building afresh what moved since the last build: " + ", ".join(
                     f"{name} (from {old})" for name, old in moved.items()
                 )
-                reasons.append((tuple(tree for name in moved for tree in (base / name, install / name)), why))
+                reasons.append((both(moved), why))
             if put_back := [n for n in stamp_file.put_back({n: trees[n] for n in rebuild}) if n not in moved]:
                 why = (
                     f"building afresh what changed with no newer file: {', '.join(put_back)} (put back from a "
                     "backup or an archive, or a file renamed or removed), which make and setuptools, deciding by "
                     "time, would not build again"
                 )
-                reasons.append((tuple(tree for name in put_back for tree in (base / name, install / name)), why))
-            lost = stamp_file.removed({n: trees[n] for n in rebuild if n not in {*moved, *put_back}})
+                reasons.append((both(put_back), why))
+            # What neither reason above builds afresh: whether it lost or gained files.
+            others = {n: trees[n] for n in rebuild if n not in {*moved, *put_back}}
+            lost = stamp_file.removed(others)
             if lost:
                 why = "installing afresh what lost source files since its last build: " + "; ".join(
                     f"{name} ({', '.join(gone[:3])}{', ...' if len(gone) > 3 else ''})" for name, gone in lost.items()
@@ -164,26 +171,26 @@ class RosSteps:
                 afresh = []
             # A CMake package whose files changed configures again, its compile incremental: a file(GLOB)
             # kept the list it was configured with (a removed source failed every build, one back was left out).
-            listed = {*lost, *stamp_file.gained({n: trees[n] for n in rebuild if n not in {*moved, *put_back}})}
+            listed = {*lost, *stamp_file.gained(others)}
             if cmake := sorted(n for n in listed if n not in step.python and n not in afresh and (base / n).is_dir()):
                 why = f"configuring {', '.join(cmake)} again: its source files are others than at its last build"
                 reasons.append((tuple(base / name / "CMakeCache.txt" for name in cmake), why))
-            python = [n for n in rebuild if n in step.python and n not in {*moved, *put_back, *lost}]
-            if redeclared := stamp_file.redeclared({n: trees[n] for n in python}):
+            python = {n: now for n, now in others.items() if n in step.python and n not in lost}
+            if redeclared := stamp_file.redeclared(python):
                 why = (
                     f"building afresh what changed its setup.py or setup.cfg: {', '.join(redeclared)} (an entry "
                     "point or data file taken out of it would stay installed)"
                 )
-                reasons.append((tuple(tree for name in redeclared for tree in (base / name, install / name)), why))
+                reasons.append((both(redeclared), why))
             done = {*moved, *put_back, *lost, *redeclared}
             # An older espdock's records keep no list of files: whether one went is not known.
-            unlisted = stamp_file.unlisted({n: trees[n] for n in rebuild if n not in done})
+            unlisted = stamp_file.unlisted({n: now for n, now in others.items() if n not in done})
             if older := [name for name in (*stamp_file.foreign(rebuild), *unlisted) if name not in done]:
                 why = (
                     f"building afresh what an older espdock built: {', '.join(older)} (its records do not say "
                     "where each package was built from, nor on what)"
                 )
-                reasons.append((tuple(tree for name in older for tree in (base / name, install / name)), why))
+                reasons.append((both(older), why))
         for trees, why in reasons:
             for tree in trees:
                 if tree.is_dir() and not tree.is_symlink():
@@ -595,8 +602,7 @@ def _linked(workspace: Workspace, sources: Iterable[tuple[str, str]]) -> tuple[M
     """The mounts of the directories that links lead to from the packages at SOURCES (name, path
     under the colcon root), or from within them: what colcon follows there, which the workspace's
     mount lacks."""
-    packages = [workspace.ws_dir / rel for _, rel in sources]
-    return linked_mounts(workspace, [*packages, *(link for path in packages for link in directory_links(path))])
+    return links_out(workspace, (workspace.ws_dir / rel for _, rel in sources))
 
 
 # Python's `PermissionError: [Errno 13] Permission denied: '/workspace/...'`, and CMake's

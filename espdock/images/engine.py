@@ -888,7 +888,7 @@ class Engine:
                     with interrupts.held():
                         container = self._create(spec, labels)
                     for where, data in spec.archives:
-                        if not container.put_archive(where, data):
+                        if not container.put_archive(where, _unpadded(data)):
                             raise ContainerError(f"the {self.info().name} refused the files for {where} of a container")
                 except docker.errors.ImageNotFound as exc:
                     raise ContainerError(
@@ -1372,6 +1372,17 @@ def _stream_lines(chunks: Iterator[bytes] | IO[bytes], on_line: LineSink) -> Non
             on_line(line.decode("utf-8", "replace").rstrip("\r"))
     if pending:
         on_line(pending.decode("utf-8", "replace"))
+
+
+def _unpadded(archive: bytes) -> bytes:
+    """ARCHIVE up to its two end blocks, without the zeros Python's tarfile pads it with to a 10 KiB
+    record. Podman's upload (buildah's copier, before buildah#6678) stops reading at the end blocks,
+    and the padding the engine is still passing on then fails the upload with "passing bulk input
+    to subprocess: write |1: broken pipe": now and then, and more often the slower the link."""
+    with tarfile.open(fileobj=io.BytesIO(archive), mode="r:") as tar:
+        tar.getmembers()
+        end = tar.offset + 2 * tarfile.BLOCKSIZE
+    return archive[:end]
 
 
 def _context_tar(context: Path, dockerfile: str, out: IO[bytes], extra: Mapping[str, bytes]) -> None:

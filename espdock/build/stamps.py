@@ -12,6 +12,7 @@ import errno
 import hashlib
 import json
 import os
+import stat
 from collections.abc import Callable, Collection, Iterable, Mapping
 from pathlib import Path
 from typing import NamedTuple
@@ -61,8 +62,12 @@ def tree_state(*roots: Path) -> TreeState:
             paths.append(rel := path.relative_to(root).as_posix())
             digest.update(rel.encode(errors="surrogateescape") + b"\0")
             try:
-                data = path.read_bytes()
-                newest = max(newest, path.stat().st_mtime_ns)
+                info = path.stat()
+                newest = max(newest, info.st_mtime_ns)
+                # A named pipe would hang the build reading it, a socket fail it: such a file is
+                # hashed by its kind, as no build reads it.
+                special = not stat.S_ISREG(info.st_mode)
+                data = b"not a regular file\0%o" % stat.S_IFMT(info.st_mode) if special else path.read_bytes()
             except OSError as exc:
                 # A link that leads nowhere, or around in a loop (ELOOP): its target's name.
                 if not path.is_symlink() or exc.errno not in (errno.ENOENT, errno.ELOOP):

@@ -128,3 +128,33 @@ def test_a_listing_leaves_out_the_directories_it_is_told_to_as_well_as_files(tmp
     (tmp_path / "espdock-manifest.json").write_text("{}")
     assert listing_digest(tmp_path, {"board", "espdock-manifest.json"}) == bare
     assert listing_digest(tmp_path, {"espdock-manifest.json"}) != bare
+
+
+def test_a_named_pipe_or_a_socket_in_a_package_is_hashed_by_its_kind_without_being_read(tmp_path):
+    """A build hashes its packages' files: it hung for good on a named pipe (waiting for a writer),
+    and a socket failed it as "a bug in espdock". A changed kind is a change all the same."""
+    import socket
+    import threading
+
+    from espdock.build.stamps import tree_state
+
+    package = tmp_path / "pkg"
+    package.mkdir()
+    (package / "package.xml").write_text("<package/>")
+    os.mkfifo(package / "feed")
+    server = socket.socket(socket.AF_UNIX)
+    server.bind(str(package / "sock"))
+    states = []
+    try:
+        hashing = threading.Thread(target=lambda: states.append(tree_state(package)), daemon=True)
+        hashing.start()
+        hashing.join(timeout=10)
+        if hashing.is_alive():
+            os.close(os.open(package / "feed", os.O_WRONLY))  # lets the reading thread end
+        assert not hashing.is_alive() and states, "hashing the package did not end"
+    finally:
+        server.close()
+    assert states[0].paths == ("feed", "package.xml", "sock")
+    (package / "feed").unlink()
+    (package / "feed").write_text("")
+    assert tree_state(package).digest != states[0].digest

@@ -9,6 +9,7 @@ import json
 import os
 import re
 import sys
+import tempfile
 from collections.abc import Iterable, Iterator
 from contextlib import contextmanager, suppress
 from dataclasses import dataclass, field
@@ -772,9 +773,19 @@ def write_holder(holder: Path) -> None:
         program = Path(sys.argv[0]).name
         program = "espdock" if program == "__main__.py" else program  # `python -m espdock`
         command = " ".join([program, *sys.argv[1:]]).encode(errors="backslashreplace")
-        temporary = holder.with_name(f".{holder.name}.{os.getpid()}")
-        temporary.write_bytes(f"{os.getpid()}\n".encode() + command + b"\n")
-        os.replace(temporary, holder)
+        # A name no one can have planted a link at in /tmp: another user's link at a name the pid
+        # gave had root's espdock write through it, into whatever file it led to.
+        fd, temporary = tempfile.mkstemp(prefix=f".{holder.name}.", dir=holder.parent)
+        try:
+            os.fchmod(fd, 0o644)  # for the error another user's espdock gives while waiting
+            os.write(fd, f"{os.getpid()}\n".encode() + command + b"\n")
+        finally:
+            os.close(fd)
+        try:
+            os.replace(temporary, holder)
+        except OSError:
+            os.unlink(temporary)
+            raise
     except OSError:
         pass  # only the error message a second build would give loses its detail
 

@@ -357,3 +357,19 @@ def test_projects_colcon_would_build_without_a_package_xml_are_named_as_colcon_n
     }
     assert [p.name for p in discover_packages(ws)] == ["kept", "repo_pkg"]
     assert "no package.xml" in str(espdock.workspace.unknown_package("py_lib", ["kept"], ws))
+
+
+def test_a_lock_s_holder_note_is_not_written_through_a_link_planted_at_a_name_it_would_use(tmp_path):
+    """The note naming a lock's holder is written in /tmp beside the lock, which every user may
+    write into: another user's link at the name the note took its pid from had root's espdock
+    write through it, into the file it led to."""
+    from espdock.workspace import holder_text, write_holder
+
+    holder = tmp_path / "espdock-image-x.holder"
+    victim = tmp_path / "victim"
+    victim.write_text("root's file\n")
+    (tmp_path / f".{holder.name}.{os.getpid()}").symlink_to(victim)
+    write_holder(holder)
+    assert victim.read_text() == "root's file\n"
+    assert not holder.is_symlink() and holder_text(holder).startswith(f" (pid {os.getpid()}: ")
+    assert oct(holder.stat().st_mode & 0o777) == oct(0o644), "another user's espdock, waiting, says who holds it"

@@ -232,8 +232,29 @@ def _validate(values: dict[str, Any], root: Path) -> Config:
         ca = ca if ca.is_absolute() else root / ca
         if not ca.is_file():
             raise ConfigError(f"CA bundle {ca} does not exist", "Set ca_bundle (or ESPDOCK_CA_BUNDLE) to a PEM file.")
+        _check_certificates(ca)
         config = replace(config, ca_bundle=ca)
     return config
+
+
+def _check_certificates(ca: Path) -> None:
+    """A ConfigError unless CA holds PEM certificates and no private key. The bundle goes into
+    build containers, and an espdock.toml is the workspace's: a cloned one naming
+    `~/.ssh/id_ed25519` had the key mounted where the workspace's own code runs."""
+    try:
+        data = ca.read_bytes()
+    except OSError as exc:
+        raise ConfigError(f"CA bundle {ca} cannot be read: {exc.strerror}") from exc
+    if b"PRIVATE KEY" in data:
+        raise ConfigError(
+            f"CA bundle {ca} holds a private key",
+            "espdock passes the CA bundle into its build containers: name a file of the proxy's CA certificates only.",
+        )
+    if b"-----BEGIN CERTIFICATE-----" not in data:
+        raise ConfigError(
+            f"CA bundle {ca} holds no PEM certificate (no -----BEGIN CERTIFICATE----- line)",
+            "Set ca_bundle (or ESPDOCK_CA_BUNDLE) to the PEM file of the proxy's CA certificates.",
+        )
 
 
 def pip_configured_cert(env: Mapping[str, str]) -> Path | None:

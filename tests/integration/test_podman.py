@@ -150,7 +150,7 @@ def small_ros_image(root: Path, seed: Path) -> None:
 
 def accepted_ca(place: Path) -> str:
     """A CA bundle small_ros_image's build stage accepts."""
-    (place / "ca.pem").write_text("# espdock-test-ca\n")
+    (place / "ca.pem").write_text("-----BEGIN CERTIFICATE-----\nespdock-test-ca\n-----END CERTIFICATE-----\n")
     return str(place / "ca.pem")
 
 

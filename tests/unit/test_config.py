@@ -73,6 +73,26 @@ def test_ca_bundle_relative_to_the_workspace_and_must_exist(tmp_path):
         load_config(tmp_path, {"ESPDOCK_CA_BUNDLE": str(tmp_path / "missing.pem")})
 
 
+def test_a_ca_bundle_that_is_no_certificate_or_holds_a_private_key_is_refused(tmp_path):
+    """The bundle goes into build containers, where the workspace's own code runs: a cloned
+    workspace's espdock.toml naming an SSH key had it mounted there, with no word."""
+    key = tmp_path / "home/.ssh/id_ed25519"
+    key.parent.mkdir(parents=True)
+    key.write_text("-----BEGIN OPENSSH PRIVATE KEY-----\nb3BlbnNzaC1rZXktdjEAAAA\n-----END OPENSSH PRIVATE KEY-----\n")
+    workspace = tmp_path / "cloned"
+    workspace.mkdir()
+    write(workspace, '[espdock]\nca_bundle = "../home/.ssh/id_ed25519"\n')
+    with pytest.raises(ConfigError, match="holds a private key"):
+        load_config(workspace, {})
+    both = tmp_path / "cert-and-key.pem"
+    both.write_text("-----BEGIN CERTIFICATE-----\nMIIB\n-----END CERTIFICATE-----\n-----BEGIN PRIVATE KEY-----\nMIIE\n")
+    with pytest.raises(ConfigError, match="holds a private key"):
+        load_config(workspace, {"ESPDOCK_CA_BUNDLE": str(both)})
+    (tmp_path / "notes.txt").write_text("proxy: 10.0.0.1\n")
+    with pytest.raises(ConfigError, match="holds no PEM certificate"):
+        load_config(workspace, {"ESPDOCK_CA_BUNDLE": str(tmp_path / "notes.txt")})
+
+
 def test_the_runtime_image_with_every_build_only_when_asked(tmp_path):
     assert load_config(tmp_path, {}).runtime_image is False
     write(tmp_path, "[espdock]\nruntime_image = true\n")

@@ -44,6 +44,13 @@ def kept(env: Mapping[str, str]) -> Callable[[], None]:
             if path.is_dir() and not path.is_symlink() and path.stat().st_uid == 0:
                 os.chown(path, *owner)
         for path in ours:
+            try:
+                # Only a tree the home's owner has (or this run made, handed over above): where a
+                # link leads ~/.cache/espdock to one of root's (/etc), its files stay root's.
+                if os.stat(path).st_uid != owner[0]:
+                    continue
+            except OSError:
+                continue
             for directory, dirnames, filenames in os.walk(path):
                 for name in (".", *dirnames, *filenames):
                     entry = os.path.join(directory, name)

@@ -744,6 +744,27 @@ def test_sudo_keeping_the_user_s_home_leaves_nothing_of_root_s_in_it(tmp_path):
     assert {(rel, uid) for rel, uid in owners if uid != 4242} == set()
 
 
+def test_sudo_keeping_the_user_s_home_hands_back_nothing_a_link_there_leads_to_of_root_s(tmp_path):
+    """A ~/.cache/espdock that links to a directory of root's: `sudo -E espdock list` handed every
+    root-owned file there to the home's owner (with a link to /etc, /etc/shadow)."""
+    home = tmp_path / "home"
+    (home / ".cache").mkdir(parents=True)
+    rootdir = tmp_path / "root-only"
+    (rootdir / "sub").mkdir(parents=True)
+    (rootdir / "sub/secret").write_text("root's\n")
+    (home / ".cache/espdock").symlink_to(rootdir)
+    for path in (home, home / ".cache"):
+        os.chown(path, 4242, 4243)
+    os.chown(home / ".cache/espdock", 4242, 4243, follow_symlinks=False)
+    root = copy_workspace(tmp_path / "w")
+    env = {"HOME": str(home), "XDG_CACHE_HOME": "", "XDG_STATE_HOME": "", "ESPDOCK_STATE_DIR": "", **NO_ENGINE}
+    listed = espdock("list", cwd=root, env=env)
+    assert listed.returncode == 0, listed.stderr
+    written = {p.name for p in rootdir.iterdir()} - {"sub"}
+    assert written, "espdock wrote nothing through the link: the test tests nothing"
+    assert {p.lstat().st_uid for p in (rootdir, *rootdir.rglob("*"))} == {0}
+
+
 def test_a_relative_state_dir_is_refused_before_any_work(tmp_path):
     """`ESPDOCK_STATE_DIR=relstate espdock build` from src/ made src/relstate, in the sources."""
     root = copy_workspace(tmp_path / "w")

@@ -61,7 +61,9 @@ def owner_alive(owner: str) -> bool:
 
 
 def sweep(directory: Path, prefix: str) -> None:
-    """Remove this user's PREFIX directories in DIRECTORY whose process is gone."""
+    """Remove this user's PREFIX directories in DIRECTORY whose process is gone; root's, any
+    user's: root's provisioning hands its directory to the container's user, and one killed
+    outright left the Wi-Fi password there for good."""
     try:
         left = [entry for entry in directory.iterdir() if entry.name.startswith(prefix)]
     except OSError:  # a temp dir this user cannot list: nothing of theirs to sweep
@@ -71,7 +73,8 @@ def sweep(directory: Path, prefix: str) -> None:
         if owner.count(":") != 2:  # not named by make(): another tool's, or an older espdock's
             continue
         with suppress(OSError):
-            if path.lstat().st_uid == os.geteuid() and path.is_dir() and not owner_alive(owner):
+            mine = os.geteuid() in (0, path.lstat().st_uid)
+            if mine and path.is_dir() and not path.is_symlink() and not owner_alive(owner):
                 shutil.rmtree(path)
 
 

@@ -11,6 +11,7 @@ import pytest
 
 from espdock.errors import ConfigError, WorkspaceError
 from espdock.firmware.provision import (
+    IMAGE_NAME,
     NetSettings,
     check_settings,
     nvs_image,
@@ -180,6 +181,24 @@ def test_the_credentials_a_provisioning_killed_outright_left_are_removed_by_the_
     left.mkdir()
     (left / "nvs.csv").write_text("espdock,namespace,,\npassword,data,string,secret\n")
     with nvs_image(NetSettings("lab", "", "10.0.0.2", 1), 0x3000) as image:
+        assert image.parent.parent == tmp_path
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_the_credentials_root_s_provisioning_handed_to_the_user_and_left_are_removed_by_root_s_next(
+    tmp_path, monkeypatch
+):
+    """Run as root, provisioning hands its directory to the container's user; killed outright, it
+    left the password there, and root's next provisioning removed only root's own leftovers."""
+    import tempfile
+
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
+    left = tmp_path / "espdock-provision-0000:1:1-ab12cd34"  # another boot's process: gone
+    left.mkdir()
+    (left / IMAGE_NAME).write_bytes(b"secret")
+    for path in (left, left / IMAGE_NAME):
+        os.chown(path, 4243, 4243)
+    with nvs_image(NetSettings("lab", "", "10.0.0.2", 1), 0x3000, owner=(4243, 4243)) as image:
         assert image.parent.parent == tmp_path
     assert list(tmp_path.iterdir()) == []
 

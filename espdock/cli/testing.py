@@ -133,7 +133,7 @@ def test(
         if host_tests_dir(package.path) is None:
             continue
         say(Text(f"host tests: {package.name}", style="bold"))
-        failed = run_host_tests(package.name, package.path, host_base, say)
+        failed = run_host_tests(package.name, package.path, host_base, say, invoking_user(os.environ, ws.root))
         if os.geteuid() == 0:
             _give_back(host_base, invoking_user(os.environ, ws.root))
         if failed:

@@ -20,6 +20,7 @@ import subprocess
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 from xml.etree.ElementTree import Element, ElementTree, ParseError
 
 from espdock import durable
@@ -93,20 +94,36 @@ def host_tests_failed(argv: tuple[str, ...], code: int, junit: Path) -> bool | N
     return not (argv[0] == "ctest" and junit.is_file())
 
 
-def run_host_tests(name: str, package_dir: Path, base: Path, on_line: Callable[[str], None]) -> int | None:
+def run_host_tests(
+    name: str, package_dir: Path, base: Path, on_line: Callable[[str], None], owner: tuple[int, int] | None = None
+) -> int | None:
     """Build and run package NAME's (in PACKAGE_DIR) declared host tests under BASE/<package> with the host's CMake and
     compiler, as plain `colcon test` does; None when it declares none, else the failing step's exit
-    code when they could not run (0 when they ran, passing or not: the JUnit file says)."""
+    code when they could not run (0 when they ran, passing or not: the JUnit file says). Run by
+    root, as OWNER (the workspace's user), as the build containers are: the package's own code
+    runs outside any container here."""
     source = host_tests_dir(package_dir)
     if source is None:
         return None
     build, junit = base / name / "host_tests", base / name / "test_results" / name / "host_tests.xml"
     junit.unlink(missing_ok=True)
     junit.parent.mkdir(parents=True, exist_ok=True)
+    as_owner: dict[str, Any] = {}
+    if owner is not None and os.geteuid() == 0 and owner[0] != 0:
+        for path in (base.parent, base, *(base / name).rglob("*"), base / name):
+            if path.lstat().st_uid == 0:
+                os.chown(path, *owner, follow_symlinks=False)
+        as_owner = {"user": owner[0], "group": owner[1], "extra_groups": []}
     for argv in host_test_steps(source, build, junit):
         try:
             process = subprocess.Popen(
-                argv, cwd=source, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, errors="replace"
+                argv,
+                cwd=source,
+                stdout=subprocess.PIPE,
+                stderr=subprocess.STDOUT,
+                text=True,
+                errors="replace",
+                **as_owner,
             )
         except FileNotFoundError:
             raise DependencyError(

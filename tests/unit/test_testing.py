@@ -444,3 +444,32 @@ def test_a_package_whose_tests_depend_on_a_workspace_package_is_tested_alone(tmp
     alone = espdock("test", "py_talker", cwd=root, env=env)
     assert alone.returncode == 3, alone.stdout + alone.stderr  # on to the engine, which is not there
     assert "not in the lock" not in alone.stderr
+
+
+def test_root_s_host_tests_run_as_the_workspace_s_user(shared_dir):
+    """`sudo espdock test` ran a package's host tests (its own CMake code, outside any container)
+    as root, where every build container runs as the workspace's user."""
+    from espdock.ros.testing import run_host_tests
+
+    if os.geteuid() != 0:
+        pytest.skip("only root runs them as another user")
+    package = shared_dir / "who_fw"
+    (package / "test/host").mkdir(parents=True)
+    (package / "package.xml").write_text(
+        '<package format="3"><name>who_fw</name><version>0.0.0</version><description>x</description>'
+        "<maintainer email='a@example.com'>a</maintainer><license>MIT</license>"
+        "<export><build_type>espidf</build_type><espdock_host_tests>test/host</espdock_host_tests></export></package>"
+    )
+    (package / "test/host/CMakeLists.txt").write_text(
+        "cmake_minimum_required(VERSION 3.16)\nproject(who NONE)\nenable_testing()\n"
+        "execute_process(COMMAND id -u OUTPUT_VARIABLE uid OUTPUT_STRIP_TRAILING_WHITESPACE)\n"
+        'message(STATUS "configured as uid ${uid}")\n'
+        'add_test(NAME as_the_user COMMAND sh -c "test $(id -u):$(id -g) = 4242:4243")\n'
+    )
+    base = shared_dir / "ws/build"
+    lines: list[str] = []
+    assert run_host_tests("who_fw", package, base, lines.append, (4242, 4243)) == 0, lines
+    assert "-- configured as uid 4242" in lines
+    junit = base / "who_fw/test_results/who_fw/host_tests.xml"
+    assert 'failures="0"' in junit.read_text() and 'tests="1"' in junit.read_text(), junit.read_text()
+    assert {p.lstat().st_uid for p in (base, *base.rglob("*"))} == {4242}

@@ -168,6 +168,9 @@ def plan_tests(
     """`espdock test`'s plan for the ROS packages ROS (of EVERY package): their build with tests in
     the test image, after a rosdep lock whose test part answers for them; and the colcon test to
     run after it."""
+    # A defaults file that sets what espdock controls is exit 2 before the lock, which may need
+    # the network and the engine.
+    read_colcon_settings(ws.ws_dir, {p.name: p.path for p in ros}, None, env)
     # The rosdep lock, its test part included, answers for the packages before anything is built
     # (checked here once: the plan takes the packages and inputs as they are).
     owner = invoking_user(env, ws.root) if os.geteuid() == 0 else None

@@ -54,6 +54,8 @@ REFUSED = {
     "--merge-install": "espdock reads each package's install/<package> (stamps, manifest, runtime image)",
     "--event-handlers": "espdock reads colcon's console output and its event log",
     "--log-base": "espdock reads colcon's event log in log/",
+    # A build's as well: ament_cmake keeps it in the CMake cache, where the next tests' results go.
+    "--test-result-base": f"espdock reads the test results in {ROS_BUILD_BASE}/ of the colcon root",
 }
 SELECTING = (
     "--packages-select", "--packages-select-regex", "--packages-select-by-dep", "--packages-select-build-failed",

@@ -31,8 +31,6 @@ from espdock.layout import ROS_BUILD_BASE
 from espdock.ros.colcon import check_colcon_args, full_option, left_out, without_leaving_out
 from espdock.workspace import Package
 
-# Where espdock reads the results: colcon's default (the package's build dir).
-REFUSED_FOR_TEST = {"--test-result-base": f"espdock reads the results in {ROS_BUILD_BASE}/ of the colcon root"}
 # colcon build's options that colcon test lacks (the build image's colcon, each verb's --help):
 # refused before the build with tests, which otherwise ran for minutes and then colcon test
 # failed on "unrecognized argument".
@@ -141,16 +139,13 @@ def run_host_tests(
 
 
 def check_test_args(args: Iterable[str] | None) -> tuple[str, ...]:
-    """ARGS for `colcon test`, by the rules of `espdock build -- ...` (espdock.ros.colcon), plus what
-    decides where the results go."""
+    """ARGS for `colcon test`, by the rules of `espdock build -- ...` (espdock.ros.colcon), less
+    colcon build's own options."""
     checked = check_colcon_args(args, "test")
     for arg in checked:
         option = arg.split("=", 1)[0]
         if not arg.startswith("--") or len(option) <= 3:
             continue
-        for refused, why in REFUSED_FOR_TEST.items():
-            if refused.startswith(option):
-                raise ConfigError(f"colcon option {option} is not allowed after `--`: {why}", "Leave it out.")
         if (building := full_option(option, BUILD_ONLY)) is not None:
             if building == "--continue-on-error":
                 hint = "Leave it out: colcon test goes on past failing tests (`--abort-on-error` stops at the first)."

@@ -250,6 +250,16 @@ def test_cli_refuses_bad_input_before_any_engine(tmp_path):
         result = espdock(*args, cwd=root, env=no_engine)
         assert result.returncode == 2, (args, result.stdout, result.stderr)
         assert said in result.stderr and "Traceback" not in result.stderr
+    # test-result-base in a defaults file, a CI habit: colcon wrote the results where espdock never
+    # looked, and a run whose test failed passed (0 tests, exit 0).
+    (root / "ws/colcon_defaults.yaml").write_text("test:\n  test-result-base: results\n")
+    from tests.rosdep_db import environment
+
+    for args in (("test", "tested_py"), ("build", "--dry-run")):
+        result = espdock(*args, cwd=root, env={**environment(tmp_path), **no_engine})
+        assert result.returncode == 2, (args, result.stdout, result.stderr)
+        assert "colcon_defaults.yaml sets test-result-base, which espdock controls" in result.stderr, result.stderr
+    (root / "ws/colcon_defaults.yaml").unlink()
     # Valid input: the last run's results go before the run, so a run that fails (here before any test)
     # leaves none of them for CI to report as its own.
     build, results = tmp_path / "build", tmp_path / "results"

@@ -170,7 +170,7 @@ def plan_tests(
     run after it."""
     # A defaults file that sets what espdock controls is exit 2 before the lock, which may need
     # the network and the engine.
-    read_colcon_settings(ws.ws_dir, {p.name: p.path for p in ros}, None, env)
+    settings = read_colcon_settings(ws.ws_dir, {p.name: p.path for p in ros}, None, env)
     # The rosdep lock, its test part included, answers for the packages before anything is built
     # (checked here once: the plan takes the packages and inputs as they are).
     owner = invoking_user(env, ws.root) if os.geteuid() == 0 else None
@@ -187,6 +187,10 @@ def plan_tests(
     # kept its tests unconfigured, and its failing tests passed for none.
     built_with = last_build_args(ws.ws_dir / ROS_BUILD_BASE)
     last = output_args(built_with)
+    if settings.symlink_install:
+        # The defaults file turns it on again: given on the command line as well, it made the
+        # stamps another build's, and the test and the plain build rebuilt each other's packages.
+        last = tuple(arg for arg in last if arg != "--symlink-install")
     if last:
         notify(f"building with the options of the last espdock build: {' '.join(last)}")
     if dropped := [arg for arg in built_with if arg not in last]:

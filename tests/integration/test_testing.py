@@ -177,6 +177,29 @@ def test_the_tests_build_keeps_the_symlink_install_the_last_build_made(tmp_path,
     assert leftover_containers(engine, root) == []
 
 
+def test_a_symlink_install_the_defaults_file_turns_on_leaves_the_plain_build_up_to_date_after_the_tests(
+    tmp_path, engine
+):
+    """symlink-install in the user's colcon defaults file: `espdock test` gave the last build's
+    --symlink-install on the command line too, which made its stamps another build's, and each of
+    `espdock test` and `espdock build` rebuilt what the other had built."""
+    root = make_workspace(tmp_path / "w", ("tested_py",))
+    defaults = tmp_path / "defaults.yaml"
+    defaults.write_text("build:\n  symlink-install: true\n")
+    env = {**environment(tmp_path), "ESPDOCK_STATE_DIR": str(tmp_path / "state"), "COLCON_DEFAULTS_FILE": str(defaults)}
+    built = espdock("build", cwd=root, env=env)
+    assert built.returncode == 0, built.stdout[-3000:] + built.stderr
+    assert (root / "install/tested_py/share/tested_py/package.xml").is_symlink()
+    tested = espdock("test", cwd=root, env=env)
+    assert tested.returncode == 10, tested.stdout[-3000:] + tested.stderr  # tested_py's failing test
+    planned = espdock("build", "--dry-run", cwd=root, env=env)
+    assert planned.returncode == 0, planned.stdout[-3000:] + planned.stderr
+    assert "now: up to date (1 package(s))" in planned.stdout, planned.stdout[-3000:]
+    again = espdock("test", cwd=root, env=env)
+    assert re.search(r"colcon build: with tests +cached", again.stdout), again.stdout[-3000:]
+    assert leftover_containers(engine, root) == []
+
+
 def test_ctrl_c_or_a_closed_output_during_the_tests_ends_them_and_leaves_no_container(tmp_path, engine):
     root = make_workspace(tmp_path / "w", ("tested_py",))
     env = environment(tmp_path)

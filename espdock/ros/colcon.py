@@ -118,6 +118,8 @@ def check_colcon_args(args: Iterable[str] | None, verb: str = "build") -> tuple[
             f"Name packages before the `--` (`espdock {verb} {args[0]}`); options after it, e.g. "
             f"`espdock {verb} -- {example}`.",
         )
+    # colcon takes unique prefixes (`--symlink`): spelt out where espdock reads the option itself.
+    args = tuple(SPELT_OUT if _option_name(arg) and _abbreviates(arg, SPELT_OUT) else arg for arg in args)
     for arg in args:
         option = _option_name(arg)
         if option is None:
@@ -130,6 +132,14 @@ def check_colcon_args(args: Iterable[str] | None, verb: str = "build") -> tuple[
                     f"Pass colcon only options {allowed}, `--parallel-workers N`.",
                 )
     return args
+
+
+# The flag whose presence espdock reads (the install kind).
+SPELT_OUT = "--symlink-install"
+
+
+def _abbreviates(arg: str, option: str) -> bool:
+    return len(arg) > 3 and option.startswith(arg) and arg != option
 
 
 def _option_name(arg: str) -> str | None:

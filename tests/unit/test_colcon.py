@@ -424,3 +424,16 @@ def test_a_file_of_the_user_s_in_a_directory_of_another_s_is_the_directory_denie
     assert denied_path([said], tmp_path, 1000) == module
     os.chown(module, 1000, 1000)  # the user's own, all of it: not a matter of owners
     assert denied_path([said], tmp_path, 1000) is None
+
+
+def test_symlink_install_abbreviated_as_colcon_takes_it_is_a_switch_of_the_install_kind(tmp_path):
+    """`-- --symlink` (colcon takes unique prefixes) after a copying build: espdock saw no switch,
+    and colcon failed in the build dirs the copying build had left."""
+    from espdock.ros.colcon import install_kind_switched, record_build_args
+
+    record_build_args(tmp_path, ())
+    for spelt in ("--symlink", "--sym"):
+        args = check_colcon_args((spelt, "--packages-skip", "x"))
+        assert args == ("--symlink-install", "--packages-skip", "x")
+        assert install_kind_switched(tmp_path, args)
+    assert check_colcon_args(("--cmake-args", "-DSYM=1")) == ("--cmake-args", "-DSYM=1")

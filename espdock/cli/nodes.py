@@ -22,8 +22,8 @@ from espdock.images import bootstrap
 from espdock.images.engine import ComposeStillStopping, Engine, RunSpec
 from espdock.ros import compose as compose_file
 from espdock.ros import nodes
-from espdock.ros.plan import RuntimeImage, runtime_repository
-from espdock.ros.steps import edited_since_built, runtime_spec
+from espdock.ros.plan import ColconBuild, RuntimeImage, runtime_repository
+from espdock.ros.steps import built_on_older, edited_since_built, runtime_spec
 from espdock.workspace import PackageKind, Workspace, build_running
 
 
@@ -187,7 +187,17 @@ def run(
             f"(`espdock build {package}` first to run them)"
         )
     # Only what runs must be served: another package's missing key does not stop this node.
-    runner, image = runtime_image(ws, config, build_plan(ws, config, [], PackageKind.ROS, checked=(package,)))
+    plan = build_plan(ws, config, [], PackageKind.ROS, checked=(package,))
+    colcon = next((step for step in plan.steps if isinstance(step, ColconBuild)), None)
+    if not runs and colcon is not None and (older := built_on_older(ws, colcon, package)) is not None:
+        # `espdock build msgs` after a .msg edit: a node of a package built on the old msgs
+        # aborted on the type hash assertion of rosidl's generated code.
+        which = f" ({', '.join(older)} among them)" if older else ""
+        notify(
+            f"warning: {package} was built on other sources of the workspace packages it depends on{which}: "
+            f"it may fail on what changed in them, an interface's type hash (`espdock build {package}` first)"
+        )
+    runner, image = runtime_image(ws, config, plan)
     if mounts or devices or nodes.profile_mounts(os.environ, Path.cwd()):
         # An engine that does not see this machine would mount its own machine's path, or none.
         runner.containers.needs_this_machine(ws, image, RUN_FILES, firmware=False)

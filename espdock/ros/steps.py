@@ -539,6 +539,20 @@ def edited_since_built(workspace: Workspace, package: Package) -> str | None:
     return "what that build compiled or generated, beside the sources its --symlink-install links to"
 
 
+def built_on_older(workspace: Workspace, step: ColconBuild, package: str) -> list[str] | None:
+    """Where PACKAGE's own sources are as its last build recorded but STEP would build it again
+    (a package it depends on changed, or was rebuilt since): those of them STEP would build too
+    ([] where only PACKAGE, on one rebuilt since); None where it is up to date or its own sources
+    changed (edited_since_built says that)."""
+    entry = StampFile(workspace.ws_dir / "build" / ROS_STAMPS, ROS_STAMP_FORMAT).read().get(package)
+    _, _, rebuild, trees = colcon_rebuild(workspace, step)
+    if package not in rebuild or not isinstance(entry, dict) or package not in trees:
+        return None
+    if entry.get("tree") != trees[package].digest:
+        return None
+    return sorted(closure([package], dict(step.depends)) & set(rebuild))
+
+
 def host_added(install: Path) -> set[str]:
     """What espdock adds to INSTALL on the host, beside what the workspace volume's colcon built:
     the manifest, the firmware packages' installs."""

@@ -335,6 +335,32 @@ def test_run_says_when_the_package_s_sources_changed_since_its_build(node_worksp
     assert "sources changed" not in again.stdout + again.stderr
 
 
+def test_run_says_when_a_package_was_built_on_older_sources_of_one_it_depends_on(engine, tmp_path):
+    """`espdock build msgs` after a .msg edit, then `espdock run` of a node of a package built on
+    the old msgs: it aborted on rosidl's type hash assertion, and nothing had said the package was
+    out of date (`--dry-run` knew: "would build" it)."""
+    from tests.robot_packages import write_python_package
+
+    root = python_workspace(tmp_path / "w")
+    write_python_package(root / "ws/src", "beacon_app", ("beacon_nodes",))
+    built = espdock("build", "--only", "ros", cwd=root)
+    assert built.returncode == 0, built.stdout[-2000:] + built.stderr
+    run = ("run", "beacon_app", "beacon_app_node", "--ros-args", "--params-file", "/nonexistent/params.yaml")
+    with open(root / "ws/src/beacon_nodes/beacon_nodes/beacon.py", "a") as source:
+        source.write("# changed\n")
+    lone = espdock("build", "beacon_nodes", cwd=root)
+    assert lone.returncode == 0, lone.stdout[-2000:] + lone.stderr
+    older = espdock(*run, cwd=root)
+    said = " ".join((older.stdout + older.stderr).split())
+    assert "warning: beacon_app was built on other sources of the workspace packages it depends on:" in said, said
+    assert "`espdock build beacon_app` first" in said
+    again = espdock("build", "--only", "ros", cwd=root)
+    assert again.returncode == 0, again.stdout[-2000:] + again.stderr
+    current = espdock(*run, cwd=root)
+    assert "was built on other sources" not in current.stdout + current.stderr
+    assert no_containers_left(engine, root) == []
+
+
 def test_init_writes_a_starter_compose_file_whose_services_start_and_talk(engine, node_workspace):
     written = espdock("init", cwd=node_workspace)
     assert written.returncode == 0 and "wrote compose.yaml" in written.stdout, written.stdout + written.stderr

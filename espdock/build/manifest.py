@@ -20,7 +20,8 @@ from espdock.errors import WorkspaceError, disk_full
 from espdock.events import Outcome, StepFinished
 from espdock.firmware.plan import IdfBuild
 from espdock.images.containers import give_to
-from espdock.layout import MANIFEST_NAME
+from espdock.layout import FIRMWARE_DIR, MANIFEST_NAME
+from espdock.ros.plan import ColconBuild
 
 FORMAT = 1
 
@@ -46,19 +47,47 @@ def _image(spec: ImageSpec) -> dict[str, object]:
     return {"tag": spec.tag, "key": spec.key, "build_args": dict(spec.build_args), "inputs": dict(spec.inputs)}
 
 
-def build_manifest(plan: Plan, target: str, install: Path) -> dict[str, object]:
-    """The manifest of PLAN's build: its images and inputs, and the install tree as it is now."""
+def build_manifest(plan: Plan, target: str, install: Path, previous: Mapping | None = None) -> dict[str, object]:
+    """The manifest of PLAN's build: its images and inputs, and the install tree as it is now.
+    PREVIOUS: the manifest of the builds before, whose firmware packages still installed (and the
+    images they and, where PLAN built no ROS package, the ROS packages came from) PLAN did not
+    build: a `--only ros` or one package's build dropped them, though their files stayed listed."""
     images = {s.spec.tag: _image(s.spec) for s in plan.steps if isinstance(s, EnsureImage)}
+    # Each firmware package built, with the chip it was built for (the workspace's `target` is only the default).
+    firmware = {s.package: {"target": s.target, "image": s.image} for s in plan.steps if isinstance(s, IdfBuild)}
+    if previous is not None:
+        before = previous.get("firmware") if isinstance(previous.get("firmware"), dict) else {}
+        for name, entry in before.items():
+            if name not in firmware and (install / name / "share" / name / FIRMWARE_DIR).is_dir():
+                firmware[name] = entry
+        used = {entry.get("image") for entry in firmware.values() if isinstance(entry, dict)}
+        of_firmware = {entry.get("image") for entry in before.values() if isinstance(entry, dict)}
+        ros_built = any(isinstance(s, ColconBuild) for s in plan.steps)
+        old_images = previous.get("images") if isinstance(previous.get("images"), dict) else {}
+        for tag, spec in old_images.items():
+            if tag not in images and (tag in used or (not ros_built and tag not in of_firmware)):
+                images[tag] = spec
     return {
         "format": FORMAT,
         "espdock": __version__,
         "target": target,
-        # Each firmware package built, with the chip it was built for (the workspace's `target`
-        # above is only the default).
-        "firmware": {s.package: {"target": s.target, "image": s.image} for s in plan.steps if isinstance(s, IdfBuild)},
+        "firmware": dict(sorted(firmware.items())),
         "images": dict(sorted(images.items())),
         "files": file_hashes(install),
     }
+
+
+def _lists_what_is_gone(manifest: Mapping, install: Path) -> bool:
+    """Whether MANIFEST lists a file under a top entry of INSTALL that is gone: a package's prefix
+    removed by hand (as a build's note on a renamed package says to), which no build rebuilds."""
+    files = manifest.get("files")
+    if not isinstance(files, dict):
+        return True
+    try:
+        present = set(os.listdir(install))
+    except OSError:
+        return True
+    return not {rel.split("/", 1)[0] for rel in files} <= present
 
 
 def _temporary(install: Path) -> Path:
@@ -89,9 +118,14 @@ def record_build(
     killed before its manifest was written). OWNER: who the written file belongs to (as root)."""
     existing = install / MANIFEST_NAME
     _temporary(install).unlink(missing_ok=True)  # left by an espdock killed while writing
-    if existing.is_file() and not built and _newer_than_stamps(existing, stamps):
-        return read_manifest(existing)
-    manifest = build_manifest(plan, target, install)
+    try:
+        previous: dict | None = read_manifest(existing)
+    except WorkspaceError:
+        previous = None
+    if previous is not None and not built and _newer_than_stamps(existing, stamps):
+        if not _lists_what_is_gone(previous, install):
+            return previous
+    manifest = build_manifest(plan, target, install, previous)
     try:
         written = write_manifest(manifest, install)
     except OSError as exc:

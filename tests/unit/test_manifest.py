@@ -87,3 +87,54 @@ def test_a_build_killed_before_its_manifest_was_written_gets_a_new_one(tmp_path)
     assert again["files"] == file_hashes(install) != first["files"]
     assert read_manifest(install / MANIFEST_NAME) == again
     assert not (install / f".{MANIFEST_NAME}.tmp").exists()
+
+
+def test_a_no_change_build_after_a_package_s_prefix_was_removed_lists_it_no_more(tmp_path):
+    """A build's note on a renamed package says `rm -r install/OLD build/espdock-ros/OLD`; done, the
+    next builds (nothing to build) kept the manifest listing OLD's files, and `espdock verify` of
+    every later install failed until some package was rebuilt."""
+    install = tree(tmp_path)
+    (install / "old_pkg/share/old_pkg").mkdir(parents=True)
+    (install / "old_pkg/share/old_pkg/package.xml").write_text("<package/>")
+    stamp = tmp_path / "build/.espdock-colcon-stamps.json"
+    stamp.parent.mkdir()
+    stamp.write_text("{}")
+    plan = Plan(Workspace(tmp_path))
+    record_build(plan, "esp32", install, True, [stamp], None)
+    (install / "old_pkg/share/old_pkg/package.xml").unlink()
+    for directory in ("old_pkg/share/old_pkg", "old_pkg/share", "old_pkg"):
+        (install / directory).rmdir()
+    again = record_build(plan, "esp32", install, False, [stamp], None)
+    assert again["files"] == file_hashes(install)
+    assert compare(read_manifest(install / MANIFEST_NAME)["files"], file_hashes(install)) == []
+
+
+def test_a_build_of_part_of_the_workspace_keeps_what_the_manifest_said_of_the_rest(tmp_path):
+    """`espdock build --only ros` (or of one package) wrote a manifest without the firmware packages
+    still installed, their chips and images, though it listed their files."""
+    from espdock.ros.plan import ColconBuild
+
+    install = tmp_path / "install"
+    for name in ("cam_fw", "led_fw"):
+        (install / name / "share" / name / "firmware").mkdir(parents=True)
+    stamp = tmp_path / "build/.espdock-colcon-stamps.json"
+    uros, ros, gone = "espdock/idf-micro-ros-jazzy-esp32s3:a1", "espdock/ros-jazzy-build:b2", "espdock/idf-x:c3"
+    previous = {
+        "format": 1,
+        "files": {},
+        "firmware": {
+            "cam_fw": {"target": "esp32s3", "image": uros},
+            "led_fw": {"target": "esp32s3", "image": uros},
+            "old_fw": {"target": "esp32", "image": gone},  # uninstalled since
+        },
+        "images": {tag: {"tag": tag} for tag in (uros, ros, gone)},
+    }
+    write_manifest(previous, install)
+    ros_only = Plan(Workspace(tmp_path), (ColconBuild(image=ros, packages=("app",)),))
+    manifest = record_build(ros_only, "esp32", install, True, [stamp], None)
+    assert manifest["firmware"] == {name: previous["firmware"][name] for name in ("cam_fw", "led_fw")}
+    assert sorted(manifest["images"]) == [uros]  # the ROS image is the plan's: it has no EnsureImage here
+    firmware_only = Plan(Workspace(tmp_path))
+    write_manifest(previous, install)
+    manifest = record_build(firmware_only, "esp32", install, True, [stamp], None)
+    assert sorted(manifest["images"]) == [uros, ros], "what built the ROS packages stays"

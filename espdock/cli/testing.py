@@ -21,7 +21,7 @@ from espdock.config import in_ci, invoking_user
 from espdock.errors import ConfigError, EspdockError, TestsFailed
 from espdock.images.keyed import unpushed_error
 from espdock.layout import ROS_BUILD_BASE
-from espdock.ros.colcon import passed_last_time
+from espdock.ros.colcon import defaults_leaving_out, passed_last_time
 from espdock.ros.plan import ColconBuild
 from espdock.ros.steps import TEST_RESULTS
 from espdock.ros.testing import (
@@ -94,7 +94,8 @@ def test(
         raise unknown_package(unknown[0], by_name, ws)
     chosen = [by_name[n] for n in packages] if packages else list(every)
     base = ws.ws_dir / ROS_BUILD_BASE
-    ros, skipped = not_left_out([p for p in chosen if p.kind is PackageKind.ROS], every, colcon_args, base)
+    leaving_out = (*colcon_args, *defaults_leaving_out(ws.ws_dir, os.environ, "test", colcon_args))
+    ros, skipped = not_left_out([p for p in chosen if p.kind is PackageKind.ROS], every, leaving_out, base)
     firmware = [p for p in chosen if p.kind is PackageKind.FIRMWARE]
     # Firmware packages without host tests test nothing either: a run of only them passed, with
     # no result file.
@@ -110,11 +111,11 @@ def test(
         prepare_results(results, invoking_user(os.environ, ws.root), [p.name for p in chosen])
     if skipped and not ros and not hosted:
         raise ConfigError(
-            f"nothing to test: the options after `--` skip {', '.join(skipped)}",
+            f"nothing to test: the colcon options (after `--`, or a defaults file's) skip {', '.join(skipped)}",
             "Name the packages to test (`espdock test PKG...`) or skip fewer; a run that tests nothing passes nothing.",
         )
     if skipped:
-        notify(f"not tested (the options after `--` skip them): {', '.join(skipped)}")
+        notify(f"not tested (the colcon options, after `--` or a defaults file's, skip them): {', '.join(skipped)}")
     official = config.ros_image == "official"
     check_testable({p.name: p.depends for p in ros}, "official" if official else "wheels")
     if push_cache and not config.cache_registry:

@@ -361,17 +361,40 @@ def with_build_testing(
     return (*args, "--cmake-args", *without_build_testing(defaults), f"-DBUILD_TESTING={value}")
 
 
-def defaults_for_build(text: str) -> dict:
-    """What a colcon defaults file (TEXT) sets for the `build` verb ({} when nothing or not YAML:
-    colcon refuses such a file itself, naming it)."""
+def defaults_for(text: str, verb: str = "build") -> dict:
+    """What a colcon defaults file (TEXT) sets for VERB ({} when nothing or not YAML: colcon
+    refuses such a file itself, naming it)."""
     import yaml
 
     try:
         data = yaml.safe_load(text)
     except yaml.YAMLError:
         return {}
-    verb = data.get("build") if isinstance(data, dict) else None
-    return verb if isinstance(verb, dict) else {}
+    said = data.get(verb) if isinstance(data, dict) else None
+    return said if isinstance(said, dict) else {}
+
+
+def defaults_leaving_out(
+    colcon_root: Path, env: Mapping[str, str], verb: str, given: Iterable[str] = ()
+) -> tuple[str, ...]:
+    """The options that leave packages out (LEAVING_OUT) the colcon defaults files set for VERB
+    (the workspace's over the user's), as command-line options, but for those GIVEN (options on
+    the command line, which win). espdock's checks read them as colcon does: a package a
+    defaults file skips was refused for its dependencies, and `espdock test` of only it passed
+    nothing."""
+    said: dict = {}
+    for path in (user_defaults_file(env), colcon_root / WORKSPACE_DEFAULTS):
+        if path.is_file():
+            said.update(defaults_for(path.read_text(errors="replace"), verb))
+    named = {_option_name(arg) for arg in given}
+    args: list[str] = []
+    for option in (option for option in LEAVING_OUT if option not in named):
+        value = said.get(option.removeprefix("--"))
+        if isinstance(value, list) and value:
+            args += [option, *(str(item) for item in value)]
+        elif value is True:
+            args.append(option)
+    return tuple(args)
 
 
 def _cmake_args(build: Mapping) -> tuple[str, ...] | None:
@@ -490,6 +513,7 @@ def read_colcon_settings(
     COLCON_ROOT with ARGS (None: no `--`); a malformed file or a refused option is exit 2 before
     anything runs."""
     args = check_colcon_args(args)
+    args += defaults_leaving_out(colcon_root, env, "build", args)
     files: list[str] = []
     # The same options spelt either way (`--cmake-args=-DX=1`, `--cmake-args -DX=1`) build the same.
     common = hashlib.sha256(json.dumps(output_args(_spelt_apart(args))).encode())
@@ -502,7 +526,7 @@ def read_colcon_settings(
             continue
         text = path.read_text(errors="replace")
         check_defaults(shown, text)
-        build = defaults_for_build(text)
+        build = defaults_for(text)
         cmake_args = _cmake_args(build) or cmake_args
         symlink_install = build.get("symlink-install", symlink_install) is True
         common.update(f"{shown}\0".encode() + hashlib.sha256(text.encode()).digest())

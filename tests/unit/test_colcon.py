@@ -437,3 +437,23 @@ def test_symlink_install_abbreviated_as_colcon_takes_it_is_a_switch_of_the_insta
         assert args == ("--symlink-install", "--packages-skip", "x")
         assert install_kind_switched(tmp_path, args)
     assert check_colcon_args(("--cmake-args", "-DSYM=1")) == ("--cmake-args", "-DSYM=1")
+
+
+def test_what_a_defaults_file_skips_is_left_out_of_the_checks_as_colcon_leaves_it_out(tmp_path):
+    """packages-skip in colcon_defaults.yaml: colcon skipped the package, and espdock refused the
+    build for the package's dependencies no image has."""
+    from espdock.ros.colcon import left_out
+
+    root = tmp_path / "ws"
+    dirs = {name: root / "src" / name for name in ("app", "driver")}
+    for path in dirs.values():
+        path.mkdir(parents=True)
+    (root / "colcon_defaults.yaml").write_text(
+        "build:\n  packages-skip: [driver]\n  packages-skip-build-finished: true\n"
+    )
+    settings = read_colcon_settings(root, dirs, None, {})
+    assert left_out(settings.args, {"app": (), "driver": ()}) == {"driver"}
+    # Given on the command line, the option wins over the file's, as in colcon.
+    given = read_colcon_settings(root, dirs, ("--packages-skip", "app"), {})
+    assert left_out(given.args, {"app": (), "driver": ()}) == {"app"}
+    assert output_args(settings.args) == ()

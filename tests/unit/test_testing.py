@@ -335,7 +335,7 @@ def test_packages_the_options_after_the_double_dash_skip_are_not_tested_nor_aske
     assert refused.returncode == 2 and "ament_lint_auto" in refused.stderr, refused.stderr
     skipped = espdock("test", "--", "--packages-skip", "linted", cwd=root, env=no_engine)
     said = " ".join((skipped.stdout + skipped.stderr).split())
-    assert "not tested (the options after `--` skip them): linted" in said, said
+    assert "not tested (the colcon options, after `--` or a defaults file's, skip them): linted" in said, said
     assert skipped.returncode == 3 and "ament_lint_auto" not in said  # on to the engine, which is not there
     # The last run's results (as its --results copy recorded them) go before the refusal: a CI
     # runner reported them as this run's.
@@ -346,7 +346,10 @@ def test_packages_the_options_after_the_double_dash_skip_are_not_tested_nor_aske
     nothing = espdock(
         "test", "linted", "--results", str(results), "--", "--packages-skip", "linted", cwd=root, env=no_engine
     )
-    assert nothing.returncode == 2 and "nothing to test: the options after `--` skip linted" in nothing.stderr
+    assert (
+        nothing.returncode == 2
+        and "nothing to test: the colcon options (after `--`, or a defaults file's) skip linted" in nothing.stderr
+    )
     assert not (results / "linted/pytest.xml").exists()
     # A firmware package beside them that declares no host tests tests nothing either: every ROS
     # package skipped passed, exit 0, with no result file.
@@ -354,7 +357,17 @@ def test_packages_the_options_after_the_double_dash_skip_are_not_tested_nor_aske
     everything = ("--packages-skip", "linted", "custom_interface")
     beside = espdock("test", "--", *everything, cwd=root, env=no_engine)
     assert beside.returncode == 2, beside.stdout + beside.stderr
-    assert "nothing to test: the options after `--` skip" in beside.stderr
+    assert "nothing to test: the colcon options (after `--`, or a defaults file's) skip" in beside.stderr
+    # Skipped by the workspace's colcon defaults file, which colcon reads: `espdock test linted`
+    # passed nothing (exit 0), and a run of them all was refused for what linted's tests need.
+    (root / "ws/colcon_defaults.yaml").write_text("test:\n  packages-skip:\n    - linted\n")
+    from_file = espdock("test", "linted", cwd=root, env=no_engine)
+    assert from_file.returncode == 2 and "skip linted" in from_file.stderr, from_file.stdout + from_file.stderr
+    every = espdock("test", cwd=root, env=no_engine)
+    said = " ".join((every.stdout + every.stderr).split())
+    assert "not tested (the colcon options, after `--` or a defaults file's, skip them): linted" in said, said
+    assert every.returncode == 3 and "ament_lint_auto" not in said
+    (root / "ws/colcon_defaults.yaml").unlink()
     # A package name espdock does not know: refused, and the last run's results gone as well.
     (results / "linted").mkdir()
     (results / "linted/pytest.xml").write_text("<testsuite tests='1'/>\n")

@@ -307,14 +307,46 @@ def last_build_args(base: Path) -> tuple[str, ...]:
     return tuple(str(arg) for arg in args) if isinstance(args, list) else ()
 
 
-def install_kind_switched(base: Path, args: tuple[str, ...]) -> bool:
-    """Whether ARGS (with what the defaults file turns on: ColconBuild.effective_args) turn
-    --symlink-install on or off since the last build in BASE. colcon does not switch a build dir in
+# Each package's install kind as its last build made it (true: --symlink-install), in the ROS build base.
+INSTALL_KINDS = ".espdock-install-kinds.json"
+
+
+def record_install_kinds(base: Path, names: Iterable[str], args: tuple[str, ...]) -> Path | None:
+    """Keep in BASE that NAMES were built with ARGS' install kind (ColconBuild.effective_args)."""
+    if not base.is_dir():
+        return None
+    kinds = {**_install_kinds(base), **dict.fromkeys(names, "--symlink-install" in args)}
+    path = base / INSTALL_KINDS
+    path.write_text(json.dumps(kinds, sort_keys=True) + "\n")
+    return path
+
+
+def _install_kinds(base: Path) -> dict[str, bool]:
+    try:
+        kinds = json.loads((base / INSTALL_KINDS).read_text())
+    except (OSError, ValueError):
+        return {}
+    return {name: kind for name, kind in kinds.items() if isinstance(kind, bool)} if isinstance(kinds, dict) else {}
+
+
+def symlink_installed(base: Path, name: str) -> bool | None:
+    """Whether package NAME's last build in BASE was a --symlink-install (its own record, else the
+    last build's options, as an older espdock kept only those); None where nothing says."""
+    kinds = _install_kinds(base)
+    if name in kinds:
+        return kinds[name]
+    return "--symlink-install" in last_build_args(base) if (base / LAST_ARGS).is_file() else None
+
+
+def install_kind_switched(base: Path, names: Iterable[str], args: tuple[str, ...]) -> list[str]:
+    """Those of NAMES whose last build in BASE made the other install kind than ARGS (with what the
+    defaults file turns on: ColconBuild.effective_args) make. colcon does not switch a build dir in
     place: an interface package's ament_cmake Python install fails on the directories a copying
-    install left, one package per run."""
-    if not (base / LAST_ARGS).is_file():
-        return False
-    return ("--symlink-install" in args) != ("--symlink-install" in last_build_args(base))
+    install left, one package per run. Kept per package: a selection's switch, kept for the
+    workspace, had the next build of the rest build in place (failing, or leaving links in a copying
+    install)."""
+    wanted = "--symlink-install" in args
+    return [name for name in names if symlink_installed(base, name) not in (None, wanted)]
 
 
 def _spelt_apart(args: Iterable[str]) -> tuple[str, ...]:

@@ -31,10 +31,11 @@ from espdock.ros.colcon import (
     closure,
     explain_failure,
     install_kind_switched,
-    last_build_args,
     left_out,
     named,
     record_build_args,
+    record_install_kinds,
+    symlink_installed,
     usage_error,
 )
 from espdock.ros.plan import PYTHON_BUILD_TYPES, ColconBuild, RuntimeImage, runtime_image_spec
@@ -101,22 +102,23 @@ class RosSteps:
             """NAMES' build dirs and install prefixes."""
             return tuple(tree for name in names for tree in (base / name, install / name))
 
-        if install_kind_switched(base, step.effective_args):
+        if switched := install_kind_switched(base, rebuild, step.effective_args):
             turned = "on" if "--symlink-install" in step.effective_args else "off"
             why = (
-                f"--symlink-install {turned} since the last build: removed the build dirs and install prefixes "
-                f"of {len(rebuild)} package(s), which colcon cannot switch in place"
+                f"--symlink-install {turned} since their last build: removed the build dirs and install prefixes "
+                f"of {len(switched)} package(s), which colcon cannot switch in place"
             )
-            if out := [name for name in rebuild if name in left_out(step.colcon_args, dict(step.depends), base)]:
+            if out := [name for name in switched if name in left_out(step.colcon_args, dict(step.depends), base)]:
                 why += f"; {', '.join(out)}, which the options after `--` leave out, stay uninstalled until built"
-            reasons.append((both(rebuild), why))
-        elif step.force:
+            reasons.append((both(switched), why))
+            rebuild = tuple(name for name in rebuild if name not in switched)
+        if step.force:
             # A rebuild by make and setuptools, which decide by time, kept what a source put back
             # with an older time (`cp -p`, a backup) had built: the old binary, --force or not.
             out = left_out(step.colcon_args, dict(step.depends), base)
-            afresh = [name for name in rebuild if name not in out]
-            why = f"--force: building {len(afresh)} package(s) afresh, in new build dirs and install prefixes"
-            reasons.append((both(afresh), why))
+            if afresh := [name for name in rebuild if name not in out]:
+                why = f"--force: building {len(afresh)} package(s) afresh, in new build dirs and install prefixes"
+                reasons.append((both(afresh), why))
         else:
             # Only those built before (a build dir here, or a record of one in the workspace volume): a
             # first build has nothing to build afresh, and said it did.
@@ -358,6 +360,8 @@ class RosSteps:
                     give_to(workspace.ws_dir / "build" / volume.SYNCED, self.containers.owner)
         if states is not None and not step.testing and (recorded_args := record_build_args(base, step.effective_args)):
             give_to(recorded_args, self.containers.owner)
+        if states is not None and (kinds := record_install_kinds(base, _built(states), step.effective_args)):
+            give_to(kinds, self.containers.owner)
         built = keep_built(states)
         self.unbuilt |= set(rebuild) - set(built)
         if states is None and code != 0:
@@ -530,7 +534,7 @@ def edited_since_built(workspace: Workspace, package: Package) -> str | None:
     tree = entry.get("tree") if isinstance(entry, dict) else None
     if not isinstance(tree, str) or tree == (now := tree_state(package.path)).digest:
         return None
-    if "--symlink-install" not in last_build_args(workspace.ws_dir / ROS_BUILD_BASE):
+    if not symlink_installed(workspace.ws_dir / ROS_BUILD_BASE, package.name):
         return "what that build installed"
     if package.build_type in PYTHON_BUILD_TYPES:
         if now.declares == entry.get("declares"):
@@ -565,6 +569,10 @@ def volume_listing(install: Path) -> str | None:
     the host added, every build on the volume took install/ for one another build had changed,
     and rebuilt every package."""
     return listing_digest(install, host_added(install))
+
+
+def _built(states: Mapping[str, PackageState]) -> list[str]:
+    return [name for name, state in states.items() if state is PackageState.BUILT]
 
 
 def _entries(directory: Path) -> list[str]:

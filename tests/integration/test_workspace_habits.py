@@ -69,7 +69,7 @@ def test_symlink_install_builds_runs_and_shows_a_source_edit_without_a_rebuild(e
     built(root)
     switched = espdock("build", "--only", "ros", "--", "--symlink-install", cwd=root)
     assert switched.returncode == 0, switched.stdout[-3000:] + switched.stderr[-3000:]
-    assert "--symlink-install on since the last build: removed the build dirs and install prefixes of 2" in " ".join(
+    assert "--symlink-install on since their last build: removed the build dirs and install prefixes of 2" in " ".join(
         switched.stdout.split()
     )
     install = root / "ws" / "install"

@@ -435,7 +435,7 @@ def test_symlink_install_abbreviated_as_colcon_takes_it_is_a_switch_of_the_insta
     for spelt in ("--symlink", "--sym"):
         args = check_colcon_args((spelt, "--packages-skip", "x"))
         assert args == ("--symlink-install", "--packages-skip", "x")
-        assert install_kind_switched(tmp_path, args)
+        assert install_kind_switched(tmp_path, ["x"], args) == ["x"]
     assert check_colcon_args(("--cmake-args", "-DSYM=1")) == ("--cmake-args", "-DSYM=1")
 
 
@@ -457,3 +457,19 @@ def test_what_a_defaults_file_skips_is_left_out_of_the_checks_as_colcon_leaves_i
     given = read_colcon_settings(root, dirs, ("--packages-skip", "app"), {})
     assert left_out(given.args, {"app": (), "driver": ()}) == {"app"}
     assert output_args(settings.args) == ()
+
+
+def test_the_install_kind_is_kept_per_package_so_a_selection_s_switch_is_not_taken_for_the_workspace_s(tmp_path):
+    """`espdock build leaf -- --symlink-install`, then `espdock build -- --symlink-install`: kept for
+    the workspace, the switch seemed done, and msgs (still copies) was built in place and failed;
+    the other way round, a copying build left msgs' install links."""
+    from espdock.ros.colcon import install_kind_switched, record_build_args, record_install_kinds
+
+    record_build_args(tmp_path, ())
+    record_install_kinds(tmp_path, ["msgs", "leaf"], ())
+    record_build_args(tmp_path, ("--symlink-install",))
+    record_install_kinds(tmp_path, ["leaf"], ("--symlink-install",))
+    assert install_kind_switched(tmp_path, ["msgs", "leaf"], ("--symlink-install",)) == ["msgs"]
+    assert install_kind_switched(tmp_path, ["msgs", "leaf"], ()) == ["leaf"]
+    # A package an older espdock built (no record of its own): the last build's options say.
+    assert install_kind_switched(tmp_path, ["old"], ()) == ["old"]

@@ -65,7 +65,12 @@ def colcon_installs(ws: Workspace, code: int = 0, lines: tuple[str, ...] = (), r
             on_line(line)
         argv = list(spec.argv)
         # --packages-ignore: as if colcon had not found it, so no event names it.
-        found = tuple(n for n in ("msgs", "app") if n not in named(argv, "--packages-ignore"))
+        paths = named(argv, "--base-paths")
+        found = tuple(
+            n
+            for n in ("msgs", "app")
+            if n not in named(argv, "--packages-ignore") and (not paths or any(p.endswith(f"/{n}") for p in paths))
+        )
         selected = tuple(n for n in found if n not in named(argv, "--packages-skip"))
         if "--packages-select" in argv:
             selected = tuple(n for n in selected if n in named(argv, "--packages-select"))
@@ -775,10 +780,35 @@ def test_symlink_install_turned_on_in_the_colcon_defaults_file_is_a_switch_and_o
     events: list = []
     on_in_defaults = replace(COLCON, defaults_symlink_install=True, force=True)
     runner(engine, events).run(Plan(ws, (on_in_defaults,)))
-    assert "--symlink-install on since the last build" in notes(events)
+    assert "--symlink-install on since their last build" in notes(events)
     events.clear()
     runner(engine, events).run(Plan(ws, (replace(on_in_defaults, colcon_args=("--symlink-install",)),)))
-    assert "since the last build" not in notes(events)
+    assert "since their last build" not in notes(events)
+
+
+def test_a_selection_s_switch_of_the_install_kind_is_its_own_and_the_rest_switch_when_built(ws):
+    """`espdock build msgs -- --symlink-install`, then `espdock build -- --symlink-install`: the
+    switch, kept for the workspace, seemed done, and app's copying build dir was built in place
+    (colcon failed on an interface package's; the other way round, its install links stayed)."""
+    from dataclasses import replace
+
+    engine = FakeEngine(run_script=colcon_installs(ws))
+    (ws.ws_dir / "build/espdock-ros").mkdir(parents=True)
+    runner(engine, []).run(Plan(ws, (COLCON,)))
+    events: list = []
+    # The options decide the stamps (through each package's colcon settings digest).
+    linked = {"colcon_args": ("--symlink-install",), "settings": (("msgs", "linked"), ("app", "linked"))}
+    msgs_only = replace(COLCON, packages=("msgs",), sources=COLCON.sources[:1], depends=COLCON.depends[:1])
+    runner(engine, events).run(Plan(ws, (replace(msgs_only, **linked),)))
+    assert "removed the build dirs and install prefixes of 1 package(s)" in notes(events)
+    events.clear()
+    (ws.ws_dir / "build/espdock-ros/app/CMakeCache.txt").parent.mkdir(parents=True, exist_ok=True)
+    (ws.ws_dir / "build/espdock-ros/app/CMakeCache.txt").write_text("AMENT_CMAKE_SYMLINK_INSTALL:BOOL=OFF\n")
+    runner(engine, events).run(Plan(ws, (replace(COLCON, **linked),)))
+    assert "--symlink-install on since their last build: removed the build dirs and install prefixes of 1" in notes(
+        events
+    )
+    assert not (ws.ws_dir / "build/espdock-ros/app/CMakeCache.txt").exists(), "app's copying build dir went first"
 
 
 def test_a_menuconfig_change_of_an_option_the_chip_s_defaults_file_sets_names_that_file(ws):

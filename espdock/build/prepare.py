@@ -21,7 +21,13 @@ from espdock.firmware.plan import (
 )
 from espdock.layout import ROS_BUILD_BASE, ROSDEP_LOCK, firmware_build_dir
 from espdock.ros import interfaces, rosdeps, testdeps
-from espdock.ros.colcon import last_build_args, output_args, read_colcon_settings, without_build_testing
+from espdock.ros.colcon import (
+    defaults_with_mixins,
+    last_build_args,
+    output_args,
+    read_colcon_settings,
+    without_build_testing,
+)
 from espdock.ros.plan import ColconBuild, RuntimeImage, checked_packages, ros_image
 from espdock.ros.steps import runtime_spec
 from espdock.ros.testing import ColconTest
@@ -70,6 +76,11 @@ def build_plan(
     inputs = known_inputs or read_build_inputs(ws, packages)
     ros = {p.name: p.path for p in packages if p.kind is PackageKind.ROS}
     colcon = read_colcon_settings(ws.ws_dir, ros, colcon_args, env)
+    for shown in defaults_with_mixins(ws.ws_dir, env):
+        notify(
+            f"warning: {shown} names colcon mixins, which the build image's colcon does not have (no colcon-mixin): "
+            "they are not applied. Give their options after `--` (e.g. `--cmake-args -DCMAKE_BUILD_TYPE=Release`)"
+        )
     if dry_run:
         reason = rosdep_lock_stale(config, packages, inputs)
         if reason and locked:

@@ -406,6 +406,18 @@ def defaults_for(text: str, verb: str = "build") -> dict:
     return said if isinstance(said, dict) else {}
 
 
+def defaults_with_mixins(colcon_root: Path, env: Mapping[str, str]) -> list[str]:
+    """The colcon defaults files (as shown to the user) whose `build` verb names mixins: the build
+    image has no colcon-mixin, and colcon skipped the key with a warning among its output, naming
+    the container's path of the file."""
+    user = user_defaults_file(env)
+    return [
+        str(shown)
+        for path, shown in ((user, user), (colcon_root / WORKSPACE_DEFAULTS, WORKSPACE_DEFAULTS))
+        if path.is_file() and "mixin" in defaults_for(path.read_text(errors="replace"))
+    ]
+
+
 def defaults_leaving_out(
     colcon_root: Path, env: Mapping[str, str], verb: str, given: Iterable[str] = ()
 ) -> tuple[str, ...]:

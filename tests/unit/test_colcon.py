@@ -473,3 +473,19 @@ def test_the_install_kind_is_kept_per_package_so_a_selection_s_switch_is_not_tak
     assert install_kind_switched(tmp_path, ["msgs", "leaf"], ()) == ["leaf"]
     # A package an older espdock built (no record of its own): the last build's options say.
     assert install_kind_switched(tmp_path, ["old"], ()) == ["old"]
+
+
+def test_mixins_named_in_the_user_s_defaults_file_are_warned_of_naming_it(tmp_path):
+    """`mixin: [release]` in ~/.colcon/defaults.yaml (the ROS tutorials' habit): the build image has no
+    colcon-mixin, and the only sign was a colcon warning among its output naming the container's path."""
+    root = copy_workspace(tmp_path / "w")
+    defaults = tmp_path / "home/.colcon/defaults.yaml"
+    defaults.parent.mkdir(parents=True)
+    defaults.write_text("build:\n  symlink-install: true\n  mixin:\n    - release\n")
+    planned = espdock("build", "--dry-run", cwd=root, env={**NO_ENGINE, "HOME": str(tmp_path / "home")})
+    said = " ".join((planned.stdout + planned.stderr).split())
+    assert planned.returncode == 0, said
+    assert f"warning: {defaults} names colcon mixins, which the build image's colcon does not have" in said
+    defaults.write_text("build:\n  symlink-install: true\n")
+    quiet = espdock("build", "--dry-run", cwd=root, env={**NO_ENGINE, "HOME": str(tmp_path / "home")})
+    assert "names colcon mixins" not in quiet.stdout + quiet.stderr

@@ -13,9 +13,11 @@ from espdock.build.steps import EnsureImage, Plan
 from espdock.config import Config, invoking_user
 from espdock.errors import EspdockError
 from espdock.firmware.plan import (
+    STANDARD_INTERFACES,
     IdfBuild,
     check_idf_projects_typed,
     check_no_vendored_micro_ros,
+    derive_interface_packages,
     firmware_step,
     unknown_dependencies,
 )
@@ -128,6 +130,19 @@ def build_plan(
                     "an interface package micro-ROS builds (std_msgs, sensor_msgs, ...), so the library has no "
                     "headers of it"
                 )
+            names = {p.name for p in packages}
+            for library in derive_interface_packages(packages, firmware):
+                used = interfaces.references(inputs.package_files.get(library.name, {}))
+                for other, (type_name, rel) in sorted(used.items()):
+                    if other not in names and other not in STANDARD_INTERFACES:
+                        # rosdep may give the ROS side the package; micro-ROS's library build has
+                        # only the workspace's and its standard set, and failed minutes in.
+                        notify(
+                            f"warning: {firmware.name}'s micro-ROS library holds {library.name}, whose {rel} uses "
+                            f"{type_name}: {other} is in no package of this workspace, nor an interface package "
+                            "micro-ROS builds, so the library build fails on it. Add the package to the workspace, "
+                            f"or keep that type out of what {firmware.name} depends on"
+                        )
     return plan_workspace(
         ws, config, packages, inputs, tuple(names), only, force, target, colcon, checked, testing=testing
     )

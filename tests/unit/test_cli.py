@@ -834,3 +834,24 @@ def test_compose_up_during_a_build_is_refused_before_it_makes_an_image_of_instal
         assert "warning: an espdock build is running" in shell.stdout + shell.stderr, shell.stdout + shell.stderr
     # The lock free again: on to the engine (none here).
     assert espdock("compose", "up", cwd=root, env=NO_ENGINE).returncode == 3
+
+
+def test_a_type_micro_ros_cannot_build_in_an_interface_package_of_the_firmware_s_library_is_warned_of(tmp_path):
+    """custom_interface, which camera_node depends on, used nav2_msgs/Costmap: rosdep gives the ROS
+    side nav2_msgs, micro-ROS's library build has no such package and failed (minutes into a real
+    one), and no warning came before, where the firmware's own unknown <depend>s get one."""
+    from tests.conftest import REPO
+
+    root = copy_workspace(tmp_path / "w")
+    shutil.copytree(REPO / "firmware", root / "firmware")
+    shutil.copy2(REPO / "Dockerfile.idf", root / "Dockerfile.idf")
+    msg = root / "ws/src/custom_interface/msg/CameraConfig.msg"
+    msg.write_text(msg.read_text() + "nav2_msgs/Costmap map\n")
+    plan = espdock("build", "--dry-run", "--only", "firmware", cwd=root, env=NO_ENGINE)
+    said = " ".join((plan.stdout + plan.stderr).split())
+    assert plan.returncode == 0, said
+    assert (
+        "warning: camera_node's micro-ROS library holds custom_interface, whose msg/CameraConfig.msg uses "
+        "nav2_msgs/Costmap: nav2_msgs is in no package of this workspace" in said
+    ), said
+    assert "led_strip_node's micro-ROS library holds custom_interface" not in said  # it does not depend on it

@@ -24,6 +24,7 @@ from espdock.firmware.plan import (
 from espdock.layout import ROS_BUILD_BASE, ROSDEP_LOCK, firmware_build_dir
 from espdock.ros import interfaces, rosdeps, testdeps
 from espdock.ros.colcon import (
+    ColconSettings,
     defaults_with_mixins,
     last_build_args,
     output_args,
@@ -179,6 +180,25 @@ def current_tags(ws: Workspace, config: Config, *, env: Mapping[str, str]) -> se
     return tags
 
 
+def replayed_args(built_with: tuple[str, ...], settings: ColconSettings) -> tuple[str, ...]:
+    """The last build's options BUILT_WITH (ColconBuild.effective_args) that decide what it
+    produced, as a build given them now makes the same stamps: less those that only leave packages
+    out or schedule them, and less the --symlink-install the colcon defaults file (SETTINGS) turns on
+    again (given on the command line as well, it made the stamps another build's, and the test and
+    the plain build rebuilt each other's packages)."""
+    last = output_args(built_with)
+    return tuple(arg for arg in last if arg != "--symlink-install") if settings.symlink_install else last
+
+
+def last_build_options(ws: Workspace, config: Config, env: Mapping[str, str]) -> tuple[str, ...] | None:
+    """The last build's options as replayed_args has them (None: none), for a plan whose stamps say
+    what is up to date by that build."""
+    packages = workspace_packages(ws, config.ros_distro)
+    ros = {p.name: p.path for p in packages if p.kind is PackageKind.ROS}
+    settings = read_colcon_settings(ws.ws_dir, ros, None, env)
+    return replayed_args(last_build_args(ws.ws_dir / ROS_BUILD_BASE), settings) or None
+
+
 def plan_tests(
     ws: Workspace,
     config: Config,
@@ -212,11 +232,7 @@ def plan_tests(
     # and those that only leave packages out or schedule them: a package the last build skipped
     # kept its tests unconfigured, and its failing tests passed for none.
     built_with = last_build_args(ws.ws_dir / ROS_BUILD_BASE)
-    last = output_args(built_with)
-    if settings.symlink_install:
-        # The defaults file turns it on again: given on the command line as well, it made the
-        # stamps another build's, and the test and the plain build rebuilt each other's packages.
-        last = tuple(arg for arg in last if arg != "--symlink-install")
+    last = replayed_args(built_with, settings)
     if last:
         notify(f"building with the options of the last espdock build: {' '.join(last)}")
     if dropped := [arg for arg in built_with if arg not in last]:

@@ -11,7 +11,7 @@ from typing import Annotated
 
 import typer
 
-from espdock.build.prepare import workspace_packages
+from espdock.build.prepare import last_build_options, workspace_packages
 from espdock.build.runner import Runner
 from espdock.build.steps import Plan
 from espdock.cli.core import WorkspaceOption, app, build_plan, command, ensure_images, load, notify
@@ -187,7 +187,9 @@ def run(
             f"(`espdock build {package}` first to run them)"
         )
     # Only what runs must be served: another package's missing key does not stop this node.
-    plan = build_plan(ws, config, [], PackageKind.ROS, checked=(package,))
+    # With the last build's options: by another's, every package would seem out of date.
+    last = last_build_options(ws, config, os.environ)
+    plan = build_plan(ws, config, [], PackageKind.ROS, colcon_args=last, checked=(package,))
     colcon = next((step for step in plan.steps if isinstance(step, ColconBuild)), None)
     if not runs and colcon is not None and (older := built_on_older(ws, colcon, package)) is not None:
         # `espdock build msgs` after a .msg edit: a node of a package built on the old msgs

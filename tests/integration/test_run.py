@@ -358,6 +358,11 @@ def test_run_says_when_a_package_was_built_on_older_sources_of_one_it_depends_on
     assert again.returncode == 0, again.stdout[-2000:] + again.stderr
     current = espdock(*run, cwd=root)
     assert "was built on other sources" not in current.stdout + current.stderr
+    # Built with options of its own: up to date by them, though a build without them would build again.
+    optioned = espdock("build", "--only", "ros", "--", "--cmake-args", "-DESPDOCK_TEST=1", cwd=root)
+    assert optioned.returncode == 0, optioned.stdout[-2000:] + optioned.stderr
+    after = espdock(*run, cwd=root)
+    assert "was built on other sources" not in after.stdout + after.stderr
     assert no_containers_left(engine, root) == []
 
 

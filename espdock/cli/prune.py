@@ -118,13 +118,14 @@ def prune(
     )
 
 
-def record_images(ws: Workspace, runner: Runner, runtime: str | None = None) -> None:
+def record_images(ws: Workspace, runner: Runner, runtime: str | None = None, whole: bool = True) -> None:
     """Record the keyed images RUNNER used for WS (a build's, `run`'s, `espdock test`'s): what
     `espdock prune` may remove later. RUNTIME: the workspace's runtime image repository, which
-    another workspace of the same name shares (said once it is used)."""
+    another workspace of the same name shares (said once it is used). WHOLE: not a build of some
+    packages only (record_use)."""
     state = state_dir(os.environ)
     try:
-        record_use(state, ws.root, runner.used_images, time.time())
+        record_use(state, ws.root, runner.used_images, time.time(), whole)
     except OSError as exc:
         notify(f"warning: could not record the images this command used in {state}: {exc.strerror}")
     if runtime is None or all(repository != runtime for _, repository in runner.used_images):
@@ -146,11 +147,11 @@ def record_images(ws: Workspace, runner: Runner, runtime: str | None = None) -> 
         )
 
 
-def after_build(engine: Engine, ws: Workspace, config: Config, runner: Runner, built: bool) -> None:
-    """Record the images the build used; prune when prune_auto; when the build BUILT something,
-    say once when espdock's images take more than images_warn_gb. A build that changed nothing
-    added no image: listing them all costs the engine more than the rest of such a build."""
-    record_images(ws, runner, runtime_repository(config, ws))
+def after_build(engine: Engine, ws: Workspace, config: Config, runner: Runner, built: bool, whole: bool = True) -> None:
+    """Record the images the build used (WHOLE: record_use); prune when prune_auto; when the build
+    BUILT something, say once when espdock's images take more than images_warn_gb. A build that
+    changed nothing added no image: listing them all costs the engine more than the rest of such a build."""
+    record_images(ws, runner, runtime_repository(config, ws), whole)
     try:
         _prune_or_warn(engine, ws, config, built)
     except EspdockError as exc:  # the build succeeded: what is only housekeeping must not fail it

@@ -180,14 +180,14 @@ def build(
             results = runner.run(plan)
         except BaseException:
             # The images a failed build made are its inputs' as they are: prune has to know them.
-            record_images(ws, runner)
+            record_images(ws, runner, whole=not packages)
             raise
         built = any(r.outcome is not Outcome.CACHED for r in results)
         chown = owner if os.geteuid() == 0 else None
         manifest = record_build(plan, config.target, ws.ws_dir / "install", built, stamp_files(ws), chown)
         if runner.unpushed:
             # Asked for, so a job that publishes the cache must not pass without it.
-            after_build(engine, ws, config, runner, built)
+            after_build(engine, ws, config, runner, built, whole=not packages)
             raise unpushed_error(runner.unpushed, config.cache_registry, "The build itself succeeded and is installed")
     except KeyboardInterrupt:
         stopped = INTERRUPTED  # a cancelled CI job, not a failed build
@@ -218,7 +218,7 @@ def build(
                 style="yellow",
             )
         )
-    after_build(engine, ws, config, runner, built)
+    after_build(engine, ws, config, runner, built, whole=not packages)
 
 
 @app.command()

@@ -84,9 +84,12 @@ def gone_workspaces(records: Iterable[Record]) -> set[str]:
     return {record.root for record in records if workspace_gone(record.root)}
 
 
-def record_use(state: Path, root: Path, used: Iterable[tuple[str, str]], now: float) -> None:
+def record_use(state: Path, root: Path, used: Iterable[tuple[str, str]], now: float, whole: bool = True) -> None:
     """Record that ROOT's build used USED (tag, repository) at NOW: those become its current image of
-    each kind; kinds the build did not touch (a --only build) keep their current one."""
+    each kind; kinds the build did not touch (a --only build) keep their current one. Not WHOLE (a
+    build of some packages): the kinds it touched keep theirs too, as one kind may hold more than
+    one current image (a micro-ROS image per library inputs): the build of one firmware package
+    dropped the others' images, and another workspace's prune removed them."""
     used = dict(used)
     if not used:
         return
@@ -100,7 +103,11 @@ def record_use(state: Path, root: Path, used: Iterable[tuple[str, str]], now: fl
     for tag, repository in used.items():
         images[tag] = {"repository": repository, "used": now}
     kinds = set(used.values())
-    kept = {t for t in (previous.current if previous else ()) if images.get(t, {}).get("repository") not in kinds}
+    kept = {
+        t
+        for t in (previous.current if previous else ())
+        if not whole or images.get(t, {}).get("repository") not in kinds
+    }
     data = {"root": str(root), "images": images, "current": sorted(kept | set(used))}
     path.parent.mkdir(parents=True, mode=0o700, exist_ok=True)
     durable.write_text(path, json.dumps(data, indent=1, sort_keys=True) + "\n")

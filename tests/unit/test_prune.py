@@ -15,6 +15,24 @@ def test_a_build_records_its_images_as_current_per_kind(tmp_path):
                                                          ("espdock/w:b1", 10)}  # fmt: skip
 
 
+def test_a_build_of_some_packages_keeps_the_other_current_images_of_the_kinds_it_used(tmp_path):
+    """Two firmware packages with micro-ROS images of one chip (their library inputs differ):
+    `espdock build board_a` recorded only board_a's as current, and another workspace's prune then
+    removed board_b's as "no longer used by its inputs", which the next build here built again."""
+    uros = "espdock/idf-micro-ros-jazzy-esp32"
+    ws = tmp_path / "ws"
+    record_use(tmp_path, ws, [(f"{uros}:a1", uros), (f"{uros}:b1", uros), ("espdock/ros:r1", "espdock/ros")], 10)
+    record_use(tmp_path, ws, [(f"{uros}:a2", uros)], 20, whole=False)  # board_a edited and built alone
+    (record,) = read_records(tmp_path)
+    assert {f"{uros}:b1", f"{uros}:a2", "espdock/ros:r1"} <= record.current
+    # Another workspace's prune, which reads this record: board_b's image stays.
+    plan = plan_prune([record], {"/elsewhere"}, {}, present(f"{uros}:b1"), set(), keep=0)
+    assert plan.remove == ()
+    record_use(tmp_path, ws, [(f"{uros}:a2", uros), (f"{uros}:b2", uros)], 30)  # a whole build: these only
+    (record,) = read_records(tmp_path)
+    assert {t for t in record.current if t.startswith(uros)} == {f"{uros}:a2", f"{uros}:b2"}
+
+
 def generations(root: str, kind: str, count: int) -> tuple[UsedImage, ...]:
     return tuple(UsedImage(f"{kind}:{n}", kind, float(n)) for n in range(1, count + 1))
 

@@ -10,7 +10,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -26,21 +26,22 @@ from espdock.ros.plan import ColconBuild
 FORMAT = 1
 
 
-def file_hashes(install: Path) -> dict[str, str]:
-    """sha256 of every file under INSTALL (symlinks as 'symlink:' + target), by relative path."""
-    hashes: dict[str, str] = {}
+def _installed(install: Path) -> Iterator[tuple[str, Path]]:
+    """Every file and link under INSTALL (but the manifest), by relative path, in order."""
     for dirpath, dirnames, filenames in os.walk(install):
         dirnames.sort()
         for name in sorted(filenames + [d for d in dirnames if (Path(dirpath) / d).is_symlink()]):
             path = Path(dirpath) / name
-            rel = path.relative_to(install).as_posix()
-            if rel == MANIFEST_NAME:
-                continue
-            if path.is_symlink():
-                hashes[rel] = "symlink:" + os.readlink(path)
-            else:
-                hashes[rel] = hashlib.sha256(path.read_bytes()).hexdigest()
-    return hashes
+            if (rel := path.relative_to(install).as_posix()) != MANIFEST_NAME:
+                yield rel, path
+
+
+def file_hashes(install: Path) -> dict[str, str]:
+    """sha256 of every file under INSTALL (symlinks as 'symlink:' + target), by relative path."""
+    return {
+        rel: "symlink:" + os.readlink(path) if path.is_symlink() else hashlib.sha256(path.read_bytes()).hexdigest()
+        for rel, path in _installed(install)
+    }
 
 
 def _image(spec: ImageSpec) -> dict[str, object]:
@@ -77,17 +78,12 @@ def build_manifest(plan: Plan, target: str, install: Path, previous: Mapping | N
     }
 
 
-def _lists_what_is_gone(manifest: Mapping, install: Path) -> bool:
-    """Whether MANIFEST lists a file under a top entry of INSTALL that is gone: a package's prefix
-    removed by hand (as a build's note on a renamed package says to), which no build rebuilds."""
+def _lists_other_files(manifest: Mapping, install: Path) -> bool:
+    """Whether MANIFEST lists other files than INSTALL holds (paths only: hashing is what a no-change
+    build saves): a package's prefix removed by hand (as a build's note on a renamed package says
+    to), another job's install/ merged in, which no build rebuilds."""
     files = manifest.get("files")
-    if not isinstance(files, dict):
-        return True
-    try:
-        present = set(os.listdir(install))
-    except OSError:
-        return True
-    return not {rel.split("/", 1)[0] for rel in files} <= present
+    return not isinstance(files, dict) or set(files) != {rel for rel, _ in _installed(install)}
 
 
 def _temporary(install: Path) -> Path:
@@ -113,9 +109,11 @@ def record_build(
     plan: Plan, target: str, install: Path, built: bool, stamps: Iterable[Path], owner: tuple[int, int] | None
 ) -> dict:
     """The manifest of PLAN's finished build, written to INSTALL unless nothing was BUILT and the one
-    there is newer than every stamp file in STAMPS (every install tree was checked against its stamp:
-    re-hashing would be most of a no-change build's time; a stamp newer than the manifest is a build
-    killed before its manifest was written). OWNER: who the written file belongs to (as root)."""
+    there, listing the files INSTALL holds, is newer than every stamp file in STAMPS (every install
+    tree was checked against its stamp: re-hashing would be most of a no-change build's time; a stamp
+    newer than the manifest is a build killed before its manifest was written). One that is no
+    manifest is written anew: the build failed on it, every time. OWNER: who the written file
+    belongs to (as root)."""
     existing = install / MANIFEST_NAME
     _temporary(install).unlink(missing_ok=True)  # left by an espdock killed while writing
     try:
@@ -123,7 +121,7 @@ def record_build(
     except WorkspaceError:
         previous = None
     if previous is not None and not built and _newer_than_stamps(existing, stamps):
-        if not _lists_what_is_gone(previous, install):
+        if not _lists_other_files(previous, install):
             return previous
     manifest = build_manifest(plan, target, install, previous)
     try:

@@ -109,6 +109,25 @@ def test_a_no_change_build_after_a_package_s_prefix_was_removed_lists_it_no_more
     assert compare(read_manifest(install / MANIFEST_NAME)["files"], file_hashes(install)) == []
 
 
+def test_a_no_change_build_writes_anew_a_manifest_that_is_none_or_lists_other_files(tmp_path):
+    """A manifest cut short made every later build exit 2 ("is not an espdock manifest") until it was
+    removed by hand; another CI job's install/ merged in kept the job's manifest, which `espdock
+    verify` then failed against."""
+    install = tree(tmp_path)
+    stamp = tmp_path / "build/.espdock-colcon-stamps.json"
+    stamp.parent.mkdir()
+    stamp.write_text("{}")
+    plan = Plan(Workspace(tmp_path))
+    record_build(plan, "esp32", install, True, [stamp], None)
+    (install / MANIFEST_NAME).write_text('{"format": 1, "files":')
+    assert record_build(plan, "esp32", install, False, [stamp], None)["files"] == file_hashes(install)
+    (install / "fw_pkg/share/fw_pkg").mkdir(parents=True)
+    (install / "fw_pkg/share/fw_pkg/app.bin").write_bytes(b"\xe9")  # the firmware job's
+    kept = record_build(plan, "esp32", install, False, [stamp], None)
+    assert "fw_pkg/share/fw_pkg/app.bin" in kept["files"]
+    assert compare(read_manifest(install / MANIFEST_NAME)["files"], file_hashes(install)) == []
+
+
 def test_a_build_of_part_of_the_workspace_keeps_what_the_manifest_said_of_the_rest(tmp_path):
     """`espdock build --only ros` (or of one package) wrote a manifest without the firmware packages
     still installed, their chips and images, though it listed their files."""

@@ -34,6 +34,11 @@ def workspace_commit_time(root: Path) -> str | None:
     return value if result.returncode == 0 and value.isdigit() else None
 
 
+# SOURCE_DATE_EPOCH of a workspace with no git history: 1980-01-01, the earliest time a zip (a
+# wheel, an egg) can hold.
+NO_COMMIT_EPOCH = "315532800"
+
+
 class Containers:
     """What every step's containers share in one run: the engine, the settings, where progress
     goes and who owns what they write."""
@@ -58,8 +63,10 @@ class Containers:
         to source hashes, GCC's __DATE__/__TIME__, ...), so two builds of a commit match."""
         if workspace.root not in self._commit_times:  # one git call per run, not one per container
             self._commit_times[workspace.root] = workspace_commit_time(workspace.root)
-        epoch = self.env.get("SOURCE_DATE_EPOCH") or self._commit_times[workspace.root]
-        return (("SOURCE_DATE_EPOCH", epoch),) if epoch else ()
+        # Without git history (`git archive`, a downloaded zip), a fixed time: unset, .pyc files
+        # held the sources' modification times, which differ with every unpacking.
+        epoch = self.env.get("SOURCE_DATE_EPOCH") or self._commit_times[workspace.root] or NO_COMMIT_EPOCH
+        return (("SOURCE_DATE_EPOCH", epoch),)
 
     def reproducible_env(self, workspace: Workspace) -> tuple[tuple[str, str], ...]:
         """SOURCE_DATE_EPOCH, and a fixed PYTHONHASHSEED: rosidl's generators write some lists in

@@ -250,6 +250,18 @@ def test_registry_answers_are_told_apart(said, status):
     assert _registry_answer(said).status == status
 
 
+def test_a_workspace_without_git_history_builds_with_a_fixed_source_date(ws):
+    """A tree from `git archive` or a downloaded zip: no SOURCE_DATE_EPOCH reached the containers,
+    and Python wrote .pyc files holding the sources' modification times, which differ with every
+    unpacking (the install of one commit differed from a clone's)."""
+    engine = FakeEngine(run_script=colcon_installs(ws))
+    (ws.ws_dir / "build/espdock-ros").mkdir(parents=True)
+    assert not (ws.root / ".git").exists()
+    runner(engine, []).run(Plan(ws, (COLCON,)))
+    (colcon,) = [run for run in engine.runs if "colcon" in run.argv[-1] or "colcon" in run.argv]
+    assert ("SOURCE_DATE_EPOCH", "315532800") in colcon.env
+
+
 def test_image_builds_get_the_source_date_but_it_is_not_part_of_the_key(ws):
     engine = FakeEngine()
     Runner(engine, Config(), {"SOURCE_DATE_EPOCH": "1767323045"}, [].append, (os.getuid(), os.getgid())).run(

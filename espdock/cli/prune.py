@@ -92,7 +92,7 @@ def prune(
     verb = "would remove" if dry_run else "removed"
     for decision in plan.remove:
         if decision.tag in busy:
-            console.print(Text(f"kept {decision.tag}: a stopped container uses it (docker container prune)"))
+            console.print(Text(f"kept {decision.tag}: a container made since the plan uses it"))
         else:
             console.print(Text(f"{verb} {decision.tag} ({size_text(decision.size)}; {decision.reason})"))
     for decision in plan.keep:

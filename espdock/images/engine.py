@@ -462,10 +462,16 @@ class Engine:
         with self._plain_call(refused, also=() if doing else (requests.exceptions.RequestException,), doing=doing):
             return self._client.api.images(filters=filters)
 
-    def running_images(self) -> set[str]:
-        """The image ids of the running containers."""
+    def image_users(self) -> dict[str, tuple[bool, str]]:
+        """Per image id its containers, running or stopped, which keep it from removal: whether
+        one runs, and a name (the first, one running where there is one)."""
         with self._plain_call("failed to list its containers", also=(requests.exceptions.RequestException,)):
-            return {c["ImageID"] for c in self._client.api.containers(filters={"status": "running"})}
+            listed = self._client.api.containers(all=True)
+        users: dict[str, tuple[bool, str]] = {}
+        for container in sorted(listed, key=lambda c: c.get("State") != "running"):
+            name = ((container.get("Names") or ["?"])[0]).lstrip("/")
+            users.setdefault(container["ImageID"], (container.get("State") == "running", name))
+        return users
 
     def remove_tag(self, ref: str) -> bool:
         """Remove the name REF, and the image when it was its last name; False when a container

@@ -165,7 +165,7 @@ def plan_prune(
     targets: Iterable[str],
     current: Mapping[str, Iterable[str]],
     present: Iterable[Present],
-    running: Iterable[str],
+    users: Mapping[str, tuple[bool, str]],
     keep: int,
     gone: Iterable[str] = (),
 ) -> PrunePlan:
@@ -173,14 +173,14 @@ def plan_prune(
 
     Each target keeps what CURRENT (root -> tags its inputs use now; else what its last build
     used) names and, of each kind (repository), the KEEP most recently used others. An image
-    stays, too, when another record's last build used it, when a running container runs it
-    (RUNNING: image ids), or when it is no longer on the engine (PRESENT). A GONE workspace (its
+    stays, too, when another record's last build used it, when a container, running or stopped,
+    uses it (USERS: image id -> whether one runs, and its name; the engine refuses to remove such
+    an image, and the dry run listed it), or when it is no longer on the engine (PRESENT). A GONE workspace (its
     root removed) keeps nothing and protects nothing: no build will use its images again."""
     records = list(records)
     targets = set(targets)
     gone = set(gone)
     on_engine = {p.tag: p for p in present}
-    running = set(running)
     remove: list[Decision] = []
     kept: list[Decision] = []
     seen_ids: set[str] = set()
@@ -207,7 +207,7 @@ def plan_prune(
                 there = on_engine.get(image.tag)
                 if there is None:
                     continue
-                decision = _decide(image, there, index, 0 if removed else keep, others, running)
+                decision = _decide(image, there, index, 0 if removed else keep, others, users)
                 if decision is None:
                     size = 0 if there.image_id in seen_ids else there.size
                     seen_ids.add(there.image_id)
@@ -248,16 +248,24 @@ _STRONGEST_FIRST = (
 def _strength(reason: str) -> int:
     """REASON's rank among the reasons an image is kept (0: the strongest); "one of the last N"
     ranks last, as only a --keep protects it."""
+    if reason.startswith(STOPPED):
+        return _STRONGEST_FIRST.index("a running container uses it")
     return _STRONGEST_FIRST.index(reason) if reason in _STRONGEST_FIRST else len(_STRONGEST_FIRST)
 
 
-def _decide(image: UsedImage, there: Present, index: int, keep: int, others: set[str], running: set[str]) -> str | None:
+STOPPED = "a stopped container uses it"
+
+
+def _decide(
+    image: UsedImage, there: Present, index: int, keep: int, others: set[str], users: Mapping[str, tuple[bool, str]]
+) -> str | None:
     if index < keep:
         return f"one of the last {keep} of its kind"
     if image.tag in others:
         return "another workspace's last build used it"
-    if there.image_id in running:
-        return "a running container uses it"
+    if there.image_id in users:
+        running, name = users[there.image_id]
+        return "a running container uses it" if running else f"{STOPPED} ({name}; `docker rm {name}` lets it go)"
     return None
 
 
@@ -293,7 +301,7 @@ def prune_images(
     listing = engine.labelled_images(LABEL_KEY, shared=True)
     present = present_images(listing)
     gone = gone_workspaces(records)
-    plan = plan_prune(records, targets, current_tags, present, engine.running_images(), keep, gone)
+    plan = plan_prune(records, targets, current_tags, present, engine.image_users(), keep, gone)
     busy: list[str] = []
     if not dry_run:
         removed: dict[str, list[str]] = {}

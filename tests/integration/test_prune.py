@@ -80,6 +80,17 @@ def test_prune_keeps_what_is_used_and_removes_the_rest(engine, tmp_path):
             assert f"kept {tag} (another workspace's last build used it)" in dry.stdout, dry.stdout
         assert f"would remove {len(gone)} images, " in dry.stdout
 
+        # A stopped container of one of them: the engine refuses to remove its image, and the dry run
+        # listed it as going ("would remove"), where the prune then kept it, naming no container.
+        held, holder = sorted(gone)[0], f"espdock-test-stopped-{run}"
+        subprocess.run(["docker", "create", "--name", holder, held, "true"], capture_output=True, check=True)
+        try:
+            stopped = espdock("prune", "--keep", "0", "--dry-run", cwd=first, env=env)
+            said = f"kept {held} (a stopped container uses it ({holder}; `docker rm {holder}` lets it go))"
+            assert said in stopped.stdout and f"would remove {held} " not in stopped.stdout, stopped.stdout
+        finally:
+            subprocess.run(["docker", "rm", holder], capture_output=True, check=False)
+
         kept_one = espdock("prune", "--keep", "1", "--dry-run", cwd=first, env=env)
         assert kept_one.stdout.count("would remove espdock/") == len(gone) - 1, kept_one.stdout  # gen 2's runtime stays
 

@@ -309,7 +309,7 @@ NO_SOURCE = 'invalid mount config for type "bind": bind source path does not exi
             None,
         ),
         (
-            lambda e: e.running_images(),
+            lambda e: e.image_users(),
             {"api.containers": requests.exceptions.ConnectionError("Connection aborted.")},
             EspdockError,
             "the engine failed to list its containers: Connection aborted.",
@@ -349,7 +349,7 @@ NO_SOURCE = 'invalid mount config for type "bind": bind source path does not exi
         "images",
         "containers",
         "sweep",
-        "running_images-unanswered",
+        "image_users-unanswered",
         "labelled_images",
         "trim_build_cache",
     ],

@@ -45,7 +45,7 @@ def test_the_old_generations_go_the_last_n_and_what_others_or_containers_use_sta
     ours = Record("/a", generations("/a", "ros", 5), frozenset({"ros:5"}))
     theirs = Record("/b", (UsedImage("ros:2", "ros", 2.0),), frozenset({"ros:2"}))
     tags = [f"ros:{n}" for n in range(1, 6)]
-    plan = plan_prune([ours, theirs], {"/a"}, {"/a": {"ros:5"}}, present(*tags), {"id-ros:1"}, keep=1)
+    plan = plan_prune([ours, theirs], {"/a"}, {"/a": {"ros:5"}}, present(*tags), {"id-ros:1": (True, "node")}, keep=1)
     assert [d.tag for d in plan.remove] == ["ros:3"]
     assert {d.tag: d.reason for d in plan.keep} == {
         "ros:4": "one of the last 1 of its kind",

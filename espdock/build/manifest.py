@@ -10,6 +10,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import stat
 from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -23,7 +24,9 @@ from espdock.images.containers import give_to
 from espdock.layout import FIRMWARE_DIR, MANIFEST_NAME
 from espdock.ros.plan import ColconBuild
 
-FORMAT = 1
+FORMAT = 2
+# The formats this espdock reads: 1 held no file modes.
+READABLE = (1, 2)
 
 
 def _installed(install: Path) -> Iterator[tuple[str, Path]]:
@@ -36,12 +39,22 @@ def _installed(install: Path) -> Iterator[tuple[str, Path]]:
                 yield rel, path
 
 
-def file_hashes(install: Path) -> dict[str, str]:
-    """sha256 of every file under INSTALL (symlinks as 'symlink:' + target), by relative path."""
-    return {
-        rel: "symlink:" + os.readlink(path) if path.is_symlink() else hashlib.sha256(path.read_bytes()).hexdigest()
-        for rel, path in _installed(install)
-    }
+def file_hashes(install: Path, modes: bool = True) -> dict[str, str]:
+    """sha256 of every file under INSTALL (symlinks as 'symlink:' + target), by relative path; with
+    MODES, an executable's (its owner's x bit) followed by EXECUTABLE: a script of `ros2 run` that
+    lost it no longer starts, and matched all the same. Format 1 manifests hold no modes."""
+
+    def entry(path: Path) -> str:
+        if path.is_symlink():
+            return "symlink:" + os.readlink(path)
+        digest = hashlib.sha256(path.read_bytes()).hexdigest()
+        return digest + EXECUTABLE if modes and path.stat().st_mode & stat.S_IXUSR else digest
+
+    return {rel: entry(path) for rel, path in _installed(install)}
+
+
+# What marks an executable's hash in a manifest (format 2).
+EXECUTABLE = " executable"
 
 
 def _image(spec: ImageSpec) -> dict[str, object]:
@@ -120,7 +133,7 @@ def record_build(
         previous: dict | None = read_manifest(existing)
     except WorkspaceError:
         previous = None
-    if previous is not None and not built and _newer_than_stamps(existing, stamps):
+    if previous is not None and previous["format"] == FORMAT and not built and _newer_than_stamps(existing, stamps):
         if not _lists_other_files(previous, install):
             return previous
     manifest = build_manifest(plan, target, install, previous)
@@ -183,7 +196,7 @@ def read_manifest(path: Path) -> dict:
         raise WorkspaceError(f"{path} does not exist", f"A build writes it into install/ ({MANIFEST_NAME}).") from None
     except (OSError, ValueError) as exc:
         raise WorkspaceError(f"{path} is not an espdock manifest: {exc}", "Give the install tree's one.") from None
-    if not isinstance(data, dict) or data.get("format") != FORMAT or not isinstance(data.get("files"), dict):
+    if not isinstance(data, dict) or data.get("format") not in READABLE or not isinstance(data.get("files"), dict):
         raise WorkspaceError(f"{path} is not an espdock manifest (format {FORMAT})", "Give the install tree's one.")
     return data
 

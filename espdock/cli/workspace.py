@@ -261,7 +261,10 @@ def verify(
     """Compare an install tree with a build manifest: every missing, extra or changed file; exit 1 on any."""
     data = read_manifest(manifest)
     tree = install or manifest.parent
-    differences = compare(data["files"], file_hashes(tree))
+    if not tree.is_dir():
+        # Every file "missing": a typo in the path looked like a wiped install.
+        raise WorkspaceError(f"{tree} is no directory", "Give --install the install tree to check.")
+    differences = compare(data["files"], file_hashes(tree, modes=data["format"] >= 2))
     for difference in differences:
         console.print(f"{difference.what:<8} {difference.path}")
     if differences:

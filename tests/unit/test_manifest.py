@@ -157,3 +157,34 @@ def test_a_build_of_part_of_the_workspace_keeps_what_the_manifest_said_of_the_re
     write_manifest(previous, install)
     manifest = record_build(firmware_only, "esp32", install, True, [stamp], None)
     assert sorted(manifest["images"]) == [uros, ros], "what built the ROS packages stays"
+
+
+def test_an_executable_that_lost_its_x_bit_is_a_changed_file_and_older_manifests_still_read(tmp_path):
+    """`chmod -x` of an installed node script (`ros2 run` then fails, "Permission denied"):
+    `espdock verify` said the install matched."""
+    install = tree(tmp_path)
+    script = install / "pkg/lib/pkg/node"
+    script.parent.mkdir(parents=True)
+    script.write_text("#!/usr/bin/python3\n")
+    script.chmod(0o755)
+    before = file_hashes(install)
+    script.chmod(0o644)
+    assert compare(before, file_hashes(install)) == [Difference("pkg/lib/pkg/node", "changed")]
+    # A manifest an earlier espdock wrote (format 1, no modes) reads, and is compared without them.
+    old = {"format": 1, "files": file_hashes(install, modes=False)}
+    write_manifest(old, install)
+    script.chmod(0o755)
+    assert compare(read_manifest(install / MANIFEST_NAME)["files"], file_hashes(install, modes=False)) == []
+
+
+def test_verify_of_an_install_path_that_is_no_directory_is_refused(tmp_path):
+    """`espdock verify M --install /typo`: exit 1 with every file "missing", as for a wiped install."""
+    from tests.conftest import espdock
+
+    install = tree(tmp_path)
+    write_manifest({"format": 2, "files": file_hashes(install)}, install)
+    typo = espdock("verify", str(install / MANIFEST_NAME), "--install", str(tmp_path / "instal"), cwd=tmp_path)
+    assert typo.returncode == 2, typo.stdout + typo.stderr
+    assert f"{tmp_path / 'instal'} is no directory" in typo.stderr and "missing" not in typo.stdout
+    ok = espdock("verify", str(install / MANIFEST_NAME), cwd=tmp_path)
+    assert ok.returncode == 0, ok.stdout + ok.stderr

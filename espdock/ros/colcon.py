@@ -118,6 +118,17 @@ def check_colcon_args(args: Iterable[str] | None, verb: str = "build") -> tuple[
             f"Name packages before the `--` (`espdock {verb} {args[0]}`); options after it, e.g. "
             f"`espdock {verb} -- {example}`.",
         )
+    passing = False  # after a `--cmake-args` & co, whose values (`-DX=1`) begin with a dash
+    for arg in args:
+        if arg.startswith("--"):
+            passing = _PASSED_ON.match(arg) is not None
+        elif arg.startswith("-") and not passing:
+            # colcon's argparse took it for a value of espdock's own --event-handlers before it.
+            raise ConfigError(
+                f"'{arg}' after `--` is no colcon option: what follows `--` goes to `colcon {verb}` as options",
+                f"Give a tool's options after the colcon option that passes them on, e.g. "
+                f"`espdock {verb} -- --cmake-args {arg}`.",
+            )
     # colcon takes unique prefixes (`--symlink`): spelt out where espdock reads the option itself.
     args = tuple(SPELT_OUT if _option_name(arg) and _abbreviates(arg, SPELT_OUT) else arg for arg in args)
     for arg in args:
@@ -283,6 +294,7 @@ def _read_stripped(path: Path) -> str | None:
 _BUILD_TESTING = re.compile(r"^-DBUILD_TESTING(:BOOL)?=", re.IGNORECASE)
 # The options colcon passes on to a tool (cmake, ament-cmake, pytest, ctest), given with their value joined.
 _PASSED_ON_JOINED = re.compile(r"^--[a-z-]+-args=")
+_PASSED_ON = re.compile(r"^--[a-z-]+-args(=|$)")
 
 # The options after `--` of the last colcon build that ran (in the ROS build base): what install/
 # is built with, which `espdock test`'s builds keep (a --symlink-install stays one).

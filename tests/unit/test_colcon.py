@@ -489,3 +489,14 @@ def test_mixins_named_in_the_user_s_defaults_file_are_warned_of_naming_it(tmp_pa
     defaults.write_text("build:\n  symlink-install: true\n")
     quiet = espdock("build", "--dry-run", cwd=root, env={**NO_ENGINE, "HOME": str(tmp_path / "home")})
     assert "names colcon mixins" not in quiet.stdout + quiet.stderr
+
+
+def test_a_tool_s_option_given_without_the_colcon_option_that_passes_it_on_is_refused_naming_it():
+    """`espdock build -- -DBUILD_TESTING=OFF`: colcon's argparse took it for a value of espdock's own
+    --event-handlers, and said "argument --event-handlers: invalid choice", an option never given."""
+    with pytest.raises(ConfigError, match="'-DBUILD_TESTING=OFF' after `--` is no colcon option") as err:
+        check_colcon_args(("--packages-skip", "a", "-DBUILD_TESTING=OFF"))
+    assert "`espdock build -- --cmake-args -DBUILD_TESTING=OFF`" in err.value.hint
+    assert check_colcon_args(("--cmake-args", "-DX=1", "-DY=2", "--ctest-args", "-E", "lint")) == (
+        "--cmake-args", "-DX=1", "-DY=2", "--ctest-args", "-E", "lint",
+    )  # fmt: skip

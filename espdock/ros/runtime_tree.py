@@ -70,7 +70,7 @@ def _walk(directory: Path, dest: str, root: Path, tree: Path, found: dict[str, P
                 continue  # dangling where it was built too: nothing to take
             if resolved.is_dir():
                 _walk(resolved, rel, root, resolved, found)
-            else:
+            elif resolved.is_file():  # not a named pipe or socket in the sources: `run` hung reading one
                 found[rel] = resolved
         elif entry.is_dir():
             _walk(entry, rel, root, tree, found)
@@ -78,7 +78,7 @@ def _walk(directory: Path, dest: str, root: Path, tree: Path, found: dict[str, P
             _develop_package(entry, dest, root, found)
         elif entry.name == "package.dsv" and (kept := _own_hooks(entry)) is not None:
             found[rel] = kept
-        else:
+        elif entry.is_file():
             found[rel] = entry
 
 
@@ -110,7 +110,7 @@ def _develop_package(egg_link: Path, site_packages: str, root: Path, found: dict
                     continue
                 if resolved.is_dir():
                     _walk(resolved, f"{site_packages}/{candidate.name}", root, resolved, found)
-                else:
+                elif resolved.is_file():
                     found[f"{site_packages}/{candidate.name}"] = resolved
 
 

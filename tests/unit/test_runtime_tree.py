@@ -71,3 +71,22 @@ def test_an_edited_linked_source_changes_the_runtime_image_key(tmp_path):
     before = runtime_install_digest(ws / "install", ("tools", "talk"), tmp_path)
     (ws / "src/talk/talk/node.py").write_text("print('hello, edited')\n")
     assert runtime_install_digest(ws / "install", ("tools", "talk"), tmp_path) != before
+
+
+def test_a_named_pipe_a_symlink_install_links_to_is_not_taken_nor_read(tmp_path):
+    """A named pipe in a package's sources, which a symlink install links to: `espdock run` hung
+    for good reading it for the runtime image's key (a socket: "a bug in espdock")."""
+    import threading
+
+    ws = symlink_installed(tmp_path)
+    os.mkfifo(ws / "src/talk/talk/feed")
+    keys: list[str] = []
+    hashing = threading.Thread(
+        target=lambda: keys.append(runtime_install_digest(ws / "install", ("tools", "talk"), tmp_path)), daemon=True
+    )
+    hashing.start()
+    hashing.join(timeout=10)
+    if hashing.is_alive():
+        os.close(os.open(ws / "src/talk/talk/feed", os.O_WRONLY))  # lets the reading thread end
+    assert keys, "hashing the install did not end"
+    assert "talk/lib/python3.11/site-packages/talk/feed" not in runtime_files(ws / "install", ("talk",), tmp_path)

@@ -136,7 +136,7 @@ def check_colcon_args(args: Iterable[str] | None, verb: str = "build") -> tuple[
         if option is None:
             continue
         for refused, why in REFUSED.items():
-            if refused == option or (len(option) > 3 and refused.startswith(option)):
+            if refused == option or (len(option) > 2 and refused.startswith(option)):
                 shown = option if refused == option else f"{option} ({refused})"
                 raise ConfigError(
                     f"colcon option {shown} is not allowed after `--`: {why}",
@@ -150,7 +150,8 @@ SPELT_OUT = "--symlink-install"
 
 
 def _abbreviates(arg: str, option: str) -> bool:
-    return len(arg) > 3 and option.startswith(arg) and arg != option
+    """Whether ARG is a prefix of OPTION colcon's argparse takes for it (`--s` too, unique there)."""
+    return len(arg) > 2 and option.startswith(arg) and arg != option
 
 
 def _option_name(arg: str) -> str | None:
@@ -527,12 +528,31 @@ SET_ON_COMMAND_LINE = ("--base-paths", "--event-handlers")
 def check_defaults(where: str, text: str) -> None:
     """Refuse a colcon defaults file that sets what espdock controls (exit 2 naming the file)."""
     refused = {name.removeprefix("--") for name in REFUSED if name not in SET_ON_COMMAND_LINE}
-    for match in _DEFAULTS_KEY.finditer(text):
-        if match.group(1) in refused:
+    for key in (*(match.group(1) for match in _DEFAULTS_KEY.finditer(text)), *_yaml_keys(text)):
+        if key in refused:
             raise ConfigError(
-                f"{where} sets {match.group(1)}, which espdock controls: {REFUSED['--' + match.group(1)]}",
+                f"{where} sets {key}, which espdock controls: {REFUSED['--' + key]}",
                 "Remove it from that file (or build with COLCON_DEFAULTS_FILE pointing at another).",
             )
+
+
+def _yaml_keys(text: str) -> list[str]:
+    """Every key of the YAML TEXT's mappings, at any depth: the flow style (`test: {test-result-base:
+    x}`) sets a verb's options on the verb's line, which a look at each line's first key missed."""
+    import yaml
+
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError:
+        return []
+    keys: list[str] = []
+    pending = [data]
+    while pending:
+        item = pending.pop()
+        if isinstance(item, dict):
+            keys += [str(key) for key in item]
+            pending += list(item.values())
+    return keys
 
 
 def user_defaults_file(env: Mapping[str, str]) -> Path:

@@ -432,7 +432,7 @@ def test_symlink_install_abbreviated_as_colcon_takes_it_is_a_switch_of_the_insta
     from espdock.ros.colcon import install_kind_switched, record_build_args
 
     record_build_args(tmp_path, ())
-    for spelt in ("--symlink", "--sym"):
+    for spelt in ("--symlink", "--sym", "--s"):
         args = check_colcon_args((spelt, "--packages-skip", "x"))
         assert args == ("--symlink-install", "--packages-skip", "x")
         assert install_kind_switched(tmp_path, ["x"], args) == ["x"]
@@ -500,3 +500,20 @@ def test_a_tool_s_option_given_without_the_colcon_option_that_passes_it_on_is_re
     assert check_colcon_args(("--cmake-args", "-DX=1", "-DY=2", "--ctest-args", "-E", "lint")) == (
         "--cmake-args", "-DX=1", "-DY=2", "--ctest-args", "-E", "lint",
     )  # fmt: skip
+
+
+def test_what_espdock_controls_is_refused_in_a_defaults_file_in_any_yaml_style_and_abbreviated(tmp_path):
+    """`test: {test-result-base: x}` (flow style) or JSON got past the check, which read each line's
+    first key, and a failing test passed; `-- --t=DIR` is colcon's --test-result-base as well."""
+    from espdock.ros.colcon import check_defaults
+
+    for text in (
+        "test: {test-result-base: x}\n",
+        '{"build": {"merge-install": true}}\n',
+        "build:\n  {a: 1, log-base: y}\n",
+    ):
+        with pytest.raises(ConfigError, match=r"defaults\.yaml sets (test-result-base|merge-install|log-base)"):
+            check_defaults("defaults.yaml", text)
+    check_defaults("defaults.yaml", "build: {symlink-install: true, cmake-args: [-DX=1]}\n")
+    with pytest.raises(ConfigError, match=r"--t \(--test-result-base\) is not allowed"):
+        check_colcon_args(("--t=/tmp/x",))

@@ -24,7 +24,6 @@ from espdock.firmware.plan import (
 from espdock.layout import ROS_BUILD_BASE, ROSDEP_LOCK, firmware_build_dir
 from espdock.ros import interfaces, rosdeps, testdeps
 from espdock.ros.colcon import (
-    ColconSettings,
     defaults_with_mixins,
     last_build_args,
     output_args,
@@ -180,23 +179,18 @@ def current_tags(ws: Workspace, config: Config, *, env: Mapping[str, str]) -> se
     return tags
 
 
-def replayed_args(built_with: tuple[str, ...], settings: ColconSettings) -> tuple[str, ...]:
-    """The last build's options BUILT_WITH (ColconBuild.effective_args) that decide what it
-    produced, as a build given them now makes the same stamps: less those that only leave packages
-    out or schedule them, and less the --symlink-install the colcon defaults file (SETTINGS) turns on
-    again (given on the command line as well, it made the stamps another build's, and the test and
-    the plain build rebuilt each other's packages)."""
-    last = output_args(built_with)
-    return tuple(arg for arg in last if arg != "--symlink-install") if settings.symlink_install else last
+def replayed_args(built_with: tuple[str, ...]) -> tuple[str, ...]:
+    """The last build's options BUILT_WITH (as given, without what the colcon defaults file adds,
+    which it adds again) that decide what it produced, so that a build given them now makes the
+    same stamps: less those that only leave packages out or schedule them. With the defaults
+    file's --symlink-install given again, the test and the plain build rebuilt each other's packages."""
+    return output_args(built_with)
 
 
-def last_build_options(ws: Workspace, config: Config, env: Mapping[str, str]) -> tuple[str, ...] | None:
+def last_build_options(ws: Workspace) -> tuple[str, ...] | None:
     """The last build's options as replayed_args has them (None: none), for a plan whose stamps say
     what is up to date by that build."""
-    packages = workspace_packages(ws, config.ros_distro)
-    ros = {p.name: p.path for p in packages if p.kind is PackageKind.ROS}
-    settings = read_colcon_settings(ws.ws_dir, ros, None, env)
-    return replayed_args(last_build_args(ws.ws_dir / ROS_BUILD_BASE), settings) or None
+    return replayed_args(last_build_args(ws.ws_dir / ROS_BUILD_BASE)) or None
 
 
 def plan_tests(
@@ -216,7 +210,7 @@ def plan_tests(
     run after it."""
     # A defaults file that sets what espdock controls is exit 2 before the lock, which may need
     # the network and the engine.
-    settings = read_colcon_settings(ws.ws_dir, {p.name: p.path for p in ros}, None, env)
+    read_colcon_settings(ws.ws_dir, {p.name: p.path for p in ros}, None, env)
     # The rosdep lock, its test part included, answers for the packages before anything is built
     # (checked here once: the plan takes the packages and inputs as they are).
     owner = invoking_user(env, ws.root) if os.geteuid() == 0 else None
@@ -232,7 +226,7 @@ def plan_tests(
     # and those that only leave packages out or schedule them: a package the last build skipped
     # kept its tests unconfigured, and its failing tests passed for none.
     built_with = last_build_args(ws.ws_dir / ROS_BUILD_BASE)
-    last = replayed_args(built_with, settings)
+    last = replayed_args(built_with)
     if last:
         notify(f"building with the options of the last espdock build: {' '.join(last)}")
     if dropped := [arg for arg in built_with if arg not in last]:

@@ -188,7 +188,7 @@ def run(
         )
     # Only what runs must be served: another package's missing key does not stop this node.
     # With the last build's options: by another's, every package would seem out of date.
-    last = last_build_options(ws, config, os.environ)
+    last = last_build_options(ws)
     plan = build_plan(ws, config, [], PackageKind.ROS, colcon_args=last, checked=(package,))
     colcon = next((step for step in plan.steps if isinstance(step, ColconBuild)), None)
     if not runs and colcon is not None and (older := built_on_older(ws, colcon, package)) is not None:

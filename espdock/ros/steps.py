@@ -358,7 +358,8 @@ class RosSteps:
                     volume.replace_tree(fetched["install"], install, self.containers.owner, theirs)
                     volume.record(workspace, self.containers.engine, sync, None if merge else volume_listing(install))
                     give_to(workspace.ws_dir / "build" / volume.SYNCED, self.containers.owner)
-        if states is not None and not step.testing and (recorded_args := record_build_args(base, step.effective_args)):
+        # The options as given: those a defaults file adds, it adds again to a replay of them.
+        if states is not None and not step.testing and (recorded_args := record_build_args(base, step.colcon_args)):
             give_to(recorded_args, self.containers.owner)
         if states is not None and (kinds := record_install_kinds(base, _built(states), step.effective_args)):
             give_to(kinds, self.containers.owner)

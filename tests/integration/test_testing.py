@@ -197,6 +197,12 @@ def test_a_symlink_install_the_defaults_file_turns_on_leaves_the_plain_build_up_
     assert "now: up to date (1 package(s))" in planned.stdout, planned.stdout[-3000:]
     again = espdock("test", cwd=root, env=env)
     assert re.search(r"colcon build: with tests +cached", again.stdout), again.stdout[-3000:]
+    # Given on the command line as well: the test builds with it too, as the build did.
+    both = espdock("build", "--", "--symlink-install", cwd=root, env=env)
+    assert both.returncode == 0, both.stdout[-3000:] + both.stderr
+    espdock("test", cwd=root, env=env)
+    planned = espdock("build", "--dry-run", "--", "--symlink-install", cwd=root, env=env)
+    assert "now: up to date (1 package(s))" in planned.stdout, planned.stdout[-3000:]
     assert leftover_containers(engine, root) == []
 
 

@@ -130,11 +130,11 @@ def build_plan(
                     "an interface package micro-ROS builds (std_msgs, sensor_msgs, ...), so the library has no "
                     "headers of it"
                 )
-            names = {p.name for p in packages}
+            in_workspace = {p.name for p in packages}
             for library in derive_interface_packages(packages, firmware):
                 used = interfaces.references(inputs.package_files.get(library.name, {}))
                 for other, (type_name, rel) in sorted(used.items()):
-                    if other not in names and other not in STANDARD_INTERFACES:
+                    if other not in in_workspace and other not in STANDARD_INTERFACES:
                         # rosdep may give the ROS side the package; micro-ROS's library build has
                         # only the workspace's and its standard set, and failed minutes in.
                         notify(

@@ -250,7 +250,7 @@ def _check_certificates(ca: Path) -> None:
             f"CA bundle {ca} holds a private key",
             "espdock passes the CA bundle into its build containers: name a file of the proxy's CA certificates only.",
         )
-    if b"-----BEGIN CERTIFICATE-----" not in data:
+    if b"-----BEGIN CERTIFICATE-----" not in data and b"-----BEGIN TRUSTED CERTIFICATE-----" not in data:
         raise ConfigError(
             f"CA bundle {ca} holds no PEM certificate (no -----BEGIN CERTIFICATE----- line)",
             "Set ca_bundle (or ESPDOCK_CA_BUNDLE) to the PEM file of the proxy's CA certificates.",

@@ -15,6 +15,7 @@ import contextlib
 import hashlib
 import json
 import os
+import pwd
 import shutil
 import subprocess
 from collections.abc import Callable, Iterable, Mapping
@@ -111,7 +112,10 @@ def run_host_tests(
         for path in (base.parent, base, *(base / name).rglob("*"), base / name):
             if path.lstat().st_uid == 0:
                 os.chown(path, *owner, follow_symlinks=False)
-        as_owner = {"user": owner[0], "group": owner[1], "extra_groups": []}
+        # Their HOME too (root's stayed: a test writing a cache under it failed, where it had not as root).
+        home = _home_of(owner[0])
+        env = {**os.environ, "HOME": home} if home else None
+        as_owner = {"user": owner[0], "group": owner[1], "extra_groups": [], "env": env}
     for argv in host_test_steps(source, build, junit):
         try:
             process = subprocess.Popen(
@@ -136,6 +140,13 @@ def run_host_tests(
         if failed is not None:
             return code if failed else 0
     return 0
+
+
+def _home_of(uid: int) -> str | None:
+    try:
+        return pwd.getpwuid(uid).pw_dir
+    except KeyError:
+        return None
 
 
 def check_test_args(args: Iterable[str] | None) -> tuple[str, ...]:

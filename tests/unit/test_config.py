@@ -88,6 +88,10 @@ def test_a_ca_bundle_that_is_no_certificate_or_holds_a_private_key_is_refused(tm
     both.write_text("-----BEGIN CERTIFICATE-----\nMIIB\n-----END CERTIFICATE-----\n-----BEGIN PRIVATE KEY-----\nMIIE\n")
     with pytest.raises(ConfigError, match="holds a private key"):
         load_config(workspace, {"ESPDOCK_CA_BUNDLE": str(both)})
+    # OpenSSL's trust format, which Fedora's and RHEL's bundles use: certificates all the same.
+    trusted = tmp_path / "tls-ca-bundle.pem"
+    trusted.write_text("-----BEGIN TRUSTED CERTIFICATE-----\nMIIB\n-----END TRUSTED CERTIFICATE-----\n")
+    assert load_config(workspace, {"ESPDOCK_CA_BUNDLE": str(trusted)}).ca_bundle == trusted
     (tmp_path / "notes.txt").write_text("proxy: 10.0.0.1\n")
     with pytest.raises(ConfigError, match="holds no PEM certificate"):
         load_config(workspace, {"ESPDOCK_CA_BUNDLE": str(tmp_path / "notes.txt")})

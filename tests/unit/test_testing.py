@@ -4,6 +4,7 @@ collecting result files, and the test image made from the lock's test part."""
 from __future__ import annotations
 
 import os
+from pathlib import Path
 
 import pytest
 
@@ -496,3 +497,29 @@ def test_root_s_host_tests_run_as_the_workspace_s_user(shared_dir):
     junit = base / "who_fw/test_results/who_fw/host_tests.xml"
     assert 'failures="0"' in junit.read_text() and 'tests="1"' in junit.read_text(), junit.read_text()
     assert {p.lstat().st_uid for p in (base, *base.rglob("*"))} == {4242}
+
+
+def test_root_s_host_tests_run_with_the_user_s_home(shared_dir):
+    """Run as the user, with root's HOME: a test that keeps a cache under $HOME failed where it had
+    passed as root."""
+    import pwd
+
+    from espdock.ros.testing import run_host_tests
+
+    users = [u for u in pwd.getpwall() if u.pw_uid >= 1000 and Path(u.pw_dir).is_dir() and u.pw_uid < 60000]
+    if os.geteuid() != 0 or not users:
+        pytest.skip("needs root and a user with a home")
+    user = users[0]
+    package = shared_dir / "home_fw"
+    (package / "test/host").mkdir(parents=True)
+    (package / "package.xml").write_text(
+        '<package format="3"><name>home_fw</name><version>0.0.0</version><description>x</description>'
+        "<maintainer email='a@example.com'>a</maintainer><license>MIT</license>"
+        "<export><build_type>espidf</build_type><espdock_host_tests>test/host</espdock_host_tests></export></package>"
+    )
+    (package / "test/host/CMakeLists.txt").write_text(
+        'cmake_minimum_required(VERSION 3.16)\nproject(home NONE)\nmessage(STATUS "home is $ENV{HOME}")\n'
+    )
+    lines: list[str] = []
+    run_host_tests("home_fw", package, shared_dir / "ws/build", lines.append, (user.pw_uid, user.pw_gid))
+    assert f"-- home is {user.pw_dir}" in lines, lines

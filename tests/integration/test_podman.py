@@ -204,7 +204,7 @@ class SlowLink(TcpForwarder):
     """TcpForwarder passing what the client sends on PIECE bytes at a time, PAUSE seconds apart: a
     remote engine over a slow link, where a request's body reaches it in parts."""
 
-    def __init__(self, target: Path, piece: int = 2048, pause: float = 0.02) -> None:
+    def __init__(self, target: Path, piece: int = 512, pause: float = 0.05) -> None:
         self._piece, self._pause = piece, pause
         super().__init__(target)
 

@@ -179,18 +179,11 @@ def current_tags(ws: Workspace, config: Config, *, env: Mapping[str, str]) -> se
     return tags
 
 
-def replayed_args(built_with: tuple[str, ...]) -> tuple[str, ...]:
-    """The last build's options BUILT_WITH (as given, without what the colcon defaults file adds,
-    which it adds again) that decide what it produced, so that a build given them now makes the
-    same stamps: less those that only leave packages out or schedule them. With the defaults
-    file's --symlink-install given again, the test and the plain build rebuilt each other's packages."""
-    return output_args(built_with)
-
-
 def last_build_options(ws: Workspace) -> tuple[str, ...] | None:
-    """The last build's options as replayed_args has them (None: none), for a plan whose stamps say
-    what is up to date by that build."""
-    return replayed_args(last_build_args(ws.ws_dir / ROS_BUILD_BASE)) or None
+    """The options the last build was given that decide what it produced (None: none): a plan
+    given them makes that build's stamps, and says what is up to date by it. As given, not with
+    what the colcon defaults file adds, which it adds again."""
+    return output_args(last_build_args(ws.ws_dir / ROS_BUILD_BASE)) or None
 
 
 def plan_tests(
@@ -226,7 +219,7 @@ def plan_tests(
     # and those that only leave packages out or schedule them: a package the last build skipped
     # kept its tests unconfigured, and its failing tests passed for none.
     built_with = last_build_args(ws.ws_dir / ROS_BUILD_BASE)
-    last = replayed_args(built_with)
+    last = output_args(built_with)
     if last:
         notify(f"building with the options of the last espdock build: {' '.join(last)}")
     if dropped := [arg for arg in built_with if arg not in last]:

@@ -342,10 +342,11 @@ def _install_kinds(base: Path) -> dict[str, bool]:
     return {name: kind for name, kind in kinds.items() if isinstance(kind, bool)} if isinstance(kinds, dict) else {}
 
 
-def symlink_installed(base: Path, name: str) -> bool | None:
-    """Whether package NAME's last build in BASE was a --symlink-install (its own record, else the
-    last build's options, as an older espdock kept only those); None where nothing says."""
-    kinds = _install_kinds(base)
+def symlink_installed(base: Path, name: str, kinds: Mapping[str, bool] | None = None) -> bool | None:
+    """Whether package NAME's last build in BASE was a --symlink-install (its own record, in KINDS
+    where the caller read them, else the last build's options, as an older espdock kept only
+    those); None where nothing says."""
+    kinds = _install_kinds(base) if kinds is None else kinds
     if name in kinds:
         return kinds[name]
     return "--symlink-install" in last_build_args(base) if (base / LAST_ARGS).is_file() else None
@@ -358,8 +359,8 @@ def install_kind_switched(base: Path, names: Iterable[str], args: tuple[str, ...
     install left, one package per run. Kept per package: a selection's switch, kept for the
     workspace, had the next build of the rest build in place (failing, or leaving links in a copying
     install)."""
-    wanted = "--symlink-install" in args
-    return [name for name in names if symlink_installed(base, name) not in (None, wanted)]
+    wanted, kinds = "--symlink-install" in args, _install_kinds(base)
+    return [name for name in names if symlink_installed(base, name, kinds) not in (None, wanted)]
 
 
 def _spelt_apart(args: Iterable[str]) -> tuple[str, ...]:

@@ -120,6 +120,11 @@ def check_colcon_args(args: Iterable[str] | None, verb: str = "build") -> tuple[
         )
     passing = False  # after a `--cmake-args` & co, whose values (`-DX=1`) begin with a dash
     for arg in args:
+        if arg == "--":
+            raise ConfigError(
+                f"a second `--` after the first: what follows the first goes to `colcon {verb}` as options",
+                f"Give colcon's options once, after one `--` (`espdock {verb} -- {example}`).",
+            )
         if arg.startswith("--"):
             passing = _PASSED_ON.match(arg) is not None
         elif arg.startswith("-") and not passing:
@@ -295,7 +300,8 @@ def _read_stripped(path: Path) -> str | None:
 _BUILD_TESTING = re.compile(r"^-DBUILD_TESTING(:BOOL)?=", re.IGNORECASE)
 # The options colcon passes on to a tool (cmake, ament-cmake, pytest, ctest), given with their value joined.
 _PASSED_ON_JOINED = re.compile(r"^--[a-z-]+-args=")
-_PASSED_ON = re.compile(r"^--[a-z-]+-args(=|$)")
+# Those options, spelt out or abbreviated as colcon takes them (`--cmake-arg`).
+_PASSED_ON = re.compile(r"^--[a-z-]+-a(r(gs?)?)?(=|$)")
 
 # The options after `--` of the last colcon build that ran (in the ROS build base): what install/
 # is built with, which `espdock test`'s builds keep (a --symlink-install stays one).
@@ -325,10 +331,16 @@ INSTALL_KINDS = ".espdock-install-kinds.json"
 
 
 def record_install_kinds(base: Path, names: Iterable[str], args: tuple[str, ...]) -> Path | None:
-    """Keep in BASE that NAMES were built with ARGS' install kind (ColconBuild.effective_args)."""
+    """Keep in BASE that NAMES were built with ARGS' install kind (ColconBuild.effective_args).
+    The first time, every other package built in BASE gets the kind the last build's options say
+    (an older espdock kept only those): call it before record_build_args replaces them."""
     if not base.is_dir():
         return None
-    kinds = {**_install_kinds(base), **dict.fromkeys(names, "--symlink-install" in args)}
+    kinds = _install_kinds(base)
+    if not (base / INSTALL_KINDS).is_file() and (base / LAST_ARGS).is_file():
+        before = "--symlink-install" in last_build_args(base)
+        kinds = {entry.name: before for entry in base.iterdir() if entry.is_dir() and not entry.name.startswith(".")}
+    kinds = {**kinds, **dict.fromkeys(names, "--symlink-install" in args)}
     path = base / INSTALL_KINDS
     path.write_text(json.dumps(kinds, sort_keys=True) + "\n")
     return path

@@ -61,6 +61,9 @@ class ColconBuild:
     # image lacks ament's lint packages), unless the options after `--` set it.
     testing: bool = False
     tests_off: bool = False
+    # Every ROS package of the workspace, not a selection (`espdock build PKG`): the options of such
+    # a build are the workspace's, which `espdock test` and `run` judge install/ by.
+    whole: bool = True
     # The packages of a Python build type, which read no BUILD_TESTING (see stamp_images).
     python: tuple[str, ...] = ()
     # A test build's: the stamp_images of the plain build its install also serves (tests are
@@ -331,6 +334,7 @@ def ros_steps(
             declared=tuple((p.name, p.depends, p.test_only_depends) for p in ros),
             underlay=ros_image.repository,
             interfaces=tuple(p.name for p in ros if p.is_interface),
+            whole=names == {p.name for p in all_packages if p.kind is PackageKind.ROS},
         ),
     ]
     built = {p.name for p in all_packages if p.kind is PackageKind.ROS}

@@ -24,6 +24,7 @@ from espdock.images.visibility import host_paths, links_out, workspace_mount
 from espdock.layout import FIRMWARE_DIR, MANIFEST_NAME, ROS_BUILD_BASE, WORKSPACE_MOUNT
 from espdock.ros.colcon import (
     DEFAULTS_MOUNT,
+    LAST_ARGS,
     SETUPTOOLS_CONFIG,
     SETUPTOOLS_FORCE,
     ColconLog,
@@ -358,11 +359,19 @@ class RosSteps:
                     volume.replace_tree(fetched["install"], install, self.containers.owner, theirs)
                     volume.record(workspace, self.containers.engine, sync, None if merge else volume_listing(install))
                     give_to(workspace.ws_dir / "build" / volume.SYNCED, self.containers.owner)
-        # The options as given: those a defaults file adds, it adds again to a replay of them.
-        if states is not None and not step.testing and (recorded_args := record_build_args(base, step.colcon_args)):
-            give_to(recorded_args, self.containers.owner)
         if states is not None and (kinds := record_install_kinds(base, _built(states), step.effective_args)):
             give_to(kinds, self.containers.owner)
+        # The options as given (those a defaults file adds, it adds again to a replay of them), of a
+        # build of every package: a selection's, taken for the workspace's, had `espdock test` switch
+        # every package to its --symlink-install, and `run` warn of packages nothing touched.
+        whole = step.whole or not (base / LAST_ARGS).is_file()
+        if (
+            states is not None
+            and not step.testing
+            and whole
+            and (recorded := record_build_args(base, step.colcon_args))
+        ):
+            give_to(recorded, self.containers.owner)
         built = keep_built(states)
         self.unbuilt |= set(rebuild) - set(built)
         if states is None and code != 0:

@@ -517,3 +517,25 @@ def test_what_espdock_controls_is_refused_in_a_defaults_file_in_any_yaml_style_a
     check_defaults("defaults.yaml", "build: {symlink-install: true, cmake-args: [-DX=1]}\n")
     with pytest.raises(ConfigError, match=r"--t \(--test-result-base\) is not allowed"):
         check_colcon_args(("--t=/tmp/x",))
+
+
+def test_an_older_espdock_s_packages_keep_the_install_kind_its_options_said_once_a_build_records_kinds(tmp_path):
+    """A workspace an older espdock built with --symlink-install (its options its only record): the
+    first build of one package recorded that one's kind and the options anew, and the next build
+    took the others for copies, built them in place, and failed on an interface package."""
+    from espdock.ros.colcon import install_kind_switched, record_build_args, record_install_kinds
+
+    for name in ("msgs", "app"):
+        (tmp_path / name).mkdir()
+    record_build_args(tmp_path, ("--symlink-install",))  # as the older espdock left it
+    record_install_kinds(tmp_path, ["app"], ())  # `espdock build app`, copies
+    record_build_args(tmp_path, ())
+    assert install_kind_switched(tmp_path, ["msgs", "app"], ()) == ["msgs"]
+
+
+def test_a_second_double_dash_or_a_passing_option_abbreviated_as_colcon_takes_it():
+    """`-- --cmake-args -DX=1 -- --symlink-install`: espdock removed the switched install prefixes,
+    then colcon refused the second `--`; `--cmake-arg -DX=1` is colcon's --cmake-args."""
+    with pytest.raises(ConfigError, match="a second `--`"):
+        check_colcon_args(("--cmake-args", "-DX=1", "--", "--symlink-install"))
+    assert check_colcon_args(("--cmake-arg", "-DX=1")) == ("--cmake-arg", "-DX=1")

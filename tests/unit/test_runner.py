@@ -811,8 +811,12 @@ def test_a_selection_s_switch_of_the_install_kind_is_its_own_and_the_rest_switch
     # The options decide the stamps (through each package's colcon settings digest).
     linked = {"colcon_args": ("--symlink-install",), "settings": (("msgs", "linked"), ("app", "linked"))}
     msgs_only = replace(COLCON, packages=("msgs",), sources=COLCON.sources[:1], depends=COLCON.depends[:1])
-    runner(engine, events).run(Plan(ws, (replace(msgs_only, **linked),)))
+    runner(engine, events).run(Plan(ws, (replace(msgs_only, whole=False, **linked),)))
     assert "removed the build dirs and install prefixes of 1 package(s)" in notes(events)
+    # A selection's options are not the workspace's: `espdock test` and `run` judge by the whole build's.
+    from espdock.ros.colcon import last_build_args
+
+    assert last_build_args(ws.ws_dir / "build/espdock-ros") == ()
     events.clear()
     (ws.ws_dir / "build/espdock-ros/app/CMakeCache.txt").parent.mkdir(parents=True, exist_ok=True)
     (ws.ws_dir / "build/espdock-ros/app/CMakeCache.txt").write_text("AMENT_CMAKE_SYMLINK_INSTALL:BOOL=OFF\n")

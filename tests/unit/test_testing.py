@@ -470,6 +470,19 @@ def test_a_package_whose_tests_depend_on_a_workspace_package_is_tested_alone(tmp
     assert "not in the lock" not in alone.stderr
 
 
+def host_tested(package: Path, cmake: str) -> Path:
+    """A firmware package at PACKAGE declaring host tests whose CMakeLists (a project with no
+    compiler) goes on with CMAKE."""
+    (package / "test/host").mkdir(parents=True)
+    (package / "package.xml").write_text(
+        f'<package format="3"><name>{package.name}</name><version>0.0.0</version><description>x</description>'
+        "<maintainer email='a@example.com'>a</maintainer><license>MIT</license>"
+        "<export><build_type>espidf</build_type><espdock_host_tests>test/host</espdock_host_tests></export></package>"
+    )
+    (package / "test/host/CMakeLists.txt").write_text("cmake_minimum_required(VERSION 3.16)\nproject(t NONE)\n" + cmake)
+    return package
+
+
 def test_root_s_host_tests_run_as_the_workspace_s_user(shared_dir):
     """`sudo espdock test` ran a package's host tests (its own CMake code, outside any container)
     as root, where every build container runs as the workspace's user."""
@@ -477,18 +490,11 @@ def test_root_s_host_tests_run_as_the_workspace_s_user(shared_dir):
 
     if os.geteuid() != 0:
         pytest.skip("only root runs them as another user")
-    package = shared_dir / "who_fw"
-    (package / "test/host").mkdir(parents=True)
-    (package / "package.xml").write_text(
-        '<package format="3"><name>who_fw</name><version>0.0.0</version><description>x</description>'
-        "<maintainer email='a@example.com'>a</maintainer><license>MIT</license>"
-        "<export><build_type>espidf</build_type><espdock_host_tests>test/host</espdock_host_tests></export></package>"
-    )
-    (package / "test/host/CMakeLists.txt").write_text(
-        "cmake_minimum_required(VERSION 3.16)\nproject(who NONE)\nenable_testing()\n"
-        "execute_process(COMMAND id -u OUTPUT_VARIABLE uid OUTPUT_STRIP_TRAILING_WHITESPACE)\n"
+    package = host_tested(
+        shared_dir / "who_fw",
+        "enable_testing()\nexecute_process(COMMAND id -u OUTPUT_VARIABLE uid OUTPUT_STRIP_TRAILING_WHITESPACE)\n"
         'message(STATUS "configured as uid ${uid}")\n'
-        'add_test(NAME as_the_user COMMAND sh -c "test $(id -u):$(id -g) = 4242:4243")\n'
+        'add_test(NAME as_the_user COMMAND sh -c "test $(id -u):$(id -g) = 4242:4243")\n',
     )
     base = shared_dir / "ws/build"
     lines: list[str] = []
@@ -510,16 +516,7 @@ def test_root_s_host_tests_run_with_the_user_s_home(shared_dir):
     if os.geteuid() != 0 or not users:
         pytest.skip("needs root and a user with a home")
     user = users[0]
-    package = shared_dir / "home_fw"
-    (package / "test/host").mkdir(parents=True)
-    (package / "package.xml").write_text(
-        '<package format="3"><name>home_fw</name><version>0.0.0</version><description>x</description>'
-        "<maintainer email='a@example.com'>a</maintainer><license>MIT</license>"
-        "<export><build_type>espidf</build_type><espdock_host_tests>test/host</espdock_host_tests></export></package>"
-    )
-    (package / "test/host/CMakeLists.txt").write_text(
-        'cmake_minimum_required(VERSION 3.16)\nproject(home NONE)\nmessage(STATUS "home is $ENV{HOME}")\n'
-    )
+    package = host_tested(shared_dir / "home_fw", 'message(STATUS "home is $ENV{HOME}")\n')
     lines: list[str] = []
     run_host_tests("home_fw", package, shared_dir / "ws/build", lines.append, (user.pw_uid, user.pw_gid))
     assert f"-- home is {user.pw_dir}" in lines, lines

@@ -3,6 +3,7 @@ and the runtime image made of the install trees."""
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import os
 import posixpath
@@ -51,6 +52,9 @@ from espdock.ros.trees import (
 )
 from espdock.workspace import Package, Workspace, workspace_lock
 
+# Where a build keeps what it builds afresh (old build dirs, install prefixes) until colcon has run.
+ASIDE = ".espdock-afresh"
+
 # What `espdock test` needs on this machine, which the workspace volume does not give it.
 TEST_RESULTS = "the test results `espdock test` reads"
 
@@ -77,6 +81,8 @@ class RosSteps:
         # Packages this run was to build and did not: their install trees are old, so no runtime
         # image is made from them.
         self.unbuilt: set[str] = set()
+        # What _build_afresh moved aside (where it was, where it is) until colcon has run.
+        self._aside: list[tuple[Path, Path]] = []
 
     def _build_afresh(
         self,
@@ -94,9 +100,13 @@ class RosSteps:
         prefixes of packages that moved (STAMP_FILE knows where they were), whose sources changed
         with no newer file, lost a file, or changed their setup.py (TREES: their tree_state now),
         or that an older espdock built, each reason that holds. Returns them, for the workspace
-        volume to remove its copies as well."""
+        volume to remove its copies as well. They are moved aside (ASIDE), for _put_back when
+        colcon then stops before building any package (an option it does not know): removed, a
+        typo after `--` left those packages uninstalled."""
         base = workspace.ws_dir / ROS_BUILD_BASE
         install = workspace.ws_dir / "install"
+        shutil.rmtree(base / ASIDE, ignore_errors=True)  # an espdock killed outright left it
+        self._aside = []
         reasons: list[tuple[tuple[Path, ...], str]] = []
 
         def both(names: Iterable[str]) -> tuple[Path, ...]:
@@ -196,12 +206,34 @@ class RosSteps:
                 reasons.append((both(older), why))
         for trees, why in reasons:
             for tree in trees:
-                if tree.is_dir() and not tree.is_symlink():
-                    shutil.rmtree(tree, ignore_errors=True)
-                else:
-                    tree.unlink(missing_ok=True)
+                self._set_aside(tree, base / ASIDE)
             self.containers.emit(StepNote(step.name, why))
         return tuple(tree for trees, _ in reasons for tree in trees)
+
+    def _set_aside(self, tree: Path, aside: Path) -> None:
+        """Move TREE into ASIDE (removed where it cannot be moved: another file system)."""
+        if not tree.exists() and not tree.is_symlink():
+            return
+        kept = aside / str(len(self._aside))
+        try:
+            aside.mkdir(parents=True, exist_ok=True)
+            tree.rename(kept)
+            self._aside.append((tree, kept))
+        except OSError:
+            if tree.is_dir() and not tree.is_symlink():
+                shutil.rmtree(tree, ignore_errors=True)
+            else:
+                tree.unlink(missing_ok=True)
+
+    def _put_back(self, base: Path, restore: bool) -> None:
+        """RESTORE: move what _build_afresh set aside back where it was (colcon built nothing);
+        else remove it."""
+        for tree, kept in self._aside if restore else ():
+            with contextlib.suppress(OSError):
+                if not tree.exists() and not tree.is_symlink():
+                    kept.rename(tree)
+        self._aside = []
+        shutil.rmtree(base / ASIDE, ignore_errors=True)
 
     def colcon_build(self, workspace: Workspace, step: ColconBuild) -> tuple[Outcome, str]:
         stamp_file, stamps, rebuild, trees = colcon_rebuild(workspace, step)
@@ -324,41 +356,48 @@ class RosSteps:
                 give_to(stamp_file.path, self.containers.owner)
             return built
 
-        # A native build's setup scripts chain the host's ROS; the container's chain the image's.
-        with native_setup_kept(workspace.ws_dir / "install"):
-            if sync is None:
-                try:
-                    code = self.containers.engine.run(spec, on_line, keep=self.containers.config.keep_containers)
-                except KeyboardInterrupt:
-                    # What colcon finished before Ctrl-C (or a CI job's cancel) is built: the next
-                    # build goes on from there, where it built all of them again.
-                    keep_built(log.states())
-                    raise
-                states = log.states()
-            else:
-                with volume.fetched("install", "log") as fetched:
-                    install, logs = workspace.ws_dir / "install", workspace.ws_dir / "log"
-                    paths = {volume.container_path(workspace, install): fetched["install"],
-                             volume.container_path(workspace, logs): fetched["log"]}  # fmt: skip
-                    code = self.containers.engine.run(
-                        spec, on_line, keep=self.containers.config.keep_containers, fetch=paths
-                    )
-                    volume.merge_logs(fetched["log"], logs, self.containers.owner)
+        try:
+            # A native build's setup scripts chain the host's ROS; the container's chain the image's.
+            with native_setup_kept(workspace.ws_dir / "install"):
+                if sync is None:
+                    try:
+                        code = self.containers.engine.run(spec, on_line, keep=self.containers.config.keep_containers)
+                    except KeyboardInterrupt:
+                        # What colcon finished before Ctrl-C (or a CI job's cancel) is built: the next
+                        # build goes on from there, where it built all of them again.
+                        keep_built(log.states())
+                        raise
                     states = log.states()
-                    # A whole build that failed, or did not build all it was to (colcon found not all of
-                    # them), lacks some of what the host has: it brings back what it built, and the
-                    # host's other packages stay as they were. install/ is then not the volume's, so the
-                    # next build is a whole one too.
-                    built_here = [n for n, state in (states or {}).items() if state is PackageState.BUILT]
-                    unbuilt = set(rebuild) - set(built_here) - set(log.unselected())
-                    merge = whole and (code != 0 or bool(unbuilt))
-                    # The host's own entries stay: a build of the ROS packages (`--only ros`, a
-                    # selection) removed the firmware installs, and `espdock flash` found none.
-                    kept = host_added(install)
-                    theirs = built_here if merge else [e for e in _entries(install) if e not in kept]
-                    volume.replace_tree(fetched["install"], install, self.containers.owner, theirs)
-                    volume.record(workspace, self.containers.engine, sync, None if merge else volume_listing(install))
-                    give_to(workspace.ws_dir / "build" / volume.SYNCED, self.containers.owner)
+                else:
+                    with volume.fetched("install", "log") as fetched:
+                        install, logs = workspace.ws_dir / "install", workspace.ws_dir / "log"
+                        paths = {volume.container_path(workspace, install): fetched["install"],
+                                 volume.container_path(workspace, logs): fetched["log"]}  # fmt: skip
+                        code = self.containers.engine.run(
+                            spec, on_line, keep=self.containers.config.keep_containers, fetch=paths
+                        )
+                        volume.merge_logs(fetched["log"], logs, self.containers.owner)
+                        states = log.states()
+                        # A whole build that failed, or did not build all it was to (colcon found not all of
+                        # them), lacks some of what the host has: it brings back what it built, and the
+                        # host's other packages stay as they were. install/ is then not the volume's, so the
+                        # next build is a whole one too.
+                        built_here = [n for n, state in (states or {}).items() if state is PackageState.BUILT]
+                        unbuilt = set(rebuild) - set(built_here) - set(log.unselected())
+                        merge = whole and (code != 0 or bool(unbuilt))
+                        # The host's own entries stay: a build of the ROS packages (`--only ros`, a
+                        # selection) removed the firmware installs, and `espdock flash` found none.
+                        kept = host_added(install)
+                        theirs = built_here if merge else [e for e in _entries(install) if e not in kept]
+                        volume.replace_tree(fetched["install"], install, self.containers.owner, theirs)
+                        volume.record(
+                            workspace, self.containers.engine, sync, None if merge else volume_listing(install)
+                        )
+                        give_to(workspace.ws_dir / "build" / volume.SYNCED, self.containers.owner)
+        except BaseException:
+            # Ctrl-C, an engine gone: what colcon built on is unknown; what was set aside goes.
+            self._put_back(base, restore=False)
+            raise
         if states is not None and (kinds := record_install_kinds(base, _built(states), step.effective_args)):
             give_to(kinds, self.containers.owner)
         # The options as given (those a defaults file adds, it adds again to a replay of them), of a
@@ -374,6 +413,7 @@ class RosSteps:
             give_to(recorded, self.containers.owner)
         built = keep_built(states)
         self.unbuilt |= set(rebuild) - set(built)
+        self._put_back(base, restore=states is None and code != 0)
         if states is None and code != 0:
             # Nothing in build/ or install/ changed: the packages keep their records, and the
             # next build with other options rebuilds only what those change.

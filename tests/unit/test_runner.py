@@ -15,7 +15,7 @@ import pytest
 from espdock.build.runner import Runner
 from espdock.build.steps import EnsureImage, Plan
 from espdock.config import Config
-from espdock.errors import BuildFailed, RegistryError
+from espdock.errors import BuildFailed, ConfigError, RegistryError
 from espdock.events import Outcome, StepFinished, StepNote
 from espdock.firmware.plan import IdfBuild, InstallFirmware
 from espdock.images import bootstrap, machine_lock
@@ -825,6 +825,29 @@ def test_a_selection_s_switch_of_the_install_kind_is_its_own_and_the_rest_switch
         events
     )
     assert not (ws.ws_dir / "build/espdock-ros/app/CMakeCache.txt").exists(), "app's copying build dir went first"
+
+
+def test_what_a_switch_removes_comes_back_when_colcon_refuses_its_options(ws):
+    """`espdock build -- --symlink-install --bogus-flag`: espdock removed the packages' build dirs
+    and install prefixes for the switch, then colcon refused the options and built nothing: the
+    packages stayed uninstalled until the next build."""
+    from dataclasses import replace
+
+    (ws.ws_dir / "build/espdock-ros").mkdir(parents=True)
+    runner(FakeEngine(run_script=colcon_installs(ws)), []).run(Plan(ws, (COLCON,)))
+    install = ws.ws_dir / "install"
+    before = {p.relative_to(install).as_posix() for p in install.rglob("*")}
+    assert {"msgs", "app"} <= before
+
+    def refuse(spec, on_line):
+        on_line("colcon: error: unrecognized arguments: --bogus-flag")
+        return 2
+
+    linked = {"colcon_args": ("--symlink-install", "--bogus-flag"), "settings": (("msgs", "l"), ("app", "l"))}
+    with pytest.raises(ConfigError, match=r"bogus-flag|stopped before building"):
+        runner(FakeEngine(run_script=refuse), []).run(Plan(ws, (replace(COLCON, **linked),)))
+    assert {p.relative_to(install).as_posix() for p in install.rglob("*")} == before
+    assert not (ws.ws_dir / "build/espdock-ros/.espdock-afresh").exists()
 
 
 def test_a_menuconfig_change_of_an_option_the_chip_s_defaults_file_sets_names_that_file(ws):

@@ -130,22 +130,26 @@ def build_plan(
                     "an interface package micro-ROS builds (std_msgs, sensor_msgs, ...), so the library has no "
                     "headers of it"
                 )
-            in_workspace = {p.name for p in packages}
-            for library in derive_interface_packages(packages, firmware):
-                used = interfaces.references(inputs.package_files.get(library.name, {}))
-                for other, (type_name, rel) in sorted(used.items()):
-                    if other not in in_workspace and other not in STANDARD_INTERFACES:
-                        # rosdep may give the ROS side the package; micro-ROS's library build has
-                        # only the workspace's and its standard set, and failed minutes in.
-                        notify(
-                            f"warning: {firmware.name}'s micro-ROS library holds {library.name}, whose {rel} uses "
-                            f"{type_name}: {other} is in no package of this workspace, nor an interface package "
-                            "micro-ROS builds, so the library build fails on it. Add the package to the workspace, "
-                            f"or keep that type out of what {firmware.name} depends on"
-                        )
+            for line in unbuildable_in_library(firmware, packages, inputs):
+                notify(f"warning: {line}")
     return plan_workspace(
         ws, config, packages, inputs, tuple(names), only, force, target, colcon, checked, testing=testing
     )
+
+
+def unbuildable_in_library(firmware: Package, packages: tuple[Package, ...], inputs: BuildInputs) -> list[str]:
+    """The types that interface packages of FIRMWARE's micro-ROS library use from a package in
+    neither the workspace (PACKAGES) nor micro-ROS's standard set, one line each: rosdep may give
+    the ROS side the package, where the library build failed on it, minutes in."""
+    in_workspace = {p.name for p in packages}
+    return [
+        f"{firmware.name}'s micro-ROS library holds {library.name}, whose {rel} uses {type_name}: {other} is in no "
+        "package of this workspace, nor an interface package micro-ROS builds, so the library build fails on it. "
+        f"Add the package to the workspace, or keep that type out of what {firmware.name} depends on"
+        for library in derive_interface_packages(packages, firmware)
+        for other, (type_name, rel) in sorted(interfaces.references(inputs.package_files.get(library.name, {})).items())
+        if other not in in_workspace and other not in STANDARD_INTERFACES
+    ]
 
 
 def firmware_plan(

@@ -134,9 +134,8 @@ def test(
         if host_tests_dir(package.path) is None:
             continue
         say(Text(f"host tests: {package.name}", style="bold"))
+        # Run by root, as the workspace's user: what they write is the user's (run_host_tests).
         failed = run_host_tests(package.name, package.path, host_base, say, invoking_user(os.environ, ws.root))
-        if os.geteuid() == 0:
-            _give_back(host_base, invoking_user(os.environ, ws.root))
         if failed:
             raise TestsFailed(
                 f"the host tests of {package.name} did not build or run (exit code {failed}); their output is above",
@@ -191,12 +190,6 @@ def _test_ros(ws, config, every, ros, colcon_args, locked, official, push_cache,
         record_images(ws, runner)  # a failed build's images too: they are its inputs' as they are
     reporter.line(Text(f"colcon test: {' '.join(step.packages)}", style="bold"))
     return (*runner.ros.test_packages(ws, step, reporter.line), runner.unpushed)
-
-
-def _give_back(base: Path, owner: tuple[int, int]) -> None:
-    """Hand what the host tests wrote (run as root, e.g. under sudo) to the workspace's user."""
-    for path in (base.parent, base, *base.rglob("*")):
-        os.chown(path, *owner, follow_symlinks=False)
 
 
 def _render(

@@ -382,7 +382,7 @@ class RosSteps:
                         # them), lacks some of what the host has: it brings back what it built, and the
                         # host's other packages stay as they were. install/ is then not the volume's, so the
                         # next build is a whole one too.
-                        built_here = [n for n, state in (states or {}).items() if state is PackageState.BUILT]
+                        built_here = _built(states or {})
                         unbuilt = set(rebuild) - set(built_here) - set(log.unselected())
                         merge = whole and (code != 0 or bool(unbuilt))
                         # The host's own entries stay: a build of the ROS packages (`--only ros`, a
@@ -403,11 +403,11 @@ class RosSteps:
         # The options as given (those a defaults file adds, it adds again to a replay of them), of a
         # build of every package: a selection's, taken for the workspace's, had `espdock test` switch
         # every package to its --symlink-install, and `run` warn of packages nothing touched.
-        whole = step.whole or not (base / LAST_ARGS).is_file()
+        every_package = step.whole or not (base / LAST_ARGS).is_file()
         if (
             states is not None
             and not step.testing
-            and whole
+            and every_package
             and (recorded := record_build_args(base, step.colcon_args))
         ):
             give_to(recorded, self.containers.owner)
@@ -598,8 +598,8 @@ def built_on_older(workspace: Workspace, step: ColconBuild, package: str) -> lis
     (a package it depends on changed, or was rebuilt since): those of them STEP would build too
     ([] where only PACKAGE, on one rebuilt since); None where it is up to date or its own sources
     changed (edited_since_built says that)."""
-    entry = StampFile(workspace.ws_dir / "build" / ROS_STAMPS, ROS_STAMP_FORMAT).read().get(package)
-    _, _, rebuild, trees = colcon_rebuild(workspace, step)
+    stamp_file, _, rebuild, trees = colcon_rebuild(workspace, step)
+    entry = stamp_file.read().get(package)
     if package not in rebuild or not isinstance(entry, dict) or package not in trees:
         return None
     if entry.get("tree") != trees[package].digest:

@@ -28,18 +28,14 @@ from espdock.ros.colcon import (
     LAST_ARGS,
     SETUPTOOLS_CONFIG,
     SETUPTOOLS_FORCE,
-    ColconLog,
-    PackageState,
     closure,
-    explain_failure,
     install_kind_switched,
     left_out,
-    named,
     record_build_args,
     record_install_kinds,
     symlink_installed,
-    usage_error,
 )
+from espdock.ros.colcon_log import ColconLog, PackageState, explain_failure, named, usage_error
 from espdock.ros.plan import PYTHON_BUILD_TYPES, ColconBuild, RuntimeImage, runtime_image_spec
 from espdock.ros.runtime_tree import runtime_files
 from espdock.ros.testing import ColconTest, PackageResults, SourcedEnv, clear_results, read_results

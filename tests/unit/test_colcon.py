@@ -14,18 +14,8 @@ import pytest
 
 from espdock.build.stamps import StampFile, package_stamps
 from espdock.errors import ConfigError, WorkspaceError
-from espdock.ros.colcon import (
-    PackageState,
-    check_colcon_args,
-    explain_failure,
-    meta_paths,
-    missing_dependencies,
-    output_args,
-    parse_events,
-    read_colcon_settings,
-    usage_error,
-    user_defaults_file,
-)
+from espdock.ros.colcon import check_colcon_args, meta_paths, output_args, read_colcon_settings, user_defaults_file
+from espdock.ros.colcon_log import PackageState, explain_failure, missing_dependencies, parse_events, usage_error
 from espdock.ros.plan import ColconBuild
 from espdock.ros.trees import check_isolated_install, retire_container_caches, retire_other_underlay
 from tests.conftest import copy_workspace, espdock

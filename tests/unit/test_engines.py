@@ -27,7 +27,7 @@ from espdock.errors import BuildFailed, EngineUnavailable, WorkspaceError, Works
 from espdock.images import bootstrap, volume
 from espdock.images.engine import LIBPOD_INFO, Engine, EngineInfo, describe
 from espdock.images.visibility import linked_mounts
-from espdock.ros.colcon import unselected
+from espdock.ros.colcon_log import unselected
 from espdock.ros.plan import ColconBuild
 from espdock.workspace import Workspace
 from tests.conftest import REPO

@@ -403,7 +403,7 @@ def test_what_espdock_test_refuses_or_fails_on_says_what_to_do_with_espdock_test
     from pathlib import Path
 
     from espdock.ros import rosdeps
-    from espdock.ros.colcon import PackageState, explain_failure
+    from espdock.ros.colcon_log import PackageState, explain_failure
     from espdock.ros.testing import check_test_args
     from tests.unit.test_rosdeps import WHEELS, package
 

@@ -68,12 +68,18 @@ def tree_state(*roots: Path) -> TreeState:
                 # hashed by its kind, as no build reads it.
                 special = not stat.S_ISREG(info.st_mode)
                 data = b"not a regular file\0%o" % stat.S_IFMT(info.st_mode) if special else path.read_bytes()
+                # `chmod +x` on a node script is an edit: copying installs (install(DIRECTORY
+                # USE_SOURCE_PERMISSIONS), setuptools' data_files) take the mode from the source.
+                executable = not special and bool(info.st_mode & stat.S_IXUSR)
             except OSError as exc:
                 # A link that leads nowhere, or around in a loop (ELOOP): its target's name.
                 if not path.is_symlink() or exc.errno not in (errno.ENOENT, errno.ELOOP):
                     raise
                 data = b"dangling link\0" + os.fsencode(os.readlink(path))
+                executable = False
             digest.update(content := hashlib.sha256(data).digest())
+            if executable:
+                digest.update(b"\0executable")
             if rel in SETUP_FILES:
                 declares.update(rel.encode() + b"\0" + content)
     declared = declares.hexdigest() if any(p in SETUP_FILES for p in paths) else ""

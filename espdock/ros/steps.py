@@ -153,8 +153,8 @@ class RosSteps:
             if put_back := [n for n in stamp_file.put_back({n: trees[n] for n in rebuild}) if n not in moved]:
                 why = (
                     f"building afresh what changed with no newer file: {', '.join(put_back)} (put back from a "
-                    "backup or an archive, or a file renamed or removed), which make and setuptools, deciding by "
-                    "time, would not build again"
+                    "backup or an archive, a file renamed or removed, or a file's x bit changed), which make and "
+                    "setuptools, deciding by time, would not build again"
                 )
                 reasons.append((both(put_back), why))
             # What neither reason above builds afresh: whether it lost or gained files.

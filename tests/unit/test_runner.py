@@ -532,6 +532,24 @@ def test_sources_put_back_with_an_older_time_and_force_build_afresh_and_an_edit_
     assert "--force: building 2 package(s) afresh" in notes(events) and not cache.exists()
 
 
+def test_a_node_script_made_executable_after_its_build_is_built_afresh(ws):
+    """`ros2 run` says "No executable found" of a node script committed without its x bit; the
+    user runs `chmod +x` and builds again. The build said its packages were up to date, and the
+    install (which copies the source's mode) kept the script not executable."""
+    engine = FakeEngine(run_script=colcon_installs(ws))
+    script = ws.ws_dir / "src/app/scripts/teleop.py"
+    script.parent.mkdir()
+    script.write_text("#!/usr/bin/env python3\n")
+    script.chmod(0o644)
+    runner(engine, []).run(Plan(ws, (COLCON,)))
+    runs = len(engine.runs)
+    script.chmod(0o755)
+    runner(engine, events := []).run(Plan(ws, (COLCON,)))
+    assert len(engine.runs) == runs + 1, "chmod +x built nothing"
+    assert "building afresh what changed with no newer file: app" in notes(events)
+    assert "x bit changed" in notes(events)
+
+
 def test_a_source_removed_beside_an_edit_builds_afresh_and_an_editor_leftover_does_not(ws):
     """A branch switch removes one file and edits another: the edit is newer than the last build,
     so nothing was built afresh, and what the removed file installed stayed in install/."""

@@ -583,12 +583,21 @@ def read_tree(base: Path, exclude: tuple[str, ...] = ()) -> dict[str, bytes]:
     return files
 
 
+# What editors write beside a file while saving it: vim's test of the directory (4913), JetBrains'
+# safe write (Foo.cpp___jb_tmp___, Foo.cpp___jb_old___).
+_SAVING = re.compile(r"^4913$|___jb_(tmp|old)___$")
+
+
 def editor_leftover(rel: str) -> bool:
-    """Whether REL names an editor's or patch's leftover (Foo.msg~, #Foo.msg#, .orig, .rej, .bak):
-    nothing a build reads, and in an interface package it would key a new micro-ROS library
-    (minutes with the real toolchain)."""
+    """Whether REL names an editor's or patch's leftover (Foo.msg~, #Foo.msg#, .orig, .rej, .bak, a
+    save's temporary file): nothing a build reads, and in an interface package it would key a new
+    micro-ROS library (minutes with the real toolchain)."""
     name = rel.rsplit("/", 1)[-1]
-    return name.endswith(("~", ".orig", ".rej", ".bak")) or (name.startswith("#") and name.endswith("#"))
+    return (
+        name.endswith(("~", ".orig", ".rej", ".bak"))
+        or (name.startswith("#") and name.endswith("#"))
+        or bool(_SAVING.search(name))
+    )
 
 
 def read_image_inputs(root: Path, directory: str, exclude: tuple[str, ...] = ()) -> dict[str, bytes]:

@@ -59,8 +59,7 @@ def tree_state(*roots: Path) -> TreeState:
         # File names are bytes: one that is not UTF-8 (Python's lone surrogates) is hashed as it is.
         digest.update(f"root\0{root.name}\n".encode(errors="surrogateescape"))
         for path in source_files(root, follow_links=True):
-            paths.append(rel := path.relative_to(root).as_posix())
-            digest.update(rel.encode(errors="surrogateescape") + b"\0")
+            rel = path.relative_to(root).as_posix()
             try:
                 info = path.stat()
                 newest = max(newest, info.st_mtime_ns)
@@ -72,11 +71,17 @@ def tree_state(*roots: Path) -> TreeState:
                 # USE_SOURCE_PERMISSIONS), setuptools' data_files) take the mode from the source.
                 executable = not special and bool(info.st_mode & stat.S_IXUSR)
             except OSError as exc:
+                if exc.errno == errno.ENOENT and not os.path.lexists(path):
+                    # Gone since the walk listed it: an editor's temporary file of a save
+                    # (vim's 4913, JetBrains' ___jb_tmp___), which the build will not see either.
+                    continue
                 # A link that leads nowhere, or around in a loop (ELOOP): its target's name.
                 if not path.is_symlink() or exc.errno not in (errno.ENOENT, errno.ELOOP):
                     raise
                 data = b"dangling link\0" + os.fsencode(os.readlink(path))
                 executable = False
+            paths.append(rel)
+            digest.update(rel.encode(errors="surrogateescape") + b"\0")
             digest.update(content := hashlib.sha256(data).digest())
             if executable:
                 digest.update(b"\0executable")
@@ -352,10 +357,11 @@ def _moved(recorded: Mapping[str, object], sources: Mapping[str, str]) -> dict[s
 
 
 def source_files(root: Path, output_parents: Collection[Path] = (), follow_links: bool = False) -> list[Path]:
-    """The files under ROOT a build reads: hidden files and dirs, __pycache__ and .pyc left out,
-    and OUTPUT_DIRS where they are outputs: in a package's directory (it holds a package.xml),
-    and in OUTPUT_PARENTS (the colcon root). FOLLOW_LINKS: under links to directories as well,
-    each directory once (a package's `config -> ../../common/config`, which colcon installs)."""
+    """The files under ROOT a build reads: hidden files and dirs, __pycache__, .pyc and editors'
+    leftovers (editor_leftover) left out, and OUTPUT_DIRS where they are outputs: in a package's
+    directory (it holds a package.xml), and in OUTPUT_PARENTS (the colcon root). FOLLOW_LINKS:
+    under links to directories as well, each directory once (a package's `config ->
+    ../../common/config`, which colcon installs)."""
     found = []
     parents = {os.fspath(p) for p in output_parents}
     for dirpath, dirnames, filenames in walk_following_links(root) if follow_links else os.walk(root):
@@ -363,5 +369,9 @@ def source_files(root: Path, output_parents: Collection[Path] = (), follow_links
         dirnames[:] = sorted(
             d for d in dirnames if not d.startswith(".") and d != "__pycache__" and not (outputs and d in OUTPUT_DIRS)
         )
-        found += [Path(dirpath) / f for f in sorted(filenames) if not f.startswith(".") and not f.endswith(".pyc")]
+        found += [
+            Path(dirpath) / f
+            for f in sorted(filenames)
+            if not f.startswith(".") and not f.endswith(".pyc") and not editor_leftover(f)
+        ]
     return found

@@ -158,3 +158,35 @@ def test_a_named_pipe_or_a_socket_in_a_package_is_hashed_by_its_kind_without_bei
     (package / "feed").unlink()
     (package / "feed").write_text("")
     assert tree_state(package).digest != states[0].digest
+
+
+def test_an_editor_s_leftovers_and_save_files_are_no_sources(tmp_path):
+    """A backup (`main.cpp~`, emacs' `#main.cpp#`), vim's `4913` or JetBrains' `___jb_tmp___` beside
+    a source rebuilt the package, and removing the backup again built it afresh from scratch."""
+    from espdock.build.stamps import tree_state
+
+    package = tmp_path / "pkg"
+    (package / "src").mkdir(parents=True)
+    (package / "package.xml").write_text("<package/>")
+    (package / "src/main.cpp").write_text("int main() {}\n")
+    before = tree_state(package)
+    for name in ("main.cpp~", "#main.cpp#", "4913", "main.cpp___jb_tmp___", "main.cpp___jb_old___", "main.cpp.orig"):
+        (package / "src" / name).write_text("int main() { return 1; }\n")
+    assert tree_state(package) == before
+    (package / "src/4914.cpp").write_text("int f() { return 1; }\n")
+    assert tree_state(package).digest != before.digest, "a source named by digits is a source"
+
+
+def test_a_file_gone_between_the_listing_and_its_reading_is_not_a_crash(tmp_path, monkeypatch):
+    """An editor's save makes and removes a temporary file: hashing a package while the user saved
+    ended as "FileNotFoundError ...; this is a bug in espdock" (exit 70)."""
+    from espdock.build import stamps
+
+    package = tmp_path / "pkg"
+    package.mkdir()
+    (package / "package.xml").write_text("<package/>")
+    listed = stamps.source_files
+    monkeypatch.setattr(stamps, "source_files", lambda root, *a, **k: [*listed(root, *a, **k), root / "gone.tmp"])
+    state = stamps.tree_state(package)
+    monkeypatch.undo()
+    assert state == stamps.tree_state(package)

@@ -17,6 +17,7 @@ import posixpath
 from pathlib import Path
 
 from espdock.layout import host_path
+from espdock.workspace import editor_leftover
 
 # Links are followed this many times before one is taken for a loop.
 _MAX_HOPS = 40
@@ -54,10 +55,16 @@ def _inside(path: Path, tree: Path) -> bool:
     return path == tree or tree in path.parents
 
 
-def _walk(directory: Path, dest: str, root: Path, tree: Path, found: dict[str, Path | bytes]) -> None:
-    """Add what DIRECTORY holds to FOUND under DEST, links that leave TREE resolved."""
+def _walk(
+    directory: Path, dest: str, root: Path, tree: Path, found: dict[str, Path | bytes], sources: bool = False
+) -> None:
+    """Add what DIRECTORY holds to FOUND under DEST, links that leave TREE resolved. SOURCES: a
+    directory of the sources a symlink install leads to, whose hidden files (an editor's swap
+    file, .mypy_cache, a .env) and editors' leftovers a copying install would not have taken."""
     for entry in sorted(directory.iterdir()):
         if entry.name == "__pycache__" or entry.name.endswith(".pyc"):
+            continue
+        if sources and (entry.name.startswith(".") or editor_leftover(entry.name)):
             continue
         rel = f"{dest}/{entry.name}"
         if entry.is_symlink():
@@ -69,11 +76,11 @@ def _walk(directory: Path, dest: str, root: Path, tree: Path, found: dict[str, P
             if resolved is None:
                 continue  # dangling where it was built too: nothing to take
             if resolved.is_dir():
-                _walk(resolved, rel, root, resolved, found)
+                _walk(resolved, rel, root, resolved, found, sources=True)
             elif resolved.is_file():  # not a named pipe or socket in the sources: `run` hung reading one
                 found[rel] = resolved
         elif entry.is_dir():
-            _walk(entry, rel, root, tree, found)
+            _walk(entry, rel, root, tree, found, sources)
         elif entry.suffix == ".egg-link":
             _develop_package(entry, dest, root, found)
         elif entry.name == "package.dsv" and (kept := _own_hooks(entry)) is not None:
@@ -109,7 +116,7 @@ def _develop_package(egg_link: Path, site_packages: str, root: Path, found: dict
                 if resolved is None or not resolved.exists():
                     continue
                 if resolved.is_dir():
-                    _walk(resolved, f"{site_packages}/{candidate.name}", root, resolved, found)
+                    _walk(resolved, f"{site_packages}/{candidate.name}", root, resolved, found, sources=True)
                 elif resolved.is_file():
                     found[f"{site_packages}/{candidate.name}"] = resolved
 

@@ -90,3 +90,20 @@ def test_a_named_pipe_a_symlink_install_links_to_is_not_taken_nor_read(tmp_path)
         os.close(os.open(ws / "src/talk/talk/feed", os.O_WRONLY))  # lets the reading thread end
     assert keys, "hashing the install did not end"
     assert "talk/lib/python3.11/site-packages/talk/feed" not in runtime_files(ws / "install", ("talk",), tmp_path)
+
+
+def test_an_editor_s_swap_and_backup_files_beside_a_linked_module_stay_out_of_the_image(tmp_path):
+    """A symlink install's module directory is the sources: the runtime image `espdock compose`
+    deploys held the editor's swap file, its backups and a .env beside the node, and each write of
+    the swap file made a new image."""
+    ws = symlink_installed(tmp_path)
+    module = ws / "src/talk/talk"
+    before = runtime_install_digest(ws / "install", ("tools", "talk"), tmp_path)
+    for name in (".node.py.swp", "node.py~", ".env", "4913"):
+        (module / name).write_text("secret=1\n")
+    (module / ".mypy_cache").mkdir()
+    (module / ".mypy_cache/x.json").write_text("{}")
+    site = "talk/lib/python3.11/site-packages/talk"
+    taken = {rel for rel in runtime_files(ws / "install", ("tools", "talk"), tmp_path) if rel.startswith(f"{site}/")}
+    assert taken == {f"{site}/__init__.py", f"{site}/node.py"}
+    assert runtime_install_digest(ws / "install", ("tools", "talk"), tmp_path) == before

@@ -14,7 +14,7 @@ from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
 
-from espdock.build.stamps import StampFile, listing_digest, tree_digest
+from espdock.build.stamps import StampFile, listing_digest, source_files, tree_digest
 from espdock.build.steps import keyed_tag
 from espdock.config import CHIP_TARGETS, resolve_ca_bundle
 from espdock.errors import BuildFailed
@@ -85,6 +85,7 @@ class FirmwareSteps:
         # defaults, and the next build must not take it for the last successful build's.
         _write_marker(build_dir, step.target, defaults, _built_key(build_dir, step.target), self.containers.owner)
         fresh = not (build_dir / "sdkconfig").is_file()
+        seen = _source_times(workspace, step)
         try:
             code = self.run_idf(
                 workspace,
@@ -130,11 +131,24 @@ class FirmwareSteps:
                     "scratch)",
                 )
             )
-        # After the build: IDF itself writes into the project (the component manager's lock).
-        stamp_file.record(
-            _firmware_stamp(workspace, step, image_id), {step.package: listing_digest(build_dir, COLCON_RESULT_FILES)}
-        )
-        give_to(stamp_file.path, self.containers.owner)
+        if edited := _edited_since(seen, _source_times(workspace, step), workspace, step):
+            # Recorded, the stamp of sources idf.py may not have read had the next build say "up to
+            # date", and `espdock flash` write the firmware without the edit.
+            shown = ", ".join(edited[:3]) + (", ..." if len(edited) > 3 else "")
+            self.containers.emit(
+                StepNote(
+                    step.name,
+                    f"warning: {shown} changed while idf.py built {step.package}: the firmware may not have the "
+                    "change; the next `espdock build` builds it again",
+                )
+            )
+        else:
+            # After the build: IDF itself writes into the project (the component manager's lock).
+            stamp_file.record(
+                _firmware_stamp(workspace, step, image_id),
+                {step.package: listing_digest(build_dir, COLCON_RESULT_FILES)},
+            )
+            give_to(stamp_file.path, self.containers.owner)
         return Outcome.BUILT, step.target
 
     def installed_from(self, workspace: Workspace, step: IdfBuild) -> tuple[IdfBuild, bool]:
@@ -408,6 +422,39 @@ def _firmware_stamp(workspace: Workspace, step: IdfBuild, image_id: str) -> dict
     for path in _other_components(workspace, step):
         digest.update(f"{path}\0{tree_digest(path)}\n".encode())
     return {step.package: digest.hexdigest()}
+
+
+# What idf.py itself writes into a project: the component manager's lock, at its root.
+IDF_WRITES = ("dependencies.lock",)
+
+
+# A file's size, modification time and mode.
+_Seen = dict[Path, tuple[int, int, int]]
+
+
+def _source_times(workspace: Workspace, step: IdfBuild) -> _Seen:
+    """Each file of STEP's firmware stamp (_firmware_stamp) with its size, modification time and
+    mode: cheap, read before and after idf.py to see an editor's save between."""
+    project = workspace.root / step.project
+    seen: _Seen = {}
+    for root in (project, project.parent / "components", *_other_components(workspace, step)):
+        for path in source_files(root, follow_links=True) if root.is_dir() else ():
+            with contextlib.suppress(OSError):
+                info = path.stat()
+                seen[path] = (info.st_size, info.st_mtime_ns, info.st_mode)
+    return seen
+
+
+def _edited_since(before: _Seen, after: _Seen, workspace: Workspace, step: IdfBuild) -> list[str]:
+    """The files (relative to the workspace where inside it) added, removed or changed between
+    BEFORE and AFTER (_source_times), but those idf.py writes itself."""
+    project = workspace.root / step.project
+    changed = sorted(path for path in before.keys() | after.keys() if before.get(path) != after.get(path))
+    return [
+        str(path.relative_to(workspace.root)) if path.is_relative_to(workspace.root) else str(path)
+        for path in changed
+        if not (path.parent == project and path.name in IDF_WRITES)
+    ]
 
 
 def _other_components(workspace: Workspace, step: IdfBuild) -> list[Path]:

@@ -173,6 +173,34 @@ def test_a_build_where_nothing_changed_runs_no_container(ws):
     assert len(engine.runs) == 4
 
 
+def test_a_firmware_source_saved_while_idf_py_builds_is_built_by_the_next_build(ws):
+    """An editor's save after idf.py read the file: the stamp was taken after the build, so it
+    held the edit, and the next build said "up to date (esp32)" of firmware without it; `espdock
+    flash` wrote that firmware to the board."""
+    project = ws.root / "fw/cam_fw"
+    (project / "main").mkdir(parents=True)
+    (project / "package.xml").write_text("<package><name>cam_fw</name></package>\n")
+    (project / "main/main.c").write_text("void app_main(void) {}\n")
+    step = IdfBuild("cam_fw", "fw/cam_fw", "i", "esp32", "k")
+
+    def idf_py(spec, on_line):
+        (project / "dependencies.lock").write_text("version: 2.0.0\n")  # idf.py's own, at each build
+        if saving:
+            (project / "main/main.c").write_text("void app_main(void) { int edited = 1; }\n")
+        return 0
+
+    saving = True
+    engine = FakeEngine(run_script=idf_py)
+    runner(engine, events := []).run(Plan(ws, (step,)))
+    assert "main/main.c changed while idf.py built cam_fw" in notes(events)
+    saving = False
+    runner(engine, events := []).run(Plan(ws, (step,)))
+    assert len(engine.runs) == 2, "the edit was taken for built"
+    assert events[-1].outcome is Outcome.BUILT and "changed while" not in notes(events)
+    runner(engine, events := []).run(Plan(ws, (step,)))
+    assert len(engine.runs) == 2 and "up to date" in events[-1].detail, "idf.py's own lock is no edit"
+
+
 def test_the_colcon_container_runs_as_the_owner_in_the_colcon_root(ws):
     engine = FakeEngine(run_script=colcon_installs(ws))
     runner(engine, []).run(Plan(ws, (COLCON,)))

@@ -300,6 +300,10 @@ def lock_rosdeps(
         return "unchanged", database, text.encode()
     keys = lock.get("keys", {})  # as rosdeps.check_dependencies reads it
     unserved = sorted({k for ks in needed.values() for k in ks if not keys.get(k, {}).get("installer")})
+    test_keys = lock.get(testdeps.SECTION, {}).get("keys", {})  # as testdeps.check_tests reads them
+    unserved += sorted(
+        {k for ks in tests.values() for k in ks if not test_keys.get(k, {}).get("installer")} - {*unserved}
+    )
     if unserved and not unresolved_ok:
         return f"not written (it would leave {', '.join(unserved)} unresolved)", database, text.encode()
     if before is None:
@@ -345,8 +349,10 @@ def current_test_inputs(
         return inputs, None
     if locked:
         raise LockError(reason, f"In {root}: {FIX} and commit {ROSDEP_LOCK} (or test with --no-locked).")
-    status, database, _ = lock_rosdeps(root, config, packages, inputs, env, owner, refresh=False)
-    data = (root / ROSDEP_LOCK).read_bytes() if (root / ROSDEP_LOCK).is_file() else None
+    # Not written where it leaves a key unresolved, as a build's: testdeps.check_tests names it.
+    status, database, data = lock_rosdeps(
+        root, config, packages, inputs, env, owner, refresh=False, unresolved_ok=False
+    )
     return replace(inputs, rosdep_lock=data), f"{ROSDEP_LOCK} {status} ({reason}; {database})"
 
 

@@ -369,3 +369,19 @@ def test_a_build_or_test_during_another_build_is_refused_before_it_writes_the_lo
             assert refused.returncode == 2, refused.stdout + refused.stderr
             assert f"another espdock build is running in {root} (pid {process.pid}: espdock build)" in refused.stderr
             assert not (root / "rosdep.lock.json").exists(), command
+
+
+def test_a_test_key_nothing_serves_is_refused_by_espdock_test_without_writing_the_lock(tmp_path):
+    """`espdock test` refreshed a stale lock's test part with a key rosdep cannot serve and wrote
+    it, then refused the run: the committed file named the key as served by nothing, which a
+    build does not write."""
+    root = make_workspace(tmp_path / "w", "tested_py")
+    locked = run(root, tmp_path, "lock")
+    assert locked.returncode == 0, locked.stderr
+    before = (root / "rosdep.lock.json").read_bytes()
+    add_depends(root / "src/tested_py/package.xml", "<test_depend>launch_testing_ros</test_depend>")
+    result = run(root, tmp_path, "test")
+    assert result.returncode == 2, result.stdout + result.stderr
+    assert "tested_py" in result.stderr and "launch_testing_ros" in result.stderr
+    assert "rosdep.lock.json not written (it would leave launch_testing_ros unresolved)" in result.stdout
+    assert (root / "rosdep.lock.json").read_bytes() == before

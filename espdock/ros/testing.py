@@ -418,10 +418,13 @@ def copy_results(
 
 def clear_results(build_base: Path, packages: Iterable[str]) -> None:
     """Remove the result files an earlier run left for PACKAGES: a test that no longer exists
-    must not be counted again (colcon's pytest step rewrites its file, CTest's tests theirs)."""
+    must not be counted again (colcon's pytest step rewrites its file, CTest's tests theirs).
+    CTest's TAG too, which names the Test.xml counted: colcon runs no CTest in a package that has
+    no test left ("No ctests found"), and the last run's failures were counted again."""
     for package in packages:
         for path in read_results(build_base, [package])[package].files:
             path.unlink(missing_ok=True)
+        (build_base / package / "Testing" / "TAG").unlink(missing_ok=True)
 
 
 # What the last `--results DIR` copied into DIR, one path under it per line.

@@ -234,6 +234,24 @@ def test_the_latest_ctest_file_counts_as_colcon_cmake_counts_it_but_is_not_colle
     assert collect_results({"c": c}, build, tmp_path / "results", ME) == []
 
 
+def test_a_package_whose_tests_were_all_removed_no_longer_fails_on_the_last_run_s(tmp_path):
+    """colcon runs no CTest where none is left ("No ctests found"), so Testing/TAG still named the
+    last run's Test.xml: a package whose failing test was removed failed `espdock test` again."""
+    from espdock.ros.testing import clear_results
+
+    build = tmp_path / "build"
+    testing = build / "c" / "Testing"
+    (testing / "20260101-0000").mkdir(parents=True)
+    (testing / "20260101-0000" / "Test.xml").write_text(CTEST_XML)
+    (testing / "TAG").write_text("20260101-0000\nExperimental\n")
+    assert read_results(build, ("c",))["c"].failed == 1
+    clear_results(build, ("c",))  # before a run that then runs no CTest
+    c = read_results(build, ("c",))["c"]
+    assert (c.tests, c.failed, c.failing) == (0, 0, [])
+    (testing / "TAG").write_text("20260101-0000\nExperimental\n")  # a run that did: CTest writes it
+    assert read_results(build, ("c",))["c"].tests == 2
+
+
 def test_cli_refuses_bad_input_before_any_engine(tmp_path):
     from tests.conftest import copy_workspace, espdock
 

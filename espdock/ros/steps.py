@@ -18,7 +18,14 @@ from espdock.build.steps import EnsureImage, ImageSpec
 from espdock.errors import BuildFailed, ConfigError, WorkspaceError
 from espdock.events import Outcome, StepNote, StepOutput
 from espdock.images import volume
-from espdock.images.containers import Containers, give_to, permission_error, volume_mode_refused, with_host_umask
+from espdock.images.containers import (
+    Containers,
+    give_to,
+    make_dirs_for,
+    permission_error,
+    volume_mode_refused,
+    with_host_umask,
+)
 from espdock.images.engine import Mount, RunSpec
 from espdock.images.keyed import KeyedImages, image_mode
 from espdock.images.visibility import host_paths, links_out, workspace_mount
@@ -38,7 +45,15 @@ from espdock.ros.colcon import (
 from espdock.ros.colcon_log import ColconLog, PackageState, explain_failure, named, usage_error
 from espdock.ros.plan import PYTHON_BUILD_TYPES, ColconBuild, RuntimeImage, runtime_image_spec
 from espdock.ros.runtime_tree import runtime_files
-from espdock.ros.testing import ColconTest, PackageResults, SourcedEnv, clear_results, read_results
+from espdock.ros.testing import (
+    ROS_TEST_LOGS,
+    ColconTest,
+    PackageResults,
+    SourcedEnv,
+    clear_results,
+    read_results,
+    tests_env,
+)
 from espdock.ros.trees import (
     check_isolated_install,
     native_setup_kept,
@@ -484,13 +499,16 @@ class RosSteps:
             recorded = sourced.recorded(key)
             if key is not None and recorded is None:
                 sourced.forget()
+            colcon_root = _container_path(workspace, workspace.ws_dir)
+            make_dirs_for(workspace.ws_dir / ROS_TEST_LOGS, self.containers.owner)
             spec = RunSpec(
                 image=step.image,
                 argv=step.argv(source=key is not None and recorded is None),
-                workdir=_container_path(workspace, workspace.ws_dir),
+                workdir=colcon_root,
                 user=user,
                 mounts=tuple(mounts),
-                env=recorded or tuple(env),
+                # Not in the sourced environment's key: a CI job's domain needs no sourcing again.
+                env=(*(recorded or env), *tests_env(self.containers.env, colcon_root)),
                 labels=labels,
             )
             code = self.containers.engine.run(spec, on_line, keep=self.containers.config.keep_containers)

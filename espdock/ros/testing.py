@@ -15,6 +15,7 @@ import contextlib
 import hashlib
 import json
 import os
+import posixpath
 import pwd
 import shutil
 import subprocess
@@ -226,8 +227,31 @@ class ColconTest:
 SOURCED_ENV = "build/.espdock-test-env.json"
 # Where the container that sources writes what it got (`env -0`), relative to the colcon root.
 SOURCED_DUMP = "build/.espdock-test-env.dump"
-# Set per container by the engine or the shell, not by sourcing.
-NOT_SOURCED = frozenset({"HOSTNAME", "PWD", "OLDPWD", "SHLVL", "_"})
+# What reaches the tests from the caller's environment, as it reaches a native `colcon test`: a CI
+# job's own DDS domain, discovery and middleware.
+TEST_PASSED_ENV = (
+    "ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE", "ROS_STATIC_PEERS", "ROS_LOCALHOST_ONLY", "RMW_IMPLEMENTATION",
+)  # fmt: skip
+_DISCOVERY = frozenset({"ROS_AUTOMATIC_DISCOVERY_RANGE", "ROS_STATIC_PEERS", "ROS_LOCALHOST_ONLY"})
+# Where the tests' nodes and launch files write their ROS logs (rcl's, launch.log), under the
+# colcon root: in the container's own ~/.ros they went with the container.
+ROS_TEST_LOGS = "log/ros"
+# Set per container by the engine or the shell, or per run by espdock (tests_env), not by sourcing.
+NOT_SOURCED = frozenset({"HOSTNAME", "PWD", "OLDPWD", "SHLVL", "_", *TEST_PASSED_ENV, "ROS_LOG_DIR"})
+
+
+def tests_env(env: Mapping[str, str], colcon_root: str) -> tuple[tuple[str, str], ...]:
+    """The tests' ROS settings: what TEST_PASSED_ENV names from ENV, their log dir under
+    COLCON_ROOT (the container's path), and without a discovery setting of the caller's, discovery
+    on the container's own loopback. The test containers share the engine's bridge network, where
+    DDS discovery reaches every container: two CI jobs' tests heard each other, and ament's
+    isolated tests (domain_coordinator, which reserves a domain by a port of the container's own
+    network) took the same domain in both."""
+    values = {name: env[name] for name in TEST_PASSED_ENV if env.get(name)}
+    if not _DISCOVERY & values.keys():
+        values["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+    values["ROS_LOG_DIR"] = posixpath.join(colcon_root, ROS_TEST_LOGS)
+    return tuple(sorted(values.items()))
 
 
 @dataclass(frozen=True)

@@ -1022,3 +1022,26 @@ def test_a_record_an_espdock_before_file_lists_wrote_builds_its_changed_package_
     (app / "main.c").write_text("int main(void) { return 2; }\n")
     runner(engine, events := []).run(Plan(ws, (COLCON,)))
     assert "building afresh what an older espdock built: app" in notes(events)
+
+
+def test_the_tests_get_the_caller_s_domain_and_discover_on_their_own_loopback_by_default(ws):
+    """Two CI jobs' `espdock test` on one engine: the test containers share its bridge network,
+    and each job's DDS tests heard the other's (ROS_DOMAIN_ID did not reach them); the nodes'
+    ROS logs went with the container."""
+    from espdock.ros.testing import ColconTest
+
+    step = ColconTest(image="i", packages=("app",), sources=(("app", "src/app"),), colcon_args=())
+
+    def env_of(caller: dict) -> dict:
+        engine = FakeEngine(run_script=lambda spec, on_line: 0)
+        ran = Runner(engine, Config(), caller, [].append, (os.getuid(), os.getgid()))  # type: ignore[arg-type]
+        ran.ros.test_packages(ws, step, lambda line: None)
+        return dict(engine.runs[-1].env)
+
+    alone = env_of({"ROS_DOMAIN_ID": "11", "ROS_DISTRO": "humble", "PATH": "/usr/bin"})
+    assert alone["ROS_DOMAIN_ID"] == "11" and alone["ROS_AUTOMATIC_DISCOVERY_RANGE"] == "LOCALHOST"
+    assert "ROS_DISTRO" not in alone and "PATH" not in alone, "the image's own, not the host's"
+    assert alone["ROS_LOG_DIR"] == "/workspace/ws/log/ros" and (ws.ws_dir / "log/ros").is_dir()
+    told = env_of({"ROS_AUTOMATIC_DISCOVERY_RANGE": "SUBNET", "RMW_IMPLEMENTATION": "rmw_cyclonedds_cpp"})
+    assert told["ROS_AUTOMATIC_DISCOVERY_RANGE"] == "SUBNET" and told["RMW_IMPLEMENTATION"] == "rmw_cyclonedds_cpp"
+    assert "ROS_AUTOMATIC_DISCOVERY_RANGE" not in env_of({"ROS_STATIC_PEERS": "10.0.0.2"})

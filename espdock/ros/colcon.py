@@ -65,6 +65,14 @@ for _option in SELECTING:
     REFUSED[_option] = (
         "espdock selects the packages: name them on its command line (`espdock build PKG...`, `espdock test PKG...`)"
     )
+# colcon's own ways of running again what failed, which espdock's selection leaves out.
+REFUSED["--packages-select-test-failures"] += (
+    "; `espdock test -- --packages-skip-test-passed` tests again only what did not pass last time"
+)
+REFUSED["--packages-select-build-failed"] += (
+    "; `espdock build` builds again only what failed or changed, and `-- --packages-skip-build-finished` "
+    "what did not finish"
+)
 # Options that change which packages run or how they are scheduled, not what a build produces:
 # left out of the stamps, so adding --parallel-workers does not rebuild everything. The value is
 # whether the option takes values.

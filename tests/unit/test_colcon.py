@@ -529,3 +529,15 @@ def test_a_second_double_dash_or_a_passing_option_abbreviated_as_colcon_takes_it
     with pytest.raises(ConfigError, match="a second `--`"):
         check_colcon_args(("--cmake-args", "-DX=1", "--", "--symlink-install"))
     assert check_colcon_args(("--cmake-arg", "-DX=1")) == ("--cmake-arg", "-DX=1")
+
+
+def test_colcon_s_rerun_of_what_failed_is_refused_naming_the_way_that_works():
+    """`-- --packages-select-test-failures`, a CI habit, was refused as any selection: the way
+    that does work, `--packages-skip-test-passed`, went unsaid."""
+    with pytest.raises(ConfigError) as refused:
+        check_colcon_args(["--packages-select-test-failures"], "test")
+    assert "`espdock test -- --packages-skip-test-passed`" in str(refused.value)
+    with pytest.raises(ConfigError) as refused:
+        check_colcon_args(["--packages-select-build-failed"])
+    assert "--packages-skip-build-finished" in str(refused.value)
+    assert check_colcon_args(["--packages-skip-test-passed"], "test") == ("--packages-skip-test-passed",)

@@ -133,7 +133,9 @@ def _installed(ws: Workspace, config: Config, plan: Plan, step: IdfBuild) -> tup
             )
         )
     if built is step:
-        runner.run(plan)
+        # Only the image: what they write is the installed firmware, which a build swaps in whole,
+        # so another board's build in the workspace does not stop them.
+        runner.run(plan, lock=False)
     return runner, built
 
 

@@ -37,6 +37,7 @@ from espdock.layout import firmware_install_dir
 from tests.conftest import (
     REPO,
     Started,
+    build_holding,
     containers_created,
     copy_workspace,
     espdock,
@@ -707,10 +708,14 @@ def mock_bootloader():
         yield port
 
 
-def test_flash_writes_and_verifies_through_esptool(fw_ws, double_env, mock_bootloader, engine):
+def test_flash_writes_and_verifies_through_esptool_while_a_build_runs(fw_ws, double_env, mock_bootloader, engine):
+    """Flashing one board while another board's firmware builds (a fleet's habit): flash,
+    provision and monitor were refused as "another espdock build is running", though they
+    write the installed firmware, which a build swaps in whole."""
     root, first = fw_ws
     assert first.returncode == 0
-    result = espdock("flash", "camera_node", "--port", mock_bootloader, "--verify", cwd=root, env=double_env)
+    with build_holding(root, "build", "led_strip_node"):
+        result = espdock("flash", "camera_node", "--port", mock_bootloader, "--verify", cwd=root, env=double_env)
     assert result.returncode == 0, result.stdout[-3000:] + result.stderr
     assert "verified" in result.stdout
     assert leftover_containers(engine, root) == []

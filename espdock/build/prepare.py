@@ -21,6 +21,7 @@ from espdock.firmware.plan import (
     firmware_step,
     unknown_dependencies,
 )
+from espdock.firmware.steps import installed_image
 from espdock.layout import ROS_BUILD_BASE, ROSDEP_LOCK, firmware_build_dir
 from espdock.ros import interfaces, rosdeps, testdeps
 from espdock.ros.colcon import (
@@ -174,6 +175,10 @@ def current_tags(ws: Workspace, config: Config, *, env: Mapping[str, str]) -> se
         tested = testdeps.with_test_image(plan, lock, config.ros_image == "official")
         tags |= {step.spec.tag for step in tested.steps if isinstance(step, EnsureImage)}
     for step in plan.steps:
+        if isinstance(step, IdfBuild):
+            # The installed firmware's, which flash and monitor run in: a board not rebuilt since
+            # an interface edit keeps using the image of the old one.
+            tags.add(installed_image(ws, step))
         if isinstance(step, RuntimeImage):
             tags.add(step.base.tag)
             try:

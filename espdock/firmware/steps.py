@@ -495,6 +495,13 @@ def _write_marker(build_dir: Path, target: str, defaults: str, image_key: str, o
     give_to(build_dir / TARGET_MARKER, owner)
 
 
+def installed_image(workspace: Workspace, step: IdfBuild) -> str:
+    """The micro-ROS image STEP's package's build dir was last built in (its installed firmware's,
+    which `flash`, `provision` and `monitor` run in: installed_from); STEP's own where it has none."""
+    key = _built_key(firmware_build_dir(workspace.ws_dir, step.package), step.target)
+    return keyed_tag(step.image.rpartition(":")[0], key) if key else step.image
+
+
 def _built_key(build_dir: Path, target: str) -> str:
     """The image key of the build dir's last successful build for TARGET ('' if none)."""
     built_target, _, key = _read_marker(build_dir) or ("", "", "")

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import shutil
+
 from espdock.images.prune import Present, Record, UsedImage, plan_prune, read_records, record_use
 
 
@@ -153,3 +155,24 @@ def test_the_runtime_images_run_uses_are_current_where_builds_make_none(tmp_path
     ws = find_workspace(root).with_layout(("ws/src",), "ws")
     tags = current_tags(ws, Config(runtime_image=False), env={})
     assert any(tag.startswith("espdock/ros-jazzy-runtime:") for tag in tags), tags
+
+
+def test_the_image_a_board_s_installed_firmware_was_built_in_stays_current(tmp_path):
+    """An interface edited and one board rebuilt: prune removed the image the other board's
+    installed firmware was built in, and its `flash` then built a library of the half-edited
+    interface (and failed on it)."""
+    from espdock.build.prepare import current_tags
+    from espdock.config import Config
+    from espdock.workspace import find_workspace
+    from tests.conftest import REPO, copy_workspace
+
+    root = copy_workspace(tmp_path / "w", runtime_image=False)
+    shutil.copytree(REPO / "firmware", root / "firmware")
+    shutil.copy2(REPO / "Dockerfile.idf", root / "Dockerfile.idf")
+    ws = find_workspace(root).with_layout(("ws/src", "firmware"), "ws")
+    before = current_tags(ws, Config(runtime_image=False), env={})
+    marker = root / "ws/build/camera_node/.espdock-target"
+    marker.parent.mkdir(parents=True)
+    marker.write_text("esp32\n\n0123456789abcdef\n")  # built in the image of an older interface
+    tags = current_tags(ws, Config(runtime_image=False), env={})
+    assert tags - before == {"espdock/idf-micro-ros-jazzy-esp32:0123456789abcdef"}, tags - before

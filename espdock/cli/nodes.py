@@ -13,7 +13,7 @@ import typer
 
 from espdock.build.prepare import last_build_options, workspace_packages
 from espdock.build.runner import Runner
-from espdock.build.steps import Plan
+from espdock.build.steps import LABEL_WORKSPACE, Plan
 from espdock.cli.core import WorkspaceOption, app, build_plan, command, ensure_images, load, notify
 from espdock.cli.prune import record_images
 from espdock.config import Config, invoking_user, resolve_ca_bundle
@@ -47,16 +47,28 @@ def runtime_image(ws: Workspace, config: Config, plan: Plan | None = None) -> tu
     """Make sure the runtime image holds what install/ holds now (made again when a build changed
     it since); the runner that did, and the image's keyed tag (`:latest` names it too)."""
     plan, step = nodes.runtime_plan(plan or build_plan(ws, config, [], PackageKind.ROS))
+    engine = bootstrap.ensure_engine(os.environ, notify)
     if (holder := build_running(ws)) is not None:
         # An image of what install/ holds now would be of a half rebuilt tree (the node's own
         # package may be whole, its dependencies not), and `:latest` would move to it: one made
         # before of the same files is the only one to run.
         tag = runtime_spec(ws, step).tag
-        if bootstrap.ensure_engine(os.environ, notify).image(tag) is None:
+        if engine.image(tag) is None:
             raise WorkspaceError(
                 f"an espdock build is running in {ws.root}{holder}: install/ may be half rebuilt, and the runtime "
                 "image would be made of it",
                 "Wait for it to finish, then run again.",
+            )
+    else:
+        # A build's container an espdock killed outright (kill -9) went on writing install/ while
+        # the image was made of it.
+        if swept := engine.sweep({LABEL_WORKSPACE: str(ws.root)}):
+            notify(f"removed {swept} container(s) an espdock killed earlier (kill -9) left running in this workspace")
+        if unfinished := nodes.unfinished_builds(ws, step.packages):
+            notify(
+                f"warning: the last espdock build of {', '.join(unfinished)} did not finish (it failed or was "
+                "interrupted): their install trees may be half written, and the runtime image is made of install/ "
+                "as it is (`espdock build` first)"
             )
     runner = ensure_images(ws, config, plan)
     # A runtime image `run` or `compose` made is the workspace's as much as a build's: prune may take it.

@@ -128,17 +128,14 @@ def check_built_by_espdock(workspace: Workspace, package: str) -> None:
 
     recorded = StampFile(workspace.ws_dir / "build" / ROS_STAMPS).read().get(package)
     listing = listing_digest(workspace.ws_dir / "install" / package)
-    # A record without a stamp names only where a build that did not finish was building from.
-    finished = isinstance(recorded, dict) and "stamp" in recorded
-    if finished and listing is not None and recorded.get("installed") == listing:
+    if _finished(recorded) and listing is not None and recorded.get("installed") == listing:
         return
     if (holder := build_running(workspace)) is not None:
         raise WorkspaceError(
             f"an espdock build is running in {workspace.root}{holder}: install/{package} may be half rebuilt",
             "Wait for it to finish, then run again.",
         )
-    if not finished and (workspace.ws_dir / ROS_BUILD_BASE / package).is_dir():
-        # espdock's colcon configured it (its own build base), and no build of it finished since.
+    if unfinished_builds(workspace, [package]):
         raise WorkspaceError(
             f"the last espdock build of {package} did not finish (it failed or was interrupted): "
             f"install/{package} may be half written",
@@ -150,6 +147,22 @@ def check_built_by_espdock(workspace: Workspace, package: str) -> None:
         "host's paths and Python, which the runtime image does not have",
         f"Run `espdock build {package}` (it rebuilds what changed in install/), then run again.",
     )
+
+
+def _finished(recorded: object) -> bool:
+    # A record without a stamp names only where a build that did not finish was building from.
+    return isinstance(recorded, dict) and "stamp" in recorded
+
+
+def unfinished_builds(workspace: Workspace, names: Iterable[str]) -> list[str]:
+    """Of NAMES, the packages whose last espdock build did not finish (it failed, was interrupted,
+    or its espdock was killed): espdock's colcon configured them (its own build base), and no
+    build of them finished since, so their install trees may be half written."""
+    from espdock.ros.steps import ROS_STAMPS
+
+    recorded = StampFile(workspace.ws_dir / "build" / ROS_STAMPS).read()
+    base = workspace.ws_dir / ROS_BUILD_BASE
+    return [name for name in names if not _finished(recorded.get(name)) and (base / name).is_dir()]
 
 
 def node_env(env: Mapping[str, str], mounted: bool = True) -> tuple[tuple[str, str], ...]:

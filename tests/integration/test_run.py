@@ -363,6 +363,32 @@ def test_run_says_when_a_package_was_built_on_older_sources_of_one_it_depends_on
     assert optioned.returncode == 0, optioned.stdout[-2000:] + optioned.stderr
     after = espdock(*run, cwd=root)
     assert "was built on other sources" not in after.stdout + after.stderr
+    # A build of beacon_nodes then interrupted (Ctrl-C, kill -9): the runtime image took its half
+    # written install without a word. A build forgets a package's record before colcon builds it.
+    from espdock.build.stamps import StampFile
+    from espdock.ros.steps import ROS_STAMPS
+
+    StampFile(root / "ws/build" / ROS_STAMPS).forget(["beacon_nodes"])
+    # And its colcon container, the espdock that started it killed outright, still writing install/.
+    from espdock.images.engine import LABEL_OWNER
+    from espdock.scratch import owner_identity
+
+    boot, running, _ = owner_identity().split(":")
+    dead = f"{boot}:{running.rpartition('.')[0]}.4194304:0"  # this machine and namespace, no such pid
+    orphan = subprocess.run(
+        ["docker", "run", "-d", "--label", f"io.espdock.workspace={root}", "--label", f"{LABEL_OWNER}={dead}",
+         "debian:bookworm-slim", "sleep", "300"],
+        capture_output=True, text=True, check=True,
+    ).stdout.strip()  # fmt: skip
+    try:
+        cut = espdock(*run, cwd=root)
+        gone = subprocess.run(["docker", "container", "inspect", orphan], capture_output=True, check=False)
+    finally:
+        subprocess.run(["docker", "rm", "-f", orphan], capture_output=True, check=False)
+    said = " ".join((cut.stdout + cut.stderr).split())
+    assert "warning: the last espdock build of beacon_nodes did not finish (it failed or was interrupted)" in said
+    assert "removed 1 container(s) an espdock killed earlier (kill -9) left running in this workspace" in said
+    assert gone.returncode != 0, "the orphan still runs"
     assert no_containers_left(engine, root) == []
 
 

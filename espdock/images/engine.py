@@ -308,6 +308,14 @@ class Engine:
             f"{start}, then rerun: the next command removes what was left.",
         )
 
+    def _answers(self) -> bool:
+        """Whether the engine answers /_ping now: asked after a failure that may have been the
+        engine going away (a BuildKit build, a `docker run` of the CLI, which say it their own way)."""
+        try:
+            return self._ping(5) == 200
+        except (OSError, requests.exceptions.RequestException, docker.errors.DockerException):
+            return False
+
     def start_hint(self) -> str:
         """How to start this engine, for one that never answered: how_to_start's words, and how to
         use the local engine instead where another was chosen; the default socket's is one the
@@ -395,7 +403,11 @@ class Engine:
         except EspdockError:
             raise
         except Exception as exc:
-            if doing is not None and isinstance(exc, requests.exceptions.ConnectionError):
+            if doing is not None and (
+                isinstance(exc, requests.exceptions.ConnectionError)
+                # Over the plain socket: refused or cut, or the socket file gone with its daemon.
+                or (self._socket is not None and isinstance(exc, (ConnectionError, FileNotFoundError)))
+            ):
                 raise self._lost(doing) from exc
             # ALSO first: an OSError over the plain socket is told apart without importing the SDK.
             if refused is None or not (isinstance(exc, also) or isinstance(exc, docker.errors.APIError)):
@@ -418,7 +430,7 @@ class Engine:
         """The local image REF, or None when there is none."""
         # Over the socket (no SDK) a connection that breaks is an OSError, said as a refusal is.
         broken = (OSError,) if self._socket is not None else ()
-        with self._plain_call(f"failed to look up image {ref}", also=broken):
+        with self._plain_call(f"failed to look up image {ref}", also=broken, doing=f"looking up image {ref}"):
             if self._socket is not None:
                 status, attrs = self._get(f"/images/{quote(ref, safe='')}/json")
                 if status == 404:
@@ -694,7 +706,8 @@ class Engine:
                     "Free space there (`docker system df` shows what uses it; `docker builder prune` drops "
                     "build cache, a failed build's included), then build again.",
                 )
-            if any("cannot connect to the docker daemon" in line.lower() for line in tail):
+            # BuildKit's client says a lost engine as "rpc error: code = Unavailable ... EOF".
+            if any("cannot connect to the docker daemon" in line.lower() for line in tail) or not self._answers():
                 raise self._lost(f"building {build.tag}")
             # BuildKit's last lines repeat the failed RUN's whole command, a screen each: 300 characters do.
             shown = [line if len(line) <= 300 else f"{line[:300]} ..." for line in tail]
@@ -785,6 +798,8 @@ class Engine:
                 env=self._cli_env,
                 preexec_fn=_die_with_parent(),
             )
+            if code == DOCKER_RUN_FAILED and not self._answers():
+                raise self._lost(f"running a container of {spec.image}")
             _fetch(container, fetch or {})
             return code
 
@@ -846,6 +861,10 @@ class Engine:
             reaper.kill()
             reaper.wait()
         if code == DOCKER_RUN_FAILED and not received:
+            if not self._answers():
+                # The CLI's own code for the engine going away under a running node (live-restore
+                # keeps it running: the hint's next command removes it).
+                raise self._lost(f"running a container of {spec.image}")
             raise ContainerError(
                 f"the {self.info().name} could not start a container of {spec.image} (its message is above)",
                 "Fix what the engine says, then run again.",
@@ -1330,7 +1349,11 @@ def _remove(container: docker.models.containers.Container, stop: bool = True) ->
         container.remove(force=True)
     except docker.errors.NotFound:
         pass
+    except requests.exceptions.ConnectionError:
+        pass  # the engine went away: the error that follows says so, and the next command removes it
     except (docker.errors.APIError, requests.exceptions.RequestException) as exc:
+        if isinstance(exc, docker.errors.APIError) and exc.status_code == 409:
+            return  # "removal of container ... is already in progress": the engine's own, at its end
         warnings.warn(f"could not remove container {container.short_id}: {exc}", stacklevel=2)
 
 

@@ -159,12 +159,41 @@ def test_keyed_images_unlisted_on_a_gone_local_socket_say_so_exit_1(tmp_path):
     )
 
 
-def test_a_failed_image_lookup_on_a_gone_socket_says_so_exit_1(gone):
-    engine, _ = gone
-    with pytest.raises(EspdockError) as err:
-        engine.image("espdock/img:1")
-    assert err.value.exit_code == 1
-    assert err.value.message == "the engine failed to look up image espdock/img:1: [Errno 2] No such file or directory"
+def test_an_image_lookup_on_a_gone_engine_is_exit_3_over_the_sdk_and_the_plain_socket(gone):
+    """A build waiting on another's image lock looks the image up when the lock comes free: the
+    engine killed meanwhile was exit 1, "[Errno 111] Connection refused", with no hint."""
+    engine, where = gone
+    for lookup in (engine, Engine({"DOCKER_HOST": where})):
+        with pytest.raises(EngineUnavailable) as err:
+            lookup.image("espdock/img:1")
+        assert err.value.message == f"the Docker engine at {where} went away while looking up image espdock/img:1"
+
+
+def fake_cli(tmp_path: Path, script: str) -> list[str]:
+    """A docker CLI (and its compose plugin) that runs SCRIPT (sh) whatever it is asked."""
+    cli = tmp_path / "docker"
+    cli.write_text(f"#!/bin/sh\n{script}\n")
+    cli.chmod(0o755)
+    return [str(cli), "compose"]
+
+
+def test_the_engine_going_away_under_buildkit_or_the_cli_s_run_is_exit_3(gone, tmp_path, monkeypatch):
+    """dockerd killed during an image build: BuildKit's client says "rpc error: code = Unavailable
+    desc = error reading from server: EOF", and it was exit 4, "Read the build output above"; under
+    `espdock run` the CLI's 125 was exit 9, "could not start a container", of a node that had run."""
+    from espdock.images.engine import ImageBuild
+
+    engine, where = gone
+    said = "ERROR: failed to receive status: rpc error: code = Unavailable desc = error reading from server: EOF"
+    monkeypatch.setattr(engine, "compose_command", lambda: fake_cli(tmp_path, f"echo '{said}'; exit 1"))
+    build = ImageBuild(tmp_path, "Dockerfile", "build", "espdock/img:1", {}, {}, None, lambda line: None, False)
+    with pytest.raises(EngineUnavailable) as err:
+        engine._build_buildkit(build)
+    assert err.value.message == f"the Docker engine at {where} went away while building espdock/img:1"
+    monkeypatch.setattr(engine, "compose_command", lambda: fake_cli(tmp_path, "exit 125"))
+    with pytest.raises(EngineUnavailable) as err:
+        engine.run_foreground(SPEC)
+    assert err.value.message == f"the Docker engine at {where} went away while running a container of espdock/img:1"
 
 
 REFUSED = refusal(500, "no space left on device")

@@ -30,7 +30,7 @@ from espdock.firmware.plan import (
 )
 from espdock.images import volume
 from espdock.images.containers import Containers, give_to, make_dirs_for, volume_mode_refused, with_host_umask
-from espdock.images.engine import Mount, RunSpec
+from espdock.images.engine import KILLED, Mount, RunSpec
 from espdock.images.visibility import host_paths, links_out
 from espdock.layout import COLCON_RESULT_FILES, firmware_build_dir, host_path, install_prefix
 from espdock.workspace import Workspace, editor_leftover, workspace_lock
@@ -101,6 +101,13 @@ class FirmwareSteps:
                 # has no menuconfig change for sdkconfig.old to keep (_prepare_build_dir).
                 shutil.copyfile(build_dir / "sdkconfig", build_dir / SDKCONFIG_MADE)
                 give_to(build_dir / SDKCONFIG_MADE, self.containers.owner)
+        if code == KILLED:
+            raise BuildFailed(
+                f"idf.py build of {step.package} was killed (exit code {code}, SIGKILL); build files in {build_dir}",
+                "Something killed its container: `docker kill` or `docker rm -f`, the engine stopping, or the "
+                "kernel's OOM killer for want of memory (`dmesg` says). Run `espdock build` again; installed "
+                "firmware was left as it was.",
+            )
         if code != 0:
             raise BuildFailed(
                 f"idf.py build of {step.package} failed (exit code {code}); its output is above, "

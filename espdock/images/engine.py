@@ -58,6 +58,8 @@ ENGINE_SCHEMES = ("unix", "tcp", "ssh", "npipe", "fd")
 OPERATION_TIMEOUT = 120
 # `docker run`'s own exit code when the engine could not create or start the container.
 DOCKER_RUN_FAILED = 125
+# A container's exit code when SIGKILL ended it (`docker kill`, the kernel's OOM killer, ...).
+KILLED = 128 + 9
 # Every container espdock creates names the process that made it (boot id, pid, start time),
 # so a later command can tell a container whose espdock was killed from one still in use.
 LABEL_OWNER = "io.espdock.owner"

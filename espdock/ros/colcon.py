@@ -157,6 +157,20 @@ def check_colcon_args(args: Iterable[str] | None, verb: str = "build") -> tuple[
     return args
 
 
+# MAKEFLAGS' words that only say how many jobs make runs at once (`-j4`, `--jobs=4`, `-l3`), which
+# colcon-cmake reads for its packages' builds: nothing they build differs by them.
+_MAKE_JOBS = re.compile(r"^(-j\d*|--jobs(=\d+)?|-l[\d.]*|--load-average(=[\d.]+)?)$")
+
+
+def make_jobs(env: Mapping[str, str]) -> str | None:
+    """What the build container takes of ENV's MAKEFLAGS: its job limits, the way to build a C++
+    package on a machine of little memory (colcon-cmake runs a compile per core otherwise); None
+    where it has none. Its other words would change what is built, and stay out as the rest of
+    the environment does."""
+    kept = [word for word in env.get("MAKEFLAGS", "").split() if _MAKE_JOBS.match(word)]
+    return " ".join(kept) or None
+
+
 # The flag whose presence espdock reads (the install kind).
 SPELT_OUT = "--symlink-install"
 

@@ -11,6 +11,7 @@ from dataclasses import dataclass
 from enum import StrEnum
 from pathlib import Path
 
+from espdock.images.engine import KILLED
 from espdock.layout import ROS_BUILD_BASE
 
 _QUOTED = re.compile(r"'(-[^']*)'|: (--?[\w-]+)")
@@ -155,6 +156,15 @@ SYMLINK_OVER_COPY = "because existing path cannot be removed: Is a directory"
 WHEELS_FASTDDS_CMAKE = re.compile(r"/opt/espdock/venv/share/(fastrtps|fastdds|rmw_fastrtps\w*)/cmake/")
 
 
+# gcc's and clang's word for a compiler process the kernel killed (its OOM killer, for want of memory).
+COMPILER_KILLED = re.compile(r"Killed signal terminated program|virtual memory exhausted|signal: killed")
+# What a build runs at once, and how to run fewer (colcon-cmake runs a compile per core).
+FEWER_AT_ONCE = (
+    "build fewer things at once: `MAKEFLAGS=-j2 espdock build` (compiles per package) and `-- --parallel-workers 1` "
+    "(packages at once), or give the machine (Docker Desktop's VM) more memory"
+)
+
+
 # Above this many, a count says a state's packages, not their names: a failure in a workspace of
 # dozens named every one (the summary's cell wrapped into forty lines, then said it all again).
 NAMED = 5
@@ -185,10 +195,24 @@ def explain_failure(
     lines = [f"colcon build failed (exit code {code}) in {', '.join(failed) or 'no package'}: {counts or 'none ran'}"]
     hints = []
     own = []
+    killed = not failed and code == KILLED
+    if killed:
+        lines = [
+            f"colcon build was killed (exit code {code}, SIGKILL) before any package failed: {counts or 'none ran'}"
+        ]
+        hints.append(
+            "Something killed its container: `docker kill` or `docker rm -f`, the engine stopping, or the kernel's OOM "
+            f"killer for want of memory (`dmesg` says); if that was it, {FEWER_AT_ONCE}."
+        )
     for name in failed:
         log, output = logs.get(name, (Path("?"), ""))
         missing = missing_dependencies(output)
-        if WHEELS_FASTDDS_CMAKE.search(output):
+        if COMPILER_KILLED.search(output):
+            lines.append(f"  {name}: its compiler was killed (out of memory?); log: {log}")
+            hints.append(
+                f"The kernel's OOM killer likely stopped a compiler of {name} for want of memory: {FEWER_AT_ONCE}."
+            )
+        elif WHEELS_FASTDDS_CMAKE.search(output):
             lines.append(f"  {name}: the wheels image's Fast DDS CMake files failed in its configure; log: {log}")
             hints.append(
                 f"{name} links rcl (directly or through rclcpp, rcl_action, ...), whose CMake files on the wheels "
@@ -213,7 +237,7 @@ def explain_failure(
     if own:
         hints.insert(0, f"Fix {' and '.join(own)} (the error is in the log above) and run `espdock {command}` again.")
     stopped = by_state.get(PackageState.ABORTED, []) + by_state.get(PackageState.NOT_PROCESSED, [])
-    if stopped and "--continue-on-error" not in args and command == "build":
+    if stopped and "--continue-on-error" not in args and command == "build" and not killed:
         hints.append(
             f"{len(stopped)} package(s) were not built because colcon stopped at the failure; "
             "`espdock build -- --continue-on-error` builds every package that does not depend on a failed one."

@@ -38,6 +38,7 @@ from espdock.ros.colcon import (
     closure,
     install_kind_switched,
     left_out,
+    make_jobs,
     record_build_args,
     record_install_kinds,
     symlink_installed,
@@ -301,6 +302,8 @@ class RosSteps:
         if sync is None:
             mounts += _linked(workspace, step.sources)
         env = [("HOME", "/tmp"), ("DIST_EXTRA_CONFIG", SETUPTOOLS_CONFIG), *self.containers.reproducible_env(workspace)]
+        if jobs := make_jobs(self.containers.env):
+            env.append(("MAKEFLAGS", jobs))
         archives.append(volume.file_archive(SETUPTOOLS_CONFIG, SETUPTOOLS_FORCE))
         if step.defaults_file is not None:
             # colcon reads the user's defaults from their home, which the container does not have.

@@ -541,3 +541,25 @@ def test_colcon_s_rerun_of_what_failed_is_refused_naming_the_way_that_works():
         check_colcon_args(["--packages-select-build-failed"])
     assert "--packages-skip-build-finished" in str(refused.value)
     assert check_colcon_args(["--packages-skip-test-passed"], "test") == ("--packages-skip-test-passed",)
+
+
+def test_a_killed_build_or_compiler_is_named_with_how_to_build_with_less_memory():
+    """The OOM killer (or `docker kill`) ending the colcon container was "colcon build failed
+    (exit code 137) in no package", with `--continue-on-error` for a hint; a compiler it killed
+    was "its own build failed: fix it". A machine of little memory had no way to compile less
+    at once: MAKEFLAGS stayed on the host."""
+    states = {"msgs": PackageState.BUILT, "app": PackageState.NOT_PROCESSED}
+    killed = explain_failure(137, states, {}, ())
+    assert killed.message.startswith("colcon build was killed (exit code 137, SIGKILL) before any package failed")
+    assert "OOM killer" in killed.hint and "MAKEFLAGS=-j2 espdock build" in killed.hint
+    assert "--continue-on-error" not in killed.hint
+    output = "c++: fatal error: Killed signal terminated program cc1plus\ncompilation terminated.\n"
+    compiler = explain_failure(2, {"app": PackageState.FAILED}, {"app": (Path("/l/a.log"), output)}, ())
+    assert "app: its compiler was killed (out of memory?)" in compiler.message
+    assert "Fix app" not in compiler.hint and "--parallel-workers 1" in compiler.hint
+    from espdock.ros.colcon import make_jobs
+
+    assert make_jobs({"MAKEFLAGS": "-j2 -l3 --jobs=4 -k CXXFLAGS=-O0 --load-average=2.5"}) == (
+        "-j2 -l3 --jobs=4 --load-average=2.5"
+    )
+    assert make_jobs({"MAKEFLAGS": "-k"}) is None and make_jobs({}) is None

@@ -1045,3 +1045,27 @@ def test_the_tests_get_the_caller_s_domain_and_discover_on_their_own_loopback_by
     told = env_of({"ROS_AUTOMATIC_DISCOVERY_RANGE": "SUBNET", "RMW_IMPLEMENTATION": "rmw_cyclonedds_cpp"})
     assert told["ROS_AUTOMATIC_DISCOVERY_RANGE"] == "SUBNET" and told["RMW_IMPLEMENTATION"] == "rmw_cyclonedds_cpp"
     assert "ROS_AUTOMATIC_DISCOVERY_RANGE" not in env_of({"ROS_STATIC_PEERS": "10.0.0.2"})
+
+
+def test_the_colcon_build_gets_makeflags_job_limits_and_nothing_else_of_them(ws):
+    """`MAKEFLAGS=-j2 espdock build` on a machine of little memory: the container compiled a file
+    per core all the same, and the OOM killer ended the build."""
+    engine = FakeEngine(run_script=colcon_installs(ws))
+    Runner(engine, Config(), {"MAKEFLAGS": "-j2 -k"}, [].append, (os.getuid(), os.getgid())).run(  # type: ignore[arg-type]
+        Plan(ws, (COLCON,))
+    )
+    assert dict(engine.runs[-1].env)["MAKEFLAGS"] == "-j2"
+    runs = len(engine.runs)
+    Runner(engine, Config(), {}, [].append, (os.getuid(), os.getgid())).run(Plan(ws, (COLCON,)))  # type: ignore[arg-type]
+    assert len(engine.runs) == runs, "a job limit changes nothing built: no rebuild"
+
+
+def test_a_firmware_build_whose_container_was_killed_says_so_not_fix_the_firmware(ws):
+    project = ws.root / "fw/cam_fw"
+    (project / "main").mkdir(parents=True)
+    (project / "package.xml").write_text("<package><name>cam_fw</name></package>\n")
+    engine = FakeEngine(run_script=lambda spec, on_line: 137)
+    with pytest.raises(BuildFailed) as failed:
+        runner(engine, []).run(Plan(ws, (IdfBuild("cam_fw", "fw/cam_fw", "i", "esp32", "k"),)))
+    assert "idf.py build of cam_fw was killed (exit code 137, SIGKILL)" in failed.value.message
+    assert "OOM killer" in failed.value.hint and "Fix the firmware" not in failed.value.hint

@@ -11,7 +11,7 @@ import typer
 from espdock.cli.core import app, command, notify
 from espdock.errors import ImageBuildError
 from espdock.firmware.agent import DEFAULT_BAUD, DEFAULT_UDP_PORT, agent_spec
-from espdock.firmware.flashing import check_port, parse_port
+from espdock.firmware.flashing import check_port, check_port_free, parse_port
 from espdock.images import bootstrap
 from espdock.layout import MICRO_ROS_AGENT_IMAGE
 
@@ -37,6 +37,8 @@ def agent(
     if serial is not None:
         check_port(serial)
     engine = bootstrap.ensure_engine(os.environ, notify)
+    if serial is not None:
+        check_port_free(engine, serial)
     if engine.image(image) is None and not engine.pull(image):
         raise ImageBuildError(  # as a missing IDF image is
             f"the agent image {image} is not here and could not be pulled",

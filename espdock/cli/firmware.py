@@ -30,6 +30,7 @@ from espdock.errors import ConfigError
 from espdock.firmware import transport
 from espdock.firmware.flashing import (
     check_port,
+    check_port_free,
     flash_package,
     idf_port,
     parse_port,
@@ -104,6 +105,8 @@ def idf(
         check_port(serial)
     console.print(Text(f"in {step.image}: {format_argv(step.argv(tuple(args)))}", style="dim"))
     runner = runner_for(ws, config, Reporter(console))
+    if serial is not None:
+        check_port_free(runner.engine, serial)
     runner.run(plan)
     if serial is None:
         raise typer.Exit(runner.firmware.run_passthrough(ws, step, tuple(args)))
@@ -276,6 +279,7 @@ def flash(
     nvs = nvs_partition(firmware_dir, flasher_args, package) if settings else None
     check_port(serial)
     runner, step = _installed(ws, config, plan, step)
+    check_port_free(runner.engine, serial)
     if settings is not None:
         runner.firmware.check_library_port(ws, step, settings.agent_port)
     say = lambda line: console.print(Text(line))  # noqa: E731
@@ -327,6 +331,7 @@ def provision(
     settings = network_settings(wifi_ssid, wifi_password_file, agent, domain, sys.stdin, _ask_password)
     check_port(serial)
     runner, step = _installed(ws, config, plan, step)
+    check_port_free(runner.engine, serial)
     runner.firmware.check_library_port(ws, step, settings.agent_port)
     with nvs_image(settings, nvs.size, runner.owner) as image:
         flash_package(
@@ -353,5 +358,6 @@ def monitor(
     check_port(serial)
     plan, step = firmware_plan(ws, config, package)
     runner, step = _installed(ws, config, plan, step)
+    check_port_free(runner.engine, serial)
     argv = step.argv(("-p", port, "monitor"))
     raise typer.Exit(runner.firmware.run_idf(ws, step, argv, devices=serial.devices, network=serial.network))

@@ -22,7 +22,7 @@ from espdock.firmware import transport
 from espdock.firmware.plan import LONGCALLS_RISCV, IdfBuild
 from espdock.firmware.provision import IMAGE_MOUNT
 from espdock.firmware.steps import FirmwareSteps
-from espdock.images.engine import Mount, format_argv
+from espdock.images.engine import Engine, Mount, format_argv
 from espdock.images.visibility import workspace_mount
 from espdock.layout import firmware_install_dir, installed_firmware_dir
 from espdock.workspace import Workspace, component_targets
@@ -111,6 +111,17 @@ def port_of_env(args: Sequence[str], env: Mapping[str, str]) -> tuple[str, ...]:
 PORT_ACTIONS = frozenset({"monitor", "read-otadata", "read_otadata", "erase-otadata", "erase_otadata"})
 
 
+def check_port_free(engine: Engine, port: Port) -> None:
+    """Refuse PORT where another espdock container has its device (a monitor in another terminal,
+    the agent of a board on serial): two containers opened it at once, each its own node of the
+    device, and the flash or the monitor failed or read the other's bytes."""
+    if users := engine.device_users(port.devices):
+        raise PortError(
+            f"serial port {port.spec} is busy: espdock's container {users[0]} has it",
+            "Stop that (Ctrl-C in its terminal, or `docker stop " + users[0] + "`), then run again.",
+        )
+
+
 def check_port(port: Port, timeout: float = 3.0) -> None:
     """Fail with a clear message if PORT does not exist, is busy, or nothing listens at it."""
     if port.is_url:
@@ -154,8 +165,9 @@ def check_port(port: Port, timeout: float = 3.0) -> None:
         raise PortError(
             f"{path} is a pseudo-terminal (an emulator's or socat's serial port), which no container can open",
             "Serve it over the network and pass that: QEMU's `-serial tcp::5555,server,nowait` as "
-            f"socket://localhost:5555, or `esp_rfc2217_server -p 4000 {shlex.quote(str(path))}` as "
-            "rfc2217://localhost:4000.",
+            f"socket://localhost:5555, or `socat TCP-LISTEN:4000,reuseaddr FILE:{shlex.quote(str(path))},raw,echo=0` "
+            "as socket://localhost:4000 (esp_rfc2217_server sets the DTR and RTS lines, which a pseudo-terminal "
+            "does not have).",
         )
 
 

@@ -1023,6 +1023,30 @@ class Engine:
         labels = [c.get("Labels") or {} for c in listed]
         return sorted({str(lab.get("com.docker.compose.service", "?")) for lab in labels})
 
+    def device_users(self, devices: Sequence[str]) -> list[str]:
+        """The names of espdock's running containers that were passed one of DEVICES (host paths, by
+        the device they lead to). A container opens its own node of the device, so the host's
+        lock on it (pyserial's flock, which check_port reads) does not show a monitor, an agent
+        or a flash holding the board. Those of a killed espdock are removed, not named."""
+        wanted = {os.path.realpath(device) for device in devices}
+        if not wanted:
+            return []
+        users = []
+        for listed in self._all_containers({"label": [LABEL_OWNER], "status": ["running"]}):
+            with self._plain_call("failed to inspect a container", doing="inspecting a container"):
+                if self._plain:
+                    _, attrs = self._get(f"/containers/{listed['Id']}/json")
+                else:
+                    attrs = self._client.api.inspect_container(listed["Id"])
+            given = ((attrs or {}).get("HostConfig") or {}).get("Devices") or []
+            if not wanted & {os.path.realpath(str(d.get("PathOnHost", ""))) for d in given}:
+                continue
+            if not owner_alive((listed.get("Labels") or {}).get(LABEL_OWNER, "")):
+                _remove(self._handle(listed["Id"]), stop=False)
+                continue
+            users.append(str((listed.get("Names") or [listed["Id"]])[0]).lstrip("/"))
+        return users
+
     def containers(self, labels: Mapping[str, str]) -> list[str]:
         """Names of containers (running or not) carrying all LABELS."""
         listed = self._all_containers({"label": _label_selector(labels)})

@@ -366,6 +366,33 @@ def test_the_listings_are_the_engine_s_own_and_removing_labelled_containers_remo
     assert_listed(lambda: {image.id for image in way.images("debian")}, "debian")
 
 
+def test_a_serial_device_another_espdock_container_has_is_named_as_busy(way):
+    """A monitor (or the agent) in another terminal holds the board's port in its container, which
+    opens its own node of the device: the host's lock check saw nothing, and flash opened it beside."""
+    from espdock.firmware.flashing import PortError, check_port_free, parse_port
+
+    boot, running, _ = owner_identity().split(":")
+    dead = f"{boot}:{running.rpartition('.')[0]}.4194304:0"  # a killed espdock's: this machine, no such pid
+    made = []
+    try:
+        for owner in (owner_identity(), dead):
+            made.append(
+                subprocess.run(
+                    ["docker", "run", "--detach", "--init", "--device", "/dev/full", "--label",
+                     f"{LABEL_OWNER}={owner}", IMAGE, "sleep", "60"],
+                    capture_output=True, text=True, check=True,
+                ).stdout.strip()
+            )  # fmt: skip
+        (name,) = way.device_users(["/dev/full"])
+        assert docker_ids("ps", "--filter", f"name=^{name}$") == {made[0]}
+        assert docker_ids("ps", "--all", "--filter", f"id={made[1]}") == set(), "the killed espdock's goes"
+        assert way.device_users(["/dev/zero"]) == []
+        with pytest.raises(PortError, match=f"serial port /dev/full is busy: espdock's container {name} has it"):
+            check_port_free(way, parse_port("/dev/full"))
+    finally:
+        subprocess.run(["docker", "rm", "--force", *made], capture_output=True, check=False)
+
+
 def assert_listed(listing: Callable[[], set[str]], *selection: str) -> None:
     """LISTING gives what `docker images SELECTION` lists. The other test workers build and remove
     images meanwhile, and an image can come and go within one listing, so the check waits for a

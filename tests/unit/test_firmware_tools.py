@@ -178,6 +178,13 @@ def test_a_pseudo_terminal_is_refused_with_the_network_way_to_serve_it(tmp_path)
             with pytest.raises(PortError, match="is a pseudo-terminal") as err:
                 check_port(parse_port(path))
             assert "socket://localhost:5555" in (err.value.hint or "")
+            assert f"socat TCP-LISTEN:4000,reuseaddr FILE:{path},raw,echo=0" in (err.value.hint or "")
+        # What the hint once named, esp_rfc2217_server, sets the port's DTR and RTS lines (as
+        # pyserial does here), which a pseudo-terminal refuses: it failed every connection.
+        import serial
+
+        with serial.Serial(os.ttyname(device)) as opened, pytest.raises(OSError, match="Inappropriate ioctl"):
+            opened.dtr = False
     finally:
         os.close(device)
         os.close(controller)

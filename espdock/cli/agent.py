@@ -27,7 +27,12 @@ def agent(
     ] = None,
     baud: Annotated[int, typer.Option("--baud", "-b", help="The firmware's CONFIG_ESPDOCK_UART_BAUD.")] = DEFAULT_BAUD,
     udp_port: Annotated[int, typer.Option(help="UDP port for boards on Wi-Fi (without --port).")] = DEFAULT_UDP_PORT,
-    domain_id: Annotated[int | None, typer.Option(help="ROS_DOMAIN_ID (default: the environment's).")] = None,
+    domain_id: Annotated[
+        int | None,
+        typer.Option(
+            help="The agent's own ROS_DOMAIN_ID (default: the environment's); a board's is the one it was provisioned with."
+        ),
+    ] = None,
     image: Annotated[str, typer.Option(help="The micro-ROS agent image.")] = MICRO_ROS_AGENT_IMAGE,
 ) -> None:
     """Run the micro-ROS agent in a container until Ctrl-C, passing in only the board's device

@@ -30,7 +30,8 @@ def agent(
     domain_id: Annotated[
         int | None,
         typer.Option(
-            help="The agent's own ROS_DOMAIN_ID (default: the environment's); a board's is the one it was provisioned with."
+            help="The agent's own ROS_DOMAIN_ID (default: the environment's); a board's entities are in the "
+            "domain it was provisioned with."
         ),
     ] = None,
     image: Annotated[str, typer.Option(help="The micro-ROS agent image.")] = MICRO_ROS_AGENT_IMAGE,

@@ -36,6 +36,12 @@ class FakeEngine:
     # Files read_file finds, by path in any image (an empty dpkg database unless set); what it read.
     files: dict[str, bytes | None] = field(default_factory=dict)
     reads: list[tuple[str, str]] = field(default_factory=list)
+    host: str = "unix:///var/run/docker.sock"
+    # Where it keeps images and containers (DockerRootDir), for disk-full messages.
+    root: str = "unknown"
+
+    def data_root(self) -> str:
+        return self.root
 
     def info(self) -> EngineInfo:
         return EngineInfo(kind="docker", rootless=self.rootless, identity="fake", where="fake://engine")

@@ -106,7 +106,7 @@ class Runner:
             except (EspdockError, OSError) as exc:
                 # A build that failed for want of space says so (a compiler's "No space left"
                 # is easy to miss in its log); espdock's own writes fail with ENOSPC.
-                full = _full_disk(workspace, exc)
+                full = _full_disk(workspace, exc, self.containers.engine)
                 if full is not None:
                     raise full from exc
                 if isinstance(exc, PermissionError):
@@ -154,10 +154,14 @@ def _packages_of(steps: tuple[Step, ...]) -> list[str]:
     return list(dict.fromkeys(names))
 
 
-def _full_disk(workspace: Workspace, exc: Exception) -> DiskFull | None:
+def _full_disk(workspace: Workspace, exc: Exception, engine: Engine) -> DiskFull | None:
     """The full disk a step failed for: the one an ENOSPC names, else a nearly full one of the trees
-    a build writes (build/ or install/ may be filesystems of their own)."""
+    a build writes (build/ or install/ may be filesystems of their own), or for a failed build on
+    an engine of this machine, its data root: the containers' own files (/tmp: the CA bundle
+    espdock's with-ca.sh writes there) fail there first, and the build said "fix the firmware"."""
     if isinstance(exc, OSError) and exc.errno == errno.ENOSPC:
         return disk_full(exc.filename or workspace.ws_dir, known=True)
-    trees = (workspace.ws_dir, workspace.ws_dir / "build", workspace.ws_dir / "install")
+    trees = [workspace.ws_dir, workspace.ws_dir / "build", workspace.ws_dir / "install"]
+    if isinstance(exc, BuildFailed) and engine.host.startswith("unix://") and (root := engine.data_root()) != "unknown":
+        trees.append(Path(root))
     return next((full for tree in trees if (full := disk_full(tree)) is not None), None)

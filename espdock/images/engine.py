@@ -704,7 +704,7 @@ class Engine:
         if code != 0:
             if any("no space left on device" in line.lower() for line in tail):
                 raise ImageBuildError(
-                    f"building {build.tag} failed: the engine's disk is full (its data root, {self._data_root()})",
+                    f"building {build.tag} failed: the engine's disk is full (its data root, {self.data_root()})",
                     "Free space there (`docker system df` shows what uses it; `docker builder prune` drops "
                     "build cache, a failed build's included), then build again.",
                 )
@@ -718,7 +718,7 @@ class Engine:
                 _buildkit_hint(tail),
             )
 
-    def _data_root(self) -> str:
+    def data_root(self) -> str:
         """Where the engine keeps images and containers (DockerRootDir), for messages."""
         try:
             if self._socket is not None:

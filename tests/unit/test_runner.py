@@ -1069,3 +1069,24 @@ def test_a_firmware_build_whose_container_was_killed_says_so_not_fix_the_firmwar
         runner(engine, []).run(Plan(ws, (IdfBuild("cam_fw", "fw/cam_fw", "i", "esp32", "k"),)))
     assert "idf.py build of cam_fw was killed (exit code 137, SIGKILL)" in failed.value.message
     assert "OOM killer" in failed.value.hint and "Fix the firmware" not in failed.value.hint
+
+
+def test_a_firmware_build_that_failed_on_the_engine_s_full_disk_names_that_disk(ws, tmp_path, monkeypatch):
+    """The engine's data root full: espdock's own with-ca.sh failed writing its CA bundle in the
+    container's /tmp ("cat: write error: No space left on device"), and the build said "Fix the
+    firmware", exit 5, where a full disk is exit 7 naming it."""
+    from espdock.build import runner as runner_module
+    from espdock.errors import DiskFull, disk_full
+
+    project = ws.root / "fw/cam_fw"
+    (project / "main").mkdir(parents=True)
+    (project / "package.xml").write_text("<package><name>cam_fw</name></package>\n")
+    data_root = tmp_path / "var-lib-docker"
+    data_root.mkdir()
+    monkeypatch.setattr(
+        runner_module, "disk_full", lambda path, **kw: disk_full(path, known=True) if path == data_root else None
+    )
+    engine = FakeEngine(run_script=lambda spec, on_line: 1, root=str(data_root))
+    with pytest.raises(DiskFull) as full:
+        runner(engine, []).run(Plan(ws, (IdfBuild("cam_fw", "fw/cam_fw", "i", "esp32", "k"),)))
+    assert f"the disk holding {data_root}" in full.value.message and full.value.exit_code == 7

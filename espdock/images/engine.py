@@ -1265,12 +1265,15 @@ def _compose_build(build: ImageBuild) -> dict[str, Any]:
 def _buildkit_hint(tail: Sequence[str]) -> str:
     """What to do about a failed BuildKit build, from the last lines it printed."""
     output = "\n".join(tail)
-    unpulled = re.search(r"load metadata for (\S+)", output)
-    if unpulled and "ERROR" in output:
-        return (
-            f"{unpulled.group(1)} is not here and could not be pulled: is a registry reachable? "
-            "Or load the image locally (docker load) or point espdock.toml at one you have."
-        )
+    for load in re.finditer(r"^#(\d+) \[(?:\S+ )?internal\] load metadata for (\S+)", output, re.MULTILINE):
+        # That step's own error, or the solver's word on it: not any step's error after a base
+        # image that was there (a RUN that failed read as "not here and could not be pulled").
+        step, ref = load.groups()
+        if re.search(rf"^#{step} ERROR", output, re.MULTILINE) or f"resolve source metadata for {ref}" in output:
+            return (
+                f"{ref} is not here and could not be pulled: is a registry reachable? "
+                "Or load the image locally (docker load) or point espdock.toml at one you have."
+            )
     if config := re.search(r"mkdir (\S*\.docker): permission denied", output):
         # Compose's build writes the docker CLI's config dir first (buildx state); a HOME
         # espdock can read but not write fails every image build so.

@@ -641,3 +641,26 @@ def test_a_build_tree_linked_out_of_the_workspace_is_refused_naming_it(ws, tmp_p
     with pytest.raises(WorkspaceError, match=r"build links to .*scratch-build0, outside the workspace") as err:
         runner(engine).run(Plan(ws, (COLCON,)))
     assert err.value.exit_code == 2 and engine.runs == []
+
+
+def test_the_not_pulled_hint_is_for_a_base_image_that_failed_to_load_not_any_failed_step():
+    """A RUN that failed after the base image's metadata loaded was hinted "debian:... is not here
+    and could not be pulled", of an image the engine had."""
+    from espdock.images.engine import _buildkit_hint
+
+    loaded = "#2 [internal] load metadata for docker.io/library/debian:bookworm-slim"
+    ran = [
+        loaded,
+        "#2 DONE 0.0s",
+        '#7 ERROR: process "/bin/sh -c ./setup.sh" did not complete successfully: exit code: 1',
+    ]
+    assert "could not be pulled" not in _buildkit_hint(ran)
+    # Compose's build (the service `image`, as espdock names it) with no registry reachable, as here.
+    missing = [
+        "#3 [image internal] load metadata for docker.io/library/debian:nope",
+        '#3 ERROR: failed to do request: Head "https://registry-1.docker.io/v2/library/debian/manifests/nope": '
+        "dial tcp: lookup registry-1.docker.io: no such host",
+    ]
+    assert _buildkit_hint(missing).startswith("docker.io/library/debian:nope is not here and could not be pulled")
+    solver = "ERROR: failed to solve: debian:nope: failed to resolve source metadata for docker.io/library/debian:nope"
+    assert _buildkit_hint([missing[0], solver]).startswith("docker.io/library/debian:nope is not here")

@@ -85,7 +85,9 @@ class FirmwareSteps:
         # defaults, and the next build must not take it for the last successful build's.
         _write_marker(build_dir, step.target, defaults, _built_key(build_dir, step.target), self.containers.owner)
         fresh = not (build_dir / "sdkconfig").is_file()
-        seen = _source_times(workspace, step)
+        # The same directories after: the build's project_description.json may name more.
+        roots = _stamp_roots(workspace, step)
+        seen = _source_times(roots)
         try:
             code = self.run_idf(
                 workspace,
@@ -138,7 +140,7 @@ class FirmwareSteps:
                     "scratch)",
                 )
             )
-        if edited := _edited_since(seen, _source_times(workspace, step), workspace, step):
+        if edited := _edited_since(seen, _source_times(roots), workspace, step):
             # Recorded, the stamp of sources idf.py may not have read had the next build say "up to
             # date", and `espdock flash` write the firmware without the edit.
             shown = ", ".join(edited[:3]) + (", ..." if len(edited) > 3 else "")
@@ -439,12 +441,17 @@ IDF_WRITES = ("dependencies.lock",)
 _Seen = dict[Path, tuple[int, int, int]]
 
 
-def _source_times(workspace: Workspace, step: IdfBuild) -> _Seen:
-    """Each file of STEP's firmware stamp (_firmware_stamp) with its size, modification time and
-    mode: cheap, read before and after idf.py to see an editor's save between."""
+def _stamp_roots(workspace: Workspace, step: IdfBuild) -> tuple[Path, ...]:
+    """The directories STEP's firmware stamp (_firmware_stamp) hashes."""
     project = workspace.root / step.project
+    return (project, project.parent / "components", *_other_components(workspace, step))
+
+
+def _source_times(roots: tuple[Path, ...]) -> _Seen:
+    """Each file under ROOTS (_stamp_roots) with its size, modification time and mode: cheap,
+    read before and after idf.py to see an editor's save between."""
     seen: _Seen = {}
-    for root in (project, project.parent / "components", *_other_components(workspace, step)):
+    for root in roots:
         for path in source_files(root, follow_links=True) if root.is_dir() else ():
             with contextlib.suppress(OSError):
                 info = path.stat()

@@ -1037,7 +1037,10 @@ class Engine:
                 if self._plain:
                     _, attrs = self._get(f"/containers/{listed['Id']}/json")
                 else:
-                    attrs = self._client.api.inspect_container(listed["Id"])
+                    try:
+                        attrs = self._client.api.inspect_container(listed["Id"])
+                    except docker.errors.NotFound:
+                        continue  # gone since the listing: it holds nothing
             given = ((attrs or {}).get("HostConfig") or {}).get("Devices") or []
             if not wanted & {os.path.realpath(str(d.get("PathOnHost", ""))) for d in given}:
                 continue

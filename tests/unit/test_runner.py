@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import os
 import tempfile
 import threading
@@ -199,6 +200,32 @@ def test_a_firmware_source_saved_while_idf_py_builds_is_built_by_the_next_build(
     assert events[-1].outcome is Outcome.BUILT and "changed while" not in notes(events)
     runner(engine, events := []).run(Plan(ws, (step,)))
     assert len(engine.runs) == 2 and "up to date" in events[-1].detail, "idf.py's own lock is no edit"
+
+
+def test_a_first_firmware_build_naming_a_component_from_elsewhere_is_no_edit_during_it(ws):
+    """The build's project_description.json names a component outside the project (another
+    EXTRA_COMPONENT_DIRS entry): read only after the first build, its files were taken for ones
+    saved during it, and the firmware was built again for nothing."""
+    project = ws.root / "fw/cam_fw"
+    (project / "main").mkdir(parents=True)
+    (project / "package.xml").write_text("<package><name>cam_fw</name></package>\n")
+    shared = ws.root / "shared/blink"
+    shared.mkdir(parents=True)
+    (shared / "blink.c").write_text("void blink(void) {}\n")
+    step = IdfBuild("cam_fw", "fw/cam_fw", "i", "esp32", "k")
+
+    def idf_py(spec, on_line):
+        build_dir = ws.ws_dir / "build/cam_fw"
+        build_dir.mkdir(parents=True, exist_ok=True)
+        paths = ["/workspace/fw/cam_fw/main", "/workspace/shared/blink"]
+        (build_dir / "project_description.json").write_text(json.dumps({"build_component_paths": paths}))
+        return 0
+
+    engine = FakeEngine(run_script=idf_py)
+    runner(engine, events := []).run(Plan(ws, (step,)))
+    assert "changed while" not in notes(events)
+    runner(engine, events := []).run(Plan(ws, (step,)))
+    assert len(engine.runs) == 1 and "up to date" in events[-1].detail
 
 
 def test_the_colcon_container_runs_as_the_owner_in_the_colcon_root(ws):

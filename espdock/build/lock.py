@@ -340,8 +340,11 @@ def current_test_inputs(
     locked: bool,
     env: Mapping[str, str],
     owner: tuple[int, int] | None = None,
+    tested: tuple[Package, ...] | None = None,
 ) -> tuple[BuildInputs, str | None]:
-    """current_rosdep_inputs for `espdock test`: a lock whose test part answers too."""
+    """current_rosdep_inputs for `espdock test`: a lock whose test part answers too. Without
+    rosdep's sources, the lock as it is where it answers for the packages TESTED (default: all)
+    and what they need, as a build does (testdeps.check_tests then names a test key it lacks)."""
     image, _, reason = _rosdep_state(config, packages, inputs)
     lock = rosdeps.read_lock(inputs.rosdep_lock, ROSDEP_LOCK)
     reason = reason or testdeps.stale_reason(lock, packages, image, ROSDEP_LOCK)
@@ -350,9 +353,14 @@ def current_test_inputs(
     if locked:
         raise LockError(reason, f"In {root}: {FIX} and commit {ROSDEP_LOCK} (or test with --no-locked).")
     # Not written where it leaves a key unresolved, as a build's: testdeps.check_tests names it.
-    status, database, data = lock_rosdeps(
-        root, config, packages, inputs, env, owner, refresh=False, unresolved_ok=False
-    )
+    try:
+        status, database, data = lock_rosdeps(
+            root, config, packages, inputs, env, owner, refresh=False, unresolved_ok=False
+        )
+    except rosdeps.DatabaseUnreachable as exc:
+        # What the run builds: the packages tested and what they depend on.
+        built = select_up_to(packages, [p.name for p in (packages if tested is None else tested)])
+        return inputs, offline_note(config, packages, inputs, built, reason, exc)
     return replace(inputs, rosdep_lock=data), f"{ROSDEP_LOCK} {status} ({reason}; {database})"
 
 

@@ -216,7 +216,9 @@ def plan_tests(
     # The rosdep lock, its test part included, answers for the packages before anything is built
     # (checked here once: the plan takes the packages and inputs as they are).
     owner = invoking_user(env, ws.root) if os.geteuid() == 0 else None
-    inputs, note = current_test_inputs(ws.root, config, every, read_build_inputs(ws, every), locked, env, owner)
+    inputs, note = current_test_inputs(
+        ws.root, config, every, read_build_inputs(ws, every), locked, env, owner, tested=ros
+    )
     if note:
         notify(note)
     lock = rosdeps.read_lock(inputs.rosdep_lock, ROSDEP_LOCK)

@@ -58,6 +58,11 @@ gbpdistro https://raw.githubusercontent.com/ros/rosdistro/master/releases/fuerte
 _WHEEL = re.compile(r"\n(ros-[a-z0-9-]+)==")
 _DEB_NAME = re.compile(r"[a-z0-9][a-z0-9+.-]+")
 _NOT_FOUND = re.compile(r"Because (\S+) was not found in the package registry")
+# uv's words for a package index it could not reach (no network, a proxy or DNS down).
+_INDEX_UNREACHABLE = re.compile(
+    r"Failed to fetch|error sending request|dns error|Connection refused|operation timed out|tcp connect error",
+    re.IGNORECASE,
+)
 
 
 @dataclass(frozen=True)
@@ -510,6 +515,14 @@ def pip_lock_lines(
                 f"installed (its Python packages stay at their versions):\n{result.stderr.strip()}",
                 "Use a rosdep key whose rule is apt (the image's own Python packages), or another version of the "
                 f"package; then {FIX}.",
+            )
+        if not gone and _INDEX_UNREACHABLE.search(result.stderr):
+            # As rosdep's database out of reach: a build goes on with the lock as it is where it
+            # answers for the packages built (offline, with the database cached, it stopped them all).
+            said = next((line.strip() for line in reversed(result.stderr.splitlines()) if line.strip()), "")
+            raise DatabaseUnreachable(
+                f"uv could not reach the package index for the rosdep pip packages {wanted} ({said})",
+                f"Reach the package index (PyPI, or the one UV_INDEX_URL names), then {FIX}.",
             )
         if not gone:
             raise LockError(f"uv could not lock the rosdep pip packages {wanted}:\n{result.stderr.strip()}", FIX)

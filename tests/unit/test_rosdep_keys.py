@@ -385,3 +385,43 @@ def test_a_test_key_nothing_serves_is_refused_by_espdock_test_without_writing_th
     assert "tested_py" in result.stderr and "launch_testing_ros" in result.stderr
     assert "rosdep.lock.json not written (it would leave launch_testing_ros unresolved)" in result.stdout
     assert (root / "rosdep.lock.json").read_bytes() == before
+
+
+def test_offline_with_rosdep_s_database_at_hand_a_package_the_lock_answers_for_builds(tmp_path):
+    """A lab without network, rosdep's database cached (or a local mirror): a new package needing
+    only what the lock already pins (pyserial) was stopped by uv's "Failed to fetch" of the index,
+    and so was every other build, with the hint to run `espdock lock`, which fails the same way."""
+    if subprocess.run(["unshare", "-rn", "true"], capture_output=True, check=False).returncode != 0:
+        pytest.skip("unshare cannot make a network namespace here")
+    root = make_workspace(tmp_path / "w", "rosdeps_serial_gps")
+    assert run(root, tmp_path, "lock").returncode == 0
+    before = (root / "rosdep.lock.json").read_bytes()
+    spare = root / "src/gps_spare"
+    shutil.copytree(root / "src/rosdeps_serial_gps", spare)
+    manifest = spare / "package.xml"
+    manifest.write_text(manifest.read_text().replace("<name>rosdeps_serial_gps</name>", "<name>gps_spare</name>"))
+    cut = ("unshare", "-rn", sys.executable, "-m", "espdock")
+    env = {**NO_ENGINE, **environment(tmp_path), "UV_HTTP_RETRIES": "0"}  # no network: no retry can help
+    built = espdock("build", "gps_spare", cwd=root, env=env, prefix=cut)
+    assert built.returncode == 3, built.stdout + built.stderr  # past rosdep, on to the engine
+    said = " ".join(built.stdout.split())
+    assert "uv could not reach the package index" in said and "need nothing more from rosdep" in said, said
+    assert (root / "rosdep.lock.json").read_bytes() == before
+    locked = espdock("lock", cwd=root, env=env, prefix=cut)
+    assert locked.returncode == 2 and "Reach the package index" in locked.stderr, locked.stderr
+
+
+def test_offline_espdock_test_goes_on_with_the_lock_as_it_is_where_it_answers(tmp_path):
+    """`espdock build` of a package the lock answers for went on without rosdep's sources;
+    `espdock test` of it stopped at "`rosdep update` failed", the lock's test part covering it."""
+    root = make_workspace(tmp_path / "w", "tested_py", "rosdeps_serial_gps")
+    assert run(root, tmp_path, "lock").returncode == 0
+    spare = root / "src/gps_spare"  # added since the lock was made: it is stale
+    shutil.copytree(root / "src/rosdeps_serial_gps", spare)
+    manifest = spare / "package.xml"
+    manifest.write_text(manifest.read_text().replace("<name>rosdeps_serial_gps</name>", "<name>gps_spare</name>"))
+    before = (root / "rosdep.lock.json").read_bytes()
+    tested = offline(root, tmp_path, "test", "tested_py")
+    assert tested.returncode == 3, tested.stdout + tested.stderr  # past rosdep, on to the engine
+    assert "the packages built need nothing more from rosdep" in " ".join(tested.stdout.split())
+    assert (root / "rosdep.lock.json").read_bytes() == before

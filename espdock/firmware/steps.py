@@ -172,10 +172,9 @@ class FirmwareSteps:
         # files: `espdock idf PKG -- fullclean` empties those, and the sources build the same.
         recorded = StampFile(workspace.ws_dir / "build" / FIRMWARE_STAMPS).read().get(step.package) or {}
         current = recorded.get("stamp") == stamp
-        target, _, key = _read_marker(build_dir) or ("", "", "")
-        if current or target != step.target or not key or key == step.image_key:
+        built = _built_step(step, build_dir)
+        if current or built is None or (built.target, built.image_key) == (step.target, step.image_key):
             return step, current
-        built = replace(step, image=keyed_tag(step.image.rpartition(":")[0], key), image_key=key)
         return (built, False) if self.containers.engine.image(built.image) is not None else (step, False)
 
     def _image_id(self, step: IdfBuild) -> str:
@@ -512,8 +511,20 @@ def _write_marker(build_dir: Path, target: str, defaults: str, image_key: str, o
 def installed_image(workspace: Workspace, step: IdfBuild) -> str:
     """The micro-ROS image STEP's package's build dir was last built in (its installed firmware's,
     which `flash`, `provision` and `monitor` run in: installed_from); STEP's own where it has none."""
-    key = _built_key(firmware_build_dir(workspace.ws_dir, step.package), step.target)
-    return keyed_tag(step.image.rpartition(":")[0], key) if key else step.image
+    built = _built_step(step, firmware_build_dir(workspace.ws_dir, step.package))
+    return step.image if built is None else built.image
+
+
+def _built_step(step: IdfBuild, build_dir: Path) -> IdfBuild | None:
+    """STEP as BUILD_DIR was last built: its chip (a one-off `--target` is another's) and the
+    image of its key; None where it has no record of a build that finished."""
+    target, _, key = _read_marker(build_dir) or ("", "", "")
+    repository = step.image.rpartition(":")[0]
+    if not target or not key or (target != step.target and not repository.endswith(f"-{step.target}")):
+        return None
+    if target != step.target:  # the micro-ROS images are named for their chip
+        repository = repository.removesuffix(step.target) + target
+    return replace(step, image=keyed_tag(repository, key), image_key=key, target=target)
 
 
 def _built_key(build_dir: Path, target: str) -> str:

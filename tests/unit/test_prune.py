@@ -176,3 +176,6 @@ def test_the_image_a_board_s_installed_firmware_was_built_in_stays_current(tmp_p
     marker.write_text("esp32\n\n0123456789abcdef\n")  # built in the image of an older interface
     tags = current_tags(ws, Config(runtime_image=False), env={})
     assert tags - before == {"espdock/idf-micro-ros-jazzy-esp32:0123456789abcdef"}, tags - before
+    marker.write_text("esp32s3\n\n0123456789abcdef\n")  # a one-off `--target esp32s3` built it
+    tags = current_tags(ws, Config(runtime_image=False), env={})
+    assert tags - before == {"espdock/idf-micro-ros-jazzy-esp32s3:0123456789abcdef"}, tags - before

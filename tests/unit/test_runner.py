@@ -1117,3 +1117,19 @@ def test_a_firmware_build_that_failed_on_the_engine_s_full_disk_names_that_disk(
     with pytest.raises(DiskFull) as full:
         runner(engine, []).run(Plan(ws, (IdfBuild("cam_fw", "fw/cam_fw", "i", "esp32", "k"),)))
     assert f"the disk holding {data_root}" in full.value.message and full.value.exit_code == 7
+
+
+def test_flash_after_a_one_off_target_runs_in_that_chip_s_image(ws):
+    """`espdock build fw --target esp32s3`, then `espdock flash fw`: flash built the micro-ROS image
+    of the workspace's chip (offline: exit 4, nothing written) for firmware built for another."""
+    project = ws.root / "fw/cam_fw"
+    (project / "main").mkdir(parents=True)
+    (project / "package.xml").write_text("<package><name>cam_fw</name></package>\n")
+    marker = ws.ws_dir / "build/cam_fw/.espdock-target"
+    marker.parent.mkdir(parents=True)
+    marker.write_text("esp32s3\n\n5ebe61ea41404df8\n")
+    s3 = "espdock/idf-micro-ros-jazzy-esp32s3:5ebe61ea41404df8"
+    engine = FakeEngine({s3: ImageInfo("id", (s3,), datetime.now(UTC), 1, {})})
+    step = IdfBuild("cam_fw", "fw/cam_fw", "espdock/idf-micro-ros-jazzy-esp32:4cb1078bd25db399", "esp32", "4cb10")
+    built, current = runner(engine, []).firmware.installed_from(ws, step)
+    assert (built.image, built.target, current) == (s3, "esp32s3", False)

@@ -569,7 +569,8 @@ def select_up_to(
 
 
 def read_tree(base: Path, exclude: tuple[str, ...] = ()) -> dict[str, bytes]:
-    """Every file under BASE by path relative to it, skipping caches, hidden and EXCLUDEd paths."""
+    """Every file under BASE by path relative to it, skipping caches, hidden and EXCLUDEd paths,
+    editors' leftovers, and a file gone before it was read (an editor's save in progress)."""
     if not base.is_dir():
         return {}
     files = {}
@@ -577,15 +578,19 @@ def read_tree(base: Path, exclude: tuple[str, ...] = ()) -> dict[str, bytes]:
         rel = path.relative_to(base)
         if not path.is_file() or any(part.startswith(".") or part == "__pycache__" for part in rel.parts):
             continue
-        if any(rel.as_posix().startswith(prefix) for prefix in exclude):
+        if any(rel.as_posix().startswith(prefix) for prefix in exclude) or editor_leftover(rel.name):
             continue
-        files[rel.as_posix()] = path.read_bytes()
+        try:
+            files[rel.as_posix()] = path.read_bytes()
+        except FileNotFoundError:
+            continue
     return files
 
 
-# What editors write beside a file while saving it: vim's test of the directory (4913), JetBrains'
-# safe write (Foo.cpp___jb_tmp___, Foo.cpp___jb_old___).
-_SAVING = re.compile(r"^4913$|___jb_(tmp|old)___$")
+# What editors write beside a file while saving or editing it: vim's test of the directory (4913)
+# and its swap files (.Foo.cpp.swp, .swo, ...), emacs' lock links (.#Foo.cpp), JetBrains' safe write
+# (Foo.cpp___jb_tmp___, Foo.cpp___jb_old___).
+_SAVING = re.compile(r"^4913$|___jb_(tmp|old)___$|^\..+\.sw[a-p]$|^\.#")
 
 
 def editor_leftover(rel: str) -> bool:

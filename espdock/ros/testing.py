@@ -248,7 +248,8 @@ def tests_env(env: Mapping[str, str], colcon_root: str) -> tuple[tuple[str, str]
     isolated tests (domain_coordinator, which reserves a domain by a port of the container's own
     network) took the same domain in both."""
     values = {name: env[name] for name in TEST_PASSED_ENV if env.get(name)}
-    if not _DISCOVERY & values.keys():
+    # ROS_LOCALHOST_ONLY=0 (an old line of a shell's rc file) says nothing: rcl takes it as unset.
+    if not _DISCOVERY & {name for name in values if (name, values[name]) != ("ROS_LOCALHOST_ONLY", "0")}:
         values["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
     values["ROS_LOG_DIR"] = posixpath.join(colcon_root, ROS_TEST_LOGS)
     return tuple(sorted(values.items()))

@@ -1072,6 +1072,8 @@ def test_the_tests_get_the_caller_s_domain_and_discover_on_their_own_loopback_by
     told = env_of({"ROS_AUTOMATIC_DISCOVERY_RANGE": "SUBNET", "RMW_IMPLEMENTATION": "rmw_cyclonedds_cpp"})
     assert told["ROS_AUTOMATIC_DISCOVERY_RANGE"] == "SUBNET" and told["RMW_IMPLEMENTATION"] == "rmw_cyclonedds_cpp"
     assert "ROS_AUTOMATIC_DISCOVERY_RANGE" not in env_of({"ROS_STATIC_PEERS": "10.0.0.2"})
+    # An old `export ROS_LOCALHOST_ONLY=0`, which rcl takes as unset, leaves the default as it is.
+    assert env_of({"ROS_LOCALHOST_ONLY": "0"})["ROS_AUTOMATIC_DISCOVERY_RANGE"] == "LOCALHOST"
 
 
 def test_the_colcon_build_gets_makeflags_job_limits_and_nothing_else_of_them(ws):

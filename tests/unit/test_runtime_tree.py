@@ -107,3 +107,22 @@ def test_an_editor_s_swap_and_backup_files_beside_a_linked_module_stay_out_of_th
     taken = {rel for rel in runtime_files(ws / "install", ("tools", "talk"), tmp_path) if rel.startswith(f"{site}/")}
     assert taken == {f"{site}/__init__.py", f"{site}/node.py"}
     assert runtime_install_digest(ws / "install", ("tools", "talk"), tmp_path) == before
+
+
+def test_a_swap_file_an_ament_cmake_symlink_install_linked_stays_out_of_the_image(tmp_path):
+    """ament_cmake's symlink install links each file of a directory it installs: the swap file and
+    backup beside an ament_python_install_package module were in the runtime image, and each
+    write of the swap file made a new one."""
+    ws = symlink_installed(tmp_path)
+    module = ws / "src/tools/tools_py"
+    module.mkdir()
+    installed = ws / "install/tools/local/lib/python3.11/dist-packages/tools_py"
+    installed.mkdir(parents=True)
+    for name in ("__init__.py", ".__init__.py.swp", "__init__.py~"):
+        (module / name).write_text("swap1\n")
+        (installed / name).symlink_to(f"/workspace/ws/src/tools/tools_py/{name}")
+    before = runtime_install_digest(ws / "install", ("tools", "talk"), tmp_path)
+    taken = {rel for rel in runtime_files(ws / "install", ("tools",), tmp_path) if "tools_py" in rel}
+    assert taken == {"tools/local/lib/python3.11/dist-packages/tools_py/__init__.py"}
+    (module / ".__init__.py.swp").write_text("swap2\n")
+    assert runtime_install_digest(ws / "install", ("tools", "talk"), tmp_path) == before

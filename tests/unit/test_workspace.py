@@ -373,3 +373,24 @@ def test_a_lock_s_holder_note_is_not_written_through_a_link_planted_at_a_name_it
     assert victim.read_text() == "root's file\n"
     assert not holder.is_symlink() and holder_text(holder).startswith(f" (pid {os.getpid()}: ")
     assert oct(holder.stat().st_mode & 0o777) == oct(0o644), "another user's espdock, waiting, says who holds it"
+
+
+def test_an_interface_package_read_while_an_editor_saves_is_read_without_its_save_files(tmp_path, monkeypatch):
+    """Every build reads each interface package's files (the micro-ROS image's inputs): vim's 4913,
+    made and removed while saving, ended the build as "a bug in espdock" (FileNotFoundError)."""
+    from pathlib import Path
+
+    from espdock.workspace import read_tree
+
+    (tmp_path / "msg").mkdir()
+    for name in ("Pose.msg", "4913", ".Pose.msg.swp", "Pose.msg~", "Gone.msg"):
+        (tmp_path / "msg" / name).write_text("int32 x\n")
+    reading = Path.read_bytes
+
+    def vanishing(path: Path) -> bytes:
+        if path.name in ("4913", "Gone.msg"):
+            path.unlink()  # removed between the listing and the reading
+        return reading(path)
+
+    monkeypatch.setattr(Path, "read_bytes", vanishing)
+    assert read_tree(tmp_path) == {"msg/Pose.msg": b"int32 x\n"}

@@ -185,7 +185,8 @@ def test_the_engine_going_away_under_buildkit_or_the_cli_s_run_is_exit_3(gone, t
 
     engine, where = gone
     said = "ERROR: failed to receive status: rpc error: code = Unavailable desc = error reading from server: EOF"
-    monkeypatch.setattr(engine, "compose_command", lambda: fake_cli(tmp_path, f"echo '{said}'; exit 1"))
+    # It reads the build's compose file from stdin first, as Compose does.
+    monkeypatch.setattr(engine, "compose_command", lambda: fake_cli(tmp_path, f"cat >/dev/null; echo '{said}'; exit 1"))
     build = ImageBuild(tmp_path, "Dockerfile", "build", "espdock/img:1", {}, {}, None, lambda line: None, False)
     with pytest.raises(EngineUnavailable) as err:
         engine._build_buildkit(build)

@@ -24,6 +24,9 @@ from tests.rosdep_db import environment
 pytestmark = [pytest.mark.engine, pytest.mark.slow]
 
 PACKAGES = ("rosdeps_py_table", "rosdeps_xml_count")
+# The workspace's name, and so its runtime image's: its own, where other tests' workspaces named
+# `w` made espdock/w:latest at the same time on other workers, and the check ran one of theirs.
+NAME = "rosdeps-ws"
 # Run in the build image with the workspace's install sourced: the apt library is linked and
 # the pip and Python keys import, as the nodes would at run time.
 CHECK = (
@@ -53,11 +56,11 @@ def build_and_check(root: Path, tmp_path: Path, extra: dict[str, str]) -> tuple[
     (tag,) = [image for image in manifest["images"] if "-build:" in image]
     run = in_workspace_image(tag, root, "sh", "-c", CHECK)
     assert run.returncode == 0, run.stdout + run.stderr
-    # The runtime image of the workspace (espdock/w:latest), of either flavour: the node's
+    # The runtime image of the workspace (espdock/<NAME>:latest), of either flavour: the node's
     # package, its rosdep keys and rclpy import there, with no workspace mounted.
     imports = "import rclpy, numpy, tabulate, rosdeps_py_table.table; print('runtime ok')"
     runtime = subprocess.run(
-        ["docker", "run", "--rm", "espdock/w:latest", "python3", "-c", imports],
+        ["docker", "run", "--rm", f"espdock/{NAME}:latest", "python3", "-c", imports],
         capture_output=True, text=True, check=False, timeout=120,
     )  # fmt: skip
     assert runtime.stdout.strip().endswith("runtime ok"), runtime.stdout + runtime.stderr
@@ -67,7 +70,7 @@ def build_and_check(root: Path, tmp_path: Path, extra: dict[str, str]) -> tuple[
 
 
 def test_the_wheels_image_installs_the_pip_python_and_apt_keys(tmp_path):
-    root = make_workspace(tmp_path / "w")
+    root = make_workspace(tmp_path / NAME)
     lock, output = build_and_check(root, tmp_path, {})
     assert lock["ros_image"] == "wheels" and lock["os"] == "debian:bookworm"
     assert lock["apt"] == ["libtinyxml2-dev"]
@@ -81,7 +84,7 @@ def test_the_wheels_image_installs_the_pip_python_and_apt_keys(tmp_path):
 
 def test_the_official_flavour_builds_through_the_same_plumbing_against_its_double(tmp_path, engine):
     tag = build_double(engine, resolve_ca_bundle(Config(), os.environ), lambda line: None)
-    root = make_workspace(tmp_path / "w")
+    root = make_workspace(tmp_path / NAME)
     lock, output = build_and_check(root, tmp_path, settings(tag))
     assert lock["ros_image"] == "official" and lock["os"] == "ubuntu:noble"
     # Every ROS package goes through rosdep as apt's ros-jazzy-*, the image's own (installed).

@@ -27,6 +27,7 @@ from espdock.config import Config, invoking_user, load_config, misspelt_variable
 from espdock.errors import DiskFull, EspdockBug, EspdockError, Interrupted
 from espdock.firmware.plan import IdfBuild
 from espdock.images import bootstrap
+from espdock.images.engine import Engine
 from espdock.images.prune import state_dir
 from espdock.workspace import (
     Workspace,
@@ -243,15 +244,19 @@ def firmware_plan(ws: Workspace, config: Config, name: str) -> tuple[Plan, IdfBu
     return prepare.firmware_plan(ws, config, name, os.environ, notify)
 
 
-def runner_for(ws: Workspace, config: Config, reporter: Reporter | QuietReporter) -> Runner:
-    engine = bootstrap.ensure_engine(os.environ, notify)
+def runner_for(
+    ws: Workspace, config: Config, reporter: Reporter | QuietReporter, engine: Engine | None = None
+) -> Runner:
+    """A runner on ENGINE, where the caller has connected to it already (over SSH, a connection
+    costs a login), else on the engine the environment names."""
+    engine = engine or bootstrap.ensure_engine(os.environ, notify)
     return Runner(engine, config, os.environ, reporter, invoking_user(os.environ, ws.root))
 
 
-def ensure_images(ws: Workspace, config: Config, plan: Plan) -> Runner:
+def ensure_images(ws: Workspace, config: Config, plan: Plan, engine: Engine | None = None) -> Runner:
     """A runner that has made sure PLAN's images exist (saying so only when it builds one)."""
     reporter = QuietReporter(Reporter(err_console))
-    runner = runner_for(ws, config, reporter)
+    runner = runner_for(ws, config, reporter, engine)
     try:
         runner.run(plan, lock=False)
     finally:

@@ -70,7 +70,7 @@ def runtime_image(ws: Workspace, config: Config, plan: Plan | None = None) -> tu
                 "interrupted): their install trees may be half written, and the runtime image is made of install/ "
                 "as it is (`espdock build` first)"
             )
-    runner = ensure_images(ws, config, plan)
+    runner = ensure_images(ws, config, plan, engine)
     # A runtime image `run` or `compose` made is the workspace's as much as a build's: prune may take it.
     record_images(ws, runner, step.repository)
     return runner, runtime_spec(ws, step).tag

@@ -654,12 +654,9 @@ def read_build_inputs(workspace: Workspace, packages: Iterable[Package]) -> Buil
         idf_dockerfile=text(IDF_DOCKERFILE),
         idf_files={rel.removeprefix(idf_prefix): data for rel, data in files.items() if rel.startswith(idf_prefix)},
         own_files=frozenset(own),
+        # read_tree leaves editors' leftovers out: a new .msg~ would key a new micro-ROS library.
         package_files={
-            p.name: {
-                rel: data
-                for rel, data in read_tree(p.path, exclude=("build/", "install/", "log/")).items()
-                if not editor_leftover(rel)
-            }
+            p.name: read_tree(p.path, exclude=("build/", "install/", "log/"))
             for p in packages
             if p.kind is PackageKind.ROS and p.is_interface
         },

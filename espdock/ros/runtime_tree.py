@@ -72,13 +72,13 @@ def _walk(
             if not posixpath.isabs(text) and _inside(Path(os.path.normpath(entry.parent / text)), tree):
                 found[rel] = entry  # a link within the tree (a library's soname alias) stays a link
                 continue
-            resolved = _target(entry, root)
-            if resolved is None:
-                continue  # dangling where it was built too: nothing to take
             if editor_leftover(entry.name):
                 # ament_cmake's symlink install links each file of a directory it installs (an
                 # ament_python_install_package module's swap file too): each write made a new image.
                 continue
+            resolved = _target(entry, root)
+            if resolved is None:
+                continue  # dangling where it was built too: nothing to take
             if resolved.is_dir():
                 _walk(resolved, rel, root, resolved, found, sources=True)
             elif resolved.is_file():  # not a named pipe or socket in the sources: `run` hung reading one

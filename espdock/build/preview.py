@@ -76,7 +76,18 @@ def preview(workspace: Workspace, plan: Plan, engine: Engine | None, registry: b
                 states.append(_runtime_state(workspace, step, engine, ros_built))
             case _:
                 assert_never(step)
-    return states
+    return [_base_state(step, state, plan, made) for step, state in zip(plan.steps, states, strict=True)]
+
+
+def _base_state(step: object, state: str, plan: Plan, made: set[str]) -> str:
+    """A missing base is made only before an image is built from it (espdock.images.keyed)."""
+    if not isinstance(step, EnsureBaseImage) or not state.startswith("would be"):
+        return state
+    built_from = [s.spec.tag for s in plan.steps if isinstance(s, EnsureImage)
+                  and dict(s.spec.build_args).get("BASE_IMAGE") == step.image]  # fmt: skip
+    if any(tag in made for tag in built_from):
+        return state
+    return "not here, and not needed: the images built from it are present"
 
 
 def _image_state(present: bool | None, pulled: str) -> str:

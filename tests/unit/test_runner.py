@@ -125,6 +125,39 @@ def test_a_tag_whose_label_is_another_key_is_rebuilt(ws):
     assert events[-1].outcome is Outcome.BUILT
 
 
+def test_a_missing_base_image_is_made_only_when_an_image_must_be_built_from_it(ws, monkeypatch):
+    """An air-gapped lab whose `debian:bookworm-slim` tag was cleaned up: a build whose keyed
+    images were all present stopped at "pulling debian:bookworm-slim", then debootstrap."""
+    from espdock.build.preview import preview
+    from espdock.build.steps import EnsureBaseImage
+
+    base = dict(SPEC.build_args)["BASE_IMAGE"]
+    made: list[str] = []
+
+    def make(engine, ref, config, notify):
+        made.append(ref)
+        engine.images_by_tag[ref] = ImageInfo("base", (ref,), datetime.now(UTC), 1, {})
+        return "debootstrap"
+
+    monkeypatch.setattr(bootstrap, "_make_base_image", make)
+    plan = Plan(ws, (EnsureBaseImage(base), EnsureImage(SPEC)))
+    engine = FakeEngine({SPEC.tag: ImageInfo("id", (SPEC.tag,), datetime.now(UTC), 1, SPEC.labels())})
+    assert (
+        preview(ws, plan, engine, registry=False)[0] == "not here, and not needed: the images built from it are present"
+    )
+    events: list = []
+    runner(engine, events).run(plan)
+    assert made == [] and engine.builds == []
+    assert events[-1].outcome is Outcome.CACHED and base not in engine.images_by_tag
+
+    engine.images_by_tag.clear()  # a cache miss: the base is made, then the image built from it
+    assert preview(ws, plan, engine, registry=False)[0] == "would be pulled, else built with debootstrap"
+    events = []
+    runner(engine, events).run(plan)
+    assert made == [base] and [b["tag"] for b in engine.builds] == [SPEC.tag]
+    assert f"base image {base}: debootstrap" in notes(events)
+
+
 def test_a_failed_package_is_named_with_its_log_and_the_next_build_tries_again(ws):
     failing = colcon_installs(ws, code=2, lines=("Starting >>> msgs", "Failed   <<< msgs [0.4s, exited with code 2]"))
     engine = FakeEngine(run_script=failing)

@@ -641,6 +641,12 @@ class Engine:
             )
             archive.seek(0)
             tail: collections.deque[str] = collections.deque(maxlen=15)
+            offline = _NetworkWatch()
+
+            def on_line(line: str) -> None:
+                offline(line)
+                build.on_line(line)
+
             with self._engine_call(f"building {build.tag}"):
                 response = api.post(
                     f"{api.base_url}/v{api.api_version}/build",
@@ -650,7 +656,7 @@ class Engine:
                     stream=True,
                     timeout=None,  # a step may print nothing for minutes (pip)
                 )
-                error = _classic_events(response.iter_lines(), tail, build.on_line)
+                error = _classic_events(response.iter_lines(), tail, on_line)
                 if response.status_code != 200 and error is None:
                     error = f"HTTP {response.status_code}: {response.text[:300]}"
         if error:
@@ -658,7 +664,7 @@ class Engine:
             raise ImageBuildError(
                 f"building {build.tag} from {build.dockerfile} (stage {build.target}) "
                 f"on the {self.info().name} failed:\n" + "\n".join(tail),
-                _runtime_hint(str(error)) or "Read the build output above; run with --verbose for all of it.",
+                _runtime_hint(str(error)) or _network_hint(offline.line, ENGINE_PROXIES) or READ_THE_OUTPUT,
             )
 
     def _build_buildkit(self, build: ImageBuild) -> None:
@@ -674,6 +680,7 @@ class Engine:
             "image",
         ]
         tail: collections.deque[str] = collections.deque(maxlen=15)
+        offline = _NetworkWatch()
         process = subprocess.Popen(
             argv,
             stdin=subprocess.PIPE,
@@ -691,6 +698,7 @@ class Engine:
             for raw in process.stdout:
                 line = raw.rstrip("\n")
                 tail.append(line)
+                offline(line)
                 build.on_line(line)
             code = process.wait()
         except BaseException:
@@ -715,7 +723,7 @@ class Engine:
             shown = [line if len(line) <= 300 else f"{line[:300]} ..." for line in tail]
             raise ImageBuildError(
                 f"building {build.tag} from {build.dockerfile} (stage {build.target}) failed:\n" + "\n".join(shown),
-                _buildkit_hint(tail),
+                _buildkit_hint(tail, offline.line),
             )
 
     def data_root(self) -> str:
@@ -1265,8 +1273,53 @@ def _compose_build(build: ImageBuild) -> dict[str, Any]:
     }
 
 
-def _buildkit_hint(tail: Sequence[str]) -> str:
-    """What to do about a failed BuildKit build, from the last lines it printed."""
+# A build step's words for a network it could not reach: apt's ("Temporary failure resolving
+# 'deb.debian.org'", a proxy's "Could not connect to ... Connection refused"), pip's and uv's.
+NETWORK_FAILURE = re.compile(
+    r"Temporary failure (resolving|in name resolution)|Could not resolve|Name or service not known"
+    r"|Network is unreachable|No route to host|Failed to establish a new connection"
+    r"|Could not connect to \S+.*(refused|timed out)|dns error",
+    re.IGNORECASE,
+)
+BUILDKIT_PREFIX = re.compile(r"^#\d+ \d+\.\d+ ")  # a RUN step's line: its step and the seconds into it
+READ_THE_OUTPUT = "Read the build output above; run with --verbose for all of it."
+
+
+class _NetworkWatch:
+    """The first line of a build's output that says the network was out of reach: apt's come as
+    warnings long before its last words ("Unable to locate package python3"), out of the tail."""
+
+    def __init__(self) -> None:
+        self.line: str | None = None
+
+    def __call__(self, line: str) -> None:
+        if self.line is None and NETWORK_FAILURE.search(line):
+            self.line = BUILDKIT_PREFIX.sub("", line).strip()
+
+
+# Where an HTTP proxy for image builds is set: Compose's BuildKit builds take the Docker CLI's
+# (`proxies`, made build args), the engine API's builder (Buildah under Podman) the engine's own.
+CLI_PROXIES = "name it in the Docker CLI's config (`proxies` in ~/.docker/config.json), which image builds take"
+ENGINE_PROXIES = (
+    "set HTTP_PROXY and HTTPS_PROXY in the environment of the engine's service, which Podman passes "
+    "into its builds (http_proxy in containers.conf, on by default)"
+)
+
+
+def _network_hint(line: str | None, proxies: str = CLI_PROXIES) -> str | None:
+    if line is None:
+        return None
+    shown = line if len(line) <= 200 else f"{line[:200]} ..."
+    return (
+        f"The build found no network ({shown}): its apt and pip steps download packages. Behind an "
+        f"HTTP proxy, {proxies}; without a network, build the images where one answers and bring them "
+        "here (`docker save`, `docker load`), or pull them from a cache registry (cache_registry)."
+    )
+
+
+def _buildkit_hint(tail: Sequence[str], offline: str | None = None) -> str:
+    """What to do about a failed BuildKit build, from the last lines it printed (OFFLINE: a line of
+    its output that said the network was out of reach)."""
     output = "\n".join(tail)
     for load in re.finditer(r"^#(\d+) \[(?:\S+ )?internal\] load metadata for (\S+)", output, re.MULTILINE):
         # That step's own error, or the solver's word on it: not any step's error after a base
@@ -1284,7 +1337,7 @@ def _buildkit_hint(tail: Sequence[str]) -> str:
             f"The docker CLI could not make its config dir {config.group(1)}: point DOCKER_CONFIG at a "
             "directory you can write (or make that one writable)."
         )
-    return "Read the build output above; run with --verbose for all of it."
+    return _network_hint(offline) or READ_THE_OUTPUT
 
 
 def _split_ref(ref: str) -> tuple[str, str]:

@@ -197,6 +197,54 @@ def test_the_engine_going_away_under_buildkit_or_the_cli_s_run_is_exit_3(gone, t
     assert err.value.message == f"the Docker engine at {where} went away while running a container of espdock/img:1"
 
 
+# apt's own words in a build container without a network (`docker run --network none
+# debian:bookworm-slim sh -c 'apt-get update; apt-get install -y tini'`), then BuildKit's.
+APT_OFFLINE = """#6 [image build 2/9] RUN apt-get update && apt-get install -y tini
+#6 0.301 Err:1 http://deb.debian.org/debian bookworm InRelease
+#6 0.301   Temporary failure resolving 'deb.debian.org'
+#6 0.310 W: Failed to fetch http://deb.debian.org/debian/dists/bookworm/InRelease  Temporary failure resolving \
+'deb.debian.org'
+#6 0.310 W: Some index files failed to download. They have been ignored, or old ones used instead.
+#6 0.320 Reading package lists...
+#6 0.330 Building dependency tree...
+#6 0.330 Reading state information...
+#6 0.340 E: Unable to locate package tini
+#6 ERROR: process "/bin/sh -c apt-get update && apt-get install -y tini" did not complete successfully: exit code: 100
+------
+ > [image build 2/9] RUN apt-get update && apt-get install -y tini:
+0.320 Reading package lists...
+0.330 Building dependency tree...
+0.330 Reading state information...
+0.340 E: Unable to locate package tini
+------
+Dockerfile.ros:12
+--------------------
+  11 |     # the apt step
+  12 | >>> RUN apt-get update && apt-get install -y tini
+--------------------
+failed to solve: process "/bin/sh -c apt-get update && apt-get install -y tini" did not complete successfully: \
+exit code: 100
+"""
+
+
+def test_an_image_build_without_a_network_says_so_not_only_the_package_apt_could_not_find(tmp_path, monkeypatch):
+    """An air-gapped lab: the error ended with apt's "Unable to locate package tini", and the hint
+    was to read the build output; the cause ("Temporary failure resolving") had scrolled out of it."""
+    from espdock.images.engine import ImageBuild
+
+    engine = Engine({"DOCKER_HOST": "unix:///nonexistent.sock"}, client=object())
+    monkeypatch.setattr(engine, "_answers", lambda: True)
+    said = tmp_path / "said.txt"
+    said.write_text(APT_OFFLINE)
+    monkeypatch.setattr(engine, "compose_command", lambda: fake_cli(tmp_path, f"cat >/dev/null; cat {said}; exit 1"))
+    build = ImageBuild(tmp_path, "Dockerfile", "build", "espdock/img:1", {}, {}, None, lambda line: None, False)
+    with pytest.raises(ImageBuildError) as err:
+        engine._build_buildkit(build)
+    assert "Temporary failure resolving" not in err.value.message  # out of the tail it shows
+    assert err.value.hint.startswith("The build found no network (Temporary failure resolving 'deb.debian.org'): ")
+    assert "~/.docker/config.json" in err.value.hint
+
+
 REFUSED = refusal(500, "no space left on device")
 SAID = f'500 Server Error for {URL}: Internal Server Error ("no space left on device")'
 HYBRID = "crun: cgroups in hybrid mode are not supported"

@@ -252,6 +252,10 @@ def stale_rosdep_lock(root: Path, reason: str) -> LockError:
     return LockError(reason, f"In {root}: {FIX} and commit {ROSDEP_LOCK} (or build with --no-locked).")
 
 
+# Said before the lock is made: uv against an index that does not answer retries for minutes.
+RESOLVING = f"{ROSDEP_LOCK}: resolving the workspace's dependencies (rosdep; uv against the package index for pip's)"
+
+
 def rosdep_lock_stale(config: Config, packages: tuple[Package, ...], inputs: BuildInputs) -> str | None:
     """Why the workspace's rosdep lock does not answer for PACKAGES; None when it does."""
     return _rosdep_state(config, packages, inputs)[2]
@@ -266,6 +270,7 @@ def lock_rosdeps(
     owner: tuple[int, int] | None = None,
     refresh: bool = True,
     unresolved_ok: bool = True,
+    notify: Callable[[str], None] = lambda text: None,
 ) -> tuple[str, str, bytes | None]:
     """Write ROOT/rosdep.lock.json: rosdep's resolution of the packages' dependencies for the
     chosen ROS image (REFRESH: `rosdep update` first). Returns its status (created, updated,
@@ -279,6 +284,7 @@ def lock_rosdeps(
     target = root / ROSDEP_LOCK
     if not needed and not tests and not target.is_file():
         return "not needed (the image provides every dependency)", "", None
+    notify(RESOLVING)
     if (needed or tests) and refresh:
         rosdeps.update_database(env, image.distro, root)
     from espdock.images.keyed import age_text
@@ -341,6 +347,7 @@ def current_test_inputs(
     env: Mapping[str, str],
     owner: tuple[int, int] | None = None,
     tested: tuple[Package, ...] | None = None,
+    notify: Callable[[str], None] = lambda text: None,
 ) -> tuple[BuildInputs, str | None]:
     """current_rosdep_inputs for `espdock test`: a lock whose test part answers too. Without
     rosdep's sources, the lock as it is where it answers for the packages TESTED (default: all)
@@ -355,7 +362,7 @@ def current_test_inputs(
     # Not written where it leaves a key unresolved, as a build's: testdeps.check_tests names it.
     try:
         status, database, data = lock_rosdeps(
-            root, config, packages, inputs, env, owner, refresh=False, unresolved_ok=False
+            root, config, packages, inputs, env, owner, refresh=False, unresolved_ok=False, notify=notify
         )
     except rosdeps.DatabaseUnreachable as exc:
         # What the run builds: the packages tested and what they depend on.
@@ -374,6 +381,7 @@ def current_rosdep_inputs(
     owner: tuple[int, int] | None = None,
     built: tuple[Package, ...] | None = None,
     ignored: Callable[[], Mapping[str, LeftOut]] | None = None,
+    notify: Callable[[str], None] = lambda text: None,
 ) -> tuple[BuildInputs, str | None]:
     """INPUTS with a rosdep lock that answers for the packages: the current one; else, unless
     LOCKED (which refuses a stale one), one made now. Where rosdep's database cannot be fetched,
@@ -387,7 +395,7 @@ def current_rosdep_inputs(
     built = packages if built is None else built
     try:
         status, database, data = lock_rosdeps(
-            root, config, packages, inputs, env, owner, refresh=False, unresolved_ok=False
+            root, config, packages, inputs, env, owner, refresh=False, unresolved_ok=False, notify=notify
         )
     except rosdeps.DatabaseUnreachable as exc:
         return inputs, offline_note(config, packages, inputs, built, reason, exc, ignored)

@@ -96,7 +96,7 @@ def build_plan(
         selected = select_up_to(packages, names, ws) if names else packages
         built = checked_packages(packages, tuple(p for p in selected if only in (None, p.kind)), colcon.args)
         inputs, note = current_rosdep_inputs(
-            ws.root, config, packages, inputs, locked, env, owner, built, ignored=lambda: left_out(ws)
+            ws.root, config, packages, inputs, locked, env, owner, built, ignored=lambda: left_out(ws), notify=notify
         )
         if note:
             notify(note)
@@ -217,7 +217,7 @@ def plan_tests(
     # (checked here once: the plan takes the packages and inputs as they are).
     owner = invoking_user(env, ws.root) if os.geteuid() == 0 else None
     inputs, note = current_test_inputs(
-        ws.root, config, every, read_build_inputs(ws, every), locked, env, owner, tested=ros
+        ws.root, config, every, read_build_inputs(ws, every), locked, env, owner, tested=ros, notify=notify
     )
     if note:
         notify(note)

@@ -241,7 +241,9 @@ def lock(
         else:
             console.print(f"{spec.lock}: {result.status} (from {', '.join(spec.inputs)})")
     # After the wheel locks, whose pins constrain (and whose digests are part of) the rosdep lock's.
-    status, database, _ = lock_rosdeps(ws.root, config, packages, read_build_inputs(ws, packages), os.environ, owner)
+    status, database, _ = lock_rosdeps(
+        ws.root, config, packages, read_build_inputs(ws, packages), os.environ, owner, notify=console.print
+    )
     if database:  # else: none needed, none there
         console.print(f"{ROSDEP_LOCK}: {status} ({database})")
         # Recorded, not refused: a build of a package that needs one is what refuses it.

@@ -100,6 +100,7 @@ def test_a_serial_driver_gets_pyserial_and_python3_gi_is_refused_by_name(tmp_pat
     assert refused.returncode == 2, refused.stderr
     assert f"rosdeps_serial_gps ({manifest.parent}): python3-gi: PyGObject" in refused.stderr
     assert "No solution found" not in refused.stderr and "uv could not" not in refused.stderr
+    assert "rosdep.lock.json: resolving the workspace's dependencies" in refused.stdout + refused.stderr
 
 
 def test_a_dual_ros1_ros2_package_is_read_as_ros2_jazzy_sees_it(tmp_path):

@@ -281,6 +281,10 @@ def test_locked_refuses_a_missing_or_stale_lock_and_lock_refreshes_it(tmp_path):
     made = espdock("lock", cwd=root, env={**NO_ENGINE, **environment(tmp_path)})
     assert made.returncode == 0, made.stderr
     assert "rosdep.lock.json: created (rosdep database in" in made.stdout and "ago)" in made.stdout
+    # Said first: uv against an index that does not answer is minutes of silence.
+    assert made.stdout.index(
+        "rosdep.lock.json: resolving the workspace's dependencies (rosdep; uv"
+    ) < made.stdout.index("rosdep.lock.json: created")
     assert run_build(root, tmp_path, "--locked").returncode == 3  # current: on to the engine
     manifest = root / "src/rosdeps_xml_count/package.xml"
     manifest.write_text(manifest.read_text().replace("<depend>tinyxml2</depend>", "<depend>acpitool</depend>"))

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import contextlib
 import importlib
+import inspect
 import os
 import sys
 from collections.abc import Sequence
@@ -48,7 +49,21 @@ def register(argv: Sequence[str] | None = None) -> typer.Typer:
     name = next((arg for arg in argv or () if not arg.startswith("-")), None)
     for module in (COMMANDS[name],) if name in COMMANDS and "--help" not in argv[: argv.index(name)] else MODULES:
         importlib.import_module(f"espdock.cli.{module}")
+    _one_line_summaries(app)
     return app
+
+
+def _one_line_summaries(group: typer.Typer) -> None:
+    """Each command's summary in a list of commands (`espdock --help`) as one paragraph: Typer's
+    rich help keeps a docstring's line breaks there, and every summary broke off mid-sentence
+    ("keeping the last few of" / "each kind; ...") where its source line ended."""
+    for info in group.registered_commands:
+        if info.short_help is None:
+            text = info.help or inspect.getdoc(info.callback) or ""
+            info.short_help = " ".join(text.split("\n\n")[0].split())
+    for sub in group.registered_groups:
+        if sub.typer_instance is not None:
+            _one_line_summaries(sub.typer_instance)
 
 
 UTF8 = ("utf-8", "utf8")

@@ -544,6 +544,18 @@ def test_a_command_starts_without_the_other_commands_modules(tmp_path):
     assert result.returncode == 0 and "--port" in result.stdout, result.stderr
 
 
+def test_the_list_of_commands_gives_each_summary_as_one_paragraph(tmp_path):
+    """`espdock --help` broke each summary where its docstring's source line ended: "keeping the
+    last few of" on one line, "each kind; never ..." on the next, at any width."""
+    listed = espdock("--help", cwd=tmp_path, env={**NO_ENGINE, "COLUMNS": "400"})
+    assert listed.returncode == 0, listed.stderr
+    (prune,) = [line for line in listed.stdout.splitlines() if line.startswith("│ prune ")]
+    assert "keeping the last few of each kind; never an image" in prune, listed.stdout
+    group = espdock("micro-ros", "--help", cwd=tmp_path, env={**NO_ENGINE, "COLUMNS": "400"})
+    rows = [line for line in group.stdout.splitlines() if line.startswith("│ ")]
+    assert rows and all(not line[2:20].isspace() for line in rows), group.stdout  # no continued rows
+
+
 def test_a_build_stopped_before_any_step_still_writes_its_report(tmp_path):
     """A CI job's `--report`: a missing engine or a stale lock stopped the build before the report
     was written, and the job's artefact step found nothing."""

@@ -1276,7 +1276,7 @@ def _compose_build(build: ImageBuild) -> dict[str, Any]:
 # A build step's words for a network it could not reach: apt's ("Temporary failure resolving
 # 'deb.debian.org'", a proxy's "Could not connect to ... Connection refused"), pip's and uv's.
 NETWORK_FAILURE = re.compile(
-    r"Temporary failure (resolving|in name resolution)|Could not resolve|Name or service not known"
+    r"Temporary failure (resolving|in name resolution)|Could not resolve (host|')|Name or service not known"
     r"|Network is unreachable|No route to host|Failed to establish a new connection"
     r"|Could not connect to \S+.*(refused|timed out)|dns error",
     re.IGNORECASE,

@@ -19,6 +19,7 @@ from espdock.firmware.plan import (
     check_no_vendored_micro_ros,
     derive_interface_packages,
     firmware_step,
+    not_in_micro_ros,
     unknown_dependencies,
 )
 from espdock.firmware.steps import installed_image
@@ -133,6 +134,8 @@ def build_plan(
                 )
             for line in unbuildable_in_library(firmware, packages, inputs):
                 notify(f"warning: {line}")
+            for line in host_side_in_library(firmware, packages, inputs):
+                notify(f"warning: {line}")
     return plan_workspace(
         ws, config, packages, inputs, tuple(names), only, force, target, colcon, checked, testing=testing
     )
@@ -151,6 +154,26 @@ def unbuildable_in_library(firmware: Package, packages: tuple[Package, ...], inp
         for other, (type_name, rel) in sorted(interfaces.references(inputs.package_files.get(library.name, {})).items())
         if other not in in_workspace and other not in STANDARD_INTERFACES
     ]
+
+
+def host_side_in_library(firmware: Package, packages: tuple[Package, ...], inputs: BuildInputs) -> list[str]:
+    """The interface packages of FIRMWARE's micro-ROS library whose CMakeLists.txt requires what
+    the library build does not have (a node's rclcpp beside the interfaces), one line each: that
+    build runs a package's whole CMakeLists.txt, and failed on it minutes in, where the ROS side
+    built it."""
+    library = derive_interface_packages(packages, firmware)
+    lines = []
+    for package in library:
+        text = inputs.package_files.get(package.name, {}).get("CMakeLists.txt", b"").decode("utf-8", "replace")
+        if missing := not_in_micro_ros(text, (p.name for p in library)):
+            lines.append(
+                f"{firmware.name}'s micro-ROS library holds {package.name}, whose CMakeLists.txt requires "
+                f"{', '.join(missing)}: micro-ROS's library build runs the whole of it with micro-ROS's own "
+                "colcon, which has no rclcpp, rclpy or launch and builds no *_cpp package, so it fails there. "
+                f"Keep {package.name}'s interfaces in a package of their own that {firmware.name} depends on "
+                f"(the ROS habit: {package.name}_msgs or {package.name}_interfaces)"
+            )
+    return lines
 
 
 def firmware_plan(

@@ -101,6 +101,46 @@ def unknown_dependencies(firmware: Package, packages: tuple[Package, ...]) -> li
     return sorted(d for d in deps if d not in names and d not in STANDARD_INTERFACES)
 
 
+# What micro-ROS's library build can find_package(): the packages of the repositories
+# docker/idf/micro_ros_sources.txt lists (ament's, rosidl's, rcl's, rclc's, rmw's, the XRCE-DDS
+# pair, tracing) and interface packages. Its colcon runs with --packages-ignore-regex=.*_cpp:
+# no C++ package is built, and there is no rclcpp, rclpy or launch.
+MICRO_ROS_TREE = re.compile(
+    r"ament_\w+|rosidl_\w+|rcutils|rcl(_\w+)?|rclc(_\w+)?|rmw(_\w+)?|micro_ros_\w+|microxrcedds_client|microcdr"
+    r"|tracetools\w*|test_interface_files|gtest_vendor|gmock_vendor"
+)
+_FIND_PACKAGE = re.compile(r"find_package\s*\(\s*(\w+)([^)]*)\)", re.IGNORECASE)
+_IF = re.compile(r"\s*if\s*\(", re.IGNORECASE)
+_ENDIF = re.compile(r"\s*endif\s*\(", re.IGNORECASE)
+_IF_TESTING = re.compile(r"\s*if\s*\(\s*BUILD_TESTING\s*\)", re.IGNORECASE)
+
+
+def required_packages(cmakelists: str) -> list[str]:
+    """The ROS packages CMAKELISTS find_package()s REQUIRED, outside its if(BUILD_TESTING) blocks
+    (micro-ROS's library build sets BUILD_TESTING=OFF), in order."""
+    found: list[str] = []
+    depth = 0  # inside an if(BUILD_TESTING) block: 1, plus the ifs open within it
+    for raw in cmakelists.splitlines():
+        line = raw.split("#", 1)[0]
+        if depth:
+            depth += bool(_IF.match(line)) - bool(_ENDIF.match(line))
+        elif _IF_TESTING.match(line):
+            depth = 1
+        else:
+            found += [name for name, rest in _FIND_PACKAGE.findall(line) if "REQUIRED" in rest.split()]
+    return [name for name in dict.fromkeys(found) if re.fullmatch(r"[a-z][a-z0-9_]*", name)]
+
+
+def not_in_micro_ros(cmakelists: str, interface_packages: Iterable[str]) -> list[str]:
+    """What CMAKELISTS requires that micro-ROS's library build does not have, besides INTERFACE_PACKAGES."""
+    known = {*STANDARD_INTERFACES, *interface_packages}
+    return [
+        name
+        for name in required_packages(cmakelists)
+        if name not in known and (name.endswith("_cpp") or not MICRO_ROS_TREE.fullmatch(name))
+    ]
+
+
 # What marks a copy of micro_ros_espidf_component: the makefile that builds the library.
 UROS_COMPONENT_MARK = "libmicroros.mk"
 

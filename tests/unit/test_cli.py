@@ -848,6 +848,34 @@ def test_compose_up_during_a_build_is_refused_before_it_makes_an_image_of_instal
     assert espdock("compose", "up", cwd=root, env=NO_ENGINE).returncode == 3
 
 
+def test_a_node_beside_the_interfaces_of_the_firmware_s_library_is_warned_of(tmp_path):
+    """custom_interface with a C++ node of its own (rclcpp beside rosidl_generate_interfaces, as many
+    real packages are): the ROS side built it, and micro-ROS's library build, which runs its whole
+    CMakeLists.txt with no rclcpp, would fail on it minutes in, without a word before."""
+    from tests.conftest import REPO
+
+    root = copy_workspace(tmp_path / "w")
+    shutil.copytree(REPO / "firmware", root / "firmware")
+    shutil.copy2(REPO / "Dockerfile.idf", root / "Dockerfile.idf")
+    cmake = root / "ws/src/custom_interface/CMakeLists.txt"
+    plain = cmake.read_text()
+    tests = "if(BUILD_TESTING)\n  find_package(rclcpp REQUIRED)\n  if(UNIX)\n  endif()\nendif()\n"
+    cmake.write_text(plain + tests)
+    quiet = espdock("build", "--dry-run", "--only", "firmware", cwd=root, env=NO_ENGINE)
+    assert quiet.returncode == 0 and "requires" not in quiet.stdout + quiet.stderr  # BUILD_TESTING is OFF there
+    cmake.write_text(
+        plain + "find_package(rclcpp REQUIRED)  # the node\nfind_package(rosidl_typesupport_cpp REQUIRED)\n"
+    )
+    plan = espdock("build", "--dry-run", "--only", "firmware", cwd=root, env=NO_ENGINE)
+    said = " ".join((plan.stdout + plan.stderr).split())
+    assert plan.returncode == 0, said
+    assert (
+        "warning: camera_node's micro-ROS library holds custom_interface, whose CMakeLists.txt requires rclcpp, "
+        "rosidl_typesupport_cpp: micro-ROS's library build runs the whole of it" in said
+    ), said
+    assert "led_strip_node's micro-ROS library holds custom_interface" not in said  # it does not depend on it
+
+
 def test_a_type_micro_ros_cannot_build_in_an_interface_package_of_the_firmware_s_library_is_warned_of(tmp_path):
     """custom_interface, which camera_node depends on, used nav2_msgs/Costmap: rosdep gives the ROS
     side nav2_msgs, micro-ROS's library build has no such package and failed (minutes into a real

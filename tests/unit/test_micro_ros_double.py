@@ -52,3 +52,24 @@ def test_a_bounded_string_constant_is_refused_as_rosidl_refuses_it(tmp_path):
     assert "error: the constant type 'string<=8' must be a primitive type" in refused.stderr
     message.write_text(message.read_text().replace('string<=8 LABEL="probe"\n', ""))
     assert generate(tmp_path / "src", tmp_path / "b").returncode == 0, "an unbounded string constant is one"
+
+
+def test_a_package_requiring_what_the_upstream_tree_lacks_fails_as_cmake_fails_there(tmp_path):
+    """An interface package with a node beside its interfaces (rclcpp): upstream's colcon runs its
+    whole CMakeLists.txt, with no rclcpp in the tree and no *_cpp package built, and CMake fails;
+    the double read only the interface names and built the library."""
+    package = tmp_path / "src/custom_interface"
+    shutil.copytree(REPO / "ws/src/custom_interface", package)
+    cmake = package / "CMakeLists.txt"
+    plain = cmake.read_text()
+    cmake.write_text(
+        plain + "if(BUILD_TESTING)\n  find_package(rclcpp REQUIRED)\nendif()\nfind_package(rclc REQUIRED)\n"
+    )
+    assert generate(tmp_path / "src", tmp_path / "a").returncode == 0, "BUILD_TESTING is OFF there; rclc is in the tree"
+    cmake.write_text(plain + "find_package(rclcpp REQUIRED)\n")
+    refused = generate(tmp_path / "src", tmp_path / "b")
+    assert refused.returncode == 1
+    assert 'asked CMake to find a package configuration file provided by "rclcpp", but CMake did not find one' in (
+        refused.stderr
+    )
+    assert not (tmp_path / "b/out").exists(), "a refused build leaves nothing"

@@ -620,8 +620,50 @@ def listed_interfaces(package: Package) -> set[str] | None:
     return set(_LISTED.findall(text)) or None
 
 
+# The packages of the upstream tree the real build's CMake can find besides those under --src:
+# the repositories libmicroros.mk (jazzy) clones into micro_ros_dev and micro_ros_src, by
+# package-name prefix. Its colcon runs with --packages-ignore-regex=.*_cpp, so no *_cpp package
+# is ever built or found; nor is rclcpp, rclpy or launch, which no cloned repository holds.
+UPSTREAM_TREE_PREFIXES = ("ament_", "rosidl_", "rcl_", "rclc_", "rmw_", "micro_ros_", "tracetools")
+UPSTREAM_TREE_NAMES = {"rcl", "rclc", "rmw", "rcutils", "microxrcedds_client", "microcdr", "test_interface_files",
+                       "gtest_vendor", "gmock_vendor"}  # fmt: skip
+_REQUIRED = re.compile(r"find_package\s*\(\s*([a-z][a-z0-9_]*)\b([^)]*)\)")
+
+
+def check_found(packages: list[Package]) -> None:
+    """Each package's CMakeLists.txt `find_package(NAME REQUIRED)` of a package the real tree lacks
+    fails there, in CMake's words; the build runs with BUILD_TESTING=OFF, so its test blocks do not."""
+    built = {p.name for p in packages if not p.name.endswith("_cpp")}
+    for package in packages:
+        try:
+            lines = (package.path / "CMakeLists.txt").read_text().splitlines()
+        except OSError:
+            continue
+        testing = 0  # within if(BUILD_TESTING): 1, plus the ifs nested in it
+        for number, raw in enumerate(lines, 1):
+            line = raw.split("#", 1)[0].strip().lower()
+            if testing:
+                testing += line.startswith("if(") or line.startswith("if (")
+                testing -= line.startswith("endif")
+                continue
+            if re.match(r"if\s*\(\s*build_testing\s*\)", line):
+                testing = 1
+                continue
+            for name, rest in _REQUIRED.findall(raw.split("#", 1)[0]):
+                upstream = (
+                    name in UPSTREAM_TREE_NAMES or name.startswith(UPSTREAM_TREE_PREFIXES)
+                ) and not name.endswith("_cpp")
+                if "REQUIRED" in rest.split() and name not in built and not upstream:
+                    raise InterfaceError(
+                        f"{package.path}/CMakeLists.txt:{number}: CMake Error (find_package): By not providing "
+                        f'"Find{name}.cmake" in CMAKE_MODULE_PATH this project has asked CMake to find a package '
+                        f'configuration file provided by "{name}", but CMake did not find one.'
+                    )
+
+
 def generate(args: argparse.Namespace) -> None:
     packages = find_packages(args.src)
+    check_found(packages)
     for package in packages:
         listed = listed_interfaces(package)
         for rel in sorted(listed or ()):

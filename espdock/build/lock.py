@@ -367,7 +367,7 @@ def current_test_inputs(
     except rosdeps.DatabaseUnreachable as exc:
         # What the run builds: the packages tested and what they depend on.
         built = select_up_to(packages, [p.name for p in (packages if tested is None else tested)])
-        return inputs, offline_note(config, packages, inputs, built, reason, exc)
+        return inputs, offline_note(config, packages, inputs, built, reason, exc, command="test")
     return replace(inputs, rosdep_lock=data), f"{ROSDEP_LOCK} {status} ({reason}; {database})"
 
 
@@ -410,6 +410,7 @@ def offline_note(
     reason: str,
     unreachable: rosdeps.DatabaseUnreachable,
     ignored: Callable[[], Mapping[str, LeftOut]] | None = None,
+    command: str = "build",
 ) -> str:
     """What a build does without rosdep's database: it goes on with the lock as it is when that
     answers for every key of the packages BUILT the image lacks (else LockError naming the
@@ -438,7 +439,7 @@ def offline_note(
     lines = "\n".join(f"  {name}: {', '.join(shown.get(k, k) for k in keys)}" for name, keys in blocked.items())
     hint = f"Reach rosdep's sources (or point ROSDEP_SOURCE_PATH at a local copy), then {FIX}."
     if others:
-        hint += f" Meanwhile the others build: `espdock build {' '.join(others)}`."
+        hint += f" Meanwhile the others {command}: `espdock {command} {' '.join(others)}`."
     raise LockError(
         f"{reason}, and {unreachable.message}; {len(blocked)} package(s) built need rosdep for keys the "
         f"{image.flavour} ROS image lacks and {ROSDEP_LOCK} does not answer:\n{lines}",

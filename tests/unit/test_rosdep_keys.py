@@ -426,3 +426,13 @@ def test_offline_espdock_test_goes_on_with_the_lock_as_it_is_where_it_answers(tm
     assert tested.returncode == 3, tested.stdout + tested.stderr  # past rosdep, on to the engine
     assert "the packages built need nothing more from rosdep" in " ".join(tested.stdout.split())
     assert (root / "rosdep.lock.json").read_bytes() == before
+
+    # No lock at all: its test keys need one, which only `espdock lock` makes. It said the lock
+    # was "older than the package.xml files", and to run `espdock build`, which wrote none.
+    (root / "rosdep.lock.json").unlink()
+    shutil.rmtree(spare)
+    refused = offline(root, tmp_path, "test", "tested_py")
+    said = " ".join((refused.stdout + refused.stderr).split())
+    assert refused.returncode == 2, said
+    assert "rosdep.lock.json is missing, and these packages need rosdep: tested_py (" in said, said
+    assert "Run `espdock lock` where rosdep's sources answer (it makes the file)" in said and "older" not in said

@@ -74,6 +74,7 @@ class Runner:
         LOCK: hold the workspace lock (builds); `espdock run` only ensures images, and two of
         them start at once."""
         results = []
+        self.images.planned = [step for step in plan.steps if isinstance(step, EnsureImage)]
         with workspace_lock(plan.workspace) if lock else contextlib.nullcontext():
             # Before any step: a container an espdock killed earlier (kill -9, a lost terminal)
             # may still hold the workspace's files open or write into them.

@@ -62,29 +62,22 @@ class KeyedImages:
         self.used: list[tuple[str, str]] = []
         # The images --push-cache could not push, with why: the build goes on, and fails at its end.
         self.unpushed: list[tuple[str, str]] = []
-        # The base images ensure_base found missing, by reference: made before a build needs one.
-        self._missing_bases: dict[str, EnsureBaseImage] = {}
+        # The keyed images of the plan being run: what decides whether a missing base is needed.
+        self.planned: list[EnsureImage] = []
 
     def ensure_base(self, step: EnsureBaseImage) -> tuple[Outcome, str]:
         """Only an image build starts from the base: with it missing (no registry here, a cleaned-up
-        tag), a build whose keyed images are all present went no further than pulling it."""
-        if self.containers.engine.image(step.image) is not None:
+        tag), a build whose keyed images were all present went no further than pulling it."""
+        engine = self.containers.engine
+        if engine.image(step.image) is not None:
             return Outcome.CACHED, "present"
-        self._missing_bases[step.image] = step
-        return Outcome.CACHED, "not here: made before an image is built from it"
-
-    def _ensure_base_of(self, step: EnsureImage) -> None:
-        """Make the missing base STEP's image is built from, before its build."""
-        base = self._missing_bases.pop(dict(step.spec.build_args).get("BASE_IMAGE", ""), None)
-        if base is None:
-            return
+        built_from = [s for s in self.planned if dict(s.spec.build_args).get("BASE_IMAGE") == step.image]
+        if all(not s.force and is_current(s.spec, engine.image(s.spec.tag)) for s in built_from):
+            return Outcome.CACHED, "not here, and not needed: the images built from it are present"
         how = bootstrap.ensure_base_image(
-            self.containers.engine,
-            base.image,
-            self.containers.config,
-            lambda text: self.containers.emit(StepNote(step.name, f"base image {base.image}: {text}")),
+            engine, step.image, self.containers.config, lambda text: self.containers.emit(StepNote(step.name, text))
         )
-        self.containers.emit(StepNote(step.name, f"base image {base.image}: {how}"))
+        return (Outcome.CACHED, "present") if how == "present" else (Outcome.BUILT, how)
 
     def ensure(
         self, workspace: Workspace, step: EnsureImage, extra_context: Mapping[str, Path | bytes] | None = None
@@ -138,7 +131,6 @@ class KeyedImages:
         self.containers.emit(
             StepNote(step.name, f"{spec.tag}: {why} (key {spec.key[:16]}), building stage {spec.target}")
         )
-        self._ensure_base_of(step)
         bootstrap.ensure_compose(self.containers.env, lambda text: self.containers.emit(StepNote(step.name, text)))
 
         def on_line(line: str) -> None:

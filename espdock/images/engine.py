@@ -1281,20 +1281,45 @@ NETWORK_FAILURE = re.compile(
     r"|Could not connect to \S+.*(refused|timed out)|dns error",
     re.IGNORECASE,
 )
-BUILDKIT_PREFIX = re.compile(r"^#\d+ \d+\.\d+ ")  # a RUN step's line: its step and the seconds into it
+# What a step that reached the network prints: apt's fetches, pip's and uv's downloads.
+DOWNLOADED = re.compile(r"^(Get:\d+ |Downloading |Downloaded |Saved )")
+BUILDKIT_LINE = re.compile(r"^#(?P<step>\d+) (?:\d+\.\d+ )?(?P<text>.*)")  # BuildKit's: its step, seconds into it
+CLASSIC_STEP = re.compile(r"^(?:STEP|Step) (?P<step>\d+)/\d+ ?:")  # the engine API builder's (Buildah's, Docker's)
 READ_THE_OUTPUT = "Read the build output above; run with --verbose for all of it."
 
 
 class _NetworkWatch:
-    """The first line of a build's output that says the network was out of reach: apt's come as
-    warnings long before its last words ("Unable to locate package python3"), out of the tail."""
+    """Each step's first line saying it could not reach the network, and whether it downloaded
+    anything: apt's come as warnings long before its last words ("Unable to locate package
+    python3"), out of the tail. Only the failed step counts, and only where it reached nothing:
+    one dead source of several, or a retry that then succeeded, is no network out of reach."""
 
     def __init__(self) -> None:
-        self.line: str | None = None
+        self.found: dict[str, str] = {}
+        self.fetched: set[str] = set()
+        self.failed: list[str] = []
+        self.step = ""  # the classic builder's step its lines belong to
 
     def __call__(self, line: str) -> None:
-        if self.line is None and NETWORK_FAILURE.search(line):
-            self.line = BUILDKIT_PREFIX.sub("", line).strip()
+        if classic := CLASSIC_STEP.match(line):
+            self.step = classic.group("step")
+            return
+        buildkit = BUILDKIT_LINE.match(line)
+        step, text = (buildkit.group("step"), buildkit.group("text")) if buildkit else (self.step, line)
+        text = text.strip()
+        if buildkit and text.startswith("ERROR"):
+            self.failed.append(step)
+        elif DOWNLOADED.match(text):
+            self.fetched.add(step)
+        elif NETWORK_FAILURE.search(text):
+            self.found.setdefault(step, text)
+
+    @property
+    def line(self) -> str | None:
+        """What the failed step (BuildKit's `#N ERROR`, else the classic builder's last) said of the network."""
+        return next(
+            (self.found[s] for s in self.failed or [self.step] if s in self.found and s not in self.fetched), None
+        )
 
 
 # Where an HTTP proxy for image builds is set: Compose's BuildKit builds take the Docker CLI's
@@ -1309,11 +1334,13 @@ ENGINE_PROXIES = (
 def _network_hint(line: str | None, proxies: str = CLI_PROXIES) -> str | None:
     if line is None:
         return None
-    shown = line if len(line) <= 200 else f"{line[:200]} ..."
+    # Around what matched: pip's words come after a long repr of its connection object.
+    start = max(0, (match.start() - 60) if (match := NETWORK_FAILURE.search(line)) else 0)
+    shown = ("... " if start else "") + line[start : start + 200] + (" ..." if len(line) > start + 200 else "")
     return (
-        f"The build found no network ({shown}): its apt and pip steps download packages. Behind an "
-        f"HTTP proxy, {proxies}; without a network, build the images where one answers and bring them "
-        "here (`docker save`, `docker load`), or pull them from a cache registry (cache_registry)."
+        f"A step of the build could not reach the network ({shown}): its downloads (apt, pip, git) need "
+        f"it. Behind an HTTP proxy, {proxies}; without a network, build the images where one answers and "
+        "bring them here (`docker save`, `docker load`), or pull them from a cache registry (cache_registry)."
     )
 
 

@@ -234,15 +234,38 @@ def test_an_image_build_without_a_network_says_so_not_only_the_package_apt_could
 
     engine = Engine({"DOCKER_HOST": "unix:///nonexistent.sock"}, client=object())
     monkeypatch.setattr(engine, "_answers", lambda: True)
-    said = tmp_path / "said.txt"
-    said.write_text(APT_OFFLINE)
-    monkeypatch.setattr(engine, "compose_command", lambda: fake_cli(tmp_path, f"cat >/dev/null; cat {said}; exit 1"))
-    build = ImageBuild(tmp_path, "Dockerfile", "build", "espdock/img:1", {}, {}, None, lambda line: None, False)
-    with pytest.raises(ImageBuildError) as err:
-        engine._build_buildkit(build)
-    assert "Temporary failure resolving" not in err.value.message  # out of the tail it shows
-    assert err.value.hint.startswith("The build found no network (Temporary failure resolving 'deb.debian.org'): ")
-    assert "~/.docker/config.json" in err.value.hint
+
+    def hint_of(output: str) -> str:
+        said = tmp_path / "said.txt"
+        said.write_text(output)
+        monkeypatch.setattr(
+            engine, "compose_command", lambda: fake_cli(tmp_path, f"cat >/dev/null; cat {said}; exit 1")
+        )
+        build = ImageBuild(tmp_path, "Dockerfile", "build", "espdock/img:1", {}, {}, None, lambda line: None, False)
+        with pytest.raises(ImageBuildError) as err:
+            engine._build_buildkit(build)
+        assert "Temporary failure resolving" not in err.value.message  # out of the tail it shows
+        return err.value.hint
+
+    hint = hint_of(APT_OFFLINE)
+    assert hint.startswith("A step of the build could not reach the network (Temporary failure resolving "), hint
+    assert "~/.docker/config.json" in hint
+    # One dead source of several: apt fetched from the others, and failed for another reason.
+    got = "#6 0.315 Get:2 http://deb.debian.org/debian bookworm/main amd64 Packages [8790 kB]\n"
+    fetched = APT_OFFLINE.replace("#6 0.320 Reading package lists...", got + "#6 0.320 Reading package lists...")
+    assert hint_of(fetched) == "Read the build output above; run with --verbose for all of it."
+    # A step that found no network, then succeeded on a retry; the build failed at a later step.
+    later = APT_OFFLINE.replace("#6 ERROR:", "#6 DONE 1.2s\n#7 [image build 3/9] RUN false\n#7 ERROR:", 1)
+    assert hint_of(later) == "Read the build output above; run with --verbose for all of it."
+    # pip's words come after a long repr of its connection: the hint quotes them.
+    pip = (
+        "#6 2.1 WARNING: Retrying (Retry(total=4, connect=None, read=None, redirect=None, status=None)) after "
+        "connection broken by 'NewConnectionError('<pip._vendor.urllib3.connection.HTTPSConnection object at "
+        "0x7f29c0d1e2d0>: Failed to establish a new connection: [Errno -2] Name or service not known')': /simple/x/\n"
+    )
+    assert "Failed to establish a new connection: [Errno -2]" in hint_of(
+        APT_OFFLINE.replace("#6 0.301 Err:1", pip + "#6 0.301 Err:1")
+    )
 
 
 REFUSED = refusal(500, "no space left on device")

@@ -530,7 +530,7 @@ class Engine:
         repository, tag = _split_ref(ref)
         try:
             self._client.images.pull(repository, tag=tag)
-        except _refusals():
+        except _registry_refusals():
             return False
         return True
 
@@ -548,14 +548,14 @@ class Engine:
         repository, tag = _split_ref(ref)
         try:
             return _registry_stream(call(repository, tag=tag, stream=True, decode=True))
-        except _refusals() as exc:
+        except _registry_refusals() as exc:
             return _registry_answer(str(exc))
 
     def registry_has(self, ref: str) -> RegistryAnswer:
         """Whether REF's registry holds REF (a manifest lookup; nothing is downloaded)."""
         try:
             self._client.api.inspect_distribution(ref)
-        except _refusals() as exc:
+        except _registry_refusals() as exc:
             return _registry_answer(str(exc))
         return RegistryAnswer(RegistryStatus.OK)
 
@@ -574,8 +574,30 @@ class Engine:
         """Give image REF more LABELS: a metadata-only build on top of it (no new layer), tagged REF."""
         dockerfile = f"FROM {ref}\nLABEL " + " ".join(_label_args(labels))
         refused = f"could not add labels to {ref}"
-        with self._engine_call(None, refused, ImageBuildError, also=(docker.errors.BuildError,), explained=False):
-            self._client.images.build(fileobj=io.BytesIO(dockerfile.encode()), tag=ref, pull=False, rm=True)
+        api = self._client.api
+        context = io.BytesIO()
+        with tarfile.open(fileobj=context, mode="w") as tar:
+            entry = tarfile.TarInfo("Dockerfile")
+            entry.size = len(dockerfile.encode())
+            tar.addfile(entry, io.BytesIO(dockerfile.encode()))
+        with self._engine_call(None, refused, ImageBuildError, explained=False):
+            # Posted as is: the SDK's build sends every registry login of the Docker CLI's config,
+            # asking its credential helper for each, for an image FROM a local one that needs none
+            # (and a helper the config names but this machine lacks, Docker Desktop's "desktop", failed it).
+            response = api.post(
+                f"{api.base_url}/v{api.api_version}/build",
+                params={"t": ref, "rm": True, "forcerm": True},
+                data=context.getvalue(),
+                headers={"Content-Type": "application/x-tar"},
+                stream=True,
+                timeout=None,
+            )
+            if response.status_code != 200:
+                error = f"HTTP {response.status_code}: {response.text[:300]}"
+            else:
+                error = _classic_events(response.iter_lines(), collections.deque(maxlen=5), lambda line: None)
+        if error:
+            raise ImageBuildError(f"{refused}: {error}")
         self.check_image(ref, labels, f"adding labels to {ref}")
 
     def import_rootfs(self, tarball: Path, ref: str, labels: Mapping[str, str] | None = None) -> None:
@@ -1156,6 +1178,13 @@ def _refusals() -> tuple[type[Exception], ...]:
     """What an SDK call raises when the engine refuses it or nothing answers (for `except`, which
     evaluates this only when something was raised: the SDK stays unimported until then)."""
     return (docker.errors.APIError, requests.exceptions.RequestException)
+
+
+def _registry_refusals() -> tuple[type[Exception], ...]:
+    """_refusals, and a credential helper the Docker CLI's config names that this machine lacks or
+    that failed (Docker Desktop's "desktop" in a copied config): a registry that cannot be used,
+    as the CLI says of it, and no bug of espdock's."""
+    return (*_refusals(), docker.errors.DockerException)
 
 
 def _image_info(attrs: Mapping[str, Any]) -> ImageInfo:

@@ -8,6 +8,7 @@ import importlib
 import os
 import select
 import sys
+import warnings
 from collections.abc import Mapping
 from contextlib import suppress
 from typing import Any
@@ -35,6 +36,9 @@ class _Lazy:
 
 
 docker = _Lazy("docker", "docker.errors")
+# The SDK's note, at each registry call, that a credential helper the Docker CLI's config names
+# is missing: the call's own error says it, where it matters (a registry that needs the login).
+warnings.filterwarnings("ignore", message="docker-credential-", category=UserWarning)
 requests = _Lazy("requests", "requests.exceptions")
 
 # Whether an ssh:// engine is to be reached: only it needs the SDK's ssh adapter.

@@ -529,3 +529,26 @@ def test_on_an_engine_that_remaps_users_the_compose_serial_agent_opens_the_board
         subprocess.run(["docker", "compose", *project, "down"], env=env, capture_output=True, check=False)
     assert ran.returncode == 0, ran.stdout + ran.stderr
     assert ran.stdout.splitlines()[-1] == "sent", ran.stdout + ran.stderr
+
+
+def test_labels_are_added_and_registries_asked_whatever_credential_helper_the_cli_config_names(
+    engine, tmp_path, monkeypatch
+):
+    """A Docker CLI config naming a credential helper this machine lacks (`"credsStore": "desktop"`,
+    as Docker Desktop leaves it in a config copied over): adding a keyed image's package labels,
+    the step after its build, ended espdock as a bug of its own (exit 70), the SDK asking the
+    helper for every registry login for a build FROM a local image; a registry call the same."""
+    (tmp_path / "config.json").write_text('{"credsStore": "desktop"}\n')
+    monkeypatch.setenv("DOCKER_CONFIG", str(tmp_path))
+    ref = f"espdock-test/labels:{uuid.uuid4().hex[:12]}"
+    subprocess.run(["docker", "tag", IMAGE, ref], check=True)
+    try:
+        for host in (f"unix://{local_socket()}", None):  # the plain-HTTP client and the SDK's
+            fresh = Engine.connect({**os.environ, **({"DOCKER_HOST": host} if host else {})})
+            fresh.add_labels(ref, {"io.espdock.test-label": host or "sdk"})
+            assert fresh.image(ref).labels["io.espdock.test-label"] == (host or "sdk")
+            assert fresh.pull("127.0.0.1:9/espdock-test/none:1") is False
+            answer = fresh.pull_cached("127.0.0.1:9/espdock-test/none:1")
+            assert answer.status.value == "unreachable" and "docker-credential-desktop" in answer.detail, answer
+    finally:
+        subprocess.run(["docker", "rmi", ref], capture_output=True, check=False)

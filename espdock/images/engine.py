@@ -597,7 +597,7 @@ class Engine:
             else:
                 error = _classic_events(response.iter_lines(), collections.deque(maxlen=5), lambda line: None)
         if error:
-            raise ImageBuildError(f"{refused}: {error}")
+            raise ImageBuildError(f"the {self.info().name} {refused}: {error}")
         self.check_image(ref, labels, f"adding labels to {ref}")
 
     def import_rootfs(self, tarball: Path, ref: str, labels: Mapping[str, str] | None = None) -> None:

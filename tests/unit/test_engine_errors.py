@@ -341,16 +341,9 @@ NO_SOURCE = 'invalid mount config for type "bind": bind source path does not exi
         ),
         (
             lambda e: e.add_labels("espdock/img:1", {"a": "b"}),
-            {"images.build": REFUSED},
+            {"api.post": REFUSED},
             ImageBuildError,
             f"{NAMED} could not add labels to espdock/img:1: {SAID}",
-            None,
-        ),
-        (
-            lambda e: e.add_labels("espdock/img:1", {"a": "b"}),
-            {"images.build": docker.errors.BuildError("step 2 failed", [])},
-            ImageBuildError,
-            f"{NAMED} could not add labels to espdock/img:1: step 2 failed",
             None,
         ),
         (
@@ -441,7 +434,6 @@ NO_SOURCE = 'invalid mount config for type "bind": bind source path does not exi
         "run-start-lost",
         "run-timeout",
         "add_labels",
-        "add_labels-build-error",
         "import_rootfs",
         "tag",
         "untag",
@@ -522,3 +514,28 @@ def test_an_address_no_engine_has_is_bad_input_and_a_name_that_does_not_resolve_
         Engine.connect({"DOCKER_HOST": "tcp://no-such-host.invalid:2375"}, timeout=5)
     said = "no Docker engine answers at tcp://no-such-host.invalid:2375: its host name does not resolve"
     assert err.value.message == said
+
+
+def test_a_label_build_the_engine_fails_says_the_engine_s_words(monkeypatch):
+    """The labels' build is posted as is (no registry logins): the engine's error in its stream."""
+
+    class Answer:
+        status_code = 200
+
+        def iter_lines(self):
+            return iter([b'{"stream": "Step 2/2 : LABEL a=b"}', b'{"error": "step 2 failed"}'])
+
+    class Api:
+        base_url, api_version = "http://engine", "1.44"
+
+        def post(self, *args: object, **kwargs: object) -> Answer:
+            return Answer()
+
+    class Client:
+        api = Api()
+
+    engine = Engine({"DOCKER_HOST": TCP}, client=Client())
+    monkeypatch.setattr(engine, "info", refusing({}).info)
+    with pytest.raises(ImageBuildError) as err:
+        engine.add_labels("espdock/img:1", {"a": "b"})
+    assert err.value.message == f"{NAMED} could not add labels to espdock/img:1: step 2 failed"

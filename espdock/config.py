@@ -99,7 +99,9 @@ class _Settings(Struct, forbid_unknown_fields=True):
     package_paths: Annotated[list[_Text], Meta(min_length=1)] | None = None
     colcon_root: _Text | None = None
     cache_registry: Annotated[str, Meta(pattern=r"^[A-Za-z0-9.-]+(:[0-9]+)?(/[a-z0-9._-]+)*$")] | None = None
-    name: Annotated[str, Meta(pattern=r"^[a-z0-9][a-z0-9._-]*$")] | None = None
+    # A path component of an image reference, as Docker's grammar has it: `robot_-x` and
+    # `robot..x` are none (every run and compose up failed on "invalid reference format").
+    name: Annotated[str, Meta(pattern=r"^[a-z0-9]+(?:(?:[._]|__|-+)[a-z0-9]+)*$")] | None = None
     prune_keep: Annotated[int, Meta(ge=0, le=1000)] | None = None
     prune_auto: bool | None = None
     build_cache_max_gb: Annotated[float, Meta(ge=0)] | None = None

@@ -252,12 +252,23 @@ def runtime_base_image(build: ImageSpec) -> ImageSpec:
 
 def runtime_repository(config: Config, workspace: Workspace) -> str:
     """espdock/<name>: the workspace's runtime images (name: the setting, else the directory's name)."""
-    name = config.name or re.sub(r"[^a-z0-9._-]+", "-", workspace.root.name.lower()).strip("._-")
+    name = config.name or _image_component(workspace.root.name)
     if not name:
         # A name of no ASCII letter or digit (ロボット, _-..): one of its own, not one every such
         # workspace would share (each build's :latest replacing the other's).
         name = f"workspace-{hashlib.sha256(str(workspace.root).encode()).hexdigest()[:8]}"
     return f"espdock/{name}"
+
+
+def _image_component(text: str) -> str:
+    """TEXT (a directory's name) as a path component of an image reference: Docker's grammar takes
+    one separator (., _, __ or dashes) between letters and digits, and `robot_ (copy)` made
+    `robot_-copy`, which every run refused as an "invalid reference format"."""
+    name = re.sub(r"[^a-z0-9._-]+", "-", text.lower())
+    name = re.sub(
+        r"[._-]{2,}", lambda run: run.group() if run.group() == "__" or set(run.group()) == {"-"} else "-", name
+    )
+    return name.strip("._-")
 
 
 def runtime_image_spec(step: RuntimeImage, install_digest: str) -> ImageSpec:

@@ -4,6 +4,7 @@ runtime image is keyed by and made of, the starter compose file."""
 from __future__ import annotations
 
 import os
+import re
 from pathlib import Path
 
 import pytest
@@ -382,6 +383,25 @@ def test_workspaces_named_with_no_ascii_letter_get_runtime_images_of_their_own(t
     names = {runtime_repository(Config(), Workspace(tmp_path / name)) for name in ("ロボット", "_-..", "ロボ")}
     assert len(names) == 3 and all(n.startswith("espdock/workspace-") for n in names), names
     assert runtime_repository(Config(), Workspace(tmp_path / "My Robot")) == "espdock/my-robot"
+
+
+def test_a_workspace_directory_of_any_name_gives_an_image_name_docker_takes(tmp_path):
+    """`robot_ (copy)` (a file manager's copy) made espdock/robot_-copy, and `projekt_übung`
+    espdock/projekt_-bung: `espdock run` and `compose up` failed on "invalid reference format";
+    the name setting took `robot_-x` and `robot..x` the same."""
+    from espdock.config import Config, load_config
+    from espdock.errors import ConfigError
+    from espdock.ros.plan import runtime_repository
+
+    component = re.compile(r"[a-z0-9]+(?:(?:[._]|__|-+)[a-z0-9]+)*")  # Docker's reference grammar
+    for name, expected in (("robot_ (copy)", "robot-copy"), ("projekt_übung", "projekt-bung"), ("ws__2", "ws__2"),
+                           ("a-._b", "a-b"), ("robot.v2", "robot.v2"), ("ros2_ws", "ros2_ws")):  # fmt: skip
+        repository = runtime_repository(Config(), Workspace(tmp_path / name))
+        assert repository == f"espdock/{expected}" and component.fullmatch(expected), (name, repository)
+    for bad in ("robot_-x", "robot..x", "robot-"):
+        (tmp_path / "espdock.toml").write_text(f'[espdock]\nname = "{bad}"\n')
+        with pytest.raises(ConfigError):
+            load_config(tmp_path, {})
 
 
 def test_env_gives_the_node_a_variable_or_passes_one_and_refuses_the_images_own(ws):

@@ -54,10 +54,20 @@ def selected(env: Mapping[str, str]) -> tuple[str, str] | None:
     return None if chosen[0] == DEFAULT else chosen
 
 
+# The Docker CLI's settings for its user's own commands that espdock's calls (its image builds, its
+# containers) must not take: its images are built for the engine's platform and run from local
+# tags. DOCKER_DEFAULT_PLATFORM (an Apple silicon habit) ran them as another platform ("Unable to
+# find image"), DOCKER_BUILDKIT=0 built them without BuildKit (no secrets or cache mounts: every
+# build failed), DOCKER_CONTENT_TRUST had each run ask a notary server to sign a local image.
+NOT_FOR_ESPDOCK = ("DOCKER_DEFAULT_PLATFORM", "DOCKER_BUILDKIT", "DOCKER_CONTENT_TRUST", "DOCKER_CONTENT_TRUST_SERVER")
+
+
 def resolve(env: Mapping[str, str]) -> tuple[dict[str, str], dict[str, str], tuple[str, str] | None]:
-    """(engine_env(ENV), cli_env(ENV), selected(ENV)), reading the CLI's configuration once."""
+    """(engine_env(ENV), cli_env(ENV) for espdock's own calls (without NOT_FOR_ESPDOCK), selected(ENV)),
+    reading the CLI's configuration once."""
     chosen = selected(env)
-    return _engine_env(env, chosen), _cli_env(env, chosen), chosen
+    own = {key: value for key, value in _cli_env(env, chosen).items() if key not in NOT_FOR_ESPDOCK}
+    return _engine_env(env, chosen), own, chosen
 
 
 def engine_env(env: Mapping[str, str]) -> dict[str, str]:

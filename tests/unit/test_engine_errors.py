@@ -10,6 +10,7 @@ a runtime is broken...).
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
 
 import docker.errors
@@ -539,3 +540,19 @@ def test_a_label_build_the_engine_fails_says_the_engine_s_words(monkeypatch):
     with pytest.raises(ImageBuildError) as err:
         engine.add_labels("espdock/img:1", {"a": "b"})
     assert err.value.message == f"{NAMED} could not add labels to espdock/img:1: step 2 failed"
+
+
+def test_espdock_s_own_builds_and_runs_take_none_of_the_users_docker_cli_habits(tmp_path, monkeypatch):
+    """DOCKER_DEFAULT_PLATFORM=linux/arm64 (an Apple silicon habit) in the shell: `espdock run` and
+    `shell` found no image ("Unable to find image ... locally"); DOCKER_BUILDKIT=0 failed every
+    image build (no secrets, no cache mounts); DOCKER_CONTENT_TRUST=1 had each run ask a notary."""
+    from espdock.images.engine import ImageBuild
+
+    habits = {"DOCKER_DEFAULT_PLATFORM": "linux/arm64", "DOCKER_BUILDKIT": "0", "DOCKER_CONTENT_TRUST": "1"}
+    engine = Engine({"DOCKER_HOST": TCP, "PATH": os.environ["PATH"], **habits}, client=object())
+    seen = tmp_path / "env.txt"
+    monkeypatch.setattr(engine, "compose_command", lambda: fake_cli(tmp_path, f"cat >/dev/null; env > {seen}"))
+    build = ImageBuild(tmp_path, "Dockerfile", "build", "espdock/img:1", {}, {}, None, lambda line: None, False)
+    engine._build_buildkit(build)
+    given = dict(line.split("=", 1) for line in seen.read_text().splitlines() if "=" in line)
+    assert given["DOCKER_HOST"] == TCP and not habits.keys() & given.keys(), given

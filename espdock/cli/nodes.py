@@ -19,7 +19,7 @@ from espdock.cli.prune import record_images
 from espdock.config import Config, invoking_user, resolve_ca_bundle
 from espdock.errors import Interrupted, WorkspaceError
 from espdock.images import bootstrap
-from espdock.images.engine import ComposeStillStopping, Engine, RunSpec
+from espdock.images.engine import ComposeStillStopping, Engine, RunSpec, in_background
 from espdock.ros import compose as compose_file
 from espdock.ros import nodes
 from espdock.ros.plan import ColconBuild, RuntimeImage, runtime_repository
@@ -215,7 +215,7 @@ def run(
     if mounts or devices or nodes.profile_mounts(os.environ, Path.cwd()):
         # An engine that does not see this machine would mount its own machine's path, or none.
         runner.containers.needs_this_machine(ws, image, RUN_FILES, firmware=False)
-    tty = bool(sys.stdin and sys.stdin.isatty()) and sys.stdout.isatty()
+    tty = bool(sys.stdin and sys.stdin.isatty()) and sys.stdout.isatty() and not in_background()
     spec = nodes.node_spec(
         ws,
         image,

@@ -847,7 +847,7 @@ class Engine:
         # running (a node, a shell) is the watcher's to remove (_reaper), else the next command's
         # (Engine.sweep).
         labelled = replace(spec, labels=(*spec.labels, (LABEL_OWNER, owner_identity())))
-        argv = _run_argv(docker_cli, name, labelled, self._host_users(spec))
+        argv = _run_argv(docker_cli, name, labelled, self._host_users(spec), stdin=not in_background())
         received: list[int] = []
         sent = 0
         first_sent: float | None = None
@@ -1230,11 +1230,22 @@ def _label_selector(labels: Mapping[str, str]) -> list[str]:
     return [f"{key}={value}" for key, value in labels.items()]
 
 
-def _run_argv(docker_cli: str, name: str, spec: RunSpec, host_users: bool = False) -> list[str]:
-    """`docker run` of SPEC as container NAME, signals left to espdock to pass on. Without --rm, which
-    made the docker CLI exit 0 whatever the container's code against Podman's compat API (4.3):
-    run_foreground removes the container when it ends, and the sweep one a killed espdock left."""
-    argv = [docker_cli, "run", "--name", name, "--sig-proxy=false", "--interactive"]
+def in_background() -> bool:
+    """Whether espdock is a background job of the terminal its stdin is (`espdock run PKG EXE &`):
+    a docker CLI that reads the terminal, or sets it raw, is then stopped by the shell's job
+    control ("Stopped (tty output)"), and the node with it, until `fg`."""
+    try:
+        return sys.stdin is not None and sys.stdin.isatty() and os.tcgetpgrp(sys.stdin.fileno()) != os.getpgrp()
+    except (OSError, ValueError):
+        return False
+
+
+def _run_argv(docker_cli: str, name: str, spec: RunSpec, host_users: bool = False, stdin: bool = True) -> list[str]:
+    """`docker run` of SPEC as container NAME, signals left to espdock to pass on; STDIN: forward it.
+    Without --rm, which made the docker CLI exit 0 whatever the container's code against Podman's
+    compat API (4.3): run_foreground removes the container when it ends, and the sweep one a killed
+    espdock left."""
+    argv = [docker_cli, "run", "--name", name, "--sig-proxy=false", *(["--interactive"] if stdin else [])]
     argv += ["--tty"] if spec.tty else []
     argv += ["--workdir", spec.workdir] + (["--user", spec.user] if spec.user else [])
     argv += [arg for key, value in spec.env for arg in ("--env", f"{key}={value}")]

@@ -664,3 +664,35 @@ def test_the_not_pulled_hint_is_for_a_base_image_that_failed_to_load_not_any_fai
     assert _buildkit_hint(missing).startswith("docker.io/library/debian:nope is not here and could not be pulled")
     solver = "ERROR: failed to solve: debian:nope: failed to resolve source metadata for docker.io/library/debian:nope"
     assert _buildkit_hint([missing[0], solver]).startswith("docker.io/library/debian:nope is not here")
+
+
+def test_a_node_run_as_a_background_job_of_the_terminal_forwards_neither_it_nor_its_keys(tmp_path):
+    """`espdock run PKG EXE &` at a terminal: the docker CLI set the terminal raw and read it, and
+    the shell's job control stopped it ("Stopped (tty output)") before the node started, until `fg`.
+    In the foreground, the terminal is forwarded as before."""
+    import pty
+
+    script = (
+        "import os, sys, fcntl, termios\n"
+        "from espdock.images.engine import _run_argv, in_background, RunSpec\n"
+        "fcntl.ioctl(0, termios.TIOCSCTTY, 0)\n"  # the pty is this session's terminal, this its foreground
+        "spec = RunSpec(image='img', argv=('node',), workdir='/')\n"
+        "def say(out):\n"
+        "    print(in_background(), '--interactive' in _run_argv('docker', 'n', spec, stdin=not in_background()),\n"
+        "          file=open(out, 'w'))\n"
+        "say(sys.argv[1])\n"
+        "if os.fork() == 0:\n"
+        "    os.setpgid(0, 0)\n"  # a job the shell put in the background: a group that is not the terminal's
+        "    say(sys.argv[2])\n"
+        "    os._exit(0)\n"
+        "os.wait()\n"
+    )
+    primary, secondary = pty.openpty()
+    try:
+        subprocess.run([sys.executable, "-c", script, str(tmp_path / "fg"), str(tmp_path / "bg")], stdin=secondary,
+                       start_new_session=True, check=True, timeout=30)  # fmt: skip
+    finally:
+        os.close(primary)
+        os.close(secondary)
+    assert (tmp_path / "fg").read_text().split() == ["False", "True"]
+    assert (tmp_path / "bg").read_text().split() == ["True", "False"]

@@ -103,8 +103,11 @@ def compose(ctx: typer.Context, workspace: WorkspaceOption = None) -> None:
     ):
         notify(warning)
     env = dict(os.environ)
-    # The starter compose file's nodes run as ESPDOCK_USER: the user espdock builds for.
-    env.setdefault("ESPDOCK_USER", ":".join(str(n) for n in invoking_user(os.environ, ws.root)))
+    # The starter compose file's nodes run as ESPDOCK_USER: the user espdock builds for, as its own
+    # containers do; in a rootless engine root, the engine's own user outside (the user's uid there
+    # is a subordinate one, whose files in a mounted directory the user could not even remove).
+    owner = (0, 0) if engine.info().rootless else invoking_user(os.environ, ws.root)
+    env.setdefault("ESPDOCK_USER", ":".join(str(n) for n in owner))
     ca_bundle = resolve_ca_bundle(config, os.environ)
     if ca_bundle is not None:
         env["ESPDOCK_CA_BUNDLE"] = str(ca_bundle)

@@ -210,4 +210,17 @@ def test_a_rootless_engine_builds_runs_and_everything_written_is_the_users(rootl
     run = espdock("run", "beacon_nodes", "once", cwd=root, env=rootless_engine.env, prefix=prefix)
     assert run.returncode == 0, run.stdout + run.stderr
     assert "word: rootless" in run.stdout
+
+    # A compose service as the starter compose file makes them (user: ${ESPDOCK_USER}) writing
+    # into a mounted directory: it ran as the user's uid, a subordinate one in the engine, and was
+    # refused (or, the directory opened to it, wrote files the user could not remove).
+    (root / "out").mkdir()
+    (root / "compose.yaml").write_text(
+        "services:\n  writer:\n    image: espdock/ws-root:latest\n    user: ${ESPDOCK_USER}\n"
+        "    network_mode: none\n    volumes: [./out:/out]\n    entrypoint: [sh, -c, 'touch /out/written']\n"
+    )
+    subprocess.run(["chown", "-R", f"{user.pw_uid}:{user.pw_gid}", str(root)], check=True)
+    composed = espdock("compose", "run", "--rm", "writer", cwd=root, env=rootless_engine.env, prefix=prefix)
+    assert composed.returncode == 0, composed.stdout + composed.stderr
+    assert (root / "out/written").stat().st_uid == user.pw_uid
     shutil.rmtree(parent)  # root may; the user could too, every file being theirs

@@ -130,7 +130,8 @@ def how_to_start(env: Mapping[str, str], context: tuple[str, str] | None, podman
     if _is_podman(where, podman):
         return (
             "Start Podman's API service (`systemctl --user start podman.socket`, as root "
-            "`systemctl start podman.socket`, or `podman system service`)"
+            "`systemctl start podman.socket`, or `podman system service --time=0`: without it, the "
+            "service ends after 5 s with no call, in the middle of a build)"
         )
     if context is not None:
         return f'Start the engine of the Docker context "{context[0]}" ({context[1]}, at {where})'
@@ -580,7 +581,7 @@ class Engine:
             entry = tarfile.TarInfo("Dockerfile")
             entry.size = len(dockerfile.encode())
             tar.addfile(entry, io.BytesIO(dockerfile.encode()))
-        with self._engine_call(None, refused, ImageBuildError, explained=False):
+        with self._engine_call(f"adding labels to {ref}", refused, ImageBuildError, explained=False):
             # Posted as is: the SDK's build sends every registry login of the Docker CLI's config,
             # asking its credential helper for each, for an image FROM a local one that needs none
             # (and a helper the config names but this machine lacks, Docker Desktop's "desktop", failed it).
@@ -603,7 +604,9 @@ class Engine:
     def import_rootfs(self, tarball: Path, ref: str, labels: Mapping[str, str] | None = None) -> None:
         """Make image REF from a root filesystem tarball (docker import), with LABELS."""
         changes = [f"LABEL {arg}" for arg in _label_args(labels or {})]
-        with self._engine_call(None, f"refused to import {tarball} as {ref}", ImageBuildError, explained=False):
+        with self._engine_call(
+            f"importing {tarball} as {ref}", f"refused to import {tarball} as {ref}", ImageBuildError, explained=False
+        ):
             # The whole name:tag as the repository: Podman 4's Docker API ignores a separate tag
             # (and stores name:latest); Docker takes either.
             self._client.api.import_image_from_file(str(tarball), repository=ref, changes=changes or None)

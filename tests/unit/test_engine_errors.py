@@ -98,6 +98,9 @@ def gone(tmp_path) -> tuple[Engine, str]:
         (lambda e: e.tag("espdock/img:1", "espdock/img:2"), "tagging espdock/img:1 as espdock/img:2"),
         (lambda e: e.untag("espdock/img:1"), "removing the name espdock/img:1"),
         (lambda e: e.containers({"a": "b"}), "listing containers"),
+        # Podman's `podman system service` ends after 5 s without a call: during a debootstrap.
+        (lambda e: e.add_labels("espdock/img:1", {"a": "b"}), "adding labels to espdock/img:1"),
+        (lambda e: e.import_rootfs(Path(__file__), "debian:x"), f"importing {__file__} as debian:x"),
     ],
     ids=[
         "ensure_volume",
@@ -112,6 +115,8 @@ def gone(tmp_path) -> tuple[Engine, str]:
         "tag",
         "untag",
         "containers",
+        "add_labels",
+        "import_rootfs",
     ],
 )
 def test_an_engine_that_is_gone_is_exit_3_naming_it_and_what_espdock_was_doing(gone, call, doing):

@@ -44,6 +44,7 @@ from espdock.errors import (
     EngineUnavailable,
     EspdockError,
     ImageBuildError,
+    Interrupted,
     MountSourceMissing,
 )
 from espdock.images import contexts, local_api, sdk
@@ -681,9 +682,14 @@ class Engine:
                     stream=True,
                     timeout=None,  # a step may print nothing for minutes (pip)
                 )
-                error = _classic_events(response.iter_lines(), tail, on_line)
-                if response.status_code != 200 and error is None:
+                if response.status_code != 200:  # its body is the error: read before any streaming
                     error = f"HTTP {response.status_code}: {response.text[:300]}"
+                else:
+                    try:
+                        error = _classic_events(response.iter_lines(), tail, on_line)
+                    except KeyboardInterrupt:
+                        response.close()
+                        raise Interrupted(PODMAN_BUILD_GOES_ON) from None
         if error:
             tail.append(str(error))
             raise ImageBuildError(
@@ -1323,6 +1329,12 @@ NETWORK_FAILURE = re.compile(
     r"|Network is unreachable|No route to host|Failed to establish a new connection"
     r"|Could not connect to \S+.*(refused|timed out)|dns error",
     re.IGNORECASE,
+)
+# Podman 4's build API does not stop a build whose client left (BuildKit's does): said, not
+# "stopped and removed" as every other interrupted build is.
+PODMAN_BUILD_GOES_ON = (
+    "interrupted; Podman goes on with the image build's current step until it ends (its build API "
+    "does not stop a build its client left: `podman ps --external` shows it), and tags nothing"
 )
 # What a step that reached the network prints: apt's fetches, pip's and uv's downloads.
 DOWNLOADED = re.compile(r"^(Get:\d+ |Downloading |Downloaded |Saved )")

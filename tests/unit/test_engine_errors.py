@@ -561,3 +561,48 @@ def test_espdock_s_own_builds_and_runs_take_none_of_the_users_docker_cli_habits(
     engine._build_buildkit(build)
     given = dict(line.split("=", 1) for line in seen.read_text().splitlines() if "=" in line)
     assert given["DOCKER_HOST"] == TCP and not habits.keys() & given.keys(), given
+
+
+def test_an_interrupted_podman_build_says_podman_goes_on_and_a_refused_one_its_answer(tmp_path, monkeypatch):
+    """Podman 4.3's build API does not stop a build its client left: after Ctrl-C, espdock said
+    every build it had started "was stopped and removed" while the step ran on (a `sleep 100`
+    for its 100 s). A refused build's answer was read after its stream: RuntimeError, exit 70."""
+    from espdock.errors import Interrupted
+    from espdock.images.engine import ImageBuild
+
+    class Answer:
+        closed = False
+
+        def __init__(self, status: int, lines: list[bytes], text: str = "") -> None:
+            self.status_code, self._lines, self.text = status, lines, text
+
+        def iter_lines(self):
+            yield from self._lines
+            raise KeyboardInterrupt
+
+        def close(self) -> None:
+            self.closed = True
+
+    answers: list[Answer] = []
+
+    class Api:
+        base_url, api_version = "http://engine", "1.41"
+
+        def post(self, *args: object, **kwargs: object) -> Answer:
+            return answers.pop(0)
+
+    class Client:
+        api = Api()
+
+    engine = Engine({"DOCKER_HOST": TCP}, client=Client())
+    monkeypatch.setattr(engine, "info", refusing({}).info)
+    (tmp_path / "Dockerfile").write_text("FROM debian:bookworm-slim\nRUN sleep 100\n")
+    build = ImageBuild(tmp_path, "Dockerfile", "build", "espdock/img:1", {}, {}, None, lambda line: None, False)
+    running = Answer(200, [b'{"stream": "STEP 2/2: RUN sleep 100"}'])
+    answers.append(running)
+    with pytest.raises(Interrupted) as err:
+        engine._build_classic(build)
+    assert "Podman goes on with the image build's current step" in err.value.message and running.closed
+    answers.append(Answer(400, [], '{"message": "no such stage build"}'))
+    with pytest.raises(ImageBuildError, match=r"HTTP 400: .*no such stage build"):
+        engine._build_classic(build)

@@ -67,6 +67,10 @@ def resolve(env: Mapping[str, str]) -> tuple[dict[str, str], dict[str, str], tup
     reading the CLI's configuration once."""
     chosen = selected(env)
     own = {key: value for key, value in _cli_env(env, chosen).items() if key not in NOT_FOR_ESPDOCK}
+    if chosen is None and env.get("DOCKER_HOST"):
+        # Where `docker` is Podman's (podman-docker, Fedora's and RHEL's), it reads CONTAINER_HOST,
+        # not DOCKER_HOST: `espdock run` and `shell` ran on another engine than the build's.
+        own["CONTAINER_HOST"] = env["DOCKER_HOST"]
     return _engine_env(env, chosen), own, chosen
 
 

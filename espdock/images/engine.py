@@ -1644,7 +1644,12 @@ def find_docker_cli(env: Mapping[str, str]) -> str:
     """The docker CLI on ENV's PATH; an EngineUnavailable when there is none."""
     docker_cli = shutil.which("docker", path=env.get("PATH"))
     if docker_cli is None:
-        raise EngineUnavailable("the docker CLI is not on PATH", "Install the docker client (Debian: docker.io).")
+        # espdock runs containers (run, shell, compose) with it; its builds need none.
+        raise EngineUnavailable(
+            "the docker CLI is not on PATH (espdock runs nodes, shells and Compose with it)",
+            "Install a docker client: Docker's docker-ce-cli, Debian's docker.io (its engine need not run), "
+            "or with Podman, podman-docker.",
+        )
     return docker_cli
 
 

@@ -366,7 +366,12 @@ class RosSteps:
                     images = {name: served.get(name, "") for name in sources}
                     plain = package_stamps(sources, dict(step.depends), images, dict(step.settings))
                     serves = {name: plain[name] for name in built if not on_old[name]}
-                stamp_file.record(recorded_stamps, installed(), dict(step.sources), trees, serves)
+                # Each one's dependencies' stamps as this build leaves them (built now, or up to
+                # date): a dependency rebuilt since, or edited, is one it was built on an older
+                # state of, whatever options either build was given.
+                built_on = {name: {dep: stamps[dep] for dep in closure([name], depends) - {name} if dep in stamps}
+                            for name in built}  # fmt: skip
+                stamp_file.record(recorded_stamps, installed(), dict(step.sources), trees, serves, built_on)
                 give_to(stamp_file.path, self.containers.owner)
             return built
 
@@ -611,15 +616,27 @@ def edited_since_built(workspace: Workspace, package: Package) -> str | None:
 
 
 def built_on_older(workspace: Workspace, step: ColconBuild, package: str) -> list[str] | None:
-    """Where PACKAGE's own sources are as its last build recorded but STEP would build it again
-    (a package it depends on changed, or was rebuilt since): those of them STEP would build too
-    ([] where only PACKAGE, on one rebuilt since); None where it is up to date or its own sources
-    changed (edited_since_built says that)."""
+    """Where PACKAGE's own sources are as its last build recorded, the workspace packages it depends
+    on that were rebuilt or edited since (by the stamps its build recorded of them; a record of an
+    older espdock: those of them STEP would build, [] where only PACKAGE would build); None where
+    there are none, or its own sources changed (edited_since_built says that)."""
     stamp_file, _, rebuild, trees = colcon_rebuild(workspace, step)
-    entry = stamp_file.read().get(package)
-    if package not in rebuild or not isinstance(entry, dict) or package not in trees:
+    recorded = stamp_file.read()
+    entry = recorded.get(package)
+    if not isinstance(entry, dict) or package not in trees or entry.get("tree") != trees[package].digest:
         return None
-    if entry.get("tree") != trees[package].digest:
+    against = entry.get("against")
+    if isinstance(against, dict):
+        # By the stamps it was built on: options given to one build or another (a selection's
+        # --cmake-args) make no dependency older.
+        def changed(dep: str, stamp: object) -> bool:
+            now = recorded.get(dep)
+            if not isinstance(now, dict) or now.get("stamp") != stamp:
+                return True
+            return dep in trees and now.get("tree") != trees[dep].digest
+
+        return sorted(dep for dep, stamp in against.items() if changed(dep, stamp)) or None
+    if package not in rebuild:
         return None
     return sorted(closure([package], dict(step.depends)) & set(rebuild))
 

@@ -24,7 +24,7 @@ from typing import NoReturn
 import typer
 
 from espdock import interrupts
-from espdock.cli import home
+from espdock.cli import core, home
 from espdock.cli.core import INTERRUPTED, app, command, fail, output_failed
 from espdock.errors import Interrupted
 
@@ -49,7 +49,7 @@ def register(argv: Sequence[str] | None = None) -> typer.Typer:
     name = next((arg for arg in argv or () if not arg.startswith("-")), None)
     for module in (COMMANDS[name],) if name in COMMANDS and "--help" not in argv[: argv.index(name)] else MODULES:
         importlib.import_module(f"espdock.cli.{module}")
-    _one_line_summaries(app)
+    _one_line_summaries(core.app)
     return app
 
 

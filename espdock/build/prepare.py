@@ -30,6 +30,7 @@ from espdock.ros.colcon import (
     last_build_args,
     output_args,
     read_colcon_settings,
+    symlink_installed,
     without_build_testing,
 )
 from espdock.ros.plan import ColconBuild, RuntimeImage, checked_packages, ros_image
@@ -235,7 +236,7 @@ def plan_tests(
     run after it."""
     # A defaults file that sets what espdock controls is exit 2 before the lock, which may need
     # the network and the engine.
-    read_colcon_settings(ws.ws_dir, {p.name: p.path for p in ros}, None, env)
+    settings = read_colcon_settings(ws.ws_dir, {p.name: p.path for p in ros}, None, env)
     # The rosdep lock, its test part included, answers for the packages before anything is built
     # (checked here once: the plan takes the packages and inputs as they are).
     owner = invoking_user(env, ws.root) if os.geteuid() == 0 else None
@@ -256,6 +257,16 @@ def plan_tests(
     last = output_args(built_with)
     if last:
         notify(f"building with the options of the last espdock build: {' '.join(last)}")
+    # The install kind the packages tested have, where they agree and the options above (a whole
+    # build's) say the other: a selection's own `-- --symlink-install` was made copies again,
+    # build dirs and install prefixes removed, by the tests' build.
+    kinds = {symlink_installed(ws.ws_dir / ROS_BUILD_BASE, name) for name in (p.name for p in ros)}
+    if kinds == {True} and "--symlink-install" not in last and not settings.symlink_install:
+        last = (*last, "--symlink-install")
+        notify("building with --symlink-install, as the last builds of the packages tested were")
+    elif kinds == {False} and "--symlink-install" in last:
+        last = tuple(arg for arg in last if arg != "--symlink-install")
+        notify("building without --symlink-install, as the last builds of the packages tested were")
     if dropped := [arg for arg in built_with if arg not in last]:
         notify(f"not with its {' '.join(dropped)}: the packages tested are built with their tests")
     tested_args = without_build_testing(last) or None

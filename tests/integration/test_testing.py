@@ -177,6 +177,24 @@ def test_the_tests_build_keeps_the_symlink_install_the_last_build_made(tmp_path,
     assert leftover_containers(engine, root) == []
 
 
+def test_the_tests_build_keeps_a_selection_s_own_symlink_install(tmp_path, engine):
+    """`espdock build P -- --symlink-install` after a plain whole build (a selection, as espdock's
+    own hint gives one where a package cannot build): `espdock test P` took the whole build's
+    options, removed P's build dir and install prefix, and made it copies again."""
+    root = make_workspace(tmp_path / "w", ("tested_py", "beacon_nodes"))
+    env = {**environment(tmp_path), "ESPDOCK_STATE_DIR": str(tmp_path / "state")}
+    assert espdock("build", cwd=root, env=env).returncode == 0
+    linked = root / "install/tested_py/share/tested_py/package.xml"
+    selected = espdock("build", "tested_py", "--", "--symlink-install", cwd=root, env=env)
+    assert selected.returncode == 0 and linked.is_symlink(), selected.stdout[-3000:] + selected.stderr
+    tested = espdock("test", "tested_py", cwd=root, env=env)
+    assert tested.returncode == 10, tested.stdout[-3000:] + tested.stderr  # tested_py's failing test
+    said = " ".join((tested.stdout + tested.stderr).split())
+    assert "building with --symlink-install, as the last builds of the packages tested were" in said, said
+    assert linked.is_symlink(), "install/ is as the last build of the package made it"
+    assert "removed the build dirs" not in said
+
+
 def test_a_symlink_install_the_defaults_file_turns_on_leaves_the_plain_build_up_to_date_after_the_tests(
     tmp_path, engine
 ):

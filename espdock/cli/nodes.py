@@ -6,6 +6,7 @@ import os
 import pwd
 import sys
 import time
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Annotated
 
@@ -21,7 +22,7 @@ from espdock.errors import Interrupted, WorkspaceError
 from espdock.images import bootstrap
 from espdock.images.engine import ComposeStillStopping, Engine, RunSpec, in_background
 from espdock.ros import compose as compose_file
-from espdock.ros import nodes
+from espdock.ros import nodes, rmw
 from espdock.ros.plan import ColconBuild, RuntimeImage, runtime_repository
 from espdock.ros.steps import built_on_older, edited_since_built, runtime_spec
 from espdock.workspace import PackageKind, Workspace, build_running
@@ -219,13 +220,18 @@ def run(
         # An engine that does not see this machine would mount its own machine's path, or none.
         runner.containers.needs_this_machine(ws, image, RUN_FILES, firmware=False)
     tty = bool(sys.stdin and sys.stdin.isatty()) and sys.stdout.isatty() and not in_background()
+    environ: Mapping[str, str] = os.environ
+    labels = {LABEL_WORKSPACE: str(ws.root)}
+    if wanted := rmw.missing_rmw(runner.engine, image, config.ros_image, config.ros_distro, environ, labels):
+        environ, said = rmw.without_rmw(environ, wanted, image)
+        notify(said)
     spec = nodes.node_spec(
         ws,
         image,
         path,
         tuple(args or ()),
         runner.containers.container_owner(),
-        os.environ,
+        environ,
         network,
         tty,
         mounts,
@@ -254,8 +260,13 @@ def shell(workspace: WorkspaceOption = None) -> None:
     owner = runner.containers.container_owner()
     if not mount.volume:
         nodes.make_shell_home(ws, runner.owner)
+    environ: Mapping[str, str] = os.environ
+    labels = {LABEL_WORKSPACE: str(ws.root)}
+    if wanted := rmw.missing_rmw(runner.engine, image, config.ros_image, config.ros_distro, environ, labels):
+        environ, said = rmw.without_rmw(environ, wanted, image)
+        notify(said)
     spec = nodes.shell_spec(
-        ws, image, owner, os.environ, tty, dockerfile, mount, packages, Path.cwd(), user_name(runner.owner[0])
+        ws, image, owner, environ, tty, dockerfile, mount, packages, Path.cwd(), user_name(runner.owner[0])
     )
     code, stopped_by = run_foreground(runner.engine, spec)
     raise typer.Exit(128 + stopped_by if stopped_by else code)

@@ -45,6 +45,7 @@ from espdock.ros.colcon import (
 )
 from espdock.ros.colcon_log import ColconLog, PackageState, explain_failure, named, usage_error
 from espdock.ros.plan import PYTHON_BUILD_TYPES, ColconBuild, RuntimeImage, runtime_image_spec
+from espdock.ros.rmw import missing_rmw, without_rmw
 from espdock.ros.runtime_tree import runtime_files
 from espdock.ros.testing import (
     ROS_TEST_LOGS,
@@ -502,6 +503,11 @@ class RosSteps:
             mounts.append(Mount(Path(step.defaults_file), DEFAULTS_MOUNT, read_only=True))
             env.append(("COLCON_DEFAULTS_FILE", DEFAULTS_MOUNT))
         sourced = SourcedEnv(workspace.ws_dir, step.image, tuple(env))
+        caller = self.containers.env
+        config = self.containers.config
+        if rmw := missing_rmw(self.containers.engine, step.image, config.ros_image, config.ros_distro, caller, labels):
+            caller, said = without_rmw(caller, rmw, step.image)
+            self.containers.emit(StepNote(step.name, said.removeprefix("warning: ")))
         with workspace_lock(workspace):
             key = sourced.key()
             recorded = sourced.recorded(key)
@@ -516,7 +522,7 @@ class RosSteps:
                 user=user,
                 mounts=tuple(mounts),
                 # Not in the sourced environment's key: a CI job's domain needs no sourcing again.
-                env=(*(recorded or env), *tests_env(self.containers.env, colcon_root)),
+                env=(*(recorded or env), *tests_env(caller, colcon_root)),
                 labels=labels,
             )
             code = self.containers.engine.run(spec, on_line, keep=self.containers.config.keep_containers)

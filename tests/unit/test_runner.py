@@ -1102,9 +1102,11 @@ def test_the_tests_get_the_caller_s_domain_and_discover_on_their_own_loopback_by
 
     step = ColconTest(image="i", packages=("app",), sources=(("app", "src/app"),), colcon_args=())
 
-    def env_of(caller: dict) -> dict:
-        engine = FakeEngine(run_script=lambda spec, on_line: 0)
-        ran = Runner(engine, Config(), caller, [].append, (os.getuid(), os.getgid()))  # type: ignore[arg-type]
+    said: list = []
+
+    def env_of(caller: dict, files: dict | None = None) -> dict:
+        engine = FakeEngine(run_script=lambda spec, on_line: 0, files=files or {})
+        ran = Runner(engine, Config(), caller, said.append, (os.getuid(), os.getgid()))  # type: ignore[arg-type]
         ran.ros.test_packages(ws, step, lambda line: None)
         return dict(engine.runs[-1].env)
 
@@ -1117,6 +1119,12 @@ def test_the_tests_get_the_caller_s_domain_and_discover_on_their_own_loopback_by
     assert "ROS_AUTOMATIC_DISCOVERY_RANGE" not in env_of({"ROS_STATIC_PEERS": "10.0.0.2"})
     # An old `export ROS_LOCALHOST_ONLY=0`, which rcl takes as unset, leaves the default as it is.
     assert env_of({"ROS_LOCALHOST_ONLY": "0"})["ROS_AUTOMATIC_DISCOVERY_RANGE"] == "LOCALHOST"
+    # An RMW the image's index lacks (it has Fast DDS alone): the tests failed to start, their
+    # results lost ("fix the tests"). Not passed, and said.
+    index = "/opt/espdock/venv/share/ament_index/resource_index/rmw_typesupport/"
+    lacking = {index + "rmw_cyclonedds_cpp": None, index + "rmw_fastrtps_cpp": b""}
+    assert "RMW_IMPLEMENTATION" not in env_of({"RMW_IMPLEMENTATION": "rmw_cyclonedds_cpp"}, lacking)
+    assert "RMW_IMPLEMENTATION=rmw_cyclonedds_cpp (from your environment) is not in i" in notes(said)
 
 
 def test_the_colcon_build_gets_makeflags_job_limits_and_nothing_else_of_them(ws):

@@ -1,0 +1,40 @@
+"""The caller's RMW_IMPLEMENTATION against what a ROS image has: `espdock run`, `shell` and `test`
+pass it on, as `ros2 run` sees it, where the image has that RMW."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+
+from espdock.images.engine import Engine
+
+# The RMW every ROS image espdock builds has, and where each flavour's image keeps ament's index
+# of those it has.
+DEFAULT_RMW = "rmw_fastrtps_cpp"
+RMW_INDEX = "share/ament_index/resource_index/rmw_typesupport"
+
+
+def missing_rmw(
+    engine: Engine, image: str, flavour: str, distro: str, env: Mapping[str, str], labels: Mapping[str, str]
+) -> str | None:
+    """The caller's RMW_IMPLEMENTATION where IMAGE (of FLAVOUR) has no such RMW but its index is
+    there to say so: RMW_IMPLEMENTATION=rmw_cyclonedds_cpp in a ROS developer's ~/.bashrc failed
+    every node ("failed to load shared library") and lost `espdock test`'s results."""
+    wanted = env.get("RMW_IMPLEMENTATION", "")
+    if not wanted or wanted == DEFAULT_RMW:
+        return None
+    prefix = "/opt/espdock/venv" if flavour == "wheels" else f"/opt/ros/{distro}"
+
+    def has(name: str) -> bool:
+        return engine.read_file(image, f"{prefix}/{RMW_INDEX}/{name}", labels) is not None
+
+    return wanted if not has(wanted) and has(DEFAULT_RMW) else None
+
+
+def without_rmw(env: Mapping[str, str], wanted: str, image: str) -> tuple[dict[str, str], str]:
+    """ENV without RMW_IMPLEMENTATION, and the warning that says so."""
+    said = (
+        f"warning: RMW_IMPLEMENTATION={wanted} (from your environment) is not in {image}, which has {DEFAULT_RMW}: "
+        f"this runs on {DEFAULT_RMW}, which talks DDS with {wanted} elsewhere. To run on {wanted}, a package's "
+        f'<exec_depend>{wanted}</exec_depend> that rosdep serves puts it in the image (ros_image = "official" has it)'
+    )
+    return {key: value for key, value in env.items() if key != "RMW_IMPLEMENTATION"}, said

@@ -15,10 +15,12 @@ User metadata ($COLCON_HOME/metadata/*.meta) is not forwarded: the container doe
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import os
 import posixpath
+import pwd
 import re
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
@@ -594,8 +596,16 @@ def user_defaults_file(env: Mapping[str, str]) -> Path:
     else ~/.colcon/defaults.yaml (colcon-defaults and colcon-core's command.py)."""
     if env.get("COLCON_DEFAULTS_FILE"):
         return Path(env["COLCON_DEFAULTS_FILE"])
-    home = env.get("COLCON_HOME") or os.path.join(env.get("HOME") or os.path.expanduser("~"), ".colcon")
-    return Path(home) / "defaults.yaml"
+    home = env.get("HOME") or os.path.expanduser("~")
+    if os.geteuid() == 0 and env.get("SUDO_UID", "").isdigit() and int(env["SUDO_UID"]) != 0:
+        # `sudo espdock build` builds for its caller (their files, their stamps): root's defaults
+        # (sudo's HOME is root's) turned their --symlink-install off, and everything was built
+        # again, then again by their own next build.
+        with contextlib.suppress(KeyError):
+            caller = pwd.getpwuid(int(env["SUDO_UID"])).pw_dir
+            if Path(home) == Path(pwd.getpwuid(0).pw_dir):
+                home = caller
+    return Path(env.get("COLCON_HOME") or os.path.join(home, ".colcon")) / "defaults.yaml"
 
 
 @dataclass(frozen=True)

@@ -59,6 +59,21 @@ def test_colcon_reads_the_users_defaults_where_colcon_looks():
     assert user_defaults_file({"HOME": "/h"}) == Path("/h/.colcon/defaults.yaml")
 
 
+@pytest.mark.skipif(os.geteuid() != 0, reason="sudo's: espdock run as root")
+def test_sudo_espdock_build_reads_the_caller_s_colcon_defaults_not_root_s():
+    """`sudo espdock build` (sudo's HOME is root's): root's defaults, not the caller's, turned their
+    --symlink-install off, everything was built again, and again by their own next build."""
+    import pwd
+
+    caller = pwd.getpwnam("nobody")
+    root_home = pwd.getpwuid(0).pw_dir
+    sudo = {"HOME": root_home, "SUDO_UID": str(caller.pw_uid), "SUDO_GID": str(caller.pw_gid)}
+    assert user_defaults_file(sudo) == Path(caller.pw_dir) / ".colcon/defaults.yaml"
+    # `sudo -E` keeps the caller's HOME; a COLCON_HOME given is taken as given.
+    assert user_defaults_file({**sudo, "HOME": "/home/ann"}) == Path("/home/ann/.colcon/defaults.yaml")
+    assert user_defaults_file({**sudo, "COLCON_HOME": "/c"}) == Path("/c/defaults.yaml")
+
+
 def _workspace(tmp_path: Path) -> tuple[Path, dict[str, Path]]:
     dirs = {name: tmp_path / "src" / name for name in ("msgs", "app")}
     for directory in dirs.values():

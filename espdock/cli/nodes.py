@@ -21,6 +21,7 @@ from espdock.config import Config, invoking_user, resolve_ca_bundle
 from espdock.errors import Interrupted, WorkspaceError
 from espdock.images import bootstrap
 from espdock.images.engine import ComposeStillStopping, Engine, RunSpec, in_background
+from espdock.images.keyed import is_current
 from espdock.ros import compose as compose_file
 from espdock.ros import nodes, rmw
 from espdock.ros.plan import ColconBuild, RuntimeImage, runtime_repository
@@ -71,6 +72,11 @@ def runtime_image(ws: Workspace, config: Config, plan: Plan | None = None) -> tu
                 "interrupted): their install trees may be half written, and the runtime image is made of install/ "
                 "as it is (`espdock build` first)"
             )
+    spec = runtime_spec(ws, step)
+    if is_current(spec, engine.image(spec.tag)):
+        # The runtime image of install/ as it is now is there (a lab's `docker load` of it): its
+        # base, and the base's base, are needed only to make it.
+        plan = Plan(plan.workspace, (step,))
     runner = ensure_images(ws, config, plan, engine)
     # A runtime image `run` or `compose` made is the workspace's as much as a build's: prune may take it.
     record_images(ws, runner, step.repository)

@@ -772,3 +772,33 @@ def test_compose_up_that_fails_on_a_taken_port_names_the_services_it_left_runnin
         finally:
             subprocess.run(["docker", "compose", "-p", project, "down", "-t", "0"], cwd=root, capture_output=True,
                            check=False)  # fmt: skip
+
+
+def test_a_loaded_runtime_image_runs_without_the_images_it_was_made_from(engine, tmp_path):
+    """An air-gapped lab that `docker load`ed a workspace's runtime image (or cleaned up its
+    base): `espdock run` made the runtime image's base first, from a base image the engine no
+    longer had, and failed ("not here and cannot be pulled"), where the image to run was there."""
+    from tests.integration.test_engines import once_workspace
+
+    unique = f"{os.getpid()}-{random.randrange(16**6):06x}"
+    base = f"espdock-test/base-{unique}:bookworm-slim"  # images built from it have keys of their own
+    subprocess.run(["docker", "tag", "debian:bookworm-slim", base], check=True)
+    root = once_workspace(tmp_path / "loaded")
+    config = root / "espdock.toml"
+    named = f'[espdock]\nname = "loaded-{unique}"\nbase_image = "{base}"\n'
+    config.write_text(config.read_text().replace("[espdock]\n", named, 1))
+    made: list[str] = []
+    try:
+        built = espdock("build", "--runtime-image", cwd=root)
+        assert built.returncode == 0, built.stdout[-3000:] + built.stderr
+        made = json.loads((root / "ws/install/espdock-manifest.json").read_text())["images"]
+        runtime_base = next(tag for tag in made if tag.startswith("espdock/ros-jazzy-runtime:"))
+        for gone in (base, runtime_base):
+            subprocess.run(["docker", "rmi", gone], capture_output=True, check=True)
+        ran = espdock("run", "beacon_nodes", "once", cwd=root)
+        assert ran.returncode == 0 and "word:" in ran.stdout, ran.stdout + ran.stderr
+    finally:
+        listed = subprocess.run(["docker", "images", "--format", "{{.Repository}}:{{.Tag}}"], capture_output=True,
+                                text=True, check=False).stdout.split()  # fmt: skip
+        subprocess.run(["docker", "rmi", *[t for t in listed if unique in t or t in made]], capture_output=True,
+                       check=False)  # fmt: skip

@@ -82,6 +82,10 @@ def test_symlink_install_builds_runs_and_shows_a_source_edit_without_a_rebuild(e
     assert report.returncode == 0 and "uptime_report: up" in report.stdout, report.stdout + report.stderr
     banner = run_once(root, "uptime_tools", "tools_banner")
     assert banner.returncode == 0 and "tools_banner: uptime_tools 0.1.0" in banner.stdout, banner.stderr
+    # `#!/usr/bin/python3`, as many install(PROGRAMS) scripts have it: Debian's Python had no
+    # rclpy in the wheels image ("No module named 'rclpy'"); it runs in the venv, where ROS is.
+    python = run_once(root, "uptime_tools", "rclpy_banner")
+    assert python.returncode == 0 and "rclpy_banner: rclpy from /opt/espdock/venv" in python.stdout, python.stderr
     beacon_says(root, "beacon up")
 
     # What a symlink install gives: an edited Python source runs without `colcon build`.

@@ -219,10 +219,14 @@ def micro_ros_pin(
     render_pins(console, pinned, idf)
 
 
+# ESPPORT and ESPBAUD: idf.py's own variables, which an IDF developer's shell has set.
 PortOption = Annotated[
-    str, typer.Option("--port", "-p", help="/dev/ttyUSB0, socket://HOST:PORT or rfc2217://HOST:PORT.")
+    str,
+    typer.Option("--port", "-p", envvar="ESPPORT", help="/dev/ttyUSB0, socket://HOST:PORT or rfc2217://HOST:PORT."),
 ]
-BaudOption = Annotated[int | None, typer.Option("--baud", "-b", help="Baud rate (serial devices only).")]
+BaudOption = Annotated[
+    int | None, typer.Option("--baud", "-b", envvar="ESPBAUD", help="Baud rate (serial devices only).")
+]
 SsidOption = Annotated[str | None, typer.Option("--wifi-ssid", help="Wi-Fi network the board joins (1..32 bytes).")]
 PasswordFileOption = Annotated[
     str | None,
@@ -348,7 +352,7 @@ def provision(
 @command
 def monitor(
     package: Annotated[str, typer.Argument(help="Firmware package.")],
-    port: Annotated[str, typer.Option("--port", "-p", help="/dev/ttyUSB0, socket://HOST:PORT or rfc2217://HOST:PORT.")],
+    port: PortOption,
     workspace: WorkspaceOption = None,
 ) -> None:
     """Open idf.py monitor on PORT for a firmware package (needs a terminal)."""

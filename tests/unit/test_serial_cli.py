@@ -131,3 +131,16 @@ def test_the_agent_s_arguments_are_micro_ros_agent_s_own():
     assert dict(spec.env) == {"ROS_DOMAIN_ID": "3", "FASTDDS_BUILTIN_TRANSPORTS": "UDPv4"}
     udp = agent_spec("img", None, {}, domain_id=9)
     assert udp.argv == ("udp4", "--port", "8888") and udp.devices == () and dict(udp.env)["ROS_DOMAIN_ID"] == "9"
+
+
+def test_flash_and_monitor_take_the_port_and_baud_idf_py_takes_from_the_environment(tmp_path):
+    """ESPPORT (and ESPBAUD), which idf.py and an IDF developer's shell use: `espdock idf -- flash`
+    took them, `espdock flash` and `monitor` asked for --port."""
+    root = copy_workspace(tmp_path / "w")
+    for command in ("flash", "monitor"):
+        asked = espdock(command, "led_strip_node", cwd=root, env=NO_ENGINE)
+        assert asked.returncode == 2 and "Missing option '--port'" in asked.stderr, asked.stderr
+        given = espdock(command, "led_strip_node", cwd=root, env={**NO_ENGINE, "ESPPORT": "/dev/espdock-none"})
+        assert "Missing option" not in given.stderr, given.stderr  # on to what the port or firmware says
+    baud = espdock("flash", "led_strip_node", cwd=root, env={**NO_ENGINE, "ESPPORT": "/dev/x", "ESPBAUD": "fast"})
+    assert "Invalid value for '--baud'" in baud.stderr, baud.stderr

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 from typing import assert_never
 
-from espdock.build.steps import EnsureBaseImage, EnsureImage, Plan
+from espdock.build.steps import EnsureBaseImage, EnsureImage, Plan, built_from
 from espdock.errors import EspdockError
 from espdock.firmware.plan import IdfBuild, InstallFirmware
 from espdock.firmware.steps import firmware_state, install_up_to_date
@@ -83,9 +83,7 @@ def _base_state(step: object, state: str, plan: Plan, made: set[str]) -> str:
     """A missing base is made only before an image is built from it (espdock.images.keyed)."""
     if not isinstance(step, EnsureBaseImage) or not state.startswith("would be"):
         return state
-    built_from = [s.spec.tag for s in plan.steps if isinstance(s, EnsureImage)
-                  and dict(s.spec.build_args).get("BASE_IMAGE") == step.image]  # fmt: skip
-    if any(tag in made for tag in built_from):
+    if any(image.spec.tag in made for image in built_from(plan.steps, step.image)):
         return state
     return "not here, and not needed: the images built from it are present"
 

@@ -6,7 +6,7 @@ import hashlib
 import json
 import posixpath
 import re
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from typing import Protocol
 
@@ -88,6 +88,11 @@ class EnsureImage:
     @property
     def name(self) -> str:
         return f"image {self.spec.repository}"
+
+
+def built_from(steps: Iterable[object], base: str) -> list[EnsureImage]:
+    """The keyed images of STEPS a Dockerfile builds FROM the base image BASE (its BASE_IMAGE)."""
+    return [s for s in steps if isinstance(s, EnsureImage) and dict(s.spec.build_args).get("BASE_IMAGE") == base]
 
 
 def container_path(rel: str) -> str:

@@ -12,7 +12,15 @@ from datetime import UTC, datetime
 from pathlib import Path
 
 from espdock import scratch
-from espdock.build.steps import LABEL_KEY, LABEL_WORKSPACE, EnsureBaseImage, EnsureImage, ImageSpec, cache_ref
+from espdock.build.steps import (
+    LABEL_KEY,
+    LABEL_WORKSPACE,
+    EnsureBaseImage,
+    EnsureImage,
+    ImageSpec,
+    built_from,
+    cache_ref,
+)
 from espdock.config import resolve_ca_bundle
 from espdock.errors import EspdockError, RegistryError
 from espdock.events import Outcome, StepNote, StepOutput
@@ -71,8 +79,9 @@ class KeyedImages:
         engine = self.containers.engine
         if engine.image(step.image) is not None:
             return Outcome.CACHED, "present"
-        built_from = [s for s in self.planned if dict(s.spec.build_args).get("BASE_IMAGE") == step.image]
-        if all(not s.force and is_current(s.spec, engine.image(s.spec.tag)) for s in built_from):
+        if all(
+            not s.force and is_current(s.spec, engine.image(s.spec.tag)) for s in built_from(self.planned, step.image)
+        ):
             return Outcome.CACHED, "not here, and not needed: the images built from it are present"
         how = bootstrap.ensure_base_image(
             engine, step.image, self.containers.config, lambda text: self.containers.emit(StepNote(step.name, text))

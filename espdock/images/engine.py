@@ -576,7 +576,6 @@ class Engine:
         """Give image REF more LABELS: a metadata-only build on top of it (no new layer), tagged REF."""
         dockerfile = f"FROM {ref}\nLABEL " + " ".join(_label_args(labels))
         refused = f"could not add labels to {ref}"
-        api = self._client.api
         context = io.BytesIO()
         with tarfile.open(fileobj=context, mode="w") as tar:
             entry = tarfile.TarInfo("Dockerfile")
@@ -586,18 +585,8 @@ class Engine:
             # Posted as is: the SDK's build sends every registry login of the Docker CLI's config,
             # asking its credential helper for each, for an image FROM a local one that needs none
             # (and a helper the config names but this machine lacks, Docker Desktop's "desktop", failed it).
-            response = api.post(
-                f"{api.base_url}/v{api.api_version}/build",
-                params={"t": ref, "rm": True, "forcerm": True},
-                data=context.getvalue(),
-                headers={"Content-Type": "application/x-tar"},
-                stream=True,
-                timeout=None,
-            )
-            if response.status_code != 200:
-                error = f"HTTP {response.status_code}: {response.text[:300]}"
-            else:
-                error = _classic_events(response.iter_lines(), collections.deque(maxlen=5), lambda line: None)
+            params = {"t": ref, "rm": True, "forcerm": True}
+            error = self._post_build(params, context.getvalue(), collections.deque(maxlen=5), lambda line: None)
         if error:
             raise ImageBuildError(f"the {self.info().name} {refused}: {error}")
         self.check_image(ref, labels, f"adding labels to {ref}")
@@ -655,8 +644,6 @@ class Engine:
 
         Buildah reads `RUN --mount=type=secret` as BuildKit does; the secret's file travels in the
         context (the API has no other way), under a name no COPY of espdock's Dockerfiles takes."""
-
-        api = self._client.api
         secret = f".espdock-secret-ca_bundle-{secrets.token_hex(4)}"
         with tempfile.TemporaryFile() as archive:
             _context_tar(
@@ -674,22 +661,10 @@ class Engine:
                 build.on_line(line)
 
             with self._engine_call(f"building {build.tag}"):
-                response = api.post(
-                    f"{api.base_url}/v{api.api_version}/build",
-                    params=_classic_params(build, secret),
-                    data=archive,
-                    headers={"Content-Type": "application/x-tar"},
-                    stream=True,
-                    timeout=None,  # a step may print nothing for minutes (pip)
-                )
-                if response.status_code != 200:  # its body is the error: read before any streaming
-                    error = f"HTTP {response.status_code}: {response.text[:300]}"
-                else:
-                    try:
-                        error = _classic_events(response.iter_lines(), tail, on_line)
-                    except KeyboardInterrupt:
-                        response.close()
-                        raise Interrupted(PODMAN_BUILD_GOES_ON) from None
+                try:
+                    error = self._post_build(_classic_params(build, secret), archive, tail, on_line)
+                except KeyboardInterrupt:
+                    raise Interrupted(PODMAN_BUILD_GOES_ON) from None
         if error:
             tail.append(str(error))
             raise ImageBuildError(
@@ -697,6 +672,28 @@ class Engine:
                 f"on the {self.info().name} failed:\n" + "\n".join(tail),
                 _runtime_hint(str(error)) or _network_hint(offline.line, ENGINE_PROXIES) or READ_THE_OUTPUT,
             )
+
+    def _post_build(
+        self, params: Mapping[str, Any], context: bytes | IO[bytes], tail: collections.deque[str], on_line: LineSink
+    ) -> str | None:
+        """The engine API's own /build of the tar CONTEXT with PARAMS, its output lines to ON_LINE
+        and TAIL; its error, None when it built. Ctrl-C leaves the answer closed, as its client."""
+        api = self._client.api
+        response = api.post(
+            f"{api.base_url}/v{api.api_version}/build",
+            params=params,
+            data=context,
+            headers={"Content-Type": "application/x-tar"},
+            stream=True,
+            timeout=None,  # a step may print nothing for minutes (pip)
+        )
+        if response.status_code != 200:  # its body is the error: read before any streaming
+            return f"HTTP {response.status_code}: {response.text[:300]}"
+        try:
+            return _classic_events(response.iter_lines(), tail, on_line)
+        except KeyboardInterrupt:
+            response.close()
+            raise
 
     def _build_buildkit(self, build: ImageBuild) -> None:
         """Compose v2's build, whose BuildKit client passes the CA bundle as a secret."""

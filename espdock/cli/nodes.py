@@ -29,6 +29,17 @@ from espdock.ros.steps import built_on_older, edited_since_built, runtime_spec
 from espdock.workspace import PackageKind, Workspace, build_running
 
 
+def caller_env(ws: Workspace, config: Config, runner: Runner, image: str) -> Mapping[str, str]:
+    """This environment, for a node or shell in IMAGE: without an RMW_IMPLEMENTATION the image
+    lacks (said), which ended every node."""
+    labels = {LABEL_WORKSPACE: str(ws.root)}
+    if wanted := rmw.missing_rmw(runner.engine, image, config.ros_image, config.ros_distro, os.environ, labels):
+        environ, said = rmw.without_rmw(os.environ, wanted, image)
+        notify(said)
+        return environ
+    return os.environ
+
+
 def user_name(uid: int) -> str | None:
     """UID's login name on this machine, None where it has none."""
     try:
@@ -226,11 +237,7 @@ def run(
         # An engine that does not see this machine would mount its own machine's path, or none.
         runner.containers.needs_this_machine(ws, image, RUN_FILES, firmware=False)
     tty = bool(sys.stdin and sys.stdin.isatty()) and sys.stdout.isatty() and not in_background()
-    environ: Mapping[str, str] = os.environ
-    labels = {LABEL_WORKSPACE: str(ws.root)}
-    if wanted := rmw.missing_rmw(runner.engine, image, config.ros_image, config.ros_distro, environ, labels):
-        environ, said = rmw.without_rmw(environ, wanted, image)
-        notify(said)
+    environ = caller_env(ws, config, runner, image)
     spec = nodes.node_spec(
         ws,
         image,
@@ -266,11 +273,7 @@ def shell(workspace: WorkspaceOption = None) -> None:
     owner = runner.containers.container_owner()
     if not mount.volume:
         nodes.make_shell_home(ws, runner.owner)
-    environ: Mapping[str, str] = os.environ
-    labels = {LABEL_WORKSPACE: str(ws.root)}
-    if wanted := rmw.missing_rmw(runner.engine, image, config.ros_image, config.ros_distro, environ, labels):
-        environ, said = rmw.without_rmw(environ, wanted, image)
-        notify(said)
+    environ = caller_env(ws, config, runner, image)
     spec = nodes.shell_spec(
         ws, image, owner, environ, tty, dockerfile, mount, packages, Path.cwd(), user_name(runner.owner[0])
     )

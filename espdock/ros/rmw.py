@@ -18,7 +18,7 @@ def missing_rmw(
 ) -> str | None:
     """The caller's RMW_IMPLEMENTATION where IMAGE (of FLAVOUR) has no such RMW but its index is
     there to say so: RMW_IMPLEMENTATION=rmw_cyclonedds_cpp in a ROS developer's ~/.bashrc failed
-    every node ("failed to load shared library") and lost `espdock test`'s results."""
+    every node (rcl's exit code 102) and lost `espdock test`'s results."""
     wanted = env.get("RMW_IMPLEMENTATION", "")
     if not wanted or wanted == DEFAULT_RMW:
         return None

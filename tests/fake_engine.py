@@ -104,6 +104,7 @@ class FakeEngine:
         return self.run_script(spec, on_line)
 
     def read_file(self, image: str, path: str, labels: Mapping[str, str]) -> bytes | None:
+        dict(labels.items())  # as the engine's, which labels the container it reads from
         self.reads.append((image, path))
         return self.files.get(path, b"")
 

@@ -505,7 +505,9 @@ class RosSteps:
         sourced = SourcedEnv(workspace.ws_dir, step.image, tuple(env))
         caller = self.containers.env
         config = self.containers.config
-        if rmw := missing_rmw(self.containers.engine, step.image, config.ros_image, config.ros_distro, caller, labels):
+        if rmw := missing_rmw(
+            self.containers.engine, step.image, config.ros_image, config.ros_distro, caller, dict(labels)
+        ):
             caller, said = without_rmw(caller, rmw, step.image)
             self.containers.emit(StepNote(step.name, said.removeprefix("warning: ")))
         with workspace_lock(workspace):

@@ -29,10 +29,14 @@ from espdock.ros.steps import built_on_older, edited_since_built, runtime_spec
 from espdock.workspace import PackageKind, Workspace, build_running
 
 
-def caller_env(ws: Workspace, config: Config, runner: Runner, image: str) -> Mapping[str, str]:
+def caller_env(
+    ws: Workspace, config: Config, runner: Runner, image: str, given: tuple[tuple[str, str], ...] = ()
+) -> Mapping[str, str]:
     """This environment, for a node or shell in IMAGE: without an RMW_IMPLEMENTATION the image
-    lacks (said), which ended every node."""
+    lacks (said), which ended every node; one GIVEN with --env is the user's choice, passed."""
     labels = {LABEL_WORKSPACE: str(ws.root)}
+    if any(name == "RMW_IMPLEMENTATION" for name, _ in given):
+        return os.environ
     if wanted := rmw.missing_rmw(runner.engine, image, config.ros_image, config.ros_distro, os.environ, labels):
         environ, said = rmw.without_rmw(os.environ, wanted, image)
         notify(said)
@@ -237,7 +241,7 @@ def run(
         # An engine that does not see this machine would mount its own machine's path, or none.
         runner.containers.needs_this_machine(ws, image, RUN_FILES, firmware=False)
     tty = bool(sys.stdin and sys.stdin.isatty()) and sys.stdout.isatty() and not in_background()
-    environ = caller_env(ws, config, runner, image)
+    environ = caller_env(ws, config, runner, image, variables)
     spec = nodes.node_spec(
         ws,
         image,

@@ -123,6 +123,11 @@ def test_variables_reach_the_node_passed_through_and_given_with_env(engine, node
     code, _ = reader_exits_at(node_workspace, "[from --env] sent: beacon", *run, env=env, timeout=30)
     assert code == 141
     assert no_containers_left(engine, node_workspace) == []
+    # Given with --env (NAME: its value here), it is the user's choice: passed, and no word that it was not.
+    chosen = ("run", "-e", "RMW_IMPLEMENTATION", "beacon_nodes", "beacon", "--ros-args", "-p", "period:=fast")
+    given = espdock(*chosen, cwd=node_workspace, env=env)
+    said = given.stdout + given.stderr
+    assert "(from your environment) is not in" not in said and "'rmw_cyclonedds_cpp'" in said, said
 
 
 def test_a_node_whose_espdock_was_killed_outright_is_removed_at_once_or_by_the_next_command(engine, node_workspace):

@@ -531,7 +531,7 @@ class Engine:
         """Pull REF from its registry; False when no registry could give it."""
         repository, tag = _split_ref(ref)
         try:
-            self._client.images.pull(repository, tag=tag)
+            _without_a_broken_helper(self._client.images.pull, repository, tag=tag)
         except _registry_refusals():
             return False
         return True
@@ -549,14 +549,14 @@ class Engine:
     def _transfer(self, call: Callable[..., Iterator[dict]], ref: str) -> RegistryAnswer:
         repository, tag = _split_ref(ref)
         try:
-            return _registry_stream(call(repository, tag=tag, stream=True, decode=True))
+            return _registry_stream(_without_a_broken_helper(call, repository, tag=tag, stream=True, decode=True))
         except _registry_refusals() as exc:
             return _registry_answer(str(exc))
 
     def registry_has(self, ref: str) -> RegistryAnswer:
         """Whether REF's registry holds REF (a manifest lookup; nothing is downloaded)."""
         try:
-            self._client.api.inspect_distribution(ref)
+            _without_a_broken_helper(self._client.api.inspect_distribution, ref)
         except _registry_refusals() as exc:
             return _registry_answer(str(exc))
         return RegistryAnswer(RegistryStatus.OK)
@@ -1197,6 +1197,18 @@ def _registry_refusals() -> tuple[type[Exception], ...]:
     that failed (Docker Desktop's "desktop" in a copied config): a registry that cannot be used,
     as the CLI says of it, and no bug of espdock's."""
     return (*_refusals(), docker.errors.DockerException)
+
+
+def _without_a_broken_helper(call: Callable[..., Any], *args: Any, **kwargs: Any) -> Any:
+    """CALL (a registry's pull, push or lookup); where the credential helper the Docker CLI's config
+    names is missing or fails, again without a login, as the CLI goes on: a registry that needs
+    none answers (it was said not to, and a base image there to be "not here")."""
+    try:
+        return call(*args, **kwargs)
+    except docker.errors.DockerException as exc:
+        if "Credentials store error" not in str(exc):
+            raise
+        return call(*args, auth_config={}, **kwargs)
 
 
 def _image_info(attrs: Mapping[str, Any]) -> ImageInfo:

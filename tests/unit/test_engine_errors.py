@@ -608,3 +608,29 @@ def test_an_interrupted_podman_build_says_podman_goes_on_and_a_refused_one_its_a
     answers.append(Answer(400, [], '{"message": "no such stage build"}'))
     with pytest.raises(ImageBuildError, match=r"HTTP 400: .*no such stage build"):
         engine._build_classic(build)
+
+
+def test_a_registry_is_asked_without_a_login_where_the_credential_helper_is_missing():
+    """`"credsStore": "desktop"` in a config copied from Docker Desktop, no such helper here: the
+    Docker CLI goes on without a login, and a registry that needs none answers. espdock said the
+    base image "is not here and cannot be pulled" and the cache registry "did not answer"."""
+    asked: list[dict] = []
+
+    def registry_call(*args: object, **kwargs: object) -> object:
+        asked.append(kwargs)
+        if "auth_config" not in kwargs:  # as the SDK's auth lookup fails before any request
+            raise docker.errors.DockerException("Credentials store error: StoreError('docker-credential-desktop')")
+        return iter([{"status": "Digest: sha256:0"}])
+
+    class Client:
+        class images:
+            pull = staticmethod(registry_call)
+
+        class api:
+            pull = push = inspect_distribution = staticmethod(registry_call)
+
+    engine = Engine({"DOCKER_HOST": TCP}, client=Client())
+    assert engine.pull("127.0.0.1:5000/debian:base") is True
+    assert engine.pull_cached("127.0.0.1:5000/espdock/x:1").status is RegistryStatus.OK
+    assert engine.registry_has("127.0.0.1:5000/espdock/x:1").status is RegistryStatus.OK
+    assert [call.get("auth_config") for call in asked] == [None, {}, None, {}, None, {}]

@@ -84,6 +84,9 @@ class EnsureImage:
 
     spec: ImageSpec
     force: bool = False
+    # Whether a cache registry serves it: not a workspace's runtime image, one small layer over
+    # the runtime base, which is served.
+    cached: bool = True
 
     @property
     def name(self) -> str:

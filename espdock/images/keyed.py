@@ -195,7 +195,7 @@ class KeyedImages:
     def _pull_from_cache(self, step: EnsureImage) -> bool:
         """Take STEP's image from the cache registry, if it has one with the right key label."""
         registry = self.containers.config.cache_registry
-        if not registry:
+        if not (registry and step.cached):
             return False
         spec = step.spec
         remote = cache_ref(registry, spec.tag)
@@ -231,7 +231,7 @@ class KeyedImages:
     def _publish(self, step: EnsureImage) -> None:
         """With --push-cache, push STEP's image unless the cache registry holds it already."""
         registry = self.containers.config.cache_registry
-        if not (self._push_cache and registry):
+        if not (self._push_cache and registry and step.cached):
             return
         remote = cache_ref(registry, step.spec.tag)
         held = self.containers.engine.registry_has(remote)

@@ -568,7 +568,7 @@ class RosSteps:
         spec = runtime_spec(workspace, step)
         install = workspace.ws_dir / "install"
         outcome, _ = self.images.ensure(
-            workspace, EnsureImage(spec), extra_context=runtime_context(install, step, workspace.root)
+            workspace, EnsureImage(spec, cached=False), extra_context=runtime_context(install, step, workspace.root)
         )
         keyed = self.containers.engine.image(spec.tag)
         stable = self.containers.engine.image(step.stable_tag)

@@ -294,6 +294,17 @@ def notes(events: list) -> str:
     return "\n".join(e.text for e in events if isinstance(e, StepNote))
 
 
+def test_an_image_the_cache_registry_does_not_serve_is_neither_pulled_nor_pushed(ws):
+    """A workspace's runtime image, one small layer over the keyed runtime base (which is served):
+    looked up in the cache registry before each build of it, and pushed, where the docs said it
+    is not (a registry that does not answer held each runtime image build up, and failed --push-cache)."""
+    engine = FakeEngine(registry={REMOTE: ImageInfo("id", (REMOTE,), datetime.now(UTC), 1, SPEC.labels())})
+    events: list = []
+    (result,) = cache_runner(engine, events, push=True).run(Plan(ws, (EnsureImage(SPEC, cached=False),)))
+    assert result.outcome is Outcome.BUILT and engine.pushed == []
+    assert "cache registry" not in notes(events)
+
+
 def test_a_miss_pulls_the_keyed_image_from_the_cache_registry_instead_of_building(ws):
     engine = FakeEngine(registry={REMOTE: ImageInfo("id", (REMOTE,), datetime.now(UTC), 1, SPEC.labels())})
     events: list = []

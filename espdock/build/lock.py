@@ -365,9 +365,15 @@ def current_test_inputs(
             root, config, packages, inputs, env, owner, refresh=False, unresolved_ok=False, notify=notify
         )
     except rosdeps.DatabaseUnreachable as exc:
-        # What the run builds: the packages tested and what they depend on.
-        built = select_up_to(packages, [p.name for p in (packages if tested is None else tested)])
-        return inputs, offline_note(config, packages, inputs, built, reason, exc, command="test")
+        # What the run builds: the packages tested and what they depend on; and the tests' keys.
+        tested = packages if tested is None else tested
+        built = select_up_to(packages, [p.name for p in tested])
+        answered = (testdeps.lock_test_part(lock) or {}).get("keys", {})
+        wanted = testdeps.keys_for_tests(tested, image, (p.name for p in packages))
+        tests = {
+            p.name: [k for k in wanted.get(p.name, ()) if not answered.get(k, {}).get("installer")] for p in tested
+        }
+        return inputs, offline_note(config, packages, inputs, built, reason, exc, command="test", tests=tests)
     return replace(inputs, rosdep_lock=data), f"{ROSDEP_LOCK} {status} ({reason}; {database})"
 
 
@@ -411,12 +417,14 @@ def offline_note(
     unreachable: rosdeps.DatabaseUnreachable,
     ignored: Callable[[], Mapping[str, LeftOut]] | None = None,
     command: str = "build",
+    tests: Mapping[str, list[str]] | None = None,
 ) -> str:
     """What a build does without rosdep's database: it goes on with the lock as it is when that
     answers for every key of the packages BUILT the image lacks (else LockError naming the
     packages that need the database, and those that could build; or, where every such key is a
     workspace package an ignore marker leaves out (IGNORED), rosdeps.check_dependencies' error
-    naming the markers: no database would answer for them)."""
+    naming the markers: no database would answer for them). TESTS: each package `espdock test`
+    tests, with its test keys the lock does not answer (they need the database as much)."""
     image, needed, _ = _rosdep_state(config, packages, inputs)
     answered = (rosdeps.read_lock(inputs.rosdep_lock, ROSDEP_LOCK) or {}).get("keys", {})
 
@@ -424,6 +432,9 @@ def offline_note(
         return [k for k in needed.get(package.name, ()) if not answered.get(k, {}).get("installer")]
 
     blocked = {p.name: keys for p in built if (keys := unanswered(p))}
+    for name, keys in (tests or {}).items():
+        if keys:  # said as well, not the build's "need nothing more from rosdep" and then the tests' refusal
+            blocked[name] = list(dict.fromkeys([*blocked.get(name, []), *keys]))
     marked = ignored() if ignored and blocked else {}
     if blocked and all(key in marked for keys in blocked.values() for key in keys):
         checked = [p for p in built if p.name in blocked]
@@ -433,8 +444,15 @@ def offline_note(
             f"{reason}, and {unreachable.message}; the packages built need nothing more from rosdep, "
             f"so they build without it ({ROSDEP_LOCK} is left as it is)"
         )
-    # Those that need nothing from rosdep, nor does any workspace package they depend on.
-    others = [p.name for p in built if not any(unanswered(d) for d in select_up_to(packages, [p.name]))]
+    # Those that need nothing from rosdep, nor does any workspace package they depend on (of those
+    # tested, where TESTS says which).
+    others = [
+        p.name
+        for p in built
+        if p.name not in blocked
+        and (tests is None or p.name in tests)
+        and not any(unanswered(d) for d in select_up_to(packages, [p.name]))
+    ]
     shown = {k: f"{k} ({marked[k].what})" for k in marked}
     lines = "\n".join(f"  {name}: {', '.join(shown.get(k, k) for k in keys)}" for name, keys in blocked.items())
     hint = f"Reach rosdep's sources (or point ROSDEP_SOURCE_PATH at a local copy), then {FIX}."

@@ -191,14 +191,13 @@ def check_dependencies(
     image: RosImage,
     command: str | None = "build",
     ignored: Callable[[], Mapping[str, LeftOut]] | None = None,
-    made: bool | None = None,
 ) -> None:
     """Raise DependencyError listing, per selected package, each key neither the image nor the
     lock provides, with the ways out (COMMAND: `espdock build` or `test`, which another selection can
     avoid; None: a command that selects nothing else);
     nothing is built or run then. IGNORED: the workspace packages espdock does not build (an
     ignore marker leaves them out, or they have no package.xml), asked only then: a key that is
-    one of them is no rosdep matter. MADE: whether the lock file exists (default: LOCK is not None)."""
+    one of them is no rosdep matter."""
     keys = (lock or {}).get("keys", {})
     missing = {p: [k for k in needed.get(p.name, ()) if not keys.get(k, {}).get("installer")] for p in selected}
     if not any(missing.values()):
@@ -223,13 +222,6 @@ def check_dependencies(
     if whys == {NOT_LOCKED}:
         # Only keys the lock has never seen (a dependency declared, or a typo fixed, since): the
         # lock is behind the package.xml files, not rosdep behind the key.
-        if not (lock is not None if made is None else made):
-            # Offline, the build went on without one (nothing it built needed rosdep): no command
-            # but `espdock lock` where rosdep's sources answer makes it.
-            raise DependencyError(
-                f"{ROSDEP_LOCK} is missing, and these packages need rosdep:\n" + "\n".join(lines),
-                "Run `espdock lock` where rosdep's sources answer (it makes the file), and run again.",
-            )
         again = f"`espdock {command}`" if command else "the command"
         raise DependencyError(
             f"{ROSDEP_LOCK} is older than the package.xml files:\n" + "\n".join(lines),

@@ -110,9 +110,7 @@ def check_tests(
     test PKG` took one for a key missing from the lock, which `espdock lock` never added."""
     selected = tuple(selected)
     needed = keys_for_tests(selected, image, (p.name for p in every))
-    rosdeps.check_dependencies(
-        _as_tests(selected, image), needed, lock_test_part(lock), image, command="test", made=lock is not None
-    )
+    rosdeps.check_dependencies(_as_tests(selected, image), needed, lock_test_part(lock), image, command="test")
 
 
 def image_for_tests(build: ImageSpec, lock: Mapping | None, official: bool) -> ImageSpec | None:

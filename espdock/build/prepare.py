@@ -260,7 +260,7 @@ def plan_tests(
     # The install kind the packages tested have, where they agree and the options above (a whole
     # build's) say the other: a selection's own `-- --symlink-install` was made copies again,
     # build dirs and install prefixes removed, by the tests' build.
-    kinds = {symlink_installed(ws.ws_dir / ROS_BUILD_BASE, name) for name in (p.name for p in ros)}
+    kinds = {symlink_installed(ws.ws_dir / ROS_BUILD_BASE, p.name) for p in ros}
     if kinds == {True} and "--symlink-install" not in last and not settings.symlink_install:
         last = (*last, "--symlink-install")
         notify("building with --symlink-install, as the last builds of the packages tested were")

@@ -34,14 +34,12 @@ def caller_env(
 ) -> Mapping[str, str]:
     """This environment, for a node or shell in IMAGE: without an RMW_IMPLEMENTATION the image
     lacks (said), which ended every node; one GIVEN with --env is the user's choice, passed."""
-    labels = {LABEL_WORKSPACE: str(ws.root)}
     if any(name == "RMW_IMPLEMENTATION" for name, _ in given):
         return os.environ
-    if wanted := rmw.missing_rmw(runner.engine, image, config.ros_image, config.ros_distro, os.environ, labels):
-        environ, said = rmw.without_rmw(os.environ, wanted, image)
+    environ, said = rmw.for_image(runner.engine, image, config, os.environ, {LABEL_WORKSPACE: str(ws.root)})
+    if said:
         notify(said)
-        return environ
-    return os.environ
+    return environ
 
 
 def user_name(uid: int) -> str | None:
@@ -95,7 +93,7 @@ def runtime_image(ws: Workspace, config: Config, plan: Plan | None = None) -> tu
     runner = ensure_images(ws, config, plan, engine)
     # A runtime image `run` or `compose` made is the workspace's as much as a build's: prune may take it.
     record_images(ws, runner, step.repository)
-    return runner, runtime_spec(ws, step).tag
+    return runner, spec.tag
 
 
 @app.command(context_settings={"allow_extra_args": True, "ignore_unknown_options": True, "help_option_names": []})

@@ -597,14 +597,13 @@ def user_defaults_file(env: Mapping[str, str]) -> Path:
     if env.get("COLCON_DEFAULTS_FILE"):
         return Path(env["COLCON_DEFAULTS_FILE"])
     home = env.get("HOME") or os.path.expanduser("~")
-    if os.geteuid() == 0 and env.get("SUDO_UID", "").isdigit() and int(env["SUDO_UID"]) != 0:
+    caller = env.get("SUDO_UID", "")
+    if os.geteuid() == 0 and caller.isdigit() and caller != "0" and Path(home) == Path(pwd.getpwuid(0).pw_dir):
         # `sudo espdock build` builds for its caller (their files, their stamps): root's defaults
         # (sudo's HOME is root's) turned their --symlink-install off, and everything was built
         # again, then again by their own next build.
         with contextlib.suppress(KeyError):
-            caller = pwd.getpwuid(int(env["SUDO_UID"])).pw_dir
-            if Path(home) == Path(pwd.getpwuid(0).pw_dir):
-                home = caller
+            home = pwd.getpwuid(int(caller)).pw_dir
     return Path(env.get("COLCON_HOME") or os.path.join(home, ".colcon")) / "defaults.yaml"
 
 

@@ -30,6 +30,7 @@ from espdock.images.engine import Mount, RunSpec
 from espdock.images.keyed import KeyedImages, image_mode
 from espdock.images.visibility import host_paths, links_out, workspace_mount
 from espdock.layout import FIRMWARE_DIR, MANIFEST_NAME, ROS_BUILD_BASE, WORKSPACE_MOUNT
+from espdock.ros import rmw
 from espdock.ros.colcon import (
     DEFAULTS_MOUNT,
     LAST_ARGS,
@@ -45,7 +46,6 @@ from espdock.ros.colcon import (
 )
 from espdock.ros.colcon_log import ColconLog, PackageState, explain_failure, named, usage_error
 from espdock.ros.plan import PYTHON_BUILD_TYPES, ColconBuild, RuntimeImage, runtime_image_spec
-from espdock.ros.rmw import missing_rmw, without_rmw
 from espdock.ros.runtime_tree import runtime_files
 from espdock.ros.testing import (
     ROS_TEST_LOGS,
@@ -503,12 +503,10 @@ class RosSteps:
             mounts.append(Mount(Path(step.defaults_file), DEFAULTS_MOUNT, read_only=True))
             env.append(("COLCON_DEFAULTS_FILE", DEFAULTS_MOUNT))
         sourced = SourcedEnv(workspace.ws_dir, step.image, tuple(env))
-        caller = self.containers.env
-        config = self.containers.config
-        if rmw := missing_rmw(
-            self.containers.engine, step.image, config.ros_image, config.ros_distro, caller, dict(labels)
-        ):
-            caller, said = without_rmw(caller, rmw, step.image)
+        caller, said = rmw.for_image(
+            self.containers.engine, step.image, self.containers.config, self.containers.env, dict(labels)
+        )
+        if said:
             self.containers.emit(StepNote(step.name, said.removeprefix("warning: ")))
         with workspace_lock(workspace):
             key = sourced.key()

@@ -96,16 +96,14 @@ def test_flash_refuses_a_port_that_is_not_one(tmp_path):
     assert "not a device path" in result.stderr
 
 
-def firmware_workspace(tmp_path: Path) -> Path:
-    """A workspace with the repo's led_strip_node firmware, its micro-ROS inputs, and no build."""
-    import shutil
-
+def firmware_workspace(tmp_path: Path, packages: tuple[str, ...] = ("led_strip_node",)) -> Path:
+    """A workspace with the repo's firmware PACKAGES, their micro-ROS inputs, and no build."""
     from tests.conftest import REPO
 
     root = copy_workspace(tmp_path / "w")
     shutil.copy2(REPO / "Dockerfile.idf", root / "Dockerfile.idf")
-    shutil.copytree(REPO / "firmware/led_strip_node", root / "firmware/led_strip_node")
-    shutil.copytree(REPO / "firmware/components", root / "firmware/components")
+    for package in (*packages, "components"):
+        shutil.copytree(REPO / "firmware" / package, root / "firmware" / package)
     return root
 
 
@@ -848,27 +846,33 @@ def test_compose_up_during_a_build_is_refused_before_it_makes_an_image_of_instal
     assert espdock("compose", "up", cwd=root, env=NO_ENGINE).returncode == 3
 
 
+# The repository's boards: camera_node depends on custom_interface, led_strip_node does not.
+BOTH_BOARDS = ("camera_node", "led_strip_node")
+
+
+def firmware_plan_said(root: Path) -> str:
+    """What `espdock build --dry-run --only firmware` says in ROOT (no engine), its whitespace folded;
+    the plan must succeed."""
+    plan = espdock("build", "--dry-run", "--only", "firmware", cwd=root, env=NO_ENGINE)
+    said = " ".join((plan.stdout + plan.stderr).split())
+    assert plan.returncode == 0, said
+    return said
+
+
 def test_a_node_beside_the_interfaces_of_the_firmware_s_library_is_warned_of(tmp_path):
     """custom_interface with a C++ node of its own (rclcpp beside rosidl_generate_interfaces, as many
     real packages are): the ROS side built it, and micro-ROS's library build, which runs its whole
     CMakeLists.txt with no rclcpp, would fail on it minutes in, without a word before."""
-    from tests.conftest import REPO
-
-    root = copy_workspace(tmp_path / "w")
-    shutil.copytree(REPO / "firmware", root / "firmware")
-    shutil.copy2(REPO / "Dockerfile.idf", root / "Dockerfile.idf")
+    root = firmware_workspace(tmp_path, BOTH_BOARDS)
     cmake = root / "ws/src/custom_interface/CMakeLists.txt"
     plain = cmake.read_text()
     tests = "if(BUILD_TESTING)\n  find_package(rclcpp REQUIRED)\n  if(UNIX)\n  endif()\nendif()\n"
     cmake.write_text(plain + tests)
-    quiet = espdock("build", "--dry-run", "--only", "firmware", cwd=root, env=NO_ENGINE)
-    assert quiet.returncode == 0 and "requires" not in quiet.stdout + quiet.stderr  # BUILD_TESTING is OFF there
+    assert "requires" not in firmware_plan_said(root)  # BUILD_TESTING is OFF there
     cmake.write_text(
         plain + "find_package(rclcpp REQUIRED)  # the node\nfind_package(rosidl_typesupport_cpp REQUIRED)\n"
     )
-    plan = espdock("build", "--dry-run", "--only", "firmware", cwd=root, env=NO_ENGINE)
-    said = " ".join((plan.stdout + plan.stderr).split())
-    assert plan.returncode == 0, said
+    said = firmware_plan_said(root)
     assert (
         "warning: camera_node's micro-ROS library holds custom_interface, whose CMakeLists.txt requires rclcpp, "
         "rosidl_typesupport_cpp: micro-ROS's library build runs the whole of it" in said
@@ -880,16 +884,10 @@ def test_a_type_micro_ros_cannot_build_in_an_interface_package_of_the_firmware_s
     """custom_interface, which camera_node depends on, used nav2_msgs/Costmap: rosdep gives the ROS
     side nav2_msgs, micro-ROS's library build has no such package and failed (minutes into a real
     one), and no warning came before, where the firmware's own unknown <depend>s get one."""
-    from tests.conftest import REPO
-
-    root = copy_workspace(tmp_path / "w")
-    shutil.copytree(REPO / "firmware", root / "firmware")
-    shutil.copy2(REPO / "Dockerfile.idf", root / "Dockerfile.idf")
+    root = firmware_workspace(tmp_path, BOTH_BOARDS)
     msg = root / "ws/src/custom_interface/msg/CameraConfig.msg"
     msg.write_text(msg.read_text() + "nav2_msgs/Costmap map\n")
-    plan = espdock("build", "--dry-run", "--only", "firmware", cwd=root, env=NO_ENGINE)
-    said = " ".join((plan.stdout + plan.stderr).split())
-    assert plan.returncode == 0, said
+    said = firmware_plan_said(root)
     assert (
         "warning: camera_node's micro-ROS library holds custom_interface, whose msg/CameraConfig.msg uses "
         "nav2_msgs/Costmap: nav2_msgs is in no package of this workspace" in said

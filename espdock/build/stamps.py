@@ -272,12 +272,15 @@ class StampFile:
         trees: Mapping[str, TreeState] | None = None,
         serves: Mapping[str, str] | None = None,
         against: Mapping[str, Mapping[str, str]] | None = None,
+        outside: Mapping[str, Mapping[str, str]] | None = None,
     ) -> None:
         """Record STAMPS with what is installed now (and each package's directory, from SOURCES,
         and its own sources' state, from TREES: tree_state), keeping other
         packages' records. SERVES: another stamp each package's build stands for as well (a test
         build's install is the one a plain build of the same sources would make). AGAINST: the
-        stamps of the packages each was built on, as they were (what `espdock run` compares)."""
+        stamps of the packages each was built on, as they were (what `espdock run` compares).
+        OUTSIDE: the files of the workspace outside its directory each one's build read, with
+        their contents' digests."""
         data = self.read()
         for name, stamp in stamps.items():
             data[name] = self._entry(name, sources, stamp=stamp, installed=installed.get(name))
@@ -285,6 +288,8 @@ class StampFile:
                 data[name]["serves"] = serves[name]
             if against and name in against:
                 data[name]["against"] = dict(against[name])  # type: ignore[assignment]
+            if outside and outside.get(name):
+                data[name]["outside"] = dict(outside[name])  # type: ignore[assignment]
             if trees and name in trees:
                 now = trees[name]
                 state = {"tree": now.digest, "newest": now.newest, "paths": list(now.paths), "declares": now.declares}

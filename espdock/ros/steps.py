@@ -31,6 +31,7 @@ from espdock.images.keyed import KeyedImages, image_mode
 from espdock.images.visibility import host_paths, links_out, workspace_mount
 from espdock.layout import FIRMWARE_DIR, MANIFEST_NAME, ROS_BUILD_BASE, WORKSPACE_MOUNT
 from espdock.ros import rmw
+from espdock.ros.cmake_inputs import file_digests, inputs_digest, outside_inputs
 from espdock.ros.colcon import (
     DEFAULTS_MOUNT,
     LAST_ARGS,
@@ -314,6 +315,8 @@ class RosSteps:
                 archives.append(volume.file_archive(DEFAULTS_MOUNT, Path(step.defaults_file).read_bytes()))
             env.append(("COLCON_DEFAULTS_FILE", DEFAULTS_MOUNT))
         log = ColconLog(workspace.ws_dir / "log")
+        sources_of = dict(step.sources)
+        outputs = [workspace.ws_dir / name for name in ("build", "install", "log")]
         output: list[str] = []
 
         ended = 0
@@ -357,12 +360,23 @@ class RosSteps:
                     )
                 )
             if built:
+                # What each read of the workspace outside its directory, as this build found it (a
+                # volume's build dirs are on the engine: not looked at), and the stamps that counts.
+                outside = recorded_outside(recorded)
+                for name in built:
+                    outside[name] = (
+                        outside_inputs(base / name, workspace.root, workspace.ws_dir / sources_of[name], outputs)
+                        if sync is None
+                        else []
+                    )
+                sources = source_digests(workspace, trees, outside)
+                chained = package_stamps(sources, depends, step.stamp_images(), dict(step.settings))
+                now = {name: chained[name] for name in stamps}
                 # Those recorded as built (their install is espdock's: `espdock run` takes it), with a
                 # stamp no package has: the next build builds them again.
-                recorded_stamps = {name: ON_OLD_INSTALL if on_old[name] else stamps[name] for name in built}
+                recorded_stamps = {name: ON_OLD_INSTALL if on_old[name] else now[name] for name in built}
                 serves = None
                 if step.serves:
-                    sources = {name: now.digest for name, now in trees.items()}
                     served = dict(step.serves)
                     images = {name: served.get(name, "") for name in sources}
                     plain = package_stamps(sources, dict(step.depends), images, dict(step.settings))
@@ -370,9 +384,10 @@ class RosSteps:
                 # Each one's dependencies' stamps as this build leaves them (built now, or up to
                 # date): a dependency rebuilt since, or edited, is one it was built on an older
                 # state of, whatever options either build was given.
-                built_on = {name: {dep: stamps[dep] for dep in closure([name], depends) - {name} if dep in stamps}
+                built_on = {name: {dep: now[dep] for dep in closure([name], depends) - {name} if dep in now}
                             for name in built}  # fmt: skip
-                stamp_file.record(recorded_stamps, installed(), dict(step.sources), trees, serves, built_on)
+                read_outside = {name: file_digests(workspace.root, outside[name]) for name in built}
+                stamp_file.record(recorded_stamps, installed(), sources_of, trees, serves, built_on, read_outside)
                 give_to(stamp_file.path, self.containers.owner)
             return built
 
@@ -428,9 +443,9 @@ class RosSteps:
             states is not None
             and not step.testing
             and every_package
-            and (recorded := record_build_args(base, step.colcon_args))
+            and (args_file := record_build_args(base, step.colcon_args))
         ):
-            give_to(recorded, self.containers.owner)
+            give_to(args_file, self.containers.owner)
         built = keep_built(states)
         self.unbuilt |= set(rebuild) - set(built)
         self._put_back(base, restore=states is None and code != 0)
@@ -586,13 +601,36 @@ def colcon_rebuild(
     sources put back with an older time."""
     stamp_file = StampFile(workspace.ws_dir / "build" / ROS_STAMPS, ROS_STAMP_FORMAT)
     trees = {name: tree_state(workspace.ws_dir / rel) for name, rel in step.sources}
-    sources = {name: now.digest for name, now in trees.items()}
+    sources = source_digests(workspace, trees, recorded_outside(stamp_file.read()))
     chained = package_stamps(sources, dict(step.depends), step.stamp_images(), dict(step.settings))
     stamps = {name: chained[name] for name in step.building}
     if step.force:
         return stamp_file, stamps, tuple(stamps), trees
     installed = {name: listing_digest(workspace.ws_dir / "install" / name) for name in stamps}
     return stamp_file, stamps, stamp_file.stale(stamps, installed, dict(step.sources)), trees
+
+
+def recorded_outside(recorded: Mapping[str, object]) -> dict[str, list[str]]:
+    """The files of the workspace outside each package's directory that its last build read
+    (espdock.ros.cmake_inputs), by the stamp file's RECORDED entries."""
+    return {
+        name: [path for path in outside if isinstance(path, str)]
+        for name, entry in recorded.items()
+        if isinstance(entry, dict) and isinstance(outside := entry.get("outside"), dict)
+    }
+
+
+def source_digests(
+    workspace: Workspace, trees: Mapping[str, TreeState], outside: Mapping[str, list[str]]
+) -> dict[str, str]:
+    """Each package's source digest: its directory's (TREES), with the files OUTSIDE it that its
+    last build read where there are any."""
+    return {
+        name: hashlib.sha256(f"{now.digest}\0{inputs_digest(workspace.root, outside[name])}".encode()).hexdigest()
+        if outside.get(name)
+        else now.digest
+        for name, now in trees.items()
+    }
 
 
 def _lost_from_build_dir(path: str, build_dir: Path) -> bool:
@@ -610,7 +648,13 @@ def edited_since_built(workspace: Workspace, package: Package) -> str | None:
     them as they are (an ament_python package's modules)."""
     entry = StampFile(workspace.ws_dir / "build" / ROS_STAMPS, ROS_STAMP_FORMAT).read().get(package.name)
     tree = entry.get("tree") if isinstance(entry, dict) else None
-    if not isinstance(tree, str) or tree == (now := tree_state(package.path)).digest:
+    if not isinstance(tree, str):
+        return None
+    if tree == (now := tree_state(package.path)).digest:
+        # A monorepo's shared header or CMake module (espdock.ros.cmake_inputs), compiled in.
+        read = entry.get("outside") if isinstance(entry, dict) else None
+        if isinstance(read, dict) and (changed := sorted(file_digests(workspace.root, read).items() - read.items())):
+            return f"what that build made of {', '.join(path for path, _ in changed)} as it was then"
         return None
     if not symlink_installed(workspace.ws_dir / ROS_BUILD_BASE, package.name):
         return "what that build installed"

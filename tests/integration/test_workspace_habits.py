@@ -10,13 +10,14 @@ from __future__ import annotations
 
 import os
 import random
+import shutil
 import subprocess
 from pathlib import Path
 
 import pytest
 
 from espdock.config import Config, resolve_ca_bundle
-from tests.conftest import Started, copy_workspace, espdock, ros_build_tag
+from tests.conftest import REPO, Started, copy_workspace, espdock, ros_build_tag
 from tests.ros_official_double.build import build_double, settings
 from tests.rosdep_db import environment
 
@@ -133,6 +134,59 @@ def test_a_cmake_package_that_globs_its_files_follows_a_branch_switch_both_ways(
     extra.chmod(0o755)
     built(root)
     assert (lib / "extra_banner").is_file(), "a file back in the glob's directory is installed again"
+
+
+def test_a_monorepo_s_shared_cmake_module_and_header_outside_the_package_rebuild_it(engine, tmp_path):
+    """A repository of packages beside what they share (`include(../cmake/label.cmake)`, a
+    `../include` of headers): an edit of either was no change of the package's stamp, and
+    espdock's build called it up to date and kept the old binary, where a native colcon build
+    runs make, which rebuilds."""
+    root = copy_workspace(tmp_path / "monorepo", packages=(), runtime_image=False)
+    repo = root / "ws/src/robot_repo"
+    package = repo / "uptime_tools"
+    shutil.copytree(REPO / "tests/ros_packages/uptime_tools", package)
+    (repo / "cmake").mkdir()
+    (repo / "cmake/label.cmake").write_text('set(REPORT_LABEL "first")\n')
+    (repo / "include/robot").mkdir(parents=True)
+    header = repo / "include/robot/unit.h"
+    header.write_text('#define REPORT_UNIT "s"\n')
+    cmake = package / "CMakeLists.txt"
+    cmake.write_text(
+        cmake.read_text()
+        .replace("find_package(ament_cmake REQUIRED)", "find_package(ament_cmake REQUIRED)\n"
+                 "include(${CMAKE_CURRENT_SOURCE_DIR}/../cmake/label.cmake)")
+        .replace("install(TARGETS",
+                 "target_include_directories(uptime_report PRIVATE ${CMAKE_CURRENT_SOURCE_DIR}/../include)\n"
+                 'target_compile_definitions(uptime_report PRIVATE "REPORT_LABEL=\\"${REPORT_LABEL}\\"")\n'
+                 "install(TARGETS")
+    )  # fmt: skip
+    source = package / "src/uptime_report.c"
+    source.write_text(
+        '#include "robot/unit.h"\n'
+        + source.read_text().replace(
+            '"uptime_report: up %.0f s\\n", up', '"uptime_report: up %.0f %s (%s)\\n", up, REPORT_UNIT, REPORT_LABEL'
+        )
+    )  # fmt: skip
+
+    def reports(text: str) -> None:
+        report = run_once(root, "uptime_tools", "uptime_report")
+        assert report.returncode == 0 and text in report.stdout, report.stdout + report.stderr
+
+    built(root)
+    reports(" s (first)")
+    header.write_text('#define REPORT_UNIT "seconds"\n')
+    stale = run_once(root, "uptime_tools", "uptime_report")
+    warned = " ".join((stale.stdout + stale.stderr).split())
+    assert "uptime_tools's sources changed since its last build" in warned, warned
+    assert "what that build made of ws/src/robot_repo/include/robot/unit.h as it was then" in warned, warned
+    rebuilt = espdock("build", "--only", "ros", cwd=root)
+    assert rebuilt.returncode == 0 and "1 package(s) built" in rebuilt.stdout, rebuilt.stdout[-3000:]
+    reports(" seconds (first)")
+    (repo / "cmake/label.cmake").write_text('set(REPORT_LABEL "second")\n')
+    built(root)
+    reports(" seconds (second)")
+    again = espdock("build", "--only", "ros", cwd=root)
+    assert again.returncode == 0 and "up to date (1 package(s))" in again.stdout, again.stdout[-3000:]
 
 
 def test_symlink_install_on_the_official_flavour_runs_from_a_runtime_image_without_build(engine, tmp_path):

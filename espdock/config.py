@@ -185,7 +185,7 @@ def _checked(raw: Mapping[str, Any], strict: bool, where: Callable[[str], str]) 
 
 def _read_toml(path: Path) -> dict[str, Any]:
     try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
+        data = tomllib.loads(path.read_text(encoding="utf-8-sig"))  # past a Windows editor's byte order mark
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{path} is not valid TOML: {exc}") from exc
     except UnicodeDecodeError as exc:  # TOML is UTF-8: a Latin-1 editor's ü

@@ -605,6 +605,12 @@ def editor_leftover(rel: str) -> bool:
     )
 
 
+def text_digest(data: bytes) -> str:
+    """sha256 of a text file's DATA as its lines read: a checkout's line endings (Git for
+    Windows' autocrlf makes every line CRLF) and a leading byte order mark aside."""
+    return hashlib.sha256(data.removeprefix(b"\xef\xbb\xbf").replace(b"\r\n", b"\n")).hexdigest()
+
+
 def read_image_inputs(root: Path, directory: str, exclude: tuple[str, ...] = ()) -> dict[str, bytes]:
     """The files under ROOT/DIRECTORY that an image is built from, keyed by path relative to ROOT."""
     return {f"{directory}/{rel}": data for rel, data in read_tree(root / directory, exclude).items()}

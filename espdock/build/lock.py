@@ -12,7 +12,6 @@ what IDF installed under its constraints, which only the real IDF image knows (d
 
 from __future__ import annotations
 
-import hashlib
 import json
 import os
 import shlex
@@ -32,7 +31,7 @@ from espdock.ros import rosdeps, testdeps
 from espdock.ros.plan import base_image, ros_image
 from espdock.ros.rosdeps import ROS_IMAGE_PYTHON
 from espdock.ros.system_python import SystemPython, probe_image
-from espdock.workspace import BuildInputs, LeftOut, Package, select_up_to, write_atomically
+from espdock.workspace import BuildInputs, LeftOut, Package, select_up_to, text_digest, write_atomically
 
 INPUT_MARK = "# espdock-lock-input:"
 FIX = "run `espdock lock`"
@@ -76,12 +75,13 @@ LOCKS = (
 
 
 def digest(rel: str, data: bytes) -> str:
-    """The sha256 a lock records for its input REL holding DATA."""
+    """The sha256 a lock records for its input REL holding DATA: of what it says, so a clone with
+    other line endings finds the same lock current (espdock.workspace.text_digest)."""
     if Path(rel).name == "pyproject.toml":
-        project = tomllib.loads(data.decode()).get("project", {})
+        project = tomllib.loads(data.decode("utf-8-sig")).get("project", {})
         wanted = {k: project.get(k) for k in ("requires-python", "dependencies", "optional-dependencies")}
         data = json.dumps(wanted, sort_keys=True).encode()
-    return hashlib.sha256(data).hexdigest()
+    return text_digest(data)
 
 
 def header(spec: LockSpec, digests: Mapping[str, str]) -> str:

@@ -209,7 +209,14 @@ def _main(
 
 
 def notify(text: str) -> None:
-    console.print(Text(text, style="dim"))
+    console.print(Text(visible(text), style="dim"))
+
+
+def visible(text: str) -> str:
+    """TEXT with each carriage return that ends no line shown as `\\r`: Rich drops it, and a value
+    read from a file with Windows line endings (a script's `crlf_py\\r`) was said as the same
+    name it was told to be wrong beside."""
+    return text.replace("\r\n", "\n").replace("\r", "\\r")
 
 
 def load(workspace: Path | None, **overrides: object) -> tuple[Workspace, Config]:
@@ -269,9 +276,9 @@ def fail(exc: EspdockError) -> NoReturn:
         import traceback
 
         traceback.print_exception(exc)
-    lines = [Text.assemble(("error: ", "bold red"), exc.message)]
+    lines = [Text.assemble(("error: ", "bold red"), visible(exc.message))]
     if exc.hint:
-        lines.append(Text.assemble(("hint: ", "yellow"), exc.hint))
+        lines.append(Text.assemble(("hint: ", "yellow"), visible(exc.hint)))
     for line in lines:
         err_console.print(stamped(line) if STAMPED["errors"] else line)
     sys.exit(exc.exit_code)

@@ -287,7 +287,8 @@ _IDF_TARGET_LINE = re.compile(r'^CONFIG_IDF_TARGET="?([A-Za-z0-9_]+)"?\s*$', re.
 
 def declared_target(defaults: Mapping[str, bytes]) -> str | None:
     """The chip a firmware's sdkconfig.defaults names (CONFIG_IDF_TARGET, as IDF reads it), if any."""
-    match = _IDF_TARGET_LINE.search(defaults.get("sdkconfig.defaults", b"").decode(errors="replace"))
+    # utf-8-sig: past a Windows editor's byte order mark, which IDF's CMake (file(STRINGS)) skips too.
+    match = _IDF_TARGET_LINE.search(defaults.get("sdkconfig.defaults", b"").decode("utf-8-sig", errors="replace"))
     return match.group(1) if match else None
 
 
@@ -353,7 +354,7 @@ def check_idf_image(reference: str) -> None:
 
 def _check_colcon_meta(package: str, text: str) -> None:
     try:
-        names = json.loads(text).get("names", {})
+        names = json.loads(text.removeprefix("\ufeff")).get("names", {})  # colcon reads it as YAML: a BOM passes
         if not isinstance(names, dict):
             raise AttributeError("'names' is not an object")
     except (json.JSONDecodeError, AttributeError) as exc:

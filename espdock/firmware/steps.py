@@ -675,9 +675,13 @@ def _defaults_files(project: Path, target: str) -> list[Path]:
 
 
 def _defaults_digest(project: Path, target: str) -> str:
+    """The digest of PROJECT's sdkconfig.defaults files for TARGET, whose change makes the
+    sdkconfig afresh: of their settings, not of a checkout's line endings (Git for Windows'
+    autocrlf, then WSL's git, rewrite every line and nothing else) or byte order mark."""
     digest = hashlib.sha256()
     for path in _defaults_files(project, target):
-        digest.update(path.name.encode() + b"\0" + path.read_bytes())
+        text = path.read_bytes().removeprefix(b"\xef\xbb\xbf").replace(b"\r\n", b"\n")
+        digest.update(path.name.encode() + b"\0" + text)
     return digest.hexdigest()[:16]
 
 

@@ -29,7 +29,7 @@ from espdock.layout import (
 )
 from espdock.ros import rosdeps
 from espdock.ros.colcon import ColconSettings, left_out, sets_build_testing, with_build_testing
-from espdock.workspace import BuildInputs, Package, PackageKind, Workspace, select_up_to
+from espdock.workspace import BuildInputs, Package, PackageKind, Workspace, select_up_to, text_digest
 
 
 @dataclass(frozen=True)
@@ -213,7 +213,7 @@ def ros_image(config: Config, inputs: BuildInputs) -> tuple[str, str, rosdeps.Ro
     text = inputs.ros_dockerfile
     locks = {rel: d for rel, d in sorted(inputs.ros_files.items()) if re.fullmatch(r"docker/ros-[a-z]+\.txt", rel)}
     provided = rosdeps.wheel_packages((data.decode(errors="replace") for data in locks.values()), config.ros_distro)
-    constraints = tuple((rel, hashlib.sha256(data).hexdigest()) for rel, data in locks.items())
+    constraints = tuple((rel, text_digest(data)) for rel, data in locks.items())
     return ROS_DOCKERFILE, text, rosdeps.RosImage("wheels", config.ros_distro, _rosdep_os(text), provided, constraints)
 
 

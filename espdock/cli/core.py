@@ -24,7 +24,7 @@ from espdock.build.runner import Runner
 from espdock.build.steps import Plan
 from espdock.cli.ui import STAMPED, QuietReporter, Reporter, stamped
 from espdock.config import Config, invoking_user, load_config, misspelt_variables
-from espdock.errors import DiskFull, EspdockBug, EspdockError, Interrupted
+from espdock.errors import ConfigError, DiskFull, EspdockBug, EspdockError, Interrupted
 from espdock.firmware.plan import IdfBuild
 from espdock.images import bootstrap
 from espdock.images.engine import Engine
@@ -220,6 +220,9 @@ def visible(text: str) -> str:
 
 
 def load(workspace: Path | None, **overrides: object) -> tuple[Workspace, Config]:
+    if workspace is not None and not workspace.is_dir():
+        # A workspace looked for above a path that is not there was found where the user was.
+        raise ConfigError(f"--workspace {workspace}: no such directory", "Give the workspace's root directory.")
     ws = find_workspace(workspace)
     config = load_config(ws.root, os.environ, overrides)
     for warning in misspelt_variables(os.environ):

@@ -5,7 +5,7 @@ from __future__ import annotations
 import os
 import pwd
 import sys
-import time
+import uuid
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Annotated
@@ -96,7 +96,15 @@ def runtime_image(ws: Workspace, config: Config, plan: Plan | None = None) -> tu
     return runner, spec.tag
 
 
-@app.command(context_settings={"allow_extra_args": True, "ignore_unknown_options": True, "help_option_names": []})
+# Options after Compose's subcommand are Compose's (`exec -w DIR`, `up -w`): espdock's go before it.
+@app.command(
+    context_settings={
+        "allow_extra_args": True,
+        "ignore_unknown_options": True,
+        "allow_interspersed_args": False,
+        "help_option_names": [],
+    }
+)
 @command
 def compose(ctx: typer.Context, workspace: WorkspaceOption = None) -> None:
     """Run `docker compose ARGS...` in the workspace with espdock's settings (CA bundle) in its
@@ -126,16 +134,21 @@ def compose(ctx: typer.Context, workspace: WorkspaceOption = None) -> None:
     # The starter compose file's nodes run as ESPDOCK_USER: the user espdock builds for, as its own
     # containers do; in a rootless engine root, the engine's own user outside (the user's uid there
     # is a subordinate one, whose files in a mounted directory the user could not even remove).
-    owner = (0, 0) if engine.info().rootless else invoking_user(os.environ, ws.root)
-    env.setdefault("ESPDOCK_USER", ":".join(str(n) for n in owner))
+    # One the user set (the environment, the project's .env) is theirs: plain `docker compose`
+    # reads it as well.
+    if "ESPDOCK_USER" not in env and not nodes.env_file_sets(
+        nodes.compose_env_files(ctx.args, ws.root), "ESPDOCK_USER"
+    ):
+        owner = (0, 0) if engine.info().rootless else invoking_user(os.environ, ws.root)
+        env["ESPDOCK_USER"] = ":".join(str(n) for n in owner)
     ca_bundle = resolve_ca_bundle(config, os.environ)
     if ca_bundle is not None:
         env["ESPDOCK_CA_BUNDLE"] = str(ca_bundle)
-    started = time.time()
+    token = uuid.uuid4().hex
     try:
-        code = engine.run_compose(ctx.args, ws.root, env)
+        code = engine.run_compose(nodes.labelled_run(ctx.args, token), ws.root, env)
     except KeyboardInterrupt as exc:
-        if subcommand == "run" and engine.remove_compose_runs(ws.root, started):
+        if subcommand == "run" and engine.remove_labelled(nodes.LABEL_COMPOSE_RUN, token):
             # Without a terminal Compose ends and leaves the run's container running, --rm or not.
             raise Interrupted("interrupted; the container `compose run` started was stopped and removed") from None
         if subcommand != "up":
@@ -158,7 +171,11 @@ def compose(ctx: typer.Context, workspace: WorkspaceOption = None) -> None:
             "`espdock compose down` removes them (with the same -p/--profile options as `up`).",
         ) from None
     detached = {"-d", "--detach", "--wait"} & set(ctx.args)
-    if subcommand == "up" and not detached and (running := engine.compose_services_running(ws.root)):
+    if (
+        subcommand == "up"
+        and not detached
+        and (running := engine.compose_services_running(ws.root, compose_project(engine, ctx.args, ws.root, env)))
+    ):
         # A foreground `up` that returned with services left running: it failed on one service
         # (its port taken, say) after starting others, or the service it attached to (--attach)
         # stopped. Ctrl-C no longer reaches them.
@@ -168,6 +185,12 @@ def compose(ctx: typer.Context, workspace: WorkspaceOption = None) -> None:
             "`espdock compose down` stops them (with the same -p/--profile options as `up`)"
         )
     raise typer.Exit(code)
+
+
+def compose_project(engine: Engine, args: list[str], cwd: Path, env: dict[str, str]) -> str | None:
+    """The project a `compose ARGS` in CWD is about (Compose's options before its subcommand say)."""
+    at = nodes.compose_subcommand_at(args)
+    return engine.compose_project(args[:at] if at is not None else args, cwd, env)
 
 
 RUN_FILES = "the files and devices `espdock run` passes in (--volume, --device, FASTRTPS_DEFAULT_PROFILES_FILE)"

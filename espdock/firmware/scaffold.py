@@ -227,6 +227,10 @@ colcon_root = "{colcon_root}"
 # target = "esp32"
 # Behind a TLS-intercepting proxy: its CA bundle (default: the cert pip is configured with).
 # ca_bundle = "/path/to/corporate-ca.pem"
+# Make the runtime image of install/ (espdock/<name>:latest) with every build, so that plain
+# `docker compose up` runs what the last build installed (else `espdock compose up` and
+# `espdock run` make it when they start).
+# runtime_image = true
 """
 
 

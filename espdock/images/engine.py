@@ -1046,22 +1046,40 @@ class Engine:
             )
         return self._client.containers.prepare_model({"Id": container_id})
 
-    def remove_compose_runs(self, project_dir: Path, since: float) -> int:
-        """Remove the one-off containers (`compose run`) of the compose project in PROJECT_DIR
-        created at or after SINCE (epoch seconds); return how many. Compose leaves one running
-        when `compose run --rm` is interrupted without a terminal."""
-        selector = ["com.docker.compose.oneoff=True", f"com.docker.compose.project.working_dir={project_dir}"]
-        listed = self._all_containers({"label": selector})
-        started = [c["Id"] for c in listed if int(c.get("Created") or 0) >= int(since)]
-        for container_id in started:
-            _remove(self._handle(container_id), stop=False)
-        return len(started)
+    def remove_labelled(self, label: str, value: str) -> int:
+        """Remove the containers labelled LABEL=VALUE; return how many. Compose leaves the one of
+        a `compose run --rm` running when it is interrupted without a terminal."""
+        listed = self._all_containers({"label": [f"{label}={value}"]})
+        for container in listed:
+            _remove(self._handle(container["Id"]), stop=False)
+        return len(listed)
 
-    def compose_services_running(self, project_dir: Path) -> list[str]:
-        """The services of the compose project in PROJECT_DIR that have a running container."""
-        listed = self._all_containers(
-            {"label": [f"com.docker.compose.project.working_dir={project_dir}"], "status": ["running"]}
-        )
+    def compose_project(self, global_args: Sequence[str], cwd: Path, env: Mapping[str, str]) -> str | None:
+        """The name of the compose project `docker compose GLOBAL_ARGS` in CWD is about (by -p,
+        COMPOSE_PROJECT_NAME, .env, the file's `name:` or the directory: Compose's own say), or
+        None where Compose cannot tell."""
+        try:
+            shown = subprocess.run(
+                [*self.compose_command(), *global_args, "config", "--format", "json"],
+                cwd=cwd,
+                env=contexts.cli_env(env),
+                capture_output=True,
+                text=True,
+                timeout=60,
+                check=False,
+            )
+            name = json.loads(shown.stdout).get("name") if shown.returncode == 0 else None
+        except (OSError, subprocess.TimeoutExpired, ValueError, AttributeError):
+            return None
+        return name if isinstance(name, str) else None
+
+    def compose_services_running(self, project_dir: Path, project: str | None = None) -> list[str]:
+        """The services of the compose project in PROJECT_DIR (named PROJECT, where known: another
+        `-p` there is another project) that have a running container."""
+        selector = [f"com.docker.compose.project.working_dir={project_dir}"]
+        if project is not None:
+            selector.append(f"com.docker.compose.project={project}")
+        listed = self._all_containers({"label": selector, "status": ["running"]})
         labels = [c.get("Labels") or {} for c in listed]
         return sorted({str(lab.get("com.docker.compose.service", "?")) for lab in labels})
 

@@ -18,6 +18,8 @@ COMPOSE_TEMPLATE = """\
 #
 #   espdock build                            builds the packages
 #   espdock compose up                       makes the image below of install/, starts the nodes
+#   (plain `docker compose up` runs that image as espdock last made it: `runtime_image = true`
+#   in espdock.toml makes it with every `espdock build`)
 #   espdock compose up talker                only some of them
 #   espdock compose --profile hardware up    also the micro-ROS agent, for ESP32 boards
 #   espdock compose --profile serial up      the agent for a board on USB/UART (MICROROS_SERIAL_DEVICE)

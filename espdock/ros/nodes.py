@@ -233,20 +233,59 @@ COMPOSE_VALUED_OPTIONS = frozenset(
      "--progress", "--parallel"}
 )  # fmt: skip
 # The subcommands that make containers of the images: the runtime image must be current first.
-COMPOSE_CREATING = frozenset({"up", "run", "create"})
+COMPOSE_CREATING = frozenset({"up", "run", "create", "scale", "watch"})
+# A label espdock gives the container of its `compose run`: the one to remove when it is interrupted.
+LABEL_COMPOSE_RUN = "io.espdock.compose-run"
 
 
 def compose_subcommand(args: list[str] | tuple[str, ...]) -> str | None:
     """The Compose subcommand in ARGS (`up` in `-p x --profile sim up -d`), or None."""
+    at = compose_subcommand_at(args)
+    return None if at is None else args[at]
+
+
+def compose_subcommand_at(args: list[str] | tuple[str, ...]) -> int | None:
+    """Where the Compose subcommand is in ARGS (after the global options), or None."""
     skip = False
-    for arg in args:
+    for at, arg in enumerate(args):
         if skip:
             skip = False
         elif arg in COMPOSE_VALUED_OPTIONS:
             skip = True
         elif not arg.startswith("-"):
-            return arg
+            return at
     return None
+
+
+def compose_env_files(args: list[str] | tuple[str, ...], root: Path) -> list[Path]:
+    """The env files a `compose ARGS` in ROOT reads: each `--env-file` before its subcommand (relative
+    to ROOT), else ROOT's `.env`."""
+    at = compose_subcommand_at(args)
+    before = list(args[:at] if at is not None else args)
+    given = [root / value for option, value in itertools.pairwise(before) if option == "--env-file"]
+    given += [root / arg.removeprefix("--env-file=") for arg in before if arg.startswith("--env-file=")]
+    return given or [root / ".env"]
+
+
+def env_file_sets(paths: Iterable[Path], name: str) -> bool:
+    """Whether one of the env files PATHS sets NAME (`NAME=...`, Compose's .env syntax)."""
+    for path in paths:
+        try:
+            lines = path.read_text(encoding="utf-8-sig", errors="replace").splitlines()
+        except OSError:
+            continue
+        if any(line.strip().removeprefix("export ").split("=", 1)[0].strip() == name for line in lines if "=" in line):
+            return True
+    return False
+
+
+def labelled_run(args: list[str], token: str) -> list[str]:
+    """ARGS of a `compose run` with its container labelled LABEL_COMPOSE_RUN=TOKEN (run's own
+    `--label`), so that espdock removes that container and no other one-off of the project's."""
+    at = compose_subcommand_at(args)
+    if at is None or args[at] != "run":
+        return list(args)
+    return [*args[: at + 1], "--label", f"{LABEL_COMPOSE_RUN}={token}", *args[at + 1 :]]
 
 
 def volume(text: str, cwd: Path) -> Mount:

@@ -438,20 +438,36 @@ def test_init_writes_a_starter_compose_file_whose_services_start_and_talk(engine
         # there too, and a node writing into a mounted directory of the user's was refused.
         ran = compose("run", "--rm", "--no-deps", "--entrypoint", "id", "beacon", "-u")
         assert ran.stdout.split() == ["10001"], ran.stdout + ran.stderr
+        # Compose's own `-w` (run's and exec's --workdir) is Compose's: espdock took it for its
+        # --workspace, and said "not inside an espdock workspace: no espdock.toml in /etc".
         mine = subprocess.run(
             [sys.executable, "-m", "espdock", "compose", "-p", project, "run", "--rm", "--no-deps",
-             "--entrypoint", "id", "beacon", "-u"],
+             "-w", "/etc", "--entrypoint", "sh", "beacon", "-c", "id -u && pwd"],
             cwd=node_workspace, env={**env, "SUDO_UID": "1234", "SUDO_GID": "1234"},
             capture_output=True, text=True, timeout=300, check=False,
         )  # fmt: skip
-        assert mine.stdout.split()[-1:] == ["1234"], mine.stdout + mine.stderr
+        assert mine.stdout.split()[-2:] == ["1234", "/etc"], mine.stdout + mine.stderr
+        # The user's own ESPDOCK_USER in the project's .env, which plain Compose reads, is theirs.
+        (node_workspace / ".env").write_text("# the stack's settings\nESPDOCK_USER=4321\n")
+        try:
+            theirs = subprocess.run(
+                [sys.executable, "-m", "espdock", "compose", "-p", project, "run", "--rm", "--no-deps",
+                 "--entrypoint", "id", "beacon", "-u"],
+                cwd=node_workspace, env={**env, "SUDO_UID": "1234", "SUDO_GID": "1234"},
+                capture_output=True, text=True, timeout=300, check=False,
+            )  # fmt: skip
+        finally:
+            (node_workspace / ".env").unlink()
+        assert theirs.stdout.split()[-1:] == ["4321"], theirs.stdout + theirs.stderr
     finally:
         compose("--profile", "*", "down", "-v", "--remove-orphans", "-t", "3")
 
 
 def test_ctrl_c_without_a_terminal_ends_compose_run_and_removes_its_container(engine, node_workspace):
     """`espdock compose run --rm SERVICE` interrupted by `kill -INT` (CI, a script): espdock said
-    interrupted and exited, while Compose left the run's container up, as plain Compose does."""
+    interrupted and exited, while Compose left the run's container up, as plain Compose does.
+    Another `compose run` started meanwhile in the same directory (a colleague's plain one) is
+    not its to remove: it was removed too, its output cut off with 137."""
     project = f"espdock-test-oneoff-{os.getpid()}-{random.randrange(16**6):06x}"
     file = node_workspace / f"{project}.yaml"
     file.write_text(
@@ -462,12 +478,17 @@ def test_ctrl_c_without_a_terminal_ends_compose_run_and_removes_its_container(en
     oneoff = ["docker", "ps", "-aq", "--filter", f"label=com.docker.compose.project={project}"]
     try:
         run = Started(node_workspace, "compose", "-p", project, "-f", file.name, "run", "--rm", "beacon")
-        code, took = run.interrupt_on("sent: beacon 1", timeout=300)
+        run.wait_for("sent: beacon 1", timeout=300)
+        other = subprocess.run(
+            ["docker", "compose", "-p", project, "-f", file.name, "run", "-d", "--no-deps", "beacon"],
+            cwd=node_workspace, capture_output=True, text=True, timeout=120, check=True,
+        ).stdout.split()[-1]  # fmt: skip
+        code, took = run.interrupt_timed()
         assert took < 15, took
         assert code == 130, run.output()
         assert "the container `compose run` started was stopped and removed" in run.output()
         left = subprocess.run(oneoff, capture_output=True, text=True, check=True).stdout.split()
-        assert left == [], "the run's container is still there"
+        assert left == [other[:12]], "the run's container is still there, or the other run's is gone"
     finally:
         down = ["docker", "compose", "-p", project, "-f", file.name, "down", "--remove-orphans", "-t", "1"]
         subprocess.run(down, cwd=node_workspace, capture_output=True, check=False)
@@ -770,6 +791,14 @@ def test_compose_up_that_fails_on_a_taken_port_names_the_services_it_left_runnin
                 "  first:\n    image: debian:bookworm-slim\n    command: [sleep, '60']\n    init: true\n"
                 "  console:\n    image: debian:bookworm-slim\n    command: [sleep, '1']\n    depends_on: [first]\n"
             )
+            # Another project's services from the same directory (`-p robot2`, a second copy of
+            # the stack) are not this one's to stop: they were named, and `down` left them.
+            (root / "other.yaml").write_text(
+                "services:\n  stranger:\n    image: debian:bookworm-slim\n    command: [sleep, '60']\n    init: true\n"
+            )
+            other = subprocess.run(["docker", "compose", "-p", f"{project}-other", "-f", "other.yaml", "up", "-d"],
+                                   cwd=root, capture_output=True, text=True, timeout=120, check=False)  # fmt: skip
+            assert other.returncode == 0, other.stderr
             attached = espdock("compose", "-p", project, "up", "--attach", "console", cwd=root, timeout=120)
             said = " ".join((attached.stdout + attached.stderr).split())
             assert attached.returncode == 0, said
@@ -777,6 +806,8 @@ def test_compose_up_that_fails_on_a_taken_port_names_the_services_it_left_runnin
         finally:
             subprocess.run(["docker", "compose", "-p", project, "down", "-t", "0"], cwd=root, capture_output=True,
                            check=False)  # fmt: skip
+            subprocess.run(["docker", "compose", "-p", f"{project}-other", "-f", "other.yaml", "down", "-t", "0"],
+                           cwd=root, capture_output=True, check=False)  # fmt: skip
 
 
 def test_a_loaded_runtime_image_runs_without_the_images_it_was_made_from(engine, tmp_path):

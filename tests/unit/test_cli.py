@@ -893,3 +893,12 @@ def test_a_type_micro_ros_cannot_build_in_an_interface_package_of_the_firmware_s
         "nav2_msgs/Costmap: nav2_msgs is in no package of this workspace" in said
     ), said
     assert "led_strip_node's micro-ROS library holds custom_interface" not in said  # it does not depend on it
+
+
+def test_a_workspace_option_naming_no_directory_is_refused(tmp_path):
+    """`espdock compose exec -w src ...` took Compose's -w for espdock's --workspace, and `src`,
+    which is not there, found the workspace above it: the command ran, elsewhere than asked."""
+    root = copy_workspace(tmp_path / "w", packages=())
+    result = espdock("list", "--workspace", "src", cwd=root)
+    assert result.returncode == 2, result.stdout + result.stderr
+    assert "--workspace src: no such directory" in result.stderr, result.stderr

@@ -667,7 +667,8 @@ def read_build_inputs(workspace: Workspace, packages: Iterable[Package]) -> Buil
             if p.kind is PackageKind.ROS and p.is_interface
         },
         app_metas={
-            p.name: (p.path / "app-colcon.meta").read_text()
+            # Past a Windows editor's byte order mark, as colcon reads it (YAML).
+            p.name: (p.path / "app-colcon.meta").read_text(encoding="utf-8-sig")
             for p in packages
             if p.kind is PackageKind.FIRMWARE and (p.path / "app-colcon.meta").is_file()
         },

@@ -43,7 +43,8 @@ def preview(workspace: Workspace, plan: Plan, engine: Engine | None, registry: b
                 if present is False:
                     made.add(step.spec.tag)
             case ColconBuild():
-                _, stamps, rebuild, _ = colcon_rebuild(workspace, step)
+                found = colcon_rebuild(workspace, step)
+                stamps, rebuild = found.stamps, found.rebuild
                 out = left_out(step.colcon_args, dict(step.depends), workspace.ws_dir / ROS_BUILD_BASE)
                 building = [name for name in rebuild if name not in out]
                 if rebuild:

@@ -288,12 +288,21 @@ class StampFile:
                 data[name]["serves"] = serves[name]
             if against and name in against:
                 data[name]["against"] = dict(against[name])  # type: ignore[assignment]
-            if outside and outside.get(name):
+            if outside is not None and name in outside:
                 data[name]["outside"] = dict(outside[name])  # type: ignore[assignment]
             if trees and name in trees:
                 now = trees[name]
                 state = {"tree": now.digest, "newest": now.newest, "paths": list(now.paths), "declares": now.declares}
                 data[name].update(state)  # type: ignore[arg-type]
+        self._write(data)
+
+    def list_outside(self, outside: Mapping[str, Mapping[str, str]]) -> None:
+        """Give the records of OUTSIDE's packages (kept as they are otherwise) what each one's
+        build read of the workspace outside its directory (espdock.ros.cmake_inputs)."""
+        data = self.read()
+        for name, read in outside.items():
+            if isinstance(data.get(name), dict):
+                data[name]["outside"] = dict(read)  # type: ignore[assignment]
         self._write(data)
 
     def _write(self, data: Mapping[str, object]) -> None:

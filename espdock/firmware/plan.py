@@ -354,7 +354,7 @@ def check_idf_image(reference: str) -> None:
 
 def _check_colcon_meta(package: str, text: str) -> None:
     try:
-        names = json.loads(text.removeprefix("\ufeff")).get("names", {})  # colcon reads it as YAML: a BOM passes
+        names = json.loads(text).get("names", {})
         if not isinstance(names, dict):
             raise AttributeError("'names' is not an object")
     except (json.JSONDecodeError, AttributeError) as exc:

@@ -12,6 +12,7 @@ import shutil
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import replace
 from pathlib import Path
+from typing import NamedTuple
 
 from espdock.build.stamps import StampFile, TreeState, listing_digest, package_stamps, tree_state
 from espdock.build.steps import EnsureImage, ImageSpec
@@ -31,7 +32,7 @@ from espdock.images.keyed import KeyedImages, image_mode
 from espdock.images.visibility import host_paths, links_out, workspace_mount
 from espdock.layout import FIRMWARE_DIR, MANIFEST_NAME, ROS_BUILD_BASE, WORKSPACE_MOUNT
 from espdock.ros import rmw
-from espdock.ros.cmake_inputs import file_digests, inputs_digest, outside_inputs
+from espdock.ros.cmake_inputs import file_digests, fold, outside_inputs
 from espdock.ros.colcon import (
     DEFAULTS_MOUNT,
     LAST_ARGS,
@@ -250,7 +251,10 @@ class RosSteps:
         shutil.rmtree(base / ASIDE, ignore_errors=True)
 
     def colcon_build(self, workspace: Workspace, step: ColconBuild) -> tuple[Outcome, str]:
-        stamp_file, stamps, rebuild, trees = colcon_rebuild(workspace, step)
+        found = colcon_rebuild(workspace, step)
+        stamp_file, stamps, rebuild, trees = found.stamp_file, found.stamps, found.rebuild, found.trees
+        if found.unlisted:
+            stamp_file.list_outside({name: {} for name in found.unlisted})
 
         def installed() -> dict[str, str | None]:
             return {name: listing_digest(workspace.ws_dir / "install" / name) for name in stamps}
@@ -316,7 +320,6 @@ class RosSteps:
             env.append(("COLCON_DEFAULTS_FILE", DEFAULTS_MOUNT))
         log = ColconLog(workspace.ws_dir / "log")
         sources_of = dict(step.sources)
-        outputs = [workspace.ws_dir / name for name in ("build", "install", "log")]
         output: list[str] = []
 
         ended = 0
@@ -362,14 +365,21 @@ class RosSteps:
             if built:
                 # What each read of the workspace outside its directory, as this build found it (a
                 # volume's build dirs are on the engine: not looked at), and the stamps that counts.
-                outside = recorded_outside(recorded)
+                # A file it read before is taken as it was before the build (one saved during the
+                # build may not be what it compiled); one new to it, as it is now.
+                outside = dict(found.outside)
                 for name in built:
-                    outside[name] = (
-                        outside_inputs(base / name, workspace.root, workspace.ws_dir / sources_of[name], outputs)
+                    before = found.outside[name]
+                    paths = (
+                        outside_inputs(
+                            base / name, workspace.root, workspace.ws_dir / sources_of[name], colcon_outputs(workspace)
+                        )
                         if sync is None
                         else []
                     )
-                sources = source_digests(workspace, trees, outside)
+                    now_read = file_digests(workspace.root, [path for path in paths if path not in before])
+                    outside[name] = {path: before.get(path) or now_read[path] for path in paths}
+                sources = {name: fold(tree.digest, outside[name]) for name, tree in trees.items()}
                 chained = package_stamps(sources, depends, step.stamp_images(), dict(step.settings))
                 now = {name: chained[name] for name in stamps}
                 # Those recorded as built (their install is espdock's: `espdock run` takes it), with a
@@ -386,7 +396,7 @@ class RosSteps:
                 # state of, whatever options either build was given.
                 built_on = {name: {dep: now[dep] for dep in closure([name], depends) - {name} if dep in now}
                             for name in built}  # fmt: skip
-                read_outside = {name: file_digests(workspace.root, outside[name]) for name in built}
+                read_outside = {name: outside[name] for name in built}
                 stamp_file.record(recorded_stamps, installed(), sources_of, trees, serves, built_on, read_outside)
                 give_to(stamp_file.path, self.containers.owner)
             return built
@@ -591,9 +601,21 @@ class RosSteps:
         return outcome, f"{spec.tag}, {step.stable_tag}"
 
 
-def colcon_rebuild(
-    workspace: Workspace, step: ColconBuild
-) -> tuple[StampFile, dict[str, str], tuple[str, ...], dict[str, TreeState]]:
+class Rebuild(NamedTuple):
+    """What colcon_rebuild found of a ColconBuild's packages."""
+
+    stamp_file: StampFile
+    stamps: dict[str, str]  # the stamps of the packages it builds, as they are now
+    rebuild: tuple[str, ...]  # which of them colcon gets
+    trees: dict[str, TreeState]  # each package's own sources
+    # Each package's files outside its directory its last build read (espdock.ros.cmake_inputs),
+    # with their digests now; and the packages an espdock before that list recorded, whose
+    # build dirs say they read none (their records get an empty one: not looked for again).
+    outside: dict[str, dict[str, str]]
+    unlisted: tuple[str, ...]
+
+
+def colcon_rebuild(workspace: Workspace, step: ColconBuild) -> Rebuild:
     """STEP's stamp file, the stamps of the packages it builds as they are now, which of them
     colcon gets (the changed ones and, their stamps being chained, what depends on them; all of
     them with --force; the rest are up to date in install/, where colcon finds them), and each
@@ -601,36 +623,35 @@ def colcon_rebuild(
     sources put back with an older time."""
     stamp_file = StampFile(workspace.ws_dir / "build" / ROS_STAMPS, ROS_STAMP_FORMAT)
     trees = {name: tree_state(workspace.ws_dir / rel) for name, rel in step.sources}
-    sources = source_digests(workspace, trees, recorded_outside(stamp_file.read()))
+    recorded = stamp_file.read()
+    outside, unlisted, known = {}, [], {}
+    for name, rel in step.sources:
+        entry = recorded.get(name)
+        listed = entry.get("outside") if isinstance(entry, dict) else None
+        if isinstance(listed, dict):
+            paths = [path for path in listed if isinstance(path, str)]
+        elif isinstance(entry, dict):
+            # Built by an espdock before this list: what its build dir says the build read (an
+            # edit since is unknown, so one found builds the package once).
+            base = workspace.ws_dir / ROS_BUILD_BASE / name
+            paths = outside_inputs(base, workspace.root, workspace.ws_dir / rel, colcon_outputs(workspace))
+            unlisted += [] if paths else [name]
+        else:
+            paths = []
+        outside[name] = file_digests(workspace.root, paths, known)
+    sources = {name: fold(now.digest, outside[name]) for name, now in trees.items()}
     chained = package_stamps(sources, dict(step.depends), step.stamp_images(), dict(step.settings))
     stamps = {name: chained[name] for name in step.building}
     if step.force:
-        return stamp_file, stamps, tuple(stamps), trees
+        return Rebuild(stamp_file, stamps, tuple(stamps), trees, outside, tuple(unlisted))
     installed = {name: listing_digest(workspace.ws_dir / "install" / name) for name in stamps}
-    return stamp_file, stamps, stamp_file.stale(stamps, installed, dict(step.sources)), trees
+    rebuild = stamp_file.stale(stamps, installed, dict(step.sources))
+    return Rebuild(stamp_file, stamps, rebuild, trees, outside, tuple(unlisted))
 
 
-def recorded_outside(recorded: Mapping[str, object]) -> dict[str, list[str]]:
-    """The files of the workspace outside each package's directory that its last build read
-    (espdock.ros.cmake_inputs), by the stamp file's RECORDED entries."""
-    return {
-        name: [path for path in outside if isinstance(path, str)]
-        for name, entry in recorded.items()
-        if isinstance(entry, dict) and isinstance(outside := entry.get("outside"), dict)
-    }
-
-
-def source_digests(
-    workspace: Workspace, trees: Mapping[str, TreeState], outside: Mapping[str, list[str]]
-) -> dict[str, str]:
-    """Each package's source digest: its directory's (TREES), with the files OUTSIDE it that its
-    last build read where there are any."""
-    return {
-        name: hashlib.sha256(f"{now.digest}\0{inputs_digest(workspace.root, outside[name])}".encode()).hexdigest()
-        if outside.get(name)
-        else now.digest
-        for name, now in trees.items()
-    }
+def colcon_outputs(workspace: Workspace) -> list[Path]:
+    """colcon's output dirs: no input of a package, wherever its build read them."""
+    return [workspace.ws_dir / name for name in ("build", "install", "log")]
 
 
 def _lost_from_build_dir(path: str, build_dir: Path) -> bool:
@@ -670,8 +691,9 @@ def built_on_older(workspace: Workspace, step: ColconBuild, package: str) -> lis
     on that were rebuilt or edited since (by the stamps its build recorded of them; a record of an
     older espdock: those of them STEP would build, [] where only PACKAGE would build); None where
     there are none, or its own sources changed (edited_since_built says that)."""
-    stamp_file, _, rebuild, trees = colcon_rebuild(workspace, step)
-    recorded = stamp_file.read()
+    found = colcon_rebuild(workspace, step)
+    rebuild, trees = found.rebuild, found.trees
+    recorded = found.stamp_file.read()
     entry = recorded.get(package)
     if not isinstance(entry, dict) or package not in trees or entry.get("tree") != trees[package].digest:
         return None
@@ -683,7 +705,10 @@ def built_on_older(workspace: Workspace, step: ColconBuild, package: str) -> lis
             now = recorded.get(dep)
             if not isinstance(now, dict) or now.get("stamp") != stamp:
                 return True
-            return dep in trees and now.get("tree") != trees[dep].digest
+            read = now.get("outside")
+            return dep in trees and (
+                now.get("tree") != trees[dep].digest or (isinstance(read, dict) and read != found.outside.get(dep))
+            )
 
         return sorted(dep for dep, stamp in against.items() if changed(dep, stamp)) or None
     if package not in rebuild:

@@ -8,6 +8,7 @@ an installed script), both under tests/ros_packages.
 
 from __future__ import annotations
 
+import json
 import os
 import random
 import shutil
@@ -16,7 +17,11 @@ from pathlib import Path
 
 import pytest
 
-from espdock.config import Config, resolve_ca_bundle
+from espdock.build.prepare import build_plan
+from espdock.config import Config, load_config, resolve_ca_bundle
+from espdock.ros.plan import ColconBuild
+from espdock.ros.steps import colcon_rebuild
+from espdock.workspace import PackageKind, find_workspace
 from tests.conftest import REPO, Started, copy_workspace, espdock, ros_build_tag
 from tests.ros_official_double.build import build_double, settings
 from tests.rosdep_db import environment
@@ -136,20 +141,37 @@ def test_a_cmake_package_that_globs_its_files_follows_a_branch_switch_both_ways(
     assert (lib / "extra_banner").is_file(), "a file back in the glob's directory is installed again"
 
 
+WRAPPER_PACKAGE = """<?xml version="1.0"?>
+<package format="3">
+  <name>uptime_wrapper</name>
+  <version>0.1.0</version>
+  <description>Runs the monorepo's uptime report.</description>
+  <maintainer email="dev@example.com">dev</maintainer>
+  <license>Apache-2.0</license>
+  <buildtool_depend>ament_cmake</buildtool_depend>
+  <exec_depend>uptime_tools</exec_depend>
+  <export><build_type>ament_cmake</build_type></export>
+</package>
+"""
+
+
 def test_a_monorepo_s_shared_cmake_module_and_header_outside_the_package_rebuild_it(engine, tmp_path):
     """A repository of packages beside what they share (`include(../cmake/label.cmake)`, a
-    `../include` of headers): an edit of either was no change of the package's stamp, and
-    espdock's build called it up to date and kept the old binary, where a native colcon build
-    runs make, which rebuilds."""
+    `../include` of headers, a `../config` file installed): an edit of one was no change of the
+    package's stamp, and espdock's build called it up to date and kept the old binary, where a
+    native colcon build runs make, which rebuilds."""
     root = copy_workspace(tmp_path / "monorepo", packages=(), runtime_image=False)
     repo = root / "ws/src/robot_repo"
     package = repo / "uptime_tools"
     shutil.copytree(REPO / "tests/ros_packages/uptime_tools", package)
-    (repo / "cmake").mkdir()
+    for directory in ("cmake", "include/robot", "config", "tools", "uptime_wrapper"):
+        (repo / directory).mkdir(parents=True)
     (repo / "cmake/label.cmake").write_text('set(REPORT_LABEL "first")\n')
-    (repo / "include/robot").mkdir(parents=True)
     header = repo / "include/robot/unit.h"
     header.write_text('#define REPORT_UNIT "s"\n')
+    (repo / "config/report.yaml").write_text("period: 1\n")
+    retired = repo / "tools/retired.c"
+    retired.write_text("int main(void) { return 0; }\n")
     cmake = package / "CMakeLists.txt"
     cmake.write_text(
         cmake.read_text()
@@ -158,6 +180,8 @@ def test_a_monorepo_s_shared_cmake_module_and_header_outside_the_package_rebuild
         .replace("install(TARGETS",
                  "target_include_directories(uptime_report PRIVATE ${CMAKE_CURRENT_SOURCE_DIR}/../include)\n"
                  'target_compile_definitions(uptime_report PRIVATE "REPORT_LABEL=\\"${REPORT_LABEL}\\"")\n'
+                 "add_executable(retired ${CMAKE_CURRENT_SOURCE_DIR}/../tools/retired.c)\n"
+                 "install(FILES ${CMAKE_CURRENT_SOURCE_DIR}/../config/report.yaml DESTINATION share/${PROJECT_NAME})\n"
                  "install(TARGETS")
     )  # fmt: skip
     source = package / "src/uptime_report.c"
@@ -167,10 +191,24 @@ def test_a_monorepo_s_shared_cmake_module_and_header_outside_the_package_rebuild
             '"uptime_report: up %.0f s\\n", up', '"uptime_report: up %.0f %s (%s)\\n", up, REPORT_UNIT, REPORT_LABEL'
         )
     )  # fmt: skip
+    wrapper = repo / "uptime_wrapper"
+    (wrapper / "package.xml").write_text(WRAPPER_PACKAGE)
+    (wrapper / "CMakeLists.txt").write_text(
+        "cmake_minimum_required(VERSION 3.8)\nproject(uptime_wrapper NONE)\nfind_package(ament_cmake REQUIRED)\n"
+        "install(PROGRAMS wrapper DESTINATION lib/${PROJECT_NAME})\nament_package()\n"
+    )
+    (wrapper / "wrapper").write_text(
+        "#!/bin/sh\nexec /opt/espdock/ws/install/uptime_tools/lib/uptime_tools/uptime_report\n"
+    )
+    (wrapper / "wrapper").chmod(0o755)
 
     def reports(text: str) -> None:
         report = run_once(root, "uptime_tools", "uptime_report")
         assert report.returncode == 0 and text in report.stdout, report.stdout + report.stderr
+
+    def builds(count: str) -> None:
+        result = espdock("build", "--only", "ros", cwd=root)
+        assert result.returncode == 0 and count in result.stdout, result.stdout[-3000:] + result.stderr[-2000:]
 
     built(root)
     reports(" s (first)")
@@ -179,14 +217,43 @@ def test_a_monorepo_s_shared_cmake_module_and_header_outside_the_package_rebuild
     warned = " ".join((stale.stdout + stale.stderr).split())
     assert "uptime_tools's sources changed since its last build" in warned, warned
     assert "what that build made of ws/src/robot_repo/include/robot/unit.h as it was then" in warned, warned
-    rebuilt = espdock("build", "--only", "ros", cwd=root)
-    assert rebuilt.returncode == 0 and "1 package(s) built" in rebuilt.stdout, rebuilt.stdout[-3000:]
+    # What depends on it is warned of as well: built on other sources of uptime_tools.
+    through = run_once(root, "uptime_wrapper", "wrapper")
+    warned = " ".join((through.stdout + through.stderr).split())
+    assert "uptime_wrapper was built on other sources of the workspace packages it depends on" in warned, warned
+    builds("2 package(s) built")
     reports(" seconds (first)")
     (repo / "cmake/label.cmake").write_text('set(REPORT_LABEL "second")\n')
-    built(root)
+    builds("2 package(s) built")
     reports(" seconds (second)")
-    again = espdock("build", "--only", "ros", cwd=root)
-    assert again.returncode == 0 and "up to date (1 package(s))" in again.stdout, again.stdout[-3000:]
+    (repo / "config/report.yaml").write_text("period: 2\n")
+    builds("2 package(s) built")
+    assert (root / "ws/install/uptime_tools/share/uptime_tools/report.yaml").read_text() == "period: 2\n"
+    # A source no target compiles any more (its object's depfile stays in the build dir) is no input.
+    cmake.write_text(
+        cmake.read_text().replace("add_executable(retired ${CMAKE_CURRENT_SOURCE_DIR}/../tools/retired.c)\n", "")
+    )
+    builds("2 package(s) built")
+    retired.write_text("int main(void) { return 1; }\n")
+    builds("up to date (2 package(s))")
+    # Built by an espdock before these lists (records without them, stamps of the directories
+    # alone): a shared file edited since is found from the build dir, and builds once.
+    stamps = root / "ws/build/.espdock-colcon-stamps.json"
+    records = json.loads(stamps.read_text())
+    for entry in records.values():
+        entry["outside"] = {}
+    stamps.write_text(json.dumps(records))
+    config = load_config(root, {})
+    ws = find_workspace(root).with_layout(config.package_paths, config.colcon_root)
+    plan = build_plan(ws, config, [], PackageKind.ROS, env=os.environ, notify=lambda text: None)
+    step = next(step for step in plan.steps if isinstance(step, ColconBuild))
+    for name, stamp in colcon_rebuild(ws, step).stamps.items():
+        records[name] = {key: value for key, value in records[name].items() if key != "outside"} | {"stamp": stamp}
+    stamps.write_text(json.dumps(records))
+    header.write_text('#define REPORT_UNIT "sec"\n')
+    builds("2 package(s) built")
+    reports(" sec (second)")
+    builds("up to date (2 package(s))")
 
 
 def test_symlink_install_on_the_official_flavour_runs_from_a_runtime_image_without_build(engine, tmp_path):

@@ -5,15 +5,16 @@ decides from it."""
 
 from __future__ import annotations
 
+import shutil
 import subprocess
 import sys
 from pathlib import Path
 
 from espdock.config import load_config
-from espdock.firmware.plan import _check_colcon_meta, declared_target
+from espdock.firmware.plan import declared_target
 from espdock.firmware.provision import read_password
 from espdock.firmware.steps import _defaults_digest
-from tests.conftest import copy_workspace, espdock
+from tests.conftest import REPO, copy_workspace, espdock
 from tests.unit.test_provision import Stdin
 
 BOM = b"\xef\xbb\xbf"
@@ -57,7 +58,12 @@ def test_files_a_windows_editor_saved_with_a_bom_are_read(tmp_path):
     reads as YAML: "Unexpected UTF-8 BOM"; a Wi-Fi password file: "must be printable ASCII"."""
     (tmp_path / "espdock.toml").write_bytes(BOM + b'# settings\r\n[espdock]\r\ntarget = "esp32s3"\r\n')
     assert load_config(tmp_path, {}).target == "esp32s3"
-    _check_colcon_meta("board", (BOM + b'{"names": {"rmw_microxrcedds": {}}}\r\n').decode())
+    root = copy_workspace(tmp_path / "w", packages=())
+    shutil.copytree(REPO / "firmware", root / "firmware")
+    crlf(root / "firmware/camera_node/app-colcon.meta", bom=True)
+    planned = espdock("build", "--dry-run", cwd=root, env=NO_ENGINE)
+    assert planned.returncode == 0, planned.stdout[-2000:] + planned.stderr
+    assert "idf.py build camera_node" in planned.stdout
     secret = tmp_path / "wifi"
     secret.write_bytes(BOM + b"hunter2hunter2\r\n")
     assert read_password(str(secret), Stdin(), lambda: "x") == "hunter2hunter2"

@@ -21,11 +21,13 @@ class BuildWithWorkspaceDefaults(build_py):
     def run(self) -> None:
         super().run()
         target = Path(self.build_lib) / "espdock" / PACKAGED
+        # build/lib outlives a build in the checkout: a file deleted since must not ship again.
+        shutil.rmtree(target, ignore_errors=True)
         for rel in SHIPPED:
             source, dest = ROOT / rel, target / rel
             dest.parent.mkdir(parents=True, exist_ok=True)
             if source.is_dir():
-                shutil.copytree(source, dest, dirs_exist_ok=True, ignore=shutil.ignore_patterns("__pycache__"))
+                shutil.copytree(source, dest, dirs_exist_ok=True, ignore=shutil.ignore_patterns("__pycache__", "*~", ".#*", "*.swp", "*.orig", "*.rej"))
             else:
                 shutil.copy2(source, dest)
 

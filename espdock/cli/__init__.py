@@ -81,7 +81,7 @@ def main() -> NoReturn:
     try:
         try:
             register(sys.argv[1:])
-            app()
+            app(prog_name="espdock")  # `python -m espdock` too: its help and completion are the command's
         except KeyboardInterrupt:  # in Typer's own code, before or after the command
             fail(INTERRUPTED)
         except OSError as exc:  # in Typer's: its help, `--version`

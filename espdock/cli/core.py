@@ -37,7 +37,7 @@ from espdock.workspace import (
 app = typer.Typer(
     help="Build ESP-IDF firmware, micro-ROS and a ROS 2 workspace reproducibly, in containers.",
     no_args_is_help=True,
-    add_completion=False,
+    add_completion=True,
     pretty_exceptions_enable=False,
 )
 # 128 + SIGPIPE: what a shell reports for a command a closed pipe ended.

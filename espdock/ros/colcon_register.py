@@ -40,8 +40,17 @@ venv = sys.prefix != sys.base_prefix
 where = sysconfig.get_paths()["purelib"] if venv else site.getusersitepackages()
 eps = entry_points()
 group = eps.select(group="colcon_core.task.build") if hasattr(eps, "select") else eps.get("colcon_core.task.build", [])
-found = [e.value for e in group if e.name == "ros.esp_idf"]
-print(json.dumps({"where": where, "found": found, "user_site": bool(site.ENABLE_USER_SITE), "venv": venv}))
+found, loaded = [], []
+for e in group:
+    if e.name == "ros.esp_idf":
+        found.append(e.value)
+        try:
+            e.load()
+            loaded.append(e.value)
+        except Exception:
+            pass
+user_site = bool(site.ENABLE_USER_SITE)
+print(json.dumps({"where": where, "found": found, "loaded": loaded, "user_site": user_site, "venv": venv}))
 """
 
 
@@ -83,7 +92,9 @@ def colcon_python(colcon: str | None, env: dict[str, str]) -> ColconPython:
             "Install espdock into colcon's Python instead (`pip install` beside colcon).",
         )
     found = tuple(value for value in answer["found"] if not value.startswith(f"{SHIM}:"))
-    return ColconPython(python, Path(answer["where"]), found, loads=bool(answer["found"]))
+    # Declared is not loaded: a shim left pointing at a venv removed since (`pipx reinstall` with
+    # another Python) fails to import espdock, and colcon skips the firmware all the same.
+    return ColconPython(python, Path(answer["where"]), found, loads=bool(answer["loaded"]))
 
 
 def colcon_skips_firmware(env: dict[str, str]) -> str | None:

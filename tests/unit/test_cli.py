@@ -902,3 +902,14 @@ def test_a_workspace_option_naming_no_directory_is_refused(tmp_path):
     result = espdock("list", "--workspace", "src", cwd=root)
     assert result.returncode == 2, result.stdout + result.stderr
     assert "--workspace src: no such directory" in result.stderr, result.stderr
+
+
+def test_the_shell_completes_commands_and_options(tmp_path):
+    """`espdock --install-completion` was "No such option", and there was no completion at all."""
+    env = {**os.environ, "_ESPDOCK_COMPLETE": "complete_bash", "COMP_CWORD": "2"}
+    completed = subprocess.run([sys.executable, "-m", "espdock"], cwd=tmp_path, capture_output=True, text=True,
+                               env={**env, "COMP_WORDS": "espdock build --dr"}, check=False)  # fmt: skip
+    assert completed.returncode == 0 and completed.stdout.split() == ["--dry-run"], completed.stdout + completed.stderr
+    shown = subprocess.run([sys.executable, "-m", "espdock", "--show-completion", "bash"], cwd=tmp_path,
+                           capture_output=True, text=True, check=False)  # fmt: skip
+    assert shown.returncode == 0 and "complete -o default -F _espdock_completion espdock" in shown.stdout, shown.stdout

@@ -142,20 +142,20 @@ def run_main(app: str) -> subprocess.CompletedProcess:
 
 def test_an_interrupt_outside_any_command_still_exits_130():
     # As if Ctrl-C came while Typer parsed, or after the command returned.
-    result = run_main("def app():\n    raise KeyboardInterrupt")
+    result = run_main("def app(**options):\n    raise KeyboardInterrupt")
     assert result.returncode == 130
     assert "interrupted" in result.stderr
 
 
 def test_an_interrupt_python_swallowed_still_exits_130():
     # Python only prints an exception raised in a weakref or GC callback: the command went on.
-    result = run_main('def app():\n    interrupts._state["first"] = time.monotonic()\n    sys.exit(0)')
+    result = run_main('def app(**options):\n    interrupts._state["first"] = time.monotonic()\n    sys.exit(0)')
     assert result.returncode == 130
 
 
 def test_the_command_s_own_exit_code_is_kept():
-    assert run_main("def app():\n    sys.exit(5)").returncode == 5
-    assert run_main("def app():\n    sys.exit(0)").returncode == 0
+    assert run_main("def app(**options):\n    sys.exit(5)").returncode == 5
+    assert run_main("def app(**options):\n    sys.exit(0)").returncode == 0
 
 
 def test_a_command_started_with_its_output_closed_keeps_its_exit_code():

@@ -670,7 +670,10 @@ class Engine:
             raise ImageBuildError(
                 f"building {build.tag} from {build.dockerfile} (stage {build.target}) "
                 f"on the {self.info().name} failed:\n" + "\n".join(tail),
-                _runtime_hint(str(error)) or _network_hint(offline.line, ENGINE_PROXIES) or READ_THE_OUTPUT,
+                _runtime_hint(str(error))
+                or _line_endings_hint("\n".join(tail))
+                or _network_hint(offline.line, ENGINE_PROXIES)
+                or READ_THE_OUTPUT,
             )
 
     def _post_build(
@@ -1452,7 +1455,24 @@ def _buildkit_hint(tail: Sequence[str], offline: str | None = None) -> str:
             f"The docker CLI could not make its config dir {config.group(1)}: point DOCKER_CONFIG at a "
             "directory you can write (or make that one writable)."
         )
-    return _network_hint(offline) or READ_THE_OUTPUT
+    return _line_endings_hint(output) or _network_hint(offline) or READ_THE_OUTPUT
+
+
+# What a shell says of a script with Windows line endings: dash's `set -eu\r`, bash's `\r` as a
+# command, env's `python3\r` (shown as it is, or in bash's $'...' quoting).
+CRLF_SYMPTOM = re.compile(r"Illegal option -\r?$|\$'\\r'|\r['\u2019:]", re.MULTILINE)
+
+
+def _line_endings_hint(output: str) -> str | None:
+    """What to do when a build failed on a Dockerfile's script with Windows line endings (a
+    checkout with Git for Windows' autocrlf)."""
+    if not CRLF_SYMPTOM.search(output):
+        return None
+    return (
+        "A script the build runs has Windows line endings (CRLF), as a checkout with Git for Windows' "
+        "core.autocrlf makes them: put `* text=auto eol=lf` in the repository's .gitattributes and check the "
+        "files out again (`git rm --cached -r . && git reset --hard`), or convert them (dos2unix)."
+    )
 
 
 def _split_ref(ref: str) -> tuple[str, str]:

@@ -696,3 +696,17 @@ def test_a_node_run_as_a_background_job_of_the_terminal_forwards_neither_it_nor_
         os.close(secondary)
     assert (tmp_path / "fg").read_text().split() == ["False", "True"]
     assert (tmp_path / "bg").read_text().split() == ["True", "False"]
+
+
+def test_a_script_with_windows_line_endings_is_named_as_such():
+    """A Windows checkout's docker/apt-install.sh: the image build failed on dash's "set: Illegal
+    option -" and the hint said to read the output."""
+    from espdock.images.engine import _buildkit_hint
+
+    dash = ["#9 0.213 /usr/local/bin/apt-install: 6: set: Illegal option -", "#9 ERROR: process did not complete"]
+    assert "Windows line endings (CRLF)" in _buildkit_hint(dash)
+    env = ["#9 0.2 /usr/bin/env: \u2018python3\r\u2019: No such file or directory", "#9 ERROR: exit code: 127"]
+    assert "Windows line endings (CRLF)" in _buildkit_hint(env)
+    bash = ["#9 0.2 /tmp/setup.sh: line 2: $'\\r': command not found"]
+    assert "Windows line endings (CRLF)" in _buildkit_hint(bash)
+    assert "Windows line endings" not in _buildkit_hint(["#9 0.2 set: -o: invalid option", "#9 ERROR"])

@@ -171,9 +171,11 @@ def compose(ctx: typer.Context, workspace: WorkspaceOption = None) -> None:
             "`espdock compose down` removes them (with the same -p/--profile options as `up`).",
         ) from None
     detached = {"-d", "--detach", "--wait"} & set(ctx.args)
+    # Compose names the project only where something runs there (it costs a `compose config`).
     if (
         subcommand == "up"
         and not detached
+        and engine.compose_services_running(ws.root)
         and (running := engine.compose_services_running(ws.root, compose_project(engine, ctx.args, ws.root, env)))
     ):
         # A foreground `up` that returned with services left running: it failed on one service

@@ -16,18 +16,22 @@ ROOT = Path(__file__).resolve().parent
 sys.path.insert(0, str(ROOT))
 from espdock.defaults import PACKAGED, SHIPPED  # noqa: E402  (stdlib-only module of the source tree)
 
+# Caches and editors' leftovers beside the defaults: never shipped.
+LEFTOVERS = shutil.ignore_patterns("__pycache__", "*~", ".#*", "*.swp", "*.orig", "*.rej")
+
 
 class BuildWithWorkspaceDefaults(build_py):
     def run(self) -> None:
+        # build/lib outlives a build in the checkout: a module, template or default deleted since
+        # must not ship again.
+        shutil.rmtree(Path(self.build_lib) / "espdock", ignore_errors=True)
         super().run()
         target = Path(self.build_lib) / "espdock" / PACKAGED
-        # build/lib outlives a build in the checkout: a file deleted since must not ship again.
-        shutil.rmtree(target, ignore_errors=True)
         for rel in SHIPPED:
             source, dest = ROOT / rel, target / rel
             dest.parent.mkdir(parents=True, exist_ok=True)
             if source.is_dir():
-                shutil.copytree(source, dest, dirs_exist_ok=True, ignore=shutil.ignore_patterns("__pycache__", "*~", ".#*", "*.swp", "*.orig", "*.rej"))
+                shutil.copytree(source, dest, dirs_exist_ok=True, ignore=LEFTOVERS)
             else:
                 shutil.copy2(source, dest)
 

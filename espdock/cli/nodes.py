@@ -109,8 +109,10 @@ def runtime_image(ws: Workspace, config: Config, plan: Plan | None = None) -> tu
 def compose(ctx: typer.Context, workspace: WorkspaceOption = None) -> None:
     """Run `docker compose ARGS...` in the workspace with espdock's settings (CA bundle) in its
     environment; `up`, `run` and `create` first make the runtime image of what install/ holds."""
-    ws, config = load(workspace, runtime_image=True)
-    subcommand = nodes.compose_subcommand(ctx.args)
+    # Among Compose's global options (`-p NAME --workspace DIR ps`), click leaves it to Compose.
+    args, among = nodes.own_workspace(list(ctx.args))
+    ws, config = load(workspace or among, runtime_image=True)
+    subcommand = nodes.compose_subcommand(args)
     installed = nodes.installed_ros_packages(ws, workspace_packages(ws, config.ros_distro))
     if subcommand in nodes.COMPOSE_CREATING and installed and (holder := build_running(ws)) is not None:
         # Its runtime image would be made of a half rebuilt install/, and `:latest` moved to it.
@@ -127,7 +129,7 @@ def compose(ctx: typer.Context, workspace: WorkspaceOption = None) -> None:
         if any(isinstance(step, RuntimeImage) for step in plan.steps):
             runtime_image(ws, config, plan)
     if subcommand in nodes.COMPOSE_CREATING and (
-        warning := compose_file.foreign_compose_warning(ws.root, runtime_repository(config, ws), ctx.args)
+        warning := compose_file.foreign_compose_warning(ws.root, runtime_repository(config, ws), args)
     ):
         notify(warning)
     env = dict(os.environ)
@@ -137,7 +139,7 @@ def compose(ctx: typer.Context, workspace: WorkspaceOption = None) -> None:
     # One the user set (the environment, the project's .env) is theirs: plain `docker compose`
     # reads it as well.
     if "ESPDOCK_USER" not in env and not nodes.env_file_sets(
-        nodes.compose_env_files(ctx.args, ws.root), "ESPDOCK_USER"
+        nodes.compose_env_files(args, ws.root, env), "ESPDOCK_USER"
     ):
         owner = (0, 0) if engine.info().rootless else invoking_user(os.environ, ws.root)
         env["ESPDOCK_USER"] = ":".join(str(n) for n in owner)
@@ -146,11 +148,14 @@ def compose(ctx: typer.Context, workspace: WorkspaceOption = None) -> None:
         env["ESPDOCK_CA_BUNDLE"] = str(ca_bundle)
     token = uuid.uuid4().hex
     try:
-        code = engine.run_compose(nodes.labelled_run(ctx.args, token), ws.root, env)
+        code = engine.run_compose(nodes.labelled_run(args, token), ws.root, env)
     except KeyboardInterrupt as exc:
-        if subcommand == "run" and engine.remove_labelled(nodes.LABEL_COMPOSE_RUN, token):
-            # Without a terminal Compose ends and leaves the run's container running, --rm or not.
-            raise Interrupted("interrupted; the container `compose run` started was stopped and removed") from None
+        # Without a terminal Compose ends and leaves the run's container running, --rm or not:
+        # removed where --rm asked for it, else stopped and kept, as Compose keeps it at a terminal.
+        keep = "--rm" not in args[(nodes.compose_subcommand_at(args) or 0) :]
+        if subcommand == "run" and engine.end_labelled(nodes.LABEL_COMPOSE_RUN, token, remove=not keep):
+            done = "stopped (kept: run without --rm)" if keep else "stopped and removed"
+            raise Interrupted(f"interrupted; the container `compose run` started was {done}") from None
         if subcommand != "up":
             raise Interrupted("interrupted") from None
         if {"-d", "--detach"} & set(ctx.args):
@@ -170,13 +175,14 @@ def compose(ctx: typer.Context, workspace: WorkspaceOption = None) -> None:
             "interrupted; Compose stopped the services, their containers remain (stopped)",
             "`espdock compose down` removes them (with the same -p/--profile options as `up`).",
         ) from None
-    detached = {"-d", "--detach", "--wait"} & set(ctx.args)
+    detached = {"-d", "--detach", "--wait"} & set(args)
     # Compose names the project only where something runs there (it costs a `compose config`).
     if (
         subcommand == "up"
         and not detached
         and engine.compose_services_running(ws.root)
-        and (running := engine.compose_services_running(ws.root, compose_project(engine, ctx.args, ws.root, env)))
+        and (project := compose_project(engine, args, ws.root, env)) is not None
+        and (running := engine.compose_services_running(ws.root, project))
     ):
         # A foreground `up` that returned with services left running: it failed on one service
         # (its port taken, say) after starting others, or the service it attached to (--attach)

@@ -13,6 +13,7 @@ is imported only for anything else, and for every call to an engine over TCP or 
 from __future__ import annotations
 
 import collections
+import contextlib
 import csv
 import hashlib
 import io
@@ -1049,12 +1050,16 @@ class Engine:
             )
         return self._client.containers.prepare_model({"Id": container_id})
 
-    def remove_labelled(self, label: str, value: str) -> int:
-        """Remove the containers labelled LABEL=VALUE; return how many. Compose leaves the one of
-        a `compose run --rm` running when it is interrupted without a terminal."""
+    def end_labelled(self, label: str, value: str, remove: bool = True) -> int:
+        """Remove (or, not REMOVE, stop) the containers labelled LABEL=VALUE; return how many.
+        Compose leaves the one of a `compose run` running when it is interrupted without a terminal."""
         listed = self._all_containers({"label": [f"{label}={value}"]})
         for container in listed:
-            _remove(self._handle(container["Id"]), stop=False)
+            if remove:
+                _remove(self._handle(container["Id"]), stop=False)
+            else:
+                with contextlib.suppress(docker.errors.APIError, requests.exceptions.RequestException):
+                    self._handle(container["Id"]).stop(timeout=10)
         return len(listed)
 
     def compose_project(self, global_args: Sequence[str], cwd: Path, env: Mapping[str, str]) -> str | None:
@@ -1079,7 +1084,8 @@ class Engine:
     def compose_services_running(self, project_dir: Path, project: str | None = None) -> list[str]:
         """The services of the compose project in PROJECT_DIR (named PROJECT, where known: another
         `-p` there is another project) that have a running container."""
-        selector = [f"com.docker.compose.project.working_dir={project_dir}"]
+        # Not a `compose run`'s container (a colleague's one-off): no service `up` left running.
+        selector = [f"com.docker.compose.project.working_dir={project_dir}", "com.docker.compose.oneoff=False"]
         if project is not None:
             selector.append(f"com.docker.compose.project={project}")
         listed = self._all_containers({"label": selector, "status": ["running"]})

@@ -25,6 +25,8 @@ MAKEFILE_DEPENDS = re.compile(r"^set\(CMAKE_MAKEFILE_DEPENDS\n(.*?)^\s*\)", re.M
 # A target's DependInfo.cmake: source, object, compiler and depfile of each of its objects.
 DEPENDENCY_FILES = re.compile(r"^set\(CMAKE_DEPENDS_DEPENDENCY_FILES\n(.*?)^\s*\)", re.MULTILINE | re.DOTALL)
 QUOTED = re.compile(r'"([^"]*)"')
+# CONFIGURE_DEPENDS globs, which make re-runs CMake for when their result changes.
+VERIFIED_GLOB = re.compile(r'^file\(GLOB(?:_RECURSE)? NEW_GLOB\b[^"\n]*"([^"]+)"', re.MULTILINE)
 # An install script's includes: the install scripts of the subdirectories.
 INCLUDED = re.compile(r'^\s*include\("([^"]+/cmake_install\.cmake)"\)', re.MULTILINE)
 # A path in a make rule: backslash-escaped characters (a space) or anything but whitespace.
@@ -54,15 +56,27 @@ def outside_inputs(build_dir: Path, root: Path, package_dir: Path, outputs: Coll
             paths.add(source)
             paths.update(_rule_inputs(_read(directory.parent.parent / depfile)))
     paths.update(_installed(build_dir / "cmake_install.cmake", root))
+    # A glob's directory (up to its first wildcard): a file added there is one more input.
+    globbed = {re.split(r"[*?\[]", pattern, maxsplit=1)[0].rpartition("/")[0] + "/"
+               for pattern in VERIFIED_GLOB.findall(_read(cmake_files / "VerifyGlobs.cmake"))}  # fmt: skip
     found = set()
-    for path in map(posixpath.normpath, paths):
+    for path in (*map(posixpath.normpath, paths), *globbed):
         if (host := _host(path, root)) is None:
             continue  # the image's (/opt/ros, /usr): its tag is in the stamp already
         if any(host.is_relative_to(inside) for inside in (package_dir, *outputs)):
             continue
-        # A directory it installs (install(DIRECTORY ../config ...)): its files.
-        found.update(f.relative_to(root).as_posix() for f in (source_files(host) if host.is_dir() else [host]))
+        if host.is_dir():
+            # A directory it installs (install(DIRECTORY ../config ...)) or globs: its files, and
+            # which files it holds (LISTED), so that one added to it counts.
+            found.add(host.relative_to(root).as_posix() + LISTED)
+            found.update(f.relative_to(root).as_posix() for f in source_files(host))
+        elif not path.endswith("/"):
+            found.add(host.relative_to(root).as_posix())
     return sorted(found)
+
+
+# The mark of a directory's entry in outside_inputs: digested by the files it holds.
+LISTED = "/"
 
 
 def _host(path: str, root: Path) -> Path | None:
@@ -110,10 +124,14 @@ def file_digests(root: Path, paths: Iterable[str], known: dict[str, str] | None 
     digests = {}
     for rel in paths:
         if rel not in known:
-            try:
-                known[rel] = hashlib.sha256((root / rel).read_bytes()).hexdigest()
-            except OSError:
-                known[rel] = "not a file"
+            if rel.endswith(LISTED):
+                held = sorted(f.relative_to(root / rel).as_posix() for f in source_files(root / rel))
+                known[rel] = hashlib.sha256("\n".join(held).encode(errors="surrogateescape")).hexdigest()
+            else:
+                try:
+                    known[rel] = hashlib.sha256((root / rel).read_bytes()).hexdigest()
+                except OSError:
+                    known[rel] = "not a file"
         digests[rel] = known[rel]
     return digests
 

@@ -34,7 +34,7 @@ ENTRY_POINTS = (
 # Asked of colcon's Python: where it reads distributions from, and whether espdock's extension is
 # among them already (espdock installed beside colcon).
 _PROBE = """
-import json, site, sys, sysconfig
+import json, os, site, sys, sysconfig
 from importlib.metadata import entry_points
 venv = sys.prefix != sys.base_prefix
 where = sysconfig.get_paths()["purelib"] if venv else site.getusersitepackages()
@@ -46,9 +46,12 @@ for e in group:
         found.append(e.value)
         try:
             e.load()
-            loaded.append(e.value)
         except Exception:
-            pass
+            continue
+        # The Python the shim runs espdock with must be there too (a checkout's venv removed).
+        runs = getattr(sys.modules.get("espdock.ros.colcon_extension"), "ESPDOCK_PYTHON", sys.executable)
+        if os.access(runs, os.X_OK):
+            loaded.append(e.value)
 user_site = bool(site.ENABLE_USER_SITE)
 print(json.dumps({"where": where, "found": found, "loaded": loaded, "user_site": user_site, "venv": venv}))
 """
@@ -110,6 +113,12 @@ def colcon_skips_firmware(env: dict[str, str]) -> str | None:
         return None
     if target.loads:
         return None
+    if (target.site_dir / f"{SHIM}.py").is_file():
+        return (
+            f"`colcon build` with {colcon} skips firmware packages (a warning, exit code 0): espdock's extension "
+            f"is registered in its Python ({target.python}) but cannot be loaded: the espdock it was registered "
+            "from has moved or is gone; `espdock colcon-extension install` registers this one"
+        )
     return (
         f"`colcon build` with {colcon} skips firmware packages (a warning, exit code 0): colcon loads "
         f"extensions only from its own Python ({target.python}), and espdock's is not there; "

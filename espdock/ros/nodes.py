@@ -250,21 +250,54 @@ def compose_subcommand_at(args: list[str] | tuple[str, ...]) -> int | None:
     for at, arg in enumerate(args):
         if skip:
             skip = False
-        elif arg in COMPOSE_VALUED_OPTIONS:
+        elif arg in COMPOSE_VALUED_OPTIONS or arg in WORKSPACE_OPTIONS:
             skip = True
         elif not arg.startswith("-"):
             return at
     return None
 
 
-def compose_env_files(args: list[str] | tuple[str, ...], root: Path) -> list[Path]:
-    """The env files a `compose ARGS` in ROOT reads: each `--env-file` before its subcommand (relative
-    to ROOT), else ROOT's `.env`."""
+# espdock's own option among Compose's global ones (Compose has no global -w).
+WORKSPACE_OPTIONS = ("--workspace", "-w")
+
+
+def own_workspace(args: list[str]) -> tuple[list[str], Path | None]:
+    """ARGS without espdock's `--workspace DIR` where it stands before Compose's subcommand, among
+    Compose's global options (`-p NAME --workspace DIR ps`), and DIR (None: not given)."""
+    at = compose_subcommand_at(args)
+    before, after = list(args[:at] if at is not None else args), list(args[at:] if at is not None else [])
+    kept, workspace = [], None
+    pending = iter(before)
+    for arg in pending:
+        if arg in WORKSPACE_OPTIONS:
+            workspace = next(pending, None)
+        elif arg.startswith("--workspace="):
+            workspace = arg.removeprefix("--workspace=")
+        else:
+            kept.append(arg)
+    return kept + after, Path(workspace) if workspace else None
+
+
+def global_values(args: list[str] | tuple[str, ...], option: str) -> list[str]:
+    """The values of Compose's global OPTION (`--env-file`, `-f`) in ARGS, before its subcommand."""
     at = compose_subcommand_at(args)
     before = list(args[:at] if at is not None else args)
-    given = [root / value for option, value in itertools.pairwise(before) if option == "--env-file"]
-    given += [root / arg.removeprefix("--env-file=") for arg in before if arg.startswith("--env-file=")]
-    return given or [root / ".env"]
+    values = [value for name, value in itertools.pairwise(before) if name == option]
+    return values + [arg.removeprefix(f"{option}=") for arg in before if arg.startswith(f"{option}=")]
+
+
+def compose_env_files(args: list[str] | tuple[str, ...], root: Path, env: Mapping[str, str]) -> list[Path]:
+    """The env files a `compose ARGS` run in ROOT reads, as Compose finds them: each `--env-file`,
+    else COMPOSE_ENV_FILES', else the project directory's `.env` (--project-directory, else the
+    first compose file's directory, else ROOT)."""
+    if given := global_values(args, "--env-file"):
+        return [root / value for value in given]
+    if listed := env.get("COMPOSE_ENV_FILES"):
+        return [root / value for value in listed.split(",") if value]
+    project = global_values(args, "--project-directory") or [
+        posixpath.dirname(f) for f in (global_values(args, "-f") + global_values(args, "--file"))[:1]
+    ]
+    return [root / (project[0] if project else "") / ".env"]
 
 
 def env_file_sets(paths: Iterable[Path], name: str) -> bool:

@@ -447,6 +447,9 @@ def test_init_writes_a_starter_compose_file_whose_services_start_and_talk(engine
             capture_output=True, text=True, timeout=300, check=False,
         )  # fmt: skip
         assert mine.stdout.split()[-2:] == ["1234", "/etc"], mine.stdout + mine.stderr
+        # espdock's --workspace among Compose's global options, from elsewhere: click left it to Compose.
+        elsewhere = espdock("compose", "-p", project, "--workspace", str(node_workspace), "ps", cwd=Path("/"))
+        assert elsewhere.returncode == 0, elsewhere.stdout + elsewhere.stderr
         # The user's own ESPDOCK_USER in the project's .env, which plain Compose reads, is theirs.
         (node_workspace / ".env").write_text("# the stack's settings\nESPDOCK_USER=4321\n")
         try:
@@ -489,6 +492,14 @@ def test_ctrl_c_without_a_terminal_ends_compose_run_and_removes_its_container(en
         assert "the container `compose run` started was stopped and removed" in run.output()
         left = subprocess.run(oneoff, capture_output=True, text=True, check=True).stdout.split()
         assert left == [other[:12]], "the run's container is still there, or the other run's is gone"
+        # Without --rm Compose keeps a run's container (stopped, at a terminal): so does espdock.
+        kept = Started(node_workspace, "compose", "-p", project, "-f", file.name, "run", "--name", f"{project}-kept",
+                       "beacon")  # fmt: skip
+        kept.wait_for("sent: beacon 1", timeout=300)
+        assert kept.interrupt() == 130, kept.output()
+        assert "the container `compose run` started was stopped (kept: run without --rm)" in kept.output()
+        state = ["docker", "inspect", "-f", "{{.State.Status}}", f"{project}-kept"]
+        assert subprocess.run(state, capture_output=True, text=True, check=False).stdout.strip() == "exited"
     finally:
         down = ["docker", "compose", "-p", project, "-f", file.name, "down", "--remove-orphans", "-t", "1"]
         subprocess.run(down, cwd=node_workspace, capture_output=True, check=False)
@@ -799,6 +810,10 @@ def test_compose_up_that_fails_on_a_taken_port_names_the_services_it_left_runnin
             other = subprocess.run(["docker", "compose", "-p", f"{project}-other", "-f", "other.yaml", "up", "-d"],
                                    cwd=root, capture_output=True, text=True, timeout=120, check=False)  # fmt: skip
             assert other.returncode == 0, other.stderr
+            # A colleague's `compose run` of the project is no service `up` left running.
+            oneoff = ["docker", "compose", "-p", project, "run", "-d", "--no-deps", "console", "sleep", "60"]
+            colleague = subprocess.run(oneoff, cwd=root, capture_output=True, text=True, check=False)
+            assert colleague.returncode == 0, colleague.stderr
             attached = espdock("compose", "-p", project, "up", "--attach", "console", cwd=root, timeout=120)
             said = " ".join((attached.stdout + attached.stderr).split())
             assert attached.returncode == 0, said

@@ -181,7 +181,7 @@ def test_a_monorepo_s_shared_cmake_module_and_header_outside_the_package_rebuild
                  "target_include_directories(uptime_report PRIVATE ${CMAKE_CURRENT_SOURCE_DIR}/../include)\n"
                  'target_compile_definitions(uptime_report PRIVATE "REPORT_LABEL=\\"${REPORT_LABEL}\\"")\n'
                  "add_executable(retired ${CMAKE_CURRENT_SOURCE_DIR}/../tools/retired.c)\n"
-                 "install(FILES ${CMAKE_CURRENT_SOURCE_DIR}/../config/report.yaml DESTINATION share/${PROJECT_NAME})\n"
+                 "install(DIRECTORY ${CMAKE_CURRENT_SOURCE_DIR}/../config DESTINATION share/${PROJECT_NAME})\n"
                  "install(TARGETS")
     )  # fmt: skip
     source = package / "src/uptime_report.c"
@@ -228,7 +228,11 @@ def test_a_monorepo_s_shared_cmake_module_and_header_outside_the_package_rebuild
     reports(" seconds (second)")
     (repo / "config/report.yaml").write_text("period: 2\n")
     builds("2 package(s) built")
-    assert (root / "ws/install/uptime_tools/share/uptime_tools/report.yaml").read_text() == "period: 2\n"
+    config = root / "ws/install/uptime_tools/share/uptime_tools/config"
+    assert (config / "report.yaml").read_text() == "period: 2\n"
+    (repo / "config/limits.yaml").write_text("max: 3\n")  # one more file in the directory it installs
+    builds("2 package(s) built")
+    assert (config / "limits.yaml").read_text() == "max: 3\n"
     # A source no target compiles any more (its object's depfile stays in the build dir) is no input.
     cmake.write_text(
         cmake.read_text().replace("add_executable(retired ${CMAKE_CURRENT_SOURCE_DIR}/../tools/retired.c)\n", "")

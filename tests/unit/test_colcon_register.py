@@ -9,6 +9,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 from espdock.ros.colcon_register import ColconPython, espdock_site, install_shim, uninstall_shim
 
 FIND = """
@@ -59,4 +61,26 @@ def test_check_fails_where_the_shim_no_longer_finds_espdock(tmp_path):
     checked = subprocess.run([sys.executable, "-m", "espdock", "colcon-extension", "check"], env=env,
                              capture_output=True, text=True, check=False)  # fmt: skip
     assert checked.returncode == 2, checked.stdout + checked.stderr
-    assert f"`colcon build` with {colcon} skips firmware packages" in " ".join(checked.stderr.split())
+    said = " ".join(checked.stderr.split())
+    assert f"`colcon build` with {colcon} skips firmware packages" in said, said
+    assert "is registered in its Python (/usr/bin/python3) but cannot be loaded" in said, said
+
+
+def test_check_fails_where_the_python_the_shim_runs_espdock_with_is_gone(tmp_path):
+    """A checkout's venv removed: the shim loaded (espdock's site still there) and check passed,
+    and every firmware build in colcon failed on FileNotFoundError for the Python it runs."""
+    has_colcon = subprocess.run(["/usr/bin/python3", "-c", "import colcon_core"], capture_output=True, check=False)
+    if has_colcon.returncode != 0:
+        pytest.skip("Debian's colcon (python3-colcon-core) is not installed: `make test` installs it")
+    colcon = tmp_path / "bin/colcon"
+    colcon.parent.mkdir()
+    colcon.write_text("#!/usr/bin/python3\n")
+    colcon.chmod(0o755)
+    env = {**os.environ, "PATH": f"{colcon.parent}:{os.environ['PATH']}", "PYTHONUSERBASE": str(tmp_path / "user")}
+    site = subprocess.run(["/usr/bin/python3", "-m", "site", "--user-site"], env=env, capture_output=True,
+                          text=True, check=True).stdout.strip()  # fmt: skip
+    check = [sys.executable, "-m", "espdock", "colcon-extension", "check"]
+    for runs, code in ((sys.executable, 0), (str(tmp_path / "removed-venv/bin/python"), 2)):
+        install_shim(ColconPython("/usr/bin/python3", Path(site), ()), espdock_site(), runs)
+        checked = subprocess.run(check, env=env, capture_output=True, text=True, check=False)
+        assert checked.returncode == code, (runs, checked.stdout + checked.stderr)

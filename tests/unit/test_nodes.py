@@ -444,3 +444,23 @@ def test_run_tells_what_it_runs_of_a_package_edited_since_its_build(tmp_path):
     assert "compiled or generated" in (edited_since_built(workspace, cpp) or "")
     (py.path / "setup.py").write_text("setup(name='talk')\n")
     assert edited_since_built(workspace, py) is not None, "an entry point changed is not linked"
+
+
+def test_espdocks_workspace_option_and_the_env_files_compose_reads_are_found_among_composes_options(tmp_path):
+    """`espdock compose -p NAME --workspace DIR ps`: click stopped at -p and left --workspace to
+    Compose ("unknown flag"); an ESPDOCK_USER in the .env of `-f sub/alt.yaml`'s directory, or in
+    COMPOSE_ENV_FILES, was overridden by espdock's."""
+    from espdock.ros.nodes import compose_env_files, own_workspace
+
+    assert own_workspace(["-p", "x", "--workspace", "../ws", "ps"]) == (["-p", "x", "ps"], Path("../ws"))
+    assert own_workspace(["--workspace=../ws", "up", "-w"]) == (["up", "-w"], Path("../ws"))
+    assert own_workspace(["exec", "-w", "/params", "talker", "pwd"]) == (
+        ["exec", "-w", "/params", "talker", "pwd"],
+        None,
+    )
+    root = tmp_path
+    assert compose_env_files(["up"], root, {}) == [root / ".env"]
+    assert compose_env_files(["-f", "sub/alt.yaml", "up"], root, {}) == [root / "sub/.env"]
+    assert compose_env_files(["--project-directory", "deploy", "up"], root, {}) == [root / "deploy/.env"]
+    assert compose_env_files(["up"], root, {"COMPOSE_ENV_FILES": "a.env,b.env"}) == [root / "a.env", root / "b.env"]
+    assert compose_env_files(["--env-file", "x.env", "-f", "sub/alt.yaml", "up"], root, {}) == [root / "x.env"]

@@ -21,6 +21,8 @@ def test_a_file_deleted_since_the_last_build_in_the_checkout_is_not_shipped(tmp_
         copy(REPO / rel, checkout / rel)
     retired = checkout / "docker/idf/retired-helper.sh"
     retired.write_text("#!/bin/sh\n")
+    module = checkout / "espdock/ros/retired_module.py"
+    module.write_text('"""Gone in the next commit."""\n')
     shipped = checkout / "build/lib/espdock/workspace_defaults/docker/idf"
 
     def build_py() -> None:
@@ -29,8 +31,10 @@ def test_a_file_deleted_since_the_last_build_in_the_checkout_is_not_shipped(tmp_
         assert built.returncode == 0, built.stderr[-2000:]
 
     build_py()
-    assert (shipped / retired.name).is_file()
+    assert (shipped / retired.name).is_file() and (checkout / "build/lib/espdock/ros" / module.name).is_file()
     retired.unlink()
+    module.unlink()
     build_py()
     assert not (shipped / retired.name).exists()
+    assert not (checkout / "build/lib/espdock/ros" / module.name).exists()
     assert (shipped / "micro_ros_sources.txt").is_file()

@@ -158,7 +158,7 @@ def compose(ctx: typer.Context, workspace: WorkspaceOption = None) -> None:
             raise Interrupted(f"interrupted; the container `compose run` started was {done}") from None
         if subcommand != "up":
             raise Interrupted("interrupted") from None
-        if {"-d", "--detach"} & set(ctx.args):
+        if {"-d", "--detach"} & set(args):
             raise Interrupted(
                 "interrupted; services Compose had started may be running",
                 "`espdock compose ps -a` lists them, `espdock compose down` stops and removes them.",

@@ -819,8 +819,9 @@ def test_compose_up_that_fails_on_a_taken_port_names_the_services_it_left_runnin
             assert attached.returncode == 0, said
             assert "compose up returned, and these services are still running: first;" in said, said
         finally:
-            subprocess.run(["docker", "compose", "-p", project, "down", "-t", "0"], cwd=root, capture_output=True,
-                           check=False)  # fmt: skip
+            # --remove-orphans: the colleague's one-off too.
+            subprocess.run(["docker", "compose", "-p", project, "down", "-t", "0", "--remove-orphans"], cwd=root,
+                           capture_output=True, check=False)  # fmt: skip
             subprocess.run(["docker", "compose", "-p", f"{project}-other", "-f", "other.yaml", "down", "-t", "0"],
                            cwd=root, capture_output=True, check=False)  # fmt: skip
 

@@ -781,9 +781,27 @@ def _installed(workspace: Workspace, step: RuntimeImage) -> RuntimeImage:
 
 def _linked(workspace: Workspace, sources: Iterable[tuple[str, str]]) -> tuple[Mount, ...]:
     """The mounts of the directories that links lead to from the packages at SOURCES (name, path
-    under the colcon root), or from within them: what colcon follows there, which the workspace's
-    mount lacks."""
-    return links_out(workspace, (workspace.ws_dir / rel for _, rel in sources))
+    under the colcon root), from within them, or from beside them: what colcon, and CMake, follow
+    there, which the workspace's mount lacks."""
+    packages = [workspace.ws_dir / rel for _, rel in sources]
+    return links_out(workspace, [*packages, *_beside(workspace, packages)])
+
+
+def _beside(workspace: Workspace, packages: Iterable[Path]) -> list[Path]:
+    """The links to directories in the directories above PACKAGES, up to the workspace's root: a
+    monorepo's `vendor -> ~/sdk` beside its packages, whose headers they include. colcon's own
+    outputs and hidden entries aside."""
+    above = {d for p in packages for d in p.parents if d.is_relative_to(workspace.root) and d != workspace.root}
+    outputs = set(colcon_outputs(workspace))
+    found = []
+    for directory in sorted(above):
+        try:
+            with os.scandir(directory) as entries:
+                links = [Path(e.path) for e in entries if e.is_symlink() and not e.name.startswith(".")]
+        except OSError:
+            continue
+        found += [link for link in links if link not in outputs and link.is_dir()]
+    return found
 
 
 # Python's `PermissionError: [Errno 13] Permission denied: '/workspace/...'`, and CMake's

@@ -168,7 +168,13 @@ def test_a_monorepo_s_shared_cmake_module_and_header_outside_the_package_rebuild
         (repo / directory).mkdir(parents=True)
     (repo / "cmake/label.cmake").write_text('set(REPORT_LABEL "first")\n')
     header = repo / "include/robot/unit.h"
-    header.write_text('#define REPORT_UNIT "s"\n')
+    header.write_text('#define REPORT_UNIT "s"\n#include "vendor_limits.h"\n')
+    # A vendor SDK linked in beside the packages, from outside the workspace: colcon and CMake
+    # follow the link, and the build container found nothing there ("No such file or directory").
+    sdk = tmp_path / "vendor-sdk"
+    (sdk / "include").mkdir(parents=True)
+    (sdk / "include/vendor_limits.h").write_text("#define VENDOR_LIMIT 3\n")
+    (repo / "vendor").symlink_to(sdk)
     (repo / "config/report.yaml").write_text("period: 1\n")
     retired = repo / "tools/retired.c"
     retired.write_text("int main(void) { return 0; }\n")
@@ -178,7 +184,8 @@ def test_a_monorepo_s_shared_cmake_module_and_header_outside_the_package_rebuild
         .replace("find_package(ament_cmake REQUIRED)", "find_package(ament_cmake REQUIRED)\n"
                  "include(${CMAKE_CURRENT_SOURCE_DIR}/../cmake/label.cmake)")
         .replace("install(TARGETS",
-                 "target_include_directories(uptime_report PRIVATE ${CMAKE_CURRENT_SOURCE_DIR}/../include)\n"
+                 "target_include_directories(uptime_report PRIVATE ${CMAKE_CURRENT_SOURCE_DIR}/../include\n"
+                 "                           ${CMAKE_CURRENT_SOURCE_DIR}/../vendor/include)\n"
                  'target_compile_definitions(uptime_report PRIVATE "REPORT_LABEL=\\"${REPORT_LABEL}\\"")\n'
                  "add_executable(retired ${CMAKE_CURRENT_SOURCE_DIR}/../tools/retired.c)\n"
                  "install(DIRECTORY ${CMAKE_CURRENT_SOURCE_DIR}/../config DESTINATION share/${PROJECT_NAME})\n"
@@ -212,7 +219,7 @@ def test_a_monorepo_s_shared_cmake_module_and_header_outside_the_package_rebuild
 
     built(root)
     reports(" s (first)")
-    header.write_text('#define REPORT_UNIT "seconds"\n')
+    header.write_text('#define REPORT_UNIT "seconds"\n#include "vendor_limits.h"\n')
     stale = run_once(root, "uptime_tools", "uptime_report")
     warned = " ".join((stale.stdout + stale.stderr).split())
     assert "uptime_tools's sources changed since its last build" in warned, warned
@@ -254,7 +261,7 @@ def test_a_monorepo_s_shared_cmake_module_and_header_outside_the_package_rebuild
     for name, stamp in colcon_rebuild(ws, step).stamps.items():
         records[name] = {key: value for key, value in records[name].items() if key != "outside"} | {"stamp": stamp}
     stamps.write_text(json.dumps(records))
-    header.write_text('#define REPORT_UNIT "sec"\n')
+    header.write_text('#define REPORT_UNIT "sec"\n#include "vendor_limits.h"\n')
     builds("2 package(s) built")
     reports(" sec (second)")
     builds("up to date (2 package(s))")

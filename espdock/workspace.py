@@ -605,10 +605,15 @@ def editor_leftover(rel: str) -> bool:
     )
 
 
+def as_lines(data: bytes) -> bytes:
+    """A text file's DATA as its lines read: a checkout's line endings (Git for Windows' autocrlf
+    makes every line CRLF) and a leading byte order mark aside."""
+    return data.removeprefix(b"\xef\xbb\xbf").replace(b"\r\n", b"\n")
+
+
 def text_digest(data: bytes) -> str:
-    """sha256 of a text file's DATA as its lines read: a checkout's line endings (Git for
-    Windows' autocrlf makes every line CRLF) and a leading byte order mark aside."""
-    return hashlib.sha256(data.removeprefix(b"\xef\xbb\xbf").replace(b"\r\n", b"\n")).hexdigest()
+    """sha256 of a text file's DATA as its lines read (as_lines)."""
+    return hashlib.sha256(as_lines(data)).hexdigest()
 
 
 def read_image_inputs(root: Path, directory: str, exclude: tuple[str, ...] = ()) -> dict[str, bytes]:

@@ -184,9 +184,8 @@ def read_password(source: str | None, stdin: io.TextIOBase | None, prompt) -> st
             raise ConfigError(f"cannot read the password from stdin: {getattr(exc, 'strerror', exc)}") from None
     else:
         try:
-            with open(
-                source, encoding="utf-8-sig"
-            ) as handle:  # a Windows editor's byte order mark is no character of it
+            # utf-8-sig: a Windows editor's byte order mark is no character of the password.
+            with open(source, encoding="utf-8-sig") as handle:
                 text = handle.read(_PASSWORD_READ_MAX + 1)
         except (OSError, UnicodeDecodeError) as exc:
             raise ConfigError(f"cannot read the password file {source}: {getattr(exc, 'strerror', exc)}") from None

@@ -33,7 +33,7 @@ from espdock.images.containers import Containers, give_to, make_dirs_for, volume
 from espdock.images.engine import KILLED, Mount, RunSpec
 from espdock.images.visibility import host_paths, links_out
 from espdock.layout import COLCON_RESULT_FILES, firmware_build_dir, host_path, install_prefix
-from espdock.workspace import Workspace, editor_leftover, workspace_lock
+from espdock.workspace import Workspace, as_lines, editor_leftover, workspace_lock
 
 TARGET_MARKER = ".espdock-target"
 
@@ -680,8 +680,7 @@ def _defaults_digest(project: Path, target: str) -> str:
     autocrlf, then WSL's git, rewrite every line and nothing else) or byte order mark."""
     digest = hashlib.sha256()
     for path in _defaults_files(project, target):
-        text = path.read_bytes().removeprefix(b"\xef\xbb\xbf").replace(b"\r\n", b"\n")
-        digest.update(path.name.encode() + b"\0" + text)
+        digest.update(path.name.encode() + b"\0" + as_lines(path.read_bytes()))
     return digest.hexdigest()[:16]
 
 

@@ -370,13 +370,7 @@ class RosSteps:
                 outside = dict(found.outside)
                 for name in built:
                     before = found.outside[name]
-                    paths = (
-                        outside_inputs(
-                            base / name, workspace.root, workspace.ws_dir / sources_of[name], colcon_outputs(workspace)
-                        )
-                        if sync is None
-                        else []
-                    )
+                    paths = read_outside(workspace, name, sources_of[name]) if sync is None else []
                     now_read = file_digests(workspace.root, [path for path in paths if path not in before])
                     outside[name] = {path: before.get(path) or now_read[path] for path in paths}
                 sources = {name: fold(tree.digest, outside[name]) for name, tree in trees.items()}
@@ -396,8 +390,8 @@ class RosSteps:
                 # state of, whatever options either build was given.
                 built_on = {name: {dep: now[dep] for dep in closure([name], depends) - {name} if dep in now}
                             for name in built}  # fmt: skip
-                read_outside = {name: outside[name] for name in built}
-                stamp_file.record(recorded_stamps, installed(), sources_of, trees, serves, built_on, read_outside)
+                outside_built = {name: outside[name] for name in built}
+                stamp_file.record(recorded_stamps, installed(), sources_of, trees, serves, built_on, outside_built)
                 give_to(stamp_file.path, self.containers.owner)
             return built
 
@@ -633,8 +627,7 @@ def colcon_rebuild(workspace: Workspace, step: ColconBuild) -> Rebuild:
         elif isinstance(entry, dict):
             # Built by an espdock before this list: what its build dir says the build read (an
             # edit since is unknown, so one found builds the package once).
-            base = workspace.ws_dir / ROS_BUILD_BASE / name
-            paths = outside_inputs(base, workspace.root, workspace.ws_dir / rel, colcon_outputs(workspace))
+            paths = read_outside(workspace, name, rel)
             unlisted += [] if paths else [name]
         else:
             paths = []
@@ -647,6 +640,13 @@ def colcon_rebuild(workspace: Workspace, step: ColconBuild) -> Rebuild:
     installed = {name: listing_digest(workspace.ws_dir / "install" / name) for name in stamps}
     rebuild = stamp_file.stale(stamps, installed, dict(step.sources))
     return Rebuild(stamp_file, stamps, rebuild, trees, outside, tuple(unlisted))
+
+
+def read_outside(workspace: Workspace, name: str, rel: str) -> list[str]:
+    """The files of the workspace outside package NAME's directory (REL, under the colcon root)
+    that its build dir says its last build read (espdock.ros.cmake_inputs)."""
+    build_dir = workspace.ws_dir / ROS_BUILD_BASE / name
+    return outside_inputs(build_dir, workspace.root, workspace.ws_dir / rel, colcon_outputs(workspace))
 
 
 def colcon_outputs(workspace: Workspace) -> list[Path]:

@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import errno
 import functools
+import importlib.abc
+import importlib.util
 import os
 import stat
 import sys
@@ -14,7 +16,6 @@ from typing import Annotated, NoReturn, ParamSpec, TextIO
 
 import typer
 import typer.core
-import typer.rich_utils
 from rich.console import Console
 from rich.text import Text
 
@@ -84,24 +85,53 @@ def _errors_unread() -> None:
 
 
 err_console.on_broken_pipe = _errors_unread
-_typer_console = typer.rich_utils._get_rich_console
 
 
-def _help_console(stderr: bool = False) -> Console:
+def _help_console(typer_console: Callable[[bool], Console]) -> Callable[[bool], Console]:
     """Typer's console for help and usage errors, whose reader going away ends espdock as it ends
     for espdock's own: rich's exits 1, and `espdock build --help | grep -q OPTION` failed under
     pipefail as the match came early (a CI step probing for an option)."""
-    made = _typer_console(stderr)
 
-    def closed() -> None:
-        made.quiet = True
-        (_errors_unread if stderr else output_closed)()
+    def made_for(stderr: bool = False) -> Console:
+        made = typer_console(stderr)
 
-    made.on_broken_pipe = closed
-    return made
+        def closed() -> None:
+            made.quiet = True
+            (_errors_unread if stderr else output_closed)()
+
+        made.on_broken_pipe = closed
+        return made
+
+    return made_for
 
 
-typer.rich_utils._get_rich_console = _help_console  # Typer has no hook for it (0.x, pinned by the lock)
+class _PatchTyperHelp(importlib.abc.MetaPathFinder):
+    """Gives typer.rich_utils espdock's help console when Typer first imports it, which it does
+    only to draw help or a usage error: importing it (rich's Markdown and tracebacks) took a
+    quarter of every espdock start. Typer has no hook for its console (0.x, pinned by the lock)."""
+
+    def find_spec(self, name: str, path: object, target: object = None) -> importlib.machinery.ModuleSpec | None:
+        if name != "typer.rich_utils":
+            return None
+        sys.meta_path.remove(self)
+        spec = importlib.util.find_spec(name)
+        if spec is None or spec.loader is None:
+            return spec
+        load = spec.loader.exec_module
+
+        def exec_module(module: object) -> None:
+            load(module)
+            module._get_rich_console = _help_console(module._get_rich_console)
+
+        spec.loader.exec_module = exec_module
+        return spec
+
+
+if "typer.rich_utils" in sys.modules:
+    rich_utils = sys.modules["typer.rich_utils"]
+    rich_utils._get_rich_console = _help_console(rich_utils._get_rich_console)
+else:
+    sys.meta_path.insert(0, _PatchTyperHelp())
 _state = {"debug": False}
 P = ParamSpec("P")
 

@@ -542,6 +542,27 @@ def test_a_command_starts_without_the_other_commands_modules(tmp_path):
     assert result.returncode == 0 and "--port" in result.stdout, result.stderr
 
 
+def test_only_help_and_usage_errors_load_typer_s_help_drawing(tmp_path):
+    """Typer's rich help module (rich's Markdown, tracebacks) was imported by every start for
+    espdock's patch of its console: a quarter of a no-change build's CPU. Help still gets it."""
+
+    def loads_help_drawing(*argv: str) -> bool:
+        started = subprocess.run(
+            [sys.executable, "-X", "importtime", "-m", "espdock", *argv],
+            cwd=tmp_path,
+            check=False,
+            capture_output=True,
+            text=True,
+            env={**os.environ, **NO_ENGINE},
+        )
+        return " typer.rich_utils\n" in started.stderr
+
+    assert not loads_help_drawing("--version")
+    assert not loads_help_drawing("list")  # no workspace here: espdock's own error
+    assert loads_help_drawing("build", "--help")
+    assert loads_help_drawing("build", "--no-such-option")
+
+
 def test_the_list_of_commands_gives_each_summary_as_one_paragraph(tmp_path):
     """`espdock --help` broke each summary where its docstring's source line ended: "keeping the
     last few of" on one line, "each kind; never ..." on the next, at any width."""

@@ -1,11 +1,13 @@
-"""Benchmark: what loading the Docker SDK (and requests) costs a short espdock command.
+"""Benchmark: what loading the Docker SDK (and requests), or other modules, costs a short espdock command.
 
-Run: .venv/bin/python tests/bench/sdk_load.py [--runs N]
+Run: .venv/bin/python tests/bench/sdk_load.py [--runs N] [--preload MODULE,...]
 
 On the local socket espdock talks plain HTTP, so a command that only lists and runs containers
 never imports the SDK. The command runs as it is (A) and with the SDK and requests
 imported first (B): B is what every such start paid while a listing still went through the
 SDK (a no-change build's container sweeps and its closing size note, `micro-ros status`).
+`--preload typer.rich_utils` gives what every start paid while espdock imported Typer's help
+drawing (rich's Markdown and tracebacks) to patch its console.
 A B A B in one session, so that machine load hits both alike; prints the medians of wall time
 and of the process's CPU (user + system) and their ratios.
 """
@@ -26,9 +28,9 @@ sys.path.insert(0, str(REPO))
 
 from tests.conftest import copy_workspace  # noqa: E402
 
-PRELOADED = "\n".join(
-    ("import sys", "import docker, docker.errors, requests", "from espdock.__main__ import run", "run()")
-)
+
+def preloaded(modules: str) -> str:
+    return "\n".join(("import sys", f"import {modules}", "from espdock.__main__ import run", "run()"))
 
 
 def timed(argv: list[str], cwd: Path) -> tuple[float, float]:
@@ -48,20 +50,23 @@ def medians(runs: list[tuple[float, float]]) -> tuple[float, float]:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--runs", type=int, default=11)
+    parser.add_argument("--preload", default="docker,docker.errors,requests", help="modules B imports first")
     args = parser.parse_args()
     build = ["build", "--only", "ros"]
     with tempfile.TemporaryDirectory(prefix="espdock-bench-") as tmp:
         # No runtime image: the bench leaves nothing on the engine but the project's ROS image.
         root = copy_workspace(Path(tmp) / "ws-root", packages=(), test_packages=("beacon_nodes",), runtime_image=False)
         subprocess.run([sys.executable, "-m", "espdock", *build], cwd=root, check=True, stdout=subprocess.DEVNULL)
-        plain, preloaded = [], []
+        plain, first = [], []
+        script = preloaded(", ".join(args.preload.split(",")))
         for _ in range(args.runs):  # the first build of the loop has nothing to do either
             plain.append(timed([sys.executable, "-m", "espdock", *build], root))
-            preloaded.append(timed([sys.executable, "-c", PRELOADED, *build], root))
-    (a_wall, a_cpu), (b_wall, b_cpu) = medians(plain), medians(preloaded)
+            first.append(timed([sys.executable, "-c", script, *build], root))
+    (a_wall, a_cpu), (b_wall, b_cpu) = medians(plain), medians(first)
     print(f"espdock build --only ros (no change): {args.runs} runs each, alternating, medians")
     print(f"  A  as it is              wall {a_wall:6.3f} s  CPU {a_cpu:6.3f} s")
-    print(f"  B  SDK imported first    wall {b_wall:6.3f} s  CPU {b_cpu:6.3f} s")
+    print(f"  B  {args.preload} imported first")
+    print(f"                           wall {b_wall:6.3f} s  CPU {b_cpu:6.3f} s")
     print(f"  A/B  wall {a_wall / b_wall:.2f}  CPU {a_cpu / b_cpu:.2f}")
 
 

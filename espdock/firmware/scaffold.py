@@ -284,6 +284,9 @@ def init_workspace(directory: Path, owner: tuple[int, int] | None = None) -> tup
                 GITIGNORE_TEMPLATE.format(*(posixpath.join(outputs, d) for d in ("build", "install", "log")))
             )
             created.append(GITIGNORE)
+        if not (root / GITATTRIBUTES).exists():
+            (root / GITATTRIBUTES).write_text(GITATTRIBUTES_TEXT)
+            created.append(GITATTRIBUTES)
     except OSError as exc:
         raise WorkspaceError(f"cannot make {root} a workspace: {exc.strerror or exc}") from None
     if owner is not None:
@@ -300,6 +303,15 @@ GITIGNORE_TEMPLATE = """\
 {}/
 {}/
 {}/
+"""
+
+GITATTRIBUTES = ".gitattributes"
+# A Windows checkout (Git for Windows' core.autocrlf=true) gave every script a CRLF: a node
+# script's `#!/usr/bin/env python3` ran `python3\r`, not found, and a shell step failed on `\r`.
+GITATTRIBUTES_TEXT = """\
+# What is here is built and run in Linux containers: every text file is checked out with LF,
+# also on Windows (core.autocrlf), where a CRLF script fails there (`/usr/bin/env: 'python3\\r'`).
+* text=auto eol=lf
 """
 
 

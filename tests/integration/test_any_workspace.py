@@ -71,7 +71,8 @@ def test_a_new_workspace_from_init_to_installed_firmware(shared_dir, run_as_user
     init = run_as_user("init", "myrobot", cwd=parent)
     assert init.returncode == 0, init.stdout + init.stderr
     root = parent / "myrobot"
-    assert sorted(p.name for p in root.iterdir()) == [".gitignore", "compose.yaml", "espdock.toml", "src"]
+    made = sorted(p.name for p in root.iterdir())
+    assert made == [".gitattributes", ".gitignore", "compose.yaml", "espdock.toml", "src"]
     assert (root / ".gitignore").stat().st_uid == USER_UID
     message_package(root / "src/custom_interface")
     subprocess.run(["chown", "-R", f"{USER_UID}:{USER_UID}", str(root / "src")], check=True)

@@ -316,11 +316,36 @@ def test_init_has_git_ignore_the_build_outputs_and_keeps_an_ignore_file_of_its_o
     subprocess.run(["git", "init", "-q", str(robot)], check=True)
     status = ["git", "-C", str(robot), "status", "--porcelain", "-uall"]
     listed = subprocess.run(status, capture_output=True, text=True, check=True)
-    assert sorted(listed.stdout.split()[1::2]) == [".gitignore", "compose.yaml", "espdock.toml", "src/pkg/file"]
+    assert sorted(listed.stdout.split()[1::2]) == [
+        ".gitattributes",
+        ".gitignore",
+        "compose.yaml",
+        "espdock.toml",
+        "src/pkg/file",
+    ]
     (tmp_path / "mine").mkdir()
     (tmp_path / "mine/.gitignore").write_text("secrets/\n")
+    (tmp_path / "mine/.gitattributes").write_text("*.png binary\n")
     assert espdock("init", "mine", cwd=tmp_path, env=NO_ENGINE).returncode == 0
     assert (tmp_path / "mine/.gitignore").read_text() == "secrets/\n"
+    assert (tmp_path / "mine/.gitattributes").read_text() == "*.png binary\n"
+
+
+def test_a_workspace_from_init_checks_its_scripts_out_with_lf_on_windows(tmp_path):
+    """Git for Windows' core.autocrlf=true checked a node script out as `#!/usr/bin/env python3\\r\\n`:
+    in the container env looked for `python3\\r` and the node did not start."""
+    assert espdock("init", "robot", cwd=tmp_path, env=NO_ENGINE).returncode == 0
+    robot = tmp_path / "robot"
+    script = robot / "src/talker/scripts/talker"
+    script.parent.mkdir(parents=True)
+    script.write_text("#!/usr/bin/env python3\nprint('hello')\n")
+    git = ["git", "-c", "user.name=u", "-c", "user.email=u@example.com"]
+    subprocess.run([*git, "init", "-q", str(robot)], check=True)
+    subprocess.run([*git, "-C", str(robot), "add", "-A"], check=True)
+    subprocess.run([*git, "-C", str(robot), "commit", "-q", "-m", "robot"], check=True)
+    windows = tmp_path / "windows"
+    subprocess.run([*git, "-c", "core.autocrlf=true", "clone", "-q", str(robot), str(windows)], check=True)
+    assert (windows / "src/talker/scripts/talker").read_bytes() == b"#!/usr/bin/env python3\nprint('hello')\n"
 
 
 def test_init_in_the_src_of_a_workspace_or_inside_one_is_refused_leaving_nothing(tmp_path):

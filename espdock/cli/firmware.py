@@ -14,6 +14,7 @@ from rich.text import Text
 from espdock.build.prepare import workspace_packages
 from espdock.build.runner import Runner
 from espdock.build.steps import EnsureImage, ImageSpec, Plan
+from espdock.cli import complete
 from espdock.cli.core import (
     WorkspaceOption,
     app,
@@ -62,7 +63,7 @@ IDF_PLACES = frozenset({"-C", "--project-dir", "-B", "--build-dir"})
 @app.command(context_settings={"allow_extra_args": True, "ignore_unknown_options": True})
 @command
 def idf(
-    package: Annotated[str, typer.Argument(help="Firmware package.")],
+    package: Annotated[str, typer.Argument(help="Firmware package.", autocompletion=complete.firmware_packages)],
     args: Annotated[list[str] | None, typer.Argument(help="Arguments for idf.py (after --).")] = None,
     workspace: WorkspaceOption = None,
 ) -> None:
@@ -182,7 +183,11 @@ def micro_ros_status(
 @command
 def micro_ros_rebuild(
     packages: Annotated[
-        list[str] | None, typer.Argument(help="Firmware packages whose images to rebuild (default: all).")
+        list[str] | None,
+        typer.Argument(
+            help="Firmware packages whose images to rebuild (default: all).",
+            autocompletion=complete.firmware_packages,
+        ),
     ] = None,
     target: Annotated[
         str | None, typer.Option(help="Chip for every firmware package (overrides each one's own).")
@@ -255,7 +260,9 @@ def _ask_password() -> str:
 @app.command()
 @command
 def flash(
-    package: Annotated[str, typer.Argument(help="Firmware package (built and installed).")],
+    package: Annotated[
+        str, typer.Argument(help="Firmware package (built and installed).", autocompletion=complete.firmware_packages)
+    ],
     port: PortOption,
     baud: BaudOption = 460800,
     verify: Annotated[bool, typer.Option("--verify", help="Read the flash back and compare afterwards.")] = False,
@@ -301,7 +308,9 @@ def flash(
 @app.command()
 @command
 def provision(
-    package: Annotated[str, typer.Argument(help="Firmware package (built and installed).")],
+    package: Annotated[
+        str, typer.Argument(help="Firmware package (built and installed).", autocompletion=complete.firmware_packages)
+    ],
     port: PortOption,
     wifi_ssid: Annotated[
         str | None, typer.Option("--wifi-ssid", help="Wi-Fi network the board joins (1..32 bytes); required.")
@@ -351,7 +360,7 @@ def provision(
 @app.command()
 @command
 def monitor(
-    package: Annotated[str, typer.Argument(help="Firmware package.")],
+    package: Annotated[str, typer.Argument(help="Firmware package.", autocompletion=complete.firmware_packages)],
     port: PortOption,
     workspace: WorkspaceOption = None,
 ) -> None:

@@ -15,6 +15,7 @@ import typer
 from espdock.build.prepare import last_build_options, workspace_packages
 from espdock.build.runner import Runner
 from espdock.build.steps import LABEL_WORKSPACE, Plan
+from espdock.cli import complete
 from espdock.cli.core import WorkspaceOption, app, build_plan, command, ensure_images, load, notify
 from espdock.cli.prune import record_images
 from espdock.config import Config, invoking_user, resolve_ca_bundle
@@ -207,8 +208,15 @@ RUN_FILES = "the files and devices `espdock run` passes in (--volume, --device, 
 @app.command(context_settings={"allow_interspersed_args": False, "ignore_unknown_options": True})
 @command
 def run(
-    package: Annotated[str, typer.Argument(help="A ROS package of the workspace (built).")],
-    executable: Annotated[str, typer.Argument(help="One of its executables (install/PKG/lib/PKG/).")],
+    package: Annotated[
+        str, typer.Argument(help="A ROS package of the workspace (built).", autocompletion=complete.runnable_packages)
+    ],
+    executable: Annotated[
+        str,
+        typer.Argument(
+            help="One of its executables (install/PKG/lib/PKG/).", autocompletion=complete.package_executables
+        ),
+    ],
     args: Annotated[list[str] | None, typer.Argument(help="Arguments for the node (--ros-args ...).")] = None,
     network: Annotated[
         str, typer.Option(help="Docker network: host (the host's DDS traffic), or a compose project's network.")

@@ -14,6 +14,7 @@ from espdock.build.prepare import plan_tests
 from espdock.build.prepare import workspace_packages as discover
 from espdock.build.runner import Runner
 from espdock.build.steps import Plan
+from espdock.cli import complete
 from espdock.cli.core import PASSED, PassThrough, WorkspaceOption, app, command, console, load, notify
 from espdock.cli.prune import record_images
 from espdock.cli.ui import STAMPED, Reporter
@@ -45,7 +46,10 @@ from espdock.workspace import Package, PackageKind, check_not_building, unknown_
 def test(
     ctx: typer.Context,
     packages: Annotated[
-        list[str] | None, typer.Argument(help="Test only these packages (what they depend on is built too).")
+        list[str] | None,
+        typer.Argument(
+            help="Test only these packages (what they depend on is built too).", autocompletion=complete.packages
+        ),
     ] = None,
     results: Annotated[
         Path | None,

@@ -16,6 +16,7 @@ from espdock.build.manifest import INTERRUPTED, compare, file_hashes, read_manif
 from espdock.build.prepare import workspace_packages
 from espdock.build.preview import preview
 from espdock.build.runner import Runner, stamp_files
+from espdock.cli import complete
 from espdock.cli.core import (
     PASSED,
     PassThrough,
@@ -58,7 +59,8 @@ from espdock.workspace import (
 def build(
     ctx: typer.Context,
     packages: Annotated[
-        list[str] | None, typer.Argument(help="Build only these packages and what they depend on.")
+        list[str] | None,
+        typer.Argument(help="Build only these packages and what they depend on.", autocompletion=complete.packages),
     ] = None,
     dry_run: Annotated[bool, typer.Option("--dry-run", help="Print the plan without running it.")] = False,
     verbose: Annotated[bool, typer.Option("--verbose", "-v", help="Show image build logs in full.")] = False,

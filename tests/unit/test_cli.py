@@ -552,6 +552,7 @@ def test_a_command_starts_without_the_other_commands_modules(tmp_path):
         [sys.executable, "-c", script, "test", "--help"], capture_output=True, text=True, check=True
     )
     assert loaded.stdout.split() == [
+        "espdock.cli.complete",
         "espdock.cli.core",
         "espdock.cli.home",
         "espdock.cli.prune",
@@ -586,6 +587,53 @@ def test_only_help_and_usage_errors_load_typer_s_help_drawing(tmp_path):
     assert not loads_help_drawing("list")  # no workspace here: espdock's own error
     assert loads_help_drawing("build", "--help")
     assert loads_help_drawing("build", "--no-such-option")
+
+
+def test_tab_completes_the_workspace_s_packages_and_a_built_package_s_executables(tmp_path):
+    """`espdock run <TAB>` offered nothing (nor did build, test or flash), where `ros2 run <TAB>`
+    offers a native workspace's packages and then the package's executables."""
+    root = copy_workspace(tmp_path / "w", test_packages=("beacon_nodes",))
+    shutil.copytree(REPO / "firmware/led_strip_node", root / "firmware/led_strip_node")
+    # What colcon installs for them: an executable beside one that is not, and the interface package.
+    lib = root / "ws/install/beacon_nodes/lib/beacon_nodes"
+    lib.mkdir(parents=True)
+    for name, mode in (("beacon", 0o755), ("beacon_log", 0o755), ("README", 0o644)):
+        (lib / name).write_text("#!/bin/sh\n")
+        (lib / name).chmod(mode)
+    (root / "ws/install/custom_interface/share").mkdir(parents=True)
+    script = subprocess.run(
+        [sys.executable, "-m", "espdock", "--show-completion", "bash"],
+        capture_output=True,
+        text=True,
+        check=True,
+        env={**os.environ, **NO_ENGINE},
+    ).stdout
+    bin_dir = tmp_path / "bin"
+    bin_dir.mkdir()
+    (bin_dir / "espdock").write_text(f'#!/bin/sh\nexec {sys.executable} -m espdock "$@"\n')
+    (bin_dir / "espdock").chmod(0o755)
+
+    def offered(line: str, cwd: Path = root) -> list[str]:
+        """What bash's completion, as `espdock --install-completion` sets it up, offers after LINE."""
+        words = line.split(" ")
+        driver = (
+            f"{script}\nCOMP_WORDS=({' '.join(repr(w) for w in words)}); COMP_CWORD={len(words) - 1}\n"
+            "_espdock_completion espdock; printf '%s\\n' \"${COMPREPLY[@]}\"\n"
+        )
+        env = {**os.environ, **NO_ENGINE, "PATH": f"{bin_dir}:{os.environ['PATH']}"}
+        done = subprocess.run(["bash", "-c", driver], cwd=cwd, capture_output=True, text=True, env=env, check=True)
+        return done.stdout.split()
+
+    assert offered("espdock build ") == ["beacon_nodes", "custom_interface", "led_strip_node"]
+    assert offered("espdock build beacon_nodes c") == ["custom_interface"]
+    assert offered("espdock test beacon_nodes ") == ["custom_interface", "led_strip_node"]
+    assert offered("espdock flash ") == ["led_strip_node"]
+    assert offered("espdock run ") == ["beacon_nodes"]
+    assert offered("espdock run beacon_nodes ") == ["beacon", "beacon_log"]
+    assert offered("espdock run beacon_nodes beacon_") == ["beacon_log"]
+    # From elsewhere, with the workspace named; outside any workspace, nothing and no error.
+    assert offered(f"espdock run -w {root} beacon_nodes b", cwd=tmp_path) == ["beacon", "beacon_log"]
+    assert offered("espdock build ", cwd=tmp_path) == []
 
 
 def test_the_list_of_commands_gives_each_summary_as_one_paragraph(tmp_path):

@@ -108,7 +108,7 @@ def _help_console(typer_console: Callable[[bool], Console]) -> Callable[[bool], 
 class _PatchTyperHelp(importlib.abc.MetaPathFinder):
     """Gives typer.rich_utils espdock's help console when Typer first imports it, which it does
     only to draw help or a usage error: importing it (rich's Markdown and tracebacks) took a
-    quarter of every espdock start. Typer has no hook for its console (0.x, pinned by the lock)."""
+    fifth of every espdock start's CPU. Typer has no hook for its console (0.x, pinned by the lock)."""
 
     def find_spec(self, name: str, path: object, target: object = None) -> importlib.machinery.ModuleSpec | None:
         if name != "typer.rich_utils":
@@ -127,9 +127,8 @@ class _PatchTyperHelp(importlib.abc.MetaPathFinder):
         return spec
 
 
-if "typer.rich_utils" in sys.modules:
-    rich_utils = sys.modules["typer.rich_utils"]
-    rich_utils._get_rich_console = _help_console(rich_utils._get_rich_console)
+if (_loaded := sys.modules.get("typer.rich_utils")) is not None:  # imported before espdock (tests)
+    _loaded._get_rich_console = _help_console(_loaded._get_rich_console)
 else:
     sys.meta_path.insert(0, _PatchTyperHelp())
 _state = {"debug": False}

@@ -570,7 +570,7 @@ def test_a_command_starts_without_the_other_commands_modules(tmp_path):
 
 def test_only_help_and_usage_errors_load_typer_s_help_drawing(tmp_path):
     """Typer's rich help module (rich's Markdown, tracebacks) was imported by every start for
-    espdock's patch of its console: a quarter of a no-change build's CPU. Help still gets it."""
+    espdock's patch of its console: a fifth of a no-change build's CPU. Help still gets it."""
 
     def loads_help_drawing(*argv: str) -> bool:
         started = subprocess.run(

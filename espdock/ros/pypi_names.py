@@ -49,6 +49,10 @@ PYPI_PROJECT = {
     "python3-zmq": "pyzmq",
 }
 
+# Debian packages not named python3-* that are the Python module a key names (the venv cannot
+# import them either): ament_pep257 imports pydocstyle (its exec_depend, Debian's `pydocstyle`).
+APT_PYTHON = frozenset({"pydocstyle"})
+
 # Debian packages named python3-* that are no Python module, kept as apt packages in the
 # wheels image: the venv's Python is Debian's python3 (Dockerfile.ros), so its headers serve.
 APT_KEPT = frozenset({"python3-dev"})

@@ -422,7 +422,11 @@ def for_image(rules: Mapping[str, Rule], image: RosImage, pip_rules: Mapping[str
     ros_prefix = f"ros-{image.distro}-"
     mapped = {}
     for key, rule in rules.items():
-        python = [p for p in rule.packages if p.startswith("python3-") and p not in pypi_names.APT_KEPT]
+        python = [
+            p
+            for p in rule.packages
+            if (p.startswith("python3-") or p in pypi_names.APT_PYTHON) and p not in pypi_names.APT_KEPT
+        ]
         if not rule.packages:
             mapped[key] = rule
         elif rule.installer == "apt" and all(p.startswith(ros_prefix) for p in rule.packages):

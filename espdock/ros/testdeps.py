@@ -24,22 +24,36 @@ SECTION = "test"
 TEST_DIR = "/opt/espdock/rosdep-test"
 
 
-# The rosdep keys ament's linters name as exec_depend in the package.xml their PyPI wheels carry
-# (0.17.3), which the wheels do not install: on the wheels image they are the linters' own test
-# keys too (the official image's apt packages bring them). ament_lint's pytest plugin registers
-# the `linter` mark the linters' tests carry (pytest warned of an unknown mark at each of them,
-# and `--strict-markers` failed them).
+# The rosdep keys ament's linters name as exec_depend in their package.xml (ament_lint 0.17,
+# Jazzy), which their PyPI wheels do not install (they declare no dependency): on the wheels
+# image they are the linters' own test keys too (the official image's apt packages bring them).
+# ament_lint's pytest plugin registers the `linter` mark the linters' tests carry (pytest warned
+# of an unknown mark at each of them, and `--strict-markers` failed them).
 _FLAKE8 = (
     "python3-flake8", "python3-flake8-builtins", "python3-flake8-comprehensions", "python3-flake8-docstrings",
     "python3-flake8-import-order", "python3-flake8-quotes",
 )  # fmt: skip
-WHEELS_OMIT = {
+_LINTERS = {
     "ament_flake8": (*_FLAKE8, "ament_lint"),
-    "ament_pep257": ("ament_lint",),
-    "ament_cmake_flake8": _FLAKE8,
+    "ament_pep257": ("ament_lint", "pydocstyle"),
     "ament_cppcheck": ("cppcheck",),
-    "ament_cmake_cppcheck": ("cppcheck",),
+    "ament_cpplint": (),
+    "ament_uncrustify": ("uncrustify_vendor",),
 }
+# A CMake wrapper's one exec_depend is its linter: the wrapper's wheel alone (which the message
+# wheels bring into the image) left CMake's `ament_cpplint()` "could not find program".
+WHEELS_OMIT = {
+    **_LINTERS,
+    **{f"ament_cmake_{linter.removeprefix('ament_')}": (linter, *keys) for linter, keys in _LINTERS.items()},
+}
+
+# A vendor package's tool (uncrustify_vendor's uncrustify, which ament_uncrustify looks for on
+# PATH) is found through its package's environment hook (PATH gets opt/<name>/bin), which
+# nothing sources in the wheels venv: it is linked into the venv's bin/, where colcon looks.
+VENDOR_TOOLS_ON_PATH = (
+    'RUN for tool in "$VIRTUAL_ENV"/opt/*_vendor/bin/*; do '
+    '[ -f "$tool" ] && [ ! -e "$VIRTUAL_ENV/bin/${tool##*/}" ] && ln -s "$tool" "$VIRTUAL_ENV/bin/"; done; true\n'
+)
 
 
 def _as_tests(packages: Iterable[Package], image: rosdeps.RosImage | None = None) -> tuple[Package, ...]:
@@ -125,6 +139,8 @@ def image_for_tests(build: ImageSpec, lock: Mapping | None, official: bool) -> I
         f"COPY rosdep-test/ {TEST_DIR}/\n"
         f"RUN --mount=type=secret,id=ca_bundle sh /opt/espdock/rosdep-install.sh {TEST_DIR} python3{pip_option}\n"
     )
+    if not official:
+        dockerfile += VENDOR_TOOLS_ON_PATH
     context = {"Dockerfile": dockerfile.encode(), **{f"rosdep-test/{n}": d for n, d in files.items()}}
     key, inputs = image_key({**context, "build": build.key.encode()})
     return ImageSpec(

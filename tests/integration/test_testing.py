@@ -6,7 +6,8 @@ dependencies through the tests' rosdep database (tests/rosdep_db).
   that fails, and ament_flake8's check (test_depend ament_flake8 and python3-pytest, resolved by
   rosdep into the lock's test part);
 - tested_cpp (ament_cmake): an ament_cmake_gtest test of a header-only ring buffer, no rclcpp;
-- lint_auto_cpp (ament_cmake): the template's `if(BUILD_TESTING) find_package(ament_lint_auto)`.
+- lint_auto_cpp (ament_cmake): the template's `if(BUILD_TESTING) find_package(ament_lint_auto)`;
+- linted_cpp (ament_cmake): ament's linters each through its CMake wrapper (`ament_cpplint()`).
 """
 
 from __future__ import annotations
@@ -151,6 +152,30 @@ def test_build_skips_test_needs_then_test_builds_runs_and_reports_them(tmp_path,
     assert plain.returncode == 0, plain.stdout[-3000:] + plain.stderr
     assert re.search(r"colcon build +cached .*up to date \(3 package\(s\)\)", plain.stdout), plain.stdout[-3000:]
     assert leftover_containers(engine, root) == []
+
+
+def test_the_linters_a_package_calls_through_their_cmake_wrappers_run_on_the_wheels_image(tmp_path, engine):
+    """A package naming only ament_cmake_cpplint (and the other wrappers) as test_depend failed its
+    configure on the wheels image: "ament_cpplint() could not find program 'ament_cpplint'". The
+    image has the wrappers' wheels (the message wheels bring them), which bring no linter."""
+    root = make_workspace(tmp_path / "w", ("linted_cpp",))
+    env = {**environment(tmp_path), "ESPDOCK_STATE_DIR": str(tmp_path / "state")}
+    tested = espdock("test", cwd=root, env=env)
+    out = " ".join(tested.stdout.split())
+    assert tested.returncode == 0, tested.stdout[-4000:] + tested.stderr
+    assert "linted_cpp 10 tests: 9 passed, 0 failed, 0 errored, 1 skipped" in out, out[-3000:]
+    for linter in ("cppcheck", "cpplint", "flake8", "pep257", "uncrustify"):
+        assert f"test_results/linted_cpp/{linter}.xunit.xml" in out, linter
+    # And they check: a docstring and spaces ament's style does not have.
+    script = root / "src/linted_cpp/scripts/pulse_report.py"
+    script.write_text(script.read_text() + '\n\ndef words( given ):\n    """return them"""\n    return given\n')
+    source = root / "src/linted_cpp/src/pulse_count.cpp"
+    source.write_text(source.read_text().replace("int pulses = 0;", "int pulses=0;"))
+    failed = espdock("test", cwd=root, env=env)
+    said = " ".join(failed.stdout.split())
+    assert failed.returncode == 10, failed.stdout[-4000:] + failed.stderr
+    for linter in ("cpplint", "flake8", "pep257", "uncrustify"):
+        assert f"failed: ctest {linter}" in said, said[-3000:]
 
 
 def test_the_tests_build_keeps_the_symlink_install_the_last_build_made(tmp_path, engine):

@@ -564,6 +564,9 @@ class RosSteps:
 
         code = self.colcon_test(workspace, step, collect)
         found = read_results(build_base, step.packages)
+        for results in found.values():  # cpplint names a case by its file: the container's path
+            results.failing = [host_paths(name, workspace) for name in results.failing]
+            results.erroring = {host_paths(name, workspace) for name in results.erroring}
         if code != 0 and not any(r.files for r in found.values()):
             last = next((line for line in reversed(output) if line.strip()), "no output")
             raise ConfigError(

@@ -176,6 +176,8 @@ def test_the_linters_a_package_calls_through_their_cmake_wrappers_run_on_the_whe
     assert failed.returncode == 10, failed.stdout[-4000:] + failed.stderr
     for linter in ("cpplint", "flake8", "pep257", "uncrustify"):
         assert f"failed: ctest {linter}" in said, said[-3000:]
+    # A case named by its file names it as the user opens it, not as the container saw it.
+    assert f"failed: linted_cpp.cpplint.whitespace/operators [4] ({root}/src/linted_cpp/src/pulse_count.cpp:20)" in said
 
 
 def test_the_tests_build_keeps_the_symlink_install_the_last_build_made(tmp_path, engine):

@@ -115,16 +115,24 @@ class _PatchTyperHelp(importlib.abc.MetaPathFinder):
             return None
         sys.meta_path.remove(self)
         spec = importlib.util.find_spec(name)
-        if spec is None or spec.loader is None:
-            return spec
-        load = spec.loader.exec_module
-
-        def exec_module(module: object) -> None:
-            load(module)
-            module._get_rich_console = _help_console(module._get_rich_console)
-
-        spec.loader.exec_module = exec_module
+        if spec is not None and spec.loader is not None:
+            spec.loader = _HelpConsoleLoader(spec.loader)
         return spec
+
+
+class _HelpConsoleLoader(importlib.abc.Loader):
+    """typer.rich_utils' own loader, then the patch. A loader of its own: a zip's importer is one
+    object for every module in it, which patching its exec_module would have patched for all."""
+
+    def __init__(self, loader: importlib.abc.Loader) -> None:
+        self.loader = loader
+
+    def create_module(self, spec: importlib.machinery.ModuleSpec) -> object:
+        return self.loader.create_module(spec)
+
+    def exec_module(self, module: object) -> None:
+        self.loader.exec_module(module)
+        module._get_rich_console = _help_console(module._get_rich_console)
 
 
 if (_loaded := sys.modules.get("typer.rich_utils")) is not None:  # imported before espdock (tests)

@@ -276,7 +276,7 @@ def init_workspace(directory: Path, owner: tuple[int, int] | None = None) -> tup
         with config.open("x") as out:  # never overwrites
             out.write(CONFIG_TEMPLATE.format(paths=", ".join(f'"{p}"' for p in paths), colcon_root=colcon_root))
         created.append(CONFIG_FILE)
-        if not (root / GITIGNORE).exists():
+        if not os.path.lexists(root / GITIGNORE):  # a link, even a dangling one, is the user's
             # Without it a `git stash -u` took the whole build along, and its pop then failed on
             # every file the next build had made again.
             outputs = posixpath.normpath(f"/{colcon_root}")
@@ -284,10 +284,13 @@ def init_workspace(directory: Path, owner: tuple[int, int] | None = None) -> tup
                 GITIGNORE_TEMPLATE.format(*(posixpath.join(outputs, d) for d in ("build", "install", "log")))
             )
             created.append(GITIGNORE)
-        if not (root / GITATTRIBUTES).exists():
+        # Not inside a repository that says how its files are checked out: the deeper file
+        # would win over its rules (a .bat's CRLF, a -text file).
+        if not any(os.path.lexists(d / GITATTRIBUTES) for d in (root, *root.parents)):
             (root / GITATTRIBUTES).write_text(GITATTRIBUTES_TEXT)
             created.append(GITATTRIBUTES)
     except OSError as exc:
+        undo_init(root, created)
         raise WorkspaceError(f"cannot make {root} a workspace: {exc.strerror or exc}") from None
     if owner is not None:
         for rel in created:

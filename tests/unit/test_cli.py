@@ -346,6 +346,17 @@ def test_a_workspace_from_init_checks_its_scripts_out_with_lf_on_windows(tmp_pat
     windows = tmp_path / "windows"
     subprocess.run([*git, "-c", "core.autocrlf=true", "clone", "-q", str(robot), str(windows)], check=True)
     assert (windows / "src/talker/scripts/talker").read_bytes() == b"#!/usr/bin/env python3\nprint('hello')\n"
+    # In a repository that says how its files are checked out, its rules stay in force (a deeper
+    # file would win over them: a .bat's CRLF); a link in the way is not written through.
+    (tmp_path / "repo").mkdir()
+    (tmp_path / "repo/.gitattributes").write_text("*.bat text eol=crlf\n")
+    assert espdock("init", "repo/robot", cwd=tmp_path, env=NO_ENGINE).returncode == 0
+    assert not (tmp_path / "repo/robot/.gitattributes").exists()
+    (tmp_path / "linked").mkdir()
+    (tmp_path / "linked/.gitattributes").symlink_to(tmp_path / "shared/.gitattributes")
+    (tmp_path / "shared").mkdir()
+    assert espdock("init", "linked", cwd=tmp_path, env=NO_ENGINE).returncode == 0
+    assert not (tmp_path / "shared/.gitattributes").exists()
 
 
 def test_init_in_the_src_of_a_workspace_or_inside_one_is_refused_leaving_nothing(tmp_path):
@@ -589,6 +600,29 @@ def test_only_help_and_usage_errors_load_typer_s_help_drawing(tmp_path):
     assert loads_help_drawing("build", "--no-such-option")
 
 
+def test_typer_from_a_zip_keeps_its_other_modules_as_they_are(tmp_path):
+    """Typer in a zip (a zipapp, a frozen espdock): the zip's importer is one loader for all its
+    modules, and patching it for the help console patched every Typer module loaded after."""
+    import zipfile
+
+    import typer
+
+    package = Path(typer.__file__).parent
+    bundle = tmp_path / "bundle.zip"
+    with zipfile.ZipFile(bundle, "w") as archive:
+        for path in package.rglob("*.py"):
+            archive.write(path, path.relative_to(package.parent))
+    script = (
+        f"import sys; sys.path.insert(0, {str(bundle)!r})\n"
+        "import espdock.cli.core, typer.rich_utils, typer.cli\n"
+        "assert typer.__file__.startswith(sys.path[0]), typer.__file__\n"
+        "print(typer.rich_utils._get_rich_console.__qualname__)\n"
+    )
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, check=False)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.startswith("_help_console."), done.stdout
+
+
 def test_tab_completes_the_workspace_s_packages_and_a_built_package_s_executables(tmp_path):
     """`espdock run <TAB>` offered nothing (nor did build, test or flash), where `ros2 run <TAB>`
     offers a native workspace's packages and then the package's executables."""
@@ -620,8 +654,9 @@ def test_tab_completes_the_workspace_s_packages_and_a_built_package_s_executable
             f"{script}\nCOMP_WORDS=({' '.join(repr(w) for w in words)}); COMP_CWORD={len(words) - 1}\n"
             "_espdock_completion espdock; printf '%s\\n' \"${COMPREPLY[@]}\"\n"
         )
-        env = {**os.environ, **NO_ENGINE, "PATH": f"{bin_dir}:{os.environ['PATH']}"}
+        env = {**os.environ, **NO_ENGINE, "PATH": f"{bin_dir}:{os.environ['PATH']}", "HOME": str(tmp_path)}
         done = subprocess.run(["bash", "-c", driver], cwd=cwd, capture_output=True, text=True, env=env, check=True)
+        assert done.stderr == "", done.stderr  # it would land in the line being typed
         return done.stdout.split()
 
     assert offered("espdock build ") == ["beacon_nodes", "custom_interface", "led_strip_node"]
@@ -634,6 +669,13 @@ def test_tab_completes_the_workspace_s_packages_and_a_built_package_s_executable
     # From elsewhere, with the workspace named; outside any workspace, nothing and no error.
     assert offered(f"espdock run -w {root} beacon_nodes b", cwd=tmp_path) == ["beacon", "beacon_log"]
     assert offered("espdock build ", cwd=tmp_path) == []
+    # The directory as typed, before the shell expands it; one that is not there is no workspace
+    # (looked for above it, the one the user is in would answer).
+    assert offered("espdock build -w ~/w b", cwd=tmp_path) == ["beacon_nodes"]
+    assert offered("espdock build -w $HOME/w b", cwd=tmp_path) == ["beacon_nodes"]
+    assert offered("espdock build -w typo ") == []
+    # A name the file system refuses (too long): nothing, not a traceback.
+    assert offered(f"espdock run {'x' * 300} ") == []
 
 
 def test_the_list_of_commands_gives_each_summary_as_one_paragraph(tmp_path):

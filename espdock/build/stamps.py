@@ -37,20 +37,21 @@ class TreeState(NamedTuple):
     digest: str  # tree_digest
     newest: int  # the newest modification time (ns) of a file
     paths: tuple[str, ...]  # the files, each relative to its root
-    # setup.py's and setup.cfg's digest ("" without them): where an ament_python package declares
-    # what it installs (entry points, data_files), and so what stays installed when it stops.
+    # The DECLARING files' digest ("" without them): where a package declares what it installs
+    # (setup.py's entry points and data_files, CMake's targets and install rules), and so what
+    # stays installed when it stops.
     declares: str
 
 
-# The files of a package (relative to it) that declare what setuptools installs.
-SETUP_FILES = ("setup.py", "setup.cfg")
+# The files of a package (relative to it) that declare what setuptools or CMake installs.
+DECLARING = ("setup.py", "setup.cfg", "CMakeLists.txt")
 # A record's setup.py digest after a build that failed with another: matches no tree_state.
 CHANGED_SINCE = "changed by a build that did not finish"
 
 
 def tree_state(*roots: Path) -> TreeState:
     """tree_digest of ROOTS, the newest modification time of a file in them, their files' paths
-    and the digest of their SETUP_FILES."""
+    and the digest of their DECLARING files."""
     digest = hashlib.sha256()
     declares = hashlib.sha256()
     newest = 0
@@ -85,9 +86,9 @@ def tree_state(*roots: Path) -> TreeState:
             digest.update(content := hashlib.sha256(data).digest())
             if executable:
                 digest.update(b"\0executable")
-            if rel in SETUP_FILES:
+            if rel in DECLARING:
                 declares.update(rel.encode() + b"\0" + content)
-    declared = declares.hexdigest() if any(p in SETUP_FILES for p in paths) else ""
+    declared = declares.hexdigest() if any(p in DECLARING for p in paths) else ""
     return TreeState(digest.hexdigest(), newest, tuple(paths), declared)
 
 
@@ -247,9 +248,10 @@ class StampFile:
         )
 
     def redeclared(self, trees: Mapping[str, TreeState]) -> tuple[str, ...]:
-        """The packages of TREES whose SETUP_FILES changed since their last build: an entry point or
-        a data file taken out of setup.py stayed installed (`espdock run` listed the script, and it
-        failed), since setuptools only adds to an install."""
+        """The packages of TREES whose DECLARING files changed since their last build: an entry point
+        or a data file taken out of setup.py stayed installed (`espdock run` listed the script, and
+        it failed), since setuptools only adds to an install; as did a CMake target renamed or an
+        install rule taken out (the old executable ran)."""
         return self._where(trees, lambda entry, now: bool(before := entry.get("declares")) and before != now.declares)
 
     def _where(self, trees: Mapping[str, TreeState], holds: Callable[[dict, TreeState], bool]) -> tuple[str, ...]:

@@ -210,7 +210,15 @@ class RosSteps:
                     "point or data file taken out of it would stay installed)"
                 )
                 reasons.append((both(redeclared), why))
-            done = {*moved, *put_back, *lost, *redeclared}
+            # CMake's install of an emptied prefix puts every file of its rules there again, the build incremental.
+            cmake_trees = {n: now for n, now in others.items() if n not in step.python and n not in lost}
+            if reinstalled := stamp_file.redeclared(cmake_trees):
+                why = (
+                    f"installing afresh what changed its CMakeLists.txt: {', '.join(reinstalled)} (what a target "
+                    "renamed or an install rule taken out had installed would stay in install/)"
+                )
+                reasons.append((tuple(install / name for name in reinstalled), why))
+            done = {*moved, *put_back, *lost, *redeclared, *reinstalled}
             # An older espdock's records keep no list of files: whether one went is not known.
             unlisted = stamp_file.unlisted({n: now for n, now in others.items() if n not in done})
             if older := [name for name in (*stamp_file.foreign(rebuild), *unlisted) if name not in done]:

@@ -107,10 +107,12 @@ def test_symlink_install_builds_runs_and_shows_a_source_edit_without_a_rebuild(e
     beacon_says(root, "beacon up, edited")
 
 
-def test_a_cmake_package_that_globs_its_files_follows_a_branch_switch_both_ways(engine, tmp_path):
+def test_a_cmake_package_installs_what_its_globs_and_its_rules_say_now(engine, tmp_path):
     """A script removed beside an edit (a branch switch) in a package that installs `file(GLOB)`'s
     list: CMake kept the list it was configured with, and every build failed on the removed file
-    until --force; switched back, the file came back but was not installed."""
+    until --force; switched back, the file came back but was not installed. A target renamed in
+    CMakeLists.txt, or an install rule taken out: what they had installed stayed, and `espdock
+    run` ran the old executable (as colcon leaves it)."""
     root = copy_workspace(tmp_path / "globs", packages=(), test_packages=("uptime_tools",), runtime_image=False)
     package = root / "ws/src/uptime_tools"
     cmake = package / "CMakeLists.txt"
@@ -139,6 +141,17 @@ def test_a_cmake_package_that_globs_its_files_follows_a_branch_switch_both_ways(
     extra.chmod(0o755)
     built(root)
     assert (lib / "extra_banner").is_file(), "a file back in the glob's directory is installed again"
+    cmake.write_text(
+        cmake.read_text()
+        .replace("uptime_report src/uptime_report.c", "uptime_summary src/uptime_report.c")
+        .replace("install(TARGETS uptime_report", "install(TARGETS uptime_summary")
+    )
+    renamed = espdock("build", "--only", "ros", cwd=root)
+    assert renamed.returncode == 0, renamed.stdout[-3000:] + renamed.stderr[-3000:]
+    assert "installing afresh what changed its CMakeLists.txt: uptime_tools" in " ".join(renamed.stdout.split())
+    assert sorted(p.name for p in lib.iterdir()) == ["extra_banner", "rclpy_banner", "tools_banner", "uptime_summary"]
+    gone = espdock("run", "uptime_tools", "uptime_report", cwd=root)
+    assert gone.returncode == 2 and "uptime_summary" in gone.stderr, gone.stdout + gone.stderr
 
 
 WRAPPER_PACKAGE = """<?xml version="1.0"?>

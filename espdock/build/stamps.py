@@ -37,21 +37,29 @@ class TreeState(NamedTuple):
     digest: str  # tree_digest
     newest: int  # the newest modification time (ns) of a file
     paths: tuple[str, ...]  # the files, each relative to its root
-    # The DECLARING files' digest ("" without them): where a package declares what it installs
-    # (setup.py's entry points and data_files, CMake's targets and install rules), and so what
-    # stays installed when it stops.
+    # The digest of the files declaring what a package installs (declaring(); "" without them):
+    # setup.py's entry points and data_files, CMake's targets and install rules, and so what
+    # stays installed when they stop.
     declares: str
 
 
-# The files of a package (relative to it) that declare what setuptools or CMake installs.
-DECLARING = ("setup.py", "setup.cfg", "CMakeLists.txt")
+# The files of a package (relative to it) that declare what setuptools installs.
+SETUP_FILES = ("setup.py", "setup.cfg")
+
+
+def declaring(rel: str) -> bool:
+    """Whether the file REL (relative to its package) declares what the package installs:
+    setuptools' SETUP_FILES, and CMake's lists and modules wherever they are (add_subdirectory)."""
+    return rel in SETUP_FILES or rel.rpartition("/")[2] == "CMakeLists.txt" or rel.endswith(".cmake")
+
+
 # A record's setup.py digest after a build that failed with another: matches no tree_state.
 CHANGED_SINCE = "changed by a build that did not finish"
 
 
 def tree_state(*roots: Path) -> TreeState:
     """tree_digest of ROOTS, the newest modification time of a file in them, their files' paths
-    and the digest of their DECLARING files."""
+    and the digest of the files declaring what they install."""
     digest = hashlib.sha256()
     declares = hashlib.sha256()
     newest = 0
@@ -86,9 +94,9 @@ def tree_state(*roots: Path) -> TreeState:
             digest.update(content := hashlib.sha256(data).digest())
             if executable:
                 digest.update(b"\0executable")
-            if rel in DECLARING:
+            if declaring(rel):
                 declares.update(rel.encode() + b"\0" + content)
-    declared = declares.hexdigest() if any(p in DECLARING for p in paths) else ""
+    declared = declares.hexdigest() if any(declaring(p) for p in paths) else ""
     return TreeState(digest.hexdigest(), newest, tuple(paths), declared)
 
 
@@ -247,12 +255,18 @@ class StampFile:
             trees, lambda entry, now: entry.get("tree") not in (None, now.digest) and "paths" not in entry
         )
 
-    def redeclared(self, trees: Mapping[str, TreeState]) -> tuple[str, ...]:
-        """The packages of TREES whose DECLARING files changed since their last build: an entry point
-        or a data file taken out of setup.py stayed installed (`espdock run` listed the script, and
-        it failed), since setuptools only adds to an install; as did a CMake target renamed or an
-        install rule taken out (the old executable ran)."""
-        return self._where(trees, lambda entry, now: bool(before := entry.get("declares")) and before != now.declares)
+    def redeclared(self, trees: Mapping[str, TreeState], unrecorded: bool = False) -> tuple[str, ...]:
+        """The packages of TREES whose declaring files (declaring()) changed since their last build:
+        an entry point or a data file taken out of setup.py stayed installed (`espdock run` listed
+        the script, and it failed), since setuptools only adds to an install; as did a CMake target
+        renamed or an install rule taken out (the old executable ran). UNRECORDED: and those whose
+        record has none of their digest (an older espdock's, of a CMake package)."""
+
+        def holds(entry: dict, now: TreeState) -> bool:
+            before = entry.get("declares")
+            return before != now.declares if before else unrecorded and bool(now.declares)
+
+        return self._where(trees, holds)
 
     def _where(self, trees: Mapping[str, TreeState], holds: Callable[[dict, TreeState], bool]) -> tuple[str, ...]:
         """The packages of TREES whose record and tree_state now HOLDS is true of."""

@@ -286,7 +286,7 @@ def init_workspace(directory: Path, owner: tuple[int, int] | None = None) -> tup
             created.append(GITIGNORE)
         # Not inside a repository that says how its files are checked out: the deeper file
         # would win over its rules (a .bat's CRLF, a -text file).
-        if not any(os.path.lexists(d / GITATTRIBUTES) for d in (root, *root.parents)):
+        if not _attributes_above(root):
             (root / GITATTRIBUTES).write_text(GITATTRIBUTES_TEXT)
             created.append(GITATTRIBUTES)
     except OSError as exc:
@@ -316,6 +316,17 @@ GITATTRIBUTES_TEXT = """\
 # also on Windows (core.autocrlf), where a CRLF script fails there (`/usr/bin/env: 'python3\\r'`).
 * text=auto eol=lf
 """
+
+
+def _attributes_above(root: Path) -> bool:
+    """Whether ROOT, or a directory above it within its git repository, has a .gitattributes
+    (Git reads none above the repository's top)."""
+    for directory in (root, *root.parents):
+        if os.path.lexists(directory / GITATTRIBUTES):
+            return True
+        if os.path.lexists(directory / ".git"):
+            return False
+    return False
 
 
 def undo_init(root: Path, created: list[str]) -> None:

@@ -51,13 +51,14 @@ def executables(install: Path, package: str, root: Path | None = None) -> list[s
     """The executables `ros2 run` would find for PACKAGE in the install tree INSTALL (ROOT: the
     workspace root, where the links of a symlink install lead)."""
     directory = install / package / "lib" / package
-    if not directory.is_dir():
-        return []
     found = []
-    for entry in directory.iterdir():
-        path = resolve_installed(entry, root if root is not None else install.parent)
-        if path is not None and path.is_file() and os.access(path, os.X_OK):
-            found.append(entry.name)
+    try:
+        for entry in directory.iterdir():
+            path = resolve_installed(entry, root if root is not None else install.parent)
+            if path is not None and path.is_file() and os.access(path, os.X_OK):
+                found.append(entry.name)
+    except OSError:  # none, or another user's this one may not read (mode 0700): nothing to run here
+        return []
     return sorted(found)
 
 

@@ -146,6 +146,10 @@ class RosSteps:
                 why = f"--force: building {len(afresh)} package(s) afresh, in new build dirs and install prefixes"
                 reasons.append((both(afresh), why))
         else:
+            # Not what the options after `--` leave out: colcon would not install it again (a
+            # package skipped lost its install, and what depends on it failed to build).
+            out = left_out(step.colcon_args, dict(step.depends), base)
+            rebuild = tuple(name for name in rebuild if name not in out)
             # Only those built before (a build dir here, or a record of one in the workspace volume): a
             # first build has nothing to build afresh, and said it did.
             recorded = stamp_file.read()
@@ -212,10 +216,11 @@ class RosSteps:
                 reasons.append((both(redeclared), why))
             # CMake's install of an emptied prefix puts every file of its rules there again, the build incremental.
             cmake_trees = {n: now for n, now in others.items() if n not in step.python and n not in lost}
-            if reinstalled := stamp_file.redeclared(cmake_trees):
+            if reinstalled := stamp_file.redeclared(cmake_trees, unrecorded=True):
                 why = (
-                    f"installing afresh what changed its CMakeLists.txt: {', '.join(reinstalled)} (what a target "
-                    "renamed or an install rule taken out had installed would stay in install/)"
+                    f"installing afresh what changed its CMake files (or whose last build did not record them): "
+                    f"{', '.join(reinstalled)} (what a target renamed or an install rule taken out had installed "
+                    "would stay in install/)"
                 )
                 reasons.append((tuple(install / name for name in reinstalled), why))
             done = {*moved, *put_back, *lost, *redeclared, *reinstalled}

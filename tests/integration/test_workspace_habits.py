@@ -148,10 +148,25 @@ def test_a_cmake_package_installs_what_its_globs_and_its_rules_say_now(engine, t
     )
     renamed = espdock("build", "--only", "ros", cwd=root)
     assert renamed.returncode == 0, renamed.stdout[-3000:] + renamed.stderr[-3000:]
-    assert "installing afresh what changed its CMakeLists.txt: uptime_tools" in " ".join(renamed.stdout.split())
+    said = " ".join(renamed.stdout.split())
+    assert "installing afresh what changed its CMake files (or whose last build did not record" in said
+    assert "them): uptime_tools" in said
     assert sorted(p.name for p in lib.iterdir()) == ["extra_banner", "rclpy_banner", "tools_banner", "uptime_summary"]
     gone = espdock("run", "uptime_tools", "uptime_report", cwd=root)
     assert gone.returncode == 2 and "uptime_summary" in gone.stderr, gone.stdout + gone.stderr
+    # Skipped by the options after `--`, it keeps its install: colcon would not install it again.
+    cmake.write_text(cmake.read_text() + "# skipped\n")
+    skipped = espdock("build", "--only", "ros", "--", "--packages-skip", "uptime_tools", cwd=root)
+    assert skipped.returncode == 0, skipped.stdout[-3000:] + skipped.stderr[-3000:]
+    assert "installing afresh" not in skipped.stdout and (lib / "uptime_summary").is_file()
+    # Built by an espdock that recorded no digest of its CMake files: a rename is installed afresh too.
+    stamps = root / "ws/build/.espdock-colcon-stamps.json"
+    records = json.loads(stamps.read_text())
+    records["uptime_tools"]["declares"] = ""
+    stamps.write_text(json.dumps(records))
+    cmake.write_text(cmake.read_text().replace("uptime_summary", "uptime_digest"))
+    built(root)
+    assert sorted(p.name for p in lib.iterdir()) == ["extra_banner", "rclpy_banner", "tools_banner", "uptime_digest"]
 
 
 WRAPPER_PACKAGE = """<?xml version="1.0"?>

@@ -357,6 +357,12 @@ def test_a_workspace_from_init_checks_its_scripts_out_with_lf_on_windows(tmp_pat
     (tmp_path / "shared").mkdir()
     assert espdock("init", "linked", cwd=tmp_path, env=NO_ENGINE).returncode == 0
     assert not (tmp_path / "shared/.gitattributes").exists()
+    # One above the repository's top is not its (Git reads none there): written.
+    (tmp_path / "home").mkdir()
+    (tmp_path / "home/.gitattributes").write_text("*.x text\n")
+    subprocess.run(["git", "init", "-q", str(tmp_path / "home/ws")], check=True)
+    assert espdock("init", "home/ws", cwd=tmp_path, env=NO_ENGINE).returncode == 0
+    assert (tmp_path / "home/ws/.gitattributes").is_file()
 
 
 def test_init_in_the_src_of_a_workspace_or_inside_one_is_refused_leaving_nothing(tmp_path):

@@ -62,6 +62,23 @@ def test_an_executable_is_found_where_the_runtime_image_holds_it(ws):
     assert find_executable(workspace, packages, "talk", "talker") == "/opt/espdock/ws/install/talk/lib/talk/talker"
 
 
+def test_another_package_s_install_this_user_may_not_read_is_no_crash(ws, monkeypatch):
+    """`espdock run talk talker` beside another user's install/quiet (mode 0700): "espdock failed
+    unexpectedly (PermissionError ...)", where that package has nothing this user can run."""
+    workspace, packages = ws
+    installed(workspace.root, "quiet", "hidden")
+    unreadable = workspace.root / "install/quiet/lib/quiet"
+    listed = Path.iterdir
+
+    def iterdir(path: Path):
+        if path == unreadable:  # root reads every directory: as another user would find it
+            raise PermissionError(13, "Permission denied", str(path))
+        return listed(path)
+
+    monkeypatch.setattr(Path, "iterdir", iterdir)
+    assert find_executable(workspace, packages, "talk", "talker").endswith("/talk/lib/talk/talker")
+
+
 def test_an_install_tree_a_native_colcon_build_rewrote_is_refused_with_what_to_do(ws):
     workspace, packages = ws
     talker = workspace.root / "install" / "talk" / "lib" / "talk" / "talker"

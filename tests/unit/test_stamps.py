@@ -3,10 +3,11 @@
 from __future__ import annotations
 
 import hashlib
+import json
 import os
 from pathlib import Path
 
-from espdock.build.stamps import listing_digest
+from espdock.build.stamps import StampFile, listing_digest, tree_state
 
 
 def test_an_install_listing_keeps_the_format_earlier_builds_recorded(tmp_path):
@@ -136,8 +137,6 @@ def test_a_named_pipe_or_a_socket_in_a_package_is_hashed_by_its_kind_without_bei
     import socket
     import threading
 
-    from espdock.build.stamps import tree_state
-
     package = tmp_path / "pkg"
     package.mkdir()
     (package / "package.xml").write_text("<package/>")
@@ -190,3 +189,35 @@ def test_a_file_gone_between_the_listing_and_its_reading_is_not_a_crash(tmp_path
     state = stamps.tree_state(package)
     monkeypatch.undo()
     assert state == stamps.tree_state(package)
+
+
+def test_what_a_cmake_package_installs_is_declared_in_its_lists_and_modules_wherever_they_are(tmp_path):
+    """A target renamed in a subdirectory's CMakeLists.txt (add_subdirectory) or a cmake/ module
+    left what it had installed, and `espdock run` ran the old executable: only the top-level
+    CMakeLists.txt counted as declaring what the package installs."""
+    package = tmp_path / "src/tool"
+    (package / "src").mkdir(parents=True)
+    (package / "cmake").mkdir()
+    files = {
+        "CMakeLists.txt": "add_subdirectory(src)\n",
+        "src/CMakeLists.txt": "add_executable(tool6 main.c)\n",
+        "cmake/install.cmake": "install(TARGETS tool6)\n",
+        "src/main.c": "int main(void) { return 0; }\n",
+    }
+    for rel, text in files.items():
+        (package / rel).write_text(text)
+    stamps = StampFile(tmp_path / "stamps.json")
+    first = tree_state(package)
+    stamps.record({"tool": "s1"}, {}, {"tool": "src/tool"}, {"tool": first})
+    (package / "src/main.c").write_text("int main(void) { return 1; }\n")
+    assert stamps.redeclared({"tool": tree_state(package)}) == (), "a source edit declares nothing new"
+    for rel in ("src/CMakeLists.txt", "cmake/install.cmake"):
+        (package / rel).write_text(files[rel].replace("tool6", "tool7"))
+        assert stamps.redeclared({"tool": tree_state(package)}) == ("tool",), rel
+        (package / rel).write_text(files[rel])
+    # Built by an espdock that recorded no such digest for a CMake package: asked for, it counts.
+    records = stamps.read()
+    records["tool"]["declares"] = ""
+    (tmp_path / "stamps.json").write_text(json.dumps(records))
+    assert stamps.redeclared({"tool": tree_state(package)}) == ()
+    assert stamps.redeclared({"tool": tree_state(package)}, unrecorded=True) == ("tool",)

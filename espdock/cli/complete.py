@@ -68,22 +68,21 @@ packages = _packages_of(None)
 firmware_packages = _packages_of(PackageKind.FIRMWARE)
 
 
-def _runnable(found: tuple[Workspace, tuple[Package, ...]], incomplete: str = "") -> dict[str, list[str]]:
-    """The built ROS packages starting with INCOMPLETE that have an executable to run, with them."""
-    ws, install = found[0], found[0].ws_dir / "install"
-    built = (name for name in installed_ros_packages(*found) if name.startswith(incomplete))
-    return {name: run for name in built if (run := executables(install, name, ws.root))}
-
-
 @_quiet
 def runnable_packages(ctx: typer.Context, incomplete: str) -> list[str]:
+    """The built ROS packages with an executable to run (not an interface package's)."""
     found = _workspace(ctx)
-    return [] if found is None else _offer(_runnable(found, incomplete), incomplete)
+    if found is None:
+        return []
+    ws, install = found[0], found[0].ws_dir / "install"
+    built = (name for name in installed_ros_packages(*found) if name.startswith(incomplete))
+    return _offer((name for name in built if executables(install, name, ws.root)), incomplete)
 
 
 @_quiet
 def package_executables(ctx: typer.Context, incomplete: str) -> list[str]:
     found, package = _workspace(ctx), ctx.params.get("package")
-    if found is None or not package:
+    if found is None or package not in installed_ros_packages(*found):  # a firmware package runs nothing
         return []
-    return _offer(_runnable(found, package).get(package, ()), incomplete)
+    ws = found[0]
+    return _offer(executables(ws.ws_dir / "install", package, ws.root), incomplete)

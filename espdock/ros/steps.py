@@ -128,27 +128,27 @@ class RosSteps:
             """NAMES' build dirs and install prefixes."""
             return tuple(tree for name in names for tree in (base / name, install / name))
 
+        # What the options after `--` leave out: colcon would not build or install it again.
+        out = left_out(step.colcon_args, dict(step.depends), base)
         if switched := install_kind_switched(base, rebuild, step.effective_args):
             turned = "on" if "--symlink-install" in step.effective_args else "off"
             why = (
                 f"--symlink-install {turned} since their last build: removed the build dirs and install prefixes "
                 f"of {len(switched)} package(s), which colcon cannot switch in place"
             )
-            if out := [name for name in switched if name in left_out(step.colcon_args, dict(step.depends), base)]:
-                why += f"; {', '.join(out)}, which the options after `--` leave out, stay uninstalled until built"
+            if skipped := [name for name in switched if name in out]:
+                why += f"; {', '.join(skipped)}, which the options after `--` leave out, stay uninstalled until built"
             reasons.append((both(switched), why))
             rebuild = tuple(name for name in rebuild if name not in switched)
         if step.force:
             # A rebuild by make and setuptools, which decide by time, kept what a source put back
             # with an older time (`cp -p`, a backup) had built: the old binary, --force or not.
-            out = left_out(step.colcon_args, dict(step.depends), base)
             if afresh := [name for name in rebuild if name not in out]:
                 why = f"--force: building {len(afresh)} package(s) afresh, in new build dirs and install prefixes"
                 reasons.append((both(afresh), why))
         else:
-            # Not what the options after `--` leave out: colcon would not install it again (a
-            # package skipped lost its install, and what depends on it failed to build).
-            out = left_out(step.colcon_args, dict(step.depends), base)
+            # Not what `--` leaves out: a package skipped lost its install, and what depends on it
+            # failed to build.
             rebuild = tuple(name for name in rebuild if name not in out)
             # Only those built before (a build dir here, or a record of one in the workspace volume): a
             # first build has nothing to build afresh, and said it did.

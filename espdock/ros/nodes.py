@@ -179,6 +179,12 @@ def node_env(env: Mapping[str, str], mounted: bool = True) -> tuple[tuple[str, s
     return tuple(sorted(values.items()))
 
 
+def terminal_env(env: Mapping[str, str], tty: bool) -> tuple[tuple[str, str], ...]:
+    """The caller's TERM for a container at their terminal (TTY): the engine's default, xterm,
+    gave Emacs' `M-x shell` (TERM=dumb) bash's bracketed-paste escapes and a colour prompt."""
+    return (("TERM", env["TERM"]),) if tty and env.get("TERM") else ()
+
+
 def profile_mounts(env: Mapping[str, str], cwd: Path) -> tuple[Mount, ...]:
     """The Fast DDS profiles files ENV names (relative to CWD), each mounted where node_env says;
     a ConfigError (exit 2) for one that is not a file, which Fast DDS would only warn about."""
@@ -442,7 +448,8 @@ def node_spec(
     (host, container) passed in; OWNER also gets the devices' groups (a serial port's dialout).
     VARIABLES (--env) come last: they win."""
     given = dict(variables)
-    passed = [(name, value) for name, value in (("HOME", "/tmp"), SIGNAL_GROUP, *node_env(env)) if name not in given]
+    own = (("HOME", "/tmp"), SIGNAL_GROUP, *terminal_env(env, tty), *node_env(env))
+    passed = [(name, value) for name, value in own if name not in given]
     return RunSpec(
         image=image,
         argv=(path, *args),
@@ -536,6 +543,7 @@ def shell_spec(
             *named,
             *colcon,
             ("ESPDOCK_WS_INSTALL", f"{root}/install"),
+            *terminal_env(env, tty),
             *node_env(env, mounted=not mount.volume),
         ),
         labels=_labels(workspace, "shell"),

@@ -757,6 +757,38 @@ def test_ctrl_c_stops_a_script_piped_into_the_shell(engine, node_workspace):
     assert no_containers_left(engine, node_workspace) == []
 
 
+def test_the_shell_at_a_terminal_keeps_the_callers_term(engine, node_workspace):
+    """Emacs' `M-x shell` (TERM=dumb) got the engine's TERM=xterm: bash's bracketed-paste escapes
+    and colour prompt in a buffer that cannot show them."""
+    import pty
+
+    env = {**os.environ, "TERM": "dumb"}
+    pid, terminal = pty.fork()
+    if pid == 0:
+        os.chdir(node_workspace)
+        os.execve(sys.executable, [sys.executable, "-m", "espdock", "shell"], env)
+    said = b""
+    try:
+        os.write(terminal, b'echo "term:$TERM:"; exit 3\n')
+        deadline = time.monotonic() + 120
+        with contextlib.suppress(OSError):  # the terminal closes with espdock
+            while time.monotonic() < deadline:
+                if select.select([terminal], [], [], 1)[0]:
+                    if not (chunk := os.read(terminal, 4096)):
+                        break
+                    said += chunk
+        _, status = os.waitpid(pid, 0)
+    finally:
+        with contextlib.suppress(ChildProcessError, ProcessLookupError):
+            os.kill(pid, signal.SIGKILL)
+            os.waitpid(pid, 0)
+    text = said.decode(errors="replace")
+    assert os.waitstatus_to_exitcode(status) == 3, text
+    assert "term:dumb:" in text, text
+    assert "\x1b[?2004h" not in text, text
+    assert no_containers_left(engine, node_workspace) == []
+
+
 @pytest.mark.slow
 def test_shell_on_the_official_image_has_the_workspace_sourced(engine, tmp_path):
     """The official image's build stage keeps its own entrypoint, which sources ROS only."""

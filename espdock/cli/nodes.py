@@ -11,21 +11,22 @@ from pathlib import Path
 from typing import Annotated
 
 import typer
+from rich.text import Text
 
 from espdock.build.prepare import last_build_options, workspace_packages
 from espdock.build.runner import Runner
-from espdock.build.steps import LABEL_WORKSPACE, Plan
+from espdock.build.steps import LABEL_WORKSPACE, EnsureImage, Plan
 from espdock.cli import complete
-from espdock.cli.core import WorkspaceOption, app, build_plan, command, ensure_images, load, notify
+from espdock.cli.core import WorkspaceOption, app, build_plan, command, console, ensure_images, load, notify
 from espdock.cli.prune import record_images
 from espdock.config import Config, invoking_user, resolve_ca_bundle
-from espdock.errors import Interrupted, WorkspaceError
+from espdock.errors import EspdockError, Interrupted, WorkspaceError
 from espdock.images import bootstrap
 from espdock.images.engine import ComposeStillStopping, Engine, RunSpec, in_background
 from espdock.images.keyed import is_current
 from espdock.ros import compose as compose_file
 from espdock.ros import nodes, rmw
-from espdock.ros.plan import ColconBuild, RuntimeImage, runtime_repository
+from espdock.ros.plan import ColconBuild, RuntimeImage, runtime_repository, runtime_step
 from espdock.ros.steps import built_on_older, edited_since_built, runtime_spec
 from espdock.workspace import PackageKind, Workspace, build_running
 
@@ -95,6 +96,30 @@ def runtime_image(ws: Workspace, config: Config, plan: Plan | None = None) -> tu
     # A runtime image `run` or `compose` made is the workspace's as much as a build's: prune may take it.
     record_images(ws, runner, step.repository)
     return runner, spec.tag
+
+
+def stale_runtime_note(engine: Engine, ws: Workspace, config: Config, plan: Plan) -> None:
+    """After a build that changed install/ and made no runtime image: say when espdock/<name>:latest,
+    which plain `docker compose up` runs, is no longer the image of install/ (a Compose user's
+    robot ran the code before the build, without a word)."""
+    image = next((s.spec for s in plan.steps if isinstance(s, EnsureImage) and s.spec.target == "build"), None)
+    if image is None or (step := runtime_step(ws, config, image, workspace_packages(ws, config.ros_distro))) is None:
+        return
+    if (latest := engine.image(step.stable_tag)) is None:
+        return  # none yet: Compose says so itself
+    try:
+        current = engine.image(runtime_spec(ws, step).tag)
+    except (EspdockError, OSError):
+        return  # an install tree it cannot read: `espdock compose` will say what
+    if current is None or current.id != latest.id:
+        console.print(
+            Text(
+                f"note: {step.stable_tag} is older than install/ now: plain `docker compose up` runs it as it was; "
+                "`espdock compose up` or `espdock run` make it afresh (`runtime_image = true` in espdock.toml: "
+                "every build does)",
+                style="yellow",
+            )
+        )
 
 
 # Options after Compose's subcommand are Compose's (`exec -w DIR`, `up -w`): espdock's go before it.

@@ -29,6 +29,7 @@ from espdock.cli.core import (
     load,
     notify,
 )
+from espdock.cli.nodes import stale_runtime_note
 from espdock.cli.prune import after_build, record_images
 from espdock.cli.ui import STAMPED, Reporter, nothing_to_build, render_packages, render_plan
 from espdock.config import check_target, in_ci, invoking_user, resolve_ca_bundle
@@ -42,7 +43,7 @@ from espdock.images.keyed import unpushed_error
 from espdock.layout import ROSDEP_LOCK
 from espdock.ros import colcon_register, rosdeps
 from espdock.ros.compose import init_compose
-from espdock.ros.plan import base_image, runtime_repository
+from espdock.ros.plan import ColconBuild, base_image, runtime_repository
 from espdock.ros.trees import orphan_installs, package_trees
 from espdock.workspace import (
     PackageKind,
@@ -220,6 +221,9 @@ def build(
                 style="yellow",
             )
         )
+    colcon = {step.name for step in plan.steps if isinstance(step, ColconBuild)}
+    if not config.runtime_image and any(r.step in colcon and r.outcome is not Outcome.CACHED for r in results):
+        stale_runtime_note(engine, ws, config, plan)
     after_build(engine, ws, config, runner, built, whole=not packages)
 
 

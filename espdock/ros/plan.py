@@ -5,7 +5,7 @@ from __future__ import annotations
 import hashlib
 import os
 import re
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -348,17 +348,22 @@ def ros_steps(
             whole=names == {p.name for p in all_packages if p.kind is PackageKind.ROS},
         ),
     ]
-    built = {p.name for p in all_packages if p.kind is PackageKind.ROS}
     # Only when asked (setting runtime_image): `espdock run` and `espdock compose` make it
-    # when they need it, so an edit-build loop does not pay for it. A workspace's own ROS
-    # Dockerfile without a runtime stage builds, but makes no runtime image.
-    dockerfile = dict(ros_image.context or ()).get(ros_image.dockerfile, b"")
-    if config.runtime_image and has_stage(dockerfile, RUNTIME_STAGE):
-        base_runtime = runtime_base_image(ros_image)
-        steps += [
-            EnsureImage(base_runtime),
-            RuntimeImage(
-                base_runtime, runtime_repository(config, workspace), tuple(sorted(built)), workspace.colcon_root
-            ),
-        ]
+    # when they need it, so an edit-build loop does not pay for it.
+    if config.runtime_image and (runtime := runtime_step(workspace, config, ros_image, all_packages)):
+        steps += [EnsureImage(runtime.base), runtime]
     return steps
+
+
+def runtime_step(
+    workspace: Workspace, config: Config, ros_image: ImageSpec, packages: Iterable[Package]
+) -> RuntimeImage | None:
+    """The runtime image of the ROS PACKAGES built in ROS_IMAGE; None where the workspace's own
+    ROS Dockerfile has no runtime stage (it builds, but makes no runtime image)."""
+    dockerfile = dict(ros_image.context or ()).get(ros_image.dockerfile, b"")
+    if not has_stage(dockerfile, RUNTIME_STAGE):
+        return None
+    built = sorted(p.name for p in packages if p.kind is PackageKind.ROS)
+    return RuntimeImage(
+        runtime_base_image(ros_image), runtime_repository(config, workspace), tuple(built), workspace.colcon_root
+    )

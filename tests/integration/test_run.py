@@ -691,6 +691,10 @@ def test_build_makes_no_runtime_image_run_and_compose_make_it_from_the_last_buil
         node.write_text(node.read_text().replace('info("beacon up")', 'info("beacon up, edited")'))
         rebuilt = espdock("build", cwd=root)
         assert rebuilt.returncode == 0 and engine.image(f"espdock/{name}:latest").id == first.id
+        # Plain `docker compose up` would run the old image, silently: the build says so.
+        stale = f"note: espdock/{name}:latest is older than install/ now"
+        assert stale in rebuilt.stdout.replace("\n", " "), rebuilt.stdout[-2000:]
+        assert "older than install/" not in built.stdout
         started = Node(root, "beacon_nodes", "beacon", domain=int(domain))
         try:
             started.wait_for("beacon up, edited", timeout=180)
@@ -698,6 +702,9 @@ def test_build_makes_no_runtime_image_run_and_compose_make_it_from_the_last_buil
         finally:
             started.stop()
         assert engine.image(f"espdock/{name}:latest").id != first.id
+        # A build that installs the same files leaves it the image of install/: nothing to say.
+        again = espdock("build", "--force", cwd=root)
+        assert again.returncode == 0 and "older than install/" not in again.stdout, again.stdout[-2000:]
     finally:
         espdock("compose", "-p", project, "down", "-t", "1", cwd=root)
         # By tag: the image is bit-identical to any other runtime image of the same install tree

@@ -1,5 +1,6 @@
 """What espdock writes under a home that is not root's while it runs as root with it (`sudo -E
-espdock ...`, `sudo --preserve-env=HOME`): handed to the home's owner when the command ends. Left
+espdock ...`, `sudo --preserve-env=HOME`), and in that user's cache and state dirs outside it:
+handed to the home's owner when the command ends. Left
 root's, a new ~/.cache kept the user's pip out of it, and their next espdock could not record
 its images ("Permission denied")."""
 
@@ -32,12 +33,21 @@ def kept(env: Mapping[str, str]) -> Callable[[], None]:
         return lambda: None
     if info.st_uid == 0:
         return lambda: None
-    ours = [path for path in ours if path.is_relative_to(home) and path != home]
+    owner = (info.st_uid, info.st_gid)
+    # Each directory with the one above it that is the user's: the home, or, for one outside it
+    # (XDG_STATE_HOME=/scratch/me/state, a home quota's habit), the nearest that is there and theirs.
+    tops = {path: home if path.is_relative_to(home) else _nearest(path) for path in ours if path != home}
+    tops = {path: top for path, top in tops.items() if top == home or (top is not None and _owned_by(top, owner[0]))}
+    ours = list(tops)
     made = sorted(
-        {p for path in ours for p in (path, *path.parents) if p.is_relative_to(home) and p != home and not p.exists()},
+        {
+            p
+            for path, top in tops.items()
+            for p in (path, *path.parents)
+            if p.is_relative_to(top) and p != top and not p.exists()
+        },
         key=lambda p: len(p.parts),
     )
-    owner = (info.st_uid, info.st_gid)
 
     def hand_back() -> None:
         for path in made:  # ~/.cache, ~/.local, ~/.local/state, as they were made: parents first
@@ -58,3 +68,18 @@ def kept(env: Mapping[str, str]) -> Callable[[], None]:
                         os.chown(entry, *owner, follow_symlinks=False)
 
     return hand_back
+
+
+def _nearest(path: Path) -> Path | None:
+    """PATH or the nearest directory above it that is there (None: only the root is)."""
+    for candidate in (path, *path.parents):
+        if candidate.exists():
+            return candidate if candidate != Path(candidate.anchor) else None
+    return None
+
+
+def _owned_by(path: Path, uid: int) -> bool:
+    try:
+        return path.stat().st_uid == uid
+    except OSError:
+        return False

@@ -896,6 +896,29 @@ def test_sudo_keeping_the_user_s_home_leaves_nothing_of_root_s_in_it(tmp_path):
     assert {(rel, uid) for rel, uid in owners if uid != 4242} == set()
 
 
+def test_sudo_keeping_the_user_s_cache_outside_the_home_hands_it_back(tmp_path):
+    """XDG_CACHE_HOME and XDG_STATE_HOME on a scratch disk (a home quota's habit): `sudo -E espdock`
+    left them root's, and every later espdock of the user's warned it could not record its images
+    (so `espdock prune` never freed the workspace's old ones). Where the directory above is root's,
+    what espdock made there stays root's."""
+    home, scratch, other = tmp_path / "home", tmp_path / "scratch", tmp_path / "roots"
+    for path in (home, scratch, other):
+        path.mkdir()
+    for path in (home, scratch):
+        os.chown(path, 4242, 4243)
+    root = copy_workspace(tmp_path / "w")
+    env = {"HOME": str(home), "XDG_CACHE_HOME": str(scratch / "cache"), "XDG_STATE_HOME": str(scratch / "state"),
+           "ESPDOCK_STATE_DIR": "", **NO_ENGINE}  # fmt: skip
+    listed = espdock("list", cwd=root, env=env)
+    assert listed.returncode == 0, listed.stderr
+    assert (scratch / "cache/espdock").is_dir(), "nothing was written there: the test tests nothing"
+    assert {p.relative_to(scratch).as_posix() for p in scratch.rglob("*") if p.lstat().st_uid != 4242} == set()
+    listed = espdock("list", cwd=root, env={**env, "XDG_CACHE_HOME": str(other / "cache")})
+    assert listed.returncode == 0, listed.stderr
+    assert (other / "cache/espdock").is_dir(), "nothing was written there: the test tests nothing"
+    assert {p.lstat().st_uid for p in (other, *other.rglob("*"))} == {0}
+
+
 def test_sudo_keeping_the_user_s_home_hands_back_nothing_a_link_there_leads_to_of_root_s(tmp_path):
     """A ~/.cache/espdock that links to a directory of root's: `sudo -E espdock list` handed every
     root-owned file there to the home's owner (with a link to /etc, /etc/shadow)."""

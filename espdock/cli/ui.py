@@ -287,7 +287,8 @@ def render_packages(console: Console, workspace: Workspace, packages: tuple[Pack
     """`espdock list`: PACKAGES (in build order) with kind, build type and workspace dependencies."""
     table = _table(title=str(workspace.root), title_justify="left")
     for column in ("package", "kind", "build type", "depends on (in workspace)"):
-        table.add_column(column)
+        # Folded at a narrow terminal: cut with an ellipsis, `camera…` named no package.
+        table.add_column(column, overflow="fold")
     names = {p.name for p in packages}
     for p in packages:
         table.add_row(p.name, p.kind.value, p.build_type, ", ".join(sorted(p.depends & names)))

@@ -82,6 +82,18 @@ def test_list_shows_packages_in_build_order(tmp_path):
     assert "ws/src/vendored is not built" in bare.stderr
 
 
+def test_list_at_a_narrow_terminal_folds_the_names_it_cannot_fit(tmp_path):
+    """At 40 columns every name was cut with an ellipsis (`custom…`, `camera…`): no package's name."""
+    root = copy_workspace(tmp_path / "w", packages=("custom_interface", "espdock_demo", "espdock_demo_testing"))
+    narrow = espdock("list", cwd=root, env={"FORCE_COLOR": "1", "NO_COLOR": "1", "COLUMNS": "40", **NO_ENGINE})
+    assert narrow.returncode == 0, narrow.stderr
+    text = re.sub(r"\x1b\[[0-9;]*m", "", narrow.stdout)
+    assert "…" not in text and max(len(line) for line in text.splitlines()[1:]) <= 40, text  # under the title
+    first = "".join(line.split("│")[1].strip() for line in text.splitlines() if line.startswith("│"))
+    names = espdock("list", "-n", cwd=root, env=NO_ENGINE).stdout.split()
+    assert first == "".join(names), text
+
+
 def test_monitor_needs_a_terminal_and_says_so(tmp_path):
     root = copy_workspace(tmp_path / "w")
     result = espdock("monitor", "anything", "--port", "socket://127.0.0.1:1", cwd=root, env=NO_ENGINE)

@@ -142,3 +142,18 @@ def test_a_stop_that_comes_as_the_clean_up_begins_ends_it_cleanly(image, script)
         assert f"stopped [{int(signal.SIGTERM)}]" in result.stdout
     if script is STOP_IN_ROUND:
         assert "round finished True" in result.stdout and f"stopped [{int(signal.SIGINT)}]" in result.stdout
+
+
+def test_arguments_rcl_cannot_parse_end_the_node_with_an_error_not_as_a_stop(image):
+    """`ESPDOCK_DEMO_COLORS='[#123456, #abcdef]'` (no quotes around each colour): the node exited
+    0, as a stop does, and its service restarted it over and over with one line, "Failed to parse
+    global arguments", that named no argument."""
+    argv = [
+        "docker", "run", "--rm", "--network", "none",
+        "-v", f"{ROOT}/ws/src/espdock_demo/espdock_demo:{INSTALLED}:ro",
+        image, "/opt/espdock/ws/install/espdock_demo/lib/espdock_demo/camera_sim",
+        "--ros-args", "-p", "colors:=[#123456, #abcdef]",
+    ]  # fmt: skip
+    result = subprocess.run(argv, capture_output=True, text=True, timeout=120, check=False)
+    assert result.returncode == 1, result.stdout + result.stderr
+    assert "Couldn't parse parameter override rule: '-p colors:=[#123456, #abcdef]'" in result.stderr, result.stderr

@@ -122,7 +122,7 @@ _cleaning_up = threading.Event()
 _in_round = threading.Event()
 
 
-def _stopped_by_signal(exc: BaseException, context: Context) -> bool:
+def _stopped_by_signal(exc: BaseException, context: Context, started: bool = True) -> bool:
     """Whether EXC is how a stop request surfaced rather than a fault.
 
     rclpy's signal handler shuts the context down from its own thread, at any moment: between
@@ -132,10 +132,12 @@ def _stopped_by_signal(exc: BaseException, context: Context) -> bool:
     check before a call can close the gap, since the signal may come right after the check.
     The KeyboardInterrupt _request_stop raises may surface as something else: raised while
     pybind11 converts an argument (rclpy's take_message), it comes out as a RuntimeError.
+    Before rclpy.init succeeded (not STARTED) the context was never up: its error is a fault
+    (arguments rcl cannot parse), which exited 0 and was restarted, over and over, unsaid.
     """
     if isinstance(exc, (KeyboardInterrupt, ExternalShutdownException, ShutdownException)) or _stop_requested:
         return True
-    return isinstance(exc, (_rclpy.RCLError, InvalidHandle, RuntimeError)) and not context.ok()
+    return started and isinstance(exc, (_rclpy.RCLError, InvalidHandle, RuntimeError)) and not context.ok()
 
 
 def _request_stop(signum: int, _frame: object) -> None:
@@ -183,8 +185,10 @@ def spin_node(
         signal.signal(signum, _request_stop)
     context = get_default_context()
     node = None
+    started = False
     try:
         rclpy.init()
+        started = True
         node = make_node()
         executor = executor or SingleThreadedExecutor()
         executor.add_node(node)
@@ -201,7 +205,7 @@ def spin_node(
                 finally:
                     _in_round.clear()
     except BaseException as exc:
-        if not _stopped_by_signal(exc, context):
+        if not _stopped_by_signal(exc, context, started):
             raise
     finally:
         _cleaning_up.set()

@@ -147,3 +147,30 @@ def test_settings_for_a_camera_that_does_not_answer_end_in_a_clear_error(demo):
     finally:
         demo.compose("start", "camera_sim")
     demo.wait_until(lambda: demo.post_settings(quality=10)[0] == 200, 30, "the camera answering again")
+
+
+@breaks("led_strip_sim", "camera_ui", "camera_sim")  # camera_sim: its watchdog, thawed, finds it stale
+def test_nodes_restarted_while_one_code_stays_in_view_show_it(demo):
+    """qr_detector publishes a text when it changes: an LED strip restarted while one code stayed
+    in view stayed dark, next to the code in the UI, and a restarted UI said "(none yet)"."""
+    assert demo.probe("follow", "--changes", "1", "--timeout", "20")["ok"]
+    demo.freeze("camera_sim")  # the scene stands still: no new text
+    try:
+        time.sleep(1)  # what the last frames said has been said
+        shown = demo.wait_until(lambda: (demo.state()["qr"] or {}).get("text"), 10, "a code in the UI")
+        led = demo.state()["led"]["hex"]
+        for service in ("led_strip_sim", "camera_ui"):
+            restarts = demo.restart_count(service)
+            demo.crash(service)
+            demo.wait_until(lambda s=service, r=restarts: demo.restart_count(s) > r, 30, f"{service} restarted")
+
+        def ui_text() -> str | None:
+            try:
+                return (demo.state()["qr"] or {}).get("text")
+            except (StackError, OSError):  # the UI still starting
+                return None
+
+        demo.wait_until(lambda: ui_text() == shown, 60, f"the UI showing {shown} again")
+        demo.wait_until(lambda: demo.probe("led")["led"] == led, 20, f"the LED strip showing {led} again")
+    finally:
+        demo.thaw("camera_sim")

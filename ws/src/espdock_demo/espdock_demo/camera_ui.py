@@ -20,7 +20,7 @@ from custom_interface.srv import GetCameraConfig, SetCameraConfig
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.node import Node
 from sensor_msgs.msg import CompressedImage
-from std_msgs.msg import ColorRGBA, String
+from std_msgs.msg import ColorRGBA
 
 from espdock_demo import camera_config
 from espdock_demo.colors import Rgb
@@ -37,11 +37,11 @@ from espdock_demo.names import (
 from espdock_demo.ros_common import (
     IMAGE_SUB_QOS,
     LATCHED_QOS,
-    TEXT_QOS,
     config_to_dict,
     spin_node,
     start_diagnostics,
     start_heartbeat,
+    subscribe_text,
 )
 from espdock_demo.web import CameraUnavailable, LiveState, SetResult, UiApp, make_server
 
@@ -67,7 +67,7 @@ class CameraUi(Node):
         self.was_online = False
 
         self.create_subscription(CompressedImage, CAMERA_IMAGE_TOPIC, self.on_image, IMAGE_SUB_QOS)
-        self.create_subscription(String, QR_MESSAGE_TOPIC, lambda m: self.state.update(qr=m.data), TEXT_QOS)
+        subscribe_text(self, QR_MESSAGE_TOPIC, lambda m: self.state.update(qr=m.data))
         self.create_subscription(ColorRGBA, LED_COLOR_TOPIC, self.on_color, LATCHED_QOS)
         self.create_timer(0.5, self.watch_camera)
         watched = list(self.declare_parameter("watch_nodes", list(SIM_NODES)).value)

@@ -18,7 +18,7 @@ from std_msgs.msg import ColorRGBA, String
 
 from espdock_demo.colors import OFF, Rgb, parse_hex_color, shorten
 from espdock_demo.names import LED_COLOR_TOPIC, QR_MESSAGE_TOPIC
-from espdock_demo.ros_common import LATCHED_QOS, TEXT_QOS, spin_node, start_diagnostics, start_heartbeat
+from espdock_demo.ros_common import LATCHED_QOS, spin_node, start_diagnostics, start_heartbeat, subscribe_text
 
 
 class LedStripSim(Node):
@@ -31,7 +31,7 @@ class LedStripSim(Node):
         self.changes = 0
         self.ignored = 0
         self.publisher = self.create_publisher(ColorRGBA, LED_COLOR_TOPIC, LATCHED_QOS)
-        self.create_subscription(String, QR_MESSAGE_TOPIC, self.on_message, TEXT_QOS)
+        subscribe_text(self, QR_MESSAGE_TOPIC, self.on_message)
         start_heartbeat(self)
         start_diagnostics(self, self.diagnostics)
         self.show(OFF)

@@ -21,7 +21,7 @@ from std_msgs.msg import String
 from espdock_demo.colors import shorten
 from espdock_demo.names import CAMERA_IMAGE_TOPIC, QR_MESSAGE_TOPIC
 from espdock_demo.qr import ChangeFilter, Outcome, decode_frame
-from espdock_demo.ros_common import IMAGE_SUB_QOS, TEXT_QOS, spin_node, start_diagnostics, start_heartbeat
+from espdock_demo.ros_common import IMAGE_SUB_QOS, LATCHED_QOS, spin_node, start_diagnostics, start_heartbeat
 
 
 class QrDetector(Node):
@@ -32,7 +32,8 @@ class QrDetector(Node):
         self.filter = ChangeFilter()
         self.frames_received = 0
         self.decode_seconds = 0.0
-        self.publisher = self.create_publisher(String, QR_MESSAGE_TOPIC, TEXT_QOS)
+        # Latched: a node that starts (or restarts) later gets the text in view now (subscribe_text).
+        self.publisher = self.create_publisher(String, QR_MESSAGE_TOPIC, LATCHED_QOS)
         self.create_subscription(CompressedImage, CAMERA_IMAGE_TOPIC, self.on_image, IMAGE_SUB_QOS)
         start_heartbeat(self)
         start_diagnostics(self, self.diagnostics)

@@ -24,6 +24,7 @@ from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.utilities import get_default_context
+from std_msgs.msg import String
 
 from espdock_demo.names import DIAGNOSTICS_TOPIC, HEARTBEAT_FILE_DEFAULT
 
@@ -57,6 +58,22 @@ LATCHED_QOS = QoSProfile(
 )
 
 HEARTBEAT_FILE = os.environ.get("ESPDOCK_HEARTBEAT", HEARTBEAT_FILE_DEFAULT)
+
+
+def subscribe_text(node: Node, topic: str, callback: Callable[[String], None]) -> None:
+    """CALLBACK for TOPIC's texts (TEXT_QOS: any publisher's, `ros2 topic pub`'s too) and, once, for
+    the last one a latched publisher (qr_detector's, LATCHED_QOS) sent before NODE started: a node
+    restarted while one QR code stayed in view showed nothing (an LED strip left dark) until the
+    code changed, qr_detector publishing only changes. The catch-up ends with its first text."""
+    node.create_subscription(String, topic, callback, TEXT_QOS)
+    catch_up = []
+
+    def first(msg: String) -> None:
+        if catch_up:  # a live text may come through both: taken twice, as a repeat, which changes nothing
+            node.destroy_subscription(catch_up.pop())
+            callback(msg)
+
+    catch_up.append(node.create_subscription(String, topic, first, LATCHED_QOS))
 
 
 def config_to_dict(msg: object) -> dict[str, int]:

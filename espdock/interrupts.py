@@ -35,7 +35,18 @@ RELAYED = 1.0
 ECHOED = 0.2
 
 # Only the main thread reads and writes this (Python runs signal handlers there).
-_state: dict[str, float | int | bool | None] = {"first": None, "signal": None, "held": 0, "pending": False}
+_state: dict[str, float | int | bool | str | None] = {
+    "first": None, "signal": None, "held": 0, "pending": False, "left": None,
+}  # fmt: skip
+# What may be left behind when a second signal, or the watchdog, ends a command at once.
+LEFT_BEHIND = "the next espdock build or run here removes any container left behind"
+
+
+def leaving(text: str) -> None:
+    """Say TEXT, instead of LEFT_BEHIND, of what is left when the command ends at once: what a
+    command leaves that no later espdock removes (`compose up`'s services, which `espdock build`
+    was said to remove and did not touch)."""
+    _state["left"] = text
 
 
 def install() -> None:
@@ -91,11 +102,12 @@ def _say(text: str) -> None:
         pass
 
 
+def _left() -> str:
+    return str(_state["left"] or LEFT_BEHIND)
+
+
 def _give_up() -> None:
-    _say(
-        f"interrupted; cleaning up took longer than {GRACE:.0f} s, so espdock stopped waiting "
-        "(the next espdock command removes any container left behind)"
-    )
+    _say(f"interrupted; cleaning up took longer than {GRACE:.0f} s, so espdock stopped waiting ({_left()})")
     os._exit(EXIT_CODE)
 
 
@@ -105,7 +117,7 @@ def _on_signal(signum: int, frame: object) -> None:
         since = time.monotonic() - float(first)
         if since < ECHOED or (signum != _state["signal"] and since < RELAYED):
             return  # the cleanup the first one started goes on
-        _say("interrupted again: exiting now (the next espdock build here removes any container left behind)")
+        _say(f"interrupted again: exiting now ({_left()})")
         os._exit(EXIT_CODE)
     _state["first"], _state["signal"] = time.monotonic(), signum
     watchdog = threading.Timer(GRACE, _give_up)

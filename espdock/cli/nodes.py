@@ -13,6 +13,7 @@ from typing import Annotated
 import typer
 from rich.text import Text
 
+from espdock import interrupts
 from espdock.build.prepare import last_build_options, workspace_packages
 from espdock.build.runner import Runner
 from espdock.build.steps import LABEL_WORKSPACE, EnsureImage, Plan
@@ -173,6 +174,11 @@ def compose(ctx: typer.Context, workspace: WorkspaceOption = None) -> None:
     if ca_bundle is not None:
         env["ESPDOCK_CA_BUNDLE"] = str(ca_bundle)
     token = uuid.uuid4().hex
+    if subcommand == "up":
+        interrupts.leaving(
+            "services Compose started may still be running: `espdock compose ps` lists them, `espdock compose down` "
+            "stops and removes them"
+        )
     try:
         code = engine.run_compose(nodes.labelled_run(args, token), ws.root, env)
     except KeyboardInterrupt as exc:

@@ -42,6 +42,8 @@ def test_the_console_gives_the_uis_address_once_the_ui_is_up_then_the_colours(de
     said = [i for i, line in enumerate(lines) if f"open http://127.0.0.1:{demo.port}" in line]
     ui_up = [i for i, line in enumerate(lines) if "camera_ui is up" in line]
     assert len(said) == 1 and ui_up and ui_up[0] < said[0], lines[:20]
+    # Under `docker compose up demo`, as here, Ctrl-C stops the console alone: "stops the demo" left it running.
+    assert "else `docker compose --profile '*' down`" in lines[said[0]], lines[said[0]]
     assert any("LED strip shows #" in line for line in lines[said[0] :]), lines[-20:]
 
 

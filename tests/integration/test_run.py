@@ -573,6 +573,32 @@ def test_ctrl_c_ends_compose_up_with_130_within_10_s_and_compose_stops_every_ser
                        capture_output=True, check=False)  # fmt: skip
 
 
+def test_a_second_ctrl_c_in_compose_up_says_the_services_may_still_run(engine, tmp_path):
+    """Ctrl-C twice, as Compose's own "press Ctrl+C again to force" invites: espdock said the next
+    `espdock build` removes what was left; the services ran on, and a build touches none."""
+    root = tmp_path / "compose-ws"
+    root.mkdir()
+    (root / "espdock.toml").write_text("")
+    (root / "compose.yaml").write_text(COMPOSE_PROJECT.format(base=base_image()))
+    project = f"espdock-twice-{os.getpid()}"
+    up = Started(root, "compose", "-p", project, "up")
+    try:
+        up.wait_for("polite up", timeout=120)
+        up.wait_for("stubborn up", timeout=30)
+        up.process.send_signal(signal.SIGINT)
+        time.sleep(0.5)  # a hand's second Ctrl-C
+        up.process.send_signal(signal.SIGINT)
+        assert up.process.wait(timeout=30) == 130
+        said = up.output()
+        assert "interrupted again" in said, said
+        assert "services Compose started may still be running" in said and "espdock compose down" in said, said
+        assert "espdock build" not in said, said
+    finally:
+        up.stop()
+        subprocess.run(["docker", "compose", "-p", project, "down", "--timeout", "0"], cwd=root,
+                       capture_output=True, check=False)  # fmt: skip
+
+
 def test_ctrl_c_at_a_terminal_ends_compose_up_with_130_and_says_what_remains(engine, tmp_path):
     """At a real terminal Compose's navigation menu took the key itself: it stopped the services,
     and espdock said nothing and exited 0."""

@@ -66,7 +66,12 @@ class DemoMonitor(Node):
         self.states = states
         if not self.ui_announced and states.get("/camera_ui", {}).get("state") == "ok":
             self.ui_announced = True
-            logger.info(f"espdock demo running: open {self.url} (Ctrl-C stops the demo)")
+            # Ctrl-C stops every service only as `make demo` runs it (`up --attach demo`); under
+            # `docker compose up demo` it stops this console alone, and "stops the demo" left it running.
+            logger.info(
+                f"espdock demo running: open {self.url} (`make demo`: Ctrl-C stops it; "
+                "else `docker compose --profile '*' down`)"
+            )
 
     def summary(self) -> None:
         # A silent node's last counters would read as if all were well.

@@ -53,6 +53,15 @@ def test_the_site_has_every_page_and_the_generated_command_reference(site: Path)
     for name, sub in cli.commands.items():
         assert f'id="espdock-{name}"' in reference, name
         assert squeeze((sub.help or "").split("\n\n")[0].replace("`", "")) in words, name
+        # Each of its options: the page had none (mkdocs-click's table takes click's own Option,
+        # and Typer's options are its vendored click's).
+        section = html.unescape(
+            re.sub(r"<[^>]+>", "", reference.split(f'id="espdock-{name}"')[1].split('id="espdock-')[0])
+        )
+        listed = section.partition("Options:")[2]  # not the description's mentions
+        for param in sub.params:
+            if param.param_type_name == "option" and not param.hidden:
+                assert all(opt in listed for opt in param.opts), (name, param.opts)
 
 
 def test_a_broken_link_a_missing_anchor_and_a_page_out_of_the_nav_fail_the_build(tmp_path: Path) -> None:

@@ -529,9 +529,12 @@ def order_packages(packages: Iterable[Package]) -> tuple[Package, ...]:
     return tuple(ordered)
 
 
-def unknown_package(name: str, known: Iterable[str], workspace: Workspace | None = None) -> WorkspaceError:
-    """The error for a package NAME the workspace's discovery did not find (KNOWN: what it found):
-    left out by an ignore marker in WORKSPACE, misspelt, or not there."""
+def unknown_package(
+    name: str, known: Iterable[str], workspace: Workspace | None = None, kind: str = ""
+) -> WorkspaceError:
+    """The error for a package NAME the workspace's discovery did not find (KNOWN: what it found,
+    of the KIND the command takes, "firmware": only those are offered): left out by an ignore
+    marker in WORKSPACE, misspelt, or not there."""
     if workspace is not None and (left := left_out(workspace).get(name)):
         if not left.kind:
             return WorkspaceError(
@@ -543,7 +546,8 @@ def unknown_package(name: str, known: Iterable[str], workspace: Workspace | None
             f"To build and run it with espdock, {left.fix}.",
         )
     close = difflib.get_close_matches(name, list(known), n=1)
-    hint = f"Did you mean '{close[0]}'?" if close else f"Packages: {', '.join(sorted(known)) or 'none'}."
+    listed = f"{kind.capitalize()} packages" if kind else "Packages"
+    hint = f"Did you mean '{close[0]}'?" if close else f"{listed}: {', '.join(sorted(known)) or 'none'}."
     return WorkspaceError(f"no package named '{name}' in this workspace", hint)
 
 

@@ -47,6 +47,7 @@ from espdock.workspace import (
     order_packages,
     read_build_inputs,
     select_up_to,
+    unknown_package,
     unmanifested,
 )
 
@@ -181,6 +182,10 @@ def firmware_plan(
     ws: Workspace, config: Config, name: str, env: Mapping[str, str], notify: Callable[[str], None]
 ) -> tuple[Plan, IdfBuild]:
     """The plan that ensures firmware package NAME's IDF image, and its build step."""
+    packages = workspace_packages(ws, config.ros_distro)
+    if name not in {p.name for p in packages}:
+        # Offered among the firmware packages: a renamed one's old name got an ament_python package.
+        raise unknown_package(name, [p.name for p in packages if p.kind is PackageKind.FIRMWARE], ws, "firmware")
     return firmware_step(build_plan(ws, config, [name], env=env, notify=notify), name)
 
 

@@ -86,7 +86,8 @@ def find_executable(workspace: Workspace, packages: tuple[Package, ...], package
         # A package an ignore marker leaves out, or a project colcon would build without a
         # package.xml: said as the build says it.
         why = f": {out.what}" if (out := left_out(workspace).get(package)) else ""
-        close = difflib.get_close_matches(package, ros, n=1)
+        # Among those it could run: a renamed package's old name got an interface package's.
+        close = difflib.get_close_matches(package, list(runnable), n=1)
         raise WorkspaceError(
             f"no ROS package '{package}' in this workspace{why}",
             f"Did you mean '{close[0]}'? {close[0]}: {', '.join(runnable.get(close[0], [])) or 'no executable'}."

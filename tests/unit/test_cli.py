@@ -53,6 +53,19 @@ def test_unknown_package_suggests_one(tmp_path):
     assert "Did you mean 'custom_interface'?" in result.stderr
 
 
+def test_a_firmware_command_offers_only_firmware_packages(tmp_path):
+    """`espdock flash walk_board` after walk_board was renamed offered an ament_python package,
+    which flash then refused as "not a firmware package"."""
+    root = copy_workspace(tmp_path / "w")
+    shutil.copytree(REPO / "firmware/led_strip_node", root / "firmware/led_strip_node")
+    result = espdock("flash", "custom_interfaces", "--port", "socket://127.0.0.1:1", cwd=root, env=NO_ENGINE)
+    assert result.returncode == 2, result.stderr
+    assert "no package named 'custom_interfaces'" in result.stderr and "custom_interface'" not in result.stderr
+    assert "Firmware packages: led_strip_node." in result.stderr, result.stderr
+    offered = espdock("flash", "led_strip_nod", "--port", "socket://127.0.0.1:1", cwd=root, env=NO_ENGINE)
+    assert "Did you mean 'led_strip_node'?" in offered.stderr, offered.stderr
+
+
 def test_no_engine_at_docker_host_is_a_clear_error(tmp_path):
     root = copy_workspace(tmp_path / "w")
     result = espdock("build", cwd=root, env=NO_ENGINE)

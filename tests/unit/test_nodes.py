@@ -155,6 +155,15 @@ def test_a_misspelt_name_in_a_large_workspace_is_suggested_in_a_short_hint(ws):
     assert "13 packages: acme_driver_0, acme_driver_1," in caught.value.hint and "_node" not in caught.value.hint
 
 
+def test_a_misspelt_name_is_offered_only_a_package_it_could_run(ws):
+    """A package renamed since: `espdock run walk_py talker` offered walk_msgs, an interface package
+    ("walk_msgs: no executable"), where the one it could run was listed nowhere."""
+    workspace, packages = ws
+    with pytest.raises(WorkspaceError) as caught:
+        find_executable(workspace, packages, "quiet_", "x")  # `quiet` is there, unbuilt: nothing to run
+    assert "Did you mean" not in caught.value.hint and "talk: listener, talker" in caught.value.hint
+
+
 def test_run_of_a_package_espdock_leaves_out_says_what_leaves_it_out(ws):
     """Both were "no ROS package 'NAME' in this workspace", as for a misspelt name."""
     workspace, packages = ws

@@ -86,8 +86,10 @@ def find_executable(workspace: Workspace, packages: tuple[Package, ...], package
         # A package an ignore marker leaves out, or a project colcon would build without a
         # package.xml: said as the build says it.
         why = f": {out.what}" if (out := left_out(workspace).get(package)) else ""
-        # Among those it could run: a renamed package's old name got an interface package's.
-        close = difflib.get_close_matches(package, list(runnable), n=1)
+        # Among those it could run, or might once built: a renamed package's old name got an
+        # (installed) interface package's.
+        offered = [name for name in ros if name in runnable or not (install / name).is_dir()]
+        close = difflib.get_close_matches(package, offered, n=1)
         raise WorkspaceError(
             f"no ROS package '{package}' in this workspace{why}",
             f"Did you mean '{close[0]}'? {close[0]}: {', '.join(runnable.get(close[0], [])) or 'no executable'}."

@@ -159,8 +159,10 @@ def test_a_misspelt_name_is_offered_only_a_package_it_could_run(ws):
     """A package renamed since: `espdock run walk_py talker` offered walk_msgs, an interface package
     ("walk_msgs: no executable"), where the one it could run was listed nowhere."""
     workspace, packages = ws
+    installed(workspace.root, "walk_msgs")  # built, nothing to run
+    packages += (Package("walk_msgs", workspace.root / "src/walk_msgs", PackageKind.ROS, "ament_cmake", frozenset()),)
     with pytest.raises(WorkspaceError) as caught:
-        find_executable(workspace, packages, "quiet_", "x")  # `quiet` is there, unbuilt: nothing to run
+        find_executable(workspace, packages, "walk_py", "talker")
     assert "Did you mean" not in caught.value.hint and "talk: listener, talker" in caught.value.hint
 
 

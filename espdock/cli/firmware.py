@@ -370,6 +370,9 @@ def monitor(
     _need_terminal("the monitor")
     check_port(serial)
     plan, step = firmware_plan(ws, config, package)
+    # As flash: a package never built said its installed firmware was "not what its sources build
+    # now", then failed in idf.py.
+    read_flasher_args(installed_firmware_dir(ws.ws_dir, package), package)
     runner, step = _installed(ws, config, plan, step)
     check_port_free(runner.engine, serial)
     argv = step.argv(("-p", port, "monitor"))

@@ -1,5 +1,6 @@
 """The CLI's answers to bad input; none of these may need (or touch) a container engine."""
 
+import contextlib
 import json
 import os
 import re
@@ -112,6 +113,32 @@ def test_monitor_needs_a_terminal_and_says_so(tmp_path):
     result = espdock("monitor", "anything", "--port", "socket://127.0.0.1:1", cwd=root, env=NO_ENGINE)
     assert result.returncode == 2
     assert "needs a terminal" in result.stderr
+
+
+def test_monitor_of_a_package_never_built_says_so_as_flash_does(tmp_path):
+    """It said the installed firmware was "not what its sources build now" (there was none), then
+    failed in idf.py ("Cannot load .../project_description.json")."""
+    import pty
+    import socket
+
+    root = copy_workspace(tmp_path / "w")
+    shutil.copytree(REPO / "firmware/led_strip_node", root / "firmware/led_strip_node")
+    with socket.create_server(("127.0.0.1", 0)) as board:  # a port that answers, as a board's does
+        port = f"socket://127.0.0.1:{board.getsockname()[1]}"
+        pid, terminal = pty.fork()
+        if pid == 0:
+            os.chdir(root)
+            argv = [sys.executable, "-m", "espdock", "monitor", "led_strip_node", "--port", port]
+            os.execve(sys.executable, argv, {**os.environ, **NO_ENGINE})
+        said = b""
+        with contextlib.suppress(OSError):
+            while chunk := os.read(terminal, 4096):
+                said += chunk
+        _, status = os.waitpid(pid, 0)
+    text = said.decode(errors="replace")
+    assert os.waitstatus_to_exitcode(status) == 2, text
+    assert "led_strip_node has no installed firmware" in text and "espdock build led_strip_node" in text, text
+    assert "not what its sources build now" not in text, text
 
 
 def test_flash_refuses_a_port_that_is_not_one(tmp_path):

@@ -379,14 +379,16 @@ def init(
         console.print(f"note: {skips}")
     # `cd -x` is an option to cd: a name that starts with a dash goes as ./-x.
     shown = str(directory) if directory.is_absolute() or not str(directory).startswith("-") else f"./{directory}"
-    here = "" if directory.resolve() == Path.cwd() else f"cd {shlex.quote(shown)} && "
     console.print("next:")
+    if directory.resolve() != Path.cwd():
+        # A line of its own: `cd DIR && ...` on each line, pasted in order, cd'd into DIR/DIR.
+        console.print(f"  cd {shlex.quote(shown)}")
     if compose:  # after a build, to run what it built
-        console.print(f"  {here}espdock compose up        # the nodes compose.yaml names, each a service")
+        console.print("  espdock compose up        # the nodes compose.yaml names, each a service")
         return
     if not firmware:
-        console.print(f"  {here}espdock new my_board      # a firmware package (ESP-IDF project + ROS 2 package)")
-    console.print(f"  {here}espdock build             # images, then every package, each in its container")
+        console.print("  espdock new my_board      # a firmware package (ESP-IDF project + ROS 2 package)")
+    console.print("  espdock build             # images, then every package, each in its container")
 
 
 @app.command()

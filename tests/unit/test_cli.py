@@ -1025,11 +1025,18 @@ def test_init_s_next_step_is_a_command_line_that_works_when_pasted(tmp_path):
     """`espdock init "my röbot ws"` said `cd my röbot ws && espdock new my_board`: cd: too many arguments."""
     made = espdock("init", "my röbot ws", cwd=tmp_path)
     assert made.returncode == 0, made.stderr
-    assert "cd 'my röbot ws' && espdock new" in " ".join(made.stdout.split()), made.stdout
+    steps = made.stdout.split("next:\n", 1)[1].splitlines()
+    assert steps[0].strip() == "cd 'my röbot ws'", made.stdout
+    # Pasted in order, as a user does (each line once had its own `cd DIR &&`: the second cd failed).
+    pasted = "set -e\n" + "\n".join(line.split("#")[0] for line in steps if "espdock build" not in line)
+    path = f"{Path(sys.executable).parent}:{os.environ['PATH']}"
+    ran = subprocess.run(["bash", "-c", pasted], cwd=tmp_path, env={**os.environ, "PATH": path, **NO_ENGINE},
+                         capture_output=True, text=True, check=False)  # fmt: skip
+    assert ran.returncode == 0 and (tmp_path / "my röbot ws/src/my_board/package.xml").is_file(), ran.stderr
     # A name that starts with a dash: `cd -my-robot` said "cd: -m: invalid option".
     made = espdock("init", "--", "-my-robot", cwd=tmp_path)
     assert made.returncode == 0, made.stderr
-    assert "cd ./-my-robot && espdock new" in made.stdout, made.stdout
+    assert "  cd ./-my-robot\n" in made.stdout, made.stdout
 
 
 def test_a_project_s_own_sdkconfig_which_the_build_does_not_read_is_named_before_it(tmp_path):

@@ -28,7 +28,15 @@ from espdock.layout import (
     SOURCES_NAME,
     firmware_install_dir,
 )
-from espdock.workspace import FIRMWARE_BUILD_TYPE, BuildInputs, Package, PackageKind, Workspace, idf_project_cmake
+from espdock.workspace import (
+    FIRMWARE_BUILD_TYPE,
+    BuildInputs,
+    Package,
+    PackageKind,
+    Workspace,
+    idf_project_cmake,
+    select_up_to,
+)
 
 
 @dataclass(frozen=True)
@@ -43,6 +51,8 @@ class IdfBuild:
     image_key: str
     force: bool = False
     colcon_root: str = "ws"
+    # The workspace's interface packages it does not depend on: its library has no headers of theirs.
+    unreached: tuple[str, ...] = ()
 
     @property
     def name(self) -> str:
@@ -503,6 +513,7 @@ def firmware_steps(
     steps: list[EnsureImage | IdfBuild | InstallFirmware] = []
     ensured: dict[str, ImageSpec] = {}
     everything = {p.name for p in all_packages}
+    interfaces = {p.name for p in all_packages if p.kind is PackageKind.ROS and p.is_interface}
     for package in firmware:
         check_inside(workspace, package.name, package.path)  # before minutes of its micro-ROS image
         spec = idf_images.get(package.name)
@@ -513,7 +524,19 @@ def firmware_steps(
             steps.append(EnsureImage(spec))
         project = package.path.relative_to(workspace.root).as_posix()
         target = spec_target(spec, config.target)
-        steps.append(IdfBuild(package.name, project, spec.tag, target, spec.key, force, workspace.colcon_root))
+        reached = {p.name for p in select_up_to(all_packages, [package.name])}
+        steps.append(
+            IdfBuild(
+                package.name,
+                project,
+                spec.tag,
+                target,
+                spec.key,
+                force,
+                workspace.colcon_root,
+                tuple(sorted(interfaces - reached)),
+            )
+        )
         run_depends = tuple(sorted(package.depends & everything))
         steps.append(InstallFirmware(package.name, project, run_depends))
     return steps, tuple(ensured.values())

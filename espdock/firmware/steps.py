@@ -8,9 +8,10 @@ import hashlib
 import json
 import os
 import posixpath
+import re
 import shutil
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import replace
 from pathlib import Path
 
@@ -88,15 +89,14 @@ class FirmwareSteps:
         # The same directories after: the build's project_description.json may name more.
         roots = _stamp_roots(workspace, step)
         seen = _source_times(roots)
+        missing: set[str] = set()
+
+        def on_line(line: str) -> None:
+            missing.update(missing_headers(line))
+            self.containers.emit(StepOutput(step.name, host_paths(line, workspace)))
+
         try:
-            code = self.run_idf(
-                workspace,
-                step,
-                step.argv(),
-                on_line=lambda line: self.containers.emit(StepOutput(step.name, host_paths(line, workspace))),
-                sweep=True,
-                reset=reset,
-            )
+            code = self.run_idf(workspace, step, step.argv(), on_line=on_line, sweep=True, reset=reset)
         finally:
             if fresh and (build_dir / "sdkconfig").is_file():
                 # The sdkconfig as the defaults made it, failed build or not: one still like it
@@ -114,7 +114,8 @@ class FirmwareSteps:
             raise BuildFailed(
                 f"idf.py build of {step.package} failed (exit code {code}); its output is above, "
                 f"build files in {build_dir}",
-                "Fix the firmware and run `espdock build` again; installed firmware was left as it was.",
+                undeclared_interface_hint(step, missing)
+                or "Fix the firmware and run `espdock build` again; installed firmware was left as it was.",
             )
         _write_marker(build_dir, step.target, defaults, step.image_key, self.containers.owner)
         changed = _library_settings_changed(build_dir, fresh)
@@ -687,3 +688,27 @@ def _defaults_digest(project: Path, target: str) -> str:
 def _device_groups(devices: tuple[str, ...]) -> list[int]:
     # Serial devices belong to a group (dialout); the container user needs it to open them.
     return sorted({os.stat(d).st_gid for d in devices})
+
+
+# gcc's words for an #include it cannot find: `main.c:3:10: fatal error: pkg/msg/x.h: No such file or directory`.
+_MISSING_HEADER = re.compile(r"fatal error: ([^\s:]+): No such file or directory")
+
+
+def missing_headers(line: str) -> list[str]:
+    """The headers LINE (the compiler's output) says it could not find."""
+    return _MISSING_HEADER.findall(line)
+
+
+def undeclared_interface_hint(step: IdfBuild, missing: Iterable[str]) -> str | None:
+    """The hint for a build that failed on a header of an interface package of the workspace STEP's
+    package does not depend on (a ROS habit: find_package, no <depend>), which the micro-ROS library
+    holds only for the packages it depends on; None where MISSING names none."""
+    named = sorted({header.split("/", 1)[0] for header in missing if "/" in header} & set(step.unreached))
+    if not named:
+        return None
+    depends = "".join(f"<depend>{name}</depend>" for name in named)
+    return (
+        f"{step.package} includes headers of {', '.join(named)}, an interface package of this workspace it does not "
+        f"depend on, so its micro-ROS library has none of them: add {depends} to {step.project}/package.xml and run "
+        "`espdock build` again; installed firmware was left as it was."
+    )

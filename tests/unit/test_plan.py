@@ -169,3 +169,28 @@ def test_a_python_package_s_stamp_is_the_same_whatever_cmake_packages_build_besi
     assert alone.stamp_images()["talker"] == whole.stamp_images()["talker"]
     assert whole.stamp_images()["msgs"] != whole.stamp_images()["talker"], "msgs is built without its tests"
     assert not alone.says_tests_off, "a build of Python packages alone is told nothing of CMake's tests"
+
+
+def test_a_firmware_build_failing_on_a_header_of_an_interface_package_it_does_not_depend_on_says_so(tmp_path):
+    """The ROS habit (find_package, no <depend>): the micro-ROS library holds only the interfaces
+    the package depends on, and the build said "No such file or directory" and "Fix the firmware"."""
+    import subprocess
+
+    from espdock.firmware.steps import missing_headers, undeclared_interface_hint
+
+    walk = Package("walk_msgs", Path("/w/ws/src/walk_msgs"), PackageKind.ROS, "ament_cmake", frozenset(), True)
+    used = Package("used_msgs", Path("/w/ws/src/used_msgs"), PackageKind.ROS, "ament_cmake", frozenset(), True)
+    led = Package("led", Path("/w/firmware/led"), PackageKind.FIRMWARE, "esp_idf", frozenset({"used_msgs"}))
+    spec = ros_build_image(Config(), DOCKERFILE, FILES)
+    plan = plan_build(Workspace(Path("/w")), Config(), (walk, used, led), spec, idf_images={"led": spec})
+    build = next(s for s in plan.steps if isinstance(s, IdfBuild))
+    assert build.unreached == ("walk_msgs",)
+    # What the compiler says of it (the host's gcc, as the IDF toolchain's).
+    source = tmp_path / "main.c"
+    source.write_text("#include <walk_msgs/msg/reading.h>\n#include <used_msgs/msg/other.h>\n")
+    said = subprocess.run(["gcc", "-c", str(source), "-o", "/dev/null"], capture_output=True, text=True, check=False)
+    missing = [header for line in said.stderr.splitlines() for header in missing_headers(line)]
+    assert missing == ["walk_msgs/msg/reading.h"], said.stderr  # gcc stops at the first
+    hint = undeclared_interface_hint(build, missing)
+    assert hint is not None and "add <depend>walk_msgs</depend> to firmware/led/package.xml" in hint, hint
+    assert undeclared_interface_hint(build, ["used_msgs/msg/other.h", "esp_log.h"]) is None

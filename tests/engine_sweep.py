@@ -30,19 +30,52 @@ from espdock.build.steps import LABEL_INPUTS
 from espdock.images.prune import read_records
 
 STATE_KEY = pytest.StashKey[Path]()
-BEFORE_KEY = pytest.StashKey[dict[str, str]]()
+BEFORE_KEY = pytest.StashKey["Before"]()
+
+
+LISTING = ["docker", "image", "ls", "--format", "{{.Repository}}:{{.Tag}} {{.ID}}"]
 
 
 def tagged_images() -> dict[str, str]:
     """Every tag on the engine and its image ID; none when no engine answers (unit tests only)."""
     try:
-        listing = subprocess.run(
-            ["docker", "image", "ls", "--format", "{{.Repository}}:{{.Tag}} {{.ID}}"],
-            capture_output=True, text=True, check=True, timeout=60,
-        )  # fmt: skip
+        listing = subprocess.run(LISTING, capture_output=True, text=True, check=True, timeout=60)
     except (OSError, subprocess.SubprocessError):
         return {}
-    return dict(line.split() for line in listing.stdout.splitlines() if "<none>" not in line)
+    return _tags(listing.stdout)
+
+
+def _tags(listing: str) -> dict[str, str]:
+    return dict(line.split() for line in listing.splitlines() if "<none>" not in line)
+
+
+class Before:
+    """The engine's tags as the run starts, asked in the background: an engine that accepts and
+    never answers (a remote DOCKER_HOST off the VPN) held `make unit`, which needs none, for a
+    minute at the start and another at the end. A first build takes seconds, the listing a tenth."""
+
+    def __init__(self) -> None:
+        try:
+            self._process: subprocess.Popen | None = subprocess.Popen(
+                LISTING, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True
+            )
+        except OSError:
+            self._process = None
+
+    def tags(self) -> dict[str, str]:
+        if self._process is None:
+            return {}
+        try:
+            out, _ = self._process.communicate(timeout=60)
+        except subprocess.TimeoutExpired:
+            self.stop()
+            return {}
+        return _tags(out) if self._process.returncode == 0 else {}
+
+    def stop(self) -> None:
+        if self._process is not None and self._process.poll() is None:
+            self._process.kill()
+            self._process.communicate()
 
 
 def is_runtime_image(inspected: dict) -> bool:
@@ -86,21 +119,23 @@ def pytest_configure(config: pytest.Config) -> None:
     (run / "state" / "workspaces").chmod(0o1777)
     os.environ["ESPDOCK_STATE_DIR"] = str(run / "state")
     config.stash[STATE_KEY] = run
-    config.stash[BEFORE_KEY] = tagged_images()
+    config.stash[BEFORE_KEY] = Before()
 
 
 def pytest_sessionfinish(session: pytest.Session) -> None:
     run = session.config.stash.get(STATE_KEY, None)
     if run is None:
         return
-    tags = runtime_tags(run / "state", session.config.stash[BEFORE_KEY])
+    if not read_records(run / "state"):
+        return  # no build recorded an image
+    tags = runtime_tags(run / "state", session.config.stash[BEFORE_KEY].tags())
     if not tags:
         return
     # Without --force: an image a running container uses stays, and says so.
     removed = subprocess.run(["docker", "rmi", *tags], capture_output=True, text=True, check=False, timeout=300)
     # A tag the run moved (a developer's own espdock/robot:latest, when a test's workspace was
     # also named robot) goes back to the image it named before.
-    before = session.config.stash[BEFORE_KEY]
+    before = session.config.stash[BEFORE_KEY].tags()
     restored = [tag for tag in tags if tag in before and subprocess.run(
         ["docker", "tag", before[tag], tag], capture_output=True, check=False, timeout=60).returncode == 0]  # fmt: skip
     reporter = session.config.pluginmanager.get_plugin("terminalreporter")
@@ -114,6 +149,8 @@ def pytest_sessionfinish(session: pytest.Session) -> None:
 
 
 def pytest_unconfigure(config: pytest.Config) -> None:
+    if (before := config.stash.get(BEFORE_KEY, None)) is not None:
+        before.stop()
     run = config.stash.get(STATE_KEY, None)
     if run is not None:
         os.environ.pop("ESPDOCK_STATE_DIR", None)

@@ -8,6 +8,7 @@ inspect` says what the CLI makes of each, and espdock must agree. No engine is n
 from __future__ import annotations
 
 import json
+import os
 import shutil
 import subprocess
 from pathlib import Path
@@ -154,7 +155,8 @@ def test_a_context_s_engine_that_went_away_is_named_by_its_context_as_when_it_ne
 def test_a_user_socket_that_never_answered_is_started_as_what_it_is(tmp_path, socket, start):
     """DOCKER_HOST naming rootless Docker's or Podman's socket, neither running: the hint said only
     "start the engine DOCKER_HOST names", where an engine that went away got the command."""
-    host = f"unix://{tmp_path / socket}"
+    # Not under tmp_path: with a long TMPDIR the path was over AF_UNIX's 107 characters.
+    host = f"unix:///nonexistent-{os.getpid()}/{socket}"
     with pytest.raises(EngineUnavailable) as raised:
         bootstrap.ensure_engine({"DOCKER_HOST": host, "DOCKER_CONFIG": str(tmp_path)}, print)
     assert raised.value.message == f"no Docker engine answers at {host}: nothing is listening there"

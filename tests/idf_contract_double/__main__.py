@@ -16,6 +16,7 @@ from pathlib import Path
 
 from espdock.config import Config, resolve_ca_bundle
 from espdock.images.engine import Engine
+from tests.conftest import REPO
 from tests.idf_contract_double.build import use_double
 
 
@@ -24,6 +25,15 @@ def main(argv: list[str]) -> int:
         print(__doc__, file=sys.stderr)
         return 2
     root = Path(argv[1] if len(argv) == 2 else ".").resolve()
+    if root == REPO:
+        # Its docker/idf/micro_ros_sources.txt is espdock's own, which ships in the wheel: pinned to
+        # the double's repositories, it passed unsaid until test_pins failed on it.
+        print(
+            f"error: {root} is espdock's own checkout, whose micro-ROS sources espdock ships: point a workspace "
+            "of your own at the double",
+            file=sys.stderr,
+        )
+        return 2
     (root / "docker/idf").mkdir(parents=True, exist_ok=True)
     engine = Engine.connect(os.environ)
     settings = use_double(engine, resolve_ca_bundle(Config(), os.environ), lambda line: None, root)

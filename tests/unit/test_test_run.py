@@ -29,3 +29,14 @@ def test_the_unit_tier_does_not_wait_on_an_engine_that_never_answers(tmp_path):
     silent.close()
     assert ran.returncode == 0, ran.stdout[-2000:] + ran.stderr[-2000:]
     assert took < 45, f"{took:.0f} s: the run waited on the silent engine"
+
+
+def test_the_double_is_not_pointed_at_espdock_s_own_checkout():
+    """`python -m tests.idf_contract_double use .` in the checkout rewrote the micro-ROS sources
+    espdock ships (docker/idf/micro_ros_sources.txt) to the double's, unsaid."""
+    sources = REPO / "docker/idf/micro_ros_sources.txt"
+    before = sources.read_bytes()
+    ran = subprocess.run([sys.executable, "-m", "tests.idf_contract_double", "use", str(REPO)], cwd=REPO,
+                         capture_output=True, text=True, timeout=120, check=False)  # fmt: skip
+    assert ran.returncode == 2 and "espdock's own checkout" in ran.stderr, ran.stderr
+    assert sources.read_bytes() == before

@@ -172,3 +172,28 @@ def test_console_examples_run(body: str, tmp_path: Path) -> None:
         assert result.returncode == code, f"{shlex.join(argv)}: exit {result.returncode}\n{output}"
         for line in shown:
             assert squeeze(line) in output, f"{shlex.join(argv)} did not print {line!r}:\n{output}"
+
+
+def test_each_command_s_synopsis_on_its_page_lists_its_options() -> None:
+    """The `espdock X ...` line under each command's heading drifted from --help: `new` without
+    --transport, `build` without --workspace-mode, `prune` without --volume, ..."""
+    checked = 0
+    for page in sorted(DOCS.glob("*.md")):
+        lines = page.read_text().splitlines()
+        for at, line in enumerate(lines):
+            if not re.match(r"^### `espdock [a-z-]+", line):
+                continue
+            synopsis = next(text for text in lines[at + 1 : at + 4] if text.startswith("`espdock"))
+            for part in synopsis.split(" / "):
+                words = part.strip("`").split()
+                command = cli.commands[words[1]]
+                if hasattr(command, "commands") and len(words) > 2:
+                    command = command.commands[words[2].split("|")[0]]
+                options = {
+                    opt for param in command.params if param.param_type_name == "option" and not param.hidden
+                    for opt in (*param.opts, *param.secondary_opts) if opt.startswith("--")
+                }  # fmt: skip
+                said = set(re.findall(r"--[a-z][a-z0-9-]*", part))
+                assert options - {"--workspace", "--help"} <= said <= options, (page.name, part)
+                checked += 1
+    assert checked >= 20, checked

@@ -265,6 +265,16 @@ LIBRARY_SDKCONFIG_PREFIXES = (
 APP_ONLY_SDKCONFIG = frozenset({"CONFIG_MICRO_ROS_AGENT_IP", "CONFIG_MICRO_ROS_AGENT_PORT"})
 
 
+# micro_ros_espidf_component's Kconfig choices, each its default first. `idf.py save-defconfig`
+# writes no line for a default: the template's explicit ones gone, the same library was keyed
+# afresh, a micro-ROS image (minutes on real IDF) for a configuration that had not changed. A
+# choice no line makes is its default, as Kconfig makes it.
+LIBRARY_CHOICES = (
+    ("CONFIG_MICRO_ROS_ESP_XRCE_DDS_MIDDLEWARE", "CONFIG_MICRO_ROS_ESP_EMBEDDEDRTPS_MIDDLEWARE"),
+    ("CONFIG_MICRO_ROS_ESP_NETIF_WLAN", "CONFIG_MICRO_ROS_ESP_NETIF_ENET", "CONFIG_MICRO_ROS_ESP_UART_TRANSPORT"),
+)
+
+
 SDKCONFIG_LINE = re.compile(r"^(CONFIG_[A-Za-z0-9_]+)=(.*)$|^#\s*(CONFIG_[A-Za-z0-9_]+) is not set\s*$")
 
 
@@ -282,6 +292,9 @@ def library_sdkconfig(defaults: Mapping[str, bytes], target: str) -> str:
             key = match.group(1) or match.group(3)
             if key.startswith(LIBRARY_SDKCONFIG_PREFIXES) and key not in APP_ONLY_SDKCONFIG:
                 values[key] = match.group(2) if match.group(1) else "n"
+    for choice in LIBRARY_CHOICES:
+        if not values.keys() & set(choice):
+            values[choice[0]] = "y"
     return "".join(
         f"# {key} is not set\n" if value == "n" else f"{key}={value}\n" for key, value in sorted(values.items())
     )

@@ -216,7 +216,10 @@ def test_context_holds_the_app_s_interfaces_meta_and_library_settings():
     }
     assert packages == {"base_msgs", "cam_msgs"}
     assert json.loads(context["micro-ros/app-colcon.meta"]) == json.loads(META)
-    assert context["micro-ros/sdkconfig.defaults"] == b"CONFIG_FREERTOS_HZ=1000\nCONFIG_SPIRAM=y\n"
+    assert context["micro-ros/sdkconfig.defaults"] == (
+        b"CONFIG_FREERTOS_HZ=1000\nCONFIG_MICRO_ROS_ESP_NETIF_WLAN=y\nCONFIG_MICRO_ROS_ESP_XRCE_DDS_MIDDLEWARE=y\n"
+        b"CONFIG_SPIRAM=y\n"
+    )
     assert "Dockerfile.idf" in context and "docker/idf/uros_builder/CMakeLists.txt" in context
 
 
@@ -229,9 +232,12 @@ def test_library_settings_take_the_target_file_last_and_only_relevant_keys():
         ),
         "sdkconfig.defaults.esp32s3": b"CONFIG_FREERTOS_HZ=1000\n# CONFIG_MICRO_ROS_ESP_NETIF_WLAN is not set\n",
     }
-    assert library_sdkconfig(defaults, "esp32") == "CONFIG_FREERTOS_HZ=100\nCONFIG_MICRO_ROS_ESP_NETIF_WLAN=y\n"
+    assert library_sdkconfig(defaults, "esp32") == (
+        "CONFIG_FREERTOS_HZ=100\nCONFIG_MICRO_ROS_ESP_NETIF_WLAN=y\nCONFIG_MICRO_ROS_ESP_XRCE_DDS_MIDDLEWARE=y\n"
+    )
     assert library_sdkconfig(defaults, "esp32s3") == (
         "CONFIG_FREERTOS_HZ=1000\n# CONFIG_MICRO_ROS_ESP_NETIF_WLAN is not set\n"
+        "CONFIG_MICRO_ROS_ESP_XRCE_DDS_MIDDLEWARE=y\n"
     )
 
 
@@ -442,3 +448,22 @@ def test_a_library_built_with_another_python_fails_the_image_build_naming_it(tmp
     # What FindPython writes: the interpreter as an internal cache entry, not Python3_EXECUTABLE:FILEPATH.
     assert f"rclc/CMakeCache.txt:_Python3_EXECUTABLE:INTERNAL={pythons['other']}/bin/python3" in result.stderr
     assert "rcl/CMakeCache.txt" not in result.stderr
+
+
+def test_a_choice_left_at_its_default_keys_the_library_as_the_line_that_sets_it():
+    """`idf.py save-defconfig` after `espdock new`, no setting changed: it wrote sdkconfig.defaults
+    without the template's CONFIG_MICRO_ROS_ESP_XRCE_DDS_MIDDLEWARE=y and _NETIF_WLAN=y (each its
+    choice's default), and the next build made a new micro-ROS image of the same library."""
+
+    template = (
+        b"CONFIG_MICRO_ROS_ESP_XRCE_DDS_MIDDLEWARE=y\nCONFIG_MICRO_ROS_ESP_NETIF_WLAN=y\nCONFIG_FREERTOS_HZ=1000\n"
+    )
+    saved = b"CONFIG_FREERTOS_HZ=1000\n"
+    assert library_sdkconfig({"sdkconfig.defaults": saved}, "esp32") == library_sdkconfig(
+        {"sdkconfig.defaults": template}, "esp32"
+    )
+    # Another choice's line is no default: its library stays its own.
+    serial = b"CONFIG_MICRO_ROS_ESP_UART_TRANSPORT=y\nCONFIG_FREERTOS_HZ=1000\n"
+    ethernet = b"CONFIG_MICRO_ROS_ESP_NETIF_ENET=y\nCONFIG_FREERTOS_HZ=1000\n"
+    keyed = {library_sdkconfig({"sdkconfig.defaults": text}, "esp32") for text in (saved, serial, ethernet)}
+    assert len(keyed) == 3

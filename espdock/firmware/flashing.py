@@ -115,7 +115,7 @@ def check_port_free(engine: Engine, port: Port) -> None:
     """Refuse PORT where another espdock container has its device (a monitor in another terminal,
     the agent of a board on serial): two containers opened it at once, each its own node of the
     device, and the flash or the monitor failed or read the other's bytes."""
-    if users := engine.device_users(port.devices):
+    if users := engine.device_users(port.devices, port.spec if port.is_url else None):
         raise PortError(
             f"serial port {port.spec} is busy: espdock's container {users[0]} has it",
             "Stop that (Ctrl-C in its terminal, or `docker stop " + users[0] + "`), then run again.",

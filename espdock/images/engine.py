@@ -1092,13 +1092,15 @@ class Engine:
         labels = [c.get("Labels") or {} for c in listed]
         return sorted({str(lab.get("com.docker.compose.service", "?")) for lab in labels})
 
-    def device_users(self, devices: Sequence[str]) -> list[str]:
+    def device_users(self, devices: Sequence[str], url: str | None = None) -> list[str]:
         """The names of espdock's running containers that were passed one of DEVICES (host paths, by
-        the device they lead to). A container opens its own node of the device, so the host's
-        lock on it (pyserial's flock, which check_port reads) does not show a monitor, an agent
-        or a flash holding the board. Those of a killed espdock are removed, not named."""
+        the device they lead to), or URL (socket:// or rfc2217://) in their command line. A container
+        opens its own node of the device, so the host's lock on it (pyserial's flock, which
+        check_port reads) does not show a monitor, an agent or a flash holding the board; a serial
+        server serves one client, and a second saw a silent board. Those of a killed espdock are
+        removed, not named."""
         wanted = {os.path.realpath(device) for device in devices}
-        if not wanted:
+        if not wanted and not url:
             return []
         users = []
         for listed in self._all_containers({"label": [LABEL_OWNER], "status": ["running"]}):
@@ -1111,7 +1113,9 @@ class Engine:
                     except docker.errors.NotFound:
                         continue  # gone since the listing: it holds nothing
             given = ((attrs or {}).get("HostConfig") or {}).get("Devices") or []
-            if not wanted & {os.path.realpath(str(d.get("PathOnHost", ""))) for d in given}:
+            command = [str(arg) for arg in ((attrs or {}).get("Config") or {}).get("Cmd") or []]
+            named = url is not None and any(re.search(re.escape(url) + r"(?![\w.:])", arg) for arg in command)
+            if not wanted & {os.path.realpath(str(d.get("PathOnHost", ""))) for d in given} and not named:
                 continue
             if not owner_alive((listed.get("Labels") or {}).get(LABEL_OWNER, "")):
                 _remove(self._handle(listed["Id"]), stop=False)

@@ -389,6 +389,20 @@ def test_a_serial_device_another_espdock_container_has_is_named_as_busy(way):
         assert way.device_users(["/dev/zero"]) == []
         with pytest.raises(PortError, match=f"serial port /dev/full is busy: espdock's container {name} has it"):
             check_port_free(way, parse_port("/dev/full"))
+        # A serial server (esp_rfc2217_server, a board's bridge) serves one client: a flash beside a
+        # monitor on it saw a silent board ("could not tell which chip"), and named no container.
+        url = "socket://127.0.0.1:4567"
+        made.append(
+            subprocess.run(
+                ["docker", "run", "--detach", "--init", "--label", f"{LABEL_OWNER}={owner_identity()}", IMAGE,
+                 "sh", "-c", f"sleep 60 # idf.py -p {url} monitor"],
+                capture_output=True, text=True, check=True,
+            ).stdout.strip()
+        )  # fmt: skip
+        (holder,) = way.device_users([], url)
+        with pytest.raises(PortError, match=f"serial port {url} is busy: espdock's container {holder} has it"):
+            check_port_free(way, parse_port(url))
+        assert way.device_users([], "socket://127.0.0.1:456") == []  # another port, a prefix of its
     finally:
         subprocess.run(["docker", "rm", "--force", *made], capture_output=True, check=False)
 

@@ -67,7 +67,8 @@ demo: setup
 	@echo "espdock demo: its console names the camera UI's address (http://127.0.0.1:8080 unless ESPDOCK_DEMO_PORT or ESPDOCK_DEMO_BIND, in the environment or .env, say otherwise); Ctrl-C stops it"
 	# --attach demo: one console, and Ctrl-C stops every service, not only `demo`. Ctrl-C is
 	# how the demo ends: its 130 is no failure of make's.
-	$(ESPDOCK) compose --profile sim up --attach demo || [ $$? -eq 130 ]
+	$(ESPDOCK) compose --profile sim up --attach demo || { status=$$?; [ $$status -eq 130 ] || exit $$status; \
+	  echo "make demo-down removes the demo's containers and network"; }
 
 demo-down:
 	$(ESPDOCK) compose --profile '*' down --remove-orphans

@@ -202,6 +202,12 @@ class ImageBuild:
     no_cache: bool
 
 
+# Compose's own warning of the builder it picked (v2.40, where buildx is not installed, as with
+# Debian's docker.io): of the machine's set-up, not the build, and in every build's log.
+# (COMPOSE_BAKE=false only swaps it for a deprecation warning.)
+COMPOSE_BUILDER_NOTE = "Docker Compose is configured to build using Bake, but buildx isn't installed"
+
+
 @dataclass(frozen=True)
 class EngineInfo:
     """What kind of engine answers, as far as espdock's containers care."""
@@ -729,6 +735,8 @@ class Engine:
             process.stdin.close()
             for raw in process.stdout:
                 line = raw.rstrip("\n")
+                if COMPOSE_BUILDER_NOTE in line:
+                    continue
                 tail.append(line)
                 offline(line)
                 build.on_line(line)

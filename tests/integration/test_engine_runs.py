@@ -568,3 +568,17 @@ def test_labels_are_added_and_registries_asked_whatever_credential_helper_the_cl
             assert "credential" not in answer.detail.lower(), answer
     finally:
         subprocess.run(["docker", "rmi", ref], capture_output=True, check=False)
+
+
+def test_an_image_build_s_output_is_the_build_s_not_compose_s_builder_note(engine, tmp_path):
+    """Every build's log (and every CI log) began with Compose's "configured to build using Bake,
+    but buildx isn't installed": of the machine's docker set-up, not of the image being built."""
+    (tmp_path / "Dockerfile").write_text(f"FROM {IMAGE} AS build\nRUN echo built-here\n")
+    tag = f"espdock-test-note:{os.getpid()}"
+    said: list[str] = []
+    try:
+        engine.build_image(tmp_path, "Dockerfile", "build", tag, {}, {}, None, said.append, no_cache=True)
+    finally:
+        subprocess.run(["docker", "rmi", tag], capture_output=True, check=False)
+    assert any("built-here" in line for line in said), said
+    assert not any("Bake" in line for line in said), said

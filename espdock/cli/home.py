@@ -1,8 +1,7 @@
 """What espdock writes under a home that is not root's while it runs as root with it (`sudo -E
 espdock ...`, `sudo --preserve-env=HOME`), and in that user's cache and state dirs outside it:
-handed to the home's owner when the command ends. Left
-root's, a new ~/.cache kept the user's pip out of it, and their next espdock could not record
-its images ("Permission denied")."""
+handed to the home's owner when the command ends. Left root's, a new ~/.cache kept the user's
+pip out of it, and their next espdock could not record its images ("Permission denied")."""
 
 from __future__ import annotations
 

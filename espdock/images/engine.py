@@ -1123,10 +1123,13 @@ class Engine:
             given = ((attrs or {}).get("HostConfig") or {}).get("Devices") or []
             command = [str(arg) for arg in ((attrs or {}).get("Config") or {}).get("Cmd") or []]
             named = url is not None and any(re.search(re.escape(url) + r"(?![\w.:])", arg) for arg in command)
-            if not wanted & {os.path.realpath(str(d.get("PathOnHost", ""))) for d in given} and not named:
+            holds = bool(wanted & {os.path.realpath(str(d.get("PathOnHost", ""))) for d in given})
+            if not holds and not named:
                 continue
             if not owner_alive((listed.get("Labels") or {}).get(LABEL_OWNER, "")):
-                _remove(self._handle(listed["Id"]), stop=False)
+                if holds:
+                    _remove(self._handle(listed["Id"]), stop=False)
+                # One on a URL is the workspace's, which the command's own sweep removes, and says so.
                 continue
             users.append(str((listed.get("Names") or [listed["Id"]])[0]).lstrip("/"))
         return users

@@ -436,7 +436,9 @@ class RosSteps:
                         # next build is a whole one too.
                         built_here = _built(states or {})
                         unbuilt = set(rebuild) - set(built_here) - set(log.unselected())
-                        merge = whole and (code != 0 or bool(unbuilt))
+                        # So does a selection's (`espdock build PKG`), which the volume's install/
+                        # holds alone: swapped in, it removed every other package from the host's.
+                        merge = whole and (code != 0 or bool(unbuilt) or not step.whole)
                         # The host's own entries stay: a build of the ROS packages (`--only ros`, a
                         # selection) removed the firmware installs, and `espdock flash` found none.
                         kept = host_added(install)

@@ -418,10 +418,13 @@ def test_volume_mode_builds_where_the_engine_cannot_see_rebuilds_edits_and_never
     assert removed.returncode == 0, removed.stdout + removed.stderr
     assert volumes_of(tcp_engine, root) == []
     edit_word(root, "four")
-    afresh = espdock("build", cwd=root, env=tcp_engine.env)
+    # A selection on a new volume: the volume's install/ holds it alone, and swapped in whole it
+    # removed the host's other packages (idle_py here), unsaid.
+    afresh = espdock("build", "beacon_nodes", cwd=root, env=tcp_engine.env)
     assert afresh.returncode == 0, afresh.stdout + afresh.stderr
     assert "(new)" in afresh.stdout
     assert "word: four" in installed_word(root)
+    assert (root / "ws/install/idle_py").is_dir() and flashable.read_text() == "{}\n"
     assert espdock("prune", "--volume", cwd=root, env=tcp_engine.env).returncode == 0
     engine.remove_containers({"io.espdock.workspace": str(root)})
 

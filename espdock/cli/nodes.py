@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 import pwd
+import shlex
 import sys
 import uuid
 from collections.abc import Mapping
@@ -175,9 +176,11 @@ def compose(ctx: typer.Context, workspace: WorkspaceOption = None) -> None:
         env["ESPDOCK_CA_BUNDLE"] = str(ca_bundle)
     token = uuid.uuid4().hex
     if subcommand == "up":
+        # With the caller's own -p, -f and --profile: a bare `down` left a profile's services running.
+        given = " ".join(shlex.quote(arg) for arg in ["espdock", "compose", *args[: nodes.compose_subcommand_at(args)]])
         interrupts.leaving(
-            "services Compose started may still be running: `espdock compose ps` lists them, `espdock compose down` "
-            "stops and removes them"
+            f"services Compose started may still be running: `{given} ps` lists them, `{given} down` stops and "
+            "removes them"
         )
     try:
         code = engine.run_compose(nodes.labelled_run(args, token), ws.root, env)

@@ -591,7 +591,8 @@ def test_a_second_ctrl_c_in_compose_up_says_the_services_may_still_run(engine, t
         assert up.process.wait(timeout=30) == 130
         said = up.output()
         assert "interrupted again" in said, said
-        assert "services Compose started may still be running" in said and "espdock compose down" in said, said
+        assert "services Compose started may still be running" in said, said
+        assert f"`espdock compose -p {project} down` stops and removes them" in said, said  # as `up` was given
         assert "espdock build" not in said, said
     finally:
         up.stop()

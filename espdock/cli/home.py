@@ -28,7 +28,10 @@ def kept(env: Mapping[str, str]) -> Callable[[], None]:
         # espdock's cache and state; rosdep's meta cache (in ROS_HOME) and uv's, which it runs.
         ros_home = Path(env.get("ROS_HOME") or home / ".ros")
         ours = [cache / "espdock", state_dir(env), ros_home / "rosdep", Path(env.get("UV_CACHE_DIR") or cache / "uv")]
-    except (OSError, EspdockError):
+        # Where they are, not how they are written: `$HOME/../x` and a ~/.cache linked to a
+        # directory of root's were taken as the home's, and what root made in them handed over.
+        home, ours = home.resolve(), [path.resolve() for path in ours]
+    except (OSError, EspdockError, RuntimeError):
         return lambda: None
     if info.st_uid == 0:
         return lambda: None

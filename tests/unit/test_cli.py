@@ -969,6 +969,12 @@ def test_sudo_keeping_the_user_s_cache_outside_the_home_hands_it_back(tmp_path):
     assert listed.returncode == 0, listed.stderr
     assert (other / "cache/espdock").is_dir(), "nothing was written there: the test tests nothing"
     assert {p.lstat().st_uid for p in (other, *other.rglob("*"))} == {0}
+    # Written as under the home, there by `..`: root's directory, and what root made there, stay root's.
+    shutil.rmtree(other / "cache")
+    listed = espdock("list", cwd=root, env={**env, "XDG_CACHE_HOME": f"{home}/../{other.name}/cache"})
+    assert listed.returncode == 0, listed.stderr
+    assert (other / "cache/espdock").is_dir(), "nothing was written there: the test tests nothing"
+    assert {p.lstat().st_uid for p in (other, *other.rglob("*"))} == {0}
 
 
 def test_sudo_keeping_the_user_s_home_hands_back_nothing_a_link_there_leads_to_of_root_s(tmp_path):

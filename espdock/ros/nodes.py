@@ -182,10 +182,25 @@ def node_env(env: Mapping[str, str], mounted: bool = True) -> tuple[tuple[str, s
     return tuple(sorted(values.items()))
 
 
+# The terminal types the images' terminfo knows (Debian's ncurses-base). Another (xterm-kitty,
+# alacritty, foot, wezterm, ghostty) had `clear` and `less` say "unknown terminal type": those
+# speak xterm's, as the engine's default had them.
+IMAGE_TERMINALS = frozenset(
+    "Eterm Eterm-color ansi cons25 cons25-debian cygwin dumb hurd linux mach mach-bold mach-color mach-gnu "
+    "mach-gnu-color pcansi rxvt rxvt-basic rxvt-m rxvt-unicode rxvt-unicode-256color screen screen-256color "
+    "screen-256color-bce screen-bce screen-s screen-w screen.xterm-256color sun tmux tmux-256color vt100 vt102 "
+    "vt220 vt52 wsvt25 wsvt25m xterm xterm-256color xterm-color xterm-debian xterm-mono xterm-r5 xterm-r6 "
+    "xterm-vt220 xterm-xfree86".split()
+)
+
+
 def terminal_env(env: Mapping[str, str], tty: bool) -> tuple[tuple[str, str], ...]:
-    """The caller's TERM for a container at their terminal (TTY): the engine's default, xterm,
-    gave Emacs' `M-x shell` (TERM=dumb) bash's bracketed-paste escapes and a colour prompt."""
-    return (("TERM", env["TERM"]),) if tty and env.get("TERM") else ()
+    """The caller's TERM for a container at their terminal (TTY), where the images know it: the
+    engine's default, xterm, gave Emacs' `M-x shell` (TERM=dumb) bash's bracketed-paste escapes
+    and a colour prompt."""
+    if not tty or not (term := env.get("TERM")):
+        return ()
+    return (("TERM", term if term in IMAGE_TERMINALS else "xterm-256color"),)
 
 
 def profile_mounts(env: Mapping[str, str], cwd: Path) -> tuple[Mount, ...]:

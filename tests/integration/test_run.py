@@ -793,33 +793,39 @@ def test_ctrl_c_stops_a_script_piped_into_the_shell(engine, node_workspace):
 
 def test_the_shell_at_a_terminal_keeps_the_callers_term(engine, node_workspace):
     """Emacs' `M-x shell` (TERM=dumb) got the engine's TERM=xterm: bash's bracketed-paste escapes
-    and colour prompt in a buffer that cannot show them."""
+    and colour prompt in a buffer that cannot show them. A terminal the image has no terminfo
+    for (kitty's) gets xterm's, which it speaks: `clear` said "unknown terminal type"."""
     import pty
 
-    env = {**os.environ, "TERM": "dumb"}
-    pid, terminal = pty.fork()
-    if pid == 0:
-        os.chdir(node_workspace)
-        os.execve(sys.executable, [sys.executable, "-m", "espdock", "shell"], env)
-    said = b""
-    try:
-        os.write(terminal, b'echo "term:$TERM:"; exit 3\n')
-        deadline = time.monotonic() + 120
-        with contextlib.suppress(OSError):  # the terminal closes with espdock
-            while time.monotonic() < deadline:
-                if select.select([terminal], [], [], 1)[0]:
-                    if not (chunk := os.read(terminal, 4096)):
-                        break
-                    said += chunk
-        _, status = os.waitpid(pid, 0)
-    finally:
-        with contextlib.suppress(ChildProcessError, ProcessLookupError):
-            os.kill(pid, signal.SIGKILL)
-            os.waitpid(pid, 0)
-    text = said.decode(errors="replace")
-    assert os.waitstatus_to_exitcode(status) == 3, text
+    def shell(term: str, command: bytes) -> tuple[int, str]:
+        env = {**os.environ, "TERM": term}
+        pid, terminal = pty.fork()
+        if pid == 0:
+            os.chdir(node_workspace)
+            os.execve(sys.executable, [sys.executable, "-m", "espdock", "shell"], env)
+        said = b""
+        try:
+            os.write(terminal, command)
+            deadline = time.monotonic() + 120
+            with contextlib.suppress(OSError):  # the terminal closes with espdock
+                while time.monotonic() < deadline:
+                    if select.select([terminal], [], [], 1)[0]:
+                        if not (chunk := os.read(terminal, 4096)):
+                            break
+                        said += chunk
+            _, status = os.waitpid(pid, 0)
+        finally:
+            with contextlib.suppress(ChildProcessError, ProcessLookupError):
+                os.kill(pid, signal.SIGKILL)
+                os.waitpid(pid, 0)
+        return os.waitstatus_to_exitcode(status), said.decode(errors="replace")
+
+    code, text = shell("dumb", b'echo "term:$TERM:"; exit 3\n')
+    assert code == 3, text
     assert "term:dumb:" in text, text
     assert "\x1b[?2004h" not in text, text
+    code, text = shell("xterm-kitty", b'clear >/dev/null && echo "cleared:$TERM:"; exit 3\n')
+    assert code == 3 and "cleared:xterm-256color:" in text, text
     assert no_containers_left(engine, node_workspace) == []
 
 

@@ -157,3 +157,38 @@ def test_arguments_rcl_cannot_parse_end_the_node_with_an_error_not_as_a_stop(ima
     result = subprocess.run(argv, capture_output=True, text=True, timeout=120, check=False)
     assert result.returncode == 1, result.stdout + result.stderr
     assert "Couldn't parse parameter override rule: '-p colors:=[#123456, #abcdef]'" in result.stderr, result.stderr
+
+
+# subscribe_text's catch-up subscription (transient local) beside a volatile publisher of the topic
+# (the probe's, `ros2 topic pub`'s): rclpy's default warned "offering incompatible QoS. No messages
+# will be received from it", of a text the node's other subscription took.
+VOLATILE_PUBLISHER = """
+import time
+import rclpy
+from std_msgs.msg import String
+from espdock_demo import ros_common
+
+rclpy.init()
+node = rclpy.create_node("listener")
+got = []
+ros_common.subscribe_text(node, "/qr_message", lambda msg: got.append(msg.data))
+talker = rclpy.create_node("talker")
+publisher = talker.create_publisher(String, "/qr_message", ros_common.TEXT_QOS)
+deadline = time.monotonic() + 20
+while not got and time.monotonic() < deadline:
+    publisher.publish(String(data="#123456"))
+    for each in (node, talker):
+        rclpy.spin_once(each, timeout_sec=0.1)
+print("got", got[:1], flush=True)
+"""
+
+
+def test_a_volatile_publisher_reaches_a_text_subscriber_without_a_qos_warning(image):
+    argv = [
+        "docker", "run", "--rm", "--network", "none", "-e", f"ROS_DOMAIN_ID={random.randrange(100, 200)}",
+        "-v", f"{ROOT}/ws/src/espdock_demo/espdock_demo:{INSTALLED}:ro",
+        image, "python", "-c", VOLATILE_PUBLISHER,
+    ]  # fmt: skip
+    result = subprocess.run(argv, capture_output=True, text=True, timeout=120, check=False)
+    assert result.returncode == 0 and "got ['#123456']" in result.stdout, result.stdout + result.stderr
+    assert "incompatible QoS" not in result.stdout + result.stderr, result.stderr

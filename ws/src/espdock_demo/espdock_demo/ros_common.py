@@ -12,6 +12,7 @@ from collections.abc import Callable, Mapping
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rclpy.context import Context
+from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.exceptions import InvalidHandle
 from rclpy.executors import (
     Executor,
@@ -73,7 +74,10 @@ def subscribe_text(node: Node, topic: str, callback: Callable[[String], None]) -
             node.destroy_subscription(catch_up.pop())
             callback(msg)
 
-    catch_up.append(node.create_subscription(String, topic, first, LATCHED_QOS))
+    # A volatile publisher (the probe's, `ros2 topic pub`'s) is no match for it, and rclpy's default
+    # warned "No messages will be received from it", which the other subscription receives.
+    quiet = SubscriptionEventCallbacks(incompatible_qos=lambda _status: None)
+    catch_up.append(node.create_subscription(String, topic, first, LATCHED_QOS, event_callbacks=quiet))
 
 
 def config_to_dict(msg: object) -> dict[str, int]:

@@ -25,14 +25,18 @@ def main(argv: list[str]) -> int:
         print(__doc__, file=sys.stderr)
         return 2
     root = Path(argv[1] if len(argv) == 2 else ".").resolve()
-    if root == REPO:
+    if root == REPO or (root / "espdock/cli/__init__.py").is_file():
         # Its docker/idf/micro_ros_sources.txt is espdock's own, which ships in the wheel: pinned to
         # the double's repositories, it passed unsaid until test_pins failed on it.
         print(
-            f"error: {root} is espdock's own checkout, whose micro-ROS sources espdock ships: point a workspace "
+            f"error: {root} is a checkout of espdock, whose micro-ROS sources espdock ships: point a workspace "
             "of your own at the double",
             file=sys.stderr,
         )
+        return 2
+    if not (root / "espdock.toml").is_file():
+        # ws/ or tests/ of a checkout: pins no build reads, left in the checkout.
+        print(f"error: {root} is no espdock workspace (no espdock.toml): give its root", file=sys.stderr)
         return 2
     (root / "docker/idf").mkdir(parents=True, exist_ok=True)
     engine = Engine.connect(os.environ)

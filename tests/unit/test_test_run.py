@@ -38,5 +38,10 @@ def test_the_double_is_not_pointed_at_espdock_s_own_checkout():
     before = sources.read_bytes()
     ran = subprocess.run([sys.executable, "-m", "tests.idf_contract_double", "use", str(REPO)], cwd=REPO,
                          capture_output=True, text=True, timeout=120, check=False)  # fmt: skip
-    assert ran.returncode == 2 and "espdock's own checkout" in ran.stderr, ran.stderr
+    assert ran.returncode == 2 and "is a checkout of espdock" in ran.stderr, ran.stderr
     assert sources.read_bytes() == before
+    # Nor a directory of it that is no workspace (its pins read by no build, left in the checkout).
+    ran = subprocess.run([sys.executable, "-m", "tests.idf_contract_double", "use", str(REPO / "ws")], cwd=REPO,
+                         capture_output=True, text=True, timeout=120, check=False)  # fmt: skip
+    assert ran.returncode == 2 and "no espdock workspace" in ran.stderr, ran.stderr
+    assert not (REPO / "ws/docker").exists()

@@ -35,7 +35,6 @@ from espdock.workspace import (
     PackageKind,
     Workspace,
     idf_project_cmake,
-    select_up_to,
 )
 
 
@@ -537,7 +536,7 @@ def firmware_steps(
             steps.append(EnsureImage(spec))
         project = package.path.relative_to(workspace.root).as_posix()
         target = spec_target(spec, config.target)
-        reached = {p.name for p in select_up_to(all_packages, [package.name])}
+        reached = {p.name for p in derive_interface_packages(all_packages, package)}  # what its library holds
         steps.append(
             IdfBuild(
                 package.name,

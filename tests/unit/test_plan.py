@@ -1,3 +1,4 @@
+from dataclasses import replace
 from pathlib import Path
 
 from espdock.build.plan import plan_build
@@ -194,3 +195,7 @@ def test_a_firmware_build_failing_on_a_header_of_an_interface_package_it_does_no
     hint = undeclared_interface_hint(build, missing)
     assert hint is not None and "add <depend>walk_msgs</depend> to firmware/led/package.xml" in hint, hint
     assert undeclared_interface_hint(build, ["used_msgs/msg/other.h", "esp_log.h"]) is None
+    # A <test_depend> puts no interface in the library (the firmware's tests run on the host).
+    tested = replace(led, depends=led.depends | {"walk_msgs"}, test_only_depends=frozenset({"walk_msgs"}))
+    plan = plan_build(Workspace(Path("/w")), Config(), (walk, used, tested), spec, idf_images={"led": spec})
+    assert next(s for s in plan.steps if isinstance(s, IdfBuild)).unreached == ("walk_msgs",)

@@ -92,7 +92,9 @@ def find_executable(workspace: Workspace, packages: tuple[Package, ...], package
         close = difflib.get_close_matches(package, offered, n=1)
         raise WorkspaceError(
             f"no ROS package '{package}' in this workspace{why}",
-            f"Did you mean '{close[0]}'? {close[0]}: {', '.join(runnable.get(close[0], [])) or 'no executable'}."
+            f"Did you mean '{close[0]}'? {close[0]}: "
+            + (", ".join(runnable.get(close[0], [])) or f"not built yet (`espdock build {close[0]}`)")
+            + "."
             if close and not why
             else f"Packages with executables (after `espdock build`): {listing}.",
         )

@@ -164,6 +164,10 @@ def test_a_misspelt_name_is_offered_only_a_package_it_could_run(ws):
     with pytest.raises(WorkspaceError) as caught:
         find_executable(workspace, packages, "walk_py", "talker")
     assert "Did you mean" not in caught.value.hint and "talk: listener, talker" in caught.value.hint
+    # One not built yet may be the one: said so, not "no executable".
+    with pytest.raises(WorkspaceError) as caught:
+        find_executable(workspace, packages, "quiett", "x")
+    assert caught.value.hint == "Did you mean 'quiet'? quiet: not built yet (`espdock build quiet`)."
 
 
 def test_run_of_a_package_espdock_leaves_out_says_what_leaves_it_out(ws):

@@ -127,19 +127,16 @@ def espdock(
     ) as process:
         try:
             stdout, stderr = process.communicate(timeout=timeout)
-        except subprocess.TimeoutExpired:
-            process.kill()
-            process.communicate()
-            raise
-        except KeyboardInterrupt:
+        except (subprocess.TimeoutExpired, KeyboardInterrupt):
             from espdock.interrupts import GRACE
 
-            # Passed on at once, as a copy of the terminal's: a `kill -INT` of pytest alone reached
-            # no espdock (espdock takes two within 0.2 s for one interruption).
+            # Ended as Ctrl-C ends it, with its clean-up (a copy of the terminal's SIGINT at once
+            # is one interruption to espdock): killed, its build container stayed.
             process.send_signal(signal.SIGINT)
             with contextlib.suppress(subprocess.TimeoutExpired):
-                process.wait(timeout=GRACE + 2)
+                process.communicate(timeout=GRACE + 2)
             process.kill()
+            process.communicate()
             raise
     return subprocess.CompletedProcess(argv, process.returncode, stdout, stderr)
 

@@ -227,6 +227,9 @@ def spin_node(
                     _in_round.clear()
     except BaseException as exc:
         if not _stopped_by_signal(exc, context, started):
+            if not started and isinstance(exc, _rclpy.RCLError):
+                # rcl's words name the argument it could not parse: one line, not rclpy's traceback.
+                raise SystemExit(f"error: {exc}") from None
             raise
     finally:
         _cleaning_up.set()

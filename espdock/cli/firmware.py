@@ -27,7 +27,7 @@ from espdock.cli.core import (
 )
 from espdock.cli.ui import Reporter, render_micro_ros_status, render_pins
 from espdock.config import Config, check_target, invoking_user
-from espdock.errors import ConfigError
+from espdock.errors import ConfigError, WorkspaceError
 from espdock.firmware import transport
 from espdock.firmware.flashing import (
     check_port,
@@ -53,7 +53,7 @@ from espdock.firmware.status import micro_ros_report, resolved_sources
 from espdock.firmware.steps import reset_build_dir
 from espdock.images import bootstrap
 from espdock.images.engine import format_argv
-from espdock.layout import installed_firmware_dir
+from espdock.layout import firmware_build_dir, installed_firmware_dir
 from espdock.workspace import Package, Workspace, read_build_inputs
 
 # idf.py's options that say where the project and its build dir are.
@@ -373,6 +373,14 @@ def monitor(
     # As flash: a package never built said its installed firmware was "not what its sources build
     # now", then failed in idf.py.
     read_flasher_args(installed_firmware_dir(ws.ws_dir, package), package)
+    build_dir = firmware_build_dir(ws.ws_dir, package)
+    if not (build_dir / "project_description.json").is_file():
+        # idf.py monitor decodes addresses with the ELF its build dir's description names: after
+        # `espdock idf PKG -- fullclean` it said "Cannot load ... Run 'idf.py build' first".
+        raise WorkspaceError(
+            f"the monitor reads {package}'s build dir, {build_dir}, which holds no build (a fullclean?)",
+            f"Run `espdock build {package}` first (flash works from the installed firmware without it).",
+        )
     runner, step = _installed(ws, config, plan, step)
     check_port_free(runner.engine, serial)
     argv = step.argv(("-p", port, "monitor"))

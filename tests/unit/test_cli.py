@@ -139,6 +139,26 @@ def test_monitor_of_a_package_never_built_says_so_as_flash_does(tmp_path):
     assert os.waitstatus_to_exitcode(status) == 2, text
     assert "led_strip_node has no installed firmware" in text and "espdock build led_strip_node" in text, text
     assert "not what its sources build now" not in text, text
+    # Installed, its build dir emptied (`espdock idf led_strip_node -- fullclean`): the monitor, which
+    # decodes with the build dir's ELF, said "Cannot load .../project_description.json" in idf.py.
+    firmware = root / "ws/install/led_strip_node/share/led_strip_node/firmware"
+    firmware.mkdir(parents=True)
+    (firmware / "flasher_args.json").write_text('{"flash_files": {}, "extra_esptool_args": {"chip": "esp32"}}\n')
+    with socket.create_server(("127.0.0.1", 0)) as board:
+        port = f"socket://127.0.0.1:{board.getsockname()[1]}"
+        pid, terminal = pty.fork()
+        if pid == 0:
+            os.chdir(root)
+            argv = [sys.executable, "-m", "espdock", "monitor", "led_strip_node", "--port", port]
+            os.execve(sys.executable, argv, {**os.environ, **NO_ENGINE})
+        said = b""
+        with contextlib.suppress(OSError):
+            while chunk := os.read(terminal, 4096):
+                said += chunk
+        _, status = os.waitpid(pid, 0)
+    text = said.decode(errors="replace")
+    assert os.waitstatus_to_exitcode(status) == 2, text
+    assert "holds no build" in text and "espdock build led_strip_node" in text, text
 
 
 def test_flash_refuses_a_port_that_is_not_one(tmp_path):

@@ -117,8 +117,8 @@ def stale_runtime_note(engine: Engine, ws: Workspace, config: Config, plan: Plan
         console.print(
             Text(
                 f"note: {step.stable_tag} is older than install/ now: plain `docker compose up` runs it as it was; "
-                "`espdock compose up` or `espdock run` make it afresh (`runtime_image = true` in espdock.toml: "
-                "every build does)",
+                "`espdock compose up` or `espdock run` make it afresh, as a build does with --runtime-image (or "
+                "`runtime_image = true` in espdock.toml)",
                 style="yellow",
             )
         )

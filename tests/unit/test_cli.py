@@ -115,28 +115,34 @@ def test_monitor_needs_a_terminal_and_says_so(tmp_path):
     assert "needs a terminal" in result.stderr
 
 
-def test_monitor_of_a_package_never_built_says_so_as_flash_does(tmp_path):
-    """It said the installed firmware was "not what its sources build now" (there was none), then
-    failed in idf.py ("Cannot load .../project_description.json")."""
+def monitor_at_a_terminal(root: Path, package: str) -> tuple[int, str]:
+    """`espdock monitor PACKAGE` at a pseudo-terminal (it needs one), no engine, on a port that
+    answers as a board's does: its exit code and what it printed."""
     import pty
     import socket
 
-    root = copy_workspace(tmp_path / "w")
-    shutil.copytree(REPO / "firmware/led_strip_node", root / "firmware/led_strip_node")
-    with socket.create_server(("127.0.0.1", 0)) as board:  # a port that answers, as a board's does
+    with socket.create_server(("127.0.0.1", 0)) as board:
         port = f"socket://127.0.0.1:{board.getsockname()[1]}"
         pid, terminal = pty.fork()
         if pid == 0:
             os.chdir(root)
-            argv = [sys.executable, "-m", "espdock", "monitor", "led_strip_node", "--port", port]
+            argv = [sys.executable, "-m", "espdock", "monitor", package, "--port", port]
             os.execve(sys.executable, argv, {**os.environ, **NO_ENGINE})
         said = b""
         with contextlib.suppress(OSError):
             while chunk := os.read(terminal, 4096):
                 said += chunk
         _, status = os.waitpid(pid, 0)
-    text = said.decode(errors="replace")
-    assert os.waitstatus_to_exitcode(status) == 2, text
+    return os.waitstatus_to_exitcode(status), said.decode(errors="replace")
+
+
+def test_monitor_of_a_package_never_built_says_so_as_flash_does(tmp_path):
+    """It said the installed firmware was "not what its sources build now" (there was none), then
+    failed in idf.py ("Cannot load .../project_description.json")."""
+    root = copy_workspace(tmp_path / "w")
+    shutil.copytree(REPO / "firmware/led_strip_node", root / "firmware/led_strip_node")
+    code, text = monitor_at_a_terminal(root, "led_strip_node")
+    assert code == 2, text
     assert "led_strip_node has no installed firmware" in text and "espdock build led_strip_node" in text, text
     assert "not what its sources build now" not in text, text
     # Installed, its build dir emptied (`espdock idf led_strip_node -- fullclean`): the monitor, which
@@ -144,20 +150,8 @@ def test_monitor_of_a_package_never_built_says_so_as_flash_does(tmp_path):
     firmware = root / "ws/install/led_strip_node/share/led_strip_node/firmware"
     firmware.mkdir(parents=True)
     (firmware / "flasher_args.json").write_text('{"flash_files": {}, "extra_esptool_args": {"chip": "esp32"}}\n')
-    with socket.create_server(("127.0.0.1", 0)) as board:
-        port = f"socket://127.0.0.1:{board.getsockname()[1]}"
-        pid, terminal = pty.fork()
-        if pid == 0:
-            os.chdir(root)
-            argv = [sys.executable, "-m", "espdock", "monitor", "led_strip_node", "--port", port]
-            os.execve(sys.executable, argv, {**os.environ, **NO_ENGINE})
-        said = b""
-        with contextlib.suppress(OSError):
-            while chunk := os.read(terminal, 4096):
-                said += chunk
-        _, status = os.waitpid(pid, 0)
-    text = said.decode(errors="replace")
-    assert os.waitstatus_to_exitcode(status) == 2, text
+    code, text = monitor_at_a_terminal(root, "led_strip_node")
+    assert code == 2, text
     assert "holds no build" in text and "espdock build led_strip_node" in text, text
 
 

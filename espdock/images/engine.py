@@ -1105,8 +1105,8 @@ class Engine:
         the device they lead to), or URL (socket:// or rfc2217://) in their command line. A container
         opens its own node of the device, so the host's lock on it (pyserial's flock, which
         check_port reads) does not show a monitor, an agent or a flash holding the board; a serial
-        server serves one client, and a second saw a silent board. Those of a killed espdock are
-        removed, not named."""
+        server serves one client, and a second saw a silent board. Those of a killed espdock are not
+        named: one holding a device is removed here, one on a URL left to the command's own sweep."""
         wanted = {os.path.realpath(device) for device in devices}
         if not wanted and not url:
             return []

@@ -186,7 +186,8 @@ def firmware_plan(
     if name not in {p.name for p in packages}:
         # Offered among the firmware packages: a renamed one's old name got an ament_python package.
         raise unknown_package(name, [p.name for p in packages if p.kind is PackageKind.FIRMWARE], ws, "firmware")
-    return firmware_step(build_plan(ws, config, [name], env=env, notify=notify), name)
+    known = (packages, read_build_inputs(ws, packages))  # found once
+    return firmware_step(build_plan(ws, config, [name], known=known, env=env, notify=notify), name)
 
 
 def current_tags(ws: Workspace, config: Config, *, env: Mapping[str, str]) -> set[str]:

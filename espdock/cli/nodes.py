@@ -30,7 +30,7 @@ from espdock.ros import compose as compose_file
 from espdock.ros import nodes, rmw
 from espdock.ros.plan import ColconBuild, RuntimeImage, runtime_repository, runtime_step
 from espdock.ros.steps import built_on_older, edited_since_built, runtime_spec
-from espdock.workspace import PackageKind, Workspace, build_running
+from espdock.workspace import Package, PackageKind, Workspace, build_running
 
 
 def caller_env(
@@ -100,12 +100,14 @@ def runtime_image(ws: Workspace, config: Config, plan: Plan | None = None) -> tu
     return runner, spec.tag
 
 
-def stale_runtime_note(engine: Engine, ws: Workspace, config: Config, plan: Plan) -> None:
-    """After a build that changed install/ and made no runtime image: say when espdock/<name>:latest,
-    which plain `docker compose up` runs, is no longer the image of install/ (a Compose user's
-    robot ran the code before the build, without a word)."""
+def stale_runtime_note(
+    engine: Engine, ws: Workspace, config: Config, plan: Plan, packages: tuple[Package, ...]
+) -> None:
+    """After a build (PLAN) of the workspace's PACKAGES that changed install/ and made no runtime
+    image: say when espdock/<name>:latest, which plain `docker compose up` runs, is no longer the
+    image of install/ (a Compose user's robot ran the code before the build, without a word)."""
     image = next((s.spec for s in plan.steps if isinstance(s, EnsureImage) and s.spec.target == "build"), None)
-    if image is None or (step := runtime_step(ws, config, image, workspace_packages(ws, config.ros_distro))) is None:
+    if image is None or (step := runtime_step(ws, config, image, packages)) is None:
         return
     if (latest := engine.image(step.stable_tag)) is None:
         return  # none yet: Compose says so itself

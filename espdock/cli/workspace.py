@@ -211,7 +211,8 @@ def build(
                     err_console.print(Text.assemble(("warning: ", "yellow"), unwritten))
                 else:
                     raise WorkspaceError(unwritten, "The build succeeded; its manifest is in install/.") from None
-    if orphans := orphan_installs(ws.ws_dir / "install", (p.name for p in workspace_packages(ws, config.ros_distro))):
+    found = workspace_packages(ws, config.ros_distro)  # as the build left them
+    if orphans := orphan_installs(ws.ws_dir / "install", (p.name for p in found)):
         dirs = " ".join(rel for name in orphans for rel in package_trees(ws.ws_dir, name))
         console.print(
             Text(
@@ -223,7 +224,7 @@ def build(
         )
     colcon = {step.name for step in plan.steps if isinstance(step, ColconBuild)}
     if not config.runtime_image and any(r.step in colcon and r.outcome is not Outcome.CACHED for r in results):
-        stale_runtime_note(engine, ws, config, plan)
+        stale_runtime_note(engine, ws, config, plan, found)
     after_build(engine, ws, config, runner, built, whole=not packages)
 
 

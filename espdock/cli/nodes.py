@@ -209,7 +209,9 @@ def compose(ctx: typer.Context, workspace: WorkspaceOption = None) -> None:
             ) from None
         # Compose stops what `up` started on Ctrl-C, and keeps the containers (and networks).
         raise Interrupted(
-            "interrupted; Compose stopped the services, their containers remain (stopped)",
+            # A Ctrl-C while Compose was still creating them leaves the network and perhaps no container.
+            "interrupted; Compose stopped the services; the project's network and the containers it had made "
+            "remain (stopped)",
             "`espdock compose down` removes them (with the same -p/--profile options as `up`).",
         ) from None
     detached = {"-d", "--detach", "--wait"} & set(args)

@@ -282,4 +282,8 @@ def main() -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    try:
+        sys.exit(main())
+    except KeyboardInterrupt:  # the stack is down by then (main's finally): no traceback to read
+        print("demo_bench: interrupted", file=sys.stderr)
+        sys.exit(130)

@@ -633,7 +633,7 @@ def test_ctrl_c_at_a_terminal_ends_compose_up_with_130_and_says_what_remains(eng
                        capture_output=True, check=False)  # fmt: skip
     text = said.decode(errors="replace")
     assert os.waitstatus_to_exitcode(status) == 130, text
-    assert "their containers remain" in text and "espdock compose down" in text, text
+    assert "the containers it had made remain" in text and "espdock compose down" in text, text
 
 
 def test_compose_in_a_copy_of_a_workspace_warns_that_its_file_runs_the_original_s_nodes(engine, tmp_path):

@@ -20,6 +20,7 @@ from espdock.firmware.plan import (
     derive_interface_packages,
     firmware_step,
     not_in_micro_ros,
+    sdkconfig_target,
     unknown_dependencies,
 )
 from espdock.firmware.steps import installed_image
@@ -123,10 +124,13 @@ def build_plan(
             if (firmware.path / "sdkconfig").is_file():
                 rel = (firmware.path / "sdkconfig").relative_to(ws.root)
                 used = (firmware_build_dir(ws.ws_dir, firmware.name) / "sdkconfig").relative_to(ws.root)
+                # `idf.py set-target` writes the chip there alone: espdock's comes from the defaults.
+                chip = sdkconfig_target((firmware.path / "sdkconfig").read_bytes())
                 notify(
                     f"warning: {rel} is not read: the build's sdkconfig is {used}, made from "
                     f"sdkconfig.defaults (plain idf.py would take the project's). Put its settings in "
                     f"sdkconfig.defaults (`idf.py save-defconfig` writes the ones that differ) and remove it"
+                    + (f'; its chip too: CONFIG_IDF_TARGET="{chip}"' if chip else "")
                 )
             if unknown := unknown_dependencies(firmware, packages):
                 notify(
@@ -179,15 +183,21 @@ def host_side_in_library(firmware: Package, packages: tuple[Package, ...], input
 
 
 def firmware_plan(
-    ws: Workspace, config: Config, name: str, env: Mapping[str, str], notify: Callable[[str], None]
+    ws: Workspace,
+    config: Config,
+    name: str,
+    env: Mapping[str, str],
+    notify: Callable[[str], None],
+    target: str | None = None,
 ) -> tuple[Plan, IdfBuild]:
-    """The plan that ensures firmware package NAME's IDF image, and its build step."""
+    """The plan that ensures firmware package NAME's IDF image, and its build step (for TARGET,
+    as `espdock build --target`, where given)."""
     packages = workspace_packages(ws, config.ros_distro)
     if name not in {p.name for p in packages}:
         # Offered among the firmware packages: a renamed one's old name got an ament_python package.
         raise unknown_package(name, [p.name for p in packages if p.kind is PackageKind.FIRMWARE], ws, "firmware")
     known = (packages, read_build_inputs(ws, packages))  # found once
-    return firmware_step(build_plan(ws, config, [name], known=known, env=env, notify=notify), name)
+    return firmware_step(build_plan(ws, config, [name], target=target, known=known, env=env, notify=notify), name)
 
 
 def current_tags(ws: Workspace, config: Config, *, env: Mapping[str, str]) -> set[str]:

@@ -287,8 +287,8 @@ class PassThrough(typer.core.TyperCommand):
 PASSED = "espdock.passed_args"
 
 
-def firmware_plan(ws: Workspace, config: Config, name: str) -> tuple[Plan, IdfBuild]:
-    return prepare.firmware_plan(ws, config, name, os.environ, notify)
+def firmware_plan(ws: Workspace, config: Config, name: str, target: str | None = None) -> tuple[Plan, IdfBuild]:
+    return prepare.firmware_plan(ws, config, name, os.environ, notify, target)
 
 
 def runner_for(

@@ -50,7 +50,7 @@ from espdock.firmware.provision import (
     parse_domain_id,
 )
 from espdock.firmware.status import micro_ros_report, resolved_sources
-from espdock.firmware.steps import reset_build_dir
+from espdock.firmware.steps import built_chip, chip_overrides, reset_build_dir
 from espdock.images import bootstrap
 from espdock.images.engine import format_argv
 from espdock.layout import firmware_build_dir, installed_firmware_dir
@@ -92,9 +92,19 @@ def idf(
             "Leave it out; the build dir is where `espdock build`, flash and monitor find it. Nothing ran.",
         )
     plan, step = firmware_plan(ws, config, package)
+    if (chip := built_chip(ws, package)) and chip != step.target:
+        # Its build dir holds that chip's sdkconfig, which IDF refuses for another chip's IDF_TARGET
+        # (and set-target would empty it): idf.py runs for that chip, as `flash` does.
+        notify(
+            f"note: build/{package} was last built for {chip} (`espdock build --target {chip}`): idf.py runs for "
+            f"{chip}; `espdock build {package}` builds it for {step.target} again"
+        )
+        plan, step = firmware_plan(ws, config, package, chip)
     if "fullclean" in args:
         cleaned = reset_build_dir(ws, step)
-        console.print(f"fullclean: emptied {cleaned.relative_to(ws.root)} but its sdkconfig (espdock's reset)")
+        console.print(
+            f"fullclean: emptied {cleaned.relative_to(ws.root)} but its sdkconfig and sdkconfig.old (espdock's reset)"
+        )
         args = [a for a in args if a != "fullclean"]
         if not args:
             return
@@ -110,10 +120,17 @@ def idf(
         check_port_free(runner.engine, serial)
     runner.run(plan)
     if serial is None:
-        raise typer.Exit(runner.firmware.run_passthrough(ws, step, tuple(args)))
-    raise typer.Exit(
-        runner.firmware.run_passthrough(ws, step, tuple(args), devices=serial.devices, network=serial.network)
-    )
+        code = runner.firmware.run_passthrough(ws, step, tuple(args))
+    else:
+        code = runner.firmware.run_passthrough(ws, step, tuple(args), devices=serial.devices, network=serial.network)
+    if code == 0 and "save-defconfig" in args and (overrides := chip_overrides(ws.root / step.project, step.target)):
+        chip_file = f"{step.project}/sdkconfig.defaults.{step.target}"
+        notify(
+            f"warning: {chip_file} sets {', '.join(overrides)} in sdkconfig.defaults, where save-defconfig writes: "
+            f"the next sdkconfig made from the defaults has the chip file's value; put the line in {chip_file} to "
+            "keep a menuconfig change"
+        )
+    raise typer.Exit(code)
 
 
 def _need_terminal(what: str) -> None:
@@ -129,10 +146,12 @@ def _installed(ws: Workspace, config: Config, plan: Plan, step: IdfBuild) -> tup
     runner = runner_for(ws, config, Reporter(console))
     built, current = runner.firmware.installed_from(ws, step)
     if not current:
+        # For the chip it was built for: a plain build would replace a `--target` one's firmware.
+        again = f" --target {built.target}" if built.target != step.target else ""
         console.print(
             Text(
                 f"note: the installed firmware of {step.package} is not what its sources build now; this is the one "
-                f"built last (`espdock build {step.package}` builds them)",
+                f"built last (`espdock build {step.package}{again}` builds them)",
                 style="yellow",
             )
         )

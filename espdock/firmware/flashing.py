@@ -107,8 +107,11 @@ def port_of_env(args: Sequence[str], env: Mapping[str, str]) -> tuple[str, ...]:
     return tuple(args)
 
 
-# idf.py's actions that talk to the board, other than the *flash and efuse-* ones.
-PORT_ACTIONS = frozenset({"monitor", "read-otadata", "read_otadata", "erase-otadata", "erase_otadata"})
+# idf.py's actions that talk to the board, other than the *flash and efuse-* ones (IDF v5.3's
+# serial_ext.py and debug_ext.py: those with its PORT option, which reads ESPPORT).
+PORT_ACTIONS = frozenset(
+    {"monitor", "read-otadata", "read_otadata", "erase-otadata", "erase_otadata", "coredump-info", "coredump-debug"}
+)
 
 
 def check_port_free(engine: Engine, port: Port) -> None:

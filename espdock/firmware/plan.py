@@ -172,9 +172,10 @@ def check_no_vendored_micro_ros(packages: Iterable[Package], root: Path) -> None
                 f"{copies[0].relative_to(root)} is a copy of micro_ros_espidf_component: espdock builds micro-ROS "
                 "once, in the IDF image, as a component of the same name, which this copy would replace "
                 "(and colcon cannot build it)",
-                "Remove it. Its settings go in the firmware project: app-colcon.meta beside its CMakeLists.txt, "
-                "the interface packages it uses as workspace packages it <depend>s on "
-                '(docs/firmware.md, "The IDF image and the micro-ROS cache").',
+                "Remove it, and name the image's in the project's CMakeLists.txt: `list(APPEND EXTRA_COMPONENT_DIRS "
+                "$ENV{UROS_COMPONENT_DIR})` before include(.../project.cmake). Its settings go in the firmware "
+                "project: app-colcon.meta beside its CMakeLists.txt, the interface packages it uses as workspace "
+                'packages it <depend>s on (docs/firmware.md, "The IDF image and the micro-ROS cache").',
             )
 
 
@@ -309,8 +310,13 @@ _IDF_TARGET_LINE = re.compile(r'^CONFIG_IDF_TARGET="?([A-Za-z0-9_]+)"?\s*$', re.
 
 def declared_target(defaults: Mapping[str, bytes]) -> str | None:
     """The chip a firmware's sdkconfig.defaults names (CONFIG_IDF_TARGET, as IDF reads it), if any."""
+    return sdkconfig_target(defaults.get("sdkconfig.defaults", b""))
+
+
+def sdkconfig_target(data: bytes) -> str | None:
+    """The chip an sdkconfig or defaults file's DATA names (CONFIG_IDF_TARGET), if any."""
     # utf-8-sig: past a Windows editor's byte order mark, which IDF's CMake (file(STRINGS)) skips too.
-    match = _IDF_TARGET_LINE.search(defaults.get("sdkconfig.defaults", b"").decode("utf-8-sig", errors="replace"))
+    match = _IDF_TARGET_LINE.search(data.decode("utf-8-sig", errors="replace"))
     return match.group(1) if match else None
 
 

@@ -90,9 +90,12 @@ class FirmwareSteps:
         roots = _stamp_roots(workspace, step)
         seen = _source_times(roots)
         missing: set[str] = set()
+        hints: list[str] = []
 
         def on_line(line: str) -> None:
             missing.update(missing_headers(line))
+            if (hint := failure_hint(line)) and hint not in hints:
+                hints.append(hint)
             self.containers.emit(StepOutput(step.name, host_paths(line, workspace)))
 
         try:
@@ -115,7 +118,9 @@ class FirmwareSteps:
                 f"idf.py build of {step.package} failed (exit code {code}); its output is above, "
                 f"build files in {build_dir}",
                 undeclared_interface_hint(step, missing)
-                or "Fix the firmware and run `espdock build` again; installed firmware was left as it was.",
+                or " ".join(
+                    [*hints, "Fix the firmware and run `espdock build` again; installed firmware was left as it was."]
+                ),
             )
         _write_marker(build_dir, step.target, defaults, step.image_key, self.containers.owner)
         changed = _library_settings_changed(build_dir, fresh)
@@ -167,16 +172,19 @@ class FirmwareSteps:
         where that is another image still on the engine, else STEP; and whether the firmware is
         what its sources build now. Building the image of sources edited since, which may not
         even build, would stand between the user and the firmware they built."""
-        build_dir = firmware_build_dir(workspace.ws_dir, step.package)
-        stamp = _firmware_stamp(workspace, step, self._image_id(step))[step.package]
+        built = _built_step(step, firmware_build_dir(workspace.ws_dir, step.package))
+        if (
+            built is None
+            or (built.target, built.image_key) == (step.target, step.image_key)
+            or self.containers.engine.image(built.image) is None
+        ):
+            built = step
         # The sources against what the installed firmware was built from, not the build dir's
-        # files: `espdock idf PKG -- fullclean` empties those, and the sources build the same.
+        # files: `espdock idf PKG -- fullclean` empties those, and the sources build the same. For
+        # the chip it was built for: a `build --target` one is current until they change.
+        stamp = _firmware_stamp(workspace, built, self._image_id(built))[step.package]
         recorded = StampFile(workspace.ws_dir / "build" / FIRMWARE_STAMPS).read().get(step.package) or {}
-        current = recorded.get("stamp") == stamp
-        built = _built_step(step, build_dir)
-        if current or built is None or (built.target, built.image_key) == (step.target, step.image_key):
-            return step, current
-        return (built, False) if self.containers.engine.image(built.image) is not None else (step, False)
+        return built, recorded.get("stamp") == stamp
 
     def _image_id(self, step: IdfBuild) -> str:
         """The ID of STEP's micro-ROS image ('' where the engine lacks it)."""
@@ -528,6 +536,12 @@ def _built_step(step: IdfBuild, build_dir: Path) -> IdfBuild | None:
     return replace(step, image=keyed_tag(repository, key), image_key=key, target=target)
 
 
+def built_chip(workspace: Workspace, package: str) -> str:
+    """The chip PACKAGE's build dir was last configured for ('' where it has no record)."""
+    target, _, _ = _read_marker(firmware_build_dir(workspace.ws_dir, package)) or ("", "", "")
+    return target
+
+
 def _built_key(build_dir: Path, target: str) -> str:
     """The image key of the build dir's last successful build for TARGET ('' if none)."""
     built_target, _, key = _read_marker(build_dir) or ("", "", "")
@@ -614,13 +628,30 @@ def _configured_project(build_dir: Path) -> str | None:
 LIBRARY_BASELINE = ".espdock-library-sdkconfig"
 
 
-def _library_lines(sdkconfig: Path) -> dict[str, str]:
+def _config_lines(sdkconfig: Path, prefixes: tuple[str, ...] = ("CONFIG_",)) -> dict[str, str]:
+    """The options of SDKCONFIG (a defaults file too) named with one of PREFIXES, and their values
+    ('n' for `# CONFIG_X is not set`)."""
     values = {}
     for line in sdkconfig.read_text(errors="replace").splitlines() if sdkconfig.is_file() else ():
         match = SDKCONFIG_LINE.match(line.strip())
-        if match and (key := match.group(1) or match.group(3)).startswith(LIBRARY_SDKCONFIG_PREFIXES):
+        if match and (key := match.group(1) or match.group(3)).startswith(prefixes):
             values[key] = match.group(2) if match.group(1) else "n"
     return values
+
+
+def _library_lines(sdkconfig: Path) -> dict[str, str]:
+    return _config_lines(sdkconfig, LIBRARY_SDKCONFIG_PREFIXES)
+
+
+def chip_overrides(project: Path, target: str) -> list[str]:
+    """The options PROJECT's sdkconfig.defaults sets that its sdkconfig.defaults.TARGET sets to
+    another value, which wins: after `save-defconfig`, a menuconfig change to such an option is
+    in sdkconfig.defaults, and the next sdkconfig made from the defaults loses it."""
+    saved = _config_lines(project / "sdkconfig.defaults")
+    chip = _config_lines(project / f"sdkconfig.defaults.{target}")
+    return [
+        f"{key}={chip[key]} over {saved[key]}" for key in sorted(saved.keys() & chip.keys()) if saved[key] != chip[key]
+    ]
 
 
 def _library_settings_changed(build_dir: Path, fresh: bool) -> list[str]:
@@ -644,8 +675,8 @@ def _library_settings_changed(build_dir: Path, fresh: bool) -> list[str]:
 
 
 def reset_build_dir(workspace: Workspace, step: IdfBuild) -> Path:
-    """espdock's `idf.py fullclean`: empty STEP's build dir but for its sdkconfig (menuconfig's
-    changes, which IDF's fullclean leaves in the project dir) and espdock's record of what it was
+    """espdock's `idf.py fullclean`: empty STEP's build dir but for its sdkconfig and sdkconfig.old
+    (menuconfig's changes, which IDF's fullclean leaves in the project dir) and espdock's record of what it was
     built with (which image the installed firmware is of: `flash` after a fullclean and an
     interface edit built the edited sources' image). IDF's own would delete the source of the
     managed_components mount, and the component manager would fail (EBUSY) removing the
@@ -654,7 +685,15 @@ def reset_build_dir(workspace: Workspace, step: IdfBuild) -> Path:
     with workspace_lock(workspace):
         if build_dir.is_dir():
             for entry in build_dir.iterdir():
-                if entry.name in ("sdkconfig", LIBRARY_BASELINE, TARGET_MARKER):
+                # sdkconfig.old too: the one an earlier build set aside, with menuconfig's changes.
+                if entry.name in (
+                    "sdkconfig",
+                    SDKCONFIG_OLD,
+                    OLD_CHANGED,
+                    SDKCONFIG_MADE,
+                    LIBRARY_BASELINE,
+                    TARGET_MARKER,
+                ):
                     continue
                 if entry.is_dir() and not entry.is_symlink():
                     shutil.rmtree(entry)
@@ -697,6 +736,28 @@ _MISSING_HEADER = re.compile(r"fatal error: ([^\s:]+): No such file or directory
 def missing_headers(line: str) -> list[str]:
     """The headers LINE (the compiler's output) says it could not find."""
     return _MISSING_HEADER.findall(line)
+
+
+# IDF's words (CMake's FATAL_ERROR, its first line) for a project set up for another world, and what to do.
+_FAILURE_HINTS = (
+    (
+        "Failed to resolve component 'micro_ros_espidf_component'",
+        "The project names micro_ros_espidf_component but not where the IDF image keeps it: add "
+        "`list(APPEND EXTRA_COMPONENT_DIRS $ENV{UROS_COMPONENT_DIR})` to its CMakeLists.txt before "
+        "include($ENV{IDF_PATH}/tools/cmake/project.cmake), as `espdock new`'s does.",
+    ),
+    (
+        "EXTRA_COMPONENT_DIRS doesn't exist",
+        "idf.py runs in a container that has the workspace (at /workspace) and the directories links in it lead "
+        "to, not the host's other paths: name the directory relative to the project "
+        "(`${CMAKE_CURRENT_LIST_DIR}/../common`), linking it into the workspace where it lies outside.",
+    ),
+)
+
+
+def failure_hint(line: str) -> str | None:
+    """What to do about the failure LINE (idf.py's output) names, where it is one of _FAILURE_HINTS'."""
+    return next((hint for words, hint in _FAILURE_HINTS if words in line), None)
 
 
 def undeclared_interface_hint(step: IdfBuild, missing: Iterable[str]) -> str | None:

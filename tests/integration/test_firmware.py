@@ -594,6 +594,11 @@ def test_switching_the_chip_target_builds_a_new_library_and_retargets(fw_ws, dou
     sdkconfig = (root / "ws/build/camera_node/sdkconfig").read_text()
     assert "CONFIG_ESPDOCK_CAM_BOARD_XIAO_ESP32S3=y" in sdkconfig and "CONFIG_SPIRAM_MODE_OCT=y" in sdkconfig
     assert "CONFIG_ESPDOCK_CAM_BOARD_AI_THINKER=y" not in sdkconfig
+    # `espdock idf` runs for the chip of the build dir, as flash does: for the package's own, IDF
+    # refused the build dir's sdkconfig ("generated for target 'esp32s3'") and set-target is refused.
+    reconfigured = espdock("idf", "camera_node", "--", "reconfigure", cwd=root, env=double_env)
+    assert reconfigured.returncode == 0, reconfigured.stdout[-2000:] + reconfigured.stderr
+    assert "build/camera_node was last built for esp32s3" in " ".join(reconfigured.stdout.split())
     # And back: the esp32 image is still cached.
     back = espdock("build", "camera_node", cwd=root, env=double_env)
     assert back.returncode == 0

@@ -104,6 +104,23 @@ def test_only_the_defaults_files_a_build_for_the_chip_reads_decide_the_sdkconfig
     assert _defaults_digest(tmp_path, "esp32") != digest
 
 
+def test_options_a_chip_s_defaults_file_sets_over_sdkconfig_defaults_are_named(tmp_path):
+    """menuconfig, then `save-defconfig`: a change to an option sdkconfig.defaults.<chip> also sets
+    went into sdkconfig.defaults, and the next sdkconfig made afresh had the chip file's value."""
+    from espdock.firmware.steps import chip_overrides
+
+    (tmp_path / "sdkconfig.defaults").write_text(
+        'CONFIG_IDF_TARGET="esp32"\nCONFIG_SENSOR_PERIOD_MS=1200\nCONFIG_ESPTOOLPY_FLASHSIZE_8MB=y\n'
+    )
+    (tmp_path / "sdkconfig.defaults.esp32").write_text(
+        "CONFIG_SENSOR_PERIOD_MS=1000\nCONFIG_ESPTOOLPY_FLASHSIZE_8MB=y\n# CONFIG_SPIRAM is not set\n"
+    )
+    (tmp_path / "sdkconfig.defaults.esp32s3").write_text("CONFIG_SENSOR_PERIOD_MS=250\n")
+    assert chip_overrides(tmp_path, "esp32") == ["CONFIG_SENSOR_PERIOD_MS=1000 over 1200"]
+    assert chip_overrides(tmp_path, "esp32s3") == ["CONFIG_SENSOR_PERIOD_MS=250 over 1200"]
+    assert chip_overrides(tmp_path, "esp32c3") == []
+
+
 def test_a_menuconfig_change_of_a_library_option_is_reported_and_others_are_not(tmp_path):
     from espdock.firmware.steps import LIBRARY_BASELINE, _library_settings_changed
 

@@ -520,6 +520,8 @@ def test_a_copy_of_micro_ros_espidf_component_in_a_project_is_refused_naming_it(
         said = " ".join(result.stderr.split())
         assert result.returncode == 2, result.stdout + result.stderr
         assert "src/counter/components/micro_ros_espidf_component is a copy of micro_ros_espidf_component" in said
+        # Removed, the app must still name the image's: upstream's layout needed no line for it.
+        assert "list(APPEND EXTRA_COMPONENT_DIRS $ENV{UROS_COMPONENT_DIR})" in said
     # In the components/ the projects share (where `espdock new` puts espdock_uros), IDF takes it too.
     shutil.copy2(REPO / "tests/firmware_packages/blink_fw/package.xml", app)
     shutil.move(copy, tmp_path / "src/components/uros")
@@ -603,11 +605,14 @@ def test_idf_fullclean_is_espdock_s_reset_that_keeps_the_sdkconfig(tmp_path):
     (build / "managed_components/espressif__led_strip").mkdir(parents=True)
     (build / "CMakeCache.txt").write_text("IDF_TARGET:STRING=esp32c3\n")
     (build / "sdkconfig").write_text("CONFIG_FREERTOS_HZ=1000\n")
+    # Set aside by a build whose defaults changed, with menuconfig's changes: the note names it.
+    (build / "sdkconfig.old").write_text("CONFIG_FREERTOS_HZ=500\n")
     result = espdock("idf", "led_strip_node", "--", "fullclean", cwd=root, env=NO_ENGINE)
     assert result.returncode == 0, result.stderr
     assert "espdock's reset" in result.stdout
-    assert sorted(p.name for p in build.iterdir()) == ["sdkconfig"]
+    assert sorted(p.name for p in build.iterdir()) == ["sdkconfig", "sdkconfig.old"]
     assert (build / "sdkconfig").read_text() == "CONFIG_FREERTOS_HZ=1000\n"
+    assert (build / "sdkconfig.old").read_text() == "CONFIG_FREERTOS_HZ=500\n"
 
 
 def test_each_command_is_registered_by_the_module_espdock_imports_for_it():
@@ -1070,6 +1075,10 @@ def test_a_project_s_own_sdkconfig_which_the_build_does_not_read_is_named_before
         "warning: firmware/led_strip_node/sdkconfig is not read: the build's sdkconfig is "
         "ws/build/led_strip_node/sdkconfig" in said
     )
+    assert "CONFIG_IDF_TARGET" not in said
+    # `idf.py set-target esp32s3` wrote the project's chip there alone.
+    (root / "firmware/led_strip_node/sdkconfig").write_text('CONFIG_IDF_TARGET="esp32s3"\nCONFIG_FREERTOS_HZ=200\n')
+    assert 'and remove it; its chip too: CONFIG_IDF_TARGET="esp32s3"' in dry_run_says(root)
 
 
 def test_compose_up_during_a_build_is_refused_before_it_makes_an_image_of_install(tmp_path):

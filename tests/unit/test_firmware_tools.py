@@ -136,6 +136,9 @@ def test_espport_is_the_port_of_actions_that_use_one_and_only_where_none_is_give
     assert port_of_env(["flash", "monitor"], env) == ("-p", "/dev/ttyUSB3", "flash", "monitor")
     assert port_of_env(["erase-flash"], env)[:2] == ("-p", "/dev/ttyUSB3")
     assert port_of_env(["efuse-summary"], env)[:2] == ("-p", "/dev/ttyUSB3")
+    # IDF's debug_ext.py gives the core dump actions its PORT option, which reads ESPPORT.
+    assert port_of_env(["coredump-info"], env)[:2] == ("-p", "/dev/ttyUSB3")
+    assert port_of_env(["coredump-debug"], env)[:2] == ("-p", "/dev/ttyUSB3")
     assert port_of_env(["-p", "/dev/ttyACM0", "flash"], env) == ("-p", "/dev/ttyACM0", "flash")
     assert port_of_env(["menuconfig"], env) == ("menuconfig",), "no board: an unplugged one must not stop it"
     assert port_of_env(["flash"], {}) == ("flash",)

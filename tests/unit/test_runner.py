@@ -1162,6 +1162,36 @@ def test_a_firmware_build_whose_container_was_killed_says_so_not_fix_the_firmwar
     assert "OOM killer" in failed.value.hint and "Fix the firmware" not in failed.value.hint
 
 
+@pytest.mark.parametrize(
+    ("said", "hint"),
+    [
+        # An app moved from upstream's layout: the component was cloned into components/, not named.
+        (
+            "  Failed to resolve component 'micro_ros_espidf_component'.",
+            "`list(APPEND EXTRA_COMPONENT_DIRS $ENV{UROS_COMPONENT_DIR})`",
+        ),
+        # A host path in the CMakeLists (CMake wraps the path onto the next line where it is long).
+        ("  Directory specified in EXTRA_COMPONENT_DIRS doesn't exist:", "not the host's other paths"),
+    ],
+)
+def test_a_firmware_build_failing_on_a_project_set_up_for_plain_idf_py_says_what_to_change(ws, said, hint):
+    """An idf.py project brought in as it was: the build failed on IDF's words and said only "Fix
+    the firmware"."""
+    project = ws.root / "fw/cam_fw"
+    (project / "main").mkdir(parents=True)
+    (project / "package.xml").write_text("<package><name>cam_fw</name></package>\n")
+    lines = ("CMake Error at /opt/esp/idf/tools/cmake/build.cmake:300 (message):", said, "-- Configuring incomplete")
+
+    def idf_py(spec, on_line):
+        for line in lines:
+            on_line(line)
+        return 2
+
+    with pytest.raises(BuildFailed) as failed:
+        runner(FakeEngine(run_script=idf_py), []).run(Plan(ws, (IdfBuild("cam_fw", "fw/cam_fw", "i", "esp32", "k"),)))
+    assert hint in failed.value.hint and "installed firmware was left as it was" in failed.value.hint
+
+
 def test_a_firmware_build_that_failed_on_the_engine_s_full_disk_names_that_disk(ws, tmp_path, monkeypatch):
     """The engine's data root full: espdock's own with-ca.sh failed writing its CA bundle in the
     container's /tmp ("cat: write error: No space left on device"), and the build said "Fix the
@@ -1197,3 +1227,24 @@ def test_flash_after_a_one_off_target_runs_in_that_chip_s_image(ws):
     step = IdfBuild("cam_fw", "fw/cam_fw", "espdock/idf-micro-ros-jazzy-esp32:4cb1078bd25db399", "esp32", "4cb10")
     built, current = runner(engine, []).firmware.installed_from(ws, step)
     assert (built.image, built.target, current) == (s3, "esp32s3", False)
+
+
+def test_firmware_a_one_off_target_built_is_current_until_its_sources_change(ws):
+    """`espdock build fw --target esp32s3`, then `espdock flash fw`: flash called the firmware just
+    built stale (its stamp was compared with the workspace chip's) and offered `espdock build fw`,
+    which would have replaced it with the other chip's."""
+    project = ws.root / "fw/cam_fw"
+    (project / "main").mkdir(parents=True)
+    (project / "package.xml").write_text("<package><name>cam_fw</name></package>\n")
+    (project / "main/app.c").write_text("void app_main(void) {}\n")
+    s3 = "espdock/idf-micro-ros-jazzy-esp32s3:5ebe61ea41404df8"
+    esp32 = "espdock/idf-micro-ros-jazzy-esp32:4cb1078bd25db399"
+    now = datetime.now(UTC)
+    engine = FakeEngine({s3: ImageInfo("s3-id", (s3,), now, 1, {}), esp32: ImageInfo("id", (esp32,), now, 1, {})})
+    one_off = IdfBuild("cam_fw", "fw/cam_fw", s3, "esp32s3", "5ebe61ea41404df8")
+    runner(engine, []).run(Plan(ws, (one_off,)))
+    step = IdfBuild("cam_fw", "fw/cam_fw", esp32, "esp32", "4cb1078bd25db399")
+    built, current = runner(engine, []).firmware.installed_from(ws, step)
+    assert (built.image, built.target, current) == (s3, "esp32s3", True)
+    (project / "main/app.c").write_text("void app_main(void) { for (;;); }\n")
+    assert runner(engine, []).firmware.installed_from(ws, step)[1] is False

@@ -431,11 +431,11 @@ class RosSteps:
                         volume.merge_logs(fetched["log"], logs, self.containers.owner)
                         states = log.states()
                         # A whole build that failed, or did not build all it was to (colcon found not all of
-                        # them), lacks some of what the host has: it brings back what it built, and the
-                        # host's other packages stay as they were. install/ is then not the volume's, so the
-                        # next build is a whole one too.
+                        # them, or left some out as told: `--packages-skip`), lacks some of what the host
+                        # has: it brings back what it built, and the host's other packages stay as they
+                        # were. install/ is then not the volume's, so the next build is a whole one too.
                         built_here = _built(states or {})
-                        unbuilt = set(rebuild) - set(built_here) - set(log.unselected())
+                        unbuilt = set(rebuild) - set(built_here)
                         # So does a selection's (`espdock build PKG`), which the volume's install/
                         # holds alone: swapped in, it removed every other package from the host's.
                         merge = whole and (code != 0 or bool(unbuilt) or not step.whole)

@@ -426,6 +426,13 @@ def test_volume_mode_builds_where_the_engine_cannot_see_rebuilds_edits_and_never
     assert "word: four" in installed_word(root)
     assert (root / "ws/install/idle_py").is_dir() and flashable.read_text() == "{}\n"
     assert espdock("prune", "--volume", cwd=root, env=tcp_engine.env).returncode == 0
+    # The same with colcon's own selection: a package it leaves out as told is not built either.
+    edit_word(root, "five")
+    skipped = espdock("build", "--", "--packages-skip", "idle_py", cwd=root, env=tcp_engine.env)
+    assert skipped.returncode == 0, skipped.stdout + skipped.stderr
+    assert "word: five" in installed_word(root)
+    assert (root / "ws/install/idle_py").is_dir(), "a package colcon skipped was removed from the host's install/"
+    assert espdock("prune", "--volume", cwd=root, env=tcp_engine.env).returncode == 0
     engine.remove_containers({"io.espdock.workspace": str(root)})
 
 

@@ -139,16 +139,31 @@ def ways_up(start: Path | None = None) -> tuple[list[Path], list[Path]]:
     return [here, *here.parents], ([logical, *logical.parents] if logical != here else [])
 
 
+def _cwd_gone() -> WorkspaceError:
+    return WorkspaceError(
+        "the current directory no longer exists (removed, or replaced by a new clone)",
+        "cd into the workspace again (`cd $PWD`), then run again.",
+    )
+
+
+def current_dir(instead: Path | None = None) -> Path:
+    """The current directory; where it no longer exists, INSTEAD (the workspace --workspace named,
+    with which other commands run from there too), else a clear error, not a crash."""
+    try:
+        return Path.cwd()
+    except FileNotFoundError:
+        if instead is not None:
+            return instead
+        raise _cwd_gone() from None
+
+
 def find_workspace(start: Path | None = None) -> Workspace:
     """The nearest directory at or above START (default: the current one) that holds espdock.toml,
     through links as they are, else as the shell took them (ways_up)."""
     try:
         resolved, logical = ways_up(start)
     except FileNotFoundError:
-        raise WorkspaceError(
-            "the current directory no longer exists (removed, or replaced by a new clone)",
-            "cd into the workspace again (`cd $PWD`), then run again.",
-        ) from None
+        raise _cwd_gone() from None
     start, looked, denied = resolved[0], [], []
     for directory in (*resolved, *logical):
         looked.append(directory)

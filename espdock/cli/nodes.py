@@ -30,7 +30,7 @@ from espdock.ros import compose as compose_file
 from espdock.ros import nodes, rmw
 from espdock.ros.plan import ColconBuild, RuntimeImage, runtime_repository, runtime_step
 from espdock.ros.steps import built_on_older, edited_since_built, runtime_spec
-from espdock.workspace import Package, PackageKind, Workspace, build_running
+from espdock.workspace import Package, PackageKind, Workspace, build_running, current_dir
 
 
 def caller_env(
@@ -285,12 +285,14 @@ def run(
     """Run EXECUTABLE of a built PACKAGE in the workspace's runtime image, like `ros2 run`
     (espdock's options go before PACKAGE; everything after EXECUTABLE goes to the node).
     The runtime image is made of install/ first when a build changed it."""
-    mounts = tuple(nodes.volume(text, Path.cwd()) for text in volume or ())
+    # Run from a directory since removed, with --workspace: relative paths are the workspace's.
+    here = current_dir(workspace.resolve() if workspace is not None and workspace.is_absolute() else None)
+    mounts = tuple(nodes.volume(text, here) for text in volume or ())
     devices = tuple(nodes.device(text) for text in device or ())
     variables = tuple(v for text in env or () if (v := nodes.variable(text, os.environ)) is not None)
-    nodes.profile_mounts(os.environ, Path.cwd())  # a missing profiles file: refused before any image is made
+    nodes.profile_mounts(os.environ, here)  # a missing profiles file: refused before any image is made
     ws, config = load(workspace, runtime_image=True)
-    nodes.check_file_arguments(ws, args or (), mounts, Path.cwd())
+    nodes.check_file_arguments(ws, args or (), mounts, here)
     packages = workspace_packages(ws, config.ros_distro)
     path = nodes.find_executable(ws, packages, package, executable)
     if runs := next((edited_since_built(ws, p) for p in packages if p.name == package), None):
@@ -312,7 +314,7 @@ def run(
             f"it may fail on what changed in them, an interface's type hash (`espdock build {package}` first)"
         )
     runner, image = runtime_image(ws, config, plan)
-    if mounts or devices or nodes.profile_mounts(os.environ, Path.cwd()):
+    if mounts or devices or nodes.profile_mounts(os.environ, here):
         # An engine that does not see this machine would mount its own machine's path, or none.
         runner.containers.needs_this_machine(ws, image, RUN_FILES, firmware=False)
     tty = bool(sys.stdin and sys.stdin.isatty()) and sys.stdout.isatty() and not in_background()
@@ -354,7 +356,7 @@ def shell(workspace: WorkspaceOption = None) -> None:
         nodes.make_shell_home(ws, runner.owner)
     environ = caller_env(ws, config, runner, image)
     spec = nodes.shell_spec(
-        ws, image, owner, environ, tty, dockerfile, mount, packages, Path.cwd(), user_name(runner.owner[0])
+        ws, image, owner, environ, tty, dockerfile, mount, packages, current_dir(ws.root), user_name(runner.owner[0])
     )
     code, stopped_by = run_foreground(runner.engine, spec)
     raise typer.Exit(128 + stopped_by if stopped_by else code)

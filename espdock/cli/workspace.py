@@ -49,6 +49,7 @@ from espdock.workspace import (
     PackageKind,
     build_running,
     check_not_building,
+    current_dir,
     idf_project_cmake,
     read_build_inputs,
     unmanifested,
@@ -341,7 +342,9 @@ def init(
     if force and not compose:
         raise ConfigError("--force goes with --compose", "`espdock init --compose --force`.")
     # As root for someone else: the new files belong to who owns the nearest existing directory.
-    existing = next(d for d in (directory.resolve(), *directory.resolve().parents) if d.exists())
+    # A clear error where the current directory is gone and DIRECTORY is relative to it.
+    where = directory if directory.is_absolute() else current_dir() / directory
+    existing = next(d for d in (where.resolve(), *where.resolve().parents) if d.exists())
     owner = invoking_user(os.environ, existing) if os.geteuid() == 0 else None
     ws, created = init_workspace(directory, owner)
     try:
@@ -381,7 +384,7 @@ def init(
     # `cd -x` is an option to cd: a name that starts with a dash goes as ./-x.
     shown = str(directory) if directory.is_absolute() or not str(directory).startswith("-") else f"./{directory}"
     console.print("next:")
-    if directory.resolve() != Path.cwd():
+    if directory.resolve() != current_dir(Path("/")):
         # A line of its own: `cd DIR && ...` on each line, pasted in order, cd'd into DIR/DIR.
         console.print(f"  cd {shlex.quote(shown)}")
     if compose:  # after a build, to run what it built

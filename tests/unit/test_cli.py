@@ -594,6 +594,26 @@ def test_paths_that_are_not_utf_8_or_gone_are_bad_input_not_espdock_bugs(tmp_pat
     )  # fmt: skip
     assert listing.returncode == 2 and "the current directory no longer exists" in listing.stderr, listing.stderr
 
+    def from_gone(*args: str) -> subprocess.CompletedProcess:
+        gone.mkdir()
+        return subprocess.run(
+            ["sh", "-c", f'cd "{gone}" && rmdir "{gone}" && exec "$0" -m espdock "$@"', sys.executable, *args],
+            capture_output=True, text=True, check=False, env={**os.environ, **NO_ENGINE}, stdin=subprocess.DEVNULL,
+        )  # fmt: skip
+
+    # Given where, init makes the workspace and ends 0: it crashed after writing it all.
+    made = from_gone("init", str(tmp_path / "robot"))
+    assert made.returncode == 0, made.stderr
+    assert f"  cd {tmp_path / 'robot'}\n" in made.stdout, made.stdout
+    relative = from_gone("init", "other")
+    assert relative.returncode == 2 and "the current directory no longer exists" in relative.stderr, relative.stderr
+    # With --workspace, as build and the others: on to the engine (none here), not a crash.
+    root = copy_workspace(tmp_path / "w")
+    for args in (("run", "-w", str(root), "espdock_demo", "camera_sim"), ("shell", "-w", str(root))):
+        ran = from_gone(*args)
+        assert ran.returncode not in (0, 70) and "bug in espdock" not in ran.stderr, (args, ran.stderr)
+        assert "no longer exists" not in ran.stderr, (args, ran.stderr)
+
 
 def test_idf_fullclean_is_espdock_s_reset_that_keeps_the_sdkconfig(tmp_path):
     from tests.conftest import REPO

@@ -222,7 +222,14 @@ class RosSteps:
                     f"{', '.join(reinstalled)} (what a target renamed or an install rule taken out had installed "
                     "would stay in install/)"
                 )
-                reasons.append((tuple(install / name for name in reinstalled), why))
+                # An interface taken out of rosidl_generate_interfaces (its file kept) leaves its generated
+                # code in the build dir, whose output directories ament installs whole: it stayed importable.
+                generated = [name for name in reinstalled if (base / name / "rosidl_generator_c").is_dir()]
+                if generated:
+                    why += f"; building {', '.join(generated)} afresh as well (rosidl's generated code)"
+                reasons.append(
+                    (tuple(install / name for name in reinstalled) + tuple(base / n for n in generated), why)
+                )
             done = {*moved, *put_back, *lost, *redeclared, *reinstalled}
             # An older espdock's records keep no list of files: whether one went is not known.
             unlisted = stamp_file.unlisted({n: now for n, now in others.items() if n not in done})

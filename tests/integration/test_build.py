@@ -134,6 +134,17 @@ def test_a_build_builds_again_exactly_when_something_changed(engine, built):
     assert build()[0], "an edited file must build"
     extra.unlink()
     assert build()[0], "a removed file must build"
+    # An interface taken out of rosidl_generate_interfaces, its file kept (retired, or moving to
+    # another package): rosidl's code of it stayed in the build dir, installed again, importable.
+    cmake, installed = package / "CMakeLists.txt", root / "ws/install/custom_interface"
+    listed = cmake.read_text()
+    (package / "msg/Retired.msg").write_text("int32 value\n")
+    cmake.write_text(listed.replace('"msg/CameraConfig.msg"', '"msg/CameraConfig.msg"\n  "msg/Retired.msg"'))
+    assert build()[0] and list(installed.rglob("_retired.py"))
+    cmake.write_text(listed)
+    assert build()[0]
+    assert [p for p in installed.rglob("*") if "retired" in p.name.lower()] == []
+    (package / "msg/Retired.msg").unlink()  # the build below builds anyway
     shutil.rmtree(root / "ws/install/custom_interface")
     assert build()[0], "a deleted install tree must build"
     assert build("--force")[0], "--force must build"

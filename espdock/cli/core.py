@@ -25,7 +25,7 @@ from espdock.build.runner import Runner
 from espdock.build.steps import Plan
 from espdock.cli.ui import STAMPED, QuietReporter, Reporter, stamped
 from espdock.config import Config, invoking_user, load_config, misspelt_variables
-from espdock.errors import ConfigError, DiskFull, EspdockBug, EspdockError, Interrupted
+from espdock.errors import ConfigError, DiskFull, EspdockBug, EspdockError, Interrupted, WorkspaceError
 from espdock.firmware.plan import IdfBuild
 from espdock.images import bootstrap
 from espdock.images.engine import Engine
@@ -171,9 +171,21 @@ def command(function: Callable[P, None]) -> Callable[P, None]:
                 fail(_bug_report(exc))
             output_closed()
         except Exception as exc:  # anything else is espdock's own bug: say so, keep the traceback
-            fail(output_failed(exc) or _bug_report(exc))
+            fail(output_failed(exc) or not_writable(exc) or _bug_report(exc))
 
     return wrapper
+
+
+def not_writable(exc: BaseException) -> EspdockError | None:
+    """EXC as a file espdock must write (its records, install/) on a read-only mount or not this
+    user's, or None where it is something else: a bug report named the user's mount."""
+    if not isinstance(exc, OSError) or exc.errno not in (errno.EROFS, errno.EACCES, errno.EPERM) or not exc.filename:
+        return None
+    return WorkspaceError(
+        f"espdock cannot use {exc.filename}: {exc.strerror}",
+        "The workspace (or the directory named) must be this user's to read and write: a build writes its records "
+        "and install/ there. Remount it read-write or fix its owner or mode, then run again.",
+    )
 
 
 def output_failed(exc: BaseException) -> EspdockError | None:

@@ -1186,3 +1186,26 @@ def test_the_shell_completes_commands_and_options(tmp_path):
     shown = subprocess.run([sys.executable, "-m", "espdock", "--show-completion", "bash"], cwd=tmp_path,
                            capture_output=True, text=True, check=False)  # fmt: skip
     assert shown.returncode == 0 and "complete -o default -F _espdock_completion espdock" in shown.stdout, shown.stdout
+
+
+def test_a_read_only_directory_espdock_must_write_is_named_not_called_a_bug(tmp_path):
+    """A workspace on a read-only mount (a CI cache, a bind mount with :ro): `espdock new` and an
+    up-to-date build were exit 70, "a bug in espdock", on the first file they wrote."""
+    import os
+
+    made = espdock("init", "ws", cwd=tmp_path)
+    assert made.returncode == 0, made.stderr
+    shared = tmp_path / "ws/src/components"
+    shared.mkdir()
+    espdock_argv = f'"{sys.executable}" -m espdock new ro_board'
+    # A private mount namespace: the read-only bind mount is this command's alone.
+    script = f'mount --bind "{shared}" "{shared}" && mount -o remount,bind,ro "{shared}" && exec {espdock_argv}'
+    if subprocess.run(["unshare", "-m", "true"], capture_output=True, check=False).returncode != 0:
+        pytest.skip("no mount namespace here (unshare -m needs CAP_SYS_ADMIN)")
+    refused = subprocess.run(
+        ["unshare", "-m", "sh", "-c", script], cwd=tmp_path / "ws", capture_output=True, text=True, check=False,
+        env={**os.environ, **NO_ENGINE},
+    )  # fmt: skip
+    assert refused.returncode == 2, refused.stderr
+    assert f"espdock cannot use {shared}/COLCON_IGNORE: Read-only file system" in refused.stderr, refused.stderr
+    assert "bug in espdock" not in refused.stderr

@@ -179,7 +179,9 @@ def compose(ctx: typer.Context, workspace: WorkspaceOption = None) -> None:
     token = uuid.uuid4().hex
     if subcommand == "up":
         # With the caller's own -p, -f and --profile: a bare `down` left a profile's services running.
-        given = " ".join(shlex.quote(arg) for arg in ["espdock", "compose", *args[: nodes.compose_subcommand_at(args)]])
+        # And the workspace where it was named: run from elsewhere, a bare `down` found none.
+        named = ["--workspace", str(ws.root)] if (workspace or among) is not None else []
+        given = shlex.join(["espdock", "compose", *named, *args[: nodes.compose_subcommand_at(args)]])
         interrupts.leaving(
             f"services Compose started may still be running: `{given} ps` lists them, `{given} down` stops and "
             "removes them"

@@ -581,7 +581,8 @@ def test_a_second_ctrl_c_in_compose_up_says_the_services_may_still_run(engine, t
     (root / "espdock.toml").write_text("")
     (root / "compose.yaml").write_text(COMPOSE_PROJECT.format(base=base_image()))
     project = f"espdock-twice-{os.getpid()}"
-    up = Started(root, "compose", "-p", project, "up")
+    # From elsewhere, the workspace named among Compose's options, as `espdock compose` allows.
+    up = Started(tmp_path, "compose", "-p", project, "--workspace", str(root), "up")
     try:
         up.wait_for("polite up", timeout=120)
         up.wait_for("stubborn up", timeout=30)
@@ -592,7 +593,8 @@ def test_a_second_ctrl_c_in_compose_up_says_the_services_may_still_run(engine, t
         said = up.output()
         assert "interrupted again" in said, said
         assert "services Compose started may still be running" in said, said
-        assert f"`espdock compose -p {project} down` stops and removes them" in said, said  # as `up` was given
+        # As `up` was given, and run where it was: `down` without the workspace found none.
+        assert f"`espdock compose --workspace {root} -p {project} down` stops and removes them" in said, said
         assert "espdock build" not in said, said
     finally:
         up.stop()

@@ -7,6 +7,7 @@ import itertools
 import os
 import posixpath
 import re
+import shlex
 from collections.abc import Iterable, Mapping
 from pathlib import Path, PurePosixPath
 
@@ -387,21 +388,25 @@ def check_file_arguments(workspace: Workspace, args: Iterable[str], mounts: Iter
             continue  # a file of the image, or none: rcl says which
         home = os.environ.get("HOME")
         mine = (workspace.root, workspace.root.resolve(), cwd, *([Path(home)] if home else []))
-        if not any(host.is_relative_to(place) for place in mine):
+        # As given and with its links resolved: a path through a link to the workspace is of it too.
+        ways = (host, Path(os.path.realpath(host)))
+        if not any(way.is_relative_to(place) for way in ways for place in mine):
             continue  # /opt/ros/... of a ROS on this machine is the official image's as well
         install = next(
             (
-                i
+                (way, i)
+                for way in ways
                 for i in (workspace.ws_dir / "install", workspace.ws_dir.resolve() / "install")
-                if host.is_relative_to(i)
+                if way.is_relative_to(i)
             ),
             None,
         )
         if install is not None:
-            there = posixpath.join(RUNTIME_INSTALL, host.relative_to(install).as_posix())
+            there = posixpath.join(RUNTIME_INSTALL, install[0].relative_to(install[1]).as_posix())
             fix = f"The runtime image holds install/ at {RUNTIME_INSTALL}: pass `--params-file {there}`."
         else:
-            fix = f"Mount it: `espdock run -v {value}:/params/{host.name}:ro ... --params-file /params/{host.name}`."
+            mount = shlex.quote(f"{value}:/params/{host.name}:ro")
+            fix = f"Mount it: `espdock run -v {mount} ... --params-file /params/{host.name}`."
         raise ConfigError(
             f"--params-file {value}: the node runs in a container, which has no {host} (it sees only the "
             "runtime image and what --volume mounts)",

@@ -488,6 +488,18 @@ def test_run_refuses_a_params_file_of_this_machine_the_node_cannot_see(tmp_path)
         assert f"--params-file /opt/espdock/ws/install/talker/share/talker/config/{name}" in said, said
     mine = espdock(*run, str(tmp_path / "mine.yaml"), cwd=tmp_path / "src", env=NO_ENGINE)
     assert mine.returncode == 2 and "-v " in mine.stderr and "/params/mine.yaml" in mine.stderr, mine.stderr
+    # Through a link to the workspace (where the user keeps it): rcl's error, exit 1, before.
+    alias = tmp_path.parent / f"{tmp_path.name}-alias"
+    alias.symlink_to(tmp_path)
+    try:
+        linked = espdock(*run, str(alias / "mine.yaml"), cwd=alias / "src", env=NO_ENGINE)
+    finally:
+        alias.unlink()
+    assert linked.returncode == 2 and "/params/mine.yaml" in linked.stderr, linked.stderr
+    # The mount to paste, quoted: a path with a space split in two.
+    (tmp_path / "my params.yaml").write_text("talker: {}\n")
+    spaced = espdock(*run, "my params.yaml", cwd=tmp_path, env=NO_ENGINE)
+    assert "espdock run -v 'my params.yaml:/params/my params.yaml:ro'" in " ".join(spaced.stderr.split()), spaced.stderr
     # Mounted, in the image, or no file here: past the check (to the package, which is not there).
     mounted = ("run", "-v", "mine.yaml:/p/mine.yaml", *run[1:], "/p/mine.yaml")
     # A file of this machine outside the workspace and home may be the image's too (/opt/ros/... of a

@@ -101,7 +101,8 @@ class _Settings(Struct, forbid_unknown_fields=True):
     cache_registry: Annotated[str, Meta(pattern=r"^[A-Za-z0-9.-]+(:[0-9]+)?(/[a-z0-9._-]+)*$")] | None = None
     # A path component of an image reference, as Docker's grammar has it: `robot_-x` and
     # `robot..x` are none (every run and compose up failed on "invalid reference format").
-    name: Annotated[str, Meta(pattern=r"^[a-z0-9]+(?:(?:[._]|__|-+)[a-z0-9]+)*$")] | None = None
+    # At most 247: espdock/<name> within the 255 characters Docker allows a repository's name.
+    name: Annotated[str, Meta(pattern=r"^[a-z0-9]+(?:(?:[._]|__|-+)[a-z0-9]+)*$", max_length=247)] | None = None
     prune_keep: Annotated[int, Meta(ge=0, le=1000)] | None = None
     prune_auto: bool | None = None
     build_cache_max_gb: Annotated[float, Meta(ge=0)] | None = None
@@ -126,7 +127,7 @@ _EXPECTED = {
     "micro_ros_commit": "a commit hash string (7 to 40 hex digits)",
     "package_paths": 'a non-empty list of directory strings, e.g. ["src"]',
     "colcon_root": 'a directory string, e.g. "."',
-    "name": 'a lower-case image name string, e.g. "myrobot"',
+    "name": 'a lower-case image name string of at most 247 characters, e.g. "myrobot"',
     "prune_keep": "a whole number of generations, 0 or more",
     "prune_auto": "true or false",
     "build_cache_max_gb": "a number of gigabytes, 0 or more",

@@ -250,13 +250,25 @@ def runtime_base_image(build: ImageSpec) -> ImageSpec:
     return replace(spec, origin=build.origin)
 
 
+# The longest name a directory's gives (the `name` setting may be longer, to Docker's limit).
+LONGEST_NAME = 100
+
+
 def runtime_repository(config: Config, workspace: Workspace) -> str:
     """espdock/<name>: the workspace's runtime images (name: the setting, else the directory's name)."""
-    name = config.name or _image_component(workspace.root.name)
+    if config.name:
+        return f"espdock/{config.name}"
+    name = _image_component(workspace.root.name)
+    # Of the directory's name, not its path: a clone or a moved workspace keeps its image name
+    # (the compose file `init` writes names it).
+    digest = hashlib.sha256(workspace.root.name.encode()).hexdigest()[:8]
     if not name:
         # A name of no ASCII letter or digit (ロボット, _-..): one of its own, not one every such
         # workspace would share (each build's :latest replacing the other's).
-        name = f"workspace-{hashlib.sha256(str(workspace.root).encode()).hexdigest()[:8]}"
+        name = f"workspace-{digest}"
+    elif len(name) > LONGEST_NAME:
+        # Docker refuses a repository's name over 255 characters (an engine's HTTP 400, after the build).
+        name = f"{name[: LONGEST_NAME - 9].rstrip('._-')}-{digest}"
     return f"espdock/{name}"
 
 

@@ -415,6 +415,27 @@ def test_workspaces_named_with_no_ascii_letter_get_runtime_images_of_their_own(t
     names = {runtime_repository(Config(), Workspace(tmp_path / name)) for name in ("ロボット", "_-..", "ロボ")}
     assert len(names) == 3 and all(n.startswith("espdock/workspace-") for n in names), names
     assert runtime_repository(Config(), Workspace(tmp_path / "My Robot")) == "espdock/my-robot"
+    # Moved, or cloned elsewhere, as an ASCII-named one: the compose file init wrote named another.
+    moved = runtime_repository(Config(), Workspace(tmp_path / "moved/ロボット"))
+    assert moved == runtime_repository(Config(), Workspace(tmp_path / "ロボット")), moved
+
+
+def test_a_workspace_directory_of_a_long_name_gives_an_image_name_docker_takes(tmp_path):
+    """A directory name of 248 characters made espdock/<it>: `build` compiled everything, then
+    failed on the engine's HTTP 400 (a repository's name over 255 characters); a name setting
+    that long was taken, and failed the same way."""
+    from espdock.config import Config, load_config
+    from espdock.errors import ConfigError
+    from espdock.ros.plan import runtime_repository
+
+    names = {runtime_repository(Config(), Workspace(tmp_path / (stem * 250))) for stem in ("a", "b")}
+    assert len(names) == 2 and all(len(name) <= 255 - len(":latest") for name in names), names
+    assert all(name.startswith("espdock/" + "a" * 40) or name.startswith("espdock/" + "b" * 40) for name in names)
+    assert runtime_repository(Config(), Workspace(tmp_path / ("r" * 100))) == "espdock/" + "r" * 100
+    (tmp_path / "espdock.toml").write_text(f'[espdock]\nname = "{"n" * 248}"\n')
+    with pytest.raises(ConfigError) as refused:
+        load_config(tmp_path, {})
+    assert "at most 247 characters" in refused.value.message + (refused.value.hint or "")
 
 
 def test_a_workspace_directory_of_any_name_gives_an_image_name_docker_takes(tmp_path):

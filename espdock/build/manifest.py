@@ -196,6 +196,12 @@ def read_manifest(path: Path) -> dict:
         raise WorkspaceError(f"{path} does not exist", f"A build writes it into install/ ({MANIFEST_NAME}).") from None
     except (OSError, ValueError) as exc:
         raise WorkspaceError(f"{path} is not an espdock manifest: {exc}", "Give the install tree's one.") from None
+    if isinstance(data, dict) and isinstance(data.get("format"), int) and data["format"] > FORMAT:
+        # A CI job's espdock, upgraded before this machine's: not "no manifest", which it is.
+        raise WorkspaceError(
+            f"{path} was made by a newer espdock (its format {data['format']}, this one's {FORMAT})",
+            "Verify it with that espdock (or a newer one than this).",
+        )
     if not isinstance(data, dict) or data.get("format") not in READABLE or not isinstance(data.get("files"), dict):
         raise WorkspaceError(f"{path} is not an espdock manifest (format {FORMAT})", "Give the install tree's one.")
     return data

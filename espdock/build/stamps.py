@@ -280,6 +280,16 @@ class StampFile:
         recorded = self.read()
         return tuple(name for name in names if name in recorded and not self._current(recorded[name]))
 
+    def newer(self, names: Iterable[str]) -> tuple[str, ...]:
+        """NAMES whose records a newer espdock wrote (a higher format than this one's)."""
+        recorded = self.read()
+
+        def format_of(entry: object) -> int:
+            value = entry.get("format") if isinstance(entry, dict) else None
+            return value if isinstance(value, int) else 0
+
+        return tuple(name for name in names if self.format is not None and format_of(recorded.get(name)) > self.format)
+
     def record(
         self,
         stamps: Mapping[str, str],

@@ -234,9 +234,14 @@ class RosSteps:
             # An older espdock's records keep no list of files: whether one went is not known.
             unlisted = stamp_file.unlisted({n: now for n, now in others.items() if n not in done})
             if older := [name for name in (*stamp_file.foreign(rebuild), *unlisted) if name not in done]:
+                newer = set(stamp_file.newer(older))
+                # A teammate's or a CI job's espdock, upgraded before this one: not an older one.
+                which = (
+                    "an older espdock" if not newer else "a newer espdock" if newer == set(older) else "another espdock"
+                )
                 why = (
-                    f"building afresh what an older espdock built: {', '.join(older)} (its records do not say "
-                    "where each package was built from, nor on what)"
+                    f"building afresh what {which} built: {', '.join(older)} (its records do not say "
+                    "where each package was built from, nor on what, as this one reads them)"
                 )
                 reasons.append((both(older), why))
         for trees, why in reasons:

@@ -68,6 +68,12 @@ def test_something_that_is_no_manifest_is_refused(tmp_path):
         read_manifest(bad)
     with pytest.raises(WorkspaceError, match=f"{tmp_path / 'gone.json'} does not exist$"):
         read_manifest(tmp_path / "gone.json")  # a typo: not a file that is no manifest
+    # A newer espdock's (a CI job's, upgraded first): "not an espdock manifest" and "give the
+    # install tree's one", of the very file given, told its user nothing.
+    newer = json.loads(json.dumps({"format": 99, "files": {}}))
+    bad.write_text(json.dumps(newer))
+    with pytest.raises(WorkspaceError, match="made by a newer espdock \\(its format 99"):
+        read_manifest(bad)
 
 
 def test_a_build_killed_before_its_manifest_was_written_gets_a_new_one(tmp_path):

@@ -221,3 +221,16 @@ def test_what_a_cmake_package_installs_is_declared_in_its_lists_and_modules_wher
     (tmp_path / "stamps.json").write_text(json.dumps(records))
     assert stamps.redeclared({"tool": tree_state(package)}) == ()
     assert stamps.redeclared({"tool": tree_state(package)}, unrecorded=True) == ("tool",)
+
+
+def test_records_a_newer_espdock_wrote_are_told_from_an_older_one_s(tmp_path):
+    """A teammate's espdock, upgraded first, rewrote the stamps: the build called them "an older
+    espdock's"."""
+    from espdock.build.stamps import StampFile
+
+    path = tmp_path / "stamps.json"
+    StampFile(path, 3).record({"new": "s1"}, {"new": None})
+    StampFile(path, 1).record({"old": "s2"}, {"old": None})
+    mine = StampFile(path, 2)
+    assert set(mine.foreign(["new", "old"])) == {"new", "old"}
+    assert mine.newer(["new", "old"]) == ("new",)

@@ -160,6 +160,27 @@ def test_arguments_rcl_cannot_parse_end_the_node_with_an_error_not_as_a_stop(ima
     assert "Traceback" not in result.stderr, result.stderr  # rcl's line, not 15 of rclpy's internals
 
 
+@pytest.mark.parametrize(
+    ("node", "setting", "said"),
+    [
+        ("camera_sim", "fps:=abc", "error: fps:='abc': frames per second must be a number"),  # ESPDOCK_DEMO_FPS
+        ("camera_sim", "phase_duration:=0", "error: phase_duration:=0: seconds each QR text"),
+        ("camera_ui", "port:=abc", "error: Trying to set parameter 'port' to 'abc' of type 'STRING'"),
+    ],
+)
+def test_a_setting_a_node_cannot_use_ends_it_with_one_line_naming_the_setting(image, node, setting, said):
+    """rcl parses them, the node cannot use them: a 12-line traceback ended in "could not convert
+    string to float: 'abc'", naming no setting."""
+    argv = [
+        "docker", "run", "--rm", "--network", "none",
+        "-v", f"{ROOT}/ws/src/espdock_demo/espdock_demo:{INSTALLED}:ro",
+        image, f"/opt/espdock/ws/install/espdock_demo/lib/espdock_demo/{node}", "--ros-args", "-p", setting,
+    ]  # fmt: skip
+    result = subprocess.run(argv, capture_output=True, text=True, timeout=120, check=False)
+    assert result.returncode == 1, result.stdout + result.stderr
+    assert said in result.stderr and "Traceback" not in result.stderr, result.stderr
+
+
 # subscribe_text's catch-up subscription (transient local) beside a volatile publisher of the topic
 # (the probe's, `ros2 topic pub`'s): rclpy's default warned "offering incompatible QoS. No messages
 # will be received from it", of a text the node's other subscription took.

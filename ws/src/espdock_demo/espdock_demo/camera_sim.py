@@ -38,7 +38,9 @@ from espdock_demo.names import (
 from espdock_demo.ros_common import (
     IMAGE_PUB_QOS,
     LATCHED_QOS,
+    SettingError,
     config_to_dict,
+    positive_setting,
     spin_node,
     start_diagnostics,
     start_heartbeat,
@@ -54,24 +56,16 @@ class CameraSim(Node):
     def __init__(self) -> None:
         super().__init__("camera_sim")
         # dynamic_typing: `-p fps:=30` (an integer) is as good as 30.0.
-        self.fps = float(
-            self.declare_parameter(
-                "fps", 30.0, ParameterDescriptor(description="frames per second", dynamic_typing=True)
-            ).value
-        )
+        self.fps = positive_setting(self, "fps", 30.0, "frames per second")
+        # `colors:=[]` has no element type to give: rclpy's value is None, no list.
         colors = list(
             self.declare_parameter(
                 "colors", DEFAULT_COLORS, ParameterDescriptor(description="QR texts the scene cycles through")
             ).value
+            or ()
         )
-        self.phase_duration = float(
-            self.declare_parameter(
-                "phase_duration",
-                3.0,
-                ParameterDescriptor(
-                    description="seconds each QR text (and the blank phase) stays in view", dynamic_typing=True
-                ),
-            ).value
+        self.phase_duration = positive_setting(
+            self, "phase_duration", 3.0, "seconds each QR text (and the blank phase) stays in view"
         )
         blank = bool(
             self.declare_parameter(
@@ -80,14 +74,12 @@ class CameraSim(Node):
         )
         framesize = int(self.declare_parameter("framesize", camera_config.FRAMESIZE_QVGA).value)
         quality = int(self.declare_parameter("quality", camera_config.DEFAULT_CONFIG["quality"]).value)
-        if self.fps <= 0 or self.phase_duration <= 0:
-            raise ValueError("fps and phase_duration must be positive")
 
         self.settings = camera_config.settings_from_fields(CameraConfig.get_fields_and_field_types())
         self.config = dict(camera_config.DEFAULT_CONFIG, framesize=framesize, quality=quality)
         errors = camera_config.validate(self.settings, self.config)
         if errors:
-            raise ValueError("bad initial camera settings: " + "; ".join(errors))
+            raise SettingError("bad initial camera settings: " + "; ".join(errors))
         self.phases: list[str | None] = [str(c) for c in colors] + ([None] if blank or not colors else [])
         self.renderer = SceneRenderer()
         self.started = time.monotonic()

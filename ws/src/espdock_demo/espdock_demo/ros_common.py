@@ -11,9 +11,10 @@ from collections.abc import Callable, Mapping
 
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.context import Context
 from rclpy.event_handler import SubscriptionEventCallbacks
-from rclpy.exceptions import InvalidHandle
+from rclpy.exceptions import InvalidHandle, ParameterException
 from rclpy.executors import (
     Executor,
     ExternalShutdownException,
@@ -182,6 +183,24 @@ def _ignore_signals() -> None:
         signal.signal(signum, signal.SIG_IGN)
 
 
+class SettingError(ValueError):
+    """A setting (a ROS parameter) the node cannot use: said in one line as it exits (spin_node)."""
+
+
+def positive_setting(node: Node, name: str, default: float, description: str) -> float:
+    """NODE's parameter NAME, a number above 0 (an integer as good as a float); SettingError naming
+    it where it is another value."""
+    descriptor = ParameterDescriptor(description=description, dynamic_typing=True)
+    value = node.declare_parameter(name, default, descriptor).value
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        raise SettingError(f"{name}:={value!r}: {description} must be a number") from None
+    if not number > 0:
+        raise SettingError(f"{name}:={value!r}: {description} must be above 0")
+    return number
+
+
 def spin_node(
     make_node: Callable[[], Node],
     executor: Executor | None = None,
@@ -229,6 +248,10 @@ def spin_node(
         if not _stopped_by_signal(exc, context, started):
             if not started and isinstance(exc, _rclpy.RCLError):
                 # rcl's words name the argument it could not parse: one line, not rclpy's traceback.
+                raise SystemExit(f"error: {exc}") from None
+            if node is None and isinstance(exc, (SettingError, ParameterException)):
+                # A setting it cannot use (`-p port:=abc`, ESPDOCK_DEMO_FPS=0): rclpy's words and
+                # the node's name the parameter; the traceback would only bury them.
                 raise SystemExit(f"error: {exc}") from None
             raise
     finally:

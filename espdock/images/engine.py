@@ -23,6 +23,7 @@ import re
 import secrets
 import shutil
 import signal
+import socket
 import subprocess
 import sys
 import tarfile
@@ -36,7 +37,7 @@ from datetime import UTC, datetime
 from enum import StrEnum
 from pathlib import Path
 from typing import IO, Any
-from urllib.parse import quote
+from urllib.parse import quote, urlsplit
 
 from espdock import interrupts
 from espdock.errors import (
@@ -1122,7 +1123,9 @@ class Engine:
                         continue  # gone since the listing: it holds nothing
             given = ((attrs or {}).get("HostConfig") or {}).get("Devices") or []
             command = [str(arg) for arg in ((attrs or {}).get("Config") or {}).get("Cmd") or []]
-            named = url is not None and any(re.search(re.escape(url) + r"(?![\w.:])", arg) for arg in command)
+            named = url is not None and any(
+                same_port_url(url, other) for arg in command for other in _PORT_URL.findall(arg)
+            )
             holds = bool(wanted & {os.path.realpath(str(d.get("PathOnHost", ""))) for d in given})
             if not holds and not named:
                 continue
@@ -1733,3 +1736,33 @@ def _csv_line(fields: list[str]) -> str:
     out = io.StringIO()
     csv.writer(out, lineterminator="").writerow(fields)
     return out.getvalue()
+
+
+# A serial port's URL in a container's command line (esptool's, idf.py's, the agent's).
+_PORT_URL = re.compile(r"(?i)\b(?:socket|rfc2217)://[^\s'\"]+")
+
+
+def same_port_url(one: str, other: str) -> bool:
+    """Whether URLs ONE and OTHER (socket://, rfc2217://) reach the same serial server: the same
+    port on an address both names resolve to. Compared as text, `socket://localhost:4000` and a
+    monitor's `socket://127.0.0.1:4000/` were two servers, and the second client saw a silent board."""
+    first, second = _endpoint(one), _endpoint(other)
+    return first is not None and second is not None and first[1] == second[1] and bool(first[0] & second[0])
+
+
+def _endpoint(url: str) -> tuple[frozenset[str], int] | None:
+    parts = urlsplit(url.strip())
+    try:
+        port = parts.port
+    except ValueError:
+        return None
+    host = parts.hostname
+    if not host or port is None:
+        return None
+    if host in ("0.0.0.0", "::"):  # a client connecting to "any address" reaches this machine
+        host = "localhost"
+    try:
+        found = {str(info[4][0]) for info in socket.getaddrinfo(host, port, type=socket.SOCK_STREAM)}
+    except (OSError, UnicodeError):
+        found = {host}
+    return frozenset(found), port

@@ -403,6 +403,8 @@ def test_a_serial_device_another_espdock_container_has_is_named_as_busy(way):
         with pytest.raises(PortError, match=f"serial port {url} is busy: espdock's container {holder} has it"):
             check_port_free(way, parse_port(url))
         assert way.device_users([], "socket://127.0.0.1:456") == []  # another port, a prefix of its
+        # The same server written otherwise: as text, another one.
+        assert way.device_users([], "socket://localhost:4567/") == [holder]
     finally:
         subprocess.run(["docker", "rm", "--force", *made], capture_output=True, check=False)
 

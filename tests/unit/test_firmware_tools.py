@@ -335,3 +335,22 @@ def test_the_chip_mismatch_hint_suggests_no_chip_the_package_s_transport_has_no_
     with pytest.raises(ConfigError) as error:
         check_chip("u2", "esp32c3", at_s3, parse_port("socket://127.0.0.1:1"), (), tmp_path)
     assert "`espdock build u2 --target esp32s3`" in error.value.hint
+
+
+def test_a_serial_server_s_url_is_the_same_port_however_it_is_written():
+    """A monitor on socket://127.0.0.1:45451 in one terminal: `flash -p socket://localhost:45451`
+    (or SOCKET://, a trailing /, rfc2217's ?ign_set_control, 0.0.0.0) was not called busy, and
+    esptool said it could not tell the chip."""
+    from espdock.images.engine import same_port_url
+
+    held = "socket://127.0.0.1:45451"
+    for same in (
+        "socket://localhost:45451",
+        "SOCKET://127.0.0.1:45451",
+        "socket://127.0.0.1:45451/",
+        "socket://0.0.0.0:45451",
+    ):
+        assert same_port_url(same, held), same
+    assert same_port_url("rfc2217://localhost:4000?ign_set_control", "rfc2217://127.0.0.1:4000")
+    for other in ("socket://127.0.0.1:45452", "socket://192.0.2.7:45451", "socket://127.0.0.1", "/dev/ttyUSB0"):
+        assert not same_port_url(other, held), other

@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 from enum import StrEnum
 from pathlib import Path
 
+from espdock.config import CHIP_TARGETS
 from espdock.defaults import defaults_root
 from espdock.errors import WorkspaceError
 from espdock.layout import (
@@ -651,8 +652,10 @@ class BuildInputs:
     # Interface candidates' files by package name (ROS packages only), and each firmware's app-colcon.meta.
     package_files: dict[str, dict[str, bytes]]
     app_metas: dict[str, str]
-    # Each firmware's sdkconfig.defaults files (name -> bytes), read for the library's settings.
+    # Each firmware's sdkconfig.defaults files (name -> bytes), read for the library's settings,
+    # and the ones its CMakeLists.txt names in order where it sets SDKCONFIG_DEFAULTS.
     sdkconfig_defaults: dict[str, dict[str, bytes]] = field(default_factory=dict)
+    sdkconfig_order: dict[str, tuple[str, ...]] = field(default_factory=dict)
     # Which image input files the workspace has of its own (they win over espdock's defaults).
     own_files: frozenset[str] = frozenset()
     # The official-image flavour's Dockerfile, and the workspace's rosdep lock (None: none yet).
@@ -665,6 +668,8 @@ class BuildInputs:
 def read_build_inputs(workspace: Workspace, packages: Iterable[Package]) -> BuildInputs:
     """Read the Dockerfiles, docker/ and the packages' files that image keys are made of."""
     packages = tuple(packages)
+    firmware = [p for p in packages if p.kind is PackageKind.FIRMWARE]
+    orders = {p.name: order for p in firmware if (order := named_sdkconfig_defaults(p.path / "CMakeLists.txt"))}
     # Each of Dockerfile.ros, Dockerfile.idf and the files under docker/: the workspace's own
     # where it has one, else espdock's default (espdock.defaults), file by file.
     defaults = defaults_root()
@@ -697,16 +702,51 @@ def read_build_inputs(workspace: Workspace, packages: Iterable[Package]) -> Buil
             if p.kind is PackageKind.FIRMWARE and (p.path / "app-colcon.meta").is_file()
         },
         sdkconfig_defaults={
-            p.name: {f.name: f.read_bytes() for f in sorted(p.path.glob("sdkconfig.defaults*")) if f.is_file()}
-            for p in packages
-            if p.kind is PackageKind.FIRMWARE
+            p.name: {
+                **{f.name: f.read_bytes() for f in sorted(p.path.glob("sdkconfig.defaults*")) if f.is_file()},
+                # and any other its CMakeLists.txt names, by that name, with its chip's variant
+                **{
+                    name: (p.path / name).read_bytes()
+                    for named in orders.get(p.name, ())
+                    for name in (named, *(f"{named}.{chip}" for chip in CHIP_TARGETS))
+                    if (p.path / name).is_file()
+                },
+            }
+            for p in firmware
         },
+        sdkconfig_order=orders,
         supported_targets={
             p.name: targets
             for p in packages
             if p.kind is PackageKind.FIRMWARE and (targets := component_targets(p.path / "main" / "idf_component.yml"))
         },
     )
+
+
+# `set(SDKCONFIG_DEFAULTS "sdkconfig.defaults;sdkconfig.defaults.local")` in a project's CMakeLists.txt.
+_SET_DEFAULTS = re.compile(r"^\s*set\s*\(\s*SDKCONFIG_DEFAULTS\s+([^)]*)\)", re.IGNORECASE | re.MULTILINE)
+_PROJECT_DIR_VARS = ("${CMAKE_CURRENT_LIST_DIR}/", "${CMAKE_CURRENT_SOURCE_DIR}/", "${CMAKE_SOURCE_DIR}/")
+
+
+def named_sdkconfig_defaults(cmakelists: Path) -> tuple[str, ...]:
+    """The defaults files a project's CMakeLists.txt sets SDKCONFIG_DEFAULTS to, in order, relative
+    to the project (IDF reads them instead of sdkconfig.defaults, each then its chip's variant);
+    () where it sets none, or names one espdock cannot tell (another variable, an absolute path)."""
+    try:
+        text = cmakelists.read_text(errors="replace")
+    except OSError:
+        return ()
+    found = _SET_DEFAULTS.findall("\n".join(line.split("#", 1)[0] for line in text.splitlines()))
+    if not found:
+        return ()
+    names = []
+    for arg in re.findall(r'"[^"]*"|[^\s"]+', found[-1]):
+        for item in arg.strip('"').split(";"):
+            name = next((item.removeprefix(p) for p in _PROJECT_DIR_VARS if item.startswith(p)), item)
+            if not name or "${" in name or name.startswith("/"):
+                return ()
+            names.append(name)
+    return tuple(names)
 
 
 def component_targets(manifest: Path) -> tuple[str, ...]:

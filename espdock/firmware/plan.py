@@ -278,14 +278,15 @@ LIBRARY_CHOICES = (
 SDKCONFIG_LINE = re.compile(r"^(CONFIG_[A-Za-z0-9_]+)=(.*)$|^#\s*(CONFIG_[A-Za-z0-9_]+) is not set\s*$")
 
 
-def library_sdkconfig(defaults: Mapping[str, bytes], target: str) -> str:
-    """The micro-ROS-relevant lines of a firmware's sdkconfig.defaults (then .TARGET), later wins.
+def library_sdkconfig(defaults: Mapping[str, bytes], target: str, order: Sequence[str] = ()) -> str:
+    """The micro-ROS-relevant lines of a firmware's sdkconfig.defaults (then .TARGET), later wins;
+    of the files its CMakeLists.txt names instead (ORDER), as IDF reads them for the app.
 
     Returned sorted, so that apps whose library settings agree share one image.
     """
     values: dict[str, str] = {}
-    for name in ("sdkconfig.defaults", f"sdkconfig.defaults.{target}"):
-        for line in defaults.get(name, b"").decode(errors="replace").splitlines():
+    for data in transport.defaults_in_order(defaults, target, order):
+        for line in data.decode(errors="replace").splitlines():
             match = SDKCONFIG_LINE.match(line.strip())
             if not match:
                 continue
@@ -413,7 +414,8 @@ def micro_ros_image(
     meta = inputs.app_metas.get(firmware.name, "")
     if meta:
         _check_colcon_meta(firmware.name, meta)
-    link = transport.firmware_transport(inputs.sdkconfig_defaults.get(firmware.name, {}), target)
+    order = inputs.sdkconfig_order.get(firmware.name, ())
+    link = transport.firmware_transport(inputs.sdkconfig_defaults.get(firmware.name, {}), target, order)
     transport.check_transport(firmware.name, link, target)
     meta = transport.library_colcon_meta(firmware.name, meta, link)
     context: dict[str, bytes] = {
@@ -422,7 +424,7 @@ def micro_ros_image(
         # An empty meta is colcon's "no app meta"; the file must exist for COPY.
         "micro-ros/app-colcon.meta": meta.encode() or b'{"names": {}}\n',
         "micro-ros/sdkconfig.defaults": library_sdkconfig(
-            inputs.sdkconfig_defaults.get(firmware.name, {}), target
+            inputs.sdkconfig_defaults.get(firmware.name, {}), target, order
         ).encode(),
         # COPY needs the directory even when no interface package goes in.
         "micro-ros/extra_packages/.espdock-keep": b"",

@@ -10,10 +10,11 @@ from __future__ import annotations
 
 import json
 import re
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 from espdock.errors import ConfigError, WorkspaceError
+from espdock.workspace import named_sdkconfig_defaults
 
 UDP = "udp"
 UART = "uart"
@@ -49,11 +50,18 @@ def parse_transport(text: str) -> str:
     return name
 
 
-def firmware_transport(defaults: Mapping[str, bytes], target: str) -> str:
+def defaults_in_order(defaults: Mapping[str, bytes], target: str, order: Sequence[str] = ()) -> list[bytes]:
+    """A package's defaults files as IDF applies them for TARGET, the later winning: those its
+    CMakeLists.txt sets SDKCONFIG_DEFAULTS to (ORDER), else sdkconfig.defaults, each followed
+    by its .TARGET variant."""
+    return [defaults.get(name, b"") for base in order or ("sdkconfig.defaults",) for name in (base, f"{base}.{target}")]
+
+
+def firmware_transport(defaults: Mapping[str, bytes], target: str, order: Sequence[str] = ()) -> str:
     """The transport a package's sdkconfig.defaults (then .TARGET, which wins) selects; UDP if none."""
     chosen = UDP
-    for name in ("sdkconfig.defaults", f"sdkconfig.defaults.{target}"):
-        for line in defaults.get(name, b"").decode(errors="replace").splitlines():
+    for data in defaults_in_order(defaults, target, order):
+        for line in data.decode(errors="replace").splitlines():
             match = _CHOICE_LINE.match(line.strip())
             if match and match.group(1) in SYMBOLS:
                 chosen = SYMBOLS[match.group(1)]
@@ -116,8 +124,10 @@ def library_colcon_meta(package: str, meta: str, transport: str) -> str:
 
 def project_transport(project: Path, target: str) -> str:
     """The transport of the firmware project at PROJECT, built for TARGET."""
-    names = ("sdkconfig.defaults", f"sdkconfig.defaults.{target}")
-    return firmware_transport({n: (project / n).read_bytes() for n in names if (project / n).is_file()}, target)
+    order = named_sdkconfig_defaults(project / "CMakeLists.txt")
+    names = [name for base in order or ("sdkconfig.defaults",) for name in (base, f"{base}.{target}")]
+    found = {n: (project / n).read_bytes() for n in names if (project / n).is_file()}
+    return firmware_transport(found, target, order)
 
 
 def check_provisionable(package: str, link: str) -> None:

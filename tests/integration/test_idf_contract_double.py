@@ -164,3 +164,19 @@ def test_the_double_refuses_a_partition_table_gen_esp32part_refuses_and_names_so
     (project / "main/main.c").write_text("#error deliberately broken\nvoid app_main(void) {}\n")
     broken = build("")
     assert broken.returncode == 2 and "/project/main/main.c:1:2: error: #error deliberately broken" in broken.stderr
+
+
+def test_the_double_reads_the_defaults_files_a_project_sets_sdkconfig_defaults_to(double, tmp_path):
+    """IDF v5.3's project.cmake takes the SDKCONFIG_DEFAULTS variable a CMakeLists sets before
+    project() over sdkconfig.defaults (each file then its chip's variant). The double read
+    sdkconfig.defaults alone, so a library espdock built without the other files' settings agreed
+    with the app it built, where the real app would differ."""
+    project = idf_project(tmp_path / "local")
+    cmake = project / "CMakeLists.txt"
+    cmake.write_text('set(SDKCONFIG_DEFAULTS "sdkconfig.defaults;sdkconfig.defaults.local")\n' + cmake.read_text())
+    (project / "sdkconfig.defaults").write_text("CONFIG_FREERTOS_HZ=100\n")
+    (project / "sdkconfig.defaults.local").write_text("CONFIG_FREERTOS_HZ=1000\n")
+    subprocess.run(["chown", "-R", f"{USER_UID}:{USER_UID}", str(tmp_path)], check=True)
+    configured = run_in_double(double, project, "reconfigure")
+    assert configured.returncode == 0, configured.stdout[-2000:] + configured.stderr
+    assert "CONFIG_FREERTOS_HZ=1000\n" in (project / "sdkconfig").read_text()

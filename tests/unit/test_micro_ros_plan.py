@@ -241,6 +241,35 @@ def test_library_settings_take_the_target_file_last_and_only_relevant_keys():
     )
 
 
+def test_library_settings_are_read_from_the_defaults_files_the_project_names(tmp_path):
+    """`set(SDKCONFIG_DEFAULTS "sdkconfig.defaults;sdkconfig.defaults.local")` in the CMakeLists: IDF
+    built the app with the local file's CONFIG_FREERTOS_HZ=1000, and libmicroros.a, keyed and built
+    from sdkconfig.defaults alone, with 100."""
+    from espdock.workspace import Package, PackageKind, Workspace, named_sdkconfig_defaults, read_build_inputs
+
+    project = tmp_path / "src/board"
+    project.mkdir(parents=True)
+    (project / "sdkconfig.defaults").write_text("CONFIG_FREERTOS_HZ=100\n")
+    (project / "sdkconfig.defaults.local").write_text("CONFIG_FREERTOS_HZ=1000\n")
+    (project / "sdkconfig.defaults.local.esp32s3").write_text("CONFIG_FREERTOS_HZ=500\n")
+    cmake = project / "CMakeLists.txt"
+    cmake.write_text(
+        "cmake_minimum_required(VERSION 3.16)\n"
+        "# set(SDKCONFIG_DEFAULTS ignored.cfg)\n"
+        'set(SDKCONFIG_DEFAULTS "${CMAKE_CURRENT_LIST_DIR}/sdkconfig.defaults;sdkconfig.defaults.local")\n'
+        "include($ENV{IDF_PATH}/tools/cmake/project.cmake)\nproject(board)\n"
+    )
+    assert named_sdkconfig_defaults(cmake) == ("sdkconfig.defaults", "sdkconfig.defaults.local")
+    board = Package("board", project, PackageKind.FIRMWARE, "esp_idf", frozenset())
+    inputs = read_build_inputs(Workspace(tmp_path), [board])
+    defaults, order = inputs.sdkconfig_defaults["board"], inputs.sdkconfig_order["board"]
+    assert library_sdkconfig(defaults, "esp32", order).startswith("CONFIG_FREERTOS_HZ=1000\n")
+    assert library_sdkconfig(defaults, "esp32s3", order).startswith("CONFIG_FREERTOS_HZ=500\n")
+    # One it cannot tell (a variable of the project's own) leaves IDF's default: sdkconfig.defaults.
+    cmake.write_text('set(SDKCONFIG_DEFAULTS "${MY_DEFAULTS}")\nproject(board)\n')
+    assert named_sdkconfig_defaults(cmake) == ()
+
+
 def test_apps_with_different_library_inputs_get_their_own_image_and_equal_ones_share():
     led_meta = META.replace("=1", "=2")
     packages = (*PACKAGES, firmware("led2", depends=["std_msgs"]))

@@ -182,6 +182,8 @@ class Interpreter:
         self.project_name: str | None = None
         self.project_line = 0
         self.extra_component_dirs_at_project: list[str] = []
+        # project.cmake reads SDKCONFIG_DEFAULTS as a variable too: a `set()` before project() wins.
+        self.sdkconfig_defaults_at_project: str | None = None
         self.registrations: list[Registration] = []
         self.included: list[str] = []
         self.file = Path()
@@ -535,6 +537,7 @@ class Interpreter:
         self.vars["PROJECT_NAME"] = v[0]
         self.vars["CMAKE_PROJECT_NAME"] = v[0]
         self.extra_component_dirs_at_project = [x for x in self.vars.get("EXTRA_COMPONENT_DIRS", "").split(";") if x]
+        self.sdkconfig_defaults_at_project = self.vars.get("SDKCONFIG_DEFAULTS") or None
 
     def _cmd_get_filename_component(self, cmd: Command, v: list[str]) -> None:
         if len(v) < 3:

@@ -501,7 +501,10 @@ def run_configure(ctx: Context, set_target: str | None = None) -> Project:
         elif "libmicroros.a" in (component.path / "CMakeLists.txt").read_text(errors="replace"):
             component.micro_ros = "prebuilt"
 
-    defaults_spec = ctx.defines.get("SDKCONFIG_DEFAULTS") or ctx.env.get("SDKCONFIG_DEFAULTS")
+    # IDF v5.3 project.cmake: the environment's, unless the variable is set (-D, or set() in the CMakeLists).
+    defaults_spec = (
+        top.sdkconfig_defaults_at_project or ctx.defines.get("SDKCONFIG_DEFAULTS") or ctx.env.get("SDKCONFIG_DEFAULTS")
+    )
     defaults: list[Path] = []
     for item in defaults_spec.split(";") if defaults_spec else ["sdkconfig.defaults"]:
         path = Path(item) if os.path.isabs(item) else ctx.project_dir / item

@@ -30,6 +30,7 @@ from espdock.config import Config, check_target, invoking_user
 from espdock.errors import ConfigError, WorkspaceError
 from espdock.firmware import transport
 from espdock.firmware.flashing import (
+    Port,
     check_port,
     check_port_free,
     flash_package,
@@ -266,6 +267,18 @@ AgentOption = Annotated[
 DomainOption = Annotated[str | None, typer.Option("--domain-id", help="ROS_DOMAIN_ID of the board (0..232).")]
 
 
+DEFAULT_BAUD = 460800
+
+
+def _baud_unused(serial: Port, baud: int | None) -> None:
+    """Say so where a baud rate asked for (--baud, ESPBAUD) goes unused: a raw socket has none."""
+    if serial.spec.lower().startswith("socket://") and (baud != DEFAULT_BAUD or "ESPBAUD" in os.environ):
+        notify(
+            f"note: --baud {baud} is not used on {serial.spec}: a raw socket has no baud rate (the serial server's "
+            "own is the line's; rfc2217:// lets esptool set it)"
+        )
+
+
 def _ask_password() -> str:
     return typer.prompt(
         "Wi-Fi password (empty for an open network)",
@@ -283,7 +296,7 @@ def flash(
         str, typer.Argument(help="Firmware package (built and installed).", autocompletion=complete.firmware_packages)
     ],
     port: PortOption,
-    baud: BaudOption = 460800,
+    baud: BaudOption = DEFAULT_BAUD,
     verify: Annotated[bool, typer.Option("--verify", help="Read the flash back and compare afterwards.")] = False,
     wifi_ssid: SsidOption = None,
     wifi_password_file: PasswordFileOption = None,
@@ -298,6 +311,7 @@ def flash(
         check_settings(wifi_ssid, "", agent, domain or 0)  # before anything else: no typo costs a wait
     ws, config = load(workspace)
     serial = parse_port(port)
+    _baud_unused(serial, baud)
     plan, step = firmware_plan(ws, config, package)
     if wifi_ssid is not None or agent is not None:
         transport.check_provisionable(package, transport.project_transport(ws.root / step.project, step.target))
@@ -339,7 +353,7 @@ def provision(
     ] = None,
     wifi_password_file: PasswordFileOption = None,
     domain_id: Annotated[str, typer.Option("--domain-id", help="ROS_DOMAIN_ID of the board (0..232).")] = "0",
-    baud: BaudOption = 460800,
+    baud: BaudOption = DEFAULT_BAUD,
     workspace: WorkspaceOption = None,
 ) -> None:
     """Write the board's Wi-Fi and agent settings into its NVS partition, leaving the app as it is.
@@ -352,6 +366,7 @@ def provision(
         check_settings(wifi_ssid, "", agent, domain)  # before anything else: no typo costs a wait
     ws, config = load(workspace)
     serial = parse_port(port)
+    _baud_unused(serial, baud)
     plan, step = firmware_plan(ws, config, package)
     transport.check_provisionable(package, transport.project_transport(ws.root / step.project, step.target))
     if wifi_ssid is None or agent is None:

@@ -1221,3 +1221,25 @@ def test_a_read_only_directory_espdock_must_write_is_named_not_called_a_bug(tmp_
     assert refused.returncode == 2, refused.stderr
     assert f"espdock cannot use {shared}/COLCON_IGNORE: Read-only file system" in refused.stderr, refused.stderr
     assert "bug in espdock" not in refused.stderr
+
+
+def test_a_baud_rate_a_raw_socket_cannot_use_is_said_unused(tmp_path):
+    """`espdock flash PKG --port socket://... --baud 921600` (or ESPBAUD) flashed at the server's
+    rate without a word; `idf.py -b` through `espdock idf` passes it on."""
+    from tests.conftest import REPO
+
+    root = copy_workspace(tmp_path / "w")
+    shutil.copytree(REPO / "firmware", root / "firmware")
+    shutil.copy2(REPO / "Dockerfile.idf", root / "Dockerfile.idf")
+    port = ("--port", "socket://127.0.0.1:9")
+    asked = espdock("flash", "led_strip_node", *port, "--baud", "921600", cwd=root, env=NO_ENGINE)
+    said = " ".join(asked.stdout.split())
+    assert "note: --baud 921600 is not used on socket://127.0.0.1:9: a raw socket has no baud rate" in said, said
+    from_env = espdock("provision", "led_strip_node", *port, cwd=root, env={**NO_ENGINE, "ESPBAUD": "115200"})
+    assert "note: --baud 115200 is not used" in " ".join(from_env.stdout.split()), from_env.stdout
+    plain = espdock("flash", "led_strip_node", *port, cwd=root, env=NO_ENGINE)
+    assert "is not used" not in plain.stdout, plain.stdout
+    serial = espdock(
+        "flash", "led_strip_node", "--port", "rfc2217://127.0.0.1:9", "-b", "921600", cwd=root, env=NO_ENGINE
+    )
+    assert "is not used" not in serial.stdout, serial.stdout

@@ -668,7 +668,14 @@ def colcon_rebuild(workspace: Workspace, step: ColconBuild) -> Rebuild:
     if step.force:
         return Rebuild(stamp_file, stamps, tuple(stamps), trees, outside, tuple(unlisted))
     installed = {name: listing_digest(workspace.ws_dir / "install" / name) for name in stamps}
-    rebuild = stamp_file.stale(stamps, installed, dict(step.sources))
+    stale = stamp_file.stale(stamps, installed, dict(step.sources))
+    # A CMake package an espdock built that recorded no digest of its CMake files (before the
+    # rule below): what an install rule it had taken out left installed stayed, up to date by its
+    # stamp. Installed afresh once, where an upgrade's first build would call it up to date.
+    unrecorded = stamp_file.redeclared(
+        {name: trees[name] for name in stamps if name not in step.python and name not in stale}, unrecorded=True
+    )
+    rebuild = tuple(name for name in stamps if name in stale or name in unrecorded)
     return Rebuild(stamp_file, stamps, rebuild, trees, outside, tuple(unlisted))
 
 

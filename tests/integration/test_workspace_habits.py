@@ -18,6 +18,7 @@ from pathlib import Path
 import pytest
 
 from espdock.build.prepare import build_plan
+from espdock.build.stamps import listing_digest
 from espdock.config import Config, load_config, resolve_ca_bundle
 from espdock.ros.plan import ColconBuild
 from espdock.ros.steps import colcon_rebuild
@@ -159,8 +160,26 @@ def test_a_cmake_package_installs_what_its_globs_and_its_rules_say_now(engine, t
     skipped = espdock("build", "--only", "ros", "--", "--packages-skip", "uptime_tools", cwd=root)
     assert skipped.returncode == 0, skipped.stdout[-3000:] + skipped.stderr[-3000:]
     assert "installing afresh" not in skipped.stdout and (lib / "uptime_summary").is_file()
-    # Built by an espdock that recorded no digest of its CMake files: a rename is installed afresh too.
+    # Built by an espdock that recorded no digest of its CMake files, whose leftovers of a rule taken
+    # out stayed (as this one's before the rule above): its first build, nothing changed since,
+    # installs it afresh once. An upgrade's build said "up to date", the leftover installed.
+    built(root)  # the edit the skipped build left
+    (lib / "uptime_report").write_text("#!/bin/sh\necho the old executable\n")
     stamps = root / "ws/build/.espdock-colcon-stamps.json"
+    records = json.loads(stamps.read_text())
+    records["uptime_tools"]["declares"] = ""
+    # As the older espdock's build recorded it: with the file its install kept.
+    records["uptime_tools"]["installed"] = listing_digest(root / "ws/install/uptime_tools")
+    stamps.write_text(json.dumps(records))
+    assert (
+        "would build 1 of 1 package(s): uptime_tools" in espdock("build", "--only", "ros", "--dry-run", cwd=root).stdout
+    )
+    upgraded = espdock("build", "--only", "ros", cwd=root)
+    assert upgraded.returncode == 0, upgraded.stdout[-3000:] + upgraded.stderr[-3000:]
+    assert "whose last build did not record them): uptime_tools" in " ".join(upgraded.stdout.split())
+    assert sorted(p.name for p in lib.iterdir()) == ["extra_banner", "rclpy_banner", "tools_banner", "uptime_summary"]
+    assert "up to date" in espdock("build", "--only", "ros", "--dry-run", cwd=root).stdout  # once
+    # And a rename after such a build is installed afresh too.
     records = json.loads(stamps.read_text())
     records["uptime_tools"]["declares"] = ""
     stamps.write_text(json.dumps(records))

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import os
 import shlex
 import time
@@ -50,6 +51,7 @@ from espdock.workspace import (
     build_running,
     check_not_building,
     current_dir,
+    find_workspace,
     idf_project_cmake,
     read_build_inputs,
     unmanifested,
@@ -324,8 +326,13 @@ def new(
 @command
 def init(
     directory: Annotated[
-        Path, typer.Argument(help="The workspace: empty, new, or an existing colcon workspace.")
-    ] = Path("."),
+        Path | None,
+        typer.Argument(
+            help="The workspace: empty, new, or an existing colcon workspace (default: the current directory; with "
+            "--compose, the workspace it is in).",
+            show_default=False,
+        ),
+    ] = None,
     compose: Annotated[
         bool,
         typer.Option(
@@ -341,6 +348,11 @@ def init(
     `--compose` writes compose.yaml again, unless it was edited since."""
     if force and not compose:
         raise ConfigError("--force goes with --compose", "`espdock init --compose --force`.")
+    if directory is None:
+        directory = Path(".")
+        if compose:  # from anywhere in the workspace, as the other commands run: its compose file
+            with contextlib.suppress(WorkspaceError):
+                directory = find_workspace().root
     # As root for someone else: the new files belong to who owns the nearest existing directory.
     # A clear error where the current directory is gone and DIRECTORY is relative to it.
     where = directory if directory.is_absolute() else current_dir() / directory

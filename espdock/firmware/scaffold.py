@@ -120,6 +120,14 @@ def create_firmware_package(
         transport.check_transport(name, link, chip, new=True)
         check_micro_ros_target(name, chip, "Give it --target")
     home = firmware_home(workspace, packages)
+    if not (real := home.resolve()).is_relative_to(workspace.root.resolve()):
+        # The build refuses a firmware project there (check_inside): say so before writing one.
+        raise WorkspaceError(
+            f"{home} leads outside the workspace ({real}): a firmware package there would not build, as the IDF "
+            "containers see only the workspace (ROS packages may be linked in)",
+            "Make a directory for firmware in the workspace and add it to package_paths in espdock.toml (`espdock "
+            "new` puts firmware in one named firmware), then run it again. Nothing was written.",
+        )
     destination = home / name
     if destination.exists():
         raise WorkspaceError(f"{destination} already exists", "Pick another name, or remove that directory.")
@@ -250,8 +258,8 @@ def init_workspace(directory: Path, owner: tuple[int, int] | None = None) -> tup
             raise WorkspaceError(
                 f"{shown} is inside the espdock workspace {above}: a workspace in it would take over every "
                 "command run below it",
-                f"Run espdock in {above} (`espdock new`, `espdock build`); to start another workspace, "
-                "init a directory outside it.",
+                f"Run espdock in {above} (`espdock new`, `espdock build`, `espdock init --compose` for its "
+                "compose file); to start another workspace, init a directory outside it.",
             )
         held = sorted(d.name for d in root.iterdir() if (d / "package.xml").is_file()) if root.is_dir() else []
         if root.name == "src" and held:

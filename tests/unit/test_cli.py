@@ -1243,3 +1243,33 @@ def test_a_baud_rate_a_raw_socket_cannot_use_is_said_unused(tmp_path):
         "flash", "led_strip_node", "--port", "rfc2217://127.0.0.1:9", "-b", "921600", cwd=root, env=NO_ENGINE
     )
     assert "is not used" not in serial.stdout, serial.stdout
+
+
+def test_init_compose_from_inside_a_workspace_refreshes_that_workspace_s_file(tmp_path):
+    """`espdock init --compose` from src/pkg/launch, where every other command finds the workspace:
+    refused as a new workspace inside the workspace."""
+    assert espdock("init", "ws", cwd=tmp_path, env=NO_ENGINE).returncode == 0
+    inner = tmp_path / "ws/src/pkg/launch"
+    inner.mkdir(parents=True)
+    refreshed = espdock("init", "--compose", cwd=inner, env=NO_ENGINE)
+    assert refreshed.returncode == 0, refreshed.stderr
+    assert "compose.yaml is up to date with install/" in refreshed.stdout, refreshed.stdout
+    assert sorted(p.name for p in inner.iterdir()) == []
+    # A new workspace there is still refused, naming the one around it.
+    refused = espdock("init", cwd=inner, env=NO_ENGINE)
+    assert refused.returncode == 2 and f"inside the espdock workspace {tmp_path / 'ws'}" in refused.stderr
+
+
+def test_new_firmware_where_src_links_out_of_the_workspace_is_refused_before_writing(tmp_path):
+    """`ln -s ~/store src`: `espdock new` wrote a firmware package the build then refused ("linked
+    from outside the workspace"), blaming the package."""
+    store = tmp_path / "store"
+    store.mkdir()
+    (tmp_path / "ws").mkdir()
+    (tmp_path / "ws/src").symlink_to(store)
+    assert espdock("init", cwd=tmp_path / "ws", env=NO_ENGINE).returncode == 0
+    made = espdock("new", "lnk_board", cwd=tmp_path / "ws", env=NO_ENGINE)
+    assert made.returncode == 2, made.stdout + made.stderr
+    said = " ".join(made.stderr.split())
+    assert f"{tmp_path / 'ws/src'} leads outside the workspace ({store})" in said, said
+    assert list(store.iterdir()) == []

@@ -147,15 +147,21 @@ def _cwd_gone() -> WorkspaceError:
     )
 
 
-def current_dir(instead: Path | None = None) -> Path:
+def current_dir(instead: Path | None = None, as_shell: bool = False) -> Path:
     """The current directory; where it no longer exists, INSTEAD (the workspace --workspace named,
-    with which other commands run from there too), else a clear error, not a crash."""
+    with which other commands run from there too), else a clear error, not a crash. AS_SHELL: as the
+    shell reached it ($PWD, links kept), where that is the same directory."""
     try:
-        return Path.cwd()
+        here = Path.cwd()
     except FileNotFoundError:
         if instead is not None:
             return instead
         raise _cwd_gone() from None
+    pwd = os.environ.get("PWD", "")
+    try:
+        return Path(pwd) if as_shell and pwd.startswith("/") and os.path.samefile(pwd, here) else here
+    except OSError:
+        return here
 
 
 def find_workspace(start: Path | None = None) -> Workspace:

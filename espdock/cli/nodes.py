@@ -358,7 +358,16 @@ def shell(workspace: WorkspaceOption = None) -> None:
         nodes.make_shell_home(ws, runner.owner)
     environ = caller_env(ws, config, runner, image)
     spec = nodes.shell_spec(
-        ws, image, owner, environ, tty, dockerfile, mount, packages, current_dir(ws.root), user_name(runner.owner[0])
+        ws,
+        image,
+        owner,
+        environ,
+        tty,
+        dockerfile,
+        mount,
+        packages,
+        current_dir(ws.root, as_shell=True),
+        user_name(runner.owner[0]),
     )
     code, stopped_by = run_foreground(runner.engine, spec)
     raise typer.Exit(128 + stopped_by if stopped_by else code)

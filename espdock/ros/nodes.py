@@ -550,8 +550,12 @@ def shell_spec(
     mount = mount or Mount(workspace.root, WORKSPACE_MOUNT)
     ros = [p.path for p in packages if p.kind is PackageKind.ROS]
     workdir = root
-    if cwd is not None and cwd.resolve().is_relative_to(workspace.ws_dir.resolve()):
-        workdir = posixpath.join(root, cwd.resolve().relative_to(workspace.ws_dir.resolve()).as_posix())
+    # As the shell reached it too: in a package of a src/ that links elsewhere, the resolved path is
+    # outside the workspace (the container follows the link, mounted where it leads).
+    bases = (workspace.ws_dir, workspace.ws_dir.resolve())
+    ways = [(way, base) for way in ((cwd, cwd.resolve()) if cwd is not None else ()) for base in bases]
+    if inside := next(((way, base) for way, base in ways if way.is_relative_to(base)), None):
+        workdir = posixpath.join(root, inside[0].relative_to(inside[1]).as_posix())
     home = "/tmp" if mount.volume else posixpath.join(root, SHELL_HOME)
     named = (("USER", user_name), ("LOGNAME", user_name)) if user_name else ()
     colcon = () if mount.volume else (("COLCON_DEFAULTS_FILE", f"{home}/colcon-defaults.yaml"),)

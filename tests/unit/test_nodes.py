@@ -357,6 +357,14 @@ def test_the_shell_opens_where_it_was_started_in_the_colcon_root_with_a_home_on_
     assert env["HOME"] == "/workspace/build/espdock-home" and env["USER"] == env["LOGNAME"] == "ann"
     # Outside the colcon root: the colcon root, where `source install/setup.bash` works.
     assert shell_spec(workspace, "img", (1, 1), {}, False, cwd=workspace.root.parent).workdir == "/workspace"
+    # In a package of a src/ that links elsewhere, as the shell reached it: there too, where the
+    # resolved path (outside the workspace) opened the shell at the workspace's root.
+    store = workspace.root.parent / "store"
+    (store / "pkg").mkdir(parents=True)
+    linked = workspace.ws_dir / "linked"
+    linked.symlink_to(store)
+    started = shell_spec(workspace, "img", (1, 1), {}, False, cwd=linked / "pkg")
+    assert started.workdir == "/workspace/linked/pkg", started.workdir
     # In the workspace volume the home would not come back: /tmp, as before.
     in_volume = Mount("espdock-ws-x", "/workspace", volume=True)
     assert dict(shell_spec(workspace, "img", (1, 1), {}, False, "", in_volume).env)["HOME"] == "/tmp"
@@ -517,3 +525,16 @@ def test_espdocks_workspace_option_and_the_env_files_compose_reads_are_found_amo
     assert compose_env_files(["--project-directory", "deploy", "up"], root, {}) == [root / "deploy/.env"]
     assert compose_env_files(["up"], root, {"COMPOSE_ENV_FILES": "a.env,b.env"}) == [root / "a.env", root / "b.env"]
     assert compose_env_files(["--env-file", "x.env", "-f", "sub/alt.yaml", "up"], root, {}) == [root / "x.env"]
+
+
+def test_the_current_directory_as_the_shell_reached_it_keeps_its_links(tmp_path, monkeypatch):
+    from espdock.workspace import current_dir
+
+    (tmp_path / "real").mkdir()
+    (tmp_path / "link").symlink_to(tmp_path / "real")
+    monkeypatch.chdir(tmp_path / "link")
+    monkeypatch.setenv("PWD", str(tmp_path / "link"))
+    assert current_dir(as_shell=True) == tmp_path / "link"
+    assert current_dir() == tmp_path / "real"
+    monkeypatch.setenv("PWD", str(tmp_path))  # stale: another directory than the current one
+    assert current_dir(as_shell=True) == tmp_path / "real"

@@ -713,6 +713,13 @@ def edited_since_built(workspace: Workspace, package: Package) -> str | None:
         read = entry.get("outside") if isinstance(entry, dict) else None
         if isinstance(read, dict) and (changed := sorted(file_digests(workspace.root, read).items() - read.items())):
             return f"what that build made of {', '.join(path for path, _ in changed)} as it was then"
+        if not isinstance(read, dict) and (
+            paths := read_outside(workspace, package.name, os.path.relpath(package.path, workspace.ws_dir))
+        ):
+            # An older espdock's record keeps no digest of them: the next build builds it once (colcon_rebuild).
+            return (
+                f"what an older espdock's build made of {', '.join(paths)}, as they were then, which it did not record"
+            )
         return None
     if not symlink_installed(workspace.ws_dir / ROS_BUILD_BASE, package.name):
         return "what that build installed"

@@ -309,6 +309,11 @@ def test_a_monorepo_s_shared_cmake_module_and_header_outside_the_package_rebuild
         records[name] = {key: value for key, value in records[name].items() if key != "outside"} | {"stamp": stamp}
     stamps.write_text(json.dumps(records))
     header.write_text('#define REPORT_UNIT "sec"\n#include "vendor_limits.h"\n')
+    # `espdock run` warns of it as the build builds it: it said nothing, and ran the old header's code.
+    stale = run_once(root, "uptime_tools", "uptime_report")
+    warned = " ".join((stale.stdout + stale.stderr).split())
+    assert "this runs what an older espdock's build made of " in warned, warned
+    assert "ws/src/robot_repo/include/robot/unit.h" in warned, warned
     builds("2 package(s) built")
     reports(" sec (second)")
     builds("up to date (2 package(s))")

@@ -11,6 +11,7 @@ from typing import Annotated
 import typer
 from rich.text import Text
 
+from espdock.build import prepare
 from espdock.build.prepare import workspace_packages
 from espdock.build.runner import Runner
 from espdock.build.steps import EnsureImage, ImageSpec, Plan
@@ -146,6 +147,10 @@ def _installed(ws: Workspace, config: Config, plan: Plan, step: IdfBuild) -> tup
     what its sources build now."""
     runner = runner_for(ws, config, Reporter(console))
     built, current = runner.firmware.installed_from(ws, step)
+    if current and built.target != step.target:
+        # A one-off chip's: current while its sources build the same library for that chip.
+        _, for_chip = prepare.firmware_plan(ws, config, step.package, os.environ, lambda text: None, built.target)
+        current = for_chip.image_key == built.image_key
     if not current:
         # For the chip it was built for: a plain build would replace a `--target` one's firmware.
         again = f" --target {built.target}" if built.target != step.target else ""

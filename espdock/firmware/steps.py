@@ -184,7 +184,9 @@ class FirmwareSteps:
         # the chip it was built for: a `build --target` one is current until they change.
         stamp = _firmware_stamp(workspace, built, self._image_id(built))[step.package]
         recorded = StampFile(workspace.ws_dir / "build" / FIRMWARE_STAMPS).read().get(step.package) or {}
-        return built, recorded.get("stamp") == stamp
+        # Of the same chip, another key is an interface (or library setting) changed since: stale,
+        # though the old image is still there. Another chip's key the caller compares (its plan).
+        return built, recorded.get("stamp") == stamp and (built.target != step.target or built is step)
 
     def _image_id(self, step: IdfBuild) -> str:
         """The ID of STEP's micro-ROS image ('' where the engine lacks it)."""

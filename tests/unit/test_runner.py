@@ -1248,3 +1248,11 @@ def test_firmware_a_one_off_target_built_is_current_until_its_sources_change(ws)
     assert (built.image, built.target, current) == (s3, "esp32s3", True)
     (project / "main/app.c").write_text("void app_main(void) { for (;;); }\n")
     assert runner(engine, []).firmware.installed_from(ws, step)[1] is False
+    # Built for the workspace's chip, then an interface it depends on edited (a new micro-ROS key,
+    # the old image still there): stale, as its sources build another firmware now.
+    runner(engine, []).run(Plan(ws, (step,)))
+    assert runner(engine, []).firmware.installed_from(ws, step)[1] is True
+    edited = replace(step, image="espdock/idf-micro-ros-jazzy-esp32:0123456789abcdef", image_key="0123456789abcdef")
+    engine.images_by_tag[edited.image] = ImageInfo("new-id", (edited.image,), now, 1, {})
+    built, current = runner(engine, []).firmware.installed_from(ws, edited)
+    assert (built.image, current) == (esp32, False)

@@ -29,7 +29,7 @@ from espdock.images.keyed import is_current
 from espdock.ros import compose as compose_file
 from espdock.ros import nodes, rmw
 from espdock.ros.plan import ColconBuild, RuntimeImage, runtime_repository, runtime_step
-from espdock.ros.steps import built_on_older, edited_since_built, runtime_spec
+from espdock.ros.steps import built_on_older, edited_since_built, runtime_spec, stale_installs
 from espdock.workspace import Package, PackageKind, Workspace, build_running, current_dir
 
 
@@ -143,7 +143,8 @@ def compose(ctx: typer.Context, workspace: WorkspaceOption = None) -> None:
     args, among = nodes.own_workspace(list(ctx.args))
     ws, config = load(workspace or among, runtime_image=True)
     subcommand = nodes.compose_subcommand(args)
-    installed = nodes.installed_ros_packages(ws, workspace_packages(ws, config.ros_distro))
+    packages = workspace_packages(ws, config.ros_distro)
+    installed = nodes.installed_ros_packages(ws, packages)
     if subcommand in nodes.COMPOSE_CREATING and installed and (holder := build_running(ws)) is not None:
         # Its runtime image would be made of a half rebuilt install/, and `:latest` moved to it.
         raise WorkspaceError(
@@ -153,8 +154,18 @@ def compose(ctx: typer.Context, workspace: WorkspaceOption = None) -> None:
     engine = bootstrap.ensure_engine(os.environ, notify)
     bootstrap.ensure_compose(os.environ, notify)
     if subcommand in nodes.COMPOSE_CREATING and installed:
-        # What the services run must be served, as for `espdock run`.
-        plan = build_plan(ws, config, [], PackageKind.ROS, checked=tuple(installed))
+        # What the services run must be served, as for `espdock run`; with the last build's options,
+        # by which the packages are up to date or not.
+        plan = build_plan(ws, config, [], PackageKind.ROS, colcon_args=last_build_options(ws), checked=tuple(installed))
+        colcon = next((step for step in plan.steps if isinstance(step, ColconBuild)), None)
+        if colcon is not None and (stale := stale_installs(ws, colcon, [p for p in packages if p.name in installed])):
+            # `espdock run` warns of its node's; the services run what install/ holds of all of them
+            # (a dependency rebuilt since: an interface's type hash).
+            notify(
+                f"warning: install/ is not what the sources build now: `espdock build` would build {', '.join(stale)} "
+                "(edited, or built on other sources of what they depend on); the services run what the last build "
+                "installed"
+            )
         # A workspace's own ROS Dockerfile may have no runtime stage: its compose file names others.
         if any(isinstance(step, RuntimeImage) for step in plan.steps):
             runtime_image(ws, config, plan)

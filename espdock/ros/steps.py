@@ -730,6 +730,25 @@ def edited_since_built(workspace: Workspace, package: Package) -> str | None:
     return "what that build compiled or generated, beside the sources its --symlink-install links to"
 
 
+def stale_installs(workspace: Workspace, step: ColconBuild, packages: Iterable[Package]) -> list[str]:
+    """Those of PACKAGES whose install is not what their sources build now: their own sources edited
+    (edited_since_built: a --symlink-install's modules are as they are), or up to date themselves but
+    built on other sources of what they depend on (the build would build them again)."""
+    found = colcon_rebuild(workspace, step)
+    recorded = found.stamp_file.read()
+
+    def own_tree_built(name: str) -> bool:
+        entry = recorded.get(name)
+        return isinstance(entry, dict) and name in found.trees and entry.get("tree") == found.trees[name].digest
+
+    return [
+        package.name
+        for package in packages
+        if edited_since_built(workspace, package) is not None
+        or (package.name in found.rebuild and own_tree_built(package.name))
+    ]
+
+
 def built_on_older(workspace: Workspace, step: ColconBuild, package: str) -> list[str] | None:
     """Where PACKAGE's own sources are as its last build recorded, the workspace packages it depends
     on that were rebuilt or edited since (by the stamps its build recorded of them; a record of an

@@ -462,6 +462,18 @@ def test_init_writes_a_starter_compose_file_whose_services_start_and_talk(engine
         finally:
             (node_workspace / ".env").unlink()
         assert theirs.stdout.split()[-1:] == ["4321"], theirs.stdout + theirs.stderr
+        assert "install/ is not what the sources build now" not in mine.stdout + mine.stderr
+        # A node edited since the build: `espdock run` warned of it, the services ran it unsaid.
+        module = node_workspace / "ws/src/beacon_nodes/beacon_nodes/beacon.py"
+        source = module.read_text()
+        module.write_text(source + "# edited since the build\n")
+        try:
+            stale = espdock("compose", "-p", project, "run", "--rm", "--no-deps", "--entrypoint", "true", "beacon",
+                            cwd=node_workspace)  # fmt: skip
+        finally:
+            module.write_text(source)
+        said = " ".join((stale.stdout + stale.stderr).split())
+        assert "install/ is not what the sources build now: `espdock build` would build beacon_nodes" in said, said
     finally:
         compose("--profile", "*", "down", "-v", "--remove-orphans", "-t", "3")
 

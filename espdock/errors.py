@@ -43,6 +43,10 @@ class DependencyError(EspdockError):
 
     exit_code = 2
 
+    def __init__(self, message: str, hint: str | None = None, keys: tuple[str, ...] = ()) -> None:
+        super().__init__(message, hint)
+        self.keys = keys  # the rosdep keys unanswered
+
 
 class RegistryError(EspdockError):
     """The cache registry refused the engine's credentials, or --push-cache could not push."""

@@ -4,14 +4,16 @@ inputs and colcon settings they are planned from, a rosdep lock that answers for
 from __future__ import annotations
 
 import dataclasses
+import functools
 import os
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterable, Mapping
+from pathlib import Path
 
 from espdock.build.lock import current_rosdep_inputs, current_test_inputs, rosdep_lock_stale, stale_rosdep_lock
 from espdock.build.plan import plan_workspace
 from espdock.build.steps import EnsureImage, Plan
 from espdock.config import Config, invoking_user
-from espdock.errors import EspdockError
+from espdock.errors import DependencyError, EspdockError
 from espdock.firmware.plan import (
     STANDARD_INTERFACES,
     IdfBuild,
@@ -57,6 +59,49 @@ def workspace_packages(ws: Workspace, ros_distro: str = DEFAULT_ROS_DISTRO) -> t
     return order_packages(discover_packages(ws, ros_distro))
 
 
+def sourced_underlay(names: Iterable[str], env: Mapping[str, str], ws: Workspace) -> dict[str, Path]:
+    """Those of NAMES (packages depended on) installed in an underlay the caller sourced
+    (AMENT_PREFIX_PATH), by the prefix that holds each: not ROS's own, nor this workspace's install."""
+    prefixes = [Path(p) for p in env.get("AMENT_PREFIX_PATH", "").split(os.pathsep) if p.startswith("/")]
+    own = ws.ws_dir.resolve() / "install"
+    found = {}
+    for name in names:
+        for prefix in prefixes:
+            if prefix.is_relative_to("/opt/ros") or prefix.resolve().is_relative_to(own):
+                continue
+            if (prefix / "share" / name / "package.xml").is_file():
+                found[name] = prefix
+                break
+    return found
+
+
+def underlay_hint(found: Mapping[str, Path]) -> str:
+    where = "; ".join(f"{name} in {prefix}" for name, prefix in found.items())
+    return (
+        f"The underlay you sourced has {where}: espdock's build containers see none of your environment, so a "
+        "workspace is no overlay of another; link the package's source directory into src/ (`ln -s "
+        "~/underlay_ws/src/PKG src/`) and it is built here with the rest."
+    )
+
+
+def _underlay_named(plan: Callable[..., Plan]) -> Callable[..., Plan]:
+    """PLAN, whose refusal of dependencies rosdep cannot serve names those of them the caller's
+    sourced underlay holds (a ROS team's overlay habit), with the way that works."""
+
+    @functools.wraps(plan)
+    def planned(ws: Workspace, *args: object, **kwargs: object) -> Plan:
+        try:
+            return plan(ws, *args, **kwargs)
+        except DependencyError as exc:
+            env = kwargs.get("env")
+            if isinstance(env, Mapping) and (found := sourced_underlay(exc.keys, env, ws)):
+                exc.hint = f"{underlay_hint(found)} {exc.hint or ''}".strip()
+            raise
+
+    return planned
+
+
+@_underlay_named
 def build_plan(
     ws: Workspace,
     config: Config,
@@ -133,10 +178,11 @@ def build_plan(
                     + (f'; its chip too: CONFIG_IDF_TARGET="{chip}"' if chip else "")
                 )
             if unknown := unknown_dependencies(firmware, packages):
+                found = sourced_underlay(unknown, env, ws)
                 notify(
                     f"warning: {firmware.name} depends on {', '.join(unknown)}: in no package of this workspace, nor "
                     "an interface package micro-ROS builds (std_msgs, sensor_msgs, ...), so the library has no "
-                    "headers of it"
+                    "headers of it" + (f". {underlay_hint(found)}" if found else "")
                 )
             for line in unbuildable_in_library(firmware, packages, inputs):
                 notify(f"warning: {line}")

@@ -243,6 +243,7 @@ def check_dependencies(
         f"{len(lines)} package(s) depend on what the {image.flavour} ROS image ({image.os}) does not provide "
         "and rosdep cannot install:\n" + "\n".join(lines),
         "Ways out: " + "; or ".join(ways) + ".",
+        tuple(sorted({key for absent in missing.values() for key in absent})),
     )
 
 

@@ -885,6 +885,40 @@ def test_a_firmware_dependency_micro_ros_has_no_headers_of_is_named_before_the_b
     manifest.write_text(manifest.read_text().replace("<depend>std_msgs</depend>", "<depend>nav2_msgs</depend>"))
     said = dry_run_says(root)
     assert "warning: led_strip_node depends on nav2_msgs: in no package" in said, said
+    assert "underlay" not in said
+    # One the caller's sourced underlay holds (a ROS team's overlay habit): the way that works is said.
+    underlay = tmp_path / "under/install/nav2_msgs"
+    (underlay / "share/nav2_msgs").mkdir(parents=True)
+    (underlay / "share/nav2_msgs/package.xml").write_text("<package><name>nav2_msgs</name></package>\n")
+    sourced = espdock(
+        "build", "--dry-run", cwd=root, env={**NO_ENGINE, "AMENT_PREFIX_PATH": f"{underlay}:/opt/ros/jazzy"}
+    )
+    said = " ".join((sourced.stdout + sourced.stderr).split())
+    assert f"The underlay you sourced has nav2_msgs in {underlay}" in said and "ln -s" in said, said
+
+
+def test_a_dependency_rosdep_cannot_serve_that_a_sourced_underlay_holds_is_named_with_the_way_that_works(tmp_path):
+    """An overlay workspace whose package depends on the underlay's (sourced, as colcon overlays
+    are used): the refusal offered a rosdep rule, COLCON_IGNORE or another selection."""
+    from espdock.build.prepare import _underlay_named
+    from espdock.errors import DependencyError
+    from espdock.workspace import Workspace
+
+    prefix = tmp_path / "under/install/ovl_common"
+    (prefix / "share/ovl_common").mkdir(parents=True)
+    (prefix / "share/ovl_common/package.xml").write_text("<package><name>ovl_common</name></package>\n")
+
+    @_underlay_named
+    def refused(ws, *, env):
+        raise DependencyError("1 package(s) depend on ...", "Ways out: ...", ("ovl_common", "python3-nope"))
+
+    with pytest.raises(DependencyError) as caught:
+        refused(Workspace(tmp_path / "over"), env={"AMENT_PREFIX_PATH": f"{prefix}:/opt/ros/jazzy"})
+    assert caught.value.hint.startswith(f"The underlay you sourced has ovl_common in {prefix}: "), caught.value.hint
+    assert caught.value.hint.endswith("Ways out: ...")
+    with pytest.raises(DependencyError) as plain:
+        refused(Workspace(tmp_path / "over"), env={"AMENT_PREFIX_PATH": "/opt/ros/jazzy"})
+    assert plain.value.hint == "Ways out: ..."
 
 
 def test_the_dry_run_leaves_out_what_the_options_after_the_double_dash_skip(tmp_path):

@@ -339,6 +339,23 @@ def unmanifested(workspace: Workspace) -> dict[str, LeftOut]:
     return found
 
 
+def dangling_links(workspace: Workspace) -> list[str]:
+    """A warning for each link under the workspace's package paths that leads nowhere (a link to
+    another checkout, on a clone where that lies elsewhere): colcon passes over it without a word,
+    and the build then failed on a dependency of what it held."""
+    lines = []
+    for rel in workspace.package_paths:
+        for dirpath, filenames in _searched(workspace.root / rel, _outputs(workspace)):
+            for name in filenames:
+                link = Path(dirpath, name)
+                if link.is_symlink() and not link.exists():
+                    lines.append(
+                        f"warning: {os.path.relpath(link, workspace.root)} is a link that leads nowhere "
+                        f"({os.readlink(link)}): no package under it is found"
+                    )
+    return lines
+
+
 def idf_project_cmake(text: str) -> bool:
     """Whether TEXT, a CMakeLists.txt, is an ESP-IDF project's: it includes IDF's project.cmake."""
     return "project.cmake" in text and "IDF_PATH" in text

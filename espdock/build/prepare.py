@@ -45,6 +45,7 @@ from espdock.workspace import (
     Package,
     PackageKind,
     Workspace,
+    dangling_links,
     discover_packages,
     left_out,
     order_packages,
@@ -155,6 +156,8 @@ def build_plan(
             notify(f"warning: {line}")
     for name, project in unmanifested(ws).items():
         notify(project.not_built(name))
+    for line in dangling_links(ws):
+        notify(line)
     of_kind = [p for p in chosen if only in (None, p.kind)]
     check_no_vendored_micro_ros(of_kind, ws.root)
     check_idf_projects_typed(of_kind, ws.root)

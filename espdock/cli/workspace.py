@@ -51,6 +51,7 @@ from espdock.workspace import (
     build_running,
     check_not_building,
     current_dir,
+    dangling_links,
     find_workspace,
     idf_project_cmake,
     read_build_inputs,
@@ -384,6 +385,8 @@ def init(
     console.print(f"found {len(firmware)} firmware package(s){': ' + ', '.join(firmware) if firmware else ''}")
     for name, project in unmanifested(ws).items():  # an ESP-IDF project brought in, say: what makes it one
         notify(project.not_built(name))
+    for line in dangling_links(ws):
+        notify(line)
     top = ws.root / "CMakeLists.txt"
     if "espdock.toml" in created and top.is_file() and idf_project_cmake(top.read_text(errors="replace")):
         notify(
@@ -446,11 +449,12 @@ def list_packages(
         console.print("\n".join(p.name for p in packages), markup=False, highlight=False, soft_wrap=True)
     else:
         render_packages(console, ws, packages)
-    for name, project in unmanifested(ws).items():
+    said = [project.not_built(name) for name, project in unmanifested(ws).items()] + dangling_links(ws)
+    for line in said:
         if names:
-            err_console.print(project.not_built(name), markup=False, highlight=False, soft_wrap=True)
+            err_console.print(line, markup=False, highlight=False, soft_wrap=True)
         else:
-            notify(project.not_built(name))
+            notify(line)
 
 
 colcon_extension = typer.Typer(

@@ -1307,3 +1307,17 @@ def test_new_firmware_where_src_links_out_of_the_workspace_is_refused_before_wri
     said = " ".join(made.stderr.split())
     assert f"{tmp_path / 'ws/src'} leads outside the workspace ({store})" in said, said
     assert list(store.iterdir()) == []
+
+
+def test_a_link_under_the_package_paths_that_leads_nowhere_is_named(tmp_path):
+    """`ln -s ../../underlay_checkout/src src/under_ws` on a clone where that checkout lies elsewhere:
+    list showed the other packages and said nothing; the build failed on a dependency of what it held."""
+    root = copy_workspace(tmp_path / "w")
+    (root / "ws/src/under_ws").symlink_to("../../underlay_checkout/src")
+    listed = espdock("list", cwd=root, env=NO_ENGINE)
+    said = " ".join((listed.stdout + listed.stderr).split())
+    assert listed.returncode == 0, said
+    assert "warning: ws/src/under_ws is a link that leads nowhere (../../underlay_checkout/src)" in said, said
+    assert "ws/src/under_ws is a link that leads nowhere" in dry_run_says(root)
+    names = espdock("list", "--names", cwd=root, env=NO_ENGINE)
+    assert names.stdout.split() == ["custom_interface"] and "leads nowhere" in names.stderr, names.stdout

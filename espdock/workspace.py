@@ -212,7 +212,8 @@ def discover_packages(workspace: Workspace, ros_distro: str = DEFAULT_ROS_DISTRO
             if package.name in found:
                 raise WorkspaceError(
                     f"two packages are named '{package.name}': {found[package.name].path} and {package.path}",
-                    "Package names must be unique in a workspace.",
+                    "Package names must be unique in a workspace (as colcon's): remove or COLCON_IGNORE one. To "
+                    "override an underlay's package linked in whole, link its other packages one by one instead.",
                 )
             found[package.name] = package
     cache.save(seen)

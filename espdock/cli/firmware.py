@@ -43,6 +43,7 @@ from espdock.firmware.flashing import (
 from espdock.firmware.pins import pin_idf_image, read_sources, write_pins
 from espdock.firmware.plan import IdfBuild, images_to_rebuild, workspace_micro_ros_images
 from espdock.firmware.provision import (
+    NetSettings,
     check_reads_settings,
     check_settings,
     network_settings,
@@ -269,7 +270,14 @@ AgentOption = Annotated[
     str | None, typer.Option("--agent", help="micro-ROS agent as IPV4:PORT (the board resolves no host names).")
 ]
 # Text, parsed by espdock: Click's int takes other scripts' digits, '4_2', ' 42 ' and '+42' as 42.
-DomainOption = Annotated[str | None, typer.Option("--domain-id", help="ROS_DOMAIN_ID of the board (0..232).")]
+DomainOption = Annotated[
+    str | None,
+    typer.Option(
+        "--domain-id",
+        help="ROS_DOMAIN_ID of the board (0..232; default: the one it was built with).",
+        show_default=False,
+    ),
+]
 
 
 DEFAULT_BAUD = 460800
@@ -282,6 +290,13 @@ def _baud_unused(serial: Port, baud: int | None) -> None:
             f"note: --baud {baud} is not used on {serial.spec}: a raw socket has no baud rate (the serial server's "
             "own is the line's; rfc2217:// lets esptool set it)"
         )
+
+
+def domain_said(settings: NetSettings) -> str:
+    """The board's ROS domain as provisioned: the one given, else the one its firmware was built with."""
+    if settings.domain_id is None:
+        return "ROS domain as built (CONFIG_ESPDOCK_ROS_DOMAIN_ID; --domain-id sets one)"
+    return f"ROS domain {settings.domain_id}"
 
 
 def _ask_password() -> str:
@@ -313,7 +328,7 @@ def flash(
     with --wifi-ssid and --agent, provision its network settings in the same run (see `provision`)."""
     domain = None if domain_id is None else parse_domain_id(domain_id)
     if wifi_ssid is not None and agent is not None:
-        check_settings(wifi_ssid, "", agent, domain or 0)  # before anything else: no typo costs a wait
+        check_settings(wifi_ssid, "", agent, domain)  # before anything else: no typo costs a wait
     ws, config = load(workspace)
     serial = parse_port(port)
     _baud_unused(serial, baud)
@@ -339,7 +354,7 @@ def flash(
             flash_package(
                 runner.firmware, ws, step, flasher_args, serial, baud, verify, say, nvs_image=(nvs.offset, image)
             )
-    what = " with its network settings" if settings else ""
+    what = f" with its network settings ({domain_said(settings)})" if settings else ""
     console.print(f"flashed {package}{what} through {port}" + (" and verified it" if verify else ""))
 
 
@@ -357,7 +372,7 @@ def provision(
         str | None, typer.Option("--agent", help="micro-ROS agent as IPV4:PORT (no host names); required.")
     ] = None,
     wifi_password_file: PasswordFileOption = None,
-    domain_id: Annotated[str, typer.Option("--domain-id", help="ROS_DOMAIN_ID of the board (0..232).")] = "0",
+    domain_id: DomainOption = None,
     baud: BaudOption = DEFAULT_BAUD,
     workspace: WorkspaceOption = None,
 ) -> None:
@@ -366,7 +381,7 @@ def provision(
     The whole NVS partition is replaced: every other namespace on the board is erased.
 
     The password never appears on a command line (espdock's or esptool's), in the workspace or in an image."""
-    domain = parse_domain_id(domain_id)
+    domain = None if domain_id is None else parse_domain_id(domain_id)
     if wifi_ssid is not None and agent is not None:
         check_settings(wifi_ssid, "", agent, domain)  # before anything else: no typo costs a wait
     ws, config = load(workspace)
@@ -392,7 +407,7 @@ def provision(
         )  # fmt: skip
     console.print(
         f"provisioned {package} through {port}: Wi-Fi {settings.ssid!r}, agent {settings.agent_host}:"
-        f"{settings.agent_port}, ROS domain {settings.domain_id} (NVS partition '{nvs.label}' at {nvs.offset:#x})"
+        f"{settings.agent_port}, {domain_said(settings)} (NVS partition '{nvs.label}' at {nvs.offset:#x})"
     )
 
 

@@ -67,7 +67,8 @@ class NetSettings:
     password: str = field(repr=False)
     agent_host: str
     agent_port: int
-    domain_id: int = 0
+    # None: none written, and the firmware keeps the domain it was built with (CONFIG_ESPDOCK_ROS_DOMAIN_ID).
+    domain_id: int | None = None
 
 
 @dataclass(frozen=True)
@@ -114,7 +115,7 @@ def parse_domain_id(text: str) -> int:
     return int(text)
 
 
-def check_settings(ssid: str, password: str, agent: str, domain_id: int) -> NetSettings:
+def check_settings(ssid: str, password: str, agent: str, domain_id: int | None) -> NetSettings:
     """The settings, or a ConfigError (exit 2) naming what the firmware would refuse."""
     try:
         size = len(ssid.encode())
@@ -137,13 +138,15 @@ def check_settings(ssid: str, password: str, agent: str, domain_id: int) -> NetS
         )
     if any(not " " <= c <= "~" for c in password):
         raise ConfigError("the Wi-Fi password must be printable ASCII (a WPA2 passphrase)")
-    if not 0 <= domain_id <= DOMAIN_ID_MAX:
+    if domain_id is not None and not 0 <= domain_id <= DOMAIN_ID_MAX:
         raise ConfigError(f"ROS domain id {domain_id} is not 0..{DOMAIN_ID_MAX}")
     host, port = parse_agent(agent)
     return NetSettings(ssid, password, host, port, domain_id)
 
 
-def network_settings(ssid: str, password_file: str | None, agent: str, domain_id: int, stdin, prompt) -> NetSettings:
+def network_settings(
+    ssid: str, password_file: str | None, agent: str, domain_id: int | None, stdin, prompt
+) -> NetSettings:
     """The settings the command line gives; the password is read last, once everything else
     checked out, so a typo in the address costs no typing."""
     check_settings(ssid, "", agent, domain_id)
@@ -158,7 +161,7 @@ def optional_network_settings(
         return None
     if ssid is None or agent is None:
         raise ConfigError("provisioning needs both --wifi-ssid and --agent HOST:PORT")
-    return network_settings(ssid, password_file, agent, domain_id or 0, stdin, prompt)
+    return network_settings(ssid, password_file, agent, domain_id, stdin, prompt)
 
 
 def read_password(source: str | None, stdin: io.TextIOBase | None, prompt) -> str:
@@ -208,7 +211,8 @@ def nvs_csv(settings: NetSettings) -> str:
     writer.writerow([KEY_PASSWORD, "data", "string", settings.password])
     writer.writerow([KEY_AGENT_HOST, "data", "string", settings.agent_host])
     writer.writerow([KEY_AGENT_PORT, "data", "u16", str(settings.agent_port)])
-    writer.writerow([KEY_DOMAIN_ID, "data", "u8", str(settings.domain_id)])
+    if settings.domain_id is not None:  # else the firmware's own, as built
+        writer.writerow([KEY_DOMAIN_ID, "data", "u8", str(settings.domain_id)])
     return out.getvalue()
 
 

@@ -1200,13 +1200,10 @@ def test_provision_writes_the_network_settings_and_leaves_the_app(fw_ws, double_
     )  # fmt: skip
     assert result.returncode == 0, result.stdout[-3000:] + result.stderr
     settings = read_nvs(read_flash(mock_bootloader, NVS_OFFSET, NVS_SIZE, tmp_path))["espdock"]
-    assert settings == {
-        "ssid": "field",
-        "password": "",
-        "agent_host": "192.168.7.20",
-        "agent_port": 8888,
-        "domain_id": 0,
-    }
+    # No --domain-id: none written, and the board keeps the one it was built with (it was set to 0,
+    # off the robot's graph, by the option's default).
+    assert settings == {"ssid": "field", "password": "", "agent_host": "192.168.7.20", "agent_port": 8888}
+    assert "ROS domain as built (CONFIG_ESPDOCK_ROS_DOMAIN_ID" in " ".join(result.stdout.split())
     assert flash_md5(mock_bootloader, APP_OFFSET, len(app_marker)) == hashlib.md5(app_marker).hexdigest(), (
         "provision wrote the app"
     )

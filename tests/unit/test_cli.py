@@ -1321,3 +1321,21 @@ def test_a_link_under_the_package_paths_that_leads_nowhere_is_named(tmp_path):
     assert "ws/src/under_ws is a link that leads nowhere" in dry_run_says(root)
     names = espdock("list", "--names", cwd=root, env=NO_ENGINE)
     assert names.stdout.split() == ["custom_interface"] and "leads nowhere" in names.stderr, names.stdout
+
+
+def test_save_defconfig_of_a_one_off_chip_s_build_dir_is_refused_before_it_writes(tmp_path):
+    """`espdock build PKG --target esp32s3`, then `espdock idf PKG -- save-defconfig`: IDF wrote
+    CONFIG_IDF_TARGET="esp32s3" into sdkconfig.defaults, and every later build was for esp32s3."""
+    root = copy_workspace(tmp_path / "w")
+    shutil.copytree(REPO / "firmware", root / "firmware")
+    shutil.copy2(REPO / "Dockerfile.idf", root / "Dockerfile.idf")
+    defaults = root / "firmware/led_strip_node/sdkconfig.defaults"
+    before = defaults.read_bytes()
+    marker = root / "ws/build/led_strip_node/.espdock-target"
+    marker.parent.mkdir(parents=True)
+    marker.write_text("esp32s3\n\n0123456789abcdef\n")
+    saved = espdock("idf", "led_strip_node", "--", "save-defconfig", cwd=root, env=NO_ENGINE)
+    said = " ".join(saved.stderr.split())
+    assert saved.returncode == 2, saved.stdout + saved.stderr
+    assert "build/led_strip_node is a one-off esp32s3 build" in said and "Nothing was written" in said, said
+    assert defaults.read_bytes() == before

@@ -344,6 +344,7 @@ def run(
         mounts,
         devices,
         variables,
+        here,
     )
     code, stopped_by = run_foreground(runner.engine, spec)
     raise typer.Exit(128 + stopped_by if stopped_by else code)

@@ -722,6 +722,7 @@ class Engine:
         offline = _NetworkWatch()
         process = subprocess.Popen(
             argv,
+            cwd=_usable_cwd(),
             stdin=subprocess.PIPE,
             stdout=subprocess.PIPE,
             stderr=subprocess.STDOUT,
@@ -891,6 +892,7 @@ class Engine:
             # The CLI goes with espdock (SIGKILL included): the container it leaves is the reaper's.
             process = subprocess.Popen(
                 argv,
+                cwd=_usable_cwd(),
                 env=self._cli_env,
                 start_new_session=not spec.tty,
                 preexec_fn=_die_with_parent(),  # noqa: PLW1509 (see _die_with_parent)
@@ -1599,6 +1601,16 @@ def _remove(container: docker.models.containers.Container, stop: bool = True) ->
         if isinstance(exc, docker.errors.APIError) and exc.status_code == 409:
             return  # "removal of container ... is already in progress": the engine's own, at its end
         warnings.warn(f"could not remove container {container.short_id}: {exc}", stacklevel=2)
+
+
+def _usable_cwd() -> str | None:
+    """The working directory for the docker CLI: this one, or / where it was removed under the
+    shell (`espdock build -w WS` from it): the CLI's getwd failed, and the image build with it."""
+    try:
+        os.getcwd()
+    except FileNotFoundError:
+        return "/"
+    return None
 
 
 def _reaper(docker_cli: str, name: str, env: Mapping[str, str]) -> subprocess.Popen:

@@ -468,10 +468,11 @@ def node_spec(
     mounts: tuple[Mount, ...] = (),
     devices: tuple[tuple[str, str], ...] = (),
     variables: tuple[tuple[str, str], ...] = (),
+    cwd: Path | None = None,
 ) -> RunSpec:
     """A container of IMAGE running the node at PATH with ARGS, as OWNER, with MOUNTS and DEVICES
     (host, container) passed in; OWNER also gets the devices' groups (a serial port's dialout).
-    VARIABLES (--env) come last: they win."""
+    VARIABLES (--env) come last: they win. CWD: what relative profile paths are relative to."""
     given = dict(variables)
     own = (("HOME", "/tmp"), SIGNAL_GROUP, *terminal_env(env, tty), *node_env(env))
     passed = [(name, value) for name, value in own if name not in given]
@@ -480,7 +481,7 @@ def node_spec(
         argv=(path, *args),
         workdir=NODE_WORKDIR,
         user=f"{owner[0]}:{owner[1]}",
-        mounts=(*mounts, *profile_mounts(env, Path.cwd())),
+        mounts=(*mounts, *profile_mounts(env, cwd or Path.cwd())),
         env=(*passed, *given.items()),
         labels=_labels(workspace, "run"),
         devices=tuple(f"{host}:{inside}" for host, inside in devices),
@@ -564,7 +565,9 @@ def shell_spec(
         argv=("bash", "-c", SOURCE_AND_SHELL, "bash", f"{root}/install") if official else ("bash",),
         workdir=posixpath.normpath(workdir),
         user=f"{owner[0]}:{owner[1]}",
-        mounts=(mount,) if mount.volume else (mount, *links_out(workspace, ros), *profile_mounts(env, Path.cwd())),
+        mounts=(mount,)
+        if mount.volume
+        else (mount, *links_out(workspace, ros), *profile_mounts(env, cwd or Path.cwd())),
         # The entrypoint sources this install tree when it exists (docker/ros-entrypoint.sh).
         env=(
             ("HOME", home),

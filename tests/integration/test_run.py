@@ -933,7 +933,15 @@ def test_a_loaded_runtime_image_runs_without_the_images_it_was_made_from(engine,
         runtime_base = next(tag for tag in made if tag.startswith("espdock/ros-jazzy-runtime:"))
         for gone in (base, runtime_base):
             subprocess.run(["docker", "rmi", gone], capture_output=True, check=True)
-        ran = espdock("run", "beacon_nodes", "once", cwd=root)
+        # From a directory removed under the shell, with --workspace, as other commands run: a crash
+        # ("a bug in espdock"), or the image build's docker CLI failing on its getwd.
+        gone = root.parent / "gone"
+        gone.mkdir()
+        ran = subprocess.run(
+            ["sh", "-c", f'cd "{gone}" && rmdir "{gone}" && exec "$0" -m espdock run -w "$1" beacon_nodes once',
+             sys.executable, str(root)],
+            capture_output=True, text=True, check=False, stdin=subprocess.DEVNULL, timeout=600,
+        )  # fmt: skip
         assert ran.returncode == 0 and "word:" in ran.stdout, ran.stdout + ran.stderr
     finally:
         listed = subprocess.run(["docker", "images", "--format", "{{.Repository}}:{{.Tag}}"], capture_output=True,

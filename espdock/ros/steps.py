@@ -224,7 +224,14 @@ class RosSteps:
                 )
                 # An interface taken out of rosidl_generate_interfaces (its file kept) leaves its generated
                 # code in the build dir, whose output directories ament installs whole: it stayed importable.
-                generated = [name for name in reinstalled if (base / name / "rosidl_generator_c").is_dir()]
+                # By its CMakeLists: in volume mode the build dirs are the engine's, not here.
+                where = dict(step.sources)
+                generated = [
+                    name
+                    for name in reinstalled
+                    if (base / name / "rosidl_generator_c").is_dir()
+                    or "rosidl_generate_interfaces" in _text(workspace.ws_dir / where[name] / "CMakeLists.txt")
+                ]
                 if generated:
                     why += f"; building {', '.join(generated)} afresh as well (rosidl's generated code)"
                 reasons.append(
@@ -689,6 +696,13 @@ def read_outside(workspace: Workspace, name: str, rel: str) -> list[str]:
 def colcon_outputs(workspace: Workspace) -> list[Path]:
     """colcon's output dirs: no input of a package, wherever its build read them."""
     return [workspace.ws_dir / name for name in ("build", "install", "log")]
+
+
+def _text(path: Path) -> str:
+    try:
+        return path.read_text(errors="replace")
+    except OSError:
+        return ""
 
 
 def _lost_from_build_dir(path: str, build_dir: Path) -> bool:

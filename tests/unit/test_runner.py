@@ -1151,6 +1151,24 @@ def test_the_colcon_build_gets_makeflags_job_limits_and_nothing_else_of_them(ws)
     assert len(engine.runs) == runs, "a job limit changes nothing built: no rebuild"
 
 
+def test_an_interface_package_whose_cmake_files_changed_is_built_afresh_with_no_build_dir_here(ws):
+    """An interface taken out of rosidl_generate_interfaces (its file kept): rosidl's code of it
+    stayed in the build dir and was installed again. In volume mode the build dirs are on the
+    engine, so what says it generates interfaces is its CMakeLists.txt."""
+    engine = FakeEngine(run_script=colcon_installs(ws))
+    cmake = ws.ws_dir / "src/msgs/CMakeLists.txt"
+    cmake.write_text('project(msgs)\nrosidl_generate_interfaces(${PROJECT_NAME} "msg/Old.msg" "msg/New.msg")\n')
+    (ws.ws_dir / "src/app/CMakeLists.txt").write_text("project(app)\nadd_executable(app main.c)\n")
+    runner(engine, []).run(Plan(ws, (COLCON,)))
+    assert not (ws.ws_dir / "build/espdock-ros/msgs").exists()
+    cmake.write_text('project(msgs)\nrosidl_generate_interfaces(${PROJECT_NAME} "msg/New.msg")\n')
+    (ws.ws_dir / "src/app/CMakeLists.txt").write_text("project(app)\nadd_executable(app main.c extra.c)\n")
+    runner(engine, events := []).run(Plan(ws, (COLCON,)))
+    said = notes(events)
+    assert "installing afresh what changed its CMake files" in said, said
+    assert "building msgs afresh as well (rosidl's generated code)" in said, said
+
+
 def test_a_firmware_build_whose_container_was_killed_says_so_not_fix_the_firmware(ws):
     project = ws.root / "fw/cam_fw"
     (project / "main").mkdir(parents=True)

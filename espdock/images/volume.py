@@ -13,6 +13,7 @@ colcon's log, or a firmware package's build dir.
 from __future__ import annotations
 
 import contextlib
+import errno
 import io
 import json
 import os
@@ -28,7 +29,7 @@ from pathlib import Path, PurePosixPath
 from espdock import durable, interrupts, scratch
 from espdock.build.stamps import source_files
 from espdock.build.steps import LABEL_WORKSPACE
-from espdock.errors import EngineUnavailable
+from espdock.errors import EngineUnavailable, WorkspaceError
 from espdock.images.engine import Engine, Mount
 from espdock.layout import WORKSPACE_MOUNT
 from espdock.workspace import Workspace, give_tree, root_key
@@ -228,7 +229,18 @@ def replace_tree(archive: Path, dest: Path, owner: tuple[int, int], only: Collec
         old = scratch.make(".espdock-old-", dest.parent)  # DEST goes in it, to be removed with it
         with interrupts.held():  # the two renames as one: DEST is the old tree or the new one
             if dest.exists() or dest.is_symlink():
-                dest.rename(old / dest.name)
+                try:
+                    dest.rename(old / dest.name)
+                except OSError as exc:
+                    if exc.errno not in (errno.EXDEV, errno.EBUSY):
+                        raise
+                    # A mount point of its own (a bind mount, another disk): no rename moves it.
+                    raise WorkspaceError(
+                        f"{dest} is a mount point of its own: the workspace volume's {dest.name}/ comes back by "
+                        f"renaming it into place, which cannot move it ({exc.strerror})",
+                        f"Make {dest.name}/ a plain directory of the workspace, or build with "
+                        "--workspace-mode mount where the engine sees the workspace. It was left as it was.",
+                    ) from None
             (staging / _top(archive)).rename(dest)
         durable.sync_dir(dest.parent)
     finally:

@@ -710,3 +710,35 @@ def test_a_script_with_windows_line_endings_is_named_as_such():
     bash = ["#9 0.2 /tmp/setup.sh: line 2: $'\\r': command not found"]
     assert "Windows line endings (CRLF)" in _buildkit_hint(bash)
     assert "Windows line endings" not in _buildkit_hint(["#9 0.2 set: -o: invalid option", "#9 ERROR"])
+
+
+def test_a_copy_back_onto_an_install_tree_mounted_on_its_own_is_refused_leaving_it(ws, tmp_path):
+    """install/ a bind mount of its own (another disk for the build outputs): the copy back's
+    rename failed with EXDEV/EBUSY, and espdock said "a bug in espdock" (exit 70)."""
+    import subprocess
+    import sys
+
+    if subprocess.run(["unshare", "-m", "true"], capture_output=True, check=False).returncode != 0:
+        pytest.skip("no mount namespace here (unshare -m needs CAP_SYS_ADMIN)")
+    install = ws.ws_dir / "install"
+    (install / "app").mkdir(parents=True)
+    (install / "app/old.txt").write_text("old")
+    made = tmp_path / "made/install/app"
+    made.mkdir(parents=True)
+    (made / "new.txt").write_text("new")
+    with tarfile.open(tmp_path / "install.tar", "w") as tar:
+        tar.add(tmp_path / "made/install", arcname="install")
+    program = (
+        "import os, sys; from pathlib import Path; from espdock.images import volume; from espdock.errors import "
+        "WorkspaceError\ntry:\n"
+        "    volume.replace_tree(Path(sys.argv[1]), Path(sys.argv[2]), (os.getuid(), os.getgid()))\n"
+        "except WorkspaceError as exc:\n    print(exc.message); print(exc.hint)"
+    )
+    script = f'mount --bind "{install}" "{install}" && exec "$0" -c "$1" "$2" "$3"'
+    said = subprocess.run(
+        ["unshare", "-m", "sh", "-c", script, sys.executable, program, str(tmp_path / "install.tar"), str(install)],
+        capture_output=True, text=True, check=False,
+    )  # fmt: skip
+    assert said.returncode == 0, said.stderr
+    assert f"{install} is a mount point of its own" in said.stdout and "left as it was" in said.stdout, said.stdout
+    assert (install / "app/old.txt").read_text() == "old"

@@ -164,8 +164,10 @@ def _installed(ws: Workspace, config: Config, plan: Plan, step: IdfBuild) -> tup
         _, for_chip = prepare.firmware_plan(ws, config, step.package, os.environ, lambda text: None, built.target)
         current = for_chip.image_key == built.image_key
     if not current:
-        # For the chip it was built for: a plain build would replace a `--target` one's firmware.
-        again = f" --target {built.target}" if built.target != step.target else ""
+        # For the chip it was built for: a plain build would replace a `--target` one's firmware
+        # (its build dir's chip, where that chip's image is gone and flash runs in another).
+        chip = built.target if built.target != step.target else built_chip(ws, step.package)
+        again = f" --target {chip}" if chip and chip != step.target else ""
         console.print(
             Text(
                 f"note: the installed firmware of {step.package} is not what its sources build now; this is the one "

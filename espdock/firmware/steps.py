@@ -752,7 +752,8 @@ _FAILURE_HINTS = (
         "EXTRA_COMPONENT_DIRS doesn't exist",
         "idf.py runs in a container that has the workspace (at /workspace) and the directories links in it lead "
         "to, not the host's other paths: name the directory relative to the project "
-        "(`${CMAKE_CURRENT_LIST_DIR}/../common`), linking it into the workspace where it lies outside.",
+        "(`${CMAKE_CURRENT_LIST_DIR}/../common`), linking it into the workspace where it lies outside; for "
+        "micro_ros_espidf_component, name the image's: $ENV{UROS_COMPONENT_DIR}.",
     ),
 )
 

@@ -405,8 +405,8 @@ def check_file_arguments(workspace: Workspace, args: Iterable[str], mounts: Iter
             there = posixpath.join(RUNTIME_INSTALL, install[0].relative_to(install[1]).as_posix())
             fix = f"The runtime image holds install/ at {RUNTIME_INSTALL}: pass `--params-file {there}`."
         else:
-            mount = shlex.quote(f"{value}:/params/{host.name}:ro")
-            fix = f"Mount it: `espdock run -v {mount} ... --params-file /params/{host.name}`."
+            mount, inside = shlex.quote(f"{value}:/params/{host.name}:ro"), shlex.quote(f"/params/{host.name}")
+            fix = f"Mount it: `espdock run -v {mount} ... --params-file {inside}`."
         raise ConfigError(
             f"--params-file {value}: the node runs in a container, which has no {host} (it sees only the "
             "runtime image and what --volume mounts)",

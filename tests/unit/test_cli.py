@@ -499,7 +499,10 @@ def test_run_refuses_a_params_file_of_this_machine_the_node_cannot_see(tmp_path)
     # The mount to paste, quoted: a path with a space split in two.
     (tmp_path / "my params.yaml").write_text("talker: {}\n")
     spaced = espdock(*run, "my params.yaml", cwd=tmp_path, env=NO_ENGINE)
-    assert "espdock run -v 'my params.yaml:/params/my params.yaml:ro'" in " ".join(spaced.stderr.split()), spaced.stderr
+    said = " ".join(spaced.stderr.split())
+    assert (
+        "espdock run -v 'my params.yaml:/params/my params.yaml:ro' ... --params-file '/params/my params.yaml'" in said
+    )
     # Mounted, in the image, or no file here: past the check (to the package, which is not there).
     mounted = ("run", "-v", "mine.yaml:/p/mine.yaml", *run[1:], "/p/mine.yaml")
     # A file of this machine outside the workspace and home may be the image's too (/opt/ros/... of a

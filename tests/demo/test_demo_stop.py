@@ -166,6 +166,8 @@ def test_arguments_rcl_cannot_parse_end_the_node_with_an_error_not_as_a_stop(ima
         ("camera_sim", "fps:=abc", "error: fps:='abc': frames per second must be a number"),  # ESPDOCK_DEMO_FPS
         ("camera_sim", "phase_duration:=0", "error: phase_duration:=0: seconds each QR text"),
         ("camera_ui", "port:=abc", "error: Trying to set parameter 'port' to 'abc' of type 'STRING'"),
+        ("camera_ui", "port:=99999", "error: port:=99999: the UI's TCP port must be 0..65535"),
+        ("camera_sim", "fps:=inf", "error: fps:=inf: frames per second must be above 0 (and finite)"),
     ],
 )
 def test_a_setting_a_node_cannot_use_ends_it_with_one_line_naming_the_setting(image, node, setting, said):

@@ -37,7 +37,9 @@ from espdock_demo.names import (
 from espdock_demo.ros_common import (
     IMAGE_SUB_QOS,
     LATCHED_QOS,
+    SettingError,
     config_to_dict,
+    positive_setting,
     spin_node,
     start_diagnostics,
     start_heartbeat,
@@ -53,8 +55,10 @@ class CameraUi(Node):
         super().__init__("camera_ui")
         host = str(self.declare_parameter("host", "127.0.0.1").value)
         port = int(self.declare_parameter("port", 8080).value)
-        service_timeout = float(self.declare_parameter("service_timeout", 3.0).value)
-        offline_after = float(self.declare_parameter("offline_after", 2.0).value)
+        if not 0 <= port <= 65535:
+            raise SettingError(f"port:={port}: the UI's TCP port must be 0..65535")
+        service_timeout = positive_setting(self, "service_timeout", 3.0, "seconds a camera service call may take")
+        offline_after = positive_setting(self, "offline_after", 2.0, "seconds without a frame before offline")
 
         self.frames = FrameBroadcaster()
         self.state = LiveState()

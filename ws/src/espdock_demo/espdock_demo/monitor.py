@@ -15,7 +15,7 @@ from std_msgs.msg import ColorRGBA, String
 from espdock_demo.colors import Rgb, shorten
 from espdock_demo.health import SIM_NODES, NodeHealth
 from espdock_demo.names import DIAGNOSTICS_TOPIC, LED_COLOR_TOPIC, QR_MESSAGE_TOPIC
-from espdock_demo.ros_common import LATCHED_QOS, TEXT_QOS, spin_node, start_heartbeat
+from espdock_demo.ros_common import LATCHED_QOS, TEXT_QOS, positive_setting, spin_node, start_heartbeat
 from espdock_demo.web import address_to_open
 
 
@@ -25,7 +25,7 @@ class DemoMonitor(Node):
     def __init__(self) -> None:
         super().__init__("demo_monitor")
         self.url = address_to_open(str(self.declare_parameter("ui_url", "http://127.0.0.1:8080").value))
-        period = float(self.declare_parameter("summary_period", 15.0).value)
+        period = positive_setting(self, "summary_period", 15.0, "seconds between summary lines")
         watched = list(self.declare_parameter("watch_nodes", list(SIM_NODES)).value)
         self.latest: dict[str, dict[str, str]] = {}
         self.health = NodeHealth(watched)

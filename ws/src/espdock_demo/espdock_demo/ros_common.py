@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import os
 import pathlib
 import signal
@@ -196,8 +197,8 @@ def positive_setting(node: Node, name: str, default: float, description: str) ->
         number = float(value)
     except (TypeError, ValueError):
         raise SettingError(f"{name}:={value!r}: {description} must be a number") from None
-    if not number > 0:
-        raise SettingError(f"{name}:={value!r}: {description} must be above 0")
+    if not (number > 0 and math.isfinite(number)):
+        raise SettingError(f"{name}:={value!r}: {description} must be above 0 (and finite)")
     return number
 
 

@@ -57,7 +57,7 @@ from espdock.firmware.steps import built_chip, chip_overrides, reset_build_dir
 from espdock.images import bootstrap
 from espdock.images.engine import format_argv
 from espdock.layout import firmware_build_dir, installed_firmware_dir
-from espdock.workspace import Package, Workspace, read_build_inputs
+from espdock.workspace import Package, Workspace, named_sdkconfig_defaults, read_build_inputs
 
 # idf.py's options that say where the project and its build dir are.
 IDF_PLACES = frozenset({"-C", "--project-dir", "-B", "--build-dir"})
@@ -137,13 +137,20 @@ def idf(
         code = runner.firmware.run_passthrough(ws, step, tuple(args))
     else:
         code = runner.firmware.run_passthrough(ws, step, tuple(args), devices=serial.devices, network=serial.network)
-    if code == 0 and "save-defconfig" in args and (overrides := chip_overrides(ws.root / step.project, step.target)):
-        chip_file = f"{step.project}/sdkconfig.defaults.{step.target}"
-        notify(
-            f"warning: {chip_file} sets {', '.join(overrides)} in sdkconfig.defaults, where save-defconfig writes: "
-            f"the next sdkconfig made from the defaults has the chip file's value; put the line in {chip_file} to "
-            "keep a menuconfig change"
-        )
+    if code == 0 and "save-defconfig" in args:
+        project = ws.root / step.project
+        overrides = chip_overrides(project, step.target, named_sdkconfig_defaults(project / "CMakeLists.txt"))
+        if overrides is None:
+            notify(
+                f"warning: save-defconfig wrote {step.project}/sdkconfig.defaults, which its CMakeLists.txt's "
+                "SDKCONFIG_DEFAULTS leaves out: no build reads it; put the lines in a file it names"
+            )
+        elif overrides:
+            notify(
+                f"warning: {step.project}: a defaults file IDF reads after sdkconfig.defaults, where save-defconfig "
+                f"writes, sets {', '.join(overrides)}: the next sdkconfig made from the defaults has that value; put "
+                "the line in that file to keep a menuconfig change"
+            )
     raise typer.Exit(code)
 
 

@@ -309,9 +309,14 @@ LONGCALLS_RISCV = ("esp32c2", "esp32c5", "esp32c6", "esp32h2", "esp32p4")
 _IDF_TARGET_LINE = re.compile(r'^CONFIG_IDF_TARGET="?([A-Za-z0-9_]+)"?\s*$', re.MULTILINE)
 
 
-def declared_target(defaults: Mapping[str, bytes]) -> str | None:
-    """The chip a firmware's sdkconfig.defaults names (CONFIG_IDF_TARGET, as IDF reads it), if any."""
-    return sdkconfig_target(defaults.get("sdkconfig.defaults", b""))
+def declared_target(defaults: Mapping[str, bytes], order: Sequence[str] = ()) -> str | None:
+    """The chip a firmware's sdkconfig.defaults names (CONFIG_IDF_TARGET, as IDF reads it), if any;
+    of the files its CMakeLists' SDKCONFIG_DEFAULTS names (ORDER), the first that names one, as IDF's
+    __target_guess takes it."""
+    return next(
+        (chip for base in order or ("sdkconfig.defaults",) if (chip := sdkconfig_target(defaults.get(base, b"")))),
+        None,
+    )
 
 
 def sdkconfig_target(data: bytes) -> str | None:
@@ -325,7 +330,9 @@ def package_target(config: Config, inputs: BuildInputs, firmware: Package, overr
     """The chip FIRMWARE builds for: OVERRIDE (--target), else CONFIG_IDF_TARGET in its
     sdkconfig.defaults, else the workspace's `target`. Refused (before anything builds) when the
     package does not list it among its chips, or when micro-ROS cannot be built for it."""
-    declared = declared_target(inputs.sdkconfig_defaults.get(firmware.name, {}))
+    declared = declared_target(
+        inputs.sdkconfig_defaults.get(firmware.name, {}), inputs.sdkconfig_order.get(firmware.name, ())
+    )
     if declared is not None:
         check_target(declared, f"CONFIG_IDF_TARGET in {firmware.name}/sdkconfig.defaults")
     target = override or declared or config.target

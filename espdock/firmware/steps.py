@@ -11,7 +11,7 @@ import posixpath
 import re
 import shutil
 import sys
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import replace
 from pathlib import Path
 
@@ -645,14 +645,24 @@ def _library_lines(sdkconfig: Path) -> dict[str, str]:
     return _config_lines(sdkconfig, LIBRARY_SDKCONFIG_PREFIXES)
 
 
-def chip_overrides(project: Path, target: str) -> list[str]:
-    """The options PROJECT's sdkconfig.defaults sets that its sdkconfig.defaults.TARGET sets to
-    another value, which wins: after `save-defconfig`, a menuconfig change to such an option is
-    in sdkconfig.defaults, and the next sdkconfig made from the defaults loses it."""
+def chip_overrides(project: Path, target: str, order: Sequence[str] = ()) -> list[str] | None:
+    """The options PROJECT's sdkconfig.defaults (where save-defconfig writes) sets that a defaults
+    file IDF applies after it sets to another value, which wins: the chip's sdkconfig.defaults.TARGET,
+    or one the CMakeLists' SDKCONFIG_DEFAULTS (ORDER) names after it. After `save-defconfig`, a
+    menuconfig change to such an option is in sdkconfig.defaults, and the next sdkconfig made from
+    the defaults loses it. None where ORDER leaves sdkconfig.defaults out: no build reads it."""
+    applied = [name for base in order or ("sdkconfig.defaults",) for name in (base, f"{base}.{target}")]
+    if "sdkconfig.defaults" not in applied:
+        return None
     saved = _config_lines(project / "sdkconfig.defaults")
-    chip = _config_lines(project / f"sdkconfig.defaults.{target}")
+    winners: dict[str, tuple[str, str]] = {}
+    for name in applied[applied.index("sdkconfig.defaults") + 1 :]:
+        for key, value in _config_lines(project / name).items():
+            winners[key] = (value, name)
     return [
-        f"{key}={chip[key]} over {saved[key]}" for key in sorted(saved.keys() & chip.keys()) if saved[key] != chip[key]
+        f"{key}={winners[key][0]} ({winners[key][1]}) over {saved[key]}"
+        for key in sorted(saved.keys() & winners.keys())
+        if saved[key] != winners[key][0]
     ]
 
 

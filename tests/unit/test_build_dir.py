@@ -116,9 +116,17 @@ def test_options_a_chip_s_defaults_file_sets_over_sdkconfig_defaults_are_named(t
         "CONFIG_SENSOR_PERIOD_MS=1000\nCONFIG_ESPTOOLPY_FLASHSIZE_8MB=y\n# CONFIG_SPIRAM is not set\n"
     )
     (tmp_path / "sdkconfig.defaults.esp32s3").write_text("CONFIG_SENSOR_PERIOD_MS=250\n")
-    assert chip_overrides(tmp_path, "esp32") == ["CONFIG_SENSOR_PERIOD_MS=1000 over 1200"]
-    assert chip_overrides(tmp_path, "esp32s3") == ["CONFIG_SENSOR_PERIOD_MS=250 over 1200"]
+    assert chip_overrides(tmp_path, "esp32") == ["CONFIG_SENSOR_PERIOD_MS=1000 (sdkconfig.defaults.esp32) over 1200"]
+    assert chip_overrides(tmp_path, "esp32s3") == ["CONFIG_SENSOR_PERIOD_MS=250 (sdkconfig.defaults.esp32s3) over 1200"]
     assert chip_overrides(tmp_path, "esp32c3") == []
+    # The files a CMakeLists' SDKCONFIG_DEFAULTS names after it win too; one that leaves it out
+    # makes it a file no build reads.
+    (tmp_path / "sdkconfig.defaults.local").write_text("CONFIG_SENSOR_PERIOD_MS=5\n")
+    local = ("sdkconfig.defaults", "sdkconfig.defaults.local")
+    assert chip_overrides(tmp_path, "esp32c3", local) == [
+        "CONFIG_SENSOR_PERIOD_MS=5 (sdkconfig.defaults.local) over 1200"
+    ]
+    assert chip_overrides(tmp_path, "esp32c3", ("sdkconfig.defaults.local",)) is None
 
 
 def test_a_menuconfig_change_of_a_library_option_is_reported_and_others_are_not(tmp_path):

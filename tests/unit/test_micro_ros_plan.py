@@ -265,6 +265,13 @@ def test_library_settings_are_read_from_the_defaults_files_the_project_names(tmp
     defaults, order = inputs.sdkconfig_defaults["board"], inputs.sdkconfig_order["board"]
     assert library_sdkconfig(defaults, "esp32", order).startswith("CONFIG_FREERTOS_HZ=1000\n")
     assert library_sdkconfig(defaults, "esp32s3", order).startswith("CONFIG_FREERTOS_HZ=500\n")
+    # The chip, from the first of them that names one, as IDF's target guess reads them.
+    from espdock.firmware.plan import declared_target
+
+    (project / "sdkconfig.defaults.local").write_text('CONFIG_IDF_TARGET="esp32s3"\nCONFIG_FREERTOS_HZ=1000\n')
+    inputs = read_build_inputs(Workspace(tmp_path), [board])
+    assert declared_target(inputs.sdkconfig_defaults["board"], inputs.sdkconfig_order["board"]) == "esp32s3"
+    assert declared_target(inputs.sdkconfig_defaults["board"]) is None
     # One it cannot tell (a variable of the project's own) leaves IDF's default: sdkconfig.defaults.
     cmake.write_text('set(SDKCONFIG_DEFAULTS "${MY_DEFAULTS}")\nproject(board)\n')
     assert named_sdkconfig_defaults(cmake) == ()

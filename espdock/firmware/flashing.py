@@ -120,7 +120,7 @@ def check_port_free(engine: Engine, port: Port) -> None:
     device, and the flash or the monitor failed or read the other's bytes."""
     if users := engine.device_users(port.devices, port.spec if port.is_url else None):
         raise PortError(
-            f"serial port {port.spec} is busy: espdock's container {users[0]} has it",
+            f"serial port {port.spec} is busy: the container {users[0]} has it",
             "Stop that (Ctrl-C in its terminal, or `docker stop " + users[0] + "`), then run again.",
         )
 

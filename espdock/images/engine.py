@@ -1104,8 +1104,9 @@ class Engine:
         return sorted({str(lab.get("com.docker.compose.service", "?")) for lab in labels})
 
     def device_users(self, devices: Sequence[str], url: str | None = None) -> list[str]:
-        """The names of espdock's running containers that were passed one of DEVICES (host paths, by
-        the device they lead to), or URL (socket:// or rfc2217://) in their command line. A container
+        """The names of the running containers that were passed one of DEVICES (host paths, by the
+        device they lead to; any container's), or URL (socket:// or rfc2217://) in their command line
+        (espdock's). A container
         opens its own node of the device, so the host's lock on it (pyserial's flock, which
         check_port reads) does not show a monitor, an agent or a flash holding the board; a serial
         server serves one client, and a second saw a silent board. Those of a killed espdock are not
@@ -1114,7 +1115,11 @@ class Engine:
         if not wanted and not url:
             return []
         users = []
-        for listed in self._all_containers({"label": [LABEL_OWNER], "status": ["running"]}):
+        # Any container given the device, not only espdock's own: the agent of the compose file
+        # `init` writes (its `serial` profile) holds the board's port too.
+        selector = {"status": ["running"]} if wanted else {"label": [LABEL_OWNER], "status": ["running"]}
+        for listed in self._all_containers(selector):
+            mine = LABEL_OWNER in (listed.get("Labels") or {})
             with self._plain_call("failed to inspect a container", doing="inspecting a container"):
                 if self._plain:
                     _, attrs = self._get(f"/containers/{listed['Id']}/json")
@@ -1125,13 +1130,15 @@ class Engine:
                         continue  # gone since the listing: it holds nothing
             given = ((attrs or {}).get("HostConfig") or {}).get("Devices") or []
             command = [str(arg) for arg in ((attrs or {}).get("Config") or {}).get("Cmd") or []]
-            named = url is not None and any(
-                same_port_url(url, other) for arg in command for other in _PORT_URL.findall(arg)
+            named = (
+                mine
+                and url is not None
+                and any(same_port_url(url, other) for arg in command for other in _PORT_URL.findall(arg))
             )
             holds = bool(wanted & {os.path.realpath(str(d.get("PathOnHost", ""))) for d in given})
             if not holds and not named:
                 continue
-            if not owner_alive((listed.get("Labels") or {}).get(LABEL_OWNER, "")):
+            if mine and not owner_alive((listed.get("Labels") or {}).get(LABEL_OWNER, "")):
                 if holds:
                     _remove(self._handle(listed["Id"]), stop=False)
                 # One on a URL is the workspace's, which the command's own sweep removes, and says so.

@@ -387,7 +387,16 @@ def test_a_serial_device_another_espdock_container_has_is_named_as_busy(way):
         assert docker_ids("ps", "--filter", f"name=^{name}$") == {made[0]}
         assert docker_ids("ps", "--all", "--filter", f"id={made[1]}") == set(), "the killed espdock's goes"
         assert way.device_users(["/dev/zero"]) == []
-        with pytest.raises(PortError, match=f"serial port /dev/full is busy: espdock's container {name} has it"):
+        # Not espdock's: the micro-ROS agent of the compose file `init` writes (its serial profile).
+        made.append(
+            subprocess.run(
+                ["docker", "run", "--detach", "--init", "--device", "/dev/zero", IMAGE, "sleep", "60"],
+                capture_output=True, text=True, check=True,
+            ).stdout.strip()
+        )  # fmt: skip
+        (agent,) = way.device_users(["/dev/zero"])
+        assert docker_ids("ps", "--filter", f"name=^{agent}$") == {made[-1]}
+        with pytest.raises(PortError, match=f"serial port /dev/full is busy: the container {name} has it"):
             check_port_free(way, parse_port("/dev/full"))
         # A serial server (esp_rfc2217_server, a board's bridge) serves one client: a flash beside a
         # monitor on it saw a silent board ("could not tell which chip"), and named no container.
@@ -400,7 +409,7 @@ def test_a_serial_device_another_espdock_container_has_is_named_as_busy(way):
             ).stdout.strip()
         )  # fmt: skip
         (holder,) = way.device_users([], url)
-        with pytest.raises(PortError, match=f"serial port {url} is busy: espdock's container {holder} has it"):
+        with pytest.raises(PortError, match=f"serial port {url} is busy: the container {holder} has it"):
             check_port_free(way, parse_port(url))
         assert way.device_users([], "socket://127.0.0.1:456") == []  # another port, a prefix of its
         # The same server written otherwise: as text, another one.

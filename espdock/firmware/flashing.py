@@ -17,7 +17,7 @@ from pathlib import Path
 from urllib.parse import urlsplit
 
 from espdock.config import CHIP_TARGETS
-from espdock.errors import ConfigError, EspdockError, WorkspaceError
+from espdock.errors import ConfigError, EspdockError, Interrupted, WorkspaceError
 from espdock.firmware import transport
 from espdock.firmware.plan import LONGCALLS_RISCV, IdfBuild
 from espdock.firmware.provision import IMAGE_MOUNT
@@ -403,19 +403,29 @@ def flash_package(
         said.append(text)
         say(text)
 
+    again = f"`espdock flash {step.package} --port {port.spec}`"
     for argv in commands:
         say(format_argv(argv))
         said.clear()
-        code = steps.run_idf(
-            workspace,
-            step,
-            argv,
-            on_line=line,
-            devices=port.devices,
-            network=port.network,
-            workdir=workdir,
-            extra_mounts=mounts,
-        )
+        try:
+            code = steps.run_idf(
+                workspace,
+                step,
+                argv,
+                on_line=line,
+                devices=port.devices,
+                network=port.network,
+                workdir=workdir,
+                extra_mounts=mounts,
+            )
+        except KeyboardInterrupt:
+            if _writing(said):
+                raise Interrupted(
+                    f"interrupted while esptool was writing the board at {port.spec}: its flash is half written, "
+                    "and it may not boot",
+                    f"Flash it again ({again}).",
+                ) from None
+            raise
         if code != 0 and (revision := next((t for t in said if REVISION_REFUSED in t), None)):
             # esptool checks every image against the chip before it writes: a board matter, not the port's.
             raise ConfigError(
@@ -425,4 +435,16 @@ def flash_package(
                 f"e.g. CONFIG_{chip.upper()}_REV_MIN_0=y for an early {chip}), or flash a newer board.",
             )
         if code != 0:
-            raise PortError(f"esptool failed (exit code {code}) on {port.spec}", "See its output above.")
+            # Unplugged or reset mid-write: the bootloader and partition table new, the app in part.
+            written = (
+                f" It had begun writing: the board's flash is half written, and it may not boot; {again} "
+                "writes it whole."
+                if _writing(said)
+                else ""
+            )
+            raise PortError(f"esptool failed (exit code {code}) on {port.spec}", f"See its output above.{written}")
+
+
+def _writing(said: list[str]) -> bool:
+    """Whether esptool's output SAID shows it had begun writing the flash ("Writing at 0x...")."""
+    return any("Writing at 0x" in text for text in said)

@@ -354,3 +354,37 @@ def test_a_serial_server_s_url_is_the_same_port_however_it_is_written():
     assert same_port_url("rfc2217://localhost:4000?ign_set_control", "rfc2217://127.0.0.1:4000")
     for other in ("socket://127.0.0.1:45452", "socket://192.0.2.7:45451", "socket://127.0.0.1", "/dev/ttyUSB0"):
         assert not same_port_url(other, held), other
+
+
+def test_esptool_stopping_mid_write_says_the_board_is_half_written(tmp_path):
+    """A board unplugged (or reset) at "Writing at 0x00010000... (11 %)": espdock said only "See its
+    output above", where the bootloader was new and the app in part, and the board would not boot."""
+    from espdock.firmware.flashing import PortError, flash_package
+    from espdock.firmware.plan import IdfBuild
+
+    class Esptool:
+        """Plays esptool in the IDF image: the chip probe, then a write the board leaves at 11 %."""
+
+        class containers:  # the engine sees this machine
+            @staticmethod
+            def needs_this_machine(*args: object) -> None:
+                pass
+
+        def run_idf(self, workspace, step, argv, on_line=None, **kwargs):
+            if argv[:2] == ("python", "-c"):  # the probe, spelled for either esptool
+                for text in ("esptool.py v4.8.1", "Detecting chip type... ESP32"):
+                    on_line(text)
+                return 0
+            for text in ("Compressed 182784 bytes to 95391...", "Writing at 0x00010000... (11 %)"):
+                on_line(text)
+            return 1
+
+    ws = Workspace(tmp_path)
+    (tmp_path / "fw/board/main").mkdir(parents=True)
+    args = {"extra_esptool_args": {"chip": "esp32"}, "flash_files": {"0x10000": "board.bin"}}
+    step = IdfBuild("board", "fw/board", "img", "esp32", "k")
+    port = parse_port("socket://127.0.0.1:9")
+    with pytest.raises(PortError) as failed:
+        flash_package(Esptool(), ws, step, args, port, None, False, lambda text: None)  # type: ignore[arg-type]
+    assert "the board's flash is half written" in (failed.value.hint or ""), failed.value.hint
+    assert "espdock flash board --port socket://127.0.0.1:9" in (failed.value.hint or "")

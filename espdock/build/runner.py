@@ -118,6 +118,8 @@ class Runner:
                 detail = exc.message.splitlines()[0]
             elif isinstance(exc, KeyboardInterrupt):
                 detail = "interrupted"
+            elif isinstance(exc, OSError) and exc.filename:  # a read-only mount: said below, no bug
+                detail = f"{exc.strerror}: {exc.filename}"
             else:
                 detail = f"espdock bug: {type(exc).__name__}"
             self.containers.emit(StepFinished(step.name, Outcome.FAILED, time.monotonic() - started, detail))

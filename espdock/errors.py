@@ -13,6 +13,7 @@ class EspdockError(Exception):
     """Base of every error espdock expects and explains."""
 
     exit_code = 1
+    keys: tuple[str, ...] = ()  # the rosdep keys nothing answers, where that is what refused
 
     def __init__(self, message: str, hint: str | None = None) -> None:
         super().__init__(message)
@@ -45,7 +46,7 @@ class DependencyError(EspdockError):
 
     def __init__(self, message: str, hint: str | None = None, keys: tuple[str, ...] = ()) -> None:
         super().__init__(message, hint)
-        self.keys = keys  # the rosdep keys unanswered
+        self.keys = keys
 
 
 class RegistryError(EspdockError):

@@ -458,8 +458,10 @@ def offline_note(
     hint = f"Reach rosdep's sources (or point ROSDEP_SOURCE_PATH at a local copy), then {FIX}."
     if others:
         hint += f" Meanwhile the others {command}: `espdock {command} {' '.join(others)}`."
-    raise LockError(
+    refused = LockError(
         f"{reason}, and {unreachable.message}; {len(blocked)} package(s) built need rosdep for keys the "
         f"{image.flavour} ROS image lacks and {ROSDEP_LOCK} does not answer:\n{lines}",
         hint,
     )
+    refused.keys = tuple(sorted({key for keys in blocked.values() for key in keys}))
+    raise refused

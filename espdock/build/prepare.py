@@ -13,7 +13,7 @@ from espdock.build.lock import current_rosdep_inputs, current_test_inputs, rosde
 from espdock.build.plan import plan_workspace
 from espdock.build.steps import EnsureImage, Plan
 from espdock.config import Config, invoking_user
-from espdock.errors import DependencyError, EspdockError
+from espdock.errors import EspdockError
 from espdock.firmware.plan import (
     STANDARD_INTERFACES,
     IdfBuild,
@@ -93,7 +93,7 @@ def _underlay_named(plan: Callable[..., Plan]) -> Callable[..., Plan]:
     def planned(ws: Workspace, *args: object, **kwargs: object) -> Plan:
         try:
             return plan(ws, *args, **kwargs)
-        except DependencyError as exc:
+        except EspdockError as exc:  # rosdep's refusal, or a lock it could not make for them
             env = kwargs.get("env")
             if isinstance(env, Mapping) and (found := sourced_underlay(exc.keys, env, ws)):
                 exc.hint = f"{underlay_hint(found)} {exc.hint or ''}".strip()

@@ -904,7 +904,7 @@ def test_a_dependency_rosdep_cannot_serve_that_a_sourced_underlay_holds_is_named
     """An overlay workspace whose package depends on the underlay's (sourced, as colcon overlays
     are used): the refusal offered a rosdep rule, COLCON_IGNORE or another selection."""
     from espdock.build.prepare import _underlay_named
-    from espdock.errors import DependencyError
+    from espdock.errors import DependencyError, LockError
     from espdock.workspace import Workspace
 
     prefix = tmp_path / "under/install/ovl_common"
@@ -922,6 +922,17 @@ def test_a_dependency_rosdep_cannot_serve_that_a_sourced_underlay_holds_is_named
     with pytest.raises(DependencyError) as plain:
         refused(Workspace(tmp_path / "over"), env={"AMENT_PREFIX_PATH": "/opt/ros/jazzy"})
     assert plain.value.hint == "Ways out: ..."
+
+    # Where rosdep could not even be asked (no lock, its sources out of reach): the same.
+    @_underlay_named
+    def unlocked(ws, *, env):
+        refused = LockError("rosdep.lock.json is missing, and `rosdep update` failed ...", "Reach rosdep's sources")
+        refused.keys = ("ovl_common",)
+        raise refused
+
+    with pytest.raises(LockError) as caught:
+        unlocked(Workspace(tmp_path / "over"), env={"AMENT_PREFIX_PATH": str(prefix)})
+    assert caught.value.hint.startswith("The underlay you sourced has ovl_common"), caught.value.hint
 
 
 def test_the_dry_run_leaves_out_what_the_options_after_the_double_dash_skip(tmp_path):
@@ -1324,6 +1335,10 @@ def test_a_link_under_the_package_paths_that_leads_nowhere_is_named(tmp_path):
     assert "ws/src/under_ws is a link that leads nowhere" in dry_run_says(root)
     names = espdock("list", "--names", cwd=root, env=NO_ENGINE)
     assert names.stdout.split() == ["custom_interface"] and "leads nowhere" in names.stderr, names.stdout
+    # Inside a package no package is looked for: a doc's broken link there hides none.
+    (root / "ws/src/under_ws").unlink()
+    (root / "ws/src/custom_interface/NOTES.md").symlink_to("missing.md")
+    assert "leads nowhere" not in dry_run_says(root)
 
 
 def test_save_defconfig_of_a_one_off_chip_s_build_dir_is_refused_before_it_writes(tmp_path):

@@ -425,8 +425,9 @@ def provision(
             runner.firmware, ws, step, flasher_args, serial, baud, False, lambda line: console.print(Text(line)),
             nvs_image=(nvs.offset, image), app=False,
         )  # fmt: skip
+    open_network = "" if settings.password else " (an open network: no password)"
     console.print(
-        f"provisioned {package} through {port}: Wi-Fi {settings.ssid!r}, agent {settings.agent_host}:"
+        f"provisioned {package} through {port}: Wi-Fi {settings.ssid!r}{open_network}, agent {settings.agent_host}:"
         f"{settings.agent_port}, {domain_said(settings)} (NVS partition '{nvs.label}' at {nvs.offset:#x})"
     )
 

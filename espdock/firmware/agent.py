@@ -50,12 +50,24 @@ def agent_spec(
 ) -> RunSpec:
     """The agent's container: only PORT's device passed in (no privileges), on the host's network
     so that its DDS side meets the host's ROS graph (and a UDP agent is reachable by the boards)."""
+    if port is not None and udp_port != DEFAULT_UDP_PORT:
+        # A serial agent listens on no UDP port: the option went unused without a word.
+        raise ConfigError(
+            f"--udp-port {udp_port} goes with boards on Wi-Fi, and --port {port.spec} makes a serial agent",
+            "Leave one out: --port for a board on serial, --udp-port for boards on Wi-Fi (one agent each).",
+        )
     settings = {name: env[name] for name in PASSED_ENV if name in env}
     settings.setdefault("FASTDDS_BUILTIN_TRANSPORTS", "UDPv4")
     if domain_id is not None:
         if not 0 <= domain_id <= 232:
             raise ConfigError(f"--domain-id {domain_id} is not 0..232")
         settings["ROS_DOMAIN_ID"] = str(domain_id)
+    elif (given := settings.get("ROS_DOMAIN_ID", "").strip()) and not (given.isdigit() and int(given) <= 232):
+        # As --domain-id is checked: the agent's rmw refused it inside the container, or took another.
+        raise ConfigError(
+            f"ROS_DOMAIN_ID={given} (from the environment) is not a ROS domain id 0..232",
+            "Set it to one, or give --domain-id.",
+        )
     return RunSpec(
         image=image,
         argv=agent_argv(port, baud, udp_port),

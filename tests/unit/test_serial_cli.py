@@ -3,6 +3,8 @@
 import json
 import re
 
+import pytest
+
 from tests.conftest import copy_workspace, espdock
 
 NO_ENGINE = {"DOCKER_HOST": "unix:///nonexistent/docker.sock"}
@@ -131,6 +133,15 @@ def test_the_agent_s_arguments_are_micro_ros_agent_s_own():
     assert dict(spec.env) == {"ROS_DOMAIN_ID": "3", "FASTDDS_BUILTIN_TRANSPORTS": "UDPv4"}
     udp = agent_spec("img", None, {}, domain_id=9)
     assert udp.argv == ("udp4", "--port", "8888") and udp.devices == () and dict(udp.env)["ROS_DOMAIN_ID"] == "9"
+    # What the agent would not use, or rmw would refuse in its container, is said first.
+    from espdock.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="--udp-port 9999 goes with boards on Wi-Fi"):
+        agent_spec("img", parse_port("/dev/ttyACM0"), {}, udp_port=9999)
+    for bad in ("300", "abc"):
+        with pytest.raises(ConfigError, match=f"ROS_DOMAIN_ID={bad} \\(from the environment\\)"):
+            agent_spec("img", None, {"ROS_DOMAIN_ID": bad})
+    assert dict(agent_spec("img", None, {"ROS_DOMAIN_ID": "232"}).env)["ROS_DOMAIN_ID"] == "232"
 
 
 def test_flash_and_monitor_take_the_port_and_baud_idf_py_takes_from_the_environment(tmp_path):

@@ -10,6 +10,7 @@ it only over TCP, through a forwarder to its socket.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import re
 import shutil
@@ -74,19 +75,34 @@ class TcpForwarder:
             client.close()
             upstream.close()
             return
-        for source, sink in ((client, upstream), (upstream, client)):
-            threading.Thread(target=self._pump, args=(source, sink), daemon=True).start()
+        pumps = [
+            threading.Thread(target=self._pump, args=(source, sink), daemon=True)
+            for source, sink in ((client, upstream), (upstream, client))
+        ]
+        for pump in pumps:
+            pump.start()
+        for pump in pumps:
+            pump.join()
+        # Closed here, once neither pump reads them: an SSL socket closed by one thread while the
+        # other was in its read crashed the interpreter (a segfault, the worker lost).
+        for end in (client, upstream):
+            end.close()
 
     @staticmethod
     def _pump(source: socket.socket, sink: socket.socket) -> None:
-        try:
+        with contextlib.suppress(OSError):
             while data := source.recv(65536):
                 sink.sendall(data)
-            # TLS has no half close: the engine's end closes the client's connection.
-            sink.close() if isinstance(sink, ssl.SSLSocket) else sink.shutdown(socket.SHUT_WR)
-        except OSError:
-            for end in (source, sink):
-                end.close()
+        # TLS has no half close: the engine's end ends the client's connection whole. A shutdown of
+        # the plain socket under it wakes the other pump's read, which then ends too.
+        with contextlib.suppress(OSError):
+            if isinstance(sink, ssl.SSLSocket):
+                socket.socket.shutdown(sink, socket.SHUT_RDWR)
+            else:
+                sink.shutdown(socket.SHUT_WR)
+        if not isinstance(source, ssl.SSLSocket):  # a failed send: the other way cannot go on either
+            with contextlib.suppress(OSError):
+                source.shutdown(socket.SHUT_RD)
 
     def close(self) -> None:
         self._server.close()

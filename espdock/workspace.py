@@ -147,9 +147,9 @@ def _cwd_gone() -> WorkspaceError:
     )
 
 
-def current_dir(instead: Path | None = None, as_shell: bool = False) -> Path:
+def current_dir(instead: Path | None = None, logical: bool = False) -> Path:
     """The current directory; where it no longer exists, INSTEAD (the workspace --workspace named,
-    with which other commands run from there too), else a clear error, not a crash. AS_SHELL: as the
+    with which other commands run from there too), else a clear error, not a crash. LOGICAL: as the
     shell reached it ($PWD, links kept), where that is the same directory."""
     try:
         here = Path.cwd()
@@ -159,7 +159,7 @@ def current_dir(instead: Path | None = None, as_shell: bool = False) -> Path:
         raise _cwd_gone() from None
     pwd = os.environ.get("PWD", "")
     try:
-        return Path(pwd) if as_shell and pwd.startswith("/") and os.path.samefile(pwd, here) else here
+        return Path(pwd) if logical and pwd.startswith("/") and os.path.samefile(pwd, here) else here
     except OSError:
         return here
 

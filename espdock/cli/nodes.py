@@ -378,7 +378,7 @@ def shell(workspace: WorkspaceOption = None) -> None:
         dockerfile,
         mount,
         packages,
-        current_dir(ws.root, as_shell=True),
+        current_dir(ws.root, logical=True),
         user_name(runner.owner[0]),
     )
     code, stopped_by = run_foreground(runner.engine, spec)

@@ -29,6 +29,7 @@ from espdock.firmware.plan import (
     InstallFirmware,
     check_inside,
 )
+from espdock.firmware.transport import applied_defaults
 from espdock.images import volume
 from espdock.images.containers import Containers, give_to, make_dirs_for, volume_mode_refused, with_host_umask
 from espdock.images.engine import KILLED, Mount, RunSpec
@@ -651,7 +652,7 @@ def chip_overrides(project: Path, target: str, order: Sequence[str] = ()) -> lis
     or one the CMakeLists' SDKCONFIG_DEFAULTS (ORDER) names after it. After `save-defconfig`, a
     menuconfig change to such an option is in sdkconfig.defaults, and the next sdkconfig made from
     the defaults loses it. None where ORDER leaves sdkconfig.defaults out: no build reads it."""
-    applied = [name for base in order or ("sdkconfig.defaults",) for name in (base, f"{base}.{target}")]
+    applied = applied_defaults(target, order)
     if "sdkconfig.defaults" not in applied:
         return None
     saved = _config_lines(project / "sdkconfig.defaults")

@@ -50,11 +50,16 @@ def parse_transport(text: str) -> str:
     return name
 
 
+def applied_defaults(target: str, order: Sequence[str] = ()) -> list[str]:
+    """The names of a package's defaults files as IDF applies them for TARGET, the later winning:
+    those its CMakeLists.txt sets SDKCONFIG_DEFAULTS to (ORDER), else sdkconfig.defaults, each
+    followed by its .TARGET variant."""
+    return [name for base in order or ("sdkconfig.defaults",) for name in (base, f"{base}.{target}")]
+
+
 def defaults_in_order(defaults: Mapping[str, bytes], target: str, order: Sequence[str] = ()) -> list[bytes]:
-    """A package's defaults files as IDF applies them for TARGET, the later winning: those its
-    CMakeLists.txt sets SDKCONFIG_DEFAULTS to (ORDER), else sdkconfig.defaults, each followed
-    by its .TARGET variant."""
-    return [defaults.get(name, b"") for base in order or ("sdkconfig.defaults",) for name in (base, f"{base}.{target}")]
+    """DEFAULTS' files (by name) in the order applied_defaults gives, an absent one empty."""
+    return [defaults.get(name, b"") for name in applied_defaults(target, order)]
 
 
 def firmware_transport(defaults: Mapping[str, bytes], target: str, order: Sequence[str] = ()) -> str:
@@ -125,8 +130,7 @@ def library_colcon_meta(package: str, meta: str, transport: str) -> str:
 def project_transport(project: Path, target: str) -> str:
     """The transport of the firmware project at PROJECT, built for TARGET."""
     order = named_sdkconfig_defaults(project / "CMakeLists.txt")
-    names = [name for base in order or ("sdkconfig.defaults",) for name in (base, f"{base}.{target}")]
-    found = {n: (project / n).read_bytes() for n in names if (project / n).is_file()}
+    found = {n: (project / n).read_bytes() for n in applied_defaults(target, order) if (project / n).is_file()}
     return firmware_transport(found, target, order)
 
 

@@ -534,7 +534,7 @@ def test_the_current_directory_as_the_shell_reached_it_keeps_its_links(tmp_path,
     (tmp_path / "link").symlink_to(tmp_path / "real")
     monkeypatch.chdir(tmp_path / "link")
     monkeypatch.setenv("PWD", str(tmp_path / "link"))
-    assert current_dir(as_shell=True) == tmp_path / "link"
+    assert current_dir(logical=True) == tmp_path / "link"
     assert current_dir() == tmp_path / "real"
     monkeypatch.setenv("PWD", str(tmp_path))  # stale: another directory than the current one
-    assert current_dir(as_shell=True) == tmp_path / "real"
+    assert current_dir(logical=True) == tmp_path / "real"

@@ -353,11 +353,12 @@ def flash(
     serial = parse_port(port)
     _baud_unused(serial, baud)
     plan, step = firmware_plan(ws, config, package)
-    if wifi_ssid is not None or agent is not None:
+    provisioning = any(option is not None for option in (wifi_ssid, agent, wifi_password_file, domain_id))
+    if provisioning:
         transport.check_provisionable(package, transport.project_transport(ws.root / step.project, step.target))
     firmware_dir = installed_firmware_dir(ws.ws_dir, package)
     flasher_args = read_flasher_args(firmware_dir, package)
-    if wifi_ssid is not None or agent is not None:
+    if provisioning:
         check_reads_settings(firmware_dir, package)
     settings = optional_network_settings(wifi_ssid, wifi_password_file, agent, domain, sys.stdin, _ask_password)
     nvs = nvs_partition(firmware_dir, flasher_args, package) if settings else None

@@ -63,12 +63,17 @@ def test_provisioning_a_serial_board_says_there_is_nothing_to_provision(tmp_path
         ("provision", "board", "--port", "/dev/ttyUSB0"),
         ("provision", "board", "--port", "/dev/ttyUSB0", "--wifi-ssid", "lab", "--agent", "10.0.0.2:8888"),
         ("flash", "board", "--port", "/dev/ttyUSB0", "--wifi-ssid", "lab", "--agent", "10.0.0.2:8888"),
+        # A domain alone is a provisioning setting too: it was answered with "needs both --wifi-ssid
+        # and --agent", which a serial board cannot take.
+        ("flash", "board", "--port", "/dev/ttyUSB0", "--domain-id", "3"),
+        ("flash", "board", "--port", "/dev/ttyUSB0", "--wifi-password-file", "-"),
     ):
         result = espdock(*argv, cwd=root, env=NO_ENGINE)
         assert result.returncode == 2, (argv, result.stderr)
         text = " ".join(result.stderr.split())
         assert "board reaches the micro-ROS agent over uart" in text and "nothing to provision" in text.lower()
         assert "espdock agent --port" in text
+        assert "CONFIG_ESPDOCK_ROS_DOMAIN_ID" in text, "where a serial board's domain is set"
 
 
 def test_provision_of_a_wifi_board_still_asks_for_its_settings(tmp_path):

@@ -714,15 +714,20 @@ def _lost_from_build_dir(path: str, build_dir: Path) -> bool:
     )
 
 
-def edited_since_built(workspace: Workspace, package: Package) -> str | None:
+def edited_since_built(
+    workspace: Workspace, package: Package, recorded: Mapping[str, object] | None = None, now: TreeState | None = None
+) -> str | None:
     """What `espdock run` runs of PACKAGE where its sources differ from those its last build
     recorded (a branch checked out, an edit), None where they do not or a symlink install runs
-    them as they are (an ament_python package's modules)."""
-    entry = StampFile(workspace.ws_dir / "build" / ROS_STAMPS, ROS_STAMP_FORMAT).read().get(package.name)
+    them as they are (an ament_python package's modules). RECORDED (the stamp file's content) and
+    NOW (the package's tree) where the caller has them already."""
+    if recorded is None:
+        recorded = StampFile(workspace.ws_dir / "build" / ROS_STAMPS, ROS_STAMP_FORMAT).read()
+    entry = recorded.get(package.name)
     tree = entry.get("tree") if isinstance(entry, dict) else None
     if not isinstance(tree, str):
         return None
-    if tree == (now := tree_state(package.path)).digest:
+    if tree == (now := now or tree_state(package.path)).digest:
         # A monorepo's shared header or CMake module (espdock.ros.cmake_inputs), compiled in.
         read = entry.get("outside") if isinstance(entry, dict) else None
         if isinstance(read, dict) and (changed := sorted(file_digests(workspace.root, read).items() - read.items())):
@@ -758,7 +763,7 @@ def stale_installs(workspace: Workspace, step: ColconBuild, packages: Iterable[P
     return [
         package.name
         for package in packages
-        if edited_since_built(workspace, package) is not None
+        if edited_since_built(workspace, package, recorded, found.trees.get(package.name)) is not None
         or (package.name in found.rebuild and own_tree_built(package.name))
     ]
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 import sys
+from contextlib import nullcontext
 from typing import Annotated
 
 import typer
@@ -11,7 +12,7 @@ import typer
 from espdock.cli.core import app, command, notify
 from espdock.errors import ImageBuildError
 from espdock.firmware.agent import DEFAULT_BAUD, DEFAULT_UDP_PORT, agent_spec
-from espdock.firmware.flashing import check_port, check_port_free, parse_port
+from espdock.firmware.flashing import check_port, parse_port, port_held
 from espdock.images import bootstrap
 from espdock.layout import MICRO_ROS_AGENT_IMAGE
 
@@ -43,12 +44,11 @@ def agent(
     if serial is not None:
         check_port(serial)
     engine = bootstrap.ensure_engine(os.environ, notify)
-    if serial is not None:
-        check_port_free(engine, serial)
-    if engine.image(image) is None and not engine.pull(image):
-        raise ImageBuildError(  # as a missing IDF image is
-            f"the agent image {image} is not here and could not be pulled",
-            f"Pull it where a registry is reachable (`docker pull {image}`), or give another with --image.",
-        )
-    code, stopped_by = engine.run_foreground(spec)
+    with port_held(engine, serial) if serial is not None else nullcontext():
+        if engine.image(image) is None and not engine.pull(image):
+            raise ImageBuildError(  # as a missing IDF image is
+                f"the agent image {image} is not here and could not be pulled",
+                f"Pull it where a registry is reachable (`docker pull {image}`), or give another with --image.",
+            )
+        code, stopped_by = engine.run_foreground(spec)
     raise typer.Exit(128 + stopped_by if stopped_by else code)

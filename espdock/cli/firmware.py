@@ -33,10 +33,10 @@ from espdock.firmware import transport
 from espdock.firmware.flashing import (
     Port,
     check_port,
-    check_port_free,
     flash_package,
     idf_port,
     parse_port,
+    port_held,
     port_of_env,
     read_flasher_args,
 )
@@ -130,13 +130,15 @@ def idf(
         check_port(serial)
     console.print(Text(f"in {step.image}: {format_argv(step.argv(tuple(args)))}", style="dim"))
     runner = runner_for(ws, config, Reporter(console))
-    if serial is not None:
-        check_port_free(runner.engine, serial)
-    runner.run(plan)
     if serial is None:
+        runner.run(plan)
         code = runner.firmware.run_passthrough(ws, step, tuple(args))
     else:
-        code = runner.firmware.run_passthrough(ws, step, tuple(args), devices=serial.devices, network=serial.network)
+        with port_held(runner.engine, serial):
+            runner.run(plan)
+            code = runner.firmware.run_passthrough(
+                ws, step, tuple(args), devices=serial.devices, network=serial.network
+            )
     if code == 0 and "save-defconfig" in args:
         project = ws.root / step.project
         overrides = chip_overrides(project, step.target, named_sdkconfig_defaults(project / "CMakeLists.txt"))
@@ -364,17 +366,17 @@ def flash(
     nvs = nvs_partition(firmware_dir, flasher_args, package) if settings else None
     check_port(serial)
     runner, step = _installed(ws, config, plan, step)
-    check_port_free(runner.engine, serial)
-    if settings is not None:
-        runner.firmware.check_library_port(ws, step, settings.agent_port)
-    say = lambda line: console.print(Text(line))  # noqa: E731
-    if settings is None or nvs is None:
-        flash_package(runner.firmware, ws, step, flasher_args, serial, baud, verify, say)
-    else:
-        with nvs_image(settings, nvs.size, runner.owner) as image:
-            flash_package(
-                runner.firmware, ws, step, flasher_args, serial, baud, verify, say, nvs_image=(nvs.offset, image)
-            )
+    with port_held(runner.engine, serial):
+        if settings is not None:
+            runner.firmware.check_library_port(ws, step, settings.agent_port)
+        say = lambda line: console.print(Text(line))  # noqa: E731
+        if settings is None or nvs is None:
+            flash_package(runner.firmware, ws, step, flasher_args, serial, baud, verify, say)
+        else:
+            with nvs_image(settings, nvs.size, runner.owner) as image:
+                flash_package(
+                    runner.firmware, ws, step, flasher_args, serial, baud, verify, say, nvs_image=(nvs.offset, image)
+                )
     what = f" with its network settings ({domain_said(settings)})" if settings else ""
     console.print(f"flashed {package}{what} through {port}" + (" and verified it" if verify else ""))
 
@@ -419,13 +421,13 @@ def provision(
     settings = network_settings(wifi_ssid, wifi_password_file, agent, domain, sys.stdin, _ask_password)
     check_port(serial)
     runner, step = _installed(ws, config, plan, step)
-    check_port_free(runner.engine, serial)
-    runner.firmware.check_library_port(ws, step, settings.agent_port)
-    with nvs_image(settings, nvs.size, runner.owner) as image:
-        flash_package(
-            runner.firmware, ws, step, flasher_args, serial, baud, False, lambda line: console.print(Text(line)),
-            nvs_image=(nvs.offset, image), app=False,
-        )  # fmt: skip
+    with port_held(runner.engine, serial):
+        runner.firmware.check_library_port(ws, step, settings.agent_port)
+        with nvs_image(settings, nvs.size, runner.owner) as image:
+            flash_package(
+                runner.firmware, ws, step, flasher_args, serial, baud, False, lambda line: console.print(Text(line)),
+                nvs_image=(nvs.offset, image), app=False,
+            )  # fmt: skip
     open_network = "" if settings.password else " (an open network: no password)"
     console.print(
         f"provisioned {package} through {port}: Wi-Fi {settings.ssid!r}{open_network}, agent {settings.agent_host}:"
@@ -458,6 +460,7 @@ def monitor(
             f"Run `espdock build {package}` first (flash works from the installed firmware without it).",
         )
     runner, step = _installed(ws, config, plan, step)
-    check_port_free(runner.engine, serial)
     argv = step.argv(("-p", port, "monitor"))
-    raise typer.Exit(runner.firmware.run_idf(ws, step, argv, devices=serial.devices, network=serial.network))
+    with port_held(runner.engine, serial):
+        code = runner.firmware.run_idf(ws, step, argv, devices=serial.devices, network=serial.network)
+    raise typer.Exit(code)

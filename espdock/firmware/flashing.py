@@ -11,7 +11,8 @@ import re
 import shlex
 import socket
 import stat
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from urllib.parse import urlsplit
@@ -22,7 +23,8 @@ from espdock.firmware import transport
 from espdock.firmware.plan import LONGCALLS_RISCV, IdfBuild
 from espdock.firmware.provision import IMAGE_MOUNT
 from espdock.firmware.steps import FirmwareSteps
-from espdock.images.engine import Engine, Mount, format_argv
+from espdock.images.engine import Engine, Mount, format_argv, port_url_key
+from espdock.images.machine_lock import machine_lock
 from espdock.images.visibility import workspace_mount
 from espdock.layout import firmware_install_dir, installed_firmware_dir
 from espdock.workspace import Workspace, component_targets
@@ -123,6 +125,38 @@ def check_port_free(engine: Engine, port: Port) -> None:
             f"serial port {port.spec} is busy: the container {users[0]} has it",
             "Stop that (Ctrl-C in its terminal, or `docker stop " + users[0] + "`), then run again.",
         )
+
+
+@contextmanager
+def port_held(engine: Engine, port: Port) -> Iterator[None]:
+    """Hold PORT for this command, among the espdock processes of this machine, and refuse it where
+    another espdock container has its device (check_port_free). The container check alone let two
+    flashes started together both pass, and a monitor start between one flash's containers (it
+    runs three): on a board, the two esptools' frames interleave."""
+
+    def busy(holder: str) -> None:
+        raise PortError(
+            f"serial port {port.spec} is busy: another espdock has it{holder}",
+            "Wait for it to end (a flash), or stop it (a monitor or an agent: Ctrl-C in its terminal), then run again.",
+        )
+
+    with machine_lock(_port_lock_name(port), busy):
+        check_port_free(engine, port)
+        yield
+
+
+def _port_lock_name(port: Port) -> str:
+    """One name for each device (its node, by whichever path: /dev/serial/by-id/... is a link) and
+    each serial server."""
+    if port.is_url:
+        key = port_url_key(port.spec) or port.spec
+    else:
+        try:
+            device = os.stat(port.spec).st_rdev
+            key = f"dev-{os.major(device)}-{os.minor(device)}"
+        except OSError:
+            key = port.spec
+    return "port-" + re.sub(r"[^A-Za-z0-9._-]", "_", key)
 
 
 def check_port(port: Port, timeout: float = 3.0) -> None:

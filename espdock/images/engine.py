@@ -1769,6 +1769,19 @@ def same_port_url(one: str, other: str) -> bool:
     return first is not None and second is not None and first[1] == second[1] and bool(first[0] & second[0])
 
 
+def port_url_key(url: str) -> str | None:
+    """A name for the serial server URL reaches, the same for every URL same_port_url takes for it
+    (on one machine's view of the names): this machine's loopback addresses are one."""
+    found = _endpoint(url)
+    if found is None:
+        return None
+    addresses, port = found
+    loopback = {"localhost", "127.0.0.1", "::1"}
+    if any(a in loopback or a.startswith("127.") for a in addresses):
+        return f"loopback-{port}"
+    return f"{'-'.join(sorted(addresses))}-{port}"
+
+
 def _endpoint(url: str) -> tuple[frozenset[str], int] | None:
     parts = urlsplit(url.strip())
     try:

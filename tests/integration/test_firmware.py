@@ -855,6 +855,34 @@ def test_ctrl_c_during_flash_ends_with_130_leaving_no_container_and_the_next_fla
         assert again.returncode == 0, again.stdout[-2000:] + again.stderr
 
 
+def test_a_second_flash_of_a_board_between_the_first_s_containers_is_refused(fw_ws, double_env, engine):
+    """A flash runs three containers (the chip probe, the write, the verify): a second flash of the
+    same board, its port written otherwise, that came between two of them passed the busy check
+    (no container had the port) and wrote the board while the first went on to write it too; on a
+    real board the two esptools' frames interleave. The first is held still (SIGSTOP) in such a gap."""
+    root, first = fw_ws
+    assert first.returncode == 0
+    with emulated_board("esp32") as port:
+        flashing = Started(root, "flash", "camera_node", "--port", port, env=double_env)
+        try:
+            flashing.wait_for("camera_node.bin", timeout=300)  # the write's command line: the probe is done
+            flashing.process.send_signal(signal.SIGSTOP)
+            deadline = time.monotonic() + 120
+            while engine.device_users([], port):  # the write's, where it had started: it runs on
+                assert time.monotonic() < deadline, "the first flash's container did not end"
+                time.sleep(0.2)
+            other = port.replace("127.0.0.1", "localhost") + "/"
+            second = espdock("flash", "camera_node", "--port", other, cwd=root, env=double_env)
+            said = " ".join(second.stderr.split())
+            assert second.returncode == 6, second.stdout[-2000:] + second.stderr
+            holder = f"(pid {flashing.process.pid}: espdock flash camera_node --port {port})"
+            assert f"serial port {other} is busy: another espdock has it {holder}" in said, said
+        finally:
+            flashing.process.send_signal(signal.SIGCONT)
+        assert flashing.process.wait(timeout=300) == 0, flashing.output()
+    assert leftover_containers(engine, root) == []
+
+
 def test_ctrl_c_during_idf_passthrough_ends_with_130_leaving_no_container(fw_ws, double_env, engine):
     """`espdock idf PKG -- ARGS` runs idf.py attached to espdock's streams: here `flash` through
     esptool, to the port given to idf.py (passed into the container), interrupted while it writes."""

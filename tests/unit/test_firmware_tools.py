@@ -17,6 +17,7 @@ from espdock.firmware.flashing import (
     flash_argv,
     idf_port,
     parse_port,
+    port_held,
     port_of_env,
     verify_argv,
     write_region_argv,
@@ -168,6 +169,44 @@ def test_busy_serial_port_is_reported():
     finally:
         for fd in (holder, device, controller):
             os.close(fd)
+
+
+class _NoContainers:
+    """An engine where no container has any device."""
+
+    def device_users(self, devices, url=None):
+        return []
+
+
+def test_a_port_another_espdock_holds_is_busy_by_whichever_name(tmp_path):
+    """One device by its /dev/serial/by-id-style link and by its node; one server by two URLs."""
+    import sys
+
+    controller, device = pty.openpty()
+    node = os.ttyname(device)
+    link = tmp_path / "usb-Espressif_board-if00"
+    link.symlink_to(node)
+    url = f"socket://127.0.0.1:{free_port()}"
+    holder = subprocess.Popen(
+        [sys.executable, "-c",
+         "import sys; from tests.unit.test_firmware_tools import _NoContainers; "
+         "from espdock.firmware.flashing import parse_port, port_held\n"
+         f"with port_held(_NoContainers(), parse_port({node!r})), port_held(_NoContainers(), parse_port({url!r})):\n"
+         "    print('held', flush=True); sys.stdin.read()"],
+        cwd=Path(__file__).parents[2], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    try:
+        assert holder.stdout is not None and holder.stdout.readline().strip() == "held"
+        for other in (str(link), url.replace("127.0.0.1", "localhost") + "/"):
+            with pytest.raises(PortError, match=f"busy: another espdock has it \\(pid {holder.pid}: "):
+                with port_held(_NoContainers(), parse_port(other)):
+                    pass
+    finally:
+        holder.communicate(timeout=30)
+        for fd in (device, controller):
+            os.close(fd)
+    with port_held(_NoContainers(), parse_port(str(link))):  # let go: free again
+        pass
 
 
 def test_a_pseudo_terminal_is_refused_with_the_network_way_to_serve_it(tmp_path):

@@ -46,6 +46,7 @@ from espdock.firmware.provision import (
     NetSettings,
     check_reads_settings,
     check_settings,
+    container_bridge,
     network_settings,
     nvs_image,
     nvs_partition,
@@ -305,6 +306,16 @@ DomainOption = Annotated[
 DEFAULT_BAUD = 460800
 
 
+def _warn_unreachable(settings: NetSettings) -> None:
+    """Warn of an agent address only containers reach (`hostname -I` lists docker0's first)."""
+    if (bridge := container_bridge(settings.agent_host)) is not None:
+        notify(
+            f"warning: agent host {settings.agent_host} is this machine's container bridge ({bridge}), which "
+            "containers reach and a board on Wi-Fi does not (the agent listens on the host's network): give the "
+            "machine's address on the board's network (`ip -4 addr`)"
+        )
+
+
 def _baud_unused(serial: Port, baud: int | None) -> None:
     """Say so where a baud rate asked for (--baud, ESPBAUD) goes unused: a raw socket has none."""
     if serial.spec.lower().startswith("socket://") and (baud != DEFAULT_BAUD or "ESPBAUD" in os.environ):
@@ -350,7 +361,7 @@ def flash(
     with --wifi-ssid and --agent, provision its network settings in the same run (see `provision`)."""
     domain = None if domain_id is None else parse_domain_id(domain_id)
     if wifi_ssid is not None and agent is not None:
-        check_settings(wifi_ssid, "", agent, domain)  # before anything else: no typo costs a wait
+        _warn_unreachable(check_settings(wifi_ssid, "", agent, domain))  # before anything else: no typo costs a wait
     ws, config = load(workspace)
     serial = parse_port(port)
     _baud_unused(serial, baud)
@@ -406,7 +417,7 @@ def provision(
     The password never appears on a command line (espdock's or esptool's), in the workspace or in an image."""
     domain = None if domain_id is None else parse_domain_id(domain_id)
     if wifi_ssid is not None and agent is not None:
-        check_settings(wifi_ssid, "", agent, domain)  # before anything else: no typo costs a wait
+        _warn_unreachable(check_settings(wifi_ssid, "", agent, domain))  # before anything else: no typo costs a wait
     ws, config = load(workspace)
     serial = parse_port(port)
     _baud_unused(serial, baud)

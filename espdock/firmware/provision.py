@@ -317,3 +317,27 @@ def nvs_image(settings: NetSettings, size: int, owner: tuple[int, int] | None = 
         yield image
     finally:
         shutil.rmtree(directory, ignore_errors=True)
+
+
+# Interfaces of this machine's container engines: docker0, a Compose network's br-<id>, Podman's.
+_BRIDGE_PREFIXES = ("docker", "br-", "podman", "cni-podman")
+_SIOCGIFADDR = 0x8915  # linux/sockios.h
+
+
+def container_bridge(host: str) -> str | None:
+    """The container bridge of this machine whose address HOST is (docker0, ...), None where it is
+    none's. Only containers reach such an address: a board on Wi-Fi does not."""
+    import fcntl
+    import socket
+
+    try:
+        names = [name for _, name in socket.if_nameindex() if name.startswith(_BRIDGE_PREFIXES)]
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
+            for name in names:
+                with contextlib.suppress(OSError):  # no IPv4 address, or gone meanwhile
+                    answer = fcntl.ioctl(probe.fileno(), _SIOCGIFADDR, struct.pack("256s", name.encode()[:15]))
+                    if socket.inet_ntoa(answer[20:24]) == host:
+                        return name
+    except (OSError, AttributeError):  # no interface list here (not Linux)
+        return None
+    return None

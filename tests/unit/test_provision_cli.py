@@ -119,3 +119,29 @@ def test_firmware_built_without_the_settings_component_is_not_provisioned(instal
     assert b"erase its NVS partition" in refused.stderr and b"Nothing was written" in refused.stderr
     # Firmware on the component goes on to the port (here one that answers nothing).
     assert b"does not read the settings" not in reading.stderr and b"127.0.0.1:1" in reading.stderr, reading.stderr
+
+
+@pytest.mark.parametrize("command", ["provision", "flash"])
+def test_an_agent_on_the_engine_s_bridge_is_warned_of(installed, command):
+    """`hostname -I` lists docker0's address among the machine's: given as the agent's, the board's
+    Wi-Fi traffic went nowhere, and nothing said so."""
+    import socket
+
+    from espdock.firmware.provision import container_bridge
+
+    shown = subprocess.run(["ip", "-4", "-o", "addr"], capture_output=True, text=True, check=False).stdout
+    addresses = {f[1]: f[3].split("/")[0] for f in (line.split() for line in shown.splitlines()) if len(f) > 3}
+    if "docker0" not in addresses:
+        pytest.skip("no docker0 on this machine (make test starts the engine first)")
+    bridge = addresses["docker0"]
+    assert container_bridge(bridge) == "docker0"
+    lans = [
+        a for name, a in addresses.items() if name != "lo" and not name.startswith(("docker", "br-", "podman", "cni-"))
+    ]
+    assert all(container_bridge(lan) is None for lan in lans)
+    assert container_bridge(socket.gethostbyname("localhost")) is None
+    result = run(installed, command, "camera_node", "-p", "/dev/nonexistent-port", "--wifi-ssid", "lab",
+                 "--agent", f"{bridge}:8888", "--wifi-password-file", "/dev/null")  # fmt: skip
+    said = b" ".join(result.stdout.split() + result.stderr.split()).decode()
+    assert f"warning: agent host {bridge} is this machine's container bridge (docker0)" in said, said
+    assert result.returncode == 6 and "does not exist" in said  # it goes on: a routed lab may reach it

@@ -1771,18 +1771,22 @@ def same_port_url(one: str, other: str) -> bool:
 
 def port_url_key(url: str) -> str | None:
     """A name for the serial server URL reaches, the same for every URL same_port_url takes for it
-    (on one machine's view of the names): this machine's loopback addresses are one."""
+    (on this machine's view of the names)."""
     found = _endpoint(url)
     if found is None:
         return None
     addresses, port = found
-    loopback = {"localhost", "127.0.0.1", "::1"}
-    if any(a in loopback or a.startswith("127.") for a in addresses):
-        return f"loopback-{port}"
     return f"{'-'.join(sorted(addresses))}-{port}"
 
 
+# What a client on this machine reaches as this machine: one name for all of them (a dual-stack
+# server on ::1 is the one on 127.0.0.1).
+_THIS_MACHINE = "loopback"
+
+
 def _endpoint(url: str) -> tuple[frozenset[str], int] | None:
+    import ipaddress
+
     parts = urlsplit(url.strip())
     try:
         port = parts.port
@@ -1791,10 +1795,19 @@ def _endpoint(url: str) -> tuple[frozenset[str], int] | None:
     host = parts.hostname
     if not host or port is None:
         return None
-    if host in ("0.0.0.0", "::"):  # a client connecting to "any address" reaches this machine
-        host = "localhost"
     try:
-        found = {str(info[4][0]) for info in socket.getaddrinfo(host, port, type=socket.SOCK_STREAM)}
+        found = {str(info[4][0]).partition("%")[0] for info in socket.getaddrinfo(host, port, type=socket.SOCK_STREAM)}
     except (OSError, UnicodeError):
         found = {host}
-    return frozenset(found), port
+    addresses = set()
+    for text in found:
+        try:
+            address = ipaddress.ip_address(text)
+        except ValueError:
+            addresses.add(text)
+            continue
+        if isinstance(address, ipaddress.IPv6Address) and address.ipv4_mapped is not None:
+            address = address.ipv4_mapped  # ::ffff:127.0.0.1 is 127.0.0.1
+        # A client connecting to "any address" (0, 0.0.0.0, ::) reaches this machine.
+        addresses.add(_THIS_MACHINE if address.is_loopback or address.is_unspecified else str(address))
+    return frozenset(addresses), port

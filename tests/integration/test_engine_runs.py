@@ -414,6 +414,10 @@ def test_a_serial_device_another_espdock_container_has_is_named_as_busy(way):
         assert way.device_users([], "socket://127.0.0.1:456") == []  # another port, a prefix of its
         # The same server written otherwise: as text, another one.
         assert way.device_users([], "socket://localhost:4567/") == [holder]
+        # This machine by its other names: IPv4-mapped, "any address", IPv6 loopback (a dual-stack
+        # server's): each went on to esptool's "could not tell which chip".
+        for same in ("socket://[::ffff:127.0.0.1]:4567", "socket://0:4567", "socket://[::1]:4567"):
+            assert way.device_users([], same) == [holder], same
     finally:
         subprocess.run(["docker", "rm", "--force", *made], capture_output=True, check=False)
 

@@ -771,7 +771,7 @@ def named_sdkconfig_defaults(cmakelists: Path) -> tuple[str, ...]:
             name = next((item.removeprefix(p) for p in _PROJECT_DIR_VARS if item.startswith(p)), item)
             if not name or "${" in name or name.startswith("/"):
                 return ()
-            names.append(name)
+            names.append(os.path.normpath(name))  # `./sdkconfig.defaults` is sdkconfig.defaults
     return tuple(names)
 
 

@@ -100,13 +100,15 @@ def idf(
         if "save-defconfig" in args:
             # IDF writes the chip's whole configuration, CONFIG_IDF_TARGET among it, into the file
             # every build of the package reads: the package then built for that chip for good.
+            # The files its builds read (IDF's __target_guess takes the chip from the first that names one).
+            read = named_sdkconfig_defaults(ws.root / step.project / "CMakeLists.txt") or ("sdkconfig.defaults",)
             raise ConfigError(
                 f"build/{package} is a one-off {chip} build (`espdock build --target {chip}`): save-defconfig would "
                 f'write its settings, CONFIG_IDF_TARGET="{chip}" among them, into {step.project}/sdkconfig.defaults, '
                 f"and every build of {package} would be for {chip} from then on",
-                f"Put the {chip} changes in {step.project}/sdkconfig.defaults.{chip} by hand; or `espdock build "
+                f"Put the {chip} changes in {step.project}/{read[-1]}.{chip} by hand; or `espdock build "
                 f'{package}` first, to save {step.target}\'s; or set CONFIG_IDF_TARGET="{chip}" in its '
-                "sdkconfig.defaults to make it the package's chip. Nothing was written.",
+                f"{read[0]} to make it the package's chip. Nothing was written.",
             )
         # Its build dir holds that chip's sdkconfig, which IDF refuses for another chip's IDF_TARGET
         # (and set-target would empty it): idf.py runs for that chip, as `flash` does.

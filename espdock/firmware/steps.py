@@ -35,7 +35,7 @@ from espdock.images.containers import Containers, give_to, make_dirs_for, volume
 from espdock.images.engine import KILLED, Mount, RunSpec
 from espdock.images.visibility import host_paths, links_out
 from espdock.layout import COLCON_RESULT_FILES, firmware_build_dir, host_path, install_prefix
-from espdock.workspace import Workspace, as_lines, editor_leftover, workspace_lock
+from espdock.workspace import Workspace, as_lines, editor_leftover, named_sdkconfig_defaults, workspace_lock
 
 TARGET_MARKER = ".espdock-target"
 
@@ -76,7 +76,7 @@ class FirmwareSteps:
             if replaced:  # the chip the build dir was for
                 why = f"{rel} was for {replaced}: made afresh for {step.target}, as IDF's set-target does"
             else:
-                files = " or ".join(path.name for path in _defaults_files(project, step.target))
+                files = " or ".join(name for name, _ in _defaults_files(project, step.target))
                 why = f"{step.project}/{files} changed: {rel}/sdkconfig is made afresh from it, as IDF would not"
             self.containers.emit(
                 StepNote(
@@ -715,25 +715,27 @@ def reset_build_dir(workspace: Workspace, step: IdfBuild) -> Path:
     return build_dir
 
 
-def _defaults_files(project: Path, target: str) -> list[Path]:
-    """The sdkconfig.defaults files of PROJECT that an IDF build for TARGET reads: sdkconfig.defaults
-    and its variants (a CMakeLists' SDKCONFIG_DEFAULTS may name any), but other chips' and an
-    editor's or patch's leftovers."""
+def _defaults_files(project: Path, target: str) -> list[tuple[str, Path]]:
+    """The defaults files of PROJECT that an IDF build for TARGET reads, by the names its CMakeLists
+    gives them: sdkconfig.defaults and its variants (but other chips' and an editor's or patch's
+    leftovers), and the other files its SDKCONFIG_DEFAULTS names (`sdkconfig.local`)."""
     others = {f"sdkconfig.defaults.{chip}" for chip in CHIP_TARGETS if chip != target}
-    return [
-        path
+    found = [
+        (path.name, path)
         for path in sorted(project.glob("sdkconfig.defaults*"))
         if path.is_file() and path.name not in others and not editor_leftover(path.name)
     ]
+    named = applied_defaults(target, named_sdkconfig_defaults(project / "CMakeLists.txt"))
+    return found + [(n, project / n) for n in named if (project / n).is_file() and n not in dict(found)]
 
 
 def _defaults_digest(project: Path, target: str) -> str:
-    """The digest of PROJECT's sdkconfig.defaults files for TARGET, whose change makes the
+    """The digest of the defaults files PROJECT's build for TARGET reads, whose change makes the
     sdkconfig afresh: of their settings, not of a checkout's line endings (Git for Windows'
     autocrlf, then WSL's git, rewrite every line and nothing else) or byte order mark."""
     digest = hashlib.sha256()
-    for path in _defaults_files(project, target):
-        digest.update(path.name.encode() + b"\0" + as_lines(path.read_bytes()))
+    for name, path in _defaults_files(project, target):
+        digest.update(name.encode() + b"\0" + as_lines(path.read_bytes()))
     return digest.hexdigest()[:16]
 
 

@@ -104,6 +104,41 @@ def test_only_the_defaults_files_a_build_for_the_chip_reads_decide_the_sdkconfig
     assert _defaults_digest(tmp_path, "esp32") != digest
 
 
+def test_a_defaults_file_the_cmakelists_names_decides_the_sdkconfig_too(tmp_path):
+    """`set(SDKCONFIG_DEFAULTS "sdkconfig.defaults;sdkconfig.local")`: an edit of sdkconfig.local
+    rebuilt the micro-ROS library with it, and the app's sdkconfig kept the old value, unsaid."""
+    (tmp_path / "sdkconfig.defaults").write_text("CONFIG_FREERTOS_HZ=1000\n")
+    (tmp_path / "sdkconfig.local").write_text("CONFIG_FREERTOS_HZ=250\n")
+    digest = _defaults_digest(tmp_path, "esp32")
+    (tmp_path / "CMakeLists.txt").write_text('set(SDKCONFIG_DEFAULTS "./sdkconfig.defaults;./sdkconfig.local")\n')
+    listed = _defaults_digest(tmp_path, "esp32")
+    assert listed != digest, "a file a build starts reading"
+    (tmp_path / "sdkconfig.local").write_text("CONFIG_FREERTOS_HZ=300\n")
+    assert _defaults_digest(tmp_path, "esp32") != listed
+    # A project that names none, or only sdkconfig.defaults files, keeps its digest (no afresh
+    # sdkconfig for it after an upgrade of espdock).
+    (tmp_path / "CMakeLists.txt").write_text('set(SDKCONFIG_DEFAULTS "sdkconfig.defaults")\n')
+    assert _defaults_digest(tmp_path, "esp32") == digest
+
+
+def test_save_defconfig_s_warning_reads_names_written_with_a_leading_dot_slash(tmp_path):
+    """`./sdkconfig.defaults;./sdkconfig.defaults.local`: save-defconfig said no build reads
+    sdkconfig.defaults, and not that the .local file overrides the change, which the next build lost."""
+    from espdock.firmware.steps import chip_overrides
+    from espdock.workspace import named_sdkconfig_defaults
+
+    (tmp_path / "CMakeLists.txt").write_text(
+        'set(SDKCONFIG_DEFAULTS "./sdkconfig.defaults;./sdkconfig.defaults.local")\n'
+    )
+    (tmp_path / "sdkconfig.defaults").write_text("CONFIG_SENSOR_PERIOD_MS=1200\n")
+    (tmp_path / "sdkconfig.defaults.local").write_text("CONFIG_SENSOR_PERIOD_MS=5\n")
+    order = named_sdkconfig_defaults(tmp_path / "CMakeLists.txt")
+    assert order == ("sdkconfig.defaults", "sdkconfig.defaults.local")
+    assert chip_overrides(tmp_path, "esp32", order) == [
+        "CONFIG_SENSOR_PERIOD_MS=5 (sdkconfig.defaults.local) over 1200"
+    ]
+
+
 def test_options_a_chip_s_defaults_file_sets_over_sdkconfig_defaults_are_named(tmp_path):
     """menuconfig, then `save-defconfig`: a change to an option sdkconfig.defaults.<chip> also sets
     went into sdkconfig.defaults, and the next sdkconfig made afresh had the chip file's value."""

@@ -1356,4 +1356,14 @@ def test_save_defconfig_of_a_one_off_chip_s_build_dir_is_refused_before_it_write
     said = " ".join(saved.stderr.split())
     assert saved.returncode == 2, saved.stdout + saved.stderr
     assert "build/led_strip_node is a one-off esp32s3 build" in said and "Nothing was written" in said, said
+    assert "in firmware/led_strip_node/sdkconfig.defaults.esp32s3 by hand" in said, said
     assert defaults.read_bytes() == before
+    # The files a CMakeLists' SDKCONFIG_DEFAULTS names are the ones to edit: the hint named two no
+    # build of it reads.
+    cmake = root / "firmware/led_strip_node/CMakeLists.txt"
+    cmake.write_text('set(SDKCONFIG_DEFAULTS "sdkconfig.defaults.local")\n' + cmake.read_text())
+    listed = espdock("idf", "led_strip_node", "--", "save-defconfig", cwd=root, env=NO_ENGINE)
+    said = " ".join(listed.stderr.split())
+    assert listed.returncode == 2, listed.stdout + listed.stderr
+    assert "in firmware/led_strip_node/sdkconfig.defaults.local.esp32s3 by hand" in said, said
+    assert 'CONFIG_IDF_TARGET="esp32s3" in its sdkconfig.defaults.local to make' in said, said

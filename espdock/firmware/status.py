@@ -2,15 +2,15 @@
 
 from __future__ import annotations
 
-import json
 from collections.abc import Mapping
 from datetime import UTC, datetime
 
-from espdock.build.steps import LABEL_INPUTS, ImageSpec
+from espdock.build.steps import ImageSpec
 from espdock.errors import EspdockError, WorkspaceError
 from espdock.firmware.pins import FOLLOW_HEAD, RESOLVED_FILE, Source, parse_resolved, parse_sources
 from espdock.firmware.plan import derive_interface_packages, spec_target
-from espdock.images.engine import Engine, ImageInfo, RunSpec
+from espdock.images.engine import Engine, RunSpec
+from espdock.images.keyed import closest_image
 from espdock.workspace import Package
 
 
@@ -89,21 +89,9 @@ def _image_report(engine: Engine, spec: ImageSpec, firmware: list[str], interfac
         report["age_seconds"] = int((datetime.now(UTC) - image.created).total_seconds())
         return report
     # No image for this key: say what changed since the closest image of this repository.
-    closest = _closest(engine.images(spec.repository), dict(spec.inputs))
+    closest = closest_image(engine.images(spec.repository), dict(spec.inputs))
     if closest is not None:
         image, changed = closest
         report["closest_image"] = image.tags[0] if image.tags else image.id
         report["changed_inputs"] = changed
     return report
-
-
-def _closest(images: list[ImageInfo], current: dict[str, str]) -> tuple[ImageInfo, list[str]] | None:
-    """The image whose inputs differ from CURRENT in the fewest names (newest on a tie)."""
-    best = None
-    for image in images:
-        previous = json.loads(image.labels.get(LABEL_INPUTS, "{}"))
-        changed = sorted(n for n in set(previous) | set(current) if previous.get(n) != current.get(n))
-        rank = (len(changed), -image.created.timestamp())
-        if best is None or rank < best[0]:
-            best = (rank, image, changed)
-    return None if best is None else (best[1], best[2])

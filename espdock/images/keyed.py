@@ -4,6 +4,7 @@ else built (and pushed there with --push-cache); each one's Debian package set r
 from __future__ import annotations
 
 import hashlib
+import json
 import re
 import shutil
 from collections.abc import Iterator, Mapping
@@ -13,6 +14,7 @@ from pathlib import Path
 
 from espdock import scratch
 from espdock.build.steps import (
+    LABEL_INPUTS,
     LABEL_KEY,
     LABEL_WORKSPACE,
     EnsureBaseImage,
@@ -136,9 +138,9 @@ class KeyedImages:
         spec = step.spec
         if not step.force and self._pull_from_cache(step):
             return Outcome.PULLED, f"{spec.tag} from {self.containers.config.cache_registry}"
-        why = "rebuild requested" if step.force else "cache miss"
+        why, since = ("rebuild requested", "") if step.force else ("cache miss", self._changed_since(spec))
         self.containers.emit(
-            StepNote(step.name, f"{spec.tag}: {why} (key {spec.key[:16]}), building stage {spec.target}")
+            StepNote(step.name, f"{spec.tag}: {why} (key {spec.key[:16]}{since}), building stage {spec.target}")
         )
         bootstrap.ensure_compose(self.containers.env, lambda text: self.containers.emit(StepNote(step.name, text)))
 
@@ -165,6 +167,16 @@ class KeyedImages:
             self._drop_replaced(step, existing)
         self._publish(step)
         return Outcome.BUILT, spec.tag
+
+    def _changed_since(self, spec: ImageSpec) -> str:
+        """What changed since the closest image of SPEC's repository (an upgrade of espdock changes
+        its own Dockerfiles and scripts: a bare "cache miss" left the user to wonder what they did)."""
+        closest = closest_image(self.containers.engine.images(spec.repository), dict(spec.inputs))
+        if closest is None or not closest[1]:
+            return ""
+        image, changed = closest
+        shown = ", ".join(changed[:4]) + (f" and {len(changed) - 4} more" if len(changed) > 4 else "")
+        return f"; since {image.tags[0] if image.tags else image.id[:19]}: {shown} changed"
 
     def _drop_replaced(self, step: EnsureImage, replaced: ImageInfo) -> None:
         """Remove REPLACED, the image STEP's tag named before this build, unless it still has a
@@ -330,3 +342,15 @@ def image_mode(st_mode: int) -> int:
     owner may execute it. A umask of 077 left the install tree's files 0600 (setuptools keeps the
     sources' modes), which the runtime image's user, not their owner there, could not read."""
     return 0o755 if st_mode & 0o100 else 0o644
+
+
+def closest_image(images: list[ImageInfo], current: dict[str, str]) -> tuple[ImageInfo, list[str]] | None:
+    """The image whose inputs differ from CURRENT in the fewest names (newest on a tie)."""
+    best = None
+    for image in images:
+        previous = json.loads(image.labels.get(LABEL_INPUTS, "{}"))
+        changed = sorted(n for n in set(previous) | set(current) if previous.get(n) != current.get(n))
+        rank = (len(changed), -image.created.timestamp())
+        if best is None or rank < best[0]:
+            best = (rank, image, changed)
+    return None if best is None else (best[1], best[2])

@@ -209,7 +209,11 @@ def test_changed_image_input_rebuilds_under_a_new_tag(engine, built):
         assert engine.image(new_tag) is None
         result = espdock("build", cwd=root)
         assert result.returncode == 0, result.stdout + result.stderr
-        assert "cache miss" in result.stdout
+        # Since which image, and what changed: a bare "cache miss" after an upgrade of espdock (its
+        # own Dockerfiles and scripts changed) left the user wondering what they had done.
+        said = " ".join(result.stdout.split())
+        assert f"{new_tag}: cache miss" in said and "Dockerfile.ros changed)" in said, said
+        assert re.search(r"cache miss \(key \w+; since espdock/ros-jazzy-build:\w+: Dockerfile.ros changed\)", said)
         info = engine.image(new_tag)
         assert info is not None and info.labels["io.espdock.key"].startswith(new_tag.split(":")[1])
     finally:

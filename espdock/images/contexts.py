@@ -54,6 +54,35 @@ def selected(env: Mapping[str, str]) -> tuple[str, str] | None:
     return None if chosen[0] == DEFAULT else chosen
 
 
+# The Docker CLI's `proxies` fields (config.json) and the variables `docker run` and `docker build`
+# set from them (docker/cli's ParseProxyConfig), each in upper and lower case.
+_PROXY_FIELDS = (
+    ("httpProxy", "HTTP_PROXY"),
+    ("httpsProxy", "HTTPS_PROXY"),
+    ("noProxy", "NO_PROXY"),
+    ("ftpProxy", "FTP_PROXY"),
+    ("allProxy", "ALL_PROXY"),
+)
+
+
+def run_proxies(env: Mapping[str, str], host: str) -> dict[str, str]:
+    """The proxy variables `docker run` gives a container on the engine at HOST: the CLI config's
+    `proxies` entry for HOST, else its "default" one. Not the shell's HTTP_PROXY, which the CLI
+    does not pass either (a proxy on the host's 127.0.0.1 is no proxy inside a container)."""
+    try:
+        proxies = json.loads((config_dir(env) / "config.json").read_text()).get("proxies")
+    except (OSError, ValueError, AttributeError):
+        return {}
+    chosen = proxies.get(host if host in proxies else DEFAULT) if isinstance(proxies, dict) else None
+    if not isinstance(chosen, dict):
+        return {}
+    found = {}
+    for field, variable in _PROXY_FIELDS:
+        if isinstance(value := chosen.get(field), str) and value:
+            found[variable] = found[variable.lower()] = value
+    return found
+
+
 # The Docker CLI's settings for its user's own commands that espdock's calls (its image builds, its
 # containers) must not take: its images are built for the engine's platform and run from local
 # tags. DOCKER_DEFAULT_PLATFORM (an Apple silicon habit) ran them as another platform ("Unable to

@@ -71,9 +71,12 @@ LABEL_OWNER = "io.espdock.owner"
 LABEL_KEPT = "io.espdock.kept"
 
 
-def _create_config(spec: RunSpec, labels: Mapping[str, str], host_users: bool = False) -> dict[str, Any]:
+def _create_config(
+    spec: RunSpec, labels: Mapping[str, str], host_users: bool = False, proxies: Mapping[str, str] | None = None
+) -> dict[str, Any]:
     """The engine API's configuration of a container for SPEC with LABELS (POST /containers/create),
-    detached: nothing attaches at creation, Engine.run_attached's `docker start --attach` later."""
+    detached: nothing attaches at creation, Engine.run_attached's `docker start --attach` later.
+    PROXIES: the proxy variables `docker run` would add where SPEC sets none of that name."""
     host: dict[str, Any] = {
         # Mounts, not Binds: a Binds entry is split at its colons, so a workspace under
         # /home/me/ws:old could not be mounted ("invalid volume specification").
@@ -97,7 +100,8 @@ def _create_config(spec: RunSpec, labels: Mapping[str, str], host_users: bool = 
         "Image": spec.image,
         "Cmd": list(spec.argv),
         "WorkingDir": spec.workdir,
-        "Env": [f"{key}={value}" for key, value in spec.env],
+        "Env": [f"{key}={value}" for key, value in spec.env]
+        + [f"{key}={value}" for key, value in (proxies or {}).items() if key not in dict(spec.env)],
         "Labels": dict(labels),
         "Tty": spec.tty,
         "OpenStdin": spec.tty,
@@ -252,6 +256,7 @@ class Engine:
         self._plain = self._socket is not None and client is None
         self._info: EngineInfo | None = None
         self._podman: bool | None = None  # known from /_ping's answer
+        self._proxies: dict[str, str] | None = None  # read when the first container is made
 
     @property
     def host(self) -> str:
@@ -951,7 +956,11 @@ class Engine:
 
     def _create(self, spec: RunSpec, labels: Mapping[str, str]) -> Any:
         """A container for SPEC with LABELS: over plain HTTP on a local socket, else through the SDK."""
-        config = _create_config(spec, labels, self._host_users(spec))
+        if self._proxies is None:
+            # As `docker run` adds them: the IDF component manager's downloads, a vendor package's
+            # fetch at configure time, pip in a colcon build; never in a key, a stamp or an image.
+            self._proxies = contexts.run_proxies(self._env, self.host)
+        config = _create_config(spec, labels, self._host_users(spec), self._proxies)
         if self._plain:
             return local_api.LocalContainer.create(
                 self._socket, max(self._timeout, OPERATION_TIMEOUT), spec.name, config

@@ -113,6 +113,34 @@ def test_output_comes_line_by_line_with_the_exit_code_and_no_container_stays(way
     assert way.containers(dict(run.labels)) == []
 
 
+def test_a_step_container_gets_the_proxies_of_the_cli_config_as_docker_run_gives_them(way, tmp_path):
+    """Behind a proxy named in the CLI's config (`proxies`, as Docker documents), `docker run` and
+    image builds had it and espdock's step containers did not: the IDF component manager's
+    downloads, a vendor package's fetch at configure time went direct, where only the proxy leads."""
+    config = tmp_path / "docker-config"
+    config.mkdir()
+    proxies = {
+        "default": {"httpProxy": "http://alice:pw@proxy.example:3128", "noProxy": "localhost,.corp.example"},
+        way.host: {"httpsProxy": "http://engine-own.example:3129"},  # this engine's own entry wins
+    }
+    (config / "config.json").write_text(json.dumps({"proxies": proxies}))
+    engine = Engine.connect({**way._env, "DOCKER_CONFIG": str(config)})
+    lines: list[str] = []
+    run = spec(["sh", "-c", "env | grep -i _proxy= | sort"], env=(("no_proxy", "set.by.the.step"),))
+    assert engine.run(run, lines.append) == 0
+    assert lines == ["HTTPS_PROXY=http://engine-own.example:3129", "https_proxy=http://engine-own.example:3129",
+                     "no_proxy=set.by.the.step"], lines  # fmt: skip
+    del proxies[way.host]
+    (config / "config.json").write_text(json.dumps({"proxies": proxies}))
+    lines.clear()
+    assert (
+        Engine.connect({**way._env, "DOCKER_CONFIG": str(config)}).run(spec(["sh", "-c", "env | sort"]), lines.append)
+        == 0
+    )
+    assert {"HTTP_PROXY=http://alice:pw@proxy.example:3128", "http_proxy=http://alice:pw@proxy.example:3128",
+            "NO_PROXY=localhost,.corp.example", "no_proxy=localhost,.corp.example"} <= set(lines), lines  # fmt: skip
+
+
 def test_files_go_in_before_the_start_and_come_out_after_the_end(way, tmp_path):
     archive = io.BytesIO()
     with tarfile.open(fileobj=archive, mode="w") as tar:

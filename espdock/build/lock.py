@@ -285,12 +285,12 @@ def lock_rosdeps(
     if not needed and not tests and not target.is_file():
         return "not needed (the image provides every dependency)", "", None
     notify(RESOLVING)
+    ca = resolve_ca_bundle(config, env)
     if (needed or tests) and refresh:
-        rosdeps.update_database(env, image.distro, root)
+        rosdeps.update_database(env, image.distro, root, ca)
     from espdock.images.keyed import age_text
 
     system = official_python(config, inputs, env) if image.flavour == "official" else None
-    ca = resolve_ca_bundle(config, env)
     lock = rosdeps.resolve_workspace(packages, image, root, env, uv_binary(), system, ca)
     if tests:  # apart from the build's: only `espdock test` installs them
         lock[testdeps.SECTION] = testdeps.resolve(packages, image, root, env, uv_binary(), system, ca)

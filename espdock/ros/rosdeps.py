@@ -15,6 +15,7 @@ lock must be made.
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import os
@@ -23,7 +24,7 @@ import shutil
 import subprocess
 import time
 import warnings
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -292,10 +293,14 @@ def database_sources(env: Mapping[str, str], root: Path | None = None) -> list[s
     return [*found, f"rosdistro index {env.get('ROSDISTRO_INDEX_URL') or get_index_url()}"]
 
 
-def update_database(env: Mapping[str, str], distro: str, root: Path | None = None) -> Path:
+def update_database(
+    env: Mapping[str, str], distro: str, root: Path | None = None, ca_bundle: Path | None = None
+) -> Path:
     """`rosdep update` into espdock's cache: rosdep's sources (ROSDEP_SOURCE_PATH, else
     /etc/ros/rosdep/sources.list.d, else rosdep's default list) and the rosdistro index's
-    distribution (ROSDISTRO_INDEX_URL), as rosdep itself reads them."""
+    distribution (ROSDISTRO_INDEX_URL), as rosdep itself reads them. CA_BUNDLE: as for uv
+    (uv_env): rosdep's urllib checks against the system's CAs alone, which behind a TLS-intercepting
+    proxy hold not the proxy's."""
     from rosdep2.rosdistrohelper import PreRep137Warning
     from rosdep2.sources_list import get_sources_list_dir, update_sources_list
 
@@ -307,7 +312,7 @@ def update_database(env: Mapping[str, str], distro: str, root: Path | None = Non
         (sources / "20-default.list").write_text(DEFAULT_SOURCES)
     failed: list[str] = []
     try:
-        with warnings.catch_warnings():
+        with warnings.catch_warnings(), _cert_file(ca_bundle):
             # The default list's gbpdistro source warns on every update, as `rosdep update` itself silences.
             warnings.filterwarnings("ignore", category=PreRep137Warning)
             update_sources_list(
@@ -320,18 +325,56 @@ def update_database(env: Mapping[str, str], distro: str, root: Path | None = Non
     except Exception as exc:  # rosdep raises many kinds (URLError, InvalidData, ValueError)
         raise DatabaseUnreachable(
             f"`rosdep update` failed: {exc}",
-            "rosdep's database comes from GitHub (or ROSDEP_SOURCE_PATH / ROSDISTRO_INDEX_URL): reach it, then "
+            _network_hint(str(exc), env)
+            or "rosdep's database comes from GitHub (or ROSDEP_SOURCE_PATH / ROSDISTRO_INDEX_URL): reach it, then "
             + FIX
             + ".",
         ) from exc
     if failed:
         raise DatabaseUnreachable(
-            "`rosdep update` could not read: " + "; ".join(failed), f"Fix the sources, then {FIX}."
+            "`rosdep update` could not read: " + "; ".join(failed),
+            _network_hint(" ".join(failed), env) or f"Fix the sources, then {FIX}.",
         )
     if root is not None:
         (cache / "root").write_text(str(Path(root).resolve()))
         _remove_gone_databases(cache_dir(env))
     return cache
+
+
+@contextlib.contextmanager
+def _cert_file(ca_bundle: Path | None) -> Iterator[None]:
+    """SSL_CERT_FILE, for this process's default TLS contexts (rosdep's urlopen), set to the CAs it
+    names (else the system's) and CA_BUNDLE's while the block runs."""
+    if ca_bundle is None:
+        yield
+        return
+    before = os.environ.get("SSL_CERT_FILE")
+    with scratch.scratch_dir("espdock-ca-") as tmp:
+        os.environ["SSL_CERT_FILE"] = str(with_system_cas(ca_bundle, tmp, before))
+        try:
+            yield
+        finally:
+            if before is None:
+                os.environ.pop("SSL_CERT_FILE", None)
+            else:
+                os.environ["SSL_CERT_FILE"] = before
+
+
+def _network_hint(error: str, env: Mapping[str, str]) -> str | None:
+    """What to do about ERROR (rosdep's words for a download that failed) where it names a
+    certificate no CA here vouches for, or where a proxy of ENV's stood between."""
+    if "CERTIFICATE_VERIFY_FAILED" in error:
+        return (
+            "This machine does not trust the server's certificate: behind a TLS-intercepting proxy, give its CA "
+            f"(ca_bundle in espdock.toml, or ESPDOCK_CA_BUNDLE), then {FIX}."
+        )
+    proxy = next((env[name] for name in ("HTTPS_PROXY", "https_proxy", "ALL_PROXY", "all_proxy") if env.get(name)), "")
+    if proxy and re.search(r"(?i)refused|timed out|unreachable|tunnel|proxy|\b40[37]\b", error):
+        from urllib.parse import urlsplit
+
+        where = urlsplit(proxy if "://" in proxy else f"http://{proxy}").netloc.rpartition("@")[2]  # no password
+        return f"rosdep went through the proxy at {where}: check that it is up and lets GitHub through, then {FIX}."
+    return None
 
 
 def _remove_gone_databases(base: Path) -> None:
@@ -371,7 +414,12 @@ def _pip_packages(data: object) -> tuple[str, ...]:
 
 
 def rosdep_rules(
-    keys: Iterable[str], os_spec: str, distro: str, env: Mapping[str, str], root: Path | None = None
+    keys: Iterable[str],
+    os_spec: str,
+    distro: str,
+    env: Mapping[str, str],
+    root: Path | None = None,
+    ca_bundle: Path | None = None,
 ) -> dict[str, Rule]:
     """rosdep's answer for each key on OS_SPEC ("debian:bookworm"), as `rosdep resolve` gives it."""
     from rosdep2 import create_default_installer_context
@@ -382,7 +430,7 @@ def rosdep_rules(
     os_name, os_version = os_spec.split(":", 1)
     cache = cache_dir(env, root) / "sources.cache"
     if not (cache / "index").is_file():
-        update_database(env, distro, root)
+        update_database(env, distro, root, ca_bundle)
     matcher = DataSourceMatcher([distro, os_name, os_version])
     loader = SourcesListLoader.create_default(matcher=matcher, sources_cache_dir=str(cache))
     lookup = RosdepLookup.create_from_rospkg(sources_loader=loader)
@@ -470,15 +518,23 @@ def uv_env(tmp: Path, ca_bundle: Path | None = None) -> dict[str, str]:
     ca_bundle, else pip's configured cert), which uv reads from no pip.conf: with the system's
     CAs, its SSL_CERT_FILE, unless the user set one."""
     env = {**os.environ, "TMPDIR": str(tmp)}
-    if ca_bundle is not None and not env.get("SSL_CERT_FILE"):
-        import ssl
-
-        paths = ssl.get_default_verify_paths()
-        system = next((Path(p) for p in (paths.cafile, paths.openssl_cafile) if p and Path(p).is_file()), None)
-        combined = tmp / "espdock-ca.pem"
-        combined.write_bytes((system.read_bytes() + b"\n" if system else b"") + ca_bundle.read_bytes())
-        env["SSL_CERT_FILE"] = str(combined)
+    if ca_bundle is not None:
+        env["SSL_CERT_FILE"] = str(with_system_cas(ca_bundle, tmp, env.get("SSL_CERT_FILE")))
     return env
+
+
+def with_system_cas(ca_bundle: Path, tmp: Path, own: str | None = None) -> Path:
+    """A file in TMP holding the CAs of OWN (the user's SSL_CERT_FILE), else the system's, and
+    CA_BUNDLE's: SSL_CERT_FILE replaces the former. An SSL_CERT_FILE naming the system's bundle
+    (CI images set one) left the proxy's CA out."""
+    import ssl
+
+    paths = ssl.get_default_verify_paths()
+    found = (own, paths.cafile, paths.openssl_cafile, "/etc/ssl/certs/ca-certificates.crt")
+    base = next((Path(p) for p in found if p and Path(p).is_file()), None)
+    combined = tmp / "espdock-ca.pem"
+    combined.write_bytes((base.read_bytes() + b"\n" if base else b"") + ca_bundle.read_bytes())
+    return combined
 
 
 def pip_lock_lines(
@@ -563,7 +619,7 @@ def resolve_workspace(
     them (CA_BUNDLE: see uv_env)."""
     needed = needed_keys(packages, image)
     keys = sorted({k for ks in needed.values() for k in ks})
-    rules = rosdep_rules([*keys, *pip_alternatives(keys)], image.os, image.distro, env, root) if keys else {}
+    rules = rosdep_rules([*keys, *pip_alternatives(keys)], image.os, image.distro, env, root, ca_bundle) if keys else {}
     pip_rules = {k: rules[alt] for k in keys for alt in pip_alternatives([k]) if rules.get(alt, Rule(None)).installer}
     mapped = for_image({k: rules[k] for k in keys}, image, pip_rules)
     pip_wanted = [p for rule in mapped.values() if rule.installer == "pip" for p in rule.packages]

@@ -10,7 +10,6 @@ import io
 import json
 import os
 import shutil
-import ssl
 import stat
 import subprocess
 import sys
@@ -33,6 +32,7 @@ from espdock.scratch import owner_identity
 from tests.conftest import REPO
 from tests.integration.test_engines import TcpForwarder
 from tests.integration.test_faults import PrivateEngine, drop_private_engine, private_home
+from tests.tls import make_certificates
 
 pytestmark = [pytest.mark.engine]
 
@@ -42,36 +42,6 @@ KEYED = "io.espdock.key"  # the label every keyed image carries (what `espdock p
 
 def local_socket() -> str:
     return (os.environ.get("DOCKER_HOST") or f"unix://{DEFAULT_SOCKET}").removeprefix("unix://")
-
-
-def make_certificates(home: Path, client: bool = True) -> ssl.SSLContext:
-    """A CA, the engine's certificate for 127.0.0.1 and a client's in HOME/client (ca.pem,
-    cert.pem, key.pem: what DOCKER_CERT_PATH names, as a docker:dind service makes them), by
-    openssl; the engine's server context, which asks for a client certificate of that CA.
-    Without CLIENT: HOME/client holds only ca.pem, and the engine asks for no certificate."""
-
-    def openssl(*args: str) -> None:
-        subprocess.run(["openssl", *args], cwd=home, capture_output=True, check=True)
-
-    (home / "client").mkdir()
-    openssl("req", "-x509", "-newkey", "rsa:2048", "-nodes", "-keyout", "ca-key.pem", "-out", "ca.pem",
-            "-days", "1", "-subj", "/CN=espdock test CA")  # fmt: skip
-    for name, usage, key in (("server", "serverAuth", "server-key.pem"), ("client", "clientAuth", "client/key.pem")):
-        (home / f"{name}.ext").write_text(f"extendedKeyUsage={usage}\nsubjectAltName=IP:127.0.0.1\n")
-        openssl("req", "-newkey", "rsa:2048", "-nodes", "-keyout", key, "-out", f"{name}.csr", "-subj", f"/CN={name}")
-        cert = "server.pem" if name == "server" else "client/cert.pem"
-        openssl("x509", "-req", "-in", f"{name}.csr", "-CA", "ca.pem", "-CAkey", "ca-key.pem", "-CAcreateserial",
-                "-out", cert, "-days", "1", "-extfile", f"{name}.ext")  # fmt: skip
-    shutil.copy(home / "ca.pem", home / "client/ca.pem")
-    context = ssl.SSLContext(ssl.PROTOCOL_TLS_SERVER)
-    context.load_cert_chain(home / "server.pem", home / "server-key.pem")
-    context.load_verify_locations(home / "ca.pem")
-    context.verify_mode = ssl.CERT_REQUIRED
-    if not client:
-        (home / "client/cert.pem").unlink()
-        (home / "client/key.pem").unlink()
-        context.verify_mode = ssl.CERT_NONE
-    return context
 
 
 @pytest.fixture(scope="module", params=["local socket", "tcp", "tls"])

@@ -438,3 +438,42 @@ def test_offline_espdock_test_goes_on_with_the_lock_as_it_is_where_it_answers(tm
     assert "tested_py: ament_flake8," in said and "older" not in said
     # Said once: not first that "the packages built need nothing more from rosdep", nor that tested_py could be tested.
     assert "need nothing more from rosdep" not in said and "Meanwhile" not in said
+
+
+def test_rosdep_s_sources_behind_a_tls_intercepting_proxy_are_read_with_the_ca_bundle(tmp_path):
+    """The company's proxy re-signs GitHub with its own CA, which ca_bundle (ESPDOCK_CA_BUNDLE)
+    names as the docs say: uv took it, and `rosdep update` did not (its urllib checks against the
+    system's CAs), so `espdock lock` failed every time, its hint saying "reach it". Here an HTTPS
+    server of a CA no system store holds serves the tests' database, as such a proxy would."""
+    import functools
+    import http.server
+    import threading
+
+    from tests.rosdep_db import HERE
+    from tests.tls import make_certificates
+
+    context = make_certificates(tmp_path, client=False)
+    handler = functools.partial(http.server.SimpleHTTPRequestHandler, directory=str(HERE))
+    server = http.server.ThreadingHTTPServer(("127.0.0.1", 0), handler)
+    server.socket = context.wrap_socket(server.socket, server_side=True)
+    threading.Thread(target=server.serve_forever, daemon=True).start()
+    try:
+        url = f"https://127.0.0.1:{server.server_address[1]}"
+        env = environment(tmp_path)
+        (Path(env["ROSDEP_SOURCE_PATH"]) / "50-espdock-tests.list").write_text(
+            f"yaml {url}/base.yaml\nyaml {url}/python.yaml\n"
+        )
+        env["ROSDISTRO_INDEX_URL"] = f"{url}/rosdistro/index-v4.yaml"
+        root = make_workspace(tmp_path / "w", "rosdeps_xml_count")
+        untrusted = espdock("lock", cwd=root, env={**NO_ENGINE, **env})
+        said = " ".join(untrusted.stderr.split())
+        assert untrusted.returncode == 2 and "CERTIFICATE_VERIFY_FAILED" in said, said
+        assert "give its CA (ca_bundle in espdock.toml, or ESPDOCK_CA_BUNDLE)" in said, said
+        trusted = espdock(
+            "lock", cwd=root, env={**NO_ENGINE, **env, "ESPDOCK_CA_BUNDLE": str(tmp_path / "client/ca.pem")}
+        )
+        assert trusted.returncode == 0, trusted.stdout + trusted.stderr
+        assert "tinyxml2" in (root / "rosdep.lock.json").read_text()
+    finally:
+        server.shutdown()
+        server.server_close()

@@ -91,8 +91,28 @@ def client(env: Mapping[str, str], timeout: float) -> Any:
         host = env.get("DOCKER_HOST") or None
         made = docker.DockerClient(base_url=host, tls=_tls(env) or False, timeout=timeout, version=minimum)
         _keep_engine_ca(made.api)  # TLS: an ssh engine has none
+        if _loopback(host):
+            # requests took HTTP_PROXY for it (NO_PROXY matching only the very name), and the proxy
+            # answered "403 Forbidden" for the engine; Go's proxy rules, `docker`'s, never proxy loopback.
+            made.api.trust_env = False
     made.api._version = made.api._retrieve_server_version()  # what version="auto" does
     return made
+
+
+def _loopback(host: str | None) -> bool:
+    """Whether the engine address HOST (tcp://H:P) is this machine's loopback."""
+    import ipaddress
+    from urllib.parse import urlsplit
+
+    if not host or not host.startswith(("tcp://", "http://", "https://")):
+        return False
+    name = urlsplit(host).hostname or ""
+    if name == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(name).is_loopback
+    except ValueError:
+        return False
 
 
 def _tls(env: Mapping[str, str]) -> Any | None:

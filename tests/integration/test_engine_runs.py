@@ -10,6 +10,7 @@ import io
 import json
 import os
 import shutil
+import socket
 import stat
 import subprocess
 import sys
@@ -109,6 +110,22 @@ def test_a_step_container_gets_the_proxies_of_the_cli_config_as_docker_run_gives
     )
     assert {"HTTP_PROXY=http://alice:pw@proxy.example:3128", "http_proxy=http://alice:pw@proxy.example:3128",
             "NO_PROXY=localhost,.corp.example", "no_proxy=localhost,.corp.example"} <= set(lines), lines  # fmt: skip
+
+
+def test_an_engine_on_loopback_is_reached_past_the_shell_s_proxy(way, monkeypatch):
+    """HTTP_PROXY in the shell (a company's) and an engine on tcp://127.0.0.1 (Docker Desktop's
+    from WSL, a forwarded socket): espdock asked the proxy for the engine ("403 Forbidden", or two
+    minutes of nothing), and said no engine answers where `docker` reached it; Go's rules, the
+    CLI's, never proxy loopback."""
+    with socket.socket() as closed:
+        closed.bind(("127.0.0.1", 0))
+        dead = f"http://127.0.0.1:{closed.getsockname()[1]}"  # nothing listens: a proxy that is down
+    for name in ("HTTP_PROXY", "HTTPS_PROXY", "http_proxy", "https_proxy"):
+        monkeypatch.setenv(name, dead)
+    monkeypatch.setenv("NO_PROXY", "localhost")  # not the address: as requests matches it, no help
+    lines: list[str] = []
+    assert Engine.connect(way._env).run(spec(["echo", "reached"]), lines.append) == 0
+    assert lines == ["reached"]
 
 
 def test_files_go_in_before_the_start_and_come_out_after_the_end(way, tmp_path):

@@ -770,7 +770,7 @@ class Engine:
             shown = [line if len(line) <= 300 else f"{line[:300]} ..." for line in tail]
             raise ImageBuildError(
                 f"building {build.tag} from {build.dockerfile} (stage {build.target}) failed:\n" + "\n".join(shown),
-                _buildkit_hint(tail, offline.line),
+                _buildkit_hint(tail, offline.line, contexts.run_proxies(self._env, self.host)),
             )
 
     def data_root(self) -> str:
@@ -1477,9 +1477,9 @@ def _network_hint(line: str | None, proxies: str = CLI_PROXIES) -> str | None:
     )
 
 
-def _buildkit_hint(tail: Sequence[str], offline: str | None = None) -> str:
+def _buildkit_hint(tail: Sequence[str], offline: str | None = None, proxies: Mapping[str, str] | None = None) -> str:
     """What to do about a failed BuildKit build, from the last lines it printed (OFFLINE: a line of
-    its output that said the network was out of reach)."""
+    its output that said the network was out of reach; PROXIES: those the CLI's config gives builds)."""
     output = "\n".join(tail)
     for load in re.finditer(r"^#(\d+) \[(?:\S+ )?internal\] load metadata for (\S+)", output, re.MULTILINE):
         # That step's own error, or the solver's word on it: not any step's error after a base
@@ -1497,7 +1497,28 @@ def _buildkit_hint(tail: Sequence[str], offline: str | None = None) -> str:
             f"The docker CLI could not make its config dir {config.group(1)}: point DOCKER_CONFIG at a "
             "directory you can write (or make that one writable)."
         )
-    return _line_endings_hint(output) or _network_hint(offline) or READ_THE_OUTPUT
+    return (
+        _line_endings_hint(output) or _proxy_hint(offline, proxies or {}) or _network_hint(offline) or READ_THE_OUTPUT
+    )
+
+
+def _proxy_hint(line: str | None, proxies: Mapping[str, str]) -> str | None:
+    """Where the network failure LINE names the proxy the CLI's config gives builds: the hint to
+    name a proxy there sent the user to set what they had set."""
+    for variable in ("HTTP_PROXY", "HTTPS_PROXY", "ALL_PROXY"):
+        parts = urlsplit(proxies.get(variable, ""))
+        try:
+            port = parts.port
+        except ValueError:
+            port = None
+        if line and parts.hostname and re.search(rf"\b{re.escape(parts.hostname)}\b\W+{port or ''}", line):
+            where = f"{parts.hostname}:{port}" if port else parts.hostname
+            return (
+                f"The proxy the Docker CLI's config names ({variable} {where}, `proxies` in "
+                "~/.docker/config.json) did not let a step of the build through: check that it is up, and "
+                "its address and credentials there."
+            )
+    return None
 
 
 # What a shell says of a script with Windows line endings: dash's `set -eu\r`, bash's `\r` as a

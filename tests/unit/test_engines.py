@@ -742,3 +742,19 @@ def test_a_copy_back_onto_an_install_tree_mounted_on_its_own_is_refused_leaving_
     assert said.returncode == 0, said.stderr
     assert f"{install} is a mount point of its own" in said.stdout and "left as it was" in said.stdout, said.stdout
     assert (install / "app/old.txt").read_text() == "old"
+
+
+def test_a_build_the_cli_config_s_proxy_did_not_let_through_names_that_proxy():
+    """apt behind the proxy `proxies` names, the proxy down: the hint said to name a proxy in
+    the Docker CLI's config, where the user had named this one."""
+    from espdock.images.engine import _buildkit_hint
+
+    line = "8.140   Could not connect to 172.17.0.1:3199 (172.17.0.1). - connect (111: Connection refused)"
+    tail = [line, "8.228 E: Unable to locate package acpitool"]
+    proxies = {"HTTP_PROXY": "http://alice:S3cret@172.17.0.1:3199", "http_proxy": "http://alice:S3cret@172.17.0.1:3199"}
+    hint = _buildkit_hint(tail, line, proxies)
+    assert hint.startswith("The proxy the Docker CLI's config names (HTTP_PROXY 172.17.0.1:3199"), hint
+    assert "S3cret" not in hint and "alice" not in hint
+    # Another proxy named there, or none: the failure is the network's.
+    for other in ({"HTTP_PROXY": "http://10.0.0.9:3128"}, {}):
+        assert _buildkit_hint(tail, line, other).startswith("A step of the build could not reach the network")

@@ -7,7 +7,6 @@ of every file under install/. `espdock verify MANIFEST` compares an install tree
 
 from __future__ import annotations
 
-import hashlib
 import json
 import os
 import stat
@@ -16,6 +15,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from espdock import __version__, durable
+from espdock.build.stamps import content_sha256
 from espdock.build.steps import EnsureImage, ImageSpec, Plan
 from espdock.errors import WorkspaceError, disk_full
 from espdock.events import Outcome, StepFinished
@@ -47,8 +47,9 @@ def file_hashes(install: Path, modes: bool = True) -> dict[str, str]:
     def entry(path: Path) -> str:
         if path.is_symlink():
             return "symlink:" + os.readlink(path)
-        digest = hashlib.sha256(path.read_bytes()).hexdigest()
-        return digest + EXECUTABLE if modes and path.stat().st_mode & stat.S_IXUSR else digest
+        info = path.stat()
+        digest = content_sha256(path, info).hex()
+        return digest + EXECUTABLE if modes and info.st_mode & stat.S_IXUSR else digest
 
     return {rel: entry(path) for rel, path in _installed(install)}
 

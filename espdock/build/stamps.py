@@ -13,6 +13,7 @@ import hashlib
 import json
 import os
 import stat
+import time
 from collections.abc import Callable, Collection, Iterable, Mapping
 from pathlib import Path
 from typing import NamedTuple
@@ -24,6 +25,26 @@ from espdock.workspace import editor_leftover, walk_following_links
 # VCS and editor state. Deeper down they are sources: a Python subpackage `log`, an IDF
 # project's override of IDF's `log` component in components/log.
 OUTPUT_DIRS = {"build", "install", "log", "managed_components"}
+
+
+# sha256 of the files this process has read, by what stat says of them: one command reads a
+# package's sources, or the install tree, more than once (the build's stamps, then run's checks of
+# what is stale; the runtime image's key, then the manifest), and a robot's meshes are hundreds of
+# megabytes. A file changed within a tick of the clock keeps its times: one whose times are that
+# recent when it is read is not remembered (git's "racily clean").
+_READ: dict[tuple[int, int, int, int, int], bytes] = {}
+_RACY_NS = 2_000_000_000
+
+
+def content_sha256(path: Path, info: os.stat_result) -> bytes:
+    """The sha256 of the regular file PATH's bytes, INFO its stat()."""
+    key = (info.st_dev, info.st_ino, info.st_size, info.st_mtime_ns, info.st_ctime_ns)
+    if (known := _READ.get(key)) is not None:
+        return known
+    digest = hashlib.sha256(path.read_bytes()).digest()
+    if time.time_ns() - max(info.st_mtime_ns, info.st_ctime_ns) > _RACY_NS:
+        _READ[key] = digest
+    return digest
 
 
 def tree_digest(*roots: Path) -> str:
@@ -75,7 +96,10 @@ def tree_state(*roots: Path) -> TreeState:
                 # A named pipe would hang the build reading it, a socket fail it: such a file is
                 # hashed by its kind, as no build reads it.
                 special = not stat.S_ISREG(info.st_mode)
-                data = b"not a regular file\0%o" % stat.S_IFMT(info.st_mode) if special else path.read_bytes()
+                if special:
+                    content = hashlib.sha256(b"not a regular file\0%o" % stat.S_IFMT(info.st_mode)).digest()
+                else:
+                    content = content_sha256(path, info)
                 # `chmod +x` on a node script is an edit: copying installs (install(DIRECTORY
                 # USE_SOURCE_PERMISSIONS), setuptools' data_files) take the mode from the source.
                 executable = not special and bool(info.st_mode & stat.S_IXUSR)
@@ -87,11 +111,11 @@ def tree_state(*roots: Path) -> TreeState:
                 # A link that leads nowhere, or around in a loop (ELOOP): its target's name.
                 if not path.is_symlink() or exc.errno not in (errno.ENOENT, errno.ELOOP):
                     raise
-                data = b"dangling link\0" + os.fsencode(os.readlink(path))
+                content = hashlib.sha256(b"dangling link\0" + os.fsencode(os.readlink(path))).digest()
                 executable = False
             paths.append(rel)
             digest.update(rel.encode(errors="surrogateescape") + b"\0")
-            digest.update(content := hashlib.sha256(data).digest())
+            digest.update(content)
             if executable:
                 digest.update(b"\0executable")
             if declaring(rel):

@@ -14,7 +14,7 @@ from dataclasses import replace
 from pathlib import Path
 from typing import NamedTuple
 
-from espdock.build.stamps import StampFile, TreeState, listing_digest, package_stamps, tree_state
+from espdock.build.stamps import StampFile, TreeState, content_sha256, listing_digest, package_stamps, tree_state
 from espdock.build.steps import EnsureImage, ImageSpec
 from espdock.errors import BuildFailed, ConfigError, WorkspaceError
 from espdock.events import Outcome, StepNote, StepOutput
@@ -836,13 +836,14 @@ def runtime_install_digest(install: Path, packages: tuple[str, ...], root: Path 
     digest = hashlib.sha256()
     for rel, path in runtime_files(install, packages, root).items():
         if isinstance(path, bytes):
-            mode, data = 0o644, path
+            mode, content = 0o644, hashlib.sha256(path).digest()
         elif path.is_symlink():
-            mode, data = 0o777, os.readlink(path).encode()
+            mode, content = 0o777, hashlib.sha256(os.readlink(path).encode()).digest()
         else:
-            mode, data = image_mode(path.stat().st_mode), path.read_bytes()
+            info = path.stat()
+            mode, content = image_mode(info.st_mode), content_sha256(path, info)
         digest.update(f"{rel}\0{mode:o}\0".encode())
-        digest.update(hashlib.sha256(data).digest())
+        digest.update(content)
     return digest.hexdigest()
 
 

@@ -234,3 +234,29 @@ def test_records_a_newer_espdock_wrote_are_told_from_an_older_one_s(tmp_path):
     mine = StampFile(path, 2)
     assert set(mine.foreign(["new", "old"])) == {"new", "old"}
     assert mine.newer(["new", "old"]) == ("new",)
+
+
+def test_a_file_read_before_in_the_same_command_is_read_again_once_it_changed(tmp_path, monkeypatch):
+    """One command hashes a package's sources more than once (the build's stamps, then run's checks):
+    the bytes of a file seen before are taken from what stat says of it, and must never hide an edit,
+    one that keeps the size and puts the modification time back (`cp -p`, tar) included."""
+    import os
+    import time
+
+    from espdock.build import stamps
+    from espdock.build.stamps import tree_state
+
+    # A file is remembered once its times are older than a clock tick or two: this one at once.
+    monkeypatch.setattr(stamps, "_RACY_NS", 0)
+    source = tmp_path / "pkg/node.py"
+    source.parent.mkdir()
+    source.write_text("print('one')\n")
+    old = time.time_ns() - 10_000_000_000
+    os.utime(source, ns=(old, old))
+    time.sleep(0.01)
+    first = tree_state(tmp_path / "pkg").digest
+    assert tree_state(tmp_path / "pkg").digest == first
+    with source.open("r+") as edit:  # in place: the same inode, the same size
+        edit.write("print('two')\n")
+    os.utime(source, ns=(old, old))
+    assert tree_state(tmp_path / "pkg").digest != first

@@ -29,11 +29,15 @@ $(VENV)/.installed: pyproject.toml $(LOCK) docker/pip-installer.txt
 
 # The test-only system packages (apt) install while the venv does (pip): they share no lock.
 # Then the engine, compose plugin and base image (apt again, so after both).
+# The venv's install writes its packages' bytecode; this editable install's is written here, since
+# where PYTHONDONTWRITEBYTECODE is set (CI machines and Docker images often set it) every espdock
+# start compiled its modules again: 0.3 s each (the suite starts espdock about 700 times).
 setup:
 	bash tests/install-system-deps.sh & deps=$$!; \
 	$(MAKE) --no-print-directory $(VENV)/.installed; venv_status=$$?; \
 	wait $$deps; deps_status=$$?; \
 	exit $$(( venv_status || deps_status ))
+	$(PY) -m compileall -q espdock
 	$(ESPDOCK) setup
 
 # The firmware host tests (host gcc, no engine) run beside pytest, which mostly waits on
@@ -42,13 +46,9 @@ setup:
 # one worker's image builds and colcon runs fill the others' waits on containers. On two
 # cores, three left 8 % idle where two left more and four gained nothing (docs/testing.md).
 # Modules go out longest first (tests/longest_first.py sets the order xdist keeps).
-# The suite starts espdock about 700 times (714 in one run). The venv's install writes its packages' bytecode; this
-# editable install's is written here, since where PYTHONDONTWRITEBYTECODE is set (CI machines
-# often set it) every start would compile espdock's modules again.
 test: setup
 	$(PY) -m ruff check espdock tests ws/src
 	$(PY) -m ruff format --check espdock tests ws/src
-	$(PY) -m compileall -q espdock
 	mkdir -p build
 	bash tests/firmware/run.sh build/host-tests > build/host-tests.log 2>&1 & firmware=$$!; \
 	$(PY) -m pytest -n 3 --dist loadfile --no-loadscope-reorder; status=$$?; \

@@ -8,11 +8,14 @@ times), so a deleted or edited install tree is noticed too. Any difference, or n
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import hashlib
 import json
 import os
+import re
 import stat
+import tempfile
 import time
 from collections.abc import Callable, Collection, Iterable, Mapping
 from pathlib import Path
@@ -27,24 +30,80 @@ from espdock.workspace import editor_leftover, walk_following_links
 OUTPUT_DIRS = {"build", "install", "log", "managed_components"}
 
 
-# sha256 of the files this process has read, by what stat says of them: one command reads a
-# package's sources, or the install tree, more than once (the build's stamps, then run's checks of
-# what is stale; the runtime image's key, then the manifest), and a robot's meshes are hundreds of
-# megabytes. A file changed within a tick of the clock keeps its times: one whose times are that
-# recent when it is read is not remembered (git's "racily clean").
-_READ: dict[tuple[int, int, int, int, int], bytes] = {}
+# sha256 of the files read, by what stat says of them: one command reads a package's sources, or
+# the install tree, more than once (the build's stamps, then run's checks of what is stale; the
+# runtime image's key, then the manifest), and every command read them all again, a robot's
+# meshes hundreds of megabytes. Kept between commands in the colcon root's build dir
+# (DIGESTS_FILE), as git's index keeps what it knows of a file: gone with the workspace, or with
+# `rm -rf build`. A file changed within a tick of the clock keeps its times: one whose times are
+# that recent when it is read is not remembered (git's "racily clean").
 _RACY_NS = 2_000_000_000
+DIGESTS_FILE = ".espdock-file-digests.json"
+_KEPT = 50_000  # files of one workspace: 6 MB, read in 50 ms
+_digests: dict[str, str] = {}  # "dev:ino:size:mtime_ns:ctime_ns" -> hex sha256
+_used: set[str] = set()
+_new: set[str] = set()
+_store: dict[str, Path] = {}  # "file": where this workspace's digests are kept, once it is known
+_SHA256_HEX = re.compile(r"[0-9a-f]{64}")
 
 
 def content_sha256(path: Path, info: os.stat_result) -> bytes:
     """The sha256 of the regular file PATH's bytes, INFO its stat()."""
-    key = (info.st_dev, info.st_ino, info.st_size, info.st_mtime_ns, info.st_ctime_ns)
-    if (known := _READ.get(key)) is not None:
-        return known
+    key = f"{info.st_dev}:{info.st_ino}:{info.st_size}:{info.st_mtime_ns}:{info.st_ctime_ns}"
+    if (known := _digests.get(key)) is not None:
+        _used.add(key)
+        return bytes.fromhex(known)
     digest = hashlib.sha256(path.read_bytes()).digest()
     if time.time_ns() - max(info.st_mtime_ns, info.st_ctime_ns) > _RACY_NS:
-        _READ[key] = digest
+        _digests[key] = digest.hex()
+        _used.add(key)
+        _new.add(key)
     return digest
+
+
+def keep_digests(store: Path) -> None:
+    """Take the digests earlier commands in this workspace kept in STORE, and keep this one's there
+    (save_digests)."""
+    if _store.get("file") == store:
+        return
+    _store["file"] = store
+    for key, digest in _stored(store).items():
+        if isinstance(digest, str) and _SHA256_HEX.fullmatch(digest):
+            _digests.setdefault(key, digest)
+
+
+def _stored(store: Path) -> dict[str, str]:
+    try:
+        data = json.loads(store.read_text())
+        found = data["digests"] if data.get("format") == 1 else {}
+        return found if isinstance(found, dict) else {}
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):  # none yet, or half written
+        return {}
+
+
+def save_digests() -> None:
+    """Keep the digests of what this command read for the next (another's, meanwhile, merged): those
+    of files it did not read go first when there are too many. Best effort: a lost cache costs a read."""
+    store = _store.get("file")
+    if store is None or not _new or not store.parent.is_dir():  # no build dir: nothing was built here
+        return
+    merged = {**_stored(store), **_digests}
+    ordered = [k for k in merged if k not in _used] + [k for k in merged if k in _used]
+    kept = {key: merged[key] for key in ordered[-_KEPT:]}
+    with contextlib.suppress(OSError):
+        fd, temporary = tempfile.mkstemp(prefix=f".{store.name}.", dir=store.parent)
+        try:
+            if os.geteuid() == 0:  # `sudo espdock`: the workspace's files stay its owner's
+                owner = store.parent.stat()
+                os.fchown(fd, owner.st_uid, owner.st_gid)
+            os.fchmod(fd, 0o644)
+            with os.fdopen(fd, "w") as out:
+                json.dump({"format": 1, "digests": kept}, out, separators=(",", ":"))
+            os.replace(temporary, store)
+        except BaseException:
+            os.unlink(temporary)
+            raise
+    _new.clear()
 
 
 def tree_digest(*roots: Path) -> str:
@@ -343,7 +402,7 @@ class StampFile:
             if trees and name in trees:
                 now = trees[name]
                 state = {"tree": now.digest, "newest": now.newest, "paths": list(now.paths), "declares": now.declares}
-                data[name].update(state)  # type: ignore[arg-type]
+                data[name].update(state)
         self._write(data)
 
     def list_outside(self, outside: Mapping[str, Mapping[str, str]]) -> None:

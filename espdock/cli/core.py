@@ -22,6 +22,7 @@ from rich.text import Text
 from espdock import __version__
 from espdock.build import prepare
 from espdock.build.runner import Runner
+from espdock.build.stamps import DIGESTS_FILE, keep_digests, save_digests
 from espdock.build.steps import Plan
 from espdock.cli.ui import STAMPED, QuietReporter, Reporter, stamped
 from espdock.config import Config, invoking_user, load_config, misspelt_variables
@@ -159,7 +160,10 @@ def command(function: Callable[P, None]) -> Callable[P, None]:
     @functools.wraps(function)
     def wrapper(*args: P.args, **kwargs: P.kwargs) -> None:
         try:
-            function(*args, **kwargs)
+            try:
+                function(*args, **kwargs)
+            finally:
+                save_digests()  # what the command read, for the next one; also after a failed build
         except EspdockError as exc:
             fail(exc)
         except KeyboardInterrupt:
@@ -277,7 +281,9 @@ def load(workspace: Path | None, **overrides: object) -> tuple[Workspace, Config
     for warning in misspelt_variables(os.environ):
         notify(warning)
     state_dir(os.environ)  # checked before any work: a build records its images into it as it ends
-    return ws.with_layout(config.package_paths, config.colcon_root), config
+    ws = ws.with_layout(config.package_paths, config.colcon_root)
+    keep_digests(ws.ws_dir / "build" / DIGESTS_FILE)
+    return ws, config
 
 
 def build_plan(ws: Workspace, config: Config, names: list[str], *args, **options) -> Plan:

@@ -260,3 +260,45 @@ def test_a_file_read_before_in_the_same_command_is_read_again_once_it_changed(tm
         edit.write("print('two')\n")
     os.utime(source, ns=(old, old))
     assert tree_state(tmp_path / "pkg").digest != first
+
+
+def test_the_digests_one_command_kept_never_hide_an_edit_from_the_next(tmp_path):
+    """The digests of the files a command read are kept in the build dir for the next command (a
+    no-op build read every byte of the workspace again): an edit that keeps the size and puts the
+    modification time back (`cp -p`, tar) is still seen, and a broken file of them is no file."""
+    import os
+    import subprocess
+    import sys
+    import time
+
+    from espdock.build.stamps import DIGESTS_FILE
+
+    package = tmp_path / "src/pkg"
+    package.mkdir(parents=True)
+    source = package / "node.py"
+    source.write_text("print('one')\n")
+    (tmp_path / "build").mkdir()
+    store = tmp_path / "build" / DIGESTS_FILE
+    old = time.time_ns() - 10_000_000_000
+    os.utime(source, ns=(old, old))
+    command = (
+        "import sys; from pathlib import Path; from espdock.build import stamps\n"
+        "stamps._RACY_NS = 0  # remembered at once: the test's files are seconds old\n"
+        f"stamps.keep_digests(Path({str(store)!r}))\n"
+        f"print(stamps.tree_state(Path({str(package)!r})).digest); stamps.save_digests()"
+    )
+
+    def digest_in_a_new_process() -> str:
+        ran = subprocess.run([sys.executable, "-c", command], capture_output=True, text=True, check=True)
+        return ran.stdout.strip()
+
+    first = digest_in_a_new_process()
+    assert len(json.loads(store.read_text())["digests"]) == 1, "kept for the next command"
+    assert digest_in_a_new_process() == first
+    with source.open("r+") as edit:  # in place: the same inode, the same size, the time put back
+        edit.write("print('two')\n")
+    os.utime(source, ns=(old, old))
+    edited = digest_in_a_new_process()
+    assert edited != first and edited == tree_state(package).digest
+    store.write_text('{"format": 1, "digests": {"1:2:3:4:5": "not hex"')  # cut short
+    assert digest_in_a_new_process() == edited

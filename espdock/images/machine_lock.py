@@ -53,6 +53,10 @@ def _hold_lock(path: Path, waiting: Callable[[], None]) -> int | None:
                 fd = os.open(path, os.O_RDONLY)
             except FileNotFoundError:
                 fd = os.open(path, os.O_RDONLY | os.O_CREAT, 0o444)
+                # Whatever the umask: under 077 another user's espdock could not open it, and went on
+                # unlocked (two flashes of one board, two builds of one image).
+                with suppress(OSError):  # another's, made in between: theirs to set
+                    os.fchmod(fd, 0o444)
         except OSError:
             return None
         try:

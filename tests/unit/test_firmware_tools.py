@@ -209,6 +209,21 @@ def test_a_port_another_espdock_holds_is_busy_by_whichever_name(tmp_path):
         pass
 
 
+def test_a_port_s_lock_is_one_other_users_can_open_whatever_the_umask(tmp_path, monkeypatch):
+    """Under umask 077 the lock file was made 0400: another user's espdock could not open it, went on
+    unlocked, and flashed the board the first one was flashing."""
+    from espdock.images import machine_lock
+
+    monkeypatch.setattr(machine_lock, "LOCK_DIR", tmp_path)
+    before = os.umask(0o077)
+    try:
+        with port_held(_NoContainers(), parse_port("socket://127.0.0.1:4999")):
+            (lock,) = tmp_path.glob("espdock-port-*.lock")
+            assert lock.stat().st_mode & 0o777 == 0o444
+    finally:
+        os.umask(before)
+
+
 def test_a_pseudo_terminal_is_refused_with_the_network_way_to_serve_it(tmp_path):
     """The engine cannot make a /dev/pts node in a container: runc failed with "error creating
     device nodes: ... permission denied". socat's and emulators' ports are such nodes, often

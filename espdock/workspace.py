@@ -749,8 +749,11 @@ def read_build_inputs(workspace: Workspace, packages: Iterable[Package]) -> Buil
     )
 
 
-# `set(SDKCONFIG_DEFAULTS "sdkconfig.defaults;sdkconfig.defaults.local")` in a project's CMakeLists.txt.
-_SET_DEFAULTS = re.compile(r"^\s*set\s*\(\s*SDKCONFIG_DEFAULTS\s+([^)]*)\)", re.IGNORECASE | re.MULTILINE)
+# `set(SDKCONFIG_DEFAULTS "sdkconfig.defaults;sdkconfig.defaults.local")` in a project's CMakeLists.txt,
+# or `list(APPEND SDKCONFIG_DEFAULTS ...)`, which adds to it.
+_SET_DEFAULTS = re.compile(
+    r"^\s*(set|list)\s*\(\s*(APPEND\s+)?SDKCONFIG_DEFAULTS\s+([^)]*)\)", re.IGNORECASE | re.MULTILINE
+)
 _PROJECT_DIR_VARS = ("${CMAKE_CURRENT_LIST_DIR}/", "${CMAKE_CURRENT_SOURCE_DIR}/", "${CMAKE_SOURCE_DIR}/")
 
 
@@ -762,16 +765,18 @@ def named_sdkconfig_defaults(cmakelists: Path) -> tuple[str, ...]:
         text = cmakelists.read_text(errors="replace")
     except OSError:
         return ()
-    found = _SET_DEFAULTS.findall("\n".join(line.split("#", 1)[0] for line in text.splitlines()))
-    if not found:
-        return ()
-    names = []
-    for arg in re.findall(r'"[^"]*"|[^\s"]+', found[-1]):
-        for item in arg.strip('"').split(";"):
-            name = next((item.removeprefix(p) for p in _PROJECT_DIR_VARS if item.startswith(p)), item)
-            if not name or "${" in name or name.startswith("/"):
-                return ()
-            names.append(os.path.normpath(name))  # `./sdkconfig.defaults` is sdkconfig.defaults
+    names: list[str] = []
+    for command, append, args in _SET_DEFAULTS.findall("\n".join(line.split("#", 1)[0] for line in text.splitlines())):
+        if (command.lower() == "list") != bool(append):
+            continue  # list(REMOVE_ITEM ...) and the like: not read here
+        if not append:
+            names = []
+        for arg in re.findall(r'"[^"]*"|[^\s"]+', args):
+            for item in arg.strip('"').split(";"):
+                name = next((item.removeprefix(p) for p in _PROJECT_DIR_VARS if item.startswith(p)), item)
+                if not name or "${" in name or name.startswith("/"):
+                    return ()
+                names.append(os.path.normpath(name))  # `./sdkconfig.defaults` is sdkconfig.defaults
     return tuple(names)
 
 

@@ -717,16 +717,18 @@ def reset_build_dir(workspace: Workspace, step: IdfBuild) -> Path:
 
 def _defaults_files(project: Path, target: str) -> list[tuple[str, Path]]:
     """The defaults files of PROJECT that an IDF build for TARGET reads, by the names its CMakeLists
-    gives them: sdkconfig.defaults and its variants (but other chips' and an editor's or patch's
-    leftovers), and the other files its SDKCONFIG_DEFAULTS names (`sdkconfig.local`)."""
+    gives them: those its SDKCONFIG_DEFAULTS names, else sdkconfig.defaults and its variants (but
+    other chips' and an editor's or patch's leftovers)."""
+    if named := named_sdkconfig_defaults(project / "CMakeLists.txt"):
+        # Those alone: an edit of an sdkconfig.defaults the list leaves out made the sdkconfig
+        # afresh, and lost a menuconfig change save-defconfig had just written there.
+        return [(n, project / n) for n in applied_defaults(target, named) if (project / n).is_file()]
     others = {f"sdkconfig.defaults.{chip}" for chip in CHIP_TARGETS if chip != target}
-    found = [
+    return [
         (path.name, path)
         for path in sorted(project.glob("sdkconfig.defaults*"))
         if path.is_file() and path.name not in others and not editor_leftover(path.name)
     ]
-    named = applied_defaults(target, named_sdkconfig_defaults(project / "CMakeLists.txt"))
-    return found + [(n, project / n) for n in named if (project / n).is_file() and n not in dict(found)]
 
 
 def _defaults_digest(project: Path, target: str) -> str:

@@ -138,8 +138,8 @@ def check_provisionable(package: str, link: str) -> None:
     """Provisioning writes Wi-Fi and agent settings: a serial board has neither to write."""
     if link != UDP:
         raise ConfigError(
-            f"{package} reaches the micro-ROS agent over {link} (CONFIG_ESPDOCK_TRANSPORT in its "
-            "sdkconfig.defaults): nothing to provision, it uses no Wi-Fi and no agent address",
+            f"{package} reaches the micro-ROS agent over {link} (CONFIG_ESPDOCK_TRANSPORT in its defaults "
+            "files): nothing to provision, it uses no Wi-Fi and no agent address",
             "Flash it (espdock flash without --wifi-ssid, --agent, --wifi-password-file or --domain-id: its ROS "
             "domain is the build's CONFIG_ESPDOCK_ROS_DOMAIN_ID) and start the agent on its port, e.g. "
             "`espdock agent --port /dev/ttyACM0`.",

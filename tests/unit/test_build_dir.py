@@ -119,6 +119,16 @@ def test_a_defaults_file_the_cmakelists_names_decides_the_sdkconfig_too(tmp_path
     # sdkconfig for it after an upgrade of espdock).
     (tmp_path / "CMakeLists.txt").write_text('set(SDKCONFIG_DEFAULTS "sdkconfig.defaults")\n')
     assert _defaults_digest(tmp_path, "esp32") == digest
+    # CMake's other spelling of the list: an edit of sdkconfig.local went unseen.
+    (tmp_path / "CMakeLists.txt").write_text('list(APPEND SDKCONFIG_DEFAULTS "sdkconfig.local")\n')
+    appended = _defaults_digest(tmp_path, "esp32")
+    (tmp_path / "sdkconfig.local").write_text("CONFIG_FREERTOS_HZ=125\n")
+    assert _defaults_digest(tmp_path, "esp32") != appended
+    # An sdkconfig.defaults the list leaves out is read by no build: its edit (save-defconfig's
+    # menuconfig change) made the sdkconfig afresh, and lost that change.
+    unread = _defaults_digest(tmp_path, "esp32")
+    (tmp_path / "sdkconfig.defaults").write_text("CONFIG_FREERTOS_HZ=444\n")
+    assert _defaults_digest(tmp_path, "esp32") == unread
 
 
 def test_save_defconfig_s_warning_reads_names_written_with_a_leading_dot_slash(tmp_path):

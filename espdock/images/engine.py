@@ -1511,12 +1511,13 @@ def _proxy_hint(line: str | None, proxies: Mapping[str, str]) -> str | None:
             port = parts.port
         except ValueError:
             port = None
-        if line and parts.hostname and re.search(rf"\b{re.escape(parts.hostname)}\b\W+{port or ''}", line):
+        # apt names it with its port ("Could not connect to H:P"), or alone ("Could not resolve 'H'").
+        if line and parts.hostname and re.search(rf"(?<![\w.-]){re.escape(parts.hostname)}(?![\w.-])", line):
             where = f"{parts.hostname}:{port}" if port else parts.hostname
             return (
-                f"The proxy the Docker CLI's config names ({variable} {where}, `proxies` in "
-                "~/.docker/config.json) did not let a step of the build through: check that it is up, and "
-                "its address and credentials there."
+                f"The proxy the Docker CLI's config names ({variable} {where}, `proxies` in its config.json) "
+                "did not let a step of the build through: check that it is up, and its address and "
+                "credentials there."
             )
     return None
 
@@ -1806,7 +1807,10 @@ def port_url_key(url: str) -> str | None:
     if found is None:
         return None
     addresses, port = found
-    return f"{'-'.join(sorted(addresses))}-{port}"
+    # One address of those it resolves to, the same for a name and its literal address (a bridge
+    # named esp-bridge.lan with an A and an AAAA record, and 192.168.1.50).
+    ipv4 = sorted(a for a in addresses if "." in a and ":" not in a)
+    return f"{_THIS_MACHINE if _THIS_MACHINE in addresses else (ipv4 or sorted(addresses))[0]}-{port}"
 
 
 # What a client on this machine reaches as this machine: one name for all of them (a dual-stack

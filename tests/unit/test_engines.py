@@ -755,6 +755,11 @@ def test_a_build_the_cli_config_s_proxy_did_not_let_through_names_that_proxy():
     hint = _buildkit_hint(tail, line, proxies)
     assert hint.startswith("The proxy the Docker CLI's config names (HTTP_PROXY 172.17.0.1:3199"), hint
     assert "S3cret" not in hint and "alice" not in hint
+    # A proxy whose name does not resolve: apt names it alone, quoted.
+    unresolved = "0.915 Could not resolve 'proxy.invalid'"
+    named = {"HTTPS_PROXY": "http://user:secret@proxy.invalid:3128"}
+    hint = _buildkit_hint([unresolved], unresolved, named)
+    assert hint.startswith("The proxy the Docker CLI's config names (HTTPS_PROXY proxy.invalid:3128"), hint
     # Another proxy named there, or none: the failure is the network's.
     for other in ({"HTTP_PROXY": "http://10.0.0.9:3128"}, {}):
         assert _buildkit_hint(tail, line, other).startswith("A step of the build could not reach the network")

@@ -209,6 +209,29 @@ def test_a_port_another_espdock_holds_is_busy_by_whichever_name(tmp_path):
         pass
 
 
+def test_a_serial_server_s_name_and_its_address_are_one_port_to_hold(monkeypatch):
+    """A bridge's name with an A and an AAAA record, and its IPv4 address: the busy check took them
+    for one server, and each command took a lock of its own."""
+    import socket
+
+    from espdock.images.engine import port_url_key, same_port_url
+
+    real = socket.getaddrinfo
+
+    def resolve(host, *args, **kwargs):
+        if host == "esp-bridge.lan":
+            return [
+                (socket.AF_INET6, 1, 6, "", ("fd00::50", 4000, 0, 0)),
+                (socket.AF_INET, 1, 6, "", ("192.168.1.50", 4000)),
+            ]
+        return real(host, *args, **kwargs)
+
+    monkeypatch.setattr(socket, "getaddrinfo", resolve)
+    name, literal = "socket://esp-bridge.lan:4000", "socket://192.168.1.50:4000"
+    assert same_port_url(name, literal) and port_url_key(name) == port_url_key(literal)
+    assert port_url_key("socket://192.168.1.51:4000") != port_url_key(literal)
+
+
 def test_a_port_s_lock_is_one_other_users_can_open_whatever_the_umask(tmp_path, monkeypatch):
     """Under umask 077 the lock file was made 0400: another user's espdock could not open it, went on
     unlocked, and flashed the board the first one was flashing."""

@@ -312,7 +312,7 @@ def _warn_unreachable(settings: NetSettings) -> None:
     """Warn of an agent address only containers reach (`hostname -I` lists docker0's first)."""
     if (bridge := container_bridge(settings.agent_host)) is not None:
         notify(
-            f"warning: agent host {settings.agent_host} is this machine's container bridge ({bridge}), which "
+            f"warning: agent host {settings.agent_host} is on this machine's container bridge ({bridge}), which "
             "containers reach and a board on Wi-Fi does not (the agent listens on the host's network): give the "
             "machine's address on the board's network (`ip -4 addr`)"
         )

@@ -321,12 +321,13 @@ def nvs_image(settings: NetSettings, size: int, owner: tuple[int, int] | None = 
 
 # Interfaces of this machine's container engines: docker0, a Compose network's br-<id>, Podman's.
 _BRIDGE_PREFIXES = ("docker", "br-", "podman", "cni-podman")
-_SIOCGIFADDR = 0x8915  # linux/sockios.h
+_SIOCGIFADDR, _SIOCGIFNETMASK = 0x8915, 0x891B  # linux/sockios.h
 
 
 def container_bridge(host: str) -> str | None:
-    """The container bridge of this machine whose address HOST is (docker0, ...), None where it is
-    none's. Only containers reach such an address: a board on Wi-Fi does not."""
+    """The container bridge of this machine whose network HOST is on (docker0, ...: the bridge's own
+    address, or a container's from `docker inspect`), None where it is on none. Only this machine
+    reaches such an address: a board on Wi-Fi does not."""
     import fcntl
     import socket
 
@@ -334,10 +335,13 @@ def container_bridge(host: str) -> str | None:
         names = [name for _, name in socket.if_nameindex() if name.startswith(_BRIDGE_PREFIXES)]
         with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
             for name in names:
-                with contextlib.suppress(OSError):  # no IPv4 address, or gone meanwhile
-                    answer = fcntl.ioctl(probe.fileno(), _SIOCGIFADDR, struct.pack("256s", name.encode()[:15]))
-                    if socket.inet_ntoa(answer[20:24]) == host:
+                with contextlib.suppress(OSError, ValueError):  # no IPv4 address, or gone meanwhile
+                    request = struct.pack("256s", name.encode()[:15])
+                    address = socket.inet_ntoa(fcntl.ioctl(probe.fileno(), _SIOCGIFADDR, request)[20:24])
+                    mask = socket.inet_ntoa(fcntl.ioctl(probe.fileno(), _SIOCGIFNETMASK, request)[20:24])
+                    if ipaddress.IPv4Address(host) in ipaddress.IPv4Network(f"{address}/{mask}", strict=False):
                         return name
     except (OSError, AttributeError):  # no interface list here (not Linux)
         return None
+    return None
     return None

@@ -139,9 +139,12 @@ def test_an_agent_on_the_engine_s_bridge_is_warned_of(installed, command):
         a for name, a in addresses.items() if name != "lo" and not name.startswith(("docker", "br-", "podman", "cni-"))
     ]
     assert all(container_bridge(lan) is None for lan in lans)
+    # A container's address on it (`docker inspect`'s), as the agent's in a container.
+    container = ".".join([*bridge.split(".")[:3], "77"])
+    assert container_bridge(container) == "docker0"
     assert container_bridge(socket.gethostbyname("localhost")) is None
     result = run(installed, command, "camera_node", "-p", "/dev/nonexistent-port", "--wifi-ssid", "lab",
                  "--agent", f"{bridge}:8888", "--wifi-password-file", "/dev/null")  # fmt: skip
     said = b" ".join(result.stdout.split() + result.stderr.split()).decode()
-    assert f"warning: agent host {bridge} is this machine's container bridge (docker0)" in said, said
+    assert f"warning: agent host {bridge} is on this machine's container bridge (docker0)" in said, said
     assert result.returncode == 6 and "does not exist" in said  # it goes on: a routed lab may reach it

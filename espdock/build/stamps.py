@@ -402,7 +402,7 @@ class StampFile:
             if trees and name in trees:
                 now = trees[name]
                 state = {"tree": now.digest, "newest": now.newest, "paths": list(now.paths), "declares": now.declares}
-                data[name].update(state)
+                data[name].update(state)  # type: ignore[arg-type]
         self._write(data)
 
     def list_outside(self, outside: Mapping[str, Mapping[str, str]]) -> None:

@@ -344,4 +344,3 @@ def container_bridge(host: str) -> str | None:
     except (OSError, AttributeError):  # no interface list here (not Linux)
         return None
     return None
-    return None

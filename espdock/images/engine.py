@@ -100,8 +100,7 @@ def _create_config(
         "Image": spec.image,
         "Cmd": list(spec.argv),
         "WorkingDir": spec.workdir,
-        "Env": [f"{key}={value}" for key, value in spec.env]
-        + [f"{key}={value}" for key, value in (proxies or {}).items() if key not in dict(spec.env)],
+        "Env": [f"{key}={value}" for key, value in {**(proxies or {}), **dict(spec.env)}.items()],
         "Labels": dict(labels),
         "Tty": spec.tty,
         "OpenStdin": spec.tty,

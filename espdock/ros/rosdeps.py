@@ -516,7 +516,7 @@ def uv_env(tmp: Path, ca_bundle: Path | None = None) -> dict[str, str]:
     leaves a lock file in the temp dir for every setuptools source tree it builds (a pip key's
     sdist), about one per `espdock lock` here. CA_BUNDLE: the extra CA bundle (espdock's
     ca_bundle, else pip's configured cert), which uv reads from no pip.conf: with the system's
-    CAs, its SSL_CERT_FILE, unless the user set one."""
+    CAs (or those of the user's own SSL_CERT_FILE), its SSL_CERT_FILE."""
     env = {**os.environ, "TMPDIR": str(tmp)}
     if ca_bundle is not None:
         env["SSL_CERT_FILE"] = str(with_system_cas(ca_bundle, tmp, env.get("SSL_CERT_FILE")))

@@ -49,16 +49,47 @@ _SHA256_HEX = re.compile(r"[0-9a-f]{64}")
 
 def content_sha256(path: Path, info: os.stat_result) -> bytes:
     """The sha256 of the regular file PATH's bytes, INFO its stat()."""
-    key = f"{info.st_dev}:{info.st_ino}:{info.st_size}:{info.st_mtime_ns}:{info.st_ctime_ns}"
-    if (known := _digests.get(key)) is not None:
+    key = _stat_key(info)
+    remembered = _local_filesystem(info.st_dev)
+    if remembered and (known := _digests.get(key)) is not None:
         _used.add(key)
         return bytes.fromhex(known)
-    digest = hashlib.sha256(path.read_bytes()).digest()
-    if time.time_ns() - max(info.st_mtime_ns, info.st_ctime_ns) > _RACY_NS:
+    with open(path, "rb") as opened:
+        # What was read is the file INFO describes only where the open one is it: a link switched
+        # between the caller's stat and the open (`ln -sfn`, a checkout) read another file.
+        read = _stat_key(os.fstat(opened.fileno()))
+        digest = hashlib.sha256(opened.read()).digest()
+    if remembered and read == key and time.time_ns() - max(info.st_mtime_ns, info.st_ctime_ns) > _RACY_NS:
         _digests[key] = digest.hex()
         _used.add(key)
         _new.add(key)
     return digest
+
+
+def _stat_key(info: os.stat_result) -> str:
+    return f"{info.st_dev}:{info.st_ino}:{info.st_size}:{info.st_mtime_ns}:{info.st_ctime_ns}"
+
+
+# File systems whose stat is the file's own: a network one's (NFS, SMB, sshfs and other FUSE, 9p)
+# may be its client's cached attributes for a minute after an edit made elsewhere, which the open
+# of a read used to refresh.
+_LOCAL_FILESYSTEMS = {"ext2", "ext3", "ext4", "xfs", "btrfs", "tmpfs", "overlay", "zfs", "f2fs", "bcachefs", "jfs"}
+_filesystems: dict[int, str] = {}
+
+
+def _local_filesystem(device: int) -> bool:
+    """Whether DEVICE (a stat's st_dev) holds a local file system (mountinfo's type for it)."""
+    if not _filesystems:
+        try:
+            with open("/proc/self/mountinfo") as mounts:
+                for line in mounts:
+                    fields = line.split()
+                    major, _, minor = fields[2].partition(":")
+                    kind = fields[fields.index("-") + 1]
+                    _filesystems.setdefault(os.makedev(int(major), int(minor)), kind)
+        except (OSError, ValueError, IndexError):
+            _filesystems[-1] = ""  # no mountinfo (not Linux): remember nothing
+    return _filesystems.get(device, "") in _LOCAL_FILESYSTEMS
 
 
 def keep_digests(store: Path) -> None:

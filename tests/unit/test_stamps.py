@@ -302,3 +302,50 @@ def test_the_digests_one_command_kept_never_hide_an_edit_from_the_next(tmp_path)
     assert edited != first and edited == tree_state(package).digest
     store.write_text('{"format": 1, "digests": {"1:2:3:4:5": "not hex"')  # cut short
     assert digest_in_a_new_process() == edited
+
+
+def test_a_link_switched_between_stat_and_read_is_not_remembered_as_the_old_target(tmp_path, monkeypatch):
+    """`ln -sfn` (a profile switched, a checkout) while espdock hashed: the old target's stat was kept
+    with the new target's bytes, and builds said "up to date" after the link went back."""
+    import os
+    import time
+
+    from espdock.build import stamps
+
+    monkeypatch.setattr(stamps, "_RACY_NS", 0)
+    old = time.time_ns() - 10_000_000_000
+    for name, rate in (("a.yaml", "10"), ("b.yaml", "99")):
+        (tmp_path / name).write_text(f"rate: {rate}\n")
+        os.utime(tmp_path / name, ns=(old, old))
+    link = tmp_path / "params.yaml"
+    link.symlink_to("a.yaml")
+    seen = link.stat()  # the walk's stat: a.yaml
+    link.unlink()
+    link.symlink_to("b.yaml")  # switched before the read
+    assert stamps.content_sha256(link, seen) == hashlib.sha256(b"rate: 99\n").digest()
+    link.unlink()
+    link.symlink_to("a.yaml")
+    assert stamps.content_sha256(link, link.stat()) == hashlib.sha256(b"rate: 10\n").digest()
+
+
+def test_a_network_file_system_s_files_are_read_every_time(tmp_path, monkeypatch):
+    """An NFS or sshfs client's stat may be its cached attributes for a minute after an edit made on
+    another machine: nothing on such a file system is taken from what a stat says."""
+    import os
+    import time
+
+    from espdock.build import stamps
+
+    monkeypatch.setattr(stamps, "_RACY_NS", 0)
+    source = tmp_path / "node.py"
+    source.write_text("print('one')\n")
+    old = time.time_ns() - 10_000_000_000
+    os.utime(source, ns=(old, old))
+    cached = source.stat()  # what the client still says after the edit below
+    monkeypatch.setitem(stamps._filesystems, cached.st_dev, "nfs4")
+    assert stamps.content_sha256(source, cached) == hashlib.sha256(b"print('one')\n").digest()
+    source.write_text("print('two')\n")
+    assert stamps.content_sha256(source, cached) == hashlib.sha256(b"print('two')\n").digest()
+    monkeypatch.setitem(stamps._filesystems, cached.st_dev, "ext4")  # a local one's stat is its own
+    stamps.content_sha256(source, source.stat())
+    assert stamps._stat_key(source.stat()) in stamps._digests

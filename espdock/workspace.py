@@ -749,29 +749,40 @@ def read_build_inputs(workspace: Workspace, packages: Iterable[Package]) -> Buil
     )
 
 
-# `set(SDKCONFIG_DEFAULTS "sdkconfig.defaults;sdkconfig.defaults.local")` in a project's CMakeLists.txt,
-# or `list(APPEND SDKCONFIG_DEFAULTS ...)`, which adds to it.
-_SET_DEFAULTS = re.compile(
-    r"^\s*(set|list)\s*\(\s*(APPEND\s+)?SDKCONFIG_DEFAULTS\s+([^)]*)\)", re.IGNORECASE | re.MULTILINE
-)
+# A CMake command and its arguments (up to the first `)`: the ones read here take no nested parentheses).
+_COMMAND = re.compile(r"^\s*(\w+)\s*\(([^)]*)\)", re.MULTILINE)
+_BLOCK_OPENS = {"if", "foreach", "while", "function", "macro", "block"}
+_BLOCK_CLOSES = {"endif", "endforeach", "endwhile", "endfunction", "endmacro", "endblock"}
 _PROJECT_DIR_VARS = ("${CMAKE_CURRENT_LIST_DIR}/", "${CMAKE_CURRENT_SOURCE_DIR}/", "${CMAKE_SOURCE_DIR}/")
 
 
 def named_sdkconfig_defaults(cmakelists: Path) -> tuple[str, ...]:
-    """The defaults files a project's CMakeLists.txt sets SDKCONFIG_DEFAULTS to, in order, relative
-    to the project (IDF reads them instead of sdkconfig.defaults, each then its chip's variant);
-    () where it sets none, or names one espdock cannot tell (another variable, an absolute path)."""
+    """The defaults files a project's CMakeLists.txt sets SDKCONFIG_DEFAULTS to before its
+    `project()` (`set(SDKCONFIG_DEFAULTS "a;b")`, `list(APPEND SDKCONFIG_DEFAULTS c)`), in order,
+    relative to the project: IDF reads them instead of sdkconfig.defaults, each then its chip's
+    variant. () where it sets none; or sets it under a condition, or names one espdock cannot tell
+    (another variable, an absolute path): what IDF reads then is not known here."""
     try:
         text = cmakelists.read_text(errors="replace")
     except OSError:
         return ()
     names: list[str] = []
-    for command, append, args in _SET_DEFAULTS.findall("\n".join(line.split("#", 1)[0] for line in text.splitlines())):
-        if (command.lower() == "list") != bool(append):
-            continue  # list(REMOVE_ITEM ...) and the like: not read here
-        if not append:
-            names = []
-        for arg in re.findall(r'"[^"]*"|[^\s"]+', args):
+    depth = 0
+    for name_given, args in _COMMAND.findall("\n".join(line.split("#", 1)[0] for line in text.splitlines())):
+        command = name_given.lower()
+        depth += (command in _BLOCK_OPENS) - (command in _BLOCK_CLOSES)
+        if command == "project" and depth == 0:
+            break  # IDF's project() reads the variable: a set after it is read by nothing
+        words = re.findall(r'"[^"]*"|[^\s"]+', args)
+        if command == "set" and words[:1] == ["SDKCONFIG_DEFAULTS"]:
+            names, given = [], words[1:]
+        elif command == "list" and words[:2] == ["APPEND", "SDKCONFIG_DEFAULTS"]:
+            given = words[2:]
+        else:
+            continue
+        if depth > 0:
+            return ()  # `if(DEFINED ENV{CI})`: whether it is set depends on where the build runs
+        for arg in given:
             for item in arg.strip('"').split(";"):
                 name = next((item.removeprefix(p) for p in _PROJECT_DIR_VARS if item.startswith(p)), item)
                 if not name or "${" in name or name.startswith("/"):

@@ -124,6 +124,17 @@ def test_a_defaults_file_the_cmakelists_names_decides_the_sdkconfig_too(tmp_path
     appended = _defaults_digest(tmp_path, "esp32")
     (tmp_path / "sdkconfig.local").write_text("CONFIG_FREERTOS_HZ=125\n")
     assert _defaults_digest(tmp_path, "esp32") != appended
+    # Set under a condition (a CI-only file), or after project(), which IDF ignores: whether the list
+    # replaces sdkconfig.defaults is not known here, and an edit of sdkconfig.defaults went unseen.
+    for cmake in (
+        'if(DEFINED ENV{MY_CI})\n  set(SDKCONFIG_DEFAULTS "sdkconfig.local")\nendif()\nproject(board)\n',
+        'project(board)\nlist(APPEND SDKCONFIG_DEFAULTS "sdkconfig.local")\n',
+    ):
+        (tmp_path / "CMakeLists.txt").write_text(cmake)
+        before = _defaults_digest(tmp_path, "esp32")
+        (tmp_path / "sdkconfig.defaults").write_text(f"CONFIG_FREERTOS_HZ={len(cmake)}\n")
+        assert _defaults_digest(tmp_path, "esp32") != before, cmake
+    (tmp_path / "CMakeLists.txt").write_text('list(APPEND SDKCONFIG_DEFAULTS "sdkconfig.local")\nproject(board)\n')
     # An sdkconfig.defaults the list leaves out is read by no build: its edit (save-defconfig's
     # menuconfig change) made the sdkconfig afresh, and lost that change.
     unread = _defaults_digest(tmp_path, "esp32")

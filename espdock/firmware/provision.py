@@ -319,8 +319,9 @@ def nvs_image(settings: NetSettings, size: int, owner: tuple[int, int] | None = 
         shutil.rmtree(directory, ignore_errors=True)
 
 
-# Interfaces of this machine's container engines: docker0, a Compose network's br-<id>, Podman's.
-_BRIDGE_PREFIXES = ("docker", "br-", "podman", "cni-podman")
+# Interfaces of this machine's container engines: docker0, a Compose network's br-<12 hex digits of
+# its id>, Podman's (not OpenStack's br-ex or a router's br-lan, which are the LAN's).
+_BRIDGES = re.compile(r"docker\d*|br-[0-9a-f]{12}|podman\d*|cni-podman\d*")
 _SIOCGIFADDR, _SIOCGIFNETMASK = 0x8915, 0x891B  # linux/sockios.h
 
 
@@ -332,7 +333,7 @@ def container_bridge(host: str) -> str | None:
     import socket
 
     try:
-        names = [name for _, name in socket.if_nameindex() if name.startswith(_BRIDGE_PREFIXES)]
+        names = [name for _, name in socket.if_nameindex() if _BRIDGES.fullmatch(name)]
         with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
             for name in names:
                 with contextlib.suppress(OSError, ValueError):  # no IPv4 address, or gone meanwhile

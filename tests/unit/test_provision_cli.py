@@ -148,3 +148,22 @@ def test_an_agent_on_the_engine_s_bridge_is_warned_of(installed, command):
     said = b" ".join(result.stdout.split() + result.stderr.split()).decode()
     assert f"warning: agent host {bridge} is on this machine's container bridge (docker0)" in said, said
     assert result.returncode == 6 and "does not exist" in said  # it goes on: a routed lab may reach it
+
+
+def test_a_lan_bridge_is_not_taken_for_a_container_bridge(tmp_path):
+    """OpenStack's br-ex and a router's br-lan are the LAN's bridges: an agent on another machine of
+    that LAN was warned of as on a container bridge. A Compose network's br-<12 hex digits> is one."""
+    import sys
+
+    script = (
+        "ip link add br-ex type bridge && ip addr add 192.168.1.10/24 dev br-ex && ip link set br-ex up && "
+        "ip link add br-0123456789ab type bridge && ip addr add 172.30.0.1/16 dev br-0123456789ab && "
+        f"ip link set br-0123456789ab up && {sys.executable} -c '"
+        "from espdock.firmware.provision import container_bridge as c; "
+        'print(c("192.168.1.20"), c("172.30.0.7"))\''
+    )
+    ran = subprocess.run(["unshare", "-rn", "sh", "-c", script], cwd=REPO, capture_output=True, text=True, check=False)
+    if ran.returncode != 0 and "Operation not permitted" in ran.stderr:
+        pytest.skip("no network namespace of its own here")
+    assert ran.returncode == 0, ran.stderr
+    assert ran.stdout.split() == ["None", "br-0123456789ab"]

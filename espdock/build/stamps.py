@@ -105,6 +105,8 @@ def keep_digests(store: Path) -> None:
 
 def _stored(store: Path) -> dict[str, str]:
     try:
+        if not store.is_file():  # a named pipe there would hold every command
+            return {}
         data = json.loads(store.read_text())
         found = data["digests"] if data.get("format") == 1 else {}
         return found if isinstance(found, dict) else {}

@@ -15,6 +15,7 @@ from contextlib import contextmanager, suppress
 from dataclasses import dataclass, field
 from enum import StrEnum
 from pathlib import Path
+from typing import NamedTuple
 
 from espdock.config import CHIP_TARGETS
 from espdock.defaults import defaults_root
@@ -750,45 +751,82 @@ def read_build_inputs(workspace: Workspace, packages: Iterable[Package]) -> Buil
 
 
 # A CMake command and its arguments (up to the first `)`: the ones read here take no nested parentheses).
-_COMMAND = re.compile(r"^\s*(\w+)\s*\(([^)]*)\)", re.MULTILINE)
+_COMMAND = re.compile(r"(?<![\w$\"])(\w+)\s*\(([^)]*)\)")  # several on a line too: `if(A) message(x) endif()`
 _BLOCK_OPENS = {"if", "foreach", "while", "function", "macro", "block"}
-_BLOCK_CLOSES = {"endif", "endforeach", "endwhile", "endfunction", "endmacro", "endblock"}
 _PROJECT_DIR_VARS = ("${CMAKE_CURRENT_LIST_DIR}/", "${CMAKE_CURRENT_SOURCE_DIR}/", "${CMAKE_SOURCE_DIR}/")
+
+
+class DefaultsList(NamedTuple):
+    """What a project's CMakeLists.txt sets SDKCONFIG_DEFAULTS to (sdkconfig_defaults_list)."""
+
+    names: tuple[str, ...]
+    conditional: bool  # some of it is set inside an if(), a loop or a function: it may not run
 
 
 def named_sdkconfig_defaults(cmakelists: Path) -> tuple[str, ...]:
     """The defaults files a project's CMakeLists.txt sets SDKCONFIG_DEFAULTS to before its
-    `project()` (`set(SDKCONFIG_DEFAULTS "a;b")`, `list(APPEND SDKCONFIG_DEFAULTS c)`), in order,
-    relative to the project: IDF reads them instead of sdkconfig.defaults, each then its chip's
-    variant. () where it sets none; or sets it under a condition, or names one espdock cannot tell
-    (another variable, an absolute path): what IDF reads then is not known here."""
+    `project()`, in order, relative to the project: IDF reads them instead of sdkconfig.defaults,
+    each then its chip's variant. () where it sets none, or names one espdock cannot tell (another
+    variable, an absolute path)."""
+    return sdkconfig_defaults_list(cmakelists).names
+
+
+def sdkconfig_defaults_list(cmakelists: Path) -> DefaultsList:
+    """named_sdkconfig_defaults, and whether any of it is set under a condition. Every set is taken,
+    in order, as if it ran: `set(... base)` then `if(EXISTS ...) list(APPEND ... local)` is the base
+    and the local file (the condition is the machine's, not known here)."""
     try:
         text = cmakelists.read_text(errors="replace")
     except OSError:
-        return ()
+        return DefaultsList((), False)
     names: list[str] = []
-    depth = 0
-    for name_given, args in _COMMAND.findall("\n".join(line.split("#", 1)[0] for line in text.splitlines())):
+    conditional = False
+    opened = 0
+    for name_given, args in _COMMAND.findall(_without_comments(text)):
         command = name_given.lower()
-        depth += (command in _BLOCK_OPENS) - (command in _BLOCK_CLOSES)
-        if command == "project" and depth == 0:
+        if command in _BLOCK_OPENS:
+            opened += 1
+        elif command.startswith("end") and command[3:] in _BLOCK_OPENS:
+            opened = max(0, opened - 1)
+        if command == "project":
             break  # IDF's project() reads the variable: a set after it is read by nothing
-        words = re.findall(r'"[^"]*"|[^\s"]+', args)
+        words = [w.strip('"') for w in re.findall(r'"[^"]*"|[^\s"]+', args)]
+        if command == "unset" and words[:1] == ["SDKCONFIG_DEFAULTS"]:
+            names = []
+            continue
         if command == "set" and words[:1] == ["SDKCONFIG_DEFAULTS"]:
-            names, given = [], words[1:]
-        elif command == "list" and words[:2] == ["APPEND", "SDKCONFIG_DEFAULTS"]:
-            given = words[2:]
+            given = words[1:]
+            for keyword in ("CACHE", "PARENT_SCOPE"):  # set()'s own keywords, not files
+                given = given[: given.index(keyword)] if keyword in given else given
+            names, at = [], 0
+        elif command == "list" and words[:2] in (["APPEND", "SDKCONFIG_DEFAULTS"], ["PREPEND", "SDKCONFIG_DEFAULTS"]):
+            given, at = words[2:], (len(names) if words[0] == "APPEND" else 0)
         else:
             continue
-        if depth > 0:
-            return ()  # `if(DEFINED ENV{CI})`: whether it is set depends on where the build runs
-        for arg in given:
-            for item in arg.strip('"').split(";"):
-                name = next((item.removeprefix(p) for p in _PROJECT_DIR_VARS if item.startswith(p)), item)
-                if not name or "${" in name or name.startswith("/"):
-                    return ()
-                names.append(os.path.normpath(name))  # `./sdkconfig.defaults` is sdkconfig.defaults
-    return tuple(names)
+        conditional = conditional or opened > 0
+        added = []
+        for item in (part for word in given for part in word.split(";")):
+            name = next((item.removeprefix(p) for p in _PROJECT_DIR_VARS if item.startswith(p)), item)
+            if not name or "$" in name or name.startswith("/"):
+                return DefaultsList((), conditional)
+            added.append(os.path.normpath(name))  # `./sdkconfig.defaults` is sdkconfig.defaults
+        names[at:at] = added
+    return DefaultsList(tuple(names), conditional)
+
+
+def _without_comments(text: str) -> str:
+    """TEXT with CMake's line comments taken out (a `#` in a quoted argument is not one)."""
+    kept = []
+    for line in text.splitlines():
+        quoted, end = False, len(line)
+        for index, char in enumerate(line):
+            if char == '"' and (index == 0 or line[index - 1] != "\\"):
+                quoted = not quoted
+            elif char == "#" and not quoted:
+                end = index
+                break
+        kept.append(line[:end])
+    return "\n".join(kept)
 
 
 def component_targets(manifest: Path) -> tuple[str, ...]:

@@ -319,9 +319,9 @@ def nvs_image(settings: NetSettings, size: int, owner: tuple[int, int] | None = 
         shutil.rmtree(directory, ignore_errors=True)
 
 
-# Interfaces of this machine's container engines: docker0, a Compose network's br-<12 hex digits of
-# its id>, Podman's (not OpenStack's br-ex or a router's br-lan, which are the LAN's).
-_BRIDGES = re.compile(r"docker\d*|br-[0-9a-f]{12}|podman\d*|cni-podman\d*")
+# Interfaces of this machine's container engines: docker0, a swarm's docker_gwbridge, a Compose
+# network's br-<12 hex digits of its id>, Podman's (not OpenStack's br-ex or a router's br-lan, which are the LAN's).
+_BRIDGES = re.compile(r"docker\d*|docker_gwbridge|br-[0-9a-f]{12}|podman\d*|cni-podman\d*")
 _SIOCGIFADDR, _SIOCGIFNETMASK = 0x8915, 0x891B  # linux/sockios.h
 
 

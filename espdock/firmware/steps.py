@@ -35,7 +35,7 @@ from espdock.images.containers import Containers, give_to, make_dirs_for, volume
 from espdock.images.engine import KILLED, Mount, RunSpec
 from espdock.images.visibility import host_paths, links_out
 from espdock.layout import COLCON_RESULT_FILES, firmware_build_dir, host_path, install_prefix
-from espdock.workspace import Workspace, as_lines, editor_leftover, named_sdkconfig_defaults, workspace_lock
+from espdock.workspace import Workspace, as_lines, editor_leftover, sdkconfig_defaults_list, workspace_lock
 
 TARGET_MARKER = ".espdock-target"
 
@@ -719,16 +719,20 @@ def _defaults_files(project: Path, target: str) -> list[tuple[str, Path]]:
     """The defaults files of PROJECT that an IDF build for TARGET reads, by the names its CMakeLists
     gives them: those its SDKCONFIG_DEFAULTS names, else sdkconfig.defaults and its variants (but
     other chips' and an editor's or patch's leftovers)."""
-    if named := named_sdkconfig_defaults(project / "CMakeLists.txt"):
+    named, conditional = sdkconfig_defaults_list(project / "CMakeLists.txt")
+    listed = [(n, project / n) for n in applied_defaults(target, named) if (project / n).is_file()] if named else []
+    if listed and not conditional:
         # Those alone: an edit of an sdkconfig.defaults the list leaves out made the sdkconfig
         # afresh, and lost a menuconfig change save-defconfig had just written there.
-        return [(n, project / n) for n in applied_defaults(target, named) if (project / n).is_file()]
+        return listed
+    # Where a condition decides the list (`if(DEFINED ENV{CI})`), sdkconfig.defaults may be what IDF reads.
     others = {f"sdkconfig.defaults.{chip}" for chip in CHIP_TARGETS if chip != target}
-    return [
+    globbed = [
         (path.name, path)
         for path in sorted(project.glob("sdkconfig.defaults*"))
         if path.is_file() and path.name not in others and not editor_leftover(path.name)
     ]
+    return globbed + [entry for entry in listed if entry[0] not in dict(globbed)]
 
 
 def _defaults_digest(project: Path, target: str) -> str:

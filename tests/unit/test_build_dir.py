@@ -206,3 +206,37 @@ def test_a_menuconfig_change_of_a_library_option_is_reported_and_others_are_not(
     _prepare_build_dir(build, "esp32", "d1", "k2")
     assert sorted(p.name for p in build.iterdir()) == [LIBRARY_BASELINE, TARGET_MARKER, "sdkconfig"]
     assert _library_settings_changed(build, fresh=False)
+
+
+def test_the_defaults_list_is_read_from_cmakelists_written_the_ways_idf_projects_write_them(tmp_path):
+    """What IDF's project() reads of SDKCONFIG_DEFAULTS, as espdock reads it (the chip it guesses,
+    the micro-ROS library's settings and what makes the sdkconfig afresh all follow it)."""
+    from espdock.workspace import sdkconfig_defaults_list
+
+    cases = {
+        # A base file and a developer's own if present: one condition lost the whole list, and the
+        # package was built for the workspace's chip, not the base file's.
+        'set(SDKCONFIG_DEFAULTS "sdkconfig.base")\nif(EXISTS "${CMAKE_CURRENT_LIST_DIR}/sdkconfig.local")\n'
+        '  list(APPEND SDKCONFIG_DEFAULTS "sdkconfig.local")\nendif()\nproject(app)\n': (
+            ("sdkconfig.base", "sdkconfig.local"),
+            True,
+        ),
+        # A `#` in a quoted argument is no comment: it hid the line after it.
+        'set(PROJECT_VER "1.0#beta")\nset(SDKCONFIG_DEFAULTS sdkconfig.base)\nproject(app)\n': (
+            ("sdkconfig.base",),
+            False,
+        ),
+        'set(SDKCONFIG_DEFAULTS "sdkconfig.base" CACHE STRING "defaults (see doc)")\nproject(app)\n': (
+            ("sdkconfig.base",),
+            False,
+        ),
+        "set(SDKCONFIG_DEFAULTS a)\nlist(PREPEND SDKCONFIG_DEFAULTS base)\nproject(app)\n": (("base", "a"), False),
+        "set(SDKCONFIG_DEFAULTS a)\nunset(SDKCONFIG_DEFAULTS)\nproject(app)\n": ((), False),
+        'set(SDKCONFIG_DEFAULTS "$ENV{BOARD_DIR}/sdkconfig.board")\nproject(app)\n': ((), False),
+        'if(A) message("x") endif()\nset(SDKCONFIG_DEFAULTS z)\nproject(app)\n': (("z",), False),
+        "project(app)\nset(SDKCONFIG_DEFAULTS late)\n": ((), False),
+    }
+    cmake = tmp_path / "CMakeLists.txt"
+    for text, expected in cases.items():
+        cmake.write_text(text)
+        assert tuple(sdkconfig_defaults_list(cmake)) == expected, text

@@ -56,7 +56,7 @@ def description(package: Path, megabytes: int) -> None:
     (package / "meshes").mkdir(parents=True)
     (package / "package.xml").write_text(
         '<?xml version="1.0"?>\n<package format="3">\n  <name>bench_description</name>\n  <version>0.0.1</version>\n'
-        '  <description>Meshes</description>\n  <maintainer email="a@b.c">a</maintainer>\n'
+        '  <description>Meshes</description>\n  <maintainer email="bench@example.com">bench</maintainer>\n'
         "  <license>Apache-2.0</license>\n  <buildtool_depend>ament_cmake</buildtool_depend>\n"
         "  <export><build_type>ament_cmake</build_type></export>\n</package>\n"
     )

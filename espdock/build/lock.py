@@ -229,7 +229,7 @@ def _compile(
         if result.returncode != 0:
             raise LockError(
                 f"uv could not lock {spec.lock} from {spec.source}:\n{result.stderr.strip()}",
-                f"Fix {spec.source} (or the network), then {FIX} again.",
+                rosdeps.network_hint(result.stderr, env) or f"Fix {spec.source} (or the network), then {FIX} again.",
             )
         text = output.read_text()
     for path, rel in renamed.items():

@@ -325,7 +325,7 @@ def update_database(
     except Exception as exc:  # rosdep raises many kinds (URLError, InvalidData, ValueError)
         raise DatabaseUnreachable(
             f"`rosdep update` failed: {exc}",
-            _network_hint(str(exc), env)
+            network_hint(str(exc), env)
             or "rosdep's database comes from GitHub (or ROSDEP_SOURCE_PATH / ROSDISTRO_INDEX_URL): reach it, then "
             + FIX
             + ".",
@@ -333,7 +333,7 @@ def update_database(
     if failed:
         raise DatabaseUnreachable(
             "`rosdep update` could not read: " + "; ".join(failed),
-            _network_hint(" ".join(failed), env) or f"Fix the sources, then {FIX}.",
+            network_hint(" ".join(failed), env) or f"Fix the sources, then {FIX}.",
         )
     if root is not None:
         (cache / "root").write_text(str(Path(root).resolve()))
@@ -360,10 +360,10 @@ def _cert_file(ca_bundle: Path | None) -> Iterator[None]:
                 os.environ["SSL_CERT_FILE"] = before
 
 
-def _network_hint(error: str, env: Mapping[str, str]) -> str | None:
-    """What to do about ERROR (rosdep's words for a download that failed) where it names a
+def network_hint(error: str, env: Mapping[str, str]) -> str | None:
+    """What to do about ERROR (rosdep's or uv's words for a download that failed) where it names a
     certificate no CA here vouches for, or where a proxy of ENV's stood between."""
-    if "CERTIFICATE_VERIFY_FAILED" in error:
+    if "CERTIFICATE_VERIFY_FAILED" in error or "UnknownIssuer" in error:
         return (
             "This machine does not trust the server's certificate: behind a TLS-intercepting proxy, give its CA "
             f"(ca_bundle in espdock.toml, or ESPDOCK_CA_BUNDLE), then {FIX}."
@@ -584,7 +584,8 @@ def pip_lock_lines(
             said = next((line.strip() for line in reversed(result.stderr.splitlines()) if line.strip()), "")
             raise DatabaseUnreachable(
                 f"uv could not reach the package index for the rosdep pip packages {wanted} ({said})",
-                f"Reach the package index (PyPI, or the one UV_INDEX_URL names), then {FIX}.",
+                network_hint(result.stderr, os.environ)
+                or f"Reach the package index (PyPI, or the one UV_INDEX_URL names), then {FIX}.",
             )
         if not gone:
             raise LockError(f"uv could not lock the rosdep pip packages {wanted}:\n{result.stderr.strip()}", FIX)

@@ -201,6 +201,25 @@ def test_lock_names_the_source_uv_cannot_resolve(tmp_path):
     assert (root / RUNTIME.lock).read_text() == before
 
 
+def test_lock_through_a_proxy_that_is_down_names_the_proxy(tmp_path):
+    """HTTPS_PROXY set, its proxy not running: uv's "Connection refused" was hinted "Fix
+    docker/ros-runtime.in (or the network)", naming neither the proxy nor that it was one."""
+    import socket
+
+    root = copy_workspace(tmp_path / "w")
+    (root / RUNTIME.source).write_text((root / RUNTIME.source).read_text() + "segno\n")  # something to resolve
+    with socket.socket() as closed:
+        closed.bind(("127.0.0.1", 0))
+        port = closed.getsockname()[1]
+    proxy = f"http://alice:S3cret@127.0.0.1:{port}"
+    env = {name: proxy for name in ("HTTPS_PROXY", "https_proxy", "HTTP_PROXY", "http_proxy")}
+    result = espdock("lock", cwd=root, env={**env, "UV_NO_CACHE": "1"}, timeout=300)
+    said = " ".join(result.stderr.split())
+    assert result.returncode == 2, said
+    assert f"went through the proxy at 127.0.0.1:{port}: check that it is up" in said, said
+    assert "S3cret" not in said.partition("hint:")[2], "no credentials in espdock's own words"
+
+
 def test_a_lock_compiled_from_espdocks_default_source_does_not_name_where_espdock_is_installed(tmp_path):
     """Runs uv against the package index. A workspace with its own runtime lock gets its own build
     lock, from espdock's default docker/ros-build.in: its "# via -r" named that file's absolute

@@ -815,9 +815,10 @@ def sdkconfig_defaults_list(cmakelists: Path) -> DefaultsList:
 
 
 def _without_comments(text: str) -> str:
-    """TEXT with CMake's line comments taken out (a `#` in a quoted argument is not one)."""
+    """TEXT with CMake's comments taken out: bracket comments (`#[[ ... ]]`, over lines), then line
+    comments (a `#` in a quoted argument is not one)."""
     kept = []
-    for line in text.splitlines():
+    for line in re.sub(r"#\[(=*)\[.*?\]\1\]", "", text, flags=re.DOTALL).splitlines():
         quoted, end = False, len(line)
         for index, char in enumerate(line):
             if char == '"' and (index == 0 or line[index - 1] != "\\"):

@@ -235,6 +235,8 @@ def test_the_defaults_list_is_read_from_cmakelists_written_the_ways_idf_projects
         'set(SDKCONFIG_DEFAULTS "$ENV{BOARD_DIR}/sdkconfig.board")\nproject(app)\n': ((), False),
         'if(A) message("x") endif()\nset(SDKCONFIG_DEFAULTS z)\nproject(app)\n': (("z",), False),
         "project(app)\nset(SDKCONFIG_DEFAULTS late)\n": ((), False),
+        # A bracket comment, over lines: it was read as code.
+        "#[[ the old way:\nset(SDKCONFIG_DEFAULTS sdkconfig.old)\n]]\nproject(app)\n": ((), False),
     }
     cmake = tmp_path / "CMakeLists.txt"
     for text, expected in cases.items():

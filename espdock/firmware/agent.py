@@ -13,6 +13,7 @@ from collections.abc import Mapping
 
 from espdock.errors import ConfigError
 from espdock.firmware.flashing import Port
+from espdock.firmware.provision import DOMAIN_ID_MAX, is_domain_id
 from espdock.images.engine import RunSpec
 
 # micro_ros_agent's default and the firmware's (CONFIG_ESPDOCK_UART_BAUD).
@@ -59,13 +60,13 @@ def agent_spec(
     settings = {name: env[name] for name in PASSED_ENV if name in env}
     settings.setdefault("FASTDDS_BUILTIN_TRANSPORTS", "UDPv4")
     if domain_id is not None:
-        if not 0 <= domain_id <= 232:
-            raise ConfigError(f"--domain-id {domain_id} is not 0..232")
+        if not 0 <= domain_id <= DOMAIN_ID_MAX:
+            raise ConfigError(f"--domain-id {domain_id} is not 0..{DOMAIN_ID_MAX}")
         settings["ROS_DOMAIN_ID"] = str(domain_id)
-    elif (given := settings.get("ROS_DOMAIN_ID", "").strip()) and not (given.isdigit() and int(given) <= 232):
+    elif (given := settings.get("ROS_DOMAIN_ID", "").strip()) and not is_domain_id(given):
         # As --domain-id is checked: the agent's rmw refused it inside the container, or took another.
         raise ConfigError(
-            f"ROS_DOMAIN_ID={given} (from the environment) is not a ROS domain id 0..232",
+            f"ROS_DOMAIN_ID={given} (from the environment) is not a ROS domain id 0..{DOMAIN_ID_MAX}",
             "Set it to one, or give --domain-id.",
         )
     return RunSpec(

@@ -108,9 +108,14 @@ def parse_agent(text: str) -> tuple[str, int]:
     return str(address), int(port_text)
 
 
+def is_domain_id(text: str) -> bool:
+    """Whether TEXT is a ROS domain id 0..DOMAIN_ID_MAX in ASCII digits."""
+    return bool(_DOMAIN_ID.fullmatch(text)) and int(text) <= DOMAIN_ID_MAX
+
+
 def parse_domain_id(text: str) -> int:
     """--domain-id: ASCII digits only (int() takes other scripts' digits, '4_2', ' 42 ' and '+42')."""
-    if not _DOMAIN_ID.fullmatch(text) or int(text) > DOMAIN_ID_MAX:
+    if not is_domain_id(text):
         raise ConfigError(f"ROS domain id {text!r} is not 0..{DOMAIN_ID_MAX}", "Give it in ASCII digits, e.g. 42.")
     return int(text)
 

@@ -143,7 +143,7 @@ def test_the_agent_s_arguments_are_micro_ros_agent_s_own():
 
     with pytest.raises(ConfigError, match="--udp-port 9999 goes with boards on Wi-Fi"):
         agent_spec("img", parse_port("/dev/ttyACM0"), {}, udp_port=9999)
-    for bad in ("300", "abc"):
+    for bad in ("300", "abc", "\u00b2"):  # "²": str.isdigit() took it, and int() then raised
         with pytest.raises(ConfigError, match=f"ROS_DOMAIN_ID={bad} \\(from the environment\\)"):
             agent_spec("img", None, {"ROS_DOMAIN_ID": bad})
     assert dict(agent_spec("img", None, {"ROS_DOMAIN_ID": "232"}).env)["ROS_DOMAIN_ID"] == "232"

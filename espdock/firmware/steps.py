@@ -732,7 +732,8 @@ def _defaults_files(project: Path, target: str) -> list[tuple[str, Path]]:
         for path in sorted(project.glob("sdkconfig.defaults*"))
         if path.is_file() and path.name not in others and not editor_leftover(path.name)
     ]
-    return globbed + [entry for entry in listed if entry[0] not in dict(globbed)]
+    seen = {name for name, _ in globbed}
+    return globbed + [entry for entry in listed if entry[0] not in seen]
 
 
 def _defaults_digest(project: Path, target: str) -> str:

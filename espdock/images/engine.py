@@ -769,7 +769,7 @@ class Engine:
             shown = [line if len(line) <= 300 else f"{line[:300]} ..." for line in tail]
             raise ImageBuildError(
                 f"building {build.tag} from {build.dockerfile} (stage {build.target}) failed:\n" + "\n".join(shown),
-                _buildkit_hint(tail, offline.line, contexts.run_proxies(self._env, self.host)),
+                _buildkit_hint(tail, offline.line, self._run_proxies()),
             )
 
     def data_root(self) -> str:
@@ -953,13 +953,17 @@ class Engine:
         remapped as the engine is set."""
         return bool(spec.user or spec.network == "host") and self.info().remapped
 
+    def _run_proxies(self) -> dict[str, str]:
+        """The proxy variables the Docker CLI's config gives this engine's containers and builds."""
+        if self._proxies is None:
+            self._proxies = contexts.run_proxies(self._env, self.host)
+        return self._proxies
+
     def _create(self, spec: RunSpec, labels: Mapping[str, str]) -> Any:
         """A container for SPEC with LABELS: over plain HTTP on a local socket, else through the SDK."""
-        if self._proxies is None:
-            # As `docker run` adds them: the IDF component manager's downloads, a vendor package's
-            # fetch at configure time, pip in a colcon build; never in a key, a stamp or an image.
-            self._proxies = contexts.run_proxies(self._env, self.host)
-        config = _create_config(spec, labels, self._host_users(spec), self._proxies)
+        # As `docker run` adds them: the IDF component manager's downloads, a vendor package's fetch
+        # at configure time, pip in a colcon build; never in a key, a stamp or an image.
+        config = _create_config(spec, labels, self._host_users(spec), self._run_proxies())
         if self._plain:
             return local_api.LocalContainer.create(
                 self._socket, max(self._timeout, OPERATION_TIMEOUT), spec.name, config

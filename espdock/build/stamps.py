@@ -44,6 +44,7 @@ _digests: dict[str, str] = {}  # "dev:ino:size:mtime_ns:ctime_ns" -> hex sha256
 _used: set[str] = set()
 _new: set[str] = set()
 _store: dict[str, Path] = {}  # "file": where this workspace's digests are kept, once it is known
+_loaded: set[Path] = set()  # the stores read into _digests: on the first file read, not at every start
 _SHA256_HEX = re.compile(r"[0-9a-f]{64}")
 
 
@@ -51,6 +52,11 @@ def content_sha256(path: Path, info: os.stat_result) -> bytes:
     """The sha256 of the regular file PATH's bytes, INFO its stat()."""
     key = _stat_key(info)
     remembered = _local_filesystem(info.st_dev)
+    if remembered and (store := _store.get("file")) is not None and store not in _loaded:
+        _loaded.add(store)
+        for known_key, digest in _stored(store).items():
+            if isinstance(digest, str) and _SHA256_HEX.fullmatch(digest):
+                _digests.setdefault(known_key, digest)
     if remembered and (known := _digests.get(key)) is not None:
         _used.add(key)
         return bytes.fromhex(known)
@@ -93,14 +99,9 @@ def _local_filesystem(device: int) -> bool:
 
 
 def keep_digests(store: Path) -> None:
-    """Take the digests earlier commands in this workspace kept in STORE, and keep this one's there
-    (save_digests)."""
-    if _store.get("file") == store:
-        return
+    """Take the digests earlier commands in this workspace kept in STORE (read when a file is first
+    hashed: `espdock list` reads none), and keep this one's there (save_digests)."""
     _store["file"] = store
-    for key, digest in _stored(store).items():
-        if isinstance(digest, str) and _SHA256_HEX.fullmatch(digest):
-            _digests.setdefault(key, digest)
 
 
 def _stored(store: Path) -> dict[str, str]:

@@ -231,7 +231,13 @@ def spin_node(
         rclpy.init()
         started = True
         node = make_node()
-        executor = executor or SingleThreadedExecutor()
+        # Made with the stop signals held back: one that came inside rclpy's Executor.__init__
+        # left it half made, and its __del__ printed a traceback ("no attribute '_sigint_gc'").
+        held = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT, signal.SIGTERM})
+        try:
+            executor = executor or SingleThreadedExecutor()
+        finally:
+            signal.pthread_sigmask(signal.SIG_SETMASK, held)
         executor.add_node(node)
         if _stop_requested:
             return  # a stop that came while the node was being made, and was not raised

@@ -370,7 +370,7 @@ def flash(
     plan, step = firmware_plan(ws, config, package)
     provisioning = any(option is not None for option in (wifi_ssid, agent, wifi_password_file, domain_id))
     if provisioning:
-        transport.check_provisionable(package, transport.project_transport(ws.root / step.project, step.target))
+        transport.check_provisionable(package, ws.root / step.project, step.target)
     firmware_dir = installed_firmware_dir(ws.ws_dir, package)
     flasher_args = read_flasher_args(firmware_dir, package)
     if provisioning:
@@ -424,7 +424,7 @@ def provision(
     serial = parse_port(port)
     _baud_unused(serial, baud)
     plan, step = firmware_plan(ws, config, package)
-    transport.check_provisionable(package, transport.project_transport(ws.root / step.project, step.target))
+    transport.check_provisionable(package, ws.root / step.project, step.target)
     if wifi_ssid is None or agent is None:
         raise ConfigError(f"provisioning {package} needs --wifi-ssid and --agent", "See `espdock provision --help`.")
     firmware_dir = installed_firmware_dir(ws.ws_dir, package)

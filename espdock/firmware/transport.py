@@ -64,12 +64,17 @@ def defaults_in_order(defaults: Mapping[str, bytes], target: str, order: Sequenc
 
 def firmware_transport(defaults: Mapping[str, bytes], target: str, order: Sequence[str] = ()) -> str:
     """The transport a package's sdkconfig.defaults (then .TARGET, which wins) selects; UDP if none."""
-    chosen = UDP
-    for data in defaults_in_order(defaults, target, order):
-        for line in data.decode(errors="replace").splitlines():
+    return _chosen_transport(defaults, target, order)[0]
+
+
+def _chosen_transport(defaults: Mapping[str, bytes], target: str, order: Sequence[str]) -> tuple[str, str | None]:
+    """firmware_transport's choice and the name of the defaults file that made it (None: UDP by default)."""
+    chosen: tuple[str, str | None] = (UDP, None)
+    for name in applied_defaults(target, order):
+        for line in defaults.get(name, b"").decode(errors="replace").splitlines():
             match = _CHOICE_LINE.match(line.strip())
             if match and match.group(1) in SYMBOLS:
-                chosen = SYMBOLS[match.group(1)]
+                chosen = (SYMBOLS[match.group(1)], name)
     return chosen
 
 
@@ -129,17 +134,24 @@ def library_colcon_meta(package: str, meta: str, transport: str) -> str:
 
 def project_transport(project: Path, target: str) -> str:
     """The transport of the firmware project at PROJECT, built for TARGET."""
+    return _project_choice(project, target)[0]
+
+
+def _project_choice(project: Path, target: str) -> tuple[str, str | None]:
     order = named_sdkconfig_defaults(project / "CMakeLists.txt")
     found = {n: (project / n).read_bytes() for n in applied_defaults(target, order) if (project / n).is_file()}
-    return firmware_transport(found, target, order)
+    return _chosen_transport(found, target, order)
 
 
-def check_provisionable(package: str, link: str) -> None:
-    """Provisioning writes Wi-Fi and agent settings: a serial board has neither to write."""
+def check_provisionable(package: str, project: Path, target: str) -> None:
+    """Provisioning writes Wi-Fi and agent settings: a serial board (the firmware project at
+    PROJECT, built for TARGET) has neither to write."""
+    link, where = _project_choice(project, target)
     if link != UDP:
         raise ConfigError(
-            f"{package} reaches the micro-ROS agent over {link} (CONFIG_ESPDOCK_TRANSPORT in its defaults "
-            "files): nothing to provision, it uses no Wi-Fi and no agent address",
+            f"{package} reaches the micro-ROS agent over {link} (its {where} sets "
+            f"{next(s for s, t in SYMBOLS.items() if t == link)}=y): nothing to provision, it uses no Wi-Fi and "
+            "no agent address",
             "Flash it (espdock flash without --wifi-ssid, --agent, --wifi-password-file or --domain-id: its ROS "
             "domain is the build's CONFIG_ESPDOCK_ROS_DOMAIN_ID) and start the agent on its port, e.g. "
             "`espdock agent --port /dev/ttyACM0`.",

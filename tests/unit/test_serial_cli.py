@@ -74,6 +74,20 @@ def test_provisioning_a_serial_board_says_there_is_nothing_to_provision(tmp_path
         assert "board reaches the micro-ROS agent over uart" in text and "nothing to provision" in text.lower()
         assert "espdock agent --port" in text
         assert "CONFIG_ESPDOCK_ROS_DOMAIN_ID" in text, "where a serial board's domain is set"
+        assert "its sdkconfig.defaults sets CONFIG_ESPDOCK_TRANSPORT_UART=y" in text, "the file to edit"
+    # The file named is the one that chose, wherever the CMakeLists puts the choice.
+    project = root / "firmware/board"
+    defaults = project / "sdkconfig.defaults"
+    (project / "sdkconfig.serial").write_text(defaults.read_text())
+    defaults.write_text(defaults.read_text().replace("CONFIG_ESPDOCK_TRANSPORT_UART=y", ""))
+    cmake = project / "CMakeLists.txt"
+    cmake.write_text(
+        cmake.read_text().replace(
+            "project(", 'set(SDKCONFIG_DEFAULTS "sdkconfig.defaults;sdkconfig.serial")\nproject(', 1
+        )
+    )
+    result = espdock("provision", "board", "--port", "/dev/ttyUSB0", cwd=root, env=NO_ENGINE)
+    assert result.returncode == 2 and "its sdkconfig.serial sets" in " ".join(result.stderr.split()), result.stderr
 
 
 def test_provision_of_a_wifi_board_still_asks_for_its_settings(tmp_path):

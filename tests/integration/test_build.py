@@ -37,8 +37,9 @@ NOBODY = 65534  # a user who may not use the engine at all
 
 @pytest.fixture(scope="module")
 def built(engine, shared_dir: Path, wheel_espdock: Path):
-    """A workspace owned by a normal user, built once by that user."""
-    root = copy_workspace(shared_dir / "user-ws", packages=(), runtime_image=False)
+    """A workspace owned by a normal user, built once by that user: an interface package and a
+    Python one (what a test about when a build happens edits: it builds in a few seconds)."""
+    root = copy_workspace(shared_dir / "user-ws", packages=(), test_packages=("beacon_nodes",), runtime_image=False)
     message_package(root / "ws/src/custom_interface")
     home = shared_dir / "home"
     subprocess.run(["chown", "-R", f"{USER_UID}:{USER_UID}", str(root)], check=True)
@@ -105,49 +106,49 @@ def test_second_build_reuses_the_image_and_keeps_ownership(engine, built):
 def test_a_build_builds_again_exactly_when_something_changed(engine, built):
     root, first = built
     assert first.returncode == 0
-    package = root / "ws/src/custom_interface"
+    package, interfaces = root / "ws/src/beacon_nodes", root / "ws/src/custom_interface"
 
-    def build(*args: str) -> tuple[bool, subprocess.CompletedProcess]:
+    def build(*args: str) -> tuple[set[str], subprocess.CompletedProcess]:
         with containers_created(root) as created:
             result = espdock("build", *args, cwd=root)
         assert result.returncode == 0, result.stdout[-3000:] + result.stderr
-        ran_colcon = "Finished <<< custom_interface" in result.stdout
-        assert bool(created) == ran_colcon, (created, result.stdout[-2000:])
-        return ran_colcon, result
+        finished = set(re.findall(r"^Finished <<< (\w+)", result.stdout, flags=re.M))
+        assert bool(created) == bool(finished), (created, result.stdout[-2000:])
+        return finished, result
 
     espdock("build", cwd=root)  # whatever earlier tests left: settle
     ran, noop = build()
     assert not ran and "up to date" in noop.stdout
     assert len(noop.stdout.splitlines()) < 30, noop.stdout
-    # Any file of the package counts, not only what CMake reads: a file beside the interfaces
-    # shows it without rosidl generating and compiling them all again (twice: edit, restore).
+    # Any file of the package counts, not only what its build reads (setup.py's data files, CMake's
+    # install rules): a file beside them builds the package, and only it.
     extra = package / "NOTES.txt"
     extra.write_text("an added file\n")
     planned = espdock("build", "--dry-run", cwd=root, env={"COLUMNS": "400"})
-    assert re.search(r"^\d\. colcon build\n(   .*\n)*   now: would build 1 of 1 package\(s\): custom_interface$",
+    assert re.search(r"^\d\. colcon build\n(   .*\n)*   now: would build 1 of 2 package\(s\): beacon_nodes$",
                      planned.stdout, flags=re.M), planned.stdout  # fmt: skip
     assert re.search(r"^\d\. image espdock/ros-jazzy-build\n(   .*\n)*   now: present$", planned.stdout, flags=re.M)
-    assert build()[0], "an added file must build"
-    assert "now: up to date (1 package(s))" in espdock("build", "--dry-run", cwd=root).stdout
+    assert build()[0] == {"beacon_nodes"}, "an added file must build"
+    assert "now: up to date (2 package(s))" in espdock("build", "--dry-run", cwd=root).stdout
     assert not build()[0]
     extra.write_text("an edited file\n")
-    assert build()[0], "an edited file must build"
+    assert build()[0] == {"beacon_nodes"}, "an edited file must build"
     extra.unlink()
-    assert build()[0], "a removed file must build"
+    assert build()[0] == {"beacon_nodes"}, "a removed file must build"
     # An interface taken out of rosidl_generate_interfaces, its file kept (retired, or moving to
     # another package): rosidl's code of it stayed in the build dir, installed again, importable.
-    cmake, installed = package / "CMakeLists.txt", root / "ws/install/custom_interface"
+    cmake, installed = interfaces / "CMakeLists.txt", root / "ws/install/custom_interface"
     listed = cmake.read_text()
-    (package / "msg/Retired.msg").write_text("int32 value\n")
+    (interfaces / "msg/Retired.msg").write_text("int32 value\n")
     cmake.write_text(listed.replace('"msg/CameraConfig.msg"', '"msg/CameraConfig.msg"\n  "msg/Retired.msg"'))
-    assert build()[0] and list(installed.rglob("_retired.py"))
+    assert build()[0] == {"custom_interface"} and list(installed.rglob("_retired.py"))
     cmake.write_text(listed)
-    assert build()[0]
+    (interfaces / "msg/Retired.msg").unlink()
+    assert build()[0] == {"custom_interface"}
     assert [p for p in installed.rglob("*") if "retired" in p.name.lower()] == []
-    (package / "msg/Retired.msg").unlink()  # the build below builds anyway
-    shutil.rmtree(root / "ws/install/custom_interface")
-    assert build()[0], "a deleted install tree must build"
-    assert build("--force")[0], "--force must build"
+    shutil.rmtree(root / "ws/install/beacon_nodes")
+    assert build()[0] == {"beacon_nodes"}, "a deleted install tree must build"
+    assert build("--force", "beacon_nodes")[0] == {"beacon_nodes"}, "--force must build"
     assert not build()[0]
     assert owners(root / "ws") == {USER_UID}
 

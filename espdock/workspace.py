@@ -60,6 +60,9 @@ class Package:
     is_interface: bool = False
     # The dependencies named only as test_depend: not needed to build or run.
     test_only_depends: frozenset[str] = frozenset()
+    # The dependencies its build reads (build, buildtool and their export kinds), not those it
+    # only runs or tests with (exec_depend, test_depend); None: not told apart (all of DEPENDS).
+    build_depends: frozenset[str] | None = None
 
 
 # This repository's layout: ROS packages in ws/src, firmware in firmware/, colcon's build,
@@ -454,6 +457,7 @@ class _ManifestCache:
                 depends=frozenset(str(d) for d in entry["depends"]),
                 is_interface=bool(entry["is_interface"]),
                 test_only_depends=frozenset(str(d) for d in entry["test_only_depends"]),
+                build_depends=frozenset(str(d) for d in entry["build_depends"]),
             )
         except (OSError, KeyError, TypeError):
             return None
@@ -466,6 +470,7 @@ class _ManifestCache:
             "depends": sorted(package.depends),
             "is_interface": package.is_interface,
             "test_only_depends": sorted(package.test_only_depends),
+            "build_depends": sorted(package.depends if package.build_depends is None else package.build_depends),
         }
         self.changed = True
 
@@ -530,10 +535,8 @@ def _read_manifest(manifest: Path, ros_distro: str = DEFAULT_ROS_DISTRO) -> Pack
     def names(*groups: list) -> set[str]:
         return {d.name for group in groups for d in group if d.evaluated_condition}
 
-    deps = names(
-        pkg.build_depends, pkg.buildtool_depends, pkg.build_export_depends, pkg.buildtool_export_depends,
-        pkg.exec_depends,
-    )  # fmt: skip
+    built = names(pkg.build_depends, pkg.buildtool_depends, pkg.build_export_depends, pkg.buildtool_export_depends)
+    deps = built | names(pkg.exec_depends)
     tests = names(pkg.test_depends)
     # catkin_pkg's default build type is catkin; espdock's has been ament_cmake (a package.xml
     # without <export><build_type>), which colcon-ros would call ros.catkin.
@@ -546,6 +549,7 @@ def _read_manifest(manifest: Path, ros_distro: str = DEFAULT_ROS_DISTRO) -> Pack
         depends=frozenset(deps | tests),
         is_interface="rosidl_interface_packages" in {g.name for g in pkg.member_of_groups},
         test_only_depends=frozenset(tests - deps),
+        build_depends=frozenset(built),
     )
 
 

@@ -135,9 +135,12 @@ def write_interface_package(src: Path, name: str, service: bool = True, uses: st
     return root
 
 
-def write_python_package(src: Path, name: str, depends: tuple[str, ...] = (), interface: str | None = None) -> Path:
-    """An ament_python package with one node; it uses INTERFACE's message when given, and
-    declares DEPENDS (workspace packages) as exec_depend."""
+def write_python_package(
+    src: Path, name: str, depends: tuple[str, ...] = (), interface: str | None = None, tag: str = "exec_depend"
+) -> Path:
+    """An ament_python package with one node; it uses INTERFACE's message when given (an
+    exec_depend, as the ROS 2 tutorials have a Python node name its interfaces), and declares
+    DEPENDS (workspace packages) with TAG (`depend` is what `ros2 pkg create --dependencies` writes)."""
     root = src / name
     module = root / name
     module.mkdir(parents=True)
@@ -163,19 +166,18 @@ def write_python_package(src: Path, name: str, depends: tuple[str, ...] = (), in
     )
     (root / "setup.py").write_text(SETUP_PY.format(name=name, description=description, node=node))
     (root / "setup.cfg").write_text(SETUP_CFG.format(name=name))
-    exec_depends = ("rclpy", *((interface,) if interface else ("std_msgs",)), *depends)
+    exec_depends = ("rclpy", *((interface,) if interface else ("std_msgs",)))
+    declared = _depends("exec_depend", exec_depends) + _depends(tag, tuple(d for d in depends if d not in exec_depends))
     (root / "package.xml").write_text(
-        MANIFEST.format(
-            name=name, description=description, depends=_depends("exec_depend", exec_depends), build_type="ament_python"
-        )
+        MANIFEST.format(name=name, description=description, depends=declared, build_type="ament_python")
     )
     return root
 
 
 def write_robot(src: Path, count: int, service: bool = True) -> dict[str, tuple[str, ...]]:
-    """COUNT packages under SRC: robot_msgs (with a service: SERVICE), then drivers on it, then
-    nodes on the drivers (the last ones leaves nothing depends on). Returns each package's
-    workspace dependencies."""
+    """COUNT packages under SRC: robot_msgs (with a service: SERVICE), then drivers on it (an
+    exec_depend), then nodes on the drivers (a `depend`: their builds are built on the drivers'),
+    the last ones leaves nothing depends on. Returns each package's workspace dependencies."""
     write_interface_package(src, "robot_msgs", service)
     graph: dict[str, tuple[str, ...]] = {"robot_msgs": ()}
     drivers = [f"driver_{i}" for i in range(max(1, (count - 1) // 3))]
@@ -185,6 +187,6 @@ def write_robot(src: Path, count: int, service: bool = True) -> dict[str, tuple[
     for i in range(count - 1 - len(drivers)):
         name = f"behaviour_{i}"
         depends = (drivers[i % len(drivers)],)
-        write_python_package(src, name, depends)
+        write_python_package(src, name, depends, tag="depend")
         graph[name] = depends
     return graph

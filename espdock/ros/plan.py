@@ -66,6 +66,11 @@ class ColconBuild:
     whole: bool = True
     # The packages of a Python build type, which read no BUILD_TESTING (see stamp_images).
     python: tuple[str, ...] = ()
+    # Each package's workspace dependencies whose builds its own build reads, where fewer than
+    # DEPENDS: a Python package's build (setup.py) reads no exec_depend or test_depend, so an edit of
+    # an interface package it only runs with builds that package and its CMake users, not it.
+    # What its stamp carries, and what it is built on (see stamp_depends).
+    reads: tuple[tuple[str, tuple[str, ...]], ...] = ()
     # A test build's: the stamp_images of the plain build its install also serves (tests are
     # built, not installed), so `espdock build` after `espdock test` rebuilds nothing.
     serves: tuple[tuple[str, str], ...] = ()
@@ -89,6 +94,11 @@ class ColconBuild:
         assertion, or fails to import an undefined symbol, with every build saying it built."""
         changed = set(rebuild) & set(self.interfaces)
         return tuple(n for n, deps in self.depends if n in changed and changed & set(deps))
+
+    @property
+    def stamp_depends(self) -> dict[str, tuple[str, ...]]:
+        """Each package's workspace dependencies whose stamps its stamp carries: those its build reads."""
+        return {**dict(self.depends), **dict(self.reads)}
 
     @property
     def workdir(self) -> str:
@@ -354,6 +364,11 @@ def ros_steps(
             # Only CMake packages read BUILD_TESTING: a workspace of Python packages is told nothing.
             tests_off=tests_off and not testing and any(p.build_type not in PYTHON_BUILD_TYPES for p in ros),
             python=tuple(p.name for p in ros if p.build_type in PYTHON_BUILD_TYPES),
+            reads=tuple(
+                (p.name, tuple(sorted(p.build_depends & names)))
+                for p in ros
+                if p.build_type in PYTHON_BUILD_TYPES and p.build_depends is not None and p.depends - p.build_depends
+            ),
             declared=tuple((p.name, p.depends, p.test_only_depends) for p in ros),
             underlay=ros_image.repository,
             interfaces=tuple(p.name for p in ros if p.is_interface),

@@ -383,7 +383,7 @@ class RosSteps:
             # A dependency this build was to build and did not (`-- --packages-skip` it, or it failed
             # under --continue-on-error): what built on it built on its old install, so it is not up
             # to date once that dependency is built.
-            depends = dict(step.depends)
+            depends = step.stamp_depends
             on_old = {name: closure([name], depends) & (set(rebuild) - set(built)) for name in built}
             if against := [name for name in built if on_old[name]]:
                 olds = sorted(set().union(*(on_old[name] for name in against)))
@@ -415,7 +415,7 @@ class RosSteps:
                 if step.serves:
                     served = dict(step.serves)
                     images = {name: served.get(name, "") for name in sources}
-                    plain = package_stamps(sources, dict(step.depends), images, dict(step.settings))
+                    plain = package_stamps(sources, depends, images, dict(step.settings))
                     serves = {name: plain[name] for name in built if not on_old[name]}
                 # Each one's dependencies' stamps as this build leaves them (built now, or up to
                 # date): a dependency rebuilt since, or edited, is one it was built on an older
@@ -670,7 +670,7 @@ def colcon_rebuild(workspace: Workspace, step: ColconBuild) -> Rebuild:
             paths = []
         outside[name] = file_digests(workspace.root, paths, known)
     sources = {name: fold(now.digest, outside[name]) for name, now in trees.items()}
-    chained = package_stamps(sources, dict(step.depends), step.stamp_images(), dict(step.settings))
+    chained = package_stamps(sources, step.stamp_depends, step.stamp_images(), dict(step.settings))
     stamps = {name: chained[name] for name in step.building}
     if step.force:
         return Rebuild(stamp_file, stamps, tuple(stamps), trees, outside, tuple(unlisted))
@@ -795,7 +795,7 @@ def built_on_older(workspace: Workspace, step: ColconBuild, package: str) -> lis
         return sorted(dep for dep, stamp in against.items() if changed(dep, stamp)) or None
     if package not in rebuild:
         return None
-    return sorted(closure([package], dict(step.depends)) & set(rebuild))
+    return sorted(closure([package], step.stamp_depends) & set(rebuild))
 
 
 def host_added(install: Path) -> set[str]:

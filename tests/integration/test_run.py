@@ -7,6 +7,7 @@ import contextlib
 import json
 import os
 import random
+import re
 import select
 import signal
 import subprocess
@@ -350,7 +351,9 @@ def test_run_says_when_a_package_was_built_on_older_sources_of_one_it_depends_on
     from tests.robot_packages import write_python_package
 
     root = python_workspace(tmp_path / "w")
-    write_python_package(root / "ws/src", "beacon_app", ("beacon_nodes",))
+    # Built on beacon_nodes (a `depend`, as `ros2 pkg create` writes it); the viewer only runs with it.
+    write_python_package(root / "ws/src", "beacon_app", ("beacon_nodes",), tag="depend")
+    write_python_package(root / "ws/src", "beacon_viewer", ("beacon_nodes",))
     built = espdock("build", "--only", "ros", cwd=root)
     assert built.returncode == 0, built.stdout[-2000:] + built.stderr
     run = ("run", "beacon_app", "beacon_app_node", "--ros-args", "--params-file", "/nonexistent/params.yaml")
@@ -365,6 +368,12 @@ def test_run_says_when_a_package_was_built_on_older_sources_of_one_it_depends_on
         "among them):" in said
     ), said
     assert "`espdock build beacon_app` first" in said
+    # A Python package's build reads nothing of what it only runs with (exec_depend): what it
+    # installed is as current as the build of it would make it, and no build was skipped.
+    viewer = espdock("run", "beacon_viewer", "beacon_viewer_node", *run[3:], cwd=root)
+    assert "was built on other sources" not in viewer.stdout + viewer.stderr, viewer.stdout + viewer.stderr
+    planned = espdock("build", "--dry-run", "--only", "ros", cwd=root, env={"COLUMNS": "400"}).stdout
+    assert re.search(r"would build 1 of 3 package\(s\): beacon_app$", planned, flags=re.M), planned
     again = espdock("build", "--only", "ros", cwd=root)
     assert again.returncode == 0, again.stdout[-2000:] + again.stderr
     current = espdock(*run, cwd=root)

@@ -259,6 +259,7 @@ def package_stamps(
     depends: Mapping[str, Iterable[str]],
     image: str | Mapping[str, str],
     settings: Mapping[str, str] | None = None,
+    reads: Mapping[str, Iterable[str]] | None = None,
 ) -> dict[str, str]:
     """Each package's stamp from its source digest, its workspace dependencies' stamps, IMAGE (or
     the package's, by name) and its colcon SETTINGS digest (options, colcon.meta, defaults files:
@@ -266,16 +267,26 @@ def package_stamps(
 
     SOURCES must list the packages in dependency order (a package after what it depends on).
     A dependency's stamp is part of its dependents', so a change rebuilds what depends on it.
+    READS: for a package whose own build reads fewer of its DEPENDS (an ament_python package's
+    exec_depends), those: its stamp carries only theirs, while what builds on it carries all of
+    them (colcon's environment for that build holds what the package runs with).
     """
+    whole: dict[str, str] = {}
     stamps: dict[str, str] = {}
     for name, source in sources.items():
         setting = (settings or {}).get(name, "")
         held = image if isinstance(image, str) else image[name]
-        digest = hashlib.sha256(f"{held}\0{name}\0{source}\0{setting}\n".encode())
-        for dep in sorted(set(depends.get(name, ())) & stamps.keys()):
-            digest.update(f"{dep}\0{stamps[dep]}\n".encode())
-        stamps[name] = digest.hexdigest()
+        own = f"{held}\0{name}\0{source}\0{setting}\n"
+        whole[name] = _chained(own, depends.get(name, ()), whole)
+        stamps[name] = _chained(own, reads[name], whole) if reads is not None and name in reads else whole[name]
     return stamps
+
+
+def _chained(own: str, deps: Iterable[str], stamps: Mapping[str, str]) -> str:
+    digest = hashlib.sha256(own.encode())
+    for dep in sorted(set(deps) & stamps.keys()):
+        digest.update(f"{dep}\0{stamps[dep]}\n".encode())
+    return digest.hexdigest()
 
 
 class StampFile:

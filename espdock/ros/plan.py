@@ -28,7 +28,7 @@ from espdock.layout import (
     ROSDEP_CONTEXT_DIR,
 )
 from espdock.ros import rosdeps
-from espdock.ros.colcon import ColconSettings, left_out, sets_build_testing, with_build_testing
+from espdock.ros.colcon import ColconSettings, closure, left_out, sets_build_testing, with_build_testing
 from espdock.workspace import BuildInputs, Package, PackageKind, Workspace, select_up_to, text_digest
 
 
@@ -68,8 +68,8 @@ class ColconBuild:
     python: tuple[str, ...] = ()
     # Each package's workspace dependencies whose builds its own build reads, where fewer than
     # DEPENDS: a Python package's build (setup.py) reads no exec_depend or test_depend, so an edit of
-    # an interface package it only runs with builds that package and its CMake users, not it.
-    # What its stamp carries, and what it is built on (see stamp_depends).
+    # an interface package it only runs with builds that package and its CMake users, not it (see
+    # build_reads). What builds on it reads them all: colcon's environment for it holds them.
     reads: tuple[tuple[str, tuple[str, ...]], ...] = ()
     # A test build's: the stamp_images of the plain build its install also serves (tests are
     # built, not installed), so `espdock build` after `espdock test` rebuilds nothing.
@@ -95,10 +95,11 @@ class ColconBuild:
         changed = set(rebuild) & set(self.interfaces)
         return tuple(n for n, deps in self.depends if n in changed and changed & set(deps))
 
-    @property
-    def stamp_depends(self) -> dict[str, tuple[str, ...]]:
-        """Each package's workspace dependencies whose stamps its stamp carries: those its build reads."""
-        return {**dict(self.depends), **dict(self.reads)}
+    def build_reads(self, name: str) -> set[str]:
+        """The workspace packages package NAME's build reads: its dependencies (READS' of them, for
+        a Python package) and, as colcon's environment for the build holds them, all of theirs."""
+        direct = dict(self.reads).get(name, dict(self.depends).get(name, ()))
+        return (set(direct) | closure(direct, dict(self.depends))) - {name}
 
     @property
     def workdir(self) -> str:

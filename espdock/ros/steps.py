@@ -383,8 +383,8 @@ class RosSteps:
             # A dependency this build was to build and did not (`-- --packages-skip` it, or it failed
             # under --continue-on-error): what built on it built on its old install, so it is not up
             # to date once that dependency is built.
-            depends = step.stamp_depends
-            on_old = {name: closure([name], depends) & (set(rebuild) - set(built)) for name in built}
+            depends, reads = dict(step.depends), dict(step.reads)
+            on_old = {name: step.build_reads(name) & (set(rebuild) - set(built)) for name in built}
             if against := [name for name in built if on_old[name]]:
                 olds = sorted(set().union(*(on_old[name] for name in against)))
                 self.containers.emit(
@@ -406,7 +406,7 @@ class RosSteps:
                     now_read = file_digests(workspace.root, [path for path in paths if path not in before])
                     outside[name] = {path: before.get(path) or now_read[path] for path in paths}
                 sources = {name: fold(tree.digest, outside[name]) for name, tree in trees.items()}
-                chained = package_stamps(sources, depends, step.stamp_images(), dict(step.settings))
+                chained = package_stamps(sources, depends, step.stamp_images(), dict(step.settings), reads)
                 now = {name: chained[name] for name in stamps}
                 # Those recorded as built (their install is espdock's: `espdock run` takes it), with a
                 # stamp no package has: the next build builds them again.
@@ -415,13 +415,12 @@ class RosSteps:
                 if step.serves:
                     served = dict(step.serves)
                     images = {name: served.get(name, "") for name in sources}
-                    plain = package_stamps(sources, depends, images, dict(step.settings))
+                    plain = package_stamps(sources, depends, images, dict(step.settings), reads)
                     serves = {name: plain[name] for name in built if not on_old[name]}
                 # Each one's dependencies' stamps as this build leaves them (built now, or up to
                 # date): a dependency rebuilt since, or edited, is one it was built on an older
                 # state of, whatever options either build was given.
-                built_on = {name: {dep: now[dep] for dep in closure([name], depends) - {name} if dep in now}
-                            for name in built}  # fmt: skip
+                built_on = {name: {dep: now[dep] for dep in step.build_reads(name) if dep in now} for name in built}
                 outside_built = {name: outside[name] for name in built}
                 stamp_file.record(recorded_stamps, installed(), sources_of, trees, serves, built_on, outside_built)
                 give_to(stamp_file.path, self.containers.owner)
@@ -670,7 +669,7 @@ def colcon_rebuild(workspace: Workspace, step: ColconBuild) -> Rebuild:
             paths = []
         outside[name] = file_digests(workspace.root, paths, known)
     sources = {name: fold(now.digest, outside[name]) for name, now in trees.items()}
-    chained = package_stamps(sources, step.stamp_depends, step.stamp_images(), dict(step.settings))
+    chained = package_stamps(sources, dict(step.depends), step.stamp_images(), dict(step.settings), dict(step.reads))
     stamps = {name: chained[name] for name in step.building}
     if step.force:
         return Rebuild(stamp_file, stamps, tuple(stamps), trees, outside, tuple(unlisted))
@@ -780,22 +779,30 @@ def built_on_older(workspace: Workspace, step: ColconBuild, package: str) -> lis
     if not isinstance(entry, dict) or package not in trees or entry.get("tree") != trees[package].digest:
         return None
     against = entry.get("against")
+
+    def edited(dep: str) -> bool:
+        now = recorded.get(dep)
+        read = now.get("outside") if isinstance(now, dict) else None
+        return dep in trees and (
+            not isinstance(now, dict)
+            or now.get("tree") != trees[dep].digest
+            or (isinstance(read, dict) and read != found.outside.get(dep))
+        )
+
     if isinstance(against, dict):
         # By the stamps it was built on: options given to one build or another (a selection's
-        # --cmake-args) make no dependency older.
+        # --cmake-args) make no dependency older. What it only runs with (a Python package's
+        # exec_depends) its build did not read: only an edit not built since is older there.
         def changed(dep: str, stamp: object) -> bool:
             now = recorded.get(dep)
-            if not isinstance(now, dict) or now.get("stamp") != stamp:
-                return True
-            read = now.get("outside")
-            return dep in trees and (
-                now.get("tree") != trees[dep].digest or (isinstance(read, dict) and read != found.outside.get(dep))
-            )
+            return not isinstance(now, dict) or now.get("stamp") != stamp or edited(dep)
 
-        return sorted(dep for dep, stamp in against.items() if changed(dep, stamp)) or None
+        runs_with = closure([package], dict(step.depends)) - step.build_reads(package) - {package}
+        older = {dep for dep, stamp in against.items() if changed(dep, stamp)}
+        return sorted(older | {dep for dep in runs_with if edited(dep)}) or None
     if package not in rebuild:
         return None
-    return sorted(closure([package], step.stamp_depends) & set(rebuild))
+    return sorted(closure([package], dict(step.depends)) & set(rebuild))
 
 
 def host_added(install: Path) -> set[str]:

@@ -87,9 +87,11 @@ def test_a_changed_interface_package_rebuilds_its_dependents(robot):
         message = robot / "ws/src/robot_msgs/msg/WheelSpeeds.msg"
         message.write_text(message.read_text() + "float64 battery_voltage\n")
         built = build(robot)
-        # The interface package built on it; not the Python drivers, which only run with it
-        # (exec_depend): their setup.py reads nothing of it. And so not the nodes on the drivers.
-        assert colcon_ran(robot) == dict.fromkeys(("robot_msgs", "robot_state_msgs"), "built")
+        # Not the Python drivers, which only run with it (exec_depend): their setup.py reads nothing
+        # of it. But the nodes built on the drivers (a `depend`): colcon's environment for their
+        # builds holds what the drivers run with, and a build may run a driver's code.
+        behaviours = [p.name for p in (robot / "ws/src").iterdir() if p.name.startswith("behaviour_")]
+        assert colcon_ran(robot) == dict.fromkeys(("robot_msgs", "robot_state_msgs", *behaviours), "built")
         assert "up to date" in espdock("build", "--dry-run", cwd=robot).stdout
         generated = robot / "ws/install/robot_msgs/share/robot_msgs/msg/WheelSpeeds.msg"
         assert "battery_voltage" in generated.read_text()

@@ -374,6 +374,17 @@ def test_run_says_when_a_package_was_built_on_older_sources_of_one_it_depends_on
     assert "was built on other sources" not in viewer.stdout + viewer.stderr, viewer.stdout + viewer.stderr
     planned = espdock("build", "--dry-run", "--only", "ros", cwd=root, env={"COLUMNS": "400"}).stdout
     assert re.search(r"would build 1 of 3 package\(s\): beacon_app$", planned, flags=re.M), planned
+    # But an edit of what it runs with, not built since, is what it would run the old install of.
+    source = root / "ws/src/beacon_nodes/beacon_nodes/beacon.py"
+    kept = source.read_text()
+    source.write_text(kept + "# changed again\n")
+    viewer = espdock("run", "beacon_viewer", "beacon_viewer_node", *run[3:], cwd=root)
+    said = " ".join((viewer.stdout + viewer.stderr).split())
+    assert (
+        "warning: beacon_viewer was built on other sources of the workspace packages it depends on (beacon_nodes"
+        in said
+    )
+    source.write_text(kept)
     again = espdock("build", "--only", "ros", cwd=root)
     assert again.returncode == 0, again.stdout[-2000:] + again.stderr
     current = espdock(*run, cwd=root)

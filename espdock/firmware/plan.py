@@ -422,9 +422,9 @@ def micro_ros_image(
     if meta:
         _check_colcon_meta(firmware.name, meta)
     order = inputs.sdkconfig_order.get(firmware.name, ())
-    link = transport.firmware_transport(inputs.sdkconfig_defaults.get(firmware.name, {}), target, order)
-    transport.check_transport(firmware.name, link, target)
-    meta = transport.library_colcon_meta(firmware.name, meta, link)
+    link, where = transport.transport_choice(inputs.sdkconfig_defaults.get(firmware.name, {}), target, order)
+    transport.check_transport(firmware.name, link, target, where=where)
+    meta = transport.library_colcon_meta(firmware.name, meta, link, where)
     context: dict[str, bytes] = {
         IDF_DOCKERFILE: inputs.idf_dockerfile.encode(),
         **{f"{IDF_INPUT_DIR}/{rel}": data for rel, data in inputs.idf_files.items()},

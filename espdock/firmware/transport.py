@@ -64,10 +64,10 @@ def defaults_in_order(defaults: Mapping[str, bytes], target: str, order: Sequenc
 
 def firmware_transport(defaults: Mapping[str, bytes], target: str, order: Sequence[str] = ()) -> str:
     """The transport a package's sdkconfig.defaults (then .TARGET, which wins) selects; UDP if none."""
-    return _chosen_transport(defaults, target, order)[0]
+    return transport_choice(defaults, target, order)[0]
 
 
-def _chosen_transport(defaults: Mapping[str, bytes], target: str, order: Sequence[str]) -> tuple[str, str | None]:
+def transport_choice(defaults: Mapping[str, bytes], target: str, order: Sequence[str] = ()) -> tuple[str, str | None]:
     """firmware_transport's choice and the name of the defaults file that made it (None: UDP by default)."""
     chosen: tuple[str, str | None] = (UDP, None)
     for name in applied_defaults(target, order):
@@ -83,9 +83,9 @@ def lacks_port(transport: str, target: str) -> bool:
     return transport == USB_SERIAL_JTAG and target not in USB_SERIAL_JTAG_CHIPS
 
 
-def check_transport(package: str, transport: str, target: str, new: bool = False) -> None:
+def check_transport(package: str, transport: str, target: str, new: bool = False, where: str | None = None) -> None:
     """Refuse a transport the chip has no hardware for, before anything builds; NEW: as `espdock
-    new --transport` asks for it, before the package exists."""
+    new --transport` asks for it, before the package exists. WHERE: the defaults file that chose it."""
     if lacks_port(transport, target):
         chips = " or ".join(USB_SERIAL_JTAG_CHIPS)
         if new:
@@ -94,7 +94,7 @@ def check_transport(package: str, transport: str, target: str, new: bool = False
                 f"Use --transport uart (the board's USB-to-UART bridge on UART0), or --target {chips}.",
             )
         raise WorkspaceError(
-            f"{package}: {target} has no USB-Serial-JTAG port, but its sdkconfig.defaults selects "
+            f"{package}: {target} has no USB-Serial-JTAG port, but its {where or 'sdkconfig.defaults'} selects "
             "CONFIG_ESPDOCK_TRANSPORT_USB_SERIAL_JTAG",
             f"Use it on {chips}, or set CONFIG_ESPDOCK_TRANSPORT_UART=y (the board's USB-to-UART bridge on UART0).",
         )
@@ -105,8 +105,9 @@ def rmw_transport(transport: str) -> str:
     return UDP if transport == UDP else "custom"
 
 
-def library_colcon_meta(package: str, meta: str, transport: str) -> str:
-    """The app-colcon.meta the micro-ROS library is built with for TRANSPORT.
+def library_colcon_meta(package: str, meta: str, transport: str, where: str | None = None) -> str:
+    """The app-colcon.meta the micro-ROS library is built with for TRANSPORT (chosen in the
+    defaults file WHERE; None: by default).
 
     A UDP package's meta is returned unchanged (UDP is the library's default, so its image key
     stays what it was); a serial one gets RMW_UXRCE_TRANSPORT=custom. A meta that sets another
@@ -122,8 +123,9 @@ def library_colcon_meta(package: str, meta: str, transport: str) -> str:
     given = [a[len(_TRANSPORT_ARG) :] for a in args if isinstance(a, str) and a.startswith(_TRANSPORT_ARG)]
     if any(value != wanted for value in given):
         raise WorkspaceError(
-            f"{package}/app-colcon.meta sets {_TRANSPORT_ARG}{given[-1]}, but its sdkconfig.defaults selects "
-            f"the {transport} transport, which needs {_TRANSPORT_ARG}{wanted}",
+            f"{package}/app-colcon.meta sets {_TRANSPORT_ARG}{given[-1]}, but "
+            + (f"its {where} selects the {transport} transport" if where else f"it uses the {transport} transport")
+            + f", which needs {_TRANSPORT_ARG}{wanted}",
             f"Remove that argument (espdock adds the right one) or set it to {wanted}.",
         )
     if transport == UDP or given:
@@ -140,7 +142,7 @@ def project_transport(project: Path, target: str) -> str:
 def _project_choice(project: Path, target: str) -> tuple[str, str | None]:
     order = named_sdkconfig_defaults(project / "CMakeLists.txt")
     found = {n: (project / n).read_bytes() for n in applied_defaults(target, order) if (project / n).is_file()}
-    return _chosen_transport(found, target, order)
+    return transport_choice(found, target, order)
 
 
 def check_provisionable(package: str, project: Path, target: str) -> None:

@@ -65,16 +65,28 @@ def test_a_serial_package_without_a_meta_gets_one():
 
 def test_usb_serial_jtag_on_a_chip_without_one_is_refused_before_any_build():
     for chip in ("esp32", "esp32s2"):
-        with pytest.raises(WorkspaceError, match=f"{chip} has no USB-Serial-JTAG port"):
+        with pytest.raises(
+            WorkspaceError, match=rf"{chip} has no USB-Serial-JTAG port, but its sdkconfig\.defaults selects"
+        ):
             image(with_defaults(USB), target=chip)
     for chip in ("esp32c3", "esp32s3"):
         image(with_defaults(USB), target=chip)
+    # The file that chose it is the one named: the target's own, where that one chose.
+    chip_file = replace(INPUTS, sdkconfig_defaults={"cam": {"sdkconfig.defaults.esp32": USB}}, app_metas={"cam": META})
+    with pytest.raises(WorkspaceError, match=r"but its sdkconfig\.defaults\.esp32 selects"):
+        image(chip_file, target="esp32")
 
 
 def test_a_meta_contradicting_the_kconfig_choice_is_refused():
     custom = json.dumps({"names": {"rmw_microxrcedds": {"cmake-args": ["-DRMW_UXRCE_TRANSPORT=custom"]}}})
-    with pytest.raises(WorkspaceError, match="needs -DRMW_UXRCE_TRANSPORT=udp"):
+    with pytest.raises(WorkspaceError, match="but it uses the udp transport, which needs -DRMW_UXRCE_TRANSPORT=udp"):
         image(with_defaults(b"", meta=custom))
+    # Chosen in a file: that file is named, the target's own where that one chose.
+    udp = b"CONFIG_ESPDOCK_TRANSPORT_UDP=y\n"
+    files = {"sdkconfig.defaults": UART, "sdkconfig.defaults.esp32s3": udp}
+    chosen = replace(INPUTS, sdkconfig_defaults={"cam": files}, app_metas={"cam": custom})
+    with pytest.raises(WorkspaceError, match=r"but its sdkconfig\.defaults\.esp32s3 selects the udp transport"):
+        image(chosen)
     # Saying what espdock would add is fine, and changes nothing.
     assert library_colcon_meta("cam", custom, "uart") == custom
 

@@ -23,8 +23,9 @@ from espdock.firmware import transport
 from espdock.firmware.plan import LONGCALLS_RISCV, IdfBuild
 from espdock.firmware.provision import IMAGE_MOUNT
 from espdock.firmware.steps import FirmwareSteps
-from espdock.images.engine import Engine, Mount, format_argv, port_url_key
+from espdock.images.engine import Engine, Mount, format_argv
 from espdock.images.machine_lock import machine_lock
+from espdock.images.port_urls import port_url_key
 from espdock.images.visibility import workspace_mount
 from espdock.layout import firmware_install_dir, installed_firmware_dir
 from espdock.workspace import Workspace, component_targets

@@ -23,7 +23,6 @@ import re
 import secrets
 import shutil
 import signal
-import socket
 import subprocess
 import sys
 import tarfile
@@ -37,7 +36,7 @@ from datetime import UTC, datetime
 from enum import StrEnum
 from pathlib import Path
 from typing import IO, Any
-from urllib.parse import quote, urlsplit
+from urllib.parse import quote
 
 from espdock import interrupts
 from espdock.errors import (
@@ -49,7 +48,8 @@ from espdock.errors import (
     Interrupted,
     MountSourceMissing,
 )
-from espdock.images import contexts, local_api, sdk
+from espdock.images import build_failures, contexts, local_api, sdk
+from espdock.images.port_urls import PORT_URL, same_port_url
 from espdock.images.sdk import docker, requests
 from espdock.scratch import owner_alive, owner_identity
 
@@ -666,7 +666,7 @@ class Engine:
             )
             archive.seek(0)
             tail: collections.deque[str] = collections.deque(maxlen=15)
-            offline = _NetworkWatch()
+            offline = build_failures.NetworkWatch()
 
             def on_line(line: str) -> None:
                 offline(line)
@@ -683,9 +683,9 @@ class Engine:
                 f"building {build.tag} from {build.dockerfile} (stage {build.target}) "
                 f"on the {self.info().name} failed:\n" + "\n".join(tail),
                 _runtime_hint(str(error))
-                or _line_endings_hint("\n".join(tail))
-                or _network_hint(offline.line, ENGINE_PROXIES)
-                or READ_THE_OUTPUT,
+                or build_failures.line_endings_hint("\n".join(tail))
+                or build_failures.network_hint(offline.line, build_failures.ENGINE_PROXIES)
+                or build_failures.READ_THE_OUTPUT,
             )
 
     def _post_build(
@@ -723,7 +723,7 @@ class Engine:
             "image",
         ]
         tail: collections.deque[str] = collections.deque(maxlen=15)
-        offline = _NetworkWatch()
+        offline = build_failures.NetworkWatch()
         process = subprocess.Popen(
             argv,
             cwd=_usable_cwd(),
@@ -769,7 +769,7 @@ class Engine:
             shown = [line if len(line) <= 300 else f"{line[:300]} ..." for line in tail]
             raise ImageBuildError(
                 f"building {build.tag} from {build.dockerfile} (stage {build.target}) failed:\n" + "\n".join(shown),
-                _buildkit_hint(tail, offline.line, self._run_proxies()),
+                build_failures.buildkit_hint(tail, offline.line, self._run_proxies()),
             )
 
     def data_root(self) -> str:
@@ -1145,7 +1145,7 @@ class Engine:
             named = (
                 mine
                 and url is not None
-                and any(same_port_url(url, other) for arg in command for other in _PORT_URL.findall(arg))
+                and any(same_port_url(url, other) for arg in command for other in PORT_URL.findall(arg))
             )
             holds = bool(wanted & {os.path.realpath(str(d.get("PathOnHost", ""))) for d in given})
             if not holds and not named:
@@ -1403,143 +1403,12 @@ def _compose_build(build: ImageBuild) -> dict[str, Any]:
     }
 
 
-# A build step's words for a network it could not reach: apt's ("Temporary failure resolving
-# 'deb.debian.org'", a proxy's "Could not connect to ... Connection refused"), pip's and uv's.
-NETWORK_FAILURE = re.compile(
-    r"Temporary failure (resolving|in name resolution)|Could not resolve (host|')|Name or service not known"
-    r"|Network is unreachable|No route to host|Failed to establish a new connection"
-    r"|Could not connect to \S+.*(refused|timed out)|dns error",
-    re.IGNORECASE,
-)
 # Podman 4's build API does not stop a build whose client left (BuildKit's does): said, not
 # "stopped and removed" as every other interrupted build is.
 PODMAN_BUILD_GOES_ON = (
     "interrupted; Podman goes on with the image build's current step until it ends (its build API "
     "does not stop a build its client left: `podman ps --external` shows it), and tags nothing"
 )
-# What a step that reached the network prints: apt's fetches, pip's and uv's downloads.
-DOWNLOADED = re.compile(r"^(Get:\d+ |Downloading |Downloaded |Saved )")
-BUILDKIT_LINE = re.compile(r"^#(?P<step>\d+) (?:\d+\.\d+ )?(?P<text>.*)")  # BuildKit's: its step, seconds into it
-CLASSIC_STEP = re.compile(r"^(?:STEP|Step) (?P<step>\d+)/\d+ ?:")  # the engine API builder's (Buildah's, Docker's)
-READ_THE_OUTPUT = "Read the build output above; run with --verbose for all of it."
-
-
-class _NetworkWatch:
-    """Each step's first line saying it could not reach the network, and whether it downloaded
-    anything: apt's come as warnings long before its last words ("Unable to locate package
-    python3"), out of the tail. Only the failed step counts, and only where it reached nothing:
-    one dead source of several, or a retry that then succeeded, is no network out of reach."""
-
-    def __init__(self) -> None:
-        self.found: dict[str, str] = {}
-        self.fetched: set[str] = set()
-        self.failed: list[str] = []
-        self.step = ""  # the classic builder's step its lines belong to
-
-    def __call__(self, line: str) -> None:
-        if classic := CLASSIC_STEP.match(line):
-            self.step = classic.group("step")
-            return
-        buildkit = BUILDKIT_LINE.match(line)
-        step, text = (buildkit.group("step"), buildkit.group("text")) if buildkit else (self.step, line)
-        text = text.strip()
-        if buildkit and text.startswith("ERROR"):
-            self.failed.append(step)
-        elif DOWNLOADED.match(text):
-            self.fetched.add(step)
-        elif NETWORK_FAILURE.search(text):
-            self.found.setdefault(step, text)
-
-    @property
-    def line(self) -> str | None:
-        """What the failed step (BuildKit's `#N ERROR`, else the classic builder's last) said of the network."""
-        return next(
-            (self.found[s] for s in self.failed or [self.step] if s in self.found and s not in self.fetched), None
-        )
-
-
-# Where an HTTP proxy for image builds is set: Compose's BuildKit builds take the Docker CLI's
-# (`proxies`, made build args), the engine API's builder (Buildah under Podman) the engine's own.
-CLI_PROXIES = "name it in the Docker CLI's config (`proxies` in ~/.docker/config.json), which image builds take"
-ENGINE_PROXIES = (
-    "set HTTP_PROXY and HTTPS_PROXY in the environment of the engine's service, which Podman passes "
-    "into its builds (http_proxy in containers.conf, on by default)"
-)
-
-
-def _network_hint(line: str | None, proxies: str = CLI_PROXIES) -> str | None:
-    if line is None:
-        return None
-    # Around what matched: pip's words come after a long repr of its connection object.
-    start = max(0, (match.start() - 60) if (match := NETWORK_FAILURE.search(line)) else 0)
-    shown = ("... " if start else "") + line[start : start + 200] + (" ..." if len(line) > start + 200 else "")
-    return (
-        f"A step of the build could not reach the network ({shown}): its downloads (apt, pip, git) need "
-        f"it. Behind an HTTP proxy, {proxies}; without a network, build the images where one answers and "
-        "bring them here (`docker save`, `docker load`), or pull them from a cache registry (cache_registry)."
-    )
-
-
-def _buildkit_hint(tail: Sequence[str], offline: str | None = None, proxies: Mapping[str, str] | None = None) -> str:
-    """What to do about a failed BuildKit build, from the last lines it printed (OFFLINE: a line of
-    its output that said the network was out of reach; PROXIES: those the CLI's config gives builds)."""
-    output = "\n".join(tail)
-    for load in re.finditer(r"^#(\d+) \[(?:\S+ )?internal\] load metadata for (\S+)", output, re.MULTILINE):
-        # That step's own error, or the solver's word on it: not any step's error after a base
-        # image that was there (a RUN that failed read as "not here and could not be pulled").
-        step, ref = load.groups()
-        if re.search(rf"^#{step} ERROR", output, re.MULTILINE) or f"resolve source metadata for {ref}" in output:
-            return (
-                f"{ref} is not here and could not be pulled: is a registry reachable? "
-                "Or load the image locally (docker load) or point espdock.toml at one you have."
-            )
-    if config := re.search(r"mkdir (\S*\.docker): permission denied", output):
-        # Compose's build writes the docker CLI's config dir first (buildx state); a HOME
-        # espdock can read but not write fails every image build so.
-        return (
-            f"The docker CLI could not make its config dir {config.group(1)}: point DOCKER_CONFIG at a "
-            "directory you can write (or make that one writable)."
-        )
-    return (
-        _line_endings_hint(output) or _proxy_hint(offline, proxies or {}) or _network_hint(offline) or READ_THE_OUTPUT
-    )
-
-
-def _proxy_hint(line: str | None, proxies: Mapping[str, str]) -> str | None:
-    """Where the network failure LINE names the proxy the CLI's config gives builds: the hint to
-    name a proxy there sent the user to set what they had set."""
-    for variable in ("HTTP_PROXY", "HTTPS_PROXY", "ALL_PROXY"):
-        parts = urlsplit(proxies.get(variable, ""))
-        try:
-            port = parts.port
-        except ValueError:
-            port = None
-        # apt names it with its port ("Could not connect to H:P"), or alone ("Could not resolve 'H'").
-        if line and parts.hostname and re.search(rf"(?<![\w.-]){re.escape(parts.hostname)}(?![\w.-])", line):
-            where = f"{parts.hostname}:{port}" if port else parts.hostname
-            return (
-                f"The proxy the Docker CLI's config names ({variable} {where}, `proxies` in its config.json) "
-                "did not let a step of the build through: check that it is up, and its address and "
-                "credentials there."
-            )
-    return None
-
-
-# What a shell says of a script with Windows line endings: dash's `set -eu\r`, bash's `\r` as a
-# command, env's `python3\r` (shown as it is, or in bash's $'...' quoting).
-CRLF_SYMPTOM = re.compile(r"Illegal option -\r?$|\$'\\r'|\r['\u2019:]", re.MULTILINE)
-
-
-def _line_endings_hint(output: str) -> str | None:
-    """What to do when a build failed on a Dockerfile's script with Windows line endings (a
-    checkout with Git for Windows' autocrlf)."""
-    if not CRLF_SYMPTOM.search(output):
-        return None
-    return (
-        "A script the build runs has Windows line endings (CRLF), as a checkout with Git for Windows' "
-        "core.autocrlf makes them: put `* text=auto eol=lf` in the repository's .gitattributes and check the "
-        "files out again (`git rm --cached -r . && git reset --hard`), or convert them (dos2unix)."
-    )
 
 
 def _split_ref(ref: str) -> tuple[str, str]:
@@ -1789,62 +1658,3 @@ def _csv_line(fields: list[str]) -> str:
     out = io.StringIO()
     csv.writer(out, lineterminator="").writerow(fields)
     return out.getvalue()
-
-
-# A serial port's URL in a container's command line (esptool's, idf.py's, the agent's).
-_PORT_URL = re.compile(r"(?i)\b(?:socket|rfc2217)://[^\s'\"]+")
-
-
-def same_port_url(one: str, other: str) -> bool:
-    """Whether URLs ONE and OTHER (socket://, rfc2217://) reach the same serial server: the same
-    port on an address both names resolve to. Compared as text, `socket://localhost:4000` and a
-    monitor's `socket://127.0.0.1:4000/` were two servers, and the second client saw a silent board."""
-    first, second = _endpoint(one), _endpoint(other)
-    return first is not None and second is not None and first[1] == second[1] and bool(first[0] & second[0])
-
-
-def port_url_key(url: str) -> str | None:
-    """A name for the serial server URL reaches, the same for every URL same_port_url takes for it
-    (on this machine's view of the names)."""
-    found = _endpoint(url)
-    if found is None:
-        return None
-    addresses, port = found
-    # One address of those it resolves to, the same for a name and its literal address (a bridge
-    # named esp-bridge.lan with an A and an AAAA record, and 192.168.1.50).
-    ipv4 = sorted(a for a in addresses if "." in a and ":" not in a)
-    return f"{_THIS_MACHINE if _THIS_MACHINE in addresses else (ipv4 or sorted(addresses))[0]}-{port}"
-
-
-# What a client on this machine reaches as this machine: one name for all of them (a dual-stack
-# server on ::1 is the one on 127.0.0.1).
-_THIS_MACHINE = "loopback"
-
-
-def _endpoint(url: str) -> tuple[frozenset[str], int] | None:
-    import ipaddress
-
-    parts = urlsplit(url.strip())
-    try:
-        port = parts.port
-    except ValueError:
-        return None
-    host = parts.hostname
-    if not host or port is None:
-        return None
-    try:
-        found = {str(info[4][0]).partition("%")[0] for info in socket.getaddrinfo(host, port, type=socket.SOCK_STREAM)}
-    except (OSError, UnicodeError):
-        found = {host}
-    addresses = set()
-    for text in found:
-        try:
-            address = ipaddress.ip_address(text)
-        except ValueError:
-            addresses.add(text)
-            continue
-        if isinstance(address, ipaddress.IPv6Address) and address.ipv4_mapped is not None:
-            address = address.ipv4_mapped  # ::ffff:127.0.0.1 is 127.0.0.1
-        # A client connecting to "any address" (0, 0.0.0.0, ::) reaches this machine.
-        addresses.add(_THIS_MACHINE if address.is_loopback or address.is_unspecified else str(address))
-    return frozenset(addresses), port

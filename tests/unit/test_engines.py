@@ -624,9 +624,9 @@ def test_no_space_left_where_the_workspace_disk_has_room_is_a_full_disk_not_a_bu
 def test_an_image_build_that_cannot_make_the_docker_cli_config_dir_names_docker_config():
     """HOME read-only: every image build failed with `mkdir ~/.docker: permission denied` and the
     hint to read the build output, which had nothing more."""
-    from espdock.images.engine import _buildkit_hint
+    from espdock.images.build_failures import buildkit_hint
 
-    hint = _buildkit_hint(["mkdir /home/ci/.docker: permission denied"])
+    hint = buildkit_hint(["mkdir /home/ci/.docker: permission denied"])
     assert "config dir /home/ci/.docker" in hint and "DOCKER_CONFIG" in hint
 
 
@@ -646,7 +646,7 @@ def test_a_build_tree_linked_out_of_the_workspace_is_refused_naming_it(ws, tmp_p
 def test_the_not_pulled_hint_is_for_a_base_image_that_failed_to_load_not_any_failed_step():
     """A RUN that failed after the base image's metadata loaded was hinted "debian:... is not here
     and could not be pulled", of an image the engine had."""
-    from espdock.images.engine import _buildkit_hint
+    from espdock.images.build_failures import buildkit_hint
 
     loaded = "#2 [internal] load metadata for docker.io/library/debian:bookworm-slim"
     ran = [
@@ -654,16 +654,16 @@ def test_the_not_pulled_hint_is_for_a_base_image_that_failed_to_load_not_any_fai
         "#2 DONE 0.0s",
         '#7 ERROR: process "/bin/sh -c ./setup.sh" did not complete successfully: exit code: 1',
     ]
-    assert "could not be pulled" not in _buildkit_hint(ran)
+    assert "could not be pulled" not in buildkit_hint(ran)
     # Compose's build (the service `image`, as espdock names it) with no registry reachable, as here.
     missing = [
         "#3 [image internal] load metadata for docker.io/library/debian:nope",
         '#3 ERROR: failed to do request: Head "https://registry-1.docker.io/v2/library/debian/manifests/nope": '
         "dial tcp: lookup registry-1.docker.io: no such host",
     ]
-    assert _buildkit_hint(missing).startswith("docker.io/library/debian:nope is not here and could not be pulled")
+    assert buildkit_hint(missing).startswith("docker.io/library/debian:nope is not here and could not be pulled")
     solver = "ERROR: failed to solve: debian:nope: failed to resolve source metadata for docker.io/library/debian:nope"
-    assert _buildkit_hint([missing[0], solver]).startswith("docker.io/library/debian:nope is not here")
+    assert buildkit_hint([missing[0], solver]).startswith("docker.io/library/debian:nope is not here")
 
 
 def test_a_node_run_as_a_background_job_of_the_terminal_forwards_neither_it_nor_its_keys(tmp_path):
@@ -701,15 +701,15 @@ def test_a_node_run_as_a_background_job_of_the_terminal_forwards_neither_it_nor_
 def test_a_script_with_windows_line_endings_is_named_as_such():
     """A Windows checkout's docker/apt-install.sh: the image build failed on dash's "set: Illegal
     option -" and the hint said to read the output."""
-    from espdock.images.engine import _buildkit_hint
+    from espdock.images.build_failures import buildkit_hint
 
     dash = ["#9 0.213 /usr/local/bin/apt-install: 6: set: Illegal option -", "#9 ERROR: process did not complete"]
-    assert "Windows line endings (CRLF)" in _buildkit_hint(dash)
+    assert "Windows line endings (CRLF)" in buildkit_hint(dash)
     env = ["#9 0.2 /usr/bin/env: \u2018python3\r\u2019: No such file or directory", "#9 ERROR: exit code: 127"]
-    assert "Windows line endings (CRLF)" in _buildkit_hint(env)
+    assert "Windows line endings (CRLF)" in buildkit_hint(env)
     bash = ["#9 0.2 /tmp/setup.sh: line 2: $'\\r': command not found"]
-    assert "Windows line endings (CRLF)" in _buildkit_hint(bash)
-    assert "Windows line endings" not in _buildkit_hint(["#9 0.2 set: -o: invalid option", "#9 ERROR"])
+    assert "Windows line endings (CRLF)" in buildkit_hint(bash)
+    assert "Windows line endings" not in buildkit_hint(["#9 0.2 set: -o: invalid option", "#9 ERROR"])
 
 
 def test_a_copy_back_onto_an_install_tree_mounted_on_its_own_is_refused_leaving_it(ws, tmp_path):
@@ -747,19 +747,19 @@ def test_a_copy_back_onto_an_install_tree_mounted_on_its_own_is_refused_leaving_
 def test_a_build_the_cli_config_s_proxy_did_not_let_through_names_that_proxy():
     """apt behind the proxy `proxies` names, the proxy down: the hint said to name a proxy in
     the Docker CLI's config, where the user had named this one."""
-    from espdock.images.engine import _buildkit_hint
+    from espdock.images.build_failures import buildkit_hint
 
     line = "8.140   Could not connect to 172.17.0.1:3199 (172.17.0.1). - connect (111: Connection refused)"
     tail = [line, "8.228 E: Unable to locate package acpitool"]
     proxies = {"HTTP_PROXY": "http://alice:S3cret@172.17.0.1:3199", "http_proxy": "http://alice:S3cret@172.17.0.1:3199"}
-    hint = _buildkit_hint(tail, line, proxies)
+    hint = buildkit_hint(tail, line, proxies)
     assert hint.startswith("The proxy the Docker CLI's config names (HTTP_PROXY 172.17.0.1:3199"), hint
     assert "S3cret" not in hint and "alice" not in hint
     # A proxy whose name does not resolve: apt names it alone, quoted.
     unresolved = "0.915 Could not resolve 'proxy.invalid'"
     named = {"HTTPS_PROXY": "http://user:secret@proxy.invalid:3128"}
-    hint = _buildkit_hint([unresolved], unresolved, named)
+    hint = buildkit_hint([unresolved], unresolved, named)
     assert hint.startswith("The proxy the Docker CLI's config names (HTTPS_PROXY proxy.invalid:3128"), hint
     # Another proxy named there, or none: the failure is the network's.
     for other in ({"HTTP_PROXY": "http://10.0.0.9:3128"}, {}):
-        assert _buildkit_hint(tail, line, other).startswith("A step of the build could not reach the network")
+        assert buildkit_hint(tail, line, other).startswith("A step of the build could not reach the network")

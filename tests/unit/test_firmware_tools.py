@@ -214,7 +214,7 @@ def test_a_serial_server_s_name_and_its_address_are_one_port_to_hold(monkeypatch
     for one server, and each command took a lock of its own."""
     import socket
 
-    from espdock.images.engine import port_url_key, same_port_url
+    from espdock.images.port_urls import port_url_key, same_port_url
 
     real = socket.getaddrinfo
 
@@ -418,7 +418,7 @@ def test_a_serial_server_s_url_is_the_same_port_however_it_is_written():
     """A monitor on socket://127.0.0.1:45451 in one terminal: `flash -p socket://localhost:45451`
     (or SOCKET://, a trailing /, rfc2217's ?ign_set_control, 0.0.0.0) was not called busy, and
     esptool said it could not tell the chip."""
-    from espdock.images.engine import same_port_url
+    from espdock.images.port_urls import same_port_url
 
     held = "socket://127.0.0.1:45451"
     for same in (

@@ -37,6 +37,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
             "espdock.durable",
             "espdock.interrupts",
             "espdock.scratch",
+            "espdock.downloads",
         ),
     ),
     ("build core", ("espdock.build", "espdock.build.steps", "espdock.build.stamps")),

@@ -21,7 +21,7 @@ from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, replace
 from pathlib import Path
 
-from espdock import scratch
+from espdock import downloads, scratch
 from espdock.build.steps import EnsureImage, Plan
 from espdock.config import Config, resolve_ca_bundle
 from espdock.defaults import locate
@@ -184,7 +184,7 @@ def lock_workspace(
     ca_bundle: Path | None = None,
 ) -> list[LockResult]:
     """Compile every lock of the workspace at ROOT from its source with the uv binary UV, writing
-    the ones that changed; OWNER (uid, gid) gets the files it creates (CA_BUNDLE: rosdeps.uv_env)."""
+    the ones that changed; OWNER (uid, gid) gets the files it creates (CA_BUNDLE: downloads.uv_env)."""
     results = []
     for spec in LOCKS:
         if not applies(spec, root):
@@ -224,12 +224,13 @@ def _compile(
         output.write_text(previous or "")
         argv = [uv, "pip", "compile", "--quiet", "--no-header", *spec.command(paths), "-o", str(output)]
         argv += ["--upgrade"] if upgrade else []
-        env = rosdeps.uv_env(tmp, ca_bundle)
+        env = downloads.uv_env(tmp, ca_bundle)
         result = subprocess.run(argv, cwd=root, env=env, capture_output=True, text=True, check=False)
         if result.returncode != 0:
             raise LockError(
                 f"uv could not lock {spec.lock} from {spec.source}:\n{result.stderr.strip()}",
-                rosdeps.network_hint(result.stderr, env) or f"Fix {spec.source} (or the network), then {FIX} again.",
+                downloads.network_hint(result.stderr, env, "uv", FIX)
+                or f"Fix {spec.source} (or the network), then {FIX} again.",
             )
         text = output.read_text()
     for path, rel in renamed.items():

@@ -15,7 +15,6 @@ lock must be made.
 
 from __future__ import annotations
 
-import contextlib
 import hashlib
 import json
 import os
@@ -24,11 +23,11 @@ import shutil
 import subprocess
 import time
 import warnings
-from collections.abc import Callable, Iterable, Iterator, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
-from espdock import scratch
+from espdock import downloads, scratch
 from espdock.defaults import locate
 from espdock.errors import DependencyError, LockError
 from espdock.layout import ROSDEP_LOCK, xdg_dir
@@ -312,7 +311,7 @@ def update_database(
         (sources / "20-default.list").write_text(DEFAULT_SOURCES)
     failed: list[str] = []
     try:
-        with warnings.catch_warnings(), _cert_file(ca_bundle):
+        with warnings.catch_warnings(), downloads.cert_file(ca_bundle):
             # The default list's gbpdistro source warns on every update, as `rosdep update` itself silences.
             warnings.filterwarnings("ignore", category=PreRep137Warning)
             update_sources_list(
@@ -325,7 +324,7 @@ def update_database(
     except Exception as exc:  # rosdep raises many kinds (URLError, InvalidData, ValueError)
         raise DatabaseUnreachable(
             f"`rosdep update` failed: {exc}",
-            network_hint(str(exc), env)
+            downloads.network_hint(str(exc), env, "rosdep", FIX)
             or "rosdep's database comes from GitHub (or ROSDEP_SOURCE_PATH / ROSDISTRO_INDEX_URL): reach it, then "
             + FIX
             + ".",
@@ -333,48 +332,12 @@ def update_database(
     if failed:
         raise DatabaseUnreachable(
             "`rosdep update` could not read: " + "; ".join(failed),
-            network_hint(" ".join(failed), env) or f"Fix the sources, then {FIX}.",
+            downloads.network_hint(" ".join(failed), env, "rosdep", FIX) or f"Fix the sources, then {FIX}.",
         )
     if root is not None:
         (cache / "root").write_text(str(Path(root).resolve()))
         _remove_gone_databases(cache_dir(env))
     return cache
-
-
-@contextlib.contextmanager
-def _cert_file(ca_bundle: Path | None) -> Iterator[None]:
-    """SSL_CERT_FILE, for this process's default TLS contexts (rosdep's urlopen), set to the CAs it
-    names (else the system's) and CA_BUNDLE's while the block runs."""
-    if ca_bundle is None:
-        yield
-        return
-    before = os.environ.get("SSL_CERT_FILE")
-    with scratch.scratch_dir("espdock-ca-") as tmp:
-        os.environ["SSL_CERT_FILE"] = str(with_system_cas(ca_bundle, tmp, before))
-        try:
-            yield
-        finally:
-            if before is None:
-                os.environ.pop("SSL_CERT_FILE", None)
-            else:
-                os.environ["SSL_CERT_FILE"] = before
-
-
-def network_hint(error: str, env: Mapping[str, str]) -> str | None:
-    """What to do about ERROR (rosdep's or uv's words for a download that failed) where it names a
-    certificate no CA here vouches for, or where a proxy of ENV's stood between."""
-    if "CERTIFICATE_VERIFY_FAILED" in error or "UnknownIssuer" in error:
-        return (
-            "This machine does not trust the server's certificate: behind a TLS-intercepting proxy, give its CA "
-            f"(ca_bundle in espdock.toml, or ESPDOCK_CA_BUNDLE), then {FIX}."
-        )
-    proxy = next((env[name] for name in ("HTTPS_PROXY", "https_proxy", "ALL_PROXY", "all_proxy") if env.get(name)), "")
-    if proxy and re.search(r"(?i)refused|timed out|unreachable|tunnel|proxy|\b40[37]\b", error):
-        from urllib.parse import urlsplit
-
-        where = urlsplit(proxy if "://" in proxy else f"http://{proxy}").netloc.rpartition("@")[2]  # no password
-        return f"rosdep went through the proxy at {where}: check that it is up and lets GitHub through, then {FIX}."
-    return None
 
 
 def _remove_gone_databases(base: Path) -> None:
@@ -511,32 +474,6 @@ def pip_alternatives(keys: Iterable[str]) -> list[str]:
     return out
 
 
-def uv_env(tmp: Path, ca_bundle: Path | None = None) -> dict[str, str]:
-    """The environment uv runs in: this one, with TMP (removed afterwards) as its temp dir. uv
-    leaves a lock file in the temp dir for every setuptools source tree it builds (a pip key's
-    sdist), about one per `espdock lock` here. CA_BUNDLE: the extra CA bundle (espdock's
-    ca_bundle, else pip's configured cert), which uv reads from no pip.conf: with the system's
-    CAs (or those of the user's own SSL_CERT_FILE), its SSL_CERT_FILE."""
-    env = {**os.environ, "TMPDIR": str(tmp)}
-    if ca_bundle is not None:
-        env["SSL_CERT_FILE"] = str(with_system_cas(ca_bundle, tmp, env.get("SSL_CERT_FILE")))
-    return env
-
-
-def with_system_cas(ca_bundle: Path, tmp: Path, own: str | None = None) -> Path:
-    """A file in TMP holding the CAs of OWN (the user's SSL_CERT_FILE), else the system's, and
-    CA_BUNDLE's: SSL_CERT_FILE replaces the former. An SSL_CERT_FILE naming the system's bundle
-    (CI images set one) left the proxy's CA out."""
-    import ssl
-
-    paths = ssl.get_default_verify_paths()
-    found = (own, paths.cafile, paths.openssl_cafile, "/etc/ssl/certs/ca-certificates.crt")
-    base = next((Path(p) for p in found if p and Path(p).is_file()), None)
-    combined = tmp / "espdock-ca.pem"
-    combined.write_bytes((base.read_bytes() + b"\n" if base else b"") + ca_bundle.read_bytes())
-    return combined
-
-
 def pip_lock_lines(
     requirements: Iterable[str],
     image: RosImage,
@@ -567,7 +504,9 @@ def pip_lock_lines(
                     args += ["-c", str(installed)]
             argv = [uv, "pip", "compile", "--quiet", "--no-header", "--no-annotate", "--generate-hashes"]
             argv += [*args, str(source), "-o", str(out)]
-            result = subprocess.run(argv, env=uv_env(tmp, ca_bundle), check=False, capture_output=True, text=True)
+            result = subprocess.run(
+                argv, env=downloads.uv_env(tmp, ca_bundle), check=False, capture_output=True, text=True
+            )
             if result.returncode == 0:
                 return _one_line_each(out.read_text()), absent
         gone = set(_NOT_FOUND.findall(result.stderr)) & set(wanted)
@@ -584,7 +523,7 @@ def pip_lock_lines(
             said = next((line.strip() for line in reversed(result.stderr.splitlines()) if line.strip()), "")
             raise DatabaseUnreachable(
                 f"uv could not reach the package index for the rosdep pip packages {wanted} ({said})",
-                network_hint(result.stderr, os.environ)
+                downloads.network_hint(result.stderr, os.environ, "uv", FIX)
                 or f"Reach the package index (PyPI, or the one UV_INDEX_URL names), then {FIX}.",
             )
         if not gone:

@@ -7,6 +7,7 @@ from pathlib import Path
 
 import pytest
 
+from espdock import downloads
 from espdock.config import Config
 from espdock.errors import DependencyError, LockError
 from espdock.ros import rosdeps
@@ -336,16 +337,16 @@ def test_uv_gets_the_extra_ca_bundle_beside_the_system_s_which_it_reads_from_no_
     extra = tmp_path / "proxy-ca.pem"
     extra.write_text("-----BEGIN CERTIFICATE-----\nproxy\n-----END CERTIFICATE-----\n")
     monkeypatch.delenv("SSL_CERT_FILE", raising=False)
-    assert "SSL_CERT_FILE" not in rosdeps.uv_env(tmp_path)
-    bundle = Path(rosdeps.uv_env(tmp_path, extra)["SSL_CERT_FILE"]).read_text()
+    assert "SSL_CERT_FILE" not in downloads.uv_env(tmp_path)
+    bundle = Path(downloads.uv_env(tmp_path, extra)["SSL_CERT_FILE"]).read_text()
     assert bundle.endswith(extra.read_text()) and bundle.count("BEGIN CERTIFICATE") > 1, "the system's CAs too"
     # An SSL_CERT_FILE of the user's (a CI image's, naming the system's bundle): the extra CA joins it.
     own = tmp_path / "own.pem"
     own.write_text("-----BEGIN CERTIFICATE-----\nown\n-----END CERTIFICATE-----\n")
     monkeypatch.setenv("SSL_CERT_FILE", str(own))
-    joined = Path(rosdeps.uv_env(tmp_path, extra)["SSL_CERT_FILE"]).read_text()
+    joined = Path(downloads.uv_env(tmp_path, extra)["SSL_CERT_FILE"]).read_text()
     assert joined == own.read_text() + "\n" + extra.read_text()
-    assert rosdeps.uv_env(tmp_path)["SSL_CERT_FILE"] == str(own)
+    assert downloads.uv_env(tmp_path)["SSL_CERT_FILE"] == str(own)
 
 
 def test_the_keys_a_lock_records_that_nothing_installs_are_listed_with_why():

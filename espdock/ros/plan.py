@@ -368,7 +368,9 @@ def ros_steps(
             reads=tuple(
                 (p.name, tuple(sorted(p.build_depends & names)))
                 for p in ros
-                if p.build_type in PYTHON_BUILD_TYPES and p.build_depends is not None and p.depends - p.build_depends
+                if p.build_type in PYTHON_BUILD_TYPES
+                and p.build_depends is not None
+                and (p.depends - p.build_depends) & names  # a workspace package it only runs or tests with
             ),
             declared=tuple((p.name, p.depends, p.test_only_depends) for p in ros),
             underlay=ros_image.repository,

@@ -384,7 +384,8 @@ class RosSteps:
             # under --continue-on-error): what built on it built on its old install, so it is not up
             # to date once that dependency is built.
             depends, reads = dict(step.depends), dict(step.reads)
-            on_old = {name: step.build_reads(name) & (set(rebuild) - set(built)) for name in built}
+            read_by = {name: step.build_reads(name) for name in built}
+            on_old = {name: read_by[name] & (set(rebuild) - set(built)) for name in built}
             if against := [name for name in built if on_old[name]]:
                 olds = sorted(set().union(*(on_old[name] for name in against)))
                 self.containers.emit(
@@ -420,7 +421,7 @@ class RosSteps:
                 # Each one's dependencies' stamps as this build leaves them (built now, or up to
                 # date): a dependency rebuilt since, or edited, is one it was built on an older
                 # state of, whatever options either build was given.
-                built_on = {name: {dep: now[dep] for dep in step.build_reads(name) if dep in now} for name in built}
+                built_on = {name: {dep: now[dep] for dep in read_by[name] if dep in now} for name in built}
                 outside_built = {name: outside[name] for name in built}
                 stamp_file.record(recorded_stamps, installed(), sources_of, trees, serves, built_on, outside_built)
                 give_to(stamp_file.path, self.containers.owner)

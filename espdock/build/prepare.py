@@ -37,7 +37,7 @@ from espdock.ros.colcon import (
     without_build_testing,
 )
 from espdock.ros.plan import ColconBuild, RuntimeImage, checked_packages, ros_image
-from espdock.ros.steps import runtime_spec
+from espdock.ros.runtime_tree import runtime_spec
 from espdock.ros.testing import ColconTest
 from espdock.workspace import (
     DEFAULT_ROS_DISTRO,

@@ -15,7 +15,8 @@ from espdock.images.keyed import is_current
 from espdock.layout import ROS_BUILD_BASE
 from espdock.ros.colcon import left_out
 from espdock.ros.plan import ColconBuild, RuntimeImage
-from espdock.ros.steps import colcon_rebuild, runtime_spec
+from espdock.ros.runtime_tree import runtime_spec
+from espdock.ros.steps import colcon_rebuild
 from espdock.workspace import Workspace
 
 UNKNOWN = "not known (no engine answered, and the images decide it)"

@@ -1,4 +1,5 @@
-"""What a runtime image takes from the install tree, standing alone.
+"""What a runtime image takes from the install tree, standing alone, and the key and build
+context made of it.
 
 colcon's `--symlink-install` leaves install/ pointing elsewhere: ament_cmake installs symlinks
 into build/ (compiled executables) and the sources (scripts, package.xml), and ament_python
@@ -12,12 +13,19 @@ file changes what is taken, so the next runtime image holds it, as a symlink ins
 
 from __future__ import annotations
 
+import hashlib
 import os
 import posixpath
+from dataclasses import replace
 from pathlib import Path
 
+from espdock.build.stamps import content_sha256
+from espdock.build.steps import ImageSpec
+from espdock.errors import WorkspaceError
+from espdock.images.keyed import image_mode
 from espdock.layout import host_path
-from espdock.workspace import editor_leftover
+from espdock.ros.plan import RuntimeImage, runtime_image_spec
+from espdock.workspace import Workspace, editor_leftover
 
 # Links are followed this many times before one is taken for a loop.
 _MAX_HOPS = 40
@@ -145,3 +153,42 @@ def resolve_installed(path: Path, root: Path) -> Path | None:
     """PATH in an install tree as the runtime image will hold it: a link out of the tree followed
     (container paths read under ROOT); None when it points at nothing."""
     return _target(path, root) if path.is_symlink() else path
+
+
+def runtime_spec(workspace: Workspace, step: RuntimeImage) -> ImageSpec:
+    """The keyed runtime image for STEP's install trees as they are now."""
+    step = installed_step(workspace, step)
+    digest = runtime_install_digest(workspace.ws_dir / "install", step.packages, workspace.root)
+    return runtime_image_spec(step, digest)
+
+
+def runtime_install_digest(install: Path, packages: tuple[str, ...], root: Path | None = None) -> str:
+    """sha256 over the paths, modes and contents of what a runtime image takes from INSTALL
+    (ROOT: the workspace root, where links of a symlink install lead)."""
+    digest = hashlib.sha256()
+    for rel, path in runtime_files(install, packages, root).items():
+        if isinstance(path, bytes):
+            mode, content = 0o644, hashlib.sha256(path).digest()
+        elif path.is_symlink():
+            mode, content = 0o777, hashlib.sha256(os.readlink(path).encode()).digest()
+        else:
+            info = path.stat()
+            mode, content = image_mode(info.st_mode), content_sha256(path, info)
+        digest.update(f"{rel}\0{mode:o}\0".encode())
+        digest.update(content)
+    return digest.hexdigest()
+
+
+def runtime_context(install: Path, step: RuntimeImage, root: Path | None = None) -> dict[str, Path | bytes]:
+    """The runtime image's build context besides its Dockerfile: exactly the files
+    runtime_install_digest hashed, under install/."""
+    return {f"install/{rel}": path for rel, path in runtime_files(install, step.packages, root).items()}
+
+
+def installed_step(workspace: Workspace, step: RuntimeImage) -> RuntimeImage:
+    """STEP for the packages among its own that have an install tree; none at all is an error."""
+    install = workspace.ws_dir / "install"
+    present = tuple(name for name in step.packages if (install / name).is_dir())
+    if step.packages and not present:
+        raise WorkspaceError(f"no ROS package is installed in {install}", "Run `espdock build` to build them.")
+    return replace(step, packages=present)

@@ -4,7 +4,6 @@ and the runtime image made of the install trees."""
 from __future__ import annotations
 
 import contextlib
-import hashlib
 import os
 import posixpath
 import re
@@ -14,9 +13,9 @@ from dataclasses import replace
 from pathlib import Path
 from typing import NamedTuple
 
-from espdock.build.stamps import StampFile, TreeState, content_sha256, listing_digest, package_stamps, tree_state
-from espdock.build.steps import EnsureImage, ImageSpec
-from espdock.errors import BuildFailed, ConfigError, WorkspaceError
+from espdock.build.stamps import StampFile, TreeState, listing_digest, package_stamps, tree_state
+from espdock.build.steps import EnsureImage
+from espdock.errors import BuildFailed, ConfigError
 from espdock.events import Outcome, StepNote, StepOutput
 from espdock.images import volume
 from espdock.images.containers import (
@@ -28,7 +27,7 @@ from espdock.images.containers import (
     with_host_umask,
 )
 from espdock.images.engine import Mount, RunSpec
-from espdock.images.keyed import KeyedImages, image_mode
+from espdock.images.keyed import KeyedImages
 from espdock.images.visibility import host_paths, links_out, workspace_mount
 from espdock.layout import FIRMWARE_DIR, MANIFEST_NAME, ROS_BUILD_BASE, WORKSPACE_MOUNT
 from espdock.ros import rmw
@@ -47,8 +46,8 @@ from espdock.ros.colcon import (
     symlink_installed,
 )
 from espdock.ros.colcon_log import ColconLog, PackageState, explain_failure, named, usage_error
-from espdock.ros.plan import PYTHON_BUILD_TYPES, ColconBuild, RuntimeImage, runtime_image_spec
-from espdock.ros.runtime_tree import runtime_files
+from espdock.ros.plan import PYTHON_BUILD_TYPES, ColconBuild, RuntimeImage
+from espdock.ros.runtime_tree import installed_step, runtime_context, runtime_spec
 from espdock.ros.testing import (
     ROS_TEST_LOGS,
     ColconTest,
@@ -611,7 +610,7 @@ class RosSteps:
 
     def runtime_image(self, workspace: Workspace, step: RuntimeImage) -> tuple[Outcome, str]:
         # Only what is installed and, of what this run was to build, what it built.
-        installed = _installed(
+        installed = installed_step(
             workspace, replace(step, packages=tuple(p for p in step.packages if p not in self.unbuilt))
         )
         if missing := sorted(set(step.packages) - set(installed.packages)):
@@ -829,45 +828,6 @@ def _entries(directory: Path) -> list[str]:
         return os.listdir(directory)
     except OSError:
         return []
-
-
-def runtime_spec(workspace: Workspace, step: RuntimeImage) -> ImageSpec:
-    """The keyed runtime image for STEP's install trees as they are now."""
-    step = _installed(workspace, step)
-    digest = runtime_install_digest(workspace.ws_dir / "install", step.packages, workspace.root)
-    return runtime_image_spec(step, digest)
-
-
-def runtime_install_digest(install: Path, packages: tuple[str, ...], root: Path | None = None) -> str:
-    """sha256 over the paths, modes and contents of what a runtime image takes from INSTALL
-    (ROOT: the workspace root, where links of a symlink install lead)."""
-    digest = hashlib.sha256()
-    for rel, path in runtime_files(install, packages, root).items():
-        if isinstance(path, bytes):
-            mode, content = 0o644, hashlib.sha256(path).digest()
-        elif path.is_symlink():
-            mode, content = 0o777, hashlib.sha256(os.readlink(path).encode()).digest()
-        else:
-            info = path.stat()
-            mode, content = image_mode(info.st_mode), content_sha256(path, info)
-        digest.update(f"{rel}\0{mode:o}\0".encode())
-        digest.update(content)
-    return digest.hexdigest()
-
-
-def runtime_context(install: Path, step: RuntimeImage, root: Path | None = None) -> dict[str, Path | bytes]:
-    """The runtime image's build context besides its Dockerfile: exactly the files
-    runtime_install_digest hashed, under install/."""
-    return {f"install/{rel}": path for rel, path in runtime_files(install, step.packages, root).items()}
-
-
-def _installed(workspace: Workspace, step: RuntimeImage) -> RuntimeImage:
-    """STEP for the packages among its own that have an install tree; none at all is an error."""
-    install = workspace.ws_dir / "install"
-    present = tuple(name for name in step.packages if (install / name).is_dir())
-    if step.packages and not present:
-        raise WorkspaceError(f"no ROS package is installed in {install}", "Run `espdock build` to build them.")
-    return replace(step, packages=present)
 
 
 def _linked(workspace: Workspace, sources: Iterable[tuple[str, str]]) -> tuple[Mount, ...]:

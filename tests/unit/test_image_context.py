@@ -25,7 +25,7 @@ def test_an_image_s_staged_context_has_the_same_modes_under_any_umask(tmp_path):
 def test_installed_files_copied_into_an_image_are_readable_by_its_user_under_any_umask(tmp_path):
     """umask 077: setuptools kept the sources' 0600 in install/, and the runtime image's node (not
     their owner there) failed on `Permission denied` reading its own package.xml and ament index."""
-    from espdock.ros.steps import runtime_install_digest
+    from espdock.ros.runtime_tree import runtime_install_digest
 
     install = tmp_path / "install/talk"
     (install / "lib/talk").mkdir(parents=True)

@@ -26,7 +26,8 @@ from espdock.ros.nodes import (
     volume,
 )
 from espdock.ros.plan import RuntimeImage, ros_build_image, runtime_base_image, runtime_image_spec
-from espdock.ros.steps import ROS_STAMPS, runtime_context, runtime_install_digest
+from espdock.ros.runtime_tree import runtime_context, runtime_install_digest
+from espdock.ros.steps import ROS_STAMPS
 from espdock.workspace import Package, PackageKind, Workspace
 
 

@@ -7,8 +7,7 @@ import os
 from pathlib import Path
 
 from espdock.ros.nodes import executables
-from espdock.ros.runtime_tree import runtime_files
-from espdock.ros.steps import runtime_install_digest
+from espdock.ros.runtime_tree import runtime_files, runtime_install_digest
 
 
 def symlink_installed(root: Path) -> Path:

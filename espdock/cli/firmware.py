@@ -40,6 +40,7 @@ from espdock.firmware.flashing import (
     port_of_env,
     read_flasher_args,
 )
+from espdock.firmware.install import installed_version
 from espdock.firmware.pins import pin_idf_image, read_sources, write_pins
 from espdock.firmware.plan import IdfBuild, images_to_rebuild, workspace_micro_ros_images
 from espdock.firmware.provision import (
@@ -371,25 +372,29 @@ def flash(
     provisioning = any(option is not None for option in (wifi_ssid, agent, wifi_password_file, domain_id))
     if provisioning:
         transport.check_provisionable(package, ws.root / step.project, step.target)
-    firmware_dir = installed_firmware_dir(ws.ws_dir, package)
-    flasher_args = read_flasher_args(firmware_dir, package)
-    if provisioning:
-        check_reads_settings(firmware_dir, package)
-    settings = optional_network_settings(wifi_ssid, wifi_password_file, agent, domain, sys.stdin, _ask_password)
-    nvs = nvs_partition(firmware_dir, flasher_args, package) if settings else None
-    check_port(serial)
-    runner, step = _installed(ws, config, plan, step)
-    with port_held(runner.engine, serial):
-        if settings is not None:
-            runner.firmware.check_library_port(ws, step, settings.agent_port)
-        say = lambda line: console.print(Text(line))  # noqa: E731
-        if settings is None or nvs is None:
-            flash_package(runner.firmware, ws, step, flasher_args, serial, baud, verify, say)
-        else:
-            with nvs_image(settings, nvs.size, runner.owner) as image:
+    # One version of the installed firmware throughout, whatever a build swaps in meanwhile.
+    with installed_version(installed_firmware_dir(ws.ws_dir, package)) as firmware_dir:
+        flasher_args = read_flasher_args(firmware_dir, package)
+        if provisioning:
+            check_reads_settings(firmware_dir, package)
+        settings = optional_network_settings(wifi_ssid, wifi_password_file, agent, domain, sys.stdin, _ask_password)
+        nvs = nvs_partition(firmware_dir, flasher_args, package) if settings else None
+        check_port(serial)
+        runner, step = _installed(ws, config, plan, step)
+        with port_held(runner.engine, serial):
+            if settings is not None:
+                runner.firmware.check_library_port(ws, step, settings.agent_port)
+            say = lambda line: console.print(Text(line))  # noqa: E731
+            if settings is None or nvs is None:
                 flash_package(
-                    runner.firmware, ws, step, flasher_args, serial, baud, verify, say, nvs_image=(nvs.offset, image)
+                    runner.firmware, ws, step, flasher_args, serial, baud, verify, say, firmware_dir=firmware_dir
                 )
+            else:
+                with nvs_image(settings, nvs.size, runner.owner) as image:
+                    flash_package(
+                        runner.firmware, ws, step, flasher_args, serial, baud, verify, say,
+                        nvs_image=(nvs.offset, image), firmware_dir=firmware_dir,
+                    )  # fmt: skip
     what = f" with its network settings ({domain_said(settings)})" if settings else ""
     console.print(f"flashed {package}{what} through {port}" + (" and verified it" if verify else ""))
 
@@ -427,20 +432,21 @@ def provision(
     transport.check_provisionable(package, ws.root / step.project, step.target)
     if wifi_ssid is None or agent is None:
         raise ConfigError(f"provisioning {package} needs --wifi-ssid and --agent", "See `espdock provision --help`.")
-    firmware_dir = installed_firmware_dir(ws.ws_dir, package)
-    flasher_args = read_flasher_args(firmware_dir, package)
-    check_reads_settings(firmware_dir, package)
-    nvs = nvs_partition(firmware_dir, flasher_args, package)
-    settings = network_settings(wifi_ssid, wifi_password_file, agent, domain, sys.stdin, _ask_password)
-    check_port(serial)
-    runner, step = _installed(ws, config, plan, step)
-    with port_held(runner.engine, serial):
-        runner.firmware.check_library_port(ws, step, settings.agent_port)
-        with nvs_image(settings, nvs.size, runner.owner) as image:
-            flash_package(
-                runner.firmware, ws, step, flasher_args, serial, baud, False, lambda line: console.print(Text(line)),
-                nvs_image=(nvs.offset, image), app=False,
-            )  # fmt: skip
+    with installed_version(installed_firmware_dir(ws.ws_dir, package)) as firmware_dir:
+        flasher_args = read_flasher_args(firmware_dir, package)
+        check_reads_settings(firmware_dir, package)
+        nvs = nvs_partition(firmware_dir, flasher_args, package)
+        settings = network_settings(wifi_ssid, wifi_password_file, agent, domain, sys.stdin, _ask_password)
+        check_port(serial)
+        runner, step = _installed(ws, config, plan, step)
+        with port_held(runner.engine, serial):
+            runner.firmware.check_library_port(ws, step, settings.agent_port)
+            say = lambda line: console.print(Text(line))  # noqa: E731
+            with nvs_image(settings, nvs.size, runner.owner) as image:
+                flash_package(
+                    runner.firmware, ws, step, flasher_args, serial, baud, False, say,
+                    nvs_image=(nvs.offset, image), app=False, firmware_dir=firmware_dir,
+                )  # fmt: skip
     open_network = "" if settings.password else " (an open network: no password)"
     console.print(
         f"provisioned {package} through {port}: Wi-Fi {settings.ssid!r}{open_network}, agent {settings.agent_host}:"

@@ -3,16 +3,21 @@
 ROS tools then find it like any other package (ament index, colcon's setup scripts,
 `get_package_share_directory`), and its flashable artefacts sit under
 share/<pkg>/firmware/. That directory is a symlink swapped in one rename, so a
-reader sees the old firmware or the new one, never half of each.
+reader sees the old firmware or the new one, never half of each; one that reads it in several
+steps (a flash, then its verify) holds the version it began with (installed_version), which an
+install meanwhile leaves for the next one to remove.
 """
 
 from __future__ import annotations
 
+import fcntl
 import hashlib
 import json
 import os
 import shutil
 import uuid
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 from espdock import durable
@@ -82,7 +87,7 @@ def install_firmware(
     _swap_symlink(share / FIRMWARE_DIR, version_dir.name)
     for stale in share.glob(f".{FIRMWARE_DIR}-*"):
         if stale != version_dir:
-            shutil.rmtree(stale, ignore_errors=True)
+            _remove_unless_in_use(stale)
     for link in share.glob(f".{FIRMWARE_DIR}.*"):  # an unfinished _swap_symlink (espdock killed)
         link.unlink(missing_ok=True)
     _write_colcon_metadata(package, manifest, prefix, run_depends)
@@ -131,6 +136,50 @@ def write_package_commands(package: str, prefix: Path, workspace_root: Path) -> 
         if not script.is_file() or script.read_text() != text:
             script.write_text(text)
         script.chmod(0o755)
+
+
+@contextmanager
+def installed_version(firmware_dir: Path) -> Iterator[Path]:
+    """The version directory the installed FIRMWARE_DIR (share/<pkg>/firmware) names now, kept
+    until the block ends: an install swapping in new firmware meanwhile leaves it for the next to
+    remove. A flash runs esptool twice (write, then verify) and a swap between the two had the
+    verify read the new firmware: "verify FAILED (digest mismatch)" of a board written whole.
+    FIRMWARE_DIR itself where nothing is installed (the caller says so) or it is no symlink."""
+    for _ in range(10):
+        if not firmware_dir.is_symlink():
+            yield firmware_dir
+            return
+        # Not resolve(): the workspace's own path may lead through links, and the containers see
+        # it by that path.
+        version = firmware_dir.parent / os.readlink(firmware_dir)
+        try:
+            fd = os.open(version, os.O_RDONLY | os.O_DIRECTORY)
+        except FileNotFoundError:  # swapped and removed since the link was read
+            continue
+        try:
+            fcntl.flock(fd, fcntl.LOCK_SH)  # waits while an install removes it
+            if (version / "flasher_args.json").is_file():  # removed only under the exclusive lock
+                yield version
+                return
+        finally:
+            os.close(fd)
+    yield firmware_dir  # swapped ten times over while it was read: as before, unpinned
+
+
+def _remove_unless_in_use(version: Path) -> None:
+    """Remove the firmware version directory VERSION unless installed_version holds it."""
+    try:
+        fd = os.open(version, os.O_RDONLY | os.O_DIRECTORY)
+    except OSError:
+        return
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            return
+        shutil.rmtree(version, ignore_errors=True)
+    finally:
+        os.close(fd)
 
 
 def _swap_symlink(link: Path, target: str) -> None:

@@ -34,7 +34,7 @@ from espdock.images import volume
 from espdock.images.containers import Containers, give_to, make_dirs_for, volume_mode_refused, with_host_umask
 from espdock.images.engine import KILLED, Mount, RunSpec
 from espdock.images.visibility import host_paths, links_out
-from espdock.layout import COLCON_RESULT_FILES, firmware_build_dir, host_path, install_prefix
+from espdock.layout import COLCON_RESULT_FILES, MANIFEST_NAME, firmware_build_dir, host_path, install_prefix
 from espdock.workspace import Workspace, as_lines, editor_leftover, sdkconfig_defaults_list, workspace_lock
 
 TARGET_MARKER = ".espdock-target"
@@ -173,7 +173,7 @@ class FirmwareSteps:
         where that is another image still on the engine, else STEP; and whether the firmware is
         what its sources build now. Building the image of sources edited since, which may not
         even build, would stand between the user and the firmware they built."""
-        built = _built_step(step, firmware_build_dir(workspace.ws_dir, step.package))
+        built = _built_step(step, workspace)
         if (
             built is None
             or (built.target, built.image_key) == (step.target, step.image_key)
@@ -521,22 +521,41 @@ def _write_marker(build_dir: Path, target: str, defaults: str, image_key: str, o
 
 
 def installed_image(workspace: Workspace, step: IdfBuild) -> str:
-    """The micro-ROS image STEP's package's build dir was last built in (its installed firmware's,
-    which `flash`, `provision` and `monitor` run in: installed_from); STEP's own where it has none."""
-    built = _built_step(step, firmware_build_dir(workspace.ws_dir, step.package))
+    """The micro-ROS image STEP's package's installed firmware was built in (which `flash`,
+    `provision` and `monitor` run in: installed_from); STEP's own where nothing says."""
+    built = _built_step(step, workspace)
     return step.image if built is None else built.image
 
 
-def _built_step(step: IdfBuild, build_dir: Path) -> IdfBuild | None:
-    """STEP as BUILD_DIR was last built: its chip (a one-off `--target` is another's) and the
-    image of its key; None where it has no record of a build that finished."""
-    target, _, key = _read_marker(build_dir) or ("", "", "")
+def _built_step(step: IdfBuild, workspace: Workspace) -> IdfBuild | None:
+    """STEP as its package's installed firmware was built: its chip (a one-off `--target` is
+    another's) and the image of its key, as its build dir's record of the last build that
+    finished says or, that gone (`rm -rf build`), the install's manifest; None where neither does.
+    Without the manifest's word, a flash after `rm -rf build` built the library of the sources as
+    they are, edited since or not building at all."""
+    target, _, key = _read_marker(firmware_build_dir(workspace.ws_dir, step.package)) or ("", "", "")
+    if not target or not key:
+        target, key = _manifest_entry(workspace.ws_dir / "install" / MANIFEST_NAME, step.package)
     repository = step.image.rpartition(":")[0]
     if not target or not key or (target != step.target and not repository.endswith(f"-{step.target}")):
         return None
     if target != step.target:  # the micro-ROS images are named for their chip
         repository = repository.removesuffix(step.target) + target
     return replace(step, image=keyed_tag(repository, key), image_key=key, target=target)
+
+
+def _manifest_entry(manifest: Path, package: str) -> tuple[str, str]:
+    """The chip and image key the install's MANIFEST records PACKAGE's firmware built with ('' each
+    where it records none, or an image not named for that chip)."""
+    try:
+        entry = json.loads(manifest.read_text()).get("firmware", {}).get(package, {})
+        target, image = entry.get("target"), entry.get("image")
+    except (OSError, ValueError, AttributeError):
+        return "", ""
+    if not isinstance(target, str) or not isinstance(image, str):
+        return "", ""
+    repository, _, key = image.rpartition(":")
+    return (target, key) if target and repository.endswith(f"-{target}") else ("", "")
 
 
 def built_chip(workspace: Workspace, package: str) -> str:

@@ -726,6 +726,64 @@ def test_flash_writes_and_verifies_through_esptool_while_a_build_runs(fw_ws, dou
     assert leftover_containers(engine, root) == []
 
 
+def test_a_build_swapping_the_firmware_between_flash_and_verify_leaves_one_firmware_written_and_verified(
+    fw_ws, double_env, mock_bootloader, tmp_path
+):
+    """`flash --verify` runs esptool twice; a build of the same package that installed its new
+    firmware in between had the verify read the new one ("verify FAILED (digest mismatch)", exit 6)
+    against a board written whole with the old. espdock is stopped the moment it says the verify's
+    command line, the swap made by the install a build makes (install_firmware, with an app one
+    byte different), then espdock goes on."""
+    from espdock.firmware.install import install_firmware
+
+    root, first = fw_ws
+    assert first.returncode == 0
+    installed = firmware_dir(root, "camera_node")
+    old = installed.parent / os.readlink(installed)
+    flasher_args = json.loads((old / "flasher_args.json").read_text())
+    app = flasher_args["app"]["file"]
+    offset = int(next(address for address, name in flasher_args["flash_files"].items() if name == app), 16)
+    old_app = (old / app).read_bytes()
+
+    def install(build_dir: Path) -> None:
+        install_firmware(
+            "camera_node", root / "firmware/camera_node/package.xml", build_dir, root / "ws/install", (),
+            (USER_UID, USER_UID), workspace_root=root,
+        )  # fmt: skip
+
+    original, edited = tmp_path / "original", tmp_path / "edited"
+    shutil.copytree(old, original)
+    shutil.copytree(old, edited)
+    (edited / app).write_bytes(old_app[:-1] + bytes([old_app[-1] ^ 0xFF]))
+    argv = [sys.executable, "-m", "espdock", "flash", "camera_node", "--port", mock_bootloader, "--verify"]
+    with subprocess.Popen(
+        argv, cwd=root, env={**os.environ, **double_env}, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE, text=True,
+    ) as flashing:  # fmt: skip
+        said = []
+        try:
+            for line in flashing.stdout:
+                said.append(line)
+                if "verify_flash" in line:  # printed before its container starts
+                    flashing.send_signal(signal.SIGSTOP)
+                    install(edited)
+                    flashing.send_signal(signal.SIGCONT)
+                    break
+            said += flashing.stdout.readlines()
+            flashing.wait(timeout=300)
+        finally:
+            flashing.kill()
+            install(original)  # the module's later tests flash the firmware the build made
+        stderr = flashing.stderr.read()
+    out = "".join(said)
+    assert flashing.returncode == 0, out[-3000:] + stderr
+    assert "verified" in out
+    assert flash_md5(mock_bootloader, offset, len(old_app)) == hashlib.md5(old_app).hexdigest()
+    # The version the flash held stayed for it; the install after it removed the one it replaced.
+    assert os.readlink(installed) == old.name
+    assert [p.name for p in installed.parent.glob(".firmware-*")] == [old.name]
+
+
 def test_flash_after_a_fullclean_writes_the_firmware_without_calling_it_stale(fw_ws, double_env, mock_bootloader):
     """`espdock idf PKG -- fullclean`, then `flash`: "the installed firmware of PKG is not what its
     sources build now", with no source changed."""
@@ -754,15 +812,22 @@ def test_flash_writes_the_installed_firmware_while_its_interface_is_mid_edit(fw_
     assert first.returncode == 0
     message = root / "ws/src/custom_interface/msg/CameraConfig.msg"
     text = message.read_text()
+    build, aside = root / "ws/build", root / "ws/build-aside"
     message.write_text(text + "uint8 exposure_half_typed\n")  # an edit that builds: no library of it is made
     try:
         result = espdock("flash", "camera_node", "--port", mock_bootloader, "--verify", cwd=root, env=double_env)
         assert not status(root, double_env)["present"], "the image of the edited sources was built"
         message.write_text(text + "float33 exposure_half_typed\n")  # one that does not: it cannot stop flashing
         broken = espdock("flash", "camera_node", "--port", mock_bootloader, cwd=root, env=double_env)
+        # `rm -rf build`, which held the build dir's record of the image: the install's manifest has it.
+        build.rename(aside)
+        cleaned = espdock("flash", "camera_node", "--port", mock_bootloader, cwd=root, env=double_env)
     finally:
         message.write_text(text)
-    for flashed in (result, broken):
+        if aside.is_dir():
+            shutil.rmtree(build, ignore_errors=True)
+            aside.rename(build)
+    for flashed in (result, broken, cleaned):
         assert flashed.returncode == 0, flashed.stdout[-3000:] + flashed.stderr
         assert "note: the installed firmware of camera_node is not what its sources build now" in flashed.stdout
     assert "verified" in result.stdout

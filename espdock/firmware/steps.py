@@ -64,6 +64,9 @@ class FirmwareSteps:
         image_id = self._image_id(step)  # the same after the build: asked once
         stamp_file, stamps, current = firmware_state(workspace, step, image_id)
         if current and not step.force:
+            # Said again while it holds: the build that said it first installed the firmware,
+            # and a warning that then fell silent left a library unlike the app unnoticed.
+            self._library_settings_warning(workspace, step, _library_settings_changed(build_dir, False, record=False))
             return Outcome.CACHED, f"up to date ({step.target})"
         stamp_file.forget(stamps)
         project = workspace.root / step.project
@@ -126,27 +129,7 @@ class FirmwareSteps:
         _write_marker(build_dir, step.target, defaults, step.image_key, self.containers.owner)
         changed = _library_settings_changed(build_dir, fresh)
         give_to(build_dir / LIBRARY_BASELINE, self.containers.owner)
-        if changed:
-            shown = ", ".join(changed[:4]) + (", ..." if len(changed) > 4 else "")
-            # An option the chip's own defaults file sets wins over sdkconfig.defaults, where
-            # save-defconfig writes: the line goes there, or the change is lost at the next build.
-            chip_file = workspace.root / step.project / f"sdkconfig.defaults.{step.target}"
-            overridden = sorted(set(_library_lines(chip_file)) & {line.split("=", 1)[0] for line in changed})
-            where = (
-                f"{chip_file.relative_to(workspace.root)}, which sets {', '.join(overridden)} over "
-                "sdkconfig.defaults (`save-defconfig` writes sdkconfig.defaults, which would lose it)"
-                if overridden
-                else f"{step.project}/sdkconfig.defaults (`espdock idf {step.package} -- save-defconfig`)"
-            )
-            self.containers.emit(
-                StepNote(
-                    step.name,
-                    f"warning: {shown} changed in {build_dir.relative_to(workspace.root)}/sdkconfig (menuconfig) "
-                    f"reach the app but not libmicroros.a, built from the defaults files: put the line in {where} "
-                    "and build again, so a library with it is built (`espdock micro-ros rebuild` rebuilds it from "
-                    "scratch)",
-                )
-            )
+        self._library_settings_warning(workspace, step, changed)
         if edited := _edited_since(seen, _source_times(roots), workspace, step):
             # Recorded, the stamp of sources idf.py may not have read had the next build say "up to
             # date", and `espdock flash` write the firmware without the edit.
@@ -188,6 +171,33 @@ class FirmwareSteps:
         # Of the same chip, another key is an interface (or library setting) changed since: stale,
         # though the old image is still there. Another chip's key the caller compares (its plan).
         return built, recorded.get("stamp") == stamp and (built.target != step.target or built is step)
+
+    def _library_settings_warning(self, workspace: Workspace, step: IdfBuild, changed: list[str]) -> None:
+        """Warn of CHANGED, library options the build dir's sdkconfig (menuconfig) sets otherwise than
+        the library was built with."""
+        if not changed:
+            return
+        build_dir = firmware_build_dir(workspace.ws_dir, step.package)
+        shown = ", ".join(changed[:4]) + (", ..." if len(changed) > 4 else "")
+        # An option the chip's own defaults file sets wins over sdkconfig.defaults, where
+        # save-defconfig writes: the line goes there, or the change is lost at the next build.
+        chip_file = workspace.root / step.project / f"sdkconfig.defaults.{step.target}"
+        overridden = sorted(set(_library_lines(chip_file)) & {line.split("=", 1)[0] for line in changed})
+        where = (
+            f"{chip_file.relative_to(workspace.root)}, which sets {', '.join(overridden)} over "
+            "sdkconfig.defaults (`save-defconfig` writes sdkconfig.defaults, which would lose it)"
+            if overridden
+            else f"{step.project}/sdkconfig.defaults (`espdock idf {step.package} -- save-defconfig`)"
+        )
+        self.containers.emit(
+            StepNote(
+                step.name,
+                f"warning: {shown} changed in {build_dir.relative_to(workspace.root)}/sdkconfig (menuconfig) "
+                f"reach the app but not libmicroros.a, built from the defaults files: put the line in {where} "
+                "and build again, so a library with it is built (`espdock micro-ros rebuild` rebuilds it from "
+                "scratch)",
+            )
+        )
 
     def _image_id(self, step: IdfBuild) -> str:
         """The ID of STEP's micro-ROS image ('' where the engine lacks it)."""
@@ -686,14 +696,16 @@ def chip_overrides(project: Path, target: str, order: Sequence[str] = ()) -> lis
     ]
 
 
-def _library_settings_changed(build_dir: Path, fresh: bool) -> list[str]:
+def _library_settings_changed(build_dir: Path, fresh: bool, record: bool = True) -> list[str]:
     """The library-relevant options (FreeRTOS, lwIP, PSRAM, CONFIG_MICRO_ROS_*, ...) of the build
     dir's sdkconfig that differ from what it held when configured afresh from sdkconfig.defaults,
-    which is what libmicroros.a was built with: menuconfig's changes that the library lacks."""
+    which is what libmicroros.a was built with: menuconfig's changes that the library lacks.
+    FRESH, or no record of that yet: none, and (with RECORD) the sdkconfig as it is now is the record."""
     baseline = build_dir / LIBRARY_BASELINE
     current = _library_lines(build_dir / "sdkconfig")
     if fresh or not baseline.is_file():
-        baseline.write_text(json.dumps(current, sort_keys=True))
+        if record:
+            baseline.write_text(json.dumps(current, sort_keys=True))
         return []
     try:
         before = json.loads(baseline.read_text())

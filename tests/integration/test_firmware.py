@@ -386,6 +386,10 @@ def test_a_library_option_changed_after_a_first_configure_through_idf_is_still_w
         built = espdock("build", "led_strip_node", "--only", "firmware", cwd=root, env=double_env)
         assert built.returncode == 0, built.stdout[-2000:] + built.stderr
         assert "CONFIG_FREERTOS_HZ=1000 (was 100)" in built.stdout and "not libmicroros.a" in built.stdout
+        # Up to date, the firmware installed: the library still lacks it, and the build says so again.
+        again = espdock("build", "led_strip_node", "--only", "firmware", cwd=root, env=double_env)
+        assert again.returncode == 0 and "up to date" in again.stdout, again.stdout[-2000:] + again.stderr
+        assert "CONFIG_FREERTOS_HZ=1000 (was 100)" in again.stdout and "not libmicroros.a" in again.stdout
     finally:
         sdkconfig.write_text(fresh)  # the next build of it, a later test's, builds it so
 

@@ -271,15 +271,35 @@ class RosSteps:
             else:
                 tree.unlink(missing_ok=True)
 
-    def _put_back(self, base: Path, restore: bool) -> None:
+    def _put_back(self, base: Path, restore: bool, built: Iterable[str] | None = None) -> set[str]:
         """RESTORE: move what _build_afresh set aside back where it was (colcon built nothing);
-        else remove it."""
-        for tree, kept in self._aside if restore else ():
+        else remove it, but for the packages whose install prefix it set aside and that this build
+        did not build (BUILT: those it did; None, not known): their build dir and install prefix
+        are put back in place of what the build left there, and they are returned. A setup.py
+        typo, or Ctrl-C mid-compile, in a package built afresh left no install of it at all: its
+        nodes, which ran before, were gone, where a plain colcon keeps the old install."""
+        install = base.parent.parent / "install"
+        whole = {
+            tree.name
+            for tree, _ in self._aside
+            if not restore and built is not None and tree.parent == install and tree.name not in set(built)
+        }
+        put_back = set()
+        for tree, kept in self._aside:
+            if not restore and tree.name not in whole:
+                continue
             with contextlib.suppress(OSError):
-                if not tree.exists() and not tree.is_symlink():
-                    kept.rename(tree)
+                if restore and (tree.exists() or tree.is_symlink()):
+                    continue
+                if tree.is_dir() and not tree.is_symlink():
+                    shutil.rmtree(tree)  # what the failed build of it left
+                elif tree.is_symlink() or tree.exists():
+                    tree.unlink()
+                kept.rename(tree)
+                put_back.add(tree.name)
         self._aside = []
         shutil.rmtree(base / ASIDE, ignore_errors=True)
+        return put_back & whole
 
     def colcon_build(self, workspace: Workspace, step: ColconBuild) -> tuple[Outcome, str]:
         found = colcon_rebuild(workspace, step)
@@ -467,8 +487,13 @@ class RosSteps:
                         )
                         give_to(workspace.ws_dir / "build" / volume.SYNCED, self.containers.owner)
         except BaseException:
-            # Ctrl-C, an engine gone: what colcon built on is unknown; what was set aside goes.
-            self._put_back(base, restore=False)
+            # Ctrl-C, an engine gone: what colcon finished, its event log says (nothing read, none is
+            # put back); what it did not build keeps the install it had, and the record of it.
+            finished = None
+            with contextlib.suppress(Exception):
+                finished = _built(log.states() or {})
+            restored = self._put_back(base, restore=False, built=finished)
+            stamp_file.restore({name: recorded[name] for name in restored if name in recorded})
             raise
         if states is not None and (kinds := record_install_kinds(base, _built(states), step.effective_args)):
             give_to(kinds, self.containers.owner)
@@ -485,7 +510,8 @@ class RosSteps:
             give_to(args_file, self.containers.owner)
         built = keep_built(states)
         self.unbuilt |= set(rebuild) - set(built)
-        self._put_back(base, restore=states is None and code != 0)
+        restored = self._put_back(base, states is None and code != 0, None if states is None else built)
+        stamp_file.restore({name: recorded[name] for name in restored if name in recorded})
         if states is None and code != 0:
             # Nothing in build/ or install/ changed: the packages keep their records, and the
             # next build with other options rebuilds only what those change.

@@ -327,6 +327,46 @@ def test_an_entry_point_taken_out_of_setup_py_is_no_longer_installed(node_worksp
     assert restored.returncode == 0 and script.is_file(), restored.stdout[-2000:] + restored.stderr
 
 
+def test_a_package_built_afresh_whose_build_fails_or_is_interrupted_keeps_the_install_it_had(node_workspace):
+    """A setup.py edit builds the package afresh: its old install went before colcon ran, so a
+    typo in it, or Ctrl-C while it built, left no install at all, and `espdock run` said the
+    package had no executable (or was not built), where a plain colcon keeps the old install."""
+    setup = node_workspace / "ws/src/beacon_nodes/setup.py"
+    original = setup.read_text()
+    run = ("run", "beacon_nodes", "beacon", "--ros-args", "--params-file", "/nonexistent/params.yaml")
+
+    def runs_the_old_install() -> None:
+        ran = espdock(*run, cwd=node_workspace)
+        said = " ".join((ran.stdout + ran.stderr).split())
+        assert "beacon_nodes's sources changed since its last build: this runs what that build installed" in said
+        assert ran.returncode != 2 and "executable" not in said and "not built" not in said, said[-2000:]
+
+    try:
+        setup.write_text(original.replace("zip_safe=True,", "zip_safe=True,,"))
+        failed = espdock("build", "--only", "ros", cwd=node_workspace)
+        assert failed.returncode == 5, failed.stdout[-2000:] + failed.stderr
+        assert "building afresh what changed its setup.py or setup.cfg: beacon_nodes" in " ".join(failed.stdout.split())
+        runs_the_old_install()
+        # colcon runs setup.py to identify the package too: only its build (egg_info first) waits.
+        setup.write_text('import sys, time\nif "egg_info" in sys.argv:\n    time.sleep(120)\n' + original)
+        argv = [sys.executable, "-m", "espdock", "build", "--only", "ros"]
+        with subprocess.Popen(argv, cwd=node_workspace, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True) as b:
+            try:
+                for line in b.stdout:
+                    if "Starting >>> beacon_nodes" in line:
+                        time.sleep(1)  # into setup.py's wait
+                        b.send_signal(signal.SIGINT)
+                        break
+                assert b.wait(timeout=60) == 130, b.stderr.read()
+            finally:
+                b.kill()
+        runs_the_old_install()
+    finally:
+        setup.write_text(original)
+    rebuilt = espdock("build", "--only", "ros", cwd=node_workspace)
+    assert rebuilt.returncode == 0, rebuilt.stdout[-2000:] + rebuilt.stderr
+
+
 def test_run_says_when_the_package_s_sources_changed_since_its_build(node_workspace):
     """After `git checkout other-branch`, `espdock run` ran the last build's install without a word."""
     source = node_workspace / "ws/src/beacon_nodes/beacon_nodes/beacon.py"

@@ -338,9 +338,12 @@ class RosSteps:
         if whole:
             # install/ is swapped for the volume's whole: every package must be built there.
             rebuild = step.packages
-        # Until this build succeeds, none of them counts as built.
+        # Until this build succeeds, none of them counts as built; what the options after `--`
+        # leave out (`--packages-skip`), colcon neither builds nor touches: it keeps its record
+        # (`espdock run` of it refused it as "did not finish": it warns of what it was built on).
         recorded = stamp_file.read()
-        stamp_file.forget(rebuild, dict(step.sources), trees)
+        told = left_out(step.colcon_args, dict(step.depends), base)
+        stamp_file.forget([name for name in rebuild if name not in told], dict(step.sources), trees)
         mounted_build = posixpath.join(step.workdir, "build")
         if retired := retire_container_caches(workspace.ws_dir / "build", stamps, mounted_build):
             why = f"espdock's CMake caches from before {ROS_BUILD_BASE}, which a native colcon build refuses"
@@ -552,7 +555,6 @@ class RosSteps:
         # Asked for and neither built nor left out as told (`-- --packages-skip`): colcon did not
         # find it where espdock did (a package linked from outside the workspace, say).
         # colcon logs no event of a package an option ignores (`--packages-ignore`): as if not found.
-        told = left_out(step.colcon_args, dict(step.depends), base)
         if lost := [n for n in others if n not in (states or {}) and n not in log.unselected() and n not in told]:
             rels = dict(step.sources)
             raise BuildFailed(

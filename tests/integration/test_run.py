@@ -424,6 +424,13 @@ def test_run_says_when_a_package_was_built_on_older_sources_of_one_it_depends_on
         "warning: beacon_viewer was built on other sources of the workspace packages it depends on (beacon_nodes"
         in said
     )
+    # That edit built, beacon_app left out as told: its install is whole, built on the old beacon_nodes.
+    # run refused it: "the last espdock build of beacon_app did not finish ... may be half written".
+    skipped = espdock("build", "--only", "ros", "--", "--packages-skip", "beacon_app", cwd=root)
+    assert skipped.returncode == 0 and "not built (beacon_app)" in skipped.stdout, skipped.stdout[-2000:]
+    left = espdock(*run, cwd=root)
+    said = " ".join((left.stdout + left.stderr).split())
+    assert "warning: beacon_app was built on other sources" in said and left.returncode != 2, said
     source.write_text(kept)
     again = espdock("build", "--only", "ros", cwd=root)
     assert again.returncode == 0, again.stdout[-2000:] + again.stderr

@@ -490,6 +490,32 @@ def defaults_leaving_out(
     return tuple(args)
 
 
+def _deciding_digest(text: str) -> bytes | None:
+    """sha256 of what a colcon defaults file (TEXT) says that may decide a build's output, as read
+    (its comments and layout aside): all of it but its `build` verb's SCHEDULING options, which
+    decide no stamp after `--` either (a file of `packages-skip` alone rebuilt every package, and
+    taking it out, every package again). None where that is nothing; the text's own digest where
+    it is no YAML mapping (colcon refuses it, naming it)."""
+    import yaml
+
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError:
+        return hashlib.sha256(text.encode()).digest()
+    if data is None:
+        return None
+    if not isinstance(data, dict):
+        return hashlib.sha256(text.encode()).digest()
+    build = data.get("build")
+    if isinstance(build, dict):
+        data = {**data, "build": {key: value for key, value in build.items() if f"--{key}" not in SCHEDULING}}
+    deciding = {key: value for key, value in data.items() if value not in ({}, None)}
+    try:
+        return hashlib.sha256(json.dumps(deciding, sort_keys=True, default=str).encode()).digest() if deciding else None
+    except TypeError:  # keys of more than one type, which sort_keys cannot order
+        return hashlib.sha256(text.encode()).digest()
+
+
 def _cmake_args(build: Mapping) -> tuple[str, ...] | None:
     """The cmake-args a defaults file's `build` verb (BUILD) sets; None where it sets none."""
     args = build.get("cmake-args")
@@ -648,7 +674,8 @@ def read_colcon_settings(
         build = defaults_for(text)
         cmake_args = _cmake_args(build) or cmake_args
         symlink_install = build.get("symlink-install", symlink_install) is True
-        common.update(f"{shown}\0".encode() + hashlib.sha256(text.encode()).digest())
+        if (decides := _deciding_digest(text)) is not None:
+            common.update(f"{shown}\0".encode() + decides)
         files.append(shown)
         if path == user:
             defaults = str(path.resolve())

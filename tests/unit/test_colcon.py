@@ -113,6 +113,27 @@ def test_settings_decide_each_package_stamp(tmp_path):
     assert settings.defaults_file == str(user)
 
 
+def test_what_a_defaults_file_says_of_which_packages_build_and_when_decides_no_stamp(tmp_path):
+    """A colcon_defaults.yaml of `packages-skip` alone rebuilt every package, and taking it out
+    rebuilt them all again: the same option after `--` decides no stamp."""
+    root, dirs = _workspace(tmp_path)
+    env = {"HOME": str(tmp_path / "home")}
+    defaults = root / "colcon_defaults.yaml"
+
+    def digests(text: str | None) -> dict[str, str]:
+        if text is None:
+            defaults.unlink(missing_ok=True)
+        else:
+            defaults.write_text(text)
+        return dict(read_colcon_settings(root, dirs, None, env).digests)
+
+    assert digests("build:\n  packages-skip: [app]\n  parallel-workers: 1\n") == digests(None)
+    options = digests("build:\n  cmake-args: [-DX=1]\n")
+    assert options != digests(None)
+    assert digests("build:\n  cmake-args: [-DX=1]\n  continue-on-error: true\n  packages-skip: [app]\n") == options
+    assert digests("build:\n  cmake-args: [-DX=2]\n  packages-skip: [app]\n") != options
+
+
 def test_malformed_or_conflicting_settings_files_are_named(tmp_path):
     root, dirs = _workspace(tmp_path)
     (root / "colcon.meta").write_text('{"names": {"app": ')

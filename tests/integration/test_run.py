@@ -476,6 +476,27 @@ def test_run_says_when_a_package_was_built_on_older_sources_of_one_it_depends_on
     assert no_containers_left(engine, root) == []
 
 
+def test_run_takes_a_dependency_espdock_test_rebuilt_for_its_tests_as_the_one_it_was_built_on(engine, tmp_path):
+    """`espdock test LIB` builds LIB again with its tests, an install a plain build of the same
+    sources would make (every build after it is up to date): run of a package built on LIB warned
+    that it was built on other sources of LIB, until a `--force` build."""
+    from tests.integration.test_faults import add_package
+    from tests.robot_packages import write_python_package
+
+    root = python_workspace(tmp_path / "w")
+    add_package(root, "beacon_data", "install(FILES package.xml DESTINATION share/${PROJECT_NAME})\n")
+    write_python_package(root / "ws/src", "beacon_show", ("beacon_data",), tag="depend")
+    built = espdock("build", "--only", "ros", cwd=root)
+    assert built.returncode == 0, built.stdout[-2000:] + built.stderr
+    tested = espdock("test", "beacon_data", cwd=root)
+    assert tested.returncode == 0 and "1 package(s) built" in tested.stdout, tested.stdout[-2000:] + tested.stderr
+    ran = espdock("run", "beacon_show", "beacon_show_node", "--ros-args", "--params-file", "/nonexistent", cwd=root)
+    said = " ".join((ran.stdout + ran.stderr).split())
+    assert "Couldn't parse params file" in said and "was built on other sources" not in said, said[-2000:]
+    again = espdock("build", "--only", "ros", cwd=root)
+    assert again.returncode == 0 and "up to date" in again.stdout, again.stdout[-2000:]
+
+
 def test_init_writes_a_starter_compose_file_whose_services_start_and_talk(engine, node_workspace):
     written = espdock("init", cwd=node_workspace)
     assert written.returncode == 0 and "wrote compose.yaml" in written.stdout, written.stdout + written.stderr

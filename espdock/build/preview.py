@@ -34,7 +34,8 @@ def preview(workspace: Workspace, plan: Plan, engine: Engine | None, registry: b
         match step:
             case EnsureBaseImage():
                 present = None if engine is None else engine.image(step.image) is not None
-                states.append(_image_state(present, pulled="pulled, else built with debootstrap"))
+                made_so = "pulled, else built with debootstrap" if step.debootstrap else "pulled (nothing builds it)"
+                states.append(_image_state(present, pulled=made_so))
             case EnsureImage():
                 present = None if engine is None else is_current(step.spec, engine.image(step.spec.tag))
                 present = present and not step.force

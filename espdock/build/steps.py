@@ -72,6 +72,9 @@ class EnsureBaseImage:
     """Make the base image a Dockerfile starts FROM available locally."""
 
     image: str
+    # Whether espdock builds it with debootstrap where it cannot be pulled (a Debian image the
+    # wheels flavour starts from; never the official ROS image): a dry run said so of every one.
+    debootstrap: bool = True
 
     @property
     def name(self) -> str:

@@ -202,7 +202,8 @@ def render_plan(console: Console, plan: Plan, states: Sequence[str] = ()) -> Non
         console.print(Text(f"{number}. {step.name}", style="bold"))
         match step:
             case EnsureBaseImage():
-                console.print(f"   use {step.image} if present, else pull it, else build it with debootstrap")
+                made_so = "build it with debootstrap" if step.debootstrap else "stop: `docker load` it"
+                console.print(f"   use {step.image} if present, else pull it, else {made_so}")
             case EnsureImage():
                 spec = step.spec
                 console.print(f"   {spec.tag} from {spec.dockerfile} stage {spec.target} (key {spec.key})")

@@ -131,13 +131,15 @@ class RosSteps:
         out = left_out(step.colcon_args, dict(step.depends), base)
         if switched := install_kind_switched(base, rebuild, step.effective_args):
             turned = "on" if "--symlink-install" in step.effective_args else "off"
+            # What they leave out colcon does not build: it keeps its install, of the other kind.
+            switching = [name for name in switched if name not in out]
             why = (
                 f"--symlink-install {turned} since their last build: removed the build dirs and install prefixes "
-                f"of {len(switched)} package(s), which colcon cannot switch in place"
+                f"of {len(switching)} package(s), which colcon cannot switch in place"
             )
             if skipped := [name for name in switched if name in out]:
-                why += f"; {', '.join(skipped)}, which the options after `--` leave out, stay uninstalled until built"
-            reasons.append((both(switched), why))
+                why += f"; {', '.join(skipped)}, which the options after `--` leave out, keep theirs until built"
+            reasons.append((both(switching), why))
             rebuild = tuple(name for name in rebuild if name not in switched)
         if step.force:
             # A rebuild by make and setuptools, which decide by time, kept what a source put back

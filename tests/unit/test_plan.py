@@ -61,6 +61,12 @@ def test_build_plan_ensures_images_then_runs_colcon():
     assert colcon.sources == (("msgs", "src/msgs"), ("app", "src/app"))
     assert colcon.workdir == "/workspace/ws"
     assert colcon.depends == (("msgs", ()), ("app", ("msgs",)))
+    # Its Debian base, debootstrapped where no registry answers; never the official ROS image.
+    assert plan.steps[0].debootstrap
+    official = ros_build_image(
+        Config(ros_image="official"), DOCKERFILE.replace("debian:bookworm-slim", "ros:jazzy-ros-base"), FILES
+    )
+    assert not plan_build(ws, Config(ros_image="official"), packages, official).steps[0].debootstrap
 
 
 def test_a_ros_dockerfile_without_a_runtime_stage_builds_and_makes_no_runtime_image():

@@ -143,7 +143,49 @@ def port_held(engine: Engine, port: Port) -> Iterator[None]:
 
     with machine_lock(_port_lock_name(port), busy):
         check_port_free(engine, port)
+        if port.device is not None and (holders := device_holders(port.device)):
+            pid, name = holders[0]
+            raise PortError(
+                f"serial port {port.spec} is busy: {name} (pid {pid}) has it open",
+                "Close that program (a terminal program such as screen or minicom, a monitor, an agent), "
+                "then run again.",
+            )
         yield
+
+
+def device_holders(device: str) -> list[tuple[int, str]]:
+    """(pid, name) of the processes but this one that have DEVICE open, of those this user may look
+    into (/proc/PID/fd: their own, or all as root). A `screen` or a native agent on the port takes
+    no lock: check_port's flock passed, and esptool read the other's bytes ("could not tell which
+    chip"), or the two wrote at once."""
+    try:
+        wanted = os.stat(device).st_rdev
+    except OSError:
+        return []
+    found = []
+    for entry in os.scandir("/proc"):
+        if not entry.name.isdigit() or int(entry.name) == os.getpid():
+            continue
+        try:
+            with os.scandir(f"/proc/{entry.name}/fd") as fds:
+                held = any(_is_device(fd.path, wanted) for fd in fds)
+        except OSError:  # another user's, or gone
+            continue
+        if held:
+            try:
+                name = Path(f"/proc/{entry.name}/comm").read_text().strip()
+            except OSError:
+                name = "a process"
+            found.append((int(entry.name), name))
+    return found
+
+
+def _is_device(path: str, rdev: int) -> bool:
+    try:
+        info = os.stat(path)
+    except OSError:
+        return False
+    return stat.S_ISCHR(info.st_mode) and info.st_rdev == rdev
 
 
 def _port_lock_name(port: Port) -> str:

@@ -184,6 +184,7 @@ def test_a_port_another_espdock_holds_is_busy_by_whichever_name(tmp_path):
 
     controller, device = pty.openpty()
     node = os.ttyname(device)
+    os.close(device)  # open in no process: one that holds it makes the port busy
     link = tmp_path / "usb-Espressif_board-if00"
     link.symlink_to(node)
     url = f"socket://127.0.0.1:{free_port()}"
@@ -203,10 +204,31 @@ def test_a_port_another_espdock_holds_is_busy_by_whichever_name(tmp_path):
                     pass
     finally:
         holder.communicate(timeout=30)
-        for fd in (device, controller):
-            os.close(fd)
     with port_held(_NoContainers(), parse_port(str(link))):  # let go: free again
         pass
+    os.close(controller)
+
+
+def test_a_port_a_program_holds_open_without_a_lock_is_busy_naming_it():
+    """`screen /dev/ttyUSB0`, or a native agent, takes no lock: the flash went on, and esptool read
+    the other's bytes ("could not tell which chip") or the two wrote at once."""
+    controller, device = pty.openpty()
+    node = os.ttyname(device)
+    os.close(device)  # only the other program has it
+    holder = subprocess.Popen(
+        ["sh", "-c", f"exec 3<>{node}; echo held; exec sleep 60"], stdout=subprocess.PIPE, text=True
+    )
+    try:
+        assert holder.stdout is not None and holder.stdout.readline().strip() == "held"
+        with pytest.raises(PortError, match=rf"busy: sleep \(pid {holder.pid}\) has it open"):
+            with port_held(_NoContainers(), parse_port(node)):
+                pass
+    finally:
+        holder.kill()
+        holder.wait()
+    with port_held(_NoContainers(), parse_port(node)):  # closed: free again
+        pass
+    os.close(controller)
 
 
 def test_a_serial_server_s_name_and_its_address_are_one_port_to_hold(monkeypatch):

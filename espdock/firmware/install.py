@@ -10,6 +10,7 @@ install meanwhile leaves for the next one to remove.
 
 from __future__ import annotations
 
+import contextlib
 import fcntl
 import hashlib
 import json
@@ -156,27 +157,33 @@ def installed_version(firmware_dir: Path) -> Iterator[Path]:
             fd = os.open(version, os.O_RDONLY | os.O_DIRECTORY)
         except FileNotFoundError:  # swapped and removed since the link was read
             continue
+        except OSError:  # not to be opened (another user's, a file system without locks): unpinned
+            break
         try:
-            fcntl.flock(fd, fcntl.LOCK_SH)  # waits while an install removes it
+            with contextlib.suppress(OSError):  # a file system without locks: read, not held
+                fcntl.flock(fd, fcntl.LOCK_SH)  # waits while an install removes it
             if (version / "flasher_args.json").is_file():  # removed only under the exclusive lock
                 yield version
                 return
         finally:
             os.close(fd)
-    yield firmware_dir  # swapped ten times over while it was read: as before, unpinned
+    yield firmware_dir  # as before, unpinned: swapped ten times over while it was read, or not to be held
 
 
 def _remove_unless_in_use(version: Path) -> None:
     """Remove the firmware version directory VERSION unless installed_version holds it."""
     try:
         fd = os.open(version, os.O_RDONLY | os.O_DIRECTORY)
-    except OSError:
+    except OSError:  # no directory to hold (a file), or not to be opened: none holds it
+        shutil.rmtree(version, ignore_errors=True)
         return
     try:
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
             return
+        except OSError:  # a file system without locks: as before
+            pass
         shutil.rmtree(version, ignore_errors=True)
     finally:
         os.close(fd)

@@ -492,10 +492,10 @@ def defaults_leaving_out(
 
 def _deciding_digest(text: str) -> bytes | None:
     """sha256 of what a colcon defaults file (TEXT) says that may decide a build's output, as read
-    (its comments and layout aside): all of it but its `build` verb's SCHEDULING options, which
-    decide no stamp after `--` either (a file of `packages-skip` alone rebuilt every package, and
-    taking it out, every package again). None where that is nothing; the text's own digest where
-    it is no YAML mapping (colcon refuses it, naming it)."""
+    (its comments, layout and anchors aside): its `build` verb's options, but the SCHEDULING ones,
+    which decide no stamp after `--` either (a file of `packages-skip` alone rebuilt every package,
+    and taking it out, every package again; so did its `test` verb's options). None where that is
+    nothing; the text's own digest where it is no YAML mapping (colcon refuses it, naming it)."""
     import yaml
 
     try:
@@ -507,13 +507,15 @@ def _deciding_digest(text: str) -> bytes | None:
     if not isinstance(data, dict):
         return hashlib.sha256(text.encode()).digest()
     build = data.get("build")
-    if isinstance(build, dict):
-        data = {**data, "build": {key: value for key, value in build.items() if f"--{key}" not in SCHEDULING}}
-    deciding = {key: value for key, value in data.items() if value not in ({}, None)}
+    if not isinstance(build, dict):
+        return None if build is None else hashlib.sha256(json.dumps(build, default=str).encode()).digest()
+    deciding = {key: value for key, value in build.items() if f"--{key}" not in SCHEDULING}
+    if not deciding:
+        return None
     try:
-        return hashlib.sha256(json.dumps(deciding, sort_keys=True, default=str).encode()).digest() if deciding else None
+        return hashlib.sha256(json.dumps(deciding, sort_keys=True, default=str).encode()).digest()
     except TypeError:  # keys of more than one type, which sort_keys cannot order
-        return hashlib.sha256(text.encode()).digest()
+        return hashlib.sha256(repr(deciding).encode()).digest()
 
 
 def _cmake_args(build: Mapping) -> tuple[str, ...] | None:

@@ -498,7 +498,9 @@ class RosSteps:
             with contextlib.suppress(Exception):
                 finished = _built(log.states() or {})
             restored = self._put_back(base, restore=False, built=finished)
-            stamp_file.restore({name: recorded[name] for name in restored if name in recorded})
+            kept = _kept_records(workspace, recorded, rebuild, finished or (), restored)
+            stamp_file.restore(kept)
+            _unfinished(base, restored)
             raise
         if states is not None and (kinds := record_install_kinds(base, _built(states), step.effective_args)):
             give_to(kinds, self.containers.owner)
@@ -516,7 +518,9 @@ class RosSteps:
         built = keep_built(states)
         self.unbuilt |= set(rebuild) - set(built)
         restored = self._put_back(base, states is None and code != 0, None if states is None else built)
-        stamp_file.restore({name: recorded[name] for name in restored if name in recorded})
+        if states is not None:
+            stamp_file.restore(_kept_records(workspace, recorded, rebuild, built, restored))
+            _unfinished(base, {name for name in restored if name in states})
         if states is None and code != 0:
             # Nothing in build/ or install/ changed: the packages keep their records, and the
             # next build with other options rebuilds only what those change.
@@ -848,6 +852,37 @@ def volume_listing(install: Path) -> str | None:
     the host added, every build on the volume took install/ for one another build had changed,
     and rebuilt every package."""
     return listing_digest(install, host_added(install))
+
+
+def _kept_records(
+    workspace: Workspace,
+    recorded: Mapping[str, object],
+    rebuild: Iterable[str],
+    built: Iterable[str],
+    restored: Iterable[str],
+) -> dict:
+    """The records (RECORDED, before the build) of the packages of REBUILD the build did not build
+    (BUILT: those it did) whose install is as the record says: put back as it was (RESTORED), or
+    untouched (never started, a dependency failed or Ctrl-C came first; or failed before it
+    installed). Forgotten, `espdock run` refused each as "did not finish ... half written"."""
+    install, done, back = workspace.ws_dir / "install", set(built), set(restored)
+    kept = {}
+    for name in rebuild:
+        entry = recorded.get(name)
+        if name in done or not isinstance(entry, dict) or "stamp" not in entry:
+            continue
+        if name in back or entry.get("installed") == listing_digest(install / name):
+            kept[name] = entry
+    return kept
+
+
+def _unfinished(base: Path, names: Iterable[str]) -> None:
+    """Mark the build dirs of NAMES, put back after colcon began building them, as not finished: the
+    old dir's colcon_build.rc said 0, and `-- --packages-skip-build-finished` skipped the package
+    whose build had failed."""
+    for name in names:
+        with contextlib.suppress(OSError):
+            (base / name / "colcon_build.rc").unlink()
 
 
 def _built(states: Mapping[str, PackageState]) -> list[str]:

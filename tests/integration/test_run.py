@@ -476,16 +476,24 @@ def test_run_says_when_a_package_was_built_on_older_sources_of_one_it_depends_on
     assert no_containers_left(engine, root) == []
 
 
+def data_and_show(root: Path) -> Path:
+    """beacon_data, a CMake package with nothing to compile, and beacon_show, a Python package
+    built on it, beside beacon_nodes in the workspace at ROOT; beacon_data's CMakeLists.txt."""
+    from tests.integration.test_faults import add_package
+    from tests.robot_packages import write_python_package
+
+    python_workspace(root)
+    data = add_package(root, "beacon_data", "install(FILES package.xml DESTINATION share/${PROJECT_NAME})\n")
+    write_python_package(root / "ws/src", "beacon_show", ("beacon_data",), tag="depend")
+    return data / "CMakeLists.txt"
+
+
 def test_run_takes_a_dependency_espdock_test_rebuilt_for_its_tests_as_the_one_it_was_built_on(engine, tmp_path):
     """`espdock test LIB` builds LIB again with its tests, an install a plain build of the same
     sources would make (every build after it is up to date): run of a package built on LIB warned
     that it was built on other sources of LIB, until a `--force` build."""
-    from tests.integration.test_faults import add_package
-    from tests.robot_packages import write_python_package
-
-    root = python_workspace(tmp_path / "w")
-    add_package(root, "beacon_data", "install(FILES package.xml DESTINATION share/${PROJECT_NAME})\n")
-    write_python_package(root / "ws/src", "beacon_show", ("beacon_data",), tag="depend")
+    root = tmp_path / "w"
+    data_and_show(root)
     built = espdock("build", "--only", "ros", cwd=root)
     assert built.returncode == 0, built.stdout[-2000:] + built.stderr
     tested = espdock("test", "beacon_data", cwd=root)
@@ -495,6 +503,33 @@ def test_run_takes_a_dependency_espdock_test_rebuilt_for_its_tests_as_the_one_it
     assert "Couldn't parse params file" in said and "was built on other sources" not in said, said[-2000:]
     again = espdock("build", "--only", "ros", cwd=root)
     assert again.returncode == 0 and "up to date" in again.stdout, again.stdout[-2000:]
+
+
+def test_what_a_failed_build_never_started_runs_and_what_failed_is_built_by_skip_build_finished(engine, tmp_path):
+    """A dependency's build failed: run of a package colcon never started (its install untouched)
+    refused it as "did not finish ... half written", its record forgotten. And the failed package,
+    built afresh and put back, kept its old build dir's colcon_build.rc of 0: `-- --packages-skip-
+    build-finished`, which espdock names for what did not finish, skipped it."""
+    from tests.robot_packages import write_python_package
+
+    root = python_workspace(tmp_path / "w")
+    write_python_package(root / "ws/src", "beacon_app", ("beacon_nodes",), tag="depend")
+    built = espdock("build", "--only", "ros", cwd=root)
+    assert built.returncode == 0, built.stdout[-2000:] + built.stderr
+    setup = root / "ws/src/beacon_nodes/setup.py"
+    good = setup.read_text()
+    setup.write_text(good.replace("zip_safe=True,", "zip_safe=True,,"))
+    failed = espdock("build", "--only", "ros", cwd=root)
+    assert failed.returncode == 5 and "beacon_nodes" in failed.stderr, failed.stdout[-2000:] + failed.stderr
+    ran = espdock("run", "beacon_app", "beacon_app_node", "--ros-args", "--params-file", "/nonexistent", cwd=root)
+    said = " ".join((ran.stdout + ran.stderr).split())
+    assert "Couldn't parse params file" in said and "did not finish" not in said, said[-2000:]
+    assert "warning: beacon_app was built on other sources of the workspace packages it depends on" in said
+    setup.write_text(good + "# mended\n")
+    again = espdock("build", "--only", "ros", "--", "--packages-skip-build-finished", cwd=root)
+    assert again.returncode == 0, again.stdout[-2000:] + again.stderr
+    # beacon_nodes is built; beacon_app, whose last build finished, colcon skips as told.
+    assert "1 package(s) built, 0 up to date, 1 not built (beacon_app)" in again.stdout, again.stdout[-2000:]
 
 
 def test_init_writes_a_starter_compose_file_whose_services_start_and_talk(engine, node_workspace):

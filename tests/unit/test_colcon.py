@@ -132,6 +132,11 @@ def test_what_a_defaults_file_says_of_which_packages_build_and_when_decides_no_s
     assert options != digests(None)
     assert digests("build:\n  cmake-args: [-DX=1]\n  continue-on-error: true\n  packages-skip: [app]\n") == options
     assert digests("build:\n  cmake-args: [-DX=2]\n  packages-skip: [app]\n") != options
+    # Another verb's options (`colcon test`'s), an anchor's holder, comments: no build's either.
+    assert digests("base: &b {parallel-workers: 1}\nbuild: *b\ntest:\n  return-code-on-test-failure: true\n") == (
+        digests(None)
+    )
+    assert digests("# ours\nbuild: {cmake-args: [-DX=1]}\ntest: {packages-skip: [app]}\n") == options
 
 
 def test_malformed_or_conflicting_settings_files_are_named(tmp_path):

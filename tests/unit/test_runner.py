@@ -715,7 +715,14 @@ def test_a_source_removed_beside_an_edit_builds_afresh_and_an_editor_leftover_do
     (app / "branch.c").write_text("int branch(void) { return 1; }\n")
     later = time.time_ns() + 3 * 10**9
     os.utime(app / "branch.c", ns=(later, later))
-    engine.run_script = colcon_installs(ws, code=1, rcs={"msgs": 0, "app": 1})
+    failing = colcon_installs(ws, code=1, rcs={"msgs": 0, "app": 1})
+
+    def installs_some_then_fails(spec, on_line):  # CMake's install step cut off midway
+        (ws.ws_dir / "install/app/lib").mkdir(parents=True, exist_ok=True)
+        (ws.ws_dir / "install/app/lib/libbranch.so").write_text("branch")
+        return failing(spec, on_line)
+
+    engine.run_script = installs_some_then_fails
     with pytest.raises(BuildFailed):
         runner(engine, []).run(Plan(ws, (COLCON,)))
     (app / "branch.c").unlink()

@@ -162,9 +162,12 @@ def device_holders(device: str) -> list[tuple[int, str]]:
         wanted = os.stat(device).st_rdev
     except OSError:
         return []
+    # This one and those that started it: a shell keeping the port open for it (`exec 3<>/dev/ttyUSB0`,
+    # so that DTR stays as it is) hands espdock the port, and was refused as its holder.
+    ours = _ancestors(os.getpid())
     found = []
     for entry in os.scandir("/proc"):
-        if not entry.name.isdigit() or int(entry.name) == os.getpid():
+        if not entry.name.isdigit() or int(entry.name) in ours:
             continue
         try:
             with os.scandir(f"/proc/{entry.name}/fd") as fds:
@@ -178,6 +181,19 @@ def device_holders(device: str) -> list[tuple[int, str]]:
                 name = "a process"
             found.append((int(entry.name), name))
     return found
+
+
+def _ancestors(pid: int) -> set[int]:
+    """PID and the processes it was started by, up to init (as far as /proc says)."""
+    chain = set()
+    while pid > 0 and pid not in chain:
+        chain.add(pid)
+        try:
+            # The fields after the command's name, which may hold spaces and parentheses: state, ppid, ...
+            pid = int(Path(f"/proc/{pid}/stat").read_text().rpartition(")")[2].split()[1])
+        except (OSError, ValueError, IndexError):
+            break
+    return chain
 
 
 def _is_device(path: str, rdev: int) -> bool:

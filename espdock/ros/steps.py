@@ -863,8 +863,9 @@ def _kept_records(
 ) -> dict:
     """The records (RECORDED, before the build) of the packages of REBUILD the build did not build
     (BUILT: those it did) whose install is as the record says: put back as it was (RESTORED), or
-    untouched (never started, a dependency failed or Ctrl-C came first; or failed before it
-    installed). Forgotten, `espdock run` refused each as "did not finish ... half written"."""
+    untouched (never started: a dependency failed, or Ctrl-C came first). Forgotten, `espdock run`
+    refused each as "did not finish ... half written". One whose own build failed keeps none:
+    colcon wrote its hook files again before it failed, and may have installed part of it."""
     install, done, back = workspace.ws_dir / "install", set(built), set(restored)
     kept = {}
     for name in rebuild:

@@ -4,6 +4,7 @@ import json
 import os
 import pty
 import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -228,6 +229,15 @@ def test_a_port_a_program_holds_open_without_a_lock_is_busy_naming_it():
         holder.wait()
     with port_held(_NoContainers(), parse_port(node)):  # closed: free again
         pass
+    # A shell that keeps the port open for the espdock it starts (`exec 3<>PORT`): handed, not held.
+    handed = subprocess.run(
+        ["sh", "-c", f'exec 3<>{node}; "$0" -c "$1"', sys.executable,
+         "from tests.unit.test_firmware_tools import _NoContainers\n"
+         "from espdock.firmware.flashing import parse_port, port_held\n"
+         f"with port_held(_NoContainers(), parse_port({node!r})):\n    print('held')"],
+        cwd=Path(__file__).parents[2], capture_output=True, text=True, timeout=60, check=False,
+    )  # fmt: skip
+    assert handed.returncode == 0 and handed.stdout.strip() == "held", handed.stderr
     os.close(controller)
 
 

@@ -386,14 +386,12 @@ def flash(
                 runner.firmware.check_library_port(ws, step, settings.agent_port)
             say = lambda line: console.print(Text(line))  # noqa: E731
             if settings is None or nvs is None:
-                flash_package(
-                    runner.firmware, ws, step, flasher_args, serial, baud, verify, say, firmware_dir=firmware_dir
-                )
+                flash_package(runner.firmware, ws, step, firmware_dir, flasher_args, serial, baud, verify, say)
             else:
                 with nvs_image(settings, nvs.size, runner.owner) as image:
                     flash_package(
-                        runner.firmware, ws, step, flasher_args, serial, baud, verify, say,
-                        nvs_image=(nvs.offset, image), firmware_dir=firmware_dir,
+                        runner.firmware, ws, step, firmware_dir, flasher_args, serial, baud, verify, say,
+                        nvs_image=(nvs.offset, image),
                     )  # fmt: skip
     what = f" with its network settings ({domain_said(settings)})" if settings else ""
     console.print(f"flashed {package}{what} through {port}" + (" and verified it" if verify else ""))
@@ -444,8 +442,8 @@ def provision(
             say = lambda line: console.print(Text(line))  # noqa: E731
             with nvs_image(settings, nvs.size, runner.owner) as image:
                 flash_package(
-                    runner.firmware, ws, step, flasher_args, serial, baud, False, say,
-                    nvs_image=(nvs.offset, image), app=False, firmware_dir=firmware_dir,
+                    runner.firmware, ws, step, firmware_dir, flasher_args, serial, baud, False, say,
+                    nvs_image=(nvs.offset, image), app=False,
                 )  # fmt: skip
     open_network = "" if settings.password else " (an open network: no password)"
     console.print(

@@ -27,7 +27,6 @@ from espdock.images.engine import Engine, Mount, format_argv
 from espdock.images.machine_lock import machine_lock
 from espdock.images.port_urls import port_url_key
 from espdock.images.visibility import workspace_mount
-from espdock.layout import installed_firmware_dir
 from espdock.workspace import Workspace, component_targets
 
 URL_SCHEMES = ("socket", "rfc2217")
@@ -442,6 +441,7 @@ def flash_package(
     steps: FirmwareSteps,
     workspace: Workspace,
     step: IdfBuild,
+    firmware_dir: Path,
     flasher_args: dict,
     port: Port,
     baud: int | None,
@@ -449,18 +449,15 @@ def flash_package(
     say: Callable[[str], None],
     nvs_image: tuple[int, Path] | None = None,
     app: bool = True,
-    firmware_dir: Path | None = None,
 ) -> None:
-    """esptool write_flash (then verify_flash, with VERIFY) of STEP's installed artefacts (in
-    FIRMWARE_DIR, the installed one by default: install.installed_version's, which FLASHER_ARGS
-    were read from) through PORT, in STEP's IDF image, with only that port passed in (or the
-    host network for a URL).
+    """esptool write_flash (then verify_flash, with VERIFY) of STEP's installed artefacts in
+    FIRMWARE_DIR (install.installed_version's, which FLASHER_ARGS were read from) through PORT, in
+    STEP's IDF image, with only that port passed in (or the host network for a URL).
 
     NVS_IMAGE (offset, host file) is written in the same run; without APP, only it is."""
     # The firmware is installed on this machine, not on a workspace volume.
     steps.containers.needs_this_machine(workspace, step.image, "the installed firmware `espdock flash` writes")
-    installed = firmware_dir or installed_firmware_dir(workspace.ws_dir, step.package)
-    workdir = posixpath.join(workspace_mount(workspace).target, installed.relative_to(workspace.root).as_posix())
+    workdir = posixpath.join(workspace_mount(workspace).target, firmware_dir.relative_to(workspace.root).as_posix())
     mounts: tuple[Mount, ...] = ()
     extra: Extra | None = None
     if nvs_image is not None:

@@ -16,6 +16,7 @@ User metadata ($COLCON_HOME/metadata/*.meta) is not forwarded: the container doe
 from __future__ import annotations
 
 import contextlib
+import functools
 import hashlib
 import json
 import os
@@ -442,15 +443,27 @@ def with_build_testing(
     return (*args, "--cmake-args", *without_build_testing(defaults), f"-DBUILD_TESTING={value}")
 
 
-def defaults_for(text: str, verb: str = "build") -> dict:
-    """What a colcon defaults file (TEXT) sets for VERB ({} when nothing or not YAML: colcon
-    refuses such a file itself, naming it)."""
+# What _defaults_yaml gives for a text that is not YAML.
+_NOT_YAML = object()
+
+
+@functools.lru_cache(maxsize=8)
+def _defaults_yaml(text: str) -> object:
+    """A colcon defaults file's TEXT as YAML (_NOT_YAML where it is not), parsed once for the
+    several readings of one file in a build's settings (its refused keys, its verb's options, its
+    stamp): not to be changed by its readers."""
     import yaml
 
     try:
-        data = yaml.safe_load(text)
+        return yaml.safe_load(text)
     except yaml.YAMLError:
-        return {}
+        return _NOT_YAML
+
+
+def defaults_for(text: str, verb: str = "build") -> dict:
+    """What a colcon defaults file (TEXT) sets for VERB ({} when nothing or not YAML: colcon
+    refuses such a file itself, naming it)."""
+    data = _defaults_yaml(text)
     said = data.get(verb) if isinstance(data, dict) else None
     return said if isinstance(said, dict) else {}
 
@@ -496,15 +509,10 @@ def _deciding_digest(text: str) -> bytes | None:
     which decide no stamp after `--` either (a file of `packages-skip` alone rebuilt every package,
     and taking it out, every package again; so did its `test` verb's options). None where that is
     nothing; the text's own digest where it is no YAML mapping (colcon refuses it, naming it)."""
-    import yaml
-
-    try:
-        data = yaml.safe_load(text)
-    except yaml.YAMLError:
-        return hashlib.sha256(text.encode()).digest()
+    data = _defaults_yaml(text)
     if data is None:
         return None
-    if not isinstance(data, dict):
+    if not isinstance(data, dict):  # not YAML, or no mapping
         return hashlib.sha256(text.encode()).digest()
     build = data.get("build")
     if not isinstance(build, dict):
@@ -603,12 +611,7 @@ def check_defaults(where: str, text: str) -> None:
 def _yaml_keys(text: str) -> list[str]:
     """Every key of the YAML TEXT's mappings, at any depth: the flow style (`test: {test-result-base:
     x}`) sets a verb's options on the verb's line, which a look at each line's first key missed."""
-    import yaml
-
-    try:
-        data = yaml.safe_load(text)
-    except yaml.YAMLError:
-        return []
+    data = _defaults_yaml(text)
     keys: list[str] = []
     pending = [data]
     while pending:

@@ -281,11 +281,10 @@ class RosSteps:
         typo, or Ctrl-C mid-compile, in a package built afresh left no install of it at all: its
         nodes, which ran before, were gone, where a plain colcon keeps the old install."""
         install = base.parent.parent / "install"
-        whole = {
-            tree.name
-            for tree, _ in self._aside
-            if not restore and built is not None and tree.parent == install and tree.name not in set(built)
-        }
+        done = None if restore or built is None else set(built)
+        whole = (
+            set() if done is None else {t.name for t, _ in self._aside if t.parent == install and t.name not in done}
+        )
         put_back = set()
         for tree, kept in self._aside:
             if not restore and tree.name not in whole:

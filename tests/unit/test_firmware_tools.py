@@ -494,6 +494,16 @@ def test_esptool_stopping_mid_write_says_the_board_is_half_written(tmp_path):
     step = IdfBuild("board", "fw/board", "img", "esp32", "k")
     port = parse_port("socket://127.0.0.1:9")
     with pytest.raises(PortError) as failed:
-        flash_package(Esptool(), ws, step, args, port, None, False, lambda text: None)  # type: ignore[arg-type]
+        flash_package(
+            Esptool(),
+            ws,
+            step,
+            tmp_path / "ws/install/board/share/board/firmware",
+            args,
+            port,
+            None,
+            False,
+            lambda text: None,
+        )  # type: ignore[arg-type]
     assert "the board's flash is half written" in (failed.value.hint or ""), failed.value.hint
     assert "espdock flash board --port socket://127.0.0.1:9" in (failed.value.hint or "")

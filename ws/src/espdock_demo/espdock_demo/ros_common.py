@@ -6,6 +6,7 @@ import math
 import os
 import pathlib
 import signal
+import sys
 import threading
 import time
 from collections.abc import Callable, Mapping
@@ -137,12 +138,13 @@ def run_ready(executor: Executor) -> None:
 
 # The signals _request_stop took: a stop, however its KeyboardInterrupt surfaced (or was dropped).
 _stop_requested: list[int] = []
-# Set once spin_node's clean-up has begun: a stop is then only remembered (see _request_stop).
-_cleaning_up = threading.Event()
-# Set while a polling node runs a round of its callbacks: a stop is then only remembered, and
-# ends the loop after the round. Raised in it, the KeyboardInterrupt could land inside rclpy's
-# Task constructor, whose half-made object printed an AttributeError as it was collected.
-_in_round = threading.Event()
+# Set until rclpy.init has put rclpy's own handler in front of _request_stop: only then does a stop
+# have to be raised to end what the process does. After it, rclpy's handler thread shuts the
+# context down as the signal comes, which ends the spin (or the node's making, with an rclpy
+# error), and the interpreter runs _request_stop late, at its next Python call: raised there, the
+# KeyboardInterrupt cut short whatever that was (the handling of that very error, the clean-up, a
+# polling node's round inside rclpy's Task constructor), exit 130 with a traceback.
+_raise_stops = threading.Event()
 
 
 def _stopped_by_signal(exc: BaseException, context: Context, started: bool = True) -> bool:
@@ -167,12 +169,9 @@ def _request_stop(signum: int, _frame: object) -> None:
     # Remembered as well as raised: raised where the handler happens to run (a weakref callback,
     # a __del__), the KeyboardInterrupt is printed and dropped, and the stop must not be.
     _stop_requested.append(signum)
-    if _in_round.is_set():
-        return
-    if _cleaning_up.is_set():
-        # rclpy's own handler took the signal first and ended the spin; the interpreter runs this
-        # one late, as late as the clean-up's signal.signal, which runs pending handlers before it
-        # swaps them: raising there would cut the clean-up short (exit 130 with a traceback).
+    if not _raise_stops.is_set() or sys.exc_info()[1] is not None:
+        # rclpy's handler has stopped the node already; or an error is being handled (rclpy.init's,
+        # as the signal came), which the remembered stop makes a stop (_stopped_by_signal).
         return
     _ignore_signals()
     raise KeyboardInterrupt
@@ -204,7 +203,6 @@ def positive_setting(node: Node, name: str, default: float, description: str) ->
 
 def spin_node(
     make_node: Callable[[], Node],
-    executor: Executor | None = None,
     on_shutdown: Callable[[Node], None] | None = None,
     poll_period: float | None = None,
 ) -> None:
@@ -219,9 +217,8 @@ def spin_node(
     else a node raises ends the process with an error, so the container's restart policy
     brings it back.
     """
-    # SIGTERM too raises KeyboardInterrupt until rclpy's handlers (installed by init) take over:
-    # a stop while the node is being made.
-    _cleaning_up.clear()
+    # SIGTERM too raises KeyboardInterrupt until rclpy's handlers (installed by init) take over.
+    _raise_stops.set()
     for signum in (signal.SIGTERM, signal.SIGINT):
         signal.signal(signum, _request_stop)
     context = get_default_context()
@@ -230,27 +227,26 @@ def spin_node(
     try:
         rclpy.init()
         started = True
+        _raise_stops.clear()
         node = make_node()
-        # Made with the stop signals held back: one that came inside rclpy's Executor.__init__
-        # left it half made, and its __del__ printed a traceback ("no attribute '_sigint_gc'").
+        # Made with the stop signals held back, and only while the context is up: on one that
+        # rclpy's handler had shut down, or shut down inside it, rclpy's Executor.__init__ failed
+        # half way and the half-made executor's __del__ printed a traceback ("no attribute
+        # '_sigint_gc'").
         held = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT, signal.SIGTERM})
         try:
-            executor = executor or SingleThreadedExecutor()
+            if _stop_requested or not context.ok():
+                return  # a stop that came while the node was being made
+            executor = SingleThreadedExecutor()
         finally:
             signal.pthread_sigmask(signal.SIG_SETMASK, held)
         executor.add_node(node)
-        if _stop_requested:
-            return  # a stop that came while the node was being made, and was not raised
         if poll_period is None:
             executor.spin()
         else:
             while context.ok() and not _stop_requested:
                 time.sleep(poll_period)
-                _in_round.set()
-                try:
-                    run_ready(executor)
-                finally:
-                    _in_round.clear()
+                run_ready(executor)
     except BaseException as exc:
         if not _stopped_by_signal(exc, context, started):
             if not started and isinstance(exc, _rclpy.RCLError):
@@ -262,7 +258,7 @@ def spin_node(
                 raise SystemExit(f"error: {exc}") from None
             raise
     finally:
-        _cleaning_up.set()
+        _raise_stops.clear()
         _ignore_signals()
         try:
             if node is not None:

@@ -150,9 +150,9 @@ print("stopped", ros_common._stop_requested)
 """
 
 
-# A stop just after the node is made: rclpy's handler has shut the context down, and the executor
-# made on it failed half way, its __del__ printing "no attribute '_sigint_gc'" (one stop in 150 of
-# the random test's, once the node's own handler no longer raised after rclpy.init).
+# A stop as the node is made whose handler could not raise (an error was being handled): rclpy's
+# handler has shut the context down, and the executor made on it failed half way, its __del__
+# printing "no attribute '_sigint_gc'".
 STOP_AFTER_THE_NODE_IS_MADE = """
 import signal, time
 from rclpy.node import Node
@@ -161,7 +161,10 @@ from espdock_demo import ros_common
 
 def make_node():
     node = Node("made")
-    signal.raise_signal(signal.SIGINT)
+    try:
+        raise ValueError("handled")
+    except ValueError:
+        signal.raise_signal(signal.SIGINT)
     while get_default_context().ok():  # rclpy's handler thread shuts it down
         time.sleep(0.001)
     return node
@@ -171,10 +174,48 @@ print("stopped", ros_common._stop_requested)
 """
 
 
+# A stop inside rclpy's Executor.__init__: the signal goes to one of the DDS threads, whose
+# rclpy handler shuts the context down there, and the executor fails half way (a DDS thread takes
+# it whatever the main thread holds back). Its __del__ printed "Exception ignored in ...
+# AttributeError: 'SingleThreadedExecutor' object has no attribute '_sigint_gc'".
+STOP_INSIDE_THE_EXECUTOR = """
+import signal, time
+import rclpy.executors
+from rclpy.node import Node
+from rclpy.utilities import get_default_context
+from espdock_demo import ros_common
+
+made = rclpy.executors.SignalHandlerGuardCondition
+def stopped_first(context):
+    signal.raise_signal(signal.SIGTERM)
+    while get_default_context().ok():
+        time.sleep(0.001)
+    return made(context)
+rclpy.executors.SignalHandlerGuardCondition = stopped_first
+
+ros_common.spin_node(lambda: Node("made"))
+print("stopped", ros_common._stop_requested)
+"""
+
+
 @pytest.mark.parametrize(
     "script",
-    [LATE_STOP, RACED_SHUTDOWN, STOP_IN_ROUND, STOP_AS_THE_NODE_IS_MADE, STOP_AFTER_THE_NODE_IS_MADE],
-    ids=["late handler", "raced shutdown", "stop in a round", "stop as the node is made", "stop after the node"],
+    [
+        LATE_STOP,
+        RACED_SHUTDOWN,
+        STOP_IN_ROUND,
+        STOP_AS_THE_NODE_IS_MADE,
+        STOP_AFTER_THE_NODE_IS_MADE,
+        STOP_INSIDE_THE_EXECUTOR,
+    ],
+    ids=[
+        "late handler",
+        "raced shutdown",
+        "stop in a round",
+        "stop as the node is made",
+        "stop after the node",
+        "stop inside the executor",
+    ],
 )
 def test_a_stop_that_comes_as_the_clean_up_begins_ends_it_cleanly(image, script):
     argv = [
@@ -186,7 +227,7 @@ def test_a_stop_that_comes_as_the_clean_up_begins_ends_it_cleanly(image, script)
     assert result.returncode == 0, result.stdout + result.stderr
     assert "Traceback" not in result.stderr, result.stderr
     assert "stopped" in result.stdout
-    if script is LATE_STOP:
+    if script in (LATE_STOP, STOP_INSIDE_THE_EXECUTOR):
         assert f"stopped [{int(signal.SIGTERM)}]" in result.stdout
     if script in (STOP_AS_THE_NODE_IS_MADE, STOP_AFTER_THE_NODE_IS_MADE):
         assert f"stopped [{int(signal.SIGINT)}]" in result.stdout
@@ -194,19 +235,30 @@ def test_a_stop_that_comes_as_the_clean_up_begins_ends_it_cleanly(image, script)
         assert "round finished True" in result.stdout and f"stopped [{int(signal.SIGINT)}]" in result.stdout
 
 
-def test_arguments_rcl_cannot_parse_end_the_node_with_an_error_not_as_a_stop(image):
+@pytest.mark.parametrize(
+    ("arguments", "said"),
+    [
+        (
+            ["-p", "colors:=[#123456, #abcdef]"],
+            "Couldn't parse parameter override rule: '-p colors:=[#123456, #abcdef]'",
+        ),
+        (["--bogus-flag"], "error: unknown ROS arguments (after --ros-args): ['--bogus-flag']"),
+    ],
+    ids=["unparsable rule", "unknown flag"],
+)
+def test_arguments_rcl_cannot_parse_end_the_node_with_an_error_not_as_a_stop(image, arguments, said):
     """`ESPDOCK_DEMO_COLORS='[#123456, #abcdef]'` (no quotes around each colour): the node exited
     0, as a stop does, and its service restarted it over and over with one line, "Failed to parse
-    global arguments", that named no argument."""
+    global arguments", that named no argument. An argument rcl does not know ended it with rclpy's
+    traceback."""
     argv = [
         "docker", "run", "--rm", "--network", "none",
         "-v", f"{ROOT}/ws/src/espdock_demo/espdock_demo:{INSTALLED}:ro",
-        image, "/opt/espdock/ws/install/espdock_demo/lib/espdock_demo/camera_sim",
-        "--ros-args", "-p", "colors:=[#123456, #abcdef]",
+        image, "/opt/espdock/ws/install/espdock_demo/lib/espdock_demo/camera_sim", "--ros-args", *arguments,
     ]  # fmt: skip
     result = subprocess.run(argv, capture_output=True, text=True, timeout=120, check=False)
     assert result.returncode == 1, result.stdout + result.stderr
-    assert "Couldn't parse parameter override rule: '-p colors:=[#123456, #abcdef]'" in result.stderr, result.stderr
+    assert said in result.stderr, result.stderr
     assert "Traceback" not in result.stderr, result.stderr  # rcl's line, not 15 of rclpy's internals
 
 

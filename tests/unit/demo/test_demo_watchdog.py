@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
 import subprocess
@@ -85,3 +86,23 @@ def test_sigint_stops_the_node_as_sigterm_does_with_no_traceback(tmp_path):
     process.send_signal(signal.SIGINT)
     assert process.wait(timeout=20) == 0
     assert "Traceback" not in process.stderr.read()
+
+
+def test_a_second_stop_as_the_watchdog_exits_does_not_kill_it(tmp_path):
+    """`docker compose stop` then Ctrl-C, or two kills: a signal that came as the watchdog's
+    Python was finishing found the default action back (the interpreter restores it for the
+    signals it handled) and killed it, exit 130 with no output, where the stop had exited 0."""
+    codes = []
+    for _ in range(10):
+        process, pid_file = watchdog(tmp_path, beats=1000, then="exit")
+        deadline = time.monotonic() + 10
+        while not pid_file.exists() and time.monotonic() < deadline:
+            time.sleep(0.05)
+        pid_file.unlink()
+        process.send_signal(signal.SIGTERM)
+        while process.poll() is None:  # Ctrl-C after Ctrl-C while it stops
+            with contextlib.suppress(ProcessLookupError):
+                process.send_signal(signal.SIGINT)
+            time.sleep(0.0005)
+        codes.append(process.wait())
+    assert codes == [0] * 10

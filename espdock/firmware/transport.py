@@ -145,15 +145,44 @@ def _project_choice(project: Path, target: str) -> tuple[str, str | None]:
     return transport_choice(found, target, order)
 
 
-def check_provisionable(package: str, project: Path, target: str) -> None:
-    """Provisioning writes Wi-Fi and agent settings: a serial board (the firmware project at
-    PROJECT, built for TARGET) has neither to write."""
-    link, where = _project_choice(project, target)
+# Beside the installed firmware: the transport its build chose, from the build's own
+# configuration. Provisioning asks the board's firmware, not sources edited since its build.
+TRANSPORT_RECORD = "espdock-transport.json"
+
+
+def built_transport_record(build_dir: Path) -> bytes | None:
+    """TRANSPORT_RECORD's content for the build in BUILD_DIR: the choice in the configuration
+    kconfgen wrote (config/sdkconfig.json, symbols without CONFIG_); None where the build has no
+    such configuration or made no choice (an app without the espdock_uros component)."""
+    try:
+        config = json.loads((build_dir / "config" / "sdkconfig.json").read_text())
+    except (OSError, ValueError):
+        return None
+    chosen = [t for symbol, t in SYMBOLS.items() if isinstance(config, dict) and config.get(symbol[7:]) is True]
+    return json.dumps({"transport": chosen[0]}).encode() + b"\n" if len(chosen) == 1 else None
+
+
+def installed_transport(firmware_dir: Path) -> str | None:
+    """The transport the firmware installed at FIRMWARE_DIR was built with (None: not recorded)."""
+    try:
+        link = json.loads((firmware_dir / TRANSPORT_RECORD).read_text()).get("transport")
+    except (OSError, ValueError, AttributeError):
+        return None
+    return link if link in TRANSPORTS else None
+
+
+def check_provisionable(package: str, project: Path, target: str, firmware_dir: Path) -> None:
+    """Provisioning writes Wi-Fi and agent settings: a serial board has neither to write. The
+    board's firmware says which it is (the one installed at FIRMWARE_DIR); firmware installed
+    before espdock recorded it, or none, is judged by its project at PROJECT, built for TARGET."""
+    installed = installed_transport(firmware_dir)
+    link, where = (installed, None) if installed else _project_choice(project, target)
     if link != UDP:
+        symbol = next(s for s, t in SYMBOLS.items() if t == link)
+        chose = f"its {where} sets {symbol}=y" if where else f"its installed firmware was built with {symbol}=y"
         raise ConfigError(
-            f"{package} reaches the micro-ROS agent over {link} (its {where} sets "
-            f"{next(s for s, t in SYMBOLS.items() if t == link)}=y): nothing to provision, it uses no Wi-Fi and "
-            "no agent address",
+            f"{package} reaches the micro-ROS agent over {link} ({chose}): nothing to provision, it uses no Wi-Fi "
+            "and no agent address",
             "Flash it (espdock flash without --wifi-ssid, --agent, --wifi-password-file or --domain-id: its ROS "
             "domain is the build's CONFIG_ESPDOCK_ROS_DOMAIN_ID) and start the agent on its port, e.g. "
             "`espdock agent --port /dev/ttyACM0`.",

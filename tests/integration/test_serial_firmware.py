@@ -92,3 +92,27 @@ def test_the_double_refuses_usb_serial_jtag_on_an_esp32_and_a_library_of_the_oth
     )
     usb = in_image(image, project, "build", env=("IDF_TARGET=esp32c3",))
     assert usb.returncode == 0, usb.stdout[-3000:] + usb.stderr
+
+
+def test_provisioning_asks_the_installed_firmware_not_the_sources_edited_since(serial_ws):
+    """A serial board whose sources were switched to Wi-Fi but not rebuilt still runs its UART
+    firmware: provisioning it would erase its NVS for settings it never reads."""
+    root, env = serial_ws
+    defaults, meta = (root / "firmware/uart_board" / name for name in ("sdkconfig.defaults", "app-colcon.meta"))
+    kept = {path: path.read_text() for path in (defaults, meta)}
+    defaults.write_text(kept[defaults].replace("CONFIG_ESPDOCK_TRANSPORT_UART=y", "CONFIG_ESPDOCK_TRANSPORT_UDP=y"))
+    # The whole switch: a serial library's argument left in the meta stops the flash on its own.
+    meta.write_text(kept[meta].replace(',\n        "-DRMW_UXRCE_TRANSPORT=custom"', ""))
+    try:
+        for argv in (
+            ("provision", "uart_board", "--port", "/dev/ttyUSB0", "--wifi-ssid", "lab", "--agent", "10.0.0.2:8888"),
+            ("flash", "uart_board", "--port", "/dev/ttyUSB0", "--wifi-ssid", "lab", "--agent", "10.0.0.2:8888"),
+        ):
+            result = espdock(*argv, cwd=root, env=env)
+            text = " ".join(result.stderr.split())
+            assert result.returncode == 2, (argv, result.stdout, result.stderr)
+            assert "uart_board reaches the micro-ROS agent over uart" in text, text
+            assert "its installed firmware was built with CONFIG_ESPDOCK_TRANSPORT_UART=y" in text, text
+    finally:
+        for path, text in kept.items():
+            path.write_text(text)

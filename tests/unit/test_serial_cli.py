@@ -174,3 +174,19 @@ def test_flash_and_monitor_take_the_port_and_baud_idf_py_takes_from_the_environm
         assert "Missing option" not in given.stderr, given.stderr  # on to what the port or firmware says
     baud = espdock("flash", "led_strip_node", cwd=root, env={**NO_ENGINE, "ESPPORT": "/dev/x", "ESPBAUD": "fast"})
     assert "Invalid value for '--baud'" in baud.stderr, baud.stderr
+
+
+def test_a_wifi_board_s_installed_firmware_is_provisionable_whatever_its_sources_say_now(tmp_path):
+    """The board runs what was installed: sources switched to a serial link since do not refuse it."""
+    from espdock.errors import ConfigError
+    from espdock.firmware.transport import TRANSPORT_RECORD, check_provisionable
+
+    project = tmp_path / "board"
+    project.mkdir()
+    (project / "sdkconfig.defaults").write_text("CONFIG_ESPDOCK_TRANSPORT_UART=y\n")
+    installed = tmp_path / "firmware"
+    installed.mkdir()
+    with pytest.raises(ConfigError, match=r"its sdkconfig\.defaults sets CONFIG_ESPDOCK_TRANSPORT_UART=y"):
+        check_provisionable("board", project, "esp32", installed)  # nothing recorded: the sources decide
+    (installed / TRANSPORT_RECORD).write_text('{"transport": "udp"}\n')
+    check_provisionable("board", project, "esp32", installed)

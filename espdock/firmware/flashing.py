@@ -494,7 +494,16 @@ def flash_package(
         said.append(text)
         say(text)
 
-    again = f"`espdock flash {step.package} --port {port.spec}`"
+    # What a write cut short leaves, and what writes it whole: provisioning writes the NVS
+    # partition alone, which `flash` without the settings never writes again.
+    if app:
+        half = "its flash is half written, and it may not boot"
+        again = f"`espdock flash {step.package} --port {port.spec}`" + (
+            " with the same --wifi-ssid/--agent options" if extra is not None else ""
+        )
+    else:
+        half = "its NVS partition (the network settings) is half written; the app is untouched"
+        again = f"`espdock provision {step.package} --port {port.spec}` with the same options"
     for argv in commands:
         say(format_argv(argv))
         said.clear()
@@ -512,9 +521,8 @@ def flash_package(
         except KeyboardInterrupt:
             if _writing(said):
                 raise Interrupted(
-                    f"interrupted while esptool was writing the board at {port.spec}: its flash is half written, "
-                    "and it may not boot",
-                    f"Flash it again ({again}).",
+                    f"interrupted while esptool was writing the board at {port.spec}: {half}",
+                    f"Write it again: {again}.",
                 ) from None
             raise
         if code != 0 and (revision := next((t for t in said if REVISION_REFUSED in t), None)):
@@ -527,12 +535,7 @@ def flash_package(
             )
         if code != 0:
             # Unplugged or reset mid-write: the bootloader and partition table new, the app in part.
-            written = (
-                f" It had begun writing: the board's flash is half written, and it may not boot; {again} "
-                "writes it whole."
-                if _writing(said)
-                else ""
-            )
+            written = f" It had begun writing: {half}; {again} writes it whole." if _writing(said) else ""
             raise PortError(f"esptool failed (exit code {code}) on {port.spec}", f"See its output above.{written}")
 
 

@@ -465,9 +465,30 @@ def test_a_serial_server_s_url_is_the_same_port_however_it_is_written():
         assert not same_port_url(other, held), other
 
 
-def test_esptool_stopping_mid_write_says_the_board_is_half_written(tmp_path):
+@pytest.mark.parametrize(
+    ("writes", "half", "again"),
+    [
+        ("app", "the board's flash is half written", "espdock flash board --port socket://127.0.0.1:9"),
+        (
+            "app and settings",
+            "the board's flash is half written",
+            "espdock flash board --port socket://127.0.0.1:9` with the same --wifi-ssid/--agent options",
+        ),
+        # provision writes the NVS partition alone: `flash` without the settings never rewrote it,
+        # and the app, untouched, still boots.
+        (
+            "settings",
+            "its NVS partition (the network settings) is half written; the app is untouched",
+            "espdock provision board --port socket://127.0.0.1:9` with the same options",
+        ),
+    ],
+)
+@pytest.mark.parametrize("cut", ["unplugged", "interrupted"])
+def test_esptool_stopping_mid_write_says_what_is_half_written(tmp_path, writes, half, again, cut):
     """A board unplugged (or reset) at "Writing at 0x00010000... (11 %)": espdock said only "See its
-    output above", where the bootloader was new and the app in part, and the board would not boot."""
+    output above", where the bootloader was new and the app in part, and the board would not boot.
+    Ctrl-C there says the same; an interrupted `provision` said to flash the app again."""
+    from espdock.errors import Interrupted
     from espdock.firmware.flashing import PortError, flash_package
     from espdock.firmware.plan import IdfBuild
 
@@ -486,6 +507,8 @@ def test_esptool_stopping_mid_write_says_the_board_is_half_written(tmp_path):
                 return 0
             for text in ("Compressed 182784 bytes to 95391...", "Writing at 0x00010000... (11 %)"):
                 on_line(text)
+            if cut == "interrupted":
+                raise KeyboardInterrupt
             return 1
 
     ws = Workspace(tmp_path)
@@ -493,7 +516,8 @@ def test_esptool_stopping_mid_write_says_the_board_is_half_written(tmp_path):
     args = {"extra_esptool_args": {"chip": "esp32"}, "flash_files": {"0x10000": "board.bin"}}
     step = IdfBuild("board", "fw/board", "img", "esp32", "k")
     port = parse_port("socket://127.0.0.1:9")
-    with pytest.raises(PortError) as failed:
+    settings = {"nvs_image": (0x9000, tmp_path / "nvs.bin")} if "settings" in writes else {}
+    with pytest.raises(PortError if cut == "unplugged" else Interrupted) as failed:
         flash_package(
             Esptool(),
             ws,
@@ -504,6 +528,9 @@ def test_esptool_stopping_mid_write_says_the_board_is_half_written(tmp_path):
             None,
             False,
             lambda text: None,
+            app="app" in writes,
+            **settings,
         )  # type: ignore[arg-type]
-    assert "the board's flash is half written" in (failed.value.hint or ""), failed.value.hint
-    assert "espdock flash board --port socket://127.0.0.1:9" in (failed.value.hint or "")
+    said = " ".join(f"{failed.value} {failed.value.hint}".split())
+    assert half.removeprefix("the board's ") in said and again in said, said
+    assert ("may not boot" in said) == ("app" in writes), said

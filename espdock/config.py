@@ -152,7 +152,15 @@ def load_config(root: Path, env: Mapping[str, str], overrides: Mapping[str, Any]
     values.update(_checked(from_env, strict=False, where=lambda key: f"environment variable ESPDOCK_{key.upper()}"))
     cli = {k: v for k, v in (overrides or {}).items() if v is not None}
     values.update(_checked(cli, strict=False, where=lambda key: f"option --{key.replace('_', '-')}"))
-    return _validate(values, root)
+    # Where the chip came from, for its error: "unknown chip target 'esp33'" named no file or variable.
+    chip = (
+        "option --target"
+        if "target" in cli
+        else "environment variable ESPDOCK_TARGET"
+        if "target" in from_env
+        else f"{path}: key 'target' in [espdock]"
+    )
+    return _validate(values, root, chip)
 
 
 def misspelt_variables(env: Mapping[str, str]) -> list[str]:
@@ -225,11 +233,12 @@ def check_target(target: str, where: str = "chip target") -> str:
     return target
 
 
-def _validate(values: dict[str, Any], root: Path) -> Config:
+def _validate(values: dict[str, Any], root: Path, chip: str) -> Config:
     if values.get("package_paths") is not None:
         values["package_paths"] = tuple(values["package_paths"])
     config = replace(Config(), **values)
-    check_target(config.target)
+    if "target" in values:  # the default is a chip
+        check_target(config.target, f"chip target in {chip}:")
     if config.ca_bundle is not None:
         ca = Path(config.ca_bundle).expanduser()
         ca = ca if ca.is_absolute() else root / ca

@@ -39,6 +39,20 @@ def test_unknown_chip_target_is_refused_with_a_suggestion(tmp_path):
     assert "esp32s3" in err.value.hint or "esp32s2" in err.value.hint
 
 
+def test_an_unknown_chip_target_names_where_it_was_set(tmp_path):
+    """`target = "esp33"` in espdock.toml said only "unknown chip target 'esp33'", where the
+    same typo in a package's sdkconfig.defaults named the file."""
+    write(tmp_path, '[espdock]\ntarget = "esp33"\n')
+    for env, overrides, where in (
+        ({}, None, f"{tmp_path / 'espdock.toml'}: key 'target'"),
+        ({"ESPDOCK_TARGET": "esp34"}, None, "environment variable ESPDOCK_TARGET"),
+        ({"ESPDOCK_TARGET": "esp34"}, {"target": "esp35"}, "option --target"),
+    ):
+        with pytest.raises(ConfigError) as err:
+            load_config(tmp_path, env, overrides)
+        assert where in err.value.message, err.value.message
+
+
 def test_broken_toml_names_the_file(tmp_path):
     write(tmp_path, "[espdock\n")
     with pytest.raises(ConfigError) as err:

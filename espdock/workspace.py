@@ -195,11 +195,15 @@ def find_workspace(start: Path | None = None) -> Workspace:
     )
 
 
-def discover_packages(workspace: Workspace, ros_distro: str = DEFAULT_ROS_DISTRO) -> tuple[Package, ...]:
+def discover_packages(
+    workspace: Workspace, ros_distro: str = DEFAULT_ROS_DISTRO, unreadable: list[WorkspaceError] | None = None
+) -> tuple[Package, ...]:
     """Every package under the workspace's package paths, by name; names must be unique.
 
     A package is firmware when its build type is esp_idf (as colcon tells packages apart), ROS
     otherwise, wherever it lives. Conditions in package.xml are evaluated for ROS 2 ROS_DISTRO.
+    A package.xml that cannot be read is an error, or, given UNREADABLE, left out and its error
+    added there (commands that use what is installed, not the sources).
     """
     found: dict[str, Package] = {}
     seen: set[Path] = set()
@@ -211,7 +215,13 @@ def discover_packages(workspace: Workspace, ros_distro: str = DEFAULT_ROS_DISTRO
             seen.add(manifest)
             package = cache.get(manifest)
             if package is None:
-                package = _read_manifest(manifest, ros_distro)
+                try:
+                    package = _read_manifest(manifest, ros_distro)
+                except WorkspaceError as exc:
+                    if unreadable is None:
+                        raise
+                    unreadable.append(exc)
+                    continue
                 cache.put(manifest, package)
             if package.name in found:
                 raise WorkspaceError(

@@ -13,7 +13,7 @@ from espdock.build.lock import current_rosdep_inputs, current_test_inputs, rosde
 from espdock.build.plan import plan_workspace
 from espdock.build.steps import EnsureImage, Plan
 from espdock.config import Config, invoking_user
-from espdock.errors import EspdockError
+from espdock.errors import EspdockError, WorkspaceError
 from espdock.firmware.plan import (
     STANDARD_INTERFACES,
     IdfBuild,
@@ -238,15 +238,27 @@ def firmware_plan(
     env: Mapping[str, str],
     notify: Callable[[str], None],
     target: str | None = None,
+    installed: bool = False,
 ) -> tuple[Plan, IdfBuild]:
     """The plan that ensures firmware package NAME's IDF image, and its build step (for TARGET,
-    as `espdock build --target`, where given)."""
-    packages = workspace_packages(ws, config.ros_distro)
-    if name not in {p.name for p in packages}:
-        # Offered among the firmware packages: a renamed one's old name got an ament_python package.
-        raise unknown_package(name, [p.name for p in packages if p.kind is PackageKind.FIRMWARE], ws, "firmware")
-    known = (packages, read_build_inputs(ws, packages))  # found once
-    return firmware_step(build_plan(ws, config, [name], target=target, known=known, env=env, notify=notify), name)
+    as `espdock build --target`, where given). INSTALLED: for a command that works with the
+    installed firmware (flash, provision, monitor), which another package's package.xml, half
+    edited, does not stop."""
+    unreadable: list[WorkspaceError] | None = [] if installed else None
+    packages = order_packages(discover_packages(ws, config.ros_distro, unreadable))
+    try:
+        if name not in {p.name for p in packages}:
+            # Offered among the firmware packages: a renamed one's old name got an ament_python package.
+            raise unknown_package(name, [p.name for p in packages if p.kind is PackageKind.FIRMWARE], ws, "firmware")
+        known = (packages, read_build_inputs(ws, packages))  # found once
+        plan = build_plan(ws, config, [name], target=target, known=known, env=env, notify=notify)
+    except EspdockError:
+        if unreadable:  # NAME's own, or one NAME depends on: that manifest is what to fix
+            raise unreadable[0] from None
+        raise
+    for error in unreadable or ():
+        notify(f"note: {error.message}; left out (the installed firmware of {name} is used as it was built)")
+    return firmware_step(plan, name)
 
 
 def current_tags(ws: Workspace, config: Config, *, env: Mapping[str, str]) -> set[str]:

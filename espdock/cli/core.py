@@ -305,8 +305,10 @@ class PassThrough(typer.core.TyperCommand):
 PASSED = "espdock.passed_args"
 
 
-def firmware_plan(ws: Workspace, config: Config, name: str, target: str | None = None) -> tuple[Plan, IdfBuild]:
-    return prepare.firmware_plan(ws, config, name, os.environ, notify, target)
+def firmware_plan(
+    ws: Workspace, config: Config, name: str, target: str | None = None, installed: bool = False
+) -> tuple[Plan, IdfBuild]:
+    return prepare.firmware_plan(ws, config, name, os.environ, notify, target, installed)
 
 
 def runner_for(

@@ -174,7 +174,9 @@ def _installed(ws: Workspace, config: Config, plan: Plan, step: IdfBuild) -> tup
     built, current = runner.firmware.installed_from(ws, step)
     if current and built.target != step.target:
         # A one-off chip's: current while its sources build the same library for that chip.
-        _, for_chip = prepare.firmware_plan(ws, config, step.package, os.environ, lambda text: None, built.target)
+        _, for_chip = prepare.firmware_plan(
+            ws, config, step.package, os.environ, lambda text: None, built.target, installed=True
+        )
         current = for_chip.image_key == built.image_key
     if not current:
         # For the chip it was built for: a plain build would replace a `--target` one's firmware
@@ -368,7 +370,7 @@ def flash(
     ws, config = load(workspace)
     serial = parse_port(port)
     _baud_unused(serial, baud)
-    plan, step = firmware_plan(ws, config, package)
+    plan, step = firmware_plan(ws, config, package, installed=True)
     provisioning = any(option is not None for option in (wifi_ssid, agent, wifi_password_file, domain_id))
     if provisioning:
         transport.check_provisionable(
@@ -428,7 +430,7 @@ def provision(
     ws, config = load(workspace)
     serial = parse_port(port)
     _baud_unused(serial, baud)
-    plan, step = firmware_plan(ws, config, package)
+    plan, step = firmware_plan(ws, config, package, installed=True)
     transport.check_provisionable(
         package, ws.root / step.project, step.target, installed_firmware_dir(ws.ws_dir, package)
     )
@@ -468,7 +470,7 @@ def monitor(
     serial = parse_port(port)
     _need_terminal("the monitor")
     check_port(serial)
-    plan, step = firmware_plan(ws, config, package)
+    plan, step = firmware_plan(ws, config, package, installed=True)
     # As flash: a package never built said its installed firmware was "not what its sources build
     # now", then failed in idf.py.
     read_flasher_args(installed_firmware_dir(ws.ws_dir, package), package)

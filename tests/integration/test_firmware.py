@@ -837,6 +837,43 @@ def test_flash_writes_the_installed_firmware_while_its_interface_is_mid_edit(fw_
     assert "verified" in result.stdout
 
 
+def test_flash_and_provision_write_the_installed_firmware_while_a_package_xml_is_mid_edit(
+    fw_ws, double_env, mock_bootloader, tmp_path
+):
+    """Another package's package.xml half typed (its closing tag not yet), or that of the interface
+    the firmware depends on: flash, provision and monitor stopped with "is not a valid package.xml"
+    (exit 2), where they work with the firmware as it was last built."""
+    root, first = fw_ws
+    assert first.returncode == 0
+    password = tmp_path / "password"
+    password.write_text("labpassword1\n")
+    provision = ("--wifi-ssid", "lab", "--wifi-password-file", str(password), "--agent", "192.168.1.10:8888")
+    # A package being written, half typed yet, and the interface's own.
+    new = root / "ws/src/notes_pkg/package.xml"
+    new.parent.mkdir()
+    new.write_text((root / "ws/src/custom_interface/package.xml").read_text().replace("custom_interface", "notes_pkg"))
+    for manifest in (new, root / "ws/src/custom_interface/package.xml"):
+        text = manifest.read_text()
+        manifest.write_text(text.replace("</package>", "</packag"))
+        try:
+            flashed = espdock("flash", "camera_node", "--port", mock_bootloader, cwd=root, env=double_env)
+            provisioned = espdock(
+                "provision", "camera_node", "--port", mock_bootloader, *provision, cwd=root, env=double_env
+            )
+            built = espdock("build", "camera_node", "--dry-run", cwd=root, env=double_env)
+        finally:
+            manifest.write_text(text)
+            if manifest == new:
+                shutil.rmtree(new.parent)
+        for result in (flashed, provisioned):
+            said = " ".join((result.stdout + result.stderr).split())
+            assert result.returncode == 0, (manifest, said[-3000:])
+            assert f"{manifest} is not a valid package.xml" in said and "left out" in said, said[-3000:]
+        assert "flashed camera_node" in flashed.stdout and "provisioned camera_node" in provisioned.stdout
+        # A build reads the sources: the manifest is still an error there.
+        assert built.returncode == 2 and f"{manifest} is not a valid package.xml" in built.stderr, built.stderr
+
+
 def test_the_chip_probe_speaks_the_esptool_it_finds_and_tells_its_version(mock_bootloader):
     """The double's image holds esptool 4 (the flash tests above); this venv's is esptool 5, which
     takes the probe's words hyphenated. One run detects the chip and names esptool's version."""

@@ -85,6 +85,8 @@ def test_the_double_refuses_usb_serial_jtag_on_an_esp32_and_a_library_of_the_oth
     udp = in_image(image, project, "build", env=("IDF_TARGET=esp32c3",))
     assert udp.returncode == 2, udp.stdout[-3000:]
     assert "not built with RMW_UXRCE_TRANSPORT=udp" in udp.stdout + udp.stderr
+    # Where the fix is: menuconfig's choice alone reaches the app, not the library (it named app-colcon.meta).
+    assert "choose the transport in sdkconfig.defaults" in udp.stdout + udp.stderr
     # And as it is, for its own chip, it builds.
     (project / "sdkconfig").unlink(missing_ok=True)
     defaults.write_text(

@@ -18,7 +18,9 @@ static const char *TAG = "espdock_transport";
 #include "espdock_wifi.h"
 
 #ifndef RMW_UXRCE_TRANSPORT_UDP
-#error "espdock transport is UDP but this micro-ROS library was not built with RMW_UXRCE_TRANSPORT=udp (app-colcon.meta)"
+/* espdock builds the library for the transport the package's sdkconfig.defaults choose: a choice
+   changed in menuconfig alone reaches only the app. */
+#error "espdock transport is UDP but this micro-ROS library was not built with RMW_UXRCE_TRANSPORT=udp: choose the transport in sdkconfig.defaults (CONFIG_ESPDOCK_TRANSPORT_UDP=y), not in menuconfig"
 #endif
 
 bool espdock_transport_configure(rmw_init_options_t *rmw_options, const char *agent_ip, uint16_t agent_port)
@@ -52,7 +54,7 @@ void espdock_transport_serial_settings(net_settings_t *out)
 #include "serial_link.h"
 
 #ifndef RMW_UXRCE_TRANSPORT_CUSTOM
-#error "espdock transport is serial but this micro-ROS library was not built with RMW_UXRCE_TRANSPORT=custom (app-colcon.meta)"
+#error "espdock transport is serial but this micro-ROS library was not built with RMW_UXRCE_TRANSPORT=custom: choose the transport in sdkconfig.defaults (CONFIG_ESPDOCK_TRANSPORT_UART=y or _USB_SERIAL_JTAG=y), not in menuconfig"
 #endif
 
 /* The driver's buffers: one XRCE frame (MTU 512 by default) with room for escaping. */

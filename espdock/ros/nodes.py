@@ -99,6 +99,12 @@ def find_executable(workspace: Workspace, packages: tuple[Package, ...], package
             if close and not why
             else f"Packages with executables (after `espdock build`): {listing}.",
         )
+    if (not (install / package).is_dir() or executable not in runnable.get(package, [])) and (
+        running := _running_build(workspace, package)
+    ):
+        # A build rebuilding it afresh has moved its install aside, or is filling it in: it was
+        # "not built yet", whose hint a build then refused.
+        raise running
     if not (install / package).is_dir():
         raise WorkspaceError(f"package '{package}' is not built yet", f"Run `espdock build {package}` first.")
     if executable not in runnable.get(package, []):
@@ -137,11 +143,8 @@ def check_built_by_espdock(workspace: Workspace, package: str) -> None:
     listing = listing_digest(workspace.ws_dir / "install" / package)
     if _finished(recorded) and listing is not None and recorded.get("installed") == listing:
         return
-    if (holder := build_running(workspace)) is not None:
-        raise WorkspaceError(
-            f"an espdock build is running in {workspace.root}{holder}: install/{package} may be half rebuilt",
-            "Wait for it to finish, then run again.",
-        )
+    if running := _running_build(workspace, package):
+        raise running
     if unfinished_builds(workspace, [package]):
         raise WorkspaceError(
             f"the last espdock build of {package} did not finish (it failed or was interrupted): "
@@ -153,6 +156,16 @@ def check_built_by_espdock(workspace: Workspace, package: str) -> None:
         "(a colcon build of your own, native or in `espdock shell`?): its executables may name the "
         "host's paths and Python, which the runtime image does not have",
         f"Run `espdock build {package}` (it rebuilds what changed in install/), then run again.",
+    )
+
+
+def _running_build(workspace: Workspace, package: str) -> WorkspaceError | None:
+    """The error to give where an espdock build runs in WORKSPACE: PACKAGE's install may be half rebuilt."""
+    if (holder := build_running(workspace)) is None:
+        return None
+    return WorkspaceError(
+        f"an espdock build is running in {workspace.root}{holder}: install/{package} may be half rebuilt",
+        "Wait for it to finish, then run again.",
     )
 
 

@@ -254,6 +254,23 @@ def test_run_during_a_build_runs_no_image_of_a_half_rebuilt_install(engine, node
     assert "install/ may be half rebuilt, and the runtime image would be made of it" in said, said
 
 
+def test_run_during_a_build_rebuilding_the_package_afresh_says_a_build_runs(node_workspace):
+    """A build that rebuilds a package afresh (a setup.py edit, --force) moves its install aside
+    first: `espdock run` said "not built yet" and to build it, which the running build refused."""
+    install = node_workspace / "ws/install/beacon_nodes"
+    for moved in (install, install / "lib/beacon_nodes"):  # aside, and being filled in again
+        aside = moved.with_name(moved.name + ".aside")
+        with build_holding(node_workspace):
+            moved.rename(aside)
+            try:
+                refused = espdock("run", "beacon_nodes", "beacon", cwd=node_workspace)
+            finally:
+                aside.rename(moved)
+        said = " ".join(refused.stderr.split())
+        assert refused.returncode == 2, refused.stdout + refused.stderr
+        assert "an espdock build is running in" in said and "install/beacon_nodes may be half rebuilt" in said, said
+
+
 def test_the_node_exit_code_passes_through(node_workspace):
     # A parameter of the wrong type makes rclpy raise at start-up: the node fails, so does run.
     result = espdock("run", "beacon_nodes", "beacon", "--ros-args", "-p", "period:=fast", cwd=node_workspace)

@@ -131,6 +131,23 @@ _MISSING = (
 )
 
 
+# colcon's logger on the console: "[0.283s] ERROR:colcon.colcon_ros.task.ament_python.build:...".
+_COLCON_ERROR = re.compile(r"^(\[[0-9.]+s\] )?ERROR:colcon")
+
+
+def colcon_errors(output: Iterable[str]) -> str:
+    """colcon's own errors in its console OUTPUT (an ERROR: line and the list lines under it),
+    without the packages' interleaved output: what it says of a package it failed before the
+    package's build began, which then has no log."""
+    kept: list[str] = []
+    inside = False
+    for line in output:
+        inside = bool(_COLCON_ERROR.match(line)) or (inside and line.startswith(("- ", "Check that")))
+        if inside:
+            kept.append(line)
+    return "\n".join(kept)
+
+
 def missing_dependencies(output: str) -> tuple[str, ...]:
     """What a failed package's OUTPUT says it could not find, in order, without repeats."""
     found: dict[str, None] = {}
@@ -178,15 +195,17 @@ def named(names: list[str], state: str) -> str:
 def explain_failure(
     code: int,
     states: Mapping[str, PackageState],
-    logs: Mapping[str, tuple[Path, str]],
+    logs: Mapping[str, tuple[Path | None, str]],
     args: tuple[str, ...],
     declared: Mapping[str, tuple[frozenset[str], frozenset[str]]] | None = None,
     command: str = "build",
+    ours: frozenset[str] = frozenset(),
 ) -> ColconFailure:
     """Why colcon exited with CODE: STATES from its event log, LOGS (failed package -> its log
-    file and output), ARGS the options given after `--`, DECLARED (package -> what its package.xml
-    names, and which of those only as test_depend). COMMAND: the espdock command whose build it
-    was (`espdock test`'s configures the tests, which a plain build does not compile)."""
+    file, None where colcon failed it before its build began and wrote none, and its output), ARGS
+    the options given after `--`, DECLARED (package -> what its package.xml names, and which of
+    those only as test_depend), OURS the workspace's packages. COMMAND: the espdock command whose
+    build it was (`espdock test`'s configures the tests, which a plain build does not compile)."""
     by_state: dict[PackageState, list[str]] = {}
     for name, state in sorted(states.items()):
         by_state.setdefault(state, []).append(name)
@@ -205,7 +224,8 @@ def explain_failure(
             f"killer for want of memory (`dmesg` says); if that was it, {FEWER_AT_ONCE}."
         )
     for name in failed:
-        log, output = logs.get(name, (Path("?"), ""))
+        path, output = logs.get(name, (None, ""))
+        log = path if path is not None else "none of its own (colcon's output above says why)"
         missing = missing_dependencies(output)
         if COMPILER_KILLED.search(output):
             lines.append(f"  {name}: its compiler was killed (out of memory?); log: {log}")
@@ -222,7 +242,7 @@ def explain_failure(
             )
         elif missing:
             lines.append(f"  {name}: could not find {', '.join(missing)}; log: {log}")
-            hints.append(_missing_hint(name, missing, *(declared or {}).get(name, (frozenset(), frozenset()))))
+            hints.append(_missing_hint(name, missing, *(declared or {}).get(name, (frozenset(), frozenset())), ours))
         elif SYMLINK_OVER_COPY in output:
             # ament_cmake's symlink install cannot replace what a copying install left in the build
             # dir (colcon as well): the package is fine, its build dir is of the other kind.
@@ -251,10 +271,21 @@ def explain_failure(
     return ColconFailure("\n".join(lines), " ".join(hints))
 
 
-def _missing_hint(name: str, missing: tuple[str, ...], declared: frozenset[str], test_only: frozenset[str]) -> str:
-    """What to do about a package that could not find MISSING, given what its package.xml names."""
+def _missing_hint(
+    name: str, missing: tuple[str, ...], declared: frozenset[str], test_only: frozenset[str], ours: frozenset[str]
+) -> str:
+    """What to do about a package that could not find MISSING, given what its package.xml names
+    and the workspace's packages (OURS)."""
     shown = ", ".join(missing)
     leave_out = f"leave {name} out (COLCON_IGNORE, `-- --packages-skip {name}`, or select other packages)"
+    if all(dep in ours for dep in missing):
+        # A package of the workspace that was never built: one this build's options left out.
+        return (
+            f"{shown} {'is a package' if len(missing) == 1 else 'are packages'} of this workspace that {name} "
+            f"depends on and that {'is' if len(missing) == 1 else 'are'} not built (left out by the options after "
+            f"`--`?): build {'it' if len(missing) == 1 else 'them'} too (`espdock build {name}` builds what it "
+            f"depends on), or {leave_out}."
+        )
     if all(dep in test_only for dep in missing):
         return (
             f"{name} needs {shown} only for its tests (test_depend in its package.xml), which this build "

@@ -45,7 +45,7 @@ from espdock.ros.colcon import (
     record_install_kinds,
     symlink_installed,
 )
-from espdock.ros.colcon_log import ColconLog, PackageState, explain_failure, named, usage_error
+from espdock.ros.colcon_log import ColconLog, PackageState, colcon_errors, explain_failure, named, usage_error
 from espdock.ros.plan import PYTHON_BUILD_TYPES, ColconBuild, RuntimeImage
 from espdock.ros.runtime_tree import installed_step, runtime_context, runtime_spec
 from espdock.ros.testing import (
@@ -538,8 +538,12 @@ class RosSteps:
                 "and colcon's defaults files; nothing was built.",
             )
         if code != 0:
+            # A package colcon failed before its build began (a dependency's install missing, as
+            # ament_python's task checks first) has no log: what colcon said of it is its output.
             logs = {
-                name: (log.package_log(name), _read_text(log.package_log(name)))
+                name: (path, _read_text(path))
+                if (path := log.package_log(name)).is_file()
+                else (None, colcon_errors(output))
                 for name, state in (states or {}).items()
                 if state is PackageState.FAILED
             }
@@ -553,8 +557,9 @@ class RosSteps:
                 )
             declared = {name: (depends, tests) for name, depends, tests in step.declared}
             failure = explain_failure(
-                code, states or {}, logs, step.colcon_args, declared, "test" if step.testing else "build"
-            )
+                code, states or {}, logs, step.colcon_args, declared, "test" if step.testing else "build",
+                frozenset(step.packages),
+            )  # fmt: skip
             raise BuildFailed(failure.message, failure.hint)
         others = [n for n in rebuild if n not in built]
         # Asked for and neither built nor left out as told (`-- --packages-skip`): colcon did not

@@ -166,6 +166,23 @@ def test_a_failing_package_is_named_and_continue_on_error_builds_the_others(engi
     assert leftover_containers(engine, robot) == []
 
 
+def test_a_dependency_the_options_left_unbuilt_is_named_not_the_package_that_needs_it(engine, tmp_path):
+    """`-- --packages-skip robot_msgs` where robot_msgs was never built: colcon fails driver_0
+    before its build begins ("Check that the following packages have been built: robot_msgs"),
+    and espdock said driver_0's own build failed, naming a log colcon never wrote."""
+    root = copy_workspace(tmp_path / "ws-root", packages=(), runtime_image=False)
+    write_robot(root / "ws/src", 3, service=False)
+    try:
+        failed = build(root, "--", "--packages-skip", "robot_msgs", code=5)
+    finally:
+        engine.remove_containers({"io.espdock.workspace": str(root)})
+    said = " ".join(failed.stderr.split())
+    assert "driver_0: could not find robot_msgs" in said, said
+    assert "its own build failed" not in said and "Fix driver_0" not in said, said
+    assert "robot_msgs is a package of this workspace that driver_0 depends on and that is not built" in said, said
+    assert "log/latest_build/driver_0" not in said, "a log colcon never wrote"
+
+
 def test_a_malformed_colcon_meta_and_an_empty_double_dash_build_nothing(robot):
     latest = (robot / "ws/log/latest_build").resolve()
     edit(robot / "ws/src/behaviour_3")

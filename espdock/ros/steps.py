@@ -928,9 +928,13 @@ def _beside(workspace: Workspace, packages: Iterable[Path]) -> list[Path]:
 
 # Python's `PermissionError: [Errno 13] Permission denied: '/workspace/...'`, and CMake's
 # `file INSTALL cannot copy file "..." to "/workspace/...": Permission denied.`
+_REFUSED = "(?:Permission denied|Operation not permitted)"
 _DENIED = re.compile(
-    rf"Permission denied: ['\"]({re.escape(WORKSPACE_MOUNT)}/[^'\"]+)['\"]"
-    rf"|['\"]({re.escape(WORKSPACE_MOUNT)}/[^'\"]+)['\"][^\n]*Permission denied"
+    rf"{_REFUSED}: ['\"]({re.escape(WORKSPACE_MOUNT)}/[^'\"]+)['\"]"
+    rf"|['\"]({re.escape(WORKSPACE_MOUNT)}/[^'\"]+)['\"][^\n]*{_REFUSED}"
+    # CMake's file(INSTALL) of an unchanged file it may not chmod: the path, then on the next line
+    # "Operation not permitted."
+    rf"|['\"]({re.escape(WORKSPACE_MOUNT)}/[^'\"]+)['\"]:?[ \t]*\n[ \t]*{_REFUSED}"
 )
 
 
@@ -940,7 +944,7 @@ def denied_path(texts: Iterable[str], root: Path, uid: int) -> Path | None:
     to another user than UID."""
     for text in texts:
         for match in _DENIED.finditer(text):
-            inside = match.group(1) or match.group(2)
+            inside = match.group(1) or match.group(2) or match.group(3)
             path = root / posixpath.relpath(inside, WORKSPACE_MOUNT)
             existing = next((p for p in (path, *path.parents) if p.exists() or p.is_symlink()), None)
             if existing is None:

@@ -457,6 +457,27 @@ def test_a_file_of_the_user_s_in_a_directory_of_another_s_is_the_directory_denie
     assert denied_path([said], tmp_path, 1000) is None
 
 
+def test_a_file_cmake_may_not_chmod_is_another_s_file_not_the_package_s_fault(tmp_path):
+    """A `sudo chown -R root:` of part of a package's install: CMake's install of an unchanged
+    file says the path, then "Operation not permitted." on the next line, and the build blamed
+    the package ("its own build failed ... Fix probea_interfaces")."""
+    from espdock.ros.steps import denied_path
+
+    json_file = tmp_path / "install/robot_msgs/share/robot_msgs/msg/Status.json"
+    json_file.parent.mkdir(parents=True)
+    json_file.write_text("{}")
+    for path in (*json_file.relative_to(tmp_path).parents, json_file.relative_to(tmp_path)):
+        os.chown(tmp_path / path, 1000, 1000)
+    os.chown(json_file, 0, 0)
+    said = (
+        "CMake Error at cmake_install.cmake:50 (file):\n  file INSTALL cannot set permissions on\n"
+        '  "/workspace/install/robot_msgs/share/robot_msgs/msg/Status.json":\n  Operation not permitted.\n'
+    )
+    assert denied_path([said], tmp_path, 1000) == json_file
+    os.chown(json_file, 1000, 1000)
+    assert denied_path([said], tmp_path, 1000) is None
+
+
 def test_symlink_install_abbreviated_as_colcon_takes_it_is_a_switch_of_the_install_kind(tmp_path):
     """`-- --symlink` (colcon takes unique prefixes) after a copying build: espdock saw no switch,
     and colcon failed in the build dirs the copying build had left."""

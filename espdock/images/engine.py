@@ -71,6 +71,10 @@ LABEL_OWNER = "io.espdock.owner"
 LABEL_KEPT = "io.espdock.kept"
 
 
+# tini (the ROS images' init) forwards the signals it gets to its child's process group, not the child alone.
+STOPPED_AS_AT_A_TERMINAL = {"TINI_KILL_PROCESS_GROUP": "1"}
+
+
 def _create_config(
     spec: RunSpec, labels: Mapping[str, str], host_users: bool = False, proxies: Mapping[str, str] | None = None
 ) -> dict[str, Any]:
@@ -100,11 +104,19 @@ def _create_config(
         "Image": spec.image,
         "Cmd": list(spec.argv),
         "WorkingDir": spec.workdir,
-        "Env": [f"{key}={value}" for key, value in {**(proxies or {}), **dict(spec.env)}.items()],
+        "Env": [
+            f"{key}={value}" for key, value in {**STOPPED_AS_AT_A_TERMINAL, **(proxies or {}), **dict(spec.env)}.items()
+        ],
         "Labels": dict(labels),
         "Tty": spec.tty,
         "OpenStdin": spec.tty,
         "HostConfig": host,
+        # A container espdock stops (Ctrl-C, SIGTERM, a failure elsewhere) is stopped as a
+        # terminal's Ctrl-C stops a command: SIGINT to its whole process group (the images' tini
+        # forwards it so, with STOPPED_AS_AT_A_TERMINAL). Docker's SIGTERM reached colcon alone,
+        # whose death took make down mid-write before make could delete the file it was writing:
+        # the next build found that file newer than its inputs and installed it half written.
+        "StopSignal": "SIGINT",
     }
     if spec.user:
         config["User"] = spec.user

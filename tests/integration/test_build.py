@@ -364,6 +364,61 @@ def test_ctrl_c_stops_and_removes_the_container_and_the_next_build_works(engine,
     assert (root / "ws/install/beacon_nodes/share/beacon_nodes/package.xml").is_file()
 
 
+def test_ctrl_c_mid_write_leaves_no_half_written_file_the_next_build_installs(engine, tmp_path):
+    """Ctrl-C as make writes a generated file: the container's stop reached only colcon, whose
+    death took make down before make could delete the file it was writing, so the next build
+    found it newer than its input and installed it half written ("built", exit 0). A terminal's
+    Ctrl-C reaches make as well, which deletes it."""
+    root = python_workspace(tmp_path / "ws-root")
+    gen = root / "ws/src/gen_pkg"
+    gen.mkdir()
+    (gen / "package.xml").write_text(
+        (REPO / "ws/src/custom_interface/package.xml")
+        .read_text()
+        .replace("<name>custom_interface</name>", "<name>gen_pkg</name>")
+        .replace("<member_of_group>rosidl_interface_packages</member_of_group>", "")
+    )
+    # The generator writes its output in two goes, holding between them while the hold file exists.
+    (gen / "gen.sh").write_text(
+        'printf PARTIAL > "$1"\nwhile [ -e "$3" ]; do sleep 0.1; done\nprintf "COMPLETE %s" "$(cat "$2")" > "$1"\n'
+    )
+    (gen / "CMakeLists.txt").write_text(
+        "cmake_minimum_required(VERSION 3.16)\nproject(gen_pkg NONE)\n"
+        "add_custom_command(OUTPUT ${CMAKE_CURRENT_BINARY_DIR}/data.txt\n"
+        "  COMMAND sh ${CMAKE_CURRENT_SOURCE_DIR}/gen.sh ${CMAKE_CURRENT_BINARY_DIR}/data.txt "
+        "${CMAKE_CURRENT_SOURCE_DIR}/input.txt ${CMAKE_CURRENT_SOURCE_DIR}/hold\n"
+        "  DEPENDS ${CMAKE_CURRENT_SOURCE_DIR}/input.txt VERBATIM)\n"
+        "add_custom_target(data ALL DEPENDS ${CMAKE_CURRENT_BINARY_DIR}/data.txt)\n"
+        "install(FILES ${CMAKE_CURRENT_BINARY_DIR}/data.txt DESTINATION share/gen_pkg)\n"
+    )
+    (gen / "input.txt").write_text("one")
+    assert espdock("build", cwd=root).returncode == 0
+    installed, written = (
+        root / "ws/install/gen_pkg/share/gen_pkg/data.txt",
+        root / "ws/build/espdock-ros/gen_pkg/data.txt",
+    )
+    assert installed.read_text() == "COMPLETE one"
+
+    (gen / "input.txt").write_text("two")
+    (gen / "hold").touch()
+    process = _start_build_until_colcon_runs(engine, root)
+    try:
+        deadline = time.monotonic() + 120
+        while not (written.is_file() and written.read_text() == "PARTIAL"):
+            assert time.monotonic() < deadline and process.poll() is None, "the generator never started"
+            time.sleep(0.1)
+        process.send_signal(signal.SIGINT)
+        out, err = process.communicate(timeout=60)
+    finally:
+        if process.poll() is None:
+            process.kill()
+    assert process.returncode == 130, out + err
+    (gen / "hold").unlink()
+    rebuilt = espdock("build", cwd=root)
+    assert rebuilt.returncode == 0, rebuilt.stdout[-3000:] + rebuilt.stderr
+    assert installed.read_text() == "COMPLETE two"
+
+
 def test_a_killed_build_leaves_a_container_the_next_build_removes(engine, tmp_path):
     root = _slow_workspace(tmp_path)
     process = _start_build_until_colcon_runs(engine, root)

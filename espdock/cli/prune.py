@@ -71,8 +71,8 @@ def prune(
         bool,
         typer.Option(
             "--volume",
-            help="Remove only the workspace's volume on the engine (workspace_mode volume): its build dirs go, "
-            "the next build sends every source and builds everything.",
+            help="Remove only the workspace's volume on the engine (workspace_mode volume): its build dirs go; "
+            "the next build with anything to build sends every source and builds every package.",
         ),
     ] = False,
     workspace: WorkspaceOption = None,

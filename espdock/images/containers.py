@@ -147,7 +147,7 @@ class Containers:
 
     def workspace_for(self, workspace: Workspace, image: str, step_label: str) -> Mount:
         """The workspace for an interactive container of IMAGE (espdock shell): the bind mount, or in
-        volume mode the volume, with the sources synced first."""
+        volume mode the volume, with the sources synced first (and sent again by the next build)."""
         user, labels = self.container_identity(workspace, step_label, sweep=False)
         sync = self.sync(workspace, step_label, image, user, labels)
         if sync is None:
@@ -159,7 +159,9 @@ class Containers:
         if self.engine.run(spec, output.append) != 0:
             said = first_line(chr(10).join(output))
             raise EspdockError(f"could not send the sources to volume {sync.volume}: {said}")
-        volume.record(workspace, self.engine, sync, sync.installed)
+        # What the shell changes stays on the volume: recorded as unknown, the next build sends
+        # every source again, and builds the host's, not the shell's edits.
+        volume.record(workspace, self.engine, volume.unknown(sync), sync.installed)
         give_to(workspace.ws_dir / "build" / volume.SYNCED, self.owner)
         return mounts[0]
 

@@ -23,7 +23,7 @@ import shutil
 import stat
 import tarfile
 from collections.abc import Collection, Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path, PurePosixPath
 
 from espdock import durable, interrupts, scratch
@@ -108,7 +108,10 @@ def prepare(engine: Engine, workspace: Workspace, owner: tuple[int, int]) -> Syn
         made: set[str] = set()
         for rel, path in sorted(now.items()):
             info = path.lstat()
-            files[rel] = [info.st_size, info.st_mtime_ns, info.st_mode]
+            # The change time as well, as git's index keeps it: an edit that keeps the size and
+            # the modification time (`cp -p`, `rsync -a`, `touch -r`) was never sent, and the
+            # volume built the old file. No one sets it but the kernel, on every write.
+            files[rel] = [info.st_size, info.st_mtime_ns, info.st_mode, info.st_ctime_ns]
             if before.get(rel) == files[rel]:
                 continue
             for parent in reversed(Path(rel).parents[:-1]):
@@ -167,6 +170,12 @@ def files_archive(
                 with path.open("rb") as handle:
                     tar.addfile(entry, handle)
     return WORKSPACE_MOUNT, buffer.getvalue()
+
+
+def unknown(sync: Sync) -> Sync:
+    """SYNC with its files' states unknown: recorded so, the next sync sends every source again
+    (over what a shell on the volume changed) and still removes what was deleted since."""
+    return replace(sync, files={rel: [] for rel in sync.files})
 
 
 def forget(workspace: Workspace) -> None:

@@ -387,6 +387,28 @@ def test_volume_mode_builds_where_the_engine_cannot_see_rebuilds_edits_and_never
     assert tcp_engine.created(since, "io.espdock.step=mount-check") == []
     run = espdock("run", "beacon_nodes", "once", cwd=root, env=tcp_engine.env)
     assert "word: three" in run.stdout, run.stdout + run.stderr
+
+    # An edit that keeps the file's size and modification time (`cp -p`, `rsync -a`): it was
+    # never sent, and the volume built the old file, "built".
+    once = root / "ws/src/beacon_nodes/beacon_nodes/once.py"
+    kept = once.stat()
+    edit_word(root, "thr3e")
+    os.utime(once, ns=(kept.st_atime_ns, kept.st_mtime_ns))
+    same = espdock("build", cwd=root, env=tcp_engine.env)
+    assert same.returncode == 0 and ": 1 file(s) sent, " in same.stdout, same.stdout + same.stderr
+    assert "word: thr3e" in installed_word(root)
+    # An edit in `espdock shell` stays on the volume; the next build that builds the package builds
+    # the host's file, not the shell's (a no-op's "up to date" was kept while the two differed).
+    shell = subprocess.run(
+        [sys.executable, "-m", "espdock", "shell"],
+        input=f"sed -i 's/word: thr3e/word: shell/' /workspace/{once.relative_to(root)}\n",
+        cwd=root, env={**os.environ, **tcp_engine.env}, capture_output=True, text=True, timeout=600, check=False,
+    )  # fmt: skip
+    assert shell.returncode == 0, shell.stdout + shell.stderr
+    (root / "ws/src/beacon_nodes/beacon_nodes/more.py").write_text("MORE = 1\n")  # a build of the package
+    after = espdock("build", cwd=root, env=tcp_engine.env)
+    assert after.returncode == 0, after.stdout + after.stderr
+    assert "word: thr3e" in installed_word(root), "the shell's edit was built"
     # A file passed in would be the engine machine's (or none): exit 8 saying so, where it was the
     # engine's "bind source path does not exist" and a hint to fix what the engine says.
     passed = espdock("run", "-v", "espdock.toml:/params/p.toml:ro", "beacon_nodes", "once", cwd=root,

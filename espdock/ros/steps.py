@@ -7,6 +7,7 @@ import contextlib
 import os
 import posixpath
 import re
+import shlex
 import shutil
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import replace
@@ -517,6 +518,17 @@ class RosSteps:
         built = keep_built(states)
         self.unbuilt |= set(rebuild) - set(built)
         restored = self._put_back(base, states is None and code != 0, None if states is None else built)
+        if (left := base / ASIDE).exists():
+            # What a `sudo colcon build` left in the trees set aside (another user's files): removed
+            # silently where it could be, and where it could not, a `rm -rf build` failed later, unsaid.
+            self.containers.emit(
+                StepNote(
+                    step.name,
+                    f"warning: could not remove {left}, the old build dirs and installs this build replaced: it "
+                    f"holds files of another user (a `sudo colcon build`?); `sudo rm -rf {shlex.quote(str(left))}` "
+                    "removes it",
+                )
+            )
         if states is not None:
             stamp_file.restore(_kept_records(workspace, recorded, rebuild, built, restored))
             _unfinished(base, {name for name in restored if name in states})

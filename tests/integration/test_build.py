@@ -91,6 +91,24 @@ def test_built_interfaces_work_in_the_ros_image(engine, built):
     assert probe.stdout.split() == ["6", "0"]
 
 
+def test_old_trees_another_user_s_files_keep_from_removal_are_named(built, shared_dir, wheel_espdock):
+    """A `--force` build where a `sudo colcon build` had left root's files in the install: the
+    trees it replaced could not be removed, unsaid, and a later `rm -rf build` failed."""
+    root, first = built
+    assert first.returncode == 0
+    subprocess.run(["chown", "-R", "0:0", str(root / "ws/install/beacon_nodes/share/beacon_nodes")], check=True)
+    aside = root / "ws/build/espdock-ros/.espdock-afresh"
+    user = as_user(USER_UID, USER_UID, [grp.getgrnam("docker").gr_gid], wheel_espdock)
+    try:
+        result = espdock("build", "beacon_nodes", "--force", cwd=root, env=user_env(shared_dir / "home"), prefix=user)
+    finally:
+        shutil.rmtree(aside, ignore_errors=True)
+        subprocess.run(["chown", "-R", f"{USER_UID}:{USER_UID}", str(root / "ws")], check=True)
+    assert result.returncode == 0, result.stdout[-3000:] + result.stderr
+    said = " ".join((result.stdout + result.stderr).split())
+    assert f"warning: could not remove {aside}" in said and f"`sudo rm -rf {aside}`" in said, said[-3000:]
+
+
 def test_second_build_reuses_the_image_and_keeps_ownership(engine, built):
     root, first = built
     assert first.returncode == 0

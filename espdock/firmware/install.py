@@ -70,8 +70,9 @@ def install_firmware(
             os.chown(install_base, *owner)
     share.mkdir(parents=True, exist_ok=True)
     files = firmware_files(build_dir)
+    # Not in the digest: the same files are the same firmware, whose transport is in its app.
     transport = built_transport_record(build_dir)
-    digest = hashlib.sha256(transport or b"")
+    digest = hashlib.sha256()
     for rel in files:
         digest.update(rel.encode() + b"\0" + (build_dir / rel).read_bytes())
     version_dir = share / f".{FIRMWARE_DIR}-{digest.hexdigest()[:16]}"

@@ -311,20 +311,24 @@ def test_another_user_s_file_in_install_is_named_with_its_owner_not_blamed_on_th
     assert "Fix beacon_nodes" not in said
 
 
+def _cmake_package(root: Path, name: str, rules: str) -> Path:
+    """ws/src/NAME in ROOT: an ament_cmake package.xml and a CMakeLists.txt of RULES (no compiler)."""
+    package = root / "ws/src" / name
+    package.mkdir()
+    (package / "package.xml").write_text(
+        (REPO / "ws/src/custom_interface/package.xml")
+        .read_text()
+        .replace("<name>custom_interface</name>", f"<name>{name}</name>")
+        .replace("<member_of_group>rosidl_interface_packages</member_of_group>", "")
+    )
+    (package / "CMakeLists.txt").write_text(f"cmake_minimum_required(VERSION 3.16)\nproject({name} NONE)\n{rules}")
+    return package
+
+
 def _slow_workspace(tmp_path: Path) -> Path:
     """A workspace whose slow_pkg keeps colcon busy for five minutes."""
     root = python_workspace(tmp_path / "ws-root")
-    slow = root / "ws/src/slow_pkg"
-    slow.mkdir()
-    (slow / "package.xml").write_text(
-        (REPO / "ws/src/custom_interface/package.xml")
-        .read_text()
-        .replace("<name>custom_interface</name>", "<name>slow_pkg</name>")
-        .replace("<member_of_group>rosidl_interface_packages</member_of_group>", "")
-    )
-    (slow / "CMakeLists.txt").write_text(
-        "cmake_minimum_required(VERSION 3.16)\nproject(slow_pkg NONE)\nexecute_process(COMMAND sleep 300)\n"
-    )
+    _cmake_package(root, "slow_pkg", "execute_process(COMMAND sleep 300)\n")
     return root
 
 
@@ -388,26 +392,19 @@ def test_ctrl_c_mid_write_leaves_no_half_written_file_the_next_build_installs(en
     found it newer than its input and installed it half written ("built", exit 0). A terminal's
     Ctrl-C reaches make as well, which deletes it."""
     root = python_workspace(tmp_path / "ws-root")
-    gen = root / "ws/src/gen_pkg"
-    gen.mkdir()
-    (gen / "package.xml").write_text(
-        (REPO / "ws/src/custom_interface/package.xml")
-        .read_text()
-        .replace("<name>custom_interface</name>", "<name>gen_pkg</name>")
-        .replace("<member_of_group>rosidl_interface_packages</member_of_group>", "")
-    )
-    # The generator writes its output in two goes, holding between them while the hold file exists.
-    (gen / "gen.sh").write_text(
-        'printf PARTIAL > "$1"\nwhile [ -e "$3" ]; do sleep 0.1; done\nprintf "COMPLETE %s" "$(cat "$2")" > "$1"\n'
-    )
-    (gen / "CMakeLists.txt").write_text(
-        "cmake_minimum_required(VERSION 3.16)\nproject(gen_pkg NONE)\n"
+    gen = _cmake_package(
+        root,
+        "gen_pkg",
         "add_custom_command(OUTPUT ${CMAKE_CURRENT_BINARY_DIR}/data.txt\n"
         "  COMMAND sh ${CMAKE_CURRENT_SOURCE_DIR}/gen.sh ${CMAKE_CURRENT_BINARY_DIR}/data.txt "
         "${CMAKE_CURRENT_SOURCE_DIR}/input.txt ${CMAKE_CURRENT_SOURCE_DIR}/hold\n"
         "  DEPENDS ${CMAKE_CURRENT_SOURCE_DIR}/input.txt VERBATIM)\n"
         "add_custom_target(data ALL DEPENDS ${CMAKE_CURRENT_BINARY_DIR}/data.txt)\n"
-        "install(FILES ${CMAKE_CURRENT_BINARY_DIR}/data.txt DESTINATION share/gen_pkg)\n"
+        "install(FILES ${CMAKE_CURRENT_BINARY_DIR}/data.txt DESTINATION share/gen_pkg)\n",
+    )
+    # The generator writes its output in two goes, holding between them while the hold file exists.
+    (gen / "gen.sh").write_text(
+        'printf PARTIAL > "$1"\nwhile [ -e "$3" ]; do sleep 0.1; done\nprintf "COMPLETE %s" "$(cat "$2")" > "$1"\n'
     )
     (gen / "input.txt").write_text("one")
     assert espdock("build", cwd=root).returncode == 0

@@ -1062,7 +1062,10 @@ class Engine:
             if not kept and not owner_alive(labelled.get(LABEL_OWNER, "")):
                 dead.append(container["Id"])
         for container_id in dead:
-            _remove(self._handle(container_id), stop=False)
+            # Stopped first, as espdock's own stop does (StopSignal: SIGINT to every process): removed
+            # outright, a killed espdock's build was SIGKILLed mid-write, and its half-written file
+            # installed by the build that removed it.
+            _remove(self._handle(container_id))
         return len(dead)
 
     def _all_containers(self, filters: Mapping[str, Any]) -> list[dict[str, Any]]:

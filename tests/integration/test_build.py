@@ -386,11 +386,13 @@ def test_ctrl_c_stops_and_removes_the_container_and_the_next_build_works(engine,
     assert (root / "ws/install/beacon_nodes/share/beacon_nodes/package.xml").is_file()
 
 
-def test_ctrl_c_mid_write_leaves_no_half_written_file_the_next_build_installs(engine, tmp_path):
+@pytest.mark.parametrize(("stop", "code"), [(signal.SIGINT, 130), (signal.SIGKILL, -9)], ids=["ctrl-c", "kill-9"])
+def test_a_stop_mid_write_leaves_no_half_written_file_the_next_build_installs(engine, tmp_path, stop, code):
     """Ctrl-C as make writes a generated file: the container's stop reached only colcon, whose
     death took make down before make could delete the file it was writing, so the next build
     found it newer than its input and installed it half written ("built", exit 0). A terminal's
-    Ctrl-C reaches make as well, which deletes it."""
+    Ctrl-C reaches make as well, which deletes it. espdock killed outright: the next build's sweep
+    removed its container outright, with the same result."""
     root = python_workspace(tmp_path / "ws-root")
     gen = _cmake_package(
         root,
@@ -402,9 +404,11 @@ def test_ctrl_c_mid_write_leaves_no_half_written_file_the_next_build_installs(en
         "add_custom_target(data ALL DEPENDS ${CMAKE_CURRENT_BINARY_DIR}/data.txt)\n"
         "install(FILES ${CMAKE_CURRENT_BINARY_DIR}/data.txt DESTINATION share/gen_pkg)\n",
     )
-    # The generator writes its output in two goes, holding between them while the hold file exists.
+    # The generator writes its output in two goes, holding between them where it finds the hold
+    # file, which it takes: the build after the stop finds none.
     (gen / "gen.sh").write_text(
-        'printf PARTIAL > "$1"\nwhile [ -e "$3" ]; do sleep 0.1; done\nprintf "COMPLETE %s" "$(cat "$2")" > "$1"\n'
+        'printf PARTIAL > "$1"\nif [ -e "$3" ]; then rm "$3"; sleep 600; fi\n'
+        'printf "COMPLETE %s" "$(cat "$2")" > "$1"\n'
     )
     (gen / "input.txt").write_text("one")
     assert espdock("build", cwd=root).returncode == 0
@@ -422,13 +426,12 @@ def test_ctrl_c_mid_write_leaves_no_half_written_file_the_next_build_installs(en
         while not (written.is_file() and written.read_text() == "PARTIAL"):
             assert time.monotonic() < deadline and process.poll() is None, "the generator never started"
             time.sleep(0.1)
-        process.send_signal(signal.SIGINT)
+        process.send_signal(stop)
         out, err = process.communicate(timeout=60)
     finally:
         if process.poll() is None:
             process.kill()
-    assert process.returncode == 130, out + err
-    (gen / "hold").unlink()
+    assert process.returncode == code, out + err
     rebuilt = espdock("build", cwd=root)
     assert rebuilt.returncode == 0, rebuilt.stdout[-3000:] + rebuilt.stderr
     assert installed.read_text() == "COMPLETE two"

@@ -504,7 +504,7 @@ def flash_package(
     else:
         half = "its NVS partition (the network settings) is half written; the app is untouched"
         again = f"`espdock provision {step.package} --port {port.spec}` with the same options"
-    for argv in commands:
+    for at, argv in enumerate(commands):
         say(format_argv(argv))
         said.clear()
         try:
@@ -532,6 +532,14 @@ def flash_package(
                 f"{revision.strip().removeprefix('A fatal error occurred: ')}",
                 "Nothing was written. Build it for that revision (the minimum chip revision in its sdkconfig.defaults, "
                 f"e.g. CONFIG_{chip.upper()}_REV_MIN_0=y for an early {chip}), or flash a newer board.",
+            )
+        if code != 0 and at > 0:
+            # The read-back after a write that finished: what the board holds is not known to be it.
+            raise PortError(
+                f"esptool failed (exit code {code}) on {port.spec} reading the flash back: the write before it had "
+                "finished, and the board is not verified to hold it",
+                "See its output above (a board unplugged, or a flash that differs from the firmware); flash it again "
+                "with --verify to write it and check it.",
             )
         if code != 0:
             # Unplugged or reset mid-write: the bootloader and partition table new, the app in part.

@@ -446,6 +446,51 @@ def test_the_chip_mismatch_hint_suggests_no_chip_the_package_s_transport_has_no_
     assert "`espdock build u2 --target esp32s3`" in error.value.hint
 
 
+def test_a_read_back_that_fails_after_the_write_finished_says_the_write_finished(tmp_path):
+    """A board unplugged during `flash --verify`'s read-back: espdock said only "esptool failed ...
+    See its output above", where the write before it had finished."""
+    from espdock.firmware.flashing import PortError, flash_package
+    from espdock.firmware.plan import IdfBuild
+
+    class Esptool:
+        """Plays esptool in the IDF image: the chip probe, a whole write, then a read-back cut short."""
+
+        class containers:
+            @staticmethod
+            def needs_this_machine(*args: object) -> None:
+                pass
+
+        def run_idf(self, workspace, step, argv, on_line=None, **kwargs):
+            if argv[:2] == ("python", "-c"):
+                for text in ("esptool.py v4.8.1", "Detecting chip type... ESP32"):
+                    on_line(text)
+                return 0
+            if any("verify" in arg for arg in argv):
+                on_line("Verifying 0x2ca00 (182784) bytes @ 0x00010000 in flash against board.bin...")
+                return 2
+            on_line("Writing at 0x00010000... (100 %)")
+            return 0
+
+    (tmp_path / "fw/board/main").mkdir(parents=True)
+    args = {"extra_esptool_args": {"chip": "esp32"}, "flash_files": {"0x10000": "board.bin"}}
+    step = IdfBuild("board", "fw/board", "img", "esp32", "k")
+    with pytest.raises(PortError) as failed:
+        flash_package(
+            Esptool(),
+            Workspace(tmp_path),
+            step,
+            tmp_path / "ws/install/board/share/board/firmware",
+            args,
+            parse_port("socket://127.0.0.1:9"),
+            None,
+            True,
+            lambda text: None,
+        )  # type: ignore[arg-type]
+    said = " ".join(f"{failed.value} {failed.value.hint}".split())
+    assert "reading the flash back: the write before it had finished" in said, said
+    assert "half written" not in said and "--verify" in said, said
+
+
 def test_a_serial_server_s_url_is_the_same_port_however_it_is_written():
     """A monitor on socket://127.0.0.1:45451 in one terminal: `flash -p socket://localhost:45451`
     (or SOCKET://, a trailing /, rfc2217's ?ign_set_control, 0.0.0.0) was not called busy, and

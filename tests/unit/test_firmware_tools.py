@@ -5,6 +5,7 @@ import os
 import pty
 import subprocess
 import sys
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
@@ -446,46 +447,49 @@ def test_the_chip_mismatch_hint_suggests_no_chip_the_package_s_transport_has_no_
     assert "`espdock build u2 --target esp32s3`" in error.value.hint
 
 
-def test_a_read_back_that_fails_after_the_write_finished_says_the_write_finished(tmp_path):
-    """A board unplugged during `flash --verify`'s read-back: espdock said only "esptool failed ...
-    See its output above", where the write before it had finished."""
-    from espdock.firmware.flashing import PortError, flash_package
+def _flash_against(tmp_path: Path, esptool: Callable[[tuple[str, ...], Callable[[str], None]], int], **options):
+    """flash_package of a board package at a fake board: the IdfSteps it runs esptool through answer
+    the chip probe as an ESP32 and every other esptool command with ESPTOOL(argv, on_line)."""
+    from espdock.firmware.flashing import flash_package
     from espdock.firmware.plan import IdfBuild
 
     class Esptool:
-        """Plays esptool in the IDF image: the chip probe, a whole write, then a read-back cut short."""
-
-        class containers:
+        class containers:  # the engine sees this machine
             @staticmethod
             def needs_this_machine(*args: object) -> None:
                 pass
 
         def run_idf(self, workspace, step, argv, on_line=None, **kwargs):
-            if argv[:2] == ("python", "-c"):
+            if argv[:2] == ("python", "-c"):  # the probe, spelled for either esptool
                 for text in ("esptool.py v4.8.1", "Detecting chip type... ESP32"):
                     on_line(text)
                 return 0
-            if any("verify" in arg for arg in argv):
-                on_line("Verifying 0x2ca00 (182784) bytes @ 0x00010000 in flash against board.bin...")
-                return 2
-            on_line("Writing at 0x00010000... (100 %)")
-            return 0
+            return esptool(argv, on_line)
 
     (tmp_path / "fw/board/main").mkdir(parents=True)
     args = {"extra_esptool_args": {"chip": "esp32"}, "flash_files": {"0x10000": "board.bin"}}
     step = IdfBuild("board", "fw/board", "img", "esp32", "k")
+    flash_package(
+        Esptool(), Workspace(tmp_path), step, tmp_path / "ws/install/board/share/board/firmware", args,
+        parse_port("socket://127.0.0.1:9"), None, options.pop("verify", False), lambda text: None, **options,
+    )  # type: ignore[arg-type]  # fmt: skip
+
+
+def test_a_read_back_that_fails_after_the_write_finished_says_the_write_finished(tmp_path):
+    """A board unplugged during `flash --verify`'s read-back: espdock said only "esptool failed ...
+    See its output above", where the write before it had finished."""
+    from espdock.firmware.flashing import PortError
+
+    def esptool(argv: tuple[str, ...], on_line: Callable[[str], None]) -> int:
+        """A whole write, then a read-back cut short."""
+        if any("verify" in arg for arg in argv):
+            on_line("Verifying 0x2ca00 (182784) bytes @ 0x00010000 in flash against board.bin...")
+            return 2
+        on_line("Writing at 0x00010000... (100 %)")
+        return 0
+
     with pytest.raises(PortError) as failed:
-        flash_package(
-            Esptool(),
-            Workspace(tmp_path),
-            step,
-            tmp_path / "ws/install/board/share/board/firmware",
-            args,
-            parse_port("socket://127.0.0.1:9"),
-            None,
-            True,
-            lambda text: None,
-        )  # type: ignore[arg-type]
+        _flash_against(tmp_path, esptool, verify=True)
     said = " ".join(f"{failed.value} {failed.value.hint}".split())
     assert "reading the flash back: the write before it had finished" in said, said
     assert "half written" not in said and "--verify" in said, said
@@ -534,48 +538,19 @@ def test_esptool_stopping_mid_write_says_what_is_half_written(tmp_path, writes, 
     output above", where the bootloader was new and the app in part, and the board would not boot.
     Ctrl-C there says the same; an interrupted `provision` said to flash the app again."""
     from espdock.errors import Interrupted
-    from espdock.firmware.flashing import PortError, flash_package
-    from espdock.firmware.plan import IdfBuild
+    from espdock.firmware.flashing import PortError
 
-    class Esptool:
-        """Plays esptool in the IDF image: the chip probe, then a write the board leaves at 11 %."""
+    def esptool(argv: tuple[str, ...], on_line: Callable[[str], None]) -> int:
+        """A write the board leaves at 11 %."""
+        for text in ("Compressed 182784 bytes to 95391...", "Writing at 0x00010000... (11 %)"):
+            on_line(text)
+        if cut == "interrupted":
+            raise KeyboardInterrupt
+        return 1
 
-        class containers:  # the engine sees this machine
-            @staticmethod
-            def needs_this_machine(*args: object) -> None:
-                pass
-
-        def run_idf(self, workspace, step, argv, on_line=None, **kwargs):
-            if argv[:2] == ("python", "-c"):  # the probe, spelled for either esptool
-                for text in ("esptool.py v4.8.1", "Detecting chip type... ESP32"):
-                    on_line(text)
-                return 0
-            for text in ("Compressed 182784 bytes to 95391...", "Writing at 0x00010000... (11 %)"):
-                on_line(text)
-            if cut == "interrupted":
-                raise KeyboardInterrupt
-            return 1
-
-    ws = Workspace(tmp_path)
-    (tmp_path / "fw/board/main").mkdir(parents=True)
-    args = {"extra_esptool_args": {"chip": "esp32"}, "flash_files": {"0x10000": "board.bin"}}
-    step = IdfBuild("board", "fw/board", "img", "esp32", "k")
-    port = parse_port("socket://127.0.0.1:9")
     settings = {"nvs_image": (0x9000, tmp_path / "nvs.bin")} if "settings" in writes else {}
     with pytest.raises(PortError if cut == "unplugged" else Interrupted) as failed:
-        flash_package(
-            Esptool(),
-            ws,
-            step,
-            tmp_path / "ws/install/board/share/board/firmware",
-            args,
-            port,
-            None,
-            False,
-            lambda text: None,
-            app="app" in writes,
-            **settings,
-        )  # type: ignore[arg-type]
+        _flash_against(tmp_path, esptool, app="app" in writes, **settings)
     said = " ".join(f"{failed.value} {failed.value.hint}".split())
     assert half.removeprefix("the board's ") in said and again in said, said
     assert ("may not boot" in said) == ("app" in writes), said

@@ -372,12 +372,11 @@ def flash(
     _baud_unused(serial, baud)
     plan, step = firmware_plan(ws, config, package, installed=True)
     provisioning = any(option is not None for option in (wifi_ssid, agent, wifi_password_file, domain_id))
+    installed = installed_firmware_dir(ws.ws_dir, package)
     if provisioning:
-        transport.check_provisionable(
-            package, ws.root / step.project, step.target, installed_firmware_dir(ws.ws_dir, package)
-        )
+        transport.check_provisionable(package, ws.root / step.project, step.target, installed)
     # One version of the installed firmware throughout, whatever a build swaps in meanwhile.
-    with installed_version(installed_firmware_dir(ws.ws_dir, package)) as firmware_dir:
+    with installed_version(installed) as firmware_dir:
         flasher_args = read_flasher_args(firmware_dir, package)
         if provisioning:
             check_reads_settings(firmware_dir, package)
@@ -431,12 +430,11 @@ def provision(
     serial = parse_port(port)
     _baud_unused(serial, baud)
     plan, step = firmware_plan(ws, config, package, installed=True)
-    transport.check_provisionable(
-        package, ws.root / step.project, step.target, installed_firmware_dir(ws.ws_dir, package)
-    )
+    installed = installed_firmware_dir(ws.ws_dir, package)
+    transport.check_provisionable(package, ws.root / step.project, step.target, installed)
     if wifi_ssid is None or agent is None:
         raise ConfigError(f"provisioning {package} needs --wifi-ssid and --agent", "See `espdock provision --help`.")
-    with installed_version(installed_firmware_dir(ws.ws_dir, package)) as firmware_dir:
+    with installed_version(installed) as firmware_dir:
         flasher_args = read_flasher_args(firmware_dir, package)
         check_reads_settings(firmware_dir, package)
         nvs = nvs_partition(firmware_dir, flasher_args, package)

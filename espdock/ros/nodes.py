@@ -99,15 +99,14 @@ def find_executable(workspace: Workspace, packages: tuple[Package, ...], package
             if close and not why
             else f"Packages with executables (after `espdock build`): {listing}.",
         )
-    if (not (install / package).is_dir() or executable not in runnable.get(package, [])) and (
-        running := _running_build(workspace, package)
-    ):
+    built, found = (install / package).is_dir(), executable in runnable.get(package, [])
+    if not (built and found) and (running := _running_build(workspace, package)):
         # A build rebuilding it afresh has moved its install aside, or is filling it in: it was
         # "not built yet", whose hint a build then refused.
         raise running
-    if not (install / package).is_dir():
+    if not built:
         raise WorkspaceError(f"package '{package}' is not built yet", f"Run `espdock build {package}` first.")
-    if executable not in runnable.get(package, []):
+    if not found:
         found = ", ".join(runnable.get(package, [])) or "none (it installs nothing into lib/" + package + ")"
         if executable.endswith(LAUNCH_SUFFIXES):
             # `ros2 launch PKG FILE` habits: espdock run is `ros2 run`.

@@ -8,9 +8,11 @@ import shutil
 import subprocess
 
 import pytest
+import yaml
 
 from demo_stack import COMPOSE_FILE, ROOT
 from demo_support import need
+from espdock_demo.health import HARDWARE_NODES
 
 ROS_SERVICES = ("camera_sim", "led_strip_sim", "qr_detector", "camera_ui", "demo")
 
@@ -64,6 +66,10 @@ def test_the_hardware_profile_is_valid_and_leaves_the_simulators_out():
     assert agent["command"] == ["udp4", "--port", "8888"]
     assert agent["ports"][0]["target"] == 8888 and agent["ports"][0]["protocol"] == "udp"
     assert {"qr_detector", "camera_ui", "demo-hardware"} <= services.keys()
+    # Its console watches the nodes that run in containers: it waited for the simulators, never there.
+    command = services["demo-hardware"]["command"]
+    watched = [arg.removeprefix("watch_nodes:=") for arg in command if arg.startswith("watch_nodes:=")]
+    assert [yaml.safe_load(value) for value in watched] == [list(HARDWARE_NODES)], command
 
 
 def test_every_node_restarts_after_a_crash_has_a_healthcheck_and_talks_udp_only():

@@ -74,6 +74,19 @@ def test_a_setting_sent_through_the_ui_changes_the_frames(demo):
     assert status == 200
 
 
+def test_the_ui_shows_settings_another_client_made(demo):
+    """Another client (a `ros2 service call`; here the probe) changed the camera's config: the page showed
+    the config of the UI's last ask, until the camera restarted, and its Apply, which sends the whole
+    form, put back what the other client had set."""
+    demo.wait_until(lambda: demo.state()["config"] is not None, 30, "the UI's first config")
+    report = demo.probe("set-config", "brightness=2")
+    assert report["status"] and report["config"]["brightness"] == 2, report
+    try:
+        demo.wait_until(lambda: demo.state()["config"]["brightness"] == 2, 10, "the UI showing brightness 2")
+    finally:
+        assert demo.probe("set-config", "brightness=0")["status"]
+
+
 def test_out_of_range_settings_are_refused_and_change_nothing(demo):
     status, answer = demo.post_settings(framesize=16, quality=10)
     assert status == 400 and "framesize must be in 0..15, got 16" in answer["message"]

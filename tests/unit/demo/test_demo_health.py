@@ -37,3 +37,23 @@ def test_an_unexpected_node_that_reports_is_listed_too():
     health = NodeHealth([], clock=Clock())
     health.seen("/probe")
     assert health.report() == {"/probe": {"state": "ok", "silent_s": 0.0}}
+
+
+def test_a_node_never_seen_for_half_a_minute_is_said_to_be_down_with_where_its_log_is():
+    """A node that cannot start (a bad ESPDOCK_DEMO_COLORS) restarts in a loop and never reports: the
+    console said nothing of it, and the UI "not seen yet" for as long as the demo ran."""
+    clock = Clock()
+    health = NodeHealth(["/camera_sim", "/qr_detector"], clock=clock)
+    health.seen("/qr_detector")
+    clock.now += 29
+    health.seen("/qr_detector")
+    before = health.report()
+    assert before["/camera_sim"]["state"] == "not seen"
+    clock.now += 2
+    after = health.report()
+    assert after["/camera_sim"] == {"state": "missing", "silent_s": 31.0}
+    assert health.changes(before, after) == [
+        "camera_sim is down: not up 31 s after the demo started; `docker compose logs camera_sim` says why"
+    ]
+    health.seen("/camera_sim")
+    assert health.changes(after, health.report()) == ["camera_sim is up"]

@@ -14,6 +14,7 @@ import espdock_demo.stop_early  # noqa: F401
 # isort: split
 
 import threading
+import time
 
 from custom_interface.msg import CameraConfig
 from custom_interface.srv import GetCameraConfig, SetCameraConfig
@@ -59,6 +60,7 @@ class CameraUi(Node):
             raise SettingError(f"port:={port}: the UI's TCP port must be 0..65535")
         service_timeout = positive_setting(self, "service_timeout", 3.0, "seconds a camera service call may take")
         offline_after = positive_setting(self, "offline_after", 2.0, "seconds without a frame before offline")
+        self.config_every = positive_setting(self, "config_every", 2.0, "seconds between asks for the camera's config")
 
         self.frames = FrameBroadcaster()
         self.state = LiveState()
@@ -68,7 +70,10 @@ class CameraUi(Node):
         self.set_client = self.create_client(SetCameraConfig, CAMERA_SET_CONFIG_SERVICE)
         self.set_lock = threading.Lock()
         self.get_pending = None
-        self.was_online = False
+        self.config_asked = float("-inf")
+        # Bumped as each set_config begins and ends: a get_config answer that overlapped one may hold
+        # the config it replaced.
+        self.sets = 0
 
         self.create_subscription(CompressedImage, CAMERA_IMAGE_TOPIC, self.on_image, IMAGE_SUB_QOS)
         subscribe_text(self, QR_MESSAGE_TOPIC, lambda m: self.state.update(qr=m.data))
@@ -103,18 +108,21 @@ class CameraUi(Node):
         self.state.update(led=Rgb.from_floats(msg.r, msg.g, msg.b))
 
     def watch_camera(self) -> None:
-        """Ask for the camera's config at start and whenever the camera comes back (it may have restarted)."""
+        """Ask for the camera's config at start and every `config_every` seconds while it streams. Others
+        change it too (a `ros2 service call`, a camera restarted with its defaults): the page showed the
+        config of its last ask, and its Apply, which sends the whole form, put back what they had set."""
         online = self.app.camera_online()
-        came_back = online and not self.was_online
-        self.was_online = online
+        due = time.monotonic() - self.config_asked >= self.config_every
         unknown = self.state.get("config") is None
-        if (came_back or unknown) and self.get_pending is None and self.get_client.service_is_ready():
+        if (unknown or online and due) and self.get_pending is None and self.get_client.service_is_ready():
+            self.config_asked = time.monotonic()
+            sets = self.sets
             self.get_pending = self.get_client.call_async(GetCameraConfig.Request())
-            self.get_pending.add_done_callback(self.on_config)
+            self.get_pending.add_done_callback(lambda future: self.on_config(future, sets))
 
-    def on_config(self, future) -> None:
+    def on_config(self, future, sets: int) -> None:
         self.get_pending = None
-        if future.cancelled() or future.exception() is not None:
+        if future.cancelled() or future.exception() is not None or sets != self.sets:
             return
         self.state.update(config=config_to_dict(future.result().config))
 
@@ -126,6 +134,7 @@ class CameraUi(Node):
                 raise CameraUnavailable(
                     f"The camera's {CAMERA_SET_CONFIG_SERVICE} service is not available: is the camera running?", 503
                 )
+            self.sets += 1
             done = threading.Event()
             future = self.set_client.call_async(SetCameraConfig.Request(config=CameraConfig(**config)))
             future.add_done_callback(lambda _: done.set())
@@ -136,6 +145,7 @@ class CameraUi(Node):
                     f"The camera did not answer within {timeout:g} s; nothing is known to have changed.", 504
                 )
             response = future.result()
+            self.sets += 1
             return SetResult(bool(response.status), config_to_dict(response.config))
 
     def healthy(self) -> bool:

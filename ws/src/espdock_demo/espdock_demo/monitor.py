@@ -78,7 +78,7 @@ class DemoMonitor(Node):
         fresh = {name for name, state in self.states.items() if state["state"] == "ok"}
         camera = self.latest.get("/camera_sim", {}) if "/camera_sim" in fresh else {}
         detector = self.latest.get("/qr_detector", {}) if "/qr_detector" in fresh else {}
-        down = sorted(name.lstrip("/") for name, state in self.states.items() if state["state"] == "stale")
+        down = sorted(name.lstrip("/") for name, state in self.states.items() if state["state"] in ("stale", "missing"))
         parts = [f"DOWN: {', '.join(down)}"] if down else []
         if camera:
             parts.append(f"camera_sim {camera.get('resolution')} {camera.get('frames_published')} frames")

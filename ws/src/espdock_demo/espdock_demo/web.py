@@ -142,7 +142,7 @@ def live_view(app: UiApp, values: Mapping[str, object] | None = None) -> dict[st
         "qr": None if qr is None else {"text": str(qr)[:_MAX_QR_SHOWN], "length": len(str(qr))},
         "led": None if not isinstance(led, Rgb) else {"hex": led.hex, "r": led.r, "g": led.g, "b": led.b},
         "config": values.get("config"),
-        # {node: {"state": "ok" | "stale" | "not seen", "silent_s": ...}} from the nodes' diagnostics.
+        # {node: {"state": "ok" | "stale" | "not seen" | "missing", "silent_s": ...}} from the nodes' diagnostics.
         "nodes": values.get("nodes") or {},
     }
 

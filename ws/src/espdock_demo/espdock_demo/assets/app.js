@@ -55,7 +55,8 @@ function render(state) {
   $('nodes').textContent = nodes.length === 0 ? '(waiting for their diagnostics)'
     : down.length === 0 ? `all ${nodes.length} running`
     : down.map(([name, n]) => name.slice(1) + (n.state === 'stale'
-        ? ` down or stuck (silent for ${Math.round(n.silent_s)} s)` : ' not seen yet')).join('; ');
+        ? ` down or stuck (silent for ${Math.round(n.silent_s)} s)`
+        : n.state === 'missing' ? ` not up after ${Math.round(n.silent_s)} s` : ' not seen yet')).join('; ');
   $('nodes').className = down.length ? 'warn' : '';
 }
 

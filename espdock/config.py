@@ -150,6 +150,10 @@ def load_config(root: Path, env: Mapping[str, str], overrides: Mapping[str, Any]
     if "package_paths" in from_env:  # a list in one variable: PATH-style
         from_env["package_paths"] = from_env["package_paths"].split(os.pathsep)
     values.update(_checked(from_env, strict=False, where=lambda key: f"environment variable ESPDOCK_{key.upper()}"))
+    if env.get("ESPDOCK_CACHE_REGISTRY") == "":
+        # Set and empty turns the cache off: CI empties it for a job without the registry's credentials (a
+        # fork's pull request), and with the registry in espdock.toml such jobs failed on its login.
+        values.pop("cache_registry", None)
     cli = {k: v for k, v in (overrides or {}).items() if v is not None}
     values.update(_checked(cli, strict=False, where=lambda key: f"option --{key.replace('_', '-')}"))
     # Where the chip came from, for its error: "unknown chip target 'esp33'" named no file or variable.

@@ -179,6 +179,15 @@ def test_the_cache_registry_is_a_registry_name_never_a_url_or_credentials(tmp_pa
             load_config(tmp_path, {"ESPDOCK_CACHE_REGISTRY": bad})
 
 
+def test_an_empty_cache_registry_variable_turns_off_the_one_in_espdock_toml(tmp_path):
+    """The CI examples empty ESPDOCK_CACHE_REGISTRY for a job without the registry's credentials (a fork's
+    pull request): with the registry in espdock.toml, such a job failed on the registry's refusal."""
+    (tmp_path / "espdock.toml").write_text('[espdock]\ncache_registry = "127.0.0.1:5000/team"\n')
+    assert load_config(tmp_path, {}).cache_registry == "127.0.0.1:5000/team"
+    assert load_config(tmp_path, {"ESPDOCK_CACHE_REGISTRY": ""}).cache_registry is None
+    assert load_config(tmp_path, {"ESPDOCK_CACHE_REGISTRY": "other:5000"}).cache_registry == "other:5000"
+
+
 def test_a_ci_job_is_told_by_ci_as_ci_services_set_it():
     """CI=1 or a service's name (Woodpecker: CI=woodpecker) is a CI job as CI=true is: builds there
     rewrote a stale rosdep lock and built from it, where --locked refuses."""

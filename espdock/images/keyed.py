@@ -74,6 +74,9 @@ class KeyedImages:
         self.unpushed: list[tuple[str, str]] = []
         # The keyed images of the plan being run: what decides whether a missing base is needed.
         self.planned: list[EnsureImage] = []
+        # The cache registry's images this run pulled and rejected (another key label): --push-cache
+        # replaces them, where "already in the cache registry" kept them for every later run to reject.
+        self._rejected: set[str] = set()
 
     def ensure_base(self, step: EnsureBaseImage) -> tuple[Outcome, str]:
         """Only an image build starts from the base: with it missing (no registry here, a cleaned-up
@@ -229,8 +232,14 @@ class KeyedImages:
             # Someone pushed another image under this key: building is safer than trusting it.
             self.containers.engine.untag(remote)
             found = (label or "missing")[:16]
+            self._rejected.add(remote)
+            replaced = "; --push-cache replaces it" if not self._push_cache else ", and --push-cache replaces it"
             self.containers.emit(
-                StepNote(step.name, f"warning: rejected {remote}: its key label is {found}, expected {spec.key[:16]}")
+                StepNote(
+                    step.name,
+                    f"warning: rejected {remote}: its key label is {found}, expected {spec.key[:16]}; building it"
+                    + replaced,
+                )
             )
             return False
         self.containers.engine.tag(remote, spec.tag)
@@ -247,19 +256,22 @@ class KeyedImages:
             return
         remote = cache_ref(registry, step.spec.tag)
         held = self.containers.engine.registry_has(remote)
-        if held.status is RegistryStatus.OK:
+        wrong = held.status is RegistryStatus.OK and remote in self._rejected  # another image: push over it
+        if held.status is RegistryStatus.OK and not wrong:
             self.containers.emit(StepNote(step.name, f"{remote}: already in the cache registry"))
             return
         if held.status is RegistryStatus.DENIED:
             raise _denied(registry, "push", held)
-        if held.status is RegistryStatus.MISSING:
+        if held.status is RegistryStatus.MISSING or wrong:
             self.containers.engine.tag(step.spec.tag, remote)
             try:
                 held = self.containers.engine.push_cached(remote)
             finally:
                 self.containers.engine.untag(remote)
             if held.status is RegistryStatus.OK:
-                self.containers.emit(StepNote(step.name, f"pushed {remote}"))
+                self.containers.emit(
+                    StepNote(step.name, f"pushed {remote}" + (", replacing the image it held" if wrong else ""))
+                )
                 return
             if held.status is RegistryStatus.DENIED:
                 raise _denied(registry, "push", held)

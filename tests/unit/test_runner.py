@@ -326,6 +326,21 @@ def test_a_pulled_image_with_another_key_label_is_rejected_and_built_here(ws):
     assert "rejected" in notes(events) and engine.images_by_tag[SPEC.tag].labels["io.espdock.key"] == SPEC.key
 
 
+def test_push_cache_replaces_an_image_under_the_key_that_this_run_rejected(ws):
+    """The rejected image stayed in the registry ("already in the cache registry"): every later run pulled
+    it, rejected it and built the image again."""
+    wrong = ImageInfo("id", (REMOTE,), datetime.now(UTC), 1, {"io.espdock.key": "0" * 64})
+    engine = FakeEngine(registry={REMOTE: wrong})
+    events: list = []
+    (result,) = cache_runner(engine, events, push=True).run(Plan(ws, (EnsureImage(SPEC),)))
+    assert result.outcome is Outcome.BUILT and engine.pushed == [REMOTE]
+    assert engine.registry[REMOTE].labels["io.espdock.key"] == SPEC.key
+    assert "replacing the image it held" in notes(events)
+    engine.untag(SPEC.tag)  # the next machine
+    (again,) = cache_runner(engine, []).run(Plan(ws, (EnsureImage(SPEC),)))
+    assert again.outcome is Outcome.PULLED
+
+
 def test_a_silent_registry_is_a_warning_and_denied_credentials_an_error(ws):
     engine = FakeEngine(registry_answer=RegistryStatus.UNREACHABLE)
     events: list = []

@@ -10,9 +10,10 @@ from typing import Annotated
 import typer
 from rich.text import Text
 
+from espdock.build.manifest import record_build
 from espdock.build.prepare import plan_tests
 from espdock.build.prepare import workspace_packages as discover
-from espdock.build.runner import Runner
+from espdock.build.runner import Runner, stamp_files
 from espdock.build.steps import Plan
 from espdock.cli import complete
 from espdock.cli.core import PASSED, PassThrough, WorkspaceOption, app, command, console, load, notify
@@ -20,6 +21,7 @@ from espdock.cli.prune import record_images
 from espdock.cli.ui import STAMPED, Reporter
 from espdock.config import in_ci, invoking_user
 from espdock.errors import ConfigError, EspdockError, TestsFailed
+from espdock.events import Outcome
 from espdock.images.keyed import unpushed_error
 from espdock.layout import ROS_BUILD_BASE
 from espdock.ros.colcon import defaults_leaving_out, passed_last_time
@@ -181,14 +183,21 @@ def _test_ros(ws, config, every, ros, colcon_args, locked, official, push_cache,
 
     plan, step = plan_tests(ws, config, every, ros, colcon_args, locked, official, env=os.environ, notify=notify)
     engine = bootstrap.ensure_engine(os.environ, notify)
-    runner = Runner(engine, config, os.environ, reporter, invoking_user(os.environ, ws.root), push_cache=push_cache)
+    owner = invoking_user(os.environ, ws.root)
+    runner = Runner(engine, config, os.environ, reporter, owner, push_cache=push_cache)
     builds = tuple(s for s in plan.steps if isinstance(s, ColconBuild))
     runner.containers.known_to_need_this_machine(ws, TEST_RESULTS, firmware=False)  # before the test image
     try:
         runner.run(Plan(plan.workspace, tuple(s for s in plan.steps if s not in builds), plan.idf_images))
         # Refused before any build in the workspace volume, which the results would not leave.
         runner.containers.needs_this_machine(ws, step.image, TEST_RESULTS, firmware=False)
-        runner.run(Plan(plan.workspace, builds, plan.idf_images))
+        results = runner.run(Plan(plan.workspace, builds, plan.idf_images))
+        # The tests' build reinstalls what it rebuilds (and what a package installs only with
+        # BUILD_TESTING): install/'s manifest, which CI uploads after the tests, still described the last
+        # `espdock build`'s install/.
+        built = any(result.outcome is not Outcome.CACHED for result in results)
+        chown = owner if os.geteuid() == 0 else None
+        record_build(plan, config.target, ws.ws_dir / "install", built, stamp_files(ws), chown)
     finally:
         reporter.close()
         record_images(ws, runner)  # a failed build's images too: they are its inputs' as they are

@@ -136,6 +136,10 @@ def test_build_skips_test_needs_then_test_builds_runs_and_reports_them(tmp_path,
     # colcon test-result's own count is the summary's; the JUnit files count it less CTest's entry.
     assert colcon_test_result(root, image_tested_in(out)) == (9, 1, 0, 1)
     assert junit_counts(results) == (8, 1, 0, 1)
+    # CI uploads install/'s manifest after the tests: it describes install/ as their build left it (it
+    # listed only what the plain build above had installed).
+    verified = espdock("verify", "install/espdock-manifest.json", cwd=root, env=env)
+    assert verified.returncode == 0, verified.stdout[-2000:] + verified.stderr
     # The test image is recorded as the workspace's and prune keeps it while the inputs use it.
     pruned = espdock("prune", "--keep", "0", "--dry-run", cwd=root, env=env)
     assert f"kept {image_tested_in(out)} (used by the current inputs)" in pruned.stdout, pruned.stdout

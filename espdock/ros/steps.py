@@ -442,10 +442,21 @@ class RosSteps:
                     images = {name: served.get(name, "") for name in sources}
                     plain = package_stamps(sources, depends, images, dict(step.settings), reads)
                     serves = {name: plain[name] for name in built if not on_old[name]}
+
                 # Each one's dependencies' stamps as this build leaves them (built now, or up to
                 # date): a dependency rebuilt since, or edited, is one it was built on an older
                 # state of, whatever options either build was given.
-                built_on = {name: {dep: now[dep] for dep in read_by[name] if dep in now} for name in built}
+                # What it read and this step did not build (an `espdock test` step builds the packages
+                # tested; their dependencies, built by the step before, are in no stamp of its own):
+                # their stamps as recorded, or its record named nothing an edit of could make it older.
+                def stamp_of(dep: str) -> object:
+                    entry = recorded.get(dep)
+                    return now[dep] if dep in now else entry.get("stamp") if isinstance(entry, dict) else None
+
+                built_on = {
+                    name: {dep: stamp for dep in read_by[name] if (stamp := stamp_of(dep)) is not None}
+                    for name in built
+                }
                 outside_built = {name: outside[name] for name in built}
                 stamp_file.record(recorded_stamps, installed(), sources_of, trees, serves, built_on, outside_built)
                 give_to(stamp_file.path, self.containers.owner)

@@ -510,7 +510,7 @@ def test_run_takes_a_dependency_espdock_test_rebuilt_for_its_tests_as_the_one_it
     sources would make (every build after it is up to date): run of a package built on LIB warned
     that it was built on other sources of LIB, until a `--force` build."""
     root = tmp_path / "w"
-    data_and_show(root)
+    data = data_and_show(root)
     built = espdock("build", "--only", "ros", cwd=root)
     assert built.returncode == 0, built.stdout[-2000:] + built.stderr
     tested = espdock("test", "beacon_data", cwd=root)
@@ -520,6 +520,14 @@ def test_run_takes_a_dependency_espdock_test_rebuilt_for_its_tests_as_the_one_it
     assert "Couldn't parse params file" in said and "was built on other sources" not in said, said[-2000:]
     again = espdock("build", "--only", "ros", cwd=root)
     assert again.returncode == 0 and "up to date" in again.stdout, again.stdout[-2000:]
+    # The other way round: the tests' build of the package that runs, not of LIB. It recorded nothing of
+    # what it was built on (LIB was no package of its step), so an edit of LIB not built since went unsaid.
+    shown = espdock("test", "beacon_show", cwd=root)
+    assert shown.returncode == 0 and "1 package(s) built" in shown.stdout, shown.stdout[-2000:] + shown.stderr
+    data.write_text(data.read_text() + "# edited\n")
+    ran = espdock("run", "beacon_show", "beacon_show_node", "--ros-args", "--params-file", "/nonexistent", cwd=root)
+    said = " ".join((ran.stdout + ran.stderr).split())
+    assert "warning: beacon_show was built on other sources of the workspace packages it depends on" in said, said
 
 
 def test_what_a_failed_build_never_started_runs_and_what_failed_is_built_by_skip_build_finished(engine, tmp_path):

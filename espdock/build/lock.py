@@ -312,7 +312,13 @@ def lock_rosdeps(
         {k for ks in tests.values() for k in ks if not test_keys.get(k, {}).get("installer")} - {*unserved}
     )
     if unserved and not unresolved_ok:
-        return f"not written (it would leave {', '.join(unserved)} unresolved)", database, text.encode()
+        # A CI build (--locked) refuses the missing or stale lock: say now what writes it.
+        return (
+            f"not written (it would leave {', '.join(unserved)} unresolved; `espdock lock` writes it so, "
+            "for a build under --locked, as CI's)",
+            database,
+            text.encode(),
+        )
     if before is None:
         target.write_text(text)
         if owner is not None:

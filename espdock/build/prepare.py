@@ -13,7 +13,7 @@ from espdock.build.lock import current_rosdep_inputs, current_test_inputs, rosde
 from espdock.build.plan import plan_workspace
 from espdock.build.steps import EnsureImage, Plan
 from espdock.config import Config, invoking_user
-from espdock.errors import EspdockError, WorkspaceError
+from espdock.errors import DependencyError, EspdockError, WorkspaceError
 from espdock.firmware.plan import (
     STANDARD_INTERFACES,
     IdfBuild,
@@ -323,7 +323,11 @@ def plan_tests(
     if note:
         notify(note)
     lock = rosdeps.read_lock(inputs.rosdep_lock, ROSDEP_LOCK)
-    testdeps.check_tests(ros, lock, ros_image(config, inputs)[2], every)
+    try:
+        testdeps.check_tests(ros, lock, ros_image(config, inputs)[2], every)
+        tests_refused = None
+    except DependencyError as exc:
+        tests_refused = exc  # said with what the build lacks, below: one round of fixes, not two
     names = tuple(p.name for p in ros)
     known = (every, inputs)
     # The builds keep install/ as the last build made it: its options after `--` (a
@@ -347,17 +351,29 @@ def plan_tests(
     if dropped := [arg for arg in built_with if arg not in last]:
         notify(f"not with its {' '.join(dropped)}: the packages tested are built with their tests")
     tested_args = without_build_testing(last) or None
-    plan = build_plan(
-        ws,
-        config,
-        list(names),
-        PackageKind.ROS,
-        colcon_args=tested_args,
-        testing=True,
-        known=known,
-        env=env,
-        notify=notify,
-    )
+    try:
+        plan = build_plan(
+            ws,
+            config,
+            list(names),
+            PackageKind.ROS,
+            colcon_args=tested_args,
+            testing=True,
+            known=known,
+            env=env,
+            notify=notify,
+        )
+    except DependencyError as exc:
+        if tests_refused is None:
+            raise
+        said = tests_refused.message
+        raise DependencyError(
+            f"{exc.message}\nand for their tests, {said[0].lower()}{said[1:]}",
+            exc.hint,
+            tuple(sorted({*exc.keys, *tests_refused.keys})),
+        ) from None
+    if tests_refused is not None:
+        raise tests_refused
     plan = testdeps.with_test_image(_test_build(plan), lock, official)
     build = next(step for step in plan.steps if isinstance(step, ColconBuild))
     step = ColconTest(

@@ -308,15 +308,21 @@ def run(
     ws, config = load(workspace, runtime_image=True)
     nodes.check_file_arguments(ws, args or (), mounts, here)
     packages = workspace_packages(ws, config.ros_distro)
-    path = nodes.find_executable(ws, packages, package, executable)
+    # With the last build's options: by another's, every package would seem out of date.
+    last = last_build_options(ws)
+    try:
+        path = nodes.find_executable(ws, packages, package, executable)
+    except WorkspaceError:
+        if any(p.name == package for p in packages) and not (ws.ws_dir / "install" / package).is_dir():
+            # "not built yet: run `espdock build PKG`", a build this image refuses: say why it does.
+            build_plan(ws, config, [], PackageKind.ROS, colcon_args=last, checked=(package,))
+        raise
     if runs := next((edited_since_built(ws, p) for p in packages if p.name == package), None):
         notify(
             f"warning: {package}'s sources changed since its last build: this runs {runs} "
             f"(`espdock build {package}` first to run them)"
         )
     # Only what runs must be served: another package's missing key does not stop this node.
-    # With the last build's options: by another's, every package would seem out of date.
-    last = last_build_options(ws)
     plan = build_plan(ws, config, [], PackageKind.ROS, colcon_args=last, checked=(package,))
     colcon = next((step for step in plan.steps if isinstance(step, ColconBuild)), None)
     if not runs and colcon is not None and (older := built_on_older(ws, colcon, package)) is not None:

@@ -145,6 +145,16 @@ def test_run_and_shell_check_only_what_they_run(tmp_path):
     assert "another selection" not in refused.stderr
 
 
+def test_run_of_a_package_never_built_that_the_image_cannot_build_says_why(tmp_path):
+    """`espdock run` of an rclcpp package on the wheels image said it was not built yet and to run
+    `espdock build PKG` first, a build this image refuses."""
+    root = make_workspace(tmp_path / "w", "rosdeps_cpp_talker")
+    assert run(root, tmp_path, "lock").returncode == 0
+    refused = run(root, tmp_path, "run", "rosdeps_cpp_talker", "talker")
+    assert refused.returncode == 2 and "rclcpp: PyPI has no ros-jazzy-rclcpp" in refused.stderr, refused.stderr
+    assert "not built yet" not in refused.stderr and 'ros_image = "official"' in refused.stderr
+
+
 def test_dry_run_neither_updates_rosdep_nor_writes_the_lock(tmp_path):
     root = make_workspace(tmp_path / "w", "rosdeps_xml_count")
     result = run(root, tmp_path, "build", "--dry-run")
@@ -384,8 +394,23 @@ def test_a_test_key_nothing_serves_is_refused_by_espdock_test_without_writing_th
     result = run(root, tmp_path, "test")
     assert result.returncode == 2, result.stdout + result.stderr
     assert "tested_py" in result.stderr and "launch_testing_ros" in result.stderr
-    assert "rosdep.lock.json not written (it would leave launch_testing_ros unresolved)" in result.stdout
+    assert "rosdep.lock.json not written (it would leave launch_testing_ros unresolved;" in result.stdout
     assert (root / "rosdep.lock.json").read_bytes() == before
+
+
+def test_espdock_test_names_what_the_build_and_the_tests_lack_at_once(tmp_path):
+    """It named the tests' missing keys alone; once a rule served them, the next run named the build's
+    (rclcpp, which only the official image has): two rounds of fixes for what one message can say."""
+    root = make_workspace(tmp_path / "w", "tested_py")
+    add_depends(
+        root / "src/tested_py/package.xml", "<depend>rclcpp</depend>", "<test_depend>launch_testing_ros</test_depend>"
+    )
+    assert run(root, tmp_path, "lock").returncode == 0
+    result = run(root, tmp_path, "test")
+    said = " ".join(result.stderr.split())
+    assert result.returncode == 2, result.stdout + result.stderr
+    assert "rclcpp: PyPI has no ros-jazzy-rclcpp" in said and "launch_testing_ros" in said, said
+    assert "and for their tests, 1 package(s) depend on" in said and 'ros_image = "official"' in said, said
 
 
 def test_offline_with_rosdep_s_database_at_hand_a_package_the_lock_answers_for_builds(tmp_path):

@@ -143,12 +143,13 @@ def record_images(ws: Workspace, runner: Runner, runtime: str | None = None, who
         and not workspace_gone(record.root)
     ]
     if others:
-        name = runtime.removeprefix("espdock/")
+        # Not why: the same `name` setting (a clone's espdock.toml) or directories of one name. Nor
+        # the compose project's name, which is Compose's (the file's `name:`, COMPOSE_PROJECT_NAME).
         notify(
-            f"warning: {others[0]} names its runtime images {runtime}:latest too (its directory has this one's "
-            f"name): `docker compose` in either runs the one built last, and their compose projects ({name}) "
-            f"replace each other's containers; set name = \"...\" in one's espdock.toml to tell them apart "
-            f"(or ESPDOCK_NAME=... in its environment, for a git worktree or clone sharing the file)"
+            f"warning: {others[0]} names its runtime images {runtime}:latest too: `docker compose` in either "
+            "runs the one built last, and where both run one compose project (as a clone's compose file does), "
+            "each one's replaces the other's containers; set name = \"...\" in one's espdock.toml to tell them "
+            "apart (or ESPDOCK_NAME=... in its environment, for a git worktree or clone sharing the file)"
         )
 
 

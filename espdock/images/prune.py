@@ -220,8 +220,14 @@ def plan_prune(
                 kept.append(Decision(tag, record.root, on_engine[tag].size, "used by the current inputs"))
     # A tag two targets recorded: kept by either keeps it.
     kept_tags = {d.tag for d in kept}
+    # Gone workspaces with images of their own left (one a live workspace lists too is its to prune).
+    live = {image.tag for record in records if record.root not in gone for image in record.images}
     elsewhere = tuple(
-        sorted(r.root for r in records if r.root in gone - targets and any(i.tag in on_engine for i in r.images))
+        sorted(
+            r.root
+            for r in records
+            if r.root in gone - targets and any(i.tag in on_engine and i.tag not in live for i in r.images)
+        )
     )
     # A tag two targets recorded is removed once, by the first decision.
     once: dict[str, Decision] = {}
@@ -313,10 +319,21 @@ def prune_images(
         for workspace, tags in removed.items():
             forget_images(state, workspace, tags)
         left = {p.tag for p in present} - {tag for tags in removed.values() for tag in tags}
-        for record in records:
-            if record.root in gone & targets and not any(i.tag in left for i in record.images):
-                forget_workspace(state, record.root)
+        for gone_root in forgettable(records, gone & targets, left):
+            forget_workspace(state, gone_root)
     return plan, busy
+
+
+def forgettable(records: Iterable[Record], gone: Iterable[str], left: Iterable[str]) -> list[str]:
+    """The GONE workspaces whose records can go: none of the images they list is LEFT on the engine
+    but for those a live workspace's record lists too, which that one's prune decides. Kept for
+    such an image (another workspace's last build used it), the record stayed, and every prune
+    after said to run `--all-workspaces` for it, which removed nothing."""
+    records = list(records)
+    gone = set(gone)
+    live = {image.tag for record in records if record.root not in gone for image in record.images}
+    left = set(left) - live
+    return [r.root for r in records if r.root in gone and not any(i.tag in left for i in r.images)]
 
 
 def trim_cache(engine: Engine, bound_gb: float, dry_run: bool) -> tuple[int | None, int]:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import shutil
 
-from espdock.images.prune import Present, Record, UsedImage, plan_prune, read_records, record_use
+from espdock.images.prune import Present, Record, UsedImage, forgettable, plan_prune, read_records, record_use
 
 
 def test_a_build_records_its_images_as_current_per_kind(tmp_path):
@@ -116,6 +116,12 @@ def test_a_removed_workspace_protects_nothing_and_its_images_go_with_every_works
         "ros:3": "used by the current inputs",
     }
     assert every.gone_elsewhere == ()
+    # Its record goes once what is left of its images is the live workspace's: kept for it (ros:2),
+    # the record stayed, and every later prune said to prune --all-workspaces, which removed nothing.
+    assert forgettable([ours, removed], {"/b"}, {"ros:2", "ros:3"}) == ["/b"]
+    assert forgettable([ours, removed], {"/b"}, {"ros:3", "w:2"}) == [], "w:2 is its own: kept, a container uses it"
+    kept_for_ours = plan_prune([ours, removed], {"/a"}, {"/a": {"ros:3"}}, present("ros:2", "ros:3"), set(), 0, {"/b"})
+    assert kept_for_ours.gone_elsewhere == (), "nothing of its own left for --all-workspaces to remove"
 
 
 def test_a_second_workspace_of_the_same_name_is_told_to_set_its_own(tmp_path, monkeypatch, capsys):
@@ -141,6 +147,9 @@ def test_a_second_workspace_of_the_same_name_is_told_to_set_its_own(tmp_path, mo
     err = " ".join(capsys.readouterr().out.split())
     assert f"{first} names its runtime images espdock/robot:latest too" in err
     assert 'set name = "..." in one\'s espdock.toml' in err and "ESPDOCK_NAME=... in its environment" in err
+    # Nor a cause it cannot know: two clones named by `name = "robot"` in directories called otherwise were
+    # told their directories shared a name, and that their compose projects were "robot" (Compose's say).
+    assert "its directory has" not in err and "compose projects (robot)" not in err, err
 
 
 def test_the_runtime_images_run_uses_are_current_where_builds_make_none(tmp_path):

@@ -194,3 +194,23 @@ def test_verify_of_an_install_path_that_is_no_directory_is_refused(tmp_path):
     assert f"{tmp_path / 'instal'} is no directory" in typo.stderr and "missing" not in typo.stdout
     ok = espdock("verify", str(install / MANIFEST_NAME), cwd=tmp_path)
     assert ok.returncode == 0, ok.stdout + ok.stderr
+
+
+def test_verify_of_a_manifest_kept_outside_its_install_tree_asks_for_the_tree(tmp_path):
+    """A CI job's manifest, downloaded into a directory of other files: verify took that directory for
+    the install tree and listed each of its files as extra and each of the manifest's as missing."""
+    import shutil
+
+    from tests.conftest import espdock
+
+    install = tree(tmp_path / "job")
+    write_manifest({"format": 2, "files": file_hashes(install)}, install)
+    downloads = tmp_path / "downloads"
+    (downloads / "other").mkdir(parents=True)
+    (downloads / "other/notes.txt").write_text("not an install tree\n")
+    kept = shutil.copy(install / MANIFEST_NAME, downloads / "m2.json")
+    lost = espdock("verify", str(kept), cwd=tmp_path)
+    assert lost.returncode == 2, lost.stdout + lost.stderr
+    assert "is no install tree of it" in lost.stderr and "--install" in lost.stderr and lost.stdout == ""
+    found = espdock("verify", str(kept), "--install", str(install), cwd=tmp_path)
+    assert found.returncode == 0, found.stdout + found.stderr

@@ -45,6 +45,54 @@ SETUPTOOLS_FORCE = "".join(
     f"[{command}]\nforce = 1\n"
     for command in ("build_py", "build_scripts", "install_lib", "install_data", "install_scripts")
 ).encode()
+# rosidl_generator_py hands the Python package it generates to ament_python_install_package, whose
+# copy (or symlink) of it for `setup.py egg_info` waits for no generator: under make -j the
+# egg-info's SOURCES.txt listed the generated modules or not by the build's timing, and two builds
+# of one commit installed different files (2 of 8 fresh clones). Every package's top-level project()
+# includes this (CMAKE_PROJECT_TOP_LEVEL_INCLUDES, CMake 3.24 and newer; older ones ignore it): at the
+# end of its CMakeLists it has each such copy wait for the package's Python generators. It lives in
+# the build base, where every container of the workspace sees it: CMake reads it again whenever it
+# configures a build dir again (a `colcon build` in `espdock shell`, which builds there too).
+EGG_INFO_ORDER = ".espdock-egg-info-order.cmake"
+EGG_INFO_ORDER_CMAKE = b"""\
+function(_espdock_egg_info_after_generators)
+  get_property(targets DIRECTORY "${CMAKE_SOURCE_DIR}" PROPERTY BUILDSYSTEM_TARGETS)
+  set(generators "")
+  foreach(target IN LISTS targets)
+    if(target MATCHES "^(.+)__rosidl_generator_py$")
+      if(TARGET "${CMAKE_MATCH_1}__py")
+        list(APPEND generators "${CMAKE_MATCH_1}__py")
+      endif()
+    endif()
+  endforeach()
+  if(generators)
+    foreach(target IN LISTS targets)
+      if(target MATCHES "^ament_cmake_python_(copy|symlink)_")
+        add_dependencies("${target}" ${generators})
+      endif()
+    endforeach()
+  endif()
+endfunction()
+cmake_language(DEFER DIRECTORY "${CMAKE_SOURCE_DIR}" CALL _espdock_egg_info_after_generators)
+"""
+
+
+def egg_info_order_define(workdir: str) -> str:
+    """The CMake argument that has each package include EGG_INFO_ORDER, from the build base under the
+    colcon root WORKDIR (in the container)."""
+    return f"-DCMAKE_PROJECT_TOP_LEVEL_INCLUDES={posixpath.join(workdir, ROS_BUILD_BASE, EGG_INFO_ORDER)}"
+
+
+def with_egg_info_order(args: tuple[str, ...], define: str, defaults: tuple[str, ...] = ()) -> tuple[str, ...]:
+    """ARGS with DEFINE (egg_info_order_define) first among their CMake arguments (one of the user's own
+    setting of CMAKE_PROJECT_TOP_LEVEL_INCLUDES comes after it, and wins). DEFAULTS: the cmake-args of
+    the user's colcon defaults file, which a `--cmake-args` given would replace."""
+    args = _spelt_apart(args)
+    for index, arg in enumerate(args):
+        if arg == "--cmake-args":
+            return (*args[: index + 1], define, *args[index + 1 :])
+    return (*args, "--cmake-args", define, *defaults)
+
 
 _OWN = "espdock decides it"
 # Options espdock itself sets or relies on, with why; colcon accepts unique prefixes of options.

@@ -29,7 +29,15 @@ from espdock.layout import (
     ROSDEP_CONTEXT_DIR,
 )
 from espdock.ros import rosdeps
-from espdock.ros.colcon import ColconSettings, closure, left_out, sets_build_testing, with_build_testing
+from espdock.ros.colcon import (
+    ColconSettings,
+    closure,
+    egg_info_order_define,
+    left_out,
+    sets_build_testing,
+    with_build_testing,
+    with_egg_info_order,
+)
 from espdock.workspace import BuildInputs, Package, PackageKind, Workspace, select_up_to, text_digest
 
 
@@ -116,10 +124,12 @@ class ColconBuild:
         """The options after `--`, with BUILD_TESTING=OFF where TESTS_OFF asks for it, and ON for
         a test build (CMake would keep the OFF an earlier build cached)."""
         if self.testing:
-            return with_build_testing(self.colcon_args, "ON", self.defaults_cmake_args, force=True)
-        if self.tests_off:
-            return with_build_testing(self.colcon_args, "OFF", self.defaults_cmake_args)
-        return self.colcon_args
+            options = with_build_testing(self.colcon_args, "ON", self.defaults_cmake_args, force=True)
+        elif self.tests_off:
+            options = with_build_testing(self.colcon_args, "OFF", self.defaults_cmake_args)
+        else:
+            options = self.colcon_args
+        return with_egg_info_order(options, egg_info_order_define(self.workdir), self.defaults_cmake_args)
 
     @property
     def effective_args(self) -> tuple[str, ...]:

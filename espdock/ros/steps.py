@@ -35,6 +35,8 @@ from espdock.ros import rmw
 from espdock.ros.cmake_inputs import file_digests, fold, outside_inputs
 from espdock.ros.colcon import (
     DEFAULTS_MOUNT,
+    EGG_INFO_ORDER,
+    EGG_INFO_ORDER_CMAKE,
     LAST_ARGS,
     SETUPTOOLS_CONFIG,
     SETUPTOOLS_FORCE,
@@ -367,6 +369,11 @@ class RosSteps:
         if jobs := make_jobs(self.containers.env):
             env.append(("MAKEFLAGS", jobs))
         archives.append(volume.file_archive(SETUPTOOLS_CONFIG, SETUPTOOLS_FORCE))
+        order = posixpath.join(step.workdir, ROS_BUILD_BASE, EGG_INFO_ORDER)
+        if sync is None:
+            _write_owned(base / EGG_INFO_ORDER, EGG_INFO_ORDER_CMAKE, self.containers.owner)
+        else:  # the workspace volume's build base, which the host's is not
+            archives.append(volume.file_archive(order, EGG_INFO_ORDER_CMAKE))
         if step.defaults_file is not None:
             # colcon reads the user's defaults from their home, which the container does not have.
             if sync is None:
@@ -990,3 +997,12 @@ def _read_text(path: Path) -> str:
 def _container_path(workspace: Workspace, path: Path) -> str:
     """Where PATH (inside the workspace) is in a container with the workspace mounted."""
     return posixpath.join(workspace_mount(workspace).target, path.relative_to(workspace.root).as_posix())
+
+
+def _write_owned(path: Path, data: bytes, owner: tuple[int, int]) -> None:
+    """PATH holding DATA, OWNER's; left alone (its time too) where it holds it already."""
+    if path.is_file() and path.read_bytes() == data:
+        return
+    make_dirs_for(path.parent, owner)
+    path.write_bytes(data)
+    give_to(path, owner)

@@ -75,6 +75,11 @@ def test_two_clones_of_a_commit_install_identical_files(commit, tmp_path):
     assert any(name.endswith("/led_strip_node.elf") for name in one)
     # `ros2 run` commands find the workspace from their own place, so they hold no clone's path.
     assert any(name.endswith("led_strip_node/lib/led_strip_node/flash") for name in one)
+    # The interfaces' egg-info lists the modules rosidl generates: whether it did was up to make -j's
+    # timing (ament_cmake_python copied the package for `setup.py egg_info` whenever it came to it).
+    for install in (first, second):
+        (sources,) = install.glob("custom_interface/lib/python3*/site-packages/custom_interface-*.egg-info/SOURCES.txt")
+        assert "custom_interface/msg/_camera_config.py" in sources.read_text().split(), sources.read_text()
     differing = sorted(name for name in one.keys() | two.keys() if one.get(name) != two.get(name))
     assert differing == [], f"{len(differing)} of {len(one)} installed files differ, e.g. {differing[:10]}"
     assert read_manifest(first / MANIFEST_NAME) == read_manifest(second / MANIFEST_NAME)

@@ -14,13 +14,22 @@ import pytest
 
 from espdock.build.stamps import StampFile, package_stamps
 from espdock.errors import ConfigError, WorkspaceError
-from espdock.ros.colcon import check_colcon_args, meta_paths, output_args, read_colcon_settings, user_defaults_file
+from espdock.ros.colcon import (
+    check_colcon_args,
+    egg_info_order_define,
+    meta_paths,
+    output_args,
+    read_colcon_settings,
+    user_defaults_file,
+)
 from espdock.ros.colcon_log import PackageState, explain_failure, missing_dependencies, parse_events, usage_error
 from espdock.ros.plan import ColconBuild
 from espdock.ros.trees import check_isolated_install, retire_container_caches, retire_other_underlay
 from tests.conftest import copy_workspace, espdock
 
 NO_ENGINE = {"DOCKER_HOST": "unix:///nonexistent/docker.sock"}
+# The first of the CMake arguments of every build of a step at the default colcon root.
+EGG_INFO_ORDER_DEFINE = egg_info_order_define(ColconBuild("i", ("a",)).workdir)
 
 
 def test_build_options_pass_and_what_espdock_controls_is_refused():
@@ -179,7 +188,9 @@ def test_colcon_gets_exactly_the_packages_to_rebuild_then_the_users_options():
                        sources=(("msgs", "src/msgs"), ("app", "src/app"), ("tool", "src/tool")),
                        colcon_args=("--packages-skip", "tool"))  # fmt: skip
     argv = step.argv(("msgs", "app"))
-    assert argv[argv.index("--packages-select") :] == ("--packages-select", "msgs", "app", "--packages-skip", "tool")
+    assert argv[argv.index("--packages-select") :] == (
+        "--packages-select", "msgs", "app", "--packages-skip", "tool", "--cmake-args", EGG_INFO_ORDER_DEFINE,
+    )  # fmt: skip
     assert "--packages-select" not in step.argv(("msgs", "app", "tool")), "all of them: no selection needed"
     assert argv[argv.index("--base-paths") + 1 : argv.index("--base-paths") + 4] == ("src/msgs", "src/app", "src/tool")
 
@@ -277,7 +288,8 @@ def test_dry_run_shows_the_options_after_the_double_dash(tmp_path):
     root = copy_workspace(tmp_path / "w")
     result = espdock("build", "--dry-run", "--", "--cmake-args", "-DBUILD_TESTING=OFF", cwd=root, env=NO_ENGINE)
     assert result.returncode == 0, result.stderr
-    assert "summary+ --cmake-args -DBUILD_TESTING=OFF" in result.stdout
+    order = egg_info_order_define("/workspace/ws")  # the repository's colcon root
+    assert f"summary+ --cmake-args {order} -DBUILD_TESTING=OFF" in " ".join(result.stdout.split()), result.stdout
 
 
 def test_colcon_meta_is_yaml_and_what_espdock_passes_itself_may_be_in_the_defaults(tmp_path):
@@ -320,13 +332,13 @@ def test_only_build_dirs_espdock_configured_in_its_container_are_retired(tmp_pat
 
 def test_a_plain_build_on_the_wheels_image_configures_cmake_packages_without_tests():
     plain = ColconBuild(image="i", packages=("a",), sources=(("a", "src/a"),), tests_off=True)
-    assert plain.argv()[-2:] == ("--cmake-args", "-DBUILD_TESTING=OFF")
+    assert plain.argv()[-3:] == ("--cmake-args", EGG_INFO_ORDER_DEFINE, "-DBUILD_TESTING=OFF")
     own = ColconBuild(image="i", packages=("a",), tests_off=True, colcon_args=("--cmake-args", "-DX=1", "--foo"))
     # colcon keeps only the last --cmake-args: the value joins the user's own.
-    assert own.argv()[-4:] == ("--cmake-args", "-DBUILD_TESTING=OFF", "-DX=1", "--foo")
+    assert own.argv()[-5:] == ("--cmake-args", EGG_INFO_ORDER_DEFINE, "-DBUILD_TESTING=OFF", "-DX=1", "--foo")
     # The `=` form is the same option (a second --cmake-args replaced it: FOO stayed as cached).
     equals = ColconBuild(image="i", packages=("a",), tests_off=True, colcon_args=("--cmake-args=-DFOO=3", "--foo"))
-    assert equals.argv()[-4:] == ("--cmake-args", "-DBUILD_TESTING=OFF", "-DFOO=3", "--foo")
+    assert equals.argv()[-5:] == ("--cmake-args", EGG_INFO_ORDER_DEFINE, "-DBUILD_TESTING=OFF", "-DFOO=3", "--foo")
     asked_equals = ColconBuild(
         image="i", packages=("a",), tests_off=True, colcon_args=("--cmake-args=-DBUILD_TESTING=ON",)
     )
@@ -340,10 +352,11 @@ def test_a_plain_build_on_the_wheels_image_configures_cmake_packages_without_tes
     asked = ColconBuild(image="i", packages=("a",), tests_off=True, colcon_args=("--cmake-args", "-DBUILD_TESTING=ON"))
     assert asked.argv().count("-DBUILD_TESTING=OFF") == 0 and not asked.says_tests_off
     official = ColconBuild(image="i", packages=("a",))
-    assert "--cmake-args" not in official.argv(), "the official image builds as colcon does"
+    # The official image builds as colcon does, the egg-info's order aside.
+    assert official.argv()[-2:] == ("--cmake-args", EGG_INFO_ORDER_DEFINE) and "-DBUILD_TESTING" not in official.argv()
     testing = ColconBuild(image="i", packages=("a",), testing=True)
     # Said each time: CMake would keep the OFF an earlier build left in its cache.
-    assert testing.argv()[-2:] == ("--cmake-args", "-DBUILD_TESTING=ON")
+    assert testing.argv()[-3:] == ("--cmake-args", EGG_INFO_ORDER_DEFINE, "-DBUILD_TESTING=ON")
     stamps = {step.stamp_images()["a"] for step in (plain, official, testing)}
     assert len(stamps) == 3, "a test build, a build without tests and colcon's default never pass for each other"
     assert official.stamp_images() == {"a": "i"}, "builds of before keep their stamps"
@@ -404,12 +417,20 @@ def test_the_defaults_files_cmake_args_join_the_build_testing_espdock_gives(tmp_
     assert settings.cmake_args == ("-DCMAKE_EXPORT_COMPILE_COMMANDS=ON", "-DBUILD_TESTING=OFF")
     build = ColconBuild("x", ("a",), (("a", "src"),), defaults_cmake_args=("-DCMAKE_EXPORT_COMPILE_COMMANDS=ON",))
     plain = replace(build, tests_off=True)
-    assert plain.options == ("--cmake-args", "-DCMAKE_EXPORT_COMPILE_COMMANDS=ON", "-DBUILD_TESTING=OFF")
+    assert plain.options == (
+        "--cmake-args", EGG_INFO_ORDER_DEFINE, "-DCMAKE_EXPORT_COMPILE_COMMANDS=ON", "-DBUILD_TESTING=OFF",
+    )  # fmt: skip
     # A test build configures the tests whatever the defaults say; a defaults file setting them
     # itself is left to say so for a plain build.
     testing = replace(build, testing=True, defaults_cmake_args=settings.cmake_args)
-    assert testing.options == ("--cmake-args", "-DCMAKE_EXPORT_COMPILE_COMMANDS=ON", "-DBUILD_TESTING=ON")
-    assert replace(plain, defaults_cmake_args=settings.cmake_args).options == ()
+    assert testing.options == (
+        "--cmake-args", EGG_INFO_ORDER_DEFINE, "-DCMAKE_EXPORT_COMPILE_COMMANDS=ON", "-DBUILD_TESTING=ON",
+    )  # fmt: skip
+    # The defaults file's own cmake-args, given on the command line beside the egg-info's order (a
+    # `--cmake-args` there replaces the file's).
+    assert replace(plain, defaults_cmake_args=settings.cmake_args).options == (
+        "--cmake-args", EGG_INFO_ORDER_DEFINE, *settings.cmake_args,
+    )  # fmt: skip
     assert not replace(plain, defaults_cmake_args=settings.cmake_args).says_tests_off
 
 

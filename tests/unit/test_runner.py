@@ -484,7 +484,7 @@ def test_after_an_edit_colcon_gets_the_changed_package_and_its_dependents_only(w
     events: list = []
     runner(engine, events).run(Plan(ws, (COLCON,)))
     argv = engine.runs[-1].argv
-    assert argv[argv.index("--packages-select") :] == ("--packages-select", "app")
+    assert argv[argv.index("--packages-select") : argv.index("--cmake-args")] == ("--packages-select", "app")
     assert events[-1].detail == "1 package(s) built, 1 up to date"
     (ws.root / "ws/src/msgs/msg.txt").write_text("x")
     runner(engine, []).run(Plan(ws, (COLCON,)))
@@ -567,7 +567,7 @@ def test_a_package_that_moved_is_built_afresh_in_a_new_build_dir(ws):
     events: list = []
     runner(engine, events).run(Plan(ws, (moved,)))
     argv = engine.runs[-1].argv
-    assert argv[argv.index("--packages-select") :] == ("--packages-select", "app")
+    assert argv[argv.index("--packages-select") : argv.index("--cmake-args")] == ("--packages-select", "app")
     assert cached == [False], "colcon ran on the build dir configured from src/app"
     assert "building afresh what moved since the last build: app (from src/app)" in notes(events)
     runner(engine, events := []).run(Plan(ws, (moved,)))
@@ -782,7 +782,11 @@ def test_with_continue_on_error_what_built_is_kept_and_what_failed_is_not(ws):
     engine.run_script = colcon_installs(ws)
     runner(engine, []).run(Plan(ws, (step,)))
     argv = engine.runs[-1].argv
-    assert argv[argv.index("--packages-select") :] == ("--packages-select", "app", "--continue-on-error")
+    assert argv[argv.index("--packages-select") : argv.index("--cmake-args")] == (
+        "--packages-select",
+        "app",
+        "--continue-on-error",
+    )
 
 
 def test_colcon_stopping_before_any_package_is_a_user_error_and_stamps_nothing(ws):

@@ -114,7 +114,7 @@ class CameraUi(Node):
         online = self.app.camera_online()
         due = time.monotonic() - self.config_asked >= self.config_every
         unknown = self.state.get("config") is None
-        if (unknown or online and due) and self.get_pending is None and self.get_client.service_is_ready():
+        if (unknown or (online and due)) and self.get_pending is None and self.get_client.service_is_ready():
             self.config_asked = time.monotonic()
             sets = self.sets
             self.get_pending = self.get_client.call_async(GetCameraConfig.Request())

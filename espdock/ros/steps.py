@@ -369,11 +369,9 @@ class RosSteps:
         if jobs := make_jobs(self.containers.env):
             env.append(("MAKEFLAGS", jobs))
         archives.append(volume.file_archive(SETUPTOOLS_CONFIG, SETUPTOOLS_FORCE))
-        order = posixpath.join(step.workdir, ROS_BUILD_BASE, EGG_INFO_ORDER)
-        if sync is None:
-            _write_owned(base / EGG_INFO_ORDER, EGG_INFO_ORDER_CMAKE, self.containers.owner)
-        else:  # the workspace volume's build base, which the host's is not
-            archives.append(volume.file_archive(order, EGG_INFO_ORDER_CMAKE))
+        _write_owned(base / EGG_INFO_ORDER, EGG_INFO_ORDER_CMAKE, self.containers.owner)
+        if sync is not None:  # and into the workspace volume's build base, as the build's user's
+            archives.append(volume.files_archive(workspace, base, (EGG_INFO_ORDER,), self.containers.container_owner()))
         if step.defaults_file is not None:
             # colcon reads the user's defaults from their home, which the container does not have.
             if sync is None:

@@ -88,10 +88,15 @@ def with_egg_info_order(args: tuple[str, ...], define: str, defaults: tuple[str,
     setting of CMAKE_PROJECT_TOP_LEVEL_INCLUDES comes after it, and wins). DEFAULTS: the cmake-args of
     the user's colcon defaults file, which a `--cmake-args` given would replace."""
     args = _spelt_apart(args)
-    for index, arg in enumerate(args):
-        if arg == "--cmake-args":
-            return (*args[: index + 1], define, *args[index + 1 :])
+    if (index := _last_cmake_args(args)) is not None:
+        return (*args[: index + 1], define, *args[index + 1 :])
     return (*args, "--cmake-args", define, *defaults)
+
+
+def _last_cmake_args(args: tuple[str, ...]) -> int | None:
+    """Where the last `--cmake-args` of ARGS is: colcon keeps only the last one's values, and what
+    joined the first (`-- --cmake-args -DX=1 --cmake-args -DY=2`) never reached CMake."""
+    return max((index for index, arg in enumerate(args) if arg == "--cmake-args"), default=None)
 
 
 _OWN = "espdock decides it"
@@ -483,9 +488,8 @@ def with_build_testing(
     # `--cmake-args=-DFOO=3` is the same option: a second `--cmake-args` replaced it (colcon keeps
     # the last), and FOO stayed as CMake had cached it, unsaid.
     args = _spelt_apart(args)
-    for index, arg in enumerate(args):
-        if arg == "--cmake-args":
-            return (*args[: index + 1], f"-DBUILD_TESTING={value}", *args[index + 1 :])
+    if (index := _last_cmake_args(args)) is not None:
+        return (*args[: index + 1], f"-DBUILD_TESTING={value}", *args[index + 1 :])
     if sets_build_testing(defaults) and not force:
         return args
     return (*args, "--cmake-args", *without_build_testing(defaults), f"-DBUILD_TESTING={value}")

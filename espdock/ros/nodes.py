@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import difflib
 import itertools
+import json
 import os
 import posixpath
 import re
@@ -18,6 +19,7 @@ from espdock.images.containers import give_to, make_dirs_for
 from espdock.images.engine import Mount, RunSpec
 from espdock.images.visibility import links_out
 from espdock.layout import ROS_BUILD_BASE, ROS_OFFICIAL_DOCKERFILE, WORKSPACE_MOUNT
+from espdock.ros.colcon import egg_info_order_define
 from espdock.ros.plan import RUNTIME_INSTALL, RuntimeImage
 from espdock.ros.runtime_tree import resolve_installed
 from espdock.workspace import Package, PackageKind, Workspace, build_running, left_out
@@ -531,13 +533,29 @@ test:
 """
 
 
+def shell_colcon_defaults(define: str) -> str:
+    """SHELL_COLCON_DEFAULTS with the CMake argument espdock's builds give first (DEFINE:
+    egg_info_order_define), for the build dirs a colcon build in the shell configures itself."""
+    return SHELL_COLCON_DEFAULTS.replace(
+        "build:\n  build-base: build/espdock-ros\n",
+        f"build:\n  build-base: build/espdock-ros\n  cmake-args: [{json.dumps(define)}]\n",
+    )
+
+
 def make_shell_home(workspace: Workspace, owner: tuple[int, int]) -> None:
     """The shell's home on the workspace (SHELL_HOME), with its .bashrc and colcon defaults
-    written once (then the user's to edit), all OWNER's."""
+    written once (then the user's to edit; the defaults an older espdock wrote, unedited, are
+    brought up to date), all OWNER's."""
     home = workspace.ws_dir / SHELL_HOME
     make_dirs_for(home, owner)
-    for name, text in ((".bashrc", SHELL_BASHRC), ("colcon-defaults.yaml", SHELL_COLCON_DEFAULTS)):
-        if not (written := home / name).exists():
+    root = posixpath.normpath(f"{WORKSPACE_MOUNT}/{workspace.colcon_root}")
+    defaults = shell_colcon_defaults(egg_info_order_define(root))
+    for name, text, older in (
+        (".bashrc", SHELL_BASHRC, None),
+        ("colcon-defaults.yaml", defaults, SHELL_COLCON_DEFAULTS),
+    ):
+        written = home / name
+        if not written.exists() or (older is not None and written.read_text() == older):
             written.write_text(text)
             give_to(written, owner)
 

@@ -151,7 +151,13 @@ class ColconBuild:
         their tests (none may be among them) changes nothing it builds."""
         configured = "tests" if self.testing else "no-tests" if self.says_tests_off else ""
         cmake = f"{self.image}\0{configured}" if configured else self.image
-        return {name: self.image if name in self.python else cmake for name in self.packages}
+        # An interface package built before its egg-info was ordered (EGG_INFO_ORDER) may list its
+        # generated modules or not: an upgraded espdock builds it (and what depends on it) once more.
+        ordered = f"{cmake}\0egg-info-ordered"
+        return {
+            name: self.image if name in self.python else ordered if name in self.interfaces else cmake
+            for name in self.packages
+        }
 
     def argv(self, rebuild: tuple[str, ...] = ()) -> tuple[str, ...]:
         """colcon's command line; REBUILD: only these packages (the changed ones and their

@@ -11,6 +11,7 @@ from dataclasses import replace
 from pathlib import Path
 
 import pytest
+import yaml
 
 from espdock.build.stamps import StampFile, package_stamps
 from espdock.errors import ConfigError, WorkspaceError
@@ -328,6 +329,41 @@ def test_only_build_dirs_espdock_configured_in_its_container_are_retired(tmp_pat
     (build / "py_pkg").mkdir()
     assert retire_container_caches(build, ["old_msgs", "native_msgs", "py_pkg", "gone"], mounted) == ["old_msgs"]
     assert sorted(p.name for p in build.iterdir()) == ["board", "native_msgs", "py_pkg"]
+
+
+def test_espdock_s_cmake_arguments_join_the_last_cmake_args_which_colcon_keeps():
+    """`-- --cmake-args -DX=1 --cmake-args -DY=2`: colcon keeps the last one's values, and espdock's
+    BUILD_TESTING and egg-info order, which joined the first, never reached CMake."""
+    twice = ColconBuild("i", ("a",), tests_off=True, colcon_args=("--cmake-args", "-DX=1", "--cmake-args", "-DY=2"))
+    assert twice.argv()[-6:] == (
+        "--cmake-args", "-DX=1", "--cmake-args", EGG_INFO_ORDER_DEFINE, "-DBUILD_TESTING=OFF", "-DY=2",
+    )  # fmt: skip
+
+
+def test_an_interface_package_built_before_its_egg_info_was_ordered_is_built_once_more():
+    """An upgraded espdock said "up to date" of an install the race had spoiled (its egg-info without
+    the generated modules), so two builds of one commit still installed different files."""
+    step = ColconBuild("i", ("msgs", "cpp", "py"), python=("py",), interfaces=("msgs",))
+    images = step.stamp_images()
+    assert images["cpp"] == "i" and images["py"] == "i", "other packages keep their stamps"
+    assert images["msgs"] != "i"
+
+
+def test_the_shell_s_colcon_defaults_carry_the_egg_info_order_and_replace_an_older_espdock_s(tmp_path):
+    """A build dir the shell's colcon configured itself lacked the include: its egg-info was the race's."""
+    from espdock.ros.nodes import SHELL_COLCON_DEFAULTS, make_shell_home
+    from espdock.workspace import Workspace
+
+    (tmp_path / "espdock.toml").write_text('[espdock]\ncolcon_root = "ws"\n')
+    home = tmp_path / "ws/build/espdock-home"
+    home.mkdir(parents=True)
+    (home / "colcon-defaults.yaml").write_text(SHELL_COLCON_DEFAULTS)  # an older espdock's, unedited
+    make_shell_home(Workspace(tmp_path), (os.getuid(), os.getgid()))
+    defaults = yaml.safe_load((home / "colcon-defaults.yaml").read_text())
+    assert defaults["build"]["cmake-args"] == [egg_info_order_define("/workspace/ws")]
+    (home / "colcon-defaults.yaml").write_text("build: {build-base: build/espdock-ros, symlink-install: true}\n")
+    make_shell_home(Workspace(tmp_path), (os.getuid(), os.getgid()))
+    assert "symlink-install" in (home / "colcon-defaults.yaml").read_text(), "the user's edits stay"
 
 
 def test_a_plain_build_on_the_wheels_image_configures_cmake_packages_without_tests():

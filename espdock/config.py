@@ -167,6 +167,17 @@ def load_config(root: Path, env: Mapping[str, str], overrides: Mapping[str, Any]
     return _validate(values, root, chip)
 
 
+def no_cache_registry(env: Mapping[str, str]) -> ConfigError:
+    """--push-cache's error where no cache registry is set (ENV: an empty ESPDOCK_CACHE_REGISTRY turns
+    espdock.toml's off, which the hint said to set)."""
+    if env.get("ESPDOCK_CACHE_REGISTRY") == "":
+        return ConfigError(
+            "--push-cache needs a cache registry: ESPDOCK_CACHE_REGISTRY is set empty, which turns it off",
+            "Set ESPDOCK_CACHE_REGISTRY to the registry, or unset it for espdock.toml's cache_registry.",
+        )
+    return ConfigError("--push-cache needs a cache registry", "Set cache_registry or ESPDOCK_CACHE_REGISTRY.")
+
+
 def misspelt_variables(env: Mapping[str, str]) -> list[str]:
     """A warning for each ESPDOCK_ variable in ENV that is no setting but close to one
     (ESPDOCK_KEEP_CONTAINER): a CI variable's typo was ignored without a word. Others of the

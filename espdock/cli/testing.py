@@ -19,7 +19,7 @@ from espdock.cli import complete
 from espdock.cli.core import PASSED, PassThrough, WorkspaceOption, app, command, console, load, notify
 from espdock.cli.prune import record_images
 from espdock.cli.ui import STAMPED, Reporter
-from espdock.config import in_ci, invoking_user
+from espdock.config import in_ci, invoking_user, no_cache_registry
 from espdock.errors import ConfigError, EspdockError, TestsFailed
 from espdock.events import Outcome
 from espdock.images.keyed import unpushed_error
@@ -125,7 +125,7 @@ def test(
     official = config.ros_image == "official"
     check_testable({p.name: p.depends for p in ros}, "official" if official else "wheels")
     if push_cache and not config.cache_registry:
-        raise ConfigError("--push-cache needs a cache registry", "Set cache_registry or ESPDOCK_CACHE_REGISTRY.")
+        raise no_cache_registry(os.environ)
     found: dict[str, PackageResults] = {}
     logs: dict[str, Path] = {}
     code = 0

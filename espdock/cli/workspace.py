@@ -33,7 +33,7 @@ from espdock.cli.core import (
 from espdock.cli.nodes import stale_runtime_note
 from espdock.cli.prune import after_build, record_images
 from espdock.cli.ui import STAMPED, Reporter, nothing_to_build, render_packages, render_plan
-from espdock.config import check_target, in_ci, invoking_user, resolve_ca_bundle
+from espdock.config import check_target, in_ci, invoking_user, no_cache_registry, resolve_ca_bundle
 from espdock.errors import ConfigError, EspdockError, WorkspaceError
 from espdock.events import Outcome
 from espdock.firmware import transport
@@ -171,7 +171,7 @@ def build(
         if locked:
             check_locks(ws.root, plan_locks(plan))
         if push_cache and not config.cache_registry:
-            raise ConfigError("--push-cache needs a cache registry", "Set cache_registry or ESPDOCK_CACHE_REGISTRY.")
+            raise no_cache_registry(os.environ)
         engine = bootstrap.ensure_engine(os.environ, notify)
     except EspdockError as exc:
         # A CI job keeps the report whatever stopped the build: a stale lock, no engine.

@@ -223,8 +223,10 @@ def check_dependencies(
         # Only keys the lock has never seen (a dependency declared, or a typo fixed, since): the
         # lock is behind the package.xml files, not rosdep behind the key.
         again = f"`espdock {command}`" if command else "the command"
+        # No lock at all (a fresh clone, a run before any build) is not one behind the manifests.
+        state = "is missing" if lock is None else "is older than the package.xml files"
         raise DependencyError(
-            f"{ROSDEP_LOCK} is older than the package.xml files:\n" + "\n".join(lines),
+            f"{ROSDEP_LOCK} {state}:\n" + "\n".join(lines),
             f"Run `espdock lock` (or {again} where rosdep's sources answer: it refreshes the lock) and run again.",
         )
     ways = [

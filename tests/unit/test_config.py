@@ -186,6 +186,15 @@ def test_an_empty_cache_registry_variable_turns_off_the_one_in_espdock_toml(tmp_
     assert load_config(tmp_path, {}).cache_registry == "127.0.0.1:5000/team"
     assert load_config(tmp_path, {"ESPDOCK_CACHE_REGISTRY": ""}).cache_registry is None
     assert load_config(tmp_path, {"ESPDOCK_CACHE_REGISTRY": "other:5000"}).cache_registry == "other:5000"
+    # --push-cache then says why it has none: the hint said to set what was set.
+    import shutil
+
+    from tests.conftest import REPO, espdock
+
+    shutil.copytree(REPO / "tests/ros_packages/beacon_nodes", tmp_path / "src/beacon_nodes")
+    no_engine = {"DOCKER_HOST": "unix:///nonexistent/docker.sock"}
+    pushed = espdock("build", "--push-cache", cwd=tmp_path, env={"ESPDOCK_CACHE_REGISTRY": "", **no_engine})
+    assert pushed.returncode == 2 and "ESPDOCK_CACHE_REGISTRY is set empty" in pushed.stderr, pushed.stderr
 
 
 def test_a_ci_job_is_told_by_ci_as_ci_services_set_it():

@@ -131,6 +131,10 @@ def test_a_key_the_lock_has_never_seen_names_the_stale_lock_not_rosdep():
         "  a (/ws/src/a): python3-serial: not in the lock",
     ]
     assert "`espdock lock`" in caught.value.hint and "official" not in caught.value.hint
+    # No lock at all (`espdock run` in a fresh clone) is said as such, not as one behind the manifests.
+    with pytest.raises(DependencyError) as caught:
+        rosdeps.check_dependencies((package("a", {"python3-serial"}),), {"a": ("python3-serial",)}, None, WHEELS)
+    assert caught.value.message.splitlines()[0] == "rosdep.lock.json is missing:"
 
 
 def test_python_keys_become_pip_in_the_wheels_venv_and_ros_keys_their_wheels():

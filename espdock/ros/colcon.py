@@ -84,9 +84,10 @@ def egg_info_order_define(workdir: str) -> str:
 
 
 def with_egg_info_order(args: tuple[str, ...], define: str, defaults: tuple[str, ...] = ()) -> tuple[str, ...]:
-    """ARGS with DEFINE (egg_info_order_define) first among their CMake arguments (one of the user's own
-    setting of CMAKE_PROJECT_TOP_LEVEL_INCLUDES comes after it, and wins). DEFAULTS: the cmake-args of
-    the user's colcon defaults file, which a `--cmake-args` given would replace."""
+    """ARGS with DEFINE (egg_info_order_define) first among the CMake arguments colcon keeps, those of
+    the last `--cmake-args` (one of the user's own setting of CMAKE_PROJECT_TOP_LEVEL_INCLUDES comes
+    after it, and wins). DEFAULTS: the cmake-args of the user's colcon defaults file, which a
+    `--cmake-args` given would replace."""
     args = _spelt_apart(args)
     if (index := _last_cmake_args(args)) is not None:
         return (*args[: index + 1], define, *args[index + 1 :])

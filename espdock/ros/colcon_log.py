@@ -200,12 +200,15 @@ def explain_failure(
     declared: Mapping[str, tuple[frozenset[str], frozenset[str]]] | None = None,
     command: str = "build",
     ours: frozenset[str] = frozenset(),
+    earlier: tuple[str, ...] = (),
 ) -> ColconFailure:
     """Why colcon exited with CODE: STATES from its event log, LOGS (failed package -> its log
     file, None where colcon failed it before its build began and wrote none, and its output), ARGS
     the options given after `--`, DECLARED (package -> what its package.xml names, and which of
     those only as test_depend), OURS the workspace's packages. COMMAND: the espdock command whose
-    build it was (`espdock test`'s configures the tests, which a plain build does not compile)."""
+    build it was (`espdock test`'s configures the tests, which a plain build does not compile). EARLIER:
+    the packages an earlier colcon build of the same run built (`espdock test` builds the dependencies
+    of the packages tested first)."""
     by_state: dict[PackageState, list[str]] = {}
     for name, state in sorted(states.items()):
         by_state.setdefault(state, []).append(name)
@@ -262,7 +265,7 @@ def explain_failure(
             f"{len(stopped)} package(s) were not built because colcon stopped at the failure; "
             "`espdock build -- --continue-on-error` builds every package that does not depend on a failed one."
         )
-    built = by_state.get(PackageState.BUILT, [])
+    built = [*earlier, *by_state.get(PackageState.BUILT, [])]
     hints.append(
         f"The {len(built)} package(s) that built are kept: the next build starts from them."
         if built

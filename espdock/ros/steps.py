@@ -100,6 +100,8 @@ class RosSteps:
         self.unbuilt: set[str] = set()
         # What _build_afresh moved aside (where it was, where it is) until colcon has run.
         self._aside: list[tuple[Path, Path]] = []
+        # What this run's colcon builds built so far (the failure of a later one keeps them).
+        self._built: list[str] = []
 
     def _build_afresh(
         self,
@@ -532,6 +534,7 @@ class RosSteps:
         ):
             give_to(args_file, self.containers.owner)
         built = keep_built(states)
+        earlier, self._built = tuple(self._built), [*self._built, *built]
         self.unbuilt |= set(rebuild) - set(built)
         restored = self._put_back(base, states is None and code != 0, None if states is None else built)
         if (left := base / ASIDE).exists():
@@ -586,7 +589,7 @@ class RosSteps:
             declared = {name: (depends, tests) for name, depends, tests in step.declared}
             failure = explain_failure(
                 code, states or {}, logs, step.colcon_args, declared, "test" if step.testing else "build",
-                frozenset(step.packages),
+                frozenset(step.packages), earlier,
             )  # fmt: skip
             raise BuildFailed(failure.message, failure.hint)
         others = [n for n in rebuild if n not in built]

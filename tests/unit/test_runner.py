@@ -789,6 +789,28 @@ def test_with_continue_on_error_what_built_is_kept_and_what_failed_is_not(ws):
     )
 
 
+def test_a_failure_after_an_earlier_colcon_build_of_the_run_says_what_that_one_built(ws):
+    """`espdock test` builds the dependencies first, then the packages tested: a failure of the second
+    said "No package was built by this run" after the first had built one, which it keeps."""
+    depends = (("msgs", ()), ("app", ("msgs",)))
+    first = replace(COLCON, depends=depends, selected=("msgs",), name="colcon build: dependencies")
+    second = replace(COLCON, depends=depends, selected=("app",), name="colcon build: with tests")
+    fine, failing = colcon_installs(ws), colcon_installs(ws, code=1, rcs={"app": 1})
+
+    engine = FakeEngine(run_script=lambda spec, on_line: (failing if "app" in _selected(spec) else fine)(spec, on_line))
+    with pytest.raises(BuildFailed) as err:
+        runner(engine, []).run(Plan(ws, (first, second)))
+    assert "The 1 package(s) that built are kept" in (err.value.hint or ""), err.value.hint
+
+
+def _selected(spec) -> tuple[str, ...]:
+    argv = list(spec.argv)
+    if "--packages-select" not in argv:
+        return ()
+    rest = argv[argv.index("--packages-select") + 1 :]
+    return tuple(rest[: next((i for i, a in enumerate(rest) if a.startswith("-")), len(rest))])
+
+
 def test_colcon_stopping_before_any_package_is_a_user_error_and_stamps_nothing(ws):
     from espdock.errors import ConfigError
 

@@ -150,9 +150,7 @@ def load_config(root: Path, env: Mapping[str, str], overrides: Mapping[str, Any]
     if "package_paths" in from_env:  # a list in one variable: PATH-style
         from_env["package_paths"] = from_env["package_paths"].split(os.pathsep)
     values.update(_checked(from_env, strict=False, where=lambda key: f"environment variable ESPDOCK_{key.upper()}"))
-    if env.get("ESPDOCK_CACHE_REGISTRY") == "":
-        # Set and empty turns the cache off: CI empties it for a job without the registry's credentials (a
-        # fork's pull request), and with the registry in espdock.toml such jobs failed on its login.
+    if _cache_registry_emptied(env):
         values.pop("cache_registry", None)
     cli = {k: v for k, v in (overrides or {}).items() if v is not None}
     values.update(_checked(cli, strict=False, where=lambda key: f"option --{key.replace('_', '-')}"))
@@ -167,10 +165,17 @@ def load_config(root: Path, env: Mapping[str, str], overrides: Mapping[str, Any]
     return _validate(values, root, chip)
 
 
+def _cache_registry_emptied(env: Mapping[str, str]) -> bool:
+    """Whether ENV sets ESPDOCK_CACHE_REGISTRY empty, which turns the cache off: CI empties it for a job
+    without the registry's credentials (a fork's pull request), and with the registry in espdock.toml
+    such jobs failed on its login."""
+    return env.get("ESPDOCK_CACHE_REGISTRY") == ""
+
+
 def no_cache_registry(env: Mapping[str, str]) -> ConfigError:
     """--push-cache's error where no cache registry is set (ENV: an empty ESPDOCK_CACHE_REGISTRY turns
     espdock.toml's off, which the hint said to set)."""
-    if env.get("ESPDOCK_CACHE_REGISTRY") == "":
+    if _cache_registry_emptied(env):
         return ConfigError(
             "--push-cache needs a cache registry: ESPDOCK_CACHE_REGISTRY is set empty, which turns it off",
             "Set ESPDOCK_CACHE_REGISTRY to the registry, or unset it for espdock.toml's cache_registry.",

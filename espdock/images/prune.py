@@ -221,7 +221,7 @@ def plan_prune(
     # A tag two targets recorded: kept by either keeps it.
     kept_tags = {d.tag for d in kept}
     # Gone workspaces with images of their own left (one a live workspace lists too is its to prune).
-    live = {image.tag for record in records if record.root not in gone for image in record.images}
+    live = _live_tags(records, gone)
     elsewhere = tuple(
         sorted(
             r.root
@@ -331,9 +331,13 @@ def forgettable(records: Iterable[Record], gone: Iterable[str], left: Iterable[s
     after said to run `--all-workspaces` for it, which removed nothing."""
     records = list(records)
     gone = set(gone)
-    live = {image.tag for record in records if record.root not in gone for image in record.images}
-    left = set(left) - live
+    left = set(left) - _live_tags(records, gone)
     return [r.root for r in records if r.root in gone and not any(i.tag in left for i in r.images)]
+
+
+def _live_tags(records: Iterable[Record], gone: set[str]) -> set[str]:
+    """The tags the records of workspaces not GONE list."""
+    return {image.tag for record in records if record.root not in gone for image in record.images}
 
 
 def trim_cache(engine: Engine, bound_gb: float, dry_run: bool) -> tuple[int | None, int]:

@@ -13,7 +13,7 @@ from collections.abc import Iterable, Mapping
 from pathlib import Path, PurePosixPath
 
 from espdock.build.stamps import StampFile, listing_digest
-from espdock.build.steps import LABEL_WORKSPACE, EnsureBaseImage, EnsureImage, Plan
+from espdock.build.steps import LABEL_WORKSPACE, EnsureBaseImage, EnsureImage, Plan, container_path
 from espdock.errors import ConfigError, WorkspaceError
 from espdock.images.containers import give_to, make_dirs_for
 from espdock.images.engine import Mount, RunSpec
@@ -548,8 +548,7 @@ def make_shell_home(workspace: Workspace, owner: tuple[int, int]) -> None:
     brought up to date), all OWNER's."""
     home = workspace.ws_dir / SHELL_HOME
     make_dirs_for(home, owner)
-    root = posixpath.normpath(f"{WORKSPACE_MOUNT}/{workspace.colcon_root}")
-    defaults = shell_colcon_defaults(egg_info_order_define(root))
+    defaults = shell_colcon_defaults(egg_info_order_define(container_path(workspace.colcon_root)))
     for name, text, older in (
         (".bashrc", SHELL_BASHRC, None),
         ("colcon-defaults.yaml", defaults, SHELL_COLCON_DEFAULTS),
@@ -576,7 +575,7 @@ def shell_spec(
     volume instead, espdock.volume), the directories the links to its ROS PACKAGES lead to (as a
     build has them) and its install tree sourced; in CWD where that is in the colcon root, else
     there; as USER_NAME (USER, LOGNAME), with SHELL_HOME as its home on the workspace's mount."""
-    root = posixpath.normpath(f"{WORKSPACE_MOUNT}/{workspace.colcon_root}")
+    root = container_path(workspace.colcon_root)
     official = dockerfile == ROS_OFFICIAL_DOCKERFILE
     mount = mount or Mount(workspace.root, WORKSPACE_MOUNT)
     ros = [p.path for p in packages if p.kind is PackageKind.ROS]

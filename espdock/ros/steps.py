@@ -452,10 +452,10 @@ class RosSteps:
 
                 # Each one's dependencies' stamps as this build leaves them (built now, or up to
                 # date): a dependency rebuilt since, or edited, is one it was built on an older
-                # state of, whatever options either build was given.
-                # What it read and this step did not build (an `espdock test` step builds the packages
-                # tested; their dependencies, built by the step before, are in no stamp of its own):
-                # their stamps as recorded, or its record named nothing an edit of could make it older.
+                # state of, whatever options either build was given. Those this step did not build
+                # (an `espdock test` step builds the packages tested; their dependencies, built by
+                # the step before, are in no stamp of its own) as recorded, or its record named
+                # nothing an edit of could make it older.
                 def stamp_of(dep: str) -> object:
                     entry = recorded.get(dep)
                     return now[dep] if dep in now else entry.get("stamp") if isinstance(entry, dict) else None

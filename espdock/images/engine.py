@@ -36,7 +36,7 @@ from datetime import UTC, datetime
 from enum import StrEnum
 from pathlib import Path
 from typing import IO, Any
-from urllib.parse import quote
+from urllib.parse import quote, urlencode
 
 from espdock import interrupts
 from espdock.errors import (
@@ -588,7 +588,11 @@ class Engine:
     def tag(self, source: str, ref: str) -> None:
         repository, tag = _split_ref(ref)
         with self._plain_call(f"could not tag {source} as {ref}", doing=f"tagging {source} as {ref}"):
-            self._client.api.tag(source, repository, tag)
+            if self._plain:  # every build that makes a runtime image tags it: no SDK for that
+                query = urlencode({"repo": repository, "tag": tag})
+                local_api.call(self._socket, self._timeout, "POST", f"/images/{quote(source, safe='')}/tag?{query}")
+            else:
+                self._client.api.tag(source, repository, tag)
 
     def untag(self, ref: str) -> None:
         """Remove the name REF; the image stays while other names hold it."""
@@ -705,6 +709,13 @@ class Engine:
     ) -> str | None:
         """The engine API's own /build of the tar CONTEXT with PARAMS, its output lines to ON_LINE
         and TAIL; its error, None when it built. Ctrl-C leaves the answer closed, as its client."""
+        if self._plain:
+            # Over the local socket without the SDK: a runtime image's labels are such a build.
+            path = f"/build?{urlencode({key: str(value) for key, value in params.items()})}"
+            with local_api.post_stream(self._socket, self._timeout, path, context, "application/x-tar") as answer:
+                if answer.status != 200:
+                    return f"HTTP {answer.status}: {answer.read(300).decode('utf-8', 'replace')}"
+                return _classic_events(iter(answer.readline, b""), tail, on_line)
         api = self._client.api
         response = api.post(
             f"{api.base_url}/v{api.api_version}/build",

@@ -13,7 +13,7 @@ import re
 import socket
 from collections.abc import Iterator, Mapping
 from contextlib import AbstractContextManager, contextmanager
-from typing import Any
+from typing import IO, Any
 from urllib.parse import quote
 
 from espdock.images.sdk import docker, requests
@@ -108,15 +108,40 @@ def open_stream(socket_path: str, timeout: float, method: str, path: str) -> Ite
     """METHOD PATH on the engine's local socket, for an answer that may take as long as the
     container runs: no timeout once the engine has answered, as the SDK has it for logs and wait.
     Raises as call does."""
+    with _streamed(socket_path, timeout, method, path) as response:
+        if response.status >= 400:
+            _raise_api_error(response.status, response.read(), path)
+        yield response
+
+
+@contextmanager
+def post_stream(
+    socket_path: str, timeout: float, path: str, body: bytes | IO[bytes], content_type: str
+) -> Iterator[http.client.HTTPResponse]:
+    """POST BODY to PATH on the engine's local socket, for an answer streamed as long as the work
+    takes (an image build): whatever its status, which the caller reads (an error's body is its
+    reason). A failed connection raises as call does."""
+    with _streamed(socket_path, timeout, "POST", path, body, {"Content-Type": content_type}) as response:
+        yield response
+
+
+@contextmanager
+def _streamed(
+    socket_path: str,
+    timeout: float,
+    method: str,
+    path: str,
+    body: bytes | IO[bytes] | None = None,
+    headers: Mapping[str, str] | None = None,
+) -> Iterator[http.client.HTTPResponse]:
     connection = _UnixHTTP(socket_path, timeout)
     try:
         try:
-            connection.request(method, path)
+            # A file BODY goes in chunks (HTTP/1.1 chunked encoding), as the Docker CLI sends a context.
+            connection.request(method, path, body=body, headers=dict(headers or {}))
             response = connection.getresponse()
         except (OSError, http.client.HTTPException) as exc:
             raise requests.exceptions.ConnectionError(f"{method} {path}: {exc}") from exc
-        if response.status >= 400:
-            _raise_api_error(response.status, response.read(), path)
         connection.sock.settimeout(None)
         yield response
     finally:

@@ -24,7 +24,7 @@ from espdock.firmware.plan import LONGCALLS_RISCV, IdfBuild
 from espdock.firmware.provision import IMAGE_MOUNT
 from espdock.firmware.steps import FirmwareSteps
 from espdock.images.engine import Engine, Mount, format_argv
-from espdock.images.machine_lock import machine_lock
+from espdock.images.machine_lock import lock_holder, machine_lock
 from espdock.images.port_urls import port_url_key
 from espdock.images.visibility import workspace_mount
 from espdock.workspace import Workspace, component_targets
@@ -135,10 +135,7 @@ def port_held(engine: Engine, port: Port) -> Iterator[None]:
     runs three): on a board, the two esptools' frames interleave."""
 
     def busy(holder: str) -> None:
-        raise PortError(
-            f"serial port {port.spec} is busy: another espdock has it{holder}",
-            "Wait for it to end (a flash), or stop it (a monitor or an agent: Ctrl-C in its terminal), then run again.",
-        )
+        raise _held_by_espdock(port, holder)
 
     with machine_lock(_port_lock_name(port), busy):
         check_port_free(engine, port)
@@ -150,6 +147,13 @@ def port_held(engine: Engine, port: Port) -> Iterator[None]:
                 "then run again.",
             )
         yield
+
+
+def _held_by_espdock(port: Port, holder: str) -> PortError:
+    return PortError(
+        f"serial port {port.spec} is busy: another espdock has it{holder}",
+        "Wait for it to end (a flash), or stop it (a monitor or an agent: Ctrl-C in its terminal), then run again.",
+    )
 
 
 def device_holders(device: str) -> list[tuple[int, str]]:
@@ -219,6 +223,11 @@ def _port_lock_name(port: Port) -> str:
 
 def check_port(port: Port, timeout: float = 3.0) -> None:
     """Fail with a clear message if PORT does not exist, is busy, or nothing listens at it."""
+    # Another espdock's port is said as such before any probe: a serial server takes one client at
+    # a time (esp_rfc2217_server listens with a backlog of one), and each probe while another
+    # espdock's client was connected queued a connection, until they timed out as "nothing answers".
+    if (holder := lock_holder(_port_lock_name(port))) is not None:
+        raise _held_by_espdock(port, holder)
     if port.is_url:
         parts = urlsplit(port.spec)
         try:

@@ -42,6 +42,23 @@ def machine_lock(name: str, waiting: Callable[[str], None]) -> Iterator[None]:
         os.close(fd)
 
 
+def lock_holder(name: str) -> str | None:
+    """Who holds the lock NAME now (as WAITING of machine_lock is told it), or None when no other
+    process does. It only looks: no lock file is made, and one found free is let go at once."""
+    path = LOCK_DIR / f"espdock-{name}.lock"
+    try:
+        fd = os.open(path, os.O_RDONLY)
+    except OSError:  # none (nobody holds it), or another user's that this one cannot open
+        return None
+    try:  # shared: two that look do not see each other
+        fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
+    except BlockingIOError:
+        return holder_text(path.with_suffix(".holder"))
+    finally:
+        os.close(fd)  # lets go of a lock it took
+    return None
+
+
 def _hold_lock(path: Path, waiting: Callable[[], None]) -> int | None:
     """A descriptor holding the exclusive lock of the file PATH names (WAITING is called once, when
     another holds it); None where it cannot be opened. A holder removes the file before it lets

@@ -3,6 +3,7 @@
 import json
 import os
 import pty
+import socket
 import subprocess
 import sys
 from collections.abc import Callable
@@ -209,6 +210,33 @@ def test_a_port_another_espdock_holds_is_busy_by_whichever_name(tmp_path):
     with port_held(_NoContainers(), parse_port(str(link))):  # let go: free again
         pass
     os.close(controller)
+
+
+def test_a_serial_server_another_espdock_holds_is_busy_every_time_not_silent():
+    """A serial server takes one client at a time (esp_rfc2217_server listens with a backlog of
+    one). While a monitor of another espdock had it, each flash's probe of the server queued a
+    connection: the first two flashes were told the port was busy, every later one that "nothing
+    answers" and to start the server, which ran."""
+    server = socket.socket()
+    server.bind(("127.0.0.1", 0))
+    server.listen(1)  # and never accepts, as a server whose one client is connected
+    url = f"socket://127.0.0.1:{server.getsockname()[1]}"
+    holder = subprocess.Popen(
+        [sys.executable, "-c",
+         "import sys; from tests.unit.test_firmware_tools import _NoContainers; "
+         "from espdock.firmware.flashing import parse_port, port_held\n"
+         f"with port_held(_NoContainers(), parse_port({url!r})):\n"
+         "    print('held', flush=True); sys.stdin.read()"],
+        cwd=Path(__file__).parents[2], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    try:
+        assert holder.stdout is not None and holder.stdout.readline().strip() == "held"
+        for _ in range(4):
+            with pytest.raises(PortError, match=f"busy: another espdock has it \\(pid {holder.pid}: "):
+                check_port(parse_port(url), timeout=1)
+    finally:
+        holder.communicate(timeout=30)
+        server.close()
 
 
 def test_a_port_a_program_holds_open_without_a_lock_is_busy_naming_it():

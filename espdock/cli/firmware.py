@@ -330,11 +330,14 @@ def _baud_unused(serial: Port, baud: int | None) -> None:
         )
 
 
-def domain_said(settings: NetSettings) -> str:
-    """The board's ROS domain as provisioned: the one given, else the one its firmware was built with."""
-    if settings.domain_id is None:
-        return "ROS domain as built (CONFIG_ESPDOCK_ROS_DOMAIN_ID; --domain-id sets one)"
-    return f"ROS domain {settings.domain_id}"
+def domain_said(settings: NetSettings, firmware_dir: Path) -> str:
+    """The board's ROS domain as provisioned: the one given, else the one its firmware (installed
+    at FIRMWARE_DIR) was built with, by its number where the install recorded it."""
+    if settings.domain_id is not None:
+        return f"ROS domain {settings.domain_id}"
+    built = transport.installed_domain_id(firmware_dir)
+    number = "" if built is None else f" {built}"
+    return f"ROS domain{number} as built (CONFIG_ESPDOCK_ROS_DOMAIN_ID; --domain-id sets another)"
 
 
 def _ask_password() -> str:
@@ -382,6 +385,7 @@ def flash(
             check_reads_settings(firmware_dir, package)
         settings = optional_network_settings(wifi_ssid, wifi_password_file, agent, domain, sys.stdin, _ask_password)
         nvs = nvs_partition(firmware_dir, flasher_args, package) if settings else None
+        domain_is = domain_said(settings, firmware_dir) if settings else None
         check_port(serial)
         runner, step = _installed(ws, config, plan, step)
         with port_held(runner.engine, serial):
@@ -396,7 +400,7 @@ def flash(
                         runner.firmware, ws, step, firmware_dir, flasher_args, serial, baud, verify, say,
                         nvs_image=(nvs.offset, image),
                     )  # fmt: skip
-    what = f" with its network settings ({domain_said(settings)})" if settings else ""
+    what = f" with its network settings ({domain_is})" if settings else ""
     console.print(f"flashed {package}{what} through {port}" + (" and verified it" if verify else ""))
 
 
@@ -439,6 +443,7 @@ def provision(
         check_reads_settings(firmware_dir, package)
         nvs = nvs_partition(firmware_dir, flasher_args, package)
         settings = network_settings(wifi_ssid, wifi_password_file, agent, domain, sys.stdin, _ask_password)
+        domain_is = domain_said(settings, firmware_dir)
         check_port(serial)
         runner, step = _installed(ws, config, plan, step)
         with port_held(runner.engine, serial):
@@ -452,7 +457,7 @@ def provision(
     open_network = "" if settings.password else " (an open network: no password)"
     console.print(
         f"provisioned {package} through {port}: Wi-Fi {settings.ssid!r}{open_network}, agent {settings.agent_host}:"
-        f"{settings.agent_port}, {domain_said(settings)} (NVS partition '{nvs.label}' at {nvs.offset:#x})"
+        f"{settings.agent_port}, {domain_is} (NVS partition '{nvs.label}' at {nvs.offset:#x})"
     )
 
 

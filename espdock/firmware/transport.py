@@ -145,21 +145,39 @@ def _project_choice(project: Path, target: str) -> tuple[str, str | None]:
     return transport_choice(found, target, order)
 
 
-# Beside the installed firmware: the transport its build chose, from the build's own
-# configuration. Provisioning asks the board's firmware, not sources edited since its build.
+# Beside the installed firmware: the transport its build chose and the ROS domain it was built
+# with, from the build's own configuration. Provisioning asks the board's firmware, not sources
+# edited since its build, and says the domain a board keeps when given none.
 TRANSPORT_RECORD = "espdock-transport.json"
+DOMAIN_SYMBOL = "ESPDOCK_ROS_DOMAIN_ID"
 
 
 def built_transport_record(build_dir: Path) -> bytes | None:
     """TRANSPORT_RECORD's content for the build in BUILD_DIR: the choice in the configuration
-    kconfgen wrote (config/sdkconfig.json, symbols without CONFIG_); None where the build has no
-    such configuration or made no choice (an app without the espdock_uros component)."""
+    kconfgen wrote (config/sdkconfig.json, symbols without CONFIG_), and its ROS domain; None where
+    the build has no such configuration or made no choice (an app without the espdock_uros component)."""
     try:
         config = json.loads((build_dir / "config" / "sdkconfig.json").read_text())
     except (OSError, ValueError):
         return None
-    chosen = [t for symbol, t in SYMBOLS.items() if isinstance(config, dict) and config.get(symbol[7:]) is True]
-    return json.dumps({"transport": chosen[0]}).encode() + b"\n" if len(chosen) == 1 else None
+    if not isinstance(config, dict):
+        return None
+    chosen = [t for symbol, t in SYMBOLS.items() if config.get(symbol[7:]) is True]
+    if len(chosen) != 1:
+        return None
+    record: dict[str, object] = {"transport": chosen[0]}
+    if isinstance(domain := config.get(DOMAIN_SYMBOL), int) and not isinstance(domain, bool):
+        record["ros_domain_id"] = domain
+    return json.dumps(record).encode() + b"\n"
+
+
+def installed_domain_id(firmware_dir: Path) -> int | None:
+    """The ROS domain the firmware installed at FIRMWARE_DIR was built with (None: not recorded)."""
+    try:
+        domain = json.loads((firmware_dir / TRANSPORT_RECORD).read_text()).get("ros_domain_id")
+    except (OSError, ValueError, AttributeError):
+        return None
+    return domain if isinstance(domain, int) and not isinstance(domain, bool) else None
 
 
 def installed_transport(firmware_dir: Path) -> str | None:

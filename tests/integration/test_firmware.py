@@ -1338,7 +1338,8 @@ def test_provision_writes_the_network_settings_and_leaves_the_app(fw_ws, double_
     # off the robot's graph, by the option's default).
     assert settings == {"ssid": "field", "password": "", "agent_host": "192.168.7.20", "agent_port": 8888}
     said = " ".join(result.stdout.split())
-    assert "ROS domain as built (CONFIG_ESPDOCK_ROS_DOMAIN_ID" in said and "'field' (an open network" in said, said
+    # Which domain that is, by its number (the Kconfig default: camera_node's defaults set none).
+    assert "ROS domain 0 as built (CONFIG_ESPDOCK_ROS_DOMAIN_ID" in said and "'field' (an open network" in said, said
     assert flash_md5(mock_bootloader, APP_OFFSET, len(app_marker)) == hashlib.md5(app_marker).hexdigest(), (
         "provision wrote the app"
     )

@@ -126,7 +126,8 @@ def library_colcon_meta(package: str, meta: str, transport: str, where: str | No
             f"{package}/app-colcon.meta sets {_TRANSPORT_ARG}{given[-1]}, but "
             + (f"its {where} selects the {transport} transport" if where else f"it uses the {transport} transport")
             + f", which needs {_TRANSPORT_ARG}{wanted}",
-            f"Remove that argument (espdock adds the right one) or set it to {wanted}.",
+            f"Remove that argument (espdock adds the right one; `espdock new --transport` wrote it there for "
+            f"plain idf.py builds), or set it to {wanted}.",
         )
     if transport == UDP or given:
         return meta

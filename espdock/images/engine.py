@@ -23,6 +23,7 @@ import re
 import secrets
 import shutil
 import signal
+import stat
 import subprocess
 import sys
 import tarfile
@@ -303,6 +304,14 @@ class Engine:
             if status != 200:
                 raise EngineUnavailable(f"no Docker engine answers at {where}: /_ping gave HTTP {status}")
         except OSError as exc:  # first: on a local socket, with no SDK imported to name its exceptions
+            if engine._socket is not None and (kind := _not_a_socket(engine._socket)):
+                # Permission denied on a file no engine listens at was "join the docker group".
+                raise EngineUnavailable(
+                    f"no Docker engine answers at {where}: {engine._socket} is {kind}, not a socket",
+                    "DOCKER_HOST names the engine's socket: unix:///var/run/docker.sock (Docker's), "
+                    "unix://$XDG_RUNTIME_DIR/docker.sock (rootless Docker's) or "
+                    "unix://$XDG_RUNTIME_DIR/podman/podman.sock (Podman's).",
+                ) from exc
             raise _unreachable(f"no Docker engine answers at {where}", exc) from exc
         except (docker.errors.DockerException, requests.exceptions.RequestException) as exc:
             raise _unreachable(f"no Docker engine answers at {where}", exc) from exc
@@ -1444,6 +1453,17 @@ def _split_ref(ref: str) -> tuple[str, str]:
         repository, _, tag = ref.rpartition(":")
         return repository, tag
     return ref, "latest"
+
+
+def _not_a_socket(path: str) -> str | None:
+    """What PATH is where it is there and no socket ("a regular file", "a directory"), else None."""
+    try:
+        mode = os.stat(path).st_mode
+    except OSError:
+        return None
+    if stat.S_ISSOCK(mode):
+        return None
+    return "a directory" if stat.S_ISDIR(mode) else "a regular file" if stat.S_ISREG(mode) else "a special file"
 
 
 def _unreachable(what: str, exc: Exception) -> EngineUnavailable:

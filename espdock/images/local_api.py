@@ -152,13 +152,18 @@ def exchange(
     socket_path: str, timeout: float, method: str, path: str, body: bytes | None = None
 ) -> tuple[int, bytes, http.client.HTTPMessage]:
     """METHOD PATH on the engine's local socket: (HTTP status, the answer's body, its headers).
-    Failures raise as http.client and the socket raise them."""
+    Failures raise as the socket raises them; an answer that is no HTTP as a ConnectionError."""
     connection = _UnixHTTP(socket_path, timeout)
     headers = {"Content-Type": "application/x-tar" if method == "PUT" else "application/json"} if body else {}
     try:
         connection.request(method, path, body=body, headers=headers)
         response = connection.getresponse()
         return response.status, response.read(), response.headers
+    except http.client.HTTPException as exc:
+        # Another daemon's socket (an ssh-agent's, an sshd's): no engine, as a refused connection is
+        # none. As http.client's own error it ended espdock as a bug of its own (exit 70).
+        said = f"{type(exc).__name__}: {str(exc).strip()}"
+        raise ConnectionError(f"what answers there speaks no HTTP ({said})") from exc
     finally:
         connection.close()
 

@@ -9,6 +9,7 @@ a runtime is broken...).
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 from pathlib import Path
@@ -152,6 +153,43 @@ def test_an_engine_nothing_answers_for_is_named_over_tcp_as_on_a_socket(tmp_path
         with pytest.raises(EngineUnavailable) as err:
             Engine.connect({"DOCKER_HOST": where}, timeout=5)
         assert err.value.message == f"no Docker engine answers at {where}: nothing is listening there"
+
+
+def test_a_docker_host_naming_another_daemon_s_socket_or_a_file_is_exit_3_saying_what_is_there(tmp_path):
+    """DOCKER_HOST at an ssh-agent's or sshd's socket, or at a file: exit 70 ("a bug in espdock")
+    for the first, "permission denied ... join the docker group" (or, as root, "nothing is
+    listening") for the second."""
+    import socket
+    import threading
+
+    path = tmp_path / "sshd.sock"
+    server = socket.socket(socket.AF_UNIX)
+    server.bind(str(path))
+    server.listen()
+
+    def answer() -> None:
+        with contextlib.suppress(OSError):
+            while True:
+                client, _ = server.accept()
+                with client:
+                    client.recv(4096)
+                    client.sendall(b"SSH-2.0-OpenSSH_9.2\r\n")
+
+    threading.Thread(target=answer, daemon=True).start()
+    try:
+        with pytest.raises(EngineUnavailable) as err:
+            Engine.connect({"DOCKER_HOST": f"unix://{path}"}, timeout=5)
+        said = err.value.message
+        assert said.startswith(f"no Docker engine answers at unix://{path}: what answers there speaks no HTTP"), said
+        assert "SSH-2.0-OpenSSH_9.2" in said
+    finally:
+        server.close()
+    (tmp_path / "not-a-socket").write_text("")
+    for target, kind in ((tmp_path / "not-a-socket", "a regular file"), (tmp_path, "a directory")):
+        with pytest.raises(EngineUnavailable) as err:
+            Engine.connect({"DOCKER_HOST": f"unix://{target}"}, timeout=5)
+        assert err.value.message == f"no Docker engine answers at unix://{target}: {target} is {kind}, not a socket"
+        assert "docker group" not in (err.value.hint or "") and "unix:///var/run/docker.sock" in err.value.hint
 
 
 def test_keyed_images_unlisted_on_a_gone_local_socket_say_so_exit_1(tmp_path):

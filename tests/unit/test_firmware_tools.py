@@ -181,26 +181,30 @@ class _NoContainers:
         return []
 
 
+def _another_espdock_holding(*ports: str) -> subprocess.Popen:
+    """A process that holds PORTS as an espdock flashing them does, until its stdin is closed."""
+    holds = ", ".join(f"port_held(_NoContainers(), parse_port({port!r}))" for port in ports)
+    holder = subprocess.Popen(
+        [sys.executable, "-c",
+         "import sys; from tests.unit.test_firmware_tools import _NoContainers; "
+         "from espdock.firmware.flashing import parse_port, port_held\n"
+         f"with {holds}:\n    print('held', flush=True); sys.stdin.read()"],
+        cwd=Path(__file__).parents[2], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    assert holder.stdout is not None and holder.stdout.readline().strip() == "held"
+    return holder
+
+
 def test_a_port_another_espdock_holds_is_busy_by_whichever_name(tmp_path):
     """One device by its /dev/serial/by-id-style link and by its node; one server by two URLs."""
-    import sys
-
     controller, device = pty.openpty()
     node = os.ttyname(device)
     os.close(device)  # open in no process: one that holds it makes the port busy
     link = tmp_path / "usb-Espressif_board-if00"
     link.symlink_to(node)
     url = f"socket://127.0.0.1:{free_port()}"
-    holder = subprocess.Popen(
-        [sys.executable, "-c",
-         "import sys; from tests.unit.test_firmware_tools import _NoContainers; "
-         "from espdock.firmware.flashing import parse_port, port_held\n"
-         f"with port_held(_NoContainers(), parse_port({node!r})), port_held(_NoContainers(), parse_port({url!r})):\n"
-         "    print('held', flush=True); sys.stdin.read()"],
-        cwd=Path(__file__).parents[2], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True,
-    )  # fmt: skip
+    holder = _another_espdock_holding(node, url)
     try:
-        assert holder.stdout is not None and holder.stdout.readline().strip() == "held"
         for other in (str(link), url.replace("127.0.0.1", "localhost") + "/"):
             with pytest.raises(PortError, match=f"busy: another espdock has it \\(pid {holder.pid}: "):
                 with port_held(_NoContainers(), parse_port(other)):
@@ -221,16 +225,8 @@ def test_a_serial_server_another_espdock_holds_is_busy_every_time_not_silent():
     server.bind(("127.0.0.1", 0))
     server.listen(1)  # and never accepts, as a server whose one client is connected
     url = f"socket://127.0.0.1:{server.getsockname()[1]}"
-    holder = subprocess.Popen(
-        [sys.executable, "-c",
-         "import sys; from tests.unit.test_firmware_tools import _NoContainers; "
-         "from espdock.firmware.flashing import parse_port, port_held\n"
-         f"with port_held(_NoContainers(), parse_port({url!r})):\n"
-         "    print('held', flush=True); sys.stdin.read()"],
-        cwd=Path(__file__).parents[2], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True,
-    )  # fmt: skip
+    holder = _another_espdock_holding(url)
     try:
-        assert holder.stdout is not None and holder.stdout.readline().strip() == "held"
         for _ in range(4):
             with pytest.raises(PortError, match=f"busy: another espdock has it \\(pid {holder.pid}: "):
                 check_port(parse_port(url), timeout=1)

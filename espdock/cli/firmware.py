@@ -40,7 +40,7 @@ from espdock.firmware.flashing import (
     port_of_env,
     read_flasher_args,
 )
-from espdock.firmware.install import installed_version
+from espdock.firmware.install import altered_since_installed, installed_version
 from espdock.firmware.pins import pin_idf_image, read_sources, write_pins
 from espdock.firmware.plan import IdfBuild, images_to_rebuild, workspace_micro_ros_images
 from espdock.firmware.provision import (
@@ -340,6 +340,19 @@ def domain_said(settings: NetSettings, firmware_dir: Path) -> str:
     return f"ROS domain{number} as built (CONFIG_ESPDOCK_ROS_DOMAIN_ID; --domain-id sets another)"
 
 
+def _say_if_altered(firmware_dir: Path, package: str) -> None:
+    """A note where the installed firmware at FIRMWARE_DIR was edited by hand since its install:
+    flash and provision write it as it is."""
+    if altered_since_installed(firmware_dir):
+        console.print(
+            Text(
+                f"note: the installed firmware of {package} was changed after espdock installed it; this writes it "
+                f"as it is (`espdock build {package}` installs the build's again)",
+                style="yellow",
+            )
+        )
+
+
 def _ask_password() -> str:
     return typer.prompt(
         "Wi-Fi password (empty for an open network)",
@@ -381,6 +394,7 @@ def flash(
     # One version of the installed firmware throughout, whatever a build swaps in meanwhile.
     with installed_version(installed) as firmware_dir:
         flasher_args = read_flasher_args(firmware_dir, package)
+        _say_if_altered(firmware_dir, package)
         if provisioning:
             check_reads_settings(firmware_dir, package)
         settings = optional_network_settings(wifi_ssid, wifi_password_file, agent, domain, sys.stdin, _ask_password)
@@ -440,6 +454,7 @@ def provision(
         raise ConfigError(f"provisioning {package} needs --wifi-ssid and --agent", "See `espdock provision --help`.")
     with installed_version(installed) as firmware_dir:
         flasher_args = read_flasher_args(firmware_dir, package)
+        _say_if_altered(firmware_dir, package)
         check_reads_settings(firmware_dir, package)
         nvs = nvs_partition(firmware_dir, flasher_args, package)
         settings = network_settings(wifi_ssid, wifi_password_file, agent, domain, sys.stdin, _ask_password)

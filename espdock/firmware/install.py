@@ -72,10 +72,14 @@ def install_firmware(
     files = firmware_files(build_dir)
     # Not in the digest: the same files are the same firmware, whose transport is in its app.
     transport = built_transport_record(build_dir)
-    digest = hashlib.sha256()
-    for rel in files:
-        digest.update(rel.encode() + b"\0" + (build_dir / rel).read_bytes())
-    version_dir = share / f".{FIRMWARE_DIR}-{digest.hexdigest()[:16]}"
+    name = f".{FIRMWARE_DIR}-{_files_digest(build_dir, files)}"
+    version_dir = share / name
+    if version_dir.is_dir() and altered_since_installed(version_dir):
+        # Its files edited by hand since: the build's go in again (beside it while a flash reads
+        # it). Kept as they were, the build said it installed firmware it had not.
+        _remove_unless_in_use(version_dir)
+        if version_dir.exists():
+            version_dir = share / f"{name}-{uuid.uuid4().hex[:8]}"
     if not version_dir.is_dir():
         staging = share / f".{FIRMWARE_DIR}-staging-{uuid.uuid4().hex[:8]}"
         try:
@@ -142,6 +146,27 @@ def write_package_commands(package: str, prefix: Path, workspace_root: Path) -> 
         if not script.is_file() or script.read_text() != text:
             script.write_text(text)
         script.chmod(0o755)
+
+
+def _files_digest(directory: Path, files: list[str]) -> str:
+    """What an install names its version directory by: a digest of FILES (under DIRECTORY), names and contents."""
+    digest = hashlib.sha256()
+    for rel in files:
+        digest.update(rel.encode() + b"\0" + (directory / rel).read_bytes())
+    return digest.hexdigest()[:16]
+
+
+def altered_since_installed(version: Path) -> bool:
+    """Whether the firmware files in VERSION (a directory installed_version gave) are no longer
+    the ones espdock installed there, whose digest names it: a file edited or replaced by hand.
+    The next install of the same build puts the build's files back."""
+    prefix = f".{FIRMWARE_DIR}-"
+    if not version.name.startswith(prefix):
+        return False  # not a version directory (an install before versions, or none)
+    try:
+        return _files_digest(version, firmware_files(version)) != version.name.removeprefix(prefix)[:16]
+    except (OSError, BuildFailed):
+        return True  # a file it names is gone: not what was installed
 
 
 @contextmanager

@@ -25,7 +25,7 @@ from espdock.firmware.flashing import (
     verify_argv,
     write_region_argv,
 )
-from espdock.firmware.install import install_firmware
+from espdock.firmware.install import altered_since_installed, install_firmware
 from espdock.firmware.scaffold import create_firmware_package, validate_package_name
 from espdock.workspace import Package, PackageKind, Workspace, discover_packages
 from tests.ports import free_port
@@ -578,3 +578,30 @@ def test_esptool_stopping_mid_write_says_what_is_half_written(tmp_path, writes, 
     said = " ".join(f"{failed.value} {failed.value.hint}".split())
     assert half.removeprefix("the board's ") in said and again in said, said
     assert ("may not boot" in said) == ("app" in writes), said
+
+
+def test_firmware_edited_in_the_install_tree_is_put_back_by_the_next_install_and_flash_says_so(tmp_path):
+    """The install tree's firmware edited by hand (a .bin patched, replaced): `espdock build` said it
+    installed the build's firmware and left the edited one (same build, same version directory),
+    and flash wrote it without a word."""
+    from tests.conftest import copy_workspace, espdock
+
+    root = copy_workspace(tmp_path / "w", packages=())
+    assert espdock("new", "cam", cwd=root, env={"DOCKER_HOST": "unix:///nonexistent/docker.sock"}).returncode == 0
+    build, install = tmp_path / "build/cam", root / "ws/install"
+    write_build(build, b"\xe9app")
+    firmware = install_firmware("cam", root / "firmware/cam/package.xml", build, install, (), owner=None)
+    version = firmware.parent / os.readlink(firmware)
+    assert not altered_since_installed(version)
+    (firmware / "cam.bin").write_bytes(b"\xe9app, patched")
+    assert altered_since_installed(version)
+
+    flashed = espdock("flash", "cam", "--port", str(tmp_path / "ttyUSB9"), cwd=root, env={"DOCKER_HOST": "unix:///x"})
+    said = " ".join(flashed.stdout.split())
+    assert "note: the installed firmware of cam was changed after espdock installed it" in said, flashed.stdout
+    assert flashed.returncode == 6, flashed.stderr  # then the missing port, as before
+
+    install_firmware("cam", root / "firmware/cam/package.xml", build, install, (), owner=None)
+    assert (firmware / "cam.bin").read_bytes() == b"\xe9app"
+    assert not altered_since_installed(firmware.parent / os.readlink(firmware))
+    assert [p.name for p in firmware.parent.iterdir() if p.name.startswith(".firmware-")] == [os.readlink(firmware)]

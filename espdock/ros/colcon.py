@@ -433,13 +433,29 @@ def _install_kinds(base: Path) -> dict[str, bool]:
 
 
 def symlink_installed(base: Path, name: str, kinds: Mapping[str, bool] | None = None) -> bool | None:
-    """Whether package NAME's last build in BASE was a --symlink-install (its own record, in KINDS
-    where the caller read them, else the last build's options, as an older espdock kept only
-    those); None where nothing says."""
+    """Whether package NAME's last build in BASE was a --symlink-install: as its CMake cache says
+    for an ament_cmake package, else its own record (in KINDS where the caller read them), else the
+    last build's options (an older espdock kept only those); None where nothing says."""
+    if (cached := _cached_symlink_install(base / name / "CMakeCache.txt")) is not None:
+        # A build in `espdock shell` shares the build base and keeps no record. Its symlink install
+        # stays in the cache (colcon sets it only on), which every later build then makes.
+        return cached
     kinds = _install_kinds(base) if kinds is None else kinds
     if name in kinds:
         return kinds[name]
     return "--symlink-install" in last_build_args(base) if (base / LAST_ARGS).is_file() else None
+
+
+_SYMLINK_INSTALL_CACHED = re.compile(r"^AMENT_CMAKE_SYMLINK_INSTALL:BOOL=(.*)$", re.MULTILINE)
+
+
+def _cached_symlink_install(cache: Path) -> bool | None:
+    """AMENT_CMAKE_SYMLINK_INSTALL in the CMake cache CACHE (ament_cmake's option), None where it is not there."""
+    try:
+        found = _SYMLINK_INSTALL_CACHED.search(cache.read_text(errors="replace"))
+    except OSError:
+        return None
+    return None if found is None else found.group(1).strip().upper() in ("1", "ON", "TRUE", "YES", "Y")
 
 
 def install_kind_switched(base: Path, names: Iterable[str], args: tuple[str, ...]) -> list[str]:

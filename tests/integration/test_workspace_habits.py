@@ -13,6 +13,7 @@ import os
 import random
 import shutil
 import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -106,6 +107,17 @@ def test_symlink_install_builds_runs_and_shows_a_source_edit_without_a_rebuild(e
     assert not (install / "uptime_tools" / "lib" / "uptime_tools" / "tools_banner").is_symlink()
     assert {p: p.read_bytes() for p in (root / "ws" / "src").rglob("*") if p.is_file()} == sources
     beacon_says(root, "beacon up, edited")
+
+    # A symlink build in `espdock shell` (its colcon builds in espdock's build base, and keeps no
+    # record of the kind): its CMake cache keeps the option on, and every plain build after it was
+    # a symlink install too (or failed on the directories the copying one had left, every time).
+    shell = subprocess.run(
+        [sys.executable, "-m", "espdock", "shell"], cwd=root, capture_output=True, text=True, timeout=600, check=False,
+        input="colcon build --symlink-install --packages-select uptime_tools >/dev/null 2>&1; echo built: $?\n",
+    )  # fmt: skip
+    assert "built: " in shell.stdout, shell.stdout + shell.stderr
+    built(root)
+    assert not (install / "uptime_tools" / "lib" / "uptime_tools" / "tools_banner").is_symlink()
 
 
 def test_a_cmake_package_installs_what_its_globs_and_its_rules_say_now(engine, tmp_path):

@@ -584,6 +584,22 @@ def test_the_install_kind_is_kept_per_package_so_a_selection_s_switch_is_not_tak
     assert install_kind_switched(tmp_path, ["old"], ()) == ["old"]
 
 
+def test_a_cmake_package_s_install_kind_is_what_its_cmake_cache_says_whoever_built_it(tmp_path):
+    """A `colcon build --symlink-install` in `espdock shell` builds in espdock's build base and
+    keeps no record: the cache's AMENT_CMAKE_SYMLINK_INSTALL stays on (colcon only sets it), so the
+    next plain build made links again, or failed on what the copying build had left."""
+    from espdock.ros.colcon import install_kind_switched, record_install_kinds
+
+    record_install_kinds(tmp_path, ["msgs", "tools", "nodes"], ())  # espdock's own build: copies
+    (tmp_path / "msgs").mkdir()
+    (tmp_path / "msgs/CMakeCache.txt").write_text("CMAKE_BUILD_TYPE:STRING=\nAMENT_CMAKE_SYMLINK_INSTALL:BOOL=1\n")
+    (tmp_path / "tools").mkdir()
+    (tmp_path / "tools/CMakeCache.txt").write_text("AMENT_CMAKE_SYMLINK_INSTALL:BOOL=OFF\n")
+    (tmp_path / "nodes").mkdir()  # ament_python: no cache, its record says
+    assert install_kind_switched(tmp_path, ["msgs", "tools", "nodes"], ()) == ["msgs"]
+    assert install_kind_switched(tmp_path, ["msgs", "tools", "nodes"], ("--symlink-install",)) == ["tools", "nodes"]
+
+
 def test_mixins_named_in_the_user_s_defaults_file_are_warned_of_naming_it(tmp_path):
     """`mixin: [release]` in ~/.colcon/defaults.yaml (the ROS tutorials' habit): the build image has no
     colcon-mixin, and the only sign was a colcon warning among its output naming the container's path."""

@@ -148,16 +148,22 @@ def foreign_compose_warning(root: Path, own: str, args: list[str] | tuple[str, .
     path = next((root / name for name in COMPOSE_FILES if (root / name).is_file()), None)
     if path is None:
         return None
-    foreign, project = foreign_runtime_images(path.read_text(errors="replace"), own)
+    text = path.read_text(errors="replace")
+    foreign, project = foreign_runtime_images(text, own)
     if not foreign:
         return None
     replaced = f", and its project `name: {project}` is that workspace's too (its containers get replaced)"
-    # The project name is kept by a copy whatever it is (this repository's is espdock-demo).
-    rename = f" and name: {own.removeprefix('espdock/')}"
+    if generated_unchanged(text):
+        # As espdock wrote it: the command that wrote it writes this workspace's (a renamed or copied one's).
+        fix = "`espdock init --compose` writes it afresh for this workspace"
+    else:
+        # The project name is kept by a copy whatever it is (this repository's is espdock-demo).
+        rename = f" and name: {own.removeprefix('espdock/')}"
+        fix = f"set image: {own}:latest{rename if project else ''} in {path.name}"
     return (
         f"warning: {path.name} runs {', '.join(foreign)}, another workspace's runtime image, not this one's "
-        f"({own}:latest, of this install/){replaced if project else ''}; set image: {own}:latest"
-        f"{rename if project else ''} in {path.name} (a copied or cloned workspace keeps the original's)"
+        f"({own}:latest, of this install/){replaced if project else ''}; {fix} (a copied, cloned or renamed "
+        "workspace keeps the original's)"
     )
 
 

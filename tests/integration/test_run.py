@@ -810,14 +810,20 @@ def test_compose_in_a_copy_of_a_workspace_warns_that_its_file_runs_the_original_
     root = tmp_path / "robot-copy"
     root.mkdir()
     (root / "espdock.toml").write_text("[espdock]\n")
-    (root / "compose.yaml").write_text(starter_compose(original, f"espdock/{original}:latest", {"talk": ["talker"]}))
-    try:
-        created = espdock("compose", "create", "--pull", "never", "talker", cwd=root)
-    finally:  # the project's network, which Compose makes before it finds no image
-        subprocess.run(["docker", "compose", "down"], cwd=root, capture_output=True, check=False)
-    said = created.stdout + created.stderr
-    assert f"compose.yaml runs espdock/{original}:latest, another workspace's runtime image" in said, said
-    assert "set image: espdock/robot-copy:latest and name: robot-copy in compose.yaml" in said, said
+    generated = starter_compose(original, f"espdock/{original}:latest", {"talk": ["talker"]})
+    # As espdock wrote it, the command that wrote it is the fix; edited since, the lines to change.
+    for text, fix in (
+        (generated, "`espdock init --compose` writes it afresh for this workspace"),
+        (generated + "# the team's\n", "set image: espdock/robot-copy:latest and name: robot-copy in compose.yaml"),
+    ):
+        (root / "compose.yaml").write_text(text)
+        try:
+            created = espdock("compose", "create", "--pull", "never", "talker", cwd=root)
+        finally:  # the project's network, which Compose makes before it finds no image
+            subprocess.run(["docker", "compose", "down"], cwd=root, capture_output=True, check=False)
+        said = " ".join((created.stdout + created.stderr).split())
+        assert f"compose.yaml runs espdock/{original}:latest, another workspace's runtime image" in said, said
+        assert fix in said, said
     assert leftover_containers(engine, root) == []
 
 

@@ -154,8 +154,9 @@ def check_built_by_espdock(workspace: Workspace, package: str) -> None:
         )
     raise WorkspaceError(
         f"install/{package} was not built by espdock, or changed since its last `espdock build` "
-        "(a colcon build of your own, native or in `espdock shell`?): its executables may name the "
-        "host's paths and Python, which the runtime image does not have",
+        "(a colcon build of your own, native or in `espdock shell`?): espdock runs only what its own builds "
+        "installed (a native build's executables name the host's paths and Python, which the runtime image "
+        "does not have)",
         f"Run `espdock build {package}` (it rebuilds what changed in install/), then run again.",
     )
 

@@ -172,21 +172,23 @@ def built_transport_record(build_dir: Path) -> bytes | None:
     return json.dumps(record).encode() + b"\n"
 
 
-def installed_domain_id(firmware_dir: Path) -> int | None:
-    """The ROS domain the firmware installed at FIRMWARE_DIR was built with (None: not recorded)."""
+def _installed_record(firmware_dir: Path, key: str) -> object:
+    """KEY of TRANSPORT_RECORD beside the firmware installed at FIRMWARE_DIR (None: not recorded)."""
     try:
-        domain = json.loads((firmware_dir / TRANSPORT_RECORD).read_text()).get("ros_domain_id")
+        return json.loads((firmware_dir / TRANSPORT_RECORD).read_text()).get(key)
     except (OSError, ValueError, AttributeError):
         return None
+
+
+def installed_domain_id(firmware_dir: Path) -> int | None:
+    """The ROS domain the firmware installed at FIRMWARE_DIR was built with (None: not recorded)."""
+    domain = _installed_record(firmware_dir, "ros_domain_id")
     return domain if isinstance(domain, int) and not isinstance(domain, bool) else None
 
 
 def installed_transport(firmware_dir: Path) -> str | None:
     """The transport the firmware installed at FIRMWARE_DIR was built with (None: not recorded)."""
-    try:
-        link = json.loads((firmware_dir / TRANSPORT_RECORD).read_text()).get("transport")
-    except (OSError, ValueError, AttributeError):
-        return None
+    link = _installed_record(firmware_dir, "transport")
     return link if link in TRANSPORTS else None
 
 

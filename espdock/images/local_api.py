@@ -176,7 +176,7 @@ def call(socket_path: str, timeout: float, method: str, path: str, body: bytes |
         status, answer, _ = exchange(socket_path, timeout, method, path, body)
     except TimeoutError as exc:
         raise requests.exceptions.ReadTimeout(f"{method} {path}: no answer within {timeout:g} s") from exc
-    except (OSError, http.client.HTTPException) as exc:
+    except OSError as exc:  # an answer that is no HTTP too (exchange)
         raise requests.exceptions.ConnectionError(f"{method} {path}: {exc}") from exc
     if status >= 400:
         _raise_api_error(status, answer, path)

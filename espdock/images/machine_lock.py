@@ -25,7 +25,7 @@ def machine_lock(name: str, waiting: Callable[[str], None]) -> Iterator[None]:
     built; a waiter that then holds a removed file locks the path's new one instead. Where the
     file cannot be opened (another user's, in a directory that refuses it) the block runs
     unlocked, as it did before locks."""
-    path = LOCK_DIR / f"espdock-{name}.lock"
+    path = _lock_path(name)
     holder = path.with_suffix(".holder")
     fd = _hold_lock(path, lambda: waiting(holder_text(holder)))
     if fd is None:
@@ -45,7 +45,7 @@ def machine_lock(name: str, waiting: Callable[[str], None]) -> Iterator[None]:
 def lock_holder(name: str) -> str | None:
     """Who holds the lock NAME now (as WAITING of machine_lock is told it), or None when no other
     process does. It only looks: no lock file is made, and one found free is let go at once."""
-    path = LOCK_DIR / f"espdock-{name}.lock"
+    path = _lock_path(name)
     try:
         fd = os.open(path, os.O_RDONLY)
     except OSError:  # none (nobody holds it), or another user's that this one cannot open
@@ -57,6 +57,10 @@ def lock_holder(name: str) -> str | None:
     finally:
         os.close(fd)  # lets go of a lock it took
     return None
+
+
+def _lock_path(name: str) -> Path:
+    return LOCK_DIR / f"espdock-{name}.lock"
 
 
 def _hold_lock(path: Path, waiting: Callable[[], None]) -> int | None:

@@ -968,9 +968,28 @@ def write_holder(holder: Path) -> None:
 
 
 def holder_text(holder: Path) -> str:
-    """ " (pid N: COMMAND)" of what write_holder wrote in HOLDER, or "" where it did not."""
+    """ " (pid N: COMMAND)" of what write_holder wrote in HOLDER, or "" where it did not, or where
+    that process has gone: a killed espdock's note that the next holder could not replace (another
+    user's, in a sticky /tmp) named a dead pid to every later waiter."""
     try:
         pid, _, command = holder.read_text(errors="replace").partition("\n")
     except OSError:
         return ""  # the holder has not written it yet, or has just finished
-    return f" (pid {pid.strip()}: {command.strip()})" if pid.strip().isdigit() else ""
+    pid, command = pid.strip(), command.strip()
+    if not pid.isdigit() or not _still_running(int(pid), command):
+        return ""
+    return f" (pid {pid}: {command})"
+
+
+def _still_running(pid: int, command: str) -> bool:
+    """Whether process PID is alive and runs COMMAND (write_holder's: its arguments end its command
+    line), not another process that got the pid since."""
+    try:
+        argv = Path(f"/proc/{pid}/cmdline").read_bytes().rstrip(b"\0").split(b"\0")
+    except FileNotFoundError:
+        return False
+    except OSError:  # not for this user to read (hidepid): alive, and taken at its word
+        return True
+    arguments = command.split(" ")[1:]
+    shown = [part.decode(errors="backslashreplace") for part in argv]
+    return not arguments or " ".join(shown).endswith(" " + " ".join(arguments))

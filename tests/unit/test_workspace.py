@@ -1,6 +1,8 @@
 import os
 import re
 import shutil
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -375,6 +377,30 @@ def test_a_lock_s_holder_note_is_not_written_through_a_link_planted_at_a_name_it
     assert victim.read_text() == "root's file\n"
     assert not holder.is_symlink() and holder_text(holder).startswith(f" (pid {os.getpid()}: ")
     assert oct(holder.stat().st_mode & 0o777) == oct(0o644), "another user's espdock, waiting, says who holds it"
+
+
+def test_a_lock_s_holder_is_named_only_while_that_process_runs_that_command(tmp_path):
+    """Another user's killed espdock left its note, which the next holder could not replace in a
+    sticky /tmp: every waiter was told "busy: another espdock has it (pid N: ...)" of a dead pid."""
+    from espdock.workspace import holder_text, write_holder
+
+    holder = tmp_path / "espdock-port-x.holder"
+    write_holder(holder)
+    assert holder_text(holder).startswith(f" (pid {os.getpid()}: "), "this process, running what it wrote"
+    gone = subprocess.Popen([sys.executable, "-c", "pass"])
+    gone.wait()
+    holder.write_text(f"{gone.pid}\nespdock monitor wifi --port socket://127.0.0.1:1\n")
+    assert holder_text(holder) == ""
+    # A live process that got the pid since, running something else.
+    other = subprocess.Popen(["sleep", "30"])
+    try:
+        holder.write_text(f"{other.pid}\nespdock monitor wifi --port socket://127.0.0.1:1\n")
+        assert holder_text(holder) == ""
+        holder.write_text(f"{other.pid}\nsleep 30\n")
+        assert holder_text(holder) == f" (pid {other.pid}: sleep 30)"
+    finally:
+        other.kill()
+        other.wait()
 
 
 def test_an_interface_package_read_while_an_editor_saves_is_read_without_its_save_files(tmp_path, monkeypatch):

@@ -74,9 +74,10 @@ def install_firmware(
     transport = built_transport_record(build_dir)
     name = f".{FIRMWARE_DIR}-{_files_digest(build_dir, files)}"
     version_dir = share / name
-    if version_dir.is_dir() and altered_since_installed(version_dir):
+    if version_dir.is_dir() and (altered_since_installed(version_dir) or _record(version_dir) != transport):
         # Its files edited by hand since: the build's go in again (beside it while a flash reads
-        # it). Kept as they were, the build said it installed firmware it had not.
+        # it). Kept as they were, the build said it installed firmware it had not. So with a
+        # record of another espdock's (one before the domain was in it) beside the same files.
         _remove_unless_in_use(version_dir)
         if version_dir.exists():
             version_dir = share / f"{name}-{uuid.uuid4().hex[:8]}"
@@ -154,6 +155,14 @@ def _files_digest(directory: Path, files: list[str]) -> str:
     for rel in files:
         digest.update(rel.encode() + b"\0" + (directory / rel).read_bytes())
     return digest.hexdigest()[:16]
+
+
+def _record(version: Path) -> bytes | None:
+    """The TRANSPORT_RECORD installed in VERSION, or None."""
+    try:
+        return (version / TRANSPORT_RECORD).read_bytes()
+    except OSError:
+        return None
 
 
 def altered_since_installed(version: Path) -> bool:

@@ -605,3 +605,27 @@ def test_firmware_edited_in_the_install_tree_is_put_back_by_the_next_install_and
     assert (firmware / "cam.bin").read_bytes() == b"\xe9app"
     assert not altered_since_installed(firmware.parent / os.readlink(firmware))
     assert [p.name for p in firmware.parent.iterdir() if p.name.startswith(".firmware-")] == [os.readlink(firmware)]
+
+
+def test_the_same_firmware_installed_again_gets_this_build_s_record_of_its_domain(tmp_path):
+    """Firmware installed by an espdock before the domain was recorded: the same build's files name
+    the same version directory, whose old record stayed ("ROS domain as built", with no number)
+    through every later build, --force too, until the firmware's bytes changed."""
+    from espdock.firmware.transport import TRANSPORT_RECORD, installed_domain_id
+
+    build, install = tmp_path / "build/cam", tmp_path / "install"
+    manifest = tmp_path / "package.xml"
+    manifest.write_text("<package/>")
+    write_build(build, b"\xe9app")
+    (build / "config").mkdir()
+    (build / "config/sdkconfig.json").write_text(
+        json.dumps({"ESPDOCK_TRANSPORT_UDP": True, "ESPDOCK_ROS_DOMAIN_ID": 3})
+    )
+    firmware = install_firmware("cam", manifest, build, install, (), owner=None)
+    assert installed_domain_id(firmware) == 3
+    (firmware / TRANSPORT_RECORD).write_text('{"transport": "udp"}\n')  # as the espdock before wrote it
+    assert installed_domain_id(firmware) is None
+
+    install_firmware("cam", manifest, build, install, (), owner=None)
+    assert installed_domain_id(firmware) == 3
+    assert (firmware / "cam.bin").read_bytes() == b"\xe9app"

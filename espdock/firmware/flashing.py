@@ -443,6 +443,17 @@ def read_flasher_args(firmware_dir: Path, package: str) -> dict:
         ) from None
     if not isinstance(flasher_args, dict):
         raise WorkspaceError(f"{args_file} is not a flasher_args.json object", f"Run `espdock build {package}` again.")
+    named = flasher_args.get("flash_files")
+    # Said here, not by esptool inside the container: its "No such file" came back as exit 6, a
+    # problem with the serial port.
+    missing = sorted(
+        str(f) for f in (named.values() if isinstance(named, dict) else ()) if not (firmware_dir / str(f)).is_file()
+    )
+    if missing:
+        raise WorkspaceError(
+            f"the installed firmware of {package} lacks {', '.join(missing)} ({firmware_dir})",
+            f"Run `espdock build {package}`: it installs the build's files again.",
+        )
     return flasher_args
 
 

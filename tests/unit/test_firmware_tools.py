@@ -604,6 +604,13 @@ def test_firmware_edited_in_the_install_tree_is_put_back_by_the_next_install_and
     install_firmware("cam", root / "firmware/cam/package.xml", build, install, (), owner=None)
     assert (firmware / "cam.bin").read_bytes() == b"\xe9app"
     assert not altered_since_installed(firmware.parent / os.readlink(firmware))
+    # A file removed: said before esptool (whose "No such file" was exit 6, a serial port problem).
+    (firmware / "bootloader/bootloader.bin").unlink()
+    flashed = espdock("flash", "cam", "--port", str(tmp_path / "ttyUSB9"), cwd=root, env={"DOCKER_HOST": "unix:///x"})
+    assert flashed.returncode == 2, flashed.stdout + flashed.stderr
+    assert "the installed firmware of cam lacks bootloader/bootloader.bin" in " ".join(flashed.stderr.split())
+    install_firmware("cam", root / "firmware/cam/package.xml", build, install, (), owner=None)
+    assert (firmware / "bootloader/bootloader.bin").read_bytes() == b"\xe9boot"
     assert [p.name for p in firmware.parent.iterdir() if p.name.startswith(".firmware-")] == [os.readlink(firmware)]
 
 

@@ -886,12 +886,20 @@ class Engine:
         """Run SPEC with the terminal attached (for interactive tools); return its exit code (FETCH: as run's)."""
         with self._container(spec, keep) as container:
             docker_cli = self.docker_command()
-            # The CLI does what the SDK cannot: raw TTY, window size, stdin forwarding.
-            code = subprocess.call(
-                [docker_cli, "start", "--attach", "--interactive", container.id],
-                env=self._cli_env,
-                preexec_fn=_die_with_parent(),
-            )
+            # A monitor's espdock killed outright left its container holding the serial port (or
+            # the serial server's one connection) until the next build swept it.
+            reaper = None if keep else _reaper(docker_cli, container.id, self._cli_env)
+            try:
+                # The CLI does what the SDK cannot: raw TTY, window size, stdin forwarding.
+                code = subprocess.call(
+                    [docker_cli, "start", "--attach", "--interactive", container.id],
+                    env=self._cli_env,
+                    preexec_fn=_die_with_parent(),
+                )
+            finally:
+                if reaper is not None:
+                    reaper.kill()
+                    reaper.wait()
             if code == DOCKER_RUN_FAILED and not self._answers():
                 raise self._lost(f"running a container of {spec.image}")
             _fetch(container, fetch or {})

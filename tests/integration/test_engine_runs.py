@@ -154,6 +154,34 @@ def test_a_foreground_run_goes_through_the_docker_cli_to_the_same_engine(way, ca
     assert way.containers(dict(run.labels)) == []
 
 
+def test_an_attached_run_s_container_goes_when_its_espdock_is_killed_outright(engine):
+    """`espdock monitor` killed with kill -9: its container stayed, holding the serial port (a serial
+    server's one connection), and every flash from elsewhere said nothing answered there."""
+    label = ("io.espdock.test-run", uuid.uuid4().hex)
+    selector = f"label={label[0]}={label[1]}"
+    script = (
+        "import os, sys; from espdock.images.engine import Engine, RunSpec; "
+        "spec = RunSpec(image=sys.argv[1], argv=('sleep', '120'), workdir='/', labels=((sys.argv[2], sys.argv[3]),)); "
+        "Engine.connect(os.environ).run_attached(spec)"
+    )
+    monitor = subprocess.Popen([sys.executable, "-c", script, IMAGE, *label], stdin=subprocess.PIPE, cwd=REPO)
+    try:
+        deadline = time.monotonic() + 60
+        while not docker_ids("ps", "--filter", selector, "--filter", "status=running"):
+            assert monitor.poll() is None and time.monotonic() < deadline, "the attached container never ran"
+            time.sleep(0.2)
+        monitor.kill()
+        monitor.wait()
+        deadline = time.monotonic() + 20
+        while docker_ids("ps", "--all", "--filter", selector) and time.monotonic() < deadline:
+            time.sleep(0.2)
+        assert docker_ids("ps", "--all", "--filter", selector) == set(), "left running after its espdock was killed"
+    finally:
+        monitor.kill()
+        subprocess.run(["docker", "rm", "--force", *docker_ids("ps", "--all", "--filter", selector)],
+                       capture_output=True, check=False)  # fmt: skip
+
+
 def without_docker_settings() -> dict[str, str]:
     """This process's environment without the shell's DOCKER_* settings (host, TLS, context, config),
     which a test then sets as the case it is about needs."""

@@ -282,7 +282,7 @@ class Engine:
             try:
                 # TIMEOUT is for the first answer; a busy engine (Podman starting a container of a
                 # large image on a loaded machine) may take longer over an operation.
-                self._sdk = sdk.client(self._env, max(self._timeout, OPERATION_TIMEOUT))
+                self._sdk = sdk.client(self._env, max(self._timeout, OPERATION_TIMEOUT), first=self._timeout)
             except docker.errors.DockerException as exc:
                 raise _unreachable(f"no Docker engine answers at {_host(self._env)}", exc) from exc
         return self._sdk

@@ -75,8 +75,9 @@ def _sdk_without_ssh() -> Any:
             sys.modules.pop("paramiko", None)
 
 
-def client(env: Mapping[str, str], timeout: float) -> Any:
-    """The SDK's client of the engine ENV names (DOCKER_HOST and the TLS variables)."""
+def client(env: Mapping[str, str], timeout: float, first: float | None = None) -> Any:
+    """The SDK's client of the engine ENV names (DOCKER_HOST and the TLS variables): TIMEOUT for
+    each answer, FIRST (default TIMEOUT) for the one it asks as it is made."""
     ssh = env.get("DOCKER_HOST", "").startswith("ssh://")
     # The SDK asks the engine its API version as the client is made; given one, it asks nothing,
     # and espdock asks once the client reaches the engine as `docker` does. Through `docker`, so
@@ -95,7 +96,13 @@ def client(env: Mapping[str, str], timeout: float) -> Any:
             # requests took HTTP_PROXY for it (NO_PROXY matching only the very name), and the proxy
             # answered "403 Forbidden" for the engine; Go's proxy rules, `docker`'s, never proxy loopback.
             made.api.trust_env = False
-    made.api._version = made.api._retrieve_server_version()  # what version="auto" does
+    # An address that takes the connection and never answers (another service's port) kept
+    # espdock silent for the whole operation timeout, two minutes.
+    made.api.timeout = timeout if first is None else first
+    try:
+        made.api._version = made.api._retrieve_server_version()  # what version="auto" does
+    finally:
+        made.api.timeout = timeout
     return made
 
 

@@ -192,6 +192,25 @@ def test_a_docker_host_naming_another_daemon_s_socket_or_a_file_is_exit_3_saying
         assert "docker group" not in (err.value.hint or "") and "unix:///var/run/docker.sock" in err.value.hint
 
 
+def test_a_tcp_engine_address_that_takes_the_connection_and_never_answers_is_said_within_the_timeout():
+    """DOCKER_HOST at another service's port (a serial server's), which accepts and says nothing:
+    espdock printed nothing for two minutes, the SDK's operation timeout, where a socket took 11 s."""
+    import socket
+    import time
+
+    server = socket.create_server(("127.0.0.1", 0))
+    port = server.getsockname()[1]
+    try:
+        started = time.monotonic()
+        with pytest.raises(EngineUnavailable) as err:
+            Engine.connect({"DOCKER_HOST": f"tcp://127.0.0.1:{port}"}, timeout=2)
+        took = time.monotonic() - started
+        assert err.value.message.startswith(f"no Docker engine answers at tcp://127.0.0.1:{port}"), err.value.message
+        assert took < 30, f"said after {took:.0f} s"
+    finally:
+        server.close()
+
+
 def test_keyed_images_unlisted_on_a_gone_local_socket_say_so_exit_1(tmp_path):
     # As over the SDK (labelled_images in the refusals below): the size note after a build
     # turns it into a warning, the build stands.

@@ -278,8 +278,8 @@ def load(workspace: Path | None, **overrides: object) -> tuple[Workspace, Config
         raise ConfigError(f"--workspace {workspace}: no such directory", "Give the workspace's root directory.")
     ws = find_workspace(workspace)
     config = load_config(ws.root, os.environ, overrides)
-    for warning in misspelt_variables(os.environ):
-        notify(warning)
+    for warning in misspelt_variables(os.environ):  # on stderr: `$(espdock list -n)` read them as packages
+        err_console.print(Text(visible(warning), style="yellow"))
     state_dir(os.environ)  # checked before any work: a build records its images into it as it ends
     ws = ws.with_layout(config.package_paths, config.colcon_root)
     keep_digests(ws.ws_dir / "build" / DIGESTS_FILE)

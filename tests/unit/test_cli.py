@@ -90,10 +90,13 @@ def test_list_shows_packages_in_build_order(tmp_path):
     # table with a title was all there was to parse).
     (root / "ws/src/vendored").mkdir()
     (root / "ws/src/vendored/CMakeLists.txt").write_text("cmake_minimum_required(VERSION 3.8)\n")
-    bare = espdock("list", "-n", cwd=root, env=NO_ENGINE)
+    # A misspelt variable's warning, which every command gives, among them (`for p in $(...)` took
+    # "warning:" and "ESPDOCK_TARGETT" for packages).
+    bare = espdock("list", "-n", cwd=root, env={**NO_ENGINE, "ESPDOCK_TARGETT": "esp32"})
     assert bare.returncode == 0, bare.stderr
     assert bare.stdout == "zz_interface\nespdock_demo\n"
     assert "ws/src/vendored is not built" in bare.stderr
+    assert "warning: ESPDOCK_TARGETT is no espdock setting" in " ".join(bare.stderr.split())
 
 
 def test_list_at_a_narrow_terminal_folds_the_names_it_cannot_fit(tmp_path):

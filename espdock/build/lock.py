@@ -149,10 +149,14 @@ def plan_locks(plan: Plan) -> tuple[LockSpec, ...]:
     return tuple(spec for spec in LOCKS if spec.lock in names)
 
 
+def stale_locks(root: Path, specs: Iterable[LockSpec]) -> list[str]:
+    """Why each lock of SPECS that is missing or stale in the workspace at ROOT is."""
+    return [reason for spec in specs if (reason := stale_reason(spec, *_state(spec, root)))]
+
+
 def check_locks(root: Path, specs: Iterable[LockSpec]) -> None:
     """Raise LockError naming every lock of SPECS that is missing or stale in the workspace at ROOT."""
-    problems = [reason for spec in specs if (reason := stale_reason(spec, *_state(spec, root)))]
-    if problems:
+    if problems := stale_locks(root, specs):
         raise LockError(
             "; ".join(problems),
             f"In {root}: {FIX} and commit the locks it writes (or build with --no-locked).",

@@ -12,7 +12,7 @@ from typing import Annotated
 import typer
 from rich.text import Text
 
-from espdock.build.lock import check_locks, lock_rosdeps, lock_workspace, plan_locks, uv_binary
+from espdock.build.lock import FIX, check_locks, lock_rosdeps, lock_workspace, plan_locks, stale_locks, uv_binary
 from espdock.build.manifest import INTERRUPTED, compare, file_hashes, read_manifest, record_build, write_report
 from espdock.build.prepare import workspace_packages
 from espdock.build.preview import preview
@@ -157,6 +157,16 @@ def build(
                 )
         if dry_run and locked:
             check_locks(ws.root, plan_locks(plan))  # as the build would refuse them
+        elif not locked:
+            # Not refreshed as the rosdep lock is (that needs PyPI): said, where a package added to
+            # a .in was silently missing from the image built.
+            for reason in stale_locks(ws.root, plan_locks(plan)):
+                err_console.print(
+                    Text.assemble(
+                        ("warning: ", "yellow"),
+                        f"{reason}: the images are built from it as it is; {FIX} to take the change in",
+                    )
+                )
         if dry_run:
             render_plan(
                 console, plan, preview(ws, plan, bootstrap.reachable_engine(os.environ), bool(config.cache_registry))

@@ -37,7 +37,14 @@ from espdock.config import check_target, in_ci, invoking_user, no_cache_registry
 from espdock.errors import ConfigError, EspdockError, WorkspaceError
 from espdock.events import Outcome
 from espdock.firmware import transport
-from espdock.firmware.scaffold import check_new_package, create_firmware_package, init_workspace, undo_init
+from espdock.firmware.scaffold import (
+    GITIGNORE,
+    check_new_package,
+    create_firmware_package,
+    init_workspace,
+    undo_init,
+    unignored_outputs,
+)
 from espdock.images import bootstrap
 from espdock.images.containers import prepare_output
 from espdock.images.keyed import unpushed_error
@@ -387,6 +394,11 @@ def init(
         console.print(f"{ws.root} is an espdock workspace already (espdock.toml exists)")
     else:
         console.print(f"made {ws.root} an espdock workspace: created {', '.join(created)}")
+    if GITIGNORE not in created and (unignored := unignored_outputs(ws.root, ws.colcon_root)):
+        notify(
+            f"note: git does not leave colcon's outputs out of this repository (the {GITIGNORE} here is yours, "
+            f"kept as it is): add these lines to it: {' '.join(unignored)}"
+        )
     outcome = init_compose(ws, runtime_repository(config, ws), packages, owner, refresh=compose, force=force)
     if "espdock.toml" not in created and outcome in (None, "unchanged"):
         console.print("nothing changed")

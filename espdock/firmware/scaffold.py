@@ -8,6 +8,7 @@ import os
 import posixpath
 import re
 import shutil
+import subprocess
 import tempfile
 from importlib import resources
 from pathlib import Path
@@ -315,6 +316,30 @@ GITIGNORE_TEMPLATE = """\
 {}/
 {}/
 """
+
+
+def unignored_outputs(root: Path, colcon_root: str) -> list[str]:
+    """colcon's output directories, as .gitignore lines (/ws/build/), that git does not leave out
+    of the repository ROOT is in: where a .gitignore was there already, init leaves it as it is,
+    and a team's first `git add -A` committed build/, install/ and log/. Empty outside a git work
+    tree (or without git)."""
+    outputs = posixpath.normpath(f"/{colcon_root}")
+    unignored = []
+    for line in (posixpath.join(outputs, d) + "/" for d in ("build", "install", "log")):
+        try:
+            asked = subprocess.run(
+                ["git", "-C", str(root), "check-ignore", "--quiet", "--no-index", "--", line.lstrip("/")],
+                capture_output=True,
+                check=False,
+            )
+        except OSError:
+            return []
+        if asked.returncode not in (0, 1):  # not in a repository
+            return []
+        if asked.returncode == 1:
+            unignored.append(line)
+    return unignored
+
 
 GITATTRIBUTES = ".gitattributes"
 # A Windows checkout (Git for Windows' core.autocrlf=true) gave every script a CRLF: a node

@@ -395,9 +395,19 @@ def test_init_has_git_ignore_the_build_outputs_and_keeps_an_ignore_file_of_its_o
     (tmp_path / "mine").mkdir()
     (tmp_path / "mine/.gitignore").write_text("secrets/\n")
     (tmp_path / "mine/.gitattributes").write_text("*.png binary\n")
-    assert espdock("init", "mine", cwd=tmp_path, env=NO_ENGINE).returncode == 0
+    # In a repository, its own ignore file, which leaves the outputs in: said, with the lines to add
+    # (a team's first `git add -A` committed them without a word).
+    subprocess.run(["git", "init", "-q", str(tmp_path / "mine")], check=True)
+    kept = espdock("init", "mine", cwd=tmp_path, env=NO_ENGINE)
+    assert kept.returncode == 0, kept.stderr
     assert (tmp_path / "mine/.gitignore").read_text() == "secrets/\n"
     assert (tmp_path / "mine/.gitattributes").read_text() == "*.png binary\n"
+    said = " ".join(kept.stdout.split())
+    assert "note: git does not leave colcon's outputs out of this repository" in said, kept.stdout
+    assert said.count("add these lines to it: /build/ /install/ /log/") == 1, kept.stdout
+    (tmp_path / "mine/.gitignore").write_text("secrets/\nbuild/\ninstall/\nlog/\n")
+    again = espdock("init", "mine", cwd=tmp_path, env=NO_ENGINE)
+    assert again.returncode == 0 and "colcon's outputs" not in again.stdout, again.stdout
 
 
 def test_a_workspace_from_init_checks_its_scripts_out_with_lf_on_windows(tmp_path):

@@ -293,14 +293,19 @@ def in_workspace_image(image: str, root: Path, *argv: str) -> subprocess.Complet
 def build_holding(root: Path, *command: str) -> Iterator[subprocess.Popen]:
     """Another process holding ROOT's workspace lock, as `espdock COMMAND` (default: build) does
     while it runs, until the block ends."""
+    # COMMAND on its command line as well: a holder is named only while its process runs what it wrote.
     holder = (
         "import sys; from pathlib import Path; from espdock.workspace import Workspace, workspace_lock; "
-        f"sys.argv = {['espdock', *(command or ('build',))]!r};\n"
+        "sys.argv[0] = 'espdock';\n"
         f"with workspace_lock(Workspace(Path({str(root)!r}))):\n"
         "    print('locked', flush=True); sys.stdin.read()"
     )
     process = subprocess.Popen(
-        [sys.executable, "-c", holder], cwd=REPO, stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True
+        [sys.executable, "-c", holder, *(command or ("build",))],
+        cwd=REPO,
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        text=True,
     )
     try:
         assert process.stdout is not None and process.stdout.readline().strip() == "locked"

@@ -152,6 +152,14 @@ def compose(ctx: typer.Context, workspace: WorkspaceOption = None) -> None:
             f"an espdock build is running in {ws.root}{holder}: install/ may be half rebuilt",
             "Wait for it to finish, then run again.",
         )
+    if subcommand in nodes.COMPOSE_CREATING and (
+        warning := compose_file.foreign_compose_warning(ws.root, runtime_repository(config, ws), args)
+    ):
+        notify(warning)
+    elif subcommand in ("up", "create") and installed:
+        found = compose_file.built_executables(ws, packages)
+        for said in compose_file.lagging_compose_warnings(ws.root, runtime_repository(config, ws), found, args):
+            notify(said)
     engine = bootstrap.ensure_engine(os.environ, notify)
     bootstrap.ensure_compose(os.environ, notify)
     if subcommand in nodes.COMPOSE_CREATING and installed:
@@ -170,10 +178,6 @@ def compose(ctx: typer.Context, workspace: WorkspaceOption = None) -> None:
         # A workspace's own ROS Dockerfile may have no runtime stage: its compose file names others.
         if any(isinstance(step, RuntimeImage) for step in plan.steps):
             runtime_image(ws, config, plan)
-    if subcommand in nodes.COMPOSE_CREATING and (
-        warning := compose_file.foreign_compose_warning(ws.root, runtime_repository(config, ws), args)
-    ):
-        notify(warning)
     env = dict(os.environ)
     # The starter compose file's nodes run as ESPDOCK_USER: the user espdock builds for, as its own
     # containers do; in a rootless engine root, the engine's own user outside (the user's uid there

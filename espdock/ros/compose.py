@@ -167,6 +167,65 @@ def foreign_compose_warning(root: Path, own: str, args: list[str] | tuple[str, .
     )
 
 
+def built_executables(workspace: Workspace, packages: tuple[Package, ...]) -> dict[str, list[str]]:
+    """The executables WORKSPACE's ROS PACKAGES have installed (package -> names): what its runtime
+    image runs."""
+    from espdock.ros.nodes import executables
+
+    install = workspace.ws_dir / "install"
+    return {
+        p.name: exes
+        for p in packages
+        if p.kind is PackageKind.ROS and (exes := executables(install, p.name, workspace.root))
+    }
+
+
+def lagging_compose_warnings(root: Path, repository: str, found: dict[str, list[str]], args: list[str]) -> list[str]:
+    """What is wrong between ROOT's compose file (the one Compose reads when ARGS name none) and
+    the runtime image of REPOSITORY, whose install/ holds FOUND (built_executables): services that
+    run an executable the image lacks (a package gone from the branch: the container died at
+    start, "not found"), and a file as espdock wrote it that `espdock init --compose` would write
+    otherwise now (written before the first build, it had no service: Compose said only "no
+    service selected")."""
+    from espdock.layout import COMPOSE_FILES
+    from espdock.ros.plan import RUNTIME_INSTALL
+
+    if {"-f", "--file"} & set(args) or any(a.startswith(("-f=", "--file=")) for a in args):
+        return []
+    path = next((root / name for name in COMPOSE_FILES if (root / name).is_file()), None)
+    if path is None:
+        return []
+    text = path.read_text(errors="replace")
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError:
+        return []  # Compose says what is wrong with it
+    services = data.get("services") if isinstance(data, dict) else None
+    ours = generated_unchanged(text)
+    fix = "`espdock init --compose` writes it afresh" if ours else f"edit or remove them in {path.name}"
+    lacking = []
+    for name, service in services.items() if isinstance(services, dict) else ():
+        command = service.get("command") if isinstance(service, dict) else None
+        words = command if isinstance(command, list) else str(command or "").split()
+        run = str(words[0]) if words else ""
+        package, _, exe = run.removeprefix(f"{RUNTIME_INSTALL}/").partition("/lib/")
+        if run.startswith(f"{RUNTIME_INSTALL}/") and exe.startswith(f"{package}/"):
+            if exe.removeprefix(f"{package}/") not in found.get(package, []):
+                lacking.append(f"{name} ({package} {exe.removeprefix(package + '/')})")
+    said = []
+    if lacking:
+        said.append(
+            f"warning: {path.name}: {', '.join(lacking)} run what the runtime image lacks (not built, or a package "
+            f"no longer in the workspace): their containers fail at start; {fix}"
+        )
+    elif ours and text != starter_compose(repository.split("/", 1)[-1], f"{repository}:latest", found):
+        said.append(
+            f"note: {path.name} is not up to date with install/ (espdock wrote it before this build): "
+            "`espdock init --compose` writes the built executables as services"
+        )
+    return said
+
+
 def generated_unchanged(text: str) -> bool:
     """Whether TEXT is a compose file as espdock wrote it (its mark matches the rest)."""
     first, _, body = text.partition("\n")
@@ -223,14 +282,6 @@ def init_compose(
     """`espdock init`'s compose.yaml for WORKSPACE, whose runtime images are REPOSITORY: the
     executables its ROS PACKAGES have installed (see write_starter_compose for REFRESH, FORCE
     and what it returns)."""
-    from espdock.ros.nodes import executables
-
-    install = workspace.ws_dir / "install"
-    found = {
-        p.name: exes
-        for p in packages
-        if p.kind is PackageKind.ROS and (exes := executables(install, p.name, workspace.root))
-    }
     project = repository.split("/", 1)[-1]
-    text = starter_compose(project, f"{repository}:latest", found)
+    text = starter_compose(project, f"{repository}:latest", built_executables(workspace, packages))
     return write_starter_compose(workspace.root, text, owner, refresh, force)

@@ -1192,6 +1192,38 @@ def test_compose_up_during_a_build_is_refused_before_it_makes_an_image_of_instal
     assert espdock("compose", "up", cwd=root, env=NO_ENGINE).returncode == 3
 
 
+def test_compose_up_says_when_the_compose_file_lags_what_the_runtime_image_holds(tmp_path):
+    """The compose file `espdock init` wrote before the first build has no service: `compose up`
+    after the build ended in Compose's bare "no service selected". And one whose service runs a
+    package gone from the branch started a container that died at once ("not found")."""
+    root = copy_workspace(tmp_path / "lag", packages=(), test_packages=("beacon_nodes", "uptime_tools"))
+    assert espdock("init", cwd=root, env=NO_ENGINE).returncode == 0  # compose.yaml, before any build
+    for package, exes in (("beacon_nodes", ("beacon", "beacon_log")), ("uptime_tools", ("tools_banner",))):
+        lib = root / "ws/install" / package / "lib" / package
+        lib.mkdir(parents=True)
+        for exe in exes:
+            (lib / exe).write_text("#!/bin/sh\n")
+            (lib / exe).chmod(0o755)
+
+    def said_by_up() -> str:
+        up = espdock("compose", "up", cwd=root, env=NO_ENGINE)
+        assert up.returncode == 3, up.stdout + up.stderr  # on to the engine (none here)
+        return " ".join((up.stdout + up.stderr).split())
+
+    assert "note: compose.yaml is not up to date with install/ (espdock wrote it before this build): `espdock " \
+        "init --compose` writes the built executables as services" in said_by_up()  # fmt: skip
+    assert espdock("init", "--compose", cwd=root, env=NO_ENGINE).returncode == 0
+    assert "compose.yaml" not in said_by_up()
+    shutil.rmtree(root / "ws/src/uptime_tools")  # a branch without it: install/ keeps it, the image does not
+    assert "warning: compose.yaml: tools_banner (uptime_tools tools_banner) run what the runtime image lacks " \
+        "(not built, or a package no longer in the workspace): their containers fail at start; `espdock init " \
+        "--compose` writes it afresh" in said_by_up()  # fmt: skip
+    compose = root / "compose.yaml"
+    compose.write_text(compose.read_text() + "# the team's\n")
+    assert "tools_banner (uptime_tools tools_banner) run what the runtime image lacks" in said_by_up()
+    assert "edit or remove them in compose.yaml" in said_by_up()
+
+
 # The repository's boards: camera_node depends on custom_interface, led_strip_node does not.
 BOTH_BOARDS = ("camera_node", "led_strip_node")
 

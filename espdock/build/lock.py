@@ -307,8 +307,11 @@ def lock_rosdeps(
         f", updated {age_text(age)} ago" if age is not None else ""
     )
     before = target.read_text() if target.is_file() else None
-    if text == before:
-        return "unchanged", database, text.encode()
+    if text == before or (before is not None and _same_but_sources(before, lock)):
+        # Only where rosdep's database came from differs (a private rule's file:// path on
+        # another machine): the resolution is the same, and the committed file churned between
+        # teammates, leaking their home directories into git.
+        return "unchanged", database, before.encode()
     keys = lock.get("keys", {})  # as rosdeps.check_dependencies reads it
     unserved = sorted({k for ks in needed.values() for k in ks if not keys.get(k, {}).get("installer")})
     test_keys = lock.get(testdeps.SECTION, {}).get("keys", {})  # as testdeps.check_tests reads them
@@ -330,6 +333,17 @@ def lock_rosdeps(
         return "created", database, text.encode()
     write_atomically(target, text)
     return "updated", database, text.encode()
+
+
+def _same_but_sources(text: str, lock: dict) -> bool:
+    """Whether TEXT (a rosdep.lock.json) says what LOCK says, but for where its database came from."""
+    try:
+        recorded = json.loads(text)
+    except ValueError:
+        return False
+    return isinstance(recorded, dict) and {k: v for k, v in recorded.items() if k != "sources"} == {
+        k: v for k, v in lock.items() if k != "sources"
+    }
 
 
 def official_python(config: Config, inputs: BuildInputs, env: Mapping[str, str]) -> Callable[[], SystemPython]:

@@ -301,6 +301,26 @@ def test_locked_refuses_a_missing_or_stale_lock_and_lock_refreshes_it(tmp_path):
     again = espdock("lock", cwd=root, env={**NO_ENGINE, **environment(tmp_path)})
     assert "rosdep.lock.json: updated" in again.stdout
     assert json.loads((root / "rosdep.lock.json").read_text())["apt"] == ["acpitool"]
+    # A teammate's copy of the same rules elsewhere (file:// sources under their home): the same
+    # resolution keeps the committed file as it is (it churned, and leaked their paths into git).
+    theirs = tmp_path / "teammate"
+    shutil.copytree(
+        REPO / "tests/rosdep_db", theirs / "rosdep_db", ignore=shutil.ignore_patterns("*.py", "__pycache__")
+    )
+    (theirs / "sources").mkdir()
+    (theirs / "sources/50-team.list").write_text(
+        "".join(f"yaml {(theirs / 'rosdep_db' / name).as_uri()}\n" for name in ("base.yaml", "python.yaml"))
+    )
+    elsewhere = {
+        "ROSDEP_SOURCE_PATH": str(theirs / "sources"),
+        "ROSDISTRO_INDEX_URL": (theirs / "rosdep_db/rosdistro/index-v4.yaml").as_uri(),
+        "XDG_CACHE_HOME": str(theirs / "cache"),
+        "CI": "",
+    }
+    committed = (root / "rosdep.lock.json").read_text()
+    relocked = espdock("lock", cwd=root, env={**NO_ENGINE, **elsewhere})
+    assert relocked.returncode == 0 and "rosdep.lock.json: unchanged" in relocked.stdout, relocked.stdout
+    assert (root / "rosdep.lock.json").read_text() == committed
 
 
 def test_the_lock_decides_the_image_key_and_the_flavour_its_dockerfile_and_name(tmp_path):

@@ -129,6 +129,39 @@ def _host(env: Mapping[str, str]) -> str:
     return env.get("DOCKER_HOST") or DEFAULT_HOST
 
 
+def _as_the_cli_reads(env: dict[str, str]) -> dict[str, str]:
+    """ENV with its DOCKER_HOST as the docker CLI reads it (docker/cli's opts.ParseHost), which
+    espdock runs on the same value: `unix://` is the default socket, `tcp://HOST` port 2375, and
+    `HOST:PORT` without a scheme tcp://; the SDK took the first as "[Errno 22] Invalid argument"
+    and the second as "port is required", each said as no engine running. A path without
+    `unix://`, which the CLI misreads as a TCP address, is refused."""
+    from urllib.parse import urlsplit
+
+    host = (env.get("DOCKER_HOST") or "").strip()
+    if not host:
+        return env
+    if "://" not in host:
+        if host.startswith(("/", ".", "~")):
+            raise ConfigError(
+                f"DOCKER_HOST {host}: a socket's path needs its scheme, unix://{host}",
+                f"Set DOCKER_HOST=unix://{host} (an engine is unix:///path/docker.sock, tcp://HOST:PORT or "
+                "ssh://USER@HOST).",
+            )
+        host = f"tcp://{host}"
+    if host == "unix://":
+        host = f"unix://{DEFAULT_SOCKET}"
+    elif host.startswith("tcp://"):
+        parts = urlsplit(host)
+        try:
+            port = parts.port
+        except ValueError:
+            port = -1  # not a number: the SDK says so
+        if port is None:
+            name = parts.hostname or "localhost"
+            host = f"tcp://{f'[{name}]' if ':' in name else name}:2375{parts.path}"
+    return {**env, "DOCKER_HOST": host}
+
+
 def _local_socket(env: Mapping[str, str]) -> str | None:
     """The engine's unix socket path, or None when DOCKER_HOST names another kind of host."""
     host = _host(env)
@@ -259,6 +292,7 @@ class Engine:
         # The engine `docker` uses (DOCKER_HOST or the CLI's context), for espdock's own client and
         # for the docker CLI and compose it runs.
         self._env, self._cli_env, self._context = contexts.resolve(env)
+        self._env = _as_the_cli_reads(self._env)
         if _host(self._env).startswith("ssh://"):
             sdk.need_ssh()
         self._timeout = timeout

@@ -579,6 +579,30 @@ def test_an_address_no_engine_has_is_bad_input_and_a_name_that_does_not_resolve_
     assert err.value.message == said
 
 
+def test_docker_host_is_read_as_the_docker_cli_reads_it():
+    """`unix://` was "[Errno 22] Invalid argument" and `tcp://HOST` "port is required", each said
+    as an engine to start, where the docker CLI, which espdock runs on the same value, takes the
+    default socket and port 2375; a bare socket path was told to start an engine there."""
+    from espdock.errors import ConfigError
+    from espdock.images.engine import DEFAULT_SOCKET
+
+    for given, read in (
+        ("unix://", f"unix://{DEFAULT_SOCKET}"),
+        ("tcp://127.0.0.1", "tcp://127.0.0.1:2375"),
+        ("tcp://build-host:", "tcp://build-host:2375"),
+        ("tcp://[::1]", "tcp://[::1]:2375"),
+        ("127.0.0.1:2376", "tcp://127.0.0.1:2376"),
+        ("tcp://build-host:2376", "tcp://build-host:2376"),
+        (" unix:///run/user/1000/docker.sock", "unix:///run/user/1000/docker.sock"),
+    ):
+        assert Engine({"DOCKER_HOST": given}).host == read, given
+    with pytest.raises(ConfigError) as err:
+        Engine.connect({"DOCKER_HOST": "/var/run/docker.sock"}, timeout=5)
+    assert err.value.exit_code == 2
+    assert err.value.message == "DOCKER_HOST /var/run/docker.sock: a socket's path needs its scheme, " \
+        "unix:///var/run/docker.sock"  # fmt: skip
+
+
 def test_a_label_build_the_engine_fails_says_the_engine_s_words(monkeypatch):
     """The labels' build is posted as is (no registry logins): the engine's error in its stream."""
 

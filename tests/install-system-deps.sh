@@ -13,7 +13,10 @@ missing=()
 command -v chromium >/dev/null || missing+=(chromium)
 command -v cmake >/dev/null || missing+=(cmake)
 command -v g++ >/dev/null || missing+=(g++)
-ldconfig -p | grep -q libzbar.so.0 || missing+=(libzbar0)  # pyzbar, for the demo's unit tests
+# pyzbar, for the demo's unit tests. ldconfig is in /sbin, on no plain user's PATH on Debian (a
+# user's `make setup` said libzbar0 was missing); grep reads all it is given (-q's early exit
+# is a SIGPIPE to ldconfig, a failure under pipefail).
+PATH="$PATH:/usr/sbin:/sbin" ldconfig -p 2>/dev/null | grep libzbar.so.0 >/dev/null || missing+=(libzbar0)
 command -v docker-registry >/dev/null || missing+=(docker-registry)
 command -v htpasswd >/dev/null || missing+=(apache2-utils)
 command -v podman >/dev/null || missing+=(podman)

@@ -52,3 +52,22 @@ def test_ctrl_c_at_a_terminal_ends_make_demo_naming_make_demo_down(tmp_path):
     after = text.split("stand-in: interrupted", 1)[1]
     assert "\nmake demo-down removes the demo's containers and network" in after, text
     assert "Interrupt" not in after, text
+
+
+def test_make_setup_s_system_check_run_by_a_plain_user_finds_libzbar_where_it_is_installed():
+    """ldconfig is in /sbin, on no plain user's PATH on Debian: `make setup` as a user in the
+    docker group said "missing system packages: libzbar0" where it was installed."""
+    import shutil
+    import subprocess
+
+    import pytest
+
+    installed = subprocess.run(["/sbin/ldconfig", "-p"], capture_output=True, text=True, check=False).stdout
+    if os.geteuid() != 0 or shutil.which("setpriv") is None or "libzbar.so.0" not in installed:
+        pytest.skip("needs root (to run the check as another user) and libzbar0 installed")
+    checked = subprocess.run(
+        ["setpriv", "--reuid=65534", "--regid=65534", "--clear-groups", "env", "PATH=/usr/bin:/bin",
+         "bash", str(REPO / "tests/install-system-deps.sh")],
+        capture_output=True, text=True, check=False,
+    )  # fmt: skip
+    assert checked.returncode == 0 and "libzbar0" not in checked.stderr, checked.stderr

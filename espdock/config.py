@@ -223,6 +223,12 @@ def _read_toml(path: Path) -> dict[str, Any]:
             "Save it as UTF-8, as TOML files are, and run again.",
         ) from None
     unknown_tables = set(data) - {"espdock"}
+    if keys := sorted(k for k in unknown_tables if not isinstance(data[k], dict)):
+        # `name = "x"` above [espdock] is a key of no table, not a table called name.
+        raise ConfigError(
+            f"{path}: {keys[0]} is set outside the [espdock] table",
+            f"espdock's settings go under the [espdock] line: move `{keys[0]} = ...` below it.",
+        )
     if unknown_tables:
         raise ConfigError(f"{path}: unknown table [{min(unknown_tables)}]", "espdock.toml has one table, [espdock].")
     table = data.get("espdock", {})

@@ -79,6 +79,18 @@ def test_an_espdock_variable_close_to_a_setting_is_warned_of_with_it():
     ]
 
 
+def test_a_setting_above_the_espdock_table_is_said_as_one_and_another_table_as_a_table(tmp_path):
+    """`name = "x"` on a line above [espdock] was "unknown table [name]": it is a key, not a table."""
+    write(tmp_path, 'name = "robot"\n[espdock]\npackage_paths = ["src"]\n')
+    with pytest.raises(ConfigError) as err:
+        load_config(tmp_path, {})
+    assert err.value.message == f"{tmp_path / 'espdock.toml'}: name is set outside the [espdock] table"
+    assert err.value.hint == "espdock's settings go under the [espdock] line: move `name = ...` below it."
+    write(tmp_path, "[espdock]\n[tool.other]\nx = 1\n")
+    with pytest.raises(ConfigError, match=r"unknown table \[tool\]"):
+        load_config(tmp_path, {})
+
+
 def test_ca_bundle_relative_to_the_workspace_and_must_exist(tmp_path):
     (tmp_path / "corp.pem").write_text("-----BEGIN CERTIFICATE-----\n")
     write(tmp_path, '[espdock]\nca_bundle = "corp.pem"\n')

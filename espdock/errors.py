@@ -125,9 +125,14 @@ def disk_full(path: str | os.PathLike[str], low: int = 64 << 20, known: bool = F
         mount = os.path.dirname(mount)
     return DiskFull(
         f"the disk holding {path} (the filesystem mounted at {mount}) is full: "
-        f"{usage.free >> 20} MiB free of {usage.total >> 20} MiB",
+        f"{_size(usage.free)} free of {_size(usage.total)}",
         "Free space there, then build again: what this build did not finish is built again.",
     )
+
+
+def _size(count: int) -> str:
+    """COUNT bytes in MiB, or in KiB under one (a 300 KiB filesystem was "0 MiB free of 0 MiB")."""
+    return f"{count >> 20} MiB" if count >= 1 << 20 else f"{count >> 10} KiB"
 
 
 class Interrupted(EspdockError):

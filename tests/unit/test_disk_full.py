@@ -45,3 +45,9 @@ def test_a_full_disk_names_the_path_and_its_filesystem(tmp_path, monkeypatch):
     assert f"the disk holding {tmp_path / 'ws' / 'not-made-yet'}" in full.message
     assert f"mounted at {mount_point(str(tmp_path))})" in full.message
     assert "MiB free of" in full.message
+
+
+def test_a_full_filesystem_smaller_than_a_mebibyte_says_its_size_in_kibibytes(tmp_path, monkeypatch):
+    """A 300 KiB filesystem, full, was "0 MiB free of 0 MiB"."""
+    monkeypatch.setattr(shutil, "disk_usage", lambda path: shutil._ntuple_diskusage(300 << 10, 296 << 10, 4 << 10))
+    assert disk_full(tmp_path, known=True).message.endswith(": 4 KiB free of 300 KiB")

@@ -187,6 +187,16 @@ def how_to_start(env: Mapping[str, str], context: tuple[str, str] | None, podman
         )
     if context is not None:
         return f'Start the engine of the Docker context "{context[0]}" ({context[1]}, at {where})'
+    if where.startswith("ssh://"):
+        # An ssh that could not log in said so above; starting an engine would not mend it.
+        from urllib.parse import urlsplit
+
+        parts = urlsplit(where)
+        destination = parts.netloc.rpartition(":")[0] if parts.port else parts.netloc
+        login = f"ssh -p {parts.port} {destination}" if parts.port else f"ssh {destination}"
+        return (
+            f"Check that `{login}` logs in without a question (ssh's own message is above), and start the engine there"
+        )
     socket = _local_socket(env)
     if socket is None:
         return f"Start the engine at {where}"

@@ -715,3 +715,11 @@ def test_a_registry_is_asked_without_a_login_where_the_credential_helper_is_miss
     assert engine.pull_cached("127.0.0.1:5000/espdock/x:1").status is RegistryStatus.OK
     assert engine.registry_has("127.0.0.1:5000/espdock/x:1").status is RegistryStatus.OK
     assert [call.get("auth_config") for call in asked] == [None, {}, None, {}, None, {}]
+
+
+def test_an_ssh_engine_that_does_not_answer_is_told_to_check_the_login_first():
+    """ssh refused (a key not loaded, a host key not yet known): the hint said to start the engine,
+    under ssh's own words that the login had failed."""
+    hint = Engine({"DOCKER_HOST": "ssh://me@build:2222"}).start_hint()
+    assert hint.startswith("Check that `ssh -p 2222 me@build` logs in without a question"), hint
+    assert Engine({"DOCKER_HOST": "ssh://build"}).start_hint().startswith("Check that `ssh build` logs in")

@@ -37,7 +37,7 @@ from datetime import UTC, datetime
 from enum import StrEnum
 from pathlib import Path
 from typing import IO, Any
-from urllib.parse import quote, urlencode
+from urllib.parse import quote, urlencode, urlsplit
 
 from espdock import interrupts
 from espdock.errors import (
@@ -135,8 +135,6 @@ def _as_the_cli_reads(env: dict[str, str]) -> dict[str, str]:
     `HOST:PORT` without a scheme tcp://; the SDK took the first as "[Errno 22] Invalid argument"
     and the second as "port is required", each said as no engine running. A path without
     `unix://`, which the CLI misreads as a TCP address, is refused."""
-    from urllib.parse import urlsplit
-
     host = (env.get("DOCKER_HOST") or "").strip()
     if not host:
         return env
@@ -189,8 +187,6 @@ def how_to_start(env: Mapping[str, str], context: tuple[str, str] | None, podman
         return f'Start the engine of the Docker context "{context[0]}" ({context[1]}, at {where})'
     if where.startswith("ssh://"):
         # An ssh that could not log in said so above; starting an engine would not mend it.
-        from urllib.parse import urlsplit
-
         parts = urlsplit(where)
         destination = parts.netloc.rpartition(":")[0] if parts.port else parts.netloc
         login = f"ssh -p {parts.port} {destination}" if parts.port else f"ssh {destination}"

@@ -152,13 +152,14 @@ def compose(ctx: typer.Context, workspace: WorkspaceOption = None) -> None:
             f"an espdock build is running in {ws.root}{holder}: install/ may be half rebuilt",
             "Wait for it to finish, then run again.",
         )
+    repository = runtime_repository(config, ws)
     if subcommand in nodes.COMPOSE_CREATING and (
-        warning := compose_file.foreign_compose_warning(ws.root, runtime_repository(config, ws), args)
+        warning := compose_file.foreign_compose_warning(ws.root, repository, args, os.environ)
     ):
         notify(warning)
-    elif subcommand in ("up", "create") and installed:
+    if subcommand in ("up", "create") and installed:
         found = compose_file.built_executables(ws, packages)
-        for said in compose_file.lagging_compose_warnings(ws.root, runtime_repository(config, ws), found, args):
+        for said in compose_file.lagging_compose_warnings(ws.root, repository, found, args, os.environ):
             notify(said)
     engine = bootstrap.ensure_engine(os.environ, notify)
     bootstrap.ensure_compose(os.environ, notify)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import hashlib
 import os
+from collections.abc import Mapping
 from pathlib import Path
 
 import yaml
@@ -138,20 +139,33 @@ def foreign_runtime_images(text: str, own: str) -> tuple[list[str], str | None]:
     return foreign, project if foreign and isinstance(project, str) and "$" not in project else None
 
 
-def foreign_compose_warning(root: Path, own: str, args: list[str] | tuple[str, ...]) -> str | None:
-    """The warning for a compose file in ROOT (the one Compose reads when ARGS name none) that
-    runs another workspace's runtime image than OWN (espdock/<name>), or None."""
+def default_compose_file(root: Path, args: list[str] | tuple[str, ...], env: Mapping[str, str]) -> Path | None:
+    """The compose file in ROOT that a `compose ARGS` reads, where the user chose none (-f,
+    COMPOSE_FILE in ENV or the env file Compose reads): None where they did, or there is none."""
     from espdock.layout import COMPOSE_FILES
+    from espdock.ros.nodes import compose_env_files, env_file_sets
 
     if {"-f", "--file"} & set(args) or any(a.startswith(("-f=", "--file=")) for a in args):
-        return None  # the user named the files
-    path = next((root / name for name in COMPOSE_FILES if (root / name).is_file()), None)
+        return None
+    if env.get("COMPOSE_FILE") or env_file_sets(compose_env_files(args, root, env), "COMPOSE_FILE"):
+        return None
+    return next((root / name for name in COMPOSE_FILES if (root / name).is_file()), None)
+
+
+def foreign_compose_warning(
+    root: Path, own: str, args: list[str] | tuple[str, ...], env: Mapping[str, str]
+) -> str | None:
+    """The warning for a compose file in ROOT (the one Compose reads when ARGS and ENV choose
+    none) that runs another workspace's runtime image than OWN (espdock/<name>), or None."""
+    path = default_compose_file(root, args, env)
     if path is None:
         return None
     text = path.read_text(errors="replace")
     foreign, project = foreign_runtime_images(text, own)
     if not foreign:
         return None
+    if project == own.removeprefix("espdock/"):
+        project = None  # this workspace's own project name: nothing of another's gets replaced
     replaced = f", and its project `name: {project}` is that workspace's too (its containers get replaced)"
     if generated_unchanged(text):
         # As espdock wrote it: the command that wrote it writes this workspace's (a renamed or copied one's).
@@ -180,19 +194,18 @@ def built_executables(workspace: Workspace, packages: tuple[Package, ...]) -> di
     }
 
 
-def lagging_compose_warnings(root: Path, repository: str, found: dict[str, list[str]], args: list[str]) -> list[str]:
-    """What is wrong between ROOT's compose file (the one Compose reads when ARGS name none) and
-    the runtime image of REPOSITORY, whose install/ holds FOUND (built_executables): services that
-    run an executable the image lacks (a package gone from the branch: the container died at
-    start, "not found"), and a file as espdock wrote it that `espdock init --compose` would write
-    otherwise now (written before the first build, it had no service: Compose said only "no
-    service selected")."""
-    from espdock.layout import COMPOSE_FILES
+def lagging_compose_warnings(
+    root: Path, repository: str, found: dict[str, list[str]], args: list[str], env: Mapping[str, str]
+) -> list[str]:
+    """What is wrong between ROOT's compose file (default_compose_file's) and the runtime image of
+    REPOSITORY, whose install/ holds FOUND (built_executables), in the services on that image that
+    start without a profile: one that runs an executable the image lacks (a package gone from the
+    branch: the container died at start, "not found"), and, in a file as espdock wrote it, built
+    executables it runs no service of (written before the first build, it had none: Compose said
+    only "no service selected")."""
     from espdock.ros.plan import RUNTIME_INSTALL
 
-    if {"-f", "--file"} & set(args) or any(a.startswith(("-f=", "--file=")) for a in args):
-        return []
-    path = next((root / name for name in COMPOSE_FILES if (root / name).is_file()), None)
+    path = default_compose_file(root, args, env)
     if path is None:
         return []
     text = path.read_text(errors="replace")
@@ -201,29 +214,34 @@ def lagging_compose_warnings(root: Path, repository: str, found: dict[str, list[
     except yaml.YAMLError:
         return []  # Compose says what is wrong with it
     services = data.get("services") if isinstance(data, dict) else None
-    ours = generated_unchanged(text)
-    fix = "`espdock init --compose` writes it afresh" if ours else f"edit or remove them in {path.name}"
-    lacking = []
+    built = {f"{RUNTIME_INSTALL}/{p}/lib/{p}/{exe}": exe for p, exes in found.items() for exe in exes}
+    ran, lacking = set(), []
     for name, service in services.items() if isinstance(services, dict) else ():
-        command = service.get("command") if isinstance(service, dict) else None
+        image = service.get("image") if isinstance(service, dict) else None
+        if not isinstance(image, str) or not image.startswith(f"{repository}:") or service.get("profiles"):
+            continue  # another image (its own install tree), or started only with --profile
+        command = service.get("command")
         words = command if isinstance(command, list) else str(command or "").split()
         run = str(words[0]) if words else ""
         package, _, exe = run.removeprefix(f"{RUNTIME_INSTALL}/").partition("/lib/")
-        if run.startswith(f"{RUNTIME_INSTALL}/") and exe.startswith(f"{package}/"):
-            if exe.removeprefix(f"{package}/") not in found.get(package, []):
-                lacking.append(f"{name} ({package} {exe.removeprefix(package + '/')})")
-    said = []
+        if not (run.startswith(f"{RUNTIME_INSTALL}/") and exe.startswith(f"{package}/")):
+            continue
+        ran.add(run)
+        if run not in built:
+            lacking.append(f"{name} ({package} {exe.removeprefix(package + '/')})")
+    ours = generated_unchanged(text)
     if lacking:
-        said.append(
+        fix = "`espdock init --compose` writes it afresh" if ours else f"edit or remove them in {path.name}"
+        return [
             f"warning: {path.name}: {', '.join(lacking)} run what the runtime image lacks (not built, or a package "
             f"no longer in the workspace): their containers fail at start; {fix}"
-        )
-    elif ours and text != starter_compose(repository.split("/", 1)[-1], f"{repository}:latest", found):
-        said.append(
-            f"note: {path.name} is not up to date with install/ (espdock wrote it before this build): "
-            "`espdock init --compose` writes the built executables as services"
-        )
-    return said
+        ]
+    if ours and (unrun := sorted(exe for run, exe in built.items() if run not in ran)):
+        return [
+            f"note: {path.name} runs none of {', '.join(unrun)}, built since espdock wrote it: `espdock init "
+            "--compose` writes the built executables as services"
+        ]
+    return []
 
 
 def generated_unchanged(text: str) -> bool:

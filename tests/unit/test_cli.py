@@ -1210,8 +1210,8 @@ def test_compose_up_says_when_the_compose_file_lags_what_the_runtime_image_holds
         assert up.returncode == 3, up.stdout + up.stderr  # on to the engine (none here)
         return " ".join((up.stdout + up.stderr).split())
 
-    assert "note: compose.yaml is not up to date with install/ (espdock wrote it before this build): `espdock " \
-        "init --compose` writes the built executables as services" in said_by_up()  # fmt: skip
+    assert "note: compose.yaml runs none of beacon, beacon_log, tools_banner, built since espdock wrote it: " \
+        "`espdock init --compose` writes the built executables as services" in said_by_up()  # fmt: skip
     assert espdock("init", "--compose", cwd=root, env=NO_ENGINE).returncode == 0
     assert "compose.yaml" not in said_by_up()
     shutil.rmtree(root / "ws/src/uptime_tools")  # a branch without it: install/ keeps it, the image does not
@@ -1222,6 +1222,16 @@ def test_compose_up_says_when_the_compose_file_lags_what_the_runtime_image_holds
     compose.write_text(compose.read_text() + "# the team's\n")
     assert "tools_banner (uptime_tools tools_banner) run what the runtime image lacks" in said_by_up()
     assert "edit or remove them in compose.yaml" in said_by_up()
+    # Not of a service on another image (its own install tree), nor of one only a profile starts,
+    # nor where the user chose another file (COMPOSE_FILE, here in the .env Compose reads).
+    service = "  tools_banner:\n    <<: *ros-node\n"
+    text = compose.read_text()
+    for added in ("    image: espdock/demo:latest\n", "    profiles: [legacy]\n"):
+        compose.write_text(text.replace(service, service + added))
+        assert "run what the runtime image lacks" not in said_by_up(), compose.read_text()
+    compose.write_text(text)
+    (root / ".env").write_text("COMPOSE_FILE=other.yaml\n")
+    assert "run what the runtime image lacks" not in said_by_up()
 
 
 # The repository's boards: camera_node depends on custom_interface, led_strip_node does not.

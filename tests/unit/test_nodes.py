@@ -389,6 +389,19 @@ def test_a_compose_file_that_runs_another_workspace_s_runtime_image_is_found():
         assert foreign_runtime_images(f"services:\n  a:\n    image: {image}\n", "espdock/robot") == ([], None)
 
 
+def test_a_foreign_image_in_a_compose_file_named_as_this_workspace_s_project_is_said_without_that_claim(tmp_path):
+    """A service of espdock/other:latest in ws1's own file (`name: ws1`): the warning said ws1's
+    project name was the other workspace's, whose containers would be replaced."""
+    from espdock.ros.compose import foreign_compose_warning, starter_compose
+
+    (tmp_path / "compose.yaml").write_text(starter_compose("ws1", "espdock/other:latest", {"talk": ["talker"]}))
+    said = foreign_compose_warning(tmp_path, "espdock/ws1", [], {})
+    assert said is not None and "runs espdock/other:latest, another workspace's runtime image" in said, said
+    assert "name: ws1" not in said and "get replaced" not in said, said
+    # Another file chosen: not this one's to judge.
+    assert foreign_compose_warning(tmp_path, "espdock/ws1", [], {"COMPOSE_FILE": "other.yaml"}) is None
+
+
 def test_a_fast_dds_profiles_file_reaches_the_node_mounted_or_is_refused(ws, tmp_path, monkeypatch):
     """FASTRTPS_DEFAULT_PROFILES_FILE was passed on as the host's path, which the container
     lacks: Fast DDS warned (`XMLPARSER Error ... realpath failed`) and ran on its defaults."""

@@ -1028,13 +1028,28 @@ def monitor_running(root: Path, env: dict[str, str], port: str) -> Iterator[tupl
         os.close(controller)
 
 
-def test_a_flash_after_a_monitor_killed_outright_removes_its_container_from_the_port(fw_ws, double_env, engine):
+def test_a_monitor_killed_outright_leaves_the_port_free_at_once_or_for_the_next_flash(fw_ws, double_env, engine):
     """`kill -9` (or `timeout -s KILL`) of `espdock monitor` left its container on the port: the next
-    `flash` found the board silent ("esptool could not tell which chip"), and only a build removed it."""
+    `flash` found the board silent ("esptool could not tell which chip"), and only a build removed
+    it. Its watcher removes it at once; where the watcher was killed too (a whole cgroup), the next
+    flash does."""
     root, first = fw_ws
     assert first.returncode == 0
     with emulated_board("esp32") as port:
         with monitor_running(root, double_env, port) as (monitor, _):
+            monitor.kill()
+            monitor.wait()
+        deadline = time.monotonic() + 20
+        while leftover_containers(engine, root) and time.monotonic() < deadline:
+            time.sleep(0.2)
+        assert leftover_containers(engine, root) == [], "the killed monitor's container is left on the port"
+        with monitor_running(root, double_env, port) as (monitor, _):
+            watcher = subprocess.run(
+                ["pgrep", "-f", f"espdock-reaper {monitor.pid} "], capture_output=True, text=True, check=False
+            )
+            assert watcher.stdout.split(), "no watcher of the running monitor"
+            for pid in watcher.stdout.split():
+                os.kill(int(pid), signal.SIGKILL)
             monitor.kill()
             monitor.wait()
         assert leftover_containers(engine, root), "the killed monitor's container is left running"

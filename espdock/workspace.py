@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import difflib
 import fcntl
+import glob
 import hashlib
 import json
 import os
@@ -900,7 +901,7 @@ def workspace_lock(workspace: Workspace) -> Iterator[None]:
         try:
             yield
         finally:
-            holder.unlink(missing_ok=True)
+            remove_holder(holder)
     finally:
         os.close(fd)
 
@@ -945,7 +946,9 @@ def _holder_path(workspace: Workspace) -> Path:
 
 
 def write_holder(holder: Path) -> None:
-    """Say in the file HOLDER who holds a lock (this process's pid and command), best effort."""
+    """Say in the file HOLDER who holds a lock (this process's pid and command), best effort.
+    Where another user's note is there (a killed espdock's, in a sticky /tmp this user may not
+    replace it in), beside it in one of this user's own (_own_holder), which holder_text reads too."""
     try:
         program = Path(sys.argv[0]).name
         program = "espdock" if program == "__main__.py" else program  # `python -m espdock`
@@ -958,37 +961,64 @@ def write_holder(holder: Path) -> None:
             os.write(fd, f"{os.getpid()}\n".encode() + command + b"\n")
         finally:
             os.close(fd)
-        try:
-            os.replace(temporary, holder)
-        except OSError:
-            os.unlink(temporary)
-            raise
+        for path in (holder, _own_holder(holder)):
+            try:
+                os.replace(temporary, path)
+                return
+            except OSError:
+                continue
+        os.unlink(temporary)
     except OSError:
         pass  # only the error message a second build would give loses its detail
 
 
-def holder_text(holder: Path) -> str:
-    """ " (pid N: COMMAND)" of what write_holder wrote in HOLDER, or "" where it did not, or where
-    that process has gone: a killed espdock's note that the next holder could not replace (another
-    user's, in a sticky /tmp) named a dead pid to every later waiter."""
+def remove_holder(holder: Path) -> None:
+    """Remove the note write_holder left at HOLDER (or beside it), as the lock is let go."""
+    for path in (holder, _own_holder(holder)):
+        with suppress(OSError):  # another user's file in a sticky /tmp stays
+            if _names_this_process(path):
+                path.unlink()
+
+
+def _own_holder(holder: Path) -> Path:
+    """Where this user's note goes where another user's is at HOLDER."""
+    return holder.with_name(f"{holder.name}.{os.getuid()}")
+
+
+def _names_this_process(path: Path) -> bool:
     try:
-        pid, _, command = holder.read_text(errors="replace").partition("\n")
+        return path.read_text(errors="replace").partition("\n")[0] == str(os.getpid())
     except OSError:
-        return ""  # the holder has not written it yet, or has just finished
-    pid, command = pid.strip(), command.strip()
-    if not pid.isdigit() or not _still_running(int(pid), command):
-        return ""
-    return f" (pid {pid}: {command})"
+        return False
+
+
+def holder_text(holder: Path) -> str:
+    """ " (pid N: COMMAND)" of what write_holder wrote at HOLDER (or beside it), or "" where it did
+    not, or where that process has gone: a killed espdock's note that the next holder could not
+    replace (another user's, in a sticky /tmp) named a dead pid to every later waiter."""
+    for path in (holder, *sorted(holder.parent.glob(f"{glob.escape(holder.name)}.*"))):
+        try:
+            pid, _, command = path.read_text(errors="replace").partition("\n")
+        except OSError:
+            continue  # the holder has not written it yet, or has just finished
+        pid, command = pid.strip(), command.removesuffix("\n")
+        if pid.isdigit() and _still_running(int(pid), command):
+            return f" (pid {pid}: {command.strip()})"
+    return ""
 
 
 def _still_running(pid: int, command: str) -> bool:
     """Whether process PID is alive and runs COMMAND (write_holder's: its arguments end its command
     line), not another process that got the pid since."""
     try:
-        argv = Path(f"/proc/{pid}/cmdline").read_bytes().rstrip(b"\0").split(b"\0")
-    except FileNotFoundError:
+        os.kill(pid, 0)
+    except ProcessLookupError:
         return False
-    except OSError:  # not for this user to read (hidepid): alive, and taken at its word
+    except PermissionError:
+        pass  # another user's: alive
+    try:
+        argv = Path(f"/proc/{pid}/cmdline").read_bytes().rstrip(b"\0").split(b"\0")
+    except OSError:  # hidden from this user (/proc's hidepid), or gone since: taken at its word
         return True
     arguments = command.split(" ")[1:]
     shown = [part.decode(errors="backslashreplace") for part in argv]

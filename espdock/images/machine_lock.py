@@ -11,7 +11,7 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager, suppress
 from pathlib import Path
 
-from espdock.workspace import holder_text, write_holder
+from espdock.workspace import holder_text, remove_holder, write_holder
 
 LOCK_DIR = Path("/tmp")
 
@@ -35,8 +35,7 @@ def machine_lock(name: str, waiting: Callable[[str], None]) -> Iterator[None]:
     try:
         yield
     finally:
-        with suppress(OSError):  # another user's file in a sticky /tmp stays
-            holder.unlink()
+        remove_holder(holder)
         with suppress(OSError):
             path.unlink()
         os.close(fd)

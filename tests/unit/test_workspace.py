@@ -403,6 +403,67 @@ def test_a_lock_s_holder_is_named_only_while_that_process_runs_that_command(tmp_
         other.wait()
 
 
+def test_a_holder_that_cannot_replace_another_user_s_note_is_named_from_its_own(tmp_path, monkeypatch):
+    """A killed espdock's note, another user's in a sticky /tmp: the next holder could not replace
+    it, and every waiter was told no one (or the dead pid) held the port, for as long as it stayed."""
+    from espdock.workspace import holder_text, remove_holder, write_holder
+
+    holder = tmp_path / "espdock-port-x.holder"
+    gone = subprocess.Popen([sys.executable, "-c", "pass"])
+    gone.wait()
+    holder.write_text(f"{gone.pid}\nespdock monitor wifi --port socket://127.0.0.1:1\n")
+    replace = os.replace
+
+    def refused(source, target):  # as the sticky bit refuses another user's file to this one
+        if Path(target) == holder:
+            raise PermissionError(1, "Operation not permitted")
+        replace(source, target)
+
+    monkeypatch.setattr(os, "replace", refused)
+    write_holder(holder)
+    assert holder_text(holder).startswith(f" (pid {os.getpid()}: "), "named from this user's own note"
+    remove_holder(holder)
+    assert holder_text(holder) == "" and [p.name for p in tmp_path.iterdir()] == [holder.name]
+
+
+def test_a_holder_hidden_by_proc_s_hidepid_is_named_at_its_word(tmp_path, monkeypatch):
+    """/proc mounted hidepid=2 hides another user's processes: their command lines read as missing,
+    and a live holder went unnamed as if gone."""
+    from espdock.workspace import holder_text
+
+    other = subprocess.Popen(["sleep", "30"])
+    try:
+        holder = tmp_path / "espdock-port-x.holder"
+        holder.write_text(f"{other.pid}\nespdock monitor wifi --port socket://127.0.0.1:1 \n")
+        read_bytes = Path.read_bytes
+
+        def hidden(path):
+            if str(path).startswith("/proc/"):
+                raise FileNotFoundError(2, "No such file or directory", str(path))
+            return read_bytes(path)
+
+        monkeypatch.setattr(Path, "read_bytes", hidden)
+        assert holder_text(holder) == f" (pid {other.pid}: espdock monitor wifi --port socket://127.0.0.1:1)"
+    finally:
+        other.kill()
+        other.wait()
+
+
+def test_a_holder_whose_last_argument_ends_in_a_space_is_named(tmp_path):
+    """`espdock build -- --cmake-args "-DFOO=a b "`: the note's line lost its last space, and the
+    command line no longer matched it."""
+    from espdock.workspace import holder_text
+
+    ending = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(30)", "-DFOO=a b "])
+    try:
+        holder = tmp_path / "espdock-build-x.holder"
+        holder.write_text(f"{ending.pid}\nespdock -DFOO=a b \n")
+        assert holder_text(holder) == f" (pid {ending.pid}: espdock -DFOO=a b)"
+    finally:
+        ending.kill()
+        ending.wait()
+
+
 def test_an_interface_package_read_while_an_editor_saves_is_read_without_its_save_files(tmp_path, monkeypatch):
     """Every build reads each interface package's files (the micro-ROS image's inputs): vim's 4913,
     made and removed while saving, ended the build as "a bug in espdock" (FileNotFoundError)."""

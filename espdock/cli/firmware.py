@@ -32,6 +32,7 @@ from espdock.errors import ConfigError, WorkspaceError
 from espdock.firmware import transport
 from espdock.firmware.flashing import (
     Port,
+    check_flash_files,
     check_port,
     flash_package,
     idf_port,
@@ -394,6 +395,7 @@ def flash(
     # One version of the installed firmware throughout, whatever a build swaps in meanwhile.
     with installed_version(installed) as firmware_dir:
         flasher_args = read_flasher_args(firmware_dir, package)
+        check_flash_files(firmware_dir, flasher_args, package)
         _say_if_altered(firmware_dir, package)
         if provisioning:
             check_reads_settings(firmware_dir, package)

@@ -443,9 +443,14 @@ def read_flasher_args(firmware_dir: Path, package: str) -> dict:
         ) from None
     if not isinstance(flasher_args, dict):
         raise WorkspaceError(f"{args_file} is not a flasher_args.json object", f"Run `espdock build {package}` again.")
+    return flasher_args
+
+
+def check_flash_files(firmware_dir: Path, flasher_args: dict, package: str) -> None:
+    """Refuse to flash PACKAGE's firmware at FIRMWARE_DIR where a file FLASHER_ARGS names is gone:
+    said here, not by esptool inside the container, whose "No such file" came back as exit 6, a
+    problem with the serial port. (A monitor or a provision writes none of them.)"""
     named = flasher_args.get("flash_files")
-    # Said here, not by esptool inside the container: its "No such file" came back as exit 6, a
-    # problem with the serial port.
     missing = sorted(
         str(f) for f in (named.values() if isinstance(named, dict) else ()) if not (firmware_dir / str(f)).is_file()
     )
@@ -454,7 +459,6 @@ def read_flasher_args(firmware_dir: Path, package: str) -> dict:
             f"the installed firmware of {package} lacks {', '.join(missing)} ({firmware_dir})",
             f"Run `espdock build {package}`: it installs the build's files again.",
         )
-    return flasher_args
 
 
 def flash_package(

@@ -609,6 +609,10 @@ def test_firmware_edited_in_the_install_tree_is_put_back_by_the_next_install_and
     flashed = espdock("flash", "cam", "--port", str(tmp_path / "ttyUSB9"), cwd=root, env={"DOCKER_HOST": "unix:///x"})
     assert flashed.returncode == 2, flashed.stdout + flashed.stderr
     assert "the installed firmware of cam lacks bootloader/bootloader.bin" in " ".join(flashed.stderr.split())
+    # Not for what writes none of them: a monitor, a provision (the NVS partition alone).
+    for command in (("monitor", "cam"), ("provision", "cam", "--wifi-ssid", "lab", "--agent", "10.0.0.1:8888")):
+        other = espdock(*command, "--port", str(tmp_path / "ttyUSB9"), cwd=root, env={"DOCKER_HOST": "unix:///x"})
+        assert "lacks" not in other.stdout + other.stderr, other.stdout + other.stderr
     install_firmware("cam", root / "firmware/cam/package.xml", build, install, (), owner=None)
     assert (firmware / "bootloader/bootloader.bin").read_bytes() == b"\xe9boot"
     assert [p.name for p in firmware.parent.iterdir() if p.name.startswith(".firmware-")] == [os.readlink(firmware)]

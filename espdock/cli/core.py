@@ -261,8 +261,13 @@ def _main(
     _state["debug"] = debug
 
 
+# Where notify's notes go: stdout, but for `espdock run` and `shell`, whose stdout is the node's
+# own (`espdock run pkg dump > data` took espdock's warnings into the data).
+NOTES = {"stderr": False}
+
+
 def notify(text: str) -> None:
-    console.print(Text(visible(text), style="dim"))
+    (err_console if NOTES["stderr"] else console).print(Text(visible(text), style="dim"))
 
 
 def visible(text: str) -> str:

@@ -19,7 +19,17 @@ from espdock.build.prepare import last_build_options, workspace_packages
 from espdock.build.runner import Runner
 from espdock.build.steps import LABEL_WORKSPACE, EnsureImage, Plan
 from espdock.cli import complete
-from espdock.cli.core import WorkspaceOption, app, build_plan, command, console, ensure_images, load, notify
+from espdock.cli.core import (
+    NOTES,
+    WorkspaceOption,
+    app,
+    build_plan,
+    command,
+    console,
+    ensure_images,
+    load,
+    notify,
+)
 from espdock.cli.prune import record_images
 from espdock.config import Config, invoking_user, resolve_ca_bundle
 from espdock.errors import EspdockError, Interrupted, WorkspaceError
@@ -304,6 +314,7 @@ def run(
     """Run EXECUTABLE of a built PACKAGE in the workspace's runtime image, like `ros2 run`
     (espdock's options go before PACKAGE; everything after EXECUTABLE goes to the node).
     The runtime image is made of install/ first when a build changed it."""
+    NOTES["stderr"] = True
     # Run from a directory since removed, with --workspace: relative paths are the workspace's.
     here = current_dir(workspace.resolve() if workspace is not None and workspace.is_absolute() else None)
     mounts = tuple(nodes.volume(text, here) for text in volume or ())
@@ -366,6 +377,7 @@ def run(
 @command
 def shell(workspace: WorkspaceOption = None) -> None:
     """Open a shell in the ROS build image with the workspace mounted and its install tree sourced."""
+    NOTES["stderr"] = True
     ws, config = load(workspace)
     if (holder := build_running(ws)) is not None:
         notify(

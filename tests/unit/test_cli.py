@@ -1422,3 +1422,18 @@ def test_save_defconfig_of_a_one_off_chip_s_build_dir_is_refused_before_it_write
     assert listed.returncode == 2, listed.stdout + listed.stderr
     assert "in firmware/led_strip_node/sdkconfig.defaults.local.esp32s3 by hand" in said, said
     assert 'CONFIG_IDF_TARGET="esp32s3" in its sdkconfig.defaults.local to make' in said, said
+
+
+def test_notes_go_to_stderr_where_stdout_is_a_node_s(capsys):
+    """`espdock run` and `shell` set it: `espdock run pkg dump > data` took espdock's warnings into the data."""
+    from espdock.cli import core
+
+    core.notify("note: on stdout")
+    core.NOTES["stderr"] = True
+    try:
+        core.notify("warning: on stderr")
+    finally:
+        core.NOTES["stderr"] = False
+    captured = capsys.readouterr()
+    assert "note: on stdout" in captured.out and "warning: on stderr" in captured.err
+    assert "warning" not in captured.out

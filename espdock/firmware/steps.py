@@ -29,7 +29,7 @@ from espdock.firmware.plan import (
     InstallFirmware,
     check_inside,
 )
-from espdock.firmware.transport import applied_defaults
+from espdock.firmware.transport import applied_defaults, built_transport_record
 from espdock.images import volume
 from espdock.images.containers import Containers, give_to, make_dirs_for, volume_mode_refused, with_host_umask
 from espdock.images.engine import KILLED, Mount, RunSpec
@@ -406,10 +406,14 @@ def _install_stamps(workspace: Workspace, step: InstallFirmware) -> tuple[StampF
     installed = prefix / "share" / step.package if prefix == workspace.ws_dir / "install" else prefix
     manifest = workspace.root / step.project / "package.xml"
     # The ros2 run commands' text too: an install made before them (or another version) is redone.
+    # So is one whose record beside the firmware is not the one this espdock writes (one before the
+    # domain was recorded: flash and provision said "ROS domain as built" with no number).
     source = hashlib.sha256(
         f"{listing_digest(build_dir, COLCON_RESULT_FILES)}\0{':'.join(step.run_depends)}\0".encode()
         + manifest.read_bytes()
         + COMMANDS_SOURCE
+        + b"\0"
+        + (built_transport_record(build_dir) or b"")
     )
     stamps = {step.package: source.hexdigest()}
     return StampFile(workspace.ws_dir / "build" / INSTALL_STAMPS), stamps, installed, prefix

@@ -640,3 +640,25 @@ def test_the_same_firmware_installed_again_gets_this_build_s_record_of_its_domai
     install_firmware("cam", manifest, build, install, (), owner=None)
     assert installed_domain_id(firmware) == 3
     assert (firmware / "cam.bin").read_bytes() == b"\xe9app"
+
+
+def test_an_install_an_older_espdock_recorded_is_redone_where_its_record_is_not_this_one_s(tmp_path, monkeypatch):
+    """Upgraded from an espdock that recorded no domain: the install step was up to date by its
+    stamp and never ran, so the record stayed without it through every build (0c16868 fixed the
+    install itself, which then never ran)."""
+    from espdock.firmware import steps
+    from espdock.firmware.plan import InstallFirmware
+    from espdock.workspace import Workspace
+
+    root = tmp_path / "w"
+    (root / "fw").mkdir(parents=True)
+    (root / "fw/package.xml").write_text("<package/>")
+    write_build(root / "build/cam", b"\xe9app")
+    ws, step = Workspace(root, ("fw",), "."), InstallFirmware("cam", "fw", ())
+    monkeypatch.setattr(steps, "firmware_build_dir", lambda ws_dir, package: root / "build/cam")
+    monkeypatch.setattr(steps, "built_transport_record", lambda build_dir: b'{"transport": "udp"}\n', raising=False)
+    older = steps._install_stamps(ws, step)[1]
+    monkeypatch.setattr(
+        steps, "built_transport_record", lambda build_dir: b'{"ros_domain_id": 0, "transport": "udp"}\n', raising=False
+    )
+    assert steps._install_stamps(ws, step)[1] != older

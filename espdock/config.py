@@ -227,7 +227,9 @@ def _read_toml(path: Path) -> dict[str, Any]:
         # `name = "x"` above [espdock] is a key of no table, not a table called name.
         raise ConfigError(
             f"{path}: {keys[0]} is set outside the [espdock] table",
-            f"espdock's settings go under the [espdock] line: move `{keys[0]} = ...` below it.",
+            f"espdock's settings go under the [espdock] line: move `{keys[0]} = ...` below it."
+            if "espdock" in data
+            else "espdock's settings go under an [espdock] line: put one above them.",
         )
     if unknown_tables:
         raise ConfigError(f"{path}: unknown table [{min(unknown_tables)}]", "espdock.toml has one table, [espdock].")

@@ -188,10 +188,12 @@ def how_to_start(env: Mapping[str, str], context: tuple[str, str] | None, podman
     if where.startswith("ssh://"):
         # An ssh that could not log in said so above; starting an engine would not mend it.
         parts = urlsplit(where)
-        destination = parts.netloc.rpartition(":")[0] if parts.port else parts.netloc
+        # ssh takes an IPv6 address bare (user@::1), never in the URL's brackets.
+        destination = f"{parts.username}@{parts.hostname}" if parts.username else str(parts.hostname)
         login = f"ssh -p {parts.port} {destination}" if parts.port else f"ssh {destination}"
         return (
-            f"Check that `{login}` logs in without a question (ssh's own message is above), and start the engine there"
+            f"Check that `{login}` logs in without a question (ssh says why where it does not), and that the "
+            "engine runs there"
         )
     socket = _local_socket(env)
     if socket is None:

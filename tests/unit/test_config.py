@@ -86,6 +86,10 @@ def test_a_setting_above_the_espdock_table_is_said_as_one_and_another_table_as_a
         load_config(tmp_path, {})
     assert err.value.message == f"{tmp_path / 'espdock.toml'}: name is set outside the [espdock] table"
     assert err.value.hint == "espdock's settings go under the [espdock] line: move `name = ...` below it."
+    write(tmp_path, 'target = "esp32"\n')  # no [espdock] line at all: none to move it below
+    with pytest.raises(ConfigError) as err:
+        load_config(tmp_path, {})
+    assert err.value.hint == "espdock's settings go under an [espdock] line: put one above them."
     write(tmp_path, "[espdock]\n[tool.other]\nx = 1\n")
     with pytest.raises(ConfigError, match=r"unknown table \[tool\]"):
         load_config(tmp_path, {})

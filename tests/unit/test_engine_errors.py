@@ -723,3 +723,4 @@ def test_an_ssh_engine_that_does_not_answer_is_told_to_check_the_login_first():
     hint = Engine({"DOCKER_HOST": "ssh://me@build:2222"}).start_hint()
     assert hint.startswith("Check that `ssh -p 2222 me@build` logs in without a question"), hint
     assert Engine({"DOCKER_HOST": "ssh://build"}).start_hint().startswith("Check that `ssh build` logs in")
+    assert Engine({"DOCKER_HOST": "ssh://me@[::1]:22"}).start_hint().startswith("Check that `ssh -p 22 me@::1` logs")

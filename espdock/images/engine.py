@@ -1532,6 +1532,13 @@ def _unreachable(what: str, exc: Exception) -> EngineUnavailable:
         return EngineUnavailable(f"{what}: nothing is listening there")
     if any(said in text for said in ("NameResolutionError", "Name or service not known", "name resolution")):
         return EngineUnavailable(f"{what}: its host name does not resolve")
+    if "Read timed out" in text or text == "timed out":  # the SDK's, a local socket's
+        # It took the connection: something listens there, which starting an engine would not mend.
+        return EngineUnavailable(
+            f"{what}: it took the connection and gave no answer in time",
+            "Check DOCKER_HOST: what listens there is no engine (another service's port), or the engine there "
+            "hangs (`docker version` against it says the same).",
+        )
     tls = _tls_failure(text)
     if tls is None:
         return EngineUnavailable(f"{what}: {text}")

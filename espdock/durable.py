@@ -46,6 +46,12 @@ def replace(source: Path, target: Path) -> None:
 def write_text(path: Path, text: str) -> None:
     """PATH holds TEXT, the old content or the new one whatever happens: a temporary file beside it,
     flushed, renamed over it, and the rename flushed."""
-    temporary = path.with_name(f".{path.name}.tmp")
-    temporary.write_text(text)
-    replace(temporary, path)
+    # One of this process's own: two espdocks recording at once (two `espdock run`s) wrote and
+    # renamed one shared temporary, and the second's rename found it gone.
+    temporary = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    try:
+        temporary.write_text(text)
+        replace(temporary, path)
+    except BaseException:
+        temporary.unlink(missing_ok=True)
+        raise

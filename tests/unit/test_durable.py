@@ -53,5 +53,23 @@ def test_the_stamps_are_flushed_file_and_directory(tmp_path, synced):
     stamps.record({"a": "1"}, {"a": "x"})
     stamps.forget(["a"])
     stamps.restore({"a": {"stamp": "1", "installed": "x"}})
-    tmp, directory = str(tmp_path / "build/..espdock-stamps.json.tmp"), str(tmp_path / "build")
+    tmp, directory = str(tmp_path / f"build/..espdock-stamps.json.{os.getpid()}.tmp"), str(tmp_path / "build")
     assert synced == [tmp, directory] * 3
+
+
+def test_two_processes_writing_one_file_at_once_each_write_it_whole(tmp_path):
+    """Two `espdock run`s recording their images at once: both wrote and renamed one temporary,
+    and the second's rename failed ("could not record the images this command used")."""
+    import subprocess
+    import sys
+
+    target = tmp_path / "record.json"
+    script = (
+        "import sys; from pathlib import Path; from espdock.durable import write_text\n"
+        "for i in range(300): write_text(Path(sys.argv[1]), sys.argv[2] * 1000)"
+    )
+    writers = [subprocess.Popen([sys.executable, "-c", script, str(target), c], stderr=subprocess.PIPE) for c in "ab"]
+    errors = [w.communicate()[1].decode() for w in writers]
+    assert [w.returncode for w in writers] == [0, 0], errors
+    assert target.read_text() in ("a" * 1000, "b" * 1000)
+    assert [p.name for p in tmp_path.iterdir()] == ["record.json"]

@@ -12,8 +12,10 @@ sys.path (colcon's packages keep precedence) and has the extension run espdock w
 
 from __future__ import annotations
 
+import ast
 import json
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -111,9 +113,18 @@ def colcon_skips_firmware(env: dict[str, str]) -> str | None:
         target = colcon_python(colcon, env)
     except ConfigError:
         return None
+    shim = target.site_dir / f"{SHIM}.py"
     if target.loads:
+        registered = _registered_site(shim)
+        if registered is not None and Path(registered) != espdock_site():
+            # A venv per checkout: colcon ran another checkout's espdock, and check said all was well.
+            return (
+                f"`colcon build` with {colcon} builds firmware packages through another espdock (the one in "
+                f"{registered}), not this one ({espdock_site()}); `espdock colcon-extension install` registers "
+                "this one"
+            )
         return None
-    if (target.site_dir / f"{SHIM}.py").is_file():
+    if shim.is_file():
         return (
             f"`colcon build` with {colcon} skips firmware packages (a warning, exit code 0): espdock's extension "
             f"is registered in its Python ({target.python}) but cannot be loaded: the espdock it was registered "
@@ -124,6 +135,19 @@ def colcon_skips_firmware(env: dict[str, str]) -> str | None:
         f"extensions only from its own Python ({target.python}), and espdock's is not there; "
         "`espdock colcon-extension install` registers it"
     )
+
+
+def _registered_site(shim: Path) -> str | None:
+    """The espdock site-packages the shim at SHIM loads espdock from (its ESPDOCK_SITE), or None."""
+    try:
+        text = shim.read_text()
+    except OSError:
+        return None
+    found = re.search(r"^ESPDOCK_SITE = (.+)$", text, re.MULTILINE)
+    try:
+        return str(ast.literal_eval(found[1])) if found else None
+    except (ValueError, SyntaxError):
+        return None
 
 
 def _shim_text(espdock_site: str, espdock_python: str) -> str:

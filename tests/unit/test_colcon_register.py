@@ -84,3 +84,13 @@ def test_check_fails_where_the_python_the_shim_runs_espdock_with_is_gone(tmp_pat
         install_shim(ColconPython("/usr/bin/python3", Path(site), ()), espdock_site(), runs)
         checked = subprocess.run(check, env=env, capture_output=True, text=True, check=False)
         assert checked.returncode == code, (runs, checked.stdout + checked.stderr)
+    # Another checkout's espdock registered (a venv per checkout): it loads, and colcon runs that
+    # one's firmware builds, where check passed.
+    other = tmp_path / "other-checkout"
+    other.mkdir()
+    (other / "espdock").symlink_to(espdock_site() / "espdock")
+    install_shim(ColconPython("/usr/bin/python3", Path(site), ()), other, sys.executable)
+    checked = subprocess.run(check, env=env, capture_output=True, text=True, check=False)
+    assert checked.returncode == 2, checked.stdout + checked.stderr
+    said = " ".join(checked.stderr.split())
+    assert f"builds firmware packages through another espdock (the one in {other}), not this one" in said, said

@@ -183,8 +183,9 @@ def compose(ctx: typer.Context, workspace: WorkspaceOption = None) -> None:
             # (a dependency rebuilt since: an interface's type hash).
             notify(
                 f"warning: install/ is not what the sources build now: `espdock build` would build {', '.join(stale)} "
-                "(their sources or install/ changed since it, a copy made without `cp -a` too, or they were built on "
-                "other sources of what they depend on); the services run what the last build installed"
+                "(since it, their sources or install/ changed, a copy made without `cp -a` too, or the image, the "
+                "build's options or espdock's way of building them did, or they were built on other sources of what "
+                "they depend on); the services run what the last build installed"
             )
         # A workspace's own ROS Dockerfile may have no runtime stage: its compose file names others.
         if any(isinstance(step, RuntimeImage) for step in plan.steps):

@@ -1,3 +1,4 @@
+import contextlib
 import os
 import re
 import shutil
@@ -379,6 +380,24 @@ def test_a_lock_s_holder_note_is_not_written_through_a_link_planted_at_a_name_it
     assert oct(holder.stat().st_mode & 0o777) == oct(0o644), "another user's espdock, waiting, says who holds it"
 
 
+@contextlib.contextmanager
+def running(*argv: str):
+    """A process running ARGV for the block (a lock's holder, or what got its pid since)."""
+    process = subprocess.Popen(argv)
+    try:
+        yield process
+    finally:
+        process.kill()
+        process.wait()
+
+
+def gone_pid() -> int:
+    """The pid of a process that has ended (a killed espdock's)."""
+    process = subprocess.Popen([sys.executable, "-c", "pass"])
+    process.wait()
+    return process.pid
+
+
 def test_a_lock_s_holder_is_named_only_while_that_process_runs_that_command(tmp_path):
     """Another user's killed espdock left its note, which the next holder could not replace in a
     sticky /tmp: every waiter was told "busy: another espdock has it (pid N: ...)" of a dead pid."""
@@ -387,20 +406,14 @@ def test_a_lock_s_holder_is_named_only_while_that_process_runs_that_command(tmp_
     holder = tmp_path / "espdock-port-x.holder"
     write_holder(holder)
     assert holder_text(holder).startswith(f" (pid {os.getpid()}: "), "this process, running what it wrote"
-    gone = subprocess.Popen([sys.executable, "-c", "pass"])
-    gone.wait()
-    holder.write_text(f"{gone.pid}\nespdock monitor wifi --port socket://127.0.0.1:1\n")
+    holder.write_text(f"{gone_pid()}\nespdock monitor wifi --port socket://127.0.0.1:1\n")
     assert holder_text(holder) == ""
     # A live process that got the pid since, running something else.
-    other = subprocess.Popen(["sleep", "30"])
-    try:
+    with running("sleep", "30") as other:
         holder.write_text(f"{other.pid}\nespdock monitor wifi --port socket://127.0.0.1:1\n")
         assert holder_text(holder) == ""
         holder.write_text(f"{other.pid}\nsleep 30\n")
         assert holder_text(holder) == f" (pid {other.pid}: sleep 30)"
-    finally:
-        other.kill()
-        other.wait()
 
 
 def test_a_holder_that_cannot_replace_another_user_s_note_is_named_from_its_own(tmp_path, monkeypatch):
@@ -409,9 +422,7 @@ def test_a_holder_that_cannot_replace_another_user_s_note_is_named_from_its_own(
     from espdock.workspace import holder_text, remove_holder, write_holder
 
     holder = tmp_path / "espdock-port-x.holder"
-    gone = subprocess.Popen([sys.executable, "-c", "pass"])
-    gone.wait()
-    holder.write_text(f"{gone.pid}\nespdock monitor wifi --port socket://127.0.0.1:1\n")
+    holder.write_text(f"{gone_pid()}\nespdock monitor wifi --port socket://127.0.0.1:1\n")
     replace = os.replace
 
     def refused(source, target):  # as the sticky bit refuses another user's file to this one
@@ -431,22 +442,18 @@ def test_a_holder_hidden_by_proc_s_hidepid_is_named_at_its_word(tmp_path, monkey
     and a live holder went unnamed as if gone."""
     from espdock.workspace import holder_text
 
-    other = subprocess.Popen(["sleep", "30"])
-    try:
+    read_bytes = Path.read_bytes
+
+    def hidden(path):
+        if str(path).startswith("/proc/"):
+            raise FileNotFoundError(2, "No such file or directory", str(path))
+        return read_bytes(path)
+
+    with running("sleep", "30") as other:
         holder = tmp_path / "espdock-port-x.holder"
         holder.write_text(f"{other.pid}\nespdock monitor wifi --port socket://127.0.0.1:1 \n")
-        read_bytes = Path.read_bytes
-
-        def hidden(path):
-            if str(path).startswith("/proc/"):
-                raise FileNotFoundError(2, "No such file or directory", str(path))
-            return read_bytes(path)
-
         monkeypatch.setattr(Path, "read_bytes", hidden)
         assert holder_text(holder) == f" (pid {other.pid}: espdock monitor wifi --port socket://127.0.0.1:1)"
-    finally:
-        other.kill()
-        other.wait()
 
 
 def test_a_holder_whose_last_argument_ends_in_a_space_is_named(tmp_path):
@@ -454,14 +461,10 @@ def test_a_holder_whose_last_argument_ends_in_a_space_is_named(tmp_path):
     command line no longer matched it."""
     from espdock.workspace import holder_text
 
-    ending = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(30)", "-DFOO=a b "])
-    try:
+    with running(sys.executable, "-c", "import time; time.sleep(30)", "-DFOO=a b ") as ending:
         holder = tmp_path / "espdock-build-x.holder"
         holder.write_text(f"{ending.pid}\nespdock -DFOO=a b \n")
         assert holder_text(holder) == f" (pid {ending.pid}: espdock -DFOO=a b)"
-    finally:
-        ending.kill()
-        ending.wait()
 
 
 def test_an_interface_package_read_while_an_editor_saves_is_read_without_its_save_files(tmp_path, monkeypatch):

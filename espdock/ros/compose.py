@@ -149,7 +149,31 @@ def default_compose_file(root: Path, args: list[str] | tuple[str, ...], env: Map
         return None
     if env.get("COMPOSE_FILE") or env_file_sets(compose_env_files(args, root, env), "COMPOSE_FILE"):
         return None
-    return next((root / name for name in COMPOSE_FILES if (root / name).is_file()), None)
+    path = next((root / name for name in COMPOSE_FILES if (root / name).is_file()), None)
+    if any((root / name.replace(".y", ".override.y")).exists() for name in COMPOSE_FILES):
+        # Compose merges an override into it: the file alone says nothing sure of what runs.
+        return None
+    return path
+
+
+def _project_named_elsewhere(root: Path, args: list[str] | tuple[str, ...], env: Mapping[str, str]) -> bool:
+    """Whether the compose project's name comes from -p, COMPOSE_PROJECT_NAME or the env file,
+    not from the file's `name:`."""
+    from espdock.ros.nodes import compose_env_files, env_file_sets, global_values
+
+    if global_values(args, "-p") or global_values(args, "--project-name") or env.get("COMPOSE_PROJECT_NAME"):
+        return True
+    return env_file_sets(compose_env_files(args, root, env), "COMPOSE_PROJECT_NAME")
+
+
+def _active_profiles(root: Path, args: list[str] | tuple[str, ...], env: Mapping[str, str]) -> set[str] | None:
+    """The profiles a `compose ARGS` turns on (--profile, COMPOSE_PROFILES); None where the env file
+    sets them (what they are, this does not read)."""
+    from espdock.ros.nodes import compose_env_files, env_file_sets, global_values
+
+    if env_file_sets(compose_env_files(args, root, env), "COMPOSE_PROFILES") and "COMPOSE_PROFILES" not in env:
+        return None
+    return {*global_values(args, "--profile"), *filter(None, env.get("COMPOSE_PROFILES", "").split(","))}
 
 
 def foreign_compose_warning(
@@ -164,8 +188,8 @@ def foreign_compose_warning(
     foreign, project = foreign_runtime_images(text, own)
     if not foreign:
         return None
-    if project == own.removeprefix("espdock/"):
-        project = None  # this workspace's own project name: nothing of another's gets replaced
+    if project == own.removeprefix("espdock/") or _project_named_elsewhere(root, args, env):
+        project = None  # this workspace's own project name, or another one: nothing of another's gets replaced
     replaced = f", and its project `name: {project}` is that workspace's too (its containers get replaced)"
     if generated_unchanged(text):
         # As espdock wrote it: the command that wrote it writes this workspace's (a renamed or copied one's).
@@ -215,11 +239,15 @@ def lagging_compose_warnings(
         return []  # Compose says what is wrong with it
     services = data.get("services") if isinstance(data, dict) else None
     built = {f"{RUNTIME_INSTALL}/{p}/lib/{p}/{exe}": exe for p, exes in found.items() for exe in exes}
+    active = _active_profiles(root, args, env)
     ran, lacking = set(), []
     for name, service in services.items() if isinstance(services, dict) else ():
         image = service.get("image") if isinstance(service, dict) else None
-        if not isinstance(image, str) or not image.startswith(f"{repository}:") or service.get("profiles"):
-            continue  # another image (its own install tree), or started only with --profile
+        if not isinstance(image, str) or not image.startswith(f"{repository}:"):
+            continue  # another image: its own install tree
+        profiles = service.get("profiles") or []
+        if profiles and (active is None or not ({"*", *map(str, profiles)} & active)):
+            continue  # a profile this run does not turn on
         command = service.get("command")
         words = command if isinstance(command, list) else str(command or "").split()
         run = str(words[0]) if words else ""

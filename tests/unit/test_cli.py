@@ -1205,8 +1205,8 @@ def test_compose_up_says_when_the_compose_file_lags_what_the_runtime_image_holds
             (lib / exe).write_text("#!/bin/sh\n")
             (lib / exe).chmod(0o755)
 
-    def said_by_up() -> str:
-        up = espdock("compose", "up", cwd=root, env=NO_ENGINE)
+    def said_by_up(*options: str, env: dict[str, str] | None = None) -> str:
+        up = espdock("compose", *options, "up", cwd=root, env={**NO_ENGINE, **(env or {})})
         assert up.returncode == 3, up.stdout + up.stderr  # on to the engine (none here)
         return " ".join((up.stdout + up.stderr).split())
 
@@ -1222,14 +1222,20 @@ def test_compose_up_says_when_the_compose_file_lags_what_the_runtime_image_holds
     compose.write_text(compose.read_text() + "# the team's\n")
     assert "tools_banner (uptime_tools tools_banner) run what the runtime image lacks" in said_by_up()
     assert "edit or remove them in compose.yaml" in said_by_up()
-    # Not of a service on another image (its own install tree), nor of one only a profile starts,
-    # nor where the user chose another file (COMPOSE_FILE, here in the .env Compose reads).
+    # Not of a service on another image (its own install tree), nor of one only a profile this run
+    # does not turn on starts, nor where Compose merges an override into the file, nor where the
+    # user chose another file (COMPOSE_FILE, here in the .env Compose reads).
     service = "  tools_banner:\n    <<: *ros-node\n"
     text = compose.read_text()
     for added in ("    image: espdock/demo:latest\n", "    profiles: [legacy]\n"):
         compose.write_text(text.replace(service, service + added))
         assert "run what the runtime image lacks" not in said_by_up(), compose.read_text()
+    lacks = "tools_banner (uptime_tools tools_banner) run what the runtime image lacks"
+    assert lacks in said_by_up("--profile", "legacy") and lacks in said_by_up(env={"COMPOSE_PROFILES": "x,legacy"})
     compose.write_text(text)
+    (root / "compose.override.yaml").write_text("services:\n  tools_banner:\n    command: [/bin/true]\n")
+    assert "run what the runtime image lacks" not in said_by_up()
+    (root / "compose.override.yaml").unlink()
     (root / ".env").write_text("COMPOSE_FILE=other.yaml\n")
     assert "run what the runtime image lacks" not in said_by_up()
 

@@ -148,13 +148,20 @@ def _as_the_cli_reads(env: dict[str, str]) -> dict[str, str]:
         host = f"tcp://{host}"
     if host == "unix://":
         host = f"unix://{DEFAULT_SOCKET}"
-    elif host.startswith("tcp://"):
+    elif host.startswith(("tcp://", "ssh://")):
         parts = urlsplit(host)
         try:
             port = parts.port
         except ValueError:
-            port = -1  # not a number: the SDK says so
-        if port is None:
+            raise ConfigError(f"DOCKER_HOST {host}: its port is not a number") from None
+        if host.startswith("ssh://") and ":" in (parts.hostname or ""):
+            # The SDK's ssh transport splits host from port at the first colon.
+            raise ConfigError(
+                f"DOCKER_HOST {host}: espdock's Docker library cannot reach an ssh engine at an IPv6 address",
+                "Name the host in your ssh config (`Host engine` with `HostName " + str(parts.hostname) + "`) and "
+                "set DOCKER_HOST=ssh://USER@engine.",
+            )
+        if port is None and host.startswith("tcp://"):
             name = parts.hostname or "localhost"
             host = f"tcp://{f'[{name}]' if ':' in name else name}:2375{parts.path}"
     return {**env, "DOCKER_HOST": host}
@@ -188,7 +195,6 @@ def how_to_start(env: Mapping[str, str], context: tuple[str, str] | None, podman
     if where.startswith("ssh://"):
         # An ssh that could not log in said so above; starting an engine would not mend it.
         parts = urlsplit(where)
-        # ssh takes an IPv6 address bare (user@::1), never in the URL's brackets.
         destination = f"{parts.username}@{parts.hostname}" if parts.username else str(parts.hostname)
         login = f"ssh -p {parts.port} {destination}" if parts.port else f"ssh {destination}"
         return (

@@ -27,6 +27,7 @@ from espdock.images.engine import Engine, Mount, format_argv
 from espdock.images.machine_lock import lock_holder, machine_lock
 from espdock.images.port_urls import port_url_key
 from espdock.images.visibility import workspace_mount
+from espdock.layout import FIRMWARE_DIR
 from espdock.workspace import Workspace, component_targets
 
 URL_SCHEMES = ("socket", "rfc2217")
@@ -455,8 +456,12 @@ def check_flash_files(firmware_dir: Path, flasher_args: dict, package: str) -> N
         str(f) for f in (named.values() if isinstance(named, dict) else ()) if not (firmware_dir / str(f)).is_file()
     )
     if missing:
+        # Named by the link the user knows (share/PKG/firmware), not its hidden version directory.
+        shown = (
+            firmware_dir.parent / FIRMWARE_DIR if firmware_dir.name.startswith(f".{FIRMWARE_DIR}-") else firmware_dir
+        )
         raise WorkspaceError(
-            f"the installed firmware of {package} lacks {', '.join(missing)} ({firmware_dir})",
+            f"the installed firmware of {package} lacks {', '.join(missing)} ({shown})",
             f"Run `espdock build {package}`: it installs the build's files again.",
         )
 

@@ -608,7 +608,8 @@ def test_firmware_edited_in_the_install_tree_is_put_back_by_the_next_install_and
     (firmware / "bootloader/bootloader.bin").unlink()
     flashed = espdock("flash", "cam", "--port", str(tmp_path / "ttyUSB9"), cwd=root, env={"DOCKER_HOST": "unix:///x"})
     assert flashed.returncode == 2, flashed.stdout + flashed.stderr
-    assert "the installed firmware of cam lacks bootloader/bootloader.bin" in " ".join(flashed.stderr.split())
+    said = " ".join(flashed.stderr.split())
+    assert f"the installed firmware of cam lacks bootloader/bootloader.bin ({firmware})" in said, said
     # Not for what writes none of them: a monitor, a provision (the NVS partition alone).
     for command in (("monitor", "cam"), ("provision", "cam", "--wifi-ssid", "lab", "--agent", "10.0.0.1:8888")):
         other = espdock(*command, "--port", str(tmp_path / "ttyUSB9"), cwd=root, env={"DOCKER_HOST": "unix:///x"})

@@ -4,6 +4,7 @@ import re
 import shutil
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -385,6 +386,10 @@ def running(*argv: str):
     """A process running ARGV for the block (a lock's holder, or what got its pid since)."""
     process = subprocess.Popen(argv)
     try:
+        # Until it has exec'd: just forked, its command line is still this process's.
+        wanted = [a.encode() for a in argv]
+        while Path(f"/proc/{process.pid}/cmdline").read_bytes().split(b"\0")[: len(argv)] != wanted:
+            time.sleep(0.01)
         yield process
     finally:
         process.kill()

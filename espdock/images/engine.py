@@ -60,6 +60,8 @@ DEFAULT_HOST = f"unix://{DEFAULT_SOCKET}"
 # The addresses docker/cli's ParseHost takes (npipe: Windows; fd: systemd's socket activation).
 ENGINE_SCHEMES = ("unix", "tcp", "ssh", "npipe", "fd")
 OPERATION_TIMEOUT = 120
+# Seconds a foreground run waits, beyond interrupts.GRACE, for an engine to answer its stop.
+STOP_WAIT = 5.0
 # `docker run`'s own exit code when the engine could not create or start the container.
 DOCKER_RUN_FAILED = 125
 # A container's exit code when SIGKILL ended it (`docker kill`, the kernel's OOM killer, ...).
@@ -969,10 +971,13 @@ class Engine:
         received: list[int] = []
         sent = 0
         first_sent: float | None = None
+        first_received: list[float] = []
         killed = False
+        abandoned = False
 
         def on_signal(signum: int, frame: object) -> None:
             received.append(signum)
+            first_received[:] = first_received or [time.monotonic()]
 
         handled = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
         previous = {signum: signal.signal(signum, on_signal) for signum in handled}
@@ -995,6 +1000,11 @@ class Engine:
                     break
                 except subprocess.TimeoutExpired:
                     pass
+                if first_received and time.monotonic() > first_received[0] + interrupts.GRACE + STOP_WAIT:
+                    # The engine answers neither the signal nor the kill (it hangs): `docker kill` and
+                    # the CLI hang with it, and a Ctrl-C never ended espdock.
+                    abandoned = True
+                    break
                 if sent < len(received) and self._signal_container(name, received[sent], sent >= 2):
                     sent += 1
                     first_sent = first_sent or time.monotonic()
@@ -1008,9 +1018,18 @@ class Engine:
             if process is not None and process.poll() is None:
                 process.kill()
                 process.wait()
-            subprocess.run([docker_cli, "rm", "--force", name], env=self._cli_env, capture_output=True, check=False)
+            with contextlib.suppress(subprocess.TimeoutExpired):
+                subprocess.run(
+                    [docker_cli, "rm", "--force", name], env=self._cli_env, capture_output=True, check=False,
+                    timeout=STOP_WAIT,
+                )  # fmt: skip
             reaper.kill()
             reaper.wait()
+        if abandoned:
+            raise Interrupted(
+                f"interrupted; the engine did not stop the container within {interrupts.GRACE + STOP_WAIT:.0f} s, "
+                f"so espdock stopped waiting: it may still run ({interrupts.LEFT_BEHIND})"
+            )
         if code == DOCKER_RUN_FAILED and not received:
             if not self._answers():
                 # The CLI's own code for the engine going away under a running node (live-restore
@@ -1027,9 +1046,13 @@ class Engine:
         """Send SIGNUM (or, with KILL, SIGKILL) to container NAME's process; False while it does not exist yet."""
         docker_cli = self.docker_command()
         which = "KILL" if kill else signal.Signals(signum).name
-        result = subprocess.run(
-            [docker_cli, "kill", "--signal", which, name], env=self._cli_env, capture_output=True, check=False
-        )
+        try:
+            result = subprocess.run(
+                [docker_cli, "kill", "--signal", which, name], env=self._cli_env, capture_output=True, check=False,
+                timeout=STOP_WAIT,
+            )  # fmt: skip
+        except subprocess.TimeoutExpired:  # an engine that hangs
+            return False
         return result.returncode == 0
 
     def _host_users(self, spec: RunSpec) -> bool:

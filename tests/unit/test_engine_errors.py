@@ -735,3 +735,47 @@ def test_an_ssh_engine_that_does_not_answer_is_told_to_check_the_login_first():
                        ("ssh://me@build:abc", "its port is not a number")):  # fmt: skip
         with pytest.raises(ConfigError, match=said):
             Engine.connect({"DOCKER_HOST": host}, timeout=5)
+
+
+def test_a_foreground_run_ends_on_ctrl_c_when_the_engine_hangs(tmp_path):
+    """An engine stopped (kill -STOP of Podman's service, a wedged dockerd): `docker kill` and the
+    CLI hung with it, and `espdock run` never ended on Ctrl-C, however many."""
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    from espdock import interrupts
+
+    stop_wait = 5.0  # engine.STOP_WAIT
+    fake = tmp_path / "bin/docker"  # every docker command hangs, as against a stopped engine
+    fake.parent.mkdir()
+    fake.write_text("#!/bin/sh\ntrap '' INT TERM\nexec sleep 299.5\n")
+    fake.chmod(0o755)
+    script = (
+        "import os, sys\n"
+        "from espdock.errors import Interrupted\n"
+        "from espdock.images.engine import Engine, RunSpec\n"
+        "spec = RunSpec(image='debian:bookworm-slim', argv=('sleep', '300'), workdir='/')\n"
+        "print('running', flush=True)\n"
+        "try:\n"
+        "    Engine(dict(os.environ)).run_foreground(spec)\n"
+        "except Interrupted as exc:\n"
+        "    print(exc.message, flush=True)\n"
+        "    sys.exit(130)\n"
+    )
+    env = {**os.environ, "PATH": f"{fake.parent}:{os.environ['PATH']}", "DOCKER_HOST": "unix:///nonexistent.sock"}
+    run = subprocess.Popen([sys.executable, "-c", script], env=env, stdout=subprocess.PIPE, text=True)
+    try:
+        assert run.stdout.readline().strip() == "running"
+        time.sleep(1)
+        run.send_signal(signal.SIGINT)
+        started = time.monotonic()
+        said, _ = run.communicate(timeout=interrupts.GRACE + 4 * stop_wait + 10)
+        took = time.monotonic() - started
+    finally:
+        run.kill()
+        subprocess.run(["pkill", "-KILL", "-xf", "sleep 299.5"], check=False)  # the fake's, if any is left
+    assert run.returncode == 130, said
+    assert "the engine did not stop the container within 13 s, so espdock stopped waiting" in said, said
+    assert took < interrupts.GRACE + 4 * stop_wait, f"{took:.0f} s"

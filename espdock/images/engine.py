@@ -141,7 +141,10 @@ def _as_the_cli_reads(env: dict[str, str]) -> dict[str, str]:
     if not host:
         return env
     if "://" not in host:
-        if host.startswith(("/", ".", "~")):
+        # A path: absolute, relative (`run/user/1000/docker.sock`, which the CLI takes for tcp://run),
+        # or a socket's file name.
+        head, slash, _ = host.partition("/")
+        if host.startswith(("/", ".", "~")) or host.endswith(".sock") or (slash and ":" not in head):
             raise ConfigError(
                 f"DOCKER_HOST {host}: a socket's path needs its scheme, unix://{host}",
                 f"Set DOCKER_HOST=unix://{host} (an engine is unix:///path/docker.sock, tcp://HOST:PORT or "
@@ -173,6 +176,13 @@ def _local_socket(env: Mapping[str, str]) -> str | None:
     """The engine's unix socket path, or None when DOCKER_HOST names another kind of host."""
     host = _host(env)
     return host.removeprefix("unix://") if host.startswith("unix://") else None
+
+
+def _is_socket(path: str) -> bool:
+    try:
+        return stat.S_ISSOCK(os.stat(path).st_mode)
+    except OSError:
+        return False
 
 
 def _is_podman(where: str, podman: bool | None) -> bool:
@@ -207,6 +217,11 @@ def how_to_start(env: Mapping[str, str], context: tuple[str, str] | None, podman
     if socket is None:
         return f"Start the engine at {where}"
     if socket == DEFAULT_SOCKET:
+        # A user's own engine running beside no system one (rootless Docker, Podman): name it.
+        runtime = env.get("XDG_RUNTIME_DIR") or f"/run/user/{os.getuid()}"
+        own = [p for p in (f"{runtime}/docker.sock", f"{runtime}/podman/podman.sock") if _is_socket(p)]
+        if own:
+            return f"Start Docker (`sudo systemctl start docker`), or use your own engine: DOCKER_HOST=unix://{own[0]}"
         return "Start Docker (`sudo systemctl start docker`)"
     return f"Start the daemon of {socket} (rootless Docker: `systemctl --user start docker`)"
 
@@ -1566,7 +1581,7 @@ def _unreachable(what: str, exc: Exception) -> EngineUnavailable:
         return EngineUnavailable(
             f"{what}: it took the connection and gave no answer in time",
             "Check DOCKER_HOST: what listens there is no engine (another service's port), or the engine there "
-            "hangs (`docker version` against it says the same).",
+            "hangs (`docker version` against it hangs as well).",
         )
     tls = _tls_failure(text)
     if tls is None:

@@ -562,6 +562,23 @@ def test_a_podman_engine_that_went_away_says_its_container_may_still_run_and_how
     assert "docker" not in err.value.hint
 
 
+def test_a_missing_default_socket_s_hint_names_the_user_s_own_running_engine(tmp_path):
+    """No system engine, the user's rootless Docker or Podman running: the hint said only to start
+    Docker with sudo."""
+    import socket
+
+    from espdock.images.engine import DEFAULT_SOCKET
+
+    (tmp_path / "podman").mkdir()
+    own = socket.socket(socket.AF_UNIX)
+    own.bind(str(tmp_path / "podman/podman.sock"))
+    try:
+        hint = Engine({"DOCKER_HOST": f"unix://{DEFAULT_SOCKET}", "XDG_RUNTIME_DIR": str(tmp_path)}).start_hint()
+    finally:
+        own.close()
+    assert f"or use your own engine: DOCKER_HOST=unix://{tmp_path}/podman/podman.sock" in hint, hint
+
+
 def test_the_default_socket_s_engine_is_started_as_docker_is():
     from espdock.images.engine import DEFAULT_SOCKET
 
@@ -600,6 +617,10 @@ def test_docker_host_is_read_as_the_docker_cli_reads_it():
         (" unix:///run/user/1000/docker.sock", "unix:///run/user/1000/docker.sock"),
     ):
         assert Engine({"DOCKER_HOST": given}).host == read, given
+    for path in ("docker.sock", "run/user/1000/docker.sock"):  # the CLI's tcp://docker.sock:2375, tcp://run
+        with pytest.raises(ConfigError, match="a socket's path needs its scheme"):
+            Engine({"DOCKER_HOST": path})
+    assert Engine({"DOCKER_HOST": "localhost:5555/path"}).host == "tcp://localhost:5555/path"
     with pytest.raises(ConfigError) as err:
         Engine.connect({"DOCKER_HOST": "/var/run/docker.sock"}, timeout=5)
     assert err.value.exit_code == 2

@@ -167,7 +167,7 @@ def compose(ctx: typer.Context, workspace: WorkspaceOption = None) -> None:
         warning := compose_file.foreign_compose_warning(ws.root, repository, args, os.environ)
     ):
         notify(warning)
-    if subcommand in ("up", "create") and installed:
+    if subcommand in ("up", "create"):
         found = compose_file.built_executables(ws, packages)
         for said in compose_file.lagging_compose_warnings(ws.root, repository, found, args, os.environ):
             notify(said)

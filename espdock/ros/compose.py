@@ -269,6 +269,11 @@ def lagging_compose_warnings(
             f"note: {path.name} runs none of {', '.join(unrun)}, built since espdock wrote it: `espdock init "
             "--compose` writes the built executables as services"
         ]
+    if ours and not built and not ran:
+        return [
+            f"note: {path.name} has no node to run yet (espdock wrote it before anything was built): `espdock "
+            "build`, then `espdock init --compose` writes the built executables as services"
+        ]
     return []
 
 

@@ -1198,6 +1198,9 @@ def test_compose_up_says_when_the_compose_file_lags_what_the_runtime_image_holds
     package gone from the branch started a container that died at once ("not found")."""
     root = copy_workspace(tmp_path / "lag", packages=(), test_packages=("beacon_nodes", "uptime_tools"))
     assert espdock("init", cwd=root, env=NO_ENGINE).returncode == 0  # compose.yaml, before any build
+    before = espdock("compose", "up", cwd=root, env=NO_ENGINE)
+    assert "note: compose.yaml has no node to run yet (espdock wrote it before anything was built): `espdock " \
+        "build`, then `espdock init --compose`" in " ".join((before.stdout + before.stderr).split())  # fmt: skip
     for package, exes in (("beacon_nodes", ("beacon", "beacon_log")), ("uptime_tools", ("tools_banner",))):
         lib = root / "ws/install" / package / "lib" / package
         lib.mkdir(parents=True)

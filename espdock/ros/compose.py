@@ -149,11 +149,10 @@ def default_compose_file(root: Path, args: list[str] | tuple[str, ...], env: Map
         return None
     if env.get("COMPOSE_FILE") or env_file_sets(compose_env_files(args, root, env), "COMPOSE_FILE"):
         return None
-    path = next((root / name for name in COMPOSE_FILES if (root / name).is_file()), None)
     if any((root / name.replace(".y", ".override.y")).exists() for name in COMPOSE_FILES):
-        # Compose merges an override into it: the file alone says nothing sure of what runs.
+        # Compose merges an override into the file: the file alone says nothing sure of what runs.
         return None
-    return path
+    return next((root / name for name in COMPOSE_FILES if (root / name).is_file()), None)
 
 
 def _project_named_elsewhere(root: Path, args: list[str] | tuple[str, ...], env: Mapping[str, str]) -> bool:

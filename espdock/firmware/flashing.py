@@ -20,6 +20,7 @@ from urllib.parse import urlsplit
 from espdock.config import CHIP_TARGETS
 from espdock.errors import ConfigError, EspdockError, Interrupted, WorkspaceError
 from espdock.firmware import transport
+from espdock.firmware.install import flash_file_names
 from espdock.firmware.plan import LONGCALLS_RISCV, IdfBuild
 from espdock.firmware.provision import IMAGE_MOUNT
 from espdock.firmware.steps import FirmwareSteps
@@ -451,10 +452,7 @@ def check_flash_files(firmware_dir: Path, flasher_args: dict, package: str) -> N
     """Refuse to flash PACKAGE's firmware at FIRMWARE_DIR where a file FLASHER_ARGS names is gone:
     said here, not by esptool inside the container, whose "No such file" came back as exit 6, a
     problem with the serial port. (A monitor or a provision writes none of them.)"""
-    named = flasher_args.get("flash_files")
-    missing = sorted(
-        str(f) for f in (named.values() if isinstance(named, dict) else ()) if not (firmware_dir / str(f)).is_file()
-    )
+    missing = [name for name in flash_file_names(flasher_args) if not (firmware_dir / name).is_file()]
     if missing:
         # Named by the link the user knows (share/PKG/firmware), not its hidden version directory.
         shown = (

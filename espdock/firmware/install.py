@@ -28,6 +28,12 @@ from espdock.layout import FIRMWARE_DIR
 from espdock.workspace import give_tree
 
 
+def flash_file_names(flasher_args: dict) -> list[str]:
+    """The files FLASHER_ARGS (a parsed flasher_args.json) has esptool write, relative to its directory."""
+    named = flasher_args.get("flash_files")
+    return sorted({str(name) for name in named.values()}) if isinstance(named, dict) else []
+
+
 def firmware_files(build_dir: Path) -> list[str]:
     """The artefacts to install, relative to BUILD_DIR, as flasher_args.json names them."""
     flasher_args = build_dir / "flasher_args.json"
@@ -35,7 +41,7 @@ def firmware_files(build_dir: Path) -> list[str]:
         args = json.loads(flasher_args.read_text())
     except (OSError, json.JSONDecodeError) as exc:
         raise BuildFailed(f"{flasher_args} is missing or unreadable after the build: {exc}") from exc
-    files = {"flasher_args.json", *args.get("flash_files", {}).values()}
+    files = {"flasher_args.json", *flash_file_names(args)}
     for optional in ("flash_args", "project_description.json"):
         if (build_dir / optional).is_file():
             files.add(optional)

@@ -163,13 +163,10 @@ def compose(ctx: typer.Context, workspace: WorkspaceOption = None) -> None:
             "Wait for it to finish, then run again.",
         )
     repository = runtime_repository(config, ws)
-    if subcommand in nodes.COMPOSE_CREATING and (
-        warning := compose_file.foreign_compose_warning(ws.root, repository, args, os.environ)
-    ):
-        notify(warning)
-    if subcommand in ("up", "create"):
-        found = compose_file.built_executables(ws, packages)
-        for said in compose_file.lagging_compose_warnings(ws.root, repository, found, args, os.environ):
+    if subcommand in nodes.COMPOSE_CREATING:
+        # `up` and `create` start the file's services: what they run is checked against install/ too.
+        found = compose_file.built_executables(ws, packages) if subcommand in ("up", "create") else None
+        for said in compose_file.compose_warnings(ws.root, repository, args, os.environ, found):
             notify(said)
     engine = bootstrap.ensure_engine(os.environ, notify)
     bootstrap.ensure_compose(os.environ, notify)

@@ -109,15 +109,11 @@ def starter_compose(project: str, image: str, executables: dict[str, list[str]])
     return f"{COMPOSE_MARK}{hashlib.sha256(body.encode()).hexdigest()}\n{body}"
 
 
-def foreign_runtime_images(text: str, own: str) -> tuple[list[str], str | None]:
-    """The images TEXT (a compose file) runs that are another workspace's runtime images
+def foreign_runtime_images(data: object, own: str) -> tuple[list[str], str | None]:
+    """The images DATA (a parsed compose file) runs that are another workspace's runtime images
     (espdock/<name>:latest where OWN, espdock/<this workspace's name>, is not), and, with those, its
     project name (`name:`): a copied or cloned workspace's compose file still naming the original,
     whose nodes it would run and, under the same project name, whose containers it would replace."""
-    try:
-        data = yaml.safe_load(text)
-    except yaml.YAMLError:
-        return [], None  # Compose says what is wrong with it
     services = data.get("services") if isinstance(data, dict) else None
     images = sorted(
         {
@@ -175,30 +171,58 @@ def _active_profiles(root: Path, args: list[str] | tuple[str, ...], env: Mapping
     return {*global_values(args, "--profile"), *filter(None, env.get("COMPOSE_PROFILES", "").split(","))}
 
 
-def foreign_compose_warning(
-    root: Path, own: str, args: list[str] | tuple[str, ...], env: Mapping[str, str]
-) -> str | None:
-    """The warning for a compose file in ROOT (the one Compose reads when ARGS and ENV choose
-    none) that runs another workspace's runtime image than OWN (espdock/<name>), or None."""
+def compose_warnings(
+    root: Path,
+    own: str,
+    args: list[str] | tuple[str, ...],
+    env: Mapping[str, str],
+    found: dict[str, list[str]] | None = None,
+) -> list[str]:
+    """What is wrong in ROOT's compose file (the one Compose reads when ARGS and ENV choose none)
+    for this workspace's runtime image OWN (espdock/<name>): another workspace's runtime image it
+    runs, and, given FOUND (built_executables: `up` and `create` start the services), where it lags
+    that image."""
     path = default_compose_file(root, args, env)
     if path is None:
-        return None
+        return []
     text = path.read_text(errors="replace")
-    foreign, project = foreign_runtime_images(text, own)
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError:
+        return []  # Compose says what is wrong with it
+    ours = generated_unchanged(text)
+    said = [warning] if (warning := _foreign_warning(root, path.name, data, ours, own, args, env)) else []
+    if found is not None:
+        said += _lagging_warnings(root, path.name, data, ours, own, found, args, env)
+    return said
+
+
+def _foreign_warning(
+    root: Path,
+    name: str,
+    data: object,
+    ours: bool,
+    own: str,
+    args: list[str] | tuple[str, ...],
+    env: Mapping[str, str],
+) -> str | None:
+    """The warning for compose file NAME (DATA parsed; OURS: as espdock wrote it) that runs another
+    workspace's runtime image than OWN, or None."""
+    foreign, project = foreign_runtime_images(data, own)
     if not foreign:
         return None
     if project == own.removeprefix("espdock/") or _project_named_elsewhere(root, args, env):
         project = None  # this workspace's own project name, or another one: nothing of another's gets replaced
     replaced = f", and its project `name: {project}` is that workspace's too (its containers get replaced)"
-    if generated_unchanged(text):
+    if ours:
         # As espdock wrote it: the command that wrote it writes this workspace's (a renamed or copied one's).
         fix = "`espdock init --compose` writes it afresh for this workspace"
     else:
         # The project name is kept by a copy whatever it is (this repository's is espdock-demo).
         rename = f" and name: {own.removeprefix('espdock/')}"
-        fix = f"set image: {own}:latest{rename if project else ''} in {path.name}"
+        fix = f"set image: {own}:latest{rename if project else ''} in {name}"
     return (
-        f"warning: {path.name} runs {', '.join(foreign)}, another workspace's runtime image, not this one's "
+        f"warning: {name} runs {', '.join(foreign)}, another workspace's runtime image, not this one's "
         f"({own}:latest, of this install/){replaced if project else ''}; {fix} (a copied, cloned or renamed "
         "workspace keeps the original's)"
     )
@@ -217,30 +241,29 @@ def built_executables(workspace: Workspace, packages: tuple[Package, ...]) -> di
     }
 
 
-def lagging_compose_warnings(
-    root: Path, repository: str, found: dict[str, list[str]], args: list[str], env: Mapping[str, str]
+def _lagging_warnings(
+    root: Path,
+    name: str,
+    data: object,
+    ours: bool,
+    repository: str,
+    found: dict[str, list[str]],
+    args: list[str] | tuple[str, ...],
+    env: Mapping[str, str],
 ) -> list[str]:
-    """What is wrong between ROOT's compose file (default_compose_file's) and the runtime image of
-    REPOSITORY, whose install/ holds FOUND (built_executables), in the services on that image that
+    """What is wrong between compose file NAME (DATA parsed; OURS: as espdock wrote it) and the
+    runtime image of REPOSITORY, whose install/ holds FOUND, in the services on that image that
     start without a profile: one that runs an executable the image lacks (a package gone from the
     branch: the container died at start, "not found"), and, in a file as espdock wrote it, built
     executables it runs no service of (written before the first build, it had none: Compose said
     only "no service selected")."""
     from espdock.ros.plan import RUNTIME_INSTALL
 
-    path = default_compose_file(root, args, env)
-    if path is None:
-        return []
-    text = path.read_text(errors="replace")
-    try:
-        data = yaml.safe_load(text)
-    except yaml.YAMLError:
-        return []  # Compose says what is wrong with it
     services = data.get("services") if isinstance(data, dict) else None
     built = {f"{RUNTIME_INSTALL}/{p}/lib/{p}/{exe}": exe for p, exes in found.items() for exe in exes}
     active = _active_profiles(root, args, env)
     ran, lacking = set(), []
-    for name, service in services.items() if isinstance(services, dict) else ():
+    for service_name, service in services.items() if isinstance(services, dict) else ():
         image = service.get("image") if isinstance(service, dict) else None
         if not isinstance(image, str) or not image.startswith(f"{repository}:"):
             continue  # another image: its own install tree
@@ -255,22 +278,21 @@ def lagging_compose_warnings(
             continue
         ran.add(run)
         if run not in built:
-            lacking.append(f"{name} ({package} {exe.removeprefix(package + '/')})")
-    ours = generated_unchanged(text)
+            lacking.append(f"{service_name} ({package} {exe.removeprefix(package + '/')})")
     if lacking:
-        fix = "`espdock init --compose` writes it afresh" if ours else f"edit or remove them in {path.name}"
+        fix = "`espdock init --compose` writes it afresh" if ours else f"edit or remove them in {name}"
         return [
-            f"warning: {path.name}: {', '.join(lacking)} run what the runtime image lacks (not built, or a package "
+            f"warning: {name}: {', '.join(lacking)} run what the runtime image lacks (not built, or a package "
             f"no longer in the workspace): their containers fail at start; {fix}"
         ]
     if ours and (unrun := sorted(exe for run, exe in built.items() if run not in ran)):
         return [
-            f"note: {path.name} runs none of {', '.join(unrun)}, built since espdock wrote it: `espdock init "
+            f"note: {name} runs none of {', '.join(unrun)}, built since espdock wrote it: `espdock init "
             "--compose` writes the built executables as services"
         ]
     if ours and not built and not ran:
         return [
-            f"note: {path.name} has no node to run yet (espdock wrote it before anything was built): `espdock "
+            f"note: {name} has no node to run yet (espdock wrote it before anything was built): `espdock "
             "build`, then `espdock init --compose` writes the built executables as services"
         ]
     return []

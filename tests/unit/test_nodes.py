@@ -372,40 +372,45 @@ def test_the_shell_opens_where_it_was_started_in_the_colcon_root_with_a_home_on_
 
 
 def test_a_compose_file_that_runs_another_workspace_s_runtime_image_is_found():
+    import yaml
+
     from espdock.ros.compose import foreign_runtime_images, starter_compose
+
+    def found(text: str, own: str) -> tuple[list[str], str | None]:
+        return foreign_runtime_images(yaml.safe_load(text), own)
 
     original = starter_compose("robot", "espdock/robot:latest", {"talk": ["talker"]})
     # A copy or clone of the workspace under another name still runs the original's nodes.
-    assert foreign_runtime_images(original, "espdock/robot-copy") == (["espdock/robot:latest"], "robot")
-    assert foreign_runtime_images(original, "espdock/robot") == ([], None)
+    assert found(original, "espdock/robot-copy") == (["espdock/robot:latest"], "robot")
+    assert found(original, "espdock/robot") == ([], None)
     # Whatever its project name (this repository's is espdock-demo, its image espdock/demo): a
     # copy keeps it, and replaces the original's containers. It went unsaid where they differed.
     other_project = original.replace("name: robot", "name: sim")
-    assert foreign_runtime_images(other_project, "espdock/robot-copy") == (["espdock/robot:latest"], "sim")
+    assert found(other_project, "espdock/robot-copy") == (["espdock/robot:latest"], "sim")
     demo = (Path(__file__).parents[2] / "compose.yaml").read_text()
-    assert foreign_runtime_images(demo, "espdock/demo52x") == (["espdock/demo:latest"], "espdock-demo")
+    assert found(demo, "espdock/demo52x") == (["espdock/demo:latest"], "espdock-demo")
     # Not a workspace's runtime image: keyed images, an interpolated one, anyone else's.
     for image in ("espdock/ros-jazzy-runtime:0123abcd", "espdock/${NAME}:latest", "microros/micro-ros-agent:jazzy"):
-        assert foreign_runtime_images(f"services:\n  a:\n    image: {image}\n", "espdock/robot") == ([], None)
+        assert found(f"services:\n  a:\n    image: {image}\n", "espdock/robot") == ([], None)
 
 
 def test_a_foreign_image_in_a_compose_file_named_as_this_workspace_s_project_is_said_without_that_claim(tmp_path):
     """A service of espdock/other:latest in ws1's own file (`name: ws1`): the warning said ws1's
     project name was the other workspace's, whose containers would be replaced."""
-    from espdock.ros.compose import foreign_compose_warning, starter_compose
+    from espdock.ros.compose import compose_warnings, starter_compose
 
     (tmp_path / "compose.yaml").write_text(starter_compose("ws1", "espdock/other:latest", {"talk": ["talker"]}))
-    said = foreign_compose_warning(tmp_path, "espdock/ws1", [], {})
-    assert said is not None and "runs espdock/other:latest, another workspace's runtime image" in said, said
+    said = "\n".join(compose_warnings(tmp_path, "espdock/ws1", [], {}))
+    assert "runs espdock/other:latest, another workspace's runtime image" in said, said
     assert "name: ws1" not in said and "get replaced" not in said, said
     # Another file chosen: not this one's to judge.
-    assert foreign_compose_warning(tmp_path, "espdock/ws1", [], {"COMPOSE_FILE": "other.yaml"}) is None
+    assert compose_warnings(tmp_path, "espdock/ws1", [], {"COMPOSE_FILE": "other.yaml"}) == []
     # The other's project name in the file, but the project named elsewhere: nothing of it gets replaced.
     (tmp_path / "compose.yaml").write_text(starter_compose("other", "espdock/other:latest", {"talk": ["talker"]}))
-    assert "get replaced" in foreign_compose_warning(tmp_path, "espdock/ws1", [], {})
+    assert "get replaced" in "\n".join(compose_warnings(tmp_path, "espdock/ws1", [], {}))
     for args, env in ((["-p", "mine"], {}), ([], {"COMPOSE_PROJECT_NAME": "mine"})):
-        said = foreign_compose_warning(tmp_path, "espdock/ws1", args, env)
-        assert said is not None and "get replaced" not in said, said
+        said = "\n".join(compose_warnings(tmp_path, "espdock/ws1", args, env))
+        assert "runs espdock/other:latest" in said and "get replaced" not in said, said
 
 
 def test_a_fast_dds_profiles_file_reaches_the_node_mounted_or_is_refused(ws, tmp_path, monkeypatch):

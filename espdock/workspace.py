@@ -985,11 +985,18 @@ def _own_holder(holder: Path) -> Path:
     return holder.with_name(f"{holder.name}.{os.getuid()}")
 
 
-def _names_this_process(path: Path) -> bool:
+def _read_holder(path: Path) -> tuple[str, str] | None:
+    """The pid and command write_holder wrote at PATH, or None where there is no such note."""
     try:
-        return path.read_text(errors="replace").partition("\n")[0] == str(os.getpid())
+        pid, _, command = path.read_text(errors="replace").partition("\n")
     except OSError:
-        return False
+        return None  # the holder has not written it yet, or has just finished
+    return pid.strip(), command.removesuffix("\n")
+
+
+def _names_this_process(path: Path) -> bool:
+    note = _read_holder(path)
+    return note is not None and note[0] == str(os.getpid())
 
 
 def holder_text(holder: Path) -> str:
@@ -997,11 +1004,10 @@ def holder_text(holder: Path) -> str:
     not, or where that process has gone: a killed espdock's note that the next holder could not
     replace (another user's, in a sticky /tmp) named a dead pid to every later waiter."""
     for path in (holder, *sorted(holder.parent.glob(f"{glob.escape(holder.name)}.*"))):
-        try:
-            pid, _, command = path.read_text(errors="replace").partition("\n")
-        except OSError:
-            continue  # the holder has not written it yet, or has just finished
-        pid, command = pid.strip(), command.removesuffix("\n")
+        note = _read_holder(path)
+        if note is None:
+            continue
+        pid, command = note
         if pid.isdigit() and _still_running(int(pid), command):
             return f" (pid {pid}: {command.strip()})"
     return ""

@@ -324,21 +324,21 @@ def unignored_outputs(root: Path, colcon_root: str) -> list[str]:
     and a team's first `git add -A` committed build/, install/ and log/. Empty outside a git work
     tree (or without git)."""
     outputs = posixpath.normpath(f"/{colcon_root}")
-    unignored = []
-    for line in (posixpath.join(outputs, d) + "/" for d in ("build", "install", "log")):
-        try:
-            asked = subprocess.run(
-                ["git", "-C", str(root), "check-ignore", "--quiet", "--no-index", "--", line.lstrip("/")],
-                capture_output=True,
-                check=False,
-            )
-        except OSError:
-            return []
-        if asked.returncode not in (0, 1):  # not in a repository
-            return []
-        if asked.returncode == 1:
-            unignored.append(line)
-    return unignored
+    lines = [posixpath.join(outputs, d) + "/" for d in ("build", "install", "log")]
+    try:
+        # One answer per path: source, line, pattern (a `!` one lets the path in again; none: no rule), path.
+        asked = subprocess.run(
+            ["git", "-C", str(root), "check-ignore", "--no-index", "--verbose", "--non-matching", "-z", "--stdin"],
+            input="".join(line.lstrip("/") + "\0" for line in lines).encode(),
+            capture_output=True,
+            check=False,
+        )
+    except OSError:
+        return []
+    if asked.returncode not in (0, 1):  # not in a repository
+        return []
+    patterns = asked.stdout.decode(errors="replace").split("\0")[2::4]
+    return [line for line, pattern in zip(lines, patterns, strict=False) if not pattern or pattern.startswith("!")]
 
 
 GITATTRIBUTES = ".gitattributes"

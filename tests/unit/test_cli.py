@@ -405,6 +405,9 @@ def test_init_has_git_ignore_the_build_outputs_and_keeps_an_ignore_file_of_its_o
     said = " ".join(kept.stdout.split())
     assert "note: git does not leave colcon's outputs out of this repository" in said, kept.stdout
     assert said.count("add these lines to it: /build/ /install/ /log/") == 1, kept.stdout
+    (tmp_path / "mine/.gitignore").write_text("secrets/\nbuild/\n")
+    partly = espdock("init", "mine", cwd=tmp_path, env=NO_ENGINE)
+    assert "add these lines to it: /install/ /log/" in " ".join(partly.stdout.split()), partly.stdout
     (tmp_path / "mine/.gitignore").write_text("secrets/\nbuild/\ninstall/\nlog/\n")
     again = espdock("init", "mine", cwd=tmp_path, env=NO_ENGINE)
     assert again.returncode == 0 and "colcon's outputs" not in again.stdout, again.stdout

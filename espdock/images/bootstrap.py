@@ -19,7 +19,8 @@ from pathlib import Path
 from espdock.config import Config
 from espdock.errors import EngineUnavailable, EspdockError, ImageBuildError
 from espdock.images import contexts
-from espdock.images.engine import DEFAULT_HOST, Engine, compose_available, find_docker_cli, podman_docker, wheel_compose
+from espdock.images.addresses import DEFAULT_HOST
+from espdock.images.engine import Engine, compose_available, find_docker_cli, podman_docker, wheel_compose
 from espdock.images.machine_lock import machine_lock
 
 Notify = Callable[[str], None]

@@ -23,7 +23,6 @@ import re
 import secrets
 import shutil
 import signal
-import stat
 import subprocess
 import sys
 import tarfile
@@ -37,7 +36,7 @@ from datetime import UTC, datetime
 from enum import StrEnum
 from pathlib import Path
 from typing import IO, Any
-from urllib.parse import quote, urlencode, urlsplit
+from urllib.parse import quote, urlencode
 
 from espdock import interrupts
 from espdock.errors import (
@@ -49,16 +48,12 @@ from espdock.errors import (
     Interrupted,
     MountSourceMissing,
 )
-from espdock.images import build_failures, contexts, local_api, sdk
+from espdock.images import addresses, build_failures, contexts, local_api, sdk
 from espdock.images.port_urls import PORT_URL, same_port_url
 from espdock.images.sdk import docker, requests
 from espdock.scratch import owner_alive, owner_identity
 
 LineSink = Callable[[str], None]
-DEFAULT_SOCKET = "/var/run/docker.sock"
-DEFAULT_HOST = f"unix://{DEFAULT_SOCKET}"
-# The addresses docker/cli's ParseHost takes (npipe: Windows; fd: systemd's socket activation).
-ENGINE_SCHEMES = ("unix", "tcp", "ssh", "npipe", "fd")
 OPERATION_TIMEOUT = 120
 # Seconds a foreground run waits, beyond interrupts.GRACE, for an engine to answer its stop.
 STOP_WAIT = 5.0
@@ -124,106 +119,6 @@ def _create_config(
     if spec.user:
         config["User"] = spec.user
     return config
-
-
-def _host(env: Mapping[str, str]) -> str:
-    """The engine's address in ENV (as contexts.engine_env gives it): DOCKER_HOST, or the default socket."""
-    return env.get("DOCKER_HOST") or DEFAULT_HOST
-
-
-def _as_the_cli_reads(env: dict[str, str]) -> dict[str, str]:
-    """ENV with its DOCKER_HOST as the docker CLI reads it (docker/cli's opts.ParseHost), which
-    espdock runs on the same value: `unix://` is the default socket, `tcp://HOST` port 2375, and
-    `HOST:PORT` without a scheme tcp://; the SDK took the first as "[Errno 22] Invalid argument"
-    and the second as "port is required", each said as no engine running. A path without
-    `unix://`, which the CLI misreads as a TCP address, is refused."""
-    host = (env.get("DOCKER_HOST") or "").strip()
-    if not host:
-        return env
-    if "://" not in host:
-        # A path: absolute, relative (`run/user/1000/docker.sock`, which the CLI takes for tcp://run),
-        # or a socket's file name.
-        head, slash, _ = host.partition("/")
-        if host.startswith(("/", ".", "~")) or host.endswith(".sock") or (slash and ":" not in head):
-            raise ConfigError(
-                f"DOCKER_HOST {host}: a socket's path needs its scheme, unix://{host}",
-                f"Set DOCKER_HOST=unix://{host} (an engine is unix:///path/docker.sock, tcp://HOST:PORT or "
-                "ssh://USER@HOST).",
-            )
-        host = f"tcp://{host}"
-    if host == "unix://":
-        host = f"unix://{DEFAULT_SOCKET}"
-    elif host.startswith(("tcp://", "ssh://")):
-        parts = urlsplit(host)
-        try:
-            port = parts.port
-        except ValueError:
-            raise ConfigError(f"DOCKER_HOST {host}: its port is not a number") from None
-        if host.startswith("ssh://") and ":" in (parts.hostname or ""):
-            # The SDK's ssh transport splits host from port at the first colon.
-            raise ConfigError(
-                f"DOCKER_HOST {host}: espdock's Docker library cannot reach an ssh engine at an IPv6 address",
-                "Name the host in your ssh config (`Host engine` with `HostName " + str(parts.hostname) + "`) and "
-                "set DOCKER_HOST=ssh://USER@engine.",
-            )
-        if port is None and host.startswith("tcp://"):
-            name = parts.hostname or "localhost"
-            host = f"tcp://{f'[{name}]' if ':' in name else name}:2375{parts.path}"
-    return {**env, "DOCKER_HOST": host}
-
-
-def _local_socket(env: Mapping[str, str]) -> str | None:
-    """The engine's unix socket path, or None when DOCKER_HOST names another kind of host."""
-    host = _host(env)
-    return host.removeprefix("unix://") if host.startswith("unix://") else None
-
-
-def _is_socket(path: str) -> bool:
-    try:
-        return stat.S_ISSOCK(os.stat(path).st_mode)
-    except OSError:
-        return False
-
-
-def _is_podman(where: str, podman: bool | None) -> bool:
-    """Whether the engine at WHERE is Podman: what /_ping said (PODMAN), and before it answered,
-    its address (Podman's sockets are /run/podman/podman.sock and $XDG_RUNTIME_DIR/podman/podman.sock)."""
-    return podman if podman is not None else "podman" in where
-
-
-def how_to_start(env: Mapping[str, str], context: tuple[str, str] | None, podman: bool | None) -> str:
-    """How a user starts the engine ENV (contexts.engine_env's) names: Docker's service, rootless
-    Docker's, Podman's API service (PODMAN: what /_ping said, None before it answered), or the
-    remote engine, by the CONTEXT (contexts.selected's) that chose it when one did."""
-    where = _host(env)
-    if _is_podman(where, podman):
-        return (
-            "Start Podman's API service (`systemctl --user start podman.socket`, as root "
-            "`systemctl start podman.socket`, or `podman system service --time=0`: without it, the "
-            "service ends after 5 s with no call, in the middle of a build)"
-        )
-    if context is not None:
-        return f'Start the engine of the Docker context "{context[0]}" ({context[1]}, at {where})'
-    if where.startswith("ssh://"):
-        # An ssh that could not log in said so above; starting an engine would not mend it.
-        parts = urlsplit(where)
-        destination = f"{parts.username}@{parts.hostname}" if parts.username else str(parts.hostname)
-        login = f"ssh -p {parts.port} {destination}" if parts.port else f"ssh {destination}"
-        return (
-            f"Check that `{login}` logs in without a question (ssh says why where it does not), and that the "
-            "engine runs there"
-        )
-    socket = _local_socket(env)
-    if socket is None:
-        return f"Start the engine at {where}"
-    if socket == DEFAULT_SOCKET:
-        # A user's own engine running beside no system one (rootless Docker, Podman): name it.
-        runtime = env.get("XDG_RUNTIME_DIR") or f"/run/user/{os.getuid()}"
-        own = [p for p in (f"{runtime}/docker.sock", f"{runtime}/podman/podman.sock") if _is_socket(p)]
-        if own:
-            return f"Start Docker (`sudo systemctl start docker`), or use your own engine: DOCKER_HOST=unix://{own[0]}"
-        return "Start Docker (`sudo systemctl start docker`)"
-    return f"Start the daemon of {socket} (rootless Docker: `systemctl --user start docker`)"
 
 
 @dataclass(frozen=True)
@@ -323,11 +218,11 @@ class Engine:
         # The engine `docker` uses (DOCKER_HOST or the CLI's context), for espdock's own client and
         # for the docker CLI and compose it runs.
         self._env, self._cli_env, self._context = contexts.resolve(env)
-        self._env = _as_the_cli_reads(self._env)
-        if _host(self._env).startswith("ssh://"):
+        self._env = addresses.as_the_cli_reads(self._env)
+        if addresses.host_of(self._env).startswith("ssh://"):
             sdk.need_ssh()
         self._timeout = timeout
-        self._socket = _local_socket(self._env)
+        self._socket = addresses.local_socket(self._env)
         self._sdk = client
         # Containers over plain HTTP: on a local socket, unless a client was handed in.
         self._plain = self._socket is not None and client is None
@@ -338,7 +233,7 @@ class Engine:
     @property
     def host(self) -> str:
         """The engine's address: DOCKER_HOST, the CLI's context's, or the default socket's."""
-        return _host(self._env)
+        return addresses.host_of(self._env)
 
     @property
     def _client(self) -> Any:
@@ -349,16 +244,16 @@ class Engine:
                 # large image on a loaded machine) may take longer over an operation.
                 self._sdk = sdk.client(self._env, max(self._timeout, OPERATION_TIMEOUT), first=self._timeout)
             except docker.errors.DockerException as exc:
-                raise _unreachable(f"no Docker engine answers at {_host(self._env)}", exc) from exc
+                raise addresses.unreachable(f"no Docker engine answers at {addresses.host_of(self._env)}", exc) from exc
         return self._sdk
 
     @classmethod
     def connect(cls, env: Mapping[str, str], timeout: float = 60) -> Engine:
         """Connect to the engine DOCKER_HOST (or the default socket) names; raise if none answers."""
         engine = cls(env, timeout)
-        where = _host(engine._env)
+        where = addresses.host_of(engine._env)
         scheme, found, _ = where.partition("://")
-        if found and scheme not in ENGINE_SCHEMES:
+        if found and scheme not in addresses.ENGINE_SCHEMES:
             # The docker CLI refuses it as well ("Invalid bind address protocol"): bad input, not a stopped engine.
             raise ConfigError(
                 f"DOCKER_HOST {where}: {scheme}:// is no engine address the docker CLI knows",
@@ -369,7 +264,7 @@ class Engine:
             if status != 200:
                 raise EngineUnavailable(f"no Docker engine answers at {where}: /_ping gave HTTP {status}")
         except OSError as exc:  # first: on a local socket, with no SDK imported to name its exceptions
-            if engine._socket is not None and (kind := _not_a_socket(engine._socket)):
+            if engine._socket is not None and (kind := addresses.not_a_socket(engine._socket)):
                 # Permission denied on a file no engine listens at was "join the docker group".
                 raise EngineUnavailable(
                     f"no Docker engine answers at {where}: {engine._socket} is {kind}, not a socket",
@@ -377,9 +272,9 @@ class Engine:
                     "unix://$XDG_RUNTIME_DIR/docker.sock (rootless Docker's) or "
                     "unix://$XDG_RUNTIME_DIR/podman/podman.sock (Podman's).",
                 ) from exc
-            raise _unreachable(f"no Docker engine answers at {where}", exc) from exc
+            raise addresses.unreachable(f"no Docker engine answers at {where}", exc) from exc
         except (docker.errors.DockerException, requests.exceptions.RequestException) as exc:
-            raise _unreachable(f"no Docker engine answers at {where}", exc) from exc
+            raise addresses.unreachable(f"no Docker engine answers at {where}", exc) from exc
         return engine
 
     def _ping(self, timeout: float) -> int:
@@ -396,9 +291,9 @@ class Engine:
 
     def _lost(self, doing: str) -> EngineUnavailable:
         """The engine stopped answering while DOING: named as what it is, with how to start it again."""
-        where = _host(self._env)
-        start = how_to_start(self._env, self._context, self._podman)
-        if _is_podman(where, self._podman):
+        where = addresses.host_of(self._env)
+        start = addresses.how_to_start(self._env, self._context, self._podman)
+        if addresses.is_podman(where, self._podman):
             # Podman's containers do not depend on its API service: a killed service leaves them running.
             return EngineUnavailable(
                 f"the Podman engine at {where} went away while {doing}; a container it was running may "
@@ -422,11 +317,11 @@ class Engine:
         """How to start this engine, for one that never answered: how_to_start's words, and how to
         use the local engine instead where another was chosen; the default socket's is one the
         user could not install or start (bootstrap.ensure_engine does where it can)."""
-        start = how_to_start(self._env, self._context, self._podman)
+        start = addresses.how_to_start(self._env, self._context, self._podman)
         if self._context is not None:
             undo = "unset DOCKER_CONTEXT" if self._context[1] == "DOCKER_CONTEXT" else "`docker context use default`"
             return f"{start}, or {undo} for the local one."
-        if self.host != DEFAULT_HOST:
+        if self.host != addresses.DEFAULT_HOST:
             return f"{start}, or unset DOCKER_HOST."
         return (
             f"{start} and make sure you may use it (the docker group); as root on Debian/Ubuntu espdock "
@@ -1321,14 +1216,11 @@ class Engine:
 
 LIBPOD_INFO = "/v4.0.0/libpod/info"
 LIBPOD_HEADER = "Libpod-Api-Version"
-# OpenSSL's alerts for an engine that refused the client's certificate (none, or one its CA did not sign).
-TLS_REFUSALS = ("ALERT_UNKNOWN_CA", "ALERT_CERTIFICATE_REQUIRED", "ALERT_BAD_CERTIFICATE", "ALERT_HANDSHAKE_FAILURE")
-TLS_CUT = "EOF occurred in violation of protocol"  # Python's words for a TLS connection closed mid-exchange
 
 
 def describe(env: Mapping[str, str], info: Mapping[str, Any], libpod: Mapping[str, Any] | None = None) -> EngineInfo:
     """EngineInfo from a Docker engine's /info answer, or with LIBPOD, Podman's /libpod/info."""
-    where = _host(env)
+    where = addresses.host_of(env)
     if libpod is None:
         options = [str(option).split(",")[0] for option in info.get("SecurityOptions") or ()]
         rootless, remapped = "name=rootless" in options, "name=userns" in options
@@ -1547,67 +1439,6 @@ def _split_ref(ref: str) -> tuple[str, str]:
         repository, _, tag = ref.rpartition(":")
         return repository, tag
     return ref, "latest"
-
-
-def _not_a_socket(path: str) -> str | None:
-    """What PATH is where it is there and no socket ("a regular file", "a directory"), else None."""
-    try:
-        mode = os.stat(path).st_mode
-    except OSError:
-        return None
-    if stat.S_ISSOCK(mode):
-        return None
-    return "a directory" if stat.S_ISDIR(mode) else "a regular file" if stat.S_ISREG(mode) else "a special file"
-
-
-def _unreachable(what: str, exc: Exception) -> EngineUnavailable:
-    """WHAT ("no Docker engine answers ..."), why, and for a TLS failure, which starting the
-    engine would not mend, what to do."""
-    text = str(exc)
-    if "Permission denied" in text:
-        # The engine runs: starting it, the usual hint, would not help.
-        return EngineUnavailable(
-            f"{what}: permission denied on the engine's socket",
-            "The engine runs, but this user may not use its socket: join the group that owns it (the docker "
-            "group, for Docker's: `sudo usermod -aG docker $USER`, then log in again), or use an engine of your "
-            "own (rootless Docker or Podman, through DOCKER_HOST).",
-        )
-    if "No such file or directory" in text or "Connection refused" in text:
-        return EngineUnavailable(f"{what}: nothing is listening there")
-    if any(said in text for said in ("NameResolutionError", "Name or service not known", "name resolution")):
-        return EngineUnavailable(f"{what}: its host name does not resolve")
-    if "Read timed out" in text or text == "timed out":  # the SDK's, a local socket's
-        # It took the connection: something listens there, which starting an engine would not mend.
-        return EngineUnavailable(
-            f"{what}: it took the connection and gave no answer in time",
-            "Check DOCKER_HOST: what listens there is no engine (another service's port), or the engine there "
-            "hangs (`docker version` against it hangs as well).",
-        )
-    tls = _tls_failure(text)
-    if tls is None:
-        return EngineUnavailable(f"{what}: {text}")
-    return EngineUnavailable(
-        f"{what}: {tls}",
-        "Give espdock the engine's CA and your certificate as the docker CLI takes them (`docker version` "
-        "fails the same way): ca.pem, cert.pem and key.pem in DOCKER_CERT_PATH, or in the Docker context "
-        "(`docker context inspect`); a context without a ca.pem checks against the system's CAs (SSL_CERT_FILE).",
-    )
-
-
-def _tls_failure(text: str) -> str | None:
-    """What went wrong, by TEXT (an exception's), where TLS failed between espdock and the engine."""
-    # OpenSSL's words, out of the SDK's wrappings (urllib3's retries, requests' connection error).
-    said = re.search(r"\[SSL: \w+\][^'\")(]*", text)
-    openssl = said.group(0).strip() if said else text
-    if "CERTIFICATE_VERIFY_FAILED" in text:
-        return f"its TLS certificate is not signed by the CA espdock checks it against ({openssl})"
-    if any(alert in text for alert in TLS_REFUSALS):
-        return f"it refused espdock's TLS client certificate ({openssl})"
-    if TLS_CUT in text:
-        # TLS 1.3: the engine checks the client's certificate after the client is done, and its alert
-        # may be lost as it closes the connection; espdock then sees only the end.
-        return f"it ended the TLS connection, as an engine refusing espdock's TLS client certificate does ({TLS_CUT})"
-    return None
 
 
 def _archive(container: docker.models.containers.Container, path: str) -> Iterator[bytes] | None:

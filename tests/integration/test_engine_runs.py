@@ -25,7 +25,8 @@ import pytest
 
 from espdock.errors import ConfigError, ContainerError, EngineUnavailable
 from espdock.images import bootstrap
-from espdock.images.engine import DEFAULT_SOCKET, LABEL_OWNER, Engine, Mount, RunSpec
+from espdock.images.addresses import DEFAULT_SOCKET
+from espdock.images.engine import LABEL_OWNER, Engine, Mount, RunSpec
 from espdock.images.keyed import DPKG_STATUS, installed_packages
 from espdock.layout import MICRO_ROS_AGENT_IMAGE
 from espdock.ros.compose import starter_compose

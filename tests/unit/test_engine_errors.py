@@ -567,7 +567,7 @@ def test_a_missing_default_socket_s_hint_names_the_user_s_own_running_engine(tmp
     Docker with sudo."""
     import socket
 
-    from espdock.images.engine import DEFAULT_SOCKET
+    from espdock.images.addresses import DEFAULT_SOCKET
 
     (tmp_path / "podman").mkdir()
     own = socket.socket(socket.AF_UNIX)
@@ -580,7 +580,7 @@ def test_a_missing_default_socket_s_hint_names_the_user_s_own_running_engine(tmp
 
 
 def test_the_default_socket_s_engine_is_started_as_docker_is():
-    from espdock.images.engine import DEFAULT_SOCKET
+    from espdock.images.addresses import DEFAULT_SOCKET
 
     lost = Engine({"DOCKER_HOST": f"unix://{DEFAULT_SOCKET}"})._lost("listing containers")
     assert lost.hint == "Start Docker (`sudo systemctl start docker`), " + RERUN
@@ -605,7 +605,7 @@ def test_docker_host_is_read_as_the_docker_cli_reads_it():
     as an engine to start, where the docker CLI, which espdock runs on the same value, takes the
     default socket and port 2375; a bare socket path was told to start an engine there."""
     from espdock.errors import ConfigError
-    from espdock.images.engine import DEFAULT_SOCKET
+    from espdock.images.addresses import DEFAULT_SOCKET
 
     for given, read in (
         ("unix://", f"unix://{DEFAULT_SOCKET}"),

@@ -10,9 +10,11 @@ Images no record names (another user's, a test's, a pulled base) are never candi
 
 from __future__ import annotations
 
+import fcntl
 import json
 import os
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Iterator, Mapping
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -60,6 +62,20 @@ def _record_path(state: Path, root: Path | str) -> Path:
     return state / "workspaces" / f"{root_key(root)}.json"
 
 
+@contextmanager
+def _changing(path: Path) -> Iterator[None]:
+    """Hold the record at PATH for one read, change and write: two commands of a workspace at once
+    (two `espdock run`s, a build and a `compose up`) each wrote back what they had read, and the
+    last one dropped the other's images, which another workspace's prune could then remove."""
+    path.parent.mkdir(parents=True, mode=0o700, exist_ok=True)
+    fd = os.open(path.with_suffix(".lock"), os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o600)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX)
+        yield
+    finally:
+        os.close(fd)
+
+
 def _read_record(path: Path) -> Record | None:
     """The record in PATH, None when it is missing or unreadable (a record only protects or offers images)."""
     try:
@@ -94,6 +110,11 @@ def record_use(state: Path, root: Path, used: Iterable[tuple[str, str]], now: fl
     if not used:
         return
     path = _record_path(state, root)
+    with _changing(path):
+        _record_use(path, root, used, now, whole)
+
+
+def _record_use(path: Path, root: Path, used: dict[str, str], now: float, whole: bool) -> None:
     # Only this workspace's own file: every build reading every workspace's record cost a build
     # 45 ms on a machine that had recorded 133 (125 of them since removed).
     previous = _read_record(path)
@@ -109,25 +130,29 @@ def record_use(state: Path, root: Path, used: Iterable[tuple[str, str]], now: fl
         if not whole or images.get(t, {}).get("repository") not in kinds
     }
     data = {"root": str(root), "images": images, "current": sorted(kept | set(used))}
-    path.parent.mkdir(parents=True, mode=0o700, exist_ok=True)
     durable.write_text(path, json.dumps(data, indent=1, sort_keys=True) + "\n")
 
 
 def forget_images(state: Path, root: str, tags: Iterable[str]) -> None:
     """Drop TAGS (removed from the engine) from ROOT's record."""
     path = _record_path(state, root)
-    try:
-        data = json.loads(path.read_text())
-    except (OSError, ValueError):
+    if not path.is_file():
         return
-    for tag in tags:
-        data.get("images", {}).pop(tag, None)
-    durable.write_text(path, json.dumps(data, indent=1, sort_keys=True) + "\n")
+    with _changing(path):
+        try:
+            data = json.loads(path.read_text())
+        except (OSError, ValueError):
+            return
+        for tag in tags:
+            data.get("images", {}).pop(tag, None)
+        durable.write_text(path, json.dumps(data, indent=1, sort_keys=True) + "\n")
 
 
 def forget_workspace(state: Path, root: str) -> None:
     """Drop ROOT's record: its workspace is gone and none of its images is left."""
-    _record_path(state, root).unlink(missing_ok=True)
+    path = _record_path(state, root)
+    path.unlink(missing_ok=True)
+    path.with_suffix(".lock").unlink(missing_ok=True)
 
 
 @dataclass(frozen=True)

@@ -188,3 +188,27 @@ def test_the_image_a_board_s_installed_firmware_was_built_in_stays_current(tmp_p
     marker.write_text("esp32s3\n\n0123456789abcdef\n")  # a one-off `--target esp32s3` built it
     tags = current_tags(ws, Config(runtime_image=False), env={})
     assert tags - before == {"espdock/idf-micro-ros-jazzy-esp32s3:0123456789abcdef"}, tags - before
+
+
+def test_two_commands_recording_at_once_lose_neither_s_images(tmp_path):
+    """Two `espdock run`s (or a build and a compose up) of one workspace at once: each read the
+    record, added its images and wrote it back, and the one that wrote last dropped the other's.
+    A prune from another workspace then took an image this one had just used for one of its own."""
+    import subprocess
+    import sys
+
+    script = (
+        "import sys; from pathlib import Path; from espdock.images.prune import record_use\n"
+        "state, ws, kind = Path(sys.argv[1]), Path(sys.argv[2]), sys.argv[3]\n"
+        "for n in range(150):\n"
+        "    record_use(state, ws, [(f'{kind}:{n}', kind)], n, whole=False)\n"
+    )
+    kinds = ("espdock/ros-a", "espdock/ros-b")
+    writers = [
+        subprocess.Popen([sys.executable, "-c", script, str(tmp_path), str(tmp_path / "ws"), kind]) for kind in kinds
+    ]
+    assert [writer.wait(timeout=120) for writer in writers] == [0, 0]
+    (record,) = read_records(tmp_path)
+    recorded = {image.tag for image in record.images}
+    lost = sorted({f"{kind}:{n}" for kind in kinds for n in range(150)} - recorded)
+    assert not lost, f"{len(lost)} recorded uses lost, e.g. {lost[:3]}"

@@ -50,6 +50,15 @@ def as_the_cli_reads(env: dict[str, str]) -> dict[str, str]:
         host = f"tcp://{host}"
     if host == "unix://":
         host = f"unix://{DEFAULT_SOCKET}"
+    elif host.startswith("unix://") and not host.startswith("unix:///"):
+        # The CLI and the SDK take it from the directory each command runs in: espdock runs from
+        # any directory of a workspace, Compose from its root. Most often a slash left out.
+        path = host.removeprefix("unix://")
+        whole = os.path.abspath(os.path.expanduser(path)) if path.startswith((".", "~")) else f"/{path}"
+        raise ConfigError(
+            f"DOCKER_HOST {host}: a socket's path must be whole (from /), not relative to wherever a command runs",
+            f"Set DOCKER_HOST=unix://{whole}",
+        )
     elif host.startswith(("tcp://", "ssh://")):
         parts = urlsplit(host)
         try:

@@ -621,6 +621,14 @@ def test_docker_host_is_read_as_the_docker_cli_reads_it():
         with pytest.raises(ConfigError, match="a socket's path needs its scheme"):
             Engine({"DOCKER_HOST": path})
     assert Engine({"DOCKER_HOST": "localhost:5555/path"}).host == "tcp://localhost:5555/path"
+    # A relative socket path (a slash left out) was told to start "the daemon of var/run/docker.sock".
+    for given, fix in (
+        ("unix://var/run/docker.sock", "unix:///var/run/docker.sock"),
+        ("unix://./docker.sock", f"unix://{Path.cwd() / 'docker.sock'}"),
+    ):
+        with pytest.raises(ConfigError, match="a socket's path must be whole") as err:
+            Engine({"DOCKER_HOST": given})
+        assert err.value.hint == f"Set DOCKER_HOST={fix}", given
     with pytest.raises(ConfigError) as err:
         Engine.connect({"DOCKER_HOST": "/var/run/docker.sock"}, timeout=5)
     assert err.value.exit_code == 2

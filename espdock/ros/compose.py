@@ -193,7 +193,9 @@ def compose_warnings(
     ours = generated_unchanged(text)
     said = [warning] if (warning := _foreign_warning(root, path.name, data, ours, own, args, env)) else []
     if found is not None:
-        said += _lagging_warnings(root, path.name, data, ours, own, found, args, env)
+        # A file espdock wrote for another workspace (a clone's, a copy's) runs none of this one's
+        # services: the warning above says what to do, not that nothing was built.
+        said += _lagging_warnings(root, path.name, data, ours and warning is None, own, found, args, env)
     return said
 
 
@@ -216,7 +218,8 @@ def _foreign_warning(
     replaced = f", and its project `name: {project}` is that workspace's too (its containers get replaced)"
     if ours:
         # As espdock wrote it: the command that wrote it writes this workspace's (a renamed or copied one's).
-        fix = "`espdock init --compose` writes it afresh for this workspace"
+        # Its services are written of what install/ holds: before a build, none.
+        fix = "`espdock build`, then `espdock init --compose`, writes it afresh for this workspace"
     else:
         # The project name is kept by a copy whatever it is (this repository's is espdock-demo).
         rename = f" and name: {own.removeprefix('espdock/')}"
@@ -265,8 +268,10 @@ def _lagging_warnings(
     ran, lacking = set(), []
     for service_name, service in services.items() if isinstance(services, dict) else ():
         image = service.get("image") if isinstance(service, dict) else None
-        if not isinstance(image, str) or not image.startswith(f"{repository}:"):
-            continue  # another image: its own install tree
+        if image not in (repository, f"{repository}:latest"):
+            # Another image: its own install tree; a tag of this workspace's pinned in the file
+            # (espdock/<name>:<key>) holds what it was made of, which install/ need not hold now.
+            continue
         profiles = service.get("profiles") or []
         if profiles and (active is None or not ({"*", *map(str, profiles)} & active)):
             continue  # a profile this run does not turn on

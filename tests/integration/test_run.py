@@ -819,7 +819,7 @@ def test_compose_in_a_copy_of_a_workspace_warns_that_its_file_runs_the_original_
     generated = starter_compose(original, f"espdock/{original}:latest", {"talk": ["talker"]})
     # As espdock wrote it, the command that wrote it is the fix; edited since, the lines to change.
     for text, fix in (
-        (generated, "`espdock init --compose` writes it afresh for this workspace"),
+        (generated, "`espdock build`, then `espdock init --compose`, writes it afresh for this workspace"),
         (generated + "# the team's\n", "set image: espdock/robot-copy:latest and name: robot-copy in compose.yaml"),
     ):
         (root / "compose.yaml").write_text(text)

@@ -1199,6 +1199,8 @@ def test_compose_up_says_when_the_compose_file_lags_what_the_runtime_image_holds
     """The compose file `espdock init` wrote before the first build has no service: `compose up`
     after the build ended in Compose's bare "no service selected". And one whose service runs a
     package gone from the branch started a container that died at once ("not found")."""
+    from espdock.ros.compose import starter_compose
+
     root = copy_workspace(tmp_path / "lag", packages=(), test_packages=("beacon_nodes", "uptime_tools"))
     assert espdock("init", cwd=root, env=NO_ENGINE).returncode == 0  # compose.yaml, before any build
     before = espdock("compose", "up", cwd=root, env=NO_ENGINE)
@@ -1233,7 +1235,9 @@ def test_compose_up_says_when_the_compose_file_lags_what_the_runtime_image_holds
     # user chose another file (COMPOSE_FILE, here in the .env Compose reads).
     service = "  tools_banner:\n    <<: *ros-node\n"
     text = compose.read_text()
-    for added in ("    image: espdock/demo:latest\n", "    profiles: [legacy]\n"):
+    # A tag of this workspace's image pinned in the file holds what it was made of, not install/.
+    pinned = "    image: espdock/lag:0123456789abcdef\n"
+    for added in (pinned, "    image: espdock/demo:latest\n", "    profiles: [legacy]\n"):
         compose.write_text(text.replace(service, service + added))
         assert "run what the runtime image lacks" not in said_by_up(), compose.read_text()
     lacks = "tools_banner (uptime_tools tools_banner) run what the runtime image lacks"
@@ -1244,6 +1248,14 @@ def test_compose_up_says_when_the_compose_file_lags_what_the_runtime_image_holds
     (root / "compose.override.yaml").unlink()
     (root / ".env").write_text("COMPOSE_FILE=other.yaml\n")
     assert "run what the runtime image lacks" not in said_by_up()
+    (root / ".env").unlink()
+    # Another workspace's file as espdock wrote it (a clone's): it runs none of this one's nodes,
+    # which is not "built since", and its services come back after a build, not before one.
+    compose.write_text(starter_compose("robot", "espdock/robot:latest", {"beacon_nodes": ["beacon"]}))
+    said = said_by_up()
+    assert "compose.yaml runs espdock/robot:latest, another workspace's runtime image" in said, said
+    assert "`espdock build`, then `espdock init --compose`, writes it afresh for this workspace" in said, said
+    assert "runs none of" not in said and "no node to run yet" not in said, said
 
 
 # The repository's boards: camera_node depends on custom_interface, led_strip_node does not.

@@ -198,6 +198,9 @@ def compose(ctx: typer.Context, workspace: WorkspaceOption = None) -> None:
     ):
         owner = (0, 0) if engine.info().rootless else invoking_user(os.environ, ws.root)
         env["ESPDOCK_USER"] = ":".join(str(n) for n in owner)
+    # The project and image of the file `espdock init` writes: this workspace's, also in a clone or a
+    # git worktree of the committed file (the same value as any ESPDOCK_NAME the user set).
+    env[compose_file.NAME_VARIABLE] = repository.removeprefix("espdock/")
     ca_bundle = resolve_ca_bundle(config, os.environ)
     if ca_bundle is not None:
         env["ESPDOCK_CA_BUNDLE"] = str(ca_bundle)

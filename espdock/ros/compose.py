@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import hashlib
 import os
+import re
 from collections.abc import Mapping
 from pathlib import Path
 
@@ -27,6 +28,8 @@ COMPOSE_TEMPLATE = """\
 #   espdock compose --profile '*' down       stops and removes everything
 #
 # Settings (environment or .env): ROS_DOMAIN_ID (default 0), MICROROS_AGENT_PORT (default 8888).
+# ESPDOCK_NAME names the project and the image: `espdock compose` sets it to this workspace's
+# name, so a clone, a copy or a git worktree of it runs its own nodes, not this one's.
 name: {project}
 
 x-ros-node: &ros-node
@@ -79,6 +82,11 @@ services:
       <<: *ros-env
     restart: unless-stopped
 """
+# What `espdock compose` sets to the workspace's name (espdock's own setting of it, ESPDOCK_NAME),
+# which the file `espdock init` writes names its project and image by: the file is committed, and
+# a clone or git worktree of another name ran the original's image, in the original's project.
+NAME_VARIABLE = "ESPDOCK_NAME"
+_NAMED = re.compile(r"(?<!\$)\$(?:\{ESPDOCK_NAME(?::?-[^}]*)?\}|ESPDOCK_NAME\b)")
 # The first line of a compose file espdock wrote: the hash of the rest, so that a refresh
 # (`espdock init --compose`) can tell an untouched file from one a user edited.
 COMPOSE_MARK = "# espdock-generated sha256:"
@@ -187,7 +195,8 @@ def compose_warnings(
         return []
     text = path.read_text(errors="replace")
     try:
-        data = yaml.safe_load(text)
+        # As Compose reads it under `espdock compose`, which sets the name variable.
+        data = yaml.safe_load(_NAMED.sub(own.removeprefix("espdock/"), text))
     except yaml.YAMLError:
         return []  # Compose says what is wrong with it
     ours = generated_unchanged(text)
@@ -359,6 +368,6 @@ def init_compose(
     """`espdock init`'s compose.yaml for WORKSPACE, whose runtime images are REPOSITORY: the
     executables its ROS PACKAGES have installed (see write_starter_compose for REFRESH, FORCE
     and what it returns)."""
-    project = repository.split("/", 1)[-1]
-    text = starter_compose(project, f"{repository}:latest", built_executables(workspace, packages))
+    named = f"${{{NAME_VARIABLE}:-{repository.split('/', 1)[-1]}}}"
+    text = starter_compose(named, f"espdock/{named}:latest", built_executables(workspace, packages))
     return write_starter_compose(workspace.root, text, owner, refresh, force)

@@ -9,6 +9,7 @@ import os
 import random
 import re
 import select
+import shutil
 import signal
 import subprocess
 import sys
@@ -25,6 +26,7 @@ from tests.conftest import (
     REPO,
     Started,
     build_holding,
+    copy_workspace,
     espdock,
     leftover_containers,
     python_workspace,
@@ -831,6 +833,32 @@ def test_compose_in_a_copy_of_a_workspace_warns_that_its_file_runs_the_original_
         assert f"compose.yaml runs espdock/{original}:latest, another workspace's runtime image" in said, said
         assert fix in said, said
     assert leftover_containers(engine, root) == []
+
+
+def test_the_compose_file_init_writes_names_each_clone_s_own_project_and_image(engine, tmp_path):
+    """A git worktree or clone of another name kept the committed file's `name: robot` and
+    `image: espdock/robot:latest`: `espdock compose up` ran the original's nodes in the original's
+    project, and `espdock compose down` there removed the original's running services."""
+    original = copy_workspace(tmp_path / f"original{os.getpid()}", packages=(), test_packages=("beacon_nodes",))
+    lib = original / "ws/install/beacon_nodes/lib/beacon_nodes"
+    lib.mkdir(parents=True)
+    (lib / "beacon").write_text("#!/bin/sh\n")
+    (lib / "beacon").chmod(0o755)
+    assert espdock("init", "--compose", cwd=original).returncode == 0
+    clone = tmp_path / "robot-clone"
+    clone.mkdir()
+    shutil.copy2(original / "compose.yaml", clone / "compose.yaml")
+    (clone / "espdock.toml").write_text("[espdock]\n")
+    # As Compose reads it, under `espdock compose` and under plain `docker compose`.
+    read = espdock("compose", "config", "--format", "json", cwd=clone)
+    assert read.returncode == 0, read.stdout + read.stderr
+    config = json.loads(read.stdout)
+    assert (config["name"], config["services"]["beacon"]["image"]) == ("robot-clone", "espdock/robot-clone:latest")
+    env = {k: v for k, v in os.environ.items() if k != "ESPDOCK_NAME"}
+    plain = subprocess.run(["docker", "compose", "config", "--format", "json"], cwd=original, env=env,
+                           capture_output=True, text=True, check=True)  # fmt: skip
+    config = json.loads(plain.stdout)
+    assert (config["name"], config["services"]["beacon"]["image"]) == (original.name, f"espdock/{original.name}:latest")
 
 
 def test_run_passes_a_params_file_with_volume_and_a_device_and_refuses_missing_ones(engine, node_workspace, tmp_path):

@@ -1258,6 +1258,30 @@ def test_compose_up_says_when_the_compose_file_lags_what_the_runtime_image_holds
     assert "runs none of" not in said and "no node to run yet" not in said, said
 
 
+def test_a_clone_or_worktree_runs_its_own_nodes_from_the_committed_compose_file(tmp_path):
+    """The file `espdock init --compose` writes is committed: a git worktree or clone of another
+    name ran the original's runtime image in the original's project (its `compose down` removed
+    the original's running services), and espdock's fix was an edit of the committed file."""
+    robot = copy_workspace(tmp_path / "robot", packages=(), test_packages=("beacon_nodes",))
+    lib = robot / "ws/install/beacon_nodes/lib/beacon_nodes"
+    lib.mkdir(parents=True)
+    for exe in ("beacon", "beacon_log"):
+        (lib / exe).write_text("#!/bin/sh\n")
+        (lib / exe).chmod(0o755)
+    assert espdock("init", "--compose", cwd=robot, env=NO_ENGINE).returncode == 0
+    assert "espdock/robot:latest" not in (robot / "compose.yaml").read_text()
+    feat = tmp_path / "robot-feat"
+    shutil.copytree(robot, feat, symlinks=True)
+    up = espdock("compose", "up", cwd=feat, env=NO_ENGINE)
+    assert up.returncode == 3, up.stdout + up.stderr  # on to the engine (none here)
+    assert "compose.yaml" not in up.stdout + up.stderr, up.stdout + up.stderr
+    # Its services are still checked against this workspace's install/.
+    shutil.rmtree(feat / "ws/src/beacon_nodes")
+    again = espdock("compose", "up", cwd=feat, env=NO_ENGINE)
+    said = " ".join((again.stdout + again.stderr).split())
+    assert "compose.yaml: beacon (beacon_nodes beacon), beacon_log (beacon_nodes beacon_log) run what" in said, said
+
+
 # The repository's boards: camera_node depends on custom_interface, led_strip_node does not.
 BOTH_BOARDS = ("camera_node", "led_strip_node")
 

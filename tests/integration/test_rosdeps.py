@@ -58,7 +58,8 @@ def build_and_check(root: Path, tmp_path: Path, extra: dict[str, str]) -> tuple[
     assert run.returncode == 0, run.stdout + run.stderr
     # The runtime image of the workspace (espdock/<NAME>:latest), of either flavour: the node's
     # package, its rosdep keys and rclpy import there, with no workspace mounted.
-    imports = "import rclpy, numpy, tabulate, rosdeps_py_table.table; print('runtime ok')"
+    # setuptools too, a declared dependency (pkg_resources) the runtime image's slimming removed.
+    imports = "import rclpy, numpy, setuptools, tabulate, rosdeps_py_table.table; print('runtime ok')"
     runtime = subprocess.run(
         ["docker", "run", "--rm", f"espdock/{NAME}:latest", "python3", "-c", imports],
         capture_output=True, text=True, check=False, timeout=120,
@@ -76,7 +77,7 @@ def test_the_wheels_image_installs_the_pip_python_and_apt_keys(tmp_path):
     assert lock["apt"] == ["libtinyxml2-dev"]
     # The venv cannot see apt's python3-numpy: the lock serves it from PyPI, beside tabulate.
     assert lock["keys"]["python3-numpy"]["installer"] == "pip"
-    assert sorted(line.split("==")[0] for line in lock["pip"]) == ["numpy", "tabulate"]
+    assert sorted(line.split("==")[0] for line in lock["pip"]) == ["numpy", "setuptools", "tabulate"]
     assert all("--hash=sha256:" in line for line in lock["pip"])
     assert output[0] == "5 elements"
     assert output[-1].startswith("/opt/espdock/venv/")  # tabulate in the nodes' venv

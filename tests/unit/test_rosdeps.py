@@ -213,10 +213,12 @@ def test_official_flavour_builds_from_its_own_dockerfile_and_resolves_for_ubuntu
     assert "ARG BASE_IMAGE=ros:jazzy-ros-base" in text
     # The official image has every ROS package rosdep names; the wheels one only what its locks install.
     assert rosdeps.needed_keys(packages, image)["rosdeps_py_table"] == (
-        "python-tabulate-pip", "python3-numpy", "rclpy", "std_msgs",
+        "python-tabulate-pip", "python3-numpy", "python3-setuptools", "rclpy", "std_msgs",
     )  # fmt: skip
     _, _, wheels = ros_image(Config(), inputs)
-    assert rosdeps.needed_keys(packages, wheels) == {"rosdeps_py_table": ("python-tabulate-pip", "python3-numpy")}
+    assert rosdeps.needed_keys(packages, wheels) == {
+        "rosdeps_py_table": ("python-tabulate-pip", "python3-numpy", "python3-setuptools")
+    }
 
 
 def test_the_setting_is_checked_where_it_is_read(tmp_path):

@@ -43,8 +43,8 @@ def as_the_cli_reads(env: dict[str, str]) -> dict[str, str]:
         head, slash, _ = host.partition("/")
         if host.startswith(("/", ".", "~")) or host.endswith(".sock") or (slash and ":" not in head):
             raise ConfigError(
-                f"DOCKER_HOST {host}: a socket's path needs its scheme, unix://{host}",
-                f"Set DOCKER_HOST=unix://{host} (an engine is unix:///path/docker.sock, tcp://HOST:PORT or "
+                f"DOCKER_HOST {host}: a socket's path needs its scheme, unix://{_whole(host)}",
+                f"Set DOCKER_HOST=unix://{_whole(host)} (an engine is unix:///path/docker.sock, tcp://HOST:PORT or "
                 "ssh://USER@HOST).",
             )
         host = f"tcp://{host}"
@@ -53,14 +53,21 @@ def as_the_cli_reads(env: dict[str, str]) -> dict[str, str]:
     elif host.startswith("unix://") and not host.startswith("unix:///"):
         # The CLI and the SDK take it from the directory each command runs in: espdock runs from
         # any directory of a workspace, Compose from its root. Most often a slash left out.
-        path = host.removeprefix("unix://")
-        whole = os.path.abspath(os.path.expanduser(path)) if path.startswith((".", "~")) else f"/{path}"
         raise ConfigError(
             f"DOCKER_HOST {host}: a socket's path must be whole (from /), not relative to wherever a command runs",
-            f"Set DOCKER_HOST=unix://{whole}",
+            f"Set DOCKER_HOST=unix://{_whole(host.removeprefix('unix://'))}",
+        )
+    elif host.startswith(("fd://", "npipe://")):
+        # The SDK said "fd protocol is not implemented", and espdock to start an engine there.
+        kind = "a daemon's own listening socket (systemd's)" if host.startswith("fd://") else "Windows' named pipe"
+        raise ConfigError(
+            f"DOCKER_HOST {host}: {kind}, which a client on Linux does not reach",
+            f"Set DOCKER_HOST to the engine's socket (unix://{DEFAULT_SOCKET}), or to tcp://HOST:PORT or ssh://USER@HOST.",
         )
     elif host.startswith(("tcp://", "ssh://")):
         parts = urlsplit(host)
+        if host.startswith("ssh://") and not parts.hostname:
+            raise ConfigError(f"DOCKER_HOST {host}: names no host", "Set DOCKER_HOST=ssh://USER@HOST.")
         try:
             port = parts.port
         except ValueError:
@@ -76,6 +83,14 @@ def as_the_cli_reads(env: dict[str, str]) -> dict[str, str]:
             name = parts.hostname or "localhost"
             host = f"tcp://{f'[{name}]' if ':' in name else name}:2375{parts.path}"
     return {**env, "DOCKER_HOST": host}
+
+
+def _whole(path: str) -> str:
+    """PATH, a socket's, from /: a slash left out (var/run/docker.sock) where that names a socket,
+    else from the current directory (or home, for ~)."""
+    if not path.startswith(("/", ".", "~")) and is_socket(f"/{path}"):
+        return f"/{path}"
+    return os.path.abspath(os.path.expanduser(path))
 
 
 def local_socket(env: Mapping[str, str]) -> str | None:

@@ -12,6 +12,7 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import socket
 from pathlib import Path
 
 import docker.errors
@@ -600,7 +601,7 @@ def test_an_address_no_engine_has_is_bad_input_and_a_name_that_does_not_resolve_
     assert err.value.message == said
 
 
-def test_docker_host_is_read_as_the_docker_cli_reads_it():
+def test_docker_host_is_read_as_the_docker_cli_reads_it(tmp_path):
     """`unix://` was "[Errno 22] Invalid argument" and `tcp://HOST` "port is required", each said
     as an engine to start, where the docker CLI, which espdock runs on the same value, takes the
     default socket and port 2375; a bare socket path was told to start an engine there."""
@@ -621,14 +622,26 @@ def test_docker_host_is_read_as_the_docker_cli_reads_it():
         with pytest.raises(ConfigError, match="a socket's path needs its scheme"):
             Engine({"DOCKER_HOST": path})
     assert Engine({"DOCKER_HOST": "localhost:5555/path"}).host == "tcp://localhost:5555/path"
-    # A relative socket path (a slash left out) was told to start "the daemon of var/run/docker.sock".
-    for given, fix in (
-        ("unix://var/run/docker.sock", "unix:///var/run/docker.sock"),
-        ("unix://./docker.sock", f"unix://{Path.cwd() / 'docker.sock'}"),
-    ):
-        with pytest.raises(ConfigError, match="a socket's path must be whole") as err:
+    # A relative socket path (a slash left out) was told to start "the daemon of var/run/docker.sock",
+    # and one without a scheme given unix:// before the same relative path as the fix.
+    with socket.socket(socket.AF_UNIX) as listening:
+        listening.bind(str(tmp_path / "engine.sock"))
+        slash_left_out = str(tmp_path / "engine.sock").removeprefix("/")
+        for given, fix in (
+            (f"unix://{slash_left_out}", f"unix:///{slash_left_out}"),
+            ("unix://./docker.sock", f"unix://{Path.cwd() / 'docker.sock'}"),
+        ):
+            with pytest.raises(ConfigError, match="a socket's path must be whole") as err:
+                Engine({"DOCKER_HOST": given})
+            assert err.value.hint == f"Set DOCKER_HOST={fix}", given
+        with pytest.raises(ConfigError) as err:
+            Engine({"DOCKER_HOST": slash_left_out})
+        assert err.value.hint.startswith(f"Set DOCKER_HOST=unix:///{slash_left_out} "), err.value.hint
+    # Not a client's address (SDK: "fd protocol is not implemented"), and an ssh:// of no host
+    # ("Check that `ssh None` logs in"): refused as what they are.
+    for given, said in (("fd://", "a daemon's own listening socket"), ("ssh://", "names no host")):
+        with pytest.raises(ConfigError, match=said):
             Engine({"DOCKER_HOST": given})
-        assert err.value.hint == f"Set DOCKER_HOST={fix}", given
     with pytest.raises(ConfigError) as err:
         Engine.connect({"DOCKER_HOST": "/var/run/docker.sock"}, timeout=5)
     assert err.value.exit_code == 2

@@ -394,10 +394,18 @@ def init(
         console.print(f"{ws.root} is an espdock workspace already (espdock.toml exists)")
     else:
         console.print(f"made {ws.root} an espdock workspace: created {', '.join(created)}")
-    if GITIGNORE not in created and (unignored := unignored_outputs(ws.root, ws.colcon_root)):
+    unignored = unignored_outputs(ws.root, ws.colcon_root) if GITIGNORE not in created else []
+    if unignored is None:
+        notify(
+            "note: git refuses to read this repository as this user (another user's: git's safe.directory), so "
+            f"espdock could not check that its {GITIGNORE} leaves colcon's build/, install/ and log/ out"
+        )
+    elif unignored:
+        # One a line: a colcon root with spaces in its name made one line look like two.
+        shown = "".join(f"\n  {line}" for line in unignored)
         notify(
             f"note: git does not leave colcon's outputs out of this repository (the {GITIGNORE} here is yours, "
-            f"kept as it is): add these lines to it: {' '.join(unignored)}"
+            f"kept as it is): add these lines to it:{shown}"
         )
     outcome = init_compose(ws, runtime_repository(config, ws), packages, owner, refresh=compose, force=force)
     if "espdock.toml" not in created and outcome in (None, "unchanged"):

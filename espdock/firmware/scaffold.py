@@ -290,7 +290,9 @@ def init_workspace(directory: Path, owner: tuple[int, int] | None = None) -> tup
             # every file the next build had made again.
             outputs = posixpath.normpath(f"/{colcon_root}")
             (root / GITIGNORE).write_text(
-                GITIGNORE_TEMPLATE.format(*(posixpath.join(outputs, d) for d in ("build", "install", "log")))
+                GITIGNORE_TEMPLATE.format(
+                    *(_ignore_line(posixpath.join(outputs, d)) for d in ("build", "install", "log"))
+                )
             )
             created.append(GITIGNORE)
         # Not inside a repository that says how its files are checked out: the deeper file
@@ -318,11 +320,11 @@ GITIGNORE_TEMPLATE = """\
 """
 
 
-def unignored_outputs(root: Path, colcon_root: str) -> list[str]:
+def unignored_outputs(root: Path, colcon_root: str) -> list[str] | None:
     """colcon's output directories, as .gitignore lines (/ws/build/), that git does not leave out
     of the repository ROOT is in: where a .gitignore was there already, init leaves it as it is,
     and a team's first `git add -A` committed build/, install/ and log/. Empty outside a git work
-    tree (or without git)."""
+    tree (or without git); None where git refuses the repository as another user's."""
     outputs = posixpath.normpath(f"/{colcon_root}")
     lines = [posixpath.join(outputs, d) + "/" for d in ("build", "install", "log")]
     try:
@@ -335,10 +337,21 @@ def unignored_outputs(root: Path, colcon_root: str) -> list[str]:
         )
     except OSError:
         return []
-    if asked.returncode not in (0, 1):  # not in a repository
-        return []
+    if asked.returncode not in (0, 1):
+        # Not in a repository; or in one git will not read for this user (safe.directory).
+        return None if b"dubious ownership" in asked.stderr else []
     patterns = asked.stdout.decode(errors="replace").split("\0")[2::4]
-    return [line for line, pattern in zip(lines, patterns, strict=False) if not pattern or pattern.startswith("!")]
+    return [
+        _ignore_line(line)
+        for line, pattern in zip(lines, patterns, strict=False)
+        if not pattern or pattern.startswith("!")
+    ]
+
+
+def _ignore_line(path: str) -> str:
+    """PATH (a directory's, ending in /) as a .gitignore line naming it literally: a colcon root
+    `ws[1]` was a pattern there."""
+    return re.sub(r"([\\*?\[])", r"\\\1", path)
 
 
 GITATTRIBUTES = ".gitattributes"

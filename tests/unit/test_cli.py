@@ -407,10 +407,33 @@ def test_init_has_git_ignore_the_build_outputs_and_keeps_an_ignore_file_of_its_o
     assert said.count("add these lines to it: /build/ /install/ /log/") == 1, kept.stdout
     (tmp_path / "mine/.gitignore").write_text("secrets/\nbuild/\n")
     partly = espdock("init", "mine", cwd=tmp_path, env=NO_ENGINE)
-    assert "add these lines to it: /install/ /log/" in " ".join(partly.stdout.split()), partly.stdout
+    # One a line: a colcon root with spaces in its name made one line look like two.
+    assert "add these lines to it:\n  /install/\n  /log/\n" in partly.stdout, partly.stdout
     (tmp_path / "mine/.gitignore").write_text("secrets/\nbuild/\ninstall/\nlog/\n")
     again = espdock("init", "mine", cwd=tmp_path, env=NO_ENGINE)
     assert again.returncode == 0 and "colcon's outputs" not in again.stdout, again.stdout
+    if os.geteuid() == 0:
+        # Another user's repository, which git will not read for this one (its safe.directory):
+        # nothing was said, as if the outputs were ignored.
+        theirs = tmp_path / "theirs"
+        theirs.mkdir()
+        subprocess.run(["git", "init", "-q", str(theirs)], check=True)
+        (theirs / ".gitignore").write_text("secrets/\n")
+        subprocess.run(["chown", "-R", "12345:12345", str(theirs)], check=True)
+        refused = espdock("init", "theirs", cwd=tmp_path, env=NO_ENGINE)
+        assert "git refuses to read this repository as this user" in " ".join(refused.stdout.split()), refused.stdout
+
+
+def test_the_ignore_lines_init_suggests_leave_a_colcon_root_with_glob_characters_out(tmp_path):
+    """A colcon root `ws[1]` was suggested as `/ws[1]/build/`, which .gitignore reads as a pattern
+    (ws1/build/), not that directory."""
+    from espdock.firmware.scaffold import unignored_outputs
+
+    subprocess.run(["git", "init", "-q", str(tmp_path)], check=True)
+    lines = unignored_outputs(tmp_path, "ws[1]")
+    assert lines == ["/ws\\[1]/build/", "/ws\\[1]/install/", "/ws\\[1]/log/"], lines
+    (tmp_path / ".gitignore").write_text("".join(f"{line}\n" for line in lines))
+    assert unignored_outputs(tmp_path, "ws[1]") == []
 
 
 def test_a_workspace_from_init_checks_its_scripts_out_with_lf_on_windows(tmp_path):

@@ -185,11 +185,12 @@ def compose_warnings(
     args: list[str] | tuple[str, ...],
     env: Mapping[str, str],
     found: dict[str, list[str]] | None = None,
+    no_ros2: bool = False,
 ) -> list[str]:
     """What is wrong in ROOT's compose file (the one Compose reads when ARGS and ENV choose none)
     for this workspace's runtime image OWN (espdock/<name>): another workspace's runtime image it
     runs, and, given FOUND (built_executables: `up` and `create` start the services), where it lags
-    that image."""
+    that image, and (NO_ROS2: the wheels image's) the services it starts with a `ros2` command."""
     path = default_compose_file(root, args, env)
     if path is None:
         return []
@@ -204,7 +205,7 @@ def compose_warnings(
     if found is not None:
         # A file espdock wrote for another workspace (a clone's, a copy's) runs none of this one's
         # services: the warning above says what to do, not that nothing was built.
-        said += _lagging_warnings(root, path.name, data, ours and warning is None, own, found, args, env)
+        said += _lagging_warnings(root, path.name, data, ours and warning is None, own, found, args, env, no_ros2)
     return said
 
 
@@ -262,6 +263,7 @@ def _lagging_warnings(
     found: dict[str, list[str]],
     args: list[str] | tuple[str, ...],
     env: Mapping[str, str],
+    no_ros2: bool = False,
 ) -> list[str]:
     """What is wrong between compose file NAME (DATA parsed; OURS: as espdock wrote it) and the
     runtime image of REPOSITORY, whose install/ holds FOUND, in the services on that image that
@@ -274,7 +276,7 @@ def _lagging_warnings(
     services = data.get("services") if isinstance(data, dict) else None
     built = {f"{RUNTIME_INSTALL}/{p}/lib/{p}/{exe}": exe for p, exes in found.items() for exe in exes}
     active = _active_profiles(root, args, env)
-    ran, lacking = set(), []
+    ran, lacking, ros2 = set(), [], []
     for service_name, service in services.items() if isinstance(services, dict) else ():
         image = service.get("image") if isinstance(service, dict) else None
         if image not in (repository, f"{repository}:latest"):
@@ -287,29 +289,39 @@ def _lagging_warnings(
         command = service.get("command")
         words = command if isinstance(command, list) else str(command or "").split()
         run = str(words[0]) if words else ""
+        if run == "ros2" and no_ros2:
+            ros2.append(service_name)
         package, _, exe = run.removeprefix(f"{RUNTIME_INSTALL}/").partition("/lib/")
         if not (run.startswith(f"{RUNTIME_INSTALL}/") and exe.startswith(f"{package}/")):
             continue
         ran.add(run)
         if run not in built:
             lacking.append(f"{service_name} ({package} {exe.removeprefix(package + '/')})")
+    said = []
+    if ros2:
+        # The container ended at once: "exec: ros2: not found", exit 127, after `up` had said nothing.
+        said.append(
+            f"warning: {name}: {', '.join(ros2)} run `ros2`, which the runtime image lacks (PyPI's ROS 2 wheels "
+            f"have no ros2 command, launch or rclcpp): run an executable by its path, {RUNTIME_INSTALL}/<package>/"
+            'lib/<package>/<executable>, or build on the official image (ros_image = "official")'
+        )
     if lacking:
         fix = "`espdock init --compose` writes it afresh" if ours else f"edit or remove them in {name}"
-        return [
+        said.append(
             f"warning: {name}: {', '.join(lacking)} run what the runtime image lacks (not built, or a package "
             f"no longer in the workspace): their containers fail at start; {fix}"
-        ]
-    if ours and (unrun := sorted(exe for run, exe in built.items() if run not in ran)):
-        return [
+        )
+    elif ours and (unrun := sorted(exe for run, exe in built.items() if run not in ran)):
+        said.append(
             f"note: {name} runs none of {', '.join(unrun)}, built since espdock wrote it: `espdock init "
             "--compose` writes the built executables as services"
-        ]
-    if ours and not built and not ran:
-        return [
+        )
+    elif ours and not built and not ran:
+        said.append(
             f"note: {name} has no node to run yet (espdock wrote it before anything was built): `espdock "
             "build`, then `espdock init --compose` writes the built executables as services"
-        ]
-    return []
+        )
+    return said
 
 
 def generated_unchanged(text: str) -> bool:

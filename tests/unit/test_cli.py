@@ -1272,6 +1272,14 @@ def test_compose_up_says_when_the_compose_file_lags_what_the_runtime_image_holds
     (root / ".env").write_text("COMPOSE_FILE=other.yaml\n")
     assert "run what the runtime image lacks" not in said_by_up()
     (root / ".env").unlink()
+    # `ros2 launch` as a service's command: the container ended at once, "exec: ros2: not found".
+    launch = "  bringup:\n    <<: *ros-node\n    command: [ros2, launch, beacon_nodes, robot.launch.py]\n"
+    compose.write_text(text.replace("services:\n", "services:\n" + launch))
+    assert "compose.yaml: bringup run `ros2`, which the runtime image lacks" in said_by_up()
+    compose.write_text(
+        text.replace("services:\n", "services:\n" + launch.replace("ros-node", "ros-node\n    profiles: [x]"))
+    )
+    assert "`ros2`" not in said_by_up()
     # Another workspace's file as espdock wrote it (a clone's): it runs none of this one's nodes,
     # which is not "built since", and its services come back after a build, not before one.
     compose.write_text(starter_compose("robot", "espdock/robot:latest", {"beacon_nodes": ["beacon"]}))

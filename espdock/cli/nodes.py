@@ -167,7 +167,7 @@ def compose(ctx: typer.Context, workspace: WorkspaceOption = None) -> None:
         # `up` and `create` start the file's services: what they run is checked against install/ too.
         found = compose_file.built_executables(ws, packages) if subcommand in ("up", "create") else None
         no_ros2 = config.ros_image == "wheels"
-        for said in compose_file.compose_warnings(ws.root, repository, args, os.environ, found, no_ros2):
+        for said in compose_file.check_compose_file(ws.root, repository, args, os.environ, found, no_ros2):
             notify(said)
     engine = bootstrap.ensure_engine(os.environ, notify)
     bootstrap.ensure_compose(os.environ, notify)

@@ -179,7 +179,7 @@ def _active_profiles(root: Path, args: list[str] | tuple[str, ...], env: Mapping
     return {*global_values(args, "--profile"), *filter(None, env.get("COMPOSE_PROFILES", "").split(","))}
 
 
-def compose_warnings(
+def check_compose_file(
     root: Path,
     own: str,
     args: list[str] | tuple[str, ...],
@@ -190,7 +190,8 @@ def compose_warnings(
     """What is wrong in ROOT's compose file (the one Compose reads when ARGS and ENV choose none)
     for this workspace's runtime image OWN (espdock/<name>): another workspace's runtime image it
     runs, and, given FOUND (built_executables: `up` and `create` start the services), where it lags
-    that image, and (NO_ROS2: the wheels image's) the services it starts with a `ros2` command."""
+    that image, and (NO_ROS2: the wheels image's) the services it starts with a `ros2` command.
+    A WorkspaceError where a service it starts mounts a path that is not there."""
     path = default_compose_file(root, args, env)
     if path is None:
         return []
@@ -200,13 +201,44 @@ def compose_warnings(
         data = yaml.safe_load(_NAMED.sub(own.removeprefix("espdock/"), text))
     except yaml.YAMLError:
         return []  # Compose says what is wrong with it
+    active = _active_profiles(root, args, env)
+    if missing := _missing_bind_sources(root, data, active):
+        raise WorkspaceError(
+            f"{path.name}: {', '.join(f'{service} mounts {source}' for service, source in missing)}, which is not "
+            "there: Docker would make a directory owned by root in its place (in the sources, where a file was meant)",
+            f"Create it (`mkdir -p` for a directory), or correct the path in {path.name}.",
+        )
     ours = generated_unchanged(text)
     said = [warning] if (warning := _foreign_warning(root, path.name, data, ours, own, args, env)) else []
     if found is not None:
         # A file espdock wrote for another workspace (a clone's, a copy's) runs none of this one's
         # services: the warning above says what to do, not that nothing was built.
-        said += _lagging_warnings(root, path.name, data, ours and warning is None, own, found, args, env, no_ros2)
+        said += _lagging_warnings(path.name, data, ours and warning is None, own, found, active, no_ros2)
     return said
+
+
+def _starts(service: object, active: set[str] | None) -> bool:
+    """Whether SERVICE (a compose file's) starts with the ACTIVE profiles (None: unknown, only if it has none)."""
+    if not isinstance(service, dict):
+        return False
+    profiles = service.get("profiles") or []
+    return not profiles or (active is not None and bool({"*", *map(str, profiles)} & active))
+
+
+def _missing_bind_sources(root: Path, data: object, active: set[str] | None) -> list[tuple[str, str]]:
+    """(service, source) of the bind mounts in DATA (a parsed compose file in ROOT) whose source is
+    not there, in the services that start with ACTIVE profiles (None: unknown, only those of none)."""
+    services = data.get("services") if isinstance(data, dict) else None
+    missing = []
+    for name, service in services.items() if isinstance(services, dict) else ():
+        if not _starts(service, active):
+            continue
+        for volume in service.get("volumes") or ():
+            # Only the short syntax makes a missing source (the long one's bind is refused by Compose).
+            source = volume.split(":", 1)[0] if isinstance(volume, str) and "$" not in volume else ""
+            if source.startswith((".", "/", "~")) and not os.path.lexists(root / os.path.expanduser(source)):
+                missing.append((str(name), source))
+    return missing
 
 
 def _foreign_warning(
@@ -255,27 +287,24 @@ def built_executables(workspace: Workspace, packages: tuple[Package, ...]) -> di
 
 
 def _lagging_warnings(
-    root: Path,
     name: str,
     data: object,
     ours: bool,
     repository: str,
     found: dict[str, list[str]],
-    args: list[str] | tuple[str, ...],
-    env: Mapping[str, str],
+    active: set[str] | None,
     no_ros2: bool = False,
 ) -> list[str]:
     """What is wrong between compose file NAME (DATA parsed; OURS: as espdock wrote it) and the
     runtime image of REPOSITORY, whose install/ holds FOUND, in the services on that image that
-    start without a profile: one that runs an executable the image lacks (a package gone from the
+    start with the ACTIVE profiles: one that runs an executable the image lacks (a package gone from the
     branch: the container died at start, "not found"), and, in a file as espdock wrote it, built
     executables it runs no service of (written before the first build, it had none: Compose said
-    only "no service selected")."""
+    only "no service selected"); with NO_ROS2, one whose command is `ros2`."""
     from espdock.ros.plan import RUNTIME_INSTALL
 
     services = data.get("services") if isinstance(data, dict) else None
     built = {f"{RUNTIME_INSTALL}/{p}/lib/{p}/{exe}": exe for p, exes in found.items() for exe in exes}
-    active = _active_profiles(root, args, env)
     ran, lacking, ros2 = set(), [], []
     for service_name, service in services.items() if isinstance(services, dict) else ():
         image = service.get("image") if isinstance(service, dict) else None
@@ -283,8 +312,7 @@ def _lagging_warnings(
             # Another image: its own install tree; a tag of this workspace's pinned in the file
             # (espdock/<name>:<key>) holds what it was made of, which install/ need not hold now.
             continue
-        profiles = service.get("profiles") or []
-        if profiles and (active is None or not ({"*", *map(str, profiles)} & active)):
+        if not _starts(service, active):
             continue  # a profile this run does not turn on
         command = service.get("command")
         words = command if isinstance(command, list) else str(command or "").split()

@@ -1289,6 +1289,37 @@ def test_compose_up_says_when_the_compose_file_lags_what_the_runtime_image_holds
     assert "runs none of" not in said and "no node to run yet" not in said, said
 
 
+def test_compose_up_refuses_a_service_mounting_a_path_that_is_not_there(tmp_path):
+    """A mistyped params file (`./src/bringup/config/param.yaml:/params/params.yaml:ro`): Docker
+    made a root-owned directory of that name in the sources, and the node died on it."""
+    root = copy_workspace(tmp_path / "binds", packages=())
+    assert espdock("init", cwd=root, env=NO_ENGINE).returncode == 0
+    compose = root / "compose.yaml"
+    written = compose.read_text()
+    (root / "src/config").mkdir(parents=True)
+    (root / "src/config/params.yaml").write_text("{}\n")
+
+    def up_with(volumes: str, profiles: str = "") -> subprocess.CompletedProcess:
+        service = f"  node:\n    image: busybox\n{profiles}    volumes:\n{volumes}"
+        compose.write_text(written.replace("services:\n", "services:\n" + service))
+        return espdock("compose", "up", cwd=root, env=NO_ENGINE)
+
+    refused = up_with("      - ./src/config/param.yaml:/params/params.yaml:ro\n")
+    said = " ".join(refused.stderr.split())
+    assert refused.returncode == 2, refused.stdout + refused.stderr
+    assert "compose.yaml: node mounts ./src/config/param.yaml, which is not there" in said, said
+    assert not (root / "src/config/param.yaml").exists()
+    # What is there, a named volume, an interpolated path, a service this run does not start: on
+    # to the engine (none here).
+    for volumes, profiles in (
+        ("      - ./src/config/params.yaml:/params/params.yaml:ro\n      - data:/data\n", ""),
+        ("      - ${CONFIG_DIR}/param.yaml:/params/params.yaml\n", ""),
+        ("      - ./src/config/param.yaml:/params/params.yaml:ro\n", "    profiles: [typo]\n"),
+    ):
+        went_on = up_with(volumes, profiles)
+        assert went_on.returncode == 3, went_on.stdout + went_on.stderr
+
+
 def test_a_clone_or_worktree_runs_its_own_nodes_from_the_committed_compose_file(tmp_path):
     """The file `espdock init --compose` writes is committed: a git worktree or clone of another
     name ran the original's runtime image in the original's project (its `compose down` removed

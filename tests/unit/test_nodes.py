@@ -397,19 +397,19 @@ def test_a_compose_file_that_runs_another_workspace_s_runtime_image_is_found():
 def test_a_foreign_image_in_a_compose_file_named_as_this_workspace_s_project_is_said_without_that_claim(tmp_path):
     """A service of espdock/other:latest in ws1's own file (`name: ws1`): the warning said ws1's
     project name was the other workspace's, whose containers would be replaced."""
-    from espdock.ros.compose import compose_warnings, starter_compose
+    from espdock.ros.compose import check_compose_file, starter_compose
 
     (tmp_path / "compose.yaml").write_text(starter_compose("ws1", "espdock/other:latest", {"talk": ["talker"]}))
-    said = "\n".join(compose_warnings(tmp_path, "espdock/ws1", [], {}))
+    said = "\n".join(check_compose_file(tmp_path, "espdock/ws1", [], {}))
     assert "runs espdock/other:latest, another workspace's runtime image" in said, said
     assert "name: ws1" not in said and "get replaced" not in said, said
     # Another file chosen: not this one's to judge.
-    assert compose_warnings(tmp_path, "espdock/ws1", [], {"COMPOSE_FILE": "other.yaml"}) == []
+    assert check_compose_file(tmp_path, "espdock/ws1", [], {"COMPOSE_FILE": "other.yaml"}) == []
     # The other's project name in the file, but the project named elsewhere: nothing of it gets replaced.
     (tmp_path / "compose.yaml").write_text(starter_compose("other", "espdock/other:latest", {"talk": ["talker"]}))
-    assert "get replaced" in "\n".join(compose_warnings(tmp_path, "espdock/ws1", [], {}))
+    assert "get replaced" in "\n".join(check_compose_file(tmp_path, "espdock/ws1", [], {}))
     for args, env in ((["-p", "mine"], {}), ([], {"COMPOSE_PROJECT_NAME": "mine"})):
-        said = "\n".join(compose_warnings(tmp_path, "espdock/ws1", args, env))
+        said = "\n".join(check_compose_file(tmp_path, "espdock/ws1", args, env))
         assert "runs espdock/other:latest" in said and "get replaced" not in said, said
 
 

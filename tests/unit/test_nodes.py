@@ -184,7 +184,13 @@ def test_run_of_a_package_espdock_leaves_out_says_what_leaves_it_out(ws):
     for name, said in (
         ("vendored", "src/vendored, a CMake project with no package.xml, which espdock does not build"),
         ("old_driver", "a workspace package, which src/old_driver/COLCON_IGNORE leaves out"),
+        # Renamed or removed on a branch, its install left: "Did you mean" another by its letters.
+        (
+            "talk_old",
+            "install/talk_old is an earlier build's, of a package no longer in the sources (renamed or removed)",
+        ),
     ):
+        (workspace.ws_dir / "install/talk_old/lib/talk_old").mkdir(parents=True, exist_ok=True)
         with pytest.raises(WorkspaceError) as caught:
             find_executable(workspace, packages, name, "x")
         assert caught.value.message == f"no ROS package '{name}' in this workspace: {said}"

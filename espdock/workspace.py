@@ -355,10 +355,38 @@ def unmanifested(workspace: Workspace) -> dict[str, LeftOut]:
     return found
 
 
-def dangling_links(workspace: Workspace) -> list[str]:
-    """A warning for each link under the workspace's package paths that leads nowhere (a link to
-    another checkout, on a clone where that lies elsewhere): colcon passes over it without a word,
-    and the build then failed on a dependency of what it held."""
+def search_warnings(workspace: Workspace) -> list[str]:
+    """A warning for each place under the workspace's package paths whose packages are not found,
+    which colcon passes over without a word (the build then failed on a dependency of what it
+    held, or a package was just absent): a link that leads nowhere (to another checkout, on a
+    clone where that lies elsewhere), a git submodule that is not checked out (a clone made
+    without --recurse-submodules, a new git worktree)."""
+    return _dangling_links(workspace) + _unchecked_submodules(workspace)
+
+
+def _unchecked_submodules(workspace: Workspace) -> list[str]:
+    top = next((d for d in (workspace.root, *workspace.root.parents) if (d / ".git").exists()), None)
+    try:
+        text = (top / ".gitmodules").read_text(errors="replace") if top is not None else ""
+    except OSError:
+        return []
+    searched = [(workspace.root / rel).resolve() for rel in workspace.package_paths]
+    lines = []
+    for path in re.findall(r"^\s*path\s*=\s*(.+?)\s*$", text, flags=re.M):
+        module = (top / path).resolve()
+        try:
+            empty = module.is_dir() and next(module.iterdir(), None) is None
+        except OSError:
+            continue
+        if empty and any(module == base or base in module.parents for base in searched):
+            lines.append(
+                f"warning: {os.path.relpath(module, workspace.root.resolve())} is a git submodule that is not "
+                "checked out (empty): no package in it is found; `git submodule update --init` checks it out"
+            )
+    return lines
+
+
+def _dangling_links(workspace: Workspace) -> list[str]:
     lines = []
     for rel in workspace.package_paths:
         for dirpath, filenames in _searched(workspace.root / rel, _outputs(workspace)):

@@ -45,11 +45,11 @@ from espdock.workspace import (
     Package,
     PackageKind,
     Workspace,
-    dangling_links,
     discover_packages,
     left_out,
     order_packages,
     read_build_inputs,
+    search_warnings,
     select_up_to,
     unknown_package,
     unmanifested,
@@ -156,7 +156,7 @@ def build_plan(
             notify(f"warning: {line}")
     for name, project in unmanifested(ws).items():
         notify(project.not_built(name))
-    for line in dangling_links(ws):
+    for line in search_warnings(ws):
         notify(line)
     of_kind = [p for p in chosen if only in (None, p.kind)]
     check_no_vendored_micro_ros(of_kind, ws.root)

@@ -58,10 +58,10 @@ from espdock.workspace import (
     build_running,
     check_not_building,
     current_dir,
-    dangling_links,
     find_workspace,
     idf_project_cmake,
     read_build_inputs,
+    search_warnings,
     unmanifested,
 )
 
@@ -422,7 +422,7 @@ def init(
     console.print(f"found {len(firmware)} firmware package(s){': ' + ', '.join(firmware) if firmware else ''}")
     for name, project in unmanifested(ws).items():  # an ESP-IDF project brought in, say: what makes it one
         notify(project.not_built(name))
-    for line in dangling_links(ws):
+    for line in search_warnings(ws):
         notify(line)
     top = ws.root / "CMakeLists.txt"
     if "espdock.toml" in created and top.is_file() and idf_project_cmake(top.read_text(errors="replace")):
@@ -486,7 +486,7 @@ def list_packages(
         console.print("\n".join(p.name for p in packages), markup=False, highlight=False, soft_wrap=True)
     else:
         render_packages(console, ws, packages)
-    said = [project.not_built(name) for name, project in unmanifested(ws).items()] + dangling_links(ws)
+    said = [project.not_built(name) for name, project in unmanifested(ws).items()] + search_warnings(ws)
     for line in said:
         if names:
             err_console.print(line, markup=False, highlight=False, soft_wrap=True)

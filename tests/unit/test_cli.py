@@ -436,6 +436,26 @@ def test_the_ignore_lines_init_suggests_leave_a_colcon_root_with_glob_characters
     assert unignored_outputs(tmp_path, "ws[1]") == []
 
 
+def test_a_git_submodule_that_is_not_checked_out_is_named_where_its_packages_are_missing(tmp_path):
+    """A clone made without --recurse-submodules (or a new git worktree): the submodule's package
+    was just absent from list and build, and a package depending on it was refused as wanting
+    rosdep's sources."""
+    root = copy_workspace(tmp_path / "robot", packages=(), test_packages=("beacon_nodes",))
+    subprocess.run(["git", "init", "-q", str(root)], check=True)
+    (root / ".gitmodules").write_text('[submodule "extra"]\n\tpath = ws/src/robot_extra\n\turl = ../extra.git\n')
+    (root / "ws/src/robot_extra").mkdir(parents=True)
+    warning = (
+        "warning: ws/src/robot_extra is a git submodule that is not checked out (empty): no package in it is "
+        "found; `git submodule update --init` checks it out"
+    )
+    for args in (("list",), ("build", "--dry-run")):
+        said = espdock(*args, cwd=root, env=NO_ENGINE)
+        assert warning in " ".join((said.stdout + said.stderr).split()), said.stdout + said.stderr
+    (root / "ws/src/robot_extra/README.md").write_text("checked out\n")
+    said = espdock("list", cwd=root, env=NO_ENGINE)
+    assert "is a git submodule" not in said.stdout + said.stderr
+
+
 def test_a_workspace_from_init_checks_its_scripts_out_with_lf_on_windows(tmp_path):
     """Git for Windows' core.autocrlf=true checked a node script out as `#!/usr/bin/env python3\\r\\n`:
     in the container env looked for `python3\\r` and the node did not start."""

@@ -318,6 +318,9 @@ def lock_rosdeps(
     unserved += sorted(
         {k for ks in tests.values() for k in ks if not test_keys.get(k, {}).get("installer")} - {*unserved}
     )
+    # Keys the lock on disk already leaves unresolved (`espdock lock` wrote them so): each later
+    # dependency edit went unlocked, and `espdock run` then refused the stale lock.
+    unserved = [key for key in unserved if key not in _unserved_in(before)]
     if unserved and not unresolved_ok:
         # A CI build (--locked) refuses the missing or stale lock: say now what writes it.
         return (
@@ -333,6 +336,22 @@ def lock_rosdeps(
         return "created", database, text.encode()
     write_atomically(target, text)
     return "updated", database, text.encode()
+
+
+def _unserved_in(text: str | None) -> set[str]:
+    """The keys TEXT (a rosdep.lock.json) names as served by nothing, the build's and the tests'."""
+    try:
+        recorded = json.loads(text) if text is not None else {}
+    except ValueError:
+        return set()
+    sections = [recorded, recorded.get(testdeps.SECTION)] if isinstance(recorded, dict) else []
+    return {
+        key
+        for section in sections
+        if isinstance(section, dict) and isinstance(section.get("keys"), dict)
+        for key, entry in section["keys"].items()
+        if isinstance(entry, dict) and not entry.get("installer")
+    }
 
 
 def _same_but_sources(text: str, lock: dict) -> bool:

@@ -398,6 +398,24 @@ def test_a_test_key_nothing_serves_is_refused_by_espdock_test_without_writing_th
     assert (root / "rosdep.lock.json").read_bytes() == before
 
 
+def test_a_build_locks_a_new_dependency_beside_a_test_key_the_lock_already_leaves_unresolved(tmp_path):
+    """A test-only key nothing serves (launch_testing, which `espdock lock` wrote as unresolved):
+    every later dependency edit was "not written (it would leave launch_testing unresolved ...)",
+    and `espdock run` refused the lock as older than the package.xml files."""
+    root = make_workspace(tmp_path / "w", "tested_py")
+    add_depends(root / "src/tested_py/package.xml", "<test_depend>launch_testing_ros</test_depend>")
+    assert run(root, tmp_path, "lock").returncode == 0
+    add_depends(root / "src/tested_py/package.xml", "<depend>tinyxml2</depend>")
+    built = run(root, tmp_path, "build")
+    assert "not written" not in built.stdout, built.stdout
+    lock = json.loads((root / "rosdep.lock.json").read_text())
+    assert lock["keys"]["tinyxml2"]["installer"] == "apt", lock["keys"]
+    # A key the edit leaves unresolved is still not written by a build.
+    add_depends(root / "src/tested_py/package.xml", "<depend>rclcpp</depend>")
+    refused = run(root, tmp_path, "build")
+    assert "rosdep.lock.json not written (it would leave rclcpp unresolved" in " ".join(refused.stdout.split())
+
+
 def test_espdock_test_names_what_the_build_and_the_tests_lack_at_once(tmp_path):
     """It named the tests' missing keys alone; once a rule served them, the next run named the build's
     (rclcpp, which only the official image has): two rounds of fixes for what one message can say."""

@@ -840,12 +840,21 @@ def built_on_older(workspace: Workspace, step: ColconBuild, package: str) -> lis
     """Where PACKAGE's own sources are as its last build recorded, the workspace packages it depends
     on that were rebuilt or edited since (by the stamps its build recorded of them; a record of an
     older espdock: those of them STEP would build, [] where only PACKAGE would build); None where
-    there are none, or its own sources changed (edited_since_built says that)."""
+    there are none, or its own sources changed (edited_since_built says that) but for a symlink
+    install's Python modules, which run as they are."""
     found = colcon_rebuild(workspace, step)
     rebuild, trees = found.rebuild, found.trees
     recorded = found.stamp_file.read()
     entry = recorded.get(package)
-    if not isinstance(entry, dict) or package not in trees or entry.get("tree") != trees[package].digest:
+    if not isinstance(entry, dict) or package not in trees:
+        return None
+    if entry.get("tree") != trees[package].digest and not (
+        # Its module edited under --symlink-install beside a .msg edit: nothing was said, and the
+        # node failed on the new field.
+        package in step.python
+        and trees[package].declares == entry.get("declares")
+        and symlink_installed(workspace.ws_dir / ROS_BUILD_BASE, package)
+    ):
         return None
     against = entry.get("against")
 

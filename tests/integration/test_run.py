@@ -497,6 +497,31 @@ def test_run_says_when_a_package_was_built_on_older_sources_of_one_it_depends_on
     assert no_containers_left(engine, root) == []
 
 
+def test_run_of_a_symlink_installed_node_edited_beside_its_dependency_s_build_says_it_was_built_on_older(
+    engine, tmp_path
+):
+    """Under --symlink-install, the node's own module edited (which runs as it is) and the package it
+    depends on rebuilt alone: `espdock run` said nothing, as for any package whose sources changed,
+    and the node failed on what changed in the other (a .msg's new field)."""
+    from tests.robot_packages import write_python_package
+
+    root = python_workspace(tmp_path / "w")
+    write_python_package(root / "ws/src", "beacon_app", ("beacon_nodes",), tag="depend")
+    built = espdock("build", "--only", "ros", "--", "--symlink-install", cwd=root)
+    assert built.returncode == 0, built.stdout[-2000:] + built.stderr
+    with open(root / "ws/src/beacon_nodes/beacon_nodes/beacon.py", "a") as source:
+        source.write("# changed\n")
+    lone = espdock("build", "beacon_nodes", "--", "--symlink-install", cwd=root)
+    assert lone.returncode == 0, lone.stdout[-2000:] + lone.stderr
+    with open(root / "ws/src/beacon_app/beacon_app/beacon_app_node.py", "a") as source:
+        source.write("# uses what changed\n")
+    run = ("run", "beacon_app", "beacon_app_node", "--ros-args", "--params-file", "/nonexistent/params.yaml")
+    older = espdock(*run, cwd=root)
+    said = " ".join(older.stderr.split())
+    assert "sources changed since its last build" not in said, said  # its module runs as it is
+    assert "warning: beacon_app was built on other sources of the workspace packages it depends on" in said, said
+
+
 def data_and_show(root: Path) -> Path:
     """beacon_data, a CMake package with nothing to compile, and beacon_show, a Python package
     built on it, beside beacon_nodes in the workspace at ROOT; beacon_data's CMakeLists.txt."""

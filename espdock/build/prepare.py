@@ -217,10 +217,13 @@ def host_side_in_library(firmware: Package, packages: tuple[Package, ...], input
     build runs a package's whole CMakeLists.txt, and failed on it minutes in, where the ROS side
     built it."""
     library = derive_interface_packages(packages, firmware)
+    # The workspace's other interface packages too: one the library lacks is a <depend> left out of
+    # a package.xml (said apart, by interfaces.undeclared), not a host-side requirement to move.
+    workspace_interfaces = {p.name for p in packages if p.is_interface}
     lines = []
     for package in library:
         text = inputs.package_files.get(package.name, {}).get("CMakeLists.txt", b"").decode("utf-8", "replace")
-        if missing := not_in_micro_ros(text, (p.name for p in library)):
+        if missing := not_in_micro_ros(text, workspace_interfaces | {p.name for p in library}):
             lines.append(
                 f"{firmware.name}'s micro-ROS library holds {package.name}, whose CMakeLists.txt requires "
                 f"{', '.join(missing)}: micro-ROS's library build runs the whole of it with micro-ROS's own "

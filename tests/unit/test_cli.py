@@ -1396,6 +1396,17 @@ def test_a_node_beside_the_interfaces_of_the_firmware_s_library_is_warned_of(tmp
         "rosidl_typesupport_cpp: micro-ROS's library build runs the whole of it" in said
     ), said
     assert "led_strip_node's micro-ROS library holds custom_interface" not in said  # it does not depend on it
+    # Another interface package of the workspace, its <depend> left out of custom_interface's
+    # package.xml: that is what to mend, not a node's requirement to move out of the package.
+    write_interface_package(root / "ws/src", "base_msgs", service=False)
+    cmake.write_text(
+        plain.replace(
+            "find_package(rosidl_default_generators",
+            "find_package(base_msgs REQUIRED)\nfind_package(rosidl_default_generators",
+            1,
+        )
+    )
+    assert "requires base_msgs" not in firmware_plan_said(root)
 
 
 def test_a_type_micro_ros_cannot_build_in_an_interface_package_of_the_firmware_s_library_is_warned_of(tmp_path):

@@ -163,12 +163,25 @@ def compose(ctx: typer.Context, workspace: WorkspaceOption = None) -> None:
             "Wait for it to finish, then run again.",
         )
     repository = runtime_repository(config, ws)
-    if subcommand in nodes.COMPOSE_CREATING:
+    if subcommand in nodes.COMPOSE_CREATING or subcommand in nodes.COMPOSE_ENDING:
         # `up` and `create` start the file's services: what they run is checked against install/ too.
         found = compose_file.built_executables(ws, packages) if subcommand in ("up", "create") else None
         no_ros2 = config.ros_image == "wheels"
-        for said in compose_file.check_compose_file(ws.root, repository, args, os.environ, found, no_ros2):
+        starting = subcommand in nodes.COMPOSE_CREATING
+        for said in compose_file.check_compose_file(ws.root, repository, args, os.environ, found, no_ros2, starting):
             notify(said)
+    env_files = nodes.compose_env_files(args, ws.root, os.environ)
+    if (
+        compose_file.NAME_VARIABLE not in os.environ
+        and (named := nodes.env_file_value(env_files, compose_file.NAME_VARIABLE)) is not None
+        and named != repository.removeprefix("espdock/")
+    ):
+        # Compose takes the environment's over the .env's: espdock's, and plain `docker compose` the .env's.
+        notify(
+            f"note: {compose_file.NAME_VARIABLE}={named} in the env file is not this workspace's name "
+            f"({repository.removeprefix('espdock/')}), which `espdock compose` sets: plain `docker compose` runs "
+            f"espdock/{named}:latest; espdock takes its name from espdock.toml's `name` or the environment"
+        )
     engine = bootstrap.ensure_engine(os.environ, notify)
     bootstrap.ensure_compose(os.environ, notify)
     if subcommand in nodes.COMPOSE_CREATING and installed:

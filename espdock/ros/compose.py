@@ -29,7 +29,8 @@ COMPOSE_TEMPLATE = """\
 #
 # Settings (environment or .env): ROS_DOMAIN_ID (default 0), MICROROS_AGENT_PORT (default 8888).
 # ESPDOCK_NAME names the project and the image: `espdock compose` sets it to this workspace's
-# name, so a clone, a copy or a git worktree of it runs its own nodes, not this one's.
+# name, so a clone, a copy or a git worktree of it runs its own nodes, not this one's (for plain
+# `docker compose` there, set ESPDOCK_NAME=<its name> in its environment or .env).
 name: {project}
 
 x-ros-node: &ros-node
@@ -186,12 +187,14 @@ def check_compose_file(
     env: Mapping[str, str],
     found: dict[str, list[str]] | None = None,
     no_ros2: bool = False,
+    starting: bool = True,
 ) -> list[str]:
     """What is wrong in ROOT's compose file (the one Compose reads when ARGS and ENV choose none)
     for this workspace's runtime image OWN (espdock/<name>): another workspace's runtime image it
     runs, and, given FOUND (built_executables: `up` and `create` start the services), where it lags
     that image, and (NO_ROS2: the wheels image's) the services it starts with a `ros2` command.
-    A WorkspaceError where a service it starts mounts a path that is not there."""
+    A WorkspaceError where a service it starts (STARTING: `up`, `run`, `create`) mounts a path that
+    is not there."""
     path = default_compose_file(root, args, env)
     if path is None:
         return []
@@ -202,7 +205,7 @@ def check_compose_file(
     except yaml.YAMLError:
         return []  # Compose says what is wrong with it
     active = _active_profiles(root, args, env)
-    if missing := _missing_bind_sources(root, data, active):
+    if starting and (missing := _missing_bind_sources(root, data, active, _named_services(args, data))):
         raise WorkspaceError(
             f"{path.name}: {', '.join(f'{service} mounts {source}' for service, source in missing)}, which is not "
             "there: Docker would make a directory owned by root in its place (in the sources, where a file was meant)",
@@ -225,17 +228,33 @@ def _starts(service: object, active: set[str] | None) -> bool:
     return not profiles or (active is not None and bool({"*", *map(str, profiles)} & active))
 
 
-def _missing_bind_sources(root: Path, data: object, active: set[str] | None) -> list[tuple[str, str]]:
+def _named_services(args: list[str] | tuple[str, ...], data: object) -> set[str]:
+    """The services of DATA (a parsed compose file) ARGS name after the subcommand (`up -d beacon`)."""
+    from espdock.ros.nodes import compose_subcommand_at
+
+    services = data.get("services") if isinstance(data, dict) else None
+    at = compose_subcommand_at(args)
+    return (
+        {word for word in args[at + 1 :] if word in services}
+        if at is not None and isinstance(services, dict)
+        else set()
+    )
+
+
+def _missing_bind_sources(root: Path, data: object, active: set[str] | None, named: set[str]) -> list[tuple[str, str]]:
     """(service, source) of the bind mounts in DATA (a parsed compose file in ROOT) whose source is
-    not there, in the services that start with ACTIVE profiles (None: unknown, only those of none)."""
+    not there, in the services NAMED, or where none is, that start with ACTIVE profiles (None:
+    unknown, only those of none)."""
     services = data.get("services") if isinstance(data, dict) else None
     missing = []
     for name, service in services.items() if isinstance(services, dict) else ():
-        if not _starts(service, active):
+        if not (name in named if named else _starts(service, active)) or not isinstance(service, dict):
             continue
         for volume in service.get("volumes") or ():
-            # Only the short syntax makes a missing source (the long one's bind is refused by Compose).
-            source = volume.split(":", 1)[0] if isinstance(volume, str) and "$" not in volume else ""
+            # Only the short syntax makes a missing source (the long one's bind is refused by
+            # Compose); one with no colon is an anonymous volume.
+            bind = isinstance(volume, str) and ":" in volume and "$" not in volume
+            source = volume.split(":", 1)[0] if bind else ""
             if source.startswith((".", "/", "~")) and not os.path.lexists(root / os.path.expanduser(source)):
                 missing.append((str(name), source))
     return missing
@@ -257,15 +276,23 @@ def _foreign_warning(
         return None
     if project == own.removeprefix("espdock/") or _project_named_elsewhere(root, args, env):
         project = None  # this workspace's own project name, or another one: nothing of another's gets replaced
-    replaced = f", and its project `name: {project}` is that workspace's too (its containers get replaced)"
+    replaced = (
+        f", and its project `name: {project}` is that workspace's too (its containers are this project's: `up` "
+        "replaces them, `down` removes them)"
+    )
     if ours:
         # As espdock wrote it: the command that wrote it writes this workspace's (a renamed or copied one's).
         # Its services are written of what install/ holds: before a build, none.
         fix = "`espdock build`, then `espdock init --compose`, writes it afresh for this workspace"
     else:
-        # The project name is kept by a copy whatever it is (this repository's is espdock-demo).
-        rename = f" and name: {own.removeprefix('espdock/')}"
-        fix = f"set image: {own}:latest{rename if project else ''} in {name}"
+        # The file is committed: this workspace's name in it would be the original's problem. Its
+        # own name as what ESPDOCK_NAME, which `espdock compose` sets, falls back to serves both.
+        default = foreign[0].removeprefix("espdock/").rpartition(":")[0]
+        rename = f" and name: ${{{NAME_VARIABLE}:-{project}}}"
+        fix = (
+            f"set image: espdock/${{{NAME_VARIABLE}:-{default}}}:latest{rename if project else ''} in {name} "
+            f"(`espdock compose` sets {NAME_VARIABLE} to each workspace's name)"
+        )
     return (
         f"warning: {name} runs {', '.join(foreign)}, another workspace's runtime image, not this one's "
         f"({own}:latest, of this install/){replaced if project else ''}; {fix} (a copied, cloned or renamed "
@@ -274,16 +301,12 @@ def _foreign_warning(
 
 
 def built_executables(workspace: Workspace, packages: tuple[Package, ...]) -> dict[str, list[str]]:
-    """The executables WORKSPACE's ROS PACKAGES have installed (package -> names): what its runtime
-    image runs."""
+    """The executables WORKSPACE's ROS PACKAGES have installed (package -> names, none where it is
+    not built or installs none): what its runtime image runs."""
     from espdock.ros.nodes import executables
 
     install = workspace.ws_dir / "install"
-    return {
-        p.name: exes
-        for p in packages
-        if p.kind is PackageKind.ROS and (exes := executables(install, p.name, workspace.root))
-    }
+    return {p.name: executables(install, p.name, workspace.root) for p in packages if p.kind is PackageKind.ROS}
 
 
 def _lagging_warnings(
@@ -324,7 +347,7 @@ def _lagging_warnings(
             continue
         ran.add(run)
         if run not in built:
-            lacking.append(f"{service_name} ({package} {exe.removeprefix(package + '/')})")
+            lacking.append((package, f"{service_name} ({package} {exe.removeprefix(package + '/')})"))
     said = []
     if ros2:
         # The container ended at once: "exec: ros2: not found", exit 127, after `up` had said nothing.
@@ -333,11 +356,17 @@ def _lagging_warnings(
             f"have no ros2 command, launch or rclcpp): run an executable by its path, {RUNTIME_INSTALL}/<package>/"
             'lib/<package>/<executable>, or build on the official image (ros_image = "official")'
         )
-    if lacking:
+    if lacking and not built and all(package in found for package, _ in lacking):
+        # A fresh clone or worktree: `espdock init --compose` now would write a file of no service.
+        said.append(
+            f"warning: {name}: nothing is built in this workspace yet, and its services run what a build "
+            "installs: `espdock build` first"
+        )
+    elif lacking:
         fix = "`espdock init --compose` writes it afresh" if ours else f"edit or remove them in {name}"
         said.append(
-            f"warning: {name}: {', '.join(lacking)} run what the runtime image lacks (not built, or a package "
-            f"no longer in the workspace): their containers fail at start; {fix}"
+            f"warning: {name}: {', '.join(what for _, what in lacking)} run what the runtime image lacks (not built, "
+            f"or a package no longer in the workspace): their containers fail at start; {fix}"
         )
     elif ours and (unrun := sorted(exe for run, exe in built.items() if run not in ran)):
         said.append(
@@ -402,12 +431,28 @@ def write_starter_compose(
     return outcome
 
 
+def _default_name(root: Path) -> str | None:
+    """The name ROOT's compose file falls back to without ESPDOCK_NAME (as espdock writes it): kept
+    by a refresh, as the file is committed (a worktree's `espdock init --compose` wrote its own
+    directory's name there, which plain `docker compose` in the original then ran)."""
+    from espdock.layout import COMPOSE_FILES
+
+    for name in COMPOSE_FILES:
+        try:
+            text = (root / name).read_text(errors="replace")
+        except OSError:
+            continue
+        found = re.search(rf"^name: \$\{{{NAME_VARIABLE}:-([^}}\s]+)\}}$", text, flags=re.M)
+        return found.group(1) if found else None
+    return None
+
+
 def init_compose(
     workspace: Workspace, repository: str, packages: tuple[Package, ...], owner=None, refresh=False, force=False
 ) -> str | None:
     """`espdock init`'s compose.yaml for WORKSPACE, whose runtime images are REPOSITORY: the
     executables its ROS PACKAGES have installed (see write_starter_compose for REFRESH, FORCE
     and what it returns)."""
-    named = f"${{{NAME_VARIABLE}:-{repository.split('/', 1)[-1]}}}"
+    named = f"${{{NAME_VARIABLE}:-{_default_name(workspace.root) or repository.split('/', 1)[-1]}}}"
     text = starter_compose(named, f"espdock/{named}:latest", built_executables(workspace, packages))
     return write_starter_compose(workspace.root, text, owner, refresh, force)

@@ -282,6 +282,8 @@ COMPOSE_VALUED_OPTIONS = frozenset(
 )  # fmt: skip
 # The subcommands that make containers of the images: the runtime image must be current first.
 COMPOSE_CREATING = frozenset({"up", "run", "create", "scale", "watch"})
+# Those that stop or remove the project's containers: in another workspace's project, its own.
+COMPOSE_ENDING = frozenset({"down", "stop", "rm", "kill", "restart", "pause"})
 # A label espdock gives the container of its `compose run`: the one to remove when it is interrupted.
 LABEL_COMPOSE_RUN = "io.espdock.compose-run"
 
@@ -350,14 +352,23 @@ def compose_env_files(args: list[str] | tuple[str, ...], root: Path, env: Mappin
 
 def env_file_sets(paths: Iterable[Path], name: str) -> bool:
     """Whether one of the env files PATHS sets NAME (`NAME=...`, Compose's .env syntax)."""
+    return env_file_value(paths, name) is not None
+
+
+def env_file_value(paths: Iterable[Path], name: str) -> str | None:
+    """What the env files PATHS set NAME to (the last one setting it), or None."""
+    value = None
     for path in paths:
         try:
             lines = path.read_text(encoding="utf-8-sig", errors="replace").splitlines()
         except OSError:
             continue
-        if any(line.strip().removeprefix("export ").split("=", 1)[0].strip() == name for line in lines if "=" in line):
-            return True
-    return False
+        for line in lines:
+            key, equals, given = line.strip().removeprefix("export ").partition("=")
+            if equals and key.strip() == name:
+                given = given.strip()
+                value = given[1:-1] if len(given) > 1 and given[0] == given[-1] and given[0] in "\"'" else given
+    return value
 
 
 def labelled_run(args: list[str], token: str) -> list[str]:

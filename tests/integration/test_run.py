@@ -847,7 +847,12 @@ def test_compose_in_a_copy_of_a_workspace_warns_that_its_file_runs_the_original_
     # As espdock wrote it, the command that wrote it is the fix; edited since, the lines to change.
     for text, fix in (
         (generated, "`espdock build`, then `espdock init --compose`, writes it afresh for this workspace"),
-        (generated + "# the team's\n", "set image: espdock/robot-copy:latest and name: robot-copy in compose.yaml"),
+        # The file is committed: the original's name as what ESPDOCK_NAME falls back to serves both.
+        (
+            generated + "# the team's\n",
+            f"set image: espdock/${{ESPDOCK_NAME:-{original}}}:latest and name: ${{ESPDOCK_NAME:-{original}}} in "
+            "compose.yaml (`espdock compose` sets ESPDOCK_NAME to each workspace's name)",
+        ),
     ):
         (root / "compose.yaml").write_text(text)
         try:

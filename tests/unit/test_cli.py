@@ -1335,9 +1335,15 @@ def test_compose_up_refuses_a_service_mounting_a_path_that_is_not_there(tmp_path
         ("      - ./src/config/params.yaml:/params/params.yaml:ro\n      - data:/data\n", ""),
         ("      - ${CONFIG_DIR}/param.yaml:/params/params.yaml\n", ""),
         ("      - ./src/config/param.yaml:/params/params.yaml:ro\n", "    profiles: [typo]\n"),
+        ("      - /var/lib/node_cache\n", ""),  # an anonymous volume: no path of the host's
     ):
         went_on = up_with(volumes, profiles)
         assert went_on.returncode == 3, went_on.stdout + went_on.stderr
+    # Another service named: this one does not start.
+    up_with("      - ./src/config/param.yaml:/params/params.yaml:ro\n")
+    compose.write_text(compose.read_text().replace("services:\n", "services:\n  other:\n    image: busybox\n"))
+    assert espdock("compose", "up", "-d", "other", cwd=root, env=NO_ENGINE).returncode == 3
+    assert espdock("compose", "up", "-d", "node", cwd=root, env=NO_ENGINE).returncode == 2
 
 
 def test_a_clone_or_worktree_runs_its_own_nodes_from_the_committed_compose_file(tmp_path):
@@ -1357,7 +1363,35 @@ def test_a_clone_or_worktree_runs_its_own_nodes_from_the_committed_compose_file(
     up = espdock("compose", "up", cwd=feat, env=NO_ENGINE)
     assert up.returncode == 3, up.stdout + up.stderr  # on to the engine (none here)
     assert "compose.yaml" not in up.stdout + up.stderr, up.stdout + up.stderr
+    # A refresh there keeps the committed file's name to fall back on: the original's plain
+    # `docker compose` ran the worktree's image once the refreshed file was merged.
+    (lib / "beacon").unlink()
+    shutil.copytree(robot / "ws/install", feat / "ws/install", dirs_exist_ok=True)
+    (feat / "ws/install/beacon_nodes/lib/beacon_nodes/beacon").unlink()
+    assert espdock("init", "--compose", cwd=feat, env=NO_ENGINE).returncode == 0
+    refreshed = (feat / "compose.yaml").read_text()
+    assert "name: ${ESPDOCK_NAME:-robot}\n" in refreshed and "/beacon]" not in refreshed, refreshed
+    # Nothing built yet (a fresh worktree): a build first, not a refresh that writes no service.
+    shutil.rmtree(feat / "ws/install")
+    said = " ".join(espdock("compose", "up", cwd=feat, env=NO_ENGINE).stdout.split())
+    assert "compose.yaml: nothing is built in this workspace yet" in said and "init --compose" not in said, said
+    # A file an earlier espdock wrote, its name literal: `down` there removed the original's services.
+    from espdock.ros.compose import starter_compose
+
+    (feat / "compose.yaml").write_text(starter_compose("robot", "espdock/robot:latest", {"beacon_nodes": ["beacon"]}))
+    down = espdock("compose", "down", cwd=feat, env=NO_ENGINE)
+    assert "compose.yaml runs espdock/robot:latest, another workspace's runtime image" in down.stdout, down.stdout
+    assert "`down` removes them" in " ".join(down.stdout.split()), down.stdout
+    # ESPDOCK_NAME in the .env, which plain `docker compose` takes and `espdock compose` overrides.
+    (feat / "compose.yaml").write_text((robot / "compose.yaml").read_text())
+    for named, noted in (("elsewhere", True), ("robot-feat", False)):
+        (feat / ".env").write_text(f"ESPDOCK_NAME={named}\n")
+        ps = espdock("compose", "ps", cwd=feat, env=NO_ENGINE)
+        assert ("ESPDOCK_NAME=elsewhere in the env file is not this workspace's name" in ps.stdout) is noted, ps.stdout
+    (feat / ".env").unlink()
     # Its services are still checked against this workspace's install/.
+    shutil.copytree(robot / "ws/install", feat / "ws/install")
+    (feat / "compose.yaml").write_text((robot / "compose.yaml").read_text())
     shutil.rmtree(feat / "ws/src/beacon_nodes")
     again = espdock("compose", "up", cwd=feat, env=NO_ENGINE)
     said = " ".join((again.stdout + again.stderr).split())

@@ -408,15 +408,15 @@ def test_a_foreign_image_in_a_compose_file_named_as_this_workspace_s_project_is_
     (tmp_path / "compose.yaml").write_text(starter_compose("ws1", "espdock/other:latest", {"talk": ["talker"]}))
     said = "\n".join(check_compose_file(tmp_path, "espdock/ws1", [], {}))
     assert "runs espdock/other:latest, another workspace's runtime image" in said, said
-    assert "name: ws1" not in said and "get replaced" not in said, said
+    assert "name: ws1" not in said and "`up` replaces them" not in said, said
     # Another file chosen: not this one's to judge.
     assert check_compose_file(tmp_path, "espdock/ws1", [], {"COMPOSE_FILE": "other.yaml"}) == []
     # The other's project name in the file, but the project named elsewhere: nothing of it gets replaced.
     (tmp_path / "compose.yaml").write_text(starter_compose("other", "espdock/other:latest", {"talk": ["talker"]}))
-    assert "get replaced" in "\n".join(check_compose_file(tmp_path, "espdock/ws1", [], {}))
+    assert "`up` replaces them" in "\n".join(check_compose_file(tmp_path, "espdock/ws1", [], {}))
     for args, env in ((["-p", "mine"], {}), ([], {"COMPOSE_PROJECT_NAME": "mine"})):
         said = "\n".join(check_compose_file(tmp_path, "espdock/ws1", args, env))
-        assert "runs espdock/other:latest" in said and "get replaced" not in said, said
+        assert "runs espdock/other:latest" in said and "`up` replaces them" not in said, said
 
 
 def test_a_fast_dds_profiles_file_reaches_the_node_mounted_or_is_refused(ws, tmp_path, monkeypatch):

@@ -3,8 +3,8 @@
 # building, testing or packaging needs and keeps every module the nodes import
 # (tests/demo run the nodes on the result).
 # What the workspace's rosdep lock installed (PIP_TXT, the pinned pip.txt espdock
-# staged) is a node's declared dependency and stays whole: setuptools
-# (python3-setuptools, for pkg_resources) was uninstalled here after its install.
+# staged) is a node's declared dependency: no distribution it names is uninstalled
+# (setuptools, for pkg_resources, was), and Pillow's optional modules stay.
 #   ros-runtime-slim.sh VENV [PIP_TXT]
 set -eu
 venv=$1

@@ -37,6 +37,18 @@ def as_the_cli_reads(env: dict[str, str]) -> dict[str, str]:
     host = (env.get("DOCKER_HOST") or "").strip()
     if not host:
         return env
+    if host.startswith("unix:") and not host.startswith("unix://"):
+        # unix:/var/run/docker.sock: read below as a relative path (unix: a directory of it).
+        path = host.removeprefix("unix:")
+        whole = _whole(path) if path.startswith((".", "~")) else "/" + path.lstrip("/")
+        raise ConfigError(
+            f"DOCKER_HOST {host}: a socket's address is unix:// and its path", f"Set DOCKER_HOST=unix://{whole}"
+        )
+    if host.startswith("unix:///") and len(host) > len("unix:///") and host.endswith("/"):
+        raise ConfigError(
+            f"DOCKER_HOST {host}: a socket's path ends in its name, not a slash",
+            f"Set DOCKER_HOST={host.rstrip('/')}",
+        )
     if "://" not in host:
         # A path: absolute, relative (`run/user/1000/docker.sock`, which the CLI takes for tcp://run),
         # or a socket's file name.

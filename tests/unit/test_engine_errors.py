@@ -637,6 +637,15 @@ def test_docker_host_is_read_as_the_docker_cli_reads_it(tmp_path):
         with pytest.raises(ConfigError) as err:
             Engine({"DOCKER_HOST": slash_left_out})
         assert err.value.hint.startswith(f"Set DOCKER_HOST=unix:///{slash_left_out} "), err.value.hint
+    # One slash after unix: (read as a relative path), and a trailing one (said as an engine to start).
+    for given, fix in (
+        ("unix:/var/run/docker.sock", "unix:///var/run/docker.sock"),
+        ("unix:var/run/docker.sock", "unix:///var/run/docker.sock"),
+        ("unix:///var/run/docker.sock/", "unix:///var/run/docker.sock"),
+    ):
+        with pytest.raises(ConfigError) as err:
+            Engine({"DOCKER_HOST": given})
+        assert err.value.hint == f"Set DOCKER_HOST={fix}", given
     # Not a client's address (SDK: "fd protocol is not implemented"), and an ssh:// of no host
     # ("Check that `ssh None` logs in"): refused as what they are.
     for given, said in (("fd://", "a daemon's own listening socket"), ("ssh://", "names no host")):

@@ -10,6 +10,7 @@ Images no record names (another user's, a test's, a pulled base) are never candi
 
 from __future__ import annotations
 
+import dataclasses
 import fcntl
 import json
 import os
@@ -259,6 +260,16 @@ def plan_prune(
     for decision in remove:
         if decision.tag not in kept_tags:
             once.setdefault(decision.tag, decision)
+    # An image that keeps a tag no decision removes (the `:latest` of a workspace's former name)
+    # stays on the engine: its tag goes, its bytes do not ("removed ..., 475 kB" freed nothing).
+    tags_of: dict[str, set[str]] = {}
+    for there in on_engine.values():
+        tags_of.setdefault(there.image_id, set()).add(there.tag)
+    for tag, decision in once.items():
+        if left := sorted(tags_of.get(on_engine[tag].image_id, set()) - set(once)):
+            once[tag] = dataclasses.replace(
+                decision, size=0, reason=f"{decision.reason}; its image stays, tagged {', '.join(left)}"
+            )
     # And kept once, for its strongest reason: records are read in the order of their file names
     # (hashes of the roots), so "the first reason" would differ from machine to machine.
     kept_once: dict[str, Decision] = {}

@@ -76,6 +76,18 @@ def test_a_kind_the_inputs_no_longer_use_is_not_kept_as_current_because_the_last
     assert plan_prune([ours, theirs], {"/a", "/b"}, {"/a": {"ros:1"}}, present("ros:1", "s3:1"), set(), 0).remove == ()
 
 
+def test_a_tag_whose_image_keeps_another_tag_frees_nothing_and_says_so():
+    """The runtime image of a workspace's former name (ESPDOCK_NAME, a renamed directory) keeps
+    its `:latest`: prune said "removed espdock/old:k1 (475 kB ...)" and the image stayed."""
+    ours = Record("/a", generations("/a", "espdock/old", 2), frozenset({"espdock/old:2"}))
+    both_tags = [Present("espdock/old:1", "id-1", 500), Present("espdock/old:latest", "id-1", 500)]
+    plan = plan_prune([ours], {"/a"}, {"/a": set()}, [*both_tags, *present("espdock/old:2")], {}, keep=0)
+    decisions = {d.tag: d for d in plan.remove}
+    assert decisions["espdock/old:1"].size == 0, decisions
+    assert "its image stays, tagged espdock/old:latest" in decisions["espdock/old:1"].reason
+    assert decisions["espdock/old:2"].size == 100  # its only tag goes: its bytes do
+
+
 def test_only_the_targets_are_pruned_and_unrecorded_images_never():
     ours = Record("/a", generations("/a", "ros", 2), frozenset({"ros:2"}))
     theirs = Record("/b", generations("/b", "w", 2), frozenset({"w:2"}))

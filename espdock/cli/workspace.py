@@ -50,7 +50,7 @@ from espdock.images.containers import prepare_output
 from espdock.images.keyed import unpushed_error
 from espdock.layout import ROSDEP_LOCK
 from espdock.ros import colcon_register, rosdeps
-from espdock.ros.compose import init_compose
+from espdock.ros.compose import init_compose, plain_compose_note
 from espdock.ros.plan import ColconBuild, base_image, runtime_repository
 from espdock.ros.trees import orphan_installs, package_trees
 from espdock.workspace import (
@@ -246,6 +246,9 @@ def build(
     colcon = {step.name for step in plan.steps if isinstance(step, ColconBuild)}
     if not config.runtime_image and any(r.step in colcon and r.outcome is not Outcome.CACHED for r in results):
         stale_runtime_note(engine, ws, config, plan, found)
+    if config.runtime_image and (note := plain_compose_note(ws.root, runtime_repository(config, ws), os.environ)):
+        # A worktree or clone of the committed file: its :latest is made, and plain Compose runs the original's.
+        console.print(Text(note, style="yellow"))
     after_build(engine, ws, config, runner, built, whole=not packages)
 
 

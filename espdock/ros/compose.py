@@ -447,6 +447,24 @@ def _default_name(root: Path) -> str | None:
     return None
 
 
+def plain_compose_note(root: Path, own: str, env: Mapping[str, str]) -> str | None:
+    """Where plain `docker compose` in ROOT runs another name's runtime image than OWN
+    (espdock/<name>): the name ROOT's compose file falls back to (a worktree or clone of the
+    committed file), with ESPDOCK_NAME set neither in ENV nor in the .env."""
+    from espdock.ros.nodes import compose_env_files, env_file_value
+
+    fallback, name = _default_name(root), own.removeprefix("espdock/")
+    if fallback in (None, name) or NAME_VARIABLE in env:
+        return None
+    if env_file_value(compose_env_files([], root, env), NAME_VARIABLE) is not None:
+        return None  # what `espdock compose` says of it
+    return (
+        f"note: plain `docker compose` here runs espdock/{fallback}:latest, the name compose.yaml falls back to, "
+        f"not this workspace's {own}:latest: `echo {NAME_VARIABLE}={name} >> .env` makes it this one's "
+        f"(`espdock compose` sets {NAME_VARIABLE} itself)"
+    )
+
+
 def init_compose(
     workspace: Workspace, repository: str, packages: tuple[Package, ...], owner=None, refresh=False, force=False
 ) -> str | None:

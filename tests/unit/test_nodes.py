@@ -14,7 +14,7 @@ from espdock.build.stamps import StampFile, listing_digest
 from espdock.config import Config
 from espdock.errors import ConfigError, WorkspaceError
 from espdock.images.engine import Mount
-from espdock.ros.compose import init_compose, starter_compose
+from espdock.ros.compose import init_compose, plain_compose_note, starter_compose
 from espdock.ros.nodes import (
     compose_subcommand,
     device,
@@ -417,6 +417,24 @@ def test_a_foreign_image_in_a_compose_file_named_as_this_workspace_s_project_is_
     for args, env in ((["-p", "mine"], {}), ([], {"COMPOSE_PROJECT_NAME": "mine"})):
         said = "\n".join(check_compose_file(tmp_path, "espdock/ws1", args, env))
         assert "runs espdock/other:latest" in said and "`up` replaces them" not in said, said
+
+
+def test_a_build_in_a_worktree_of_the_committed_compose_file_says_what_plain_compose_runs(tmp_path):
+    """`runtime_image = true` in a worktree made espdock/robot-feat:latest, and plain `docker compose
+    up` there ran the original's image (the file's fallback name), replacing its containers."""
+    robot = tmp_path / "robot"
+    robot.mkdir()
+    assert init_compose(Workspace(robot).with_layout(None, None), "espdock/robot", ()) == "wrote"
+    assert plain_compose_note(robot, "espdock/robot", {}) is None
+    feat = tmp_path / "robot-feat"
+    feat.mkdir()
+    (feat / "compose.yaml").write_text((robot / "compose.yaml").read_text())
+    said = plain_compose_note(feat, "espdock/robot-feat", {})
+    assert said is not None and "plain `docker compose` here runs espdock/robot:latest" in said, said
+    assert "`echo ESPDOCK_NAME=robot-feat >> .env`" in said, said
+    assert plain_compose_note(feat, "espdock/robot-feat", {"ESPDOCK_NAME": "robot-feat"}) is None
+    (feat / ".env").write_text("ESPDOCK_NAME=robot-feat\n")
+    assert plain_compose_note(feat, "espdock/robot-feat", {}) is None
 
 
 def test_a_fast_dds_profiles_file_reaches_the_node_mounted_or_is_refused(ws, tmp_path, monkeypatch):

@@ -14,7 +14,7 @@ from dataclasses import replace
 from pathlib import Path
 from typing import NamedTuple
 
-from espdock.build.stamps import StampFile, TreeState, listing_digest, package_stamps, tree_state
+from espdock.build.stamps import StampFile, TreeState, declaring, listing_digest, package_stamps, tree_state
 from espdock.build.steps import EnsureImage
 from espdock.errors import BuildFailed, ConfigError
 from espdock.events import Outcome, StepNote, StepOutput
@@ -814,7 +814,35 @@ def edited_since_built(
         if now.declares == entry.get("declares"):
             return None
         return "the entry points and data files of its setup.py as that build installed them"
+    if (
+        now.declares == entry.get("declares")
+        and entry.get("paths") == list(now.paths)
+        and not _makes(package.path, now)
+    ):
+        # A bringup package's params.yaml or launch file edited: the link installed is to it.
+        return None
     return "what that build compiled or generated, beside the sources its --symlink-install links to"
+
+
+# CMake commands that compile or generate what a package installs (the rest of a --symlink-install
+# of it links to the sources): an edit of a file they read needs a build.
+_MAKING = re.compile(
+    r"^\s*(add_executable|add_library|rosidl_generate_interfaces|configure_file|add_custom_command|add_custom_target"
+    r"|file\s*\(\s*GENERATE|ament_auto_add_\w+|generate_parameter_library|pybind11_add_module|\w*_generate_\w*)\s*\(",
+    re.I | re.M,
+)
+
+
+def _makes(path: Path, tree: TreeState) -> bool:
+    """Whether the CMake package at PATH (TREE its sources) compiles or generates anything."""
+    for rel in tree.paths:
+        if declaring(rel):
+            try:
+                if _MAKING.search((path / rel).read_text(errors="replace")):
+                    return True
+            except OSError:
+                return True
+    return False
 
 
 def stale_installs(workspace: Workspace, step: ColconBuild, packages: Iterable[Package]) -> list[str]:

@@ -538,20 +538,28 @@ def test_run_tells_what_it_runs_of_a_package_edited_since_its_build(tmp_path):
     workspace = Workspace(tmp_path, ("src",), ".")
     py = Package("talk", tmp_path / "src/talk", PackageKind.ROS, "ament_python", frozenset())
     cpp = Package("drive", tmp_path / "src/drive", PackageKind.ROS, "ament_cmake", frozenset())
-    for package in (py, cpp):
+    bringup = Package("bringup", tmp_path / "src/bringup", PackageKind.ROS, "ament_cmake", frozenset())
+    for package in (py, cpp, bringup):
         package.path.mkdir(parents=True)
         (package.path / "node.py").write_text("print(1)\n")
     (py.path / "setup.py").write_text("setup()\n")
+    (cpp.path / "CMakeLists.txt").write_text("project(drive)\nadd_executable(drive src/drive.cpp)\n")
+    (bringup.path / "CMakeLists.txt").write_text("project(bringup)\ninstall(DIRECTORY config DESTINATION share)\n")
     stamps = StampFile(tmp_path / "build" / ROS_STAMPS, ROS_STAMP_FORMAT)
-    stamps.record({"talk": "s1", "drive": "s2"}, {}, None, {p.name: tree_state(p.path) for p in (py, cpp)})
+    built = (py, cpp, bringup)
+    stamps.record({"talk": "s1", "drive": "s2", "bringup": "s3"}, {}, None, {p.name: tree_state(p.path) for p in built})
     assert edited_since_built(workspace, py) is None and edited_since_built(workspace, cpp) is None
-    for package in (py, cpp):
+    for package in built:
         (package.path / "node.py").write_text("print(2)\n")
     assert edited_since_built(workspace, py) == "what that build installed"
     (tmp_path / "build/espdock-ros").mkdir(parents=True)
     record_build_args(tmp_path / "build/espdock-ros", ("--symlink-install",))
     assert edited_since_built(workspace, py) is None, "the symlinked modules are the sources as they are"
     assert "compiled or generated" in (edited_since_built(workspace, cpp) or "")
+    # A package that only installs its files (params, launch files): each is a link to its source.
+    assert edited_since_built(workspace, bringup) is None
+    (bringup.path / "new.yaml").write_text("{}\n")  # a new file gets its link from a build
+    assert edited_since_built(workspace, bringup) is not None
     (py.path / "setup.py").write_text("setup(name='talk')\n")
     assert edited_since_built(workspace, py) is not None, "an entry point changed is not linked"
 

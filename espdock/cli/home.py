@@ -19,15 +19,19 @@ def kept(env: Mapping[str, str]) -> Callable[[], None]:
     command ends. A root ~/.ros/rosdep made the user's next `espdock lock` fail on rosdep's cache."""
     if os.geteuid() != 0 or not env.get("HOME"):
         return lambda: None
-    from espdock.images.prune import state_dir  # here: every command starts through this module
+    from espdock.images.contexts import config_dir  # here: every command starts through this module
+    from espdock.images.prune import state_dir
 
     home = Path(env["HOME"])
     try:
         info = home.stat()
         cache = xdg_dir(env, "XDG_CACHE_HOME", ".cache")
-        # espdock's cache and state; rosdep's meta cache (in ROS_HOME) and uv's, which it runs.
+        # espdock's cache and state; rosdep's meta cache (in ROS_HOME) and uv's, which it runs; and
+        # the docker CLI's, where Compose's image builds write buildx's state (a root
+        # ~/.docker/buildx/current failed the user's next image build: "permission denied").
         ros_home = Path(env.get("ROS_HOME") or home / ".ros")
-        ours = [cache / "espdock", state_dir(env), ros_home / "rosdep", Path(env.get("UV_CACHE_DIR") or cache / "uv")]
+        uv_cache = Path(env.get("UV_CACHE_DIR") or cache / "uv")
+        ours = [cache / "espdock", state_dir(env), ros_home / "rosdep", uv_cache, config_dir(env)]
         # Where they are, not how they are written: `$HOME/../x` and a ~/.cache linked to a
         # directory of root's were taken as the home's, and what root made in them handed over.
         home, ours = home.resolve(), [path.resolve() for path in ours]

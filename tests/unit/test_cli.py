@@ -1102,6 +1102,12 @@ def test_sudo_keeping_the_user_s_home_leaves_nothing_of_root_s_in_it(tmp_path):
     locked = espdock("lock", cwd=root, env={**environment(tmp_path), **env})
     assert locked.returncode == 0, locked.stderr
     assert (home / ".ros/rosdep").is_dir(), "rosdep wrote nothing there: the test tests nothing"
+    # An image build under `sudo -E` (Compose's buildx) left ~/.docker/buildx/current root's: the
+    # user's next image build failed on it ("permission denied").
+    (home / ".docker/buildx").mkdir(parents=True)
+    os.chown(home / ".docker", 4242, 4243)
+    (home / ".docker/buildx/current").write_text("{}")
+    assert espdock("list", cwd=root, env=env).returncode == 0
     owners = {(p.relative_to(home).as_posix(), p.lstat().st_uid) for p in home.rglob("*")}
     assert {(rel, uid) for rel, uid in owners if uid != 4242} == set()
 

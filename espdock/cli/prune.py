@@ -14,7 +14,7 @@ from espdock.build.runner import Runner
 from espdock.build.steps import LABEL_KEY
 from espdock.cli.core import WorkspaceOption, app, command, console, load, notify
 from espdock.config import Config
-from espdock.errors import EspdockError
+from espdock.errors import EspdockError, WorkspaceError
 from espdock.images import bootstrap
 from espdock.images import volume as workspace_volume
 from espdock.images.engine import Engine
@@ -79,15 +79,22 @@ def prune(
 ) -> None:
     """Remove this workspace's keyed images its current inputs no longer use, keeping the last few of
     each kind; never an image the last build of another workspace still there used or a running container needs."""
-    ws, config = load(workspace)
+    try:
+        ws, config = load(workspace)
+    except WorkspaceError:
+        # The clean-up after a user's workspaces were removed: from anywhere, with the defaults.
+        if not all_workspaces or volume or workspace is not None:
+            raise
+        ws, config = None, Config()
     engine = bootstrap.ensure_engine(os.environ, notify)
     if volume:
         remove_volumes(engine, ws, dry_run)
         return
     keep = config.prune_keep if keep is None else keep
     layers_before = None if dry_run else engine.layers_size()
-    current = current_tags(ws, config, env=os.environ)
-    plan, busy = prune_images(engine, state_dir(os.environ), str(ws.root), current, keep, all_workspaces, dry_run)
+    current = current_tags(ws, config, env=os.environ) if ws is not None else set()
+    root = str(ws.root) if ws is not None else ""
+    plan, busy = prune_images(engine, state_dir(os.environ), root, current, keep, all_workspaces, dry_run)
     layers_after = None if dry_run else engine.layers_size()
     verb = "would remove" if dry_run else "removed"
     for decision in plan.remove:

@@ -260,16 +260,30 @@ def plan_prune(
     for decision in remove:
         if decision.tag not in kept_tags:
             once.setdefault(decision.tag, decision)
-    # An image that keeps a tag no decision removes (the `:latest` of a workspace's former name)
-    # stays on the engine: its tag goes, its bytes do not ("removed ..., 475 kB" freed nothing).
+    # The `:latest` of a name nothing of which stays, and no live workspace's last build used (a
+    # removed workspace's, a former name's): no build makes it again, and it kept its image, unsaid.
+    named_now = {tag.rpartition(":")[0] for r in records if r.root not in gone for tag in r.current}
+    staying = {tag.rpartition(":")[0] for tag in on_engine if tag not in once and not tag.endswith(":latest")}
+    for tag, decision in list(once.items()):
+        repository = tag.rpartition(":")[0]
+        latest = f"{repository}:latest"
+        if latest in on_engine and latest not in once and latest not in kept_tags:
+            if repository not in named_now and repository not in staying:
+                once[latest] = Decision(latest, decision.workspace, 0, f"no image of {repository} stays")
+    # What each removal frees: an image's bytes once, and none where it keeps a tag no decision
+    # removes ("removed espdock/old:k1 (475 kB)", and the image stayed under another tag).
     tags_of: dict[str, set[str]] = {}
     for there in on_engine.values():
         tags_of.setdefault(there.image_id, set()).add(there.tag)
+    counted: set[str] = set()
     for tag, decision in once.items():
-        if left := sorted(tags_of.get(on_engine[tag].image_id, set()) - set(once)):
-            once[tag] = dataclasses.replace(
-                decision, size=0, reason=f"{decision.reason}; its image stays, tagged {', '.join(left)}"
-            )
+        image_id = on_engine[tag].image_id
+        if left := sorted(tags_of.get(image_id, set()) - set(once)):
+            size, reason = 0, f"{decision.reason}; its image stays, tagged {', '.join(left)}"
+        else:
+            size, reason = (0 if image_id in counted else on_engine[tag].size), decision.reason
+            counted.add(image_id)
+        once[tag] = dataclasses.replace(decision, size=size, reason=reason)
     # And kept once, for its strongest reason: records are read in the order of their file names
     # (hashes of the roots), so "the first reason" would differ from machine to machine.
     kept_once: dict[str, Decision] = {}

@@ -136,11 +136,17 @@ def test_prune_keeps_what_is_used_and_removes_the_rest(engine, tmp_path):
         shutil.rmtree(second)
         hinted = espdock("prune", "--keep", "0", "--dry-run", cwd=first, env=env)
         assert f"1 workspace(s) built here are gone ({second}): espdock prune --all-workspaces" in hinted.stdout
+        # From anywhere: the clean-up after removing one's workspaces was refused outside of one.
+        outside = espdock("prune", "--all-workspaces", "--keep", "0", "--dry-run", cwd=tmp_path, env=env)
+        assert outside.returncode == 0 and "its workspace is gone)" in outside.stdout, outside.stdout + outside.stderr
         every = espdock("prune", "--all-workspaces", "--keep", "0", cwd=first, env=env)
         assert every.returncode == 0, every.stdout + every.stderr
         for tag in theirs.current:
             assert f"removed {tag} (" in every.stdout and tag not in on_engine(engine), every.stdout
         assert "its workspace is gone)" in every.stdout, every.stdout
+        # Its name's :latest too, which no build makes again (it kept the image, unsaid, for ever).
+        latest = f"espdock/prune-b-{run}:latest"
+        assert f"removed {latest} (" in every.stdout and latest not in on_engine(engine), every.stdout
         assert list(recorded(state)) == [str(first)]
         assert recorded(state)[str(first)].current <= on_engine(engine)
     finally:

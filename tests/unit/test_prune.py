@@ -88,6 +88,28 @@ def test_a_tag_whose_image_keeps_another_tag_frees_nothing_and_says_so():
     assert decisions["espdock/old:2"].size == 100  # its only tag goes: its bytes do
 
 
+def test_the_latest_of_a_name_nothing_stays_of_goes_with_its_last_image():
+    """`espdock/<name>:latest` of a removed workspace, or of a workspace's former name: no build
+    makes it again, and prune left it, with its image, for ever (its record forgotten)."""
+    removed = Record("/gone", generations("/gone", "espdock/gone", 1), frozenset({"espdock/gone:1"}))
+    renamed = Record(
+        "/a", (*generations("/a", "espdock/old", 1), *generations("/a", "espdock/new", 1)), frozenset({"espdock/new:1"})
+    )
+    on_engine = [
+        Present("espdock/gone:1", "id-g", 300),
+        Present("espdock/gone:latest", "id-g", 300),
+        Present("espdock/old:1", "id-o", 200),
+        Present("espdock/old:latest", "id-o", 200),
+        Present("espdock/new:1", "id-n", 100),
+        Present("espdock/new:latest", "id-n", 100),
+    ]
+    plan = plan_prune([removed, renamed], {"/gone", "/a"}, {}, on_engine, {}, keep=0, gone={"/gone"})
+    sizes = {d.tag: d.size for d in plan.remove}
+    assert sizes == {"espdock/gone:1": 300, "espdock/gone:latest": 0, "espdock/old:1": 200, "espdock/old:latest": 0}
+    # The name a live workspace's last build used keeps its :latest (plain `docker compose` runs it).
+    assert "espdock/new:latest" not in sizes
+
+
 def test_only_the_targets_are_pruned_and_unrecorded_images_never():
     ours = Record("/a", generations("/a", "ros", 2), frozenset({"ros:2"}))
     theirs = Record("/b", generations("/b", "w", 2), frozenset({"w:2"}))

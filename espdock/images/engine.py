@@ -503,9 +503,13 @@ class Engine:
         return None if usage is None else int(usage.get("LayersSize") or 0)
 
     def build_cache_size(self) -> int | None:
-        """Bytes BuildKit's cache holds; None while the engine reports another caller's disk usage."""
+        """Bytes BuildKit's cache holds, as `docker system df` counts them (what images share with it
+        not again: 10.25 GB said where it said 7.46); None while the engine reports another caller's
+        disk usage."""
         usage = self._disk_usage()
-        return None if usage is None else sum(int(entry.get("Size", 0)) for entry in usage.get("BuildCache") or ())
+        if usage is None:
+            return None
+        return sum(int(entry.get("Size", 0)) for entry in usage.get("BuildCache") or () if not entry.get("Shared"))
 
     def _disk_usage(self) -> dict[str, Any] | None:
         """The engine's disk-usage report; None while it reports another caller's (one at a time per engine)."""
@@ -751,8 +755,9 @@ class Engine:
             if any("no space left on device" in line.lower() for line in tail):
                 raise ImageBuildError(
                     f"building {build.tag} failed: the engine's disk is full (its data root, {self.data_root()})",
-                    "Free space there (`docker system df` shows what uses it; `docker builder prune` drops "
-                    "build cache, a failed build's included), then build again.",
+                    "Free space there (`espdock prune --all-workspaces` removes the images no workspace's inputs "
+                    "use any more; `docker system df` shows what uses it; `docker builder prune` drops build cache, "
+                    "a failed build's included), then build again.",
                 )
             # BuildKit's client says a lost engine as "rpc error: code = Unavailable ... EOF".
             if any("cannot connect to the docker daemon" in line.lower() for line in tail) or not self._answers():

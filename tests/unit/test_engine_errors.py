@@ -534,6 +534,20 @@ def test_a_container_whose_run_fails_is_removed():
     assert client.called[-1] == "containers.prepare_model().remove"
 
 
+def test_the_build_cache_size_counts_what_docker_system_df_counts():
+    """Entries BuildKit shares with images were counted again: prune said the cache took 10.25 GB
+    (above its 10 GB bound, after trimming to it) where `docker system df` said 7.46 GB."""
+
+    class Api:
+        def df(self) -> dict:
+            return {"BuildCache": [{"Size": 700, "Shared": False}, {"Size": 300, "Shared": True}, {"Size": 5}]}
+
+    class Client:
+        api = Api()
+
+    assert Engine({"DOCKER_HOST": TCP}, client=Client()).build_cache_size() == 705
+
+
 def test_what_is_gone_already_or_missing_is_an_answer_not_an_error():
     missing = refusal(404, "No such image: espdock/img:1")
     assert refusing({"volumes.get": refusal(404, "get v: no such volume")}).remove_volume("v") is None

@@ -246,3 +246,20 @@ def test_two_commands_recording_at_once_lose_neither_s_images(tmp_path):
     recorded = {image.tag for image in record.images}
     lost = sorted({f"{kind}:{n}" for kind in kinds for n in range(150)} - recorded)
     assert not lost, f"{len(lost)} recorded uses lost, e.g. {lost[:3]}"
+
+
+def test_the_size_note_after_a_build_counts_shared_layers_once_at_most(capsys):
+    """Each image's size counts the layers it shares again: a build said espdock's images took up
+    to 44.52 GB where the engine's images took 2.99 GB, and pointed at a prune that freed 123 kB."""
+    from types import SimpleNamespace
+
+    from espdock.cli.prune import _prune_or_warn
+    from espdock.config import Config
+
+    listing = [(f"id{n}", (f"espdock/ros:{n}",), 10**6, 4 * 10**9) for n in range(10)]  # 40 GB, counted so
+    engine = SimpleNamespace(labelled_images=lambda label: listing, layers_size=lambda: 3 * 10**9)
+    _prune_or_warn(engine, None, Config(images_warn_gb=2), built=True)
+    said = " ".join(capsys.readouterr().out.split())
+    assert "take up to 3.00 GB (more than images_warn_gb = 2)" in said, said
+    _prune_or_warn(engine, None, Config(images_warn_gb=5), built=True)
+    assert "take up to" not in capsys.readouterr().out

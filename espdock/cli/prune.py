@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import errno
 import os
 import time
 from typing import Annotated
@@ -139,7 +140,13 @@ def record_images(ws: Workspace, runner: Runner, runtime: str | None = None, who
     try:
         record_use(state, ws.root, runner.used_images, time.time(), whole)
     except OSError as exc:
-        notify(f"warning: could not record the images this command used in {state}: {exc.strerror}")
+        # Named by the file: one of root's (a run as root with this HOME) is mended by a chown.
+        where = exc.filename or state
+        notify(
+            f"warning: could not record the images this command used in {where}: {exc.strerror}; `espdock prune` "
+            "may remove them while this workspace still uses them"
+            + (f" (`sudo chown -R $(id -u):$(id -g) {state}` makes it yours)" if exc.errno == errno.EACCES else "")
+        )
     if runtime is None or all(repository != runtime for _, repository in runner.used_images):
         return
     others = [

@@ -263,3 +263,22 @@ def test_the_size_note_after_a_build_counts_shared_layers_once_at_most(capsys):
     assert "take up to 3.00 GB (more than images_warn_gb = 2)" in said, said
     _prune_or_warn(engine, None, Config(images_warn_gb=5), built=True)
     assert "take up to" not in capsys.readouterr().out
+
+
+def test_a_record_that_cannot_be_written_is_named_with_what_it_costs(tmp_path, monkeypatch, capsys):
+    """A root-owned record (a run as root with the user's HOME): "could not record ... in
+    ~/.local/state/espdock: Permission denied", naming neither the file nor what follows."""
+    from types import SimpleNamespace
+
+    from espdock.cli.prune import record_images
+    from espdock.workspace import Workspace
+
+    monkeypatch.setenv("ESPDOCK_STATE_DIR", str(tmp_path / "state"))
+    (tmp_path / "state").mkdir()
+    (tmp_path / "state/workspaces").write_text("not a directory\n")
+    (tmp_path / "ws").mkdir()
+    runner = SimpleNamespace(used_images=[("espdock/ros:0123456789abcdef", "espdock/ros")])
+    record_images(Workspace(tmp_path / "ws"), runner, None)
+    said = " ".join(capsys.readouterr().out.split())
+    assert f"could not record the images this command used in {tmp_path / 'state/workspaces'}" in said, said
+    assert "`espdock prune` may remove them while this workspace still uses them" in said, said

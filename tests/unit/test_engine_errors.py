@@ -815,7 +815,10 @@ def test_a_foreground_run_ends_on_ctrl_c_when_the_engine_hangs(tmp_path):
     stop_wait = 5.0  # engine.STOP_WAIT
     fake = tmp_path / "bin/docker"  # every docker command hangs, as against a stopped engine
     fake.parent.mkdir()
-    fake.write_text("#!/bin/sh\ntrap '' INT TERM\nexec sleep 299.5\n")
+    # Its own duration, to find its leftovers by: another run's cleanup (`make test` beside a unit run)
+    # killed this one's, and the run it stood for ended as if the container had.
+    hang = f"sleep 299.{os.getpid()}"
+    fake.write_text(f"#!/bin/sh\ntrap '' INT TERM\nexec {hang}\n")
     fake.chmod(0o755)
     script = (
         "import os, sys\n"
@@ -840,7 +843,7 @@ def test_a_foreground_run_ends_on_ctrl_c_when_the_engine_hangs(tmp_path):
         took = time.monotonic() - started
     finally:
         run.kill()
-        subprocess.run(["pkill", "-KILL", "-xf", "sleep 299.5"], check=False)  # the fake's, if any is left
+        subprocess.run(["pkill", "-KILL", "-xf", hang], check=False)  # the fake's, if any is left
     assert run.returncode == 130, said
     assert "the engine did not stop the container within 13 s, so espdock stopped waiting" in said, said
     assert took < interrupts.GRACE + 4 * stop_wait, f"{took:.0f} s"

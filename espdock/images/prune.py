@@ -209,7 +209,6 @@ def plan_prune(
     on_engine = {p.tag: p for p in present}
     remove: list[Decision] = []
     kept: list[Decision] = []
-    seen_ids: set[str] = set()
     for record in records:
         if record.root not in targets:
             continue
@@ -235,10 +234,8 @@ def plan_prune(
                     continue
                 decision = _decide(image, there, index, 0 if removed else keep, others, users)
                 if decision is None:
-                    size = 0 if there.image_id in seen_ids else there.size
-                    seen_ids.add(there.image_id)
                     reason = "its workspace is gone" if removed else "no longer used by its inputs"
-                    remove.append(Decision(image.tag, record.root, size, reason))
+                    remove.append(Decision(image.tag, record.root, there.size, reason))  # sized once below
                 else:
                     kept.append(Decision(image.tag, record.root, there.size, decision))
         for tag in sorted(now_used):

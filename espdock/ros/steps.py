@@ -827,8 +827,9 @@ def edited_since_built(
 # CMake commands that compile or generate what a package installs (the rest of a --symlink-install
 # of it links to the sources): an edit of a file they read needs a build.
 _MAKING = re.compile(
-    r"^\s*(add_executable|add_library|rosidl_generate_interfaces|configure_file|add_custom_command|add_custom_target"
-    r"|file\s*\(\s*GENERATE|ament_auto_add_\w+|generate_parameter_library|pybind11_add_module|\w*_generate_\w*)\s*\(",
+    r"^\s*(?:(?:add_executable|add_library|rosidl_generate_interfaces|configure_file|add_custom_command"
+    r"|add_custom_target|ament_auto_add_\w+|generate_parameter_library|pybind11_add_module|\w*_generate_\w*)\s*\("
+    r"|file\s*\(\s*(?:GENERATE|CONFIGURE|COPY|WRITE|APPEND)\b)",
     re.I | re.M,
 )
 

@@ -560,6 +560,16 @@ def test_run_tells_what_it_runs_of_a_package_edited_since_its_build(tmp_path):
     assert edited_since_built(workspace, bringup) is None
     (bringup.path / "new.yaml").write_text("{}\n")  # a new file gets its link from a build
     assert edited_since_built(workspace, bringup) is not None
+    # One that generates a file from its sources (file(GENERATE)) installs the build's output.
+    generated = Package("gen", tmp_path / "src/gen", PackageKind.ROS, "ament_cmake", frozenset())
+    generated.path.mkdir(parents=True)
+    (generated.path / "gen.yaml.in").write_text("gen: one\n")
+    (generated.path / "CMakeLists.txt").write_text(
+        "project(gen)\nfile(GENERATE OUTPUT ${CMAKE_CURRENT_BINARY_DIR}/gen.yaml INPUT gen.yaml.in)\n"
+    )
+    stamps.record({"gen": "s4"}, {}, None, {"gen": tree_state(generated.path)})
+    (generated.path / "gen.yaml.in").write_text("gen: two\n")
+    assert "compiled or generated" in (edited_since_built(workspace, generated) or "")
     (py.path / "setup.py").write_text("setup(name='talk')\n")
     assert edited_since_built(workspace, py) is not None, "an entry point changed is not linked"
 

@@ -212,6 +212,21 @@ def check_compose_file(
             f"Create it (`mkdir -p` for a directory), or correct the path in {path.name}.",
         )
     ours = generated_unchanged(text)
+    foreign, project = foreign_runtime_images(data, own)
+    if not starting and foreign and project not in (None, own.removeprefix("espdock/")):
+        if not _project_named_elsewhere(root, args, env):
+            # A clone of an older espdock's file: `down` there removed the original's running services.
+            from espdock.ros.nodes import compose_subcommand
+
+            raise WorkspaceError(
+                f"{path.name} names its project {project}, another workspace's (it runs {', '.join(foreign)}): "
+                f"`{compose_subcommand(args)}` would act on that workspace's containers",
+                f"`espdock build`, then `espdock init --compose`, writes the file for this workspace (or give the "
+                f"project: `espdock compose -p {project} ...` acts on that one's)."
+                if ours
+                else f"Set name: ${{{NAME_VARIABLE}:-{project}}} and its images' names so in {path.name} (or give the "
+                f"project: `espdock compose -p {project} ...` acts on that one's).",
+            )
     said = [warning] if (warning := _foreign_warning(root, path.name, data, ours, own, args, env)) else []
     if found is not None:
         # A file espdock wrote for another workspace (a clone's, a copy's) runs none of this one's

@@ -1386,8 +1386,11 @@ def test_a_clone_or_worktree_runs_its_own_nodes_from_the_committed_compose_file(
 
     (feat / "compose.yaml").write_text(starter_compose("robot", "espdock/robot:latest", {"beacon_nodes": ["beacon"]}))
     down = espdock("compose", "down", cwd=feat, env=NO_ENGINE)
-    assert "compose.yaml runs espdock/robot:latest, another workspace's runtime image" in down.stdout, down.stdout
-    assert "`down` removes them" in " ".join(down.stdout.split()), down.stdout
+    said = " ".join(down.stderr.split())
+    assert down.returncode == 2, down.stdout + down.stderr
+    assert "compose.yaml names its project robot, another workspace's (it runs espdock/robot:latest)" in said, said
+    knowingly = espdock("compose", "-p", "robot", "down", cwd=feat, env=NO_ENGINE)
+    assert knowingly.returncode == 3, knowingly.stdout + knowingly.stderr  # on to the engine (none here)
     # ESPDOCK_NAME in the .env, which plain `docker compose` takes and `espdock compose` overrides.
     (feat / "compose.yaml").write_text((robot / "compose.yaml").read_text())
     for named, noted in (("elsewhere", True), ("robot-feat", False)):

@@ -320,7 +320,8 @@ def lock_rosdeps(
     )
     # Keys the lock on disk already leaves unresolved (`espdock lock` wrote them so): each later
     # dependency edit went unlocked, and `espdock run` then refused the stale lock.
-    unserved = [key for key in unserved if key not in _unserved_in(before)]
+    already = _unserved_in(before)
+    unserved = [key for key in unserved if key not in already]
     if unserved and not unresolved_ok:
         # A CI build (--locked) refuses the missing or stale lock: say now what writes it.
         return (

@@ -213,21 +213,22 @@ def check_compose_file(
         )
     ours = generated_unchanged(text)
     foreign, project = foreign_runtime_images(data, own)
-    if not starting and foreign and project not in (None, own.removeprefix("espdock/")):
-        if not _project_named_elsewhere(root, args, env):
-            # A clone of an older espdock's file: `down` there removed the original's running services.
-            from espdock.ros.nodes import compose_subcommand
+    if project == own.removeprefix("espdock/") or (project is not None and _project_named_elsewhere(root, args, env)):
+        project = None  # this workspace's own project name, or another one: nothing of another's is acted on
+    if not starting and project is not None:
+        # A clone of an older espdock's file: `down` there removed the original's running services.
+        from espdock.ros.nodes import compose_subcommand
 
-            raise WorkspaceError(
-                f"{path.name} names its project {project}, another workspace's (it runs {', '.join(foreign)}): "
-                f"`{compose_subcommand(args)}` would act on that workspace's containers",
-                f"`espdock build`, then `espdock init --compose`, writes the file for this workspace (or give the "
-                f"project: `espdock compose -p {project} ...` acts on that one's)."
-                if ours
-                else f"Set name: ${{{NAME_VARIABLE}:-{project}}} and its images' names so in {path.name} (or give the "
-                f"project: `espdock compose -p {project} ...` acts on that one's).",
-            )
-    said = [warning] if (warning := _foreign_warning(root, path.name, data, ours, own, args, env)) else []
+        raise WorkspaceError(
+            f"{path.name} names its project {project}, another workspace's (it runs {', '.join(foreign)}): "
+            f"`{compose_subcommand(args)}` would act on that workspace's containers",
+            f"`espdock build`, then `espdock init --compose`, writes the file for this workspace (or give the "
+            f"project: `espdock compose -p {project} ...` acts on that one's)."
+            if ours
+            else f"Set name: ${{{NAME_VARIABLE}:-{project}}} and its images' names so in {path.name} (or give the "
+            f"project: `espdock compose -p {project} ...` acts on that one's).",
+        )
+    said = [warning] if (warning := _foreign_warning(path.name, foreign, project, ours, own)) else []
     if found is not None:
         # A file espdock wrote for another workspace (a clone's, a copy's) runs none of this one's
         # services: the warning above says what to do, not that nothing was built.
@@ -275,22 +276,12 @@ def _missing_bind_sources(root: Path, data: object, active: set[str] | None, nam
     return missing
 
 
-def _foreign_warning(
-    root: Path,
-    name: str,
-    data: object,
-    ours: bool,
-    own: str,
-    args: list[str] | tuple[str, ...],
-    env: Mapping[str, str],
-) -> str | None:
-    """The warning for compose file NAME (DATA parsed; OURS: as espdock wrote it) that runs another
-    workspace's runtime image than OWN, or None."""
-    foreign, project = foreign_runtime_images(data, own)
+def _foreign_warning(name: str, foreign: list[str], project: str | None, ours: bool, own: str) -> str | None:
+    """The warning for compose file NAME (OURS: as espdock wrote it) that runs FOREIGN, other
+    workspaces' runtime images than OWN, under PROJECT, the name of one's project (None: not
+    another's), or None where it runs none."""
     if not foreign:
         return None
-    if project == own.removeprefix("espdock/") or _project_named_elsewhere(root, args, env):
-        project = None  # this workspace's own project name, or another one: nothing of another's gets replaced
     replaced = (
         f", and its project `name: {project}` is that workspace's too (its containers are this project's: `up` "
         "replaces them, `down` removes them)"

@@ -2,33 +2,46 @@
 image lookups, and the containers of steps: create, files in and out, start, logs, wait,
 remove) without the Docker SDK, which with requests and urllib3 was a third of `espdock test`'s
 time around colcon. Failures come out as the SDK's exception types (imported then), so
-engine.py's one set of handlers serves both ways."""
+engine.py's one set of handlers serves both ways.
+
+http.client is imported on the first call, not with espdock: with the email parser it brings,
+it was a tenth of every command's start, and most commands (a no-change build, any refusal of
+bad input) never talk to the engine."""
 
 from __future__ import annotations
 
-import http.client
+import functools
 import itertools
 import json
 import re
 import socket
 from collections.abc import Iterator, Mapping
 from contextlib import AbstractContextManager, contextmanager
-from typing import IO, Any
+from typing import IO, TYPE_CHECKING, Any
 from urllib.parse import quote
 
 from espdock.images.sdk import docker, requests
 
+if TYPE_CHECKING:
+    import http.client
 
-class _UnixHTTP(http.client.HTTPConnection):
-    def __init__(self, path: str, timeout: float) -> None:
-        super().__init__("localhost", timeout=timeout)
-        self._path = path
 
-    def connect(self) -> None:
-        sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
-        sock.settimeout(self.timeout)
-        sock.connect(self._path)
-        self.sock = sock
+@functools.cache
+def _unix_http() -> type[http.client.HTTPConnection]:
+    import http.client
+
+    class UnixHTTP(http.client.HTTPConnection):
+        def __init__(self, path: str, timeout: float) -> None:
+            super().__init__("localhost", timeout=timeout)
+            self._path = path
+
+        def connect(self) -> None:
+            sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+            sock.settimeout(self.timeout)
+            sock.connect(self._path)
+            self.sock = sock
+
+    return UnixHTTP
 
 
 class LocalContainer:
@@ -75,14 +88,14 @@ class LocalContainer:
                 # Each frame: stream number, 3 bytes of padding, payload size (big-endian), payload.
                 while len(header := response.read(8)) == 8:
                     yield response.read(int.from_bytes(header[4:], "big"))
-            except (http.client.HTTPException, OSError):
+            except (_http_error(), OSError):
                 return  # the engine went away: the wait that follows says so
 
     def wait(self) -> dict:
         with self._stream("POST", "/wait") as response:
             try:
                 return json.loads(response.read())
-            except (http.client.HTTPException, OSError) as exc:
+            except (_http_error(), OSError) as exc:
                 raise requests.exceptions.ConnectionError(f"waiting for container {self.short_id}: {exc}") from exc
 
     def get_archive(self, path: str) -> tuple[Iterator[bytes], None]:
@@ -134,13 +147,13 @@ def _streamed(
     body: bytes | IO[bytes] | None = None,
     headers: Mapping[str, str] | None = None,
 ) -> Iterator[http.client.HTTPResponse]:
-    connection = _UnixHTTP(socket_path, timeout)
+    connection = _unix_http()(socket_path, timeout)
     try:
         try:
             # A file BODY goes in chunks (HTTP/1.1 chunked encoding), as the Docker CLI sends a context.
             connection.request(method, path, body=body, headers=dict(headers or {}))
             response = connection.getresponse()
-        except (OSError, http.client.HTTPException) as exc:
+        except (OSError, _http_error()) as exc:
             raise requests.exceptions.ConnectionError(f"{method} {path}: {exc}") from exc
         connection.sock.settimeout(None)
         yield response
@@ -153,19 +166,25 @@ def exchange(
 ) -> tuple[int, bytes, http.client.HTTPMessage]:
     """METHOD PATH on the engine's local socket: (HTTP status, the answer's body, its headers).
     Failures raise as the socket raises them; an answer that is no HTTP as a ConnectionError."""
-    connection = _UnixHTTP(socket_path, timeout)
+    connection = _unix_http()(socket_path, timeout)
     headers = {"Content-Type": "application/x-tar" if method == "PUT" else "application/json"} if body else {}
     try:
         connection.request(method, path, body=body, headers=headers)
         response = connection.getresponse()
         return response.status, response.read(), response.headers
-    except http.client.HTTPException as exc:
+    except _http_error() as exc:
         # Another daemon's socket (an ssh-agent's, an sshd's): no engine, as a refused connection is
         # none. As http.client's own error it ended espdock as a bug of its own (exit 70).
         said = f"{type(exc).__name__}: {str(exc).strip()}"
         raise ConnectionError(f"what answers there speaks no HTTP ({said})") from exc
     finally:
         connection.close()
+
+
+def _http_error() -> type[Exception]:
+    import http.client
+
+    return http.client.HTTPException
 
 
 def call(socket_path: str, timeout: float, method: str, path: str, body: bytes | None = None) -> bytes:

@@ -1,13 +1,16 @@
 """Benchmark: what loading the Docker SDK (and requests), or other modules, costs a short espdock command.
 
-Run: .venv/bin/python tests/bench/sdk_load.py [--runs N] [--preload MODULE,...]
+Run: .venv/bin/python tests/bench/sdk_load.py [--runs N] [--preload MODULE,...] [--command ARG,...]
 
 On the local socket espdock talks plain HTTP, so a command that only lists and runs containers
 never imports the SDK. The command runs as it is (A) and with the SDK and requests
 imported first (B): B is what every such start paid while a listing still went through the
 SDK (a no-change build's container sweeps and its closing size note, `micro-ros status`).
 `--preload typer.rich_utils` gives what every start paid while espdock imported Typer's help
-drawing (rich's Markdown and tracebacks) to patch its console.
+drawing (rich's Markdown and tracebacks) to patch its console; `--preload http.client,yaml
+--command list,-n` what a command that talks to no engine (`list`, `verify`, a refusal of bad
+input, shell completion) paid while espdock imported them with its engine client and compose.yaml's
+checks (a build talks to the engine and reads a firmware package's idf_component.yml anyway).
 A B A B in one session, so that machine load hits both alike; prints the medians of wall time
 and of the process's CPU (user + system) and their ratios.
 """
@@ -30,7 +33,11 @@ from tests.conftest import copy_workspace  # noqa: E402
 
 
 def preloaded(modules: str) -> str:
-    return "\n".join(("import sys", f"import {modules}", "from espdock.__main__ import run", "run()"))
+    """A script that starts espdock as `espdock` does, with MODULES (if any) imported first: A and B
+    start alike but for them (`python -m` runs espdock's __main__ another way)."""
+    return "\n".join(
+        ("import sys", *([f"import {modules}"] if modules else []), "from espdock.__main__ import run", "run()")
+    )
 
 
 def timed(argv: list[str], cwd: Path) -> tuple[float, float]:
@@ -51,8 +58,10 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--runs", type=int, default=11)
     parser.add_argument("--preload", default="docker,docker.errors,requests", help="modules B imports first")
+    parser.add_argument("--command", default="build,--only,ros", help="the espdock command timed, after a build")
     args = parser.parse_args()
     build = ["build", "--only", "ros"]
+    command = args.command.split(",")
     with tempfile.TemporaryDirectory(prefix="espdock-bench-") as tmp:
         # No runtime image: the bench leaves nothing on the engine but the project's ROS image.
         root = copy_workspace(Path(tmp) / "ws-root", packages=(), test_packages=("beacon_nodes",), runtime_image=False)
@@ -60,10 +69,10 @@ def main() -> None:
         plain, first = [], []
         script = preloaded(", ".join(args.preload.split(",")))
         for _ in range(args.runs):  # the first build of the loop has nothing to do either
-            plain.append(timed([sys.executable, "-m", "espdock", *build], root))
-            first.append(timed([sys.executable, "-c", script, *build], root))
+            plain.append(timed([sys.executable, "-c", preloaded(""), *command], root))
+            first.append(timed([sys.executable, "-c", script, *command], root))
     (a_wall, a_cpu), (b_wall, b_cpu) = medians(plain), medians(first)
-    print(f"espdock build --only ros (no change): {args.runs} runs each, alternating, medians")
+    print(f"espdock {' '.join(command)} (after a build): {args.runs} runs each, alternating, medians")
     print(f"  A  as it is              wall {a_wall:6.3f} s  CPU {a_cpu:6.3f} s")
     print(f"  B  {args.preload} imported first")
     print(f"                           wall {b_wall:6.3f} s  CPU {b_cpu:6.3f} s")

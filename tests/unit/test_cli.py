@@ -750,6 +750,28 @@ def test_a_command_starts_without_the_other_commands_modules(tmp_path):
     assert result.returncode == 0 and "--port" in result.stdout, result.stderr
 
 
+def test_commands_that_talk_to_no_engine_and_read_no_compose_file_load_neither_client(tmp_path):
+    """http.client (with email's parser) and PyYAML were imported by every start, a tenth of its
+    CPU: now by the first call to the engine and by compose.yaml's checks. A refusal of bad
+    input, `list` and `verify` make neither."""
+    root = copy_workspace(tmp_path / "w", packages=("custom_interface",))
+
+    def loaded(*argv: str) -> set[str]:
+        started = subprocess.run(
+            [sys.executable, "-X", "importtime", "-m", "espdock", *argv],
+            cwd=root,
+            check=False,
+            capture_output=True,
+            text=True,
+            env={**os.environ, **NO_ENGINE},
+        )
+        return {line.rsplit("|", 1)[-1].strip() for line in started.stderr.splitlines()}
+
+    for argv in (("list",), ("build", "no_such_package"), ("verify",), ("--version",)):
+        modules = loaded(*argv)
+        assert "espdock.cli" in modules and not {"http.client", "yaml"} & modules, argv
+
+
 def test_only_help_and_usage_errors_load_typer_s_help_drawing(tmp_path):
     """Typer's rich help module (rich's Markdown, tracebacks) was imported by every start for
     espdock's patch of its console: a fifth of a no-change build's CPU. Help still gets it."""

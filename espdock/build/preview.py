@@ -16,7 +16,7 @@ from espdock.layout import ROS_BUILD_BASE
 from espdock.ros.colcon import left_out
 from espdock.ros.plan import ColconBuild, RuntimeImage
 from espdock.ros.runtime_tree import runtime_spec
-from espdock.ros.steps import colcon_rebuild
+from espdock.ros.staleness import colcon_rebuild
 from espdock.workspace import Workspace
 
 UNKNOWN = "not known (no engine answered, and the images decide it)"

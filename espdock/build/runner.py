@@ -20,7 +20,8 @@ from espdock.images.containers import Containers, permission_error
 from espdock.images.engine import Engine
 from espdock.images.keyed import KeyedImages
 from espdock.ros.plan import ColconBuild, RuntimeImage
-from espdock.ros.steps import ROS_STAMPS, RosSteps
+from espdock.ros.staleness import ROS_STAMPS
+from espdock.ros.steps import RosSteps
 from espdock.workspace import Workspace, workspace_lock
 
 

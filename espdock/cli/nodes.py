@@ -40,7 +40,7 @@ from espdock.ros import compose as compose_file
 from espdock.ros import nodes, rmw
 from espdock.ros.plan import ColconBuild, RuntimeImage, runtime_repository, runtime_step
 from espdock.ros.runtime_tree import runtime_spec
-from espdock.ros.steps import built_on_older, edited_since_built, stale_installs
+from espdock.ros.staleness import built_on_older, edited_since_built, stale_installs
 from espdock.workspace import Package, PackageKind, Workspace, build_running, current_dir
 
 

@@ -143,7 +143,7 @@ def check_built_by_espdock(workspace: Workspace, package: str) -> None:
     """Refuse PACKAGE's install tree when espdock's last build did not leave it so: a native
     `colcon build` rewrites it with the host's paths and interpreters, which the runtime image
     lacks (the node would die with exit 127). `espdock build` rebuilds exactly such packages."""
-    from espdock.ros.steps import ROS_STAMPS
+    from espdock.ros.staleness import ROS_STAMPS
 
     recorded = StampFile(workspace.ws_dir / "build" / ROS_STAMPS).read().get(package)
     listing = listing_digest(workspace.ws_dir / "install" / package)
@@ -185,7 +185,7 @@ def unfinished_builds(workspace: Workspace, names: Iterable[str]) -> list[str]:
     """Of NAMES, the packages whose last espdock build did not finish (it failed, was interrupted,
     or its espdock was killed): espdock's colcon configured them (its own build base), and no
     build of them finished since, so their install trees may be half written."""
-    from espdock.ros.steps import ROS_STAMPS
+    from espdock.ros.staleness import ROS_STAMPS
 
     recorded = StampFile(workspace.ws_dir / "build" / ROS_STAMPS).read()
     base = workspace.ws_dir / ROS_BUILD_BASE

@@ -471,7 +471,7 @@ def test_run_says_when_a_package_was_built_on_older_sources_of_one_it_depends_on
     # A build of beacon_nodes then interrupted (Ctrl-C, kill -9): the runtime image took its half
     # written install without a word. A build forgets a package's record before colcon builds it.
     from espdock.build.stamps import StampFile
-    from espdock.ros.steps import ROS_STAMPS
+    from espdock.ros.staleness import ROS_STAMPS
 
     StampFile(root / "ws/build" / ROS_STAMPS).forget(["beacon_nodes"])
     # And its colcon container, the espdock that started it killed outright, still writing install/.

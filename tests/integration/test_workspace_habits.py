@@ -22,7 +22,7 @@ from espdock.build.prepare import build_plan
 from espdock.build.stamps import listing_digest
 from espdock.config import Config, load_config, resolve_ca_bundle
 from espdock.ros.plan import ColconBuild
-from espdock.ros.steps import colcon_rebuild
+from espdock.ros.staleness import colcon_rebuild
 from espdock.workspace import PackageKind, find_workspace
 from tests.conftest import REPO, Started, copy_workspace, espdock, ros_build_tag
 from tests.ros_official_double.build import build_double, settings

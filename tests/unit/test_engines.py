@@ -105,7 +105,7 @@ def test_a_permission_error_on_a_workspace_path_names_it_and_its_owner(ws, monke
     def denied(*args, **kwargs):
         raise PermissionError(13, "Permission denied", str(ws.ws_dir / "build"))
 
-    monkeypatch.setattr("espdock.ros.steps.package_stamps", denied)
+    monkeypatch.setattr("espdock.ros.staleness.package_stamps", denied)
     with pytest.raises(WorkspaceError) as err:
         runner(engine).run(Plan(ws, (COLCON,)))
     assert err.value.exit_code == 2

@@ -27,7 +27,7 @@ from espdock.ros.nodes import (
 )
 from espdock.ros.plan import RuntimeImage, ros_build_image, runtime_base_image, runtime_image_spec
 from espdock.ros.runtime_tree import runtime_context, runtime_install_digest
-from espdock.ros.steps import ROS_STAMPS
+from espdock.ros.staleness import ROS_STAMPS
 from espdock.workspace import Package, PackageKind, Workspace
 
 
@@ -533,7 +533,7 @@ def test_run_tells_what_it_runs_of_a_package_edited_since_its_build(tmp_path):
     install an ament_python package's edited modules are what runs, and a warning would be false."""
     from espdock.build.stamps import tree_state
     from espdock.ros.colcon import record_build_args
-    from espdock.ros.steps import ROS_STAMP_FORMAT, edited_since_built
+    from espdock.ros.staleness import ROS_STAMP_FORMAT, edited_since_built
 
     workspace = Workspace(tmp_path, ("src",), ".")
     py = Package("talk", tmp_path / "src/talk", PackageKind.ROS, "ament_python", frozenset())

@@ -16,7 +16,7 @@ import pytest
 
 from espdock.build.stamps import StampFile, listing_digest
 from espdock.ros import rosdeps
-from espdock.ros.steps import ROS_STAMPS
+from espdock.ros.staleness import ROS_STAMPS
 from espdock.workspace import Workspace, discover_packages
 from tests.conftest import REPO, build_holding, espdock
 from tests.rosdep_db import environment

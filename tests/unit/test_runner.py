@@ -1142,7 +1142,7 @@ def test_a_record_an_espdock_before_file_lists_wrote_builds_its_changed_package_
     good: the older espdock's records, of the same format, kept no list of files to compare."""
     import json
 
-    from espdock.ros.steps import ROS_STAMPS
+    from espdock.ros.staleness import ROS_STAMPS
 
     engine = FakeEngine(run_script=colcon_installs(ws))
     app = ws.ws_dir / "src/app"

@@ -12,7 +12,7 @@ import shlex
 from collections.abc import Iterable, Mapping
 from pathlib import Path, PurePosixPath
 
-from espdock.build.stamps import StampFile, listing_digest
+from espdock.build.stamps import listing_digest
 from espdock.build.steps import LABEL_WORKSPACE, EnsureBaseImage, EnsureImage, Plan, container_path
 from espdock.errors import ConfigError, WorkspaceError
 from espdock.images.containers import give_to, make_dirs_for
@@ -22,6 +22,7 @@ from espdock.layout import ROS_BUILD_BASE, ROS_OFFICIAL_DOCKERFILE, WORKSPACE_MO
 from espdock.ros.colcon import egg_info_order_define
 from espdock.ros.plan import RUNTIME_INSTALL, RuntimeImage
 from espdock.ros.runtime_tree import resolve_installed
+from espdock.ros.staleness import ros_stamp_file
 from espdock.workspace import Package, PackageKind, Workspace, build_running, left_out
 
 # What reaches a node from the caller's environment, as `ros2 run` would see it.
@@ -143,9 +144,7 @@ def check_built_by_espdock(workspace: Workspace, package: str) -> None:
     """Refuse PACKAGE's install tree when espdock's last build did not leave it so: a native
     `colcon build` rewrites it with the host's paths and interpreters, which the runtime image
     lacks (the node would die with exit 127). `espdock build` rebuilds exactly such packages."""
-    from espdock.ros.staleness import ROS_STAMPS
-
-    recorded = StampFile(workspace.ws_dir / "build" / ROS_STAMPS).read().get(package)
+    recorded = ros_stamp_file(workspace).read().get(package)
     listing = listing_digest(workspace.ws_dir / "install" / package)
     if _finished(recorded) and listing is not None and recorded.get("installed") == listing:
         return
@@ -185,9 +184,7 @@ def unfinished_builds(workspace: Workspace, names: Iterable[str]) -> list[str]:
     """Of NAMES, the packages whose last espdock build did not finish (it failed, was interrupted,
     or its espdock was killed): espdock's colcon configured them (its own build base), and no
     build of them finished since, so their install trees may be half written."""
-    from espdock.ros.staleness import ROS_STAMPS
-
-    recorded = StampFile(workspace.ws_dir / "build" / ROS_STAMPS).read()
+    recorded = ros_stamp_file(workspace).read()
     base = workspace.ws_dir / ROS_BUILD_BASE
     return [name for name in names if not _finished(recorded.get(name)) and (base / name).is_dir()]
 

@@ -26,6 +26,11 @@ ROS_STAMPS = ".espdock-colcon-stamps.json"
 ROS_STAMP_FORMAT = 2
 
 
+def ros_stamp_file(workspace: Workspace) -> StampFile:
+    """WORKSPACE's record of what its ROS packages were last built from."""
+    return StampFile(workspace.ws_dir / "build" / ROS_STAMPS, ROS_STAMP_FORMAT)
+
+
 class Rebuild(NamedTuple):
     """What colcon_rebuild found of a ColconBuild's packages."""
 
@@ -46,7 +51,7 @@ def colcon_rebuild(workspace: Workspace, step: ColconBuild) -> Rebuild:
     them with --force; the rest are up to date in install/, where colcon finds them), and each
     package's own sources as tree_state had them: what a build of them records, and what tells
     sources put back with an older time."""
-    stamp_file = StampFile(workspace.ws_dir / "build" / ROS_STAMPS, ROS_STAMP_FORMAT)
+    stamp_file = ros_stamp_file(workspace)
     trees = {name: tree_state(workspace.ws_dir / rel) for name, rel in step.sources}
     recorded = stamp_file.read()
     outside, unlisted, known = {}, [], {}
@@ -100,7 +105,7 @@ def edited_since_built(
     them as they are (an ament_python package's modules). RECORDED (the stamp file's content) and
     NOW (the package's tree) where the caller has them already."""
     if recorded is None:
-        recorded = StampFile(workspace.ws_dir / "build" / ROS_STAMPS, ROS_STAMP_FORMAT).read()
+        recorded = ros_stamp_file(workspace).read()
     entry = recorded.get(package.name)
     tree = entry.get("tree") if isinstance(entry, dict) else None
     if not isinstance(tree, str):

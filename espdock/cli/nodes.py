@@ -151,29 +151,29 @@ def compose(ctx: typer.Context, workspace: WorkspaceOption = None) -> None:
     """Run `docker compose ARGS...` in the workspace with espdock's settings (CA bundle) in its
     environment; `up`, `run` and `create` first make the runtime image of what install/ holds."""
     # Among Compose's global options (`-p NAME --workspace DIR ps`), click leaves it to Compose.
-    args, among = nodes.own_workspace(list(ctx.args))
+    args, among = compose_file.own_workspace(list(ctx.args))
     ws, config = load(workspace or among, runtime_image=True)
-    subcommand = nodes.compose_subcommand(args)
+    subcommand = compose_file.compose_subcommand(args)
     packages = workspace_packages(ws, config.ros_distro)
     installed = nodes.installed_ros_packages(ws, packages)
-    if subcommand in nodes.COMPOSE_CREATING and installed and (holder := build_running(ws)) is not None:
+    if subcommand in compose_file.COMPOSE_CREATING and installed and (holder := build_running(ws)) is not None:
         # Its runtime image would be made of a half rebuilt install/, and `:latest` moved to it.
         raise WorkspaceError(
             f"an espdock build is running in {ws.root}{holder}: install/ may be half rebuilt",
             "Wait for it to finish, then run again.",
         )
     repository = runtime_repository(config, ws)
-    if subcommand in nodes.COMPOSE_CREATING or subcommand in nodes.COMPOSE_ENDING:
+    if subcommand in compose_file.COMPOSE_CREATING or subcommand in compose_file.COMPOSE_ENDING:
         # `up` and `create` start the file's services: what they run is checked against install/ too.
         found = compose_file.built_executables(ws, packages) if subcommand in ("up", "create") else None
         no_ros2 = config.ros_image == "wheels"
-        starting = subcommand in nodes.COMPOSE_CREATING
+        starting = subcommand in compose_file.COMPOSE_CREATING
         for said in compose_file.check_compose_file(ws.root, repository, args, os.environ, found, no_ros2, starting):
             notify(said)
-    env_files = nodes.compose_env_files(args, ws.root, os.environ)
+    env_files = compose_file.compose_env_files(args, ws.root, os.environ)
     if (
         compose_file.NAME_VARIABLE not in os.environ
-        and (named := nodes.env_file_value(env_files, compose_file.NAME_VARIABLE)) is not None
+        and (named := compose_file.env_file_value(env_files, compose_file.NAME_VARIABLE)) is not None
         and named != repository.removeprefix("espdock/")
     ):
         # Compose takes the environment's over the .env's: espdock's, and plain `docker compose` the .env's.
@@ -184,7 +184,7 @@ def compose(ctx: typer.Context, workspace: WorkspaceOption = None) -> None:
         )
     engine = bootstrap.ensure_engine(os.environ, notify)
     bootstrap.ensure_compose(os.environ, notify)
-    if subcommand in nodes.COMPOSE_CREATING and installed:
+    if subcommand in compose_file.COMPOSE_CREATING and installed:
         # What the services run must be served, as for `espdock run`; with the last build's options,
         # by which the packages are up to date or not.
         plan = build_plan(ws, config, [], PackageKind.ROS, colcon_args=last_build_options(ws), checked=tuple(installed))
@@ -207,8 +207,8 @@ def compose(ctx: typer.Context, workspace: WorkspaceOption = None) -> None:
     # is a subordinate one, whose files in a mounted directory the user could not even remove).
     # One the user set (the environment, the project's .env) is theirs: plain `docker compose`
     # reads it as well.
-    if "ESPDOCK_USER" not in env and not nodes.env_file_sets(
-        nodes.compose_env_files(args, ws.root, env), "ESPDOCK_USER"
+    if "ESPDOCK_USER" not in env and not compose_file.env_file_sets(
+        compose_file.compose_env_files(args, ws.root, env), "ESPDOCK_USER"
     ):
         owner = (0, 0) if engine.info().rootless else invoking_user(os.environ, ws.root)
         env["ESPDOCK_USER"] = ":".join(str(n) for n in owner)
@@ -223,18 +223,18 @@ def compose(ctx: typer.Context, workspace: WorkspaceOption = None) -> None:
         # With the caller's own -p, -f and --profile: a bare `down` left a profile's services running.
         # And the workspace where it was named: run from elsewhere, a bare `down` found none.
         named = ["--workspace", str(ws.root)] if (workspace or among) is not None else []
-        given = shlex.join(["espdock", "compose", *named, *args[: nodes.compose_subcommand_at(args)]])
+        given = shlex.join(["espdock", "compose", *named, *args[: compose_file.compose_subcommand_at(args)]])
         interrupts.leaving(
             f"services Compose started may still be running: `{given} ps` lists them, `{given} down` stops and "
             "removes them"
         )
     try:
-        code = engine.run_compose(nodes.labelled_run(args, token), ws.root, env)
+        code = engine.run_compose(compose_file.labelled_run(args, token), ws.root, env)
     except KeyboardInterrupt as exc:
         # Without a terminal Compose ends and leaves the run's container running, --rm or not:
         # removed where --rm asked for it, else stopped and kept, as Compose keeps it at a terminal.
-        keep = "--rm" not in args[(nodes.compose_subcommand_at(args) or 0) :]
-        if subcommand == "run" and engine.end_labelled(nodes.LABEL_COMPOSE_RUN, token, remove=not keep):
+        keep = "--rm" not in args[(compose_file.compose_subcommand_at(args) or 0) :]
+        if subcommand == "run" and engine.end_labelled(compose_file.LABEL_COMPOSE_RUN, token, remove=not keep):
             done = "stopped (kept: run without --rm)" if keep else "stopped and removed"
             raise Interrupted(f"interrupted; the container `compose run` started was {done}") from None
         if subcommand != "up":
@@ -280,7 +280,7 @@ def compose(ctx: typer.Context, workspace: WorkspaceOption = None) -> None:
 
 def compose_project(engine: Engine, args: list[str], cwd: Path, env: dict[str, str]) -> str | None:
     """The project a `compose ARGS` in CWD is about (Compose's options before its subcommand say)."""
-    at = nodes.compose_subcommand_at(args)
+    at = compose_file.compose_subcommand_at(args)
     return engine.compose_project(args[:at] if at is not None else args, cwd, env)
 
 

@@ -1,14 +1,19 @@
-"""`espdock init --compose`: the starter compose file of a workspace's nodes and the micro-ROS agent."""
+"""`espdock init --compose`: the starter compose file of a workspace's nodes and the micro-ROS agent;
+and `espdock compose`: where in its arguments Compose's subcommand and options are, the env files
+it reads, and what is wrong in the compose file for this workspace."""
 
 from __future__ import annotations
 
 import hashlib
+import itertools
 import os
+import posixpath
 import re
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from pathlib import Path
 
 from espdock.errors import WorkspaceError
+from espdock.ros.nodes import executables
 from espdock.workspace import Package, PackageKind, Workspace
 
 # REP 144: lower case letters, digits and underscores, starting with a letter, no "__".
@@ -91,6 +96,112 @@ _NAMED = re.compile(r"(?<!\$)\$(?:\{ESPDOCK_NAME(?::?-[^}]*)?\}|ESPDOCK_NAME\b)"
 COMPOSE_MARK = "# espdock-generated sha256:"
 
 
+# Compose's global options that take a value (`docker compose --help`), so that the subcommand
+# is found after them.
+COMPOSE_VALUED_OPTIONS = frozenset(
+    {"-f", "--file", "-p", "--project-name", "--profile", "--env-file", "--project-directory", "--ansi",
+     "--progress", "--parallel"}
+)  # fmt: skip
+# The subcommands that make containers of the images: the runtime image must be current first.
+COMPOSE_CREATING = frozenset({"up", "run", "create", "scale", "watch"})
+# Those that stop or remove the project's containers: in another workspace's project, its own.
+COMPOSE_ENDING = frozenset({"down", "stop", "rm", "kill", "restart", "pause"})
+# A label espdock gives the container of its `compose run`: the one to remove when it is interrupted.
+LABEL_COMPOSE_RUN = "io.espdock.compose-run"
+
+
+def compose_subcommand(args: list[str] | tuple[str, ...]) -> str | None:
+    """The Compose subcommand in ARGS (`up` in `-p x --profile sim up -d`), or None."""
+    at = compose_subcommand_at(args)
+    return None if at is None else args[at]
+
+
+def compose_subcommand_at(args: list[str] | tuple[str, ...]) -> int | None:
+    """Where the Compose subcommand is in ARGS (after the global options), or None."""
+    skip = False
+    for at, arg in enumerate(args):
+        if skip:
+            skip = False
+        elif arg in COMPOSE_VALUED_OPTIONS or arg in WORKSPACE_OPTIONS:
+            skip = True
+        elif not arg.startswith("-"):
+            return at
+    return None
+
+
+# espdock's own option among Compose's global ones (Compose has no global -w).
+WORKSPACE_OPTIONS = ("--workspace", "-w")
+
+
+def own_workspace(args: list[str]) -> tuple[list[str], Path | None]:
+    """ARGS without espdock's `--workspace DIR` where it stands before Compose's subcommand, among
+    Compose's global options (`-p NAME --workspace DIR ps`), and DIR (None: not given)."""
+    at = compose_subcommand_at(args)
+    before, after = list(args[:at] if at is not None else args), list(args[at:] if at is not None else [])
+    kept, workspace = [], None
+    pending = iter(before)
+    for arg in pending:
+        if arg in WORKSPACE_OPTIONS:
+            workspace = next(pending, None)
+        elif arg.startswith("--workspace="):
+            workspace = arg.removeprefix("--workspace=")
+        else:
+            kept.append(arg)
+    return kept + after, Path(workspace) if workspace else None
+
+
+def global_values(args: list[str] | tuple[str, ...], option: str) -> list[str]:
+    """The values of Compose's global OPTION (`--env-file`, `-f`) in ARGS, before its subcommand."""
+    at = compose_subcommand_at(args)
+    before = list(args[:at] if at is not None else args)
+    values = [value for name, value in itertools.pairwise(before) if name == option]
+    return values + [arg.removeprefix(f"{option}=") for arg in before if arg.startswith(f"{option}=")]
+
+
+def compose_env_files(args: list[str] | tuple[str, ...], root: Path, env: Mapping[str, str]) -> list[Path]:
+    """The env files a `compose ARGS` run in ROOT reads, as Compose finds them: each `--env-file`,
+    else COMPOSE_ENV_FILES', else the project directory's `.env` (--project-directory, else the
+    first compose file's directory, else ROOT)."""
+    if given := global_values(args, "--env-file"):
+        return [root / value for value in given]
+    if listed := env.get("COMPOSE_ENV_FILES"):
+        return [root / value for value in listed.split(",") if value]
+    project = global_values(args, "--project-directory") or [
+        posixpath.dirname(f) for f in (global_values(args, "-f") + global_values(args, "--file"))[:1]
+    ]
+    return [root / (project[0] if project else "") / ".env"]
+
+
+def env_file_sets(paths: Iterable[Path], name: str) -> bool:
+    """Whether one of the env files PATHS sets NAME (`NAME=...`, Compose's .env syntax)."""
+    return env_file_value(paths, name) is not None
+
+
+def env_file_value(paths: Iterable[Path], name: str) -> str | None:
+    """What the env files PATHS set NAME to (the last one setting it), or None."""
+    value = None
+    for path in paths:
+        try:
+            lines = path.read_text(encoding="utf-8-sig", errors="replace").splitlines()
+        except OSError:
+            continue
+        for line in lines:
+            key, equals, given = line.strip().removeprefix("export ").partition("=")
+            if equals and key.strip() == name:
+                given = given.strip()
+                value = given[1:-1] if len(given) > 1 and given[0] == given[-1] and given[0] in "\"'" else given
+    return value
+
+
+def labelled_run(args: list[str], token: str) -> list[str]:
+    """ARGS of a `compose run` with its container labelled LABEL_COMPOSE_RUN=TOKEN (run's own
+    `--label`), so that espdock removes that container and no other one-off of the project's."""
+    at = compose_subcommand_at(args)
+    if at is None or args[at] != "run":
+        return list(args)
+    return [*args[: at + 1], "--label", f"{LABEL_COMPOSE_RUN}={token}", *args[at + 1 :]]
+
+
 def starter_compose(project: str, image: str, executables: dict[str, list[str]]) -> str:
     """The commented compose file `espdock init` writes: one service per executable (package ->
     its executables, as installed), on IMAGE, under a first line that marks it as espdock's."""
@@ -146,7 +257,6 @@ def default_compose_file(root: Path, args: list[str] | tuple[str, ...], env: Map
     """The compose file in ROOT that a `compose ARGS` reads, where the user chose none (-f,
     COMPOSE_FILE in ENV or the env file Compose reads): None where they did, or there is none."""
     from espdock.layout import COMPOSE_FILES
-    from espdock.ros.nodes import compose_env_files, env_file_sets
 
     if {"-f", "--file"} & set(args) or any(a.startswith(("-f=", "--file=")) for a in args):
         return None
@@ -161,8 +271,6 @@ def default_compose_file(root: Path, args: list[str] | tuple[str, ...], env: Map
 def _project_named_elsewhere(root: Path, args: list[str] | tuple[str, ...], env: Mapping[str, str]) -> bool:
     """Whether the compose project's name comes from -p, COMPOSE_PROJECT_NAME or the env file,
     not from the file's `name:`."""
-    from espdock.ros.nodes import compose_env_files, env_file_sets, global_values
-
     if global_values(args, "-p") or global_values(args, "--project-name") or env.get("COMPOSE_PROJECT_NAME"):
         return True
     return env_file_sets(compose_env_files(args, root, env), "COMPOSE_PROJECT_NAME")
@@ -171,8 +279,6 @@ def _project_named_elsewhere(root: Path, args: list[str] | tuple[str, ...], env:
 def _active_profiles(root: Path, args: list[str] | tuple[str, ...], env: Mapping[str, str]) -> set[str] | None:
     """The profiles a `compose ARGS` turns on (--profile, COMPOSE_PROFILES); None where the env file
     sets them (what they are, this does not read)."""
-    from espdock.ros.nodes import compose_env_files, env_file_sets, global_values
-
     if env_file_sets(compose_env_files(args, root, env), "COMPOSE_PROFILES") and "COMPOSE_PROFILES" not in env:
         return None
     return {*global_values(args, "--profile"), *filter(None, env.get("COMPOSE_PROFILES", "").split(","))}
@@ -217,8 +323,6 @@ def check_compose_file(
         project = None  # this workspace's own project name, or another one: nothing of another's is acted on
     if not starting and project is not None:
         # A clone of an older espdock's file: `down` there removed the original's running services.
-        from espdock.ros.nodes import compose_subcommand
-
         raise WorkspaceError(
             f"{path.name} names its project {project}, another workspace's (it runs {', '.join(foreign)}): "
             f"`{compose_subcommand(args)}` would act on that workspace's containers",
@@ -246,8 +350,6 @@ def _starts(service: object, active: set[str] | None) -> bool:
 
 def _named_services(args: list[str] | tuple[str, ...], data: object) -> set[str]:
     """The services of DATA (a parsed compose file) ARGS name after the subcommand (`up -d beacon`)."""
-    from espdock.ros.nodes import compose_subcommand_at
-
     services = data.get("services") if isinstance(data, dict) else None
     at = compose_subcommand_at(args)
     return (
@@ -309,8 +411,6 @@ def _foreign_warning(name: str, foreign: list[str], project: str | None, ours: b
 def built_executables(workspace: Workspace, packages: tuple[Package, ...]) -> dict[str, list[str]]:
     """The executables WORKSPACE's ROS PACKAGES have installed (package -> names, none where it is
     not built or installs none): what its runtime image runs."""
-    from espdock.ros.nodes import executables
-
     install = workspace.ws_dir / "install"
     return {p.name: executables(install, p.name, workspace.root) for p in packages if p.kind is PackageKind.ROS}
 
@@ -457,8 +557,6 @@ def plain_compose_note(root: Path, own: str, env: Mapping[str, str]) -> str | No
     """Where plain `docker compose` in ROOT runs another name's runtime image than OWN
     (espdock/<name>): the name ROOT's compose file falls back to (a worktree or clone of the
     committed file), with ESPDOCK_NAME set neither in ENV nor in the .env."""
-    from espdock.ros.nodes import compose_env_files, env_file_value
-
     fallback, name = _default_name(root), own.removeprefix("espdock/")
     if fallback in (None, name) or NAME_VARIABLE in env:
         return None

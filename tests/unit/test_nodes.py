@@ -14,9 +14,8 @@ from espdock.build.stamps import StampFile, listing_digest
 from espdock.config import Config
 from espdock.errors import ConfigError, WorkspaceError
 from espdock.images.engine import Mount
-from espdock.ros.compose import init_compose, plain_compose_note, starter_compose
+from espdock.ros.compose import compose_subcommand, init_compose, plain_compose_note, starter_compose
 from espdock.ros.nodes import (
-    compose_subcommand,
     device,
     find_executable,
     node_env,
@@ -578,7 +577,7 @@ def test_espdocks_workspace_option_and_the_env_files_compose_reads_are_found_amo
     """`espdock compose -p NAME --workspace DIR ps`: click stopped at -p and left --workspace to
     Compose ("unknown flag"); an ESPDOCK_USER in the .env of `-f sub/alt.yaml`'s directory, or in
     COMPOSE_ENV_FILES, was overridden by espdock's."""
-    from espdock.ros.nodes import compose_env_files, own_workspace
+    from espdock.ros.compose import compose_env_files, own_workspace
 
     assert own_workspace(["-p", "x", "--workspace", "../ws", "ps"]) == (["-p", "x", "ps"], Path("../ws"))
     assert own_workspace(["--workspace=../ws", "up", "-w"]) == (["up", "-w"], Path("../ws"))

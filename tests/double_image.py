@@ -6,7 +6,8 @@ import hashlib
 from collections.abc import Iterable
 from pathlib import Path
 
-from espdock.images.engine import Engine, LineSink
+from espdock.images.engine import Engine
+from espdock.images.specs import LineSink
 
 
 def inputs_hash(root: Path, names: Iterable[str]) -> str:

@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
 
-from espdock.images.engine import EngineInfo, ImageInfo, LineSink, RegistryAnswer, RegistryStatus, RunSpec
+from espdock.images.specs import EngineInfo, ImageInfo, LineSink, RegistryAnswer, RegistryStatus, RunSpec
 
 
 @dataclass

@@ -373,7 +373,7 @@ def official_python(config: Config, inputs: BuildInputs, env: Mapping[str, str])
 
     def run(argv: tuple[str, ...]) -> tuple[int, list[str]]:
         from espdock.images import bootstrap
-        from espdock.images.engine import RunSpec
+        from espdock.images.specs import RunSpec
 
         engine = bootstrap.ensure_engine(env, lambda text: None)
         bootstrap.ensure_base_image(engine, ref, config, lambda text: None)

@@ -58,7 +58,7 @@ from espdock.firmware.provision import (
 from espdock.firmware.status import micro_ros_report, resolved_sources
 from espdock.firmware.steps import built_chip, chip_overrides, reset_build_dir
 from espdock.images import bootstrap
-from espdock.images.engine import format_argv
+from espdock.images.specs import format_argv
 from espdock.layout import firmware_build_dir, installed_firmware_dir
 from espdock.workspace import Package, Workspace, named_sdkconfig_defaults, read_build_inputs
 

@@ -34,8 +34,9 @@ from espdock.cli.prune import record_images
 from espdock.config import Config, invoking_user, resolve_ca_bundle
 from espdock.errors import EspdockError, Interrupted, WorkspaceError
 from espdock.images import bootstrap
-from espdock.images.engine import ComposeStillStopping, Engine, RunSpec, in_background
+from espdock.images.engine import ComposeStillStopping, Engine, in_background
 from espdock.images.keyed import is_current
+from espdock.images.specs import RunSpec
 from espdock.ros import compose as compose_file
 from espdock.ros import nodes, rmw
 from espdock.ros.plan import ColconBuild, RuntimeImage, runtime_repository, runtime_step

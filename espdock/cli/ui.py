@@ -193,7 +193,7 @@ def nothing_to_build(workspace: Workspace) -> str:
 
 def render_plan(console: Console, plan: Plan, states: Sequence[str] = ()) -> None:
     """Print the steps a plan would run, without running them (--dry-run), each with its STATE."""
-    from espdock.images.engine import format_argv
+    from espdock.images.specs import format_argv
 
     console.print(Text(f"workspace {plan.workspace.root}", style="bold"))
     if not plan.steps:

@@ -14,7 +14,7 @@ from collections.abc import Mapping
 from espdock.errors import ConfigError
 from espdock.firmware.flashing import Port
 from espdock.firmware.provision import DOMAIN_ID_MAX, is_domain_id
-from espdock.images.engine import RunSpec
+from espdock.images.specs import RunSpec
 
 # micro_ros_agent's default and the firmware's (CONFIG_ESPDOCK_UART_BAUD).
 DEFAULT_BAUD = 115200

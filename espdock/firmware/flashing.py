@@ -24,9 +24,10 @@ from espdock.firmware.install import flash_file_names
 from espdock.firmware.plan import LONGCALLS_RISCV, IdfBuild
 from espdock.firmware.provision import IMAGE_MOUNT
 from espdock.firmware.steps import FirmwareSteps
-from espdock.images.engine import Engine, Mount, format_argv
+from espdock.images.engine import Engine
 from espdock.images.machine_lock import lock_holder, machine_lock
 from espdock.images.port_urls import port_url_key
+from espdock.images.specs import Mount, format_argv
 from espdock.images.visibility import workspace_mount
 from espdock.layout import FIRMWARE_DIR
 from espdock.workspace import Workspace, component_targets

@@ -9,8 +9,9 @@ from espdock.build.steps import ImageSpec
 from espdock.errors import EspdockError, WorkspaceError
 from espdock.firmware.pins import FOLLOW_HEAD, RESOLVED_FILE, Source, parse_resolved, parse_sources
 from espdock.firmware.plan import derive_interface_packages, spec_target
-from espdock.images.engine import Engine, RunSpec
+from espdock.images.engine import Engine
 from espdock.images.keyed import closest_image
+from espdock.images.specs import RunSpec
 from espdock.workspace import Package
 
 

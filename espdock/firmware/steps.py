@@ -32,7 +32,8 @@ from espdock.firmware.plan import (
 from espdock.firmware.transport import applied_defaults, built_transport_record
 from espdock.images import volume
 from espdock.images.containers import Containers, give_to, make_dirs_for, volume_mode_refused, with_host_umask
-from espdock.images.engine import KILLED, Mount, RunSpec
+from espdock.images.engine import KILLED
+from espdock.images.specs import Mount, RunSpec
 from espdock.images.visibility import host_paths, links_out
 from espdock.layout import COLCON_RESULT_FILES, MANIFEST_NAME, firmware_build_dir, host_path, install_prefix
 from espdock.workspace import Workspace, as_lines, editor_leftover, sdkconfig_defaults_list, workspace_lock

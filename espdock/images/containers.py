@@ -18,7 +18,8 @@ from espdock.config import Config
 from espdock.errors import ConfigError, EspdockError, WorkspaceError, WorkspaceNotVisible
 from espdock.events import Emit, StepNote
 from espdock.images import volume
-from espdock.images.engine import Engine, Mount, RunSpec
+from espdock.images.engine import Engine
+from espdock.images.specs import Mount, RunSpec
 from espdock.images.visibility import CHECKED, engine_sees, ensure_engine_sees, sees_as_checked, workspace_mount
 from espdock.workspace import Workspace
 

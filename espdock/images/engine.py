@@ -14,8 +14,6 @@ from __future__ import annotations
 
 import collections
 import contextlib
-import csv
-import hashlib
 import io
 import json
 import os
@@ -31,9 +29,7 @@ import time
 import warnings
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from contextlib import AbstractContextManager, contextmanager, suppress
-from dataclasses import dataclass, field, replace
-from datetime import UTC, datetime
-from enum import StrEnum
+from dataclasses import replace
 from pathlib import Path
 from typing import IO, Any
 from urllib.parse import quote, urlencode
@@ -48,12 +44,21 @@ from espdock.errors import (
     Interrupted,
     MountSourceMissing,
 )
-from espdock.images import addresses, build_failures, contexts, local_api, sdk
+from espdock.images import addresses, build_failures, contexts, local_api, sdk, specs
 from espdock.images.port_urls import PORT_URL, same_port_url
 from espdock.images.sdk import docker, requests
+from espdock.images.specs import (
+    EngineInfo,
+    ImageBuild,
+    ImageInfo,
+    LineSink,
+    RegistryAnswer,
+    RegistryStatus,
+    RunSpec,
+    describe,
+)
 from espdock.scratch import owner_alive, owner_identity
 
-LineSink = Callable[[str], None]
 OPERATION_TIMEOUT = 120
 # Seconds a foreground run waits, beyond interrupts.GRACE, for an engine to answer its stop.
 STOP_WAIT = 5.0
@@ -69,141 +74,10 @@ LABEL_OWNER = "io.espdock.owner"
 LABEL_KEPT = "io.espdock.kept"
 
 
-# tini (the ROS images' init) forwards the signals it gets to its child's process group, not the child alone.
-STOPPED_AS_AT_A_TERMINAL = {"TINI_KILL_PROCESS_GROUP": "1"}
-
-
-def _create_config(
-    spec: RunSpec, labels: Mapping[str, str], host_users: bool = False, proxies: Mapping[str, str] | None = None
-) -> dict[str, Any]:
-    """The engine API's configuration of a container for SPEC with LABELS (POST /containers/create),
-    detached: nothing attaches at creation, Engine.run_attached's `docker start --attach` later.
-    PROXIES: the proxy variables `docker run` would add where SPEC sets none of that name."""
-    host: dict[str, Any] = {
-        # Mounts, not Binds: a Binds entry is split at its colons, so a workspace under
-        # /home/me/ws:old could not be mounted ("invalid volume specification").
-        "Mounts": [
-            {
-                "Type": "volume" if m.volume else "bind",
-                "Source": str(m.source),
-                "Target": m.target,
-                "ReadOnly": m.read_only,
-            }
-            for m in spec.mounts
-        ],
-        "Devices": [{"PathOnHost": d, "PathInContainer": d, "CgroupPermissions": "rwm"} for d in spec.devices],
-        "NetworkMode": spec.network or "default",
-    }
-    if spec.group_add:
-        host["GroupAdd"] = [str(g) for g in spec.group_add]
-    if host_users:
-        host["UsernsMode"] = "host"
-    config: dict[str, Any] = {
-        "Image": spec.image,
-        "Cmd": list(spec.argv),
-        "WorkingDir": spec.workdir,
-        "Env": [
-            f"{key}={value}" for key, value in {**STOPPED_AS_AT_A_TERMINAL, **(proxies or {}), **dict(spec.env)}.items()
-        ],
-        "Labels": dict(labels),
-        "Tty": spec.tty,
-        "OpenStdin": spec.tty,
-        "HostConfig": host,
-        # A container espdock stops (Ctrl-C, SIGTERM, a failure elsewhere) is stopped as a
-        # terminal's Ctrl-C stops a command: SIGINT to its whole process group (the images' tini
-        # forwards it so, with STOPPED_AS_AT_A_TERMINAL). Docker's SIGTERM reached colcon alone,
-        # whose death took make down mid-write before make could delete the file it was writing:
-        # the next build found that file newer than its inputs and installed it half written.
-        "StopSignal": "SIGINT",
-    }
-    if spec.user:
-        config["User"] = spec.user
-    return config
-
-
-@dataclass(frozen=True)
-class ImageInfo:
-    id: str
-    tags: tuple[str, ...]
-    created: datetime
-    size: int
-    labels: Mapping[str, str] = field(default_factory=dict)
-    # repository@sha256:... for each registry the image was pulled from (none when built here).
-    digests: tuple[str, ...] = ()
-
-
-@dataclass(frozen=True)
-class Mount:
-    # A host path, or with VOLUME the name of a volume on the engine.
-    source: Path | str
-    target: str
-    read_only: bool = False
-    volume: bool = False
-
-
-@dataclass(frozen=True)
-class RunSpec:
-    """What a container needs to run one command."""
-
-    image: str
-    argv: tuple[str, ...]
-    workdir: str
-    user: str | None = None
-    mounts: tuple[Mount, ...] = ()
-    env: tuple[tuple[str, str], ...] = ()
-    labels: tuple[tuple[str, str], ...] = ()
-    # Device files: HOST, or HOST:CONTAINER (run_foreground only).
-    devices: tuple[str, ...] = ()
-    group_add: tuple[int, ...] = ()
-    network: str | None = None
-    tty: bool = False
-    name: str | None = None
-    # Tar streams put into the container before it starts (container directory, tar bytes): how
-    # files reach an engine that does not see this machine's (espdock.volume).
-    archives: tuple[tuple[str, bytes], ...] = ()
-
-
-@dataclass(frozen=True)
-class ImageBuild:
-    """One image build as Engine.build_image was asked for it, for whichever builder runs it."""
-
-    context: Path
-    dockerfile: str
-    target: str
-    tag: str
-    build_args: Mapping[str, str]
-    labels: Mapping[str, str]
-    ca_bundle: Path | None
-    on_line: LineSink
-    no_cache: bool
-
-
 # Compose's own warning of the builder it picked (v2.40, where buildx is not installed, as with
 # Debian's docker.io): of the machine's set-up, not the build, and in every build's log.
 # (COMPOSE_BAKE=false only swaps it for a deprecation warning.)
 COMPOSE_BUILDER_NOTE = "Docker Compose is configured to build using Bake, but buildx isn't installed"
-
-
-@dataclass(frozen=True)
-class EngineInfo:
-    """What kind of engine answers, as far as espdock's containers care."""
-
-    # "docker" or "podman" (Podman's Docker API names its libpod version in /_ping's headers).
-    kind: str
-    # Containers run in a user namespace: uid 0 inside is the user who started the engine.
-    rootless: bool
-    # Stable for one engine and its data root: what a cached answer about the engine is keyed by.
-    identity: str
-    where: str
-    # The engine maps its containers' users to subordinate ids (dockerd --userns-remap): a
-    # container running as the user is another uid outside, refused the user's workspace.
-    remapped: bool = False
-
-    @property
-    def name(self) -> str:
-        """The engine as messages name it."""
-        kind = "Podman" if self.kind == "podman" else "Docker"
-        return f"{'rootless ' if self.rootless else ''}{kind} engine at {self.where}"
 
 
 class ComposeStillStopping(KeyboardInterrupt):
@@ -439,7 +313,7 @@ class Engine:
                     attrs = self._client.images.get(ref).attrs
                 except docker.errors.ImageNotFound:
                     return None
-        return _image_info(attrs)
+        return specs.image_info(attrs)
 
     def images(self, repository: str) -> list[ImageInfo]:
         """The local images of REPOSITORY."""
@@ -457,7 +331,7 @@ class Engine:
         report = None if usage is None else usage.get("Images") or []
         if report is None:
             report = self._image_listing({"label": [label]}, "failed to list its images")
-        return _labelled(report, label)
+        return specs.labelled(report, label)
 
     def _image_listing(
         self, filters: Mapping[str, Any], refused: str, doing: str | None = None
@@ -526,7 +400,7 @@ class Engine:
 
     def pull(self, ref: str) -> bool:
         """Pull REF from its registry; False when no registry could give it."""
-        repository, tag = _split_ref(ref)
+        repository, tag = specs.split_ref(ref)
         try:
             _without_a_broken_helper(self._client.images.pull, repository, tag=tag)
         except _registry_refusals():
@@ -544,22 +418,22 @@ class Engine:
         return self._transfer(self._client.api.push, ref)
 
     def _transfer(self, call: Callable[..., Iterator[dict]], ref: str) -> RegistryAnswer:
-        repository, tag = _split_ref(ref)
+        repository, tag = specs.split_ref(ref)
         try:
-            return _registry_stream(_without_a_broken_helper(call, repository, tag=tag, stream=True, decode=True))
+            return specs.registry_stream(_without_a_broken_helper(call, repository, tag=tag, stream=True, decode=True))
         except _registry_refusals() as exc:
-            return _registry_answer(str(exc))
+            return specs.registry_answer(str(exc))
 
     def registry_has(self, ref: str) -> RegistryAnswer:
         """Whether REF's registry holds REF (a manifest lookup; nothing is downloaded)."""
         try:
             _without_a_broken_helper(self._client.api.inspect_distribution, ref)
         except _registry_refusals() as exc:
-            return _registry_answer(str(exc))
+            return specs.registry_answer(str(exc))
         return RegistryAnswer(RegistryStatus.OK)
 
     def tag(self, source: str, ref: str) -> None:
-        repository, tag = _split_ref(ref)
+        repository, tag = specs.split_ref(ref)
         with self._plain_call(f"could not tag {source} as {ref}", doing=f"tagging {source} as {ref}"):
             if self._plain:  # every build that makes a runtime image tags it: no SDK for that
                 query = urlencode({"repo": repository, "tag": tag})
@@ -575,7 +449,7 @@ class Engine:
 
     def add_labels(self, ref: str, labels: Mapping[str, str]) -> None:
         """Give image REF more LABELS: a metadata-only build on top of it (no new layer), tagged REF."""
-        dockerfile = f"FROM {ref}\nLABEL " + " ".join(_label_args(labels))
+        dockerfile = f"FROM {ref}\nLABEL " + " ".join(specs.label_args(labels))
         refused = f"could not add labels to {ref}"
         context = io.BytesIO()
         with tarfile.open(fileobj=context, mode="w") as tar:
@@ -594,7 +468,7 @@ class Engine:
 
     def import_rootfs(self, tarball: Path, ref: str, labels: Mapping[str, str] | None = None) -> None:
         """Make image REF from a root filesystem tarball (docker import), with LABELS."""
-        changes = [f"LABEL {arg}" for arg in _label_args(labels or {})]
+        changes = [f"LABEL {arg}" for arg in specs.label_args(labels or {})]
         with self._engine_call(
             f"importing {tarball} as {ref}", f"refused to import {tarball} as {ref}", ImageBuildError, explained=False
         ):
@@ -647,7 +521,7 @@ class Engine:
         context (the API has no other way), under a name no COPY of espdock's Dockerfiles takes."""
         secret = f".espdock-secret-ca_bundle-{secrets.token_hex(4)}"
         with tempfile.TemporaryFile() as archive:
-            _context_tar(
+            specs.context_tar(
                 build.context,
                 build.dockerfile,
                 archive,
@@ -663,7 +537,7 @@ class Engine:
 
             with self._engine_call(f"building {build.tag}"):
                 try:
-                    error = self._post_build(_classic_params(build, secret), archive, tail, on_line)
+                    error = self._post_build(specs.classic_params(build, secret), archive, tail, on_line)
                 except KeyboardInterrupt:
                     raise Interrupted(PODMAN_BUILD_GOES_ON) from None
         if error:
@@ -671,7 +545,7 @@ class Engine:
             raise ImageBuildError(
                 f"building {build.tag} from {build.dockerfile} (stage {build.target}) "
                 f"on the {self.info().name} failed:\n" + "\n".join(tail),
-                _runtime_hint(str(error))
+                specs.runtime_hint(str(error))
                 or build_failures.line_endings_hint("\n".join(tail))
                 or build_failures.network_hint(offline.line, build_failures.ENGINE_PROXIES)
                 or build_failures.READ_THE_OUTPUT,
@@ -688,7 +562,7 @@ class Engine:
             with local_api.post_stream(self._socket, self._timeout, path, context, "application/x-tar") as answer:
                 if answer.status != 200:
                     return f"HTTP {answer.status}: {answer.read(300).decode('utf-8', 'replace')}"
-                return _classic_events(iter(answer.readline, b""), tail, on_line)
+                return specs.classic_events(iter(answer.readline, b""), tail, on_line)
         api = self._client.api
         response = api.post(
             f"{api.base_url}/v{api.api_version}/build",
@@ -701,7 +575,7 @@ class Engine:
         if response.status_code != 200:  # its body is the error: read before any streaming
             return f"HTTP {response.status_code}: {response.text[:300]}"
         try:
-            return _classic_events(response.iter_lines(), tail, on_line)
+            return specs.classic_events(response.iter_lines(), tail, on_line)
         except KeyboardInterrupt:
             response.close()
             raise
@@ -733,7 +607,7 @@ class Engine:
         )
         try:
             assert process.stdin is not None and process.stdout is not None
-            process.stdin.write(json.dumps(_compose_build(build)))
+            process.stdin.write(json.dumps(specs.compose_build(build)))
             process.stdin.close()
             for raw in process.stdout:
                 line = raw.rstrip("\n")
@@ -882,7 +756,7 @@ class Engine:
         # running (a node, a shell) is the watcher's to remove (_reaper), else the next command's
         # (Engine.sweep).
         labelled = replace(spec, labels=(*spec.labels, (LABEL_OWNER, owner_identity())))
-        argv = _run_argv(docker_cli, name, labelled, self._host_users(spec), stdin=not in_background())
+        argv = specs.run_argv(docker_cli, name, labelled, self._host_users(spec), stdin=not in_background())
         received: list[int] = []
         sent = 0
         first_sent: float | None = None
@@ -989,7 +863,7 @@ class Engine:
         """A container for SPEC with LABELS: over plain HTTP on a local socket, else through the SDK."""
         # As `docker run` adds them: the IDF component manager's downloads, a vendor package's fetch
         # at configure time, pip in a colcon build; never in a key, a stamp or an image.
-        config = _create_config(spec, labels, self._host_users(spec), self._run_proxies())
+        config = specs.create_config(spec, labels, self._host_users(spec), self._run_proxies())
         if self._plain:
             return local_api.LocalContainer.create(
                 self._socket, max(self._timeout, OPERATION_TIMEOUT), spec.name, config
@@ -1010,7 +884,7 @@ class Engine:
                     with interrupts.held():
                         container = self._create(spec, labels)
                     for where, data in spec.archives:
-                        if not container.put_archive(where, _unpadded(data)):
+                        if not container.put_archive(where, specs.unpadded(data)):
                             raise ContainerError(f"the {self.info().name} refused the files for {where} of a container")
                 except docker.errors.ImageNotFound as exc:
                     raise ContainerError(
@@ -1034,7 +908,9 @@ class Engine:
             raise
         try:
             with self._engine_call(
-                f"running a container of {spec.image}", f"could not run a container of {spec.image}", hint=_runtime_hint
+                f"running a container of {spec.image}",
+                f"could not run a container of {spec.image}",
+                hint=specs.runtime_hint,
             ):
                 yield container
         except requests.exceptions.Timeout as exc:  # ConnectTimeout is a ConnectionError: the engine went away
@@ -1053,7 +929,7 @@ class Engine:
         same workspace path, counts as live); return how many."""
         removed = 0
         try:
-            for listed in self._all_containers({"label": _label_selector(labels)}):
+            for listed in self._all_containers({"label": specs.label_selector(labels)}):
                 if owner_alive((listed.get("Labels") or {}).get(LABEL_OWNER, "")):
                     continue
                 _remove(self._handle(listed["Id"]))
@@ -1068,7 +944,7 @@ class Engine:
         """Remove the containers carrying all LABELS whose espdock process is gone (killed, or
         past its Ctrl-C grace); containers of live espdock processes, and kept ones that have
         stopped, are left alone."""
-        listed = self._all_containers({"label": [*_label_selector(labels), LABEL_OWNER]})
+        listed = self._all_containers({"label": [*specs.label_selector(labels), LABEL_OWNER]})
         dead = []
         for container in listed:
             labelled = container.get("Labels") or {}
@@ -1189,7 +1065,7 @@ class Engine:
 
     def containers(self, labels: Mapping[str, str]) -> list[str]:
         """Names of containers (running or not) carrying all LABELS."""
-        listed = self._all_containers({"label": _label_selector(labels)})
+        listed = self._all_containers({"label": specs.label_selector(labels)})
         return [str((c.get("Names") or [c["Id"]])[0]).lstrip("/") for c in listed]
 
     # Volumes
@@ -1207,7 +1083,7 @@ class Engine:
     def volumes(self, labels: Mapping[str, str]) -> list[str]:
         """Names of the volumes carrying all LABELS."""
         try:
-            return sorted(v.name for v in self._client.volumes.list(filters={"label": _label_selector(labels)}))
+            return sorted(v.name for v in self._client.volumes.list(filters={"label": specs.label_selector(labels)}))
         except (docker.errors.APIError, requests.exceptions.ConnectionError) as exc:
             raise self._lost("listing volumes") from exc
 
@@ -1221,61 +1097,6 @@ class Engine:
 
 LIBPOD_INFO = "/v4.0.0/libpod/info"
 LIBPOD_HEADER = "Libpod-Api-Version"
-
-
-def describe(env: Mapping[str, str], info: Mapping[str, Any], libpod: Mapping[str, Any] | None = None) -> EngineInfo:
-    """EngineInfo from a Docker engine's /info answer, or with LIBPOD, Podman's /libpod/info."""
-    where = addresses.host_of(env)
-    if libpod is None:
-        options = [str(option).split(",")[0] for option in info.get("SecurityOptions") or ()]
-        rootless, remapped = "name=rootless" in options, "name=userns" in options
-        stable = [str(info.get(k, "")) for k in ("Name", "DockerRootDir", "ID")]
-    else:
-        host, store = libpod.get("host") or {}, libpod.get("store") or {}
-        rootless = (host.get("security") or {}).get("rootless") is True
-        # Podman has no lasting ID (its Docker API /info makes one up per call): its host name and
-        # storage say which it is, which that /info gives as Name and DockerRootDir.
-        stable = [str(host.get("hostname", "")), str(store.get("graphRoot", ""))]
-        remapped = False
-    identity = hashlib.sha256("\0".join([where, *stable]).encode()).hexdigest()[:16]
-    kind = "docker" if libpod is None else "podman"
-    return EngineInfo(kind, rootless=rootless, identity=identity, where=where, remapped=remapped)
-
-
-class RegistryStatus(StrEnum):
-    OK = "ok"
-    MISSING = "missing"  # the registry answered: no such image
-    DENIED = "denied"  # the registry refused the engine's credentials
-    UNREACHABLE = "unreachable"  # nothing answered, or not as a registry
-
-
-@dataclass(frozen=True)
-class RegistryAnswer:
-    status: RegistryStatus
-    detail: str = ""
-
-
-# What the engine says, by cause (distribution registry and Docker daemon wording).
-_DENIED = ("no basic auth credentials", "unauthorized", "authentication required", "denied", "forbidden")
-_MISSING = ("manifest unknown", "not found", "name unknown", "no such manifest")
-
-
-def _registry_answer(text: str) -> RegistryAnswer:
-    lowered = text.lower()
-    if any(word in lowered for word in _DENIED):
-        return RegistryAnswer(RegistryStatus.DENIED, text)
-    if any(word in lowered for word in _MISSING):
-        return RegistryAnswer(RegistryStatus.MISSING, text)
-    return RegistryAnswer(RegistryStatus.UNREACHABLE, text)
-
-
-def _registry_stream(events: Iterator[dict]) -> RegistryAnswer:
-    """Pulls and pushes report most failures inside the progress stream, not as HTTP errors."""
-    for event in events:
-        error = event.get("error") or (event.get("errorDetail") or {}).get("message")
-        if error:
-            return _registry_answer(str(error))
-    return RegistryAnswer(RegistryStatus.OK)
 
 
 def _refusals() -> tuple[type[Exception], ...]:
@@ -1303,49 +1124,6 @@ def _without_a_broken_helper(call: Callable[..., Any], *args: Any, **kwargs: Any
         return call(*args, auth_config={}, **kwargs)
 
 
-def _image_info(attrs: Mapping[str, Any]) -> ImageInfo:
-    """ImageInfo from the engine's image inspect answer."""
-    return ImageInfo(
-        id=attrs["Id"],
-        tags=tuple(tag for tag in attrs.get("RepoTags") or () if tag != "<none>:<none>"),
-        created=datetime.fromisoformat(attrs["Created"][:19]).replace(tzinfo=UTC),
-        size=int(attrs.get("Size", 0)),
-        labels=dict((attrs.get("Config") or {}).get("Labels") or {}),
-        digests=tuple(attrs.get("RepoDigests") or ()),
-    )
-
-
-def _labelled(report: Sequence[Mapping[str, Any]], label: str) -> list[tuple[str, tuple[str, ...], int, int]]:
-    """(id, tags, bytes no other image shares, size) of each image in the engine's REPORT carrying LABEL."""
-    found = []
-    for image in report:
-        if label not in (image.get("Labels") or {}):
-            continue
-        size, common = int(image.get("Size", 0)), int(image.get("SharedSize", -1) or 0)
-        tags = tuple(_short_name(t) for t in image.get("RepoTags") or () if t != "<none>:<none>")
-        found.append((image["Id"], tags, size - max(common, 0), size))
-    return found
-
-
-def _short_name(tag: str) -> str:
-    """TAG as espdock names it: Podman lists espdock/x:k as localhost/espdock/x:k, and a pulled
-    image with its registry (docker.io/...), where Docker lists the name as it was given."""
-    for prefix in ("localhost/", "docker.io/library/", "docker.io/"):
-        if tag.startswith(prefix):
-            return tag.removeprefix(prefix)
-    return tag
-
-
-def _label_args(labels: Mapping[str, str]) -> list[str]:
-    """LABELS as a Dockerfile's LABEL instruction takes them (KEY="VALUE")."""
-    return [f"{key}={json.dumps(value)}" for key, value in labels.items()]
-
-
-def _label_selector(labels: Mapping[str, str]) -> list[str]:
-    """LABELS as the engine's label filter takes them (KEY=VALUE, all of them must match)."""
-    return [f"{key}={value}" for key, value in labels.items()]
-
-
 def in_background() -> bool:
     """Whether espdock is a background job of the terminal its stdin is (`espdock run PKG EXE &`):
     a docker CLI that reads the terminal, or sets it raw, is then stopped by the shell's job
@@ -1356,94 +1134,12 @@ def in_background() -> bool:
         return False
 
 
-def _run_argv(docker_cli: str, name: str, spec: RunSpec, host_users: bool = False, stdin: bool = True) -> list[str]:
-    """`docker run` of SPEC as container NAME, signals left to espdock to pass on; STDIN: forward it.
-    Without --rm, which made the docker CLI exit 0 whatever the container's code against Podman's
-    compat API (4.3): run_foreground removes the container when it ends, and the sweep one a killed
-    espdock left."""
-    argv = [docker_cli, "run", "--name", name, "--sig-proxy=false", *(["--interactive"] if stdin else [])]
-    argv += ["--tty"] if spec.tty else []
-    argv += ["--workdir", spec.workdir] + (["--user", spec.user] if spec.user else [])
-    argv += [arg for key, value in spec.env for arg in ("--env", f"{key}={value}")]
-    argv += [arg for key, value in spec.labels for arg in ("--label", f"{key}={value}")]
-    for mount in spec.mounts:
-        kind = "volume" if mount.volume else "bind"
-        fields = [f"type={kind}", f"source={mount.source}", f"target={mount.target}"]
-        argv += ["--mount", _csv_line([*fields, "readonly"] if mount.read_only else fields)]
-    argv += [arg for device in spec.devices for arg in ("--device", device)]
-    argv += [arg for group in spec.group_add for arg in ("--group-add", str(group))]
-    argv += ["--network", spec.network] if spec.network else []
-    argv += ["--userns", "host"] if host_users else []
-    return [*argv, spec.image, *spec.argv]
-
-
-def _classic_params(build: ImageBuild, secret: str) -> dict[str, Any]:
-    """The engine API's /build parameters for BUILD, its CA bundle in the context file SECRET."""
-    return {
-        "t": build.tag,
-        "dockerfile": build.dockerfile,
-        "target": build.target,
-        "buildargs": json.dumps(dict(build.build_args)),
-        "labels": json.dumps(dict(build.labels)),
-        "secrets": json.dumps([f"id=ca_bundle,src={secret}"]),
-        "nocache": build.no_cache,
-        "rm": True,
-        "forcerm": True,
-    }
-
-
-def _classic_events(chunks: Iterator[bytes], tail: collections.deque[str], on_line: LineSink) -> str | None:
-    """The /build answer's JSON lines: each output line to ON_LINE and TAIL; the first error, if any."""
-    error = None
-    for chunk in chunks:
-        try:
-            event = json.loads(chunk) if chunk else {}
-        except ValueError:
-            continue
-        for line in str(event.get("stream", "")).splitlines():
-            tail.append(line)
-            on_line(line)
-        error = error or event.get("error") or (event.get("errorDetail") or {}).get("message")
-    return error
-
-
-def _compose_build(build: ImageBuild) -> dict[str, Any]:
-    """A Compose file (as JSON, on stdin) whose one service builds BUILD."""
-    return {
-        "name": "espdock-build",
-        "services": {
-            "image": {
-                "image": build.tag,
-                "build": {
-                    "context": str(build.context),
-                    "dockerfile": build.dockerfile,
-                    "target": build.target,
-                    "args": dict(build.build_args),
-                    "labels": dict(build.labels),
-                    "secrets": ["ca_bundle"],
-                },
-            }
-        },
-        # An empty secret means "no extra CA"; the Dockerfile checks for that.
-        "secrets": {"ca_bundle": {"file": str(build.ca_bundle or "/dev/null")}},
-    }
-
-
 # Podman 4's build API does not stop a build whose client left (BuildKit's does): said, not
 # "stopped and removed" as every other interrupted build is.
 PODMAN_BUILD_GOES_ON = (
     "interrupted; Podman goes on with the image build's current step until it ends (its build API "
     "does not stop a build its client left: `podman ps --external` shows it), and tags nothing"
 )
-
-
-def _split_ref(ref: str) -> tuple[str, str]:
-    """REPOSITORY, TAG of REF (a registry's host:port is not a tag)."""
-    name = ref.rsplit("/", 1)[-1]
-    if ":" in name:
-        repository, _, tag = ref.rpartition(":")
-        return repository, tag
-    return ref, "latest"
 
 
 def _archive(container: docker.models.containers.Container, path: str) -> Iterator[bytes] | None:
@@ -1463,18 +1159,6 @@ def _fetch(container: docker.models.containers.Container, fetch: Mapping[str, Pa
         with dest.open("wb") as out:
             for chunk in chunks:
                 out.write(chunk)
-
-
-def _runtime_hint(error: str) -> str | None:
-    """What to do when the engine's OCI runtime, not the build or the command, refused the container."""
-    if "cgroups in hybrid mode" in error:
-        # crun (Podman's default) refuses hosts that mount cgroup v1 controllers beside a cgroup2
-        # tree holding one; runc runs there, as it does under Docker.
-        return (
-            'crun cannot run containers on this host\'s hybrid cgroups: set runtime = "runc" in the [engine] '
-            "table of containers.conf (install runc if it is missing), restart the Podman service, then try again."
-        )
-    return None
 
 
 def _remove(container: docker.models.containers.Container, stop: bool = True) -> None:
@@ -1552,38 +1236,6 @@ def _stream_lines(chunks: Iterator[bytes] | IO[bytes], on_line: LineSink) -> Non
         on_line(pending.decode("utf-8", "replace"))
 
 
-def _unpadded(archive: bytes) -> bytes:
-    """ARCHIVE up to its two end blocks, without the zeros Python's tarfile pads it with to a 10 KiB
-    record. Podman's upload (buildah's copier, before buildah#6678) stops reading at the end blocks,
-    and the padding the engine is still passing on then fails the upload with "passing bulk input
-    to subprocess: write |1: broken pipe": now and then, and more often the slower the link."""
-    with tarfile.open(fileobj=io.BytesIO(archive), mode="r:") as tar:
-        tar.getmembers()
-        end = tar.offset + 2 * tarfile.BLOCKSIZE
-    return archive[:end]
-
-
-def _context_tar(context: Path, dockerfile: str, out: IO[bytes], extra: Mapping[str, bytes]) -> None:
-    """CONTEXT as the builder gets it (its .dockerignore applied, as the Docker CLI does), and the
-    EXTRA files (name -> bytes) at its top, into OUT."""
-    from docker.utils.build import exclude_paths
-
-    ignore = context / ".dockerignore"
-    patterns = [
-        line.strip()
-        for line in (ignore.read_text().splitlines() if ignore.is_file() else ())
-        if line.strip() and not line.startswith("#")
-    ]
-    with tarfile.open(fileobj=out, mode="w") as archive:
-        for rel in sorted(exclude_paths(str(context), patterns, dockerfile=dockerfile)):
-            archive.add(context / rel, arcname=rel, recursive=False)
-        for name, data in extra.items():
-            member = tarfile.TarInfo(name)
-            member.size = len(data)
-            member.mode = 0o600
-            archive.addfile(member, io.BytesIO(data))
-
-
 def podman_docker(docker_cli: str) -> bool:
     """Whether DOCKER_CLI is Podman's `docker` (podman-docker: a script that runs podman, or a link
     to it), read without running it."""
@@ -1627,17 +1279,3 @@ def find_docker_cli(env: Mapping[str, str]) -> str:
             "or with Podman, podman-docker.",
         )
     return docker_cli
-
-
-def format_argv(argv: Sequence[str]) -> str:
-    """ARGV as one shell-quoted line, for display only."""
-    import shlex
-
-    return shlex.join(argv)
-
-
-def _csv_line(fields: list[str]) -> str:
-    """FIELDS as one CSV line, as `docker run --mount` parses it (a path with a comma is quoted)."""
-    out = io.StringIO()
-    csv.writer(out, lineterminator="").writerow(fields)
-    return out.getvalue()

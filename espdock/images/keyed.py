@@ -28,8 +28,8 @@ from espdock.errors import EspdockError, RegistryError
 from espdock.events import Outcome, StepNote, StepOutput
 from espdock.images import bootstrap
 from espdock.images.containers import Containers, first_line
-from espdock.images.engine import ImageInfo, RegistryAnswer, RegistryStatus
 from espdock.images.machine_lock import machine_lock
+from espdock.images.specs import ImageInfo, RegistryAnswer, RegistryStatus
 from espdock.workspace import Workspace
 
 # dpkg's database: read from the image, not asked of a `dpkg-query` run in it (see installed_packages).

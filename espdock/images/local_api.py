@@ -59,7 +59,7 @@ class LocalContainer:
 
     @classmethod
     def create(cls, socket_path: str, timeout: float, name: str | None, config: Mapping[str, Any]) -> LocalContainer:
-        """A container of CONFIG (as _create_config makes it), named NAME unless None."""
+        """A container of CONFIG (as specs.create_config makes it), named NAME unless None."""
         query = f"?name={quote(name, safe='')}" if name else ""
         answer = call(socket_path, timeout, "POST", f"/containers/create{query}", json.dumps(config).encode())
         return cls(socket_path, timeout, json.loads(answer)["Id"], bool(config["Tty"]))

@@ -19,7 +19,8 @@ from collections.abc import Iterable
 from pathlib import Path, PurePosixPath
 
 from espdock.errors import MountSourceMissing, WorkspaceError, WorkspaceNotVisible
-from espdock.images.engine import Engine, Mount, RunSpec
+from espdock.images.engine import Engine
+from espdock.images.specs import Mount, RunSpec
 from espdock.layout import WORKSPACE_MOUNT
 from espdock.workspace import Workspace, walk_following_links
 

@@ -30,7 +30,8 @@ from espdock import durable, interrupts, scratch
 from espdock.build.stamps import source_files
 from espdock.build.steps import LABEL_WORKSPACE
 from espdock.errors import EngineUnavailable, WorkspaceError
-from espdock.images.engine import Engine, Mount
+from espdock.images.engine import Engine
+from espdock.images.specs import Mount
 from espdock.layout import WORKSPACE_MOUNT
 from espdock.workspace import Workspace, give_tree, root_key
 

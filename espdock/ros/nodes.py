@@ -16,7 +16,7 @@ from espdock.build.stamps import listing_digest
 from espdock.build.steps import LABEL_WORKSPACE, EnsureBaseImage, EnsureImage, Plan, container_path
 from espdock.errors import ConfigError, WorkspaceError
 from espdock.images.containers import give_to, make_dirs_for
-from espdock.images.engine import Mount, RunSpec
+from espdock.images.specs import Mount, RunSpec
 from espdock.images.visibility import links_out
 from espdock.layout import ROS_BUILD_BASE, ROS_OFFICIAL_DOCKERFILE, WORKSPACE_MOUNT
 from espdock.ros.colcon import egg_info_order_define

@@ -26,8 +26,8 @@ from espdock.images.containers import (
     volume_mode_refused,
     with_host_umask,
 )
-from espdock.images.engine import Mount, RunSpec
 from espdock.images.keyed import KeyedImages
+from espdock.images.specs import Mount, RunSpec
 from espdock.images.visibility import host_paths, links_out, workspace_mount
 from espdock.layout import FIRMWARE_DIR, MANIFEST_NAME, ROS_BUILD_BASE, WORKSPACE_MOUNT
 from espdock.ros import rmw

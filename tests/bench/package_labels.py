@@ -21,8 +21,9 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(REPO))
 
-from espdock.images.engine import Engine, RunSpec  # noqa: E402
+from espdock.images.engine import Engine  # noqa: E402
 from espdock.images.keyed import DPKG_LINE, DPKG_STATUS, installed_packages  # noqa: E402
+from espdock.images.specs import RunSpec  # noqa: E402
 
 QUERY = ("dpkg-query", "-W", "-f", "${Package}=${Version}\n")
 

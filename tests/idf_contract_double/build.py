@@ -16,7 +16,8 @@ import re
 from pathlib import Path
 
 from espdock.errors import ImageBuildError
-from espdock.images.engine import Engine, LineSink, RunSpec
+from espdock.images.engine import Engine
+from espdock.images.specs import LineSink, RunSpec
 from tests.double_image import ensure_double
 
 HERE = Path(__file__).resolve().parent

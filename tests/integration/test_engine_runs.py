@@ -26,8 +26,9 @@ import pytest
 from espdock.errors import ConfigError, ContainerError, EngineUnavailable
 from espdock.images import bootstrap
 from espdock.images.addresses import DEFAULT_SOCKET
-from espdock.images.engine import LABEL_OWNER, Engine, Mount, RunSpec
+from espdock.images.engine import LABEL_OWNER, Engine
 from espdock.images.keyed import DPKG_STATUS, installed_packages
+from espdock.images.specs import Mount, RunSpec
 from espdock.layout import MICRO_ROS_AGENT_IMAGE
 from espdock.ros.compose import starter_compose
 from espdock.scratch import owner_identity
@@ -161,7 +162,7 @@ def test_an_attached_run_s_container_goes_when_its_espdock_is_killed_outright(en
     label = ("io.espdock.test-run", uuid.uuid4().hex)
     selector = f"label={label[0]}={label[1]}"
     script = (
-        "import os, sys; from espdock.images.engine import Engine, RunSpec; "
+        "import os, sys; from espdock.images.engine import Engine; from espdock.images.specs import RunSpec; "
         "spec = RunSpec(image=sys.argv[1], argv=('sleep', '120'), workdir='/', labels=((sys.argv[2], sys.argv[3]),)); "
         "Engine.connect(os.environ).run_attached(spec)"
     )

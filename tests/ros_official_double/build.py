@@ -11,7 +11,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from espdock.images.engine import Engine, LineSink
+from espdock.images.engine import Engine
+from espdock.images.specs import LineSink
 from tests.double_image import ensure_double
 
 HERE = Path(__file__).resolve().parent

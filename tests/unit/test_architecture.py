@@ -36,3 +36,9 @@ def test_the_graph_sees_deferred_and_package_relative_imports(tmp_path):
     assert graph["espdock.low.a"] == {"espdock.high"}
     assert graph["espdock.high"] == {"espdock.low.a"}
     assert cycles(graph) == [["espdock.high", "espdock.low.a"]]
+
+
+def test_what_the_engine_is_asked_is_pure_data_and_translation():
+    # images/specs.py is read and tested without an engine: it may not reach one.
+    talks = {"espdock.images.engine", "espdock.images.local_api", "espdock.images.sdk"}
+    assert import_graph()["espdock.images.specs"] & talks == set()

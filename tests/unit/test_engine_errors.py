@@ -20,7 +20,8 @@ import pytest
 import requests
 
 from espdock.errors import ContainerError, EngineUnavailable, EspdockError, ImageBuildError, MountSourceMissing
-from espdock.images.engine import Engine, RegistryAnswer, RegistryStatus, RunSpec
+from espdock.images.engine import Engine
+from espdock.images.specs import RegistryAnswer, RegistryStatus, RunSpec
 
 TCP = "tcp://engine.invalid:2375"
 NAMED = f"the Docker engine at {TCP}"
@@ -249,7 +250,7 @@ def test_the_engine_going_away_under_buildkit_or_the_cli_s_run_is_exit_3(gone, t
     """dockerd killed during an image build: BuildKit's client says "rpc error: code = Unavailable
     desc = error reading from server: EOF", and it was exit 4, "Read the build output above"; under
     `espdock run` the CLI's 125 was exit 9, "could not start a container", of a node that had run."""
-    from espdock.images.engine import ImageBuild
+    from espdock.images.specs import ImageBuild
 
     engine, where = gone
     said = "ERROR: failed to receive status: rpc error: code = Unavailable desc = error reading from server: EOF"
@@ -298,7 +299,7 @@ exit code: 100
 def test_an_image_build_without_a_network_says_so_not_only_the_package_apt_could_not_find(tmp_path, monkeypatch):
     """An air-gapped lab: the error ended with apt's "Unable to locate package tini", and the hint
     was to read the build output; the cause ("Temporary failure resolving") had scrolled out of it."""
-    from espdock.images.engine import ImageBuild
+    from espdock.images.specs import ImageBuild
 
     engine = Engine({"DOCKER_HOST": "unix:///nonexistent.sock"}, client=object())
     monkeypatch.setattr(engine, "_answers", lambda: True)
@@ -701,7 +702,7 @@ def test_espdock_s_own_builds_and_runs_take_none_of_the_users_docker_cli_habits(
     """DOCKER_DEFAULT_PLATFORM=linux/arm64 (an Apple silicon habit) in the shell: `espdock run` and
     `shell` found no image ("Unable to find image ... locally"); DOCKER_BUILDKIT=0 failed every
     image build (no secrets, no cache mounts); DOCKER_CONTENT_TRUST=1 had each run ask a notary."""
-    from espdock.images.engine import ImageBuild
+    from espdock.images.specs import ImageBuild
 
     habits = {"DOCKER_DEFAULT_PLATFORM": "linux/arm64", "DOCKER_BUILDKIT": "0", "DOCKER_CONTENT_TRUST": "1"}
     engine = Engine({"DOCKER_HOST": TCP, "PATH": os.environ["PATH"], **habits}, client=object())
@@ -720,7 +721,7 @@ def test_an_interrupted_podman_build_says_podman_goes_on_and_a_refused_one_its_a
     every build it had started "was stopped and removed" while the step ran on (a `sleep 100`
     for its 100 s). A refused build's answer was read after its stream: RuntimeError, exit 70."""
     from espdock.errors import Interrupted
-    from espdock.images.engine import ImageBuild
+    from espdock.images.specs import ImageBuild
 
     class Answer:
         closed = False
@@ -823,7 +824,8 @@ def test_a_foreground_run_ends_on_ctrl_c_when_the_engine_hangs(tmp_path):
     script = (
         "import os, sys\n"
         "from espdock.errors import Interrupted\n"
-        "from espdock.images.engine import Engine, RunSpec\n"
+        "from espdock.images.engine import Engine\n"
+        "from espdock.images.specs import RunSpec\n"
         "spec = RunSpec(image='debian:bookworm-slim', argv=('sleep', '300'), workdir='/')\n"
         "print('running', flush=True)\n"
         "try:\n"

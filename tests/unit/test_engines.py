@@ -25,7 +25,8 @@ from espdock.build.steps import Plan
 from espdock.config import Config
 from espdock.errors import BuildFailed, EngineUnavailable, WorkspaceError, WorkspaceNotVisible
 from espdock.images import bootstrap, volume
-from espdock.images.engine import LIBPOD_INFO, Engine, EngineInfo, describe
+from espdock.images.engine import LIBPOD_INFO, Engine
+from espdock.images.specs import EngineInfo, describe
 from espdock.images.visibility import linked_mounts
 from espdock.ros.colcon_log import unselected
 from espdock.ros.plan import ColconBuild
@@ -674,11 +675,12 @@ def test_a_node_run_as_a_background_job_of_the_terminal_forwards_neither_it_nor_
 
     script = (
         "import os, sys, fcntl, termios\n"
-        "from espdock.images.engine import _run_argv, in_background, RunSpec\n"
+        "from espdock.images.engine import in_background\n"
+        "from espdock.images.specs import run_argv, RunSpec\n"
         "fcntl.ioctl(0, termios.TIOCSCTTY, 0)\n"  # the pty is this session's terminal, this its foreground
         "spec = RunSpec(image='img', argv=('node',), workdir='/')\n"
         "def say(out):\n"
-        "    print(in_background(), '--interactive' in _run_argv('docker', 'n', spec, stdin=not in_background()),\n"
+        "    print(in_background(), '--interactive' in run_argv('docker', 'n', spec, stdin=not in_background()),\n"
         "          file=open(out, 'w'))\n"
         "say(sys.argv[1])\n"
         "if os.fork() == 0:\n"

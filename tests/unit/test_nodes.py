@@ -13,7 +13,7 @@ import yaml
 from espdock.build.stamps import StampFile, listing_digest
 from espdock.config import Config
 from espdock.errors import ConfigError, WorkspaceError
-from espdock.images.engine import Mount
+from espdock.images.specs import Mount
 from espdock.ros.compose import compose_subcommand, init_compose, plain_compose_note, starter_compose
 from espdock.ros.nodes import (
     device,

@@ -20,8 +20,8 @@ from espdock.errors import BuildFailed, ConfigError, RegistryError
 from espdock.events import Outcome, StepFinished, StepNote
 from espdock.firmware.plan import IdfBuild, InstallFirmware
 from espdock.images import bootstrap, machine_lock
-from espdock.images.engine import ImageInfo, RegistryStatus, _registry_answer
 from espdock.images.keyed import DPKG_STATUS
+from espdock.images.specs import ImageInfo, RegistryStatus, registry_answer
 from espdock.ros.nodes import check_built_by_espdock
 from espdock.ros.plan import ColconBuild, ros_build_image
 from espdock.workspace import Workspace
@@ -374,7 +374,7 @@ def test_push_cache_pushes_what_the_registry_lacks_and_only_that(ws):
     ],
 )
 def test_registry_answers_are_told_apart(said, status):
-    assert _registry_answer(said).status == status
+    assert registry_answer(said).status == status
 
 
 def test_a_workspace_without_git_history_builds_with_a_fixed_source_date(ws):

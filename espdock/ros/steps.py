@@ -9,13 +9,13 @@ import posixpath
 import re
 import shlex
 import shutil
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import replace
 from pathlib import Path
 
 from espdock.build.stamps import StampFile, TreeState, listing_digest, package_stamps
 from espdock.build.steps import EnsureImage
-from espdock.errors import BuildFailed, ConfigError
+from espdock.errors import BuildFailed, ConfigError, EspdockError
 from espdock.events import Outcome, StepNote, StepOutput
 from espdock.images import volume
 from espdock.images.containers import (
@@ -48,7 +48,7 @@ from espdock.ros.colcon import (
 from espdock.ros.colcon_log import ColconLog, PackageState, colcon_errors, explain_failure, named, usage_error
 from espdock.ros.plan import ColconBuild, RuntimeImage
 from espdock.ros.runtime_tree import installed_step, runtime_context, runtime_spec
-from espdock.ros.staleness import colcon_outputs, colcon_rebuild, read_outside
+from espdock.ros.staleness import Rebuild, colcon_outputs, colcon_rebuild, read_outside
 from espdock.ros.testing import (
     ROS_TEST_LOGS,
     ColconTest,
@@ -303,10 +303,6 @@ class RosSteps:
         stamp_file, stamps, rebuild, trees = found.stamp_file, found.stamps, found.rebuild, found.trees
         if found.unlisted:
             stamp_file.list_outside({name: {} for name in found.unlisted})
-
-        def installed() -> dict[str, str | None]:
-            return {name: listing_digest(workspace.ws_dir / "install" / name) for name in stamps}
-
         if not rebuild:
             return Outcome.CACHED, f"up to date ({len(stamps)} package(s))"
         check_isolated_install(workspace.ws_dir / "install")
@@ -355,151 +351,18 @@ class RosSteps:
                     "packages (ament_lint_auto, ...); `espdock test` builds them with their tests",
                 )
             )
-        mounts, archives = self.containers.workspace_in(workspace, sync)
-        if sync is None:
-            mounts += _linked(workspace, step.sources)
-        env = [("HOME", "/tmp"), ("DIST_EXTRA_CONFIG", SETUPTOOLS_CONFIG), *self.containers.reproducible_env(workspace)]
-        if jobs := make_jobs(self.containers.env):
-            env.append(("MAKEFLAGS", jobs))
-        archives.append(volume.file_archive(SETUPTOOLS_CONFIG, SETUPTOOLS_FORCE))
-        _write_owned(base / EGG_INFO_ORDER, EGG_INFO_ORDER_CMAKE, self.containers.owner)
-        if sync is not None:  # and into the workspace volume's build base, as the build's user's
-            archives.append(volume.files_archive(workspace, base, (EGG_INFO_ORDER,), self.containers.container_owner()))
-        if step.defaults_file is not None:
-            # colcon reads the user's defaults from their home, which the container does not have.
-            if sync is None:
-                mounts.append(Mount(Path(step.defaults_file), DEFAULTS_MOUNT, read_only=True))
-            else:
-                archives.append(volume.file_archive(DEFAULTS_MOUNT, Path(step.defaults_file).read_bytes()))
-            env.append(("COLCON_DEFAULTS_FILE", DEFAULTS_MOUNT))
+        spec = self._colcon_spec(workspace, step, rebuild, sync, user, labels)
         log = ColconLog(workspace.ws_dir / "log")
-        sources_of = dict(step.sources)
         output: list[str] = []
-
-        ended = 0
-
-        def on_line(line: str) -> None:
-            nonlocal ended
-            output.append(line)
-            self.containers.emit(StepOutput(step.name, host_paths(line, workspace)))
-            if ENDED.match(line):
-                # At a terminal, the step's status line counts (colcon's own would: "[12/48 done]").
-                ended += 1
-                self.containers.emit(StepOutput(step.name, f"{ended} of {len(rebuild)} package(s) done", status=True))
-
-        spec = RunSpec(
-            image=step.image,
-            argv=with_host_umask(step.argv(rebuild)),
-            workdir=step.workdir,
-            user=user,
-            group_add=self.containers.shared_group(workspace),
-            mounts=tuple(mounts),
-            env=tuple(env),
-            labels=labels,
-            archives=tuple(archives),
-        )
+        on_line = self._colcon_lines(workspace, step, len(rebuild), output)
 
         def keep_built(states: dict[str, PackageState] | None) -> list[str]:
-            """Record the packages colcon built (its event log's STATES), and return them."""
-            built = [name for name, state in (states or {}).items() if state is PackageState.BUILT and name in stamps]
-            # A dependency this build was to build and did not (`-- --packages-skip` it, or it failed
-            # under --continue-on-error): what built on it built on its old install, so it is not up
-            # to date once that dependency is built.
-            depends, reads = dict(step.depends), dict(step.reads)
-            read_by = {name: step.build_reads(name) for name in built}
-            on_old = {name: read_by[name] & (set(rebuild) - set(built)) for name in built}
-            if against := [name for name in built if on_old[name]]:
-                olds = sorted(set().union(*(on_old[name] for name in against)))
-                self.containers.emit(
-                    StepNote(
-                        step.name,
-                        f"{', '.join(against)} built on the old install of {', '.join(olds)}, which this build "
-                        "did not build: the next build builds them again",
-                    )
-                )
-            if built:
-                # What each read of the workspace outside its directory, as this build found it (a
-                # volume's build dirs are on the engine: not looked at), and the stamps that counts.
-                # A file it read before is taken as it was before the build (one saved during the
-                # build may not be what it compiled); one new to it, as it is now.
-                outside = dict(found.outside)
-                for name in built:
-                    before = found.outside[name]
-                    paths = read_outside(workspace, name, sources_of[name]) if sync is None else []
-                    now_read = file_digests(workspace.root, [path for path in paths if path not in before])
-                    outside[name] = {path: before.get(path) or now_read[path] for path in paths}
-                sources = {name: fold(tree.digest, outside[name]) for name, tree in trees.items()}
-                chained = package_stamps(sources, depends, step.stamp_images(), dict(step.settings), reads)
-                now = {name: chained[name] for name in stamps}
-                # Those recorded as built (their install is espdock's: `espdock run` takes it), with a
-                # stamp no package has: the next build builds them again.
-                recorded_stamps = {name: ON_OLD_INSTALL if on_old[name] else now[name] for name in built}
-                serves = None
-                if step.serves:
-                    served = dict(step.serves)
-                    images = {name: served.get(name, "") for name in sources}
-                    plain = package_stamps(sources, depends, images, dict(step.settings), reads)
-                    serves = {name: plain[name] for name in built if not on_old[name]}
-
-                # Each one's dependencies' stamps as this build leaves them (built now, or up to
-                # date): a dependency rebuilt since, or edited, is one it was built on an older
-                # state of, whatever options either build was given. Those this step did not build
-                # (an `espdock test` step builds the packages tested; their dependencies, built by
-                # the step before, are in no stamp of its own) as recorded, or its record named
-                # nothing an edit of could make it older.
-                def stamp_of(dep: str) -> object:
-                    entry = recorded.get(dep)
-                    return now[dep] if dep in now else entry.get("stamp") if isinstance(entry, dict) else None
-
-                built_on = {
-                    name: {dep: stamp for dep in read_by[name] if (stamp := stamp_of(dep)) is not None}
-                    for name in built
-                }
-                outside_built = {name: outside[name] for name in built}
-                stamp_file.record(recorded_stamps, installed(), sources_of, trees, serves, built_on, outside_built)
-                give_to(stamp_file.path, self.containers.owner)
-            return built
+            return self._record_built(workspace, step, found, rebuild, recorded, sync, states)
 
         try:
             # A native build's setup scripts chain the host's ROS; the container's chain the image's.
             with native_setup_kept(workspace.ws_dir / "install"):
-                if sync is None:
-                    try:
-                        code = self.containers.engine.run(spec, on_line, keep=self.containers.config.keep_containers)
-                    except KeyboardInterrupt:
-                        # What colcon finished before Ctrl-C (or a CI job's cancel) is built: the next
-                        # build goes on from there, where it built all of them again.
-                        keep_built(log.states())
-                        raise
-                    states = log.states()
-                else:
-                    with volume.fetched("install", "log") as fetched:
-                        install, logs = workspace.ws_dir / "install", workspace.ws_dir / "log"
-                        paths = {volume.container_path(workspace, install): fetched["install"],
-                                 volume.container_path(workspace, logs): fetched["log"]}  # fmt: skip
-                        code = self.containers.engine.run(
-                            spec, on_line, keep=self.containers.config.keep_containers, fetch=paths
-                        )
-                        volume.merge_logs(fetched["log"], logs, self.containers.owner)
-                        states = log.states()
-                        # A whole build that failed, or did not build all it was to (colcon found not all of
-                        # them, or left some out as told: `--packages-skip`), lacks some of what the host
-                        # has: it brings back what it built, and the host's other packages stay as they
-                        # were. install/ is then not the volume's, so the next build is a whole one too.
-                        built_here = _built(states or {})
-                        unbuilt = set(rebuild) - set(built_here)
-                        # So does a selection's (`espdock build PKG`), which the volume's install/
-                        # holds alone: swapped in, it removed every other package from the host's.
-                        merge = whole and (code != 0 or bool(unbuilt) or not step.whole)
-                        # The host's own entries stay: a build of the ROS packages (`--only ros`, a
-                        # selection) removed the firmware installs, and `espdock flash` found none.
-                        kept = host_added(install)
-                        theirs = built_here if merge else [e for e in _entries(install) if e not in kept]
-                        volume.replace_tree(fetched["install"], install, self.containers.owner, theirs)
-                        volume.record(
-                            workspace, self.containers.engine, sync, None if merge else volume_listing(install)
-                        )
-                        give_to(workspace.ws_dir / "build" / volume.SYNCED, self.containers.owner)
+                code, states = self._run_colcon(workspace, step, spec, on_line, log, sync, whole, rebuild, keep_built)
         except BaseException:
             # Ctrl-C, an engine gone: what colcon finished, its event log says (nothing read, none is
             # put back); what it did not build keeps the install it had, and the record of it.
@@ -546,43 +409,9 @@ class RosSteps:
             # Nothing in build/ or install/ changed: the packages keep their records, and the
             # next build with other options rebuilds only what those change.
             stamp_file.restore({name: recorded[name] for name in rebuild if name in recorded}, rebuild)
-            last = next((line for line in reversed(output) if line.strip()), "no output")
-            if "PermissionError" in last or "Permission denied" in last:
-                # colcon may not write its log or build dirs: they belong to someone else.
-                where = next((d for d in (workspace.ws_dir / n for n in ("log", "build", "install")) if d.exists()
-                              and d.stat().st_uid != self.containers.owner[0]), workspace.ws_dir)  # fmt: skip
-                refused = PermissionError(13, last.strip(), str(where))
-                raise permission_error(refused, self.containers.owner, workspace.ws_dir)
-            said = usage_error(output, step.colcon_args)
-            raise ConfigError(
-                said or f"colcon stopped before building any package (exit code {code}): {last.strip()}",
-                "Check the colcon options after `--` (`colcon build --help` in `espdock shell` lists them) "
-                "and colcon's defaults files; nothing was built.",
-            )
+            raise self._stopped_before_building(workspace, step, code, output)
         if code != 0:
-            # A package colcon failed before its build began (a dependency's install missing, as
-            # ament_python's task checks first) has no log: what colcon said of it is its output.
-            logs = {
-                name: (path, _read_text(path))
-                if (path := log.package_log(name)).is_file()
-                else (None, colcon_errors(output))
-                for name, state in (states or {}).items()
-                if state is PackageState.FAILED
-            }
-            # colcon's own errors (its shell hooks) are in its output; a package's build, in its log.
-            texts = ("\n".join(output), *(text for _, text in logs.values()))
-            denied = denied_path(texts, workspace.root, self.containers.owner[0])
-            if denied is not None:
-                # Another user's file in the trees colcon writes (a `sudo colcon build`): not the package's fault.
-                raise permission_error(
-                    PermissionError(13, "Permission denied", str(denied)), self.containers.owner, workspace.ws_dir
-                )
-            declared = {name: (depends, tests) for name, depends, tests in step.declared}
-            failure = explain_failure(
-                code, states or {}, logs, step.colcon_args, declared, "test" if step.testing else "build",
-                frozenset(step.packages), earlier,
-            )  # fmt: skip
-            raise BuildFailed(failure.message, failure.hint)
+            raise self._failed(workspace, step, code, states or {}, log, output, earlier)
         others = [n for n in rebuild if n not in built]
         # Asked for and neither built nor left out as told (`-- --packages-skip`): colcon did not
         # find it where espdock did (a package linked from outside the workspace, say).
@@ -600,6 +429,243 @@ class RosSteps:
             )
         detail = f"{len(built)} package(s) built, {len(set(stamps) - set(rebuild))} up to date"
         return Outcome.BUILT, detail + (f", {named(others, 'not built')}" if others else "")
+
+    def _colcon_spec(
+        self,
+        workspace: Workspace,
+        step: ColconBuild,
+        rebuild: Sequence[str],
+        sync: volume.Sync | None,
+        user: str,
+        labels: tuple[tuple[str, str], ...],
+    ) -> RunSpec:
+        """The container colcon builds REBUILD in: the workspace (bound, or SYNC's volume), the
+        setuptools and colcon settings it needs there, and the reproducible environment."""
+        base = workspace.ws_dir / ROS_BUILD_BASE
+        mounts, archives = self.containers.workspace_in(workspace, sync)
+        if sync is None:
+            mounts += _linked(workspace, step.sources)
+        env = [("HOME", "/tmp"), ("DIST_EXTRA_CONFIG", SETUPTOOLS_CONFIG), *self.containers.reproducible_env(workspace)]
+        if jobs := make_jobs(self.containers.env):
+            env.append(("MAKEFLAGS", jobs))
+        archives.append(volume.file_archive(SETUPTOOLS_CONFIG, SETUPTOOLS_FORCE))
+        _write_owned(base / EGG_INFO_ORDER, EGG_INFO_ORDER_CMAKE, self.containers.owner)
+        if sync is not None:  # and into the workspace volume's build base, as the build's user's
+            archives.append(volume.files_archive(workspace, base, (EGG_INFO_ORDER,), self.containers.container_owner()))
+        if step.defaults_file is not None:
+            # colcon reads the user's defaults from their home, which the container does not have.
+            if sync is None:
+                mounts.append(Mount(Path(step.defaults_file), DEFAULTS_MOUNT, read_only=True))
+            else:
+                archives.append(volume.file_archive(DEFAULTS_MOUNT, Path(step.defaults_file).read_bytes()))
+            env.append(("COLCON_DEFAULTS_FILE", DEFAULTS_MOUNT))
+        return RunSpec(
+            image=step.image,
+            argv=with_host_umask(step.argv(rebuild)),
+            workdir=step.workdir,
+            user=user,
+            group_add=self.containers.shared_group(workspace),
+            mounts=tuple(mounts),
+            env=tuple(env),
+            labels=labels,
+            archives=tuple(archives),
+        )
+
+    def _colcon_lines(
+        self, workspace: Workspace, step: ColconBuild, packages: int, output: list[str]
+    ) -> Callable[[str], None]:
+        """What takes colcon's output lines: each into OUTPUT and the step's output (host paths),
+        and the count of PACKAGES done as the step's status."""
+        ended = 0
+
+        def on_line(line: str) -> None:
+            nonlocal ended
+            output.append(line)
+            self.containers.emit(StepOutput(step.name, host_paths(line, workspace)))
+            if ENDED.match(line):
+                # At a terminal, the step's status line counts (colcon's own would: "[12/48 done]").
+                ended += 1
+                self.containers.emit(StepOutput(step.name, f"{ended} of {packages} package(s) done", status=True))
+
+        return on_line
+
+    def _run_colcon(
+        self,
+        workspace: Workspace,
+        step: ColconBuild,
+        spec: RunSpec,
+        on_line: Callable[[str], None],
+        log: ColconLog,
+        sync: volume.Sync | None,
+        whole: bool,
+        rebuild: Sequence[str],
+        keep_built: Callable[[dict[str, PackageState] | None], list[str]],
+    ) -> tuple[int, dict[str, PackageState] | None]:
+        """colcon's exit code and its event log's states; in the workspace volume, with what it
+        built brought back to the host's install/."""
+        keep = self.containers.config.keep_containers
+        if sync is None:
+            try:
+                code = self.containers.engine.run(spec, on_line, keep=keep)
+            except KeyboardInterrupt:
+                # What colcon finished before Ctrl-C (or a CI job's cancel) is built: the next
+                # build goes on from there, where it built all of them again.
+                keep_built(log.states())
+                raise
+            return code, log.states()
+        with volume.fetched("install", "log") as fetched:
+            install, logs = workspace.ws_dir / "install", workspace.ws_dir / "log"
+            paths = {volume.container_path(workspace, install): fetched["install"],
+                     volume.container_path(workspace, logs): fetched["log"]}  # fmt: skip
+            code = self.containers.engine.run(spec, on_line, keep=keep, fetch=paths)
+            volume.merge_logs(fetched["log"], logs, self.containers.owner)
+            states = log.states()
+            # A whole build that failed, or did not build all it was to (colcon found not all of
+            # them, or left some out as told: `--packages-skip`), lacks some of what the host
+            # has: it brings back what it built, and the host's other packages stay as they
+            # were. install/ is then not the volume's, so the next build is a whole one too.
+            built_here = _built(states or {})
+            unbuilt = set(rebuild) - set(built_here)
+            # So does a selection's (`espdock build PKG`), which the volume's install/
+            # holds alone: swapped in, it removed every other package from the host's.
+            merge = whole and (code != 0 or bool(unbuilt) or not step.whole)
+            # The host's own entries stay: a build of the ROS packages (`--only ros`, a
+            # selection) removed the firmware installs, and `espdock flash` found none.
+            kept = host_added(install)
+            theirs = built_here if merge else [e for e in _entries(install) if e not in kept]
+            volume.replace_tree(fetched["install"], install, self.containers.owner, theirs)
+            volume.record(workspace, self.containers.engine, sync, None if merge else volume_listing(install))
+            give_to(workspace.ws_dir / "build" / volume.SYNCED, self.containers.owner)
+        return code, states
+
+    def _record_built(
+        self,
+        workspace: Workspace,
+        step: ColconBuild,
+        found: Rebuild,
+        rebuild: Sequence[str],
+        recorded: Mapping[str, object],
+        sync: volume.Sync | None,
+        states: dict[str, PackageState] | None,
+    ) -> list[str]:
+        """Record the packages colcon built (its event log's STATES) in FOUND's stamp file, and
+        return them. RECORDED: the stamp file before the build."""
+        stamps, trees, stamp_file = found.stamps, found.trees, found.stamp_file
+        built = [name for name, state in (states or {}).items() if state is PackageState.BUILT and name in stamps]
+        # A dependency this build was to build and did not (`-- --packages-skip` it, or it failed
+        # under --continue-on-error): what built on it built on its old install, so it is not up
+        # to date once that dependency is built.
+        depends, reads = dict(step.depends), dict(step.reads)
+        read_by = {name: step.build_reads(name) for name in built}
+        on_old = {name: read_by[name] & (set(rebuild) - set(built)) for name in built}
+        if against := [name for name in built if on_old[name]]:
+            olds = sorted(set().union(*(on_old[name] for name in against)))
+            self.containers.emit(
+                StepNote(
+                    step.name,
+                    f"{', '.join(against)} built on the old install of {', '.join(olds)}, which this build "
+                    "did not build: the next build builds them again",
+                )
+            )
+        if not built:
+            return built
+        # What each read of the workspace outside its directory, as this build found it (a
+        # volume's build dirs are on the engine: not looked at), and the stamps that counts.
+        # A file it read before is taken as it was before the build (one saved during the
+        # build may not be what it compiled); one new to it, as it is now.
+        sources_of = dict(step.sources)
+        outside = dict(found.outside)
+        for name in built:
+            before = found.outside[name]
+            paths = read_outside(workspace, name, sources_of[name]) if sync is None else []
+            now_read = file_digests(workspace.root, [path for path in paths if path not in before])
+            outside[name] = {path: before.get(path) or now_read[path] for path in paths}
+        sources = {name: fold(tree.digest, outside[name]) for name, tree in trees.items()}
+        chained = package_stamps(sources, depends, step.stamp_images(), dict(step.settings), reads)
+        now = {name: chained[name] for name in stamps}
+        # Those recorded as built (their install is espdock's: `espdock run` takes it), with a
+        # stamp no package has: the next build builds them again.
+        recorded_stamps = {name: ON_OLD_INSTALL if on_old[name] else now[name] for name in built}
+        serves = None
+        if step.serves:
+            served = dict(step.serves)
+            images = {name: served.get(name, "") for name in sources}
+            plain = package_stamps(sources, depends, images, dict(step.settings), reads)
+            serves = {name: plain[name] for name in built if not on_old[name]}
+
+        # Each one's dependencies' stamps as this build leaves them (built now, or up to
+        # date): a dependency rebuilt since, or edited, is one it was built on an older
+        # state of, whatever options either build was given. Those this step did not build
+        # (an `espdock test` step builds the packages tested; their dependencies, built by
+        # the step before, are in no stamp of its own) as recorded, or its record named
+        # nothing an edit of could make it older.
+        def stamp_of(dep: str) -> object:
+            entry = recorded.get(dep)
+            return now[dep] if dep in now else entry.get("stamp") if isinstance(entry, dict) else None
+
+        built_on = {
+            name: {dep: stamp for dep in read_by[name] if (stamp := stamp_of(dep)) is not None} for name in built
+        }
+        outside_built = {name: outside[name] for name in built}
+        installed = {name: listing_digest(workspace.ws_dir / "install" / name) for name in stamps}
+        stamp_file.record(recorded_stamps, installed, sources_of, trees, serves, built_on, outside_built)
+        give_to(stamp_file.path, self.containers.owner)
+        return built
+
+    def _stopped_before_building(
+        self, workspace: Workspace, step: ColconBuild, code: int, output: Sequence[str]
+    ) -> EspdockError:
+        """What to say of a colcon that built no package and failed (CODE): its options, or a tree it
+        may not write."""
+        last = next((line for line in reversed(output) if line.strip()), "no output")
+        if "PermissionError" in last or "Permission denied" in last:
+            # colcon may not write its log or build dirs: they belong to someone else.
+            where = next((d for d in (workspace.ws_dir / n for n in ("log", "build", "install")) if d.exists()
+                          and d.stat().st_uid != self.containers.owner[0]), workspace.ws_dir)  # fmt: skip
+            refused = PermissionError(13, last.strip(), str(where))
+            return permission_error(refused, self.containers.owner, workspace.ws_dir)
+        said = usage_error(output, step.colcon_args)
+        return ConfigError(
+            said or f"colcon stopped before building any package (exit code {code}): {last.strip()}",
+            "Check the colcon options after `--` (`colcon build --help` in `espdock shell` lists them) "
+            "and colcon's defaults files; nothing was built.",
+        )
+
+    def _failed(
+        self,
+        workspace: Workspace,
+        step: ColconBuild,
+        code: int,
+        states: Mapping[str, PackageState],
+        log: ColconLog,
+        output: Sequence[str],
+        earlier: tuple[str, ...],
+    ) -> EspdockError:
+        """What to say of a colcon that failed (CODE) with its packages in STATES; EARLIER: what this
+        run's builds before it built."""
+        # A package colcon failed before its build began (a dependency's install missing, as
+        # ament_python's task checks first) has no log: what colcon said of it is its output.
+        logs = {
+            name: (path, _read_text(path))
+            if (path := log.package_log(name)).is_file()
+            else (None, colcon_errors(output))
+            for name, state in states.items()
+            if state is PackageState.FAILED
+        }
+        # colcon's own errors (its shell hooks) are in its output; a package's build, in its log.
+        texts = ("\n".join(output), *(text for _, text in logs.values()))
+        denied = denied_path(texts, workspace.root, self.containers.owner[0])
+        if denied is not None:
+            # Another user's file in the trees colcon writes (a `sudo colcon build`): not the package's fault.
+            return permission_error(
+                PermissionError(13, "Permission denied", str(denied)), self.containers.owner, workspace.ws_dir
+            )
+        declared = {name: (depends, tests) for name, depends, tests in step.declared}
+        failure = explain_failure(
+            code, dict(states), logs, step.colcon_args, declared, "test" if step.testing else "build",
+            frozenset(step.packages), earlier,
+        )  # fmt: skip
+        return BuildFailed(failure.message, failure.hint)
 
     def colcon_test(self, workspace: Workspace, step: ColconTest, on_line: Callable[[str], None]) -> int:
         """Run STEP (colcon test) as the invoking user, its output to ON_LINE; colcon's exit code."""

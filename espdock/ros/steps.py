@@ -39,7 +39,6 @@ from espdock.ros.colcon import (
     LAST_ARGS,
     SETUPTOOLS_CONFIG,
     SETUPTOOLS_FORCE,
-    install_kind_switched,
     left_out,
     make_jobs,
     record_build_args,
@@ -48,7 +47,14 @@ from espdock.ros.colcon import (
 from espdock.ros.colcon_log import ColconLog, PackageState, colcon_errors, explain_failure, named, usage_error
 from espdock.ros.plan import ColconBuild, RuntimeImage
 from espdock.ros.runtime_tree import installed_step, runtime_context, runtime_spec
-from espdock.ros.staleness import Rebuild, colcon_outputs, colcon_rebuild, read_outside
+from espdock.ros.staleness import (
+    Rebuild,
+    build_afresh,
+    colcon_outputs,
+    colcon_rebuild,
+    read_outside,
+    text_or_empty,
+)
 from espdock.ros.testing import (
     ROS_TEST_LOGS,
     ColconTest,
@@ -61,7 +67,6 @@ from espdock.ros.testing import (
 from espdock.ros.trees import (
     check_isolated_install,
     native_setup_kept,
-    natively_linked,
     retire_container_caches,
     retire_other_underlay,
 )
@@ -102,152 +107,14 @@ class RosSteps:
         stamp_file: StampFile,
         trees: Mapping[str, TreeState],
     ) -> tuple[Path, ...]:
-        """Remove what colcon would build on wrongly from REBUILD's trees, and say why: every build
-        dir and install prefix with --force (but those the options after `--` leave out) or when
-        --symlink-install was turned on or off; else the build dirs of interface packages whose
-        interface dependencies changed (ColconBuild.stale_interfaces), the install prefixes a
-        native symlink install linked to this machine's paths, and the build dirs and install
-        prefixes of packages that moved (STAMP_FILE knows where they were), whose sources changed
-        with no newer file, lost a file, or changed their setup.py (TREES: their tree_state now),
-        or that an older espdock built, each reason that holds. Returns them, for the workspace
-        volume to remove its copies as well. They are moved aside (ASIDE), for _put_back when
-        colcon then stops before building any package (an option it does not know): removed, a
-        typo after `--` left those packages uninstalled."""
+        """Remove what colcon would build on wrongly from REBUILD's trees (build_afresh says which),
+        and say why. Returns them, for the workspace volume to remove its copies as well. They are
+        moved aside (ASIDE), for _put_back when colcon then stops before building any package (an
+        option it does not know): removed, a typo after `--` left those packages uninstalled."""
         base = workspace.ws_dir / ROS_BUILD_BASE
-        install = workspace.ws_dir / "install"
         shutil.rmtree(base / ASIDE, ignore_errors=True)  # an espdock killed outright left it
         self._aside = []
-        reasons: list[tuple[tuple[Path, ...], str]] = []
-
-        def both(names: Iterable[str]) -> tuple[Path, ...]:
-            """NAMES' build dirs and install prefixes."""
-            return tuple(tree for name in names for tree in (base / name, install / name))
-
-        # What the options after `--` leave out: colcon would not build or install it again.
-        out = left_out(step.colcon_args, dict(step.depends), base)
-        if switched := install_kind_switched(base, rebuild, step.effective_args):
-            turned = "on" if "--symlink-install" in step.effective_args else "off"
-            # What they leave out colcon does not build: it keeps its install, of the other kind.
-            switching = [name for name in switched if name not in out]
-            why = (
-                f"--symlink-install {turned} since their last build: removed the build dirs and install prefixes "
-                f"of {len(switching)} package(s), which colcon cannot switch in place"
-            )
-            if skipped := [name for name in switched if name in out]:
-                why += f"; {', '.join(skipped)}, which the options after `--` leave out, keep theirs until built"
-            reasons.append((both(switching), why))
-            rebuild = tuple(name for name in rebuild if name not in switched)
-        if step.force:
-            # A rebuild by make and setuptools, which decide by time, kept what a source put back
-            # with an older time (`cp -p`, a backup) had built: the old binary, --force or not.
-            if afresh := [name for name in rebuild if name not in out]:
-                why = f"--force: building {len(afresh)} package(s) afresh, in new build dirs and install prefixes"
-                reasons.append((both(afresh), why))
-        else:
-            # Not what `--` leaves out: a package skipped lost its install, and what depends on it
-            # failed to build.
-            rebuild = tuple(name for name in rebuild if name not in out)
-            # Only those built before (a build dir here, or a record of one in the workspace volume): a
-            # first build has nothing to build afresh, and said it did.
-            recorded = stamp_file.read()
-            before = [name for name in step.stale_interfaces(rebuild) if name in recorded or (base / name).exists()]
-            if stale := tuple(before):
-                why = (
-                    f"building {', '.join(stale)} afresh: interface packages whose interface dependencies changed, "
-                    "whose type hashes rosidl's incremental build would keep"
-                )
-                reasons.append((tuple(base / name for name in stale), why))
-            if native := natively_linked(install, rebuild, workspace.root):
-                why = (
-                    f"removed the install prefixes of {', '.join(native)}: a native `colcon build "
-                    "--symlink-install` linked them to this machine's paths, which colcon in the container "
-                    "cannot replace"
-                )
-                reasons.append((tuple(install / name for name in native), why))
-            if moved := stamp_file.moved({name: rel for name, rel in step.sources if name in rebuild}):
-                # Their CMake caches and symlink installs hold the old directory.
-                why = "building afresh what moved since the last build: " + ", ".join(
-                    f"{name} (from {old})" for name, old in moved.items()
-                )
-                reasons.append((both(moved), why))
-            if put_back := [n for n in stamp_file.put_back({n: trees[n] for n in rebuild}) if n not in moved]:
-                why = (
-                    f"building afresh what changed with no newer file: {', '.join(put_back)} (put back from a "
-                    "backup or an archive, a file renamed or removed, or a file's x bit changed), which make and "
-                    "setuptools, deciding by time, would not build again"
-                )
-                reasons.append((both(put_back), why))
-            # What neither reason above builds afresh: whether it lost or gained files.
-            others = {n: trees[n] for n in rebuild if n not in {*moved, *put_back}}
-            lost = stamp_file.removed(others)
-            if lost:
-                why = "installing afresh what lost source files since its last build: " + "; ".join(
-                    f"{name} ({', '.join(gone[:3])}{', ...' if len(gone) > 3 else ''})" for name, gone in lost.items()
-                )
-                why += ", whose installed files colcon would leave in install/"
-                # CMake installs every file of its rules again into an empty prefix, and its build
-                # stays incremental; the build dirs of setuptools and ament_cmake_python keep the
-                # removed modules, and rosidl's generated code of a removed interface failed the build.
-                afresh = [
-                    name
-                    for name, gone in lost.items()
-                    if name in step.python or any(_lost_from_build_dir(path, base / name) for path in gone)
-                ]
-                why += f"; building {', '.join(afresh)} afresh as well" if afresh else ""
-                trees_of = [install / name for name in lost] + [base / name for name in afresh]
-                reasons.append((tuple(trees_of), why))
-            else:
-                afresh = []
-            # A CMake package whose files changed configures again, its compile incremental: a file(GLOB)
-            # kept the list it was configured with (a removed source failed every build, one back was left out).
-            listed = {*lost, *stamp_file.gained(others)}
-            if cmake := sorted(n for n in listed if n not in step.python and n not in afresh and (base / n).is_dir()):
-                why = f"configuring {', '.join(cmake)} again: its source files are others than at its last build"
-                reasons.append((tuple(base / name / "CMakeCache.txt" for name in cmake), why))
-            python = {n: now for n, now in others.items() if n in step.python and n not in lost}
-            if redeclared := stamp_file.redeclared(python):
-                why = (
-                    f"building afresh what changed its setup.py or setup.cfg: {', '.join(redeclared)} (an entry "
-                    "point or data file taken out of it would stay installed)"
-                )
-                reasons.append((both(redeclared), why))
-            # CMake's install of an emptied prefix puts every file of its rules there again, the build incremental.
-            cmake_trees = {n: now for n, now in others.items() if n not in step.python and n not in lost}
-            if reinstalled := stamp_file.redeclared(cmake_trees, unrecorded=True):
-                why = (
-                    f"installing afresh what changed its CMake files (or whose last build did not record them): "
-                    f"{', '.join(reinstalled)} (what a target renamed or an install rule taken out had installed "
-                    "would stay in install/)"
-                )
-                # An interface taken out of rosidl_generate_interfaces (its file kept) leaves its generated
-                # code in the build dir, whose output directories ament installs whole: it stayed importable.
-                # By its CMakeLists: in volume mode the build dirs are the engine's, not here.
-                where = dict(step.sources)
-                generated = [
-                    name
-                    for name in reinstalled
-                    if (base / name / "rosidl_generator_c").is_dir()
-                    or "rosidl_generate_interfaces" in _text(workspace.ws_dir / where[name] / "CMakeLists.txt")
-                ]
-                if generated:
-                    why += f"; building {', '.join(generated)} afresh as well (rosidl's generated code)"
-                reasons.append(
-                    (tuple(install / name for name in reinstalled) + tuple(base / n for n in generated), why)
-                )
-            done = {*moved, *put_back, *lost, *redeclared, *reinstalled}
-            # An older espdock's records keep no list of files: whether one went is not known.
-            unlisted = stamp_file.unlisted({n: now for n, now in others.items() if n not in done})
-            if older := [name for name in (*stamp_file.foreign(rebuild), *unlisted) if name not in done]:
-                newer = set(stamp_file.newer(older))
-                # A teammate's or a CI job's espdock, upgraded before this one: not an older one.
-                which = (
-                    "an older espdock" if not newer else "a newer espdock" if newer == set(older) else "another espdock"
-                )
-                why = (
-                    f"building afresh what {which} built: {', '.join(older)} (its records do not say "
-                    "where each package was built from, nor on what, as this one reads them)"
-                )
-                reasons.append((both(older), why))
+        reasons = build_afresh(workspace, step, rebuild, stamp_file, trees)
         for trees, why in reasons:
             for tree in trees:
                 self._set_aside(tree, base / ASIDE)
@@ -646,7 +513,7 @@ class RosSteps:
         # A package colcon failed before its build began (a dependency's install missing, as
         # ament_python's task checks first) has no log: what colcon said of it is its output.
         logs = {
-            name: (path, _read_text(path))
+            name: (path, text_or_empty(path))
             if (path := log.package_log(name)).is_file()
             else (None, colcon_errors(output))
             for name, state in states.items()
@@ -755,22 +622,6 @@ class RosSteps:
             self.containers.engine.tag(spec.tag, step.stable_tag)
             self.containers.emit(StepNote(step.name, f"{step.stable_tag} is now {spec.tag}"))
         return outcome, f"{spec.tag}, {step.stable_tag}"
-
-
-def _text(path: Path) -> str:
-    try:
-        return path.read_text(errors="replace")
-    except OSError:
-        return ""
-
-
-def _lost_from_build_dir(path: str, build_dir: Path) -> bool:
-    """Whether a lost source file at PATH leaves its package's BUILD_DIR wrong: an interface file
-    (rosidl's generated code of it), or a Python module where ament_cmake_python copies the
-    package's modules there (a launch file or script of a CMake package is not)."""
-    return path.endswith((".msg", ".srv", ".action", ".idl")) or (
-        path.endswith(".py") and (build_dir / "ament_cmake_python").is_dir()
-    )
 
 
 def host_added(install: Path) -> set[str]:
@@ -884,13 +735,6 @@ def denied_path(texts: Iterable[str], root: Path, uid: int) -> Path | None:
                 if denied.is_relative_to(root) and denied.lstat().st_uid != uid:
                     return denied
     return None
-
-
-def _read_text(path: Path) -> str:
-    try:
-        return path.read_text(errors="replace")
-    except OSError:
-        return ""
 
 
 def _container_path(workspace: Workspace, path: Path) -> str:

@@ -13,7 +13,7 @@ from espdock.build.lock import current_rosdep_inputs, current_test_inputs, rosde
 from espdock.build.plan import plan_workspace
 from espdock.build.steps import EnsureImage, Plan
 from espdock.config import Config, invoking_user
-from espdock.errors import DependencyError, EspdockError, WorkspaceError
+from espdock.errors import ConfigError, DependencyError, EspdockError, WorkspaceError
 from espdock.firmware.plan import (
     STANDARD_INTERFACES,
     IdfBuild,
@@ -194,6 +194,24 @@ def build_plan(
     return plan_workspace(
         ws, config, packages, inputs, tuple(names), only, force, target, colcon, checked, testing=testing
     )
+
+
+def check_only(
+    packages: Iterable[Package], names: Iterable[str], only: PackageKind, plan: Plan, notify: Callable[[str], None]
+) -> None:
+    """Refuse a PLAN of nothing where --only ONLY left out every package NAMES asked for; say which
+    it left out where it built the others."""
+    kinds = {p.name: p.kind for p in packages}
+    kind = {PackageKind.ROS: "ROS", PackageKind.FIRMWARE: "firmware"}
+    if not plan.steps:
+        # `espdock build FIRMWARE_PKG --only ros` in a Makefile: it built nothing and passed.
+        named = ", ".join(f"{name} ({kind[kinds[name]]})" for name in names)
+        raise ConfigError(
+            f"nothing to build: --only {only} builds no package of {named}",
+            f"Name a {kind[only]} package, or leave --only out.",
+        )
+    if others := [name for name in names if kinds[name] is not only]:
+        notify(f"note: not built, --only {only} leaves them out: {', '.join(others)} ({kind[kinds[others[0]]]})")
 
 
 def unbuildable_in_library(firmware: Package, packages: tuple[Package, ...], inputs: BuildInputs) -> list[str]:

@@ -14,7 +14,7 @@ from rich.text import Text
 
 from espdock.build.lock import FIX, check_locks, lock_rosdeps, lock_workspace, plan_locks, stale_locks, uv_binary
 from espdock.build.manifest import INTERRUPTED, compare, file_hashes, read_manifest, record_build, write_report
-from espdock.build.prepare import workspace_packages
+from espdock.build.prepare import check_only, workspace_packages
 from espdock.build.preview import preview
 from espdock.build.runner import Runner, stamp_files
 from espdock.cli import complete
@@ -149,19 +149,7 @@ def build(
             dry_run=dry_run,
         )
         if packages and only is not None:
-            kinds = {p.name: p.kind for p in workspace_packages(ws, config.ros_distro)}
-            kind = {PackageKind.ROS: "ROS", PackageKind.FIRMWARE: "firmware"}
-            if not plan.steps:
-                # `espdock build FIRMWARE_PKG --only ros` in a Makefile: it built nothing and passed.
-                named = ", ".join(f"{name} ({kind[kinds[name]]})" for name in packages)
-                raise ConfigError(
-                    f"nothing to build: --only {only} builds no package of {named}",
-                    f"Name a {kind[only]} package, or leave --only out.",
-                )
-            if others := [name for name in packages if kinds[name] is not only]:
-                notify(
-                    f"note: not built, --only {only} leaves them out: {', '.join(others)} ({kind[kinds[others[0]]]})"
-                )
+            check_only(workspace_packages(ws, config.ros_distro), packages, only, plan, notify)
         if dry_run and locked:
             check_locks(ws.root, plan_locks(plan))  # as the build would refuse them
         elif not locked:

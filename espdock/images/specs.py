@@ -1,6 +1,6 @@
 """What espdock asks of a container engine, as data, and how each request reads in the engine
 API's and the docker CLI's terms: a container's run, an image build, a registry's answer, an
-image listing. Nothing here talks to an engine (images/engine.py does), so each translation is
+image listing. Nothing here talks to an engine (images/engine.py does), so each translation can be
 read and tested on its own.
 """
 

@@ -102,6 +102,8 @@ COMPOSE_VALUED_OPTIONS = frozenset(
     {"-f", "--file", "-p", "--project-name", "--profile", "--env-file", "--project-directory", "--ansi",
      "--progress", "--parallel"}
 )  # fmt: skip
+# espdock's own option among Compose's global ones (Compose has no global -w).
+WORKSPACE_OPTIONS = ("--workspace", "-w")
 # The subcommands that make containers of the images: the runtime image must be current first.
 COMPOSE_CREATING = frozenset({"up", "run", "create", "scale", "watch"})
 # Those that stop or remove the project's containers: in another workspace's project, its own.
@@ -127,10 +129,6 @@ def compose_subcommand_at(args: list[str] | tuple[str, ...]) -> int | None:
         elif not arg.startswith("-"):
             return at
     return None
-
-
-# espdock's own option among Compose's global ones (Compose has no global -w).
-WORKSPACE_OPTIONS = ("--workspace", "-w")
 
 
 def own_workspace(args: list[str]) -> tuple[list[str], Path | None]:

@@ -43,11 +43,11 @@ def test_the_meter_refuses_parallel_workers_whose_cpu_it_would_mix(tmp_path: Pat
 
 
 def test_the_report_sums_modules_and_says_what_the_dearest_tests_hold():
-    records = [{"test": f"tests/a.py::test_{n}", "cpu": 10.0, "wall": 1.0} for n in range(9)]
-    records += [{"test": f"tests/b.py::test_{n}", "cpu": 1.0, "wall": 2.0} for n in range(10)]
+    records = [{"test": f"tests/a.py::test_{n}", "cpu": 1.0, "wall": 2.0} for n in range(10)]
+    records += [{"test": f"tests/b.py::test_{n}", "cpu": 10.0, "wall": 1.0} for n in range(9)]
     text = report(records, top=2)
     assert text.splitlines()[0] == "19 tests: 100 s of CPU in 29 s, so at least 50 s on two cores with nothing idle"
     assert "the dearest 10 tests: 91 s (91%)" in text
-    assert "   90.0      9  tests/a.py" in text and "   10.0     10  tests/b.py" in text
-    assert text.index("tests/a.py\n") < text.index("tests/b.py\n")
+    assert "   10.0     10  tests/a.py" in text and "   90.0      9  tests/b.py" in text
+    assert text.index("tests/b.py\n") < text.index("tests/a.py\n"), "the dearest module first"
     assert len([line for line in text.splitlines() if "::test_" in line]) == 2

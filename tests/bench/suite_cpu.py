@@ -38,9 +38,13 @@ def pytest_addoption(parser: pytest.Parser) -> None:
 
 
 def pytest_configure(config: pytest.Config) -> None:
-    if config.getoption("--cpu-per-test") and (config.getoption("numprocesses", None) or 0) > 0:
+    out = config.getoption("--cpu-per-test")
+    if not out:
+        return
+    if (config.getoption("numprocesses", None) or 0) > 0:
         # The machine's busy time during one test would hold its neighbours' as well.
         raise pytest.UsageError("--cpu-per-test measures one test at a time: run it with -n 0")
+    Path(out).parent.mkdir(parents=True, exist_ok=True)  # build/ of a fresh clone
 
 
 @pytest.hookimpl(hookwrapper=True)

@@ -22,14 +22,16 @@ def measured(tmp_path: Path, *args: str) -> subprocess.CompletedProcess[str]:
     for name, text in SUITE.items():
         (tmp_path / name).write_text(text)
     env = {**os.environ, "PYTHONPATH": str(REPO), "PYTEST_ADDOPTS": ""}
-    command = [sys.executable, "-m", "pytest", "-p", "tests.bench.suite_cpu", "--cpu-per-test", "cpu.jsonl", *args]
+    # Into build/, as its docs say: a fresh clone has none.
+    meter = ["-p", "tests.bench.suite_cpu", "--cpu-per-test", "build/cpu.jsonl"]
+    command = [sys.executable, "-m", "pytest", *meter, *args]
     return subprocess.run(command, cwd=tmp_path, env=env, capture_output=True, text=True, check=False)
 
 
 def test_each_test_gets_at_least_the_cpu_it_spent_itself_and_its_wall_time(tmp_path: Path):
     result = measured(tmp_path, "-p", "no:cacheprovider")
     assert result.returncode == 0, result.stdout + result.stderr
-    records = {r["test"]: r for r in map(json.loads, (tmp_path / "cpu.jsonl").read_text().splitlines())}
+    records = {r["test"]: r for r in map(json.loads, (tmp_path / "build/cpu.jsonl").read_text().splitlines())}
     assert set(records) == {"test_spins.py::test_one", "test_sleeps.py::test_one", "test_sleeps.py::test_two"}
     # The machine's busy time holds the test's own CPU, whatever else the machine was doing.
     assert records["test_spins.py::test_one"]["cpu"] >= 0.25, records
@@ -39,7 +41,7 @@ def test_each_test_gets_at_least_the_cpu_it_spent_itself_and_its_wall_time(tmp_p
 def test_the_meter_refuses_parallel_workers_whose_cpu_it_would_mix(tmp_path: Path):
     result = measured(tmp_path, "-n", "2")
     assert result.returncode == 4 and "run it with -n 0" in result.stderr, result.stdout + result.stderr
-    assert not (tmp_path / "cpu.jsonl").exists()
+    assert not (tmp_path / "build/cpu.jsonl").exists()
 
 
 def test_the_report_sums_modules_and_says_what_the_dearest_tests_hold():

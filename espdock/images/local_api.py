@@ -67,8 +67,10 @@ class LocalContainer:
     def _call(self, method: str, path: str, body: bytes | None = None, timeout: float = 0) -> bytes:
         return call(self._socket, self._timeout + timeout, method, f"/containers/{self.id}{path}", body)
 
-    def _stream(self, method: str, path: str) -> AbstractContextManager[http.client.HTTPResponse]:
-        return open_stream(self._socket, self._timeout, method, f"/containers/{self.id}{path}")
+    def _stream(
+        self, method: str, path: str, answer_waits: bool = False
+    ) -> AbstractContextManager[http.client.HTTPResponse]:
+        return open_stream(self._socket, self._timeout, method, f"/containers/{self.id}{path}", answer_waits)
 
     def put_archive(self, path: str, data: bytes) -> bool:
         self._call("PUT", f"/archive?path={quote(path, safe='')}", data)
@@ -79,7 +81,10 @@ class LocalContainer:
 
     def logs(self, stream: bool = True, follow: bool = True) -> Iterator[bytes]:
         """The output as it comes, stdout and stderr in order (demultiplexed unless on a TTY)."""
-        with self._stream("GET", "/logs?follow=1&stdout=1&stderr=1") as response:
+        # Podman 4.3 (Debian bookworm's) answers a followed log only with the container's first
+        # output or its end: a colcon build silent for two minutes (a loaded machine's first
+        # configure) ended as "the Podman engine went away" while it ran on.
+        with self._stream("GET", "/logs?follow=1&stdout=1&stderr=1", answer_waits=True) as response:
             try:
                 if self._tty:
                     while chunk := response.read1(65536):
@@ -117,11 +122,13 @@ class LocalContainer:
 
 
 @contextmanager
-def open_stream(socket_path: str, timeout: float, method: str, path: str) -> Iterator[http.client.HTTPResponse]:
+def open_stream(
+    socket_path: str, timeout: float, method: str, path: str, answer_waits: bool = False
+) -> Iterator[http.client.HTTPResponse]:
     """METHOD PATH on the engine's local socket, for an answer that may take as long as the
-    container runs: no timeout once the engine has answered, as the SDK has it for logs and wait.
-    Raises as call does."""
-    with _streamed(socket_path, timeout, method, path) as response:
+    container runs: no timeout once the engine has answered, as the SDK has it for logs and wait,
+    nor, ANSWER_WAITS, for the answer's start. Raises as call does."""
+    with _streamed(socket_path, timeout, method, path, answer_waits=answer_waits) as response:
         if response.status >= 400:
             _raise_api_error(response.status, response.read(), path)
         yield response
@@ -146,12 +153,15 @@ def _streamed(
     path: str,
     body: bytes | IO[bytes] | None = None,
     headers: Mapping[str, str] | None = None,
+    answer_waits: bool = False,
 ) -> Iterator[http.client.HTTPResponse]:
     connection = _unix_http()(socket_path, timeout)
     try:
         try:
             # A file BODY goes in chunks (HTTP/1.1 chunked encoding), as the Docker CLI sends a context.
             connection.request(method, path, body=body, headers=dict(headers or {}))
+            if answer_waits:
+                connection.sock.settimeout(None)
             response = connection.getresponse()
         except (OSError, _http_error()) as exc:
             raise requests.exceptions.ConnectionError(f"{method} {path}: {exc}") from exc

@@ -24,7 +24,9 @@ from pathlib import Path
 import pytest
 
 from espdock.errors import ContainerError
+from espdock.images import engine as engine_module
 from espdock.images.engine import Engine
+from espdock.images.specs import RunSpec
 from tests.conftest import (
     copy_images,
     espdock,
@@ -239,6 +241,18 @@ def test_a_build_over_a_slow_link_to_podman_gets_its_files_into_the_container(po
         link.close()
     assert result.returncode == 0, result.stdout + result.stderr
     assert "word: " in installed_word(root)
+
+
+def test_a_step_silent_for_longer_than_the_engine_timeout_runs_to_its_end_on_podman(podman, monkeypatch, tmp_path):
+    """Podman 4.3 answers a followed log only with the container's first output: a colcon build that
+    printed nothing for two minutes (a loaded machine's first configure) ended as "the Podman
+    engine went away" while its container ran on. The two minutes made two seconds here."""
+    monkeypatch.setattr(engine_module, "OPERATION_TIMEOUT", 2)
+    image = ros_build_tag(python_workspace(tmp_path / "seed"))  # on the module's Podman storage
+    lines: list[str] = []
+    spec = RunSpec(image=image, argv=("sh", "-c", "sleep 5; echo done"), workdir="/")
+    assert Engine(podman.env, timeout=1).run(spec, lines.append) == 0
+    assert lines == ["done"]
 
 
 def test_podman_imports_a_root_filesystem_under_its_own_tag(podman, tmp_path):

@@ -702,7 +702,8 @@ class Engine:
         """
         with self._container(spec, keep) as container:
             container.start()
-            _stream_lines(container.logs(stream=True, follow=True), on_line)
+            logs = container.logs(stream=True, follow=True) if self._plain else sdk.followed_logs(container)
+            _stream_lines(logs, on_line)
             code = int(container.wait().get("StatusCode", 1))
             _fetch(container, fetch or {})
             return code

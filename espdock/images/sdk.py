@@ -106,6 +106,21 @@ def client(env: Mapping[str, str], timeout: float, first: float | None = None) -
     return made
 
 
+def followed_logs(container: Any) -> Any:
+    """CONTAINER's output as it comes (`docker logs -f`) through the SDK, its answer awaited as long
+    as the container is silent. Podman 4.3 (Debian bookworm's) sends that answer only with the first
+    output: a colcon build silent for the client's two minutes ended as "did not answer", its
+    container running on. Connecting still times out; once the answer starts, the SDK itself reads
+    the stream without one."""
+    api = container.client.api
+    kept = api.timeout
+    api.timeout = (kept, None)  # requests' (connect, read)
+    try:
+        return container.logs(stream=True, follow=True)
+    finally:
+        api.timeout = kept
+
+
 def _loopback(host: str | None) -> bool:
     """Whether the engine address HOST (tcp://H:P) is this machine's loopback."""
     import ipaddress

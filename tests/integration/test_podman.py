@@ -243,15 +243,25 @@ def test_a_build_over_a_slow_link_to_podman_gets_its_files_into_the_container(po
     assert "word: " in installed_word(root)
 
 
-def test_a_step_silent_for_longer_than_the_engine_timeout_runs_to_its_end_on_podman(podman, monkeypatch, tmp_path):
+@pytest.mark.parametrize("reached", ["local socket", "tcp"])
+def test_a_step_silent_for_longer_than_the_engine_timeout_runs_to_its_end_on_podman(
+    podman, monkeypatch, tmp_path, reached
+):
     """Podman 4.3 answers a followed log only with the container's first output: a colcon build that
     printed nothing for two minutes (a loaded machine's first configure) ended as "the Podman
-    engine went away" while its container ran on. The two minutes made two seconds here."""
+    engine went away" (local socket) or "did not answer within 120 s" (tcp, through the SDK) while
+    its container ran on. The two minutes made two seconds here."""
     monkeypatch.setattr(engine_module, "OPERATION_TIMEOUT", 2)
     image = ros_build_tag(python_workspace(tmp_path / "seed"))  # on the module's Podman storage
     lines: list[str] = []
     spec = RunSpec(image=image, argv=("sh", "-c", "sleep 5; echo done"), workdir="/")
-    assert Engine(podman.env, timeout=1).run(spec, lines.append) == 0
+    link = TcpForwarder(podman.socket) if reached == "tcp" else None
+    env = {**podman.env, "DOCKER_HOST": f"tcp://127.0.0.1:{link.port}"} if link else podman.env
+    try:
+        assert Engine(env, timeout=1).run(spec, lines.append) == 0
+    finally:
+        if link:
+            link.close()
     assert lines == ["done"]
 
 

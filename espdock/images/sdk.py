@@ -161,8 +161,19 @@ def _tls(env: Mapping[str, str]) -> Any | None:
         )
     pair = (cert, key) if os.path.isfile(cert) and os.path.isfile(key) else None
     if not verify:
+        _unchecked_engine_is_chosen()
         return docker.TLSConfig(client_cert=pair, verify=False)
     return docker.TLSConfig(client_cert=pair, ca_cert=ca if os.path.isfile(ca) else _system_cas(env), verify=True)
+
+
+def _unchecked_engine_is_chosen() -> None:
+    """Keep urllib3 from warning that the engine's certificate is not checked: the user chose
+    that (DOCKER_TLS, a context's skip-tls-verify), and the docker CLI goes on without a word.
+    urllib3 printed its InsecureRequestWarning, two lines, at each of a command's requests (six
+    for a `prune --dry-run`), through a build's output."""
+    from urllib3.exceptions import InsecureRequestWarning
+
+    warnings.filterwarnings("ignore", category=InsecureRequestWarning)
 
 
 def _system_cas(env: Mapping[str, str]) -> str | None:

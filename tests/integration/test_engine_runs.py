@@ -233,6 +233,16 @@ def test_a_tls_engine_that_asks_no_client_certificate_is_reached_as_the_cli_reac
             assert lines == ["over tls"]
             assert reached.run_foreground(spec(["echo", "through the cli"]))[0] == 0
             assert "through the cli" in capfd.readouterr().out
+        # A command on that engine says what it did, and nothing of how it got there: where the
+        # engine's certificate went unchecked, urllib3 printed a warning at each request.
+        subprocess.run([sys.executable, "-m", "espdock", "init", str(tmp_path / "ws")], env=env, check=True,
+                       capture_output=True)  # fmt: skip
+        pruned = subprocess.run([sys.executable, "-m", "espdock", "prune", "--dry-run"], cwd=tmp_path / "ws",
+                                env={**env, "REQUESTS_CA_BUNDLE": certifi.where()}, capture_output=True, text=True,
+                                check=False)  # fmt: skip
+        assert pruned.returncode == 0, pruned.stderr
+        assert "would remove 0 images" in pruned.stdout
+        assert pruned.stderr == ""
     finally:
         forwarder.close()
 

@@ -157,8 +157,11 @@ def compose(ctx: typer.Context, workspace: WorkspaceOption = None) -> None:
     subcommand = compose_file.compose_subcommand(args)
     packages = workspace_packages(ws, config.ros_distro)
     installed = nodes.installed_ros_packages(ws, packages)
-    if subcommand in compose_file.COMPOSE_CREATING and installed and (holder := build_running(ws)) is not None:
-        # Its runtime image would be made of a half rebuilt install/, and `:latest` moved to it.
+    if subcommand in compose_file.COMPOSE_CREATING and (holder := build_running(ws)) is not None:
+        # Its runtime image would be made of a half rebuilt install/, and `:latest` moved to it. With
+        # nothing installed too: a build that rebuilds every package afresh (--force, a first build) has
+        # moved their install trees aside, and `up` started the last build's `:latest`, warning that
+        # nothing was built yet.
         raise WorkspaceError(
             f"an espdock build is running in {ws.root}{holder}: install/ may be half rebuilt",
             "Wait for it to finish, then run again.",

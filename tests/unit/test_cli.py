@@ -1243,14 +1243,24 @@ def test_a_project_s_own_sdkconfig_which_the_build_does_not_read_is_named_before
 
 def test_compose_up_during_a_build_is_refused_before_it_makes_an_image_of_install(tmp_path):
     """`espdock compose run` 8 s into a build made the runtime image of a half rebuilt install/
-    and moved `:latest` to it, where `espdock run` refuses."""
+    and moved `:latest` to it, where `espdock run` refuses. During `espdock build --force` (every
+    package's install moved aside) `compose up` was not refused: it started the last build's
+    `:latest`, warning that nothing was built yet."""
     root = copy_workspace(tmp_path / "w")
-    (root / "ws/install/custom_interface").mkdir(parents=True)
+    installed = root / "ws/install/custom_interface"
+    installed.mkdir(parents=True)
     with build_holding(root) as process:
         for subcommand in ("up", "run"):
             refused = espdock("compose", subcommand, cwd=root, env=NO_ENGINE)
             assert refused.returncode == 2, refused.stdout + refused.stderr
             assert f"an espdock build is running in {root} (pid {process.pid}: espdock build)" in refused.stderr
+        installed.rename(installed.with_name("custom_interface.aside"))  # as the build rebuilding it afresh does
+        for subcommand in ("up", "run", "create"):
+            refused = espdock("compose", subcommand, cwd=root, env=NO_ENGINE)
+            assert refused.returncode == 2, refused.stdout + refused.stderr
+            assert f"an espdock build is running in {root} (pid {process.pid}: espdock build)" in refused.stderr
+            assert "nothing is built" not in refused.stdout + refused.stderr
+        installed.with_name("custom_interface.aside").rename(installed)
         assert espdock("compose", "ps", cwd=root, env=NO_ENGINE).returncode == 3  # not one that makes containers
         # A shell opens (its colcon would collide with the build's, in the same build dirs), and says so.
         shell = espdock("shell", cwd=root, env=NO_ENGINE)

@@ -15,6 +15,7 @@ lock must be made.
 
 from __future__ import annotations
 
+import difflib
 import hashlib
 import json
 import os
@@ -23,7 +24,7 @@ import shutil
 import subprocess
 import time
 import warnings
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Callable, Collection, Iterable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -108,6 +109,23 @@ def needed_keys(
 
 
 UNKNOWN_KEY = "no rosdep rule: the key is unknown to rosdep's database"
+# How like an unknown key a name must be to be offered in its place (difflib's ratio): `std_msg`
+# for std_msgs is 0.93, a workspace package's name with one letter swapped about 0.9.
+_LIKE = 0.8
+
+
+def similar_names(key: str, names: Iterable[str]) -> tuple[str, ...]:
+    """The NAMES (rosdep's keys, the workspace's packages) that KEY is most likely a typo of, best first."""
+    return tuple(difflib.get_close_matches(key, sorted(set(names) - {key}), n=3, cutoff=_LIKE))
+
+
+def why_text(entry: Mapping) -> str:
+    """Why a lock ENTRY's key is served by nothing, with the names it may be a typo of."""
+    why = str(entry.get("why") or NOT_LOCKED)
+    similar = [str(name) for name in entry.get("similar") or ()]
+    return f"{why} (did you mean {' or '.join(similar)}?)" if similar else why
+
+
 # A key the lock has no entry for: the lock was made before a package.xml named it.
 NOT_LOCKED = "not in the lock"
 
@@ -180,7 +198,7 @@ def unserved(lock: dict | None) -> list[tuple[str, str]]:
     for part in (lock or {}, (lock or {}).get("test") or {}):
         for key, entry in sorted((part.get("keys") or {}).items()):
             if isinstance(entry, dict) and not entry.get("installer") and key not in found:
-                found[key] = str(entry.get("why") or NOT_LOCKED)
+                found[key] = why_text(entry)
     return list(found.items())
 
 
@@ -209,8 +227,7 @@ def check_dependencies(
         if absent:
             whys |= {keys.get(k, {}).get("why", NOT_LOCKED) for k in absent if k not in markers}
             why = "; ".join(
-                f"{k}: {markers[k].what}" if k in markers else f"{k}: {keys.get(k, {}).get('why', NOT_LOCKED)}"
-                for k in absent
+                f"{k}: {markers[k].what}" if k in markers else f"{k}: {why_text(keys.get(k, {}))}" for k in absent
             )
             lines.append(f"  {package.name} ({package.path}): {why}")
     fixes = "; or ".join(sorted({left.fix for left in markers.values()}))
@@ -237,6 +254,8 @@ def check_dependencies(
         ways.append(f"{command} another selection (`espdock {command} PKG...`, or `-- --packages-skip PKG`)")
     if markers:
         ways.insert(0, f"{fixes}, to build the workspace package depended on")
+    if any(keys.get(k, {}).get("similar") for absent in missing.values() for k in absent if k not in markers):
+        ways.insert(0, "correct the name in the package.xml where it is misspelt")
     # A key rosdep knows nowhere is no more known to the official image.
     if image.flavour == "wheels" and whys - {UNKNOWN_KEY}:
         ways.insert(1, 'use the official ROS image (ros_image = "official" in espdock.toml), whose apt has every '
@@ -361,6 +380,8 @@ class Rule:
     why: str = ""
     # The PyPI names the key's rules give for other platforms (e.g. osx: pip: [PyYAML]).
     pip_elsewhere: tuple[str, ...] = ()
+    # A key rosdep does not know: the names it is most likely a typo of (`std_msg`: std_msgs).
+    similar: tuple[str, ...] = ()
 
 
 def _pip_packages(data: object) -> tuple[str, ...]:
@@ -385,8 +406,12 @@ def rosdep_rules(
     env: Mapping[str, str],
     root: Path | None = None,
     ca_bundle: Path | None = None,
+    names: Iterable[str] = (),
+    suggest: Collection[str] = (),
 ) -> dict[str, Rule]:
-    """rosdep's answer for each key on OS_SPEC ("debian:bookworm"), as `rosdep resolve` gives it."""
+    """rosdep's answer for each key on OS_SPEC ("debian:bookworm"), as `rosdep resolve` gives it; a
+    key of SUGGEST rosdep does not know, with the rosdep keys and NAMES (the workspace's packages)
+    it is most like."""
     from rosdep2 import create_default_installer_context
     from rosdep2.lookup import ResolutionError, RosdepLookup
     from rosdep2.rospkg_loader import DEFAULT_VIEW_KEY
@@ -405,11 +430,14 @@ def rosdep_rules(
     installer_keys = context.get_os_installer_keys(os_name)
     default = context.get_default_os_installer_key(os_name)
     rules = {}
+    known: list[str] = []  # rosdep's keys and NAMES, read when a key of SUGGEST is not among them
     for key in sorted(set(keys)):
         try:
             definition = view.lookup(key)
         except KeyError:
-            rules[key] = Rule(None, why=UNKNOWN_KEY)
+            if key in suggest and not known:
+                known = [*view.keys(), *names]
+            rules[key] = Rule(None, why=UNKNOWN_KEY, similar=similar_names(key, known) if key in suggest else ())
             continue
         try:
             installer, rule = definition.get_rule_for_platform(os_name, os_version, installer_keys, default)
@@ -559,9 +587,12 @@ def resolve_workspace(
 ) -> dict:
     """The lock for PACKAGES on IMAGE: rosdep's rules for every needed key, as the image installs
     them (CA_BUNDLE: see uv_env)."""
+    packages = tuple(packages)
     needed = needed_keys(packages, image)
     keys = sorted({k for ks in needed.values() for k in ks})
-    rules = rosdep_rules([*keys, *pip_alternatives(keys)], image.os, image.distro, env, root, ca_bundle) if keys else {}
+    names = [p.name for p in packages]
+    wanted = [*keys, *pip_alternatives(keys)]
+    rules = rosdep_rules(wanted, image.os, image.distro, env, root, ca_bundle, names, suggest=keys) if keys else {}
     pip_rules = {k: rules[alt] for k in keys for alt in pip_alternatives([k]) if rules.get(alt, Rule(None)).installer}
     mapped = for_image({k: rules[k] for k in keys}, image, pip_rules)
     pip_wanted = [p for rule in mapped.values() if rule.installer == "pip" for p in rule.packages]
@@ -573,7 +604,11 @@ def resolve_workspace(
         if rule.installer == "pip" and absent & set(rule.packages):
             entries[key] = {"installer": None, "why": f"PyPI has no {', '.join(sorted(absent & set(rule.packages)))}"}
         elif rule.installer is None:
-            entries[key] = {"installer": None, "why": rule.why}
+            entries[key] = {
+                "installer": None,
+                "why": rule.why,
+                **({"similar": list(rule.similar)} if rule.similar else {}),
+            }
         else:
             entries[key] = {"installer": rule.installer, "packages": list(rule.packages)}
             if rule.why:

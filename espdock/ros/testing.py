@@ -175,17 +175,17 @@ def check_testable(packages: Mapping[str, frozenset[str]], flavour: str) -> None
     (PACKAGES: name -> every dependency its package.xml names)."""
     if flavour != "wheels":
         return
-    lines = [
-        f"  {name}: {', '.join(sorted(depends & NOT_ON_PYPI))}"
-        for name, depends in packages.items()
-        if depends & NOT_ON_PYPI
-    ]
-    if lines:
+    refused = {name: sorted(depends & NOT_ON_PYPI) for name, depends in packages.items() if depends & NOT_ON_PYPI}
+    if refused:
+        # `ros2 pkg create` writes ament_copyright (ament_python) or ament_lint_auto (ament_cmake)
+        # into every package: the ways out name what to type, or to remove.
         raise DependencyError(
-            f"{len(lines)} package(s) have tests that need ament packages PyPI does not carry, so the wheels ROS "
-            "image cannot run them:\n" + "\n".join(lines),
+            f"{len(refused)} package(s) have tests that need ament packages PyPI does not carry, so the wheels ROS "
+            "image cannot run them:\n" + "\n".join(f"  {name}: {', '.join(keys)}" for name, keys in refused.items()),
             'Test them on the official ROS image (ros_image = "official" in espdock.toml), which has ament\'s '
-            "linters; or test other packages (`espdock test PKG...`).",
+            f"linters; or test the others (`espdock test -- --packages-skip {' '.join(refused)}`); or drop those "
+            "test_depends from the package.xml with the tests that use them (test/test_copyright.py, the "
+            "ament_lint_auto lines in CMakeLists.txt's `if(BUILD_TESTING)`).",
         )
 
 

@@ -282,6 +282,34 @@ def test_a_key_with_no_rule_for_the_image_os_names_package_key_and_os(tmp_path, 
     assert not (root / "build").exists()
 
 
+def test_a_misspelt_dependency_is_named_with_the_key_or_workspace_package_it_is_most_like(tmp_path):
+    """`<depend>std_msg</depend>` was "no rosdep rule: the key is unknown", its first way out a
+    rosdep rule of one's own, where `espdock run` offers the executable meant; a workspace
+    package's name misspelt, the same."""
+    root = make_workspace(tmp_path / "w", "rosdeps_xml_count", "rosdeps_py_table")
+    manifest = root / "src/rosdeps_xml_count/package.xml"
+    manifest.write_text(
+        manifest.read_text().replace(
+            "<depend>tinyxml2</depend>",
+            "<depend>tinyxml2</depend>\n  <depend>std_msg</depend>\n  <exec_depend>rosdeps_py_tabel</exec_depend>",
+        )
+    )
+    unknown = "no rosdep rule: the key is unknown to rosdep's database"
+    refused = run_build(root, tmp_path)
+    said = " ".join(refused.stderr.split())
+    assert refused.returncode == 2, said
+    assert f"std_msg: {unknown} (did you mean std_msgs?)" in said, said
+    assert f"rosdeps_py_tabel: {unknown} (did you mean rosdeps_py_table?)" in said, said
+    assert "hint: Ways out: correct the name in the package.xml where it is misspelt; or add a rosdep rule" in said
+    # A key rosdep knows nothing like is said as before.
+    manifest.write_text(manifest.read_text().replace("std_msg<", "acme_lidar_sdk<"))
+    locked = espdock("lock", cwd=root, env={**NO_ENGINE, **environment(tmp_path)})
+    said = " ".join(locked.stderr.split())
+    assert locked.returncode == 0, said
+    assert f"warning: acme_lidar_sdk: {unknown}; a build needing it is refused" in said, said
+    assert f"warning: rosdeps_py_tabel: {unknown} (did you mean rosdeps_py_table?); a build" in said, said
+
+
 def test_locked_refuses_a_missing_or_stale_lock_and_lock_refreshes_it(tmp_path):
     root = make_workspace(tmp_path / "w", "rosdeps_xml_count")
     result = run_build(root, tmp_path, "--locked")

@@ -56,6 +56,7 @@ def test_tests_that_need_what_pypi_lacks_are_refused_on_the_wheels_image_only():
         check_testable(needs, "wheels")
     assert "cpp: ament_lint_auto, ament_lint_common" in err.value.message and "py" not in err.value.message
     assert 'ros_image = "official"' in err.value.hint
+    assert "`espdock test -- --packages-skip cpp`" in err.value.hint, err.value.hint
     check_testable(needs, "official")
     check_testable({"py": frozenset({"ament_flake8", "ament_cmake_gtest"})}, "wheels")
 

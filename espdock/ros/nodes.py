@@ -23,7 +23,7 @@ from espdock.ros.colcon import egg_info_order_define
 from espdock.ros.plan import RUNTIME_INSTALL, RuntimeImage
 from espdock.ros.runtime_tree import resolve_installed
 from espdock.ros.staleness import ros_stamp_file
-from espdock.workspace import Package, PackageKind, Workspace, build_running, left_out
+from espdock.workspace import Package, PackageKind, Workspace, build_running, left_out, select_up_to
 
 # What reaches a node from the caller's environment, as `ros2 run` would see it.
 PASSED_ENV = (
@@ -134,6 +134,7 @@ def find_executable(workspace: Workspace, packages: tuple[Package, ...], package
             else f"Its executables: {found}. All packages with executables: {listing}.",
         )
     check_built_by_espdock(workspace, package)
+    check_dependencies_built_by_espdock(workspace, packages, package)
     return posixpath.join(RUNTIME_INSTALL, package, "lib", package, executable)
 
 
@@ -163,6 +164,32 @@ def check_built_by_espdock(workspace: Workspace, package: str) -> None:
         "does not have)",
         f"Run `espdock build {package}` (it rebuilds what changed in install/), then run again.",
     )
+
+
+def check_dependencies_built_by_espdock(workspace: Workspace, packages: tuple[Package, ...], package: str) -> None:
+    """Refuse, as check_built_by_espdock does PACKAGE's, the install tree of a workspace package
+    PACKAGE depends on that a native `colcon build` rewrote: the runtime image was made of it
+    without a word, and the node died importing it (its modules under the host's Python version,
+    its scripts' and libraries' host paths). One a build did not finish is named where the image
+    is made, as before."""
+    recorded = ros_stamp_file(workspace).read()
+    depended = [p.name for p in select_up_to(packages, [package]) if p.name != package and p.kind is PackageKind.ROS]
+    unfinished = set(unfinished_builds(workspace, depended))
+    for name in depended:
+        install = workspace.ws_dir / "install" / name
+        if name in unfinished or not install.is_dir():
+            continue
+        entry = recorded.get(name)
+        if _finished(entry) and entry.get("installed") == listing_digest(install):
+            continue
+        if running := _running_build(workspace, name):
+            raise running
+        raise WorkspaceError(
+            f"install/{name}, which {package} depends on, was not built by espdock, or changed since its last "
+            "`espdock build` (a colcon build of your own, native or in `espdock shell`?): the runtime image would "
+            "hold it as it is, with the host's paths and interpreters",
+            f"Run `espdock build {name}` (it rebuilds what changed in install/), then run again.",
+        )
 
 
 def _running_build(workspace: Workspace, package: str) -> WorkspaceError | None:

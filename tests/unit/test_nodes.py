@@ -91,6 +91,29 @@ def test_an_install_tree_a_native_colcon_build_rewrote_is_refused_with_what_to_d
     assert find_executable(workspace, packages, "talk", "talker").endswith("/talk/lib/talk/talker")
 
 
+def test_a_dependency_s_install_tree_a_native_colcon_build_rewrote_is_refused_with_what_to_do(tmp_path):
+    """`colcon build --packages-select utils` natively, then `espdock run nodes talker`: the runtime
+    image was made of the host's build of utils without a word, and the node died importing it."""
+    workspace = Workspace(tmp_path, ("src",), ".")
+    packages = tuple(
+        Package(name, tmp_path / "src" / name, PackageKind.ROS, "ament_python", frozenset(depends))
+        for name, depends in (("utils", ()), ("nodes", ("utils", "rclpy")), ("other", ()))
+    )
+    for name in ("utils", "nodes", "other"):
+        installed(tmp_path, name, "talker" if name == "nodes" else "stats")
+        record_build(workspace, name)
+    assert find_executable(workspace, packages, "nodes", "talker").endswith("/nodes/lib/nodes/talker")
+    for name in ("utils", "other"):  # what the node depends on, and what it does not
+        (tmp_path / "install" / name / "lib" / name / "stats").write_text("#!/home/alice/venv/bin/python3\n")
+    with pytest.raises(WorkspaceError) as caught:
+        find_executable(workspace, packages, "nodes", "talker")
+    assert caught.value.exit_code == 2, caught.value.message
+    assert caught.value.message.startswith("install/utils, which nodes depends on, was not built by espdock")
+    assert "espdock build utils" in caught.value.hint
+    record_build(workspace, "utils")  # espdock build rebuilt it; `other` is no business of this node
+    assert find_executable(workspace, packages, "nodes", "talker").endswith("/nodes/lib/nodes/talker")
+
+
 def test_run_during_a_build_or_after_one_that_did_not_finish_says_so_not_native_colcon(ws):
     """Both were refused as "not built by espdock (a native colcon build?)"."""
     import fcntl

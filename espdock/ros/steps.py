@@ -239,6 +239,12 @@ class RosSteps:
             restored = self._put_back(base, restore=False, built=finished)
             kept = _kept_records(workspace, recorded, rebuild, finished or (), restored)
             stamp_file.restore(kept)
+            # Their install kind too, which their records above are of: a package it switched and
+            # finished was otherwise taken for the other kind, and rebuilt afresh at its next edit,
+            # "--symlink-install off since their last build".
+            with contextlib.suppress(Exception):
+                if finished and (kinds := record_install_kinds(base, finished, step.effective_args)):
+                    give_to(kinds, self.containers.owner)
             _unfinished(base, restored)
             raise
         if states is not None and (kinds := record_install_kinds(base, _built(states), step.effective_args)):

@@ -396,6 +396,20 @@ class StampFile:
 
         return self._where(trees, holds)
 
+    def install_changed(self, installed: Mapping[str, str | None]) -> tuple[str, ...]:
+        """The packages of INSTALLED (name -> listing_digest of its install prefix now) whose last
+        build finished and left another listing there: changed since by something else (a file put
+        there or edited by hand, a build of the user's own); not one that is gone."""
+        recorded = self.read()
+        return tuple(
+            name
+            for name, now in installed.items()
+            if now is not None
+            and self._current(entry := recorded.get(name))
+            and "stamp" in entry
+            and entry.get("installed") not in (None, now)
+        )
+
     def _where(self, trees: Mapping[str, TreeState], holds: Callable[[dict, TreeState], bool]) -> tuple[str, ...]:
         """The packages of TREES whose record and tree_state now HOLDS is true of."""
         recorded = self.read()

@@ -364,6 +364,18 @@ def build_afresh(
                 why += f"; building {', '.join(generated)} afresh as well (rosidl's generated code)"
             reasons.append((tuple(install / name for name in reinstalled) + tuple(base / n for n in generated), why))
         done = {*moved, *put_back, *lost, *redeclared, *reinstalled}
+        # colcon installs over what it finds: a file put into an install prefix, or a native build's
+        # (its modules under the host's Python version), stayed, and went into the manifest and the
+        # runtime image as the build's own.
+        now = {n: listing_digest(install / n) for n in others if n not in done and n not in native}
+        if changed := stamp_file.install_changed(now):
+            why = (
+                f"installing afresh what changed in install/ since its last build: {', '.join(changed)} (a file "
+                "put or edited there, or a build of your own; colcon would install over it and keep what it did "
+                "not make)"
+            )
+            reasons.append((tuple(install / name for name in changed), why))
+            done |= set(changed)
         # An older espdock's records keep no list of files: whether one went is not known.
         unlisted = stamp_file.unlisted({n: now for n, now in others.items() if n not in done})
         if older := [name for name in (*stamp_file.foreign(rebuild), *unlisted) if name not in done]:

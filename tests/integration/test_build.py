@@ -206,12 +206,22 @@ def test_the_build_records_what_it_produced_and_verify_checks_it(engine, built, 
     finally:
         installed.write_bytes(original)
     assert bad.returncode == 1 and f"changed  {msg}" in bad.stdout
+    # A file put into an install prefix: the next build rebuilt the package into it and recorded the
+    # file as its own, and verify passed.
+    stray = "beacon_nodes/share/beacon_nodes/stray.yaml"
+    (root / "ws/install" / stray).write_text("put here by hand\n")
+    assert stray in espdock("verify", str(manifest), cwd=root).stdout
 
     report = tmp_path / "report.json"
     again = espdock("build", "--runtime-image", "--report", str(report), cwd=root)
     assert again.returncode == 0, again.stdout[-2000:] + again.stderr
+    said = " ".join(again.stdout.split())
+    assert "installing afresh what changed in install/ since its last build: beacon_nodes, custom_interface" in said
+    assert not (root / "ws/install" / stray).exists()
     summary = json.loads(report.read_text())
     assert summary["outcome"] == "succeeded" and summary["manifest"]["files"][msg] == data["files"][msg]
+    assert stray not in summary["manifest"]["files"]
+    assert espdock("verify", str(manifest), cwd=root).returncode == 0
     assert [s["step"] for s in summary["steps"]] == ["base image debian:bookworm-slim", "image espdock/ros-jazzy-build",
                                                      "colcon build", "image espdock/ros-jazzy-runtime",
                                                      "runtime image"]  # fmt: skip
@@ -355,6 +365,9 @@ def _start_build_until_colcon_runs(engine, root: Path, *args: str) -> subprocess
 def test_ctrl_c_stops_and_removes_the_container_and_the_next_build_works(engine, tmp_path):
     root = _slow_workspace(tmp_path)
     report = tmp_path / "report.json"
+    # beacon_nodes last built as a symlink install: the interrupted build switches it, and finishes it.
+    linked = espdock("build", "beacon_nodes", "--", "--symlink-install", cwd=root)
+    assert linked.returncode == 0, linked.stdout + linked.stderr
     process = _start_build_until_colcon_runs(engine, root, "--report", str(report))
     try:
         events, deadline = root / "ws/log/latest_build/events.log", time.monotonic() + 120
@@ -384,6 +397,14 @@ def test_ctrl_c_stops_and_removes_the_container_and_the_next_build_works(engine,
     result = espdock("build", cwd=root)
     assert result.returncode == 0, result.stdout + result.stderr
     assert (root / "ws/install/beacon_nodes/share/beacon_nodes/package.xml").is_file()
+    # Its next edit builds it as the copy it is: it was taken for the symlink install it had been,
+    # and rebuilt afresh, "--symlink-install off since their last build".
+    source = root / "ws/src/beacon_nodes/beacon_nodes/beacon.py"
+    source.write_text(source.read_text() + "# edited\n")
+    edited = espdock("build", cwd=root)
+    said = " ".join((edited.stdout + edited.stderr).split())
+    assert edited.returncode == 0 and "1 package(s) built" in said, said
+    assert "since their last build" not in said, said
 
 
 @pytest.mark.parametrize(("stop", "code"), [(signal.SIGINT, 130), (signal.SIGKILL, -9)], ids=["ctrl-c", "kill-9"])

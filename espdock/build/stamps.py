@@ -396,6 +396,16 @@ class StampFile:
 
         return self._where(trees, holds)
 
+    def reconfigured(self, settings: Mapping[str, str]) -> tuple[str, ...]:
+        """The packages of SETTINGS (name -> the digest of its colcon options and settings files now)
+        whose last build recorded other ones (not those an older espdock built, which kept none)."""
+        recorded = self.read()
+        return tuple(
+            name
+            for name, now in settings.items()
+            if isinstance(entry := recorded.get(name), dict) and entry.get("settings") not in (None, now)
+        )
+
     def install_changed(self, installed: Mapping[str, str | None]) -> tuple[str, ...]:
         """The packages of INSTALLED (name -> listing_digest of its install prefix now) whose last
         build finished and left another listing there: changed since by something else (a file put
@@ -441,6 +451,7 @@ class StampFile:
         serves: Mapping[str, str] | None = None,
         against: Mapping[str, Mapping[str, str]] | None = None,
         outside: Mapping[str, Mapping[str, str]] | None = None,
+        settings: Mapping[str, str] | None = None,
     ) -> None:
         """Record STAMPS with what is installed now (and each package's directory, from SOURCES,
         and its own sources' state, from TREES: tree_state), keeping other
@@ -448,7 +459,8 @@ class StampFile:
         build's install is the one a plain build of the same sources would make). AGAINST: the
         stamps of the packages each was built on, as they were (what `espdock run` compares).
         OUTSIDE: the files of the workspace outside its directory each one's build read, with
-        their contents' digests."""
+        their contents' digests. SETTINGS: the digest of each one's colcon options and settings
+        files (what reconfigured() compares)."""
         data = self.read()
         for name, stamp in stamps.items():
             data[name] = self._entry(name, sources, stamp=stamp, installed=installed.get(name))
@@ -458,6 +470,8 @@ class StampFile:
                 data[name]["against"] = dict(against[name])  # type: ignore[assignment]
             if outside is not None and name in outside:
                 data[name]["outside"] = dict(outside[name])  # type: ignore[assignment]
+            if settings and name in settings:
+                data[name]["settings"] = settings[name]
             if trees and name in trees:
                 now = trees[name]
                 state = {"tree": now.digest, "newest": now.newest, "paths": list(now.paths), "declares": now.declares}

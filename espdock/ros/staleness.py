@@ -335,6 +335,17 @@ def build_afresh(
         if cmake := sorted(n for n in listed if n not in step.python and n not in afresh and (base / n).is_dir()):
             why = f"configuring {', '.join(cmake)} again: its source files are others than at its last build"
             reasons.append((tuple(base / name / "CMakeCache.txt" for name in cmake), why))
+        # A `-D` option taken out of the options stays in CMake's cache: the package rebuilt, and
+        # kept what the option had made (a Release build, after a build without it).
+        settings = {
+            n: d for n, d in step.settings if n in others and n not in step.python and n not in (*afresh, *cmake)
+        }
+        if options := [n for n in stamp_file.reconfigured(settings) if (base / n / "CMakeCache.txt").is_file()]:
+            why = (
+                f"configuring {', '.join(options)} afresh: its colcon options or settings files changed since its "
+                "last build (a CMake option taken out would stay in its cache)"
+            )
+            reasons.append((tuple(base / name / "CMakeCache.txt" for name in options), why))
         python = {n: now for n, now in others.items() if n in step.python and n not in lost}
         if redeclared := stamp_file.redeclared(python):
             why = (

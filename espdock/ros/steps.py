@@ -481,7 +481,8 @@ class RosSteps:
         }
         outside_built = {name: outside[name] for name in built}
         installed = {name: listing_digest(workspace.ws_dir / "install" / name) for name in stamps}
-        stamp_file.record(recorded_stamps, installed, sources_of, trees, serves, built_on, outside_built)
+        settings = {name: digest for name, digest in step.settings if name in built}
+        stamp_file.record(recorded_stamps, installed, sources_of, trees, serves, built_on, outside_built, settings)
         give_to(stamp_file.path, self.containers.owner)
         return built
 

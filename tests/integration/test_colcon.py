@@ -124,6 +124,8 @@ def test_colcon_meta_and_options_after_the_double_dash_reach_colcon_and_decide_t
     assert "ESPDOCK_TEST_MARK:UNINITIALIZED=from_args" in cache.read_text()
     build(robot, "robot_msgs")  # back to the settings its dependents were built against
     assert colcon_ran(robot) == {"robot_msgs": "built"}
+    # As a fresh build makes it: the option taken out stayed in CMake's cache.
+    assert "ESPDOCK_TEST_MARK" not in cache.read_text()
     edit(robot / "ws/src/behaviour_0")
     edit(robot / "ws/src/behaviour_2")
     result = build(robot, "behaviour_0", "behaviour_2", "--", "--packages-skip", "behaviour_2")

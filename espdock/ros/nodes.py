@@ -145,9 +145,7 @@ def check_built_by_espdock(workspace: Workspace, package: str) -> None:
     """Refuse PACKAGE's install tree when espdock's last build did not leave it so: a native
     `colcon build` rewrites it with the host's paths and interpreters, which the runtime image
     lacks (the node would die with exit 127). `espdock build` rebuilds exactly such packages."""
-    recorded = ros_stamp_file(workspace).read().get(package)
-    listing = listing_digest(workspace.ws_dir / "install" / package)
-    if _finished(recorded) and listing is not None and recorded.get("installed") == listing:
+    if _left_by_espdock(ros_stamp_file(workspace).read().get(package), workspace.ws_dir / "install" / package):
         return
     if running := _running_build(workspace, package):
         raise running
@@ -177,10 +175,7 @@ def check_dependencies_built_by_espdock(workspace: Workspace, packages: tuple[Pa
     unfinished = set(unfinished_builds(workspace, depended))
     for name in depended:
         install = workspace.ws_dir / "install" / name
-        if name in unfinished or not install.is_dir():
-            continue
-        entry = recorded.get(name)
-        if _finished(entry) and entry.get("installed") == listing_digest(install):
+        if name in unfinished or not install.is_dir() or _left_by_espdock(recorded.get(name), install):
             continue
         if running := _running_build(workspace, name):
             raise running
@@ -200,6 +195,13 @@ def _running_build(workspace: Workspace, package: str) -> WorkspaceError | None:
         f"an espdock build is running in {workspace.root}{holder}: install/{package} may be half rebuilt",
         "Wait for it to finish, then run again.",
     )
+
+
+def _left_by_espdock(recorded: object, install: Path) -> bool:
+    """Whether the install tree INSTALL is as the finished espdock build RECORDED (its entry in the
+    stamp file) left it."""
+    listing = listing_digest(install)
+    return _finished(recorded) and listing is not None and recorded.get("installed") == listing
 
 
 def _finished(recorded: object) -> bool:

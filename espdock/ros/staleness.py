@@ -40,6 +40,8 @@ class Rebuild(NamedTuple):
     stamps: dict[str, str]  # the stamps of the packages it builds, as they are now
     rebuild: tuple[str, ...]  # which of them colcon gets
     trees: dict[str, TreeState]  # each package's own sources
+    # Each package's install listing (listing_digest) as the stale check read it; none with --force.
+    installed: dict[str, str | None]
     # Each package's files outside its directory its last build read (espdock.ros.cmake_inputs),
     # with their digests now; and the packages an espdock before that list recorded, whose
     # build dirs say they read none (their records get an empty one: not looked for again).
@@ -74,7 +76,7 @@ def colcon_rebuild(workspace: Workspace, step: ColconBuild) -> Rebuild:
     chained = package_stamps(sources, dict(step.depends), step.stamp_images(), dict(step.settings), dict(step.reads))
     stamps = {name: chained[name] for name in step.building}
     if step.force:
-        return Rebuild(stamp_file, stamps, tuple(stamps), trees, outside, tuple(unlisted))
+        return Rebuild(stamp_file, stamps, tuple(stamps), trees, {}, outside, tuple(unlisted))
     installed = {name: listing_digest(workspace.ws_dir / "install" / name) for name in stamps}
     stale = stamp_file.stale(stamps, installed, dict(step.sources))
     # A CMake package an espdock built that recorded no digest of its CMake files (before the
@@ -84,7 +86,7 @@ def colcon_rebuild(workspace: Workspace, step: ColconBuild) -> Rebuild:
         {name: trees[name] for name in stamps if name not in step.python and name not in stale}, unrecorded=True
     )
     rebuild = tuple(name for name in stamps if name in stale or name in unrecorded)
-    return Rebuild(stamp_file, stamps, rebuild, trees, outside, tuple(unlisted))
+    return Rebuild(stamp_file, stamps, rebuild, trees, installed, outside, tuple(unlisted))
 
 
 def read_outside(workspace: Workspace, name: str, rel: str) -> list[str]:
@@ -236,6 +238,7 @@ def build_afresh(
     rebuild: tuple[str, ...],
     stamp_file: StampFile,
     trees: Mapping[str, TreeState],
+    installed: Mapping[str, str | None],
 ) -> list[tuple[tuple[Path, ...], str]]:
     """What colcon would build on wrongly among REBUILD's trees, each reason with the build dirs
     and install prefixes it removes and what to say of it: every build dir and install prefix with
@@ -244,8 +247,9 @@ def build_afresh(
     (ColconBuild.stale_interfaces), the install prefixes a native symlink install linked to this
     machine's paths, and the build dirs and install prefixes of packages that moved (STAMP_FILE
     knows where they were), whose sources changed with no newer file, lost a file, or changed
-    their setup.py (TREES: their tree_state now), or that an older espdock built, each reason that
-    holds."""
+    their setup.py (TREES: their tree_state now), whose install prefix changed outside espdock
+    (INSTALLED: their install listings as colcon_rebuild read them), or that an older espdock built,
+    each reason that holds."""
     base = workspace.ws_dir / ROS_BUILD_BASE
     install = workspace.ws_dir / "install"
     reasons: list[tuple[tuple[Path, ...], str]] = []
@@ -378,8 +382,8 @@ def build_afresh(
         # colcon installs over what it finds: a file put into an install prefix, or a native build's
         # (its modules under the host's Python version), stayed, and went into the manifest and the
         # runtime image as the build's own.
-        now = {n: listing_digest(install / n) for n in others if n not in done and n not in native}
-        if changed := stamp_file.install_changed(now):
+        listings = {n: installed.get(n) for n in others if n not in done and n not in native}
+        if changed := stamp_file.install_changed(listings):
             why = (
                 f"installing afresh what changed in install/ since its last build: {', '.join(changed)} (a file "
                 "put or edited there, or a build of your own; colcon would install over it and keep what it did "

@@ -106,6 +106,7 @@ class RosSteps:
         rebuild: tuple[str, ...],
         stamp_file: StampFile,
         trees: Mapping[str, TreeState],
+        installed: Mapping[str, str | None],
     ) -> tuple[Path, ...]:
         """Remove what colcon would build on wrongly from REBUILD's trees (build_afresh says which),
         and say why. Returns them, for the workspace volume to remove its copies as well. They are
@@ -114,7 +115,7 @@ class RosSteps:
         base = workspace.ws_dir / ROS_BUILD_BASE
         shutil.rmtree(base / ASIDE, ignore_errors=True)  # an espdock killed outright left it
         self._aside = []
-        reasons = build_afresh(workspace, step, rebuild, stamp_file, trees)
+        reasons = build_afresh(workspace, step, rebuild, stamp_file, trees, installed)
         for trees, why in reasons:
             for tree in trees:
                 self._set_aside(tree, base / ASIDE)
@@ -192,7 +193,7 @@ class RosSteps:
             if self.containers.uses_volume(workspace, step.image, user, labels)
             else None
         )
-        emptied += self._build_afresh(workspace, step, rebuild, stamp_file, trees)
+        emptied += self._build_afresh(workspace, step, rebuild, stamp_file, trees, found.installed)
         sync = self.containers.sync(workspace, step.name, step.image, user, labels, emptied)
         whole = sync is not None and (sync.fresh or sync.installed != listed)
         if whole:

@@ -113,8 +113,14 @@ def prune(
             + Text(" removes their images")
         )
     freed = sum(d.size for d in plan.remove if d.tag not in busy)
-    cache, trimmed = trim_cache(engine, config.build_cache_max_gb if cache_max_gb is None else cache_max_gb, dry_run)
+    bound = config.build_cache_max_gb if cache_max_gb is None else cache_max_gb
+    cache, trimmed = trim_cache(engine, bound, dry_run)
     cache_text = "size unknown (the engine was busy reporting it)" if cache is None else size_text(cache)
+    would_trim = dry_run and cache is not None and cache > bound * GB
+    if trimmed or would_trim:
+        # Trimming to make room for one workspace takes the other workspaces' cache as well.
+        done = f"{size_text(trimmed)} trimmed" if trimmed else f"would be trimmed to {size_text(int(bound * GB))}"
+        cache_text += f", {done} (the engine's one cache: every workspace's and user's builds)"
     # Each image's own bytes: layers the removed images share only among themselves come on top,
     # which the engine's whole layer store, before and after, shows.
     disk = ""
@@ -125,10 +131,7 @@ def prune(
         # Its Docker API reports no layer an image shares (each image's whole size looked its own:
         # "at least 819.64 MB" where 0.5 MB went) and no layers' total (0 B -> 0 B).
         amount = "how much they freed unknown (Podman does not say what its images share: `podman system df`)"
-    console.print(
-        f"{verb} {len(plan.remove) - len(busy)} images, {amount}; "
-        f"BuildKit cache {cache_text}" + (f", {size_text(trimmed)} trimmed" if trimmed else "")
-    )
+    console.print(f"{verb} {len(plan.remove) - len(busy)} images, {amount}; BuildKit cache {cache_text}")
 
 
 def record_images(ws: Workspace, runner: Runner, runtime: str | None = None, whole: bool = True) -> None:

@@ -91,6 +91,14 @@ def test_prune_keeps_what_is_used_and_removes_the_rest(engine, tmp_path):
         finally:
             subprocess.run(["docker", "rm", holder], capture_output=True, check=False)
 
+        # The cache's trim is the engine's, not this workspace's: a dry run says so. The engine answers
+        # one disk-usage report at a time, and another worker's build may be asking for one.
+        for _ in range(5):
+            trim = espdock("prune", "--keep", "1", "--dry-run", "--cache-max-gb", "0", cwd=first, env=env)
+            if "the engine was busy reporting it" not in trim.stdout:
+                break
+        said = "would be trimmed to 0 B (the engine's one cache: every workspace's and user's builds)"
+        assert said in trim.stdout.replace("\n", " "), trim.stdout
         kept_one = espdock("prune", "--keep", "1", "--dry-run", cwd=first, env=env)
         assert kept_one.stdout.count("would remove espdock/") == len(gone) - 1, kept_one.stdout  # gen 2's runtime stays
 

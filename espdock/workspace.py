@@ -192,7 +192,8 @@ def find_workspace(start: Path | None = None) -> Workspace:
     barred = f"; you may not look into {', '.join(map(str, dict.fromkeys(denied)))}" if denied else ""
     raise WorkspaceError(
         f"not inside an espdock workspace: no {CONFIG_FILE} in {start} or any parent ({shown}){barred}",
-        f"Run espdock from a workspace, or create {CONFIG_FILE} at its root.",
+        f"Run espdock from a workspace, or make this one: `espdock init` at its root (an existing colcon workspace "
+        f"too) writes its {CONFIG_FILE}.",
     )
 
 
@@ -884,12 +885,34 @@ def component_targets(manifest: Path) -> tuple[str, ...]:
     try:
         data = yaml.safe_load(manifest.read_text(errors="replace"))
     except yaml.YAMLError as exc:
+        raise WorkspaceError(f"{manifest} is not valid YAML: {_yaml_problem(exc)}", _REFUSED_TOO) from None
+    if data is None:
+        return ()
+    # What the component manager's Manifest model refuses, where espdock read "any chip".
+    if not isinstance(data, dict):
+        shape = "a list" if isinstance(data, list) else "a single value"
         raise WorkspaceError(
-            f"{manifest} is not valid YAML: {str(exc).splitlines()[0]}",
-            "Fix it: the IDF component manager refuses it too.",
-        ) from None
-    targets = data.get("targets") if isinstance(data, dict) else None
-    return tuple(str(target) for target in targets) if isinstance(targets, list) else ()
+            f"{manifest} is {shape}, not a mapping of fields (`targets:`, `dependencies:`)", _REFUSED_TOO
+        )
+    targets = data.get("targets")
+    if targets is None:
+        return ()
+    if not isinstance(targets, list) or not all(isinstance(target, str) for target in targets):
+        raise WorkspaceError(
+            f"{manifest}: `targets` is not a list of chip names (`targets: [esp32, esp32s3]`)", _REFUSED_TOO
+        )
+    return tuple(targets)
+
+
+_REFUSED_TOO = "Fix it: the IDF component manager refuses it too."
+
+
+def _yaml_problem(exc: Exception) -> str:
+    """PyYAML's error EXC in one line, with where it is (its first line alone says neither)."""
+    problem, mark = getattr(exc, "problem", None), getattr(exc, "problem_mark", None)
+    if not problem or mark is None:
+        return " ".join(str(exc).split())
+    return f"{problem} (line {mark.line + 1}, column {mark.column + 1})"
 
 
 def write_atomically(path: Path, text: str) -> None:

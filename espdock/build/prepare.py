@@ -25,7 +25,7 @@ from espdock.firmware.plan import (
     sdkconfig_target,
     unknown_dependencies,
 )
-from espdock.firmware.steps import installed_image
+from espdock.firmware.steps import installed_image, recorded_step
 from espdock.layout import ROS_BUILD_BASE, ROSDEP_LOCK, firmware_build_dir
 from espdock.ros import interfaces, rosdeps, testdeps
 from espdock.ros.colcon import (
@@ -273,10 +273,19 @@ def firmware_plan(
             raise unknown_package(name, [p.name for p in packages if p.kind is PackageKind.FIRMWARE], ws, "firmware")
         known = (packages, read_build_inputs(ws, packages))  # found once
         plan = build_plan(ws, config, [name], target=target, known=known, env=env, notify=notify)
-    except EspdockError:
+    except EspdockError as exc:
         if unreadable:  # NAME's own, or one NAME depends on: that manifest is what to fix
             raise unreadable[0] from None
-        raise
+        own = next((p for p in packages if p.name == name and p.kind is PackageKind.FIRMWARE), None)
+        recorded = None
+        if installed and own is not None and isinstance(exc, (WorkspaceError, ConfigError)):
+            recorded = recorded_step(ws, name, own.path.relative_to(ws.root).as_posix(), config.ros_distro)
+        if recorded is None:
+            raise
+        # Its own sources mid-edit: what they plan is the next build's business. The image is the
+        # caller's to find (an empty plan makes none).
+        notify(f"note: {exc.message}; the installed firmware of {name} is used as it was built")
+        return Plan(ws, (), ()), recorded
     for error in unreadable or ():
         notify(f"note: {error.message}; left out (the installed firmware of {name} is used as it was built)")
     return firmware_step(plan, name)

@@ -191,6 +191,13 @@ def _installed(ws: Workspace, config: Config, plan: Plan, step: IdfBuild) -> tup
                 style="yellow",
             )
         )
+    if not plan.steps and runner.engine.image(built.image) is None:
+        # Its sources did not plan (firmware_plan's note): no image of them to make instead.
+        raise WorkspaceError(
+            f"the micro-ROS image the installed firmware of {step.package} was built in, {built.image}, is gone "
+            "from the engine, and its sources do not plan now (the note above)",
+            f"Mend them and run `espdock build {step.package}`.",
+        )
     if built is step:
         # Only the image: what they write is the installed firmware, which a build swaps in whole,
         # so another board's build in the workspace does not stop them.
@@ -250,8 +257,8 @@ def micro_ros_rebuild(
     workspace: WorkspaceOption = None,
 ) -> None:
     """Rebuild the micro-ROS images for the current inputs from scratch (no build cache)."""
-    ws, config, _, specs = _micro_ros_specs(workspace, target)
-    chosen = images_to_rebuild(specs, packages or ())
+    ws, config, found, specs = _micro_ros_specs(workspace, target)
+    chosen = images_to_rebuild(specs, packages or (), [p.name for p in found], ws)
     reporter = Reporter(console)
     try:
         runner_for(ws, config, reporter).run(Plan(ws, tuple(EnsureImage(s, force=True) for s in chosen), chosen))
@@ -323,7 +330,10 @@ def _warn_unreachable(settings: NetSettings) -> None:
 
 
 def _baud_unused(serial: Port, baud: int | None) -> None:
-    """Say so where a baud rate asked for (--baud, ESPBAUD) goes unused: a raw socket has none."""
+    """Refuse a baud rate that is none (esptool took 0 and failed on the port); say so where one
+    asked for (--baud, ESPBAUD) goes unused: a raw socket has none."""
+    if baud is not None and baud <= 0:
+        raise ConfigError(f"--baud {baud} is not a baud rate", f"Leave it out for {DEFAULT_BAUD}.")
     if serial.spec.lower().startswith("socket://") and (baud != DEFAULT_BAUD or "ESPBAUD" in os.environ):
         notify(
             f"note: --baud {baud} is not used on {serial.spec}: a raw socket has no baud rate (the serial server's "

@@ -37,6 +37,7 @@ URL_SCHEMES = ("socket", "rfc2217")
 
 # esptool's words (4 and 5) for an image whose minimum chip revision the board is below.
 REVISION_REFUSED = "requires chip revision"
+_FORCE = re.compile(r"\s*Use --force to flash anyway\.?", re.IGNORECASE)
 
 
 class PortError(EspdockError):
@@ -505,7 +506,10 @@ def flash_package(
         network=port.network,
         workdir=workdir,
     )
-    supported = component_targets(workspace.root / step.project / "main" / "idf_component.yml")
+    try:
+        supported = component_targets(workspace.root / step.project / "main" / "idf_component.yml")
+    except WorkspaceError:  # mid-edit: the installed firmware's chip is what the board is checked against
+        supported = ()
     check_chip(step.package, chip, probe, port, supported, workspace.root / step.project)
     major = esptool_major(probe)
     if app:
@@ -557,7 +561,8 @@ def flash_package(
             # esptool checks every image against the chip before it writes: a board matter, not the port's.
             raise ConfigError(
                 f"the board at {port.spec} is older than {step.package} is built for: "
-                f"{revision.strip().removeprefix('A fatal error occurred: ')}",
+                # Without esptool's "Use --force to flash anyway.": flash has no --force.
+                f"{_FORCE.sub('', revision.strip().removeprefix('A fatal error occurred: ')).strip()}",
                 "Nothing was written. Build it for that revision (the minimum chip revision in its sdkconfig.defaults, "
                 f"e.g. CONFIG_{chip.upper()}_REV_MIN_0=y for an early {chip}), or flash a newer board.",
             )

@@ -17,7 +17,7 @@ from espdock.build.steps import (
     image_origin,
     keyed_image,
 )
-from espdock.config import Config, check_target
+from espdock.config import CHIP_TARGETS, Config, check_target
 from espdock.errors import WorkspaceError
 from espdock.firmware import transport
 from espdock.firmware.pins import parse_sources
@@ -35,6 +35,7 @@ from espdock.workspace import (
     PackageKind,
     Workspace,
     idf_project_cmake,
+    unknown_package,
 )
 
 
@@ -338,9 +339,13 @@ def package_target(config: Config, inputs: BuildInputs, firmware: Package, overr
     target = override or declared or config.target
     supported = inputs.supported_targets.get(firmware.name)
     if supported and target not in supported:
+        chips = [chip for chip in supported if chip in CHIP_TARGETS]
         raise WorkspaceError(
             f"{firmware.name} does not support {target}: it supports {', '.join(supported)}",
-            f"Its main/idf_component.yml lists them under `targets`; build it for one (--target {supported[0]}).",
+            f"Its main/idf_component.yml lists them under `targets`; build it for one (--target {chips[0]})."
+            if chips
+            else f"Its main/idf_component.yml lists them under `targets`, and none is an ESP-IDF chip: correct the "
+            f"list (chips: {', '.join(CHIP_TARGETS)}).",
         )
     check_micro_ros_target(firmware.name, target)
     return target
@@ -397,6 +402,11 @@ def _check_colcon_meta(package: str, text: str) -> None:
         raise WorkspaceError(f"{package}/app-colcon.meta is not colcon.meta JSON: {exc}") from exc
 
 
+def micro_ros_repository(ros_distro: str, target: str) -> str:
+    """The repository of the micro-ROS images for ROS_DISTRO and chip TARGET (their tags are keys)."""
+    return f"espdock/idf-micro-ros-{ros_distro}-{target}"
+
+
 def micro_ros_image(
     config: Config, inputs: BuildInputs, packages: tuple[Package, ...], firmware: Package, target: str
 ) -> ImageSpec:
@@ -441,7 +451,7 @@ def micro_ros_image(
         for rel, data in inputs.package_files[package.name].items():
             context[f"micro-ros/extra_packages/{package.name}/{rel}"] = data
     spec = keyed_image(
-        f"espdock/idf-micro-ros-{config.ros_distro}-{target}",
+        micro_ros_repository(config.ros_distro, target),
         IDF_DOCKERFILE,
         "final",
         build_args,
@@ -495,10 +505,15 @@ def not_a_firmware_package(name: str) -> WorkspaceError:
     return WorkspaceError(f"'{name}' is not a firmware package", "Firmware packages have build type esp_idf.")
 
 
-def images_to_rebuild(specs: Mapping[str, ImageSpec], names: Sequence[str]) -> tuple[ImageSpec, ...]:
+def images_to_rebuild(
+    specs: Mapping[str, ImageSpec], names: Sequence[str], packages: Iterable[str], workspace: Workspace
+) -> tuple[ImageSpec, ...]:
     """The distinct micro-ROS images of the firmware packages NAMES (every one's when none is
-    named), from SPECS (workspace_micro_ros_images)."""
+    named), from SPECS (workspace_micro_ros_images); PACKAGES: every package WORKSPACE has."""
+    known = set(packages)
     for name in names:
+        if name not in known:  # a misspelt board is no package at all, not one of another kind
+            raise unknown_package(name, specs, workspace, "firmware")
         if name not in specs:
             raise not_a_firmware_package(name)
     chosen = [specs[name] for name in names] if names else list(specs.values())

@@ -28,6 +28,7 @@ from espdock.firmware.plan import (
     IdfBuild,
     InstallFirmware,
     check_inside,
+    micro_ros_repository,
 )
 from espdock.firmware.transport import applied_defaults, built_transport_record
 from espdock.images import volume
@@ -548,15 +549,33 @@ def _built_step(step: IdfBuild, workspace: Workspace) -> IdfBuild | None:
     finished says or, that gone (`rm -rf build`), the install's manifest; None where neither does.
     Without the manifest's word, a flash after `rm -rf build` built the library of the sources as
     they are, edited since or not building at all."""
-    target, _, key = _read_marker(firmware_build_dir(workspace.ws_dir, step.package)) or ("", "", "")
-    if not target or not key:
-        target, key = _manifest_entry(workspace.ws_dir / "install" / MANIFEST_NAME, step.package)
+    target, key = _recorded(workspace, step.package)
     repository = step.image.rpartition(":")[0]
     if not target or not key or (target != step.target and not repository.endswith(f"-{step.target}")):
         return None
     if target != step.target:  # the micro-ROS images are named for their chip
         repository = repository.removesuffix(step.target) + target
     return replace(step, image=keyed_tag(repository, key), image_key=key, target=target)
+
+
+def recorded_step(workspace: Workspace, package: str, project: str, ros_distro: str) -> IdfBuild | None:
+    """PACKAGE's installed firmware's build step from its records alone (_built_step's), for
+    `flash`, `provision` and `monitor` when its own sources, mid-edit, do not plan (a chip
+    misspelt in sdkconfig.defaults, an idf_component.yml half typed); None where nothing records it."""
+    target, key = _recorded(workspace, package)
+    if not target or not key:
+        return None
+    image = keyed_tag(micro_ros_repository(ros_distro, target), key)
+    return IdfBuild(package, project, image, target, key, colcon_root=workspace.colcon_root)
+
+
+def _recorded(workspace: Workspace, package: str) -> tuple[str, str]:
+    """The chip and image key PACKAGE's installed firmware was built with, as its build dir's record
+    of the last build that finished says, else the install's manifest ('' each where neither does)."""
+    target, _, key = _read_marker(firmware_build_dir(workspace.ws_dir, package)) or ("", "", "")
+    if not target or not key:
+        target, key = _manifest_entry(workspace.ws_dir / "install" / MANIFEST_NAME, package)
+    return target, key
 
 
 def _manifest_entry(manifest: Path, package: str) -> tuple[str, str]:

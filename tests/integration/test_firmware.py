@@ -837,6 +837,33 @@ def test_flash_writes_the_installed_firmware_while_its_interface_is_mid_edit(fw_
     assert "verified" in result.stdout
 
 
+def test_flash_writes_the_installed_firmware_while_its_own_sources_are_mid_edit(fw_ws, double_env, mock_bootloader):
+    """The firmware package's own sources mid-edit, as no build takes them yet (a chip misspelt in
+    sdkconfig.defaults, its idf_component.yml half typed): flash stopped with exit 2 on what their
+    plan said, where it writes the firmware as it was last built, and says why the sources do not count."""
+    root, first = fw_ws
+    assert first.returncode == 0
+    project = root / "firmware/camera_node"
+    edits = (
+        (project / "sdkconfig.defaults", 'CONFIG_IDF_TARGET="esp32x"\n', "esp32x"),
+        (project / "main/idf_component.yml", "dependencies: [espressif/esp32-camera\n", "idf_component.yml"),
+    )
+    for source, edit, named in edits:
+        text = source.read_text()
+        source.write_text(text + edit)
+        try:
+            flashed = espdock("flash", "camera_node", "--port", mock_bootloader, cwd=root, env=double_env)
+            built = espdock("build", "camera_node", "--dry-run", cwd=root, env=double_env)
+        finally:
+            source.write_text(text)
+        said = " ".join((flashed.stdout + flashed.stderr).split())
+        assert flashed.returncode == 0, said[-3000:]
+        assert "flashed camera_node" in said
+        assert named in said and "the installed firmware of camera_node is used as it was built" in said, said[-3000:]
+        # A build plans the sources: the edit is still its error.
+        assert built.returncode == 2 and named in built.stderr, built.stdout[-2000:] + built.stderr
+
+
 def test_flash_and_provision_write_the_installed_firmware_while_a_package_xml_is_mid_edit(
     fw_ws, double_env, mock_bootloader, tmp_path
 ):
@@ -1096,6 +1123,7 @@ def test_flash_and_provision_refuse_a_board_of_another_chip_before_writing(fw_ws
         assert older.returncode == 2, older.stdout[-2000:] + older.stderr
         assert f"the board at {esp32c3} is older than led_strip_node is built for" in older.stderr
         assert "requires chip revision" in older.stderr and "CONFIG_ESP32C3_REV_MIN_0=y" in older.stderr
+        assert "--force" not in older.stderr, "flash has no --force: esptool's advice is not espdock's"
         assert flash_md5(esp32c3, 0x0, 0x20000) == before, "a board of another chip was written to"
 
 

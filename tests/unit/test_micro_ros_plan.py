@@ -298,10 +298,15 @@ def test_micro_ros_rebuild_takes_the_images_of_the_named_packages_each_once():
     specs = micro_ros_images(
         Config(), replace(INPUTS, app_metas={"cam": META, "led": led_meta, "led2": led_meta}), packages
     )
-    assert images_to_rebuild(specs, ()) == (specs["cam"], specs["led"]), "no name: every image, each once"
-    assert images_to_rebuild(specs, ("led", "led2")) == (specs["led"],)
+    names, ws = [p.name for p in packages], Workspace(ROOT)
+    assert images_to_rebuild(specs, (), names, ws) == (specs["cam"], specs["led"]), "no name: every image, each once"
+    assert images_to_rebuild(specs, ("led", "led2"), names, ws) == (specs["led"],)
     with pytest.raises(WorkspaceError, match="'nodes' is not a firmware package"):
-        images_to_rebuild(specs, ("led", "nodes"))
+        images_to_rebuild(specs, ("led", "nodes"), names, ws)
+    # A misspelt board's name is no package, not a package of another kind.
+    with pytest.raises(WorkspaceError, match="no package named 'led_2'") as err:
+        images_to_rebuild(specs, ("led_2",), names, ws)
+    assert err.value.hint == "Did you mean 'led2'?"
 
 
 def test_a_malformed_or_missing_pin_file_is_refused_before_any_build():
@@ -377,6 +382,17 @@ def test_a_chip_the_package_does_not_list_is_refused_before_planning_any_step():
     # The package not built is not held to the override.
     plan = plan_workspace(Workspace(ROOT), Config(), PACKAGES, _chips(), ("led",), target="esp32c3")
     assert [s.package for s in plan.steps if isinstance(s, IdfBuild)] == ["led"]
+
+
+def test_a_package_that_lists_only_misspelt_chips_is_not_told_to_build_for_one():
+    """`targets: [esp32x]`: the hint said `--target esp32x`, which espdock then refused."""
+    with pytest.raises(WorkspaceError) as err:
+        plan_workspace(Workspace(ROOT), Config(), PACKAGES, _chips(cam_targets=("esp32x",)), ("cam",))
+    assert "cam does not support esp32: it supports esp32x" in err.value.message
+    assert "--target esp32x" not in (err.value.hint or "") and "none is an ESP-IDF chip" in (err.value.hint or "")
+    with pytest.raises(WorkspaceError) as err:
+        plan_workspace(Workspace(ROOT), Config(), PACKAGES, _chips(cam_targets=("esp32x", "esp32s3")), ("cam",))
+    assert "--target esp32s3" in (err.value.hint or "")
 
 
 @pytest.mark.parametrize("chip", ["esp32c2", "esp32c5", "esp32c6", "esp32h2", "esp32p4"])

@@ -174,6 +174,10 @@ def test_flash_and_monitor_take_the_port_and_baud_idf_py_takes_from_the_environm
         assert "Missing option" not in given.stderr, given.stderr  # on to what the port or firmware says
     baud = espdock("flash", "led_strip_node", cwd=root, env={**NO_ENGINE, "ESPPORT": "/dev/x", "ESPBAUD": "fast"})
     assert "Invalid value for '--baud'" in baud.stderr, baud.stderr
+    for rate in ("0", "-5"):
+        for command in ("flash", "provision"):
+            none = espdock(command, "led_strip_node", "--port", "/dev/x", "--baud", rate, cwd=root, env=NO_ENGINE)
+            assert none.returncode == 2 and f"--baud {rate} is not a baud rate" in none.stderr, none.stderr
 
 
 def test_a_wifi_board_s_installed_firmware_is_provisionable_whatever_its_sources_say_now(tmp_path):

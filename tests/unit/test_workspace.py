@@ -89,6 +89,7 @@ def test_outside_a_workspace_says_where_it_looked(tmp_path):
         find_workspace(start)
     assert str(start) in err.value.message
     assert "espdock.toml" in err.value.message
+    assert "`espdock init`" in (err.value.hint or ""), "the command that makes a workspace, not a file to write by hand"
 
 
 def test_discovers_ros_and_firmware_packages(ws):
@@ -316,6 +317,26 @@ def test_an_idf_component_manifest_s_targets_are_read_in_every_yaml_list_form(tm
     manifest = tmp_path / "idf_component.yml"
     manifest.write_text(text)
     assert component_targets(manifest) == ("esp32", "esp32s3")
+
+
+@pytest.mark.parametrize(
+    "text, said",
+    [
+        ("targets: esp32c3\n", "`targets` is not a list of chip names"),
+        ("- esp32\n- esp32c3\n", "is a list, not a mapping of fields"),
+        ("targets: [esp32,\n  esp32c3\ndependencies: {}\n", "(line 3, column 13)"),
+    ],
+)
+def test_an_idf_component_manifest_the_component_manager_refuses_is_refused_not_read_as_any_chip(tmp_path, text, said):
+    """`targets: esp32c3` (a string, where the component manager wants a list) and a manifest that
+    is a list read as "any chip"; invalid YAML was named without where in the file it broke."""
+    from espdock.workspace import component_targets
+
+    manifest = tmp_path / "idf_component.yml"
+    manifest.write_text(text)
+    with pytest.raises(WorkspaceError) as err:
+        component_targets(manifest)
+    assert said in err.value.message, err.value.message
 
 
 def test_an_invalid_third_party_manifest_names_the_way_to_leave_it_out(ws):

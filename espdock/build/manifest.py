@@ -100,6 +100,20 @@ def _lists_other_files(manifest: Mapping, install: Path) -> bool:
     return not isinstance(files, dict) or set(files) != {rel for rel, _ in _installed(install)}
 
 
+def _root_rewritten(manifest: Path, install: Path) -> bool:
+    """Whether a file at INSTALL's root changed since MANIFEST was written: colcon's setup scripts,
+    which no package's stamp covers, and which a native `colcon build` (espdock's colcon extension
+    building a firmware package) rewrites after the espdock build that wrote the manifest."""
+    written = manifest.stat().st_mtime_ns
+    with os.scandir(install) as entries:
+        return any(
+            entry.name != MANIFEST_NAME
+            and not entry.is_dir(follow_symlinks=False)
+            and entry.stat(follow_symlinks=False).st_mtime_ns > written
+            for entry in entries
+        )
+
+
 def _temporary(install: Path) -> Path:
     return install / f".{MANIFEST_NAME}.tmp"
 
@@ -135,7 +149,7 @@ def record_build(
     except WorkspaceError:
         previous = None
     if previous is not None and previous["format"] == FORMAT and not built and _newer_than_stamps(existing, stamps):
-        if not _lists_other_files(previous, install):
+        if not _lists_other_files(previous, install) and not _root_rewritten(existing, install):
             return previous
     manifest = build_manifest(plan, target, install, previous)
     try:

@@ -19,7 +19,7 @@ import asyncio
 import sys
 from pathlib import Path
 
-from colcon_core.event.output import StdoutLine
+from colcon_core.event.output import StderrLine, StdoutLine
 from colcon_core.event.test import TestFailure
 from colcon_core.package_identification import IgnoreLocationException, PackageIdentificationExtensionPoint
 from colcon_core.plugin_system import satisfies_version
@@ -103,10 +103,15 @@ class EspIdfTestTask(TaskExtensionPoint):
         satisfies_version(TaskExtensionPoint.EXTENSION_POINT_VERSION, "^1.0")
 
     async def test(self, *, additional_hooks=None) -> int:
+        from espdock.errors import EspdockError
         from espdock.ros.testing import HOST_TESTS_TAG, host_test_steps, host_tests_dir, host_tests_failed
 
         pkg = self.context.pkg
-        source = host_tests_dir(Path(pkg.path).resolve())
+        try:
+            source = host_tests_dir(Path(pkg.path).resolve())
+        except EspdockError as exc:
+            self.context.put_event_into_queue(StderrLine(f"{exc.message}. {exc.hint}\n".encode()))
+            return 1
         if source is None:
             self.context.put_event_into_queue(
                 StdoutLine(f"{pkg.name}: firmware package without host tests ({HOST_TESTS_TAG}): nothing to run\n")

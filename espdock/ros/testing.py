@@ -68,7 +68,17 @@ def host_tests_dir(package_dir: Path) -> Path | None:
     from catkin_pkg.package import parse_package
 
     exports = {e.tagname: (e.content or "").strip() for e in parse_package(str(package_dir / "package.xml")).exports}
-    return package_dir / exports[HOST_TESTS_TAG] if exports.get(HOST_TESTS_TAG) else None
+    if not exports.get(HOST_TESTS_TAG):
+        return None
+    source = package_dir / exports[HOST_TESTS_TAG]
+    if not source.is_dir():
+        # Else CMake's cwd was missing, which Popen said as "cmake is not installed".
+        raise WorkspaceError(
+            f"{package_dir.name}'s package.xml declares its host tests in {exports[HOST_TESTS_TAG]} "
+            f"(<{HOST_TESTS_TAG}>), which is not a directory of {package_dir}",
+            "Name the directory that holds their CMakeLists.txt, relative to the package.",
+        )
+    return source
 
 
 # Where `espdock test` builds a firmware package's host tests and writes their results, per package

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import importlib.util
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -61,6 +62,9 @@ def test_colcon_list_sees_the_firmware_packages_and_not_the_shared_component(col
 
 def test_packages_select_builds_the_firmware_and_installs_it_where_espdock_build_does(colcon_ws):
     root, env = colcon_ws
+    # A workspace espdock built before: its colcon wrote the install root's setup scripts (the container's paths).
+    ros = espdock("build", "beacon_nodes", cwd=root, env=env)
+    assert ros.returncode == 0, ros.stdout[-2000:] + ros.stderr
     built = colcon(root, env, "build", "--packages-select", "led_strip_node")
     assert built.returncode == 0, built.stdout[-3000:] + built.stderr[-3000:]
     assert "Finished <<< led_strip_node" in built.stdout + built.stderr
@@ -71,6 +75,13 @@ def test_packages_select_builds_the_firmware_and_installs_it_where_espdock_build
     lib = root / "ws" / "install" / "led_strip_node" / "lib" / "led_strip_node"
     assert sorted(p.name for p in lib.iterdir() if os.access(p, os.X_OK)) == ["flash", "idf", "monitor"]
     assert b"exec espdock flash led_strip_node " in (lib / "flash").read_bytes()
+    # colcon rewrote the install root's setup scripts (the host's paths) after the espdock build in it wrote
+    # its manifest: the next build, with nothing to build, records them (it kept the manifest, which verify
+    # then failed on every script).
+    cached = espdock("build", "--only", "firmware", "led_strip_node", cwd=root, env=env)
+    assert cached.returncode == 0, cached.stdout + cached.stderr
+    verified = espdock("verify", "ws/install/espdock-manifest.json", cwd=root, env=env)
+    assert verified.returncode == 0, verified.stdout[-2000:] + verified.stderr
     # espdock build agrees: the same artefacts, byte for byte, where it installs them.
     before = {name: (firmware / name).read_bytes() for name in ARTEFACTS}
     again = espdock("build", "--only", "firmware", "--force", "led_strip_node", cwd=root, env=env)
@@ -335,3 +346,16 @@ def test_colcon_test_runs_declared_host_tests_and_passes_over_firmware_without_a
         [str(COLCON), "test-result", "--all"], cwd=tmp_path, capture_output=True, text=True, timeout=120, check=False
     )
     assert "build/blink_fw/test_results/blink_fw/host_tests.xml: 2 tests, 0 errors, 0 failures" in result.stdout
+    # The tag naming a directory that is not there: the package fails with the tag's words (it was
+    # colcon's traceback of a missing cwd).
+    misspelt = tmp_path / "misspelt"
+    shutil.copytree(REPO / "tests/firmware_packages/blink_fw", misspelt / "src/blink_fw")
+    manifest = misspelt / "src/blink_fw/package.xml"
+    manifest.write_text(re.sub(r">([^<]*)</espdock_host_tests>", r">\1s</espdock_host_tests>", manifest.read_text()))
+    refused = subprocess.run(
+        [str(COLCON), "test", "--event-handlers", "console_direct+"],
+        cwd=misspelt, capture_output=True, text=True, timeout=600, check=False,
+    )  # fmt: skip
+    said = refused.stdout + refused.stderr
+    assert "blink_fw's package.xml declares its host tests in" in said and "Traceback" not in said, said[-3000:]
+    assert "Failed   <<< blink_fw" in said, said[-3000:]

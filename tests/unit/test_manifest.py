@@ -95,6 +95,25 @@ def test_a_build_killed_before_its_manifest_was_written_gets_a_new_one(tmp_path)
     assert not (install / f".{MANIFEST_NAME}.tmp").exists()
 
 
+def test_a_no_change_build_after_a_native_colcon_build_records_the_setup_scripts_it_rewrote(tmp_path):
+    """A plain `colcon build` of a firmware package (espdock's colcon extension) rewrites the install
+    root's setup scripts after the espdock build in it wrote the manifest; the next `espdock build`
+    had nothing to build and kept that manifest, and `espdock verify` failed on every script until
+    a --force build."""
+    install = tree(tmp_path)
+    (install / "setup.sh").write_text("_colcon_prefix_chain_sh_source_script /ws/install\n")
+    stamp = tmp_path / "build/.espdock-colcon-stamps.json"
+    stamp.parent.mkdir()
+    stamp.write_text("{}")
+    plan = Plan(Workspace(tmp_path))
+    first = record_build(plan, "esp32", install, True, [stamp], None)
+    (install / "setup.sh").write_text(f"_colcon_prefix_chain_sh_source_script {install}\n")
+    os.utime(install / "setup.sh", ns=((install / MANIFEST_NAME).stat().st_mtime_ns + 1,) * 2)
+    again = record_build(plan, "esp32", install, False, [stamp], None)
+    assert again["files"] == file_hashes(install) != first["files"]
+    assert compare(read_manifest(install / MANIFEST_NAME)["files"], file_hashes(install)) == []
+
+
 def test_a_no_change_build_after_a_package_s_prefix_was_removed_lists_it_no_more(tmp_path):
     """A build's note on a renamed package says `rm -r install/OLD build/espdock-ros/OLD`; done, the
     next builds (nothing to build) kept the manifest listing OLD's files, and `espdock verify` of

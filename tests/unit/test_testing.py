@@ -305,6 +305,22 @@ def test_a_firmware_package_without_host_tests_has_nothing_to_run_and_needs_no_e
     )
 
 
+def test_host_tests_declared_in_a_misspelt_directory_are_named_not_taken_for_a_missing_cmake(tmp_path):
+    """<espdock_host_tests>test/hots</espdock_host_tests>: `espdock test` said "cmake is not
+    installed" (the missing directory was CMake's cwd), sending the user to apt."""
+    from tests.conftest import copy_workspace, espdock
+
+    root = copy_workspace(tmp_path / "w", packages=())
+    package = host_tested(root / "firmware/probe_fw", "")
+    manifest = package / "package.xml"
+    manifest.write_text(manifest.read_text().replace(">test/host<", ">test/hots<").replace(">espidf<", ">esp_idf<"))
+    result = espdock("test", "probe_fw", cwd=root, env={"DOCKER_HOST": "unix:///nonexistent"})
+    said = " ".join((result.stdout + result.stderr).split())
+    assert result.returncode == 2, said
+    assert "declares its host tests in test/hots (<espdock_host_tests>), which is not a directory" in said, said
+    assert "not installed" not in said
+
+
 def test_host_test_steps_are_cmake_then_ctest_and_only_a_failing_ctest_with_results_is_a_result(tmp_path):
     source, build, junit = tmp_path / "host", tmp_path / "b", tmp_path / "r" / "host_tests.xml"
     steps = host_test_steps(source, build, junit)

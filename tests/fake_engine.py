@@ -32,6 +32,7 @@ class FakeEngine:
     # Whether its containers see the host's files (a local engine) or not (one on another machine).
     sees_host: bool = True
     rootless: bool = False
+    kind: str = "docker"
     mount_checks: int = 0
     # Files read_file finds, by path in any image (an empty dpkg database unless set); what it read.
     files: dict[str, bytes | None] = field(default_factory=dict)
@@ -44,10 +45,15 @@ class FakeEngine:
         return self.root
 
     def info(self) -> EngineInfo:
-        return EngineInfo(kind="docker", rootless=self.rootless, identity="fake", where="fake://engine")
+        return EngineInfo(kind=self.kind, rootless=self.rootless, identity="fake", where="fake://engine")
 
     def _forced(self) -> RegistryAnswer | None:
         return RegistryAnswer(self.registry_answer, "forced") if self.registry_answer else None
+
+    def pull(self, ref: str) -> bool:
+        if ref in self.registry:
+            self.images_by_tag[ref] = self.registry[ref]
+        return ref in self.registry
 
     def pull_cached(self, ref: str) -> RegistryAnswer:
         if forced := self._forced():

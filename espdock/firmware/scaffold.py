@@ -37,6 +37,8 @@ def validate_package_name(name: str) -> None:
     problem = None
     if not PACKAGE_NAME.match(name):
         problem = "use lower case letters, digits and underscores, starting with a letter"
+    elif len(name) < 2:
+        problem = "at least two characters"
     elif len(name) > MAX_NAME:
         problem = f"at most {MAX_NAME} characters"
     elif "__" in name:

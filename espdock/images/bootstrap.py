@@ -192,11 +192,32 @@ def _make_base_image(engine: Engine, ref: str, config: Config, notify: Notify) -
     if not _can_manage_engine():
         raise ImageBuildError(
             f"base image {ref} cannot be pulled, and building it with debootstrap needs root on Debian",
-            f"Run `sudo espdock setup` once, or load {ref} with `docker load`.",
+            _base_image_hint(engine, ref),
         )
     notify(f"no registry answers: building {ref} from Debian {suite} with debootstrap")
     build_debian_rootfs_image(engine, ref, suite, config.debian_mirror, notify)
     return "debootstrap"
+
+
+def _base_image_hint(engine: Engine, ref: str) -> str:
+    """How a user who is not root gets REF into ENGINE. `sudo espdock setup` only for the
+    machine's rootful engine: sudo drops DOCKER_HOST, so for a rootless Docker or Podman it made
+    the image in root's engine (installing and starting one if need be), not the user's."""
+    try:
+        info = engine.info()
+    except EspdockError:
+        info = None
+    if info is not None and not info.rootless and engine.host == DEFAULT_HOST:
+        return f"Run `sudo espdock setup` once, or load {ref} with `docker load`."
+    if info is not None and info.kind == "podman":
+        load = "podman load"
+    else:
+        load = "docker load" if engine.host == DEFAULT_HOST else f"DOCKER_HOST={engine.host} docker load"
+    name = info.name if info is not None else f"engine at {engine.host}"
+    return (
+        f"Load it into the {name} from an engine that has it, e.g. the machine's rootful one: "
+        f"`sudo docker save {ref} | {load}` (where none has it, `sudo espdock setup` builds it there first)."
+    )
 
 
 def build_debian_rootfs_image(engine: Engine, ref: str, suite: str, mirror: str | None, notify: Notify) -> None:

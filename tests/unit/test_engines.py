@@ -25,6 +25,7 @@ from espdock.build.steps import Plan
 from espdock.config import Config
 from espdock.errors import BuildFailed, EngineUnavailable, WorkspaceError, WorkspaceNotVisible
 from espdock.images import bootstrap, volume
+from espdock.images.addresses import DEFAULT_HOST
 from espdock.images.engine import LIBPOD_INFO, Engine
 from espdock.images.specs import EngineInfo, describe
 from espdock.images.visibility import linked_mounts
@@ -765,3 +766,33 @@ def test_a_build_the_cli_config_s_proxy_did_not_let_through_names_that_proxy():
     # Another proxy named there, or none: the failure is the network's.
     for other in ({"HTTP_PROXY": "http://10.0.0.9:3128"}, {}):
         assert buildkit_hint(tail, line, other).startswith("A step of the build could not reach the network")
+
+
+@pytest.mark.parametrize(
+    ("host", "kind", "rootless", "load"),
+    [
+        (
+            "unix:///run/user/1000/docker.sock",
+            "docker",
+            True,
+            "DOCKER_HOST=unix:///run/user/1000/docker.sock docker load",
+        ),
+        ("unix:///run/user/1000/podman/podman.sock", "podman", True, "podman load"),
+    ],
+)
+def test_a_user_s_rootless_engine_without_the_base_image_is_told_to_load_it_there_not_to_sudo(
+    monkeypatch, host, kind, rootless, load
+):
+    """`sudo espdock setup`, the hint for a rootless Docker or Podman user, ran espdock as root,
+    whose environment has no DOCKER_HOST: it provisioned root's engine (starting one), not the user's."""
+    monkeypatch.setattr(bootstrap, "_can_manage_engine", lambda: False)
+    ref = "debian:bookworm-slim"
+    with pytest.raises(bootstrap.ImageBuildError) as err:
+        bootstrap._make_base_image(
+            FakeEngine(host=host, kind=kind, rootless=rootless), ref, Config(), lambda text: None
+        )
+    assert "sudo espdock setup`" not in err.value.hint.split("(")[0], err.value.hint
+    assert f"`sudo docker save {ref} | {load}`" in err.value.hint, err.value.hint
+    with pytest.raises(bootstrap.ImageBuildError) as rootful:
+        bootstrap._make_base_image(FakeEngine(host=DEFAULT_HOST), ref, Config(), lambda text: None)
+    assert rootful.value.hint.startswith("Run `sudo espdock setup` once"), "the machine's own engine: root's is it"

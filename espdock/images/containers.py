@@ -71,8 +71,13 @@ class Containers:
 
     def reproducible_env(self, workspace: Workspace) -> tuple[tuple[str, str], ...]:
         """SOURCE_DATE_EPOCH, and a fixed PYTHONHASHSEED: rosidl's generators write some lists in
-        set order (a service type description's includes), which the hash seed would shuffle."""
-        return (*self.source_date(workspace), ("PYTHONHASHSEED", "0"))
+        set order (a service type description's includes), which the hash seed would shuffle.
+        CMAKE_INSTALL_ALWAYS: CMake's install skips a file whose destination's time is within a
+        second of its own, and rosidl_generator_c and rosidl_typesupport_introspection_c both
+        install a detail/X__type_support.c of their own to one path, so which one stayed there
+        was up to whether they were generated in the same second; installed always, the last one
+        installed stays."""
+        return (*self.source_date(workspace), ("PYTHONHASHSEED", "0"), ("CMAKE_INSTALL_ALWAYS", "1"))
 
     def check_mount(self, workspace: Workspace, image: str, user: str, labels: tuple[tuple[str, str], ...]) -> None:
         """Make sure the engine's containers see the workspace (espdock.images.visibility), once per engine and path."""

@@ -50,7 +50,7 @@ from espdock.images.containers import prepare_output
 from espdock.images.keyed import unpushed_error
 from espdock.layout import ROSDEP_LOCK
 from espdock.ros import colcon_register, rosdeps
-from espdock.ros.compose import init_compose, plain_compose_note
+from espdock.ros.compose import NAME_VARIABLE, init_compose, plain_compose_note
 from espdock.ros.plan import ColconBuild, base_image, runtime_repository
 from espdock.ros.trees import orphan_installs, package_trees
 from espdock.workspace import (
@@ -398,7 +398,11 @@ def init(
             f"note: git does not leave colcon's outputs out of this repository (the {GITIGNORE} here is yours, "
             f"kept as it is): add these lines to it:{shown}"
         )
-    outcome = init_compose(ws, runtime_repository(config, ws), packages, owner, refresh=compose, force=force)
+    # espdock.toml's name, not ESPDOCK_NAME's (a worktree's own, for the while).
+    by_setting = config.name is not None and not os.environ.get(NAME_VARIABLE)
+    outcome = init_compose(
+        ws, runtime_repository(config, ws), packages, owner, refresh=compose, force=force, by_setting=by_setting
+    )
     if "espdock.toml" not in created and outcome in (None, "unchanged"):
         console.print("nothing changed")
     if outcome == "unchanged":

@@ -568,11 +568,19 @@ def plain_compose_note(root: Path, own: str, env: Mapping[str, str]) -> str | No
 
 
 def init_compose(
-    workspace: Workspace, repository: str, packages: tuple[Package, ...], owner=None, refresh=False, force=False
+    workspace: Workspace,
+    repository: str,
+    packages: tuple[Package, ...],
+    owner=None,
+    refresh=False,
+    force=False,
+    by_setting: bool = False,
 ) -> str | None:
     """`espdock init`'s compose.yaml for WORKSPACE, whose runtime images are REPOSITORY: the
     executables its ROS PACKAGES have installed (see write_starter_compose for REFRESH, FORCE
-    and what it returns)."""
-    named = f"${{{NAME_VARIABLE}:-{_default_name(workspace.root) or repository.split('/', 1)[-1]}}}"
+    and what it returns). BY_SETTING: REPOSITORY's name is espdock.toml's `name`, which every worktree
+    and clone shares, so the file falls back to it, not to the one it fell back to before."""
+    own = repository.split("/", 1)[-1]
+    named = f"${{{NAME_VARIABLE}:-{own if by_setting else _default_name(workspace.root) or own}}}"
     text = starter_compose(named, f"espdock/{named}:latest", built_executables(workspace, packages))
     return write_starter_compose(workspace.root, text, owner, refresh, force)

@@ -1402,6 +1402,13 @@ def test_a_clone_or_worktree_runs_its_own_nodes_from_the_committed_compose_file(
     assert espdock("init", "--compose", cwd=feat, env=NO_ENGINE).returncode == 0
     refreshed = (feat / "compose.yaml").read_text()
     assert "name: ${ESPDOCK_NAME:-robot}\n" in refreshed and "/beacon]" not in refreshed, refreshed
+    # A name set in espdock.toml, which every worktree shares: the file falls back to it from then on
+    # (it kept the directory's, and plain `docker compose up` pulled espdock/robot-feat from Docker Hub).
+    config = feat / "espdock.toml"
+    config.write_text(config.read_text().replace("[espdock]\n", '[espdock]\nname = "fleet"\n', 1))
+    named = espdock("init", "--compose", cwd=feat, env=NO_ENGINE)
+    assert named.returncode == 0 and "nothing changed" not in named.stdout, named.stdout + named.stderr
+    assert "name: ${ESPDOCK_NAME:-fleet}\n" in (feat / "compose.yaml").read_text()
     # Nothing built yet (a fresh worktree): a build first, not a refresh that writes no service.
     shutil.rmtree(feat / "ws/install")
     said = " ".join(espdock("compose", "up", cwd=feat, env=NO_ENGINE).stdout.split())

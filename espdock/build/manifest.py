@@ -201,7 +201,7 @@ def write_report(
 @dataclass(frozen=True)
 class Difference:
     path: str
-    what: str  # "missing", "extra" or "changed"
+    what: str  # "missing", "extra", "changed" or "mode" (only whether it is executable changed)
 
 
 def read_manifest(path: Path) -> dict:
@@ -227,6 +227,16 @@ def compare(expected: Mapping[str, str], actual: Mapping[str, str]) -> list[Diff
     differences: Iterable[Difference] = (
         *(Difference(p, "missing") for p in expected if p not in actual),
         *(Difference(p, "extra") for p in actual if p not in expected),
-        *(Difference(p, "changed") for p in expected if p in actual and expected[p] != actual[p]),
+        *(
+            Difference(p, _changed(expected[p], actual[p]))
+            for p in expected
+            if p in actual and expected[p] != actual[p]
+        ),
     )
     return sorted(differences, key=lambda d: (d.path, d.what))
+
+
+def _changed(expected: str, actual: str) -> str:
+    """How a file's two hashes differ: "mode" where the content is the same and only whether it is
+    executable changed (a `chmod -x`, which `ros2 run` then fails on), else "changed"."""
+    return "mode" if expected.removesuffix(EXECUTABLE) == actual.removesuffix(EXECUTABLE) else "changed"

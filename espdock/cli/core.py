@@ -267,7 +267,12 @@ NOTES = {"stderr": False}
 
 
 def notify(text: str) -> None:
-    (err_console if NOTES["stderr"] else console).print(Text(visible(text), style="dim"))
+    say(Text(visible(text), style="dim"), err=NOTES["stderr"])
+
+
+def say(line: Text, err: bool = False) -> None:
+    """Print LINE (on stderr: ERR), after the UTC time where the command was asked for --timestamps."""
+    (err_console if err else console).print(stamped(line) if STAMPED["lines"] else line)
 
 
 def visible(text: str) -> str:
@@ -284,7 +289,7 @@ def load(workspace: Path | None, **overrides: object) -> tuple[Workspace, Config
     ws = find_workspace(workspace)
     config = load_config(ws.root, os.environ, overrides)
     for warning in misspelt_variables(os.environ):  # on stderr: `$(espdock list -n)` read them as packages
-        err_console.print(Text(visible(warning), style="yellow"))
+        say(Text(visible(warning), style="yellow"), err=True)
     state_dir(os.environ)  # checked before any work: a build records its images into it as it ends
     ws = ws.with_layout(config.package_paths, config.colcon_root)
     keep_digests(ws.ws_dir / "build" / DIGESTS_FILE)
@@ -345,5 +350,5 @@ def fail(exc: EspdockError) -> NoReturn:
     if exc.hint:
         lines.append(Text.assemble(("hint: ", "yellow"), visible(exc.hint)))
     for line in lines:
-        err_console.print(stamped(line) if STAMPED["errors"] else line)
+        say(line, err=True)
     sys.exit(exc.exit_code)

@@ -25,10 +25,10 @@ from espdock.cli.core import (
     app,
     build_plan,
     command,
-    console,
     ensure_images,
     load,
     notify,
+    say,
 )
 from espdock.cli.prune import record_images
 from espdock.config import Config, invoking_user, resolve_ca_bundle
@@ -128,7 +128,7 @@ def stale_runtime_note(
     except (EspdockError, OSError):
         return  # an install tree it cannot read: `espdock compose` will say what
     if current is None or current.id != latest.id:
-        console.print(
+        say(
             Text(
                 f"note: {step.stable_tag} is older than install/ now: plain `docker compose up` runs it as it was; "
                 "`espdock compose up` or `espdock run` make it afresh, as a build does with --runtime-image (or "
@@ -155,7 +155,9 @@ def compose(ctx: typer.Context, workspace: WorkspaceOption = None) -> None:
     args, among = compose_file.own_workspace(list(ctx.args))
     ws, config = load(workspace or among, runtime_image=True)
     subcommand = compose_file.compose_subcommand(args)
-    packages = workspace_packages(ws, config.ros_distro)
+    # Only what starts services reads the packages: `down`, `stop`, `ps` or `logs` must not wait for a
+    # package.xml being edited to be valid again.
+    packages = workspace_packages(ws, config.ros_distro) if subcommand in compose_file.COMPOSE_CREATING else ()
     installed = nodes.installed_ros_packages(ws, packages)
     if subcommand in compose_file.COMPOSE_CREATING and (holder := build_running(ws)) is not None:
         # Its runtime image would be made of a half rebuilt install/, and `:latest` moved to it. With

@@ -87,7 +87,7 @@ def test(
     when a test fails or errors.
 
     Options after `--` go to `colcon test` (e.g. `espdock test -- --pytest-args -k fast`)."""
-    STAMPED["errors"] = timestamps
+    STAMPED["lines"] = timestamps
     ws, config = load(workspace)
     check_not_building(ws)
     colcon_args = check_test_args(ctx.meta.get(PASSED))

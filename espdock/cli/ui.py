@@ -39,9 +39,9 @@ MARKS = {
 }
 
 
-# Set by a command asked for --timestamps: its error lines (espdock.cli.core.fail) then start with
-# the UTC time as every line before them did.
-STAMPED = {"errors": False}
+# Set by a command asked for --timestamps: its notes and error lines (espdock.cli.core.say, fail),
+# not only its steps' (Reporter), then start with the UTC time.
+STAMPED = {"lines": False}
 
 
 STAMP_EXAMPLE = "12:00:00 "

@@ -29,6 +29,7 @@ from espdock.cli.core import (
     err_console,
     load,
     notify,
+    say,
 )
 from espdock.cli.nodes import stale_runtime_note
 from espdock.cli.prune import after_build, record_images
@@ -125,7 +126,7 @@ def build(
     depends on it; record what the build produced in install/espdock-manifest.json.
 
     Options after `--` go to `colcon build` (e.g. `espdock build -- --cmake-args -DBUILD_TESTING=OFF`)."""
-    STAMPED["errors"] = timestamps
+    STAMPED["lines"] = timestamps
     ws, config = load(workspace, runtime_image=runtime_image, workspace_mode=workspace_mode)
     locked = locked if locked is not None else in_ci(os.environ)
     if not dry_run:
@@ -217,13 +218,13 @@ def build(
                 # Checked before the build, so something changed since; the build's outcome stands.
                 unwritten = f"could not write the report {report}: {exc.strerror or exc}"
                 if manifest is None:
-                    err_console.print(Text.assemble(("warning: ", "yellow"), unwritten))
+                    say(Text.assemble(("warning: ", "yellow"), unwritten), err=True)
                 else:
                     raise WorkspaceError(unwritten, "The build succeeded; its manifest is in install/.") from None
     found = workspace_packages(ws, config.ros_distro)  # as the build left them
     if orphans := orphan_installs(ws.ws_dir / "install", (p.name for p in found)):
         dirs = " ".join(rel for name in orphans for rel in package_trees(ws.ws_dir, name))
-        console.print(
+        say(
             Text(
                 f"note: install/ holds {', '.join(orphans)}, of no package in this workspace any more (renamed or "
                 f"removed?): colcon's setup scripts and ros2 run still find it; `rm -r {dirs}` in "
@@ -236,7 +237,7 @@ def build(
         stale_runtime_note(engine, ws, config, plan, found)
     if config.runtime_image and (note := plain_compose_note(ws.root, runtime_repository(config, ws), os.environ)):
         # A worktree or clone of the committed file: its :latest is made, and plain Compose runs the original's.
-        console.print(Text(note, style="yellow"))
+        say(Text(note, style="yellow"))
     after_build(engine, ws, config, runner, built, whole=not packages)
 
 

@@ -1020,13 +1020,15 @@ def test_the_dry_run_leaves_out_what_the_options_after_the_double_dash_skip(tmp_
     ), said
 
 
-def test_timestamps_reach_the_error_that_ends_the_command(tmp_path):
-    """`espdock build --timestamps` in CI: every line was timed but the error and its hint."""
+def test_timestamps_reach_the_error_that_ends_the_command_and_the_notes_before_it(tmp_path):
+    """`espdock build --timestamps` in CI: every line was timed but the error and its hint, and the
+    notes and warnings said outside the steps (a misspelt variable's, the runtime image's)."""
     root = copy_workspace(tmp_path / "w")
-    result = espdock("build", "--timestamps", cwd=root, env=NO_ENGINE)
+    result = espdock("build", "--timestamps", cwd=root, env={**NO_ENGINE, "ESPDOCK_RUNTIME_IMAGES": "1"})
     lines = [line for line in result.stderr.splitlines() if line.strip()]
     assert result.returncode == 3 and lines, result.stderr
-    assert all(re.match(r"\d\d:\d\d:\d\d (error|hint): ", line) for line in lines), lines
+    assert all(re.match(r"\d\d:\d\d:\d\d (error|hint|warning): ", line) for line in lines), lines
+    assert any(" warning: ESPDOCK_RUNTIME_IMAGES is no espdock setting" in line for line in lines), lines
 
 
 def test_a_firmware_project_linked_from_outside_is_refused_when_planned(tmp_path):
@@ -1653,3 +1655,16 @@ def test_notes_go_to_stderr_where_stdout_is_a_node_s(capsys):
     captured = capsys.readouterr()
     assert "note: on stdout" in captured.out and "warning: on stderr" in captured.err
     assert "warning" not in captured.out
+
+
+def test_compose_commands_that_start_nothing_do_not_wait_for_a_package_xml_being_edited(tmp_path):
+    """`espdock compose down` while a package.xml was half typed: exit 2 on the manifest, and the
+    services kept running (plain `docker compose down` may name another project)."""
+    root = copy_workspace(tmp_path / "w", packages=(), test_packages=("beacon_nodes",))
+    manifest = root / "ws/src/beacon_nodes/package.xml"
+    manifest.write_text(manifest.read_text().replace("</package>", "</packag"))
+    for subcommand in ("down", "stop", "ps"):
+        ended = espdock("compose", subcommand, cwd=root, env=NO_ENGINE)
+        assert ended.returncode == 3, (subcommand, ended.stdout + ended.stderr)  # on to the engine (none here)
+    started = espdock("compose", "up", cwd=root, env=NO_ENGINE)
+    assert started.returncode == 2 and "is not a valid package.xml" in started.stderr, started.stderr

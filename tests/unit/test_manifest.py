@@ -184,9 +184,9 @@ def test_a_build_of_part_of_the_workspace_keeps_what_the_manifest_said_of_the_re
     assert sorted(manifest["images"]) == [uros, ros], "what built the ROS packages stays"
 
 
-def test_an_executable_that_lost_its_x_bit_is_a_changed_file_and_older_manifests_still_read(tmp_path):
+def test_an_executable_that_lost_its_x_bit_is_a_mode_change_and_older_manifests_still_read(tmp_path):
     """`chmod -x` of an installed node script (`ros2 run` then fails, "Permission denied"):
-    `espdock verify` said the install matched."""
+    `espdock verify` said the install matched, then "changed", as for an edit of its content."""
     install = tree(tmp_path)
     script = install / "pkg/lib/pkg/node"
     script.parent.mkdir(parents=True)
@@ -194,6 +194,8 @@ def test_an_executable_that_lost_its_x_bit_is_a_changed_file_and_older_manifests
     script.chmod(0o755)
     before = file_hashes(install)
     script.chmod(0o644)
+    assert compare(before, file_hashes(install)) == [Difference("pkg/lib/pkg/node", "mode")]
+    script.write_text("#!/usr/bin/python3\nprint()\n")
     assert compare(before, file_hashes(install)) == [Difference("pkg/lib/pkg/node", "changed")]
     # A manifest an earlier espdock wrote (format 1, no modes) reads, and is compared without them.
     old = {"format": 1, "files": file_hashes(install, modes=False)}

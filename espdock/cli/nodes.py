@@ -412,7 +412,8 @@ def shell(workspace: WorkspaceOption = None) -> None:
     packages = workspace_packages(ws, config.ros_distro)
     owner = runner.containers.container_owner()
     if not mount.volume:
-        nodes.make_shell_home(ws, runner.owner)
+        # As espdock's builds on the wheels image: no ament_lint_auto for `if(BUILD_TESTING)` to find.
+        nodes.make_shell_home(ws, runner.owner, tests_off=config.ros_image == "wheels")
     environ = caller_env(ws, config, runner, image)
     spec = nodes.shell_spec(
         ws,
@@ -425,6 +426,7 @@ def shell(workspace: WorkspaceOption = None) -> None:
         packages,
         current_dir(ws.root, logical=True),
         user_name(runner.owner[0]),
+        runner.containers.reproducible_env(ws),
     )
     code, stopped_by = run_foreground(runner.engine, spec)
     raise typer.Exit(128 + stopped_by if stopped_by else code)

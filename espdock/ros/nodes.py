@@ -470,28 +470,33 @@ test:
 """
 
 
-def shell_colcon_defaults(define: str) -> str:
-    """SHELL_COLCON_DEFAULTS with the CMake argument espdock's builds give first (DEFINE:
-    egg_info_order_define), for the build dirs a colcon build in the shell configures itself."""
+def shell_colcon_defaults(define: str, tests_off: bool = False) -> str:
+    """SHELL_COLCON_DEFAULTS with the CMake arguments espdock's builds give (DEFINE:
+    egg_info_order_define; TESTS_OFF: BUILD_TESTING=OFF, as on the wheels image, which has no
+    ament_lint_auto for `ros2 pkg create`'s packages), for the build dirs a colcon build in the
+    shell configures itself."""
+    args = [define, *(["-DBUILD_TESTING=OFF"] if tests_off else [])]
     return SHELL_COLCON_DEFAULTS.replace(
         "build:\n  build-base: build/espdock-ros\n",
-        f"build:\n  build-base: build/espdock-ros\n  cmake-args: [{json.dumps(define)}]\n",
+        f"build:\n  build-base: build/espdock-ros\n  cmake-args: [{', '.join(map(json.dumps, args))}]\n",
     )
 
 
-def make_shell_home(workspace: Workspace, owner: tuple[int, int]) -> None:
+def make_shell_home(workspace: Workspace, owner: tuple[int, int], tests_off: bool = False) -> None:
     """The shell's home on the workspace (SHELL_HOME), with its .bashrc and colcon defaults
-    written once (then the user's to edit; the defaults an older espdock wrote, unedited, are
-    brought up to date), all OWNER's."""
+    written once (then the user's to edit; defaults as espdock writes them, unedited, follow
+    espdock's and the image's: TESTS_OFF, shell_colcon_defaults), all OWNER's."""
     home = workspace.ws_dir / SHELL_HOME
     make_dirs_for(home, owner)
-    defaults = shell_colcon_defaults(egg_info_order_define(container_path(workspace.colcon_root)))
+    define = egg_info_order_define(container_path(workspace.colcon_root))
+    defaults = shell_colcon_defaults(define, tests_off)
+    ours = {SHELL_COLCON_DEFAULTS, shell_colcon_defaults(define), shell_colcon_defaults(define, True)}
     for name, text, older in (
-        (".bashrc", SHELL_BASHRC, None),
-        ("colcon-defaults.yaml", defaults, SHELL_COLCON_DEFAULTS),
+        (".bashrc", SHELL_BASHRC, set()),
+        ("colcon-defaults.yaml", defaults, ours),
     ):
         written = home / name
-        if not written.exists() or (older is not None and written.read_text() == older):
+        if not written.exists() or (written.read_text() in older and written.read_text() != text):
             written.write_text(text)
             give_to(written, owner)
 
@@ -507,11 +512,14 @@ def shell_spec(
     packages: Iterable[Package] = (),
     cwd: Path | None = None,
     user_name: str | None = None,
+    build_env: tuple[tuple[str, str], ...] = (),
 ) -> RunSpec:
     """A shell in the build IMAGE (made from DOCKERFILE) with the workspace mounted (MOUNT: its
     volume instead, espdock.volume), the directories the links to its ROS PACKAGES lead to (as a
     build has them) and its install tree sourced; in CWD where that is in the colcon root, else
-    there; as USER_NAME (USER, LOGNAME), with SHELL_HOME as its home on the workspace's mount."""
+    there; as USER_NAME (USER, LOGNAME), with SHELL_HOME as its home on the workspace's mount.
+    BUILD_ENV: what espdock's build containers get for reproducible output (SOURCE_DATE_EPOCH, ...):
+    a colcon build in the shell builds where theirs do."""
     root = container_path(workspace.colcon_root)
     official = dockerfile == ROS_OFFICIAL_DOCKERFILE
     mount = mount or Mount(workspace.root, WORKSPACE_MOUNT)
@@ -543,6 +551,7 @@ def shell_spec(
             ("ESPDOCK_WS_INSTALL", f"{root}/install"),
             *terminal_env(env, tty),
             *node_env(env, mounted=not mount.volume),
+            *build_env,
         ),
         labels=_labels(workspace, "shell"),
         network=DEFAULT_NETWORK,

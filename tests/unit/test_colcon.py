@@ -361,6 +361,11 @@ def test_the_shell_s_colcon_defaults_carry_the_egg_info_order_and_replace_an_old
     make_shell_home(Workspace(tmp_path), (os.getuid(), os.getgid()))
     defaults = yaml.safe_load((home / "colcon-defaults.yaml").read_text())
     assert defaults["build"]["cmake-args"] == [egg_info_order_define("/workspace/ws")]
+    # On the wheels image, as espdock's builds there: `ros2 pkg create`'s ament_cmake package asks for
+    # ament_lint_auto under if(BUILD_TESTING), which the image lacks (the shell's colcon failed on it).
+    make_shell_home(Workspace(tmp_path), (os.getuid(), os.getgid()), tests_off=True)
+    defaults = yaml.safe_load((home / "colcon-defaults.yaml").read_text())
+    assert defaults["build"]["cmake-args"] == [egg_info_order_define("/workspace/ws"), "-DBUILD_TESTING=OFF"]
     (home / "colcon-defaults.yaml").write_text("build: {build-base: build/espdock-ros, symlink-install: true}\n")
     make_shell_home(Workspace(tmp_path), (os.getuid(), os.getgid()))
     assert "symlink-install" in (home / "colcon-defaults.yaml").read_text(), "the user's edits stay"

@@ -586,7 +586,8 @@ def _deciding_digest(text: str) -> bytes | None:
     build = data.get("build")
     if not isinstance(build, dict):
         return None if build is None else hashlib.sha256(json.dumps(build, default=str).encode()).digest()
-    deciding = {key: value for key, value in build.items() if f"--{key}" not in SCHEDULING}
+    # symlink-install: as on the command line (read_colcon_settings).
+    deciding = {key: value for key, value in build.items() if f"--{key}" not in SCHEDULING and key != "symlink-install"}
     if not deciding:
         return None
     try:
@@ -734,8 +735,10 @@ def read_colcon_settings(
     args = check_colcon_args(args)
     args += defaults_leaving_out(colcon_root, env, "build", args)
     files: list[str] = []
-    # The same options spelt either way (`--cmake-args=-DX=1`, `--cmake-args -DX=1`) build the same.
-    common = hashlib.sha256(json.dumps(output_args(_spelt_apart(args))).encode())
+    # The same options spelt either way (`--cmake-args=-DX=1`, `--cmake-args -DX=1`) build the same;
+    # so does --symlink-install given or set in a defaults file (added below, once, where either has it).
+    hashed = tuple(arg for arg in output_args(_spelt_apart(args)) if arg != SPELT_OUT)
+    deciding: list[bytes] = []
     defaults: str | None = None
     cmake_args: tuple[str, ...] = ()
     symlink_install = False
@@ -749,10 +752,15 @@ def read_colcon_settings(
         cmake_args = _cmake_args(build) or cmake_args
         symlink_install = build.get("symlink-install", symlink_install) is True
         if (decides := _deciding_digest(text)) is not None:
-            common.update(f"{shown}\0".encode() + decides)
+            deciding.append(f"{shown}\0".encode() + decides)
         files.append(shown)
         if path == user:
             defaults = str(path.resolve())
+    # Last among the options, where `-- --symlink-install` alone has it: those builds' stamps stand.
+    symlinked = symlink_install or SPELT_OUT in args
+    common = hashlib.sha256(json.dumps((*hashed, SPELT_OUT) if symlinked else hashed).encode())
+    for part in deciding:
+        common.update(part)
     metas: dict[str, dict] = {}
     for given in meta_paths(args):
         rel = posixpath.join(given, WORKSPACE_META) if (colcon_root / given).is_dir() else given

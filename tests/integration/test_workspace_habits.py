@@ -96,6 +96,15 @@ def test_symlink_install_builds_runs_and_shows_a_source_edit_without_a_rebuild(e
     assert python.returncode == 0 and "rclpy_banner: rclpy from /opt/espdock/venv" in python.stdout, python.stderr
     beacon_says(root, "beacon up")
 
+    # The same option from ~/.colcon/defaults.yaml, the tutorials' habit, builds nothing again (each
+    # switch between the two configured every CMake package afresh and rebuilt it).
+    home = tmp_path / "home"
+    (home / ".colcon").mkdir(parents=True)
+    (home / ".colcon/defaults.yaml").write_text("build:\n  symlink-install: true\n")
+    from_defaults = espdock("build", "--only", "ros", cwd=root, env={**os.environ, "HOME": str(home)})
+    said = " ".join(from_defaults.stdout.split())
+    assert from_defaults.returncode == 0 and "afresh" not in said and "package(s) built" not in said, said[-3000:]
+
     # What a symlink install gives: an edited Python source runs without `colcon build`.
     source = root / "ws" / "src" / "beacon_nodes" / "beacon_nodes" / "beacon.py"
     source.write_text(source.read_text().replace('"beacon up"', '"beacon up, edited"'))

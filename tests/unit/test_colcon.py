@@ -123,6 +123,26 @@ def test_settings_decide_each_package_stamp(tmp_path):
     assert settings.defaults_file == str(user)
 
 
+def test_symlink_install_in_a_defaults_file_or_after_the_double_dash_is_one_setting(tmp_path):
+    """`symlink-install: true` in ~/.colcon/defaults.yaml and `espdock build -- --symlink-install`
+    build the same, but each switch between the two configured every CMake package afresh."""
+    root, dirs = _workspace(tmp_path)
+    env = {"HOME": str(tmp_path / "home")}
+
+    def digests(args=None) -> dict[str, str]:
+        return dict(read_colcon_settings(root, dirs, args, env).digests)
+
+    given = digests(("--symlink-install",))
+    user = tmp_path / "home/.colcon/defaults.yaml"
+    user.parent.mkdir(parents=True)
+    user.write_text("build:\n  symlink-install: true\n")
+    assert digests() == given == digests(("--symlink-install",))
+    user.write_text("build:\n  symlink-install: false\n")
+    assert digests() != given and digests(("--symlink-install",)) == given, "the flag turns it on over the file"
+    user.write_text("build:\n  symlink-install: true\n  cmake-args: [-DX=1]\n")
+    assert digests() != given, "the file's other options still count"
+
+
 def test_what_a_defaults_file_says_of_which_packages_build_and_when_decides_no_stamp(tmp_path):
     """A colcon_defaults.yaml of `packages-skip` alone rebuilt every package, and taking it out
     rebuilt them all again: the same option after `--` decides no stamp."""

@@ -458,15 +458,33 @@ def _cached_symlink_install(cache: Path) -> bool | None:
     return None if found is None else found.group(1).strip().upper() in ("1", "ON", "TRUE", "YES", "Y")
 
 
-def install_kind_switched(base: Path, names: Iterable[str], args: tuple[str, ...]) -> list[str]:
+def install_kind_switched(
+    base: Path, names: Iterable[str], args: tuple[str, ...], install: Path | None = None
+) -> list[str]:
     """Those of NAMES whose last build in BASE made the other install kind than ARGS (with what the
     defaults file turns on: ColconBuild.effective_args) make. colcon does not switch a build dir in
     place: an interface package's ament_cmake Python install fails on the directories a copying
     install left, one package per run. Kept per package: a selection's switch, kept for the
     workspace, had the next build of the rest build in place (failing, or leaving links in a copying
-    install)."""
+    install). Where espdock has no word of a package (a native `colcon build` made its prefix in
+    INSTALL), its installed package.xml tells."""
     wanted, kinds = "--symlink-install" in args, _install_kinds(base)
-    return [name for name in names if symlink_installed(base, name, kinds) not in (None, wanted)]
+    switched = []
+    for name in names:
+        kind = symlink_installed(base, name, kinds)
+        if kind is None and install is not None:
+            kind = _installed_kind(install / name / "share" / name / "package.xml")
+        if kind not in (None, wanted):
+            switched.append(name)
+    return switched
+
+
+def _installed_kind(manifest: Path) -> bool | None:
+    """Whether the package.xml an install prefix holds (MANIFEST) is a symlink install's link; None
+    where there is none. Both ament_cmake and ament_python install it, a link when symlinking."""
+    if manifest.is_symlink():
+        return True
+    return False if manifest.is_file() else None
 
 
 def _spelt_apart(args: Iterable[str]) -> tuple[str, ...]:

@@ -260,7 +260,7 @@ def build_afresh(
 
     # What the options after `--` leave out: colcon would not build or install it again.
     out = left_out(step.colcon_args, dict(step.depends), base)
-    if switched := install_kind_switched(base, rebuild, step.effective_args):
+    if switched := install_kind_switched(base, rebuild, step.effective_args, install):
         turned = "on" if "--symlink-install" in step.effective_args else "off"
         # What they leave out colcon does not build: it keeps its install, of the other kind.
         switching = [name for name in switched if name not in out]

@@ -367,6 +367,21 @@ def test_espdock_builds_over_a_native_symlink_install(engine, tmp_path):
     assert report.returncode == 0 and "uptime_report: up" in report.stdout, report.stdout + report.stderr
 
 
+def test_espdock_s_symlink_install_builds_over_a_native_copying_install(engine, tmp_path):
+    """A workspace built with plain `colcon build`, then `espdock init` and `espdock build -- --symlink-install`
+    (or symlink-install in ~/.colcon/defaults.yaml): colcon failed on the native copies ("[Errno 17] File
+    exists"), and the error said to fix the package, every run."""
+    root = copy_workspace(tmp_path / "native-copies", packages=(), test_packages=PACKAGES)
+    native = native_colcon(root)
+    assert native.returncode == 0, native.stdout[-3000:] + native.stderr[-3000:]
+    result = espdock("build", "--only", "ros", "--", "--symlink-install", cwd=root)
+    assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
+    said = " ".join(result.stdout.split())
+    assert "--symlink-install on since their last build: removed the build dirs and install prefixes" in said, said
+    assert (root / "ws/install/uptime_tools/lib/uptime_tools/uptime_report").is_symlink()
+    beacon_says(root, "beacon up")
+
+
 def test_native_and_espdock_builds_take_turns_in_one_workspace(engine, tmp_path):
     root = copy_workspace(tmp_path / "native", packages=(), test_packages=PACKAGES)
     built(root)  # the images; then the developer builds natively and with espdock, in turns

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import os
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import Annotated
 
@@ -25,7 +25,7 @@ from espdock.events import Outcome
 from espdock.images.keyed import unpushed_error
 from espdock.layout import ROS_BUILD_BASE
 from espdock.ros.colcon import defaults_leaving_out, passed_last_time
-from espdock.ros.plan import ColconBuild
+from espdock.ros.plan import PYTHON_BUILD_TYPES, ColconBuild
 from espdock.ros.steps import TEST_RESULTS
 from espdock.ros.testing import (
     HOST_TESTS_BASE,
@@ -37,6 +37,7 @@ from espdock.ros.testing import (
     host_tests_dir,
     not_left_out,
     prepare_results,
+    pytest_not_asked_for,
     read_results,
     run_host_tests,
 )
@@ -150,7 +151,8 @@ def test(
         found |= read_results(host_base, [package.name])
         logs[package.name] = host_base / package.name / "host_tests" / "Testing" / "Temporary" / "LastTest.log"
     if found:
-        _render(found, ws.root, logs, say)
+        unasked = {p.name for p in ros if p.build_type in PYTHON_BUILD_TYPES and pytest_not_asked_for(p.path)}
+        _render(found, ws.root, logs, say, unasked)
     _say_firmware(firmware, say)
     unwritten: EspdockError | None = None
     if results is not None:
@@ -206,8 +208,14 @@ def _test_ros(ws, config, every, ros, colcon_args, locked, official, push_cache,
 
 
 def _render(
-    found: dict[str, PackageResults], root: Path, logs: dict[str, Path], say: Callable[[str | Text], None]
+    found: dict[str, PackageResults],
+    root: Path,
+    logs: dict[str, Path],
+    say: Callable[[str | Text], None],
+    unasked: Iterable[str] = (),
 ) -> None:
+    """The results per package; UNASKED: ament_python packages whose pytest files colcon did not
+    run (pytest_not_asked_for)."""
     total = PackageResults("")
     say(Text("test results", style="bold"))
     for result in found.values():
@@ -225,7 +233,15 @@ def _render(
         if result.ctest_file is not None:
             where = result.ctest_file.relative_to(root)
             say(Text(f"    ctest: {where} ({result.ctest_tests} of the tests)", style="dim"))
-        if not result.files and result.ctest_file is None:
+        if not result.files and result.ctest_file is None and result.package in unasked:
+            say(
+                Text(
+                    "    no result files: colcon ran its test/ with unittest, which finds no pytest test: colcon runs "
+                    "pytest only where setup.py names it, `tests_require=['pytest']` (as `ros2 pkg create` writes it)",
+                    style="yellow",
+                )
+            )
+        elif not result.files and result.ctest_file is None:
             say(Text("    no result files: the package has no tests colcon could find", style="dim"))
         total.tests += result.tests
         total.failed += result.failed

@@ -81,6 +81,21 @@ def host_tests_dir(package_dir: Path) -> Path | None:
     return source
 
 
+def pytest_not_asked_for(package_dir: Path) -> bool:
+    """Whether the ament_python package at PACKAGE_DIR has pytest files (test/test_*.py) that colcon
+    will not run: colcon runs pytest only where setup.py's tests_require or a `test` extra names it
+    (as `ros2 pkg create` writes it), else unittest, which collects no pytest function."""
+    tests = [p for d in ("test", "tests") for p in (package_dir / d).glob("test_*.py")]
+    if not tests:
+        return False
+    declared = " ".join(
+        (package_dir / name).read_text(errors="replace")
+        for name in ("setup.py", "setup.cfg")
+        if (package_dir / name).is_file()
+    )
+    return "pytest" not in declared
+
+
 # Where `espdock test` builds a firmware package's host tests and writes their results, per package
 # (as colcon's build base has it: <package>/host_tests, <package>/test_results/<package>/).
 HOST_TESTS_BASE = "build/espdock-host-tests"

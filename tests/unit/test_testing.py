@@ -555,3 +555,32 @@ def test_root_s_host_tests_run_with_the_user_s_home(shared_dir):
     lines: list[str] = []
     run_host_tests("home_fw", package, shared_dir / "ws/build", lines.append, (user.pw_uid, user.pw_gid))
     assert f"-- home is {user.pw_dir}" in lines, lines
+
+
+def test_pytest_files_colcon_ran_with_unittest_are_named_not_called_no_tests(tmp_path):
+    """An ament_python package with test/test_x.py but no `tests_require=['pytest']` in its setup.py:
+    colcon ran unittest, which found nothing, and `espdock test` said "the package has no tests
+    colcon could find" of a package with a failing test."""
+    from rich.console import Console
+
+    from espdock.cli.testing import _render
+    from espdock.ros.testing import PackageResults, pytest_not_asked_for
+
+    package = tmp_path / "ws/src/py_pkg"
+    (package / "test").mkdir(parents=True)
+    (package / "test/test_math.py").write_text("def test_add():\n    assert 1 + 1 == 3\n")
+    (package / "setup.py").write_text("from setuptools import setup\nsetup(name='py_pkg', packages=['py_pkg'])\n")
+    assert pytest_not_asked_for(package)
+    lines: list[str] = []
+    console = Console(width=300)
+    logs = {"py_pkg": tmp_path / "ws/log/latest_test/py_pkg"}
+    with console.capture() as captured:
+        _render({"py_pkg": PackageResults("py_pkg")}, tmp_path, logs, console.print, {"py_pkg"})
+    lines = captured.get().splitlines()
+    assert any("colcon runs pytest only where setup.py names it, `tests_require=['pytest']`" in line for line in lines)
+    assert not any("no tests colcon could find" in line for line in lines), lines
+    (package / "setup.py").write_text("from setuptools import setup\nsetup(name='py_pkg', tests_require=['pytest'])\n")
+    assert not pytest_not_asked_for(package)
+    (package / "setup.py").write_text("from setuptools import setup\nsetup(name='py_pkg')\n")
+    (package / "test/test_math.py").unlink()
+    assert not pytest_not_asked_for(package), "no pytest file: nothing left unrun"

@@ -85,7 +85,7 @@ class Runner:
                         StepNote(
                             "workspace",
                             f"removed {swept} container(s) an espdock killed earlier (kill -9, a closed terminal) "
-                            "left running in this workspace",
+                            "left behind in this workspace",
                         )
                     )
             for index, step in enumerate(plan.steps):

@@ -70,7 +70,7 @@ def run_foreground(engine: Engine, spec: RunSpec) -> tuple[int, int | None]:
     """Engine.run_foreground of SPEC, after removing what a killed espdock's run (or shell) of the
     workspace left running, and saying so."""
     if swept := engine.sweep(dict(spec.labels)):
-        notify(f"removed {swept} container(s) an espdock killed earlier (kill -9, a closed terminal) left running")
+        notify(f"removed {swept} container(s) an espdock killed earlier (kill -9, a closed terminal) left behind")
     return engine.run_foreground(spec)
 
 
@@ -94,7 +94,7 @@ def runtime_image(ws: Workspace, config: Config, plan: Plan | None = None) -> tu
         # A build's container an espdock killed outright (kill -9) went on writing install/ while
         # the image was made of it.
         if swept := engine.sweep({LABEL_WORKSPACE: str(ws.root)}):
-            notify(f"removed {swept} container(s) an espdock killed earlier (kill -9) left running in this workspace")
+            notify(f"removed {swept} container(s) an espdock killed earlier (kill -9) left behind in this workspace")
         if unfinished := nodes.unfinished_builds(ws, step.packages):
             notify(
                 f"warning: the last espdock build of {', '.join(unfinished)} did not finish (it failed or was "

@@ -235,7 +235,7 @@ class FirmwareSteps:
             self.containers.emit(
                 StepNote(
                     step.name,
-                    f"removed {swept} container(s) of {step.package} an espdock killed earlier left running "
+                    f"removed {swept} container(s) of {step.package} an espdock killed earlier left behind "
                     "(a monitor holding the port, say)",
                 )
             )

@@ -492,7 +492,7 @@ def test_run_says_when_a_package_was_built_on_older_sources_of_one_it_depends_on
         subprocess.run(["docker", "rm", "-f", orphan], capture_output=True, check=False)
     said = " ".join((cut.stdout + cut.stderr).split())
     assert "warning: the last espdock build of beacon_nodes did not finish (it failed or was interrupted)" in said
-    assert "removed 1 container(s) an espdock killed earlier (kill -9) left running in this workspace" in said
+    assert "removed 1 container(s) an espdock killed earlier (kill -9) left behind in this workspace" in said
     assert gone.returncode != 0, "the orphan still runs"
     assert no_containers_left(engine, root) == []
 

@@ -249,7 +249,8 @@ def _rosdep_state(
     _, _, image = ros_image(config, inputs)
     needed = rosdeps.needed_keys(packages, image)
     lock = rosdeps.read_lock(inputs.rosdep_lock, ROSDEP_LOCK)
-    return image, needed, rosdeps.stale_reason(lock, needed, image, ROSDEP_LOCK)
+    present = [p.name for p in packages]
+    return image, needed, rosdeps.stale_reason(lock, needed, image, ROSDEP_LOCK, present)
 
 
 def stale_rosdep_lock(root: Path, reason: str) -> LockError:

@@ -160,24 +160,38 @@ def read_lock(data: bytes | None, name: str) -> dict | None:
     return lock
 
 
-def stale_reason(lock: dict | None, needed: Mapping[str, tuple[str, ...]], image: RosImage, name: str) -> str | None:
-    """Why LOCK does not answer for NEEDED on IMAGE; None when it does (or nothing is needed)."""
+def stale_reason(
+    lock: dict | None,
+    needed: Mapping[str, tuple[str, ...]],
+    image: RosImage,
+    name: str,
+    present: Iterable[str] | None = None,
+) -> str | None:
+    """Why LOCK does not answer for NEEDED on IMAGE; None when it does (or nothing is needed).
+    PRESENT: the workspace's packages now, where the caller knows them."""
     if lock is None:
         return f"{name} is missing" if needed else None
     if lock.get("format", FORMAT) != FORMAT:  # a test part has none: its lock's is checked
         return f"{name} was made by an older espdock (format {lock['format']}), which read rosdep's rules otherwise"
     if lock.get("input") != lock_input(needed, image):
-        return f"{name} is stale: {_what_changed(lock, needed, image)}"
+        return f"{name} is stale: {_what_changed(lock, needed, image, present)}"
     return None
 
 
-def _what_changed(lock: Mapping, needed: Mapping[str, tuple[str, ...]], image: RosImage) -> str:
+def _what_changed(
+    lock: Mapping, needed: Mapping[str, tuple[str, ...]], image: RosImage, present: Iterable[str] | None = None
+) -> str:
     """What the lock answers for that NEEDED on IMAGE does not: the keys each package depends on,
-    the image; its locks, where nothing else differs."""
+    the image; its locks, where nothing else differs. PRESENT: the workspace's packages now."""
     said = []
     locked = {p: tuple(keys) for p, keys in (lock.get("packages") or {}).items()} if "packages" in lock else None
+    present = None if present is None else set(present)
     if locked is not None:
         for package in sorted(set(needed) | set(locked)):
+            if present is not None and package not in present:
+                # Left out (COLCON_IGNORE), removed or renamed: not a package whose dependencies changed.
+                said.append(f"{package} is no package of the workspace now")
+                continue
             now, before = set(needed.get(package, ())), set(locked.get(package, ()))
             if now - before:
                 said.append(f"{package} now depends on {', '.join(sorted(now - before))}")

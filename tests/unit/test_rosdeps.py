@@ -71,6 +71,10 @@ def test_a_lock_is_stale_when_a_key_the_image_or_its_locks_change():
         "rosdep.lock.json is stale: since it was made, app now depends on tinyxml2; node now depends on "
         "acpitool; node no longer depends on tinyxml2"
     )
+    # A package left out (COLCON_IGNORE), removed or renamed is not one whose dependencies changed.
+    said = rosdeps.stale_reason(made, {}, WHEELS, "rosdep.lock.json", present=["other"])
+    assert said == "rosdep.lock.json is stale: since it was made, node is no package of the workspace now"
+    assert "node no longer depends on tinyxml2" in rosdeps.stale_reason(made, {}, WHEELS, "x", present=["node"])
     said = rosdeps.stale_reason(made, needed, official, "rosdep.lock.json")
     assert said == (
         "rosdep.lock.json is stale: since it was made, ros_image is official, not wheels; "

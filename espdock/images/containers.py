@@ -265,6 +265,10 @@ def permission_error(
     if path is not None:
         try:
             denied = path if path.exists() or path.is_symlink() else path.parent
+            if denied != path and path.name.endswith(".tmp"):
+                # A file espdock was about to write beside its own (durable's temporary): name the
+                # directory, not a name the user never sees.
+                path = denied
             info = denied.lstat()
             owner_uid = info.st_uid
             where = "" if denied == path else ", its directory"

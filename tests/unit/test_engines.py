@@ -603,6 +603,11 @@ def test_permission_hints_quote_their_path_and_name_the_fix_that_applies(tmp_pat
     os.chown(checkout, 0, 0)
     theirs = permission_error(PermissionError(13, "denied", str(checkout / "build")), (1000, 1000), checkout)
     assert f"(owner uid 0, mode {checkout.stat().st_mode & 0o7777:04o}, its directory)" in theirs.message
+    # A read-only build dir: named, not the temporary file espdock was about to write in it.
+    stamps = checkout / "build/..espdock-colcon-stamps.json.3112.tmp"
+    stamps.parent.mkdir()
+    read_only = permission_error(PermissionError(13, "denied", str(stamps)), (1000, 1000), checkout)
+    assert f"permission denied on {stamps.parent} (owner uid 0" in read_only.message, read_only.message
     assert f"`sudo chown -R 1000:1000 {checkout}`), or work in a copy of your own" in theirs.hint, theirs.hint
 
 

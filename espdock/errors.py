@@ -49,6 +49,11 @@ class DependencyError(EspdockError):
         self.keys = keys
 
 
+class LockBehind(DependencyError):
+    """The rosdep lock is missing, or older than the package.xml files: a key they name it has
+    never seen, which refreshing the lock answers (`espdock build` does, out of CI)."""
+
+
 class RegistryError(EspdockError):
     """The cache registry refused the engine's credentials, or --push-cache could not push."""
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import os
 import pwd
 import shlex
@@ -32,7 +33,7 @@ from espdock.cli.core import (
 )
 from espdock.cli.prune import record_images
 from espdock.config import Config, invoking_user, resolve_ca_bundle
-from espdock.errors import EspdockError, Interrupted, WorkspaceError
+from espdock.errors import EspdockError, Interrupted, LockBehind, LockError, WorkspaceError
 from espdock.images import bootstrap
 from espdock.images.engine import ComposeStillStopping, Engine, in_background
 from espdock.images.keyed import is_current
@@ -352,7 +353,9 @@ def run(
     except WorkspaceError:
         if any(p.name == package for p in packages) and not (ws.ws_dir / "install" / package).is_dir():
             # "not built yet: run `espdock build PKG`", a build this image refuses: say why it does.
-            build_plan(ws, config, [], PackageKind.ROS, colcon_args=last, checked=(package,))
+            # Not a missing or stale rosdep lock, which that build makes itself (--locked aside).
+            with contextlib.suppress(LockError, LockBehind):
+                build_plan(ws, config, [], PackageKind.ROS, colcon_args=last, checked=(package,))
         raise
     if runs := next((edited_since_built(ws, p) for p in packages if p.name == package), None):
         notify(

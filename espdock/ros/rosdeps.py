@@ -30,7 +30,7 @@ from pathlib import Path
 
 from espdock import downloads, scratch
 from espdock.defaults import locate
-from espdock.errors import DependencyError, LockError
+from espdock.errors import DependencyError, LockBehind, LockError
 from espdock.layout import ROSDEP_LOCK, xdg_dir
 from espdock.ros import pypi_names
 from espdock.ros.system_python import SystemPython, normalise
@@ -256,7 +256,7 @@ def check_dependencies(
         again = f"`espdock {command}`" if command else "the command"
         # No lock at all (a fresh clone, a run before any build) is not one behind the manifests.
         state = "is missing" if lock is None else "is older than the package.xml files"
-        raise DependencyError(
+        raise LockBehind(
             f"{ROSDEP_LOCK} {state}:\n" + "\n".join(lines),
             f"Run `espdock lock` (or {again} where rosdep's sources answer: it refreshes the lock) and run again.",
         )

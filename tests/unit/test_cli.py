@@ -1668,3 +1668,20 @@ def test_compose_commands_that_start_nothing_do_not_wait_for_a_package_xml_being
         assert ended.returncode == 3, (subcommand, ended.stdout + ended.stderr)  # on to the engine (none here)
     started = espdock("compose", "up", cwd=root, env=NO_ENGINE)
     assert started.returncode == 2 and "is not a valid package.xml" in started.stderr, started.stderr
+
+
+def test_run_before_the_first_build_says_to_build_not_to_lock(tmp_path):
+    """`espdock run PKG EXE` in a new workspace said "rosdep.lock.json is missing", which the build it
+    should have named makes itself."""
+    root = copy_workspace(tmp_path / "w", packages=(), test_packages=("beacon_nodes",))
+    (root / "rosdep.lock.json").unlink(missing_ok=True)
+    manifest = root / "ws/src/beacon_nodes/package.xml"  # a key the image lacks: the lock must answer for it
+    manifest.write_text(
+        manifest.read_text()
+        .replace("</export>", "</export>", 1)
+        .replace("<export>", "<exec_depend>python3-serial</exec_depend>\n  <export>", 1)
+    )
+    result = espdock("run", "beacon_nodes", "beacon", cwd=root, env=NO_ENGINE)
+    said = " ".join(result.stderr.split())
+    assert result.returncode == 2 and "rosdep.lock.json" not in said, said
+    assert "espdock build beacon_nodes" in said, said

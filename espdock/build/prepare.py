@@ -183,9 +183,9 @@ def build_plan(
             if unknown := unknown_dependencies(firmware, packages):
                 found = sourced_underlay(unknown, env, ws)
                 notify(
-                    f"warning: {firmware.name} depends on {', '.join(unknown)}: in no package of this workspace, nor "
-                    "an interface package micro-ROS builds (std_msgs, sensor_msgs, ...), so the library has no "
-                    "headers of it" + (f". {underlay_hint(found)}" if found else "")
+                    f"{unknown_dependency_warning(firmware.name)}{', '.join(unknown)}: in no package of this "
+                    "workspace, nor an interface package micro-ROS builds (std_msgs, sensor_msgs, ...), so the "
+                    "library has no headers of it" + (f". {underlay_hint(found)}" if found else "")
                 )
             for line in unbuildable_in_library(firmware, packages, inputs):
                 notify(f"warning: {line}")
@@ -252,6 +252,11 @@ def host_side_in_library(firmware: Package, packages: tuple[Package, ...], input
     return lines
 
 
+def unknown_dependency_warning(name: str) -> str:
+    """How build_plan's warning of firmware package NAME's dependencies no package holds begins."""
+    return f"warning: {name} depends on "
+
+
 def firmware_plan(
     ws: Workspace,
     config: Config,
@@ -272,7 +277,12 @@ def firmware_plan(
             # Offered among the firmware packages: a renamed one's old name got an ament_python package.
             raise unknown_package(name, [p.name for p in packages if p.kind is PackageKind.FIRMWARE], ws, "firmware")
         known = (packages, read_build_inputs(ws, packages))  # found once
-        plan = build_plan(ws, config, [name], target=target, known=known, env=env, notify=notify)
+        said = notify
+        if unreadable:
+            # A dependency among the packages left out is in no package to the plan: the notes below
+            # name the manifest to mend, not a dependency to add.
+            said = lambda text: None if text.startswith(unknown_dependency_warning(name)) else notify(text)  # noqa: E731
+        plan = build_plan(ws, config, [name], target=target, known=known, env=env, notify=said)
     except EspdockError as exc:
         if unreadable:  # NAME's own, or one NAME depends on: that manifest is what to fix
             raise unreadable[0] from None

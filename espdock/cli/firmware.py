@@ -329,11 +329,20 @@ def _warn_unreachable(settings: NetSettings) -> None:
         )
 
 
+def _from_espbaud() -> bool:
+    """Whether the baud rate is ESPBAUD's: no --baud or -b on the command line."""
+    return "ESPBAUD" in os.environ and not any(
+        arg in ("--baud", "-b") or arg.startswith(("--baud=", "-b")) for arg in sys.argv[1:]
+    )
+
+
 def _baud_unused(serial: Port, baud: int | None) -> None:
     """Refuse a baud rate that is none (esptool took 0 and failed on the port); say so where one
     asked for (--baud, ESPBAUD) goes unused: a raw socket has none."""
     if baud is not None and baud <= 0:
-        raise ConfigError(f"--baud {baud} is not a baud rate", f"Leave it out for {DEFAULT_BAUD}.")
+        # Typer read it from ESPBAUD where the command line has none: name where it came from.
+        given = f"ESPBAUD={baud}" if _from_espbaud() else f"--baud {baud}"
+        raise ConfigError(f"{given} is not a baud rate", f"Leave it out for {DEFAULT_BAUD}.")
     if serial.spec.lower().startswith("socket://") and (baud != DEFAULT_BAUD or "ESPBAUD" in os.environ):
         notify(
             f"note: --baud {baud} is not used on {serial.spec}: a raw socket has no baud rate (the serial server's "

@@ -286,12 +286,17 @@ def verify(
     if not tree.is_dir():
         # Every file "missing": a typo in the path looked like a wiped install.
         raise WorkspaceError(f"{tree} is no directory", "Give --install the install tree to check.")
-    if install is None and data["files"] and not any((tree / path).exists() for path in data["files"]):
+    if data["files"] and not any(os.path.lexists(tree / path) for path in data["files"]):
         # A manifest downloaded from CI (a job's artefact) sits in no install tree: every file of the
         # directory it was saved in was listed as extra, and as a plain user another's unreadable files stopped it.
+        # So did `--install` given the colcon root, not its install/: a thousand lines of build/ and log/.
+        below = tree / "install"
+        inner = below.is_dir() and any(os.path.lexists(below / path) for path in list(data["files"])[:50])
         raise WorkspaceError(
             f"{tree} holds none of the {len(data['files'])} files {manifest.name} lists: it is no install tree of it",
-            "Give --install the install tree to check (its manifest may be kept anywhere).",
+            f"Did you mean --install {below}?"
+            if inner
+            else "Give --install the install tree to check (its manifest may be kept anywhere).",
         )
     differences = compare(data["files"], file_hashes(tree, modes=data["format"] >= 2))
     for difference in differences:

@@ -71,11 +71,19 @@ def host_tests_dir(package_dir: Path) -> Path | None:
     if not exports.get(HOST_TESTS_TAG):
         return None
     source = package_dir / exports[HOST_TESTS_TAG]
-    if not source.is_dir():
-        # Else CMake's cwd was missing, which Popen said as "cmake is not installed".
+    # Missing, CMake's cwd was, which Popen said as "cmake is not installed"; without a
+    # CMakeLists.txt, CMake failed and its failure counted as the tests'.
+    problem = (
+        "which is not a directory of"
+        if not source.is_dir()
+        else "which holds no CMakeLists.txt, in"
+        if not (source / "CMakeLists.txt").is_file()
+        else None
+    )
+    if problem is not None:
         raise WorkspaceError(
             f"{package_dir.name}'s package.xml declares its host tests in {exports[HOST_TESTS_TAG]} "
-            f"(<{HOST_TESTS_TAG}>), which is not a directory of {package_dir}",
+            f"(<{HOST_TESTS_TAG}>), {problem} {package_dir}",
             "Name the directory that holds their CMakeLists.txt, relative to the package.",
         )
     return source

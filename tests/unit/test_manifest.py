@@ -235,3 +235,7 @@ def test_verify_of_a_manifest_kept_outside_its_install_tree_asks_for_the_tree(tm
     assert "is no install tree of it" in lost.stderr and "--install" in lost.stderr and lost.stdout == ""
     found = espdock("verify", str(kept), "--install", str(install), cwd=tmp_path)
     assert found.returncode == 0, found.stdout + found.stderr
+    # --install given the colcon root, not its install/: every file of build/ and log/ was listed.
+    above = espdock("verify", str(kept), "--install", str(tmp_path / "job"), cwd=tmp_path)
+    assert above.returncode == 2 and above.stdout == "", above.stdout[-2000:] + above.stderr
+    assert f"Did you mean --install {install}?" in " ".join(above.stderr.split()), above.stderr

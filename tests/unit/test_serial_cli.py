@@ -178,6 +178,8 @@ def test_flash_and_monitor_take_the_port_and_baud_idf_py_takes_from_the_environm
         for command in ("flash", "provision"):
             none = espdock(command, "led_strip_node", "--port", "/dev/x", "--baud", rate, cwd=root, env=NO_ENGINE)
             assert none.returncode == 2 and f"--baud {rate} is not a baud rate" in none.stderr, none.stderr
+    from_env = espdock("flash", "led_strip_node", "--port", "/dev/x", cwd=root, env={**NO_ENGINE, "ESPBAUD": "0"})
+    assert from_env.returncode == 2 and "ESPBAUD=0 is not a baud rate" in from_env.stderr, from_env.stderr
 
 
 def test_a_wifi_board_s_installed_firmware_is_provisionable_whatever_its_sources_say_now(tmp_path):

@@ -319,6 +319,10 @@ def test_host_tests_declared_in_a_misspelt_directory_are_named_not_taken_for_a_m
     assert result.returncode == 2, said
     assert "declares its host tests in test/hots (<espdock_host_tests>), which is not a directory" in said, said
     assert "not installed" not in said
+    (package / "test/hots").mkdir()  # there, but no CMake project: CMake's failure counted as the tests' (exit 10)
+    empty = espdock("test", "probe_fw", cwd=root, env={"DOCKER_HOST": "unix:///nonexistent"})
+    said = " ".join((empty.stdout + empty.stderr).split())
+    assert empty.returncode == 2 and "(<espdock_host_tests>), which holds no CMakeLists.txt" in said, said
 
 
 def test_host_test_steps_are_cmake_then_ctest_and_only_a_failing_ctest_with_results_is_a_result(tmp_path):

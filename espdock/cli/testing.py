@@ -116,6 +116,12 @@ def test(
     if results is not None:
         # Before anything refuses the run: a CI runner then never reports the last run's results.
         prepare_results(results, invoking_user(os.environ, ws.root), [p.name for p in chosen])
+        if inside := next((p for p in every if results.resolve().is_relative_to(p.path.resolve())), None):
+            notify(
+                f"note: --results {results} is in {inside.name}'s sources: the files copied there are its sources "
+                f"too, so the next `espdock build` builds {inside.name} again (a directory outside the package "
+                "paths keeps them apart)"
+            )
     if skipped and not ros and not hosted:
         raise ConfigError(
             f"nothing to test: the colcon options (after `--`, or a defaults file's) skip {', '.join(skipped)}",

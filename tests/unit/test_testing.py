@@ -289,6 +289,12 @@ def test_cli_refuses_bad_input_before_any_engine(tmp_path):
     result = espdock("test", "tested_py", "--results", str(results), cwd=root, env=no_engine)
     assert result.returncode != 0, result.stdout + result.stderr
     assert not (results / "tested_py").exists()
+    # Results written into a package's sources (`--results out` run from the package's directory)
+    # were its sources at its next build, which built it again without a word.
+    package = root / "ws/src/tested_py"
+    inside = espdock("test", "tested_py", "--results", "out", cwd=package, env=no_engine)
+    said = " ".join((inside.stdout + inside.stderr).split())
+    assert "--results out is in tested_py's sources" in said and "builds tested_py again" in said, said
 
 
 def test_a_firmware_package_without_host_tests_has_nothing_to_run_and_needs_no_engine(tmp_path):

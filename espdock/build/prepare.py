@@ -297,7 +297,7 @@ def firmware_plan(
         notify(f"note: {exc.message}; the installed firmware of {name} is used as it was built")
         return Plan(ws, (), ()), recorded
     for error in unreadable or ():
-        notify(f"note: {error.message}; left out (the installed firmware of {name} is used as it was built)")
+        notify(f"note: {error.message}; that package is left out, and {name}'s installed firmware used as it was built")
     return firmware_step(plan, name)
 
 

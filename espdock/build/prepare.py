@@ -119,12 +119,14 @@ def build_plan(
     *,
     env: Mapping[str, str],
     notify: Callable[[str], None],
+    left_out_unread: bool = False,
 ) -> Plan:
     """The build's plan; LOCKED not None: first a rosdep lock that answers for the packages
     (refusing a stale one when LOCKED). CHECKED: the packages whose dependencies must be served
     (None: those built). DRY_RUN: the lock is neither made nor refreshed, only reported. KNOWN:
     the workspace's packages and build inputs as the caller read them (and checked the lock). NOTIFY
-    says what happened to the lock."""
+    says what happened to the lock. LEFT_OUT_UNREAD: KNOWN lacks packages whose package.xml could
+    not be read (the caller says so): a firmware dependency no package holds may be one of them."""
     packages, known_inputs = known or (workspace_packages(ws, config.ros_distro), None)
     inputs = known_inputs or read_build_inputs(ws, packages)
     ros = {p.name: p.path for p in packages if p.kind is PackageKind.ROS}
@@ -180,12 +182,12 @@ def build_plan(
                     f"sdkconfig.defaults (`idf.py save-defconfig` writes the ones that differ) and remove it"
                     + (f'; its chip too: CONFIG_IDF_TARGET="{chip}"' if chip else "")
                 )
-            if unknown := unknown_dependencies(firmware, packages):
+            if not left_out_unread and (unknown := unknown_dependencies(firmware, packages)):
                 found = sourced_underlay(unknown, env, ws)
                 notify(
-                    f"{unknown_dependency_warning(firmware.name)}{', '.join(unknown)}: in no package of this "
-                    "workspace, nor an interface package micro-ROS builds (std_msgs, sensor_msgs, ...), so the "
-                    "library has no headers of it" + (f". {underlay_hint(found)}" if found else "")
+                    f"warning: {firmware.name} depends on {', '.join(unknown)}: in no package of this workspace, nor "
+                    "an interface package micro-ROS builds (std_msgs, sensor_msgs, ...), so the library has no "
+                    "headers of it" + (f". {underlay_hint(found)}" if found else "")
                 )
             for line in unbuildable_in_library(firmware, packages, inputs):
                 notify(f"warning: {line}")
@@ -252,11 +254,6 @@ def host_side_in_library(firmware: Package, packages: tuple[Package, ...], input
     return lines
 
 
-def unknown_dependency_warning(name: str) -> str:
-    """How build_plan's warning of firmware package NAME's dependencies no package holds begins."""
-    return f"warning: {name} depends on "
-
-
 def firmware_plan(
     ws: Workspace,
     config: Config,
@@ -277,12 +274,11 @@ def firmware_plan(
             # Offered among the firmware packages: a renamed one's old name got an ament_python package.
             raise unknown_package(name, [p.name for p in packages if p.kind is PackageKind.FIRMWARE], ws, "firmware")
         known = (packages, read_build_inputs(ws, packages))  # found once
-        said = notify
-        if unreadable:
-            # A dependency among the packages left out is in no package to the plan: the notes below
-            # name the manifest to mend, not a dependency to add.
-            said = lambda text: None if text.startswith(unknown_dependency_warning(name)) else notify(text)  # noqa: E731
-        plan = build_plan(ws, config, [name], target=target, known=known, env=env, notify=said)
+        # A dependency among the packages left out is in no package to the plan: the notes below
+        # name the manifest to mend, not a dependency to add.
+        plan = build_plan(
+            ws, config, [name], target=target, known=known, env=env, notify=notify, left_out_unread=bool(unreadable)
+        )
     except EspdockError as exc:
         if unreadable:  # NAME's own, or one NAME depends on: that manifest is what to fix
             raise unreadable[0] from None

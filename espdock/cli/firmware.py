@@ -329,19 +329,15 @@ def _warn_unreachable(settings: NetSettings) -> None:
         )
 
 
-def _from_espbaud() -> bool:
-    """Whether the baud rate is ESPBAUD's: no --baud or -b on the command line."""
-    return "ESPBAUD" in os.environ and not any(
-        arg in ("--baud", "-b") or arg.startswith(("--baud=", "-b")) for arg in sys.argv[1:]
-    )
-
-
-def _baud_unused(serial: Port, baud: int | None) -> None:
+def _baud_unused(serial: Port, baud: int | None, ctx: typer.Context) -> None:
     """Refuse a baud rate that is none (esptool took 0 and failed on the port); say so where one
-    asked for (--baud, ESPBAUD) goes unused: a raw socket has none."""
+    asked for (--baud, ESPBAUD) goes unused: a raw socket has none. CTX: the command's, which knows
+    where the rate came from."""
     if baud is not None and baud <= 0:
         # Typer read it from ESPBAUD where the command line has none: name where it came from.
-        given = f"ESPBAUD={baud}" if _from_espbaud() else f"--baud {baud}"
+        # By name: the enum is of whichever click Typer runs on.
+        from_env = getattr(ctx.get_parameter_source("baud"), "name", None) == "ENVIRONMENT"
+        given = f"ESPBAUD={baud}" if from_env else f"--baud {baud}"
         raise ConfigError(f"{given} is not a baud rate", f"Leave it out for {DEFAULT_BAUD}.")
     if serial.spec.lower().startswith("socket://") and (baud != DEFAULT_BAUD or "ESPBAUD" in os.environ):
         notify(
@@ -386,6 +382,7 @@ def _ask_password() -> str:
 @app.command()
 @command
 def flash(
+    ctx: typer.Context,
     package: Annotated[
         str, typer.Argument(help="Firmware package (built and installed).", autocompletion=complete.firmware_packages)
     ],
@@ -405,7 +402,7 @@ def flash(
         _warn_unreachable(check_settings(wifi_ssid, "", agent, domain))  # before anything else: no typo costs a wait
     ws, config = load(workspace)
     serial = parse_port(port)
-    _baud_unused(serial, baud)
+    _baud_unused(serial, baud, ctx)
     plan, step = firmware_plan(ws, config, package, installed=True)
     provisioning = any(option is not None for option in (wifi_ssid, agent, wifi_password_file, domain_id))
     installed = installed_firmware_dir(ws.ws_dir, package)
@@ -442,6 +439,7 @@ def flash(
 @app.command()
 @command
 def provision(
+    ctx: typer.Context,
     package: Annotated[
         str, typer.Argument(help="Firmware package (built and installed).", autocompletion=complete.firmware_packages)
     ],
@@ -467,7 +465,7 @@ def provision(
         _warn_unreachable(check_settings(wifi_ssid, "", agent, domain))  # before anything else: no typo costs a wait
     ws, config = load(workspace)
     serial = parse_port(port)
-    _baud_unused(serial, baud)
+    _baud_unused(serial, baud, ctx)
     plan, step = firmware_plan(ws, config, package, installed=True)
     installed = installed_firmware_dir(ws.ws_dir, package)
     transport.check_provisionable(package, ws.root / step.project, step.target, installed)

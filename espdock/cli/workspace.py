@@ -291,7 +291,7 @@ def verify(
         # directory it was saved in was listed as extra, and as a plain user another's unreadable files stopped it.
         # So did `--install` given the colcon root, not its install/: a thousand lines of build/ and log/.
         below = tree / "install"
-        inner = below.is_dir() and any(os.path.lexists(below / path) for path in list(data["files"])[:50])
+        inner = below.is_dir() and any(os.path.lexists(below / path) for path in data["files"])
         raise WorkspaceError(
             f"{tree} holds none of the {len(data['files'])} files {manifest.name} lists: it is no install tree of it",
             f"Did you mean --install {below}?"

@@ -496,7 +496,8 @@ def make_shell_home(workspace: Workspace, owner: tuple[int, int], tests_off: boo
         ("colcon-defaults.yaml", defaults, ours),
     ):
         written = home / name
-        if not written.exists() or (written.read_text() in older and written.read_text() != text):
+        now = written.read_text() if written.exists() else None
+        if now is None or (now in older and now != text):
             written.write_text(text)
             give_to(written, owner)
 

@@ -22,7 +22,9 @@ from espdock.cli.ui import STAMPED, Reporter
 from espdock.config import in_ci, invoking_user, no_cache_registry
 from espdock.errors import ConfigError, EspdockError, TestsFailed
 from espdock.events import Outcome
+from espdock.images.containers import volume_mode_refused
 from espdock.images.keyed import unpushed_error
+from espdock.images.visibility import checked_unseen
 from espdock.layout import ROS_BUILD_BASE
 from espdock.ros.colcon import defaults_leaving_out, passed_last_time
 from espdock.ros.plan import PYTHON_BUILD_TYPES, ColconBuild
@@ -187,14 +189,16 @@ def test(
 def _test_ros(ws, config, every, ros, colcon_args, locked, official, push_cache, reporter: Reporter):
     """Build ROS packages with their tests and run colcon test: their results, colcon's exit code
     and the images --push-cache could not push."""
-    from espdock.images import bootstrap
-
+    # Refused in the workspace volume before the rosdep lock, which may need the network (a failed
+    # `rosdep update` was said first): where the volume is chosen, or the engine last asked
+    # could not see the workspace.
+    if config.workspace_mode == "volume":
+        raise volume_mode_refused(TEST_RESULTS, firmware=False)
+    early = config.workspace_mode == "auto" and checked_unseen(ws)
+    runner = _test_runner(ws, config, push_cache, reporter) if early else None
     plan, step = plan_tests(ws, config, every, ros, colcon_args, locked, official, env=os.environ, notify=notify)
-    engine = bootstrap.ensure_engine(os.environ, notify)
-    owner = invoking_user(os.environ, ws.root)
-    runner = Runner(engine, config, os.environ, reporter, owner, push_cache=push_cache)
+    runner = runner or _test_runner(ws, config, push_cache, reporter)
     builds = tuple(s for s in plan.steps if isinstance(s, ColconBuild))
-    runner.containers.known_to_need_this_machine(ws, TEST_RESULTS, firmware=False)  # before the test image
     try:
         runner.run(Plan(plan.workspace, tuple(s for s in plan.steps if s not in builds), plan.idf_images))
         # Refused before any build in the workspace volume, which the results would not leave.
@@ -204,13 +208,24 @@ def _test_ros(ws, config, every, ros, colcon_args, locked, official, push_cache,
         # BUILD_TESTING): install/'s manifest, which CI uploads after the tests, still described the last
         # `espdock build`'s install/.
         built = any(result.outcome is not Outcome.CACHED for result in results)
-        chown = owner if os.geteuid() == 0 else None
+        chown = runner.containers.owner if os.geteuid() == 0 else None
         record_build(plan, config.target, ws.ws_dir / "install", built, stamp_files(ws), chown)
     finally:
         reporter.close()
         record_images(ws, runner)  # a failed build's images too: they are its inputs' as they are
     reporter.line(Text(f"colcon test: {' '.join(step.packages)}", style="bold"))
     return (*runner.ros.test_packages(ws, step, reporter.line), runner.unpushed)
+
+
+def _test_runner(ws, config, push_cache, reporter: Reporter) -> Runner:
+    """The runner of the tests' build, on an engine that sees the workspace where that is known
+    without a container (before the test image: Containers.known_to_need_this_machine)."""
+    from espdock.images import bootstrap
+
+    engine = bootstrap.ensure_engine(os.environ, notify)
+    runner = Runner(engine, config, os.environ, reporter, invoking_user(os.environ, ws.root), push_cache=push_cache)
+    runner.containers.known_to_need_this_machine(ws, TEST_RESULTS, firmware=False)
+    return runner
 
 
 def _render(

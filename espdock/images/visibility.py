@@ -132,6 +132,15 @@ def sees_as_checked(engine: Engine, workspace: Workspace) -> bool | None:
     return None
 
 
+def checked_unseen(workspace: Workspace) -> bool:
+    """Whether the last engine asked about WORKSPACE could not see it (which engine that was,
+    sees_as_checked tells, after a connection to the engine now chosen)."""
+    try:
+        return json.loads((workspace.ws_dir / "build" / CHECKED).read_text()).get("sees", True) is False
+    except (OSError, ValueError, AttributeError):
+        return False
+
+
 def engine_sees(
     engine: Engine, workspace: Workspace, image: str, user: str, labels: tuple[tuple[str, str], ...]
 ) -> bool:

@@ -6,6 +6,7 @@ from __future__ import annotations
 import ast
 import os
 import re
+import time
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from enum import StrEnum
@@ -86,12 +87,22 @@ def unselected(lines: Iterable[str]) -> set[str]:
     return found
 
 
-class ColconLog:
-    """colcon's log of the run about to start, told apart from earlier runs' by latest_build."""
+# colcon's executors' word, in its logger_all.log, for a Ctrl-C that came while jobs ran (the
+# sequential one names the job: "run_until_complete 'pkg' was interrupted").
+_INTERRUPTED = re.compile(r"run_until_complete\b.* was interrupted")
 
-    def __init__(self, log_base: Path) -> None:
+
+class ColconLog:
+    """colcon's log of the run about to start, told apart from earlier runs' by latest_build;
+    INSTALL_BASE, the install/ it builds into."""
+
+    def __init__(self, log_base: Path, install_base: Path) -> None:
         self.latest = log_base / "latest_build"
         self._before = self._target()
+        self._install = install_base
+        self._started = time.time()
+        # The packages colcon's event log says it built, which it had not finished (states()).
+        self.unfinished: set[str] = set()
 
     def _target(self) -> str | None:
         return os.path.realpath(self.latest) if self.latest.exists() else None
@@ -103,9 +114,37 @@ class ColconLog:
         if target is None or target == self._before:
             return None
         try:
-            return parse_events((self.latest / "events.log").read_text(errors="replace").splitlines())
+            states = parse_events((self.latest / "events.log").read_text(errors="replace").splitlines())
         except OSError:
             return None
+        if self._interrupted():
+            # A Ctrl-C that lands in a job's own Python code (not in the event loop's wait)
+            # ends it through a `finally` that logs "JobEnded rc 0": colcon's override to
+            # SIGINT comes after the event. Taken for built, the package's next build said "up
+            # to date" over the install it never wrote. Every build task's last act is its
+            # runtime-dependencies file (colcon-core's create_file_with_runtime_dependencies):
+            # one not written by this run is of a job that did not finish.
+            self.unfinished = {
+                name for name, state in states.items() if state is PackageState.BUILT and not self._finished(name)
+            }
+            states.update(dict.fromkeys(self.unfinished, PackageState.ABORTED))
+        return states
+
+    def _interrupted(self) -> bool:
+        try:
+            return bool(_INTERRUPTED.search((self.latest / "logger_all.log").read_text(errors="replace")))
+        except OSError:
+            return False
+
+    def _finished(self, name: str) -> bool:
+        """Whether this run wrote NAME's runtime-dependencies file. The build container's clock is
+        espdock's: the install it reads after an interruption is the bind-mounted one (the
+        workspace volume's brings back nothing then)."""
+        try:
+            written = (self._install / name / "share" / "colcon-core" / "packages" / name).stat().st_mtime
+        except OSError:
+            return False
+        return written >= self._started
 
     def unselected(self) -> set[str]:
         """The packages this run found but was told to leave out (none when it wrote no log)."""

@@ -220,7 +220,7 @@ class RosSteps:
                 )
             )
         spec = self._colcon_spec(workspace, step, rebuild, sync, user, labels)
-        log = ColconLog(workspace.ws_dir / "log")
+        log = ColconLog(workspace.ws_dir / "log", workspace.ws_dir / "install")
         output: list[str] = []
         on_line = self._colcon_lines(workspace, step, len(rebuild), output)
 
@@ -246,7 +246,7 @@ class RosSteps:
             with contextlib.suppress(Exception):
                 if finished and (kinds := record_install_kinds(base, finished, step.effective_args)):
                     give_to(kinds, self.containers.owner)
-            _unfinished(base, restored)
+            _unfinished(base, restored | log.unfinished)
             raise
         if states is not None and (kinds := record_install_kinds(base, _built(states), step.effective_args)):
             give_to(kinds, self.containers.owner)
@@ -278,7 +278,7 @@ class RosSteps:
             )
         if states is not None:
             stamp_file.restore(_kept_records(workspace, recorded, rebuild, built, restored))
-            _unfinished(base, {name for name in restored if name in states})
+            _unfinished(base, {name for name in restored if name in states} | log.unfinished)
         if states is None and code != 0:
             # Nothing in build/ or install/ changed: the packages keep their records, and the
             # next build with other options rebuilds only what those change.
@@ -670,9 +670,9 @@ def _kept_records(
 
 
 def _unfinished(base: Path, names: Iterable[str]) -> None:
-    """Mark the build dirs of NAMES, put back after colcon began building them, as not finished: the
-    old dir's colcon_build.rc said 0, and `-- --packages-skip-build-finished` skipped the package
-    whose build had failed."""
+    """Mark the build dirs of NAMES, put back after colcon began building them or cut short by a
+    Ctrl-C colcon logged as their end, as not finished: their colcon_build.rc said 0, and
+    `-- --packages-skip-build-finished` skipped the package whose build had not finished."""
     for name in names:
         with contextlib.suppress(OSError):
             (base / name / "colcon_build.rc").unlink()

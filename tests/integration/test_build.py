@@ -407,6 +407,31 @@ def test_ctrl_c_stops_and_removes_the_container_and_the_next_build_works(engine,
     assert "since their last build" not in said, said
 
 
+def test_ctrl_c_as_colcon_starts_a_package_leaves_it_to_the_next_build(engine, tmp_path):
+    """Ctrl-C in the first moments of a package's build (colcon in its own Python code, writing
+    hooks and its command environment) ends the job with "JobEnded rc 0" in colcon's event log.
+    Taken for built: a package built afresh (a setup.py edit) was left with no install, and the
+    next build said "up to date" over it."""
+    root = python_workspace(tmp_path / "ws-root")
+    assert espdock("build", "--only", "ros", cwd=root).returncode == 0
+    setup = root / "ws/src/beacon_nodes/setup.py"
+    setup.write_text(setup.read_text() + "# edited\n")
+    argv = [sys.executable, "-m", "espdock", "build", "--only", "ros"]
+    with subprocess.Popen(argv, cwd=root, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True) as build:
+        try:
+            for line in build.stdout:
+                if "Starting >>> beacon_nodes" in line:
+                    build.send_signal(signal.SIGINT)
+                    break
+            assert build.wait(timeout=60) == 130, build.stderr.read()
+        finally:
+            build.kill()
+    assert (root / "ws/install/beacon_nodes/lib/beacon_nodes/beacon").is_file(), "the old install is gone"
+    again = espdock("build", "--only", "ros", cwd=root)
+    said = " ".join(again.stdout.split())
+    assert again.returncode == 0 and "1 package(s) built" in said, said[-2000:] + again.stderr
+
+
 @pytest.mark.parametrize(("stop", "code"), [(signal.SIGINT, 130), (signal.SIGKILL, -9)], ids=["ctrl-c", "kill-9"])
 def test_a_stop_mid_write_leaves_no_half_written_file_the_next_build_installs(engine, tmp_path, stop, code):
     """Ctrl-C as make writes a generated file: the container's stop reached only colcon, whose

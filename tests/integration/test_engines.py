@@ -428,6 +428,20 @@ def test_volume_mode_builds_where_the_engine_cannot_see_rebuilds_edits_and_never
     assert "the test results `espdock test` reads must be on this machine" in tested.stderr
     assert "flasher" not in tested.stderr and "colcon build" not in tested.stdout
     assert tcp_engine.created(since, "io.espdock.workspace=" + str(root)) == []
+    # Refused before the rosdep lock too: with a key the wheels image lacks and rosdep's sources
+    # out of reach, the run failed on `rosdep update` and never said it could not test here.
+    manifest = root / "ws/src/beacon_nodes/package.xml"
+    kept = manifest.read_text()
+    manifest.write_text(
+        kept.replace("<exec_depend>rclpy", "<exec_depend>python3-serial</exec_depend>\n  <exec_depend>rclpy")
+    )
+    offline = {"ROSDISTRO_INDEX_URL": "http://127.0.0.1:9/index.yaml", "XDG_CACHE_HOME": str(tcp_engine.hidden / "c")}
+    try:
+        unreachable = espdock("test", cwd=root, env={**tcp_engine.env, **offline})
+    finally:
+        manifest.write_text(kept)
+    assert unreachable.returncode == 8, unreachable.stdout[-2000:] + unreachable.stderr
+    assert "must be on this machine" in unreachable.stderr and "rosdep" not in unreachable.stderr
 
     # A deleted source is deleted on the volume too: its module leaves the install tree.
     extra = root / "ws/src/beacon_nodes/beacon_nodes/extra.py"

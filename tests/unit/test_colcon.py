@@ -7,6 +7,7 @@ import os
 import re
 import subprocess
 import sys
+import time
 from dataclasses import replace
 from pathlib import Path
 
@@ -23,7 +24,14 @@ from espdock.ros.colcon import (
     read_colcon_settings,
     user_defaults_file,
 )
-from espdock.ros.colcon_log import PackageState, explain_failure, missing_dependencies, parse_events, usage_error
+from espdock.ros.colcon_log import (
+    ColconLog,
+    PackageState,
+    explain_failure,
+    missing_dependencies,
+    parse_events,
+    usage_error,
+)
 from espdock.ros.plan import ColconBuild
 from espdock.ros.trees import check_isolated_install, retire_container_caches, retire_other_underlay
 from tests.conftest import copy_workspace, espdock
@@ -238,6 +246,42 @@ def test_the_event_log_tells_built_failed_aborted_and_not_processed_apart():
         "slow": PackageState.ABORTED,
         "last": PackageState.NOT_PROCESSED,
     }
+
+
+@pytest.mark.parametrize(
+    "executor",
+    [
+        "colcon_parallel_executor.executor.parallel:run_until_complete",
+        "colcon_core.executor.sequential:run_until_complete 'late'",
+    ],
+)
+def test_a_package_an_interrupted_run_logged_as_ended_with_rc_0_is_built_only_if_it_finished(tmp_path, executor):
+    """colcon logs "JobEnded rc 0" for a job a Ctrl-C cut short in its own Python code; every
+    build task's last act is its runtime-dependencies file, which such a job never wrote."""
+    log, install = tmp_path / "log", tmp_path / "install"
+    for name in ("early", "late"):  # as a build before this run left them
+        packages = install / name / "share/colcon-core/packages"
+        packages.mkdir(parents=True)
+        (packages / name).write_text("")
+        os.utime(packages / name, (time.time() - 60, time.time() - 60))
+    colcon = ColconLog(log, install)
+    run = log / "build_2026-12-03_10-16-35"
+    run.mkdir(parents=True)
+    (log / "latest_build").symlink_to(run.name)
+    (run / "events.log").write_text(
+        "[0.000200] (early) JobQueued: {'identifier': 'early', 'dependencies': OrderedDict()}\n"
+        "[0.000200] (late) JobQueued: {'identifier': 'late', 'dependencies': OrderedDict()}\n"
+        "[0.600000] (early) JobEnded: {'identifier': 'early', 'rc': 0}\n"
+        "[0.700000] (late) JobEnded: {'identifier': 'late', 'rc': 0}\n"
+    )
+    (install / "early/share/colcon-core/packages/early").write_text("")  # written by this run
+    finished = "[0.255s] DEBUG:colcon.colcon_parallel_executor.executor.parallel:run_until_complete finished\n"
+    (run / "logger_all.log").write_text(finished)
+    assert colcon.states() == {"early": PackageState.BUILT, "late": PackageState.BUILT}
+    assert colcon.unfinished == set()
+    (run / "logger_all.log").write_text(f"[0.255s] DEBUG:colcon.{executor} was interrupted\n")
+    assert colcon.states() == {"early": PackageState.BUILT, "late": PackageState.ABORTED}
+    assert colcon.unfinished == {"late"}
 
 
 def test_a_failure_of_the_package_itself_says_fix_it_and_what_was_kept():

@@ -253,6 +253,27 @@ def test_a_package_whose_tests_were_all_removed_no_longer_fails_on_the_last_run_
     assert read_results(build, ("c",))["c"].tests == 2
 
 
+def test_tests_in_the_workspace_volume_are_refused_before_the_rosdep_lock_and_any_engine(tmp_path):
+    """workspace_mode = "volume": the results would stay on the engine's volume. The refusal came
+    after the rosdep lock, whose `rosdep update` failed first where rosdep's sources were out of reach."""
+    from tests.conftest import copy_workspace, espdock
+    from tests.robot_packages import write_python_package
+
+    root = copy_workspace(tmp_path / "w", packages=(), test_packages=("tested_py",))
+    manifest = write_python_package(root / "ws/src", "serial_py") / "package.xml"
+    manifest.write_text(manifest.read_text().replace("<export>", "<exec_depend>python3-serial</exec_depend>\n<export>"))
+    away = {
+        "DOCKER_HOST": "unix:///nonexistent/docker.sock",
+        "ESPDOCK_WORKSPACE_MODE": "volume",
+        "ROSDISTRO_INDEX_URL": "http://127.0.0.1:9/index.yaml",
+        "XDG_CACHE_HOME": str(tmp_path / "cache"),
+    }
+    refused = espdock("test", cwd=root, env=away)
+    assert refused.returncode == 8, refused.stdout + refused.stderr
+    assert "the test results `espdock test` reads must be on this machine" in refused.stderr
+    assert not (root / "rosdep.lock.json").exists()
+
+
 def test_cli_refuses_bad_input_before_any_engine(tmp_path):
     from tests.conftest import copy_workspace, espdock
 

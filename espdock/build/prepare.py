@@ -28,17 +28,11 @@ from espdock.firmware.plan import (
 from espdock.firmware.steps import installed_image, recorded_step
 from espdock.layout import ROS_BUILD_BASE, ROSDEP_LOCK, firmware_build_dir
 from espdock.ros import interfaces, rosdeps, testdeps
-from espdock.ros.colcon import (
-    defaults_with_mixins,
-    last_build_args,
-    output_args,
-    read_colcon_settings,
-    symlink_installed,
-    without_build_testing,
-)
+from espdock.ros.colcon import defaults_with_mixins, output_args, read_colcon_settings, without_build_testing
 from espdock.ros.plan import ColconBuild, RuntimeImage, checked_packages, ros_image
 from espdock.ros.runtime_tree import runtime_spec
 from espdock.ros.testing import ColconTest
+from espdock.ros.trees import last_build_args, symlink_installed
 from espdock.workspace import (
     DEFAULT_ROS_DISTRO,
     BuildInputs,

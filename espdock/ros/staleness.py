@@ -15,9 +15,9 @@ from typing import NamedTuple
 from espdock.build.stamps import StampFile, TreeState, declaring, listing_digest, package_stamps, tree_state
 from espdock.layout import ROS_BUILD_BASE
 from espdock.ros.cmake_inputs import file_digests, fold, outside_inputs
-from espdock.ros.colcon import closure, install_kind_switched, left_out, symlink_installed
+from espdock.ros.colcon import closure, left_out
 from espdock.ros.plan import PYTHON_BUILD_TYPES, ColconBuild
-from espdock.ros.trees import natively_linked
+from espdock.ros.trees import install_kind_switched, natively_linked, symlink_installed
 from espdock.workspace import Package, Workspace
 
 # Under ws/build: what the ROS packages and the firmware were last built from (espdock.build.stamps).

@@ -36,13 +36,10 @@ from espdock.ros.colcon import (
     DEFAULTS_MOUNT,
     EGG_INFO_ORDER,
     EGG_INFO_ORDER_CMAKE,
-    LAST_ARGS,
     SETUPTOOLS_CONFIG,
     SETUPTOOLS_FORCE,
     left_out,
     make_jobs,
-    record_build_args,
-    record_install_kinds,
 )
 from espdock.ros.colcon_log import ColconLog, PackageState, colcon_errors, explain_failure, named, usage_error
 from espdock.ros.plan import ColconBuild, RuntimeImage
@@ -65,8 +62,11 @@ from espdock.ros.testing import (
     tests_env,
 )
 from espdock.ros.trees import (
+    LAST_ARGS,
     check_isolated_install,
     native_setup_kept,
+    record_build_args,
+    record_install_kinds,
     retire_container_caches,
     retire_other_underlay,
 )

@@ -1,13 +1,15 @@
 """colcon's build and install trees as espdock leaves them between builds: what a build must
 clear or refuse first (CMake caches made at another path or against another ROS image, an install
-a native `--merge-install` made) and what it must leave as the user's (a native build's setup
-scripts)."""
+a native `--merge-install` made), what it must leave as the user's (a native build's setup
+scripts), and what it records there of the last build's options and each package's install kind."""
 
 from __future__ import annotations
 
+import json
 import os
+import re
 import shutil
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterable, Iterator, Mapping
 from contextlib import contextmanager, suppress
 from pathlib import Path
 
@@ -145,3 +147,109 @@ def natively_linked(install: Path, packages: Iterable[str], root: Path) -> list[
                 found.append(name)
                 break
     return found
+
+
+# The options after `--` of the last colcon build that ran (in the ROS build base): what install/
+# is built with, which `espdock test`'s builds keep (a --symlink-install stays one).
+LAST_ARGS = ".espdock-colcon-args"
+
+
+def record_build_args(base: Path, args: tuple[str, ...]) -> Path | None:
+    """Keep ARGS as the last build's options in BASE (the ROS build base colcon made); the file."""
+    if not base.is_dir():
+        return None
+    path = base / LAST_ARGS
+    path.write_text(json.dumps(list(args)) + "\n")
+    return path
+
+
+def last_build_args(base: Path) -> tuple[str, ...]:
+    """The options after `--` of the last colcon build in BASE (none when unknown)."""
+    try:
+        args = json.loads((base / LAST_ARGS).read_text())
+    except (OSError, ValueError):
+        return ()
+    return tuple(str(arg) for arg in args) if isinstance(args, list) else ()
+
+
+# Each package's install kind as its last build made it (true: --symlink-install), in the ROS build base.
+INSTALL_KINDS = ".espdock-install-kinds.json"
+
+
+def record_install_kinds(base: Path, names: Iterable[str], args: tuple[str, ...]) -> Path | None:
+    """Keep in BASE that NAMES were built with ARGS' install kind (ColconBuild.effective_args).
+    The first time, every other package built in BASE gets the kind the last build's options say
+    (an older espdock kept only those): call it before record_build_args replaces them."""
+    if not base.is_dir():
+        return None
+    kinds = _install_kinds(base)
+    if not (base / INSTALL_KINDS).is_file() and (base / LAST_ARGS).is_file():
+        before = "--symlink-install" in last_build_args(base)
+        kinds = {entry.name: before for entry in base.iterdir() if entry.is_dir() and not entry.name.startswith(".")}
+    kinds = {**kinds, **dict.fromkeys(names, "--symlink-install" in args)}
+    path = base / INSTALL_KINDS
+    path.write_text(json.dumps(kinds, sort_keys=True) + "\n")
+    return path
+
+
+def _install_kinds(base: Path) -> dict[str, bool]:
+    try:
+        kinds = json.loads((base / INSTALL_KINDS).read_text())
+    except (OSError, ValueError):
+        return {}
+    return {name: kind for name, kind in kinds.items() if isinstance(kind, bool)} if isinstance(kinds, dict) else {}
+
+
+def symlink_installed(base: Path, name: str, kinds: Mapping[str, bool] | None = None) -> bool | None:
+    """Whether package NAME's last build in BASE was a --symlink-install: as its CMake cache says
+    for an ament_cmake package, else its own record (in KINDS where the caller read them), else the
+    last build's options (an older espdock kept only those); None where nothing says."""
+    if (cached := _cached_symlink_install(base / name / "CMakeCache.txt")) is not None:
+        # A build in `espdock shell` shares the build base and keeps no record. Its symlink install
+        # stays in the cache (colcon sets it only on), which every later build then makes.
+        return cached
+    kinds = _install_kinds(base) if kinds is None else kinds
+    if name in kinds:
+        return kinds[name]
+    return "--symlink-install" in last_build_args(base) if (base / LAST_ARGS).is_file() else None
+
+
+_SYMLINK_INSTALL_CACHED = re.compile(r"^AMENT_CMAKE_SYMLINK_INSTALL:BOOL=(.*)$", re.MULTILINE)
+
+
+def _cached_symlink_install(cache: Path) -> bool | None:
+    """AMENT_CMAKE_SYMLINK_INSTALL in the CMake cache CACHE (ament_cmake's option), None where it is not there."""
+    try:
+        found = _SYMLINK_INSTALL_CACHED.search(cache.read_text(errors="replace"))
+    except OSError:
+        return None
+    return None if found is None else found.group(1).strip().upper() in ("1", "ON", "TRUE", "YES", "Y")
+
+
+def install_kind_switched(
+    base: Path, names: Iterable[str], args: tuple[str, ...], install: Path | None = None
+) -> list[str]:
+    """Those of NAMES whose last build in BASE made the other install kind than ARGS (with what the
+    defaults file turns on: ColconBuild.effective_args) make. colcon does not switch a build dir in
+    place: an interface package's ament_cmake Python install fails on the directories a copying
+    install left, one package per run. Kept per package: a selection's switch, kept for the
+    workspace, had the next build of the rest build in place (failing, or leaving links in a copying
+    install). Where espdock has no word of a package (a native `colcon build` made its prefix in
+    INSTALL), its installed package.xml tells."""
+    wanted, kinds = "--symlink-install" in args, _install_kinds(base)
+    switched = []
+    for name in names:
+        kind = symlink_installed(base, name, kinds)
+        if kind is None and install is not None:
+            kind = _installed_kind(install / name / "share" / name / "package.xml")
+        if kind not in (None, wanted):
+            switched.append(name)
+    return switched
+
+
+def _installed_kind(manifest: Path) -> bool | None:
+    """Whether the package.xml an install prefix holds (MANIFEST) is a symlink install's link; None
+    where there is none. Both ament_cmake and ament_python install it, a link when symlinking."""
+    if manifest.is_symlink():
+        return True
+    return False if manifest.is_file() else None

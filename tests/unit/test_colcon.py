@@ -607,7 +607,7 @@ def test_a_file_cmake_may_not_chmod_is_another_s_file_not_the_package_s_fault(tm
 def test_symlink_install_abbreviated_as_colcon_takes_it_is_a_switch_of_the_install_kind(tmp_path):
     """`-- --symlink` (colcon takes unique prefixes) after a copying build: espdock saw no switch,
     and colcon failed in the build dirs the copying build had left."""
-    from espdock.ros.colcon import install_kind_switched, record_build_args
+    from espdock.ros.trees import install_kind_switched, record_build_args
 
     record_build_args(tmp_path, ())
     for spelt in ("--symlink", "--sym", "--s"):
@@ -641,7 +641,7 @@ def test_the_install_kind_is_kept_per_package_so_a_selection_s_switch_is_not_tak
     """`espdock build leaf -- --symlink-install`, then `espdock build -- --symlink-install`: kept for
     the workspace, the switch seemed done, and msgs (still copies) was built in place and failed;
     the other way round, a copying build left msgs' install links."""
-    from espdock.ros.colcon import install_kind_switched, record_build_args, record_install_kinds
+    from espdock.ros.trees import install_kind_switched, record_build_args, record_install_kinds
 
     record_build_args(tmp_path, ())
     record_install_kinds(tmp_path, ["msgs", "leaf"], ())
@@ -657,7 +657,7 @@ def test_a_cmake_package_s_install_kind_is_what_its_cmake_cache_says_whoever_bui
     """A `colcon build --symlink-install` in `espdock shell` builds in espdock's build base and
     keeps no record: the cache's AMENT_CMAKE_SYMLINK_INSTALL stays on (colcon only sets it), so the
     next plain build made links again, or failed on what the copying build had left."""
-    from espdock.ros.colcon import install_kind_switched, record_install_kinds
+    from espdock.ros.trees import install_kind_switched, record_install_kinds
 
     record_install_kinds(tmp_path, ["msgs", "tools", "nodes"], ())  # espdock's own build: copies
     (tmp_path / "msgs").mkdir()
@@ -717,7 +717,7 @@ def test_an_older_espdock_s_packages_keep_the_install_kind_its_options_said_once
     """A workspace an older espdock built with --symlink-install (its options its only record): the
     first build of one package recorded that one's kind and the options anew, and the next build
     took the others for copies, built them in place, and failed on an interface package."""
-    from espdock.ros.colcon import install_kind_switched, record_build_args, record_install_kinds
+    from espdock.ros.trees import install_kind_switched, record_build_args, record_install_kinds
 
     for name in ("msgs", "app"):
         (tmp_path / name).mkdir()

@@ -554,8 +554,8 @@ def test_run_tells_what_it_runs_of_a_package_edited_since_its_build(tmp_path):
     """After `git checkout`, run ran the last build's install without a word; under a symlink
     install an ament_python package's edited modules are what runs, and a warning would be false."""
     from espdock.build.stamps import tree_state
-    from espdock.ros.colcon import record_build_args
     from espdock.ros.staleness import ROS_STAMP_FORMAT, edited_since_built
+    from espdock.ros.trees import record_build_args
 
     workspace = Workspace(tmp_path, ("src",), ".")
     py = Package("talk", tmp_path / "src/talk", PackageKind.ROS, "ament_python", frozenset())

@@ -995,7 +995,7 @@ def test_a_selection_s_switch_of_the_install_kind_is_its_own_and_the_rest_switch
     runner(engine, events).run(Plan(ws, (replace(msgs_only, whole=False, **linked),)))
     assert "removed the build dirs and install prefixes of 1 package(s)" in notes(events)
     # A selection's options are not the workspace's: `espdock test` and `run` judge by the whole build's.
-    from espdock.ros.colcon import last_build_args
+    from espdock.ros.trees import last_build_args
 
     assert last_build_args(ws.ws_dir / "build/espdock-ros") == ()
     events.clear()

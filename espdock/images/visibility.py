@@ -123,22 +123,26 @@ def _check_record(engine: Engine, workspace: Workspace) -> dict[str, str]:
 def sees_as_checked(engine: Engine, workspace: Workspace) -> bool | None:
     """What engine_sees found the last time it asked ENGINE about WORKSPACE, or None: no container needed."""
     record = _check_record(engine, workspace)
-    try:
-        cached = json.loads((workspace.ws_dir / "build" / CHECKED).read_text())
-        if {k: cached.get(k) for k in record} == record:
-            return cached.get("sees", True) is True
-    except (OSError, ValueError, AttributeError):
-        pass
+    cached = _last_check(workspace)
+    if cached is not None and {k: cached.get(k) for k in record} == record:
+        return cached.get("sees", True) is True
     return None
 
 
 def checked_unseen(workspace: Workspace) -> bool:
     """Whether the last engine asked about WORKSPACE could not see it (which engine that was,
     sees_as_checked tells, after a connection to the engine now chosen)."""
+    cached = _last_check(workspace)
+    return cached is not None and cached.get("sees", True) is False
+
+
+def _last_check(workspace: Workspace) -> dict | None:
+    """engine_sees's kept answer for WORKSPACE, as written; None where there is none to read."""
     try:
-        return json.loads((workspace.ws_dir / "build" / CHECKED).read_text()).get("sees", True) is False
-    except (OSError, ValueError, AttributeError):
-        return False
+        cached = json.loads((workspace.ws_dir / "build" / CHECKED).read_text())
+    except (OSError, ValueError):
+        return None
+    return cached if isinstance(cached, dict) else None
 
 
 def engine_sees(

@@ -6,21 +6,31 @@ missing is installed or started.
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import os
 import re
 import shutil
+import signal
 import subprocess
 import tempfile
 import time
 from collections.abc import Callable, Mapping
 from pathlib import Path
 
+from espdock import interrupts
 from espdock.config import Config
 from espdock.errors import EngineUnavailable, EspdockError, ImageBuildError
 from espdock.images import contexts
 from espdock.images.addresses import DEFAULT_HOST
-from espdock.images.engine import Engine, compose_available, find_docker_cli, podman_docker, wheel_compose
+from espdock.images.engine import (
+    Engine,
+    compose_available,
+    die_with_parent,
+    find_docker_cli,
+    podman_docker,
+    wheel_compose,
+)
 from espdock.images.machine_lock import machine_lock
 
 Notify = Callable[[str], None]
@@ -224,8 +234,9 @@ def build_debian_rootfs_image(engine: Engine, ref: str, suite: str, mirror: str 
     """Debootstrap SUITE (minbase, slimmed like Debian's -slim images) and import it as REF."""
     if shutil.which("debootstrap") is None:
         _apt_install(["debootstrap"], notify)
-    with tempfile.TemporaryDirectory(prefix="espdock-rootfs-", dir="/var/tmp") as tmp:
-        rootfs = Path(tmp) / "rootfs"
+    tmp = Path(tempfile.mkdtemp(prefix="espdock-rootfs-", dir="/var/tmp"))
+    try:
+        rootfs = tmp / "rootfs"
         argv = ["debootstrap", "--variant=minbase", suite, str(rootfs)]
         if mirror:
             argv.append(mirror)
@@ -239,10 +250,37 @@ def build_debian_rootfs_image(engine: Engine, ref: str, suite: str, mirror: str 
                     path.unlink()
         _slim(rootfs)
         packages = package_set((rootfs / "var/lib/dpkg/status").read_text(errors="replace"))
-        tarball = Path(tmp) / "rootfs.tar"
+        tarball = tmp / "rootfs.tar"
         _run_logged(["tar", "-C", str(rootfs), "--numeric-owner", "-cf", str(tarball), "."], notify)
         engine.import_rootfs(tarball, ref, labels=package_labels(packages))
+    finally:
+        _remove_rootfs(tmp)
     notify(f"imported {ref} ({len(packages)} Debian packages, recorded in its labels)")
+
+
+def _remove_rootfs(tmp: Path) -> None:
+    """Remove TMP, unmounting first what debootstrap mounted in it (its chroot's /proc, where it
+    was stopped before its own exit trap ran): removing through a mount deleted in the machine's
+    /proc or /dev, then failed ("Directory not empty"), leaving the whole tree behind."""
+    for point in reversed(_mounts_under(tmp)):
+        if subprocess.run(["umount", point], capture_output=True, check=False).returncode != 0:
+            subprocess.run(["umount", "--lazy", point], capture_output=True, check=False)
+    if left := _mounts_under(tmp):
+        raise ImageBuildError(
+            f"debootstrap left {', '.join(left)} mounted; espdock did not remove {tmp}",
+            f"Unmount it (`umount --lazy {left[0]}`), then remove {tmp}.",
+        )
+    shutil.rmtree(tmp, ignore_errors=True)
+
+
+def _mounts_under(tmp: Path) -> list[str]:
+    """The mount points inside TMP, outermost first (from /proc/self/mountinfo)."""
+    inside = []
+    for line in Path("/proc/self/mountinfo").read_text().splitlines():
+        point = re.sub(r"\\([0-7]{3})", lambda octal: chr(int(octal.group(1), 8)), line.split(" ")[4])
+        if point.startswith(f"{tmp}/"):
+            inside.append(point)
+    return sorted(inside, key=lambda point: point.count("/"))
 
 
 PACKAGES_LABEL = "io.espdock.debian-packages"
@@ -290,11 +328,46 @@ def _apt_install(packages: list[str], notify: Notify) -> None:
 
 
 def _run_logged(argv: list[str], notify: Notify, env: Mapping[str, str] | None = None) -> None:
+    """Run ARGV, saying it; its output's tail in the error when it fails.
+
+    In a process group of its own, so that an interruption of espdock reaches it only through
+    espdock, which passes it to the whole group and waits: debootstrap's exit trap then
+    unmounts its chroot's /proc, and dpkg (run by debootstrap or apt-get) stops between
+    packages. Killed outright (subprocess.run's way), debootstrap left /proc mounted in the tree
+    espdock then removed, and its children went on writing there."""
     notify(" ".join(argv))
-    result = subprocess.run(argv, capture_output=True, text=True, env=None if env is None else dict(env), check=False)
-    if result.returncode != 0:
-        output = (result.stdout + result.stderr).strip().splitlines()[-10:]
-        raise ImageBuildError(f"`{' '.join(argv)}` failed with exit code {result.returncode}:\n" + "\n".join(output))
+    with tempfile.TemporaryFile() as output:
+        process = subprocess.Popen(
+            argv,
+            stdin=subprocess.DEVNULL,
+            stdout=output,
+            stderr=subprocess.STDOUT,
+            env=None if env is None else dict(env),
+            start_new_session=True,
+            preexec_fn=die_with_parent(),  # noqa: PLW1509 (see die_with_parent)
+        )
+        try:
+            returncode = process.wait()
+        except KeyboardInterrupt:
+            _stop_group(process)
+            raise
+        if returncode != 0:
+            output.seek(0)
+            tail = output.read().decode(errors="replace").strip().splitlines()[-10:]
+            raise ImageBuildError(f"`{' '.join(argv)}` failed with exit code {returncode}:\n" + "\n".join(tail))
+
+
+def _stop_group(process: subprocess.Popen) -> None:
+    """SIGINT to PROCESS's group, as a terminal's Ctrl-C; SIGKILL if it is not over a second
+    before espdock's grace ends (the cleanup after it needs that second)."""
+    with contextlib.suppress(ProcessLookupError):
+        os.killpg(process.pid, signal.SIGINT)
+    try:
+        process.wait(timeout=max(0.5, interrupts.remaining() - 1.0))
+    except subprocess.TimeoutExpired:
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(process.pid, signal.SIGKILL)
+        process.wait()
 
 
 def _tail(path: Path, lines: int = 5) -> str:

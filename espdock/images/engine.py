@@ -603,7 +603,7 @@ class Engine:
             env=self._cli_env,
             text=True,
             errors="replace",
-            preexec_fn=_die_with_parent(),  # noqa: PLW1509 (see _die_with_parent)
+            preexec_fn=die_with_parent(),  # noqa: PLW1509 (see die_with_parent)
         )
         try:
             assert process.stdin is not None and process.stdout is not None
@@ -672,7 +672,7 @@ class Engine:
             [*self.compose_command(), *args],
             cwd=cwd,
             env={"COMPOSE_MENU": "false", **contexts.cli_env(env)},
-            preexec_fn=_die_with_parent(),  # noqa: PLW1509 (see _die_with_parent)
+            preexec_fn=die_with_parent(),  # noqa: PLW1509 (see die_with_parent)
         )
         try:
             return process.wait()
@@ -734,7 +734,7 @@ class Engine:
                 code = subprocess.call(
                     [docker_cli, "start", "--attach", "--interactive", container.id],
                     env=self._cli_env,
-                    preexec_fn=_die_with_parent(),
+                    preexec_fn=die_with_parent(),
                 )
             finally:
                 if reaper is not None:
@@ -782,7 +782,7 @@ class Engine:
                 cwd=_usable_cwd(),
                 env=self._cli_env,
                 start_new_session=not spec.tty,
-                preexec_fn=_die_with_parent(),  # noqa: PLW1509 (see _die_with_parent)
+                preexec_fn=die_with_parent(),  # noqa: PLW1509 (see die_with_parent)
             )
             while True:
                 try:
@@ -1211,7 +1211,7 @@ def _reaper(docker_cli: str, name: str, env: Mapping[str, str]) -> subprocess.Po
 _PR_SET_PDEATHSIG = 1
 
 
-def _die_with_parent() -> Callable[[], None] | None:
+def die_with_parent() -> Callable[[], None] | None:
     """A preexec_fn: the child gets SIGTERM when espdock dies (SIGKILL included), so a killed
     espdock leaves no `docker compose build` running on (BuildKit cancels the build when its
     client goes).

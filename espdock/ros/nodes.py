@@ -112,6 +112,10 @@ def find_executable(workspace: Workspace, packages: tuple[Package, ...], package
         # A build rebuilding it afresh has moved its install aside, or is filling it in: it was
         # "not built yet", whose hint a build then refused.
         raise running
+    if not (built and found) and unfinished_builds(workspace, [package]):
+        # An interrupted first build installs an ament_python package's lib/ last: "has no
+        # executable" blamed its setup.py.
+        raise _unfinished(package)
     if not built:
         raise WorkspaceError(f"package '{package}' is not built yet", f"Run `espdock build {package}` first.")
     if not found:
@@ -150,17 +154,21 @@ def check_built_by_espdock(workspace: Workspace, package: str) -> None:
     if running := _running_build(workspace, package):
         raise running
     if unfinished_builds(workspace, [package]):
-        raise WorkspaceError(
-            f"the last espdock build of {package} did not finish (it failed or was interrupted): "
-            f"install/{package} may be half written",
-            f"Run `espdock build {package}`, then run again.",
-        )
+        raise _unfinished(package)
     raise WorkspaceError(
         f"install/{package} was not built by espdock, or changed since its last `espdock build` "
         "(a colcon build of your own, native or in `espdock shell`?): espdock runs only what its own builds "
         "installed (a native build's executables name the host's paths and Python, which the runtime image "
         "does not have)",
         f"Run `espdock build {package}` (it rebuilds what changed in install/), then run again.",
+    )
+
+
+def _unfinished(package: str) -> WorkspaceError:
+    return WorkspaceError(
+        f"the last espdock build of {package} did not finish (it failed or was interrupted): "
+        f"install/{package} may be half written",
+        f"Run `espdock build {package}`, then run again.",
     )
 
 

@@ -137,6 +137,19 @@ def test_run_during_a_build_or_after_one_that_did_not_finish_says_so_not_native_
         os.close(fd)
 
 
+def test_run_after_an_interrupted_first_build_says_it_did_not_finish_not_no_executable(ws):
+    """A first build of an ament_python package interrupted after colcon made install/quiet but
+    before setup.py installed its scripts in lib/: "has no executable 'node'" sent the user to
+    check the entry points in a setup.py that was fine."""
+    workspace, packages = ws
+    (workspace.ws_dir / "install/quiet/share/quiet").mkdir(parents=True)
+    (workspace.ws_dir / "build/espdock-ros/quiet").mkdir(parents=True)
+    with pytest.raises(WorkspaceError) as caught:
+        find_executable(workspace, packages, "quiet", "node")
+    assert caught.value.message.startswith("the last espdock build of quiet did not finish"), caught.value.message
+    assert "espdock build quiet" in caught.value.hint
+
+
 @pytest.mark.parametrize(
     ("package", "executable", "said"),
     [

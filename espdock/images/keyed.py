@@ -34,6 +34,8 @@ from espdock.workspace import Workspace
 
 # dpkg's database: read from the image, not asked of a `dpkg-query` run in it (see installed_packages).
 DPKG_STATUS = "/var/lib/dpkg/status"
+# Whether a built image's package set is in its labels: "pending" from the build until then.
+RECORDED_LABEL = f"{bootstrap.PACKAGES_LABEL}.recorded"
 DPKG_LINE = re.compile(r"^[a-z0-9][a-z0-9+.-]*(:[a-z0-9]+)?=\S+$")
 
 BUILDKIT_STEP = re.compile(r"^#\d+ \[.*\] (?P<what>.+)$")
@@ -100,24 +102,29 @@ class KeyedImages:
         spec = step.spec
         self.used.append((spec.tag, spec.repository))
         existing = self.containers.engine.image(spec.tag)
-        if not step.force and self._hit(step, existing):
+        if not step.force and self._hit(workspace, step, existing):
             return Outcome.CACHED, spec.tag
         # Two workspaces (CI jobs on one runner) that miss the same key at once: one builds, the
         # other waits and then finds it, instead of building it again and leaving one untagged.
         with self._building(step):
             if not step.force:
                 existing = self.containers.engine.image(spec.tag)
-                if self._hit(step, existing):
+                if self._hit(workspace, step, existing):
                     return Outcome.CACHED, spec.tag
             return self._make(workspace, step, existing, extra_context)
 
-    def _hit(self, step: EnsureImage, existing: ImageInfo | None) -> bool:
+    def _hit(self, workspace: Workspace, step: EnsureImage, existing: ImageInfo | None) -> bool:
         """Whether EXISTING is STEP's image (its key); then say so, and publish it if asked."""
         spec = step.spec
         if not is_current(spec, existing):
             return False
         age = age_text((datetime.now(UTC) - existing.created).total_seconds())
         self.containers.emit(StepNote(step.name, f"{spec.tag}: cache hit (key {spec.key[:16]}, built {age} ago)"))
+        if existing.labels.get(RECORDED_LABEL) == "pending":
+            # Its build was interrupted between BuildKit's tagging and the labelling after it: the
+            # image showed its base's package set, and every later build took it as it was.
+            self.containers.emit(StepNote(step.name, "its build was interrupted before its packages were recorded"))
+            self._record_packages(workspace, step)
         self._publish(step)
         return True
 
@@ -160,7 +167,7 @@ class KeyedImages:
                 tag=spec.tag,
                 # Not part of the key: BuildKit (0.11 and newer) stamps the image with it instead of now.
                 build_args=dict(spec.build_args) | dict(self.containers.source_date(workspace)),
-                labels=spec.labels(),
+                labels=spec.labels() | {RECORDED_LABEL: "pending"},
                 ca_bundle=resolve_ca_bundle(self.containers.config, self.containers.env),
                 on_line=on_line,
                 no_cache=step.force,
@@ -201,10 +208,11 @@ class KeyedImages:
         labels = {LABEL_WORKSPACE: str(workspace.root), "io.espdock.step": "dpkg"}
         status = self.containers.engine.read_file(step.spec.tag, DPKG_STATUS, labels)
         if status is None:
+            self.containers.engine.add_labels(step.spec.tag, {RECORDED_LABEL: "no dpkg"})
             self.containers.emit(StepNote(step.name, "warning: no dpkg in the image: its package set is not recorded"))
             return
         packages = installed_packages(status.decode("utf-8", "replace"))
-        self.containers.engine.add_labels(step.spec.tag, bootstrap.package_labels(packages))
+        self.containers.engine.add_labels(step.spec.tag, bootstrap.package_labels(packages) | {RECORDED_LABEL: "yes"})
         self.containers.emit(StepNote(step.name, f"{len(packages)} Debian packages recorded in the image's labels"))
 
     def _pull_from_cache(self, step: EnsureImage) -> bool:

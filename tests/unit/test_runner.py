@@ -468,6 +468,32 @@ def test_a_built_image_records_its_debian_packages_in_labels_without_running_it(
     assert engine.reads == [(SPEC.tag, DPKG_STATUS)] and engine.runs == [], "read from the image, no container run"
 
 
+def test_an_image_build_interrupted_before_its_packages_were_recorded_has_them_recorded_on_the_next_hit(
+    ws, monkeypatch
+):
+    """Ctrl-C just after BuildKit tagged the image, before its package set was added to its labels:
+    the tag kept its base image's package set, and every later build took it for a hit as it was."""
+    engine = FakeEngine(files={DPKG_STATUS: STATUS.encode()})
+    labelled = engine.add_labels
+
+    def interrupted(ref, labels):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(engine, "add_labels", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        runner(engine, []).run(Plan(ws, (EnsureImage(SPEC),)))
+    monkeypatch.setattr(engine, "add_labels", labelled)
+    events: list = []
+    runner(engine, events).run(Plan(ws, (EnsureImage(SPEC),)))
+    assert len(engine.builds) == 1, "the image is not built again: only its labels were missing"
+    assert engine.images_by_tag[SPEC.tag].labels["io.espdock.debian-packages"] == "libc6=2.36-9 python3=3.11.2-1+b1"
+    assert "its build was interrupted before its packages were recorded" in notes(events)
+    events.clear()
+    reads = len(engine.reads)
+    runner(engine, events).run(Plan(ws, (EnsureImage(SPEC),)))
+    assert "interrupted" not in notes(events) and len(engine.reads) == reads, "recorded once"
+
+
 def test_an_image_without_dpkg_is_built_with_a_warning_and_no_package_labels(ws):
     engine = FakeEngine(files={DPKG_STATUS: None})
     events: list = []

@@ -40,6 +40,8 @@ _state: dict[str, float | int | bool | str | None] = {
 }  # fmt: skip
 # What may be left behind when a second signal, or the watchdog, ends a command at once.
 LEFT_BEHIND = "the next espdock build or run here removes any container left behind"
+# Who left the containers the next command removes, as that command says it.
+ENDED_UNCLEAN = "an espdock that ended before its cleanup (kill -9, a second Ctrl-C, a closed terminal)"
 
 
 def leaving(text: str) -> None:

@@ -9,6 +9,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import assert_never
 
+from espdock import interrupts
 from espdock.build.plan import Step
 from espdock.build.steps import LABEL_WORKSPACE, EnsureBaseImage, EnsureImage, Plan
 from espdock.config import Config
@@ -84,8 +85,7 @@ class Runner:
                     self.containers.emit(
                         StepNote(
                             "workspace",
-                            f"removed {swept} container(s) an espdock killed earlier (kill -9, a closed terminal) "
-                            "left behind in this workspace",
+                            f"removed {swept} container(s) {interrupts.ENDED_UNCLEAN} left behind in this workspace",
                         )
                     )
             for index, step in enumerate(plan.steps):

@@ -71,8 +71,14 @@ def run_foreground(engine: Engine, spec: RunSpec) -> tuple[int, int | None]:
     """Engine.run_foreground of SPEC, after removing what a killed espdock's run (or shell) of the
     workspace left running, and saying so."""
     if swept := engine.sweep(dict(spec.labels)):
-        notify(f"removed {swept} container(s) an espdock killed earlier (kill -9, a closed terminal) left behind")
+        notify(f"removed {swept} container(s) {interrupts.ENDED_UNCLEAN} left behind")
     return engine.run_foreground(spec)
+
+
+def sweep_workspace(engine: Engine, ws: Workspace) -> None:
+    """Remove the containers a dead espdock left in WS, and say so."""
+    if swept := engine.sweep({LABEL_WORKSPACE: str(ws.root)}):
+        notify(f"removed {swept} container(s) {interrupts.ENDED_UNCLEAN} left behind in this workspace")
 
 
 def runtime_image(ws: Workspace, config: Config, plan: Plan | None = None) -> tuple[Runner, str]:
@@ -94,8 +100,7 @@ def runtime_image(ws: Workspace, config: Config, plan: Plan | None = None) -> tu
     else:
         # A build's container an espdock killed outright (kill -9) went on writing install/ while
         # the image was made of it.
-        if swept := engine.sweep({LABEL_WORKSPACE: str(ws.root)}):
-            notify(f"removed {swept} container(s) an espdock killed earlier (kill -9) left behind in this workspace")
+        sweep_workspace(engine, ws)
         if unfinished := nodes.unfinished_builds(ws, step.packages):
             notify(
                 f"warning: the last espdock build of {', '.join(unfinished)} did not finish (it failed or was "
@@ -351,6 +356,10 @@ def run(
     try:
         path = nodes.find_executable(ws, packages, package, executable)
     except WorkspaceError:
+        # What an interrupted build left (a second Ctrl-C) goes now: its "exiting now" said the
+        # next run would remove it, and a run refused here never came to that.
+        if (engine := bootstrap.reachable_engine(os.environ)) is not None and build_running(ws) is None:
+            sweep_workspace(engine, ws)
         if any(p.name == package for p in packages) and not (ws.ws_dir / "install" / package).is_dir():
             # "not built yet: run `espdock build PKG`", a build this image refuses: say why it does.
             # Not a missing or stale rosdep lock, which that build makes itself (--locked aside).

@@ -15,6 +15,7 @@ from collections.abc import Callable, Iterable, Sequence
 from dataclasses import replace
 from pathlib import Path
 
+from espdock import interrupts
 from espdock.build.stamps import StampFile, listing_digest, source_files, tree_digest
 from espdock.build.steps import keyed_tag
 from espdock.config import CHIP_TARGETS, resolve_ca_bundle
@@ -235,7 +236,7 @@ class FirmwareSteps:
             self.containers.emit(
                 StepNote(
                     step.name,
-                    f"removed {swept} container(s) of {step.package} an espdock killed earlier left behind "
+                    f"removed {swept} container(s) of {step.package} {interrupts.ENDED_UNCLEAN} left behind "
                     "(a monitor holding the port, say)",
                 )
             )

@@ -522,7 +522,7 @@ def test_a_kept_build_container_is_replaced_by_the_next_build_s_not_blamed_on_a_
         (first,) = leftover_containers(engine, root)
         again = espdock("build", "--force", cwd=root, env=kept)
         assert again.returncode == 0, again.stdout + again.stderr
-        assert "killed earlier" not in again.stdout
+        assert "before its cleanup" not in again.stdout
         (second,) = leftover_containers(engine, root)
         assert second != first
     finally:

@@ -46,6 +46,37 @@ def node_workspace(engine, tmp_path_factory) -> Path:
     return root
 
 
+def dead_espdock_container(root: Path) -> str:
+    """A running container of workspace ROOT whose espdock is gone (killed outright, or ended by a
+    second Ctrl-C before its cleanup)."""
+    from espdock.images.engine import LABEL_OWNER
+    from espdock.scratch import owner_identity
+
+    boot, running, _ = owner_identity().split(":")
+    dead = f"{boot}:{running.rpartition('.')[0]}.4194304:0"  # this machine and namespace, no such pid
+    return subprocess.run(
+        ["docker", "run", "-d", "--label", f"io.espdock.workspace={root}", "--label", f"{LABEL_OWNER}={dead}",
+         "debian:bookworm-slim", "sleep", "300"],
+        capture_output=True, text=True, check=True,
+    ).stdout.strip()  # fmt: skip
+
+
+def test_a_refused_run_removes_what_a_build_ended_at_once_left(engine, tmp_path):
+    """A second Ctrl-C ends a build at once, saying "the next espdock build or run here removes any
+    container left behind"; a run refused at once (its package not built) left it there."""
+    root = python_workspace(tmp_path / "ws-root")
+    orphan = dead_espdock_container(root)
+    try:
+        refused = espdock("run", "beacon_nodes", "beacon", cwd=root)
+        gone = subprocess.run(["docker", "container", "inspect", orphan], capture_output=True, check=False)
+    finally:
+        subprocess.run(["docker", "rm", "-f", orphan], capture_output=True, check=False)
+    said = " ".join((refused.stdout + refused.stderr).split())
+    assert refused.returncode == 2 and "not built yet" in said, said
+    assert "removed 1 container(s) an espdock that ended before its cleanup" in said, said
+    assert gone.returncode != 0, "the container left behind still runs"
+
+
 def Node(root: Path, *args: str, domain: int) -> Started:
     """`espdock run ARGS` in the background in ROS domain DOMAIN."""
     return Started(root, "run", *args, env={"ROS_DOMAIN_ID": str(domain)})
@@ -165,7 +196,7 @@ def test_a_node_whose_espdock_was_killed_outright_is_removed_at_once_or_by_the_n
     try:
         again.wait_for("sent: beacon 1")
         said = "\n".join(again.lines)
-        assert "removed 1 container(s) an espdock killed earlier" in said and "Warning" not in said, said
+        assert "removed 1 container(s) an espdock that ended before its cleanup" in said and "Warning" not in said, said
         assert left not in leftover_containers(engine, node_workspace)
         assert again.interrupt() == 130
     finally:
@@ -475,16 +506,7 @@ def test_run_says_when_a_package_was_built_on_older_sources_of_one_it_depends_on
 
     StampFile(root / "ws/build" / ROS_STAMPS).forget(["beacon_nodes"])
     # And its colcon container, the espdock that started it killed outright, still writing install/.
-    from espdock.images.engine import LABEL_OWNER
-    from espdock.scratch import owner_identity
-
-    boot, running, _ = owner_identity().split(":")
-    dead = f"{boot}:{running.rpartition('.')[0]}.4194304:0"  # this machine and namespace, no such pid
-    orphan = subprocess.run(
-        ["docker", "run", "-d", "--label", f"io.espdock.workspace={root}", "--label", f"{LABEL_OWNER}={dead}",
-         "debian:bookworm-slim", "sleep", "300"],
-        capture_output=True, text=True, check=True,
-    ).stdout.strip()  # fmt: skip
+    orphan = dead_espdock_container(root)
     try:
         cut = espdock(*run, cwd=root)
         gone = subprocess.run(["docker", "container", "inspect", orphan], capture_output=True, check=False)
@@ -492,7 +514,8 @@ def test_run_says_when_a_package_was_built_on_older_sources_of_one_it_depends_on
         subprocess.run(["docker", "rm", "-f", orphan], capture_output=True, check=False)
     said = " ".join((cut.stdout + cut.stderr).split())
     assert "warning: the last espdock build of beacon_nodes did not finish (it failed or was interrupted)" in said
-    assert "removed 1 container(s) an espdock killed earlier (kill -9) left behind in this workspace" in said
+    assert "removed 1 container(s) an espdock that ended before its cleanup (kill -9, " in said
+    assert "left behind in this workspace" in said
     assert gone.returncode != 0, "the orphan still runs"
     assert no_containers_left(engine, root) == []
 

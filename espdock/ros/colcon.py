@@ -295,6 +295,10 @@ LEAVING_OUT = (
 # What those two read: the result of the package's last `colcon build` or `colcon test`, which
 # colcon-package-selection keeps in its build dir ("0": it finished, or its tests passed).
 _PREVIOUS = {"--packages-skip-build-finished": "colcon_build.rc", "--packages-skip-test-passed": "colcon_test.rc"}
+# Those that take package names or patterns, given with none: on the command line they win over
+# a defaults file's, which espdock applied in choosing the packages it gives colcon; colcon, shown
+# only those, warned "ignoring unknown package" of each other package the file named.
+NONE_LEFT_OUT = tuple(option for option in LEAVING_OUT if option not in _PREVIOUS)
 
 
 def _option_values(args: Iterable[str]) -> dict[str, list[str]]:

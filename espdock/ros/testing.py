@@ -30,7 +30,7 @@ from espdock.build.stamps import listing_digest
 from espdock.errors import ConfigError, DependencyError, EspdockError, WorkspaceError
 from espdock.images.containers import give_to, make_dirs_for, permission_error, prepare_output
 from espdock.layout import ROS_BUILD_BASE
-from espdock.ros.colcon import check_colcon_args, full_option, left_out, without_leaving_out
+from espdock.ros.colcon import NONE_LEFT_OUT, check_colcon_args, full_option, left_out, without_leaving_out
 from espdock.workspace import Package
 
 # colcon build's options that colcon test lacks (the build image's colcon, each verb's --help):
@@ -241,7 +241,7 @@ class ColconTest:
         options = (
             "--base-paths", *(rel for _, rel in self.sources), "--build-base", ROS_BUILD_BASE,
             "--event-handlers", "console_direct+", "console_start_end+", "summary+",
-            "--packages-select", *self.packages, *without_leaving_out(self.colcon_args),
+            "--packages-select", *self.packages, *without_leaving_out(self.colcon_args), *NONE_LEFT_OUT,
         )  # fmt: skip
         if not source:
             return ("colcon", "test", *options)

@@ -144,9 +144,14 @@ def test_build_skips_test_needs_then_test_builds_runs_and_reports_them(tmp_path,
     pruned = espdock("prune", "--keep", "0", "--dry-run", cwd=root, env=env)
     assert f"kept {image_tested_in(out)} (used by the current inputs)" in pruned.stdout, pruned.stdout
 
-    # Options after `--` reach colcon test; no failure is exit code 0 and no rebuild.
+    # Options after `--` reach colcon test; no failure is exit code 0 and no rebuild. A defaults
+    # file's skip of a package not tested: colcon, shown only tested_py, warned "ignoring unknown
+    # package 'tested_cpp' in --packages-skip".
+    (root / "colcon_defaults.yaml").write_text("test:\n  packages-skip:\n    - tested_cpp\n")
     again = espdock("test", "tested_py", "--", "--pytest-args", "-k", "not nan", cwd=root, env=env)
     assert again.returncode == 0, again.stdout[-3000:] + again.stderr
+    assert "ignoring unknown package" not in again.stdout + again.stderr, again.stdout[-3000:]
+    (root / "colcon_defaults.yaml").unlink()
     assert "tested_py  5 tests: 4 passed, 0 failed, 0 errored, 1 skipped" in again.stdout
     assert "up to date" in again.stdout
 

@@ -11,6 +11,7 @@ import pytest
 from espdock.build.manifest import write_report
 from espdock.build.steps import EnsureImage, ImageSpec, Plan
 from espdock.errors import ConfigError, DependencyError
+from espdock.ros.colcon import NONE_LEFT_OUT
 from espdock.ros.plan import ColconBuild
 from espdock.ros.testdeps import image_for_tests, with_test_image
 from espdock.ros.testing import (
@@ -67,7 +68,11 @@ def test_colcon_test_is_not_told_to_skip_what_espdock_already_left_out():
     told = ("--packages-skip", "b", "c", "--retest-until-fail", "2", "--packages-skip-test-p")
     step = ColconTest(image="i", packages=("a",), sources=(("a", "src/a"),), colcon_args=told)
     argv = step.argv(source=False)
-    assert argv[argv.index("--packages-select") :] == ("--packages-select", "a", "--retest-until-fail", "2")
+    assert argv[argv.index("--packages-select") :] == (
+        "--packages-select", "a", "--retest-until-fail", "2", *NONE_LEFT_OUT,
+    )  # fmt: skip
+    # Each given with no names: a defaults file's are not passed on either (espdock applied them).
+    assert "--packages-skip" in NONE_LEFT_OUT and "--packages-skip-test-passed" not in NONE_LEFT_OUT
 
 
 def test_colcon_test_gets_the_options_as_arguments_not_shell_text():
@@ -82,6 +87,7 @@ def test_colcon_test_gets_the_options_as_arguments_not_shell_text():
         "--pytest-args",
         "-k",
         "x; rm -rf /",
+        *NONE_LEFT_OUT,
     )
 
     # With the sourced environment given: colcon itself, no shell.

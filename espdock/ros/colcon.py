@@ -301,6 +301,38 @@ _PREVIOUS = {"--packages-skip-build-finished": "colcon_build.rc", "--packages-sk
 NONE_LEFT_OUT = tuple(option for option in LEAVING_OUT if option not in _PREVIOUS)
 
 
+def not_naming(args: Iterable[str], outside: Iterable[str], inside: Iterable[str]) -> tuple[str, ...]:
+    """ARGS without the package names and patterns of NONE_LEFT_OUT's options that name only
+    packages colcon is not shown (OUTSIDE: the workspace's packages a selection leaves out; INSIDE:
+    those it shows), each such option kept (with no value left, it still wins over a defaults
+    file's). `espdock build PKG` with a defaults file's skip of another package: colcon warned
+    "ignoring unknown package". A name of no package stays, for colcon to warn of."""
+    outside, inside = frozenset(outside), frozenset(inside)
+
+    def names_only_outside(option: str, value: str) -> bool:
+        if not option.endswith("-regex"):
+            return value in outside
+        try:
+            return any(re.match(value, n) for n in outside) and not any(re.match(value, n) for n in inside)
+        except re.error:
+            return False
+
+    kept: list[str] = []
+    current: str | None = None
+    for arg in args:
+        option = _option_name(arg)
+        if option is not None or arg.startswith("-"):
+            current = full_option(option, SCHEDULING) if option is not None else None
+            current = current if current in NONE_LEFT_OUT else None
+            if current is not None and "=" in arg and names_only_outside(current, arg.split("=", 1)[1]):
+                arg = option  # noqa: PLW2901 (the option, without the value it no longer has)
+            kept.append(arg)
+            continue
+        if current is None or not names_only_outside(current, arg):
+            kept.append(arg)
+    return tuple(kept)
+
+
 def _option_values(args: Iterable[str]) -> dict[str, list[str]]:
     """The values ARGS give each option of LEAVING_OUT, by its full name (colcon accepts unique
     prefixes of SCHEDULING's options and `--option=value`)."""

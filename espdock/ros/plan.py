@@ -34,6 +34,7 @@ from espdock.ros.colcon import (
     closure,
     egg_info_order_define,
     left_out,
+    not_naming,
     sets_build_testing,
     with_build_testing,
     with_egg_info_order,
@@ -73,6 +74,9 @@ class ColconBuild:
     # Every ROS package of the workspace, not a selection (`espdock build PKG`): the options of such
     # a build are the workspace's, which `espdock test` and `run` judge install/ by.
     whole: bool = True
+    # The workspace's ROS packages this step leaves out (a selection's others), which colcon is not
+    # shown: the options after `--` and the defaults files' name them to colcon no more.
+    outside: tuple[str, ...] = ()
     # The packages of a Python build type, which read no BUILD_TESTING (see stamp_images).
     python: tuple[str, ...] = ()
     # Each package's workspace dependencies whose builds its own build reads, where fewer than
@@ -169,7 +173,7 @@ class ColconBuild:
             "colcon", "build", "--base-paths", *(rel for _, rel in self.sources), "--build-base", ROS_BUILD_BASE,
             # Live output per line plus colcon's own start/finish lines.
             "--event-handlers", "console_direct+", "console_start_end+", "summary+",
-            *select, *self.options,
+            *select, *not_naming(self.options, self.outside, self.packages),
         )  # fmt: skip
 
 
@@ -393,6 +397,7 @@ def ros_steps(
             underlay=ros_image.repository,
             interfaces=tuple(p.name for p in ros if p.is_interface),
             whole=names == {p.name for p in all_packages if p.kind is PackageKind.ROS},
+            outside=tuple(sorted({p.name for p in all_packages if p.kind is PackageKind.ROS} - names)),
         ),
     ]
     # Only when asked (setting runtime_image): `espdock run` and `espdock compose` make it

@@ -133,6 +133,17 @@ def test_colcon_meta_and_options_after_the_double_dash_reach_colcon_and_decide_t
     assert "1 not built (behaviour_2)" in result.stdout
     build(robot, "behaviour_0", "behaviour_2", "--", "--parallel-workers", "1")
     assert colcon_ran(robot) == {"behaviour_2": "built"}, "a skipped package is not stamped as built"
+    # The workspace's defaults file skips a package a selection leaves out: colcon, shown only the
+    # selection, warned "ignoring unknown package 'behaviour_2' in --packages-skip".
+    defaults = robot / "ws/colcon_defaults.yaml"
+    defaults.write_text("build:\n  packages-skip:\n    - behaviour_2\n")
+    try:
+        edit(robot / "ws/src/behaviour_0")
+        selected = build(robot, "behaviour_0")
+    finally:
+        defaults.unlink()
+    assert colcon_ran(robot) == {"behaviour_0": "built"}
+    assert "ignoring unknown package" not in selected.stdout + selected.stderr, selected.stdout[-3000:]
 
 
 def test_a_failing_package_is_named_and_continue_on_error_builds_the_others(engine, robot):

@@ -20,6 +20,7 @@ from espdock.ros.colcon import (
     check_colcon_args,
     egg_info_order_define,
     meta_paths,
+    not_naming,
     output_args,
     read_colcon_settings,
     user_defaults_file,
@@ -39,6 +40,19 @@ from tests.conftest import copy_workspace, espdock
 NO_ENGINE = {"DOCKER_HOST": "unix:///nonexistent/docker.sock"}
 # The first of the CMake arguments of every build of a step at the default colcon root.
 EGG_INFO_ORDER_DEFINE = egg_info_order_define(ColconBuild("i", ("a",)).workdir)
+
+
+def test_a_selection_s_colcon_is_not_told_to_skip_the_packages_it_is_not_shown():
+    """`espdock build a` where the options (or a defaults file's) skip b: colcon, shown only a,
+    warned "ignoring unknown package 'b'". The option stays, emptied: it wins over a defaults
+    file's. A typo, no package's name, stays for colcon to warn of; so do options that select."""
+    given = ("--packages-skip", "b", "tpyo", "--packages-skip-regex", "b.*", "a.*", "--packages-ignore=b",
+             "--packages-up-to", "b", "--cmake-args", "-Db")  # fmt: skip
+    assert not_naming(given, outside=("b", "bb"), inside=("a",)) == (
+        "--packages-skip", "tpyo", "--packages-skip-regex", "a.*", "--packages-ignore",
+        "--packages-up-to", "b", "--cmake-args", "-Db",
+    )  # fmt: skip
+    assert ColconBuild("i", ("a",), sources=(("a", "src/a"),), colcon_args=given, outside=("b",)).argv().count("b") == 1
 
 
 def test_build_options_pass_and_what_espdock_controls_is_refused():

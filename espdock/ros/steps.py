@@ -13,6 +13,7 @@ from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import replace
 from pathlib import Path
 
+from espdock import interrupts
 from espdock.build.stamps import StampFile, TreeState, listing_digest, package_stamps
 from espdock.build.steps import EnsureImage
 from espdock.errors import BuildFailed, ConfigError, EspdockError
@@ -199,6 +200,13 @@ class RosSteps:
         if whole:
             # install/ is swapped for the volume's whole: every package must be built there.
             rebuild = step.packages
+            if sync is not None and not sync.fresh:
+                why = (
+                    "the last build in the workspace volume brought back only some packages (a selection, or a failure)"
+                    if sync.installed is None
+                    else "install/ is not as the last build in the workspace volume left it (a build of your own?)"
+                )
+                self.containers.emit(StepNote(step.name, f"{why}: every package is built there again"))
         # Until this build succeeds, none of them counts as built; what the options after `--`
         # leave out (`--packages-skip`), colcon neither builds nor touches: it keeps its record
         # (`espdock run` of it refused it as "did not finish": it warns of what it was built on).
@@ -392,24 +400,27 @@ class RosSteps:
             paths = {volume.container_path(workspace, install): fetched["install"],
                      volume.container_path(workspace, logs): fetched["log"]}  # fmt: skip
             code = self.containers.engine.run(spec, on_line, keep=keep, fetch=paths)
-            volume.merge_logs(fetched["log"], logs, self.containers.owner)
-            states = log.states()
-            # A whole build that failed, or did not build all it was to (colcon found not all of
-            # them, or left some out as told: `--packages-skip`), lacks some of what the host
-            # has: it brings back what it built, and the host's other packages stay as they
-            # were. install/ is then not the volume's, so the next build is a whole one too.
-            built_here = _built(states or {})
-            unbuilt = set(rebuild) - set(built_here)
-            # So does a selection's (`espdock build PKG`), which the volume's install/
-            # holds alone: swapped in, it removed every other package from the host's.
-            merge = whole and (code != 0 or bool(unbuilt) or not step.whole)
-            # The host's own entries stay: a build of the ROS packages (`--only ros`, a
-            # selection) removed the firmware installs, and `espdock flash` found none.
-            kept = host_added(install)
-            theirs = built_here if merge else [e for e in _entries(install) if e not in kept]
-            volume.replace_tree(fetched["install"], install, self.containers.owner, theirs)
-            volume.record(workspace, self.containers.engine, sync, None if merge else volume_listing(install))
-            give_to(workspace.ws_dir / "build" / volume.SYNCED, self.containers.owner)
+            # The copy back and its record at once: a Ctrl-C between them left an install/ the
+            # record did not describe, and the next build built every package again.
+            with interrupts.held():
+                volume.merge_logs(fetched["log"], logs, self.containers.owner)
+                states = log.states()
+                # A whole build that failed, or did not build all it was to (colcon found not all
+                # of them, or left some out as told: `--packages-skip`), lacks some of what the
+                # host has: it brings back what it built, and the host's other packages stay as
+                # they were. install/ is then not the volume's, so the next build is a whole one too.
+                built_here = _built(states or {})
+                unbuilt = set(rebuild) - set(built_here)
+                # So does a selection's (`espdock build PKG`), which the volume's install/
+                # holds alone: swapped in, it removed every other package from the host's.
+                merge = whole and (code != 0 or bool(unbuilt) or not step.whole)
+                # The host's own entries stay: a build of the ROS packages (`--only ros`, a
+                # selection) removed the firmware installs, and `espdock flash` found none.
+                kept = host_added(install)
+                theirs = built_here if merge else [e for e in _entries(install) if e not in kept]
+                volume.replace_tree(fetched["install"], install, self.containers.owner, theirs)
+                volume.record(workspace, self.containers.engine, sync, None if merge else volume_listing(install))
+                give_to(workspace.ws_dir / "build" / volume.SYNCED, self.containers.owner)
         return code, states
 
     def _record_built(

@@ -535,6 +535,40 @@ def test_an_ssh_engine_that_cannot_see_the_workspace_builds_it_in_the_volume(tcp
         assert volumes_of(tcp_engine, root) == []
 
 
+def word_now(root: Path) -> str:
+    """installed_word, or "" while install/ is being swapped."""
+    with contextlib.suppress(OSError, AssertionError):
+        return installed_word(root)
+    return ""
+
+
+def test_ctrl_c_as_install_comes_back_from_the_volume_does_not_make_the_next_build_a_whole_one(tcp_engine):
+    """Ctrl-C the moment the build's install/ came back from the workspace volume: the record of the
+    copy was not yet written, so the next build took install/ for one changed by hand and built
+    every package again, without a word of why."""
+    root = once_workspace(tcp_engine.hidden / "ws-copied-back")
+    idle_package(root / "ws/src/idle_py")
+    first = espdock("build", "--only", "ros", cwd=root, env=tcp_engine.env)
+    assert first.returncode == 0, first.stdout + first.stderr
+    edit_word(root, "six")
+    argv = [sys.executable, "-m", "espdock", "build", "--only", "ros"]
+    with subprocess.Popen(argv, cwd=root, env={**os.environ, **tcp_engine.env}, stdin=subprocess.DEVNULL,
+                          stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True) as build:  # fmt: skip
+        deadline = time.monotonic() + 120
+        while "word: six" not in word_now(root):
+            assert build.poll() is None and time.monotonic() < deadline, "install/ never came back"
+            time.sleep(0.002)
+        build.send_signal(signal.SIGINT)
+        output, _ = build.communicate(timeout=60)
+    assert build.returncode in (0, 130), output
+    again = espdock("build", "--only", "ros", cwd=root, env=tcp_engine.env)
+    said = " ".join(again.stdout.split())
+    assert again.returncode == 0, said + again.stderr
+    assert "2 package(s) built" not in said and "every package is built there again" not in said, said
+    assert "word: six" in installed_word(root)
+    assert espdock("prune", "--volume", cwd=root, env=tcp_engine.env).returncode == 0
+
+
 def test_an_interrupted_volume_build_leaves_the_old_install_whole_and_no_container(tcp_engine):
     root = once_workspace(tcp_engine.hidden / "ws-interrupt")
     first = espdock("build", cwd=root, env=tcp_engine.env)

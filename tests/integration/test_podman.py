@@ -250,15 +250,17 @@ def test_a_step_silent_for_longer_than_the_engine_timeout_runs_to_its_end_on_pod
     """Podman 4.3 answers a followed log only with the container's first output: a colcon build that
     printed nothing for two minutes (a loaded machine's first configure) ended as "the Podman
     engine went away" (local socket) or "did not answer within 120 s" (tcp, through the SDK) while
-    its container ran on. The two minutes made two seconds here."""
+    its container ran on. The two minutes made two seconds here, and the engine's timeout three:
+    Podman takes 0.4 to 0.7 s to answer /version on an idle machine, and a timeout of one second
+    failed the test on a loaded one before the step began."""
     monkeypatch.setattr(engine_module, "OPERATION_TIMEOUT", 2)
     image = ros_build_tag(python_workspace(tmp_path / "seed"))  # on the module's Podman storage
     lines: list[str] = []
-    spec = RunSpec(image=image, argv=("sh", "-c", "sleep 5; echo done"), workdir="/")
+    spec = RunSpec(image=image, argv=("sh", "-c", "sleep 7; echo done"), workdir="/")
     link = TcpForwarder(podman.socket) if reached == "tcp" else None
     env = {**podman.env, "DOCKER_HOST": f"tcp://127.0.0.1:{link.port}"} if link else podman.env
     try:
-        assert Engine(env, timeout=1).run(spec, lines.append) == 0
+        assert Engine(env, timeout=3).run(spec, lines.append) == 0
     finally:
         if link:
             link.close()

@@ -366,6 +366,7 @@ def ros_steps(
     colcon build and, when the setting asks for it, the runtime image (see build.plan.plan_build)."""
     colcon = colcon or ColconSettings()
     names = {p.name for p in ros}
+    every_ros = {p.name for p in all_packages if p.kind is PackageKind.ROS}
     base = dict(ros_image.build_args)["BASE_IMAGE"]
     steps: list[EnsureBaseImage | EnsureImage | ColconBuild | RuntimeImage] = [
         EnsureBaseImage(base, debootstrap=debootstrap_suite(base, config) is not None),
@@ -396,8 +397,8 @@ def ros_steps(
             declared=tuple((p.name, p.depends, p.test_only_depends) for p in ros),
             underlay=ros_image.repository,
             interfaces=tuple(p.name for p in ros if p.is_interface),
-            whole=names == {p.name for p in all_packages if p.kind is PackageKind.ROS},
-            outside=tuple(sorted({p.name for p in all_packages if p.kind is PackageKind.ROS} - names)),
+            whole=names == every_ros,
+            outside=tuple(sorted(every_ros - names)),
         ),
     ]
     # Only when asked (setting runtime_image): `espdock run` and `espdock compose` make it

@@ -472,10 +472,27 @@ class Engine:
         with self._engine_call(
             f"importing {tarball} as {ref}", f"refused to import {tarball} as {ref}", ImageBuildError, explained=False
         ):
-            # The whole name:tag as the repository: Podman 4's Docker API ignores a separate tag
-            # (and stores name:latest); Docker takes either.
-            self._client.api.import_image_from_file(str(tarball), repository=ref, changes=changes or None)
+            if self._podman is None:
+                self._ping(self._timeout)  # Podman or not, from its answer: a failure is said as the import's
+            if self._podman:
+                self._podman_import(tarball, ref, changes)
+            else:
+                self._client.api.import_image_from_file(str(tarball), repository=ref, changes=changes or None)
         self.check_image(ref, labels or {}, f"importing {tarball} as {ref}")
+
+    def _podman_import(self, tarball: Path, ref: str, changes: list[str]) -> None:
+        """Podman's own import, not its Docker API's: that one (4.3 to 5) keeps the uploaded
+        tarball, a whole base image, in the service's temp dir (/var/tmp) for good."""
+        api = self._client.api
+        with tarball.open("rb") as body:
+            answer = api.post(
+                f"{api.base_url}{LIBPOD_IMPORT}",
+                params={"reference": ref, "changes": changes},
+                data=body,
+                headers={"Content-Type": "application/x-tar"},
+                timeout=None,
+            )
+        api._raise_for_status(answer)  # docker.errors.APIError, with the engine's explanation
 
     def build_image(
         self,
@@ -1097,6 +1114,7 @@ class Engine:
 
 
 LIBPOD_INFO = "/v4.0.0/libpod/info"
+LIBPOD_IMPORT = "/v4.0.0/libpod/images/import"
 LIBPOD_HEADER = "Libpod-Api-Version"
 
 

@@ -72,7 +72,10 @@ class PodmanService:
         # Run root and libpod's tmp dir of this module's own: not the machine's /run/libpod.
         argv = ["podman", "--root", str(root / "storage"), "--runroot", str(self.runroot),
                 "--tmpdir", str(self.tmpdir), "system", "service", "--time=0", f"unix://{self.socket}"]  # fmt: skip
-        env = {**os.environ, "CONTAINERS_CONF": str(self.home / "containers.conf")}
+        # Its process's temp dir too (Podman's default is /var/tmp): what it leaves there shows.
+        self.process_tmp = self.home / "service-tmp"
+        self.process_tmp.mkdir(exist_ok=True)
+        env = {**os.environ, "CONTAINERS_CONF": str(self.home / "containers.conf"), "TMPDIR": str(self.process_tmp)}
         with open(self.home / "service.log", "ab") as log:
             self.process = subprocess.Popen(argv, env=env, stdout=log, stderr=subprocess.STDOUT,
                                             start_new_session=True)  # fmt: skip
@@ -280,6 +283,8 @@ def test_podman_imports_a_root_filesystem_under_its_own_tag(podman, tmp_path):
     imported = engine.image("espdock-test/imported:v1")
     assert imported is not None and imported.labels["io.espdock.test"] == "yes"
     assert engine.image("espdock-test/imported:latest") is None
+    # Podman's Docker API kept each uploaded tarball, a whole base image, in /var/tmp.
+    assert list(podman.process_tmp.iterdir()) == []
 
 
 def test_a_container_podman_refuses_to_start_is_exit_9_naming_podman(podman, tmp_path):

@@ -45,6 +45,9 @@ SYSTEM_PLUGIN = Path("/usr/local/lib/docker/cli-plugins/docker-compose")
 ENGINE_START_TIMEOUT = 60.0
 # debian:<suite> and debian:<suite>-slim can be rebuilt from Debian's archive.
 DEBIAN_IMAGE = re.compile(r"^(?:docker\.io/)?(?:library/)?debian:(?P<suite>[a-z]+)(?:-slim)?$")
+# Where debootstrap builds a base image's tree: a disk (not a tmpfs /tmp), in a directory named after espdock's pid.
+ROOTFS_PARENT = "/var/tmp"
+ROOTFS_PREFIX = "espdock-rootfs-"
 # What the official -slim images leave out, so a debootstrapped stand-in is as lean.
 SLIM_DPKG_EXCLUDES = """\
 path-exclude /usr/share/doc/*
@@ -234,7 +237,10 @@ def build_debian_rootfs_image(engine: Engine, ref: str, suite: str, mirror: str 
     """Debootstrap SUITE (minbase, slimmed like Debian's -slim images) and import it as REF."""
     if shutil.which("debootstrap") is None:
         _apt_install(["debootstrap"], notify)
-    tmp = Path(tempfile.mkdtemp(prefix="espdock-rootfs-", dir="/var/tmp"))
+    for left in _rootfs_trees_left():
+        _remove_rootfs(left)
+        notify(f"removed {left}, left by an espdock killed while it built a base image")
+    tmp = Path(tempfile.mkdtemp(prefix=f"{ROOTFS_PREFIX}{os.getpid()}-", dir=ROOTFS_PARENT))
     try:
         rootfs = tmp / "rootfs"
         argv = ["debootstrap", "--variant=minbase", suite, str(rootfs)]
@@ -256,6 +262,30 @@ def build_debian_rootfs_image(engine: Engine, ref: str, suite: str, mirror: str 
     finally:
         _remove_rootfs(tmp)
     notify(f"imported {ref} ({len(packages)} Debian packages, recorded in its labels)")
+
+
+def _rootfs_trees_left() -> list[Path]:
+    """The trees of espdocks killed outright (kill -9, the OOM killer) while they built a base
+    image: each about 200 MB that nothing else removes. A tree is named after the pid of the
+    espdock that made it; one whose espdock is gone and that no process works in (debootstrap's
+    children, stopped by the parent-death signal, may take a moment) is left over."""
+    left = []
+    for tree in sorted(Path(ROOTFS_PARENT).glob(f"{ROOTFS_PREFIX}*-*")):
+        pid = tree.name.removeprefix(ROOTFS_PREFIX).split("-", 1)[0]
+        if pid.isdigit() and not Path(f"/proc/{pid}").exists() and not _worked_in(tree):
+            left.append(tree)
+    return left
+
+
+def _worked_in(tree: Path) -> bool:
+    """Whether a process has its root (debootstrap's chroot) or working directory inside TREE."""
+    for proc in Path("/proc").iterdir():
+        if proc.name.isdigit():
+            for link in ("root", "cwd"):
+                with contextlib.suppress(OSError):
+                    if Path(os.readlink(proc / link)).is_relative_to(tree):
+                        return True
+    return False
 
 
 def _remove_rootfs(tmp: Path) -> None:
@@ -358,16 +388,36 @@ def _run_logged(argv: list[str], notify: Notify, env: Mapping[str, str] | None =
 
 
 def _stop_group(process: subprocess.Popen) -> None:
-    """SIGINT to PROCESS's group, as a terminal's Ctrl-C; SIGKILL if it is not over a second
-    before espdock's grace ends (the cleanup after it needs that second)."""
+    """SIGINT to PROCESS's group, as a terminal's Ctrl-C; SIGKILL if the group is not gone a
+    second before espdock's grace ends (the cleanup after it needs that second). The whole
+    group: debootstrap's own exit left its extracting children writing into the tree that
+    espdock then removed, and some of it stayed."""
     with contextlib.suppress(ProcessLookupError):
         os.killpg(process.pid, signal.SIGINT)
+    deadline = time.monotonic() + max(0.5, interrupts.remaining() - 1.0)
     try:
-        process.wait(timeout=max(0.5, interrupts.remaining() - 1.0))
+        process.wait(timeout=max(0.0, deadline - time.monotonic()))
+        while _group_lives(process.pid) and time.monotonic() < deadline:
+            time.sleep(0.05)
     except subprocess.TimeoutExpired:
+        pass
+    if _group_lives(process.pid):
         with contextlib.suppress(ProcessLookupError):
             os.killpg(process.pid, signal.SIGKILL)
-        process.wait()
+    process.wait()
+    until = time.monotonic() + 0.5
+    while _group_lives(process.pid) and time.monotonic() < until:
+        time.sleep(0.05)  # SIGKILLed children, reaped by whoever adopted them
+
+
+def _group_lives(pgid: int) -> bool:
+    """Whether a process of group PGID is still running (zombies do not count: nothing they write)."""
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        with contextlib.suppress(OSError, ValueError, IndexError):
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+            if int(fields[2]) == pgid and fields[0] != "Z":
+                return True
+    return False
 
 
 def _tail(path: Path, lines: int = 5) -> str:

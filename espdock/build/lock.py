@@ -151,7 +151,20 @@ def plan_locks(plan: Plan) -> tuple[LockSpec, ...]:
 
 def stale_locks(root: Path, specs: Iterable[LockSpec]) -> list[str]:
     """Why each lock of SPECS that is missing or stale in the workspace at ROOT is."""
-    return [reason for spec in specs if (reason := stale_reason(spec, *_state(spec, root)))]
+    return [reason for spec in specs if (reason := _unowned(spec, root) or stale_reason(spec, *_state(spec, root)))]
+
+
+def _unowned(spec: LockSpec, root: Path) -> str | None:
+    """Why the workspace at ROOT, with SPEC's source (or a lock it is constrained by) of its own
+    but not the lock, has no lock of it: espdock's default stands in, compiled from espdock's
+    source. Compared with the workspace's, it was said to be stale, naming a file not there."""
+    own = [rel for rel in spec.inputs if (root / rel).is_file()]
+    if not own or (root / spec.lock).is_file() or locate(root, spec.lock) is None:
+        return None
+    return (
+        f"{spec.lock} is missing: the workspace has its own {', '.join(own)}, "
+        f"and espdock's default {spec.lock} (compiled from espdock's) stands in"
+    )
 
 
 def check_locks(root: Path, specs: Iterable[LockSpec]) -> None:

@@ -102,6 +102,26 @@ def test_a_lock_missing_in_the_workspace_and_in_the_defaults_is_named(tmp_path, 
     assert error.value.exit_code == 2
 
 
+def test_a_source_of_the_workspaces_own_without_its_lock_is_a_missing_lock_not_a_stale_default(tmp_path):
+    """A ROS developer's first own docker/ros-build.in, no `espdock lock` yet: the workspace's
+    docker/ros-build.txt was said to be stale (a file it does not have), espdock's default
+    checked against the user's source."""
+    root = tmp_path / "w"
+    (root / "src").mkdir(parents=True)
+    (root / "espdock.toml").write_text("[espdock]\n")
+    shutil.copytree(REPO / "ws/src/custom_interface", root / "src/custom_interface")
+    (root / "docker").mkdir()
+    (root / BUILD.source).write_text("colcon-common-extensions\n")
+    result = espdock("build", cwd=root, env={**NO_ENGINE, "CI": "true"})
+    assert result.returncode == 2, result.stdout + result.stderr
+    said = " ".join(result.stderr.split())
+    assert (
+        "docker/ros-build.txt is missing: the workspace has its own docker/ros-build.in, "
+        "and espdock's default docker/ros-build.txt (compiled from espdock's) stands in"
+    ) in said, said
+    assert "stale" not in said and "ros-runtime" not in said, said
+
+
 def test_build_in_ci_refuses_a_stale_lock_before_touching_the_engine(tmp_path):
     root = copy_workspace(tmp_path / "w")
     assert "warning" not in espdock("build", "--dry-run", cwd=root, env=NO_ENGINE).stderr

@@ -514,7 +514,10 @@ def offline_note(
     ]
     shown = {k: f"{k} ({marked[k].what})" for k in marked}
     lines = "\n".join(f"  {name}: {', '.join(shown.get(k, k) for k in keys)}" for name, keys in blocked.items())
-    hint = f"Reach rosdep's sources (or point ROSDEP_SOURCE_PATH at a local copy), then {FIX}."
+    if isinstance(unreachable, rosdeps.DatabaseUnwritable):
+        hint = f"{unreachable.hint} Then {FIX}."
+    else:
+        hint = f"Reach rosdep's sources (or point ROSDEP_SOURCE_PATH at a local copy), then {FIX}."
     if others:
         hint += f" Meanwhile the others {command}: `espdock {command} {' '.join(others)}`."
     refused = LockError(

@@ -92,9 +92,9 @@ def buildkit_hint(tail: Sequence[str], offline: str | None = None, proxies: Mapp
                 f"{ref} is not here and could not be pulled: is a registry reachable? "
                 "Or load the image locally (docker load) or point espdock.toml at one you have."
             )
-    if config := re.search(r"mkdir (\S*\.docker): permission denied", output):
+    if config := re.search(r"mkdir (\S*\.docker): (permission denied|read-only file system)", output, re.I):
         # Compose's build writes the docker CLI's config dir first (buildx state); a HOME
-        # espdock can read but not write fails every image build so.
+        # espdock can read but not write (or one on a read-only mount) fails every image build so.
         return (
             f"The docker CLI could not make its config dir {config.group(1)}: point DOCKER_CONFIG at a "
             "directory you can write (or make that one writable)."

@@ -301,6 +301,11 @@ class DatabaseUnreachable(LockError):
     """rosdep's database could not be fetched (no network, a source down)."""
 
 
+class DatabaseUnwritable(DatabaseUnreachable):
+    """rosdep's database could not be kept: its cache directory cannot be written. Its hint says
+    where, not to reach rosdep's sources."""
+
+
 def cache_dir(env: Mapping[str, str], root: Path | None = None) -> Path:
     """Where rosdep's database is kept for the workspace at ROOT: one per workspace, so the
     sources one workspace's rosdep was pointed at (a private rule) never serve another."""
@@ -340,10 +345,18 @@ def update_database(
 
     cache = cache_dir(env, root)
     sources = Path(get_sources_list_dir())
-    if not sources.is_dir() or not any(sources.glob("*.list")):
-        sources = cache / "sources.list.d"
-        sources.mkdir(parents=True, exist_ok=True)
-        (sources / "20-default.list").write_text(DEFAULT_SOURCES)
+    try:
+        (cache / "sources.cache").mkdir(parents=True, exist_ok=True)
+        if not sources.is_dir() or not any(sources.glob("*.list")):
+            sources = cache / "sources.list.d"
+            sources.mkdir(parents=True, exist_ok=True)
+            (sources / "20-default.list").write_text(DEFAULT_SOURCES)
+    except OSError as exc:
+        # Said as what it is: `rosdep update` failing on it was "reach rosdep's sources".
+        raise DatabaseUnwritable(
+            f"espdock cannot keep rosdep's database in {cache}: {exc.strerror} ({exc.filename})",
+            f"Make {cache_dir(env)} writable, or set XDG_CACHE_HOME to a directory you can write.",
+        ) from exc
     failed: list[str] = []
     try:
         with warnings.catch_warnings(), downloads.cert_file(ca_bundle):

@@ -633,8 +633,9 @@ def test_an_image_build_that_cannot_make_the_docker_cli_config_dir_names_docker_
     hint to read the build output, which had nothing more."""
     from espdock.images.build_failures import buildkit_hint
 
-    hint = buildkit_hint(["mkdir /home/ci/.docker: permission denied"])
-    assert "config dir /home/ci/.docker" in hint and "DOCKER_CONFIG" in hint
+    for why in ("permission denied", "read-only file system"):
+        hint = buildkit_hint([f"mkdir /home/ci/.docker: {why}"])
+        assert "config dir /home/ci/.docker" in hint and "DOCKER_CONFIG" in hint, why
 
 
 def test_a_build_tree_linked_out_of_the_workspace_is_refused_naming_it(ws, tmp_path_factory):

@@ -314,6 +314,29 @@ def test_a_misspelt_dependency_is_named_with_the_key_or_workspace_package_it_is_
     assert f"warning: rosdeps_py_tabel: {unknown} (did you mean rosdeps_py_table?); a build" in said, said
 
 
+def test_lock_where_rosdeps_cache_cannot_be_written_names_the_cache_not_the_network(tmp_path):
+    """A read-only HOME (XDG_CACHE_HOME unset): `espdock lock` said "`rosdep update` failed:
+    [Errno 30] Read-only file system" with the hint to reach rosdep's sources on GitHub. Here the
+    cache's parent is a file, which even root cannot write under."""
+    root = make_workspace(tmp_path / "w", "rosdeps_xml_count")
+    blocked = tmp_path / "home-cache"
+    blocked.write_text("")
+    locked = espdock("lock", cwd=root, env={**NO_ENGINE, **environment(tmp_path), "XDG_CACHE_HOME": str(blocked)})
+    said = " ".join(locked.stderr.split())
+    assert locked.returncode == 2, said
+    assert f"espdock cannot keep rosdep's database in {blocked}/" in said, said
+    assert f"Make {blocked}/espdock" in said and "set XDG_CACHE_HOME to a directory you can write" in said, said
+    assert "GitHub" not in said and "Traceback" not in said, said
+    assert not (root / "rosdep.lock.json").exists()
+    # A build that needs the lock made refuses with the same words, and then `espdock lock`.
+    built = run_build(root, tmp_path, XDG_CACHE_HOME=str(blocked))
+    said = " ".join(built.stderr.split())
+    assert built.returncode == 2, said
+    assert f"espdock cannot keep rosdep's database in {blocked}/" in said, said
+    assert "set XDG_CACHE_HOME to a directory you can write. Then run `espdock lock`" in said, said
+    assert "Reach rosdep's sources" not in said, said
+
+
 def test_locked_refuses_a_missing_or_stale_lock_and_lock_refreshes_it(tmp_path):
     root = make_workspace(tmp_path / "w", "rosdeps_xml_count")
     result = run_build(root, tmp_path, "--locked")

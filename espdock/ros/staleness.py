@@ -337,7 +337,8 @@ def build_afresh(
         # kept the list it was configured with (a removed source failed every build, one back was left out).
         listed = {*lost, *stamp_file.gained(others)}
         if cmake := sorted(n for n in listed if n not in step.python and n not in afresh and (base / n).is_dir()):
-            why = f"configuring {', '.join(cmake)} again: its source files are others than at its last build"
+            its = "its" if len(cmake) == 1 else "their"
+            why = f"configuring {', '.join(cmake)} again: {its} source files are others than at {its} last build"
             reasons.append((tuple(base / name / "CMakeCache.txt" for name in cmake), why))
         # A `-D` option taken out of the options stays in CMake's cache: the package rebuilt, and
         # kept what the option had made (a Release build, after a build without it).
@@ -345,9 +346,10 @@ def build_afresh(
             n: d for n, d in step.settings if n in others and n not in step.python and n not in (*afresh, *cmake)
         }
         if options := [n for n in stamp_file.reconfigured(settings) if (base / n / "CMakeCache.txt").is_file()]:
+            its = "its" if len(options) == 1 else "their"
             why = (
-                f"configuring {', '.join(options)} afresh: its colcon options or settings files changed since its "
-                "last build (a CMake option taken out would stay in its cache)"
+                f"configuring {', '.join(options)} afresh: {its} colcon options or settings files changed since "
+                f"{its} last build (a CMake option taken out would stay in {its} cache)"
             )
             reasons.append((tuple(base / name / "CMakeCache.txt" for name in options), why))
         python = {n: now for n, now in others.items() if n in step.python and n not in lost}

@@ -44,6 +44,12 @@ LEFT_BEHIND = "the next espdock build or run here removes any container left beh
 ENDED_UNCLEAN = "an espdock that ended before its cleanup (kill -9, a second Ctrl-C, a closed terminal)"
 
 
+def swept(count: int, of: str = "", where: str = "") -> str:
+    """What the next command says of the COUNT containers an espdock that ended uncleanly left
+    (OF: whose they were; WHERE: after "left behind"), in one wording wherever it sweeps."""
+    return f"removed {count} container(s) {of}{' ' if of else ''}{ENDED_UNCLEAN} left behind{where}"
+
+
 def leaving(text: str) -> None:
     """Say TEXT, instead of LEFT_BEHIND, of what is left when the command ends at once: what a
     command leaves that no later espdock removes (`compose up`'s services, which `espdock build`

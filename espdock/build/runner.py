@@ -82,12 +82,7 @@ class Runner:
             # may still hold the workspace's files open or write into them.
             if any(isinstance(step, (ColconBuild, IdfBuild)) for step in plan.steps):
                 if swept := self.containers.engine.sweep({LABEL_WORKSPACE: str(plan.workspace.root)}):
-                    self.containers.emit(
-                        StepNote(
-                            "workspace",
-                            f"removed {swept} container(s) {interrupts.ENDED_UNCLEAN} left behind in this workspace",
-                        )
-                    )
+                    self.containers.emit(StepNote("workspace", interrupts.swept(swept, where=" in this workspace")))
             for index, step in enumerate(plan.steps):
                 try:
                     results.append(self._run_step(plan.workspace, step))

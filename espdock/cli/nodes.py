@@ -71,14 +71,14 @@ def run_foreground(engine: Engine, spec: RunSpec) -> tuple[int, int | None]:
     """Engine.run_foreground of SPEC, after removing what a killed espdock's run (or shell) of the
     workspace left running, and saying so."""
     if swept := engine.sweep(dict(spec.labels)):
-        notify(f"removed {swept} container(s) {interrupts.ENDED_UNCLEAN} left behind")
+        notify(interrupts.swept(swept))
     return engine.run_foreground(spec)
 
 
 def sweep_workspace(engine: Engine, ws: Workspace) -> None:
     """Remove the containers a dead espdock left in WS, and say so."""
     if swept := engine.sweep({LABEL_WORKSPACE: str(ws.root)}):
-        notify(f"removed {swept} container(s) {interrupts.ENDED_UNCLEAN} left behind in this workspace")
+        notify(interrupts.swept(swept, where=" in this workspace"))
 
 
 def runtime_image(ws: Workspace, config: Config, plan: Plan | None = None) -> tuple[Runner, str]:

@@ -236,8 +236,7 @@ class FirmwareSteps:
             self.containers.emit(
                 StepNote(
                     step.name,
-                    f"removed {swept} container(s) of {step.package} {interrupts.ENDED_UNCLEAN} left behind "
-                    "(a monitor holding the port, say)",
+                    interrupts.swept(swept, of=f"of {step.package}", where=" (a monitor holding the port, say)"),
                 )
             )
         build_dir = firmware_build_dir(workspace.ws_dir, step.package)

@@ -23,7 +23,7 @@ import os
 import posixpath
 import pwd
 import re
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -254,26 +254,24 @@ def without_leaving_out(args: Iterable[str]) -> tuple[str, ...]:
 
 def _without(args: Iterable[str], options: Iterable[str]) -> tuple[str, ...]:
     """ARGS without OPTIONS (of SCHEDULING) and their values."""
-    kept: list[str] = []
-    skipping = False
+    options = frozenset(options)
+    return tuple(arg for arg, option, _ in _walk(args) if option not in options)
+
+
+def _walk(args: Iterable[str]) -> Iterator[tuple[str, str | None, bool]]:
+    """Each of ARGS with the option of SCHEDULING it is or gives a value to, by its full name
+    (colcon takes unique prefixes longer than `--x`, and `--option=value`), None for neither;
+    and whether it is the option itself. As argparse reads them: what follows `--option=value`,
+    or a flag, is no value of it."""
+    current: str | None = None
     for arg in args:
         option = _option_name(arg)
         if option is not None or arg.startswith("-"):
-            takes_values = _scheduling(option, options)
-            skipping = bool(takes_values) and "=" not in arg
-            if takes_values is None:
-                kept.append(arg)
-            continue
-        if not skipping:
-            kept.append(arg)
-    return tuple(kept)
-
-
-def _scheduling(option: str | None, among: Iterable[str] = SCHEDULING) -> bool | None:
-    """Whether OPTION (or the option it uniquely abbreviates among SCHEDULING's) is one of AMONG
-    that takes values; None when it is none of them."""
-    full = full_option(option, SCHEDULING) if option is not None else None
-    return SCHEDULING[full] if full is not None and full in among else None
+            full = full_option(option, SCHEDULING) if option is not None else None
+            yield arg, full, True
+            current = full if full is not None and SCHEDULING[full] and "=" not in arg else None
+        else:
+            yield arg, current, False
 
 
 def full_option(option: str, names: Iterable[str]) -> str | None:
@@ -318,42 +316,28 @@ def not_naming(args: Iterable[str], outside: Iterable[str], inside: Iterable[str
             return False
 
     kept: list[str] = []
-    current: str | None = None
-    for arg in args:
-        option = _option_name(arg)
-        if option is not None or arg.startswith("-"):
-            current = full_option(option, SCHEDULING) if option is not None else None
-            current = current if current in NONE_LEFT_OUT else None
-            if current is not None and "=" in arg and names_only_outside(current, arg.split("=", 1)[1]):
-                arg = option  # noqa: PLW2901 (the option, without the value it no longer has)
+    for arg, option, itself in _walk(args):
+        if option not in NONE_LEFT_OUT:
             kept.append(arg)
-            continue
-        if current is None or not names_only_outside(current, arg):
+        elif itself:
+            # The option without a value it no longer has.
+            named, _, value = arg.partition("=")
+            kept.append(named if value and names_only_outside(option, value) else arg)
+        elif not names_only_outside(option, arg):
             kept.append(arg)
     return tuple(kept)
 
 
 def _option_values(args: Iterable[str]) -> dict[str, list[str]]:
-    """The values ARGS give each option of LEAVING_OUT, by its full name (colcon accepts unique
-    prefixes of SCHEDULING's options and `--option=value`)."""
+    """The values ARGS give each option of LEAVING_OUT, by its full name."""
     values: dict[str, list[str]] = {}
-    current: str | None = None
-    for arg in args:
-        option = _option_name(arg)
-        if option is not None or arg.startswith("-"):
-            matches = [name for name in SCHEDULING if name == option or (option and name.startswith(option))]
-            exact = option if option in SCHEDULING else None
-            full = exact or (matches[0] if len(matches) == 1 and option and len(option) > 3 else None)
-            current = full if full in LEAVING_OUT else None
-            if current is not None:
-                values.setdefault(current, [])
-                if "=" in arg:
-                    values[current].append(arg.split("=", 1)[1])
-                if not SCHEDULING[current]:  # a flag: what follows is no value of it
-                    current = None
-            continue
-        if current is not None:
-            values[current].append(arg)
+    for arg, option, itself in _walk(args):
+        if option in LEAVING_OUT:
+            given = values.setdefault(option, [])
+            if not itself:
+                given.append(arg)
+            elif "=" in arg:
+                given.append(arg.partition("=")[2])
     return values
 
 

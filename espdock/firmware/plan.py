@@ -307,7 +307,9 @@ def library_sdkconfig(defaults: Mapping[str, bytes], target: str, order: Sequenc
 LONGCALLS_RISCV = ("esp32c2", "esp32c5", "esp32c6", "esp32h2", "esp32p4")
 
 
-_IDF_TARGET_LINE = re.compile(r'^CONFIG_IDF_TARGET="?([A-Za-z0-9_]+)"?\s*$', re.MULTILINE)
+# Any value: IDF reads only "chip" (its __target_from_config), and a chip misspelt in it, "esp32-c3"
+# or 'esp32c3', was passed over here, the firmware built for the workspace's chip without a word.
+_IDF_TARGET_LINE = re.compile(r"^CONFIG_IDF_TARGET=(.*?)\s*$", re.MULTILINE)
 
 
 def declared_target(defaults: Mapping[str, bytes], order: Sequence[str] = ()) -> str | None:
@@ -324,7 +326,10 @@ def sdkconfig_target(data: bytes) -> str | None:
     """The chip an sdkconfig or defaults file's DATA names (CONFIG_IDF_TARGET), if any."""
     # utf-8-sig: past a Windows editor's byte order mark, which IDF's CMake (file(STRINGS)) skips too.
     match = _IDF_TARGET_LINE.search(data.decode("utf-8-sig", errors="replace"))
-    return match.group(1) if match else None
+    if match is None:
+        return None
+    value = match.group(1)
+    return (value[1:-1] if len(value) > 1 and value[0] == value[-1] == '"' else value) or None
 
 
 def package_target(config: Config, inputs: BuildInputs, firmware: Package, override: str | None = None) -> str:

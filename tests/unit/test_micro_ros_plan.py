@@ -402,11 +402,24 @@ def test_risc_v_chips_but_the_c3_are_refused_with_the_longcalls_reason(chip):
     assert package_target(Config(), _chips(), PACKAGES[5], "esp32c3") == "esp32c3"
 
 
-def test_an_unknown_chip_in_sdkconfig_defaults_names_the_file():
+@pytest.mark.parametrize(
+    "line", ['CONFIG_IDF_TARGET="esp32c33"', 'CONFIG_IDF_TARGET="esp32-c3"', "CONFIG_IDF_TARGET='esp32c3'"]
+)
+def test_an_unknown_chip_in_sdkconfig_defaults_names_the_file(line):
+    """A misspelt chip with a dash or in single quotes (which IDF does not read either) built the
+    firmware for the workspace's chip, esp32, without a word."""
     from espdock.errors import ConfigError
 
     with pytest.raises(ConfigError, match=r"CONFIG_IDF_TARGET in led/sdkconfig\.defaults"):
-        package_target(Config(), _chips(led_chip=b'CONFIG_IDF_TARGET="esp32c33"\n'), PACKAGES[5])
+        package_target(Config(), _chips(led_chip=f"{line}\n".encode()), PACKAGES[5])
+
+
+def test_a_chip_in_sdkconfig_defaults_is_read_quoted_as_idf_writes_it_or_bare():
+    assert package_target(Config(), _chips(led_chip=b'CONFIG_IDF_TARGET="esp32c3"\n'), PACKAGES[5]) == "esp32c3"
+    assert package_target(Config(), _chips(led_chip=b"CONFIG_IDF_TARGET=esp32c3  \n"), PACKAGES[5]) == "esp32c3"
+    assert (
+        package_target(Config(target="esp32s3"), _chips(led_chip=b'CONFIG_IDF_TARGET=""\n'), PACKAGES[5]) == "esp32s3"
+    )
 
 
 @pytest.mark.parametrize("image", ["espressif/idf:v5.1.4", "espressif/idf:release-v5.2", "espressif/idf:v4.4"])

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import difflib
 import json
 import re
 from collections.abc import Iterable, Mapping, Sequence
@@ -398,13 +399,49 @@ def check_idf_image(reference: str) -> None:
         )
 
 
+COLCON_META_FORM = 'colcon.meta is {"names": {"<package>": {"cmake-args": ["-D..."]}}}.'
+# What colcon's meta files hold (colcon-metadata): any other key is passed over without a word.
+COLCON_META_KEYS = ("names", "paths")
+
+
 def _check_colcon_meta(package: str, text: str) -> None:
+    """Refuse an app-colcon.meta the micro-ROS build would not take as meant: colcon skips one
+    that is no object, passes over a key it does not know (`name` for `names`: every setting
+    dropped), and fails on a package entry that is no object."""
+    where = f"{package}/app-colcon.meta"
     try:
-        names = json.loads(text).get("names", {})
-        if not isinstance(names, dict):
-            raise AttributeError("'names' is not an object")
-    except (json.JSONDecodeError, AttributeError) as exc:
-        raise WorkspaceError(f"{package}/app-colcon.meta is not colcon.meta JSON: {exc}") from exc
+        data = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise WorkspaceError(f"{where} is not colcon.meta JSON: {exc}", COLCON_META_FORM) from exc
+    if not isinstance(data, dict):
+        raise WorkspaceError(
+            f"{where} is a JSON {_json_kind(data)}, not an object: colcon would skip it", COLCON_META_FORM
+        )
+    for unknown in (key for key in data if key not in COLCON_META_KEYS):
+        close = difflib.get_close_matches(unknown, COLCON_META_KEYS, n=1)
+        raise WorkspaceError(
+            f"{where} has '{unknown}', which colcon does not read (it reads names and paths): what it "
+            "sets would be dropped without a word",
+            f"Did you mean '{close[0]}'?" if close else COLCON_META_FORM,
+        )
+    for key in COLCON_META_KEYS:
+        entries = data.get(key, {})
+        if not isinstance(entries, dict):
+            raise WorkspaceError(f"{where}: {key} is a JSON {_json_kind(entries)}, not an object", COLCON_META_FORM)
+        for name, entry in entries.items():
+            if not isinstance(entry, dict):
+                raise WorkspaceError(
+                    f"{where}: {key}.{name} is a JSON {_json_kind(entry)}, not an object of colcon options",
+                    COLCON_META_FORM,
+                )
+            args = entry.get("cmake-args", [])
+            if not isinstance(args, list) or not all(isinstance(arg, str) for arg in args):
+                raise WorkspaceError(f"{where}: {key}.{name}.cmake-args is not a list of strings", COLCON_META_FORM)
+
+
+def _json_kind(value: object) -> str:
+    kinds = {list: "list", str: "string", bool: "boolean", int: "number", float: "number", type(None): "null"}
+    return kinds.get(type(value), "object")
 
 
 def micro_ros_repository(ros_distro: str, target: str) -> str:

@@ -422,6 +422,27 @@ def test_a_chip_in_sdkconfig_defaults_is_read_quoted_as_idf_writes_it_or_bare():
     )
 
 
+@pytest.mark.parametrize(
+    ("meta", "said"),
+    [
+        ("[]", "cam/app-colcon.meta is a JSON list, not an object: colcon would skip it"),
+        ('"names"', "cam/app-colcon.meta is a JSON string, not an object"),
+        ('{"name": {"rmw_microxrcedds": {}}}', "cam/app-colcon.meta has 'name', which colcon does not read"),
+        ('{"names": {"rmw_microxrcedds": ["-DX=1"]}}', "names.rmw_microxrcedds is a JSON list, not an object of"),
+        ('{"names": {"rmw_microxrcedds": {"cmake-args": "-DX=1"}}}', "cmake-args is not a list of strings"),
+        ('{"names": ', "cam/app-colcon.meta is not colcon.meta JSON: Expecting value: line 1"),
+    ],
+)
+def test_an_app_colcon_meta_colcon_would_not_take_as_meant_is_refused_saying_how(meta, said):
+    """`[]` said "'list' object has no attribute 'get'"; a package entry that is a list, that its
+    cmake-args (there were none) were no list; `name` for `names` dropped every setting silently."""
+    inputs = replace(INPUTS, app_metas={"cam": meta})
+    with pytest.raises(WorkspaceError) as refused:
+        key(inputs=inputs)
+    assert said in refused.value.message, refused.value.message
+    assert "Did you mean 'names'?" == refused.value.hint if "'name'" in said else "cmake-args" in refused.value.hint
+
+
 @pytest.mark.parametrize("image", ["espressif/idf:v5.1.4", "espressif/idf:release-v5.2", "espressif/idf:v4.4"])
 def test_an_idf_image_older_than_5_3_is_refused_before_anything_builds(image):
     with pytest.raises(WorkspaceError) as err:

@@ -193,10 +193,13 @@ def check_idf_projects_typed(packages: Iterable[Package], root: Path) -> None:
         except OSError:
             continue
         if idf_project_cmake(text):
+            if package.build_type in ("ament_cmake", "cmake"):
+                said = f"says build type {package.build_type} (or names none), which colcon builds with CMake alone"
+            else:  # a misspelt one (`esp-idf`): no build type colcon knows either
+                said = f"says build type {package.build_type}, not {FIRMWARE_BUILD_TYPE}"
             raise WorkspaceError(
                 f"{package.name} ({package.path.relative_to(root)}) is an ESP-IDF project (its CMakeLists.txt "
-                f"includes IDF's project.cmake), but its package.xml says build type {package.build_type}, which "
-                "colcon builds with CMake alone",
+                f"includes IDF's project.cmake), but its package.xml {said}",
                 f"Set <export><build_type>{FIRMWARE_BUILD_TYPE}</build_type></export> in its package.xml: espdock "
                 "builds it in the IDF image.",
             )

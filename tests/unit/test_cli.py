@@ -615,7 +615,12 @@ def test_an_idf_project_whose_package_xml_says_cmake_is_refused_with_the_build_t
     result = espdock("build", "--dry-run", cwd=tmp_path, env=NO_ENGINE)
     said = " ".join(result.stderr.split())
     assert result.returncode == 2 and "blink_fw (src/blink_fw) is an ESP-IDF project" in said, said
+    assert "says build type cmake (or names none), which colcon builds with CMake alone" in said, said
     assert "<build_type>esp_idf</build_type>" in said
+    # Misspelt, it is no build type colcon knows either: it was said to be built "with CMake alone".
+    manifest.write_text(manifest.read_text().replace("<build_type>cmake<", "<build_type>esp-idf<"))
+    said = " ".join(espdock("build", "--dry-run", cwd=tmp_path, env=NO_ENGINE).stderr.split())
+    assert "its package.xml says build type esp-idf, not esp_idf" in said and "CMake alone" not in said, said
 
 
 def test_init_says_how_an_esp_idf_project_it_finds_becomes_a_firmware_package(tmp_path):

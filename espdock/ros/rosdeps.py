@@ -315,6 +315,13 @@ def cache_dir(env: Mapping[str, str], root: Path | None = None) -> Path:
     return base / root_key(Path(root).resolve())
 
 
+def _unwrapped(said: str) -> str:
+    """SAID without urllib's `<urlopen error ...>` wrappers, which rosdep nests one in another."""
+    while (inner := re.sub(r"<urlopen error ([^<>]*)>", r"\1", said)) != said:
+        said = inner
+    return said
+
+
 def database_age(env: Mapping[str, str], root: Path | None = None) -> float | None:
     """Seconds since rosdep's database was last updated, None when there is none."""
     index = cache_dir(env, root) / "sources.cache" / "index"
@@ -371,7 +378,7 @@ def update_database(
             )
     except Exception as exc:  # rosdep raises many kinds (URLError, InvalidData, ValueError)
         raise DatabaseUnreachable(
-            f"`rosdep update` failed: {exc}",
+            f"`rosdep update` failed: {_unwrapped(str(exc))}",
             downloads.network_hint(str(exc), env, "rosdep", FIX)
             or "rosdep's database comes from GitHub (or ROSDEP_SOURCE_PATH / ROSDISTRO_INDEX_URL): reach it, then "
             + FIX

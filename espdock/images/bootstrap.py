@@ -238,8 +238,12 @@ def build_debian_rootfs_image(engine: Engine, ref: str, suite: str, mirror: str 
     if shutil.which("debootstrap") is None:
         _apt_install(["debootstrap"], notify)
     for left in _rootfs_trees_left():
-        _remove_rootfs(left)
-        notify(f"removed {left}, left by an espdock killed while it built a base image")
+        try:
+            _remove_rootfs(left)
+        except ImageBuildError as still_mounted:  # not this build's to fail on
+            notify(f"warning: {still_mounted.message}; {still_mounted.hint}")
+        else:
+            notify(f"removed {left}, left by an espdock killed while it built a base image")
     tmp = Path(tempfile.mkdtemp(prefix=f"{ROOTFS_PREFIX}{os.getpid()}-", dir=ROOTFS_PARENT))
     try:
         rootfs = tmp / "rootfs"

@@ -228,12 +228,14 @@ def spin_node(
     # SIGTERM too raises KeyboardInterrupt while the node is being made.
     _raise_stops.set()
     sys.unraisablehook = _unraisable
-    for signum in (signal.SIGTERM, signal.SIGINT):
-        signal.signal(signum, _request_stop)
     context = get_default_context()
     node = None
     started = False
     try:
+        # In the try: a signal the moment its handler is in runs it as signal.signal returns,
+        # and its KeyboardInterrupt escaped from here (exit 130 with a traceback).
+        for signum in (signal.SIGTERM, signal.SIGINT):
+            signal.signal(signum, _request_stop)
         rclpy.init()
         started = True
         node = make_node()

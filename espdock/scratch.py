@@ -11,7 +11,7 @@ from __future__ import annotations
 import os
 import shutil
 import tempfile
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager, suppress
 from pathlib import Path
 
@@ -60,9 +60,9 @@ def owner_alive(owner: str) -> bool:
     return boot == _boot_id() and pid.isdigit() and _start_time(int(pid)) == started
 
 
-def sweep(directory: Path, prefix: str) -> None:
-    """Remove this user's PREFIX directories in DIRECTORY whose process is gone; root's, any
-    user's: root's provisioning hands its directory to the container's user, and one killed
+def sweep(directory: Path, prefix: str, remove: Callable[[Path], None] = shutil.rmtree) -> None:
+    """Remove (REMOVE) this user's PREFIX directories in DIRECTORY whose process is gone; root's,
+    any user's: root's provisioning hands its directory to the container's user, and one killed
     outright left the Wi-Fi password there for good."""
     try:
         left = [entry for entry in directory.iterdir() if entry.name.startswith(prefix)]
@@ -75,14 +75,14 @@ def sweep(directory: Path, prefix: str) -> None:
         with suppress(OSError):
             mine = os.geteuid() in (0, path.lstat().st_uid)
             if mine and path.is_dir() and not path.is_symlink() and not owner_alive(owner):
-                shutil.rmtree(path)
+                remove(path)
 
 
-def make(prefix: str, directory: Path | None = None) -> Path:
+def make(prefix: str, directory: Path | None = None, remove: Callable[[Path], None] = shutil.rmtree) -> Path:
     """A new private directory PREFIX<identity>-<random> in DIRECTORY (the temp dir by default),
-    after sweeping the ones of processes that are gone."""
+    after sweeping (REMOVE) the ones of processes that are gone."""
     where = Path(directory or tempfile.gettempdir())
-    sweep(where, prefix)
+    sweep(where, prefix, remove)
     return Path(tempfile.mkdtemp(prefix=f"{prefix}{owner_identity()}-", dir=where))
 
 

@@ -18,7 +18,7 @@ import time
 from collections.abc import Callable, Mapping
 from pathlib import Path
 
-from espdock import interrupts
+from espdock import interrupts, scratch
 from espdock.config import Config
 from espdock.errors import EngineUnavailable, EspdockError, ImageBuildError
 from espdock.images import contexts
@@ -45,7 +45,8 @@ SYSTEM_PLUGIN = Path("/usr/local/lib/docker/cli-plugins/docker-compose")
 ENGINE_START_TIMEOUT = 60.0
 # debian:<suite> and debian:<suite>-slim can be rebuilt from Debian's archive.
 DEBIAN_IMAGE = re.compile(r"^(?:docker\.io/)?(?:library/)?debian:(?P<suite>[a-z]+)(?:-slim)?$")
-# Where debootstrap builds a base image's tree: a disk (not a tmpfs /tmp), in a directory named after espdock's pid.
+# Where debootstrap builds a base image's tree: a disk (not a tmpfs /tmp), in a directory named
+# after the espdock that made it (scratch.make), so that a killed one's is found.
 ROOTFS_PARENT = "/var/tmp"
 ROOTFS_PREFIX = "espdock-rootfs-"
 # What the official -slim images leave out, so a debootstrapped stand-in is as lean.
@@ -237,14 +238,20 @@ def build_debian_rootfs_image(engine: Engine, ref: str, suite: str, mirror: str 
     """Debootstrap SUITE (minbase, slimmed like Debian's -slim images) and import it as REF."""
     if shutil.which("debootstrap") is None:
         _apt_install(["debootstrap"], notify)
-    for left in _rootfs_trees_left():
+
+    def left_behind(tree: Path) -> None:
+        """An espdock killed outright (kill -9, the OOM killer) while it built a base image left
+        TREE, about 200 MB that nothing else removes."""
+        if _worked_in(tree):
+            return  # debootstrap's children, stopped by the parent-death signal, may take a moment
         try:
-            _remove_rootfs(left)
+            _remove_rootfs(tree)
         except ImageBuildError as still_mounted:  # not this build's to fail on
             notify(f"warning: {still_mounted.message}; {still_mounted.hint}")
         else:
-            notify(f"removed {left}, left by an espdock killed while it built a base image")
-    tmp = Path(tempfile.mkdtemp(prefix=f"{ROOTFS_PREFIX}{os.getpid()}-", dir=ROOTFS_PARENT))
+            notify(f"removed {tree}, left by an espdock killed while it built a base image")
+
+    tmp = scratch.make(ROOTFS_PREFIX, Path(ROOTFS_PARENT), left_behind)
     try:
         rootfs = tmp / "rootfs"
         argv = ["debootstrap", "--variant=minbase", suite, str(rootfs)]
@@ -266,19 +273,6 @@ def build_debian_rootfs_image(engine: Engine, ref: str, suite: str, mirror: str 
     finally:
         _remove_rootfs(tmp)
     notify(f"imported {ref} ({len(packages)} Debian packages, recorded in its labels)")
-
-
-def _rootfs_trees_left() -> list[Path]:
-    """The trees of espdocks killed outright (kill -9, the OOM killer) while they built a base
-    image: each about 200 MB that nothing else removes. A tree is named after the pid of the
-    espdock that made it; one whose espdock is gone and that no process works in (debootstrap's
-    children, stopped by the parent-death signal, may take a moment) is left over."""
-    left = []
-    for tree in sorted(Path(ROOTFS_PARENT).glob(f"{ROOTFS_PREFIX}*-*")):
-        pid = tree.name.removeprefix(ROOTFS_PREFIX).split("-", 1)[0]
-        if pid.isdigit() and not Path(f"/proc/{pid}").exists() and not _worked_in(tree):
-            left.append(tree)
-    return left
 
 
 def _worked_in(tree: Path) -> bool:
@@ -399,28 +393,30 @@ def _stop_group(process: subprocess.Popen) -> None:
     with contextlib.suppress(ProcessLookupError):
         os.killpg(process.pid, signal.SIGINT)
     deadline = time.monotonic() + max(0.5, interrupts.remaining() - 1.0)
-    try:
+    with contextlib.suppress(subprocess.TimeoutExpired):
         process.wait(timeout=max(0.0, deadline - time.monotonic()))
-        while _group_lives(process.pid) and time.monotonic() < deadline:
-            time.sleep(0.05)
-    except subprocess.TimeoutExpired:
-        pass
-    if _group_lives(process.pid):
+    if not _group_gone(process.pid, deadline):
         with contextlib.suppress(ProcessLookupError):
             os.killpg(process.pid, signal.SIGKILL)
     process.wait()
-    until = time.monotonic() + 0.5
-    while _group_lives(process.pid) and time.monotonic() < until:
-        time.sleep(0.05)  # SIGKILLed children, reaped by whoever adopted them
+    _group_gone(process.pid, time.monotonic() + 0.5)  # SIGKILLed children, reaped by whoever adopted them
 
 
-def _group_lives(pgid: int) -> bool:
-    """Whether a process of group PGID is still running (zombies do not count: nothing they write)."""
-    for stat in Path("/proc").glob("[0-9]*/stat"):
-        with contextlib.suppress(OSError, ValueError, IndexError):
-            fields = stat.read_text().rsplit(")", 1)[1].split()
-            if int(fields[2]) == pgid and fields[0] != "Z":
-                return True
+def _group_gone(pgid: int, deadline: float) -> bool:
+    """Whether no process of group PGID runs any more (zombies do not count: nothing they write),
+    waiting for it until DEADLINE (time.monotonic)."""
+    while any(_in_group(stat, pgid) for stat in Path("/proc").glob("[0-9]*/stat")):
+        if time.monotonic() >= deadline:
+            return False
+        time.sleep(0.05)
+    return True
+
+
+def _in_group(stat: Path, pgid: int) -> bool:
+    """Whether the process whose /proc/PID/stat is STAT runs in group PGID."""
+    with contextlib.suppress(OSError, ValueError, IndexError):
+        fields = stat.read_text().rsplit(")", 1)[1].split()
+        return int(fields[2]) == pgid and fields[0] != "Z"
     return False
 
 

@@ -112,14 +112,11 @@ def library_colcon_meta(package: str, meta: str, transport: str, where: str | No
     A UDP package's meta is returned unchanged (UDP is the library's default, so its image key
     stays what it was); a serial one gets RMW_UXRCE_TRANSPORT=custom. A meta that sets another
     RMW_UXRCE_TRANSPORT than the Kconfig choice is refused: the firmware would not compile.
+    META's form is checked before (the plan refuses a meta colcon would not take as meant).
     """
     wanted = rmw_transport(transport)
     data = json.loads(meta) if meta.strip() else {"names": {}}
-    names = data.setdefault("names", {})
-    entry = names.setdefault("rmw_microxrcedds", {})
-    args = entry.setdefault("cmake-args", []) if isinstance(entry, dict) else None
-    if not isinstance(args, list):
-        raise WorkspaceError(f"{package}/app-colcon.meta: names.rmw_microxrcedds.cmake-args is not a list")
+    args = data.setdefault("names", {}).setdefault("rmw_microxrcedds", {}).setdefault("cmake-args", [])
     given = [a[len(_TRANSPORT_ARG) :] for a in args if isinstance(a, str) and a.startswith(_TRANSPORT_ARG)]
     if any(value != wanted for value in given):
         raise WorkspaceError(

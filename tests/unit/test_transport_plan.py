@@ -89,9 +89,3 @@ def test_a_meta_contradicting_the_kconfig_choice_is_refused():
         image(chosen)
     # Saying what espdock would add is fine, and changes nothing.
     assert library_colcon_meta("cam", custom, "uart") == custom
-
-
-def test_a_meta_whose_rmw_entry_is_not_an_object_is_refused_naming_it():
-    for bad in ('{"names": {"rmw_microxrcedds": []}}', '{"names": {"rmw_microxrcedds": {"cmake-args": "x"}}}'):
-        with pytest.raises(WorkspaceError, match="cmake-args is not a list"):
-            library_colcon_meta("cam", bad, "uart")

@@ -457,6 +457,9 @@ def _firmware_stamp(workspace: Workspace, step: IdfBuild, image_id: str) -> dict
         digest.update(hashlib.sha256(sdkconfig.read_bytes()).digest())
     for path in _other_components(workspace, step):
         digest.update(f"{path}\0{tree_digest(path)}\n".encode())
+    for path in _outside_files(workspace, step):
+        content = hashlib.sha256(path.read_bytes()).hexdigest() if path.is_file() else "missing"
+        digest.update(f"{path}\0{content}\n".encode())
     return {step.package: digest.hexdigest()}
 
 
@@ -469,9 +472,14 @@ _Seen = dict[Path, tuple[int, int, int]]
 
 
 def _stamp_roots(workspace: Workspace, step: IdfBuild) -> tuple[Path, ...]:
-    """The directories STEP's firmware stamp (_firmware_stamp) hashes."""
+    """The directories and files STEP's firmware stamp (_firmware_stamp) hashes."""
     project = workspace.root / step.project
-    return (project, project.parent / "components", *_other_components(workspace, step))
+    return (
+        project,
+        project.parent / "components",
+        *_other_components(workspace, step),
+        *_outside_files(workspace, step),
+    )
 
 
 def _source_times(roots: tuple[Path, ...]) -> _Seen:
@@ -479,7 +487,7 @@ def _source_times(roots: tuple[Path, ...]) -> _Seen:
     read before and after idf.py to see an editor's save between."""
     seen: _Seen = {}
     for root in roots:
-        for path in source_files(root, follow_links=True) if root.is_dir() else ():
+        for path in source_files(root, follow_links=True) if root.is_dir() else [root] if root.is_file() else ():
             with contextlib.suppress(OSError):
                 info = path.stat()
                 seen[path] = (info.st_size, info.st_mtime_ns, info.st_mode)
@@ -517,6 +525,39 @@ def _other_components(workspace: Workspace, step: IdfBuild) -> list[Path]:
         if host is not None and host.is_dir() and not any(host.is_relative_to(place) for place in covered):
             found.add(host)
     return sorted(found)
+
+
+def _outside_files(workspace: Workspace, step: IdfBuild) -> list[Path]:
+    """The files of the workspace outside STEP's project and the components beside it that its
+    build reads by name: the defaults files its SDKCONFIG_DEFAULTS names (a monorepo's
+    `../common/sdkconfig.common`), the custom partition table its last sdkconfig names (IDF
+    takes a relative one from the project) and the files its last configure read (a
+    `include(../common/board.cmake)`). An edit of one must build again, as idf.py would."""
+    project = workspace.root / step.project
+    build_dir = firmware_build_dir(workspace.ws_dir, step.package)
+    named: list[Path | None] = [path for _, path in _defaults_files(project, step.target)]
+    config = _config_lines(build_dir / "sdkconfig", ("CONFIG_PARTITION_",))
+    table = config.get("CONFIG_PARTITION_TABLE_FILENAME", "").strip('"')
+    if config.get("CONFIG_PARTITION_TABLE_CUSTOM") == "y" and table:
+        named.append(host_path(table, workspace.root) if table.startswith("/") else project / table)
+    named += [host_path(path, workspace.root) for path in _configure_inputs(build_dir)]
+    covered = (project, project.parent / "components", workspace.ws_dir / "build", workspace.ws_dir / "install")
+    normal = {Path(os.path.normpath(path)) for path in named if path is not None}
+    return sorted(path for path in normal if not any(path.is_relative_to(place) for place in covered))
+
+
+def _configure_inputs(build_dir: Path) -> list[str]:
+    """The absolute paths of the files the last configure in BUILD_DIR read (CMake's list files,
+    CMAKE_CONFIGURE_DEPENDS), as the rule of build.ninja that re-runs CMake names them: the
+    inputs of `build build.ninja: RERUN_CMAKE | ...`, one line, in Ninja's escapes."""
+    try:
+        text = (build_dir / "build.ninja").read_text(errors="replace")
+    except OSError:
+        return []
+    rule = re.search(r"^build build\.ninja\b[^\n]*?: RERUN_CMAKE\b[^|\n]*\| ([^\n]*)$", text, re.MULTILINE)
+    implicit = rule.group(1).split(" || ")[0] if rule else ""  # not its order-only inputs
+    paths = [re.sub(r"\$(.)", r"\1", word) for word in re.findall(r"(?:\$.|[^ $])+", implicit)]
+    return [path for path in paths if path.startswith("/")]  # not CMakeCache.txt, in the build dir
 
 
 def _read_marker(build_dir: Path) -> tuple[str, str, str] | None:

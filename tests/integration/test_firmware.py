@@ -471,6 +471,68 @@ def test_components_a_link_in_the_project_leads_to_out_of_the_workspace_are_buil
     assert settled.returncode == 0, settled.stdout[-2000:] + settled.stderr
 
 
+SHARED_TABLE = """\
+# Name,   Type, SubType, Offset,  Size
+nvs,      data, nvs,     0x9000,  0x6000,
+phy_init, data, phy,     0xf000,  0x1000,
+factory,  app,  factory, 0x10000, 0x180000,
+storage,  data, spiffs,  ,        {storage},
+"""
+
+
+def test_an_edit_of_a_defaults_file_or_partition_table_shared_from_outside_the_project_rebuilds_it(fw_ws, double_env):
+    """A monorepo's `../common/sdkconfig.common` in SDKCONFIG_DEFAULTS, naming a custom partition
+    table `../common/partitions.csv`, and its `include(../common/board.cmake)`: an edit of any
+    left the build "up to date" and the old firmware installed (and flashed: the old partition
+    table) until --force."""
+    root, first = fw_ws
+    assert first.returncode == 0
+    common = root / "firmware/common"
+    common.mkdir()
+    (common / "COLCON_IGNORE").touch()
+    shared = common / "sdkconfig.common"
+    shared.write_text(
+        "# CONFIG_PARTITION_TABLE_SINGLE_APP_LARGE is not set\nCONFIG_PARTITION_TABLE_CUSTOM=y\n"
+        'CONFIG_PARTITION_TABLE_CUSTOM_FILENAME="../common/partitions.csv"\nCONFIG_ESPDOCK_LED_STRIP_GPIO=5\n'
+    )
+    (common / "partitions.csv").write_text(SHARED_TABLE.format(storage="0x10000"))
+    (common / "board.cmake").write_text("set(BOARD_LEDS 8)\n")
+    project = root / "firmware/led_strip_node/CMakeLists.txt"
+    original = project.read_text()
+    project.write_text(
+        original.replace(
+            "include($ENV{IDF_PATH}",
+            'set(SDKCONFIG_DEFAULTS "sdkconfig.defaults;../common/sdkconfig.common")\n'
+            "include(${CMAKE_CURRENT_LIST_DIR}/../common/board.cmake)\ninclude($ENV{IDF_PATH}",
+        )
+    )
+    table = firmware_dir(root, "led_strip_node") / "partition_table/partition-table.bin"
+    sdkconfig = root / "ws/build/led_strip_node/sdkconfig"
+
+    def build() -> None:
+        built = espdock("build", "led_strip_node", "--only", "firmware", cwd=root, env=double_env)
+        assert built.returncode == 0, built.stdout[-2000:] + built.stderr
+        assert "up to date" not in built.stdout, built.stdout[-2000:]
+
+    try:
+        build()
+        assert "CONFIG_ESPDOCK_LED_STRIP_GPIO=5\n" in sdkconfig.read_text()
+        before = table.read_bytes()
+        (common / "partitions.csv").write_text(SHARED_TABLE.format(storage="0x20000"))
+        build()
+        assert table.read_bytes() != before
+        shared.write_text(shared.read_text().replace("GPIO=5", "GPIO=6"))
+        build()
+        assert "CONFIG_ESPDOCK_LED_STRIP_GPIO=6\n" in sdkconfig.read_text()
+        (common / "board.cmake").write_text("set(BOARD_LEDS 16)\n")
+        build()
+    finally:
+        project.write_text(original)
+        shutil.rmtree(common)
+    settled = espdock("build", "led_strip_node", "--only", "firmware", cwd=root, env=double_env)
+    assert settled.returncode == 0, settled.stdout[-2000:] + settled.stderr
+
+
 def test_a_msg_change_is_never_served_a_stale_library(fw_ws, double_env):
     root, first = fw_ws
     assert first.returncode == 0

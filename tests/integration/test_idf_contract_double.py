@@ -180,3 +180,28 @@ def test_the_double_reads_the_defaults_files_a_project_sets_sdkconfig_defaults_t
     configured = run_in_double(double, project, "reconfigure")
     assert configured.returncode == 0, configured.stdout[-2000:] + configured.stderr
     assert "CONFIG_FREERTOS_HZ=1000\n" in (project / "sdkconfig").read_text()
+
+
+def test_the_double_names_what_its_configure_read_in_build_ninja_s_rule_to_re_run_cmake(double, tmp_path):
+    """CMake's Ninja generator lists every file a configure read (each CMakeLists.txt, each file
+    they include(), IDF's CMAKE_CONFIGURE_DEPENDS such as idf_component.yml) as the implicit inputs
+    of `build build.ninja: RERUN_CMAKE`, absolute and in Ninja's escapes; espdock reads them there
+    for a firmware's sources outside its project."""
+    project = idf_project(tmp_path / "probe")
+    (tmp_path / "common dir").mkdir()
+    (tmp_path / "common dir/board.cmake").write_text("set(BOARD_LEDS 8)\n")
+    cmake = project / "CMakeLists.txt"
+    cmake.write_text('include("${CMAKE_CURRENT_LIST_DIR}/../common dir/board.cmake")\n' + cmake.read_text())
+    (project / "main/idf_component.yml").write_text("dependencies: {}\n")
+    subprocess.run(["chown", "-R", f"{USER_UID}:{USER_UID}", str(tmp_path)], check=True)
+    built = subprocess.run(
+        ["docker", "run", "--rm", "-u", f"{USER_UID}:{USER_UID}", "-e", "HOME=/tmp", "-v", f"{tmp_path}:/src",
+         double[0], "idf.py", "-C", "/src/probe", "-B", "/src/probe/build", "reconfigure"],
+        capture_output=True, text=True, check=False,
+    )  # fmt: skip
+    assert built.returncode == 0, built.stdout[-2000:] + built.stderr
+    (rule,) = [line for line in (project / "build/build.ninja").read_text().splitlines() if "RERUN_CMAKE" in line]
+    assert rule.startswith("build build.ninja: RERUN_CMAKE | ") and rule.endswith(" CMakeCache.txt"), rule
+    for read in ("/src/common$ dir/board.cmake", "/src/probe/CMakeLists.txt", "/src/probe/main/CMakeLists.txt",
+                 "/src/probe/main/idf_component.yml"):  # fmt: skip
+        assert f" {read} " in rule, rule

@@ -514,7 +514,6 @@ class Interpreter:
         path = Path(target)
         if not path.is_absolute():
             path = Path(self.vars.get("CMAKE_CURRENT_SOURCE_DIR", ".")) / path
-        self.included.append(str(path))
         if not path.is_file():
             if optional:
                 return
@@ -522,6 +521,7 @@ class Interpreter:
                 f"CMake Error at {self.file}:{cmd.line} (include):\n"
                 f"  include could not find requested file:\n\n    {target}"
             )
+        self.included.append(str(path))
         on_include = self.vars.get("__DOUBLE_IDF_PROJECT_CMAKE")
         if on_include and os.path.realpath(path) == os.path.realpath(on_include):
             self.vars["__DOUBLE_IDF_INCLUDED"] = "1"

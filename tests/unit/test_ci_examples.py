@@ -127,10 +127,10 @@ def test_the_dind_example_builds_in_the_checkout_the_runner_shares_with_the_serv
     assert not any("--workspace" in line or " -w " in line for line in lines)
 
 
-PUSH = {GITHUB: '"${push[@]}"', GITLAB: "$push"}
+PUSH = {GITHUB: '"${push[@]}"', GITLAB: "$push", GITLAB_DIND: "$push"}
 
 
-@pytest.mark.parametrize("path", [GITHUB, GITLAB])
+@pytest.mark.parametrize("path", [GITHUB, GITLAB, GITLAB_DIND])
 def test_each_example_tests_after_the_build_and_publishes_the_junit_results(path):
     lines = [line.removeprefix("- ").removeprefix("run: ") for line in code_lines(path)]
     build = next(i for i, line in enumerate(lines) if line.startswith("espdock build"))
@@ -139,8 +139,18 @@ def test_each_example_tests_after_the_build_and_publishes_the_junit_results(path
     # Pushing the test image on the main branch as the build pushes its images (the guard: above).
     assert lines[tests[0]] == "espdock test --locked --results test-results " + PUSH[path]
     text = path.read_text()
-    if path == GITLAB:
+    if path in (GITLAB, GITLAB_DIND):
         assert "    reports:\n      junit: test-results/**/*.xml\n" in text
     else:
         upload = text[text.index("name: espdock-test-results") - 300 :]
         assert "uses: actions/upload-artifact@" in upload and "path: test-results/" in upload
+
+
+@pytest.mark.parametrize("path", [GITHUB, GITLAB, GITLAB_DIND])
+def test_a_job_without_the_registry_s_credentials_sets_it_empty_not_unset(path):
+    """Unset, ESPDOCK_CACHE_REGISTRY gives way to espdock.toml's cache_registry, whose refused
+    credentials stop the build (a fork's merge request); empty, it turns the registry off."""
+    lines = code_lines(path)
+    assert not any(re.search(r"\bunset\b.*ESPDOCK_CACHE_REGISTRY", line) for line in lines)
+    emptied = ('export ESPDOCK_CACHE_REGISTRY=""', 'echo "ESPDOCK_CACHE_REGISTRY=" >> "$GITHUB_ENV"')
+    assert any(line.startswith(emptied) for line in lines), path.name

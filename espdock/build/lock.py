@@ -517,7 +517,10 @@ def offline_note(
     if isinstance(unreachable, rosdeps.DatabaseUnwritable):
         hint = f"{unreachable.hint} Then {FIX}."
     else:
-        hint = f"Reach rosdep's sources (or point ROSDEP_SOURCE_PATH at a local copy), then {FIX}."
+        hint = (
+            "Reach rosdep's sources (or a local copy: ROSDEP_SOURCE_PATH for its rules, ROSDISTRO_INDEX_URL "
+            f"for the rosdistro index, as rosdep reads both), then {FIX}."
+        )
     if others:
         hint += f" Meanwhile the others {command}: `espdock {command} {' '.join(others)}`."
     refused = LockError(

@@ -480,6 +480,8 @@ def test_offline_espdock_test_goes_on_with_the_lock_as_it_is_where_it_answers(tm
     assert refused.returncode == 2, said
     assert "1 package(s) built need rosdep for keys the wheels ROS image lacks" in said, said
     assert "tested_py: ament_flake8," in said and "older" not in said
+    # Both of rosdep's sources: a copy of its rules alone still sent `rosdep update` to GitHub.
+    assert "ROSDEP_SOURCE_PATH for its rules, ROSDISTRO_INDEX_URL for the rosdistro index" in said, said
     # Said once: not first that "the packages built need nothing more from rosdep", nor that tested_py could be tested.
     assert "need nothing more from rosdep" not in said and "Meanwhile" not in said
 

@@ -31,6 +31,7 @@ from espdock.firmware.plan import IdfBuild
 from espdock.images import bootstrap
 from espdock.images.engine import Engine
 from espdock.images.prune import state_dir
+from espdock.ros import colcon
 from espdock.workspace import (
     Workspace,
     find_workspace,
@@ -309,7 +310,15 @@ class PassThrough(typer.core.TyperCommand):
         if "--" in args:
             ctx.meta[PASSED] = tuple(args[args.index("--") + 1 :])
             args = args[: args.index("--")]
-        return super().parse_args(ctx, args)
+        try:
+            return super().parse_args(ctx, args)
+        except typer.TyperException as exc:
+            # `espdock build --symlink-install`: click's "No such option" (its NoSuchOption, which
+            # Typer carries) alone does not say where it goes.
+            option = getattr(exc, "option_name", None)
+            if isinstance(option, str) and (said := colcon.misplaced_option(option, self.name or "")):
+                exc.message, exc.possibilities = said, None
+            raise
 
 
 PASSED = "espdock.passed_args"

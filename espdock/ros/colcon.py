@@ -148,6 +148,30 @@ SCHEDULING = {
 }
 
 
+# colcon's options of its build and test verbs (colcon-core's and the extensions' a ROS install
+# has) that neither REFUSED nor SCHEDULING names: a habit typed before espdock's `--`.
+COLCON_ONLY = (
+    "--symlink-install", "--cmake-args", "--ament-cmake-args", "--catkin-cmake-args", "--cmake-target",
+    "--cmake-target-skip-unavailable", "--cmake-clean-cache", "--cmake-clean-first", "--cmake-force-configure",
+    "--mixin", "--mixin-files", "--metas", "--allow-overriding", "--log-level", "--pytest-args",
+    "--pytest-with-coverage", "--ctest-args", "--retest-until-fail", "--retest-until-pass", "--abort-on-error",
+    "--return-code-on-test-failure", "--python-testing",
+)  # fmt: skip
+
+
+def misplaced_option(option: str, verb: str) -> str | None:
+    """What to say of OPTION, given to `espdock VERB` before its `--`, where it is colcon's (None
+    where it is not): where it goes, or why espdock does not pass it."""
+    if option in REFUSED:
+        return f"{option} is colcon's option, which espdock {verb} does not pass on: {REFUSED[option]}"
+    if option in SCHEDULING or option in COLCON_ONLY:
+        return (
+            f"{option} is colcon's option, not espdock {verb}'s: give it after `--`, which passes what follows "
+            f"to `colcon {verb}` (`espdock {verb} [PKG...] -- {option}{' ...' if option != SPELT_OUT else ''}`)"
+        )
+    return None
+
+
 # Per verb: an example of options after `--`, and of the options that are allowed there.
 _VERB_EXAMPLES = {
     "build": (

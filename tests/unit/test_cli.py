@@ -27,6 +27,26 @@ def test_outside_a_workspace_says_where_it_looked(tmp_path):
     assert "Traceback" not in result.stderr
 
 
+def test_a_colcon_option_before_the_double_dash_says_where_it_goes(tmp_path):
+    """`espdock build --symlink-install`, `--cmake-args ...`, `espdock test --packages-up-to X`: a
+    ROS developer's habits got click's bare "No such option", where after `--` they got the way."""
+    env = {"COLUMNS": "200", "NO_COLOR": "1"}
+    placed = espdock("build", "--symlink-install", cwd=tmp_path, env=env)
+    said = " ".join(placed.stderr.replace("│", " ").split())
+    assert placed.returncode == 2, said
+    assert "--symlink-install is colcon's option, not espdock build's: give it after `--`" in said, said
+    assert "(`espdock build [PKG...] -- --symlink-install`)" in said and "No such option" not in said, said
+    joined = espdock("build", "--cmake-args=-DX=1", cwd=tmp_path, env=env)
+    assert "`espdock build [PKG...] -- --cmake-args ...`" in " ".join(joined.stderr.replace("│", " ").split())
+    selecting = espdock("test", "--packages-up-to", "driver", cwd=tmp_path, env=env)
+    said = " ".join(selecting.stderr.replace("│", " ").split())
+    assert selecting.returncode == 2, said
+    assert "--packages-up-to is colcon's option, which espdock test does not pass on: espdock selects" in said, said
+    # espdock's own options misspelt are click's to answer, with its guess.
+    misspelt = espdock("build", "--forse", cwd=tmp_path, env=env)
+    assert misspelt.returncode == 2 and "(Possible options: --force" in misspelt.stderr, misspelt.stderr
+
+
 def test_unparseable_package_xml_names_the_file(tmp_path):
     root = copy_workspace(tmp_path / "w")
     manifest = root / "ws/src/custom_interface/package.xml"

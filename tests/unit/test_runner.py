@@ -353,6 +353,20 @@ def test_a_silent_registry_is_a_warning_and_denied_credentials_an_error(ws):
     assert engine.builds == []
 
 
+def test_a_registry_that_did_not_answer_is_not_asked_again_in_the_same_run(ws):
+    """A registry that takes connections and never answers was asked for each keyed image of the
+    run (build, runtime, test, each chip's micro-ROS): its timeout, 25 s, of silence for each."""
+    engine = FakeEngine(registry_answer=RegistryStatus.UNREACHABLE)
+    asked: list[str] = []
+    ask = engine.pull_cached
+    engine.pull_cached = lambda ref: asked.append(ref) or ask(ref)  # type: ignore[method-assign]
+    other = ros_build_image(Config(ros_distro="humble"), DOCKERFILE, {})
+    events: list = []
+    results = cache_runner(engine, events).run(Plan(ws, (EnsureImage(SPEC), EnsureImage(other))))
+    assert [r.outcome for r in results] == [Outcome.BUILT, Outcome.BUILT] and asked == [REMOTE]
+    assert f"cache registry {REGISTRY} did not answer earlier in this run; building locally" in notes(events)
+
+
 def test_push_cache_pushes_what_the_registry_lacks_and_only_that(ws):
     engine = FakeEngine()
     cache_runner(engine, [], push=True).run(Plan(ws, (EnsureImage(SPEC),)))

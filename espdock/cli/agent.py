@@ -42,7 +42,7 @@ def agent(
     serial = parse_port(port) if port is not None else None
     spec = agent_spec(image, serial, os.environ, baud, udp_port, domain_id, sys.stdin.isatty() and sys.stdout.isatty())
     if serial is not None:
-        check_port(serial)
+        check_port(serial, urls=False)
     engine = bootstrap.ensure_engine(os.environ, notify)
     with port_held(engine, serial) if serial is not None else nullcontext():
         if engine.image(image) is None and not engine.pull(image):

@@ -225,8 +225,9 @@ def _port_lock_name(port: Port) -> str:
     return "port-" + re.sub(r"[^A-Za-z0-9._-]", "_", key)
 
 
-def check_port(port: Port, timeout: float = 3.0) -> None:
-    """Fail with a clear message if PORT does not exist, is busy, or nothing listens at it."""
+def check_port(port: Port, timeout: float = 3.0, urls: bool = True) -> None:
+    """Fail with a clear message if PORT does not exist, is busy, or nothing listens at it (URLS:
+    whether the caller could take the port as a socket:// URL instead, which the agent cannot)."""
     # Another espdock's port is said as such before any probe: a serial server takes one client at
     # a time (esp_rfc2217_server listens with a backlog of one), and each probe while another
     # espdock's client was connected queued a connection, until they timed out as "nothing answers".
@@ -270,8 +271,16 @@ def check_port(port: Port, timeout: float = 3.0) -> None:
     if os.major(path.stat().st_rdev) in _PTY_MAJORS:
         # The engine makes the node in the container's /dev/pts, its own devpts, where runc cannot
         # open it ("error creating device nodes: ... permission denied").
+        said = f"{path} is a pseudo-terminal (an emulator's or socat's serial port), which no container can open"
+        if not urls:
+            raise PortError(
+                said + ", and the micro-ROS agent reads serial devices only (not a socket:// URL)",
+                f"Run a micro-ROS agent where the pseudo-terminal is (`micro_ros_agent serial --dev {path}`, "
+                "outside a container), or give the board's firmware the Wi-Fi transport and run `espdock agent` "
+                "without --port.",
+            )
         raise PortError(
-            f"{path} is a pseudo-terminal (an emulator's or socat's serial port), which no container can open",
+            said,
             "Serve it over the network and pass that: QEMU's `-serial tcp::5555,server,nowait` as "
             f"socket://localhost:5555, or `socat TCP-LISTEN:4000,reuseaddr FILE:{shlex.quote(str(path))},raw,echo=0` "
             "as socket://localhost:4000 (esp_rfc2217_server sets the DTR and RTS lines, which a pseudo-terminal "

@@ -28,6 +28,7 @@ from espdock.firmware.flashing import (
 from espdock.firmware.install import altered_since_installed, install_firmware
 from espdock.firmware.scaffold import create_firmware_package, validate_package_name
 from espdock.workspace import Package, PackageKind, Workspace, discover_packages
+from tests.conftest import espdock
 from tests.ports import free_port
 
 FLASHER_ARGS = {
@@ -322,6 +323,12 @@ def test_a_pseudo_terminal_is_refused_with_the_network_way_to_serve_it(tmp_path)
 
         with serial.Serial(os.ttyname(device)) as opened, pytest.raises(OSError, match="Inappropriate ioctl"):
             opened.dtr = False
+        # The agent reads serial devices only: the hint's socket:// URL, given to it, was refused in turn.
+        agent = espdock("agent", "--port", os.ttyname(device), cwd=tmp_path, env={"NO_COLOR": "1"})
+        said = " ".join(agent.stderr.split())
+        assert agent.returncode == PortError.exit_code and "socket://localhost" not in said, said
+        assert "the micro-ROS agent reads serial devices only" in said, said
+        assert f"`micro_ros_agent serial --dev {os.ttyname(device)}`" in said, said
     finally:
         os.close(device)
         os.close(controller)

@@ -253,7 +253,8 @@ def in_ci(env: Mapping[str, str]) -> bool:
 def check_target(target: str, where: str = "chip target") -> str:
     """TARGET, when it is a chip ESP-IDF 5.3 knows; a ConfigError naming WHERE otherwise."""
     if target not in CHIP_TARGETS:
-        close = difflib.get_close_matches(target, CHIP_TARGETS, n=1)
+        # IDF's names are lower case and unhyphenated: `ESP32C3`, `esp32-s3` are one of them miswritten.
+        close = difflib.get_close_matches(re.sub(r"[-_ ]", "", target.lower()), CHIP_TARGETS, n=1)
         raise ConfigError(
             f"unknown {where} '{target}'",
             f"Did you mean '{close[0]}'?" if close else f"Targets: {', '.join(CHIP_TARGETS)}.",

@@ -2,7 +2,7 @@ from pathlib import Path
 
 import pytest
 
-from espdock.config import Config, in_ci, load_config, pip_configured_cert, resolve_ca_bundle
+from espdock.config import Config, check_target, in_ci, load_config, pip_configured_cert, resolve_ca_bundle
 from espdock.errors import ConfigError
 
 
@@ -234,3 +234,12 @@ def test_a_relative_xdg_directory_is_ignored_as_the_spec_says(tmp_path):
     assert cache_dir(env).is_relative_to(tmp_path / ".cache")
     assert state_dir(env) == tmp_path / ".local/state/espdock"
     assert xdg_dir({**env, "XDG_CACHE_HOME": "/var/cache/me"}, "XDG_CACHE_HOME", ".cache") == Path("/var/cache/me")
+
+
+@pytest.mark.parametrize(("given", "meant"), [("ESP32C3", "esp32c3"), ("esp32-s3", "esp32s3"), ("Esp32", "esp32")])
+def test_a_chip_in_another_case_or_hyphenated_is_told_its_idf_name(given, meant):
+    """`--target ESP32C3` said "unknown" with no guess (difflib's is case-sensitive), where
+    `esp32-s3` got one."""
+    with pytest.raises(ConfigError) as refused:
+        check_target(given, "--target")
+    assert refused.value.message == f"unknown --target '{given}'" and refused.value.hint == f"Did you mean '{meant}'?"

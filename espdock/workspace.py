@@ -282,20 +282,26 @@ def walk_following_links(root: str | os.PathLike[str]) -> Iterator[tuple[str, li
 class LeftOut:
     """A package of the workspace that espdock does not build: WHERE (relative to the workspace
     root) is the ignore marker that leaves it out, or, with KIND, the directory colcon would build
-    as a package of that kind though it has no package.xml."""
+    as a package of that kind though it has no package.xml, or, GONE, the install prefix an
+    earlier build left of a package no longer in the sources."""
 
     where: str
     kind: str = ""
     build_type: str = ""
+    gone: bool = False
 
     @property
     def what(self) -> str:
+        if self.gone:
+            return f"{self.where} is an earlier build's, of a package no longer in the sources (renamed or removed)"
         if not self.kind:
             return f"a workspace package, which {self.where} leaves out"
         return f"{self.where}, {self.kind} with no package.xml, which espdock does not build"
 
     @property
     def fix(self) -> str:
+        if self.gone:
+            return "restore its sources (renamed: depend on its new name)"
         if not self.kind:
             return f"remove {self.where}"
         return f"add a package.xml to {self.where} (<build_type>{self.build_type}</build_type>)"
@@ -310,9 +316,11 @@ class LeftOut:
 
 def left_out(workspace: Workspace) -> dict[str, LeftOut]:
     """The packages under the workspace's package paths that espdock does not build, by name:
-    those an ignore marker leaves out (colcon does not see them either), and the projects
-    colcon would build though they have no package.xml (unmanifested). Read only to explain a
-    name nothing else provides: names are taken from the files as text."""
+    those an ignore marker leaves out (colcon does not see them either), the projects colcon
+    would build though they have no package.xml (unmanifested), and, after those, every package
+    install/ holds (of a package no longer in the sources, where the name is none of the
+    workspace's). Read only to explain a name nothing else provides: names are taken from the
+    files as text."""
     found: dict[str, LeftOut] = {}
     outputs = _outputs(workspace)
     for rel in workspace.package_paths:
@@ -331,6 +339,13 @@ def left_out(workspace: Workspace) -> dict[str, LeftOut]:
                             found.setdefault(match.group(1), LeftOut(shown))
     for name, project in unmanifested(workspace).items():
         found.setdefault(name, project)
+    # What an earlier build installed of a package renamed or removed since (colcon's marker of
+    # its install prefix): a dependency on it is no rosdep key, whose "unknown" guessed another name.
+    install = workspace.ws_dir / "install"
+    with suppress(OSError):
+        for entry in sorted(install.iterdir()):
+            if (entry / "share" / "colcon-core" / "packages" / entry.name).is_file():
+                found.setdefault(entry.name, LeftOut(os.path.relpath(entry, workspace.root), gone=True))
     return found
 
 

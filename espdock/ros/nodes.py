@@ -87,14 +87,10 @@ def find_executable(workspace: Workspace, packages: tuple[Package, ...], package
             f"board, and `espdock monitor {package} --port PORT` shows its output.",
         )
     if package not in ros:
-        # A package an ignore marker leaves out, or a project colcon would build without a
-        # package.xml: said as the build says it.
+        # A package an ignore marker leaves out, a project colcon would build without a package.xml,
+        # or one renamed or removed on this branch ("Did you mean" offered another package by its
+        # letters): said as the build says it.
         why = f": {out.what}" if (out := left_out(workspace).get(package)) else ""
-        if not why and (install / package).is_dir():
-            # Renamed or removed on this branch: "Did you mean" offered another package by its letters.
-            why = (
-                f": install/{package} is an earlier build's, of a package no longer in the sources (renamed or removed)"
-            )
         # Among those it could run, or might once built: a renamed package's old name got an
         # (installed) interface package's.
         offered = [name for name in ros if name in runnable or not (install / name).is_dir()]

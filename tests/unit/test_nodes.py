@@ -226,6 +226,9 @@ def test_run_of_a_package_espdock_leaves_out_says_what_leaves_it_out(ws):
         ),
     ):
         (workspace.ws_dir / "install/talk_old/lib/talk_old").mkdir(parents=True, exist_ok=True)
+        marker = workspace.ws_dir / "install/talk_old/share/colcon-core/packages/talk_old"  # colcon's, per prefix
+        marker.parent.mkdir(parents=True, exist_ok=True)
+        marker.write_text("")
         with pytest.raises(WorkspaceError) as caught:
             find_executable(workspace, packages, name, "x")
         assert caught.value.message == f"no ROS package '{name}' in this workspace: {said}"

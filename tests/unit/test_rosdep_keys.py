@@ -307,6 +307,28 @@ def test_a_dependency_on_a_workspace_package_an_ignore_marker_leaves_out_names_t
     assert "rosdep update" not in said
 
 
+def test_a_dependency_on_a_package_removed_from_the_sources_says_so_not_that_its_name_is_misspelt(tmp_path):
+    """An interface package moved out of the workspace, its install left by the last build: "no
+    rosdep rule: the key is unknown to rosdep's database (did you mean rcl_interfaces?)", and
+    "correct the name in the package.xml where it is misspelt"."""
+    root = make_workspace(tmp_path / "w", "rosdeps_xml_count")
+    depending = root / "src/rosdeps_xml_count/package.xml"
+    depending.write_text(depending.read_text().replace("</depend>", "</depend>\n  <depend>drv_interfaces</depend>", 1))
+    # What colcon's install of it leaves: its prefix, marked as a package's.
+    marker = root / "install/drv_interfaces/share/colcon-core/packages/drv_interfaces"
+    marker.parent.mkdir(parents=True)
+    marker.write_text("rosidl_default_runtime")
+    built = run(root, tmp_path, "build")
+    said = " ".join(built.stderr.split())
+    assert built.returncode == 2, said
+    assert (
+        "drv_interfaces: install/drv_interfaces is an earlier build's, of a package no longer in the sources "
+        "(renamed or removed)" in said
+    ), said
+    assert "Restore its sources (renamed: depend on its new name); or drop the dependency on it" in said, said
+    assert "misspelt" not in said and "did you mean" not in said.lower(), said
+
+
 def test_a_dependency_on_a_vendored_cmake_project_without_a_package_xml_names_the_project(tmp_path):
     """A plain CMake library vendored into src/ (colcon builds it as a `cmake` package): a
     package depending on it was "no rosdep rule" for its name, or, without rosdep's sources,

@@ -21,6 +21,7 @@ from espdock.images import volume as workspace_volume
 from espdock.images.engine import Engine
 from espdock.images.prune import (
     GB,
+    has_record,
     images_total,
     prune_images,
     read_records,
@@ -95,7 +96,16 @@ def prune(
     layers_before = None if dry_run else engine.layers_size()
     current = current_tags(ws, config, env=os.environ) if ws is not None else set()
     root = str(ws.root) if ws is not None else ""
-    plan, busy = prune_images(engine, state_dir(os.environ), root, current, keep, all_workspaces, dry_run)
+    state = state_dir(os.environ)
+    if ws is not None and not all_workspaces and not has_record(state, ws.root):
+        # Said, not a bare "0 images": a CI job whose HOME is new each time records nothing, and
+        # its images pile up on a shared engine.
+        notify(
+            f"note: no build of {ws.root} recorded its images in {state} (each build does): nothing of this "
+            "workspace's to prune here. Builds with another HOME or ESPDOCK_STATE_DIR (a CI job's fresh home) "
+            "recorded theirs elsewhere: give them one ESPDOCK_STATE_DIR that lasts"
+        )
+    plan, busy = prune_images(engine, state, root, current, keep, all_workspaces, dry_run)
     layers_after = None if dry_run else engine.layers_size()
     verb = "would remove" if dry_run else "removed"
     for decision in plan.remove:

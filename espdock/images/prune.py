@@ -63,6 +63,11 @@ def _record_path(state: Path, root: Path | str) -> Path:
     return state / "workspaces" / f"{root_key(root)}.json"
 
 
+def has_record(state: Path, root: Path | str) -> bool:
+    """Whether a build of the workspace at ROOT recorded the images it used in STATE."""
+    return _record_path(state, root).is_file()
+
+
 @contextmanager
 def _changing(path: Path) -> Iterator[None]:
     """Hold the record at PATH for one read, change and write: two commands of a workspace at once

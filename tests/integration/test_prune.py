@@ -73,6 +73,13 @@ def test_prune_keeps_what_is_used_and_removes_the_rest(engine, tmp_path):
 
         dry = espdock("prune", "--keep", "0", "--dry-run", cwd=first, env=env)
         assert dry.returncode == 0, dry.stdout + dry.stderr
+        assert "recorded its images" not in dry.stdout + dry.stderr
+        # A CI job's fresh HOME has no records: it said "would remove 0 images" and no more.
+        elsewhere = espdock("prune", "--dry-run", cwd=first, env={"ESPDOCK_STATE_DIR": str(tmp_path / "fresh")})
+        said = " ".join(elsewhere.stdout.split())
+        assert elsewhere.returncode == 0 and "would remove 0 images" in said, said + elsewhere.stderr
+        assert f"note: no build of {first} recorded its images in {tmp_path / 'fresh'}" in said, said
+        assert "give them one ESPDOCK_STATE_DIR that lasts" in said, said
         assert on_engine(engine) & everything == present, "a dry run removed images"
         for tag in gone:
             assert f"would remove {tag} (" in dry.stdout, dry.stdout

@@ -171,15 +171,19 @@ def test(
             say(f"{written} result file(s) copied to {results}")
         else:  # the tests' outcome still decides the exit code
             say(Text.assemble(("results not copied: ", "yellow"), unwritten.message))
+    # The tests' failure decides the exit code; a cache it could not publish is said with it, not
+    # left to two warnings above (a main branch's job lost its cache without an error line).
+    also = f" Also {unpushed_error(unpushed, config.cache_registry, '').message}." if unpushed else ""
     failing = [r for r in found.values() if not r.ok]
     if failing:
         raise TestsFailed(
             f"tests failed in {', '.join(r.package for r in failing)}: "
             + "; ".join(", ".join(r.failing[:5]) + (" ..." if len(r.failing) > 5 else "") for r in failing),
-            "Each package's output and result files are listed above; fix the tests and run `espdock test` again.",
+            "Each package's output and result files are listed above; fix the tests and run `espdock test` again."
+            + also,
         )
     if code != 0:
-        raise TestsFailed(f"colcon test failed (exit code {code})", "Its output is above.")
+        raise TestsFailed(f"colcon test failed (exit code {code})", "Its output is above." + also)
     if unwritten is not None:
         raise unwritten
     if unpushed:

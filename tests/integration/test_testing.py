@@ -31,6 +31,7 @@ from tests.conftest import (
     leftover_containers,
     reader_exits_at,
 )
+from tests.ports import free_port
 from tests.ros_official_double.build import build_double, settings
 from tests.rosdep_db import environment
 
@@ -223,12 +224,17 @@ def test_the_tests_build_keeps_a_selection_s_own_symlink_install(tmp_path, engin
     linked = root / "install/tested_py/share/tested_py/package.xml"
     selected = espdock("build", "tested_py", "--", "--symlink-install", cwd=root, env=env)
     assert selected.returncode == 0 and linked.is_symlink(), selected.stdout[-3000:] + selected.stderr
-    tested = espdock("test", "tested_py", cwd=root, env=env)
+    # A main branch's job, its cache registry down: the failed tests decide the exit code, and the
+    # error says the cache went unpublished as well (it was two warnings among the build's lines).
+    registry = f"127.0.0.1:{free_port()}"
+    tested = espdock("test", "tested_py", "--push-cache", cwd=root, env={**env, "ESPDOCK_CACHE_REGISTRY": registry})
     assert tested.returncode == 10, tested.stdout[-3000:] + tested.stderr  # tested_py's failing test
     said = " ".join((tested.stdout + tested.stderr).split())
     assert "building with --symlink-install, as the last builds of the packages tested were" in said, said
     assert linked.is_symlink(), "install/ is as the last build of the package made it"
     assert "removed the build dirs" not in said
+    failed = " ".join(tested.stderr.split())
+    assert re.search(rf"Also --push-cache: \d+ image\(s\) not pushed to {re.escape(registry)}: ", failed), failed
 
 
 def test_a_symlink_install_the_defaults_file_turns_on_leaves_the_plain_build_up_to_date_after_the_tests(

@@ -451,9 +451,15 @@ def current_rosdep_inputs(
     """INPUTS with a rosdep lock that answers for the packages: the current one; else, unless
     LOCKED (which refuses a stale one), one made now. Where rosdep's database cannot be fetched,
     the lock as it is, when it answers for the packages BUILT (default: all). The second value
-    says what was done. IGNORED: as for rosdeps.check_dependencies."""
-    _, _, reason = _rosdep_state(config, packages, inputs)
+    says what was done (or, the lock current for the build, that its test part is not).
+    IGNORED: as for rosdeps.check_dependencies."""
+    image, _, reason = _rosdep_state(config, packages, inputs)
     if reason is None:
+        lock = rosdeps.read_lock(inputs.rosdep_lock, ROSDEP_LOCK)
+        if lock is not None and (tests := testdeps.stale_reason(lock, packages, image, ROSDEP_LOCK)):
+            # A build needs only the build part, and a rename left the test part naming the old
+            # package: the lock committed after the build then stopped CI's `espdock test --locked`.
+            return inputs, f"note: {tests}; `espdock lock` (or `espdock test`) refreshes it before you commit it"
         return inputs, None
     if locked:
         raise stale_rosdep_lock(root, reason)

@@ -508,6 +508,21 @@ def test_offline_espdock_test_goes_on_with_the_lock_as_it_is_where_it_answers(tm
     assert "need nothing more from rosdep" not in said and "Meanwhile" not in said
 
 
+def test_a_build_says_when_the_lock_s_test_part_is_stale(tmp_path):
+    """A package renamed, then `espdock build` (the lock's build part current: nothing in it named
+    the package) and the lock committed: CI's `espdock test --locked` refused its test part, still
+    naming the old name, of which the build had said nothing."""
+    root = make_workspace(tmp_path / "w", "tested_py")
+    assert run(root, tmp_path, "lock").returncode == 0
+    manifest = root / "src/tested_py/package.xml"
+    manifest.write_text(manifest.read_text().replace("<name>tested_py</name>", "<name>probe_py</name>"))
+    built = run(root, tmp_path, "build")
+    said = " ".join((built.stdout + built.stderr).split())
+    assert built.returncode == 3, said  # past the plan, on to the engine
+    assert "rosdep.lock.json (its test part) is stale" in said and "probe_py" in said, said
+    assert "`espdock lock` (or `espdock test`) refreshes it before you commit it" in said, said
+
+
 def test_rosdep_s_sources_behind_a_tls_intercepting_proxy_are_read_with_the_ca_bundle(tmp_path):
     """The company's proxy re-signs GitHub with its own CA, which ca_bundle (ESPDOCK_CA_BUNDLE)
     names as the docs say: uv took it, and `rosdep update` did not (its urllib checks against the

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import threading
 import time
 from collections.abc import Sequence
 from typing import TYPE_CHECKING, assert_never
@@ -56,7 +57,11 @@ class Reporter:
     """Turns events into terminal output; verbose shows image build logs too.
 
     Without a terminal (CI logs) there is no live status line: every line is printed,
-    image build progress included, optionally after a UTC timestamp (TIMESTAMPS)."""
+    image build progress included, optionally after a UTC timestamp (TIMESTAMPS), and a step
+    silent for SILENT seconds (a cache push, a long CMake configure) is said to be still running."""
+
+    SILENT = 60.0
+    _LOOK_EVERY = 5.0
 
     def __init__(self, console: Console, verbose: bool = False, timestamps: bool = False) -> None:
         self.console = console
@@ -64,12 +69,42 @@ class Reporter:
         self.timestamps = timestamps
         self.finished: list[StepFinished] = []
         self._status: Status | None = None
+        # The step running without a terminal, since when, and when anything was last printed:
+        # what the watcher thread reads (under _lock, which every print takes).
+        self._lock = threading.RLock()
+        self._running: tuple[str, float] | None = None
+        self._printed = time.monotonic()
+        self._watcher: threading.Thread | None = None
+        self._closed = threading.Event()
 
     def _print(self, text: Text, **options: object) -> None:
-        self.console.print(stamped(text) if self.timestamps else text, **options)
+        with self._lock:
+            self._printed = time.monotonic()
+            self.console.print(stamped(text) if self.timestamps else text, **options)
+
+    def _watch(self) -> None:
+        while not self._closed.wait(self._LOOK_EVERY):
+            with self._lock:
+                now = time.monotonic()
+                if self._running is None or now - self._printed < self.SILENT:
+                    continue
+                step, started = self._running
+                said = f"  {step}: still running, {now - started:.0f} s in, {now - self._printed:.0f} s without output"
+                self._printed = now
+                try:  # written as _line writes; a closed output is the command's to find, not this thread's
+                    stamp = time.strftime("%H:%M:%S ", time.gmtime()) if self.timestamps else ""
+                    self.console.file.write(f"{stamp}{said}\n")
+                    self.console.file.flush()
+                except (OSError, ValueError):
+                    return
 
     def line(self, text: str | Text) -> None:
         """Print TEXT (a tool's output line as it is, or espdock's own), timestamped when asked."""
+        with self._lock:
+            self._printed = time.monotonic()
+            self._line(text)
+
+    def _line(self, text: str | Text) -> None:
         if isinstance(text, str) and self._status is None and not self.console.is_terminal:
             # A tool's output into a log or pipe, where rich has nothing to style: written as
             # rich would (control codes stripped, tabs expanded, no wrapping) at a twentieth of
@@ -90,7 +125,12 @@ class Reporter:
                     self._status = self.console.status(Text(event.step, style="bold"))
                     self._status.start()
                 else:
-                    self._print(Text(event.step, style="bold"))
+                    with self._lock:
+                        self._running = (event.step, time.monotonic())
+                        self._print(Text(event.step, style="bold"))
+                    if self._watcher is None:
+                        self._watcher = threading.Thread(target=self._watch, name="espdock-silence", daemon=True)
+                        self._watcher.start()
             case StepNote():
                 self._print(Text(f"  {event.text}", style="dim"))
             case StepOutput(status=True):
@@ -102,6 +142,7 @@ class Reporter:
             case StepOutput():
                 self.line(event.line)
             case StepFinished():
+                self._running = None
                 if self._status is not None:
                     self._status.stop()
                     self._status = None
@@ -120,6 +161,7 @@ class Reporter:
                 assert_never(event)
 
     def close(self) -> None:
+        self._closed.set()
         if self._status is not None:
             self._status.stop()
             self._status = None

@@ -437,6 +437,36 @@ def test_without_a_terminal_every_line_is_printed_and_timestamps_are_optional():
     assert lines and all(re.match(r"\d\d:\d\d:\d\d ", line) for line in lines), lines
 
 
+def test_a_step_silent_in_a_log_is_said_to_be_still_running_until_it_finishes(monkeypatch):
+    """A CI log: a cache push of 40 s, a CMake configure of 75 s printed nothing between the step's
+    name and its end, where a terminal's status line shows it alive."""
+    import io
+    import re
+
+    from rich.console import Console
+
+    from espdock.cli.ui import Reporter
+    from espdock.events import StepStarted
+
+    monkeypatch.setattr(Reporter, "SILENT", 0.3)
+    monkeypatch.setattr(Reporter, "_LOOK_EVERY", 0.02)
+    out = io.StringIO()
+    reporter = Reporter(Console(file=out, force_terminal=False, width=200))
+    try:
+        reporter(StepStarted("image espdock/ros-jazzy-build"))
+        deadline = time.monotonic() + 10
+        while "still running" not in out.getvalue() and time.monotonic() < deadline:
+            time.sleep(0.02)
+        assert re.search(r"^  image espdock/ros-jazzy-build: still running, \d+ s in, \d+ s without output$",
+                         out.getvalue(), re.M), out.getvalue()  # fmt: skip
+        reporter(StepFinished("image espdock/ros-jazzy-build", Outcome.PULLED, 1.0, ""))
+        said = out.getvalue()
+        time.sleep(0.6)  # twice the silence: a finished step is no longer said
+        assert out.getvalue() == said
+    finally:
+        reporter.close()
+
+
 def test_a_tool_s_output_reaches_a_log_exactly_as_rich_prints_it():
     import io
 

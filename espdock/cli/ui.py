@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import threading
 import time
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from typing import TYPE_CHECKING, assert_never
 
 from rich.console import Console
@@ -326,14 +326,18 @@ def render_pins(console: Console, pinned: list[Source], idf: IdfPin | None) -> N
         console.print(f"pinned IDF_IMAGE in {IDF_DOCKERFILE} to its digest")
 
 
-def render_packages(console: Console, workspace: Workspace, packages: tuple[Package, ...]) -> None:
-    """`espdock list`: PACKAGES (in build order) with kind, build type and workspace dependencies."""
+def render_packages(
+    console: Console, workspace: Workspace, packages: tuple[Package, ...], chips: Mapping[str, str]
+) -> None:
+    """`espdock list`: PACKAGES (in build order) with kind, build type (a firmware's with its chip,
+    CHIPS) and workspace dependencies."""
     table = _table(title=str(workspace.root), title_justify="left")
     for column in ("package", "kind", "build type", "depends on (in workspace)"):
         # Folded at a narrow terminal: cut with an ellipsis, `camera…` named no package.
         table.add_column(column, overflow="fold")
     names = {p.name for p in packages}
     for p in packages:
-        table.add_row(p.name, p.kind.value, p.build_type, ", ".join(sorted(p.depends & names)))
+        build_type = f"{p.build_type} ({chips[p.name]})" if p.name in chips else p.build_type
+        table.add_row(p.name, p.kind.value, build_type, ", ".join(sorted(p.depends & names)))
     # Into a pipe or a file, at the table's own width: a name cut at 80 columns is another name.
     wide(console).print(table)

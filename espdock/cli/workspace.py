@@ -38,6 +38,7 @@ from espdock.config import check_target, in_ci, invoking_user, no_cache_registry
 from espdock.errors import ConfigError, EspdockError, WorkspaceError
 from espdock.events import Outcome
 from espdock.firmware import transport
+from espdock.firmware.plan import declared_chips
 from espdock.firmware.scaffold import (
     GITIGNORE,
     check_new_package,
@@ -479,14 +480,15 @@ def list_packages(
     ] = False,
 ) -> None:
     """List the workspace's packages in build order."""
-    ws, _ = load(workspace)
+    ws, config = load(workspace)
     packages = workspace_packages(ws)
     if names:
         # A script's input: the names alone on stdout (a table's borders and title were all there
         # was to parse), what espdock warns of on stderr.
         console.print("\n".join(p.name for p in packages), markup=False, highlight=False, soft_wrap=True)
     else:
-        render_packages(console, ws, packages)
+        firmware = tuple(p for p in packages if p.kind is PackageKind.FIRMWARE)
+        render_packages(console, ws, packages, declared_chips(config, read_build_inputs(ws, firmware), firmware))
     said = [project.not_built(name) for name, project in unmanifested(ws).items()] + search_warnings(ws)
     for line in said:
         if names:

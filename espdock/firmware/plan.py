@@ -336,6 +336,18 @@ def sdkconfig_target(data: bytes) -> str | None:
     return (value[1:-1] if len(value) > 1 and value[0] == value[-1] == '"' else value) or None
 
 
+def declared_chips(config: Config, inputs: BuildInputs, packages: Iterable[Package]) -> dict[str, str]:
+    """The chip each firmware package among PACKAGES builds for as `espdock list` shows it: its
+    CONFIG_IDF_TARGET, else the workspace's `target` (unchecked: package_target refuses a bad one
+    before a build)."""
+    return {
+        p.name: declared_target(inputs.sdkconfig_defaults.get(p.name, {}), inputs.sdkconfig_order.get(p.name, ()))
+        or config.target
+        for p in packages
+        if p.kind is PackageKind.FIRMWARE
+    }
+
+
 def package_target(config: Config, inputs: BuildInputs, firmware: Package, override: str | None = None) -> str:
     """The chip FIRMWARE builds for: OVERRIDE (--target), else CONFIG_IDF_TARGET in its
     sdkconfig.defaults, else the workspace's `target`. Refused (before anything builds) when the

@@ -119,6 +119,22 @@ def test_list_shows_packages_in_build_order(tmp_path):
     assert "warning: ESPDOCK_TARGETT is no espdock setting" in " ".join(bare.stderr.split())
 
 
+def test_list_shows_each_firmware_package_s_chip(tmp_path):
+    """Two chips in one workspace: `micro-ros status` was the only place a firmware's chip showed."""
+    root = copy_workspace(tmp_path / "w")
+    shutil.copytree(REPO / "firmware", root / "firmware")
+    listed = espdock("list", cwd=root, env={**NO_ENGINE, "COLUMNS": "200"})
+    assert listed.returncode == 0, listed.stderr
+    rows = {
+        cells[0]: cells[1:]
+        for line in listed.stdout.splitlines()
+        if len(cells := [c.strip() for c in line.split("│")[1:-1]]) == 4
+    }
+    assert rows["led_strip_node"][1] == "esp_idf (esp32c3)", listed.stdout  # its CONFIG_IDF_TARGET
+    assert rows["camera_node"][1] == "esp_idf (esp32)", listed.stdout  # espdock.toml's target
+    assert rows["custom_interface"][1] == "ament_cmake", listed.stdout
+
+
 def test_list_at_a_narrow_terminal_folds_the_names_it_cannot_fit(tmp_path):
     """At 40 columns every name was cut with an ellipsis (`custom…`, `camera…`): no package's name."""
     root = copy_workspace(tmp_path / "w", packages=("custom_interface", "espdock_demo", "espdock_demo_testing"))

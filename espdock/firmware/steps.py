@@ -11,7 +11,7 @@ import posixpath
 import re
 import shutil
 import sys
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import replace
 from pathlib import Path
 
@@ -96,11 +96,11 @@ class FirmwareSteps:
         # The same directories after: the build's project_description.json may name more.
         roots = _stamp_roots(workspace, step)
         seen = _source_times(roots)
-        missing: set[str] = set()
+        missing: dict[str, str] = {}  # each header not found, by the file that includes it
         hints: list[str] = []
 
         def on_line(line: str) -> None:
-            missing.update(missing_headers(line))
+            missing.update((header, source) for source, header in missing_includes(line))
             if (hint := failure_hint(line)) and hint not in hints:
                 hints.append(hint)
             self.containers.emit(StepOutput(step.name, host_paths(line, workspace)))
@@ -125,6 +125,7 @@ class FirmwareSteps:
                 f"idf.py build of {step.package} failed (exit code {code}); its output is above, "
                 f"build files in {build_dir}",
                 undeclared_interface_hint(step, missing)
+                or unrequired_library_hint(workspace, step, missing)
                 or " ".join(
                     [*hints, "Fix the firmware and run `espdock build` again; installed firmware was left as it was."]
                 ),
@@ -849,11 +850,41 @@ def _device_groups(devices: tuple[str, ...]) -> list[int]:
 
 # gcc's words for an #include it cannot find: `main.c:3:10: fatal error: pkg/msg/x.h: No such file or directory`.
 _MISSING_HEADER = re.compile(r"fatal error: ([^\s:]+): No such file or directory")
+_MISSING_INCLUDE = re.compile(r"^(\S+?):\d+:\d+: fatal error: ([^\s:]+): No such file or directory")
+# The micro-ROS library's headers: its interface packages' and its client library's.
+_LIBRARY_HEADER = re.compile(r"^(?:[a-z][a-z0-9_]*/(?:msg|srv|action)/|rclc/|rcl/|rmw_microros/|micro_ros_utilities/)")
 
 
 def missing_headers(line: str) -> list[str]:
     """The headers LINE (the compiler's output) says it could not find."""
     return _MISSING_HEADER.findall(line)
+
+
+def missing_includes(line: str) -> list[tuple[str, str]]:
+    """(the file that includes it, the header) for a header LINE says the compiler could not find."""
+    return [(match.group(1), match.group(2))] if (match := _MISSING_INCLUDE.match(line.strip())) else []
+
+
+def unrequired_library_hint(workspace: Workspace, step: IdfBuild, missing: Mapping[str, str]) -> str | None:
+    """The hint for a build that failed on a micro-ROS header (MISSING: header -> the file in the
+    container that includes it) in a component of the workspace other than the project's main,
+    which requires every component: the others see only the components they name."""
+    for header, source in missing.items():
+        host = host_path(source, workspace.root)
+        if not _LIBRARY_HEADER.match(header) or host is None:
+            continue
+        main = workspace.root / step.project / "main"
+        places = (d for d in host.parents if d.is_relative_to(workspace.root))
+        component = next((d for d in places if (d / "CMakeLists.txt").is_file()), None)
+        if component is None or component == main or component == workspace.root / step.project:
+            continue
+        return (
+            f"{header} is the micro-ROS library's, and {component.relative_to(workspace.root)} does not require its "
+            "component: add `PRIV_REQUIRES micro_ros_espidf_component` (`REQUIRES` where its own headers include "
+            "micro-ROS's) to its idf_component_register (main requires every component; the others only those "
+            "they name). Installed firmware was left as it was."
+        )
+    return None
 
 
 # IDF's words (CMake's FATAL_ERROR, its first line) for a project set up for another world, and what to do.

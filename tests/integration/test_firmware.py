@@ -593,6 +593,30 @@ def test_a_broken_firmware_build_keeps_the_installed_firmware(fw_ws, double_env,
     assert leftover_containers(engine, root) == []
 
 
+def test_a_component_that_includes_micro_ros_without_requiring_it_is_told_how(fw_ws, double_env):
+    """A component of the workspace's own that includes an interface's header: IDF gives it only
+    the components it names (main gets every one), and the compiler's "No such file" was followed
+    by "Fix the firmware"; the component to require is named nowhere but espdock's own glue."""
+    root, first = fw_ws
+    assert first.returncode == 0
+    component = root / "firmware/components/board_pub"
+    component.mkdir()
+    (component / "CMakeLists.txt").write_text('idf_component_register(SRCS "board_pub.c" INCLUDE_DIRS ".")\n')
+    (component / "board_pub.c").write_text(
+        '#include "std_msgs/msg/string.h"\nint board_pub_ready(void) { return 1; }\n'
+    )
+    try:
+        failed = espdock("build", "led_strip_node", "--only", "firmware", cwd=root, env=double_env)
+    finally:
+        shutil.rmtree(component)
+    said = " ".join(failed.stderr.split())
+    assert failed.returncode == 5, failed.stdout[-2000:] + said
+    assert "std_msgs/msg/string.h is the micro-ROS library's, and firmware/components/board_pub does not" in said
+    assert "add `PRIV_REQUIRES micro_ros_espidf_component`" in said, said
+    settled = espdock("build", "led_strip_node", "--only", "firmware", cwd=root, env=double_env)
+    assert settled.returncode == 0, settled.stdout[-2000:] + settled.stderr
+
+
 def test_new_defaults_set_menuconfig_s_sdkconfig_aside_and_a_failed_build_s_is_never_kept_for_others(fw_ws, double_env):
     """sdkconfig.defaults edited (and the app broken), the build failed, the edit undone and the app
     mended: the next build kept the failed build's sdkconfig, made from the undone edit, without a

@@ -342,11 +342,19 @@ def left_out(workspace: Workspace) -> dict[str, LeftOut]:
     # What an earlier build installed of a package renamed or removed since (colcon's marker of
     # its install prefix): a dependency on it is no rosdep key, whose "unknown" guessed another name.
     install = workspace.ws_dir / "install"
-    with suppress(OSError):
-        for entry in sorted(install.iterdir()):
-            if (entry / "share" / "colcon-core" / "packages" / entry.name).is_file():
-                found.setdefault(entry.name, LeftOut(os.path.relpath(entry, workspace.root), gone=True))
+    for name in installed_packages(install):
+        found.setdefault(name, LeftOut(os.path.relpath(install / name, workspace.root), gone=True))
     return found
+
+
+def installed_packages(install: Path) -> list[str]:
+    """The packages whose prefixes colcon's isolated install INSTALL holds (colcon-core marks
+    each), by name."""
+    try:
+        entries = sorted(install.iterdir())
+    except OSError:
+        return []
+    return [entry.name for entry in entries if (entry / "share" / "colcon-core" / "packages" / entry.name).is_file()]
 
 
 def unmanifested(workspace: Workspace) -> dict[str, LeftOut]:

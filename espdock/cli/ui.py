@@ -82,6 +82,9 @@ class Reporter:
             self._printed = time.monotonic()
             self.console.print(stamped(text) if self.timestamps else text, **options)
 
+    def _stamp(self) -> str:
+        return time.strftime("%H:%M:%S ", time.gmtime()) if self.timestamps else ""
+
     def _watch(self) -> None:
         while not self._closed.wait(self._LOOK_EVERY):
             with self._lock:
@@ -92,8 +95,7 @@ class Reporter:
                 said = f"  {step}: still running, {now - started:.0f} s in, {now - self._printed:.0f} s without output"
                 self._printed = now
                 try:  # written as _line writes; a closed output is the command's to find, not this thread's
-                    stamp = time.strftime("%H:%M:%S ", time.gmtime()) if self.timestamps else ""
-                    self.console.file.write(f"{stamp}{said}\n")
+                    self.console.file.write(f"{self._stamp()}{said}\n")
                     self.console.file.flush()
                 except (OSError, ValueError):
                     return
@@ -109,9 +111,9 @@ class Reporter:
             # A tool's output into a log or pipe, where rich has nothing to style: written as
             # rich would (control codes stripped, tabs expanded, no wrapping) at a twentieth of
             # its cost per line, which a test suite's thousands of lines add up to seconds of.
-            stamp = time.strftime("%H:%M:%S ", time.gmtime()) if self.timestamps else ""
             try:
-                self.console.file.write(f"{stamp}{strip_control_codes(text).expandtabs(self.console.tab_size)}\n")
+                line = strip_control_codes(text).expandtabs(self.console.tab_size)
+                self.console.file.write(f"{self._stamp()}{line}\n")
                 self.console.file.flush()
             except BrokenPipeError:  # as rich's own writes handle it
                 self.console.on_broken_pipe()

@@ -340,21 +340,20 @@ def declared_chips(config: Config, inputs: BuildInputs, packages: Iterable[Packa
     """The chip each firmware package among PACKAGES builds for as `espdock list` shows it: its
     CONFIG_IDF_TARGET, else the workspace's `target` (unchecked: package_target refuses a bad one
     before a build)."""
-    return {
-        p.name: declared_target(inputs.sdkconfig_defaults.get(p.name, {}), inputs.sdkconfig_order.get(p.name, ()))
-        or config.target
-        for p in packages
-        if p.kind is PackageKind.FIRMWARE
-    }
+    return {p.name: _declared(inputs, p) or config.target for p in packages if p.kind is PackageKind.FIRMWARE}
+
+
+def _declared(inputs: BuildInputs, firmware: Package) -> str | None:
+    return declared_target(
+        inputs.sdkconfig_defaults.get(firmware.name, {}), inputs.sdkconfig_order.get(firmware.name, ())
+    )
 
 
 def package_target(config: Config, inputs: BuildInputs, firmware: Package, override: str | None = None) -> str:
     """The chip FIRMWARE builds for: OVERRIDE (--target), else CONFIG_IDF_TARGET in its
     sdkconfig.defaults, else the workspace's `target`. Refused (before anything builds) when the
     package does not list it among its chips, or when micro-ROS cannot be built for it."""
-    declared = declared_target(
-        inputs.sdkconfig_defaults.get(firmware.name, {}), inputs.sdkconfig_order.get(firmware.name, ())
-    )
+    declared = _declared(inputs, firmware)
     if declared is not None:
         check_target(declared, f"CONFIG_IDF_TARGET in {firmware.name}/sdkconfig.defaults")
     target = override or declared or config.target

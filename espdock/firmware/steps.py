@@ -849,15 +849,9 @@ def _device_groups(devices: tuple[str, ...]) -> list[int]:
 
 
 # gcc's words for an #include it cannot find: `main.c:3:10: fatal error: pkg/msg/x.h: No such file or directory`.
-_MISSING_HEADER = re.compile(r"fatal error: ([^\s:]+): No such file or directory")
 _MISSING_INCLUDE = re.compile(r"^(\S+?):\d+:\d+: fatal error: ([^\s:]+): No such file or directory")
 # The micro-ROS library's headers: its interface packages' and its client library's.
 _LIBRARY_HEADER = re.compile(r"^(?:[a-z][a-z0-9_]*/(?:msg|srv|action)/|rclc/|rcl/|rmw_microros/|micro_ros_utilities/)")
-
-
-def missing_headers(line: str) -> list[str]:
-    """The headers LINE (the compiler's output) says it could not find."""
-    return _MISSING_HEADER.findall(line)
 
 
 def missing_includes(line: str) -> list[tuple[str, str]]:
@@ -869,14 +863,14 @@ def unrequired_library_hint(workspace: Workspace, step: IdfBuild, missing: Mappi
     """The hint for a build that failed on a micro-ROS header (MISSING: header -> the file in the
     container that includes it) in a component of the workspace other than the project's main,
     which requires every component: the others see only the components they name."""
+    project = workspace.root / step.project
     for header, source in missing.items():
         host = host_path(source, workspace.root)
         if not _LIBRARY_HEADER.match(header) or host is None:
             continue
-        main = workspace.root / step.project / "main"
         places = (d for d in host.parents if d.is_relative_to(workspace.root))
         component = next((d for d in places if (d / "CMakeLists.txt").is_file()), None)
-        if component is None or component == main or component == workspace.root / step.project:
+        if component in (None, project, project / "main"):
             continue
         return (
             f"{header} is the micro-ROS library's, and {component.relative_to(workspace.root)} does not require its "

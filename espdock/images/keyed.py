@@ -79,9 +79,9 @@ class KeyedImages:
         # The cache registry's images this run pulled and rejected (another key label): --push-cache
         # replaces them, where "already in the cache registry" kept them for every later run to reject.
         self._rejected: set[str] = set()
-        # Why the cache registry did not answer a pull in this run: not asked again (a registry that
-        # takes connections and never answers cost its timeout for every keyed image).
-        self._silent: str | None = None
+        # Whether the cache registry did not answer a pull in this run: not asked again (a registry
+        # that takes connections and never answers cost its timeout for every keyed image).
+        self._silent = False
 
     def ensure_base(self, step: EnsureBaseImage) -> tuple[Outcome, str]:
         """Only an image build starts from the base: with it missing (no registry here, a cleaned-up
@@ -225,7 +225,7 @@ class KeyedImages:
             return False
         spec = step.spec
         remote = cache_ref(registry, spec.tag)
-        if self._silent is not None:
+        if self._silent:
             self.containers.emit(
                 StepNote(step.name, f"cache registry {registry} did not answer earlier in this run; building locally")
             )
@@ -234,7 +234,8 @@ class KeyedImages:
         if answer.status is RegistryStatus.DENIED:
             raise _denied(registry, "pull", answer)
         if answer.status is RegistryStatus.UNREACHABLE:
-            self._silent = why = first_line(answer.detail)
+            self._silent = True
+            why = first_line(answer.detail)
             self.containers.emit(
                 StepNote(step.name, f"warning: cache registry {registry} did not answer ({why}); building locally")
             )

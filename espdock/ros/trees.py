@@ -16,7 +16,7 @@ from pathlib import Path
 from espdock.errors import WorkspaceError
 from espdock.images.containers import give_to, make_dirs_for
 from espdock.layout import ROS_BUILD_BASE
-from espdock.workspace import write_atomically
+from espdock.workspace import installed_packages, write_atomically
 
 
 def retire_container_caches(build: Path, packages: Iterable[str], mounted_build: str) -> list[str]:
@@ -116,15 +116,7 @@ def orphan_installs(install: Path, packages: Iterable[str]) -> list[str]:
     package renamed or removed since it was built. colcon leaves them, and its setup scripts and
     `ros2 run` still find them (a firmware package's `flash` then fails: no such package)."""
     names = set(packages)
-    try:
-        entries = sorted(install.iterdir())
-    except OSError:
-        return []
-    return [
-        entry.name
-        for entry in entries
-        if entry.name not in names and (entry / "share" / "colcon-core" / "packages" / entry.name).is_file()
-    ]
+    return [name for name in installed_packages(install) if name not in names]
 
 
 def package_trees(ws_dir: Path, name: str) -> list[str]:

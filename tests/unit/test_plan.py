@@ -183,7 +183,7 @@ def test_a_firmware_build_failing_on_a_header_of_an_interface_package_it_does_no
     the package depends on, and the build said "No such file or directory" and "Fix the firmware"."""
     import subprocess
 
-    from espdock.firmware.steps import missing_headers, undeclared_interface_hint
+    from espdock.firmware.steps import missing_includes, undeclared_interface_hint
 
     walk = Package("walk_msgs", Path("/w/ws/src/walk_msgs"), PackageKind.ROS, "ament_cmake", frozenset(), True)
     used = Package("used_msgs", Path("/w/ws/src/used_msgs"), PackageKind.ROS, "ament_cmake", frozenset(), True)
@@ -196,7 +196,7 @@ def test_a_firmware_build_failing_on_a_header_of_an_interface_package_it_does_no
     source = tmp_path / "main.c"
     source.write_text("#include <walk_msgs/msg/reading.h>\n#include <used_msgs/msg/other.h>\n")
     said = subprocess.run(["gcc", "-c", str(source), "-o", "/dev/null"], capture_output=True, text=True, check=False)
-    missing = [header for line in said.stderr.splitlines() for header in missing_headers(line)]
+    missing = [header for line in said.stderr.splitlines() for _, header in missing_includes(line)]
     assert missing == ["walk_msgs/msg/reading.h"], said.stderr  # gcc stops at the first
     hint = undeclared_interface_hint(build, missing)
     assert hint is not None and "add <depend>walk_msgs</depend> to firmware/led/package.xml" in hint, hint
